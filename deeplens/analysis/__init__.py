@@ -1,0 +1,1 @@
+"""Lens analysis: paraxial data, spot diagrams, pupils."""

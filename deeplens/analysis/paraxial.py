@@ -1,0 +1,90 @@
+"""Paraxial (first-order) analysis by y-u ray tracing.
+
+At surface ``i`` with vertex curvature ``c_i`` between indices ``n`` and ``n'``:
+
+    refraction:  n' u' = n u - y c_i (n' - n)        transfer:  y <- y + t u'
+
+Two rays are traced from the first vertex: ``A = (y=1, u=0)`` and ``B = (y=0, u=1)``.  Then
+``EFL = -1 / u_A'`` (image space), ``BFL = -y_A / u_A'`` at the last vertex; the entrance pupil
+(the stop's image in object space) lies ``y_B,stop / y_A,stop`` behind the first vertex and has
+diameter ``2 r_stop / |y_A,stop|``; ``F/# = EFL / EPD``.  For an object at distance ``s`` the
+paraxial image lies ``-y/u'`` behind the last vertex for the ray ``s A + B``.
+All quantities are differentiable torch scalars in mm, at the primary wavelength.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+__all__ = ["paraxial", "ParaxialData"]
+
+
+@dataclass
+class ParaxialData:
+    """First-order data (mm); ``*_z`` are absolute axial positions in the lens frame."""
+
+    efl: torch.Tensor
+    bfl: torch.Tensor
+    image_distance: torch.Tensor  # from the last vertex to the paraxial image of the object
+    image_z: torch.Tensor
+    entrance_pupil_z: torch.Tensor
+    entrance_pupil_position: torch.Tensor  # relative to the first vertex
+    entrance_pupil_diameter: torch.Tensor
+    fno: torch.Tensor
+    stop_height_per_ep_height: torch.Tensor
+    wavelength_nm: float
+
+
+def _trace(lens, y, u, n):
+    """Trace a paraxial ray (y, u at the first vertex, in object space) to the last vertex.
+
+    Returns the ray after the last surface and the height at every vertex."""
+    heights = []
+    dist = list(lens.distances)
+    for i, s in enumerate(lens.surfaces):
+        if i > 0:
+            y = y + dist[i] * u
+        heights.append(y)
+        c = s.paraxial_curvature().to(y)
+        u = (n[i] * u - y * c * (n[i + 1] - n[i])) / n[i + 1]
+    return y, u, heights
+
+
+def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
+    """Paraxial data of ``lens`` at ``wavelength_nm`` (default: the spec's primary wavelength).
+
+    Raises:
+        ValueError: if the system is afocal (no EFL) or the stop is not imaged (``y_A = 0``).
+    """
+    w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
+    p0 = lens.distances[0]
+    wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
+    n = [m.n(wt).to(p0) for m in lens.materials]
+    one, zero = torch.ones_like(p0), torch.zeros_like(p0)
+    yA, uA, hA = _trace(lens, one, zero, n)
+    _, _, hB = _trace(lens, zero, one, n)
+    if abs(float(uA)) < 1e-15:
+        raise ValueError("the system is afocal: the paraxial EFL is infinite")
+    efl = -1.0 / uA
+    bfl = -yA / uA
+    k = lens.stop_index
+    ya_s, yb_s = hA[k], hB[k]
+    if abs(float(ya_s)) < 1e-15:
+        raise ValueError("the stop is at an image of the object: no entrance pupil")
+    z0 = lens.z_vertices()[0]
+    ep_pos = yb_s / ya_s
+    epd = 2.0 * lens.stop.semi_diameter.to(p0) / ya_s.abs()
+    s = float(lens.spec.object_distance_mm)
+    if math.isinf(s):
+        img = bfl
+    else:
+        y, u, _ = _trace(lens, s * one, one, n)
+        img = -y / u
+    z_last = lens.z_vertices()[-1]
+    return ParaxialData(efl=efl, bfl=bfl, image_distance=img, image_z=z_last + img,
+                        entrance_pupil_z=z0 + ep_pos, entrance_pupil_position=ep_pos,
+                        entrance_pupil_diameter=epd, fno=efl / epd,
+                        stop_height_per_ep_height=ya_s, wavelength_nm=w)

@@ -1,0 +1,186 @@
+"""Real-ray analysis: entrance pupils found by tracing, spot diagrams, RMS spot, chief ray.
+
+RMS spot radius (centroid-referenced) of the ``M`` valid rays landing at ``p_m`` on the image
+plane:  ``sqrt( (1/M) sum_m |p_m - p̄|^2 )``, ``p̄`` their centroid.
+
+Pupils (paper Sec. III-E).  ``pupil="paraxial"`` samples the paraxial entrance pupil (a disk of
+diameter EPD at the paraxial EP position) as lens-design programs do without ray aiming; rays that
+are vignetted are dropped.  ``pupil="traced"`` first traces a dense grid over that plane, keeps the
+rays that reach the image, bisects the edges of the passing region along x and y through its
+centroid, and samples the ellipse inscribed in those edges, so that a vignetted field spends its
+rays where light passes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..optics.intersect import IntersectOptions
+from ..optics.sampling import field_rays, pupil_pattern
+from .paraxial import paraxial
+
+__all__ = ["PupilRegion", "find_pupil", "spot_diagram", "chief_ray", "SpotResult",
+           "image_plane_z"]
+
+
+@dataclass
+class PupilRegion:
+    """An elliptical sampling region in the plane ``z`` (mm): centre ``(cx, cy)``, semi-axes."""
+
+    cx: float
+    cy: float
+    rx: float
+    ry: float
+    z: float
+
+    def points(self, unit_xy: torch.Tensor) -> torch.Tensor:
+        """Map unit-disk points ``(M, 2)`` into this region (mm)."""
+        out = unit_xy.clone()
+        out[:, 0] = self.cx + self.rx * unit_xy[:, 0]
+        out[:, 1] = self.cy + self.ry * unit_xy[:, 1]
+        return out
+
+
+def _passes(lens, field_deg, wavelength_nm, xy, z, options=None):
+    rays = field_rays(lens, field_deg, wavelength_nm, xy, z)
+    out = lens.trace_to_sensor(rays, options=options)
+    return out.valid
+
+
+def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "traced",
+               grid: int = 129, bisections: int = 40) -> PupilRegion:
+    """The region of the entrance-pupil plane to sample for one field (see module docstring).
+
+    Raises:
+        ValueError: for an unknown ``method``, or when no ray of the field reaches the image
+            (a fully vignetted field): the message gives the field and the search region.
+    """
+    if method not in ("paraxial", "traced"):
+        raise ValueError(f"pupil method must be 'paraxial' or 'traced', got {method!r}")
+    dtype = lens.distances[0].dtype
+    with torch.no_grad():
+        p = paraxial(lens)
+        z = float(p.entrance_pupil_z)
+        r = 0.5 * float(p.entrance_pupil_diameter)
+        if method == "paraxial":
+            return PupilRegion(0.0, 0.0, r, r, z)
+        for scale in (2.0, 4.0):
+            W = scale * r
+            v = torch.linspace(-W, W, grid, dtype=dtype)
+            X, Y = torch.meshgrid(v, v, indexing="xy")
+            xy = torch.stack([X.reshape(-1), Y.reshape(-1)], -1)
+            ok = _passes(lens, field_deg, wavelength_nm, xy, z)
+            if bool(ok.any()):
+                break
+        else:
+            raise ValueError(f"field {field_deg:g} deg at {wavelength_nm:g} nm is fully "
+                             f"vignetted: none of {grid * grid} rays over a {2 * W:.4g} mm square "
+                             f"in the entrance-pupil plane (z = {z:.4g} mm) reaches the image")
+        c = xy[ok].mean(0)
+        if not bool(_passes(lens, field_deg, wavelength_nm, c[None], z)[0]):
+            c = xy[ok][((xy[ok] - c) ** 2).sum(-1).argmin()]
+        # bisect the edge along +x, -x, +y, -y from the centre
+        dirs = torch.tensor([[1.0, 0], [-1, 0], [0, 1], [0, -1]], dtype=dtype)
+        lo = torch.zeros(4, dtype=dtype)
+        hi = torch.full((4,), 2 * scale * r, dtype=dtype)
+        for _ in range(bisections):
+            mid = 0.5 * (lo + hi)
+            okm = _passes(lens, field_deg, wavelength_nm, c + mid[:, None] * dirs, z)
+            lo = torch.where(okm, mid, lo)
+            hi = torch.where(okm, hi, mid)
+        xp, xm, yp, ym = lo.tolist()
+        cx, cy = float(c[0]), float(c[1])
+        return PupilRegion(cx + 0.5 * (xp - xm), cy + 0.5 * (yp - ym), 0.5 * (xp + xm),
+                           0.5 * (yp + ym), z)
+
+
+def image_plane_z(lens, image_plane="sensor"):
+    """Axial position of the evaluation plane: ``"sensor"``, ``"paraxial"`` or a number (mm)."""
+    if image_plane == "sensor":
+        return lens.z_sensor()
+    if image_plane == "paraxial":
+        return paraxial(lens).image_z
+    if isinstance(image_plane, (int, float)):
+        return torch.as_tensor(float(image_plane), dtype=lens.distances[0].dtype)
+    raise ValueError(f"image plane must be 'sensor', 'paraxial' or a z position in mm, got "
+                     f"{image_plane!r}")
+
+
+@dataclass
+class SpotResult:
+    """Spot of one field and wavelength; positions in mm on the image plane."""
+
+    field_deg: float
+    wavelength_nm: float
+    points: torch.Tensor  # (M_valid, 2) mm
+    centroid: torch.Tensor  # (2,) mm
+    rms_radius: torch.Tensor  # mm (differentiable)
+    n_rays: int
+    n_launched: int
+
+
+def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "hexapolar:18",
+                 pupil: str = "traced", image_plane="sensor", options=None,
+                 region: PupilRegion | None = None) -> SpotResult:
+    """Trace a pupil pattern of one field to the image plane; gradients flow to the lens.
+
+    Raises:
+        ValueError: when no ray reaches the image (names the field).
+    """
+    dtype = lens.distances[0].dtype
+    if region is None:
+        region = find_pupil(lens, field_deg, wavelength_nm, pupil)
+    unit = pupil_pattern(sampling, dtype=dtype)
+    rays = field_rays(lens, field_deg, wavelength_nm, region.points(unit), region.z)
+    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane), options=options)
+    ok = out.valid
+    n = int(ok.sum())
+    if n == 0:
+        raise ValueError(f"no ray of field {field_deg:g} deg at {wavelength_nm:g} nm reaches "
+                         f"the image plane")
+    pts = out.o[..., :2][ok]
+    cen = pts.mean(0)
+    rms = torch.sqrt(((pts - cen) ** 2).sum(-1).mean())
+    return SpotResult(field_deg, wavelength_nm, pts, cen, rms, n, rays.shape[0])
+
+
+def chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor",
+              iterations: int = 30):
+    """The real chief ray (aimed by secant iterations at the stop centre).
+
+    Returns ``(y_image_mm, y_pupil_mm)``: its height on the image plane and where it crosses the
+    entrance-pupil plane.  Heights are signed: a positive field angle (rays rising towards
+    ``+y``) images to ``+y`` through an imaging lens.
+    """
+    dtype = lens.distances[0].dtype
+    with torch.no_grad():
+        p = paraxial(lens)
+        z_ep = float(p.entrance_pupil_z)
+
+        aim = IntersectOptions(clip_aperture=False)
+        z = lens.z_vertices()
+        n = lens.indices(torch.tensor(wavelength_nm, dtype=dtype))
+
+        def stop_y(yp: float) -> float:
+            xy = torch.tensor([[0.0, yp]], dtype=dtype)
+            rays = field_rays(lens, field_deg, wavelength_nm, xy, z_ep)
+            for i in range(lens.stop_index + 1):
+                rays = lens.trace_surface(i, rays, n[i], n[i + 1], z, aim,
+                                          refract_=i < lens.stop_index)
+            return float(rays.o[0, 1])
+
+        y0, y1 = 0.0, 1e-3 * max(float(p.entrance_pupil_diameter), 1e-3)
+        f0, f1 = stop_y(y0), stop_y(y1)
+        for _ in range(iterations):
+            if abs(f1) < 1e-12 or f1 == f0:
+                break
+            y0, y1, f0 = y1, y1 - f1 * (y1 - y0) / (f1 - f0), f1
+            f1 = stop_y(y1)
+    xy = torch.tensor([[0.0, y1]], dtype=dtype)
+    rays = field_rays(lens, field_deg, wavelength_nm, xy, z_ep)
+    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane))
+    y_img = out.o[0, 1] if bool(out.valid[0]) else torch.tensor(math.nan, dtype=dtype)
+    return y_img, y1

@@ -1,0 +1,278 @@
+"""The deeplens JSON lens format (version 1): read, write, validate.
+
+A lens file is a JSON object::
+
+    {
+      "format": "deeplens-lens", "version": 1, "name": "double Gauss",
+      "units": {"length": "mm", "wavelength": "nm"},
+      "object": {"distance_mm": "inf", "medium": "AIR"},
+      "aperture": {"type": "stop"} | {"type": "epd", "value": 10.0} | {"type": "fno", "value": 2.8},
+      "fields_deg": [0, 7, 14, 21],
+      "wavelengths_nm": [587.5618], "primary_wavelength_nm": 587.5618,
+      "stop": 5,
+      "surfaces": [
+        {"type": "asphere", "distance_mm": 0.0, "semi_diameter_mm": 8.7, "material": "SSK4",
+         "curvature_per_mm": 0.0749, "conic": 0.005, "aspheric": [1e-6, 1e-8]},
+        {"type": "aperture", "distance_mm": 3.86, "semi_diameter_mm": 2.443, "material": "AIR"},
+        {"type": "plane" | "xy_polynomial" | "bspline", ...}
+      ],
+      "sensor": {"distance_mm": 17.43, "semi_diameter_mm": 10.33},
+      "elements": [[0, 1], [2, 4], ...],                      (optional)
+      "misalignment": [{"dx_mm": 0, "dy_mm": 0, "tilt_x_rad": 0, "tilt_y_rad": 0}, ...]  (optional)
+    }
+
+``distance_mm`` is the axial gap from the previous vertex; ``material`` is the medium *after*
+the surface (a catalogue glass, ``AIR``, or a model glass ``"n_d/V_d"``).  Per type:
+``asphere`` takes ``curvature_per_mm`` (or ``roc_mm``, 0 = flat), optional ``conic`` and
+``aspheric`` (``[a4, a6, ...]``); ``xy_polynomial`` takes ``coefficients`` and ``b``; ``bspline``
+takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` with
+``half_width_x_mm``/``half_width_y_mm``.  Numbers are written with ``repr`` so a file round-trips
+exactly.  Every error names the file and the JSON path of the offending field.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+from ..lens import Lens, LensSpec
+from ..materials import get_material
+from ..surfaces import Aperture, Asphere, BSpline, Plane, XYPolynomial
+
+__all__ = ["load_lens", "save_lens", "lens_to_dict", "lens_from_dict", "LensFileError",
+           "FORMAT_NAME", "FORMAT_VERSION"]
+
+FORMAT_NAME = "deeplens-lens"
+FORMAT_VERSION = 1
+
+
+class LensFileError(ValueError):
+    """A lens file that cannot be read; the message names the file and the field or line."""
+
+
+class _Reader:
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, path: str, msg: str):
+        raise LensFileError(f"{self.source}: {path}: {msg}")
+
+    def get(self, obj, key, path, kind="number", default=...):
+        if not isinstance(obj, dict):
+            self.fail(path, f"expected an object, got {type(obj).__name__}")
+        if key not in obj:
+            if default is ...:
+                self.fail(f"{path}.{key}" if path else key, "missing required field")
+            return default
+        return self.check(obj[key], f"{path}.{key}" if path else key, kind)
+
+    def check(self, v, path, kind):
+        if kind == "number":
+            if isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
+                return math.inf
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                self.fail(path, f"expected a finite number, got {v!r}")
+            return float(v)
+        if kind == "number_or_inf":
+            if isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
+                return math.inf
+            if isinstance(v, float) and v == math.inf:
+                return v
+            return self.check(v, path, "number")
+        if kind == "int":
+            if isinstance(v, bool) or not isinstance(v, int):
+                self.fail(path, f"expected an integer, got {v!r}")
+            return v
+        if kind == "str":
+            if not isinstance(v, str):
+                self.fail(path, f"expected a string, got {v!r}")
+            return v
+        if kind == "numbers":
+            if not isinstance(v, list):
+                self.fail(path, f"expected a list of numbers, got {v!r}")
+            return [self.check(x, f"{path}[{i}]", "number") for i, x in enumerate(v)]
+        if kind == "grid":
+            if not isinstance(v, list) or not v or not all(isinstance(r, list) for r in v):
+                self.fail(path, f"expected a 2-D list of numbers, got {type(v).__name__}")
+            rows = [self.check(r, f"{path}[{i}]", "numbers") for i, r in enumerate(v)]
+            if len({len(r) for r in rows}) != 1:
+                self.fail(path, "rows of the coefficient grid differ in length")
+            return rows
+        raise AssertionError(kind)
+
+
+def _surface_from_dict(r: _Reader, s: dict, path: str):
+    kind = r.get(s, "type", path, "str")
+    sd = r.get(s, "semi_diameter_mm", path)
+    if kind in ("asphere", "sphere", "conic"):
+        if "curvature_per_mm" in s:
+            c = r.get(s, "curvature_per_mm", path)
+        else:
+            roc = r.get(s, "roc_mm", path)
+            c = 0.0 if roc == 0 else 1.0 / roc
+        return Asphere(c, sd, conic=r.get(s, "conic", path, default=0.0),
+                       coefficients=r.get(s, "aspheric", path, "numbers", default=[]))
+    if kind == "plane":
+        return Plane(sd)
+    if kind == "aperture":
+        shape = r.get(s, "shape", path, "str", default="circle")
+        if shape == "rect":
+            return Aperture(sd, "rect", r.get(s, "half_width_x_mm", path),
+                            r.get(s, "half_width_y_mm", path))
+        return Aperture(sd, shape)
+    if kind == "xy_polynomial":
+        return XYPolynomial(sd, r.get(s, "coefficients", path, "numbers"),
+                            b=r.get(s, "b", path, default=0.0))
+    if kind == "bspline":
+        return BSpline(sd, r.get(s, "coefficients", path, "grid"))
+    r.fail(f"{path}.type", f"unknown surface type {kind!r}; expected one of asphere, plane, "
+                           f"aperture, xy_polynomial, bspline")
+
+
+def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
+    """Build a :class:`Lens` from a lens-file dictionary; errors name ``source`` and the field."""
+    r = _Reader(source)
+    if not isinstance(data, dict):
+        r.fail("(top level)", "expected a JSON object")
+    fmt = data.get("format", FORMAT_NAME)
+    if fmt != FORMAT_NAME:
+        r.fail("format", f"expected {FORMAT_NAME!r}, got {fmt!r}")
+    version = r.get(data, "version", "", "int", default=FORMAT_VERSION)
+    if version > FORMAT_VERSION:
+        r.fail("version", f"this deeplens reads lens-file versions up to {FORMAT_VERSION}, "
+                          f"got {version}")
+    units = data.get("units", {"length": "mm", "wavelength": "nm"})
+    if units.get("length", "mm") != "mm" or units.get("wavelength", "nm") != "nm":
+        r.fail("units", f"lengths must be in mm and wavelengths in nm, got {units!r}")
+    obj = data.get("object", {})
+    obj_dist = r.get(obj, "distance_mm", "object", "number_or_inf", default=math.inf)
+    obj_medium = r.get(obj, "medium", "object", "str", default="AIR")
+    ap = data.get("aperture", {"type": "stop"})
+    ap_type = r.get(ap, "type", "aperture", "str")
+    ap_value = None if ap_type == "stop" else r.get(ap, "value", "aperture")
+    wavelengths = r.get(data, "wavelengths_nm", "", "numbers", default=[587.5618])
+    try:
+        spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                        aperture_value=ap_value,
+                        fields_deg=r.get(data, "fields_deg", "", "numbers", default=[0.0]),
+                        wavelengths_nm=wavelengths,
+                        primary_wavelength_nm=r.get(data, "primary_wavelength_nm", "", "number",
+                                                    default=None))
+    except ValueError as e:
+        r.fail("(system)", str(e))
+    surf_list = data.get("surfaces")
+    if not isinstance(surf_list, list) or not surf_list:
+        r.fail("surfaces", "expected a non-empty list of surfaces")
+    surfaces, materials, distances = [], [], []
+
+    def material(spec_str, path):
+        try:
+            return get_material(spec_str)
+        except ValueError as e:
+            r.fail(path, str(e))
+
+    materials.append(material(obj_medium, "object.medium"))
+    for i, s in enumerate(surf_list):
+        path = f"surfaces[{i}]"
+        try:
+            surfaces.append(_surface_from_dict(r, s, path))
+        except LensFileError:
+            raise
+        except ValueError as e:
+            r.fail(path, str(e))
+        distances.append(r.get(s, "distance_mm", path))
+        materials.append(material(r.get(s, "material", path, "str", default="AIR"),
+                                  f"{path}.material"))
+    stop = data.get("stop")
+    if stop is None:
+        r.fail("stop", "missing: the lens has no aperture stop (give the index of the stop "
+                       "surface)")
+    stop = r.check(stop, "stop", "int")
+    sensor = data.get("sensor")
+    if not isinstance(sensor, dict):
+        r.fail("sensor", "missing: expected {\"distance_mm\": ..., \"semi_diameter_mm\": ...}")
+    d_sensor = r.get(sensor, "distance_mm", "sensor")
+    sensor_sd = r.get(sensor, "semi_diameter_mm", "sensor", default=None)
+    elements = data.get("elements")
+    try:
+        lens = Lens(surfaces, materials, distances, d_sensor, stop, sensor_sd, spec,
+                    elements=elements, name=str(data.get("name", "")))
+    except (ValueError, TypeError) as e:
+        raise LensFileError(f"{source}: {e}") from e
+    mis = data.get("misalignment")
+    if mis is not None:
+        if not isinstance(mis, list) or len(mis) != len(lens.elements):
+            r.fail("misalignment", f"expected a list of {len(lens.elements)} entries (one per "
+                                   f"element)")
+        for e, m in enumerate(mis):
+            path = f"misalignment[{e}]"
+            ma = lens.misalignments[e]
+            for key, p in (("dx_mm", ma.dx), ("dy_mm", ma.dy), ("tilt_x_rad", ma.tilt_x),
+                           ("tilt_y_rad", ma.tilt_y)):
+                p.data.fill_(r.get(m, key, path, default=0.0))
+    return lens
+
+
+def lens_to_dict(lens: Lens) -> dict:
+    """The lens-file dictionary of ``lens`` (current parameter values, exact floats)."""
+    spec = lens.spec
+    ap = {"type": spec.aperture_type}
+    if spec.aperture_type != "stop":
+        ap["value"] = float(spec.aperture_value)
+    surfaces = []
+    for i, s in enumerate(lens.surfaces):
+        d = s.to_dict()
+        d["distance_mm"] = float(lens.distances[i])
+        d["material"] = lens.materials[i + 1].to_spec()
+        surfaces.append(d)
+    out = {
+        "format": FORMAT_NAME, "version": FORMAT_VERSION, "name": lens.name,
+        "units": {"length": "mm", "wavelength": "nm"},
+        "object": {"distance_mm": ("inf" if math.isinf(spec.object_distance_mm)
+                                   else float(spec.object_distance_mm)),
+                   "medium": lens.materials[0].to_spec()},
+        "aperture": ap,
+        "fields_deg": [float(f) for f in spec.fields_deg],
+        "wavelengths_nm": [float(w) for w in spec.wavelengths_nm],
+        "primary_wavelength_nm": float(spec.primary_wavelength_nm),
+        "stop": lens.stop_index,
+        "surfaces": surfaces,
+        "sensor": {"distance_mm": float(lens.d_sensor)},
+        "elements": [list(e) for e in lens.elements],
+    }
+    if lens.sensor_semi_diameter is not None:
+        out["sensor"]["semi_diameter_mm"] = float(lens.sensor_semi_diameter)
+    if not all(m.is_identity() for m in lens.misalignments):
+        out["misalignment"] = [m.to_dict() for m in lens.misalignments]
+    return out
+
+
+def save_lens(lens: Lens, path) -> None:
+    """Write ``lens`` as JSON, atomically (write to a temporary file, then rename)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        json.dump(lens_to_dict(lens), f, indent=1)
+        f.write("\n")
+    os.replace(tmp, path)
+
+
+def load_lens(path, **table_options) -> Lens:
+    """Read a lens file: our JSON format (``.json``) or the paper authors' table (``.txt``).
+
+    ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"lens file not found: {path}")
+    if path.suffix.lower() == ".txt":
+        from .table import read_table
+
+        return read_table(path, **table_options)
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise LensFileError(f"{path}: line {e.lineno}: invalid JSON: {e.msg}") from e
+    return lens_from_dict(data, source=str(path))

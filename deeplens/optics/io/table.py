@@ -1,0 +1,163 @@
+"""Reader for the paper authors' lens table format (vccimaging/DiffOptics ``.txt``).
+
+Line 1 is a title, line 2 the header ``type distance roc diameter material``; then one row per
+surface ``TYPE DISTANCE ROC DIAMETER MATERIAL [extra ...]`` with types
+
+* ``O`` object side (distance ignored: the object is at infinity unless ``object_distance_mm``)
+* ``S`` sphere / conic / even asphere; extras ``conic a4 a6 ...``
+* ``A`` aperture stop plane (material ``OCCLUDER`` = air)
+* ``X`` XY polynomial; extras ``b a0 a1 ...`` (``b`` the z^2 coefficient, then 1, y, x, y^2, ...)
+* ``B`` B-spline on deeplens' fixed uniform knots; extras ``nx ny c_00 c_01 ... c_(nx-1)(ny-1)``
+  (knots in the authors' own B rows are not supported and are reported as such)
+* ``I`` image plane: its distance is the sensor distance, its diameter the sensor diagonal
+
+``DISTANCE`` is the axial gap from the previous row's vertex, ``DIAMETER`` the full clear
+diameter, ``MATERIAL`` the medium after the surface.  ``scale`` multiplies every length (for
+prescriptions in normalised units).  Each error names the file and line.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from ..materials import get_material
+from .lensfile import LensFileError, lens_from_dict
+
+__all__ = ["read_table", "table_to_dict"]
+
+_TYPES = {"O", "S", "A", "X", "B", "I"}
+
+
+def _num(tok, where, what):
+    try:
+        v = float(tok)
+    except ValueError:
+        raise LensFileError(f"{where}: column {what!r} must be a number, got {tok!r}") from None
+    if not math.isfinite(v):
+        raise LensFileError(f"{where}: column {what!r} must be finite, got {tok!r}")
+    return v
+
+
+def table_to_dict(path, *, scale: float = 1.0, stop_index: int | None = None,
+                  object_distance_mm: float = math.inf, fields_deg=(0.0,),
+                  wavelengths_nm=(587.5618,), name: str | None = None) -> dict:
+    """Parse a table file into a lens-file dictionary (see :mod:`.lensfile`).
+
+    Args:
+        path: the ``.txt`` file.
+        scale: multiply all lengths (and divide curvatures) by this factor.
+        stop_index: surface index to use as the stop when the file has no ``A`` row.
+        object_distance_mm, fields_deg, wavelengths_nm: the system data the format lacks.
+        name: title (default: line 1).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        text = path.read_text(encoding="utf-16")
+    lines = text.splitlines()
+    if len(lines) < 3:
+        raise LensFileError(f"{path}: expected a title line, a header line and surface rows")
+    surfaces, obj_medium, sensor, stop = [], "AIR", None, None
+    for ln, line in enumerate(lines[2:], start=3):
+        toks = line.split()
+        if not toks or toks[0].startswith("#"):
+            continue
+        where = f"{path}:{ln}"
+        kind = toks[0].upper()
+        if kind not in _TYPES:
+            raise LensFileError(f"{where}: unknown surface type {toks[0]!r}; expected one of "
+                                f"O, S, A, X, B, I")
+        if len(toks) < 5:
+            names = ["type", "distance", "roc", "diameter", "material"]
+            raise LensFileError(f"{where}: expected 5 columns (type distance roc diameter "
+                                f"material), got {len(toks)}; missing {names[len(toks):]}")
+        dist = _num(toks[1], where, "distance") * scale
+        roc = _num(toks[2], where, "roc") * scale
+        diam = _num(toks[3], where, "diameter") * scale
+        mat = toks[4]
+        extra = [_num(t, where, f"extra {j + 1}") for j, t in enumerate(toks[5:])]
+        if kind != "I":
+            try:
+                get_material(mat)
+            except ValueError as e:
+                raise LensFileError(f"{where}: {e}") from None
+        if kind == "O":
+            obj_medium = mat
+            continue
+        if kind == "I":
+            sensor = {"distance_mm": dist, "semi_diameter_mm": diam / 2}
+            continue
+        if sensor is not None:
+            raise LensFileError(f"{where}: a surface row after the image (I) row")
+        if not diam > 0:
+            raise LensFileError(f"{where}: diameter must be > 0 mm, got {toks[3]!r}")
+        s = {"distance_mm": dist, "semi_diameter_mm": diam / 2, "material": mat.upper()
+             if "/" not in mat else mat}
+        if kind == "S":
+            s["type"] = "asphere"
+            s["curvature_per_mm"] = 0.0 if roc == 0 else 1.0 / roc
+            if extra:
+                s["conic"] = extra[0]
+                # a_{2i} multiplies r^{2i}: scale lengths by (scale)^(1-2i)
+                s["aspheric"] = [a * scale ** (1 - 2 * (i + 2)) for i, a in enumerate(extra[1:])]
+            if roc == 0 and not extra:
+                s["type"] = "plane"
+                del s["curvature_per_mm"]
+        elif kind == "A":
+            if stop is not None:
+                raise LensFileError(f"{where}: a second aperture stop (A row)")
+            stop = len(surfaces)
+            s["type"] = "aperture"
+            if mat.upper() == "OCCLUDER":
+                s["material"] = "AIR"
+        elif kind == "X":
+            if len(extra) < 2:
+                raise LensFileError(f"{where}: an X row needs 'b a0 [a1 ...]' after the material")
+            n = len(extra) - 1
+            J = (math.isqrt(8 * n + 1) - 3) // 2
+            if (J + 1) * (J + 2) // 2 != n:
+                raise LensFileError(f"{where}: an X row needs b and (J+1)(J+2)/2 coefficients "
+                                    f"(1, 3, 6, 10, ...), got {n}")
+            from ..surfaces.xy_polynomial import xy_terms
+
+            s["type"] = "xy_polynomial"
+            s["b"] = extra[0] / scale
+            s["coefficients"] = [a * scale ** (1 - (i + j)) for a, (i, j) in
+                                 zip(extra[1:], xy_terms(J))]
+        elif kind == "B":
+            if len(extra) < 2 or extra[0] != int(extra[0]) or extra[1] != int(extra[1]):
+                raise LensFileError(f"{where}: a B row needs 'nx ny c_00 ... ' (deeplens' uniform "
+                                    f"knots); knot vectors are not supported")
+            nx, ny = int(extra[0]), int(extra[1])
+            if len(extra) - 2 != nx * ny:
+                raise LensFileError(f"{where}: a B row with nx={nx}, ny={ny} needs {nx * ny} "
+                                    f"coefficients, got {len(extra) - 2}")
+            c = [v * scale for v in extra[2:]]
+            s["type"] = "bspline"
+            s["coefficients"] = [c[i * ny:(i + 1) * ny] for i in range(nx)]
+        surfaces.append(s)
+    if not surfaces:
+        raise LensFileError(f"{path}: no surface rows")
+    if sensor is None:
+        raise LensFileError(f"{path}: no image (I) row: the sensor distance is unknown")
+    if stop is None:
+        if stop_index is None:
+            raise LensFileError(f"{path}: no aperture stop (no 'A' row); pass stop_index to use "
+                                f"a surface's clear aperture as the stop")
+        stop = stop_index
+    return {
+        "format": "deeplens-lens", "version": 1,
+        "name": name if name is not None else lines[0].strip(),
+        "object": {"distance_mm": object_distance_mm, "medium": obj_medium.upper()},
+        "aperture": {"type": "stop"},
+        "fields_deg": list(fields_deg), "wavelengths_nm": list(wavelengths_nm),
+        "stop": stop, "surfaces": surfaces, "sensor": sensor,
+    }
+
+
+def read_table(path, **options):
+    """Read a table file into a :class:`~deeplens.optics.lens.Lens` (options: see
+    :func:`table_to_dict`)."""
+    return lens_from_dict(table_to_dict(path, **options), source=str(path))

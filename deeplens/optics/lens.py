@@ -1,0 +1,322 @@
+"""A sequential lens: surfaces, media, stop, sensor and per-element misalignment.
+
+Geometry (global frame, mm): the optical axis is ``z``; vertex ``i`` sits at
+``z_i = sum_{j<=i} distances[j]`` (``distances[0]`` is normally 0, placing the first vertex at the
+origin) and the sensor at ``z_N-1 + d_sensor``.  ``materials[0]`` is the object-space medium and
+``materials[i+1]`` the medium after surface ``i``.  Light travels towards ``+z`` in forward
+(object-to-sensor) tracing and towards ``-z`` in backward (sensor-to-object) tracing; the same
+module serves both, and tracing never modifies the lens or its input rays.
+
+Each surface is intersected in its element's frame (:mod:`.misalignment`) by Newton's method with
+one differentiable step (:mod:`.intersect`) and refracted by vector Snell's law (:mod:`.refract`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+from .intersect import IntersectOptions, intersect
+from .materials import Air, Material, check_wavelength_nm
+from .misalignment import Misalignment
+from .rays import Rays
+from .refract import refract, unit_normal
+from .surfaces import Aperture, Surface
+from .surfaces.base import make_param
+
+__all__ = ["Lens", "LensSpec"]
+
+
+@dataclass
+class LensSpec:
+    """How the lens is used: object distance, aperture, fields and wavelengths.
+
+    Attributes:
+        object_distance_mm: distance from the object plane to the first vertex (``inf``).
+        aperture_type: ``"stop"`` (the stop's own semi-diameter), ``"epd"`` (entrance-pupil
+            diameter, mm) or ``"fno"`` (image-space F-number at infinity).
+        aperture_value: the value for ``"epd"``/``"fno"`` (ignored for ``"stop"``).
+        fields_deg: field angles in degrees (object-space chief-ray angle, in the y-z plane).
+        wavelengths_nm: wavelengths in nm.
+        primary_wavelength_nm: the wavelength of paraxial quantities (default: the first).
+    """
+
+    object_distance_mm: float = math.inf
+    aperture_type: str = "stop"
+    aperture_value: float | None = None
+    fields_deg: list = field(default_factory=lambda: [0.0])
+    wavelengths_nm: list = field(default_factory=lambda: [587.5618])
+    primary_wavelength_nm: float | None = None
+
+    def __post_init__(self):
+        if self.aperture_type not in ("stop", "epd", "fno"):
+            raise ValueError(f"aperture type must be 'stop', 'epd' or 'fno', got "
+                             f"{self.aperture_type!r}")
+        if self.aperture_type != "stop":
+            v = self.aperture_value
+            if v is None or not (float(v) > 0 and math.isfinite(float(v))):
+                raise ValueError(f"aperture {self.aperture_type}: value must be a positive number, "
+                                 f"got {v!r}")
+        if not self.object_distance_mm > 0:
+            raise ValueError(f"object distance must be > 0 mm (or inf), got "
+                             f"{self.object_distance_mm!r}")
+        if not self.wavelengths_nm:
+            raise ValueError("at least one wavelength is needed")
+        check_wavelength_nm(list(self.wavelengths_nm), where="lens wavelengths: ")
+        if self.primary_wavelength_nm is None:
+            self.primary_wavelength_nm = float(self.wavelengths_nm[0])
+        check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ")
+
+
+def _default_elements(surfaces, materials) -> list[tuple[int, int]]:
+    """Group surfaces into rigid elements: a run of surfaces enclosing non-air media; a stop
+    (or any surface with air on both sides) is an element of its own."""
+    groups, start = [], 0
+    for i in range(len(surfaces)):
+        if isinstance(materials[i + 1], Air) or isinstance(surfaces[i], Aperture):
+            groups.append((start, i))
+            start = i + 1
+    if start < len(surfaces):
+        groups.append((start, len(surfaces) - 1))
+    return groups
+
+
+class Lens(nn.Module):
+    """A sequential lens system (see the module docstring for geometry and conventions).
+
+    Args:
+        surfaces: ``N`` surfaces in order from object to image.
+        materials: ``N + 1`` media: object space, then the medium after each surface.
+        distances: ``N`` axial gaps in mm (``distances[i]`` from vertex ``i-1`` to vertex ``i``).
+        d_sensor: gap from the last vertex to the sensor plane, mm.
+        stop_index: index of the aperture-stop surface.
+        sensor_semi_diameter: half the sensor diagonal, mm (``None``: unbounded).
+        spec: :class:`LensSpec` (object distance, aperture, fields, wavelengths).
+        elements: ``[(first, last), ...]`` surface-index ranges that move rigidly under
+            misalignment (default: glass elements and the stop, from the media).
+        name: a title.
+
+    Trainable values: each surface's prescription, ``distances[i]``, ``d_sensor`` and each
+    element's :class:`Misalignment` are ``nn.Parameter`` objects created frozen; call
+    ``requires_grad_(True)`` on the ones to optimise.
+
+    Raises:
+        ValueError: no or a bad stop, mismatched list lengths, surfaces that cross, or a
+            semi-diameter beyond a surface's domain (each message names the surface).
+    """
+
+    def __init__(self, surfaces, materials, distances, d_sensor: float, stop_index: int | None,
+                 sensor_semi_diameter: float | None = None, spec: LensSpec | None = None,
+                 elements=None, name: str = ""):
+        super().__init__()
+        surfaces, materials, distances = list(surfaces), list(materials), list(distances)
+        n = len(surfaces)
+        if n == 0:
+            raise ValueError("a lens needs at least one surface")
+        if len(materials) != n + 1:
+            raise ValueError(f"a lens with {n} surfaces needs {n + 1} materials (object space "
+                             f"first), got {len(materials)}")
+        if len(distances) != n:
+            raise ValueError(f"a lens with {n} surfaces needs {n} distances, got {len(distances)}")
+        if stop_index is None:
+            raise ValueError("the lens has no aperture stop: give stop_index (an 'A' row in a "
+                             "table file, or \"stop\" in a JSON lens file)")
+        if not 0 <= int(stop_index) < n:
+            raise ValueError(f"stop_index {stop_index} is not a surface index (0..{n - 1})")
+        for i, s in enumerate(surfaces):
+            if not isinstance(s, Surface):
+                raise TypeError(f"surface {i} is a {type(s).__name__}, not a Surface")
+        for i, m in enumerate(materials):
+            if not isinstance(m, Material):
+                raise TypeError(f"material {i} is a {type(m).__name__}, not a Material")
+        self.name = name
+        self.surfaces = nn.ModuleList(surfaces)
+        self.materials = nn.ModuleList(materials)
+        self.distances = nn.ParameterList([make_param(v, f"distance {i}")
+                                           for i, v in enumerate(distances)])
+        self.d_sensor = make_param(d_sensor, "sensor distance")
+        self.stop_index = int(stop_index)
+        self.sensor_semi_diameter = (None if sensor_semi_diameter is None
+                                     else float(sensor_semi_diameter))
+        self.spec = spec if spec is not None else LensSpec()
+        self.elements = [tuple(map(int, e)) for e in
+                         (elements if elements is not None else _default_elements(surfaces,
+                                                                                   materials))]
+        covered = sorted(i for a, b in self.elements for i in range(a, b + 1))
+        if covered != list(range(n)):
+            raise ValueError(f"elements {self.elements} must cover surfaces 0..{n - 1} exactly once")
+        self.misalignments = nn.ModuleList([Misalignment() for _ in self.elements])
+        self._element_of = {i: e for e, (a, b) in enumerate(self.elements) for i in range(a, b + 1)}
+        self.check()
+        if self.spec.aperture_type != "stop":
+            self.apply_aperture_spec()
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def stop(self) -> Surface:
+        return self.surfaces[self.stop_index]
+
+    def z_vertices(self) -> torch.Tensor:
+        """Vertex positions ``(N,)`` in mm (differentiable in ``distances``)."""
+        return torch.cumsum(torch.stack(list(self.distances)), 0)
+
+    def z_sensor(self) -> torch.Tensor:
+        return self.z_vertices()[-1] + self.d_sensor
+
+    def check(self) -> None:
+        """Validate the prescription; raises ``ValueError`` naming the surface."""
+        for i, s in enumerate(self.surfaces):
+            s.check(where=f"surface {i} ({type(s).__name__}): ")
+        for i, d in enumerate(self.distances):
+            if i > 0 and float(d) < 0:
+                raise ValueError(f"distance before surface {i} is negative ({float(d):g} mm): "
+                                 f"sequential surfaces must be ordered along +z")
+        if float(self.d_sensor) <= 0:
+            raise ValueError(f"sensor distance must be > 0 mm, got {float(self.d_sensor):g}")
+        with torch.no_grad():
+            z = self.z_vertices()
+            for i in range(len(self.surfaces) - 1):
+                a, b = self.surfaces[i], self.surfaces[i + 1]
+                r_max = min(float(a.semi_diameter), float(b.semi_diameter))
+                r = torch.linspace(0, r_max, 65, dtype=torch.float64)
+                zero = torch.zeros_like(r)
+                za = z[i] + a.sag(zero, r)
+                zb = z[i + 1] + b.sag(zero, r)
+                gap = zb - za
+                ok = a.in_domain(zero, r) & b.in_domain(zero, r)
+                if bool(((gap < -1e-9) & ok).any()):
+                    k = int(torch.nonzero((gap < -1e-9) & ok)[0])
+                    raise ValueError(
+                        f"surfaces {i} and {i + 1} cross: at r = {float(r[k]):.4g} mm surface "
+                        f"{i + 1} lies {float(-gap[k]):.4g} mm before surface {i} (distance "
+                        f"between them {float(self.distances[i + 1]):g} mm); increase the "
+                        f"thickness or reduce the semi-diameters")
+            last = len(self.surfaces) - 1
+            s = self.surfaces[last]
+            r = torch.linspace(0, float(s.semi_diameter), 65, dtype=torch.float64)
+            zl = z[last] + s.sag(torch.zeros_like(r), r)
+            if bool((zl > z[last] + self.d_sensor + 1e-9).any()):
+                raise ValueError(f"the last surface crosses the sensor plane (sensor distance "
+                                 f"{float(self.d_sensor):g} mm)")
+
+    def apply_aperture_spec(self) -> None:
+        """Size the stop so that the entrance pupil matches ``spec`` (EPD or F-number)."""
+        from ..analysis.paraxial import paraxial  # local import: analysis builds on optics
+
+        stop = self.stop
+        if not isinstance(stop, Aperture) or stop.shape != "circle":
+            raise ValueError("an EPD or F-number aperture needs a circular Aperture surface as "
+                             "the stop")
+        p = paraxial(self)
+        if self.spec.aperture_type == "epd":
+            epd = float(self.spec.aperture_value)
+        else:
+            epd = float(p.efl) / float(self.spec.aperture_value)
+        stop.set_semi_diameter(0.5 * epd * abs(float(p.stop_height_per_ep_height)))
+
+    # ------------------------------------------------------------------ media
+    def indices(self, wavelength: torch.Tensor) -> list[torch.Tensor]:
+        """Refractive indices of the ``N + 1`` media at ``wavelength`` (nm), each of its shape."""
+        return [m.n(wavelength) for m in self.materials]
+
+    # ------------------------------------------------------------------ tracing
+    def _frame(self, i: int, z: torch.Tensor, like: torch.Tensor):
+        """``(misalignment or None, pivot (3,), vertex offset in the element frame (3,))``."""
+        e = self._element_of[i]
+        first = self.elements[e][0]
+        m = self.misalignments[e]
+        zero = torch.zeros((), dtype=like.dtype, device=like.device)
+        pivot = torch.stack([zero, zero, z[first].to(like)])
+        vertex = torch.stack([zero, zero, (z[i] - z[first]).to(like)])
+        return (None if m.is_identity() else m), pivot, vertex
+
+    def trace_surface(self, i: int, rays: Rays, n1, n2, z, options=None,
+                      refract_: bool = True) -> Rays:
+        """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2``."""
+        s = self.surfaces[i]
+        m, pivot, vertex = self._frame(i, z, rays.o)
+        if m is None:
+            o, d = rays.o - pivot - vertex, rays.d
+        else:
+            o, d = m.to_element(rays.o, rays.d, pivot)
+            o = o - vertex
+        t, x, valid = intersect(s, o, d, rays.valid, options)
+        if refract_ and not isinstance(s, Aperture):
+            fx, fy, fz = s.f_grad(x[..., 0], x[..., 1], x[..., 2])
+            normal = unit_normal(fx, fy, fz)
+            d, valid = refract(d, normal, n1 / n2, valid)
+        opl = rays.opl + n1 * t
+        x = x + vertex
+        if m is None:
+            x = x + pivot
+        else:
+            x, d = m.to_global(x, d, pivot)
+        return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
+
+    def _check_rays(self, rays: Rays) -> None:
+        if not isinstance(rays, Rays):
+            raise TypeError(f"expected Rays, got {type(rays).__name__}")
+        w = torch.unique(rays.wavelength.detach())
+        for m in self.materials:
+            check_wavelength_nm(w, m, where="tracing: ")
+
+    def trace(self, rays: Rays, *, reverse: bool = False, options: IntersectOptions | None = None,
+              record: bool = False):
+        """Trace through every surface.
+
+        Args:
+            rays: input rays; forward rays start before the first surface and travel to ``+z``;
+                ``reverse=True`` rays start behind the last surface and travel to ``-z``.
+            reverse: backward (sensor-to-object) tracing.
+            options: Newton settings (:class:`IntersectOptions`).
+            record: also return the list of per-surface hit points ``(*B, 3)``.
+
+        Returns:
+            Rays just after the last surface traced (``(rays, hits)`` when ``record``).
+        """
+        self._check_rays(rays)
+        w = rays.wavelength
+        n = self.indices(w)
+        z = self.z_vertices()
+        order = range(len(self.surfaces) - 1, -1, -1) if reverse else range(len(self.surfaces))
+        hits = []
+        for i in order:
+            n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
+            rays = self.trace_surface(i, rays, n1, n2, z, options)
+            if record:
+                hits.append(rays.o)
+        return (rays, hits) if record else rays
+
+    def propagate_to_z(self, rays: Rays, z_plane, medium_index=None) -> Rays:
+        """Move rays to the plane ``z = z_plane`` (mm); rays that cannot reach it go invalid."""
+        z_plane = torch.as_tensor(z_plane, dtype=rays.dtype, device=rays.device)
+        dz = rays.d[..., 2]
+        ok = rays.valid & (dz.abs() > 1e-12)
+        num = torch.where(ok, z_plane - rays.o[..., 2], torch.zeros_like(dz))
+        t = num / torch.where(ok, dz, torch.ones_like(dz))
+        ok = ok & (t.detach() >= 0)
+        t = torch.where(ok, t, torch.zeros_like(t))
+        n = 1.0 if medium_index is None else medium_index
+        return Rays(rays.at(t), rays.d, rays.wavelength, ok, rays.opl + n * t, normalize=False)
+
+    def trace_to_sensor(self, rays: Rays, *, z_image=None, options=None,
+                        clip_sensor: bool = False) -> Rays:
+        """Forward trace and propagate to the sensor plane (or to ``z_image`` when given).
+
+        ``clip_sensor`` marks rays landing outside the sensor's semi-diameter invalid.
+        """
+        out = self.trace(rays, options=options)
+        z = self.z_sensor() if z_image is None else z_image
+        n_img = self.materials[-1].n(rays.wavelength)
+        out = self.propagate_to_z(out, z, n_img)
+        if clip_sensor and self.sensor_semi_diameter is not None:
+            r2 = (out.o[..., :2].detach() ** 2).sum(-1)
+            out = out.replace(valid=out.valid & (r2 <= self.sensor_semi_diameter ** 2))
+        return out
+
+    def extra_repr(self) -> str:
+        return (f"name={self.name!r}, surfaces={len(self.surfaces)}, stop={self.stop_index}, "
+                f"d_sensor={float(self.d_sensor):.6g} mm")

@@ -1,0 +1,48 @@
+"""Vector Snell's law (paper Eq. 9).
+
+With unit normal ``n`` oriented along the propagation (``cos ψ = d·n > 0``) and ``η = n1/n2``:
+
+    d_t = η d + (sqrt(1 - η^2 (1 - cos^2 ψ)) - η cos ψ) n
+
+The ray is totally internally reflected (marked invalid) where ``1 - η^2 (1 - cos^2 ψ) < 0``.
+Invariant: ``n1 |d × n| = n2 |d_t × n|`` (n1 sin θ1 = n2 sin θ2), and ``d_t`` stays coplanar.
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["refract", "unit_normal"]
+
+
+def unit_normal(fx, fy, fz):
+    """``∇f / |∇f|`` as a ``(*B, 3)`` tensor (finite also for a zero gradient)."""
+    g = torch.stack([fx, fy, fz], -1)
+    norm2 = (g * g).sum(-1, keepdim=True)
+    ok = norm2 > 0
+    return g / torch.sqrt(torch.where(ok, norm2, torch.ones_like(norm2)))
+
+
+def refract(d: torch.Tensor, n: torch.Tensor, eta: torch.Tensor, valid: torch.Tensor):
+    """Refract unit directions ``d`` at unit normals ``n`` (either orientation).
+
+    Args:
+        d: ``(*B, 3)`` incident unit directions.
+        n: ``(*B, 3)`` unit surface normals.
+        eta: ``n1 / n2``, broadcastable to ``B``.
+        valid: ``(*B,)`` incoming mask.
+
+    Returns:
+        ``(d_t, valid)`` with TIR rays marked invalid (their ``d_t`` is finite, equal to ``d``).
+    """
+    cos_i = (d * n).sum(-1)
+    eta = torch.as_tensor(eta, dtype=d.dtype, device=d.device).expand(cos_i.shape)
+    sign = torch.where(cos_i < 0, -torch.ones_like(cos_i), torch.ones_like(cos_i))
+    n = n * sign.unsqueeze(-1)
+    cos_i = cos_i * sign
+    k = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
+    ok = valid & (k >= 0)
+    sqrt_k = torch.sqrt(torch.where(ok, k, torch.ones_like(k)))
+    d_t = eta.unsqueeze(-1) * d + (sqrt_k - eta * cos_i).unsqueeze(-1) * n
+    d_t = torch.where(ok.unsqueeze(-1), d_t, d)
+    return d_t, ok

@@ -1,0 +1,134 @@
+"""Pupil sampling patterns and object-space ray bundles.
+
+Patterns return points ``(M, 2)`` in the unit disk (normalised pupil coordinates ``(p_x, p_y)``):
+
+* ``hexapolar:R``  the centre plus rings ``k = 1..R`` of ``6k`` points at radius ``k/R``
+  (as lens-design programs do; ``1 + 3R(R+1)`` points)
+* ``grid:N``       an ``N x N`` square grid over ``[-1, 1]^2`` clipped to the disk
+* ``random:N``     ``N`` uniform points in the disk (seeded; ``random:N:SEED``)
+
+Field rays for an object at infinity travel along ``(0, sin θ, cos θ)`` (positive field angle
+= ray rising towards ``+y``); for a finite object the object point sits at
+``y = -tan θ (z_EP - z_obj)`` so that its chief ray crosses the entrance-pupil centre at ``θ``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .rays import Rays
+
+__all__ = ["pupil_pattern", "parse_sampling", "hexapolar", "square_grid", "random_disk",
+           "field_rays", "start_plane_z"]
+
+
+def hexapolar(rings: int, dtype=torch.float64, device=None) -> torch.Tensor:
+    """Hexapolar pattern with ``rings`` rings, ``(1 + 3R(R+1), 2)``."""
+    if rings < 0:
+        raise ValueError(f"hexapolar: rings must be >= 0, got {rings}")
+    pts = [torch.zeros(1, 2, dtype=dtype, device=device)]
+    for k in range(1, rings + 1):
+        phi = torch.arange(6 * k, dtype=dtype, device=device) * (2 * math.pi / (6 * k))
+        r = k / rings
+        pts.append(torch.stack([r * torch.sin(phi), r * torch.cos(phi)], -1))
+    return torch.cat(pts)
+
+
+def square_grid(n: int, dtype=torch.float64, device=None) -> torch.Tensor:
+    """``n x n`` grid over ``[-1, 1]^2``, points inside the unit disk."""
+    if n < 1:
+        raise ValueError(f"grid: n must be >= 1, got {n}")
+    v = torch.linspace(-1, 1, n, dtype=dtype, device=device) if n > 1 else \
+        torch.zeros(1, dtype=dtype, device=device)
+    x, y = torch.meshgrid(v, v, indexing="xy")
+    p = torch.stack([x.reshape(-1), y.reshape(-1)], -1)
+    return p[(p * p).sum(-1) <= 1 + 1e-12]
+
+
+def random_disk(n: int, seed: int = 0, dtype=torch.float64, device=None) -> torch.Tensor:
+    """``n`` uniform points in the unit disk from a seeded generator."""
+    if n < 1:
+        raise ValueError(f"random: n must be >= 1, got {n}")
+    g = torch.Generator().manual_seed(seed)
+    r = torch.sqrt(torch.rand(n, generator=g, dtype=torch.float64))
+    phi = torch.rand(n, generator=g, dtype=torch.float64) * 2 * math.pi
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi)], -1).to(dtype=dtype, device=device)
+
+
+def parse_sampling(text: str) -> tuple[str, int, int]:
+    """``"hexapolar:18"`` -> ``("hexapolar", 18, 0)``; ``"random:500:3"`` -> seed 3."""
+    parts = str(text).split(":")
+    kinds = ("hexapolar", "grid", "random")
+    if parts[0] not in kinds or len(parts) not in (2, 3) or (len(parts) == 3 and
+                                                             parts[0] != "random"):
+        raise ValueError(f"pupil sampling must be one of hexapolar:RINGS, grid:N, random:N[:SEED]; "
+                         f"got {text!r}")
+    try:
+        n = int(parts[1])
+        seed = int(parts[2]) if len(parts) == 3 else 0
+    except ValueError:
+        raise ValueError(f"pupil sampling {text!r}: the count must be an integer") from None
+    if n < (0 if parts[0] == "hexapolar" else 1):
+        raise ValueError(f"pupil sampling {text!r}: the count must be positive")
+    return parts[0], n, seed
+
+
+def pupil_pattern(text: str, dtype=torch.float64, device=None) -> torch.Tensor:
+    """Unit-disk points ``(M, 2)`` for a sampling string (see the module docstring)."""
+    kind, n, seed = parse_sampling(text)
+    if kind == "hexapolar":
+        return hexapolar(n, dtype, device)
+    if kind == "grid":
+        return square_grid(n, dtype, device)
+    return random_disk(n, seed, dtype, device)
+
+
+def start_plane_z(lens) -> float:
+    """An axial position safely before the first surface (its sag and tilt included), mm."""
+    s0 = lens.surfaces[0]
+    with torch.no_grad():
+        r = torch.linspace(0, float(s0.semi_diameter), 33, dtype=torch.float64)
+        zero = torch.zeros_like(r)
+        ok = s0.in_domain(zero, r)
+        sag = torch.where(ok, s0.sag(zero, r), torch.zeros_like(r))
+        z0 = float(lens.z_vertices()[0])
+    return z0 + min(0.0, float(sag.min())) - 1.0 - 0.1 * float(s0.semi_diameter)
+
+
+def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Tensor,
+               z_pupil: float, *, object_distance_mm: float | None = None) -> Rays:
+    """Object-space rays of one field through points of a pupil plane.
+
+    Args:
+        lens: the :class:`~deeplens.optics.lens.Lens` (for the object distance and start plane).
+        field_deg: field angle (deg).
+        wavelength_nm: wavelength (nm).
+        pupil_xy: ``(M, 2)`` *physical* pupil-plane coordinates in mm.
+        z_pupil: axial position of the pupil plane (mm).
+        object_distance_mm: overrides ``lens.spec.object_distance_mm``.
+
+    Returns:
+        :class:`Rays` of shape ``(M,)``, starting before the first surface.
+    """
+    dtype, device = pupil_xy.dtype, pupil_xy.device
+    s = lens.spec.object_distance_mm if object_distance_mm is None else object_distance_mm
+    th = math.radians(field_deg)
+    z_start = start_plane_z(lens)
+    M = pupil_xy.shape[0]
+    P = torch.cat([pupil_xy, torch.full((M, 1), z_pupil, dtype=dtype, device=device)], -1)
+    if math.isinf(s):
+        d = torch.tensor([0.0, math.sin(th), math.cos(th)], dtype=dtype, device=device).expand(M, 3)
+        t = (z_start - z_pupil) / math.cos(th)
+        o = P + t * d
+    else:
+        z_obj = float(lens.z_vertices()[0]) - s
+        if z_obj >= z_start:
+            z_start = z_obj
+        Q = torch.tensor([0.0, -math.tan(th) * (z_pupil - z_obj), z_obj], dtype=dtype,
+                         device=device)
+        d = P - Q
+        d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+        o = Q.expand(M, 3)
+    return Rays(o, d, wavelength_nm)

@@ -1,0 +1,11 @@
+"""Optical surfaces, one type per file, all behind :class:`~.base.Surface`."""
+
+from .aperture import Aperture
+from .asphere import Asphere, Sphere
+from .base import SURFACE_TYPES, SagSurface, Surface
+from .bspline import BSpline
+from .plane import Plane
+from .xy_polynomial import XYPolynomial
+
+__all__ = ["Aperture", "Asphere", "Sphere", "BSpline", "Plane", "XYPolynomial", "Surface",
+           "SagSurface", "SURFACE_TYPES"]

@@ -1,0 +1,64 @@
+"""Aperture stop: an opaque plane ``z = 0`` with a circular or rectangular opening.
+
+Circular: a ray passes if ``x^2 + y^2 <= r^2`` (``r`` = semi-diameter).
+Rectangular: it passes if ``|x| <= w_x`` and ``|y| <= w_y`` (half-widths in mm).
+The medium does not change across a stop.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .base import register_surface
+from .plane import Plane
+
+__all__ = ["Aperture"]
+
+
+@register_surface("aperture")
+class Aperture(Plane):
+    """An aperture stop plane.
+
+    Args:
+        semi_diameter: radius of a circular opening, mm (for a rectangle: its half-diagonal
+            is used as semi-diameter when not given).
+        shape: ``"circle"`` or ``"rect"``.
+        half_width_x, half_width_y: half-widths of a rectangular opening, mm.
+    """
+
+    def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
+                 half_width_x: float | None = None, half_width_y: float | None = None):
+        if shape not in ("circle", "rect"):
+            raise ValueError(f"Aperture: shape must be 'circle' or 'rect', got {shape!r}")
+        if shape == "rect":
+            if half_width_x is None or half_width_y is None:
+                raise ValueError("Aperture: a rectangular aperture needs half_width_x and "
+                                 "half_width_y (mm)")
+            if not (half_width_x > 0 and half_width_y > 0):
+                raise ValueError(f"Aperture: half-widths must be > 0 mm, got "
+                                 f"{half_width_x}, {half_width_y}")
+            if semi_diameter is None:
+                semi_diameter = (half_width_x ** 2 + half_width_y ** 2) ** 0.5
+        if semi_diameter is None:
+            raise ValueError("Aperture: a circular aperture needs semi_diameter (mm)")
+        super().__init__(semi_diameter)
+        self.shape = shape
+        hw = [half_width_x or 0.0, half_width_y or 0.0]
+        self.register_buffer("half_widths", torch.tensor(hw, dtype=torch.float64))
+
+    def in_aperture(self, x, y):
+        if self.shape == "rect":
+            hw = self.half_widths.to(x)
+            return (x.abs() <= hw[0]) & (y.abs() <= hw[1])
+        return super().in_aperture(x, y)
+
+    def set_semi_diameter(self, value: float) -> None:
+        """Resize a circular stop (used when the aperture is given as EPD or F-number)."""
+        self.semi_diameter.fill_(float(value))
+
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        if self.shape == "rect":
+            d.update(shape="rect", half_width_x_mm=float(self.half_widths[0]),
+                     half_width_y_mm=float(self.half_widths[1]))
+        return d

@@ -1,0 +1,119 @@
+"""Sphere, conic and even asphere.
+
+    z(r) = c r^2 / (1 + sqrt(1 - (1 + k) c^2 r^2)) + sum_{i=2..10} a_{2i} r^{2i},   r^2 = x^2 + y^2
+
+with curvature ``c = 1/R`` (1/mm), conic constant ``k`` and even coefficients ``a4 ... a20``
+(mm^(1-2i)).  With ``s = r^2``:  dz/ds = c / (2 sqrt(1 - (1+k) c^2 s)) + sum i a_{2i} s^(i-1),
+and ∂z/∂x = 2x dz/ds, ∂z/∂y = 2y dz/ds.
+
+The conic is defined where ``1 - (1+k) c^2 s > 0``; outside it the tracer marks rays invalid.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from .base import SagSurface, make_param, register_surface
+
+__all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER"]
+
+MAX_ASPHERE_ORDER = 20
+
+
+@register_surface("asphere")
+class Asphere(SagSurface):
+    """Even asphere on a conic base (a sphere when ``k = 0`` and no coefficients).
+
+    Args:
+        curvature: ``c = 1/R`` in 1/mm (``0`` is flat).
+        semi_diameter: clear semi-aperture in mm.
+        conic: conic constant ``k`` (0 sphere, -1 paraboloid).
+        coefficients: ``[a4, a6, ..., a20]`` (at most 9 values), mm^(1-2i).
+
+    Each value is its own parameter: ``surface.c``, ``surface.k``, ``surface.a[0]`` (= a4), ...
+    """
+
+    def __init__(self, curvature: float, semi_diameter: float, conic: float = 0.0,
+                 coefficients=()):
+        super().__init__(semi_diameter)
+        coefficients = list(coefficients)
+        if len(coefficients) > (MAX_ASPHERE_ORDER - 2) // 2:
+            raise ValueError(f"Asphere: at most {(MAX_ASPHERE_ORDER - 2) // 2} even coefficients "
+                             f"(a4..a{MAX_ASPHERE_ORDER}), got {len(coefficients)}")
+        self.c = make_param(curvature, "curvature")
+        self.k = make_param(conic, "conic")
+        self.a = nn.ParameterList([make_param(v, f"a{2 * i + 4}")
+                                   for i, v in enumerate(coefficients)])
+
+    # s = r^2
+    def _arg(self, s):
+        c, k = self.c.to(s), self.k.to(s)
+        return 1.0 - (1.0 + k) * c * c * s
+
+    def in_domain(self, x, y):
+        return self._arg(x * x + y * y) > 0
+
+    def _safe_sqrt_arg(self, s):
+        arg = self._arg(s)
+        return torch.where(arg > 0, arg, torch.ones_like(arg))
+
+    def sag(self, x, y):
+        s = x * x + y * y
+        c = self.c.to(s)
+        z = c * s / (1.0 + torch.sqrt(self._safe_sqrt_arg(s)))
+        if len(self.a):
+            p = torch.zeros_like(s)
+            for a in reversed(list(self.a)):
+                p = (p + a.to(s)) * s
+            z = z + p * s
+        return z
+
+    def _dsag_ds(self, s):
+        c = self.c.to(s)
+        g = c / (2.0 * torch.sqrt(self._safe_sqrt_arg(s)))
+        if len(self.a):
+            # d/ds sum_{i>=2} a_i s^i = sum i a_i s^(i-1)
+            p = torch.zeros_like(s)
+            coeffs = list(self.a)
+            for j in range(len(coeffs) - 1, -1, -1):
+                p = p * s + (j + 2) * coeffs[j].to(s)
+            g = g + p * s
+        return g
+
+    def sag_grad(self, x, y):
+        g = self._dsag_ds(x * x + y * y)
+        return 2.0 * x * g, 2.0 * y * g
+
+    def paraxial_curvature(self):
+        return self.c
+
+    def check(self, where: str = "") -> None:
+        sd = float(self.semi_diameter)
+        arg = 1.0 - (1.0 + float(self.k)) * float(self.c) ** 2 * sd * sd
+        if arg <= 0:
+            limit = (1.0 / ((1.0 + float(self.k)) * float(self.c) ** 2)) ** 0.5
+            raise ValueError(
+                f"{where}semi-diameter {sd:g} mm lies beyond the domain of the conic "
+                f"(R = {1 / float(self.c):g} mm, k = {float(self.k):g}): the sag is only "
+                f"defined for r < {limit:g} mm")
+
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        d["curvature_per_mm"] = float(self.c)
+        if float(self.k) != 0.0 or len(self.a):
+            d["conic"] = float(self.k)
+        if len(self.a):
+            d["aspheric"] = [float(a) for a in self.a]
+        return d
+
+    def extra_repr(self) -> str:
+        return (f"c={float(self.c):.6g}/mm, k={float(self.k):.6g}, n_coeffs={len(self.a)}, "
+                + super().extra_repr())
+
+
+class Sphere(Asphere):
+    """A spherical surface of curvature ``c = 1/R`` (1/mm)."""
+
+    def __init__(self, curvature: float, semi_diameter: float):
+        super().__init__(curvature, semi_diameter)

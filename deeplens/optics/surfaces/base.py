@@ -1,0 +1,116 @@
+"""The surface interface: an implicit function ``f(x, y, z; θ) = 0`` in the surface's local frame.
+
+Every surface lives in a local frame whose origin is its vertex and whose ``z`` axis is the
+optical axis.  A surface provides
+
+* ``f(x, y, z)``         the implicit function (mm); for a sag surface ``f = sag(x, y) - z``
+* ``f_grad(x, y, z)``    ``(∂f/∂x, ∂f/∂y, ∂f/∂z)``, analytic, differentiable in ``θ``
+* ``in_domain(x, y)``    where ``f`` is defined (e.g. inside a conic's sqrt domain)
+* ``in_aperture(x, y)``  inside the clear aperture (circular semi-diameter by default)
+* ``sag(x, y)``          the surface height, for layouts and crossing checks
+* ``paraxial_curvature`` the vertex curvature used by paraxial analysis (1/mm)
+
+The normal is ``∇f/|∇f|``.  Prescription values are ``nn.Parameter`` objects created with
+``requires_grad=False``; make any one of them trainable with ``p.requires_grad_(True)``.
+Implementations must stay finite (never NaN or inf, also in their derivatives) for *any* finite
+input, including points outside their domain: the tracer evaluates them on invalid rays too and
+masks the result, and a NaN in a masked branch would still poison gradients.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+__all__ = ["Surface", "SagSurface", "make_param", "SURFACE_TYPES", "register_surface"]
+
+SURFACE_TYPES: dict[str, type] = {}
+
+
+def register_surface(name: str):
+    """Class decorator: register a surface type under its lens-file ``type`` name."""
+
+    def deco(cls):
+        cls.type_name = name
+        SURFACE_TYPES[name] = cls
+        return cls
+
+    return deco
+
+
+def make_param(value, name: str = "value") -> nn.Parameter:
+    """A float64 ``nn.Parameter`` that is frozen until the user unfreezes it."""
+    t = torch.as_tensor(value, dtype=torch.float64)
+    if not torch.isfinite(t).all():
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return nn.Parameter(t.clone(), requires_grad=False)
+
+
+class Surface(nn.Module):
+    """Base class of all surfaces (see the module docstring).
+
+    Args:
+        semi_diameter: clear semi-aperture in mm (``> 0``).
+    """
+
+    type_name = "surface"
+    #: a flat surface is intersected in closed form (no Newton iterations)
+    is_flat = False
+
+    def __init__(self, semi_diameter: float):
+        super().__init__()
+        sd = float(semi_diameter)
+        if not (sd > 0 and math.isfinite(sd)):
+            raise ValueError(f"{type(self).__name__}: semi_diameter must be a positive number "
+                             f"of mm, got {semi_diameter!r}")
+        self.register_buffer("semi_diameter", torch.tensor(sd, dtype=torch.float64))
+
+    # ---- the implicit function -------------------------------------------------------
+    def f(self, x, y, z):
+        raise NotImplementedError
+
+    def f_grad(self, x, y, z):
+        raise NotImplementedError
+
+    def in_domain(self, x, y):
+        return torch.ones_like(x, dtype=torch.bool)
+
+    def in_aperture(self, x, y):
+        sd = self.semi_diameter.to(x)
+        return x * x + y * y <= sd * sd
+
+    def sag(self, x, y):
+        raise NotImplementedError
+
+    def paraxial_curvature(self) -> torch.Tensor:
+        return torch.zeros((), dtype=self.semi_diameter.dtype, device=self.semi_diameter.device)
+
+    def check(self, where: str = "") -> None:
+        """Raise ``ValueError`` if the prescription is inconsistent (e.g. aperture beyond domain)."""
+
+    # ---- serialisation ----------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """Prescription as plain floats (the lens-file ``surfaces[i]`` entry, without spacing)."""
+        return {"type": self.type_name, "semi_diameter_mm": float(self.semi_diameter)}
+
+    def extra_repr(self) -> str:
+        return f"semi_diameter={float(self.semi_diameter):.6g} mm"
+
+
+class SagSurface(Surface):
+    """A surface given by a height ``z = sag(x, y)``; ``f = sag - z``.
+
+    Subclasses implement ``sag`` and ``sag_grad`` (returning ``(∂z/∂x, ∂z/∂y)``).
+    """
+
+    def sag_grad(self, x, y):
+        raise NotImplementedError
+
+    def f(self, x, y, z):
+        return self.sag(x, y) - z
+
+    def f_grad(self, x, y, z):
+        sx, sy = self.sag_grad(x, y)
+        return sx, sy, -torch.ones_like(z)

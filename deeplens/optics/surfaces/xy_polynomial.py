@@ -1,0 +1,108 @@
+"""XY polynomial freeform (the paper authors' implicit form).
+
+    f(x, y, z) = b z^2 + sum_{j=0..J} sum_{i=0..j} a_{j,i} x^i y^(j-i) - z = 0
+
+Coefficients are ordered by total degree ``j`` and, within a degree, by the power of ``x``:
+``1, y, x, y^2, xy, x^2, y^3, xy^2, x^2y, x^3, ...``; order ``J`` has ``(J+1)(J+2)/2`` terms.
+With ``b = 0`` it is the explicit sag ``z = P(x, y)``; otherwise
+``z = 2P / (1 + sqrt(1 - 4 b P))``, defined where ``1 - 4 b P >= 0``.
+Gradient: ``(P_x, P_y, 2 b z - 1)``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from .base import Surface, make_param, register_surface
+
+__all__ = ["XYPolynomial", "xy_terms"]
+
+
+def xy_terms(order: int) -> list[tuple[int, int]]:
+    """The ``(i, j-i)`` exponent pairs ``(px, py)`` in coefficient order, up to ``order``."""
+    return [(i, j - i) for j in range(order + 1) for i in range(j + 1)]
+
+
+@register_surface("xy_polynomial")
+class XYPolynomial(Surface):
+    """XY polynomial freeform of any order.
+
+    Args:
+        semi_diameter: clear semi-aperture in mm.
+        coefficients: ``a`` in the order above; its length must be ``(J+1)(J+2)/2``.
+        b: the ``z^2`` coefficient (1/mm).
+
+    The coefficients are one parameter each: ``surface.a[m]``; ``surface.b``.
+    """
+
+    def __init__(self, semi_diameter: float, coefficients=(0.0,), b: float = 0.0):
+        super().__init__(semi_diameter)
+        n = len(coefficients)
+        order = (math.isqrt(8 * n + 1) - 3) // 2
+        if n == 0 or (order + 1) * (order + 2) // 2 != n:
+            raise ValueError(f"XYPolynomial: the number of coefficients must be (J+1)(J+2)/2 "
+                             f"for an order J (1, 3, 6, 10, 15, ...), got {n}")
+        self.order = order
+        self.terms = xy_terms(order)
+        self.b = make_param(b, "b")
+        self.a = torch.nn.ParameterList([make_param(v, f"a{m}") for m, v in enumerate(coefficients)])
+
+    def _powers(self, v):
+        p = [torch.ones_like(v)]
+        for _ in range(self.order):
+            p.append(p[-1] * v)
+        return p
+
+    def poly(self, x, y):
+        """``(P, P_x, P_y)`` at ``(x, y)``."""
+        px, py = self._powers(x), self._powers(y)
+        P = torch.zeros_like(x)
+        Px = torch.zeros_like(x)
+        Py = torch.zeros_like(x)
+        for a, (i, j) in zip(self.a, self.terms):
+            a = a.to(x)
+            P = P + a * px[i] * py[j]
+            if i:
+                Px = Px + (a * i) * px[i - 1] * py[j]
+            if j:
+                Py = Py + (a * j) * px[i] * py[j - 1]
+        return P, Px, Py
+
+    def f(self, x, y, z):
+        P, _, _ = self.poly(x, y)
+        return self.b.to(z) * z * z + P - z
+
+    def f_grad(self, x, y, z):
+        _, Px, Py = self.poly(x, y)
+        return Px, Py, 2.0 * self.b.to(z) * z - 1.0
+
+    def _disc(self, P):
+        return 1.0 - 4.0 * self.b.to(P) * P
+
+    def in_domain(self, x, y):
+        if float(self.b) == 0.0:
+            return torch.ones_like(x, dtype=torch.bool)
+        P, _, _ = self.poly(x, y)
+        return self._disc(P) >= 0
+
+    def sag(self, x, y):
+        P, _, _ = self.poly(x, y)
+        disc = self._disc(P)
+        disc = torch.where(disc > 0, disc, torch.ones_like(disc))
+        return 2.0 * P / (1.0 + torch.sqrt(disc))
+
+    def paraxial_curvature(self):
+        # z ≈ a_x2 x^2 + a_y2 y^2 + b z^2 near the vertex: mean of the two principal curvatures
+        ix2 = self.terms.index((2, 0)) if self.order >= 2 else None
+        iy2 = self.terms.index((0, 2)) if self.order >= 2 else None
+        if ix2 is None:
+            return torch.zeros_like(self.b)
+        return self.a[ix2] + self.a[iy2]
+
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        d["b"] = float(self.b)
+        d["coefficients"] = [float(a) for a in self.a]
+        return d

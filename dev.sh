@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# deeplens developer entry point.  Usage:
+#   bash dev.sh run    # set up (first time) and run the main job
+#   bash dev.sh test   # set up (first time) and run the default test suite
+# Set-up is idempotent: a virtual environment in .venv with `pip install -e .[dev]`.
+set -euo pipefail
+cd "$(dirname "$0")"
+PY=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    "$PY" -m venv .venv
+fi
+stamp=.venv/.deeplens-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    .venv/bin/python -m pip install -q --upgrade pip
+    .venv/bin/python -m pip install -q -e ".[dev]"
+    touch "$stamp"
+fi
+cmd=${1:-test}
+shift || true
+case "$cmd" in
+    test) exec .venv/bin/python -m pytest -q "$@" ;;
+    run)  exec .venv/bin/deeplens report data/lenses/double_gauss.json --image-plane paraxial "$@" ;;
+    *) echo "usage: bash dev.sh run|test [args]" >&2; exit 2 ;;
+esac
