@@ -257,11 +257,9 @@ class Lens(nn.Module):
         return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
 
     def _check_rays(self, rays: Rays) -> None:
+        # wavelengths are checked against every medium's range by Material.n in indices()
         if not isinstance(rays, Rays):
             raise TypeError(f"expected Rays, got {type(rays).__name__}")
-        w = torch.unique(rays.wavelength.detach())
-        for m in self.materials:
-            check_wavelength_nm(w, m, where="tracing: ")
 
     def trace(self, rays: Rays, *, reverse: bool = False, options: IntersectOptions | None = None,
               record: bool = False):
