@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import torch
 
-__all__ = ["paraxial", "ParaxialData"]
+__all__ = ["paraxial", "ParaxialData", "exit_pupil", "chief_ray_scale"]
 
 
 @dataclass
@@ -88,3 +88,53 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
                         entrance_pupil_z=z0 + ep_pos, entrance_pupil_position=ep_pos,
                         entrance_pupil_diameter=epd, fno=efl / epd,
                         stop_height_per_ep_height=ya_s, wavelength_nm=w)
+
+
+def _indices(lens, wavelength_nm):
+    w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
+    p0 = lens.distances[0]
+    wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
+    return [m.n(wt).to(p0) for m in lens.materials], p0
+
+
+def _trace_from(lens, start: int, y, u, n):
+    """Trace a paraxial ray that sits at vertex ``start`` (before refracting there)."""
+    dist = list(lens.distances)
+    for i in range(start, len(lens.surfaces)):
+        if i > start:
+            y = y + dist[i] * u
+        c = lens.surfaces[i].paraxial_curvature().to(y)
+        u = (n[i] * u - y * c * (n[i + 1] - n[i])) / n[i + 1]
+    return y, u
+
+
+def exit_pupil(lens, wavelength_nm: float | None = None):
+    """Paraxial exit pupil ``(z_xp, radius)`` in mm: the image of the stop in image space.
+
+    A ray leaving the stop centre with unit slope crosses the axis in image space at ``z_xp``;
+    a ray leaving the stop at height 1 reaches height ``m`` there, so the radius is
+    ``|m| r_stop``.
+    """
+    n, p0 = _indices(lens, wavelength_nm)
+    one, zero = torch.ones_like(p0), torch.zeros_like(p0)
+    k = lens.stop_index
+    z_last = lens.z_vertices()[-1]
+    yc, uc = _trace_from(lens, k, zero, one, n)
+    if abs(float(uc)) < 1e-15:
+        raise ValueError("the exit pupil is at infinity (image-space telecentric lens)")
+    dz = -yc / uc  # from the last vertex
+    ye, ue = _trace_from(lens, k, one, zero, n)
+    m = ye + ue * dz
+    return z_last + dz, m.abs() * lens.stop.semi_diameter.to(p0)
+
+
+def chief_ray_scale(lens, z_image, wavelength_nm: float | None = None):
+    """``κ`` (mm): the paraxial chief ray of object-space slope ``u`` reaches height ``κ u`` on
+    the plane ``z_image``.  An ideal camera images the field angle ``θ`` to ``κ tan θ``."""
+    n, p0 = _indices(lens, wavelength_nm)
+    one = torch.ones_like(p0)
+    z0 = lens.z_vertices()[0]
+    p = paraxial(lens, wavelength_nm)
+    y0 = -(p.entrance_pupil_z - z0) * one  # passes the EP centre with slope 1
+    y, u = _trace_from(lens, 0, y0, one, n)
+    return y + u * (torch.as_tensor(z_image).to(p0) - lens.z_vertices()[-1])

@@ -1,0 +1,252 @@
+"""Backward (sensor-to-scene) Monte Carlo rendering (paper Sec. III-C/D).
+
+For pixel ``q`` and a sample ``i`` (jittered position ``s_i`` in the pixel, point ``e_i``
+uniform on the exit pupil, paraxial, enlarged by ``pupil_margin``) the ray from ``s_i`` towards
+``e_i`` is traced backwards through the lens to each scene plane, where the texture is fetched
+bilinearly (so gradients reach the hit positions).  With ``w_i = |d_z|^4`` (the ``cos θ cos θ'
+/ r^2`` geometry of sensor and pupil planes):
+
+    vignetting on:   I_q = sum_i v_i w_i L_i / (S · w̄_0)     (S samples, w̄_0 the on-axis mean
+                                                             of v w: the centre of a uniform
+                                                             scene renders 1)
+    vignetting off:  I_q = sum_i v_i w_i L_i / sum_i v_i w_i
+
+``v_i`` is 1 for a ray that passes the lens and reaches the plane.  *On* models relative
+illumination: rays lost in the lens darken the image, and the gradient sees that loss (through
+the texture values of the rays still passing, not through the discrete mask).  *Off* normalises
+each pixel by its own passing rays: a uniform scene renders uniform, and the gradient ignores
+vignetting.  ``w̄_0`` is measured once per render without gradient.
+
+Only what the scene needs is traced: one wavelength for a monochrome texture (else the sensor
+channels' wavelengths), one lens trace shared by all depths of the batch, pixels inside the
+image circle only, rays aimed at the exit pupil only.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import torch
+from torch import nn
+
+from ..analysis.paraxial import exit_pupil
+from ..optics.intersect import IntersectOptions
+from ..optics.rays import Rays
+from .scene import IdealCamera, Scene, sample_texture
+
+__all__ = ["MonteCarloRenderer", "RenderPlan"]
+
+
+class RenderPlan:
+    """Everything a render needs that does not depend on gradients (built per call)."""
+
+    def __init__(self, renderer, scene: Scene, seed: int):
+        lens, sensor = renderer.lens, renderer.sensor
+        self.seed = int(seed)
+        self.jobs = sensor.wavelengths_for(scene.channels)
+        self.camera = IdealCamera(lens, sensor)
+        self.sizes = scene.resolved_sizes(self.camera)
+        with torch.no_grad():
+            z_xp, r_xp = exit_pupil(lens)
+        self.z_xp = float(z_xp)
+        self.r_xp = float(r_xp) * renderer.pupil_margin
+        self.pixels = renderer.active_pixels(self.jobs)
+        self.w_ref = {}
+        if renderer.vignetting:
+            for k, (_, w, _) in enumerate(self.jobs):
+                self.w_ref[k] = renderer.reference_weight(self, w)
+
+
+class MonteCarloRenderer(nn.Module):
+    """Renders a :class:`~deeplens.render.scene.Scene` through ``lens`` onto ``sensor``.
+
+    Args:
+        lens: the :class:`~deeplens.optics.lens.Lens` (its trainable parameters get gradients).
+        sensor: the :class:`~deeplens.render.sensor.Sensor`.
+        spp: rays per pixel per wavelength (>= 1).
+        vignetting: relative illumination on/off (module docstring).
+        adjoint: back-propagate with the adjoint method (memory flat in the ray count) instead of
+            plain autograd.
+        chunk_rays: rays traced at once.
+        options: Newton settings (:class:`~deeplens.optics.intersect.IntersectOptions`).
+        pupil_margin: exit-pupil sampling radius relative to the paraxial exit pupil.
+        seed: base seed; each call uses ``seed + call index`` unless ``seed=`` is passed.
+
+    Example:
+        >>> img = MonteCarloRenderer(lens, sensor, spp=16)(Scene(texture, 5000.0))
+    """
+
+    def __init__(self, lens, sensor, spp: int = 16, vignetting: bool = True,
+                 adjoint: bool = True, chunk_rays: int = 1 << 20,
+                 options: IntersectOptions | None = None, pupil_margin: float = 1.05,
+                 seed: int = 0):
+        super().__init__()
+        if int(spp) < 1:
+            raise ValueError(f"MonteCarloRenderer: spp (rays per pixel) must be >= 1, got {spp}")
+        if int(chunk_rays) < 1:
+            raise ValueError(f"MonteCarloRenderer: chunk_rays must be >= 1, got {chunk_rays}")
+        if not pupil_margin >= 1.0:
+            raise ValueError(f"MonteCarloRenderer: pupil_margin must be >= 1, got {pupil_margin}")
+        self.lens = lens
+        self.sensor = sensor
+        self.spp = int(spp)
+        self.vignetting = bool(vignetting)
+        self.adjoint = bool(adjoint)
+        self.chunk_rays = int(chunk_rays)
+        self.options = options or IntersectOptions()
+        self.pupil_margin = float(pupil_margin)
+        self.seed = int(seed)
+        self._calls = 0
+
+    # ------------------------------------------------------------ pixel selection
+    def _dtype(self):
+        return self.lens.distances[0].dtype
+
+    def _device(self):
+        return self.lens.distances[0].device
+
+    def _sensor_rays(self, x, y, ex, ey, z_xp, wavelength):
+        """Rays from sensor points ``(x, y)`` towards exit-pupil points ``(ex, ey, z_xp)``."""
+        zs = self.lens.z_sensor().to(x)
+        o = torch.stack([x, y, zs.expand_as(x)], -1)
+        p = torch.stack([ex, ey, torch.full_like(ex, z_xp)], -1)
+        d = p - o
+        d = torch.where((d[..., 2:3] > 0), -d, d)  # always travel towards the object (-z)
+        return Rays(o, d, wavelength)
+
+    def active_pixels(self, jobs) -> torch.Tensor:
+        """Indices (into ``H*W``) of the pixels inside the image circle (measured by tracing)."""
+        H, W = self.sensor.resolution
+        dtype, device = self._dtype(), self._device()
+        r_max = self.sensor.half_diagonal_mm
+        with torch.no_grad():
+            z_xp, r_xp = exit_pupil(self.lens)
+            n_r, n_p = 96, 64
+            r = torch.linspace(0, r_max, n_r, dtype=dtype, device=device)
+            g = torch.Generator().manual_seed(1234)
+            rad = torch.sqrt(torch.rand(n_p, generator=g, dtype=torch.float64)).to(dtype=dtype, device=device)
+            phi = (torch.rand(n_p, generator=g, dtype=torch.float64) * 2 * math.pi).to(dtype=dtype, device=device)
+            ex = (self.pupil_margin * float(r_xp) * rad * torch.cos(phi))[None].expand(n_r, n_p)
+            ey = (self.pupil_margin * float(r_xp) * rad * torch.sin(phi))[None].expand(n_r, n_p)
+            r_ic = 0.0
+            for _, w, _ in jobs:
+                for sgn in (1.0, -1.0):  # the +y and -x half-axes (misalignment breaks symmetry)
+                    x = (r[:, None] * (0.0 if sgn > 0 else -1.0)).expand(n_r, n_p)
+                    y = (r[:, None] * (1.0 if sgn > 0 else 0.0)).expand(n_r, n_p)
+                    rays = self._sensor_rays(x.contiguous(), y.contiguous(), ex, ey,
+                                             float(z_xp), w)
+                    out = self.lens.trace(rays, reverse=True, options=self.options)
+                    ok = out.valid.any(-1)
+                    if bool(ok.any()):
+                        r_ic = max(r_ic, float(r[ok].max()))
+            step = r_max / (n_r - 1)
+            r_ic = min(r_ic + step, r_max) if r_ic < r_max else r_max
+            self.image_circle_mm = r_ic
+            x, y = self.sensor.pixel_centers(dtype, device)
+            half_pix = self.sensor.pixel_size_mm / math.sqrt(2)
+            inside = (torch.sqrt(x * x + y * y) - half_pix <= r_ic).reshape(-1)
+        if r_ic < r_max - 1e-9:
+            warnings.warn(
+                f"the sensor (half-diagonal {r_max:.4g} mm) is larger than the lens's image circle "
+                f"(radius {r_ic:.4g} mm): {int((~inside).sum())} of {H * W} pixels receive no "
+                f"light and are not traced", stacklevel=3)
+        return torch.nonzero(inside).reshape(-1)
+
+    def reference_weight(self, plan: RenderPlan, wavelength: float, n: int = 4096) -> float:
+        """``w̄_0``: mean of ``v |d_z|^4`` over pupil samples at the sensor centre."""
+        dtype, device = self._dtype(), self._device()
+        with torch.no_grad():
+            g = torch.Generator().manual_seed(4321)
+            rad = torch.sqrt(torch.rand(n, generator=g, dtype=torch.float64)) * plan.r_xp
+            phi = torch.rand(n, generator=g, dtype=torch.float64) * 2 * math.pi
+            ex, ey = (rad * torch.cos(phi)).to(dtype=dtype, device=device), \
+                (rad * torch.sin(phi)).to(dtype=dtype, device=device)
+            zero = torch.zeros_like(ex)
+            rays = self._sensor_rays(zero, zero, ex, ey, plan.z_xp, wavelength)
+            out = self.lens.trace(rays, reverse=True, options=self.options)
+            w = out.valid.to(dtype) * rays.d[..., 2] ** 4
+            val = float(w.mean())
+        if val <= 0:
+            raise ValueError(f"no ray from the sensor centre passes the lens at {wavelength:g} nm: "
+                             f"the lens vignettes the on-axis field completely")
+        return val
+
+    # ------------------------------------------------------------ the functional core
+    def n_chunks(self, plan: RenderPlan) -> int:
+        per = max(1, self.chunk_rays // self.spp)
+        return max(1, math.ceil(plan.pixels.numel() / per))
+
+    def chunk_pixels(self, plan: RenderPlan, k: int) -> torch.Tensor:
+        per = max(1, self.chunk_rays // self.spp)
+        return plan.pixels[k * per:(k + 1) * per]
+
+    def render_chunk(self, plan: RenderPlan, scene: Scene, job: int, k: int) -> torch.Tensor:
+        """Contribution ``(B, n)`` of wavelength job ``job`` to chunk ``k``'s pixels (its
+        channel and weight applied).  Deterministic given ``plan.seed``: the adjoint pass
+        re-traces exactly the same rays."""
+        dtype, device = self._dtype(), self._device()
+        channel, wavelength, weight = plan.jobs[job]
+        pix = self.chunk_pixels(plan, k)
+        n, S = pix.numel(), self.spp
+        g = torch.Generator(device=device).manual_seed(
+            (plan.seed * 1_000_003 + job * 10_007 + k) % (2 ** 63))
+        u = torch.rand((n, S, 4), generator=g, dtype=dtype, device=device)
+        W = self.sensor.resolution[1]
+        i = (pix // W).to(dtype)[:, None] + u[..., 0]
+        j = (pix % W).to(dtype)[:, None] + u[..., 1]
+        x, y = self.sensor.pixel_to_xy(i, j)
+        rad = torch.sqrt(u[..., 2]) * plan.r_xp
+        phi = u[..., 3] * (2 * math.pi)
+        rays = self._sensor_rays(x, y, rad * torch.cos(phi), rad * torch.sin(phi), plan.z_xp,
+                                 wavelength)
+        w = rays.d[..., 2] ** 4
+        out = self.lens.trace(rays, reverse=True, options=self.options)
+        z0 = self.lens.z_vertices()[0]
+        values = []
+        valid_all = []
+        for b in range(scene.batch):
+            hit = self.lens.propagate_to_z(out, z0 - float(scene.depths_mm[b]))
+            values.append(hit.o[..., :2])
+            valid_all.append(hit.valid)
+        XY = torch.stack(values)  # (B, n, S, 2)
+        valid = torch.stack(valid_all)  # (B, n, S)
+        tex = sample_texture(scene.textures, XY[..., 0].reshape(scene.batch, -1),
+                             XY[..., 1].reshape(scene.batch, -1), plan.sizes.to(device))
+        tex_c = tex[:, channel if scene.channels > 1 else 0].reshape(scene.batch, n, S)
+        vw = valid.to(dtype) * w
+        num = (vw * tex_c.to(dtype)).sum(-1)
+        if self.vignetting:
+            val = num / (S * plan.w_ref[job])
+        else:
+            den = vw.sum(-1)
+            val = num / torch.where(den > 0, den, torch.ones_like(den))
+        return weight * val
+
+    def render_plain(self, plan: RenderPlan, scene: Scene) -> torch.Tensor:
+        """The image ``(B, C, H, W)`` with every chunk recorded by autograd."""
+        H, W = self.sensor.resolution
+        B, C = scene.batch, (scene.channels if scene.channels > 1 else 1)
+        dtype, device = self._dtype(), self._device()
+        chans = [torch.zeros(B, H * W, dtype=dtype, device=device) for _ in range(C)]
+        for job, (channel, _, _) in enumerate(plan.jobs):
+            for k in range(self.n_chunks(plan)):
+                pix = self.chunk_pixels(plan, k)
+                chans[channel] = chans[channel].index_add(1, pix,
+                                                          self.render_chunk(plan, scene, job, k))
+        return torch.stack(chans, 1).reshape(B, C, H, W)
+
+    def forward(self, scene: Scene, seed: int | None = None) -> torch.Tensor:
+        """Render ``scene``; returns ``(B, C, H, W)`` in the lens's dtype (C = 1 for a
+        monochrome scene)."""
+        if not isinstance(scene, Scene):
+            raise TypeError(f"MonteCarloRenderer expects a Scene, got {type(scene).__name__}")
+        if seed is None:
+            seed = self.seed + self._calls
+            self._calls += 1
+        plan = RenderPlan(self, scene, seed)
+        if self.adjoint:
+            from .adjoint import adjoint_render
+
+            return adjoint_render(self, plan, scene)
+        return self.render_plain(plan, scene)
