@@ -38,6 +38,13 @@ class ParaxialData:
     wavelength_nm: float
 
 
+def _power(surface, n1, n2):
+    """Surface power ``φ = c (n2 - n1)`` (1/mm); an ideal lens supplies its own ``1/f``."""
+    if hasattr(surface, "paraxial_power"):
+        return surface.paraxial_power() * n2
+    return surface.paraxial_curvature() * (n2 - n1)
+
+
 def _trace(lens, y, u, n):
     """Trace a paraxial ray (y, u at the first vertex, in object space) to the last vertex.
 
@@ -48,8 +55,7 @@ def _trace(lens, y, u, n):
         if i > 0:
             y = y + dist[i] * u
         heights.append(y)
-        c = s.paraxial_curvature().to(y)
-        u = (n[i] * u - y * c * (n[i + 1] - n[i])) / n[i + 1]
+        u = (n[i] * u - y * _power(s, n[i], n[i + 1]).to(y)) / n[i + 1]
     return y, u, heights
 
 
@@ -103,8 +109,7 @@ def _trace_from(lens, start: int, y, u, n):
     for i in range(start, len(lens.surfaces)):
         if i > start:
             y = y + dist[i] * u
-        c = lens.surfaces[i].paraxial_curvature().to(y)
-        u = (n[i] * u - y * c * (n[i + 1] - n[i])) / n[i + 1]
+        u = (n[i] * u - y * _power(lens.surfaces[i], n[i], n[i + 1]).to(y)) / n[i + 1]
     return y, u
 
 

@@ -236,15 +236,23 @@ class MonteCarloRenderer(nn.Module):
                                                           self.render_chunk(plan, scene, job, k))
         return torch.stack(chans, 1).reshape(B, C, H, W)
 
-    def forward(self, scene: Scene, seed: int | None = None) -> torch.Tensor:
-        """Render ``scene``; returns ``(B, C, H, W)`` in the lens's dtype (C = 1 for a
-        monochrome scene)."""
+    def plan(self, scene: Scene, seed: int | None = None) -> RenderPlan:
+        """The sampling plan of a render (pupil, pixels, normalisation, seed).  Re-using one plan
+        renders with identical samples, e.g. for finite differences."""
         if not isinstance(scene, Scene):
             raise TypeError(f"MonteCarloRenderer expects a Scene, got {type(scene).__name__}")
         if seed is None:
             seed = self.seed + self._calls
             self._calls += 1
-        plan = RenderPlan(self, scene, seed)
+        return RenderPlan(self, scene, seed)
+
+    def forward(self, scene: Scene, seed: int | None = None,
+                plan: RenderPlan | None = None) -> torch.Tensor:
+        """Render ``scene``; returns ``(B, C, H, W)`` in the lens's dtype (C = 1 for a
+        monochrome scene).  ``plan`` (from :meth:`plan`) fixes the samples; the pupil and
+        normalisation it holds are then constants for the gradient."""
+        if plan is None:
+            plan = self.plan(scene, seed)
         if self.adjoint:
             from .adjoint import adjoint_render
 

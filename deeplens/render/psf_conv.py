@@ -1,0 +1,92 @@
+"""PSF-convolution rendering: the fast, shift-invariant approximation.
+
+    I_c = sum_k w_k (GT_c ⊛ PSF_{c,k})
+
+``GT`` is the ideal camera's sharp image (:class:`~deeplens.render.scene.IdealCamera`),
+``PSF_{c,k}`` the PSF of the plane's depth at patch centre ``k`` for channel ``c`` (its
+wavelengths weighted, :func:`~deeplens.render.psf.psf_grid`) and ``w_k`` bilinear blending
+weights between patch centres (one patch: a single convolution).  Exact only where the system is
+shift-invariant over a patch; relative illumination is not modelled (PSFs sum to one).  Same call
+interface as :class:`~deeplens.render.backward.MonteCarloRenderer`.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .psf import psf_grid
+from .scene import IdealCamera, Scene
+
+__all__ = ["PSFConvRenderer", "blend_weights"]
+
+
+def blend_weights(shape, grid, dtype=torch.float64, device=None) -> torch.Tensor:
+    """Bilinear (tent) weights ``(gy*gx, H, W)`` between patch centres; they sum to one."""
+    H, W = shape
+    gy, gx = grid
+
+    def tents(n, g):
+        c = (torch.arange(g, dtype=dtype, device=device) + 0.5) * n / g
+        x = torch.arange(n, dtype=dtype, device=device) + 0.5
+        if g == 1:
+            return torch.ones(1, n, dtype=dtype, device=device)
+        step = n / g
+        w = (1 - (x[None] - c[:, None]).abs() / step).clamp_min(0)
+        w[0, x <= c[0]] = 1.0
+        w[-1, x >= c[-1]] = 1.0
+        return w / w.sum(0, keepdim=True)
+
+    wy, wx = tents(H, gy), tents(W, gx)
+    return (wy[:, None, :, None] * wx[None, :, None, :]).reshape(gy * gx, H, W)
+
+
+class PSFConvRenderer(nn.Module):
+    """Renders a scene as the ideal image convolved with the lens's PSFs.
+
+    Args:
+        lens, sensor: as for :class:`~deeplens.render.backward.MonteCarloRenderer`.
+        n_rays: rays per PSF.
+        patches: ``(gy, gx)`` PSF grid over the field (``(1, 1)``: one on-axis PSF).
+        kernel_size: force the kernel size (odd); ``None`` sizes it from the spots.
+        supersample: ground-truth supersampling.
+        seed: base seed of the PSF ray samples.
+    """
+
+    def __init__(self, lens, sensor, n_rays: int = 4096, patches=(1, 1),
+                 kernel_size: int | None = None, supersample: int = 2, options=None,
+                 seed: int = 0):
+        super().__init__()
+        if int(n_rays) < 1:
+            raise ValueError(f"PSFConvRenderer: n_rays must be >= 1, got {n_rays}")
+        self.lens, self.sensor = lens, sensor
+        self.n_rays, self.patches = int(n_rays), tuple(int(p) for p in patches)
+        self.kernel_size, self.supersample = kernel_size, int(supersample)
+        self.options, self.seed = options, int(seed)
+
+    def forward(self, scene: Scene, seed: int | None = None) -> torch.Tensor:
+        if not isinstance(scene, Scene):
+            raise TypeError(f"PSFConvRenderer expects a Scene, got {type(scene).__name__}")
+        seed = self.seed if seed is None else seed
+        dtype = self.lens.distances[0].dtype
+        gt = IdealCamera(self.lens, self.sensor).render(scene, self.supersample).to(dtype)
+        jobs = self.sensor.wavelengths_for(scene.channels)
+        H, W = self.sensor.resolution
+        blend = blend_weights((H, W), self.patches, dtype, gt.device)
+        out = torch.zeros_like(gt)
+        depths = scene.depths_mm.tolist()
+        for depth in sorted(set(depths)):
+            idx = [b for b, d in enumerate(depths) if d == depth]
+            chans = [torch.zeros(len(idx), H, W, dtype=dtype, device=gt.device)
+                     for _ in range(gt.shape[1])]
+            for c, w, wt in jobs:
+                kers, _ = psf_grid(self.lens, self.sensor, depth, w, self.patches, self.n_rays,
+                                   self.kernel_size, seed, self.options)
+                K = kers.shape[-1]
+                kers = kers.reshape(-1, 1, K, K).flip(-1, -2)  # convolution, not correlation
+                x = gt[idx, c:c + 1]  # (b, 1, H, W)
+                y = F.conv2d(x, kers.to(x), padding=K // 2)  # (b, P, H, W)
+                chans[c] = chans[c] + wt * (y * blend[None]).sum(1)
+            out[idx] = torch.stack(chans, 1)
+        return out
