@@ -109,23 +109,29 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
         ok = ok & (fp.detach().abs() > 1e-12)
         t = t_star - _safe_div(fv, fp, ok)
     else:  # unrolled: every iteration is recorded by autograd
+        # A ray stops one recorded step *after* its residual falls below ``tol``.  The derivative
+        # of a Newton iterate lags its value by one step (d t_{k+1} = -f_θ/f' + O(f(t_k))), so
+        # stopping as soon as |f(t_k)| < tol left a derivative error of O(f(t_{k-1})) (~1e-6
+        # relative), and a ray already on the surface at t0 kept the detached t0 and lost its
+        # whole derivative.  The last step here starts at |f| < tol, as Eq. 7 does, but the
+        # gradient still flows through the entire chain (regression tests in test_gradients.py).
         t = t0
         active = ok.clone()
         converged = torch.zeros_like(ok)
         for _ in range(opt.max_iter):
             fv, fp = _residual(surface, o, d, t)
-            done = active & (fv.detach().abs() < tol)
-            converged = converged | done
-            # keep iterating converged rays once more would change nothing measurable; stop them
-            active = active & ~done & (fp.detach().abs() > 1e-12)
+            step = active & (fp.detach().abs() > 1e-12)
+            small = step & (fv.detach().abs() < tol)
+            t = torch.where(step, t - _safe_div(fv, fp, step), t)
+            converged = converged | small
+            active = step & ~small
             if not bool(active.any()):
                 break
-            t = torch.where(active, t - _safe_div(fv, fp, active), t)
         else:
             fv, _ = _residual(surface, o.detach(), d.detach(), t.detach())
             converged = converged | (active & (fv.abs() < tol))
         ok = ok & converged
-        # no extra step here: the gradient is the one of the unrolled chain, independent of Eq. 7
+        # no separate Eq. 7 step: the gradient is the one of the unrolled chain
 
     x = o + t.unsqueeze(-1) * d
     X, Y = x[..., 0].detach(), x[..., 1].detach()

@@ -63,7 +63,13 @@ class LensSpec:
         if not self.object_distance_mm > 0:
             raise ValueError(f"object distance must be > 0 mm (or inf), got "
                              f"{self.object_distance_mm!r}")
-        if not self.wavelengths_nm:
+        if not len(self.fields_deg):
+            raise ValueError("at least one field angle is needed")
+        for f in self.fields_deg:
+            if not (math.isfinite(float(f)) and abs(float(f)) < 90.0):
+                raise ValueError(f"field angles must be finite and within (-90, 90) degrees, "
+                                 f"got {f!r}")
+        if not len(self.wavelengths_nm):
             raise ValueError("at least one wavelength is needed")
         check_wavelength_nm(list(self.wavelengths_nm), where="lens wavelengths: ")
         if self.primary_wavelength_nm is None:
@@ -139,6 +145,10 @@ class Lens(nn.Module):
                                            for i, v in enumerate(distances)])
         self.d_sensor = make_param(d_sensor, "sensor distance")
         self.stop_index = int(stop_index)
+        if sensor_semi_diameter is not None and not (float(sensor_semi_diameter) > 0 and
+                                                     math.isfinite(float(sensor_semi_diameter))):
+            raise ValueError(f"sensor semi-diameter must be a positive number of mm (or None), "
+                             f"got {sensor_semi_diameter!r}")
         self.sensor_semi_diameter = (None if sensor_semi_diameter is None
                                      else float(sensor_semi_diameter))
         self.spec = spec if spec is not None else LensSpec()
@@ -152,7 +162,7 @@ class Lens(nn.Module):
         self._element_of = {i: e for e, (a, b) in enumerate(self.elements) for i in range(a, b + 1)}
         self.check()
         if self.spec.aperture_type != "stop":
-            self.apply_aperture_spec()
+            pass
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -168,6 +178,14 @@ class Lens(nn.Module):
 
     def check(self) -> None:
         """Validate the prescription; raises ``ValueError`` naming the surface."""
+        waves = [float(w) for w in self.spec.wavelengths_nm] + [
+            float(self.spec.primary_wavelength_nm)]
+        for i, m in enumerate(self.materials):
+            medium = "object space" if i == 0 else f"the medium after surface {i - 1}"
+            try:
+                check_wavelength_nm(waves, m)
+            except ValueError as e:
+                raise ValueError(f"lens wavelengths: {e} ({medium})") from None
         for i, s in enumerate(self.surfaces):
             s.check(where=f"surface {i} ({type(s).__name__}): ")
         for i, d in enumerate(self.distances):
@@ -214,8 +232,16 @@ class Lens(nn.Module):
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)
         else:
+            if not float(p.efl) > 0:
+                raise ValueError(f"an F-number aperture needs a positive focal length; the "
+                                 f"paraxial EFL is {float(p.efl):.6g} mm (give the aperture as "
+                                 f"'epd' or 'stop' instead)")
             epd = float(p.efl) / float(self.spec.aperture_value)
-        stop.set_semi_diameter(0.5 * epd * abs(float(p.stop_height_per_ep_height)))
+        sd = 0.5 * epd * abs(float(p.stop_height_per_ep_height))
+        if not (sd > 0 and math.isfinite(sd)):
+            raise ValueError(f"aperture {self.spec.aperture_type} {self.spec.aperture_value!r} "
+                             f"gives a stop semi-diameter of {sd!r} mm")
+        stop.set_semi_diameter(sd)
 
     # ------------------------------------------------------------------ media
     def indices(self, wavelength: torch.Tensor) -> list[torch.Tensor]:
@@ -244,7 +270,9 @@ class Lens(nn.Module):
             o, d = m.to_element(rays.o, rays.d, pivot)
             o = o - vertex
         t, x, valid = intersect(s, o, d, rays.valid, options)
-        if refract_ and not isinstance(s, Aperture):
+        if refract_ and getattr(s, "deflects", False):
+            d, valid = s.deflect(x, d, valid)  # an ideal (paraxial) lens
+        elif refract_ and not isinstance(s, Aperture):
             fx, fy, fz = s.f_grad(x[..., 0], x[..., 1], x[..., 2])
             normal = unit_normal(fx, fy, fz)
             d, valid = refract(d, normal, n1 / n2, valid)

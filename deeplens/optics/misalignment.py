@@ -35,7 +35,7 @@ class Misalignment(nn.Module):
 
     def is_identity(self) -> bool:
         """True when every value is zero and none is trainable (the transform is skipped)."""
-        return all(float(p) == 0.0 and not p.requires_grad
+        return all(not p.requires_grad and float(p) == 0.0
                    for p in (self.dx, self.dy, self.tilt_x, self.tilt_y))
 
     def rotation(self, like: torch.Tensor) -> torch.Tensor:

@@ -32,13 +32,14 @@ exactly.  Every error names the file and the JSON path of the offending field.
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import os
 from pathlib import Path
 
 from ..lens import Lens, LensSpec
-from ..materials import get_material
+from ..materials import check_wavelength_nm, get_material
 from ..surfaces import Aperture, Asphere, BSpline, Plane, XYPolynomial
 
 __all__ = ["load_lens", "save_lens", "lens_to_dict", "lens_from_dict", "LensFileError",
@@ -70,8 +71,6 @@ class _Reader:
 
     def check(self, v, path, kind):
         if kind == "number":
-            if isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
-                return math.inf
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 self.fail(path, f"expected a finite number, got {v!r}")
             return float(v)
@@ -80,6 +79,8 @@ class _Reader:
                 return math.inf
             if isinstance(v, float) and v == math.inf:
                 return v
+            if isinstance(v, str):
+                self.fail(path, f"expected a finite number or \"inf\", got {v!r}")
             return self.check(v, path, "number")
         if kind == "int":
             if isinstance(v, bool) or not isinstance(v, int):
@@ -100,24 +101,67 @@ class _Reader:
             if len({len(r) for r in rows}) != 1:
                 self.fail(path, "rows of the coefficient grid differ in length")
             return rows
+        if kind == "object":
+            if not isinstance(v, dict):
+                self.fail(path, f"expected an object, got {type(v).__name__} {v!r}")
+            return v
         raise AssertionError(kind)
+
+    def keys(self, obj: dict, allowed, path: str) -> None:
+        """Reject unknown fields (a misspelt optional field would otherwise be ignored)."""
+        for key in obj:
+            if key in allowed or key == "comment" or key.startswith("_"):
+                continue
+            close = difflib.get_close_matches(key, sorted(allowed), n=1, cutoff=0.5)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            self.fail(f"{path}.{key}" if path else key,
+                      f"unknown field{hint} (known: {', '.join(sorted(allowed))})")
+
+
+_COMMON_KEYS = {"type", "distance_mm", "semi_diameter_mm", "material"}
+_SURFACE_KEYS = {
+    "asphere": {"curvature_per_mm", "roc_mm", "conic", "aspheric"},
+    "sphere": {"curvature_per_mm", "roc_mm", "conic", "aspheric"},
+    "conic": {"curvature_per_mm", "roc_mm", "conic", "aspheric"},
+    "plane": set(),
+    "aperture": {"shape", "half_width_x_mm", "half_width_y_mm"},
+    "xy_polynomial": {"coefficients", "b"},
+    "bspline": {"coefficients"},
+}
+_TOP_KEYS = {"format", "version", "name", "units", "object", "aperture", "fields_deg",
+             "wavelengths_nm", "primary_wavelength_nm", "stop", "surfaces", "sensor", "elements",
+             "misalignment"}
 
 
 def _surface_from_dict(r: _Reader, s: dict, path: str):
+    r.check(s, path, "object")
     kind = r.get(s, "type", path, "str")
+    if kind not in _SURFACE_KEYS:
+        r.fail(f"{path}.type", f"unknown surface type {kind!r}; expected one of asphere, plane, "
+                               f"aperture, xy_polynomial, bspline")
+    r.keys(s, _COMMON_KEYS | _SURFACE_KEYS[kind], path)
     sd = r.get(s, "semi_diameter_mm", path)
+    if not sd > 0:
+        r.fail(f"{path}.semi_diameter_mm", f"must be > 0 mm, got {sd!r}")
     if kind in ("asphere", "sphere", "conic"):
-        if "curvature_per_mm" in s:
-            c = r.get(s, "curvature_per_mm", path)
-        else:
+        if "curvature_per_mm" in s and "roc_mm" in s:
+            r.fail(f"{path}.roc_mm", "give curvature_per_mm or roc_mm, not both")
+        if "roc_mm" in s:
             roc = r.get(s, "roc_mm", path)
             c = 0.0 if roc == 0 else 1.0 / roc
+        elif "curvature_per_mm" in s:
+            c = r.get(s, "curvature_per_mm", path)
+        else:
+            r.fail(f"{path}.curvature_per_mm", f"missing required field for a {kind!r} surface "
+                                               f"(the vertex curvature in 1/mm; or give roc_mm)")
         return Asphere(c, sd, conic=r.get(s, "conic", path, default=0.0),
                        coefficients=r.get(s, "aspheric", path, "numbers", default=[]))
     if kind == "plane":
         return Plane(sd)
     if kind == "aperture":
         shape = r.get(s, "shape", path, "str", default="circle")
+        if shape not in ("circle", "rect"):
+            r.fail(f"{path}.shape", f"expected 'circle' or 'rect', got {shape!r}")
         if shape == "rect":
             return Aperture(sd, "rect", r.get(s, "half_width_x_mm", path),
                             r.get(s, "half_width_y_mm", path))
@@ -135,33 +179,57 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     """Build a :class:`Lens` from a lens-file dictionary; errors name ``source`` and the field."""
     r = _Reader(source)
     if not isinstance(data, dict):
-        r.fail("(top level)", "expected a JSON object")
+        r.fail("(top level)", f"expected a JSON object, got {type(data).__name__}")
+    r.keys(data, _TOP_KEYS, "")
     fmt = data.get("format", FORMAT_NAME)
     if fmt != FORMAT_NAME:
         r.fail("format", f"expected {FORMAT_NAME!r}, got {fmt!r}")
     version = r.get(data, "version", "", "int", default=FORMAT_VERSION)
-    if version > FORMAT_VERSION:
-        r.fail("version", f"this deeplens reads lens-file versions up to {FORMAT_VERSION}, "
-                          f"got {version}")
-    units = data.get("units", {"length": "mm", "wavelength": "nm"})
-    if units.get("length", "mm") != "mm" or units.get("wavelength", "nm") != "nm":
-        r.fail("units", f"lengths must be in mm and wavelengths in nm, got {units!r}")
-    obj = data.get("object", {})
+    if not 1 <= version <= FORMAT_VERSION:
+        r.fail("version", f"unsupported lens-file version {version}: this deeplens reads "
+                          f"versions 1 to {FORMAT_VERSION}")
+    name = r.get(data, "name", "", "str", default="")
+    units = r.check(data.get("units", {}), "units", "object")
+    r.keys(units, {"length", "wavelength"}, "units")
+    for key, want in (("length", "mm"), ("wavelength", "nm")):
+        got = units.get(key, want)
+        if got != want:
+            r.fail(f"units.{key}", f"unsupported unit {got!r}: deeplens lens files give "
+                                   f"lengths in mm and wavelengths in nm (convert the values "
+                                   f"and write {want!r})")
+    obj = r.check(data.get("object", {}), "object", "object")
+    r.keys(obj, {"distance_mm", "medium"}, "object")
     obj_dist = r.get(obj, "distance_mm", "object", "number_or_inf", default=math.inf)
+    if not obj_dist > 0:
+        r.fail("object.distance_mm", f"the object distance must be > 0 mm (or \"inf\"), got "
+                                     f"{obj_dist!r}")
     obj_medium = r.get(obj, "medium", "object", "str", default="AIR")
-    ap = data.get("aperture", {"type": "stop"})
+    ap = r.check(data.get("aperture", {"type": "stop"}), "aperture", "object")
+    r.keys(ap, {"type", "value"}, "aperture")
     ap_type = r.get(ap, "type", "aperture", "str")
+    if ap_type not in ("stop", "epd", "fno"):
+        r.fail("aperture.type", f"expected 'stop', 'epd' (entrance-pupil diameter, mm) or 'fno' "
+                                f"(F-number), got {ap_type!r}")
     ap_value = None if ap_type == "stop" else r.get(ap, "value", "aperture")
+    if ap_value is not None and not ap_value > 0:
+        r.fail("aperture.value", f"the {ap_type} must be > 0, got {ap_value!r}")
+    fields = r.get(data, "fields_deg", "", "numbers", default=[0.0])
     wavelengths = r.get(data, "wavelengths_nm", "", "numbers", default=[587.5618])
+    if not wavelengths:
+        r.fail("wavelengths_nm", "expected at least one wavelength (nm)")
+    primary = r.get(data, "primary_wavelength_nm", "", "number", default=None)
+    for key, value in (("wavelengths_nm", wavelengths), ("primary_wavelength_nm", primary)):
+        if value is not None:
+            try:
+                check_wavelength_nm(value)
+            except ValueError as e:
+                r.fail(key, str(e))
     try:
         spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
-                        aperture_value=ap_value,
-                        fields_deg=r.get(data, "fields_deg", "", "numbers", default=[0.0]),
-                        wavelengths_nm=wavelengths,
-                        primary_wavelength_nm=r.get(data, "primary_wavelength_nm", "", "number",
-                                                    default=None))
+                        aperture_value=ap_value, fields_deg=fields, wavelengths_nm=wavelengths,
+                        primary_wavelength_nm=primary)
     except ValueError as e:
-        r.fail("(system)", str(e))
+        r.fail("fields_deg" if "field" in str(e) else "(system)", str(e))
     surf_list = data.get("surfaces")
     if not isinstance(surf_list, list) or not surf_list:
         r.fail("surfaces", "expected a non-empty list of surfaces")
@@ -169,9 +237,16 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
 
     def material(spec_str, path):
         try:
-            return get_material(spec_str)
+            m = get_material(spec_str)
         except ValueError as e:
             r.fail(path, str(e))
+        for key, w in (("wavelengths_nm", spec.wavelengths_nm),
+                       ("primary_wavelength_nm", spec.primary_wavelength_nm)):
+            try:
+                check_wavelength_nm(w, m)
+            except ValueError as e:
+                r.fail(key, f"{e} (used at {path})")
+        return m
 
     materials.append(material(obj_medium, "object.medium"))
     for i, s in enumerate(surf_list):
@@ -190,24 +265,41 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
         r.fail("stop", "missing: the lens has no aperture stop (give the index of the stop "
                        "surface)")
     stop = r.check(stop, "stop", "int")
+    if not 0 <= stop < len(surfaces):
+        r.fail("stop", f"{stop} is not a surface index (0..{len(surfaces) - 1})")
     sensor = data.get("sensor")
     if not isinstance(sensor, dict):
         r.fail("sensor", "missing: expected {\"distance_mm\": ..., \"semi_diameter_mm\": ...}")
+    r.keys(sensor, {"distance_mm", "semi_diameter_mm"}, "sensor")
     d_sensor = r.get(sensor, "distance_mm", "sensor")
+    if not d_sensor > 0:
+        r.fail("sensor.distance_mm", f"the sensor distance must be > 0 mm, got {d_sensor!r}")
     sensor_sd = r.get(sensor, "semi_diameter_mm", "sensor", default=None)
+    if sensor_sd is not None and not sensor_sd > 0:
+        r.fail("sensor.semi_diameter_mm", f"must be > 0 mm (or left out), got {sensor_sd!r}")
     elements = data.get("elements")
+    if elements is not None:
+        if not isinstance(elements, list):
+            r.fail("elements", f"expected a list of [first, last] surface-index pairs, got "
+                               f"{elements!r}")
+        for e, pair in enumerate(elements):
+            if (not isinstance(pair, list) or len(pair) != 2
+                    or any(isinstance(v, bool) or not isinstance(v, int) for v in pair)):
+                r.fail(f"elements[{e}]", f"expected [first, last] surface indices, got {pair!r}")
     try:
         lens = Lens(surfaces, materials, distances, d_sensor, stop, sensor_sd, spec,
-                    elements=elements, name=str(data.get("name", "")))
+                    elements=elements, name=name)
     except (ValueError, TypeError) as e:
         raise LensFileError(f"{source}: {e}") from e
     mis = data.get("misalignment")
     if mis is not None:
         if not isinstance(mis, list) or len(mis) != len(lens.elements):
             r.fail("misalignment", f"expected a list of {len(lens.elements)} entries (one per "
-                                   f"element)")
+                                   f"element), got {mis!r}")
         for e, m in enumerate(mis):
             path = f"misalignment[{e}]"
+            r.check(m, path, "object")
+            r.keys(m, {"dx_mm", "dy_mm", "tilt_x_rad", "tilt_y_rad"}, path)
             ma = lens.misalignments[e]
             for key, p in (("dx_mm", ma.dx), ("dy_mm", ma.dy), ("tilt_x_rad", ma.tilt_x),
                            ("tilt_y_rad", ma.tilt_y)):
@@ -267,12 +359,23 @@ def load_lens(path, **table_options) -> Lens:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
-    if path.suffix.lower() == ".txt":
+    if path.is_dir():
+        raise LensFileError(f"{path}: is a directory, not a lens file")
+    suffix = path.suffix.lower()
+    if suffix == ".txt":
         from .table import read_table
 
         return read_table(path, **table_options)
+    if suffix != ".json":
+        raise LensFileError(f"{path}: unsupported lens file type {path.suffix!r}: deeplens reads "
+                            f"its JSON format (.json) and the paper authors' tables (.txt)")
+    if table_options:
+        raise TypeError(f"options {sorted(table_options)} apply to .txt tables only")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as e:
+        raise LensFileError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from e
     except json.JSONDecodeError as e:
-        raise LensFileError(f"{path}: line {e.lineno}: invalid JSON: {e.msg}") from e
+        raise LensFileError(f"{path}:{e.lineno}:{e.colno}: invalid JSON at line {e.lineno}, "
+                            f"column {e.colno}: {e.msg}") from e
     return lens_from_dict(data, source=str(path))

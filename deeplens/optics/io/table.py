@@ -19,6 +19,7 @@ prescriptions in normalised units).  Each error names the file and line.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 from ..materials import get_material
@@ -51,15 +52,37 @@ def table_to_dict(path, *, scale: float = 1.0, stop_index: int | None = None,
         object_distance_mm, fields_deg, wavelengths_nm: the system data the format lacks.
         name: title (default: line 1).
     """
+    return _parse(path, scale=scale, stop_index=stop_index,
+                  object_distance_mm=object_distance_mm, fields_deg=fields_deg,
+                  wavelengths_nm=wavelengths_nm, name=name)[0]
+
+
+def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengths_nm, name):
+    """``(lens-file dict, {"surfaces[i]": line, "sensor": line})``."""
     path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"lens file not found: {path}")
+    if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+        raise LensFileError(f"{path}: scale must be a positive number, got {scale!r}")
+    raw = path.read_bytes()
     try:
-        text = path.read_text()
-    except UnicodeDecodeError:
-        text = path.read_text(encoding="utf-16")
+        if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+            text = raw.decode("utf-16")
+        else:
+            text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise LensFileError(f"{path}: not a UTF-8 or UTF-16 text file ({e.reason} at byte "
+                            f"{e.start})") from None
     lines = text.splitlines()
     if len(lines) < 3:
-        raise LensFileError(f"{path}: expected a title line, a header line and surface rows")
+        raise LensFileError(f"{path}: expected a title line, a header line and surface rows, got "
+                            f"{len(lines)} line(s)")
+    header = lines[1].split()
+    if not header or header[0].lower() != "type":
+        raise LensFileError(f"{path}:2: expected the header 'type distance roc diameter "
+                            f"material' on line 2, got {lines[1].strip()!r}")
     surfaces, obj_medium, sensor, stop = [], "AIR", None, None
+    where_of = {}
     for ln, line in enumerate(lines[2:], start=3):
         toks = line.split()
         if not toks or toks[0].startswith("#"):
@@ -87,7 +110,15 @@ def table_to_dict(path, *, scale: float = 1.0, stop_index: int | None = None,
             obj_medium = mat
             continue
         if kind == "I":
-            sensor = {"distance_mm": dist, "semi_diameter_mm": diam / 2}
+            if sensor is not None:
+                raise LensFileError(f"{where}: a second image (I) row")
+            if diam < 0:
+                raise LensFileError(f"{where}: diameter must be >= 0 mm (0: unbounded sensor), "
+                                    f"got {toks[3]!r}")
+            sensor = {"distance_mm": dist}
+            if diam > 0:
+                sensor["semi_diameter_mm"] = diam / 2
+            where_of["sensor"] = where
             continue
         if sensor is not None:
             raise LensFileError(f"{where}: a surface row after the image (I) row")
@@ -137,6 +168,7 @@ def table_to_dict(path, *, scale: float = 1.0, stop_index: int | None = None,
             c = [v * scale for v in extra[2:]]
             s["type"] = "bspline"
             s["coefficients"] = [c[i * ny:(i + 1) * ny] for i in range(nx)]
+        where_of[f"surfaces[{len(surfaces)}]"] = where
         surfaces.append(s)
     if not surfaces:
         raise LensFileError(f"{path}: no surface rows")
@@ -146,7 +178,14 @@ def table_to_dict(path, *, scale: float = 1.0, stop_index: int | None = None,
         if stop_index is None:
             raise LensFileError(f"{path}: no aperture stop (no 'A' row); pass stop_index to use "
                                 f"a surface's clear aperture as the stop")
+        if isinstance(stop_index, bool) or not isinstance(stop_index, int) or not (
+                0 <= stop_index < len(surfaces)):
+            raise LensFileError(f"{path}: stop_index {stop_index!r} is not a surface index "
+                                f"(0..{len(surfaces) - 1}: the rows after O, not counting I)")
         stop = stop_index
+    elif stop_index is not None and stop_index != stop:
+        raise LensFileError(f"{where_of[f'surfaces[{stop}]']}: the file's A row is surface "
+                            f"{stop}, but stop_index={stop_index} was passed")
     return {
         "format": "deeplens-lens", "version": 1,
         "name": name if name is not None else lines[0].strip(),
@@ -154,10 +193,34 @@ def table_to_dict(path, *, scale: float = 1.0, stop_index: int | None = None,
         "aperture": {"type": "stop"},
         "fields_deg": list(fields_deg), "wavelengths_nm": list(wavelengths_nm),
         "stop": stop, "surfaces": surfaces, "sensor": sensor,
-    }
+    }, where_of
 
 
-def read_table(path, **options):
+def read_table(path, *, scale: float = 1.0, stop_index: int | None = None,
+               object_distance_mm: float = math.inf, fields_deg=(0.0,),
+               wavelengths_nm=(587.5618,), name: str | None = None):
     """Read a table file into a :class:`~deeplens.optics.lens.Lens` (options: see
-    :func:`table_to_dict`)."""
-    return lens_from_dict(table_to_dict(path, **options), source=str(path))
+    :func:`table_to_dict`).  Errors about a surface name the file and the surface's line."""
+    d, where_of = _parse(path, scale=scale, stop_index=stop_index,
+                         object_distance_mm=object_distance_mm, fields_deg=fields_deg,
+                         wavelengths_nm=wavelengths_nm, name=name)
+    try:
+        return lens_from_dict(d, source=str(path))
+    except LensFileError as e:
+        raise LensFileError(_locate(str(e), str(path), where_of)) from e
+
+
+def _locate(msg: str, source: str, where_of: dict) -> str:
+    """Turn ``"file: surfaces 0 and 1 cross ..."`` into ``"file:LINE: ..."`` plus the rows."""
+    body = msg[len(source) + 2:] if msg.startswith(source + ": ") else msg
+    idx = [int(i) for i in re.findall(r"surfaces\[(\d+)\]", body)]
+    for m in re.finditer(r"\bsurfaces? (\d+)(?: and (\d+))?", body):
+        idx += [int(g) for g in m.groups() if g is not None]
+    keys = [f"surfaces[{i}]" for i in dict.fromkeys(idx) if f"surfaces[{i}]" in where_of]
+    if not keys and ("sensor" in body) and "sensor" in where_of:
+        keys = ["sensor"]
+    if not keys:
+        return msg
+    rows = ", ".join(f"{k.replace('surfaces[', 'surface ').rstrip(']')} is line "
+                     f"{where_of[k].rsplit(':', 1)[1]}" for k in keys)
+    return f"{where_of[keys[-1]]}: {body} ({rows})"

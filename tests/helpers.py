@@ -1,0 +1,86 @@
+"""Shared test helpers: small lenses built in Python, ray bundles, a float64 central finite
+difference, and a relative-error measure.  Imported by test modules as ``import helpers``
+(``tests/`` is on ``sys.path`` through ``tests/conftest.py``)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+
+from deeplens.optics.lens import Lens
+from deeplens.optics.materials import get_material
+from deeplens.optics.rays import Rays
+
+REPO = Path(__file__).resolve().parents[1]
+LENS_DIR = REPO / "data" / "lenses"
+WAVELENGTH_D = 587.5618
+
+
+def rel_err(a, b) -> float:
+    """``|a - b| / max(|a|, |b|)`` for scalars or tensors (max over elements); 0 for 0 vs 0."""
+    a = torch.as_tensor(a, dtype=torch.float64)
+    b = torch.as_tensor(b, dtype=torch.float64)
+    den = torch.maximum(a.abs().max(), b.abs().max())
+    if float(den) == 0.0:
+        return 0.0
+    return float((a - b).abs().max() / den)
+
+
+def central_fd(fn, param: torch.Tensor, h: float, index=None) -> float:
+    """Fourth-order central difference of the scalar ``fn()`` with respect to ``param`` (or to
+    its entry ``index``), changing the value in place and restoring it afterwards::
+
+        (8 (f(p + h) - f(p - h)) - (f(p + 2h) - f(p - 2h))) / 12h      (error O(h^4))
+    """
+    idx = () if index is None else index
+    with torch.no_grad():
+        p0 = param[idx].clone()
+        f = {}
+        for k in (-2, -1, 1, 2):
+            param[idx] = p0 + k * h
+            f[k] = float(fn())
+        param[idx] = p0
+    return (8.0 * (f[1] - f[-1]) - (f[2] - f[-2])) / (12.0 * h)
+
+
+def singlet(front, back, *, thickness: float = 4.0, glass: str = "N-BK7",
+            d_sensor: float = 40.0, stop_index: int = 0, **kw) -> Lens:
+    """A one-element lens ``front | glass | back`` in air, first vertex at z = 0."""
+    return Lens([front, back], [get_material("AIR"), get_material(glass), get_material("AIR")],
+                [0.0, thickness], d_sensor, stop_index, **kw)
+
+
+def disk_points(n: int, radius: float, seed: int = 0, dtype=torch.float64) -> torch.Tensor:
+    """``n`` seeded uniform points ``(n, 2)`` in a disk of ``radius`` mm."""
+    g = torch.Generator().manual_seed(seed)
+    r = radius * torch.sqrt(torch.rand(n, generator=g, dtype=torch.float64))
+    phi = 2 * math.pi * torch.rand(n, generator=g, dtype=torch.float64)
+    return torch.stack([r * torch.cos(phi), r * torch.sin(phi)], -1).to(dtype)
+
+
+def collimated(xy: torch.Tensor, direction, z0: float, wavelength: float = WAVELENGTH_D) -> Rays:
+    """Parallel rays through the points ``xy`` ``(M, 2)`` of the plane ``z = z0``, travelling
+    along ``direction`` (3 numbers, normalised here)."""
+    dtype = xy.dtype
+    d = torch.as_tensor(direction, dtype=dtype)
+    d = d / torch.linalg.vector_norm(d)
+    o = torch.cat([xy, torch.full((xy.shape[0], 1), z0, dtype=dtype)], -1)
+    return Rays(o, d.expand_as(o), wavelength)
+
+
+def cat_rays(*bundles: Rays) -> Rays:
+    """One bundle from several 1-D bundles."""
+    return Rays(torch.cat([b.o for b in bundles]), torch.cat([b.d for b in bundles]),
+                torch.cat([b.wavelength for b in bundles]),
+                torch.cat([b.valid for b in bundles]), torch.cat([b.opl for b in bundles]),
+                normalize=False)
+
+
+def weighted_image_sum(out: Rays, weights: torch.Tensor) -> torch.Tensor:
+    """``sum over valid rays of w · (x, y)`` at the rays' positions: a loss that moves with
+    every image coordinate (``weights`` is ``(M, 2)``)."""
+    xy = out.o[..., :2]
+    terms = (weights.to(xy) * xy).sum(-1)
+    return torch.where(out.valid, terms, torch.zeros_like(terms)).sum()

@@ -1,0 +1,240 @@
+"""Ray-surface intersection (paper Sec. II-C, Eq. 6-7): values against independent results.
+
+* sphere: the Newton solution equals the closed-form root of the quadratic
+  ``|o + t d - C|^2 = R^2`` (the root on the vertex-side hemisphere) to 1e-10 mm, float64;
+* asphere, XY polynomial (b = 0 and b != 0), B-spline: the hit point satisfies ``f = 0`` to the
+  tolerance, lies on the ray, and is the root found by an independent bisection;
+* both gradient modes return the same values; misses, surfaces behind the ray and grazing rays
+  are marked invalid with finite outputs.
+"""
+
+import math
+
+import pytest
+import torch
+
+from deeplens.optics.intersect import IntersectOptions, default_tolerance, intersect
+from deeplens.optics.surfaces import Asphere, BSpline, Plane, Sphere, XYPolynomial
+
+F64 = torch.float64
+
+
+def _random_rays(n, sd, z0=-3.0, max_angle=0.35, seed=0, dtype=F64):
+    """Rays from the plane z = z0 aimed at points within ``0.9 sd`` of the vertex plane,
+    with directions up to ``max_angle`` rad off axis."""
+    g = torch.Generator().manual_seed(seed)
+    r = 0.9 * sd * torch.sqrt(torch.rand(n, generator=g, dtype=F64))
+    phi = 2 * math.pi * torch.rand(n, generator=g, dtype=F64)
+    target = torch.stack([r * torch.cos(phi), r * torch.sin(phi), torch.zeros_like(r)], -1)
+    th = max_angle * torch.sqrt(torch.rand(n, generator=g, dtype=F64))
+    ps = 2 * math.pi * torch.rand(n, generator=g, dtype=F64)
+    d = torch.stack([torch.sin(th) * torch.cos(ps), torch.sin(th) * torch.sin(ps), torch.cos(th)],
+                    -1)
+    o = target + (z0 / d[:, 2]).unsqueeze(-1) * d
+    return o.to(dtype), d.to(dtype)
+
+
+def _sphere_closed_form(c, o, d):
+    """Root of |o + t d - C|^2 = R^2 (C = (0, 0, R)) on the hemisphere that contains the
+    vertex, and whether it exists."""
+    R = 1.0 / c
+    C = torch.tensor([0.0, 0.0, R], dtype=o.dtype)
+    oc = o - C
+    b = (oc * d).sum(-1)
+    cc = (oc * oc).sum(-1) - R * R
+    disc = b * b - cc
+    ok = disc >= 0
+    s = torch.sqrt(disc.clamp_min(0))
+    t1, t2 = -b - s, -b + s
+    # vertex-side hemisphere: (z - R) has the sign opposite to R
+    z1 = o[:, 2] + t1 * d[:, 2]
+    on_near = (z1 - R) * R < 0
+    return torch.where(on_near, t1, t2), ok
+
+
+@pytest.mark.parametrize("radius", [25.0, -25.0, 12.0, -9.0])
+@pytest.mark.parametrize("mode", ["implicit", "unrolled"])
+def test_sphere_matches_closed_form_quadratic(radius, mode):
+    sd = 0.8 * abs(radius)
+    s = Sphere(1.0 / radius, sd)
+    o, d = _random_rays(500, sd, seed=int(abs(radius)))
+    valid = torch.ones(500, dtype=torch.bool)
+    t, x, ok = intersect(s, o, d, valid, IntersectOptions(mode=mode))
+    t_ref, exists = _sphere_closed_form(1.0 / radius, o, d)
+    assert bool(exists.all())
+    x_ref = o + t_ref.unsqueeze(-1) * d
+    inside = (x_ref[:, :2] ** 2).sum(-1) <= sd * sd
+    assert bool(inside.sum() > 400)
+    assert torch.equal(ok, inside)
+    assert float((t - t_ref)[ok].abs().max()) < 1e-10
+    assert float((x - x_ref)[ok].abs().max()) < 1e-10
+
+
+def test_sphere_reverse_rays_match_closed_form():
+    """Rays travelling towards -z (backward tracing) hit the same cap."""
+    s = Sphere(1 / 20.0, 15.0)
+    o, d = _random_rays(300, 15.0, z0=-4.0, seed=5)
+    o, d = o * torch.tensor([1.0, 1.0, -1.0], dtype=F64), d * torch.tensor([1.0, 1.0, -1.0],
+                                                                              dtype=F64)
+    t, x, ok = intersect(s, o, d, torch.ones(300, dtype=torch.bool))
+    t_ref, exists = _sphere_closed_form(1 / 20.0, o, d)
+    assert bool(ok.sum() > 250)
+    assert float((t - t_ref)[ok].abs().max()) < 1e-10
+
+
+def test_sphere_float32_within_float32_tolerance():
+    s = Sphere(1 / 25.0, 20.0).to(torch.float32)
+    o, d = _random_rays(300, 20.0, seed=2)
+    t, x, ok = intersect(s, o.float(), d.float(), torch.ones(300, dtype=torch.bool))
+    assert t.dtype == torch.float32
+    t_ref, _ = _sphere_closed_form(1 / 25.0, o, d)
+    assert bool(ok.sum() > 250)
+    assert float((t.double() - t_ref)[ok].abs().max()) < 5e-5
+
+
+def _bisect_root(surface, o, d, lo, hi, iters=200):
+    """Independent root of f(o + t d) = 0 on [lo, hi] by bisection (float64)."""
+    def g(t):
+        p = o + t.unsqueeze(-1) * d
+        return surface.f(p[:, 0], p[:, 1], p[:, 2])
+
+    glo = g(lo)
+    for _ in range(iters):
+        mid = 0.5 * (lo + hi)
+        gm = g(mid)
+        same = torch.sign(gm) == torch.sign(glo)
+        lo = torch.where(same, mid, lo)
+        glo = torch.where(same, gm, glo)
+        hi = torch.where(same, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def _freeform_surfaces():
+    g = torch.Generator().manual_seed(11)
+    n, L = 8, 6.0
+    h = 2 * L / (n - 3)
+    v = -L + (torch.arange(n, dtype=F64) - 1) * h
+    X, Y = torch.meshgrid(v, v, indexing="ij")
+    grid = (X ** 2 - 0.5 * Y ** 2) / 40 + 0.05 * torch.randn(n, n, generator=g, dtype=F64)
+    return {
+        "asphere": Asphere(1 / 15.0, 6.0, conic=-1.8, coefficients=[3e-4, -2e-6, 1e-8]),
+        "oblate_conic": Asphere(1 / 20.0, 6.0, conic=2.5),
+        "xy_b0": XYPolynomial(6.0, [0.02, 0.01, -0.02, 0.03, 0.01, 0.02, 1e-3, -2e-3, 5e-4,
+                                    1e-3], b=0.0),
+        "xy_b": XYPolynomial(6.0, [0.02, 0.01, -0.02, 0.03, 0.01, 0.02, 1e-3, -2e-3, 5e-4,
+                                   1e-3], b=0.05),
+        "bspline": BSpline(L, grid),
+    }
+
+
+@pytest.mark.parametrize("name", list(_freeform_surfaces()))
+@pytest.mark.parametrize("mode", ["implicit", "unrolled"])
+def test_freeform_hit_on_surface_and_on_ray(name, mode):
+    s = _freeform_surfaces()[name]
+    o, d = _random_rays(400, 6.0, seed=3)
+    t, x, ok = intersect(s, o, d, torch.ones(400, dtype=torch.bool), IntersectOptions(mode=mode))
+    assert bool(ok.sum() > 300)
+    X, Y, Z = x[ok].unbind(-1)
+    assert float(s.f(X, Y, Z).abs().max()) < default_tolerance(F64)
+    # on the ray: x - o parallel to d, at a positive distance
+    rel = x[ok] - o[ok]
+    assert float(torch.linalg.cross(rel, d[ok]).norm(dim=-1).max()) < 1e-12
+    assert bool((t[ok] > 0).all())
+    # the same root as an independent bisection around it
+    t_b = _bisect_root(s, o[ok], d[ok], t[ok] - 0.2, t[ok] + 0.2)
+    assert float((t_b - t[ok]).abs().max()) < 1e-10
+
+
+def test_modes_agree_on_values():
+    for s in _freeform_surfaces().values():
+        o, d = _random_rays(200, 6.0, seed=4)
+        v = torch.ones(200, dtype=torch.bool)
+        ti, xi, oki = intersect(s, o, d, v, IntersectOptions(mode="implicit"))
+        tu, xu, oku = intersect(s, o, d, v, IntersectOptions(mode="unrolled"))
+        assert torch.equal(oki, oku)
+        assert float((ti - tu)[oki].abs().max()) < 1e-12
+
+
+def test_plane_closed_form():
+    s = Plane(5.0)
+    o, d = _random_rays(100, 5.0, seed=6)
+    t, x, ok = intersect(s, o, d, torch.ones(100, dtype=torch.bool))
+    assert bool(ok.all())
+    assert torch.allclose(t, -o[:, 2] / d[:, 2], rtol=0, atol=1e-13)
+    assert float(x[:, 2].abs().max()) < 1e-13
+
+
+def test_incoming_invalid_stays_invalid():
+    s = Sphere(1 / 20.0, 10.0)
+    o, d = _random_rays(50, 10.0, seed=7)
+    valid = torch.arange(50) % 2 == 0
+    _, _, ok = intersect(s, o, d, valid)
+    assert not bool(ok[~valid].any())
+    assert bool(ok[valid].all())
+
+
+def test_miss_is_invalid_and_finite():
+    """A ray passing beside a small sphere (negative discriminant) and one that hits outside the
+    clear aperture are invalid, with finite t and x."""
+    s = Sphere(1 / 5.0, 4.0)
+    o = torch.tensor([[8.0, 0.0, -1.0], [4.5, 0.0, -1.0], [0.0, 0.0, -1.0]], dtype=F64)
+    d = torch.tensor([[0.0, 0.0, 1.0]] * 3, dtype=F64)
+    for mode in ("implicit", "unrolled"):
+        t, x, ok = intersect(s, o, d, torch.ones(3, dtype=torch.bool), IntersectOptions(mode=mode))
+        assert ok.tolist() == [False, False, True]
+        assert bool(torch.isfinite(t).all() and torch.isfinite(x).all())
+    # without aperture clipping the ray at r = 4.5 < R is valid, the one at r = 8 > R is not
+    _, _, ok = intersect(s, o, d, torch.ones(3, dtype=torch.bool),
+                         IntersectOptions(clip_aperture=False))
+    assert ok.tolist() == [False, True, True]
+
+
+def test_surface_behind_ray_is_invalid():
+    s = Sphere(1 / 20.0, 10.0)
+    o = torch.tensor([[0.5, 0.0, 2.0]], dtype=F64)
+    d = torch.tensor([[0.0, 0.0, 1.0]], dtype=F64)
+    t, x, ok = intersect(s, o, d, torch.ones(1, dtype=torch.bool))
+    assert not bool(ok[0])
+    assert bool(torch.isfinite(t).all())
+
+
+def test_ray_parallel_to_vertex_plane_is_invalid():
+    s = Sphere(1 / 20.0, 10.0)
+    o = torch.tensor([[-20.0, 0.0, 0.5], [-20.0, 0.0, 0.5]], dtype=F64)
+    d = torch.tensor([[1.0, 0.0, 0.0], [1.0, 0.0, 1e-14]], dtype=F64)
+    t, x, ok = intersect(s, o, d, torch.ones(2, dtype=torch.bool))
+    assert not bool(ok.any())
+    assert bool(torch.isfinite(t).all() and torch.isfinite(x).all())
+
+
+def test_out_of_conic_domain_is_invalid():
+    """An oblate ellipsoid (k > 0) is defined only for r < 1 / (c sqrt(1 + k))."""
+    s = Asphere(1 / 10.0, 4.0, conic=3.0)  # domain r < 5 mm
+    o = torch.tensor([[5.5, 0.0, -1.0], [3.0, 0.0, -1.0]], dtype=F64)
+    d = torch.tensor([[0.0, 0.0, 1.0]] * 2, dtype=F64)
+    t, x, ok = intersect(s, o, d, torch.ones(2, dtype=torch.bool),
+                         IntersectOptions(clip_aperture=False))
+    assert ok.tolist() == [False, True]
+    assert bool(torch.isfinite(t).all() and torch.isfinite(x).all())
+
+
+def test_nonconvergence_is_invalid():
+    """One Newton step cannot reach 1e-10 on a strongly aspheric surface: invalid, finite."""
+    s = Asphere(1 / 8.0, 6.0, conic=-2.0, coefficients=[1e-3])
+    o, d = _random_rays(50, 6.0, seed=8)
+    t, x, ok = intersect(s, o, d, torch.ones(50, dtype=torch.bool), IntersectOptions(max_iter=1))
+    t2, x2, ok2 = intersect(s, o, d, torch.ones(50, dtype=torch.bool))
+    assert bool(ok2.sum() > 40)
+    assert int(ok.sum()) < int(ok2.sum())
+    assert bool(torch.isfinite(t).all())
+
+
+def test_intersect_options_validation():
+    with pytest.raises(ValueError, match="mode"):
+        IntersectOptions(mode="fast")
+    with pytest.raises(ValueError, match="max_iter"):
+        IntersectOptions(max_iter=0)
+    with pytest.raises(ValueError, match="tol"):
+        IntersectOptions(tol=0.0)
+    assert default_tolerance(F64) == 1e-10
+    assert default_tolerance(torch.float32) == 1e-5
