@@ -93,8 +93,10 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
             hi = torch.where(okm, hi, mid)
         xp, xm, yp, ym = lo.tolist()
         cx, cy = float(c[0]), float(c[1])
-        return PupilRegion(cx + 0.5 * (xp - xm), cy + 0.5 * (yp - ym), 0.5 * (xp + xm),
-                           0.5 * (yp + ym), z)
+        # shrink by 1e-9 so that pattern points on the rim do not straddle the edge by rounding
+        shrink = 1.0 - 1e-9
+        return PupilRegion(cx + 0.5 * (xp - xm), cy + 0.5 * (yp - ym), 0.5 * (xp + xm) * shrink,
+                           0.5 * (yp + ym) * shrink, z)
 
 
 def image_plane_z(lens, image_plane="sensor"):

@@ -162,7 +162,7 @@ class Lens(nn.Module):
         self._element_of = {i: e for e, (a, b) in enumerate(self.elements) for i in range(a, b + 1)}
         self.check()
         if self.spec.aperture_type != "stop":
-            pass
+            self.apply_aperture_spec()
 
     # ------------------------------------------------------------------ geometry
     @property

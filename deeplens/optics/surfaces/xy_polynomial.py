@@ -82,7 +82,7 @@ class XYPolynomial(Surface):
         return 1.0 - 4.0 * self.b.to(P) * P
 
     def in_domain(self, x, y):
-        if float(self.b) == 0.0:
+        if float(self.b.detach()) == 0.0:
             return torch.ones_like(x, dtype=torch.bool)
         P, _, _ = self.poly(x, y)
         return self._disc(P) >= 0

@@ -1,9 +1,9 @@
 """The deeplens JSON lens format: exact round trips, EPD / F-number apertures, and a clear
 error (file name, JSON path, what was expected) for every kind of bad input."""
 
-import copy
 import json
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -343,7 +343,7 @@ def test_bad_json_field_is_named(mutate, expected, tmp_path):
         load_lens(p)
     msg = str(e.value)
     assert msg.startswith(f"{p}: "), msg
-    assert __import__("re").search(expected, msg), f"{expected!r} not in {msg!r}"
+    assert re.search(expected, msg), f"{expected!r} not in {msg!r}"
 
 
 def test_valid_base_dict_loads():
@@ -396,3 +396,30 @@ def test_errors_are_value_errors_and_no_nan_reaches_the_lens(tmp_path):
     lens = lens_from_dict(all_types_dict())
     for k, t in lens.state_dict().items():
         assert torch.isfinite(t).all(), k
+
+
+# ------------------------------------------------------------------ Lens / LensSpec validation
+def test_lens_constructor_validation_behind_the_file_reader():
+    from deeplens.optics.lens import Lens, LensSpec
+    from deeplens.optics.materials import get_material
+
+    def make(spec=None, sensor_sd=None):
+        return Lens([Asphere(0.02, 5.0), Plane(5.0), Aperture(3.0)],
+                    [get_material(m) for m in ("AIR", "N-SF5", "AIR", "AIR")],
+                    [0.0, 3.0, 2.0], 20.0, 2, sensor_sd, spec)
+
+    make(LensSpec(wavelengths_nm=[486.1327, 656.2725]), 4.0)
+    with pytest.raises(ValueError, match=r"lens wavelengths: wavelength 350 nm is outside the "
+                                         r"valid range 370.2500 nm of material 'N-SF5' \(the "
+                                         r"medium after surface 0\)"):
+        make(LensSpec(wavelengths_nm=[350.0, 587.6]))
+    with pytest.raises(ValueError, match=r"lens wavelengths: .*nanometres; got 0\.5876"):
+        make(LensSpec(wavelengths_nm=[0.5876]))
+    with pytest.raises(ValueError, match=r"field angles must be finite and within \(-90, 90\)"):
+        LensSpec(fields_deg=[0.0, 90.0])
+    with pytest.raises(ValueError, match=r"at least one field angle"):
+        LensSpec(fields_deg=[])
+    with pytest.raises(ValueError, match=r"sensor semi-diameter must be a positive number of mm"):
+        make(sensor_sd=-1.0)
+    with pytest.raises(ValueError, match=r"the lens has no aperture stop"):
+        Lens([Plane(5.0)], [get_material("AIR")] * 2, [0.0], 10.0, None)

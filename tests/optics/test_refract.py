@@ -1,0 +1,134 @@
+"""Vector Snell's law (paper Eq. 9): Snell's invariant ``n1 sin θ1 = n2 sin θ2``, coplanarity
+of ``d``, ``n`` and ``d_t``, total internal reflection, and float64 gradients (gradcheck)."""
+
+import math
+
+import pytest
+import torch
+
+from deeplens.optics.refract import refract, unit_normal
+
+F64 = torch.float64
+
+
+def _unit(v):
+    return v / torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+
+
+def _random_pairs(n, max_angle, seed):
+    """Unit normals and unit directions at incidence angles up to ``max_angle`` rad."""
+    g = torch.Generator().manual_seed(seed)
+    normal = _unit(torch.randn(n, 3, generator=g, dtype=F64))
+    # a unit vector perpendicular to the normal
+    w = _unit(torch.linalg.cross(normal, torch.randn(n, 3, generator=g, dtype=F64)))
+    th = max_angle * torch.rand(n, generator=g, dtype=F64)
+    d = torch.cos(th).unsqueeze(-1) * normal + torch.sin(th).unsqueeze(-1) * w
+    return d, normal, th
+
+
+def _sin_angle(a, n):
+    return torch.linalg.cross(a, n).norm(dim=-1)
+
+
+@pytest.mark.parametrize("n1,n2", [(1.0, 1.5168), (1.5168, 1.0), (1.62, 1.75), (1.8, 1.45)])
+@pytest.mark.parametrize("flip_normal", [False, True])
+def test_snell_invariant_and_coplanarity(n1, n2, flip_normal):
+    d, normal, th = _random_pairs(2000, math.radians(89.0), seed=int(100 * n1 + 10 * n2))
+    if flip_normal:  # either orientation of the normal is accepted
+        normal = -normal
+    valid = torch.ones(2000, dtype=torch.bool)
+    d_t, ok = refract(d, normal, n1 / n2, valid)
+    sin1 = torch.sin(th)
+    expect_ok = (n1 / n2) * sin1 <= 1.0
+    assert torch.equal(ok, expect_ok)
+    assert bool(ok.sum() > 500)
+    dt = d_t[ok]
+    # unit length
+    assert float((dt.norm(dim=-1) - 1).abs().max()) < 1e-14
+    # n1 sin θ1 = n2 sin θ2
+    lhs = n1 * _sin_angle(d[ok], normal[ok])
+    rhs = n2 * _sin_angle(dt, normal[ok])
+    assert float((lhs - rhs).abs().max()) < 1e-13
+    # coplanar: det[d, n, d_t] = 0
+    det = torch.linalg.det(torch.stack([d[ok], normal[ok], dt], -2))
+    assert float(det.abs().max()) < 1e-13
+    # transmitted, not reflected: d_t stays on the side d travels to
+    assert bool(((dt * normal[ok]).sum(-1) * (d[ok] * normal[ok]).sum(-1) > 0).all())
+    # the tangential component keeps its direction (sign of d_t x n equals that of d x n)
+    assert bool((torch.linalg.cross(dt, normal[ok]) * torch.linalg.cross(d[ok], normal[ok])
+                 ).sum(-1).ge(0).all())
+
+
+def test_normal_incidence_and_index_match_leave_direction():
+    d = torch.tensor([[0.0, 0.0, 1.0], [0.3, -0.2, 0.9]], dtype=F64)
+    d = _unit(d)
+    normal = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], dtype=F64)
+    d_t, ok = refract(d[:1], normal[:1], 1 / 1.5, torch.ones(1, dtype=torch.bool))
+    assert torch.allclose(d_t, d[:1], atol=1e-15)
+    d_t, ok = refract(d, normal, 1.0, torch.ones(2, dtype=torch.bool))
+    assert torch.allclose(d_t, d, atol=1e-15) and bool(ok.all())
+
+
+def test_total_internal_reflection_glass_to_air():
+    """Glass (1.5168) to air: critical angle asin(1/1.5168) = 41.25 deg; beyond it the ray is
+    invalid and its direction finite (the incident one)."""
+    n_glass = 1.5168
+    crit = math.asin(1 / n_glass)
+    angles = torch.tensor([crit - 1e-6, crit + 1e-6, math.radians(60.0), math.radians(89.9)],
+                          dtype=F64)
+    d = torch.stack([torch.sin(angles), torch.zeros_like(angles), torch.cos(angles)], -1)
+    normal = torch.tensor([0.0, 0.0, 1.0], dtype=F64).expand(4, 3)
+    d_t, ok = refract(d, normal, n_glass / 1.0, torch.ones(4, dtype=torch.bool))
+    assert ok.tolist() == [True, False, False, False]
+    assert bool(torch.isfinite(d_t).all())
+    assert torch.equal(d_t[~ok], d[~ok])
+    # just below the critical angle the ray leaves almost grazing
+    assert float(d_t[0, 0]) > math.sin(math.radians(89.0))
+
+
+def test_tir_gradient_is_finite():
+    n_glass = torch.tensor(1.5168, dtype=F64, requires_grad=True)
+    angles = torch.tensor([0.3, 0.9, 1.2], dtype=F64)
+    d = torch.stack([torch.sin(angles), torch.zeros_like(angles), torch.cos(angles)], -1)
+    d.requires_grad_(True)
+    normal = torch.tensor([0.0, 0.0, 1.0], dtype=F64).expand(3, 3)
+    d_t, ok = refract(d, normal, n_glass, torch.ones(3, dtype=torch.bool))
+    assert ok.tolist() == [True, False, False]
+    loss = torch.where(ok, d_t[:, 0], torch.zeros_like(d_t[:, 0])).sum()
+    g_d, g_n = torch.autograd.grad(loss, (d, n_glass))
+    assert bool(torch.isfinite(g_d).all() and torch.isfinite(g_n))
+    # the valid ray: d_t,x = eta sin(theta); d/d eta = sin(theta)
+    assert float(g_n) == pytest.approx(math.sin(0.3), rel=1e-12)
+
+
+def test_incoming_invalid_stays_invalid():
+    d, normal, _ = _random_pairs(10, 0.5, seed=1)
+    valid = torch.tensor([True, False] * 5)
+    _, ok = refract(d, normal, 1 / 1.5, valid)
+    assert torch.equal(ok, valid)
+
+
+def test_refract_gradcheck_float64():
+    d, normal, _ = _random_pairs(6, math.radians(35.0), seed=2)
+    eta = torch.tensor([1 / 1.5, 1.3, 0.8, 1.1, 1 / 1.7, 1.4], dtype=F64)
+    valid = torch.ones(6, dtype=torch.bool)
+
+    def f(d_, n_, eta_):
+        return refract(_unit(d_), _unit(n_), eta_, valid)[0]
+
+    inputs = (d.clone().requires_grad_(True), normal.clone().requires_grad_(True),
+              eta.clone().requires_grad_(True))
+    assert bool(refract(d, normal, eta, valid)[1].all())
+    assert torch.autograd.gradcheck(f, inputs, eps=1e-6, atol=1e-9, rtol=1e-7)
+
+
+def test_unit_normal():
+    fx = torch.tensor([3.0, 0.0], dtype=F64, requires_grad=True)
+    fy = torch.tensor([0.0, 0.0], dtype=F64)
+    fz = torch.tensor([-4.0, 0.0], dtype=F64)
+    n = unit_normal(fx, fy, fz)
+    assert torch.allclose(n[0], torch.tensor([0.6, 0.0, -0.8], dtype=F64), atol=1e-15)
+    # a zero gradient gives a finite (zero) normal and finite derivatives
+    assert bool(torch.isfinite(n).all())
+    (g,) = torch.autograd.grad(n.sum(), fx)
+    assert bool(torch.isfinite(g).all())

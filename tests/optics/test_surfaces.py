@@ -1,0 +1,257 @@
+"""Surfaces: sag and implicit-function values against independent closed forms, analytic
+derivatives against autograd, domains and apertures, finiteness outside the domain, and
+constructor errors."""
+
+import math
+
+import pytest
+import torch
+
+from deeplens.optics.surfaces import (
+    SURFACE_TYPES, Aperture, Asphere, BSpline, Plane, Sphere, XYPolynomial,
+)
+from deeplens.optics.surfaces.xy_polynomial import xy_terms
+
+F64 = torch.float64
+
+
+def _points(n, r, seed=0, dtype=F64):
+    g = torch.Generator().manual_seed(seed)
+    rr = r * torch.sqrt(torch.rand(n, generator=g, dtype=F64))
+    phi = 2 * math.pi * torch.rand(n, generator=g, dtype=F64)
+    return (rr * torch.cos(phi)).to(dtype), (rr * torch.sin(phi)).to(dtype)
+
+
+def _bspline_grid(n, L):
+    """Positions of the control points: basis p is centred on the knot -L + (p - 1) h."""
+    h = 2 * L / (n - 3)
+    return -L + (torch.arange(n, dtype=F64) - 1) * h, h
+
+
+def _surfaces():
+    g = torch.Generator().manual_seed(3)
+    return {
+        "sphere": Sphere(1 / 12.0, 8.0),
+        "concave": Sphere(-1 / 20.0, 8.0),
+        "conic": Asphere(1 / 15.0, 8.0, conic=-2.2),
+        "oblate": Asphere(1 / 20.0, 8.0, conic=1.5),
+        "asphere": Asphere(1 / 15.0, 8.0, conic=-0.6, coefficients=[2e-4, -3e-6, 1e-8, 4e-11]),
+        "flat_asphere": Asphere(0.0, 8.0, coefficients=[1e-4]),
+        "xy_b0": XYPolynomial(8.0, [0.01, 0.02, -0.01, 0.03, 0.005, 0.02, 1e-3, -2e-3, 5e-4,
+                                    1e-3], b=0.0),
+        "xy_b": XYPolynomial(8.0, [0.01, 0.02, -0.01, 0.03, 0.005, 0.02, 1e-3, -2e-3, 5e-4,
+                                   1e-3], b=0.04),
+        "bspline": BSpline(8.0, 0.3 * torch.randn(7, 9, generator=g, dtype=F64)),
+        "plane": Plane(8.0),
+    }
+
+
+@pytest.mark.parametrize("name", list(_surfaces()))
+def test_analytic_derivatives_match_autograd(name):
+    s = _surfaces()[name]
+    x, y = _points(300, 7.5, seed=1)
+    z = (s.sag(x, y) + 0.3 * torch.sin(3 * x)).requires_grad_(True)  # on and off the surface
+    x.requires_grad_(True)
+    y.requires_grad_(True)
+    fx, fy, fz = s.f_grad(x, y, z)
+    gx, gy, gz = torch.autograd.grad(s.f(x, y, z).sum(), (x, y, z), allow_unused=True,
+                                     materialize_grads=True)
+    for a, b in ((fx, gx), (fy, gy), (fz, gz)):
+        assert float((a - b).detach().abs().max()) < 1e-12
+    if hasattr(s, "sag_grad") and not s.is_flat:
+        sx, sy = s.sag_grad(x, y)
+        hx, hy = torch.autograd.grad(s.sag(x, y).sum(), (x, y), allow_unused=True,
+                                     materialize_grads=True)
+        assert float((sx - hx).detach().abs().max()) < 1e-12
+        assert float((sy - hy).detach().abs().max()) < 1e-12
+
+
+@pytest.mark.parametrize("name", list(_surfaces()))
+def test_sag_is_a_root_of_f(name):
+    s = _surfaces()[name]
+    x, y = _points(300, 7.5, seed=2)
+    z = s.sag(x, y)
+    assert float(s.f(x, y, z).abs().max()) < 1e-14
+
+
+@pytest.mark.parametrize("R", [12.0, -20.0, 9.0])
+def test_sphere_sag_closed_form(R):
+    s = Sphere(1 / R, 0.99 * abs(R))
+    x, y = _points(500, 0.99 * abs(R), seed=3)
+    r2 = x * x + y * y
+    expect = R - math.copysign(1.0, R) * torch.sqrt(R * R - r2)
+    assert float((s.sag(x, y) - expect).abs().max()) < 1e-12
+
+
+@pytest.mark.parametrize("k", [-2.2, -1.0, -0.5, 0.7, 3.0])
+def test_conic_sag_satisfies_quadric(k):
+    """A conic of radius R and conic constant k is the quadric r^2 - 2 R z + (1 + k) z^2 = 0."""
+    R = 15.0
+    sd = 0.95 * R / math.sqrt(1 + k) if k > -1 else 10.0
+    s = Asphere(1 / R, sd, conic=k)
+    x, y = _points(500, sd, seed=4)
+    z = s.sag(x, y)
+    q = x * x + y * y - 2 * R * z + (1 + k) * z * z
+    assert float(q.abs().max()) < 1e-11
+    if k == -1.0:  # paraboloid
+        assert torch.allclose(z, (x * x + y * y) / (2 * R), atol=1e-14)
+
+
+def test_asphere_polynomial_terms():
+    coeffs = [2e-4, -3e-6, 1e-8, 4e-11, -1e-13]
+    s = Asphere(1 / 15.0, 8.0, conic=-0.6, coefficients=coeffs)
+    base = Asphere(1 / 15.0, 8.0, conic=-0.6)
+    x, y = _points(300, 8.0, seed=5)
+    r2 = x * x + y * y
+    poly = sum(a * r2 ** (i + 2) for i, a in enumerate(coeffs))
+    assert float((s.sag(x, y) - base.sag(x, y) - poly).abs().max()) < 1e-13
+
+
+def test_xy_term_order():
+    assert xy_terms(2) == [(0, 0), (0, 1), (1, 0), (0, 2), (1, 1), (2, 0)]
+    assert len(xy_terms(5)) == 21
+
+
+def test_xy_polynomial_explicit_and_implicit():
+    coeffs = [0.01, 0.02, -0.01, 0.03, 0.005, 0.02, 1e-3, -2e-3, 5e-4, 1e-3]
+    x, y = _points(300, 8.0, seed=6)
+    # b = 0: z = sum a_m x^i y^j in the documented order 1, y, x, y^2, xy, x^2, y^3, xy^2, ...
+    monomials = [torch.ones_like(x), y, x, y * y, x * y, x * x, y ** 3, x * y * y, x * x * y,
+                 x ** 3]
+    P = sum(a * m for a, m in zip(coeffs, monomials))
+    s0 = XYPolynomial(8.0, coeffs, b=0.0)
+    assert float((s0.sag(x, y) - P).abs().max()) < 1e-15
+    # b != 0: the near root of b z^2 - z + P = 0
+    b = 0.04
+    sb = XYPolynomial(8.0, coeffs, b=b)
+    near = (1 - torch.sqrt(1 - 4 * b * P)) / (2 * b)
+    assert float((sb.sag(x, y) - near).abs().max()) < 1e-14
+    # the vertex curvature of z ~ a_x2 x^2 + a_y2 y^2 is the mean of 2 a_x2 and 2 a_y2
+    assert float(sb.paraxial_curvature()) == pytest.approx(0.02 + 0.03, abs=1e-15)
+
+
+def test_xy_domain_with_b():
+    s = XYPolynomial(8.0, [0.0, 0.0, 0.0, 0.5, 0.0, 0.5], b=0.5)  # 1 - 4 b P >= 0: r^2 <= 1
+    x = torch.tensor([0.0, 0.9, 1.1], dtype=F64)
+    assert s.in_domain(x, torch.zeros_like(x)).tolist() == [True, True, False]
+    assert bool(torch.isfinite(s.sag(x, torch.zeros_like(x))).all())
+
+
+def test_bspline_reproduces_constant_linear_and_quadratic():
+    n, L = 9, 5.0
+    v, h = _bspline_grid(n, L)
+    x, y = _points(400, 5.0 * 0.999, seed=7)
+    keep = (x.abs() <= L) & (y.abs() <= L)
+    x, y = x[keep], y[keep]
+    X, Y = torch.meshgrid(v, v, indexing="ij")
+    ones = BSpline(L, torch.ones(n, n, dtype=F64))
+    assert float((ones.sag(x, y) - 1).abs().max()) < 1e-14  # partition of unity
+    lin = BSpline(L, 2 * X - 3 * Y)
+    assert float((lin.sag(x, y) - (2 * x - 3 * y)).abs().max()) < 1e-13  # linear precision
+    sx, sy = lin.sag_grad(x, y)
+    assert float((sx - 2).abs().max()) < 1e-13 and float((sy + 3).abs().max()) < 1e-13
+    # sum_p t_p^2 N_p(x) = x^2 + h^2 / 3 (the variance of the uniform cubic B-spline)
+    c = 0.05
+    quad = BSpline(L, 0.5 * c * (X ** 2 + Y ** 2))
+    expect = 0.5 * c * (x * x + y * y + 2 * h * h / 3)
+    assert float((quad.sag(x, y) - expect).abs().max()) < 1e-13
+    assert float(quad.paraxial_curvature()) == pytest.approx(c, rel=1e-9)
+
+
+def test_bspline_c2_across_knots():
+    s = _surfaces()["bspline"]
+    L = 8.0
+    h = 2 * L / (7 - 3)
+    knots = torch.tensor([-L + h, -L + 2 * h, -L + 3 * h], dtype=F64)
+    e = 1e-7
+    y = torch.full_like(knots, 1.3)
+    for k in (0, 1, 2):
+        a, b = s.sag(knots - e, y), s.sag(knots + e, y)
+        assert float((a - b).abs().max()) < 1e-6
+        da, db = s.sag_grad(knots - e, y)[0], s.sag_grad(knots + e, y)[0]
+        assert float((da - db).abs().max()) < 1e-5
+
+
+def test_bspline_domain_is_the_square():
+    s = BSpline(4.0, torch.zeros(5, 5, dtype=F64))
+    x = torch.tensor([3.9, 4.1, 3.9, -4.0], dtype=F64)
+    y = torch.tensor([3.9, 0.0, -4.2, 4.0], dtype=F64)
+    assert s.in_domain(x, y).tolist() == [True, False, False, True]
+
+
+def test_conic_domain_and_check():
+    s = Asphere(1 / 10.0, 4.0, conic=3.0)  # defined for r < 10 / 2 = 5 mm
+    r = torch.tensor([4.99, 5.01], dtype=F64)
+    assert s.in_domain(r, torch.zeros_like(r)).tolist() == [True, False]
+    s.check()
+    with pytest.raises(ValueError, match="domain"):
+        Asphere(1 / 10.0, 5.5, conic=3.0).check(where="surface 2: ")
+
+
+def test_apertures():
+    circ = Aperture(2.0)
+    x = torch.tensor([1.9, 2.1, 1.5], dtype=F64)
+    y = torch.tensor([0.0, 0.0, 1.5], dtype=F64)
+    assert circ.in_aperture(x, y).tolist() == [True, False, False]
+    rect = Aperture(shape="rect", half_width_x=2.0, half_width_y=1.0)
+    assert rect.in_aperture(x, y).tolist() == [True, False, False]
+    assert rect.in_aperture(torch.tensor([1.9]), torch.tensor([0.9])).tolist() == [True]
+    assert float(rect.semi_diameter) == pytest.approx(math.sqrt(5.0))
+    assert circ.is_flat and Plane(1.0).is_flat and not Sphere(0.1, 1.0).is_flat
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("name", list(_surfaces()) + ["steep", "xy_b_out"])
+def test_finite_outside_domain_with_finite_derivatives(name, dtype):
+    """The tracer evaluates surfaces on invalid rays too (masked afterwards): values and
+    derivatives, in x and in every parameter, must stay finite up to 50 semi-diameters away."""
+    extra = {"steep": Sphere(1 / 8.0, 7.99),
+             "xy_b_out": XYPolynomial(8.0, [0.0, 0.0, 0.0, 0.5, 0.0, 0.5], b=0.5)}
+    s = extra[name] if name in extra else _surfaces()[name]
+    s = s.to(dtype)
+    params = list(s.parameters())
+    for p in params:
+        p.requires_grad_(True)
+    x, y = _points(400, 400.0, seed=8, dtype=dtype)
+    x = torch.cat([x, torch.tensor([0.0, 8.0, 7.99999, -8.0], dtype=dtype)])
+    y = torch.cat([y, torch.tensor([8.0, 0.0, 0.0, 8.0], dtype=dtype)])
+    x.requires_grad_(True)
+    z = torch.linspace(-5, 5, x.shape[0], dtype=dtype)
+    outs = [s.f(x, y, z), *s.f_grad(x, y, z), s.sag(x, y)]
+    for o in outs:
+        assert bool(torch.isfinite(o).all())
+    total = sum(o.sum() for o in outs)
+    if total.requires_grad:
+        grads = torch.autograd.grad(total, params + [x], allow_unused=True)
+        for g in grads:
+            assert g is None or bool(torch.isfinite(g).all())
+
+
+def test_parameters_are_frozen_float64():
+    for s in _surfaces().values():
+        for p in s.parameters():
+            assert p.dtype == F64 and not p.requires_grad
+
+
+def test_registry():
+    assert {"asphere", "plane", "aperture", "xy_polynomial", "bspline"} <= set(SURFACE_TYPES)
+    assert SURFACE_TYPES["asphere"] is Asphere
+
+
+def test_constructor_errors():
+    with pytest.raises(ValueError, match="semi_diameter"):
+        Sphere(0.1, 0.0)
+    with pytest.raises(ValueError, match="semi_diameter"):
+        Plane(float("nan"))
+    with pytest.raises(ValueError, match="at most 9"):
+        Asphere(0.1, 1.0, coefficients=[0.0] * 10)
+    with pytest.raises(ValueError, match="finite"):
+        Asphere(float("inf"), 1.0)
+    with pytest.raises(ValueError, match=r"\(J\+1\)\(J\+2\)/2"):
+        XYPolynomial(1.0, [0.0] * 4)
+    with pytest.raises(ValueError, match="4x4"):
+        BSpline(1.0, torch.zeros(3, 5))
+    with pytest.raises(ValueError, match="shape"):
+        Aperture(1.0, shape="hexagon")
+    with pytest.raises(ValueError, match="half_width"):
+        Aperture(shape="rect", half_width_x=1.0)
