@@ -19,6 +19,11 @@ cmd=${1:-test}
 shift || true
 case "$cmd" in
     test) exec .venv/bin/python -m pytest -q "$@" ;;
-    run)  exec .venv/bin/deeplens report data/lenses/double_gauss.json --image-plane paraxial "$@" ;;
+    run)
+        # the main job: end-to-end training (default experiment=edof; pass overrides freely)
+        case " $* " in
+            *" experiment="*) exec .venv/bin/python train.py "$@" ;;
+            *) exec .venv/bin/python train.py experiment=edof "$@" ;;
+        esac ;;
     *) echo "usage: bash dev.sh run|test [args]" >&2; exit 2 ;;
 esac

@@ -14,7 +14,7 @@ from pathlib import Path
 from deeplens.optics.io import lens_from_dict, save_lens, table_to_dict
 
 ROOT = Path(__file__).resolve().parents[1]
-FDC = (486.1327, 587.5618, 656.2725)
+FDC = (587.5618, 486.1327, 656.2725)  # d first: the primary wavelength
 
 CONVERSIONS = {
     # name: (table file, options)

@@ -21,8 +21,6 @@ by more than 1e-7 mm over one step: far above the float64 resolution of the loss
 vanishing or disconnected gradient cannot pass.
 """
 
-import math
-
 import pytest
 import torch
 
@@ -62,17 +60,17 @@ SURFACES = {
 _OWN = [
     ("sphere", "c", 2 * DZ / R_REF ** 2),
     ("conic", "c", 2 * DZ / R_REF ** 2),
-    ("conic", "k", 0.03),  # dz/dk ~ c^3 r^4 / 8 = 3.8e-4 mm at r = 3
+    ("conic", "k", 0.25),  # dz/dk ~ c^3 r^4 / 8 = 3.8e-4 mm at r = 3
     ("asphere", "c", 2 * DZ / R_REF ** 2),
-    ("asphere", "k", 0.03),
+    ("asphere", "k", 0.25),
     ("asphere", "a4", DZ / R_REF ** 4),
     ("asphere", "a6", DZ / R_REF ** 6),
 ]
 for _kind in ("xy_b0", "xy_b"):
     _OWN += [(_kind, f"a{m}", DZ / R_REF ** (i + j))
              for m, (i, j) in enumerate(XYPolynomial(1.0, XY_COEFFS).terms)]
-    _OWN.append((_kind, "b", 1e-3))  # dz/db ~ z^2 ~ 0.1 mm^2 at the edge
-_OWN += [("bspline", f"C{p}{q}", DZ) for p, q in ((3, 3), (2, 4), (4, 2), (1, 3), (5, 5))]
+    _OWN.append((_kind, "b", 4e-3))  # dz/db ~ z^2 ~ 0.025 mm^2 at r = 3
+_OWN += [("bspline", f"C{p}{q}", DZ) for p, q in ((3, 3), (2, 4), (4, 2), (1, 3), (4, 4))]
 _LENS = [("distance0", 1e-4), ("distance1", 1e-4), ("distance2", 1e-4), ("dx", 1e-4),
          ("dy", 1e-4), ("tilt_x", 1e-5), ("tilt_y", 1e-5), ("d_sensor", 1e-4)]
 CASES = _OWN + [(kind, name, h) for kind in SURFACES for name, h in _LENS]
@@ -196,6 +194,21 @@ def test_gradients_of_all_parameters_at_once():
         assert H.rel_err(g, g_all) < 1e-12 and abs(g_all) > 0
 
 
+def test_bspline_gradient_is_local():
+    """Only the 4x4 control points around a hit influence it: coefficients whose support
+    (|x - x_p| < 2h with h = 4 mm here) no ray reaches get an exactly zero gradient, the
+    others a non-zero one."""
+    lens = make_lens("bspline")
+    rays = make_rays()
+    C = lens.surfaces[0].coefficients
+    C.requires_grad_(True)
+    (g,) = torch.autograd.grad(image_loss(lens, rays)[0], C)
+    # the first surface is decentered by < 0.05 mm; all hits lie within r < 3 mm of its axis,
+    # so control points centred at -12 and +12 mm (indices 0 and 6) are out of reach
+    assert not bool(g[0].any() or g[-1].any() or g[:, 0].any() or g[:, -1].any())
+    assert bool((g[1:-1, 1:-1].abs() > 0).all())
+
+
 # ----------------------------------------------------------------- regression tests (unrolled)
 def test_regression_unrolled_gradient_of_ray_starting_on_surface():
     """A ray whose vertex-plane start ``t0`` already satisfies ``|f| < tol`` used to take no
@@ -218,14 +231,14 @@ def test_regression_unrolled_derivative_converges_with_the_value():
     """The derivative of a Newton iterate lags its value by one step.  Unrolled mode used to
     stop as soon as ``|f| < tol``, leaving a derivative error of the order of the previous
     residual (4e-6 relative on the XY ``b`` gradient of the lens test above).  It must equal
-    the implicit-function derivative ``dt/dθ = -(∂f/∂θ) / (d · ∇f)`` to ~1e-12."""
+    the implicit-function derivative ``dt/dθ = -(∂f/∂θ) / (d · ∇f)`` to 1e-10."""
     s = XYPolynomial(8.0, XY_COEFFS, b=0.0)
     s.b.requires_grad_(True)
-    o, d = H.disk_points(50, 6.0, seed=2), None
-    o = torch.cat([o, torch.full((50, 1), -2.0, dtype=F64)], -1)
+    o = torch.cat([H.disk_points(50, 6.0, seed=2), torch.full((50, 1), -2.0, dtype=F64)], -1)
     d = torch.tensor([0.05, -0.08, 1.0], dtype=F64)
     d = (d / d.norm()).expand(50, 3)
-    t, x, ok = intersect(s, o, d, torch.ones(50, dtype=torch.bool), IntersectOptions(mode="unrolled"))
+    t, x, ok = intersect(s, o, d, torch.ones(50, dtype=torch.bool),
+                         IntersectOptions(mode="unrolled"))
     assert bool(ok.all())
     (g,) = torch.autograd.grad(t.sum(), s.b)
     with torch.no_grad():
@@ -246,7 +259,8 @@ def test_intersection_gradient_matches_implicit_function_theorem(kind):
     d = (d / d.norm()).expand(30, 3)
     for mode in ("implicit", "unrolled"):
         o_ = o.clone().requires_grad_(True)
-        t, x, ok = intersect(s, o_, d, torch.ones(30, dtype=torch.bool), IntersectOptions(mode=mode))
+        t, x, ok = intersect(s, o_, d, torch.ones(30, dtype=torch.bool),
+                             IntersectOptions(mode=mode))
         assert bool(ok.all())
         (g,) = torch.autograd.grad(t.sum(), o_)
         with torch.no_grad():

@@ -242,3 +242,32 @@ def test_intersect_options_validation():
         IntersectOptions(tol=0.0)
     assert default_tolerance(F64) == 1e-10
     assert default_tolerance(torch.float32) == 1e-5
+
+
+@pytest.mark.parametrize("radius", [20.0, -20.0])
+@pytest.mark.parametrize("direction", [1.0, -1.0], ids=["forward", "backward"])
+def test_grazing_incidence_finds_the_first_crossing(radius, direction):
+    """Rays travelling along ``direction`` in z that meet the cap at P with incidence 60 to 89.9
+    deg: Newton must return P (t = 10), not the exit point of the chord through the sphere
+    (2 R cos(inc) further on)."""
+    s = Sphere(1 / radius, 9.0)
+    o, d, p = [], [], []
+    for r0 in (2.0, 6.0, 8.5):
+        for inc in (60.0, 85.0, 89.0, 89.9):
+            R = radius
+            P = torch.tensor([-r0, 0.0, R - math.copysign(1.0, R) * math.sqrt(R * R - r0 * r0)],
+                             dtype=F64)
+            n = (P - torch.tensor([0.0, 0.0, R], dtype=F64)) / R
+            n = n if n[2] * direction > 0 else -n      # the normal along the travel direction
+            tang = torch.tensor([n[2], 0.0, -n[0]], dtype=F64)
+            tang = tang if tang[2] * direction > 0 else -tang
+            a = math.radians(inc)
+            di = math.cos(a) * n + math.sin(a) * tang
+            o.append(P - 10.0 * di)
+            d.append(di)
+            p.append(P)
+    o, d, p = torch.stack(o), torch.stack(d), torch.stack(p)
+    t, x, ok = intersect(s, o, d, torch.ones(len(o), dtype=torch.bool))
+    assert bool(ok.all())
+    assert float((t - 10.0).abs().max()) < 1e-9
+    assert float((x - p).abs().max()) < 1e-9

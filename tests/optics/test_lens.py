@@ -14,13 +14,14 @@ from deeplens.optics.io import load_lens
 from deeplens.optics.lens import Lens
 from deeplens.optics.materials import get_material
 from deeplens.optics.rays import Rays
+from deeplens.optics.sampling import hexapolar
 from deeplens.optics.surfaces import Aperture, Asphere, BSpline, Plane, Sphere, XYPolynomial
 
 F64, F32 = torch.float64, torch.float32
 M = get_material
 
 
-def _fan(dtype, radius=9.0, n=300, angles=(0.0, 0.4, 0.8, 1.2), z0=-3.0):
+def _fan(dtype, radius=9.0, n=150, angles=(0.0, 0.4, 0.8, 1.2), z0=-3.0):
     """Collimated bundles over a disk of ``radius`` mm at several field angles (rad)."""
     xy = H.disk_points(n, radius, seed=1, dtype=dtype)
     return H.cat_rays(*[H.collimated(xy, [math.sin(a), 0.3 * math.sin(a), math.cos(a)], z0)
@@ -89,11 +90,11 @@ def test_invalid_rays_give_finite_outputs_and_gradients(scenario, mode, dtype):
     # the invalidity actually comes from the scenario's cause
     if scenario == "tir":
         n_tir, _ = _tir_count(lens, rays)
-        assert n_tir > 100
+        assert n_tir > 0.05 * n
     if scenario == "domain":
         r0 = (rays.o[:, :2] - rays.o[:, 2:] / rays.d[:, 2:] * rays.d[:, :2]).norm(dim=-1)
         outside = r0 > 5.5  # crosses the vertex plane beyond the conic's domain (r < 5)
-        assert int(outside.sum()) > 100 and not bool(out.valid[outside].any())
+        assert int(outside.sum()) > 0.05 * n and not bool(out.valid[outside].any())
     w = torch.randn(n, 2, generator=torch.Generator().manual_seed(0), dtype=F64).to(dtype)
     masked = H.weighted_image_sum(out, w) + torch.where(out.valid, out.opl, 0 * out.opl).sum()
     grads = torch.autograd.grad(masked, params, retain_graph=True, allow_unused=True)
@@ -178,7 +179,7 @@ def test_decentered_singlet_moves_the_image_with_it():
     point: the spot on the paraxial focal plane moves by δ, along δ."""
     lens = load_lens(H.LENS_DIR / "thorlabs_la1131.json")
     z_f = float(paraxial(lens, H.WAVELENGTH_D).image_z)
-    rays = H.collimated(H.disk_points(200, 0.5, seed=5), [0, 0, 1], -2.0)
+    rays = H.collimated(0.5 * hexapolar(6), [0, 0, 1], -2.0)  # symmetric about the axis
 
     def centroid():
         out = lens.trace_to_sensor(rays, z_image=z_f)
@@ -196,22 +197,27 @@ def test_decentered_singlet_moves_the_image_with_it():
         assert float(c[1]) == pytest.approx(dy, abs=2e-3 * abs(dy) + 1e-12)
 
 
-@pytest.mark.parametrize("axis", ["tilt_x", "tilt_y"])
-def test_tilted_plate_displaces_ray_by_closed_form(axis):
-    """A plate of thickness T and index n tilted by θ shifts a ray along z sideways by
-    T sin(θ - θ') / cos θ' (sin θ = n sin θ').  With R = R_y(tilt_y) R_x(tilt_x) the plate
-    normal becomes (0, -sin θ, cos θ) for tilt_x (shift towards -y) and (sin θ, 0, cos θ) for
-    tilt_y (shift towards +x)."""
-    T, theta = 5.0, 0.2
+@pytest.mark.parametrize("tilt_x,tilt_y", [(0.2, 0.0), (0.0, 0.2), (-0.15, 0.25)])
+def test_tilted_plate_displaces_ray_by_closed_form(tilt_x, tilt_y):
+    """A plate of thickness T and index n whose normal makes the angle θ with a ray shifts the
+    ray sideways by T sin(θ - θ') / cos θ' (sin θ = n sin θ'), towards the normal's transverse
+    part.  With R = R_y(tilt_y) R_x(tilt_x) (misalignment module) the plate normal is
+    R e_z = (cos a sin b, -sin a, cos a cos b) for a = tilt_x, b = tilt_y."""
+    T = 5.0
     n = float(M("N-BK7").n(H.WAVELENGTH_D))
     lens = Lens([Plane(10.0), Plane(10.0)], [M("AIR"), M("N-BK7"), M("AIR")], [3.0, T], 6.0, 0)
     with torch.no_grad():
-        getattr(lens.misalignments[0], axis).fill_(theta)
+        lens.misalignments[0].tilt_x.fill_(tilt_x)
+        lens.misalignments[0].tilt_y.fill_(tilt_y)
     rays = H.collimated(torch.tensor([[0.0, 0.0], [1.0, -0.5]], dtype=F64), [0, 0, 1], 0.0)
     out = lens.trace_to_sensor(rays)
+    a, b = tilt_x, tilt_y
+    normal = torch.tensor([math.cos(a) * math.sin(b), -math.sin(a), math.cos(a) * math.cos(b)],
+                          dtype=F64)
+    theta = math.acos(float(normal[2]))
     th_t = math.asin(math.sin(theta) / n)
     shift = T * math.sin(theta - th_t) / math.cos(th_t)
-    expect = torch.tensor([0.0, -shift] if axis == "tilt_x" else [shift, 0.0], dtype=F64)
+    expect = shift * normal[:2] / normal[:2].norm()
     assert bool(out.valid.all())
     assert float((out.o[:, :2] - rays.o[:, :2] - expect).abs().max()) < 1e-12
     assert float((out.d - rays.d).abs().max()) < 1e-14  # leaves parallel to itself
@@ -227,7 +233,8 @@ def test_zero_misalignment_equals_none():
         for p in (m.dx, m.dy, m.tilt_x, m.tilt_y):
             p.requires_grad_(True)
         assert not m.is_identity()
-    out = lens.trace_to_sensor(rays)
+    with torch.no_grad():
+        out = lens.trace_to_sensor(rays)
     assert torch.equal(out.valid, ref.valid) and int(ref.valid.sum()) > 50
     assert float((out.o - ref.o)[ref.valid].abs().max()) < 1e-13
     assert float((out.d - ref.d)[ref.valid].abs().max()) < 1e-15
@@ -237,8 +244,7 @@ def test_zero_misalignment_equals_none():
 def traced_efl(lens, wavelength=H.WAVELENGTH_D, h=1e-3):
     """EFL from a real ray: a ray parallel to the axis at height h leaves with slope u',
     EFL = -h / u' (the paraxial limit; the error is O((h/f)^2))."""
-    rays = H.collimated(torch.tensor([[0.0, h]], dtype=F64), [0, 0, 1], -1.0 - 0.0, wavelength)
-    rays = Rays(rays.o - torch.tensor([0.0, 0.0, 20.0], dtype=F64), rays.d, wavelength)
+    rays = H.collimated(torch.tensor([[0.0, h]], dtype=F64), [0, 0, 1], -20.0, wavelength)
     out = lens.trace(rays)
     assert bool(out.valid.all())
     return -h / float(out.d[0, 1] / out.d[0, 2])
@@ -253,7 +259,7 @@ def lensmaker(n, R1, R2, d):
 def test_thick_singlet_efl_matches_lensmaker(R1, R2, d):
     n = float(M("N-BK7").n(H.WAVELENGTH_D))
     lens = H.singlet(Sphere(1 / R1, 6.0), Sphere(1 / R2, 6.0), thickness=d,
-                     d_sensor=20.0, spec=None)
+                     d_sensor=20.0)
     f = lensmaker(n, R1, R2, d)
     assert float(paraxial(lens, H.WAVELENGTH_D).efl) == pytest.approx(f, rel=1e-12)
     assert traced_efl(lens) == pytest.approx(f, rel=1e-6)
@@ -290,6 +296,10 @@ def test_edof_achromat_efl():
     """Thorlabs AC254-100-A (N-BK7/SF5 cemented achromat): EFL 100.0 mm; the N-BK7 plate and the
     flat XY surface behind it change nothing."""
     lens = load_lens(H.LENS_DIR / "edof_achromat.json")
+    radii = [1 / float(lens.surfaces[i].c) for i in range(3)]
+    assert radii == pytest.approx([62.8, -45.7, -128.2], abs=0.05)  # published prescription
+    assert [float(lens.distances[i]) for i in (1, 2)] == [4.0, 2.5]
+    assert [m.name for m in lens.materials[1:3]] == ["N-BK7", "SF5"]
     f = traced_efl(lens)
     assert f == pytest.approx(100.0, rel=1e-2)
     assert f == pytest.approx(float(paraxial(lens, H.WAVELENGTH_D).efl), rel=1e-7)
@@ -313,20 +323,57 @@ def _assert_finite(out, grads):
         assert bool(torch.isfinite(g).all())
 
 
+def _grazing_bundle(R, cases, dtype):
+    """Forward rays (d_z > 0) that hit the sphere of radius R (vertex at 0) at the point
+    P = (-r0, 0, sag(r0)) with incidence angle ``inc`` (deg), starting 10 mm before P."""
+    o, d, p = [], [], []
+    for r0, inc in cases:
+        P = torch.tensor([-r0, 0.0, R - math.sqrt(R * R - r0 * r0)], dtype=F64)
+        n_in = (torch.tensor([0.0, 0.0, R], dtype=F64) - P) / R
+        t = torch.tensor([n_in[2], 0.0, -n_in[0]], dtype=F64)
+        t = t if t[2] > 0 else -t
+        a = math.radians(inc)
+        di = math.cos(a) * n_in + math.sin(a) * t
+        o.append(P - 10.0 * di)
+        d.append(di)
+        p.append(P)
+    return (torch.stack(o).to(dtype), torch.stack(d).to(dtype), torch.stack(p))
+
+
 @pytest.mark.parametrize("dtype", [F64, F32], ids=["float64", "float32"])
 def test_grazing_rays(dtype):
-    """Rays almost parallel to the vertex plane: exactly parallel ones are invalid; nearly
-    grazing ones either hit (at a steep incidence) or are invalid, always finite."""
-    lens = H.singlet(Sphere(1 / 20, 8.0), Sphere(-1 / 20, 8.0), thickness=5.0).to(dtype)
+    """A sphere (R = 20 mm) in N-BK7: rays exactly parallel to the vertex plane (d_z = 0) and
+    nearly so (d_z = 1e-9: the vertex plane is 3e10 mm away) are invalid; rays hitting the cap
+    at 60 to 89.9 deg incidence find the *first* crossing P (not the exit point of the chord),
+    refract by Snell's law, and everything, gradients included, stays finite."""
+    R = 20.0
+    lens = Lens([Sphere(1 / R, 9.0)], [M("AIR"), M("N-BK7")], [0.0], 10.0, 0).to(dtype)
     params = _unfreeze_all(lens)
-    o = torch.tensor([[-30.0, 0.0, 0.5], [-30.0, 1.0, -0.2], [-30.0, 0.0, 0.0],
-                      [-9.0, 0.0, 1.2], [0.0, -30.0, 0.3]], dtype=dtype)
-    d = torch.tensor([[1.0, 0.0, 0.0], [1.0, 0.0, 1e-9], [1.0, 0.0, 0.03], [1.0, 0.0, 0.02],
-                      [0.0, 1.0, 0.05]], dtype=dtype)
+    cases = [(r0, inc) for r0 in (2.0, 6.0, 8.5) for inc in (60.0, 85.0, 89.0, 89.9)]
+    o, d, P = _grazing_bundle(R, cases, dtype)
+    o = torch.cat([torch.tensor([[-30.0, 0.0, 0.5], [-30.0, 1.0, -0.2]], dtype=dtype), o])
+    d = torch.cat([torch.tensor([[1.0, 0.0, 0.0], [1.0, 0.0, 1e-9]], dtype=dtype), d])
     rays = Rays(o, d, H.WAVELENGTH_D)
-    out, _, grads = _loss_and_grads(lens, rays, params)
-    _assert_finite(out, grads)
-    assert not bool(out.valid[:2].any())
+    out = lens.trace(rays)
+    assert out.valid.tolist() == [False, False] + [True] * len(cases)
+    for t in (out.o, out.d, out.opl):
+        assert bool(torch.isfinite(t).all())
+    tol = 1e-9 if dtype == F64 else 2e-3
+    assert float((out.o[2:].detach().double() - P).abs().max()) < tol
+    # Snell: sin(theta_t) = sin(theta_i) / n
+    n = float(M("N-BK7").n(H.WAVELENGTH_D))
+    normal = (torch.tensor([0.0, 0.0, R], dtype=F64) - P) / R
+    sin_t = torch.linalg.cross(out.d[2:].detach().double(), normal).norm(dim=-1)
+    expect = torch.sin(torch.deg2rad(torch.tensor([c[1] for c in cases], dtype=F64))) / n
+    assert float((sin_t - expect).abs().max()) < (1e-12 if dtype == F64 else 1e-3)
+    w = torch.randn(len(cases) + 2, 2, generator=torch.Generator().manual_seed(3),
+                    dtype=F64).to(dtype)
+    loss = H.weighted_image_sum(out, w) + torch.where(out.valid, out.d[:, 0], 0 * out.opl).sum()
+    grads = torch.autograd.grad(loss, params, allow_unused=True, materialize_grads=True)
+    g_c = grads[[p is lens.surfaces[0].c for p in params].index(True)]
+    assert bool(g_c != 0)  # the curvature moves the grazing hits
+    for g in grads:
+        assert bool(torch.isfinite(g).all())
 
 
 @pytest.mark.parametrize("dtype", [F64, F32], ids=["float64", "float32"])
@@ -363,27 +410,28 @@ def test_near_hemisphere(dtype):
     rays = H.collimated(xy, [0, 0, 1], -1.0)
     out, _, grads = _loss_and_grads(lens, rays, params)
     _assert_finite(out, grads)
-    _, _, hit = intersect(lens.surfaces[0], rays.o + torch.tensor([0, 0, 0], dtype=dtype),
-                          rays.d, rays.valid)
+    with torch.no_grad():  # surface 0 has its vertex at the origin and no misalignment
+        _, x, hit = intersect(lens.surfaces[0], rays.o, rays.d, rays.valid)
     r = xy.norm(dim=-1)
     assert not bool(hit[r > R].any())
     assert bool(hit[r < 0.99 * R].all())
     assert bool(hit[-2:].all())  # at the rim
     if dtype == F64:  # the rim rays hit the closed-form sphere
         z = R - torch.sqrt(R * R - r[-2:] ** 2)
-        _, x, _ = intersect(lens.surfaces[0], rays.o[-2:], rays.d[-2:], rays.valid[-2:])
-        assert float((x[:, 2] - z).abs().max()) < 1e-9
+        assert float((x[-2:, 2] - z).abs().max()) < 1e-9
 
 
 @pytest.mark.parametrize("dtype", [F64, F32], ids=["float64", "float32"])
 def test_all_rays_miss(dtype):
+    """No ray reaches the sensor: every output is finite and the masked loss has an exactly
+    zero gradient (a NaN on a masked ray would survive as 0 * NaN = NaN)."""
     lens = _aperture_lens().to(dtype)
     params = _unfreeze_all(lens)
     rays = H.collimated(torch.tensor([[20.0, 0.0], [0.0, -15.0]], dtype=dtype), [0, 0, 1], -3.0)
     out = lens.trace_to_sensor(rays)
     assert not bool(out.valid.any())
     _assert_finite(out, [])
-    loss = H.weighted_image_sum(out, torch.ones(2, 2, dtype=dtype)) + 0 * sum(
-        p.sum() for p in params)
+    loss = H.weighted_image_sum(out, torch.ones(2, 2, dtype=dtype))
+    assert loss.requires_grad  # the masked-out positions still depend on the lens
     for g in torch.autograd.grad(loss, params, allow_unused=True, materialize_grads=True):
         assert bool(torch.isfinite(g).all()) and not bool(g.any())

@@ -32,6 +32,7 @@ exactly.  Every error names the file and the JSON path of the offending field.
 
 from __future__ import annotations
 
+import copy
 import difflib
 import json
 import math
@@ -309,6 +310,7 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
 
 def lens_to_dict(lens: Lens) -> dict:
     """The lens-file dictionary of ``lens`` (current parameter values, exact floats)."""
+    lens = copy.deepcopy(lens).requires_grad_(False)  # plain values, also for trainable lenses
     spec = lens.spec
     ap = {"type": spec.aperture_type}
     if spec.aperture_type != "stop":

@@ -1,0 +1,150 @@
+"""Training callbacks and plugins: atomic checkpoints with lens files, TensorBoard image logging.
+
+Image logging runs on rank zero only, after validation, and never changes training state.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import torch
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint
+from lightning.pytorch.plugins.io import TorchCheckpointIO
+from lightning.pytorch.utilities import rank_zero_only
+
+from ..optics.io import save_lens
+from .lens_setup import surface_height_map
+
+__all__ = ["AtomicCheckpointIO", "LensCheckpoint", "ImageLogger"]
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Write each checkpoint to ``<path>.tmp``, fsync, then ``os.replace``: a killed run leaves
+    either the old or the new file, never a truncated one."""
+
+    def save_checkpoint(self, checkpoint, path, storage_options=None):
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "wb") as f:
+            torch.save(checkpoint, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+
+
+class LensCheckpoint(ModelCheckpoint):
+    """A ModelCheckpoint that also exports the lens beside every checkpoint it writes
+    (``last.ckpt`` -> ``last.lens.json``), so the trained lens is usable without the code."""
+
+    def _save_checkpoint(self, trainer, filepath):
+        super()._save_checkpoint(trainer, filepath)
+        if trainer.is_global_zero:
+            module = trainer.lightning_module
+            save_lens(module.lens, Path(filepath).with_suffix(".lens.json"))
+
+
+def _to_image(t: torch.Tensor) -> torch.Tensor:
+    """``(C, H, W)`` in [0, 1], 3 channels."""
+    t = t.detach().float().clamp(0, 1).cpu()
+    return t.expand(3, -1, -1) if t.shape[0] == 1 else t
+
+
+class ImageLogger(Callback):
+    """Logs, after each validation: image grids (ground truth | sensor | restored) per depth,
+    PSFs across depths and fields, the phase plate's height map, the lens layout and the
+    trainable lens parameters.
+
+    Args:
+        every_n_epochs: log every n validations.
+        psf_rays: rays per logged PSF.
+    """
+
+    def __init__(self, every_n_epochs: int = 1, psf_rays: int = 4096):
+        super().__init__()
+        self.every_n_epochs = max(1, int(every_n_epochs))
+        self.psf_rays = int(psf_rays)
+
+    @rank_zero_only
+    def on_validation_end(self, trainer, pl_module):
+        if trainer.sanity_checking or trainer.logger is None:
+            return
+        if trainer.current_epoch % self.every_n_epochs:
+            return
+        exp = getattr(trainer.logger, "experiment", None)
+        if exp is None or not hasattr(exp, "add_image"):
+            return
+        step = trainer.global_step
+        was_training = pl_module.training
+        pl_module.eval()
+        try:
+            self._log_images(exp, pl_module, step)
+            self._log_psfs(exp, pl_module, step)
+            self._log_lens(exp, pl_module, step)
+        finally:
+            pl_module.train(was_training)
+
+    def _log_images(self, exp, m, step):
+        from torchvision.utils import make_grid
+
+        if not m.val_vis:
+            return
+        for tag, (gt, y, pred) in m.val_vis.items():
+            rows = []
+            for b in range(gt.shape[0]):
+                rows += [_to_image(gt[b]), _to_image(y[b]), _to_image(pred[b])]
+            exp.add_image(f"images/{tag}", make_grid(rows, nrow=3, padding=2), step)
+
+    def _log_psfs(self, exp, m, step):
+        from torchvision.utils import make_grid
+
+        from ..render.psf import psf
+
+        lens, sensor = m.lens, m.sensor
+        w = sensor.mono_wavelength_nm
+        tiles = []
+        kmax = 0
+        with torch.no_grad():
+            ks = []
+            for d in m.val_depths_mm:
+                for f in m.psf_fields_deg:
+                    t = math.tan(math.radians(f))
+                    X = 0.0
+                    Y = t * (d + m.camera.z_ep - m.camera.z0)
+                    try:
+                        ks.append(psf(lens, sensor, (X, Y), d, w, self.psf_rays, seed=0))
+                    except ValueError:
+                        ks.append(torch.zeros(3, 3))
+            kmax = max(k.shape[-1] for k in ks)
+            for k in ks:
+                p = (kmax - k.shape[-1]) // 2
+                k = torch.nn.functional.pad(k, (p, p, p, p))
+                tiles.append(_to_image((k / k.max().clamp_min(1e-12))[None]))
+        if tiles:
+            grid = make_grid(tiles, nrow=len(m.psf_fields_deg), padding=1, pad_value=0.5)
+            exp.add_image("psf/depth_rows_field_cols", grid, step)
+
+    def _log_lens(self, exp, m, step):
+        from ..analysis.plot import layout_figure
+
+        lens = m.lens
+        if m.plate_surface is not None:
+            h = surface_height_map(lens.surfaces[m.plate_surface])
+            exp.add_scalar("lens/plate_peak_to_valley_um", float(h.max() - h.min()) * 1e3, step)
+            rng = (h.max() - h.min()).clamp_min(1e-12)
+            exp.add_image("lens/phase_plate_height", ((h - h.min()) / rng)[None].float(), step)
+        try:
+            fig = layout_figure(lens)
+            exp.add_figure("lens/layout", fig, step, close=True)
+        except Exception as e:  # plotting must never stop training
+            exp.add_text("lens/layout_error", repr(e), step)
+        lines = []
+        for n, p in lens.named_parameters():
+            if p.requires_grad:
+                v = float(p) if p.numel() == 1 else float(p.detach().norm())
+                exp.add_scalar(f"lens_params/{n}", v, step)
+                lines.append(f"{n} = {v:.6g}" + ("" if p.numel() == 1 else " (norm)"))
+        if lines:
+            exp.add_text("lens/trainable", "  \n".join(lines), step)

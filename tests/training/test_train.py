@@ -1,0 +1,164 @@
+"""End-to-end training: configs compose and run, logs, checkpoints, resume, bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+import torch
+from omegaconf import open_dict
+
+from deeplens.training.train import build_objects, train
+
+ROOT = Path(__file__).resolve().parents[2]
+EXPERIMENTS = sorted(p.stem for p in (ROOT / "configs" / "experiment").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_experiment_fast_dev_run(cfg_factory, experiment):
+    cfg = cfg_factory(f"experiment={experiment}", "debug=fdr")
+    metrics, objs = train(cfg)
+    assert math.isfinite(metrics["train/loss"])
+
+
+def _read_events(logdir):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    files = list(Path(logdir).rglob("events.out.tfevents*"))
+    assert files, f"no event file under {logdir}"
+    acc = EventAccumulator(str(files[0].parent), size_guidance={"images": 0, "scalars": 0})
+    acc.Reload()
+    return acc
+
+
+@pytest.mark.parametrize("experiment", EXPERIMENTS)
+def test_short_run_logs_scalars_images_and_checkpoints(cfg_factory, tmp_path, experiment):
+    cfg = cfg_factory(f"experiment={experiment}", "test=false")
+    metrics, objs = train(cfg)
+    acc = _read_events(tmp_path / "tensorboard")
+    scalars = set(acc.Tags()["scalars"])
+    images = set(acc.Tags()["images"])
+    assert "train/loss" in scalars
+    depth_tags = [t for t in scalars if t.startswith("val/psnr_restored/")]
+    assert depth_tags and any(t.startswith("val/psnr_sensor/") for t in scalars)
+    assert any(t.startswith("val/ssim_restored/") for t in scalars)
+    assert any(t.startswith("images/") for t in images)
+    assert "psf/depth_rows_field_cols" in images
+    assert any(t.startswith("lens_params/") for t in scalars)
+    if experiment == "edof":
+        assert "lens/phase_plate_height" in images
+        assert any("d4500mm" in t for t in depth_tags)
+    else:
+        assert any("band" in t for t in depth_tags)
+    figs = acc.Tags().get("images", [])
+    assert "lens/layout" in figs
+    ckpts = tmp_path / "checkpoints"
+    assert (ckpts / "last.ckpt").exists() and (ckpts / "last.lens.json").exists()
+    assert (ckpts / "best.ckpt").exists() and (ckpts / "best.lens.json").exists()
+    assert not list(ckpts.glob("*.tmp"))
+
+
+def test_training_steps_change_optics_and_network(cfg_factory):
+    # two steps: the restorer's zero-initialised head makes it the identity at step 0, so only
+    # the head (and the lens) get a gradient on the very first step
+    cfg = cfg_factory("experiment=doublet", "trainer.max_steps=2", "test=false",
+                      "trainer.limit_val_batches=0")
+    objs = build_objects(cfg)
+    module = objs["module"]
+    lens_before = {n: p.detach().clone() for n, p in module.lens.named_parameters()
+                   if p.requires_grad}
+    net_before = [p.detach().clone() for p in module.restorer.parameters()]
+    objs["trainer"].fit(module, datamodule=objs["datamodule"])
+    assert lens_before
+    for n, p in module.lens.named_parameters():
+        if n in lens_before:
+            assert not torch.equal(p.detach(), lens_before[n]), n
+    changed = sum(not torch.equal(a, b.detach()) for a, b in
+                  zip(net_before, module.restorer.parameters()))
+    assert changed > 0.9 * len(net_before)
+
+
+def test_resume_restores_optimizer_and_lens(cfg_factory, tmp_path):
+    cfg = cfg_factory("experiment=edof", "test=false", "trainer.max_epochs=1")
+    _, objs = train(cfg)
+    ckpt = tmp_path / "checkpoints" / "last.ckpt"
+    trained = {n: p.detach().clone() for n, p in objs["module"].lens.named_parameters()}
+    state = torch.load(ckpt, weights_only=False)
+    assert state["optimizer_states"][0]["state"], "optimizer state missing from checkpoint"
+    # a fresh module loading the checkpoint gets the trained lens and optimizer back
+    cfg2 = cfg_factory("experiment=edof", "test=false", "trainer.max_epochs=2")
+    objs2 = build_objects(cfg2)
+    m2 = objs2["module"]
+    fresh = dict(m2.lens.named_parameters())
+    assert any(not torch.equal(fresh[n].detach(), v) for n, v in trained.items())
+    objs2["trainer"].fit(m2, datamodule=objs2["datamodule"], ckpt_path=str(ckpt))
+    assert objs2["trainer"].global_step == 2 * objs["trainer"].global_step
+    opt = objs2["trainer"].optimizers[0]
+    assert all(s["step"] > objs["trainer"].global_step for s in opt.state.values())
+
+
+def test_overfit_lowers_the_loss(cfg_factory):
+    cfg = cfg_factory("experiment=edof", "debug=overfit", "trainer.max_epochs=15", "test=false",
+                      "trainer.limit_val_batches=0", "callbacks.image_logger=null",
+                      "callbacks.model_checkpoint=null")
+    objs = build_objects(cfg)
+    losses = []
+    module = objs["module"]
+    orig = module.training_step
+
+    def step(batch, batch_idx):
+        out = orig(batch, batch_idx)
+        losses.append(float(out))
+        return out
+
+    module.training_step = step
+    objs["trainer"].fit(module, datamodule=objs["datamodule"])
+    assert len(losses) >= 10
+    assert sum(losses[-3:]) / 3 < 0.7 * sum(losses[:3]) / 3
+
+
+def test_unknown_key_and_wrong_type_fail_at_startup(cfg_factory):
+    from hydra.errors import ConfigCompositionException
+
+    with pytest.raises(ConfigCompositionException, match="rende"):
+        cfg_factory("rende.spp=3")
+    with pytest.raises(ConfigCompositionException, match="spq"):
+        cfg_factory("render.spq=3")
+    cfg = cfg_factory("render.spp=abc")
+    with pytest.raises(ValueError, match=r"render\.spp.*int.*abc"):
+        build_objects(cfg)
+
+
+def test_fully_vignetting_lens_fails_before_training(cfg_factory, tmp_path):
+    import json
+
+    lens = json.loads((ROOT / "data/lenses/wide_doublet.json").read_text())
+    # the stop decentred by 5 mm: no ray can pass both it and the doublet (2.6 mm semi-diameter)
+    lens["misalignment"] = [{"dx_mm": 5.0}, {}]
+    p = tmp_path / "blocked.json"
+    p.write_text(json.dumps(lens))
+    cfg = cfg_factory("experiment=doublet", f"lens.path={p}")
+    with pytest.raises(ValueError, match=r"field .* deg"):
+        build_objects(cfg)
+
+
+def test_nan_loss_stops_with_step_and_saves_state(cfg_factory, tmp_path):
+    from deeplens.training.module import NonFiniteLossError
+
+    cfg = cfg_factory("experiment=edof", "test=false", "trainer.max_epochs=1")
+    objs = build_objects(cfg)
+    module = objs["module"]
+    orig = module.image_loss
+
+    def bad_loss(pred, gt):
+        terms = orig(pred, gt)
+        if module.global_step == 1:
+            terms["mse"] = terms["mse"] * float("nan")
+        return terms
+
+    module.image_loss = bad_loss
+    with pytest.raises(NonFiniteLossError, match="step 1") as e:
+        objs["trainer"].fit(module, datamodule=objs["datamodule"])
+    saved = list((tmp_path).rglob("nonfinite_step1.ckpt"))
+    assert saved and str(saved[0]) in str(e.value)
