@@ -146,6 +146,8 @@ def train(cfg: DictConfig):
         trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     if cfg.get("test", False):
-        trainer.test(module, datamodule=dm, verbose=False)
+        cb = trainer.checkpoint_callback
+        best = cb.best_model_path if (cfg.get("train", True) and cb is not None) else ""
+        trainer.test(module, datamodule=dm, ckpt_path=best or None, verbose=False)
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items()})
     return metrics, objs

@@ -27,11 +27,11 @@ TINY = [
 ]
 
 
-def compose_cfg(tmp_path, overrides=(), tiny=True):
+def compose_cfg(tmp_path, overrides=(), tiny=True, config_name="train.yaml"):
     """The composed training config with output under ``tmp_path``."""
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        cfg = compose(config_name="train.yaml", return_hydra_config=True,
+        cfg = compose(config_name=config_name, return_hydra_config=True,
                       overrides=(TINY if tiny else []) + list(overrides))
     HydraConfig().set_config(cfg)
     with open_dict(cfg):
@@ -43,8 +43,8 @@ def compose_cfg(tmp_path, overrides=(), tiny=True):
 
 @pytest.fixture
 def cfg_factory(tmp_path):
-    def make(*overrides, tiny=True):
-        return compose_cfg(tmp_path, overrides, tiny)
+    def make(*overrides, tiny=True, config_name="train.yaml"):
+        return compose_cfg(tmp_path, overrides, tiny, config_name)
 
     yield make
     GlobalHydra.instance().clear()
