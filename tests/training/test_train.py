@@ -162,3 +162,13 @@ def test_nan_loss_stops_with_step_and_saves_state(cfg_factory, tmp_path):
         objs["trainer"].fit(module, datamodule=objs["datamodule"])
     saved = list((tmp_path).rglob("nonfinite_step1.ckpt"))
     assert saved and str(saved[0]) in str(e.value)
+
+
+@pytest.mark.slow
+def test_ddp_two_processes_on_cpu(cfg_factory):
+    """Lightning DDP (gloo) with 2 CPU processes: both ranks train and stay in sync."""
+    cfg = cfg_factory("experiment=edof", "trainer=ddp_cpu", "test=false",
+                      "callbacks.image_logger=null")
+    metrics, objs = train(cfg)
+    assert math.isfinite(metrics["train/loss"])
+    assert objs["trainer"].world_size == 2
