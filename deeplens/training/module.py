@@ -49,8 +49,9 @@ class EndToEndModule(L.LightningModule):
         net_lr, optics_lr_mm, disc_lr: learning rates.
         perceptual: an optional perceptual-loss module (``(x̂, x*) -> scalar``).
         discriminator: an optional PatchGAN (enables the adversarial term).
-        max_sag_mm: constraint: trainable freeform/asphere surfaces keep ``|sag| <= max_sag_mm``
-            over their aperture (quadratic penalty, weight ``loss["constraint"]``).
+        max_sag_mm: constraint: every surface with trainable parameters keeps its departure from
+            its initial shape within ``max_sag_mm`` over the aperture (quadratic penalty, weight
+            ``loss["constraint"]``).
         plate_surface: index of the phase-plate surface (for logging its height map).
     """
 
@@ -84,6 +85,7 @@ class EndToEndModule(L.LightningModule):
         self.psf_fields_deg = list(psf_fields_deg or [0.0])
         self.automatic_optimization = False
         self.camera = IdealCamera(lens, sensor)
+        self._init_constraints()
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
     # ------------------------------------------------------------------ the camera
@@ -113,19 +115,35 @@ class EndToEndModule(L.LightningModule):
         return self.restorer(sensor_image)
 
     # ------------------------------------------------------------------ losses
+    def _constraint_grid(self, surface):
+        R = float(surface.semi_diameter)
+        v = torch.linspace(-R, R, 17, dtype=torch.float64) / math.sqrt(2)
+        Y, X = torch.meshgrid(v, v, indexing="ij")
+        return X, Y
+
+    def _init_constraints(self):
+        """Record the initial sag of every surface with trainable parameters."""
+        self._sag0 = {}
+        with torch.no_grad():
+            for i, s in enumerate(self.lens.surfaces):
+                if any(p.requires_grad for p in s.parameters()) and hasattr(s, "sag"):
+                    X, Y = self._constraint_grid(s)
+                    dt = self.lens.distances[0].dtype
+                    self._sag0[i] = s.sag(X.to(dt), Y.to(dt)).detach().clone()
+
     def constraint_loss(self) -> torch.Tensor:
+        """``mean(relu(|sag - sag_0| / m - 1)^2)`` over each trainable surface: its departure
+        from the initial shape stays within ``max_sag_mm`` (e.g. a phase plate's thickness)."""
         zero = torch.zeros((), device=self.device)
         if not self.max_sag_mm:
             return zero
         total = zero
-        for i, s in enumerate(self.lens.surfaces):
-            if not any(p.requires_grad for p in s.parameters()) or not hasattr(s, "sag"):
-                continue
-            R = float(s.semi_diameter)
-            v = torch.linspace(-R, R, 17, dtype=self.lens.distances[0].dtype,
-                               device=self.device) / math.sqrt(2)
-            Y, X = torch.meshgrid(v, v, indexing="ij")
-            excess = F.relu(s.sag(X, Y).abs() - self.max_sag_mm) / self.max_sag_mm
+        for i, sag0 in self._sag0.items():
+            s = self.lens.surfaces[i]
+            dt = self.lens.distances[0].dtype
+            X, Y = (g.to(device=self.device, dtype=dt) for g in self._constraint_grid(s))
+            dep = s.sag(X, Y) - sag0.to(device=self.device, dtype=dt)
+            excess = F.relu(dep.abs() / self.max_sag_mm - 1)
             total = total + (excess ** 2).mean().float()
         return total
 

@@ -172,3 +172,25 @@ def test_ddp_two_processes_on_cpu(cfg_factory):
     metrics, objs = train(cfg)
     assert math.isfinite(metrics["train/loss"])
     assert objs["trainer"].world_size == 2
+
+
+def test_constraint_bounds_departure_from_the_initial_surface(cfg_factory):
+    """Zero at the start (the doublet's curved surfaces are not penalised for their own sag),
+    positive past the bound, and its gradient matches a central finite difference."""
+    objs = build_objects(cfg_factory("experiment=doublet"))
+    m = objs["module"]
+    assert float(m.constraint_loss()) == 0.0
+    a4 = m.lens.surfaces[1].a[0]
+    with torch.no_grad():
+        a4 += 0.1 / 2.6 ** 4  # ~0.1 mm departure at the rim: twice the 0.05 mm bound
+    c = m.constraint_loss()
+    assert float(c) > 0
+    (g,) = torch.autograd.grad(c, a4)
+    h = 1e-3 / 2.6 ** 4
+    with torch.no_grad():
+        a4 += h
+        cp = float(m.constraint_loss())
+        a4 -= 2 * h
+        cm = float(m.constraint_loss())
+        a4 += h
+    assert float(g) == pytest.approx((cp - cm) / (2 * h), rel=1e-3)
