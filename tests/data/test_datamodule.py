@@ -21,16 +21,6 @@ from deeplens.data.textures import random_texture
 torchvision_io = pytest.importorskip("torchvision.io")
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """Generate as DataLoader workers do (one intra-op thread): many small ops, no thread hand-off
-    (on a loaded 2-core machine that hand-off can cost more than the work)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def _images(loader, n_batches=None):
     batches = loader if n_batches is None else itertools.islice(loader, n_batches)
     return torch.cat([b["image"] for b in batches])

@@ -20,16 +20,6 @@ from deeplens.data.textures import (
 KINDS = list(TEXTURE_KINDS)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _single_thread():
-    """Generate as DataLoader workers do (one intra-op thread): many small ops, no thread hand-off
-    (on a loaded 2-core machine that hand-off can cost more than the work)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def test_registry_is_complete_and_read_only():
     assert set(KINDS) == {"dead_leaves", "fractal_noise", "checkerboard", "grating", "voronoi",
                           "strokes"}
