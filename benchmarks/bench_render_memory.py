@@ -20,15 +20,26 @@ Workload (one configuration = number of rays, mode):
   loss = MSE of the render against the ideal camera's sharp image; ``loss.backward()``.
   Both modes use the same :meth:`plan` (seed), i.e. the same rays.
 
-Each configuration runs in a fresh subprocess (``--one``), so memory is per process:
+Each configuration runs in a fresh subprocess (``--one``), so memory is per process, and makes
+two passes (forward + backward each, same rays, after a warm-up on a tiny sensor):
 
-* ``peak MiB`` = peak RSS during the forward + backward minus the RSS after setup (lens, sensor,
-  scene, target and sampling plan built, warm-up done): the kernel's RSS high-water mark is reset
-  after setup (``/proc/self/clear_refs``) and read back with ``getrusage().ru_maxrss``.  On CUDA
+1. the memory pass, with glibc's mmap threshold fixed at ``--mmap-threshold`` (64 KiB): freed
+   tensors go back to the OS, so the RSS follows the live memory.  With glibc's default dynamic
+   threshold freed tensors stay in the heap and RSS reaches 1.7-2.5x the live peak.
+2. the timed pass, with glibc's steady-state thresholds (tensors recycled in the heap; the memory
+   pass is 2-5x slower from zero-filling fresh pages).  Skipped, and the times marked †, where the
+   heap could take the process past the budget.
+
+Columns:
+
+* ``peak MiB`` = peak RSS during the memory pass minus the RSS after setup (lens, sensor, scene,
+  target and sampling plan built, warm-up done): the kernel's RSS high-water mark is reset after
+  setup (``/proc/self/clear_refs``) and read back with ``getrusage().ru_maxrss``.  On CUDA
   ``torch.cuda.max_memory_allocated`` minus the allocation after setup is reported as well.
 * ``held MiB`` = memory still held after the forward (the autograd graph for plain back-prop).
+* ``heap peak MiB`` = the same peak in the timed pass (what a default process shows).
 * ``fwd s`` / ``bwd s`` / ``total s`` = wall time of the render, of ``loss.backward()`` (for the
-  adjoint: the re-trace of every chunk with its graph) and of both (one run, after a warm-up).
+  adjoint: the re-trace of every chunk with its graph) and of both, in the timed pass.
 * ``grad cos`` = cosine similarity of the adjoint gradient with the plain one at the same size.
 
 Configurations whose predicted peak (linear extrapolation from the two previous sizes of the
@@ -40,9 +51,10 @@ unexpected out-of-memory shows up as an "OOM" row instead of swapping or the OOM
 Usage::
 
     python benchmarks/bench_render_memory.py --quick     # smoke test, < 1 min
-    python benchmarks/bench_render_memory.py             # full sweep 1.3e5 .. 1.7e7 rays,
-                                                         # ~15-25 min on 2 CPU cores
-    python benchmarks/bench_render_memory.py --device cuda --spp 2,8,32,128,256,512
+    python benchmarks/bench_render_memory.py             # full sweep 1.3e5 .. 3.4e7 rays
+                                                         # (spp 2..512), ~24 min on 2 CPU cores
+    python benchmarks/bench_render_memory.py --spp 2,4,8,16,32,64,128,256   # up to 1.7e7, ~16 min
+    python benchmarks/bench_render_memory.py --device cuda --json out.json
 
 On a shared machine wrap heavy runs in ``flock /tmp/deeplens-bench.lock python ...``.
 """
@@ -244,7 +256,7 @@ def run_one(cfg: dict) -> dict:
     out["mem_time_s"] = mem["time_s"]
     # 2) time: glibc's steady state (tensors recycled in the heap; RSS then includes freed heap
     # memory, reported as "heap peak").  Skipped where that could exceed the memory budget.
-    heap_guess_gib = (mem["base_rss_mib"] + 1.5 * mem["peak_rss_mib"]) / 1024
+    heap_guess_gib = (mem["base_rss_mib"] + 2.2 * mem["peak_rss_mib"]) / 1024  # measured <= 2.1x
     if cfg.get("timed", True) and (cuda or heap_guess_gib < cfg.get("max_mem_gib", 1e9)):
         _malloc_for_speed()
         try:
@@ -252,7 +264,7 @@ def run_one(cfg: dict) -> dict:
         except (MemoryError, RuntimeError) as e:
             if not _is_oom(e):
                 raise
-            out["timed_note"] = "timed pass OOM"
+            out.update(timed_pass=False, timed_note="timed pass OOM")
             return out
         out.update(fwd_s=t["fwd_s"], bwd_s=t["bwd_s"], time_s=t["time_s"],
                    heap_peak_rss_mib=t["peak_rss_mib"], timed_pass=True,
@@ -495,20 +507,24 @@ def main(argv=None):
             if _ok(r):
                 done.append(r)
                 msg = (f"{_fmt_rays(r['rays'])} rays: peak {r['peak_rss_mib']:.0f} MiB, held "
-                       f"{r['held_mib']} MiB, fwd {r['fwd_s']:.2f} s, bwd {r['bwd_s']:.2f} s")
+                       f"{r['held_mib']:.0f} MiB, fwd {r['fwd_s']:.2f} s, bwd {r['bwd_s']:.2f} s"
+                       f" (memory pass {r['mem_time_s']:.1f} s)")
+                if "timed_note" in r:
+                    msg += f", {r['timed_note']}"
             else:
                 msg = r.get("oom") or r.get("error")
             print(f"[{time.time() - t_start:7.1f}s] {mode} spp={spp}: {msg}", file=sys.stderr,
                   flush=True)
 
     results.sort(key=lambda r: (r["spp"], r["mode"] != "plain"))
-    info = next((r for r in results if "threads" in r), {})
+    info = next((r for r in results if "torch" in r), {})
     H, W = res
     print(f"\nImage-space gradient (MSE vs the sharp image) of the EDOF lens, "
           f"plain back-prop vs adjoint: device={args.device}, dtype={args.dtype}, "
           f"torch {info.get('torch', '?')}, {info.get('threads', '?')} threads, "
           f"sensor {H}x{W} @ {pixel_mm * 1000:.2f} um, 1 wavelength, chunk_rays={chunk}, "
-          f"params {', '.join(TRAINABLE)}; total {time.time() - t_start:.0f} s\n")
+          f"params {', '.join(info.get('params', TRAINABLE))}; "
+          f"total {time.time() - t_start:.0f} s\n")
     print_table(results, cuda)
     print("\npeak MiB: process peak RSS during forward + backward minus the RSS after setup "
           "(fresh process per row; memory pass, glibc mmap threshold "
