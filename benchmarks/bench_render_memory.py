@@ -25,7 +25,7 @@ two passes (forward + backward each, same rays, after a warm-up on a tiny sensor
 
 1. the memory pass, with glibc's mmap threshold fixed at ``--mmap-threshold`` (64 KiB): freed
    tensors go back to the OS, so the RSS follows the live memory.  With glibc's default dynamic
-   threshold freed tensors stay in the heap and RSS reaches 1.7-2.5x the live peak.
+   threshold freed tensors stay in the heap and RSS reaches 1.9-2.6x the live peak.
 2. the timed pass, with glibc's steady-state thresholds (tensors recycled in the heap; the memory
    pass is 2-5x slower from zero-filling fresh pages).  Skipped, and the times marked †, where the
    heap could take the process past the budget.
@@ -52,8 +52,8 @@ Usage::
 
     python benchmarks/bench_render_memory.py --quick     # smoke test, < 1 min
     python benchmarks/bench_render_memory.py             # full sweep 1.3e5 .. 3.4e7 rays
-                                                         # (spp 2..512), ~24 min on 2 CPU cores
-    python benchmarks/bench_render_memory.py --spp 2,4,8,16,32,64,128,256   # up to 1.7e7, ~16 min
+                                                         # (spp 2..512), 18-24 min on 2 CPU cores
+    python benchmarks/bench_render_memory.py --spp 2,4,8,16,32,64,128,256   # up to 1.7e7, ~12 min
     python benchmarks/bench_render_memory.py --device cuda --json out.json
 
 On a shared machine wrap heavy runs in ``flock /tmp/deeplens-bench.lock python ...``.
