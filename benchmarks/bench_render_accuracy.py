@@ -29,7 +29,7 @@ Metrics (mean over ``--seeds`` independent seeds; time = median):
 * image:    ``RMSE`` against the reference and ``PSNR = 10 log10(1 / MSE)`` (signal in [0, 1]);
 * gradient: cosine similarity and relative norm error ``|g - g_ref| / |g_ref|``;
 * time:     one render + ``loss.backward()`` (adjoint re-trace included) of one 64 x 64 RGB plane
-  on this machine's CPU threads; the preset table also times a *training step's* render: a
+  on this machine's CPU (``--threads``); the preset table also times a *training step's* render: a
   batch of 4 planes (EDOF at 4500, 5500, 6500, 8000 mm; doublet 4 x 10000 mm).
 
 Sections:
@@ -46,12 +46,13 @@ Sections:
 
 Usage (the machine is shared: hold the benchmark lock for the run)::
 
-    flock /tmp/deeplens-bench.lock python benchmarks/bench_render_accuracy.py --threads 1          # ~10 min
-    flock /tmp/deeplens-bench.lock python benchmarks/bench_render_accuracy.py --threads 1 --quick  # < 1 min
-
-On a loaded machine pass ``--threads 1``: two intra-op threads on two busy cores wait for each
-other at every operation's barrier and ran 4-5x *slower* than one thread in our measurements.
+    flock /tmp/deeplens-bench.lock python benchmarks/bench_render_accuracy.py          # ~6 min
+    flock /tmp/deeplens-bench.lock python benchmarks/bench_render_accuracy.py --quick  # < 1 min
     python benchmarks/bench_render_accuracy.py --lenses doublet --sections spp,psf --json out.json
+
+One thread by default (``--threads 0``: torch's default): two intra-op threads on two busy cores
+wait for each other at every operation's barrier and ran 4-5x *slower* than one thread here
+(idle machine: 2 threads are 1.5x faster than 1).
 """
 
 from __future__ import annotations
@@ -75,7 +76,8 @@ from deeplens.data.textures import dead_leaves  # noqa: E402
 from deeplens.optics.intersect import IntersectOptions, default_tolerance  # noqa: E402
 from deeplens.render import IdealCamera, MonteCarloRenderer, Scene, Sensor  # noqa: E402
 from deeplens.render.psf_conv import PSFConvRenderer  # noqa: E402
-from deeplens.training.lens_setup import build_lens, cubic_phase_plate, parameter_scale  # noqa: E402
+from deeplens.training.lens_setup import (  # noqa: E402
+    build_lens, cubic_phase_plate, parameter_scale)
 
 F64 = torch.float64
 CHUNK = 262144
@@ -133,7 +135,8 @@ def grad_vector(lens) -> torch.Tensor:
 
 def mc(lens, sensor, spp, tol=None, max_iter=30):
     return MonteCarloRenderer(lens, sensor, spp=spp, vignetting=False, adjoint=True,
-                              chunk_rays=CHUNK, options=IntersectOptions(tol=tol, max_iter=max_iter))
+                              chunk_rays=CHUNK,
+                              options=IntersectOptions(tol=tol, max_iter=max_iter))
 
 
 @contextlib.contextmanager
@@ -348,7 +351,8 @@ def sample(case, renderer_fn, dtype, seeds, crn=False, decorrelate=False):
              time=statistics.median(ts), imgs=imgs, grads=grads)
     if dec:
         de = [case.grad_err(g, case.ref_grad) for g in dec]
-        m.update(dec_cos=statistics.mean(e[0] for e in de), dec_rel=statistics.mean(e[1] for e in de),
+        m.update(dec_cos=statistics.mean(e[0] for e in de),
+                 dec_rel=statistics.mean(e[1] for e in de),
                  dec_rel_mean=case.grad_err(torch.stack(dec).mean(0), case.ref_grad)[1])
     return m
 
@@ -373,8 +377,8 @@ def section_spp(case, args, results):
                         **{k: m[k] for k in ("dec_cos", "dec_rel", "dec_rel_mean") if k in m}))
     n = case.ref_noise
     rows.append([f"ref noise ({case.ref_spp}, f64)", fmt_t(case.ref_time), f"{n['rmse']:.4f}",
-                 f"{psnr(n['rmse'] ** 2):.1f}", f"{1 - n['grad_rel'] ** 2 / 2:.4f}",
-                 f"{n['grad_rel']:.3f}", "", "", "", ""])
+                 f"{psnr(n['rmse'] ** 2):.1f}", f"{1 - n['grad_rel'] ** 2 / 2:.5f}",
+                 f"{n['grad_rel']:.4f}", "", "", "", ""])
     k = len(args.seed_list)
     print(f"\n### {case.key}: rays per pixel (float32, one {RESOLUTION[0]}x{RESOLUTION[1]} RGB "
           f"plane at {case.depth:g} mm, render + backward; mean of {k} seeds)\n")
@@ -584,7 +588,8 @@ def main(argv=None):
     ap.add_argument("--spp", default=None, help="comma list (1,2,4,...,256)")
     ap.add_argument("--seeds", type=int, default=None, help="independent seeds per point (3)")
     ap.add_argument("--reps", type=int, default=None, help="timing repeats (3)")
-    ap.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="torch CPU threads (default 1, see the docstring; 0: torch's default)")
     ap.add_argument("--json", default=None, help="write all numbers to this file")
     args = ap.parse_args(argv)
     sys.stdout.reconfigure(line_buffering=True)

@@ -26,8 +26,10 @@ Scenarios:
 
 Usage (the machine is shared: hold the benchmark lock for the run)::
 
-    flock /tmp/deeplens-bench.lock python benchmarks/bench_scene_cost.py           # ~2 min, 2 cores
-    flock /tmp/deeplens-bench.lock python benchmarks/bench_scene_cost.py --quick   # < 30 s
+    flock /tmp/deeplens-bench.lock python benchmarks/bench_scene_cost.py          # ~2 min
+    flock /tmp/deeplens-bench.lock python benchmarks/bench_scene_cost.py --quick  # < 1 min
+
+One torch thread by default (``--threads 0``: torch's default), as bench_render_accuracy.py.
 """
 
 from __future__ import annotations
@@ -166,9 +168,11 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="smoke test")
     ap.add_argument("--reps", type=int, default=None, help="timing repeats (3; quick 1)")
     ap.add_argument("--preset", default="balanced", help="configs/render/<preset>.yaml")
-    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--threads", type=int, default=1,
+                    help="torch CPU threads (default 1, see the docstring; 0: torch's default)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
+    sys.stdout.reconfigure(line_buffering=True)
     if args.threads:
         torch.set_num_threads(args.threads)
     reps = args.reps or (1 if args.quick else 3)
