@@ -528,7 +528,8 @@ def preset_renderer(cfg, lens, sensor):
         return PSFConvRenderer(lens, sensor, n_rays=cfg["psf_rays"],
                                patches=tuple(cfg["psf_patches"]), options=opts)
     return MonteCarloRenderer(lens, sensor, spp=cfg["spp"], vignetting=cfg["vignetting"],
-                              adjoint=cfg["adjoint"], chunk_rays=cfg["chunk_rays"], options=opts)
+                              adjoint=cfg["adjoint"], chunk_rays=cfg["chunk_rays"], options=opts,
+                              decorrelate=cfg.get("decorrelate", False) and cfg["adjoint"])
 
 
 def section_presets(case, args, results):

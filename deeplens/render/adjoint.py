@@ -6,13 +6,23 @@ re-traces every chunk with the same random numbers (only seeds are kept, not ray
 accumulates the vector-Jacobian product ``J_p^T ΔI`` for all trainable lens parameters (and the
 textures, if they require grad) with one ``torch.autograd.grad`` call per chunk.  Peak memory is
 one chunk's graph, whatever the number of rays; the price is tracing twice.
+
+With ``renderer.decorrelate`` the re-trace draws independent samples (seed
+:func:`decorrelated_seed`): the gradient becomes ``J_B^T ΔI(I_A)``, free of the bias that shared
+samples give a loss non-linear in the image (see :class:`~.backward.MonteCarloRenderer`).
 """
 
 from __future__ import annotations
 
 import torch
 
-__all__ = ["adjoint_render"]
+__all__ = ["adjoint_render", "decorrelated_seed"]
+
+
+def decorrelated_seed(seed: int) -> int:
+    """The seed of the independent Jacobian samples paired with a render of ``seed`` (an LCG step,
+    so it does not collide with the consecutive seeds of successive renders)."""
+    return (int(seed) * 6364136223846793005 + 1442695040888963407) % (2 ** 62)
 
 
 class _AdjointRender(torch.autograd.Function):
@@ -27,6 +37,8 @@ class _AdjointRender(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_img):
         renderer, plan, scene = ctx.renderer, ctx.plan, ctx.scene
+        if renderer.decorrelate:
+            plan = plan.with_seed(decorrelated_seed(plan.seed))
         params = [p for p in renderer.lens.parameters() if p.requires_grad]
         tex = scene.textures
         want_tex = ctx.needs_input_grad[3]

@@ -33,7 +33,8 @@ _TYPES = {
     "sensor.read_noise": float,
     "scene.depths_mm": list, "scene.val_depths_mm": list,
     "render.kind": str, "render.spp": int, "render.vignetting": bool, "render.adjoint": bool,
-    "render.chunk_rays": int, "render.max_iter": int, "render.psf_rays": int,
+    "render.decorrelate": bool, "render.chunk_rays": int, "render.max_iter": int,
+    "render.psf_rays": int,
     "model.net_lr": float, "model.optics_lr_mm": float,
     "data.image_size": int, "data.batch_size": int, "data.train_steps_per_epoch": int,
     "data.val_size": int, "data.test_size": int,
@@ -64,7 +65,8 @@ def build_renderer(cfg, lens, sensor):
     opts = IntersectOptions(tol=r.newton_tol, max_iter=r.max_iter)
     if r.kind == "mc":
         return MonteCarloRenderer(lens, sensor, spp=r.spp, vignetting=r.vignetting,
-                                  adjoint=r.adjoint, chunk_rays=r.chunk_rays, options=opts,
+                                  adjoint=r.adjoint, decorrelate=r.decorrelate and r.adjoint,
+                                  chunk_rays=r.chunk_rays, options=opts,
                                   seed=cfg.seed)
     if r.kind == "psf":
         return PSFConvRenderer(lens, sensor, n_rays=r.psf_rays, patches=tuple(r.psf_patches),
