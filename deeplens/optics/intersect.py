@@ -5,7 +5,10 @@ Find ``t`` with ``f(o + t d; θ) = 0``.  Newton's method
     t <- t - f(o + t d) / (d · ∇f(o + t d))
 
 starts from the vertex-plane hit ``t0 = -o_z / d_z`` and iterates **without autograd**, per ray,
-until ``|f| < tol`` or ``max_iter``.  One more Newton step is then taken *with* autograd
+until ``|f| < tol`` or ``max_iter``.  The iteration runs on ``s = t - t0`` from the re-based origin
+``o' = o + t0 d`` (``t0`` a constant): a ray that starts far from the surface (a backward ray
+from the sensor, 100 mm away) would otherwise evaluate ``f`` at ``o + t d`` with a rounding error
+of ``|o| eps`` (6e-6 mm at 100 mm in float32), and a tolerance below it could never be met.  One more Newton step is then taken *with* autograd
 (Eq. 7).  At the root its value is unchanged, and its derivative is the implicit-function
 derivative ``dt/dθ = -(∂f/∂θ) / (d · ∇f)``, so memory does not grow with the iteration count.
 ``mode="unrolled"`` keeps the whole iteration in the graph (for tests and the memory benchmark).
@@ -83,14 +86,16 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
 
     if surface.is_flat:
         t = _safe_div(-o[..., 2], dz, ok)
+        ob, s = o, t
     elif opt.mode == "implicit":
         with torch.no_grad():
-            od, dd = o.detach(), d.detach()
-            t_star = t0
+            dd = d.detach()
+            obd = o.detach() + t0.unsqueeze(-1) * dd
+            s_star = torch.zeros_like(t0)
             active = ok.clone()
             converged = torch.zeros_like(ok)
             for _ in range(opt.max_iter):
-                fv, fp = _residual(surface, od, dd, t_star)
+                fv, fp = _residual(surface, obd, dd, s_star)
                 done = active & (fv.abs() < tol)
                 converged = converged | done
                 active = active & ~done
@@ -98,16 +103,18 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
                 active = good
                 if not bool(active.any()):
                     break
-                t_star = torch.where(active, t_star - _safe_div(fv, fp, active), t_star)
+                s_star = torch.where(active, s_star - _safe_div(fv, fp, active), s_star)
             else:
-                fv, _ = _residual(surface, od, dd, t_star)
+                fv, _ = _residual(surface, obd, dd, s_star)
                 converged = converged | (active & (fv.abs() < tol))
             ok = ok & converged
-            t_star = torch.where(ok, t_star, torch.zeros_like(t_star))
-        # one differentiable Newton step (Eq. 7)
-        fv, fp = _residual(surface, o, d, t_star)
+            s_star = torch.where(ok, s_star, torch.zeros_like(s_star))
+        # one differentiable Newton step (Eq. 7); t0 is a constant, so ds/dθ = dt/dθ
+        ob = o + t0.unsqueeze(-1) * d
+        fv, fp = _residual(surface, ob, d, s_star)
         ok = ok & (fp.detach().abs() > 1e-12)
-        t = t_star - _safe_div(fv, fp, ok)
+        s = s_star - _safe_div(fv, fp, ok)
+        t = t0 + s
     else:  # unrolled: every iteration is recorded by autograd
         # A ray stops one recorded step *after* its residual falls below ``tol``.  The derivative
         # of a Newton iterate lags its value by one step (d t_{k+1} = -f_θ/f' + O(f(t_k))), so
@@ -115,30 +122,34 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
         # relative), and a ray already on the surface at t0 kept the detached t0 and lost its
         # whole derivative.  The last step here starts at |f| < tol, as Eq. 7 does, but the
         # gradient still flows through the entire chain (regression tests in test_gradients.py).
-        t = t0
+        ob = o + t0.unsqueeze(-1) * d
+        s = torch.zeros_like(t0)
         active = ok.clone()
         converged = torch.zeros_like(ok)
         for _ in range(opt.max_iter):
-            fv, fp = _residual(surface, o, d, t)
+            fv, fp = _residual(surface, ob, d, s)
             step = active & (fp.detach().abs() > 1e-12)
             small = step & (fv.detach().abs() < tol)
-            t = torch.where(step, t - _safe_div(fv, fp, step), t)
+            s = torch.where(step, s - _safe_div(fv, fp, step), s)
             converged = converged | small
             active = step & ~small
             if not bool(active.any()):
                 break
         else:
-            fv, _ = _residual(surface, o.detach(), d.detach(), t.detach())
+            fv, _ = _residual(surface, ob.detach(), d.detach(), s.detach())
             converged = converged | (active & (fv.abs() < tol))
         ok = ok & converged
+        t = t0 + s
         # no separate Eq. 7 step: the gradient is the one of the unrolled chain
 
-    x = o + t.unsqueeze(-1) * d
-    X, Y = x[..., 0].detach(), x[..., 1].detach()
+    # the hit from the re-based origin (no cancellation in float32); invalid rays keep x = o
+    xd = (ob + s.unsqueeze(-1) * d).detach()
+    X, Y = xd[..., 0], xd[..., 1]
     ok = ok & surface.in_domain(X, Y) & (t.detach() >= -tol)
     if opt.clip_aperture:
         ok = ok & surface.in_aperture(X, Y)
-    ok = ok & torch.isfinite(t.detach())
+    ok = ok & torch.isfinite(t.detach()) & torch.isfinite(xd).all(-1)
     t = torch.where(ok, t, torch.zeros_like(t))
-    x = o + t.unsqueeze(-1) * d
+    s = torch.where(ok, s, torch.zeros_like(s))
+    x = torch.where(ok.unsqueeze(-1), ob + s.unsqueeze(-1) * d, o)
     return t, x, ok
