@@ -83,7 +83,8 @@ class MonteCarloRenderer(nn.Module):
             loss quadratic in the image, at no extra cost (the adjoint traces twice anyway).
             Measured in ``benchmarks/README.md``.  Off keeps gradient = d(image)/dθ exactly,
             which finite-difference checks need.
-        chunk_rays: rays traced at once.
+        chunk_rays: rays traced at once (peak memory of the adjoint pass is about 1.1 kB per
+            ray of one chunk; 262144 is as fast as larger chunks on CPU).
         options: Newton settings (:class:`~deeplens.optics.intersect.IntersectOptions`).
         pupil_margin: exit-pupil sampling radius relative to the paraxial exit pupil.
         seed: base seed; each call uses ``seed + call index`` unless ``seed=`` is passed.
@@ -93,7 +94,7 @@ class MonteCarloRenderer(nn.Module):
     """
 
     def __init__(self, lens, sensor, spp: int = 16, vignetting: bool = True,
-                 adjoint: bool = True, chunk_rays: int = 1 << 20, decorrelate: bool = False,
+                 adjoint: bool = True, chunk_rays: int = 262144, decorrelate: bool = False,
                  options: IntersectOptions | None = None, pupil_margin: float = 1.05,
                  seed: int = 0):
         super().__init__()
@@ -165,7 +166,7 @@ class MonteCarloRenderer(nn.Module):
             x, y = self.sensor.pixel_centers(dtype, device)
             half_pix = self.sensor.pixel_size_mm / math.sqrt(2)
             inside = (torch.sqrt(x * x + y * y) - half_pix <= r_ic).reshape(-1)
-        if r_ic < r_max - 1e-9:
+        if bool((~inside).any()):  # not on r_ic < r_max alone: float32 rounding of r_ic
             warnings.warn(
                 f"the sensor (half-diagonal {r_max:.4g} mm) is larger than the lens's image circle "
                 f"(radius {r_ic:.4g} mm): {int((~inside).sum())} of {H * W} pixels receive no "

@@ -159,14 +159,31 @@ def test_monochrome_scene_traces_one_wavelength(edof):
 
 
 def test_pixels_outside_the_image_circle_are_not_traced():
+    import re
+
     lens = singlet()
-    sensor = Sensor((60, 60), 2.0)  # 170 mm diagonal: far larger than the image circle
+    sensor = Sensor((60, 60), 4.0)  # 339 mm diagonal: far larger than the image circle
     scene = Scene(torch.ones(1, 8, 8, dtype=torch.float64), 1000.0)
     r = MonteCarloRenderer(lens, sensor, spp=2)
-    with pytest.warns(UserWarning, match="larger than the lens's image circle"):
+    with pytest.warns(UserWarning, match="larger than the lens's image circle") as rec:
         img = r(scene)
     assert 0 < r.image_circle_mm < sensor.half_diagonal_mm
+    n_out = int(re.search(r": (\d+) of 3600 pixels", str(rec[0].message)).group(1))
+    assert 0 < n_out <= int((img[0, 0] == 0).sum())  # the culled pixels are dark
     assert float(img[0, 0, 0, 0]) == 0.0 and not torch.isnan(img).any()
+
+
+def test_no_image_circle_warning_when_every_pixel_is_traced():
+    """Regression: a sensor whose half-diagonal barely exceeds the image circle (84.85 vs
+    82.17 mm) but whose every pixel still overlaps it warned "0 of 3600 pixels receive no
+    light"."""
+    lens = singlet()
+    sensor = Sensor((60, 60), 2.0)
+    r = MonteCarloRenderer(lens, sensor, spp=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        r(Scene(torch.ones(1, 8, 8, dtype=torch.float64), 1000.0))
+    assert r.image_circle_mm < sensor.half_diagonal_mm
 
 
 def test_adjoint_gradients_equal_autograd():
