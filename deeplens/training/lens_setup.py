@@ -15,10 +15,14 @@ from __future__ import annotations
 
 import copy
 import fnmatch
+import inspect
+from pathlib import Path
 
 import torch
 
 from ..optics.io import load_lens
+from ..optics.io.lensfile import LensFileError
+from ..optics.io.table import read_table
 from ..optics.surfaces import Asphere, BSpline, XYPolynomial
 
 __all__ = ["build_lens", "set_trainable", "parameter_scale", "optics_param_groups",
@@ -87,7 +91,8 @@ def cubic_phase_plate(lens, surface_index: int, alpha_mm: float) -> None:
 
 
 def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | None = None,
-               plate_surface: int | None = None, plate_alpha_mm: float = 0.0):
+               plate_surface: int | None = None, plate_alpha_mm: float = 0.0,
+               table_options: dict | None = None):
     """Load a lens file, optionally set a phase plate, choose what trains, cast to ``dtype``.
 
     Args:
@@ -98,8 +103,30 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
             coefficients zero) or ``"cubic"`` (the analytic Dowski-Cathey plate of
             ``plate_alpha_mm``).
         plate_surface: index of the XY-polynomial plate surface.
+        table_options: options of the authors' ``.txt`` reader
+            (:func:`~deeplens.optics.io.table.read_table`: ``stop_index``, ``scale``,
+            ``object_distance_mm``, ``fields_deg``, ``wavelengths_nm``; ``None`` values are
+            left out); config ``lens.table_options``.
+
+    Raises:
+        LensFileError: the file cannot be read; the message names the file and, where an option
+            would help, the ``lens.table_options`` key.
     """
-    lens = load_lens(path)
+    opts = {k: v for k, v in (table_options or {}).items() if v is not None}
+    if opts and Path(path).suffix.lower() != ".txt":
+        raise ValueError(f"lens.table_options {sorted(opts)} apply to the authors' .txt tables "
+                         f"only, but lens.path is {path}")
+    known = [n for n in inspect.signature(read_table).parameters if n != "path"]
+    unknown = sorted(set(opts) - set(known))
+    if unknown:
+        raise ValueError(f"lens.table_options: unknown option(s) {unknown}; expected some of "
+                         f"{', '.join(known)}")
+    try:
+        lens = load_lens(path, **opts)
+    except LensFileError as e:
+        if "stop_index" in str(e):
+            raise LensFileError(f"{e} (config: lens.table_options.stop_index=N)") from None
+        raise
     if plate in ("none", "cubic"):
         if plate_surface is None:
             raise ValueError("lens.plate_surface must be set to use lens.plate")

@@ -101,7 +101,8 @@ def build_objects(cfg: DictConfig) -> dict:
     lc = cfg.lens
     lens = build_lens(lc.path, trainable=list(lc.trainable), dtype=lc.dtype,
                       plate=lc.plate, plate_surface=lc.plate_surface,
-                      plate_alpha_mm=lc.plate_alpha_mm)
+                      plate_alpha_mm=lc.plate_alpha_mm,
+                      table_options=OmegaConf.to_container(lc.table_options))
     sc = cfg.sensor
     sensor = Sensor(tuple(sc.resolution), sc.pixel_size_mm,
                     channels=None if sc.channels is None else [list(c) for c in sc.channels],

@@ -194,3 +194,26 @@ def test_constraint_bounds_departure_from_the_initial_surface(cfg_factory):
         cm = float(m.constraint_loss())
         a4 += h
     assert float(g) == pytest.approx((cp - cm) / (2 * h), rel=1e-3)
+
+
+def test_authors_table_lens_trains_with_table_options(cfg_factory):
+    """A .txt prescription without an 'A' row trains once lens.table_options names the stop;
+    without it, or with a misspelt option, start-up fails naming the config key."""
+    from deeplens.optics.io import LensFileError
+
+    txt = ROOT.parent / "shared" / "lenses" / "diffoptics" / "LA1131.txt"
+    if not txt.exists():
+        pytest.skip(f"{txt} not present")
+    base = ("experiment=doublet", f"lens.path={txt}", "lens.trainable=[surfaces.0.c]",
+            "debug=fdr")
+    with pytest.raises(LensFileError, match=r"lens\.table_options\.stop_index"):
+        build_objects(cfg_factory(*base))
+    with pytest.raises(ValueError, match=r"unknown option\(s\) \['stop_indx'\]"):
+        build_objects(cfg_factory(*base, "+lens.table_options.stop_indx=1"))
+    with pytest.raises(ValueError, match=r"apply to the authors' \.txt tables only"):
+        build_objects(cfg_factory("experiment=doublet", "lens.table_options.scale=2.0"))
+    objs = build_objects(cfg_factory(*base, "lens.table_options.stop_index=0"))
+    assert objs["lens"].stop_index == 0
+    c0 = float(objs["lens"].surfaces[0].c)
+    objs["trainer"].fit(objs["module"], datamodule=objs["datamodule"])
+    assert float(objs["lens"].surfaces[0].c) != c0
