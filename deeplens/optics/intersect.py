@@ -5,11 +5,11 @@ Find ``t`` with ``f(o + t d; θ) = 0``.  Newton's method
     t <- t - f(o + t d) / (d · ∇f(o + t d))
 
 starts from the vertex-plane hit ``t0 = -o_z / d_z`` and iterates **without autograd**, per ray,
-until ``|f| < tol`` or ``max_iter``.  The iteration runs on ``s = t - t0`` from the re-based origin
-``o' = o + t0 d`` (``t0`` a constant): a ray that starts far from the surface (a backward ray
-from the sensor, 100 mm away) would otherwise evaluate ``f`` at ``o + t d`` with a rounding error
-of ``|o| eps`` (6e-6 mm at 100 mm in float32), and a tolerance below it could never be met.  One more Newton step is then taken *with* autograd
-(Eq. 7).  At the root its value is unchanged, and its derivative is the implicit-function
+until ``|f| < tol`` or ``max_iter``.  The iteration runs on ``s = t - t0`` from the re-based
+origin ``o' = o + t0 d`` (``t0`` a constant): a ray that starts far from the surface (a backward
+ray from the sensor, 100 mm away) would otherwise evaluate ``f`` at ``o + t d`` with a rounding
+error of ``|o| eps`` (6e-6 mm at 100 mm in float32), and a tolerance below it could never be
+met.  One more Newton step is then taken *with* autograd (Eq. 7).  At the root its value is unchanged, and its derivative is the implicit-function
 derivative ``dt/dθ = -(∂f/∂θ) / (d · ∇f)``, so memory does not grow with the iteration count.
 ``mode="unrolled"`` keeps the whole iteration in the graph (for tests and the memory benchmark).
 

@@ -42,12 +42,6 @@ __all__ = ["MonteCarloRenderer", "RenderPlan"]
 class RenderPlan:
     """Everything a render needs that does not depend on gradients (built per call)."""
 
-    def with_seed(self, seed: int) -> "RenderPlan":
-        """The same plan (pupil, pixels, normalisation) drawing other random samples."""
-        other = copy.copy(self)
-        other.seed = int(seed)
-        return other
-
     def __init__(self, renderer, scene: Scene, seed: int):
         lens, sensor = renderer.lens, renderer.sensor
         self.seed = int(seed)
@@ -63,6 +57,12 @@ class RenderPlan:
         if renderer.vignetting:
             for k, (_, w, _) in enumerate(self.jobs):
                 self.w_ref[k] = renderer.reference_weight(self, w)
+
+    def with_seed(self, seed: int) -> "RenderPlan":
+        """The same plan (pupil, pixels, normalisation) drawing other random samples."""
+        other = copy.copy(self)
+        other.seed = int(seed)
+        return other
 
 
 class MonteCarloRenderer(nn.Module):
