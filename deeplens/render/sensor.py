@@ -9,8 +9,8 @@ on the sensor plane.  The 180-degree rotation undoes the lens's image inversion,
 scene renders upright (as a camera's read-out does).
 
 Channels: each channel integrates a list of wavelengths (nm) with weights (default R, G, B at
-656.3, 587.6 and 486.1 nm, one wavelength each).  A monochrome scene uses only
-``mono_wavelength_nm``.
+656.3, 587.6 and 486.1 nm, one wavelength each).  A monochrome scene on a sensor of several
+channels uses only ``mono_wavelength_nm``; on a one-channel sensor it integrates that channel.
 
 Noise (applied after rendering, seeded): ``I_noisy = I + sqrt(I / full_well) * N1 + read * N2``
 with ``N1, N2 ~ N(0, 1)``: Gaussian approximation of shot noise for a signal of ``I * full_well``
@@ -112,13 +112,18 @@ class Sensor(nn.Module):
         return self.pixel_to_xy(I, J)
 
     def wavelengths_for(self, n_channels: int):
-        """The ``[(channel, wavelength_nm, weight), ...]`` a scene with ``n_channels`` needs."""
-        if n_channels == 1:
+        """The ``[(channel, wavelength_nm, weight), ...]`` a scene with ``n_channels`` needs.
+
+        A monochrome scene on a one-channel sensor integrates that channel's wavelengths; on a
+        sensor of several channels it uses ``mono_wavelength_nm`` only (the scene carries no
+        colour to split).
+        """
+        if n_channels == 1 and len(self.channels) > 1:
             return [(0, self.mono_wavelength_nm, 1.0)]
         if n_channels != len(self.channels):
+            ok = "1" if len(self.channels) == 1 else f"1 (monochrome) or {len(self.channels)}"
             raise ValueError(f"a scene with {n_channels} channels on a sensor with "
-                             f"{len(self.channels)} channels; use 1 (monochrome) or "
-                             f"{len(self.channels)}")
+                             f"{len(self.channels)} channel(s); use {ok}")
         return [(c, w, wt) for c, (ch, ws) in enumerate(zip(self.channels, self.channel_weights))
                 for w, wt in zip(ch, ws)]
 

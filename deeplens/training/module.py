@@ -21,6 +21,7 @@ from pathlib import Path
 import lightning as L
 import torch
 import torch.nn.functional as F
+from kornia.color import rgb_to_grayscale
 
 from ..render import IdealCamera, Scene
 from .lens_setup import optics_param_groups
@@ -101,8 +102,11 @@ class EndToEndModule(L.LightningModule):
 
     def capture(self, images: torch.Tensor, depths, seed: int, noise: bool = True):
         """Render sharp ``images`` ``(B, 3, H, W)`` at ``depths``; returns ``(sensor, gt)`` as
-        float32 ``(B, C, H, W)``."""
+        float32 ``(B, C, H, W)``, ``C`` the sensor's channels (RGB textures are converted to
+        grey for a one-channel sensor)."""
         dtype = self.lens.distances[0].dtype
+        if len(self.sensor.channels) == 1 and images.shape[1] == 3:
+            images = rgb_to_grayscale(images)  # a monochrome camera sees (and learns) grey
         scene = Scene(images.to(dtype), depths)
         y = self.renderer(scene, seed=seed)
         gt = self.camera.render(scene).to(y.dtype)
@@ -157,6 +161,8 @@ class EndToEndModule(L.LightningModule):
         if w["ssim"]:
             terms["ssim"] = 1 - ssim(pred, gt)
         if w["perceptual"]:
+            if pred.shape[1] == 1:  # VGG16 takes RGB: a grey image is its own three channels
+                pred, gt = pred.expand(-1, 3, -1, -1), gt.expand(-1, 3, -1, -1)
             terms["perceptual"] = self.perceptual(pred, gt)
         return terms
 

@@ -94,6 +94,19 @@ def preflight(lens, sensor, renderer) -> None:
                                      f"{sensor.half_diagonal_mm:.4g} mm)") from None
 
 
+def _image_channels(node, where: str, n_ch: int, keys=("in_channels", "out_channels")) -> dict:
+    """Channel arguments of a network config: ``null`` (or absent) takes the sensor's channel
+    count; an explicit different value is an error naming the key."""
+    out = {}
+    for k in keys:
+        v = node.get(k) if OmegaConf.is_dict(node) else None
+        if v is not None and int(v) != n_ch:
+            raise ValueError(f"{where}.{k}={v}, but the sensor has {n_ch} channel(s) "
+                             f"(sensor.channels); set it to {n_ch} or null")
+        out[k] = n_ch
+    return out
+
+
 def build_objects(cfg: DictConfig) -> dict:
     """Instantiate lens, sensor, renderer, restorer, data module, Lightning module, trainer."""
     check_config(cfg)
@@ -107,11 +120,18 @@ def build_objects(cfg: DictConfig) -> dict:
     sensor = Sensor(tuple(sc.resolution), sc.pixel_size_mm,
                     channels=None if sc.channels is None else [list(c) for c in sc.channels],
                     full_well=sc.full_well, read_noise=sc.read_noise)
+    n_ch = len(sensor.channels)
+    if n_ch not in (1, 3):
+        raise ValueError(f"sensor.channels: {n_ch} channels, but the training textures are RGB: "
+                         f"use 1 (monochrome: textures are converted to grey) or 3 channels")
     renderer = build_renderer(cfg, lens, sensor)
     preflight(lens, sensor, renderer)
-    restorer = hydra.utils.instantiate(cfg.net)
+    restorer = hydra.utils.instantiate(cfg.net, **_image_channels(cfg.net, "net", n_ch))
     mc = cfg.model
-    discriminator = hydra.utils.instantiate(mc.discriminator) if mc.discriminator else None
+    discriminator = (hydra.utils.instantiate(
+        mc.discriminator, **_image_channels(mc.discriminator, "model.discriminator", n_ch,
+                                            ("in_channels",)))
+        if mc.discriminator else None)
     perceptual = None
     if mc.loss.get("perceptual", 0):
         from ..nets.losses import PerceptualLoss

@@ -158,6 +158,32 @@ def test_monochrome_scene_traces_one_wavelength(edof):
     assert len(mono.jobs) == 1 and len(rgb.jobs) == 3
 
 
+def test_one_channel_sensor_integrates_its_wavelengths(edof):
+    """A panchromatic one-channel sensor: a grey scene is rendered at each of the channel's
+    wavelengths with its weights (not at one wavelength): the render is the weighted sum of the
+    one-hot-weighted renders (same samples), and those differ by wavelength."""
+    waves = [486.1327, 587.5618, 656.2725]
+    weights = (0.2, 0.5, 0.3)
+    pan = Sensor((8, 8), 0.05, channels=[waves], channel_weights=[list(weights)])
+    assert pan.wavelengths_for(1) == [(0, w, wt) for w, wt in zip(waves, weights)]
+    scene = Scene(torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(0),
+                             dtype=torch.float64), 5000.0)
+    lens = edof.double()
+
+    def render(sensor):
+        return MonteCarloRenderer(lens, sensor, spp=2, vignetting=False)(scene, seed=3)
+
+    img = render(pan)
+    parts = [render(Sensor((8, 8), 0.05, channels=[waves],
+                           channel_weights=[[float(i == k) for i in range(3)]]))
+             for k in range(3)]
+    assert img.shape == (1, 1, 8, 8)
+    assert torch.allclose(img, sum(w * p for w, p in zip(weights, parts)), rtol=0, atol=1e-12)
+    assert float((parts[0] - parts[2]).abs().max()) > 1e-3  # the wavelengths really differ
+    with pytest.raises(ValueError, match=r"3 channels on a sensor with 1 channel\(s\); use 1$"):
+        pan.wavelengths_for(3)
+
+
 def test_pixels_outside_the_image_circle_are_not_traced():
     import re
 

@@ -217,3 +217,32 @@ def test_authors_table_lens_trains_with_table_options(cfg_factory):
     c0 = float(objs["lens"].surfaces[0].c)
     objs["trainer"].fit(objs["module"], datamodule=objs["datamodule"])
     assert float(objs["lens"].surfaces[0].c) != c0
+
+
+def test_monochrome_sensor_trains_grey_with_one_channel_networks(cfg_factory):
+    """sensor.channels with one (panchromatic) channel: textures become grey, the restorer (and
+    an opt-in discriminator) take one channel, and a step trains optics and network."""
+    cfg = cfg_factory("experiment=edof", "sensor.channels=[[486.1,587.6,656.3]]",
+                      "test=false", "trainer.limit_val_batches=1",
+                      "model.loss.adversarial=0.01",
+                      "+model.discriminator={_target_:deeplens.nets.PatchGANDiscriminator,"
+                      "base_channels:8,n_layers:1}")
+    objs = build_objects(cfg)
+    m = objs["module"]
+    img = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    y, gt = m.capture(img, [5000.0, 6000.0], seed=1, noise=False)
+    assert y.shape == gt.shape == (2, 1, 16, 16)
+    assert m.restorer(y).shape == (2, 1, 16, 16)
+    a0 = [float(a) for a in m.lens.surfaces[4].a]
+    objs["trainer"].fit(m, datamodule=objs["datamodule"])
+    assert [float(a) for a in m.lens.surfaces[4].a] != a0
+    assert math.isfinite(float(objs["trainer"].callback_metrics["val/psnr_restored"]))
+
+
+def test_sensor_and_network_channel_mismatch_fails_at_startup(cfg_factory):
+    with pytest.raises(ValueError, match=r"net\.in_channels=3, but the sensor has 1 channel"):
+        build_objects(cfg_factory("experiment=edof", "sensor.channels=[[587.6]]",
+                                  "net.in_channels=3"))
+    with pytest.raises(ValueError, match=r"sensor\.channels: 2 channels, but the training "
+                                         r"textures are RGB"):
+        build_objects(cfg_factory("experiment=edof", "sensor.channels=[[486.1],[656.3]]"))
