@@ -143,13 +143,12 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
         # no separate Eq. 7 step: the gradient is the one of the unrolled chain
 
     # the hit from the re-based origin (no cancellation in float32); invalid rays keep x = o
-    xd = (ob + s.unsqueeze(-1) * d).detach()
-    X, Y = xd[..., 0], xd[..., 1]
+    x = ob + s.unsqueeze(-1) * d
+    X, Y = x[..., 0].detach(), x[..., 1].detach()
     ok = ok & surface.in_domain(X, Y) & (t.detach() >= -tol)
     if opt.clip_aperture:
         ok = ok & surface.in_aperture(X, Y)
-    ok = ok & torch.isfinite(t.detach()) & torch.isfinite(xd).all(-1)
+    ok = ok & torch.isfinite(t.detach())
     t = torch.where(ok, t, torch.zeros_like(t))
-    s = torch.where(ok, s, torch.zeros_like(s))
-    x = torch.where(ok.unsqueeze(-1), ob + s.unsqueeze(-1) * d, o)
+    x = torch.where(ok.unsqueeze(-1), x, o)
     return t, x, ok
