@@ -22,7 +22,10 @@ Scenarios:
    large sensor with that culling switched off (every pixel traced; patched in this script only);
 4. **PSF kernel**: PSF convolution (3 x 3 patches, 4096 rays per PSF) with the kernel sized from the
    measured spot (99.9 % of the rays) vs a fixed 65 and 129 pixel kernel, for the EDOF lens with a
-   small cubic phase plate (5 um rim sag) and the doublet.
+   small cubic phase plate (5 um rim sag) and the doublet;
+5. **geometry cache**: repeated renders (no gradient) through a frozen lens, as in the frozen-optics
+   variants of ``eval.py`` and in validation, with the renderer's lens-geometry cache (exit pupil,
+   image-circle probe, camera) against recomputing it on every call (the behaviour before it).
 
 Usage (the machine is shared: hold the benchmark lock for the run)::
 
@@ -267,6 +270,29 @@ def main(argv=None):
                 size = f"fixed K = {K}"
             t = timed(lambda: render_backward(L, [(r, sc)]), reps)
             add(f"4 PSF kernel ({lname}, 3x3 patches, {n_rays} rays)", size, c, t)
+
+    # 5. lens geometry cache -------------------------------------------------------------------
+    frozen = make_lens(EDOF, 0.005)
+    for p in frozen.parameters():
+        p.requires_grad_(False)
+    r = mc(frozen, sensor, cfg)
+    batch = Scene(tex, depths)
+
+    def render_only(fresh):
+        if fresh:
+            r._geometry_cache = None
+        with torch.no_grad():
+            r(batch, seed=5)
+
+    for name, fresh in (("geometry cached (default)", False), ("geometry recomputed per call",
+                                                                True)):
+        render_only(True)  # the first call always traces the probe
+        c = Counter()
+        with c.attach(frozen, r):
+            render_only(fresh)  # what a second call traces
+        t = timed(lambda: render_only(fresh), reps)
+        add("5 frozen lens, repeated renders (EDOF, B = 4, RGB, no gradient)", name, c, t,
+            "rays of every call after the first")
 
     print("| scenario | case | lens rays (render) | plane hits | set-up rays | time s | note |")
     print("|---|---|---|---|---|---|---|")

@@ -27,6 +27,7 @@ from __future__ import annotations
 import copy
 import math
 import warnings
+from types import SimpleNamespace
 
 import torch
 from torch import nn
@@ -40,23 +41,17 @@ __all__ = ["MonteCarloRenderer", "RenderPlan"]
 
 
 class RenderPlan:
-    """Everything a render needs that does not depend on gradients (built per call)."""
+    """Everything a render needs that does not depend on gradients: the seed, the wavelength
+    jobs, the scene's physical sizes, and the lens geometry of :meth:`MonteCarloRenderer.geometry`
+    (camera, exit pupil, traced pixels, vignetting normalisation)."""
 
     def __init__(self, renderer, scene: Scene, seed: int):
-        lens, sensor = renderer.lens, renderer.sensor
         self.seed = int(seed)
-        self.jobs = sensor.wavelengths_for(scene.channels)
-        self.camera = IdealCamera(lens, sensor)
+        self.jobs = renderer.sensor.wavelengths_for(scene.channels)
+        geo = renderer.geometry(self.jobs)
+        self.camera, self.z_xp, self.r_xp = geo.camera, geo.z_xp, geo.r_xp
+        self.pixels, self.w_ref = geo.pixels, geo.w_ref
         self.sizes = scene.resolved_sizes(self.camera)
-        with torch.no_grad():
-            z_xp, r_xp = exit_pupil(lens)
-        self.z_xp = float(z_xp)
-        self.r_xp = float(r_xp) * renderer.pupil_margin
-        self.pixels = renderer.active_pixels(self.jobs)
-        self.w_ref = {}
-        if renderer.vignetting:
-            for k, (_, w, _) in enumerate(self.jobs):
-                self.w_ref[k] = renderer.reference_weight(self, w)
 
     def with_seed(self, seed: int) -> "RenderPlan":
         """The same plan (pupil, pixels, normalisation) drawing other random samples."""
@@ -118,6 +113,40 @@ class MonteCarloRenderer(nn.Module):
         self.pupil_margin = float(pupil_margin)
         self.seed = int(seed)
         self._calls = 0
+        self._geometry_cache = None  # (key, lens values, geometry): see geometry()
+
+    # ------------------------------------------------------------ lens geometry
+    def _geometry_key(self, jobs):
+        """What the geometry depends on: the lens's structure (its repr: surface types,
+        materials, stop) and every tensor of its state (parameters and buffers, by value, so
+        in-place and ``.data`` writes both count), the sensor, the wavelengths, the settings."""
+        sd = self.lens.state_dict()
+        values = torch.cat([t.detach().reshape(-1).to(torch.float64) for t in sd.values()])
+        meta = (repr(self.lens), tuple(sd), tuple(jobs), tuple(self.sensor.resolution),
+                float(self.sensor.pixel_size_mm), self.vignetting, self.pupil_margin,
+                repr(self.options), str(values.device))
+        return meta, values
+
+    def geometry(self, jobs) -> SimpleNamespace:
+        """``camera`` (:class:`IdealCamera`), exit pupil ``z_xp`` and sampling radius ``r_xp``
+        (mm), ``pixels`` inside the image circle and, with vignetting, the reference weights
+        ``w_ref`` per job.  Computed without gradient and cached until the lens (any parameter
+        or buffer value, or its structure), the sensor, the wavelengths or the settings change:
+        frozen optics pay for it once, trained optics once per step."""
+        meta, values = self._geometry_key(jobs)
+        c = self._geometry_cache
+        if c is not None and c[0] == meta and torch.equal(c[1], values):
+            return c[2]
+        with torch.no_grad():
+            z_xp, r_xp = exit_pupil(self.lens)
+        geo = SimpleNamespace(camera=IdealCamera(self.lens, self.sensor), z_xp=float(z_xp),
+                              r_xp=float(r_xp) * self.pupil_margin, w_ref={})
+        geo.pixels = self.active_pixels(jobs)
+        if self.vignetting:
+            for k, (_, w, _) in enumerate(jobs):
+                geo.w_ref[k] = self.reference_weight(geo, w)
+        self._geometry_cache = (meta, values, geo)
+        return geo
 
     # ------------------------------------------------------------ pixel selection
     def _dtype(self):
@@ -173,8 +202,9 @@ class MonteCarloRenderer(nn.Module):
                 f"light and are not traced", stacklevel=3)
         return torch.nonzero(inside).reshape(-1)
 
-    def reference_weight(self, plan: RenderPlan, wavelength: float, n: int = 4096) -> float:
-        """``w̄_0``: mean of ``v |d_z|^4`` over pupil samples at the sensor centre."""
+    def reference_weight(self, plan, wavelength: float, n: int = 4096) -> float:
+        """``w̄_0``: mean of ``v |d_z|^4`` over pupil samples at the sensor centre (``plan``:
+        anything with the exit pupil ``z_xp`` and sampling radius ``r_xp``)."""
         dtype, device = self._dtype(), self._device()
         with torch.no_grad():
             g = torch.Generator().manual_seed(4321)

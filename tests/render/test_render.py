@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 import warnings
 
@@ -168,7 +169,7 @@ def test_one_channel_sensor_integrates_its_wavelengths(edof):
     assert pan.wavelengths_for(1) == [(0, w, wt) for w, wt in zip(waves, weights)]
     scene = Scene(torch.rand(1, 1, 16, 16, generator=torch.Generator().manual_seed(0),
                              dtype=torch.float64), 5000.0)
-    lens = edof.double()
+    lens = copy.deepcopy(edof).double()
 
     def render(sensor):
         return MonteCarloRenderer(lens, sensor, spp=2, vignetting=False)(scene, seed=3)
@@ -182,6 +183,39 @@ def test_one_channel_sensor_integrates_its_wavelengths(edof):
     assert float((parts[0] - parts[2]).abs().max()) > 1e-3  # the wavelengths really differ
     with pytest.raises(ValueError, match=r"3 channels on a sensor with 1 channel\(s\); use 1$"):
         pan.wavelengths_for(3)
+
+
+def test_geometry_is_cached_until_the_lens_changes(edof):
+    """The exit pupil / image-circle probe is traced once while nothing changes, and again after
+    any change of a lens value (in place, through ``.data``, a buffer) or of the wavelengths;
+    a cached render equals a fresh renderer's render bit for bit."""
+    lens = copy.deepcopy(edof).double()
+    sensor = Sensor((8, 8), 0.05)
+    r = MonteCarloRenderer(lens, sensor, spp=2, vignetting=True)
+    calls = []
+    probe = r.active_pixels
+    r.active_pixels = lambda jobs: calls.append(1) or probe(jobs)
+    rgb = Scene(torch.rand(1, 3, 8, 8, generator=torch.Generator().manual_seed(0),
+                           dtype=torch.float64), 5000.0)
+    img = r(rgb, seed=5)
+    r(rgb, seed=6)
+    assert len(calls) == 1
+    fresh = MonteCarloRenderer(lens, sensor, spp=2, vignetting=True)(rgb, seed=5)
+    assert torch.equal(img, fresh)
+    r(Scene(torch.ones(1, 1, 8, 8, dtype=torch.float64), 5000.0), seed=7)  # other wavelengths
+    assert len(calls) == 2
+    r(rgb, seed=5)
+    assert len(calls) == 3
+    with torch.no_grad():
+        lens.surfaces[4].a[3] += 1e-6  # in place, as an optimiser step
+    r(rgb, seed=5)
+    assert len(calls) == 4
+    lens.d_sensor.data += 0.01  # bypasses autograd's version counter
+    r(rgb, seed=5)
+    assert len(calls) == 5
+    lens.surfaces[1].semi_diameter.fill_(5.0)  # a buffer
+    shrunk = r(rgb, seed=5)
+    assert len(calls) == 6 and not torch.equal(shrunk, img)
 
 
 def test_pixels_outside_the_image_circle_are_not_traced():
