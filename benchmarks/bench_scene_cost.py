@@ -232,7 +232,7 @@ def main(argv=None):
         r = mc(dl, s, cfg)
         if not cull:
             H, W = s.resolution
-            r.active_pixels = lambda jobs, n=H * W: torch.arange(n)
+            r.active_pixels = lambda jobs, pupil=None, n=H * W: torch.arange(n)
         sc = Scene(tex1, 10000.0)
         c = count(dl, [(r, sc)])
         t = timed(lambda: render_backward(dl, [(r, sc)]), reps)

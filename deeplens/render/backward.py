@@ -141,7 +141,7 @@ class MonteCarloRenderer(nn.Module):
             z_xp, r_xp = exit_pupil(self.lens)
         geo = SimpleNamespace(camera=IdealCamera(self.lens, self.sensor), z_xp=float(z_xp),
                               r_xp=float(r_xp) * self.pupil_margin, w_ref={})
-        geo.pixels = self.active_pixels(jobs)
+        geo.pixels = self.active_pixels(jobs, (float(z_xp), float(r_xp)))
         if self.vignetting:
             for k, (_, w, _) in enumerate(jobs):
                 geo.w_ref[k] = self.reference_weight(geo, w)
@@ -164,13 +164,14 @@ class MonteCarloRenderer(nn.Module):
         d = torch.where((d[..., 2:3] > 0), -d, d)  # always travel towards the object (-z)
         return Rays(o, d, wavelength)
 
-    def active_pixels(self, jobs) -> torch.Tensor:
-        """Indices (into ``H*W``) of the pixels inside the image circle (measured by tracing)."""
+    def active_pixels(self, jobs, pupil=None) -> torch.Tensor:
+        """Indices (into ``H*W``) of the pixels inside the image circle (measured by tracing).
+        ``pupil``: the paraxial exit pupil ``(z_xp, r_xp)`` if already known (else computed)."""
         H, W = self.sensor.resolution
         dtype, device = self._dtype(), self._device()
         r_max = self.sensor.half_diagonal_mm
         with torch.no_grad():
-            z_xp, r_xp = exit_pupil(self.lens)
+            z_xp, r_xp = pupil if pupil is not None else exit_pupil(self.lens)
             n_r, n_p = 96, 64
             r = torch.linspace(0, r_max, n_r, dtype=dtype, device=device)
             g = torch.Generator().manual_seed(1234)

@@ -99,7 +99,7 @@ def _image_channels(node, where: str, n_ch: int, keys=("in_channels", "out_chann
     count; an explicit different value is an error naming the key."""
     out = {}
     for k in keys:
-        v = node.get(k) if OmegaConf.is_dict(node) else None
+        v = node.get(k)
         if v is not None and int(v) != n_ch:
             raise ValueError(f"{where}.{k}={v}, but the sensor has {n_ch} channel(s) "
                              f"(sensor.channels); set it to {n_ch} or null")

@@ -194,7 +194,7 @@ def test_geometry_is_cached_until_the_lens_changes(edof):
     r = MonteCarloRenderer(lens, sensor, spp=2, vignetting=True)
     calls = []
     probe = r.active_pixels
-    r.active_pixels = lambda jobs: calls.append(1) or probe(jobs)
+    r.active_pixels = lambda jobs, pupil=None: calls.append(1) or probe(jobs, pupil)
     rgb = Scene(torch.rand(1, 3, 8, 8, generator=torch.Generator().manual_seed(0),
                            dtype=torch.float64), 5000.0)
     img = r(rgb, seed=5)
