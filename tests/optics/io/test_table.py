@@ -232,7 +232,7 @@ def test_no_stop(tmp_path):
     p = write(tmp_path, text, "nostop.txt")
     check_error(p, None, r"no aperture stop \(no 'A' row\); pass stop_index")
     assert read_table(p, stop_index=0).stop_index == 0
-    check_error(p, None, r"stop_index 9 is not a surface index \(0\.\.5", stop_index=9)
+    check_error(p, None, r"stop_index: 9 is not a surface index \(0\.\.5", stop_index=9)
 
 
 def test_stop_index_conflicting_with_a_row(tmp_path):
