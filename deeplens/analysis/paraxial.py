@@ -72,13 +72,13 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     one, zero = torch.ones_like(p0), torch.zeros_like(p0)
     yA, uA, hA = _trace(lens, one, zero, n)
     _, _, hB = _trace(lens, zero, one, n)
-    if abs(float(uA)) < 1e-15:
+    if abs(float(uA.detach())) < 1e-15:
         raise ValueError("the system is afocal: the paraxial EFL is infinite")
     efl = -1.0 / uA
     bfl = -yA / uA
     k = lens.stop_index
     ya_s, yb_s = hA[k], hB[k]
-    if abs(float(ya_s)) < 1e-15:
+    if abs(float(ya_s.detach())) < 1e-15:
         raise ValueError("the stop is at an image of the object: no entrance pupil")
     z0 = lens.z_vertices()[0]
     ep_pos = yb_s / ya_s
@@ -125,7 +125,7 @@ def exit_pupil(lens, wavelength_nm: float | None = None):
     k = lens.stop_index
     z_last = lens.z_vertices()[-1]
     yc, uc = _trace_from(lens, k, zero, one, n)
-    if abs(float(uc)) < 1e-15:
+    if abs(float(uc.detach())) < 1e-15:
         raise ValueError("the exit pupil is at infinity (image-space telecentric lens)")
     dz = -yc / uc  # from the last vertex
     ye, ue = _trace_from(lens, k, one, zero, n)

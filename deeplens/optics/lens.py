@@ -361,4 +361,4 @@ class Lens(nn.Module):
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, surfaces={len(self.surfaces)}, stop={self.stop_index}, "
-                f"d_sensor={float(self.d_sensor):.6g} mm")
+                f"d_sensor={float(self.d_sensor.detach()):.6g} mm")

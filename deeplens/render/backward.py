@@ -60,6 +60,15 @@ class RenderPlan:
         return other
 
 
+def lens_structure(lens) -> tuple:
+    """What a lens is made of, apart from its tensor values: module types in order, media, stop,
+    elements and aperture shapes.  Plain python values (never ``repr``, which reads trainable
+    tensors as floats and warns)."""
+    return (tuple((name, type(m).__name__) for name, m in lens.named_modules()),
+            tuple(m.to_spec() for m in lens.materials), lens.stop_index, tuple(lens.elements),
+            tuple(getattr(s, "shape", None) for s in lens.surfaces), lens.sensor_semi_diameter)
+
+
 class MonteCarloRenderer(nn.Module):
     """Renders a :class:`~deeplens.render.scene.Scene` through ``lens`` onto ``sensor``.
 
@@ -117,12 +126,12 @@ class MonteCarloRenderer(nn.Module):
 
     # ------------------------------------------------------------ lens geometry
     def _geometry_key(self, jobs):
-        """What the geometry depends on: the lens's structure (its repr: surface types,
-        materials, stop) and every tensor of its state (parameters and buffers, by value, so
-        in-place and ``.data`` writes both count), the sensor, the wavelengths, the settings."""
+        """What the geometry depends on: the lens's structure (:func:`lens_structure`) and
+        every tensor of its state (parameters and buffers, by value, so in-place and ``.data``
+        writes both count), the sensor, the wavelengths, the settings."""
         sd = self.lens.state_dict()
         values = torch.cat([t.detach().reshape(-1).to(torch.float64) for t in sd.values()])
-        meta = (repr(self.lens), tuple(sd), tuple(jobs), tuple(self.sensor.resolution),
+        meta = (lens_structure(self.lens), tuple(sd), tuple(jobs), tuple(self.sensor.resolution),
                 float(self.sensor.pixel_size_mm), self.vignetting, self.pupil_margin,
                 repr(self.options), str(values.device))
         return meta, values

@@ -118,7 +118,7 @@ class Surface(nn.Module):
         return cls(semi_diameter)
 
     def extra_repr(self) -> str:
-        return f"semi_diameter={float(self.semi_diameter):.6g} mm"
+        return f"semi_diameter={float(self.semi_diameter.detach()):.6g} mm"
 
 
 class SagSurface(Surface):
