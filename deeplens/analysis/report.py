@@ -9,7 +9,7 @@ import math
 
 import torch
 
-from .paraxial import paraxial
+from ..optics.paraxial import paraxial
 from .spot import chief_ray, find_pupil, image_plane_z, spot_diagram
 
 __all__ = ["lens_report", "format_report"]

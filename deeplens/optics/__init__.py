@@ -1,0 +1,17 @@
+"""The differentiable ray tracer: pure torch, never imports Lightning, Hydra or anything above.
+
+The names most programs need are importable from here::
+
+    from deeplens.optics import Lens, load_lens, Rays
+"""
+
+from .errors import LensError, LensFileError
+from .intersect import IntersectOptions
+from .lens import Lens, LensSpec
+from .paraxial import ParaxialData, paraxial
+from .rays import Rays
+from .io import lens_from_dict, lens_to_dict, load_lens, save_lens  # noqa: E402 (after Lens)
+
+__all__ = ["Lens", "LensSpec", "Rays", "IntersectOptions", "load_lens", "save_lens",
+           "lens_from_dict", "lens_to_dict", "paraxial", "ParaxialData", "LensError",
+           "LensFileError"]

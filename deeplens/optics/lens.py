@@ -23,6 +23,7 @@ from .errors import LensError
 from .intersect import IntersectOptions, intersect
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
+from .paraxial import paraxial
 from .rays import Rays
 from .refract import refract, unit_normal
 from .surfaces import Aperture, Surface
@@ -175,6 +176,16 @@ class Lens(nn.Module):
 
     # ------------------------------------------------------------------ geometry
     @property
+    def dtype(self) -> torch.dtype:
+        """The floating-point type of the lens's values (``.to(dtype)`` changes it)."""
+        return self.distances[0].dtype
+
+    @property
+    def device(self) -> torch.device:
+        """The device the lens's values live on."""
+        return self.distances[0].device
+
+    @property
     def stop(self) -> Surface:
         return self.surfaces[self.stop_index]
 
@@ -238,7 +249,6 @@ class Lens(nn.Module):
 
     def apply_aperture_spec(self) -> None:
         """Size the stop so that the entrance pupil matches ``spec`` (EPD or F-number)."""
-        from ..analysis.paraxial import paraxial  # local import: analysis builds on optics
 
         stop = self.stop
         if not isinstance(stop, Aperture) or stop.shape != "circle":

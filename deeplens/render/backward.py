@@ -32,7 +32,7 @@ from types import SimpleNamespace
 import torch
 from torch import nn
 
-from ..analysis.paraxial import exit_pupil
+from ..optics.paraxial import exit_pupil
 from ..optics.intersect import IntersectOptions
 from ..optics.rays import Rays
 from .scene import IdealCamera, Scene, sample_texture
@@ -159,10 +159,10 @@ class MonteCarloRenderer(nn.Module):
 
     # ------------------------------------------------------------ pixel selection
     def _dtype(self):
-        return self.lens.distances[0].dtype
+        return self.lens.dtype
 
     def _device(self):
-        return self.lens.distances[0].device
+        return self.lens.device
 
     def _sensor_rays(self, x, y, ex, ey, z_xp, wavelength):
         """Rays from sensor points ``(x, y)`` towards exit-pupil points ``(ex, ey, z_xp)``."""

@@ -69,7 +69,7 @@ class PSFConvRenderer(nn.Module):
         if not isinstance(scene, Scene):
             raise TypeError(f"PSFConvRenderer expects a Scene, got {type(scene).__name__}")
         seed = self.seed if seed is None else seed
-        dtype = self.lens.distances[0].dtype
+        dtype = self.lens.dtype
         gt = IdealCamera(self.lens, self.sensor).render(scene, self.supersample).to(dtype)
         jobs = self.sensor.wavelengths_for(scene.channels)
         H, W = self.sensor.resolution
