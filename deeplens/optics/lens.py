@@ -354,20 +354,12 @@ class Lens(nn.Module):
         n = 1.0 if medium_index is None else medium_index
         return Rays(rays.at(t), rays.d, rays.wavelength, ok, rays.opl + n * t, normalize=False)
 
-    def trace_to_sensor(self, rays: Rays, *, z_image=None, options=None,
-                        clip_sensor: bool = False) -> Rays:
-        """Forward trace and propagate to the sensor plane (or to ``z_image`` when given).
-
-        ``clip_sensor`` marks rays landing outside the sensor's semi-diameter invalid.
-        """
+    def trace_to_sensor(self, rays: Rays, *, z_image=None, options=None) -> Rays:
+        """Forward trace and propagate to the sensor plane (or to ``z_image`` when given)."""
         out = self.trace(rays, options=options)
         z = self.z_sensor() if z_image is None else z_image
         n_img = self.materials[-1].n(rays.wavelength)
-        out = self.propagate_to_z(out, z, n_img)
-        if clip_sensor and self.sensor_semi_diameter is not None:
-            r2 = (out.o[..., :2].detach() ** 2).sum(-1)
-            out = out.replace(valid=out.valid & (r2 <= self.sensor_semi_diameter ** 2))
-        return out
+        return self.propagate_to_z(out, z, n_img)
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, surfaces={len(self.surfaces)}, stop={self.stop_index}, "

@@ -28,7 +28,8 @@ the surface (a catalogue glass, ``AIR``, or a model glass ``"n_d/V_d"``).  Per t
 takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` with
 ``half_width_x_mm``/``half_width_y_mm``; ``ideal_lens`` takes ``focal_length_mm``.  The surface
 types are those registered in :data:`~deeplens.optics.surfaces.SURFACE_TYPES`; each type reads
-and writes its own fields (``from_dict``/``to_dict``), so whatever is written can be read.  Numbers are written with ``repr`` so a file round-trips
+and writes its own fields (``from_dict``/``to_dict``), so whatever is written can be read.
+Numbers are written with ``repr`` so a file round-trips
 exactly.  Every error names the file and the JSON path of the offending field.
 """
 

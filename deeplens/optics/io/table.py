@@ -79,15 +79,15 @@ def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengt
             text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as e:
         raise _at(path, None)(f"not a UTF-8 or UTF-16 text file ({e.reason} at byte "
-                            f"{e.start})") from None
+                              f"{e.start})") from None
     lines = text.splitlines()
     if len(lines) < 3:
         raise _at(path, None)(f"expected a title line, a header line and surface rows, got "
-                            f"{len(lines)} line(s)")
+                              f"{len(lines)} line(s)")
     header = lines[1].split()
     if not header or header[0].lower() != "type":
         raise _at(path, 2)(f"expected the header 'type distance roc diameter "
-                            f"material' on line 2, got {lines[1].strip()!r}")
+                           f"material' on line 2, got {lines[1].strip()!r}")
     surfaces, obj_medium, sensor, stop = [], "AIR", None, None
     where_of = {}
     for ln, line in enumerate(lines[2:], start=3):
@@ -98,11 +98,11 @@ def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengt
         kind = toks[0].upper()
         if kind not in _TYPES:
             raise at(f"unknown surface type {toks[0]!r}; expected one of "
-                                f"O, S, A, X, B, I")
+                     f"O, S, A, X, B, I")
         if len(toks) < 5:
             names = ["type", "distance", "roc", "diameter", "material"]
             raise at(f"expected 5 columns (type distance roc diameter "
-                                f"material), got {len(toks)}; missing {names[len(toks):]}")
+                     f"material), got {len(toks)}; missing {names[len(toks):]}")
         dist = _num(toks[1], at, "distance") * scale
         roc = _num(toks[2], at, "roc") * scale
         diam = _num(toks[3], at, "diameter") * scale
@@ -118,17 +118,17 @@ def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengt
             continue
         if kind == "I":
             if sensor is not None:
-                raise at(f"a second image (I) row")
+                raise at("a second image (I) row")
             if diam < 0:
                 raise at(f"diameter must be >= 0 mm (0: unbounded sensor), "
-                                    f"got {toks[3]!r}")
+                         f"got {toks[3]!r}")
             sensor = {"distance_mm": dist}
             if diam > 0:
                 sensor["semi_diameter_mm"] = diam / 2
             where_of["sensor"] = ln
             continue
         if sensor is not None:
-            raise at(f"a surface row after the image (I) row")
+            raise at("a surface row after the image (I) row")
         if not diam > 0:
             raise at(f"diameter must be > 0 mm, got {toks[3]!r}")
         s = {"distance_mm": dist, "semi_diameter_mm": diam / 2, "material": mat.upper()
@@ -145,52 +145,53 @@ def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengt
                 del s["curvature_per_mm"]
         elif kind == "A":
             if stop is not None:
-                raise at(f"a second aperture stop (A row)")
+                raise at("a second aperture stop (A row)")
             stop = len(surfaces)
             s["type"] = "aperture"
             if mat.upper() == "OCCLUDER":
                 s["material"] = "AIR"
         elif kind == "X":
             if len(extra) < 2:
-                raise at(f"an X row needs 'b a0 [a1 ...]' after the material")
+                raise at("an X row needs 'b a0 [a1 ...]' after the material")
             n = len(extra) - 1
             J = (math.isqrt(8 * n + 1) - 3) // 2
             if (J + 1) * (J + 2) // 2 != n:
                 raise at(f"an X row needs b and (J+1)(J+2)/2 coefficients "
-                                    f"(1, 3, 6, 10, ...), got {n}")
+                         f"(1, 3, 6, 10, ...), got {n}")
             s["type"] = "xy_polynomial"
             s["b"] = extra[0] / scale
             s["coefficients"] = [a * scale ** (1 - (i + j)) for a, (i, j) in
                                  zip(extra[1:], xy_terms(J))]
         elif kind == "B":
             if len(extra) < 2 or extra[0] != int(extra[0]) or extra[1] != int(extra[1]):
-                raise at(f"a B row needs 'nx ny c_00 ... ' (deeplens' uniform "
-                                    f"knots); knot vectors are not supported")
+                raise at("a B row needs 'nx ny c_00 ... ' (deeplens' uniform "
+                         "knots); knot vectors are not supported")
             nx, ny = int(extra[0]), int(extra[1])
             if len(extra) - 2 != nx * ny:
                 raise at(f"a B row with nx={nx}, ny={ny} needs {nx * ny} "
-                                    f"coefficients, got {len(extra) - 2}")
+                         f"coefficients, got {len(extra) - 2}")
             c = [v * scale for v in extra[2:]]
             s["type"] = "bspline"
             s["coefficients"] = [c[i * ny:(i + 1) * ny] for i in range(nx)]
         where_of[f"surfaces[{len(surfaces)}]"] = ln
         surfaces.append(s)
     if not surfaces:
-        raise _at(path, None)(f"no surface rows")
+        raise _at(path, None)("no surface rows")
     if sensor is None:
-        raise _at(path, None)(f"no image (I) row: the sensor distance is unknown")
+        raise _at(path, None)("no image (I) row: the sensor distance is unknown")
     if stop is None:
         if stop_index is None:
-            raise _at(path, None, "stop_index")(f"no aperture stop (no 'A' row); pass stop_index to use "
-                                f"a surface's clear aperture as the stop")
+            raise _at(path, None, "stop_index")("no aperture stop (no 'A' row); pass stop_index "
+                                                "to use a surface's clear aperture as the stop")
         if isinstance(stop_index, bool) or not isinstance(stop_index, int) or not (
                 0 <= stop_index < len(surfaces)):
-            raise _at(path, None, "stop_index")(f"{stop_index!r} is not a surface index "
-                                f"(0..{len(surfaces) - 1}: the rows after O, not counting I)")
+            raise _at(path, None, "stop_index")(
+                f"{stop_index!r} is not a surface index (0..{len(surfaces) - 1}: the rows after "
+                f"O, not counting I)")
         stop = stop_index
     elif stop_index is not None and stop_index != stop:
-        raise _at(path, where_of[f"surfaces[{stop}]"], "stop_index")(f"the file's A row is surface "
-                            f"{stop}, but stop_index={stop_index} was passed")
+        raise _at(path, where_of[f"surfaces[{stop}]"], "stop_index")(
+            f"the file's A row is surface {stop}, but stop_index={stop_index} was passed")
     return {
         "format": "deeplens-lens", "version": 1,
         "name": name if name is not None else lines[0].strip(),

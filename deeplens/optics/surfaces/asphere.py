@@ -125,7 +125,8 @@ class Asphere(SagSurface):
         return d
 
     def extra_repr(self) -> str:
-        return (f"c={float(self.c.detach()):.6g}/mm, k={float(self.k.detach()):.6g}, n_coeffs={len(self.a)}, "
+        return (f"c={float(self.c.detach()):.6g}/mm, k={float(self.k.detach()):.6g}, "
+                f"n_coeffs={len(self.a)}, "
                 + super().extra_repr())
 
 
