@@ -8,7 +8,7 @@ import pytest
 import torch
 
 import helpers as H
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.intersect import IntersectOptions, intersect
 from deeplens.optics.io import load_lens
 from deeplens.optics.lens import Lens
@@ -459,3 +459,16 @@ def test_lens_dtype_and_device_follow_its_values():
     assert lens.dtype == torch.float64 and lens.device == torch.device("cpu")
     lens = lens.float()
     assert lens.dtype == torch.float32 == lens.surfaces[0].c.dtype
+
+
+def test_old_import_paths_still_work():
+    """Moved modules keep their old import paths as thin re-exports."""
+    import deeplens.analysis.paraxial as old_paraxial
+    import deeplens.optics.paraxial as new_paraxial
+    import deeplens.render.backward as old_backward
+    from deeplens.render import MonteCarloRenderer, RenderPlan
+
+    assert old_paraxial.paraxial is new_paraxial.paraxial
+    assert old_paraxial.exit_pupil is new_paraxial.exit_pupil
+    assert old_backward.MonteCarloRenderer is MonteCarloRenderer
+    assert old_backward.RenderPlan is RenderPlan

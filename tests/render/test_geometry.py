@@ -26,7 +26,7 @@ def test_trainable_lens_renders_and_analyses_without_tensor_to_scalar_warnings()
     "Converting a tensor with requires_grad=True to a scalar" (the geometry cache key called
     ``repr(lens)``, whose ``extra_repr`` read trainable tensors as floats).  Rendering (plain
     and adjoint), printing the lens, PSFs and the analysis functions must not warn."""
-    from deeplens.analysis.paraxial import paraxial
+    from deeplens.optics.paraxial import paraxial
     from deeplens.analysis.report import lens_report
     from deeplens.analysis.spot import chief_ray, spot_diagram
     from deeplens.render.psf import psf

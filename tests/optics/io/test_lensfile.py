@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import LensFileError, lens_from_dict, lens_to_dict, load_lens, save_lens
 from deeplens.optics.surfaces import Aperture, Asphere, BSpline, IdealLens, Plane, XYPolynomial
 

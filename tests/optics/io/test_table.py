@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import (LensFileError, lens_from_dict, lens_to_dict, load_lens,
                                 read_table, table_to_dict)
 from deeplens.optics.surfaces import Aperture, Asphere, BSpline, Plane, XYPolynomial
