@@ -8,10 +8,8 @@ The names most programs need are importable from here::
 from .errors import LensError, LensFileError
 from .intersect import IntersectOptions
 from .lens import Lens, LensSpec
-from .paraxial import ParaxialData, paraxial
 from .rays import Rays
-from .io import lens_from_dict, lens_to_dict, load_lens, save_lens  # noqa: E402 (after Lens)
+from .io import lens_from_dict, lens_to_dict, load_lens, save_lens
 
 __all__ = ["Lens", "LensSpec", "Rays", "IntersectOptions", "load_lens", "save_lens",
-           "lens_from_dict", "lens_to_dict", "paraxial", "ParaxialData", "LensError",
-           "LensFileError"]
+           "lens_from_dict", "lens_to_dict", "LensError", "LensFileError"]
