@@ -20,8 +20,9 @@ Tolerance.  ``|f| < tol`` with ``tol = max(tol_user, 4 eps |x0|_inf)`` per ray, 
 (the ray's vertex-plane point, whose size is the hit's): ``f`` evaluated at a point ``x`` carries
 a rounding error of about ``eps |x|`` (the stalled Newton residual was at most 1.2 eps |x|_inf
 over 97,000 float32 rays through the double Gauss at 1x, 100x and 1000x scale), so an absolute
-tolerance alone (1e-5 mm in float32) cannot be met once coordinates reach hundreds of mm.  Rays that stall near the root without meeting it are still marked
-invalid, and a ``RuntimeWarning`` says so when they are more than 1 % of the rays.
+tolerance alone (1e-5 mm in float32) cannot be met once coordinates reach hundreds of mm.
+Rays that stall near the root without meeting it are still marked invalid, and a
+``RuntimeWarning`` says so when they are more than 1 % of the rays.
 
 Rays that fail are kept out of every evaluation that autograd records: their residual is taken
 at the vertex (a point where every surface is finite) instead of at ``o + t0 d``, which for a
@@ -46,8 +47,8 @@ def default_tolerance(dtype: torch.dtype) -> float:
 
 class IntersectOptions:
     """Newton settings: ``tol`` (mm, ``None`` = dtype default; never below ``4 eps |x|``),
-    ``max_iter``, ``mode``;
-    ``clip_aperture=False`` ignores clear apertures (for ray aiming), not surface domains."""
+    ``max_iter``, ``mode``; ``clip_aperture=False`` ignores clear apertures (for ray aiming),
+    not surface domains."""
 
     __slots__ = ("tol", "max_iter", "mode", "clip_aperture")
 
