@@ -344,8 +344,13 @@ def lens_to_dict(lens: Lens) -> dict:
 
 
 def save_lens(lens: Lens, path) -> None:
-    """Write ``lens`` as JSON, atomically (write to a temporary file, then rename)."""
+    """Write ``lens`` as JSON, atomically (write to a temporary file, then rename); a path
+    ending in ``.zmx`` writes a Zemax file (:func:`~.zmx.write_zmx`)."""
     path = Path(path)
+    if path.suffix.lower() == ".zmx":
+        from .zmx import write_zmx
+
+        return write_zmx(lens, path)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w") as f:
         json.dump(lens_to_dict(lens), f, indent=1)
@@ -354,9 +359,11 @@ def save_lens(lens: Lens, path) -> None:
 
 
 def load_lens(path, **table_options) -> Lens:
-    """Read a lens file: our JSON format (``.json``) or the paper authors' table (``.txt``).
+    """Read a lens file: our JSON format (``.json``), the paper authors' table (``.txt``) or a
+    Zemax file (``.zmx``).
 
-    ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files.
+    ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files and to
+    :func:`~.zmx.read_zmx` for ``.zmx`` files (``glass_catalogs``, ``glass_fallback``).
     """
     path = Path(path)
     if not path.exists():
@@ -364,13 +371,18 @@ def load_lens(path, **table_options) -> Lens:
     if path.is_dir():
         raise LensFileError(f"{path}: is a directory, not a lens file")
     suffix = path.suffix.lower()
+    if suffix == ".zmx":  # Zemax: options glass_catalogs=[...agf], glass_fallback=...
+        from .zmx import read_zmx
+
+        return read_zmx(path, **table_options)
     if suffix == ".txt":
         from .table import read_table
 
         return read_table(path, **table_options)
     if suffix != ".json":
         raise LensFileError(f"{path}: unsupported lens file type {path.suffix!r}: deeplens reads "
-                            f"its JSON format (.json) and the paper authors' tables (.txt)")
+                            f"its JSON format (.json), the paper authors' tables (.txt) and Zemax "
+                            f"files (.zmx)")
     if table_options:
         raise TypeError(f"options {sorted(table_options)} apply to .txt tables only")
     try:
