@@ -426,8 +426,9 @@ def _optiland(path, indices, stop_semi_diameter):
         warnings.simplefilter("ignore")
         op = load_zemax_file(str(path))
     # optiland keeps the shipped file's dummy surface (no aperture); ours are the others
-    real = [j for j in range(1, len(op.surfaces) - 1)
-            if op.surfaces[j].aperture is not None or op.surfaces[j].is_stop]
+    real = list(range(1, len(op.surfaces) - 1))
+    if len(real) > len(indices) - 1:
+        real = [j for j in real if op.surfaces[j].aperture is not None or op.surfaces[j].is_stop]
     assert len(real) == len(indices) - 1
     for k, j in enumerate(real):
         op.surfaces[j].material_post = IdealMaterial(indices[k + 1])
