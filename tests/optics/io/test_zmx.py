@@ -510,3 +510,20 @@ def test_coordinate_breaks_match_optiland(tmp_path, element, param, value):
     ref = load_lens(JSON).double().trace_to_sensor(
         Rays(on_ep - d * (zep + 5.0), d, torch.full((len(px),), 587.5618, dtype=torch.float64)))
     assert (ref.o[ok, :2] - out.o[ok, :2]).abs().max() > 1e-4
+
+
+def test_xypolynom_terms_and_normalisation(tmp_path):
+    """XYPOLYNOM (CURV 0): z = Σ A_j x^m y^n / R^(m+n), terms x, y, x², xy, y², x³, ..."""
+    xy = ("XDAT 1 9", "XDAT 2 4.0", "XDAT 3 0.02", "XDAT 7 0.5", "XDAT 11 -0.03")
+    text = singlet(s1_type="XYPOLYNOM", s1_extra=xy, curv1=0.0, k=0.0)
+    lens = read_zmx(write(tmp_path, text))
+    s = lens.surfaces[1]
+    x = torch.tensor([1.5, -2.0, 0.7], dtype=torch.float64)
+    y = torch.tensor([0.5, 1.0, -2.5], dtype=torch.float64)
+    R = 4.0
+    # term 1 = x, term 5 = y², term 9 = y³ (the 4 cubic terms run x³, x²y, xy², y³)
+    want = 0.02 * x / R + 0.5 * y ** 2 / R ** 2 - 0.03 * y ** 3 / R ** 3
+    torch.testing.assert_close(s.sag(x, y), want, rtol=0, atol=1e-15)
+    assert s.order == 3
+    with pytest.raises(ZemaxFileError, match=r"XYPOLYNOM with a base curvature"):
+        read_zmx(write(tmp_path, singlet(s1_type="XYPOLYNOM", s1_extra=xy, k=0.0), "c.zmx"))
