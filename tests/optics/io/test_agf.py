@@ -36,8 +36,10 @@ def agf_text() -> str:
     a = B270
     glasses = [
         ("BK7_S1", 2, BK7, 1.5168, 64.17),
-        ("BK7_S3", 6, BK7 + (0.0, 0.5), 1.5168, 64.17),
-        ("BK7_S5", 11, BK7 + (0.0, 0.5, 0.0, 0.7), 1.5168, 64.17),
+        # the extra resonances split one of N-BK7's terms in two halves at the same C
+        ("BK7_S3", 6, BK7[:4] + (BK7[4] / 2, BK7[5], BK7[4] / 2, BK7[5]), 1.5168, 64.17),
+        ("BK7_S5", 11, (BK7[0] / 2, BK7[1], BK7[0] / 2, BK7[1]) + BK7[2:4]
+         + (BK7[4] / 2, BK7[5], BK7[4] / 2, BK7[5]), 1.5168, 64.17),
         ("B270_SCHOTT", 1, a, 1.52308, 58.57),
         ("B270_EXT", 10, a + (0.0, 0.0), 1.52308, 58.57),
         ("B270_EXT2", 12, a + (0.0, 0.0), 1.52308, 58.57),
@@ -47,6 +49,10 @@ def agf_text() -> str:
         ("ONE_HB2", 8, (1.0, B1, C1, 0.0), 0, 0),
         ("ONE_HB1", 7, (1.0 + B1, B1 * C1, C1, 0.0), 0, 0),
         ("HB1_C3", 7, (2.0, 0.01, 0.02, 0.003), 0, 0),
+        ("HB2_C3", 8, (2.0, 0.01, 0.02, 0.003), 0, 0),
+        ("EXT_HI", 10, a + (1e-6, -2e-7), 0, 0),
+        ("EXT2_HI", 12, a + (1e-4, -2e-5), 0, 0),
+        ("EXT3_HI", 13, (a[0], a[1], 3e-4, a[2], a[3], a[4], a[5], 1e-6, -2e-7), 0, 0),
         ("HERZ", 3, (1.5, 0.004, -0.0002, -0.003, 1e-4, -2e-6), 0, 0),
         ("CONR", 5, (1.5, 0.006, 0.0002), 0, 0),
     ]
@@ -101,6 +107,21 @@ def test_closed_forms_herzberger_conrady_handbook(cat):
     assert float(n_of(cat, "CONR", w)) == pytest.approx(conr, abs=1e-14)
     hb1 = math.sqrt(2.0 + 0.01 / (lam ** 2 - 0.02) - 0.003 * lam ** 2)
     assert float(n_of(cat, "HB1_C3", w)) == pytest.approx(hb1, abs=1e-14)
+    hb2 = math.sqrt(2.0 + 0.01 * lam ** 2 / (lam ** 2 - 0.02) - 0.003 * lam ** 2)
+    assert float(n_of(cat, "HB2_C3", w)) == pytest.approx(hb2, abs=1e-14)
+
+
+def test_extended_forms_high_terms(cat):
+    """The terms the SCHOTT series lacks, on top of B270 (deeplens' SchottFormulaGlass)."""
+    lam = 0.55
+    w = torch.tensor([550.0], dtype=torch.float64)
+    n2 = float(get_material("B270").n(w)) ** 2
+    ext = math.sqrt(n2 + 1e-6 * lam ** -10 - 2e-7 * lam ** -12)
+    ext2 = math.sqrt(n2 + 1e-4 * lam ** 4 - 2e-5 * lam ** 6)
+    ext3 = math.sqrt(n2 + 3e-4 * lam ** 4 + 1e-6 * lam ** -10 - 2e-7 * lam ** -12)
+    assert float(n_of(cat, "EXT_HI", w)) == pytest.approx(ext, abs=1e-13)
+    assert float(n_of(cat, "EXT2_HI", w)) == pytest.approx(ext2, abs=1e-13)
+    assert float(n_of(cat, "EXT3_HI", w)) == pytest.approx(ext3, abs=1e-13)
 
 
 def test_index_is_differentiable_in_wavelength(cat):
@@ -112,7 +133,7 @@ def test_index_is_differentiable_in_wavelength(cat):
 def test_exact_names_only(cat):
     assert cat.get("bk7_s1") is not None          # case-insensitive, as Zemax
     assert cat.get("BK7_S") is None and cat.get("BK7") is None  # never a close match
-    assert len(cat) == 14 and cat.name == "ACME"
+    assert len(cat) == 18 and cat.name == "ACME"
 
 
 def test_range_from_ld_enforced(cat):

@@ -527,3 +527,13 @@ def test_xypolynom_terms_and_normalisation(tmp_path):
     assert s.order == 3
     with pytest.raises(ZemaxFileError, match=r"XYPOLYNOM with a base curvature"):
         read_zmx(write(tmp_path, singlet(s1_type="XYPOLYNOM", s1_extra=xy, k=0.0), "c.zmx"))
+
+
+def test_leading_dummy_adds_to_the_object_distance(tmp_path):
+    text = singlet(obj="100")
+    for k in (4, 3, 2, 1):
+        text = text.replace(f"SURF {k}\n", f"SURF {k + 1}\n")
+    dummy = "SURF 1\n  TYPE STANDARD\n  CURV 0.0\n  DISZ 20\n"
+    lens = read_zmx(write(tmp_path, text.replace("SURF 2\n", dummy + "SURF 2\n", 1)))
+    assert lens.spec.object_distance_mm == 120.0
+    assert float(lens.distances[0]) == 0.0 and len(lens.surfaces) == 3
