@@ -88,12 +88,11 @@ BUILTIN_CATALOGUES = {
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
 _SILENT = {
     "VERS", "MODE", "NAME", "PFIL", "LANG", "GFAC", "PUSH", "SDMA", "OMMA", "ROPD", "HYPR",
-    "PICB", "FWGN", "VDXN", "VDYN", "VCXN", "VCYN", "VANN", "POLS", "GLRS", "GSTD", "NSCD",
-    "COFN", "FIMP", "HIDE", "MIRR", "SLAB", "MEMA", "POPS", "FLAP", "BLNK", "TOL", "MNUM",
+    "PICB", "FWGN", "POLS", "GLRS", "GSTD", "NSCD",
+    "COFN", "FIMP", "HIDE", "MIRR", "SLAB", "MEMA", "POPS", "FLAP", "BLNK", "TOL",
     "MOFF", "COMM", "NOTE", "WWGT", "XFLD", "YFLD", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
     "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "PPAR", "CONF", "DMFS", "BLDM",
-    "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "ENVD",
-    "RAIM", "PWAV", "UNIT", "XDAT", "THSO",
+    "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "RAIM", "THSO",
 }
 
 
@@ -205,9 +204,8 @@ def _parse(path: Path):
             p.fail(ln, f"{key}: the object-space numerical aperture / cone angle aperture is not "
                        f"supported (use ENPD, FNUM or a floating stop)")
         elif key == "FTYP":
-            sysd["ftyp"] = ([int(p.arg(toks, i, ln, n)) for i, n in
-                             ((1, "field type"),) ] +
-                            [int(p.num(t, ln, "FTYP")) for t in toks[2:]], ln)
+            p.arg(toks, 1, ln, "field type")
+            sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
         elif key in ("XFLN", "YFLN"):
             sysd[key.lower()] = ([p.num(t, ln, key) for t in toks[1:]], ln)
         elif key == "WAVM":
@@ -278,6 +276,19 @@ def _parse(path: Path):
         elif cur is not None and key in ("TCE", "COAT", "PZUP", "SCBD"):
             if key == "SCBD":
                 p.note(ln, f"{key} (scattering) ignored")
+        elif key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN"):
+            if any(p.num(t, ln, key) != 0 for t in toks[1:]):
+                p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
+                           f"pupil by tracing)")
+        elif key == "ENVD":
+            env = [p.num(t, ln, key) for t in toks[1:3]]
+            if env and (env[0] != 20 or (len(env) > 1 and env[1] != 1)):
+                p.note(ln, f"ENVD: temperature {env[0]:g} °C / pressure {env[1:] or ['?']} atm "
+                           f"ignored: indices are the catalogues' at their reference temperature")
+        elif key == "MNUM":
+            if len(toks) > 1 and p.num(toks[1], ln, key) > 1:
+                p.note(ln, "multi-configuration file: only the surface data (configuration 1) "
+                           "is read")
         elif key in _SILENT:
             continue
         else:
@@ -336,7 +347,7 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                          f"a fallback (glass_fallback='model' uses the n_d/V_d on the GLAS line)")
 
 
-def _surface_material(s, gcat, catalogues, fallback, p, prev):
+def _surface_material(s, gcat, catalogues, fallback, p):
     if s.glass is None and s.glass_model is not None and s.glass_line:
         return ModelGlass(*s.glass_model)
     if s.glass is None:
@@ -425,7 +436,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     if not obj_dist > 0:
         p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be > 0 or "
                                           f"INFINITY, got {obj.disz!r}")
-    obj_medium = _surface_material(obj, gcat, cats, glass_fallback, p, None)
+    obj_medium = _surface_material(obj, gcat, cats, glass_fallback, p)
     media = [obj_medium]
     kept = []            # (surface module, material after, zmx surf, gap before it in mm)
     groups = []          # [start, end] index ranges in kept for bracketed elements
@@ -479,7 +490,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 gap = gap + s.disz * s_mm   # gap: back at the pivot, + the thickness after
                 bracket = None
             continue
-        mat = _surface_material(s, gcat, cats, glass_fallback, p, prev)
+        mat = _surface_material(s, gcat, cats, glass_fallback, p)
         c = s.curv / s_mm
         sd = s.diam * s_mm
         if s.clap is not None:
@@ -713,22 +724,28 @@ def _f(v: float) -> str:
     return repr(float(v))
 
 
+# deeplens catalogue name -> the name Zemax's MISC catalogue uses
+_ZEMAX_NAME = {"FUSED_SILICA": "F_SILICA", "PC": "POLYCARB"}
+
+
 def _glass_line(m: Material, cats: list) -> str | None:
+    """The ``GLAS`` line of medium ``m`` (``None`` for air); adds its catalogue to ``cats``."""
     if isinstance(m, Air):
         return None
-    nd, vd = m.nd, m.vd
     if isinstance(m, AGFGlass):
         if m.catalogue and m.catalogue not in cats:
             cats.append(m.catalogue)
-        return f"GLAS {m.name} 0 0 {_f(nd)} {_f(vd)} 0 0 0 0 0 0"
-    spec = m.to_spec()
-    for cat, names in BUILTIN_CATALOGUES.items():
-        if spec.upper() in names or m.name.upper() in names:
-            name = m.name.upper()
-            if name in GLASS_TABLE or name in names:
+        return f"GLAS {m.name} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
+    name = m.name.upper()
+    rec = GLASS_TABLE.get(name)
+    is_entry = rec is not None and (not isinstance(m, ModelGlass) or m.to_spec() == rec.name)
+    if is_entry:
+        zname = _ZEMAX_NAME.get(name, name)
+        for cat, names in BUILTIN_CATALOGUES.items():
+            if zname in names:
                 if cat not in cats:
                     cats.append(cat)
-                return f"GLAS {name} 0 0 {_f(nd)} {_f(vd)} 0 0 0 0 0 0"
+                return f"GLAS {zname} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
     if isinstance(m, ModelGlass):
         return f"GLAS ___BLANK 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
     raise ZemaxFileError(f"material {m.name!r} ({type(m).__name__}) has no Zemax catalogue name; "

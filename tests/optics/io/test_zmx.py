@@ -537,3 +537,25 @@ def test_leading_dummy_adds_to_the_object_distance(tmp_path):
     lens = read_zmx(write(tmp_path, text.replace("SURF 2\n", dummy + "SURF 2\n", 1)))
     assert lens.spec.object_distance_mm == 120.0
     assert float(lens.distances[0]) == 0.0 and len(lens.surfaces) == 3
+
+
+@pytest.mark.parametrize("glass,line", [("FUSED_SILICA", "GLAS F_SILICA"),
+                                        ("PC", "GLAS POLYCARB"), ("B270", "GLAS B270"),
+                                        ("SSK4", "GLAS SSK4")])
+def test_catalogue_glasses_written_under_zemax_names(tmp_path, glass, line):
+    from deeplens.optics.materials import get_material
+
+    lens = load_lens(REPO / "data" / "lenses" / "thorlabs_la1131.json")
+    lens.materials[1] = get_material(glass)
+    write_zmx(lens, tmp_path / "g.zmx")
+    assert line + " 0 0" in (tmp_path / "g.zmx").read_text()
+    assert read_zmx(tmp_path / "g.zmx").materials[1].to_spec() == glass
+
+
+def test_vignetting_factors_and_environment_are_reported(tmp_path):
+    p = write(tmp_path, singlet(extra_system=("VDYN 0 0.1", "ENVD 35 1 0")))
+    with pytest.warns(ZemaxWarning) as rec:
+        read_zmx(p)
+    msgs = [str(r.message) for r in rec]
+    assert any(":13: VDYN: vignetting factors are ignored" in m for m in msgs)
+    assert any(":14: ENVD: temperature 35 °C" in m for m in msgs)
