@@ -592,7 +592,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                         aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves_nm,
                         primary_wavelength_nm=primary)
         lens = Lens(surfaces, media, distances, d_sensor, stop_idx, sensor_sd, spec,
-                    elements=[(a, b) for a, b, _, _ in elements], name=sysd["name"])
+                    elements=[(a, b) for a, b, _, _ in elements],
+                    name=sysd["name"] or path.stem)
     except (ValueError, TypeError) as e:
         raise ZemaxFileError(_locate(f"{path}: {e}", where_of)) from e
     for e, (a, b, d, _) in enumerate(elements):
