@@ -90,7 +90,7 @@ _SILENT = {
     "VERS", "MODE", "NAME", "PFIL", "LANG", "GFAC", "PUSH", "SDMA", "OMMA", "ROPD", "HYPR",
     "PICB", "FWGN", "POLS", "GLRS", "GSTD", "NSCD",
     "COFN", "FIMP", "HIDE", "MIRR", "SLAB", "MEMA", "POPS", "FLAP", "BLNK", "TOL",
-    "MOFF", "COMM", "NOTE", "WWGT", "XFLD", "YFLD", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
+    "MOFF", "COMM", "NOTE", "WWGT", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
     "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "PPAR", "CONF", "DMFS", "BLDM",
     "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "RAIM", "THSO",
 }
@@ -206,8 +206,10 @@ def _parse(path: Path):
         elif key == "FTYP":
             p.arg(toks, 1, ln, "field type")
             sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
-        elif key in ("XFLN", "YFLN"):
-            sysd[key.lower()] = ([p.num(t, ln, key) for t in toks[1:]], ln)
+        elif key in ("XFLN", "YFLN", "XFLD", "YFLD"):
+            slot = key[0].lower() + "fln"      # XFLD/YFLD: older files; XFLN/YFLN win
+            if key.endswith("FLN") or sysd[slot] is None:
+                sysd[slot] = ([p.num(t, ln, key) for t in toks[1:]], ln)
         elif key == "WAVM":
             i = int(p.arg(toks, 1, ln, "wavelength number"))
             sysd["waves"][i] = (p.arg(toks, 2, ln, "wavelength (µm)"), ln)

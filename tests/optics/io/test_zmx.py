@@ -559,3 +559,8 @@ def test_vignetting_factors_and_environment_are_reported(tmp_path):
     msgs = [str(r.message) for r in rec]
     assert any(":13: VDYN: vignetting factors are ignored" in m for m in msgs)
     assert any(":14: ENVD: temperature 35 °C" in m for m in msgs)
+
+
+def test_old_field_operands(tmp_path):
+    old = singlet(yfln="YFLD 0 5").replace("XFLN 0 0", "XFLD 0 0")
+    assert read_zmx(write(tmp_path, old)).spec.fields_deg == [0.0, 5.0]
