@@ -41,7 +41,7 @@ import torch
 
 from ..materials import DEFAULT_RANGE_NM, LINE_D, Material
 
-__all__ = ["AGFGlass", "AgfRecord", "GlassCatalogue", "AgfError", "read_agf", "FORMULAS"]
+__all__ = ["FORMULAS", "AGFGlass", "AgfError", "AgfRecord", "GlassCatalogue", "read_agf"]
 
 FORMULAS = {1: ("Schott", 6), 2: ("Sellmeier 1", 6), 3: ("Herzberger", 6),
             4: ("Sellmeier 2", 5), 5: ("Conrady", 3), 6: ("Sellmeier 3", 8),

@@ -56,14 +56,13 @@ from pathlib import Path
 import torch
 
 from ..lens import Lens, LensSpec
-from ..materials import (GLASS_TABLE, Air, Material, ModelGlass, check_wavelength_nm,
-                         get_material)
+from ..materials import GLASS_TABLE, Air, Material, ModelGlass, check_wavelength_nm, get_material
 from ..surfaces import Aperture, Asphere, Plane, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, read_agf
 from .lensfile import LensFileError
 
-__all__ = ["read_zmx", "write_zmx", "ZemaxFileError", "ZemaxWarning", "BUILTIN_CATALOGUES"]
+__all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "read_zmx", "write_zmx"]
 
 
 class ZemaxFileError(LensFileError):
@@ -686,7 +685,7 @@ def _elements(kept, media, groups, p):
 
 
 def _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
-    ys, yline = sysd["yfln"] if sysd["yfln"] else ([0.0], 0)
+    ys, _yline = sysd["yfln"] if sysd["yfln"] else ([0.0], 0)
     xs, xline = sysd["xfln"] if sysd["xfln"] else ([0.0] * len(ys), 0)
     if n_fields is not None:
         ys, xs = ys[:n_fields], xs[:n_fields]

@@ -23,8 +23,16 @@ import torch
 
 from deeplens.analysis.paraxial import paraxial
 from deeplens.cli import main as cli_main
-from deeplens.optics.io import (LensFileError, ZemaxFileError, ZemaxWarning, lens_to_dict,
-                                load_lens, read_zmx, save_lens, write_zmx)
+from deeplens.optics.io import (
+    LensFileError,
+    ZemaxFileError,
+    ZemaxWarning,
+    lens_to_dict,
+    load_lens,
+    read_zmx,
+    save_lens,
+    write_zmx,
+)
 from deeplens.optics.materials import GLASS_TABLE
 from deeplens.optics.rays import Rays
 
@@ -267,8 +275,8 @@ def test_field_types(tmp_path):
 @pytest.mark.parametrize("ftyp,obj,match", [
     ("FTYP 3 0 2 2 0 0 0", "INFINITY", r":7: FTYP 3 \(real image height\) cannot be converted"),
     ("FTYP 4 0 2 2 0 0 0", "INFINITY", r":7: FTYP 4 \(theodolite angle\)"),
-    ("FTYP 1 0 2 2 0 0 0", "INFINITY", r":7: FTYP 1 \(object height\) with the object at "
-                                       r"infinity cannot be converted"),
+    ("FTYP 1 0 2 2 0 0 0", "INFINITY", (r":7: FTYP 1 \(object height\) with the object at "
+                                       r"infinity cannot be converted")),
     ("FTYP 2 0 2 2 0 0 0", "300", r":7: FTYP 2 \(paraxial image height\) with a finite object"),
 ])
 def test_unconvertible_field_types(tmp_path, ftyp, obj, match):
@@ -372,8 +380,8 @@ def test_bad_input_names_the_line(tmp_path, edit, needle, match):
 
 
 @pytest.mark.parametrize("edit,match", [
-    (lambda t: t.split("SURF 2")[0], r"expected an object surface, at least one lens surface "
-                                     r"and an image surface; found 2 SURF"),
+    (lambda t: t.split("SURF 2")[0], (r"expected an object surface, at least one lens surface "
+                                     r"and an image surface; found 2 SURF")),
     (lambda t: "\n".join(t.splitlines()[:5]), r"no SURF line"),
     (lambda t: t.replace("  STOP\n", ""), r"no STOP line"),
 ])
