@@ -366,7 +366,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     Args:
         path: the ``.zmx`` file (UTF-16 with byte-order mark, or UTF-8).
         glass_catalogs: ``.agf`` files (paths) or :class:`~.agf.GlassCatalogue` objects; each
-            answers for the ``GCAT`` name equal to its file stem.
+            answers for the ``GCAT`` name equal to its file stem.  A catalogue the file names
+            but the caller does not pass is looked for as ``<NAME>.agf`` next to the ``.zmx``.
         glass_fallback: ``None`` (default: a glass that is not found is an error), ``"model"``
             (use the ``n_d``/``V_d`` the ``GLAS`` line carries), or a material spec / material
             used for every missing glass.  Each use is reported as a :class:`ZemaxWarning`.
@@ -393,6 +394,14 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     for c in glass_catalogs:
         cat = c if isinstance(c, GlassCatalogue) else read_agf(c)
         cats[cat.name] = cat
+    # catalogues the file names and the caller did not pass: an .agf of that name next to the
+    # .zmx (how OpticStudio's own folders are laid out), so `deeplens report x.zmx` finds them
+    for name in sysd["gcat"][0]:
+        if name not in cats:
+            for f in sorted(path.parent.iterdir()):
+                if f.suffix.lower() == ".agf" and f.stem.upper() == name and f.is_file():
+                    cats[name] = read_agf(f)
+                    break
     for note in (n for cat in cats.values() for n in cat.notes):
         p.note(0, note)
     unit, _ = sysd["unit"]

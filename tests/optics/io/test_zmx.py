@@ -334,6 +334,19 @@ def test_vendor_glass_from_user_catalogue(tmp_path):
         lens = load_lens(p, glass_catalogs=[agf])
     ref = load_lens(write(tmp_path, singlet(), "bk7.zmx"))
     assert float(paraxial(lens).efl) == pytest.approx(float(paraxial(ref).efl), rel=1e-13)
+    # an .agf named like the GCAT entry next to the .zmx is found without being passed, also by
+    # the command line
+    (tmp_path / "nextto").mkdir()
+    (tmp_path / "nextto" / "ohara.AGF").write_text(agf.read_text())
+    (tmp_path / "nextto" / "lens.zmx").write_text(p.read_text())
+    with pytest.warns(ZemaxWarning, match="TD"):
+        near = read_zmx(tmp_path / "nextto" / "lens.zmx")
+    assert float(paraxial(near).efl) == float(paraxial(lens).efl)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ZemaxWarning)
+        rep = report(tmp_path / "nextto" / "lens.zmx", "--pupil", "paraxial", "--sampling",
+                     "hexapolar:3")
+    assert rep["efl_mm"] == pytest.approx(float(paraxial(lens).efl), rel=1e-12)
     # the written file names the vendor catalogue and the glass; reading it needs the .agf again
     write_zmx(lens, tmp_path / "out.zmx")
     text = (tmp_path / "out.zmx").read_text()
