@@ -67,7 +67,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="deeplens", description="deeplens command line")
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("report", help="paraxial data and RMS spots of a lens file")
-    r.add_argument("lens", help="lens file (.json, or the paper authors' .txt table)")
+    r.add_argument("lens", help="lens file (.json, the paper authors' .txt table, or Zemax .zmx)")
     r.add_argument("--fields", help="field angles in degrees, e.g. 0,7,14,21 (default: file's)")
     r.add_argument("--wavelengths", help="wavelengths in nm, e.g. 486.1,587.6 (default: file's)")
     r.add_argument("--sampling", default="hexapolar:18",

@@ -339,8 +339,13 @@ def lens_to_dict(lens: Lens) -> dict:
 
 
 def save_lens(lens: Lens, path) -> None:
-    """Write ``lens`` as JSON, atomically (write to a temporary file, then rename)."""
+    """Write ``lens`` as JSON, atomically (write to a temporary file, then rename); a path
+    ending in ``.zmx`` writes a Zemax file (:func:`~.zmx.write_zmx`)."""
     path = Path(path)
+    if path.suffix.lower() == ".zmx":
+        from .zmx import write_zmx
+
+        return write_zmx(lens, path)
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w") as f:
         json.dump(lens_to_dict(lens), f, indent=1)

@@ -1,7 +1,7 @@
 """``load_lens``: read a lens file of any supported format, chosen by its suffix.
 
 ``.json`` is the deeplens format (:mod:`.lensfile`), ``.txt`` the paper authors' table
-(:mod:`.table`).  This module imports both readers; they do not import each other upwards
+(:mod:`.table`), ``.zmx`` a Zemax lens file (:mod:`.zmx`).  This module imports both readers; they do not import each other upwards
 (``table`` builds on ``lensfile``, ``lensfile`` knows nothing of tables).
 """
 
@@ -17,9 +17,11 @@ __all__ = ["load_lens"]
 
 
 def load_lens(path, **table_options):
-    """Read a lens file: our JSON format (``.json``) or the paper authors' table (``.txt``).
+    """Read a lens file: our JSON format (``.json``), the paper authors' table (``.txt``) or a
+    Zemax file (``.zmx``).
 
-    ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files.
+    ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files and to
+    :func:`~.zmx.read_zmx` for ``.zmx`` files (``glass_catalogs``, ``glass_fallback``).
 
     Raises:
         FileNotFoundError: no such file.
@@ -31,11 +33,15 @@ def load_lens(path, **table_options):
     if path.is_dir():
         raise LensFileError("is a directory, not a lens file", source=path)
     suffix = path.suffix.lower()
+    if suffix == ".zmx":
+        from .zmx import read_zmx
+
+        return read_zmx(path, **table_options)
     if suffix == ".txt":
         return read_table(path, **table_options)
     if suffix != ".json":
         raise LensFileError(f"unsupported lens file type {path.suffix!r}: deeplens reads its "
-                            f"JSON format (.json) and the paper authors' tables (.txt)",
+                            f"JSON format (.json), the paper authors' tables (.txt) and Zemax files (.zmx)",
                             source=path)
     if table_options:
         raise TypeError(f"options {sorted(table_options)} apply to .txt tables only")

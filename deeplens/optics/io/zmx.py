@@ -1,0 +1,905 @@
+r"""Zemax OpticStudio sequential lens files (``.zmx``): read and write.
+
+Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``)::
+
+    STANDARD   z = c r² / (1 + sqrt(1 − (1 + k) c² r²))
+    EVENASPH   z = STANDARD + Σ_{i=1..8} α_i r^{2i}        (PARM i = α_i; deeplens has no r² term,
+                                                          so PARM 1 must be 0)
+    XYPOLYNOM  z = Σ_j A_j x^m y^n / R^(m+n)               (XDAT 1 = number of terms, XDAT 2 = the
+                                                          normalisation radius R, XDAT 3.. = A_j in
+                                                          the order x, y, x², xy, y², x³, ...;
+                                                          read when CURV = 0)
+    COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), tilts PARM 3/4 in degrees
+
+Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
+
+* ``UNIT`` (MM, CM, IN, METER) scales every length to mm; ``WAVM``/``WAVL`` are micrometres in the
+  file and become nm; ``PWAV`` picks the primary wavelength; ``FTYP`` gives the field type and the
+  number of active fields and wavelengths.
+* ``SURF 0`` is the object (its ``DISZ``, possibly ``INFINITY``, is the object distance), the last
+  ``SURF`` the image (the gap before it is the sensor distance, its ``DIAM`` the sensor
+  semi-diameter).  ``DIAM`` is a semi-diameter.  ``DISZ`` is the gap to the next vertex.
+* Aperture: ``ENPD`` -> ``epd``, ``FNUM v 0`` -> ``fno`` (image-space F-number at infinity),
+  ``FLOA`` -> ``stop`` (the stop's own ``DIAM``).
+* Fields ``YFLN`` (and ``XFLN``, combined radially for a rotationally symmetric lens) with
+  ``FTYP`` 0 (angle), 1 (object height, finite object: ``θ = atan(h / (d_obj + z_EP))``) or 2
+  (paraxial image height at infinity: ``θ = atan(h' / f)``).  Real image height and theodolite
+  angles are rejected.
+* Dummy surfaces (flat, the same medium on both sides, not the stop, automatic ``DIAM``) carry only
+  a thickness and are merged into the gaps; a flat air surface with a fixed ``DIAM`` becomes an
+  :class:`~deeplens.optics.surfaces.Aperture`.
+* ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
+  vertex, and the reversing break) become that element's
+  :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``: one of the two
+  tilts may be non-zero per bracket); any other coordinate break is an error.
+* ``GLAS name`` is looked up exactly in the catalogues named by ``GCAT``: the user's ``.agf`` files
+  (:mod:`.agf`) by file stem, and deeplens' own catalogue, which answers for ``SCHOTT`` and
+  ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d`` (a Zemax model glass) becomes a
+  :class:`~deeplens.optics.materials.ModelGlass` (deeplens' Cauchy model: exact at n_d and V_d,
+  Zemax's own model differs slightly elsewhere).  A glass not found is an error naming it and its
+  line, unless the caller passes ``glass_fallback``.
+
+Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
+would change the optics if ignored (other surface types, mirrors, obscurations, object-space NA
+apertures, ...) are errors.  :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
+written and read again has the same prescription.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from ..lens import Lens, LensSpec
+from ..materials import GLASS_TABLE, Air, Material, ModelGlass, check_wavelength_nm, get_material
+from ..surfaces import Aperture, Asphere, Plane, XYPolynomial
+from ..surfaces.xy_polynomial import xy_terms
+from .agf import AGFGlass, GlassCatalogue, read_agf
+from .lensfile import LensFileError
+
+__all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "read_zmx", "write_zmx"]
+
+
+class ZemaxFileError(LensFileError):
+    """A ``.zmx`` file that cannot be read (or a lens that cannot be written as one)."""
+
+
+class ZemaxWarning(UserWarning):
+    """A line of a ``.zmx`` file that was understood but is not used."""
+
+
+_UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
+
+# Which of deeplens' own catalogue entries answer for which Zemax catalogue name.
+BUILTIN_CATALOGUES = {
+    "SCHOTT": ("N-BK7", "N-SF5", "SF5", "N-SF6", "N-SF2", "N-SF10", "SF10", "N-SF11", "N-BAF10",
+               "N-BAK1", "N-BAK4", "N-SK16", "N-SSK8", "F2", "N-F2", "N-LAK9", "N-LAK22",
+               "N-LASF9", "N-LASF44", "N-K5", "N-PSK53A", "B270", "SSK4", "SK1", "F15", "SK16"),
+    "MISC": ("F_SILICA", "SILICA", "FUSED_SILICA", "PMMA", "POLYCARB"),
+}
+"""Zemax catalogue name -> the names deeplens' built-in catalogue resolves for it."""
+
+# Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
+_SILENT = {
+    "VERS", "MODE", "NAME", "PFIL", "LANG", "GFAC", "PUSH", "SDMA", "OMMA", "ROPD", "HYPR",
+    "PICB", "FWGN", "POLS", "GLRS", "GSTD", "NSCD",
+    "COFN", "FIMP", "HIDE", "MIRR", "SLAB", "MEMA", "POPS", "FLAP", "BLNK", "TOL",
+    "MOFF", "COMM", "NOTE", "WWGT", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
+    "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "PPAR", "CONF", "DMFS", "BLDM",
+    "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "RAIM", "THSO",
+}
+
+
+@dataclass
+class _Surf:
+    line: int
+    type: str = "STANDARD"
+    type_line: int = 0
+    curv: float = 0.0
+    disz: float = 0.0
+    disz_line: int = 0
+    coni: float = 0.0
+    diam: float = 0.0
+    diam_fixed: bool = False
+    stop: bool = False
+    glass: str | None = None
+    glass_model: tuple | None = None   # (n_d, V_d) on the GLAS line
+    glass_line: int = 0
+    parm: dict = field(default_factory=dict)   # index -> (value, line)
+    xdat: dict = field(default_factory=dict)   # index -> (value, line)
+    clap: tuple | None = None
+
+
+class _Parser:
+    def __init__(self, path: Path):
+        self.path = path
+        self.notes: list[tuple[int, str]] = []
+
+    def fail(self, ln, msg):
+        where = f"{self.path}:{ln}" if ln else str(self.path)
+        raise ZemaxFileError(f"{where}: {msg}")
+
+    def note(self, ln, msg):
+        self.notes.append((ln, msg))
+
+    def num(self, tok, ln, what):
+        try:
+            v = float(tok)
+        except (ValueError, TypeError):
+            self.fail(ln, f"{what}: expected a number, got {tok!r}")
+        if not math.isfinite(v):
+            self.fail(ln, f"{what}: expected a finite number, got {tok!r}")
+        return v
+
+    def arg(self, toks, i, ln, what):
+        if len(toks) <= i:
+            self.fail(ln, f"{toks[0]} line is truncated: missing {what}")
+        return self.num(toks[i], ln, f"{toks[0]} {what}")
+
+
+def _decode(path: Path) -> str:
+    raw = path.read_bytes()
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        return raw.decode("utf-16")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        # OpticStudio also writes UTF-16 without a byte-order mark (every other byte zero)
+        if len(raw) > 1 and raw[1:200:2].count(0) > 0.9 * len(raw[1:200:2]):
+            return raw.decode("utf-16-le")
+        return raw.decode("latin-1")
+
+
+def _parse(path: Path):
+    """The raw file: ``(system dict, [_Surf, ...], parser)`` with lengths still in file units."""
+    p = _Parser(path)
+    try:
+        text = _decode(path)
+    except UnicodeDecodeError as e:
+        p.fail(0, f"not a UTF-8 or UTF-16 text file ({e.reason} at byte {e.start})")
+    sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None, "yfln": None,
+            "waves": {}, "wavl": None, "pwav": (1, 0), "gcat": ([], 0), "name": "",
+            "mode": None}
+    surfs: list[_Surf] = []
+    cur: _Surf | None = None
+    for ln, line in enumerate(text.splitlines(), start=1):
+        toks = line.split()
+        if not toks:
+            continue
+        key = toks[0].upper()
+        if key == "SURF":
+            idx = int(p.arg(toks, 1, ln, "surface number"))
+            if idx != len(surfs):
+                p.fail(ln, f"SURF {idx} out of order: expected SURF {len(surfs)}")
+            cur = _Surf(line=ln)
+            surfs.append(cur)
+            continue
+        if key == "NAME":
+            sysd["name"] = line.strip()[4:].strip()
+        elif key == "MODE":
+            if len(toks) > 1 and toks[1].upper() != "SEQ":
+                p.fail(ln, f"MODE {toks[1]}: only sequential (MODE SEQ) files can be read")
+        elif key == "UNIT":
+            if len(toks) < 2 or toks[1].upper() not in _UNITS:
+                p.fail(ln, f"UNIT: unknown lens unit {toks[1] if len(toks) > 1 else ''!r}; "
+                           f"expected one of {', '.join(_UNITS)}")
+            sysd["unit"] = (toks[1].upper(), ln)
+        elif key == "ENPD":
+            sysd["aperture"] = ("epd", p.arg(toks, 1, ln, "entrance-pupil diameter"), ln)
+        elif key == "FNUM":
+            v = p.arg(toks, 1, ln, "F-number")
+            if len(toks) > 2 and toks[2] not in ("0", "0.0"):
+                p.fail(ln, "FNUM with the paraxial working F-number flag is not supported (give "
+                           "the image-space F-number, ENPD or a floating stop)")
+            sysd["aperture"] = ("fno", v, ln)
+        elif key == "FLOA":
+            sysd["aperture"] = ("stop", None, ln)
+        elif key in ("OBNA", "OBSC"):
+            p.fail(ln, f"{key}: the object-space numerical aperture / cone angle aperture is not "
+                       f"supported (use ENPD, FNUM or a floating stop)")
+        elif key == "FTYP":
+            p.arg(toks, 1, ln, "field type")
+            sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
+        elif key in ("XFLN", "YFLN", "XFLD", "YFLD"):
+            slot = key[0].lower() + "fln"      # XFLD/YFLD: older files; XFLN/YFLN win
+            if key.endswith("FLN") or sysd[slot] is None:
+                sysd[slot] = ([p.num(t, ln, key) for t in toks[1:]], ln)
+        elif key == "WAVM":
+            i = int(p.arg(toks, 1, ln, "wavelength number"))
+            sysd["waves"][i] = (p.arg(toks, 2, ln, "wavelength (µm)"), ln)
+        elif key == "WAVL":
+            sysd["wavl"] = ([p.num(t, ln, "WAVL") for t in toks[1:]], ln)
+        elif key == "PWAV":
+            sysd["pwav"] = (int(p.arg(toks, 1, ln, "primary wavelength number")), ln)
+        elif key == "GCAT":
+            sysd["gcat"] = ([t.upper() for t in toks[1:]], ln)
+        elif cur is not None and key == "TYPE":
+            if len(toks) < 2:
+                p.fail(ln, "TYPE line is truncated: missing the surface type")
+            cur.type, cur.type_line = toks[1].upper(), ln
+            if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM"):
+                p.fail(ln, f"unknown surface type {toks[1]!r} (SURF {len(surfs) - 1}); deeplens "
+                           f"reads STANDARD, EVENASPH, COORDBRK and XYPOLYNOM")
+        elif cur is not None and key == "CURV":
+            cur.curv = p.arg(toks, 1, ln, "curvature")
+        elif cur is not None and key == "DISZ":
+            if len(toks) < 2:
+                p.fail(ln, "DISZ line is truncated: missing the thickness")
+            cur.disz = math.inf if toks[1].upper() == "INFINITY" else p.num(toks[1], ln, "DISZ")
+            cur.disz_line = ln
+        elif cur is not None and key == "CONI":
+            cur.coni = p.arg(toks, 1, ln, "conic constant")
+        elif cur is not None and key == "DIAM":
+            cur.diam = p.arg(toks, 1, ln, "semi-diameter")
+            cur.diam_fixed = len(toks) > 2 and toks[2] == "1"
+        elif cur is not None and key == "STOP":
+            cur.stop = True
+        elif cur is not None and key == "PARM":
+            cur.parm[int(p.arg(toks, 1, ln, "parameter number"))] = (
+                p.arg(toks, 2, ln, "parameter value"), ln)
+        elif cur is not None and key == "XDAT":
+            cur.xdat[int(p.arg(toks, 1, ln, "extra-data number"))] = (
+                p.arg(toks, 2, ln, "extra-data value"), ln)
+        elif cur is not None and key == "GLAS":
+            if len(toks) < 2:
+                p.fail(ln, "GLAS line is truncated: missing the glass name")
+            name = toks[1]
+            if name.upper() == "MIRROR":
+                p.fail(ln, "GLAS MIRROR: reflective surfaces are not supported (deeplens traces "
+                           "refractive sequential systems)")
+            code = toks[2] if len(toks) > 2 else "0"
+            model = None
+            if len(toks) >= 6:
+                model = (p.num(toks[4], ln, "GLAS n_d"), p.num(toks[5], ln, "GLAS V_d"))
+            if name.upper() == "___BLANK" or code == "1":
+                if model is None:
+                    p.fail(ln, "a model glass (GLAS ___BLANK 1 0 n_d V_d) line is truncated: "
+                               "missing n_d and V_d")
+                cur.glass = None
+            else:
+                cur.glass = name.upper()
+            cur.glass_model, cur.glass_line = model, ln
+        elif cur is not None and key == "CLAP":
+            lo = p.arg(toks, 1, ln, "minimum radius")
+            hi = p.arg(toks, 2, ln, "maximum radius")
+            if lo > 0:
+                p.fail(ln, "CLAP with a central obscuration (minimum radius > 0) is not supported")
+            cur.clap = (hi, ln)
+        elif cur is not None and key in ("SQAP", "ELAP", "OBDC", "OBSC", "SQOB", "ELOB", "UDAD",
+                                          "SPID"):
+            p.fail(ln, f"{key}: non-circular apertures, obscurations and decentred apertures are "
+                       f"not supported")
+        elif cur is not None and key in ("TCE", "COAT", "PZUP", "SCBD"):
+            if key == "SCBD":
+                p.note(ln, f"{key} (scattering) ignored")
+        elif key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN"):
+            if any(p.num(t, ln, key) != 0 for t in toks[1:]):
+                p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
+                           f"pupil by tracing)")
+        elif key == "ENVD":
+            env = [p.num(t, ln, key) for t in toks[1:3]]
+            if env and (env[0] != 20 or (len(env) > 1 and env[1] != 1)):
+                p.note(ln, f"ENVD: temperature {env[0]:g} °C / pressure {env[1:] or ['?']} atm "
+                           f"ignored: indices are the catalogues' at their reference temperature")
+        elif key == "MNUM":
+            if len(toks) > 1 and p.num(toks[1], ln, key) > 1:
+                p.note(ln, "multi-configuration file: only the surface data (configuration 1) "
+                           "is read")
+        elif key in _SILENT:
+            continue
+        else:
+            p.note(ln, f"{toks[0]} line not used by deeplens (ignored)")
+    if not surfs:
+        p.fail(0, "no SURF line: not a Zemax lens file, or the file is truncated")
+    if len(surfs) < 3:
+        p.fail(surfs[-1].line, f"expected an object surface, at least one lens surface and an "
+                               f"image surface; found {len(surfs)} SURF block(s) (truncated file?)")
+    return sysd, surfs, p
+
+
+def _builtin(glass: str) -> Material | None:
+    try:
+        return get_material(glass)
+    except ValueError:
+        return None
+
+
+def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
+    """The material of ``GLAS glass`` on ``s.glass_line``: exact lookup, in catalogue order."""
+    searched = []
+    named = list(gcat) if gcat else list(BUILTIN_CATALOGUES)
+    # the user's catalogues answer for their own names; unnamed ones are searched last
+    order = named + [c for c in catalogues if c not in named]
+    for cat in order:
+        if cat in catalogues:
+            searched.append(cat)
+            m = catalogues[cat].get(glass)
+            if m is not None:
+                return m
+        elif cat in BUILTIN_CATALOGUES:
+            searched.append(f"{cat} (deeplens built-in)")
+            if glass in BUILTIN_CATALOGUES[cat]:
+                m = _builtin(glass)
+                if m is not None:
+                    return m
+    missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES]
+    hint = (f"; catalogue(s) {', '.join(missing)} named on the GCAT line were not given: pass "
+            f"glass_catalogs=['{missing[0]}.agf', ...]" if missing else "")
+    if fallback is not None:
+        if fallback == "model":
+            if s.glass_model is None or not s.glass_model[0] > 1.0:
+                p.fail(s.glass_line, f"glass {glass!r} not found, and the GLAS line has no usable "
+                                     f"n_d/V_d for the model-glass fallback")
+            m = ModelGlass(*s.glass_model)
+        else:
+            m = fallback if isinstance(fallback, Material) else get_material(str(fallback))
+        warnings.warn(f"{p.path}:{s.glass_line}: glass {glass!r} not found in "
+                      f"{', '.join(searched) or 'any catalogue'}; using the requested fallback "
+                      f"{m.name!r}", ZemaxWarning, stacklevel=4)
+        return m
+    p.fail(s.glass_line, f"glass {glass!r} not found in the catalogues searched "
+                         f"({', '.join(searched) or 'none'}){hint}; deeplens never substitutes a "
+                         f"similar glass: give the vendor's .agf (glass_catalogs=[...]) or ask for "
+                         f"a fallback (glass_fallback='model' uses the n_d/V_d on the GLAS line)")
+
+
+def _surface_material(s, gcat, catalogues, fallback, p):
+    if s.glass is None and s.glass_model is not None and s.glass_line:
+        return ModelGlass(*s.glass_model)
+    if s.glass is None:
+        return Air()
+    return _resolve_glass(s.glass, s, gcat, catalogues, fallback, p)
+
+
+def _is_air(m: Material) -> bool:
+    return isinstance(m, Air)
+
+
+def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
+    """Read a sequential Zemax ``.zmx`` file into a :class:`~deeplens.optics.lens.Lens`.
+
+    Args:
+        path: the ``.zmx`` file (UTF-16 with byte-order mark, or UTF-8).
+        glass_catalogs: ``.agf`` files (paths) or :class:`~.agf.GlassCatalogue` objects; each
+            answers for the ``GCAT`` name equal to its file stem.  A catalogue the file names
+            but the caller does not pass is looked for as ``<NAME>.agf`` next to the ``.zmx``.
+        glass_fallback: ``None`` (default: a glass that is not found is an error), ``"model"``
+            (use the ``n_d``/``V_d`` the ``GLAS`` line carries), or a material spec / material
+            used for every missing glass.  Each use is reported as a :class:`ZemaxWarning`.
+
+    Returns:
+        The lens (lengths in mm, wavelengths in nm).
+
+    Raises:
+        ZemaxFileError: (a :class:`~.lensfile.LensFileError`) malformed or truncated lines,
+            unknown surface types, unsupported apertures, coordinate breaks that do not bracket
+            one element, unknown glasses, field types that cannot be converted, wavelengths
+            outside a glass's range; each message names the file and line.
+
+    Example::
+
+        lens = read_zmx("US02532751-1.zmx")
+        lens = read_zmx("vendor_lens.zmx", glass_catalogs=["OHARA.agf"])
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"lens file not found: {path}")
+    sysd, surfs, p = _parse(path)
+    cats: dict[str, GlassCatalogue] = {}
+    for c in glass_catalogs:
+        cat = c if isinstance(c, GlassCatalogue) else read_agf(c)
+        cats[cat.name] = cat
+    # catalogues the file names and the caller did not pass: an .agf of that name next to the
+    # .zmx (how OpticStudio's own folders are laid out), so `deeplens report x.zmx` finds them
+    for name in sysd["gcat"][0]:
+        if name not in cats:
+            for f in sorted(path.parent.iterdir()):
+                if f.suffix.lower() == ".agf" and f.stem.upper() == name and f.is_file():
+                    cats[name] = read_agf(f)
+                    break
+    for note in (n for cat in cats.values() for n in cat.notes):
+        p.note(0, note)
+    unit, _ = sysd["unit"]
+    s_mm = _UNITS[unit]
+    gcat, _ = sysd["gcat"]
+
+    # ---- wavelengths (µm in the file)
+    ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
+    n_fields = ftyp[2] if len(ftyp) > 2 and ftyp[2] > 0 else None
+    n_waves = ftyp[3] if len(ftyp) > 3 and ftyp[3] > 0 else None
+    if sysd["waves"]:
+        nums = sorted(sysd["waves"])
+        if n_waves is not None:
+            nums = [i for i in nums if i <= n_waves]
+        waves = [(sysd["waves"][i][0], sysd["waves"][i][1]) for i in nums]
+    elif sysd["wavl"]:
+        vals, ln = sysd["wavl"]
+        waves = [(v, ln) for v in vals]
+        nums = list(range(1, len(vals) + 1))
+    else:
+        p.fail(0, "no wavelength (WAVM or WAVL line)")
+    if not waves:
+        p.fail(ftyp_line, "no active wavelength")
+    waves_nm = []
+    for v, ln in waves:
+        try:
+            check_wavelength_nm(v * 1000.0)
+        except ValueError as e:
+            p.fail(ln, f"wavelength {v!r} µm: {e}")
+        waves_nm.append(v * 1000.0)
+    pw, pw_line = sysd["pwav"]
+    if pw not in nums:
+        p.fail(pw_line, f"PWAV {pw}: the primary wavelength is not one of the active wavelengths "
+                        f"{nums}")
+    primary = waves_nm[nums.index(pw)]
+
+    # ---- surfaces
+    obj, img = surfs[0], surfs[-1]
+    if obj.type != "STANDARD" or obj.curv != 0:
+        p.fail(obj.line, "the object surface (SURF 0) must be a flat STANDARD surface")
+    obj_dist = obj.disz * (1 if math.isinf(obj.disz) else s_mm)
+    if not obj_dist > 0:
+        p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be > 0 or "
+                                          f"INFINITY, got {obj.disz!r}")
+    obj_medium = _surface_material(obj, gcat, cats, glass_fallback, p)
+    media = [obj_medium]
+    kept = []            # (surface module, material after, zmx surf, gap before it in mm)
+    groups = []          # [start, end] index ranges in kept for bracketed elements
+    gap = 0.0            # axial distance from the last kept vertex to the current one (mm)
+    bracket = None
+    stop_idx = None
+    for k in range(1, len(surfs) - 1):
+        s = surfs[k]
+        prev = media[-1]
+        if s.type == "COORDBRK":
+            dx = s.parm.get(1, (0.0, 0))[0] * s_mm
+            dy = s.parm.get(2, (0.0, 0))[0] * s_mm
+            tx, ty, tz = (s.parm.get(i, (0.0, 0))[0] for i in (3, 4, 5))
+            order = s.parm.get(6, (0.0, 0))[0]
+            if s.glass is not None or s.stop:
+                p.fail(s.line, "a COORDBRK surface cannot carry a glass or the stop")
+            if bracket is None:
+                if tz != 0:
+                    p.fail(s.parm[5][1], "COORDBRK tilt about z is not supported (deeplens' "
+                                         "element misalignment has decenter x/y and tilt x/y)")
+                if tx != 0 and ty != 0:
+                    p.fail(s.line, "COORDBRK with tilts about both x and y: deeplens' "
+                                   "misalignment R = R_y R_x differs from Zemax's order; split "
+                                   "it or tilt about one axis")
+                if order != 0:
+                    p.fail(s.parm[6][1], "an opening COORDBRK must have order flag 0 (decenter, "
+                                         "then tilt)")
+                if s.disz != 0:
+                    p.fail(s.disz_line, "an opening COORDBRK must have thickness 0 (the "
+                                        "element rotates about its first vertex)")
+                bracket = {"line": s.line, "d": (dx, dy, tx, ty), "start": len(kept),
+                           "zloc": 0.0}
+            else:
+                want = tuple(-v for v in bracket["d"])
+                got = (dx, dy, tx, ty)
+                if (tz != 0 or not all(math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+                                       for a, b in zip(want, got))
+                        or (order != 1 and (tx != 0 or ty != 0))):
+                    p.fail(s.line, f"this COORDBRK does not undo the one on line "
+                                   f"{bracket['line']} (expected decenter/tilt {want} with order "
+                                   f"flag 1, got {got}, order {order:g}); deeplens reads "
+                                   f"coordinate breaks only as the misalignment of one element")
+                if (tx != 0 or ty != 0) and abs(bracket["zloc"]) > 1e-9:
+                    p.fail(s.line, f"the surfaces between the COORDBRK on line {bracket['line']} "
+                                   f"and this one must return to the element's first vertex "
+                                   f"(total thickness 0, got {bracket['zloc']:g} mm): the tilt "
+                                   f"is about the first vertex")
+                if len(kept) == bracket["start"]:
+                    p.fail(s.line, "the coordinate-break bracket holds no surface")
+                groups.append((bracket["start"], len(kept) - 1, bracket["d"], bracket["line"]))
+                gap = gap + s.disz * s_mm   # gap: back at the pivot, + the thickness after
+                bracket = None
+            continue
+        mat = _surface_material(s, gcat, cats, glass_fallback, p)
+        c = s.curv / s_mm
+        sd = s.diam * s_mm
+        if s.clap is not None:
+            sd = s.clap[0] * s_mm
+        surf = None
+        if s.type == "STANDARD" or s.type == "EVENASPH":
+            coeffs = []
+            if s.type == "EVENASPH":
+                for i, (v, ln) in sorted(s.parm.items()):
+                    if i == 1 and v != 0:
+                        p.fail(ln, "EVENASPH PARM 1 (the r² term) is not supported: deeplens' "
+                                   "even asphere starts at r⁴ (fold it into the curvature in "
+                                   "Zemax)")
+                    if i > 8 and v != 0:
+                        p.fail(ln, f"EVENASPH PARM {i}: Zemax's even asphere has PARM 1-8")
+                # as many terms as PARM lines (a4 = PARM 2, ...); a file listing all 8 (as
+                # OpticStudio writes) is trimmed of its trailing zero terms
+                top = max([i for i in s.parm if i <= 8] + [1])
+                coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i)
+                          for i in range(2, top + 1)]
+                if top == 8:
+                    while coeffs and coeffs[-1] == 0.0:
+                        coeffs.pop()
+            flat = c == 0 and s.coni == 0 and not coeffs
+            same_medium = (type(mat) is type(prev) and mat.name == prev.name)
+            if flat and same_medium and not s.stop and not s.diam_fixed and s.clap is None:
+                gap += s.disz * s_mm
+                if bracket is not None:
+                    bracket["zloc"] += s.disz * s_mm
+                continue   # a dummy surface: its thickness only
+            if flat and _is_air(mat) and _is_air(prev):
+                surf = Aperture(sd if sd > 0 else None)
+            elif flat:
+                surf = Plane(sd)
+            else:
+                surf = Asphere(c, sd, conic=s.coni, coefficients=coeffs)
+        elif s.type == "XYPOLYNOM":
+            surf = _xypolynom(s, c, sd, s_mm, p)
+        if not sd > 0 and not isinstance(surf, Aperture):
+            p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be > 0, got {s.diam!r}")
+        if s.stop:
+            stop_idx = len(kept)
+        kept.append((surf, mat, s, gap))
+        media.append(mat)
+        gap = s.disz * s_mm
+        if bracket is not None:
+            bracket["zloc"] += s.disz * s_mm
+        if math.isinf(s.disz):
+            p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
+    if bracket is not None:
+        p.fail(bracket["line"], "this COORDBRK is never undone (no reversing COORDBRK before the "
+                                "image surface)")
+    if not kept:
+        p.fail(img.line, "no lens surface between the object and the image surface")
+    if stop_idx is None:
+        p.fail(0, "no STOP line: the lens has no aperture stop")
+    if img.type != "STANDARD" or img.curv != 0:
+        p.note(img.line, "the image surface is not flat: deeplens uses a flat sensor at its "
+                         "vertex")
+    surfaces = [k_[0] for k_ in kept]
+    distances = [0.0] + [k_[3] for k_ in kept[1:]]
+    if not math.isinf(obj_dist):
+        obj_dist += kept[0][3]   # dummy thickness in front of the first surface
+    d_sensor = gap
+    sensor_sd = img.diam * s_mm if img.diam > 0 else None
+
+    # ---- elements: bracketed groups, then deeplens' default grouping for the rest
+    elements = _elements(kept, media, groups, p)
+
+    # ---- aperture
+    ap = sysd["aperture"]
+    if ap is None:
+        p.fail(0, "no system aperture (ENPD, FNUM or FLOA line)")
+    ap_type, ap_value, ap_line = ap
+    if ap_type == "epd":
+        ap_value *= s_mm
+    if ap_type != "stop" and not isinstance(surfaces[stop_idx], Aperture):
+        p.fail(ap_line, f"an {'ENPD' if ap_type == 'epd' else 'FNUM'} aperture needs the stop "
+                        f"(line {kept[stop_idx][2].line}) to be a flat surface in air")
+    if ap_type == "stop" and surfaces[stop_idx].semi_diameter is None:
+        p.fail(kept[stop_idx][2].line, "the floating stop has no semi-diameter (DIAM)")
+
+    # ---- glass wavelength ranges, before building (a clear error instead of a NaN)
+    for (surf, mat, s, _), i in zip(kept, range(len(kept))):
+        for w in waves_nm:
+            try:
+                check_wavelength_nm(w, mat)
+            except ValueError as e:
+                p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)})")
+    for w in waves_nm:
+        try:
+            check_wavelength_nm(w, obj_medium)
+        except ValueError as e:
+            p.fail(obj.glass_line or obj.line, str(e))
+
+    where_of = {i: kept[i][2].line for i in range(len(kept))}
+    try:
+        spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                        aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves_nm,
+                        primary_wavelength_nm=primary)
+        lens = Lens(surfaces, media, distances, d_sensor, stop_idx, sensor_sd, spec,
+                    elements=[(a, b) for a, b, _, _ in elements],
+                    name=sysd["name"] or path.stem)
+    except (ValueError, TypeError) as e:
+        raise ZemaxFileError(_locate(f"{path}: {e}", where_of)) from e
+    for e, (a, b, d, _) in enumerate(elements):
+        if d is not None:
+            m = lens.misalignments[e]
+            dx, dy, tx, ty = d
+            with torch.no_grad():
+                m.dx.fill_(dx)
+                m.dy.fill_(dy)
+                m.tilt_x.fill_(math.radians(tx))
+                m.tilt_y.fill_(math.radians(ty))
+
+    # ---- fields
+    fields = _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
+    try:
+        lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                             aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
+                             primary_wavelength_nm=primary)
+    except ValueError as e:
+        p.fail(sysd["yfln"][1] if sysd["yfln"] else 0, str(e))
+    for ln, msg in p.notes:
+        warnings.warn(f"{path}:{ln}: {msg}" if ln else msg, ZemaxWarning, stacklevel=2)
+    return lens
+
+
+def _locate(msg: str, where_of: dict) -> str:
+    idx = []
+    for m in re.finditer(r"\bsurfaces? (\d+)(?: and (\d+))?", msg):
+        idx += [int(g) for g in m.groups() if g is not None]
+    lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}"
+             for i in dict.fromkeys(idx) if i in where_of]
+    return msg + (f" ({'; '.join(lines)})" if lines else "")
+
+
+def _xypolynom(s: _Surf, c, sd, s_mm, p: _Parser):
+    if c != 0:
+        p.fail(s.line, "XYPOLYNOM with a base curvature (CURV != 0) is not supported: deeplens' XY "
+                       "polynomial is z = P(x, y) (put the base sphere into the polynomial)")
+    if 1 not in s.xdat or 2 not in s.xdat:
+        p.fail(s.line, "XYPOLYNOM without XDAT 1 (number of terms) and XDAT 2 (normalisation "
+                       "radius)")
+    nterms = int(s.xdat[1][0])
+    R = s.xdat[2][0] * s_mm
+    if not R > 0:
+        p.fail(s.xdat[2][1], f"XYPOLYNOM normalisation radius must be > 0, got {s.xdat[2][0]!r}")
+    # Zemax term j (1-based): degrees 1, 2, ... each from x^d down to y^d
+    zterms = [(d - i, i) for d in range(1, 64) for i in range(d + 1)]
+    if not 1 <= nterms <= len(zterms):
+        p.fail(s.xdat[1][1], f"XYPOLYNOM number of terms must be 1..{len(zterms)}, got {nterms}")
+    for j, (v, ln) in s.xdat.items():
+        if j > nterms + 2 and v != 0:
+            p.fail(ln, f"XDAT {j} lies beyond the {nterms} terms XDAT 1 declares")
+    vals = {zterms[j - 1]: s.xdat.get(j + 2, (0.0, 0))[0] for j in range(1, nterms + 1)}
+    order = sum(zterms[nterms - 1])
+    coeffs = []
+    for (px, py) in xy_terms(order):
+        a = vals.get((px, py), 0.0)
+        # A (x/R)^px (y/R)^py with lengths scaled to mm: A s_mm / R^(px+py)
+        coeffs.append(a * s_mm / R ** (px + py))
+    return XYPolynomial(sd, coeffs)
+
+
+def _elements(kept, media, groups, p):
+    """``[(first, last, misalignment or None, line)]`` covering every kept surface."""
+    out = []
+    g = {a: (a, b, d, ln) for a, b, d, ln in groups}
+    i, start = 0, 0
+    n = len(kept)
+    while i < n:
+        if i in g:
+            a, b, d, ln = g[i]
+            if start < i:
+                p.fail(ln, f"the COORDBRK on line {ln} starts inside an element (before it: "
+                           f"SURF line {kept[start][2].line}); it must bracket whole elements")
+            if not (_is_air(media[a]) and _is_air(media[b + 1])):
+                p.fail(ln, f"the COORDBRK on line {ln} does not bracket a whole element (glass "
+                           f"before its first or after its last surface)")
+            out.append((a, b, d, ln))
+            i = start = b + 1
+            continue
+        if _is_air(media[i + 1]) or isinstance(kept[i][0], Aperture):
+            out.append((start, i, None, 0))
+            start = i + 1
+        i += 1
+    if start < n:
+        out.append((start, n - 1, None, 0))
+    return out
+
+
+def _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
+    ys, _yline = sysd["yfln"] if sysd["yfln"] else ([0.0], 0)
+    xs, xline = sysd["xfln"] if sysd["xfln"] else ([0.0] * len(ys), 0)
+    if n_fields is not None:
+        ys, xs = ys[:n_fields], xs[:n_fields]
+    xs = xs + [0.0] * (len(ys) - len(xs))
+    kind = ftyp[0]
+    if any(x != 0 for x in xs):
+        p.note(xline, "XFLN: x field components are combined with y into a radial field (exact "
+                      "for a rotationally symmetric lens)")
+    if kind == 0:
+        return [math.copysign(math.degrees(math.atan(math.hypot(math.tan(math.radians(x)),
+                                                                 math.tan(math.radians(y))))),
+                              y if y != 0 else 1.0) for x, y in zip(xs, ys)]
+    from ...analysis.paraxial import paraxial  # local import: analysis builds on optics
+
+    h = [math.copysign(math.hypot(x, y), y if y != 0 else 1.0) * s_mm for x, y in zip(xs, ys)]
+    d_obj = float(lens.spec.object_distance_mm)
+    if kind == 1:
+        if math.isinf(d_obj):
+            p.fail(ftyp_line, "FTYP 1 (object height) with the object at infinity cannot be "
+                              "converted to field angles")
+        par = paraxial(lens)
+        z_ep = float(par.entrance_pupil_position)
+        return [math.degrees(math.atan(v / (d_obj + z_ep))) for v in h]
+    if kind == 2:
+        if not math.isinf(d_obj):
+            p.fail(ftyp_line, "FTYP 2 (paraxial image height) with a finite object cannot be "
+                              "converted to field angles (use angles or object heights)")
+        efl = float(paraxial(lens).efl)
+        return [math.degrees(math.atan(v / efl)) for v in h]
+    names = {3: "real image height", 4: "theodolite angle"}
+    p.fail(ftyp_line, f"FTYP {kind} ({names.get(kind, 'unknown field type')}) cannot be converted "
+                      f"to deeplens' field angles (use angle, object height or paraxial image "
+                      f"height)")
+
+
+# =========================================================================== writer
+def _f(v: float) -> str:
+    return repr(float(v))
+
+
+# deeplens catalogue name -> the name Zemax's MISC catalogue uses
+_ZEMAX_NAME = {"FUSED_SILICA": "F_SILICA", "PC": "POLYCARB"}
+
+
+def _glass_line(m: Material, cats: list) -> str | None:
+    """The ``GLAS`` line of medium ``m`` (``None`` for air); adds its catalogue to ``cats``."""
+    if isinstance(m, Air):
+        return None
+    if isinstance(m, AGFGlass):
+        if m.catalogue and m.catalogue not in cats:
+            cats.append(m.catalogue)
+        return f"GLAS {m.name} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
+    name = m.name.upper()
+    rec = GLASS_TABLE.get(name)
+    is_entry = rec is not None and (not isinstance(m, ModelGlass) or m.to_spec() == rec.name)
+    if is_entry:
+        zname = _ZEMAX_NAME.get(name, name)
+        for cat, names in BUILTIN_CATALOGUES.items():
+            if zname in names:
+                if cat not in cats:
+                    cats.append(cat)
+                return f"GLAS {zname} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
+    if isinstance(m, ModelGlass):
+        return f"GLAS ___BLANK 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
+    raise ZemaxFileError(f"material {m.name!r} ({type(m).__name__}) has no Zemax catalogue name; "
+                         f"use a catalogue glass or an n_d/V_d model glass")
+
+
+def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
+    """Write ``lens`` as a sequential Zemax ``.zmx`` file that :func:`read_zmx` reads back.
+
+    Args:
+        lens: the lens (current parameter values).
+        path: output file.
+        encoding: ``"utf-8"`` (default) or ``"utf-16"`` (OpticStudio's own, with byte-order mark).
+
+    Raises:
+        ZemaxFileError: a surface or material with no Zemax equivalent (B-spline, rectangular
+            aperture, XY polynomial with ``b != 0``, more than 7 aspheric terms), or a
+            misalignment tilting one element about both x and y.
+    """
+    spec = lens.spec
+    out = ["VERS 170912 299 123456", "MODE SEQ", f"NAME {lens.name}", "UNIT MM X W X CM MR CPMM"]
+    if spec.aperture_type == "epd":
+        out.append(f"ENPD {_f(spec.aperture_value)}")
+    elif spec.aperture_type == "fno":
+        out.append(f"FNUM {_f(spec.aperture_value)} 0")
+    else:
+        out.append("FLOA")
+    cats: list[str] = []
+    body: list[str] = []
+    nsurf = 0
+
+    def surf(lines):
+        nonlocal nsurf
+        body.append(f"SURF {nsurf}")
+        body.extend("  " + ln for ln in lines)
+        nsurf += 1
+
+    def glas(m, extra):
+        g = _glass_line(m, cats)
+        if g:
+            extra.append(g)
+
+    od = float(spec.object_distance_mm)
+    obj = ["TYPE STANDARD", "CURV 0.0", f"DISZ {'INFINITY' if math.isinf(od) else _f(od)}"]
+    glas(lens.materials[0], obj)
+    surf(obj)
+    with torch.no_grad():
+        n = len(lens.surfaces)
+        elem_of = {}
+        for e, (a, b) in enumerate(lens.elements):
+            for i in range(a, b + 1):
+                elem_of[i] = e
+        for i, s in enumerate(lens.surfaces):
+            e = elem_of[i]
+            a, b = lens.elements[e]
+            mis = lens.misalignments[e]
+            tilted = not mis.is_identity() and any(
+                float(v) != 0 for v in (mis.dx, mis.dy, mis.tilt_x, mis.tilt_y))
+            d = (float(mis.dx), float(mis.dy), math.degrees(float(mis.tilt_x)),
+                 math.degrees(float(mis.tilt_y)))
+            if tilted and i == a:
+                if d[2] != 0 and d[3] != 0:
+                    raise ZemaxFileError(f"element {e} (surfaces {a}-{b}) is tilted about both x "
+                                         f"and y; the .zmx writer maps one tilt per element")
+                surf(["TYPE COORDBRK", "CURV 0.0", "DISZ 0"] +
+                     [f"PARM {k + 1} {_f(v)}" for k, v in enumerate(d)] +
+                     ["PARM 5 0", "PARM 6 0"])
+            after = float(lens.distances[i + 1]) if i + 1 < n else float(lens.d_sensor)
+            inner = sum(float(lens.distances[j]) for j in range(a + 1, b + 1))
+            gap = -inner if tilted and i == b else after   # back to the first vertex
+            lines = _surface_lines(s, i, lens.stop_index == i)
+            lines.append(f"DISZ {_f(gap)}")
+            glas(lens.materials[i + 1], lines)
+            surf(lines)
+            if tilted and i == b:
+                surf(["TYPE COORDBRK", "CURV 0.0", f"DISZ {_f(inner + after)}"] +
+                     [f"PARM {k + 1} {_f(-v)}" for k, v in enumerate(d)] +
+                     ["PARM 5 0", "PARM 6 1"])
+    img = ["TYPE STANDARD", "CURV 0.0", "DISZ 0"]
+    if lens.sensor_semi_diameter is not None:
+        img.append(f"DIAM {_f(lens.sensor_semi_diameter)} 1 0 0 1 \"\"")
+    surf(img)
+    nf, nw = len(spec.fields_deg), len(spec.wavelengths_nm)
+    out.append("GCAT " + " ".join(cats or ["SCHOTT"]))
+    out.append(f"FTYP 0 0 {nf} {nw} 0 0 0")
+    out.append("XFLN " + " ".join("0" for _ in spec.fields_deg))
+    out.append("YFLN " + " ".join(_f(f) for f in spec.fields_deg))
+    for k, w in enumerate(spec.wavelengths_nm, start=1):
+        out.append(f"WAVM {k} {_f(float(w) / 1000.0)} 1")
+    prim = [float(w) for w in spec.wavelengths_nm]
+    pw = float(spec.primary_wavelength_nm)
+    if pw in prim:
+        out.append(f"PWAV {prim.index(pw) + 1}")
+    else:
+        raise ZemaxFileError(f"the primary wavelength {pw} nm is not one of the lens's "
+                             f"wavelengths {prim}: Zemax's PWAV picks one of them")
+    text = "\n".join(out + body) + "\n"
+    Path(path).write_text(text, encoding=encoding)
+
+
+def _surface_lines(s, i, is_stop) -> list[str]:
+    from ..surfaces import BSpline
+
+    lines = ["STOP"] if is_stop else []
+    sd = s.semi_diameter
+    sd = None if sd is None else float(sd)
+    if isinstance(s, Aperture):
+        if s.shape != "circle":
+            raise ZemaxFileError(f"surface {i}: a rectangular aperture has no .zmx equivalent "
+                                 f"in this writer")
+        lines += ["TYPE STANDARD", "CURV 0.0"]
+        if sd is not None:
+            lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        return lines
+    if isinstance(s, Plane):
+        return lines + ["TYPE STANDARD", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+    if isinstance(s, Asphere):
+        a = [float(v) for v in s.a]
+        if len(a) > 7:
+            raise ZemaxFileError(f"surface {i}: {len(a)} aspheric terms; Zemax's EVENASPH holds "
+                                 f"a4..a16 (7 terms)")
+        lines += ["TYPE EVENASPH" if a else "TYPE STANDARD", f"CURV {_f(s.c)}",
+                  f"CONI {_f(s.k)}"]
+        if a:
+            lines.append("PARM 1 0")
+            lines += [f"PARM {k + 2} {_f(v)}" for k, v in enumerate(a)]
+        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        return lines
+    if isinstance(s, XYPolynomial):
+        if float(s.b) != 0:
+            raise ZemaxFileError(f"surface {i}: an XY polynomial with b != 0 (z² term) has no "
+                                 f"XYPOLYNOM equivalent")
+        vals = {t: float(v) for t, v in zip(s.terms, s.a)}
+        if vals.get((0, 0), 0.0) != 0:
+            raise ZemaxFileError(f"surface {i}: an XY polynomial with a constant term has no "
+                                 f"XYPOLYNOM equivalent")
+        R = sd
+        zterms = [(d - k, k) for d in range(1, s.order + 1) for k in range(d + 1)]
+        lines += ["TYPE XYPOLYNOM", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\"",
+                  f"XDAT 1 {len(zterms)}", f"XDAT 2 {_f(R)}"]
+        lines += [f"XDAT {j + 3} {_f(vals.get(t, 0.0) * R ** sum(t))}"
+                  for j, t in enumerate(zterms)]
+        return lines
+    if isinstance(s, BSpline):
+        raise ZemaxFileError(f"surface {i}: a B-spline surface has no .zmx equivalent")
+    raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent")
