@@ -75,11 +75,13 @@ class PupilTrace:
 
 
 def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tensor,
-                image_plane="sensor", check: bool = True) -> PupilTrace:
+                image_plane="sensor", check: bool = True, options=None) -> PupilTrace:
     """Trace normalised entrance-pupil points ``pupil`` (..., 2) of one field to the image plane.
 
     The optical paths include the plane-wave launch correction of the module docstring, so
     differences of ``opl`` are optical path differences.  Gradients flow to the lens.
+    ``options`` (:class:`~deeplens.optics.intersect.IntersectOptions`) e.g. to ignore clear
+    apertures.
 
     Raises:
         AnalysisError: a wavelength outside a medium's range or a field beyond the lens's reach.
@@ -101,7 +103,7 @@ def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tenso
     n0 = lens.materials[0].n(rays.wavelength[:1])[0]
     n_img = lens.materials[-1].n(rays.wavelength[:1])[0]
     start_phase = n0 * ((rays.o - rays.o[:1]) * rays.d).sum(-1)
-    out = lens.trace_to_sensor(rays, z_image=z_img)
+    out = lens.trace_to_sensor(rays, z_image=z_img, options=options)
     if not bool(out.valid[0]):
         raise AnalysisError(f"the chief ray of field {field_deg:g} deg at {w:g} nm does not reach "
                             f"the image plane")
