@@ -12,7 +12,7 @@ With reduced angles ``ν = n u`` a paraxial ray ``(y, ν)`` is refracted at surf
 
 Pupils are images of the stop (at any conjugate the same planes); the marginal ray from the axial
 object point to the rim of the stop fixes the object- and image-space numerical apertures, the
-working F-number ``1 / (2 NA')`` and, with a chief ray, the paraxial magnification ``m = y'/y``.
+paraxial working F-number ``1 / (2 n' u')`` and, with a chief ray, the paraxial magnification ``m = y'/y``.
 Every value is a differentiable torch scalar (mm, or dimensionless), at one wavelength (nm).
 """
 
@@ -118,7 +118,8 @@ class Pupils:
 
     Positions are absolute ``z`` (mm); diameters in mm.  ``object_na`` is ``n sin U`` of the
     paraxial marginal ray (0 for an object at infinity), ``image_na`` the image-space one,
-    ``working_fno = 1 / (2 image_na)`` and ``pupil_magnification = D_xp / D_ep``."""
+    ``working_fno = 1 / (2 n' |u'|)`` the paraxial working F-number (``EFL / EPD`` at infinity;
+    Zemax's "paraxial working F/#") and ``pupil_magnification = D_xp / D_ep``."""
 
     entrance_z: torch.Tensor
     entrance_diameter: torch.Tensor
@@ -175,7 +176,7 @@ def pupils(lens, wavelength_nm: float | None = None,
     na_img = n[-1] * torch.sin(torch.atan((nu1 / n[-1]).abs()))
     return Pupils(entrance_z=p.entrance_pupil_z, entrance_diameter=2 * r_ep, exit_z=z_xp,
                   exit_diameter=2 * r_xp, pupil_magnification=r_xp / r_ep, object_na=na_obj,
-                  image_na=na_img, working_fno=1.0 / (2.0 * na_img), image_z=image_z,
+                  image_na=na_img, working_fno=1.0 / (2.0 * nu1.abs()), image_z=image_z,
                   object_distance_mm=s, wavelength_nm=w)
 
 
