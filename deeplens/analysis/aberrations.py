@@ -28,14 +28,15 @@ from dataclasses import dataclass
 
 import torch
 
+from ..optics.intersect import IntersectOptions
 from ..optics.sampling import field_rays
 from .checks import AnalysisError, check_field, check_wavelength
 from .paraxial import chief_ray_scale, paraxial
 from .spot import chief_ray, image_plane_z
-from .wavefront import pupil_grid, trace_pupil
+from .wavefront import launch, pupil_grid, trace_pupil
 
 __all__ = ["RayFan", "ray_fan", "field_curvature", "distortion", "lateral_color",
-           "longitudinal_color", "vignetting"]
+           "longitudinal_color", "vignetting", "real_chief_ray", "chief_heights"]
 
 
 def _waves(lens, wavelengths_nm):
@@ -51,6 +52,42 @@ def _fields(lens, fields_deg):
 def _aim(aim):
     if aim not in ("real", "paraxial"):
         raise ValueError(f"aim must be 'real' or 'paraxial', got {aim!r}")
+
+
+def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor"):
+    """Height ``(,)`` mm on the image plane of the real chief ray (through the stop centre) and
+    its entrance-pupil-plane height ``y_p`` (mm), both differentiable.
+
+    ``y_p`` is found without gradients (:func:`~deeplens.analysis.spot.chief_ray`), then one
+    differentiable Newton step ``y_p - h(y_p)/h'`` on the stop height ``h`` (``h = 0`` at the
+    solution, ``h'`` detached) carries the implicit derivative ``-∂h/∂θ / h'`` to the lens."""
+    dtype = lens.distances[0].dtype
+    _, y1 = chief_ray(lens, field_deg, wavelength_nm, image_plane)
+    p = paraxial(lens)
+    z = lens.z_vertices()
+    n = lens.indices(torch.tensor(wavelength_nm, dtype=dtype))
+    aim = IntersectOptions(clip_aperture=False)
+
+    def stop_h(yp):
+        rays = launch(lens, field_deg, wavelength_nm,
+                      torch.stack([torch.zeros_like(yp), yp])[None], p.entrance_pupil_z)
+        for i in range(lens.stop_index + 1):
+            rays = lens.trace_surface(i, rays, n[i], n[i + 1], z, aim,
+                                      refract_=i < lens.stop_index)
+        return rays.o[0, 1]
+
+    eps = 1e-6 * max(float(p.entrance_pupil_diameter), 1e-3)
+    y0 = torch.tensor(y1, dtype=dtype)
+    with torch.no_grad():
+        slope = (stop_h(y0 + eps) - stop_h(y0 - eps)) / (2 * eps)
+    yp = y0 - stop_h(y0) / slope
+    rays = launch(lens, field_deg, wavelength_nm, torch.stack([torch.zeros_like(yp), yp])[None],
+                  p.entrance_pupil_z)
+    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane))
+    if not bool(out.valid[0]):
+        raise AnalysisError(f"the real chief ray of field {field_deg:g} deg at "
+                            f"{wavelength_nm:g} nm does not reach the image")
+    return out.o[0, 1], yp
 
 
 def _chief_pupil(lens, field_deg, wavelength_nm, aim):
@@ -138,10 +175,7 @@ def distortion(lens, fields_deg=None, wavelength_nm: float | None = None,
             p = paraxial(lens)
             check_field(lens, f, w, float(p.entrance_pupil_z),
                         0.5 * float(p.entrance_pupil_diameter))
-            y, _ = chief_ray(lens, f, w, image_plane)
-            if math.isnan(float(y)):
-                raise AnalysisError(f"the real chief ray of field {f:g} deg does not reach the "
-                                    f"image")
+            y, _ = real_chief_ray(lens, f, w, image_plane)
         else:
             y = trace_pupil(lens, f, w, torch.zeros(1, 2, dtype=kappa.dtype),
                             image_plane).chief_point[1]
@@ -160,7 +194,7 @@ def chief_heights(lens, fields_deg=None, wavelength_nm=None, image_plane="sensor
     out = []
     for f in _fields(lens, fields_deg):
         if aim == "real":
-            y, _ = chief_ray(lens, f, w, image_plane)
+            y, _ = real_chief_ray(lens, f, w, image_plane)
         else:
             y = trace_pupil(lens, f, w, torch.zeros(1, 2, dtype=dtype),
                             image_plane).chief_point[1]

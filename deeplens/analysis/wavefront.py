@@ -20,7 +20,7 @@ Zernike polynomials on the unit disk (``ρ = |p|``, ``θ = atan2(p_y, p_x)``):
 ``Z_n^m = N_n^m R_n^|m|(ρ) cos(mθ)`` (``m ≥ 0``) or ``sin(|m|θ)`` (``m < 0``) with
 ``R_n^m(ρ) = Σ_k (-1)^k (n-k)! / (k! ((n+m)/2-k)! ((n-m)/2-k)!) ρ^(n-2k)``;
 "standard" is the OSA/ANSI order ``j = (n(n+2)+m)/2`` (from 0) with ``N = sqrt(2(n+1)/(1+δ_m0))``
-(unit RMS over the disk); "fringe" is the Fringe/University-of-Arizona order (from 1) with
+(unit RMS over the disk); "fringe" is the Fringe/University-of-Arizona order (terms 1..37) with
 ``N = 1``.  The fit is least squares over the valid samples.
 
 RMS and peak-to-valley are in waves, piston removed:
@@ -35,12 +35,13 @@ from dataclasses import dataclass
 
 import torch
 
-from ..optics.sampling import field_rays
+from ..optics.rays import Rays
+from ..optics.sampling import start_plane_z
 from .checks import AnalysisError, check_field, check_wavelength
 from .paraxial import exit_pupil, paraxial
 from .spot import image_plane_z
 
-__all__ = ["PupilTrace", "trace_pupil", "pupil_grid", "Wavefront", "wavefront",
+__all__ = ["PupilTrace", "trace_pupil", "launch", "pupil_grid", "Wavefront", "wavefront",
            "zernike_basis", "zernike_fit", "zernike_nm", "ZernikeFit"]
 
 
@@ -90,15 +91,15 @@ def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tenso
     if check:
         check_wavelength(lens, w)
     p = paraxial(lens)
-    z_ep = float(p.entrance_pupil_z)
-    r_ep = 0.5 * p.entrance_pupil_diameter.detach()
+    z_ep = p.entrance_pupil_z
+    r_ep = 0.5 * p.entrance_pupil_diameter
     if check:
-        check_field(lens, field_deg, w, z_ep, float(r_ep))
+        check_field(lens, field_deg, w, float(z_ep), float(r_ep))
     shape = pupil.shape[:-1]
     flat = pupil.reshape(-1, 2).to(lens.distances[0])
     zero = torch.zeros(1, 2, dtype=flat.dtype, device=flat.device)
     xy = torch.cat([zero, flat], 0) * r_ep
-    rays = field_rays(lens, field_deg, w, xy, z_ep)
+    rays = launch(lens, field_deg, w, xy, z_ep)
     z_img = image_plane_z(lens, image_plane)
     n0 = lens.materials[0].n(rays.wavelength[:1])[0]
     n_img = lens.materials[-1].n(rays.wavelength[:1])[0]
@@ -113,6 +114,31 @@ def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tenso
                       mask=out.valid[1:].reshape(shape), chief_point=out.o[0],
                       chief_direction=out.d[0], chief_opl=opl[0], n_image=n_img,
                       z_image=torch.as_tensor(z_img), field_deg=float(field_deg), wavelength_nm=w)
+
+
+def launch(lens, field_deg: float, wavelength_nm: float, xy: torch.Tensor,
+           z_pupil: torch.Tensor) -> Rays:
+    """Object-space rays of one field through points ``xy`` (M, 2) mm of the plane ``z_pupil``.
+
+    The geometry of :func:`deeplens.optics.sampling.field_rays`, written with tensors so that
+    gradients also flow through the pupil plane's position and size (which move with the lens).
+    """
+    dtype, device = xy.dtype, xy.device
+    s = float(lens.spec.object_distance_mm)
+    th = math.radians(field_deg)
+    z_start = start_plane_z(lens)
+    M = xy.shape[0]
+    zp = torch.as_tensor(z_pupil, dtype=dtype, device=device)
+    P = torch.cat([xy, zp.expand(M, 1)], -1)
+    if math.isinf(s):
+        d = torch.tensor([0.0, math.sin(th), math.cos(th)], dtype=dtype, device=device)
+        o = P + ((z_start - zp) / math.cos(th)) * d
+        return Rays(o, d.expand(M, 3), wavelength_nm)
+    z_obj = lens.z_vertices()[0].to(dtype) - s
+    Q = torch.stack([torch.zeros_like(zp), -math.tan(th) * (zp - z_obj), z_obj])
+    d = P - Q
+    d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+    return Rays(Q.expand(M, 3), d, wavelength_nm)
 
 
 def _back_to_sphere(X, d, C, R):
@@ -195,8 +221,10 @@ def zernike_nm(j: int, ordering: str = "fringe") -> tuple[int, int]:
         m = 2 * j - n * (n + 2)
         return n, m
     if ordering == "fringe":
-        if j < 1:
-            raise ValueError(f"fringe Zernike indices start at 1, got {j}")
+        if not 1 <= j <= 37:
+            raise ValueError(f"fringe Zernike indices run from 1 to 37, got {j}")
+        if j == 37:
+            return 12, 0  # the set's extra term after the complete shells 1..36
         # fringe index of (n, m): (N+1)^2 - 2|m| + (m < 0), N = (n + |m|)/2; search the shell
         N = int(math.ceil(math.sqrt(j))) - 1
         for am in range(N + 1):
