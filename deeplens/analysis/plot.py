@@ -161,7 +161,7 @@ def fan_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     return fig
 
 
-def _field_axis(lens, fields_deg, n=15):
+def _field_axis(lens, fields_deg, n=9):
     fields = _fields(lens, fields_deg)
     fmax = max(abs(f) for f in fields)
     return [fmax * k / (n - 1) for k in range(n)]
