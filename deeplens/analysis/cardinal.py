@@ -12,7 +12,8 @@ With reduced angles ``ν = n u`` a paraxial ray ``(y, ν)`` is refracted at surf
 
 Pupils are images of the stop (at any conjugate the same planes); the marginal ray from the axial
 object point to the rim of the stop fixes the object- and image-space numerical apertures, the
-paraxial working F-number ``1 / (2 n' u')`` and, with a chief ray, the paraxial magnification ``m = y'/y``.
+paraxial working F-number ``1 / (2 n' u')`` and, with a chief ray, the paraxial magnification
+``m = y'/y``.
 Every value is a differentiable torch scalar (mm, or dimensionless), at one wavelength (nm).
 """
 

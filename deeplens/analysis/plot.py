@@ -8,7 +8,6 @@ labelled.
 
 from __future__ import annotations
 
-import math
 
 import torch
 

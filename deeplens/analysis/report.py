@@ -180,7 +180,8 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                 r = torch.linspace(0, 20 * 1.22 * prim * 1e-6 * fno, 201, dtype=torch.float64)
                 for f in fields:
                     ee = encircled_energy(lens, f, r, prim, n=48, image_plane=image_plane)
-                    i = int(torch.searchsorted(ee.contiguous(), torch.tensor([0.8], dtype=ee.dtype)))
+                    i = int(torch.searchsorted(ee.contiguous(),
+                                               torch.tensor([0.8], dtype=ee.dtype)))
                     r80 = None
                     if 0 < i < len(r):
                         a = (0.8 - float(ee[i - 1])) / max(float(ee[i] - ee[i - 1]), 1e-30)
