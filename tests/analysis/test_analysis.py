@@ -109,6 +109,25 @@ def test_thick_lens_principal_planes():
     assert 1 / s_img + 1 / s == pytest.approx(1 / f, rel=1e-10)
 
 
+def test_single_surface_nodal_points():
+    """One refracting sphere from air into glass: principal points at the vertex, nodal points
+    at the centre of curvature, f' = n' R / (n' - n), f = -n R / (n' - n)."""
+    from deeplens.optics.lens import Lens
+    from deeplens.optics.materials import get_material
+
+    R = 20.0
+    lens = Lens([Asphere(1 / R, 8.0)], [get_material("AIR"), get_material("N-BK7")], [0.0], 60.0,
+                0).double()
+    n2 = float(lens.materials[1].n(torch.tensor(WL, dtype=torch.float64)))
+    c = cardinal_points(lens, WL)
+    assert float(c.efl) == pytest.approx(n2 * R / (n2 - 1), rel=1e-12)
+    assert float(c.front_focal_length) == pytest.approx(-R / (n2 - 1), rel=1e-12)
+    assert float(c.front_principal_z) == pytest.approx(0.0, abs=1e-12)
+    assert float(c.rear_principal_z) == pytest.approx(0.0, abs=1e-12)
+    assert float(c.front_nodal_z) == pytest.approx(R, abs=1e-10)
+    assert float(c.rear_nodal_z) == pytest.approx(R, abs=1e-10)
+
+
 # ----------------------------------------------------------------------------- diffraction
 def _airy_mtf(v):
     v = min(v, 1.0)
@@ -133,6 +152,18 @@ def test_diffraction_limited_mtf_strehl_ee(slow_acl):
     ee = encircled_energy(slow_acl, 0.0, [r0, 3 * r0], WL, n=32, image_plane="paraxial")
     assert float(ee[0]) == pytest.approx(0.838, abs=0.02)
     assert float(ee[1]) == pytest.approx(0.952, abs=0.02)  # Airy: third dark ring ~3.24 r0
+
+
+def test_mtf_at_equals_fft_mtf_off_axis(dg):
+    """At the FFT's own frequencies the direct transform reproduces it exactly (at 14 deg the
+    tangential and sagittal frequency steps differ by 5 %)."""
+    m = mtf(dg, 14.0, WL, n=16)
+    assert abs(float(m.freq_t[1] / m.freq_s[1]) - 1) > 0.03
+    for k in (3, 7):
+        t = mtf_at(dg, 14.0, float(m.freq_t[k]), WL, "tangential", n=16)
+        s = mtf_at(dg, 14.0, float(m.freq_s[k]), WL, "sagittal", n=16)
+        assert float(t) == pytest.approx(float(m.mtf_t[k]), abs=1e-9)
+        assert float(s) == pytest.approx(float(m.mtf_s[k]), abs=1e-9)
 
 
 def test_strehl_marechal(slow_acl):
