@@ -107,6 +107,11 @@ def test_thick_lens_principal_planes():
     q = pupils(lens, WL, object_distance_mm=s - float(c.front_principal_z))
     s_img = float(q.image_z - c.rear_principal_z)
     assert 1 / s_img + 1 / s == pytest.approx(1 / f, rel=1e-10)
+    # marginal ray from the axial object point to the EP rim; Lagrange: u' = u / m (in air)
+    u = float(q.entrance_diameter) / 2 / (float(q.entrance_z) + s - float(c.front_principal_z))
+    assert float(q.object_na) == pytest.approx(math.sin(math.atan(u)), rel=1e-10)
+    assert float(q.image_na) == pytest.approx(math.sin(math.atan(u / abs(float(m)))), rel=1e-10)
+    assert float(q.working_fno) == pytest.approx(abs(float(m)) / (2 * u), rel=1e-10)
 
 
 def test_single_surface_nodal_points():
