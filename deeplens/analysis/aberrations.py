@@ -65,7 +65,8 @@ def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="se
     _, y1 = chief_ray(lens, field_deg, wavelength_nm, image_plane)
     p = paraxial(lens)
     z = lens.z_vertices()
-    n = lens.indices(torch.tensor(wavelength_nm, dtype=dtype))
+    dev = lens.distances[0].device
+    n = lens.indices(torch.tensor(wavelength_nm, dtype=dtype, device=dev))
     aim = IntersectOptions(clip_aperture=False)
 
     def stop_h(yp):
@@ -77,7 +78,7 @@ def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="se
         return rays.o[0, 1]
 
     eps = 1e-6 * max(float(p.entrance_pupil_diameter), 1e-3)
-    y0 = torch.tensor(y1, dtype=dtype)
+    y0 = torch.tensor(y1, dtype=dtype, device=dev)
     with torch.no_grad():
         slope = (stop_h(y0 + eps) - stop_h(y0 - eps)) / (2 * eps)
     yp = y0 - stop_h(y0) / slope
@@ -114,7 +115,7 @@ def ray_fan(lens, field_deg: float, wavelengths_nm=None, n: int = 41,
     """Tangential and sagittal ray fans of one field (see the module docstring)."""
     waves = _waves(lens, wavelengths_nm)
     dtype = lens.distances[0].dtype
-    p = torch.linspace(-1.0, 1.0, n, dtype=dtype)
+    p = torch.linspace(-1.0, 1.0, n, dtype=dtype, device=lens.distances[0].device)
     zero = torch.zeros_like(p)
     tang = torch.stack([zero, p], -1)
     sag = torch.stack([p, zero], -1)
@@ -148,7 +149,7 @@ def field_curvature(lens, fields_deg=None, wavelength_nm: float | None = None,
     for f in _fields(lens, fields_deg):
         pc = _chief_pupil(lens, f, w, aim)
         pts = torch.tensor([[0.0, pc - delta], [0.0, pc + delta], [-delta, pc], [delta, pc]],
-                           dtype=dtype)
+                           dtype=dtype, device=lens.distances[0].device)
         tr = trace_pupil(lens, f, w, pts, image_plane)
         if not bool(tr.mask.all()):
             raise AnalysisError(f"the parabasal rays of field {f:g} deg are vignetted")
@@ -177,7 +178,7 @@ def distortion(lens, fields_deg=None, wavelength_nm: float | None = None,
                         0.5 * float(p.entrance_pupil_diameter))
             y, _ = real_chief_ray(lens, f, w, image_plane)
         else:
-            y = trace_pupil(lens, f, w, torch.zeros(1, 2, dtype=kappa.dtype),
+            y = trace_pupil(lens, f, w, torch.zeros(1, 2, dtype=kappa.dtype, device=kappa.device),
                             image_plane).chief_point[1]
         ypar = kappa * math.tan(math.radians(f))
         out.append(100.0 * (y - ypar) / ypar)
@@ -196,7 +197,8 @@ def chief_heights(lens, fields_deg=None, wavelength_nm=None, image_plane="sensor
         if aim == "real":
             y, _ = real_chief_ray(lens, f, w, image_plane)
         else:
-            y = trace_pupil(lens, f, w, torch.zeros(1, 2, dtype=dtype),
+            zero = torch.zeros(1, 2, dtype=dtype, device=lens.distances[0].device)
+            y = trace_pupil(lens, f, w, zero,
                             image_plane).chief_point[1]
         out.append(y)
     return torch.stack(out)
@@ -228,7 +230,7 @@ def vignetting(lens, fields_deg=None, wavelength_nm: float | None = None, n: int
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
     dtype = lens.distances[0].dtype
-    g = pupil_grid(n, dtype)
+    g = pupil_grid(n, dtype, lens.distances[0].device)
     g = g[(g ** 2).sum(-1) <= 1.0 + 1e-12]
     p = paraxial(lens)
     z_ep, r_ep = float(p.entrance_pupil_z), 0.5 * float(p.entrance_pupil_diameter)
@@ -243,4 +245,4 @@ def vignetting(lens, fields_deg=None, wavelength_nm: float | None = None, n: int
     if t0 == 0.0:
         raise AnalysisError(f"no on-axis ray at {w:g} nm reaches the image")
     return torch.tensor([1.0 - transmitted(f) / t0 for f in _fields(lens, fields_deg)],
-                        dtype=dtype)
+                        dtype=dtype, device=lens.distances[0].device)

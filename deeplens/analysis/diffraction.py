@@ -265,7 +265,8 @@ def encircled_energy(lens, field_deg: float, radii_mm, wavelength_nm: float | No
     ``method="diffraction"`` integrates the FFT PSF (pixels counted by their centres, the PSF
     grid must be large enough to hold the energy: ``grid = 4n`` here); ``"geometric"`` counts
     the rays of a ``hexapolar`` spot."""
-    r = torch.as_tensor(radii_mm, dtype=lens.distances[0].dtype).reshape(-1)
+    r = torch.as_tensor(radii_mm, dtype=lens.distances[0].dtype,
+                        device=lens.distances[0].device).reshape(-1)
     if method == "geometric":
         wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
         s = spot_diagram(lens, field_deg, wl, "hexapolar:30", pupil="paraxial",

@@ -177,7 +177,8 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
             elif k == "ee":
                 rows = []
                 fno = float(pupils(lens, prim).working_fno)
-                r = torch.linspace(0, 20 * 1.22 * prim * 1e-6 * fno, 201, dtype=torch.float64)
+                r = torch.linspace(0, 20 * 1.22 * prim * 1e-6 * fno, 201, dtype=torch.float64,
+                                   device=lens.distances[0].device)
                 for f in fields:
                     ee = encircled_energy(lens, f, r, prim, n=48, image_plane=image_plane)
                     i = int(torch.searchsorted(ee.contiguous(),
