@@ -52,17 +52,18 @@ def main():
             last = float(ours[-1])
         dopd = drms = dm = rmsmax = 0.0
         for f in spec["fields_deg"]:
-            w = wavefront(lens, f, T.WL, n=T.N_PUPIL, image_plane="paraxial")
-            ref, ok, _ = T._optiland_opd(op, f / fmax)
+            n = T.N_PUPILS[name]
+            w = wavefront(lens, f, T.WL, n=n, image_plane="paraxial")
+            ref, ok, _ = T._optiland_opd(op, f / fmax, n)
             inside = (w.pupil ** 2).sum(-1) <= 1 + 1e-12
             o, mk = w.opd[inside].numpy(), w.mask[inside].numpy()
             dopd = max(dopd, float(np.abs(o[mk] - ref[ok]).max()))
             r = ref[ok]
             drms = max(drms, abs(float(w.rms) - math.sqrt(((r - r.mean()) ** 2).mean())))
             rmsmax = max(rmsmax, float(w.rms))
-            mm = mtf(lens, f, T.WL, n=T.N_PUPIL, image_plane="paraxial")
+            mm = mtf(lens, f, T.WL, n=n, image_plane="paraxial")
             oo = T._quiet(FFTMTF, op, fields=[(0.0, f / fmax)], wavelength=T.WL / 1e3,
-                          num_rays=T.N_PUPIL, grid_size=2 * T.N_PUPIL)
+                          num_rays=n, grid_size=2 * n)
             dm = max(dm, float(np.abs(mm.mtf_t.numpy() - np.asarray(oo.mtf[0][0], float)).max()),
                      float(np.abs(mm.mtf_s.numpy() - np.asarray(oo.mtf[0][1], float)).max()))
         print(f"| {name} | {'/'.join(f'{f:g}' for f in spec['fields_deg'])} | {last:.4f} % | "

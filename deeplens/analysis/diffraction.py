@@ -42,7 +42,7 @@ from .checks import AnalysisError
 from .spot import spot_diagram
 from .wavefront import Wavefront, pupil_grid, trace_pupil, wavefront
 
-__all__ = ["PSF", "psf_fft", "psf_huygens", "strehl", "MTF", "mtf", "mtf_at", "geometric_mtf",
+__all__ = ["PSF", "psf_fft", "sampled_wavefront", "psf_huygens", "strehl", "MTF", "mtf", "mtf_at", "geometric_mtf",
            "encircled_energy", "frequency_steps"]
 
 
@@ -85,25 +85,78 @@ class PSF:
     method: str
 
 
-def _check_sizes(n, grid):
-    if n < 8:
-        raise ValueError(f"pupil sampling n must be >= 8, got {n}")
-    if grid < 2 * n - 1:
-        raise ValueError(f"FFT grid {grid} is too small for a pupil of {n} samples: use at least "
-                         f"2n ({2 * n}) or the MTF aliases")
+MAX_STEP_WAVES = 0.5  # Nyquist for the pupil phase: < π between neighbouring samples
+AUTO_STEP_WAVES = 0.4
+MAX_AUTO_SAMPLES = 512
 
 
-def psf_fft(lens, field_deg: float, wavelength_nm: float | None = None, n: int = 64,
+def _max_step(wf: Wavefront) -> float:
+    """Largest change of the wavefront (waves) between neighbouring valid pupil samples."""
+    with torch.no_grad():
+        W, m = wf.opd, wf.mask
+        dy = ((W[1:] - W[:-1]).abs() * (m[1:] & m[:-1])).max()
+        dx = ((W[:, 1:] - W[:, :-1]).abs() * (m[:, 1:] & m[:, :-1])).max()
+    return float(torch.maximum(dx, dy))
+
+
+def sampled_wavefront(lens, field_deg: float, wavelength_nm: float, n: int | None = None,
+                      image_plane="sensor") -> Wavefront:
+    """The wavefront on a pupil grid fine enough for an FFT PSF.
+
+    The pupil phase must change by less than half a wave between neighbouring samples, or light
+    from the steep parts of the pupil wraps around the PSF grid (aliasing).  ``n=None`` picks
+    the samples per side from a 64-sample trial (neighbour steps below 0.4 waves, at most 512);
+    an explicit ``n`` is checked.
+
+    Raises:
+        AnalysisError: the wavefront is too steep for ``n`` (or for 512 samples), with the
+            measured step and the sampling it would need.
+    """
+    if n is not None:
+        if n < 8:
+            raise ValueError(f"pupil sampling n must be >= 8, got {n}")
+        wf = wavefront(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane)
+        step = _max_step(wf)
+        if step > MAX_STEP_WAVES:
+            need = int(math.ceil(n * step / AUTO_STEP_WAVES))
+            raise AnalysisError(
+                f"field {field_deg:g} deg at {wavelength_nm:g} nm: the wavefront changes by "
+                f"{step:.3g} waves between neighbouring pupil samples (n = {n}); the FFT PSF "
+                f"aliases above {MAX_STEP_WAVES} waves: use n >= {need} (or n=None)")
+        return wf
+    wf = wavefront(lens, field_deg, wavelength_nm, n=64, image_plane=image_plane)
+    step = _max_step(wf)
+    if step <= AUTO_STEP_WAVES:
+        return wf
+    need = 2 * int(math.ceil(64 * step / AUTO_STEP_WAVES / 2))
+    if need > MAX_AUTO_SAMPLES:
+        raise AnalysisError(
+            f"field {field_deg:g} deg at {wavelength_nm:g} nm: the wavefront ({float(wf.rms):.4g} "
+            f"waves RMS) would need {need} pupil samples per side for an FFT PSF (at most "
+            f"{MAX_AUTO_SAMPLES}); the lens is far from the diffraction limit here: use the "
+            f"geometric MTF / spot, or pass n explicitly")
+    return wavefront(lens, field_deg, wavelength_nm, n=need, image_plane=image_plane)
+
+
+def psf_fft(lens, field_deg: float, wavelength_nm: float | None = None, n: int | None = None,
             grid: int | None = None, image_plane="sensor") -> PSF:
     """FFT PSF of one field and wavelength (see the module docstring); differentiable.
 
     Args:
-        n: pupil samples per side; grid: FFT size (default ``2n``).
+        n: pupil samples per side (``None``: chosen by :func:`sampled_wavefront`).
+        grid: FFT size (default ``2n``).
+
+    Raises:
+        AnalysisError: a field beyond reach, a wavelength out of range, or a pupil too coarse
+            for the wavefront (:func:`sampled_wavefront`).
     """
     wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
+    wf = sampled_wavefront(lens, field_deg, wl, n, image_plane)
+    n = wf.opd.shape[0]
     grid = 2 * n if grid is None else int(grid)
-    _check_sizes(n, grid)
-    wf = wavefront(lens, field_deg, wl, n=n, image_plane=image_plane)
+    if grid < 2 * n - 1:
+        raise ValueError(f"FFT grid {grid} is too small for a pupil of {n} samples: use at least "
+                         f"2n ({2 * n}) or the MTF aliases")
     A = wf.mask.to(wf.opd.dtype)
     phase = -2 * math.pi * wf.opd
     P = torch.complex(A * torch.cos(phase), A * torch.sin(phase))
@@ -166,7 +219,7 @@ def psf_huygens(lens, field_deg: float, wavelength_nm: float | None = None, n: i
     return PSF(psf, k, k, C, psf.max(), wf, "huygens")
 
 
-def strehl(lens, field_deg: float, wavelength_nm: float | None = None, n: int = 64,
+def strehl(lens, field_deg: float, wavelength_nm: float | None = None, n: int | None = None,
            image_plane="sensor") -> torch.Tensor:
     """Strehl ratio: the FFT PSF's peak over the aberration-free peak (differentiable)."""
     return psf_fft(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane).strehl
@@ -197,11 +250,12 @@ class MTF:
         return interp(self.freq_t, self.mtf_t), interp(self.freq_s, self.mtf_s)
 
 
-def mtf(lens, field_deg: float, wavelength_nm: float | None = None, n: int = 64,
+def mtf(lens, field_deg: float, wavelength_nm: float | None = None, n: int | None = None,
         grid: int | None = None, image_plane="sensor") -> MTF:
     """Diffraction MTF by FFT of the FFT PSF, tangential (``y``) and sagittal (``x``) slices
     from zero to ``grid/2`` steps (the cut-off lies at ``N - 1`` steps)."""
     p = psf_fft(lens, field_deg, wavelength_nm, n=n, grid=grid, image_plane=image_plane)
+    n = p.wavefront.opd.shape[0]
     g = p.psf.shape[0]
     O = torch.fft.fftshift(torch.fft.fft2(torch.fft.ifftshift(p.psf))).abs()
     c = g // 2
@@ -215,7 +269,8 @@ def mtf(lens, field_deg: float, wavelength_nm: float | None = None, n: int = 64,
 
 
 def mtf_at(lens, field_deg: float, freq: float, wavelength_nm: float | None = None,
-           direction: str = "tangential", n: int = 64, image_plane="sensor") -> torch.Tensor:
+           direction: str = "tangential", n: int | None = None,
+           image_plane="sensor") -> torch.Tensor:
     """Diffraction MTF at one frequency (cycles/mm), differentiable: a direct transform of
     the FFT PSF (module docstring).  ``direction``: ``"tangential"`` or ``"sagittal"``."""
     if direction not in ("tangential", "sagittal"):
@@ -223,6 +278,7 @@ def mtf_at(lens, field_deg: float, freq: float, wavelength_nm: float | None = No
     if not (freq >= 0 and math.isfinite(freq)):
         raise ValueError(f"frequency must be >= 0 cycles/mm, got {freq!r}")
     p = psf_fft(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane)
+    n = p.wavefront.opd.shape[0]
     grid = p.psf.shape[0]
     dnt, dns = frequency_steps(lens, field_deg, p.wavefront.trace.wavelength_nm, n, image_plane)
     k = torch.arange(grid, dtype=p.psf.dtype, device=p.psf.device) - grid // 2
@@ -258,7 +314,7 @@ def geometric_mtf(lens, field_deg: float, freqs, wavelength_nm: float | None = N
 
 
 def encircled_energy(lens, field_deg: float, radii_mm, wavelength_nm: float | None = None,
-                     method: str = "diffraction", n: int = 64,
+                     method: str = "diffraction", n: int | None = None,
                      image_plane="sensor") -> torch.Tensor:
     """Fraction of energy within each radius (mm) of the centroid, ``(R,)``.
 
@@ -276,7 +332,11 @@ def encircled_energy(lens, field_deg: float, radii_mm, wavelength_nm: float | No
     if method != "diffraction":
         raise ValueError(f"encircled-energy method must be 'diffraction' or 'geometric', got "
                          f"{method!r}")
-    p = psf_fft(lens, field_deg, wavelength_nm, n=n, grid=4 * n, image_plane=image_plane)
+    p = psf_fft(lens, field_deg, wavelength_nm, n=n, grid=None if n is None else 4 * n,
+                image_plane=image_plane)
+    if n is None:  # finer PSF pixels for the radii: pad the chosen pupil 4x
+        m = p.wavefront.opd.shape[0]
+        p = psf_fft(lens, field_deg, wavelength_nm, n=m, grid=4 * m, image_plane=image_plane)
     Y, X = torch.meshgrid(p.y, p.x, indexing="ij")
     tot = p.psf.sum()
     cx = (p.psf * X).sum() / tot

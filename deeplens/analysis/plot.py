@@ -233,7 +233,8 @@ def opd_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
 
 
 @style.styled
-def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 64,
+def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+               n: int | None = None,
                half_width_um: float | None = None):
     """Diffraction (FFT) PSFs, Strehl-normalised, one panel per field, primary wavelength."""
     from .diffraction import psf_fft
@@ -261,7 +262,8 @@ def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
 
 
 @style.styled
-def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 64):
+def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+               n: int | None = None):
     """Diffraction MTF, tangential (solid) and sagittal (dashed) per field, with the
     aberration-free limit of the on-axis working F-number (grey)."""
     import numpy as np
@@ -293,7 +295,8 @@ def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
 
 
 @style.styled
-def ee_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 48):
+def ee_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+              n: int | None = None):
     """Diffraction encircled energy vs radius (µm) per field."""
     import numpy as np
 

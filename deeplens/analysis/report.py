@@ -107,7 +107,9 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                     mtf_freqs=(10.0, 20.0, 40.0, 80.0)) -> dict:
     """The ``--analysis`` part of the report: ``{kind: values}`` for each kind of
     :data:`ANALYSES` asked for (fields in deg, lengths in mm unless named ``_um``, OPD in
-    waves at the primary wavelength, MTF at ``mtf_freqs`` cycles/mm).
+    waves at the primary wavelength, MTF at ``mtf_freqs`` cycles/mm).  A diffraction value that
+    cannot be computed for a field (a wavefront too steep for the FFT) is ``None`` with a
+    ``note``.
 
     Raises:
         ValueError: an unknown kind (the message lists the known ones).
@@ -115,6 +117,7 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
     from .aberrations import (distortion, field_curvature, lateral_color, longitudinal_color,
                               vignetting)
     from .cardinal import cardinal_points, pupils
+    from .checks import AnalysisError
     from .diffraction import encircled_energy, mtf, psf_fft
     from .wavefront import wavefront, zernike_fit
 
@@ -162,13 +165,24 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                                  "zernike_fringe_1_9_waves": [float(c) for c in z.coefficients]})
                 out[k] = rows
             elif k == "strehl":
-                out[k] = [{"field_deg": f, "strehl": float(psf_fft(lens, f, prim, n=64,
-                                                                   image_plane=image_plane).strehl)}
-                          for f in fields]
+                rows = []
+                for f in fields:
+                    try:
+                        st = float(psf_fft(lens, f, prim, image_plane=image_plane).strehl)
+                    except AnalysisError as e:
+                        rows.append({"field_deg": f, "strehl": None, "note": str(e)})
+                        continue
+                    rows.append({"field_deg": f, "strehl": st})
+                out[k] = rows
             elif k == "mtf":
                 rows = []
                 for f in fields:
-                    m = mtf(lens, f, prim, n=64, image_plane=image_plane)
+                    try:
+                        m = mtf(lens, f, prim, image_plane=image_plane)
+                    except AnalysisError as e:
+                        rows.append({"field_deg": f, "freq_cycles_per_mm": None,
+                                     "tangential": None, "sagittal": None, "note": str(e)})
+                        continue
                     vals = [m.at(nu) for nu in mtf_freqs]
                     rows.append({"field_deg": f, "freq_cycles_per_mm": list(map(float, mtf_freqs)),
                                  "tangential": [t for t, _ in vals],
@@ -180,7 +194,11 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                 r = torch.linspace(0, 20 * 1.22 * prim * 1e-6 * fno, 201, dtype=torch.float64,
                                    device=lens.distances[0].device)
                 for f in fields:
-                    ee = encircled_energy(lens, f, r, prim, n=48, image_plane=image_plane)
+                    try:
+                        ee = encircled_energy(lens, f, r, prim, image_plane=image_plane)
+                    except AnalysisError as e:
+                        rows.append({"field_deg": f, "r80_um": None, "note": str(e)})
+                        continue
                     i = int(torch.searchsorted(ee.contiguous(),
                                                torch.tensor([0.8], dtype=ee.dtype)))
                     r80 = None
@@ -226,10 +244,14 @@ def format_analysis(a: dict) -> str:
             f"{r['field_deg']:g} deg {r['rms_waves']:.4f}/{r['pv_waves']:.3f}"
             for r in a["wavefront"]))
     if "strehl" in a:
-        lines.append("  Strehl: " + ", ".join(f"{r['field_deg']:g} deg {r['strehl']:.4f}"
-                                              for r in a["strehl"]))
+        lines.append("  Strehl: " + ", ".join(
+            f"{r['field_deg']:g} deg " + ("-" if r["strehl"] is None else f"{r['strehl']:.4f}")
+            for r in a["strehl"]))
     if "mtf" in a:
         for r in a["mtf"]:
+            if r["tangential"] is None:
+                lines.append(f"  MTF {r['field_deg']:g} deg: - ({r['note']})")
+                continue
             lines.append(f"  MTF {r['field_deg']:g} deg T/S: " + ", ".join(
                 f"{nu:g}/mm {t:.3f}/{s:.3f}" for nu, t, s in
                 zip(r["freq_cycles_per_mm"], r["tangential"], r["sagittal"])))

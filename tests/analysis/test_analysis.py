@@ -279,6 +279,19 @@ def test_wavelength_out_of_range(dg):
         ray_fan(dg, 0.0, [587.6, 3000.0])
 
 
+def test_undersampled_wavefront_is_refused():
+    """The LA1131 singlet on its sensor: thousands of waves; an FFT PSF would alias."""
+    la = load_lens(H.LENS_DIR / "thorlabs_la1131.json").to(torch.float64)
+    with pytest.raises(AnalysisError, match=r"would need \d+ pupil samples per side .*at most "
+                                            r"512.*geometric MTF"):
+        mtf(la, 0.0, WL)
+    dg = load_lens(DG).to(torch.float64)
+    with pytest.raises(AnalysisError, match=r"changes by .* waves between neighbouring pupil "
+                                            r"samples \(n = 8\).*use n >= \d+"):
+        psf_fft(dg, 14.0, WL, n=8, image_plane="paraxial")
+    assert psf_fft(dg, 14.0, WL).wavefront.opd.shape[0] == 64  # auto: 64 is fine here
+
+
 def test_bad_options(dg):
     with pytest.raises(ValueError, match="aim must be 'real' or 'paraxial'"):
         field_curvature(dg, [7.0], aim="chief")
