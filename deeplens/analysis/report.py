@@ -205,7 +205,11 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                     if 0 < i < len(r):
                         a = (0.8 - float(ee[i - 1])) / max(float(ee[i] - ee[i - 1]), 1e-30)
                         r80 = 1e3 * float(r[i - 1] + a * (r[i] - r[i - 1]))
-                    rows.append({"field_deg": f, "r80_um": _opt(r80)})
+                    row = {"field_deg": f, "r80_um": _opt(r80)}
+                    if r80 is None:
+                        row["note"] = (f"80 % of the energy lies beyond {1e3 * float(r[-1]):.4g} "
+                                       f"um (20 Airy radii)")
+                    rows.append(row)
                 out[k] = rows
     return out
 
