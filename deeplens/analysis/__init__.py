@@ -1,1 +1,2 @@
-"""Lens analysis: paraxial data, spot diagrams, pupils."""
+"""Lens analysis: paraxial and cardinal data, spots, aberrations, wavefront/Zernike, diffraction
+PSF/MTF, the report; figures in :mod:`.plot` (styled by :mod:`.style`)."""

@@ -1,4 +1,10 @@
-"""Plots (matplotlib, imported lazily): lens layout with traced rays, spot diagrams."""
+"""Figures of the analysis functions (matplotlib, imported lazily, styled by :mod:`.style`).
+
+Each ``*_figure`` computes its data with the tensor-returning functions of this package (no
+gradients) and returns a matplotlib ``Figure``; :data:`KINDS` maps the ``deeplens plot --kind``
+names to them.  Fields in degrees, wavelengths in nm, image-plane quantities in µm or mm as
+labelled.
+"""
 
 from __future__ import annotations
 
@@ -7,20 +13,18 @@ import torch
 
 from ..optics.sampling import field_rays
 from ..optics.paraxial import paraxial
+from . import style
 
-__all__ = ["layout_figure"]
+__all__ = ["layout_figure", "spot_figure", "fan_figure", "field_figure", "distortion_figure",
+           "opd_figure", "psf_figure", "mtf_figure", "ee_figure", "KINDS", "plot"]
 
 
+@style.styled
 def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float | None = None):
     """A y-z section of ``lens`` with meridional rays of each field; returns a matplotlib Figure."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
     fields = list(lens.spec.fields_deg if fields_deg is None else fields_deg)
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=80)
+    fig, ax = style.figure(size=(8, 4))
     with torch.no_grad():
         dtype = lens.dtype
         z = lens.z_vertices().double().cpu()
@@ -40,7 +44,6 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
         ax.plot([zs, zs], [-h, h], "b-", lw=2)
         p = paraxial(lens, w)
         r_ep = 0.5 * float(p.entrance_pupil_diameter)
-        colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
         for k, f in enumerate(fields):
             ys = torch.linspace(-r_ep, r_ep, n_rays, dtype=dtype)
             xy = torch.stack([torch.zeros_like(ys), ys], -1)
@@ -54,10 +57,282 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
                     continue
                 zz = [float(q[r, 2]) for q in pts]
                 yy = [float(q[r, 1]) for q in pts]
-                ax.plot(zz, yy, "-", color=colors[k % len(colors)], lw=0.6)
+                ax.plot(zz, yy, "-", color=style.field_color(k), lw=0.6)
     ax.set_aspect("equal")
+    ax.grid(False)
     ax.set_xlabel("z (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title(lens.name[:80] or "lens", fontsize=8)
+    ax.set_title(lens.name[:80] or "lens")
     fig.tight_layout()
     return fig
+
+
+def _fields(lens, fields_deg):
+    return [float(f) for f in (lens.spec.fields_deg if fields_deg is None else fields_deg)]
+
+
+def _waves(lens, wavelengths_nm):
+    return [float(w) for w in (lens.spec.wavelengths_nm if wavelengths_nm is None
+                               else wavelengths_nm)]
+
+
+def _primary(lens, wavelengths_nm):
+    if wavelengths_nm:
+        return float(wavelengths_nm[0])
+    return float(lens.spec.primary_wavelength_nm)
+
+
+def _grid(n):
+    cols = min(n, 4)
+    rows = (n + cols - 1) // cols
+    return rows, cols
+
+
+def _axes_list(ax):
+    import numpy as np
+
+    return list(np.atleast_1d(ax).ravel())
+
+
+def _title(fig, lens, what):
+    name = lens.name or "lens"
+    fig.suptitle(f"{what}\n{name if len(name) < 48 else name[:45] + '...'}", fontsize=7)
+
+
+@style.styled
+def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hexapolar:12",
+                image_plane="sensor"):
+    """Spot diagrams (µm, about the primary wavelength's centroid), one panel per field."""
+    from .spot import spot_diagram
+
+    fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
+    prim = _primary(lens, wavelengths_nm)
+    rows, cols = _grid(len(fields))
+    fig, ax = style.figure(rows, cols, size=(2.3 * cols, 2.3 * rows + 0.4), squeeze=False)
+    axes = _axes_list(ax)
+    with torch.no_grad():
+        for a, f in zip(axes, fields):
+            ref = spot_diagram(lens, f, prim, sampling, pupil="paraxial",
+                               image_plane=image_plane).centroid
+            rms = []
+            for w in waves:
+                s = spot_diagram(lens, f, w, sampling, pupil="paraxial", image_plane=image_plane)
+                d = (s.points - ref).double().cpu().numpy() * 1e3
+                a.plot(d[:, 0], d[:, 1], ".", ms=1.2, color=style.wavelength_color(w),
+                       label=f"{w:g} nm")
+                rms.append(float(s.rms_radius) * 1e3)
+            a.set_aspect("equal", adjustable="datalim")
+            a.set_title(f"{f:g} deg, RMS {max(rms):.3g} µm")
+            a.set_xlabel("x (µm)")
+    for a in axes[len(fields):]:
+        a.set_visible(False)
+    axes[0].set_ylabel("y (µm)")
+    axes[0].legend(markerscale=6, loc="upper right")
+    _title(fig, lens, "spot diagram")
+    return fig
+
+
+@style.styled
+def fan_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 41):
+    """Ray fans: tangential ``e_y(p_y)`` and sagittal ``e_x(p_x)`` in µm, one row per field."""
+    from .aberrations import ray_fan
+
+    fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
+    fig, ax = style.figure(len(fields), 2, size=(6, 1.6 * len(fields) + 0.6), squeeze=False,
+                           sharex=True)
+    with torch.no_grad():
+        for r, f in enumerate(fields):
+            fan = ray_fan(lens, f, waves, n=n, image_plane=image_plane)
+            p = fan.p.cpu().numpy()
+            for w in waves:
+                c = style.wavelength_color(w)
+                ax[r, 0].plot(p, fan.ey[w].cpu().numpy() * 1e3, color=c, label=f"{w:g} nm")
+                ax[r, 1].plot(p, fan.ex[w].cpu().numpy() * 1e3, color=c)
+            ax[r, 0].set_ylabel(f"{f:g} deg\ne (µm)")
+            for a in ax[r]:
+                a.axhline(0, color="k", lw=0.5)
+    ax[0, 0].set_title("tangential  e_y(p_y)")
+    ax[0, 1].set_title("sagittal  e_x(p_x)")
+    ax[-1, 0].set_xlabel("p_y")
+    ax[-1, 1].set_xlabel("p_x")
+    ax[0, 0].legend()
+    _title(fig, lens, "ray fans")
+    return fig
+
+
+def _field_axis(lens, fields_deg, n=9):
+    fields = _fields(lens, fields_deg)
+    fmax = max(abs(f) for f in fields)
+    return [fmax * k / (n - 1) for k in range(n)]
+
+
+@style.styled
+def field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor"):
+    """Field curvature: tangential (solid) and sagittal (dashed) focus vs field, mm."""
+    from .aberrations import field_curvature
+
+    fs = _field_axis(lens, fields_deg)
+    fig, ax = style.figure(size=(4, 3.5))
+    with torch.no_grad():
+        for w in _waves(lens, wavelengths_nm):
+            zt, zs = field_curvature(lens, fs, w, image_plane=image_plane)
+            c = style.wavelength_color(w)
+            ax.plot(zt.cpu().numpy(), fs, "-", color=c, label=f"T {w:g} nm")
+            ax.plot(zs.cpu().numpy(), fs, "--", color=c, label=f"S {w:g} nm")
+    ax.axvline(0, color="k", lw=0.5)
+    ax.set_xlabel("focus - image plane (mm)")
+    ax.set_ylabel("field (deg)")
+    ax.legend()
+    _title(fig, lens, "field curvature")
+    return fig
+
+
+@style.styled
+def distortion_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor"):
+    """Distortion (%) vs field, f-tan convention."""
+    from .aberrations import distortion
+
+    fs = _field_axis(lens, fields_deg)[1:]
+    fig, ax = style.figure(size=(4, 3.5))
+    with torch.no_grad():
+        for w in _waves(lens, wavelengths_nm):
+            d = distortion(lens, fs, w, image_plane=image_plane)
+            ax.plot(d.cpu().numpy(), fs, color=style.wavelength_color(w), label=f"{w:g} nm")
+    ax.axvline(0, color="k", lw=0.5)
+    ax.set_xlabel("distortion (%)")
+    ax.set_ylabel("field (deg)")
+    ax.set_ylim(0, None)
+    ax.legend()
+    _title(fig, lens, "distortion")
+    return fig
+
+
+@style.styled
+def opd_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 64):
+    """OPD maps (waves) over the normalised pupil, one panel per field, primary wavelength."""
+    from .wavefront import wavefront
+
+    fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
+    rows, cols = _grid(len(fields))
+    fig, ax = style.figure(rows, cols, size=(2.6 * cols, 2.4 * rows + 0.4), squeeze=False)
+    axes = _axes_list(ax)
+    with torch.no_grad():
+        for a, f in zip(axes, fields):
+            wf = wavefront(lens, f, w, n=n, image_plane=image_plane)
+            m = wf.opd.masked_fill(~wf.mask, float("nan")).cpu().numpy()
+            im = a.imshow(m, origin="lower", extent=(-1, 1, -1, 1), cmap="RdBu_r")
+            fig.colorbar(im, ax=a, fraction=0.046, pad=0.04)
+            a.set_title(f"{f:g} deg: RMS {float(wf.rms):.3f}, PV {float(wf.pv):.2f} waves")
+            a.set_xlabel("p_x")
+            a.grid(False)
+    for a in axes[len(fields):]:
+        a.set_visible(False)
+    axes[0].set_ylabel("p_y")
+    _title(fig, lens, f"OPD at {w:g} nm (waves)")
+    return fig
+
+
+@style.styled
+def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+               n: int | None = None,
+               half_width_um: float | None = None):
+    """Diffraction (FFT) PSFs, Strehl-normalised, one panel per field, primary wavelength."""
+    from .diffraction import psf_fft
+
+    fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
+    rows, cols = _grid(len(fields))
+    fig, ax = style.figure(rows, cols, size=(2.4 * cols, 2.4 * rows + 0.4), squeeze=False)
+    axes = _axes_list(ax)
+    with torch.no_grad():
+        for a, f in zip(axes, fields):
+            p = psf_fft(lens, f, w, n=n, image_plane=image_plane)
+            x, y = p.x.cpu().numpy() * 1e3, p.y.cpu().numpy() * 1e3
+            hw = half_width_um or 0.25 * float(x.max())
+            a.imshow(p.psf.cpu().numpy(), origin="lower", extent=(x[0], x[-1], y[0], y[-1]))
+            a.set_xlim(-hw, hw)
+            a.set_ylim(-hw, hw)
+            a.set_title(f"{f:g} deg, Strehl {float(p.strehl):.3f}")
+            a.set_xlabel("x (µm)")
+            a.grid(False)
+    for a in axes[len(fields):]:
+        a.set_visible(False)
+    axes[0].set_ylabel("y (µm)")
+    _title(fig, lens, f"PSF at {w:g} nm")
+    return fig
+
+
+@style.styled
+def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+               n: int | None = None):
+    """Diffraction MTF, tangential (solid) and sagittal (dashed) per field, with the
+    aberration-free limit of the on-axis working F-number (grey)."""
+    import numpy as np
+
+    from .cardinal import pupils
+    from .diffraction import mtf
+
+    fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
+    fig, ax = style.figure(size=(5, 3.5))
+    with torch.no_grad():
+        nu_c = 1.0 / (w * 1e-6 * float(pupils(lens, w).working_fno))
+        v = np.linspace(0, 1, 101)
+        ax.plot(v * nu_c, 2 / np.pi * (np.arccos(v) - v * np.sqrt(1 - v * v)), color="0.6",
+                label="diffraction limit")
+        for k, f in enumerate(fields):
+            m = mtf(lens, f, w, n=n, image_plane=image_plane)
+            c = style.field_color(k)
+            ax.plot(m.freq_t.cpu().numpy(), m.mtf_t.cpu().numpy(), "-", color=c,
+                    label=f"{f:g} deg T")
+            ax.plot(m.freq_s.cpu().numpy(), m.mtf_s.cpu().numpy(), "--", color=c,
+                    label=f"{f:g} deg S")
+    ax.set_xlim(0, nu_c)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("spatial frequency (cycles/mm)")
+    ax.set_ylabel("MTF")
+    ax.legend(ncol=2)
+    _title(fig, lens, f"diffraction MTF at {w:g} nm")
+    return fig
+
+
+@style.styled
+def ee_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+              n: int | None = None):
+    """Diffraction encircled energy vs radius (µm) per field."""
+    import numpy as np
+
+    from .cardinal import pupils
+    from .diffraction import encircled_energy
+
+    fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
+    fig, ax = style.figure(size=(5, 3.5))
+    with torch.no_grad():
+        airy = 1.22 * w * 1e-6 * float(pupils(lens, w).working_fno)
+        r = np.linspace(0, 8 * airy, 81)
+        for k, f in enumerate(fields):
+            ee = encircled_energy(lens, f, r, w, n=n, image_plane=image_plane)
+            ax.plot(r * 1e3, ee.cpu().numpy(), color=style.field_color(k), label=f"{f:g} deg")
+    ax.axvline(airy * 1e3, color="0.6", lw=0.8, ls=":", label="Airy radius")
+    ax.set_xlabel("radius (µm)")
+    ax.set_ylabel("encircled energy")
+    ax.set_ylim(0, 1.02)
+    ax.legend()
+    _title(fig, lens, f"encircled energy at {w:g} nm")
+    return fig
+
+
+def _layout(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor"):
+    return layout_figure(lens, fields_deg, wavelength_nm=_primary(lens, wavelengths_nm))
+
+
+KINDS = {"layout": _layout, "spot": spot_figure, "fan": fan_figure, "field": field_figure,
+         "distortion": distortion_figure, "opd": opd_figure, "psf": psf_figure,
+         "mtf": mtf_figure, "ee": ee_figure}
+
+
+def plot(lens, kind: str, path, fields_deg=None, wavelengths_nm=None,
+         image_plane="sensor") -> None:
+    """Draw figure ``kind`` (a key of :data:`KINDS`) and save it as a PNG at ``path``."""
+    if kind not in KINDS:
+        raise ValueError(f"plot kind must be one of {'|'.join(KINDS)}, got {kind!r}")
+    fig = KINDS[kind](lens, fields_deg, wavelengths_nm, image_plane=image_plane)
+    style.save(fig, path)
