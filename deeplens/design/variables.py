@@ -60,7 +60,8 @@ def parameter_scale(lens, name: str) -> float:
 
 
 def resolve_names(lens, patterns, what: str = "--vary") -> list[str]:
-    """Parameter names matching ``patterns`` (names or ``fnmatch`` globs), in lens order.
+    """Parameter names matching ``patterns`` (names or ``fnmatch`` globs): in the order of the
+    patterns, each glob's matches in lens order, each name once.
 
     Raises:
         ValueError: a pattern matches nothing; the message lists the available names.
@@ -71,14 +72,14 @@ def resolve_names(lens, patterns, what: str = "--vary") -> list[str]:
     patterns = [p.strip() for p in patterns]
     if not patterns:
         raise ValueError(f"{what}: no variables given")
-    chosen = set()
+    chosen = []
     for pat in patterns:
         hits = [n for n in names if fnmatch.fnmatchcase(n, pat)]
         if not hits:
             raise ValueError(f"{what}: {pat!r} matches no lens parameter; available: "
                              f"{', '.join(names)}")
-        chosen.update(hits)
-    return [n for n in names if n in chosen]
+        chosen += [h for h in hits if h not in chosen]
+    return chosen
 
 
 class _Call(nn.Module):
@@ -102,7 +103,7 @@ class Variables:
         scales: optional ``{name: mm per unit}`` overrides of :func:`parameter_scale`.
 
     Attributes:
-        names: parameter names in lens order; ``sizes``: entries per parameter;
+        names: parameter names (in the order of ``patterns``); ``sizes``: entries per parameter;
         ``scale``: ``(n,)`` float64 scales; ``labels``: one label per entry.
 
     Example:
