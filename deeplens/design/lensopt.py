@@ -71,7 +71,11 @@ def lens_residual_fn(variables, merit, constraints=()):
             r = torch.cat([r, cset.residuals(L).to(r)])
         return r
 
-    return lambda x: variables.call(on_lens, x)
+    def fn(x):
+        return variables.call(on_lens, x)
+
+    fn.needs_grad = any(n.startswith("misalignments.") for n in variables.names)
+    return fn
 
 
 def optimize_lens(lens, variables, merit, *, method: str = "dls", steps: int = 50,
