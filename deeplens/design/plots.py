@@ -25,8 +25,12 @@ def spot_figure(merit, lenses: dict, scale_um: float | None = None):
     fig, axes = plt.subplots(len(lenses), F, figsize=(3 * F, 3 * len(lenses)), dpi=90,
                              squeeze=False)
     colours = ["tab:green", "tab:blue", "tab:red", "tab:orange", "tab:purple"]
-    with torch.no_grad():
-        blocks = {t: merit._blocks(L) for t, L in lenses.items()}
+    strict, merit.strict_rays = merit.strict_rays, False  # a lost ray is just not drawn
+    try:
+        with torch.no_grad():
+            blocks = {t: merit._blocks(L) for t, L in lenses.items()}
+    finally:
+        merit.strict_rays = strict
     lim = scale_um
     if lim is None:
         lim = max(float(b[0].abs().max()) for bl in blocks.values() for b in bl.values()) * 1e3
