@@ -75,15 +75,16 @@ def _unscaled(lens, names):
     return Variables(lens, names, scales={n: 1.0 for n in names}, what="tolerance parameters")
 
 
-def sensitivity_matrix(lens, merit: SpotMerit, names) -> torch.Tensor:
+def sensitivity_matrix(lens, merit: SpotMerit, names, mode: str = "forward") -> torch.Tensor:
     """``J_ε`` ``(F, P)``: ``∂ε_f / ∂θ_j`` by forward-mode AD (mm per parameter unit).
 
-    ``merit`` must be prepared on the nominal ``lens`` (its pupil regions are held fixed)."""
+    ``merit`` must be prepared on the nominal ``lens`` (its pupil regions are held fixed).
+    ``mode="reverse"`` builds the same matrix from ``F`` vector-Jacobian products instead (one
+    trace and ``F`` backward passes: cheaper when there are fewer fields than parameters)."""
     v = _unscaled(lens, names)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad")
-        _, J = jacobian(lambda x: v.call(lambda L: field_merits(merit, L), x), v.x0(),
-                        "forward")
+        _, J = jacobian(lambda x: v.call(lambda L: field_merits(merit, L), x), v.x0(), mode)
     return J
 
 

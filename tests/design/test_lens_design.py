@@ -73,6 +73,10 @@ def test_constraint_unmet_at_start_says_which_and_by_how_much():
     sm = SpotMerit([0.0], [W], sampling="hexapolar:2", pupil="paraxial")
     with pytest.raises(ConstraintError, match=r"max_track: 47 <= 40 \(unmet by 7 mm\)"):
         optimize_lens(lens, Variables(lens, "d_sensor"), Merit(sm), constraints=cons)
+    # a lower limit: the ACL5040U is 21 mm thick in the centre
+    (thick,) = parse_constraint(lens, "min_center_glass=30")
+    assert thick.violation(lens) == pytest.approx(9.0)
+    assert parse_constraint(lens, "min_center_glass=20")[0].violation(lens) == 0.0
     with pytest.raises(ValueError, match="unknown constraint 'max_trak'.*max_track"):
         parse_constraint(lens, "max_trak=40")
     with pytest.raises(ValueError, match="not a number|must be a number"):
