@@ -68,7 +68,7 @@ def test_sensitivity_short(tmp_path):
 
 
 def test_nikon_short(tmp_path):
-    r = load_app("nikon").run(_args("nikon", tmp_path, fields="0", steps=2, rounds=1,
+    r = load_app("nikon").run(_args("nikon", tmp_path, fields="0", steps=1, rounds=1,
                                     sampling="hexapolar:2"))
     assert r["rms_optimized_um"] < 0.7 * r["rms_spherical_start_um"]
     assert r["rms_spherical_start_um"] > 10 * r["rms_original_um"]
