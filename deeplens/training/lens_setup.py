@@ -8,7 +8,8 @@ Learning rates are given in *millimetres of sag* and converted per parameter, so
 step of size ``lr`` changes the surface by about ``lr`` mm at its rim whatever the parameter's
 units: a coefficient of ``x^i y^j`` scales by ``R^-(i+j)``, an even asphere ``a_2k`` by
 ``R^-2k``, a curvature by ``2 / R^2`` (``R`` the semi-diameter); distances and misalignment
-are already in mm (tilts: 1/R rad).
+are already in mm (tilts: 1/R rad).  ``parameter_scale`` lives in
+:mod:`deeplens.design.variables` (shared with the design engine) and is re-exported here.
 """
 
 from __future__ import annotations
