@@ -1,0 +1,137 @@
+"""The design applications, shortened (default suite) and in full (slow), the application
+registry, and the optimize/tolerance/design command lines."""
+
+import json
+import warnings
+from argparse import Namespace
+
+import pytest
+from helpers import LENS_DIR
+
+from deeplens.cli import main
+from deeplens.design import apps
+from deeplens.design.apps import load_app
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+def _args(name, tmp_path, **kw):
+    import argparse
+
+    p = argparse.ArgumentParser()
+    load_app(name).add_arguments(p)
+    args = p.parse_args([])
+    args.out = str(tmp_path)
+    args.json = True
+    for k, v in kw.items():
+        setattr(args, k, v)
+    return args
+
+
+def run(argv, capsys):
+    try:
+        code = main(argv)
+    except SystemExit as e:
+        code = e.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_registry_names_and_errors(monkeypatch):
+    assert set(apps.APPS) == {"spherical-aberration", "nikon", "sensitivity", "caustic",
+                              "misalignment"}
+    with pytest.raises(ValueError, match="unknown design application 'nikkon'.*nikon"):
+        load_app("nikkon")
+    monkeypatch.setitem(apps.APPS, "ghost", "no_such_module")
+    with pytest.raises(ValueError, match="'ghost' is not available.*no_such_module"):
+        load_app("ghost")
+
+
+def test_spherical_aberration_short(tmp_path):
+    r = load_app("spherical-aberration").run(_args("spherical-aberration", tmp_path, steps=3,
+                                                   sampling="hexapolar:4"))
+    assert r["rms_after_um"] < 0.6 * r["rms_before_um"]
+    assert (tmp_path / "acl5040u_optimized.json").exists()
+    assert (tmp_path / "spots.png").exists()
+
+
+def test_sensitivity_short(tmp_path):
+    r = load_app("sensitivity").run(_args("sensitivity", tmp_path, fields="0,11.86",
+                                          sampling="hexapolar:2", kinds="decenter"))
+    assert len(r["jacobian"]) == 2 and len(r["jacobian"][0]) == len(r["parameters"]) == 6
+    assert r["fd_max_rel_err"] < 1e-4
+
+
+def test_nikon_short(tmp_path):
+    r = load_app("nikon").run(_args("nikon", tmp_path, fields="0", steps=1, rounds=1,
+                                    sampling="hexapolar:2"))
+    assert r["rms_optimized_um"] < 0.7 * r["rms_spherical_start_um"]
+    assert r["rms_spherical_start_um"] > 10 * r["rms_original_um"]
+
+
+@pytest.mark.slow
+def test_spherical_aberration_full(tmp_path):
+    r = load_app("spherical-aberration").run(_args("spherical-aberration", tmp_path))
+    assert r["rms_after_um"] < r["rms_before_um"] / 3
+
+
+@pytest.mark.slow
+def test_nikon_full(tmp_path):
+    r = load_app("nikon").run(_args("nikon", tmp_path))
+    assert r["rms_optimized_um"] < 0.1 * r["rms_spherical_start_um"]
+
+
+@pytest.mark.slow
+def test_sensitivity_full(tmp_path):
+    r = load_app("sensitivity").run(_args("sensitivity", tmp_path))
+    assert r["fd_max_rel_err"] < 1e-4
+
+
+def test_cli_optimize_json_and_file(tmp_path, capsys):
+    out = tmp_path / "opt.json"
+    code, stdout, err = run(["optimize", str(LENS_DIR / "thorlabs_acl5040u.json"), "--vary",
+                             "surfaces.0.k,surfaces.0.a.0", "--wavelengths", "587.5618",
+                             "--steps", "3", "--sampling", "hexapolar:3", "--out", str(out),
+                             "--json"], capsys)
+    assert code == 0, err
+    r = json.loads(stdout)
+    assert {"merit_before", "merit_after", "rms_before_um", "rms_after_um", "seconds",
+            "steps"} <= set(r)
+    assert r["merit_after"] < r["merit_before"]
+    assert r["rms_after_um"][0] < r["rms_before_um"][0]
+    assert json.loads(out.read_text())["format"] == "deeplens-lens"
+
+
+def test_cli_optimize_bad_input_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "opt.json"
+    lens = str(LENS_DIR / "thorlabs_acl5040u.json")
+    code, _, err = run(["optimize", lens, "--vary", "surfaces.7.c", "--out", str(out)], capsys)
+    assert code == 2 and "matches no lens parameter; available: d_sensor" in err
+    code, _, err = run(["optimize", lens, "--vary", "d_sensor", "--constraint", "max_track=40",
+                        "--out", str(out)], capsys)
+    assert code == 2 and "max_track" in err and "unmet by 7" in err
+    code, _, err = run(["optimize", lens, "--vary", "d_sensor", "--out", str(tmp_path / "x.txt")],
+                       capsys)
+    assert code == 2 and "--out" in err
+    assert not out.exists()
+
+
+def test_cli_tolerance_and_design(tmp_path, capsys):
+    tol = tmp_path / "tol.json"
+    tol.write_text(json.dumps({"misalignments.*.dy": 0.02, "distances.1": 0.05}))
+    code, stdout, err = run(["tolerance", str(LENS_DIR / "cooke_triplet.json"), "--tolerances",
+                             str(tol), "--fields", "0", "--sampling", "hexapolar:2",
+                             "--monte-carlo", "5", "--json"], capsys)
+    assert code == 0, err
+    r = json.loads(stdout)
+    assert r["parameters"] == ["misalignments.0.dy", "misalignments.1.dy",
+                               "misalignments.3.dy", "distances.1"]
+    assert r["rss_um"][0] > r["nominal_um"][0]
+    assert set(r["monte_carlo"]["percentiles_um"]) == {"50", "90", "98"}
+    code, _, err = run(["design", "nikkon"], capsys)
+    assert code == 2 and "unknown design application" in err
