@@ -158,7 +158,8 @@ def sag_map(lens: Lens, half_width_mm: float, n: int = 128) -> torch.Tensor:
 
 def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm: float,
                      n_ctrl: int, rays_per_pixel: int = 3, steps: int = 200, lr: float = 2e-3,
-                     sigma0: float = 2.0, coarse_fraction: float = 0.5, snapshots=(),
+                     sigma0: float = 4.0, sigma1: float = 0.5, coarse_fraction: float = 0.6,
+                     snapshots=(), eval_rays_per_pixel: int = 6,
                      dtype=torch.float32, callback=None) -> dict:
     """Adam on the B-spline coefficients (Eq. 11) for one screen distance.
 
@@ -166,15 +167,21 @@ def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm:
         target: ``(res, res)`` target irradiance, mean 1 (:func:`load_target`).
         half_width_mm, distance_mm, n_ctrl: see :func:`caustic_lens`.
         rays_per_pixel: rays per screen pixel per side (``(res * k)^2`` rays in all).
-        steps: Adam iterations; lr: Adam step on the coefficients (mm).
-        sigma0: initial smoothing of image and target (pixels), decreased linearly to 0 over
-            the first ``coarse_fraction`` of the steps.
+        steps: Adam iterations; lr: Adam step on the coefficients (mm), decayed to a tenth
+            along a cosine.
+        sigma0, sigma1: smoothing of image and target (pixels), decreased linearly from
+            ``sigma0`` to ``sigma1`` over the first ``coarse_fraction`` of the steps (the
+            final ``sigma1`` suppresses the ray-sampling speckle the fit would chase).
         snapshots: step indices at which the irradiance (detached) is kept.
+        eval_rays_per_pixel: rays per pixel per side for the snapshots and the returned final
+            irradiance (forward only): the design is a smooth surface, and the speckle of the
+            few rays the optimiser traces is a property of the sampling, not of the caustic.
         dtype: tracing precision (float32 by default: 3-4x faster on a CPU than float64, and
             the intersection tolerance of 1e-5 mm is far below a screen pixel).
 
     Returns:
-        ``{"lens", "irradiance" (res, res), "snapshots": {step: (res, res)}, "loss": [...],
+        ``{"lens", "irradiance" (res, res) (final, with ``eval_rays_per_pixel``), "snapshots":
+        {step: (res, res)}, "loss": [...],
         "seconds"}``.
     """
     t0 = time.perf_counter()
@@ -185,22 +192,28 @@ def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm:
     coef = lens.surfaces[1].coefficients
     coef.requires_grad_(True)
     opt = torch.optim.Adam([coef], lr=lr)
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda k: 0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(k / max(steps, 1), 1.0))))
+    eval_rays = collimated_square_rays(half_width_mm, res * eval_rays_per_pixel, dtype=dtype)
     snaps, losses = {}, []
     n_coarse = max(1, int(coarse_fraction * steps))
     for k in range(steps + 1):
-        sigma = sigma0 * max(0.0, 1.0 - k / n_coarse)
-        E = irradiance(lens, rays, res, half_width_mm)
-        if k in snapshots:
-            snaps[k] = E.detach().clone()
+        if k in snapshots or k == steps:
+            with torch.no_grad():
+                E_eval = irradiance(lens, eval_rays, res, half_width_mm)
+            snaps[k] = E_eval
         if k == steps:
             break
+        sigma = sigma1 + (sigma0 - sigma1) * max(0.0, 1.0 - k / n_coarse)
+        E = irradiance(lens, rays, res, half_width_mm)
         loss = ((gaussian_blur(E, sigma) - gaussian_blur(target, sigma)) ** 2).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
+        sched.step()
         losses.append(float(loss.detach()))
         if callback is not None:
-            callback(k, float(loss))
+            callback(k, float(loss.detach()))
     coef.requires_grad_(False)
-    return {"lens": lens, "irradiance": E.detach(), "snapshots": snaps, "loss": losses,
+    return {"lens": lens, "irradiance": E_eval, "snapshots": snaps, "loss": losses,
             "seconds": time.perf_counter() - t0}
