@@ -284,57 +284,23 @@ def load_target_image(path: str, setup: SpotSetup) -> torch.Tensor:
     return img / img.max()
 
 
-def _jacobian(fn, x: torch.Tensor):
-    """``(r, J)`` of ``fn: (n,) -> (m,)`` by ``n`` forward-mode products computed as
-    reverse-of-reverse (``J v = d/du <J^T u, v>``), which works through every op autograd has."""
-    x = x.detach().requires_grad_(True)
-    r = fn(x)
-    u = torch.zeros_like(r, requires_grad=True)
-    (g,) = torch.autograd.grad(r, x, u, create_graph=True)
-    cols = []
-    for k in range(x.numel()):
-        (c,) = torch.autograd.grad(g[k], u, retain_graph=True)
-        cols.append(c)
-    return r.detach(), torch.stack(cols, -1)
-
-
-def dls_steps(fn, x: torch.Tensor, steps: int, lam: float = 1e-2):
-    """Levenberg-Marquardt with Marquardt scaling (a local fallback; see the README)."""
-    x = x.detach().clone()
-    for _ in range(steps):
-        r, J = _jacobian(fn, x)
-        f0 = float(r @ r)
-        A = J.T @ J
-        gvec = J.T @ r
-        D = torch.diag(torch.diag(A).clamp_min(1e-12))
-        for _ in range(8):
-            dx = torch.linalg.solve(A + lam * D, -gvec)
-            with torch.no_grad():
-                r1 = fn(x + dx)
-            if float(r1 @ r1) < f0:
-                x = x + dx
-                lam = max(lam / 3, 1e-6)
-                break
-            lam *= 4
-        else:
-            break
-    return x, lam
-
-
 def estimate(target: torch.Tensor, setup: SpotSetup, start: dict | None = None, *,
              mu: float = 1.0, rounds: int = 3, adam_steps: int = 30, dls_steps_per_round: int = 4,
-             lr: float = 0.3, scale: dict | None = None, dls=None, history: list | None = None):
+             lr: float = 0.3, scale: dict | None = None, history: list | None = None):
     """Estimate :data:`PARAMS` from ``target`` (``(h, w)``, maximum 1) by Eq. 15, alternating
-    ``adam_steps`` of Adam and ``dls_steps_per_round`` of damped least squares, ``rounds`` times.
+    ``adam_steps`` of Adam (learning rate ``lr`` halved every round) and
+    ``dls_steps_per_round`` of damped least squares (Jacobian by forward-mode AD, five
+    Jacobian-vector products), ``rounds`` times, in the scaled variables
+    ``x = (θ - θ_start) / scale`` (:mod:`deeplens.design.optimizers`).
 
     Args:
-        dls: ``dls(residual_fn, x0, steps) -> x`` on the scaled variables; default the local
-            Levenberg-Marquardt :func:`dls_steps`.
-        history: a list that receives ``(phase, step, loss, theta dict)`` after each step.
+        history: a list that receives ``(phase, step, loss, theta dict)`` for every step.
 
     Returns:
         ``(estimate dict, fitted image (h, w) scaled to the target, seconds)``.
     """
+    from .optimizers import adam, damped_least_squares
+
     t0 = time.perf_counter()
     start = dict(DEFAULT_START if start is None else start)
     scale = dict(DEFAULT_SCALE if scale is None else scale)
@@ -349,29 +315,25 @@ def estimate(target: torch.Tensor, setup: SpotSetup, start: dict | None = None, 
     def residual(x):
         return eq15_residual(imager(theta_of(x)), target, mu)
 
-    def record(phase, k, x, loss):
+    def record(phase, res):
         if history is not None:
-            history.append((phase, k, loss, dict(zip(PARAMS, theta_of(x).tolist()))))
+            for h in res.history:
+                if h.get("accepted", True):
+                    x = torch.as_tensor(h["x"], dtype=torch.float64)
+                    history.append((phase, h["step"], h["merit"],
+                                    dict(zip(PARAMS, theta_of(x).tolist()))))
 
     x = torch.zeros(len(PARAMS), dtype=torch.float64)
     for rnd in range(rounds):
-        xp = x.clone().requires_grad_(True)
-        opt = torch.optim.Adam([xp], lr=lr * (0.5 ** rnd))
-        for k in range(adam_steps):
-            r = residual(xp)
-            loss = r @ r
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            record("adam", k, xp.detach(), float(loss.detach()))
-        x = xp.detach()
-        if dls is None:
-            x, _ = dls_steps(residual, x, dls_steps_per_round)
-        else:
-            x = dls(residual, x, dls_steps_per_round)
-        with torch.no_grad():
-            r = residual(x)
-        record("dls", rnd, x, float(r @ r))
+        if adam_steps > 0:
+            res = adam(residual, x, steps=adam_steps, lr=lr * 0.5 ** rnd)
+            record("adam", res)
+            x = res.x
+        if dls_steps_per_round > 0:
+            res = damped_least_squares(residual, x, steps=dls_steps_per_round,
+                                       jacobian_mode="forward")
+            record("dls", res)
+            x = res.x
     with torch.no_grad():
         img = imager(theta_of(x))
         img = img * target.sum() / img.sum().clamp_min(1e-30)

@@ -67,15 +67,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", default="design_out/misalignment", help="output folder")
 
 
-def _dls():
-    """design-engine's damped least squares when present, else the local fallback."""
-    try:
-        from ..optimizers import damped_least_squares  # noqa: F401
-    except ImportError:
-        return None
-    return None
-
-
 def run(args) -> dict:
     import matplotlib
 
@@ -118,7 +109,7 @@ def run(args) -> dict:
     history: list = []
     est, fitted, _ = estimate(target, setup, start, mu=args.mu, rounds=args.rounds,
                               adam_steps=args.adam_steps, dls_steps_per_round=args.dls_steps,
-                              dls=_dls(), history=history)
+                              history=history)
     with torch.no_grad():
         img0 = SpotImager(setup)(torch.tensor([start[k] for k in PARAMS], dtype=torch.float64))
         img0 = img0 * target.sum() / img0.sum().clamp_min(1e-30)
