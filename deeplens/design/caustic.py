@@ -69,13 +69,19 @@ def caustic_lens(half_width_mm: float, n_ctrl: int, distance_mm: float,
 
 def collimated_square_rays(half_width_mm: float, n_side: int, z0_mm: float = -1.0,
                            wavelength_nm: float = CAUSTIC_WAVELENGTH_NM,
-                           dtype=torch.float64, device=None) -> Rays:
-    """``n_side^2`` rays parallel to ``+z`` on the cell centres of a regular grid over the square
-    ``[-a, a]^2`` at ``z = z0_mm``."""
+                           dtype=torch.float64, device=None,
+                           generator: torch.Generator | None = None) -> Rays:
+    """``n_side^2`` rays parallel to ``+z`` over the square ``[-a, a]^2`` at ``z = z0_mm``: one
+    per cell of a regular ``n_side x n_side`` grid, at the cell centre, or uniformly jittered
+    inside its cell when a ``generator`` is given (stratified sampling)."""
     h = 2 * half_width_mm / n_side
     u = -half_width_mm + h * (torch.arange(n_side, dtype=dtype, device=device) + 0.5)
     X, Y = torch.meshgrid(u, u, indexing="ij")
-    o = torch.stack([X.reshape(-1), Y.reshape(-1), torch.full_like(X.reshape(-1), z0_mm)], -1)
+    X, Y = X.reshape(-1), Y.reshape(-1)
+    if generator is not None:
+        jit = torch.rand((2, X.numel()), generator=generator, dtype=dtype) - 0.5
+        X, Y = X + h * jit[0].to(X.device), Y + h * jit[1].to(X.device)
+    o = torch.stack([X, Y, torch.full_like(X, z0_mm)], -1)
     d = torch.zeros_like(o)
     d[:, 2] = 1.0
     return Rays(o, d, wavelength_nm)
@@ -157,18 +163,24 @@ def sag_map(lens: Lens, half_width_mm: float, n: int = 128) -> torch.Tensor:
 
 
 def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm: float,
-                     n_ctrl: int, rays_per_pixel: int = 3, steps: int = 200, lr: float = 2e-3,
+                     n_ctrl: int, rays_per_pixel: int = 2, steps: int = 150, lr_px: float = 2.0,
                      sigma0: float = 4.0, sigma1: float = 0.5, coarse_fraction: float = 0.6,
-                     snapshots=(), eval_rays_per_pixel: int = 6,
+                     snapshots=(), eval_rays_per_pixel: int = 6, seed: int = 0,
                      dtype=torch.float32, callback=None) -> dict:
     """Adam on the B-spline coefficients (Eq. 11) for one screen distance.
 
     Args:
         target: ``(res, res)`` target irradiance, mean 1 (:func:`load_target`).
         half_width_mm, distance_mm, n_ctrl: see :func:`caustic_lens`.
-        rays_per_pixel: rays per screen pixel per side (``(res * k)^2`` rays in all).
-        steps: Adam iterations; lr: Adam step on the coefficients (mm), decayed to a tenth
-            along a cosine.
+        rays_per_pixel: rays per screen pixel per side (``(res * k)^2`` rays in all), freshly
+            jittered in their cells at every step (seeded by ``seed``): with fixed samples the
+            optimiser fits the splat of those few rays, and a dense rendering of the same
+            surface shows caustic folds between them.
+        steps: Adam iterations.
+        lr_px: Adam step expressed as the screen displacement (pixels) it causes: a change
+            ``c`` of one coefficient tilts the surface by about ``c / h`` (``h`` the knot
+            spacing) and moves rays by ``(n - 1) D c / h``, so the coefficient step is
+            ``lr_px * pixel * h / ((n - 1) D)`` mm; decayed to a tenth along a cosine.
         sigma0, sigma1: smoothing of image and target (pixels), decreased linearly from
             ``sigma0`` to ``sigma1`` over the first ``coarse_fraction`` of the steps (the
             final ``sigma1`` suppresses the ray-sampling speckle the fit would chase).
@@ -188,9 +200,12 @@ def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm:
     res = int(target.shape[-1])
     lens = caustic_lens(half_width_mm, n_ctrl, distance_mm).to(dtype)
     target = target.to(dtype)
-    rays = collimated_square_rays(half_width_mm, res * rays_per_pixel, dtype=dtype)
+    gen = torch.Generator().manual_seed(seed)
     coef = lens.surfaces[1].coefficients
     coef.requires_grad_(True)
+    h = 2 * float(lens.surfaces[1].semi_diameter) / (n_ctrl - 3)
+    n_glass = float(lens.materials[1].n(CAUSTIC_WAVELENGTH_NM))
+    lr = lr_px * (2 * half_width_mm / res) * h / ((n_glass - 1) * distance_mm)
     opt = torch.optim.Adam([coef], lr=lr)
     sched = torch.optim.lr_scheduler.LambdaLR(
         opt, lambda k: 0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * min(k / max(steps, 1), 1.0))))
@@ -205,6 +220,8 @@ def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm:
         if k == steps:
             break
         sigma = sigma1 + (sigma0 - sigma1) * max(0.0, 1.0 - k / n_coarse)
+        rays = collimated_square_rays(half_width_mm, res * rays_per_pixel, dtype=dtype,
+                                      generator=gen)
         E = irradiance(lens, rays, res, half_width_mm)
         loss = ((gaussian_blur(E, sigma) - gaussian_blur(target, sigma)) ** 2).mean()
         opt.zero_grad()

@@ -91,7 +91,7 @@ def test_short_optimisation_reproduces_a_blob():
     T = 0.2 + ((yy - 6) ** 2 + (xx - 9) ** 2 < 16).double()
     T = T / T.mean()
     r = optimize_caustic(T, half_width_mm=A, distance_mm=D, n_ctrl=12, rays_per_pixel=2,
-                         steps=30, lr=2e-3, sigma0=2.0, sigma1=0.5, snapshots=(0,))
+                         steps=30, lr_px=1.0, sigma0=2.0, sigma1=0.5, snapshots=(0,))
     E0, E = r["snapshots"][0].double(), r["irradiance"].double()
     err0, err = float(((E0 - T) ** 2).mean()), float(((E - T) ** 2).mean())
     assert err < 0.4 * err0, (err0, err)

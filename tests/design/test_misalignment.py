@@ -101,6 +101,18 @@ def test_source_shift_moves_the_spot_by_the_paraxial_magnification():
     assert float(c2[1] - c0[1]) == pytest.approx(0.0, abs=0.02 * expect)
 
 
+def test_tilt_axes_by_symmetry():
+    """A tilt about x (rotation in the y-z plane) keeps the set-up symmetric under x -> -x, so
+    the spot moves along the rows only; a tilt about y moves it along the columns only."""
+    st = small_setup(n_rays=4000, pixel_size_mm=0.02)
+    imager = SpotImager(st)
+    c0 = centroid(imager(torch.tensor([0.0, 0.0, 46.3, 0.0, 0.0], dtype=torch.float64)))
+    cx = centroid(imager(torch.tensor([0.05, 0.0, 46.3, 0.0, 0.0], dtype=torch.float64))) - c0
+    cy = centroid(imager(torch.tensor([0.0, 0.05, 46.3, 0.0, 0.0], dtype=torch.float64))) - c0
+    assert abs(float(cx[0])) > 0.1 and abs(float(cx[1])) < 0.05 * abs(float(cx[0]))
+    assert abs(float(cy[1])) > 0.1 and abs(float(cy[0])) < 0.05 * abs(float(cy[1]))
+
+
 def test_estimation_recovers_the_truth_noise_free():
     """A short noise-free run: start 0.015 rad, 0.15 mm and 0.3 mm away from the truth."""
     st = small_setup(n_rays=3000)

@@ -33,14 +33,15 @@ def add_arguments(parser) -> None:
                         help="screen distances from the freeform, mm (default: 50,100)")
     parser.add_argument("--resolution", type=int, default=64,
                         help="target and screen pixels per side (default: 64)")
-    parser.add_argument("--control-points", type=int, default=40,
-                        help="B-spline control points per side (default: 40)")
+    parser.add_argument("--control-points", type=int, default=67,
+                        help="B-spline control points per side (default: 67)")
     parser.add_argument("--rays-per-pixel", type=int, default=2,
                         help="rays per screen pixel per side (default: 2, i.e. 4 per pixel)")
     parser.add_argument("--half-width", type=float, default=5.0,
                         help="half-width of the square beam and screen, mm (default: 5)")
     parser.add_argument("--steps", type=int, default=150, help="Adam steps per distance")
-    parser.add_argument("--lr", type=float, default=3e-3, help="Adam step, mm (default: 3e-3)")
+    parser.add_argument("--lr", type=float, default=2.0,
+                        help="Adam step as the screen displacement it causes, pixels (default 2)")
     parser.add_argument("--floor", type=float, default=0.1,
                         help="darkest target level as a fraction of the brightest (default 0.1:"
                              " a refractive caustic cannot make a pixel fully dark)")
@@ -85,7 +86,7 @@ def run(args) -> dict:
     for D in dists:
         r = optimize_caustic(target, half_width_mm=args.half_width, distance_mm=D,
                              n_ctrl=args.control_points, rays_per_pixel=args.rays_per_pixel,
-                             steps=args.steps, lr=args.lr, snapshots=snaps)
+                             steps=args.steps, lr_px=args.lr, snapshots=snaps)
         E = r["irradiance"].double()
         key = f"{D:g} mm"
         T = target.numpy()
