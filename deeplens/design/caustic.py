@@ -165,7 +165,8 @@ def sag_map(lens: Lens, half_width_mm: float, n: int = 128) -> torch.Tensor:
 def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm: float,
                      n_ctrl: int, rays_per_pixel: int = 2, steps: int = 150, lr_px: float = 2.0,
                      sigma0: float = 4.0, sigma1: float = 0.5, coarse_fraction: float = 0.6,
-                     snapshots=(), eval_rays_per_pixel: int = 6, seed: int = 0,
+                     smooth: float = 0.01, snapshots=(), eval_rays_per_pixel: int = 6,
+                     seed: int = 0,
                      dtype=torch.float32, callback=None) -> dict:
     """Adam on the B-spline coefficients (Eq. 11) for one screen distance.
 
@@ -184,6 +185,9 @@ def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm:
         sigma0, sigma1: smoothing of image and target (pixels), decreased linearly from
             ``sigma0`` to ``sigma1`` over the first ``coarse_fraction`` of the steps (the
             final ``sigma1`` suppresses the ray-sampling speckle the fit would chase).
+        smooth: weight of a curvature penalty ``mean(g_xx^2 + g_yy^2)``, ``g = (n - 1) D
+            Δ²C / h²`` the gradient of the ray displacement (dimensionless; ``g = -1`` is a
+            fold, where rays cross and the irradiance has a caustic line).
         snapshots: step indices at which the irradiance (detached) is kept.
         eval_rays_per_pixel: rays per pixel per side for the snapshots and the returned final
             irradiance (forward only): the design is a smooth surface, and the speckle of the
@@ -224,6 +228,11 @@ def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm:
                                       generator=gen)
         E = irradiance(lens, rays, res, half_width_mm)
         loss = ((gaussian_blur(E, sigma) - gaussian_blur(target, sigma)) ** 2).mean()
+        if smooth > 0:
+            k2 = (n_glass - 1) * distance_mm / h ** 2
+            gxx = k2 * (coef[2:] - 2 * coef[1:-1] + coef[:-2])
+            gyy = k2 * (coef[:, 2:] - 2 * coef[:, 1:-1] + coef[:, :-2])
+            loss = loss + smooth * ((gxx ** 2).mean() + (gyy ** 2).mean())
         opt.zero_grad()
         loss.backward()
         opt.step()

@@ -114,7 +114,7 @@ class SpotSetup:
     pixel_size_mm: float = 0.00345
     resolution: tuple = (384, 384)
     binning: int = 4
-    n_rays: int = 40000
+    n_rays: int = 120000
     seed: int = 0
     extra: dict = field(default_factory=dict)
 

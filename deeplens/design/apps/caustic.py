@@ -40,8 +40,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--half-width", type=float, default=5.0,
                         help="half-width of the square beam and screen, mm (default: 5)")
     parser.add_argument("--steps", type=int, default=150, help="Adam steps per distance")
-    parser.add_argument("--lr", type=float, default=2.0,
-                        help="Adam step as the screen displacement it causes, pixels (default 2)")
+    parser.add_argument("--lr", type=float, default=1.0,
+                        help="Adam step as the screen displacement it causes, pixels (default 1)")
+    parser.add_argument("--smooth", type=float, default=0.01,
+                        help="weight of the surface-curvature penalty that keeps rays from "
+                             "crossing (default 0.01; 0: none)")
     parser.add_argument("--floor", type=float, default=0.1,
                         help="darkest target level as a fraction of the brightest (default 0.1:"
                              " a refractive caustic cannot make a pixel fully dark)")
@@ -60,6 +63,8 @@ def _check(args) -> list[float]:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     if not (args.half_width > 0 and args.lr > 0):
         raise ValueError("--half-width and --lr must be > 0")
+    if not args.smooth >= 0:
+        raise ValueError(f"--smooth must be >= 0, got {args.smooth}")
     if not 0 <= args.floor < 1:
         raise ValueError(f"--floor must lie in [0, 1), got {args.floor}")
     return dists
@@ -86,7 +91,8 @@ def run(args) -> dict:
     for D in dists:
         r = optimize_caustic(target, half_width_mm=args.half_width, distance_mm=D,
                              n_ctrl=args.control_points, rays_per_pixel=args.rays_per_pixel,
-                             steps=args.steps, lr_px=args.lr, snapshots=snaps)
+                             steps=args.steps, lr_px=args.lr, smooth=args.smooth,
+                             snapshots=snaps)
         E = r["irradiance"].double()
         key = f"{D:g} mm"
         T = target.numpy()
