@@ -39,7 +39,7 @@ def add_arguments(parser) -> None:
                         help="rays per screen pixel per side (default: 2, i.e. 4 per pixel)")
     parser.add_argument("--half-width", type=float, default=5.0,
                         help="half-width of the square beam and screen, mm (default: 5)")
-    parser.add_argument("--steps", type=int, default=150, help="Adam steps per distance")
+    parser.add_argument("--steps", type=int, default=300, help="Adam steps per distance")
     parser.add_argument("--lr", type=float, default=1.0,
                         help="Adam step as the screen displacement it causes, pixels (default 1)")
     parser.add_argument("--smooth", type=float, default=0.01,

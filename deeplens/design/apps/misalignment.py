@@ -129,7 +129,7 @@ def run(args) -> dict:
     for a, im, title in zip(ax, (target, img0, fitted, fitted - target),
                             ("target", "start", "estimate", "estimate - target")):
         if title.startswith("estimate -"):
-            h = a.imshow(im.numpy(), cmap="RdBu_r", vmin=-0.5 * vmax, vmax=0.5 * vmax)
+            h = a.imshow(im.numpy(), cmap="RdBu_r", vmin=-0.2 * vmax, vmax=0.2 * vmax)
             fig.colorbar(h, ax=a, fraction=0.046)
         else:
             a.imshow(im.numpy(), cmap="gray", vmin=0, vmax=vmax)
