@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -13,6 +14,7 @@ import helpers
 from deeplens.design.apps import caustic as app
 from deeplens.design.caustic import (caustic_lens, collimated_square_rays, irradiance,
                                      load_target, optimize_caustic, sag_map)
+from deeplens.optics.io import load_lens
 from deeplens.render.sensor import Sensor
 from deeplens.render.splat import splat_bilinear
 
@@ -136,6 +138,10 @@ def test_app_short_run(tmp_path):
     assert all(-1 <= v <= 1 for v in r["ssim"].values())
     for name in ("caustic_states.png", "caustic_loss.png", "caustic_D30mm.json"):
         assert (tmp_path / "out" / name).stat().st_size > 500
+    states = np.load(tmp_path / "out" / "caustic_states.npz")
+    assert states["irradiance_D60"].shape == (len(states["steps"]), 12, 12)
+    lens = load_lens(tmp_path / "out" / "caustic_D30mm.json")  # a valid lens file
+    assert lens.surfaces[1].coefficients.shape == (10, 10)
 
 
 @pytest.mark.slow

@@ -209,7 +209,12 @@ def test_app_short_run_writes_json_and_figures(tmp_path):
 
 @pytest.mark.slow
 def test_app_default_run_recovers_truth(tmp_path):
+    """The default run (about 2 minutes): the fit reaches the noisy target's noise floor (its
+    loss at most that of the hidden values) and every parameter lands near the truth; the
+    tilt/source pairs are nearly degenerate (README), hence the looser source tolerance."""
     r = app.run(_args(tmp_path))
-    tol = {"tilt_x": 5e-3, "tilt_y": 5e-3, "d_sensor": 0.03, "source_x": 0.05, "source_y": 0.05}
+    assert r["loss_final"] <= 1.01 * r["loss_at_truth"], r
+    tol = {"tilt_x": 6e-3, "tilt_y": 6e-3, "d_sensor": 0.03, "source_x": 0.3, "source_y": 0.3}
     for k in PARAMS:
         assert r["abs_error"][k] < tol[k], (k, r)
+        assert abs(r["start"][k] - r["truth"][k]) > tol[k]  # the start is not already there

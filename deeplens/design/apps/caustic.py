@@ -2,8 +2,8 @@
 screen distances (paper Fig. 14, Eq. 11).  See :mod:`deeplens.design.caustic` for the model.
 
 Writes into ``--out``: ``caustic_states.png`` (per distance: target, intermediate irradiance,
-final irradiance, freeform height map), ``caustic_loss.png`` and the optimised plates as lens
-files ``caustic_D<distance>mm.json``.  Returns ``{"ssim": {"<D> mm": value}, "seconds", ...}``.
+final irradiance, freeform height map), ``caustic_states.npz`` (the same arrays),
+``caustic_loss.png`` and the optimised plates as lens files ``caustic_D<distance>mm.json``.  Returns ``{"ssim": {"<D> mm": value}, "seconds", ...}``.
 """
 
 from __future__ import annotations
@@ -103,6 +103,16 @@ def run(args) -> dict:
         results[key] = {"loss_first": r["loss"][0], "loss_last": r["loss"][-1],
                         "sag_pv_mm": float(sag.max() - sag.min()), "seconds": r["seconds"]}
         rows.append((D, r, sag))
+
+    # the intermediate states themselves, for re-plotting or a video
+    import numpy as np
+
+    np.savez_compressed(out / "caustic_states.npz", target=target.numpy(),
+                        steps=np.array(snaps),
+                        **{f"irradiance_D{D:g}": np.stack([r["snapshots"][k].double().numpy()
+                                                           for k in snaps])
+                           for D, r, _ in rows},
+                        **{f"sag_mm_D{D:g}": sag.numpy() for D, _, sag in rows})
 
     # figure: one row per distance (target, states, height map), like the paper's Fig. 14
     ncol = 2 + len(snaps)
