@@ -113,6 +113,7 @@ def test_target_errors():
 
 def _args(tmp_path, *argv):
     p = argparse.ArgumentParser()
+    p.add_argument("--out")  # added by the ``deeplens design`` command itself
     app.add_arguments(p)
     return p.parse_args([*argv, "--out", str(tmp_path / "out")])
 

@@ -178,6 +178,7 @@ def test_target_image_errors(tmp_path):
 
 def _args(tmp_path, *argv):
     p = argparse.ArgumentParser()
+    p.add_argument("--out")  # added by the ``deeplens design`` command itself
     app.add_arguments(p)
     return p.parse_args([*argv, "--out", str(tmp_path / "out")])
 

@@ -48,7 +48,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--floor", type=float, default=0.1,
                         help="darkest target level as a fraction of the brightest (default 0.1:"
                              " a refractive caustic cannot make a pixel fully dark)")
-    parser.add_argument("--out", default="design_out/caustic", help="output folder")
 
 
 def _check(args) -> list[float]:

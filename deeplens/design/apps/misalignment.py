@@ -65,7 +65,6 @@ def add_arguments(parser) -> None:
                         help="noise level of the synthetic target (1: shot noise of a "
                              "2000-electron peak + 1%% read noise; 0: none)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the ray samples")
-    parser.add_argument("--out", default="design_out/misalignment", help="output folder")
 
 
 def run(args) -> dict:
