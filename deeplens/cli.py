@@ -1,4 +1,4 @@
-"""Command line: ``deeplens report LENS [options]``."""
+"""Command line: ``deeplens report|optimize|tolerance|design ...`` (``deeplens -h``)."""
 
 from __future__ import annotations
 
@@ -63,6 +63,204 @@ def _report(args) -> int:
     return 0
 
 
+def _fields_waves(args):
+    from .optics.materials import check_wavelength_nm
+
+    fields = waves = None
+    if getattr(args, "fields", None) is not None:
+        fields = _floats(args.fields, "--fields", "degrees (e.g. 0,7,14)")
+        if not all(abs(f) < 90 for f in fields):
+            raise _UsageError(f"--fields: field angles are in degrees and must lie within "
+                              f"(-90, 90), got {args.fields!r}")
+    if getattr(args, "wavelengths", None) is not None:
+        waves = _floats(args.wavelengths, "--wavelengths", "nm (e.g. 486.1,587.6)")
+        check_wavelength_nm(waves, where="--wavelengths: ")
+    return fields, waves
+
+
+def _rms_table(fields, waves, before, after=None) -> str:
+    head = f"  {'field (deg)':>11} {'lambda (nm)':>11} {'RMS before (um)':>16}"
+    lines = [head + (f" {'RMS after (um)':>15}" if after is not None else "")]
+    for i, f in enumerate(fields):
+        for j, w in enumerate(waves):
+            row = f"  {f:>11.4g} {w:>11.6g} {before[i][j]:>16.4f}"
+            if after is not None:
+                row += f" {after[i][j]:>15.4f}"
+            lines.append(row)
+    return "\n".join(lines)
+
+
+def _optimize(args) -> int:
+    import os
+    import tempfile
+    from pathlib import Path
+
+    import torch
+
+    from .design.constraints import parse_constraint
+    from .design.lensopt import optimize_lens
+    from .design.merit import Merit, SpotMerit
+    from .design.variables import Variables
+    from .optics.io import load_lens, save_lens
+    from .optics.sampling import parse_sampling
+
+    try:
+        parse_sampling(args.sampling)
+        if args.steps < 1:
+            raise _UsageError(f"--steps must be >= 1, got {args.steps}")
+        fields, waves = _fields_waves(args)
+        out = Path(args.out)
+        if out.suffix.lower() != ".json":
+            raise _UsageError(f"--out must name a .json lens file, got {args.out!r}")
+        if not out.parent.exists():
+            raise _UsageError(f"--out: folder {str(out.parent)!r} does not exist")
+        lens = load_lens(args.lens).to(torch.float64)
+        variables = Variables(lens, args.vary)
+        constraints = [c for text in args.constraint or [] for c in parse_constraint(lens, text)]
+
+        def report_merit():
+            return SpotMerit(fields, waves, sampling=args.sampling, image_plane=args.image_plane,
+                             shrink=1.0, per_wavelength_pupil=True, strict_rays=False)
+
+        rep = report_merit().prepare(lens)
+        with torch.no_grad():
+            rms_before = (rep.rms(lens) * 1e3).tolist()
+        merit = Merit(SpotMerit(fields, waves, sampling=args.sampling,
+                                reference=args.reference, image_plane=args.image_plane))
+        res = optimize_lens(lens, variables, merit, method=args.method, steps=args.steps,
+                            constraints=constraints, rounds=args.rounds)
+        rep = report_merit().prepare(lens)
+        with torch.no_grad():
+            rms_after = (rep.rms(lens) * 1e3).tolist()
+        # write atomically: nothing half-written if anything above failed
+        fd, tmp = tempfile.mkstemp(suffix=".json", dir=str(out.parent))
+        os.close(fd)
+        try:
+            save_lens(lens, tmp)
+            os.replace(tmp, out)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+    except (ValueError, OSError) as e:
+        print(f"deeplens optimize: error: {e}", file=sys.stderr)
+        return 2
+    result = {"merit_before": res.merit_before, "merit_after": res.merit_after,
+              "rms_before_um": [x for row in rms_before for x in row],
+              "rms_after_um": [x for row in rms_after for x in row],
+              "fields_deg": rep.fields, "wavelengths_nm": rep.waves,
+              "seconds": res.seconds, "steps": res.steps, "method": args.method,
+              "stop_reason": res.reason, "variables_before": res.variables_before,
+              "variables_after": res.variables_after, "out": str(out)}
+    if args.json:
+        print(json.dumps(result, indent=1))
+    else:
+        print(f"Optimised {len(variables)} variable(s) of {args.lens} by {args.method}: merit "
+              f"{res.merit_before:.6g} -> {res.merit_after:.6g} mm^2 in {res.steps} steps, "
+              f"{res.seconds:.2f} s ({res.reason})")
+        print(_rms_table(rep.fields, rep.waves, rms_before, rms_after))
+        print(f"wrote {out}")
+    return 0
+
+
+def _tolerance(args) -> int:
+    from pathlib import Path
+
+    import torch
+
+    from .design.merit import SpotMerit
+    from .design.sensitivity import rss_estimate, sensitivity_matrix
+    from .design.tolerance import (load_tolerances, monte_carlo, monte_carlo_figure,
+                                   resolve_tolerances)
+    from .optics.io import load_lens
+    from .optics.sampling import parse_sampling
+
+    try:
+        parse_sampling(args.sampling)
+        if args.monte_carlo < 0:
+            raise _UsageError(f"--monte-carlo must be >= 0, got {args.monte_carlo}")
+        fields, waves = _fields_waves(args)
+        spec = load_tolerances(args.tolerances) if args.tolerances else None
+        lens = load_lens(args.lens).to(torch.float64)
+        waves = waves or [float(lens.spec.primary_wavelength_nm)]
+        names, t = resolve_tolerances(lens, spec)
+        if not names:
+            raise _UsageError("no tolerance parameter has a non-zero tolerance")
+        sm = SpotMerit(fields, waves, sampling=args.sampling, image_plane=args.image_plane,
+                       strict_rays=False).prepare(lens)
+        J = sensitivity_matrix(lens, sm, names)
+        sig = t / 3 ** 0.5
+        rss = rss_estimate(lens, sm, names, sig)
+        result = {"lens": args.lens, "fields_deg": sm.fields, "wavelengths_nm": sm.waves,
+                  "parameters": names, "half_widths": t.tolist(),
+                  "distribution": "uniform in +-half_width (sigma = half_width / sqrt 3)",
+                  "nominal_um": rss["nominal_um"],
+                  "sensitivity_um_per_unit": (J * 1e3).tolist(),
+                  "rss_um": rss["rss_um"]}
+        if args.monte_carlo:
+            mc = monte_carlo(lens, sm, names, t, n=args.monte_carlo, seed=args.seed)
+            result["monte_carlo"] = {k: mc[k] for k in ("n", "seed", "percentiles_um",
+                                                         "mean_um", "rms_um")}
+            if args.out:
+                Path(args.out).mkdir(parents=True, exist_ok=True)
+                from .design.plots import save
+
+                result["figure"] = save(monte_carlo_figure(mc, rss["rss_um"]),
+                                        Path(args.out) / "monte_carlo.png")
+    except (ValueError, OSError) as e:
+        print(f"deeplens tolerance: error: {e}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    print(f"Tolerances of {args.lens}: {len(names)} parameters, uniform in +-half-width")
+    hdr = "  " + " ".join(f"{f:>10.4g}" for f in result["fields_deg"])
+    print("  field (deg):" + hdr[2:])
+    print("  nominal RMS (um):  " + " ".join(f"{x:10.4f}" for x in result["nominal_um"]))
+    print("  RSS estimate (um): " + " ".join(f"{x:10.4f}" for x in result["rss_um"]))
+    if "monte_carlo" in result:
+        mc = result["monte_carlo"]
+        print(f"  Monte Carlo ({mc['n']} trials, seed {mc['seed']}):")
+        for p in ("50", "90", "98"):
+            print(f"    {p}th percentile (um): "
+                  + " ".join(f"{x:10.4f}" for x in mc["percentiles_um"][p]))
+        print("    RMS over trials (um): " + " ".join(f"{x:10.4f}" for x in mc["rms_um"]))
+    print("  largest sensitivities (um per unit, any field):")
+    J = torch.tensor(result["sensitivity_um_per_unit"]).abs().max(0).values
+    for j in J.argsort(descending=True)[:8].tolist():
+        print(f"    {names[j]:<28} {float(J[j]):.4g}   (+-{result['half_widths'][j]:g})")
+    return 0
+
+
+def _design(name: str, rest: list, prog: str) -> int:
+    from .design.apps import load_app
+
+    try:
+        app = load_app(name)
+    except ValueError as e:
+        print(f"{prog}: error: {e}", file=sys.stderr)
+        return 2
+    p = argparse.ArgumentParser(prog=f"{prog} {name}", description=(app.__doc__ or "").split(
+        "\n")[0])
+    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument("--out", default=f"outputs/design/{name}",
+                   help="folder for figures and files (default outputs/design/NAME)")
+    app.add_arguments(p)
+    args = p.parse_args(rest)
+    try:
+        result = app.run(args)
+    except (ValueError, OSError) as e:
+        print(f"{prog} {name}: error: {e}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(result, indent=1))
+    else:
+        for k, v in result.items():
+            if isinstance(v, (int, float, str, bool)) or v is None:
+                print(f"{k}: {v}")
+        print(f"(all values: --json; figures in {args.out})")
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="deeplens", description="deeplens command line")
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -77,7 +275,48 @@ def main(argv=None) -> int:
     r.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
     r.add_argument("--json", action="store_true", help="print JSON instead of a table")
     r.set_defaults(func=_report)
+
+    o = sub.add_parser("optimize", help="optimise lens variables for the RMS spot")
+    o.add_argument("lens", help="lens file")
+    o.add_argument("--vary", required=True,
+                   help="parameter names or globs, comma-separated (e.g. 'surfaces.*.c')")
+    o.add_argument("--fields", help="field angles in degrees (default: file's)")
+    o.add_argument("--wavelengths", help="wavelengths in nm (default: file's)")
+    o.add_argument("--method", choices=["dls", "adam", "lbfgs"], default="dls")
+    o.add_argument("--steps", type=int, default=30)
+    o.add_argument("--rounds", type=int, default=1, help="pupil re-sampling rounds")
+    o.add_argument("--constraint", action="append", metavar="NAME=VALUE",
+                   help="e.g. min_edge_air=0.5, max_track=60, efl=50 (repeatable)")
+    o.add_argument("--sampling", default="hexapolar:6", help="pupil pattern")
+    o.add_argument("--reference", choices=["centroid", "chief"], default="centroid")
+    o.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
+    o.add_argument("--out", required=True, help="where to write the optimised lens (.json)")
+    o.add_argument("--json", action="store_true")
+    o.set_defaults(func=_optimize)
+
+    t = sub.add_parser("tolerance", help="sensitivities, RSS estimate and Monte Carlo")
+    t.add_argument("lens", help="lens file")
+    t.add_argument("--tolerances", help="JSON file: name/glob -> half-width (default: "
+                                        "20 um, 0.5 mrad, 20 um spacing, 0.5%% curvature)")
+    t.add_argument("--monte-carlo", type=int, default=0, metavar="N", help="trials (0: none)")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--fields", help="field angles in degrees (default: file's)")
+    t.add_argument("--wavelengths", help="wavelengths in nm (default: file's primary)")
+    t.add_argument("--sampling", default="hexapolar:6")
+    t.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
+    t.add_argument("--out", help="folder for the Monte Carlo histogram (PNG)")
+    t.add_argument("--json", action="store_true")
+    t.set_defaults(func=_tolerance)
+
+    d = sub.add_parser("design", help="run one of the paper's design applications",
+                       add_help=False)
+    d.add_argument("name", help="spherical-aberration, nikon, sensitivity, caustic, "
+                                "misalignment")
+    d.add_argument("rest", nargs=argparse.REMAINDER)
+    d.set_defaults(func=None)
     args = p.parse_args(argv)
+    if args.cmd == "design":
+        return _design(args.name, args.rest, "deeplens design")
     return args.func(args)
 
 

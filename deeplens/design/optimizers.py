@@ -136,11 +136,13 @@ def jacobian(fn, x: torch.Tensor, mode: str = "auto", m: int | None = None):
     if mode == "forward":
         cols, r = [], None
         eye = torch.eye(n, dtype=x.dtype, device=x.device)
+        # requires_grad keeps modules that skip identity transforms of frozen zeros (lens
+        # misalignments) on their differentiable path; a function that needs no such care says
+        # so with ``fn.needs_grad = False`` (recording the graph costs time)
+        rg = bool(getattr(fn, "needs_grad", True))
         for j in range(n):
             with fwAD.dual_level(), torch.enable_grad():
-                # requires_grad keeps modules that skip identity transforms for frozen zeros
-                # (e.g. misalignments) on their differentiable path
-                xd = fwAD.make_dual(x.clone().requires_grad_(True), eye[j])
+                xd = fwAD.make_dual(x.clone().requires_grad_(rg), eye[j])
                 out = fn(xd)
                 primal, tangent = fwAD.unpack_dual(out)
                 if tangent is None:  # the output does not depend on x

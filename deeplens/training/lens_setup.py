@@ -20,10 +20,11 @@ from pathlib import Path
 
 import torch
 
+from ..design.variables import parameter_scale  # noqa: F401  (re-exported)
 from ..optics.io import load_lens
 from ..optics.io.lensfile import LensFileError
 from ..optics.io.table import read_table
-from ..optics.surfaces import Asphere, BSpline, XYPolynomial
+from ..optics.surfaces import XYPolynomial
 
 __all__ = ["build_lens", "set_trainable", "parameter_scale", "optics_param_groups",
            "cubic_phase_plate", "surface_height_map"]
@@ -47,27 +48,6 @@ def set_trainable(lens, patterns) -> list[str]:
     for n in names:
         params[n].requires_grad_(n in chosen)
     return chosen
-
-
-def parameter_scale(lens, name: str) -> float:
-    """mm of sag per unit of the parameter ``name`` (module docstring)."""
-    parts = name.split(".")
-    if parts[0] == "surfaces":
-        s = lens.surfaces[int(parts[1])]
-        R = float(s.semi_diameter)
-        if isinstance(s, XYPolynomial) and parts[2] == "a":
-            i, j = s.terms[int(parts[3])]
-            return R ** (i + j)
-        if isinstance(s, Asphere) and parts[2] == "a":
-            return R ** (2 * int(parts[3]) + 4)
-        if isinstance(s, Asphere) and parts[2] == "c":
-            return R * R / 2
-        if isinstance(s, BSpline):
-            return 1.0
-        return 1.0
-    if parts[0] == "misalignments" and parts[-1].startswith("tilt"):
-        return float(max(s.semi_diameter for s in lens.surfaces))
-    return 1.0
 
 
 def optics_param_groups(lens, lr_mm: float) -> list[dict]:

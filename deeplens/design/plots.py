@@ -1,0 +1,87 @@
+"""Design figures (matplotlib, imported lazily): spot diagrams, merit history, heat maps."""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["spot_figure", "history_figure", "heatmap_figure", "save"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def spot_figure(merit, lenses: dict, scale_um: float | None = None):
+    """Spot diagrams (µm, about each spot's centroid) of a prepared
+    :class:`~deeplens.design.merit.SpotMerit` on each lens of ``{title: lens}``: one row per
+    lens, one column per field, wavelengths in colour."""
+    plt = _plt()
+    F = len(merit.fields)
+    fig, axes = plt.subplots(len(lenses), F, figsize=(3 * F, 3 * len(lenses)), dpi=90,
+                             squeeze=False)
+    colours = ["tab:green", "tab:blue", "tab:red", "tab:orange", "tab:purple"]
+    with torch.no_grad():
+        blocks = {t: merit._blocks(L) for t, L in lenses.items()}
+    lim = scale_um
+    if lim is None:
+        lim = max(float(b[0].abs().max()) for bl in blocks.values() for b in bl.values()) * 1e3
+    for r, (title, bl) in enumerate(blocks.items()):
+        for c, f in enumerate(merit.fields):
+            ax = axes[r, c]
+            for k, wl in enumerate(merit.waves):
+                dev, ok, n, rms = bl[(f, wl)]
+                p = dev[ok].double().cpu() * 1e3
+                ax.plot(p[:, 0], p[:, 1], ".", ms=2, color=colours[k % len(colours)],
+                        label=f"{wl:g} nm: {float(rms) * 1e3:.2f} µm")
+            ax.set_xlim(-lim, lim)
+            ax.set_ylim(-lim, lim)
+            ax.set_aspect("equal")
+            ax.set_title(f"{title}, {f:g} deg", fontsize=8)
+            ax.legend(fontsize=6, loc="upper right")
+            ax.tick_params(labelsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def history_figure(history, title: str = "merit"):
+    """The merit of the accepted iterates (log scale)."""
+    plt = _plt()
+    acc = [h for h in history if h.get("accepted", True)]
+    fig, ax = plt.subplots(figsize=(4, 3), dpi=90)
+    ax.semilogy(range(len(acc)), [h["merit"] for h in acc], "o-", ms=3)
+    ax.set_xlabel("accepted step")
+    ax.set_ylabel("merit (sum r², mm²)")
+    ax.set_title(title, fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def heatmap_figure(mats, row_labels, col_labels, titles, unit: str):
+    """One heat map per matrix in ``mats`` (rows: parameters, columns as labelled)."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, len(mats), figsize=(3.2 * len(mats), 0.3 * len(row_labels) + 1.8),
+                             dpi=90, squeeze=False)
+    for ax, m, t in zip(axes[0], mats, titles):
+        m = torch.as_tensor(m, dtype=torch.float64)
+        v = float(m.abs().max()) or 1.0
+        im = ax.imshow(m.numpy(), cmap="RdBu_r", vmin=-v, vmax=v, aspect="auto")
+        ax.set_yticks(range(len(row_labels)))
+        ax.set_yticklabels(row_labels, fontsize=6)
+        ax.set_xticks(range(len(col_labels)))
+        ax.set_xticklabels(col_labels, fontsize=7)
+        ax.set_title(t, fontsize=8)
+        fig.colorbar(im, ax=ax, label=unit, shrink=0.8)
+    fig.tight_layout()
+    return fig
+
+
+def save(fig, path) -> str:
+    """Save ``fig`` as PNG and close it; returns the path as a string."""
+    fig.savefig(path)
+    _plt().close(fig)
+    return str(path)

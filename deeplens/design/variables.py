@@ -1,0 +1,176 @@
+"""Design variables: lens parameters chosen by name or glob, scaled to millimetres of sag.
+
+A variable is an entry of a lens parameter named as in ``lens.named_parameters()``:
+``surfaces.3.c`` (a curvature), ``surfaces.16.a.0`` (the a4 coefficient), ``surfaces.*.k``,
+``distances.5``, ``d_sensor``, ``misalignments.2.tilt_x``.  The optimiser works on the scaled
+vector
+
+    x_j = s_j p_j,        s_j = mm of sag at the rim per unit of p_j   (:func:`parameter_scale`)
+
+so that a step of 1 in any ``x_j`` changes its surface by about 1 mm at the rim: a curvature
+scales by ``R^2 / 2``, an even asphere ``a_2k`` by ``R^2k``, an XY coefficient of ``x^i y^j``
+by ``R^(i+j)``, a conic ``k`` by ``∂z/∂k = c^3 R^4 / (2 q (1 + q)^2)`` (``q = sqrt(1 - (1+k)
+c^2 R^2)``), a tilt by the largest semi-diameter (mm of rim displacement per rad); distances,
+decenters and B-spline heights are already mm.  ``R`` is the surface's semi-diameter.
+
+Evaluation never writes into the lens: :meth:`Variables.call` substitutes the values for the
+parameters (``torch.func.functional_call``) so that ``x`` may carry autograd or forward-mode
+tangents, and :meth:`Variables.assign` writes a final ``x`` back.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+
+import torch
+from torch import nn
+
+from ..optics.surfaces import Asphere, BSpline, XYPolynomial
+
+__all__ = ["parameter_scale", "Variables", "resolve_names"]
+
+
+def parameter_scale(lens, name: str) -> float:
+    """mm of sag (at the rim) per unit of the parameter ``name`` (module docstring)."""
+    parts = name.split(".")
+    if parts[0] == "surfaces":
+        s = lens.surfaces[int(parts[1])]
+        R = float(s.semi_diameter)
+        if isinstance(s, XYPolynomial) and parts[2] == "a":
+            i, j = s.terms[int(parts[3])]
+            return R ** (i + j)
+        if isinstance(s, Asphere) and parts[2] == "a":
+            return R ** (2 * int(parts[3]) + 4)
+        if isinstance(s, Asphere) and parts[2] == "c":
+            return R * R / 2
+        if isinstance(s, Asphere) and parts[2] == "k":
+            c, k = float(s.c), float(s.k)
+            arg = 1.0 - (1.0 + k) * c * c * R * R
+            if c == 0.0 or arg <= 0.0:
+                return 1.0
+            q = math.sqrt(arg)
+            return max(abs(c) ** 3 * R ** 4 / (2.0 * q * (1.0 + q) ** 2), 1e-6)
+        if isinstance(s, BSpline):
+            return 1.0
+        return 1.0
+    if parts[0] == "misalignments" and parts[-1].startswith("tilt"):
+        return float(max(s.semi_diameter for s in lens.surfaces))
+    return 1.0
+
+
+def resolve_names(lens, patterns, what: str = "--vary") -> list[str]:
+    """Parameter names matching ``patterns`` (names or ``fnmatch`` globs): in the order of the
+    patterns, each glob's matches in lens order, each name once.
+
+    Raises:
+        ValueError: a pattern matches nothing; the message lists the available names.
+    """
+    names = [n for n, _ in lens.named_parameters()]
+    if isinstance(patterns, str):
+        patterns = [p for p in patterns.split(",") if p.strip()]
+    patterns = [p.strip() for p in patterns]
+    if not patterns:
+        raise ValueError(f"{what}: no variables given")
+    chosen = []
+    for pat in patterns:
+        hits = [n for n in names if fnmatch.fnmatchcase(n, pat)]
+        if not hits:
+            raise ValueError(f"{what}: {pat!r} matches no lens parameter; available: "
+                             f"{', '.join(names)}")
+        chosen += [h for h in hits if h not in chosen]
+    return chosen
+
+
+class _Call(nn.Module):
+    """Holds the lens so that ``functional_call`` can substitute its parameters."""
+
+    def __init__(self, lens):
+        super().__init__()
+        self.lens = lens
+
+    def forward(self, fn):
+        return fn(self.lens)
+
+
+class Variables:
+    """The design variables of ``lens`` (names or globs) and their scales.
+
+    Args:
+        lens: the :class:`~deeplens.optics.lens.Lens` (its parameters are not modified until
+            :meth:`assign`).
+        patterns: names/globs, a list or a comma-separated string.
+        scales: optional ``{name: mm per unit}`` overrides of :func:`parameter_scale`.
+
+    Attributes:
+        names: parameter names (in the order of ``patterns``); ``sizes``: entries per parameter;
+        ``scale``: ``(n,)`` float64 scales; ``labels``: one label per entry.
+
+    Example:
+        >>> v = Variables(lens, "surfaces.0.c,surfaces.0.k")
+        >>> rms = v.call(lambda L: some_merit(L), v.x0())
+    """
+
+    def __init__(self, lens, patterns, scales: dict | None = None, what: str = "--vary"):
+        self.lens = lens
+        self.names = resolve_names(lens, patterns, what)
+        params = dict(lens.named_parameters())
+        self.shapes = [tuple(params[n].shape) for n in self.names]
+        self.sizes = [max(1, params[n].numel()) for n in self.names]
+        sc = []
+        self.labels = []
+        for n, k in zip(self.names, self.sizes):
+            s = float((scales or {}).get(n, parameter_scale(lens, n)))
+            if not (s > 0 and math.isfinite(s)):
+                raise ValueError(f"variable {n}: scale must be a positive number, got {s!r}")
+            sc += [s] * k
+            self.labels += [n] if k == 1 else [f"{n}[{i}]" for i in range(k)]
+        self.scale = torch.tensor(sc, dtype=torch.float64)
+        self._call = _Call(lens)
+
+    def __len__(self) -> int:
+        return int(self.scale.numel())
+
+    def __repr__(self) -> str:
+        return f"Variables({', '.join(self.labels)})"
+
+    def current(self) -> torch.Tensor:
+        """The lens's current parameter values, flattened ``(n,)`` (float64, unscaled)."""
+        params = dict(self.lens.named_parameters())
+        return torch.cat([params[n].detach().reshape(-1).double().cpu() for n in self.names])
+
+    def x0(self) -> torch.Tensor:
+        """The scaled vector ``x = s p`` at the lens's current values ``(n,)``."""
+        return self.current() * self.scale
+
+    def values(self, x: torch.Tensor) -> dict:
+        """``{name: tensor}`` parameter values for the scaled vector ``x`` (differentiable)."""
+        if x.shape != (len(self),):
+            raise ValueError(f"expected {len(self)} variables ({', '.join(self.labels)}), got "
+                             f"a tensor of shape {tuple(x.shape)}")
+        params = dict(self.lens.named_parameters())
+        p = x / self.scale.to(x)
+        out, i = {}, 0
+        for n, shape, k in zip(self.names, self.shapes, self.sizes):
+            ref = params[n]
+            out[n] = p[i:i + k].reshape(shape).to(dtype=ref.dtype, device=ref.device)
+            i += k
+        return out
+
+    def call(self, fn, x: torch.Tensor):
+        """``fn(lens)`` evaluated with the variables set to ``x`` (the lens is not modified);
+        gradients and forward-mode tangents of ``x`` flow into the result."""
+        vals = {f"lens.{n}": v for n, v in self.values(x).items()}
+        return torch.func.functional_call(self._call, vals, (fn,), strict=False)
+
+    def assign(self, x: torch.Tensor) -> None:
+        """Write the scaled vector ``x`` into the lens parameters (in place, no graph)."""
+        params = dict(self.lens.named_parameters())
+        with torch.no_grad():
+            for n, v in self.values(x.detach()).items():
+                params[n].copy_(v)
+
+    def as_dict(self, x: torch.Tensor | None = None) -> dict:
+        """``{label: value}`` in the parameters' own units (for reports)."""
+        p = (self.current() if x is None else x.detach().double().cpu() / self.scale)
+        return {lab: float(v) for lab, v in zip(self.labels, p)}
