@@ -219,3 +219,17 @@ def test_app_default_run_recovers_truth(tmp_path):
     for k in PARAMS:
         assert r["abs_error"][k] < tol[k], (k, r)
         assert abs(r["start"][k] - r["truth"][k]) > tol[k]  # the start is not already there
+
+
+def test_cli_reports_a_bad_target_by_option(tmp_path, capsys):
+    """Through ``deeplens design misalignment``: exit status 2 and a message naming --target."""
+    from deeplens.cli import main
+
+    bad = tmp_path / "rgb.npy"
+    np.save(bad, np.zeros((8, 8, 3)))
+    code = main(["design", "misalignment", "--target", str(bad), "--resolution", "8x8",
+                 "--binning", "1", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "misalignment: error: --target:" in err and "colour image" in err
+    assert not (tmp_path / "out").exists()
