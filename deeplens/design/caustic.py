@@ -12,8 +12,10 @@ regular grid (``rays_per_pixel^2`` per screen pixel for the flat plate) are forw
 splatted bilinearly (:func:`~deeplens.render.splat.splat_bilinear`), each with the weight
 ``res^2 / N``, so that an unchanged (flat) plate gives ``E = 1`` in every pixel; the target is
 normalised to mean 1 (the same total power).  Both are smoothed by a Gaussian of ``sigma``
-pixels during the first steps (coarse to fine): bilinear splatting moves a pixel's value only by
-rays within one pixel, so without smoothing a ray far from where it belongs sees no gradient.
+pixels, large during the first steps (coarse to fine): bilinear splatting moves a pixel's value
+only by rays within one pixel, so without smoothing a ray far from where it belongs sees no
+gradient.  The rays are re-jittered inside their grid cells at every step, and a curvature
+penalty keeps neighbouring rays from crossing (see :func:`optimize_caustic`).
 
 Lengths in mm, wavelength in nm.  The clear aperture of a B-spline surface is the disk of its
 semi-diameter ``L``; the beam's square is inscribed in it (``L = a sqrt(2)`` plus a margin).
@@ -163,11 +165,10 @@ def sag_map(lens: Lens, half_width_mm: float, n: int = 128) -> torch.Tensor:
 
 
 def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm: float,
-                     n_ctrl: int, rays_per_pixel: int = 2, steps: int = 150, lr_px: float = 2.0,
+                     n_ctrl: int, rays_per_pixel: int = 2, steps: int = 300, lr_px: float = 1.0,
                      sigma0: float = 4.0, sigma1: float = 0.5, coarse_fraction: float = 0.6,
                      smooth: float = 0.01, snapshots=(), eval_rays_per_pixel: int = 6,
-                     seed: int = 0,
-                     dtype=torch.float32, callback=None) -> dict:
+                     seed: int = 0, dtype=torch.float32, callback=None) -> dict:
     """Adam on the B-spline coefficients (Eq. 11) for one screen distance.
 
     Args:
@@ -197,8 +198,7 @@ def optimize_caustic(target: torch.Tensor, *, half_width_mm: float, distance_mm:
 
     Returns:
         ``{"lens", "irradiance" (res, res) (final, with ``eval_rays_per_pixel``), "snapshots":
-        {step: (res, res)}, "loss": [...],
-        "seconds"}``.
+        {step: (res, res)}, "loss": [...] (per step, smoothed MSE + penalty), "seconds"}``.
     """
     t0 = time.perf_counter()
     res = int(target.shape[-1])

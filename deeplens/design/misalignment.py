@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -116,7 +116,6 @@ class SpotSetup:
     binning: int = 4
     n_rays: int = 120000
     seed: int = 0
-    extra: dict = field(default_factory=dict)
 
     def check(self) -> None:
         H, W = (int(v) for v in self.resolution)

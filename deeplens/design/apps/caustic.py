@@ -3,7 +3,8 @@ screen distances (paper Fig. 14, Eq. 11).  See :mod:`deeplens.design.caustic` fo
 
 Writes into ``--out``: ``caustic_states.png`` (per distance: target, intermediate irradiance,
 final irradiance, freeform height map), ``caustic_states.npz`` (the same arrays),
-``caustic_loss.png`` and the optimised plates as lens files ``caustic_D<distance>mm.json``.  Returns ``{"ssim": {"<D> mm": value}, "seconds", ...}``.
+``caustic_loss.png`` and the optimised plates as lens files ``caustic_D<distance>mm.json``.
+Returns ``{"ssim": {"<D> mm": value}, "seconds", ...}``.
 """
 
 from __future__ import annotations
