@@ -301,6 +301,9 @@ def estimate(target: torch.Tensor, setup: SpotSetup, start: dict | None = None, 
     from .optimizers import adam, damped_least_squares
 
     t0 = time.perf_counter()
+    if tuple(target.shape) != setup.shape:
+        raise ValueError(f"target image is {tuple(target.shape)} working pixels; the set-up "
+                         f"gives {setup.shape} (--resolution / --binning)")
     start = dict(DEFAULT_START if start is None else start)
     scale = dict(DEFAULT_SCALE if scale is None else scale)
     imager = SpotImager(setup)
