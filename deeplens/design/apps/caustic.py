@@ -138,7 +138,7 @@ def run(args) -> dict:
     for D, r, _ in rows:
         ax.semilogy(r["loss"], label=f"D = {D:g} mm")
     ax.set_xlabel("Adam step")
-    ax.set_ylabel("MSE (smoothed during the first half)")
+    ax.set_ylabel("smoothed MSE + curvature penalty")
     ax.legend()
     fig.tight_layout()
     fig.savefig(out / "caustic_loss.png", dpi=110)
