@@ -111,15 +111,17 @@ def build_objects(cfg: DictConfig) -> dict:
     """Instantiate lens, sensor, renderer, restorer, data module, Lightning module, trainer."""
     check_config(cfg)
     L.seed_everything(cfg.seed, workers=True)
-    lc = cfg.lens
-    lens = build_lens(lc.path, trainable=list(lc.trainable), dtype=lc.dtype,
-                      plate=lc.plate, plate_surface=lc.plate_surface,
-                      plate_alpha_mm=lc.plate_alpha_mm,
-                      table_options=OmegaConf.to_container(lc.table_options))
     sc = cfg.sensor
     sensor = Sensor(tuple(sc.resolution), sc.pixel_size_mm,
                     channels=None if sc.channels is None else [list(c) for c in sc.channels],
                     full_well=sc.full_well, read_noise=sc.read_noise)
+    lc = cfg.lens
+    lens = build_lens(lc.path, trainable=list(lc.trainable), dtype=lc.dtype,
+                      plate=lc.plate, plate_surface=lc.plate_surface,
+                      plate_alpha_mm=lc.plate_alpha_mm,
+                      table_options=OmegaConf.to_container(lc.table_options),
+                      focus_mm=lc.focus_mm,
+                      focus_wavelengths_nm=[w for ch in sensor.channels for w in ch])
     n_ch = len(sensor.channels)
     if n_ch not in (1, 3):
         raise ValueError(f"sensor.channels: {n_ch} channels, but the training textures are RGB: "
