@@ -31,7 +31,7 @@ _TYPES = {
     "lens.path": str, "lens.dtype": str, "lens.trainable": list,
     "sensor.resolution": list, "sensor.pixel_size_mm": float, "sensor.full_well": float,
     "sensor.read_noise": float,
-    "scene.depths_mm": list, "scene.val_depths_mm": list,
+    "scene.depths_mm": list, "scene.val_depths_mm": list, "scene.margin": float,
     "render.kind": str, "render.spp": int, "render.vignetting": bool, "render.adjoint": bool,
     "render.decorrelate": bool, "render.chunk_rays": int, "render.max_iter": int,
     "render.psf_rays": int,
@@ -146,7 +146,7 @@ def build_objects(cfg: DictConfig) -> dict:
         loss=OmegaConf.to_container(mc.loss), net_lr=mc.net_lr, optics_lr_mm=mc.optics_lr_mm,
         disc_lr=mc.disc_lr, perceptual=perceptual, discriminator=discriminator,
         max_sag_mm=mc.max_sag_mm, plate_surface=lc.plate_surface, seed=cfg.seed,
-        psf_fields_deg=list(cfg.scene.psf_fields_deg))
+        psf_fields_deg=list(cfg.scene.psf_fields_deg), scene_margin=cfg.scene.margin)
     datamodule = hydra.utils.instantiate(cfg.data)
     callbacks = [hydra.utils.instantiate(c) for c in (cfg.callbacks or {}).values() if c]
     logger = hydra.utils.instantiate(cfg.logger) if cfg.get("logger") else False
