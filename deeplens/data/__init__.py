@@ -19,6 +19,7 @@ from .textures import (
 )
 
 _DATAMODULE_NAMES = ("TextureDataset", "EndlessTextureDataset", "ImageFolderDataset",
+                     "CenterCropFolderDataset",
                      "TextureDataModule", "EpochLoader")
 
 __all__ = [

@@ -36,6 +36,7 @@ __all__ = [
     "TextureDataset",
     "EndlessTextureDataset",
     "ImageFolderDataset",
+    "CenterCropFolderDataset",
     "EpochLoader",
     "TextureDataModule",
 ]
@@ -294,6 +295,42 @@ class ImageFolderDataset(Dataset):
         return {"image": self.crop(self.load(k)), "kind": "folder", "path": str(self.files[k])}
 
 
+class CenterCropFolderDataset(Dataset):
+    """A fixed test set from a folder of the user's own images: item ``k`` is the centre crop
+    (``image_size``) of file ``k`` in sorted order, enlarged first if the image is smaller.
+    Deterministic (no random crop), so every variant and seed sees the same pixels.
+
+    Items: ``{"image": (3, H, W) float32 in [0, 1] (linear RGB), "kind": "folder", "path": str}``.
+
+    Raises:
+        FileNotFoundError: ``root`` missing, not a folder, or without images.
+        RuntimeError: a file that cannot be decoded (named), raised when it is read.
+    """
+
+    def __init__(self, root: str | Path, image_size: Size, linearize: bool = True):
+        self.folder = ImageFolderDataset(root, image_size, linearize)
+
+    def __len__(self) -> int:
+        return len(self.folder)
+
+    def __getitem__(self, k: int) -> dict:
+        k = int(k)
+        if not 0 <= k < len(self):
+            raise IndexError(f"CenterCropFolderDataset index {k} out of range for {len(self)} "
+                             f"images in '{self.folder.root}'")
+        img = self.folder.load(k)
+        H, W = self.folder.image_size
+        h, w = img.shape[-2:]
+        if h < H or w < W:
+            s = max(H / h, W / w)
+            h, w = max(H, math.ceil(h * s)), max(W, math.ceil(w * s))
+            img = F.interpolate(img[None], size=(h, w), mode="bilinear",
+                                align_corners=False)[0].clamp(0.0, 1.0)
+        i, j = (h - H) // 2, (w - W) // 2
+        return {"image": img[:, i:i + H, j:j + W].contiguous(), "kind": "folder",
+                "path": str(self.folder.files[k])}
+
+
 class _FolderStream(_SeededStream):
     """Training stream of random crops of an :class:`ImageFolderDataset` (seeded like textures)."""
 
@@ -344,16 +381,18 @@ class TextureDataModule(L.LightningDataModule):
         num_workers: DataLoader worker processes (0: load in the main process).
         image_folder: if given, train on random crops of these images instead of textures
             (validation and test stay procedural, so they are comparable across runs).
+        test_folder: if given, the test set is the centre crops of these images (every file,
+            sorted by path) instead of procedural textures; ``test_size`` is then ignored.
 
     Raises:
         ValueError: an argument out of range (the message names it and the value).
-        FileNotFoundError: ``image_folder`` missing or without images.
+        FileNotFoundError: ``image_folder`` or ``test_folder`` missing or without images.
     """
 
     def __init__(self, image_size: Size = 256, batch_size: int = 8,
                  train_steps_per_epoch: int = 1000, val_size: int = 64, test_size: int = 64,
                  seed: int = 0, kinds: str | Sequence[str] | None = None, num_workers: int = 0,
-                 image_folder: str | Path | None = None):
+                 image_folder: str | Path | None = None, test_folder: str | Path | None = None):
         super().__init__()
         self.image_size = parse_size(image_size, "image_size")
         self.batch_size = _check_int("batch_size", batch_size, 1)
@@ -366,15 +405,19 @@ class TextureDataModule(L.LightningDataModule):
         self.image_folder = None if image_folder is None else Path(image_folder)
         self._folder = (None if self.image_folder is None
                         else ImageFolderDataset(self.image_folder, self.image_size))
+        self.test_folder = None if test_folder is None else Path(test_folder)
+        self._test_folder = (None if self.test_folder is None
+                             else CenterCropFolderDataset(self.test_folder, self.image_size))
         self.save_hyperparameters({
             "image_size": list(self.image_size), "batch_size": self.batch_size,
             "train_steps_per_epoch": self.train_steps_per_epoch, "val_size": self.val_size,
             "test_size": self.test_size, "seed": self.seed, "kinds": list(self.kinds),
             "num_workers": self.num_workers,
-            "image_folder": None if image_folder is None else str(image_folder)})
+            "image_folder": None if image_folder is None else str(image_folder),
+            "test_folder": None if test_folder is None else str(test_folder)})
         self.train_set: _SeededStream | None = None
         self.val_set: TextureDataset | None = None
-        self.test_set: TextureDataset | None = None
+        self.test_set: TextureDataset | CenterCropFolderDataset | None = None
 
     @property
     def val_base_seed(self) -> int:
@@ -393,8 +436,9 @@ class TextureDataModule(L.LightningDataModule):
                                                    self.batch_size)
         self.val_set = TextureDataset(self.val_size, self.image_size, self.val_base_seed,
                                       self.kinds)
-        self.test_set = TextureDataset(self.test_size, self.image_size, self.test_base_seed,
-                                       self.kinds)
+        self.test_set = (self._test_folder if self._test_folder is not None else
+                         TextureDataset(self.test_size, self.image_size, self.test_base_seed,
+                                        self.kinds))
 
     def _ensure_setup(self) -> None:
         if self.train_set is None:
@@ -407,7 +451,7 @@ class TextureDataModule(L.LightningDataModule):
         return EpochLoader(self.train_set, batch_size=self.batch_size,
                            num_workers=self.num_workers, start_epoch=start)
 
-    def _fixed_loader(self, dataset: TextureDataset) -> DataLoader:
+    def _fixed_loader(self, dataset: Dataset) -> DataLoader:
         return DataLoader(dataset, batch_size=self.batch_size, shuffle=False,
                           num_workers=self.num_workers)
 

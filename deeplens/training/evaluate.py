@@ -1,21 +1,35 @@
-"""``evaluate(cfg)``: the phase-plate comparison table.
+"""``evaluate(cfg)``: compare optical variants, each with its own restorer, on one test set.
 
-For each variant a restorer is trained for its lens with the experiment's settings and all
-three are tested on the same fixed test set, per depth:
+For every variant and every seed of ``eval.seeds`` a restorer is trained for that variant's lens
+with the experiment's settings (same budget), then tested per depth (and per field band when
+the scene defines ``field_bands``).  Variants (``eval.variants``):
 
 * ``none``: the lens with its phase plate flattened (all coefficients zero), optics frozen;
 * ``cubic``: the analytic cubic plate of Dowski and Cathey, ``z = α ((x/R)^3 + (y/R)^3)``,
-  optics frozen; ``eval.cubic_alpha_mm`` is one α or a list (a sweep: one variant, restorer and
-  table column per α, named ``cubic@<α in µm>um``);
-* ``learned``: the plate and the restorer trained jointly (or loaded from ``eval.learned_ckpt``).
+  optics frozen; ``eval.cubic_alpha_mm`` is one α or a list (a sweep: one variant per α, named
+  ``cubic@<α in µm>um``);
+* ``learned``: the optics (``lens.trainable``) and the restorer trained jointly (or loaded from
+  ``eval.learned_ckpt``, single seed);
+* ``frozen``: the lens as in its file with no optics training (for lenses without a plate,
+  e.g. the doublet: measures the optics' share of the gain against ``learned``).
 
-The table has one row per variant and image (sensor, restored) and one column per test depth,
-PSNR (dB) / SSIM.
+Every number is the mean over seeds; ``± std`` is the sample standard deviation over seeds
+(``n - 1``; 0 for a single seed).  A seed changes everything that is random (network
+initialisation, training and test images, noise), so the spread covers them all; within one
+seed every variant sees the same test images.
+
+Outputs (in ``eval.output``'s folder, each written atomically): ``eval_table.md`` (a row per
+variant and image, a column per depth or band), ``eval_table.json`` (see :func:`summarize`),
+and the figures of :mod:`deeplens.training.eval_figures` (``*.png``, also logged to TensorBoard
+under ``<output folder>/tensorboard``).
 """
 
 from __future__ import annotations
 
 import copy
+import json
+import math
+import os
 from pathlib import Path
 
 import torch
@@ -23,7 +37,9 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from .train import build_objects, train
 
-__all__ = ["evaluate", "format_table", "variants"]
+__all__ = ["evaluate", "format_table", "variants", "summarize", "psf_rms_px", "seeds"]
+
+_PLATE_KINDS = ("none", "cubic")
 
 
 def _alphas(cfg: DictConfig) -> list[float]:
@@ -39,89 +55,278 @@ def _alphas(cfg: DictConfig) -> list[float]:
     return vals
 
 
+def seeds(cfg: DictConfig) -> list[int]:
+    """The seeds of ``eval.seeds`` (``null``: the run's ``seed``), checked."""
+    s = cfg.eval.seeds
+    vals = [cfg.seed] if s is None else (list(s) if OmegaConf.is_list(s)
+                                         or isinstance(s, (list, tuple)) else [s])
+    if not vals:
+        raise ValueError("eval.seeds: the list is empty")
+    for v in vals:
+        if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+            raise ValueError(f"eval.seeds: expected integers >= 0, got {v!r}")
+    if len(set(vals)) != len(vals):
+        raise ValueError(f"eval.seeds: repeated seeds in {vals}")
+    return [int(v) for v in vals]
+
+
 def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
-    """``(name, kind, alpha_mm)`` of every variant to evaluate, in table order."""
+    """``(name, kind, alpha_mm)`` of every variant to evaluate, in table order.
+
+    Raises:
+        ValueError: an unknown variant, or ``none``/``cubic`` for a lens without a plate.
+    """
     out = []
-    for v in cfg.eval.variants:
+    names = cfg.eval.variants
+    if names is None:
+        names = (["none", "cubic", "learned"] if cfg.lens.plate_surface is not None
+                 else ["frozen", "learned"])
+    for v in names:
+        if v in _PLATE_KINDS and cfg.lens.plate_surface is None:
+            raise ValueError(f"eval.variants: {v!r} needs a phase plate, but the experiment's "
+                             f"lens has none (lens.plate_surface is null); use frozen, learned")
         if v == "cubic":
             alphas = _alphas(cfg)
             if len(alphas) == 1:
                 out.append(("cubic", "cubic", alphas[0]))
             else:
                 out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in alphas]
-        elif v in ("none", "learned"):
+        elif v in ("none", "learned", "frozen"):
             out.append((v, v, None))
         else:
             raise ValueError(f"eval.variants: unknown variant {v!r}; expected none, cubic, "
-                             f"learned")
+                             f"learned, frozen")
+    if not out:
+        raise ValueError("eval.variants: the list is empty")
     return out
 
 
 def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
-                 alpha_mm: float | None = None) -> DictConfig:
+                 alpha_mm: float | None = None, seed: int | None = None,
+                 multi_seed: bool = False) -> DictConfig:
     kind = kind or name
     c = copy.deepcopy(cfg)
     with open_dict(c):
-        c.paths.output_dir = str(Path(cfg.paths.output_dir) / name.replace("@", "_"))
+        out = Path(cfg.paths.output_dir) / name.replace("@", "_")
+        if seed is not None:
+            c.seed = int(seed)
+            if multi_seed:
+                out = out / f"seed{seed}"
+        c.paths.output_dir = str(out)
         c.test = True
+        if cfg.eval.test_folder is not None:
+            c.data.test_folder = cfg.eval.test_folder
         if kind == "none":
             c.lens.plate, c.lens.trainable = "none", []
         elif kind == "cubic":
             c.lens.plate, c.lens.trainable = "cubic", []
             c.lens.plate_alpha_mm = float(_alphas(cfg)[0] if alpha_mm is None else alpha_mm)
         elif kind == "learned":
-            c.lens.plate = "learned"
+            if cfg.lens.plate_surface is not None:
+                c.lens.plate = "learned"
+        elif kind == "frozen":
+            c.lens.trainable = []
         else:
             raise ValueError(f"eval.variants: unknown variant {kind!r}; expected none, cubic, "
-                             f"learned")
+                             f"learned, frozen")
     return c
 
 
-def _test_metrics(cfg: DictConfig, ckpt: str | None):
+def _run(cfg: DictConfig, ckpt: str | None):
+    """Train (or load ``ckpt``) and test one variant; returns ``(metrics, objects)``."""
     if ckpt is None:
-        metrics, _ = train(cfg)
-        return metrics
+        return train(cfg)
     objs = build_objects(cfg)
     objs["trainer"].test(objs["module"], datamodule=objs["datamodule"], ckpt_path=ckpt,
                          verbose=False)
-    return {k: float(v) for k, v in objs["trainer"].callback_metrics.items()}
+    return {k: float(v) for k, v in objs["trainer"].callback_metrics.items()}, objs
 
 
-def format_table(results: dict, depths) -> str:
-    """Markdown table: a row per variant and image (sensor, restored), a column per depth and
-    the mean, cells ``PSNR / SSIM``."""
-    head = ("| variant | image | " + " | ".join(f"{d / 1000:g} m" for d in depths)
-            + " | mean |")
-    rows = [head, "|---|---|" + "---|" * (len(depths) + 1)]
-    for v, m in results.items():
+def psf_rms_px(lens, sensor, depth_mm: float, n_rays: int = 4096, seed: int = 0) -> float:
+    """Geometric rms radius (pixels) of the on-axis PSF at ``depth_mm``, about its centroid,
+    averaged over the sensor's wavelengths (each channel's wavelengths, equally weighted)."""
+    from ..render.splat import point_source_rays, trace_to_sensor_pixels
+
+    vals = []
+    with torch.no_grad():
+        for ch in sensor.channels:
+            for w in ch:
+                rays = point_source_rays(lens, (0.0, 0.0), depth_mm, float(w), n_rays, seed)
+                i, j, valid = trace_to_sensor_pixels(lens, sensor, rays)
+                if not bool(valid.any()):
+                    raise ValueError(f"psf_rms_px: no on-axis ray at {depth_mm:g} mm and "
+                                     f"{float(w):g} nm reaches the sensor")
+                i, j = i[valid].double(), j[valid].double()
+                vals.append(float(((i - i.mean()) ** 2 + (j - j.mean()) ** 2).mean().sqrt()))
+    return sum(vals) / len(vals)
+
+
+def _columns(cfg: DictConfig) -> list[tuple[str, str]]:
+    """``(label, metric suffix)`` of every table column: depths, then field bands."""
+    cols = [(f"{d:g}", f"d{d:g}mm") for d in cfg.scene.val_depths_mm]
+    fb = cfg.scene.field_bands
+    if fb is not None:
+        fb = list(fb)
+        cols += [(f"band {fb[k]:g}-{fb[k + 1]:g}", f"band{fb[k]:g}-{fb[k + 1]:g}")
+                 for k in range(len(fb) - 1)]
+    return cols
+
+
+def _stats(values: list[float]) -> tuple[float, float]:
+    n = len(values)
+    m = sum(values) / n
+    sd = math.sqrt(sum((v - m) ** 2 for v in values) / (n - 1)) if n > 1 else 0.0
+    return m, sd
+
+
+def summarize(runs: dict[str, list[dict]], depths, bands=None, psf_rms=None) -> dict:
+    """Per-variant summary of test metrics over seeds.
+
+    Args:
+        runs: ``{variant: [metrics of seed 0, metrics of seed 1, ...]}`` (the test metrics, keys
+            ``test/{psnr,ssim}_{sensor,restored}/d<depth>mm`` and ``.../band<lo>-<hi>``).
+        depths: test depths (mm).
+        bands: field-band edges or ``None``.
+        psf_rms: ``{variant: {depth: rms px}}`` or ``None``.
+
+    Returns:
+        ``{variant: {"sensor"|"restored": {depth_mm: {"psnr", "psnr_std", "ssim", "ssim_std"}},
+        "mean": {...restored, averaged over depths}, "sensor_mean": {...}, "worst": {"depth_mm", ...restored at the
+        depth of lowest mean PSNR}, "spread_db": max - min restored PSNR over depths,
+        "psf_rms_px": {depth_mm: value}, "seeds": n, ["sensor_bands"|"restored_bands": {band:
+        {...}}]}}``.  Depth keys are strings of the depth in mm (JSON keys).
+    """
+    out = {}
+    for v, seeds_metrics in runs.items():
+        entry: dict = {"seeds": len(seeds_metrics)}
+
+        def cell(key_psnr, key_ssim):
+            p = _stats([m[key_psnr] for m in seeds_metrics])
+            s = _stats([m[key_ssim] for m in seeds_metrics])
+            return {"psnr": p[0], "psnr_std": p[1], "ssim": s[0], "ssim_std": s[1]}
+
         for img in ("sensor", "restored"):
-            cells = [f"{m[f'test/psnr_{img}/d{d:g}mm']:.2f} / "
-                     f"{m[f'test/ssim_{img}/d{d:g}mm']:.3f}" for d in depths]
-            ssim_mean = sum(m[f"test/ssim_{img}/d{d:g}mm"] for d in depths) / len(depths)
-            cells.append(f"{m[f'test/psnr_{img}']:.2f} / {ssim_mean:.3f}")
+            entry[img] = {f"{d:g}": cell(f"test/psnr_{img}/d{d:g}mm", f"test/ssim_{img}/d{d:g}mm")
+                          for d in depths}
+            if bands is not None:
+                entry[f"{img}_bands"] = {
+                    f"{bands[k]:g}-{bands[k + 1]:g}": cell(
+                        f"test/psnr_{img}/band{bands[k]:g}-{bands[k + 1]:g}",
+                        f"test/ssim_{img}/band{bands[k]:g}-{bands[k + 1]:g}")
+                    for k in range(len(bands) - 1)}
+        # the mean over depths of each seed, then its spread over seeds
+        for img, key in (("restored", "mean"), ("sensor", "sensor_mean")):
+            p = _stats([sum(m[f"test/psnr_{img}/d{d:g}mm"] for d in depths) / len(depths)
+                        for m in seeds_metrics])
+            q = _stats([sum(m[f"test/ssim_{img}/d{d:g}mm"] for d in depths) / len(depths)
+                        for m in seeds_metrics])
+            entry[key] = {"psnr": p[0], "psnr_std": p[1], "ssim": q[0], "ssim_std": q[1]}
+        r = entry["restored"]
+        worst = min(r, key=lambda k: r[k]["psnr"])
+        entry["worst"] = {"depth_mm": float(worst), **r[worst]}
+        entry["spread_db"] = max(c["psnr"] for c in r.values()) - r[worst]["psnr"]
+        if psf_rms is not None and v in psf_rms:
+            entry["psf_rms_px"] = {f"{d:g}": psf_rms[v][d] for d in depths}
+        out[v] = entry
+    return out
+
+
+def format_table(summary: dict, columns: list[tuple[str, str]]) -> str:
+    """Markdown table: a row per variant and image (sensor, restored), a column per depth or
+    band and the mean over depths; cells ``PSNR ± std / SSIM`` (± only with several seeds)."""
+    head = ("| variant | image | " + " | ".join(
+        f"{float(lab) / 1000:g} m" if not lab.startswith("band") else lab for lab, _ in columns)
+        + " | mean over depths |")
+    rows = [head, "|---|---|" + "---|" * (len(columns) + 1)]
+    for v, e in summary.items():
+        multi = e["seeds"] > 1
+
+        def fmt(c):
+            pm = f" ± {c['psnr_std']:.2f}" if multi else ""
+            return f"{c['psnr']:.2f}{pm} / {c['ssim']:.3f}"
+
+        for img in ("sensor", "restored"):
+            cells = []
+            for lab, suffix in columns:
+                if suffix.startswith("band"):
+                    cells.append(fmt(e[f"{img}_bands"][lab[len("band "):]]))
+                else:
+                    cells.append(fmt(e[img][lab]))
+            cells.append(fmt(e["mean" if img == "restored" else "sensor_mean"]))
             rows.append(f"| {v} | {img} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
 
 
+def _atomic_write(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _check_test_folder(folder, image_size) -> None:
+    """Read every image of ``eval.test_folder`` once before anything trains."""
+    from ..data.datamodule import CenterCropFolderDataset
+
+    try:
+        ds = CenterCropFolderDataset(folder, image_size)
+        for k in range(len(ds)):
+            ds[k]
+    except (FileNotFoundError, RuntimeError) as err:
+        raise type(err)(f"eval.test_folder: {err}") from None
+
+
 def evaluate(cfg: DictConfig) -> tuple[str, dict]:
-    """Train/test each variant; write and return the markdown table and the raw metrics."""
-    if cfg.lens.plate_surface is None:
-        raise ValueError("eval: the experiment's lens has no phase plate (lens.plate_surface)")
+    """Train/test each variant for each seed; write the markdown and JSON tables and the
+    figures; return ``(markdown table, summary)`` (see :func:`summarize`)."""
     todo = variants(cfg)
-    results = {}
+    seed_list = seeds(cfg)
+    if cfg.eval.learned_ckpt is not None and len(seed_list) > 1:
+        raise ValueError("eval.learned_ckpt is one trained run: use it with a single seed "
+                         f"(eval.seeds has {len(seed_list)})")
+    if cfg.eval.test_folder is not None:
+        _check_test_folder(cfg.eval.test_folder, cfg.data.image_size)
+    depths = [float(d) for d in cfg.scene.val_depths_mm]
+    bands = None if cfg.scene.field_bands is None else [float(b) for b in cfg.scene.field_bands]
+    runs: dict[str, list[dict]] = {}
+    psf_rms: dict[str, dict[float, float]] = {}
+    keep: dict[str, dict] = {}
     for name, kind, alpha in todo:
-        vc = _variant_cfg(cfg, name, kind, alpha)
-        ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
-        torch.manual_seed(cfg.seed)
-        results[name] = _test_metrics(vc, ckpt)
-    table = format_table(results, list(cfg.scene.val_depths_mm))
+        runs[name] = []
+        rms_seeds = []
+        for s in seed_list:
+            vc = _variant_cfg(cfg, name, kind, alpha, seed=s, multi_seed=len(seed_list) > 1)
+            ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
+            torch.manual_seed(s)
+            metrics, objs = _run(vc, ckpt)
+            runs[name].append(metrics)
+            module = objs["module"]
+            rms_seeds.append({d: psf_rms_px(module.lens, module.sensor, d) for d in depths})
+            if s == seed_list[0]:
+                keep[name] = {"module": module, "datamodule": objs["datamodule"], "kind": kind}
+        psf_rms[name] = {d: sum(r[d] for r in rms_seeds) / len(rms_seeds) for d in depths}
+    summary = summarize(runs, depths, bands, psf_rms)
+    table = format_table(summary, _columns(cfg))
     out = Path(cfg.eval.output)
-    out.parent.mkdir(parents=True, exist_ok=True)
     alphas = ", ".join(f"{a * 1e3:g}" for a in _alphas(cfg))
-    text = (f"# Phase-plate comparison ({cfg.task_name})\n\n"
-            f"cubic plate alpha = {alphas} um (sag at the rim); test set of "
-            f"{cfg.data.test_size} textures, PSNR (dB) / SSIM\n\n{table}\n")
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(out)
-    return table, results
+    test_set = (f"the images of {cfg.eval.test_folder} (centre crops)"
+                if cfg.eval.test_folder is not None
+                else f"{cfg.data.test_size} textures")
+    text = (f"# Optical variants, each with its own restorer ({cfg.task_name})\n\n"
+            f"seeds {seed_list} (mean ± std over seeds); cubic plate alpha = {alphas} um (sag "
+            f"at the rim); test set of {test_set}; PSNR (dB) / SSIM\n\n{table}\n")
+    _atomic_write(out, text)
+    _atomic_write(out.with_suffix(".json"), json.dumps(
+        {"task": str(cfg.task_name), "seeds": seed_list, "variants": summary}, indent=2))
+    if cfg.eval.figures:
+        from .eval_figures import write_figures
+
+        write_figures(summary, keep, depths, out.parent, plate_surface=cfg.lens.plate_surface)
+    return table, summary

@@ -15,6 +15,7 @@ are already in mm (tilts: 1/R rad).  ``parameter_scale`` lives in
 from __future__ import annotations
 
 import copy
+import math
 import fnmatch
 import inspect
 from pathlib import Path
@@ -71,9 +72,40 @@ def cubic_phase_plate(lens, surface_index: int, alpha_mm: float) -> None:
                 s.a[k].fill_(alpha_mm / R ** 3)
 
 
+def best_focus_distance(lens, depth_mm: float, wavelengths_nm, n_rays: int = 4096) -> float:
+    """Sensor distance ``d_sensor`` (mm after the last vertex) that minimises the on-axis RMS
+    spot of a point at ``depth_mm`` over ``wavelengths_nm`` (rays weighted equally).
+
+    Closed form: after the last surface a ray is ``x(z) = x_0 + (z - z_0) u`` with ``u = d_xy /
+    d_z``, so the squared spot size about the centroid, ``Σ |x(z) - x̄(z)|²``, is a quadratic in
+    ``z``, minimal at ``z* = -Σ (a - ā)·(u - ū) / Σ |u - ū|²`` with ``a = x_0 - z_0 u``.
+    """
+    from ..render.splat import point_source_rays
+
+    a_all, u_all = [], []
+    with torch.no_grad():
+        L = copy.deepcopy(lens).double()
+        for w in wavelengths_nm:
+            rays = point_source_rays(L, (0.0, 0.0), depth_mm, float(w), n_rays, seed=0)
+            out = L.trace(rays)
+            v = out.valid
+            if int(v.sum()) < 3:
+                raise ValueError(f"best focus: fewer than 3 rays from {depth_mm:g} mm on axis "
+                                 f"pass the lens at {float(w):g} nm")
+            o, d = out.o[v], out.d[v]
+            u = d[:, :2] / d[:, 2:3]
+            a_all.append(o[:, :2] - o[:, 2:3] * u)
+            u_all.append(u)
+        a, u = torch.cat(a_all), torch.cat(u_all)
+        da, du = a - a.mean(0), u - u.mean(0)
+        z = float(-(da * du).sum() / (du * du).sum())
+        return z - float(L.z_vertices()[-1])
+
+
 def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | None = None,
                plate_surface: int | None = None, plate_alpha_mm: float = 0.0,
-               table_options: dict | None = None):
+               table_options: dict | None = None, focus_mm: float | None = None,
+               focus_wavelengths_nm=(587.5618,)):
     """Load a lens file, optionally set a phase plate, choose what trains, cast to ``dtype``.
 
     Args:
@@ -88,6 +120,10 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
             (:func:`~deeplens.optics.io.table.read_table`: ``stop_index``, ``scale``,
             ``object_distance_mm``, ``fields_deg``, ``wavelengths_nm``; ``None`` values are
             left out); config ``lens.table_options``.
+        focus_mm: if given, move the sensor to the best focus (smallest on-axis RMS spot over
+            ``focus_wavelengths_nm``, see :func:`best_focus_distance`) of a point at this
+            depth (mm), computed with the plate flattened, so every plate variant shares one
+            sensor position; config ``lens.focus_mm``.
 
     Raises:
         LensFileError: the file cannot be read; the message names the file and, where an option
@@ -108,6 +144,16 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
         if e.key == "stop_index":
             raise LensFileError(f"{e} (config: lens.table_options.stop_index=N)") from None
         raise
+    if focus_mm is not None:
+        if not (isinstance(focus_mm, (int, float)) and math.isfinite(focus_mm) and focus_mm > 0):
+            raise ValueError(f"lens.focus_mm: expected a depth > 0 mm, got {focus_mm!r}")
+        bare = copy.deepcopy(lens)
+        if plate_surface is not None:  # focus the lens without its plate (any variant)
+            cubic_phase_plate(bare, plate_surface, 0.0)
+        d = best_focus_distance(bare, float(focus_mm), focus_wavelengths_nm)
+        with torch.no_grad():
+            lens.d_sensor.fill_(d)
+        lens.check()
     if plate in ("none", "cubic"):
         if plate_surface is None:
             raise ValueError("lens.plate_surface must be set to use lens.plate")

@@ -60,7 +60,7 @@ class EndToEndModule(L.LightningModule):
                  field_bands=None, loss=None, net_lr: float = 1e-3, optics_lr_mm: float = 1e-4,
                  disc_lr: float = 1e-4, perceptual=None, discriminator=None,
                  max_sag_mm: float | None = None, plate_surface: int | None = None,
-                 seed: int = 0, psf_fields_deg=None):
+                 seed: int = 0, psf_fields_deg=None, scene_margin: float = 0.0):
         super().__init__()
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
@@ -84,6 +84,10 @@ class EndToEndModule(L.LightningModule):
         self.plate_surface = plate_surface
         self.seed = int(seed)
         self.psf_fields_deg = list(psf_fields_deg or [0.0])
+        if not (isinstance(scene_margin, (int, float)) and 0 <= scene_margin <= 4):
+            raise ValueError(f"scene.margin: expected a fraction of the field of view in "
+                             f"[0, 4], got {scene_margin!r}")
+        self.scene_margin = float(scene_margin)
         self.automatic_optimization = False
         self.camera = IdealCamera(lens, sensor)
         self._init_constraints()
@@ -107,7 +111,10 @@ class EndToEndModule(L.LightningModule):
         dtype = self.lens.dtype
         if len(self.sensor.channels) == 1 and images.shape[1] == 3:
             images = rgb_to_grayscale(images)  # a monochrome camera sees (and learns) grey
-        scene = Scene(images.to(dtype), depths)
+        # each texture covers the field of view plus ``scene_margin`` of it on every side, so
+        # light blurred in from beyond the frame's edge is scene content, not a black surround
+        sizes = torch.stack([self.camera.fov_size_mm(float(d)) for d in depths])
+        scene = Scene(images.to(dtype), depths, sizes * (1 + 2 * self.scene_margin))
         y = self.renderer(scene, seed=seed)
         gt = self.camera.render(scene).to(y.dtype)
         if noise:

@@ -30,7 +30,7 @@ _TYPES = {
     "lens.path": str, "lens.dtype": str, "lens.trainable": list,
     "sensor.resolution": list, "sensor.pixel_size_mm": float, "sensor.full_well": float,
     "sensor.read_noise": float,
-    "scene.depths_mm": list, "scene.val_depths_mm": list,
+    "scene.depths_mm": list, "scene.val_depths_mm": list, "scene.margin": float,
     "render.kind": str, "render.spp": int, "render.vignetting": bool, "render.adjoint": bool,
     "render.decorrelate": bool, "render.chunk_rays": int, "render.max_iter": int,
     "render.psf_rays": int,
@@ -110,15 +110,17 @@ def build_objects(cfg: DictConfig) -> dict:
     """Instantiate lens, sensor, renderer, restorer, data module, Lightning module, trainer."""
     check_config(cfg)
     L.seed_everything(cfg.seed, workers=True)
-    lc = cfg.lens
-    lens = build_lens(lc.path, trainable=list(lc.trainable), dtype=lc.dtype,
-                      plate=lc.plate, plate_surface=lc.plate_surface,
-                      plate_alpha_mm=lc.plate_alpha_mm,
-                      table_options=OmegaConf.to_container(lc.table_options))
     sc = cfg.sensor
     sensor = Sensor(tuple(sc.resolution), sc.pixel_size_mm,
                     channels=None if sc.channels is None else [list(c) for c in sc.channels],
                     full_well=sc.full_well, read_noise=sc.read_noise)
+    lc = cfg.lens
+    lens = build_lens(lc.path, trainable=list(lc.trainable), dtype=lc.dtype,
+                      plate=lc.plate, plate_surface=lc.plate_surface,
+                      plate_alpha_mm=lc.plate_alpha_mm,
+                      table_options=OmegaConf.to_container(lc.table_options),
+                      focus_mm=lc.focus_mm,
+                      focus_wavelengths_nm=[w for ch in sensor.channels for w in ch])
     n_ch = len(sensor.channels)
     if n_ch not in (1, 3):
         raise ValueError(f"sensor.channels: {n_ch} channels, but the training textures are RGB: "
@@ -143,7 +145,7 @@ def build_objects(cfg: DictConfig) -> dict:
         loss=OmegaConf.to_container(mc.loss), net_lr=mc.net_lr, optics_lr_mm=mc.optics_lr_mm,
         disc_lr=mc.disc_lr, perceptual=perceptual, discriminator=discriminator,
         max_sag_mm=mc.max_sag_mm, plate_surface=lc.plate_surface, seed=cfg.seed,
-        psf_fields_deg=list(cfg.scene.psf_fields_deg))
+        psf_fields_deg=list(cfg.scene.psf_fields_deg), scene_margin=cfg.scene.margin)
     datamodule = hydra.utils.instantiate(cfg.data)
     callbacks = [hydra.utils.instantiate(c) for c in (cfg.callbacks or {}).values() if c]
     logger = hydra.utils.instantiate(cfg.logger) if cfg.get("logger") else False

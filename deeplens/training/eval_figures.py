@@ -1,0 +1,167 @@
+"""Figures of an evaluation (:func:`deeplens.training.evaluate.evaluate`), as PNG files and
+TensorBoard images (matplotlib, imported lazily, Agg backend).
+
+* ``psnr_vs_depth.png``: restored (solid, ± std over seeds as error bars) and sensor (dashed)
+  PSNR against depth, one colour per variant;
+* ``psfs.png``: on-axis PSFs (green channel's wavelengths summed, ``kernel`` pixels, each
+  normalised to its own peak) per variant (rows) and depth (columns), drawn with nearest
+  neighbour so a sensor pixel is a visible square;
+* ``plates.png``: the phase plate's height map (µm) of every variant that has one;
+* ``samples.png``: ground truth | sensor | restored of the first test image at the nearest,
+  best-focus (smallest PSF of the first variant) and farthest depth, one row per variant and
+  depth.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+__all__ = ["write_figures"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def psnr_vs_depth_figure(summary: dict, depths):
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    x = [d / 1000 for d in depths]
+    for k, (v, e) in enumerate(summary.items()):
+        col = f"C{k % 10}"
+        r = [e["restored"][f"{d:g}"] for d in depths]
+        s = [e["sensor"][f"{d:g}"] for d in depths]
+        ax.errorbar(x, [c["psnr"] for c in r], yerr=[c["psnr_std"] for c in r], color=col,
+                    marker="o", capsize=3, label=f"{v} restored")
+        ax.plot(x, [c["psnr"] for c in s], color=col, ls="--", marker=".", alpha=0.7,
+                label=f"{v} sensor")
+    ax.set_xlabel("depth (m)")
+    ax.set_ylabel("PSNR (dB)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    return fig
+
+
+def psfs_figure(modules: dict, depths, kernel: int = 21, n_rays: int = 8192):
+    from ..render.psf import psf
+
+    plt = _plt()
+    names = list(modules)
+    fig, axes = plt.subplots(len(names), len(depths), squeeze=False,
+                             figsize=(1.6 * len(depths) + 0.6, 1.6 * len(names) + 0.4), dpi=100)
+    for r, v in enumerate(names):
+        m = modules[v]
+        ch = m.sensor.channels[len(m.sensor.channels) // 2]
+        for c, d in enumerate(depths):
+            with torch.no_grad():
+                k = sum(psf(m.lens, m.sensor, (0.0, 0.0), d, float(w), n_rays, kernel)
+                        for w in ch)
+            ax = axes[r][c]
+            ax.imshow((k / k.max()).cpu().numpy(), cmap="inferno", interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(f"{d / 1000:g} m", fontsize=8)
+            if c == 0:
+                ax.set_ylabel(v, fontsize=8)
+    fig.suptitle(f"on-axis PSFs, {kernel} x {kernel} sensor pixels", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def plates_figure(modules: dict, plate_surface: int):
+    from .lens_setup import surface_height_map
+
+    plt = _plt()
+    names = list(modules)
+    fig, axes = plt.subplots(1, len(names), squeeze=False, figsize=(2.6 * len(names), 2.6),
+                             dpi=100)
+    for c, v in enumerate(names):
+        h = surface_height_map(modules[v].lens.surfaces[plate_surface]) * 1e3  # µm
+        ax = axes[0][c]
+        im = ax.imshow(h.cpu().numpy(), cmap="RdBu_r")
+        ax.set_title(v, fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        fig.colorbar(im, ax=ax, fraction=0.046, label="sag (µm)")
+    fig.tight_layout()
+    return fig
+
+
+def samples_figure(modules: dict, datamodules: dict, depths, focus_mm: float):
+    plt = _plt()
+    show = sorted({min(depths), focus_mm, max(depths)})
+    rows = [(v, d) for v in modules for d in show]
+    fig, axes = plt.subplots(len(rows), 3, squeeze=False, figsize=(6, 2 * len(rows)), dpi=100)
+    for r, (v, d) in enumerate(rows):
+        m, dm = modules[v], datamodules[v]
+        dm.setup("test")
+        img = dm.test_set[0]["image"][None]
+        with torch.no_grad():
+            y, gt = m.capture(img, [d], seed=10_000_019, noise=True)
+            pred = m.restorer(y.to(next(m.restorer.parameters()).device)).clamp(0, 1)
+        for c, (t, lab) in enumerate(((gt, "ground truth"), (y, "sensor"), (pred, "restored"))):
+            a = t[0].detach().float().clamp(0, 1).cpu()
+            a = a.expand(3, -1, -1) if a.shape[0] == 1 else a
+            ax = axes[r][c]
+            ax.imshow(a.permute(1, 2, 0).numpy() ** (1 / 2.2), interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(lab, fontsize=8)
+            if c == 0:
+                ax.set_ylabel(f"{v}\n{d / 1000:g} m", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def write_figures(summary: dict, kept: dict, depths, folder: Path,
+                  plate_surface: int | None = None) -> list[Path]:
+    """Write the evaluation figures into ``folder`` and log them to TensorBoard
+    (``folder/tensorboard``); returns the PNG paths.
+
+    Args:
+        summary: :func:`~deeplens.training.evaluate.summarize`'s result.
+        kept: ``{variant: {"module": EndToEndModule, "datamodule": ..., "kind": str}}`` of the
+            first seed (its lens and best restorer).
+        depths: test depths (mm).
+    """
+    plt = _plt()
+    from torch.utils.tensorboard import SummaryWriter
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    modules = {v: k["module"] for v, k in kept.items()}
+    for m in modules.values():
+        m.eval()
+    first = next(iter(summary.values()))
+    rms = first.get("psf_rms_px")
+    focus = min(depths, key=lambda d: rms[f"{d:g}"]) if rms else depths[len(depths) // 2]
+    figs = {"psnr_vs_depth": psnr_vs_depth_figure(summary, depths),
+            "psfs": psfs_figure(modules, depths),
+            "samples": samples_figure(modules, {v: k["datamodule"] for v, k in kept.items()},
+                                      depths, focus)}
+    if plate_surface is not None:
+        figs["plates"] = plates_figure(modules, plate_surface)
+    paths = []
+    writer = SummaryWriter(str(folder / "tensorboard"))
+    try:
+        for name, fig in figs.items():
+            p = folder / f"{name}.png"
+            tmp = folder / f".{name}.tmp.png"
+            fig.savefig(tmp)
+            tmp.replace(p)
+            writer.add_figure(f"eval/{name}", fig, close=False)
+            plt.close(fig)
+            paths.append(p)
+    finally:
+        writer.close()
+    return paths
