@@ -139,7 +139,7 @@ def test_optiland_glass_database_agrees_with_our_catalogue():
         assert Path(theirs.filename).parent.name.lower() == "schott"
         for w in FDC_NM.values():
             ours = float(get_material(g).n(torch.tensor(w, dtype=torch.float64)))
-            assert ours == pytest.approx(scalar(theirs.n(w / 1000.0)), abs=1e-12), (g, w)
+            assert ours == pytest.approx(scalar(theirs.n(w / 1000.0)), abs=1e-14), (g, w)
         nd = float(get_material(g).n(torch.tensor(FDC_NM["d"], dtype=torch.float64)))
         assert nd == pytest.approx(datasheet_nd[g], abs=1e-5)
 
