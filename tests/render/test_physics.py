@@ -192,3 +192,28 @@ def test_point_at_infinity_lands_at_f_tan_theta():
         rays = point_source_rays(lens, (tx, ty), math.inf, 550.0, n_rays=200, seed=2)
         i, j = centroid(irradiance(lens, sensor, rays))
         assert (i, j) == pytest.approx((H / 2 + F * ty / p, W / 2 - F * tx / p), abs=1e-6)
+
+
+def test_psf_convolution_keeps_an_asymmetric_psf_the_right_way_round():
+    """A decentred stop and a defocused sensor make the PSF lopsided (its centroid sits off the
+    ideal image in both axes).  The PSF-convolution render of a point scene must put the light
+    where forward tracing puts it; a kernel applied as a correlation (not flipped) mirrors the
+    offset."""
+    from deeplens.optics.surfaces import Aperture
+
+    air = get_material("AIR")
+    lens = Lens([Aperture(1.5), IdealLens(F, 10.0)], [air, air, air], [0.0, 2.0], V - 0.5,
+                0).double()
+    with torch.no_grad():
+        lens.misalignments[0].dx.fill_(1.0)
+        lens.misalignments[0].dy.fill_(-0.4)
+    sensor = Sensor((32, 40), 0.01)
+    tex = torch.zeros(1, 1, 41, 41, dtype=torch.float64)
+    tex[..., 20, 20] = 1.0  # a point on the axis (the centre texel of a 4.1 mm texture)
+    img = PSFConvRenderer(lens, sensor, n_rays=4000, supersample=4)(
+        Scene(tex, DEPTH, [[4.1, 4.1]]))[0, 0]
+    rays = point_source_rays(lens, (0.0, 0.0), DEPTH, 550.0, n_rays=4000, seed=0)
+    i_ref, j_ref = centroid(irradiance(lens, sensor, rays))
+    H, W = sensor.resolution
+    assert abs(i_ref - H / 2) > 0.15 and abs(j_ref - W / 2) > 0.15  # lopsided in both axes
+    assert centroid(img) == pytest.approx((i_ref, j_ref), abs=1e-6)
