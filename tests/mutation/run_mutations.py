@@ -156,8 +156,9 @@ def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
         rc, out = p.returncode, p.stdout + p.stderr
     except subprocess.TimeoutExpired:
         rc, out = -1, "timeout"
-    tail = [line for line in out.splitlines() if line.startswith(("FAILED", "ERROR"))]
-    return rc, time.time() - t0, (tail[0] if tail else out.strip().splitlines()[-1:] or [""])[0]
+    first = [line for line in out.splitlines() if line.startswith(("FAILED", "ERROR"))]
+    last = out.strip().splitlines()[-1:] or [""]
+    return rc, time.time() - t0, (first or last)[0]
 
 
 def main(argv=None) -> int:

@@ -217,3 +217,25 @@ def test_psf_convolution_keeps_an_asymmetric_psf_the_right_way_round():
     H, W = sensor.resolution
     assert abs(i_ref - H / 2) > 0.15 and abs(j_ref - W / 2) > 0.15  # lopsided in both axes
     assert centroid(img) == pytest.approx((i_ref, j_ref), abs=1e-6)
+
+
+def test_defocused_perfect_lens_spreads_a_point_into_a_uniform_disk():
+    """Geometric defocus: a point at infinity through a perfect lens of aperture radius ``a``
+    with the sensor ``δ`` behind focus spreads into a disk of radius ``R = δ a / f`` with uniform
+    irradiance, so a quarter of the rays land within ``R / 2`` and ``E[ρ²] = R² / 2``.  (Pupil
+    samples bunched towards the centre, e.g. radius ``u`` instead of ``sqrt(u)``, give 1/2.)"""
+    lens = thin_lens(F, SD)
+    delta = 1.0
+    with torch.no_grad():
+        lens.d_sensor += delta
+    n = 8000
+    rays = point_source_rays(lens, (0.0, 0.0), math.inf, 550.0, n_rays=n, seed=3)
+    out = lens.trace_to_sensor(rays)
+    rho = torch.linalg.vector_norm(out.o[out.valid][:, :2], dim=-1)
+    m = rho.numel()
+    R = delta * SD / F
+    assert m == pytest.approx(n / 1.1 ** 2, rel=0.05)  # the pupil is sampled 10 % wide
+    assert float(rho.max()) == pytest.approx(R, rel=1e-3)
+    inner = float((rho < R / 2).double().mean())
+    assert inner == pytest.approx(0.25, abs=4 * math.sqrt(0.25 * 0.75 / m))
+    assert float((rho ** 2).mean()) == pytest.approx(R * R / 2, rel=0.03)
