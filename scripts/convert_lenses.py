@@ -1,6 +1,6 @@
-"""Regenerate data/lenses/*.json from the paper authors' tables in ../shared/lenses/diffoptics.
+"""Regenerate data/lenses/*.json from the paper authors' tables (copies in tests/data/lenses).
 
-    python scripts/convert_lenses.py [SHARED_DIR]
+    python scripts/convert_lenses.py [TABLE_DIR]
 
 What each conversion adds that the table format cannot carry (fields, wavelengths, stop for
 lenses without an A row, units) is written here, next to the file it concerns.
@@ -38,16 +38,15 @@ CONVERSIONS = {
 }
 
 
-def main(shared: Path) -> None:
+def main(tables: Path) -> None:
     out = ROOT / "data" / "lenses"
     out.mkdir(parents=True, exist_ok=True)
     for name, (src, opts) in CONVERSIONS.items():
-        d = table_to_dict(shared / src, **opts)
-        lens = lens_from_dict(d, source=str(shared / src))
+        d = table_to_dict(tables / src, **opts)
+        lens = lens_from_dict(d, source=str(tables / src))
         save_lens(lens, out / f"{name}.json")
         print(f"wrote data/lenses/{name}.json from {src}")
 
 
 if __name__ == "__main__":
-    main(Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared" / "lenses" /
-         "diffoptics")
+    main(Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT / "tests" / "data" / "lenses")

@@ -1,14 +1,67 @@
-"""Test-wide set-up: put ``tests/`` on ``sys.path`` (for ``import helpers``) and seed torch."""
+"""Test-wide set-up: a fixed global torch seed, and ``--fail-on-skip`` (used by ``.ci/run``).
 
-import sys
-from pathlib import Path
+``tests/`` and the repository root are on ``sys.path`` through ``pythonpath`` in
+``pyproject.toml`` (for ``import helpers`` and this checkout's ``deeplens``).
+
+``--fail-on-skip``: the run fails when any test is skipped for a reason other than a missing
+GPU/CUDA device (a skip whose reason names ``cuda`` or ``gpu``).  Every file a test reads ships
+with the repository (``tests/data/``, ``data/``), so on a clean clone nothing may skip for a
+missing file, a missing optional package or anything else; the offending tests are listed in
+the summary.
+"""
+
+from __future__ import annotations
+
+import re
 
 import pytest
 import torch
 
-_TESTS = str(Path(__file__).resolve().parent)
-if _TESTS not in sys.path:
-    sys.path.insert(0, _TESTS)
+ALLOWED_SKIP = re.compile(r"\b(cuda|gpu)\b", re.IGNORECASE)
+
+
+def pytest_addoption(parser):
+    parser.addoption("--fail-on-skip", action="store_true", default=False,
+                     help="fail the run when a test is skipped for any reason other than a "
+                          "missing GPU/CUDA device (CI: no skip for a missing file)")
+
+
+def _skip_reason(report) -> str:
+    lr = report.longrepr
+    if isinstance(lr, tuple) and len(lr) == 3:  # (path, line, "Skipped: reason")
+        return str(lr[2])
+    return str(lr)
+
+
+def disallowed_skips(config) -> list[tuple[str, str]]:
+    """``(node id, reason)`` of every skip not caused by a missing GPU/CUDA device."""
+    reporter = config.pluginmanager.get_plugin("terminalreporter")
+    if reporter is None:
+        return []
+    out = []
+    for rep in reporter.stats.get("skipped", []):
+        reason = _skip_reason(rep)
+        if not ALLOWED_SKIP.search(reason):
+            out.append((rep.nodeid, reason))
+    return out
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if session.config.getoption("--fail-on-skip") and disallowed_skips(session.config):
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    if not config.getoption("--fail-on-skip"):
+        return
+    bad = disallowed_skips(config)
+    if bad:
+        terminalreporter.section("skips that fail the run (--fail-on-skip)", red=True)
+        for nodeid, reason in bad:
+            terminalreporter.line(f"{nodeid or '<collection>'}: {reason}")
+        terminalreporter.line(f"{len(bad)} test(s) skipped for a reason other than a missing "
+                              f"GPU/CUDA device: ship the file under tests/data/ or install the "
+                              f"[dev] extra")
 
 
 @pytest.fixture(autouse=True)

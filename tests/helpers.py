@@ -1,6 +1,6 @@
 """Shared test helpers: small lenses built in Python, ray bundles, a float64 central finite
 difference, and a relative-error measure.  Imported by test modules as ``import helpers``
-(``tests/`` is on ``sys.path`` through ``tests/conftest.py``)."""
+(``tests/`` is on ``sys.path`` through ``pythonpath`` in ``pyproject.toml``)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from deeplens.optics.rays import Rays
 
 REPO = Path(__file__).resolve().parents[1]
 LENS_DIR = REPO / "data" / "lenses"
+TABLE_DIR = REPO / "tests" / "data" / "lenses"  # the paper authors' tables (copies)
 WAVELENGTH_D = 587.5618
 
 

@@ -200,9 +200,7 @@ def test_authors_table_lens_trains_with_table_options(cfg_factory):
     without it, or with a misspelt option, start-up fails naming the config key."""
     from deeplens.optics.io import LensFileError
 
-    txt = ROOT.parent / "shared" / "lenses" / "diffoptics" / "LA1131.txt"
-    if not txt.exists():
-        pytest.skip(f"{txt} not present")
+    txt = ROOT / "tests" / "data" / "lenses" / "LA1131.txt"
     base = ("experiment=doublet", f"lens.path={txt}", "lens.trainable=[surfaces.0.c]",
             "debug=fdr")
     with pytest.raises(LensFileError, match=r"lens\.table_options\.stop_index"):

@@ -1,6 +1,6 @@
-"""The paper authors' table format (.txt): the five published files convert to the shipped
-data/lenses/*.json, and every bad table gets an error naming the file, the line and what was
-expected."""
+"""The paper authors' table format (.txt): the five published files (copies in tests/data/lenses)
+convert to the shipped data/lenses/*.json, every row's numbers are read as written, and every
+bad table gets an error naming the file, the line and what was expected."""
 
 import importlib.util
 import json
@@ -9,6 +9,7 @@ import re
 from pathlib import Path
 
 import pytest
+import torch
 
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import (LensFileError, lens_from_dict, lens_to_dict, load_lens,
@@ -18,16 +19,8 @@ from deeplens.optics.surfaces import Aperture, Asphere, BSpline, Plane, XYPolyno
 ROOT = Path(__file__).resolve().parents[3]
 
 
-def _shared_dir():
-    for base in (ROOT.parent / "shared", Path("/work/shared")):
-        d = base / "lenses" / "diffoptics"
-        if d.is_dir():
-            return d
-    return None
-
-
-SHARED = _shared_dir()
-needs_shared = pytest.mark.skipif(SHARED is None, reason="../shared/lenses/diffoptics is absent")
+# the paper authors' tables, shipped with the tests (never read from outside the repository)
+TABLE_DIR = ROOT / "tests" / "data" / "lenses"
 TABLES = ["ACL5040U.txt", "LA1131.txt", "Nikon-z35-f1.8-JPA2019090949-example2.txt",
           "US02532751-1.txt", "end2end_edof.txt"]
 
@@ -51,28 +44,83 @@ def test_every_table_and_every_shipped_lens_is_covered():
     assert set(CONVERSIONS) <= shipped
 
 
-@needs_shared
 @pytest.mark.parametrize("name", sorted(CONVERSIONS))
 def test_converted_table_equals_shipped_json(name):
     src, opts = CONVERSIONS[name]
-    lens = lens_from_dict(table_to_dict(SHARED / src, **opts), source=src)
+    lens = lens_from_dict(table_to_dict(TABLE_DIR / src, **opts), source=src)
     shipped = json.loads((ROOT / "data" / "lenses" / f"{name}.json").read_text())
     assert lens_to_dict(lens) == shipped
     # read_table (what load_lens uses for .txt) builds the same lens
-    assert lens_to_dict(read_table(SHARED / src, **opts)) == shipped
+    assert lens_to_dict(read_table(TABLE_DIR / src, **opts)) == shipped
 
 
-@needs_shared
 @pytest.mark.parametrize("src", TABLES)
 def test_load_lens_reads_tables(src):
     opts = {"stop_index": 0} if src in ("ACL5040U.txt", "LA1131.txt", "end2end_edof.txt") else {}
-    lens = load_lens(SHARED / src, **opts)
+    lens = load_lens(TABLE_DIR / src, **opts)
     assert len(lens.surfaces) > 0 and lens.d_sensor.item() > 0
 
 
-@needs_shared
+def _rows(path):
+    """The surface rows of a table, split here (independently of the reader): ``[(type,
+    [numbers...], material), ...]`` for every row after the header except O and I, and the I
+    row's ``(distance, diameter)``."""
+    rows, image = [], None
+    for line in path.read_text().splitlines()[2:]:
+        tok = line.split()
+        if not tok or tok[0].startswith("#") or tok[0] == "O":
+            continue
+        if tok[0] == "I":
+            image = (float(tok[1]), float(tok[3]))
+            continue
+        rows.append((tok[0], [float(t) for t in tok[1:4]], tok[4],
+                     [float(t) for t in tok[5:]]))
+    return rows, image
+
+
+@pytest.mark.parametrize("src", TABLES)
+def test_every_row_is_read_as_written(src):
+    """Every row of every shipped table: distance, curvature 1/roc, conic and aspheric terms
+    (signs included), XY-polynomial coefficients and the clear semi-diameter (diameter / 2),
+    compared with the numbers split from the file here."""
+    opts = {"stop_index": 0} if src in ("ACL5040U.txt", "LA1131.txt", "end2end_edof.txt") else {}
+    lens = read_table(TABLE_DIR / src, **opts)
+    rows, (d_img, diam_img) = _rows(TABLE_DIR / src)
+    assert len(lens.surfaces) == len(rows)
+    for k, ((kind, (dist, roc, diam), material, extra), surf) in enumerate(
+            zip(rows, lens.surfaces)):
+        where = f"{src} surface {k}"
+        if k > 0:  # the first row's distance is the origin (z = 0)
+            assert float(lens.distances[k]) == dist, where
+        assert float(surf.semi_diameter) == diam / 2, where
+        medium = lens.materials[k + 1]
+        if "/" in material:  # a model glass n_d/V_d: its index at the d line is n_d
+            nd = float(medium.n(torch.tensor(587.5618, dtype=torch.float64)))
+            assert nd == pytest.approx(float(material.split("/")[0]), abs=1e-12), where
+        else:
+            assert medium.name.upper() == (
+                "AIR" if material.upper() == "OCCLUDER" else material.upper()), where
+        if kind == "A":
+            assert isinstance(surf, Aperture) and lens.stop_index == k, where
+        elif kind == "X":
+            assert isinstance(surf, XYPolynomial), where
+            assert float(surf.b) == extra[0], where
+            assert [float(a) for a in surf.a] == extra[1:], where
+        elif roc == 0 and not any(extra):
+            assert isinstance(surf, Plane), where
+        else:
+            assert isinstance(surf, Asphere), where
+            assert float(surf.c) == pytest.approx(1.0 / roc if roc else 0.0, rel=1e-15), where
+            assert float(surf.k) == (extra[0] if extra else 0.0), where
+            coeffs = [float(a) for a in surf.a] if surf.a is not None else []
+            # even terms a4, a6, ... as written (trailing zeros may be dropped)
+            assert coeffs + [0.0] * (len(extra[1:]) - len(coeffs)) == extra[1:], where
+    assert float(lens.d_sensor) == d_img
+    assert lens.sensor_semi_diameter == (diam_img / 2 if diam_img > 0 else None)
+
+
 def test_table_contents_are_read_as_documented():
-    dg = read_table(SHARED / "US02532751-1.txt")
+    dg = read_table(TABLE_DIR / "US02532751-1.txt")
     assert dg.stop_index == 5 and isinstance(dg.surfaces[5], Aperture)
     s0 = dg.surfaces[0]
     assert float(s0.c) == 1 / 13.354729316461547 and float(s0.k) == 0.005
@@ -84,22 +132,22 @@ def test_table_contents_are_read_as_documented():
     assert float(dg.d_sensor) == 17.42769142705 and dg.sensor_semi_diameter == 10.332
     assert float(paraxial(dg).efl) == pytest.approx(27.44, rel=1e-4)
 
-    acl = read_table(SHARED / "ACL5040U.txt", stop_index=0)
+    acl = read_table(TABLE_DIR / "ACL5040U.txt", stop_index=0)
     assert float(acl.surfaces[0].k) == -0.6405 and float(acl.surfaces[0].a[0]) == 2e-6
     assert acl.materials[1].name == "B270"
     assert float(paraxial(acl).efl) == pytest.approx(40.0, rel=0.02)
 
-    la = read_table(SHARED / "LA1131.txt", stop_index=0)
+    la = read_table(TABLE_DIR / "LA1131.txt", stop_index=0)
     assert float(paraxial(la).efl) == pytest.approx(50.0, rel=0.01)
 
-    edof = read_table(SHARED / "end2end_edof.txt", stop_index=0)
+    edof = read_table(TABLE_DIR / "end2end_edof.txt", stop_index=0)
     x = edof.surfaces[4]
     assert isinstance(x, XYPolynomial) and len(x.a) == 10 and x.order == 3
     assert [m.name for m in edof.materials[1:3]] == ["N-BK7", "SF5"]  # names are case-insensitive
     assert float(edof.d_sensor) == 96.0
 
-    nikon = read_table(SHARED / "Nikon-z35-f1.8-JPA2019090949-example2.txt")
-    nikon10 = read_table(SHARED / "Nikon-z35-f1.8-JPA2019090949-example2.txt", scale=10.0)
+    nikon = read_table(TABLE_DIR / "Nikon-z35-f1.8-JPA2019090949-example2.txt")
+    nikon10 = read_table(TABLE_DIR / "Nikon-z35-f1.8-JPA2019090949-example2.txt", scale=10.0)
     assert float(paraxial(nikon).efl) == pytest.approx(1.574, rel=0.01)
     assert float(paraxial(nikon10).efl) == pytest.approx(10 * float(paraxial(nikon).efl),
                                                         rel=1e-12)

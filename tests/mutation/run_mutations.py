@@ -1,0 +1,219 @@
+"""Mutation check: plant plausible bugs in a copy of the package, one at a time, and report
+which ones the tests miss.
+
+    python tests/mutation/run_mutations.py            # each bug against its relevant tests
+    python tests/mutation/run_mutations.py --full     # each bug against the default suite
+    python tests/mutation/run_mutations.py --only psnr_20log --only cos4_to_cos2
+    python tests/mutation/run_mutations.py --list
+
+The repository (without .git, .venv and outputs) is copied to a temporary directory; for each
+entry of :data:`MUTATIONS` one text replacement is applied there, the tests run in that copy
+(``python -m pytest -x -q``, default markers, so slow tests stay out) and the file is restored.
+A bug is *caught* when pytest fails.  The copy is first checked clean (its tests pass), so a
+catch is never a broken environment.  A mutation whose text is no longer in the file (the code
+moved on) is reported as ``stale``: update its text, don't drop it.  Prints a markdown table;
+the exit status is 1 when a bug is missed or stale.
+
+Not collected by pytest (no ``test_`` prefix) and not part of CI: run it when adding a
+capability, and add the bugs a reviewer would plausibly write for it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+IGNORE = shutil.ignore_patterns(".git", ".venv", "outputs", "logs", "__pycache__", "*.egg-info",
+                                ".pytest_cache", "lightning_logs", "multirun")
+
+RENDER = ("tests/render",)
+OPTICS = ("tests/optics",)
+TABLES = ("tests/optics/io",)
+NOISE = ("tests/render/test_sensor_noise.py",)
+METRICS = ("tests/training/test_metrics.py",)
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    what: str  # the bug, in words
+    file: str
+    old: str
+    new: str
+    tests: tuple[str, ...]
+    issue: bool = False  # named in issue 13 (must be caught)
+
+
+MUTATIONS = [
+    # ------------------------------------------------ rendering (issue 13)
+    Mutation("cos4_to_cos2", "relative illumination cos^2 instead of cos^4",
+             "deeplens/render/monte_carlo.py", "rays.d[..., 2] ** 4", "rays.d[..., 2] ** 2",
+             RENDER, issue=True),
+    Mutation("mirror_lr_readout", "image mirrored left-right on the sensor (pixel -> x)",
+             "deeplens/render/sensor.py", "return -(j - W / 2) * p, (i - H / 2) * p",
+             "return (j - W / 2) * p, (i - H / 2) * p", RENDER, issue=True),
+    Mutation("mirror_lr_splat", "forward splats mirrored left-right (x -> pixel)",
+             "deeplens/render/sensor.py", "return y / p + H / 2, -x / p + W / 2",
+             "return y / p + H / 2, x / p + W / 2", RENDER, issue=True),
+    Mutation("mirror_lr_texture", "texture read mirrored left-right",
+             "deeplens/render/scene.py", "gx = X / (0.5 * sz[:, 1:2])",
+             "gx = -X / (0.5 * sz[:, 1:2])", RENDER, issue=True),
+    Mutation("flip_ud_texture", "texture read upside down",
+             "deeplens/render/scene.py", "gy = -Y / (0.5 * sz[:, 0:1])",
+             "gy = Y / (0.5 * sz[:, 0:1])", RENDER),
+    Mutation("no_vignetting_normalisation", "vignetting-on image not normalised by the "
+             "on-axis weight", "deeplens/render/monte_carlo.py", "val = num / (S * plan.w_ref[job])",
+             "val = num / S", RENDER),
+    Mutation("psf_not_flipped", "PSF-convolution renderer correlates instead of convolving",
+             "deeplens/render/psf_conv.py", "kers.reshape(-1, 1, K, K).flip(-1, -2)",
+             "kers.reshape(-1, 1, K, K)", RENDER),
+    # ------------------------------------------------ sensor noise (issue 13)
+    Mutation("read_noise_squared", "read noise std given as its variance",
+             "deeplens/render/sensor.py", "noise = noise + self.read_noise * torch.randn",
+             "noise = noise + self.read_noise ** 2 * torch.randn", NOISE, issue=True),
+    Mutation("read_noise_doubled", "read noise twice as strong",
+             "deeplens/render/sensor.py", "noise = noise + self.read_noise * torch.randn",
+             "noise = noise + 2 * self.read_noise * torch.randn", NOISE, issue=True),
+    Mutation("shot_noise_variance_as_std", "shot noise std = I / full_well (no sqrt)",
+             "deeplens/render/sensor.py",
+             "std = torch.sqrt(image.detach().clamp_min(0) / self.full_well)",
+             "std = image.detach().clamp_min(0) / self.full_well", NOISE, issue=True),
+    Mutation("shot_noise_sqrt_full_well", "shot noise std = sqrt(I) / full_well",
+             "deeplens/render/sensor.py",
+             "std = torch.sqrt(image.detach().clamp_min(0) / self.full_well)",
+             "std = torch.sqrt(image.detach().clamp_min(0)) / self.full_well", NOISE, issue=True),
+    # ------------------------------------------------ metrics (issue 13)
+    Mutation("psnr_20log", "PSNR = 20 log10(1 / MSE)", "deeplens/training/metrics.py",
+             "return (10 * torch.log10(1.0 / mse)).mean()",
+             "return (20 * torch.log10(1.0 / mse)).mean()", METRICS, issue=True),
+    Mutation("psnr_of_rmse", "PSNR = 10 log10(1 / RMSE)", "deeplens/training/metrics.py",
+             "return (10 * torch.log10(1.0 / mse)).mean()",
+             "return (10 * torch.log10(1.0 / mse.sqrt())).mean()", METRICS, issue=True),
+    Mutation("psnr_of_batch_mse", "PSNR of the batch-mean MSE instead of the mean PSNR",
+             "deeplens/training/metrics.py",
+             "return (10 * torch.log10(1.0 / mse)).mean()",
+             "return 10 * torch.log10(1.0 / mse.mean())", METRICS, issue=True),
+    Mutation("band_radius_half_width", "band radius normalised by half the width, not the "
+             "half-diagonal", "deeplens/training/metrics.py",
+             "/ (0.5 * (H ** 2 + W ** 2) ** 0.5)", "/ (0.5 * W)", METRICS),
+    Mutation("masked_ssim_unmasked", "masked SSIM ignores the mask",
+             "deeplens/training/metrics.py", "return smap[:, mask.to(pred.device)].mean()",
+             "return smap.mean()", METRICS),
+    # ------------------------------------------------ the authors' table reader (issue 13)
+    Mutation("table_aspheric_sign", "aspheric coefficients read with the wrong sign",
+             "deeplens/optics/io/table.py", "s[\"aspheric\"] = [a * scale",
+             "s[\"aspheric\"] = [-a * scale", TABLES, issue=True),
+    Mutation("table_conic_sign", "conic constant read with the wrong sign",
+             "deeplens/optics/io/table.py", "s[\"conic\"] = extra[0]",
+             "s[\"conic\"] = -extra[0]", TABLES),
+    Mutation("table_diameter_as_semi", "table diameter taken as the semi-diameter",
+             "deeplens/optics/io/table.py", "\"semi_diameter_mm\": diam / 2",
+             "\"semi_diameter_mm\": diam", TABLES),
+    # ------------------------------------------------ optics (the issue: already caught)
+    Mutation("refraction_sign", "vector Snell: + eta cos instead of - eta cos",
+             "deeplens/optics/refract.py", "(sqrt_k - eta * cos_i)", "(sqrt_k + eta * cos_i)",
+             OPTICS, issue=True),
+    Mutation("sellmeier_sign", "Sellmeier: lambda^2 + C in the denominator",
+             "deeplens/optics/materials.py", "n2 = n2 + b * l2 / (l2 - c)",
+             "n2 = n2 + b * l2 / (l2 + c)", OPTICS, issue=True),
+    Mutation("schott_formula", "SCHOTT power series: a1 lambda^-2 instead of a1 lambda^2",
+             "deeplens/optics/materials.py", "n2 = a0 + a1 * l2 + u *", "n2 = a0 + a1 * u + u *",
+             OPTICS, issue=True),
+    Mutation("asphere_sag_power", "asphere: polynomial one power of r^2 short",
+             "deeplens/optics/surfaces/asphere.py", "z = z + p * s\n", "z = z + p\n",
+             OPTICS, issue=True),
+    Mutation("eq7_step_sign", "Eq. 7 differentiable Newton step with the wrong sign",
+             "deeplens/optics/intersect.py", "s = s_star - _safe_div(fv, fp, ok)",
+             "s = s_star + _safe_div(fv, fp, ok)", OPTICS, issue=True),
+    Mutation("opl_without_index", "optical path length without the refractive index",
+             "deeplens/optics/lens.py", "opl = rays.opl + n1 * t", "opl = rays.opl + t",
+             OPTICS, issue=True),
+    Mutation("pupil_sampling_not_uniform", "random pupil points r = u instead of sqrt(u)",
+             "deeplens/optics/sampling.py",
+             "r = torch.sqrt(torch.rand(n, generator=g, dtype=torch.float64))",
+             "r = torch.rand(n, generator=g, dtype=torch.float64)", OPTICS + RENDER, issue=True),
+    Mutation("adjoint_first_chunk_only", "adjoint backward pass visits only the first chunk",
+             "deeplens/render/adjoint.py", "for k in range(renderer.n_chunks(plan)):",
+             "for k in range(min(1, renderer.n_chunks(plan))):", RENDER, issue=True),
+]
+
+
+def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
+    env = dict(os.environ, PYTHONPATH=str(copy), PYTHONDONTWRITEBYTECODE="1")
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
+    t0 = time.time()
+    try:
+        p = subprocess.run(cmd, cwd=copy, env=env, capture_output=True, text=True,
+                           timeout=timeout)
+        rc, out = p.returncode, p.stdout + p.stderr
+    except subprocess.TimeoutExpired:
+        rc, out = -1, "timeout"
+    first = [line for line in out.splitlines() if line.startswith(("FAILED", "ERROR"))]
+    last = out.strip().splitlines()[-1:] or [""]
+    return rc, time.time() - t0, (first or last)[0]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--full", action="store_true", help="run the default suite for every bug")
+    ap.add_argument("--only", action="append", default=[], help="run only these mutations")
+    ap.add_argument("--list", action="store_true", help="list the mutations and exit")
+    ap.add_argument("--timeout", type=float, default=900.0, help="seconds per pytest run")
+    args = ap.parse_args(argv)
+    muts = [m for m in MUTATIONS if not args.only or m.name in args.only]
+    if args.only and len(muts) != len(set(args.only)):
+        known = {m.name for m in MUTATIONS}
+        ap.error(f"unknown mutation(s): {sorted(set(args.only) - known)}")
+    if args.list:
+        for m in muts:
+            print(f"{m.name:32s} {m.file:40s} {m.what}")
+        return 0
+    with tempfile.TemporaryDirectory(prefix="deeplens-mutants-") as tmp:
+        copy = Path(tmp) / "repo"
+        shutil.copytree(ROOT, copy, ignore=IGNORE)
+        suites = {("tests",)} if args.full else {m.tests for m in muts}
+        for tests in sorted(suites):
+            rc, dt, last = run_pytest(copy, tests, args.timeout)
+            if rc != 0:
+                print(f"the unmutated copy fails {' '.join(tests)} ({last}); fix that first")
+                return 2
+        rows, bad = [], 0
+        for k, m in enumerate(muts, 1):
+            path = copy / m.file
+            text = path.read_text()
+            tests = ("tests",) if args.full else m.tests
+            if m.old not in text:
+                result, dt, detail = "STALE (text not found)", 0.0, ""
+                bad += 1
+            else:
+                path.write_text(text.replace(m.old, m.new))
+                try:
+                    rc, dt, detail = run_pytest(copy, tests, args.timeout)
+                finally:
+                    path.write_text(text)
+                result = "caught" if rc != 0 else "**MISSED**"
+                bad += rc == 0
+            rows.append((k, m, result, dt, " ".join(tests), detail))
+            print(f"[{k}/{len(muts)}] {m.name}: {result} ({dt:.0f} s)", file=sys.stderr,
+                  flush=True)
+    print("| # | planted bug | file | issue 13 | tests run | result | first failure | s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for k, m, result, dt, tests, detail in rows:
+        detail = detail.replace("|", "\\|")[:90]
+        print(f"| {k} | {m.what} (`{m.name}`) | `{m.file}` | {'yes' if m.issue else ''} | "
+              f"`{tests}` | {result} | {detail} | {dt:.0f} |")
+    caught = sum(r[2] == "caught" for r in rows)
+    print(f"\n{caught} of {len(rows)} planted bugs caught.")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
