@@ -3,7 +3,6 @@ registry, and the optimize/tolerance/design command lines."""
 
 import json
 import warnings
-from argparse import Namespace
 
 import pytest
 from helpers import LENS_DIR
