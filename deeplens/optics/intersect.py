@@ -15,6 +15,24 @@ derivative ``dt/dθ = -(∂f/∂θ) / (d · ∇f)``, so memory does not grow wit
 
 A ray becomes invalid (never NaN) when it does not converge, when ``d · ∇f`` vanishes (grazing),
 when it lands outside the surface's domain or clear aperture, or when ``t`` is negative.
+
+Quadrics (spheres and conics, ``surface.is_quadric``) skip Newton: the ray meets the quadric
+``F = 0`` where ``A s^2 + 2 B s + C = 0`` (:meth:`~.surfaces.Asphere.quadric`), and
+
+    Q = -(B + sign(B) sqrt(B^2 - A C)),      s_1 = C / Q,      s_2 = Q / A
+
+are its roots without cancellation (the textbook ``(-B ± sqrt(.)) / A`` loses all digits of the
+near root when ``A C << B^2``, and divides by zero for a paraboloid hit along its axis).  The hit
+is the first root ahead of the ray that lies on the surface's branch (``h = 1 - (1+k) c z > 0``).
+The expression is differentiable as it stands: its derivative is the exact implicit derivative
+``-(∂F/∂θ) / (d · ∇F)`` of the root, the same as the Eq. 7 step gives at a converged root, and
+autograd keeps only a handful of per-ray scalars.  Aspheres start Newton from their conic base's
+root (usually one or two iterations) instead of the vertex plane.  ``closed_form=False`` runs
+the generic Newton path on every surface (the reference the closed form is tested against).
+
+The Newton loop synchronises with the host (``active.any()``) only after iterations 1, 2, 4,
+8, ...: an extra iteration on rays that have all converged changes nothing, and each
+synchronisation stalls an accelerator's queue.
 """
 
 from __future__ import annotations
@@ -33,11 +51,12 @@ class IntersectOptions:
     """Newton settings: ``tol`` (mm, ``None`` = dtype default), ``max_iter``, ``mode``;
     ``clip_aperture=False`` ignores clear apertures (for ray aiming), not surface domains."""
 
-    __slots__ = ("tol", "max_iter", "mode", "clip_aperture")
+    __slots__ = ("tol", "max_iter", "mode", "clip_aperture", "closed_form")
 
     def __init__(self, tol: float | None = None, max_iter: int = 30, mode: str = "implicit",
-                 clip_aperture: bool = True):
+                 clip_aperture: bool = True, closed_form: bool = True):
         self.clip_aperture = bool(clip_aperture)
+        self.closed_form = bool(closed_form)
         if mode not in ("implicit", "unrolled"):
             raise ValueError(f"intersection mode must be 'implicit' or 'unrolled', got {mode!r}")
         if max_iter < 1:
@@ -48,7 +67,7 @@ class IntersectOptions:
 
     def __repr__(self):
         return (f"IntersectOptions(tol={self.tol}, max_iter={self.max_iter}, mode={self.mode!r}, "
-                f"clip_aperture={self.clip_aperture})")
+                f"clip_aperture={self.clip_aperture}, closed_form={self.closed_form})")
 
 
 def _residual(surface, o, d, t):
@@ -62,6 +81,36 @@ def _residual(surface, o, d, t):
 
 def _safe_div(a, b, ok):
     return torch.where(ok, a, torch.zeros_like(a)) / torch.where(ok, b, torch.ones_like(b))
+
+
+def _quadric_root(quadric, ob, d, t0, ok, tol):
+    """The root ``s`` (``(*B,)``, differentiable) of ``A s^2 + 2 B s + C = 0`` where the ray
+    crosses the branch ``h > 0`` in its direction of travel, and whether it exists and lies
+    ahead of the ray (``t0 + s >= -tol``).  ``s = 0`` elsewhere.
+
+    ``d · ∇F = 2 (A s + B)`` is ``+2 sign(B) sqrt(disc)`` at ``s_1 = C / Q`` and the opposite at
+    ``s_2 = Q / A``; on the branch ``∇F = 2 h ∇f`` with ``h > 0``, and a ray travelling towards
+    ``±z`` passes from ``f > 0`` to ``f < 0`` or back (``sign(d · ∇f) = -sign(d_z)``, as
+    ``∂f/∂z = -1``).  So exactly one root is the crossing in the direction of travel: ``s_1`` when
+    ``B`` and ``d_z`` have opposite signs.  (The other one is where a grazing ray leaves the
+    surface again, before or after.)
+    """
+    A, B, C, ck = quadric
+    dz = d[..., 2]
+    disc = B * B - A * C
+    hit = ok & (disc > 1e-24)  # a miss, or a tangent ray (d · ∇F = ±2 sqrt(disc) vanishes)
+    sq = torch.sqrt(torch.where(hit, disc, torch.ones_like(disc)))
+    Q = -(B + torch.copysign(sq, B))  # |Q| >= sqrt(disc): no cancellation
+    with torch.no_grad():
+        use1 = torch.signbit(B) ^ torch.signbit(dz)
+        # s_1 = C / Q; s_2 = Q / A only while the far root lies within 1e10 mm
+        hit = hit & torch.where(use1, Q.abs() > 1e-12,
+                                (A.abs() > 1e-12) & (Q.abs() < 1e10 * A.abs()))
+    den = torch.where(use1, Q, A)
+    s = torch.where(use1, C, Q) / torch.where(hit, den, torch.ones_like(den))
+    with torch.no_grad():
+        hit = hit & (ck * (ob[..., 2] + s * dz) < 1.0) & (t0 + s >= -tol)
+    return torch.where(hit, s, torch.zeros_like(s)), hit
 
 
 def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
@@ -87,21 +136,35 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     if surface.is_flat:
         t = _safe_div(-o[..., 2], dz, ok)
         ob, s = o, t
+    elif opt.mode == "implicit" and opt.closed_form and surface.is_quadric:
+        ob = o + t0.unsqueeze(-1) * d
+        s, found = _quadric_root(surface.quadric(ob, d), ob, d, t0, ok, tol)
+        # as on the Newton path, which starts there: a ray crossing the vertex plane outside the
+        # surface's domain is invalid (kept for identical results; such a ray can still meet a
+        # strongly curved conic, e.g. an oblate ellipsoid, within its domain)
+        with torch.no_grad():
+            found = found & surface.in_domain(ob[..., 0], ob[..., 1])
+        ok = ok & found
+        t = t0 + s
     elif opt.mode == "implicit":
         with torch.no_grad():
             dd = d.detach()
             obd = o.detach() + t0.unsqueeze(-1) * dd
-            s_star = torch.zeros_like(t0)
+            base = surface.quadric(obd, dd) if opt.closed_form else None
+            if base is None:
+                s_star = torch.zeros_like(t0)
+            else:  # start from the root of the conic base (an asphere's first term)
+                s_star, _ = _quadric_root(base, obd, dd, t0, ok, tol)
             active = ok.clone()
             converged = torch.zeros_like(ok)
-            for _ in range(opt.max_iter):
+            for it in range(opt.max_iter):
                 fv, fp = _residual(surface, obd, dd, s_star)
                 done = active & (fv.abs() < tol)
                 converged = converged | done
                 active = active & ~done
                 good = active & (fp.abs() > 1e-12) & torch.isfinite(fv)
                 active = good
-                if not bool(active.any()):
+                if (it & (it + 1)) == 0 and not bool(active.any()):  # after 1, 2, 4, 8, ...
                     break
                 s_star = torch.where(active, s_star - _safe_div(fv, fp, active), s_star)
             else:

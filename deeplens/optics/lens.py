@@ -23,7 +23,7 @@ from .intersect import IntersectOptions, intersect
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
 from .rays import Rays
-from .refract import refract, unit_normal
+from .refract import refract
 from .surfaces import Aperture, Surface
 from .surfaces.base import make_param
 
@@ -75,6 +75,16 @@ class LensSpec:
         if self.primary_wavelength_nm is None:
             self.primary_wavelength_nm = float(self.wavelengths_nm[0])
         check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ")
+
+
+def _compact(w):
+    """``w`` without its broadcast (stride-0) dimensions' repeats: size 1 there (a view)."""
+    if not isinstance(w, torch.Tensor):
+        return torch.as_tensor(w)
+    for dim, (size, stride) in enumerate(zip(w.shape, w.stride())):
+        if stride == 0 and size > 1:
+            w = w.narrow(dim, 0, 1)
+    return w
 
 
 def _default_elements(surfaces, materials) -> list[tuple[int, int]]:
@@ -245,8 +255,13 @@ class Lens(nn.Module):
 
     # ------------------------------------------------------------------ media
     def indices(self, wavelength: torch.Tensor) -> list[torch.Tensor]:
-        """Refractive indices of the ``N + 1`` media at ``wavelength`` (nm), each of its shape."""
-        return [m.n(wavelength) for m in self.materials]
+        """Refractive indices of the ``N + 1`` media at ``wavelength`` (nm), each of its shape.
+
+        A wavelength tensor broadcast along some dimensions (stride 0, e.g. one wavelength for
+        every ray) is evaluated once per distinct element and expanded back (a view: later
+        arithmetic on it, such as ``n1 / n2``, also runs on the distinct elements only)."""
+        w = _compact(wavelength)
+        return [m.n(w).expand(wavelength.shape) for m in self.materials]
 
     # ------------------------------------------------------------------ tracing
     def _frame(self, i: int, z: torch.Tensor, like: torch.Tensor):
@@ -273,10 +288,8 @@ class Lens(nn.Module):
         if refract_ and getattr(s, "deflects", False):
             d, valid = s.deflect(x, d, valid)  # an ideal (paraxial) lens
         elif refract_ and not isinstance(s, Aperture):
-            fx, fy, fz = s.f_grad(x[..., 0], x[..., 1], x[..., 2])
-            normal = unit_normal(fx, fy, fz)
-            d, valid = refract(d, normal, n1 / n2, valid)
-        opl = rays.opl + n1 * t
+            d, valid = refract(d, s.normal(x), _compact(n1) / _compact(n2), valid)
+        opl = rays.opl + _compact(n1) * t
         x = x + vertex
         if m is None:
             x = x + pivot
@@ -336,7 +349,7 @@ class Lens(nn.Module):
         """
         out = self.trace(rays, options=options)
         z = self.z_sensor() if z_image is None else z_image
-        n_img = self.materials[-1].n(rays.wavelength)
+        n_img = self.materials[-1].n(_compact(rays.wavelength))
         out = self.propagate_to_z(out, z, n_img)
         if clip_sensor and self.sensor_semi_diameter is not None:
             r2 = (out.o[..., :2].detach() ** 2).sum(-1)
