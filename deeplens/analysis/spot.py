@@ -99,6 +99,15 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
                            0.5 * (yp + ym) * shrink, z)
 
 
+def _safe_sqrt(v: torch.Tensor) -> torch.Tensor:
+    """``sqrt(v)`` whose derivative at ``v = 0`` is 0 (a subgradient of the RMS radius, a norm)
+    rather than ``inf``: a spot of one ray, or of coincident rays, has ``v = 0`` and
+    ``dv/dθ = 0``, and ``inf * 0`` made every gradient NaN."""
+    pos = v > 0
+    return torch.where(pos, torch.sqrt(torch.where(pos, v, torch.ones_like(v))),
+                       torch.zeros_like(v))
+
+
 def image_plane_z(lens, image_plane="sensor"):
     """Axial position of the evaluation plane: ``"sensor"``, ``"paraxial"`` or a number (mm)."""
     if image_plane == "sensor":
@@ -145,7 +154,7 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
                          f"the image plane")
     pts = out.o[..., :2][ok]
     cen = pts.mean(0)
-    rms = torch.sqrt(((pts - cen) ** 2).sum(-1).mean())
+    rms = _safe_sqrt(((pts - cen) ** 2).sum(-1).mean())
     return SpotResult(field_deg, wavelength_nm, pts, cen, rms, n, rays.shape[0])
 
 

@@ -4,7 +4,10 @@ With unit normal ``n`` oriented along the propagation (``cos ψ = d·n > 0``) an
 
     d_t = η d + (sqrt(1 - η^2 (1 - cos^2 ψ)) - η cos ψ) n
 
-The ray is totally internally reflected (marked invalid) where ``1 - η^2 (1 - cos^2 ψ) < 0``.
+The ray is totally internally reflected (marked invalid) where ``k = 1 - η^2 (1 - cos^2 ψ) <= 0``:
+at the critical angle itself (``k == 0``, which float arithmetic does produce) the refracted ray
+grazes the surface, carries no power, and ``d sqrt(k)/dk`` is infinite, so keeping it valid put
+``0 * inf = NaN`` into every gradient through a shared parameter.
 Invariant: ``n1 |d × n| = n2 |d_t × n|`` (n1 sin θ1 = n2 sin θ2), and ``d_t`` stays coplanar.
 """
 
@@ -33,14 +36,14 @@ def refract(d: torch.Tensor, n: torch.Tensor, eta: torch.Tensor, valid: torch.Te
         valid: ``(*B,)`` incoming mask.
 
     Returns:
-        ``(d_t, valid)`` with TIR rays marked invalid (their ``d_t`` is finite, equal to ``d``).
+        ``(d_t, valid)`` with TIR rays (and rays at the critical angle) marked invalid (their ``d_t`` is finite, equal to ``d``).
     """
     cos_i = (d * n).sum(-1)
     eta = torch.as_tensor(eta, dtype=d.dtype, device=d.device)
     # k does not depend on the normal's orientation; flipping n to cos_i >= 0 turns
     # (sqrt(k) - eta cos_i) n into (sign(cos_i) sqrt(k) - eta cos_i) n for the given n
     k = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
-    ok = valid & (k >= 0)
+    ok = valid & (k > 0)  # k == 0: grazing exit, infinite derivative (module docstring)
     sqrt_k = torch.sqrt(torch.where(ok, k, torch.ones_like(k)))
     coef = torch.copysign(sqrt_k, cos_i) - eta * cos_i
     d_t = eta.unsqueeze(-1) * d + coef.unsqueeze(-1) * n

@@ -292,3 +292,105 @@ def test_grazing_incidence_finds_the_first_crossing(radius, direction):
     assert bool(ok.all())
     assert float((t - 10.0).abs().max()) < 1e-9
     assert float((x - p).abs().max()) < 1e-9
+
+
+# ---------------------------------------------------------------- issue 12, defects 1 and 3
+def _stray_and_good_rays(dtype):
+    """One on-axis ray and one stray ray 1e-6 degrees from grazing (|d_z| ~ 1.7e-8): its
+    vertex-plane hit ``t0`` is ~1.7e8 mm away, where the asphere's polynomial overflows float32."""
+    th = math.radians(90 - 1e-6)
+    o = torch.tensor([[0.0, 0.5, -3.0], [0.0, 0.0, -3.0]], dtype=dtype)
+    d = torch.tensor([[0.0, 0.0, 1.0], [0.0, math.sin(th), math.cos(th)]], dtype=dtype)
+    return o, d
+
+
+@pytest.mark.parametrize("mode", ["implicit", "unrolled"])
+def test_grazing_stray_ray_keeps_other_rays_gradients_finite(mode):
+    """Regression (issue 12, defect 1): in float32 the differentiable Newton step evaluated the
+    residual of a ray that had already failed at ``o + t0 d`` (1.7e8 mm away), the sag
+    overflowed to inf and the masked ``0 * inf`` turned the *other* ray's gradient with respect
+    to a shared parameter (a misalignment tilt) into NaN.  The good ray's gradient must equal
+    the one it has when traced alone."""
+    from deeplens.optics.io import load_lens
+    from deeplens.optics.rays import Rays
+
+    from helpers import LENS_DIR, WAVELENGTH_D
+
+    lens = load_lens(LENS_DIR / "double_gauss.json").float()
+    tilt = lens.misalignments[0].tilt_x
+    tilt.requires_grad_(True)
+    opt = IntersectOptions(mode=mode)
+    o, d = _stray_and_good_rays(torch.float32)
+    out = lens.trace_to_sensor(Rays(o, d, WAVELENGTH_D), options=opt)
+    assert out.valid.tolist() == [True, False]
+    (g_both,) = torch.autograd.grad(out.o[0, 1], tilt)
+    alone = lens.trace_to_sensor(Rays(o[:1], d[:1], WAVELENGTH_D), options=opt)
+    (g_alone,) = torch.autograd.grad(alone.o[0, 1], tilt)
+    assert bool(torch.isfinite(g_both)), f"gradient {float(g_both)}"
+    assert float(g_alone) != 0.0
+    assert float(g_both) == pytest.approx(float(g_alone), rel=1e-6)
+
+
+def _scaled_double_gauss(k):
+    """The double Gauss with every length multiplied by ``k`` (curvatures / k, a_{2i} k^(1-2i))."""
+    from deeplens.optics.io import lens_from_dict, lens_to_dict, load_lens
+
+    from helpers import LENS_DIR
+
+    spec = lens_to_dict(load_lens(LENS_DIR / "double_gauss.json"))
+    for s in spec["surfaces"]:
+        s["distance_mm"] *= k
+        s["semi_diameter_mm"] *= k
+        if "curvature_per_mm" in s:
+            s["curvature_per_mm"] /= k
+        if "aspheric" in s:
+            s["aspheric"] = [a * k ** (1 - 2 * (i + 2)) for i, a in enumerate(s["aspheric"])]
+    spec["sensor"]["distance_mm"] *= k
+    if spec["sensor"].get("semi_diameter_mm"):
+        spec["sensor"]["semi_diameter_mm"] *= k
+    return lens_from_dict(spec)
+
+
+def _valid_count(lens, dtype):
+    from deeplens.optics.sampling import field_rays, random_disk
+
+    from helpers import WAVELENGTH_D
+
+    lens = lens.to(dtype)
+    pupil = random_disk(2000, seed=3, dtype=dtype) * 0.6 * float(lens.surfaces[0].semi_diameter)
+    rays = field_rays(lens, 10.5, WAVELENGTH_D, pupil, float(lens.z_vertices()[0]))
+    with torch.no_grad():
+        return int(lens.trace_to_sensor(rays).valid.sum())
+
+
+@pytest.mark.parametrize("scale", [100.0, 1000.0])
+def test_float32_large_lens_keeps_the_rays_float64_keeps(scale):
+    """Regression (issue 12, defect 3): with an absolute 1e-5 mm tolerance, float32 rays through
+    the double Gauss scaled x100 (x1000) were silently dropped once rounding of coordinates of
+    hundreds of mm exceeded it (872 (652) of float64's 905 rays here).  The tolerance now
+    follows the coordinates' scale."""
+    lens = _scaled_double_gauss(scale)
+    n64 = _valid_count(lens, torch.float64)
+    assert n64 > 800
+    assert _valid_count(lens, torch.float32) == n64
+
+
+def test_rays_lost_to_rounding_raise_a_warning(monkeypatch):
+    """The safety net of defect 3: with the tolerance forced back to the absolute 1e-5 mm, the
+    rays of the x1000 lens that stall short of it are reported (not dropped silently)."""
+    import deeplens.optics.intersect as mod
+
+    lens = _scaled_double_gauss(1000.0)
+    monkeypatch.setattr(mod, "_ROUNDING_ULPS", 0.0)
+    with pytest.warns(RuntimeWarning, match=r"rays did not converge on a \w+ .*float32"):
+        _valid_count(lens, torch.float32)
+
+
+def test_tolerance_floor_follows_coordinates():
+    """``max(tol, 4 eps |x|_inf)``: the user's tolerance near the vertex, rounding far out."""
+    import deeplens.optics.intersect as mod
+
+    x = torch.tensor([[0.0, 1.0, 0.0], [0.0, -3000.0, 10.0]], dtype=torch.float32)
+    tol = mod._tolerance(1e-5, x)
+    assert float(tol[0]) == pytest.approx(1e-5)
+    assert float(tol[1]) == pytest.approx(4 * torch.finfo(torch.float32).eps * 3000.0)

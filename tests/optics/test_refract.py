@@ -132,3 +132,22 @@ def test_unit_normal():
     assert bool(torch.isfinite(n).all())
     (g,) = torch.autograd.grad(n.sum(), fx)
     assert bool(torch.isfinite(g).all())
+
+
+def test_ray_at_the_critical_angle_keeps_gradients_finite():
+    """Regression (issue 12, defect 2): eta = 1.5 and cos_i = 0.7453559924999299 give
+    k = 1 - eta^2 (1 - cos_i^2) == 0.0 exactly; the ray was kept valid and d sqrt(k)/dk = inf
+    made the gradient of a loss on *another* ray with respect to the shared eta NaN.  At the
+    critical angle the refracted ray grazes the surface: it is marked invalid."""
+    eta = torch.tensor(1.5, dtype=F64, requires_grad=True)
+    cos_c = 0.7453559924999299
+    normal = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], dtype=F64)
+    d = torch.tensor([[0.0, 0.3, math.sqrt(1 - 0.09)], [0.0, math.sqrt(1 - cos_c ** 2), cos_c]],
+                     dtype=F64)
+    k = 1.0 - 1.5 ** 2 * (1.0 - float(d[1, 2]) ** 2)
+    assert k == 0.0  # the reproducer really sits on the critical angle
+    d_t, ok = refract(d, normal, eta, torch.ones(2, dtype=torch.bool))
+    assert ok.tolist() == [True, False]
+    (g,) = torch.autograd.grad(d_t[0, 1], eta)
+    # closed form: d_t,y = eta d_y (the tangential component scales with eta)
+    assert float(g) == pytest.approx(0.3, rel=1e-14)

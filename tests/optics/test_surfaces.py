@@ -255,3 +255,42 @@ def test_constructor_errors():
         Aperture(1.0, shape="hexagon")
     with pytest.raises(ValueError, match="half_width"):
         Aperture(shape="rect", half_width_x=1.0)
+
+
+# ---------------------------------------------------------------- issue 12, defect 5
+def _folded_xy(sd=7.0):
+    """z = 0.2 r^2 with b = 0.06/mm: 1 - 4 b P = 0 (the fold) at r = sqrt(1 / 0.048) = 4.564 mm."""
+    return XYPolynomial(sd, [0.0, 0.0, 0.0, 0.2, 0.0, 0.2], b=0.06)
+
+
+def test_xy_polynomial_aperture_beyond_its_fold_is_rejected():
+    """Regression (issue 12, defect 5): a clear aperture beyond the fold of 1 - 4 b P was
+    accepted (an asphere's conic domain is checked); the message names the fold radius."""
+    with pytest.raises(ValueError, match=r"surface 3: semi-diameter 7 mm .* fold\) by r = 4\.5"):
+        _folded_xy(7.0).check(where="surface 3: ")
+    _folded_xy(4.5).check()  # inside the fold
+    # only the extreme of P over the disk counts: a tilted P folds first along +y
+    XYPolynomial(4.5, [0.0, 0.0, 0.0, 0.2, 0.0, 0.2], b=-0.06).check()  # b P < 0: no fold
+    with pytest.raises(ValueError, match="fold"):
+        XYPolynomial(4.5, [0.0, 0.2, 0.0, 0.2, 0.0, 0.2], b=0.06).check()
+
+
+def test_xy_polynomial_hits_lie_on_the_vertex_sheet():
+    """Regression (issue 12, defect 5): b z^2 + P - z = 0 has a second root beyond the fold
+    plane z = 1/2b; Newton reached it for about 2 % of the rays entering near or beyond the
+    fold and kept them as valid hits off the sag.  Every valid hit must lie on the sag."""
+    from deeplens.optics.intersect import intersect
+
+    s = _folded_xy(7.0)
+    g = torch.Generator().manual_seed(0)
+    n = 5000
+    r = 7.0 * torch.sqrt(torch.rand(n, generator=g, dtype=F64))
+    ph = 2 * math.pi * torch.rand(n, generator=g, dtype=F64)
+    th = 0.3 * torch.rand(n, generator=g, dtype=F64)
+    ps = 2 * math.pi * torch.rand(n, generator=g, dtype=F64)
+    d = torch.stack([th.sin() * ps.cos(), th.sin() * ps.sin(), th.cos()], -1)
+    o = torch.stack([r * ph.cos(), r * ph.sin(), torch.zeros_like(r)], -1) - 3.0 / d[:, 2:] * d
+    t, x, ok = intersect(s, o, d, torch.ones(n, dtype=torch.bool))
+    assert int(ok.sum()) > 1500
+    off = (x[:, 2] - s.sag(x[:, 0], x[:, 1])).abs()[ok]
+    assert float(off.max()) < 1e-8, f"{int((off > 1e-8).sum())} hits on the far sheet"

@@ -7,6 +7,14 @@ Coefficients are ordered by total degree ``j`` and, within a degree, by the powe
 With ``b = 0`` it is the explicit sag ``z = P(x, y)``; otherwise
 ``z = 2P / (1 + sqrt(1 - 4 b P))``, defined where ``1 - 4 b P >= 0``.
 Gradient: ``(P_x, P_y, 2 b z - 1)``.
+
+One sheet.  For ``b != 0`` the quadric in ``z`` has a second root, ``(1 + sqrt(1 - 4 b P)) / 2b``,
+beyond its fold plane ``z* = 1 / 2b`` (where ``∂f/∂z = 0``); Newton from the vertex plane reached
+it for rays near the fold and kept them as valid hits.  So ``f`` is continued past the fold with
+slope ``-1`` in ``z``: ``f = b zc^2 + P - z`` with ``zc = z`` where ``b z < 1/2`` and ``zc = z*``
+beyond.  It is unchanged on the vertex side, decreasing in ``z`` everywhere, and has no root
+beyond ``z*`` inside the domain, so the root is unique: the sag.  ``check`` rejects a clear
+aperture that reaches the fold (``1 - 4 b P <= 0``), as the conic check of an asphere does.
 """
 
 from __future__ import annotations
@@ -70,13 +78,24 @@ class XYPolynomial(Surface):
                 Py = Py + (a * j) * px[i] * py[j - 1]
         return P, Px, Py
 
+    def _beyond_fold(self, z):
+        """``(beyond, zc)``: whether ``z`` lies past the fold plane ``z* = 1/2b``, and ``z``
+        clamped to it (see the module docstring)."""
+        b = self.b.to(z)
+        beyond = b.detach() * z.detach() > 0.5
+        z_fold = 0.5 / torch.where(b != 0, b, torch.ones_like(b))
+        return beyond, torch.where(beyond, z_fold, z)
+
     def f(self, x, y, z):
         P, _, _ = self.poly(x, y)
-        return self.b.to(z) * z * z + P - z
+        _, zc = self._beyond_fold(z)
+        return self.b.to(z) * zc * zc + P - z
 
     def f_grad(self, x, y, z):
         _, Px, Py = self.poly(x, y)
-        return Px, Py, 2.0 * self.b.to(z) * z - 1.0
+        beyond, _ = self._beyond_fold(z)
+        fz = torch.where(beyond, -torch.ones_like(z), 2.0 * self.b.to(z) * z - 1.0)
+        return Px, Py, fz
 
     def _disc(self, P):
         return 1.0 - 4.0 * self.b.to(P) * P
@@ -92,6 +111,28 @@ class XYPolynomial(Surface):
         disc = self._disc(P)
         disc = torch.where(disc > 0, disc, torch.ones_like(disc))
         return 2.0 * P / (1.0 + torch.sqrt(disc))
+
+    def check(self, where: str = "") -> None:
+        """Raise ``ValueError`` when the clear aperture reaches the fold ``1 - 4 b P = 0``
+        (sampled on a polar grid of the aperture disk: P is not rotationally symmetric)."""
+        if float(self.b) == 0.0:
+            return
+        sd = float(self.semi_diameter)
+        with torch.no_grad():
+            r = torch.linspace(0.0, sd, 257, dtype=torch.float64)
+            phi = torch.linspace(0.0, 2 * math.pi, 256, dtype=torch.float64)[:-1]
+            x = (r[:, None] * torch.cos(phi)).reshape(-1)
+            y = (r[:, None] * torch.sin(phi)).reshape(-1)
+            P = sum(float(a) * x ** i * y ** j for a, (i, j) in zip(self.a, self.terms))
+            bad = (1.0 - 4.0 * float(self.b) * P) <= 0
+        if bool(bad.any()):
+            rr = torch.sqrt(x * x + y * y)
+            r_fold = float(rr[bad].min())
+            raise ValueError(
+                f"{where}semi-diameter {sd:g} mm lies beyond the domain of the XY polynomial "
+                f"(b = {float(self.b):g}/mm): 1 - 4 b P(x, y) reaches 0 (its fold) by r = "
+                f"{r_fold:.4g} mm; reduce the semi-diameter below it or change b / the "
+                f"coefficients")
 
     def paraxial_curvature(self):
         # z ≈ a_x2 x^2 + a_y2 y^2 + b z^2 near the vertex: mean of the two principal curvatures
