@@ -17,6 +17,7 @@ import math
 from dataclasses import dataclass, field
 
 import torch
+import torch.utils.checkpoint
 from torch import nn
 
 from .intersect import IntersectOptions, intersect
@@ -297,6 +298,19 @@ class Lens(nn.Module):
             x, d = m.to_global(x, d, pivot)
         return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
 
+    def _trace_surface_checkpointed(self, i: int, rays: Rays, n1, n2, z, options) -> Rays:
+        """:meth:`trace_surface` that autograd does not record: backward recomputes it from the
+        incoming ray state (``torch.utils.checkpoint``), so only that state is kept per surface."""
+        def surface_step(o, d, wavelength, opl, n1, n2, z):
+            out = self.trace_surface(i, Rays(o, d, wavelength, rays.valid, opl, normalize=False),
+                                     n1, n2, z, options)
+            return out.o, out.d, out.opl, out.valid
+
+        o, d, opl, valid = torch.utils.checkpoint.checkpoint(
+            surface_step, rays.o, rays.d, rays.wavelength, rays.opl, n1, n2, z,
+            use_reentrant=False)
+        return Rays(o, d, rays.wavelength, valid, opl, normalize=False)
+
     def _check_rays(self, rays: Rays) -> None:
         # wavelengths are checked against every medium's range by Material.n in indices()
         if not isinstance(rays, Rays):
@@ -322,9 +336,12 @@ class Lens(nn.Module):
         z = self.z_vertices()
         order = range(len(self.surfaces) - 1, -1, -1) if reverse else range(len(self.surfaces))
         hits = []
+        step = self.trace_surface
+        if options is not None and options.checkpoint and torch.is_grad_enabled():
+            step = self._trace_surface_checkpointed
         for i in order:
             n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
-            rays = self.trace_surface(i, rays, n1, n2, z, options)
+            rays = step(i, rays, n1, n2, z, options)
             if record:
                 hits.append(rays.o)
         return (rays, hits) if record else rays
