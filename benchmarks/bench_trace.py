@@ -5,14 +5,16 @@ Rows (each code base runs in its own fresh subprocess, so memory and cold start 
 
 * ``forward``: ``lens.trace_to_sensor(rays)`` under ``torch.no_grad()``;
 * ``trace + backward``: the same trace with every curvature trainable, the RMS spot radius
-  ``sqrt(mean |p - mean p|^2)`` over the valid rays and ``loss.backward()``;
+  ``sqrt(mean |p - mean p|^2)`` over the valid rays and ``loss.backward()``; again with
+  ``IntersectOptions(checkpoint=True)`` where the code has it (surfaces recomputed in backward);
 * ``cold start``: a fresh interpreter: ``import torch, deeplens``, load the lens, build the rays,
   one trace + backward (the seconds column is the whole wall time, rays/s uses it too).
 
 Columns:
 
-* ``rays/s`` and ``s``: min over ``--repeats`` runs after one warm-up (the machine is shared:
-  the minimum is the least disturbed run);
+* ``rays/s`` and ``s``: wall time, min over ``--repeats`` runs after one warm-up (the machine is
+  shared: the minimum is the least disturbed run); ``CPU s``: the process's CPU time (all
+  threads), min over the same runs (less sensitive to other processes than the wall time);
 * ``extra MiB``: peak RSS during the run minus the RSS before it (glibc set up so that RSS follows
   the live memory: 16 KiB mmap threshold; the kernel's high-water mark is reset through
   ``/proc/self/clear_refs``);
@@ -108,11 +110,17 @@ def _child(args) -> None:
     rays = field_rays(lens, 0.0, WAVELENGTH_NM, xy, z_ep)
     n_surf = len(lens.surfaces)
 
-    def trace_backward(keep=None):
+    from deeplens.optics.intersect import IntersectOptions
+    try:
+        ckpt = IntersectOptions(checkpoint=True)
+    except TypeError:  # code without the option
+        ckpt = None
+
+    def trace_backward(keep=None, options=None):
         for c in curv:
             c.requires_grad_(True)
             c.grad = None
-        out = lens.trace_to_sensor(rays)
+        out = lens.trace_to_sensor(rays, options=options)
         v = out.valid
         pts = out.o[..., :2][v]
         cen = pts.mean(0)
@@ -154,31 +162,40 @@ def _child(args) -> None:
     with torch.no_grad():
         lens.trace_to_sensor(rays)
     res["fwd_extra_bytes"] = _maxrss_bytes() - rss0
-    rss0 = _rss_bytes()
-    _reset_peak_rss()
-    rms, grads, nvalid = trace_backward(held)
-    res["bwd_extra_bytes"] = _maxrss_bytes() - rss0
-    res["graph_bytes"] = graph["after_forward"] - rss0
-    res.update(rms=rms, grads=grads, valid=nvalid)
+    for key, opt in (("bwd", None), ("ckpt", ckpt)):
+        if key == "ckpt" and opt is None:
+            continue
+        rss0 = _rss_bytes()
+        _reset_peak_rss()
+        rms, grads, nvalid = trace_backward(held, opt)
+        res[key + "_extra_bytes"] = _maxrss_bytes() - rss0
+        res[key + "_graph_bytes"] = graph["after_forward"] - rss0
+        if key == "bwd":
+            res.update(rms=rms, grads=grads, valid=nvalid)
+        else:
+            res["ckpt_grads"] = grads
 
-    # timing: glibc recycles tensors in its heap
+    # timing: glibc recycles tensors in its heap; wall and process CPU time, min of N
     _mallopt(32 * 1024 * 1024, 64 * 1024 * 1024)
-    with torch.no_grad():
-        lens.trace_to_sensor(rays)
-    ts = []
-    for _ in range(args.repeats):
-        t0 = time.perf_counter()
+
+    def timed(fn):
+        fn()
+        wall, cpu = [], []
+        for _ in range(args.repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            fn()
+            wall.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
+        return min(wall), min(cpu)
+
+    def forward():
         with torch.no_grad():
             lens.trace_to_sensor(rays)
-        ts.append(time.perf_counter() - t0)
-    res["fwd_s"] = min(ts)
-    trace_backward()
-    ts = []
-    for _ in range(args.repeats):
-        t0 = time.perf_counter()
-        trace_backward()
-        ts.append(time.perf_counter() - t0)
-    res["bwd_s"] = min(ts)
+
+    res["fwd_s"], res["fwd_cpu_s"] = timed(forward)
+    res["bwd_s"], res["bwd_cpu_s"] = timed(trace_backward)
+    if ckpt is not None:
+        res["ckpt_s"], res["ckpt_cpu_s"] = timed(lambda: trace_backward(None, ckpt))
     print(json.dumps(res))
 
 
@@ -228,21 +245,25 @@ def main() -> None:
     per_ray_surface_traffic = 2 * (7 * (4 if args.dtype == "float32" else 8) + 1)
     print(f"double Gauss ({LENS}), {n:.0e} on-axis rays, {args.dtype}, {args.threads} threads, "
           f"min of {args.repeats}\n")
-    print("| code | row | rays/s | s | extra MiB | B/ray-surf | % BW |")
-    print("|---|---|---|---|---|---|---|")
+    print("| code | row | rays/s | s | CPU s | extra MiB | B/ray-surf | % BW |")
+    print("|---|---|---|---|---|---|---|---|")
     for label, r in results.items():
         w, c = r["warm"], r["cold"]
         S, bw = w["surfaces"], w["bandwidth_Bps"]
-        for row, secs, extra, graph in (("forward", w["fwd_s"], w["fwd_extra_bytes"], None),
-                                        ("trace + backward", w["bwd_s"], w["bwd_extra_bytes"],
-                                         w["graph_bytes"])):
+        rows = [("forward", "fwd"), ("trace + backward", "bwd"),
+                ("trace + backward, checkpoint=True", "ckpt")]
+        for row, key in rows:
+            if key + "_s" not in w:
+                continue
+            secs = w[key + "_s"]
             rate = n / secs
             frac = rate * S * per_ray_surface_traffic / bw
+            graph = w.get(key + "_graph_bytes")
             bprs = "" if graph is None else f"{graph / (n * S):.0f}"
-            print(f"| {label} | {row} | {_fmt_rate(rate)} | {secs:.3f} | {extra / MIB:.0f} | "
-                  f"{bprs} | {100 * frac:.1f} |")
+            print(f"| {label} | {row} | {_fmt_rate(rate)} | {secs:.3f} | {w[key + '_cpu_s']:.3f} | "
+                  f"{w[key + '_extra_bytes'] / MIB:.0f} | {bprs} | {100 * frac:.1f} |")
         print(f"| {label} | cold start (import + first trace + backward) | "
-              f"{_fmt_rate(n / c['cold_s'])} | {c['cold_s']:.2f} | | | |")
+              f"{_fmt_rate(n / c['cold_s'])} | {c['cold_s']:.2f} | | | | |")
     bws = ", ".join(f"{k} {v['warm']['bandwidth_Bps'] / 1e9:.1f}" for k, v in results.items())
     print(f"\nmemory bandwidth (copy, read + write) GB/s: {bws}")
     if "before" in results:
@@ -254,6 +275,10 @@ def main() -> None:
               f" curvature gradients: max |after - before| / max |before| = {diff:.1e}; "
               f"valid rays {results['before']['warm']['valid']} / "
               f"{results['after']['warm']['valid']}")
+    if "ckpt_grads" in results["after"]["warm"]:
+        w = results["after"]["warm"]
+        d = max(abs(a - b) for a, b in zip(w["ckpt_grads"], w["grads"]))
+        print(f"checkpoint=True gradients: max |difference| to the recorded trace's = {d:.1e}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(results, fh, indent=1)

@@ -194,10 +194,11 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-o[..., 2], dz, ok).detach()
 
+    quadric = opt.mode == "implicit" and opt.closed_form and surface.is_quadric
     if surface.is_flat:
         t = _safe_div(-o[..., 2], dz, ok)
         ob, s = o, t
-    elif opt.mode == "implicit" and opt.closed_form and surface.is_quadric:
+    elif quadric:
         ob = o + t0.unsqueeze(-1) * d
         s, found = _quadric_root(surface.quadric(ob, d), ob, d, ok)
         # as on the Newton path, which starts there: a ray crossing the vertex plane outside the
@@ -283,7 +284,9 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     # the hit from the re-based origin (no cancellation in float32); invalid rays keep x = o
     x = ob + s.unsqueeze(-1) * d
     X, Y = x[..., 0].detach(), x[..., 1].detach()
-    ok = ok & surface.in_domain(X, Y) & (t.detach() >= -_tolerance(tol, x))
+    if not quadric:  # on a quadric's branch h > 0 the domain 1 - (1+k) c^2 r^2 = h^2 > 0 holds
+        ok = ok & surface.in_domain(X, Y)
+    ok = ok & (t.detach() >= -_tolerance(tol, x))
     if opt.clip_aperture:
         ok = ok & surface.in_aperture(X, Y)
     ok = ok & torch.isfinite(t.detach())

@@ -281,7 +281,8 @@ class Lens(nn.Module):
         s = self.surfaces[i]
         m, pivot, vertex = self._frame(i, z, rays.o)
         if m is None:
-            o, d = rays.o - pivot - vertex, rays.d
+            shift = pivot + vertex  # one pass over the rays instead of two
+            o, d = rays.o - shift, rays.d
         else:
             o, d = m.to_element(rays.o, rays.d, pivot)
             o = o - vertex
@@ -291,11 +292,10 @@ class Lens(nn.Module):
         elif refract_ and not isinstance(s, Aperture):
             d, valid = refract(d, s.normal(x), _compact(n1) / _compact(n2), valid)
         opl = rays.opl + _compact(n1) * t
-        x = x + vertex
         if m is None:
-            x = x + pivot
+            x = x + shift
         else:
-            x, d = m.to_global(x, d, pivot)
+            x, d = m.to_global(x + vertex, d, pivot)
         return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
 
     def _trace_surface_checkpointed(self, i: int, rays: Rays, n1, n2, z, options) -> Rays:
