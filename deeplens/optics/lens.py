@@ -20,7 +20,7 @@ import torch
 import torch.utils.checkpoint
 from torch import nn
 
-from .intersect import IntersectOptions, intersect
+from .intersect import IntersectOptions, intersect, trace_quadric
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
 from .rays import Rays
@@ -280,6 +280,13 @@ class Lens(nn.Module):
         """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2``."""
         s = self.surfaces[i]
         m, pivot, vertex = self._frame(i, z, rays.o)
+        opt = options or IntersectOptions()
+        if (m is None and refract_ and s.is_quadric and opt.closed_form and opt.mode == "implicit"
+                and not getattr(s, "deflects", False) and not isinstance(s, Aperture)):
+            x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
+                                             (pivot + vertex)[2], _compact(n1), _compact(n2),
+                                             opt)
+            return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
         if m is None:
             shift = pivot + vertex  # one pass over the rays instead of two
             o, d = rays.o - shift, rays.d

@@ -179,3 +179,43 @@ def test_double_gauss_fast_path_equals_newton():
         fd = H.central_fd(lambda: _double_gauss_spot(lens, FAST)[1], curv[i], 1e-6)
         assert abs(float(g[i])) * 1e-6 > 1e-9
         assert H.rel_err(g[i], fd) < 1e-6, (i, float(g[i]), fd)
+
+
+def test_fused_quadric_step_equals_intersect_then_refract():
+    """``Lens.trace_surface`` on a sphere or conic runs the per-component ``trace_quadric``; it
+    equals ``intersect`` followed by ``refract`` at ``surface.normal`` (float64, values and the
+    gradients w.r.t. c, k, the vertex position and the incoming rays), including rays that miss
+    the aperture or are totally internally reflected."""
+    from deeplens.optics.lens import Lens
+    from deeplens.optics.materials import get_material
+    from deeplens.optics.refract import refract
+    from deeplens.optics.rays import Rays
+
+    surf = Asphere(-1 / 6.0, 5.0, conic=-0.4)  # strong: some rays TIR going into air
+    lens = Lens([Sphere(1 / 20.0, 9.0), surf], [get_material("AIR"), get_material("N-SF5"),
+                get_material("AIR")], [0.0, 3.0], 10.0, 0)
+    surf.c.requires_grad_(True)
+    surf.k.requires_grad_(True)
+    lens.distances[1].requires_grad_(True)
+    o, d = _rays(300, 6.0, 1.0, 0.5, seed=11)
+    o = o.clone().requires_grad_(True)
+    rays = Rays(o, d, H.WAVELENGTH_D, opl=torch.full((300,), 2.0, dtype=F64))
+    n = lens.indices(rays.wavelength)
+    z = lens.z_vertices()
+    out = lens.trace_surface(1, rays, n[1], n[2], z)
+    # the same through the generic functions
+    t, x, ok = intersect(surf, rays.o - torch.stack([0 * z[1], 0 * z[1], z[1]]), rays.d,
+                         rays.valid)
+    d_t, ok = refract(rays.d, surf.normal(x), n[1] / n[2], ok)
+    x = x + torch.stack([0 * z[1], 0 * z[1], z[1]])
+    assert torch.equal(out.valid, ok)
+    assert 50 < int(ok.sum()) < 280  # misses and TIR as well as hits
+    w = torch.randn(300, 3, generator=torch.Generator().manual_seed(1), dtype=F64)
+    params = [surf.c, surf.k, lens.distances[1], o]
+    for a, b in ((out.o, x), (out.d, d_t), (out.opl, rays.opl + n[1] * t)):
+        assert float((a - b).abs().max()) < 1e-13
+        la = (a * (w if a.dim() == 2 else w[:, 0])).sum()
+        lb = (b * (w if b.dim() == 2 else w[:, 0])).sum()
+        for ga, gb in zip(torch.autograd.grad(la, params, retain_graph=True),
+                          torch.autograd.grad(lb, params, retain_graph=True)):
+            assert H.rel_err(ga, gb) < 1e-12

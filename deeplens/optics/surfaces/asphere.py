@@ -105,16 +105,18 @@ class Asphere(SagSurface):
 
     def quadric(self, o, d):
         """Coefficients ``(A, B, C)`` of ``A s^2 + 2 B s + C = 0`` for rays ``o + s d`` on the
-        conic base, and ``(c', z_o, d_z)`` for the branch test ``h = 1 - c' (z_o + s d_z) > 0``
-        with ``c' = (1+k) c`` (see the module docstring).  Shapes ``(*B,)``, differentiable."""
-        c, k1 = self.c.to(o), 1.0 + self.k.to(o)
-        ox, oy, oz = o.unbind(-1)
-        dx, dy, dz = d.unbind(-1)
+        conic base, then ``c' = (1+k) c`` (the branch test is ``h = 1 - c' (o_z + s d_z) > 0``)
+        and ``c``, see the module docstring.  Shapes ``(*B,)``, differentiable."""
+        return self.quadric_xyz(*o.unbind(-1), *d.unbind(-1))
+
+    def quadric_xyz(self, ox, oy, oz, dx, dy, dz):
+        """:meth:`quadric` from the ``(*B,)`` components of ``o`` and ``d``."""
+        c, k1 = self.c.to(ox), 1.0 + self.k.to(ox)
         ck = c * k1
         A = c * (dx * dx + dy * dy) + ck * (dz * dz)
         B = c * (ox * dx + oy * dy) + (ck * oz - 1.0) * dz
         C = c * (ox * ox + oy * oy) + (ck * oz - 2.0) * oz
-        return A, B, C, ck
+        return A, B, C, ck, c
 
     def normal(self, x):
         """Unit normal ``(*B, 3)`` at points ``x`` on the surface (same orientation as ``∇f``).

@@ -90,7 +90,7 @@ class Surface(nn.Module):
     is_quadric = False
 
     def quadric(self, o, d):
-        """``(A, B, C, c')`` of a quadric base surface (see :class:`~.asphere.Asphere`), or
+        """``(A, B, C, c', c)`` of a quadric base surface (see :class:`~.asphere.Asphere`), or
         ``None``: the tracer then starts Newton from the vertex plane."""
         return None
 
