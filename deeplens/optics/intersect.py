@@ -43,6 +43,10 @@ autograd keeps only a handful of per-ray scalars.  Aspheres start Newton from th
 root (usually one or two iterations) instead of the vertex plane.  ``closed_form=False`` runs
 the generic Newton path on every surface (the reference the closed form is tested against).
 
+:func:`trace_quadric` is the closed-form path and Snell's law written on per-component tensors
+(what :meth:`Lens.trace_surface <deeplens.optics.lens.Lens.trace_surface>` runs for an aligned
+sphere or conic); ``tests/optics/test_quadric.py`` checks it against ``intersect`` + ``refract``.
+
 The Newton loop synchronises with the host (``active.any()``) only after iterations 1, 2, 4,
 8, ...: an extra iteration on rays that have all converged changes nothing, and each
 synchronisation stalls an accelerator's queue.
