@@ -58,7 +58,7 @@ import warnings
 
 import torch
 
-__all__ = ["intersect", "trace_quadric", "default_tolerance", "IntersectOptions"]
+__all__ = ["IntersectOptions", "default_tolerance", "intersect", "trace_quadric"]
 
 
 def default_tolerance(dtype: torch.dtype) -> float:
@@ -76,7 +76,7 @@ class IntersectOptions:
     keep only each surface's incoming ray state for backward and recompute the surface there
     (about 30 instead of 120 bytes per ray and surface in float32, for about 1.4x the time)."""
 
-    __slots__ = ("tol", "max_iter", "mode", "clip_aperture", "closed_form", "checkpoint")
+    __slots__ = ("checkpoint", "clip_aperture", "closed_form", "max_iter", "mode", "tol")
 
     def __init__(self, tol: float | None = None, max_iter: int = 30, mode: str = "implicit",
                  clip_aperture: bool = True, closed_form: bool = True, checkpoint: bool = False):

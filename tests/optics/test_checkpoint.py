@@ -4,10 +4,10 @@ ray state (``torch.utils.checkpoint``).  Values and the gradients w.r.t. every p
 must equal the recorded trace's exactly (float64), forward and reverse, and the graph kept between
 forward and backward must be smaller."""
 
+import helpers as H
 import pytest
 import torch
 
-import helpers as H
 from deeplens.optics.intersect import IntersectOptions
 from deeplens.optics.io import load_lens
 from deeplens.optics.rays import Rays
@@ -67,7 +67,7 @@ def test_checkpointed_trace_equals_recorded_trace(reverse):
 def test_checkpoint_keeps_a_smaller_graph():
     """Tensors saved for backward (counted through saved-tensor hooks): the checkpointed trace
     keeps less than half of the recorded one's bytes."""
-    lens, params = _lens()
+    lens, _ = _lens()
     rays = field_rays(lens, 0.0, 587.5618, H.disk_points(5000, 2.2, seed=1).float(), 6.0)
     saved = {}
 

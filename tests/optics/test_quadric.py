@@ -18,10 +18,10 @@ every surface (the code before the fast path).  Checked in float64:
 
 import math
 
+import helpers as H
 import pytest
 import torch
 
-import helpers as H
 from deeplens.optics.intersect import IntersectOptions, intersect
 from deeplens.optics.io import load_lens
 from deeplens.optics.sampling import field_rays
@@ -93,7 +93,7 @@ def test_closed_form_grazing_rays_equal_newton():
             d.append(di)
     o, d = torch.stack(o), torch.stack(d)
     valid = torch.ones(len(o), dtype=torch.bool)
-    t, x, ok = intersect(s, o, d, valid, FAST)
+    t, _, ok = intersect(s, o, d, valid, FAST)
     t_n, _, ok_n = intersect(s, o, d, valid, GENERIC)
     assert bool(ok.all()) and bool(ok_n.all())
     assert float((t - 5.0).abs().max()) < 1e-10
@@ -141,10 +141,10 @@ def test_asphere_newton_starts_at_the_conic_root():
     s = Asphere(1 / 9.0, 6.0, conic=-0.8, coefficients=[2e-5, -1e-7])
     o, d = _rays(400, 6.0, -5.0, 0.4, seed=4)
     valid = torch.ones(len(o), dtype=torch.bool)
-    two = dict(tol=1e-12, max_iter=2)
+    two = {"tol": 1e-12, "max_iter": 2}
     with pytest.warns(RuntimeWarning, match="did not converge"):
         _, _, ok_vertex = intersect(s, o, d, valid, IntersectOptions(closed_form=False, **two))
-    t, x, ok = intersect(s, o, d, valid, IntersectOptions(**two))
+    t, _, ok = intersect(s, o, d, valid, IntersectOptions(**two))
     t_ref, _, ok_ref = intersect(s, o, d, valid, GENERIC)
     assert int(ok_ref.sum()) > 350 and not bool((ok & ~ok_ref).any())
     assert int(ok.sum()) >= int(ok_ref.sum()) - 2
@@ -188,8 +188,8 @@ def test_fused_quadric_step_equals_intersect_then_refract():
     the aperture or are totally internally reflected."""
     from deeplens.optics.lens import Lens
     from deeplens.optics.materials import get_material
-    from deeplens.optics.refract import refract
     from deeplens.optics.rays import Rays
+    from deeplens.optics.refract import refract
 
     surf = Asphere(-1 / 6.0, 5.0, conic=-0.4)  # strong: some rays TIR going into air
     lens = Lens([Sphere(1 / 20.0, 9.0), surf], [get_material("AIR"), get_material("N-SF5"),
