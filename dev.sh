@@ -2,6 +2,7 @@
 # deeplens developer entry point.  Usage:
 #   bash dev.sh run    # set up (first time) and run the main job
 #   bash dev.sh test   # set up (first time) and run the default test suite
+#   bash dev.sh lint   # set up (first time) and run ruff (rules in pyproject.toml)
 # Set-up is idempotent: a virtual environment in .venv with `pip install -e .[dev]`.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -19,11 +20,12 @@ cmd=${1:-test}
 shift || true
 case "$cmd" in
     test) exec .venv/bin/python -m pytest -q "$@" ;;
+    lint) exec .venv/bin/ruff check deeplens tests "$@" ;;
     run)
         # the main job: end-to-end training (default experiment=edof; pass overrides freely)
         case " $* " in
             *" experiment="*) exec .venv/bin/python train.py "$@" ;;
             *) exec .venv/bin/python train.py experiment=edof "$@" ;;
         esac ;;
-    *) echo "usage: bash dev.sh run|test [args]" >&2; exit 2 ;;
+    *) echo "usage: bash dev.sh run|test|lint [args]" >&2; exit 2 ;;
 esac

@@ -509,10 +509,17 @@ def section_psf(case, args, results):
 
 
 def load_preset(name: str) -> dict:
+    """configs/render/<name>.yaml over the configs it lists under ``defaults`` (the base)."""
     import yaml
 
     with open(os.path.join(REPO, "configs", "render", f"{name}.yaml")) as fh:
-        return yaml.safe_load(fh)
+        own = yaml.safe_load(fh)
+    out = {}
+    for parent in own.pop("defaults", []):
+        if parent != "_self_":
+            out.update(load_preset(parent))
+    out.update(own)
+    return out
 
 
 def lens_dtype(key: str) -> str:

@@ -179,7 +179,10 @@ def main(argv=None):
     if args.threads:
         torch.set_num_threads(args.threads)
     reps = args.reps or (1 if args.quick else 3)
-    cfg = load_yaml("render", f"{args.preset}.yaml")
+    cfg = {}
+    for name in ("_base", args.preset):  # a preset lists only what differs from the base
+        cfg.update({k: v for k, v in load_yaml("render", f"{name}.yaml").items()
+                    if k != "defaults"})
     if args.quick:
         cfg = dict(cfg, spp=4)
     warnings.filterwarnings("ignore", message=".*image circle.*")

@@ -8,7 +8,7 @@ with a half-diagonal of f tan(21 deg); even aspheric a4/a6 on the outer surfaces
 
 import math
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import save_lens
 from deeplens.optics.lens import Lens, LensSpec
 from deeplens.optics.materials import get_material as M

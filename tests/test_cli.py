@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.cli import main
 from deeplens.optics.io import load_lens
 

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import math
 
 import torch
 
 from ..optics.sampling import field_rays
-from .paraxial import paraxial
+from ..optics.paraxial import paraxial
 
 __all__ = ["layout_figure"]
 
@@ -23,7 +22,7 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     fig, ax = plt.subplots(figsize=(8, 4), dpi=80)
     with torch.no_grad():
-        dtype = lens.distances[0].dtype
+        dtype = lens.dtype
         z = lens.z_vertices().double().cpu()
         for i, s in enumerate(lens.surfaces):
             R = float(s.semi_diameter)

@@ -9,7 +9,7 @@ import math
 
 import torch
 
-from .paraxial import paraxial
+from ..optics.paraxial import paraxial
 from .spot import chief_ray, find_pupil, image_plane_z, spot_diagram
 
 __all__ = ["lens_report", "format_report"]
@@ -38,6 +38,7 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
     with torch.no_grad():
         p = paraxial(lens)
         z_img = float(image_plane_z(lens, image_plane))
+        z_last = float(lens.z_vertices()[-1])
         rows = []
         for w in waves:
             for f in fields:
@@ -64,7 +65,7 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
         "entrance_pupil": {"position_mm": float(p.entrance_pupil_position),
                            "diameter_mm": float(p.entrance_pupil_diameter)},
         "image_plane": {"kind": image_plane, "z_mm": z_img,
-                        "distance_from_last_vertex_mm": z_img - float(lens.z_vertices()[-1])},
+                        "distance_from_last_vertex_mm": z_img - z_last},
         "sampling": sampling,
         "pupil": pupil,
         "fields": rows,

@@ -20,7 +20,7 @@ import torch
 
 from ..optics.intersect import IntersectOptions
 from ..optics.sampling import field_rays, pupil_pattern
-from .paraxial import paraxial
+from ..optics.paraxial import paraxial
 
 __all__ = ["PupilRegion", "find_pupil", "spot_diagram", "chief_ray", "SpotResult",
            "image_plane_z"]
@@ -60,7 +60,7 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
     """
     if method not in ("paraxial", "traced"):
         raise ValueError(f"pupil method must be 'paraxial' or 'traced', got {method!r}")
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     with torch.no_grad():
         p = paraxial(lens)
         z = float(p.entrance_pupil_z)
@@ -115,7 +115,7 @@ def image_plane_z(lens, image_plane="sensor"):
     if image_plane == "paraxial":
         return paraxial(lens).image_z
     if isinstance(image_plane, (int, float)):
-        return torch.as_tensor(float(image_plane), dtype=lens.distances[0].dtype)
+        return torch.as_tensor(float(image_plane), dtype=lens.dtype)
     raise ValueError(f"image plane must be 'sensor', 'paraxial' or a z position in mm, got "
                      f"{image_plane!r}")
 
@@ -141,7 +141,7 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
     Raises:
         ValueError: when no ray reaches the image (names the field).
     """
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     if region is None:
         region = find_pupil(lens, field_deg, wavelength_nm, pupil)
     unit = pupil_pattern(sampling, dtype=dtype)
@@ -166,7 +166,7 @@ def chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor"
     entrance-pupil plane.  Heights are signed: a positive field angle (rays rising towards
     ``+y``) images to ``+y`` through an imaging lens.
     """
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     with torch.no_grad():
         p = paraxial(lens)
         z_ep = float(p.entrance_pupil_z)

@@ -1,0 +1,15 @@
+"""The differentiable ray tracer: pure torch, never imports Lightning, Hydra or anything above.
+
+The names most programs need are importable from here::
+
+    from deeplens.optics import Lens, load_lens, Rays
+"""
+
+from .errors import LensError, LensFileError
+from .intersect import IntersectOptions
+from .lens import Lens, LensSpec
+from .rays import Rays
+from .io import lens_from_dict, lens_to_dict, load_lens, save_lens
+
+__all__ = ["Lens", "LensSpec", "Rays", "IntersectOptions", "load_lens", "save_lens",
+           "lens_from_dict", "lens_to_dict", "LensError", "LensFileError"]

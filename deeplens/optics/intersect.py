@@ -16,12 +16,13 @@ derivative ``dt/dθ = -(∂f/∂θ) / (d · ∇f)``, so memory does not grow wit
 A ray becomes invalid (never NaN) when it does not converge, when ``d · ∇f`` vanishes (grazing),
 when it lands outside the surface's domain or clear aperture, or when ``t`` is negative.
 
-Tolerance.  ``|f| < tol`` with ``tol = max(tol_user, 4 eps |x|_inf)`` per ray: ``f`` evaluated at
-a point ``x`` carries a rounding error of about ``eps |x|`` (the stalled Newton residual was at
-most 1.2 eps |x|_inf over 97,000 float32 rays through the double Gauss at 1x, 100x and 1000x
-scale), so an absolute tolerance alone (1e-5 mm in float32) cannot be met once coordinates
-reach hundreds of mm.  Rays that stall near the root without meeting it are still marked
-invalid, and a ``RuntimeWarning`` says so when they are more than 1 % of the rays.
+Tolerance.  ``|f| < tol`` with ``tol = max(tol_user, 4 eps |x0|_inf)`` per ray, ``x0 = o + t0 d``
+(the ray's vertex-plane point, whose size is the hit's): ``f`` evaluated at a point ``x`` carries
+a rounding error of about ``eps |x|`` (the stalled Newton residual was at most 1.2 eps |x|_inf
+over 97,000 float32 rays through the double Gauss at 1x, 100x and 1000x scale), so an absolute
+tolerance alone (1e-5 mm in float32) cannot be met once coordinates reach hundreds of mm.
+Rays that stall near the root without meeting it are still marked invalid, and a
+``RuntimeWarning`` says so when they are more than 1 % of the rays.
 
 Rays that fail are kept out of every evaluation that autograd records: their residual is taken
 at the vertex (a point where every surface is finite) instead of at ``o + t0 d``, which for a
@@ -69,12 +70,12 @@ def default_tolerance(dtype: torch.dtype) -> float:
 
 class IntersectOptions:
     """Newton settings: ``tol`` (mm, ``None`` = dtype default; never below ``4 eps |x|``),
-    ``max_iter``, ``mode``;
-    ``clip_aperture=False`` ignores clear apertures (for ray aiming), not surface domains;
-    ``closed_form=False`` runs Newton from the vertex plane also on spheres and conics (the
-    reference path); ``checkpoint=True`` makes :meth:`Lens.trace <deeplens.optics.lens.Lens.trace>`
-    keep only each surface's incoming ray state for backward and recompute the surface there
-    (about 30 instead of 120 bytes per ray and surface in float32, for about 1.4x the time)."""
+    ``max_iter``, ``mode``; ``clip_aperture=False`` ignores clear apertures (for ray aiming),
+    not surface domains; ``closed_form=False`` runs Newton from the vertex plane also on spheres
+    and conics (the reference path); ``checkpoint=True`` makes
+    :meth:`Lens.trace <deeplens.optics.lens.Lens.trace>` keep only each surface's incoming ray
+    state for backward and recompute the surface there (about 40 instead of 120 bytes per ray
+    and surface in float32, for about 1.5x the backward's time)."""
 
     __slots__ = ("checkpoint", "clip_aperture", "closed_form", "max_iter", "mode", "tol")
 
@@ -126,20 +127,20 @@ def _safe_div(a, b, ok):
     return torch.where(ok, a, torch.zeros_like(a)) / torch.where(ok, b, torch.ones_like(b))
 
 
-def _warn_stalled(surface, o, d, s, tried, converged, tol_ray, tol):
-    """Warn when many rays ended near the root without meeting the tolerance (rounding, not a
-    miss): they would have been valid hits inside the domain and aperture."""
+def _warn_stalled(surface, o, d, s, tried, converged, tol_ray, tol, fv=None):
+    """Warn when many rays ended within 1000 tolerances of the root without meeting the
+    tolerance (rounding, not a miss: a ray that misses keeps a large residual).  ``fv``: the
+    residual at ``s`` if known (else it is evaluated)."""
     with torch.no_grad():
         left = tried & ~converged
         if not bool(left.any()):
             return
-        fv, _ = _residual(surface, o, d, s, left)
-        x = o + s.unsqueeze(-1) * d
-        X, Y = x[..., 0], x[..., 1]
-        stalled = (left & torch.isfinite(fv) & (fv.abs() < 1e3 * tol_ray)
-                   & surface.in_domain(X, Y) & surface.in_aperture(X, Y))
+        if fv is None:
+            fv, _ = _residual(surface, o, d, s, left)
+        stalled = left & torch.isfinite(fv) & (fv.abs() < 1e3 * tol_ray)
         n, total = int(stalled.sum()), int(tried.sum())
         if n > _STALL_WARN_FRACTION * total:
+            x = o + s.unsqueeze(-1) * d
             scale = float(x[stalled].abs().amax()) if n else 0.0
             warnings.warn(
                 f"intersect: {n} of {total} rays did not converge on a {type(surface).__name__} "
@@ -284,9 +285,9 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
             tried = ok
             active = ok.clone()
             converged = torch.zeros_like(ok)
+            tol_ray = _tolerance(tol, obd)
             for it in range(opt.max_iter):
-                fv, fp = _residual(surface, obd, dd, s_star, active)
-                tol_ray = _tolerance(tol, obd + s_star.unsqueeze(-1) * dd)
+                fv, fp = _residual(surface, obd, dd, s_star)  # no graph: inf is only masked
                 done = active & (fv.abs() < tol_ray)
                 converged = converged | done
                 active = active & ~done
@@ -296,10 +297,10 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
                     break
                 s_star = torch.where(active, s_star - _safe_div(fv, fp, active), s_star)
             else:
-                fv, _ = _residual(surface, obd, dd, s_star, active)
-                tol_ray = _tolerance(tol, obd + s_star.unsqueeze(-1) * dd)
+                fv, _ = _residual(surface, obd, dd, s_star)
                 converged = converged | (active & (fv.abs() < tol_ray))
-            _warn_stalled(surface, obd, dd, s_star, tried, converged, tol_ray, tol)
+            # fv is the residual at every ray's final s_star (evaluated for all rays each step)
+            _warn_stalled(surface, obd, dd, s_star, tried, converged, tol_ray, tol, fv)
             ok = ok & converged
             s_star = torch.where(ok, s_star, torch.zeros_like(s_star))
         # one differentiable Newton step (Eq. 7); t0 is a constant, so ds/dθ = dt/dθ.  Failed
@@ -321,13 +322,13 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
         tried = ok
         active = ok.clone()
         converged = torch.zeros_like(ok)
+        tol_ray = _tolerance(tol, ob)
         for _ in range(opt.max_iter):
             fv, fp = _residual(surface, ob, d, s, active)
             bad = active & ~(torch.isfinite(fv.detach()) & torch.isfinite(fp.detach()))
             if bool(bad.any()):  # a diverged ray: drop it and re-record without its inf
                 active = active & ~bad
                 fv, fp = _residual(surface, ob, d, s, active)
-            tol_ray = _tolerance(tol, ob + s.unsqueeze(-1) * d)
             step = active & (fp.detach().abs() > 1e-12)
             small = step & (fv.detach().abs() < tol_ray)
             s = torch.where(step, s - _safe_div(fv, fp, step), s)
@@ -338,7 +339,6 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
         else:
             with torch.no_grad():
                 fv, _ = _residual(surface, ob, d, s, active)
-                tol_ray = _tolerance(tol, ob + s.unsqueeze(-1) * d)
                 converged = converged | (active & (fv.abs() < tol_ray))
         _warn_stalled(surface, ob.detach(), d.detach(), s.detach(), tried, converged, tol_ray, tol)
         ok = ok & converged

@@ -20,9 +20,11 @@ import torch
 import torch.utils.checkpoint
 from torch import nn
 
+from .errors import LensError
 from .intersect import IntersectOptions, intersect, trace_quadric
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
+from .paraxial import paraxial
 from .rays import Rays
 from .refract import refract
 from .surfaces import Aperture, Surface
@@ -54,28 +56,34 @@ class LensSpec:
 
     def __post_init__(self):
         if self.aperture_type not in ("stop", "epd", "fno"):
-            raise ValueError(f"aperture type must be 'stop', 'epd' or 'fno', got "
-                             f"{self.aperture_type!r}")
+            raise LensError(f"aperture type must be 'stop', 'epd' or 'fno', got "
+                            f"{self.aperture_type!r}", key="aperture")
         if self.aperture_type != "stop":
             v = self.aperture_value
             if v is None or not (float(v) > 0 and math.isfinite(float(v))):
-                raise ValueError(f"aperture {self.aperture_type}: value must be a positive number, "
-                                 f"got {v!r}")
+                raise LensError(f"aperture {self.aperture_type}: value must be a positive number, "
+                                f"got {v!r}", key="aperture")
         if not self.object_distance_mm > 0:
-            raise ValueError(f"object distance must be > 0 mm (or inf), got "
-                             f"{self.object_distance_mm!r}")
+            raise LensError(f"object distance must be > 0 mm (or inf), got "
+                            f"{self.object_distance_mm!r}", key="object_distance_mm")
         if not len(self.fields_deg):
-            raise ValueError("at least one field angle is needed")
+            raise LensError("at least one field angle is needed", key="fields_deg")
         for f in self.fields_deg:
             if not (math.isfinite(float(f)) and abs(float(f)) < 90.0):
-                raise ValueError(f"field angles must be finite and within (-90, 90) degrees, "
-                                 f"got {f!r}")
+                raise LensError(f"field angles must be finite and within (-90, 90) degrees, "
+                                f"got {f!r}", key="fields_deg")
         if not len(self.wavelengths_nm):
-            raise ValueError("at least one wavelength is needed")
-        check_wavelength_nm(list(self.wavelengths_nm), where="lens wavelengths: ")
+            raise LensError("at least one wavelength is needed", key="wavelengths_nm")
+        try:
+            check_wavelength_nm(list(self.wavelengths_nm), where="lens wavelengths: ")
+        except ValueError as e:
+            raise LensError(str(e), key="wavelengths_nm") from None
         if self.primary_wavelength_nm is None:
             self.primary_wavelength_nm = float(self.wavelengths_nm[0])
-        check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ")
+        try:
+            check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ")
+        except ValueError as e:
+            raise LensError(str(e), key="primary_wavelength_nm") from None
 
 
 def _compact(w):
@@ -139,10 +147,11 @@ class Lens(nn.Module):
         if len(distances) != n:
             raise ValueError(f"a lens with {n} surfaces needs {n} distances, got {len(distances)}")
         if stop_index is None:
-            raise ValueError("the lens has no aperture stop: give stop_index (an 'A' row in a "
-                             "table file, or \"stop\" in a JSON lens file)")
+            raise LensError("the lens has no aperture stop: give stop_index (an 'A' row in a "
+                            "table file, or \"stop\" in a JSON lens file)", key="stop")
         if not 0 <= int(stop_index) < n:
-            raise ValueError(f"stop_index {stop_index} is not a surface index (0..{n - 1})")
+            raise LensError(f"stop_index {stop_index} is not a surface index (0..{n - 1})",
+                            key="stop")
         for i, s in enumerate(surfaces):
             if not isinstance(s, Surface):
                 raise TypeError(f"surface {i} is a {type(s).__name__}, not a Surface")
@@ -158,8 +167,8 @@ class Lens(nn.Module):
         self.stop_index = int(stop_index)
         if sensor_semi_diameter is not None and not (float(sensor_semi_diameter) > 0 and
                                                      math.isfinite(float(sensor_semi_diameter))):
-            raise ValueError(f"sensor semi-diameter must be a positive number of mm (or None), "
-                             f"got {sensor_semi_diameter!r}")
+            raise LensError(f"sensor semi-diameter must be a positive number of mm (or None), "
+                            f"got {sensor_semi_diameter!r}", key="sensor")
         self.sensor_semi_diameter = (None if sensor_semi_diameter is None
                                      else float(sensor_semi_diameter))
         self.spec = spec if spec is not None else LensSpec()
@@ -168,7 +177,8 @@ class Lens(nn.Module):
                                                                                    materials))]
         covered = sorted(i for a, b in self.elements for i in range(a, b + 1))
         if covered != list(range(n)):
-            raise ValueError(f"elements {self.elements} must cover surfaces 0..{n - 1} exactly once")
+            raise LensError(f"elements {self.elements} must cover surfaces 0..{n - 1} exactly "
+                            f"once", key="elements")
         self.misalignments = nn.ModuleList([Misalignment() for _ in self.elements])
         self._element_of = {i: e for e, (a, b) in enumerate(self.elements) for i in range(a, b + 1)}
         self.check()
@@ -176,6 +186,16 @@ class Lens(nn.Module):
             self.apply_aperture_spec()
 
     # ------------------------------------------------------------------ geometry
+    @property
+    def dtype(self) -> torch.dtype:
+        """The floating-point type of the lens's values (``.to(dtype)`` changes it)."""
+        return self.distances[0].dtype
+
+    @property
+    def device(self) -> torch.device:
+        """The device the lens's values live on."""
+        return self.distances[0].device
+
     @property
     def stop(self) -> Surface:
         return self.surfaces[self.stop_index]
@@ -188,7 +208,8 @@ class Lens(nn.Module):
         return self.z_vertices()[-1] + self.d_sensor
 
     def check(self) -> None:
-        """Validate the prescription; raises ``ValueError`` naming the surface."""
+        """Validate the prescription; raises :class:`~.errors.LensError` (a ``ValueError``)
+        naming the surface in its message and in ``surfaces``/``key``."""
         waves = [float(w) for w in self.spec.wavelengths_nm] + [
             float(self.spec.primary_wavelength_nm)]
         for i, m in enumerate(self.materials):
@@ -196,15 +217,21 @@ class Lens(nn.Module):
             try:
                 check_wavelength_nm(waves, m)
             except ValueError as e:
-                raise ValueError(f"lens wavelengths: {e} ({medium})") from None
+                raise LensError(f"lens wavelengths: {e} ({medium})",
+                                surfaces=() if i == 0 else (i - 1,),
+                                key="wavelengths_nm") from None
         for i, s in enumerate(self.surfaces):
-            s.check(where=f"surface {i} ({type(s).__name__}): ")
+            try:
+                s.check(where=f"surface {i} ({type(s).__name__}): ")
+            except ValueError as e:
+                raise LensError(str(e), surfaces=(i,)) from None
         for i, d in enumerate(self.distances):
             if i > 0 and float(d) < 0:
-                raise ValueError(f"distance before surface {i} is negative ({float(d):g} mm): "
-                                 f"sequential surfaces must be ordered along +z")
+                raise LensError(f"distance before surface {i} is negative ({float(d):g} mm): "
+                                f"sequential surfaces must be ordered along +z", surfaces=(i,))
         if float(self.d_sensor) <= 0:
-            raise ValueError(f"sensor distance must be > 0 mm, got {float(self.d_sensor):g}")
+            raise LensError(f"sensor distance must be > 0 mm, got {float(self.d_sensor):g}",
+                            key="sensor")
         with torch.no_grad():
             z = self.z_vertices()
             for i in range(len(self.surfaces) - 1):
@@ -218,40 +245,39 @@ class Lens(nn.Module):
                 ok = a.in_domain(zero, r) & b.in_domain(zero, r)
                 if bool(((gap < -1e-9) & ok).any()):
                     k = int(torch.nonzero((gap < -1e-9) & ok)[0])
-                    raise ValueError(
+                    raise LensError(
                         f"surfaces {i} and {i + 1} cross: at r = {float(r[k]):.4g} mm surface "
                         f"{i + 1} lies {float(-gap[k]):.4g} mm before surface {i} (distance "
                         f"between them {float(self.distances[i + 1]):g} mm); increase the "
-                        f"thickness or reduce the semi-diameters")
+                        f"thickness or reduce the semi-diameters", surfaces=(i, i + 1))
             last = len(self.surfaces) - 1
             s = self.surfaces[last]
             r = torch.linspace(0, float(s.semi_diameter), 65, dtype=torch.float64)
             zl = z[last] + s.sag(torch.zeros_like(r), r)
             if bool((zl > z[last] + self.d_sensor + 1e-9).any()):
-                raise ValueError(f"the last surface crosses the sensor plane (sensor distance "
-                                 f"{float(self.d_sensor):g} mm)")
+                raise LensError(f"the last surface crosses the sensor plane (sensor distance "
+                                f"{float(self.d_sensor):g} mm)", key="sensor")
 
     def apply_aperture_spec(self) -> None:
         """Size the stop so that the entrance pupil matches ``spec`` (EPD or F-number)."""
-        from ..analysis.paraxial import paraxial  # local import: analysis builds on optics
 
         stop = self.stop
         if not isinstance(stop, Aperture) or stop.shape != "circle":
-            raise ValueError("an EPD or F-number aperture needs a circular Aperture surface as "
-                             "the stop")
+            raise LensError("an EPD or F-number aperture needs a circular Aperture surface as "
+                            "the stop", key="aperture")
         p = paraxial(self)
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)
         else:
             if not float(p.efl) > 0:
-                raise ValueError(f"an F-number aperture needs a positive focal length; the "
+                raise LensError(f"an F-number aperture needs a positive focal length; the "
                                  f"paraxial EFL is {float(p.efl):.6g} mm (give the aperture as "
-                                 f"'epd' or 'stop' instead)")
+                                f"'epd' or 'stop' instead)", key="aperture")
             epd = float(p.efl) / float(self.spec.aperture_value)
         sd = 0.5 * epd * abs(float(p.stop_height_per_ep_height))
         if not (sd > 0 and math.isfinite(sd)):
-            raise ValueError(f"aperture {self.spec.aperture_type} {self.spec.aperture_value!r} "
-                             f"gives a stop semi-diameter of {sd!r} mm")
+            raise LensError(f"aperture {self.spec.aperture_type} {self.spec.aperture_value!r} "
+                            f"gives a stop semi-diameter of {sd!r} mm", key="aperture")
         stop.set_semi_diameter(sd)
 
     # ------------------------------------------------------------------ media
@@ -365,21 +391,13 @@ class Lens(nn.Module):
         n = 1.0 if medium_index is None else medium_index
         return Rays(rays.at(t), rays.d, rays.wavelength, ok, rays.opl + n * t, normalize=False)
 
-    def trace_to_sensor(self, rays: Rays, *, z_image=None, options=None,
-                        clip_sensor: bool = False) -> Rays:
-        """Forward trace and propagate to the sensor plane (or to ``z_image`` when given).
-
-        ``clip_sensor`` marks rays landing outside the sensor's semi-diameter invalid.
-        """
+    def trace_to_sensor(self, rays: Rays, *, z_image=None, options=None) -> Rays:
+        """Forward trace and propagate to the sensor plane (or to ``z_image`` when given)."""
         out = self.trace(rays, options=options)
         z = self.z_sensor() if z_image is None else z_image
         n_img = self.materials[-1].n(_compact(rays.wavelength))
-        out = self.propagate_to_z(out, z, n_img)
-        if clip_sensor and self.sensor_semi_diameter is not None:
-            r2 = (out.o[..., :2].detach() ** 2).sum(-1)
-            out = out.replace(valid=out.valid & (r2 <= self.sensor_semi_diameter ** 2))
-        return out
+        return self.propagate_to_z(out, z, n_img)
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, surfaces={len(self.surfaces)}, stop={self.stop_index}, "
-                f"d_sensor={float(self.d_sensor):.6g} mm")
+                f"d_sensor={float(self.d_sensor.detach()):.6g} mm")

@@ -82,6 +82,15 @@ def _fmt(x: float) -> str:
     return f"{x:.6g}"
 
 
+def _fmt_beyond(x: float, edge: float) -> str:
+    """``x`` with as many digits as it takes to differ from ``edge`` (2500.001, not 2500)."""
+    for digits in range(6, 18):
+        s = f"{x:.{digits}g}"
+        if float(s) != edge:
+            return s
+    return repr(x)
+
+
 def _minmax(w) -> tuple[float, float] | None:
     """``(min, max)`` of the wavelengths as python floats (NaN if any is NaN), ``None`` if empty.
 
@@ -149,9 +158,9 @@ def check_wavelength_nm(w, material: "Material | None" = None, where: str = "") 
     if material is not None:
         r_lo, r_hi = material.wavelength_range_nm
         if lo < r_lo or hi > r_hi:
-            bad = lo if lo < r_lo else hi
-            raise ValueError(f"{pre}wavelength {_fmt(bad)} nm is outside the valid range "
-                             f"{r_lo:g}–{r_hi:g} nm of material {material.name!r}")
+            bad, edge = (lo, r_lo) if lo < r_lo else (hi, r_hi)
+            raise ValueError(f"{pre}wavelength {_fmt_beyond(bad, edge)} nm is outside the valid "
+                             f"range {r_lo:.10g}–{r_hi:.10g} nm of material {material.name!r}")
 
 
 def _is_compiling() -> bool:

@@ -36,7 +36,8 @@ def refract(d: torch.Tensor, n: torch.Tensor, eta: torch.Tensor, valid: torch.Te
         valid: ``(*B,)`` incoming mask.
 
     Returns:
-        ``(d_t, valid)`` with TIR rays (and rays at the critical angle) marked invalid (their ``d_t`` is finite, equal to ``d``).
+        ``(d_t, valid)`` with TIR rays (and rays at the critical angle) marked invalid (their
+        ``d_t`` is finite, equal to ``d``).
     """
     cos_i = (d * n).sum(-1)
     eta = torch.as_tensor(eta, dtype=d.dtype, device=d.device)

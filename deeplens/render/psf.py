@@ -17,7 +17,7 @@ import torch
 from .scene import IdealCamera
 from .splat import point_source_rays, splat_bilinear, trace_to_sensor_pixels
 
-__all__ = ["psf", "psf_kernel_size", "psf_grid", "irradiance"]
+__all__ = ["psf", "psf_kernel_size", "psf_grid"]
 
 
 def _ideal_pixel(camera: IdealCamera, X: float, Y: float, depth_mm: float):
@@ -113,9 +113,3 @@ def psf_grid(lens, sensor, depth_mm: float, wavelength_nm: float, grid=(3, 3),
     centres = torch.tensor([[i, j] for i in ii for j in jj]).reshape(gy, gx, 2)
     return torch.stack(kers).reshape(gy, gx, K, K), centres
 
-
-def irradiance(lens, sensor, rays, options=None) -> torch.Tensor:
-    """Forward-trace ``rays`` and splat them onto the full sensor: ``(H, W)`` irradiance in
-    rays per pixel (caustics, spot images)."""
-    i, j, valid = trace_to_sensor_pixels(lens, sensor, rays.reshape(-1), options)
-    return splat_bilinear(i, j, valid.to(i.dtype), sensor.resolution)

@@ -7,7 +7,7 @@
 wavelengths weighted, :func:`~deeplens.render.psf.psf_grid`) and ``w_k`` bilinear blending
 weights between patch centres (one patch: a single convolution).  Exact only where the system is
 shift-invariant over a patch; relative illumination is not modelled (PSFs sum to one).  Same call
-interface as :class:`~deeplens.render.backward.MonteCarloRenderer`.
+interface as :class:`~deeplens.render.monte_carlo.MonteCarloRenderer`.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ class PSFConvRenderer(nn.Module):
     """Renders a scene as the ideal image convolved with the lens's PSFs.
 
     Args:
-        lens, sensor: as for :class:`~deeplens.render.backward.MonteCarloRenderer`.
+        lens, sensor: as for :class:`~deeplens.render.monte_carlo.MonteCarloRenderer`.
         n_rays: rays per PSF.
         patches: ``(gy, gx)`` PSF grid over the field (``(1, 1)``: one on-axis PSF).
         kernel_size: force the kernel size (odd); ``None`` sizes it from the spots.
@@ -69,7 +69,7 @@ class PSFConvRenderer(nn.Module):
         if not isinstance(scene, Scene):
             raise TypeError(f"PSFConvRenderer expects a Scene, got {type(scene).__name__}")
         seed = self.seed if seed is None else seed
-        dtype = self.lens.distances[0].dtype
+        dtype = self.lens.dtype
         gt = IdealCamera(self.lens, self.sensor).render(scene, self.supersample).to(dtype)
         jobs = self.sensor.wavelengths_for(scene.channels)
         H, W = self.sensor.resolution

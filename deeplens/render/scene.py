@@ -9,7 +9,7 @@ come out upright, like a camera's read-out (see :mod:`.sensor` for the pixel map
 
 Ideal camera (the ground truth's framing): the paraxial chief ray of object-space slope ``u``
 through the entrance-pupil centre reaches height ``κ u`` on the sensor
-(:func:`~deeplens.analysis.paraxial.chief_ray_scale`).  A sensor point ``(x, y)`` therefore sees
+(:func:`~deeplens.optics.paraxial.chief_ray_scale`).  A sensor point ``(x, y)`` therefore sees
 the object point ``-(z_EP - z_obj) (x, y) / κ``: a distortion-free pinhole at the entrance pupil
 with the lens's framing.
 """
@@ -21,7 +21,7 @@ import math
 import torch
 import torch.nn.functional as F
 
-from ..analysis.paraxial import chief_ray_scale, paraxial
+from ..optics.paraxial import chief_ray_scale, paraxial
 
 __all__ = ["Scene", "sample_texture", "IdealCamera"]
 

@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from ..analysis.paraxial import paraxial
+from ..optics.paraxial import paraxial
 from ..optics.rays import Rays
 from ..optics.sampling import pupil_pattern, random_disk, start_plane_z
 
@@ -64,7 +64,7 @@ def point_source_rays(lens, point_xy_mm, depth_mm: float, wavelength_nm: float, 
             ``"grid:64"`` or ``"hexapolar:20"`` (:func:`~deeplens.optics.sampling.pupil_pattern`;
             ``n_rays`` is then ignored).
     """
-    dtype, device = lens.distances[0].dtype, lens.distances[0].device
+    dtype, device = lens.dtype, lens.device
     with torch.no_grad():
         p = paraxial(lens)
         z_ep = float(p.entrance_pupil_z)

@@ -124,7 +124,7 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
     try:
         lens = load_lens(path, **opts)
     except LensFileError as e:
-        if "stop_index" in str(e):
+        if e.key == "stop_index":
             raise LensFileError(f"{e} (config: lens.table_options.stop_index=N)") from None
         raise
     if plate in ("none", "cubic"):

@@ -104,7 +104,7 @@ class EndToEndModule(L.LightningModule):
         """Render sharp ``images`` ``(B, 3, H, W)`` at ``depths``; returns ``(sensor, gt)`` as
         float32 ``(B, C, H, W)``, ``C`` the sensor's channels (RGB textures are converted to
         grey for a one-channel sensor)."""
-        dtype = self.lens.distances[0].dtype
+        dtype = self.lens.dtype
         if len(self.sensor.channels) == 1 and images.shape[1] == 3:
             images = rgb_to_grayscale(images)  # a monochrome camera sees (and learns) grey
         scene = Scene(images.to(dtype), depths)
@@ -132,7 +132,7 @@ class EndToEndModule(L.LightningModule):
             for i, s in enumerate(self.lens.surfaces):
                 if any(p.requires_grad for p in s.parameters()) and hasattr(s, "sag"):
                     X, Y = self._constraint_grid(s)
-                    dt = self.lens.distances[0].dtype
+                    dt = self.lens.dtype
                     self._sag0[i] = s.sag(X.to(dt), Y.to(dt)).detach().clone()
 
     def constraint_loss(self) -> torch.Tensor:
@@ -144,7 +144,7 @@ class EndToEndModule(L.LightningModule):
         total = zero
         for i, sag0 in self._sag0.items():
             s = self.lens.surfaces[i]
-            dt = self.lens.distances[0].dtype
+            dt = self.lens.dtype
             X, Y = (g.to(device=self.device, dtype=dt) for g in self._constraint_grid(s))
             dep = s.sag(X, Y) - sag0.to(device=self.device, dtype=dt)
             excess = F.relu(dep.abs() / self.max_sag_mm - 1)

@@ -8,7 +8,6 @@ directly with a composed, shrunk config.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import hydra

@@ -5,7 +5,6 @@ a float64 central finite difference, and a spot of a single ray (radius 0) must 
 (zero) gradient.
 """
 
-import pytest
 import torch
 
 from deeplens.analysis.spot import spot_diagram

@@ -367,7 +367,7 @@ def _valid_count(lens, dtype):
 def test_float32_large_lens_keeps_the_rays_float64_keeps(scale):
     """Regression (issue 12, defect 3): with an absolute 1e-5 mm tolerance, float32 rays through
     the double Gauss scaled x100 (x1000) were silently dropped once rounding of coordinates of
-    hundreds of mm exceeded it (872 (652) of float64's 905 rays here).  The tolerance now
+    hundreds of mm exceeded it (867 (633) of float64's 902 rays here).  The tolerance now
     follows the coordinates' scale."""
     lens = _scaled_double_gauss(scale)
     n64 = _valid_count(lens, torch.float64)

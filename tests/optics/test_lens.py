@@ -8,7 +8,7 @@ import pytest
 import torch
 
 import helpers as H
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.intersect import IntersectOptions, intersect
 from deeplens.optics.io import load_lens
 from deeplens.optics.lens import Lens
@@ -435,3 +435,41 @@ def test_all_rays_miss(dtype):
     assert loss.requires_grad  # the masked-out positions still depend on the lens
     for g in torch.autograd.grad(loss, params, allow_unused=True, materialize_grads=True):
         assert bool(torch.isfinite(g).all()) and not bool(g.any())
+
+
+def test_optics_imports_nothing_above_it():
+    """``deeplens.optics`` is the bottom layer: importing it (and its lens-file readers) loads
+    no analysis, render or training module, nor Lightning or Hydra; the common names are
+    importable from the package."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from deeplens.optics import Lens, load_lens, Rays; "
+            "from deeplens.optics.paraxial import paraxial; "
+            "import deeplens.optics.io.table; "
+            "bad = [m for m in sys.modules if m.split('.')[0] in ('lightning', 'hydra', "
+            "'pytorch_lightning') or m.startswith(('deeplens.analysis', 'deeplens.render', "
+            "'deeplens.training'))]; print(bad)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]", out.stdout
+
+
+def test_lens_dtype_and_device_follow_its_values():
+    lens = load_lens(H.LENS_DIR / "double_gauss.json")
+    assert lens.dtype == torch.float64 and lens.device == torch.device("cpu")
+    lens = lens.float()
+    assert lens.dtype == torch.float32 == lens.surfaces[0].c.dtype
+
+
+def test_old_import_paths_still_work():
+    """Moved modules keep their old import paths as thin re-exports."""
+    import deeplens.analysis.paraxial as old_paraxial
+    import deeplens.optics.paraxial as new_paraxial
+    import deeplens.render.backward as old_backward
+    from deeplens.render import MonteCarloRenderer, RenderPlan
+
+    assert old_paraxial.paraxial is new_paraxial.paraxial
+    assert old_paraxial.exit_pupil is new_paraxial.exit_pupil
+    assert old_backward.MonteCarloRenderer is MonteCarloRenderer
+    assert old_backward.RenderPlan is RenderPlan

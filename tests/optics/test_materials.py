@@ -282,3 +282,19 @@ def test_cuda_device_preserved():
         n = m.n(w)
         assert n.device == w.device and n.dtype == torch.float32
         assert torch.allclose(n.cpu().double(), m.n(w.cpu().double()), atol=1e-6)
+
+
+def test_out_of_range_wavelength_message_shows_the_value_that_is_out():
+    """Regression (issue 12, defect 7): 2500.001 nm was reported as "2500 nm is outside
+    300-2500" (6 significant digits); the value is printed with the digits that tell it from
+    the range's edge."""
+    from deeplens.optics.materials import check_wavelength_nm, get_material
+
+    glass = get_material("N-BK7")
+    lo, hi = glass.wavelength_range_nm
+    with pytest.raises(ValueError, match=rf"wavelength {hi:g}\.001 nm is outside"):
+        check_wavelength_nm(hi + 0.001, glass)
+    with pytest.raises(ValueError, match=r"wavelength 299\.9999999 nm is outside"):
+        check_wavelength_nm([299.9999999, 500.0], glass)
+    with pytest.raises(ValueError, match=r"wavelength 2600 nm is outside"):
+        check_wavelength_nm(2600.0, glass)

@@ -152,10 +152,8 @@ def test_edof_lens_is_sharper_at_its_focus(edof):
 def test_monochrome_scene_traces_one_wavelength(edof):
     sensor = Sensor((8, 8), 0.05)
     r = MonteCarloRenderer(edof, sensor, spp=2)
-    from deeplens.render.backward import RenderPlan
-
-    mono = RenderPlan(r, Scene(torch.ones(1, 4, 4, dtype=torch.float64), 5000.0), 0)
-    rgb = RenderPlan(r, Scene(torch.ones(3, 4, 4, dtype=torch.float64), 5000.0), 0)
+    mono = r.plan(Scene(torch.ones(1, 4, 4, dtype=torch.float64), 5000.0), 0)
+    rgb = r.plan(Scene(torch.ones(3, 4, 4, dtype=torch.float64), 5000.0), 0)
     assert len(mono.jobs) == 1 and len(rgb.jobs) == 3
 
 

@@ -26,7 +26,10 @@ the surface (a catalogue glass, ``AIR``, or a model glass ``"n_d/V_d"``).  Per t
 ``asphere`` takes ``curvature_per_mm`` (or ``roc_mm``, 0 = flat), optional ``conic`` and
 ``aspheric`` (``[a4, a6, ...]``); ``xy_polynomial`` takes ``coefficients`` and ``b``; ``bspline``
 takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` with
-``half_width_x_mm``/``half_width_y_mm``.  Numbers are written with ``repr`` so a file round-trips
+``half_width_x_mm``/``half_width_y_mm``; ``ideal_lens`` takes ``focal_length_mm``.  The surface
+types are those registered in :data:`~deeplens.optics.surfaces.SURFACE_TYPES`; each type reads
+and writes its own fields (``from_dict``/``to_dict``), so whatever is written can be read.
+Numbers are written with ``repr`` so a file round-trips
 exactly.  Every error names the file and the JSON path of the offending field.
 """
 
@@ -39,27 +42,33 @@ import math
 import os
 from pathlib import Path
 
+from ..errors import LensError, LensFileError
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
-from ..surfaces import Aperture, Asphere, BSpline, Plane, XYPolynomial
+from ..surfaces import SURFACE_TYPES
 
-__all__ = ["load_lens", "save_lens", "lens_to_dict", "lens_from_dict", "LensFileError",
+__all__ = ["read_json", "save_lens", "lens_to_dict", "lens_from_dict", "LensFileError",
            "FORMAT_NAME", "FORMAT_VERSION"]
 
 FORMAT_NAME = "deeplens-lens"
 FORMAT_VERSION = 1
 
 
-class LensFileError(ValueError):
-    """A lens file that cannot be read; the message names the file and the field or line."""
+#: LensSpec / Lens error keys -> the lens-file field they come from
+_SPEC_FIELDS = {"aperture": "aperture", "object_distance_mm": "object.distance_mm",
+                "fields_deg": "fields_deg", "wavelengths_nm": "wavelengths_nm",
+                "primary_wavelength_nm": "primary_wavelength_nm", "stop": "stop",
+                "sensor": "sensor", "elements": "elements"}
 
 
 class _Reader:
     def __init__(self, source: str):
         self.source = source
 
-    def fail(self, path: str, msg: str):
-        raise LensFileError(f"{self.source}: {path}: {msg}")
+    def fail(self, path: str, msg: str, surfaces=()):
+        if not surfaces and path.startswith("surfaces["):
+            surfaces = (int(path[len("surfaces["):path.index("]")]),)
+        raise LensFileError(msg, source=self.source, key=path, surfaces=surfaces)
 
     def get(self, obj, key, path, kind="number", default=...):
         if not isinstance(obj, dict):
@@ -120,60 +129,43 @@ class _Reader:
 
 
 _COMMON_KEYS = {"type", "distance_mm", "semi_diameter_mm", "material"}
-_SURFACE_KEYS = {
-    "asphere": {"curvature_per_mm", "roc_mm", "conic", "aspheric"},
-    "sphere": {"curvature_per_mm", "roc_mm", "conic", "aspheric"},
-    "conic": {"curvature_per_mm", "roc_mm", "conic", "aspheric"},
-    "plane": set(),
-    "aperture": {"shape", "half_width_x_mm", "half_width_y_mm"},
-    "xy_polynomial": {"coefficients", "b"},
-    "bspline": {"coefficients"},
-}
 _TOP_KEYS = {"format", "version", "name", "units", "object", "aperture", "fields_deg",
              "wavelengths_nm", "primary_wavelength_nm", "stop", "surfaces", "sensor", "elements",
              "misalignment"}
 
 
+class _Entry:
+    """The reader interface a surface type's ``from_dict`` sees: typed, checked fields of one
+    ``surfaces[i]`` entry, with errors naming the file and the field."""
+
+    def __init__(self, reader: _Reader, obj: dict, path: str):
+        self._r, self._obj, self._path = reader, obj, path
+
+    def has(self, key: str) -> bool:
+        return key in self._obj
+
+    def get(self, key: str, kind: str = "number", default=...):
+        """The field ``key`` checked as ``kind`` (``number``, ``numbers``, ``grid``, ``str``)."""
+        return self._r.get(self._obj, key, self._path, kind, default)
+
+    def fail(self, key: str, message: str):
+        self._r.fail(f"{self._path}.{key}", message)
+
+
 def _surface_from_dict(r: _Reader, s: dict, path: str):
     r.check(s, path, "object")
     kind = r.get(s, "type", path, "str")
-    if kind not in _SURFACE_KEYS:
-        r.fail(f"{path}.type", f"unknown surface type {kind!r}; expected one of asphere, plane, "
-                               f"aperture, xy_polynomial, bspline")
-    r.keys(s, _COMMON_KEYS | _SURFACE_KEYS[kind], path)
+    cls = SURFACE_TYPES.get(kind)
+    if cls is None:
+        close = difflib.get_close_matches(kind, sorted(SURFACE_TYPES), n=1, cutoff=0.5)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        r.fail(f"{path}.type", f"unknown surface type {kind!r}{hint} (known: "
+                               f"{', '.join(sorted(SURFACE_TYPES))})")
+    r.keys(s, _COMMON_KEYS | set(cls.file_fields), path)
     sd = r.get(s, "semi_diameter_mm", path)
     if not sd > 0:
         r.fail(f"{path}.semi_diameter_mm", f"must be > 0 mm, got {sd!r}")
-    if kind in ("asphere", "sphere", "conic"):
-        if "curvature_per_mm" in s and "roc_mm" in s:
-            r.fail(f"{path}.roc_mm", "give curvature_per_mm or roc_mm, not both")
-        if "roc_mm" in s:
-            roc = r.get(s, "roc_mm", path)
-            c = 0.0 if roc == 0 else 1.0 / roc
-        elif "curvature_per_mm" in s:
-            c = r.get(s, "curvature_per_mm", path)
-        else:
-            r.fail(f"{path}.curvature_per_mm", f"missing required field for a {kind!r} surface "
-                                               f"(the vertex curvature in 1/mm; or give roc_mm)")
-        return Asphere(c, sd, conic=r.get(s, "conic", path, default=0.0),
-                       coefficients=r.get(s, "aspheric", path, "numbers", default=[]))
-    if kind == "plane":
-        return Plane(sd)
-    if kind == "aperture":
-        shape = r.get(s, "shape", path, "str", default="circle")
-        if shape not in ("circle", "rect"):
-            r.fail(f"{path}.shape", f"expected 'circle' or 'rect', got {shape!r}")
-        if shape == "rect":
-            return Aperture(sd, "rect", r.get(s, "half_width_x_mm", path),
-                            r.get(s, "half_width_y_mm", path))
-        return Aperture(sd, shape)
-    if kind == "xy_polynomial":
-        return XYPolynomial(sd, r.get(s, "coefficients", path, "numbers"),
-                            b=r.get(s, "b", path, default=0.0))
-    if kind == "bspline":
-        return BSpline(sd, r.get(s, "coefficients", path, "grid"))
-    r.fail(f"{path}.type", f"unknown surface type {kind!r}; expected one of asphere, plane, "
-                           f"aperture, xy_polynomial, bspline")
+    return cls.from_dict(_Entry(r, s, path), sd)
 
 
 def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
@@ -229,24 +221,24 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
         spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                         aperture_value=ap_value, fields_deg=fields, wavelengths_nm=wavelengths,
                         primary_wavelength_nm=primary)
-    except ValueError as e:
-        r.fail("fields_deg" if "field" in str(e) else "(system)", str(e))
+    except LensError as e:
+        r.fail(_SPEC_FIELDS.get(e.key, "(system)"), e.message)
     surf_list = data.get("surfaces")
     if not isinstance(surf_list, list) or not surf_list:
         r.fail("surfaces", "expected a non-empty list of surfaces")
     surfaces, materials, distances = [], [], []
 
-    def material(spec_str, path):
+    def material(spec_str, path, surfaces=()):
         try:
             m = get_material(spec_str)
         except ValueError as e:
-            r.fail(path, str(e))
+            r.fail(path, str(e), surfaces)
         for key, w in (("wavelengths_nm", spec.wavelengths_nm),
                        ("primary_wavelength_nm", spec.primary_wavelength_nm)):
             try:
                 check_wavelength_nm(w, m)
             except ValueError as e:
-                r.fail(key, f"{e} (used at {path})")
+                r.fail(key, f"{e} (used at {path})", surfaces)
         return m
 
     materials.append(material(obj_medium, "object.medium"))
@@ -257,10 +249,10 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
         except LensFileError:
             raise
         except ValueError as e:
-            r.fail(path, str(e))
+            r.fail(path, str(e), surfaces=(i,))
         distances.append(r.get(s, "distance_mm", path))
         materials.append(material(r.get(s, "material", path, "str", default="AIR"),
-                                  f"{path}.material"))
+                                  f"{path}.material", (i,)))
     stop = data.get("stop")
     if stop is None:
         r.fail("stop", "missing: the lens has no aperture stop (give the index of the stop "
@@ -290,8 +282,11 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     try:
         lens = Lens(surfaces, materials, distances, d_sensor, stop, sensor_sd, spec,
                     elements=elements, name=name)
+    except LensError as e:
+        raise LensFileError(e.message, source=source, key=_SPEC_FIELDS.get(e.key),
+                            surfaces=e.surfaces) from e
     except (ValueError, TypeError) as e:
-        raise LensFileError(f"{source}: {e}") from e
+        raise LensFileError(str(e), source=source) from e
     mis = data.get("misalignment")
     if mis is not None:
         if not isinstance(mis, list) or len(mis) != len(lens.elements):
@@ -353,31 +348,16 @@ def save_lens(lens: Lens, path) -> None:
     os.replace(tmp, path)
 
 
-def load_lens(path, **table_options) -> Lens:
-    """Read a lens file: our JSON format (``.json``) or the paper authors' table (``.txt``).
-
-    ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files.
-    """
+def read_json(path) -> Lens:
+    """Read a deeplens JSON lens file (errors name the file and the field, or line and column
+    for invalid JSON)."""
     path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"lens file not found: {path}")
-    if path.is_dir():
-        raise LensFileError(f"{path}: is a directory, not a lens file")
-    suffix = path.suffix.lower()
-    if suffix == ".txt":
-        from .table import read_table
-
-        return read_table(path, **table_options)
-    if suffix != ".json":
-        raise LensFileError(f"{path}: unsupported lens file type {path.suffix!r}: deeplens reads "
-                            f"its JSON format (.json) and the paper authors' tables (.txt)")
-    if table_options:
-        raise TypeError(f"options {sorted(table_options)} apply to .txt tables only")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as e:
-        raise LensFileError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from e
+        raise LensFileError(f"not a UTF-8 text file ({e.reason} at byte {e.start})",
+                            source=path) from e
     except json.JSONDecodeError as e:
-        raise LensFileError(f"{path}:{e.lineno}:{e.colno}: invalid JSON at line {e.lineno}, "
-                            f"column {e.colno}: {e.msg}") from e
+        raise LensFileError(f"invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}",
+                            source=path, line=e.lineno, column=e.colno) from e
     return lens_from_dict(data, source=str(path))

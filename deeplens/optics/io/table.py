@@ -19,24 +19,30 @@ prescriptions in normalised units).  Each error names the file and line.
 from __future__ import annotations
 
 import math
-import re
 from pathlib import Path
 
+from ..errors import LensFileError
 from ..materials import get_material
-from .lensfile import LensFileError, lens_from_dict
+from ..surfaces.xy_polynomial import xy_terms
+from .lensfile import lens_from_dict
 
 __all__ = ["read_table", "table_to_dict"]
 
 _TYPES = {"O", "S", "A", "X", "B", "I"}
 
 
-def _num(tok, where, what):
+def _at(path, line, key=None):
+    """An error factory for ``path`` (and ``line``): ``raise _at(path, 3)("message")``."""
+    return lambda message: LensFileError(message, source=path, line=line, key=key)
+
+
+def _num(tok, at, what):
     try:
         v = float(tok)
     except ValueError:
-        raise LensFileError(f"{where}: column {what!r} must be a number, got {tok!r}") from None
+        raise at(f"column {what!r} must be a number, got {tok!r}") from None
     if not math.isfinite(v):
-        raise LensFileError(f"{where}: column {what!r} must be finite, got {tok!r}")
+        raise at(f"column {what!r} must be finite, got {tok!r}")
     return v
 
 
@@ -58,12 +64,13 @@ def table_to_dict(path, *, scale: float = 1.0, stop_index: int | None = None,
 
 
 def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengths_nm, name):
-    """``(lens-file dict, {"surfaces[i]": line, "sensor": line})``."""
+    """``(lens-file dict, {"surfaces[i]": line number, "sensor": line number})``."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
     if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
-        raise LensFileError(f"{path}: scale must be a positive number, got {scale!r}")
+        raise LensFileError(f"scale must be a positive number, got {scale!r}", source=path,
+                            key="scale")
     raw = path.read_bytes()
     try:
         if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
@@ -71,59 +78,59 @@ def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengt
         else:
             text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as e:
-        raise LensFileError(f"{path}: not a UTF-8 or UTF-16 text file ({e.reason} at byte "
-                            f"{e.start})") from None
+        raise _at(path, None)(f"not a UTF-8 or UTF-16 text file ({e.reason} at byte "
+                              f"{e.start})") from None
     lines = text.splitlines()
     if len(lines) < 3:
-        raise LensFileError(f"{path}: expected a title line, a header line and surface rows, got "
-                            f"{len(lines)} line(s)")
+        raise _at(path, None)(f"expected a title line, a header line and surface rows, got "
+                              f"{len(lines)} line(s)")
     header = lines[1].split()
     if not header or header[0].lower() != "type":
-        raise LensFileError(f"{path}:2: expected the header 'type distance roc diameter "
-                            f"material' on line 2, got {lines[1].strip()!r}")
+        raise _at(path, 2)(f"expected the header 'type distance roc diameter "
+                           f"material' on line 2, got {lines[1].strip()!r}")
     surfaces, obj_medium, sensor, stop = [], "AIR", None, None
     where_of = {}
     for ln, line in enumerate(lines[2:], start=3):
         toks = line.split()
         if not toks or toks[0].startswith("#"):
             continue
-        where = f"{path}:{ln}"
+        at = _at(path, ln)
         kind = toks[0].upper()
         if kind not in _TYPES:
-            raise LensFileError(f"{where}: unknown surface type {toks[0]!r}; expected one of "
-                                f"O, S, A, X, B, I")
+            raise at(f"unknown surface type {toks[0]!r}; expected one of "
+                     f"O, S, A, X, B, I")
         if len(toks) < 5:
             names = ["type", "distance", "roc", "diameter", "material"]
-            raise LensFileError(f"{where}: expected 5 columns (type distance roc diameter "
-                                f"material), got {len(toks)}; missing {names[len(toks):]}")
-        dist = _num(toks[1], where, "distance") * scale
-        roc = _num(toks[2], where, "roc") * scale
-        diam = _num(toks[3], where, "diameter") * scale
+            raise at(f"expected 5 columns (type distance roc diameter "
+                     f"material), got {len(toks)}; missing {names[len(toks):]}")
+        dist = _num(toks[1], at, "distance") * scale
+        roc = _num(toks[2], at, "roc") * scale
+        diam = _num(toks[3], at, "diameter") * scale
         mat = toks[4]
-        extra = [_num(t, where, f"extra {j + 1}") for j, t in enumerate(toks[5:])]
+        extra = [_num(t, at, f"extra {j + 1}") for j, t in enumerate(toks[5:])]
         if kind != "I":
             try:
                 get_material(mat)
             except ValueError as e:
-                raise LensFileError(f"{where}: {e}") from None
+                raise at(f"{e}") from None
         if kind == "O":
             obj_medium = mat
             continue
         if kind == "I":
             if sensor is not None:
-                raise LensFileError(f"{where}: a second image (I) row")
+                raise at("a second image (I) row")
             if diam < 0:
-                raise LensFileError(f"{where}: diameter must be >= 0 mm (0: unbounded sensor), "
-                                    f"got {toks[3]!r}")
+                raise at(f"diameter must be >= 0 mm (0: unbounded sensor), "
+                         f"got {toks[3]!r}")
             sensor = {"distance_mm": dist}
             if diam > 0:
                 sensor["semi_diameter_mm"] = diam / 2
-            where_of["sensor"] = where
+            where_of["sensor"] = ln
             continue
         if sensor is not None:
-            raise LensFileError(f"{where}: a surface row after the image (I) row")
+            raise at("a surface row after the image (I) row")
         if not diam > 0:
-            raise LensFileError(f"{where}: diameter must be > 0 mm, got {toks[3]!r}")
+            raise at(f"diameter must be > 0 mm, got {toks[3]!r}")
         s = {"distance_mm": dist, "semi_diameter_mm": diam / 2, "material": mat.upper()
              if "/" not in mat else mat}
         if kind == "S":
@@ -138,54 +145,53 @@ def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengt
                 del s["curvature_per_mm"]
         elif kind == "A":
             if stop is not None:
-                raise LensFileError(f"{where}: a second aperture stop (A row)")
+                raise at("a second aperture stop (A row)")
             stop = len(surfaces)
             s["type"] = "aperture"
             if mat.upper() == "OCCLUDER":
                 s["material"] = "AIR"
         elif kind == "X":
             if len(extra) < 2:
-                raise LensFileError(f"{where}: an X row needs 'b a0 [a1 ...]' after the material")
+                raise at("an X row needs 'b a0 [a1 ...]' after the material")
             n = len(extra) - 1
             J = (math.isqrt(8 * n + 1) - 3) // 2
             if (J + 1) * (J + 2) // 2 != n:
-                raise LensFileError(f"{where}: an X row needs b and (J+1)(J+2)/2 coefficients "
-                                    f"(1, 3, 6, 10, ...), got {n}")
-            from ..surfaces.xy_polynomial import xy_terms
-
+                raise at(f"an X row needs b and (J+1)(J+2)/2 coefficients "
+                         f"(1, 3, 6, 10, ...), got {n}")
             s["type"] = "xy_polynomial"
             s["b"] = extra[0] / scale
             s["coefficients"] = [a * scale ** (1 - (i + j)) for a, (i, j) in
                                  zip(extra[1:], xy_terms(J))]
         elif kind == "B":
             if len(extra) < 2 or extra[0] != int(extra[0]) or extra[1] != int(extra[1]):
-                raise LensFileError(f"{where}: a B row needs 'nx ny c_00 ... ' (deeplens' uniform "
-                                    f"knots); knot vectors are not supported")
+                raise at("a B row needs 'nx ny c_00 ... ' (deeplens' uniform "
+                         "knots); knot vectors are not supported")
             nx, ny = int(extra[0]), int(extra[1])
             if len(extra) - 2 != nx * ny:
-                raise LensFileError(f"{where}: a B row with nx={nx}, ny={ny} needs {nx * ny} "
-                                    f"coefficients, got {len(extra) - 2}")
+                raise at(f"a B row with nx={nx}, ny={ny} needs {nx * ny} "
+                         f"coefficients, got {len(extra) - 2}")
             c = [v * scale for v in extra[2:]]
             s["type"] = "bspline"
             s["coefficients"] = [c[i * ny:(i + 1) * ny] for i in range(nx)]
-        where_of[f"surfaces[{len(surfaces)}]"] = where
+        where_of[f"surfaces[{len(surfaces)}]"] = ln
         surfaces.append(s)
     if not surfaces:
-        raise LensFileError(f"{path}: no surface rows")
+        raise _at(path, None)("no surface rows")
     if sensor is None:
-        raise LensFileError(f"{path}: no image (I) row: the sensor distance is unknown")
+        raise _at(path, None)("no image (I) row: the sensor distance is unknown")
     if stop is None:
         if stop_index is None:
-            raise LensFileError(f"{path}: no aperture stop (no 'A' row); pass stop_index to use "
-                                f"a surface's clear aperture as the stop")
+            raise _at(path, None, "stop_index")("no aperture stop (no 'A' row); pass stop_index "
+                                                "to use a surface's clear aperture as the stop")
         if isinstance(stop_index, bool) or not isinstance(stop_index, int) or not (
                 0 <= stop_index < len(surfaces)):
-            raise LensFileError(f"{path}: stop_index {stop_index!r} is not a surface index "
-                                f"(0..{len(surfaces) - 1}: the rows after O, not counting I)")
+            raise _at(path, None, "stop_index")(
+                f"{stop_index!r} is not a surface index (0..{len(surfaces) - 1}: the rows after "
+                f"O, not counting I)")
         stop = stop_index
     elif stop_index is not None and stop_index != stop:
-        raise LensFileError(f"{where_of[f'surfaces[{stop}]']}: the file's A row is surface "
-                            f"{stop}, but stop_index={stop_index} was passed")
+        raise _at(path, where_of[f"surfaces[{stop}]"], "stop_index")(
+            f"the file's A row is surface {stop}, but stop_index={stop_index} was passed")
     return {
         "format": "deeplens-lens", "version": 1,
         "name": name if name is not None else lines[0].strip(),
@@ -207,20 +213,19 @@ def read_table(path, *, scale: float = 1.0, stop_index: int | None = None,
     try:
         return lens_from_dict(d, source=str(path))
     except LensFileError as e:
-        raise LensFileError(_locate(str(e), str(path), where_of)) from e
+        raise _locate(e, path, where_of) from e
 
 
-def _locate(msg: str, source: str, where_of: dict) -> str:
-    """Turn ``"file: surfaces 0 and 1 cross ..."`` into ``"file:LINE: ..."`` plus the rows."""
-    body = msg[len(source) + 2:] if msg.startswith(source + ": ") else msg
-    idx = [int(i) for i in re.findall(r"surfaces\[(\d+)\]", body)]
-    for m in re.finditer(r"\bsurfaces? (\d+)(?: and (\d+))?", body):
-        idx += [int(g) for g in m.groups() if g is not None]
-    keys = [f"surfaces[{i}]" for i in dict.fromkeys(idx) if f"surfaces[{i}]" in where_of]
-    if not keys and ("sensor" in body) and "sensor" in where_of:
+def _locate(e: LensFileError, path, where_of: dict) -> LensFileError:
+    """The error ``e`` of the lens built from the table, placed at the line of the surfaces it
+    concerns (``e.surfaces``), or of the I row for a sensor field, plus the rows it names."""
+    keys = [f"surfaces[{i}]" for i in dict.fromkeys(e.surfaces) if f"surfaces[{i}]" in where_of]
+    if not keys and e.key is not None and e.key.split(".")[0] == "sensor" and "sensor" in where_of:
         keys = ["sensor"]
     if not keys:
-        return msg
-    rows = ", ".join(f"{k.replace('surfaces[', 'surface ').rstrip(']')} is line "
-                     f"{where_of[k].rsplit(':', 1)[1]}" for k in keys)
-    return f"{where_of[keys[-1]]}: {body} ({rows})"
+        return e
+    rows = ", ".join(f"{k.replace('surfaces[', 'surface ').rstrip(']')} is line {where_of[k]}"
+                     for k in keys)
+    body = f"{e.key}: {e.message}" if e.key else e.message
+    return LensFileError(f"{body} ({rows})", source=path, line=where_of[keys[-1]],
+                         surfaces=e.surfaces)

@@ -56,6 +56,18 @@ class Aperture(Plane):
         """Resize a circular stop (used when the aperture is given as EPD or F-number)."""
         self.semi_diameter.fill_(float(value))
 
+    file_fields = ("shape", "half_width_x_mm", "half_width_y_mm")
+
+    @classmethod
+    def from_dict(cls, entry, semi_diameter):
+        shape = entry.get("shape", "str", default="circle")
+        if shape not in ("circle", "rect"):
+            entry.fail("shape", f"expected 'circle' or 'rect', got {shape!r}")
+        if shape == "rect":
+            return cls(semi_diameter, "rect", entry.get("half_width_x_mm"),
+                       entry.get("half_width_y_mm"))
+        return cls(semi_diameter, shape)
+
     def to_dict(self) -> dict:
         d = super().to_dict()
         if self.shape == "rect":

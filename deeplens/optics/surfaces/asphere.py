@@ -30,7 +30,7 @@ __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER"]
 MAX_ASPHERE_ORDER = 20
 
 
-@register_surface("asphere")
+@register_surface("asphere", aliases=("sphere", "conic"))
 class Asphere(SagSurface):
     """Even asphere on a conic base (a sphere when ``k = 0`` and no coefficients).
 
@@ -138,6 +138,23 @@ class Asphere(SagSurface):
                 f"(R = {1 / float(self.c):g} mm, k = {float(self.k):g}): the sag is only "
                 f"defined for r < {limit:g} mm")
 
+    file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric")
+
+    @classmethod
+    def from_dict(cls, entry, semi_diameter):
+        if entry.has("curvature_per_mm") and entry.has("roc_mm"):
+            entry.fail("roc_mm", "give curvature_per_mm or roc_mm, not both")
+        if entry.has("roc_mm"):
+            roc = entry.get("roc_mm")
+            c = 0.0 if roc == 0 else 1.0 / roc
+        elif entry.has("curvature_per_mm"):
+            c = entry.get("curvature_per_mm")
+        else:
+            entry.fail("curvature_per_mm", "missing required field (the vertex curvature in "
+                                           "1/mm; or give roc_mm)")
+        return cls(c, semi_diameter, conic=entry.get("conic", default=0.0),
+                   coefficients=entry.get("aspheric", "numbers", default=[]))
+
     def to_dict(self) -> dict:
         d = super().to_dict()
         d["curvature_per_mm"] = float(self.c)
@@ -148,7 +165,8 @@ class Asphere(SagSurface):
         return d
 
     def extra_repr(self) -> str:
-        return (f"c={float(self.c):.6g}/mm, k={float(self.k):.6g}, n_coeffs={len(self.a)}, "
+        return (f"c={float(self.c.detach()):.6g}/mm, k={float(self.k.detach()):.6g}, "
+                f"n_coeffs={len(self.a)}, "
                 + super().extra_repr())
 
 

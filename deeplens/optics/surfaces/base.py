@@ -10,6 +10,12 @@ optical axis.  A surface provides
 * ``sag(x, y)``          the surface height, for layouts and crossing checks
 * ``paraxial_curvature`` the vertex curvature used by paraxial analysis (1/mm)
 
+Serialisation: each type registers its lens-file ``type`` name with :func:`register_surface`
+and owns both directions: ``to_dict()`` writes its entry, ``from_dict(entry, semi_diameter)``
+reads it back through a small reader interface (``entry.get(key, kind, default)``,
+``entry.has(key)``, ``entry.fail(key, message)``) that the file reader implements, so every
+registered type can be read as soon as it can be written.  ``file_fields`` lists its own keys.
+
 The normal is ``∇f/|∇f|``.  Prescription values are ``nn.Parameter`` objects created with
 ``requires_grad=False``; make any one of them trainable with ``p.requires_grad_(True)``.
 Implementations must stay finite (never NaN or inf, also in their derivatives) for *any* finite
@@ -28,15 +34,22 @@ from ..refract import unit_normal
 
 __all__ = ["Surface", "SagSurface", "make_param", "SURFACE_TYPES", "register_surface"]
 
+#: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
+#: at import and read by the lens-file reader and writer (never changed afterwards)
 SURFACE_TYPES: dict[str, type] = {}
 
 
-def register_surface(name: str):
-    """Class decorator: register a surface type under its lens-file ``type`` name."""
+def register_surface(name: str, aliases: tuple[str, ...] = ()):
+    """Class decorator: register a surface type under its lens-file ``type`` name (and aliases
+    the reader also accepts); the writer uses ``name``."""
 
     def deco(cls):
         cls.type_name = name
-        SURFACE_TYPES[name] = cls
+        for key in (name, *aliases):
+            if key in SURFACE_TYPES:
+                raise ValueError(f"surface type {key!r} is registered twice "
+                                 f"({SURFACE_TYPES[key].__name__} and {cls.__name__})")
+            SURFACE_TYPES[key] = cls
         return cls
 
     return deco
@@ -58,6 +71,8 @@ class Surface(nn.Module):
     """
 
     type_name = "surface"
+    #: lens-file fields of this type besides type, distance_mm, semi_diameter_mm and material
+    file_fields: tuple[str, ...] = ()
     #: a flat surface is intersected in closed form (no Newton iterations)
     is_flat = False
 
@@ -106,11 +121,18 @@ class Surface(nn.Module):
 
     # ---- serialisation ----------------------------------------------------------------
     def to_dict(self) -> dict:
-        """Prescription as plain floats (the lens-file ``surfaces[i]`` entry, without spacing)."""
+        """Prescription as plain floats (the lens-file ``surfaces[i]`` entry, without spacing);
+        :meth:`from_dict` reads it back."""
         return {"type": self.type_name, "semi_diameter_mm": float(self.semi_diameter)}
 
+    @classmethod
+    def from_dict(cls, entry, semi_diameter: float) -> "Surface":
+        """Build from a lens-file entry (see the module docstring for ``entry``); the common
+        fields (distance, semi-diameter, material) are read by the caller."""
+        return cls(semi_diameter)
+
     def extra_repr(self) -> str:
-        return f"semi_diameter={float(self.semi_diameter):.6g} mm"
+        return f"semi_diameter={float(self.semi_diameter.detach()):.6g} mm"
 
 
 class SagSurface(Surface):

@@ -89,6 +89,12 @@ class BSpline(SagSurface):
         zy_y = self.sag_grad(torch.zeros_like(x), x)[1]
         return 0.5 * ((zx[1] - zx[0]) + (zy_y[1] - zy_y[0])) / (2 * e)
 
+    file_fields = ("coefficients",)
+
+    @classmethod
+    def from_dict(cls, entry, semi_diameter):
+        return cls(semi_diameter, entry.get("coefficients", "grid"))
+
     def to_dict(self) -> dict:
         d = super().to_dict()
         d["coefficients"] = self.coefficients.detach().cpu().tolist()

@@ -53,6 +53,12 @@ class IdealLens(Plane):
         """``1/f`` (1/mm); paraxial analysis uses it in place of ``c (n2 - n1)``."""
         return 1.0 / self.focal
 
+    file_fields = ("focal_length_mm",)
+
+    @classmethod
+    def from_dict(cls, entry, semi_diameter):
+        return cls(entry.get("focal_length_mm"), semi_diameter)
+
     def to_dict(self) -> dict:
         d = super().to_dict()
         d["focal_length_mm"] = float(self.focal)

@@ -142,6 +142,13 @@ class XYPolynomial(Surface):
             return torch.zeros_like(self.b)
         return self.a[ix2] + self.a[iy2]
 
+    file_fields = ("coefficients", "b")
+
+    @classmethod
+    def from_dict(cls, entry, semi_diameter):
+        return cls(semi_diameter, entry.get("coefficients", "numbers"),
+                   b=entry.get("b", default=0.0))
+
     def to_dict(self) -> dict:
         d = super().to_dict()
         d["b"] = float(self.b)

@@ -9,9 +9,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import LensFileError, lens_from_dict, lens_to_dict, load_lens, save_lens
-from deeplens.optics.surfaces import Aperture, Asphere, BSpline, Plane, XYPolynomial
+from deeplens.optics.surfaces import Aperture, Asphere, BSpline, IdealLens, Plane, XYPolynomial
 
 ROOT = Path(__file__).resolve().parents[3]
 SHIPPED = sorted((ROOT / "data" / "lenses").glob("*.json"))
@@ -46,13 +46,16 @@ def all_types_dict(aperture=None, object_distance="inf"):
             {"type": "aperture", "semi_diameter_mm": 2.5, "shape": "rect",
              "half_width_x_mm": 2.0, "half_width_y_mm": 1.5, "distance_mm": 1.0,
              "material": "AIR"},
+            {"type": "ideal_lens", "semi_diameter_mm": 4.0, "focal_length_mm": 50.0 / 3,
+             "distance_mm": 1.0, "material": "AIR"},
         ],
         "sensor": {"distance_mm": 20.0, "semi_diameter_mm": 5.0},
-        "elements": [[0, 1], [2, 2], [3, 4], [5, 5]],
+        "elements": [[0, 1], [2, 2], [3, 4], [5, 5], [6, 6]],
         "misalignment": [
             {"dx_mm": 0.01, "dy_mm": 0.0, "tilt_x_rad": 1e-3 / 3, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": -0.02, "tilt_x_rad": 0.0, "tilt_y_rad": math.pi * 1e-3},
+            {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
         ],
     }
@@ -106,7 +109,7 @@ def test_all_surface_types_roundtrip_exact(object_distance, tmp_path):
     src.write_text(json.dumps(d))
     lens = load_lens(src)
     assert [type(s) for s in lens.surfaces] == [Asphere, Plane, Aperture, XYPolynomial, BSpline,
-                                                Aperture]
+                                                Aperture, IdealLens]
     assert lens.surfaces[5].shape == "rect"
     assert float(lens.misalignments[2].tilt_y) == math.pi * 1e-3
     assert float(lens.misalignments[0].tilt_x) == 1e-3 / 3
@@ -246,7 +249,8 @@ BAD = [
     ("surface not an object", _set("asphere", "surfaces", 2),
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
-     r"surfaces\[2\]\.type: unknown surface type 'sphr'; expected one of asphere, plane"),
+     r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
+     r"aperture, asphere, bspline, conic, ideal_lens, plane, sphere, xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -268,7 +272,7 @@ BAD = [
     ("no stop", _del("stop"), r"stop: missing: the lens has no aperture stop"),
     ("stop null", _set(None, "stop"), r"stop: missing: the lens has no aperture stop"),
     ("stop float", _set(2.0, "stop"), r"stop: expected an integer, got 2\.0"),
-    ("stop out of range", _set(6, "stop"), r"stop: 6 is not a surface index \(0\.\.5\)"),
+    ("stop out of range", _set(7, "stop"), r"stop: 7 is not a surface index \(0\.\.6\)"),
     ("version 2", _set(2, "version"), r"version: unsupported lens-file version 2"),
     ("version 0", _set(0, "version"), r"version: unsupported lens-file version 0"),
     ("version string", _set("1", "version"), r"version: expected an integer, got '1'"),
@@ -314,9 +318,9 @@ BAD = [
     ("elements bad pair", _set([[0, 1], [2, "x"], [3, 4], [5, 5]], "elements"),
      r"elements\[1\]: expected \[first, last\] surface indices, got \[2, 'x'\]"),
     ("elements gap", _set([[0, 1], [3, 4], [5, 5]], "elements"),
-     r"elements .* must cover surfaces 0\.\.5 exactly once"),
+     r"elements .* must cover surfaces 0\.\.6 exactly once"),
     ("misalignment count", _set([{"dx_mm": 0.1}], "misalignment"),
-     r"misalignment: expected a list of 4 entries \(one per element\)"),
+     r"misalignment: expected a list of 5 entries \(one per element\)"),
     ("misalignment value", _set("0.1", "misalignment", 0, "dx_mm"),
      r"misalignment\[0\]\.dx_mm: expected a finite number, got '0\.1'"),
     ("misalignment field", _set(0.1, "misalignment", 1, "tilt_z_rad"),
@@ -423,3 +427,49 @@ def test_lens_constructor_validation_behind_the_file_reader():
         make(sensor_sd=-1.0)
     with pytest.raises(ValueError, match=r"the lens has no aperture stop"):
         Lens([Plane(5.0)], [get_material("AIR")] * 2, [0.0], 10.0, None)
+
+
+# ---------------------------------------------------------------- issue 12, defect 6
+def test_every_registered_surface_type_round_trips():
+    """Regression (issue 12, defect 6): a lens with an ``IdealLens`` was written to JSON but
+    could not be read back ("unknown surface type 'ideal_lens'"): the reader listed the types by
+    hand.  Every type in the registry must appear in the all-types lens, which round-trips."""
+    from deeplens.optics.surfaces import SURFACE_TYPES
+
+    d = all_types_dict()
+    written = {s["type"] for s in d["surfaces"]}
+    canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}
+    assert canonical <= written, f"add {sorted(canonical - written)} to all_types_dict"
+    lens = lens_from_dict(d)
+    assert lens_to_dict(lens) == d
+    assert lens_to_dict(lens_from_dict(json.loads(json.dumps(lens_to_dict(lens))))) == d
+
+
+def test_ideal_lens_checkpoint_export_loads(tmp_path):
+    """The exported lens of a checkpoint (save_lens) with an ideal lens loads back, with the
+    same focal length bit for bit."""
+    from deeplens.optics.surfaces import IdealLens
+
+    lens = lens_from_dict(all_types_dict())
+    save_lens(lens, tmp_path / "ideal.json")
+    back = load_lens(tmp_path / "ideal.json")
+    assert isinstance(back.surfaces[6], IdealLens)
+    assert float(back.surfaces[6].focal) == 50.0 / 3
+
+
+def test_surface_field_errors_are_structured(tmp_path):
+    """Errors carry where they are (file, JSON path, surface index) as attributes, so callers
+    (the table reader, the training set-up) never parse the message."""
+    d = all_types_dict()
+    d["surfaces"][6]["focal_length_mm"] = "long"
+    with pytest.raises(LensFileError) as e:
+        lens_from_dict(d, source="x.json")
+    err = e.value
+    assert (err.source, err.key, err.surfaces) == ("x.json", "surfaces[6].focal_length_mm", (6,))
+    assert str(err) == "x.json: surfaces[6].focal_length_mm: expected a finite number, got 'long'"
+    d = all_types_dict()
+    d["surfaces"][1]["distance_mm"] = 0.5  # the plane now cuts into the asphere before it
+    d["surfaces"][0]["curvature_per_mm"] = 1 / 10.0
+    with pytest.raises(LensFileError) as e:
+        lens_from_dict(d, source="x.json")
+    assert e.value.surfaces == (0, 1) and "surfaces 0 and 1 cross" in e.value.message

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import (LensFileError, lens_from_dict, lens_to_dict, load_lens,
                                 read_table, table_to_dict)
 from deeplens.optics.surfaces import Aperture, Asphere, BSpline, Plane, XYPolynomial
@@ -232,7 +232,7 @@ def test_no_stop(tmp_path):
     p = write(tmp_path, text, "nostop.txt")
     check_error(p, None, r"no aperture stop \(no 'A' row\); pass stop_index")
     assert read_table(p, stop_index=0).stop_index == 0
-    check_error(p, None, r"stop_index 9 is not a surface index \(0\.\.5", stop_index=9)
+    check_error(p, None, r"stop_index: 9 is not a surface index \(0\.\.5", stop_index=9)
 
 
 def test_stop_index_conflicting_with_a_row(tmp_path):

@@ -1,0 +1,60 @@
+"""Structured errors of the optics layer: what went wrong, and where, as attributes.
+
+Callers decide from the attributes (``surfaces``, ``key``, ``line``), never from the message
+text: the table reader maps ``surfaces`` to its own line numbers, the JSON reader maps ``key``
+to the field path, and the training set-up maps ``key`` to its configuration key.
+"""
+
+from __future__ import annotations
+
+__all__ = ["LensError", "LensFileError"]
+
+
+class LensError(ValueError):
+    """An inconsistent lens prescription.
+
+    Attributes:
+        message: the explanation (also ``str(error)``).
+        surfaces: indices of the surfaces concerned (``()`` when none).
+        key: the quantity concerned when it is not a surface, e.g. ``"sensor"``, ``"stop"``,
+            ``"fields_deg"``, ``"aperture"``, ``"object_distance_mm"`` (``None`` otherwise).
+    """
+
+    def __init__(self, message: str, *, surfaces=(), key: str | None = None):
+        super().__init__(message)
+        self.message = message
+        self.surfaces = tuple(int(i) for i in surfaces)
+        self.key = key
+
+
+class LensFileError(ValueError):
+    """A lens file (or reader option) that cannot be used.
+
+    ``str(error)`` is ``"SOURCE[:LINE[:COLUMN]]: [KEY: ]MESSAGE"``; the parts are attributes:
+
+    Attributes:
+        message: the explanation.
+        source: the file (or ``"<dict>"``), ``None`` when the message already names it.
+        key: the JSON path of the field (``"surfaces[3].b"``) or the reader option
+            (``"stop_index"``), ``None`` when no single field is at fault.
+        line, column: the position in a text file, or ``None``.
+        surfaces: indices of the surfaces concerned (``()`` when none).
+    """
+
+    def __init__(self, message: str, *, source=None, key: str | None = None,
+                 line: int | None = None, column: int | None = None, surfaces=()):
+        self.message = message
+        self.column = column
+        self.source = None if source is None else str(source)
+        self.key = key
+        self.line = line
+        self.surfaces = tuple(int(i) for i in surfaces)
+        super().__init__(self._format())
+
+    def _format(self) -> str:
+        where = self.source or ""
+        if where and self.line is not None:
+            where = f"{where}:{self.line}"
+            if self.column is not None:
+                where = f"{where}:{self.column}"
+        return ": ".join(p for p in (where, self.key, self.message) if p)

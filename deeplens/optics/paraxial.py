@@ -1,0 +1,145 @@
+"""Paraxial (first-order) analysis by y-u ray tracing.
+
+At surface ``i`` with vertex curvature ``c_i`` between indices ``n`` and ``n'``:
+
+    refraction:  n' u' = n u - y c_i (n' - n)        transfer:  y <- y + t u'
+
+Two rays are traced from the first vertex: ``A = (y=1, u=0)`` and ``B = (y=0, u=1)``.  Then
+``EFL = -1 / u_A'`` (image space), ``BFL = -y_A / u_A'`` at the last vertex; the entrance pupil
+(the stop's image in object space) lies ``y_B,stop / y_A,stop`` behind the first vertex and has
+diameter ``2 r_stop / |y_A,stop|``; ``F/# = EFL / EPD``.  For an object at distance ``s`` the
+paraxial image lies ``-y/u'`` behind the last vertex for the ray ``s A + B``.
+All quantities are differentiable torch scalars in mm, at the primary wavelength.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+__all__ = ["paraxial", "ParaxialData", "exit_pupil", "chief_ray_scale"]
+
+
+@dataclass
+class ParaxialData:
+    """First-order data (mm); ``*_z`` are absolute axial positions in the lens frame."""
+
+    efl: torch.Tensor
+    bfl: torch.Tensor
+    image_distance: torch.Tensor  # from the last vertex to the paraxial image of the object
+    image_z: torch.Tensor
+    entrance_pupil_z: torch.Tensor
+    entrance_pupil_position: torch.Tensor  # relative to the first vertex
+    entrance_pupil_diameter: torch.Tensor
+    fno: torch.Tensor
+    stop_height_per_ep_height: torch.Tensor
+    wavelength_nm: float
+
+
+def _power(surface, n1, n2):
+    """Surface power ``φ = c (n2 - n1)`` (1/mm); an ideal lens supplies its own ``1/f``."""
+    if hasattr(surface, "paraxial_power"):
+        return surface.paraxial_power() * n2
+    return surface.paraxial_curvature() * (n2 - n1)
+
+
+def _trace(lens, y, u, n):
+    """Trace a paraxial ray (y, u at the first vertex, in object space) to the last vertex.
+
+    Returns the ray after the last surface and the height at every vertex."""
+    heights = []
+    dist = list(lens.distances)
+    for i, s in enumerate(lens.surfaces):
+        if i > 0:
+            y = y + dist[i] * u
+        heights.append(y)
+        u = (n[i] * u - y * _power(s, n[i], n[i + 1]).to(y)) / n[i + 1]
+    return y, u, heights
+
+
+def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
+    """Paraxial data of ``lens`` at ``wavelength_nm`` (default: the spec's primary wavelength).
+
+    Raises:
+        ValueError: if the system is afocal (no EFL) or the stop is not imaged (``y_A = 0``).
+    """
+    w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
+    p0 = lens.distances[0]
+    wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
+    n = [m.n(wt).to(p0) for m in lens.materials]
+    one, zero = torch.ones_like(p0), torch.zeros_like(p0)
+    yA, uA, hA = _trace(lens, one, zero, n)
+    _, _, hB = _trace(lens, zero, one, n)
+    if abs(float(uA.detach())) < 1e-15:
+        raise ValueError("the system is afocal: the paraxial EFL is infinite")
+    efl = -1.0 / uA
+    bfl = -yA / uA
+    k = lens.stop_index
+    ya_s, yb_s = hA[k], hB[k]
+    if abs(float(ya_s.detach())) < 1e-15:
+        raise ValueError("the stop is at an image of the object: no entrance pupil")
+    z0 = lens.z_vertices()[0]
+    ep_pos = yb_s / ya_s
+    epd = 2.0 * lens.stop.semi_diameter.to(p0) / ya_s.abs()
+    s = float(lens.spec.object_distance_mm)
+    if math.isinf(s):
+        img = bfl
+    else:
+        y, u, _ = _trace(lens, s * one, one, n)
+        img = -y / u
+    z_last = lens.z_vertices()[-1]
+    return ParaxialData(efl=efl, bfl=bfl, image_distance=img, image_z=z_last + img,
+                        entrance_pupil_z=z0 + ep_pos, entrance_pupil_position=ep_pos,
+                        entrance_pupil_diameter=epd, fno=efl / epd,
+                        stop_height_per_ep_height=ya_s, wavelength_nm=w)
+
+
+def _indices(lens, wavelength_nm):
+    w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
+    p0 = lens.distances[0]
+    wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
+    return [m.n(wt).to(p0) for m in lens.materials], p0
+
+
+def _trace_from(lens, start: int, y, u, n):
+    """Trace a paraxial ray that sits at vertex ``start`` (before refracting there)."""
+    dist = list(lens.distances)
+    for i in range(start, len(lens.surfaces)):
+        if i > start:
+            y = y + dist[i] * u
+        u = (n[i] * u - y * _power(lens.surfaces[i], n[i], n[i + 1]).to(y)) / n[i + 1]
+    return y, u
+
+
+def exit_pupil(lens, wavelength_nm: float | None = None):
+    """Paraxial exit pupil ``(z_xp, radius)`` in mm: the image of the stop in image space.
+
+    A ray leaving the stop centre with unit slope crosses the axis in image space at ``z_xp``;
+    a ray leaving the stop at height 1 reaches height ``m`` there, so the radius is
+    ``|m| r_stop``.
+    """
+    n, p0 = _indices(lens, wavelength_nm)
+    one, zero = torch.ones_like(p0), torch.zeros_like(p0)
+    k = lens.stop_index
+    z_last = lens.z_vertices()[-1]
+    yc, uc = _trace_from(lens, k, zero, one, n)
+    if abs(float(uc.detach())) < 1e-15:
+        raise ValueError("the exit pupil is at infinity (image-space telecentric lens)")
+    dz = -yc / uc  # from the last vertex
+    ye, ue = _trace_from(lens, k, one, zero, n)
+    m = ye + ue * dz
+    return z_last + dz, m.abs() * lens.stop.semi_diameter.to(p0)
+
+
+def chief_ray_scale(lens, z_image, wavelength_nm: float | None = None):
+    """``κ`` (mm): the paraxial chief ray of object-space slope ``u`` reaches height ``κ u`` on
+    the plane ``z_image``.  An ideal camera images the field angle ``θ`` to ``κ tan θ``."""
+    n, p0 = _indices(lens, wavelength_nm)
+    one = torch.ones_like(p0)
+    z0 = lens.z_vertices()[0]
+    p = paraxial(lens, wavelength_nm)
+    y0 = -(p.entrance_pupil_z - z0) * one  # passes the EP centre with slope 1
+    y, u = _trace_from(lens, 0, y0, one, n)
+    return y + u * (torch.as_tensor(z_image).to(p0) - lens.z_vertices()[-1])
