@@ -28,6 +28,29 @@ Rays that fail are kept out of every evaluation that autograd records: their res
 at the vertex (a point where every surface is finite) instead of at ``o + t0 d``, which for a
 grazing stray ray (|d_z| ~ 1e-8) lies 1e8 mm away where a polynomial sag overflows; a masked
 ``inf`` there still turned the shared parameters' gradients into NaN (``0 * inf``).
+
+Quadrics (spheres and conics, ``surface.is_quadric``) skip Newton: the ray meets the quadric
+``F = 0`` where ``A s^2 + 2 B s + C = 0`` (:meth:`~.surfaces.Asphere.quadric`), and
+
+    Q = -(B + sign(B) sqrt(B^2 - A C)),      s_1 = C / Q,      s_2 = Q / A
+
+are its roots without cancellation (the textbook ``(-B ± sqrt(.)) / A`` loses all digits of the
+near root when ``A C << B^2``, and divides by zero for a paraboloid hit along its axis).  Exactly one
+root is where the ray crosses the surface in its direction of travel (``_quadric_root``); it is
+the hit when it lies on the surface's branch (``h = 1 - (1+k) c z > 0``).
+The expression is differentiable as it stands: its derivative is the exact implicit derivative
+``-(∂F/∂θ) / (d · ∇F)`` of the root, the same as the Eq. 7 step gives at a converged root, and
+autograd keeps only a handful of per-ray scalars.  Aspheres start Newton from their conic base's
+root (usually one or two iterations) instead of the vertex plane.  ``closed_form=False`` runs
+the generic Newton path on every surface (the reference the closed form is tested against).
+
+:func:`trace_quadric` is the closed-form path and Snell's law written on per-component tensors
+(what :meth:`Lens.trace_surface <deeplens.optics.lens.Lens.trace_surface>` runs for an aligned
+sphere or conic); ``tests/optics/test_quadric.py`` checks it against ``intersect`` + ``refract``.
+
+The Newton loop synchronises with the host (``active.any()``) only after iterations 1, 2, 4,
+8, ...: an extra iteration on rays that have all converged changes nothing, and each
+synchronisation stalls an accelerator's queue.
 """
 
 from __future__ import annotations
@@ -36,7 +59,7 @@ import warnings
 
 import torch
 
-__all__ = ["intersect", "default_tolerance", "IntersectOptions"]
+__all__ = ["IntersectOptions", "default_tolerance", "intersect", "trace_quadric"]
 
 
 def default_tolerance(dtype: torch.dtype) -> float:
@@ -48,13 +71,19 @@ def default_tolerance(dtype: torch.dtype) -> float:
 class IntersectOptions:
     """Newton settings: ``tol`` (mm, ``None`` = dtype default; never below ``4 eps |x|``),
     ``max_iter``, ``mode``; ``clip_aperture=False`` ignores clear apertures (for ray aiming),
-    not surface domains."""
+    not surface domains; ``closed_form=False`` runs Newton from the vertex plane also on spheres
+    and conics (the reference path); ``checkpoint=True`` makes
+    :meth:`Lens.trace <deeplens.optics.lens.Lens.trace>` keep only each surface's incoming ray
+    state for backward and recompute the surface there (about 40 instead of 120 bytes per ray
+    and surface in float32, for about 1.5x the backward's time)."""
 
-    __slots__ = ("tol", "max_iter", "mode", "clip_aperture")
+    __slots__ = ("checkpoint", "clip_aperture", "closed_form", "max_iter", "mode", "tol")
 
     def __init__(self, tol: float | None = None, max_iter: int = 30, mode: str = "implicit",
-                 clip_aperture: bool = True):
+                 clip_aperture: bool = True, closed_form: bool = True, checkpoint: bool = False):
         self.clip_aperture = bool(clip_aperture)
+        self.closed_form = bool(closed_form)
+        self.checkpoint = bool(checkpoint)
         if mode not in ("implicit", "unrolled"):
             raise ValueError(f"intersection mode must be 'implicit' or 'unrolled', got {mode!r}")
         if max_iter < 1:
@@ -65,7 +94,8 @@ class IntersectOptions:
 
     def __repr__(self):
         return (f"IntersectOptions(tol={self.tol}, max_iter={self.max_iter}, mode={self.mode!r}, "
-                f"clip_aperture={self.clip_aperture})")
+                f"clip_aperture={self.clip_aperture}, closed_form={self.closed_form}, "
+                f"checkpoint={self.checkpoint})")
 
 
 #: the tolerance never goes below this many float rounding units of the coordinates, ``eps |x|``
@@ -119,6 +149,96 @@ def _warn_stalled(surface, o, d, s, tried, converged, tol_ray, tol, fv=None):
                 f"IntersectOptions(tol=...) or more max_iter", RuntimeWarning, stacklevel=3)
 
 
+def _quadric_root(quadric, obz, dz, ok):
+    """The root ``s`` (``(*B,)``, differentiable) of ``A s^2 + 2 B s + C = 0`` where the ray
+    crosses the branch ``h > 0`` in its direction of travel, and whether it exists (``s = 0``
+    elsewhere; whether it lies ahead of the ray is checked with the other surfaces').
+
+    ``d · ∇F = 2 (A s + B)`` is ``+2 sign(B) sqrt(disc)`` at ``s_1 = C / Q`` and the opposite at
+    ``s_2 = Q / A``; on the branch ``∇F = 2 h ∇f`` with ``h > 0``, and a ray travelling towards
+    ``±z`` passes from ``f > 0`` to ``f < 0`` or back (``sign(d · ∇f) = -sign(d_z)``, as
+    ``∂f/∂z = -1``).  So exactly one root is the crossing in the direction of travel: ``s_1`` when
+    ``B`` and ``d_z`` have opposite signs.  (The other one is where a grazing ray leaves the
+    surface again, before or after.)
+    """
+    A, B, C, ck = quadric[:4]
+    disc = B * B - A * C
+    hit = ok & (disc > 1e-24)  # a miss, or a tangent ray (d · ∇F = ±2 sqrt(disc) vanishes)
+    sq = torch.sqrt(torch.where(hit, disc, torch.ones_like(disc)))
+    Q = -(B + torch.copysign(sq, B))  # |Q| >= sqrt(disc): no cancellation
+    with torch.no_grad():
+        use1 = torch.signbit(B) ^ torch.signbit(dz)
+        # s_1 = C / Q; s_2 = Q / A only while the far root lies within 1e10 mm
+        hit = hit & torch.where(use1, Q.abs() > 1e-12,
+                                (A.abs() > 1e-12) & (Q.abs() < 1e10 * A.abs()))
+    den = torch.where(use1, Q, A)
+    s = torch.where(use1, C, Q) / torch.where(hit, den, torch.ones_like(den))
+    with torch.no_grad():
+        hit = hit & (ck * (obz + s * dz) < 1.0)
+    return torch.where(hit, s, torch.zeros_like(s)), hit
+
+
+def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None):
+    """Intersect and refract at a quadric surface in one pass over per-component tensors.
+
+    The same computation as :func:`intersect` on the closed-form path followed by
+    :func:`~.refract.refract` at :meth:`~.surfaces.Asphere.normal`, for a surface whose frame is
+    its vertex shifted by ``z_shift`` along the axis (no misalignment).  Written on the ``x``,
+    ``y``, ``z`` components (``(*B,)`` each) instead of ``(*B, 3)`` tensors: the shift touches
+    ``z`` only, and each step reads one component at a time, about 2x less memory traffic.
+
+    Args:
+        surface: a surface with ``is_quadric`` (sphere or conic).
+        o, d: ``(*B, 3)`` origins (mm, global frame) and unit directions.
+        valid, opl: ``(*B,)`` mask and optical path length (mm).
+        z_shift: vertex position (0-d tensor, mm).
+        n1, n2: media indices, broadcastable to ``B``.
+
+    Returns:
+        ``(x, d_t, valid, opl)`` in the global frame, as :meth:`Lens.trace_surface` returns them.
+    """
+    opt = options or IntersectOptions()
+    tol = opt.tol if opt.tol is not None else default_tolerance(o.dtype)
+    ox, oy, oz = o.unbind(-1)
+    dx, dy, dz = d.unbind(-1)
+    oz = oz - z_shift
+    ok = valid & (dz.abs() > 1e-12)
+    t0 = _safe_div(-oz, dz, ok).detach()
+    bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
+    quadric = surface.quadric_xyz(bx, by, bz, dx, dy, dz)
+    s, found = _quadric_root(quadric, bz, dz, ok)
+    with torch.no_grad():
+        found = found & surface.in_domain(bx, by)  # as in intersect()
+    ok = ok & found
+    t = t0 + s
+    x, y, z = bx + s * dx, by + s * dy, bz + s * dz
+    X, Y = x.detach(), y.detach()
+    eps = torch.finfo(o.dtype).eps
+    with torch.no_grad():
+        big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
+        ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
+        if opt.clip_aperture:
+            ok = ok & surface.in_aperture(X, Y)
+        ok = ok & torch.isfinite(t)
+    t = torch.where(ok, t, torch.zeros_like(t))
+    x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
+    # unit normal (c x, c y, (1+k) c z - 1) / |.|, see Asphere.normal
+    c, ck = quadric[4], quadric[3]
+    gx, gy, gz = c * x, c * y, ck * z - 1.0
+    inv = torch.rsqrt((gx * gx + gy * gy + gz * gz).clamp_min(1e-30))
+    nx, ny, nz = gx * inv, gy * inv, gz * inv
+    # Snell's law, as refract.refract
+    eta = torch.as_tensor(n1 / n2, dtype=o.dtype, device=o.device)
+    cos_i = dx * nx + dy * ny + dz * nz
+    k = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
+    ok = ok & (k > 0)
+    coef = torch.copysign(torch.sqrt(torch.where(ok, k, torch.ones_like(k))), cos_i) - eta * cos_i
+    d_t = torch.stack([eta * dx + coef * nx, eta * dy + coef * ny, eta * dz + coef * nz], -1)
+    d_t = torch.where(ok.unsqueeze(-1), d_t, d)
+    x_out = torch.stack([x, y, z + z_shift], -1)
+    return x_out, d_t, ok, opl + n1 * t
+
+
 def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
               options: IntersectOptions | None = None):
     """Intersect rays with ``surface`` in its local frame.
@@ -139,26 +259,41 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-o[..., 2], dz, ok).detach()
 
+    quadric = opt.mode == "implicit" and opt.closed_form and surface.is_quadric
     if surface.is_flat:
         t = _safe_div(-o[..., 2], dz, ok)
         ob, s = o, t
+    elif quadric:
+        ob = o + t0.unsqueeze(-1) * d
+        s, found = _quadric_root(surface.quadric(ob, d), ob[..., 2], d[..., 2], ok)
+        # as on the Newton path, which starts there: a ray crossing the vertex plane outside the
+        # surface's domain is invalid (kept for identical results; such a ray can still meet a
+        # strongly curved conic, e.g. an oblate ellipsoid, within its domain)
+        with torch.no_grad():
+            found = found & surface.in_domain(ob[..., 0], ob[..., 1])
+        ok = ok & found
+        t = t0 + s
     elif opt.mode == "implicit":
         with torch.no_grad():
             dd = d.detach()
             obd = o.detach() + t0.unsqueeze(-1) * dd
-            s_star = torch.zeros_like(t0)
+            base = surface.quadric(obd, dd) if opt.closed_form else None
+            if base is None:
+                s_star = torch.zeros_like(t0)
+            else:  # start from the root of the conic base (an asphere's first term)
+                s_star, _ = _quadric_root(base, obd[..., 2], dd[..., 2], ok)
             tried = ok
             active = ok.clone()
             converged = torch.zeros_like(ok)
             tol_ray = _tolerance(tol, obd)
-            for _ in range(opt.max_iter):
+            for it in range(opt.max_iter):
                 fv, fp = _residual(surface, obd, dd, s_star)  # no graph: inf is only masked
                 done = active & (fv.abs() < tol_ray)
                 converged = converged | done
                 active = active & ~done
                 good = active & (fp.abs() > 1e-12) & torch.isfinite(fv)
                 active = good
-                if not bool(active.any()):
+                if (it & (it + 1)) == 0 and not bool(active.any()):  # after 1, 2, 4, 8, ...
                     break
                 s_star = torch.where(active, s_star - _safe_div(fv, fp, active), s_star)
             else:
@@ -213,7 +348,9 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     # the hit from the re-based origin (no cancellation in float32); invalid rays keep x = o
     x = ob + s.unsqueeze(-1) * d
     X, Y = x[..., 0].detach(), x[..., 1].detach()
-    ok = ok & surface.in_domain(X, Y) & (t.detach() >= -_tolerance(tol, x))
+    if not quadric:  # on a quadric's branch h > 0 the domain 1 - (1+k) c^2 r^2 = h^2 > 0 holds
+        ok = ok & surface.in_domain(X, Y)
+    ok = ok & (t.detach() >= -_tolerance(tol, x))
     if opt.clip_aperture:
         ok = ok & surface.in_aperture(X, Y)
     ok = ok & torch.isfinite(t.detach())

@@ -17,15 +17,16 @@ import math
 from dataclasses import dataclass, field
 
 import torch
+import torch.utils.checkpoint
 from torch import nn
 
 from .errors import LensError
-from .intersect import IntersectOptions, intersect
+from .intersect import IntersectOptions, intersect, trace_quadric
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
 from .paraxial import paraxial
 from .rays import Rays
-from .refract import refract, unit_normal
+from .refract import refract
 from .surfaces import Aperture, Surface
 from .surfaces.base import make_param
 
@@ -83,6 +84,16 @@ class LensSpec:
             check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ")
         except ValueError as e:
             raise LensError(str(e), key="primary_wavelength_nm") from None
+
+
+def _compact(w):
+    """``w`` without its broadcast (stride-0) dimensions' repeats: size 1 there (a view)."""
+    if not isinstance(w, torch.Tensor):
+        return torch.as_tensor(w)
+    for dim, (size, stride) in enumerate(zip(w.shape, w.stride())):
+        if stride == 0 and size > 1:
+            w = w.narrow(dim, 0, 1)
+    return w
 
 
 def _default_elements(surfaces, materials) -> list[tuple[int, int]]:
@@ -271,8 +282,13 @@ class Lens(nn.Module):
 
     # ------------------------------------------------------------------ media
     def indices(self, wavelength: torch.Tensor) -> list[torch.Tensor]:
-        """Refractive indices of the ``N + 1`` media at ``wavelength`` (nm), each of its shape."""
-        return [m.n(wavelength) for m in self.materials]
+        """Refractive indices of the ``N + 1`` media at ``wavelength`` (nm), each of its shape.
+
+        A wavelength tensor broadcast along some dimensions (stride 0, e.g. one wavelength for
+        every ray) is evaluated once per distinct element and expanded back (a view: later
+        arithmetic on it, such as ``n1 / n2``, also runs on the distinct elements only)."""
+        w = _compact(wavelength)
+        return [m.n(w).expand(wavelength.shape) for m in self.materials]
 
     # ------------------------------------------------------------------ tracing
     def _frame(self, i: int, z: torch.Tensor, like: torch.Tensor):
@@ -290,8 +306,16 @@ class Lens(nn.Module):
         """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2``."""
         s = self.surfaces[i]
         m, pivot, vertex = self._frame(i, z, rays.o)
+        opt = options or IntersectOptions()
+        if (m is None and refract_ and s.is_quadric and opt.closed_form and opt.mode == "implicit"
+                and not getattr(s, "deflects", False) and not isinstance(s, Aperture)):
+            x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
+                                             (pivot + vertex)[2], _compact(n1), _compact(n2),
+                                             opt)
+            return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
         if m is None:
-            o, d = rays.o - pivot - vertex, rays.d
+            shift = pivot + vertex  # one pass over the rays instead of two
+            o, d = rays.o - shift, rays.d
         else:
             o, d = m.to_element(rays.o, rays.d, pivot)
             o = o - vertex
@@ -299,16 +323,26 @@ class Lens(nn.Module):
         if refract_ and getattr(s, "deflects", False):
             d, valid = s.deflect(x, d, valid)  # an ideal (paraxial) lens
         elif refract_ and not isinstance(s, Aperture):
-            fx, fy, fz = s.f_grad(x[..., 0], x[..., 1], x[..., 2])
-            normal = unit_normal(fx, fy, fz)
-            d, valid = refract(d, normal, n1 / n2, valid)
-        opl = rays.opl + n1 * t
-        x = x + vertex
+            d, valid = refract(d, s.normal(x), _compact(n1) / _compact(n2), valid)
+        opl = rays.opl + _compact(n1) * t
         if m is None:
-            x = x + pivot
+            x = x + shift
         else:
-            x, d = m.to_global(x, d, pivot)
+            x, d = m.to_global(x + vertex, d, pivot)
         return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
+
+    def _trace_surface_checkpointed(self, i: int, rays: Rays, n1, n2, z, options) -> Rays:
+        """:meth:`trace_surface` that autograd does not record: backward recomputes it from the
+        incoming ray state (``torch.utils.checkpoint``), so only that state is kept per surface."""
+        def surface_step(o, d, wavelength, opl, n1, n2, z):
+            out = self.trace_surface(i, Rays(o, d, wavelength, rays.valid, opl, normalize=False),
+                                     n1, n2, z, options)
+            return out.o, out.d, out.opl, out.valid
+
+        o, d, opl, valid = torch.utils.checkpoint.checkpoint(
+            surface_step, rays.o, rays.d, rays.wavelength, rays.opl, n1, n2, z,
+            use_reentrant=False)
+        return Rays(o, d, rays.wavelength, valid, opl, normalize=False)
 
     def _check_rays(self, rays: Rays) -> None:
         # wavelengths are checked against every medium's range by Material.n in indices()
@@ -335,9 +369,12 @@ class Lens(nn.Module):
         z = self.z_vertices()
         order = range(len(self.surfaces) - 1, -1, -1) if reverse else range(len(self.surfaces))
         hits = []
+        step = self.trace_surface
+        if options is not None and options.checkpoint and torch.is_grad_enabled():
+            step = self._trace_surface_checkpointed
         for i in order:
             n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
-            rays = self.trace_surface(i, rays, n1, n2, z, options)
+            rays = step(i, rays, n1, n2, z, options)
             if record:
                 hits.append(rays.o)
         return (rays, hits) if record else rays
@@ -358,7 +395,7 @@ class Lens(nn.Module):
         """Forward trace and propagate to the sensor plane (or to ``z_image`` when given)."""
         out = self.trace(rays, options=options)
         z = self.z_sensor() if z_image is None else z_image
-        n_img = self.materials[-1].n(rays.wavelength)
+        n_img = self.materials[-1].n(_compact(rays.wavelength))
         return self.propagate_to_z(out, z, n_img)
 
     def extra_repr(self) -> str:

@@ -32,7 +32,7 @@ def refract(d: torch.Tensor, n: torch.Tensor, eta: torch.Tensor, valid: torch.Te
     Args:
         d: ``(*B, 3)`` incident unit directions.
         n: ``(*B, 3)`` unit surface normals.
-        eta: ``n1 / n2``, broadcastable to ``B``.
+        eta: ``n1 / n2``, broadcastable to ``B`` (computed once when it is one value).
         valid: ``(*B,)`` incoming mask.
 
     Returns:
@@ -40,13 +40,13 @@ def refract(d: torch.Tensor, n: torch.Tensor, eta: torch.Tensor, valid: torch.Te
         ``d_t`` is finite, equal to ``d``).
     """
     cos_i = (d * n).sum(-1)
-    eta = torch.as_tensor(eta, dtype=d.dtype, device=d.device).expand(cos_i.shape)
-    sign = torch.where(cos_i < 0, -torch.ones_like(cos_i), torch.ones_like(cos_i))
-    n = n * sign.unsqueeze(-1)
-    cos_i = cos_i * sign
-    k = 1.0 - eta * eta * (1.0 - cos_i * cos_i)
+    eta = torch.as_tensor(eta, dtype=d.dtype, device=d.device)
+    # k does not depend on the normal's orientation; flipping n to cos_i >= 0 turns
+    # (sqrt(k) - eta cos_i) n into (sign(cos_i) sqrt(k) - eta cos_i) n for the given n
+    k = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
     ok = valid & (k > 0)  # k == 0: grazing exit, infinite derivative (module docstring)
     sqrt_k = torch.sqrt(torch.where(ok, k, torch.ones_like(k)))
-    d_t = eta.unsqueeze(-1) * d + (sqrt_k - eta * cos_i).unsqueeze(-1) * n
+    coef = torch.copysign(sqrt_k, cos_i) - eta * cos_i
+    d_t = eta.unsqueeze(-1) * d + coef.unsqueeze(-1) * n
     d_t = torch.where(ok.unsqueeze(-1), d_t, d)
     return d_t, ok

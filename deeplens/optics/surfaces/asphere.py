@@ -7,6 +7,15 @@ with curvature ``c = 1/R`` (1/mm), conic constant ``k`` and even coefficients ``
 and ∂z/∂x = 2x dz/ds, ∂z/∂y = 2y dz/ds.
 
 The conic is defined where ``1 - (1+k) c^2 s > 0``; outside it the tracer marks rays invalid.
+
+The conic base (no coefficients) is the branch ``h = 1 - (1+k) c z > 0`` of the quadric
+
+    F(x) = c (x^2 + y^2 + (1+k) z^2) - 2 z = 0,      ∇F = 2 (c x, c y, (1+k) c z - 1),
+
+(on it ``h = sqrt(1 - (1+k) c^2 r^2)`` and ``∇F = 2 h ∇f``), so a ray ``o + s d`` meets it where
+``A s^2 + 2 B s + C = 0`` with ``A = c (d_x^2 + d_y^2 + (1+k) d_z^2)``,
+``B = c (o_x d_x + o_y d_y + (1+k) o_z d_z) - d_z`` and ``C = F(o)``
+(:meth:`Asphere.quadric`; the tracer solves it in closed form, :mod:`..intersect`).
 """
 
 from __future__ import annotations
@@ -87,6 +96,37 @@ class Asphere(SagSurface):
 
     def paraxial_curvature(self):
         return self.c
+
+    # ---- the conic base as a quadric (closed-form intersection, cheap normal) -------------
+    @property
+    def is_quadric(self) -> bool:
+        """True without aspheric coefficients: the surface is its conic base."""
+        return len(self.a) == 0
+
+    def quadric(self, o, d):
+        """Coefficients ``(A, B, C)`` of ``A s^2 + 2 B s + C = 0`` for rays ``o + s d`` on the
+        conic base, then ``c' = (1+k) c`` (the branch test is ``h = 1 - c' (o_z + s d_z) > 0``)
+        and ``c``, see the module docstring.  Shapes ``(*B,)``, differentiable."""
+        return self.quadric_xyz(*o.unbind(-1), *d.unbind(-1))
+
+    def quadric_xyz(self, ox, oy, oz, dx, dy, dz):
+        """:meth:`quadric` from the ``(*B,)`` components of ``o`` and ``d``."""
+        c, k1 = self.c.to(ox), 1.0 + self.k.to(ox)
+        ck = c * k1
+        A = c * (dx * dx + dy * dy) + ck * (dz * dz)
+        B = c * (ox * dx + oy * dy) + (ck * oz - 1.0) * dz
+        C = c * (ox * ox + oy * oy) + (ck * oz - 2.0) * oz
+        return A, B, C, ck, c
+
+    def normal(self, x):
+        """Unit normal ``(*B, 3)`` at points ``x`` on the surface (same orientation as ``∇f``).
+        A conic uses ``∇F / 2 = (c x, c y, (1+k) c z - 1)`` (no square root)."""
+        if not self.is_quadric:
+            return super().normal(x)
+        c, ck = self.c.to(x), (1.0 + self.k.to(x)) * self.c.to(x)
+        X, Y, Z = x.unbind(-1)
+        g = torch.stack([c * X, c * Y, ck * Z - 1.0], -1)
+        return g * torch.rsqrt((g * g).sum(-1, keepdim=True).clamp_min(1e-30))
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)

@@ -30,6 +30,8 @@ import math
 import torch
 from torch import nn
 
+from ..refract import unit_normal
+
 __all__ = ["Surface", "SagSurface", "make_param", "SURFACE_TYPES", "register_surface"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
@@ -98,6 +100,18 @@ class Surface(nn.Module):
 
     def sag(self, x, y):
         raise NotImplementedError
+
+    #: True when :meth:`quadric` describes the whole surface (closed-form intersection)
+    is_quadric = False
+
+    def quadric(self, o, d):
+        """``(A, B, C, c', c)`` of a quadric base surface (see :class:`~.asphere.Asphere`), or
+        ``None``: the tracer then starts Newton from the vertex plane."""
+        return None
+
+    def normal(self, x):
+        """Unit normal ``∇f / |∇f|`` ``(*B, 3)`` at points ``x`` ``(*B, 3)``."""
+        return unit_normal(*self.f_grad(x[..., 0], x[..., 1], x[..., 2]))
 
     def paraxial_curvature(self) -> torch.Tensor:
         return torch.zeros((), dtype=self.semi_diameter.dtype, device=self.semi_diameter.device)
