@@ -179,6 +179,10 @@ class EndToEndModule(L.LightningModule):
         opts = self.optimizers()
         opt_g = opts[0] if isinstance(opts, (list, tuple)) else opts
         step = int(self.global_step)
+        # buffers the forward pass updates (batch-norm running statistics): kept so that a
+        # stop at this step saves the state it started from, not one its forward pass changed
+        self._buffers_before = {n: b.detach().clone() for n, b in self.named_buffers()
+                                if n.startswith(("restorer.", "discriminator."))}
         images = batch["image"]
         depths = self.sample_depths(images.shape[0], step)
         y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
@@ -251,8 +255,13 @@ class EndToEndModule(L.LightningModule):
         return Path(t.default_root_dir) / "checkpoints"
 
     def _stop(self, step: int, what: str):
-        """Save the current state (no optimiser step has used the bad values) as
+        """Save the state this step started from (no optimiser step has used the bad values;
+        the buffers its forward pass changed are put back) as
         ``checkpoints/nonfinite_step<step>.ckpt`` and raise :class:`NonFiniteLossError`."""
+        with torch.no_grad():
+            buffers = dict(self.named_buffers())
+            for n, b in getattr(self, "_buffers_before", {}).items():
+                buffers[n].copy_(b)
         folder = self.checkpoint_dir()
         path = None
         if folder is not None:

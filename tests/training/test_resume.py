@@ -56,7 +56,7 @@ def _assert_same(a: dict, b: dict):
 def test_resumed_run_is_bit_identical_and_tests_its_own_best(cfg_factory, tmp_path):
     """Uninterrupted 2 epochs == 1 epoch + resume to 2 (new folder), bit for bit; at the
     start of the resumed fit the lens, network and Adam state equal the checkpoint's; the
-    resumed run then tests its own best.ckpt, even with the first run's folder deleted."""
+    resumed run then tests its own best.ckpt, and never the first run's (deleted) one."""
     _, objs_a = train(cfg_factory(*FAST, "trainer.max_epochs=2", "test=false",
                                   out=tmp_path / "a"))
     _, objs_b = train(cfg_factory(*FAST, "trainer.max_epochs=1", "test=false",
@@ -103,6 +103,13 @@ def test_resumed_run_is_bit_identical_and_tests_its_own_best(cfg_factory, tmp_pa
     best = tmp_path / "c" / "checkpoints" / "best.ckpt"
     assert objs_c["trainer"].ckpt_path == str(best)
     assert f"tested checkpoint: {best}" in objs_c["summary"]
+    assert "test/psnr_restored" in metrics
+    # resumed with nothing left to train: no best of its own, so it tests the restored weights
+    # (Lightning would carry over b/checkpoints/best.ckpt, which no longer exists)
+    metrics, objs_d = train(cfg_factory(*FAST, "trainer.max_epochs=1", "test=true",
+                                        f"ckpt_path={ckpt}", out=tmp_path / "d"))
+    assert objs_d["trainer"].global_step == 2 and objs_d["trainer"].ckpt_path is None
+    _assert_same(saved["state_dict"], _states(objs_d["module"]))
     assert "test/psnr_restored" in metrics
 
 
