@@ -143,9 +143,14 @@ def read_checkpoint(path, map_location="cpu") -> dict:
     return ckpt
 
 
-def _summary(names, n: int = 4) -> str:
+def _summary(names, n: int = 3) -> str:
+    """``"lens: 4, restorer: 80; e.g. lens.a, lens.b, ..."``: counts per sub-module, then names."""
     names = sorted(names)
-    return ", ".join(names[:n]) + (f", ... ({len(names)} in all)" if len(names) > n else "")
+    counts: dict[str, int] = {}
+    for k in names:
+        counts[k.split(".")[0]] = counts.get(k.split(".")[0], 0) + 1
+    per = ", ".join(f"{m}: {c}" for m, c in counts.items())
+    return f"{per}; e.g. " + ", ".join(names[:n]) + (", ..." if len(names) > n else "")
 
 
 def check_compatible(checkpoint: dict, module, path=None, optimizer_groups=None) -> None:
