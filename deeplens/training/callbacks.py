@@ -42,6 +42,25 @@ class LensCheckpoint(ModelCheckpoint):
                 raise CheckpointError(f"could not write the lens file {out}: "
                                       f"{type(e).__name__}: {e}") from e
 
+    # Lightning (2.5+) writes last.ckpt only when it also writes a top-k checkpoint, so after an
+    # epoch that does not improve the monitored metric last.ckpt would hold an older state and a
+    # resume would silently repeat epochs: write it at every save point.
+    def on_validation_end(self, trainer, pl_module):
+        skip = (self._should_skip_saving_checkpoint(trainer)
+                or self._should_save_on_train_epoch_end(trainer))
+        super().on_validation_end(trainer, pl_module)
+        self._save_last_if_missed(trainer, skip)
+
+    def on_train_epoch_end(self, trainer, pl_module):
+        skip = (self._should_skip_saving_checkpoint(trainer)
+                or not self._should_save_on_train_epoch_end(trainer))
+        super().on_train_epoch_end(trainer, pl_module)
+        self._save_last_if_missed(trainer, skip)
+
+    def _save_last_if_missed(self, trainer, skip: bool):
+        if not skip and self.save_last and self._last_global_step_saved != trainer.global_step:
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
+
     def load_state_dict(self, state_dict):
         if state_dict.get("dirpath", self.dirpath) == self.dirpath:
             return super().load_state_dict(state_dict)

@@ -57,8 +57,12 @@ def test_resumed_run_is_bit_identical_and_tests_its_own_best(cfg_factory, tmp_pa
     """Uninterrupted 2 epochs == 1 epoch + resume to 2 (new folder), bit for bit; at the
     start of the resumed fit the lens, network and Adam state equal the checkpoint's; the
     resumed run then tests its own best.ckpt, and never the first run's (deleted) one."""
+    # monitoring the epoch with mode=min, epoch 2 never improves: last.ckpt must still hold it
     _, objs_a = train(cfg_factory(*FAST, "trainer.max_epochs=2", "test=false",
-                                  out=tmp_path / "a"))
+                                  "callbacks.model_checkpoint.monitor=epoch",
+                                  "callbacks.model_checkpoint.mode=min", out=tmp_path / "a"))
+    assert read_checkpoint(tmp_path / "a" / "checkpoints" / "last.ckpt")["global_step"] == 4
+    assert read_checkpoint(tmp_path / "a" / "checkpoints" / "best.ckpt")["global_step"] == 2
     _, objs_b = train(cfg_factory(*FAST, "trainer.max_epochs=1", "test=false",
                                   out=tmp_path / "b"))
     # the run to resume from lives elsewhere and is then deleted: its checkpoint still names
