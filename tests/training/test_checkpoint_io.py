@@ -88,15 +88,22 @@ def test_a_write_failing_half_way_keeps_the_previous_checkpoint(tmp_path, monkey
     assert _equal(read_checkpoint(p), _state(1.0))
 
 
-def test_a_kill_between_digest_and_rename_leaves_a_loadable_checkpoint(tmp_path, monkeypatch):
-    """The digest file is updated before the checkpoint is renamed into place; if the rename
-    never happens the old file must still verify (and the new one would have too)."""
+@pytest.mark.parametrize("fail", ["checkpoint rename", "final digest rename"])
+def test_an_interrupted_write_leaves_a_checkpoint_that_verifies(tmp_path, monkeypatch, fail):
+    """The checkpoint and its digest file are two renames; whichever of them does not happen
+    (a kill, an I/O error), the file on disk must still match a listed digest: the old
+    checkpoint if its rename failed, the new one if only the digest's last update failed."""
     p = tmp_path / "last.ckpt"
+    side = checksum_path(p)
     write_checkpoint(_state(1.0), p)
     real_replace = os.replace
+    calls = []
 
     def replace(src, dst):
-        if str(dst) == str(p):
+        calls.append(str(dst))
+        if fail == "checkpoint rename" and str(dst) == str(p):
+            raise OSError(5, "Input/output error")
+        if fail == "final digest rename" and calls.count(str(side)) == 2:
             raise OSError(5, "Input/output error")
         real_replace(src, dst)
 
@@ -104,8 +111,8 @@ def test_a_kill_between_digest_and_rename_leaves_a_loadable_checkpoint(tmp_path,
     with pytest.raises(CheckpointError, match=str(p)):
         write_checkpoint(_state(3.0), p)
     monkeypatch.undo()
-    assert len(checksum_path(p).read_text().split()) == 2  # new and old digests listed
-    assert _equal(read_checkpoint(p), _state(1.0))
+    expected = _state(1.0) if fail == "checkpoint rename" else _state(3.0)
+    assert _equal(read_checkpoint(p), expected)
     assert not list(tmp_path.glob("*.tmp"))
 
 
