@@ -106,7 +106,16 @@ def test_resumed_run_is_bit_identical_and_tests_its_own_best(cfg_factory, tmp_pa
     # tested its own best checkpoint, not the deleted run's
     best = tmp_path / "c" / "checkpoints" / "best.ckpt"
     assert objs_c["trainer"].ckpt_path == str(best)
-    assert f"tested checkpoint: {best}" in objs_c["summary"]
+    # the closing summary: test PSNR / SSIM per depth and field band, files, nothing stale
+    summary = objs_c["summary"]
+    assert f"tested checkpoint: {best}" in summary
+    assert f"exported lens:     {best.with_suffix('.lens.json')}" in summary
+    for row, tag in (("10 m", "d10000mm"), ("band0-0.33", "band0-0.33"),
+                     ("band0.66-1", "band0.66-1")):
+        line = next(x for x in summary.splitlines() if x.strip().startswith(row))
+        psnr = metrics["test/psnr_restored/" + tag]
+        assert f"{psnr:6.2f}" in line
+    assert str(tmp_path / "b") not in summary
     assert "test/psnr_restored" in metrics
     # resumed with nothing left to train: no best of its own, so it tests the restored weights
     # (Lightning would carry over b/checkpoints/best.ckpt, which no longer exists)
