@@ -24,8 +24,8 @@ from pathlib import Path
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
-__all__ = ["CheckpointError", "AtomicCheckpointIO", "write_checkpoint", "read_checkpoint",
-           "checksum_path", "check_compatible", "sha256_file"]
+__all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
+           "read_checkpoint", "sha256_file", "write_checkpoint"]
 
 #: key under which :class:`AtomicCheckpointIO` records the file a loaded checkpoint came from
 LOADED_FROM = "deeplens_loaded_from"

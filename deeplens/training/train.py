@@ -8,6 +8,7 @@ directly with a composed, shrunk config.
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from .checkpoint import AtomicCheckpointIO
 from .lens_setup import build_lens
 from .module import MAX_LR
 
-__all__ = ["train", "build_objects", "check_config", "preflight"]
+__all__ = ["build_objects", "check_config", "preflight", "summary", "train"]
 
 # leaf keys whose type is checked at start-up (Hydra already rejects unknown keys)
 _TYPES = {
@@ -112,7 +113,7 @@ def _rule_list(item, what: str, n: tuple[int, int] = (1, 1_000_000)):
 
 def _bands(v):
     ok = (isinstance(v, list) and len(v) >= 2 and all(_number(x) and 0 <= x <= 1 for x in v)
-          and all(a < b for a, b in zip(v, v[1:])))
+          and all(a < b for a, b in itertools.pairwise(v)))
     return None if ok else "at least 2 increasing band edges in [0, 1] (normalised radius)"
 
 
@@ -260,20 +261,20 @@ def _test_checkpoint(cfg: DictConfig, trainer, trained: bool) -> str | None:
 def summary(cfg: DictConfig, metrics: dict, trainer, tested: str | None) -> str:
     """A few lines closing a run: test PSNR / SSIM per depth (or field band), where the
     checkpoint and the exported lens are, and the TensorBoard command."""
-    lines = [f"deeplens: {cfg.get('task_name', 'train')} finished after "
-             f"{trainer.current_epoch} epoch(s), {trainer.global_step} step(s)"]
+    lines = [(f"deeplens: {cfg.get('task_name', 'train')} finished after "
+              f"{trainer.current_epoch} epoch(s), {trainer.global_step} step(s)")]
     tags = [k[len("test/psnr_restored/"):] for k in metrics
             if k.startswith("test/psnr_restored/")]
     if tags:
         lines.append("  test (restored | sensor), PSNR dB / SSIM:")
+        def cell(img, t):
+            ps, ss = metrics.get(f"test/psnr_{img}/{t}"), metrics.get(f"test/ssim_{img}/{t}")
+            return f"{ps:6.2f} / {ss:.3f}" if ps is not None and ss is not None else "n/a"
+
         for t in tags:
-            def cell(img):
-                ps, ss = metrics.get(f"test/psnr_{img}/{t}"), metrics.get(f"test/ssim_{img}/{t}")
-                return (f"{ps:6.2f} / {ss:.3f}" if ps is not None and ss is not None
-                        else "n/a")
-            name = f"{float(t[1:-2]) / 1000:g} m" if t.startswith("d") and t.endswith("mm") \
-                else t
-            lines.append(f"    {name:>16}  {cell('restored')} | {cell('sensor')}")
+            is_depth = t.startswith("d") and t.endswith("mm")
+            name = f"{float(t[1:-2]) / 1000:g} m" if is_depth else t
+            lines.append(f"    {name:>16}  {cell('restored', t)} | {cell('sensor', t)}")
     if tested:
         lines.append(f"  tested checkpoint: {tested}")
         lens = Path(tested).with_suffix(".lens.json")

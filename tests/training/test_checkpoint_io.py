@@ -8,8 +8,13 @@ import pytest
 import torch
 
 from deeplens.training import checkpoint as ck
-from deeplens.training.checkpoint import (CheckpointError, check_compatible, checksum_path,
-                                          read_checkpoint, write_checkpoint)
+from deeplens.training.checkpoint import (
+    CheckpointError,
+    check_compatible,
+    checksum_path,
+    read_checkpoint,
+    write_checkpoint,
+)
 
 
 def _state(v: float = 1.0) -> dict:

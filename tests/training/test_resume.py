@@ -63,7 +63,7 @@ def test_resumed_run_is_bit_identical_and_tests_its_own_best(cfg_factory, tmp_pa
                                   "callbacks.model_checkpoint.mode=min", out=tmp_path / "a"))
     assert read_checkpoint(tmp_path / "a" / "checkpoints" / "last.ckpt")["global_step"] == 4
     assert read_checkpoint(tmp_path / "a" / "checkpoints" / "best.ckpt")["global_step"] == 2
-    _, objs_b = train(cfg_factory(*FAST, "trainer.max_epochs=1", "test=false",
+    train(cfg_factory(*FAST, "trainer.max_epochs=1", "test=false",
                                   out=tmp_path / "b"))
     # the run to resume from lives elsewhere and is then deleted: its checkpoint still names
     # b/checkpoints/best.ckpt as the best path
