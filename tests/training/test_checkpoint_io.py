@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 import torch
@@ -191,3 +192,32 @@ def test_trainer_refuses_a_checkpoint_of_the_other_experiment(cfg_factory, tmp_p
                                       "lens.trainable=[surfaces.4.a.6]"))
     with pytest.raises(CheckpointError, match=rf"{p} does not belong.*lens\.trainable differs"):
         other["trainer"].fit(other["module"], datamodule=other["datamodule"], ckpt_path=str(p))
+
+
+def test_a_failed_lens_export_names_the_file_and_leaves_no_tmp(tmp_path, monkeypatch):
+    """The lens written beside a checkpoint (``last.lens.json``) fails like a checkpoint write:
+    the error names the file and its ``.tmp`` is removed."""
+    from types import SimpleNamespace
+
+    from deeplens.optics.io import load_lens
+    from deeplens.training import callbacks
+
+    lens = load_lens(Path(__file__).resolve().parents[2] / "data" / "lenses" / "wide_doublet.json")
+    trainer = SimpleNamespace(is_global_zero=True, global_step=3, loggers=[],
+                              lightning_module=SimpleNamespace(lens=lens),
+                              save_checkpoint=lambda path, weights_only=False: None)
+    cb = callbacks.LensCheckpoint(dirpath=tmp_path)
+    cb._save_checkpoint(trainer, str(tmp_path / "last.ckpt"))
+    assert (tmp_path / "last.lens.json").exists()
+    real = callbacks.save_lens
+
+    def full_disk(lens, path):
+        real(lens, path)
+        path.with_name(path.name + ".tmp").write_text("{half")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(callbacks, "save_lens", full_disk)
+    out = tmp_path / "best.lens.json"
+    with pytest.raises(CheckpointError, match=rf"could not write the lens file {out}.*No space"):
+        cb._save_checkpoint(trainer, str(tmp_path / "best.ckpt"))
+    assert not list(tmp_path.glob("*.tmp"))
