@@ -346,20 +346,26 @@ class _FolderStream(_SeededStream):
 class EpochLoader(DataLoader):
     """A :class:`~torch.utils.data.DataLoader` calling ``dataset.set_epoch(e)`` before pass ``e``.
 
-    Passes are counted from ``start_epoch`` (0, 1, 2, ... by default), so a seeded stream gives
-    new, reproducible items every epoch.  Workers must not be persistent (they would keep the
-    dataset of the epoch they started with).
+    The epoch of a pass is ``epoch_fn()`` when given, read when the pass starts (the data module
+    passes the trainer's current epoch: a resumed run knows its epoch only once Lightning has
+    restored its loops, after the loader was built); otherwise passes are counted from
+    ``start_epoch`` (0, 1, 2, ... by default).  So a seeded stream gives new, reproducible items
+    every epoch.  Workers must not be persistent (they would keep the dataset of the epoch they
+    started with).
     """
 
-    def __init__(self, dataset, *args, start_epoch: int = 0, **kwargs):
+    def __init__(self, dataset, *args, start_epoch: int = 0, epoch_fn=None, **kwargs):
         super().__init__(dataset, *args, **kwargs)
         if self.persistent_workers and self.num_workers > 0:
             raise ValueError("EpochLoader: persistent_workers=True would keep every worker on "
                              "the first epoch's stream; leave it False")
         self.start_epoch = _check_int("start_epoch", start_epoch, 0)
         self.epoch = self.start_epoch
+        self.epoch_fn = epoch_fn
 
     def __iter__(self):
+        if self.epoch_fn is not None:
+            self.epoch = _check_int("epoch_fn()", self.epoch_fn(), 0)
         if callable(getattr(self.dataset, "set_epoch", None)):
             self.dataset.set_epoch(self.epoch)
         self.epoch += 1
@@ -447,9 +453,14 @@ class TextureDataModule(L.LightningDataModule):
     def train_dataloader(self) -> EpochLoader:
         self._ensure_setup()
         trainer = getattr(self, "trainer", None)
-        start = int(trainer.current_epoch) if trainer is not None else 0
+        # The epoch is read when each pass starts, and from the loop's count of processed
+        # epochs: on resume Lightning builds this loader and starts its first pass before it
+        # brings ``current_epoch`` up to date (a run resumed after epoch 0 would replay epoch
+        # 0's items); ``processed`` is what Lightning itself gives samplers' ``set_epoch``.
+        epoch_fn = None if trainer is None else (
+            lambda: int(trainer.fit_loop.epoch_progress.current.processed))
         return EpochLoader(self.train_set, batch_size=self.batch_size,
-                           num_workers=self.num_workers, start_epoch=start)
+                           num_workers=self.num_workers, epoch_fn=epoch_fn)
 
     def _fixed_loader(self, dataset: Dataset) -> DataLoader:
         return DataLoader(dataset, batch_size=self.batch_size, shuffle=False,

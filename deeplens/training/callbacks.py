@@ -1,49 +1,73 @@
-"""Training callbacks and plugins: atomic checkpoints with lens files, TensorBoard image logging.
+"""Training callbacks: checkpoints with lens files, TensorBoard image logging.
 
 Image logging runs on rank zero only, after validation, and never changes training state.
+Checkpoint files themselves (atomic writes, digests, verified loading) are
+:mod:`deeplens.training.checkpoint`.
 """
 
 from __future__ import annotations
 
 import math
-import os
+import warnings
 from pathlib import Path
 
 import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
-from lightning.pytorch.plugins.io import TorchCheckpointIO
 from lightning.pytorch.utilities import rank_zero_only
 
 from ..optics.io import save_lens
+from .checkpoint import AtomicCheckpointIO, CheckpointError
 from .lens_setup import surface_height_map
 
 __all__ = ["AtomicCheckpointIO", "LensCheckpoint", "ImageLogger"]
 
 
-class AtomicCheckpointIO(TorchCheckpointIO):
-    """Write each checkpoint to ``<path>.tmp``, fsync, then ``os.replace``: a killed run leaves
-    either the old or the new file, never a truncated one."""
-
-    def save_checkpoint(self, checkpoint, path, storage_options=None):
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as f:
-            torch.save(checkpoint, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-
-
 class LensCheckpoint(ModelCheckpoint):
     """A ModelCheckpoint that also exports the lens beside every checkpoint it writes
-    (``last.ckpt`` -> ``last.lens.json``), so the trained lens is usable without the code."""
+    (``last.ckpt`` -> ``last.lens.json``), so the trained lens is usable without the code.
+
+    A run resumed into a new folder keeps its checkpoints to itself: the best checkpoint it
+    reports (and tests) is one it wrote, never the old folder's ``best.ckpt`` (Lightning would
+    carry that path over even though it no longer tracks that file's score).
+    """
 
     def _save_checkpoint(self, trainer, filepath):
         super()._save_checkpoint(trainer, filepath)
         if trainer.is_global_zero:
-            module = trainer.lightning_module
-            save_lens(module.lens, Path(filepath).with_suffix(".lens.json"))
+            out = Path(filepath).with_suffix(".lens.json")
+            try:
+                save_lens(trainer.lightning_module.lens, out)
+            except Exception as e:
+                out.with_name(out.name + ".tmp").unlink(missing_ok=True)
+                raise CheckpointError(f"could not write the lens file {out}: "
+                                      f"{type(e).__name__}: {e}") from e
+
+    # Lightning (2.5+) writes last.ckpt only when it also writes a top-k checkpoint, so after an
+    # epoch that does not improve the monitored metric last.ckpt would hold an older state and a
+    # resume would silently repeat epochs: write it at every save point.
+    def on_validation_end(self, trainer, pl_module):
+        skip = (self._should_skip_saving_checkpoint(trainer)
+                or self._should_save_on_train_epoch_end(trainer))
+        super().on_validation_end(trainer, pl_module)
+        self._save_last_if_missed(trainer, skip)
+
+    def on_train_epoch_end(self, trainer, pl_module):
+        skip = (self._should_skip_saving_checkpoint(trainer)
+                or not self._should_save_on_train_epoch_end(trainer))
+        super().on_train_epoch_end(trainer, pl_module)
+        self._save_last_if_missed(trainer, skip)
+
+    def _save_last_if_missed(self, trainer, skip: bool):
+        if not skip and self.save_last and self._last_global_step_saved != trainer.global_step:
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
+
+    def load_state_dict(self, state_dict):
+        if state_dict.get("dirpath", self.dirpath) == self.dirpath:
+            return super().load_state_dict(state_dict)
+        with warnings.catch_warnings():  # Lightning's note says it keeps best_model_path
+            warnings.simplefilter("ignore")
+            super().load_state_dict(state_dict)
+        self.best_model_path = ""
 
 
 def _to_image(t: torch.Tensor) -> torch.Tensor:
@@ -57,15 +81,35 @@ class ImageLogger(Callback):
     PSFs across depths and fields, the phase plate's height map, the lens layout and the
     trainable lens parameters.
 
+    What it reads off the module is runtime state only (the lens, sensor and ideal camera, and
+    ``val_vis``: the first validation batch's images); what to draw comes from its own
+    arguments (config ``callbacks.image_logger``).
+
     Args:
-        every_n_epochs: log every n validations.
-        psf_rays: rays per logged PSF.
+        every_n_epochs: log every n validations (> 0).
+        psf_rays: rays per logged PSF (> 0).
+        depths_mm: object distances of the PSF rows (mm, > 0).
+        fields_deg: field angles of the PSF columns (degrees, on the +y axis).
+        plate_surface: index of a phase-plate surface whose height map is logged, or ``None``.
     """
 
-    def __init__(self, every_n_epochs: int = 1, psf_rays: int = 4096):
+    def __init__(self, every_n_epochs: int = 1, psf_rays: int = 4096, depths_mm=(10_000.0,),
+                 fields_deg=(0.0,), plate_surface: int | None = None):
         super().__init__()
-        self.every_n_epochs = max(1, int(every_n_epochs))
+        if int(every_n_epochs) < 1 or int(psf_rays) < 1:
+            raise ValueError(f"callbacks.image_logger: every_n_epochs and psf_rays must be > 0, "
+                             f"got {every_n_epochs} and {psf_rays}")
+        self.every_n_epochs = int(every_n_epochs)
         self.psf_rays = int(psf_rays)
+        self.depths_mm = [float(d) for d in depths_mm]
+        self.fields_deg = [float(f) for f in fields_deg]
+        if not self.depths_mm or not all(math.isfinite(d) and d > 0 for d in self.depths_mm):
+            raise ValueError(f"callbacks.image_logger.depths_mm: expected distances > 0 mm, got "
+                             f"{self.depths_mm}")
+        if not self.fields_deg or not all(0 <= f < 90 for f in self.fields_deg):
+            raise ValueError(f"callbacks.image_logger.fields_deg: expected angles in [0, 90) "
+                             f"deg, got {self.fields_deg}")
+        self.plate_surface = None if plate_surface is None else int(plate_surface)
 
     @rank_zero_only
     def on_validation_end(self, trainer, pl_module):
@@ -108,8 +152,8 @@ class ImageLogger(Callback):
         kmax = 0
         with torch.no_grad():
             ks = []
-            for d in m.val_depths_mm:
-                for f in m.psf_fields_deg:
+            for d in self.depths_mm:
+                for f in self.fields_deg:
                     t = math.tan(math.radians(f))
                     X = 0.0
                     Y = t * (d + m.camera.z_ep - m.camera.z0)
@@ -123,15 +167,15 @@ class ImageLogger(Callback):
                 k = torch.nn.functional.pad(k, (p, p, p, p))
                 tiles.append(_to_image((k / k.max().clamp_min(1e-12))[None]))
         if tiles:
-            grid = make_grid(tiles, nrow=len(m.psf_fields_deg), padding=1, pad_value=0.5)
+            grid = make_grid(tiles, nrow=len(self.fields_deg), padding=1, pad_value=0.5)
             exp.add_image("psf/depth_rows_field_cols", grid, step)
 
     def _log_lens(self, exp, m, step):
         from ..analysis.plot import layout_figure
 
         lens = m.lens
-        if m.plate_surface is not None:
-            h = surface_height_map(lens.surfaces[m.plate_surface])
+        if self.plate_surface is not None:
+            h = surface_height_map(lens.surfaces[self.plate_surface])
             exp.add_scalar("lens/plate_peak_to_valley_um", float(h.max() - h.min()) * 1e3, step)
             rng = (h.max() - h.min()).clamp_min(1e-12)
             exp.add_image("lens/phase_plate_height", ((h - h.min()) / rng)[None].float(), step)

@@ -9,12 +9,15 @@ One step::
 
 ``x*`` is the ideal camera's sharp image of the same scene (the framing the lens should reach).
 Optics and network have separate parameter groups and learning rates (the optics rate is in mm
-of sag, see :mod:`.lens_setup`).  Training uses manual optimisation so that the optional
-discriminator gets its own optimiser and a non-finite loss can save the state before stopping.
+of sag, see :mod:`.lens_setup`); the optimisers are factories (``model.optimizer``, a Hydra
+``_partial_``) filled with those groups.  Training uses manual optimisation so that the optional
+discriminator gets its own optimiser, and so that a non-finite loss or gradient stops training
+*before* the optimiser step, with the state just before it saved under ``checkpoints/``.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -24,6 +27,8 @@ import torch.nn.functional as F
 from kornia.color import rgb_to_grayscale
 
 from ..render import IdealCamera, Scene
+from .checkpoint import LOADED_FROM, check_compatible
+from .constraints import SagDepartureConstraint
 from .lens_setup import optics_param_groups
 from .metrics import band_masks, masked_psnr, masked_ssim, psnr, ssim
 
@@ -31,8 +36,25 @@ __all__ = ["EndToEndModule", "NonFiniteLossError"]
 
 
 class NonFiniteLossError(FloatingPointError):
-    """Raised when the training loss is NaN or infinite; the message names the step and the
-    checkpoint holding the state just before it."""
+    """Raised when the training loss or a gradient is NaN or infinite; the message names the
+    step (and parameter) and the checkpoint holding the state just before that step."""
+
+
+#: largest accepted learning rates: Adam moves each weight by about ``lr`` per step, so a
+#: network rate above 1, or an optics step above 1 mm of sag, can only run away
+MAX_LR = {"net_lr": 1.0, "optics_lr_mm": 1.0, "disc_lr": 1.0}
+
+
+def check_learning_rate(key: str, value) -> float:
+    """``value`` as a float in ``(0, MAX_LR[key]]``, else ``ValueError`` naming ``model.key``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"model.{key}: expected a number, got {value!r}") from None
+    if not (math.isfinite(v) and 0 < v <= MAX_LR[key]):
+        raise ValueError(f"model.{key}: expected a finite learning rate in (0, {MAX_LR[key]:g}]"
+                         f"{' mm of sag per step' if key == 'optics_lr_mm' else ''}, got {value}")
+    return v
 
 
 class EndToEndModule(L.LightningModule):
@@ -46,21 +68,26 @@ class EndToEndModule(L.LightningModule):
         depths_mm: ``[min, max]`` training depth range (sampled uniformly in 1/depth) or one depth.
         val_depths_mm: depths evaluated (and logged) separately in validation.
         field_bands: radial band edges for per-field-band metrics (``None``: whole image only).
-        loss: weights ``{"mse", "l1", "ssim", "perceptual", "adversarial"}``.
-        net_lr, optics_lr_mm, disc_lr: learning rates.
-        perceptual: an optional perceptual-loss module (``(x̂, x*) -> scalar``).
+        loss: weights ``{"mse", "l1", "ssim", "perceptual", "adversarial", "constraint"}``
+            (finite, >= 0).
+        net_lr, optics_lr_mm, disc_lr: learning rates (finite, > 0, at most :data:`MAX_LR`).
+        perceptual: an optional perceptual-loss module (``(x̂, x*) -> scalar``); if ``None`` and
+            ``loss["perceptual"] > 0``, a VGG16 :class:`~deeplens.nets.PerceptualLoss` is built
+            from ``perceptual_weights`` (a local file; nothing is downloaded).
         discriminator: an optional PatchGAN (enables the adversarial term).
         max_sag_mm: constraint: every surface with trainable parameters keeps its departure from
             its initial shape within ``max_sag_mm`` over the aperture (quadratic penalty, weight
-            ``loss["constraint"]``).
-        plate_surface: index of the phase-plate surface (for logging its height map).
+            ``loss["constraint"]``; :mod:`.constraints`).
+        seed: the run's seed (training depths and render/noise seeds derive from it and the step).
+        optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
+            (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
 
     def __init__(self, lens, sensor, renderer, restorer, depths_mm, val_depths_mm,
                  field_bands=None, loss=None, net_lr: float = 1e-3, optics_lr_mm: float = 1e-4,
                  disc_lr: float = 1e-4, perceptual=None, discriminator=None,
-                 max_sag_mm: float | None = None, plate_surface: int | None = None,
-                 seed: int = 0, psf_fields_deg=None, scene_margin: float = 0.0):
+                 max_sag_mm: float | None = None, seed: int = 0, perceptual_weights=None,
+                 optimizer=None, disc_optimizer=None, scene_margin: float = 0.0):
         super().__init__()
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
@@ -75,22 +102,31 @@ class EndToEndModule(L.LightningModule):
             raise ValueError(f"model.loss: unknown terms {sorted(unknown)}; expected "
                              f"{sorted(self.loss_w)}")
         self.loss_w.update({k: float(v) for k, v in (loss or {}).items()})
+        bad = {k: v for k, v in self.loss_w.items() if not (math.isfinite(v) and v >= 0)}
+        if bad:
+            raise ValueError(f"model.loss: weights must be finite and >= 0, got {bad}")
         if self.loss_w["perceptual"] > 0 and perceptual is None:
-            raise ValueError("model.loss.perceptual > 0 needs a perceptual loss module")
+            from ..nets.losses import PerceptualLoss
+
+            perceptual = PerceptualLoss(weights_path=perceptual_weights)
+            self.perceptual = perceptual
         if self.loss_w["adversarial"] > 0 and discriminator is None:
-            raise ValueError("model.loss.adversarial > 0 needs a discriminator")
-        self.net_lr, self.optics_lr_mm, self.disc_lr = net_lr, optics_lr_mm, disc_lr
-        self.max_sag_mm = max_sag_mm
-        self.plate_surface = plate_surface
+            raise ValueError("model.loss.adversarial > 0 needs a discriminator "
+                             "(model.discriminator)")
+        self.net_lr = check_learning_rate("net_lr", net_lr)
+        self.optics_lr_mm = check_learning_rate("optics_lr_mm", optics_lr_mm)
+        self.disc_lr = check_learning_rate("disc_lr", disc_lr)
         self.seed = int(seed)
-        self.psf_fields_deg = list(psf_fields_deg or [0.0])
+        self.optimizer = optimizer or torch.optim.Adam
+        self.disc_optimizer = disc_optimizer or functools.partial(torch.optim.Adam,
+                                                                  betas=(0.5, 0.999))
         if not (isinstance(scene_margin, (int, float)) and 0 <= scene_margin <= 4):
             raise ValueError(f"scene.margin: expected a fraction of the field of view in "
                              f"[0, 4], got {scene_margin!r}")
         self.scene_margin = float(scene_margin)
         self.automatic_optimization = False
         self.camera = IdealCamera(lens, sensor)
-        self._init_constraints()
+        self.constraint = SagDepartureConstraint(lens, max_sag_mm)
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
     # ------------------------------------------------------------------ the camera
@@ -126,37 +162,9 @@ class EndToEndModule(L.LightningModule):
         return self.restorer(sensor_image)
 
     # ------------------------------------------------------------------ losses
-    def _constraint_grid(self, surface):
-        R = float(surface.semi_diameter)
-        v = torch.linspace(-R, R, 17, dtype=torch.float64) / math.sqrt(2)
-        Y, X = torch.meshgrid(v, v, indexing="ij")
-        return X, Y
-
-    def _init_constraints(self):
-        """Record the initial sag of every surface with trainable parameters."""
-        self._sag0 = {}
-        with torch.no_grad():
-            for i, s in enumerate(self.lens.surfaces):
-                if any(p.requires_grad for p in s.parameters()) and hasattr(s, "sag"):
-                    X, Y = self._constraint_grid(s)
-                    dt = self.lens.dtype
-                    self._sag0[i] = s.sag(X.to(dt), Y.to(dt)).detach().clone()
-
     def constraint_loss(self) -> torch.Tensor:
-        """``mean(relu(|sag - sag_0| / m - 1)^2)`` over each trainable surface: its departure
-        from the initial shape stays within ``max_sag_mm`` (e.g. a phase plate's thickness)."""
-        zero = torch.zeros((), device=self.device)
-        if not self.max_sag_mm:
-            return zero
-        total = zero
-        for i, sag0 in self._sag0.items():
-            s = self.lens.surfaces[i]
-            dt = self.lens.dtype
-            X, Y = (g.to(device=self.device, dtype=dt) for g in self._constraint_grid(s))
-            dep = s.sag(X, Y) - sag0.to(device=self.device, dtype=dt)
-            excess = F.relu(dep.abs() / self.max_sag_mm - 1)
-            total = total + (excess ** 2).mean().float()
-        return total
+        """The lens constraint (:class:`~.constraints.SagDepartureConstraint`) now."""
+        return self.constraint(self.lens)
 
     def image_loss(self, pred, gt) -> dict:
         w = self.loss_w
@@ -178,6 +186,10 @@ class EndToEndModule(L.LightningModule):
         opts = self.optimizers()
         opt_g = opts[0] if isinstance(opts, (list, tuple)) else opts
         step = int(self.global_step)
+        # buffers the forward pass updates (batch-norm running statistics): kept so that a
+        # stop at this step saves the state it started from, not one its forward pass changed
+        self._buffers_before = {n: b.detach().clone() for n, b in self.named_buffers()
+                                if n.startswith(("restorer.", "discriminator."))}
         images = batch["image"]
         depths = self.sample_depths(images.shape[0], step)
         y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
@@ -190,11 +202,20 @@ class EndToEndModule(L.LightningModule):
         terms["constraint"] = self.constraint_loss()
         loss = sum(self.loss_w[k] * v for k, v in terms.items())
         if not torch.isfinite(loss):
-            self._stop_on_nonfinite(step, loss, terms)
+            detail = ", ".join(f"{k}={float(v.detach()):.4g}" for k, v in terms.items())
+            self._stop(step, f"non-finite loss {float(loss)} at step {step} ({detail})")
         opt_g.zero_grad(set_to_none=True)
         self.manual_backward(loss)
-        self._check_grads(step)
+        bad = self._nonfinite_grad()
+        if bad:
+            opt_g.zero_grad(set_to_none=True)
+            self._stop(step, f"non-finite gradient of {bad} at step {step}")
         opt_g.step()
+        bad = self._nonfinite_param()
+        if bad:  # cannot happen with finite gradients and a bounded Adam rate; say so if it does
+            raise NonFiniteLossError(f"{bad} became non-finite in the optimiser step at step "
+                                     f"{step} (learning rate too large?); the last good state "
+                                     f"is the last checkpoint")
         if self.discriminator is not None and self.loss_w["adversarial"]:
             from ..nets.losses import adversarial_loss
 
@@ -212,19 +233,57 @@ class EndToEndModule(L.LightningModule):
         self.log("train/psnr_sensor", psnr(y, gt), batch_size=n)
         return loss.detach()
 
-    def _stop_on_nonfinite(self, step, loss, terms):
-        path = None
-        if self.trainer is not None and self.trainer.log_dir:
-            path = Path(self.trainer.log_dir) / "checkpoints" / f"nonfinite_step{step}.ckpt"
-            self.trainer.save_checkpoint(str(path))
-        detail = ", ".join(f"{k}={float(v):.4g}" for k, v in terms.items())
-        raise NonFiniteLossError(f"non-finite loss {float(loss)} at step {step} ({detail}); "
-                                 f"training stopped, state saved to {path}")
+    def _named_trained(self):
+        yield from ((f"lens.{n}", p) for n, p in self.lens.named_parameters())
+        yield from ((f"restorer.{n}", p) for n, p in self.restorer.named_parameters())
 
-    def _check_grads(self, step):
-        for n, p in self.lens.named_parameters():
+    def _nonfinite_grad(self) -> str | None:
+        """Name of the first trainable parameter whose gradient is NaN or infinite."""
+        for n, p in self._named_trained():
             if p.grad is not None and not torch.isfinite(p.grad).all():
-                raise NonFiniteLossError(f"non-finite gradient of lens.{n} at step {step}")
+                return n
+        return None
+
+    def _nonfinite_param(self) -> str | None:
+        for n, p in self._named_trained():
+            if p.requires_grad and not torch.isfinite(p).all():
+                return n
+        return None
+
+    def checkpoint_dir(self) -> Path | None:
+        """Where this run writes checkpoints: the checkpoint callback's folder, else
+        ``<default_root_dir>/checkpoints``; ``None`` without a trainer."""
+        t = self._trainer
+        if t is None:
+            return None
+        cb = t.checkpoint_callback
+        if cb is not None and getattr(cb, "dirpath", None):
+            return Path(cb.dirpath)
+        return Path(t.default_root_dir) / "checkpoints"
+
+    def _stop(self, step: int, what: str):
+        """Save the state this step started from (no optimiser step has used the bad values;
+        the buffers its forward pass changed are put back) as
+        ``checkpoints/nonfinite_step<step>.ckpt`` and raise :class:`NonFiniteLossError`."""
+        with torch.no_grad():
+            buffers = dict(self.named_buffers())
+            for n, b in getattr(self, "_buffers_before", {}).items():
+                buffers[n].copy_(b)
+        folder = self.checkpoint_dir()
+        path = None
+        if folder is not None:
+            path = folder / f"nonfinite_step{step}.ckpt"
+            self.trainer.save_checkpoint(str(path))
+        raise NonFiniteLossError(f"{what}; training stopped before the optimiser step, the "
+                                 f"state just before it saved to {path}")
+
+    def on_load_checkpoint(self, checkpoint):
+        """Refuse a checkpoint of another experiment with a message naming its file."""
+        path = checkpoint.pop(LOADED_FROM, None)
+        groups = None
+        if self._trainer is not None and self.trainer.state.fn == "fit":
+            groups = [g["name"] for g in self._param_groups()]
+        check_compatible(checkpoint, self, path, groups)
 
     # ------------------------------------------------------------------ validation / test
     def _eval_step(self, batch, batch_idx, stage: str):
@@ -270,12 +329,14 @@ class EndToEndModule(L.LightningModule):
         self._eval_step(batch, batch_idx, "test")
 
     # ------------------------------------------------------------------ optimisers
-    def configure_optimizers(self):
+    def _param_groups(self) -> list[dict]:
         groups = [{"params": list(self.restorer.parameters()), "lr": self.net_lr, "name": "net"}]
-        groups += optics_param_groups(self.lens, self.optics_lr_mm)
-        opt_g = torch.optim.Adam(groups)
+        return groups + optics_param_groups(self.lens, self.optics_lr_mm)
+
+    def configure_optimizers(self):
+        opt_g = self.optimizer(self._param_groups())
         if self.discriminator is not None and self.loss_w["adversarial"]:
-            opt_d = torch.optim.Adam(self.discriminator.parameters(), lr=self.disc_lr,
-                                     betas=(0.5, 0.999))
+            opt_d = self.disc_optimizer([{"params": list(self.discriminator.parameters()),
+                                          "lr": self.disc_lr, "name": "discriminator"}])
             return [opt_g, opt_d]
         return opt_g

@@ -8,21 +8,24 @@ directly with a composed, shrunk config.
 
 from __future__ import annotations
 
+import itertools
+import math
 from pathlib import Path
 
 import hydra
 import lightning as L
 import torch
+from lightning.pytorch.utilities import rank_zero_info
 from omegaconf import DictConfig, OmegaConf
 
 from ..optics.intersect import IntersectOptions
 from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
-from .callbacks import AtomicCheckpointIO
+from .checkpoint import AtomicCheckpointIO
 from .lens_setup import build_lens
-from .module import EndToEndModule
+from .module import MAX_LR
 
-__all__ = ["train", "build_objects", "check_config", "preflight"]
+__all__ = ["build_objects", "check_config", "preflight", "summary", "train"]
 
 # leaf keys whose type is checked at start-up (Hydra already rejects unknown keys)
 _TYPES = {
@@ -34,15 +37,16 @@ _TYPES = {
     "render.kind": str, "render.spp": int, "render.vignetting": bool, "render.adjoint": bool,
     "render.decorrelate": bool, "render.chunk_rays": int, "render.max_iter": int,
     "render.psf_rays": int,
-    "model.net_lr": float, "model.optics_lr_mm": float,
+    "model.net_lr": float, "model.optics_lr_mm": float, "model.disc_lr": float,
     "data.image_size": int, "data.batch_size": int, "data.train_steps_per_epoch": int,
     "data.val_size": int, "data.test_size": int,
 }
 
 
 def check_config(cfg: DictConfig) -> None:
-    """Type-check the known keys; raises ``ValueError`` naming the key, the expected type and
-    the value received."""
+    """Check the known keys at start-up, for type and then for meaning (a depth of 0 mm, an
+    infinite learning rate, a negative seed, ...); raises ``ValueError`` naming the key, what
+    was expected and the value received."""
     for key, typ in _TYPES.items():
         val = OmegaConf.select(cfg, key, default="__missing__")
         if isinstance(val, str) and val == "__missing__":
@@ -57,6 +61,101 @@ def check_config(cfg: DictConfig) -> None:
         if not ok:
             raise ValueError(f"config key {key!r}: expected {typ.__name__}, got {val!r} "
                              f"({type(val).__name__})")
+    for key, rule in _RULES.items():
+        val = OmegaConf.select(cfg, key, default=None)
+        if val is None:
+            continue
+        val = OmegaConf.to_container(val) if OmegaConf.is_config(val) else val
+        problem = rule(val)
+        if problem:
+            raise ValueError(f"config key {key!r}: expected {problem}, got {val!r}")
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _positive(v) -> bool:
+    return _number(v) and math.isfinite(v) and v > 0
+
+
+def _rule_int(lo: int, hi: int | None = None):
+    what = f"an int in [{lo}, {hi}]" if hi is not None else f"an int >= {lo}"
+    return lambda v: (None if isinstance(v, int) and not isinstance(v, bool) and v >= lo
+                      and (hi is None or v <= hi) else what)
+
+
+def _rule_real(lo: float | None = None, hi: float | None = None, lo_open: bool = True):
+    if lo is None:
+        what = "a finite number"
+    else:
+        what = f"a finite number {'>' if lo_open else '>='} {lo:g}"
+    what += f" and <= {hi:g}" if hi is not None else ""
+
+    def rule(v):
+        if not (_number(v) and math.isfinite(v)):
+            return what
+        if lo is not None and (v <= lo if lo_open else v < lo):
+            return what
+        if hi is not None and v > hi:
+            return what
+        return None
+    return rule
+
+
+def _rule_list(item, what: str, n: tuple[int, int] = (1, 1_000_000)):
+    def rule(v):
+        ok = (isinstance(v, list) and n[0] <= len(v) <= n[1]
+              and all(item(x) for x in v))
+        return None if ok else what
+    return rule
+
+
+def _bands(v):
+    ok = (isinstance(v, list) and len(v) >= 2 and all(_number(x) and 0 <= x <= 1 for x in v)
+          and all(a < b for a, b in itertools.pairwise(v)))
+    return None if ok else "at least 2 increasing band edges in [0, 1] (normalised radius)"
+
+
+def _loss_weights(v):
+    bad = {k: w for k, w in v.items() if not (_number(w) and math.isfinite(w) and w >= 0)}
+    return f"finite weights >= 0 (bad: {bad})" if bad else None
+
+
+_POS_INT = _rule_int(1)
+# meaning of the values (after the type checks): key -> rule(value) -> None or what was expected
+_RULES = {
+    # numpy's and Lightning's seeding take 0 <= seed < 2^32
+    "seed": _rule_int(0, 2 ** 32 - 1),
+    "sensor.resolution": _rule_list(lambda x: _POS_INT(x) is None, "[H, W] pixels, both > 0",
+                                    (2, 2)),
+    "sensor.pixel_size_mm": _rule_real(0),
+    "sensor.full_well": _rule_real(0, lo_open=False),
+    "sensor.read_noise": _rule_real(0, lo_open=False),
+    "scene.depths_mm": _rule_list(_positive, "one depth or a [min, max] range, distances > 0 mm "
+                                  "(finite)", (1, 2)),
+    "scene.val_depths_mm": _rule_list(_positive, "a non-empty list of distances > 0 mm (finite)"),
+    "scene.field_bands": _bands,
+    "scene.psf_fields_deg": _rule_list(lambda x: _number(x) and 0 <= x < 90,
+                                       "field angles in [0, 90) deg"),
+    "render.spp": _POS_INT, "render.chunk_rays": _POS_INT, "render.max_iter": _POS_INT,
+    "render.psf_rays": _POS_INT,
+    "render.newton_tol": _rule_real(0),
+    "render.psf_patches": _rule_list(lambda x: _POS_INT(x) is None, "[rows, cols], both > 0",
+                                     (2, 2)),
+    "lens.plate_surface": _rule_int(0),
+    "lens.plate_alpha_mm": _rule_real(),
+    "model.net_lr": _rule_real(0, MAX_LR["net_lr"]),
+    "model.optics_lr_mm": _rule_real(0, MAX_LR["optics_lr_mm"]),
+    "model.disc_lr": _rule_real(0, MAX_LR["disc_lr"]),
+    "model.max_sag_mm": _rule_real(0),
+    "model.loss": _loss_weights,
+    "data.image_size": _POS_INT, "data.batch_size": _POS_INT,
+    "data.train_steps_per_epoch": _POS_INT, "data.val_size": _POS_INT,
+    "data.test_size": _POS_INT, "data.num_workers": _rule_int(0),
+    "callbacks.image_logger.every_n_epochs": _POS_INT,
+    "callbacks.image_logger.psf_rays": _POS_INT,
+}
 
 
 def build_renderer(cfg, lens, sensor):
@@ -73,7 +172,7 @@ def build_renderer(cfg, lens, sensor):
     raise ValueError(f"render.kind must be 'mc' or 'psf', got {r.kind!r}")
 
 
-def preflight(lens, sensor, renderer) -> None:
+def preflight(lens, sensor) -> None:
     """Fail before training when the lens passes no light: checks the on-axis field and the
     sensor's corner field at every sensor wavelength (the message names field and numbers)."""
     from ..analysis.spot import find_pupil
@@ -126,26 +225,18 @@ def build_objects(cfg: DictConfig) -> dict:
         raise ValueError(f"sensor.channels: {n_ch} channels, but the training textures are RGB: "
                          f"use 1 (monochrome: textures are converted to grey) or 3 channels")
     renderer = build_renderer(cfg, lens, sensor)
-    preflight(lens, sensor, renderer)
+    preflight(lens, sensor)
     restorer = hydra.utils.instantiate(cfg.net, **_image_channels(cfg.net, "net", n_ch))
     mc = cfg.model
     discriminator = (hydra.utils.instantiate(
         mc.discriminator, **_image_channels(mc.discriminator, "model.discriminator", n_ch,
                                             ("in_channels",)))
         if mc.discriminator else None)
-    perceptual = None
-    if mc.loss.get("perceptual", 0):
-        from ..nets.losses import PerceptualLoss
-
-        perceptual = PerceptualLoss(weights_path=mc.perceptual_weights)
-    module = EndToEndModule(
-        lens, sensor, renderer, restorer,
-        depths_mm=list(cfg.scene.depths_mm), val_depths_mm=list(cfg.scene.val_depths_mm),
-        field_bands=None if cfg.scene.field_bands is None else list(cfg.scene.field_bands),
-        loss=OmegaConf.to_container(mc.loss), net_lr=mc.net_lr, optics_lr_mm=mc.optics_lr_mm,
-        disc_lr=mc.disc_lr, perceptual=perceptual, discriminator=discriminator,
-        max_sag_mm=mc.max_sag_mm, plate_surface=lc.plate_surface, seed=cfg.seed,
-        psf_fields_deg=list(cfg.scene.psf_fields_deg), scene_margin=cfg.scene.margin)
+    # the module and its optimisers come from cfg.model (a Hydra partial); the objects built
+    # here are what the config cannot describe
+    make_module = hydra.utils.instantiate(cfg.model, discriminator=discriminator,
+                                          _convert_="all")
+    module = make_module(lens=lens, sensor=sensor, renderer=renderer, restorer=restorer)
     datamodule = hydra.utils.instantiate(cfg.data)
     callbacks = [hydra.utils.instantiate(c) for c in (cfg.callbacks or {}).values() if c]
     logger = hydra.utils.instantiate(cfg.logger) if cfg.get("logger") else False
@@ -155,23 +246,74 @@ def build_objects(cfg: DictConfig) -> dict:
             "datamodule": datamodule, "module": module, "trainer": trainer, "cfg": cfg}
 
 
+def _test_checkpoint(cfg: DictConfig, trainer, trained: bool) -> str | None:
+    """What ``test`` scores: after training, this run's own best checkpoint (never a path
+    carried over from the run it resumed); without training, ``ckpt_path`` (or the weights as
+    built)."""
+    if not trained:
+        return cfg.get("ckpt_path")
+    cb = trainer.checkpoint_callback
+    best = Path(cb.best_model_path) if cb is not None and cb.best_model_path else None
+    if best is not None and best.is_file() and cb.dirpath and best.parent == Path(cb.dirpath):
+        return str(best)
+    rank_zero_info("deeplens: this run wrote no best checkpoint; testing the final weights")
+    return None
+
+
+def summary(cfg: DictConfig, metrics: dict, trainer, tested: str | None) -> str:
+    """A few lines closing a run: test PSNR / SSIM per depth (or field band), where the
+    checkpoint and the exported lens are, and the TensorBoard command."""
+    lines = [(f"deeplens: {cfg.get('task_name', 'train')} finished after "
+              f"{trainer.current_epoch} epoch(s), {trainer.global_step} step(s)")]
+    tags = [k[len("test/psnr_restored/"):] for k in metrics
+            if k.startswith("test/psnr_restored/")]
+    if tags:
+        lines.append("  test (restored | sensor), PSNR dB / SSIM:")
+        def cell(img, t):
+            ps, ss = metrics.get(f"test/psnr_{img}/{t}"), metrics.get(f"test/ssim_{img}/{t}")
+            return f"{ps:6.2f} / {ss:.3f}" if ps is not None and ss is not None else "n/a"
+
+        for t in tags:
+            is_depth = t.startswith("d") and t.endswith("mm")
+            name = f"{float(t[1:-2]) / 1000:g} m" if is_depth else t
+            lines.append(f"    {name:>16}  {cell('restored', t)} | {cell('sensor', t)}")
+    if tested:
+        lines.append(f"  tested checkpoint: {tested}")
+        lens = Path(tested).with_suffix(".lens.json")
+        if lens.exists():
+            lines.append(f"  exported lens:     {lens}")
+    cb = trainer.checkpoint_callback
+    if cb is not None and cb.last_model_path:
+        lines.append(f"  last checkpoint:   {cb.last_model_path}  (resume: "
+                     f"ckpt_path={cb.last_model_path})")
+    logdir = OmegaConf.select(cfg, "logger.save_dir", default=None)
+    if logdir:
+        lines.append(f"  TensorBoard:       tensorboard --logdir {logdir}")
+    return "\n".join(lines)
+
+
 def train(cfg: DictConfig):
-    """Fit (and optionally test) the end-to-end model described by ``cfg``.
+    """Fit (and optionally test) the end-to-end model described by ``cfg``; print a summary.
 
     Returns:
-        ``(metrics, objects)``: the callback metrics as floats, and the built objects.
+        ``(metrics, objects)``: the callback metrics as floats, and the built objects (plus
+        ``"summary"``, the text printed at the end).
     """
     objs = build_objects(cfg)
     trainer, module, dm = objs["trainer"], objs["module"], objs["datamodule"]
     ckpt = cfg.get("ckpt_path")
     if ckpt is not None and not Path(ckpt).exists():
         raise FileNotFoundError(f"ckpt_path: no checkpoint at {ckpt}")
-    if cfg.get("train", True):
+    trained = bool(cfg.get("train", True))
+    if trained:
         trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+    tested = None
     if cfg.get("test", False):
-        cb = trainer.checkpoint_callback
-        best = cb.best_model_path if (cfg.get("train", True) and cb is not None) else ""
-        trainer.test(module, datamodule=dm, ckpt_path=best or None, verbose=False)
+        tested = _test_checkpoint(cfg, trainer, trained)
+        trainer.test(module, datamodule=dm, ckpt_path=tested, verbose=False)
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items()})
+    objs["summary"] = summary(cfg, metrics, trainer, tested)
+    if trainer.is_global_zero:
+        print(objs["summary"])
     return metrics, objs

@@ -15,7 +15,6 @@ from deeplens.nets import (
     PerceptualLoss,
     UNet,
     adversarial_loss,
-    build_network,
     count_parameters,
     relativistic_adversarial_loss,
 )
@@ -167,13 +166,6 @@ def test_overfit_blurred_to_sharp(name):
     with torch.no_grad():                         # same (train) mode as optimised
         l1 = F.l1_loss(net(blurred), sharp).item()
     assert l1 < 0.7 * l1_0, (l1_0, l1)       # observed ~0.45x after 40 steps
-
-
-def test_build_network():
-    assert isinstance(build_network("unet", base_channels=8, depth=2), UNet)
-    assert isinstance(build_network("FPN", num_levels=2), FPNGenerator)
-    with pytest.raises(ValueError, match="unknown network"):
-        build_network("resnet")
 
 
 # --------------------------------------------------------------------------------------------

@@ -43,8 +43,9 @@ def compose_cfg(tmp_path, overrides=(), tiny=True, config_name="train.yaml"):
 
 @pytest.fixture
 def cfg_factory(tmp_path):
-    def make(*overrides, tiny=True, config_name="train.yaml"):
-        return compose_cfg(tmp_path, overrides, tiny, config_name)
+    def make(*overrides, tiny=True, config_name="train.yaml", out=None):
+        """``out``: the run's output folder (default ``tmp_path``)."""
+        return compose_cfg(tmp_path if out is None else out, overrides, tiny, config_name)
 
     yield make
     GlobalHydra.instance().clear()

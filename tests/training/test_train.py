@@ -78,25 +78,6 @@ def test_training_steps_change_optics_and_network(cfg_factory):
     assert changed > 0.9 * len(net_before)
 
 
-def test_resume_restores_optimizer_and_lens(cfg_factory, tmp_path):
-    cfg = cfg_factory("experiment=edof", "test=false", "trainer.max_epochs=1")
-    _, objs = train(cfg)
-    ckpt = tmp_path / "checkpoints" / "last.ckpt"
-    trained = {n: p.detach().clone() for n, p in objs["module"].lens.named_parameters()}
-    state = torch.load(ckpt, weights_only=False)
-    assert state["optimizer_states"][0]["state"], "optimizer state missing from checkpoint"
-    # a fresh module loading the checkpoint gets the trained lens and optimizer back
-    cfg2 = cfg_factory("experiment=edof", "test=false", "trainer.max_epochs=2")
-    objs2 = build_objects(cfg2)
-    m2 = objs2["module"]
-    fresh = dict(m2.lens.named_parameters())
-    assert any(not torch.equal(fresh[n].detach(), v) for n, v in trained.items())
-    objs2["trainer"].fit(m2, datamodule=objs2["datamodule"], ckpt_path=str(ckpt))
-    assert objs2["trainer"].global_step == 2 * objs["trainer"].global_step
-    opt = objs2["trainer"].optimizers[0]
-    assert all(s["step"] > objs["trainer"].global_step for s in opt.state.values())
-
-
 def test_overfit_lowers_the_loss(cfg_factory):
     cfg = cfg_factory("experiment=edof", "debug=overfit", "trainer.max_epochs=15", "test=false",
                       "trainer.limit_val_batches=0", "callbacks.image_logger=null",
@@ -142,25 +123,77 @@ def test_fully_vignetting_lens_fails_before_training(cfg_factory, tmp_path):
         build_objects(cfg)
 
 
-def test_nan_loss_stops_with_step_and_saves_state(cfg_factory, tmp_path):
+def _fit_until_stopped(cfg_factory, plant):
+    """Fit a tiny EDOF run whose step 1 is broken by ``plant(module)``; returns the error, the
+    module state at the start of step 1 and the module."""
     from deeplens.training.module import NonFiniteLossError
 
-    cfg = cfg_factory("experiment=edof", "test=false", "trainer.max_epochs=1")
-    objs = build_objects(cfg)
+    objs = build_objects(cfg_factory("experiment=edof", "test=false", "trainer.max_epochs=1",
+                                     "callbacks.image_logger=null", "~logger"))
     module = objs["module"]
-    orig = module.image_loss
+    before = {}
+    orig = module.training_step
 
-    def bad_loss(pred, gt):
-        terms = orig(pred, gt)
+    def step(batch, batch_idx=0):
         if module.global_step == 1:
-            terms["mse"] = terms["mse"] * float("nan")
-        return terms
+            before.update({k: v.detach().clone() for k, v in module.state_dict().items()})
+            plant(module)
+        return orig(batch, batch_idx)
 
-    module.image_loss = bad_loss
-    with pytest.raises(NonFiniteLossError, match="step 1") as e:
+    module.training_step = step
+    with pytest.raises(NonFiniteLossError) as e:
         objs["trainer"].fit(module, datamodule=objs["datamodule"])
-    saved = list((tmp_path).rglob("nonfinite_step1.ckpt"))
-    assert saved and str(saved[0]) in str(e.value)
+    return str(e.value), before, module
+
+
+def _saved_state_is(path, state):
+    from deeplens.training.checkpoint import read_checkpoint
+
+    saved = read_checkpoint(path)["state_dict"]
+    assert saved.keys() == state.keys()
+    for k, v in state.items():
+        assert torch.equal(saved[k], v), k
+        assert torch.isfinite(v).all() or not v.is_floating_point(), k
+
+
+def test_nan_loss_stops_with_step_and_saves_the_state_before_it(cfg_factory, tmp_path):
+    """The state saved is the one the failing step started from (finite), in checkpoints/ (not
+    under tensorboard/), verified by its digest; the message names the step and the file."""
+    def plant(module):
+        orig = module.image_loss
+
+        def bad_loss(pred, gt):
+            terms = orig(pred, gt)
+            terms["mse"] = terms["mse"] * float("nan")
+            return terms
+
+        module.image_loss = bad_loss
+
+    msg, before, _ = _fit_until_stopped(cfg_factory, plant)
+    path = tmp_path / "checkpoints" / "nonfinite_step1.ckpt"
+    assert "non-finite loss nan at step 1" in msg and str(path) in msg
+    _saved_state_is(path, before)
+
+
+@pytest.mark.parametrize("where", ["lens", "restorer"])
+def test_nonfinite_gradient_stops_before_the_optimiser_step(cfg_factory, tmp_path, where):
+    """A NaN gradient (of a lens parameter or of a network weight) stops training before Adam
+    uses it: the message names the parameter and the step, and the saved state is the one
+    before the step (an unchecked network gradient would turn the weights into NaN)."""
+    def plant(module):
+        p = (module.lens.surfaces[4].a[6] if where == "lens"
+             else next(module.restorer.parameters()))
+        p.register_hook(lambda g: g * float("nan"))
+
+    msg, before, module = _fit_until_stopped(cfg_factory, plant)
+    first = next(iter(dict(module.restorer.named_parameters())))
+    name = "lens.surfaces.4.a.6" if where == "lens" else f"restorer.{first}"
+    assert f"non-finite gradient of {name} at step 1" in msg
+    path = tmp_path / "checkpoints" / "nonfinite_step1.ckpt"
+    assert str(path) in msg
+    _saved_state_is(path, before)
+    for k, v in module.state_dict().items():  # no step was taken with the NaN gradient
+        assert torch.equal(v, before[k]), k
 
 
 @pytest.mark.slow
@@ -243,3 +276,68 @@ def test_sensor_and_network_channel_mismatch_fails_at_startup(cfg_factory):
     with pytest.raises(ValueError, match=r"sensor\.channels: 2 channels, but the training "
                                          r"textures are RGB"):
         build_objects(cfg_factory("experiment=edof", "sensor.channels=[[486.1],[656.3]]"))
+
+
+_MEANINGLESS = [  # (key, value of the right type, what the message must say is expected)
+    ("scene.depths_mm", [0.0, 1000.0], "distances > 0 mm"),
+    ("scene.depths_mm", [-4500.0, 8000.0], "distances > 0 mm"),
+    ("scene.depths_mm", [4500.0, math.inf], "finite"),
+    ("scene.val_depths_mm", [0.0], "distances > 0 mm"),
+    ("scene.field_bands", [0.0, 0.6, 0.5, 1.0], "increasing band edges"),
+    ("scene.psf_fields_deg", [0.0, 95.0], r"\[0, 90\)"),
+    ("model.optics_lr_mm", math.inf, r"finite number > 0 and <= 1"),
+    ("model.optics_lr_mm", 1e6, r"<= 1"),
+    ("model.net_lr", 0.0, r"> 0"),
+    ("model.net_lr", math.nan, r"finite"),
+    ("model.disc_lr", -1e-4, r"> 0"),
+    ("model.loss.mse", math.nan, r"finite weights >= 0"),
+    ("model.loss.ssim", -0.1, r"finite weights >= 0"),
+    ("model.max_sag_mm", -0.05, r"> 0"),
+    ("seed", -1, r"int in \[0, 4294967295\]"),
+    ("seed", 2 ** 32, r"int in \[0, 4294967295\]"),
+    ("sensor.pixel_size_mm", 0.0, r"> 0"),
+    ("sensor.full_well", -1.0, r">= 0"),
+    ("sensor.read_noise", math.inf, r"finite"),
+    ("sensor.resolution", [16, 0], r"both > 0"),
+    ("render.spp", 0, r"int >= 1"),
+    ("render.newton_tol", 0.0, r"> 0"),
+    ("render.psf_patches", [3], r"\[rows, cols\]"),
+    ("data.batch_size", 0, r"int >= 1"),
+    ("lens.plate_surface", -1, r"int >= 0"),
+    ("callbacks.image_logger.psf_rays", 0, r"int >= 1"),
+]
+
+
+def test_meaningless_values_fail_at_startup_naming_the_key(cfg_factory):
+    """Values of the right type but no meaning (a depth of 0 divides by zero in training, an
+    infinite learning rate gives NaN parameters, 1e6 runs away, a negative seed breaks numpy)
+    stop before anything is built, naming the key, what was expected and the value."""
+    from omegaconf import OmegaConf
+
+    from deeplens.training.train import check_config
+
+    base = cfg_factory("experiment=edof")
+    check_config(base)
+    for key, value, expected in _MEANINGLESS:
+        cfg = base.copy()
+        OmegaConf.update(cfg, key, value, merge=False)
+        shown = "model.loss" if key.startswith("model.loss.") else key
+        with pytest.raises(ValueError, match=rf"{shown}'?: expected .*{expected}"):
+            check_config(cfg)
+
+
+def test_module_checks_learning_rates_and_loss_weights_itself():
+    """Built without the config (a script, a notebook): the same checks, naming model.*."""
+    from deeplens.training.module import check_learning_rate
+
+    assert check_learning_rate("net_lr", 1e-3) == 1e-3
+    for bad in (float("inf"), float("nan"), 0.0, -1e-3, 2.0, "fast"):
+        with pytest.raises(ValueError, match="model.net_lr"):
+            check_learning_rate("net_lr", bad)
+
+
+def test_default_configs_pass_the_checks(cfg_factory):
+    from deeplens.training.train import check_config
+
+    for experiment in EXPERIMENTS:
+        check_config(cfg_factory(f"experiment={experiment}", tiny=False))

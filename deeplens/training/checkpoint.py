@@ -1,0 +1,209 @@
+"""Checkpoint files: atomic writes, a SHA-256 beside each file, verified and safe loading.
+
+``<name>.ckpt`` is written as ``<name>.ckpt.tmp``, flushed to disk and renamed over the old
+file, so a killed run leaves the old or the new checkpoint, never a half-written one.  Beside it,
+``<name>.ckpt.sha256`` holds the SHA-256 of its bytes (one hex digest per line).  A write first
+lists the new digest *and* the old one, then renames the checkpoint, then keeps only the new
+digest: at every instant the file on disk matches a listed digest, so a kill between the two
+renames does not make a good checkpoint look corrupt.
+
+Loading checks the digest (a truncated, overwritten or randomly corrupted file is refused with
+its path), then reads the file with ``torch.load(weights_only=True)``: tensors, numbers, strings
+and containers only, never arbitrary pickled objects, whatever torch's own default.
+:func:`check_compatible` then compares the checkpoint's parameters with the model it is loaded
+into, so a checkpoint of another experiment says so instead of listing raw missing keys.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import warnings
+from pathlib import Path
+
+import torch
+from lightning.pytorch.plugins.io import TorchCheckpointIO
+
+__all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
+           "read_checkpoint", "sha256_file", "write_checkpoint"]
+
+#: key under which :class:`AtomicCheckpointIO` records the file a loaded checkpoint came from
+LOADED_FROM = "deeplens_loaded_from"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint cannot be written, read or used; the message names the file."""
+
+
+def checksum_path(path) -> Path:
+    """The digest file beside checkpoint ``path``: ``<path>.sha256``."""
+    path = Path(path)
+    return path.with_name(path.name + ".sha256")
+
+
+def sha256_file(path) -> str:
+    """Hex SHA-256 of the file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _listed_digests(path) -> list[str]:
+    side = checksum_path(path)
+    try:
+        lines = side.read_text().split()
+    except (OSError, UnicodeDecodeError):
+        return []
+    return [s for s in lines if len(s) == 64 and all(c in "0123456789abcdef" for c in s)]
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_checkpoint(checkpoint: dict, path) -> str:
+    """Write ``checkpoint`` to ``path`` atomically with its digest file; returns the digest.
+
+    Raises:
+        CheckpointError: the write failed (disk full, permissions, ...); the message names the
+            path, the temporary file is removed, and the previous checkpoint (if any) is left
+            as it was and still verifies.
+    """
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    side = checksum_path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            torch.save(checkpoint, f)
+            f.flush()
+            os.fsync(f.fileno())
+        digest = sha256_file(tmp)
+        old = _listed_digests(path)[:1] if path.exists() else []
+        _write_text_atomic(side, "\n".join([digest] + old) + "\n")  # both valid meanwhile
+        os.replace(tmp, path)
+        _write_text_atomic(side, digest + "\n")
+        return digest
+    except BaseException as e:
+        tmp.unlink(missing_ok=True)
+        if isinstance(e, Exception):
+            raise CheckpointError(f"could not write checkpoint {path}: {type(e).__name__}: "
+                                  f"{e} (the previous checkpoint there, if any, is unchanged)"
+                                  ) from e
+        raise
+
+
+def read_checkpoint(path, map_location="cpu") -> dict:
+    """Verify ``path`` against its digest file and load it with ``weights_only=True``.
+
+    A checkpoint without a digest file (written by hand or by an older version) loads with a
+    warning.
+
+    Raises:
+        FileNotFoundError: no file at ``path``.
+        CheckpointError: the digest does not match (truncated or corrupted file), the file is
+            not a readable checkpoint, or it holds objects that ``weights_only`` refuses; the
+            message names the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    side = checksum_path(path)
+    if side.exists():
+        listed = _listed_digests(path)
+        digest = sha256_file(path)
+        if digest not in listed:
+            raise CheckpointError(
+                f"checkpoint {path} is corrupt: its SHA-256 {digest[:16]}... does not match "
+                f"{side.name} ({listed[0][:16] + '...' if listed else 'no valid digest'}); the "
+                f"file was truncated or changed after it was written ({path.stat().st_size} "
+                f"bytes)")
+    else:
+        warnings.warn(f"checkpoint {path} has no digest file {side.name}: loading it "
+                      f"unverified", stacklevel=2)
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as e:
+        raise CheckpointError(f"checkpoint {path} cannot be read: {type(e).__name__}: "
+                              f"{str(e).splitlines()[0] if str(e) else ''}") from e
+    if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
+        raise CheckpointError(f"{path} is not a training checkpoint (no 'state_dict'; got "
+                              f"{type(ckpt).__name__})")
+    return ckpt
+
+
+def _summary(names, n: int = 3) -> str:
+    """``"lens: 4, restorer: 80; e.g. lens.a, lens.b, ..."``: counts per sub-module, then names."""
+    names = sorted(names)
+    counts: dict[str, int] = {}
+    for k in names:
+        counts[k.split(".")[0]] = counts.get(k.split(".")[0], 0) + 1
+    per = ", ".join(f"{m}: {c}" for m, c in counts.items())
+    return f"{per}; e.g. " + ", ".join(names[:n]) + (", ..." if len(names) > n else "")
+
+
+def check_compatible(checkpoint: dict, module, path=None, optimizer_groups=None) -> None:
+    """Raise :class:`CheckpointError` when ``checkpoint`` was not written for ``module``'s
+    experiment: its parameter names or shapes differ, or (``optimizer_groups``: the parameter
+    group names the module would optimise) its optimiser trained other parameters.
+
+    The message names the file and the first differing parameters on each side.
+    """
+    where = f"checkpoint {path}" if path else "the checkpoint"
+    saved = {k: tuple(v.shape) for k, v in checkpoint["state_dict"].items()
+             if torch.is_tensor(v)}
+    ours = {k: tuple(v.shape) for k, v in module.state_dict().items()}
+    missing, extra = set(ours) - set(saved), set(saved) - set(ours)
+    shapes = [f"{k} {saved[k]} vs {ours[k]}" for k in sorted(set(ours) & set(saved))
+              if saved[k] != ours[k]]
+    problems = []
+    if missing:
+        problems.append(f"{len(missing)} of this model's parameters are not in it "
+                        f"({_summary(missing)})")
+    if extra:
+        problems.append(f"it holds {len(extra)} parameters this model does not have "
+                        f"({_summary(extra)})")
+    if shapes:
+        problems.append(f"{len(shapes)} parameters differ in shape ({_summary(shapes)})")
+    if not problems and optimizer_groups is not None and checkpoint.get("optimizer_states"):
+        groups = [g.get("name") for g in checkpoint["optimizer_states"][0]["param_groups"]]
+        if groups != list(optimizer_groups):
+            problems.append(f"its optimiser trained {groups}, this run trains "
+                            f"{list(optimizer_groups)} (lens.trainable differs)")
+    if problems:
+        raise CheckpointError(f"{where} does not belong to this experiment (another lens, "
+                              f"network or set of trainable parameters): " + "; ".join(problems))
+
+
+class AtomicCheckpointIO(TorchCheckpointIO):
+    """Lightning checkpoint I/O through :func:`write_checkpoint` / :func:`read_checkpoint`:
+    atomic writes with a digest beside each file, verified loads, ``weights_only=True`` always
+    (Lightning's ``weights_only=None`` would defer to torch's version-dependent default)."""
+
+    def save_checkpoint(self, checkpoint, path, storage_options=None):
+        if storage_options is not None:
+            raise TypeError("AtomicCheckpointIO takes no storage_options")
+        write_checkpoint(checkpoint, path)
+
+    def load_checkpoint(self, path, map_location="cpu", weights_only=None):
+        if weights_only is False:
+            raise CheckpointError(f"checkpoint {path}: deeplens loads checkpoints with "
+                                  f"weights_only=True only (no arbitrary pickled objects)")
+        ckpt = read_checkpoint(path, map_location=map_location)
+        ckpt[LOADED_FROM] = str(path)
+        return ckpt
+
+    def remove_checkpoint(self, path):
+        super().remove_checkpoint(path)
+        checksum_path(path).unlink(missing_ok=True)
