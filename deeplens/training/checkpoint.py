@@ -25,7 +25,7 @@ import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 __all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
-           "read_checkpoint", "sha256_file", "write_checkpoint"]
+           "read_checkpoint", "sha256_file", "write_checkpoint", "write_text_atomic"]
 
 #: key under which :class:`AtomicCheckpointIO` records the file a loaded checkpoint came from
 LOADED_FROM = "deeplens_loaded_from"
@@ -59,7 +59,8 @@ def _listed_digests(path) -> list[str]:
     return [s for s in lines if len(s) == 64 and all(c in "0123456789abcdef" for c in s)]
 
 
-def _write_text_atomic(path: Path, text: str) -> None:
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a fsynced ``.tmp`` and a rename (removed on failure)."""
     tmp = path.with_name(path.name + ".tmp")
     try:
         with open(tmp, "w") as f:
@@ -91,9 +92,9 @@ def write_checkpoint(checkpoint: dict, path) -> str:
             os.fsync(f.fileno())
         digest = sha256_file(tmp)
         old = _listed_digests(path)[:1] if path.exists() else []
-        _write_text_atomic(side, "\n".join([digest] + old) + "\n")  # both valid meanwhile
+        write_text_atomic(side, "\n".join([digest] + old) + "\n")  # both valid meanwhile
         os.replace(tmp, path)
-        _write_text_atomic(side, digest + "\n")
+        write_text_atomic(side, digest + "\n")
         return digest
     except BaseException as e:
         tmp.unlink(missing_ok=True)

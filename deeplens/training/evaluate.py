@@ -29,12 +29,12 @@ from __future__ import annotations
 import copy
 import json
 import math
-import os
 from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from .checkpoint import write_text_atomic
 from .train import build_objects, train
 
 __all__ = ["evaluate", "format_table", "variants", "summarize", "psf_rms_px", "seeds"]
@@ -259,16 +259,7 @@ def format_table(summary: dict, columns: list[tuple[str, str]]) -> str:
 
 def _atomic_write(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with open(tmp, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    write_text_atomic(path, text)
 
 
 def _check_test_folder(folder, image_size) -> None:
