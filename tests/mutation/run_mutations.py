@@ -119,8 +119,12 @@ MUTATIONS = [
              "\"semi_diameter_mm\": diam", TABLES),
     # ------------------------------------------------ optics (the issue: already caught)
     Mutation("refraction_sign", "vector Snell: + eta cos instead of - eta cos",
-             "deeplens/optics/refract.py", "(sqrt_k - eta * cos_i)", "(sqrt_k + eta * cos_i)",
-             OPTICS, issue=True),
+             "deeplens/optics/refract.py", "coef = torch.copysign(sqrt_k, cos_i) - eta * cos_i",
+             "coef = torch.copysign(sqrt_k, cos_i) + eta * cos_i", OPTICS, issue=True),
+    Mutation("refraction_sign_quadric", "vector Snell of the closed-form sphere/conic step: "
+             "+ eta cos instead of - eta cos", "deeplens/optics/intersect.py",
+             "torch.ones_like(k))), cos_i) - eta * cos_i",
+             "torch.ones_like(k))), cos_i) + eta * cos_i", OPTICS),
     Mutation("sellmeier_sign", "Sellmeier: lambda^2 + C in the denominator",
              "deeplens/optics/materials.py", "n2 = n2 + b * l2 / (l2 - c)",
              "n2 = n2 + b * l2 / (l2 + c)", OPTICS, issue=True),
@@ -134,8 +138,11 @@ MUTATIONS = [
              "deeplens/optics/intersect.py", "s = s_star - _safe_div(fv, fp, ok)",
              "s = s_star + _safe_div(fv, fp, ok)", OPTICS, issue=True),
     Mutation("opl_without_index", "optical path length without the refractive index",
-             "deeplens/optics/lens.py", "opl = rays.opl + n1 * t", "opl = rays.opl + t",
-             OPTICS, issue=True),
+             "deeplens/optics/lens.py", "opl = rays.opl + _compact(n1) * t",
+             "opl = rays.opl + t", OPTICS, issue=True),
+    Mutation("opl_without_index_quadric", "optical path length without the refractive index in "
+             "the closed-form sphere/conic step", "deeplens/optics/intersect.py",
+             "return x_out, d_t, ok, opl + n1 * t", "return x_out, d_t, ok, opl + t", OPTICS),
     Mutation("pupil_sampling_not_uniform", "random pupil points r = u instead of sqrt(u)",
              "deeplens/optics/sampling.py",
              "r = torch.sqrt(torch.rand(n, generator=g, dtype=torch.float64))",
