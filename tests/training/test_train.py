@@ -341,3 +341,30 @@ def test_default_configs_pass_the_checks(cfg_factory):
 
     for experiment in EXPERIMENTS:
         check_config(cfg_factory(f"experiment={experiment}", tiny=False))
+
+
+def test_scene_margin_extends_the_texture_beyond_the_frame(cfg_factory):
+    """With ``scene.margin = m`` a texture spans ``1 + 2m`` fields of view: a texture that is 1
+    on its central ``1 / (1 + 2m)`` and 0 outside fills the whole frame with 1 (ground truth);
+    a uniform scene keeps its brightness through the blur, where a texture filling the frame
+    exactly brings black in at the edges."""
+    m = 0.25
+    objs = build_objects(cfg_factory("experiment=edof", f"scene.margin={m}",
+                                     "callbacks.image_logger=null"))
+    module = objs["module"]
+    n = 60
+    tex = torch.zeros(1, 3, n, n)
+    inner = round(n / (1 + 2 * m))  # 40 of 60 texels: the field of view
+    a = (n - inner) // 2
+    tex[..., a:a + inner, a:a + inner] = 1.0
+    with torch.no_grad():
+        _, gt = module.capture(tex, [8000.0], seed=0, noise=False)
+        assert float(gt[..., 1:-1, 1:-1].min()) > 0.99  # bilinear edges of the inner square
+        assert float(gt[..., 0, :].max()) > 0.99
+        y0, _ = module.capture(torch.ones(1, 3, 8, 8), [8000.0], seed=0, noise=False)
+        module.scene_margin = 0.0  # the same uniform texture filling the frame exactly
+        y1, _ = module.capture(torch.ones(1, 3, 8, 8), [8000.0], seed=0, noise=False)
+    assert float(y0.mean()) > 0.97
+    assert float(y1.mean()) < float(y0.mean()) - 0.05  # black blurred in at the edges
+    with pytest.raises(ValueError, match="scene.margin"):
+        build_objects(cfg_factory("experiment=edof", "scene.margin=-0.5"))
