@@ -174,14 +174,19 @@ class GlassCatalogue:
         return f"GlassCatalogue({self.name!r}, {len(self)} glasses, {str(self.path)!r})"
 
 
-def _decode(path: Path) -> str:
-    raw = path.read_bytes()
+def decode_zemax_text(path: Path) -> str:
+    """Text of a Zemax file (``.agf``, ``.zmx``): UTF-16 with a byte-order mark, UTF-8, UTF-16
+    without a mark (OpticStudio writes it too: every other byte zero), else Latin-1 (old
+    catalogues have 8-bit comments; their index data is ASCII)."""
+    raw = Path(path).read_bytes()
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
         return raw.decode("utf-16")
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        return raw.decode("latin-1")  # old catalogues: 8-bit comments; index data is ASCII
+        if len(raw) > 1 and raw[1:200:2].count(0) > 0.9 * len(raw[1:200:2]):
+            return raw.decode("utf-16-le")
+        return raw.decode("latin-1")
 
 
 def read_agf(path, name: str | None = None) -> GlassCatalogue:
@@ -209,7 +214,7 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"glass catalogue not found: {path}")
-    text = _decode(path)
+    text = decode_zemax_text(path)
     cat_name = (name or path.stem).upper()
     records: dict[str, AgfRecord] = {}
     notes: list[str] = []

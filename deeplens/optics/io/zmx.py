@@ -59,7 +59,7 @@ from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, check_wavelength_nm, get_material
 from ..surfaces import Aperture, Asphere, Plane, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
-from .agf import AGFGlass, GlassCatalogue, read_agf
+from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
 from .lensfile import LensFileError
 
 __all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "read_zmx", "write_zmx"]
@@ -142,24 +142,11 @@ class _Parser:
         return self.num(toks[i], ln, f"{toks[0]} {what}")
 
 
-def _decode(path: Path) -> str:
-    raw = path.read_bytes()
-    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
-        return raw.decode("utf-16")
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        # OpticStudio also writes UTF-16 without a byte-order mark (every other byte zero)
-        if len(raw) > 1 and raw[1:200:2].count(0) > 0.9 * len(raw[1:200:2]):
-            return raw.decode("utf-16-le")
-        return raw.decode("latin-1")
-
-
 def _parse(path: Path):
     """The raw file: ``(system dict, [_Surf, ...], parser)`` with lengths still in file units."""
     p = _Parser(path)
     try:
-        text = _decode(path)
+        text = decode_zemax_text(path)
     except UnicodeDecodeError as e:
         p.fail(0, f"not a UTF-8 or UTF-16 text file ({e.reason} at byte {e.start})")
     sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None, "yfln": None,
