@@ -65,11 +65,14 @@ import gc
 import json
 import math
 import os
-import resource
 import statistics
 import subprocess
 import sys
 import time
+
+from procmem import maxrss_bytes as _maxrss_bytes
+from procmem import reset_peak_rss as _reset_peak_rss
+from procmem import rss_bytes as _rss_bytes
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -79,19 +82,6 @@ MIB = 1024.0 * 1024.0
 
 
 # ============================================================================ child process
-def _rss_bytes() -> int:
-    """Current resident set size (bytes), Linux; ``-1`` elsewhere."""
-    try:
-        with open("/proc/self/statm") as fh:
-            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError):
-        return -1
-
-
-def _maxrss_bytes() -> int:
-    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return r if sys.platform == "darwin" else r * 1024
-
 
 def _glibc():
     try:
@@ -127,15 +117,6 @@ def _malloc_for_speed() -> None:
         libc.mallopt(_M_MMAP_THRESHOLD, 32 * 1024 * 1024)
         libc.mallopt(_M_TRIM_THRESHOLD, 64 * 1024 * 1024)
 
-
-def _reset_peak_rss() -> bool:
-    """Reset the kernel's RSS high-water mark (Linux >= 4.0); False if not possible."""
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-    except OSError:
-        return False
-    return _maxrss_bytes() <= _rss_bytes() + 4 * 1024 * 1024
 
 
 def make_surface(kind: str, size: int, seed: int = 0):

@@ -71,6 +71,10 @@ import subprocess
 import sys
 import time
 
+from procmem import maxrss_bytes as _maxrss_bytes
+from procmem import reset_peak_rss as _reset_peak_rss
+from procmem import rss_bytes as _rss_bytes
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LENS = os.path.join(REPO, "data", "lenses", "edof_achromat.json")
 TRAINABLE = ["surfaces.4.a.6", "surfaces.4.a.7", "surfaces.4.a.8", "surfaces.4.a.9", "d_sensor"]
@@ -82,19 +86,6 @@ MEM_MMAP_THRESHOLD = 64 * 1024  # bytes, glibc mmap threshold of the memory pass
 
 
 # ============================================================================ child process
-def _rss_bytes() -> int:
-    """Current resident set size (bytes), Linux; ``-1`` elsewhere."""
-    try:
-        with open("/proc/self/statm") as fh:
-            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError):
-        return -1
-
-
-def _maxrss_bytes() -> int:
-    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return r if sys.platform == "darwin" else r * 1024
-
 
 def _glibc():
     try:
@@ -135,15 +126,6 @@ def _malloc_trim() -> None:
     if libc is not None:
         libc.malloc_trim(0)
 
-
-def _reset_peak_rss() -> bool:
-    """Reset the kernel's RSS high-water mark (Linux >= 4.0); False if not possible."""
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-    except OSError:
-        return False
-    return _maxrss_bytes() <= _rss_bytes() + 4 * 1024 * 1024
 
 
 def _is_oom(e: BaseException) -> bool:

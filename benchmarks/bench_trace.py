@@ -42,10 +42,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import time
+
+from procmem import maxrss_bytes as _maxrss_bytes
+from procmem import reset_peak_rss as _reset_peak_rss
+from procmem import rss_bytes as _rss_bytes
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LENS = os.path.join("data", "lenses", "double_gauss.json")
@@ -54,27 +57,6 @@ WAVELENGTH_NM = 587.5618
 
 
 # ============================================================================ child process
-def _rss_bytes() -> int:
-    try:
-        with open("/proc/self/statm") as fh:
-            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, IndexError):
-        return -1
-
-
-def _maxrss_bytes() -> int:
-    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return r if sys.platform == "darwin" else r * 1024
-
-
-def _reset_peak_rss() -> bool:
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-    except OSError:
-        return False
-    return True
-
 
 def _mallopt(mmap_threshold: int, trim_threshold: int) -> None:
     try:
