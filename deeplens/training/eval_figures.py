@@ -101,10 +101,12 @@ def samples_figure(modules: dict, datamodules: dict, depths, focus_mm: float):
     show = sorted({min(depths), focus_mm, max(depths)})
     rows = [(v, d) for v in modules for d in show]
     fig, axes = plt.subplots(len(rows), 3, squeeze=False, figsize=(6, 2 * len(rows)), dpi=100)
-    for r, (v, d) in enumerate(rows):
-        m, dm = modules[v], datamodules[v]
+    first = {}  # the first test image of each variant's data module
+    for v, dm in datamodules.items():
         dm.setup("test")
-        img = dm.test_set[0]["image"][None]
+        first[v] = dm.test_set[0]["image"][None]
+    for r, (v, d) in enumerate(rows):
+        m, img = modules[v], first[v]
         with torch.no_grad():
             y, gt = m.capture(img, [d], seed=10_000_019, noise=True)
             pred = m.restorer(y.to(next(m.restorer.parameters()).device)).clamp(0, 1)
