@@ -18,6 +18,11 @@ Every number is the mean over seeds; ``± std`` is the sample standard deviation
 initialisation, training and test images, noise), so the spread covers them all; within one
 seed every variant sees the same test images.
 
+``eval.reuse_runs`` (default true): a variant x seed run that already finished in the output
+folder with the same configuration (its ``eval_run.json``) is loaded, not trained again, so an
+evaluation killed part-way resumes (``hydra.run.dir=<its folder>``), and variants or seeds run
+as separate processes into one folder are then gathered by one more call.
+
 Outputs (in ``eval.output``'s folder, each written atomically): ``eval_table.md`` (a row per
 variant and image, a column per depth or band), ``eval_table.json`` (see :func:`summarize`),
 and the figures of :mod:`deeplens.training.eval_figures` (``*.png``, also logged to TensorBoard
@@ -132,10 +137,61 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
     return c
 
 
-def _run(cfg: DictConfig, ckpt: str | None):
-    """Train (or load ``ckpt``) and test one variant; returns ``(metrics, objects)``."""
+#: the record of one finished variant x seed run, in that run's output folder
+RUN_RECORD = "eval_run.json"
+#: config keys that do not change what a variant's run computes (where it writes, which other
+#: variants and seeds the evaluation holds)
+_NOT_IN_KEY = ("paths", "eval", "hydra", "task_name")
+
+
+def _run_key(cfg: DictConfig) -> dict:
+    return {k: (OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v)
+            for k, v in ((k, cfg[k]) for k in cfg if k not in _NOT_IN_KEY)}
+
+
+def _reuse(cfg: DictConfig):
+    """``(metrics, objects)`` of a finished run of exactly this variant config in its output
+    folder (its :data:`RUN_RECORD` and tested checkpoint), the module holding the tested
+    weights; ``None`` when there is none or its config differs."""
+    rec_path = Path(cfg.paths.output_dir) / RUN_RECORD
+    if not rec_path.is_file():
+        return None
+    try:
+        rec = json.loads(rec_path.read_text())
+    except (OSError, ValueError):
+        return None
+    if rec.get("config") != json.loads(json.dumps(_run_key(cfg))):
+        print(f"deeplens eval: {rec_path} is a run of another configuration: training again")
+        return None
+    objs = build_objects(cfg)
+    if rec.get("tested"):
+        from .checkpoint import read_checkpoint
+
+        objs["module"].load_state_dict(read_checkpoint(rec["tested"])["state_dict"])
+    print(f"deeplens eval: reusing the finished run in {rec_path.parent}")
+    return {k: float(v) for k, v in rec["metrics"].items()}, objs
+
+
+def _run(cfg: DictConfig, ckpt: str | None, reuse: bool = False):
+    """Train (or load ``ckpt``) and test one variant; returns ``(metrics, objects)``.
+
+    With ``reuse``, a run of the same configuration that finished in the same output folder
+    (an evaluation killed part-way and started again with ``hydra.run.dir`` set to its folder,
+    or variants run as separate processes into one folder) is loaded instead of trained."""
     if ckpt is None:
-        return train(cfg)
+        if reuse:
+            done = _reuse(cfg)
+            if done is not None:
+                return done
+        metrics, objs = train(cfg)
+        cb = objs["trainer"].checkpoint_callback
+        tested = cb.best_model_path if cb is not None and cb.best_model_path else None
+        if not tested or not Path(tested).is_file():
+            tested = None  # tested with the final weights: nothing to reload later
+        if tested is not None:
+            _atomic_write(Path(cfg.paths.output_dir) / RUN_RECORD, json.dumps(
+                {"config": _run_key(cfg), "metrics": metrics, "tested": tested}, indent=1))
+        return metrics, objs
     objs = build_objects(cfg)
     objs["trainer"].test(objs["module"], datamodule=objs["datamodule"], ckpt_path=ckpt,
                          verbose=False)
@@ -296,7 +352,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
             vc = _variant_cfg(cfg, name, kind, alpha, seed=s, multi_seed=len(seed_list) > 1)
             ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
             torch.manual_seed(s)
-            metrics, objs = _run(vc, ckpt)
+            metrics, objs = _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))
             runs[name].append(metrics)
             module = objs["module"]
             rms_seeds.append({d: psf_rms_px(module.lens, module.sensor, d) for d in depths})

@@ -105,7 +105,7 @@ def best_focus_distance(lens, depth_mm: float, wavelengths_nm, n_rays: int = 409
 def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | None = None,
                plate_surface: int | None = None, plate_alpha_mm: float = 0.0,
                table_options: dict | None = None, focus_mm: float | None = None,
-               focus_wavelengths_nm=(587.5618,)):
+               focus_wavelengths_nm=(587.5618,), learned_start_alpha_mm: float | None = None):
     """Load a lens file, optionally set a phase plate, choose what trains, cast to ``dtype``.
 
     Args:
@@ -124,6 +124,10 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
             ``focus_wavelengths_nm``, see :func:`best_focus_distance`) of a point at this
             depth (mm), computed with the plate flattened, so every plate variant shares one
             sensor position; config ``lens.focus_mm``.
+        learned_start_alpha_mm: for ``plate="learned"``: ``None`` starts from the plate in the
+            file; a number starts from the cubic plate of this ``α`` (mm of sag at the rim), e.g.
+            to learn a refinement of a Dowski-Cathey plate; config
+            ``lens.learned_start_alpha_mm``.
 
     Raises:
         LensFileError: the file cannot be read; the message names the file and, where an option
@@ -160,6 +164,14 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
         cubic_phase_plate(lens, plate_surface, plate_alpha_mm if plate == "cubic" else 0.0)
     elif plate not in (None, "learned"):
         raise ValueError(f"lens.plate must be learned, none or cubic; got {plate!r}")
+    elif learned_start_alpha_mm is not None:
+        a = learned_start_alpha_mm
+        if not (isinstance(a, (int, float)) and math.isfinite(a)):
+            raise ValueError(f"lens.learned_start_alpha_mm: expected a number (mm) or null, "
+                             f"got {a!r}")
+        if plate_surface is None:
+            raise ValueError("lens.plate_surface must be set to use lens.learned_start_alpha_mm")
+        cubic_phase_plate(lens, plate_surface, float(a))
     set_trainable(lens, list(trainable))
     if dtype not in ("float32", "float64"):
         raise ValueError(f"lens.dtype must be float32 or float64, got {dtype!r}")

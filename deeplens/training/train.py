@@ -145,6 +145,7 @@ _RULES = {
                                      (2, 2)),
     "lens.plate_surface": _rule_int(0),
     "lens.plate_alpha_mm": _rule_real(),
+    "lens.learned_start_alpha_mm": _rule_real(),
     "model.net_lr": _rule_real(0, MAX_LR["net_lr"]),
     "model.optics_lr_mm": _rule_real(0, MAX_LR["optics_lr_mm"]),
     "model.disc_lr": _rule_real(0, MAX_LR["disc_lr"]),
@@ -219,6 +220,7 @@ def build_objects(cfg: DictConfig) -> dict:
                       plate_alpha_mm=lc.plate_alpha_mm,
                       table_options=OmegaConf.to_container(lc.table_options),
                       focus_mm=lc.focus_mm,
+                      learned_start_alpha_mm=lc.get("learned_start_alpha_mm"),
                       focus_wavelengths_nm=[w for ch in sensor.channels for w in ch])
     n_ch = len(sensor.channels)
     if n_ch not in (1, 3):

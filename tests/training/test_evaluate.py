@@ -223,3 +223,42 @@ def test_best_focus_minimises_the_rms_spot():
     assert all(float(L.d_sensor) == pytest.approx(d, abs=1e-12) for L in lenses)
     with pytest.raises(ValueError, match="lens.focus_mm: expected a depth > 0"):
         build_lens("data/lenses/edof_achromat.json", focus_mm=-1.0)
+
+
+def test_eval_resumes_finished_runs_and_retrains_changed_ones(cfg_factory, tmp_path,
+                                                              monkeypatch):
+    """A second evaluation into the same folder loads each finished variant x seed run (same
+    metrics, the module holding the tested weights) instead of training it again; a run whose
+    configuration changed is trained again."""
+    import deeplens.training.evaluate as ev
+    from deeplens.training.checkpoint import read_checkpoint
+
+    args = ("experiment=edof", "scene.val_depths_mm=[4500.0,8000.0]",
+            "eval.variants=[none,learned]", "callbacks.image_logger=null", "eval.figures=false")
+    _, first = evaluate(cfg_factory(*args, config_name="eval.yaml"))
+    rec = json.loads((tmp_path / "learned" / ev.RUN_RECORD).read_text())
+    assert rec["metrics"]["test/psnr_restored/d4500mm"] == pytest.approx(
+        first["learned"]["restored"]["4500"]["psnr"])
+
+    def no_training(cfg):
+        raise AssertionError(f"trained again: {cfg.paths.output_dir}")
+
+    monkeypatch.setattr(ev, "train", no_training)
+    kept = {}
+    real_run = ev._run
+
+    def spy(cfg, ckpt, reuse=False):
+        out = real_run(cfg, ckpt, reuse)
+        kept[cfg.paths.output_dir] = out[1]["module"]
+        return out
+
+    monkeypatch.setattr(ev, "_run", spy)
+    _, again = evaluate(cfg_factory(*args, config_name="eval.yaml"))
+    assert again == first
+    # the reloaded module is the tested checkpoint (optics included), not a fresh build
+    module = kept[str(tmp_path / "learned")]
+    state = read_checkpoint(rec["tested"])["state_dict"]
+    for k, v in module.state_dict().items():
+        assert torch.equal(v, state[k]), k
+    with pytest.raises(AssertionError, match="trained again"):
+        evaluate(cfg_factory(*args, "render.spp=3", config_name="eval.yaml"))

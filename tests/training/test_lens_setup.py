@@ -101,3 +101,29 @@ def test_parameter_scale_by_kind():
     assert parameter_scale(doublet, "misalignments.0.dx") == 1.0
     assert parameter_scale(doublet, "d_sensor") == parameter_scale(doublet, "distances.1") == 1.0
     assert math.isfinite(parameter_scale(doublet, "surfaces.1.k"))
+
+
+def test_learned_plate_can_start_from_a_cubic_plate():
+    """``learned_start_alpha_mm``: the learned plate starts as the Dowski-Cathey plate
+    ``z = α((x/R)^3 + (y/R)^3)`` (sag α at the rim on each axis, 0 at the centre) and stays
+    trainable; ``None`` keeps the file's (flat) plate."""
+    from deeplens.training.lens_setup import build_lens
+
+    path = str(DATA / "edof_achromat.json")
+    terms = ["surfaces.4.a.6", "surfaces.4.a.9"]
+    lens = build_lens(path, trainable=terms, dtype="float64", plate="learned", plate_surface=4,
+                      learned_start_alpha_mm=0.0025)
+    s = lens.surfaces[4]
+    R = float(s.semi_diameter)
+    x = torch.tensor([R, 0.0, -R, 0.5 * R], dtype=torch.float64)
+    y = torch.tensor([0.0, R, 0.0, 0.5 * R], dtype=torch.float64)
+    flat = build_lens(path, dtype="float64", plate="learned", plate_surface=4)
+    with torch.no_grad():
+        dz = s.sag(x, y) - flat.surfaces[4].sag(x, y)
+    want = 0.0025 * ((x / R) ** 3 + (y / R) ** 3)
+    assert torch.allclose(dz, want, rtol=0, atol=1e-12)
+    assert [n for n, p in lens.named_parameters() if p.requires_grad] == terms
+    with pytest.raises(ValueError, match="lens.learned_start_alpha_mm"):
+        build_lens(path, plate="learned", plate_surface=4, learned_start_alpha_mm="big")
+    with pytest.raises(ValueError, match="lens.plate_surface must be set"):
+        build_lens(path, plate="learned", learned_start_alpha_mm=0.0025)
