@@ -6,8 +6,8 @@ the scene defines ``field_bands``).  Variants (``eval.variants``):
 
 * ``none``: the lens with its phase plate flattened (all coefficients zero), optics frozen;
 * ``cubic``: the analytic cubic plate of Dowski and Cathey, ``z = α ((x/R)^3 + (y/R)^3)``,
-  optics frozen; ``eval.cubic_alpha_mm`` is one α or a list (a sweep: one variant per α, named
-  ``cubic@<α in µm>um``);
+  optics frozen; ``eval.cubic_alpha_mm`` is one α or a list (a sweep): one variant per α, named
+  ``cubic@<α in µm>um``;
 * ``learned``: the optics (``lens.trainable``) and the restorer trained jointly (or loaded from
   ``eval.learned_ckpt``, single seed);
 * ``frozen``: the lens as in its file with no optics training (for lenses without a plate,
@@ -91,11 +91,7 @@ def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
             raise ValueError(f"eval.variants: {v!r} needs a phase plate, but the experiment's "
                              f"lens has none (lens.plate_surface is null); use frozen, learned")
         if v == "cubic":
-            alphas = _alphas(cfg)
-            if len(alphas) == 1:
-                out.append(("cubic", "cubic", alphas[0]))
-            else:
-                out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in alphas]
+            out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in _alphas(cfg)]
         elif v in ("none", "learned", "frozen"):
             out.append((v, v, None))
         else:
@@ -108,15 +104,16 @@ def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
 
 def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
                  alpha_mm: float | None = None, seed: int | None = None,
-                 multi_seed: bool = False) -> DictConfig:
+                 ) -> DictConfig:
     kind = kind or name
     c = copy.deepcopy(cfg)
     with open_dict(c):
+        # <variant>/seed<s>: the same folder whichever other variants and seeds the call
+        # holds, so that runs made by separate calls are found again (eval.reuse_runs)
         out = Path(cfg.paths.output_dir) / name.replace("@", "_")
         if seed is not None:
             c.seed = int(seed)
-            if multi_seed:
-                out = out / f"seed{seed}"
+        out = out / f"seed{c.seed}"
         c.paths.output_dir = str(out)
         c.test = True
         if cfg.eval.test_folder is not None:
@@ -145,8 +142,12 @@ _NOT_IN_KEY = ("paths", "eval", "hydra", "task_name")
 
 
 def _run_key(cfg: DictConfig) -> dict:
-    return {k: (OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v)
-            for k, v in ((k, cfg[k]) for k in cfg if k not in _NOT_IN_KEY)}
+    key = {k: (OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v)
+           for k, v in ((k, cfg[k]) for k in cfg if k not in _NOT_IN_KEY)}
+    if not key["lens"].get("trainable"):  # frozen optics: the optics' rate and start are unused
+        key["model"].pop("optics_lr_mm", None)
+        key["lens"].pop("learned_start_alpha_mm", None)
+    return key
 
 
 def _reuse(cfg: DictConfig):
@@ -349,7 +350,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
         runs[name] = []
         rms_seeds = []
         for s in seed_list:
-            vc = _variant_cfg(cfg, name, kind, alpha, seed=s, multi_seed=len(seed_list) > 1)
+            vc = _variant_cfg(cfg, name, kind, alpha, seed=s)
             ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
             torch.manual_seed(s)
             metrics, objs = _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))

@@ -24,7 +24,7 @@ def test_eval_writes_a_table_for_every_variant_and_depth(cfg_factory, tmp_path):
     assert len(lines) == 2 + 2 * 4  # header, separator, sensor + restored per variant
     assert lines[2].startswith("| none | sensor |") and lines[-1].startswith("| learned | restored")
     assert (tmp_path / "eval_table.md").read_text().count("|") > 40
-    assert (tmp_path / "cubic_10um" / "checkpoints" / "best.ckpt").exists()
+    assert (tmp_path / "cubic_10um" / "seed0" / "checkpoints" / "best.ckpt").exists()
     js = json.loads((tmp_path / "eval_table.json").read_text())
     assert js["seeds"] == [0] and list(js["variants"]) == list(results)
     for v, e in js["variants"].items():
@@ -142,8 +142,8 @@ def test_doublet_eval_compares_frozen_and_learned_per_band(cfg_factory, tmp_path
     from deeplens.optics.io import load_lens
 
     start = load_lens("data/lenses/wide_doublet.json")
-    frozen = load_lens(tmp_path / "frozen" / "checkpoints" / "best.lens.json")
-    learned = load_lens(tmp_path / "learned" / "checkpoints" / "best.lens.json")
+    frozen = load_lens(tmp_path / "frozen" / "seed0" / "checkpoints" / "best.lens.json")
+    learned = load_lens(tmp_path / "learned" / "seed0" / "checkpoints" / "best.lens.json")
     a0, af, al = (float(L.surfaces[1].a[0]) for L in (start, frozen, learned))
     assert af == pytest.approx(a0, abs=1e-12) and abs(al - a0) > 1e-12
 
@@ -236,7 +236,7 @@ def test_eval_resumes_finished_runs_and_retrains_changed_ones(cfg_factory, tmp_p
     args = ("experiment=edof", "scene.val_depths_mm=[4500.0,8000.0]",
             "eval.variants=[none,learned]", "callbacks.image_logger=null", "eval.figures=false")
     _, first = evaluate(cfg_factory(*args, config_name="eval.yaml"))
-    rec = json.loads((tmp_path / "learned" / ev.RUN_RECORD).read_text())
+    rec = json.loads((tmp_path / "learned" / "seed0" / ev.RUN_RECORD).read_text())
     assert rec["metrics"]["test/psnr_restored/d4500mm"] == pytest.approx(
         first["learned"]["restored"]["4500"]["psnr"])
 
@@ -256,7 +256,7 @@ def test_eval_resumes_finished_runs_and_retrains_changed_ones(cfg_factory, tmp_p
     _, again = evaluate(cfg_factory(*args, config_name="eval.yaml"))
     assert again == first
     # the reloaded module is the tested checkpoint (optics included), not a fresh build
-    module = kept[str(tmp_path / "learned")]
+    module = kept[str(tmp_path / "learned" / "seed0")]
     state = read_checkpoint(rec["tested"])["state_dict"]
     for k, v in module.state_dict().items():
         assert torch.equal(v, state[k]), k
