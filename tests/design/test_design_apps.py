@@ -59,6 +59,35 @@ def test_spherical_aberration_short(tmp_path):
     assert (tmp_path / "spots.png").exists()
 
 
+def test_spherical_aberration_beams(tmp_path):
+    """The paper script's square beam keeps its corners (11 x 11 = 121 rays, 21.2 mm from the
+    axis, inside the 25 mm aperture); a disk beam puts its rays where the traced pupil scaled
+    to that radius does; a bad --beam names the option."""
+    import torch
+
+    from deeplens.design.apps.spherical_aberration import (BeamSpotMerit, beam_points,
+                                                           parse_beam)
+    from deeplens.design.merit import SpotMerit
+    from deeplens.optics.io import load_lens
+
+    r = load_app("spherical-aberration").run(_args(
+        "spherical-aberration", tmp_path, steps=4, beam="square:15:11", wavelength=532.8))
+    assert r["rays"] == 121
+    assert r["rms_after_um"] < 0.2 * r["rms_before_um"]
+    lens = load_lens(LENS_DIR / "thorlabs_acl5040u.json").to(torch.float64)
+    full = SpotMerit([0.0], [587.5618], sampling="hexapolar:3", shrink=1.0).prepare(lens)
+    R = full.regions[(0.0, 587.5618)].rx
+    ref = SpotMerit([0.0], [587.5618], sampling="hexapolar:3", shrink=15.0 / R).prepare(lens)
+    beam = BeamSpotMerit(beam_points(parse_beam("disk:15"), "hexapolar:3"), 587.5618,
+                         "hexapolar:3").prepare(lens)
+    with torch.no_grad():
+        assert float(beam.rms(lens)) == pytest.approx(float(ref.rms(lens)), rel=1e-12)
+        assert float(beam.rms(lens)) < 0.8 * float(full.rms(lens))  # not the full aperture
+    for bad in ("disk", "disk:-1", "square:15", "square:15:1", "ring:3"):
+        with pytest.raises(ValueError, match="--beam"):
+            parse_beam(bad)
+
+
 def test_sensitivity_short(tmp_path):
     r = load_app("sensitivity").run(_args("sensitivity", tmp_path, fields="0,11.86",
                                           sampling="hexapolar:2", kinds="decenter"))
