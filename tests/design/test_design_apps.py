@@ -98,8 +98,21 @@ def test_sensitivity_short(tmp_path):
 def test_nikon_short(tmp_path):
     r = load_app("nikon").run(_args("nikon", tmp_path, fields="0", steps=1, rounds=1,
                                     sampling="hexapolar:2"))
+    assert r["jacobian"] == "central"
     assert r["rms_optimized_um"] < 0.7 * r["rms_spherical_start_um"]
     assert r["rms_spherical_start_um"] > 10 * r["rms_original_um"]
+    assert r["merit_history"][-1] < r["merit_history"][0]
+    assert r["evaluations"] >= 2 * r["variables"] + 1  # the Jacobian by central differences
+
+
+@pytest.mark.slow
+def test_nikon_jacobian_modes_agree(tmp_path):
+    """The forward-mode (AD) Jacobian takes the same step: central differences lose nothing."""
+    kw = dict(fields="0", steps=1, rounds=1, sampling="hexapolar:2")
+    r = load_app("nikon").run(_args("nikon", tmp_path, **kw))
+    f = load_app("nikon").run(_args("nikon", tmp_path / "fwd", jacobian="forward", **kw))
+    assert f["evaluations"] < r["evaluations"]
+    assert f["rms_optimized_um"] == pytest.approx(r["rms_optimized_um"], rel=1e-5)
 
 
 @pytest.mark.slow

@@ -107,6 +107,7 @@ def run(args) -> dict:
               "efl_mm": {"original": efl0, "optimized": float(paraxial(lens).efl)},
               "variables": len(v), "steps": res.steps, "seconds": seconds,
               "jacobian": args.jacobian,
+              "evaluations": sum(r.evaluations for r in res.rounds),
               "merit_history": [h["merit"] for h in res.history if h["accepted"]],
               "stop_reason": res.reason, "figures": files,
               "lens_out": str(out / "nikon_optimized.json")}
