@@ -147,6 +147,15 @@ def test_cli_optimize_json_and_file(tmp_path, capsys):
     assert r["merit_after"] < r["merit_before"]
     assert r["rms_after_um"][0] < r["rms_before_um"][0]
     assert json.loads(out.read_text())["format"] == "deeplens-lens"
+    # --jacobian central: the same steps from 2n + 1 plain evaluations per Jacobian
+    code, stdout, err = run(["optimize", str(LENS_DIR / "thorlabs_acl5040u.json"), "--vary",
+                             "surfaces.0.k,surfaces.0.a.0", "--wavelengths", "587.5618",
+                             "--steps", "3", "--sampling", "hexapolar:3", "--out", str(out),
+                             "--json", "--jacobian", "central"], capsys)
+    assert code == 0, err
+    c = json.loads(stdout)
+    assert c["merit_after"] == pytest.approx(r["merit_after"], rel=1e-6)
+    assert c["evaluations"] == r["evaluations"] + 3 * (2 * 2 + 1 - 2)
 
 
 def test_cli_optimize_bad_input_writes_nothing(tmp_path, capsys):
