@@ -180,7 +180,8 @@ def _optimize(args) -> int:
         merit = Merit(SpotMerit(fields, waves, sampling=args.sampling,
                                 reference=args.reference, image_plane=args.image_plane))
         res = optimize_lens(lens, variables, merit, method=args.method, steps=args.steps,
-                            constraints=constraints, rounds=args.rounds)
+                            constraints=constraints, rounds=args.rounds,
+                            jacobian_mode=args.jacobian)
         rep = report_merit().prepare(lens)
         with torch.no_grad():
             rms_after = (rep.rms(lens) * 1e3).tolist()
@@ -201,6 +202,7 @@ def _optimize(args) -> int:
               "rms_after_um": [x for row in rms_after for x in row],
               "fields_deg": rep.fields, "wavelengths_nm": rep.waves,
               "seconds": res.seconds, "steps": res.steps, "method": args.method,
+              "evaluations": sum(r.evaluations for r in res.rounds),
               "stop_reason": res.reason, "variables_before": res.variables_before,
               "variables_after": res.variables_after, "out": str(out)}
     if args.json:
@@ -339,6 +341,10 @@ def main(argv=None) -> int:
     o.add_argument("--wavelengths", help="wavelengths in nm (default: file's)")
     o.add_argument("--method", choices=["dls", "adam", "lbfgs"], default="dls")
     o.add_argument("--steps", type=int, default=30)
+    o.add_argument("--jacobian", choices=["auto", "forward", "reverse", "central"],
+                   default="auto", help="DLS Jacobian: forward/reverse AD or float64 central "
+                   "differences (cheapest for tens of variables; auto: forward when variables "
+                   "<= residuals)")
     o.add_argument("--rounds", type=int, default=1, help="pupil re-sampling rounds")
     o.add_argument("--constraint", action="append", metavar="NAME=VALUE",
                    help="e.g. min_edge_air=0.5, max_track=60, efl=50 (repeatable)")

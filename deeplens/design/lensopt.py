@@ -93,7 +93,8 @@ def optimize_lens(lens, variables, merit, *, method: str = "dls", steps: int = 5
             start (else :class:`~.constraints.ConstraintError` names them).
         rounds: pupil regions are re-found before each round.
         lam0, lr: DLS initial damping; Adam learning rate (in scaled units, mm of sag).
-        jacobian_mode: DLS Jacobian (``auto``, ``forward``, ``reverse``).
+        jacobian_mode: DLS Jacobian (``auto``, ``forward``, ``reverse``, ``central``; see
+            :func:`~.optimizers.jacobian`).
         callback: ``callback(iteration, x, merit)``.
         bounds: ``(lower, upper)`` on the scaled variables (combined with constraint bounds).
 

@@ -133,6 +133,8 @@ def test_merit_jacobian_equals_central_differences():
         fd = (fn(x + e) - fn(x - e)) / (2 * h)
         assert float((fd - J[:, j]).abs().max() / J[:, j].abs().max()) < 1e-6
     assert torch.allclose(J, Jr, rtol=1e-10, atol=1e-14)
+    _, Jc = jacobian(fn, x, "central")  # the DLS option (nikon's default)
+    assert float((Jc - J).abs().max() / J.abs().max()) < 1e-6
 
 
 def test_variables_scaling_and_unknown_names():

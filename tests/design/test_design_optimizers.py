@@ -19,7 +19,7 @@ def _ls_problem():
     return A, b, torch.linalg.lstsq(A, b[:, None]).solution[:, 0]
 
 
-@pytest.mark.parametrize("mode", ["forward", "reverse"])
+@pytest.mark.parametrize("mode", ["forward", "reverse", "central"])
 def test_dls_linear_least_squares(mode):
     A, b, xs = _ls_problem()
     res = damped_least_squares(lambda x: A @ x - b, torch.zeros(4, dtype=D), jacobian_mode=mode)
@@ -46,6 +46,31 @@ def test_jacobian_modes_match_closed_form():
         r, J = jacobian(fn, x, mode)
         assert torch.allclose(J, J_true, atol=1e-14), mode
         assert torch.allclose(r, fn(x))
+    # central differences: h = 1e-6 max(1, |x|), truncation h^2 |f'''| / 6 ~ 1e-12
+    r, J = jacobian(fn, x, "central")
+    assert torch.allclose(J, J_true, atol=1e-9, rtol=0)
+    assert torch.allclose(r, fn(x))
+
+
+def test_central_jacobian_costs_2n_evaluations_and_falls_back_at_a_boundary():
+    calls = []
+
+    def fn(x):
+        calls.append(1)
+        if float(x[0]) > 1.0:
+            raise Infeasible("x0 beyond 1")
+        return torch.stack([x[0] ** 2 * x[1], x[1] ** 3])
+
+    x = torch.tensor([0.5, 2.0], dtype=D)
+    J_true = torch.tensor([[2 * 0.5 * 2.0, 0.25], [0.0, 12.0]], dtype=D)
+    _, J = jacobian(fn, x, "central")
+    assert len(calls) == 2 * 2 + 1  # no graph, no tangents: plain evaluations only
+    assert torch.allclose(J, J_true, atol=1e-8, rtol=0)
+    # at x0 = 1 the point x0 + h is infeasible: forward mode takes over (exact)
+    _, J = jacobian(fn, torch.tensor([1.0, 2.0], dtype=D), "central")
+    assert torch.allclose(J, torch.tensor([[4.0, 1.0], [0.0, 12.0]], dtype=D), atol=1e-14)
+    with pytest.raises(ValueError, match="float64"):
+        jacobian(lambda x: (x * 2).float(), torch.zeros(2, dtype=D), "central")
 
 
 def test_infeasible_and_nan_steps_are_rejected():
