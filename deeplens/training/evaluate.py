@@ -150,6 +150,16 @@ def _run_key(cfg: DictConfig) -> dict:
     return key
 
 
+def _drop_nulls(x):
+    """``x`` without ``None`` entries of mappings (recursively): an option added later with a
+    ``null`` default, meaning the old behaviour, does not make a finished run look different."""
+    if isinstance(x, dict):
+        return {k: _drop_nulls(v) for k, v in x.items() if v is not None}
+    if isinstance(x, list):
+        return [_drop_nulls(v) for v in x]
+    return x
+
+
 def _reuse(cfg: DictConfig):
     """``(metrics, objects)`` of a finished run of exactly this variant config in its output
     folder (its :data:`RUN_RECORD` and tested checkpoint), the module holding the tested
@@ -161,7 +171,7 @@ def _reuse(cfg: DictConfig):
         rec = json.loads(rec_path.read_text())
     except (OSError, ValueError):
         return None
-    if rec.get("config") != json.loads(json.dumps(_run_key(cfg))):
+    if _drop_nulls(rec.get("config")) != _drop_nulls(json.loads(json.dumps(_run_key(cfg)))):
         print(f"deeplens eval: {rec_path} is a run of another configuration: training again")
         return None
     objs = build_objects(cfg)

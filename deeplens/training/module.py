@@ -25,6 +25,7 @@ import lightning as L
 import torch
 import torch.nn.functional as F
 from kornia.color import rgb_to_grayscale
+from kornia.metrics import ssim as kornia_ssim
 
 from ..render import IdealCamera, Scene
 from .checkpoint import LOADED_FROM, check_compatible
@@ -79,6 +80,13 @@ class EndToEndModule(L.LightningModule):
             its initial shape within ``max_sag_mm`` over the aperture (quadratic penalty, weight
             ``loss["constraint"]``; :mod:`.constraints`).
         seed: the run's seed (training depths and render/noise seeds derive from it and the step).
+        worst_depth: ``None`` (the image loss is the plain mean over the batch) or
+            ``{"temperature": T, "bins": K, "momentum": m}``: a soft maximum over depths.  The
+            training range is cut into ``K`` bins uniform in 1/depth; each bin keeps a running
+            mean ``E_b`` (momentum ``m``) of the per-image loss of its samples, and a sample of
+            bin ``b`` is weighted by ``K softmax_b(log E_b / T)`` (mean weight 1 over bins, so
+            ``T -> inf`` is the plain mean and small ``T`` trains on the worst bin).  Weights
+            the MSE, L1 and SSIM terms; the running means are a checkpointed buffer.
         optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
             (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
@@ -87,7 +95,8 @@ class EndToEndModule(L.LightningModule):
                  field_bands=None, loss=None, net_lr: float = 1e-3, optics_lr_mm: float = 1e-4,
                  disc_lr: float = 1e-4, perceptual=None, discriminator=None,
                  max_sag_mm: float | None = None, seed: int = 0, perceptual_weights=None,
-                 optimizer=None, disc_optimizer=None, scene_margin: float = 0.0):
+                 optimizer=None, disc_optimizer=None, scene_margin: float = 0.0,
+                 worst_depth: dict | None = None):
         super().__init__()
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
@@ -127,6 +136,25 @@ class EndToEndModule(L.LightningModule):
         self.automatic_optimization = False
         self.camera = IdealCamera(lens, sensor)
         self.constraint = SagDepartureConstraint(lens, max_sag_mm)
+        self.worst_depth = None
+        if worst_depth is not None:
+            wd = {"temperature": 0.5, "bins": 4, "momentum": 0.9, **dict(worst_depth)}
+            unknown = set(wd) - {"temperature", "bins", "momentum"}
+            if unknown:
+                raise ValueError(f"model.worst_depth: unknown keys {sorted(unknown)}; expected "
+                                 f"temperature, bins, momentum")
+            T, K, mom = wd["temperature"], wd["bins"], wd["momentum"]
+            if not (isinstance(T, (int, float)) and math.isfinite(T) and T > 0):
+                raise ValueError(f"model.worst_depth.temperature: expected a number > 0, got {T!r}")
+            if not (isinstance(K, int) and K >= 1):
+                raise ValueError(f"model.worst_depth.bins: expected an integer >= 1, got {K!r}")
+            if not (isinstance(mom, (int, float)) and 0 <= mom < 1):
+                raise ValueError(f"model.worst_depth.momentum: expected a number in [0, 1), got "
+                                 f"{mom!r}")
+            self.worst_depth = {"temperature": float(T), "bins": K, "momentum": float(mom)}
+            # running mean loss per depth bin; NaN until the bin's first sample
+            self.register_buffer("depth_loss_ema", torch.full((K,), float("nan"),
+                                                              dtype=torch.float64))
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
     # ------------------------------------------------------------------ the camera
@@ -166,15 +194,59 @@ class EndToEndModule(L.LightningModule):
         """The lens constraint (:class:`~.constraints.SagDepartureConstraint`) now."""
         return self.constraint(self.lens)
 
-    def image_loss(self, pred, gt) -> dict:
+    def depth_bin(self, depths) -> torch.Tensor:
+        """Index ``(B,)`` of each depth's bin: ``bins`` equal intervals of 1/depth over the
+        training range (bin 0 the farthest)."""
+        lo, hi = min(self.depths_mm), max(self.depths_mm)
+        K = self.worst_depth["bins"]
+        inv = 1 / torch.as_tensor(depths, dtype=torch.float64)
+        u = (inv - 1 / hi) / max(1 / lo - 1 / hi, 1e-300)
+        return (u * K).floor().clamp(0, K - 1).long()
+
+    def depth_weights(self, per_image: torch.Tensor, depths) -> torch.Tensor:
+        """Sample weights ``(B,)`` of the soft maximum over depth bins (see ``worst_depth``);
+        updates the bins' running means with ``per_image`` ``(B,)`` (detached) first."""
+        wd = self.worst_depth
+        bins = self.depth_bin(depths).to(self.depth_loss_ema.device)
+        v = per_image.detach().to(torch.float64)
+        with torch.no_grad():
+            for b in bins.unique().tolist():
+                x = v[bins == b].mean()
+                e = self.depth_loss_ema[b]
+                self.depth_loss_ema[b] = x if torch.isnan(e) else (
+                    wd["momentum"] * e + (1 - wd["momentum"]) * x)
+            ema = self.depth_loss_ema
+            seen = ~torch.isnan(ema)
+            logit = torch.where(seen, ema.clamp_min(1e-30).log(), torch.zeros_like(ema))
+            # bins not seen yet take the largest seen value (no bin is favoured for being new)
+            logit = torch.where(seen, logit, logit[seen].max())
+            w = len(ema) * torch.softmax(logit / wd["temperature"], 0)
+        return w[bins].to(per_image.dtype)
+
+    def image_loss(self, pred, gt, depths=None) -> dict:
+        """Loss terms; with ``worst_depth`` and ``depths`` given, the MSE, L1 and SSIM terms
+        are weighted per sample (:meth:`depth_weights`, from their weighted per-image sum)."""
         w = self.loss_w
         terms = {}
-        if w["mse"]:
-            terms["mse"] = F.mse_loss(pred, gt)
-        if w["l1"]:
-            terms["l1"] = F.l1_loss(pred, gt)
-        if w["ssim"]:
-            terms["ssim"] = 1 - ssim(pred, gt)
+        if self.worst_depth is not None and depths is not None:
+            per = {}
+            if w["mse"]:
+                per["mse"] = ((pred - gt) ** 2).flatten(1).mean(1)
+            if w["l1"]:
+                per["l1"] = (pred - gt).abs().flatten(1).mean(1)
+            if w["ssim"]:
+                per["ssim"] = 1 - kornia_ssim(pred.clamp(0, 1), gt, 11).flatten(1).mean(1)
+            if per:
+                total = sum(w[k] * v for k, v in per.items())
+                sw = self.depth_weights(total, depths)
+                terms.update({k: (sw * v).mean() for k, v in per.items()})
+        else:
+            if w["mse"]:
+                terms["mse"] = F.mse_loss(pred, gt)
+            if w["l1"]:
+                terms["l1"] = F.l1_loss(pred, gt)
+            if w["ssim"]:
+                terms["ssim"] = 1 - ssim(pred, gt)
         if w["perceptual"]:
             if pred.shape[1] == 1:  # VGG16 takes RGB: a grey image is its own three channels
                 pred, gt = pred.expand(-1, 3, -1, -1), gt.expand(-1, 3, -1, -1)
@@ -194,7 +266,7 @@ class EndToEndModule(L.LightningModule):
         depths = self.sample_depths(images.shape[0], step)
         y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
         pred = self.restorer(y)
-        terms = self.image_loss(pred, gt)
+        terms = self.image_loss(pred, gt, depths)
         if self.discriminator is not None and self.loss_w["adversarial"]:
             from ..nets.losses import adversarial_loss
 

@@ -368,3 +368,33 @@ def test_scene_margin_extends_the_texture_beyond_the_frame(cfg_factory):
     assert float(y1.mean()) < float(y0.mean()) - 0.05  # black blurred in at the edges
     with pytest.raises(ValueError, match="scene.margin"):
         build_objects(cfg_factory("experiment=edof", "scene.margin=-0.5"))
+
+
+def test_worst_depth_weights_are_a_soft_maximum_over_depth_bins(cfg_factory):
+    """``model.worst_depth``: bins uniform in 1/depth, running mean loss per bin, weights
+    ``K softmax(log E / T)``: the bin with the larger loss gets the larger weight, by the ratio
+    ``(E_a / E_b)^(1/T)``; the weighted MSE term equals the hand-computed weighted mean."""
+    cfg = cfg_factory("experiment=edof", "model.worst_depth={temperature:0.5,bins:2,momentum:0.5}")
+    m = build_objects(cfg)["module"]
+    near, far = 4500.0, 8000.0  # the range's ends: bins 1 and 0
+    assert m.depth_bin([far, near, 7999.0, 4501.0]).tolist() == [0, 1, 0, 1]
+    gt = torch.full((2, 3, 8, 8), 0.5)
+    pred = gt.clone()
+    pred[0] += 0.1    # far sample: MSE 0.01
+    pred[1] += 0.05   # near sample: MSE 0.0025
+    m.loss_w.update(ssim=0.0)
+    terms = m.image_loss(pred, gt, [far, near])
+    ratio = (0.01 / 0.0025) ** (1 / 0.5)  # 16: the far bin's weight over the near bin's
+    w_far, w_near = 2 * ratio / (1 + ratio), 2 / (1 + ratio)
+    assert torch.allclose(m.depth_loss_ema, torch.tensor([0.01, 0.0025], dtype=torch.float64))
+    assert float(terms["mse"]) == pytest.approx((w_far * 0.01 + w_near * 0.0025) / 2, rel=1e-5)
+    # running means: momentum 0.5 towards the new values
+    m.image_loss(pred.flip(0), gt, [far, near])  # far now MSE 0.0025, near 0.01
+    assert torch.allclose(m.depth_loss_ema, torch.tensor([0.00625, 0.00625], dtype=torch.float64))
+    # a plain run's loss is the batch mean
+    plain = build_objects(cfg_factory("experiment=edof"))["module"]
+    plain.loss_w.update(ssim=0.0)
+    assert float(plain.image_loss(pred, gt, [far, near])["mse"]) == pytest.approx(
+        (0.01 + 0.0025) / 2, rel=1e-5)
+    with pytest.raises(ValueError, match="model.worst_depth.temperature"):
+        build_objects(cfg_factory("experiment=edof", "model.worst_depth={temperature:0}"))
