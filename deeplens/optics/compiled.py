@@ -66,6 +66,18 @@ def surface_run(o, d, valid, opl, kinds: tuple, params: tuple, tol: float, clip:
     return torch.stack([x, y, z]), torch.stack([dx, dy, dz]), valid, opl
 
 
+#: compiled variants one function may hold (dynamo's default, 8, is soon reached: each lens
+#: structure, dtype and pattern of trainable values is one); beyond it the function runs eager
+RECOMPILE_LIMIT = 64
+
+
+def call(fn, *args):
+    """``fn(*args)`` for one of this module's ``compiled_*`` functions, with dynamo's
+    per-function recompilation limit raised to :data:`RECOMPILE_LIMIT` for the call."""
+    with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT):
+        return fn(*args)
+
+
 #: the compiled wrapper (compiles lazily, at its first call for each input signature)
 compiled_surface_run = torch.compile(surface_run, dynamic=True)
 

@@ -373,16 +373,17 @@ class Lens(nn.Module):
             o, d = soa[0].detach(), soa[1].detach()
             cd, kd, ad = c.detach(), k.detach(), tuple(a.detach() for a in coeffs)
             it = min(C.NEWTON_CHUNK, options.max_iter)
-            b, s_star, tried, active, converged, tol_ray, fv = C.compiled_newton_start(
-                o, d, rays.valid, z_shift.detach(), cd, kd, ad, tol, it)
+            b, s_star, tried, active, converged, tol_ray, fv = C.call(
+                C.compiled_newton_start, o, d, rays.valid, z_shift.detach(), cd, kd, ad, tol, it)
             while it < options.max_iter and bool(active.any()):
                 m = min(C.NEWTON_CHUNK, options.max_iter - it)
-                s_star, active, converged, fv = C.compiled_newton_more(
-                    b, d, s_star, active, converged, tol_ray, cd, kd, ad, m)
+                s_star, active, converged, fv = C.call(
+                    C.compiled_newton_more, b, d, s_star, active, converged, tol_ray, cd, kd, ad,
+                    m)
                 it += m
             if it >= options.max_iter:
-                converged, fv = C.compiled_newton_last_check(b, d, s_star, active, converged,
-                                                             tol_ray, cd, kd, ad)
+                converged, fv = C.call(C.compiled_newton_last_check, b, d, s_star, active,
+                                       converged, tol_ray, cd, kd, ad)
             if bool((tried & ~converged).any()):
                 _warn_stalled(s, b.movedim(0, -1), d.movedim(0, -1), s_star, tried, converged,
                               tol_ray, tol, fv)
@@ -392,15 +393,15 @@ class Lens(nn.Module):
                 s.semi_diameter.to(like), _compact(n1).to(like), _compact(n2).to(like), s_star,
                 ok, tol, options.clip_aperture)
         if options.checkpoint and torch.is_grad_enabled():
-            return torch.utils.checkpoint.checkpoint(C.compiled_asphere_refract, *args,
+            return torch.utils.checkpoint.checkpoint(C.call, C.compiled_asphere_refract, *args,
                                                      use_reentrant=False)
-        return C.compiled_asphere_refract(*args)
+        return C.call(C.compiled_asphere_refract, *args)
 
     def _trace_compiled(self, rays: Rays, order, n, z, reverse: bool, options: IntersectOptions,
                         step) -> Rays:
         """:meth:`trace` with runs of aligned spheres, conics, planes and stops in compiled
         kernels (:mod:`.compiled`); every other surface goes through ``step``."""
-        from .compiled import compiled_surface_run
+        from . import compiled as C
 
         tol = options.tol if options.tol is not None else default_tolerance(rays.dtype)
         clip = options.clip_aperture
@@ -455,9 +456,9 @@ class Lens(nn.Module):
             args = (*soa, rays.valid, rays.opl, tuple(kinds), tuple(params), tol, clip)
             if checkpoint:
                 o, d, valid, opl = torch.utils.checkpoint.checkpoint(
-                    compiled_surface_run, *args, use_reentrant=False)
+                    C.call, C.compiled_surface_run, *args, use_reentrant=False)
             else:
-                o, d, valid, opl = compiled_surface_run(*args)
+                o, d, valid, opl = C.call(C.compiled_surface_run, *args)
             soa = (o, d)
             rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
         if soa is not None:  # back to (*B, 3), contiguous
