@@ -74,9 +74,13 @@ class IntersectOptions:
     ``max_iter``, ``mode``; ``clip_aperture=False`` ignores clear apertures (for ray aiming),
     not surface domains; ``closed_form=False`` runs Newton from the vertex plane also on spheres
     and conics (the reference path); ``compile="surface"`` runs each aligned sphere, conic,
-    plane or stop's intersect + refract as one ``torch.compile``d kernel and ``compile="lens"``
-    (or ``True``) each run of such surfaces (:mod:`.compiled`; the first call per lens and dtype
-    compiles, later calls and other ray counts reuse it); ``checkpoint=True`` makes
+    plane, stop or even asphere's intersect + refract as ``torch.compile``d kernels,
+    ``compile="lens"`` each run of aligned spheres, conics, planes and stops as one kernel, and
+    ``compile=True`` (``"auto"``) picks ``"lens"`` when nothing needs a gradient and
+    ``"surface"`` otherwise (measured faster in each case; :mod:`.compiled`; the first call per
+    lens structure and dtype compiles, later calls and other ray counts reuse it; a
+    ``record``ed trace, ``closed_form=False`` and ``mode="unrolled"`` stay eager);
+    ``checkpoint=True`` makes
     :meth:`Lens.trace <deeplens.optics.lens.Lens.trace>` keep only each surface's incoming ray
     state for backward and recompute the surface there (about 40 instead of 120 bytes per ray
     and surface in float32, for about 1.5x the backward's time)."""
@@ -88,9 +92,10 @@ class IntersectOptions:
                  clip_aperture: bool = True, closed_form: bool = True, checkpoint: bool = False,
                  compile: bool | str = False):
         if compile is True:
-            compile = "lens"
-        if compile not in (False, None, "surface", "lens"):
-            raise ValueError(f"compile must be False, True, 'surface' or 'lens', got {compile!r}")
+            compile = "auto"
+        if compile not in (False, None, "auto", "surface", "lens"):
+            raise ValueError(f"compile must be False, True ('auto'), 'surface' or 'lens', got "
+                             f"{compile!r}")
         self.compile = compile or False
         self.clip_aperture = bool(clip_aperture)
         self.closed_form = bool(closed_form)

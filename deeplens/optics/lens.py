@@ -406,6 +406,10 @@ class Lens(nn.Module):
         tol = options.tol if options.tol is not None else default_tolerance(rays.dtype)
         clip = options.clip_aperture
         checkpoint = options.checkpoint and torch.is_grad_enabled()
+        per_surface = options.compile == "surface"
+        if options.compile == "auto" and torch.is_grad_enabled():
+            per_surface = (rays.o.requires_grad or rays.d.requires_grad or rays.opl.requires_grad
+                           or any(p.requires_grad for p in self.parameters()))
         order = list(order)
         soa = None  # (o, d) component-major (3, *B) while between compiled runs
         k = 0
@@ -448,7 +452,7 @@ class Lens(nn.Module):
                                _compact(n2).to(like)))
                 kinds.append(kind)
                 k += 1
-                if options.compile == "surface" or k == len(order):
+                if per_surface or k == len(order):
                     break
                 kind = self._fused_kind(order[k])
                 if kind == "asphere":

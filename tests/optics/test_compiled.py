@@ -104,7 +104,7 @@ def _assert_same(lens, params, rays, opt, reverse, ref_opt=EAGER, tol=1e-12, gto
 
 
 # ----------------------------------------------------------------- the fused logic, no compiler
-@pytest.mark.parametrize("mode", ["surface", "lens"])
+@pytest.mark.parametrize("mode", ["surface", "lens", "auto"])
 @pytest.mark.parametrize("reverse", [False, True], ids=["forward", "reverse"])
 @pytest.mark.parametrize("misalign", [False, True], ids=["aligned", "misaligned"])
 def test_fused_path_equals_eager(uncompiled, mode, reverse, misalign):
@@ -147,7 +147,7 @@ def test_fused_path_total_internal_reflection_and_newton_chunks(uncompiled):
 
 
 def test_compile_option_is_checked():
-    assert IntersectOptions(compile=True).compile == "lens"
+    assert IntersectOptions(compile=True).compile == "auto"
     assert IntersectOptions().compile is False
     with pytest.raises(ValueError, match="compile must be"):
         IntersectOptions(compile="fast")
