@@ -9,6 +9,8 @@ module serves both, and tracing never modifies the lens or its input rays.
 
 Each surface is intersected in its element's frame (:mod:`.misalignment`) by Newton's method with
 one differentiable step (:mod:`.intersect`) and refracted by vector Snell's law (:mod:`.refract`).
+With ``IntersectOptions(compile=...)`` aligned spheres, conics, planes, stops and even aspheres
+run through fused ``torch.compile`` kernels on a component-major ray state (:mod:`.compiled`).
 """
 
 from __future__ import annotations
@@ -483,7 +485,8 @@ class Lens(nn.Module):
             rays: input rays; forward rays start before the first surface and travel to ``+z``;
                 ``reverse=True`` rays start behind the last surface and travel to ``-z``.
             reverse: backward (sensor-to-object) tracing.
-            options: Newton settings (:class:`IntersectOptions`).
+            options: Newton settings (:class:`IntersectOptions`; ``compile=...`` selects the
+                fused kernels of :mod:`.compiled`, except when ``record`` is set).
             record: also return the list of per-surface hit points ``(*B, 3)``.
 
         Returns:
