@@ -123,6 +123,7 @@ def test_fused_path_rect_stop_and_checkpoint(uncompiled):
     assert n_rect < int(lens_c.trace_to_sensor(rays).valid.sum())
 
 
+@pytest.mark.filterwarnings("ignore:intersect.*did not converge:RuntimeWarning")  # max_iter=2
 def test_fused_path_total_internal_reflection_and_newton_chunks(uncompiled):
     """A strong conic and an asphere into air (some rays totally internally reflected), and a
     Newton iteration cut at ``max_iter`` at the end of a chunk (2: rays that meet the tolerance
