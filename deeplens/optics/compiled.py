@@ -82,13 +82,15 @@ def call(fn, *args):
 compiled_surface_run = torch.compile(surface_run, dynamic=True)
 
 
-# ============================================================================ even aspheres
-# Newton's method as in :func:`~.intersect.intersect` (implicit mode, started from the conic
-# root), on component-major tensors: the iteration runs in compiled chunks of ``NEWTON_CHUNK``
-# updates without autograd, and the host checks after each chunk whether any ray is still
-# active (the eager loop checks after iterations 1, 2, 4, 8, ...; an extra iteration changes
-# nothing once every ray has converged or failed, so both give the same roots).  The final
-# differentiable Newton step (Eq. 7), the checks, the normal and Snell's law are one more kernel.
+# ============================================================================ Newton surfaces
+# Newton's method as in :func:`~.intersect.intersect` (implicit mode), on component-major tensors,
+# for even aspheres (started from the conic root) and XY polynomials (from the vertex plane): the
+# iteration runs in compiled chunks of ``NEWTON_CHUNK`` updates without autograd, and the host
+# checks after each chunk whether any ray is still active (the eager loop checks after iterations
+# 1, 2, 4, 8, ...; an extra iteration changes nothing once every ray has converged or failed, so
+# both give the same roots).  The final differentiable Newton step (Eq. 7), the checks, the normal
+# and Snell's law are one more kernel.  ``kind`` (``"asphere"`` or ``"xy"``) and ``sp``, the
+# surface's values (:func:`newton_surface_values`), select the implicit function.
 
 #: Newton updates per compiled chunk (one host synchronisation per chunk)
 NEWTON_CHUNK = 2
@@ -116,18 +118,76 @@ def asphere_f(x, y, z, c, k, coeffs):
     return sag - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
 
 
-def _residual_xyz(bx, by, bz, dx, dy, dz, s, c, k, coeffs, at=None):
+def xy_f(x, y, z, b, coeffs, terms, order):
+    """``f`` and ``∇f`` of an XY polynomial, as :class:`~.surfaces.XYPolynomial` evaluates them
+    (continued past the fold plane).  ``coeffs``: tuple of 0-d values; ``terms``: the exponent
+    pairs; ``order``: the degree.  Returns ``(f, f_x, f_y, f_z)``."""
+    px, py = [torch.ones_like(x)], [torch.ones_like(y)]
+    for _ in range(order):
+        px.append(px[-1] * x)
+        py.append(py[-1] * y)
+    P, Px, Py = torch.zeros_like(x), torch.zeros_like(x), torch.zeros_like(x)
+    for a, (i, j) in zip(coeffs, terms):
+        P = P + a * px[i] * py[j]
+        if i:
+            Px = Px + (a * i) * px[i - 1] * py[j]
+        if j:
+            Py = Py + (a * j) * px[i] * py[j - 1]
+    beyond = b.detach() * z.detach() > 0.5
+    z_fold = 0.5 / torch.where(b != 0, b, torch.ones_like(b))
+    zc = torch.where(beyond, z_fold, z)
+    fz = torch.where(beyond, -torch.ones_like(z), 2.0 * b * z - 1.0)
+    return b * zc * zc + P - z, Px, Py, fz
+
+
+def _surface_f(kind, sp, x, y, z):
+    if kind == "asphere":
+        return asphere_f(x, y, z, *sp)
+    b, coeffs, terms, order, _ = sp
+    return xy_f(x, y, z, b, coeffs, terms, order)
+
+
+def _in_domain(kind, sp, x, y):
+    if kind == "asphere":
+        c, k, _ = sp
+        return 1.0 - (1.0 + k) * c * c * (x * x + y * y) > 0
+    b, coeffs, terms, order, b_nonzero = sp
+    if not b_nonzero:  # as XYPolynomial.in_domain: everywhere when b == 0
+        return torch.ones_like(x, dtype=torch.bool)
+    f, _, _, _ = xy_f(x, y, torch.zeros_like(x), b, coeffs, terms, order)  # f(x, y, 0) = P
+    return 1.0 - 4.0 * b * f >= 0
+
+
+def detached(sp):
+    """The surface values ``sp`` (:func:`newton_surface_values`) without autograd history."""
+    return tuple(tuple(a.detach() for a in v) if isinstance(v, tuple) and v
+                 and isinstance(v[0], torch.Tensor)
+                 else v.detach() if isinstance(v, torch.Tensor) else v for v in sp)
+
+
+def newton_surface_values(surface, like):
+    """``(kind, sp)`` for an :class:`~.surfaces.Asphere` with coefficients or an
+    :class:`~.surfaces.XYPolynomial`: its values in ``like``'s dtype (differentiable) and the
+    static structure."""
+    if hasattr(surface, "terms"):
+        return "xy", (surface.b.to(like), tuple(a.to(like) for a in surface.a),
+                      tuple(surface.terms), surface.order, float(surface.b.detach()) != 0.0)
+    return "asphere", (surface.c.to(like), surface.k.to(like),
+                       tuple(a.to(like) for a in surface.a))
+
+
+def _residual_xyz(kind, sp, bx, by, bz, dx, dy, dz, s, at=None):
     x, y, z = bx + s * dx, by + s * dy, bz + s * dz
     if at is not None:
         x, y, z = (torch.where(at, v, torch.zeros_like(v)) for v in (x, y, z))
-    fv, fx, fy, fz = asphere_f(x, y, z, c, k, coeffs)
+    fv, fx, fy, fz = _surface_f(kind, sp, x, y, z)
     return fv, fx * dx + fy * dy + fz * dz
 
 
-def _newton_updates(bx, by, bz, dx, dy, dz, s, active, converged, tol_ray, c, k, coeffs, n):
+def _newton_updates(kind, sp, bx, by, bz, dx, dy, dz, s, active, converged, tol_ray, n):
     fv = None
     for _ in range(n):
-        fv, fp = _residual_xyz(bx, by, bz, dx, dy, dz, s, c, k, coeffs)
+        fv, fp = _residual_xyz(kind, sp, bx, by, bz, dx, dy, dz, s)
         done = active & (fv.abs() < tol_ray)
         converged = converged | done
         active = active & ~done
@@ -136,45 +196,48 @@ def _newton_updates(bx, by, bz, dx, dy, dz, s, active, converged, tol_ray, c, k,
     return s, active, converged, fv
 
 
-def asphere_newton_start(o, d, valid, z_shift, c, k, coeffs, tol: float, n: int):
-    """No autograd.  The vertex-plane point ``b = o + t0 d``, the conic root as the start and
-    ``n`` Newton updates.  ``o``, ``d``: ``(3, *B)``.  Returns ``(b (3, *B), s, ok, active,
-    converged, tol_ray, fv)``: ``ok`` the rays that were tried, ``fv`` the residual before the
-    last update."""
+def newton_start(kind, sp, o, d, valid, z_shift, tol: float, n: int):
+    """No autograd.  The vertex-plane point ``b = o + t0 d``, the start (an asphere's conic
+    root, else the vertex plane) and ``n`` Newton updates.  ``o``, ``d``: ``(3, *B)``.  Returns
+    ``(b (3, *B), s, ok, active, converged, tol_ray, fv)``: ``ok`` the rays that were tried,
+    ``fv`` the residual before the last update."""
     ox, oy, oz = o.unbind(0)
     dx, dy, dz = d.unbind(0)
     oz = oz - z_shift
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-oz, dz, ok)
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-    ck = c * (1.0 + k)
-    A = c * (dx * dx + dy * dy) + ck * (dz * dz)
-    B = c * (bx * dx + by * dy) + (ck * bz - 1.0) * dz
-    C = c * (bx * bx + by * by) + (ck * bz - 2.0) * bz
-    s, _ = _quadric_root((A, B, C, ck, c), bz, dz, ok)
+    if kind == "asphere":
+        c, k, _ = sp
+        ck = c * (1.0 + k)
+        A = c * (dx * dx + dy * dy) + ck * (dz * dz)
+        B = c * (bx * dx + by * dy) + (ck * bz - 1.0) * dz
+        C = c * (bx * bx + by * by) + (ck * bz - 2.0) * bz
+        s, _ = _quadric_root((A, B, C, ck, c), bz, dz, ok)
+    else:
+        s = torch.zeros_like(t0)
     eps = torch.finfo(o.dtype).eps
     big = torch.maximum(torch.maximum(bx.abs(), by.abs()), bz.abs())
     tol_ray = torch.clamp(_ROUNDING_ULPS * eps * big, min=tol)
-    s, active, converged, fv = _newton_updates(bx, by, bz, dx, dy, dz, s, ok, torch.zeros_like(ok),
-                                               tol_ray, c, k, coeffs, n)
+    s, active, converged, fv = _newton_updates(kind, sp, bx, by, bz, dx, dy, dz, s, ok,
+                                               torch.zeros_like(ok), tol_ray, n)
     return torch.stack([bx, by, bz]), s, ok, active, converged, tol_ray, fv
 
 
-def asphere_newton_more(b, d, s, active, converged, tol_ray, c, k, coeffs, n: int):
+def newton_more(kind, sp, b, d, s, active, converged, tol_ray, n: int):
     """No autograd: ``n`` more Newton updates; returns ``(s, active, converged, fv)``."""
-    return _newton_updates(*b.unbind(0), *d.unbind(0), s, active, converged, tol_ray, c, k,
-                           coeffs, n)
+    return _newton_updates(kind, sp, *b.unbind(0), *d.unbind(0), s, active, converged, tol_ray, n)
 
 
-def asphere_newton_last_check(b, d, s, active, converged, tol_ray, c, k, coeffs):
+def newton_last_check(kind, sp, b, d, s, active, converged, tol_ray):
     """No autograd: after ``max_iter`` updates, the rays still active that now meet the
     tolerance count as converged; returns ``(converged, fv)``."""
-    fv, _ = _residual_xyz(*b.unbind(0), *d.unbind(0), s, c, k, coeffs)
+    fv, _ = _residual_xyz(kind, sp, *b.unbind(0), *d.unbind(0), s)
     return converged | (active & (fv.abs() < tol_ray)), fv
 
 
-def asphere_refract(o, d, valid, opl, z_shift, c, k, coeffs, semi_diameter, n1, n2, s_star, ok,
-                    tol: float, clip: bool = True):
+def newton_refract(kind, sp, o, d, valid, opl, z_shift, semi_diameter, n1, n2, s_star, ok,
+                   tol: float, clip: bool = True):
     """The differentiable part: one Newton step from the converged ``s_star`` (Eq. 7; rays with
     ``ok`` False are evaluated at the vertex), the domain, direction, aperture and finiteness
     checks of :func:`~.intersect.intersect`, the normal ``∇f / |∇f|`` and Snell's law, as
@@ -185,7 +248,7 @@ def asphere_refract(o, d, valid, opl, z_shift, c, k, coeffs, semi_diameter, n1, 
     oz = oz - z_shift
     t0 = _safe_div(-oz, dz, valid & (dz.abs() > 1e-12)).detach()
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-    fv, fp = _residual_xyz(bx, by, bz, dx, dy, dz, s_star, c, k, coeffs, ok)
+    fv, fp = _residual_xyz(kind, sp, bx, by, bz, dx, dy, dz, s_star, ok)
     ok = ok & (fp.detach().abs() > 1e-12)
     s = s_star - _safe_div(fv, fp, ok)
     t = t0 + s
@@ -193,7 +256,7 @@ def asphere_refract(o, d, valid, opl, z_shift, c, k, coeffs, semi_diameter, n1, 
     X, Y = x.detach(), y.detach()
     eps = torch.finfo(o.dtype).eps
     with torch.no_grad():
-        ok = ok & (1.0 - (1.0 + k) * c * c * (X * X + Y * Y) > 0)
+        ok = ok & _in_domain(kind, detached(sp), X, Y)
         big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
         ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
         if clip:
@@ -201,7 +264,7 @@ def asphere_refract(o, d, valid, opl, z_shift, c, k, coeffs, semi_diameter, n1, 
         ok = ok & torch.isfinite(t)
     t = torch.where(ok, t, torch.zeros_like(t))
     x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
-    _, gx, gy, gz = asphere_f(x, y, z, c, k, coeffs)
+    _, gx, gy, gz = _surface_f(kind, sp, x, y, z)
     norm2 = gx * gx + gy * gy + gz * gz
     norm = torch.sqrt(torch.where(norm2 > 0, norm2, torch.ones_like(norm2)))
     nx, ny, nz = gx / norm, gy / norm, gz / norm  # as refract.unit_normal
@@ -216,7 +279,7 @@ def asphere_refract(o, d, valid, opl, z_shift, c, k, coeffs, semi_diameter, n1, 
     return (torch.stack([x, y, z + z_shift]), torch.stack([ex, ey, ez]), ok, opl + n1 * t)
 
 
-compiled_newton_start = torch.compile(asphere_newton_start, dynamic=True)
-compiled_newton_more = torch.compile(asphere_newton_more, dynamic=True)
-compiled_newton_last_check = torch.compile(asphere_newton_last_check, dynamic=True)
-compiled_asphere_refract = torch.compile(asphere_refract, dynamic=True)
+compiled_newton_start = torch.compile(newton_start, dynamic=True)
+compiled_newton_more = torch.compile(newton_more, dynamic=True)
+compiled_newton_last_check = torch.compile(newton_last_check, dynamic=True)
+compiled_newton_refract = torch.compile(newton_refract, dynamic=True)

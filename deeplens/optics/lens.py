@@ -29,7 +29,7 @@ from .misalignment import Misalignment
 from .paraxial import paraxial
 from .rays import Rays
 from .refract import refract
-from .surfaces import Aperture, Asphere, Plane, Surface
+from .surfaces import Aperture, Asphere, Plane, Surface, XYPolynomial
 from .surfaces.base import make_param
 
 __all__ = ["Lens", "LensSpec"]
@@ -357,47 +357,48 @@ class Lens(nn.Module):
         if type(s) is Plane:
             return "plane"
         if isinstance(s, Asphere):
-            return "quadric" if s.is_quadric else "asphere"
+            return "quadric" if s.is_quadric else "newton"
+        if type(s) is XYPolynomial:
+            return "newton"
         return None
 
-    def _asphere_compiled(self, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol: float):
-        """Surface ``i`` (an aligned even asphere) through the compiled Newton kernels
-        (:mod:`.compiled`); ``soa``: ``(o, d)`` component-major.  Returns ``(o, d, valid, opl)``
-        with ``o``, ``d`` component-major."""
+    def _newton_compiled(self, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol: float):
+        """Surface ``i`` (an aligned even asphere or XY polynomial) through the compiled Newton
+        kernels (:mod:`.compiled`); ``soa``: ``(o, d)`` component-major.  Returns
+        ``(o, d, valid, opl)`` with ``o``, ``d`` component-major."""
         from . import compiled as C
         from .intersect import _warn_stalled
 
         s = self.surfaces[i]
         like = soa[0]
-        c, k = s.c.to(like), s.k.to(like)
-        coeffs = tuple(a.to(like) for a in s.a)
+        kind, sp = C.newton_surface_values(s, like)
         with torch.no_grad():
             o, d = soa[0].detach(), soa[1].detach()
-            cd, kd, ad = c.detach(), k.detach(), tuple(a.detach() for a in coeffs)
+            spd = C.detached(sp)
             it = min(C.NEWTON_CHUNK, options.max_iter)
             b, s_star, tried, active, converged, tol_ray, fv = C.call(
-                C.compiled_newton_start, o, d, rays.valid, z_shift.detach(), cd, kd, ad, tol, it)
+                C.compiled_newton_start, kind, spd, o, d, rays.valid, z_shift.detach(), tol, it)
             while it < options.max_iter and bool(active.any()):
                 m = min(C.NEWTON_CHUNK, options.max_iter - it)
                 s_star, active, converged, fv = C.call(
-                    C.compiled_newton_more, b, d, s_star, active, converged, tol_ray, cd, kd, ad,
+                    C.compiled_newton_more, kind, spd, b, d, s_star, active, converged, tol_ray,
                     m)
                 it += m
             if it >= options.max_iter:
-                converged, fv = C.call(C.compiled_newton_last_check, b, d, s_star, active,
-                                       converged, tol_ray, cd, kd, ad)
+                converged, fv = C.call(C.compiled_newton_last_check, kind, spd, b, d, s_star,
+                                       active, converged, tol_ray)
             if bool((tried & ~converged).any()):
                 _warn_stalled(s, b.movedim(0, -1), d.movedim(0, -1), s_star, tried, converged,
                               tol_ray, tol, fv)
             ok = tried & converged
             s_star = torch.where(ok, s_star, torch.zeros_like(s_star))
-        args = (soa[0], soa[1], rays.valid, rays.opl, z_shift, c, k, coeffs,
+        args = (kind, sp, soa[0], soa[1], rays.valid, rays.opl, z_shift,
                 s.semi_diameter.to(like), _compact(n1).to(like), _compact(n2).to(like), s_star,
                 ok, tol, options.clip_aperture)
         if options.checkpoint and torch.is_grad_enabled():
-            return torch.utils.checkpoint.checkpoint(C.call, C.compiled_asphere_refract, *args,
+            return torch.utils.checkpoint.checkpoint(C.call, C.compiled_newton_refract, *args,
                                                      use_reentrant=False)
-        return C.call(C.compiled_asphere_refract, *args)
+        return C.call(C.compiled_newton_refract, *args)
 
     def _trace_compiled(self, rays: Rays, order, n, z, reverse: bool, options: IntersectOptions,
                         step) -> Rays:
@@ -429,10 +430,10 @@ class Lens(nn.Module):
                 continue
             if soa is None:
                 soa = (rays.o.movedim(-1, 0).contiguous(), rays.d.movedim(-1, 0).contiguous())
-            if kind == "asphere":
+            if kind == "newton":
                 _, pivot, vertex = self._frame(i, z, soa[0])
-                o, d, valid, opl = self._asphere_compiled(i, soa, rays, n1, n2,
-                                                          (pivot + vertex)[2], options, tol)
+                o, d, valid, opl = self._newton_compiled(i, soa, rays, n1, n2,
+                                                         (pivot + vertex)[2], options, tol)
                 soa = (o, d)
                 rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
                 k += 1
@@ -457,7 +458,7 @@ class Lens(nn.Module):
                 if per_surface or k == len(order):
                     break
                 kind = self._fused_kind(order[k])
-                if kind == "asphere":
+                if kind == "newton":
                     break
             args = (*soa, rays.valid, rays.opl, tuple(kinds), tuple(params), tol, clip)
             if checkpoint:

@@ -38,10 +38,10 @@ GENERIC = IntersectOptions(tol=1e-13, closed_form=False)
 def uncompiled(monkeypatch):
     """The fused path with the plain functions instead of their compiled wrappers."""
     for name, fn in (("compiled_surface_run", C.surface_run),
-                     ("compiled_newton_start", C.asphere_newton_start),
-                     ("compiled_newton_more", C.asphere_newton_more),
-                     ("compiled_newton_last_check", C.asphere_newton_last_check),
-                     ("compiled_asphere_refract", C.asphere_refract)):
+                     ("compiled_newton_start", C.newton_start),
+                     ("compiled_newton_more", C.newton_more),
+                     ("compiled_newton_last_check", C.newton_last_check),
+                     ("compiled_newton_refract", C.newton_refract)):
         monkeypatch.setattr(C, name, fn)
 
 
@@ -147,6 +147,31 @@ def test_fused_path_total_internal_reflection_and_newton_chunks(uncompiled):
             a, _ = _assert_same(lens, params, rays, opt, False, ref_opt=ref)
             tir = a.valid.logical_not() & (a.o[:, :2].norm(dim=-1) < 4.5)
             assert int(tir.sum()) > 10  # TIR, not only aperture misses
+
+
+@pytest.mark.parametrize("b", [0.0, 0.004])
+@pytest.mark.parametrize("reverse", [False, True], ids=["forward", "reverse"])
+def test_fused_path_xy_polynomial_equals_eager(uncompiled, reverse, b):
+    """The EDOF lens (achromat and an XY-polynomial plate, Newton from the vertex plane) with
+    a cubic plate, with and without the ``z^2`` term ``b`` (its domain check)."""
+    lens = load_lens(H.LENS_DIR / "edof_achromat.json")
+    plate = lens.surfaces[4]
+    with torch.no_grad():
+        plate.a[9].fill_(2e-4)  # x^3
+        plate.a[6].fill_(-1.5e-4)  # y^3
+        plate.a[4].fill_(3e-4)  # xy
+        plate.b.fill_(b)
+    params = [plate.a[9], plate.a[4], plate.b, lens.surfaces[0].c, lens.d_sensor]
+    for p in params:
+        p.requires_grad_(True)
+    if reverse:
+        xy = H.disk_points(200, 0.8, seed=6)
+        o = torch.cat([xy, torch.full((200, 1), float(lens.z_sensor().detach()), dtype=F64)], -1)
+        d = H.disk_points(200, 0.06, seed=7)
+        rays = Rays(o, torch.cat([d, -torch.ones(200, 1, dtype=F64)], -1), H.WAVELENGTH_D)
+    else:
+        rays = field_rays(lens, 0.5, H.WAVELENGTH_D, H.disk_points(200, 7.0, seed=2), 0.0)
+    _assert_same(lens, params, rays, IntersectOptions(compile="lens"), reverse)
 
 
 def test_compile_option_is_checked():
