@@ -10,8 +10,9 @@ fuses them into one loop that reads the incoming ray state once and writes the o
 once (``IntersectOptions(compile="surface")``: one kernel per surface; ``compile="lens"`` or
 ``True``: one kernel per run, the state between surfaces never reaches memory).  The arithmetic
 is the same function as the eager path's, so results agree to float rounding (the compiler may
-reorder or contract operations).  Surfaces that need Newton's method (aspheres, freeforms),
-misaligned elements, ideal lenses and a ``record``ed trace stay eager.
+reorder or contract operations).  Even aspheres and XY polynomials run Newton's method in
+compiled chunks (:func:`newton_start`, below); B-spline freeforms, misaligned elements, ideal
+lenses and a ``record``ed trace stay eager.
 
 Compilation happens at the first call for each lens structure (the ``kinds`` tuple), dtype,
 device, gradient pattern and shape of the media indices; ``dynamic=True`` makes the ray count

@@ -74,7 +74,7 @@ class IntersectOptions:
     ``max_iter``, ``mode``; ``clip_aperture=False`` ignores clear apertures (for ray aiming),
     not surface domains; ``closed_form=False`` runs Newton from the vertex plane also on spheres
     and conics (the reference path); ``compile="surface"`` runs each aligned sphere, conic,
-    plane, stop or even asphere's intersect + refract as ``torch.compile``d kernels,
+    plane, stop, even asphere or XY polynomial's intersect + refract as ``torch.compile``d kernels,
     ``compile="lens"`` each run of aligned spheres, conics, planes and stops as one kernel, and
     ``compile=True`` (``"auto"``) picks ``"lens"`` when nothing needs a gradient and
     ``"surface"`` otherwise (measured faster in each case; :mod:`.compiled`; the first call per
