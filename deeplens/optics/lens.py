@@ -347,10 +347,13 @@ class Lens(nn.Module):
         return Rays(o, d, rays.wavelength, valid, opl, normalize=False)
 
     def _fused_kind(self, i: int):
-        """The :data:`~.compiled.KINDS` entry of surface ``i`` when it can join a compiled run
-        (an aligned sphere/conic, plane or stop), else ``None``."""
+        """How surface ``i`` runs compiled: a :data:`~.compiled.KINDS` entry when it can join a
+        compiled run (an aligned sphere/conic, plane or stop), ``"newton"`` for an aligned even
+        asphere or XY polynomial, else ``None`` (eager)."""
         s = self.surfaces[i]
-        if getattr(s, "deflects", False) or not self.misalignments[self._element_of[i]].is_identity():
+        if getattr(s, "deflects", False):
+            return None
+        if not self.misalignments[self._element_of[i]].is_identity():
             return None
         if type(s) is Aperture:
             return "stop_rect" if s.shape == "rect" else "stop"
@@ -402,8 +405,11 @@ class Lens(nn.Module):
 
     def _trace_compiled(self, rays: Rays, order, n, z, reverse: bool, options: IntersectOptions,
                         step) -> Rays:
-        """:meth:`trace` with runs of aligned spheres, conics, planes and stops in compiled
-        kernels (:mod:`.compiled`); every other surface goes through ``step``."""
+        """:meth:`trace` with runs of aligned spheres, conics, planes and stops, and aligned
+        even aspheres and XY polynomials, in compiled kernels (:mod:`.compiled`); every other
+        surface goes through ``step``.  While ``soa`` holds the ray state, ``rays`` carries only
+        its valid mask and optical path (its ``o`` and ``d`` are stale: read for dtype and
+        device only)."""
         from . import compiled as C
 
         tol = options.tol if options.tol is not None else default_tolerance(rays.dtype)
