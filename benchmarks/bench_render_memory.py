@@ -155,8 +155,13 @@ def build_setup(cfg: dict):
     scene = Scene(tex, cfg["depth_mm"])
     with torch.no_grad():
         target = IdealCamera(lens, sensor).render(scene)  # the sharp image (1, 1, H, W)
-    renderer = MonteCarloRenderer(lens, sensor, spp=cfg["spp"], adjoint=cfg["mode"] == "adjoint",
-                                  chunk_rays=cfg["chunk_rays"], vignetting=False)
+    options = None
+    if cfg["mode"].endswith("-compiled"):  # IntersectOptions(compile=True): fused kernels
+        from deeplens.optics.intersect import IntersectOptions
+        options = IntersectOptions(compile=True)
+    renderer = MonteCarloRenderer(lens, sensor, spp=cfg["spp"],
+                                  adjoint=cfg["mode"].startswith("adjoint"),
+                                  chunk_rays=cfg["chunk_rays"], vignetting=False, options=options)
     params = [p for p in lens.parameters() if p.requires_grad]
     return lens, sensor, scene, target, renderer, params
 
@@ -179,7 +184,8 @@ def run_one(cfg: dict) -> dict:
 
     # warm-up (autograd engine, thread pools, kernels) on a tiny sensor, same mode
     tiny = MonteCarloRenderer(lens, Sensor((8, 8), sensor.pixel_size_mm * sensor.resolution[0] / 8),
-                              spp=2, adjoint=renderer.adjoint, chunk_rays=64, vignetting=False)
+                              spp=2, adjoint=renderer.adjoint, chunk_rays=64, vignetting=False,
+                              options=renderer.options)
     img = tiny(scene, seed=99)
     img.square().mean().backward()
     for p in params:
@@ -405,7 +411,10 @@ def main(argv=None):
     ap.add_argument("--chunk-rays", type=int, default=262144,
                     help="rays traced at once (default 262144, the training configs' value; "
                          "the renderer's own default is 1048576)")
-    ap.add_argument("--modes", type=str, default="plain,adjoint")
+    ap.add_argument("--modes", type=str, default="plain,adjoint",
+                    help="of plain, adjoint, plain-compiled, adjoint-compiled (the last two with "
+                         "IntersectOptions(compile=True); their compilation happens in the "
+                         "warm-up, on the tiny sensor)")
     ap.add_argument("--plate-alpha-mm", type=float, default=0.01,
                     help="cubic plate sag at the rim, mm (configs/eval.yaml's cubic_alpha_mm)")
     ap.add_argument("--depth-mm", type=float, default=5000.0)
@@ -452,7 +461,7 @@ def main(argv=None):
     pixel_mm = args.pixel_mm or round(2 * 0.8832 / math.hypot(*res), 6)
     modes = [m for m in args.modes.split(",") if m]
     for m in modes:
-        if m not in ("plain", "adjoint"):
+        if m not in ("plain", "adjoint", "plain-compiled", "adjoint-compiled"):
             ap.error(f"--modes: unknown mode {m!r}")
 
     results = []

@@ -8,7 +8,14 @@ Rows (each code base runs in its own fresh subprocess, so memory and cold start 
   ``sqrt(mean |p - mean p|^2)`` over the valid rays and ``loss.backward()``; again with
   ``IntersectOptions(checkpoint=True)`` where the code has it (surfaces recomputed in backward);
 * ``cold start``: a fresh interpreter: ``import torch, deeplens``, load the lens, build the rays,
-  one trace + backward (the seconds column is the whole wall time, rays/s uses it too).
+  one trace + backward (the seconds column is the whole wall time, rays/s uses it too);
+* ``compile=...`` rows (code with ``IntersectOptions(compile=...)``): the same rows through the
+  compiled kernels, ``"lens"`` (one kernel per run of spheres/planes/stop) and ``"surface"``
+  (one per surface) for each; ``compile=True`` picks ``"lens"`` without and ``"surface"`` with
+  gradients.  Their compilation is warmed up before anything is measured, and has its own rows:
+  a fresh interpreter with an empty inductor cache (``TORCHINDUCTOR_CACHE_DIR`` a new temporary
+  folder): the first compiled forward and the first compiled trace + backward, each including
+  its compilation; then a second fresh interpreter on the now filled disk cache.
 
 Columns:
 
@@ -35,6 +42,9 @@ Usage::
     python benchmarks/bench_trace.py                              # this checkout
     python benchmarks/bench_trace.py --base /tmp/perf-base        # before / after
     python benchmarks/bench_trace.py --quick                      # 1e5 rays, smoke test
+
+CPU time is the benchmark process's own: inductor's C++ compiler runs in subprocesses, so the
+cold rows' CPU time leaves compilation out; their wall time includes it.
 """
 
 from __future__ import annotations
@@ -44,6 +54,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 
 from procmem import maxrss_bytes as _maxrss_bytes
@@ -97,6 +108,11 @@ def _child(args) -> None:
         ckpt = IntersectOptions(checkpoint=True)
     except TypeError:  # code without the option
         ckpt = None
+    try:
+        comp = {m: IntersectOptions(compile=m) for m in ("lens", "surface")}
+        comp["surface+ckpt"] = IntersectOptions(compile="surface", checkpoint=True)
+    except TypeError:  # code without compiled kernels
+        comp = None
 
     def trace_backward(keep=None, options=None):
         for c in curv:
@@ -115,6 +131,21 @@ def _child(args) -> None:
         return float(rms), [float(c.grad) for c in curv], int(v.sum())
 
     res = {"code": args.code, "n": n, "surfaces": n_surf, "threads": args.threads}
+    if args.cold_compile:
+        if comp is None:
+            print(json.dumps(res))
+            return
+        res["import_s"] = time.perf_counter() - t_start
+        t0, c0 = time.perf_counter(), time.process_time()
+        with torch.no_grad():
+            lens.trace_to_sensor(rays, options=IntersectOptions(compile=True))
+        res["first_fwd_s"], res["first_fwd_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
+        t0, c0 = time.perf_counter(), time.process_time()
+        trace_backward(None, IntersectOptions(compile=True))
+        res["first_bwd_s"], res["first_bwd_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
+        res["cold_s"] = time.perf_counter() - t_start
+        print(json.dumps(res))
+        return
     if args.cold:
         rms, grads, nvalid = trace_backward()
         res.update(cold_s=time.perf_counter() - t_start, rms=rms, grads=grads, valid=nvalid)
@@ -132,6 +163,15 @@ def _child(args) -> None:
     res["bandwidth_Bps"] = max(bw)
     del a, b
 
+    if comp is not None:  # compile every kernel before anything is measured, on a few rays (the
+        all_rays, rays = rays, rays[:4096]  # kernels take any ray count; a full-size warm-up
+        with torch.no_grad():               # would leave glibc's heap holding its memory)
+            for opt in comp.values():
+                lens.trace_to_sensor(rays, options=opt)
+        for opt in comp.values():
+            trace_backward(None, opt)
+        rays = all_rays
+
     # memory: RSS follows the live memory
     _mallopt(16 * 1024, 128 * 1024)
     graph = {}
@@ -144,8 +184,19 @@ def _child(args) -> None:
     with torch.no_grad():
         lens.trace_to_sensor(rays)
     res["fwd_extra_bytes"] = _maxrss_bytes() - rss0
-    for key, opt in (("bwd", None), ("ckpt", ckpt)):
-        if key == "ckpt" and opt is None:
+    fwd_modes, bwd_modes = [], [("bwd", None), ("ckpt", ckpt)]
+    if comp is not None:
+        fwd_modes = [("fwd_lens", comp["lens"]), ("fwd_surface", comp["surface"])]
+        bwd_modes += [("bwd_surface", comp["surface"]), ("bwd_lens", comp["lens"]),
+                      ("ckpt_surface", comp["surface+ckpt"])]
+    for key, opt in fwd_modes:
+        rss0 = _rss_bytes()
+        _reset_peak_rss()
+        with torch.no_grad():
+            lens.trace_to_sensor(rays, options=opt)
+        res[key + "_extra_bytes"] = _maxrss_bytes() - rss0
+    for key, opt in bwd_modes:
+        if opt is None and key != "bwd":
             continue
         rss0 = _rss_bytes()
         _reset_peak_rss()
@@ -155,7 +206,7 @@ def _child(args) -> None:
         if key == "bwd":
             res.update(rms=rms, grads=grads, valid=nvalid)
         else:
-            res["ckpt_grads"] = grads
+            res[key + "_grads"] = grads
 
     # timing: glibc recycles tensors in its heap; wall and process CPU time, min of N
     _mallopt(32 * 1024 * 1024, 64 * 1024 * 1024)
@@ -178,16 +229,28 @@ def _child(args) -> None:
     res["bwd_s"], res["bwd_cpu_s"] = timed(trace_backward)
     if ckpt is not None:
         res["ckpt_s"], res["ckpt_cpu_s"] = timed(lambda: trace_backward(None, ckpt))
+    for key, opt in fwd_modes:
+        def fwd(opt=opt):
+            with torch.no_grad():
+                lens.trace_to_sensor(rays, options=opt)
+        res[key + "_s"], res[key + "_cpu_s"] = timed(fwd)
+    for key, opt in bwd_modes[2:]:
+        res[key + "_s"], res[key + "_cpu_s"] = timed(lambda opt=opt: trace_backward(None, opt))
+    with torch.no_grad():  # results of the compiled forward against eager
+        for key, opt in fwd_modes:
+            a, b = lens.trace_to_sensor(rays), lens.trace_to_sensor(rays, options=opt)
+            res[key + "_maxdiff_mm"] = float((a.o - b.o)[a.valid].abs().max())
+            res[key + "_same_valid"] = bool(torch.equal(a.valid, b.valid))
     print(json.dumps(res))
 
 
 # ============================================================================ parent
-def _run(args, code: str, cold: bool) -> dict:
+def _run(args, code: str, cold, cache_dir: str) -> dict:
     cmd = [sys.executable, os.path.abspath(__file__), "--one", code, "--rays", str(args.rays),
            "--repeats", str(args.repeats), "--threads", str(args.threads), "--dtype", args.dtype]
     if cold:
-        cmd.append("--cold")
-    env = dict(os.environ, OMP_NUM_THREADS=str(args.threads))
+        cmd.append("--cold" if cold is True else "--cold-compile")
+    env = dict(os.environ, OMP_NUM_THREADS=str(args.threads), TORCHINDUCTOR_CACHE_DIR=cache_dir)
     env.pop("PYTHONPATH", None)
     out = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd="/", check=False)
     if out.returncode != 0:
@@ -211,6 +274,7 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="save every number here")
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--cold", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--cold-compile", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
         args.code = args.one
@@ -220,20 +284,33 @@ def main() -> None:
         args.rays, args.repeats = "1e5", 3
     codes = ([("before", os.path.abspath(args.base))] if args.base else []) + [("after", REPO)]
     results = {}
+    load = os.getloadavg()
     for label, code in codes:
         print(f"[bench_trace] {label}: {code}", file=sys.stderr, flush=True)
-        results[label] = {"warm": _run(args, code, False), "cold": _run(args, code, True)}
+        with tempfile.TemporaryDirectory(prefix="bench-trace-inductor-") as cache:
+            results[label] = {
+                "cold": _run(args, code, True, cache),
+                "cold_compile": _run(args, code, "compile", cache),   # empty inductor cache
+                "cold_compile_cached": _run(args, code, "compile", cache),  # filled by the above
+                "warm": _run(args, code, False, cache)}
+    load_end = os.getloadavg()
     n = int(float(args.rays))
     per_ray_surface_traffic = 2 * (7 * (4 if args.dtype == "float32" else 8) + 1)
     print(f"double Gauss ({LENS}), {n:.0e} on-axis rays, {args.dtype}, {args.threads} threads, "
-          f"min of {args.repeats}\n")
+          f"min of {args.repeats}; load average (1 min) {load[0]:.1f} at the start, "
+          f"{load_end[0]:.1f} at the end, {os.cpu_count()} CPUs\n")
     print("| code | row | rays/s | s | CPU s | extra MiB | B/ray-surf | % BW |")
     print("|---|---|---|---|---|---|---|---|")
     for label, r in results.items():
         w, c = r["warm"], r["cold"]
         S, bw = w["surfaces"], w["bandwidth_Bps"]
         rows = [("forward", "fwd"), ("trace + backward", "bwd"),
-                ("trace + backward, checkpoint=True", "ckpt")]
+                ("trace + backward, checkpoint=True", "ckpt"),
+                ("forward, compile=\"lens\" (= True)", "fwd_lens"),
+                ("forward, compile=\"surface\"", "fwd_surface"),
+                ("trace + backward, compile=\"surface\" (= True)", "bwd_surface"),
+                ("trace + backward, compile=\"lens\"", "bwd_lens"),
+                ("trace + backward, compile=\"surface\", checkpoint=True", "ckpt_surface")]
         for row, key in rows:
             if key + "_s" not in w:
                 continue
@@ -246,6 +323,18 @@ def main() -> None:
                   f"{w[key + '_extra_bytes'] / MIB:.0f} | {bprs} | {100 * frac:.1f} |")
         print(f"| {label} | cold start (import + first trace + backward) | "
               f"{_fmt_rate(n / c['cold_s'])} | {c['cold_s']:.2f} | | | | |")
+        for key, what in (("cold_compile", "empty inductor cache"),
+                          ("cold_compile_cached", "inductor disk cache filled")):
+            cc = r[key]
+            if "first_fwd_s" not in cc:
+                continue
+            print(f"| {label} | cold, {what}: import | | {cc['import_s']:.2f} | | | | |")
+            print(f"| {label} | cold, {what}: first forward, compile=True (incl. compiling) | "
+                  f"{_fmt_rate(n / cc['first_fwd_s'])} | {cc['first_fwd_s']:.2f} | "
+                  f"{cc['first_fwd_cpu_s']:.2f} | | | |")
+            print(f"| {label} | cold, {what}: first trace + backward, compile=True (incl. "
+                  f"compiling) | {_fmt_rate(n / cc['first_bwd_s'])} | {cc['first_bwd_s']:.2f} | "
+                  f"{cc['first_bwd_cpu_s']:.2f} | | | |")
     bws = ", ".join(f"{k} {v['warm']['bandwidth_Bps'] / 1e9:.1f}" for k, v in results.items())
     print(f"\nmemory bandwidth (copy, read + write) GB/s: {bws}")
     if "before" in results:
@@ -257,10 +346,17 @@ def main() -> None:
               f" curvature gradients: max |after - before| / max |before| = {diff:.1e}; "
               f"valid rays {results['before']['warm']['valid']} / "
               f"{results['after']['warm']['valid']}")
-    if "ckpt_grads" in results["after"]["warm"]:
-        w = results["after"]["warm"]
-        d = max(abs(a - b) for a, b in zip(w["ckpt_grads"], w["grads"]))
-        print(f"checkpoint=True gradients: max |difference| to the recorded trace's = {d:.1e}")
+    w = results["after"]["warm"]
+    scale = max(abs(g) for g in w["grads"])
+    for key in ("ckpt", "bwd_surface", "bwd_lens", "ckpt_surface"):
+        if key + "_grads" in w:
+            d = max(abs(a - b) for a, b in zip(w[key + "_grads"], w["grads"]))
+            print(f"{key} gradients: max |difference| to the eager trace's / max |gradient| = "
+                  f"{d / scale:.1e}")
+    for key in ("fwd_lens", "fwd_surface"):
+        if key + "_maxdiff_mm" in w:
+            print(f"{key}: spot points within {w[key + '_maxdiff_mm']:.1e} mm of eager's, same "
+                  f"valid rays: {w[key + '_same_valid']}")
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(results, fh, indent=1)

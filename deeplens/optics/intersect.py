@@ -59,7 +59,8 @@ import warnings
 
 import torch
 
-__all__ = ["IntersectOptions", "default_tolerance", "intersect", "trace_quadric"]
+__all__ = ["IntersectOptions", "default_tolerance", "flat_step", "flat_step_xyz", "intersect",
+           "quadric_step", "quadric_step_xyz", "trace_quadric"]
 
 
 def default_tolerance(dtype: torch.dtype) -> float:
@@ -72,15 +73,30 @@ class IntersectOptions:
     """Newton settings: ``tol`` (mm, ``None`` = dtype default; never below ``4 eps |x|``),
     ``max_iter``, ``mode``; ``clip_aperture=False`` ignores clear apertures (for ray aiming),
     not surface domains; ``closed_form=False`` runs Newton from the vertex plane also on spheres
-    and conics (the reference path); ``checkpoint=True`` makes
+    and conics (the reference path); ``compile="surface"`` runs each aligned sphere, conic,
+    plane, stop, even asphere or XY polynomial's intersect + refract as ``torch.compile``d kernels,
+    ``compile="lens"`` each run of aligned spheres, conics, planes and stops as one kernel, and
+    ``compile=True`` (``"auto"``) picks ``"lens"`` when nothing needs a gradient and
+    ``"surface"`` otherwise (measured faster in each case; :mod:`.compiled`; the first call per
+    lens structure and dtype compiles, later calls and other ray counts reuse it; a
+    ``record``ed trace, ``closed_form=False`` and ``mode="unrolled"`` stay eager);
+    ``checkpoint=True`` makes
     :meth:`Lens.trace <deeplens.optics.lens.Lens.trace>` keep only each surface's incoming ray
     state for backward and recompute the surface there (about 40 instead of 120 bytes per ray
     and surface in float32, for about 1.5x the backward's time)."""
 
-    __slots__ = ("checkpoint", "clip_aperture", "closed_form", "max_iter", "mode", "tol")
+    __slots__ = ("checkpoint", "clip_aperture", "closed_form", "compile", "max_iter", "mode",
+                 "tol")
 
     def __init__(self, tol: float | None = None, max_iter: int = 30, mode: str = "implicit",
-                 clip_aperture: bool = True, closed_form: bool = True, checkpoint: bool = False):
+                 clip_aperture: bool = True, closed_form: bool = True, checkpoint: bool = False,
+                 compile: bool | str = False):
+        if compile is True:
+            compile = "auto"
+        if compile not in (False, None, "auto", "surface", "lens"):
+            raise ValueError(f"compile must be False, True ('auto'), 'surface' or 'lens', got "
+                             f"{compile!r}")
+        self.compile = compile or False
         self.clip_aperture = bool(clip_aperture)
         self.closed_form = bool(closed_form)
         self.checkpoint = bool(checkpoint)
@@ -95,7 +111,7 @@ class IntersectOptions:
     def __repr__(self):
         return (f"IntersectOptions(tol={self.tol}, max_iter={self.max_iter}, mode={self.mode!r}, "
                 f"clip_aperture={self.clip_aperture}, closed_form={self.closed_form}, "
-                f"checkpoint={self.checkpoint})")
+                f"checkpoint={self.checkpoint}, compile={self.compile})")
 
 
 #: the tolerance never goes below this many float rounding units of the coordinates, ``eps |x|``
@@ -186,9 +202,12 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None):
     its vertex shifted by ``z_shift`` along the axis (no misalignment).  Written on the ``x``,
     ``y``, ``z`` components (``(*B,)`` each) instead of ``(*B, 3)`` tensors: the shift touches
     ``z`` only, and each step reads one component at a time, about 2x less memory traffic.
+    The arithmetic is the pure tensor function :func:`quadric_step` (which
+    ``IntersectOptions(compile=...)`` runs compiled, :mod:`.compiled`).
 
     Args:
-        surface: a surface with ``is_quadric`` (sphere or conic).
+        surface: a surface with ``is_quadric`` (an :class:`~.surfaces.Asphere` without
+            coefficients: sphere or conic).
         o, d: ``(*B, 3)`` origins (mm, global frame) and unit directions.
         valid, opl: ``(*B,)`` mask and optical path length (mm).
         z_shift: vertex position (0-d tensor, mm).
@@ -199,44 +218,138 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None):
     """
     opt = options or IntersectOptions()
     tol = opt.tol if opt.tol is not None else default_tolerance(o.dtype)
-    ox, oy, oz = o.unbind(-1)
-    dx, dy, dz = d.unbind(-1)
+    args = (o, d, valid, opl, z_shift, surface.c.to(o), surface.k.to(o),
+            surface.semi_diameter.to(o), torch.as_tensor(n1, dtype=o.dtype, device=o.device),
+            torch.as_tensor(n2, dtype=o.dtype, device=o.device))
+    return quadric_step(*args, tol=tol, clip=opt.clip_aperture)
+
+
+def quadric_step(o, d, valid, opl, z_shift, c, k, semi_diameter, n1, n2, tol: float,
+                 clip: bool = True):
+    """The arithmetic of :func:`trace_quadric` as a pure function of tensors (no modules, no
+    host synchronisation, no data-dependent Python branch), so that ``torch.compile`` can fuse
+    it into one kernel.
+
+    Args:
+        o, d: ``(*B, 3)`` origins (mm, global frame) and unit directions.
+        valid, opl: ``(*B,)`` mask and optical path length (mm).
+        z_shift: vertex position (0-d, mm).
+        c, k, semi_diameter: curvature (1/mm), conic constant, clear semi-aperture (mm), 0-d,
+            in the rays' dtype.
+        n1, n2: media indices, broadcastable to ``B``.
+        tol: residual tolerance floor (mm), see :func:`default_tolerance`.
+        clip: mark rays outside the clear aperture invalid.
+
+    Returns:
+        ``(x (*B, 3), d_t (*B, 3), valid (*B,), opl (*B,))``.
+    """
+    x, y, z, dx, dy, dz, ok, opl = quadric_step_xyz(*o.unbind(-1), *d.unbind(-1), valid, opl,
+                                                    z_shift, c, k, semi_diameter, n1, n2, tol,
+                                                    clip)
+    return torch.stack([x, y, z], -1), torch.stack([dx, dy, dz], -1), ok, opl
+
+
+def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_diameter, n1, n2,
+                     tol: float, clip: bool = True):
+    """:func:`quadric_step` on the ``(*B,)`` components of ``o`` and ``d``; returns
+    ``(x, y, z, d_x, d_y, d_z, valid, opl)``."""
     oz = oz - z_shift
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-oz, dz, ok).detach()
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-    quadric = surface.quadric_xyz(bx, by, bz, dx, dy, dz)
-    s, found = _quadric_root(quadric, bz, dz, ok)
-    with torch.no_grad():
-        found = found & surface.in_domain(bx, by)  # as in intersect()
+    # the conic base as a quadric, as Asphere.quadric_xyz
+    k1 = 1.0 + k
+    ck = c * k1
+    A = c * (dx * dx + dy * dy) + ck * (dz * dz)
+    B = c * (bx * dx + by * dy) + (ck * bz - 1.0) * dz
+    C = c * (bx * bx + by * by) + (ck * bz - 2.0) * bz
+    s, found = _quadric_root((A, B, C, ck, c), bz, dz, ok)
+    with torch.no_grad():  # as in intersect(): the vertex-plane point in the conic's domain
+        found = found & (1.0 - k1 * c * c * (bx * bx + by * by) > 0)
     ok = ok & found
     t = t0 + s
     x, y, z = bx + s * dx, by + s * dy, bz + s * dz
     X, Y = x.detach(), y.detach()
-    eps = torch.finfo(o.dtype).eps
+    eps = torch.finfo(ox.dtype).eps
     with torch.no_grad():
         big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
         ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
-        if opt.clip_aperture:
-            ok = ok & surface.in_aperture(X, Y)
+        if clip:
+            ok = ok & (X * X + Y * Y <= semi_diameter * semi_diameter)
         ok = ok & torch.isfinite(t)
     t = torch.where(ok, t, torch.zeros_like(t))
     x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
     # unit normal (c x, c y, (1+k) c z - 1) / |.|, see Asphere.normal
-    c, ck = quadric[4], quadric[3]
     gx, gy, gz = c * x, c * y, ck * z - 1.0
     inv = torch.rsqrt((gx * gx + gy * gy + gz * gz).clamp_min(1e-30))
     nx, ny, nz = gx * inv, gy * inv, gz * inv
     # Snell's law, as refract.refract
-    eta = torch.as_tensor(n1 / n2, dtype=o.dtype, device=o.device)
+    eta = n1 / n2
     cos_i = dx * nx + dy * ny + dz * nz
-    k = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
-    ok = ok & (k > 0)
-    coef = torch.copysign(torch.sqrt(torch.where(ok, k, torch.ones_like(k))), cos_i) - eta * cos_i
-    d_t = torch.stack([eta * dx + coef * nx, eta * dy + coef * ny, eta * dz + coef * nz], -1)
-    d_t = torch.where(ok.unsqueeze(-1), d_t, d)
-    x_out = torch.stack([x, y, z + z_shift], -1)
-    return x_out, d_t, ok, opl + n1 * t
+    kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
+    ok = ok & (kk > 0)
+    coef = torch.copysign(torch.sqrt(torch.where(ok, kk, torch.ones_like(kk))), cos_i) - eta * cos_i
+    ex = torch.where(ok, eta * dx + coef * nx, dx)
+    ey = torch.where(ok, eta * dy + coef * ny, dy)
+    ez = torch.where(ok, eta * dz + coef * nz, dz)
+    return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
+
+
+def flat_step(o, d, valid, opl, z_shift, aperture, n1, n2, tol: float, clip: bool = True,
+              rect: bool = False, refract: bool = True):
+    """Intersect and refract at an aligned plane ``z = z_shift`` (a :class:`~.surfaces.Plane`
+    or, with ``refract=False``, an :class:`~.surfaces.Aperture`): the same computation as
+    :func:`intersect`'s flat path followed by :func:`~.refract.refract` at the normal
+    ``(0, 0, -1)``, as a pure function of tensors (see :func:`quadric_step`).
+
+    Args:
+        o, d, valid, opl, z_shift, n1, n2, tol, clip: as :func:`quadric_step`.
+        aperture: ``(2,)`` half-widths (mm) when ``rect``, else the 0-d semi-diameter (mm).
+        rect: a rectangular opening ``|x| <= w_x, |y| <= w_y`` instead of ``x^2 + y^2 <= r^2``.
+        refract: refract into ``n2`` (``False``: a stop, the direction is unchanged).
+
+    Returns:
+        ``(x (*B, 3), d_t (*B, 3), valid (*B,), opl (*B,))``.
+    """
+    x, y, z, dx, dy, dz, ok, opl = flat_step_xyz(*o.unbind(-1), *d.unbind(-1), valid, opl,
+                                                 z_shift, aperture, n1, n2, tol, clip, rect,
+                                                 refract)
+    return torch.stack([x, y, z], -1), torch.stack([dx, dy, dz], -1), ok, opl
+
+
+def flat_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, aperture, n1, n2, tol: float,
+                  clip: bool = True, rect: bool = False, refract: bool = True):
+    """:func:`flat_step` on the ``(*B,)`` components of ``o`` and ``d``; returns
+    ``(x, y, z, d_x, d_y, d_z, valid, opl)``."""
+    oz = oz - z_shift
+    ok = valid & (dz.abs() > 1e-12)
+    t = _safe_div(-oz, dz, ok)
+    x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
+    X, Y = x.detach(), y.detach()
+    eps = torch.finfo(ox.dtype).eps
+    with torch.no_grad():
+        big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
+        ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
+        if clip:
+            if rect:
+                ok = ok & (X.abs() <= aperture[0]) & (Y.abs() <= aperture[1])
+            else:
+                ok = ok & (X * X + Y * Y <= aperture * aperture)
+        ok = ok & torch.isfinite(t)
+    t = torch.where(ok, t, torch.zeros_like(t))
+    x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
+    if not refract:
+        return x, y, z + z_shift, dx, dy, dz, ok, opl + n1 * t
+    # Snell's law (refract.refract) at n = (0, 0, -1): cos_i = -d_z
+    eta = n1 / n2
+    cos_i = -dz
+    kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
+    ok = ok & (kk > 0)
+    coef = torch.copysign(torch.sqrt(torch.where(ok, kk, torch.ones_like(kk))), cos_i) - eta * cos_i
+    ex = torch.where(ok, eta * dx, dx)
+    ey = torch.where(ok, eta * dy, dy)
+    ez = torch.where(ok, eta * dz - coef, dz)
+    return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
 
 
 def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,

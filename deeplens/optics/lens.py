@@ -9,6 +9,8 @@ module serves both, and tracing never modifies the lens or its input rays.
 
 Each surface is intersected in its element's frame (:mod:`.misalignment`) by Newton's method with
 one differentiable step (:mod:`.intersect`) and refracted by vector Snell's law (:mod:`.refract`).
+With ``IntersectOptions(compile=...)`` aligned spheres, conics, planes, stops and even aspheres
+run through fused ``torch.compile`` kernels on a component-major ray state (:mod:`.compiled`).
 """
 
 from __future__ import annotations
@@ -21,13 +23,13 @@ import torch.utils.checkpoint
 from torch import nn
 
 from .errors import LensError
-from .intersect import IntersectOptions, intersect, trace_quadric
+from .intersect import IntersectOptions, default_tolerance, intersect, trace_quadric
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
 from .paraxial import paraxial
 from .rays import Rays
 from .refract import refract
-from .surfaces import Aperture, Surface
+from .surfaces import Aperture, Asphere, Plane, Surface, XYPolynomial
 from .surfaces.base import make_param
 
 __all__ = ["Lens", "LensSpec"]
@@ -344,6 +346,139 @@ class Lens(nn.Module):
             use_reentrant=False)
         return Rays(o, d, rays.wavelength, valid, opl, normalize=False)
 
+    def _fused_kind(self, i: int):
+        """How surface ``i`` runs compiled: a :data:`~.compiled.KINDS` entry when it can join a
+        compiled run (an aligned sphere/conic, plane or stop), ``"newton"`` for an aligned even
+        asphere or XY polynomial, else ``None`` (eager)."""
+        s = self.surfaces[i]
+        if getattr(s, "deflects", False):
+            return None
+        if not self.misalignments[self._element_of[i]].is_identity():
+            return None
+        if type(s) is Aperture:
+            return "stop_rect" if s.shape == "rect" else "stop"
+        if type(s) is Plane:
+            return "plane"
+        if isinstance(s, Asphere):
+            return "quadric" if s.is_quadric else "newton"
+        if type(s) is XYPolynomial:
+            return "newton"
+        return None
+
+    def _newton_compiled(self, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol: float):
+        """Surface ``i`` (an aligned even asphere or XY polynomial) through the compiled Newton
+        kernels (:mod:`.compiled`); ``soa``: ``(o, d)`` component-major.  Returns
+        ``(o, d, valid, opl)`` with ``o``, ``d`` component-major."""
+        from . import compiled as C
+        from .intersect import _warn_stalled
+
+        s = self.surfaces[i]
+        like = soa[0]
+        kind, sp = C.newton_surface_values(s, like)
+        with torch.no_grad():
+            o, d = soa[0].detach(), soa[1].detach()
+            spd = C.detached(sp)
+            it = min(C.NEWTON_CHUNK, options.max_iter)
+            b, s_star, tried, active, converged, tol_ray, fv = C.call(
+                C.compiled_newton_start, kind, spd, o, d, rays.valid, z_shift.detach(), tol, it)
+            while it < options.max_iter and bool(active.any()):
+                m = min(C.NEWTON_CHUNK, options.max_iter - it)
+                s_star, active, converged, fv = C.call(
+                    C.compiled_newton_more, kind, spd, b, d, s_star, active, converged, tol_ray,
+                    m)
+                it += m
+            if it >= options.max_iter:
+                converged, fv = C.call(C.compiled_newton_last_check, kind, spd, b, d, s_star,
+                                       active, converged, tol_ray)
+            if bool((tried & ~converged).any()):
+                _warn_stalled(s, b.movedim(0, -1), d.movedim(0, -1), s_star, tried, converged,
+                              tol_ray, tol, fv)
+            ok = tried & converged
+            s_star = torch.where(ok, s_star, torch.zeros_like(s_star))
+        args = (kind, sp, soa[0], soa[1], rays.valid, rays.opl, z_shift,
+                s.semi_diameter.to(like), _compact(n1).to(like), _compact(n2).to(like), s_star,
+                ok, tol, options.clip_aperture)
+        if options.checkpoint and torch.is_grad_enabled():
+            return torch.utils.checkpoint.checkpoint(C.call, C.compiled_newton_refract, *args,
+                                                     use_reentrant=False)
+        return C.call(C.compiled_newton_refract, *args)
+
+    def _trace_compiled(self, rays: Rays, order, n, z, reverse: bool, options: IntersectOptions,
+                        step) -> Rays:
+        """:meth:`trace` with runs of aligned spheres, conics, planes and stops, and aligned
+        even aspheres and XY polynomials, in compiled kernels (:mod:`.compiled`); every other
+        surface goes through ``step``.  While ``soa`` holds the ray state, ``rays`` carries only
+        its valid mask and optical path (its ``o`` and ``d`` are stale: read for dtype and
+        device only)."""
+        from . import compiled as C
+
+        tol = options.tol if options.tol is not None else default_tolerance(rays.dtype)
+        clip = options.clip_aperture
+        checkpoint = options.checkpoint and torch.is_grad_enabled()
+        per_surface = options.compile == "surface"
+        if options.compile == "auto" and torch.is_grad_enabled():
+            per_surface = (rays.o.requires_grad or rays.d.requires_grad or rays.opl.requires_grad
+                           or any(p.requires_grad for p in self.parameters()))
+        order = list(order)
+        soa = None  # (o, d) component-major (3, *B) while between compiled runs
+        k = 0
+        while k < len(order):
+            i = order[k]
+            kind = self._fused_kind(i)
+            n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
+            if kind is None:
+                if soa is not None:
+                    rays = Rays(soa[0].movedim(0, -1), soa[1].movedim(0, -1), rays.wavelength,
+                                rays.valid, rays.opl, normalize=False)
+                    soa = None
+                rays = step(i, rays, n1, n2, z, options)
+                k += 1
+                continue
+            if soa is None:
+                soa = (rays.o.movedim(-1, 0).contiguous(), rays.d.movedim(-1, 0).contiguous())
+            if kind == "newton":
+                _, pivot, vertex = self._frame(i, z, soa[0])
+                o, d, valid, opl = self._newton_compiled(i, soa, rays, n1, n2,
+                                                         (pivot + vertex)[2], options, tol)
+                soa = (o, d)
+                rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
+                k += 1
+                continue
+            kinds, params = [], []
+            while k < len(order) and kind is not None:
+                i = order[k]
+                s = self.surfaces[i]
+                n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
+                _, pivot, vertex = self._frame(i, z, rays.o)
+                like = rays.o
+                if kind == "quadric":
+                    values = (s.c.to(like), s.k.to(like), s.semi_diameter.to(like))
+                elif kind == "stop_rect":
+                    values = (s.half_widths.to(like),)
+                else:
+                    values = (s.semi_diameter.to(like),)
+                params.append(((pivot + vertex)[2], *values, _compact(n1).to(like),
+                               _compact(n2).to(like)))
+                kinds.append(kind)
+                k += 1
+                if per_surface or k == len(order):
+                    break
+                kind = self._fused_kind(order[k])
+                if kind == "newton":
+                    break
+            args = (*soa, rays.valid, rays.opl, tuple(kinds), tuple(params), tol, clip)
+            if checkpoint:
+                o, d, valid, opl = torch.utils.checkpoint.checkpoint(
+                    C.call, C.compiled_surface_run, *args, use_reentrant=False)
+            else:
+                o, d, valid, opl = C.call(C.compiled_surface_run, *args)
+            soa = (o, d)
+            rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
+        if soa is not None:  # back to (*B, 3), contiguous
+            rays = Rays(soa[0].movedim(0, -1).contiguous(), soa[1].movedim(0, -1).contiguous(),
+                        rays.wavelength, rays.valid, rays.opl, normalize=False)
+        return rays
+
     def _check_rays(self, rays: Rays) -> None:
         # wavelengths are checked against every medium's range by Material.n in indices()
         if not isinstance(rays, Rays):
@@ -357,7 +492,8 @@ class Lens(nn.Module):
             rays: input rays; forward rays start before the first surface and travel to ``+z``;
                 ``reverse=True`` rays start behind the last surface and travel to ``-z``.
             reverse: backward (sensor-to-object) tracing.
-            options: Newton settings (:class:`IntersectOptions`).
+            options: Newton settings (:class:`IntersectOptions`; ``compile=...`` selects the
+                fused kernels of :mod:`.compiled`, except when ``record`` is set).
             record: also return the list of per-surface hit points ``(*B, 3)``.
 
         Returns:
@@ -372,6 +508,9 @@ class Lens(nn.Module):
         step = self.trace_surface
         if options is not None and options.checkpoint and torch.is_grad_enabled():
             step = self._trace_surface_checkpointed
+        if (options is not None and options.compile and options.closed_form
+                and options.mode == "implicit" and not record):
+            return self._trace_compiled(rays, order, n, z, reverse, options, step)
         for i in order:
             n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
             rays = step(i, rays, n1, n2, z, options)

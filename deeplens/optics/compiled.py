@@ -1,0 +1,286 @@
+"""Fused kernels for runs of aligned spheres, conics, planes and stops (``torch.compile``).
+
+A run of surfaces ``i .. j`` maps the ray state ``(o, d, valid, opl)`` to the state after
+surface ``j`` by composing, per surface, the pure tensor functions
+:func:`~.intersect.quadric_step` (sphere or conic: closed-form intersection, normal, Snell) and
+:func:`~.intersect.flat_step` (plane or stop).  :func:`surface_run` is that composition; eager
+PyTorch runs its ~60 element-wise operators per surface one at a time, each reading and writing
+whole ``(N,)`` tensors, while ``torch.compile`` (inductor: C++/OpenMP on CPU, Triton on CUDA)
+fuses them into one loop that reads the incoming ray state once and writes the outgoing one
+once (``IntersectOptions(compile="surface")``: one kernel per surface; ``compile="lens"`` or
+``True``: one kernel per run, the state between surfaces never reaches memory).  The arithmetic
+is the same function as the eager path's, so results agree to float rounding (the compiler may
+reorder or contract operations).  Even aspheres and XY polynomials run Newton's method in
+compiled chunks (:func:`newton_start`, below); B-spline freeforms, misaligned elements, ideal
+lenses and a ``record``ed trace stay eager.
+
+Compilation happens at the first call for each lens structure (the ``kinds`` tuple), dtype,
+device, gradient pattern and shape of the media indices; ``dynamic=True`` makes the ray count
+symbolic, so other batch sizes reuse the kernel.  Compiled kernels are cached on disk by
+inductor's FX graph cache (``TORCHINDUCTOR_CACHE_DIR``, default ``/tmp/torchinductor_$USER``),
+so a later process loads them instead of compiling.  With gradients, AOTAutograd compiles the
+backward too; its partitioner recomputes cheap element-wise values in backward instead of
+saving them, so the graph kept per ray and surface is small without ``checkpoint=True``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .intersect import _ROUNDING_ULPS, _quadric_root, _safe_div, flat_step_xyz, quadric_step_xyz
+
+__all__ = ["KINDS", "compiled_surface_run", "surface_run"]
+
+#: the surface kinds a run can hold and the tensors each takes (after ``z_shift``)
+KINDS = {"quadric": ("c", "k", "semi_diameter"), "plane": ("semi_diameter",),
+         "stop": ("semi_diameter",), "stop_rect": ("half_widths",)}
+
+
+def surface_run(o, d, valid, opl, kinds: tuple, params: tuple, tol: float, clip: bool = True):
+    """Trace the ray state through a run of aligned surfaces.
+
+    The ray coordinates are component-major, ``(3, *B)`` (``o.movedim(-1, 0).contiguous()``):
+    each component is then a contiguous array, which the compiler vectorises (SIMD); the
+    ``(*B, 3)`` layout's stride-3 loads keep inductor's C++ kernels scalar (about 2x slower).
+
+    Args:
+        o, d: ``(3, *B)`` origins (mm, global frame) and unit directions, component-major.
+        valid, opl: ``(*B,)`` mask and optical path length (mm).
+        kinds: one entry of :data:`KINDS` per surface (a static value: each distinct tuple is
+            its own kernel).
+        params: per surface, ``(z_shift, *values, n1, n2)``: the vertex position (0-d, mm), the
+            values :data:`KINDS` names (0-d, or ``(2,)`` half-widths) and the media indices
+            before and after the surface (broadcastable to ``B``).
+        tol, clip: as :func:`~.intersect.quadric_step`.
+
+    Returns:
+        ``(o, d, valid, opl)`` after the last surface, ``o`` and ``d`` ``(3, *B)``.
+    """
+    state = (*o.unbind(0), *d.unbind(0), valid, opl)  # components: no (N, 3) in between
+    for kind, p in zip(kinds, params):
+        if kind == "quadric":
+            state = quadric_step_xyz(*state, *p, tol, clip)
+        else:
+            state = flat_step_xyz(*state, *p, tol, clip, rect=kind == "stop_rect",
+                                  refract=kind == "plane")
+    x, y, z, dx, dy, dz, valid, opl = state
+    return torch.stack([x, y, z]), torch.stack([dx, dy, dz]), valid, opl
+
+
+#: compiled variants one function may hold (dynamo's default, 8, is soon reached: each lens
+#: structure, dtype and pattern of trainable values is one); beyond it the function runs eager
+RECOMPILE_LIMIT = 64
+
+
+def call(fn, *args):
+    """``fn(*args)`` for one of this module's ``compiled_*`` functions, with dynamo's
+    per-function recompilation limit raised to :data:`RECOMPILE_LIMIT` for the call."""
+    with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT):
+        return fn(*args)
+
+
+#: the compiled wrapper (compiles lazily, at its first call for each input signature)
+compiled_surface_run = torch.compile(surface_run, dynamic=True)
+
+
+# ============================================================================ Newton surfaces
+# Newton's method as in :func:`~.intersect.intersect` (implicit mode), on component-major tensors,
+# for even aspheres (started from the conic root) and XY polynomials (from the vertex plane): the
+# iteration runs in compiled chunks of ``NEWTON_CHUNK`` updates without autograd, and the host
+# checks after each chunk whether any ray is still active (the eager loop checks after iterations
+# 1, 2, 4, 8, ...; an extra iteration changes nothing once every ray has converged or failed, so
+# both give the same roots).  The final differentiable Newton step (Eq. 7), the checks, the normal
+# and Snell's law are one more kernel.  ``kind`` (``"asphere"`` or ``"xy"``) and ``sp``, the
+# surface's values (:func:`newton_surface_values`), select the implicit function.
+
+#: Newton updates per compiled chunk (one host synchronisation per chunk)
+NEWTON_CHUNK = 2
+
+
+def asphere_f(x, y, z, c, k, coeffs):
+    """``f = sag(x, y) - z`` and ``∇f`` of an even asphere, as :class:`~.surfaces.Asphere`
+    evaluates them (the same operations in the same order).  ``coeffs``: tuple of 0-d
+    ``a4, a6, ...``.  Returns ``(f, f_x, f_y, f_z)``."""
+    s = x * x + y * y
+    arg = 1.0 - (1.0 + k) * c * c * s
+    safe = torch.where(arg > 0, arg, torch.ones_like(arg))
+    root = torch.sqrt(safe)
+    sag = c * s / (1.0 + root)
+    g = c / (2.0 * root)
+    if len(coeffs):
+        p = torch.zeros_like(s)
+        for a in reversed(coeffs):
+            p = (p + a) * s
+        sag = sag + p * s
+        q = torch.zeros_like(s)
+        for j in range(len(coeffs) - 1, -1, -1):
+            q = q * s + (j + 2) * coeffs[j]
+        g = g + q * s
+    return sag - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
+
+
+def xy_f(x, y, z, b, coeffs, terms, order):
+    """``f`` and ``∇f`` of an XY polynomial, as :class:`~.surfaces.XYPolynomial` evaluates them
+    (continued past the fold plane).  ``coeffs``: tuple of 0-d values; ``terms``: the exponent
+    pairs; ``order``: the degree.  Returns ``(f, f_x, f_y, f_z)``."""
+    px, py = [torch.ones_like(x)], [torch.ones_like(y)]
+    for _ in range(order):
+        px.append(px[-1] * x)
+        py.append(py[-1] * y)
+    P, Px, Py = torch.zeros_like(x), torch.zeros_like(x), torch.zeros_like(x)
+    for a, (i, j) in zip(coeffs, terms):
+        P = P + a * px[i] * py[j]
+        if i:
+            Px = Px + (a * i) * px[i - 1] * py[j]
+        if j:
+            Py = Py + (a * j) * px[i] * py[j - 1]
+    beyond = b.detach() * z.detach() > 0.5
+    z_fold = 0.5 / torch.where(b != 0, b, torch.ones_like(b))
+    zc = torch.where(beyond, z_fold, z)
+    fz = torch.where(beyond, -torch.ones_like(z), 2.0 * b * z - 1.0)
+    return b * zc * zc + P - z, Px, Py, fz
+
+
+def _surface_f(kind, sp, x, y, z):
+    if kind == "asphere":
+        return asphere_f(x, y, z, *sp)
+    b, coeffs, terms, order, _ = sp
+    return xy_f(x, y, z, b, coeffs, terms, order)
+
+
+def _in_domain(kind, sp, x, y):
+    if kind == "asphere":
+        c, k, _ = sp
+        return 1.0 - (1.0 + k) * c * c * (x * x + y * y) > 0
+    b, coeffs, terms, order, b_nonzero = sp
+    if not b_nonzero:  # as XYPolynomial.in_domain: everywhere when b == 0
+        return torch.ones_like(x, dtype=torch.bool)
+    f, _, _, _ = xy_f(x, y, torch.zeros_like(x), b, coeffs, terms, order)  # f(x, y, 0) = P
+    return 1.0 - 4.0 * b * f >= 0
+
+
+def detached(sp):
+    """The surface values ``sp`` (:func:`newton_surface_values`) without autograd history."""
+    return tuple(tuple(a.detach() for a in v) if isinstance(v, tuple) and v
+                 and isinstance(v[0], torch.Tensor)
+                 else v.detach() if isinstance(v, torch.Tensor) else v for v in sp)
+
+
+def newton_surface_values(surface, like):
+    """``(kind, sp)`` for an :class:`~.surfaces.Asphere` with coefficients or an
+    :class:`~.surfaces.XYPolynomial`: its values in ``like``'s dtype (differentiable) and the
+    static structure."""
+    if hasattr(surface, "terms"):
+        return "xy", (surface.b.to(like), tuple(a.to(like) for a in surface.a),
+                      tuple(surface.terms), surface.order, float(surface.b.detach()) != 0.0)
+    return "asphere", (surface.c.to(like), surface.k.to(like),
+                       tuple(a.to(like) for a in surface.a))
+
+
+def _residual_xyz(kind, sp, bx, by, bz, dx, dy, dz, s, at=None):
+    x, y, z = bx + s * dx, by + s * dy, bz + s * dz
+    if at is not None:
+        x, y, z = (torch.where(at, v, torch.zeros_like(v)) for v in (x, y, z))
+    fv, fx, fy, fz = _surface_f(kind, sp, x, y, z)
+    return fv, fx * dx + fy * dy + fz * dz
+
+
+def _newton_updates(kind, sp, bx, by, bz, dx, dy, dz, s, active, converged, tol_ray, n):
+    fv = None
+    for _ in range(n):
+        fv, fp = _residual_xyz(kind, sp, bx, by, bz, dx, dy, dz, s)
+        done = active & (fv.abs() < tol_ray)
+        converged = converged | done
+        active = active & ~done
+        active = active & (fp.abs() > 1e-12) & torch.isfinite(fv)
+        s = torch.where(active, s - _safe_div(fv, fp, active), s)
+    return s, active, converged, fv
+
+
+def newton_start(kind, sp, o, d, valid, z_shift, tol: float, n: int):
+    """No autograd.  The vertex-plane point ``b = o + t0 d``, the start (an asphere's conic
+    root, else the vertex plane) and ``n`` Newton updates.  ``o``, ``d``: ``(3, *B)``.  Returns
+    ``(b (3, *B), s, ok, active, converged, tol_ray, fv)``: ``ok`` the rays that were tried,
+    ``fv`` the residual before the last update."""
+    ox, oy, oz = o.unbind(0)
+    dx, dy, dz = d.unbind(0)
+    oz = oz - z_shift
+    ok = valid & (dz.abs() > 1e-12)
+    t0 = _safe_div(-oz, dz, ok)
+    bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
+    if kind == "asphere":
+        c, k, _ = sp
+        ck = c * (1.0 + k)
+        A = c * (dx * dx + dy * dy) + ck * (dz * dz)
+        B = c * (bx * dx + by * dy) + (ck * bz - 1.0) * dz
+        C = c * (bx * bx + by * by) + (ck * bz - 2.0) * bz
+        s, _ = _quadric_root((A, B, C, ck, c), bz, dz, ok)
+    else:
+        s = torch.zeros_like(t0)
+    eps = torch.finfo(o.dtype).eps
+    big = torch.maximum(torch.maximum(bx.abs(), by.abs()), bz.abs())
+    tol_ray = torch.clamp(_ROUNDING_ULPS * eps * big, min=tol)
+    s, active, converged, fv = _newton_updates(kind, sp, bx, by, bz, dx, dy, dz, s, ok,
+                                               torch.zeros_like(ok), tol_ray, n)
+    return torch.stack([bx, by, bz]), s, ok, active, converged, tol_ray, fv
+
+
+def newton_more(kind, sp, b, d, s, active, converged, tol_ray, n: int):
+    """No autograd: ``n`` more Newton updates; returns ``(s, active, converged, fv)``."""
+    return _newton_updates(kind, sp, *b.unbind(0), *d.unbind(0), s, active, converged, tol_ray, n)
+
+
+def newton_last_check(kind, sp, b, d, s, active, converged, tol_ray):
+    """No autograd: after ``max_iter`` updates, the rays still active that now meet the
+    tolerance count as converged; returns ``(converged, fv)``."""
+    fv, _ = _residual_xyz(kind, sp, *b.unbind(0), *d.unbind(0), s)
+    return converged | (active & (fv.abs() < tol_ray)), fv
+
+
+def newton_refract(kind, sp, o, d, valid, opl, z_shift, semi_diameter, n1, n2, s_star, ok,
+                   tol: float, clip: bool = True):
+    """The differentiable part: one Newton step from the converged ``s_star`` (Eq. 7; rays with
+    ``ok`` False are evaluated at the vertex), the domain, direction, aperture and finiteness
+    checks of :func:`~.intersect.intersect`, the normal ``∇f / |∇f|`` and Snell's law, as
+    :meth:`Lens.trace_surface <deeplens.optics.lens.Lens.trace_surface>` does on the Newton
+    path.  ``o``, ``d``: ``(3, *B)``; returns ``(o, d, valid, opl)`` in that layout."""
+    ox, oy, oz = o.unbind(0)
+    dx, dy, dz = d.unbind(0)
+    oz = oz - z_shift
+    t0 = _safe_div(-oz, dz, valid & (dz.abs() > 1e-12)).detach()
+    bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
+    fv, fp = _residual_xyz(kind, sp, bx, by, bz, dx, dy, dz, s_star, ok)
+    ok = ok & (fp.detach().abs() > 1e-12)
+    s = s_star - _safe_div(fv, fp, ok)
+    t = t0 + s
+    x, y, z = bx + s * dx, by + s * dy, bz + s * dz
+    X, Y = x.detach(), y.detach()
+    eps = torch.finfo(o.dtype).eps
+    with torch.no_grad():
+        ok = ok & _in_domain(kind, detached(sp), X, Y)
+        big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
+        ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
+        if clip:
+            ok = ok & (X * X + Y * Y <= semi_diameter * semi_diameter)
+        ok = ok & torch.isfinite(t)
+    t = torch.where(ok, t, torch.zeros_like(t))
+    x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
+    _, gx, gy, gz = _surface_f(kind, sp, x, y, z)
+    norm2 = gx * gx + gy * gy + gz * gz
+    norm = torch.sqrt(torch.where(norm2 > 0, norm2, torch.ones_like(norm2)))
+    nx, ny, nz = gx / norm, gy / norm, gz / norm  # as refract.unit_normal
+    eta = n1 / n2
+    cos_i = dx * nx + dy * ny + dz * nz
+    kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
+    ok = ok & (kk > 0)
+    coef = torch.copysign(torch.sqrt(torch.where(ok, kk, torch.ones_like(kk))), cos_i) - eta * cos_i
+    ex = torch.where(ok, eta * dx + coef * nx, dx)
+    ey = torch.where(ok, eta * dy + coef * ny, dy)
+    ez = torch.where(ok, eta * dz + coef * nz, dz)
+    return (torch.stack([x, y, z + z_shift]), torch.stack([ex, ey, ez]), ok, opl + n1 * t)
+
+
+compiled_newton_start = torch.compile(newton_start, dynamic=True)
+compiled_newton_more = torch.compile(newton_more, dynamic=True)
+compiled_newton_last_check = torch.compile(newton_last_check, dynamic=True)
+compiled_newton_refract = torch.compile(newton_refract, dynamic=True)
