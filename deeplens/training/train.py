@@ -161,7 +161,11 @@ _RULES = {
 
 def build_renderer(cfg, lens, sensor):
     r = cfg.render
-    opts = IntersectOptions(tol=r.newton_tol, max_iter=r.max_iter)
+    try:
+        opts = IntersectOptions(tol=r.newton_tol, max_iter=r.max_iter,
+                                compile=r.get("compile", False))
+    except ValueError as e:
+        raise ValueError(f"render.compile: {e}") from None
     if r.kind == "mc":
         return MonteCarloRenderer(lens, sensor, spp=r.spp, vignetting=r.vignetting,
                                   adjoint=r.adjoint, decorrelate=r.decorrelate and r.adjoint,

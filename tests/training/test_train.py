@@ -398,3 +398,18 @@ def test_worst_depth_weights_are_a_soft_maximum_over_depth_bins(cfg_factory):
         (0.01 + 0.0025) / 2, rel=1e-5)
     with pytest.raises(ValueError, match="model.worst_depth.temperature"):
         build_objects(cfg_factory("experiment=edof", "model.worst_depth={temperature:0}"))
+
+
+def test_render_compile_switch_reaches_the_tracer(cfg_factory):
+    """``render.compile`` is passed to the tracer's options (nothing compiles at build time);
+    a wrong value names the key."""
+    from deeplens.training.train import build_renderer
+
+    objs = build_objects(cfg_factory("experiment=edof"))
+    assert objs["renderer"].options.compile is False
+    cfg = cfg_factory("experiment=edof", "render.compile=true")
+    r = build_renderer(cfg, objs["lens"], objs["sensor"])
+    assert r.options.compile == "auto"
+    with pytest.raises(ValueError, match="render.compile: compile must be"):
+        build_renderer(cfg_factory("experiment=edof", "render.compile=fastest"), objs["lens"],
+                       objs["sensor"])
