@@ -162,8 +162,8 @@ def test_nan_loss_stops_with_step_and_saves_the_state_before_it(cfg_factory, tmp
     def plant(module):
         orig = module.image_loss
 
-        def bad_loss(pred, gt):
-            terms = orig(pred, gt)
+        def bad_loss(pred, gt, depths=None):
+            terms = orig(pred, gt, depths)
             terms["mse"] = terms["mse"] * float("nan")
             return terms
 
