@@ -373,13 +373,15 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     summary = summarize(runs, depths, bands, psf_rms)
     table = format_table(summary, _columns(cfg))
     out = Path(cfg.eval.output)
-    alphas = ", ".join(f"{a * 1e3:g}" for a in _alphas(cfg))
+    cubic = [a for _, kind, a in todo if kind == "cubic"]
+    plates = (f"cubic plate alpha = {', '.join(f'{a * 1e3:g}' for a in cubic)} um (sag at the "
+              f"rim); " if cubic else "")
     test_set = (f"the images of {cfg.eval.test_folder} (centre crops)"
                 if cfg.eval.test_folder is not None
                 else f"{cfg.data.test_size} textures")
     text = (f"# Optical variants, each with its own restorer ({cfg.task_name})\n\n"
-            f"seeds {seed_list} (mean ± std over seeds); cubic plate alpha = {alphas} um (sag "
-            f"at the rim); test set of {test_set}; PSNR (dB) / SSIM\n\n{table}\n")
+            f"seeds {seed_list} (mean ± std over seeds); {plates}test set of {test_set}; "
+            f"PSNR (dB) / SSIM\n\n{table}\n")
     _atomic_write(out, text)
     _atomic_write(out.with_suffix(".json"), json.dumps(
         {"task": str(cfg.task_name), "seeds": seed_list, "variants": summary}, indent=2))
