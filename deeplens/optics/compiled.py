@@ -27,7 +27,8 @@ from __future__ import annotations
 
 import torch
 
-from .intersect import _ROUNDING_ULPS, _quadric_root, _safe_div, flat_step_xyz, quadric_step_xyz
+from .intersect import (_ROUNDING_ULPS, _quadric_root, _safe_div, accept_hits,
+                        flat_step_xyz, quadric_step_xyz, snell_xyz)
 
 __all__ = ["KINDS", "compiled_surface_run", "surface_run"]
 
@@ -254,29 +255,14 @@ def newton_refract(kind, sp, o, d, valid, opl, z_shift, semi_diameter, n1, n2, s
     s = s_star - _safe_div(fv, fp, ok)
     t = t0 + s
     x, y, z = bx + s * dx, by + s * dy, bz + s * dz
-    X, Y = x.detach(), y.detach()
-    eps = torch.finfo(o.dtype).eps
     with torch.no_grad():
-        ok = ok & _in_domain(kind, detached(sp), X, Y)
-        big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
-        ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
-        if clip:
-            ok = ok & (X * X + Y * Y <= semi_diameter * semi_diameter)
-        ok = ok & torch.isfinite(t)
-    t = torch.where(ok, t, torch.zeros_like(t))
-    x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
+        ok = ok & _in_domain(kind, detached(sp), x.detach(), y.detach())
+    t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol, clip)
     _, gx, gy, gz = _surface_f(kind, sp, x, y, z)
     norm2 = gx * gx + gy * gy + gz * gz
     norm = torch.sqrt(torch.where(norm2 > 0, norm2, torch.ones_like(norm2)))
     nx, ny, nz = gx / norm, gy / norm, gz / norm  # as refract.unit_normal
-    eta = n1 / n2
-    cos_i = dx * nx + dy * ny + dz * nz
-    kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
-    ok = ok & (kk > 0)
-    coef = torch.copysign(torch.sqrt(torch.where(ok, kk, torch.ones_like(kk))), cos_i) - eta * cos_i
-    ex = torch.where(ok, eta * dx + coef * nx, dx)
-    ey = torch.where(ok, eta * dy + coef * ny, dy)
-    ez = torch.where(ok, eta * dz + coef * nz, dz)
+    ex, ey, ez, ok = snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok)
     return (torch.stack([x, y, z + z_shift]), torch.stack([ex, ey, ez]), ok, opl + n1 * t)
 
 

@@ -269,8 +269,22 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
     ok = ok & found
     t = t0 + s
     x, y, z = bx + s * dx, by + s * dy, bz + s * dz
+    t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol, clip)
+    # unit normal (c x, c y, (1+k) c z - 1) / |.|, see Asphere.normal
+    gx, gy, gz = c * x, c * y, ck * z - 1.0
+    inv = torch.rsqrt((gx * gx + gy * gy + gz * gz).clamp_min(1e-30))
+    nx, ny, nz = gx * inv, gy * inv, gz * inv
+    ex, ey, ez, ok = snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok)
+    return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
+
+
+def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool):
+    """The checks every hit passes, on components: ahead of the ray (``t`` above minus a
+    rounding allowance of ``_ROUNDING_ULPS`` ulps of the coordinates, at least ``tol``), inside
+    the clear aperture (with ``clip``), finite.  A ray that fails keeps its origin ``o`` and
+    ``t = 0``.  Returns ``(t, x, y, z, ok)``."""
     X, Y = x.detach(), y.detach()
-    eps = torch.finfo(ox.dtype).eps
+    eps = torch.finfo(x.dtype).eps
     with torch.no_grad():
         big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
         ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
@@ -279,11 +293,14 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
         ok = ok & torch.isfinite(t)
     t = torch.where(ok, t, torch.zeros_like(t))
     x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
-    # unit normal (c x, c y, (1+k) c z - 1) / |.|, see Asphere.normal
-    gx, gy, gz = c * x, c * y, ck * z - 1.0
-    inv = torch.rsqrt((gx * gx + gy * gy + gz * gz).clamp_min(1e-30))
-    nx, ny, nz = gx * inv, gy * inv, gz * inv
-    # Snell's law, as refract.refract
+    return t, x, y, z, ok
+
+
+def snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok):
+    """Snell's law on components, as :func:`~.refract.refract`: the refracted direction
+    ``η d + (sign(cos θ_i) sqrt(1 - η²(1 - cos² θ_i)) - η cos θ_i) n``, ``η = n1 / n2``,
+    ``cos θ_i = d · n``; rays with total internal reflection (``k <= 0``) leave ``ok`` and keep
+    ``d``.  Returns ``(d_x, d_y, d_z, ok)``."""
     eta = n1 / n2
     cos_i = dx * nx + dy * ny + dz * nz
     kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
@@ -292,7 +309,7 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
     ex = torch.where(ok, eta * dx + coef * nx, dx)
     ey = torch.where(ok, eta * dy + coef * ny, dy)
     ez = torch.where(ok, eta * dz + coef * nz, dz)
-    return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
+    return ex, ey, ez, ok
 
 
 def flat_step(o, d, valid, opl, z_shift, aperture, n1, n2, tol: float, clip: bool = True,
