@@ -94,6 +94,17 @@ def _axes_list(ax):
     return list(np.atleast_1d(ax).ravel())
 
 
+def _field_panels(n: int, width: float, height: float):
+    """A figure of ``n`` panels (up to 4 per row), each ``width`` x ``height`` inches, the
+    unused grid cells hidden; returns ``(fig, axes)`` with the ``n`` panels in order."""
+    rows, cols = _grid(n)
+    fig, ax = style.figure(rows, cols, size=(width * cols, height * rows + 0.4), squeeze=False)
+    axes = _axes_list(ax)
+    for a in axes[n:]:
+        a.set_visible(False)
+    return fig, axes[:n]
+
+
 def _title(fig, lens, what):
     name = lens.name or "lens"
     fig.suptitle(f"{what}\n{name if len(name) < 48 else name[:45] + '...'}", fontsize=7)
@@ -107,9 +118,7 @@ def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
 
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     prim = _primary(lens, wavelengths_nm)
-    rows, cols = _grid(len(fields))
-    fig, ax = style.figure(rows, cols, size=(2.3 * cols, 2.3 * rows + 0.4), squeeze=False)
-    axes = _axes_list(ax)
+    fig, axes = _field_panels(len(fields), 2.3, 2.3)
     with torch.no_grad():
         for a, f in zip(axes, fields):
             ref = spot_diagram(lens, f, prim, sampling, pupil="paraxial",
@@ -124,8 +133,6 @@ def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
             a.set_aspect("equal", adjustable="datalim")
             a.set_title(f"{f:g} deg, RMS {max(rms):.3g} µm")
             a.set_xlabel("x (µm)")
-    for a in axes[len(fields):]:
-        a.set_visible(False)
     axes[0].set_ylabel("y (µm)")
     axes[0].legend(markerscale=6, loc="upper right")
     _title(fig, lens, "spot diagram")
@@ -213,9 +220,7 @@ def opd_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     from .wavefront import wavefront
 
     fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
-    rows, cols = _grid(len(fields))
-    fig, ax = style.figure(rows, cols, size=(2.6 * cols, 2.4 * rows + 0.4), squeeze=False)
-    axes = _axes_list(ax)
+    fig, axes = _field_panels(len(fields), 2.6, 2.4)
     with torch.no_grad():
         for a, f in zip(axes, fields):
             wf = wavefront(lens, f, w, n=n, image_plane=image_plane)
@@ -225,8 +230,6 @@ def opd_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
             a.set_title(f"{f:g} deg: RMS {float(wf.rms):.3f}, PV {float(wf.pv):.2f} waves")
             a.set_xlabel("p_x")
             a.grid(False)
-    for a in axes[len(fields):]:
-        a.set_visible(False)
     axes[0].set_ylabel("p_y")
     _title(fig, lens, f"OPD at {w:g} nm (waves)")
     return fig
@@ -240,9 +243,7 @@ def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     from .diffraction import psf_fft
 
     fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
-    rows, cols = _grid(len(fields))
-    fig, ax = style.figure(rows, cols, size=(2.4 * cols, 2.4 * rows + 0.4), squeeze=False)
-    axes = _axes_list(ax)
+    fig, axes = _field_panels(len(fields), 2.4, 2.4)
     with torch.no_grad():
         for a, f in zip(axes, fields):
             p = psf_fft(lens, f, w, n=n, image_plane=image_plane)
@@ -254,8 +255,6 @@ def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
             a.set_title(f"{f:g} deg, Strehl {float(p.strehl):.3f}")
             a.set_xlabel("x (µm)")
             a.grid(False)
-    for a in axes[len(fields):]:
-        a.set_visible(False)
     axes[0].set_ylabel("y (µm)")
     _title(fig, lens, f"PSF at {w:g} nm")
     return fig

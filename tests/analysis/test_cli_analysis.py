@@ -80,3 +80,20 @@ def test_bad_input_exits_2(argv, pattern, tmp_path, monkeypatch):
 def test_plot_kind_must_be_known():
     code, _, err = run(["plot", DG, "--kind", "bokeh", "-o", "x.png"])
     assert code == 2 and "--kind" in err
+
+
+def test_field_panels_one_visible_panel_per_field():
+    """Five fields on a grid of 4 columns: 2 x 4 cells, the 3 unused ones hidden, the panels in
+    field order."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from deeplens.analysis.plot import spot_figure
+
+    lens = load_lens(DG)
+    fields = [0.0, 4.0, 8.0, 12.0, 16.0]
+    fig = spot_figure(lens, fields_deg=fields, wavelengths_nm=[587.5618],
+                      sampling="hexapolar:2")
+    assert len(fig.axes) == 8
+    shown = [a for a in fig.axes if a.get_visible()]
+    assert [a.get_title().split(" deg")[0] for a in shown] == [f"{f:g}" for f in fields]
