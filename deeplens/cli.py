@@ -30,6 +30,7 @@ def _floats(text: str, what: str, unit: str) -> list[float]:
 def _report(args) -> int:
     import torch
 
+    from .analysis.checks import AnalysisError, check_wavelength
     from .analysis.report import analysis_report, format_report, lens_report
     from .optics.io import load_lens
     from .optics.materials import check_wavelength_nm
@@ -49,12 +50,10 @@ def _report(args) -> int:
             check_wavelength_nm(waves, where="--wavelengths: ")
         lens = load_lens(args.lens).to(torch.float64)
         if waves:
-            for i, m in enumerate(lens.materials):
-                medium = "object space" if i == 0 else f"the medium after surface {i - 1}"
-                try:
-                    check_wavelength_nm(waves, m)
-                except ValueError as e:
-                    raise _UsageError(f"--wavelengths: {e} ({medium} of {args.lens})") from None
+            try:
+                check_wavelength(lens, waves, owner=f" of {args.lens}")
+            except AnalysisError as e:
+                raise _UsageError(f"--wavelengths: {e}") from None
         kinds = _analysis_kinds(args.analysis) if args.analysis is not None else None
         rep = lens_report(lens, fields, waves, args.sampling, args.pupil, args.image_plane)
         if kinds:

@@ -16,9 +16,10 @@ class AnalysisError(ValueError):
     """An analysis that cannot be computed for the given lens, field or wavelength."""
 
 
-def check_wavelength(lens, wavelength_nm) -> None:
+def check_wavelength(lens, wavelength_nm, owner: str = "") -> None:
     """Raise :class:`AnalysisError` unless ``wavelength_nm`` (nm, number or list) lies in the
-    range of every medium of ``lens``; the message names the medium."""
+    range of every medium of ``lens``; the message names the medium (followed by ``owner``,
+    e.g. ``" of lens.json"``)."""
     w = [float(v) for v in (wavelength_nm if isinstance(wavelength_nm, (list, tuple))
                             else [wavelength_nm])]
     try:
@@ -30,7 +31,7 @@ def check_wavelength(lens, wavelength_nm) -> None:
         try:
             check_wavelength_nm(w, m)
         except ValueError as e:
-            raise AnalysisError(f"{e} ({medium})") from None
+            raise AnalysisError(f"{e} ({medium}{owner})") from None
 
 
 def max_field_deg(lens) -> float:

@@ -97,3 +97,10 @@ def test_field_panels_one_visible_panel_per_field():
     assert len(fig.axes) == 8
     shown = [a for a in fig.axes if a.get_visible()]
     assert [a.get_title().split(" deg")[0] for a in shown] == [f"{f:g}" for f in fields]
+
+
+def test_report_wavelength_outside_a_glass_names_the_medium_and_file():
+    code, out, err = run(["report", DG, "--wavelengths", "300"])
+    assert code == 2
+    assert ("--wavelengths: wavelength 300 nm is outside the valid range 310–2500 nm of "
+            "material 'SSK4' (the medium after surface 0 of " + DG + ")") in err
