@@ -85,3 +85,41 @@ def weighted_image_sum(out: Rays, weights: torch.Tensor) -> torch.Tensor:
     xy = out.o[..., :2]
     terms = (weights.to(xy) * xy).sum(-1)
     return torch.where(out.valid, terms, torch.zeros_like(terms)).sum()
+
+
+def optiland_optic(spec: dict, index_of, object_distance: float = math.inf):
+    """An optiland ``Optic`` (the test-only oracle) with the surfaces of a lens-file dictionary:
+    object surface, every surface (even aspheres with their conic and coefficients; planes and
+    the aperture flat), an image surface 10 mm after the last, the aperture floating by the
+    stop's diameter.  ``index_of(material_name) -> float`` gives each medium's index (our own,
+    at the test's wavelength).  Fields, wavelengths and the image solve are the caller's."""
+    import numpy as np
+    from optiland.materials import IdealMaterial
+    from optiland.optic import Optic
+    from optiland.physical_apertures import RadialAperture
+
+    surfaces, stop = spec["surfaces"], spec["stop"]
+    op = Optic()
+    op.surfaces.add(index=0, radius=np.inf, thickness=object_distance,
+                    material=IdealMaterial(index_of(spec["object"]["medium"])))
+    for i, s in enumerate(surfaces):
+        # optiland's thickness follows a surface; ours (distance_mm) precedes it.
+        thickness = surfaces[i + 1]["distance_mm"] if i + 1 < len(surfaces) else 10.0
+        kw = dict(index=i + 1, thickness=thickness, material=IdealMaterial(index_of(s["material"])),
+                  aperture=RadialAperture(r_max=s["semi_diameter_mm"]), is_stop=(i == stop))
+        if s["type"] == "asphere":
+            c = s["curvature_per_mm"]
+            kw["radius"] = 1.0 / c if c != 0 else np.inf
+            if s.get("aspheric"):
+                kw.update(surface_type="even_asphere", conic=s.get("conic", 0.0),
+                          coefficients=[0.0] + list(s["aspheric"]), tol=1e-13)
+            else:
+                kw["conic"] = s.get("conic", 0.0)
+        else:
+            assert s["type"] in ("plane", "aperture"), s["type"]
+            kw["radius"] = np.inf
+        op.surfaces.add(**kw)
+    op.surfaces.add(index=len(surfaces) + 1)
+    op.set_aperture(aperture_type="float_by_stop_size",
+                    value=2.0 * surfaces[stop]["semi_diameter_mm"])
+    return op

@@ -40,6 +40,7 @@ import pytest
 
 optiland = pytest.importorskip("optiland")
 
+import helpers as H  # noqa: E402
 import torch  # noqa: E402
 
 from deeplens.analysis.aberrations import distortion, field_curvature  # noqa: E402
@@ -73,33 +74,7 @@ def _index(material):
 
 def build_optiland(spec: dict, object_distance=math.inf):
     """An optiland ``Optic`` from a lens dictionary (see the module docstring)."""
-    from optiland.materials import IdealMaterial
-    from optiland.optic import Optic
-    from optiland.physical_apertures import RadialAperture
-
-    surfaces, stop = spec["surfaces"], spec["stop"]
-    op = Optic()
-    op.surfaces.add(index=0, radius=np.inf, thickness=object_distance,
-                    material=IdealMaterial(_index(spec["object"]["medium"])))
-    for i, s in enumerate(surfaces):
-        thickness = surfaces[i + 1]["distance_mm"] if i + 1 < len(surfaces) else 10.0
-        kw = dict(index=i + 1, thickness=thickness, material=IdealMaterial(_index(s["material"])),
-                  aperture=RadialAperture(r_max=s["semi_diameter_mm"]), is_stop=(i == stop))
-        if s["type"] == "asphere":
-            c = s["curvature_per_mm"]
-            kw["radius"] = 1.0 / c if c != 0 else np.inf
-            if s.get("aspheric"):
-                kw.update(surface_type="even_asphere", conic=s.get("conic", 0.0),
-                          coefficients=[0.0] + list(s["aspheric"]), tol=1e-13)
-            else:
-                kw["conic"] = s.get("conic", 0.0)
-        else:
-            assert s["type"] in ("plane", "aperture"), s["type"]
-            kw["radius"] = np.inf
-        op.surfaces.add(**kw)
-    op.surfaces.add(index=len(surfaces) + 1)
-    op.set_aperture(aperture_type="float_by_stop_size",
-                    value=2.0 * surfaces[stop]["semi_diameter_mm"])
+    op = H.optiland_optic(spec, _index, object_distance)
     if math.isinf(object_distance):
         op.fields.set_type(field_type="angle")
         for f in spec["fields_deg"]:

@@ -35,6 +35,7 @@ import pytest
 
 optiland = pytest.importorskip("optiland")
 
+import helpers as H  # noqa: E402
 import torch  # noqa: E402
 
 from deeplens.cli import main as cli_main  # noqa: E402
@@ -74,37 +75,8 @@ def index_at(material: str) -> float:
 
 def build_optiland(spec: dict):
     """An optiland ``Optic`` from the lens-file dictionary; image plane by paraxial solve."""
-    from optiland.materials import IdealMaterial
-    from optiland.optic import Optic
-    from optiland.physical_apertures import RadialAperture
-
     assert math.isinf(float(spec["object"]["distance_mm"]))
-    surfaces = spec["surfaces"]
-    stop = spec["stop"]
-    op = Optic()
-    op.surfaces.add(index=0, radius=np.inf, thickness=np.inf,
-                    material=IdealMaterial(index_at(spec["object"]["medium"])))
-    for i, s in enumerate(surfaces):
-        # optiland's thickness follows a surface; ours (distance_mm) precedes it.
-        thickness = surfaces[i + 1]["distance_mm"] if i + 1 < len(surfaces) else 10.0
-        kw = dict(index=i + 1, thickness=thickness, material=IdealMaterial(index_at(s["material"])),
-                  aperture=RadialAperture(r_max=s["semi_diameter_mm"]), is_stop=(i == stop))
-        if s["type"] == "asphere":
-            c = s["curvature_per_mm"]
-            kw["radius"] = 1.0 / c if c != 0 else np.inf
-            coeffs = s.get("aspheric", [])
-            if coeffs:
-                kw.update(surface_type="even_asphere", conic=s.get("conic", 0.0),
-                          coefficients=[0.0] + list(coeffs), tol=1e-13)
-            else:
-                kw["conic"] = s.get("conic", 0.0)
-        else:
-            assert s["type"] in ("plane", "aperture"), s["type"]
-            kw["radius"] = np.inf
-        op.surfaces.add(**kw)
-    op.surfaces.add(index=len(surfaces) + 1)
-    op.set_aperture(aperture_type="float_by_stop_size",
-                    value=2.0 * surfaces[stop]["semi_diameter_mm"])
+    op = H.optiland_optic(spec, index_at)
     op.fields.set_type(field_type="angle")
     for f in FIELDS_DEG:
         op.fields.add(y=f)
