@@ -123,3 +123,16 @@ def optiland_optic(spec: dict, index_of, object_distance: float = math.inf):
     op.set_aperture(aperture_type="float_by_stop_size",
                     value=2.0 * surfaces[stop]["semi_diameter_mm"])
     return op
+
+
+def run_cli(argv, capsys):
+    """``(exit status, stdout, stderr)`` of ``deeplens ARGV`` in-process; argparse's own errors
+    exit via SystemExit."""
+    from deeplens.cli import main
+
+    try:
+        code = main(argv)
+    except SystemExit as e:
+        code = e.code
+    out = capsys.readouterr()
+    return code, out.out, out.err

@@ -6,24 +6,17 @@ import math
 import re
 from pathlib import Path
 
+import helpers as H
 import pytest
 
 from deeplens.optics.paraxial import paraxial
-from deeplens.cli import main
 from deeplens.optics.io import load_lens
 
 ROOT = Path(__file__).resolve().parents[1]
 DG = str(ROOT / "data" / "lenses" / "double_gauss.json")
 
 
-def run(argv, capsys):
-    """``(exit status, stdout, stderr)``; argparse's own errors exit via SystemExit."""
-    try:
-        code = main(argv)
-    except SystemExit as e:
-        code = e.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
+run = H.run_cli
 
 
 def report_json(capsys, *extra):

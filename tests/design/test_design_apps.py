@@ -4,10 +4,10 @@ registry, and the optimize/tolerance/design command lines."""
 import json
 import warnings
 
+import helpers as H
 import pytest
 from helpers import LENS_DIR
 
-from deeplens.cli import main
 from deeplens.design import apps
 from deeplens.design.apps import load_app
 
@@ -32,13 +32,7 @@ def _args(name, tmp_path, **kw):
     return args
 
 
-def run(argv, capsys):
-    try:
-        code = main(argv)
-    except SystemExit as e:
-        code = e.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
+run = H.run_cli
 
 
 def test_registry_names_and_errors(monkeypatch):
