@@ -136,3 +136,20 @@ def run_cli(argv, capsys):
         code = e.code
     out = capsys.readouterr()
     return code, out.out, out.err
+
+
+def hexapolar_unit(rings: int):
+    """The CLI's hexapolar pupil pattern in normalised coordinates, built independently of
+    ``deeplens.optics.sampling`` (for the optiland oracles): the centre, then ring ``k`` of
+    ``6k`` points at radius ``k / rings``, angle ``2πj / 6k`` from +y towards +x.  Returns
+    ``(p_x, p_y)`` as numpy arrays."""
+    import numpy as np
+
+    px, py = [0.0], [0.0]
+    for k in range(1, rings + 1):
+        r = k / rings
+        for j in range(6 * k):
+            phi = 2.0 * math.pi * j / (6 * k)
+            px.append(r * math.sin(phi))
+            py.append(r * math.cos(phi))
+    return np.array(px), np.array(py)

@@ -50,18 +50,6 @@ RINGS = 18
 ND = {"SSK4": 1.61770, "SK1": 1.61030, "F15": 1.60570, "SK16": 1.62040}
 
 
-def hexapolar_unit(rings: int) -> tuple[np.ndarray, np.ndarray]:
-    """The CLI's hexapolar pattern in normalised pupil coordinates, built independently."""
-    px, py = [0.0], [0.0]
-    for k in range(1, rings + 1):
-        r = k / rings
-        for j in range(6 * k):
-            phi = 2.0 * math.pi * j / (6 * k)
-            px.append(r * math.sin(phi))
-            py.append(r * math.cos(phi))
-    return np.array(px), np.array(py)
-
-
 def scalar(v) -> float:
     """A Python float from an optiland scalar or one-element array."""
     return float(np.asarray(v, dtype=float).ravel()[0])
@@ -139,7 +127,7 @@ def test_first_order_matches_optiland(optic, report, spec):
 
 def _optiland_spot(optic, field_deg):
     """Image points of the valid rays of one field (same pupil points as the CLI)."""
-    px, py = hexapolar_unit(RINGS)
+    px, py = H.hexapolar_unit(RINGS)
     optic.ray_tracer.set_aiming("paraxial")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -23,10 +23,10 @@ an index or conversion error would cancel out.  Here optiland works from its own
 
 from __future__ import annotations
 
-import math
 import warnings
 from pathlib import Path
 
+import helpers as H
 import numpy as np
 import pytest
 
@@ -50,21 +50,10 @@ def scalar(v) -> float:
     return float(np.asarray(v, dtype=float).ravel()[0])
 
 
-def hexapolar_unit(rings: int):
-    """Centre plus ring ``k`` of ``6k`` points at radius ``k / rings`` (normalised pupil)."""
-    px, py = [0.0], [0.0]
-    for k in range(1, rings + 1):
-        for j in range(6 * k):
-            phi = 2.0 * math.pi * j / (6 * k)
-            px.append(k / rings * math.sin(phi))
-            py.append(k / rings * math.cos(phi))
-    return np.array(px), np.array(py)
-
-
 def optiland_image_points(op, field_deg, max_field_deg, wavelength_nm, fill=1.0):
     """Image-plane ``(x, y)`` of the hexapolar rays (over ``fill`` of the pupil radius) and a
     mask of the rays that arrive."""
-    px, py = (fill * v for v in hexapolar_unit(RINGS))
+    px, py = (fill * v for v in H.hexapolar_unit(RINGS))
     op.ray_tracer.set_aiming("paraxial")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -76,7 +65,7 @@ def optiland_image_points(op, field_deg, max_field_deg, wavelength_nm, fill=1.0)
 
 def deeplens_image_points(lens, field_deg, wavelength_nm, fill=1.0):
     """The same pupil points on our paraxial entrance pupil, traced to the sensor plane."""
-    px, py = (fill * v for v in hexapolar_unit(RINGS))
+    px, py = (fill * v for v in H.hexapolar_unit(RINGS))
     p = paraxial(lens, wavelength_nm)
     r_ep = 0.5 * float(p.entrance_pupil_diameter)
     xy = torch.tensor(np.stack([px, py], -1) * r_ep, dtype=torch.float64)

@@ -18,6 +18,7 @@ import math
 import warnings
 from pathlib import Path
 
+import helpers as H
 import pytest
 import torch
 
@@ -459,16 +460,6 @@ def _optiland(path, indices, stop_semi_diameter):
     return op
 
 
-def _hexapolar(rings):
-    px, py = [0.0], [0.0]
-    for k in range(1, rings + 1):
-        for j in range(6 * k):
-            phi = 2.0 * math.pi * j / (6 * k)
-            px.append(k / rings * math.sin(phi))
-            py.append(k / rings * math.cos(phi))
-    return px, py
-
-
 def test_optiland_reads_the_shipped_zmx_like_us():
     pytest.importorskip("optiland")
     import numpy as np
@@ -481,7 +472,7 @@ def test_optiland_reads_the_shipped_zmx_like_us():
                                                                  rel=1e-12)
     rings = 12
     rep = report(ZMX, "--pupil", "paraxial", "--sampling", f"hexapolar:{rings}")
-    px, py = (np.array(v) for v in _hexapolar(rings))
+    px, py = H.hexapolar_unit(rings)
     for row in rep["fields"]:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -510,11 +501,11 @@ def test_coordinate_breaks_match_optiland(tmp_path, element, param, value):
     write_zmx(lens, p)
     w = torch.tensor(587.5618, dtype=torch.float64)
     op = _optiland(p, [float(m.n(w)) for m in lens.materials], float(lens.stop.semi_diameter))
-    px, py = _hexapolar(6)
+    px, py = H.hexapolar_unit(6)
     field = 7.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        r = op.trace_generic(0.0, field / 21.0, np.array(px), np.array(py), 0.5875618)
+        r = op.trace_generic(0.0, field / 21.0, px, py, 0.5875618)
     x, y, i = (np.asarray(v, dtype=float) for v in (r.x, r.y, r.i))
     par = paraxial(lens)
     epd, zep = float(par.entrance_pupil_diameter), float(par.entrance_pupil_z)
