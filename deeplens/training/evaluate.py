@@ -195,10 +195,7 @@ def _run(cfg: DictConfig, ckpt: str | None, reuse: bool = False):
             if done is not None:
                 return done
         metrics, objs = train(cfg)
-        cb = objs["trainer"].checkpoint_callback
-        tested = cb.best_model_path if cb is not None and cb.best_model_path else None
-        if not tested or not Path(tested).is_file():
-            tested = None  # tested with the final weights: nothing to reload later
+        tested = objs["tested"]  # None: tested with the final weights, nothing to reload
         if tested is not None:
             _atomic_write(Path(cfg.paths.output_dir) / RUN_RECORD, json.dumps(
                 {"config": _run_key(cfg), "metrics": metrics, "tested": tested}, indent=1))

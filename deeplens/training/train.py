@@ -303,7 +303,8 @@ def train(cfg: DictConfig):
 
     Returns:
         ``(metrics, objects)``: the callback metrics as floats, and the built objects (plus
-        ``"summary"``, the text printed at the end).
+        ``"tested"``, the checkpoint the test scored or ``None``, and ``"summary"``, the text
+        printed at the end).
     """
     objs = build_objects(cfg)
     trainer, module, dm = objs["trainer"], objs["module"], objs["datamodule"]
@@ -319,6 +320,7 @@ def train(cfg: DictConfig):
         tested = _test_checkpoint(cfg, trainer, trained)
         trainer.test(module, datamodule=dm, ckpt_path=tested, verbose=False)
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items()})
+    objs["tested"] = tested
     objs["summary"] = summary(cfg, metrics, trainer, tested)
     if trainer.is_global_zero:
         print(objs["summary"])
