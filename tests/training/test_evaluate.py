@@ -240,6 +240,14 @@ def test_eval_resumes_finished_runs_and_retrains_changed_ones(cfg_factory, tmp_p
     assert rec["metrics"]["test/psnr_restored/d4500mm"] == pytest.approx(
         first["learned"]["restored"]["4500"]["psnr"])
 
+    # a record written before an option existed (its default null: the old behaviour) still
+    # matches
+    path = tmp_path / "learned" / "seed0" / ev.RUN_RECORD
+    old = json.loads(path.read_text())
+    assert old["config"]["model"].pop("worst_depth") is None
+    assert old["config"]["render"].pop("compile") is None
+    path.write_text(json.dumps(old))
+
     def no_training(cfg):
         raise AssertionError(f"trained again: {cfg.paths.output_dir}")
 

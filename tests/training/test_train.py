@@ -398,6 +398,12 @@ def test_worst_depth_weights_are_a_soft_maximum_over_depth_bins(cfg_factory):
         (0.01 + 0.0025) / 2, rel=1e-5)
     with pytest.raises(ValueError, match="model.worst_depth.temperature"):
         build_objects(cfg_factory("experiment=edof", "model.worst_depth={temperature:0}"))
+    with pytest.raises(ValueError, match="model.worst_depth.bins"):
+        build_objects(cfg_factory("experiment=edof", "model.worst_depth={bins:0}"))
+    with pytest.raises(ValueError, match="model.worst_depth.momentum"):
+        build_objects(cfg_factory("experiment=edof", "model.worst_depth={momentum:1.0}"))
+    with pytest.raises(ValueError, match="model.worst_depth: unknown keys"):
+        build_objects(cfg_factory("experiment=edof", "model.worst_depth={temp:1.0}"))
 
 
 def test_render_compile_switch_reaches_the_tracer(cfg_factory):
