@@ -5,7 +5,9 @@
 ``GT`` is the ideal camera's sharp image (:class:`~deeplens.render.scene.IdealCamera`),
 ``PSF_{c,k}`` the PSF of the plane's depth at patch centre ``k`` for channel ``c`` (its
 wavelengths weighted, :func:`~deeplens.render.psf.psf_grid`) and ``w_k`` bilinear blending
-weights between patch centres (one patch: a single convolution).  Exact only where the system is
+weights between patch centres (one patch: a single convolution).  ``GT`` is rendered beyond the
+frame's edges by the largest kernel's half width, so the blur brings the scene's content
+(``scene.margin``) into the edge pixels, as the ray tracer does, not a black surround.  Exact only where the system is
 shift-invariant over a patch; relative illumination is not modelled (PSFs sum to one).  Same call
 interface as :class:`~deeplens.render.monte_carlo.MonteCarloRenderer`.
 """
@@ -70,23 +72,31 @@ class PSFConvRenderer(nn.Module):
             raise TypeError(f"PSFConvRenderer expects a Scene, got {type(scene).__name__}")
         seed = self.seed if seed is None else seed
         dtype = self.lens.dtype
-        gt = IdealCamera(self.lens, self.sensor).render(scene, self.supersample).to(dtype)
         jobs = self.sensor.wavelengths_for(scene.channels)
         H, W = self.sensor.resolution
-        blend = blend_weights((H, W), self.patches, dtype, gt.device)
-        out = torch.zeros_like(gt)
         depths = scene.depths_mm.tolist()
+        kernels = {}  # (depth, job) -> (P, 1, K, K), flipped: convolution, not correlation
+        for depth in sorted(set(depths)):
+            for c, w, wt in jobs:
+                kers, _ = psf_grid(self.lens, self.sensor, depth, w, self.patches, self.n_rays,
+                                   self.kernel_size, seed, self.options)
+                K = kers.shape[-1]
+                kernels[depth, c, w] = kers.reshape(-1, 1, K, K).flip(-1, -2)
+        # the ideal image extended by the largest kernel's half width: light that the blur
+        # brings in from beyond the frame's edge is scene content (scene.margin), not black
+        P = max(k.shape[-1] for k in kernels.values()) // 2
+        gt = IdealCamera(self.lens, self.sensor).render(scene, self.supersample, pad=P).to(dtype)
+        blend = blend_weights((H, W), self.patches, dtype, gt.device)
+        out = gt.new_zeros(gt.shape[0], gt.shape[1], H, W)
         for depth in sorted(set(depths)):
             idx = [b for b, d in enumerate(depths) if d == depth]
             chans = [torch.zeros(len(idx), H, W, dtype=dtype, device=gt.device)
                      for _ in range(gt.shape[1])]
             for c, w, wt in jobs:
-                kers, _ = psf_grid(self.lens, self.sensor, depth, w, self.patches, self.n_rays,
-                                   self.kernel_size, seed, self.options)
-                K = kers.shape[-1]
-                kers = kers.reshape(-1, 1, K, K).flip(-1, -2)  # convolution, not correlation
-                x = gt[idx, c:c + 1]  # (b, 1, H, W)
-                y = F.conv2d(x, kers.to(x), padding=K // 2)  # (b, P, H, W)
+                kers = kernels[depth, c, w]
+                r = P - kers.shape[-1] // 2
+                x = gt[idx, c:c + 1, r:r + H + kers.shape[-1] - 1, r:r + W + kers.shape[-1] - 1]
+                y = F.conv2d(x, kers.to(x))  # (b, P, H, W)
                 chans[c] = chans[c] + wt * (y * blend[None]).sum(1)
             out[idx] = torch.stack(chans, 1)
         return out

@@ -136,14 +136,18 @@ class IdealCamera:
         """Object-space field angle imaged to sensor radius ``r_sensor_mm``."""
         return math.degrees(math.atan(abs(r_sensor_mm / self.kappa)))
 
-    def render(self, scene: Scene, supersample: int = 2) -> torch.Tensor:
-        """The sharp ground truth ``(B, C, H, W)`` with the lens's framing (box-filtered
-        ``supersample^2`` samples per pixel)."""
+    def render(self, scene: Scene, supersample: int = 2, pad: int = 0) -> torch.Tensor:
+        """The sharp ground truth ``(B, C, H + 2 pad, W + 2 pad)`` with the lens's framing
+        (box-filtered ``supersample^2`` samples per pixel); ``pad`` pixels beyond every edge of
+        the sensor (the scene that a blur brings into the frame)."""
         H, W = self.sensor.resolution
-        s = supersample
+        s, pad = supersample, int(pad)
+        if pad < 0:
+            raise ValueError(f"pad must be >= 0, got {pad}")
         dtype, device = scene.textures.dtype, scene.textures.device
-        i = (torch.arange(H * s, dtype=torch.float64, device=device) + 0.5) / s
-        j = (torch.arange(W * s, dtype=torch.float64, device=device) + 0.5) / s
+        i = (torch.arange(-pad * s, (H + pad) * s, dtype=torch.float64, device=device) + 0.5) / s
+        j = (torch.arange(-pad * s, (W + pad) * s, dtype=torch.float64, device=device) + 0.5) / s
+        H, W = H + 2 * pad, W + 2 * pad
         I, J = torch.meshgrid(i, j, indexing="ij")
         x, y = self.sensor.pixel_to_xy(I, J)
         sizes = scene.resolved_sizes(self)

@@ -363,6 +363,28 @@ def test_psf_convolution_matches_ray_tracing_on_axis(edof):
     assert err < 0.25 * float((mc - gt)[inner].abs().mean())
 
 
+def test_psf_convolution_brings_scene_beyond_the_frame_into_its_edges(edof):
+    """A scene larger than the field of view: the PSF-convolved image's edge pixels receive
+    the light blurred in from beyond the frame, as the ray-traced image's do (with a black
+    surround instead of the scene the edge ring was 20-40 % too dark)."""
+    sensor = Sensor((24, 24), 0.0195)
+    g = torch.Generator().manual_seed(1)
+    tex = 0.5 + 0.5 * torch.rand(1, 72, 72, generator=g, dtype=torch.float64)
+    cam = IdealCamera(edof, sensor)
+    scene = Scene(tex, 3000.0, cam.fov_size_mm(3000.0) * 1.5)
+    mc = MonteCarloRenderer(edof, sensor, spp=256, vignetting=False)(scene)
+    pc = PSFConvRenderer(edof, sensor, n_rays=20000)(scene)
+    ring = torch.ones(24, 24, dtype=torch.bool)
+    ring[3:-3, 3:-3] = False
+    err = (mc - pc)[..., ring].abs().mean()
+    assert float(err) < 0.02 * float(mc[..., ring].mean())
+    # the extended ground truth is the plain one in its middle, and samples beyond the frame
+    big = cam.render(scene, pad=5)
+    assert big.shape[-2:] == (34, 34)
+    assert torch.allclose(big[..., 5:-5, 5:-5], cam.render(scene))
+    assert float(big[..., :5, :].mean()) > 0.5
+
+
 def test_blend_weights_partition_unity():
     w = blend_weights((20, 30), (3, 4))
     assert w.shape == (12, 20, 30)
