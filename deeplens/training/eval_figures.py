@@ -109,7 +109,7 @@ def samples_figure(modules: dict, datamodules: dict, depths, focus_mm: float):
         m, img = modules[v], first[v]
         with torch.no_grad():
             y, gt = m.capture(img, [d], seed=10_000_019, noise=True)
-            pred = m.restorer(y.to(next(m.restorer.parameters()).device)).clamp(0, 1)
+            pred = m(y.to(next(m.restorer.parameters()).device)).clamp(0, 1)
         for c, (t, lab) in enumerate(((gt, "ground truth"), (y, "sensor"), (pred, "restored"))):
             a = t[0].detach().float().clamp(0, 1).cpu()
             a = a.expand(3, -1, -1) if a.shape[0] == 1 else a

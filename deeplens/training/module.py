@@ -87,6 +87,11 @@ class EndToEndModule(L.LightningModule):
             bin ``b`` is weighted by ``K softmax_b(log E_b / T)`` (mean weight 1 over bins, so
             ``T -> inf`` is the plain mean and small ``T`` trains on the worst bin).  Weights
             the MSE, L1 and SSIM terms; the running means are a checkpointed buffer.
+        deconvolution: ``None`` (the restorer sees the sensor image) or the keyword arguments
+            of a :class:`~.wiener.DepthWienerFilter` (``{"depths", "rays", "nsr",
+            "learn_nsr"}``): the sensor image is first deconvolved with the depth-averaged
+            Wiener filter of the current lens (PSF-aware restoration), and the restorer
+            refines that.  Its noise-to-signal ratio trains with the network.
         optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
             (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
@@ -96,7 +101,7 @@ class EndToEndModule(L.LightningModule):
                  disc_lr: float = 1e-4, perceptual=None, discriminator=None,
                  max_sag_mm: float | None = None, seed: int = 0, perceptual_weights=None,
                  optimizer=None, disc_optimizer=None, scene_margin: float = 0.0,
-                 worst_depth: dict | None = None):
+                 worst_depth: dict | None = None, deconvolution: dict | None = None):
         super().__init__()
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
@@ -155,6 +160,16 @@ class EndToEndModule(L.LightningModule):
             # running mean loss per depth bin; NaN until the bin's first sample
             self.register_buffer("depth_loss_ema", torch.full((K,), float("nan"),
                                                               dtype=torch.float64))
+        self.deconv = None
+        if deconvolution is not None:
+            from .wiener import DepthWienerFilter
+
+            dc = dict(deconvolution)
+            unknown = set(dc) - {"depths", "rays", "nsr", "learn_nsr"}
+            if unknown:
+                raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
+                                 f"depths, rays, nsr, learn_nsr")
+            self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc)
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
     # ------------------------------------------------------------------ the camera
@@ -187,7 +202,12 @@ class EndToEndModule(L.LightningModule):
         return y.float(), gt.float()
 
     def forward(self, sensor_image: torch.Tensor) -> torch.Tensor:
-        return self.restorer(sensor_image)
+        """The restored image ``(B, C, H, W)`` of a sensor image (deconvolved first when the
+        module has a ``deconvolution`` front end)."""
+        x = sensor_image
+        if self.deconv is not None:
+            x = self.deconv(x)
+        return self.restorer(x)
 
     # ------------------------------------------------------------------ losses
     def constraint_loss(self) -> torch.Tensor:
@@ -265,7 +285,7 @@ class EndToEndModule(L.LightningModule):
         images = batch["image"]
         depths = self.sample_depths(images.shape[0], step)
         y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
-        pred = self.restorer(y)
+        pred = self(y)
         terms = self.image_loss(pred, gt, depths)
         if self.discriminator is not None and self.loss_w["adversarial"]:
             from ..nets.losses import adversarial_loss
@@ -308,6 +328,8 @@ class EndToEndModule(L.LightningModule):
     def _named_trained(self):
         yield from ((f"lens.{n}", p) for n, p in self.lens.named_parameters())
         yield from ((f"restorer.{n}", p) for n, p in self.restorer.named_parameters())
+        if self.deconv is not None:
+            yield from ((f"deconv.{n}", p) for n, p in self.deconv.named_parameters())
 
     def _nonfinite_grad(self) -> str | None:
         """Name of the first trainable parameter whose gradient is NaN or infinite."""
@@ -366,7 +388,7 @@ class EndToEndModule(L.LightningModule):
         y_all, gt_all = self.capture(images.repeat(nd, 1, 1, 1), depths,
                                      seed=10_000_019 + batch_idx * 101, noise=True)
         with torch.no_grad():
-            pred_all = self.restorer(y_all)
+            pred_all = self(y_all)
         out = {}
         for k, d in enumerate(self.val_depths_mm):
             sl = slice(k * B, (k + 1) * B)
@@ -402,7 +424,10 @@ class EndToEndModule(L.LightningModule):
 
     # ------------------------------------------------------------------ optimisers
     def _param_groups(self) -> list[dict]:
-        groups = [{"params": list(self.restorer.parameters()), "lr": self.net_lr, "name": "net"}]
+        net = list(self.restorer.parameters())
+        if self.deconv is not None:
+            net += list(self.deconv.parameters())
+        groups = [{"params": net, "lr": self.net_lr, "name": "net"}]
         return groups + optics_param_groups(self.lens, self.optics_lr_mm)
 
     def configure_optimizers(self):

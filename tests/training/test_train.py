@@ -419,3 +419,30 @@ def test_render_compile_switch_reaches_the_tracer(cfg_factory):
     with pytest.raises(ValueError, match="render.compile: compile must be"):
         build_renderer(cfg_factory("experiment=edof", "render.compile=fastest"), objs["lens"],
                        objs["sensor"])
+
+
+def test_deconvolution_front_end_trains_with_the_lens_and_is_checkpointed(cfg_factory, tmp_path):
+    """``model.deconvolution``: the restorer sees the Wiener-deconvolved image, the noise ratio
+    trains in the network's group, the plate's gradient includes the filter's, and the state
+    is checkpointed; bad keys are refused by name."""
+    cfg = cfg_factory("experiment=edof", "render=psf", "render.psf_patches=[1,1]",
+                      "render.psf_rays=1024", "trainer.max_steps=2", "test=false",
+                      "model.deconvolution={depths:2,rays:1024,nsr:0.02}")
+    objs = build_objects(cfg)
+    m = objs["module"]
+    assert m.deconv is not None and m.deconv.depths_mm == pytest.approx([8000.0, 4500.0])
+    net = m._param_groups()[0]
+    assert net["name"] == "net" and any(p is m.deconv.log_nsr for p in net["params"])
+    y = torch.rand(1, 3, 16, 16)
+    assert torch.allclose(m(y), m.restorer(m.deconv(y)))
+    # the plate's gradient through the filter alone (fixed sensor image) is not zero
+    plate = [p for n, p in m.lens.named_parameters() if p.requires_grad]
+    g = torch.autograd.grad(m.deconv(y).square().sum(), plate, allow_unused=True)
+    assert any(x is not None and float(x.abs().max()) > 0 for x in g)
+    before = m.deconv.log_nsr.detach().clone()
+    objs["trainer"].fit(m, datamodule=objs["datamodule"])
+    assert not torch.equal(m.deconv.log_nsr.detach(), before)
+    state = torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=False)["state_dict"]
+    assert torch.equal(state["deconv.log_nsr"], m.deconv.log_nsr.detach())
+    with pytest.raises(ValueError, match="model.deconvolution: unknown keys"):
+        build_objects(cfg_factory("experiment=edof", "model.deconvolution={nrs:0.1}"))

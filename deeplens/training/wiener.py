@@ -1,0 +1,140 @@
+"""A PSF-aware front end for the restorer: the depth-averaged Wiener filter of the lens.
+
+The restorer of an end-to-end camera does not know the optics.  A coded PSF (a cubic phase
+plate spreads light over 3-11 pixels) is a large, known blur that a small U-Net trained for a
+few hundred steps undoes only partly.  This module deconvolves the sensor image with the
+optics' own PSFs first, and the network restores what is left (Sitzmann et al. 2018, the
+paper's ref. [10], feed the restorer a Wiener-deconvolved image in the same way)::
+
+    x̃ = F⁻¹[ G · F[y] ],   G(f) = E_d[conj H_d(f)] / (E_d[|H_d(f)|²] + nsr_c)
+
+``H_d`` is the optical transfer function of the on-axis PSF at depth ``d``, for ``depths``
+depths spaced uniformly in 1/depth over the training range (the depth distribution training
+samples from), and ``E_d`` their mean.  ``G`` is the linear filter of least mean square error
+when the depth is unknown and uniform in 1/depth and the noise-to-signal power ratio is
+``nsr_c``: for a depth-invariant PSF (a strong cubic plate) it is the ordinary Wiener filter of
+that PSF, for a PSF that changes with depth (no plate) it restores only the frequencies every
+depth passes.  The filter is a function of the lens, so a learned plate's gradient includes
+how it changes the deconvolution (the PSFs are traced with gradients), and ``nsr`` (one per
+sensor channel) is learned with the network.
+
+The image is extended by mirroring by half its size on every side before the FFT and cropped
+back, so the filter's circular boundary does not wrap one edge's content onto the other.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..render.psf import psf
+
+__all__ = ["DepthWienerFilter"]
+
+
+class DepthWienerFilter(nn.Module):
+    """``(B, C, H, W) -> (B, C, H, W)``: the depth-averaged Wiener deconvolution of the lens.
+
+    Args:
+        lens, sensor: the camera (held by reference, not registered: the end-to-end module
+            owns them).
+        depths_mm: ``[near, far]`` depth range (mm) or one depth.
+        depths: number of depths averaged (uniform in 1/depth, both ends included; >= 1).
+        rays: rays per PSF (a square grid over the entrance pupil, deterministic).
+        nsr: initial noise-to-signal power ratio (> 0), one per channel, learned in log space.
+        learn_nsr: whether ``nsr`` is a trainable parameter.
+    """
+
+    def __init__(self, lens, sensor, depths_mm, depths: int = 5, rays: int = 16384,
+                 nsr: float = 1e-2, learn_nsr: bool = True):
+        super().__init__()
+        if not (isinstance(depths, int) and depths >= 1):
+            raise ValueError(f"model.deconvolution.depths: expected an integer >= 1, got "
+                             f"{depths!r}")
+        if not (isinstance(rays, int) and rays >= 64):
+            raise ValueError(f"model.deconvolution.rays: expected an integer >= 64, got {rays!r}")
+        if not (isinstance(nsr, (int, float)) and math.isfinite(nsr) and nsr > 0):
+            raise ValueError(f"model.deconvolution.nsr: expected a number > 0, got {nsr!r}")
+        self._camera = (lens, sensor)  # a tuple: not registered as submodules
+        lo, hi = min(depths_mm), max(depths_mm)
+        if depths == 1 or lo == hi:
+            inv = [2 / (1 / lo + 1 / hi)]
+        else:
+            inv = [1 / hi + k / (depths - 1) * (1 / lo - 1 / hi) for k in range(depths)]
+        self.depths_mm = [1 / v for v in inv] if len(inv) > 1 else inv
+        self.rays = int(rays)
+        C = len(sensor.channels)
+        log_nsr = torch.full((C,), math.log(nsr), dtype=torch.float32)
+        if learn_nsr:
+            self.log_nsr = nn.Parameter(log_nsr)
+        else:
+            self.register_buffer("log_nsr", log_nsr)
+        self._cache = None  # (key, (mean conj H, mean |H|^2)) of a lens that is not training
+
+    # ------------------------------------------------------------------ the optics
+    def psfs(self, size) -> torch.Tensor:
+        """On-axis PSFs ``(D, C, K, K)`` per depth and sensor channel (``K`` odd, smaller than
+        both sides of ``size = (Hs, Ws)``), differentiable in the lens."""
+        lens, sensor = self._camera
+        n = max(int(round(math.sqrt(self.rays))), 8)
+        jobs = sensor.wavelengths_for(len(sensor.channels))
+        out = []
+        for d in self.depths_mm:
+            per = {}
+            for c, wl, w in jobs:
+                k = psf(lens, sensor, (0.0, 0.0), d, wl, n_rays=n * n, sampling=f"grid:{n}",
+                        max_kernel=min(size) - 1)
+                per.setdefault(c, []).append((k, w))
+            out.append(per)
+        K = max(k.shape[-1] for per in out for ks in per.values() for k, _ in ks)
+        rows = []
+        for per in out:
+            chans = []
+            for c in range(len(sensor.channels)):
+                acc, wsum = 0, 0.0
+                for k, w in per[c]:
+                    p = (K - k.shape[-1]) // 2
+                    acc = acc + w * F.pad(k, (p, p, p, p))
+                    wsum += w
+                chans.append(acc / wsum)
+            rows.append(torch.stack(chans))
+        return torch.stack(rows)
+
+    def otf_moments(self, size):
+        """``(E_d conj H, E_d |H|^2)``, each ``(C, Hs, Ws // 2 + 1)``, for an FFT of
+        ``size = (Hs, Ws)``; cached while no lens parameter changes or trains."""
+        lens, _ = self._camera
+        params = list(lens.parameters())
+        training = torch.is_grad_enabled() and any(p.requires_grad for p in params)
+        key = (tuple(size), tuple((p.data_ptr(), p._version) for p in params))
+        if not training and self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        k = self.psfs(size)  # (D, C, K, K)
+        K = k.shape[-1]
+        Hs, Ws = size
+        pad = F.pad(k, (0, Ws - K, 0, Hs - K))
+        # the kernel's centre (index K // 2) to the origin
+        pad = torch.roll(pad, shifts=(-(K // 2), -(K // 2)), dims=(-2, -1))
+        H = torch.fft.rfft2(pad)
+        moments = (H.conj().mean(0), (H.abs() ** 2).mean(0))
+        if not training:
+            self._cache = (key, tuple(m.detach() for m in moments))
+        return moments
+
+    def nsr(self) -> torch.Tensor:
+        """The noise-to-signal power ratio ``(C,)`` per channel."""
+        return self.log_nsr.exp()
+
+    # ------------------------------------------------------------------ the filter
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        B, C, Hh, Ww = y.shape
+        ph, pw = Hh // 2, Ww // 2
+        ext = F.pad(y, (pw, pw, ph, ph), mode="reflect" if min(Hh, Ww) > 1 else "replicate")
+        size = (Hh + 2 * ph, Ww + 2 * pw)
+        ch, h2 = self.otf_moments(size)
+        G = ch / (h2 + self.nsr().to(h2.dtype)[:, None, None])
+        x = torch.fft.irfft2(torch.fft.rfft2(ext.to(h2.dtype)) * G, s=size)
+        return x[..., ph:ph + Hh, pw:pw + Ww].to(y.dtype)

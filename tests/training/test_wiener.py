@@ -1,0 +1,131 @@
+"""The depth-averaged Wiener front end (deeplens.training.wiener)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from deeplens.optics.io import load_lens
+from deeplens.render import Sensor
+from deeplens.render.psf import psf
+from deeplens.training.lens_setup import cubic_phase_plate
+from deeplens.training.metrics import psnr
+from deeplens.training.wiener import DepthWienerFilter
+
+
+@pytest.fixture(scope="module")
+def coded():
+    """The EDOF lens with a 5 um cubic plate (float64) and a 24 x 24 sensor of 6.9 um."""
+    lens = load_lens("data/lenses/edof_achromat.json").to(torch.float64)
+    cubic_phase_plate(lens, 4, 0.005)
+    return lens, Sensor((24, 24), 0.0069, channels=[[587.6]])
+
+
+def _blur(x, k):
+    """True convolution of ``x`` (B, 1, H, W) with ``k`` (K, K) by conv2d (an independent path
+    from the filter's FFT), the scene mirrored beyond the frame."""
+    K = k.shape[-1]
+    xe = F.pad(x, (K // 2,) * 4, mode="reflect")
+    return F.conv2d(xe, k.flip(-1, -2)[None, None])
+
+
+def test_one_depth_inverts_the_lens_blur(coded):
+    """With one depth and a small noise ratio the filter undoes the PSF it traced (centring
+    and orientation right: an unflipped or shifted kernel does not), far better than a
+    regularised one."""
+    lens, sensor = coded
+    wf = DepthWienerFilter(lens, sensor, [6000.0], depths=1, rays=16384, nsr=1e-6,
+                           learn_nsr=False)
+    k = wf.psfs((48, 48))[0, 0]
+    assert k.shape[-1] >= 9 and math.isclose(float(k.sum()), 1.0, rel_tol=1e-9)
+    g = torch.Generator().manual_seed(0)
+    x = F.avg_pool2d(torch.rand(2, 1, 48, 48, generator=g, dtype=torch.float64), 2)
+    y = _blur(x, k)
+    inner = (..., slice(6, -6), slice(6, -6))
+    sharp = psnr(wf(y)[inner], x[inner])
+    flipped = psnr(wf(_blur(x, k.flip(-1, -2)))[inner], x[inner])
+    shifted = psnr(wf(torch.roll(y, 1, -1))[inner], x[inner])
+    assert float(psnr(y[inner], x[inner])) < 25 < 30 < float(sharp)
+    assert max(float(flipped), float(shifted)) < float(sharp) - 10
+
+
+def test_moments_are_the_mean_over_depths_uniform_in_inverse_depth(coded):
+    lens, sensor = coded
+    wf = DepthWienerFilter(lens, sensor, [4500.0, 8000.0], depths=3, rays=4096, nsr=1e-2)
+    mid = 2 / (1 / 4500 + 1 / 8000)
+    assert wf.depths_mm == pytest.approx([8000.0, mid, 4500.0])
+    ch, h2 = wf.otf_moments((32, 32))
+    assert ch.shape == h2.shape == (1, 32, 17)
+    Hs = []
+    for d in wf.depths_mm:
+        k = psf(lens, sensor, (0.0, 0.0), d, 587.6, n_rays=64 * 64, sampling="grid:64",
+                max_kernel=31)
+        K = k.shape[-1]
+        full = torch.zeros(32, 32, dtype=k.dtype)
+        for a in range(K):  # kernel centre to the origin, wrapped (written out, not rolled)
+            for b in range(K):
+                full[(a - K // 2) % 32, (b - K // 2) % 32] += k[a, b]
+        Hs.append(torch.fft.rfft2(full))
+    Hs = torch.stack(Hs)
+    assert torch.allclose(ch[0], Hs.conj().mean(0), atol=1e-12)
+    assert torch.allclose(h2[0], (Hs.abs() ** 2).mean(0), atol=1e-12)
+    # |E conj H|^2 <= E |H|^2 (Jensen), strictly where the PSF changes with depth
+    assert bool((ch.abs() ** 2 <= h2 + 1e-12).all())
+
+
+def test_gradient_to_the_plate_matches_central_differences(coded):
+    lens, sensor = coded
+    lens = load_lens("data/lenses/edof_achromat.json").to(torch.float64)
+    cubic_phase_plate(lens, 4, 0.0025)
+    a = lens.surfaces[4].a[6]  # the x^3 coefficient
+    a.requires_grad_(True)
+    wf = DepthWienerFilter(lens, sensor, [4500.0, 8000.0], depths=2, rays=4096, nsr=1e-2)
+    g = torch.Generator().manual_seed(3)
+    y = torch.rand(1, 1, 24, 24, generator=g, dtype=torch.float64)
+    w = torch.randn(1, 1, 24, 24, generator=g, dtype=torch.float64)
+
+    def loss():
+        return (wf(y) * w).sum()
+
+    (grad,) = torch.autograd.grad(loss(), a)
+    h = 1e-6 * float(a.detach().abs())  # the splat is piecewise linear: a small step
+    with torch.no_grad():
+        a += h
+        lp = float(loss())
+        a -= 2 * h
+        lm = float(loss())
+        a += h
+    fd = (lp - lm) / (2 * h)
+    assert abs(fd) > 0
+    assert float(grad) == pytest.approx(fd, rel=2e-3)
+
+
+def test_noise_ratio_is_learned_and_frozen_lens_moments_are_cached(coded):
+    lens, sensor = coded
+    wf = DepthWienerFilter(lens, sensor, [4500.0, 8000.0], depths=2, rays=1024, nsr=0.05)
+    assert [n for n, _ in wf.named_parameters()] == ["log_nsr"]
+    assert float(wf.nsr().detach()) == pytest.approx(0.05)
+    y = torch.rand(1, 1, 24, 24, dtype=torch.float64)
+    out = wf(y)
+    (g,) = torch.autograd.grad(out.square().sum(), wf.log_nsr)
+    assert float(g.abs()) > 0
+    first = wf._cache[1]
+    wf(y)
+    assert wf._cache[1] is first  # the lens did not change: no new trace
+    with torch.no_grad():
+        lens.surfaces[4].a[6] += 1e-5
+    wf(y)
+    assert wf._cache[1] is not first  # a changed lens (parameter version) is traced again
+    fixed = DepthWienerFilter(lens, sensor, [6000.0], learn_nsr=False)
+    assert list(fixed.parameters()) == []
+
+
+@pytest.mark.parametrize("kw, match", [({"depths": 0}, "depths"), ({"rays": 10}, "rays"),
+                                        ({"nsr": 0.0}, "nsr"), ({"nsr": float("nan")}, "nsr")])
+def test_bad_settings_are_refused_by_name(coded, kw, match):
+    lens, sensor = coded
+    with pytest.raises(ValueError, match=f"model.deconvolution.{match}"):
+        DepthWienerFilter(lens, sensor, [4500.0, 8000.0], **kw)
