@@ -92,6 +92,9 @@ class EndToEndModule(L.LightningModule):
             "learn_nsr"}``): the sensor image is first deconvolved with the depth-averaged
             Wiener filter of the current lens (PSF-aware restoration), and the restorer
             refines that.  Its noise-to-signal ratio trains with the network.
+        optics_warmup_steps: ``None``/0, or the optics stay fixed for this many first steps (their gradients
+            are dropped), so that the restorer learns to decode the starting optics before
+            the optics' gradient is trusted (e.g. a learned plate started from a cubic one).
         optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
             (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
@@ -101,7 +104,8 @@ class EndToEndModule(L.LightningModule):
                  disc_lr: float = 1e-4, perceptual=None, discriminator=None,
                  max_sag_mm: float | None = None, seed: int = 0, perceptual_weights=None,
                  optimizer=None, disc_optimizer=None, scene_margin: float = 0.0,
-                 worst_depth: dict | None = None, deconvolution: dict | None = None):
+                 worst_depth: dict | None = None, deconvolution: dict | None = None,
+                 optics_warmup_steps: int | None = None):
         super().__init__()
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
@@ -131,6 +135,11 @@ class EndToEndModule(L.LightningModule):
         self.optics_lr_mm = check_learning_rate("optics_lr_mm", optics_lr_mm)
         self.disc_lr = check_learning_rate("disc_lr", disc_lr)
         self.seed = int(seed)
+        optics_warmup_steps = optics_warmup_steps or 0
+        if not (isinstance(optics_warmup_steps, int) and optics_warmup_steps >= 0):
+            raise ValueError(f"model.optics_warmup_steps: expected an integer >= 0, got "
+                             f"{optics_warmup_steps!r}")
+        self.optics_warmup_steps = optics_warmup_steps
         self.optimizer = optimizer or torch.optim.Adam
         self.disc_optimizer = disc_optimizer or functools.partial(torch.optim.Adam,
                                                                   betas=(0.5, 0.999))
@@ -302,6 +311,9 @@ class EndToEndModule(L.LightningModule):
         if bad:
             opt_g.zero_grad(set_to_none=True)
             self._stop(step, f"non-finite gradient of {bad} at step {step}")
+        if step < self.optics_warmup_steps:  # optics fixed: Adam skips parameters without grad
+            for p in self.lens.parameters():
+                p.grad = None
         opt_g.step()
         bad = self._nonfinite_param()
         if bad:  # cannot happen with finite gradients and a bounded Adam rate; say so if it does

@@ -446,3 +446,27 @@ def test_deconvolution_front_end_trains_with_the_lens_and_is_checkpointed(cfg_fa
     assert torch.equal(state["deconv.log_nsr"], m.deconv.log_nsr.detach())
     with pytest.raises(ValueError, match="model.deconvolution: unknown keys"):
         build_objects(cfg_factory("experiment=edof", "model.deconvolution={nrs:0.1}"))
+
+
+def test_optics_warmup_keeps_the_lens_fixed_for_its_steps(cfg_factory):
+    """``model.optics_warmup_steps=N``: the lens does not move in the first N steps (the
+    restorer does), and moves after; a negative value is refused by name."""
+
+    def run(steps, warmup):
+        cfg = cfg_factory("experiment=doublet", f"trainer.max_steps={steps}", "test=false",
+                          "trainer.limit_val_batches=0", f"model.optics_warmup_steps={warmup}")
+        objs = build_objects(cfg)
+        m = objs["module"]
+        lens0 = [p.detach().clone() for p in m.lens.parameters() if p.requires_grad]
+        net0 = [p.detach().clone() for p in m.restorer.parameters()]
+        objs["trainer"].fit(m, datamodule=objs["datamodule"])
+        lens_moved = any(not torch.equal(a, p.detach()) for a, p in
+                         zip(lens0, [p for p in m.lens.parameters() if p.requires_grad]))
+        net_moved = any(not torch.equal(a, p.detach()) for a, p in
+                        zip(net0, m.restorer.parameters()))
+        return lens_moved, net_moved
+
+    assert run(2, 2) == (False, True)
+    assert run(2, 1) == (True, True)
+    with pytest.raises(ValueError, match="model.optics_warmup_steps"):
+        build_objects(cfg_factory("experiment=doublet", "model.optics_warmup_steps=-1"))
