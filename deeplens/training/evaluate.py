@@ -144,8 +144,9 @@ _NOT_IN_KEY = ("paths", "eval", "hydra", "task_name")
 def _run_key(cfg: DictConfig) -> dict:
     key = {k: (OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v)
            for k, v in ((k, cfg[k]) for k in cfg if k not in _NOT_IN_KEY)}
-    if not key["lens"].get("trainable"):  # frozen optics: the optics' rate and start are unused
-        key["model"].pop("optics_lr_mm", None)
+    if not key["lens"].get("trainable"):  # frozen optics: the optics' settings are unused
+        for k in ("optics_lr_mm", "optics_warmup_steps", "optics_worst_depth"):
+            key["model"].pop(k, None)
         key["lens"].pop("learned_start_alpha_mm", None)
     return key
 

@@ -95,6 +95,11 @@ class EndToEndModule(L.LightningModule):
         optics_warmup_steps: ``None``/0, or the optics stay fixed for this many first steps (their gradients
             are dropped), so that the restorer learns to decode the starting optics before
             the optics' gradient is trusted (e.g. a learned plate started from a cubic one).
+        optics_worst_depth: ``None`` or ``{"temperature", "bins", "momentum"}`` as for
+            ``worst_depth``, applied to the optics' gradient only: the loss stays the plain
+            mean (the restorer learns every depth), and each sample's gradient flowing back
+            into the optics (and the deconvolution front end) is scaled by its depth bin's
+            soft-maximum weight, so the optics are designed for the worst depth.
         optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
             (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
@@ -105,7 +110,8 @@ class EndToEndModule(L.LightningModule):
                  max_sag_mm: float | None = None, seed: int = 0, perceptual_weights=None,
                  optimizer=None, disc_optimizer=None, scene_margin: float = 0.0,
                  worst_depth: dict | None = None, deconvolution: dict | None = None,
-                 optics_warmup_steps: int | None = None):
+                 optics_warmup_steps: int | None = None,
+                 optics_worst_depth: dict | None = None):
         super().__init__()
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
@@ -150,25 +156,16 @@ class EndToEndModule(L.LightningModule):
         self.automatic_optimization = False
         self.camera = IdealCamera(lens, sensor)
         self.constraint = SagDepartureConstraint(lens, max_sag_mm)
-        self.worst_depth = None
-        if worst_depth is not None:
-            wd = {"temperature": 0.5, "bins": 4, "momentum": 0.9, **dict(worst_depth)}
-            unknown = set(wd) - {"temperature", "bins", "momentum"}
-            if unknown:
-                raise ValueError(f"model.worst_depth: unknown keys {sorted(unknown)}; expected "
-                                 f"temperature, bins, momentum")
-            T, K, mom = wd["temperature"], wd["bins"], wd["momentum"]
-            if not (isinstance(T, (int, float)) and math.isfinite(T) and T > 0):
-                raise ValueError(f"model.worst_depth.temperature: expected a number > 0, got {T!r}")
-            if not (isinstance(K, int) and K >= 1):
-                raise ValueError(f"model.worst_depth.bins: expected an integer >= 1, got {K!r}")
-            if not (isinstance(mom, (int, float)) and 0 <= mom < 1):
-                raise ValueError(f"model.worst_depth.momentum: expected a number in [0, 1), got "
-                                 f"{mom!r}")
-            self.worst_depth = {"temperature": float(T), "bins": K, "momentum": float(mom)}
+        self.worst_depth = self._soft_max_setting("worst_depth", worst_depth)
+        if self.worst_depth is not None:
             # running mean loss per depth bin; NaN until the bin's first sample
-            self.register_buffer("depth_loss_ema", torch.full((K,), float("nan"),
-                                                              dtype=torch.float64))
+            self.register_buffer("depth_loss_ema", torch.full(
+                (self.worst_depth["bins"],), float("nan"), dtype=torch.float64))
+        self.optics_worst_depth = self._soft_max_setting("optics_worst_depth",
+                                                         optics_worst_depth)
+        if self.optics_worst_depth is not None:
+            self.register_buffer("optics_depth_loss_ema", torch.full(
+                (self.optics_worst_depth["bins"],), float("nan"), dtype=torch.float64))
         self.deconv = None
         if deconvolution is not None:
             from .wiener import DepthWienerFilter
@@ -223,34 +220,70 @@ class EndToEndModule(L.LightningModule):
         """The lens constraint (:class:`~.constraints.SagDepartureConstraint`) now."""
         return self.constraint(self.lens)
 
-    def depth_bin(self, depths) -> torch.Tensor:
-        """Index ``(B,)`` of each depth's bin: ``bins`` equal intervals of 1/depth over the
-        training range (bin 0 the farthest)."""
+    @staticmethod
+    def _soft_max_setting(key: str, value) -> dict | None:
+        """``model.<key>`` (``worst_depth``, ``optics_worst_depth``) checked, defaults filled."""
+        if value is None:
+            return None
+        wd = {"temperature": 0.5, "bins": 4, "momentum": 0.9, **dict(value)}
+        unknown = set(wd) - {"temperature", "bins", "momentum"}
+        if unknown:
+            raise ValueError(f"model.{key}: unknown keys {sorted(unknown)}; expected "
+                             f"temperature, bins, momentum")
+        T, K, mom = wd["temperature"], wd["bins"], wd["momentum"]
+        if not (isinstance(T, (int, float)) and math.isfinite(T) and T > 0):
+            raise ValueError(f"model.{key}.temperature: expected a number > 0, got {T!r}")
+        if not (isinstance(K, int) and K >= 1):
+            raise ValueError(f"model.{key}.bins: expected an integer >= 1, got {K!r}")
+        if not (isinstance(mom, (int, float)) and 0 <= mom < 1):
+            raise ValueError(f"model.{key}.momentum: expected a number in [0, 1), got {mom!r}")
+        return {"temperature": float(T), "bins": K, "momentum": float(mom)}
+
+    def depth_bin(self, depths, bins: int | None = None) -> torch.Tensor:
+        """Index ``(B,)`` of each depth's bin: ``bins`` (default ``worst_depth``'s) equal
+        intervals of 1/depth over the training range (bin 0 the farthest)."""
         lo, hi = min(self.depths_mm), max(self.depths_mm)
-        K = self.worst_depth["bins"]
+        K = bins if bins is not None else self.worst_depth["bins"]
         inv = 1 / torch.as_tensor(depths, dtype=torch.float64)
         u = (inv - 1 / hi) / max(1 / lo - 1 / hi, 1e-300)
         return (u * K).floor().clamp(0, K - 1).long()
 
-    def depth_weights(self, per_image: torch.Tensor, depths) -> torch.Tensor:
-        """Sample weights ``(B,)`` of the soft maximum over depth bins (see ``worst_depth``);
-        updates the bins' running means with ``per_image`` ``(B,)`` (detached) first."""
-        wd = self.worst_depth
-        bins = self.depth_bin(depths).to(self.depth_loss_ema.device)
+    def depth_weights(self, per_image: torch.Tensor, depths, which: str = "worst_depth"
+                      ) -> torch.Tensor:
+        """Sample weights ``(B,)`` of the soft maximum over depth bins (see ``worst_depth``;
+        ``which="optics_worst_depth"`` for the optics' setting and running means); updates
+        the bins' running means with ``per_image`` ``(B,)`` (detached) first."""
+        wd = getattr(self, which)
+        buf = self.depth_loss_ema if which == "worst_depth" else self.optics_depth_loss_ema
+        bins = self.depth_bin(depths, wd["bins"]).to(buf.device)
         v = per_image.detach().to(torch.float64)
         with torch.no_grad():
             for b in bins.unique().tolist():
                 x = v[bins == b].mean()
-                e = self.depth_loss_ema[b]
-                self.depth_loss_ema[b] = x if torch.isnan(e) else (
+                e = buf[b]
+                buf[b] = x if torch.isnan(e) else (
                     wd["momentum"] * e + (1 - wd["momentum"]) * x)
-            ema = self.depth_loss_ema
+            ema = buf
             seen = ~torch.isnan(ema)
             logit = torch.where(seen, ema.clamp_min(1e-30).log(), torch.zeros_like(ema))
             # bins not seen yet take the largest seen value (no bin is favoured for being new)
             logit = torch.where(seen, logit, logit[seen].max())
             w = len(ema) * torch.softmax(logit / wd["temperature"], 0)
         return w[bins].to(per_image.dtype)
+
+    def per_image_loss(self, pred, gt) -> torch.Tensor:
+        """The weighted MSE + L1 + SSIM loss of each image ``(B,)``, detached."""
+        w = self.loss_w
+        with torch.no_grad():
+            total = torch.zeros(pred.shape[0], dtype=pred.dtype, device=pred.device)
+            if w["mse"]:
+                total = total + w["mse"] * ((pred - gt) ** 2).flatten(1).mean(1)
+            if w["l1"]:
+                total = total + w["l1"] * (pred - gt).abs().flatten(1).mean(1)
+            if w["ssim"]:
+                total = total + w["ssim"] * (1 - kornia_ssim(pred.clamp(0, 1), gt, 11)
+                                             .flatten(1).mean(1))
+        return total
 
     def image_loss(self, pred, gt, depths=None) -> dict:
         """Loss terms; with ``worst_depth`` and ``depths`` given, the MSE, L1 and SSIM terms
@@ -292,16 +325,7 @@ class EndToEndModule(L.LightningModule):
         self._buffers_before = {n: b.detach().clone() for n, b in self.named_buffers()
                                 if n.startswith(("restorer.", "discriminator."))}
         images = batch["image"]
-        depths = self.sample_depths(images.shape[0], step)
-        y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
-        pred = self(y)
-        terms = self.image_loss(pred, gt, depths)
-        if self.discriminator is not None and self.loss_w["adversarial"]:
-            from ..nets.losses import adversarial_loss
-
-            terms["adversarial"] = adversarial_loss(self.discriminator(pred), True)
-        terms["constraint"] = self.constraint_loss()
-        loss = sum(self.loss_w[k] * v for k, v in terms.items())
+        loss, terms, y, gt, pred = self.step_loss(images, step)
         if not torch.isfinite(loss):
             detail = ", ".join(f"{k}={float(v.detach()):.4g}" for k, v in terms.items())
             self._stop(step, f"non-finite loss {float(loss)} at step {step} ({detail})")
@@ -336,6 +360,31 @@ class EndToEndModule(L.LightningModule):
         self.log("train/psnr_restored", psnr(pred.detach(), gt), batch_size=n)
         self.log("train/psnr_sensor", psnr(y, gt), batch_size=n)
         return loss.detach()
+
+    def step_loss(self, images: torch.Tensor, step: int):
+        """The training loss of one batch of sharp ``images`` at ``step`` (depths, render and
+        noise seeded by the step): ``(loss, terms, sensor, gt, restored)``.  With
+        ``optics_worst_depth`` the gradient flowing back into the optics is scaled per sample
+        (a hook on the restorer's input)."""
+        depths = self.sample_depths(images.shape[0], step)
+        y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
+        x = self.deconv(y) if self.deconv is not None else y
+        scale = None
+        if self.optics_worst_depth is not None and x.requires_grad:
+            scale = {}  # filled below, once this step's losses are known
+            x.register_hook(lambda g: g * scale["w"].to(g.dtype)[:, None, None, None])
+        pred = self.restorer(x)
+        terms = self.image_loss(pred, gt, depths)
+        if scale is not None:
+            scale["w"] = self.depth_weights(self.per_image_loss(pred, gt), depths,
+                                            "optics_worst_depth")
+        if self.discriminator is not None and self.loss_w["adversarial"]:
+            from ..nets.losses import adversarial_loss
+
+            terms["adversarial"] = adversarial_loss(self.discriminator(pred), True)
+        terms["constraint"] = self.constraint_loss()
+        loss = sum(self.loss_w[k] * v for k, v in terms.items())
+        return loss, terms, y, gt, pred
 
     def _named_trained(self):
         yield from ((f"lens.{n}", p) for n, p in self.lens.named_parameters())

@@ -21,6 +21,7 @@ TINY = [
     "data.val_size=2",
     "data.test_size=2",
     "render.spp=2",
+    "render.psf_rays=1024",
     "trainer.max_epochs=1",
     "trainer.log_every_n_steps=1",
     "callbacks.image_logger.psf_rays=256",

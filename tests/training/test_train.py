@@ -445,7 +445,7 @@ def test_deconvolution_front_end_trains_with_the_lens_and_is_checkpointed(cfg_fa
     state = torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=False)["state_dict"]
     assert torch.equal(state["deconv.log_nsr"], m.deconv.log_nsr.detach())
     with pytest.raises(ValueError, match="model.deconvolution: unknown keys"):
-        build_objects(cfg_factory("experiment=edof", "model.deconvolution={nrs:0.1}"))
+        build_objects(cfg_factory("experiment=doublet", "model.deconvolution={nrs:0.1}"))
 
 
 def test_optics_warmup_keeps_the_lens_fixed_for_its_steps(cfg_factory):
@@ -470,3 +470,44 @@ def test_optics_warmup_keeps_the_lens_fixed_for_its_steps(cfg_factory):
     assert run(2, 1) == (True, True)
     with pytest.raises(ValueError, match="model.optics_warmup_steps"):
         build_objects(cfg_factory("experiment=doublet", "model.optics_warmup_steps=-1"))
+
+
+def test_optics_worst_depth_weights_only_the_optics_gradient(cfg_factory):
+    """``model.optics_worst_depth``: the restorer's gradient is the plain mean's, the lens's
+    is that of the per-sample losses weighted by the depth bins' soft maximum (computed here
+    from the samples' own losses with momentum 0), not the plain mean's."""
+    from kornia.metrics import ssim as kssim
+
+    over = ("experiment=edof", "render.psf_rays=512", "model.deconvolution.rays=256",
+            "data.batch_size=4", "model.optics_worst_depth={temperature:0.3,bins:2,momentum:0}")
+    m = build_objects(cfg_factory(*over))["module"]
+    images = torch.rand(4, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    depths = m.sample_depths(4, 5)
+    bins = m.depth_bin(depths, 2)
+    assert len(set(bins.tolist())) == 2  # both bins in the batch (else the test is vacuous)
+    lens_p = [p for p in m.lens.parameters() if p.requires_grad]
+    net_p = list(m.restorer.parameters())
+    loss, *_ = m.step_loss(images, 5)
+    g = torch.autograd.grad(loss, lens_p + net_p)
+    g_lens, g_net = g[:len(lens_p)], g[len(lens_p):]
+
+    # the reference: the same step by hand
+    y, gt = m.capture(images, depths, seed=m.seed * 1_000_003 + 5)
+    pred = m.restorer(m.deconv(y))
+    w = m.loss_w
+    per = (w["mse"] * ((pred - gt) ** 2).flatten(1).mean(1)
+           + w["ssim"] * (1 - kssim(pred.clamp(0, 1), gt, 11).flatten(1).mean(1)))
+    E = torch.stack([per.detach()[bins == b].mean() for b in range(2)]).double()
+    wt = (2 * torch.softmax(E.log() / 0.3, 0))[bins].to(per.dtype)
+    assert float(wt.max() / wt.min()) > 1.01
+    ref_lens = torch.autograd.grad((wt * per).mean(), lens_p, retain_graph=True)
+    plain_lens = torch.autograd.grad(per.mean(), lens_p, retain_graph=True)
+    ref_net = torch.autograd.grad(per.mean(), net_p)
+    for a, b, c in zip(g_lens, ref_lens, plain_lens):
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-12 + 1e-4 * float(b.abs().max()))
+    assert max(float((a - c).abs().max() / c.abs().max()) for a, c in
+               zip(g_lens, plain_lens)) > 1e-3
+    for a, b in zip(g_net, ref_net):
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-7)
+    with pytest.raises(ValueError, match="model.optics_worst_depth.temperature"):
+        build_objects(cfg_factory("experiment=edof", "model.optics_worst_depth={temperature:0}"))
