@@ -151,6 +151,24 @@ def _run_key(cfg: DictConfig) -> dict:
     return key
 
 
+def _same_run(key: dict) -> dict:
+    """A run key in a canonical form: nulls dropped (:func:`_drop_nulls`), and the module's
+    dict settings given in part completed with their defaults (``{temperature: 0.25}`` and
+    ``{temperature: 0.25, bins: 4, momentum: 0.9}`` are the same run)."""
+    from .module import SOFT_MAX_DEFAULTS
+    from .wiener import DEFAULTS as DECONV_DEFAULTS
+
+    key = _drop_nulls(json.loads(json.dumps(key)))
+    model = key.get("model") if isinstance(key, dict) else None
+    if isinstance(model, dict):
+        for name, defaults in (("worst_depth", SOFT_MAX_DEFAULTS),
+                               ("optics_worst_depth", SOFT_MAX_DEFAULTS),
+                               ("deconvolution", DECONV_DEFAULTS)):
+            if isinstance(model.get(name), dict):
+                model[name] = {**dict(defaults), **model[name]}
+    return key
+
+
 def _drop_nulls(x):
     """``x`` without ``None`` entries of mappings (recursively): an option added later with a
     ``null`` default, meaning the old behaviour, does not make a finished run look different."""
@@ -172,7 +190,7 @@ def _reuse(cfg: DictConfig):
         rec = json.loads(rec_path.read_text())
     except (OSError, ValueError):
         return None
-    if _drop_nulls(rec.get("config")) != _drop_nulls(json.loads(json.dumps(_run_key(cfg)))):
+    if _same_run(rec.get("config")) != _same_run(_run_key(cfg)):
         print(f"deeplens eval: {rec_path} is a run of another configuration: training again")
         return None
     objs = build_objects(cfg)

@@ -41,6 +41,9 @@ class NonFiniteLossError(FloatingPointError):
     step (and parameter) and the checkpoint holding the state just before that step."""
 
 
+#: defaults of a soft maximum over depths (``model.worst_depth``, ``model.optics_worst_depth``)
+SOFT_MAX_DEFAULTS = (("temperature", 0.5), ("bins", 4), ("momentum", 0.9))
+
 #: largest accepted learning rates: Adam moves each weight by about ``lr`` per step, so a
 #: network rate above 1, or an optics step above 1 mm of sag, can only run away
 MAX_LR = {"net_lr": 1.0, "optics_lr_mm": 1.0, "disc_lr": 1.0}
@@ -158,14 +161,16 @@ class EndToEndModule(L.LightningModule):
         self.constraint = SagDepartureConstraint(lens, max_sag_mm)
         self.worst_depth = self._soft_max_setting("worst_depth", worst_depth)
         if self.worst_depth is not None:
-            # running mean loss per depth bin; NaN until the bin's first sample
+            # running mean loss per depth bin; -1 until the bin's first sample
             self.register_buffer("depth_loss_ema", torch.full(
-                (self.worst_depth["bins"],), float("nan"), dtype=torch.float64))
+                (self.worst_depth["bins"],), -1.0, dtype=torch.float64))
         self.optics_worst_depth = self._soft_max_setting("optics_worst_depth",
                                                          optics_worst_depth)
+        if not any(p.requires_grad for p in lens.parameters()):
+            self.optics_worst_depth = None  # frozen optics: no gradient to weigh
         if self.optics_worst_depth is not None:
             self.register_buffer("optics_depth_loss_ema", torch.full(
-                (self.optics_worst_depth["bins"],), float("nan"), dtype=torch.float64))
+                (self.optics_worst_depth["bins"],), -1.0, dtype=torch.float64))
         self.deconv = None
         if deconvolution is not None:
             from .wiener import DepthWienerFilter
@@ -225,7 +230,7 @@ class EndToEndModule(L.LightningModule):
         """``model.<key>`` (``worst_depth``, ``optics_worst_depth``) checked, defaults filled."""
         if value is None:
             return None
-        wd = {"temperature": 0.5, "bins": 4, "momentum": 0.9, **dict(value)}
+        wd = {**dict(SOFT_MAX_DEFAULTS), **dict(value)}
         unknown = set(wd) - {"temperature", "bins", "momentum"}
         if unknown:
             raise ValueError(f"model.{key}: unknown keys {sorted(unknown)}; expected "
@@ -261,10 +266,11 @@ class EndToEndModule(L.LightningModule):
             for b in bins.unique().tolist():
                 x = v[bins == b].mean()
                 e = buf[b]
-                buf[b] = x if torch.isnan(e) else (
+                # not seen yet: -1 (NaN in checkpoints written before 2026-11-23)
+                buf[b] = x if not bool(e >= 0) else (
                     wd["momentum"] * e + (1 - wd["momentum"]) * x)
             ema = buf
-            seen = ~torch.isnan(ema)
+            seen = ema >= 0
             logit = torch.where(seen, ema.clamp_min(1e-30).log(), torch.zeros_like(ema))
             # bins not seen yet take the largest seen value (no bin is favoured for being new)
             logit = torch.where(seen, logit, logit[seen].max())
@@ -323,7 +329,7 @@ class EndToEndModule(L.LightningModule):
         # buffers the forward pass updates (batch-norm running statistics): kept so that a
         # stop at this step saves the state it started from, not one its forward pass changed
         self._buffers_before = {n: b.detach().clone() for n, b in self.named_buffers()
-                                if n.startswith(("restorer.", "discriminator."))}
+                                if not n.startswith("lens.")}
         images = batch["image"]
         loss, terms, y, gt, pred = self.step_loss(images, step)
         if not torch.isfinite(loss):

@@ -32,7 +32,10 @@ from torch import nn
 
 from ..render.psf import psf
 
-__all__ = ["DepthWienerFilter"]
+__all__ = ["DepthWienerFilter", "DEFAULTS"]
+
+#: the keyword defaults of :class:`DepthWienerFilter` (config ``model.deconvolution``)
+DEFAULTS = (("depths", 5), ("rays", 16384), ("nsr", 1e-2), ("learn_nsr", True))
 
 
 class DepthWienerFilter(nn.Module):

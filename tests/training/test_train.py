@@ -80,6 +80,7 @@ def test_training_steps_change_optics_and_network(cfg_factory):
 
 def test_overfit_lowers_the_loss(cfg_factory):
     cfg = cfg_factory("experiment=edof", "debug=overfit", "trainer.max_epochs=15", "test=false",
+                      "lens.learned_start_alpha_mm=null",
                       "trainer.limit_val_batches=0", "callbacks.image_logger=null",
                       "callbacks.model_checkpoint=null")
     objs = build_objects(cfg)
@@ -253,7 +254,7 @@ def test_monochrome_sensor_trains_grey_with_one_channel_networks(cfg_factory):
     """sensor.channels with one (panchromatic) channel: textures become grey, the restorer (and
     an opt-in discriminator) take one channel, and a step trains optics and network."""
     cfg = cfg_factory("experiment=edof", "sensor.channels=[[486.1,587.6,656.3]]",
-                      "test=false", "trainer.limit_val_batches=1",
+                      "test=false", "trainer.limit_val_batches=1", "model.optics_warmup_steps=0",
                       "model.loss.adversarial=0.01",
                       "+model.discriminator={_target_:deeplens.nets.PatchGANDiscriminator,"
                       "base_channels:8,n_layers:1}")
@@ -350,7 +351,8 @@ def test_scene_margin_extends_the_texture_beyond_the_frame(cfg_factory):
     exactly brings black in at the edges."""
     m = 0.25
     objs = build_objects(cfg_factory("experiment=edof", f"scene.margin={m}",
-                                     "callbacks.image_logger=null"))
+                                     "callbacks.image_logger=null",
+                                     "lens.learned_start_alpha_mm=null"))  # flat plate
     module = objs["module"]
     n = 60
     tex = torch.zeros(1, 3, n, n)
