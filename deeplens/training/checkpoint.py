@@ -105,11 +105,13 @@ def write_checkpoint(checkpoint: dict, path) -> str:
         raise
 
 
-def read_checkpoint(path, map_location="cpu") -> dict:
+def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> dict:
     """Verify ``path`` against its digest file and load it with ``weights_only=True``.
 
     A checkpoint without a digest file (written by hand or by an older version) loads with a
-    warning.
+    warning.  With ``state_dict_only`` a bare module state dict (names to tensors) is accepted
+    too: Lightning's spawn launcher (``trainer=ddp_cpu``) hands rank 0's weights back to the
+    main process in such a file through the checkpoint I/O.
 
     Raises:
         FileNotFoundError: no file at ``path``.
@@ -138,6 +140,9 @@ def read_checkpoint(path, map_location="cpu") -> dict:
     except Exception as e:
         raise CheckpointError(f"checkpoint {path} cannot be read: {type(e).__name__}: "
                               f"{str(e).splitlines()[0] if str(e) else ''}") from e
+    if state_dict_only and isinstance(ckpt, dict) and ckpt and all(
+            isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in ckpt.items()):
+        return ckpt
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
         raise CheckpointError(f"{path} is not a training checkpoint (no 'state_dict'; got "
                               f"{type(ckpt).__name__})")
@@ -201,8 +206,9 @@ class AtomicCheckpointIO(TorchCheckpointIO):
         if weights_only is False:
             raise CheckpointError(f"checkpoint {path}: deeplens loads checkpoints with "
                                   f"weights_only=True only (no arbitrary pickled objects)")
-        ckpt = read_checkpoint(path, map_location=map_location)
-        ckpt[LOADED_FROM] = str(path)
+        ckpt = read_checkpoint(path, map_location=map_location, state_dict_only=True)
+        if "state_dict" in ckpt:  # a training checkpoint (not the spawn launcher's weights)
+            ckpt[LOADED_FROM] = str(path)
         return ckpt
 
     def remove_checkpoint(self, path):

@@ -221,3 +221,22 @@ def test_a_failed_lens_export_names_the_file_and_leaves_no_tmp(tmp_path, monkeyp
     with pytest.raises(CheckpointError, match=rf"could not write the lens file {out}.*No space"):
         cb._save_checkpoint(trainer, str(tmp_path / "best.ckpt"))
     assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_checkpoint_io_hands_back_a_bare_state_dict_for_the_spawn_launcher(tmp_path):
+    """Lightning's spawn launcher (trainer=ddp_cpu) saves rank 0's ``module.state_dict()``
+    through the checkpoint I/O and loads it back in the main process: that round trip works
+    (the file is still written atomically with its digest), while ``read_checkpoint`` alone,
+    what resuming uses, still refuses a file that is not a training checkpoint."""
+    from deeplens.training.checkpoint import (AtomicCheckpointIO, CheckpointError,
+                                              checksum_path, read_checkpoint)
+
+    sd = torch.nn.Linear(3, 2).state_dict()
+    io = AtomicCheckpointIO()
+    path = tmp_path / ".temp.ckpt"
+    io.save_checkpoint(sd, path)
+    assert checksum_path(path).exists()
+    back = io.load_checkpoint(path)
+    assert set(back) == set(sd) and all(torch.equal(back[k], sd[k]) for k in sd)
+    with pytest.raises(CheckpointError, match="not a training checkpoint"):
+        read_checkpoint(path)
