@@ -7,9 +7,10 @@
 wavelengths weighted, :func:`~deeplens.render.psf.psf_grid`) and ``w_k`` bilinear blending
 weights between patch centres (one patch: a single convolution).  ``GT`` is rendered beyond the
 frame's edges by the largest kernel's half width, so the blur brings the scene's content
-(``scene.margin``) into the edge pixels, as the ray tracer does, not a black surround.  Exact only where the system is
-shift-invariant over a patch; relative illumination is not modelled (PSFs sum to one).  Same call
-interface as :class:`~deeplens.render.monte_carlo.MonteCarloRenderer`.
+(``scene.margin``) into the edge pixels, as the ray tracer does, not a black surround.  Exact
+only where the system is shift-invariant over a patch; relative illumination is not modelled
+(PSFs sum to one).  Same call interface as
+:class:`~deeplens.render.monte_carlo.MonteCarloRenderer`.
 """
 
 from __future__ import annotations
@@ -84,8 +85,8 @@ class PSFConvRenderer(nn.Module):
                 kernels[depth, c, w] = kers.reshape(-1, 1, K, K).flip(-1, -2)
         # the ideal image extended by the largest kernel's half width: light that the blur
         # brings in from beyond the frame's edge is scene content (scene.margin), not black
-        P = max(k.shape[-1] for k in kernels.values()) // 2
-        gt = IdealCamera(self.lens, self.sensor).render(scene, self.supersample, pad=P).to(dtype)
+        pad = max(k.shape[-1] for k in kernels.values()) // 2
+        gt = IdealCamera(self.lens, self.sensor).render(scene, self.supersample, pad=pad).to(dtype)
         blend = blend_weights((H, W), self.patches, dtype, gt.device)
         out = gt.new_zeros(gt.shape[0], gt.shape[1], H, W)
         for depth in sorted(set(depths)):
@@ -94,7 +95,7 @@ class PSFConvRenderer(nn.Module):
                      for _ in range(gt.shape[1])]
             for c, w, wt in jobs:
                 kers = kernels[depth, c, w]
-                r = P - kers.shape[-1] // 2
+                r = pad - kers.shape[-1] // 2  # this kernel's window of the extended image
                 x = gt[idx, c:c + 1, r:r + H + kers.shape[-1] - 1, r:r + W + kers.shape[-1] - 1]
                 y = F.conv2d(x, kers.to(x))  # (b, P, H, W)
                 chans[c] = chans[c] + wt * (y * blend[None]).sum(1)

@@ -173,13 +173,13 @@ class EndToEndModule(L.LightningModule):
                 (self.optics_worst_depth["bins"],), -1.0, dtype=torch.float64))
         self.deconv = None
         if deconvolution is not None:
-            from .wiener import DepthWienerFilter
+            from .wiener import DEFAULTS, DepthWienerFilter
 
             dc = dict(deconvolution)
-            unknown = set(dc) - {"depths", "rays", "nsr", "learn_nsr"}
+            unknown = set(dc) - set(dict(DEFAULTS))
             if unknown:
                 raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
-                                 f"depths, rays, nsr, learn_nsr")
+                                 f"{', '.join(dict(DEFAULTS))}")
             self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc)
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
@@ -231,10 +231,10 @@ class EndToEndModule(L.LightningModule):
         if value is None:
             return None
         wd = {**dict(SOFT_MAX_DEFAULTS), **dict(value)}
-        unknown = set(wd) - {"temperature", "bins", "momentum"}
+        unknown = set(wd) - set(dict(SOFT_MAX_DEFAULTS))
         if unknown:
             raise ValueError(f"model.{key}: unknown keys {sorted(unknown)}; expected "
-                             f"temperature, bins, momentum")
+                             f"{', '.join(dict(SOFT_MAX_DEFAULTS))}")
         T, K, mom = wd["temperature"], wd["bins"], wd["momentum"]
         if not (isinstance(T, (int, float)) and math.isfinite(T) and T > 0):
             raise ValueError(f"model.{key}.temperature: expected a number > 0, got {T!r}")
@@ -277,18 +277,24 @@ class EndToEndModule(L.LightningModule):
             w = len(ema) * torch.softmax(logit / wd["temperature"], 0)
         return w[bins].to(per_image.dtype)
 
+    def _per_image_terms(self, pred, gt) -> dict:
+        """The MSE, L1 and (1 - SSIM) terms with a non-zero weight, per image ``(B,)``."""
+        w = self.loss_w
+        per = {}
+        if w["mse"]:
+            per["mse"] = ((pred - gt) ** 2).flatten(1).mean(1)
+        if w["l1"]:
+            per["l1"] = (pred - gt).abs().flatten(1).mean(1)
+        if w["ssim"]:
+            per["ssim"] = 1 - kornia_ssim(pred.clamp(0, 1), gt, 11).flatten(1).mean(1)
+        return per
+
     def per_image_loss(self, pred, gt) -> torch.Tensor:
         """The weighted MSE + L1 + SSIM loss of each image ``(B,)``, detached."""
-        w = self.loss_w
         with torch.no_grad():
             total = torch.zeros(pred.shape[0], dtype=pred.dtype, device=pred.device)
-            if w["mse"]:
-                total = total + w["mse"] * ((pred - gt) ** 2).flatten(1).mean(1)
-            if w["l1"]:
-                total = total + w["l1"] * (pred - gt).abs().flatten(1).mean(1)
-            if w["ssim"]:
-                total = total + w["ssim"] * (1 - kornia_ssim(pred.clamp(0, 1), gt, 11)
-                                             .flatten(1).mean(1))
+            for k, v in self._per_image_terms(pred, gt).items():
+                total = total + self.loss_w[k] * v
         return total
 
     def image_loss(self, pred, gt, depths=None) -> dict:
@@ -297,13 +303,7 @@ class EndToEndModule(L.LightningModule):
         w = self.loss_w
         terms = {}
         if self.worst_depth is not None and depths is not None:
-            per = {}
-            if w["mse"]:
-                per["mse"] = ((pred - gt) ** 2).flatten(1).mean(1)
-            if w["l1"]:
-                per["l1"] = (pred - gt).abs().flatten(1).mean(1)
-            if w["ssim"]:
-                per["ssim"] = 1 - kornia_ssim(pred.clamp(0, 1), gt, 11).flatten(1).mean(1)
+            per = self._per_image_terms(pred, gt)
             if per:
                 total = sum(w[k] * v for k, v in per.items())
                 sw = self.depth_weights(total, depths)

@@ -24,6 +24,7 @@ back, so the filter's circular boundary does not wrap one edge's content onto th
 
 from __future__ import annotations
 
+import inspect
 import math
 
 import torch
@@ -33,9 +34,6 @@ from torch import nn
 from ..render.psf import psf
 
 __all__ = ["DepthWienerFilter", "DEFAULTS"]
-
-#: the keyword defaults of :class:`DepthWienerFilter` (config ``model.deconvolution``)
-DEFAULTS = (("depths", 5), ("rays", 16384), ("nsr", 1e-2), ("learn_nsr", True))
 
 
 class DepthWienerFilter(nn.Module):
@@ -63,14 +61,15 @@ class DepthWienerFilter(nn.Module):
             raise ValueError(f"model.deconvolution.nsr: expected a number > 0, got {nsr!r}")
         self._camera = (lens, sensor)  # a tuple: not registered as submodules
         lo, hi = min(depths_mm), max(depths_mm)
-        if depths == 1 or lo == hi:
-            inv = [2 / (1 / lo + 1 / hi)]
-        else:
-            inv = [1 / hi + k / (depths - 1) * (1 / lo - 1 / hi) for k in range(depths)]
-        self.depths_mm = [1 / v for v in inv] if len(inv) > 1 else inv
+        if depths == 1 or lo == hi:  # the dioptric middle of the range
+            self.depths_mm = [2 / (1 / lo + 1 / hi)]
+        else:  # uniform in 1/depth, far to near
+            self.depths_mm = [1 / (1 / hi + k / (depths - 1) * (1 / lo - 1 / hi))
+                              for k in range(depths)]
         self.rays = int(rays)
         C = len(sensor.channels)
-        log_nsr = torch.full((C,), math.log(nsr), dtype=torch.float32)
+        # float32 for a float32 lens (the training default), float64 for a float64 lens
+        log_nsr = torch.full((C,), math.log(nsr), dtype=lens.dtype)
         if learn_nsr:
             self.log_nsr = nn.Parameter(log_nsr)
         else:
@@ -141,3 +140,9 @@ class DepthWienerFilter(nn.Module):
         G = ch / (h2 + self.nsr().to(h2.dtype)[:, None, None])
         x = torch.fft.irfft2(torch.fft.rfft2(ext.to(h2.dtype)) * G, s=size)
         return x[..., ph:ph + Hh, pw:pw + Ww].to(y.dtype)
+
+
+#: the settings of :class:`DepthWienerFilter` and their defaults, ``((name, default), ...)``
+#: (config ``model.deconvolution``), read from its signature
+DEFAULTS = tuple((n, p.default) for n, p in inspect.signature(DepthWienerFilter).parameters.items()
+                 if p.default is not inspect.Parameter.empty)

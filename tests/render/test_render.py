@@ -8,6 +8,7 @@ import warnings
 
 import pytest
 import torch
+from helpers import central_fd
 
 from deeplens.optics.io import load_lens
 from deeplens.optics.lens import Lens
@@ -321,13 +322,7 @@ def test_image_gradient_matches_finite_difference(adjoint):
         p.requires_grad_(True)
         (g,) = torch.autograd.grad(loss_fn(), p)
         p.requires_grad_(False)
-        with torch.no_grad():
-            p += h
-            fp = float(loss_fn())
-            p -= 2 * h
-            fm = float(loss_fn())
-            p += h
-        fd = (fp - fm) / (2 * h)
+        fd = central_fd(loss_fn, p, h)
         assert abs(fd) > 1e-3
         assert float(g) == pytest.approx(fd, rel=1e-4)
 
@@ -383,6 +378,8 @@ def test_psf_convolution_brings_scene_beyond_the_frame_into_its_edges(edof):
     assert big.shape[-2:] == (34, 34)
     assert torch.allclose(big[..., 5:-5, 5:-5], cam.render(scene))
     assert float(big[..., :5, :].mean()) > 0.5
+    with pytest.raises(ValueError, match="pad must be >= 0"):
+        cam.render(scene, pad=-1)
 
 
 def test_blend_weights_partition_unity():

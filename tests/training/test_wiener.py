@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 import torch.nn.functional as F
+from helpers import central_fd
 
 from deeplens.optics.io import load_lens
 from deeplens.render import Sensor
@@ -91,16 +92,31 @@ def test_gradient_to_the_plate_matches_central_differences(coded):
         return (wf(y) * w).sum()
 
     (grad,) = torch.autograd.grad(loss(), a)
-    h = 1e-6 * float(a.detach().abs())  # the splat is piecewise linear: a small step
-    with torch.no_grad():
-        a += h
-        lp = float(loss())
-        a -= 2 * h
-        lm = float(loss())
-        a += h
-    fd = (lp - lm) / (2 * h)
+    # the splat is piecewise linear in the hit positions: a small step
+    fd = central_fd(loss, a, 1e-6 * float(a.detach().abs()))
     assert abs(fd) > 0
     assert float(grad) == pytest.approx(fd, rel=2e-3)
+
+
+def test_gradient_to_the_noise_ratio_matches_central_differences(coded):
+    """The learned ``log nsr`` (float64 for a float64 lens): its gradient through the filter
+    against float64 central differences, per channel of a two-channel sensor."""
+    lens, _ = coded
+    sensor = Sensor((24, 24), 0.0069, channels=[[486.1], [656.3]])
+    wf = DepthWienerFilter(lens, sensor, [4500.0, 8000.0], depths=2, rays=1024, nsr=3e-2)
+    assert wf.log_nsr.dtype == torch.float64
+    g = torch.Generator().manual_seed(4)
+    y = torch.rand(1, 2, 24, 24, generator=g, dtype=torch.float64)
+    w = torch.randn(1, 2, 24, 24, generator=g, dtype=torch.float64)
+
+    def loss():
+        return (wf(y) * w).sum()
+
+    (grad,) = torch.autograd.grad(loss(), wf.log_nsr)
+    for c in range(2):
+        fd = central_fd(loss, wf.log_nsr, 1e-4, index=c)
+        assert abs(fd) > 1e-3
+        assert float(grad[c]) == pytest.approx(fd, rel=1e-6)
 
 
 def test_noise_ratio_is_learned_and_frozen_lens_moments_are_cached(coded):
