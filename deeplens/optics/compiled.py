@@ -34,7 +34,7 @@ __all__ = ["KINDS", "compiled_surface_run", "surface_run"]
 
 #: the surface kinds a run can hold and the tensors each takes (after ``z_shift``)
 KINDS = {"quadric": ("c", "k", "semi_diameter"), "plane": ("semi_diameter",),
-         "stop": ("semi_diameter",), "stop_rect": ("half_widths",)}
+         "stop": ("semi_diameter",), "stop_rect": ("half_widths",), "propagate": ()}
 
 
 def surface_run(o, d, valid, opl, kinds: tuple, params: tuple, tol: float, clip: bool = True):
@@ -51,7 +51,9 @@ def surface_run(o, d, valid, opl, kinds: tuple, params: tuple, tol: float, clip:
             its own kernel).
         params: per surface, ``(z_shift, *values, n1, n2)``: the vertex position (0-d, mm), the
             values :data:`KINDS` names (0-d, or ``(2,)`` half-widths) and the media indices
-            before and after the surface (broadcastable to ``B``).
+            before and after the surface (broadcastable to ``B``); for ``"propagate"`` (the move
+            to a plane, :func:`propagate_xyz`, e.g. the sensor after the last surface),
+            ``(z_plane, n, n)``.
         tol, clip: as :func:`~.intersect.quadric_step`.
 
     Returns:
@@ -61,11 +63,26 @@ def surface_run(o, d, valid, opl, kinds: tuple, params: tuple, tol: float, clip:
     for kind, p in zip(kinds, params):
         if kind == "quadric":
             state = quadric_step_xyz(*state, *p, tol, clip)
+        elif kind == "propagate":
+            state = propagate_xyz(*state, p[0], p[1])
         else:
             state = flat_step_xyz(*state, *p, tol, clip, rect=kind == "stop_rect",
                                   refract=kind == "plane")
     x, y, z, dx, dy, dz, valid, opl = state
     return torch.stack([x, y, z]), torch.stack([dx, dy, dz]), valid, opl
+
+
+def propagate_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_plane, n):
+    """Move rays to the plane ``z = z_plane`` (mm) in a medium of index ``n``, as
+    :meth:`Lens.propagate_to_z <deeplens.optics.lens.Lens.propagate_to_z>` does (the same
+    operations): rays that cannot reach it (``d_z = 0`` or behind them) go invalid and stay.
+    Returns ``(x, y, z, d_x, d_y, d_z, valid, opl)``."""
+    ok = valid & (dz.abs() > 1e-12)
+    num = torch.where(ok, z_plane - oz, torch.zeros_like(dz))
+    t = num / torch.where(ok, dz, torch.ones_like(dz))
+    ok = ok & (t.detach() >= 0)
+    t = torch.where(ok, t, torch.zeros_like(t))
+    return ox + t * dx, oy + t * dy, oz + t * dz, dx, dy, dz, ok, opl + n * t
 
 
 #: compiled variants one function may hold (dynamo's default, 8, is soon reached: each lens

@@ -98,6 +98,18 @@ def _compact(w):
     return w
 
 
+def _to_soa(v: torch.Tensor) -> torch.Tensor:
+    """``(*B, 3)`` -> component-major ``(3, *B)``, contiguous.  ``torch.stack`` of the
+    components: the same values as ``v.movedim(-1, 0).contiguous()``, whose strided copy is
+    about 4x slower on the CPU (5 vs 1.2 ms for 1e6 float32 rays)."""
+    return torch.stack(v.unbind(-1))
+
+
+def _from_soa(v: torch.Tensor) -> torch.Tensor:
+    """Component-major ``(3, *B)`` -> ``(*B, 3)``, contiguous (see :func:`_to_soa`)."""
+    return torch.stack(v.unbind(0), -1)
+
+
 def _default_elements(surfaces, materials) -> list[tuple[int, int]]:
     """Group surfaces into rigid elements: a run of surfaces enclosing non-air media; a stop
     (or any surface with air on both sides) is an element of its own."""
@@ -404,12 +416,13 @@ class Lens(nn.Module):
         return C.call(C.compiled_newton_refract, *args)
 
     def _trace_compiled(self, rays: Rays, order, n, z, reverse: bool, options: IntersectOptions,
-                        step) -> Rays:
+                        step, propagate_to=None) -> Rays:
         """:meth:`trace` with runs of aligned spheres, conics, planes and stops, and aligned
         even aspheres and XY polynomials, in compiled kernels (:mod:`.compiled`); every other
         surface goes through ``step``.  While ``soa`` holds the ray state, ``rays`` carries only
         its valid mask and optical path (its ``o`` and ``d`` are stale: read for dtype and
-        device only)."""
+        device only).  ``propagate_to``: ``(z_plane, medium_index)`` or ``None``, as
+        :meth:`trace`; the move joins the last compiled kernel."""
         from . import compiled as C
 
         tol = options.tol if options.tol is not None else default_tolerance(rays.dtype)
@@ -435,7 +448,7 @@ class Lens(nn.Module):
                 k += 1
                 continue
             if soa is None:
-                soa = (rays.o.movedim(-1, 0).contiguous(), rays.d.movedim(-1, 0).contiguous())
+                soa = (_to_soa(rays.o), _to_soa(rays.d))
             if kind == "newton":
                 _, pivot, vertex = self._frame(i, z, soa[0])
                 o, d, valid, opl = self._newton_compiled(i, soa, rays, n1, n2,
@@ -461,6 +474,11 @@ class Lens(nn.Module):
                                _compact(n2).to(like)))
                 kinds.append(kind)
                 k += 1
+                if k == len(order) and propagate_to is not None:  # the move to the sensor
+                    kinds.append("propagate")
+                    params.append((propagate_to[0], _compact(propagate_to[1]).to(like),
+                                   _compact(propagate_to[1]).to(like)))
+                    propagate_to = None
                 if per_surface or k == len(order):
                     break
                 kind = self._fused_kind(order[k])
@@ -474,9 +492,18 @@ class Lens(nn.Module):
                 o, d, valid, opl = C.call(C.compiled_surface_run, *args)
             soa = (o, d)
             rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
+        if soa is not None and propagate_to is not None:  # after a Newton surface
+            m = _compact(propagate_to[1]).to(rays.o)
+            args = (*soa, rays.valid, rays.opl, ("propagate",), ((propagate_to[0], m, m),), tol,
+                    clip)
+            o, d, valid, opl = C.call(C.compiled_surface_run, *args)
+            soa, propagate_to = (o, d), None
+            rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
         if soa is not None:  # back to (*B, 3), contiguous
-            rays = Rays(soa[0].movedim(0, -1).contiguous(), soa[1].movedim(0, -1).contiguous(),
+            rays = Rays(_from_soa(soa[0]), _from_soa(soa[1]),
                         rays.wavelength, rays.valid, rays.opl, normalize=False)
+        if propagate_to is not None:  # the last surface ran eager
+            rays = self.propagate_to_z(rays, *propagate_to)
         return rays
 
     def _check_rays(self, rays: Rays) -> None:
@@ -485,7 +512,7 @@ class Lens(nn.Module):
             raise TypeError(f"expected Rays, got {type(rays).__name__}")
 
     def trace(self, rays: Rays, *, reverse: bool = False, options: IntersectOptions | None = None,
-              record: bool = False):
+              record: bool = False, propagate_to=None):
         """Trace through every surface.
 
         Args:
@@ -495,6 +522,8 @@ class Lens(nn.Module):
             options: Newton settings (:class:`IntersectOptions`; ``compile=...`` selects the
                 fused kernels of :mod:`.compiled`, except when ``record`` is set).
             record: also return the list of per-surface hit points ``(*B, 3)``.
+            propagate_to: ``(z_plane, medium_index)``: then move the rays to that plane, as
+                :meth:`propagate_to_z` (with ``compile=...`` inside the last kernel).
 
         Returns:
             Rays just after the last surface traced (``(rays, hits)`` when ``record``).
@@ -510,12 +539,15 @@ class Lens(nn.Module):
             step = self._trace_surface_checkpointed
         if (options is not None and options.compile and options.closed_form
                 and options.mode == "implicit" and not record):
-            return self._trace_compiled(rays, order, n, z, reverse, options, step)
+            return self._trace_compiled(rays, order, n, z, reverse, options, step,
+                                        propagate_to)
         for i in order:
             n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
             rays = step(i, rays, n1, n2, z, options)
             if record:
                 hits.append(rays.o)
+        if propagate_to is not None:
+            rays = self.propagate_to_z(rays, *propagate_to)
         return (rays, hits) if record else rays
 
     def propagate_to_z(self, rays: Rays, z_plane, medium_index=None) -> Rays:
@@ -532,10 +564,10 @@ class Lens(nn.Module):
 
     def trace_to_sensor(self, rays: Rays, *, z_image=None, options=None) -> Rays:
         """Forward trace and propagate to the sensor plane (or to ``z_image`` when given)."""
-        out = self.trace(rays, options=options)
         z = self.z_sensor() if z_image is None else z_image
         n_img = self.materials[-1].n(_compact(rays.wavelength))
-        return self.propagate_to_z(out, z, n_img)
+        z = torch.as_tensor(z, dtype=rays.dtype, device=rays.device)
+        return self.trace(rays, options=options, propagate_to=(z, n_img))
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, surfaces={len(self.surfaces)}, stop={self.stop_index}, "

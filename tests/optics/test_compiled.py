@@ -113,6 +113,19 @@ def test_fused_path_equals_eager(uncompiled, mode, reverse, misalign):
                  reverse)
 
 
+@pytest.mark.parametrize("mode", ["surface", "lens"])
+def test_fused_path_last_element_eager(uncompiled, mode):
+    """The last element misaligned: its surfaces run eager, so the move to the sensor (fused into
+    the last compiled kernel otherwise) runs eager too; values and gradients (``d_sensor``
+    included) as the eager tracer's."""
+    lens, params = _lens()
+    last = lens.misalignments[-1]
+    with torch.no_grad():
+        last.dy.fill_(-0.03)
+    last.dy.requires_grad_(True)
+    _assert_same(lens, params + [last.dy], _rays(lens), IntersectOptions(compile=mode), False)
+
+
 def test_fused_path_rect_stop_and_checkpoint(uncompiled):
     lens, params = _lens(rect_stop=True)
     rays = _rays(lens)
