@@ -97,8 +97,18 @@ def call(fn, *args):
         return fn(*args)
 
 
+#: inductor settings for every kernel here: ``max_fusion_size`` (default 64 nodes) cut a run of
+#: ten surfaces into four loops that pass their state through memory; one loop is 1.25-1.35x
+#: faster (``benchmarks/README.md``, "compiled kernels")
+INDUCTOR_OPTIONS = {"max_fusion_size": 4096}
+
+
+def _compile(fn):
+    return torch.compile(fn, dynamic=True, options=INDUCTOR_OPTIONS)
+
+
 #: the compiled wrapper (compiles lazily, at its first call for each input signature)
-compiled_surface_run = torch.compile(surface_run, dynamic=True)
+compiled_surface_run = _compile(surface_run)
 
 
 # ============================================================================ Newton surfaces
@@ -283,7 +293,7 @@ def newton_refract(kind, sp, o, d, valid, opl, z_shift, semi_diameter, n1, n2, s
     return (torch.stack([x, y, z + z_shift]), torch.stack([ex, ey, ez]), ok, opl + n1 * t)
 
 
-compiled_newton_start = torch.compile(newton_start, dynamic=True)
-compiled_newton_more = torch.compile(newton_more, dynamic=True)
-compiled_newton_last_check = torch.compile(newton_last_check, dynamic=True)
-compiled_newton_refract = torch.compile(newton_refract, dynamic=True)
+compiled_newton_start = _compile(newton_start)
+compiled_newton_more = _compile(newton_more)
+compiled_newton_last_check = _compile(newton_last_check)
+compiled_newton_refract = _compile(newton_refract)

@@ -165,6 +165,12 @@ def _warn_stalled(surface, o, d, s, tried, converged, tol_ray, tol, fv=None):
                 f"IntersectOptions(tol=...) or more max_iter", RuntimeWarning, stacklevel=3)
 
 
+def _signbit(x):
+    """``torch.signbit(x)`` (``-0.0`` and NaNs with the sign bit set included) through
+    ``copysign``, which inductor's C++ backend vectorises (its ``signbit`` is a scalar loop)."""
+    return torch.copysign(torch.ones_like(x), x) < 0
+
+
 def _quadric_root(quadric, obz, dz, ok):
     """The root ``s`` (``(*B,)``, differentiable) of ``A s^2 + 2 B s + C = 0`` where the ray
     crosses the branch ``h > 0`` in its direction of travel, and whether it exists (``s = 0``
@@ -183,7 +189,7 @@ def _quadric_root(quadric, obz, dz, ok):
     sq = torch.sqrt(torch.where(hit, disc, torch.ones_like(disc)))
     Q = -(B + torch.copysign(sq, B))  # |Q| >= sqrt(disc): no cancellation
     with torch.no_grad():
-        use1 = torch.signbit(B) ^ torch.signbit(dz)
+        use1 = _signbit(B) ^ _signbit(dz)
         # s_1 = C / Q; s_2 = Q / A only while the far root lies within 1e10 mm
         hit = hit & torch.where(use1, Q.abs() > 1e-12,
                                 (A.abs() > 1e-12) & (Q.abs() < 1e10 * A.abs()))
