@@ -10,9 +10,11 @@ chunk's graph whatever the number of rays.
 
 Workload (one configuration = number of rays, mode):
 
-* the paper's EDOF lens ``data/lenses/edof_achromat.json`` (achromat + plate + XY-polynomial
-  phase plate), the plate set to a Dowski-Cathey cubic (``--plate-alpha-mm``, sag at the rim);
-  trainable: the plate's cubic XY coefficients ``surfaces.4.a.6..9`` and ``d_sensor``;
+* ``--lens edof`` (default): the paper's EDOF lens ``data/lenses/edof_achromat.json``
+  (achromat + plate + XY-polynomial phase plate), the plate set to a Dowski-Cathey cubic
+  (``--plate-alpha-mm``, sag at the rim); trainable: the plate's cubic XY coefficients
+  ``surfaces.4.a.6..9`` and ``d_sensor``; ``--lens double_gauss``: the double Gauss, every
+  curvature and ``d_sensor`` trainable; the sensor covers the file's image circle;
 * a monochrome scene (one wavelength): a random texture at 5 m filling the field of view;
 * a ``H x W`` sensor (default 256 x 256, 4.9 um pixels, the whole image circle), ``spp`` rays per
   pixel: rays = active pixels x spp x 1 wavelength; the sweep varies ``spp``;
@@ -76,8 +78,12 @@ from procmem import reset_peak_rss as _reset_peak_rss
 from procmem import rss_bytes as _rss_bytes
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-LENS = os.path.join(REPO, "data", "lenses", "edof_achromat.json")
-TRAINABLE = ["surfaces.4.a.6", "surfaces.4.a.7", "surfaces.4.a.8", "surfaces.4.a.9", "d_sensor"]
+LENSES = {  # --lens: file, trainable parameters, plate
+    "edof": ("edof_achromat.json",
+             ["surfaces.4.a.6", "surfaces.4.a.7", "surfaces.4.a.8", "surfaces.4.a.9",
+              "d_sensor"], "cubic"),
+    "double_gauss": ("double_gauss.json", ["surfaces.*.c", "d_sensor"], None),
+}
 MIB = 1024.0 * 1024.0
 GIB = 1024.0 * MIB
 DONE_ADJ_RAYS = 1.6e7   # the "Done when": adjoint at >= 1.6e7 rays ...
@@ -144,8 +150,10 @@ def build_setup(cfg: dict):
     from deeplens.training.lens_setup import build_lens
 
     device = torch.device(cfg["device"])
-    lens = build_lens(LENS, trainable=TRAINABLE, dtype=cfg["dtype"], plate="cubic",
-                      plate_surface=4, plate_alpha_mm=cfg["plate_alpha_mm"]).to(device)
+    name, trainable, plate = LENSES[cfg.get("lens", "edof")]
+    lens = build_lens(os.path.join(REPO, "data", "lenses", name), trainable=trainable,
+                      dtype=cfg["dtype"], plate=plate, plate_surface=4 if plate else None,
+                      plate_alpha_mm=cfg["plate_alpha_mm"] if plate else 0.0).to(device)
     H, W = cfg["resolution"]
     sensor = Sensor((H, W), cfg["pixel_mm"])
     dtype = getattr(torch, cfg["dtype"])
@@ -401,6 +409,9 @@ def main(argv=None):
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="tiny sizes, < 1 min (smoke test)")
     ap.add_argument("--device", default="cpu", help="cpu (default) or cuda")
+    ap.add_argument("--lens", default="edof", choices=sorted(LENSES),
+                    help="edof (default: the plate's cubic terms and d_sensor train) or "
+                         "double_gauss (every curvature and d_sensor train)")
     ap.add_argument("--dtype", default="float32", choices=["float32", "float64"])
     ap.add_argument("--resolution", type=str, default=None, help="H,W (default 256,256)")
     ap.add_argument("--pixel-mm", type=float, default=None,
@@ -457,8 +468,10 @@ def main(argv=None):
     if args.spp:
         spps = [int(v) for v in args.spp.split(",")]
     spps = sorted(set(spps))
-    # the sensor half-diagonal matches the lens file's image circle (0.8832 mm)
-    pixel_mm = args.pixel_mm or round(2 * 0.8832 / math.hypot(*res), 6)
+    # the sensor half-diagonal matches the lens file's image circle (EDOF: 0.8832 mm)
+    with open(os.path.join(REPO, "data", "lenses", LENSES[args.lens][0])) as f:
+        circle = float(json.load(f)["sensor"]["semi_diameter_mm"])
+    pixel_mm = args.pixel_mm or round(2 * circle / math.hypot(*res), 6)
     modes = [m for m in args.modes.split(",") if m]
     for m in modes:
         if m not in ("plain", "adjoint", "plain-compiled", "adjoint-compiled"):
@@ -469,7 +482,7 @@ def main(argv=None):
     for mode in modes:
         done = []
         for spp in spps:
-            cfg = dict(mode=mode, spp=spp, resolution=list(res), pixel_mm=pixel_mm,
+            cfg = dict(lens=args.lens, mode=mode, spp=spp, resolution=list(res), pixel_mm=pixel_mm,
                        chunk_rays=chunk, device=args.device, dtype=args.dtype,
                        plate_alpha_mm=args.plate_alpha_mm, depth_mm=args.depth_mm,
                        seed=args.seed, threads=args.threads, mmap_threshold=args.mmap_threshold,
@@ -510,11 +523,11 @@ def main(argv=None):
     results.sort(key=lambda r: (r["spp"], r["mode"] != "plain"))
     info = next((r for r in results if "torch" in r), {})
     H, W = res
-    print(f"\nImage-space gradient (MSE vs the sharp image) of the EDOF lens, "
+    print(f"\nImage-space gradient (MSE vs the sharp image) of the {args.lens} lens, "
           f"plain back-prop vs adjoint: device={args.device}, dtype={args.dtype}, "
           f"torch {info.get('torch', '?')}, {info.get('threads', '?')} threads, "
           f"sensor {H}x{W} @ {pixel_mm * 1000:.2f} um, 1 wavelength, chunk_rays={chunk}, "
-          f"params {', '.join(info.get('params', TRAINABLE))}; "
+          f"params {', '.join(info.get('params', LENSES[args.lens][1]))}; "
           f"total {time.time() - t_start:.0f} s\n")
     print_table(results, cuda)
     print("\npeak MiB: process peak RSS during forward + backward minus the RSS after setup "

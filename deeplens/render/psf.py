@@ -15,9 +15,11 @@ import math
 import torch
 
 from .scene import IdealCamera
-from .splat import point_source_rays, splat_bilinear, trace_to_sensor_pixels
+from ..optics.rays import Rays
+from .splat import (entrance_pupil, point_source_rays, splat_bilinear,
+                    trace_to_sensor_pixels)
 
-__all__ = ["psf", "psf_kernel_size", "psf_grid"]
+__all__ = ["psf", "psf_many", "psf_kernel_size", "psf_grid", "psf_grids"]
 
 
 def _ideal_pixel(camera: IdealCamera, X: float, Y: float, depth_mm: float):
@@ -56,36 +58,72 @@ def psf(lens, sensor, point_xy_mm, depth_mm: float, wavelength_nm: float, n_rays
     Raises:
         ValueError: if no ray of the point reaches the sensor (fully vignetted).
     """
-    camera = IdealCamera(lens, sensor)
-    rays = point_source_rays(lens, point_xy_mm, depth_mm, wavelength_nm, n_rays, seed,
-                             sampling=sampling)
-    i, j, valid = trace_to_sensor_pixels(lens, sensor, rays, options)
-    if not bool(valid.any()):
-        raise ValueError(f"no ray from the object point {tuple(point_xy_mm)} at depth "
-                         f"{depth_mm} mm reaches the sensor at {wavelength_nm:g} nm (fully "
-                         f"vignetted)")
-    ci, cj = _ideal_pixel(camera, float(point_xy_mm[0]), float(point_xy_mm[1]), depth_mm)
-    di, dj = i - float(ci), j - float(cj)
-    K = kernel_size or psf_kernel_size(di, dj, valid, max_kernel)
-    if K % 2 == 0:
-        raise ValueError(f"kernel_size must be odd, got {K}")
-    w = valid.to(i.dtype)
-    ker = splat_bilinear(di + K / 2, dj + K / 2, w, (K, K))
-    total = ker.sum()
-    ker = ker / total.clamp_min(1e-30)
-    if return_energy:
-        return ker, float(total) / max(int(valid.sum()), 1)
-    return ker
+    out = psf_many(lens, sensor, [(point_xy_mm, depth_mm, wavelength_nm)], n_rays, kernel_size,
+                   seed, options, max_kernel, return_energy, sampling)[0]
+    return out
 
 
-def psf_grid(lens, sensor, depth_mm: float, wavelength_nm: float, grid=(3, 3),
-             n_rays: int = 4096, kernel_size: int | None = None, seed: int = 0, options=None):
-    """PSFs at a ``(gy, gx)`` grid of sensor positions (patch centres) for one depth.
+def psf_many(lens, sensor, jobs, n_rays: int = 4096, kernel_size=None, seed: int = 0,
+             options=None, max_kernel: int = 129, return_energy: bool = False,
+             sampling: str = "random"):
+    """The PSFs of several object points, depths and wavelengths, traced together.
 
-    Returns ``(kernels (gy, gx, K, K), centres (gy, gx, 2) in fractional pixels)``; all
-    kernels share the largest measured size.
+    Each job is :func:`psf` of ``(point_xy_mm, depth_mm, wavelength_nm)`` with the same rays and
+    kernel (the rays of every job are one ``(J, n)`` batch, one trace instead of ``J``: an
+    eager trace of a few thousand rays costs its operator count, not its arithmetic).
+
+    Args:
+        jobs: sequence of ``(point_xy_mm, depth_mm, wavelength_nm)``.
+        kernel_size: ``None`` (each kernel sized from its own spot), one odd ``K`` for all, or
+            a sequence of one per job.
+        n_rays, seed, options, max_kernel, return_energy, sampling: as :func:`psf`.
+
+    Returns:
+        A list of ``(K_j, K_j)`` kernels (of ``(kernel, energy)`` with ``return_energy``).
     """
+    jobs = [(tuple(p), float(d), float(w)) for p, d, w in jobs]
+    if not jobs:
+        return []
+    sizes = (list(kernel_size) if isinstance(kernel_size, (list, tuple))
+             else [kernel_size] * len(jobs))
+    if len(sizes) != len(jobs):
+        raise ValueError(f"psf_many: {len(sizes)} kernel sizes for {len(jobs)} jobs")
     camera = IdealCamera(lens, sensor)
+    pupil = entrance_pupil(lens)
+    rays = [point_source_rays(lens, p, d, w, n_rays, seed, sampling=sampling, pupil=pupil)
+            for p, d, w in jobs]
+    batch = _stacked(lens, rays, [w for _, _, w in jobs])
+    i, j, valid = trace_to_sensor_pixels(lens, sensor, batch, options)
+    out = []
+    for b, ((p, d, w), K) in enumerate(zip(jobs, sizes)):
+        if not bool(valid[b].any()):
+            raise ValueError(f"no ray from the object point {p} at depth {d} mm reaches the "
+                             f"sensor at {w:g} nm (fully vignetted)")
+        ci, cj = _ideal_pixel(camera, p[0], p[1], d)
+        di, dj = i[b] - float(ci), j[b] - float(cj)
+        K = K or psf_kernel_size(di, dj, valid[b], max_kernel)
+        if K % 2 == 0:
+            raise ValueError(f"kernel_size must be odd, got {K}")
+        wt = valid[b].to(i.dtype)
+        ker = splat_bilinear(di + K / 2, dj + K / 2, wt, (K, K))
+        total = ker.sum()
+        ker = ker / total.clamp_min(1e-30)
+        out.append((ker, float(total) / max(int(valid[b].sum()), 1)) if return_energy else ker)
+    return out
+
+
+def _stacked(lens, rays, wavelengths) -> Rays:
+    """The ``J`` ray sets (``n`` rays each, unit directions) as one ``(J, n)`` batch, the
+    wavelength broadcast along each row (so the media's indices are evaluated once per job)."""
+    w = torch.tensor(wavelengths, dtype=lens.dtype, device=lens.device)[:, None]
+    return Rays(torch.stack([r.o for r in rays]), torch.stack([r.d for r in rays]),
+                w.expand(len(rays), rays[0].o.shape[0]), normalize=False)
+
+
+def _grid_points(camera: IdealCamera, depth_mm: float, grid):
+    """Object points ``[(X, Y)]`` imaged at the centres of a ``(gy, gx)`` grid of sensor
+    patches (row-major) and the centres ``(gy, gx, 2)`` in fractional pixels."""
+    sensor = camera.sensor
     H, W = sensor.resolution
     gy, gx = grid
     ii = [(k + 0.5) * H / gy for k in range(gy)]
@@ -99,17 +137,57 @@ def psf_grid(lens, sensor, depth_mm: float, wavelength_nm: float, grid=(3, 3),
             else:
                 s = camera.object_scale(depth_mm)
                 pts.append((float(x) * s, float(y) * s))
-    if kernel_size is None:
-        sizes = []
-        for P in pts:
-            rays = point_source_rays(lens, P, depth_mm, wavelength_nm, min(n_rays, 1024), seed)
-            i_, j_, v_ = trace_to_sensor_pixels(lens, sensor, rays, options)
-            ci, cj = _ideal_pixel(camera, P[0], P[1], depth_mm)
-            sizes.append(psf_kernel_size(i_ - float(ci), j_ - float(cj), v_))
-        kernel_size = max(sizes)
-    kers = [psf(lens, sensor, P, depth_mm, wavelength_nm, n_rays, kernel_size, seed, options)
-            for P in pts]
-    K = kernel_size
     centres = torch.tensor([[i, j] for i in ii for j in jj]).reshape(gy, gx, 2)
-    return torch.stack(kers).reshape(gy, gx, K, K), centres
+    return pts, centres
 
+
+def psf_grid(lens, sensor, depth_mm: float, wavelength_nm: float, grid=(3, 3),
+             n_rays: int = 4096, kernel_size: int | None = None, seed: int = 0, options=None):
+    """PSFs at a ``(gy, gx)`` grid of sensor positions (patch centres) for one depth.
+
+    Returns ``(kernels (gy, gx, K, K), centres (gy, gx, 2) in fractional pixels)``; all
+    kernels share the largest measured size (:func:`psf_grids` for several depths and
+    wavelengths at once).
+    """
+    return psf_grids(lens, sensor, [(depth_mm, wavelength_nm)], grid, n_rays, kernel_size, seed,
+                     options)[0]
+
+
+def psf_grids(lens, sensor, specs, grid=(3, 3), n_rays: int = 4096,
+              kernel_size: int | None = None, seed: int = 0, options=None):
+    """:func:`psf_grid` of each ``(depth_mm, wavelength_nm)`` in ``specs``, all traced together:
+    one trace sizes every grid's kernel (``min(n_rays, 1024)`` rays per point; the grid's
+    largest spot), one more traces every kernel (:func:`psf_many`).  Returns a list of
+    ``(kernels (gy, gx, K, K), centres (gy, gx, 2))``, one per spec."""
+    camera = IdealCamera(lens, sensor)
+    gy, gx = grid
+    specs = [(float(d), float(w)) for d, w in specs]
+    grids = [_grid_points(camera, d, grid) for d, _ in specs]
+    jobs = [(P, d, w) for (d, w), (pts, _) in zip(specs, grids) for P in pts]
+    per = gy * gx
+    if kernel_size is None:
+        probes = psf_many_sizes(lens, sensor, jobs, min(n_rays, 1024), seed, options)
+        sizes = [max(probes[k * per:(k + 1) * per]) for k in range(len(specs))]
+    else:
+        sizes = [kernel_size] * len(specs)
+    kers = psf_many(lens, sensor, jobs, n_rays, [K for K in sizes for _ in range(per)], seed,
+                    options)
+    return [(torch.stack(kers[k * per:(k + 1) * per]).reshape(gy, gx, K, K), centres)
+            for k, (K, (_, centres)) in enumerate(zip(sizes, grids))]
+
+
+def psf_many_sizes(lens, sensor, jobs, n_rays: int, seed: int = 0, options=None,
+                   max_kernel: int = 129):
+    """The kernel size :func:`psf_kernel_size` measures for each job of :func:`psf_many` from
+    ``n_rays`` random rays, without autograd, in one trace."""
+    camera = IdealCamera(lens, sensor)
+    pupil = entrance_pupil(lens)
+    with torch.no_grad():
+        rays = [point_source_rays(lens, p, d, w, n_rays, seed, pupil=pupil) for p, d, w in jobs]
+        batch = _stacked(lens, rays, [w for _, _, w in jobs])
+        i, j, valid = trace_to_sensor_pixels(lens, sensor, batch, options)
+    out = []
+    for b, (p, d, _) in enumerate(jobs):
+        ci, cj = _ideal_pixel(camera, p[0], p[1], d)
+        out.append(psf_kernel_size(i[b] - float(ci), j[b] - float(cj), valid[b], max_kernel))
+    return out

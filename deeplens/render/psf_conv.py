@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .psf import psf_grid
+from .psf import psf_grids
 from .scene import IdealCamera, Scene
 
 __all__ = ["PSFConvRenderer", "blend_weights"]
@@ -77,12 +77,12 @@ class PSFConvRenderer(nn.Module):
         H, W = self.sensor.resolution
         depths = scene.depths_mm.tolist()
         kernels = {}  # (depth, job) -> (P, 1, K, K), flipped: convolution, not correlation
-        for depth in sorted(set(depths)):
-            for c, w, wt in jobs:
-                kers, _ = psf_grid(self.lens, self.sensor, depth, w, self.patches, self.n_rays,
-                                   self.kernel_size, seed, self.options)
-                K = kers.shape[-1]
-                kernels[depth, c, w] = kers.reshape(-1, 1, K, K).flip(-1, -2)
+        specs = [(depth, c, w) for depth in sorted(set(depths)) for c, w, _ in jobs]
+        grids = psf_grids(self.lens, self.sensor, [(d, w) for d, _, w in specs], self.patches,
+                          self.n_rays, self.kernel_size, seed, self.options)  # one trace
+        for (depth, c, w), (kers, _) in zip(specs, grids):
+            K = kers.shape[-1]
+            kernels[depth, c, w] = kers.reshape(-1, 1, K, K).flip(-1, -2)
         # the ideal image extended by the largest kernel's half width: light that the blur
         # brings in from beyond the frame's edge is scene content (scene.margin), not black
         pad = max(k.shape[-1] for k in kernels.values()) // 2

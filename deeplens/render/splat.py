@@ -21,7 +21,7 @@ from ..optics.paraxial import paraxial
 from ..optics.rays import Rays
 from ..optics.sampling import pupil_pattern, random_disk, start_plane_z
 
-__all__ = ["splat_bilinear", "point_source_rays", "trace_to_sensor_pixels"]
+__all__ = ["splat_bilinear", "entrance_pupil", "point_source_rays", "trace_to_sensor_pixels"]
 
 
 def splat_bilinear(i: torch.Tensor, j: torch.Tensor, weights: torch.Tensor, shape) -> torch.Tensor:
@@ -51,8 +51,19 @@ def splat_bilinear(i: torch.Tensor, j: torch.Tensor, weights: torch.Tensor, shap
     return img.reshape(H, W)
 
 
+def entrance_pupil(lens):
+    """``(z_ep, r_ep, z0)``: the paraxial entrance pupil's position and radius and the first
+    vertex (mm), as :func:`point_source_rays` aims at them (one paraxial trace; pass the result
+    as its ``pupil`` to aim many point sources with one)."""
+    with torch.no_grad():
+        p = paraxial(lens)
+        return (float(p.entrance_pupil_z), 0.5 * float(p.entrance_pupil_diameter),
+                float(lens.z_vertices()[0]))
+
+
 def point_source_rays(lens, point_xy_mm, depth_mm: float, wavelength_nm: float, n_rays: int,
-                      seed: int = 0, pupil_margin: float = 1.1, sampling: str = "random") -> Rays:
+                      seed: int = 0, pupil_margin: float = 1.1, sampling: str = "random",
+                      pupil=None) -> Rays:
     """Rays from an object point towards the entrance pupil.
 
     Args:
@@ -63,13 +74,11 @@ def point_source_rays(lens, point_xy_mm, depth_mm: float, wavelength_nm: float, 
         sampling: ``"random"`` (``n_rays`` seeded samples) or a deterministic pattern such as
             ``"grid:64"`` or ``"hexapolar:20"`` (:func:`~deeplens.optics.sampling.pupil_pattern`;
             ``n_rays`` is then ignored).
+        pupil: :func:`entrance_pupil` of ``lens`` if already known (else computed here).
     """
     dtype, device = lens.dtype, lens.device
-    with torch.no_grad():
-        p = paraxial(lens)
-        z_ep = float(p.entrance_pupil_z)
-        r_ep = 0.5 * float(p.entrance_pupil_diameter) * pupil_margin
-        z0 = float(lens.z_vertices()[0])
+    z_ep, r_ep, z0 = pupil if pupil is not None else entrance_pupil(lens)
+    r_ep = r_ep * pupil_margin
     if sampling == "random":
         unit = random_disk(n_rays, seed)
     else:

@@ -17,6 +17,7 @@ discriminator gets its own optimiser, and so that a non-finite loss or gradient 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 from pathlib import Path
@@ -373,12 +374,36 @@ class EndToEndModule(L.LightningModule):
         ``optics_worst_depth`` the gradient flowing back into the optics is scaled per sample
         (a hook on the restorer's input)."""
         depths = self.sample_depths(images.shape[0], step)
-        y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
-        x = self.deconv(y) if self.deconv is not None else y
+        with self.optics_fixed(step < self.optics_warmup_steps):
+            y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
+            x = self.deconv(y) if self.deconv is not None else y
+        return self.restore_loss(depths, y, gt, x)
+
+    @contextlib.contextmanager
+    def optics_fixed(self, fixed: bool = True):
+        """While ``fixed``: the lens parameters do not require gradients, so the render and
+        the Wiener filter trace without autograd (the same values; the filter's PSFs come
+        from its cache), as during ``optics_warmup_steps``, whose lens gradients were
+        discarded anyway.  Restored on exit."""
+        params = [p for p in self.lens.parameters() if p.requires_grad] if fixed else []
+        for p in params:
+            p.requires_grad_(False)
+        try:
+            yield
+        finally:
+            for p in params:
+                p.requires_grad_(True)
+
+    def restore_loss(self, depths: torch.Tensor, y: torch.Tensor, gt: torch.Tensor,
+                     x: torch.Tensor):
+        """The second half of :meth:`step_loss`: restore ``x`` (the capture ``y``, deconvolved
+        where ``model.deconvolution`` is set) and the loss against ``gt``; returns ``(loss,
+        terms, y, gt, restored)``."""
         scale = None
-        if self.optics_worst_depth is not None and x.requires_grad:
-            scale = {}  # filled below, once this step's losses are known
-            x.register_hook(lambda g: g * scale["w"].to(g.dtype)[:, None, None, None])
+        if self.optics_worst_depth is not None and torch.is_grad_enabled():
+            scale = {}  # filled below, once this step's losses are known (running means too)
+            if x.requires_grad:  # not while the optics are fixed and no Wiener nsr is learned
+                x.register_hook(lambda g: g * scale["w"].to(g.dtype)[:, None, None, None])
         pred = self.restorer(x)
         terms = self.image_loss(pred, gt, depths)
         if scale is not None:

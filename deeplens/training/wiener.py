@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..render.psf import psf
+from ..render.psf import psf_many
 
 __all__ = ["DepthWienerFilter", "DEFAULTS"]
 
@@ -83,12 +83,13 @@ class DepthWienerFilter(nn.Module):
         lens, sensor = self._camera
         n = max(int(round(math.sqrt(self.rays))), 8)
         jobs = sensor.wavelengths_for(len(sensor.channels))
+        specs = [(d, c, wl, w) for d in self.depths_mm for c, wl, w in jobs]
+        kers = psf_many(lens, sensor, [((0.0, 0.0), d, wl) for d, _, wl, _ in specs],
+                        n_rays=n * n, sampling=f"grid:{n}", max_kernel=min(size) - 1)
         out = []
-        for d in self.depths_mm:
+        for k0 in range(0, len(specs), len(jobs)):
             per = {}
-            for c, wl, w in jobs:
-                k = psf(lens, sensor, (0.0, 0.0), d, wl, n_rays=n * n, sampling=f"grid:{n}",
-                        max_kernel=min(size) - 1)
+            for (_, c, _, w), k in zip(specs[k0:k0 + len(jobs)], kers[k0:k0 + len(jobs)]):
                 per.setdefault(c, []).append((k, w))
             out.append(per)
         K = max(k.shape[-1] for per in out for ks in per.values() for k, _ in ks)

@@ -474,6 +474,34 @@ def test_optics_warmup_keeps_the_lens_fixed_for_its_steps(cfg_factory):
         build_objects(cfg_factory("experiment=doublet", "model.optics_warmup_steps=-1"))
 
 
+def test_optics_warmup_traces_the_lens_without_gradients(cfg_factory):
+    """During ``optics_warmup_steps`` the render and the Wiener filter run with the lens
+    parameters not requiring gradients (their gradients were discarded anyway), giving the same
+    loss; afterwards, and after the step, the parameters require gradients again."""
+    over = ("experiment=edof", "render.psf_rays=512", "model.deconvolution.rays=256",
+            "model.optics_warmup_steps=3")
+    m = build_objects(cfg_factory(*over))["module"]
+    trained = [p for p in m.lens.parameters() if p.requires_grad]
+    assert trained
+    seen, render = [], m.renderer.forward
+
+    def spy(*args, **kwargs):
+        seen.append(any(p.requires_grad for p in m.lens.parameters()))
+        return render(*args, **kwargs)
+
+    m.renderer.forward = spy
+    images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    fixed, *_ = m.step_loss(images, 2)
+    assert all(p.requires_grad for p in trained)
+    moving, *_ = m.step_loss(images, 3)
+    assert seen == [False, True]
+    m.optics_warmup_steps = 0  # step 2 again, the lens traced with gradients: the same loss
+    again, *_ = m.step_loss(images, 2)
+    assert seen[-1] is True
+    assert torch.equal(fixed.detach(), again.detach())
+    assert fixed.grad_fn is not None  # the restorer still trains
+
+
 def test_optics_worst_depth_weights_only_the_optics_gradient(cfg_factory):
     """``model.optics_worst_depth``: the restorer's gradient is the plain mean's, the lens's
     is that of the per-sample losses weighted by the depth bins' soft maximum (computed here
@@ -481,7 +509,8 @@ def test_optics_worst_depth_weights_only_the_optics_gradient(cfg_factory):
     from kornia.metrics import ssim as kssim
 
     over = ("experiment=edof", "render.psf_rays=512", "model.deconvolution.rays=256",
-            "data.batch_size=4", "model.optics_worst_depth={temperature:0.3,bins:2,momentum:0}")
+            "data.batch_size=4", "model.optics_worst_depth={temperature:0.3,bins:2,momentum:0}",
+            "model.optics_warmup_steps=0")
     m = build_objects(cfg_factory(*over))["module"]
     images = torch.rand(4, 3, 32, 32, generator=torch.Generator().manual_seed(0))
     depths = m.sample_depths(4, 5)

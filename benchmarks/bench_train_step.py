@@ -1,0 +1,144 @@
+#!/usr/bin/env python
+"""Seconds per training step of the composed Hydra experiments, split into their parts.
+
+Composes ``configs/train.yaml`` with ``experiment=...`` and the given overrides exactly as
+``train.py`` does, builds the objects (:func:`deeplens.training.train.build_objects`) and times
+what ``EndToEndModule.training_step`` does per batch, outside Lightning (no logging, no
+validation):
+
+* ``capture``: depths, the lens render of the batch (PSF convolution or Monte Carlo) and the
+  sensor noise;
+* ``deconv``: the depth-averaged Wiener filter (``model.deconvolution``), PSFs traced with
+  gradients while the optics train;
+* ``restorer``: the network's forward pass and the loss;
+* ``backward``: ``loss.backward()`` (restorer, and through the render into the lens);
+* ``step``: the sum, median over ``--steps`` steps after ``--warmup`` steps; ``CPU s`` the
+  process's CPU time per step.
+
+Rows are taken at a training step after ``model.optics_warmup_steps`` (the optics train) and,
+where the experiment has a warm-up, at step 0 (the optics fixed).  Each row runs in its own
+process, so threads and caches do not carry over.
+
+Usage::
+
+    python benchmarks/bench_train_step.py                         # experiment=edof, doublet
+    python benchmarks/bench_train_step.py --rows "edof|render=balanced"
+    OMP_NUM_THREADS=1 python benchmarks/bench_train_step.py --threads 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+DEFAULT_ROWS = ["edof", "edof|render=balanced", "edof|render=balanced|render.compile=true",
+                "doublet"]
+
+
+def _child(spec: str, args) -> dict:
+    import torch
+    from hydra import compose, initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import open_dict
+
+    sys.path.insert(0, REPO)
+    from deeplens.training.train import build_objects
+
+    torch.set_num_threads(args.threads)
+    experiment, *overrides = spec.split("|")
+    GlobalHydra.instance().clear()
+    with initialize_config_dir(config_dir=os.path.join(REPO, "configs"), version_base="1.3"):
+        cfg = compose(config_name="train.yaml", return_hydra_config=True,
+                      overrides=[f"experiment={experiment}", "~logger", *overrides])
+    HydraConfig().set_config(cfg)
+    with open_dict(cfg):
+        cfg.paths.output_dir = "/tmp/bench_train_step"
+        cfg.paths.root_dir = REPO
+        cfg.paths.data_dir = os.path.join(REPO, "data")
+    objs = build_objects(cfg)
+    module, dm = objs["module"], objs["datamodule"]
+    dm.setup("fit")
+    batches = iter(dm.train_dataloader())
+    first = int(getattr(module, "optics_warmup_steps", 0) or 0)
+    out = {"spec": spec, "threads": args.threads, "batch": int(cfg.data.batch_size),
+           "image": int(cfg.data.image_size), "sensor": list(cfg.sensor.resolution)}
+    for label, step0 in (("optics train", first + 10), ("optics fixed", 0)):
+        if label == "optics fixed" and first == 0:
+            continue
+        parts = {k: [] for k in ("capture", "deconv", "restorer", "backward", "step", "cpu")}
+        for i in range(args.warmup + args.steps):
+            images = next(batches)["image"]
+            step = step0 + i
+            t0, c0 = time.perf_counter(), time.process_time()
+            # step_loss's parts, timed one by one (the same calls in the same order)
+            depths = module.sample_depths(images.shape[0], step)
+            with module.optics_fixed(step < first):
+                y, gt = module.capture(images, depths, seed=module.seed * 1_000_003 + step)
+                t1 = time.perf_counter()
+                x = module.deconv(y) if module.deconv is not None else y
+                t2 = time.perf_counter()
+            loss, *_ = module.restore_loss(depths, y, gt, x)
+            t3 = time.perf_counter()
+            module.zero_grad(set_to_none=True)
+            loss.backward()
+            if step < first:
+                for p in module.lens.parameters():
+                    p.grad = None
+            t4 = time.perf_counter()
+            if i >= args.warmup:
+                for k, v in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0,
+                                        time.process_time() - c0)):
+                    parts[k].append(v)
+        out[label] = {k: statistics.median(v) for k, v in parts.items()}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rows", nargs="*", default=DEFAULT_ROWS,
+                    help='each "experiment|override|override..."')
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--steps", type=int, default=5)
+    ap.add_argument("--warmup", type=int, default=2)
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--one", default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.one:
+        print(json.dumps(_child(args.one, args)))
+        return
+    results = []
+    print(f"training step, {args.threads} threads, median of {args.steps} steps after "
+          f"{args.warmup}; load average {os.getloadavg()[0]:.1f} at the start\n")
+    print("| experiment and overrides | optics | capture s | deconv s | restorer s | backward s "
+          "| step s | CPU s |")
+    print("|---|---|---|---|---|---|---|---|")
+    for spec in args.rows:
+        cmd = [sys.executable, os.path.abspath(__file__), "--one", spec, "--threads",
+               str(args.threads), "--steps", str(args.steps), "--warmup", str(args.warmup)]
+        env = dict(os.environ, OMP_NUM_THREADS=str(args.threads))
+        r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, check=False)
+        if r.returncode != 0:
+            sys.stderr.write(r.stderr[-3000:])
+            raise SystemExit(f"failed: {spec}")
+        res = json.loads(r.stdout.strip().splitlines()[-1])
+        results.append(res)
+        for label in ("optics train", "optics fixed"):
+            if label in res:
+                p = res[label]
+                print(f"| `{spec.replace('|', ' ')}` | {label} | {p['capture']:.3f} | "
+                      f"{p['deconv']:.3f} | {p['restorer']:.3f} | {p['backward']:.3f} | "
+                      f"**{p['step']:.3f}** | {p['cpu']:.3f} |", flush=True)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(results, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
