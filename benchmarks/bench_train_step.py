@@ -23,12 +23,14 @@ Usage::
 
     python benchmarks/bench_train_step.py                         # experiment=edof, doublet
     python benchmarks/bench_train_step.py --rows "edof|render=balanced"
+    python benchmarks/bench_train_step.py --base /tmp/before   # a checkout to compare
     OMP_NUM_THREADS=1 python benchmarks/bench_train_step.py --threads 1
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import statistics
@@ -48,26 +50,32 @@ def _child(spec: str, args) -> dict:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    sys.path.insert(0, REPO)
+    code = args.code or REPO
+    sys.path.insert(0, code)
     from deeplens.training.train import build_objects
 
     torch.set_num_threads(args.threads)
     experiment, *overrides = spec.split("|")
     GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=os.path.join(REPO, "configs"), version_base="1.3"):
+    with initialize_config_dir(config_dir=os.path.join(code, "configs"), version_base="1.3"):
         cfg = compose(config_name="train.yaml", return_hydra_config=True,
                       overrides=[f"experiment={experiment}", "~logger", *overrides])
     HydraConfig().set_config(cfg)
     with open_dict(cfg):
         cfg.paths.output_dir = "/tmp/bench_train_step"
-        cfg.paths.root_dir = REPO
-        cfg.paths.data_dir = os.path.join(REPO, "data")
+        cfg.paths.root_dir = code
+        cfg.paths.data_dir = os.path.join(code, "data")
     objs = build_objects(cfg)
     module, dm = objs["module"], objs["datamodule"]
     dm.setup("fit")
     batches = iter(dm.train_dataloader())
     first = int(getattr(module, "optics_warmup_steps", 0) or 0)
-    out = {"spec": spec, "threads": args.threads, "batch": int(cfg.data.batch_size),
+    import deeplens
+    if not os.path.abspath(deeplens.__file__).startswith(os.path.abspath(code) + os.sep):
+        raise SystemExit(f"imported {deeplens.__file__}, not the code under {code}")
+    split = hasattr(module, "restore_loss")  # older code: the step timed as a whole
+    fixed = getattr(module, "optics_fixed", lambda on: contextlib.nullcontext())
+    out = {"code": code, "spec": spec, "threads": args.threads, "batch": int(cfg.data.batch_size),
            "image": int(cfg.data.image_size), "sensor": list(cfg.sensor.resolution)}
     for label, step0 in (("optics train", first + 10), ("optics fixed", 0)):
         if label == "optics fixed" and first == 0:
@@ -78,13 +86,17 @@ def _child(spec: str, args) -> dict:
             step = step0 + i
             t0, c0 = time.perf_counter(), time.process_time()
             # step_loss's parts, timed one by one (the same calls in the same order)
-            depths = module.sample_depths(images.shape[0], step)
-            with module.optics_fixed(step < first):
-                y, gt = module.capture(images, depths, seed=module.seed * 1_000_003 + step)
-                t1 = time.perf_counter()
-                x = module.deconv(y) if module.deconv is not None else y
-                t2 = time.perf_counter()
-            loss, *_ = module.restore_loss(depths, y, gt, x)
+            if split:
+                depths = module.sample_depths(images.shape[0], step)
+                with fixed(step < first):
+                    y, gt = module.capture(images, depths, seed=module.seed * 1_000_003 + step)
+                    t1 = time.perf_counter()
+                    x = module.deconv(y) if module.deconv is not None else y
+                    t2 = time.perf_counter()
+                loss, *_ = module.restore_loss(depths, y, gt, x)
+            else:
+                loss, *_ = module.step_loss(images, step)
+                t1 = t2 = t0
             t3 = time.perf_counter()
             module.zero_grad(set_to_none=True)
             loss.backward()
@@ -97,6 +109,8 @@ def _child(spec: str, args) -> dict:
                                         time.process_time() - c0)):
                     parts[k].append(v)
         out[label] = {k: statistics.median(v) for k, v in parts.items()}
+        if not split:
+            out[label].update(capture=None, deconv=None, restorer=None)
     return out
 
 
@@ -108,6 +122,9 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--warmup", type=int, default=2)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--base", default=None,
+                    help="also run every row on the code at this path (e.g. a git worktree)")
+    ap.add_argument("--code", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--one", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
@@ -116,25 +133,29 @@ def main() -> None:
     results = []
     print(f"training step, {args.threads} threads, median of {args.steps} steps after "
           f"{args.warmup}; load average {os.getloadavg()[0]:.1f} at the start\n")
-    print("| experiment and overrides | optics | capture s | deconv s | restorer s | backward s "
-          "| step s | CPU s |")
-    print("|---|---|---|---|---|---|---|---|")
-    for spec in args.rows:
+    print("| code | experiment and overrides | optics | capture s | deconv s | restorer s "
+          "| backward s | step s | CPU s |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    codes = ([("before", args.base)] if args.base else []) + [("after", REPO)]
+    for spec, (name, code) in ((s, c) for s in args.rows for c in codes):
         cmd = [sys.executable, os.path.abspath(__file__), "--one", spec, "--threads",
-               str(args.threads), "--steps", str(args.steps), "--warmup", str(args.warmup)]
+               str(args.threads), "--steps", str(args.steps), "--warmup", str(args.warmup),
+               "--code", code]
         env = dict(os.environ, OMP_NUM_THREADS=str(args.threads))
         r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, check=False)
         if r.returncode != 0:
             sys.stderr.write(r.stderr[-3000:])
-            raise SystemExit(f"failed: {spec}")
+            print(f"| {name} | `{spec.replace('|', ' ')}` | failed (stderr above) |||||||")
+            continue
         res = json.loads(r.stdout.strip().splitlines()[-1])
         results.append(res)
         for label in ("optics train", "optics fixed"):
             if label in res:
                 p = res[label]
-                print(f"| `{spec.replace('|', ' ')}` | {label} | {p['capture']:.3f} | "
-                      f"{p['deconv']:.3f} | {p['restorer']:.3f} | {p['backward']:.3f} | "
-                      f"**{p['step']:.3f}** | {p['cpu']:.3f} |", flush=True)
+                f = {k: "" if v is None else f"{v:.3f}" for k, v in p.items()}
+                print(f"| {name} | `{spec.replace('|', ' ')}` | {label} | {f['capture']} | "
+                      f"{f['deconv']} | {f['restorer']} | {f['backward']} | "
+                      f"**{f['step']}** | {f['cpu']} |", flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=1)

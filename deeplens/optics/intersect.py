@@ -166,9 +166,12 @@ def _warn_stalled(surface, o, d, s, tried, converged, tol_ray, tol, fv=None):
 
 
 def _signbit(x):
-    """``torch.signbit(x)`` (``-0.0`` and NaNs with the sign bit set included) through
-    ``copysign``, which inductor's C++ backend vectorises (its ``signbit`` is a scalar loop)."""
-    return torch.copysign(torch.ones_like(x), x) < 0
+    """``torch.signbit(x)``; while ``torch.compile`` traces, the same bit (``-0.0`` and NaNs
+    with the sign bit set included) through ``copysign``, which inductor's C++ backend
+    vectorises (its ``signbit`` is a scalar loop; eager, the two extra operators cost more)."""
+    if torch.compiler.is_compiling():
+        return torch.copysign(torch.ones_like(x), x) < 0
+    return torch.signbit(x)
 
 
 def _quadric_root(quadric, obz, dz, ok):
