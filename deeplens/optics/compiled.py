@@ -28,7 +28,7 @@ from __future__ import annotations
 import torch
 
 from .intersect import (_ROUNDING_ULPS, _quadric_root, _safe_div, accept_hits,
-                        flat_step_xyz, quadric_step_xyz, snell_xyz)
+                        flat_step_xyz, propagate_xyz, quadric_step_xyz, snell_xyz)
 
 __all__ = ["KINDS", "compiled_surface_run", "surface_run"]
 
@@ -70,19 +70,6 @@ def surface_run(o, d, valid, opl, kinds: tuple, params: tuple, tol: float, clip:
                                   refract=kind == "plane")
     x, y, z, dx, dy, dz, valid, opl = state
     return torch.stack([x, y, z]), torch.stack([dx, dy, dz]), valid, opl
-
-
-def propagate_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_plane, n):
-    """Move rays to the plane ``z = z_plane`` (mm) in a medium of index ``n``, as
-    :meth:`Lens.propagate_to_z <deeplens.optics.lens.Lens.propagate_to_z>` does (the same
-    operations): rays that cannot reach it (``d_z = 0`` or behind them) go invalid and stay.
-    Returns ``(x, y, z, d_x, d_y, d_z, valid, opl)``."""
-    ok = valid & (dz.abs() > 1e-12)
-    num = torch.where(ok, z_plane - oz, torch.zeros_like(dz))
-    t = num / torch.where(ok, dz, torch.ones_like(dz))
-    ok = ok & (t.detach() >= 0)
-    t = torch.where(ok, t, torch.zeros_like(t))
-    return ox + t * dx, oy + t * dy, oz + t * dz, dx, dy, dz, ok, opl + n * t
 
 
 #: compiled variants one function may hold (dynamo's default, 8, is soon reached: each lens

@@ -378,6 +378,26 @@ def flat_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, aperture, n1, n2,
     return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
 
 
+def propagate_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_plane, n):
+    """Move rays to the plane ``z = z_plane`` (mm) in a medium of index ``n``, on the ``(*B,)``
+    components (:meth:`Lens.propagate_to_z <deeplens.optics.lens.Lens.propagate_to_z>` and
+    the compiled runs' ``"propagate"`` step): rays that cannot reach it (``d_z = 0`` or the
+    plane behind them) go invalid and stay where they are.  Returns ``(x, y, z, d_x, d_y,
+    d_z, valid, opl)``."""
+    t, ok = propagate_distance(oz, dz, valid, z_plane)
+    return ox + t * dx, oy + t * dy, oz + t * dz, dx, dy, dz, ok, opl + n * t
+
+
+def propagate_distance(oz, dz, valid, z_plane):
+    """``(t, ok)``: the marching distance ``(*B,)`` (mm) to the plane ``z = z_plane`` and
+    whether the ray reaches it (``d_z != 0``, ahead of it); ``t = 0`` where not."""
+    ok = valid & (dz.abs() > 1e-12)
+    num = torch.where(ok, z_plane - oz, torch.zeros_like(dz))
+    t = num / torch.where(ok, dz, torch.ones_like(dz))
+    ok = ok & (t.detach() >= 0)
+    return torch.where(ok, t, torch.zeros_like(t)), ok
+
+
 def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
               options: IntersectOptions | None = None):
     """Intersect rays with ``surface`` in its local frame.

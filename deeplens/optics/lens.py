@@ -23,7 +23,8 @@ import torch.utils.checkpoint
 from torch import nn
 
 from .errors import LensError
-from .intersect import IntersectOptions, default_tolerance, intersect, trace_quadric
+from .intersect import (IntersectOptions, default_tolerance, intersect, propagate_distance,
+                        trace_quadric)
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
 from .paraxial import paraxial
@@ -434,6 +435,11 @@ class Lens(nn.Module):
                            or any(p.requires_grad for p in self.parameters()))
         order = list(order)
         soa = None  # (o, d) component-major (3, *B) while between compiled runs
+
+        def propagate_params(like):  # the "propagate" step's (z_plane, n, n)
+            m = _compact(propagate_to[1]).to(like)
+            return propagate_to[0], m, m
+
         k = 0
         while k < len(order):
             i = order[k]
@@ -476,8 +482,7 @@ class Lens(nn.Module):
                 k += 1
                 if k == len(order) and propagate_to is not None:  # the move to the sensor
                     kinds.append("propagate")
-                    params.append((propagate_to[0], _compact(propagate_to[1]).to(like),
-                                   _compact(propagate_to[1]).to(like)))
+                    params.append(propagate_params(like))
                     propagate_to = None
                 if per_surface or k == len(order):
                     break
@@ -493,9 +498,8 @@ class Lens(nn.Module):
             soa = (o, d)
             rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
         if soa is not None and propagate_to is not None:  # after a Newton surface
-            m = _compact(propagate_to[1]).to(rays.o)
-            args = (*soa, rays.valid, rays.opl, ("propagate",), ((propagate_to[0], m, m),), tol,
-                    clip)
+            args = (*soa, rays.valid, rays.opl, ("propagate",), (propagate_params(rays.o),),
+                    tol, clip)
             o, d, valid, opl = C.call(C.compiled_surface_run, *args)
             soa, propagate_to = (o, d), None
             rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
@@ -553,12 +557,7 @@ class Lens(nn.Module):
     def propagate_to_z(self, rays: Rays, z_plane, medium_index=None) -> Rays:
         """Move rays to the plane ``z = z_plane`` (mm); rays that cannot reach it go invalid."""
         z_plane = torch.as_tensor(z_plane, dtype=rays.dtype, device=rays.device)
-        dz = rays.d[..., 2]
-        ok = rays.valid & (dz.abs() > 1e-12)
-        num = torch.where(ok, z_plane - rays.o[..., 2], torch.zeros_like(dz))
-        t = num / torch.where(ok, dz, torch.ones_like(dz))
-        ok = ok & (t.detach() >= 0)
-        t = torch.where(ok, t, torch.zeros_like(t))
+        t, ok = propagate_distance(rays.o[..., 2], rays.d[..., 2], rays.valid, z_plane)
         n = 1.0 if medium_index is None else medium_index
         return Rays(rays.at(t), rays.d, rays.wavelength, ok, rays.opl + n * t, normalize=False)
 

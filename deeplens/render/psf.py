@@ -58,9 +58,8 @@ def psf(lens, sensor, point_xy_mm, depth_mm: float, wavelength_nm: float, n_rays
     Raises:
         ValueError: if no ray of the point reaches the sensor (fully vignetted).
     """
-    out = psf_many(lens, sensor, [(point_xy_mm, depth_mm, wavelength_nm)], n_rays, kernel_size,
-                   seed, options, max_kernel, return_energy, sampling)[0]
-    return out
+    return psf_many(lens, sensor, [(point_xy_mm, depth_mm, wavelength_nm)], n_rays, kernel_size,
+                    seed, options, max_kernel, return_energy, sampling)[0]
 
 
 def psf_many(lens, sensor, jobs, n_rays: int = 4096, kernel_size=None, seed: int = 0,
@@ -81,43 +80,46 @@ def psf_many(lens, sensor, jobs, n_rays: int = 4096, kernel_size=None, seed: int
     Returns:
         A list of ``(K_j, K_j)`` kernels (of ``(kernel, energy)`` with ``return_energy``).
     """
-    jobs = [(tuple(p), float(d), float(w)) for p, d, w in jobs]
+    jobs = [(tuple(float(v) for v in p), float(d), float(w)) for p, d, w in jobs]
     if not jobs:
         return []
     sizes = (list(kernel_size) if isinstance(kernel_size, (list, tuple))
              else [kernel_size] * len(jobs))
     if len(sizes) != len(jobs):
         raise ValueError(f"psf_many: {len(sizes)} kernel sizes for {len(jobs)} jobs")
+    out = []
+    for (p, d, w), K, (di, dj, valid) in zip(jobs, sizes, _job_offsets(
+            lens, sensor, jobs, n_rays, seed, options, sampling)):
+        if not bool(valid.any()):
+            raise ValueError(f"no ray from the object point {p} at depth {d} mm reaches the "
+                             f"sensor at {w:g} nm (fully vignetted)")
+        K = K or psf_kernel_size(di, dj, valid, max_kernel)
+        if K % 2 == 0:
+            raise ValueError(f"kernel_size must be odd, got {K}")
+        ker = splat_bilinear(di + K / 2, dj + K / 2, valid.to(di.dtype), (K, K))
+        total = ker.sum()
+        ker = ker / total.clamp_min(1e-30)
+        out.append((ker, float(total) / max(int(valid.sum()), 1)) if return_energy else ker)
+    return out
+
+
+def _job_offsets(lens, sensor, jobs, n_rays: int, seed: int, options, sampling: str = "random"):
+    """Trace every job's point-source rays as one ``(J, n)`` batch (the wavelength broadcast
+    along each row, so the media's indices are evaluated once per job); returns per job the
+    hits' offsets ``(di, dj)`` (pixels) from the point's ideal image and the valid mask."""
     camera = IdealCamera(lens, sensor)
     pupil = entrance_pupil(lens)
     rays = [point_source_rays(lens, p, d, w, n_rays, seed, sampling=sampling, pupil=pupil)
             for p, d, w in jobs]
-    batch = _stacked(lens, rays, [w for _, _, w in jobs])
+    w = torch.tensor([w for _, _, w in jobs], dtype=lens.dtype, device=lens.device)[:, None]
+    batch = Rays(torch.stack([r.o for r in rays]), torch.stack([r.d for r in rays]),
+                 w.expand(len(rays), rays[0].o.shape[0]), normalize=False)
     i, j, valid = trace_to_sensor_pixels(lens, sensor, batch, options)
     out = []
-    for b, ((p, d, w), K) in enumerate(zip(jobs, sizes)):
-        if not bool(valid[b].any()):
-            raise ValueError(f"no ray from the object point {p} at depth {d} mm reaches the "
-                             f"sensor at {w:g} nm (fully vignetted)")
+    for b, (p, d, _) in enumerate(jobs):
         ci, cj = _ideal_pixel(camera, p[0], p[1], d)
-        di, dj = i[b] - float(ci), j[b] - float(cj)
-        K = K or psf_kernel_size(di, dj, valid[b], max_kernel)
-        if K % 2 == 0:
-            raise ValueError(f"kernel_size must be odd, got {K}")
-        wt = valid[b].to(i.dtype)
-        ker = splat_bilinear(di + K / 2, dj + K / 2, wt, (K, K))
-        total = ker.sum()
-        ker = ker / total.clamp_min(1e-30)
-        out.append((ker, float(total) / max(int(valid[b].sum()), 1)) if return_energy else ker)
+        out.append((i[b] - float(ci), j[b] - float(cj), valid[b]))
     return out
-
-
-def _stacked(lens, rays, wavelengths) -> Rays:
-    """The ``J`` ray sets (``n`` rays each, unit directions) as one ``(J, n)`` batch, the
-    wavelength broadcast along each row (so the media's indices are evaluated once per job)."""
-    w = torch.tensor(wavelengths, dtype=lens.dtype, device=lens.device)[:, None]
-    return Rays(torch.stack([r.o for r in rays]), torch.stack([r.d for r in rays]),
-                w.expand(len(rays), rays[0].o.shape[0]), normalize=False)
 
 
 def _grid_points(camera: IdealCamera, depth_mm: float, grid):
@@ -180,14 +182,6 @@ def psf_many_sizes(lens, sensor, jobs, n_rays: int, seed: int = 0, options=None,
                    max_kernel: int = 129):
     """The kernel size :func:`psf_kernel_size` measures for each job of :func:`psf_many` from
     ``n_rays`` random rays, without autograd, in one trace."""
-    camera = IdealCamera(lens, sensor)
-    pupil = entrance_pupil(lens)
     with torch.no_grad():
-        rays = [point_source_rays(lens, p, d, w, n_rays, seed, pupil=pupil) for p, d, w in jobs]
-        batch = _stacked(lens, rays, [w for _, _, w in jobs])
-        i, j, valid = trace_to_sensor_pixels(lens, sensor, batch, options)
-    out = []
-    for b, (p, d, _) in enumerate(jobs):
-        ci, cj = _ideal_pixel(camera, p[0], p[1], d)
-        out.append(psf_kernel_size(i[b] - float(ci), j[b] - float(cj), valid[b], max_kernel))
-    return out
+        return [psf_kernel_size(di, dj, valid, max_kernel)
+                for di, dj, valid in _job_offsets(lens, sensor, jobs, n_rays, seed, options)]
