@@ -15,7 +15,7 @@ from deeplens.optics.lens import Lens
 from deeplens.optics.materials import get_material
 from deeplens.optics.surfaces import Aperture, Asphere, IdealLens
 from deeplens.render import IdealCamera, MonteCarloRenderer, Scene, Sensor
-from deeplens.render.psf import psf
+from deeplens.render.psf import psf, psf_grid, psf_grids, psf_many
 from deeplens.render.psf_conv import PSFConvRenderer, blend_weights
 from deeplens.render.splat import splat_bilinear
 
@@ -117,6 +117,36 @@ def test_psf_kernel_size_follows_the_spot(edof):
     sizes = {d: psf(edof, sensor, (0.0, 0.0), d, 587.56, n_rays=2000).shape[-1]
              for d in (1500.0, 5000.0)}
     assert sizes[1500.0] > sizes[5000.0]
+
+
+def test_batched_psfs_equal_the_per_job_ones():
+    """``psf_many`` traces every job in one ``(J, n)`` batch and ``psf_grids`` every grid: the
+    same kernels (sizes included) and lens gradients as one trace per job, with each job's own
+    point, depth and wavelength (the singlet disperses, so a mixed-up wavelength shows)."""
+    lens = singlet()
+    c = lens.surfaces[1].c
+    c.requires_grad_(True)
+    sensor = Sensor((32, 32), 0.01)
+    jobs = [((0.0, 0.0), 2000.0, 486.13), ((30.0, -20.0), 2000.0, 656.27),
+            ((0.0, 0.0), 900.0, 587.56), ((-40.0, 10.0), 1500.0, 486.13)]
+    batched = psf_many(lens, sensor, jobs, n_rays=3000, seed=4)
+    single = [psf(lens, sensor, p, d, w, n_rays=3000, seed=4) for p, d, w in jobs]
+    weights = [torch.linspace(0, 1, k.numel(), dtype=k.dtype).reshape(k.shape) for k in single]
+    for a, b in zip(batched, single):
+        assert a.shape == b.shape
+        assert float((a - b).abs().max()) < 1e-12
+    assert len({k.shape for k in single}) > 1  # the jobs differ (else the test is vacuous)
+    (ga,) = torch.autograd.grad(sum((k * w).sum() for k, w in zip(batched, weights)), c)
+    (gb,) = torch.autograd.grad(sum((k * w).sum() for k, w in zip(single, weights)), c)
+    assert float(gb) != 0 and float(ga) == pytest.approx(float(gb), rel=1e-10)
+    with torch.no_grad():
+        specs = [(2000.0, 486.13), (900.0, 656.27)]
+        for (kg, cg), (d, w) in zip(psf_grids(lens, sensor, specs, (2, 1), 2000, seed=1), specs):
+            k1, c1 = psf_grid(lens, sensor, d, w, (2, 1), 2000, seed=1)
+            assert kg.shape == k1.shape and float((kg - k1).abs().max()) < 1e-12
+            assert torch.equal(cg, c1)
+    with pytest.raises(ValueError, match="psf_many: 2 kernel sizes for 4 jobs"):
+        psf_many(lens, sensor, jobs, n_rays=100, kernel_size=[5, 7])
 
 
 # ---------------------------------------------------------------- Monte Carlo rendering
