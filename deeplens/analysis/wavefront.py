@@ -13,8 +13,9 @@ path to the sphere is ``L - n' s`` and, in waves,
 A positive ``W`` is a ray that arrives early (shorter path), the convention of optiland and
 Zemax.  For an object at infinity the rays start on a plane ``z = z_0`` that is not a wavefront
 of the tilted beam, so each ray's path is counted from the plane wavefront through the chief
-ray's start: ``L += n_0 d · (o - o_chief)``.  A finite object emits a spherical wave: all rays
-start at the object point.  Rays that are vignetted are dropped (``mask`` False).
+ray's start: ``L += n_0 d · (o - o_chief)``.  A finite object emits a spherical wave: each ray
+starts on the same plane with its path from the object point relative to the pupil centre's
+(:func:`launch`; the two agree in the limit).  Rays that are vignetted are dropped (``mask`` False).
 
 Zernike polynomials on the unit disk (``ρ = |p|``, ``θ = atan2(p_y, p_x)``):
 ``Z_n^m = N_n^m R_n^|m|(ρ) cos(mθ)`` (``m ≥ 0``) or ``sin(|m|θ)`` (``m < 0``) with
@@ -101,14 +102,12 @@ def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tenso
     xy = torch.cat([zero, flat], 0) * r_ep
     rays = launch(lens, field_deg, w, xy, z_ep)
     z_img = image_plane_z(lens, image_plane)
-    n0 = lens.materials[0].n(rays.wavelength[:1])[0]
     n_img = lens.materials[-1].n(rays.wavelength[:1])[0]
-    start_phase = n0 * ((rays.o - rays.o[:1]) * rays.d).sum(-1)
     out = lens.trace_to_sensor(rays, z_image=z_img, options=options)
     if not bool(out.valid[0]):
         raise AnalysisError(f"the chief ray of field {field_deg:g} deg at {w:g} nm does not reach "
                             f"the image plane")
-    opl = out.opl + start_phase
+    opl = out.opl  # launch() starts each ray at its path relative to the pupil centre's
     return PupilTrace(pupil=pupil, points=out.o[1:].reshape(*shape, 3),
                       directions=out.d[1:].reshape(*shape, 3), opl=opl[1:].reshape(shape),
                       mask=out.valid[1:].reshape(shape), chief_point=out.o[0],
@@ -122,23 +121,38 @@ def launch(lens, field_deg: float, wavelength_nm: float, xy: torch.Tensor,
 
     The geometry of :func:`deeplens.optics.sampling.field_rays`, written with tensors so that
     gradients also flow through the pupil plane's position and size (which move with the lens).
+    Each ray's ``opl`` starts at ``n_0 (L - L_0)``: its path from the object point (for an object
+    at infinity, from the plane wavefront) minus that of the ray through the pupil centre.  The
+    launch is computed in float64 from the direction tangents ``t = t_0 + xy / D`` (``D`` the
+    object's distance from the pupil plane) with ``L - L_0`` written without cancellation, so
+    float32 rays keep their precision for any object distance (issue 25, item 8).
     """
     dtype, device = xy.dtype, xy.device
+    f64 = torch.float64
     s = float(lens.spec.object_distance_mm)
     th = math.radians(field_deg)
-    z_start = start_plane_z(lens)
-    M = xy.shape[0]
-    zp = torch.as_tensor(z_pupil, dtype=dtype, device=device)
-    P = torch.cat([xy, zp.expand(M, 1)], -1)
+    xy64 = xy.to(f64)
+    zp = torch.as_tensor(z_pupil, device=device).to(f64)
+    z_start = torch.as_tensor(start_plane_z(lens), dtype=f64, device=device)
+    t0 = torch.tensor([0.0, math.tan(th)], dtype=f64, device=device)
     if math.isinf(s):
-        d = torch.tensor([0.0, math.sin(th), math.cos(th)], dtype=dtype, device=device)
-        o = P + ((z_start - zp) / math.cos(th)) * d
-        return Rays(o, d.expand(M, 3), wavelength_nm)
-    z_obj = lens.z_vertices()[0].to(dtype) - s
-    Q = torch.stack([torch.zeros_like(zp), -math.tan(th) * (zp - z_obj), z_obj])
-    d = P - Q
-    d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
-    return Rays(Q.expand(M, 3), d, wavelength_nm)
+        t, ratio = t0.expand_as(xy64), 1.0
+    else:
+        z_obj = lens.z_vertices()[0].to(f64) - s
+        depth = zp - z_obj
+        t = t0 + xy64 / depth
+        z_start = torch.maximum(z_start, z_obj)
+        ratio = (z_start - z_obj) / depth
+    ones = torch.ones_like(xy64[:, :1])
+    o = torch.cat([xy64 + (z_start - zp) * t, z_start * ones], -1)
+    d = torch.cat([t, ones], -1)
+    norm = torch.linalg.vector_norm(d, dim=-1)
+    # L - L_0 = D' (sqrt(1 + |t|^2) - sqrt(1 + |t_0|^2)), |t|^2 - |t_0|^2 = (xy / D).(t + t_0)
+    path = ratio * (xy64 * (t + t0)).sum(-1) / (norm + torch.sqrt(1.0 + (t0 * t0).sum()))
+    w = torch.as_tensor(wavelength_nm, dtype=dtype, device=device)
+    n0 = lens.materials[0].n(w.reshape(1))[0]
+    return Rays(o.to(dtype), (d / norm[:, None]).to(dtype), wavelength_nm,
+                opl=n0 * path.to(dtype), normalize=False)
 
 
 def _back_to_sphere(X, d, C, R):

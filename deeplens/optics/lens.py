@@ -240,6 +240,17 @@ class Lens(nn.Module):
                 s.check(where=f"surface {i} ({type(s).__name__}): ")
             except ValueError as e:
                 raise LensError(str(e), surfaces=(i,)) from None
+            if isinstance(s, Aperture):  # a stop does not refract: one medium on both sides
+                with torch.no_grad():
+                    w = torch.tensor(waves, dtype=torch.float64)
+                    n1, n2 = self.materials[i].n(w), self.materials[i + 1].n(w)
+                if not torch.allclose(n1, n2, rtol=0.0, atol=1e-9):
+                    raise LensError(
+                        f"surface {i} is an aperture stop between two different media (index "
+                        f"{float(n1[0]):.6g} before, {float(n2[0]):.6g} after at "
+                        f"{waves[0]:g} nm); a stop does not refract, so the medium must be the "
+                        f"same on both sides: put the stop in a gap, or give the interface its "
+                        f"own surface", surfaces=(i,))
         for i, d in enumerate(self.distances):
             if i > 0 and float(d) < 0:
                 raise LensError(f"distance before surface {i} is negative ({float(d):g} mm): "

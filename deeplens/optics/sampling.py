@@ -10,6 +10,10 @@ Patterns return points ``(M, 2)`` in the unit disk (normalised pupil coordinates
 Field rays for an object at infinity travel along ``(0, sin θ, cos θ)`` (positive field angle
 = ray rising towards ``+y``); for a finite object the object point sits at
 ``y = -tan θ (z_EP - z_obj)`` so that its chief ray crosses the entrance-pupil centre at ``θ``.
+Either way the rays start on a plane just before the first surface (or at the object point when
+it is nearer), launch point and direction computed in float64 from the pupil points and the
+direction tangents and only then rounded to the lens's dtype, so that float32 rays from an
+object 1e9 mm away keep their pupil positions (:func:`rays_from_tangents`).
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import torch
 from .rays import Rays
 
 __all__ = ["pupil_pattern", "parse_sampling", "hexapolar", "square_grid", "random_disk",
-           "field_rays", "start_plane_z"]
+           "field_rays", "start_plane_z", "rays_from_tangents", "rays_from_point"]
 
 
 def hexapolar(rings: int, dtype=torch.float64, device=None) -> torch.Tensor:
@@ -115,20 +119,40 @@ def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Ten
     dtype, device = pupil_xy.dtype, pupil_xy.device
     s = lens.spec.object_distance_mm if object_distance_mm is None else object_distance_mm
     th = math.radians(field_deg)
-    z_start = start_plane_z(lens)
-    M = pupil_xy.shape[0]
-    P = torch.cat([pupil_xy, torch.full((M, 1), z_pupil, dtype=dtype, device=device)], -1)
+    P = torch.cat([pupil_xy.to(torch.float64),
+                   torch.full((pupil_xy.shape[0], 1), float(z_pupil), dtype=torch.float64,
+                              device=device)], -1)
     if math.isinf(s):
-        d = torch.tensor([0.0, math.sin(th), math.cos(th)], dtype=dtype, device=device).expand(M, 3)
-        t = (z_start - z_pupil) / math.cos(th)
-        o = P + t * d
-    else:
-        z_obj = float(lens.z_vertices()[0]) - s
-        if z_obj >= z_start:
-            z_start = z_obj
-        Q = torch.tensor([0.0, -math.tan(th) * (z_pupil - z_obj), z_obj], dtype=dtype,
-                         device=device)
-        d = P - Q
-        d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
-        o = Q.expand(M, 3)
-    return Rays(o, d, wavelength_nm)
+        tangents = torch.tensor([0.0, math.tan(th)], dtype=torch.float64, device=device)
+        return rays_from_tangents(P, tangents, start_plane_z(lens), wavelength_nm, dtype)
+    z_obj = float(lens.z_vertices()[0]) - s
+    Q = torch.tensor([0.0, -math.tan(th) * (float(z_pupil) - z_obj), z_obj],
+                     dtype=torch.float64, device=device)
+    return rays_from_point(P, Q, start_plane_z(lens), wavelength_nm, dtype)
+
+
+def rays_from_tangents(P: torch.Tensor, tangents: torch.Tensor, z_start: float,
+                       wavelength_nm, dtype) -> Rays:
+    """Rays through the points ``P`` ``(M, 3)`` (mm) along ``(t_x, t_y, 1)``, started on the
+    plane ``z = z_start``.
+
+    ``P`` and ``tangents`` (``(2,)`` or ``(M, 2)``) are float64; the launch point and direction
+    are computed there and only then rounded to ``dtype``, so the rays' precision does not
+    depend on how far away their source is (issue 25, item 8: a float32 object point 1e9 mm
+    away rounds the pupil coordinates to 64 mm).  ``opl`` starts at 0 on the start plane.
+    """
+    t = tangents.expand(P.shape[0], 2)
+    ones = torch.ones_like(t[:, :1])
+    o = torch.cat([P[:, :2] + (z_start - P[:, 2:]) * t, torch.full_like(ones, z_start)], -1)
+    d = torch.cat([t, ones], -1)
+    d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+    return Rays(o.to(dtype), d.to(dtype), wavelength_nm, normalize=False)
+
+
+def rays_from_point(P: torch.Tensor, Q: torch.Tensor, z_start: float, wavelength_nm,
+                    dtype) -> Rays:
+    """Rays from the object point ``Q`` ``(3,)`` through the points ``P`` ``(M, 3)`` (float64,
+    mm), started on the plane ``z = max(z_start, Q_z)`` (see :func:`rays_from_tangents`)."""
+    z_obj = float(Q[2])
+    tangents = (P[:, :2] - Q[:2]) / (P[:, 2:] - z_obj)
+    return rays_from_tangents(P, tangents, max(float(z_start), z_obj), wavelength_nm, dtype)

@@ -84,10 +84,22 @@ def sensor_rays(lens, x, y, ex, ey, z_xp: float, wavelength) -> Rays:
     return Rays(o, d, wavelength)
 
 
-def image_circle_radius(lens, sensor, jobs, z_xp: float, r_xp: float, options=None) -> float:
+#: below this share of the aiming disk's area the paraxial exit pupil (the "core") gets half the
+#: probe and reference rays (``pupil_margin`` above sqrt 2; the default 1.05 samples uniformly)
+CORE_SHARE = 0.5
+
+
+def _core_share(r_xp: float, r_core: float | None) -> float:
+    return 1.0 if r_core is None else min(1.0, (float(r_core) / float(r_xp)) ** 2)
+
+
+def image_circle_radius(lens, sensor, jobs, z_xp: float, r_xp: float, options=None,
+                        r_core: float | None = None) -> float:
     """Radius (mm) of the image circle: the largest traced sensor radius with a passing ray,
     plus one radial step (module docstring); at most the sensor's half-diagonal.  ``r_xp`` is
-    the aiming radius (margin included)."""
+    the aiming radius (margin included); ``r_core`` the paraxial exit pupil's radius: when it
+    covers less than :data:`CORE_SHARE` of the aiming disk half the probe rays aim inside it, so that a large ``pupil_margin`` (most of the aiming disk
+    dark) cannot make every probe miss the light (issue 25, item 12)."""
     dtype, device = lens.dtype, lens.device
     r_max = sensor.half_diagonal_mm
     n_r, n_p = 96, 64
@@ -97,8 +109,11 @@ def image_circle_radius(lens, sensor, jobs, z_xp: float, r_xp: float, options=No
         rad = torch.sqrt(torch.rand(n_p, generator=g, dtype=torch.float64))
         phi = torch.rand(n_p, generator=g, dtype=torch.float64) * 2 * math.pi
         rad, phi = rad.to(dtype=dtype, device=device), phi.to(dtype=dtype, device=device)
-        ex = (float(r_xp) * rad * torch.cos(phi))[None].expand(n_r, n_p)
-        ey = (float(r_xp) * rad * torch.sin(phi))[None].expand(n_r, n_p)
+        radius = torch.full_like(rad, float(r_xp))
+        if _core_share(r_xp, r_core) < CORE_SHARE:
+            radius[n_p // 2:] = float(r_core)
+        ex = (radius * rad * torch.cos(phi))[None].expand(n_r, n_p)
+        ey = (radius * rad * torch.sin(phi))[None].expand(n_r, n_p)
         r_ic = 0.0
         for _, w, _ in jobs:
             for sgn in (1.0, -1.0):  # the +y and -x half-axes (misalignment breaks symmetry)
@@ -128,24 +143,34 @@ def pixels_inside(sensor, r_ic: float, dtype=torch.float64, device=None) -> torc
 
 
 def reference_weight(lens, z_xp: float, r_xp: float, wavelength: float, options=None,
-                     n: int = 4096) -> float:
-    """``w̄_0``: mean of ``v |d_z|^4`` over ``n`` pupil samples (radius ``r_xp``) at the sensor
-    centre.
+                     n: int = 4096, r_core: float | None = None) -> float:
+    """``w̄_0``: mean of ``v |d_z|^4`` over the aiming disk (radius ``r_xp``) at the sensor
+    centre, from ``n`` samples.  With ``r_core`` (the paraxial exit pupil's radius) covering
+    less than :data:`CORE_SHARE` of the aiming disk, that disk and the annulus outside it get ``n / 2`` samples each, weighted by
+    their areas (the same mean, stratified): with a large ``pupil_margin`` a uniform sample
+    leaves only a few dozen passing rays, and the image, divided by this, inherited their
+    noise as a bias of its brightness (issue 25, item 12).
 
     Raises:
         ValueError: no ray from the sensor centre passes the lens.
     """
     dtype, device = lens.dtype, lens.device
+    f = _core_share(r_xp, r_core)
+    strata = [(0.0, 1.0, n, 1.0)] if f >= CORE_SHARE else [(0.0, f, n // 2, f),
+                                                     (f, 1.0, n - n // 2, 1.0 - f)]
+    val = 0.0
     with torch.no_grad():
         g = torch.Generator().manual_seed(4321)
-        rad = torch.sqrt(torch.rand(n, generator=g, dtype=torch.float64)) * r_xp
-        phi = torch.rand(n, generator=g, dtype=torch.float64) * 2 * math.pi
-        ex = (rad * torch.cos(phi)).to(dtype=dtype, device=device)
-        ey = (rad * torch.sin(phi)).to(dtype=dtype, device=device)
-        zero = torch.zeros_like(ex)
-        rays = sensor_rays(lens, zero, zero, ex, ey, z_xp, wavelength)
-        out = lens.trace(rays, reverse=True, options=options)
-        val = float((out.valid.to(dtype) * rays.d[..., 2] ** 4).mean())
+        for lo, hi, m, share in strata:
+            u = lo + (hi - lo) * torch.rand(m, generator=g, dtype=torch.float64)
+            rad = torch.sqrt(u) * r_xp
+            phi = torch.rand(m, generator=g, dtype=torch.float64) * 2 * math.pi
+            ex = (rad * torch.cos(phi)).to(dtype=dtype, device=device)
+            ey = (rad * torch.sin(phi)).to(dtype=dtype, device=device)
+            zero = torch.zeros_like(ex)
+            rays = sensor_rays(lens, zero, zero, ex, ey, z_xp, wavelength)
+            out = lens.trace(rays, reverse=True, options=options)
+            val += share * float((out.valid.to(dtype) * rays.d[..., 2] ** 4).mean())
     if val <= 0:
         raise ValueError(f"no ray from the sensor centre passes the lens at {wavelength:g} nm: "
                          f"the lens vignettes the on-axis field completely")
@@ -168,9 +193,10 @@ def measure_geometry(lens, sensor, jobs, *, options=None, pupil_margin: float = 
     z_xp, r_xp = float(pupil[0]), float(pupil[1])
     r_aim = r_xp * pupil_margin
     if pixels is None:
-        image_circle_mm = image_circle_radius(lens, sensor, jobs, z_xp, r_aim, options)
+        image_circle_mm = image_circle_radius(lens, sensor, jobs, z_xp, r_aim, options, r_xp)
         pixels = pixels_inside(sensor, image_circle_mm, lens.dtype, lens.device)
-    w_ref = tuple(reference_weight(lens, z_xp, r_aim, w, options) for _, w, _ in jobs) \
+    w_ref = tuple(reference_weight(lens, z_xp, r_aim, w, options, r_core=r_xp)
+                  for _, w, _ in jobs) \
         if vignetting else ()
     return LensGeometry(camera=IdealCamera(lens, sensor), z_xp=z_xp, r_xp=r_aim, pixels=pixels,
                         image_circle_mm=image_circle_mm, w_ref=w_ref)

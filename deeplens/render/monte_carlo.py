@@ -152,14 +152,15 @@ class MonteCarloRenderer(nn.Module):
                 pupil = exit_pupil(self.lens)
         z_xp, r_xp = float(pupil[0]), float(pupil[1])
         r_ic = image_circle_radius(self.lens, self.sensor, jobs, z_xp,
-                                   r_xp * self.pupil_margin, self.options)
+                                   r_xp * self.pupil_margin, self.options, r_xp)
         self.image_circle_mm = r_ic
         return pixels_inside(self.sensor, r_ic, self._dtype(), self._device())
 
     def reference_weight(self, plan, wavelength: float, n: int = 4096) -> float:
         """``w̄_0`` (:func:`~.geometry.reference_weight`; ``plan``: anything with the exit
         pupil ``z_xp`` and sampling radius ``r_xp``)."""
-        return _reference_weight(self.lens, plan.z_xp, plan.r_xp, wavelength, self.options, n)
+        return _reference_weight(self.lens, plan.z_xp, plan.r_xp, wavelength, self.options, n,
+                                 r_core=plan.r_xp / self.pupil_margin)
 
     def _dtype(self):
         return self.lens.dtype

@@ -19,7 +19,8 @@ import torch
 
 from ..optics.paraxial import paraxial
 from ..optics.rays import Rays
-from ..optics.sampling import pupil_pattern, random_disk, start_plane_z
+from ..optics.sampling import (pupil_pattern, random_disk, rays_from_point, rays_from_tangents,
+                               start_plane_z)
 
 __all__ = ["splat_bilinear", "entrance_pupil", "point_source_rays", "trace_to_sensor_pixels"]
 
@@ -84,22 +85,16 @@ def point_source_rays(lens, point_xy_mm, depth_mm: float, wavelength_nm: float, 
     else:
         unit = pupil_pattern(sampling)
     unit = unit * r_ep
-    E = torch.cat([unit, torch.full_like(unit[:, :1], z_ep)], -1).to(dtype=dtype, device=device)
-    n_rays = E.shape[0]
+    E = torch.cat([unit, torch.full_like(unit[:, :1], z_ep)], -1).to(device=device)
     X, Y = float(point_xy_mm[0]), float(point_xy_mm[1])
     if math.isinf(depth_mm):
-        d = torch.tensor([X, Y, 1.0], dtype=dtype, device=device)
-        d = (d / d.norm()).expand(n_rays, 3)
-        zs = start_plane_z(lens)
-        o = E + ((zs - z_ep) / float(d[0, 2])) * d
-    else:
-        if not depth_mm > 0:
-            raise ValueError(f"point source depth must be > 0 mm (in front of the lens), got "
-                             f"{depth_mm}")
-        P = torch.tensor([X, Y, z0 - depth_mm], dtype=dtype, device=device)
-        o = P.expand(n_rays, 3)
-        d = E - P
-    return Rays(o, d, wavelength_nm)
+        t = torch.tensor([X, Y], dtype=torch.float64, device=device)
+        return rays_from_tangents(E, t, start_plane_z(lens), wavelength_nm, dtype)
+    if not depth_mm > 0:
+        raise ValueError(f"point source depth must be > 0 mm (in front of the lens), got "
+                         f"{depth_mm}")
+    P = torch.tensor([X, Y, z0 - depth_mm], dtype=torch.float64, device=device)
+    return rays_from_point(E, P, start_plane_z(lens), wavelength_nm, dtype)
 
 
 def trace_to_sensor_pixels(lens, sensor, rays: Rays, options=None):

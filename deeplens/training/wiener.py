@@ -33,7 +33,16 @@ from torch import nn
 
 from ..render.psf import psf_many
 
-__all__ = ["DepthWienerFilter", "DEFAULTS"]
+__all__ = ["DepthWienerFilter", "DEFAULTS", "nsr_range"]
+
+
+def nsr_range(dtype: torch.dtype) -> tuple[float, float]:
+    """The noise-to-signal ratios ``(lo, hi)`` the filter can hold in ``dtype``:
+    ``sqrt(tiny) .. sqrt(max)`` (float32: 1.1e-19 .. 1.8e19), so that ``nsr`` itself and the
+    square ``(|H|^2 + nsr)^2`` of its derivative stay finite normal numbers (outside, float32's
+    ``exp(log_nsr)`` is 0 or inf and the gradient 0 or NaN; issue 25, item 11)."""
+    fi = torch.finfo(dtype)
+    return math.sqrt(fi.tiny), math.sqrt(fi.max)
 
 
 class DepthWienerFilter(nn.Module):
@@ -59,6 +68,11 @@ class DepthWienerFilter(nn.Module):
             raise ValueError(f"model.deconvolution.rays: expected an integer >= 64, got {rays!r}")
         if not (isinstance(nsr, (int, float)) and math.isfinite(nsr) and nsr > 0):
             raise ValueError(f"model.deconvolution.nsr: expected a number > 0, got {nsr!r}")
+        lo, hi = nsr_range(lens.dtype)
+        if not lo <= nsr <= hi:
+            raise ValueError(f"model.deconvolution.nsr: {nsr!r} is outside the range a "
+                             f"{str(lens.dtype).removeprefix('torch.')} lens can hold "
+                             f"({lo:.3g} .. {hi:.3g})")
         self._camera = (lens, sensor)  # a tuple: not registered as submodules
         lo, hi = min(depths_mm), max(depths_mm)
         if depths == 1 or lo == hi:  # the dioptric middle of the range
@@ -128,8 +142,10 @@ class DepthWienerFilter(nn.Module):
         return moments
 
     def nsr(self) -> torch.Tensor:
-        """The noise-to-signal power ratio ``(C,)`` per channel."""
-        return self.log_nsr.exp()
+        """The noise-to-signal power ratio ``(C,)`` per channel, kept inside
+        :func:`nsr_range` of its dtype (a learned value that drifts out stops there)."""
+        lo, hi = nsr_range(self.log_nsr.dtype)
+        return self.log_nsr.clamp(math.log(lo), math.log(hi)).exp()
 
     # ------------------------------------------------------------------ the filter
     def forward(self, y: torch.Tensor) -> torch.Tensor:

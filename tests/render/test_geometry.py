@@ -94,3 +94,22 @@ def test_geometry_is_a_frozen_record_that_the_renderer_caches_and_plans_share():
     assert (fresh.z_xp, fresh.r_xp, fresh.w_ref, fresh.image_circle_mm) == \
         (geo.z_xp, geo.r_xp, geo.w_ref, geo.image_circle_mm)
     assert torch.equal(fresh.pixels, geo.pixels) and len(geo.w_ref) == 3
+
+
+def test_a_large_pupil_margin_does_not_lose_the_image_circle():
+    """Regression (issue 25, item 12): with ``pupil_margin=10`` 99 % of the aiming disk is dark
+    and all 64 probe rays per radius missed the light: every pixel was culled (a black image)
+    and the warning blamed the sensor size.  Half the probes now aim inside the paraxial exit
+    pupil; the image circle and the image do not depend on the margin."""
+    lens = asphere_singlet()
+    sensor = Sensor((8, 8), 0.05)
+    scene = Scene(torch.ones(1, 1, 8, 8, dtype=torch.float64), 1000.0)
+    means = {}
+    for margin in (1.05, 10.0):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            r = MonteCarloRenderer(lens, sensor, spp=512, pupil_margin=margin, adjoint=False)
+            img = r(scene, seed=1)
+        assert r.image_circle_mm == pytest.approx(sensor.half_diagonal_mm)
+        means[margin] = float(img.mean())
+    assert means[10.0] == pytest.approx(means[1.05], rel=0.15)
