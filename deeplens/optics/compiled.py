@@ -25,6 +25,9 @@ saving them, so the graph kept per ray and surface is small without ``checkpoint
 
 from __future__ import annotations
 
+import os
+import warnings
+
 import torch
 
 from .intersect import (_ROUNDING_ULPS, _quadric_root, _safe_div, accept_hits,
@@ -73,15 +76,52 @@ def surface_run(o, d, valid, opl, kinds: tuple, params: tuple, tol: float, clip:
 
 
 #: compiled variants one function may hold (dynamo's default, 8, is soon reached: each lens
-#: structure, dtype and pattern of trainable values is one); beyond it the function runs eager
+#: structure, dtype and pattern of trainable values is one); the environment variable
+#: ``DEEPLENS_RECOMPILE_LIMIT`` changes it (each variant keeps its kernels in memory).  Beyond
+#: it the call runs eager, with a warning (:func:`call`)
 RECOMPILE_LIMIT = 64
+
+
+def recompile_limit() -> int:
+    """:data:`RECOMPILE_LIMIT`, or ``DEEPLENS_RECOMPILE_LIMIT`` when set (an integer >= 1)."""
+    text = os.environ.get("DEEPLENS_RECOMPILE_LIMIT")
+    if text is None:
+        return RECOMPILE_LIMIT
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise ValueError(f"DEEPLENS_RECOMPILE_LIMIT: expected an integer >= 1, got {text!r}")
+    return value
 
 
 def call(fn, *args):
     """``fn(*args)`` for one of this module's ``compiled_*`` functions, with dynamo's
-    per-function recompilation limit raised to :data:`RECOMPILE_LIMIT` for the call."""
-    with torch._dynamo.config.patch(recompile_limit=RECOMPILE_LIMIT):
-        return fn(*args)
+    per-function recompilation limit raised to :func:`recompile_limit` for the call.
+
+    Buffer donation is turned off (``torch._functorch.config.donated_buffer``, for the rest of
+    the process: AOTAutograd reads it again when the backward runs), so that a compiled trace's
+    graph can be differentiated twice (``retain_graph=True``) as an eager one can (issue 25,
+    item 10; donation lets the backward reuse its saved inputs' memory and then refuses a second
+    backward).  A call that would need
+    a compiled variant beyond the limit runs eager and warns (dynamo would fall back silently;
+    item 13): same values, slower."""
+    limit = recompile_limit()
+    torch._functorch.config.donated_buffer = False
+    with torch._dynamo.config.patch(recompile_limit=limit, fail_on_recompile_limit_hit=True):
+        try:
+            return fn(*args)
+        except torch._dynamo.exc.FailOnRecompileLimitHit:
+            pass
+    eager = getattr(fn, "_torchdynamo_orig_callable", fn)
+    warnings.warn(f"deeplens.optics.compiled: {getattr(eager, '__name__', 'a kernel')} reached "
+                  f"its limit of {limit} compiled variants in this process (one per lens "
+                  f"structure, dtype, device and pattern of trainable values); this call and "
+                  f"later new variants run eager (same values, slower).  Raise "
+                  f"DEEPLENS_RECOMPILE_LIMIT or use fewer variants per process",
+                  RuntimeWarning, stacklevel=3)
+    return eager(*args)
 
 
 #: inductor settings for every kernel here: ``max_fusion_size`` (default 64 nodes) cut a run of
