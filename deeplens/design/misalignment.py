@@ -38,7 +38,7 @@ from ..render.splat import splat_bilinear
 
 __all__ = ["LA1131_PATH", "PARAMS", "DEFAULT_TRUTH", "DEFAULT_START", "DEFAULT_SCALE", "SpotSetup",
            "SpotImager", "centroid", "eq15_residual", "parse_params", "synthesize_target",
-           "estimate", "load_target_image"]
+           "estimate", "estimate_uncertainty", "load_target_image"]
 
 #: the shipped LA1131 lens file (resolved from the package, not the working directory)
 LA1131_PATH = str(Path(__file__).resolve().parents[2] / "data" / "lenses" / "thorlabs_la1131.json")
@@ -341,3 +341,20 @@ def estimate(target: torch.Tensor, setup: SpotSetup, start: dict | None = None, 
         img = img * target.sum() / img.sum().clamp_min(1e-30)
     est = dict(zip(PARAMS, theta_of(x).tolist()))
     return est, img, time.perf_counter() - t0
+
+
+def estimate_uncertainty(target: torch.Tensor, setup: SpotSetup, est: dict, *, mu: float = 1.0,
+                         scale: dict | None = None):
+    """Per-parameter standard deviations, correlations and the parameters the target does not
+    identify, at the estimate ``est`` (:func:`~deeplens.design.identifiability.fit_uncertainty`
+    on Eq. 15's residual; the noise from the fit's residual).  ``scale`` (default
+    :data:`DEFAULT_SCALE`): a standard deviation above it marks a parameter not identifiable.
+    Returns a :class:`~deeplens.design.identifiability.FitUncertainty`."""
+    from .identifiability import fit_uncertainty
+
+    scale = dict(DEFAULT_SCALE if scale is None else scale)
+    imager = SpotImager(setup)
+    target = target.to(torch.float64)
+    theta = torch.tensor([est[k] for k in PARAMS], dtype=torch.float64)
+    return fit_uncertainty(lambda th: eq15_residual(imager(th), target, mu), theta, PARAMS,
+                           scale=[scale[k] for k in PARAMS])

@@ -250,3 +250,18 @@ def test_app_with_a_captured_target(tmp_path):
     assert r["truth"] is None and r["abs_error"] is None
     assert r["loss_final"] < 0.5 * r["loss_start"]
     assert abs(r["estimate"]["source_x"] - 0.3) < abs(r["start"]["source_x"] - 0.3)
+
+
+def test_app_reports_uncertainties_and_warns_about_unidentifiable_parameters(tmp_path):
+    """Issue 25, item 14: the JSON carries per-parameter standard deviations and correlations,
+    and a parameter the spot image does not identify is named in a warning."""
+    a = _args(tmp_path, "--pixel-size-um", "10", "--resolution", "96x96", "--rays", "1500",
+              "--rounds", "1", "--adam-steps", "3", "--dls-steps", "1",
+              "--truth", "tilt_x=0.013,tilt_y=-0.009")
+    with pytest.warns(RuntimeWarning, match="is not identifiable from this spot image"):
+        r = app.run(a)
+    json.dumps(r)
+    assert set(r["uncertainty"]) == set(PARAMS) == set(r["correlation"])
+    assert all(v > 0 for v in r["uncertainty"].values())
+    assert r["not_identifiable"] and set(r["not_identifiable"]) <= set(PARAMS)
+    assert r["correlation"]["tilt_x"]["tilt_x"] == pytest.approx(1.0)

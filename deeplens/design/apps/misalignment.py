@@ -17,6 +17,7 @@ are ``null`` for a captured target).
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 __all__ = ["add_arguments", "run"]
@@ -75,8 +76,8 @@ def run(args) -> dict:
     import torch
 
     from ..misalignment import (DEFAULT_START, DEFAULT_TRUTH, LA1131_PATH, PARAMS, SpotImager,
-                                SpotSetup, eq15_residual, estimate, load_target_image,
-                                parse_params, synthesize_target)
+                                SpotSetup, eq15_residual, estimate, estimate_uncertainty,
+                                load_target_image, parse_params, synthesize_target)
 
     t0 = time.perf_counter()
     if not args.mu >= 0:
@@ -111,6 +112,11 @@ def run(args) -> dict:
     est, fitted, _ = estimate(target, setup, start, mu=args.mu, rounds=args.rounds,
                               adam_steps=args.adam_steps, dls_steps_per_round=args.dls_steps,
                               history=history)
+    unc = estimate_uncertainty(target, setup, est, mu=args.mu)
+    for k, why in unc.not_identifiable.items():
+        warnings.warn(f"design misalignment: {k} = {est[k]:.6g} is not identifiable from this "
+                      f"spot image ({why}; standard deviation {unc.std[k]:.3g}): do not trust "
+                      f"its value", RuntimeWarning, stacklevel=2)
     imager = SpotImager(setup)
     with torch.no_grad():
         img0 = imager(torch.tensor([start[k] for k in PARAMS], dtype=torch.float64))
@@ -156,5 +162,7 @@ def run(args) -> dict:
             "loss_start": history[0][2] if history else None,
             "loss_final": history[-1][2] if history else None,
             "loss_at_truth": loss_truth,
+            "uncertainty": unc.std, "correlation": unc.correlation,
+            "not_identifiable": unc.not_identifiable, "residual_sigma": unc.sigma,
             "seconds": time.perf_counter() - t0,
             "figures": [str(out / "misalignment.png"), str(out / "misalignment_history.png")]}
