@@ -39,6 +39,17 @@ OPTICS = ("tests/optics",)
 TABLES = ("tests/optics/io",)
 NOISE = ("tests/render/test_sensor_noise.py",)
 METRICS = ("tests/training/test_metrics.py",)
+WIENER = ("tests/training/test_wiener.py", "tests/training/test_wiener_numerics.py")
+TOLERANCE = ("tests/design/test_tolerance_statistics.py", "tests/design/test_cli_numbers.py",
+             "tests/design/test_design_sensitivity.py")
+DESIGN_FIT = ("tests/design/test_identifiability.py", "tests/design/test_misalignment.py")
+ANALYSIS = ("tests/analysis",)
+FAR = ("tests/analysis/test_far_object.py",)
+GEOMETRY = ("tests/render/test_geometry.py",)
+COMPILED_CALLS = ("tests/optics/test_compiled_calls.py",)
+COMPILED = ("tests/optics/test_compiled.py",)
+ZMX = ("tests/optics/io/test_zmx.py",)
+EVAL_TABLE = ("tests/training/test_eval_table_numbers.py",)
 
 
 @dataclass(frozen=True)
@@ -123,8 +134,8 @@ MUTATIONS = [
              "coef = torch.copysign(sqrt_k, cos_i) + eta * cos_i", OPTICS, issue=True),
     Mutation("refraction_sign_quadric", "vector Snell of the closed-form sphere/conic step: "
              "+ eta cos instead of - eta cos", "deeplens/optics/intersect.py",
-             "torch.ones_like(k))), cos_i) - eta * cos_i",
-             "torch.ones_like(k))), cos_i) + eta * cos_i", OPTICS),
+             "cos_i) - eta * cos_i\n    ex = torch.where(ok, eta * dx + coef * nx, dx)",
+             "cos_i) + eta * cos_i\n    ex = torch.where(ok, eta * dx + coef * nx, dx)", OPTICS),
     Mutation("sellmeier_sign", "Sellmeier: lambda^2 + C in the denominator",
              "deeplens/optics/materials.py", "n2 = n2 + b * l2 / (l2 - c)",
              "n2 = n2 + b * l2 / (l2 + c)", OPTICS, issue=True),
@@ -142,7 +153,8 @@ MUTATIONS = [
              "opl = rays.opl + t", OPTICS, issue=True),
     Mutation("opl_without_index_quadric", "optical path length without the refractive index in "
              "the closed-form sphere/conic step", "deeplens/optics/intersect.py",
-             "return x_out, d_t, ok, opl + n1 * t", "return x_out, d_t, ok, opl + t", OPTICS),
+             "n2, ok)\n    return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t",
+             "n2, ok)\n    return x, y, z + z_shift, ex, ey, ez, ok, opl + t", OPTICS),
     Mutation("pupil_sampling_not_uniform", "random pupil points r = u instead of sqrt(u)",
              "deeplens/optics/sampling.py",
              "r = torch.sqrt(torch.rand(n, generator=g, dtype=torch.float64))",
@@ -150,6 +162,103 @@ MUTATIONS = [
     Mutation("adjoint_first_chunk_only", "adjoint backward pass visits only the first chunk",
              "deeplens/render/adjoint.py", "for k in range(renderer.n_chunks(plan)):",
              "for k in range(min(1, renderer.n_chunks(plan))):", RENDER, issue=True),
+    # ------------------------------------------------ added by issue 25 (numerics)
+    Mutation("wiener_correlates", "Wiener filter with H instead of conj H (correlates)",
+             "deeplens/training/wiener.py", "G = ch / (h2 + self.nsr()",
+             "G = ch.conj() / (h2 + self.nsr()", WIENER),
+    Mutation("wiener_nsr_squared", "Wiener filter regularised by nsr^2 instead of nsr",
+             "deeplens/training/wiener.py", "self.nsr().to(h2.dtype)[:, None, None])",
+             "self.nsr().to(h2.dtype)[:, None, None] ** 2)", WIENER),
+    Mutation("wiener_nsr_range_unsquared", "noise-ratio range tiny..max instead of their roots",
+             "deeplens/training/wiener.py", "return math.sqrt(fi.tiny), math.sqrt(fi.max)",
+             "return fi.tiny, fi.max", WIENER),
+    Mutation("tolerance_shared_draw", "Monte Carlo tolerancing: one draw shared by every "
+             "parameter", "deeplens/design/tolerance.py",
+             "u = 2.0 * torch.rand(len(names), generator=g, dtype=torch.float64) - 1.0",
+             "u = (2.0 * torch.rand(1, generator=g, dtype=torch.float64) - 1.0).expand("
+             "len(names))", TOLERANCE),
+    Mutation("tolerance_halfwidth_as_sigma", "Monte Carlo tolerancing: half-width used as the "
+             "standard deviation (draws over +-sqrt(3) t)", "deeplens/design/tolerance.py",
+             "x0 + u * t)", "x0 + u * t * 3 ** 0.5)", TOLERANCE),
+    Mutation("tolerance_rms_about_mean", "Monte Carlo RMS about the mean instead of about zero",
+             "deeplens/design/tolerance.py", '"rms_um": torch.sqrt((s * s).mean(0)).tolist()',
+             '"rms_um": torch.sqrt(((s - s.mean(0)) ** 2).mean(0)).tolist()', TOLERANCE),
+    Mutation("tolerance_percentile_rank", "Monte Carlo percentiles one decile off",
+             "deeplens/design/tolerance.py", "torch.quantile(s, p / 100.0, dim=0)",
+             "torch.quantile(s, min(p + 10, 100) / 100.0, dim=0)", TOLERANCE),
+    Mutation("rss_sigma_not_squared", "RSS estimate with sigma instead of sigma^2",
+             "deeplens/design/sensitivity.py", "c += (J * J).sum(0) * sig ** 2 / W",
+             "c += (J * J).sum(0) * sig / W", TOLERANCE),
+    Mutation("uncertainty_dof", "fit noise |r|^2 / m instead of / (m - n)",
+             "deeplens/design/identifiability.py", "float(r @ r) / max(m - n, 1)",
+             "float(r @ r) / m", DESIGN_FIT),
+    Mutation("uncertainty_unscaled", "covariance not scaled back from the column-scaled "
+             "Jacobian", "deeplens/design/identifiability.py",
+             "* sigma ** 2 / torch.outer(norms, norms)", "* sigma ** 2", DESIGN_FIT),
+    Mutation("misalignment_centroid_corner", "spot centroid with pixel centres at k, not "
+             "k + 1/2", "deeplens/design/misalignment.py",
+             "i = torch.arange(H, dtype=img.dtype, device=img.device) + 0.5",
+             "i = torch.arange(H, dtype=img.dtype, device=img.device)", DESIGN_FIT),
+    Mutation("dls_predicted_reduction_sign", "damped least squares: predicted reduction with "
+             "the step's sign flipped", "deeplens/design/optimizers.py",
+             "pred = F - float(((r + J @ delta) ** 2).sum())",
+             "pred = F - float(((r - J @ delta) ** 2).sum())",
+             ("tests/design/test_design_optimizers.py",)),
+    Mutation("wavefront_opd_sign", "OPD sign flipped (late rays positive)",
+             "deeplens/analysis/wavefront.py",
+             "opd = (ref - (tr.opl - tr.n_image * s)) / (wl * 1e-6)",
+             "opd = ((tr.opl - tr.n_image * s) - ref) / (wl * 1e-6)", ANALYSIS),
+    Mutation("zernike_normalisation", "standard Zernike terms without the 1/(1 + delta_m0) of "
+             "their normalisation", "deeplens/analysis/wavefront.py",
+             "z = z * math.sqrt(2 * (n + 1) / (1 + (m == 0)))", "z = z * math.sqrt(2 * (n + 1))",
+             ANALYSIS),
+    Mutation("far_object_launch_direction", "far-object launch point moved the wrong way along "
+             "the ray", "deeplens/optics/sampling.py",
+             "o = torch.cat([P[:, :2] + (z_start - P[:, 2:]) * t,",
+             "o = torch.cat([P[:, :2] + (P[:, 2:] - z_start) * t,", FAR),
+    Mutation("launch_path_difference", "wavefront launch: path difference with t - t0 for "
+             "t + t0", "deeplens/analysis/wavefront.py", "(xy64 * (t + t0)).sum(-1)",
+             "(xy64 * (t - t0)).sum(-1)", FAR),
+    Mutation("image_circle_probe_margin", "image-circle probe aims only over the enlarged "
+             "pupil (large pupil_margin: black image)", "deeplens/render/geometry.py",
+             "radius[n_p // 2:] = float(r_core)", "radius[n_p // 2:] = float(r_xp)", GEOMETRY),
+    Mutation("reference_weight_strata_unweighted", "reference weight: strata averaged without "
+             "their area shares", "deeplens/render/geometry.py",
+             "val += share * float(", "val += 0.5 * float(", GEOMETRY),
+    Mutation("stop_between_media_accepted", "an aperture stop between two media accepted",
+             "deeplens/optics/lens.py", "if isinstance(s, Aperture):  # a stop does not refract",
+             "if False:  # a stop does not refract", ("tests/optics/test_stop_media.py",)),
+    Mutation("compiled_donated_buffers", "compiled kernels keep buffer donation (a second "
+             "backward raises)", "deeplens/optics/compiled.py",
+             "torch._functorch.config.donated_buffer = False", "pass", COMPILED_CALLS),
+    Mutation("compiled_silent_fallback", "beyond the recompile limit the compiler falls back "
+             "silently", "deeplens/optics/compiled.py", "fail_on_recompile_limit_hit=True",
+             "fail_on_recompile_limit_hit=False", COMPILED_CALLS),
+    Mutation("compiled_run_media_swapped", "fused surface run: media indices before/after "
+             "swapped", "deeplens/optics/lens.py",
+             "params.append(((pivot + vertex)[2], *values, _compact(n1).to(like),\n"
+             "                               _compact(n2).to(like)))",
+             "params.append(((pivot + vertex)[2], *values, _compact(n2).to(like),\n"
+             "                               _compact(n1).to(like)))", COMPILED),
+    Mutation("compiled_newton_opl", "compiled Newton kernel: optical path without the index",
+             "deeplens/optics/compiled.py", "ok, opl + n1 * t)", "ok, opl + t)", COMPILED),
+    Mutation("zmx_diam_as_diameter", "Zemax DIAM read as a full diameter",
+             "deeplens/optics/io/zmx.py", 'cur.diam = p.arg(toks, 1, ln, "semi-diameter")',
+             'cur.diam = 0.5 * p.arg(toks, 1, ln, "semi-diameter")', ZMX),
+    Mutation("zmx_conic_sign", "Zemax CONI read with the wrong sign", "deeplens/optics/io/zmx.py",
+             'cur.coni = p.arg(toks, 1, ln, "conic constant")',
+             'cur.coni = -p.arg(toks, 1, ln, "conic constant")', ZMX),
+    Mutation("eval_std_population", "eval table: seed spread with n instead of n - 1",
+             "deeplens/training/evaluate.py", "sum((v - m) ** 2 for v in values) / (n - 1))",
+             "sum((v - m) ** 2 for v in values) / n)", EVAL_TABLE),
+    Mutation("eval_ssim_under_psnr", "eval table: the SSIM column shows the sensor image's",
+             "deeplens/training/evaluate.py",
+             'entry[img] = {f"{d:g}": cell(f"test/psnr_{img}/d{d:g}mm", f"test/ssim_{img}/d{d:g}mm")',
+             'entry[img] = {f"{d:g}": cell(f"test/psnr_{img}/d{d:g}mm", f"test/ssim_sensor/d{d:g}mm")',
+             EVAL_TABLE),
+    Mutation("checkpoint_digest_unchecked", "checkpoint digest never verified on read",
+             "deeplens/training/checkpoint.py", "        if digest not in listed:",
+             "        if False:", ("tests/training/test_checkpoint_io.py",)),
 ]
 
 
