@@ -37,8 +37,7 @@ class LensCheckpoint(ModelCheckpoint):
             out = Path(filepath).with_suffix(".lens.json")
             try:
                 save_lens(trainer.lightning_module.lens, out)
-            except Exception as e:
-                out.with_name(out.name + ".tmp").unlink(missing_ok=True)
+            except Exception as e:  # save_lens removes its own temporary file
                 raise CheckpointError(f"could not write the lens file {out}: "
                                       f"{type(e).__name__}: {e}") from e
 
