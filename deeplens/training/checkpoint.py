@@ -29,6 +29,7 @@ import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 __all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
+           "override_learning_rates",
            "read_checkpoint", "sha256_file", "temp_path", "write_checkpoint",
            "write_text_atomic"]
 
@@ -239,6 +240,29 @@ def check_compatible(checkpoint: dict, module, path=None, optimizer_groups=None)
     if problems:
         raise CheckpointError(f"{where} does not belong to this experiment (another lens, "
                               f"network or set of trainable parameters): " + "; ".join(problems))
+
+
+def override_learning_rates(checkpoint: dict, optimizers: list[list[dict]]) -> list[str]:
+    """Put this run's learning rates into ``checkpoint``'s optimiser states before Lightning
+    restores them (it would bring the saved rates back and silently ignore changed
+    ``model.*_lr`` settings); the moment estimates are kept.
+
+    Args:
+        optimizers: per optimiser, this run's parameter groups (``{"name", "lr"}``) in order.
+
+    Returns:
+        One line per changed group, ``"net: 0.001 -> 0.0001"``.
+    """
+    changed = []
+    for state, groups in zip(checkpoint.get("optimizer_states") or [], optimizers):
+        for saved, ours in zip(state.get("param_groups", []), groups):
+            old, new = saved.get("lr"), float(ours["lr"])
+            if old is not None and float(old) != new:
+                changed.append(f"{ours.get('name', '?')}: {float(old):.6g} -> {new:.6g}")
+                saved["lr"] = new
+                if "initial_lr" in saved:
+                    saved["initial_lr"] = new
+    return changed
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):

@@ -8,8 +8,10 @@ directly with a composed, shrunk config.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
+import os
 from pathlib import Path
 
 import hydra
@@ -22,9 +24,11 @@ from ..optics.intersect import IntersectOptions
 from ..optics.limits import check_allocation
 from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
-from .checkpoint import AtomicCheckpointIO
+from .checkpoint import AtomicCheckpointIO, read_checkpoint
 from .lens_setup import build_lens
 from .module import MAX_LR
+from .run_lock import hold_output_folder
+from .stop_signals import stopped_by_signal
 
 __all__ = ["build_objects", "check_config", "check_sizes", "preflight", "summary", "train"]
 
@@ -351,15 +355,30 @@ def train(cfg: DictConfig):
         ``(metrics, objects)``: the callback metrics as floats, and the built objects (plus
         ``"tested"``, the checkpoint the test scored or ``None``, and ``"summary"``, the text
         printed at the end).
+
+    Raises:
+        FolderInUseError: another live run holds ``paths.output_dir`` (:mod:`.run_lock`).
+        StoppedBySignal: SIGTERM or SIGINT stopped training (exit status 143 / 130); the
+            state after the last step is in ``last.ckpt`` (:mod:`.stop_signals`).
     """
+    # the ranks a DDP launcher starts (LOCAL_RANK / NODE_RANK > 0) share rank 0's folder
+    child = any(os.environ.get(k, "0") != "0" for k in ("LOCAL_RANK", "NODE_RANK"))
+    with contextlib.nullcontext() if child else hold_output_folder(cfg.paths.output_dir):
+        return _train(cfg)
+
+
+def _train(cfg: DictConfig):
     objs = build_objects(cfg)
     trainer, module, dm = objs["trainer"], objs["module"], objs["datamodule"]
     ckpt = cfg.get("ckpt_path")
     if ckpt is not None and not Path(ckpt).exists():
         raise FileNotFoundError(f"ckpt_path: no checkpoint at {ckpt}")
+    if ckpt is not None:  # verified, and a training checkpoint (not a bare state dict)
+        read_checkpoint(ckpt)
     trained = bool(cfg.get("train", True))
     if trained:
-        trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
+        with stopped_by_signal(trainer):
+            trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     tested = None
     if cfg.get("test", False):
