@@ -26,6 +26,7 @@ from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
 from .checkpoint import AtomicCheckpointIO, read_checkpoint
 from .lens_setup import build_lens
+from .machine import describe_machine
 from .module import MAX_LR
 from .run_lock import hold_output_folder
 from .stop_signals import stopped_by_signal
@@ -320,7 +321,8 @@ def summary(cfg: DictConfig, metrics: dict, trainer, tested: str | None) -> str:
     """A few lines closing a run: test PSNR / SSIM per depth (or field band), where the
     checkpoint and the exported lens are, and the TensorBoard command."""
     lines = [(f"deeplens: {cfg.get('task_name', 'train')} finished after "
-              f"{trainer.current_epoch} epoch(s), {trainer.global_step} step(s)")]
+              f"{trainer.current_epoch} epoch(s), {trainer.global_step} step(s) "
+              f"({describe_machine()})")]
     tags = [k[len("test/psnr_restored/"):] for k in metrics
             if k.startswith("test/psnr_restored/")]
     if tags:
