@@ -137,3 +137,34 @@ def test_resume_from_a_nonfinite_step_checkpoint_keeps_the_logging_step(cfg_fact
     trainer = objs["trainer"]
     assert trainer.global_step == 3
     assert trainer.fit_loop.epoch_loop._batches_that_stepped == trainer.global_step
+
+
+@pytest.mark.slow
+def test_train_py_exits_143_on_sigterm_naming_the_checkpoint(tmp_path):
+    """The real entry point under a real SIGTERM (what a scheduler sends): exit status 143 (it
+    was 0), and stderr names the resumable checkpoint."""
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    run = tmp_path / "run"
+    cmd = [sys.executable, str(root / "train.py"), "experiment=doublet",
+           "sensor.resolution=[16,16]", "data.image_size=32", "data.batch_size=2",
+           "data.train_steps_per_epoch=50", "data.val_size=2", "data.test_size=2",
+           "render.spp=2", "trainer.max_epochs=20", "test=false", "callbacks.image_logger=null",
+           "trainer.enable_progress_bar=false", f"hydra.run.dir={run}"]
+    p = subprocess.Popen(cmd, env={**os.environ, "PYTHONPATH": str(root)}, cwd=root,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    last = run / "checkpoints" / "last.ckpt"
+    t0 = time.time()
+    while not last.exists() and p.poll() is None and time.time() - t0 < 600:
+        time.sleep(0.1)
+    time.sleep(1.0)
+    assert p.poll() is None, "the run ended before the signal"
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=600)
+    assert p.returncode == 143, err[-2000:]
+    assert "training stopped by SIGTERM" in err and f"ckpt_path={last}" in err
+    assert read_checkpoint(last)["global_step"] > 50
