@@ -13,6 +13,11 @@ Seeding (everything is reproducible from one integer ``seed``, nothing is downlo
   ``chunk % W == w``; since a :class:`~torch.utils.data.DataLoader` takes batches from its
   workers in turn, the stream comes out in the same order for any number of workers.  The epoch
   is set by :meth:`set_epoch`; :class:`EpochLoader` calls it before every pass.
+* resuming mid-epoch (``trainer.val_check_interval`` checkpoints, a stop by a signal): the
+  :class:`EpochLoader` is stateful for Lightning (``state_dict``: the epoch of its pass and the
+  batches the training loop has processed); loaded from a checkpoint, its next pass of that
+  epoch starts at the next unseen item (``set_epoch(e, start=k)``), so a resumed run sees the
+  items an uninterrupted one would.
 
 Items are dicts: ``{"image": (3, H, W) float32 in [0, 1] (linear RGB), "kind": str, ...}``; the
 default collate turns a batch into ``{"image": (B, 3, H, W), "kind": [str] * B, ...}``.
@@ -141,10 +146,17 @@ class _SeededStream(IterableDataset):
         self.samples_per_epoch = samples_per_epoch
         self.chunk_size = _check_int("chunk_size", chunk_size, 1)
         self.epoch = 0
+        self.start = 0
 
-    def set_epoch(self, epoch: int) -> None:
-        """Select the epoch's stream (call before iterating; :class:`EpochLoader` does)."""
+    def set_epoch(self, epoch: int, start: int = 0) -> None:
+        """Select the epoch's stream (call before iterating; :class:`EpochLoader` does), from
+        item ``start`` on (a multiple of ``chunk_size``: a resumed pass skips whole batches)."""
         self.epoch = _check_int("epoch", epoch, 0)
+        start = _check_int("start", start, 0)
+        if start % self.chunk_size:
+            raise ValueError(f"set_epoch: start={start} is not a multiple of the chunk size "
+                             f"{self.chunk_size}")
+        self.start = start
 
     def __len__(self) -> int:
         if self.samples_per_epoch is None:
@@ -169,7 +181,7 @@ class _SeededStream(IterableDataset):
             if torch.distributed.get_world_size() > 1:
                 rank = torch.distributed.get_rank()
         epoch, total, cs = self.epoch, self.samples_per_epoch, self.chunk_size
-        chunk = wid
+        chunk = self.start // cs + wid  # worker w still takes every nw-th chunk from the start
         while total is None or chunk * cs < total:
             stop = (chunk + 1) * cs if total is None else min((chunk + 1) * cs, total)
             for i in range(chunk * cs, stop):
@@ -354,7 +366,8 @@ class EpochLoader(DataLoader):
     started with).
     """
 
-    def __init__(self, dataset, *args, start_epoch: int = 0, epoch_fn=None, **kwargs):
+    def __init__(self, dataset, *args, start_epoch: int = 0, epoch_fn=None, progress_fn=None,
+                 **kwargs):
         super().__init__(dataset, *args, **kwargs)
         if self.persistent_workers and self.num_workers > 0:
             raise ValueError("EpochLoader: persistent_workers=True would keep every worker on "
@@ -362,12 +375,44 @@ class EpochLoader(DataLoader):
         self.start_epoch = _check_int("start_epoch", start_epoch, 0)
         self.epoch = self.start_epoch
         self.epoch_fn = epoch_fn
+        self.progress_fn = progress_fn
+        self._pass_epoch: int | None = None  # epoch of the pass under way
+        self._resume: tuple[int, int] | None = None  # (epoch, batches done) from a checkpoint
+
+    def state_dict(self) -> dict:
+        """``{"epoch", "batches"}``: the pass's epoch and the batches of it the training loop
+        has processed (``progress_fn()``; Lightning stores this in every checkpoint)."""
+        done = 0 if self.progress_fn is None else int(self.progress_fn())
+        epoch = self.epoch if self._pass_epoch is None else self._pass_epoch
+        return {"epoch": int(epoch), "batches": done}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Start the next pass of ``state["epoch"]`` after its first ``state["batches"]``."""
+        self._resume = (_check_int("epoch", state["epoch"], 0),
+                        _check_int("batches", state["batches"], 0))
 
     def __iter__(self):
         if self.epoch_fn is not None:
             self.epoch = _check_int("epoch_fn()", self.epoch_fn(), 0)
+        start = 0
+        if self._resume is not None:
+            epoch, batches = self._resume
+            self._resume = None
+            try:
+                n = len(self)
+            except TypeError:  # an endless stream
+                n = None
+            if epoch == self.epoch and (n is None or batches < n):
+                start = batches * (self.batch_size or 1)
         if callable(getattr(self.dataset, "set_epoch", None)):
-            self.dataset.set_epoch(self.epoch)
+            if start:
+                self.dataset.set_epoch(self.epoch, start=start)
+            else:
+                self.dataset.set_epoch(self.epoch)
+        elif start:
+            raise ValueError(f"EpochLoader: cannot resume {type(self.dataset).__name__} at "
+                             f"batch {start // (self.batch_size or 1)} (no set_epoch(start=))")
+        self._pass_epoch = self.epoch
         self.epoch += 1
         return super().__iter__()
 
@@ -459,8 +504,12 @@ class TextureDataModule(L.LightningDataModule):
         # 0's items); ``processed`` is what Lightning itself gives samplers' ``set_epoch``.
         epoch_fn = None if trainer is None else (
             lambda: int(trainer.fit_loop.epoch_progress.current.processed))
+        # batches of this pass whose training step ran: what a checkpoint saved now has seen
+        progress_fn = None if trainer is None else (
+            lambda: int(trainer.fit_loop.epoch_loop.batch_progress.current.processed))
         return EpochLoader(self.train_set, batch_size=self.batch_size,
-                           num_workers=self.num_workers, epoch_fn=epoch_fn)
+                           num_workers=self.num_workers, epoch_fn=epoch_fn,
+                           progress_fn=progress_fn)
 
     def _fixed_loader(self, dataset: Dataset) -> DataLoader:
         return DataLoader(dataset, batch_size=self.batch_size, shuffle=False,

@@ -190,6 +190,10 @@ class Lens(nn.Module):
         self.elements = [tuple(map(int, e)) for e in
                          (elements if elements is not None else _default_elements(surfaces,
                                                                                    materials))]
+        for a, b in self.elements:  # before any range is built: a typo such as 10**12 in a
+            if not 0 <= a <= b < n:  # lens file would otherwise allocate all memory
+                raise LensError(f"the pair [{a}, {b}] must be surface indices with "
+                                f"0 <= first <= last <= {n - 1}", key="elements")
         covered = sorted(i for a, b in self.elements for i in range(a, b + 1))
         if covered != list(range(n)):
             raise LensError(f"elements {self.elements} must cover surfaces 0..{n - 1} exactly "

@@ -14,6 +14,7 @@ from pathlib import Path
 import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from lightning.pytorch.utilities import rank_zero_only
+from lightning.pytorch.utilities.exceptions import SIGTERMException
 
 from ..optics.io import save_lens
 from .checkpoint import AtomicCheckpointIO, CheckpointError
@@ -37,8 +38,7 @@ class LensCheckpoint(ModelCheckpoint):
             out = Path(filepath).with_suffix(".lens.json")
             try:
                 save_lens(trainer.lightning_module.lens, out)
-            except Exception as e:
-                out.with_name(out.name + ".tmp").unlink(missing_ok=True)
+            except Exception as e:  # save_lens removes its own temporary file
                 raise CheckpointError(f"could not write the lens file {out}: "
                                       f"{type(e).__name__}: {e}") from e
 
@@ -59,6 +59,23 @@ class LensCheckpoint(ModelCheckpoint):
 
     def _save_last_if_missed(self, trainer, skip: bool):
         if not skip and self.save_last and self._last_global_step_saved != trainer.global_step:
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
+
+    # the final steps (after the last validation, e.g. with trainer.val_check_interval) belong in
+    # last.ckpt too: Lightning writes it at train end only if it never wrote one
+    def on_train_end(self, trainer, pl_module):
+        super().on_train_end(trainer, pl_module)
+        if (self.save_last and not trainer.fast_dev_run
+                and self._last_global_step_saved != trainer.global_step):
+            self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
+
+    # stopped by SIGTERM / SIGINT (deeplens.training.stop_signals): Lightning stops between
+    # steps; the state there is saved to last.ckpt, which resumes exactly
+    def on_exception(self, trainer, pl_module, exception):
+        super().on_exception(trainer, pl_module, exception)
+        if (isinstance(exception, SIGTERMException) and self.save_last
+                and not trainer.fast_dev_run
+                and self._last_global_step_saved != trainer.global_step):
             self._save_last_checkpoint(trainer, self._monitor_candidates(trainer))
 
     def load_state_dict(self, state_dict):

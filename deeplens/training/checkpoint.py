@@ -1,7 +1,7 @@
 """Checkpoint files: atomic writes, a SHA-256 beside each file, verified and safe loading.
 
-``<name>.ckpt`` is written as ``<name>.ckpt.tmp``, flushed to disk and renamed over the old
-file, so a killed run leaves the old or the new checkpoint, never a half-written one.  Beside it,
+``<name>.ckpt`` is written as ``<name>.ckpt.<unique>.tmp`` (a name no other process or thread
+uses), flushed to disk and renamed over the old file, so a killed run leaves the old or the new checkpoint, never a half-written one.  Beside it,
 ``<name>.ckpt.sha256`` holds the SHA-256 of its bytes (one hex digest per line).  A write first
 lists the new digest *and* the old one, then renames the checkpoint, then keeps only the new
 digest: at every instant the file on disk matches a listed digest, so a kill between the two
@@ -16,8 +16,12 @@ into, so a checkpoint of another experiment says so instead of listing raw missi
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import os
+import shutil
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -25,7 +29,9 @@ import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
 __all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
-           "read_checkpoint", "sha256_file", "write_checkpoint", "write_text_atomic"]
+           "override_learning_rates",
+           "read_checkpoint", "sha256_file", "temp_path", "write_checkpoint",
+           "write_text_atomic"]
 
 #: key under which :class:`AtomicCheckpointIO` records the file a loaded checkpoint came from
 LOADED_FROM = "deeplens_loaded_from"
@@ -51,25 +57,61 @@ def sha256_file(path) -> str:
 
 
 def _listed_digests(path) -> list[str]:
+    """The digests listed beside ``path`` (hex, any case, as ``sha256sum`` or an editor may
+    write them), lower-cased."""
     side = checksum_path(path)
     try:
-        lines = side.read_text().split()
+        lines = side.read_text().lower().split()
     except (OSError, UnicodeDecodeError):
         return []
     return [s for s in lines if len(s) == 64 and all(c in "0123456789abcdef" for c in s)]
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a fsynced ``.tmp`` and a rename (removed on failure)."""
-    tmp = path.with_name(path.name + ".tmp")
+def temp_path(path: Path) -> Path:
+    """A new, empty temporary file beside ``path`` whose name no other writer uses
+    (``<name>.<random>.tmp``): two runs or threads writing the same file never share one."""
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    return Path(tmp)
+
+
+def _remove_quietly(tmp: Path | None) -> None:
+    """Remove a temporary file; a failure here (a read-only folder) must not hide the error
+    that made the write fail."""
+    if tmp is not None:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+
+
+def _disk_full(e: BaseException, folder: Path) -> str | None:
+    """``"disk full (N bytes free in folder)"`` when ``e`` is a full disk: ``ENOSPC``, or
+    torch's zip writer's ``unexpected pos`` (its report of a short write)."""
+    full = isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT)
+    full |= isinstance(e, RuntimeError) and ("unexpected pos" in str(e)
+                                             or "file write failed" in str(e))
+    if not full:
+        return None
     try:
+        free = f"{shutil.disk_usage(folder).free:,} bytes free"
+    except OSError:
+        free = "free space unknown"
+    first = str(e).splitlines()[0] if str(e) else ""
+    return f"the disk is full ({free} in {folder}; {type(e).__name__}: {first})"
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a fsynced temporary file and a rename (removed on
+    failure)."""
+    tmp = None
+    try:
+        tmp = temp_path(path)
         with open(tmp, "w") as f:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        _remove_quietly(tmp)
         raise
 
 
@@ -82,10 +124,11 @@ def write_checkpoint(checkpoint: dict, path) -> str:
             as it was and still verifies.
     """
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = None
     side = checksum_path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = temp_path(path)
         with open(tmp, "wb") as f:
             torch.save(checkpoint, f)
             f.flush()
@@ -97,11 +140,11 @@ def write_checkpoint(checkpoint: dict, path) -> str:
         write_text_atomic(side, digest + "\n")
         return digest
     except BaseException as e:
-        tmp.unlink(missing_ok=True)
+        _remove_quietly(tmp)
         if isinstance(e, Exception):
-            raise CheckpointError(f"could not write checkpoint {path}: {type(e).__name__}: "
-                                  f"{e} (the previous checkpoint there, if any, is unchanged)"
-                                  ) from e
+            why = _disk_full(e, path.parent) or f"{type(e).__name__}: {e}"
+            raise CheckpointError(f"could not write checkpoint {path}: {why} (the previous "
+                                  f"checkpoint there, if any, is unchanged)") from e
         raise
 
 
@@ -123,8 +166,11 @@ def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> 
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
     side = checksum_path(path)
-    if side.exists():
-        listed = _listed_digests(path)
+    listed = _listed_digests(path) if side.exists() else []
+    if side.exists() and not listed:
+        warnings.warn(f"checkpoint {path}: its digest file {side.name} lists no SHA-256 "
+                      f"(empty or unreadable): loading it unverified", stacklevel=2)
+    elif side.exists():
         digest = sha256_file(path)
         if digest not in listed:
             raise CheckpointError(
@@ -144,8 +190,12 @@ def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> 
             isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in ckpt.items()):
         return ckpt
     if not isinstance(ckpt, dict) or "state_dict" not in ckpt:
-        raise CheckpointError(f"{path} is not a training checkpoint (no 'state_dict'; got "
-                              f"{type(ckpt).__name__})")
+        bare = isinstance(ckpt, dict) and ckpt and all(torch.is_tensor(v) for v in ckpt.values())
+        what = ("a bare state dict (parameter names to tensors, as torch.save(model."
+                "state_dict()) writes): load it with module.load_state_dict(...); training "
+                "resumes only from a checkpoint a training run wrote" if bare
+                else f"no 'state_dict'; got {type(ckpt).__name__}")
+        raise CheckpointError(f"{path} is not a training checkpoint ({what})")
     return ckpt
 
 
@@ -190,6 +240,29 @@ def check_compatible(checkpoint: dict, module, path=None, optimizer_groups=None)
     if problems:
         raise CheckpointError(f"{where} does not belong to this experiment (another lens, "
                               f"network or set of trainable parameters): " + "; ".join(problems))
+
+
+def override_learning_rates(checkpoint: dict, optimizers: list[list[dict]]) -> list[str]:
+    """Put this run's learning rates into ``checkpoint``'s optimiser states before Lightning
+    restores them (it would bring the saved rates back and silently ignore changed
+    ``model.*_lr`` settings); the moment estimates are kept.
+
+    Args:
+        optimizers: per optimiser, this run's parameter groups (``{"name", "lr"}``) in order.
+
+    Returns:
+        One line per changed group, ``"net: 0.001 -> 0.0001"``.
+    """
+    changed = []
+    for state, groups in zip(checkpoint.get("optimizer_states") or [], optimizers):
+        for saved, ours in zip(state.get("param_groups", []), groups):
+            old, new = saved.get("lr"), float(ours["lr"])
+            if old is not None and float(old) != new:
+                changed.append(f"{ours.get('name', '?')}: {float(old):.6g} -> {new:.6g}")
+                saved["lr"] = new
+                if "initial_lr" in saved:
+                    saved["initial_lr"] = new
+    return changed
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):

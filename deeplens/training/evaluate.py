@@ -19,9 +19,16 @@ initialisation, training and test images, noise), so the spread covers them all;
 seed every variant sees the same test images.
 
 ``eval.reuse_runs`` (default true): a variant x seed run that already finished in the output
-folder with the same configuration (its ``eval_run.json``) is loaded, not trained again, so an
-evaluation killed part-way resumes (``hydra.run.dir=<its folder>``), and variants or seeds run
-as separate processes into one folder are then gathered by one more call.
+folder with the same configuration and the same input files (its ``eval_run.json`` records the
+configuration and the SHA-256 of every file it names, e.g. the lens file:
+:mod:`.input_digest`) is loaded, not trained again, so an evaluation killed part-way resumes
+(``hydra.run.dir=<its folder>``), and variants or seeds run as separate processes into one
+folder are then gathered by one more call.  A damaged record or a missing or corrupt tested
+checkpoint means "train again", with a message saying why.
+
+``eval.test_folder`` (a folder of the user's own images) does not change what a run trains: the
+runs are the same (and reused), each tested on the procedural test set and then on the folder's
+centre crops; the table carries a second block for the folder.
 
 Outputs (in ``eval.output``'s folder, each written atomically): ``eval_table.md`` (a row per
 variant and image, a column per depth or band), ``eval_table.json`` (see :func:`summarize`),
@@ -40,6 +47,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from .checkpoint import write_text_atomic
+from .input_digest import digest_path, input_digests
+from .machine import describe_machine, machine_info
 from .train import build_objects, train
 
 __all__ = ["evaluate", "format_table", "variants", "summarize", "psf_rms_px", "seeds"]
@@ -116,8 +125,6 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
         out = out / f"seed{c.seed}"
         c.paths.output_dir = str(out)
         c.test = True
-        if cfg.eval.test_folder is not None:
-            c.data.test_folder = cfg.eval.test_folder
         if kind == "none":
             c.lens.plate, c.lens.trainable = "none", []
         elif kind == "cubic":
@@ -148,6 +155,9 @@ def _run_key(cfg: DictConfig) -> dict:
         for k in ("optics_lr_mm", "optics_warmup_steps", "optics_worst_depth"):
             key["model"].pop(k, None)
         key["lens"].pop("learned_start_alpha_mm", None)
+    key.get("data", {}).pop("test_folder", None)  # tested on it after training, not trained on
+    # the content of the lens file and every other input (not the run's own outputs)
+    key["inputs"] = input_digests(key, outputs=[cfg.paths.output_dir])
     return key
 
 
@@ -183,23 +193,39 @@ def _reuse(cfg: DictConfig):
     """``(metrics, objects)`` of a finished run of exactly this variant config in its output
     folder (its :data:`RUN_RECORD` and tested checkpoint), the module holding the tested
     weights; ``None`` when there is none or its config differs."""
+    from .checkpoint import CheckpointError, read_checkpoint
+
     rec_path = Path(cfg.paths.output_dir) / RUN_RECORD
     if not rec_path.is_file():
         return None
+
+    def again(why: str):
+        print(f"deeplens eval: {rec_path} {why}: training again")
+
     try:
         rec = json.loads(rec_path.read_text())
-    except (OSError, ValueError):
-        return None
-    if _same_run(rec.get("config")) != _same_run(_run_key(cfg)):
-        print(f"deeplens eval: {rec_path} is a run of another configuration: training again")
-        return None
+        ok = (isinstance(rec, dict) and isinstance(rec.get("config"), dict)
+              and isinstance(rec.get("metrics"), dict) and isinstance(rec.get("tested"), str))
+        metrics = {k: float(v) for k, v in rec["metrics"].items()} if ok else None
+    except (OSError, ValueError, TypeError, RecursionError) as e:
+        return again(f"is damaged ({type(e).__name__}: {e})")
+    if not ok:
+        return again("is damaged (expected an object with 'config', 'metrics' and 'tested')")
+    key = _run_key(cfg)
+    if _same_run(rec["config"]) != _same_run(key):
+        saved = rec["config"].get("inputs")
+        changed = [k for k in (saved if isinstance(saved, dict) else {})
+                   if saved[k] != key["inputs"].get(k)]
+        return again(f"is a run of other input files (changed: {', '.join(changed)})" if changed
+                     else "is a run of another configuration")
+    try:
+        state = read_checkpoint(rec["tested"])["state_dict"]
+    except (FileNotFoundError, CheckpointError) as e:
+        return again(f"names a tested checkpoint that cannot be loaded ({e})")
     objs = build_objects(cfg)
-    if rec.get("tested"):
-        from .checkpoint import read_checkpoint
-
-        objs["module"].load_state_dict(read_checkpoint(rec["tested"])["state_dict"])
+    objs["module"].load_state_dict(state)
     print(f"deeplens eval: reusing the finished run in {rec_path.parent}")
-    return {k: float(v) for k, v in rec["metrics"].items()}, objs
+    return metrics, objs
 
 
 def _run(cfg: DictConfig, ckpt: str | None, reuse: bool = False):
@@ -223,6 +249,17 @@ def _run(cfg: DictConfig, ckpt: str | None, reuse: bool = False):
     objs["trainer"].test(objs["module"], datamodule=objs["datamodule"], ckpt_path=ckpt,
                          verbose=False)
     return {k: float(v) for k, v in objs["trainer"].callback_metrics.items()}, objs
+
+
+def _test_on_folder(cfg: DictConfig, objs: dict, folder) -> dict:
+    """Test metrics of the module in ``objs`` (holding the tested weights) on the centre crops
+    of ``folder`` (``eval.test_folder``), with the run's own data settings otherwise."""
+    import hydra
+
+    dm = hydra.utils.instantiate(cfg.data, test_folder=str(folder))
+    trainer = objs["trainer"]
+    trainer.test(objs["module"], datamodule=dm, verbose=False)
+    return {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("test/")}
 
 
 def psf_rms_px(lens, sensor, depth_mm: float, n_rays: int = 4096, seed: int = 0) -> float:
@@ -370,10 +407,11 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     depths = [float(d) for d in cfg.scene.val_depths_mm]
     bands = None if cfg.scene.field_bands is None else [float(b) for b in cfg.scene.field_bands]
     runs: dict[str, list[dict]] = {}
+    folder_runs: dict[str, list[dict]] = {}
     psf_rms: dict[str, dict[float, float]] = {}
     keep: dict[str, dict] = {}
     for name, kind, alpha in todo:
-        runs[name] = []
+        runs[name], folder_runs[name] = [], []
         rms_seeds = []
         for s in seed_list:
             vc = _variant_cfg(cfg, name, kind, alpha, seed=s)
@@ -381,6 +419,8 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
             torch.manual_seed(s)
             metrics, objs = _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))
             runs[name].append(metrics)
+            if cfg.eval.test_folder is not None:
+                folder_runs[name].append(_test_on_folder(vc, objs, cfg.eval.test_folder))
             module = objs["module"]
             rms_seeds.append({d: psf_rms_px(module.lens, module.sensor, d) for d in depths})
             if s == seed_list[0]:
@@ -392,15 +432,24 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     cubic = [a for _, kind, a in todo if kind == "cubic"]
     plates = (f"cubic plate alpha = {', '.join(f'{a * 1e3:g}' for a in cubic)} um (sag at the "
               f"rim); " if cubic else "")
-    test_set = (f"the images of {cfg.eval.test_folder} (centre crops)"
-                if cfg.eval.test_folder is not None
-                else f"{cfg.data.test_size} textures")
+    machine = machine_info()
     text = (f"# Optical variants, each with its own restorer ({cfg.task_name})\n\n"
-            f"seeds {seed_list} (mean ± std over seeds); {plates}test set of {test_set}; "
-            f"PSNR (dB) / SSIM\n\n{table}\n")
+            f"seeds {seed_list} (mean ± std over seeds); {plates}PSNR (dB) / SSIM; "
+            f"{describe_machine(machine)}\n\n"
+            f"## Test set: {cfg.data.test_size} procedural textures\n\n{table}\n")
+    record = {"task": str(cfg.task_name), "seeds": seed_list, "machine": machine,
+              "variants": summary}
+    if cfg.eval.test_folder is not None:
+        folder_summary = summarize(folder_runs, depths, bands)
+        folder_table = format_table(folder_summary, _columns(cfg))
+        head = f"## Test set: the images of {cfg.eval.test_folder} (centre crops)"
+        text += f"\n{head}\n\n{folder_table}\n"
+        table += f"\n\n{head}\n\n{folder_table}"
+        record["test_folder"] = {"path": str(cfg.eval.test_folder),
+                                 "digest": digest_path(cfg.eval.test_folder),
+                                 "variants": folder_summary}
     _atomic_write(out, text)
-    _atomic_write(out.with_suffix(".json"), json.dumps(
-        {"task": str(cfg.task_name), "seeds": seed_list, "variants": summary}, indent=2))
+    _atomic_write(out.with_suffix(".json"), json.dumps(record, indent=2))
     if cfg.eval.figures:
         from .eval_figures import write_figures
 

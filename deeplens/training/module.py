@@ -24,12 +24,13 @@ from pathlib import Path
 
 import lightning as L
 import torch
+from lightning.pytorch.utilities import rank_zero_info
 import torch.nn.functional as F
 from kornia.color import rgb_to_grayscale
 from kornia.metrics import ssim as kornia_ssim
 
 from ..render import IdealCamera, Scene
-from .checkpoint import LOADED_FROM, check_compatible
+from .checkpoint import LOADED_FROM, check_compatible, override_learning_rates
 from .constraints import SagDepartureConstraint
 from .lens_setup import optics_param_groups
 from .metrics import band_masks, masked_psnr, masked_ssim, psnr, ssim
@@ -459,9 +460,19 @@ class EndToEndModule(L.LightningModule):
         path = None
         if folder is not None:
             path = folder / f"nonfinite_step{step}.ckpt"
-            self.trainer.save_checkpoint(str(path))
+            # Lightning counts a checkpoint written inside a step as written after it and adds
+            # one to the logging step on restart; this step never stepped: saved one lower, a
+            # resumed run logs at its global step (no shift of every TensorBoard point)
+            loop = self.trainer.fit_loop.epoch_loop
+            loop._batches_that_stepped -= 1
+            try:
+                self.trainer.save_checkpoint(str(path))
+            finally:
+                loop._batches_that_stepped += 1
         raise NonFiniteLossError(f"{what}; training stopped before the optimiser step, the "
-                                 f"state just before it saved to {path}")
+                                 f"state just before it saved to {path} (resume with "
+                                 f"ckpt_path={path}; changed model.net_lr / optics_lr_mm "
+                                 f"settings apply on resume)")
 
     def on_load_checkpoint(self, checkpoint):
         """Refuse a checkpoint of another experiment with a message naming its file."""
@@ -470,6 +481,13 @@ class EndToEndModule(L.LightningModule):
         if self._trainer is not None and self.trainer.state.fn == "fit":
             groups = [g["name"] for g in self._param_groups()]
         check_compatible(checkpoint, self, path, groups)
+        if groups is not None:  # resuming: this run's learning rates apply, and we say so
+            changed = override_learning_rates(checkpoint, [
+                self._param_groups(), [{"name": "discriminator", "lr": self.disc_lr}]])
+            if changed:
+                rank_zero_info(f"deeplens: resuming from {path or 'the checkpoint'} with this "
+                               f"run's learning rates, not the checkpoint's ("
+                               f"{'; '.join(changed)}); Adam's moment estimates are kept")
 
     # ------------------------------------------------------------------ validation / test
     def _eval_step(self, batch, batch_idx, stage: str):

@@ -8,8 +8,10 @@ directly with a composed, shrunk config.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
+import os
 from pathlib import Path
 
 import hydra
@@ -19,13 +21,17 @@ from lightning.pytorch.utilities import rank_zero_info
 from omegaconf import DictConfig, OmegaConf
 
 from ..optics.intersect import IntersectOptions
+from ..optics.limits import check_allocation
 from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
-from .checkpoint import AtomicCheckpointIO
+from .checkpoint import AtomicCheckpointIO, read_checkpoint
 from .lens_setup import build_lens
+from .machine import describe_machine
 from .module import MAX_LR
+from .run_lock import hold_output_folder
+from .stop_signals import stopped_by_signal
 
-__all__ = ["build_objects", "check_config", "preflight", "summary", "train"]
+__all__ = ["build_objects", "check_config", "check_sizes", "preflight", "summary", "train"]
 
 # leaf keys whose type is checked at start-up (Hydra already rejects unknown keys)
 _TYPES = {
@@ -41,6 +47,18 @@ _TYPES = {
     "data.image_size": int, "data.batch_size": int, "data.train_steps_per_epoch": int,
     "data.val_size": int, "data.test_size": int,
 }
+#: keys that must hold a value (``null`` would fail deep inside seeding or rendering)
+_NOT_NULL = ("seed", "sensor.resolution", "sensor.pixel_size_mm", "scene.depths_mm",
+             "scene.val_depths_mm", "render.kind", "render.spp", "data.image_size",
+             "data.batch_size", "data.train_steps_per_epoch", "data.val_size", "data.test_size")
+#: Lightning trainer keys checked when present (Lightning itself only asserts, without the key)
+_TRAINER_TYPES = {"trainer.max_epochs": (int,), "trainer.max_steps": (int,),
+                  "trainer.min_epochs": (int,), "trainer.min_steps": (int,),
+                  "trainer.log_every_n_steps": (int,), "trainer.check_val_every_n_epoch": (int,),
+                  "trainer.val_check_interval": (int, float),
+                  "trainer.limit_train_batches": (int, float),
+                  "trainer.limit_val_batches": (int, float),
+                  "trainer.limit_test_batches": (int, float)}
 
 
 def check_config(cfg: DictConfig) -> None:
@@ -52,6 +70,8 @@ def check_config(cfg: DictConfig) -> None:
         if isinstance(val, str) and val == "__missing__":
             raise ValueError(f"config key {key!r} is missing")
         if val is None:
+            if key in _NOT_NULL:
+                raise ValueError(f"config key {key!r}: expected {typ.__name__}, got null")
             continue
         if OmegaConf.is_list(val):
             val = list(val)
@@ -61,6 +81,12 @@ def check_config(cfg: DictConfig) -> None:
         if not ok:
             raise ValueError(f"config key {key!r}: expected {typ.__name__}, got {val!r} "
                              f"({type(val).__name__})")
+    for key, types in _TRAINER_TYPES.items():
+        val = OmegaConf.select(cfg, key, default=None)
+        if val is not None and (isinstance(val, bool) or not isinstance(val, types)):
+            raise ValueError(f"config key {key!r}: expected "
+                             f"{' or '.join(t.__name__ for t in types)}, got {val!r} "
+                             f"({type(val).__name__})")
     for key, rule in _RULES.items():
         val = OmegaConf.select(cfg, key, default=None)
         if val is None:
@@ -69,6 +95,29 @@ def check_config(cfg: DictConfig) -> None:
         problem = rule(val)
         if problem:
             raise ValueError(f"config key {key!r}: expected {problem}, got {val!r}")
+    check_sizes(cfg)
+
+
+def check_sizes(cfg: DictConfig) -> None:
+    """Refuse sizes whose first allocation cannot fit in memory (a typo such as
+    ``data.image_size=1000000``), naming the key and the bytes it would need
+    (:func:`~deeplens.optics.limits.check_allocation`)."""
+    from ..optics.sampling import RAY_BYTES
+
+    b = cfg.data.batch_size
+    h, w = cfg.sensor.resolution
+    n_ch = 3 if cfg.sensor.get("channels") is None else len(cfg.sensor.channels)
+    check_allocation("data.image_size (with data.batch_size)", b * 3 * cfg.data.image_size ** 2,
+                     4, "float32 values of one batch of textures (batch x 3 x size^2)")
+    check_allocation("sensor.resolution (with data.batch_size)", b * n_ch * h * w, 4 * 4,
+                     "pixels of one batch (sensor image, target, restored, gradient; float32)")
+    if cfg.render.kind == "mc":
+        # one render chunk holds at least one pixel's spp rays per wavelength
+        check_allocation("render.spp", cfg.render.spp, RAY_BYTES, "rays of one pixel")
+        check_allocation("render.chunk_rays", cfg.render.chunk_rays, RAY_BYTES,
+                         "rays of one render chunk")
+    else:
+        check_allocation("render.psf_rays", cfg.render.psf_rays, RAY_BYTES, "rays of one PSF")
 
 
 def _number(v) -> bool:
@@ -127,8 +176,9 @@ _POS_INT = _rule_int(1)
 _RULES = {
     # numpy's and Lightning's seeding take 0 <= seed < 2^32
     "seed": _rule_int(0, 2 ** 32 - 1),
-    "sensor.resolution": _rule_list(lambda x: _POS_INT(x) is None, "[H, W] pixels, both > 0",
-                                    (2, 2)),
+    # SSIM's 11-pixel window (reflect-padded by 5) needs 6 pixels per side
+    "sensor.resolution": _rule_list(lambda x: _rule_int(6)(x) is None,
+                                    "[H, W] pixels, both >= 6 (SSIM's 11-pixel window)", (2, 2)),
     "sensor.pixel_size_mm": _rule_real(0),
     "sensor.full_well": _rule_real(0, lo_open=False),
     "sensor.read_noise": _rule_real(0, lo_open=False),
@@ -151,7 +201,8 @@ _RULES = {
     "model.disc_lr": _rule_real(0, MAX_LR["disc_lr"]),
     "model.max_sag_mm": _rule_real(0),
     "model.loss": _loss_weights,
-    "data.image_size": _POS_INT, "data.batch_size": _POS_INT,
+    # the dead-leaves texture draws discs of radius 2 px to size / 2: at least 4 pixels
+    "data.image_size": _rule_int(4), "data.batch_size": _POS_INT,
     "data.train_steps_per_epoch": _POS_INT, "data.val_size": _POS_INT,
     "data.test_size": _POS_INT, "data.num_workers": _rule_int(0),
     "callbacks.image_logger.every_n_epochs": _POS_INT,
@@ -270,7 +321,8 @@ def summary(cfg: DictConfig, metrics: dict, trainer, tested: str | None) -> str:
     """A few lines closing a run: test PSNR / SSIM per depth (or field band), where the
     checkpoint and the exported lens are, and the TensorBoard command."""
     lines = [(f"deeplens: {cfg.get('task_name', 'train')} finished after "
-              f"{trainer.current_epoch} epoch(s), {trainer.global_step} step(s)")]
+              f"{trainer.current_epoch} epoch(s), {trainer.global_step} step(s) "
+              f"({describe_machine()})")]
     tags = [k[len("test/psnr_restored/"):] for k in metrics
             if k.startswith("test/psnr_restored/")]
     if tags:
@@ -305,15 +357,30 @@ def train(cfg: DictConfig):
         ``(metrics, objects)``: the callback metrics as floats, and the built objects (plus
         ``"tested"``, the checkpoint the test scored or ``None``, and ``"summary"``, the text
         printed at the end).
+
+    Raises:
+        FolderInUseError: another live run holds ``paths.output_dir`` (:mod:`.run_lock`).
+        StoppedBySignal: SIGTERM or SIGINT stopped training (exit status 143 / 130); the
+            state after the last step is in ``last.ckpt`` (:mod:`.stop_signals`).
     """
+    # the ranks a DDP launcher starts (LOCAL_RANK / NODE_RANK > 0) share rank 0's folder
+    child = any(os.environ.get(k, "0") != "0" for k in ("LOCAL_RANK", "NODE_RANK"))
+    with contextlib.nullcontext() if child else hold_output_folder(cfg.paths.output_dir):
+        return _train(cfg)
+
+
+def _train(cfg: DictConfig):
     objs = build_objects(cfg)
     trainer, module, dm = objs["trainer"], objs["module"], objs["datamodule"]
     ckpt = cfg.get("ckpt_path")
     if ckpt is not None and not Path(ckpt).exists():
         raise FileNotFoundError(f"ckpt_path: no checkpoint at {ckpt}")
+    if ckpt is not None:  # verified, and a training checkpoint (not a bare state dict)
+        read_checkpoint(ckpt)
     trained = bool(cfg.get("train", True))
     if trained:
-        trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
+        with stopped_by_signal(trainer):
+            trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
     tested = None
     if cfg.get("test", False):

@@ -209,14 +209,13 @@ def test_a_failed_lens_export_names_the_file_and_leaves_no_tmp(tmp_path, monkeyp
     cb = callbacks.LensCheckpoint(dirpath=tmp_path)
     cb._save_checkpoint(trainer, str(tmp_path / "last.ckpt"))
     assert (tmp_path / "last.lens.json").exists()
-    real = callbacks.save_lens
+    from deeplens.optics.io import lensfile
 
-    def full_disk(lens, path):
-        real(lens, path)
-        path.with_name(path.name + ".tmp").write_text("{half")
+    def full_disk(obj, f, **kw):  # the disk fills half-way through the temporary file
+        f.write("{half")
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(callbacks, "save_lens", full_disk)
+    monkeypatch.setattr(lensfile.json, "dump", full_disk)
     out = tmp_path / "best.lens.json"
     with pytest.raises(CheckpointError, match=rf"could not write the lens file {out}.*No space"):
         cb._save_checkpoint(trainer, str(tmp_path / "best.ckpt"))

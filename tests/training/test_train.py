@@ -299,7 +299,7 @@ _MEANINGLESS = [  # (key, value of the right type, what the message must say is 
     ("sensor.pixel_size_mm", 0.0, r"> 0"),
     ("sensor.full_well", -1.0, r">= 0"),
     ("sensor.read_noise", math.inf, r"finite"),
-    ("sensor.resolution", [16, 0], r"both > 0"),
+    ("sensor.resolution", [16, 0], r"both >= 6"),
     ("render.spp", 0, r"int >= 1"),
     ("render.newton_tol", 0.0, r"> 0"),
     ("render.psf_patches", [3], r"\[rows, cols\]"),

@@ -35,11 +35,13 @@ exactly.  Every error names the file and the JSON path of the offending field.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import difflib
 import json
 import math
 import os
+import tempfile
 from pathlib import Path
 
 from ..errors import LensError, LensFileError
@@ -81,8 +83,15 @@ class _Reader:
 
     def check(self, v, path, kind):
         if kind == "number":
+            if isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 1023:
+                self.fail(path, f"expected a finite number, got an integer of {len(str(v))} "
+                                f"digits (too large for a float)")
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 self.fail(path, f"expected a finite number, got {v!r}")
+            if path.endswith("_mm") and not path.endswith("_per_mm") and abs(v) > MAX_LENGTH_MM:
+                self.fail(path, f"expected a length of at most {MAX_LENGTH_MM:g} mm in "
+                                f"magnitude, got {v!r} (paraxial data would overflow or round "
+                                f"to nonsense; an object at infinity is \"inf\")")
             return float(v)
         if kind == "number_or_inf":
             if isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
@@ -127,6 +136,10 @@ class _Reader:
             self.fail(f"{path}.{key}" if path else key,
                       f"unknown field{hint} (known: {', '.join(sorted(allowed))})")
 
+
+#: largest length (mm) a lens file may hold: beyond it paraxial quantities overflow (a 1e308 mm
+#: thickness gave an EFL of -1e-305 mm)
+MAX_LENGTH_MM = 1e12
 
 _COMMON_KEYS = {"type", "distance_mm", "semi_diameter_mm", "material"}
 _TOP_KEYS = {"format", "version", "name", "units", "object", "aperture", "fields_deg",
@@ -346,11 +359,16 @@ def save_lens(lens: Lens, path) -> None:
         from .zmx import write_zmx
 
         return write_zmx(lens, path)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        json.dump(lens_to_dict(lens), f, indent=1)
-        f.write("\n")
-    os.replace(tmp, path)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:  # a name of its own: two writers of one lens file never share a temporary file
+        with os.fdopen(fd, "w") as f:
+            json.dump(lens_to_dict(lens), f, indent=1)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
 
 
 def read_json(path) -> Lens:
@@ -365,4 +383,9 @@ def read_json(path) -> Lens:
     except json.JSONDecodeError as e:
         raise LensFileError(f"invalid JSON at line {e.lineno}, column {e.colno}: {e.msg}",
                             source=path, line=e.lineno, column=e.colno) from e
+    except RecursionError:
+        raise LensFileError("the JSON is nested too deeply to read (a lens file is a few "
+                            "levels deep)", source=path) from None
+    except ValueError as e:  # e.g. an integer literal with more than 4300 digits
+        raise LensFileError(f"unreadable JSON number: {e}", source=path) from None
     return lens_from_dict(data, source=str(path))

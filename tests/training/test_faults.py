@@ -1,0 +1,112 @@
+"""Faults found by hostile use (issue 25, items 1, 6, 7): every one gives a message naming the
+key, the file or the cause, never a traceback from deep inside torch or Lightning."""
+
+import warnings
+
+import pytest
+import torch
+
+from deeplens.optics.limits import MemoryBudgetError
+from deeplens.training import checkpoint as ck
+from deeplens.training.checkpoint import (CheckpointError, checksum_path, read_checkpoint,
+                                          write_checkpoint)
+from deeplens.training.train import check_config
+
+
+def _state(v=1.0):
+    return {"state_dict": {"w": torch.full((4,), v)}, "global_step": 1}
+
+
+@pytest.mark.parametrize("override, key", [
+    ("seed=null", "'seed'.*got null"),
+    ("data.image_size=3", "'data.image_size'.*>= 4"),
+    ("sensor.resolution=[3,3]", r"'sensor.resolution'.*>= 6"),
+    ("trainer.max_epochs=abc", "'trainer.max_epochs'.*expected int.*'abc'"),
+    ("+trainer.val_check_interval=often", "'trainer.val_check_interval'"),
+])
+def test_config_errors_name_the_key(cfg_factory, override, key):
+    """These four failed deep inside the renderer, the texture generator, kornia's SSIM and
+    Lightning's fit loop (a bare AssertionError) instead."""
+    with pytest.raises(ValueError, match=key):
+        check_config(cfg_factory(override))
+
+
+def test_smallest_accepted_sizes_pass(cfg_factory):
+    check_config(cfg_factory("data.image_size=4", "sensor.resolution=[6,6]"))
+
+
+@pytest.mark.parametrize("override, key", [
+    ("data.image_size=10000000", r"data\.image_size"),
+    ("sensor.resolution=[1000000,1000000]", r"sensor\.resolution"),
+    ("render.spp=100000000000", r"render\.spp"),
+])
+def test_sizes_beyond_memory_are_refused_with_the_bytes(cfg_factory, monkeypatch, override,
+                                                        key):
+    monkeypatch.setenv("DEEPLENS_MEMORY_BUDGET", "16G")
+    with pytest.raises(MemoryBudgetError, match=key + r".*would need at least .*iB"):
+        check_config(cfg_factory(override))
+
+
+def test_uppercase_or_empty_digest_does_not_make_a_good_checkpoint_corrupt(tmp_path):
+    p = tmp_path / "last.ckpt"
+    write_checkpoint(_state(2.0), p)
+    side = checksum_path(p)
+    side.write_text(side.read_text().upper())  # as some tools write hex
+    assert torch.equal(read_checkpoint(p)["state_dict"]["w"], torch.full((4,), 2.0))
+    side.write_text("")
+    with pytest.warns(UserWarning, match="lists no SHA-256.*unverified"):
+        read_checkpoint(p)
+    side.write_text("0" * 64 + "\n")  # a real mismatch is still refused
+    with pytest.raises(CheckpointError, match="corrupt"):
+        read_checkpoint(p)
+
+
+def test_disk_full_is_named_not_torchs_unexpected_pos(tmp_path, monkeypatch):
+    p = tmp_path / "last.ckpt"
+
+    def short_write(obj, f):
+        f.write(b"PK")
+        raise RuntimeError("[enforce fail at inline_container.cc:664] . unexpected pos 1088 "
+                           "vs 1024")
+
+    monkeypatch.setattr(ck.torch, "save", short_write)
+    with pytest.raises(CheckpointError, match=rf"{p}: the disk is full \([\d,]+ bytes free"):
+        write_checkpoint(_state(), p)
+    monkeypatch.setattr(ck.torch, "save", lambda obj, f: (_ for _ in ()).throw(
+        OSError(28, "No space left on device")))
+    with pytest.raises(CheckpointError, match="the disk is full"):
+        write_checkpoint(_state(), p)
+    assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_read_only_folder_reports_the_write_error_not_the_cleanup(tmp_path, monkeypatch):
+    """In a read-only folder the temporary file cannot be removed either; that second error
+    (PermissionError from the cleanup) used to replace the first."""
+    p = tmp_path / "last.ckpt"
+
+    def read_only(*a, **k):
+        raise PermissionError(13, "Permission denied")
+
+    def save_fails(obj, f):
+        raise OSError(30, "Read-only file system")
+
+    monkeypatch.setattr(ck.torch, "save", save_fails)
+    monkeypatch.setattr(ck.Path, "unlink", read_only)
+    with pytest.raises(CheckpointError, match="Read-only file system"):
+        write_checkpoint(_state(), p)
+
+
+def test_temporary_files_have_unique_names(tmp_path):
+    p = tmp_path / "last.ckpt"
+    a, b = ck.temp_path(p), ck.temp_path(p)
+    assert a != b and a.parent == b.parent == tmp_path and a.name.startswith("last.ckpt.")
+    assert a.name.endswith(".tmp")
+
+
+def test_bare_state_dict_is_named_as_such(tmp_path):
+    p = tmp_path / "weights.pt"
+    torch.save({"restorer.w": torch.zeros(2)}, p)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(CheckpointError, match="bare state dict.*load_state_dict"):
+            read_checkpoint(p)
