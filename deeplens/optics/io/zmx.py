@@ -61,6 +61,8 @@ from ..surfaces import Aperture, Asphere, Plane, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
 from .lensfile import LensFileError
+from .vendor_glass import (PREVIOUS_CATALOGUES, VENDOR_CATALOGUES, BuchdahlGlass, catalogue_size,
+                           find_in_vendor_catalogues, previous_glass, vendor_glass)
 
 __all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "read_zmx", "write_zmx"]
 
@@ -79,10 +81,17 @@ _UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 BUILTIN_CATALOGUES = {
     "SCHOTT": ("N-BK7", "N-SF5", "SF5", "N-SF6", "N-SF2", "N-SF10", "SF10", "N-SF11", "N-BAF10",
                "N-BAK1", "N-BAK4", "N-SK16", "N-SSK8", "F2", "N-F2", "N-LAK9", "N-LAK22",
-               "N-LASF9", "N-LASF44", "N-K5", "N-PSK53A", "B270", "SSK4", "SK1", "F15", "SK16"),
+               "N-LASF9", "N-LASF44", "N-K5", "N-PSK53A", "B270", "SSK4"),
     "MISC": ("F_SILICA", "SILICA", "FUSED_SILICA", "PMMA", "POLYCARB"),
 }
-"""Zemax catalogue name -> the names deeplens' built-in catalogue resolves for it."""
+"""Zemax catalogue name -> the names deeplens' built-in catalogue resolves for it (after the
+vendor catalogues of :mod:`.vendor_glass`)."""
+
+# the n_d / V_d OpticStudio writes on the GLAS line of a catalogue glass it has not evaluated
+_PLACEHOLDER_ND_VD = (1.5, 40.0)
+
+# the semi-diameter a surface with no DIAM is built with before its automatic value is set
+_PROVISIONAL_SD_MM = 1e-3
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
 _SILENT = {
@@ -297,42 +306,82 @@ def _builtin(glass: str) -> Material | None:
 
 
 def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
-    """The material of ``GLAS glass`` on ``s.glass_line``: exact lookup, in catalogue order."""
+    """The material of ``GLAS glass`` on ``s.glass_line``: exact lookup, in catalogue order.
+
+    Per catalogue the file names on ``GCAT`` (all vendor catalogues if it names none): the
+    user's ``.agf`` of that name (it overrides), the current vendor catalogue
+    (:mod:`.vendor_glass`), deeplens' built-in entries; then the previous (1983) vendor
+    catalogues of the named ones; then, with a warning, a vendor catalogue the file does not
+    name (exact name only).
+    """
     searched = []
-    named = list(gcat) if gcat else list(BUILTIN_CATALOGUES)
+    named = list(gcat) if gcat else list(VENDOR_CATALOGUES) + ["MISC"]
     # the user's catalogues answer for their own names; unnamed ones are searched last
     order = named + [c for c in catalogues if c not in named]
     for cat in order:
         if cat in catalogues:
-            searched.append(cat)
+            searched.append(f"{cat} (user catalogue {catalogues[cat].path.name}, "
+                            f"{len(catalogues[cat])} glasses)")
             m = catalogues[cat].get(glass)
             if m is not None:
                 return m
-        elif cat in BUILTIN_CATALOGUES:
-            searched.append(f"{cat} (deeplens built-in)")
+            continue
+        if cat in VENDOR_CATALOGUES:
+            searched.append(f"{cat} (current vendor catalogue, {catalogue_size(cat)} glasses)")
+            m = vendor_glass(glass, cat)
+            if m is not None:
+                return m
+        if cat in BUILTIN_CATALOGUES:
+            searched.append(f"{cat} (deeplens built-in, {len(BUILTIN_CATALOGUES[cat])} glasses)")
             if glass in BUILTIN_CATALOGUES[cat]:
                 m = _builtin(glass)
                 if m is not None:
                     return m
-    missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES]
-    hint = (f"; catalogue(s) {', '.join(missing)} named on the GCAT line were not given: pass "
-            f"glass_catalogs=['{missing[0]}.agf', ...]" if missing else "")
+    for cat in named:
+        if cat in PREVIOUS_CATALOGUES and cat not in catalogues:
+            searched.append(f"{cat} previous (Robb & Mercado 1983, "
+                            f"{catalogue_size(cat, previous=True)} glasses)")
+            m = previous_glass(glass, cat)
+            if m is not None:
+                p.note(s.glass_line, f"glass {glass!r}: from the previous {cat} catalogue (Robb "
+                                     f"& Mercado 1983, a visible-range fit: n within 6e-5, "
+                                     f"400-700 nm)")
+                return m
+    elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
+    if elsewhere:
+        cat = elsewhere[0].split()[0]
+        m = (vendor_glass(glass, cat) if not elsewhere[0].endswith("(previous)")
+             else previous_glass(glass, cat))
+        p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
+                             f"({', '.join(named)}); using {elsewhere[0]} (exact name)")
+        return m
+    missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES
+               and c not in VENDOR_CATALOGUES and c not in PREVIOUS_CATALOGUES]
+    hint = (f"; catalogue(s) {', '.join(missing)} named on the GCAT line are not shipped with "
+            f"deeplens and were not given: pass glass_catalogs=['{missing[0]}.agf', ...] or put "
+            f"{missing[0]}.agf next to the .zmx" if missing else "")
     if fallback is not None:
         if fallback == "model":
             if s.glass_model is None or not s.glass_model[0] > 1.0:
                 p.fail(s.glass_line, f"glass {glass!r} not found, and the GLAS line has no usable "
                                      f"n_d/V_d for the model-glass fallback")
+            if tuple(s.glass_model) == _PLACEHOLDER_ND_VD:
+                p.fail(s.glass_line, f"glass {glass!r} not found, and the GLAS line's n_d/V_d "
+                                     f"(1.5, 40) is OpticStudio's placeholder for a catalogue "
+                                     f"glass, not the glass's data: the model-glass fallback "
+                                     f"cannot use it{hint}")
             m = ModelGlass(*s.glass_model)
         else:
             m = fallback if isinstance(fallback, Material) else get_material(str(fallback))
         warnings.warn(f"{p.path}:{s.glass_line}: glass {glass!r} not found in "
-                      f"{', '.join(searched) or 'any catalogue'}; using the requested fallback "
+                      f"{'; '.join(searched) or 'any catalogue'}; using the requested fallback "
                       f"{m.name!r}", ZemaxWarning, stacklevel=4)
         return m
-    p.fail(s.glass_line, f"glass {glass!r} not found in the catalogues searched "
-                         f"({', '.join(searched) or 'none'}){hint}; deeplens never substitutes a "
-                         f"similar glass: give the vendor's .agf (glass_catalogs=[...]) or ask for "
-                         f"a fallback (glass_fallback='model' uses the n_d/V_d on the GLAS line)")
+    p.fail(s.glass_line, f"glass {glass!r} not found by exact name in the catalogues searched "
+                         f"({'; '.join(searched) or 'none'}){hint}; deeplens never substitutes "
+                         f"a similar glass: give the vendor's .agf (glass_catalogs=[...]) or ask "
+                         f"for a fallback (glass_fallback='model' uses the n_d/V_d on the GLAS "
+                         f"line)")
 
 
 def _surface_material(s, gcat, catalogues, fallback, p):
@@ -440,6 +489,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     gap = 0.0            # axial distance from the last kept vertex to the current one (mm)
     bracket = None
     stop_idx = None
+    autos = []           # kept indices whose semi-diameter is automatic
     for k in range(1, len(surfs) - 1):
         s = surfs[k]
         prev = media[-1]
@@ -493,8 +543,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         if s.clap is not None:
             sd = s.clap[0] * s_mm
         surf = None
+        coeffs, flat = [], False
         if s.type == "STANDARD" or s.type == "EVENASPH":
-            coeffs = []
             if s.type == "EVENASPH":
                 for i, (v, ln) in sorted(s.parm.items()):
                     if i == 1 and v != 0:
@@ -513,21 +563,29 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                         coeffs.pop()
             flat = c == 0 and s.coni == 0 and not coeffs
             same_medium = (type(mat) is type(prev) and mat.name == prev.name)
-            if flat and same_medium and not s.stop and not s.diam_fixed and s.clap is None:
+            fixed = s.diam_fixed and s.diam > 0
+            if flat and same_medium and not s.stop and not fixed and s.clap is None:
                 gap += s.disz * s_mm
                 if bracket is not None:
                     bracket["zloc"] += s.disz * s_mm
                 continue   # a dummy surface: its thickness only
-            if flat and _is_air(mat) and _is_air(prev):
-                surf = Aperture(sd if sd > 0 else None)
+        if sd < 0:
+            p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be >= 0, got {s.diam!r}")
+        auto = not sd > 0     # no DIAM (or 0): an automatic semi-diameter, set once built
+        sd_build = sd if sd > 0 else _PROVISIONAL_SD_MM
+        try:
+            if s.type == "XYPOLYNOM":
+                surf = _xypolynom(s, c, sd_build, s_mm, p)
+            elif flat and _is_air(mat) and _is_air(prev):
+                surf = Aperture(sd_build)
             elif flat:
-                surf = Plane(sd)
+                surf = Plane(sd_build)
             else:
-                surf = Asphere(c, sd, conic=s.coni, coefficients=coeffs)
-        elif s.type == "XYPOLYNOM":
-            surf = _xypolynom(s, c, sd, s_mm, p)
-        if not sd > 0 and not isinstance(surf, Aperture):
-            p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be > 0, got {s.diam!r}")
+                surf = Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
+        except ValueError as e:
+            p.fail(s.type_line or s.line, f"SURF {k}: {e}")
+        if auto:
+            autos.append(len(kept))
         if s.stop:
             stop_idx = len(kept)
         kept.append((surf, mat, s, gap))
@@ -564,11 +622,10 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     ap_type, ap_value, ap_line = ap
     if ap_type == "epd":
         ap_value *= s_mm
-    if ap_type != "stop" and not isinstance(surfaces[stop_idx], Aperture):
-        p.fail(ap_line, f"an {'ENPD' if ap_type == 'epd' else 'FNUM'} aperture needs the stop "
-                        f"(line {kept[stop_idx][2].line}) to be a flat surface in air")
-    if ap_type == "stop" and surfaces[stop_idx].semi_diameter is None:
-        p.fail(kept[stop_idx][2].line, "the floating stop has no semi-diameter (DIAM)")
+    if ap_type == "stop" and stop_idx in autos:
+        p.fail(kept[stop_idx][2].line, "the stop has no semi-diameter (no DIAM, or 0) and the "
+                                       "system aperture is FLOA (float by stop size): give the "
+                                       "stop a DIAM or the system an ENPD/FNUM")
 
     # ---- glass wavelength ranges, before building (a clear error instead of a NaN)
     for (surf, mat, s, _), i in zip(kept, range(len(kept))):
@@ -605,6 +662,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
 
     # ---- fields
     fields = _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
+    autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
+    if autos:
+        _auto_semi_diameters(lens, autos, max(abs(f) for f in fields), where_of, path)
     try:
         lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                              aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
@@ -614,6 +674,42 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     for ln, msg in p.notes:
         warnings.warn(f"{path}:{ln}: {msg}" if ln else msg, ZemaxWarning, stacklevel=2)
     return lens
+
+
+def _auto_semi_diameters(lens, idx, field_deg, where_of, path):
+    """Zemax's automatic semi-diameters, paraxially: ``1.05 (|y_marginal| + |y_chief|)`` at the
+    surfaces ``idx`` (the full-field chief ray at ``field_deg``; a clear aperture only, since
+    OpticStudio does not vignette on automatic semi-diameters), capped to the surface's domain."""
+    from ..paraxial import _indices, _trace, paraxial
+
+    with torch.no_grad():
+        par = paraxial(lens)
+        n, p0 = _indices(lens, None)
+        half = 0.5 * float(par.entrance_pupil_diameter)
+        pos = float(par.entrance_pupil_position)
+        s = float(lens.spec.object_distance_mm)
+        t = math.tan(math.radians(field_deg))
+        if math.isinf(s):
+            ym0, um0 = half, 0.0
+        else:
+            um0 = half / (s + pos)
+            ym0 = um0 * s
+        one = torch.ones_like(p0)
+        _, _, hm = _trace(lens, ym0 * one, um0 * one, n)
+        _, _, hc = _trace(lens, -pos * t * one, t * one, n)
+        for i in idx:
+            surf = lens.surfaces[i]
+            sd = 1.05 * (abs(float(hm[i])) + abs(float(hc[i])))
+            c = float(surf.paraxial_curvature())
+            k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
+            if c != 0 and 1 + k > 0:
+                sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
+            surf.semi_diameter.fill_(sd)
+    try:
+        lens.check()
+    except ValueError as e:
+        raise ZemaxFileError(_locate(f"{path}: with automatic semi-diameters (no DIAM): {e}",
+                                     where_of)) from e
 
 
 def _locate(msg: str, where_of: dict) -> str:
@@ -730,7 +826,7 @@ def _glass_line(m: Material, cats: list) -> str | None:
     """The ``GLAS`` line of medium ``m`` (``None`` for air); adds its catalogue to ``cats``."""
     if isinstance(m, Air):
         return None
-    if isinstance(m, AGFGlass):
+    if isinstance(m, (AGFGlass, BuchdahlGlass)):
         if m.catalogue and m.catalogue not in cats:
             cats.append(m.catalogue)
         return f"GLAS {m.name} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"

@@ -1,0 +1,177 @@
+r"""Vendor glass catalogues shipped by the ``opticalglass`` package (BSD-3-Clause), as deeplens
+materials.
+
+Current catalogues (the vendors' own spreadsheets in ``opticalglass/data``), each with its own
+dispersion formula (λ in µm), mapped onto the Zemax formula numbers of :mod:`.agf`::
+
+    SCHOTT, OHARA              Sellmeier 1 (AGF 2)   n² = 1 + Σ_{i=1..3} B_i λ² / (λ² − C_i)
+    HOYA, CDGM, SUMITA         Schott      (AGF 1)   n² = A0 + A1 λ² + A2 λ⁻² + A3 λ⁻⁴ + A4 λ⁻⁶ + A5 λ⁻⁸
+    HIKARI                     Extended 3  (AGF 13)  n² = A0 + A1 λ² + A2 λ⁴ + A3 λ⁻² + ... + A8 λ⁻¹²
+
+Previous catalogues (glasses that vendors have withdrawn but old designs name: ``BK7``, ``SK16``,
+``F15``, ``BASF1`` ...): Robb & Mercado, "Calculation of refractive indices using Buchdahl's
+chromatic coordinate", Appl. Opt. 22, 1198 (1983), Table V (SCHOTT, OHARA, HOYA, CORNING-FRANCE,
+CHANCE; visible region), shipped by ``opticalglass`` as ``robb1983_data_final.txt``::
+
+    n(λ) = n0 + ν1 ω + ν2 ω²,   ω = (λ − λ0) / (1 + 2.5 (λ − λ0)),   λ0 = 0.574 µm
+
+(the paper's base wavelength; evaluated at 587.6 nm instead, as ``opticalglass`` does, BK7 would
+get n_d = 1.51739 instead of the published 1.51680).  The fit is quadratic and visible-only:
+its stated error is ≤ 6e-5 in 400–700 nm, so these glasses carry that range and each use is
+reported.
+
+Lookup is by exact name (case-insensitive).  The catalogues are read once per process
+(:func:`functools.lru_cache`; about a second in all) and never changed afterwards.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import math
+from importlib import resources
+
+import torch
+
+from ..materials import Material
+from .agf import AGFGlass
+
+__all__ = ["VENDOR_CATALOGUES", "PREVIOUS_CATALOGUES", "BuchdahlGlass", "vendor_glass",
+           "previous_glass", "vendor_catalogue_names", "find_in_vendor_catalogues"]
+
+#: Zemax catalogue name -> (opticalglass module, catalogue class, AGF formula number)
+VENDOR_CATALOGUES = {
+    "SCHOTT": ("schott", "SchottCatalog", 2),
+    "OHARA": ("ohara", "OharaCatalog", 2),
+    "HOYA": ("hoya", "HoyaCatalog", 1),
+    "CDGM": ("cdgm", "CDGMCatalog", 1),
+    "HIKARI": ("hikari", "HikariCatalog", 13),
+    "SUMITA": ("sumita", "SumitaCatalog", 1),
+}
+
+#: Zemax catalogue names that have a previous (Robb & Mercado 1983) catalogue
+PREVIOUS_CATALOGUES = ("SCHOTT", "OHARA", "HOYA", "CORNING-FRANCE", "CHANCE")
+
+_ROBB_LAMBDA0_UM = 0.574
+_ROBB_RANGE_NM = (400.0, 700.0)
+
+
+class BuchdahlGlass(Material):
+    """A glass given by Buchdahl's quadratic chromatic-coordinate model (see the module
+    docstring); λ in µm inside, nm at the interface.
+
+    Args:
+        name: the glass name.
+        n0: the index at ``lambda0_um``.
+        nu1, nu2: the dispersion coefficients.
+        catalogue: the Zemax catalogue name it answers for.
+        lambda0_um: the base wavelength (µm).
+    """
+
+    def __init__(self, name: str, n0: float, nu1: float, nu2: float, catalogue: str = "",
+                 lambda0_um: float = _ROBB_LAMBDA0_UM):
+        super().__init__(name, _ROBB_RANGE_NM)
+        self.n0, self.nu1, self.nu2 = float(n0), float(nu1), float(nu2)
+        self.lambda0_um = float(lambda0_um)
+        self.catalogue = catalogue
+
+    def _index(self, w: torch.Tensor) -> torch.Tensor:
+        d = w * 1e-3 - self.lambda0_um
+        om = d / (1 + 2.5 * d)
+        return self.n0 + self.nu1 * om + self.nu2 * om * om
+
+    def extra_repr(self) -> str:
+        return f"{self.name!r}, previous {self.catalogue} (Robb & Mercado 1983)"
+
+
+def _og(module: str):
+    try:
+        return importlib.import_module(f"opticalglass.{module}")
+    except ImportError as e:   # pragma: no cover - a declared dependency
+        raise ImportError(f"the vendor glass catalogues need the 'opticalglass' package "
+                          f"(pip install opticalglass): {e}") from e
+
+
+@functools.lru_cache(maxsize=None)
+def _vendor_table(cat: str) -> dict:
+    """``{NAME: (name, formula, coefficients)}`` of one current vendor catalogue."""
+    import warnings
+
+    module, cls, formula = VENDOR_CATALOGUES[cat]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # pandas' notes on the xlrd engine
+        catalog = getattr(_og(module), cls)()
+    out = {}
+    for gname in catalog.df.index:
+        name = str(gname).strip()
+        try:   # a few rows have no coefficients ('-'): such a glass is not offered
+            c = [float(v) for v in catalog.glass_coefs(gname)]
+        except (TypeError, ValueError):
+            continue
+        if not c or any(not math.isfinite(v) for v in c):
+            continue
+        if formula == 2:   # opticalglass: B1 B2 B3 C1 C2 C3 -> AGF: B1 C1 B2 C2 B3 C3
+            c = [c[0], c[3], c[1], c[4], c[2], c[5]]
+        out[name.upper()] = (name, formula, tuple(c))
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _robb_table() -> dict:
+    """``{CATALOGUE: {NAME: (name, n0, nu1, nu2)}}`` of Robb & Mercado's Table V."""
+    text = (resources.files("opticalglass") / "data" / "robb1983_data_final.txt").read_text()
+    out: dict = {}
+    cat = None
+    for line in text.splitlines():
+        if line.startswith("#"):
+            if "GLASS CATALOGUE" in line:
+                cat = line[1:].split()[0].upper()
+                out[cat] = {}
+            continue
+        toks = line.split()
+        if cat is None or len(toks) < 4:
+            continue
+        out[cat][toks[0].upper()] = (toks[0], float(toks[1]), float(toks[2]), float(toks[3]))
+    return out
+
+
+def vendor_catalogue_names() -> tuple[str, ...]:
+    """The Zemax catalogue names answered by a current or previous vendor catalogue."""
+    return tuple(dict.fromkeys(list(VENDOR_CATALOGUES) + list(PREVIOUS_CATALOGUES)))
+
+
+def vendor_glass(glass: str, catalogue: str) -> AGFGlass | None:
+    """``glass`` from the current vendor catalogue ``catalogue`` (exact name), or ``None``."""
+    cat = catalogue.upper()
+    if cat not in VENDOR_CATALOGUES:
+        return None
+    rec = _vendor_table(cat).get(glass.strip().upper())
+    if rec is None:
+        return None
+    name, formula, coefs = rec
+    return AGFGlass(name.upper(), formula, coefs, catalogue=cat)
+
+
+def previous_glass(glass: str, catalogue: str) -> BuchdahlGlass | None:
+    """``glass`` from the previous (Robb & Mercado 1983) catalogue of ``catalogue``, or
+    ``None``."""
+    rec = _robb_table().get(catalogue.upper(), {}).get(glass.strip().upper())
+    if rec is None:
+        return None
+    name, n0, nu1, nu2 = rec
+    return BuchdahlGlass(name.upper(), n0, nu1, nu2, catalogue.upper())
+
+
+def catalogue_size(catalogue: str, previous: bool = False) -> int:
+    """How many glasses the current (or previous) catalogue holds (for messages)."""
+    if previous:
+        return len(_robb_table().get(catalogue.upper(), {}))
+    return len(_vendor_table(catalogue.upper())) if catalogue.upper() in VENDOR_CATALOGUES else 0
+
+
+def find_in_vendor_catalogues(glass: str) -> list[str]:
+    """Every vendor catalogue (current, then previous) that holds ``glass`` by exact name."""
+    hits = [c for c in VENDOR_CATALOGUES if glass.strip().upper() in _vendor_table(c)]
+    hits += [f"{c} (previous)" for c in PREVIOUS_CATALOGUES
+             if glass.strip().upper() in _robb_table().get(c, {})]
+    return hits
