@@ -4,8 +4,9 @@ RMS spot radius (centroid-referenced) of the ``M`` valid rays landing at ``p_m``
 plane:  ``sqrt( (1/M) sum_m |p_m - p̄|^2 )``, ``p̄`` their centroid.
 
 Pupils (paper Sec. III-E).  ``pupil="paraxial"`` samples the paraxial entrance pupil (a disk of
-diameter EPD at the paraxial EP position) as lens-design programs do without ray aiming; rays that
-are vignetted are dropped.  ``pupil="traced"`` first traces a dense grid over that plane, keeps the
+diameter EPD at the paraxial EP position) as lens-design programs do without ray aiming: the
+stop, whose size the paraxial pupil defines, does not clip these rays (OpticStudio does not
+either; clipping them dropped rim rays by round-off and pupil aberration), other apertures do.  ``pupil="traced"`` first traces a dense grid over that plane, keeps the
 rays that reach the image, bisects the edges of the passing region along x and y through its
 centroid, and samples the ellipse inscribed in those edges, so that a vignetted field spends its
 rays where light passes.
@@ -13,6 +14,7 @@ rays where light passes.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -99,6 +101,21 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
                            0.5 * (yp + ym) * shrink, z)
 
 
+@contextlib.contextmanager
+def _stop_not_clipping(lens):
+    """Rays aimed at the paraxial entrance pupil are not clipped by the stop (its semi-diameter
+    is restored afterwards; it is a buffer, so no gradient is involved)."""
+    sd = lens.stop.semi_diameter
+    saved = sd.clone()
+    with torch.no_grad():
+        sd.fill_(float("inf"))
+    try:
+        yield
+    finally:
+        with torch.no_grad():
+            sd.copy_(saved)
+
+
 def _safe_sqrt(v: torch.Tensor) -> torch.Tensor:
     """``sqrt(v)`` whose derivative at ``v = 0`` is 0 (a subgradient of the RMS radius, a norm)
     rather than ``inf``: a spot of one ray, or of coincident rays, has ``v = 0`` and
@@ -146,7 +163,12 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
         region = find_pupil(lens, field_deg, wavelength_nm, pupil)
     unit = pupil_pattern(sampling, dtype=dtype)
     rays = field_rays(lens, field_deg, wavelength_nm, region.points(unit), region.z)
-    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane), options=options)
+    z_img = image_plane_z(lens, image_plane)
+    if pupil == "paraxial":
+        with _stop_not_clipping(lens):
+            out = lens.trace_to_sensor(rays, z_image=z_img, options=options)
+    else:
+        out = lens.trace_to_sensor(rays, z_image=z_img, options=options)
     ok = out.valid
     n = int(ok.sum())
     if n == 0:

@@ -64,7 +64,8 @@ from .lensfile import LensFileError
 from .vendor_glass import (PREVIOUS_CATALOGUES, VENDOR_CATALOGUES, BuchdahlGlass, catalogue_size,
                            find_in_vendor_catalogues, previous_glass, vendor_glass)
 
-__all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "read_zmx", "write_zmx"]
+__all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "lens_pupil_convention",
+           "read_zmx", "write_zmx"]
 
 
 class ZemaxFileError(LensFileError):
@@ -100,7 +101,7 @@ _SILENT = {
     "COFN", "FIMP", "HIDE", "MIRR", "SLAB", "MEMA", "POPS", "FLAP", "BLNK", "TOL",
     "MOFF", "COMM", "NOTE", "WWGT", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
     "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "PPAR", "CONF", "DMFS", "BLDM",
-    "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "RAIM", "THSO",
+    "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "THSO",
 }
 
 
@@ -160,7 +161,7 @@ def _parse(path: Path):
         p.fail(0, f"not a UTF-8 or UTF-16 text file ({e.reason} at byte {e.start})")
     sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None, "yfln": None,
             "waves": {}, "wavl": None, "pwav": (1, 0), "gcat": ([], 0), "name": "",
-            "mode": None}
+            "mode": None, "raim": (0, 0)}
     surfs: list[_Surf] = []
     cur: _Surf | None = None
     for ln, line in enumerate(text.splitlines(), start=1):
@@ -198,6 +199,10 @@ def _parse(path: Path):
         elif key in ("OBNA", "OBSC"):
             p.fail(ln, f"{key}: the object-space numerical aperture / cone angle aperture is not "
                        f"supported (use ENPD, FNUM or a floating stop)")
+        elif key == "RAIM":
+            # RAIM <unused> <type: 0 off, 1 paraxial, 2 real> ...
+            sysd["raim"] = (int(p.num(toks[2], ln, "RAIM ray-aiming type")) if len(toks) > 2
+                            else 0, ln)
         elif key == "FTYP":
             p.arg(toks, 1, ln, "field type")
             sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
@@ -671,6 +676,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                              primary_wavelength_nm=primary)
     except ValueError as e:
         p.fail(sysd["yfln"][1] if sysd["yfln"] else 0, str(e))
+    lens.ray_aiming = sysd["raim"][0] != 0
     for ln, msg in p.notes:
         warnings.warn(f"{path}:{ln}: {msg}" if ln else msg, ZemaxWarning, stacklevel=2)
     return lens
@@ -710,6 +716,14 @@ def _auto_semi_diameters(lens, idx, field_deg, where_of, path):
     except ValueError as e:
         raise ZemaxFileError(_locate(f"{path}: with automatic semi-diameters (no DIAM): {e}",
                                      where_of)) from e
+
+
+def lens_pupil_convention(lens) -> str:
+    """The pupil sampling that matches how the file's author saw the lens: ``"traced"`` (real
+    rays that fill the stop) where the file asks for ray aiming (``RAIM`` type 1 or 2),
+    ``"paraxial"`` (rays aimed at the paraxial entrance pupil, OpticStudio without ray aiming)
+    where it does not; ``"traced"`` for a lens that did not come from a ``.zmx`` file."""
+    return "traced" if getattr(lens, "ray_aiming", True) else "paraxial"
 
 
 def _locate(msg: str, where_of: dict) -> str:

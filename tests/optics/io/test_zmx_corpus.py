@@ -1,0 +1,173 @@
+"""Every real ``.zmx`` file of ``tests/data/zmx_real`` (see its SOURCES.md): it loads with the
+numbers of an independent reading (optiland's own ``.zmx`` reader, a test-only oracle), or it is
+refused with a message that names the file, the line and the feature.
+
+The oracle gets deeplens' refractive indices at the primary wavelength (each optiland medium is
+replaced by an ideal material of the index deeplens uses at the same axial position), so the
+comparison checks the reading of the prescription (surfaces, spacings, stop, pupil, units,
+fields) independently of the two libraries' glass data; the glass data are checked against the
+catalogues' own formulas and the vendors' published n_d / V_d in ``test_vendor_glass.py``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+
+from deeplens.analysis.spot import spot_diagram
+from deeplens.optics.io.agf import decode_zemax_text
+from deeplens.optics.io.zmx import ZemaxFileError, lens_pupil_convention, read_zmx
+from deeplens.optics.paraxial import paraxial
+
+CORPUS = Path(__file__).resolve().parents[2] / "data" / "zmx_real"
+FILES = sorted(p.name for p in CORPUS.glob("*.zmx"))
+
+#: file -> the feature its refusal must name (every other file must load)
+REFUSED = {
+    "HoO-V2C18Ex03.zmx": "MIRROR",
+    "HoO-V2C18Ex27.zmx": "MIRROR",
+    "HoO-V2C18Ex46.zmx": "MIRROR",
+    "HoO-V2C18Ex66.zmx": "MIRROR",
+    "HoO-V2C18Ex66NEW.zmx": "MIRROR",
+    "US08011793-1.zmx": "MIRROR",
+    "zmax_37992.zmx": "MIRROR",
+    "optiland_complicated_fold_mirrors_setup_v2.zmx": "MIRROR",
+    "optiland_one_mirror_up_45deg.zmx": "MIRROR",
+    "optiland_simple_fold_mirror_up.zmx": "MIRROR",
+    "optiland_curved_reflective_grating.zmx": "DGRATING",
+    "optiland_curved_transmission_grating.zmx": "DGRATING",
+    "optiland_flat_transmission_grating.zmx": "DGRATING",
+    "optiland_thorlabs_lj1598l1.zmx": "TOROIDAL",
+    "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
+    "US05331467-1.zmx": "OBSC",
+    "US05831776-1.zmx": "OBNA",
+    "US08427765-1.zmx": "L-TIM28_MOLD",
+    "optiland_lens2.zmx": "L-BAL35",
+    "thorlabs_354710-C.zmx": "D-ZK3M",
+    "optiland_lens_floa.zmx": "cross",
+}
+
+
+def test_corpus_is_listed():
+    assert len(FILES) >= 25
+    sources = (CORPUS / "SOURCES.md").read_text()
+    for f in FILES:
+        assert f"| {f} |" in sources, f"{f} has no line in SOURCES.md"
+    assert set(REFUSED) <= set(FILES)
+
+
+def _load(name):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_zmx(CORPUS / name)
+
+
+@pytest.mark.parametrize("name", [f for f in FILES if f in REFUSED])
+def test_refusal_is_located(name):
+    with pytest.raises(ZemaxFileError) as e:
+        _load(name)
+    msg = str(e.value)
+    assert str(CORPUS / name) in msg
+    assert re.search(rf"{re.escape(name)}:\d+: ", msg) or re.search(r"on line \d+", msg), msg
+    assert REFUSED[name] in msg, msg
+
+
+def _unit_mm(name):
+    text = decode_zemax_text(CORPUS / name)
+    m = re.search(r"^UNIT\s+(\w+)", text, re.M)
+    return {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}[
+        m.group(1).upper() if m else "MM"]
+
+
+def _oracle(name, lens):
+    """optiland's reading of the file (lengths in the file's units), with deeplens' indices at
+    the primary wavelength put at the same axial positions."""
+    pytest.importorskip("optiland")
+    from optiland.fileio import load_zemax_file
+    from optiland.materials import IdealMaterial
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        optic = load_zemax_file(str(CORPUS / name))
+    s_mm = _unit_mm(name)
+    w = float(lens.spec.primary_wavelength_nm)
+    n_dl = [float(m.n(w)) for m in lens.materials]
+    z_dl = (lens.z_vertices().detach().double() - float(lens.z_sensor())) / s_mm
+    surfs = optic.surface_group.surfaces
+    z_ol = [float(s.geometry.cs.z) for s in surfs]
+    for i, s in enumerate(surfs[:-1]):
+        if i == 0:
+            j = 0
+        else:
+            zm = z_ol[i] - z_ol[-1] + 0.5 * max(z_ol[i + 1] - z_ol[i], 0.0) + 1e-9
+            j = int((z_dl <= zm).sum())   # media[j] follows deeplens surface j - 1
+        s.material_post = IdealMaterial(n=n_dl[j])
+    return optic, s_mm
+
+
+def _first_order(lens, optic, s_mm):
+    """``{name: (deeplens, optiland)}`` in the file's length unit."""
+    p = paraxial(lens)
+    z = [float(s.geometry.cs.z) for s in optic.surface_group.surfaces]
+    i1 = 1 if math.isinf(z[0]) or len(z) < 3 else 1
+    ep_dl = (float(p.entrance_pupil_z) - float(lens.z_sensor())) / s_mm
+    ep_ol = z[i1] + float(optic.paraxial.EPL()) - z[-1]
+    bfl_dl = (float(p.bfl) + float(lens.z_vertices()[-1]) - float(lens.z_sensor())) / s_mm
+    bfl_ol = float(optic.paraxial.F2())
+    return {"EFL": (float(p.efl) / s_mm, float(optic.paraxial.f2())),
+            "EPD": (float(p.entrance_pupil_diameter) / s_mm, float(optic.paraxial.EPD())),
+            "EP position": (ep_dl, ep_ol),
+            "BFL": (bfl_dl, bfl_ol)}
+
+
+def _rms_on_axis(lens, optic, s_mm, pupil):
+    from optiland.analysis import SpotDiagram
+
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        dl = float(spot_diagram(lens, 0.0, w, "hexapolar:12", pupil=pupil).rms_radius) / s_mm
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sd = SpotDiagram(optic, fields=[(0.0, 0.0)], wavelengths=[w / 1000.0], num_rings=12,
+                         reference="centroid")
+        ol = float(sd.rms_spot_radius()[0][0])
+    return dl, ol
+
+
+@pytest.mark.parametrize("name", [f for f in FILES if f not in REFUSED])
+def test_loads_with_the_oracles_numbers(name):
+    lens = _load(name)
+    optic, s_mm = _oracle(name, lens)
+    for what, (dl, ol) in _first_order(lens, optic, s_mm).items():
+        assert dl == pytest.approx(ol, rel=1e-6, abs=1e-9 * max(1.0, abs(dl))), what
+    # OpticStudio without ray aiming: rays at the paraxial entrance pupil (optiland's default)
+    dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial")
+    assert dl == pytest.approx(ol, rel=5e-3), "on-axis RMS spot radius"
+    convention = lens_pupil_convention(lens)
+    assert convention == ("traced" if _raim_type(name) else "paraxial")
+    if convention == "traced":
+        # ray aiming: the real rim ray of the sampled pupil grazes the stop's rim
+        _check_rim_ray_fills_stop(lens)
+
+
+def _raim_type(name):
+    m = re.search(r"^RAIM\s+\S+\s+(\d+)", decode_zemax_text(CORPUS / name), re.M)
+    return int(m.group(1)) if m else 0
+
+
+def _check_rim_ray_fills_stop(lens):
+    from deeplens.analysis.spot import find_pupil
+    from deeplens.optics.sampling import field_rays
+
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        region = find_pupil(lens, 0.0, w, "traced")
+        xy = torch.tensor([[0.0, region.ry * (1 - 1e-6)], [0.0, region.ry * (1 + 1e-6)]],
+                          dtype=lens.dtype)
+        out = lens.trace_to_sensor(field_rays(lens, 0.0, w, xy, region.z))
+    assert out.valid.tolist() == [True, False]
