@@ -91,6 +91,15 @@ vendor catalogues of :mod:`.vendor_glass`)."""
 # the n_d / V_d OpticStudio writes on the GLAS line of a catalogue glass it has not evaluated
 _PLACEHOLDER_ND_VD = (1.5, 40.0)
 
+# surface types met in real files that deeplens refuses, and what they are
+_UNSUPPORTED_TYPES = {
+    "TOROIDAL": "a toroidal or cylinder surface", "QED_TYPE": "a Q-type (Forbes) asphere",
+    "QTYPEASP": "a Q-type (Forbes) asphere", "DGRATING": "a diffraction grating",
+    "PARAXIAL": "a paraxial (ideal) lens", "BINARY_2": "a binary-optic (diffractive) surface",
+    "ODDASPH": "an odd asphere", "BICONICX": "a biconic", "GRINSUR1": "a gradient-index surface",
+    "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
+}
+
 # the semi-diameter a surface with no DIAM is built with before its automatic value is set
 _PROVISIONAL_SD_MM = 1e-3
 
@@ -120,6 +129,7 @@ class _Surf:
     glass: str | None = None
     glass_model: tuple | None = None   # (n_d, V_d) on the GLAS line
     glass_line: int = 0
+    glass_model_name: str | None = None   # GLAS NAME 1 0 n_d V_d: a named model glass
     parm: dict = field(default_factory=dict)   # index -> (value, line)
     xdat: dict = field(default_factory=dict)   # index -> (value, line)
     clap: tuple | None = None
@@ -196,9 +206,9 @@ def _parse(path: Path):
             sysd["aperture"] = ("fno", v, ln)
         elif key == "FLOA":
             sysd["aperture"] = ("stop", None, ln)
-        elif key in ("OBNA", "OBSC"):
-            p.fail(ln, f"{key}: the object-space numerical aperture / cone angle aperture is not "
-                       f"supported (use ENPD, FNUM or a floating stop)")
+        elif key == "OBNA":
+            p.fail(ln, "OBNA: the object-space numerical aperture / cone angle aperture is not "
+                       "supported (use ENPD, FNUM or a floating stop)")
         elif key == "RAIM":
             # RAIM <unused> <type: 0 off, 1 paraxial, 2 real> ...
             sysd["raim"] = (int(p.num(toks[2], ln, "RAIM ray-aiming type")) if len(toks) > 2
@@ -224,8 +234,9 @@ def _parse(path: Path):
                 p.fail(ln, "TYPE line is truncated: missing the surface type")
             cur.type, cur.type_line = toks[1].upper(), ln
             if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM"):
-                p.fail(ln, f"unknown surface type {toks[1]!r} (SURF {len(surfs) - 1}); deeplens "
-                           f"reads STANDARD, EVENASPH, COORDBRK and XYPOLYNOM")
+                what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
+                p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
+                           f"supported; deeplens reads STANDARD, EVENASPH, COORDBRK and XYPOLYNOM")
         elif cur is not None and key == "CURV":
             cur.curv = p.arg(toks, 1, ln, "curvature")
         elif cur is not None and key == "DISZ":
@@ -262,6 +273,7 @@ def _parse(path: Path):
                     p.fail(ln, "a model glass (GLAS ___BLANK 1 0 n_d V_d) line is truncated: "
                                "missing n_d and V_d")
                 cur.glass = None
+                cur.glass_model_name = None if name.upper() == "___BLANK" else name.upper()
             else:
                 cur.glass = name.upper()
             cur.glass_model, cur.glass_line = model, ln
@@ -273,8 +285,12 @@ def _parse(path: Path):
             cur.clap = (hi, ln)
         elif cur is not None and key in ("SQAP", "ELAP", "OBDC", "OBSC", "SQOB", "ELOB", "UDAD",
                                           "SPID"):
-            p.fail(ln, f"{key}: non-circular apertures, obscurations and decentred apertures are "
-                       f"not supported")
+            what = {"OBSC": "a circular obscuration", "SQAP": "a rectangular aperture",
+                    "ELAP": "an elliptical aperture", "OBDC": "a decentred aperture",
+                    "SQOB": "a rectangular obscuration", "ELOB": "an elliptical obscuration",
+                    "UDAD": "a user-defined aperture", "SPID": "a spider"}[key]
+            p.fail(ln, f"{key} on SURF {len(surfs) - 1}: {what} is not supported (deeplens reads "
+                       f"circular clear apertures: DIAM, CLAP with minimum radius 0)")
         elif cur is not None and key in ("TCE", "COAT", "PZUP", "SCBD"):
             if key == "SCBD":
                 p.note(ln, f"{key} (scattering) ignored")
@@ -391,7 +407,7 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
 
 def _surface_material(s, gcat, catalogues, fallback, p):
     if s.glass is None and s.glass_model is not None and s.glass_line:
-        return ModelGlass(*s.glass_model)
+        return ModelGlass(*s.glass_model, name=s.glass_model_name)
     if s.glass is None:
         return Air()
     return _resolve_glass(s.glass, s, gcat, catalogues, fallback, p)
@@ -855,7 +871,10 @@ def _glass_line(m: Material, cats: list) -> str | None:
                     cats.append(cat)
                 return f"GLAS {zname} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
     if isinstance(m, ModelGlass):
-        return f"GLAS ___BLANK 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
+        # a named entry of deeplens' table that is a model glass (SK1, F15, SK16: the paper
+        # authors' n_d/V_d) keeps its name on a model-glass line (code 1)
+        label = m.to_spec() if is_entry else "___BLANK"
+        return f"GLAS {label} 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
     raise ZemaxFileError(f"material {m.name!r} ({type(m).__name__}) has no Zemax catalogue name; "
                          f"use a catalogue glass or an n_d/V_d model glass")
 

@@ -173,13 +173,16 @@ def test_fno_aperture_sets_paraxial_f_number(fno):
     assert float(p.efl / p.entrance_pupil_diameter) == pytest.approx(fno, rel=1e-12)
 
 
-def test_epd_needs_a_circular_aperture_stop(tmp_path):
+def test_epd_sizes_a_stop_on_a_lens_surface(tmp_path):
     d = json.loads((ROOT / "data/lenses/thorlabs_la1131.json").read_text())
     d["aperture"] = {"type": "epd", "value": 10.0}  # its stop is surface 0, a lens surface
     p = tmp_path / "la.json"
     p.write_text(json.dumps(d))
-    with pytest.raises(LensFileError, match=r"la\.json.*circular Aperture"):
-        load_lens(p)
+    lens = load_lens(p)
+    assert not isinstance(lens.stop, Aperture)
+    # the stop is the first surface: it is its own entrance pupil, radius EPD / 2
+    assert float(lens.stop.semi_diameter) == pytest.approx(5.0, rel=1e-12)
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(10.0, rel=1e-12)
 
 
 def test_fno_of_a_negative_lens_is_an_error(tmp_path):

@@ -44,7 +44,7 @@ REFUSED = {
     "optiland_flat_transmission_grating.zmx": "DGRATING",
     "optiland_thorlabs_lj1598l1.zmx": "TOROIDAL",
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
-    "US05331467-1.zmx": "OBSC",
+    "US05331467-1.zmx": "OBSC on SURF 2: a circular obscuration",
     "US05831776-1.zmx": "OBNA",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "optiland_lens2.zmx": "L-BAL35",
