@@ -20,7 +20,7 @@ get n_d = 1.51739 instead of the published 1.51680).  The fit is quadratic and v
 its stated error is ≤ 6e-5 in 400–700 nm, so these glasses carry that range and each use is
 reported.
 
-Lookup is by exact name (case-insensitive).  The catalogues are read once per process
+Lookup is by exact name (case-insensitive; blanks inside a spreadsheet's name are dropped).  The catalogues are read once per process
 (:func:`functools.lru_cache`; about a second in all) and never changed afterwards.
 """
 
@@ -92,6 +92,12 @@ def _og(module: str):
                           f"(pip install opticalglass): {e}") from e
 
 
+def _key(name: str) -> str:
+    """Lookup key: upper case without blanks (OHARA's spreadsheet writes ``S-BSL 7`` for the
+    glass every design program calls ``S-BSL7``)."""
+    return "".join(str(name).split()).upper()
+
+
 @functools.lru_cache(maxsize=None)
 def _vendor_table(cat: str) -> dict:
     """``{NAME: (name, formula, coefficients)}`` of one current vendor catalogue."""
@@ -112,7 +118,7 @@ def _vendor_table(cat: str) -> dict:
             continue
         if formula == 2:   # opticalglass: B1 B2 B3 C1 C2 C3 -> AGF: B1 C1 B2 C2 B3 C3
             c = [c[0], c[3], c[1], c[4], c[2], c[5]]
-        out[name.upper()] = (name, formula, tuple(c))
+        out[_key(name)] = (name.replace(" ", ""), formula, tuple(c))
     return out
 
 
@@ -145,7 +151,7 @@ def vendor_glass(glass: str, catalogue: str) -> AGFGlass | None:
     cat = catalogue.upper()
     if cat not in VENDOR_CATALOGUES:
         return None
-    rec = _vendor_table(cat).get(glass.strip().upper())
+    rec = _vendor_table(cat).get(_key(glass))
     if rec is None:
         return None
     name, formula, coefs = rec
@@ -171,7 +177,7 @@ def catalogue_size(catalogue: str, previous: bool = False) -> int:
 
 def find_in_vendor_catalogues(glass: str) -> list[str]:
     """Every vendor catalogue (current, then previous) that holds ``glass`` by exact name."""
-    hits = [c for c in VENDOR_CATALOGUES if glass.strip().upper() in _vendor_table(c)]
+    hits = [c for c in VENDOR_CATALOGUES if _key(glass) in _vendor_table(c)]
     hits += [f"{c} (previous)" for c in PREVIOUS_CATALOGUES
              if glass.strip().upper() in _robb_table().get(c, {})]
     return hits

@@ -1,0 +1,63 @@
+"""Vendor glass catalogues (opticalglass data): every glass against the catalogue's own formula
+as opticalglass evaluates it, a few against the vendors' published n_d / V_d, and the previous
+(Robb & Mercado 1983) catalogue against published data for withdrawn glasses."""
+
+from __future__ import annotations
+
+import pytest
+
+from deeplens.optics.io.vendor_glass import (VENDOR_CATALOGUES, _vendor_table,
+                                             find_in_vendor_catalogues, previous_glass,
+                                             vendor_glass)
+
+og = pytest.importorskip("opticalglass")
+
+WAVES = (435.8343, 587.5618, 706.5188)
+
+
+@pytest.mark.parametrize("cat", list(VENDOR_CATALOGUES))
+def test_every_glass_equals_the_catalogue_formula(cat):
+    import importlib
+
+    module, cls, _ = VENDOR_CATALOGUES[cat]
+    mod = importlib.import_module(f"opticalglass.{module}")
+    glass_cls = getattr(mod, cls.replace("Catalog", "Glass"))
+    table = _vendor_table(cat)
+    assert len(table) > 100
+    for gname in getattr(mod, cls)().df.index:   # the catalogue's own (unstripped) names
+        if "".join(str(gname).split()).upper() not in table:
+            continue   # rows without coefficients
+        ours = vendor_glass(str(gname), cat)
+        ref, name = glass_cls(gname), gname
+        for w in WAVES:
+            assert float(ours.n(w)) == pytest.approx(float(ref.calc_rindex(w)), abs=1e-12), (
+                cat, name, w)
+
+
+@pytest.mark.parametrize("name,cat,nd,vd", [
+    ("N-BK7", "SCHOTT", 1.51680, 64.17), ("N-SF6", "SCHOTT", 1.80518, 25.36),
+    ("N-BAF10", "SCHOTT", 1.67003, 47.11), ("S-BSL7", "OHARA", 1.51633, 64.14),
+    ("S-LAH64", "OHARA", 1.78800, 47.37), ("S-LAH66", "OHARA", 1.77250, 49.60),
+])
+def test_published_nd_vd(name, cat, nd, vd):
+    g = vendor_glass(name, cat)
+    assert g.nd == pytest.approx(nd, abs=3e-5)
+    assert g.vd == pytest.approx(vd, abs=0.05)
+
+
+@pytest.mark.parametrize("name,nd,vd", [
+    ("BK7", 1.51680, 64.17), ("SK16", 1.62041, 60.32), ("SF1", 1.71736, 29.51),
+])
+def test_previous_catalogue_reproduces_published_data(name, nd, vd):
+    """At Robb & Mercado's base wavelength 0.574 µm; at 587.6 nm BK7's n_d would be 1.51739."""
+    g = previous_glass(name, "SCHOTT")
+    assert g.nd == pytest.approx(nd, abs=5e-6)
+    assert g.vd == pytest.approx(vd, abs=0.25)
+    with pytest.raises(ValueError):   # a visible-range fit: refused outside 400-700 nm
+        g.n(1064.0)
+
+
+def test_exact_names_only():
+    assert vendor_glass("N-BK7X", "SCHOTT") is None
+    assert vendor_glass("n-bk7", "schott") is not None
+    assert find_in_vendor_catalogues("S-LAH64") == ["OHARA"]
