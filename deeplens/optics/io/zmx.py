@@ -682,6 +682,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 m.tilt_y.fill_(math.radians(ty))
 
     # ---- fields
+    lens.ray_aiming = sysd["raim"][0] != 0
     fields = _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
     autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
     if autos:
@@ -692,10 +693,50 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                              primary_wavelength_nm=primary)
     except ValueError as e:
         p.fail(sysd["yfln"][1] if sysd["yfln"] else 0, str(e))
-    lens.ray_aiming = sysd["raim"][0] != 0
     for ln, msg in p.notes:
         warnings.warn(f"{path}:{ln}: {msg}" if ln else msg, ZemaxWarning, stacklevel=2)
     return lens
+
+
+def _chief_height(lens, field_deg: float) -> float:
+    """Image height (mm, on the sensor) of the chief ray at the primary wavelength: through the
+    stop centre with ray aiming (the real chief ray), through the paraxial entrance pupil's
+    centre without (as OpticStudio defines it in each case)."""
+    from ...analysis.spot import chief_ray
+    from ..intersect import IntersectOptions
+    from ..paraxial import paraxial
+    from ..sampling import field_rays
+
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        if lens.ray_aiming:
+            return float(chief_ray(lens, field_deg, w)[0])
+        z_ep = float(paraxial(lens).entrance_pupil_z)
+        rays = field_rays(lens, field_deg, w, torch.zeros(1, 2, dtype=lens.dtype), z_ep)
+        out = lens.trace_to_sensor(rays, options=IntersectOptions(clip_aperture=False))
+        return float(out.o[0, 1]) if bool(out.valid[0]) else math.nan
+
+
+def _real_image_height_angle(lens, h: float, line: int, p) -> float:
+    """The field angle (deg, > 0) whose chief ray lands at real image height ``h`` (mm, > 0):
+    secant iterations from the paraxial estimate."""
+    t0 = 1e-3
+    slope = abs(_chief_height(lens, t0)) / t0
+    if not slope > 0:
+        p.fail(line, "FTYP 3 (real image height): the chief ray does not reach the image")
+    a = min(h / slope, 89.0)
+    b = a * 1.001
+    ga, gb = abs(_chief_height(lens, a)) - h, abs(_chief_height(lens, b)) - h
+    for _ in range(60):
+        if not (math.isfinite(ga) and math.isfinite(gb)) or gb == ga:
+            break
+        a, b, ga = b, b - gb * (b - a) / (gb - ga), gb
+        b = min(max(b, 1e-9), 89.9)
+        gb = abs(_chief_height(lens, b)) - h
+        if abs(gb) <= 1e-12 * max(1.0, h):
+            return b
+    p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height {h:g} mm (the "
+                 f"field lies beyond what the lens images)")
 
 
 def _auto_semi_diameters(lens, idx, field_deg, where_of, path):
@@ -837,6 +878,19 @@ def _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
                               "converted to field angles (use angles or object heights)")
         efl = float(paraxial(lens).efl)
         return [math.degrees(math.atan(v / efl)) for v in h]
+    if kind == 3:
+        return [math.copysign(_real_image_height_angle(lens, abs(v), ftyp_line, p), v)
+                if v != 0 else 0.0 for v in h]
+    if kind == 4:
+        # theodolite angles: for a single non-zero component the field angle itself (the two
+        # together define a direction whose convention we have not checked against an oracle)
+        out = []
+        for x, y in zip(xs, ys):
+            if x != 0 and y != 0:
+                p.fail(ftyp_line, "FTYP 4 (theodolite angles) with both x and y non-zero in one "
+                                  "field is not supported (give angles, FTYP 0)")
+            out.append(y if y != 0 else x)
+        return out
     names = {3: "real image height", 4: "theodolite angle"}
     p.fail(ftyp_line, f"FTYP {kind} ({names.get(kind, 'unknown field type')}) cannot be converted "
                       f"to deeplens' field angles (use angle, object height or paraxial image "

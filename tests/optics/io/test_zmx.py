@@ -280,15 +280,25 @@ def test_field_types(tmp_path):
 
 
 @pytest.mark.parametrize("ftyp,obj,match", [
-    ("FTYP 3 0 2 2 0 0 0", "INFINITY", r":7: FTYP 3 \(real image height\) cannot be converted"),
-    ("FTYP 4 0 2 2 0 0 0", "INFINITY", r":7: FTYP 4 \(theodolite angle\)"),
+    ("FTYP 3 0 2 2 0 0 0", "INFINITY", r":7: FTYP 3 \(real image height\): no chief ray reaches "
+                                       r"image height 500 mm"),
     ("FTYP 1 0 2 2 0 0 0", "INFINITY", (r":7: FTYP 1 \(object height\) with the object at "
                                        r"infinity cannot be converted")),
     ("FTYP 2 0 2 2 0 0 0", "300", r":7: FTYP 2 \(paraxial image height\) with a finite object"),
 ])
 def test_unconvertible_field_types(tmp_path, ftyp, obj, match):
+    yfln = "YFLN 0 500" if ftyp.startswith("FTYP 3") else "YFLN 0 5"
     with pytest.raises(ZemaxFileError, match=match):
-        read_zmx(write(tmp_path, singlet(ftyp=ftyp, obj=obj)))
+        read_zmx(write(tmp_path, singlet(ftyp=ftyp, obj=obj, yfln=yfln)))
+
+
+def test_theodolite_fields(tmp_path):
+    """FTYP 4 with one non-zero component is that field angle; both together are refused."""
+    lens = read_zmx(write(tmp_path, singlet(ftyp="FTYP 4 0 2 2 0 0 0", yfln="YFLN 0 5")))
+    assert lens.spec.fields_deg == [0.0, 5.0]
+    text = singlet(ftyp="FTYP 4 0 2 2 0 0 0", yfln="YFLN 0 5").replace("XFLN 0 0", "XFLN 0 3")
+    with pytest.raises(ZemaxFileError, match=r":7: FTYP 4 \(theodolite angles\) with both x and y"):
+        read_zmx(write(tmp_path, text, "both.zmx"))
 
 
 # --------------------------------------------------------------------------- glasses

@@ -78,7 +78,7 @@ def test_refusal_is_located(name):
 
 
 def _unit_mm(name):
-    text = decode_zemax_text(CORPUS / name)
+    text = decode_zemax_text(CORPUS / name)  # a name relative to the corpus, or a full path
     m = re.search(r"^UNIT\s+(\w+)", text, re.M)
     return {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}[
         m.group(1).upper() if m else "MM"]
@@ -93,7 +93,7 @@ def _oracle(name, lens):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        optic = load_zemax_file(str(CORPUS / name))
+        optic = load_zemax_file(str(CORPUS / name))   # CORPUS / an absolute path = that path
     s_mm = _unit_mm(name)
     w = float(lens.spec.primary_wavelength_nm)
     n_dl = [float(m.n(w)) for m in lens.materials]
@@ -171,3 +171,27 @@ def _check_rim_ray_fills_stop(lens):
                           dtype=lens.dtype)
         out = lens.trace_to_sensor(field_rays(lens, 0.0, w, xy, region.z))
     assert out.valid.tolist() == [True, False]
+
+
+def test_real_image_height_fields_match_optiland(tmp_path):
+    """FTYP 3: the field angle is solved so that the chief ray lands at the real image height;
+    optiland, given that angle as an ordinary field, traces its chief ray to the same height."""
+    text = decode_zemax_text(CORPUS / "zmax_55278.zmx")
+    text = re.sub(r"^XFLN .*$", "XFLN 0 0 0", text, flags=re.M)
+    text = re.sub(r"^FWGN .*$", "FWGN 1 1 1", text, flags=re.M)
+    h3 = tmp_path / "ftyp3.zmx"
+    h3.write_text(re.sub(r"^FTYP .*$", "FTYP 3 0 3 3 0 0 0 1",
+                         re.sub(r"^YFLN .*$", "YFLN 0 -2 4", text, flags=re.M), flags=re.M))
+    lens = read_zmx(h3)
+    f = lens.spec.fields_deg
+    assert f[0] == 0 and f[1] < 0 < f[2] and abs(f[1]) < f[2]
+    paraxial_guess = math.degrees(math.atan(4.0 / float(paraxial(lens).efl)))
+    assert abs(f[2] - paraxial_guess) > 1e-4        # a real-ray solve, not the paraxial one
+    a0 = tmp_path / "ftyp0.zmx"
+    a0.write_text(re.sub(r"^FTYP .*$", "FTYP 0 0 3 3 0 0 0 1",
+                         re.sub(r"^YFLN .*$", f"YFLN 0 {f[1]!r} {f[2]!r}", text, flags=re.M),
+                         flags=re.M))
+    optic, _ = _oracle(a0, lens)
+    optic.trace_generic(0.0, 1.0, 0.0, 0.0, optic.wavelengths.primary_wavelength.value)
+    y = float(torch.as_tensor(optic.surface_group.y)[-1].reshape(-1)[0])
+    assert y == pytest.approx(4.0, rel=1e-9)
