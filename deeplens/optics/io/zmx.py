@@ -927,7 +927,10 @@ def _glass_line(m: Material, cats: list) -> str | None:
     if isinstance(m, ModelGlass):
         # a named entry of deeplens' table that is a model glass (SK1, F15, SK16: the paper
         # authors' n_d/V_d) keeps its name on a model-glass line (code 1)
-        label = m.to_spec() if is_entry else "___BLANK"
+        # (as does a model glass a file named: GLAS NAME 1 0 n_d V_d)
+        named = m.name != m.to_spec() or is_entry
+        label = m.name.upper() if named and len(m.name.split()) == 1 and "/" not in m.name \
+            else "___BLANK"
         return f"GLAS {label} 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
     raise ZemaxFileError(f"material {m.name!r} ({type(m).__name__}) has no Zemax catalogue name; "
                          f"use a catalogue glass or an n_d/V_d model glass")
@@ -954,6 +957,8 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
         out.append(f"FNUM {_f(spec.aperture_value)} 0")
     else:
         out.append("FLOA")
+    if getattr(lens, "ray_aiming", False):
+        out.append("RAIM 0 2 1 1 0 0 0 0 0 1")   # real ray aiming, as the file it came from
     cats: list[str] = []
     body: list[str] = []
     nsurf = 0
