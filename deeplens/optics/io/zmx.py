@@ -57,7 +57,7 @@ import torch
 
 from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, check_wavelength_nm, get_material
-from ..surfaces import Aperture, Asphere, Plane, XYPolynomial
+from ..surfaces import Aperture, Asphere, IdealLens, Plane, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
 from .lensfile import LensFileError
@@ -95,7 +95,7 @@ _PLACEHOLDER_ND_VD = (1.5, 40.0)
 _UNSUPPORTED_TYPES = {
     "TOROIDAL": "a toroidal or cylinder surface", "QED_TYPE": "a Q-type (Forbes) asphere",
     "QTYPEASP": "a Q-type (Forbes) asphere", "DGRATING": "a diffraction grating",
-    "PARAXIAL": "a paraxial (ideal) lens", "BINARY_2": "a binary-optic (diffractive) surface",
+"BINARY_2": "a binary-optic (diffractive) surface",
     "ODDASPH": "an odd asphere", "BICONICX": "a biconic", "GRINSUR1": "a gradient-index surface",
     "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
 }
@@ -233,10 +233,11 @@ def _parse(path: Path):
             if len(toks) < 2:
                 p.fail(ln, "TYPE line is truncated: missing the surface type")
             cur.type, cur.type_line = toks[1].upper(), ln
-            if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM"):
+            if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM", "PARAXIAL"):
                 what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
                 p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
-                           f"supported; deeplens reads STANDARD, EVENASPH, COORDBRK and XYPOLYNOM")
+                           f"supported; deeplens reads STANDARD, EVENASPH, COORDBRK, XYPOLYNOM and "
+                           f"PARAXIAL")
         elif cur is not None and key == "CURV":
             cur.curv = p.arg(toks, 1, ln, "curvature")
         elif cur is not None and key == "DISZ":
@@ -597,6 +598,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         try:
             if s.type == "XYPOLYNOM":
                 surf = _xypolynom(s, c, sd_build, s_mm, p)
+            elif s.type == "PARAXIAL":
+                surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
             elif flat and _is_air(mat) and _is_air(prev):
                 surf = Aperture(sd_build)
             elif flat:
@@ -790,6 +793,20 @@ def _locate(msg: str, where_of: dict) -> str:
     lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}"
              for i in dict.fromkeys(idx) if i in where_of]
     return msg + (f" ({'; '.join(lines)})" if lines else "")
+
+
+def _paraxial_surface(s: _Surf, k: int, mat, prev, sd, s_mm, p: _Parser):
+    """``PARAXIAL`` (``PARM 1`` = focal length): deeplens' :class:`IdealLens`, in air."""
+    if 1 not in s.parm or s.parm[1][0] == 0:
+        p.fail(s.type_line or s.line, f"SURF {k}: a PARAXIAL surface needs a non-zero focal "
+                                      f"length (PARM 1)")
+    if not (_is_air(mat) and _is_air(prev)):
+        p.fail(s.glass_line or s.type_line, f"SURF {k}: a PARAXIAL surface between glasses is "
+                                            f"not supported (deeplens' ideal lens sits in air)")
+    for i, (v, ln) in s.parm.items():
+        if i > 2 and v != 0:
+            p.fail(ln, f"SURF {k}: PARAXIAL PARM {i} is not read (only the focal length, PARM 1)")
+    return IdealLens(s.parm[1][0] * s_mm, sd)
 
 
 def _xypolynom(s: _Surf, c, sd, s_mm, p: _Parser):
@@ -1046,6 +1063,9 @@ def _surface_lines(s, i, is_stop) -> list[str]:
         if sd is not None:
             lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
         return lines
+    if isinstance(s, IdealLens):
+        return lines + ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}",
+                        f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Plane):
         return lines + ["TYPE STANDARD", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Asphere):

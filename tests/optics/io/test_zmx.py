@@ -613,3 +613,41 @@ def test_vignetting_factors_and_environment_are_reported(tmp_path):
 def test_old_field_operands(tmp_path):
     old = singlet(yfln="YFLD 0 5").replace("XFLN 0 0", "XFLD 0 0")
     assert read_zmx(write(tmp_path, old)).spec.fields_deg == [0.0, 5.0]
+
+
+def _paraxial_file(f="50", glass=""):
+    return "\n".join([
+        "VERS 170912 299 123456", "MODE SEQ", "UNIT MM X W X CM MR CPMM", "ENPD 10",
+        "GCAT SCHOTT", "FTYP 0 0 2 1 0 0 0", "XFLN 0 0", "YFLN 0 5", "WAVM 1 0.55 1", "PWAV 1",
+        "SURF 0", "  TYPE STANDARD", "  CURV 0", "  DISZ 100",
+        "SURF 1", "  STOP", "  TYPE PARAXIAL", "  CURV 0", f"  PARM 1 {f}", "  PARM 2 1",
+        "  DISZ 100", *([f"  {glass}"] if glass else []), "  DIAM 6 1 0 0 1 \"\"",
+        "SURF 2", "  TYPE STANDARD", "  CURV 0", "  DISZ 0", "  DIAM 6 1 0 0 1 \"\""]) + "\n"
+
+
+def test_paraxial_surface_is_an_ideal_lens(tmp_path):
+    """PARAXIAL f = 50 mm, object at 100 mm: EFL 50, the image at 100 mm is a point (closed
+    form 1/v = 1/f - 1/s), for every field; written back as PARAXIAL."""
+    from deeplens.analysis.spot import spot_diagram
+    from deeplens.optics.surfaces import IdealLens
+
+    lens = read_zmx(write(tmp_path, _paraxial_file()))
+    assert isinstance(lens.surfaces[0], IdealLens)
+    p = paraxial(lens)
+    assert float(p.efl) == pytest.approx(50.0, rel=1e-12)
+    assert float(p.image_distance) == pytest.approx(100.0, rel=1e-12)
+    for field in (0.0, 5.0):
+        s = spot_diagram(lens, field, 550.0, "hexapolar:4", pupil="paraxial")
+        assert float(s.rms_radius) < 1e-9 and s.n_rays == s.n_launched
+    write_zmx(lens, tmp_path / "back.zmx")
+    assert "TYPE PARAXIAL" in (tmp_path / "back.zmx").read_text()
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
+
+
+@pytest.mark.parametrize("f,glass,match", [
+    ("0", "", r":17: SURF 1: a PARAXIAL surface needs a non-zero focal length"),
+    ("50", "GLAS N-BK7 0 0 1.5 40", r"SURF 1: a PARAXIAL surface between glasses"),
+])
+def test_paraxial_surface_refusals(tmp_path, f, glass, match):
+    with pytest.raises(ZemaxFileError, match=match):
+        read_zmx(write(tmp_path, _paraxial_file(f, glass)))
