@@ -9,7 +9,9 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
                                                           normalisation radius R, XDAT 3.. = A_j in
                                                           the order x, y, x², xy, y², x³, ...;
                                                           read when CURV = 0)
-    COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), tilts PARM 3/4 in degrees
+    COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), R = R_x R_y R_z of the tilts
+               PARM 3/4/5 in degrees (order flag PARM 6 = 0)
+    PARAXIAL   an ideal thin lens of focal length PARM 1
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 
@@ -30,11 +32,12 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   :class:`~deeplens.optics.surfaces.Aperture`.
 * ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
   vertex, and the reversing break) become that element's
-  :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``: one of the two
-  tilts may be non-zero per bracket); any other coordinate break is an error.
+  :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``; tilts
+  about two axes, or about z, of a rotationally symmetric element become the two tilts that
+  point its axis the same way); any other coordinate break is an error.
 * ``GLAS name`` is looked up exactly in the catalogues named by ``GCAT``: the user's ``.agf`` files
-  (:mod:`.agf`) by file stem, and deeplens' own catalogue, which answers for ``SCHOTT`` and
-  ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d`` (a Zemax model glass) becomes a
+  (:mod:`.agf`) by file stem, the vendor catalogues of :mod:`.vendor_glass` (current, then
+  previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d`` (a Zemax model glass) becomes a
   :class:`~deeplens.optics.materials.ModelGlass` (deeplens' Cauchy model: exact at n_d and V_d,
   Zemax's own model differs slightly elsewhere).  A glass not found is an error naming it and its
   line, unless the caller passes ``glass_fallback``.
@@ -523,27 +526,20 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             if s.glass is not None or s.stop:
                 p.fail(s.line, "a COORDBRK surface cannot carry a glass or the stop")
             if bracket is None:
-                if tz != 0:
-                    p.fail(s.parm[5][1], "COORDBRK tilt about z is not supported (deeplens' "
-                                         "element misalignment has decenter x/y and tilt x/y)")
-                if tx != 0 and ty != 0:
-                    p.fail(s.line, "COORDBRK with tilts about both x and y: deeplens' "
-                                   "misalignment R = R_y R_x differs from Zemax's order; split "
-                                   "it or tilt about one axis")
                 if order != 0:
                     p.fail(s.parm[6][1], "an opening COORDBRK must have order flag 0 (decenter, "
                                          "then tilt)")
                 if s.disz != 0:
                     p.fail(s.disz_line, "an opening COORDBRK must have thickness 0 (the "
                                         "element rotates about its first vertex)")
-                bracket = {"line": s.line, "d": (dx, dy, tx, ty), "start": len(kept),
+                bracket = {"line": s.line, "d": (dx, dy, tx, ty, tz), "start": len(kept),
                            "zloc": 0.0}
             else:
                 want = tuple(-v for v in bracket["d"])
-                got = (dx, dy, tx, ty)
-                if (tz != 0 or not all(math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
-                                       for a, b in zip(want, got))
-                        or (order != 1 and (tx != 0 or ty != 0))):
+                got = (dx, dy, tx, ty, tz)
+                if (not all(math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+                            for a, b in zip(want, got))
+                        or (order != 1 and (tx != 0 or ty != 0 or tz != 0))):
                     p.fail(s.line, f"this COORDBRK does not undo the one on line "
                                    f"{bracket['line']} (expected decenter/tilt {want} with order "
                                    f"flag 1, got {got}, order {order:g}); deeplens reads "
@@ -555,7 +551,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                                    f"is about the first vertex")
                 if len(kept) == bracket["start"]:
                     p.fail(s.line, "the coordinate-break bracket holds no surface")
-                groups.append((bracket["start"], len(kept) - 1, bracket["d"], bracket["line"]))
+                groups.append((bracket["start"], len(kept) - 1,
+                               _element_tilts(bracket["d"], kept[bracket["start"]:], s.line, p),
+                               bracket["line"]))
                 gap = gap + s.disz * s_mm   # gap: back at the pivot, + the thickness after
                 bracket = None
             continue
@@ -740,6 +738,37 @@ def _real_image_height_angle(lens, h: float, line: int, p) -> float:
             return b
     p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height {h:g} mm (the "
                  f"field lies beyond what the lens images)")
+
+
+def _zemax_tilts(ta: float, tb: float) -> tuple[float, float]:
+    """deeplens' tilts (deg) as OpticStudio's x-then-y tilts (deg) that point a rotationally
+    symmetric element's axis the same way (the inverse of :func:`_element_tilts`)."""
+    a, b = math.radians(ta), math.radians(tb)
+    alpha = math.atan2(math.sin(a), math.cos(b) * math.cos(a))
+    beta = math.asin(max(-1.0, min(1.0, math.sin(b) * math.cos(a))))
+    return math.degrees(alpha), math.degrees(beta)
+
+
+def _element_tilts(d, kept, line, p):
+    """Zemax's decenter and tilts ``(dx, dy, α, β, γ)`` (order 0: decenter, then tilts about x,
+    the new y and the new z: ``R = R_x(α) R_y(β) R_z(γ)``) as deeplens' ``(dx, dy, a, b)`` with
+    ``R' = R_y(b) R_x(a)`` (degrees).  For an element that is rotationally symmetric about its
+    own axis only that axis, ``R e_z = (sin β, −sin α cos β, cos α cos β)``, matters, and
+    ``R' e_z`` equals it for ``a = asin(sin α cos β)``, ``b = atan2(sin β, cos α cos β)``
+    (exact; ``γ`` turns the element about its axis).  One tilt maps onto itself."""
+    dx, dy, ta, tb, tg = d
+    if (ta != 0 and tb != 0) or tg != 0:
+        for surf, _, s, _ in kept:
+            symmetric = (isinstance(surf, Aperture) and surf.shape == "circle") or (
+                isinstance(surf, (Asphere, Plane)) and not isinstance(surf, Aperture))
+            if not symmetric:
+                p.fail(line, f"a COORDBRK with tilts about two axes (or about z) around a "
+                             f"surface that is not rotationally symmetric (SURF on line "
+                             f"{s.line}) is not supported")
+    a, b = math.radians(ta), math.radians(tb)
+    ta2 = math.degrees(math.asin(max(-1.0, min(1.0, math.sin(a) * math.cos(b)))))
+    tb2 = math.degrees(math.atan2(math.sin(b), math.cos(a) * math.cos(b)))
+    return (dx, dy, ta2, tb2)
 
 
 def _auto_semi_diameters(lens, idx, field_deg, where_of, path):
@@ -1009,10 +1038,17 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
                 float(v) != 0 for v in (mis.dx, mis.dy, mis.tilt_x, mis.tilt_y))
             d = (float(mis.dx), float(mis.dy), math.degrees(float(mis.tilt_x)),
                  math.degrees(float(mis.tilt_y)))
-            if tilted and i == a:
-                if d[2] != 0 and d[3] != 0:
+            if tilted and d[2] != 0 and d[3] != 0:
+                symmetric = all(
+                    (isinstance(s_, Aperture) and s_.shape == "circle")
+                    or (isinstance(s_, (Asphere, Plane)) and not isinstance(s_, Aperture))
+                    for s_ in lens.surfaces[a:b + 1])
+                if not symmetric:
                     raise ZemaxFileError(f"element {e} (surfaces {a}-{b}) is tilted about both x "
-                                         f"and y; the .zmx writer maps one tilt per element")
+                                         f"and y and is not rotationally symmetric: OpticStudio's "
+                                         f"x-then-y tilts cannot express deeplens' R_y R_x")
+                d = d[:2] + _zemax_tilts(*d[2:])
+            if tilted and i == a:
                 surf(["TYPE COORDBRK", "CURV 0.0", "DISZ 0"] +
                      [f"PARM {k + 1} {_f(v)}" for k, v in enumerate(d)] +
                      ["PARM 5 0", "PARM 6 0"])

@@ -35,6 +35,7 @@ from deeplens.optics.io import (
     write_zmx,
 )
 from deeplens.optics.materials import GLASS_TABLE
+from deeplens.optics.misalignment import Misalignment
 from deeplens.optics.rays import Rays
 
 REPO = Path(__file__).resolve().parents[3]
@@ -455,9 +456,7 @@ def test_coordinate_break_that_is_not_a_bracket(tmp_path):
     with pytest.raises(ZemaxFileError, match=f":{line_of(text, 'COORDBRK') - 1}: this COORDBRK "
                                              f"is never undone"):
         read_zmx(write(tmp_path, text))
-    tilt_z = text.replace("PARM 5 0", "PARM 5 2")
-    with pytest.raises(ZemaxFileError, match=r"tilt about z is not supported"):
-        read_zmx(write(tmp_path, tilt_z, "tz.zmx"))
+
 
 
 def test_utf16_and_utf8_read_the_same(tmp_path):
@@ -561,6 +560,82 @@ def test_coordinate_breaks_match_optiland(tmp_path, element, param, value):
     assert (ref.o[ok, :2] - out.o[ok, :2]).abs().max() > 1e-4
 
 
+def _with_tilts(tmp_path, tilts, name="mis.zmx"):
+    """The table lens with element 1 decentred and bracketed by COORDBRKs carrying ``tilts``
+    (degrees about x, y, z; the returning break negated, order flag 1)."""
+    lens = load_lens(JSON).double()
+    with torch.no_grad():
+        lens.misalignments[1].tilt_x.fill_(0.01)   # a bracket to edit
+        lens.misalignments[1].dy.fill_(0.03)
+    p = tmp_path / name
+    write_zmx(lens, p)
+    lines = p.read_text().splitlines()
+    cbs = [i for i, t in enumerate(lines) if t.strip() == "TYPE COORDBRK"]
+    assert len(cbs) == 2
+    for i, sign in zip(cbs, (1.0, -1.0)):
+        for k, v in zip((3, 4, 5), tilts):
+            j = next(j for j in range(i, i + 12) if lines[j].strip().startswith(f"PARM {k} "))
+            lines[j] = f"  PARM {k} {sign * v!r}"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+@pytest.mark.parametrize("tilts", [(0.6, 0.9, 0.0), (-0.5, 0.4, 30.0), (0.7, 0.0, -20.0)])
+def test_coordinate_breaks_with_two_tilts(tmp_path, tilts):
+    """Tolerancing files tilt about x and y together (and about z).  OpticStudio's order flag 0
+    tilts about x, then the new y, then the new z (``R = R_x R_y R_z``, as ray-optics reads it:
+    transforms3d ``rxyz``); a rotationally symmetric element is then the element whose axis is
+    ``R e_z``, which deeplens' two tilts reproduce exactly.  (optiland 0.6 composes the tilts as
+    ``R_z R_y R_x`` and ignores the returning break's order flag, so it is no oracle here.)"""
+    back = read_zmx(_with_tilts(tmp_path, tilts))
+    m = back.misalignments[1]
+    a, b = (math.radians(v) for v in tilts[:2])
+    zero = torch.zeros((), dtype=torch.float64)
+    axis = m.rotation(zero) @ torch.tensor([0.0, 0, 1], dtype=torch.float64)
+    # R_x(a) R_y(b) e_z with deeplens' own single-axis matrices (R_z leaves e_z alone)
+    rx = Misalignment(tilt_x=a).rotation(zero)
+    ry = Misalignment(tilt_y=b).rotation(zero)
+    want = rx @ ry @ torch.tensor([0.0, 0, 1], dtype=torch.float64)
+    torch.testing.assert_close(axis, want, rtol=0, atol=1e-15)
+    assert float(m.dy) == pytest.approx(0.03, abs=1e-15)
+
+
+def test_coordinate_break_about_z_only_turns_the_element_about_its_axis(tmp_path):
+    """A tilt about z alone turns a rotationally symmetric element about its own axis: the
+    lens traces exactly as with the decenter alone."""
+    turned = read_zmx(_with_tilts(tmp_path, (0.0, 0.0, 35.0), "z.zmx"))
+    plain = read_zmx(_with_tilts(tmp_path, (0.0, 0.0, 0.0), "plain.zmx"))
+    pa, va = trace_points(turned, 7.0)
+    pb, vb = trace_points(plain, 7.0)
+    assert torch.equal(va, vb) and bool(va.any())
+    torch.testing.assert_close(pa[va], pb[vb], rtol=0, atol=1e-14)
+
+
+def test_two_tilts_around_a_freeform_are_refused(tmp_path):
+    text = singlet(s1_type="XYPOLYNOM", s1_extra=("XDAT 1 2", "XDAT 2 4.0", "XDAT 3 0.01"),
+                   curv1=0.0, k=0.0)
+    lines = text.splitlines()
+    i = lines.index("SURF 2")
+    cb = ["SURF 2", "  TYPE COORDBRK", "  DISZ 0", "  PARM 3 0.5", "  PARM 4 0.5"]
+    back = ["SURF 4", "  TYPE COORDBRK", "  DISZ 5", "  PARM 3 -0.5", "  PARM 4 -0.5",
+            "  PARM 6 1"]
+    j = lines.index("SURF 3")
+    body = lines[i:j]
+    body = [("SURF 3" if t == "SURF 2" else t) for t in body]
+    rest = lines[j:]
+    rest = [t.replace("SURF 3", "SURF 5").replace("SURF 4", "SURF 6") for t in rest]
+    rest[rest.index("  DISZ 45.0")] = "  DISZ 40.0"
+    body[body.index("  DISZ 5.0")] = "  DISZ -0.0"
+    s3 = [t.replace("SURF 5", "SURF 4") for t in rest[:rest.index("SURF 6")]]
+    s3[s3.index("  DISZ 40.0")] = "  DISZ 0"
+    out = lines[:i] + cb + body + s3 + [t.replace("SURF 4", "SURF 5") for t in back] + \
+        rest[rest.index("SURF 6"):]
+    text2 = "\n".join(out) + "\n"
+    with pytest.raises(ZemaxFileError, match=r"tilts about two axes \(or about z\) around a "
+                                             r"surface that is not rotationally symmetric"):
+        read_zmx(write(tmp_path, text2))
+
+
 def test_xypolynom_terms_and_normalisation(tmp_path):
     """XYPOLYNOM (CURV 0): z = Σ A_j x^m y^n / R^(m+n), terms x, y, x², xy, y², x³, ..."""
     xy = ("XDAT 1 9", "XDAT 2 4.0", "XDAT 3 0.02", "XDAT 7 0.5", "XDAT 11 -0.03")
@@ -651,3 +726,24 @@ def test_paraxial_surface_is_an_ideal_lens(tmp_path):
 def test_paraxial_surface_refusals(tmp_path, f, glass, match):
     with pytest.raises(ZemaxFileError, match=match):
         read_zmx(write(tmp_path, _paraxial_file(f, glass)))
+
+
+def test_two_tilts_round_trip(tmp_path):
+    """deeplens' R_y(b) R_x(a) is written as OpticStudio's x-then-y tilts that point the element
+    the same way, and read back to the same tilts and rays."""
+    lens = load_lens(JSON).double()
+    with torch.no_grad():
+        lens.misalignments[1].tilt_x.fill_(0.012)
+        lens.misalignments[1].tilt_y.fill_(-0.02)
+        lens.misalignments[1].dx.fill_(0.01)
+    write_zmx(lens, tmp_path / "two.zmx")
+    back = read_zmx(tmp_path / "two.zmx")
+    m0, m1 = lens.misalignments[1], back.misalignments[1]
+    for k in ("dx", "dy", "tilt_x", "tilt_y"):
+        assert float(getattr(m1, k)) == pytest.approx(float(getattr(m0, k)), abs=1e-15), k
+    text = (tmp_path / "two.zmx").read_text()
+    assert "PARM 3 0.0" not in text and "PARM 4 0.0" not in text   # both tilts written
+    pa, va = trace_points(lens, 7.0)
+    pb, vb = trace_points(back, 7.0)
+    assert torch.equal(va, vb) and bool(va.any())
+    torch.testing.assert_close(pa[va], pb[vb], rtol=0, atol=1e-12)
