@@ -64,8 +64,9 @@ from ..surfaces import Aperture, Asphere, IdealLens, Plane, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
 from .lensfile import LensFileError
-from .vendor_glass import (PREVIOUS_CATALOGUES, VENDOR_CATALOGUES, BuchdahlGlass, catalogue_size,
-                           find_in_vendor_catalogues, previous_glass, vendor_glass)
+from .vendor_glass import (CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
+                           BuchdahlGlass, catalogue_size, find_in_vendor_catalogues,
+                           previous_glass, vendor_glass)
 
 __all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "lens_pupil_convention",
            "read_zmx", "write_zmx"]
@@ -340,7 +341,7 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
     name (exact name only).
     """
     searched = []
-    named = list(gcat) if gcat else list(VENDOR_CATALOGUES) + ["MISC"]
+    named = list(gcat) if gcat else list(CURRENT_CATALOGUES) + ["MISC"]
     # the user's catalogues answer for their own names; unnamed ones are searched last
     order = named + [c for c in catalogues if c not in named]
     for cat in order:
@@ -351,7 +352,7 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
             if m is not None:
                 return m
             continue
-        if cat in VENDOR_CATALOGUES:
+        if cat in CURRENT_CATALOGUES:
             searched.append(f"{cat} (current vendor catalogue, {catalogue_size(cat)} glasses)")
             m = vendor_glass(glass, cat)
             if m is not None:
@@ -381,7 +382,7 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                              f"({', '.join(named)}); using {elsewhere[0]} (exact name)")
         return m
     missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES
-               and c not in VENDOR_CATALOGUES and c not in PREVIOUS_CATALOGUES]
+               and c not in CURRENT_CATALOGUES and c not in PREVIOUS_CATALOGUES]
     hint = (f"; catalogue(s) {', '.join(missing)} named on the GCAT line are not shipped with "
             f"deeplens and were not given: pass glass_catalogs=['{missing[0]}.agf', ...] or put "
             f"{missing[0]}.agf next to the .zmx" if missing else "")

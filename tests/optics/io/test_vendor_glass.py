@@ -61,3 +61,24 @@ def test_exact_names_only():
     assert vendor_glass("N-BK7X", "SCHOTT") is None
     assert vendor_glass("n-bk7", "schott") is not None
     assert find_in_vendor_catalogues("S-LAH64") == ["OHARA"]
+
+
+@pytest.mark.parametrize("name,rii", [("CAF2", "CaF2/Malitson.yml"), ("BAF2", "BaF2/Malitson.yml"),
+                                      ("MGF2", "MgF2/Dodge-o.yml"),
+                                      ("SAPPHIRE", "Al2O3/Malitson-o.yml"),
+                                      ("ZNSE", "ZnSe/Connolly.yml")])
+def test_infrared_crystals_equal_the_refractiveindex_database(name, rii):
+    """The INFRARED names against the refractiveindex.info entries of the same measurements
+    (optiland ships that database; test-only)."""
+    pytest.importorskip("optiland")
+    import numpy as np
+    from optiland.materials import Material
+
+    author = rii.split("/")[1].split("-")[0].removesuffix(".yml")
+    ref = Material(rii.split("/")[0], reference=author)
+    assert str(ref.filename).endswith(rii)
+    g = vendor_glass(name, "INFRARED")
+    lo, hi = g.wavelength_range_nm
+    for w in np.linspace(max(lo, 400.0), min(hi, 5000.0), 7):
+        want = float(np.ravel(np.asarray(ref.n(np.array([w / 1000.0]))))[0])
+        assert float(g.n(float(w))) == pytest.approx(want, abs=1e-9), (name, w)
