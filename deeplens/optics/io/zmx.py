@@ -104,6 +104,9 @@ _UNSUPPORTED_TYPES = {
     "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
 }
 
+# the sensor distance used when a file puts the image plane on the last (flat) vertex
+_IMAGE_ON_VERTEX_MM = 1e-9
+
 # the semi-diameter a surface with no DIAM is built with before its automatic value is set
 _PROVISIONAL_SD_MM = 1e-3
 
@@ -633,6 +636,20 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
     d_sensor = gap
+    if d_sensor == 0 and isinstance(surfaces[-1], Plane):
+        # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
+        # surface, so it sits _IMAGE_ON_VERTEX_MM behind it (image points move by that times
+        # the ray slope: < 1e-8 mm)
+        d_sensor = _IMAGE_ON_VERTEX_MM
+        p.note(img.line, f"the image plane lies on the last (flat) surface's vertex: the sensor "
+                         f"is placed {_IMAGE_ON_VERTEX_MM:g} mm behind it")
+    elif d_sensor == 0:
+        p.fail(img.line, "the image plane lies on the vertex of the last surface, which is "
+                         "curved: deeplens' flat sensor would cut through it (give the last "
+                         "surface a thickness)")
+    elif d_sensor < 0:
+        p.fail(img.line, f"the image plane lies {-d_sensor:g} mm before the last surface's "
+                         f"vertex: deeplens' sensor must follow the last surface")
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
 
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest

@@ -747,3 +747,23 @@ def test_two_tilts_round_trip(tmp_path):
     pb, vb = trace_points(back, 7.0)
     assert torch.equal(va, vb) and bool(va.any())
     torch.testing.assert_close(pa[va], pb[vb], rtol=0, atol=1e-12)
+
+
+def test_image_plane_on_the_last_flat_vertex(tmp_path):
+    """A plano-convex lens focusing onto its own flat back face (image DISZ 0 after it): the
+    sensor sits 1e-9 mm behind the face, with a warning; a curved last surface is refused."""
+    # R = 25 mm front, n ~ 1.5168: the paraxial focus inside the glass at n R / (n - 1)
+    n = 1.5168
+    t = n * 25.0 / (n - 1.0)
+    text = singlet(curv1=0.04, k=0.0, s1_type="STANDARD", s1_extra=(), t=t, curv2=0.0, bfl=0,
+                   wav=(0.5875618,), pwav=1, aperture="ENPD 2",
+                   glass="GLAS ___BLANK 1 0 1.5168 1e9 0 0 0 0 0 0", diam1=3.0)
+    ln = line_of(text, "SURF 4")
+    with pytest.warns(ZemaxWarning, match=f":{ln}: the image plane lies on the last"):
+        lens = read_zmx(write(tmp_path, text))
+    assert float(lens.d_sensor) == 1e-9
+    assert abs(float(paraxial(lens).bfl)) < 1e-9    # the focus is on the face
+    with pytest.raises(ZemaxFileError, match=f":{ln}: the image plane lies on the vertex of the "
+                                             f"last surface, which is curved"):
+        read_zmx(write(tmp_path, text.replace("CURV 0.0\n  DISZ 0\n", "CURV -0.001\n  DISZ 0\n", 1),
+                       "curved.zmx"))
