@@ -60,7 +60,7 @@ import torch
 
 from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, check_wavelength_nm, get_material
-from ..surfaces import Aperture, Asphere, IdealLens, Plane, XYPolynomial
+from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
 from .lensfile import LensFileError
@@ -97,7 +97,7 @@ _PLACEHOLDER_ND_VD = (1.5, 40.0)
 
 # surface types met in real files that deeplens refuses, and what they are
 _UNSUPPORTED_TYPES = {
-    "TOROIDAL": "a toroidal or cylinder surface", "QED_TYPE": "a Q-type (Forbes) asphere",
+"QED_TYPE": "a Q-type (Forbes) asphere",
     "QTYPEASP": "a Q-type (Forbes) asphere", "DGRATING": "a diffraction grating",
 "BINARY_2": "a binary-optic (diffractive) surface",
     "ODDASPH": "an odd asphere", "BICONICX": "a biconic", "GRINSUR1": "a gradient-index surface",
@@ -140,6 +140,7 @@ class _Surf:
     parm: dict = field(default_factory=dict)   # index -> (value, line)
     xdat: dict = field(default_factory=dict)   # index -> (value, line)
     clap: tuple | None = None
+    sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
 
 
 class _Parser:
@@ -240,11 +241,12 @@ def _parse(path: Path):
             if len(toks) < 2:
                 p.fail(ln, "TYPE line is truncated: missing the surface type")
             cur.type, cur.type_line = toks[1].upper(), ln
-            if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM", "PARAXIAL"):
+            if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM", "PARAXIAL",
+                                "TOROIDAL"):
                 what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
                 p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
-                           f"supported; deeplens reads STANDARD, EVENASPH, COORDBRK, XYPOLYNOM and "
-                           f"PARAXIAL")
+                           f"supported; deeplens reads STANDARD, EVENASPH, COORDBRK, XYPOLYNOM, "
+                           f"PARAXIAL and TOROIDAL cylinders")
         elif cur is not None and key == "CURV":
             cur.curv = p.arg(toks, 1, ln, "curvature")
         elif cur is not None and key == "DISZ":
@@ -291,9 +293,14 @@ def _parse(path: Path):
             if lo > 0:
                 p.fail(ln, "CLAP with a central obscuration (minimum radius > 0) is not supported")
             cur.clap = (hi, ln)
-        elif cur is not None and key in ("SQAP", "ELAP", "OBDC", "OBSC", "SQOB", "ELOB", "UDAD",
-                                          "SPID"):
-            what = {"OBSC": "a circular obscuration", "SQAP": "a rectangular aperture",
+        elif cur is not None and key == "SQAP":
+            cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"),
+                        ln)
+        elif cur is not None and key == "OBDC" and all(
+                p.num(t, ln, "OBDC aperture decenter") == 0 for t in toks[1:3]):
+            continue   # an aperture decenter of zero
+        elif cur is not None and key in ("ELAP", "OBDC", "OBSC", "SQOB", "ELOB", "UDAD", "SPID"):
+            what = {"OBSC": "a circular obscuration",
                     "ELAP": "an elliptical aperture", "OBDC": "a decentred aperture",
                     "SQOB": "a rectangular obscuration", "ELOB": "an elliptical obscuration",
                     "UDAD": "a user-defined aperture", "SPID": "a spider"}[key]
@@ -588,7 +595,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             flat = c == 0 and s.coni == 0 and not coeffs
             same_medium = (type(mat) is type(prev) and mat.name == prev.name)
             fixed = s.diam_fixed and s.diam > 0
-            if flat and same_medium and not s.stop and not fixed and s.clap is None:
+            if (flat and same_medium and not s.stop and not fixed and s.clap is None
+                    and s.sqap is None):
                 gap += s.disz * s_mm
                 if bracket is not None:
                     bracket["zloc"] += s.disz * s_mm
@@ -602,6 +610,11 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 surf = _xypolynom(s, c, sd_build, s_mm, p)
             elif s.type == "PARAXIAL":
                 surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
+            elif s.type == "TOROIDAL":
+                surf = _cylinder(s, k, c, sd_build, s_mm, p)
+            elif s.sqap is not None and flat and _is_air(mat) and _is_air(prev):
+                hx, hy, _ = s.sqap
+                surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
             elif flat and _is_air(mat) and _is_air(prev):
                 surf = Aperture(sd_build)
             elif flat:
@@ -610,6 +623,13 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 surf = Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
         except ValueError as e:
             p.fail(s.type_line or s.line, f"SURF {k}: {e}")
+        if s.sqap is not None and not (isinstance(surf, Cylinder) or (
+                isinstance(surf, Aperture) and surf.shape == "rect")):
+            p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture on a "
+                              f"{type(surf).__name__} surface is not supported (deeplens has "
+                              f"rectangular apertures on flat stops in air and on cylinders)")
+        if auto and isinstance(surf, Aperture) and surf.shape == "rect":
+            auto = False   # its semi-diameter is the rectangle's half-diagonal
         if auto:
             autos.append(len(kept))
         if s.stop:
@@ -840,6 +860,28 @@ def _locate(msg: str, where_of: dict) -> str:
     lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}"
              for i in dict.fromkeys(idx) if i in where_of]
     return msg + (f" ({'; '.join(lines)})" if lines else "")
+
+
+def _cylinder(s: _Surf, k: int, c, sd, s_mm, p: _Parser):
+    """``TOROIDAL`` with ``PARM 1`` (the radius of rotation) 0: a cylinder, curved in y, with
+    ``PARM 2..9`` the coefficients of ``y², y⁴, ..., y¹⁶``; ``SQAP`` its rectangular outline."""
+    if s.parm.get(1, (0.0, 0))[0] != 0:
+        p.fail(s.parm[1][1], f"SURF {k}: a TOROIDAL surface with a finite radius of rotation "
+                             f"(PARM 1 = {s.parm[1][0]:g}) is not supported; cylinders "
+                             f"(PARM 1 = 0) are")
+    nz = s.xdat.get(1, (0.0, 0))
+    if nz[0] != 0 or any(v != 0 for j, (v, _) in s.xdat.items() if j > 2):
+        p.fail(nz[1] or s.type_line, f"SURF {k}: TOROIDAL Zernike terms (XDAT) are not supported")
+    for i, (v, ln) in s.parm.items():
+        if (i > 9 or i < 1) and v != 0:
+            p.fail(ln, f"SURF {k}: TOROIDAL PARM {i} is not read (PARM 1 radius of rotation, "
+                       f"PARM 2-9 the y² ... y¹⁶ coefficients)")
+    top = max([i for i in s.parm if 2 <= i <= 9 and s.parm[i][0] != 0] + [1])
+    coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (3 - 2 * i) for i in range(2, top + 1)]
+    hw = None if s.sqap is None else (s.sqap[0] * s_mm, s.sqap[1] * s_mm)
+    if hw is not None and sd == _PROVISIONAL_SD_MM:
+        sd = math.hypot(*hw)
+    return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
 
 
 def _paraxial_surface(s: _Surf, k: int, mat, prev, sd, s_mm, p: _Parser):
@@ -1110,12 +1152,18 @@ def _surface_lines(s, i, is_stop) -> list[str]:
     sd = s.semi_diameter
     sd = None if sd is None else float(sd)
     if isinstance(s, Aperture):
-        if s.shape != "circle":
-            raise ZemaxFileError(f"surface {i}: a rectangular aperture has no .zmx equivalent "
-                                 f"in this writer")
         lines += ["TYPE STANDARD", "CURV 0.0"]
         if sd is not None:
             lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        if s.shape == "rect":
+            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        return lines
+    if isinstance(s, Cylinder):
+        lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 1 0"]
+        lines += [f"PARM {j + 2} {_f(a)}" for j, a in enumerate(s.a)]
+        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        if s.half_widths is not None:
+            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
         return lines
     if isinstance(s, IdealLens):
         return lines + ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}",

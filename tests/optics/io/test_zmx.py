@@ -405,8 +405,10 @@ def line_of(text: str, needle: str) -> int:
 
 
 @pytest.mark.parametrize("edit,needle,match", [
-    (lambda t: t.replace("TYPE EVENASPH", "TYPE TOROIDAL"), "TOROIDAL",
-     r"surface type 'TOROIDAL' \(SURF 2, a toroidal or cylinder surface\) is not supported"),
+    (lambda t: t.replace("TYPE EVENASPH", "TYPE QED_TYPE"), "QED_TYPE",
+     r"surface type 'QED_TYPE' \(SURF 2, a Q-type \(Forbes\) asphere\) is not supported"),
+    (lambda t: t.replace("TYPE EVENASPH", "TYPE TOROIDAL").replace("PARM 1 0", "PARM 1 30"),
+     "PARM 1 30", r"SURF 2: a TOROIDAL surface with a finite radius of rotation"),
     (lambda t: t.replace("CURV 0.02", "CURV 0.0.2"), "0.0.2",
      r"CURV curvature: expected a number, got '0.0.2'"),
     (lambda t: t.replace("PARM 1 0", "PARM 1 0.001"), "PARM 1", r"EVENASPH PARM 1 \(the r² term\)"),
@@ -418,7 +420,7 @@ def line_of(text: str, needle: str) -> int:
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", r"UNIT: unknown lens unit 'FURLONG'"),
     (lambda t: t.replace("SURF 2", "SURF 7"), "SURF 7", r"SURF 7 out of order"),
     (lambda t: t.replace("  DIAM 8 1 0 0 1 \"\"\nSURF 4", "  SQAP 2 2\nSURF 4"), "SQAP",
-     r"SQAP on SURF 3: a rectangular aperture is not supported"),
+     r"SQAP on SURF 3: a rectangular aperture on a Asphere surface is not supported"),
     (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0"), None,
      r"surfaces 1 and 2 cross.*deeplens surface 1 is the SURF block on line "
      + str(line_of(singlet(), "SURF 2"))),

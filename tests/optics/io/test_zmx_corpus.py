@@ -43,7 +43,6 @@ REFUSED = {
     "optiland_curved_reflective_grating.zmx": "DGRATING",
     "optiland_curved_transmission_grating.zmx": "DGRATING",
     "optiland_flat_transmission_grating.zmx": "DGRATING",
-    "optiland_thorlabs_lj1598l1.zmx": "TOROIDAL",
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
     "US05331467-1.zmx": "OBSC on SURF 2: a circular obscuration",
     "US05831776-1.zmx": "OBNA",
