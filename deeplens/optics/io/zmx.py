@@ -118,6 +118,7 @@ _SILENT = {
     "MOFF", "COMM", "NOTE", "WWGT", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
     "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "PPAR", "CONF", "DMFS", "BLDM",
     "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "THSO",
+    "AUTH", "IWDP", "LUID", "EERA", "SSID", "DBDT",
 }
 
 
@@ -182,6 +183,7 @@ def _parse(path: Path):
             "mode": None, "raim": (0, 0)}
     surfs: list[_Surf] = []
     cur: _Surf | None = None
+    unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
     for ln, line in enumerate(text.splitlines(), start=1):
         toks = line.split()
         if not toks:
@@ -309,7 +311,8 @@ def _parse(path: Path):
         elif cur is not None and key in ("TCE", "COAT", "PZUP", "SCBD"):
             if key == "SCBD":
                 p.note(ln, f"{key} (scattering) ignored")
-        elif key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN"):
+        elif key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN", "ZVDX", "ZVDY", "ZVCX", "ZVCY",
+                     "ZVAN"):
             if any(p.num(t, ln, key) != 0 for t in toks[1:]):
                 p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
                            f"pupil by tracing)")
@@ -325,7 +328,11 @@ def _parse(path: Path):
         elif key in _SILENT:
             continue
         else:
-            p.note(ln, f"{toks[0]} line not used by deeplens (ignored)")
+            first, count = unused.get(toks[0], (ln, 0))
+            unused[toks[0]] = (first, count + 1)
+    for kw, (first, count) in unused.items():   # one note per keyword, not one per line
+        p.note(first, f"{kw} line not used by deeplens (ignored)"
+                      + (f"; {count} such lines" if count > 1 else ""))
     if not surfs:
         p.fail(0, "no SURF line: not a Zemax lens file, or the file is truncated")
     if len(surfs) < 3:

@@ -769,3 +769,17 @@ def test_image_plane_on_the_last_flat_vertex(tmp_path):
                                              f"last surface, which is curved"):
         read_zmx(write(tmp_path, text.replace("CURV 0.0\n  DISZ 0\n", "CURV -0.001\n  DISZ 0\n", 1),
                        "curved.zmx"))
+
+
+def test_unknown_lines_reported_once_per_keyword(tmp_path):
+    """Editor-state records (SSID on every surface, AUTH, ...) are silent; an unknown keyword is
+    one warning with its first line and count, not one per line."""
+    text = singlet(extra_system=("AUTH someone", "FOOB 1", "FOOB 2", "FOOB 3"))
+    text = text.replace("SURF 2\n", "SURF 2\n  SSID 7\n")
+    ln = line_of(text, "FOOB 1")
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        read_zmx(write(tmp_path, text))
+    msgs = [str(x.message) for x in w]
+    assert msgs == [f"{tmp_path / 't.zmx'}:{ln}: FOOB line not used by deeplens (ignored); "
+                    f"3 such lines"]
