@@ -213,3 +213,22 @@ def test_round_trip(tmp_path, name):
     assert back.ray_aiming == lens.ray_aiming
     assert [m.name for m in back.materials] == [m.name for m in lens.materials]
     assert [float(m.n(550.0)) for m in back.materials] == [float(m.n(550.0)) for m in lens.materials]
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_report_prints_numbers_or_one_located_line(name, capsys):
+    """`deeplens report FILE` on every corpus file: the first-order numbers, or one error line
+    naming the file and line."""
+    from deeplens.cli import main
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rc = main(["report", str(CORPUS / name), "--sampling", "hexapolar:3"])
+    out, err = capsys.readouterr()
+    if name in REFUSED:
+        assert rc == 2 and out == ""
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and str(CORPUS / name) in lines[0]
+        assert REFUSED[name] in lines[0]
+    else:
+        assert rc == 0 and "EFL" in out and "entrance pupil" in out, err
