@@ -4,9 +4,11 @@ RMS spot radius (centroid-referenced) of the ``M`` valid rays landing at ``p_m``
 plane:  ``sqrt( (1/M) sum_m |p_m - p̄|^2 )``, ``p̄`` their centroid.
 
 Pupils (paper Sec. III-E).  ``pupil="paraxial"`` samples the paraxial entrance pupil (a disk of
-diameter EPD at the paraxial EP position) as lens-design programs do without ray aiming: the
-stop, whose size the paraxial pupil defines, does not clip these rays (OpticStudio does not
-either; clipping them dropped rim rays by round-off and pupil aberration), other apertures do.  ``pupil="traced"`` first traces a dense grid over that plane, keeps the
+diameter EPD at the paraxial EP position) as lens-design programs do without ray aiming.  When
+the aperture is given as an EPD or F-number, the stop's size is derived from that paraxial pupil
+and does not clip these rays (clipping them dropped rim rays by round-off and pupil aberration:
+18 of 469 on a Thorlabs asphere, RMS 4.5 % low); a stop of its own size (``"stop"``) and other
+apertures do clip.  ``pupil="traced"`` first traces a dense grid over that plane, keeps the
 rays that reach the image, bisects the edges of the passing region along x and y through its
 centroid, and samples the ellipse inscribed in those edges, so that a vignetted field spends its
 rays where light passes.
@@ -103,8 +105,8 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
 
 @contextlib.contextmanager
 def _stop_not_clipping(lens):
-    """Rays aimed at the paraxial entrance pupil are not clipped by the stop (its semi-diameter
-    is restored afterwards; it is a buffer, so no gradient is involved)."""
+    """Rays aimed at the paraxial entrance pupil are not clipped by a stop sized from that pupil
+    (its semi-diameter is restored afterwards; it is a buffer, so no gradient is involved)."""
     sd = lens.stop.semi_diameter
     saved = sd.clone()
     with torch.no_grad():
@@ -164,7 +166,7 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
     unit = pupil_pattern(sampling, dtype=dtype)
     rays = field_rays(lens, field_deg, wavelength_nm, region.points(unit), region.z)
     z_img = image_plane_z(lens, image_plane)
-    if pupil == "paraxial":
+    if pupil == "paraxial" and lens.spec.aperture_type != "stop":
         with _stop_not_clipping(lens):
             out = lens.trace_to_sensor(rays, z_image=z_img, options=options)
     else:

@@ -232,3 +232,15 @@ def test_report_prints_numbers_or_one_located_line(name, capsys):
         assert REFUSED[name] in lines[0]
     else:
         assert rc == 0 and "EFL" in out and "entrance pupil" in out, err
+
+
+def test_paraxial_pupil_keeps_every_rim_ray_of_an_enpd_lens(capsys):
+    """Regression (issue 22): `report --pupil paraxial` on an ENPD lens whose stop is a lens
+    surface dropped 18 of 469 rim rays (round-off and pupil aberration at the paraxially sized
+    stop), RMS 4.5 % low."""
+    from deeplens.analysis.report import lens_report
+
+    lens = _load("thorlabs_ACL3026U.zmx")
+    rep = lens_report(lens, [0.0], None, "hexapolar:12", "paraxial")
+    row = rep["fields"][0]
+    assert row["n_rays"] == row["n_launched"] == 469
