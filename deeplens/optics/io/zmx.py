@@ -489,6 +489,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
 
     # ---- wavelengths (µm in the file)
     ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
+    if len(ftyp) > 1 and ftyp[1] == 1:
+        p.fail(ftyp_line, "FTYP: object-space telecentric systems (second value 1) are not "
+                          "supported (deeplens needs an entrance pupil at a finite distance)")
+    if len(ftyp) > 6 and ftyp[6] == 1:
+        p.fail(ftyp_line, "FTYP: afocal image space (seventh value 1) is not supported "
+                          "(deeplens images onto a sensor)")
     n_fields = ftyp[2] if len(ftyp) > 2 and ftyp[2] > 0 else None
     n_waves = ftyp[3] if len(ftyp) > 3 and ftyp[3] > 0 else None
     if sysd["waves"]:
@@ -732,7 +738,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     fields = _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
     autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
     if autos:
-        _auto_semi_diameters(lens, autos, max(abs(f) for f in fields), where_of, path)
+        _auto_semi_diameters(lens, autos, fields, where_of, path)
     try:
         lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                              aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
@@ -816,12 +822,20 @@ def _element_tilts(d, kept, line, p):
     return (dx, dy, ta2, tb2)
 
 
-def _auto_semi_diameters(lens, idx, field_deg, where_of, path):
-    """Zemax's automatic semi-diameters, paraxially: ``1.05 (|y_marginal| + |y_chief|)`` at the
-    surfaces ``idx`` (the full-field chief ray at ``field_deg``; a clear aperture only, since
-    OpticStudio does not vignette on automatic semi-diameters), capped to the surface's domain."""
+def _auto_semi_diameters(lens, idx, fields, where_of, path):
+    """Automatic semi-diameters of the surfaces ``idx``, as OpticStudio's: the largest height of
+    the real rays that fill the pupil, over every field and wavelength.  A first paraxial
+    estimate ``1.05 (|y_marginal| + |y_chief|)`` (full field) lets the lens be built; then rays
+    over the paraxial entrance pupil enlarged by 2 % (48 rim points and the chief ray per field
+    and wavelength, apertures ignored) are traced and each surface gets its largest hit radius.
+    OpticStudio does not vignette on automatic semi-diameters, and the 2 % keep rim rays (and
+    the slightly larger pupils of ray aiming) from being clipped by them.  Capped to the
+    surface's domain."""
+    from ..intersect import IntersectOptions
     from ..paraxial import _indices, _trace, paraxial
+    from ..sampling import field_rays
 
+    field_deg = max(abs(f) for f in fields)
     with torch.no_grad():
         par = paraxial(lens)
         n, p0 = _indices(lens, None)
@@ -845,6 +859,32 @@ def _auto_semi_diameters(lens, idx, field_deg, where_of, path):
             if c != 0 and 1 + k > 0:
                 sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
             surf.semi_diameter.fill_(sd)
+        # real rays
+        phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
+        unit = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
+                          torch.stack([torch.cos(phi), torch.sin(phi)], -1)])
+        pts = unit * (1.02 * half)
+        z_ep = float(par.entrance_pupil_z)
+        top = {i: 0.0 for i in idx}
+        for f in dict.fromkeys(fields):
+            for w in lens.spec.wavelengths_nm:
+                rays = field_rays(lens, float(f), float(w), pts, z_ep)
+                out, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False),
+                                       record=True)
+                ok = out.valid
+                for i in idx:
+                    if bool(ok.any()):
+                        r = torch.linalg.vector_norm(hits[i][ok][:, :2], dim=-1)
+                        top[i] = max(top[i], float(r.max()))
+        for i in idx:
+            if top[i] > 0:
+                surf = lens.surfaces[i]
+                sd = top[i]
+                c = float(surf.paraxial_curvature())
+                k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
+                if c != 0 and 1 + k > 0:
+                    sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
+                surf.semi_diameter.fill_(sd)
     try:
         lens.check()
     except ValueError as e:

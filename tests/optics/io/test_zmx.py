@@ -783,3 +783,12 @@ def test_unknown_lines_reported_once_per_keyword(tmp_path):
     msgs = [str(x.message) for x in w]
     assert msgs == [f"{tmp_path / 't.zmx'}:{ln}: FOOB line not used by deeplens (ignored); "
                     f"3 such lines"]
+
+
+@pytest.mark.parametrize("ftyp,match", [
+    ("FTYP 0 1 2 2 0 0 0", r":7: FTYP: object-space telecentric"),
+    ("FTYP 0 0 2 2 0 0 1", r":7: FTYP: afocal image space"),
+])
+def test_telecentric_and_afocal_modes_refused(tmp_path, ftyp, match):
+    with pytest.raises(ZemaxFileError, match=match):
+        read_zmx(write(tmp_path, singlet(ftyp=ftyp)))
