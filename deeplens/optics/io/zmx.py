@@ -210,15 +210,16 @@ def _parse(path: Path):
             sysd["aperture"] = ("epd", p.arg(toks, 1, ln, "entrance-pupil diameter"), ln)
         elif key == "FNUM":
             v = p.arg(toks, 1, ln, "F-number")
-            if len(toks) > 2 and toks[2] not in ("0", "0.0"):
-                p.fail(ln, "FNUM with the paraxial working F-number flag is not supported (give "
-                           "the image-space F-number, ENPD or a floating stop)")
-            sysd["aperture"] = ("fno", v, ln)
+            flag = p.num(toks[2], ln, "FNUM flag") if len(toks) > 2 else 0
+            # flag 1: the paraxial working F-number, converted to an EPD once the lens is built
+            sysd["aperture"] = ("wfno" if flag == 1 else "fno", v, ln)
         elif key == "FLOA":
             sysd["aperture"] = ("stop", None, ln)
         elif key == "OBNA":
-            p.fail(ln, "OBNA: the object-space numerical aperture / cone angle aperture is not "
-                       "supported (use ENPD, FNUM or a floating stop)")
+            v = p.arg(toks, 1, ln, "object-space numerical aperture")
+            flag = p.num(toks[2], ln, "OBNA flag") if len(toks) > 2 else 0
+            # flag 0: n sin(θ) of the marginal ray; flag 1: the cone angle θ (degrees)
+            sysd["aperture"] = ("cone" if flag == 1 else "obna", v, ln)
         elif key == "RAIM":
             # RAIM <unused> <type: 0 off, 1 paraxial, 2 real> ...
             sysd["raim"] = (int(p.num(toks[2], ln, "RAIM ray-aiming type")) if len(toks) > 2
@@ -695,6 +696,15 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     ap_type, ap_value, ap_line = ap
     if ap_type == "epd":
         ap_value *= s_mm
+    convert = None     # an aperture given another way, turned into an EPD once the lens is built
+    if ap_type in ("wfno", "obna", "cone"):
+        if ap_type != "wfno" and math.isinf(obj_dist):
+            p.fail(ap_line, "OBNA (object-space numerical aperture / cone angle) needs an object "
+                            "at a finite distance")
+        if not ap_value > 0:
+            p.fail(ap_line, f"the aperture value must be > 0, got {ap_value!r}")
+        convert = (ap_type, ap_value, ap_line)
+        ap_type, ap_value = "epd", 1.0
     if ap_type == "stop" and stop_idx in autos:
         p.fail(kept[stop_idx][2].line, "the stop has no semi-diameter (no DIAM, or 0) and the "
                                        "system aperture is FLOA (float by stop size): give the "
@@ -732,6 +742,15 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
+    if convert is not None:
+        ap_value = _aperture_to_epd(lens, *convert, p)
+        try:
+            lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type="epd",
+                                 aperture_value=ap_value, fields_deg=[0.0],
+                                 wavelengths_nm=waves_nm, primary_wavelength_nm=primary)
+            lens.apply_aperture_spec()
+        except ValueError as e:
+            p.fail(convert[2], str(e))
 
     # ---- fields
     lens.ray_aiming = sysd["raim"][0] != 0
@@ -748,6 +767,48 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     for ln, msg in p.notes:
         warnings.warn(f"{path}:{ln}: {msg}" if ln else msg, ZemaxWarning, stacklevel=2)
     return lens
+
+
+def _aperture_to_epd(lens, kind: str, value: float, line: int, p) -> float:
+    """The entrance-pupil diameter (mm) of an aperture given as
+
+    * ``obna``: object-space NA ``n sin θ`` of the marginal ray from the axial object point to
+      the paraxial entrance pupil's rim, ``EPD = 2 |s + z_EP| tan θ`` (the convention optiland
+      follows too);
+    * ``cone``: that cone's half angle θ (degrees);
+    * ``wfno``: the paraxial working F-number ``W = 1 / (2 n' |u'|)``, ``u'`` the image-space
+      slope of the paraxial marginal ray (``W = EFL / EPD`` for an object at infinity in air).
+    """
+    from ..paraxial import _indices, _trace, paraxial
+
+    with torch.no_grad():
+        par = paraxial(lens)
+        pos = float(par.entrance_pupil_position)
+        s = float(lens.spec.object_distance_mm)
+        n, p0 = _indices(lens, None)
+        if kind in ("obna", "cone"):
+            if kind == "obna":
+                n0 = float(n[0])
+                if not value < n0:
+                    p.fail(line, f"OBNA {value:g}: the numerical aperture must be below the "
+                                 f"object-space index {n0:.6g}")
+                theta = math.asin(value / n0)
+            else:
+                if not value < 90:
+                    p.fail(line, f"OBNA {value:g} (cone angle): must be below 90 degrees")
+                theta = math.radians(value)
+            return 2.0 * abs(s + pos) * math.tan(theta)
+        one = torch.ones_like(p0)
+        if math.isinf(s):
+            y0, u0 = 1.0, 0.0          # per unit entrance-pupil radius
+        else:
+            u0 = 1.0 / (s + pos)
+            y0 = u0 * s
+        _, u, _ = _trace(lens, y0 * one, u0 * one, n)
+        g = abs(float(u))
+        if not g > 0:
+            p.fail(line, "FNUM (paraxial working F-number): the system is afocal")
+        return 2.0 / (2.0 * float(n[-1]) * value * g)
 
 
 def _chief_height(lens, field_deg: float) -> float:

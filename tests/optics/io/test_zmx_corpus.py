@@ -45,7 +45,7 @@ REFUSED = {
     "optiland_flat_transmission_grating.zmx": "DGRATING",
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
     "US05331467-1.zmx": "OBSC on SURF 2: a circular obscuration",
-    "US05831776-1.zmx": "OBNA",
+    "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "optiland_lens2.zmx": "L-BAL35",
     "thorlabs_354710-C.zmx": "D-ZK3M",
@@ -266,3 +266,54 @@ def test_automatic_semi_diameters_do_not_vignette_the_full_field():
                          reference="centroid")
         ol = float(sd.rms_spot_radius()[0][0])
     assert float(s.rms_radius) / s_mm == pytest.approx(ol, rel=5e-3)
+
+
+def _variant(tmp_path, name, subs):
+    text = decode_zemax_text(CORPUS / name)
+    for pat, rep in subs:
+        text, n = re.subn(pat, rep, text, flags=re.M)
+        assert n == 1, pat
+    p = tmp_path / f"variant_{name}"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("aperture", ["OBNA 0.05 0", "OBNA 3.0 1"])
+def test_object_space_na_matches_optiland(tmp_path, aperture):
+    """OBNA (n sin θ, or the cone angle with flag 1) on a finite-conjugate version of a real
+    file: the entrance pupil optiland derives from the same line, and its on-axis spot."""
+    p = _variant(tmp_path, "zmax_55278.zmx", [(r"^ENPD .*$", aperture),
+                                               (r"^  DISZ INFINITY", "  DISZ 400")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(p)
+    theta = math.asin(0.05) if aperture.endswith(" 0") else math.radians(3.0)
+    # optiland reads no cone angle: it gets the same cone as an NA (object space is air)
+    q = _variant(tmp_path, "zmax_55278.zmx", [(r"^ENPD .*$", f"OBNA {math.sin(theta)!r} 0"),
+                                               (r"^  DISZ INFINITY", "  DISZ 400")])
+    optic, s_mm = _oracle(q, lens)
+    epd = float(paraxial(lens).entrance_pupil_diameter)
+    assert epd == pytest.approx(float(optic.paraxial.EPD()), rel=1e-9)
+    assert epd == pytest.approx(2 * (400.0 + float(paraxial(lens).entrance_pupil_position))
+                                * math.tan(theta), rel=1e-12)
+    dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial")
+    assert dl == pytest.approx(ol, rel=5e-3)
+
+
+@pytest.mark.parametrize("obj", ["INFINITY", "400"])
+def test_paraxial_working_fnumber(tmp_path, obj):
+    """FNUM W 1 (paraxial working F/#): optiland's own paraxial marginal ray through the entrance
+    pupil deeplens derives has image-space slope 1 / (2 W)."""
+    p = _variant(tmp_path, "zmax_55278.zmx", [(r"^ENPD .*$", "FNUM 4.5 1"),
+                                               (r"^  DISZ INFINITY", f"  DISZ {obj}")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(p)
+    optic, _ = _oracle(p, lens)
+    epd = float(paraxial(lens).entrance_pupil_diameter)
+    optic.set_aperture(aperture_type="EPD", value=epd)
+    _, u = optic.paraxial.marginal_ray()
+    slope = abs(float(torch.as_tensor(u).reshape(-1)[-1]))
+    assert 1.0 / (2.0 * slope) == pytest.approx(4.5, rel=1e-9)
+    if obj == "INFINITY":
+        assert float(paraxial(lens).efl) / epd == pytest.approx(4.5, rel=1e-12)
