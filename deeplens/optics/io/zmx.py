@@ -229,6 +229,8 @@ def _parse(path: Path):
             sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
         elif key in ("XFLN", "YFLN", "XFLD", "YFLD"):
             slot = key[0].lower() + "fln"      # XFLD/YFLD: older files; XFLN/YFLN win
+            if len(toks) < 2:
+                p.fail(ln, f"{key} line is truncated: no field values")
             if key.endswith("FLN") or sysd[slot] is None:
                 sysd[slot] = ([p.num(t, ln, key) for t in toks[1:]], ln)
         elif key == "WAVM":

@@ -317,3 +317,37 @@ def test_paraxial_working_fnumber(tmp_path, obj):
     assert 1.0 / (2.0 * slope) == pytest.approx(4.5, rel=1e-9)
     if obj == "INFINITY":
         assert float(paraxial(lens).efl) / epd == pytest.approx(4.5, rel=1e-12)
+
+
+def test_damaged_real_files_fail_located(tmp_path):
+    """Real files with a line deleted, truncated, duplicated or a number corrupted (seeded) load,
+    or raise a ZemaxFileError naming the file (and the line); never another exception (the
+    same fuzzing over 1,100 damaged files found one: an empty YFLN line)."""
+    import random
+
+    rng = random.Random(22)
+    names = [f for f in FILES if f not in REFUSED]
+    p = tmp_path / "damaged.zmx"
+    for _ in range(60):
+        lines = decode_zemax_text(CORPUS / rng.choice(names)).splitlines()
+        i = rng.randrange(len(lines))
+        op = rng.choice(["del", "trunc", "num", "dup"])
+        toks = lines[i].split()
+        if op == "del":
+            del lines[i]
+        elif op == "trunc":
+            lines[i] = " ".join(toks[:max(1, len(toks) - 1)])
+        elif op == "num" and len(toks) > 1:
+            toks[rng.randrange(1, len(toks))] = rng.choice(["0", "-1", "1e9", "nan", "abc"])
+            lines[i] = "  " + " ".join(toks)
+        else:
+            lines.insert(i, lines[i])
+        p.write_text("\n".join(lines) + "\n")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                read_zmx(p)
+            except ZemaxFileError as e:
+                assert str(p) in str(e)
+                # a line, or for what the whole file lacks (no STOP, no aperture...) the file
+                assert re.search(r"damaged\.zmx(:\d+)?: ", str(e)), str(e)
