@@ -70,6 +70,9 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
         z = float(p.entrance_pupil_z)
         r = 0.5 * float(p.entrance_pupil_diameter)
         if method == "paraxial":
+            # shrunk by 1e-12: rim points must not straddle a stop that
+            # is exactly the pupil's image by rounding
+            r = r * (1.0 - 1e-12)
             return PupilRegion(0.0, 0.0, r, r, z)
         for scale in (2.0, 4.0):
             W = scale * r

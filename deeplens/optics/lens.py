@@ -373,6 +373,8 @@ class Lens(nn.Module):
         if not self.misalignments[self._element_of[i]].is_identity():
             return None
         if type(s) is Aperture:
+            if float(s.obscuration) > 0:
+                return None   # an annular opening: eager
             return "stop_rect" if s.shape == "rect" else "stop"
         if type(s) is Plane:
             return "plane"

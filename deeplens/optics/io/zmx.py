@@ -142,6 +142,7 @@ class _Surf:
     xdat: dict = field(default_factory=dict)   # index -> (value, line)
     clap: tuple | None = None
     sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
+    obsc: tuple | None = None   # (central obscuration radius, line) in file units
 
 
 class _Parser:
@@ -295,17 +296,27 @@ def _parse(path: Path):
         elif cur is not None and key == "CLAP":
             lo = p.arg(toks, 1, ln, "minimum radius")
             hi = p.arg(toks, 2, ln, "maximum radius")
-            if lo > 0:
-                p.fail(ln, "CLAP with a central obscuration (minimum radius > 0) is not supported")
+            if not 0 <= lo < hi:
+                p.fail(ln, f"CLAP: expected 0 <= minimum radius < maximum radius, got {lo:g}, "
+                           f"{hi:g}")
             cur.clap = (hi, ln)
+            if lo > 0:   # an annular clear aperture
+                cur.obsc = (lo, ln)
+        elif cur is not None and key == "OBSC":
+            lo = p.arg(toks, 1, ln, "minimum radius")
+            hi = p.arg(toks, 2, ln, "maximum radius")
+            if lo != 0 or not hi > 0:
+                p.fail(ln, f"OBSC on SURF {len(surfs) - 1}: only a central circular obscuration "
+                           f"(minimum radius 0, maximum > 0) is supported, got {lo:g}, {hi:g}")
+            cur.obsc = (hi, ln)
         elif cur is not None and key == "SQAP":
             cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"),
                         ln)
         elif cur is not None and key == "OBDC" and all(
                 p.num(t, ln, "OBDC aperture decenter") == 0 for t in toks[1:3]):
             continue   # an aperture decenter of zero
-        elif cur is not None and key in ("ELAP", "OBDC", "OBSC", "SQOB", "ELOB", "UDAD", "SPID"):
-            what = {"OBSC": "a circular obscuration",
+        elif cur is not None and key in ("ELAP", "OBDC", "SQOB", "ELOB", "UDAD", "SPID"):
+            what = {
                     "ELAP": "an elliptical aperture", "OBDC": "a decentred aperture",
                     "SQOB": "a rectangular obscuration", "ELOB": "an elliptical obscuration",
                     "UDAD": "a user-defined aperture", "SPID": "a spider"}[key]
@@ -590,7 +601,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         if s.clap is not None:
             sd = s.clap[0] * s_mm
         surf = None
-        coeffs, flat = [], False
+        coeffs, flat, fixed = [], False, s.diam_fixed and s.diam > 0
         if s.type == "STANDARD" or s.type == "EVENASPH":
             if s.type == "EVENASPH":
                 for i, (v, ln) in sorted(s.parm.items()):
@@ -610,9 +621,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                         coeffs.pop()
             flat = c == 0 and s.coni == 0 and not coeffs
             same_medium = (type(mat) is type(prev) and mat.name == prev.name)
-            fixed = s.diam_fixed and s.diam > 0
             if (flat and same_medium and not s.stop and not fixed and s.clap is None
-                    and s.sqap is None):
+                    and s.sqap is None and s.obsc is None):
                 gap += s.disz * s_mm
                 if bracket is not None:
                     bracket["zloc"] += s.disz * s_mm
@@ -631,6 +641,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             elif s.sqap is not None and flat and _is_air(mat) and _is_air(prev):
                 hx, hy, _ = s.sqap
                 surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
+            elif s.obsc is not None and flat and _is_air(mat) and _is_air(prev):
+                # OpticStudio clips only on the obscuration here (and on a CLAP or a fixed
+                # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
+                outer = sd if (s.clap is not None or fixed or s.stop) else 1.01 * sd
+                ro = s.obsc[0] * s_mm
+                surf = Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
             elif flat and _is_air(mat) and _is_air(prev):
                 surf = Aperture(sd_build)
             elif flat:
@@ -639,6 +655,10 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 surf = Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
         except ValueError as e:
             p.fail(s.type_line or s.line, f"SURF {k}: {e}")
+        if s.obsc is not None and not isinstance(surf, Aperture):
+            p.fail(s.obsc[1], f"SURF {k}: a central obscuration on a {type(surf).__name__} "
+                              f"surface is not supported (deeplens has obscurations on flat "
+                              f"surfaces in air)")
         if s.sqap is not None and not (isinstance(surf, Cylinder) or (
                 isinstance(surf, Aperture) and surf.shape == "rect")):
             p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture on a "
@@ -1267,6 +1287,8 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
         if s.shape == "rect":
             lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        if float(s.obscuration) > 0:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
         return lines
     if isinstance(s, Cylinder):
         lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 1 0"]

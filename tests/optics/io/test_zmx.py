@@ -37,6 +37,7 @@ from deeplens.optics.io import (
 from deeplens.optics.materials import GLASS_TABLE
 from deeplens.optics.misalignment import Misalignment
 from deeplens.optics.rays import Rays
+from deeplens.optics.surfaces import Aperture
 
 REPO = Path(__file__).resolve().parents[3]
 ZMX = REPO / "tests" / "data" / "lenses" / "US02532751-1.zmx"
@@ -792,3 +793,30 @@ def test_unknown_lines_reported_once_per_keyword(tmp_path):
 def test_telecentric_and_afocal_modes_refused(tmp_path, ftyp, match):
     with pytest.raises(ZemaxFileError, match=match):
         read_zmx(write(tmp_path, singlet(ftyp=ftyp)))
+
+
+@pytest.mark.parametrize("line", ["OBSC 0 2.25 0", "CLAP 2.25 5 0"])
+def test_central_obscuration_on_the_stop(tmp_path, line):
+    """OBSC (or an annular CLAP) on the flat stop in front of a singlet: the stop is the entrance
+    pupil, so exactly the pattern points with pupil radius >= 2.25/5 pass; written back as OBSC."""
+    from deeplens.analysis.spot import spot_diagram
+    from deeplens.optics.sampling import pupil_pattern
+
+    text = singlet(aperture="FLOA").replace('  DISZ 2\n  DIAM 5 1 0 0 1 ""\n',
+                                           f'  DISZ 2\n  DIAM 5 1 0 0 1 ""\n  {line}\n', 1)
+    lens = read_zmx(write(tmp_path, text))
+    stop = lens.surfaces[lens.stop_index]
+    assert isinstance(stop, Aperture) and float(stop.obscuration) == 2.25
+    s = spot_diagram(lens, 0.0, 550.0, "hexapolar:10", pupil="paraxial")
+    r = torch.linalg.vector_norm(pupil_pattern("hexapolar:10"), dim=-1)
+    assert s.n_rays == int((r >= 0.45).sum()) < s.n_launched
+    write_zmx(lens, tmp_path / "back.zmx")
+    assert "OBSC 0 2.25 0" in (tmp_path / "back.zmx").read_text()
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
+
+
+def test_obscuration_on_a_lens_surface_is_refused(tmp_path):
+    text = singlet().replace('  DIAM 8 1 0 0 1 ""\nSURF 4', '  DIAM 8 1 0 0 1 ""\n  OBSC 0 1 0\nSURF 4')
+    ln = line_of(text, "OBSC")
+    with pytest.raises(ZemaxFileError, match=f":{ln}: SURF 3: a central obscuration on a Asphere"):
+        read_zmx(write(tmp_path, text))

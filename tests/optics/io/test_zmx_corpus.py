@@ -44,7 +44,7 @@ REFUSED = {
     "optiland_curved_transmission_grating.zmx": "DGRATING",
     "optiland_flat_transmission_grating.zmx": "DGRATING",
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
-    "US05331467-1.zmx": "OBSC on SURF 2: a circular obscuration",
+    "US05331467-1.zmx": "MIRROR",   # and an obscuration on a lens surface
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "optiland_lens2.zmx": "L-BAL35",
