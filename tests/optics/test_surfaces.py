@@ -331,3 +331,18 @@ class _Entry:
 
     def fail(self, key, msg):
         raise ValueError(f"{key}: {msg}")
+
+
+def test_aperture_central_obscuration():
+    a = Aperture(5.0, obscuration=2.0)
+    x = torch.tensor([0.0, 1.99, 2.01, 4.99, 5.01], dtype=F64)
+    assert a.in_aperture(x, torch.zeros_like(x)).tolist() == [False, False, True, True, False]
+    d = a.to_dict()
+    assert d["obscuration_mm"] == 2.0
+    assert float(Aperture.from_dict(_Entry(d), 5.0).obscuration) == 2.0
+    assert "obscuration_mm" not in Aperture(5.0).to_dict()
+    for bad in ((5.0, "circle", 6.0), (5.0, "circle", -1.0)):
+        with pytest.raises(ValueError, match="central obscuration"):
+            Aperture(bad[0], bad[1], obscuration=bad[2])
+    with pytest.raises(ValueError, match="central obscuration"):
+        Aperture(None, "rect", 2.0, 1.0, obscuration=0.5)
