@@ -1110,8 +1110,22 @@ def _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         return [math.degrees(math.atan(v / (d_obj + z_ep))) for v in h]
     if kind == 2:
         if not math.isinf(d_obj):
-            p.fail(ftyp_line, "FTYP 2 (paraxial image height) with a finite object cannot be "
-                              "converted to field angles (use angles or object heights)")
+            # paraxial image height h' = m h at the paraxial image plane: the object height
+            # h = h' / m, then as FTYP 1
+            from ..paraxial import _indices, _trace
+
+            with torch.no_grad():
+                par = paraxial(lens)
+                n, p0 = _indices(lens, None)
+                one = torch.ones_like(p0)
+                y, u, _ = _trace(lens, one, 0.0 * one, n)   # from an object point of height 1
+                m = float(y + u * par.image_distance)
+            if not abs(m) > 1e-12:
+                p.fail(ftyp_line, "FTYP 2 (paraxial image height): the paraxial magnification "
+                                  "is zero")
+            z_ep = float(par.entrance_pupil_position)
+            return [math.degrees(math.atan(abs(v / m) / (d_obj + z_ep))) * (1 if v >= 0 else -1)
+                    for v in h]
         efl = float(paraxial(lens).efl)
         return [math.degrees(math.atan(v / efl)) for v in h]
     if kind == 3:

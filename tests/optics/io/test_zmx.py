@@ -286,7 +286,6 @@ def test_field_types(tmp_path):
                                        r"image height 500 mm"),
     ("FTYP 1 0 2 2 0 0 0", "INFINITY", (r":7: FTYP 1 \(object height\) with the object at "
                                        r"infinity cannot be converted")),
-    ("FTYP 2 0 2 2 0 0 0", "300", r":7: FTYP 2 \(paraxial image height\) with a finite object"),
 ])
 def test_unconvertible_field_types(tmp_path, ftyp, obj, match):
     yfln = "YFLN 0 500" if ftyp.startswith("FTYP 3") else "YFLN 0 5"
@@ -820,3 +819,17 @@ def test_obscuration_on_a_lens_surface_is_refused(tmp_path):
     ln = line_of(text, "OBSC")
     with pytest.raises(ZemaxFileError, match=f":{ln}: SURF 3: a central obscuration on a Asphere"):
         read_zmx(write(tmp_path, text))
+
+
+def test_paraxial_image_height_at_a_finite_object(tmp_path):
+    """FTYP 2 at a finite conjugate: an ideal lens f = 50 mm at 1:1 (object at 100 mm, m = -1):
+    image height 5 mm is object height 5 mm, seen from the stop at the lens under
+    atan(5 / 100); and the chief ray of that angle lands at -5 mm on the paraxial image."""
+    from deeplens.analysis.spot import chief_ray
+
+    text = _paraxial_file().replace("FTYP 0 0 2 1 0 0 0", "FTYP 2 0 2 1 0 0 0")
+    lens = read_zmx(write(tmp_path, text))
+    want = math.degrees(math.atan(5.0 / 100.0))
+    assert lens.spec.fields_deg == pytest.approx([0.0, want], rel=1e-12)
+    y, _ = chief_ray(lens, lens.spec.fields_deg[1], 550.0, image_plane="paraxial")
+    assert abs(float(y)) == pytest.approx(5.0, rel=1e-9)
