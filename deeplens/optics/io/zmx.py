@@ -874,6 +874,13 @@ def _real_image_height_angle(lens, h: float, line: int, p) -> float:
                  f"field lies beyond what the lens images)")
 
 
+def _rotationally_symmetric(surf) -> bool:
+    """Whether a surface is unchanged by a turn about its own axis (for tilt conversions)."""
+    if isinstance(surf, Aperture):
+        return surf.shape == "circle"
+    return isinstance(surf, (Asphere, Plane))
+
+
 def _zemax_tilts(ta: float, tb: float) -> tuple[float, float]:
     """deeplens' tilts (deg) as OpticStudio's x-then-y tilts (deg) that point a rotationally
     symmetric element's axis the same way (the inverse of :func:`_element_tilts`)."""
@@ -893,9 +900,7 @@ def _element_tilts(d, kept, line, p):
     dx, dy, ta, tb, tg = d
     if (ta != 0 and tb != 0) or tg != 0:
         for surf, _, s, _ in kept:
-            symmetric = (isinstance(surf, Aperture) and surf.shape == "circle") or (
-                isinstance(surf, (Asphere, Plane)) and not isinstance(surf, Aperture))
-            if not symmetric:
+            if not _rotationally_symmetric(surf):
                 p.fail(line, f"a COORDBRK with tilts about two axes (or about z) around a "
                              f"surface that is not rotationally symmetric (SURF on line "
                              f"{s.line}) is not supported")
@@ -1243,11 +1248,7 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
             d = (float(mis.dx), float(mis.dy), math.degrees(float(mis.tilt_x)),
                  math.degrees(float(mis.tilt_y)))
             if tilted and d[2] != 0 and d[3] != 0:
-                symmetric = all(
-                    (isinstance(s_, Aperture) and s_.shape == "circle")
-                    or (isinstance(s_, (Asphere, Plane)) and not isinstance(s_, Aperture))
-                    for s_ in lens.surfaces[a:b + 1])
-                if not symmetric:
+                if not all(_rotationally_symmetric(s_) for s_ in lens.surfaces[a:b + 1]):
                     raise ZemaxFileError(f"element {e} (surfaces {a}-{b}) is tilted about both x "
                                          f"and y and is not rotationally symmetric: OpticStudio's "
                                          f"x-then-y tilts cannot express deeplens' R_y R_x")
