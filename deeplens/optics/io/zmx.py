@@ -12,6 +12,7 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
     COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), R = R_x R_y R_z of the tilts
                PARM 3/4/5 in degrees (order flag PARM 6 = 0)
     PARAXIAL   an ideal thin lens of focal length PARM 1
+    TOROIDAL   with PARM 1 (radius of rotation) = 0: a cylinder, z = conic(y) + Σ PARM (i+1) y^{2i}
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 
@@ -22,14 +23,22 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   ``SURF`` the image (the gap before it is the sensor distance, its ``DIAM`` the sensor
   semi-diameter).  ``DIAM`` is a semi-diameter.  ``DISZ`` is the gap to the next vertex.
 * Aperture: ``ENPD`` -> ``epd``, ``FNUM v 0`` -> ``fno`` (image-space F-number at infinity),
-  ``FLOA`` -> ``stop`` (the stop's own ``DIAM``).
+  ``FLOA`` -> ``stop`` (the stop's own ``DIAM``); ``OBNA`` (finite object) and ``FNUM v 1``
+  (paraxial working F-number) become the EPD they define (:mod:`.zmx_system`).  With ``epd`` or
+  ``fno`` the stop may be any surface (a lens surface too): :meth:`Lens.apply_aperture_spec`
+  sizes it paraxially.  ``RAIM`` sets ``lens.ray_aiming``, which picks the pupil sampling
+  ``deeplens report`` uses (:func:`~.zmx_system.lens_pupil_convention`).
 * Fields ``YFLN`` (and ``XFLN``, combined radially for a rotationally symmetric lens) with
-  ``FTYP`` 0 (angle), 1 (object height, finite object: ``θ = atan(h / (d_obj + z_EP))``) or 2
-  (paraxial image height at infinity: ``θ = atan(h' / f)``).  Real image height and theodolite
-  angles are rejected.
+  ``FTYP`` 0 (angle), 1 (object height, finite object: ``θ = atan(h / (d_obj + z_EP))``), 2
+  (paraxial image height: ``θ = atan(h' / f)`` at infinity, the object height ``h' / m`` at a
+  finite object), 3 (real image height: the chief ray solved to land there) or 4 (theodolite
+  angles, one component at a time).
 * Dummy surfaces (flat, the same medium on both sides, not the stop, automatic ``DIAM``) carry only
   a thickness and are merged into the gaps; a flat air surface with a fixed ``DIAM`` becomes an
-  :class:`~deeplens.optics.surfaces.Aperture`.
+  :class:`~deeplens.optics.surfaces.Aperture` (rectangular with ``SQAP``, with a central
+  obscuration with ``OBSC`` or an annular ``CLAP``).  A surface with no ``DIAM`` gets an
+  automatic semi-diameter from real rays; an image plane on a flat last vertex puts the sensor
+  1e-9 mm behind it.
 * ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
   vertex, and the reversing break) become that element's
   :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``; tilts
@@ -37,14 +46,15 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   point its axis the same way); any other coordinate break is an error.
 * ``GLAS name`` is looked up exactly in the catalogues named by ``GCAT``: the user's ``.agf`` files
   (:mod:`.agf`) by file stem, the vendor catalogues of :mod:`.vendor_glass` (current, then
-  previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d`` (a Zemax model glass) becomes a
+  previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d``
+  (a Zemax model glass) becomes a
   :class:`~deeplens.optics.materials.ModelGlass` (deeplens' Cauchy model: exact at n_d and V_d,
   Zemax's own model differs slightly elsewhere).  A glass not found is an error naming it and its
   line, unless the caller passes ``glass_fallback``.
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
-would change the optics if ignored (other surface types, mirrors, obscurations, object-space NA
-apertures, ...) are errors.  :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
+would change the optics if ignored (other surface types, mirrors, obscurations on lens surfaces,
+telecentric object space, ...) are errors naming the file, the line and the feature.  :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
 written and read again has the same prescription.
 """
 
