@@ -98,7 +98,7 @@ _UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 BUILTIN_CATALOGUES = {
     "SCHOTT": ("N-BK7", "N-SF5", "SF5", "N-SF6", "N-SF2", "N-SF10", "SF10", "N-SF11", "N-BAF10",
                "N-BAK1", "N-BAK4", "N-SK16", "N-SSK8", "F2", "N-F2", "N-LAK9", "N-LAK22",
-               "N-LASF9", "N-LASF44", "N-K5", "N-PSK53A", "B270", "SSK4"),
+               "N-LASF9", "N-LASF44", "N-K5", "N-PSK53A", "B270"),
     "MISC": ("F_SILICA", "SILICA", "FUSED_SILICA", "PMMA", "POLYCARB"),
 }
 """Zemax catalogue name -> the names deeplens' built-in catalogue resolves for it (after the

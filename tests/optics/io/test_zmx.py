@@ -94,9 +94,9 @@ def test_shipped_zmx_report_matches_table():
     """`deeplens report` takes the .zmx directly: same EFL and spots as the table's lens."""
     opts = ("--pupil", "paraxial", "--sampling", "hexapolar:10")
     rz, rj = report(ZMX, *opts), report(JSON, *opts)
-    # the .zmx gets SK1, F15 and SK16 from the previous SCHOTT catalogue, the table its authors'
-    # rounded n_d / V_d: EFL 27.4392 against 27.4425 mm
-    assert rz["efl_mm"] == pytest.approx(27.4392, abs=1e-4)
+    # the .zmx gets SSK4, SK1, F15 and SK16 from the previous SCHOTT catalogue, the table its
+    # authors' rounded n_d / V_d: EFL 27.4400 against 27.4425 mm
+    assert rz["efl_mm"] == pytest.approx(27.4400, abs=1e-4)
     assert rz["efl_mm"] == pytest.approx(rj["efl_mm"], rel=2e-4)
     for a, b in zip(rz["fields"], rj["fields"]):
         assert a["field_deg"] == b["field_deg"] and a["n_rays"] == b["n_rays"]
@@ -309,7 +309,7 @@ def test_glass_not_found_names_glass_and_line(tmp_path):
     with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: glass 'N-BK7X' not found by exact "
                                              r"name in the catalogues searched \(SCHOTT \(current "
                                              r"vendor catalogue, 123 glasses\); SCHOTT \(deeplens "
-                                             r"built-in, 23 glasses\); SCHOTT previous"):
+                                             r"built-in, 22 glasses\); SCHOTT previous"):
         read_zmx(p)
     # never fuzzy: load_lens says the same
     with pytest.raises(LensFileError, match="N-BK7X"):
@@ -667,14 +667,17 @@ def test_leading_dummy_adds_to_the_object_distance(tmp_path):
 
 @pytest.mark.parametrize("glass,line", [("FUSED_SILICA", "GLAS F_SILICA"),
                                         ("PC", "GLAS POLYCARB"), ("B270", "GLAS B270"),
-                                        ("SSK4", "GLAS SSK4")])
+                                        ("SSK4", "GLAS SSK4 1")])
 def test_catalogue_glasses_written_under_zemax_names(tmp_path, glass, line):
+    """Catalogue entries under their Zemax names; SSK4, a model glass of deeplens' table (the
+    paper authors' n_d / V_d), as a named model glass (code 1), so that it comes back as itself
+    rather than as the previous catalogue's SSK4."""
     from deeplens.optics.materials import get_material
 
     lens = load_lens(REPO / "data" / "lenses" / "thorlabs_la1131.json")
     lens.materials[1] = get_material(glass)
     write_zmx(lens, tmp_path / "g.zmx")
-    assert line + " 0 0" in (tmp_path / "g.zmx").read_text()
+    assert line + (" 0 " if glass == "SSK4" else " 0 0") in (tmp_path / "g.zmx").read_text()
     assert read_zmx(tmp_path / "g.zmx").materials[1].to_spec() == glass
 
 
