@@ -292,6 +292,9 @@ def _parse(path: Path):
             if name.upper() == "MIRROR":
                 p.fail(ln, "GLAS MIRROR: reflective surfaces are not supported (deeplens traces "
                            "refractive sequential systems)")
+            if name.upper() in ("AIR", "VACUUM"):
+                cur.glass, cur.glass_model, cur.glass_line = None, None, ln
+                continue   # written by some converters: the same as no GLAS line
             code = toks[2] if len(toks) > 2 else "0"
             model = None
             if len(toks) >= 6:

@@ -836,3 +836,10 @@ def test_paraxial_image_height_at_a_finite_object(tmp_path):
     assert lens.spec.fields_deg == pytest.approx([0.0, want], rel=1e-12)
     y, _ = chief_ray(lens, lens.spec.fields_deg[1], 550.0, image_plane="paraxial")
     assert abs(float(y)) == pytest.approx(5.0, rel=1e-9)
+
+
+def test_glass_air_is_air(tmp_path):
+    text = singlet().replace('SURF 3\n  TYPE STANDARD\n', 'SURF 3\n  TYPE STANDARD\n  GLAS AIR\n', 1)
+    assert "GLAS AIR" in text
+    lens = read_zmx(write(tmp_path, text))
+    assert lens_to_dict(lens) == lens_to_dict(read_zmx(write(tmp_path, singlet(), "plain.zmx")))
