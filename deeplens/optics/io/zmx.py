@@ -352,8 +352,11 @@ def _parse(path: Path):
                            f"ignored: indices are the catalogues' at their reference temperature")
         elif key == "MNUM":
             if len(toks) > 1 and p.num(toks[1], ln, key) > 1:
-                p.note(ln, "multi-configuration file: only the surface data (configuration 1) "
-                           "is read")
+                n_cfg = int(p.num(toks[1], ln, key))
+                cur_cfg = int(p.num(toks[2], ln, key)) if len(toks) > 2 else 1
+                p.note(ln, f"multi-configuration file ({n_cfg} configurations): the surface data "
+                           f"as saved (configuration {cur_cfg}, the active one) is read; the "
+                           f"other configurations' values are not applied")
         elif key in _SILENT:
             continue
         else:

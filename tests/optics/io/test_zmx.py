@@ -843,3 +843,11 @@ def test_glass_air_is_air(tmp_path):
     assert "GLAS AIR" in text
     lens = read_zmx(write(tmp_path, text))
     assert lens_to_dict(lens) == lens_to_dict(read_zmx(write(tmp_path, singlet(), "plain.zmx")))
+
+
+def test_multi_configuration_is_reported(tmp_path):
+    text = singlet(extra_system=("MNUM 3 2",))
+    ln = line_of(text, "MNUM")
+    with pytest.warns(ZemaxWarning, match=f":{ln}: multi-configuration file \\(3 configurations\\)"
+                                          f": the surface data as saved \\(configuration 2"):
+        read_zmx(write(tmp_path, text))
