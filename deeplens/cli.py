@@ -33,6 +33,7 @@ def _report(args) -> int:
     from .analysis.checks import AnalysisError, check_wavelength
     from .analysis.report import analysis_report, format_report, lens_report
     from .optics.io import load_lens
+    from .optics.io.zmx import lens_pupil_convention
     from .optics.materials import check_wavelength_nm
     from .optics.sampling import parse_sampling
 
@@ -55,7 +56,8 @@ def _report(args) -> int:
             except AnalysisError as e:
                 raise _UsageError(f"--wavelengths: {e}") from None
         kinds = _analysis_kinds(args.analysis) if args.analysis is not None else None
-        rep = lens_report(lens, fields, waves, args.sampling, args.pupil, args.image_plane)
+        pupil = args.pupil or lens_pupil_convention(lens)   # a .zmx file's RAIM decides
+        rep = lens_report(lens, fields, waves, args.sampling, pupil, args.image_plane)
         if kinds:
             rep["analysis"] = analysis_report(lens, kinds, fields, waves, args.image_plane)
     except (ValueError, OSError) as e:
@@ -323,8 +325,9 @@ def main(argv=None) -> int:
     r.add_argument("--wavelengths", help="wavelengths in nm, e.g. 486.1,587.6 (default: file's)")
     r.add_argument("--sampling", default="hexapolar:18",
                    help="pupil sampling: hexapolar:RINGS, grid:N or random:N[:SEED]")
-    r.add_argument("--pupil", choices=["traced", "paraxial"], default="traced",
-                   help="sample the pupil found by tracing (default) or the paraxial EP")
+    r.add_argument("--pupil", choices=["traced", "paraxial"], default=None,
+                   help="sample the pupil found by tracing or the paraxial EP (default: traced; "
+                        "for a .zmx file, what its RAIM line says: paraxial without ray aiming)")
     r.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
     r.add_argument("--json", action="store_true", help="print JSON instead of a table")
     r.add_argument("--analysis", help="also compute these, comma-separated: cardinal,distortion,"

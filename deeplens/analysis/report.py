@@ -45,7 +45,8 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
                 row = {"field_deg": float(f), "wavelength_nm": float(w)}
                 try:
                     region = find_pupil(lens, f, w, pupil)
-                    s = spot_diagram(lens, f, w, sampling, image_plane=z_img, region=region)
+                    s = spot_diagram(lens, f, w, sampling, pupil, image_plane=z_img,
+                                     region=region)
                     row.update(rms_spot_um=float(s.rms_radius) * 1e3,
                                centroid_mm=[float(v) for v in s.centroid],
                                n_rays=s.n_rays, n_launched=s.n_launched)

@@ -289,12 +289,15 @@ class Lens(nn.Module):
                                 f"{float(self.d_sensor):g} mm)", key="sensor")
 
     def apply_aperture_spec(self) -> None:
-        """Size the stop so that the entrance pupil matches ``spec`` (EPD or F-number)."""
+        """Size the stop so that the paraxial entrance pupil matches ``spec`` (EPD or F-number).
+
+        The stop may be an :class:`Aperture` or a lens surface (as in most vendor files): its
+        semi-diameter becomes the paraxial stop radius, ``EPD/2 · |y_stop / y_EP|``."""
 
         stop = self.stop
-        if not isinstance(stop, Aperture) or stop.shape != "circle":
-            raise LensError("an EPD or F-number aperture needs a circular Aperture surface as "
-                            "the stop", key="aperture")
+        if isinstance(stop, Aperture) and stop.shape != "circle":
+            raise LensError("an EPD or F-number aperture needs a circular stop (this Aperture is "
+                            "rectangular)", key="aperture")
         p = paraxial(self)
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)
@@ -308,7 +311,8 @@ class Lens(nn.Module):
         if not (sd > 0 and math.isfinite(sd)):
             raise LensError(f"aperture {self.spec.aperture_type} {self.spec.aperture_value!r} "
                             f"gives a stop semi-diameter of {sd!r} mm", key="aperture")
-        stop.set_semi_diameter(sd)
+        with torch.no_grad():
+            stop.semi_diameter.fill_(sd)
 
     # ------------------------------------------------------------------ media
     def indices(self, wavelength: torch.Tensor) -> list[torch.Tensor]:
@@ -384,6 +388,8 @@ class Lens(nn.Module):
         if not self.misalignments[self._element_of[i]].is_identity():
             return None
         if type(s) is Aperture:
+            if float(s.obscuration) > 0:
+                return None   # an annular opening: eager
             return "stop_rect" if s.shape == "rect" else "stop"
         if type(s) is Plane:
             return "plane"

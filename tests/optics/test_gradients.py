@@ -28,7 +28,8 @@ import helpers as H
 from deeplens.optics.intersect import IntersectOptions, intersect
 from deeplens.optics.lens import Lens
 from deeplens.optics.materials import get_material
-from deeplens.optics.surfaces import Aperture, Asphere, BSpline, Plane, Sphere, XYPolynomial
+from deeplens.optics.surfaces import (Aperture, Asphere, BSpline, Cylinder, Plane, Sphere,
+                                      XYPolynomial)
 
 F64 = torch.float64
 R_REF = 3.0  # mm: the radius at which a step's sag change is sized
@@ -54,6 +55,7 @@ SURFACES = {
     "xy_b0": lambda: XYPolynomial(8.0, XY_COEFFS, b=0.0),
     "xy_b": lambda: XYPolynomial(8.0, [0.01] + XY_COEFFS[1:], b=0.03),
     "bspline": _bspline,
+    "cylinder": lambda: Cylinder(1 / 30, 8.0, conic=-0.5, coefficients=[2e-3, 2e-5]),
 }
 
 # (surface kind, parameter name, finite-difference step)
@@ -71,6 +73,8 @@ for _kind in ("xy_b0", "xy_b"):
              for m, (i, j) in enumerate(XYPolynomial(1.0, XY_COEFFS).terms)]
     _OWN.append((_kind, "b", 4e-3))  # dz/db ~ z^2 ~ 0.025 mm^2 at r = 3
 _OWN += [("bspline", f"C{p}{q}", DZ) for p, q in ((3, 3), (2, 4), (4, 2), (1, 3), (4, 4))]
+_OWN += [("cylinder", "c", 2 * DZ / R_REF ** 2), ("cylinder", "k", 0.25),
+         ("cylinder", "a2", DZ / R_REF ** 2), ("cylinder", "a4", DZ / R_REF ** 4)]
 _LENS = [("distance0", 1e-4), ("distance1", 1e-4), ("distance2", 1e-4), ("dx", 1e-4),
          ("dy", 1e-4), ("tilt_x", 1e-5), ("tilt_y", 1e-5), ("d_sensor", 1e-4)]
 CASES = _OWN + [(kind, name, h) for kind in SURFACES for name, h in _LENS]
@@ -112,6 +116,8 @@ def select(lens: Lens, name: str):
         return s.coefficients, (int(name[1]), int(name[2]))
     if isinstance(s, XYPolynomial):
         return (s.b, None) if name == "b" else (s.a[int(name[1:])], None)
+    if isinstance(s, Cylinder) and name.startswith("a"):
+        return s.a[(int(name[1:]) - 2) // 2], None
     if name in ("c", "k"):
         return getattr(s, name), None
     return s.a[(int(name[1:]) - 4) // 2], None

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from deeplens.optics.surfaces import (
-    SURFACE_TYPES, Aperture, Asphere, BSpline, Plane, Sphere, XYPolynomial,
+    SURFACE_TYPES, Aperture, Asphere, BSpline, Cylinder, Plane, Sphere, XYPolynomial,
 )
 from deeplens.optics.surfaces.xy_polynomial import xy_terms
 
@@ -43,6 +43,8 @@ def _surfaces():
                                    1e-3], b=0.04),
         "bspline": BSpline(8.0, 0.3 * torch.randn(7, 9, generator=g, dtype=F64)),
         "plane": Plane(8.0),
+        "cylinder": Cylinder(1 / 15.0, 8.0, conic=-0.6, coefficients=[1e-3, 2e-4, -3e-6]),
+        "cylinder_rect": Cylinder(-1 / 20.0, 8.0, half_widths=(7.0, 5.0)),
     }
 
 
@@ -294,3 +296,53 @@ def test_xy_polynomial_hits_lie_on_the_vertex_sheet():
     assert int(ok.sum()) > 1500
     off = (x[:, 2] - s.sag(x[:, 0], x[:, 1])).abs()[ok]
     assert float(off.max()) < 1e-8, f"{int((off > 1e-8).sum())} hits on the far sheet"
+
+
+def test_cylinder_closed_form_and_aperture():
+    """z depends on y only: the conic section plus a2 y² + a4 y⁴; the rectangle clips."""
+    c, k, a2, a4 = 1 / 15.0, -0.6, 1e-3, 2e-4
+    s = Cylinder(c, 8.0, conic=k, coefficients=[a2, a4], half_widths=(7.0, 5.0))
+    y = torch.tensor([0.0, 1.0, -3.0, 4.5], dtype=F64)
+    for x in (0.0, 2.5, -6.0):
+        xs = torch.full_like(y, x)
+        want = c * y ** 2 / (1 + torch.sqrt(1 - (1 + k) * c * c * y ** 2)) + a2 * y ** 2 + a4 * y ** 4
+        torch.testing.assert_close(s.sag(xs, y), want, rtol=0, atol=1e-15)
+    assert float(s.paraxial_curvature()) == pytest.approx(c + 2 * a2, rel=1e-15)
+    inside = s.in_aperture(torch.tensor([6.9, 7.1, 0.0, 0.0], dtype=F64),
+                           torch.tensor([0.0, 0.0, 4.9, 5.1], dtype=F64))
+    assert inside.tolist() == [True, False, True, False]
+    with pytest.raises(ValueError, match="beyond the domain"):
+        Cylinder(1 / 4.0, 8.0, half_widths=(3.0, 5.0)).check()
+    d = s.to_dict()
+    assert Cylinder.from_dict(_Entry(d), d["semi_diameter_mm"]).to_dict() == d
+
+
+class _Entry:
+    """The lens-file reader's entry interface, over a plain dict."""
+
+    def __init__(self, d):
+        self.d = d
+
+    def has(self, key):
+        return key in self.d
+
+    def get(self, key, kind="number", default=None):
+        return self.d.get(key, default)
+
+    def fail(self, key, msg):
+        raise ValueError(f"{key}: {msg}")
+
+
+def test_aperture_central_obscuration():
+    a = Aperture(5.0, obscuration=2.0)
+    x = torch.tensor([0.0, 1.99, 2.01, 4.99, 5.01], dtype=F64)
+    assert a.in_aperture(x, torch.zeros_like(x)).tolist() == [False, False, True, True, False]
+    d = a.to_dict()
+    assert d["obscuration_mm"] == 2.0
+    assert float(Aperture.from_dict(_Entry(d), 5.0).obscuration) == 2.0
+    assert "obscuration_mm" not in Aperture(5.0).to_dict()
+    for bad in ((5.0, "circle", 6.0), (5.0, "circle", -1.0)):
+        with pytest.raises(ValueError, match="central obscuration"):
+            Aperture(bad[0], bad[1], obscuration=bad[2])
+    with pytest.raises(ValueError, match="central obscuration"):
+        Aperture(None, "rect", 2.0, 1.0, obscuration=0.5)

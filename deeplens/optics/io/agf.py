@@ -218,6 +218,7 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
     cat_name = (name or path.stem).upper()
     records: dict[str, AgfRecord] = {}
     notes: list[str] = []
+    unknown: dict[str, tuple[int, int]] = {}   # record kind -> (first line, count)
     cur: dict | None = None
 
     def fail(ln, msg):
@@ -297,12 +298,15 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
             elif key == "TD" and not notes:
                 notes.append(f"{path}: TD (thermal dispersion) records are ignored: indices are "
                              f"those at each catalogue's reference temperature")
-        elif key in ("CC", "GC") or key.startswith("!"):
-            continue
+        elif key in ("CC", "GC", "MD", "BD") or key.startswith("!"):
+            continue   # comments, glass comments, and newer catalogues' melt/bulk data records
         else:
-            warnings.warn(f"{path}:{ln}: unknown record {toks[0]!r} ignored (known: CC, NM, GC, "
-                          f"ED, CD, TD, OD, LD, IT)", stacklevel=2)
+            first, count = unknown.get(toks[0], (ln, 0))
+            unknown[toks[0]] = (first, count + 1)
     finish()
+    for rec_key, (first, count) in unknown.items():   # one warning per kind, not per line
+        warnings.warn(f"{path}:{first}: unknown record {rec_key!r} ignored ({count} line(s); "
+                      f"known: CC, NM, GC, ED, CD, TD, OD, LD, IT, MD, BD)", stacklevel=2)
     if not records:
         raise AgfError(f"{path}: no glass (NM record) found: not a Zemax .agf catalogue?")
     return GlassCatalogue(cat_name, path, records, notes)

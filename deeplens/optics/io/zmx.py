@@ -9,7 +9,10 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
                                                           normalisation radius R, XDAT 3.. = A_j in
                                                           the order x, y, x², xy, y², x³, ...;
                                                           read when CURV = 0)
-    COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), tilts PARM 3/4 in degrees
+    COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), R = R_x R_y R_z of the tilts
+               PARM 3/4/5 in degrees (order flag PARM 6 = 0)
+    PARAXIAL   an ideal thin lens of focal length PARM 1
+    TOROIDAL   with PARM 1 (radius of rotation) = 0: a cylinder, z = conic(y) + Σ PARM (i+1) y^{2i}
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 
@@ -20,28 +23,38 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   ``SURF`` the image (the gap before it is the sensor distance, its ``DIAM`` the sensor
   semi-diameter).  ``DIAM`` is a semi-diameter.  ``DISZ`` is the gap to the next vertex.
 * Aperture: ``ENPD`` -> ``epd``, ``FNUM v 0`` -> ``fno`` (image-space F-number at infinity),
-  ``FLOA`` -> ``stop`` (the stop's own ``DIAM``).
+  ``FLOA`` -> ``stop`` (the stop's own ``DIAM``); ``OBNA`` (finite object) and ``FNUM v 1``
+  (paraxial working F-number) become the EPD they define (:mod:`.zmx_system`).  With ``epd`` or
+  ``fno`` the stop may be any surface (a lens surface too): :meth:`Lens.apply_aperture_spec`
+  sizes it paraxially.  ``RAIM`` sets ``lens.ray_aiming``, which picks the pupil sampling
+  ``deeplens report`` uses (:func:`~.zmx_system.lens_pupil_convention`).
 * Fields ``YFLN`` (and ``XFLN``, combined radially for a rotationally symmetric lens) with
-  ``FTYP`` 0 (angle), 1 (object height, finite object: ``θ = atan(h / (d_obj + z_EP))``) or 2
-  (paraxial image height at infinity: ``θ = atan(h' / f)``).  Real image height and theodolite
-  angles are rejected.
+  ``FTYP`` 0 (angle), 1 (object height, finite object: ``θ = atan(h / (d_obj + z_EP))``), 2
+  (paraxial image height: ``θ = atan(h' / f)`` at infinity, the object height ``h' / m`` at a
+  finite object), 3 (real image height: the chief ray solved to land there) or 4 (theodolite
+  angles, one component at a time).
 * Dummy surfaces (flat, the same medium on both sides, not the stop, automatic ``DIAM``) carry only
   a thickness and are merged into the gaps; a flat air surface with a fixed ``DIAM`` becomes an
-  :class:`~deeplens.optics.surfaces.Aperture`.
+  :class:`~deeplens.optics.surfaces.Aperture` (rectangular with ``SQAP``, with a central
+  obscuration with ``OBSC`` or an annular ``CLAP``).  A surface with no ``DIAM`` gets an
+  automatic semi-diameter from real rays; an image plane on a flat last vertex puts the sensor
+  1e-9 mm behind it.
 * ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
   vertex, and the reversing break) become that element's
-  :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``: one of the two
-  tilts may be non-zero per bracket); any other coordinate break is an error.
+  :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``; tilts
+  about two axes, or about z, of a rotationally symmetric element become the two tilts that
+  point its axis the same way); any other coordinate break is an error.
 * ``GLAS name`` is looked up exactly in the catalogues named by ``GCAT``: the user's ``.agf`` files
-  (:mod:`.agf`) by file stem, and deeplens' own catalogue, which answers for ``SCHOTT`` and
-  ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d`` (a Zemax model glass) becomes a
+  (:mod:`.agf`) by file stem, the vendor catalogues of :mod:`.vendor_glass` (current, then
+  previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d``
+  (a Zemax model glass) becomes a
   :class:`~deeplens.optics.materials.ModelGlass` (deeplens' Cauchy model: exact at n_d and V_d,
   Zemax's own model differs slightly elsewhere).  A glass not found is an error naming it and its
   line, unless the caller passes ``glass_fallback``.
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
-would change the optics if ignored (other surface types, mirrors, obscurations, object-space NA
-apertures, ...) are errors.  :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
+would change the optics if ignored (other surface types, mirrors, obscurations on lens surfaces,
+telecentric object space, ...) are errors naming the file, the line and the feature.  :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
 written and read again has the same prescription.
 """
 
@@ -57,12 +70,18 @@ import torch
 
 from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, check_wavelength_nm, get_material
-from ..surfaces import Aperture, Asphere, Plane, XYPolynomial
+from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
 from .lensfile import LensFileError
+from .zmx_system import (aperture_to_epd, element_tilts, fields_to_angles, lens_pupil_convention,
+                         rotationally_symmetric, zemax_tilts)
+from .vendor_glass import (CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
+                           BuchdahlGlass, catalogue_size, find_in_vendor_catalogues,
+                           previous_glass, vendor_glass)
 
-__all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "read_zmx", "write_zmx"]
+__all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "lens_pupil_convention",
+           "read_zmx", "write_zmx"]
 
 
 class ZemaxFileError(LensFileError):
@@ -79,10 +98,29 @@ _UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 BUILTIN_CATALOGUES = {
     "SCHOTT": ("N-BK7", "N-SF5", "SF5", "N-SF6", "N-SF2", "N-SF10", "SF10", "N-SF11", "N-BAF10",
                "N-BAK1", "N-BAK4", "N-SK16", "N-SSK8", "F2", "N-F2", "N-LAK9", "N-LAK22",
-               "N-LASF9", "N-LASF44", "N-K5", "N-PSK53A", "B270", "SSK4", "SK1", "F15", "SK16"),
+               "N-LASF9", "N-LASF44", "N-K5", "N-PSK53A", "B270"),
     "MISC": ("F_SILICA", "SILICA", "FUSED_SILICA", "PMMA", "POLYCARB"),
 }
-"""Zemax catalogue name -> the names deeplens' built-in catalogue resolves for it."""
+"""Zemax catalogue name -> the names deeplens' built-in catalogue resolves for it (after the
+vendor catalogues of :mod:`.vendor_glass`)."""
+
+# the n_d / V_d OpticStudio writes on the GLAS line of a catalogue glass it has not evaluated
+_PLACEHOLDER_ND_VD = (1.5, 40.0)
+
+# surface types met in real files that deeplens refuses, and what they are
+_UNSUPPORTED_TYPES = {
+"QED_TYPE": "a Q-type (Forbes) asphere",
+    "QTYPEASP": "a Q-type (Forbes) asphere", "DGRATING": "a diffraction grating",
+"BINARY_2": "a binary-optic (diffractive) surface",
+    "ODDASPH": "an odd asphere", "BICONICX": "a biconic", "GRINSUR1": "a gradient-index surface",
+    "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
+}
+
+# the sensor distance used when a file puts the image plane on the last (flat) vertex
+_IMAGE_ON_VERTEX_MM = 1e-9
+
+# the semi-diameter a surface with no DIAM is built with before its automatic value is set
+_PROVISIONAL_SD_MM = 1e-3
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
 _SILENT = {
@@ -91,7 +129,8 @@ _SILENT = {
     "COFN", "FIMP", "HIDE", "MIRR", "SLAB", "MEMA", "POPS", "FLAP", "BLNK", "TOL",
     "MOFF", "COMM", "NOTE", "WWGT", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
     "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "PPAR", "CONF", "DMFS", "BLDM",
-    "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "RAIM", "THSO",
+    "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "THSO",
+    "AUTH", "IWDP", "LUID", "EERA", "SSID", "DBDT",
 }
 
 
@@ -110,9 +149,12 @@ class _Surf:
     glass: str | None = None
     glass_model: tuple | None = None   # (n_d, V_d) on the GLAS line
     glass_line: int = 0
+    glass_model_name: str | None = None   # GLAS NAME 1 0 n_d V_d: a named model glass
     parm: dict = field(default_factory=dict)   # index -> (value, line)
     xdat: dict = field(default_factory=dict)   # index -> (value, line)
     clap: tuple | None = None
+    sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
+    obsc: tuple | None = None   # (central obscuration radius, line) in file units
 
 
 class _Parser:
@@ -151,9 +193,10 @@ def _parse(path: Path):
         p.fail(0, f"not a UTF-8 or UTF-16 text file ({e.reason} at byte {e.start})")
     sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None, "yfln": None,
             "waves": {}, "wavl": None, "pwav": (1, 0), "gcat": ([], 0), "name": "",
-            "mode": None}
+            "mode": None, "raim": (0, 0)}
     surfs: list[_Surf] = []
     cur: _Surf | None = None
+    unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
     for ln, line in enumerate(text.splitlines(), start=1):
         toks = line.split()
         if not toks:
@@ -180,20 +223,27 @@ def _parse(path: Path):
             sysd["aperture"] = ("epd", p.arg(toks, 1, ln, "entrance-pupil diameter"), ln)
         elif key == "FNUM":
             v = p.arg(toks, 1, ln, "F-number")
-            if len(toks) > 2 and toks[2] not in ("0", "0.0"):
-                p.fail(ln, "FNUM with the paraxial working F-number flag is not supported (give "
-                           "the image-space F-number, ENPD or a floating stop)")
-            sysd["aperture"] = ("fno", v, ln)
+            flag = p.num(toks[2], ln, "FNUM flag") if len(toks) > 2 else 0
+            # flag 1: the paraxial working F-number, converted to an EPD once the lens is built
+            sysd["aperture"] = ("wfno" if flag == 1 else "fno", v, ln)
         elif key == "FLOA":
             sysd["aperture"] = ("stop", None, ln)
-        elif key in ("OBNA", "OBSC"):
-            p.fail(ln, f"{key}: the object-space numerical aperture / cone angle aperture is not "
-                       f"supported (use ENPD, FNUM or a floating stop)")
+        elif key == "OBNA":
+            v = p.arg(toks, 1, ln, "object-space numerical aperture")
+            flag = p.num(toks[2], ln, "OBNA flag") if len(toks) > 2 else 0
+            # flag 0: n sin(θ) of the marginal ray; flag 1: the cone angle θ (degrees)
+            sysd["aperture"] = ("cone" if flag == 1 else "obna", v, ln)
+        elif key == "RAIM":
+            # RAIM <unused> <type: 0 off, 1 paraxial, 2 real> ...
+            sysd["raim"] = (int(p.num(toks[2], ln, "RAIM ray-aiming type")) if len(toks) > 2
+                            else 0, ln)
         elif key == "FTYP":
             p.arg(toks, 1, ln, "field type")
             sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
         elif key in ("XFLN", "YFLN", "XFLD", "YFLD"):
             slot = key[0].lower() + "fln"      # XFLD/YFLD: older files; XFLN/YFLN win
+            if len(toks) < 2:
+                p.fail(ln, f"{key} line is truncated: no field values")
             if key.endswith("FLN") or sysd[slot] is None:
                 sysd[slot] = ([p.num(t, ln, key) for t in toks[1:]], ln)
         elif key == "WAVM":
@@ -209,9 +259,12 @@ def _parse(path: Path):
             if len(toks) < 2:
                 p.fail(ln, "TYPE line is truncated: missing the surface type")
             cur.type, cur.type_line = toks[1].upper(), ln
-            if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM"):
-                p.fail(ln, f"unknown surface type {toks[1]!r} (SURF {len(surfs) - 1}); deeplens "
-                           f"reads STANDARD, EVENASPH, COORDBRK and XYPOLYNOM")
+            if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM", "PARAXIAL",
+                                "TOROIDAL"):
+                what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
+                p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
+                           f"supported; deeplens reads STANDARD, EVENASPH, COORDBRK, XYPOLYNOM, "
+                           f"PARAXIAL and TOROIDAL cylinders")
         elif cur is not None and key == "CURV":
             cur.curv = p.arg(toks, 1, ln, "curvature")
         elif cur is not None and key == "DISZ":
@@ -239,6 +292,9 @@ def _parse(path: Path):
             if name.upper() == "MIRROR":
                 p.fail(ln, "GLAS MIRROR: reflective surfaces are not supported (deeplens traces "
                            "refractive sequential systems)")
+            if name.upper() in ("AIR", "VACUUM"):
+                cur.glass, cur.glass_model, cur.glass_line = None, None, ln
+                continue   # written by some converters: the same as no GLAS line
             code = toks[2] if len(toks) > 2 else "0"
             model = None
             if len(toks) >= 6:
@@ -248,23 +304,44 @@ def _parse(path: Path):
                     p.fail(ln, "a model glass (GLAS ___BLANK 1 0 n_d V_d) line is truncated: "
                                "missing n_d and V_d")
                 cur.glass = None
+                cur.glass_model_name = None if name.upper() == "___BLANK" else name.upper()
             else:
                 cur.glass = name.upper()
             cur.glass_model, cur.glass_line = model, ln
         elif cur is not None and key == "CLAP":
             lo = p.arg(toks, 1, ln, "minimum radius")
             hi = p.arg(toks, 2, ln, "maximum radius")
-            if lo > 0:
-                p.fail(ln, "CLAP with a central obscuration (minimum radius > 0) is not supported")
+            if not 0 <= lo < hi:
+                p.fail(ln, f"CLAP: expected 0 <= minimum radius < maximum radius, got {lo:g}, "
+                           f"{hi:g}")
             cur.clap = (hi, ln)
-        elif cur is not None and key in ("SQAP", "ELAP", "OBDC", "OBSC", "SQOB", "ELOB", "UDAD",
-                                          "SPID"):
-            p.fail(ln, f"{key}: non-circular apertures, obscurations and decentred apertures are "
-                       f"not supported")
+            if lo > 0:   # an annular clear aperture
+                cur.obsc = (lo, ln)
+        elif cur is not None and key == "OBSC":
+            lo = p.arg(toks, 1, ln, "minimum radius")
+            hi = p.arg(toks, 2, ln, "maximum radius")
+            if lo != 0 or not hi > 0:
+                p.fail(ln, f"OBSC on SURF {len(surfs) - 1}: only a central circular obscuration "
+                           f"(minimum radius 0, maximum > 0) is supported, got {lo:g}, {hi:g}")
+            cur.obsc = (hi, ln)
+        elif cur is not None and key == "SQAP":
+            cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"),
+                        ln)
+        elif cur is not None and key == "OBDC" and all(
+                p.num(t, ln, "OBDC aperture decenter") == 0 for t in toks[1:3]):
+            continue   # an aperture decenter of zero
+        elif cur is not None and key in ("ELAP", "OBDC", "SQOB", "ELOB", "UDAD", "SPID"):
+            what = {
+                    "ELAP": "an elliptical aperture", "OBDC": "a decentred aperture",
+                    "SQOB": "a rectangular obscuration", "ELOB": "an elliptical obscuration",
+                    "UDAD": "a user-defined aperture", "SPID": "a spider"}[key]
+            p.fail(ln, f"{key} on SURF {len(surfs) - 1}: {what} is not supported (deeplens reads "
+                       f"circular clear apertures: DIAM, CLAP with minimum radius 0)")
         elif cur is not None and key in ("TCE", "COAT", "PZUP", "SCBD"):
             if key == "SCBD":
                 p.note(ln, f"{key} (scattering) ignored")
-        elif key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN"):
+        elif key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN", "ZVDX", "ZVDY", "ZVCX", "ZVCY",
+                     "ZVAN"):
             if any(p.num(t, ln, key) != 0 for t in toks[1:]):
                 p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
                            f"pupil by tracing)")
@@ -275,12 +352,19 @@ def _parse(path: Path):
                            f"ignored: indices are the catalogues' at their reference temperature")
         elif key == "MNUM":
             if len(toks) > 1 and p.num(toks[1], ln, key) > 1:
-                p.note(ln, "multi-configuration file: only the surface data (configuration 1) "
-                           "is read")
+                n_cfg = int(p.num(toks[1], ln, key))
+                cur_cfg = int(p.num(toks[2], ln, key)) if len(toks) > 2 else 1
+                p.note(ln, f"multi-configuration file ({n_cfg} configurations): the surface data "
+                           f"as saved (configuration {cur_cfg}, the active one) is read; the "
+                           f"other configurations' values are not applied")
         elif key in _SILENT:
             continue
         else:
-            p.note(ln, f"{toks[0]} line not used by deeplens (ignored)")
+            first, count = unused.get(toks[0], (ln, 0))
+            unused[toks[0]] = (first, count + 1)
+    for kw, (first, count) in unused.items():   # one note per keyword, not one per line
+        p.note(first, f"{kw} line not used by deeplens (ignored)"
+                      + (f"; {count} such lines" if count > 1 else ""))
     if not surfs:
         p.fail(0, "no SURF line: not a Zemax lens file, or the file is truncated")
     if len(surfs) < 3:
@@ -297,47 +381,87 @@ def _builtin(glass: str) -> Material | None:
 
 
 def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
-    """The material of ``GLAS glass`` on ``s.glass_line``: exact lookup, in catalogue order."""
+    """The material of ``GLAS glass`` on ``s.glass_line``: exact lookup, in catalogue order.
+
+    Per catalogue the file names on ``GCAT`` (all vendor catalogues if it names none): the
+    user's ``.agf`` of that name (it overrides), the current vendor catalogue
+    (:mod:`.vendor_glass`), deeplens' built-in entries; then the previous (1983) vendor
+    catalogues of the named ones; then, with a warning, a vendor catalogue the file does not
+    name (exact name only).
+    """
     searched = []
-    named = list(gcat) if gcat else list(BUILTIN_CATALOGUES)
+    named = list(gcat) if gcat else list(CURRENT_CATALOGUES) + ["MISC"]
     # the user's catalogues answer for their own names; unnamed ones are searched last
     order = named + [c for c in catalogues if c not in named]
     for cat in order:
         if cat in catalogues:
-            searched.append(cat)
+            searched.append(f"{cat} (user catalogue {catalogues[cat].path.name}, "
+                            f"{len(catalogues[cat])} glasses)")
             m = catalogues[cat].get(glass)
             if m is not None:
                 return m
-        elif cat in BUILTIN_CATALOGUES:
-            searched.append(f"{cat} (deeplens built-in)")
+            continue
+        if cat in CURRENT_CATALOGUES:
+            searched.append(f"{cat} (current vendor catalogue, {catalogue_size(cat)} glasses)")
+            m = vendor_glass(glass, cat)
+            if m is not None:
+                return m
+        if cat in BUILTIN_CATALOGUES:
+            searched.append(f"{cat} (deeplens built-in, {len(BUILTIN_CATALOGUES[cat])} glasses)")
             if glass in BUILTIN_CATALOGUES[cat]:
                 m = _builtin(glass)
                 if m is not None:
                     return m
-    missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES]
-    hint = (f"; catalogue(s) {', '.join(missing)} named on the GCAT line were not given: pass "
-            f"glass_catalogs=['{missing[0]}.agf', ...]" if missing else "")
+    for cat in named:
+        if cat in PREVIOUS_CATALOGUES and cat not in catalogues:
+            searched.append(f"{cat} previous (Robb & Mercado 1983, "
+                            f"{catalogue_size(cat, previous=True)} glasses)")
+            m = previous_glass(glass, cat)
+            if m is not None:
+                p.note(s.glass_line, f"glass {glass!r}: from the previous {cat} catalogue (Robb "
+                                     f"& Mercado 1983, a visible-range fit: n within 6e-5, "
+                                     f"400-700 nm)")
+                return m
+    elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
+    if elsewhere:
+        cat = elsewhere[0].split()[0]
+        m = (vendor_glass(glass, cat) if not elsewhere[0].endswith("(previous)")
+             else previous_glass(glass, cat))
+        p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
+                             f"({', '.join(named)}); using {elsewhere[0]} (exact name)")
+        return m
+    missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES
+               and c not in CURRENT_CATALOGUES and c not in PREVIOUS_CATALOGUES]
+    hint = (f"; catalogue(s) {', '.join(missing)} named on the GCAT line are not shipped with "
+            f"deeplens and were not given: pass glass_catalogs=['{missing[0]}.agf', ...] or put "
+            f"{missing[0]}.agf next to the .zmx" if missing else "")
     if fallback is not None:
         if fallback == "model":
             if s.glass_model is None or not s.glass_model[0] > 1.0:
                 p.fail(s.glass_line, f"glass {glass!r} not found, and the GLAS line has no usable "
                                      f"n_d/V_d for the model-glass fallback")
+            if tuple(s.glass_model) == _PLACEHOLDER_ND_VD:
+                p.fail(s.glass_line, f"glass {glass!r} not found, and the GLAS line's n_d/V_d "
+                                     f"(1.5, 40) is OpticStudio's placeholder for a catalogue "
+                                     f"glass, not the glass's data: the model-glass fallback "
+                                     f"cannot use it{hint}")
             m = ModelGlass(*s.glass_model)
         else:
             m = fallback if isinstance(fallback, Material) else get_material(str(fallback))
         warnings.warn(f"{p.path}:{s.glass_line}: glass {glass!r} not found in "
-                      f"{', '.join(searched) or 'any catalogue'}; using the requested fallback "
+                      f"{'; '.join(searched) or 'any catalogue'}; using the requested fallback "
                       f"{m.name!r}", ZemaxWarning, stacklevel=4)
         return m
-    p.fail(s.glass_line, f"glass {glass!r} not found in the catalogues searched "
-                         f"({', '.join(searched) or 'none'}){hint}; deeplens never substitutes a "
-                         f"similar glass: give the vendor's .agf (glass_catalogs=[...]) or ask for "
-                         f"a fallback (glass_fallback='model' uses the n_d/V_d on the GLAS line)")
+    p.fail(s.glass_line, f"glass {glass!r} not found by exact name in the catalogues searched "
+                         f"({'; '.join(searched) or 'none'}){hint}; deeplens never substitutes "
+                         f"a similar glass: give the vendor's .agf (glass_catalogs=[...]) or ask "
+                         f"for a fallback (glass_fallback='model' uses the n_d/V_d on the GLAS "
+                         f"line)")
 
 
 def _surface_material(s, gcat, catalogues, fallback, p):
     if s.glass is None and s.glass_model is not None and s.glass_line:
-        return ModelGlass(*s.glass_model)
+        return ModelGlass(*s.glass_model, name=s.glass_model_name)
     if s.glass is None:
         return Air()
     return _resolve_glass(s.glass, s, gcat, catalogues, fallback, p)
@@ -397,6 +521,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
 
     # ---- wavelengths (µm in the file)
     ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
+    if len(ftyp) > 1 and ftyp[1] == 1:
+        p.fail(ftyp_line, "FTYP: object-space telecentric systems (second value 1) are not "
+                          "supported (deeplens needs an entrance pupil at a finite distance)")
+    if len(ftyp) > 6 and ftyp[6] == 1:
+        p.fail(ftyp_line, "FTYP: afocal image space (seventh value 1) is not supported "
+                          "(deeplens images onto a sensor)")
     n_fields = ftyp[2] if len(ftyp) > 2 and ftyp[2] > 0 else None
     n_waves = ftyp[3] if len(ftyp) > 3 and ftyp[3] > 0 else None
     if sysd["waves"]:
@@ -440,6 +570,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     gap = 0.0            # axial distance from the last kept vertex to the current one (mm)
     bracket = None
     stop_idx = None
+    autos = []           # kept indices whose semi-diameter is automatic
     for k in range(1, len(surfs) - 1):
         s = surfs[k]
         prev = media[-1]
@@ -451,27 +582,20 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             if s.glass is not None or s.stop:
                 p.fail(s.line, "a COORDBRK surface cannot carry a glass or the stop")
             if bracket is None:
-                if tz != 0:
-                    p.fail(s.parm[5][1], "COORDBRK tilt about z is not supported (deeplens' "
-                                         "element misalignment has decenter x/y and tilt x/y)")
-                if tx != 0 and ty != 0:
-                    p.fail(s.line, "COORDBRK with tilts about both x and y: deeplens' "
-                                   "misalignment R = R_y R_x differs from Zemax's order; split "
-                                   "it or tilt about one axis")
                 if order != 0:
                     p.fail(s.parm[6][1], "an opening COORDBRK must have order flag 0 (decenter, "
                                          "then tilt)")
                 if s.disz != 0:
                     p.fail(s.disz_line, "an opening COORDBRK must have thickness 0 (the "
                                         "element rotates about its first vertex)")
-                bracket = {"line": s.line, "d": (dx, dy, tx, ty), "start": len(kept),
+                bracket = {"line": s.line, "d": (dx, dy, tx, ty, tz), "start": len(kept),
                            "zloc": 0.0}
             else:
                 want = tuple(-v for v in bracket["d"])
-                got = (dx, dy, tx, ty)
-                if (tz != 0 or not all(math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
-                                       for a, b in zip(want, got))
-                        or (order != 1 and (tx != 0 or ty != 0))):
+                got = (dx, dy, tx, ty, tz)
+                if (not all(math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+                            for a, b in zip(want, got))
+                        or (order != 1 and (tx != 0 or ty != 0 or tz != 0))):
                     p.fail(s.line, f"this COORDBRK does not undo the one on line "
                                    f"{bracket['line']} (expected decenter/tilt {want} with order "
                                    f"flag 1, got {got}, order {order:g}); deeplens reads "
@@ -483,7 +607,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                                    f"is about the first vertex")
                 if len(kept) == bracket["start"]:
                     p.fail(s.line, "the coordinate-break bracket holds no surface")
-                groups.append((bracket["start"], len(kept) - 1, bracket["d"], bracket["line"]))
+                groups.append((bracket["start"], len(kept) - 1,
+                               element_tilts(bracket["d"], kept[bracket["start"]:], s.line, p),
+                               bracket["line"]))
                 gap = gap + s.disz * s_mm   # gap: back at the pivot, + the thickness after
                 bracket = None
             continue
@@ -493,8 +619,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         if s.clap is not None:
             sd = s.clap[0] * s_mm
         surf = None
+        coeffs, flat, fixed = [], False, s.diam_fixed and s.diam > 0
         if s.type == "STANDARD" or s.type == "EVENASPH":
-            coeffs = []
             if s.type == "EVENASPH":
                 for i, (v, ln) in sorted(s.parm.items()):
                     if i == 1 and v != 0:
@@ -513,21 +639,53 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                         coeffs.pop()
             flat = c == 0 and s.coni == 0 and not coeffs
             same_medium = (type(mat) is type(prev) and mat.name == prev.name)
-            if flat and same_medium and not s.stop and not s.diam_fixed and s.clap is None:
+            if (flat and same_medium and not s.stop and not fixed and s.clap is None
+                    and s.sqap is None and s.obsc is None):
                 gap += s.disz * s_mm
                 if bracket is not None:
                     bracket["zloc"] += s.disz * s_mm
                 continue   # a dummy surface: its thickness only
-            if flat and _is_air(mat) and _is_air(prev):
-                surf = Aperture(sd if sd > 0 else None)
+        if sd < 0:
+            p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be >= 0, got {s.diam!r}")
+        auto = not sd > 0     # no DIAM (or 0): an automatic semi-diameter, set once built
+        sd_build = sd if sd > 0 else _PROVISIONAL_SD_MM
+        try:
+            if s.type == "XYPOLYNOM":
+                surf = _xypolynom(s, c, sd_build, s_mm, p)
+            elif s.type == "PARAXIAL":
+                surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
+            elif s.type == "TOROIDAL":
+                surf = _cylinder(s, k, c, sd_build, s_mm, p)
+            elif s.sqap is not None and flat and _is_air(mat) and _is_air(prev):
+                hx, hy, _ = s.sqap
+                surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
+            elif s.obsc is not None and flat and _is_air(mat) and _is_air(prev):
+                # OpticStudio clips only on the obscuration here (and on a CLAP or a fixed
+                # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
+                outer = sd if (s.clap is not None or fixed or s.stop) else 1.01 * sd
+                ro = s.obsc[0] * s_mm
+                surf = Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
+            elif flat and _is_air(mat) and _is_air(prev):
+                surf = Aperture(sd_build)
             elif flat:
-                surf = Plane(sd)
+                surf = Plane(sd_build)
             else:
-                surf = Asphere(c, sd, conic=s.coni, coefficients=coeffs)
-        elif s.type == "XYPOLYNOM":
-            surf = _xypolynom(s, c, sd, s_mm, p)
-        if not sd > 0 and not isinstance(surf, Aperture):
-            p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be > 0, got {s.diam!r}")
+                surf = Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
+        except ValueError as e:
+            p.fail(s.type_line or s.line, f"SURF {k}: {e}")
+        if s.obsc is not None and not isinstance(surf, Aperture):
+            p.fail(s.obsc[1], f"SURF {k}: a central obscuration on a {type(surf).__name__} "
+                              f"surface is not supported (deeplens has obscurations on flat "
+                              f"surfaces in air)")
+        if s.sqap is not None and not (isinstance(surf, Cylinder) or (
+                isinstance(surf, Aperture) and surf.shape == "rect")):
+            p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture on a "
+                              f"{type(surf).__name__} surface is not supported (deeplens has "
+                              f"rectangular apertures on flat stops in air and on cylinders)")
+        if auto and isinstance(surf, Aperture) and surf.shape == "rect":
+            auto = False   # its semi-diameter is the rectangle's half-diagonal
+        if auto:
+            autos.append(len(kept))
         if s.stop:
             stop_idx = len(kept)
         kept.append((surf, mat, s, gap))
@@ -552,6 +710,20 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
     d_sensor = gap
+    if d_sensor == 0 and isinstance(surfaces[-1], Plane):
+        # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
+        # surface, so it sits _IMAGE_ON_VERTEX_MM behind it (image points move by that times
+        # the ray slope: < 1e-8 mm)
+        d_sensor = _IMAGE_ON_VERTEX_MM
+        p.note(img.line, f"the image plane lies on the last (flat) surface's vertex: the sensor "
+                         f"is placed {_IMAGE_ON_VERTEX_MM:g} mm behind it")
+    elif d_sensor == 0:
+        p.fail(img.line, "the image plane lies on the vertex of the last surface, which is "
+                         "curved: deeplens' flat sensor would cut through it (give the last "
+                         "surface a thickness)")
+    elif d_sensor < 0:
+        p.fail(img.line, f"the image plane lies {-d_sensor:g} mm before the last surface's "
+                         f"vertex: deeplens' sensor must follow the last surface")
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
 
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest
@@ -564,11 +736,19 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     ap_type, ap_value, ap_line = ap
     if ap_type == "epd":
         ap_value *= s_mm
-    if ap_type != "stop" and not isinstance(surfaces[stop_idx], Aperture):
-        p.fail(ap_line, f"an {'ENPD' if ap_type == 'epd' else 'FNUM'} aperture needs the stop "
-                        f"(line {kept[stop_idx][2].line}) to be a flat surface in air")
-    if ap_type == "stop" and surfaces[stop_idx].semi_diameter is None:
-        p.fail(kept[stop_idx][2].line, "the floating stop has no semi-diameter (DIAM)")
+    convert = None     # an aperture given another way, turned into an EPD once the lens is built
+    if ap_type in ("wfno", "obna", "cone"):
+        if ap_type != "wfno" and math.isinf(obj_dist):
+            p.fail(ap_line, "OBNA (object-space numerical aperture / cone angle) needs an object "
+                            "at a finite distance")
+        if not ap_value > 0:
+            p.fail(ap_line, f"the aperture value must be > 0, got {ap_value!r}")
+        convert = (ap_type, ap_value, ap_line)
+        ap_type, ap_value = "epd", 1.0
+    if ap_type == "stop" and stop_idx in autos:
+        p.fail(kept[stop_idx][2].line, "the stop has no semi-diameter (no DIAM, or 0) and the "
+                                       "system aperture is FLOA (float by stop size): give the "
+                                       "stop a DIAM or the system an ENPD/FNUM")
 
     # ---- glass wavelength ranges, before building (a clear error instead of a NaN)
     for (surf, mat, s, _), i in zip(kept, range(len(kept))):
@@ -602,9 +782,22 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
+    if convert is not None:
+        ap_value = aperture_to_epd(lens, *convert, p)
+        try:
+            lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type="epd",
+                                 aperture_value=ap_value, fields_deg=[0.0],
+                                 wavelengths_nm=waves_nm, primary_wavelength_nm=primary)
+            lens.apply_aperture_spec()
+        except ValueError as e:
+            p.fail(convert[2], str(e))
 
     # ---- fields
-    fields = _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
+    lens.ray_aiming = sysd["raim"][0] != 0
+    fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
+    autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
+    if autos:
+        _auto_semi_diameters(lens, autos, fields, where_of, path)
     try:
         lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                              aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
@@ -616,6 +809,76 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     return lens
 
 
+def _auto_semi_diameters(lens, idx, fields, where_of, path):
+    """Automatic semi-diameters of the surfaces ``idx``, as OpticStudio's: the largest height of
+    the real rays that fill the pupil, over every field and wavelength.  A first paraxial
+    estimate ``1.05 (|y_marginal| + |y_chief|)`` (full field) lets the lens be built; then rays
+    over the paraxial entrance pupil enlarged by 2 % (48 rim points and the chief ray per field
+    and wavelength, apertures ignored) are traced and each surface gets its largest hit radius.
+    OpticStudio does not vignette on automatic semi-diameters, and the 2 % keep rim rays (and
+    the slightly larger pupils of ray aiming) from being clipped by them.  Capped to the
+    surface's domain."""
+    from ..intersect import IntersectOptions
+    from ..paraxial import _indices, _trace, paraxial
+    from ..sampling import field_rays
+
+    field_deg = max(abs(f) for f in fields)
+    with torch.no_grad():
+        par = paraxial(lens)
+        n, p0 = _indices(lens, None)
+        half = 0.5 * float(par.entrance_pupil_diameter)
+        pos = float(par.entrance_pupil_position)
+        s = float(lens.spec.object_distance_mm)
+        t = math.tan(math.radians(field_deg))
+        if math.isinf(s):
+            ym0, um0 = half, 0.0
+        else:
+            um0 = half / (s + pos)
+            ym0 = um0 * s
+        one = torch.ones_like(p0)
+        _, _, hm = _trace(lens, ym0 * one, um0 * one, n)
+        _, _, hc = _trace(lens, -pos * t * one, t * one, n)
+        for i in idx:
+            surf = lens.surfaces[i]
+            sd = 1.05 * (abs(float(hm[i])) + abs(float(hc[i])))
+            c = float(surf.paraxial_curvature())
+            k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
+            if c != 0 and 1 + k > 0:
+                sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
+            surf.semi_diameter.fill_(sd)
+        # real rays
+        phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
+        unit = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
+                          torch.stack([torch.cos(phi), torch.sin(phi)], -1)])
+        pts = unit * (1.02 * half)
+        z_ep = float(par.entrance_pupil_z)
+        top = {i: 0.0 for i in idx}
+        for f in dict.fromkeys(fields):
+            for w in lens.spec.wavelengths_nm:
+                rays = field_rays(lens, float(f), float(w), pts, z_ep)
+                out, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False),
+                                       record=True)
+                ok = out.valid
+                for i in idx:
+                    if bool(ok.any()):
+                        r = torch.linalg.vector_norm(hits[i][ok][:, :2], dim=-1)
+                        top[i] = max(top[i], float(r.max()))
+        for i in idx:
+            if top[i] > 0:
+                surf = lens.surfaces[i]
+                sd = top[i]
+                c = float(surf.paraxial_curvature())
+                k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
+                if c != 0 and 1 + k > 0:
+                    sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
+                surf.semi_diameter.fill_(sd)
+    try:
+        lens.check()
+    except ValueError as e:
+        raise ZemaxFileError(_locate(f"{path}: with automatic semi-diameters (no DIAM): {e}",
+                                     where_of)) from e
+
+
 def _locate(msg: str, where_of: dict) -> str:
     idx = []
     for m in re.finditer(r"\bsurfaces? (\d+)(?: and (\d+))?", msg):
@@ -623,6 +886,42 @@ def _locate(msg: str, where_of: dict) -> str:
     lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}"
              for i in dict.fromkeys(idx) if i in where_of]
     return msg + (f" ({'; '.join(lines)})" if lines else "")
+
+
+def _cylinder(s: _Surf, k: int, c, sd, s_mm, p: _Parser):
+    """``TOROIDAL`` with ``PARM 1`` (the radius of rotation) 0: a cylinder, curved in y, with
+    ``PARM 2..9`` the coefficients of ``y², y⁴, ..., y¹⁶``; ``SQAP`` its rectangular outline."""
+    if s.parm.get(1, (0.0, 0))[0] != 0:
+        p.fail(s.parm[1][1], f"SURF {k}: a TOROIDAL surface with a finite radius of rotation "
+                             f"(PARM 1 = {s.parm[1][0]:g}) is not supported; cylinders "
+                             f"(PARM 1 = 0) are")
+    nz = s.xdat.get(1, (0.0, 0))
+    if nz[0] != 0 or any(v != 0 for j, (v, _) in s.xdat.items() if j > 2):
+        p.fail(nz[1] or s.type_line, f"SURF {k}: TOROIDAL Zernike terms (XDAT) are not supported")
+    for i, (v, ln) in s.parm.items():
+        if (i > 9 or i < 1) and v != 0:
+            p.fail(ln, f"SURF {k}: TOROIDAL PARM {i} is not read (PARM 1 radius of rotation, "
+                       f"PARM 2-9 the y² ... y¹⁶ coefficients)")
+    top = max([i for i in s.parm if 2 <= i <= 9 and s.parm[i][0] != 0] + [1])
+    coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (3 - 2 * i) for i in range(2, top + 1)]
+    hw = None if s.sqap is None else (s.sqap[0] * s_mm, s.sqap[1] * s_mm)
+    if hw is not None and sd == _PROVISIONAL_SD_MM:
+        sd = math.hypot(*hw)
+    return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
+
+
+def _paraxial_surface(s: _Surf, k: int, mat, prev, sd, s_mm, p: _Parser):
+    """``PARAXIAL`` (``PARM 1`` = focal length): deeplens' :class:`IdealLens`, in air."""
+    if 1 not in s.parm or s.parm[1][0] == 0:
+        p.fail(s.type_line or s.line, f"SURF {k}: a PARAXIAL surface needs a non-zero focal "
+                                      f"length (PARM 1)")
+    if not (_is_air(mat) and _is_air(prev)):
+        p.fail(s.glass_line or s.type_line, f"SURF {k}: a PARAXIAL surface between glasses is "
+                                            f"not supported (deeplens' ideal lens sits in air)")
+    for i, (v, ln) in s.parm.items():
+        if i > 2 and v != 0:
+            p.fail(ln, f"SURF {k}: PARAXIAL PARM {i} is not read (only the focal length, PARM 1)")
+    return IdealLens(s.parm[1][0] * s_mm, sd)
 
 
 def _xypolynom(s: _Surf, c, sd, s_mm, p: _Parser):
@@ -680,43 +979,6 @@ def _elements(kept, media, groups, p):
     return out
 
 
-def _fields(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
-    ys, _yline = sysd["yfln"] if sysd["yfln"] else ([0.0], 0)
-    xs, xline = sysd["xfln"] if sysd["xfln"] else ([0.0] * len(ys), 0)
-    if n_fields is not None:
-        ys, xs = ys[:n_fields], xs[:n_fields]
-    xs = xs + [0.0] * (len(ys) - len(xs))
-    kind = ftyp[0]
-    if any(x != 0 for x in xs):
-        p.note(xline, "XFLN: x field components are combined with y into a radial field (exact "
-                      "for a rotationally symmetric lens)")
-    if kind == 0:
-        return [math.copysign(math.degrees(math.atan(math.hypot(math.tan(math.radians(x)),
-                                                                 math.tan(math.radians(y))))),
-                              y if y != 0 else 1.0) for x, y in zip(xs, ys)]
-    from ...analysis.paraxial import paraxial  # local import: analysis builds on optics
-
-    h = [math.copysign(math.hypot(x, y), y if y != 0 else 1.0) * s_mm for x, y in zip(xs, ys)]
-    d_obj = float(lens.spec.object_distance_mm)
-    if kind == 1:
-        if math.isinf(d_obj):
-            p.fail(ftyp_line, "FTYP 1 (object height) with the object at infinity cannot be "
-                              "converted to field angles")
-        par = paraxial(lens)
-        z_ep = float(par.entrance_pupil_position)
-        return [math.degrees(math.atan(v / (d_obj + z_ep))) for v in h]
-    if kind == 2:
-        if not math.isinf(d_obj):
-            p.fail(ftyp_line, "FTYP 2 (paraxial image height) with a finite object cannot be "
-                              "converted to field angles (use angles or object heights)")
-        efl = float(paraxial(lens).efl)
-        return [math.degrees(math.atan(v / efl)) for v in h]
-    names = {3: "real image height", 4: "theodolite angle"}
-    p.fail(ftyp_line, f"FTYP {kind} ({names.get(kind, 'unknown field type')}) cannot be converted "
-                      f"to deeplens' field angles (use angle, object height or paraxial image "
-                      f"height)")
-
-
 # =========================================================================== writer
 def _f(v: float) -> str:
     return repr(float(v))
@@ -730,7 +992,7 @@ def _glass_line(m: Material, cats: list) -> str | None:
     """The ``GLAS`` line of medium ``m`` (``None`` for air); adds its catalogue to ``cats``."""
     if isinstance(m, Air):
         return None
-    if isinstance(m, AGFGlass):
+    if isinstance(m, (AGFGlass, BuchdahlGlass)):
         if m.catalogue and m.catalogue not in cats:
             cats.append(m.catalogue)
         return f"GLAS {m.name} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
@@ -745,7 +1007,13 @@ def _glass_line(m: Material, cats: list) -> str | None:
                     cats.append(cat)
                 return f"GLAS {zname} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
     if isinstance(m, ModelGlass):
-        return f"GLAS ___BLANK 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
+        # a named entry of deeplens' table that is a model glass (SK1, F15, SK16: the paper
+        # authors' n_d/V_d) keeps its name on a model-glass line (code 1)
+        # (as does a model glass a file named: GLAS NAME 1 0 n_d V_d)
+        named = m.name != m.to_spec() or is_entry
+        label = m.name.upper() if named and len(m.name.split()) == 1 and "/" not in m.name \
+            else "___BLANK"
+        return f"GLAS {label} 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
     raise ZemaxFileError(f"material {m.name!r} ({type(m).__name__}) has no Zemax catalogue name; "
                          f"use a catalogue glass or an n_d/V_d model glass")
 
@@ -771,6 +1039,8 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
         out.append(f"FNUM {_f(spec.aperture_value)} 0")
     else:
         out.append("FLOA")
+    if getattr(lens, "ray_aiming", False):
+        out.append("RAIM 0 2 1 1 0 0 0 0 0 1")   # real ray aiming, as the file it came from
     cats: list[str] = []
     body: list[str] = []
     nsurf = 0
@@ -804,10 +1074,13 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
                 float(v) != 0 for v in (mis.dx, mis.dy, mis.tilt_x, mis.tilt_y))
             d = (float(mis.dx), float(mis.dy), math.degrees(float(mis.tilt_x)),
                  math.degrees(float(mis.tilt_y)))
-            if tilted and i == a:
-                if d[2] != 0 and d[3] != 0:
+            if tilted and d[2] != 0 and d[3] != 0:
+                if not all(rotationally_symmetric(s_) for s_ in lens.surfaces[a:b + 1]):
                     raise ZemaxFileError(f"element {e} (surfaces {a}-{b}) is tilted about both x "
-                                         f"and y; the .zmx writer maps one tilt per element")
+                                         f"and y and is not rotationally symmetric: OpticStudio's "
+                                         f"x-then-y tilts cannot express deeplens' R_y R_x")
+                d = d[:2] + zemax_tilts(*d[2:])
+            if tilted and i == a:
                 surf(["TYPE COORDBRK", "CURV 0.0", "DISZ 0"] +
                      [f"PARM {k + 1} {_f(v)}" for k, v in enumerate(d)] +
                      ["PARM 5 0", "PARM 6 0"])
@@ -851,13 +1124,24 @@ def _surface_lines(s, i, is_stop) -> list[str]:
     sd = s.semi_diameter
     sd = None if sd is None else float(sd)
     if isinstance(s, Aperture):
-        if s.shape != "circle":
-            raise ZemaxFileError(f"surface {i}: a rectangular aperture has no .zmx equivalent "
-                                 f"in this writer")
         lines += ["TYPE STANDARD", "CURV 0.0"]
         if sd is not None:
             lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        if s.shape == "rect":
+            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        if float(s.obscuration) > 0:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
         return lines
+    if isinstance(s, Cylinder):
+        lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 1 0"]
+        lines += [f"PARM {j + 2} {_f(a)}" for j, a in enumerate(s.a)]
+        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        if s.half_widths is not None:
+            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        return lines
+    if isinstance(s, IdealLens):
+        return lines + ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}",
+                        f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Plane):
         return lines + ["TYPE STANDARD", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Asphere):

@@ -1,6 +1,7 @@
 """Aperture stop: an opaque plane ``z = 0`` with a circular or rectangular opening.
 
-Circular: a ray passes if ``x^2 + y^2 <= r^2`` (``r`` = semi-diameter).
+Circular: a ray passes if ``x^2 + y^2 <= r^2`` (``r`` = semi-diameter); with a central
+obscuration of radius ``r_o`` (an annular opening), only if also ``x^2 + y^2 >= r_o^2``.
 Rectangular: it passes if ``|x| <= w_x`` and ``|y| <= w_y`` (half-widths in mm).
 The medium does not change across a stop.
 """
@@ -24,10 +25,13 @@ class Aperture(Plane):
             is used as semi-diameter when not given).
         shape: ``"circle"`` or ``"rect"``.
         half_width_x, half_width_y: half-widths of a rectangular opening, mm.
+        obscuration: radius of a central obscuration of a circular opening, mm (``0``: none;
+            ``< semi_diameter``).
     """
 
     def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
-                 half_width_x: float | None = None, half_width_y: float | None = None):
+                 half_width_x: float | None = None, half_width_y: float | None = None,
+                 obscuration: float = 0.0):
         if shape not in ("circle", "rect"):
             raise ValueError(f"Aperture: shape must be 'circle' or 'rect', got {shape!r}")
         if shape == "rect":
@@ -45,18 +49,28 @@ class Aperture(Plane):
         self.shape = shape
         hw = [half_width_x or 0.0, half_width_y or 0.0]
         self.register_buffer("half_widths", torch.tensor(hw, dtype=torch.float64))
+        obscuration = float(obscuration)
+        if obscuration != 0.0 and (shape != "circle" or not 0 < obscuration < float(
+                semi_diameter)):
+            raise ValueError(f"Aperture: a central obscuration needs a circular opening and "
+                             f"0 < radius < semi_diameter ({float(semi_diameter):g} mm), got "
+                             f"{obscuration!r}")
+        self.register_buffer("obscuration", torch.tensor(obscuration, dtype=torch.float64))
 
     def in_aperture(self, x, y):
         if self.shape == "rect":
             hw = self.half_widths.to(x)
             return (x.abs() <= hw[0]) & (y.abs() <= hw[1])
+        if float(self.obscuration) > 0:
+            ro = self.obscuration.to(x)
+            return super().in_aperture(x, y) & (x * x + y * y >= ro * ro)
         return super().in_aperture(x, y)
 
     def set_semi_diameter(self, value: float) -> None:
         """Resize a circular stop (used when the aperture is given as EPD or F-number)."""
         self.semi_diameter.fill_(float(value))
 
-    file_fields = ("shape", "half_width_x_mm", "half_width_y_mm")
+    file_fields = ("shape", "half_width_x_mm", "half_width_y_mm", "obscuration_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -66,10 +80,12 @@ class Aperture(Plane):
         if shape == "rect":
             return cls(semi_diameter, "rect", entry.get("half_width_x_mm"),
                        entry.get("half_width_y_mm"))
-        return cls(semi_diameter, shape)
+        return cls(semi_diameter, shape, obscuration=entry.get("obscuration_mm", default=0.0))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
+        if float(self.obscuration) > 0:
+            d["obscuration_mm"] = float(self.obscuration)
         if self.shape == "rect":
             d.update(shape="rect", half_width_x_mm=float(self.half_widths[0]),
                      half_width_y_mm=float(self.half_widths[1]))

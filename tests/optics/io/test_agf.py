@@ -178,3 +178,18 @@ def test_malformed_catalogue_names_line(tmp_path, text, match):
         warnings.simplefilter("ignore")
         with pytest.raises(AgfError, match=match):
             read_agf(p)
+
+
+def test_melt_records_silent_and_unknown_records_warned_once(tmp_path):
+    """Newer catalogues carry MD/BD records on every glass: no warning; an unknown record kind
+    is reported once with its first line and count, not once per glass."""
+    bk7 = GLASS_TABLE["N-BK7"].coefficients
+    glass = ("NM G{i} 2 0 1.5168 64.17 0\nCD " + " ".join(map(repr, bk7)) +
+             "\nMD 1 2 3\nBD 4 5\nXX 1\n")
+    p = tmp_path / "NEW.agf"
+    p.write_text("".join(glass.format(i=i) for i in range(50)))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        cat = read_agf(p)
+    assert len(cat) == 50
+    assert len(w) == 1 and "NEW.agf:5: unknown record 'XX' ignored (50 line(s)" in str(w[0].message)

@@ -11,7 +11,8 @@ import torch
 
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import LensFileError, lens_from_dict, lens_to_dict, load_lens, save_lens
-from deeplens.optics.surfaces import Aperture, Asphere, BSpline, IdealLens, Plane, XYPolynomial
+from deeplens.optics.surfaces import (Aperture, Asphere, BSpline, Cylinder, IdealLens, Plane,
+                                      XYPolynomial)
 
 ROOT = Path(__file__).resolve().parents[3]
 SHIPPED = sorted((ROOT / "data" / "lenses").glob("*.json"))
@@ -48,13 +49,17 @@ def all_types_dict(aperture=None, object_distance="inf"):
              "material": "AIR"},
             {"type": "ideal_lens", "semi_diameter_mm": 4.0, "focal_length_mm": 50.0 / 3,
              "distance_mm": 1.0, "material": "AIR"},
+            {"type": "cylinder", "semi_diameter_mm": 2.5, "curvature_per_mm": 1 / 40.0,
+             "conic": -0.3, "coefficients": [1e-4 / 3], "half_width_x_mm": 2.0,
+             "half_width_y_mm": 1.5, "distance_mm": 1.0, "material": "AIR"},
         ],
         "sensor": {"distance_mm": 20.0, "semi_diameter_mm": 5.0},
-        "elements": [[0, 1], [2, 2], [3, 4], [5, 5], [6, 6]],
+        "elements": [[0, 1], [2, 2], [3, 4], [5, 5], [6, 6], [7, 7]],
         "misalignment": [
             {"dx_mm": 0.01, "dy_mm": 0.0, "tilt_x_rad": 1e-3 / 3, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": -0.02, "tilt_x_rad": 0.0, "tilt_y_rad": math.pi * 1e-3},
+            {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
         ],
@@ -109,7 +114,7 @@ def test_all_surface_types_roundtrip_exact(object_distance, tmp_path):
     src.write_text(json.dumps(d))
     lens = load_lens(src)
     assert [type(s) for s in lens.surfaces] == [Asphere, Plane, Aperture, XYPolynomial, BSpline,
-                                                Aperture, IdealLens]
+                                                Aperture, IdealLens, Cylinder]
     assert lens.surfaces[5].shape == "rect"
     assert float(lens.misalignments[2].tilt_y) == math.pi * 1e-3
     assert float(lens.misalignments[0].tilt_x) == 1e-3 / 3
@@ -173,13 +178,16 @@ def test_fno_aperture_sets_paraxial_f_number(fno):
     assert float(p.efl / p.entrance_pupil_diameter) == pytest.approx(fno, rel=1e-12)
 
 
-def test_epd_needs_a_circular_aperture_stop(tmp_path):
+def test_epd_sizes_a_stop_on_a_lens_surface(tmp_path):
     d = json.loads((ROOT / "data/lenses/thorlabs_la1131.json").read_text())
     d["aperture"] = {"type": "epd", "value": 10.0}  # its stop is surface 0, a lens surface
     p = tmp_path / "la.json"
     p.write_text(json.dumps(d))
-    with pytest.raises(LensFileError, match=r"la\.json.*circular Aperture"):
-        load_lens(p)
+    lens = load_lens(p)
+    assert not isinstance(lens.stop, Aperture)
+    # the stop is the first surface: it is its own entrance pupil, radius EPD / 2
+    assert float(lens.stop.semi_diameter) == pytest.approx(5.0, rel=1e-12)
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(10.0, rel=1e-12)
 
 
 def test_fno_of_a_negative_lens_is_an_error(tmp_path):
@@ -250,7 +258,7 @@ BAD = [
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
-     r"aperture, asphere, bspline, conic, ideal_lens, plane, sphere, xy_polynomial\)"),
+     r"aperture, asphere, bspline, conic, cylinder, ideal_lens, plane, sphere, xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -272,7 +280,7 @@ BAD = [
     ("no stop", _del("stop"), r"stop: missing: the lens has no aperture stop"),
     ("stop null", _set(None, "stop"), r"stop: missing: the lens has no aperture stop"),
     ("stop float", _set(2.0, "stop"), r"stop: expected an integer, got 2\.0"),
-    ("stop out of range", _set(7, "stop"), r"stop: 7 is not a surface index \(0\.\.6\)"),
+    ("stop out of range", _set(8, "stop"), r"stop: 8 is not a surface index \(0\.\.7\)"),
     ("version 2", _set(2, "version"), r"version: unsupported lens-file version 2"),
     ("version 0", _set(0, "version"), r"version: unsupported lens-file version 0"),
     ("version string", _set("1", "version"), r"version: expected an integer, got '1'"),
@@ -318,9 +326,9 @@ BAD = [
     ("elements bad pair", _set([[0, 1], [2, "x"], [3, 4], [5, 5]], "elements"),
      r"elements\[1\]: expected \[first, last\] surface indices, got \[2, 'x'\]"),
     ("elements gap", _set([[0, 1], [3, 4], [5, 5]], "elements"),
-     r"elements .* must cover surfaces 0\.\.6 exactly once"),
+     r"elements .* must cover surfaces 0\.\.7 exactly once"),
     ("misalignment count", _set([{"dx_mm": 0.1}], "misalignment"),
-     r"misalignment: expected a list of 5 entries \(one per element\)"),
+     r"misalignment: expected a list of 6 entries \(one per element\)"),
     ("misalignment value", _set("0.1", "misalignment", 0, "dx_mm"),
      r"misalignment\[0\]\.dx_mm: expected a finite number, got '0\.1'"),
     ("misalignment field", _set(0.1, "misalignment", 1, "tilt_z_rad"),

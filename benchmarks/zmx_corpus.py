@@ -1,0 +1,44 @@
+"""Load rate of deeplens' .zmx reader on the real-file corpus (tests/data/zmx_real/).
+
+    OMP_NUM_THREADS=1 python benchmarks/zmx_corpus.py [FOLDER]
+
+Prints, per file, ``loaded`` with the paraxial EFL and EPD (mm), or the one located line of the
+refusal, then the counts.  Point it at another folder of ``.zmx`` files to measure that one.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from pathlib import Path
+
+from deeplens.optics.io.zmx import ZemaxFileError, read_zmx
+from deeplens.optics.paraxial import paraxial
+
+
+def main(folder: str | None = None) -> int:
+    root = Path(folder) if folder else Path(__file__).resolve().parents[1] / "tests/data/zmx_real"
+    files = sorted(p for p in root.iterdir() if p.suffix.lower() == ".zmx")
+    loaded = refused = crashed = 0
+    for f in files:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                lens = read_zmx(f)
+                p = paraxial(lens)
+                print(f"{f.name:58s} loaded   EFL {float(p.efl):10.4f}  EPD "
+                      f"{float(p.entrance_pupil_diameter):8.4f}")
+                loaded += 1
+            except ZemaxFileError as e:
+                print(f"{f.name:58s} refused  {str(e).replace(str(f), '')[:110]}")
+                refused += 1
+            except Exception as e:  # noqa: BLE001 - an unlocated error is what we measure
+                print(f"{f.name:58s} CRASH    {type(e).__name__}: {e}")
+                crashed += 1
+    print(f"\n{loaded} / {len(files)} load, {refused} refused with their location, "
+          f"{crashed} unlocated errors")
+    return 1 if crashed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(*sys.argv[1:2]))

@@ -1,0 +1,220 @@
+r"""Vendor glass catalogues shipped by the ``opticalglass`` package (BSD-3-Clause), as deeplens
+materials.
+
+Current catalogues (the vendors' own spreadsheets in ``opticalglass/data``), each with its own
+dispersion formula (λ in µm), mapped onto the Zemax formula numbers of :mod:`.agf`::
+
+    SCHOTT, OHARA              Sellmeier 1 (AGF 2)   n² = 1 + Σ_{i=1..3} B_i λ² / (λ² − C_i)
+    HOYA, CDGM, SUMITA         Schott      (AGF 1)   n² = A0 + A1 λ² + A2 λ⁻² + A3 λ⁻⁴ + A4 λ⁻⁶ + A5 λ⁻⁸
+    HIKARI                     Extended 3  (AGF 13)  n² = A0 + A1 λ² + A2 λ⁴ + A3 λ⁻² + ... + A8 λ⁻¹²
+
+Previous catalogues (glasses that vendors have withdrawn but old designs name: ``BK7``, ``SK16``,
+``F15``, ``BASF1`` ...): Robb & Mercado, "Calculation of refractive indices using Buchdahl's
+chromatic coordinate", Appl. Opt. 22, 1198 (1983), Table V (SCHOTT, OHARA, HOYA, CORNING-FRANCE,
+CHANCE; visible region), shipped by ``opticalglass`` as ``robb1983_data_final.txt``::
+
+    n(λ) = n0 + ν1 ω + ν2 ω²,   ω = (λ − λ0) / (1 + 2.5 (λ − λ0)),   λ0 = 0.574 µm
+
+(the paper's base wavelength; evaluated at 587.6 nm instead, as ``opticalglass`` does, BK7 would
+get n_d = 1.51739 instead of the published 1.51680).  The fit is quadratic and visible-only:
+its stated error is ≤ 6e-5 in 400–700 nm, so these glasses carry that range and each use is
+reported.
+
+Crystals under the names of Zemax's ``INFRARED`` catalogue, from their primary measurements
+(Sellmeier, ``n² = 1 + Σ B_i λ² / (λ² − λ_i²)``; the same coefficients as the refractiveindex.info
+database, CC0)::
+
+    CAF2      Malitson, Appl. Opt. 2, 1103 (1963)                       0.23 - 9.7 µm
+    BAF2      Malitson, J. Opt. Soc. Am. 54, 628 (1964)                 0.27 - 10.3 µm
+    MGF2      Dodge, Appl. Opt. 23, 1980 (1984), ordinary ray           0.20 - 7.0 µm
+    SAPPHIRE  Malitson & Dodge, J. Opt. Soc. Am. 62, 1405 (1972), o-ray  0.20 - 5.0 µm
+    ZNSE      Connolly et al., Proc. SPIE 0181 (1979)                   0.54 - 18.2 µm
+
+Lookup is by exact name (case-insensitive; blanks inside a spreadsheet's name are dropped).  The catalogues are read once per process
+(:func:`functools.lru_cache`; about a second in all) and never changed afterwards.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import math
+from importlib import resources
+
+import torch
+
+from ..materials import Material
+from .agf import AGFGlass
+
+__all__ = ["VENDOR_CATALOGUES", "CURRENT_CATALOGUES", "CRYSTALS", "PREVIOUS_CATALOGUES", "BuchdahlGlass", "vendor_glass",
+           "previous_glass", "vendor_catalogue_names", "find_in_vendor_catalogues"]
+
+#: Zemax catalogue name -> (opticalglass module, catalogue class, AGF formula number)
+VENDOR_CATALOGUES = {
+    "SCHOTT": ("schott", "SchottCatalog", 2),
+    "OHARA": ("ohara", "OharaCatalog", 2),
+    "HOYA": ("hoya", "HoyaCatalog", 1),
+    "CDGM": ("cdgm", "CDGMCatalog", 1),
+    "HIKARI": ("hikari", "HikariCatalog", 13),
+    "SUMITA": ("sumita", "SumitaCatalog", 1),
+}
+
+#: Zemax's INFRARED names -> (B_1..3, λ_1..3 in µm, range in nm, source)
+CRYSTALS = {
+    "CAF2": ((0.5675888, 0.4710914, 3.8484723), (0.050263605, 0.1003909, 34.649040),
+             (230.0, 9700.0), "Malitson 1963"),
+    "BAF2": ((0.643356, 0.506762, 3.8261), (0.057789, 0.10968, 46.3864), (270.0, 10300.0),
+             "Malitson 1964"),
+    "MGF2": ((0.48755108, 0.39875031, 2.3120353), (0.04338408, 0.09461442, 23.793604),
+             (200.0, 7000.0), "Dodge 1984, ordinary ray"),
+    "SAPPHIRE": ((1.4313493, 0.65054713, 5.3414021), (0.0726631, 0.1193242, 18.028251),
+                 (200.0, 5000.0), "Malitson & Dodge 1972, ordinary ray"),
+    "ZNSE": ((4.45813734, 0.467216334, 2.89566290), (0.200859853, 0.391371166, 47.1362108),
+             (540.0, 18200.0), "Connolly 1979"),
+}
+
+#: every catalogue name answered by a current catalogue (the six vendors and INFRARED)
+CURRENT_CATALOGUES = (*VENDOR_CATALOGUES, "INFRARED")
+
+#: Zemax catalogue names that have a previous (Robb & Mercado 1983) catalogue
+PREVIOUS_CATALOGUES = ("SCHOTT", "OHARA", "HOYA", "CORNING-FRANCE", "CHANCE")
+
+_ROBB_LAMBDA0_UM = 0.574
+_ROBB_RANGE_NM = (400.0, 700.0)
+
+
+class BuchdahlGlass(Material):
+    """A glass given by Buchdahl's quadratic chromatic-coordinate model (see the module
+    docstring); λ in µm inside, nm at the interface.
+
+    Args:
+        name: the glass name.
+        n0: the index at ``lambda0_um``.
+        nu1, nu2: the dispersion coefficients.
+        catalogue: the Zemax catalogue name it answers for.
+        lambda0_um: the base wavelength (µm).
+    """
+
+    def __init__(self, name: str, n0: float, nu1: float, nu2: float, catalogue: str = "",
+                 lambda0_um: float = _ROBB_LAMBDA0_UM):
+        super().__init__(name, _ROBB_RANGE_NM)
+        self.n0, self.nu1, self.nu2 = float(n0), float(nu1), float(nu2)
+        self.lambda0_um = float(lambda0_um)
+        self.catalogue = catalogue
+
+    def _index(self, w: torch.Tensor) -> torch.Tensor:
+        d = w * 1e-3 - self.lambda0_um
+        om = d / (1 + 2.5 * d)
+        return self.n0 + self.nu1 * om + self.nu2 * om * om
+
+    def extra_repr(self) -> str:
+        return f"{self.name!r}, previous {self.catalogue} (Robb & Mercado 1983)"
+
+
+def _og(module: str):
+    try:
+        return importlib.import_module(f"opticalglass.{module}")
+    except ImportError as e:   # pragma: no cover - a declared dependency
+        raise ImportError(f"the vendor glass catalogues need the 'opticalglass' package "
+                          f"(pip install opticalglass): {e}") from e
+
+
+def _key(name: str) -> str:
+    """Lookup key: upper case without blanks (OHARA's spreadsheet writes ``S-BSL 7`` for the
+    glass every design program calls ``S-BSL7``)."""
+    return "".join(str(name).split()).upper()
+
+
+@functools.lru_cache(maxsize=None)
+def _vendor_table(cat: str) -> dict:
+    """``{NAME: (name, formula, coefficients)}`` of one current vendor catalogue."""
+    import warnings
+
+    module, cls, formula = VENDOR_CATALOGUES[cat]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")   # pandas' notes on the xlrd engine
+        catalog = getattr(_og(module), cls)()
+    out = {}
+    for gname in catalog.df.index:
+        name = str(gname).strip()
+        try:   # a few rows have no coefficients ('-'): such a glass is not offered
+            c = [float(v) for v in catalog.glass_coefs(gname)]
+        except (TypeError, ValueError):
+            continue
+        if not c or any(not math.isfinite(v) for v in c):
+            continue
+        if formula == 2:   # opticalglass: B1 B2 B3 C1 C2 C3 -> AGF: B1 C1 B2 C2 B3 C3
+            c = [c[0], c[3], c[1], c[4], c[2], c[5]]
+        out[_key(name)] = (name.replace(" ", ""), formula, tuple(c))
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _robb_table() -> dict:
+    """``{CATALOGUE: {NAME: (name, n0, nu1, nu2)}}`` of Robb & Mercado's Table V."""
+    text = (resources.files("opticalglass") / "data" / "robb1983_data_final.txt").read_text()
+    out: dict = {}
+    cat = None
+    for line in text.splitlines():
+        if line.startswith("#"):
+            if "GLASS CATALOGUE" in line:
+                cat = line[1:].split()[0].upper()
+                out[cat] = {}
+            continue
+        toks = line.split()
+        if cat is None or len(toks) < 4:
+            continue
+        out[cat][toks[0].upper()] = (toks[0], float(toks[1]), float(toks[2]), float(toks[3]))
+    return out
+
+
+def vendor_catalogue_names() -> tuple[str, ...]:
+    """The Zemax catalogue names answered by a current or previous vendor catalogue."""
+    return tuple(dict.fromkeys(list(VENDOR_CATALOGUES) + list(PREVIOUS_CATALOGUES)))
+
+
+def vendor_glass(glass: str, catalogue: str) -> AGFGlass | None:
+    """``glass`` from the current vendor catalogue ``catalogue`` (exact name), or ``None``."""
+    cat = catalogue.upper()
+    if cat == "INFRARED":
+        rec = CRYSTALS.get(_key(glass))
+        if rec is None:
+            return None
+        B, lam, rng, _ = rec
+        coefs = [v for b, lm in zip(B, lam) for v in (b, lm * lm)]
+        return AGFGlass(_key(glass), 2, coefs, rng, catalogue="INFRARED")
+    if cat not in VENDOR_CATALOGUES:
+        return None
+    rec = _vendor_table(cat).get(_key(glass))
+    if rec is None:
+        return None
+    name, formula, coefs = rec
+    return AGFGlass(name.upper(), formula, coefs, catalogue=cat)
+
+
+def previous_glass(glass: str, catalogue: str) -> BuchdahlGlass | None:
+    """``glass`` from the previous (Robb & Mercado 1983) catalogue of ``catalogue``, or
+    ``None``."""
+    rec = _robb_table().get(catalogue.upper(), {}).get(glass.strip().upper())
+    if rec is None:
+        return None
+    name, n0, nu1, nu2 = rec
+    return BuchdahlGlass(name.upper(), n0, nu1, nu2, catalogue.upper())
+
+
+def catalogue_size(catalogue: str, previous: bool = False) -> int:
+    """How many glasses the current (or previous) catalogue holds (for messages)."""
+    if previous:
+        return len(_robb_table().get(catalogue.upper(), {}))
+    if catalogue.upper() == "INFRARED":
+        return len(CRYSTALS)
+    return len(_vendor_table(catalogue.upper())) if catalogue.upper() in VENDOR_CATALOGUES else 0
+
+
+def find_in_vendor_catalogues(glass: str) -> list[str]:
+    """Every vendor catalogue (current, then previous) that holds ``glass`` by exact name."""
+    hits = [c for c in VENDOR_CATALOGUES if _key(glass) in _vendor_table(c)]
+    hits += ["INFRARED"] if _key(glass) in CRYSTALS else []
+    hits += [f"{c} (previous)" for c in PREVIOUS_CATALOGUES
+             if glass.strip().upper() in _robb_table().get(c, {})]
+    return hits

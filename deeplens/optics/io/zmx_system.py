@@ -1,0 +1,214 @@
+r"""First-order quantities of a lens read from a ``.zmx`` file, computed on the built lens.
+
+* apertures given other than as an entrance-pupil diameter (object-space NA or cone angle, the
+  paraxial working F-number) -> the EPD they define (:func:`aperture_to_epd`);
+* field types -> field angles (:func:`fields_to_angles`): object heights, paraxial and real
+  image heights (the chief ray solved by secant iterations, :func:`real_image_height_angle`);
+* OpticStudio's coordinate-break tilts ``R = R_x R_y R_z`` <-> deeplens' ``R_y R_x`` for a
+  rotationally symmetric element (:func:`element_tilts`, :func:`zemax_tilts`);
+* the pupil convention the file's ``RAIM`` line asks for (:func:`lens_pupil_convention`).
+
+Errors go through the reader's ``p.fail(line, message)``, so they name the file and line.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ..surfaces import Aperture, Asphere, Plane
+
+__all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
+           "zemax_tilts", "element_tilts", "lens_pupil_convention", "fields_to_angles"]
+
+
+def aperture_to_epd(lens, kind: str, value: float, line: int, p) -> float:
+    """The entrance-pupil diameter (mm) of an aperture given as
+
+    * ``obna``: object-space NA ``n sin θ`` of the marginal ray from the axial object point to
+      the paraxial entrance pupil's rim, ``EPD = 2 |s + z_EP| tan θ`` (the convention optiland
+      follows too);
+    * ``cone``: that cone's half angle θ (degrees);
+    * ``wfno``: the paraxial working F-number ``W = 1 / (2 n' |u'|)``, ``u'`` the image-space
+      slope of the paraxial marginal ray (``W = EFL / EPD`` for an object at infinity in air).
+    """
+    from ..paraxial import _indices, _trace, paraxial
+
+    with torch.no_grad():
+        par = paraxial(lens)
+        pos = float(par.entrance_pupil_position)
+        s = float(lens.spec.object_distance_mm)
+        n, p0 = _indices(lens, None)
+        if kind in ("obna", "cone"):
+            if kind == "obna":
+                n0 = float(n[0])
+                if not value < n0:
+                    p.fail(line, f"OBNA {value:g}: the numerical aperture must be below the "
+                                 f"object-space index {n0:.6g}")
+                theta = math.asin(value / n0)
+            else:
+                if not value < 90:
+                    p.fail(line, f"OBNA {value:g} (cone angle): must be below 90 degrees")
+                theta = math.radians(value)
+            return 2.0 * abs(s + pos) * math.tan(theta)
+        one = torch.ones_like(p0)
+        if math.isinf(s):
+            y0, u0 = 1.0, 0.0          # per unit entrance-pupil radius
+        else:
+            u0 = 1.0 / (s + pos)
+            y0 = u0 * s
+        _, u, _ = _trace(lens, y0 * one, u0 * one, n)
+        g = abs(float(u))
+        if not g > 0:
+            p.fail(line, "FNUM (paraxial working F-number): the system is afocal")
+        return 2.0 / (2.0 * float(n[-1]) * value * g)
+
+
+def chief_height(lens, field_deg: float) -> float:
+    """Image height (mm, on the sensor) of the chief ray at the primary wavelength: through the
+    stop centre with ray aiming (the real chief ray), through the paraxial entrance pupil's
+    centre without (as OpticStudio defines it in each case)."""
+    from ...analysis.spot import chief_ray  # local: the real chief ray lives in analysis
+    from ..intersect import IntersectOptions
+    from ..paraxial import paraxial
+    from ..sampling import field_rays
+
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        if lens.ray_aiming:
+            return float(chief_ray(lens, field_deg, w)[0])
+        z_ep = float(paraxial(lens).entrance_pupil_z)
+        rays = field_rays(lens, field_deg, w, torch.zeros(1, 2, dtype=lens.dtype), z_ep)
+        out = lens.trace_to_sensor(rays, options=IntersectOptions(clip_aperture=False))
+        return float(out.o[0, 1]) if bool(out.valid[0]) else math.nan
+
+
+def real_image_height_angle(lens, h: float, line: int, p) -> float:
+    """The field angle (deg, > 0) whose chief ray lands at real image height ``h`` (mm, > 0):
+    secant iterations from the paraxial estimate."""
+    t0 = 1e-3
+    slope = abs(chief_height(lens, t0)) / t0
+    if not slope > 0:
+        p.fail(line, "FTYP 3 (real image height): the chief ray does not reach the image")
+    a = min(h / slope, 89.0)
+    b = a * 1.001
+    ga, gb = abs(chief_height(lens, a)) - h, abs(chief_height(lens, b)) - h
+    for _ in range(60):
+        if not (math.isfinite(ga) and math.isfinite(gb)) or gb == ga:
+            break
+        a, b, ga = b, b - gb * (b - a) / (gb - ga), gb
+        b = min(max(b, 1e-9), 89.9)
+        gb = abs(chief_height(lens, b)) - h
+        if abs(gb) <= 1e-12 * max(1.0, h):
+            return b
+    p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height {h:g} mm (the "
+                 f"field lies beyond what the lens images)")
+
+
+def rotationally_symmetric(surf) -> bool:
+    """Whether a surface is unchanged by a turn about its own axis (for tilt conversions)."""
+    if isinstance(surf, Aperture):
+        return surf.shape == "circle"
+    return isinstance(surf, (Asphere, Plane))
+
+
+def zemax_tilts(ta: float, tb: float) -> tuple[float, float]:
+    """deeplens' tilts (deg) as OpticStudio's x-then-y tilts (deg) that point a rotationally
+    symmetric element's axis the same way (the inverse of :func:`_element_tilts`)."""
+    a, b = math.radians(ta), math.radians(tb)
+    alpha = math.atan2(math.sin(a), math.cos(b) * math.cos(a))
+    beta = math.asin(max(-1.0, min(1.0, math.sin(b) * math.cos(a))))
+    return math.degrees(alpha), math.degrees(beta)
+
+
+def element_tilts(d, kept, line, p):
+    """Zemax's decenter and tilts ``(dx, dy, α, β, γ)`` (order 0: decenter, then tilts about x,
+    the new y and the new z: ``R = R_x(α) R_y(β) R_z(γ)``) as deeplens' ``(dx, dy, a, b)`` with
+    ``R' = R_y(b) R_x(a)`` (degrees).  For an element that is rotationally symmetric about its
+    own axis only that axis, ``R e_z = (sin β, −sin α cos β, cos α cos β)``, matters, and
+    ``R' e_z`` equals it for ``a = asin(sin α cos β)``, ``b = atan2(sin β, cos α cos β)``
+    (exact; ``γ`` turns the element about its axis).  One tilt maps onto itself."""
+    dx, dy, ta, tb, tg = d
+    if (ta != 0 and tb != 0) or tg != 0:
+        for surf, _, s, _ in kept:
+            if not rotationally_symmetric(surf):
+                p.fail(line, f"a COORDBRK with tilts about two axes (or about z) around a "
+                             f"surface that is not rotationally symmetric (SURF on line "
+                             f"{s.line}) is not supported")
+    a, b = math.radians(ta), math.radians(tb)
+    ta2 = math.degrees(math.asin(max(-1.0, min(1.0, math.sin(a) * math.cos(b)))))
+    tb2 = math.degrees(math.atan2(math.sin(b), math.cos(a) * math.cos(b)))
+    return (dx, dy, ta2, tb2)
+
+
+def lens_pupil_convention(lens) -> str:
+    """The pupil sampling that matches how the file's author saw the lens: ``"traced"`` (real
+    rays that fill the stop) where the file asks for ray aiming (``RAIM`` type 1 or 2),
+    ``"paraxial"`` (rays aimed at the paraxial entrance pupil, OpticStudio without ray aiming)
+    where it does not; ``"traced"`` for a lens that did not come from a ``.zmx`` file."""
+    return "traced" if getattr(lens, "ray_aiming", True) else "paraxial"
+
+
+def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
+    ys, _yline = sysd["yfln"] if sysd["yfln"] else ([0.0], 0)
+    xs, xline = sysd["xfln"] if sysd["xfln"] else ([0.0] * len(ys), 0)
+    if n_fields is not None:
+        ys, xs = ys[:n_fields], xs[:n_fields]
+    xs = xs + [0.0] * (len(ys) - len(xs))
+    kind = ftyp[0]
+    if any(x != 0 for x in xs):
+        p.note(xline, "XFLN: x field components are combined with y into a radial field (exact "
+                      "for a rotationally symmetric lens)")
+    if kind == 0:
+        return [math.copysign(math.degrees(math.atan(math.hypot(math.tan(math.radians(x)),
+                                                                 math.tan(math.radians(y))))),
+                              y if y != 0 else 1.0) for x, y in zip(xs, ys)]
+    from ..paraxial import paraxial
+
+    h = [math.copysign(math.hypot(x, y), y if y != 0 else 1.0) * s_mm for x, y in zip(xs, ys)]
+    d_obj = float(lens.spec.object_distance_mm)
+    if kind == 1:
+        if math.isinf(d_obj):
+            p.fail(ftyp_line, "FTYP 1 (object height) with the object at infinity cannot be "
+                              "converted to field angles")
+        par = paraxial(lens)
+        z_ep = float(par.entrance_pupil_position)
+        return [math.degrees(math.atan(v / (d_obj + z_ep))) for v in h]
+    if kind == 2:
+        if not math.isinf(d_obj):
+            # paraxial image height h' = m h at the paraxial image plane: the object height
+            # h = h' / m, then as FTYP 1
+            from ..paraxial import _indices, _trace
+
+            with torch.no_grad():
+                par = paraxial(lens)
+                n, p0 = _indices(lens, None)
+                one = torch.ones_like(p0)
+                y, u, _ = _trace(lens, one, 0.0 * one, n)   # from an object point of height 1
+                m = float(y + u * par.image_distance)
+            if not abs(m) > 1e-12:
+                p.fail(ftyp_line, "FTYP 2 (paraxial image height): the paraxial magnification "
+                                  "is zero")
+            z_ep = float(par.entrance_pupil_position)
+            return [math.degrees(math.atan(abs(v / m) / (d_obj + z_ep))) * (1 if v >= 0 else -1)
+                    for v in h]
+        efl = float(paraxial(lens).efl)
+        return [math.degrees(math.atan(v / efl)) for v in h]
+    if kind == 3:
+        return [math.copysign(real_image_height_angle(lens, abs(v), ftyp_line, p), v)
+                if v != 0 else 0.0 for v in h]
+    if kind == 4:
+        # theodolite angles: for a single non-zero component the field angle itself (the two
+        # together define a direction whose convention we have not checked against an oracle)
+        out = []
+        for x, y in zip(xs, ys):
+            if x != 0 and y != 0:
+                p.fail(ftyp_line, "FTYP 4 (theodolite angles) with both x and y non-zero in one "
+                                  "field is not supported (give angles, FTYP 0)")
+            out.append(y if y != 0 else x)
+        return out
+    names = {3: "real image height", 4: "theodolite angle"}
+    p.fail(ftyp_line, f"FTYP {kind} ({names.get(kind, 'unknown field type')}) cannot be converted "
+                      f"to deeplens' field angles (use angle, object height or paraxial image "
+                      f"height)")
