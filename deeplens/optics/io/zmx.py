@@ -40,8 +40,11 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   line, unless the caller passes ``glass_fallback``.
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
-would change the optics if ignored (other surface types, mirrors, obscurations, object-space NA
-apertures, ...) are errors.  :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
+would change the optics if ignored (other surface types, obscurations, object-space NA
+apertures, ...) are errors.  ``GLAS MIRROR`` makes the surface a mirror (``Lens(mirrors=...)``;
+the medium after it is the one before, and the file's negative thicknesses after it are kept:
+deeplens uses Zemax's sign convention, see ``docs/guide/mirrors.md``).
+:func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
 written and read again has the same prescription.
 """
 
@@ -113,6 +116,7 @@ class _Surf:
     parm: dict = field(default_factory=dict)   # index -> (value, line)
     xdat: dict = field(default_factory=dict)   # index -> (value, line)
     clap: tuple | None = None
+    mirror: bool = False               # GLAS MIRROR
 
 
 class _Parser:
@@ -236,9 +240,9 @@ def _parse(path: Path):
             if len(toks) < 2:
                 p.fail(ln, "GLAS line is truncated: missing the glass name")
             name = toks[1]
-            if name.upper() == "MIRROR":
-                p.fail(ln, "GLAS MIRROR: reflective surfaces are not supported (deeplens traces "
-                           "refractive sequential systems)")
+            if name.upper() == "MIRROR":  # a reflecting surface: Lens(mirrors=...)
+                cur.mirror, cur.glass, cur.glass_line = True, None, ln
+                continue
             code = toks[2] if len(toks) > 2 else "0"
             model = None
             if len(toks) >= 6:
@@ -440,6 +444,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     gap = 0.0            # axial distance from the last kept vertex to the current one (mm)
     bracket = None
     stop_idx = None
+    mirrors = []         # indices in kept of GLAS MIRROR surfaces
     for k in range(1, len(surfs) - 1):
         s = surfs[k]
         prev = media[-1]
@@ -487,7 +492,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 gap = gap + s.disz * s_mm   # gap: back at the pivot, + the thickness after
                 bracket = None
             continue
-        mat = _surface_material(s, gcat, cats, glass_fallback, p)
+        mat = prev if s.mirror else _surface_material(s, gcat, cats, glass_fallback, p)
         c = s.curv / s_mm
         sd = s.diam * s_mm
         if s.clap is not None:
@@ -513,12 +518,13 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                         coeffs.pop()
             flat = c == 0 and s.coni == 0 and not coeffs
             same_medium = (type(mat) is type(prev) and mat.name == prev.name)
-            if flat and same_medium and not s.stop and not s.diam_fixed and s.clap is None:
+            if (flat and same_medium and not s.stop and not s.diam_fixed and s.clap is None
+                    and not s.mirror):
                 gap += s.disz * s_mm
                 if bracket is not None:
                     bracket["zloc"] += s.disz * s_mm
                 continue   # a dummy surface: its thickness only
-            if flat and _is_air(mat) and _is_air(prev):
+            if flat and _is_air(mat) and _is_air(prev) and not s.mirror:
                 surf = Aperture(sd if sd > 0 else None)
             elif flat:
                 surf = Plane(sd)
@@ -530,6 +536,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be > 0, got {s.diam!r}")
         if s.stop:
             stop_idx = len(kept)
+        if s.mirror:
+            mirrors.append(len(kept))
         kept.append((surf, mat, s, gap))
         media.append(mat)
         gap = s.disz * s_mm
@@ -590,7 +598,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                         primary_wavelength_nm=primary)
         lens = Lens(surfaces, media, distances, d_sensor, stop_idx, sensor_sd, spec,
                     elements=[(a, b) for a, b, _, _ in elements],
-                    name=sysd["name"] or path.stem)
+                    name=sysd["name"] or path.stem, mirrors=mirrors)
     except (ValueError, TypeError) as e:
         raise ZemaxFileError(_locate(f"{path}: {e}", where_of)) from e
     for e, (a, b, d, _) in enumerate(elements):
@@ -816,7 +824,10 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
             gap = -inner if tilted and i == b else after   # back to the first vertex
             lines = _surface_lines(s, i, lens.stop_index == i)
             lines.append(f"DISZ {_f(gap)}")
-            glas(lens.materials[i + 1], lines)
+            if i in lens.mirrors:
+                lines.append("GLAS MIRROR 0 0 0 0 0 0 0 0 0 0 0")
+            else:
+                glas(lens.materials[i + 1], lines)
             surf(lines)
             if tilted and i == b:
                 surf(["TYPE COORDBRK", "CURV 0.0", f"DISZ {_f(inner + after)}"] +
@@ -845,7 +856,7 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
 
 
 def _surface_lines(s, i, is_stop) -> list[str]:
-    from ..surfaces import BSpline
+    from ..surfaces import BSpline, CoordinateBreak
 
     lines = ["STOP"] if is_stop else []
     sd = s.semi_diameter
@@ -889,4 +900,8 @@ def _surface_lines(s, i, is_stop) -> list[str]:
         return lines
     if isinstance(s, BSpline):
         raise ZemaxFileError(f"surface {i}: a B-spline surface has no .zmx equivalent")
+    if isinstance(s, CoordinateBreak):
+        raise ZemaxFileError(f"surface {i}: a coordinate break (a fold or an off-axis section) "
+                             f"is not written to .zmx yet (the reader takes COORDBRK only as an "
+                             f"element's misalignment); save the lens as JSON")
     raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent")

@@ -4,9 +4,10 @@ from .aperture import Aperture
 from .asphere import Asphere, Sphere
 from .base import SURFACE_TYPES, SagSurface, Surface
 from .bspline import BSpline
+from .coordinate_break import CoordinateBreak
 from .ideal import IdealLens
 from .plane import Plane
 from .xy_polynomial import XYPolynomial
 
-__all__ = ["IdealLens", "Aperture", "Asphere", "Sphere", "BSpline", "Plane", "XYPolynomial", "Surface",
+__all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "BSpline", "Plane", "XYPolynomial", "Surface",
            "SagSurface", "SURFACE_TYPES"]

@@ -11,7 +11,8 @@ import torch
 
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import LensFileError, lens_from_dict, lens_to_dict, load_lens, save_lens
-from deeplens.optics.surfaces import Aperture, Asphere, BSpline, IdealLens, Plane, XYPolynomial
+from deeplens.optics.surfaces import (Aperture, Asphere, BSpline, CoordinateBreak, IdealLens, Plane,
+                                      XYPolynomial)
 
 ROOT = Path(__file__).resolve().parents[3]
 SHIPPED = sorted((ROOT / "data" / "lenses").glob("*.json"))
@@ -48,13 +49,17 @@ def all_types_dict(aperture=None, object_distance="inf"):
              "material": "AIR"},
             {"type": "ideal_lens", "semi_diameter_mm": 4.0, "focal_length_mm": 50.0 / 3,
              "distance_mm": 1.0, "material": "AIR"},
+            {"type": "coordinate_break", "semi_diameter_mm": 1.0, "dx_mm": 0.0,
+             "dy_mm": 0.01 / 3, "tilt_x_rad": 1e-3 / 7, "tilt_y_rad": 0.0, "tilt_z_rad": 0.0,
+             "distance_mm": 1.0, "material": "AIR"},
         ],
         "sensor": {"distance_mm": 20.0, "semi_diameter_mm": 5.0},
-        "elements": [[0, 1], [2, 2], [3, 4], [5, 5], [6, 6]],
+        "elements": [[0, 1], [2, 2], [3, 4], [5, 5], [6, 6], [7, 7]],
         "misalignment": [
             {"dx_mm": 0.01, "dy_mm": 0.0, "tilt_x_rad": 1e-3 / 3, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": -0.02, "tilt_x_rad": 0.0, "tilt_y_rad": math.pi * 1e-3},
+            {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
         ],
@@ -109,7 +114,7 @@ def test_all_surface_types_roundtrip_exact(object_distance, tmp_path):
     src.write_text(json.dumps(d))
     lens = load_lens(src)
     assert [type(s) for s in lens.surfaces] == [Asphere, Plane, Aperture, XYPolynomial, BSpline,
-                                                Aperture, IdealLens]
+                                                Aperture, IdealLens, CoordinateBreak]
     assert lens.surfaces[5].shape == "rect"
     assert float(lens.misalignments[2].tilt_y) == math.pi * 1e-3
     assert float(lens.misalignments[0].tilt_x) == 1e-3 / 3
@@ -250,7 +255,7 @@ BAD = [
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
-     r"aperture, asphere, bspline, conic, ideal_lens, plane, sphere, xy_polynomial\)"),
+     r"aperture, asphere, bspline, conic, coordinate_break, ideal_lens, plane, sphere, xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -272,7 +277,7 @@ BAD = [
     ("no stop", _del("stop"), r"stop: missing: the lens has no aperture stop"),
     ("stop null", _set(None, "stop"), r"stop: missing: the lens has no aperture stop"),
     ("stop float", _set(2.0, "stop"), r"stop: expected an integer, got 2\.0"),
-    ("stop out of range", _set(7, "stop"), r"stop: 7 is not a surface index \(0\.\.6\)"),
+    ("stop out of range", _set(8, "stop"), r"stop: 8 is not a surface index \(0\.\.7\)"),
     ("version 2", _set(2, "version"), r"version: unsupported lens-file version 2"),
     ("version 0", _set(0, "version"), r"version: unsupported lens-file version 0"),
     ("version string", _set("1", "version"), r"version: expected an integer, got '1'"),
@@ -318,9 +323,9 @@ BAD = [
     ("elements bad pair", _set([[0, 1], [2, "x"], [3, 4], [5, 5]], "elements"),
      r"elements\[1\]: expected \[first, last\] surface indices, got \[2, 'x'\]"),
     ("elements gap", _set([[0, 1], [3, 4], [5, 5]], "elements"),
-     r"elements .* must cover surfaces 0\.\.6 exactly once"),
+     r"elements .* must cover surfaces 0\.\.7 exactly once"),
     ("misalignment count", _set([{"dx_mm": 0.1}], "misalignment"),
-     r"misalignment: expected a list of 5 entries \(one per element\)"),
+     r"misalignment: expected a list of 6 entries \(one per element\)"),
     ("misalignment value", _set("0.1", "misalignment", 0, "dx_mm"),
      r"misalignment\[0\]\.dx_mm: expected a finite number, got '0\.1'"),
     ("misalignment field", _set(0.1, "misalignment", 1, "tilt_z_rad"),
