@@ -378,9 +378,14 @@ class Lens(nn.Module):
         return (None if m.is_identity() else m), pivot, vertex
 
     def trace_surface(self, i: int, rays: Rays, n1, n2, z, options=None,
-                      refract_: bool = True) -> Rays:
-        """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2``."""
+                      refract_: bool = True, reverse: bool = False) -> Rays:
+        """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2`` (reflect
+        at a mirror; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
+        frame, or the previous one when ``reverse``)."""
         s = self.surfaces[i]
+        if isinstance(s, CoordinateBreak):
+            o, d = (s.to_previous if reverse else s.to_next)(rays.o, rays.d, z[i])
+            return Rays(o, d, rays.wavelength, rays.valid, rays.opl, normalize=False)
         m, pivot, vertex = self._frame(i, z, rays.o)
         opt = options or IntersectOptions()
         mirror = i in self.mirrors
@@ -611,10 +616,8 @@ class Lens(nn.Module):
                                         propagate_to)
         for i in order:
             n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
-            s = self.surfaces[i]
-            if isinstance(s, CoordinateBreak):  # re-express the rays in the next frame
-                o, d = (s.to_previous if reverse else s.to_next)(rays.o, rays.d, z[i])
-                rays = Rays(o, d, rays.wavelength, rays.valid, rays.opl, normalize=False)
+            if isinstance(self.surfaces[i], CoordinateBreak):  # a change of frame only
+                rays = self.trace_surface(i, rays, n1, n2, z, reverse=reverse)
             else:
                 rays = step(i, rays, n1, n2, z, options)
             if record:
