@@ -351,3 +351,16 @@ def test_zemax_mirror_file_loads(tmp_path):
     x, y = grid(99.0, 9)
     out = lens.trace_to_sensor(parallel_rays(y, x))
     assert bool(out.valid.all()) and out.o[:, :2].abs().max() < 1e-12
+
+
+def test_compiled_options_run_a_folded_lens_eagerly():
+    """The compiled kernels refract only: a lens with mirrors or breaks runs the eager path
+    under ``compile=...`` and gives the eager result bit for bit."""
+    from deeplens.optics.intersect import IntersectOptions
+
+    lens = newtonian()
+    assert lens.folded()
+    rays = parallel_rays(*reversed(grid(40.0, 5)))
+    eager = lens.trace_to_sensor(rays)
+    comp = lens.trace_to_sensor(rays, options=IntersectOptions(compile=True))
+    assert torch.equal(comp.o, eager.o) and torch.equal(comp.valid, eager.valid)
