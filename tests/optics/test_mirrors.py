@@ -392,3 +392,32 @@ def test_newton_path_for_rays_travelling_minus_z():
         return (wgt * out.o[:, 1]).sum()
 
     _check_grad(asph, a4, lambda: loss(), 1e-13)
+
+
+def test_coordinate_break_order_flags_undo_each_other():
+    """Zemax's convention: a break with order flag 1 and the negated values undoes an order-0
+    break (tilts about x, y and z together), for rays and for the global frames."""
+    v = {1: 1.5, 2: -2.5, 3: 7.0, 4: -11.0, 5: 23.0}
+    a = CoordinateBreak.from_zemax({**v, 6: 0})
+    b = CoordinateBreak.from_zemax({k: -x for k, x in v.items()} | {6: 1})
+    assert (a.order, b.order) == (0, 1)
+    g = torch.Generator().manual_seed(1)
+    x = torch.randn(16, 3, generator=g, dtype=F64) * 10
+    d = torch.nn.functional.normalize(torch.randn(16, 3, generator=g, dtype=F64), dim=-1)
+    z = torch.tensor(3.0, dtype=F64)
+    x1, d1 = a.to_next(x, d, z)
+    assert not torch.allclose(x1, x)
+    x2, d2 = b.to_next(x1, d1, z)
+    assert torch.allclose(x2, x, atol=1e-12) and torch.allclose(d2, d, atol=1e-15)
+    xb, db = a.to_previous(x1, d1, z)
+    assert torch.allclose(xb, x, atol=1e-12) and torch.allclose(db, d, atol=1e-15)
+    # the same pair inside a lens: the frames after it are the frame before it
+    air = Air()
+    b.semi_diameter.fill_(1.0)
+    lens = Lens([Aperture(5.0), a, b, Plane(5.0)], [air] * 5, [0.0, 3.0, 0.0, 2.0], 10.0, 0)
+    A, bb = local_frames(lens)[-1]
+    assert torch.allclose(A, torch.eye(3, dtype=F64), atol=1e-15)
+    assert torch.allclose(bb, torch.zeros(3, dtype=F64), atol=1e-12)
+    # and a JSON round trip keeps the order flag
+    back = lens_from_dict(lens_to_dict(lens))
+    assert [s.order for s in back.surfaces[1:3]] == [0, 1]
