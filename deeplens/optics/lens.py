@@ -3,13 +3,15 @@
 Geometry (global frame, mm): the optical axis is ``z``; vertex ``i`` sits at
 ``z_i = sum_{j<=i} distances[j]`` (``distances[0]`` is normally 0, placing the first vertex at the
 origin) and the sensor at ``z_N-1 + d_sensor``.  ``materials[0]`` is the object-space medium and
-``materials[i+1]`` the medium after surface ``i``.  A mirror (``mirrors=``) reflects instead of
-refracting and reverses the direction of travel along the axis: after an odd number of mirrors
-the distances are negative (Zemax's convention, :mod:`.reflect`); a
-:class:`~.surfaces.CoordinateBreak` changes the frame of every following surface (folds,
-off-axis sections), so ray coordinates after it are in the new frame.  Light travels towards ``+z`` in forward
+``materials[i+1]`` the medium after surface ``i``.  Light travels towards ``+z`` in forward
 (object-to-sensor) tracing and towards ``-z`` in backward (sensor-to-object) tracing; the same
 module serves both, and tracing never modifies the lens or its input rays.
+
+Mirrors and folds (``docs/guide/mirrors.md``): a mirror (``mirrors=``) reflects (:mod:`.reflect`)
+instead of refracting and reverses the direction of travel along the axis, so after an odd
+number of mirrors the distances are negative (Zemax's convention, :meth:`Lens.directions`); a
+:class:`~.surfaces.CoordinateBreak` changes the frame of every following surface (folds,
+off-axis sections) and ray coordinates after it are in the new frame (:mod:`.frames`).
 
 Each surface is intersected in its element's frame (:mod:`.misalignment`) by Newton's method with
 one differentiable step (:mod:`.intersect`) and refracted by vector Snell's law (:mod:`.refract`).
@@ -293,11 +295,11 @@ class Lens(nn.Module):
                 raise LensError(str(e), surfaces=(i,)) from None
         sign = self.directions()
         for i, d in enumerate(self.distances):
-            if i > 0 and sign[i] * float(d) < 0 and sign[i] > 0:
+            if i > 0 and float(d) < 0 and sign[i] > 0:
                 raise LensError(f"distance before surface {i} is negative ({float(d):g} mm): "
                                 f"sequential surfaces must be ordered along +z"
                                 f"{_after_mirrors(self.mirrors, i)}", surfaces=(i,))
-            if i > 0 and sign[i] * float(d) < 0:
+            if i > 0 and float(d) > 0 and sign[i] < 0:
                 raise LensError(f"distance before surface {i} is positive ({float(d):g} mm): "
                                 f"sequential surfaces must be ordered along -z, the direction "
                                 f"of travel there{_after_mirrors(self.mirrors, i)}",
@@ -389,8 +391,9 @@ class Lens(nn.Module):
         m, pivot, vertex = self._frame(i, z, rays.o)
         opt = options or IntersectOptions()
         mirror = i in self.mirrors
-        if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form and opt.mode == "implicit"
-                and not getattr(s, "deflects", False) and not isinstance(s, Aperture)):
+        if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
+                and opt.mode == "implicit" and not getattr(s, "deflects", False)
+                and not isinstance(s, Aperture)):
             x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
                                              (pivot + vertex)[2], _compact(n1), _compact(n2),
                                              opt)

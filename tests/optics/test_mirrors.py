@@ -421,3 +421,55 @@ def test_coordinate_break_order_flags_undo_each_other():
     # and a JSON round trip keeps the order flag
     back = lens_from_dict(lens_to_dict(lens))
     assert [s.order for s in back.surfaces[1:3]] == [0, 1]
+
+
+def test_zemax_mirror_inside_glass(tmp_path):
+    """A mirror on the back of a glass plate (as a Mangin mirror is written): the medium after
+    the mirror is the glass again (Zemax takes it from the surface before), a normal ray's
+    optical path is 2 n t in the glass, and a tilted ray leaves at its incidence angle."""
+    text = _ZMX_PARABOLA.replace("ENPD 200", "FLOA").replace("""SURF 1
+  STOP
+  TYPE STANDARD
+  CURV 0.0 0 0 0 0 ""
+  DISZ 100
+  DIAM 100 1 0 0 1 ""
+SURF 2
+  TYPE STANDARD
+  CURV -0.0005 0 0 0 0 ""
+  CONI -1
+  GLAS MIRROR 0 0 1.5 40 0 0 0 0 0 0
+  DISZ -1000
+  DIAM 100 1 0 0 1 ""
+SURF 3""", """SURF 1
+  STOP
+  TYPE STANDARD
+  CURV 0.0 0 0 0 0 ""
+  GLAS N-BK7 0 0 1.5168 64.17 0 0 0 0 0 0
+  DISZ 5
+  DIAM 10 1 0 0 1 ""
+SURF 2
+  TYPE STANDARD
+  CURV 0.0 0 0 0 0 ""
+  GLAS MIRROR 0 0 1.5 40 0 0 0 0 0 0
+  DISZ -5
+  DIAM 10 1 0 0 1 ""
+SURF 3
+  TYPE STANDARD
+  CURV 0.0 0 0 0 0 ""
+  DISZ -10
+  DIAM 10 1 0 0 1 ""
+SURF 4""")
+    p = tmp_path / "mangin.zmx"
+    p.write_text(text)
+    lens = read_zmx(p)
+    assert lens.mirrors == frozenset({1})
+    assert lens.materials[2] is lens.materials[1] and lens.materials[1].to_spec() == "N-BK7"
+    n = float(lens.materials[1].n(torch.tensor(W, dtype=F64)))  # the rays' wavelength
+    rays = parallel_rays([0.0, 3.0], z0=0.0, direction=(0.0, 0.1, 1.0))
+    out = lens.trace(rays)
+    assert bool(out.valid.all())
+    d_in = rays.d[0]
+    assert torch.allclose(out.d, torch.stack([d_in[0], d_in[1], -d_in[2]]).expand(2, 3),
+                          atol=1e-15)
+    normal = lens.trace(parallel_rays([0.0], z0=0.0))
+    assert float(normal.opl[0]) == pytest.approx(2 * n * 5.0, rel=1e-14)
