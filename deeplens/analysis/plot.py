@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import torch
 
+from ..optics.frames import local_frames, to_global
 from ..optics.sampling import field_rays
 from ..optics.paraxial import paraxial
+from ..optics.surfaces import CoordinateBreak
 from . import style
 
 __all__ = ["layout_figure", "spot_figure", "fan_figure", "field_figure", "distortion_figure",
@@ -21,27 +23,43 @@ __all__ = ["layout_figure", "spot_figure", "fan_figure", "field_figure", "distor
 
 @style.styled
 def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float | None = None):
-    """A y-z section of ``lens`` with meridional rays of each field; returns a matplotlib Figure."""
+    """A y-z section of ``lens`` with meridional rays of each field; returns a matplotlib Figure.
+    A folded lens (mirrors, coordinate breaks) is drawn in the global frame
+    (:func:`~deeplens.optics.frames.local_frames`)."""
     fields = list(lens.spec.fields_deg if fields_deg is None else fields_deg)
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     fig, ax = style.figure(size=(8, 4))
     with torch.no_grad():
         dtype = lens.dtype
         z = lens.z_vertices().double().cpu()
+        frames = [(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64))] * (
+            len(lens.surfaces) + 1)
+        if lens.folded():
+            frames = [(a.double().cpu(), b.double().cpu()) for a, b in local_frames(lens)]
+
+        def yz(k, zz, yy):  # local (y, z) of frame k -> global (z, y) for the plot
+            p3 = torch.stack([torch.zeros_like(yy), yy, zz], -1).double()
+            g = to_global(frames[k], p3)
+            return g[..., 2].numpy(), g[..., 1].numpy()
+
         for i, s in enumerate(lens.surfaces):
+            if isinstance(s, CoordinateBreak):
+                continue
             R = float(s.semi_diameter)
             y = torch.linspace(-R, R, 101, dtype=dtype)
             zero = torch.zeros_like(y)
             sag = torch.where(s.in_domain(zero, y), s.sag(zero, y), zero) if hasattr(s, "sag") \
                 else zero
+            zi = z[i].expand(2)
             if getattr(s, "type_name", "") == "aperture":
-                ax.plot([float(z[i])] * 2, [R, R * 1.3], "k-", lw=2)
-                ax.plot([float(z[i])] * 2, [-R, -R * 1.3], "k-", lw=2)
+                ax.plot(*yz(i, zi, torch.tensor([R, R * 1.3])), "k-", lw=2)
+                ax.plot(*yz(i, zi, torch.tensor([-R, -R * 1.3])), "k-", lw=2)
             else:
-                ax.plot((z[i] + sag.double()).numpy(), y.double().numpy(), "k-", lw=1)
-        zs = float(lens.z_sensor())
+                ax.plot(*yz(i, z[i] + sag.double(), y.double()), "k-",
+                        lw=2 if i in lens.mirrors else 1)
+        zs = lens.z_sensor().double().cpu().expand(2)
         h = lens.sensor_semi_diameter or float(max(s.semi_diameter for s in lens.surfaces))
-        ax.plot([zs, zs], [-h, h], "b-", lw=2)
+        ax.plot(*yz(-1, zs, torch.tensor([-h, h], dtype=torch.float64)), "b-", lw=2)
         p = paraxial(lens, w)
         r_ep = 0.5 * float(p.entrance_pupil_diameter)
         for k, f in enumerate(fields):
@@ -50,14 +68,15 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
             rays = field_rays(lens, f, w, xy, float(p.entrance_pupil_z))
             out, hits = lens.trace(rays, record=True)
             end = lens.propagate_to_z(out, lens.z_sensor())
-            pts = [rays.o] + hits + [end.o]
+            # the start in frame 0, the hit on surface i in the frame after it, the end in the last
+            pts = [(0, rays.o)] + [(i + 1, q) for i, q in enumerate(hits)] + [(-1, end.o)]
+            pts = [yz(f, q[..., 2].double().cpu(), q[..., 1].double().cpu()) for f, q in pts]
             ok = end.valid
             for r in range(n_rays):
                 if not bool(ok[r]):
                     continue
-                zz = [float(q[r, 2]) for q in pts]
-                yy = [float(q[r, 1]) for q in pts]
-                ax.plot(zz, yy, "-", color=style.field_color(k), lw=0.6)
+                ax.plot([float(q[0][r]) for q in pts], [float(q[1][r]) for q in pts], "-",
+                        color=style.field_color(k), lw=0.6)
     ax.set_aspect("equal")
     ax.grid(False)
     ax.set_xlabel("z (mm)")

@@ -7,6 +7,12 @@ origin) and the sensor at ``z_N-1 + d_sensor``.  ``materials[0]`` is the object-
 (object-to-sensor) tracing and towards ``-z`` in backward (sensor-to-object) tracing; the same
 module serves both, and tracing never modifies the lens or its input rays.
 
+Mirrors and folds (``docs/guide/mirrors.md``): a mirror (``mirrors=``) reflects (:mod:`.reflect`)
+instead of refracting and reverses the direction of travel along the axis, so after an odd
+number of mirrors the distances are negative (Zemax's convention, :meth:`Lens.directions`); a
+:class:`~.surfaces.CoordinateBreak` changes the frame of every following surface (folds,
+off-axis sections) and ray coordinates after it are in the new frame (:mod:`.frames`).
+
 Each surface is intersected in its element's frame (:mod:`.misalignment`) by Newton's method with
 one differentiable step (:mod:`.intersect`) and refracted by vector Snell's law (:mod:`.refract`).
 With ``IntersectOptions(compile=...)`` aligned spheres, conics, planes, stops and even aspheres
@@ -29,8 +35,9 @@ from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
 from .paraxial import paraxial
 from .rays import Rays
+from .reflect import reflect
 from .refract import refract
-from .surfaces import Aperture, Asphere, Plane, Surface, XYPolynomial
+from .surfaces import Aperture, Asphere, CoordinateBreak, Plane, Surface, XYPolynomial
 from .surfaces.base import make_param
 
 __all__ = ["Lens", "LensSpec"]
@@ -111,6 +118,36 @@ def _from_soa(v: torch.Tensor) -> torch.Tensor:
     return torch.stack(v.unbind(0), -1)
 
 
+_DIR = {1: "+", -1: "-"}
+
+
+def _after_mirrors(mirrors, i: int) -> str:
+    """`` (after k mirrors)`` for a message about the space before surface ``i`` ('' if none)."""
+    k = sum(1 for j in mirrors if j < i)
+    return f" (after {k} mirror{'s' if k != 1 else ''})" if k else ""
+
+
+def _check_mirrors(mirrors, surfaces, materials) -> frozenset:
+    """Validated mirror indices: surfaces that can reflect, with the same medium on both
+    sides (a mirror does not change the medium; its sign is in the distances)."""
+    out = set()
+    for i in mirrors:
+        if isinstance(i, bool) or not isinstance(i, int) or not 0 <= i < len(surfaces):
+            raise LensError(f"mirror index {i!r} is not a surface index (0..{len(surfaces) - 1})",
+                            key="mirrors")
+        s = surfaces[i]
+        if isinstance(s, (Aperture, CoordinateBreak)) or getattr(s, "deflects", False):
+            raise LensError(f"surface {i} ({type(s).__name__}) cannot be a mirror",
+                            surfaces=(i,), key="mirrors")
+        if materials[i + 1] is not materials[i] and materials[i + 1].to_spec() != \
+                materials[i].to_spec():
+            raise LensError(f"mirror surface {i}: the medium after it must be the medium before "
+                            f"it ({materials[i].to_spec()}), got {materials[i + 1].to_spec()}",
+                            surfaces=(i,), key="mirrors")
+        out.add(int(i))
+    return frozenset(out)
+
+
 def _default_elements(surfaces, materials) -> list[tuple[int, int]]:
     """Group surfaces into rigid elements: a run of surfaces enclosing non-air media; a stop
     (or any surface with air on both sides) is an element of its own."""
@@ -138,6 +175,8 @@ class Lens(nn.Module):
         elements: ``[(first, last), ...]`` surface-index ranges that move rigidly under
             misalignment (default: glass elements and the stop, from the media).
         name: a title.
+        mirrors: indices of reflecting surfaces (their medium after is the medium before;
+            see :meth:`directions` for the sign of the distances after them).
 
     Trainable values: each surface's prescription, ``distances[i]``, ``d_sensor`` and each
     element's :class:`Misalignment` are ``nn.Parameter`` objects created frozen; call
@@ -150,7 +189,7 @@ class Lens(nn.Module):
 
     def __init__(self, surfaces, materials, distances, d_sensor: float, stop_index: int | None,
                  sensor_semi_diameter: float | None = None, spec: LensSpec | None = None,
-                 elements=None, name: str = ""):
+                 elements=None, name: str = "", mirrors=()):
         super().__init__()
         surfaces, materials, distances = list(surfaces), list(materials), list(distances)
         n = len(surfaces)
@@ -180,6 +219,7 @@ class Lens(nn.Module):
                                            for i, v in enumerate(distances)])
         self.d_sensor = make_param(d_sensor, "sensor distance")
         self.stop_index = int(stop_index)
+        self.mirrors = _check_mirrors(mirrors, surfaces, materials)
         if sensor_semi_diameter is not None and not (float(sensor_semi_diameter) > 0 and
                                                      math.isfinite(float(sensor_semi_diameter))):
             raise LensError(f"sensor semi-diameter must be a positive number of mm (or None), "
@@ -223,6 +263,19 @@ class Lens(nn.Module):
         """Vertex positions ``(N,)`` in mm (differentiable in ``distances``)."""
         return torch.cumsum(torch.stack(list(self.distances)), 0)
 
+    def directions(self) -> list[int]:
+        """The direction of travel along the local axis in each of the ``N + 1`` media: ``+1``
+        (``+z``) in object space, flipped by every mirror.  Distances into a medium carry its
+        sign (negative after an odd number of mirrors)."""
+        out = [1]
+        for i in range(len(self.surfaces)):
+            out.append(-out[-1] if i in self.mirrors else out[-1])
+        return out
+
+    def folded(self) -> bool:
+        """True when the lens has a mirror or a coordinate break (it then traces eagerly)."""
+        return bool(self.mirrors) or any(isinstance(s, CoordinateBreak) for s in self.surfaces)
+
     def z_sensor(self) -> torch.Tensor:
         return self.z_vertices()[-1] + self.d_sensor
 
@@ -255,23 +308,33 @@ class Lens(nn.Module):
                         f"{waves[0]:g} nm); a stop does not refract, so the medium must be the "
                         f"same on both sides: put the stop in a gap, or give the interface its "
                         f"own surface", surfaces=(i,))
+        sign = self.directions()
         for i, d in enumerate(self.distances):
-            if i > 0 and float(d) < 0:
+            if i > 0 and float(d) < 0 and sign[i] > 0:
                 raise LensError(f"distance before surface {i} is negative ({float(d):g} mm): "
-                                f"sequential surfaces must be ordered along +z", surfaces=(i,))
-        if float(self.d_sensor) <= 0:
-            raise LensError(f"sensor distance must be > 0 mm, got {float(self.d_sensor):g}",
-                            key="sensor")
+                                f"sequential surfaces must be ordered along +z"
+                                f"{_after_mirrors(self.mirrors, i)}", surfaces=(i,))
+            if i > 0 and float(d) > 0 and sign[i] < 0:
+                raise LensError(f"distance before surface {i} is positive ({float(d):g} mm): "
+                                f"sequential surfaces must be ordered along -z, the direction "
+                                f"of travel there{_after_mirrors(self.mirrors, i)}",
+                                surfaces=(i,))
+        if sign[-1] * float(self.d_sensor) <= 0:
+            raise LensError(f"sensor distance must be {'>' if sign[-1] > 0 else '<'} 0 mm"
+                            f"{_after_mirrors(self.mirrors, len(self.surfaces))}, got "
+                            f"{float(self.d_sensor):g}", key="sensor")
         with torch.no_grad():
             z = self.z_vertices()
             for i in range(len(self.surfaces) - 1):
                 a, b = self.surfaces[i], self.surfaces[i + 1]
+                if isinstance(a, CoordinateBreak) or isinstance(b, CoordinateBreak):
+                    continue  # different frames
                 r_max = min(float(a.semi_diameter), float(b.semi_diameter))
                 r = torch.linspace(0, r_max, 65, dtype=torch.float64)
                 zero = torch.zeros_like(r)
                 za = z[i] + a.sag(zero, r)
                 zb = z[i + 1] + b.sag(zero, r)
-                gap = zb - za
+                gap = (zb - za) * sign[i + 1]
                 ok = a.in_domain(zero, r) & b.in_domain(zero, r)
                 if bool(((gap < -1e-9) & ok).any()):
                     k = int(torch.nonzero((gap < -1e-9) & ok)[0])
@@ -284,7 +347,7 @@ class Lens(nn.Module):
             s = self.surfaces[last]
             r = torch.linspace(0, float(s.semi_diameter), 65, dtype=torch.float64)
             zl = z[last] + s.sag(torch.zeros_like(r), r)
-            if bool((zl > z[last] + self.d_sensor + 1e-9).any()):
+            if bool((sign[-1] * (zl - z[last] - self.d_sensor) > 1e-9).any()):
                 raise LensError(f"the last surface crosses the sensor plane (sensor distance "
                                 f"{float(self.d_sensor):g} mm)", key="sensor")
 
@@ -336,13 +399,20 @@ class Lens(nn.Module):
         return (None if m.is_identity() else m), pivot, vertex
 
     def trace_surface(self, i: int, rays: Rays, n1, n2, z, options=None,
-                      refract_: bool = True) -> Rays:
-        """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2``."""
+                      refract_: bool = True, reverse: bool = False) -> Rays:
+        """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2`` (reflect
+        at a mirror; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
+        frame, or the previous one when ``reverse``)."""
         s = self.surfaces[i]
+        if isinstance(s, CoordinateBreak):
+            o, d = (s.to_previous if reverse else s.to_next)(rays.o, rays.d, z[i])
+            return Rays(o, d, rays.wavelength, rays.valid, rays.opl, normalize=False)
         m, pivot, vertex = self._frame(i, z, rays.o)
         opt = options or IntersectOptions()
-        if (m is None and refract_ and s.is_quadric and opt.closed_form and opt.mode == "implicit"
-                and not getattr(s, "deflects", False) and not isinstance(s, Aperture)):
+        mirror = i in self.mirrors
+        if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
+                and opt.mode == "implicit" and not getattr(s, "deflects", False)
+                and not isinstance(s, Aperture)):
             x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
                                              (pivot + vertex)[2], _compact(n1), _compact(n2),
                                              opt)
@@ -354,7 +424,9 @@ class Lens(nn.Module):
             o, d = m.to_element(rays.o, rays.d, pivot)
             o = o - vertex
         t, x, valid = intersect(s, o, d, rays.valid, options)
-        if refract_ and getattr(s, "deflects", False):
+        if refract_ and mirror:
+            d, valid = reflect(d, s.normal(x), valid)
+        elif refract_ and getattr(s, "deflects", False):
             d, valid = s.deflect(x, d, valid)  # an ideal (paraxial) lens
         elif refract_ and not isinstance(s, Aperture):
             d, valid = refract(d, s.normal(x), _compact(n1) / _compact(n2), valid)
@@ -563,12 +635,15 @@ class Lens(nn.Module):
         if options is not None and options.checkpoint and torch.is_grad_enabled():
             step = self._trace_surface_checkpointed
         if (options is not None and options.compile and options.closed_form
-                and options.mode == "implicit" and not record):
+                and options.mode == "implicit" and not record and not self.folded()):
             return self._trace_compiled(rays, order, n, z, reverse, options, step,
                                         propagate_to)
         for i in order:
             n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
-            rays = step(i, rays, n1, n2, z, options)
+            if isinstance(self.surfaces[i], CoordinateBreak):  # a change of frame only
+                rays = self.trace_surface(i, rays, n1, n2, z, reverse=reverse)
+            else:
+                rays = step(i, rays, n1, n2, z, options)
             if record:
                 hits.append(rays.o)
         if propagate_to is not None:

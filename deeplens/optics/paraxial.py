@@ -9,6 +9,17 @@ Two rays are traced from the first vertex: ``A = (y=1, u=0)`` and ``B = (y=0, u=
 (the stop's image in object space) lies ``y_B,stop / y_A,stop`` behind the first vertex and has
 diameter ``2 r_stop / |y_A,stop|``; ``F/# = EFL / EPD``.  For an object at distance ``s`` the
 paraxial image lies ``-y/u'`` behind the last vertex for the ray ``s A + B``.
+
+Mirrors: the classic trick.  Indices carry the direction of travel, ``n -> σ n`` with ``σ = ±1``
+flipped by every mirror (:meth:`Lens.directions <deeplens.optics.lens.Lens.directions>`), so a
+mirror is a surface with ``n' = -n`` and power ``φ = -2 n c``; distances after an odd number of
+mirrors are negative, slopes ``u = dy/dz`` are real slopes along the local axis, and the
+transfer ``y <- y + t u'`` is unchanged.  ``EFL = -σ_img / u_A'`` is then positive for a
+converging system whichever way the light leaves (a concave mirror of radius ``R`` has
+``EFL = |R| / 2``), while ``BFL``, ``image_distance`` and ``*_z`` stay positions along the local
+``z`` (``BFL = R / 2`` for that mirror).  A coordinate break has no power and paraxial rays
+follow the local axes through it (as in Zemax): a fold is exact, a tilted or decentered
+section is paraxial about its own vertex.
 All quantities are differentiable torch scalars in mm, at the primary wavelength.
 """
 
@@ -45,6 +56,11 @@ def _power(surface, n1, n2):
     return surface.paraxial_curvature() * (n2 - n1)
 
 
+def _signed_indices(lens, wt):
+    """The ``N + 1`` media indices at wavelength tensor ``wt``, times the direction of travel."""
+    return [m.n(wt).to(wt) * sign for m, sign in zip(lens.materials, lens.directions())]
+
+
 def _trace(lens, y, u, n):
     """Trace a paraxial ray (y, u at the first vertex, in object space) to the last vertex.
 
@@ -68,13 +84,13 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     p0 = lens.distances[0]
     wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
-    n = [m.n(wt).to(p0) for m in lens.materials]
+    n = _signed_indices(lens, wt)
     one, zero = torch.ones_like(p0), torch.zeros_like(p0)
     yA, uA, hA = _trace(lens, one, zero, n)
     _, _, hB = _trace(lens, zero, one, n)
     if abs(float(uA.detach())) < 1e-15:
         raise ValueError("the system is afocal: the paraxial EFL is infinite")
-    efl = -1.0 / uA
+    efl = -n[-1].sign() / uA
     bfl = -yA / uA
     k = lens.stop_index
     ya_s, yb_s = hA[k], hB[k]
@@ -100,7 +116,7 @@ def _indices(lens, wavelength_nm):
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     p0 = lens.distances[0]
     wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
-    return [m.n(wt).to(p0) for m in lens.materials], p0
+    return _signed_indices(lens, wt), p0
 
 
 def _trace_from(lens, start: int, y, u, n):

@@ -22,7 +22,11 @@ A lens file is a JSON object::
     }
 
 ``distance_mm`` is the axial gap from the previous vertex; ``material`` is the medium *after*
-the surface (a catalogue glass, ``AIR``, or a model glass ``"n_d/V_d"``).  Per type:
+the surface (a catalogue glass, ``AIR``, or a model glass ``"n_d/V_d"``), or ``"MIRROR"`` for a
+reflecting surface (the medium after it is the one before it; distances after an odd number of
+mirrors are negative, and so is the sensor distance then).  A ``coordinate_break`` entry
+(``dx_mm``, ``dy_mm``, ``tilt_x_rad``, ``tilt_y_rad``, ``tilt_z_rad``) changes the frame of every
+following surface (folds, off-axis sections; see ``docs/guide/mirrors.md``).  Per type:
 ``asphere`` takes ``curvature_per_mm`` (or ``roc_mm``, 0 = flat), optional ``conic`` and
 ``aspheric`` (``[a4, a6, ...]``); ``xy_polynomial`` takes ``coefficients`` and ``b``; ``bspline``
 takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` with
@@ -239,7 +243,7 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     surf_list = data.get("surfaces")
     if not isinstance(surf_list, list) or not surf_list:
         r.fail("surfaces", "expected a non-empty list of surfaces")
-    surfaces, materials, distances = [], [], []
+    surfaces, materials, distances, mirrors = [], [], [], []
 
     def material(spec_str, path, surfaces=()):
         try:
@@ -264,8 +268,12 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
         except ValueError as e:
             r.fail(path, str(e), surfaces=(i,))
         distances.append(r.get(s, "distance_mm", path))
-        materials.append(material(r.get(s, "material", path, "str", default="AIR"),
-                                  f"{path}.material", (i,)))
+        medium = r.get(s, "material", path, "str", default="AIR")
+        if medium.strip().upper() == "MIRROR":
+            mirrors.append(i)
+            materials.append(materials[-1])
+        else:
+            materials.append(material(medium, f"{path}.material", (i,)))
     stop = data.get("stop")
     if stop is None:
         r.fail("stop", "missing: the lens has no aperture stop (give the index of the stop "
@@ -278,8 +286,11 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
         r.fail("sensor", "missing: expected {\"distance_mm\": ..., \"semi_diameter_mm\": ...}")
     r.keys(sensor, {"distance_mm", "semi_diameter_mm"}, "sensor")
     d_sensor = r.get(sensor, "distance_mm", "sensor")
-    if not d_sensor > 0:
-        r.fail("sensor.distance_mm", f"the sensor distance must be > 0 mm, got {d_sensor!r}")
+    if not (d_sensor > 0 if len(mirrors) % 2 == 0 else d_sensor < 0):
+        after = f" after {len(mirrors)} mirrors" if mirrors else ""
+        r.fail("sensor.distance_mm", f"the sensor distance must be "
+                                     f"{'> 0' if len(mirrors) % 2 == 0 else '< 0'} mm{after}, "
+                                     f"got {d_sensor!r}")
     sensor_sd = r.get(sensor, "semi_diameter_mm", "sensor", default=None)
     if sensor_sd is not None and not sensor_sd > 0:
         r.fail("sensor.semi_diameter_mm", f"must be > 0 mm (or left out), got {sensor_sd!r}")
@@ -294,7 +305,7 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
                 r.fail(f"elements[{e}]", f"expected [first, last] surface indices, got {pair!r}")
     try:
         lens = Lens(surfaces, materials, distances, d_sensor, stop, sensor_sd, spec,
-                    elements=elements, name=name)
+                    elements=elements, name=name, mirrors=mirrors)
     except LensError as e:
         raise LensFileError(e.message, source=source, key=_SPEC_FIELDS.get(e.key),
                             surfaces=e.surfaces) from e
@@ -327,7 +338,7 @@ def lens_to_dict(lens: Lens) -> dict:
     for i, s in enumerate(lens.surfaces):
         d = s.to_dict()
         d["distance_mm"] = float(lens.distances[i])
-        d["material"] = lens.materials[i + 1].to_spec()
+        d["material"] = "MIRROR" if i in lens.mirrors else lens.materials[i + 1].to_spec()
         surfaces.append(d)
     out = {
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "name": lens.name,

@@ -53,8 +53,12 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   line, unless the caller passes ``glass_fallback``.
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
-would change the optics if ignored (other surface types, mirrors, obscurations on lens surfaces,
-telecentric object space, ...) are errors naming the file, the line and the feature.  :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
+would change the optics if ignored (other surface types, obscurations on lens surfaces,
+telecentric object space, ...) are errors naming the file, the line and the feature.
+``GLAS MIRROR`` makes the surface a mirror (``Lens(mirrors=...)``; the medium after it is the one
+before, and the file's negative thicknesses after it are kept: deeplens uses Zemax's sign
+convention, see ``docs/guide/mirrors.md``).
+:func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
 written and read again has the same prescription.
 """
 
@@ -155,6 +159,7 @@ class _Surf:
     clap: tuple | None = None
     sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
     obsc: tuple | None = None   # (central obscuration radius, line) in file units
+    mirror: bool = False               # GLAS MIRROR
 
 
 class _Parser:
@@ -289,9 +294,9 @@ def _parse(path: Path):
             if len(toks) < 2:
                 p.fail(ln, "GLAS line is truncated: missing the glass name")
             name = toks[1]
-            if name.upper() == "MIRROR":
-                p.fail(ln, "GLAS MIRROR: reflective surfaces are not supported (deeplens traces "
-                           "refractive sequential systems)")
+            if name.upper() == "MIRROR":  # a reflecting surface: Lens(mirrors=...)
+                cur.mirror, cur.glass, cur.glass_line = True, None, ln
+                continue
             if name.upper() in ("AIR", "VACUUM"):
                 cur.glass, cur.glass_model, cur.glass_line = None, None, ln
                 continue   # written by some converters: the same as no GLAS line
@@ -571,6 +576,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     bracket = None
     stop_idx = None
     autos = []           # kept indices whose semi-diameter is automatic
+    mirrors = []         # indices in kept of GLAS MIRROR surfaces
     for k in range(1, len(surfs) - 1):
         s = surfs[k]
         prev = media[-1]
@@ -613,7 +619,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 gap = gap + s.disz * s_mm   # gap: back at the pivot, + the thickness after
                 bracket = None
             continue
-        mat = _surface_material(s, gcat, cats, glass_fallback, p)
+        mat = prev if s.mirror else _surface_material(s, gcat, cats, glass_fallback, p)
         c = s.curv / s_mm
         sd = s.diam * s_mm
         if s.clap is not None:
@@ -640,7 +646,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             flat = c == 0 and s.coni == 0 and not coeffs
             same_medium = (type(mat) is type(prev) and mat.name == prev.name)
             if (flat and same_medium and not s.stop and not fixed and s.clap is None
-                    and s.sqap is None and s.obsc is None):
+                    and s.sqap is None and s.obsc is None and not s.mirror):
                 gap += s.disz * s_mm
                 if bracket is not None:
                     bracket["zloc"] += s.disz * s_mm
@@ -665,7 +671,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 outer = sd if (s.clap is not None or fixed or s.stop) else 1.01 * sd
                 ro = s.obsc[0] * s_mm
                 surf = Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
-            elif flat and _is_air(mat) and _is_air(prev):
+            elif flat and _is_air(mat) and _is_air(prev) and not s.mirror:
                 surf = Aperture(sd_build)
             elif flat:
                 surf = Plane(sd_build)
@@ -688,6 +694,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             autos.append(len(kept))
         if s.stop:
             stop_idx = len(kept)
+        if s.mirror:
+            mirrors.append(len(kept))
         kept.append((surf, mat, s, gap))
         media.append(mat)
         gap = s.disz * s_mm
@@ -770,7 +778,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                         primary_wavelength_nm=primary)
         lens = Lens(surfaces, media, distances, d_sensor, stop_idx, sensor_sd, spec,
                     elements=[(a, b) for a, b, _, _ in elements],
-                    name=sysd["name"] or path.stem)
+                    name=sysd["name"] or path.stem, mirrors=mirrors)
     except (ValueError, TypeError) as e:
         raise ZemaxFileError(_locate(f"{path}: {e}", where_of)) from e
     for e, (a, b, d, _) in enumerate(elements):
@@ -1089,7 +1097,10 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
             gap = -inner if tilted and i == b else after   # back to the first vertex
             lines = _surface_lines(s, i, lens.stop_index == i)
             lines.append(f"DISZ {_f(gap)}")
-            glas(lens.materials[i + 1], lines)
+            if i in lens.mirrors:
+                lines.append("GLAS MIRROR 0 0 0 0 0 0 0 0 0 0 0")
+            else:
+                glas(lens.materials[i + 1], lines)
             surf(lines)
             if tilted and i == b:
                 surf(["TYPE COORDBRK", "CURV 0.0", f"DISZ {_f(inner + after)}"] +
@@ -1118,7 +1129,7 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
 
 
 def _surface_lines(s, i, is_stop) -> list[str]:
-    from ..surfaces import BSpline
+    from ..surfaces import BSpline, CoordinateBreak
 
     lines = ["STOP"] if is_stop else []
     sd = s.semi_diameter
@@ -1173,4 +1184,8 @@ def _surface_lines(s, i, is_stop) -> list[str]:
         return lines
     if isinstance(s, BSpline):
         raise ZemaxFileError(f"surface {i}: a B-spline surface has no .zmx equivalent")
+    if isinstance(s, CoordinateBreak):
+        raise ZemaxFileError(f"surface {i}: a coordinate break (a fold or an off-axis section) "
+                             f"is not written to .zmx yet (the reader takes COORDBRK only as an "
+                             f"element's misalignment); save the lens as JSON")
     raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent")

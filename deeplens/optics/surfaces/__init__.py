@@ -4,10 +4,11 @@ from .aperture import Aperture
 from .asphere import Asphere, Sphere
 from .base import SURFACE_TYPES, SagSurface, Surface
 from .bspline import BSpline
+from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
 from .ideal import IdealLens
 from .plane import Plane
 from .xy_polynomial import XYPolynomial
 
-__all__ = ["IdealLens", "Aperture", "Asphere", "Sphere", "BSpline", "Cylinder", "Plane",
-           "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]
+__all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "BSpline", "Cylinder",
+           "Plane", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]

@@ -11,7 +11,8 @@ import torch
 
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import LensFileError, lens_from_dict, lens_to_dict, load_lens, save_lens
-from deeplens.optics.surfaces import (Aperture, Asphere, BSpline, Cylinder, IdealLens, Plane,
+from deeplens.optics.surfaces import (Aperture, Asphere, BSpline, CoordinateBreak, Cylinder,
+                                      IdealLens, Plane,
                                       XYPolynomial)
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -52,13 +53,17 @@ def all_types_dict(aperture=None, object_distance="inf"):
             {"type": "cylinder", "semi_diameter_mm": 2.5, "curvature_per_mm": 1 / 40.0,
              "conic": -0.3, "coefficients": [1e-4 / 3], "half_width_x_mm": 2.0,
              "half_width_y_mm": 1.5, "distance_mm": 1.0, "material": "AIR"},
+            {"type": "coordinate_break", "semi_diameter_mm": 1.0, "dx_mm": 0.0,
+             "dy_mm": 0.01 / 3, "tilt_x_rad": 1e-3 / 7, "tilt_y_rad": 0.0, "tilt_z_rad": 0.0,
+             "distance_mm": 1.0, "material": "AIR"},
         ],
         "sensor": {"distance_mm": 20.0, "semi_diameter_mm": 5.0},
-        "elements": [[0, 1], [2, 2], [3, 4], [5, 5], [6, 6], [7, 7]],
+        "elements": [[0, 1], [2, 2], [3, 4], [5, 5], [6, 6], [7, 7], [8, 8]],
         "misalignment": [
             {"dx_mm": 0.01, "dy_mm": 0.0, "tilt_x_rad": 1e-3 / 3, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": -0.02, "tilt_x_rad": 0.0, "tilt_y_rad": math.pi * 1e-3},
+            {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
             {"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0},
@@ -114,7 +119,7 @@ def test_all_surface_types_roundtrip_exact(object_distance, tmp_path):
     src.write_text(json.dumps(d))
     lens = load_lens(src)
     assert [type(s) for s in lens.surfaces] == [Asphere, Plane, Aperture, XYPolynomial, BSpline,
-                                                Aperture, IdealLens, Cylinder]
+                                                Aperture, IdealLens, Cylinder, CoordinateBreak]
     assert lens.surfaces[5].shape == "rect"
     assert float(lens.misalignments[2].tilt_y) == math.pi * 1e-3
     assert float(lens.misalignments[0].tilt_x) == 1e-3 / 3
@@ -258,7 +263,8 @@ BAD = [
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
-     r"aperture, asphere, bspline, conic, cylinder, ideal_lens, plane, sphere, xy_polynomial\)"),
+     r"aperture, asphere, bspline, conic, coordinate_break, cylinder, ideal_lens, plane, sphere, "
+     r"xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -280,7 +286,7 @@ BAD = [
     ("no stop", _del("stop"), r"stop: missing: the lens has no aperture stop"),
     ("stop null", _set(None, "stop"), r"stop: missing: the lens has no aperture stop"),
     ("stop float", _set(2.0, "stop"), r"stop: expected an integer, got 2\.0"),
-    ("stop out of range", _set(8, "stop"), r"stop: 8 is not a surface index \(0\.\.7\)"),
+    ("stop out of range", _set(9, "stop"), r"stop: 9 is not a surface index \(0\.\.8\)"),
     ("version 2", _set(2, "version"), r"version: unsupported lens-file version 2"),
     ("version 0", _set(0, "version"), r"version: unsupported lens-file version 0"),
     ("version string", _set("1", "version"), r"version: expected an integer, got '1'"),

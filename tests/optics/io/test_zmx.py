@@ -413,7 +413,9 @@ def line_of(text: str, needle: str) -> int:
      r"CURV curvature: expected a number, got '0.0.2'"),
     (lambda t: t.replace("PARM 1 0", "PARM 1 0.001"), "PARM 1", r"EVENASPH PARM 1 \(the r² term\)"),
     (lambda t: t.replace("  DISZ 5.0\n", "  DISZ  \n"), "DISZ  ", r"DISZ line is truncated"),
-    (lambda t: t.replace("GLAS N-BK7", "GLAS MIRROR"), "MIRROR", r"GLAS MIRROR: reflective"),
+    (lambda t: t.replace("GLAS N-BK7", "GLAS MIRROR"), None,  # a mirror, then DISZ > 0
+     r"distance before surface 2 is positive \(5 mm\): sequential surfaces must be ordered "
+     r"along -z, the direction of travel there \(after 1 mirror\)"),
     (lambda t: t.replace("ENPD 10", "OBNA 0.1 0"), "OBNA", r"OBNA"),
     (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 550"), "WAVM 1", r"wavelength 550.0 µm"),
     (lambda t: t.replace("PWAV 2", "PWAV 3"), "PWAV", r"PWAV 3: the primary wavelength is not one"),
