@@ -36,7 +36,7 @@ _TYPES = {
     "scene.depths_mm": list, "scene.val_depths_mm": list, "scene.margin": float,
     "render.kind": str, "render.spp": int, "render.vignetting": bool, "render.adjoint": bool,
     "render.decorrelate": bool, "render.chunk_rays": int, "render.max_iter": int,
-    "render.psf_rays": int,
+    "render.psf_rays": int, "render.psf_model": str,
     "model.net_lr": float, "model.optics_lr_mm": float, "model.disc_lr": float,
     "data.image_size": int, "data.batch_size": int, "data.train_steps_per_epoch": int,
     "data.val_size": int, "data.test_size": int,
@@ -140,6 +140,9 @@ _RULES = {
                                        "field angles in [0, 90) deg"),
     "render.spp": _POS_INT, "render.chunk_rays": _POS_INT, "render.max_iter": _POS_INT,
     "render.psf_rays": _POS_INT,
+    "render.psf_error_budget": _rule_real(0, 1),
+    "render.psf_remeasure": _rule_real(0),
+    "render.psf_memory_gb": _rule_real(0),
     "render.newton_tol": _rule_real(0),
     "render.psf_patches": _rule_list(lambda x: _POS_INT(x) is None, "[rows, cols], both > 0",
                                      (2, 2)),
@@ -166,6 +169,34 @@ def build_renderer(cfg, lens, sensor):
                                 compile=r.get("compile", False))
     except ValueError as e:
         raise ValueError(f"render.compile: {e}") from None
+    renderer = _build_renderer(cfg, lens, sensor, opts)
+    renderer.psf_model = build_psf_model(cfg, lens, sensor, opts)
+    return renderer
+
+
+def build_psf_model(cfg, lens, sensor, opts):
+    """``render.psf_model`` (geometric | diffraction | auto), measured on the run's pixels,
+    depths, wavelengths and field patches; its choice is printed (``auto``: with the measured
+    error and the budget).  The Monte Carlo renderer traces rays: diffraction needs
+    ``render.kind=psf``."""
+    from ..render.psf_model import PSFModel, run_jobs
+
+    r = cfg.render
+    pm = PSFModel(r.get("psf_model", "geometric"), r.get("psf_error_budget", 0.05),
+                  r.get("psf_remeasure", 0.1), r.get("psf_memory_gb", 2.0),
+                  n_rays=r.psf_rays)
+    grid = tuple(r.psf_patches) if r.kind == "psf" else (3, 3)
+    jobs = run_jobs(lens, sensor, list(cfg.scene.depths_mm), grid)
+    rank_zero_info("deeplens: " + pm.measure(lens, sensor, jobs, opts))
+    if pm.choice == "diffraction" and r.kind != "psf":
+        raise ValueError(f"render.psf_model={pm.model} chose diffraction ({pm.message}), but "
+                         f"render.kind={r.kind} traces rays (geometric optics only): use "
+                         f"render=psf, or render.psf_model=geometric")
+    return pm
+
+
+def _build_renderer(cfg, lens, sensor, opts):
+    r = cfg.render
     if r.kind == "mc":
         return MonteCarloRenderer(lens, sensor, spp=r.spp, vignetting=r.vignetting,
                                   adjoint=r.adjoint, decorrelate=r.decorrelate and r.adjoint,
