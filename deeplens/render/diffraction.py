@@ -16,7 +16,7 @@ sphere's normal at ray ``k``; its transverse part is fitted as affine in the gri
 (least squares over the valid rays), so the sum is a *matrix Fourier transform*
 ``U = E_y P E_x^T`` evaluated directly at ``S x S`` points inside each of the ``K x K``
 sensor pixels (pixel integration by the midpoint rule, ``S`` chosen so the points are closer
-than ``λ N_eff / 2``), not on the FFT's native grid.  Energy: by Parseval the whole PSF (one
+than ``λ / (6 NA)``), not on the FFT's native grid.  Energy: by Parseval the whole PSF (one
 period ``1 / Δν`` of the sampled pupil's transform) holds ``Σ A² / (Δν_x Δν_y)``; kernels are
 divided by it, so a kernel sums to the fraction of the light the lens transmits that falls in
 it (>= ``energy``, 99.5 % by default, when ``K`` is chosen automatically).
@@ -48,6 +48,7 @@ __all__ = ["DiffractionSampling", "PSFMemoryError", "diffraction_psf_many",
 PUPIL_MARGIN = 1.1        # the traced grid spans 1.1x the paraxial entrance pupil
 MAX_PUPIL_SAMPLES = 1024
 FIT_DEGREE = 12          # the traced OPD's polynomial fit (see _smooth)
+FIT_MAX_RESIDUAL = 0.1   # waves RMS: a larger fit residual is the wavefront's own structure
 
 
 class PupilSamplingError(ValueError):
@@ -181,7 +182,9 @@ def _smooth(W, m, degree: int):
     """The least-squares fit of ``W`` (n, n) over the valid samples ``m`` by products of
     Chebyshev polynomials ``T_i(x / 1.1) T_j(y / 1.1)``, ``i + j <= degree`` (solved in
     float64; linear in ``W``, so gradients pass).  Removes the traced path's rounding noise
-    (float32: ~0.05 waves per sample, which scatters a few % of the light into a halo)."""
+    (float32: ~0.05 waves per sample, which scatters a few % of the light into a halo).  When
+    the fit leaves more than ``FIT_MAX_RESIDUAL`` waves RMS (a wavefront with structure beyond
+    the degree, e.g. a wide field's high orders) the traced values are kept as they are."""
     if degree is None or degree < 0:
         return W
     n = W.shape[0]
@@ -197,6 +200,10 @@ def _smooth(W, m, degree: int):
     c = torch.linalg.solve(G + 1e-12 * torch.eye(G.shape[0], dtype=G.dtype, device=G.device)
                            * G.diagonal().mean(), Bm.T @ W.reshape(-1).to(torch.float64))
     out = (B @ c).reshape(n, n).to(W.dtype)
+    with torch.no_grad():  # real structure beyond the fit's degree: keep the traced values
+        res = ((out - W) * m).pow(2).sum() / m.sum().clamp_min(1)
+    if float(res.sqrt()) > FIT_MAX_RESIDUAL:
+        return W
     return torch.where(m, out, torch.zeros_like(out))
 
 
@@ -275,13 +282,13 @@ def choose_sampling(lens, sensor, jobs, options=None, max_step_waves: float = 0.
             A, ph, bx, by, n_img, _, spread, lam = p
             K = max(K, 2 * int(math.ceil(spread + _halo_px(lam, n_img, bx, pitch))) + 1)
         K = min(K, max_kernel | 1)
-        # sub-pixel points closer than half the diffraction limit's period λ / (2 NA)
+        # sub-pixel points closer than λ / (6 NA), a third of the intensity's finest period
         sub = 1
         for p in pf:
             A, ph, bx, by, n_img, _, spread, lam = p
             na = max(abs(float(n_img * bx)), abs(float(n_img * by))) * PUPIL_MARGIN
-            sub = max(sub, int(math.ceil(pitch / (lam / (2 * na) / 2))))
-        sub = min(sub, 8)
+            sub = max(sub, int(math.ceil(pitch * 6 * na / lam)))
+        sub = min(sub, 64)
         n = _period_samples(pf, n, K, pitch)
         check_memory(len(jobs), n, K, sub, memory_limit_gb, lens.dtype)
         # grow K until it holds `energy` of the light (the period growing with it)
