@@ -48,6 +48,7 @@ __all__ = ["DiffractionSampling", "PSFMemoryError", "diffraction_psf_many",
 PUPIL_MARGIN = 1.1        # the traced grid spans 1.1x the paraxial entrance pupil
 MAX_PUPIL_SAMPLES = 1024
 FIT_DEGREE = 12          # the traced OPD's polynomial fit (see _smooth)
+TRACE_SAMPLES = 64       # rays per side traced when the fit holds (finer grids: the fit)
 FIT_MAX_RESIDUAL = 0.1   # waves RMS: a larger fit residual is the wavefront's own structure
 
 
@@ -131,13 +132,36 @@ def _start_plane(lens) -> float:
 
 def _pupil_function(lens, sensor, jobs, n, options=None, degree: int = FIT_DEGREE):
     """Per job: ``(A (n, n), phase (n, n) radians, bx, by (direction-cosine slope per grid
-    unit, tensors), n_image, max neighbour step (waves), ray spread (pixels))``."""
+    unit, tensors), n_image, max neighbour step (waves), ray spread (pixels))``.
+
+    With the polynomial fit (``degree >= 0``) a grid finer than ``TRACE_SAMPLES`` per side is
+    not traced: the fit of a ``TRACE_SAMPLES`` grid is evaluated on it and the vignetting mask
+    interpolated (bilinear, threshold 1/2); a wavefront the fit does not hold is traced at
+    ``n`` after all."""
+    fit = degree is not None and degree >= 0
+    nt = min(n, TRACE_SAMPLES) if fit else n
+    if nt < n:
+        try:
+            return _pupil_function_traced(lens, sensor, jobs, nt, options, degree, n)
+        except _FitFailed:
+            pass
+    return _pupil_function_traced(lens, sensor, jobs, n, options, degree if fit else None, n,
+                                  strict=False)
+
+
+class _FitFailed(Exception):
+    pass
+
+
+def _pupil_function_traced(lens, sensor, jobs, n, options, degree, n_out, strict=True):
     out, inside, (gx, gy) = _trace(lens, sensor, jobs, n, options)
     camera = IdealCamera(lens, sensor)
     z_xp, _ = exit_pupil(lens)
     z_s = lens.z_sensor()
     w = torch.tensor([wl for _, _, wl in jobs], dtype=lens.dtype, device=lens.device)
     n_img = lens.materials[-1].n(w)
+    B = None if degree is None or degree < 0 else _basis(n, degree, lens.device)
+    B_out = _basis(n_out, degree, lens.device) if n_out != n else None
     res = []
     for b, ((X, Y), depth, wl) in enumerate(jobs):
         cx, cy = _ideal_xy(camera, X, Y, depth)
@@ -162,44 +186,74 @@ def _pupil_function(lens, sensor, jobs, n, options=None, degree: int = FIT_DEGRE
         lam = wl * 1e-6
         ref = (path * valid).sum() / valid.sum()
         W = torch.where(valid, (path - ref) / lam, torch.zeros_like(path)).reshape(n, n)
-        W = _smooth(W, valid.reshape(n, n), degree)
+        if n_out != n:
+            vm = valid.reshape(n, n)
+            c = _fit(W, vm, B)
+            with torch.no_grad():
+                r = (((B @ c).reshape(n, n).to(W.dtype) - W) * vm).pow(2).sum() / vm.sum()
+            if float(r.sqrt()) > FIT_MAX_RESIDUAL:
+                raise _FitFailed
+            mf = torch.nn.functional.interpolate(vm.to(torch.float64)[None, None], (n_out, n_out),
+                                                 mode="bilinear", align_corners=True)[0, 0] >= 0.5
+            Wf = (B_out @ c).reshape(n_out, n_out).to(W.dtype)
+            Wf = torch.where(mf, Wf, torch.zeros_like(Wf))
+        else:
+            W = _smooth(W, valid.reshape(n, n), B) if strict or B is not None else W
         S = o - s[:, None] * d
         u = (C - S) / R
         # affine fit of the sphere normal's transverse part in the grid coordinates
         m = valid.to(lens.dtype)
         bx = _slope(u[:, 0], gx.reshape(-1), m)
         by = _slope(u[:, 1], gy.reshape(-1), m)
-        Wd, vm = W.detach(), valid.reshape(n, n)
-        st = _step(Wd, vm)
+        if n_out != n:
+            W, Am = Wf, mf.to(lens.dtype)
+            vm = mf
+        else:
+            Am, vm = m.reshape(n, n), valid.reshape(n, n)
+        st = _step(W.detach(), vm)
         hx = (o[:, 0].detach() - float(cx))[valid].abs().max() / sensor.pixel_size_mm
         hy = (o[:, 1].detach() - float(cy))[valid].abs().max() / sensor.pixel_size_mm
-        res.append((m.reshape(n, n), 2 * math.pi * W, bx, by, n_img[b], st,
+        res.append((Am, 2 * math.pi * W, bx, by, n_img[b], st,
                     float(torch.maximum(hx, hy)), lam))
     return res
 
 
-def _smooth(W, m, degree: int):
-    """The least-squares fit of ``W`` (n, n) over the valid samples ``m`` by products of
-    Chebyshev polynomials ``T_i(x / 1.1) T_j(y / 1.1)``, ``i + j <= degree`` (solved in
-    float64; linear in ``W``, so gradients pass).  Removes the traced path's rounding noise
-    (float32: ~0.05 waves per sample, which scatters a few % of the light into a halo).  When
-    the fit leaves more than ``FIT_MAX_RESIDUAL`` waves RMS (a wavefront with structure beyond
-    the degree, e.g. a wide field's high orders) the traced values are kept as they are."""
-    if degree is None or degree < 0:
-        return W
-    n = W.shape[0]
-    v = torch.linspace(-1.0, 1.0, n, dtype=torch.float64, device=W.device)
+def _basis(n: int, degree: int, device=None) -> torch.Tensor:
+    """Chebyshev products ``T_i(x / 1.1) T_j(y / 1.1)``, ``i + j <= degree``, on the
+    ``n x n`` grid: ``(n * n, terms)`` float64 (rows y, columns x)."""
+    v = torch.linspace(-1.0, 1.0, n, dtype=torch.float64, device=device)
     T = [torch.ones_like(v), v]
     for _ in range(degree - 1):
         T.append(2 * v * T[-1] - T[-2])
-    B = torch.stack([T[j][:, None] * T[i][None, :] for i in range(degree + 1)
-                     for j in range(degree + 1 - i)], -1).reshape(n * n, -1)  # rows y, cols x
-    mf = m.reshape(-1).to(torch.float64)
-    Bm = B * mf[:, None]
-    G = Bm.T @ B
-    c = torch.linalg.solve(G + 1e-12 * torch.eye(G.shape[0], dtype=G.dtype, device=G.device)
-                           * G.diagonal().mean(), Bm.T @ W.reshape(-1).to(torch.float64))
-    out = (B @ c).reshape(n, n).to(W.dtype)
+    return torch.stack([T[j][:, None] * T[i][None, :] for i in range(degree + 1)
+                        for j in range(degree + 1 - i)], -1).reshape(n * n, -1)
+
+
+def _fit(W, m, B):
+    """Least-squares coefficients (float64) of ``W`` (n, n) over the valid samples ``m`` in
+    the basis ``B``, from every ``n // 64``-th sample per side."""
+    n = W.shape[0]
+    step = max(1, n // 64)
+    sel = torch.zeros(n, n, dtype=torch.bool, device=W.device)
+    sel[::step, ::step] = True
+    sel = (sel & m).reshape(-1)
+    Bs = B[sel]
+    G = Bs.T @ Bs
+    return torch.linalg.solve(G + 1e-12 * torch.eye(G.shape[0], dtype=G.dtype, device=G.device)
+                              * G.diagonal().mean(), Bs.T @ W.reshape(-1)[sel].to(torch.float64))
+
+
+def _smooth(W, m, B):
+    """The least-squares fit of ``W`` (n, n) over the valid samples ``m`` by the basis ``B``
+    (:func:`_basis`; ``None``: no fit), solved in float64 from every ``n // 64``-th sample per
+    side (linear in ``W``, so gradients pass).  Removes the traced path's rounding noise
+    (float32: ~0.05 waves per sample, which scatters a few % of the light into a halo).  When
+    the fit leaves more than ``FIT_MAX_RESIDUAL`` waves RMS (a wavefront with structure beyond
+    the degree, e.g. a wide field's high orders) the traced values are kept as they are."""
+    if B is None:
+        return W
+    n = W.shape[0]
+    out = (B @ _fit(W, m, B)).reshape(n, n).to(W.dtype)
     with torch.no_grad():  # real structure beyond the fit's degree: keep the traced values
         res = ((out - W) * m).pow(2).sum() / m.sum().clamp_min(1)
     if float(res.sqrt()) > FIT_MAX_RESIDUAL:
