@@ -101,6 +101,7 @@ class PSFModel:
         self.sampling = None       # DiffractionSampling of the run's jobs
         self.jobs = None           # the measured jobs
         self._params = None        # lens parameters where it measured
+        self.message = f"PSF model: {model} (not measured)"
 
     # ------------------------------------------------------------------ measurement
     def measure(self, lens, sensor, jobs, options=None) -> str:

@@ -169,9 +169,7 @@ def build_renderer(cfg, lens, sensor):
                                 compile=r.get("compile", False))
     except ValueError as e:
         raise ValueError(f"render.compile: {e}") from None
-    renderer = _build_renderer(cfg, lens, sensor, opts)
-    renderer.psf_model = build_psf_model(cfg, lens, sensor, opts)
-    return renderer
+    return _build_renderer(cfg, lens, sensor, opts)
 
 
 def build_psf_model(cfg, lens, sensor, opts):
@@ -185,6 +183,10 @@ def build_psf_model(cfg, lens, sensor, opts):
     pm = PSFModel(r.get("psf_model", "geometric"), r.get("psf_error_budget", 0.05),
                   r.get("psf_remeasure", 0.1), r.get("psf_memory_gb", 2.0),
                   n_rays=r.psf_rays)
+    if pm.model == "geometric":  # nothing to measure
+        pm.message = "PSF model: geometric (render.psf_model=geometric, not measured)"
+        rank_zero_info("deeplens: " + pm.message)
+        return pm
     grid = tuple(r.psf_patches) if r.kind == "psf" else (3, 3)
     jobs = run_jobs(lens, sensor, list(cfg.scene.depths_mm), grid)
     rank_zero_info("deeplens: " + pm.measure(lens, sensor, jobs, opts))
@@ -193,6 +195,14 @@ def build_psf_model(cfg, lens, sensor, opts):
                          f"render.kind={r.kind} traces rays (geometric optics only): use "
                          f"render=psf, or render.psf_model=geometric")
     return pm
+
+
+def _log_psf_model(trainer, renderer) -> None:
+    """The PSF model's choice as TensorBoard text (``psf_model``) where the logger has it."""
+    pm = getattr(renderer, "psf_model", None)
+    exp = getattr(trainer.logger, "experiment", None) if trainer.logger else None
+    if pm is not None and hasattr(exp, "add_text"):
+        exp.add_text("psf_model", pm.message)
 
 
 def _build_renderer(cfg, lens, sensor, opts):
@@ -263,6 +273,7 @@ def build_objects(cfg: DictConfig) -> dict:
                          f"use 1 (monochrome: textures are converted to grey) or 3 channels")
     renderer = build_renderer(cfg, lens, sensor)
     preflight(lens, sensor)
+    renderer.psf_model = build_psf_model(cfg, lens, sensor, renderer.options)
     restorer = hydra.utils.instantiate(cfg.net, **_image_channels(cfg.net, "net", n_ch))
     mc = cfg.model
     discriminator = (hydra.utils.instantiate(
@@ -343,6 +354,7 @@ def train(cfg: DictConfig):
     if ckpt is not None and not Path(ckpt).exists():
         raise FileNotFoundError(f"ckpt_path: no checkpoint at {ckpt}")
     trained = bool(cfg.get("train", True))
+    _log_psf_model(trainer, objs["renderer"])
     if trained:
         trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
@@ -353,6 +365,9 @@ def train(cfg: DictConfig):
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items()})
     objs["tested"] = tested
     objs["summary"] = summary(cfg, metrics, trainer, tested)
+    pm = getattr(objs["renderer"], "psf_model", None)
+    if pm is not None:
+        objs["summary"] += f"\n  {pm.message}"
     if trainer.is_global_zero:
         print(objs["summary"])
     return metrics, objs
