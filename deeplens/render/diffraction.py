@@ -15,8 +15,8 @@ Propagation (Debye): ``U(x) = Σ_k P_k exp(2πi n' u_k·(x - C) / λ)`` with ``u
 sphere's normal at ray ``k``; its transverse part is fitted as affine in the grid indices
 (least squares over the valid rays), so the sum is a *matrix Fourier transform*
 ``U = E_y P E_x^T`` evaluated directly at ``S x S`` points inside each of the ``K x K``
-sensor pixels (pixel integration by the midpoint rule, ``S`` chosen so the points are closer
-than ``λ / (6 NA)``), not on the FFT's native grid.  Energy: by Parseval the whole PSF (one
+sensor pixels (pixel integration by the ``S``-point Gauss-Legendre rule per side,
+``S = ceil(5 NA pitch / λ)``), not on the FFT's native grid.  Energy: by Parseval the whole PSF (one
 period ``1 / Δν`` of the sampled pupil's transform) holds ``Σ A² / (Δν_x Δν_y)``; kernels are
 divided by it, so a kernel sums to the fraction of the light the lens transmits that falls in
 it (>= ``energy``, 99.5 % by default, when ``K`` is chosen automatically).
@@ -284,7 +284,12 @@ def _kernel(A, phase, bx, by, n_img, lam, n, K, sub, pitch):
     g = torch.linspace(-PUPIL_MARGIN, PUPIL_MARGIN, n, dtype=dtype, device=A.device)
     # sub-pixel points (pixels from the ideal image point): kernel pixel m spans
     # [m - K//2 - 1/2, m - K//2 + 1/2]
-    t = (torch.arange(K * sub, dtype=dtype, device=A.device) + 0.5) / sub - K / 2
+    # Gauss-Legendre points and weights inside each pixel (exact for polynomials of degree
+    # 2 sub - 1 across the pixel; 1 point: the pixel centre)
+    x, w = _gauss_legendre(sub)
+    x = torch.as_tensor(x, dtype=dtype, device=A.device)
+    w = torch.as_tensor(w, dtype=dtype, device=A.device)
+    t = (torch.arange(K, dtype=dtype, device=A.device)[:, None] - K // 2 + x[None, :]).reshape(-1)
     yi = t * pitch           # rows: +y
     xj = -t * pitch          # columns: -x
     ky = 2 * math.pi * n_img * by / lam
@@ -296,10 +301,18 @@ def _kernel(A, phase, bx, by, n_img, lam, n, K, sub, pitch):
     P = torch.complex(A * torch.cos(phase), A * torch.sin(phase))
     U = Ey @ P @ Ex.transpose(0, 1)         # (K sub, K sub)
     I = U.real ** 2 + U.imag ** 2
-    I = I.reshape(K, sub, K, sub).mean((1, 3))
+    I = (I.reshape(K, sub, K, sub) * w[None, :, None, None] * w[None, None, None, :]).sum((1, 3))
     dnx = (n_img * bx * dg / lam).abs()
     dny = (n_img * by * dg / lam).abs()
     return I * (pitch * pitch) * dnx * dny / (A * A).sum()
+
+
+def _gauss_legendre(n: int):
+    """Nodes in ``[-1/2, 1/2]`` and weights summing to 1 of the ``n``-point Gauss-Legendre rule."""
+    import numpy as np
+
+    x, w = np.polynomial.legendre.leggauss(int(n))
+    return (0.5 * x).tolist(), (0.5 * w).tolist()
 
 
 def _halo_px(lam_mm, n_img, bx, pitch):
@@ -336,12 +349,13 @@ def choose_sampling(lens, sensor, jobs, options=None, max_step_waves: float = 0.
             A, ph, bx, by, n_img, _, spread, lam = p
             K = max(K, 2 * int(math.ceil(spread + _halo_px(lam, n_img, bx, pitch))) + 1)
         K = min(K, max_kernel | 1)
-        # sub-pixel points closer than λ / (6 NA), a third of the intensity's finest period
+        # Gauss-Legendre points per pixel side: pitch * 5 NA / λ (measured against the closed-form
+        # pixel-integrated Airy pattern: <= 0.1 % of the peak at 1-4 λN pixels)
         sub = 1
         for p in pf:
             A, ph, bx, by, n_img, _, spread, lam = p
             na = max(abs(float(n_img * bx)), abs(float(n_img * by))) * PUPIL_MARGIN
-            sub = max(sub, int(math.ceil(pitch * 6 * na / lam)))
+            sub = max(sub, int(math.ceil(pitch * 5 * na / lam)))
         sub = min(sub, 64)
         n = _period_samples(pf, n, K, pitch)
         check_memory(len(jobs), n, K, sub, memory_limit_gb, lens.dtype)

@@ -85,8 +85,8 @@ def test_pixel_integration_matches_the_integrated_airy_pattern():
     lam_N = WL * 1e-6 / (2 * 0.1)
     pitch = lam_N
     ref = airy_pixels(21, pitch, lam_N)
-    k = airy_kernel(pitch, 21, 6)
-    assert float((k - ref).abs().max()) < 0.01 * float(ref.max())
+    k = airy_kernel(pitch, 21, 4)   # Gauss-Legendre: measured 0.015 % of the peak
+    assert float((k - ref).abs().max()) < 0.002 * float(ref.max())
     point = airy_kernel(pitch, 21, 1)
     assert float((point - ref).abs().max()) > 0.05 * float(ref.max())
     assert float(k.sum()) == pytest.approx(float(ref.sum()), abs=2e-3)
