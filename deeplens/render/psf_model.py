@@ -9,8 +9,8 @@ over the jobs (the fraction of the image's energy misplaced; the worst job is re
 and takes the cheaper model (geometric) when that is within ``error_budget``
 (default 0.05: 5 % of the energy), else diffraction.  A job whose wavefront is too steep to
 sample (:class:`~.diffraction.PupilSamplingError`) is in the geometric regime and counts as 0.
-It measures again when a lens parameter has moved by more than ``remeasure`` of its own norm
-(relative L2 change of any parameter tensor) since the last measurement.
+It measures again when a group of lens parameters (one tensor, or one list such as a plate's
+coefficients) has moved by more than ``remeasure`` of its own norm since the last measurement.
 
 :class:`PSFModel` also keeps the diffraction sampling (:func:`~.diffraction.choose_sampling`)
 of the run's jobs and widens it when a later trace finds it too coarse.
@@ -40,6 +40,18 @@ def tv_distance(a: torch.Tensor, b: torch.Tensor) -> float:
     a = torch.nn.functional.pad(a.detach(), (pa, pa, pa, pa))
     b = torch.nn.functional.pad(b.detach(), (pb, pb, pb, pb))
     return 0.5 * float((a - b).abs().sum())
+
+
+def _groups(lens) -> dict:
+    """The lens's parameters grouped by owner (``surfaces.4.a.0``, ``surfaces.4.a.1``, ... ->
+    ``surfaces.4.a``), each group one detached vector: a coefficient that starts at zero moves
+    relative to its group, not to itself."""
+    out = {}
+    for name, p in lens.named_parameters():
+        parts = name.split(".")
+        key = ".".join(parts[:-1]) if parts[-1].isdigit() else name
+        out.setdefault(key, []).append(p.detach().reshape(-1).double().clone())
+    return {k: torch.cat(v) for k, v in out.items()}
 
 
 def binned_geometric_psf(lens, sensor, job, n: int, K: int, options=None) -> torch.Tensor:
@@ -127,7 +139,7 @@ class PSFModel:
                 errs.append(tv_distance(g, d))
         self.error = sum(errs) / len(errs)
         self.worst = max(errs)
-        self._params = [p.detach().clone() for p in lens.parameters()]
+        self._params = _groups(lens)
         if self.model == "auto":
             self.choice = "geometric" if self.error <= self.error_budget else "diffraction"
         msg = (f"PSF model: {self.choice} ({'auto: ' if self.model == 'auto' else ''}the "
@@ -149,9 +161,10 @@ class PSFModel:
         """Whether a lens parameter moved by more than ``remeasure`` since the measurement."""
         if self._params is None:
             return False
-        for p0, p in zip(self._params, lens.parameters()):
+        now = _groups(lens)
+        for name, p0 in self._params.items():
             ref = float(p0.norm())
-            if float((p.detach() - p0).norm()) > self.remeasure * max(ref, 1e-12):
+            if ref > 0 and float((now[name] - p0).norm()) > self.remeasure * ref:
                 return True
         return False
 

@@ -249,3 +249,22 @@ def test_memory_check_names_the_setting():
 def test_bad_model_name_is_refused():
     with pytest.raises(ValueError, match="render.psf_model"):
         PSFModel("wave")
+
+
+def test_a_plate_term_starting_at_zero_is_measured_against_its_group(edof_plate):
+    """A plate coefficient that starts at 0 moves relative to the plate's coefficients, not to
+    itself (else every optics step would re-measure)."""
+    lens = edof_plate
+    sensor = Sensor((16, 16), 0.08, channels=[[WL]])
+    m = PSFModel("auto", n_rays=1024)
+    m.measure(lens, sensor, [((0.0, 0.0), 6000.0, WL)])
+    a = lens.surfaces[4].a
+    scale = float(a[6].detach().abs())
+    with torch.no_grad():
+        a[0].add_(0.02 * scale)
+    assert not m.moved(lens)
+    with torch.no_grad():
+        a[0].add_(0.3 * scale)
+    assert m.moved(lens)
+    with torch.no_grad():
+        a[0].sub_(0.32 * scale)
