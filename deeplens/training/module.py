@@ -182,7 +182,8 @@ class EndToEndModule(L.LightningModule):
             if unknown:
                 raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
                                  f"{', '.join(dict(DEFAULTS))}")
-            self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc)
+            self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc,
+                                            psf_model=getattr(renderer, "psf_model", None))
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
     # ------------------------------------------------------------------ the camera
