@@ -93,10 +93,14 @@ def resolve_tolerances(lens, spec: dict | None = None) -> tuple[list[str], torch
     return names, torch.tensor([chosen[n] for n in names], dtype=torch.float64)
 
 
-def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0) -> dict:
+def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
+                model=None) -> dict:
     """Evaluate ``n`` perturbed lenses (module docstring); ``merit`` is a
     :class:`~.merit.SpotMerit` prepared on the nominal lens (``strict_rays`` is ignored: lost
-    rays are dropped as vignetted).
+    rays are dropped as vignetted).  With a tolerance group ``model``
+    (:class:`~.tolerance_model.ToleranceModel`) trial ``k`` is instead the lens it draws with
+    seed ``seed + k`` (``names``/``half_widths`` unused): the lenses training and evaluation
+    under that group draw.
 
     Returns:
         ``{"n", "seed", "nominal_um" (F,), "samples_um" (n, F), "percentiles_um":
@@ -115,7 +119,13 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0) ->
         with torch.no_grad(), warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad")
             nominal = v.call(lambda L: field_merits(merit, L), x0)
-            for _ in range(n):
+            for k in range(n):
+                if model is not None:
+                    from .tolerance_model import call_drawn
+
+                    d = model.draw(lens, int(seed) + k)
+                    samples.append(call_drawn(lens, d, lambda L: field_merits(merit, L)))
+                    continue
                 u = 2.0 * torch.rand(len(names), generator=g, dtype=torch.float64) - 1.0
                 samples.append(v.call(lambda L: field_merits(merit, L), x0 + u * t))
     finally:

@@ -39,6 +39,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from . import tolerance_eval
 from .checkpoint import write_text_atomic
 from .train import build_objects, train
 
@@ -367,6 +368,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
                          f"(eval.seeds has {len(seed_list)})")
     if cfg.eval.test_folder is not None:
         _check_test_folder(cfg.eval.test_folder, cfg.data.image_size)
+    tol = tolerance_eval.EvalTolerance.from_cfg(cfg)  # checked before anything trains
     depths = [float(d) for d in cfg.scene.val_depths_mm]
     bands = None if cfg.scene.field_bands is None else [float(b) for b in cfg.scene.field_bands]
     runs: dict[str, list[dict]] = {}
@@ -383,6 +385,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
             runs[name].append(metrics)
             module = objs["module"]
             rms_seeds.append({d: psf_rms_px(module.lens, module.sensor, d) for d in depths})
+            tol.run(name, objs)
             if s == seed_list[0]:
                 keep[name] = {"module": module, "datamodule": objs["datamodule"], "kind": kind}
         psf_rms[name] = {d: sum(r[d] for r in rms_seeds) / len(rms_seeds) for d in depths}
@@ -398,9 +401,12 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     text = (f"# Optical variants, each with its own restorer ({cfg.task_name})\n\n"
             f"seeds {seed_list} (mean ± std over seeds); {plates}test set of {test_set}; "
             f"PSNR (dB) / SSIM\n\n{table}\n")
+    text += tol.markdown(_columns(cfg))
     _atomic_write(out, text)
     _atomic_write(out.with_suffix(".json"), json.dumps(
-        {"task": str(cfg.task_name), "seeds": seed_list, "variants": summary}, indent=2))
+        {"task": str(cfg.task_name), "seeds": seed_list, "variants": summary,
+         **tol.json()}, indent=2))
+    tol.figures(out.parent, bool(cfg.eval.figures))
     if cfg.eval.figures:
         from .eval_figures import write_figures
 

@@ -104,6 +104,9 @@ class EndToEndModule(L.LightningModule):
             mean (the restorer learns every depth), and each sample's gradient flowing back
             into the optics (and the deconvolution front end) is scaled by its depth bin's
             soft-maximum weight, so the optics are designed for the worst depth.
+        tolerance, tolerance_training: the tolerance group (a mapping, group name or file;
+            :mod:`.tolerance`) and whether every training batch renders through its own lens
+            drawn from it around the current nominal lens (gradients reach the nominal values).
         optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
             (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
@@ -115,7 +118,8 @@ class EndToEndModule(L.LightningModule):
                  optimizer=None, disc_optimizer=None, scene_margin: float = 0.0,
                  worst_depth: dict | None = None, deconvolution: dict | None = None,
                  optics_warmup_steps: int | None = None,
-                 optics_worst_depth: dict | None = None):
+                 optics_worst_depth: dict | None = None, tolerance=None,
+                 tolerance_training: bool = False):
         super().__init__()
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
@@ -182,6 +186,11 @@ class EndToEndModule(L.LightningModule):
                 raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
                                  f"{', '.join(dict(DEFAULTS))}")
             self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc)
+        # model.tolerance_training: every training batch through its own drawn lens (tolerance.py)
+        from .tolerance import TrainingDraws, load_group
+
+        tol = load_group(tolerance) if tolerance is not None else None  # checked at start-up
+        self.tolerance_draws = TrainingDraws(tol, self.seed) if tolerance_training else None
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
     # ------------------------------------------------------------------ the camera
@@ -374,8 +383,11 @@ class EndToEndModule(L.LightningModule):
         ``optics_worst_depth`` the gradient flowing back into the optics is scaled per sample
         (a hook on the restorer's input)."""
         depths = self.sample_depths(images.shape[0], step)
+        drawn = (self.tolerance_draws.at(self.lens, step) if self.tolerance_draws is not None
+                 else contextlib.nullcontext())
         with self.optics_fixed(step < self.optics_warmup_steps):
-            y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
+            with drawn:
+                y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
             x = self.deconv(y) if self.deconv is not None else y
         return self.restore_loss(depths, y, gt, x)
 
