@@ -341,12 +341,15 @@ class EndToEndModule(L.LightningModule):
         self._buffers_before = {n: b.detach().clone() for n, b in self.named_buffers()
                                 if not n.startswith("lens.")}
         images = batch["image"]
-        loss, terms, y, gt, pred = self.step_loss(images, step)
-        if not torch.isfinite(loss):
+        with self.drawn_lens(step):  # tolerance training: the drawn lens until after backward
+            loss, terms, y, gt, pred = self.step_loss(images, step)
+            finite = bool(torch.isfinite(loss))
+            if finite:
+                opt_g.zero_grad(set_to_none=True)
+                self.manual_backward(loss)
+        if not finite:  # (outside the drawn lens: the stop saves the nominal one)
             detail = ", ".join(f"{k}={float(v.detach()):.4g}" for k, v in terms.items())
             self._stop(step, f"non-finite loss {float(loss)} at step {step} ({detail})")
-        opt_g.zero_grad(set_to_none=True)
-        self.manual_backward(loss)
         bad = self._nonfinite_grad()
         if bad:
             opt_g.zero_grad(set_to_none=True)
@@ -383,13 +386,19 @@ class EndToEndModule(L.LightningModule):
         ``optics_worst_depth`` the gradient flowing back into the optics is scaled per sample
         (a hook on the restorer's input)."""
         depths = self.sample_depths(images.shape[0], step)
-        drawn = (self.tolerance_draws.at(self.lens, step) if self.tolerance_draws is not None
-                 else contextlib.nullcontext())
         with self.optics_fixed(step < self.optics_warmup_steps):
-            with drawn:
+            with self.drawn_lens(step):
                 y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
             x = self.deconv(y) if self.deconv is not None else y
         return self.restore_loss(depths, y, gt, x)
+
+    def drawn_lens(self, step: int):
+        """The context in which ``self.lens`` is the lens drawn for ``step`` under
+        ``model.tolerance_training`` (re-entrant; a no-op without it).  The adjoint render
+        re-traces in the backward pass, so the context must span the backward as well."""
+        if self.tolerance_draws is None:
+            return contextlib.nullcontext()
+        return self.tolerance_draws.at(self.lens, step)
 
     @contextlib.contextmanager
     def optics_fixed(self, fixed: bool = True):

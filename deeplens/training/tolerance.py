@@ -10,6 +10,8 @@ Evaluation under tolerances: :mod:`.tolerance_eval`.
 
 from __future__ import annotations
 
+import contextlib
+
 
 from ..design.tolerance_model import ToleranceModel, drawn, load_group
 
@@ -29,7 +31,21 @@ class TrainingDraws:
             raise ValueError("model.tolerance_training: true needs a tolerance group with a "
                              "non-zero tolerance (e.g. tolerance=precision); the group has none")
         self.model, self.run_seed = model, int(run_seed)
+        self._active = None  # the step whose drawn lens is in place
 
+    @contextlib.contextmanager
     def at(self, lens, step: int):
-        """The context in which ``lens`` is the lens drawn for ``step``."""
-        return drawn(lens, self.model.draw(lens, tolerance_seed(self.run_seed, step)))
+        """The context in which ``lens`` is the lens drawn for ``step``; re-entrant (an inner
+        ``at`` inside an outer one for the same step is a no-op, not a second draw)."""
+        if self._active is not None:
+            if self._active != step:
+                raise RuntimeError(f"tolerance draw for step {step} inside the one of step "
+                                   f"{self._active}")
+            yield lens
+            return
+        self._active = step
+        try:
+            with drawn(lens, self.model.draw(lens, tolerance_seed(self.run_seed, step))) as L:
+                yield L
+        finally:
+            self._active = None

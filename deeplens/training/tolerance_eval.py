@@ -18,11 +18,11 @@ import torch
 from ..design.tolerance_model import ToleranceModel, drawn
 from ..design.tolerance_model import load_group
 
-__all__ = ["EvalTolerance", "test_drawn", "summarize_samples", "format_tolerance_table",
+__all__ = ["EvalTolerance", "evaluate_drawn", "summarize_samples", "format_tolerance_table",
            "histogram_figure"]
 
 
-def test_drawn(module, trainer, datamodule, model: ToleranceModel, n: int, seed: int = 0):
+def evaluate_drawn(module, trainer, datamodule, model: ToleranceModel, n: int, seed: int = 0):
     """Test ``module`` (its current weights) on ``n`` drawn lenses (seeds ``seed + k``);
     returns a list of ``n`` test-metric dicts (the keys of ``trainer.test``)."""
     if int(n) < 1:
@@ -153,7 +153,7 @@ class EvalTolerance:
         """Test the variant's module (its tested weights) on the drawn lenses."""
         if self.model is None:
             return
-        s = test_drawn(objs["module"], objs["trainer"], objs["datamodule"], self.model,
+        s = evaluate_drawn(objs["module"], objs["trainer"], objs["datamodule"], self.model,
                        self.n, self.seed)
         self.samples.setdefault(variant, []).append(s)
 
