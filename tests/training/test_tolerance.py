@@ -54,14 +54,14 @@ def test_tolerance_training_needs_a_nonzero_group(cfg_factory):
 
 
 def test_yield_counts_lenses_at_or_above_the_threshold():
-    ps = [20.0, 24.0, 25.0, 26.0, 30.0]
+    ps = [20.0, 24.0, 25.0, 26.0]  # >= 25: 2 of 4 (> : 1, <= : 3)
     samples = [{"test/psnr_restored/d1mm": p, "test/ssim_restored/d1mm": p / 100} for p in ps]
     s = summarize_samples(samples, [("1", "d1mm")], threshold_db=25.0)
     c = s["columns"]["1"]
-    assert c["yield"] == pytest.approx(0.6)
-    assert c["psnr_mean"] == pytest.approx(25.0)
-    assert c["psnr_p5"] == pytest.approx(20.0 + 0.05 * 4 * 4.0)  # linear interpolation
-    assert s["columns"]["mean"]["yield"] == pytest.approx(0.6)
+    assert c["yield"] == pytest.approx(0.5)
+    assert c["psnr_mean"] == pytest.approx(23.75)
+    assert c["psnr_p5"] == pytest.approx(20.0 + 0.05 * 3 * 4.0)  # linear interpolation
+    assert s["columns"]["mean"]["yield"] == pytest.approx(0.5)
 
 
 def test_eval_under_tolerances_is_deterministic_and_zero_tolerance_is_nominal(cfg_factory):
@@ -115,11 +115,23 @@ def test_tolerance_training_runs_and_leaves_the_nominal_lens(cfg_factory, tmp_pa
     lens is the nominal one afterwards, and the checkpoint holds the nominal lens's keys."""
     from deeplens.design.tolerance_model import PerturbedMaterial
     from deeplens.training.checkpoint import read_checkpoint
-    from deeplens.training.train import train
 
-    cfg = cfg_factory(*DOUBLET, "tolerance=commercial", "model.tolerance_training=true")
-    metrics, objs = train(cfg)
-    lens = objs["module"].lens
+    cfg = cfg_factory(*DOUBLET, "tolerance=commercial", "model.tolerance_training=true",
+                      "test=false")
+    objs = build_objects(cfg)
+    module = objs["module"]
+    lens = module.lens
+    at_backward = []
+    backward = module.manual_backward
+
+    def spy(loss, *a, **k):  # the adjoint render re-traces here: the drawn lens must be in place
+        at_backward.append(float(lens.misalignments[1].dx))
+        return backward(loss, *a, **k)
+
+    module.manual_backward = spy
+    objs["trainer"].fit(module, datamodule=objs["datamodule"])
+    metrics = {k: float(v) for k, v in objs["trainer"].callback_metrics.items()}
+    assert len(at_backward) == 2 and len(set(at_backward)) == 2 and 0.0 not in at_backward
     assert not any(isinstance(m, PerturbedMaterial) for m in lens.materials)
     assert all(isinstance(p, torch.nn.Parameter) for p in lens.parameters())
     assert float(lens.misalignments[1].dx) == 0.0
