@@ -239,3 +239,52 @@ def test_adjoint_render_gradient_through_a_drawn_lens():
     assert float(plain.abs()) > 0
     assert rel_err(adj, plain) < 1e-6
     assert rel_err(grad(True, backward_inside=False), plain) > 1e-3
+
+
+def test_monte_carlo_of_a_group_draws_the_same_lenses(doublet):
+    """``monte_carlo(model=group)`` trial k is the lens the group draws with seed ``seed + k``
+    (the lenses training and evaluation see)."""
+    from deeplens.design.merit import SpotMerit
+    from deeplens.design.sensitivity import field_merits
+    from deeplens.design.tolerance import monte_carlo
+
+    tm = load_group("commercial")
+    sm = SpotMerit([10.0], [587.5618], sampling="hexapolar:3", strict_rays=False).prepare(doublet)
+    mc = monte_carlo(doublet, sm, [], [], n=3, seed=5, model=tm)
+    with torch.no_grad():
+        want = torch.stack([call_drawn(doublet, tm.draw(doublet, 5 + k),
+                                       lambda L: field_merits(sm, L)) for k in range(3)]) * 1e3
+    assert rel_err(torch.tensor(mc["samples_um"], dtype=torch.float64), want) < 1e-12
+    assert float(want.std(0)) > 0
+
+
+@pytest.mark.slow
+def test_deeplens_tolerance_group_draws_the_same_lenses(doublet, capsys):
+    """``deeplens tolerance --group`` Monte Carlo trial k is the lens the group draws with seed
+    ``--seed + k`` (the lenses training and evaluation see); --tolerances with --group is
+    refused."""
+    import json
+
+    import helpers as H
+
+    from deeplens.design.merit import SpotMerit
+    from deeplens.design.sensitivity import field_merits
+
+    path = str(LENS_DIR / "wide_doublet.json")
+    code, out, err = H.run_cli(["tolerance", path, "--group", "commercial", "--monte-carlo",
+                                "2", "--seed", "5", "--fields", "10", "--sampling", "hexapolar:3", "--json"], capsys)
+    assert code == 0, err
+    res = json.loads(out)
+    assert "group commercial" in res["distribution"]
+    assert "misalignments.1.dx" in res["parameters"]
+    tm = load_group("commercial")
+    sm = SpotMerit([10.0], [float(doublet.spec.primary_wavelength_nm)],
+                   sampling="hexapolar:3", strict_rays=False).prepare(doublet)
+    with torch.no_grad():
+        want = torch.stack([call_drawn(doublet, tm.draw(doublet, 5 + k),
+                                       lambda L: field_merits(sm, L)) for k in range(2)]) * 1e3
+    got = torch.tensor(res["monte_carlo"]["mean_um"], dtype=torch.float64)
+    assert rel_err(got, want.mean(0)) < 1e-9
+    code, _, err = H.run_cli(["tolerance", path, "--group", "commercial", "--tolerances",
+                              "x.json"], capsys)
+    assert code == 2 and "not both" in err
