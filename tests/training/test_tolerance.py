@@ -143,3 +143,13 @@ def test_tolerance_training_runs_and_leaves_the_nominal_lens(cfg_factory, tmp_pa
     keys = {k for k in ck["state_dict"] if k.startswith("lens.")}
     assert keys == {f"lens.{k}" for k in lens.state_dict()}
     assert all(torch.isfinite(torch.tensor(v)) for v in metrics.values())
+
+
+def test_eval_tolerance_group_takes_the_composed_group(cfg_factory):
+    from deeplens.training.tolerance_eval import EvalTolerance
+
+    cfg = cfg_factory(*DOUBLET, "tolerance=precision", "eval.tolerance=group",
+                      "tolerance.decenter.std=0.5", config_name="eval.yaml")
+    et = EvalTolerance.from_cfg(cfg)
+    assert et.group == "precision" and et.model.dists["decenter"].scale == 0.5
+    assert EvalTolerance.from_cfg(cfg_factory(*DOUBLET, config_name="eval.yaml")).model is None
