@@ -46,6 +46,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from . import tolerance_eval
 from .checkpoint import write_text_atomic
 from .input_digest import digest_path, input_digests
 from .machine import describe_machine, machine_info
@@ -404,6 +405,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
                          f"(eval.seeds has {len(seed_list)})")
     if cfg.eval.test_folder is not None:
         _check_test_folder(cfg.eval.test_folder, cfg.data.image_size)
+    tol = tolerance_eval.EvalTolerance.from_cfg(cfg)  # checked before anything trains
     depths = [float(d) for d in cfg.scene.val_depths_mm]
     bands = None if cfg.scene.field_bands is None else [float(b) for b in cfg.scene.field_bands]
     runs: dict[str, list[dict]] = {}
@@ -423,6 +425,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
                 folder_runs[name].append(_test_on_folder(vc, objs, cfg.eval.test_folder))
             module = objs["module"]
             rms_seeds.append({d: psf_rms_px(module.lens, module.sensor, d) for d in depths})
+            tol.run(name, objs)
             if s == seed_list[0]:
                 keep[name] = {"module": module, "datamodule": objs["datamodule"], "kind": kind}
         psf_rms[name] = {d: sum(r[d] for r in rms_seeds) / len(rms_seeds) for d in depths}
@@ -448,8 +451,11 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
         record["test_folder"] = {"path": str(cfg.eval.test_folder),
                                  "digest": digest_path(cfg.eval.test_folder),
                                  "variants": folder_summary}
+    text += tol.markdown(_columns(cfg))
+    record.update(tol.json())
     _atomic_write(out, text)
     _atomic_write(out.with_suffix(".json"), json.dumps(record, indent=2))
+    tol.figures(out.parent, bool(cfg.eval.figures))
     if cfg.eval.figures:
         from .eval_figures import write_figures
 
