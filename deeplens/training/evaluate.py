@@ -11,7 +11,11 @@ the scene defines ``field_bands``).  Variants (``eval.variants``):
 * ``learned``: the optics (``lens.trainable``) and the restorer trained jointly (or loaded from
   ``eval.learned_ckpt``, single seed);
 * ``frozen``: the lens as in its file with no optics training (for lenses without a plate,
-  e.g. the doublet: measures the optics' share of the gain against ``learned``).
+  e.g. the doublet: measures the optics' share of the gain against ``learned``);
+* ``classical``: the optics designed first by the design engine (the same variables as
+  ``learned``: a depth-invariant plate for a lens with a plate, the smallest RMS spot over the
+  scene's fields otherwise; :mod:`deeplens.training.classical`, ``eval.classical``), then frozen
+  while the restorer trains.
 
 Every number is the mean over seeds; ``± std`` is the sample standard deviation over seeds
 (``n - 1``; 0 for a single seed).  A seed changes everything that is random (network
@@ -84,19 +88,19 @@ def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
     out = []
     names = cfg.eval.variants
     if names is None:
-        names = (["none", "cubic", "learned"] if cfg.lens.plate_surface is not None
-                 else ["frozen", "learned"])
+        names = (["none", "cubic", "classical", "learned"] if cfg.lens.plate_surface is not None
+                 else ["frozen", "classical", "learned"])
     for v in names:
         if v in _PLATE_KINDS and cfg.lens.plate_surface is None:
             raise ValueError(f"eval.variants: {v!r} needs a phase plate, but the experiment's "
                              f"lens has none (lens.plate_surface is null); use frozen, learned")
         if v == "cubic":
             out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in _alphas(cfg)]
-        elif v in ("none", "learned", "frozen"):
+        elif v in ("none", "learned", "frozen", "classical"):
             out.append((v, v, None))
         else:
             raise ValueError(f"eval.variants: unknown variant {v!r}; expected none, cubic, "
-                             f"learned, frozen")
+                             f"classical, learned, frozen")
     if not out:
         raise ValueError("eval.variants: the list is empty")
     return out
@@ -128,10 +132,19 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
                 c.lens.plate = "learned"
         elif kind == "frozen":
             c.lens.trainable = []
+        elif kind == "classical":  # the lens designed by the design engine (classical.py)
+            c.lens.path = str(classical_dir(cfg) / "classical_lens.json")
+            c.lens.trainable, c.lens.learned_start_alpha_mm = [], None
+            c.lens.plate = "learned" if cfg.lens.plate_surface is not None else None
         else:
             raise ValueError(f"eval.variants: unknown variant {kind!r}; expected none, cubic, "
-                             f"learned, frozen")
+                             f"classical, learned, frozen")
     return c
+
+
+def classical_dir(cfg: DictConfig) -> Path:
+    """The folder of the ``classical`` variant, where its designed lens is written."""
+    return Path(cfg.paths.output_dir) / "classical"
 
 
 #: the record of one finished variant x seed run, in that run's output folder
@@ -377,6 +390,10 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
         rms_seeds = []
         for s in seed_list:
             vc = _variant_cfg(cfg, name, kind, alpha, seed=s)
+            if kind == "classical":
+                from .classical import design_classical
+
+                design_classical(cfg, classical_dir(cfg))
             ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
             torch.manual_seed(s)
             metrics, objs = _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))
