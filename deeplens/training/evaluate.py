@@ -238,6 +238,47 @@ def _run(cfg: DictConfig, ckpt: str | None, reuse: bool = False):
     return {k: float(v) for k, v in objs["trainer"].callback_metrics.items()}, objs
 
 
+def _job(cfg: DictConfig, name: str, kind: str, alpha, seed: int):
+    """Train (or reuse, or with ``eval.gather`` only load) and test one variant x seed."""
+    vc = _variant_cfg(cfg, name, kind, alpha, seed=seed)
+    gather = bool(cfg.eval.get("gather", False))
+    if gather:
+        done = _reuse(vc)
+        if done is None:
+            raise RuntimeError(f"eval.gather: no finished run of {name} seed {seed} with this "
+                               f"configuration in {vc.paths.output_dir}")
+        return done
+    if kind == "classical":
+        from .classical import design_classical
+
+        design_classical(cfg, classical_dir(cfg))
+    ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
+    torch.manual_seed(seed)
+    return _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))
+
+
+def provenance(cfg: DictConfig) -> str:
+    """One line: the renderer, threads, CPU capability, commit and CPU time so far."""
+    import os
+    import subprocess
+
+    from .fanout import cpu_seconds
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True, cwd=cfg.paths.root_dir, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    psf_model = cfg.render.get("psf_model", None)
+    render = (f"render.psf_model={psf_model}" if psf_model is not None
+              else "geometric ray-traced PSFs (no render.psf_model)")
+    return (f"renderer: {render}, render.kind={cfg.render.get('kind', '?')}; "
+            f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, torch threads "
+            f"{torch.get_num_threads()}, CPU {torch.backends.cpu.get_cpu_capability()}; commit "
+            f"{commit or 'unknown'}; CPU time {cpu_seconds() / 60:.1f} min (this process and its "
+            f"jobs)")
+
+
 def psf_rms_px(lens, sensor, depth_mm: float, n_rays: int = 4096, seed: int = 0) -> float:
     """Geometric rms radius (pixels) of the on-axis PSF at ``depth_mm``, about its centroid,
     averaged over the sensor's wavelengths (each channel's wavelengths, equally weighted)."""
@@ -373,6 +414,12 @@ def _check_test_folder(folder, image_size) -> None:
 def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     """Train/test each variant for each seed; write the markdown and JSON tables and the
     figures; return ``(markdown table, summary)`` (see :func:`summarize`)."""
+    if cfg.eval.get("job") is not None:  # one variant x seed of a fan-out (fanout.py)
+        from .fanout import job_cfg
+
+        jc, (name, kind, alpha, s) = job_cfg(cfg)
+        _job(jc, name, kind, alpha, s)
+        return "", {}
     todo = variants(cfg)
     seed_list = seeds(cfg)
     if cfg.eval.learned_ckpt is not None and len(seed_list) > 1:
@@ -389,14 +436,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
         runs[name] = []
         rms_seeds = []
         for s in seed_list:
-            vc = _variant_cfg(cfg, name, kind, alpha, seed=s)
-            if kind == "classical":
-                from .classical import design_classical
-
-                design_classical(cfg, classical_dir(cfg))
-            ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
-            torch.manual_seed(s)
-            metrics, objs = _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))
+            metrics, objs = _job(cfg, name, kind, alpha, s)
             runs[name].append(metrics)
             module = objs["module"]
             rms_seeds.append({d: psf_rms_px(module.lens, module.sensor, d) for d in depths})
@@ -414,7 +454,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
                 else f"{cfg.data.test_size} textures")
     text = (f"# Optical variants, each with its own restorer ({cfg.task_name})\n\n"
             f"seeds {seed_list} (mean ± std over seeds); {plates}test set of {test_set}; "
-            f"PSNR (dB) / SSIM\n\n{table}\n")
+            f"PSNR (dB) / SSIM\n\n{provenance(cfg)}\n\n{table}\n")
     _atomic_write(out, text)
     _atomic_write(out.with_suffix(".json"), json.dumps(
         {"task": str(cfg.task_name), "seeds": seed_list, "variants": summary}, indent=2))
