@@ -234,10 +234,19 @@ def _tolerance(args) -> int:
         if args.monte_carlo < 0:
             raise _UsageError(f"--monte-carlo must be >= 0, got {args.monte_carlo}")
         fields, waves = _fields_waves(args)
+        if args.tolerances and args.group:
+            raise _UsageError("give --tolerances or --group, not both")
         spec = load_tolerances(args.tolerances) if args.tolerances else None
         lens = load_lens(args.lens).to(torch.float64)
         waves = waves or [float(lens.spec.primary_wavelength_nm)]
-        names, t = resolve_tolerances(lens, spec)
+        model = None
+        if args.group:
+            from .design.tolerance_model import load_group
+
+            model = load_group(args.group, where="--group")
+            names, t = model.half_widths(lens)
+        else:
+            names, t = resolve_tolerances(lens, spec)
         if not names:
             raise _UsageError("no tolerance parameter has a non-zero tolerance")
         sm = SpotMerit(fields, waves, sampling=args.sampling, image_plane=args.image_plane,
@@ -247,12 +256,16 @@ def _tolerance(args) -> int:
         rss = rss_estimate(lens, sm, names, sig)
         result = {"lens": args.lens, "fields_deg": sm.fields, "wavelengths_nm": sm.waves,
                   "parameters": names, "half_widths": t.tolist(),
-                  "distribution": "uniform in +-half_width (sigma = half_width / sqrt 3)",
+                  "distribution": ("uniform in +-half_width (sigma = half_width / sqrt 3)"
+                                   if model is None else
+                                   f"group {args.group} (RSS with sigma = half_width / sqrt 3 "
+                                   f"= the group's std; Monte Carlo draws the group)"),
                   "nominal_um": rss["nominal_um"],
                   "sensitivity_um_per_unit": (J * 1e3).tolist(),
                   "rss_um": rss["rss_um"]}
         if args.monte_carlo:
-            mc = monte_carlo(lens, sm, names, t, n=args.monte_carlo, seed=args.seed)
+            mc = monte_carlo(lens, sm, names, t, n=args.monte_carlo, seed=args.seed,
+                             model=model)
             result["monte_carlo"] = {k: mc[k] for k in ("n", "seed", "percentiles_um",
                                                          "mean_um", "rms_um")}
             if args.out:
@@ -361,6 +374,8 @@ def main(argv=None) -> int:
     t.add_argument("lens", help="lens file")
     t.add_argument("--tolerances", help="JSON file: name/glob -> half-width (default: "
                                         "20 um, 0.5 mrad, 20 um spacing, 0.5%% curvature)")
+    t.add_argument("--group", help="a tolerance group (configs/tolerance/NAME.yaml, by name or "
+                                   "path): the distributions training and eval use")
     t.add_argument("--monte-carlo", type=int, default=0, metavar="N", help="trials (0: none)")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--fields", help="field angles in degrees (default: file's)")

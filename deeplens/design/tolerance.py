@@ -93,10 +93,14 @@ def resolve_tolerances(lens, spec: dict | None = None) -> tuple[list[str], torch
     return names, torch.tensor([chosen[n] for n in names], dtype=torch.float64)
 
 
-def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0) -> dict:
+def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
+                model=None) -> dict:
     """Evaluate ``n`` perturbed lenses (module docstring); ``merit`` is a
     :class:`~.merit.SpotMerit` prepared on the nominal lens (``strict_rays`` is ignored: lost
-    rays are dropped as vignetted).
+    rays are dropped as vignetted).  With a tolerance group ``model``
+    (:class:`~.tolerance_model.ToleranceModel`) trial ``k`` is instead the lens it draws with
+    seed ``seed + k`` (``names``/``half_widths`` unused): the lenses training and evaluation
+    under that group draw.
 
     Returns:
         ``{"n", "seed", "nominal_um" (F,), "samples_um" (n, F), "percentiles_um":
@@ -105,19 +109,30 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0) ->
     if n < 1:
         raise ValueError(f"--monte-carlo must be >= 1, got {n}")
     t = torch.as_tensor(half_widths, dtype=torch.float64)
-    v = _unscaled(lens, names)
-    x0 = v.x0()
-    g = torch.Generator().manual_seed(int(seed))
+    if model is not None:
+        from .tolerance_model import call_drawn
+
+        def trial(k):
+            return call_drawn(lens, model.draw(lens, int(seed) + k),
+                              lambda L: field_merits(merit, L))
+        nominal_of = (lambda: field_merits(merit, lens))  # noqa: E731
+    else:
+        v = _unscaled(lens, names)
+        x0 = v.x0()
+        g = torch.Generator().manual_seed(int(seed))
+
+        def trial(k):
+            u = 2.0 * torch.rand(len(names), generator=g, dtype=torch.float64) - 1.0
+            return v.call(lambda L: field_merits(merit, L), x0 + u * t)
+        nominal_of = (lambda: v.call(lambda L: field_merits(merit, L), x0))  # noqa: E731
     strict = merit.strict_rays
     merit.strict_rays = False
     samples = []
     try:
         with torch.no_grad(), warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad")
-            nominal = v.call(lambda L: field_merits(merit, L), x0)
-            for _ in range(n):
-                u = 2.0 * torch.rand(len(names), generator=g, dtype=torch.float64) - 1.0
-                samples.append(v.call(lambda L: field_merits(merit, L), x0 + u * t))
+            nominal = nominal_of()
+            samples = [trial(k) for k in range(n)]
     finally:
         merit.strict_rays = strict
     s = torch.stack(samples) * 1e3

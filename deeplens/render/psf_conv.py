@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .psf import psf_grids
+from .psf import _grid_points, psf_grids
 from .scene import IdealCamera, Scene
 
 __all__ = ["PSFConvRenderer", "blend_weights"]
@@ -55,12 +55,14 @@ class PSFConvRenderer(nn.Module):
         kernel_size: force the kernel size (odd); ``None`` sizes it from the spots.
         supersample: ground-truth supersampling.
         seed: base seed of the PSF ray samples.
+        psf_model: a :class:`~deeplens.render.psf_model.PSFModel` (``None``: geometric).
     """
 
     def __init__(self, lens, sensor, n_rays: int = 4096, patches=(1, 1),
                  kernel_size: int | None = None, supersample: int = 2, options=None,
-                 seed: int = 0):
+                 seed: int = 0, psf_model=None):
         super().__init__()
+        self.psf_model = psf_model
         if int(n_rays) < 1:
             raise ValueError(f"PSFConvRenderer: n_rays must be >= 1, got {n_rays}")
         self.lens, self.sensor = lens, sensor
@@ -78,8 +80,14 @@ class PSFConvRenderer(nn.Module):
         depths = scene.depths_mm.tolist()
         kernels = {}  # (depth, job) -> (P, 1, K, K), flipped: convolution, not correlation
         specs = [(depth, c, w) for depth in sorted(set(depths)) for c, w, _ in jobs]
-        grids = psf_grids(self.lens, self.sensor, [(d, w) for d, _, w in specs], self.patches,
-                          self.n_rays, self.kernel_size, seed, self.options)  # one trace
+        model = ("geometric" if self.psf_model is None
+                 else self.psf_model.resolve(self.lens, self.sensor, self.options))
+        if model == "diffraction":
+            grids = self.diffraction_grids([(d, w) for d, _, w in specs])
+        else:
+            grids = psf_grids(self.lens, self.sensor, [(d, w) for d, _, w in specs],
+                              self.patches, self.n_rays, self.kernel_size, seed,
+                              self.options)  # one trace
         for (depth, c, w), (kers, _) in zip(specs, grids):
             K = kers.shape[-1]
             kernels[depth, c, w] = kers.reshape(-1, 1, K, K).flip(-1, -2)
@@ -101,3 +109,14 @@ class PSFConvRenderer(nn.Module):
                 chans[c] = chans[c] + wt * (y * blend[None]).sum(1)
             out[idx] = torch.stack(chans, 1)
         return out
+
+    def diffraction_grids(self, specs):
+        """:func:`~deeplens.render.psf.psf_grids` with diffraction kernels (one trace)."""
+        camera = IdealCamera(self.lens, self.sensor)
+        gy, gx = self.patches
+        grids = [_grid_points(camera, d, self.patches) for d, _ in specs]
+        jobs = [(P, d, w) for (d, w), (pts, _) in zip(specs, grids) for P in pts]
+        kers = self.psf_model.diffraction(self.lens, self.sensor, jobs, self.options)
+        per, K = gy * gx, kers[0].shape[-1]
+        return [(torch.stack(kers[k * per:(k + 1) * per]).reshape(gy, gx, K, K), centres)
+                for k, (_, centres) in enumerate(grids)]

@@ -11,7 +11,11 @@ the scene defines ``field_bands``).  Variants (``eval.variants``):
 * ``learned``: the optics (``lens.trainable``) and the restorer trained jointly (or loaded from
   ``eval.learned_ckpt``, single seed);
 * ``frozen``: the lens as in its file with no optics training (for lenses without a plate,
-  e.g. the doublet: measures the optics' share of the gain against ``learned``).
+  e.g. the doublet: measures the optics' share of the gain against ``learned``);
+* ``classical``: the optics designed first by the design engine (the same variables as
+  ``learned``: a depth-invariant plate for a lens with a plate, the smallest RMS spot over the
+  scene's fields otherwise; :mod:`deeplens.training.classical`, ``eval.classical``), then frozen
+  while the restorer trains.
 
 Every number is the mean over seeds; ``± std`` is the sample standard deviation over seeds
 (``n - 1``; 0 for a single seed).  A seed changes everything that is random (network
@@ -46,6 +50,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from . import tolerance_eval
 from .checkpoint import write_text_atomic
 from .input_digest import digest_path, input_digests
 from .machine import describe_machine, machine_info
@@ -93,19 +98,19 @@ def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
     out = []
     names = cfg.eval.variants
     if names is None:
-        names = (["none", "cubic", "learned"] if cfg.lens.plate_surface is not None
-                 else ["frozen", "learned"])
+        names = (["none", "cubic", "classical", "learned"] if cfg.lens.plate_surface is not None
+                 else ["frozen", "classical", "learned"])
     for v in names:
         if v in _PLATE_KINDS and cfg.lens.plate_surface is None:
             raise ValueError(f"eval.variants: {v!r} needs a phase plate, but the experiment's "
                              f"lens has none (lens.plate_surface is null); use frozen, learned")
         if v == "cubic":
             out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in _alphas(cfg)]
-        elif v in ("none", "learned", "frozen"):
+        elif v in ("none", "learned", "frozen", "classical"):
             out.append((v, v, None))
         else:
             raise ValueError(f"eval.variants: unknown variant {v!r}; expected none, cubic, "
-                             f"learned, frozen")
+                             f"classical, learned, frozen")
     if not out:
         raise ValueError("eval.variants: the list is empty")
     return out
@@ -135,10 +140,19 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
                 c.lens.plate = "learned"
         elif kind == "frozen":
             c.lens.trainable = []
+        elif kind == "classical":  # the lens designed by the design engine (classical.py)
+            c.lens.path = str(classical_dir(cfg) / "classical_lens.json")
+            c.lens.trainable, c.lens.learned_start_alpha_mm = [], None
+            c.lens.plate = "learned" if cfg.lens.plate_surface is not None else None
         else:
             raise ValueError(f"eval.variants: unknown variant {kind!r}; expected none, cubic, "
-                             f"learned, frozen")
+                             f"classical, learned, frozen")
     return c
+
+
+def classical_dir(cfg: DictConfig) -> Path:
+    """The folder of the ``classical`` variant, where its designed lens is written."""
+    return Path(cfg.paths.output_dir) / "classical"
 
 
 #: the record of one finished variant x seed run, in that run's output folder
@@ -260,6 +274,47 @@ def _test_on_folder(cfg: DictConfig, objs: dict, folder) -> dict:
     trainer = objs["trainer"]
     trainer.test(objs["module"], datamodule=dm, verbose=False)
     return {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("test/")}
+
+
+def _job(cfg: DictConfig, name: str, kind: str, alpha, seed: int):
+    """Train (or reuse, or with ``eval.gather`` only load) and test one variant x seed."""
+    vc = _variant_cfg(cfg, name, kind, alpha, seed=seed)
+    gather = bool(cfg.eval.get("gather", False))
+    if gather:
+        done = _reuse(vc)
+        if done is None:
+            raise RuntimeError(f"eval.gather: no finished run of {name} seed {seed} with this "
+                               f"configuration in {vc.paths.output_dir}")
+        return done
+    if kind == "classical":
+        from .classical import design_classical
+
+        design_classical(cfg, classical_dir(cfg))
+    ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
+    torch.manual_seed(seed)
+    return _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))
+
+
+def provenance(cfg: DictConfig) -> str:
+    """One line: the renderer, threads, CPU capability, commit and CPU time so far."""
+    import os
+    import subprocess
+
+    from .fanout import cpu_seconds
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True, cwd=cfg.paths.root_dir, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    psf_model = cfg.render.get("psf_model", None)
+    render = (f"render.psf_model={psf_model}" if psf_model is not None
+              else "geometric ray-traced PSFs (no render.psf_model)")
+    return (f"renderer: {render}, render.kind={cfg.render.get('kind', '?')}; "
+            f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, torch threads "
+            f"{torch.get_num_threads()}, CPU {torch.backends.cpu.get_cpu_capability()}; commit "
+            f"{commit or 'unknown'}; CPU time {cpu_seconds() / 60:.1f} min (this process and its "
+            f"jobs)")
 
 
 def psf_rms_px(lens, sensor, depth_mm: float, n_rays: int = 4096, seed: int = 0) -> float:
@@ -397,6 +452,12 @@ def _check_test_folder(folder, image_size) -> None:
 def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     """Train/test each variant for each seed; write the markdown and JSON tables and the
     figures; return ``(markdown table, summary)`` (see :func:`summarize`)."""
+    if cfg.eval.get("job") is not None:  # one variant x seed of a fan-out (fanout.py)
+        from .fanout import job_cfg
+
+        jc, (name, kind, alpha, s) = job_cfg(cfg)
+        _job(jc, name, kind, alpha, s)
+        return "", {}
     todo = variants(cfg)
     seed_list = seeds(cfg)
     if cfg.eval.learned_ckpt is not None and len(seed_list) > 1:
@@ -404,6 +465,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
                          f"(eval.seeds has {len(seed_list)})")
     if cfg.eval.test_folder is not None:
         _check_test_folder(cfg.eval.test_folder, cfg.data.image_size)
+    tol = tolerance_eval.EvalTolerance.from_cfg(cfg)  # checked before anything trains
     depths = [float(d) for d in cfg.scene.val_depths_mm]
     bands = None if cfg.scene.field_bands is None else [float(b) for b in cfg.scene.field_bands]
     runs: dict[str, list[dict]] = {}
@@ -414,15 +476,14 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
         runs[name], folder_runs[name] = [], []
         rms_seeds = []
         for s in seed_list:
-            vc = _variant_cfg(cfg, name, kind, alpha, seed=s)
-            ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
-            torch.manual_seed(s)
-            metrics, objs = _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))
+            metrics, objs = _job(cfg, name, kind, alpha, s)
             runs[name].append(metrics)
             if cfg.eval.test_folder is not None:
+                vc = _variant_cfg(cfg, name, kind, alpha, seed=s)
                 folder_runs[name].append(_test_on_folder(vc, objs, cfg.eval.test_folder))
             module = objs["module"]
             rms_seeds.append({d: psf_rms_px(module.lens, module.sensor, d) for d in depths})
+            tol.run(name, objs)
             if s == seed_list[0]:
                 keep[name] = {"module": module, "datamodule": objs["datamodule"], "kind": kind}
         psf_rms[name] = {d: sum(r[d] for r in rms_seeds) / len(rms_seeds) for d in depths}
@@ -435,7 +496,7 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     machine = machine_info()
     text = (f"# Optical variants, each with its own restorer ({cfg.task_name})\n\n"
             f"seeds {seed_list} (mean ± std over seeds); {plates}PSNR (dB) / SSIM; "
-            f"{describe_machine(machine)}\n\n"
+            f"{describe_machine(machine)}\n\n{provenance(cfg)}\n\n"
             f"## Test set: {cfg.data.test_size} procedural textures\n\n{table}\n")
     record = {"task": str(cfg.task_name), "seeds": seed_list, "machine": machine,
               "variants": summary}
@@ -448,8 +509,11 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
         record["test_folder"] = {"path": str(cfg.eval.test_folder),
                                  "digest": digest_path(cfg.eval.test_folder),
                                  "variants": folder_summary}
+    text += tol.markdown(_columns(cfg))
+    record.update(tol.json())
     _atomic_write(out, text)
     _atomic_write(out.with_suffix(".json"), json.dumps(record, indent=2))
+    tol.figures(out.parent, bool(cfg.eval.figures))
     if cfg.eval.figures:
         from .eval_figures import write_figures
 

@@ -105,6 +105,9 @@ class EndToEndModule(L.LightningModule):
             mean (the restorer learns every depth), and each sample's gradient flowing back
             into the optics (and the deconvolution front end) is scaled by its depth bin's
             soft-maximum weight, so the optics are designed for the worst depth.
+        tolerance, tolerance_training: the tolerance group (a mapping, group name or file;
+            :mod:`.tolerance`) and whether every training batch renders through its own lens
+            drawn from it around the current nominal lens (gradients reach the nominal values).
         optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
             (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
@@ -116,7 +119,8 @@ class EndToEndModule(L.LightningModule):
                  optimizer=None, disc_optimizer=None, scene_margin: float = 0.0,
                  worst_depth: dict | None = None, deconvolution: dict | None = None,
                  optics_warmup_steps: int | None = None,
-                 optics_worst_depth: dict | None = None):
+                 optics_worst_depth: dict | None = None, tolerance=None,
+                 tolerance_training: bool = False):
         super().__init__()
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
@@ -182,7 +186,13 @@ class EndToEndModule(L.LightningModule):
             if unknown:
                 raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
                                  f"{', '.join(dict(DEFAULTS))}")
-            self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc)
+            self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc,
+                                            psf_model=getattr(renderer, "psf_model", None))
+        # model.tolerance_training: every training batch through its own drawn lens (tolerance.py)
+        from .tolerance import TrainingDraws, load_group
+
+        tol = load_group(tolerance) if tolerance is not None else None  # checked at start-up
+        self.tolerance_draws = TrainingDraws(tol, self.seed) if tolerance_training else None
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
     # ------------------------------------------------------------------ the camera
@@ -333,12 +343,15 @@ class EndToEndModule(L.LightningModule):
         self._buffers_before = {n: b.detach().clone() for n, b in self.named_buffers()
                                 if not n.startswith("lens.")}
         images = batch["image"]
-        loss, terms, y, gt, pred = self.step_loss(images, step)
-        if not torch.isfinite(loss):
+        with self.drawn_lens(step):  # tolerance training: the drawn lens until after backward
+            loss, terms, y, gt, pred = self.step_loss(images, step)
+            finite = bool(torch.isfinite(loss))
+            if finite:
+                opt_g.zero_grad(set_to_none=True)
+                self.manual_backward(loss)
+        if not finite:  # (outside the drawn lens: the stop saves the nominal one)
             detail = ", ".join(f"{k}={float(v.detach()):.4g}" for k, v in terms.items())
             self._stop(step, f"non-finite loss {float(loss)} at step {step} ({detail})")
-        opt_g.zero_grad(set_to_none=True)
-        self.manual_backward(loss)
         bad = self._nonfinite_grad()
         if bad:
             opt_g.zero_grad(set_to_none=True)
@@ -376,9 +389,18 @@ class EndToEndModule(L.LightningModule):
         (a hook on the restorer's input)."""
         depths = self.sample_depths(images.shape[0], step)
         with self.optics_fixed(step < self.optics_warmup_steps):
-            y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
+            with self.drawn_lens(step):
+                y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
             x = self.deconv(y) if self.deconv is not None else y
         return self.restore_loss(depths, y, gt, x)
+
+    def drawn_lens(self, step: int):
+        """The context in which ``self.lens`` is the lens drawn for ``step`` under
+        ``model.tolerance_training`` (re-entrant; a no-op without it).  The adjoint render
+        re-traces in the backward pass, so the context must span the backward as well."""
+        if self.tolerance_draws is None:
+            return contextlib.nullcontext()
+        return self.tolerance_draws.at(self.lens, step)
 
     @contextlib.contextmanager
     def optics_fixed(self, fixed: bool = True):

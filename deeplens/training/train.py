@@ -42,7 +42,7 @@ _TYPES = {
     "scene.depths_mm": list, "scene.val_depths_mm": list, "scene.margin": float,
     "render.kind": str, "render.spp": int, "render.vignetting": bool, "render.adjoint": bool,
     "render.decorrelate": bool, "render.chunk_rays": int, "render.max_iter": int,
-    "render.psf_rays": int,
+    "render.psf_rays": int, "render.psf_model": str,
     "model.net_lr": float, "model.optics_lr_mm": float, "model.disc_lr": float,
     "data.image_size": int, "data.batch_size": int, "data.train_steps_per_epoch": int,
     "data.val_size": int, "data.test_size": int,
@@ -190,6 +190,9 @@ _RULES = {
                                        "field angles in [0, 90) deg"),
     "render.spp": _POS_INT, "render.chunk_rays": _POS_INT, "render.max_iter": _POS_INT,
     "render.psf_rays": _POS_INT,
+    "render.psf_error_budget": _rule_real(0, 1),
+    "render.psf_remeasure": _rule_real(0),
+    "render.psf_memory_gb": _rule_real(0),
     "render.newton_tol": _rule_real(0),
     "render.psf_patches": _rule_list(lambda x: _POS_INT(x) is None, "[rows, cols], both > 0",
                                      (2, 2)),
@@ -217,6 +220,44 @@ def build_renderer(cfg, lens, sensor):
                                 compile=r.get("compile", False))
     except ValueError as e:
         raise ValueError(f"render.compile: {e}") from None
+    return _build_renderer(cfg, lens, sensor, opts)
+
+
+def build_psf_model(cfg, lens, sensor, opts):
+    """``render.psf_model`` (geometric | diffraction | auto), measured on the run's pixels,
+    depths, wavelengths and field patches; its choice is printed (``auto``: with the measured
+    error and the budget).  The Monte Carlo renderer traces rays: diffraction needs
+    ``render.kind=psf``."""
+    from ..render.psf_model import PSFModel, run_jobs
+
+    r = cfg.render
+    pm = PSFModel(r.get("psf_model", "geometric"), r.get("psf_error_budget", 0.05),
+                  r.get("psf_remeasure", 0.1), r.get("psf_memory_gb", 2.0),
+                  n_rays=r.psf_rays)
+    if pm.model == "geometric":  # nothing to measure
+        pm.message = "PSF model: geometric (render.psf_model=geometric, not measured)"
+        rank_zero_info("deeplens: " + pm.message)
+        return pm
+    grid = tuple(r.psf_patches) if r.kind == "psf" else (3, 3)
+    jobs = run_jobs(lens, sensor, list(cfg.scene.depths_mm), grid)
+    rank_zero_info("deeplens: " + pm.measure(lens, sensor, jobs, opts))
+    if pm.choice == "diffraction" and r.kind != "psf":
+        raise ValueError(f"render.psf_model={pm.model} chose diffraction ({pm.message}), but "
+                         f"render.kind={r.kind} traces rays (geometric optics only): use "
+                         f"render=psf, or render.psf_model=geometric")
+    return pm
+
+
+def _log_psf_model(trainer, renderer) -> None:
+    """The PSF model's choice as TensorBoard text (``psf_model``) where the logger has it."""
+    pm = getattr(renderer, "psf_model", None)
+    exp = getattr(trainer.logger, "experiment", None) if trainer.logger else None
+    if pm is not None and hasattr(exp, "add_text"):
+        exp.add_text("psf_model", pm.message)
+
+
+def _build_renderer(cfg, lens, sensor, opts):
+    r = cfg.render
     if r.kind == "mc":
         return MonteCarloRenderer(lens, sensor, spp=r.spp, vignetting=r.vignetting,
                                   adjoint=r.adjoint, decorrelate=r.decorrelate and r.adjoint,
@@ -283,6 +324,7 @@ def build_objects(cfg: DictConfig) -> dict:
                          f"use 1 (monochrome: textures are converted to grey) or 3 channels")
     renderer = build_renderer(cfg, lens, sensor)
     preflight(lens, sensor)
+    renderer.psf_model = build_psf_model(cfg, lens, sensor, renderer.options)
     restorer = hydra.utils.instantiate(cfg.net, **_image_channels(cfg.net, "net", n_ch))
     mc = cfg.model
     discriminator = (hydra.utils.instantiate(
@@ -378,6 +420,7 @@ def _train(cfg: DictConfig):
     if ckpt is not None:  # verified, and a training checkpoint (not a bare state dict)
         read_checkpoint(ckpt)
     trained = bool(cfg.get("train", True))
+    _log_psf_model(trainer, objs["renderer"])
     if trained:
         with stopped_by_signal(trainer):
             trainer.fit(module, datamodule=dm, ckpt_path=ckpt)
@@ -389,6 +432,9 @@ def _train(cfg: DictConfig):
         metrics.update({k: float(v) for k, v in trainer.callback_metrics.items()})
     objs["tested"] = tested
     objs["summary"] = summary(cfg, metrics, trainer, tested)
+    pm = getattr(objs["renderer"], "psf_model", None)
+    if pm is not None:
+        objs["summary"] += f"\n  {pm.message}"
     if trainer.is_global_zero:
         print(objs["summary"])
     return metrics, objs

@@ -56,11 +56,14 @@ class DepthWienerFilter(nn.Module):
         rays: rays per PSF (a square grid over the entrance pupil, deterministic).
         nsr: initial noise-to-signal power ratio (> 0), one per channel, learned in log space.
         learn_nsr: whether ``nsr`` is a trainable parameter.
+        psf_model: the run's :class:`~deeplens.render.psf_model.PSFModel` (``None``:
+            geometric PSFs), shared with the renderer.
     """
 
     def __init__(self, lens, sensor, depths_mm, depths: int = 5, rays: int = 16384,
-                 nsr: float = 1e-2, learn_nsr: bool = True):
+                 nsr: float = 1e-2, learn_nsr: bool = True, psf_model=None):
         super().__init__()
+        self.psf_model = psf_model
         if not (isinstance(depths, int) and depths >= 1):
             raise ValueError(f"model.deconvolution.depths: expected an integer >= 1, got "
                              f"{depths!r}")
@@ -98,8 +101,14 @@ class DepthWienerFilter(nn.Module):
         n = max(int(round(math.sqrt(self.rays))), 8)
         jobs = sensor.wavelengths_for(len(sensor.channels))
         specs = [(d, c, wl, w) for d in self.depths_mm for c, wl, w in jobs]
-        kers = psf_many(lens, sensor, [((0.0, 0.0), d, wl) for d, _, wl, _ in specs],
-                        n_rays=n * n, sampling=f"grid:{n}", max_kernel=min(size) - 1)
+        pts = [((0.0, 0.0), d, wl) for d, _, wl, _ in specs]
+        model = ("geometric" if self.psf_model is None
+                 else self.psf_model.resolve(lens, sensor))
+        if model == "diffraction":
+            kers = self.psf_model.diffraction(lens, sensor, pts, max_kernel=min(size) - 1)
+        else:
+            kers = psf_many(lens, sensor, pts, n_rays=n * n, sampling=f"grid:{n}",
+                            max_kernel=min(size) - 1)
         out = []
         for k0 in range(0, len(specs), len(jobs)):
             per = {}
@@ -162,4 +171,4 @@ class DepthWienerFilter(nn.Module):
 #: the settings of :class:`DepthWienerFilter` and their defaults, ``((name, default), ...)``
 #: (config ``model.deconvolution``), read from its signature
 DEFAULTS = tuple((n, p.default) for n, p in inspect.signature(DepthWienerFilter).parameters.items()
-                 if p.default is not inspect.Parameter.empty)
+                 if p.default is not inspect.Parameter.empty and n != "psf_model")

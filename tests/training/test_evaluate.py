@@ -14,7 +14,7 @@ from deeplens.training.lens_setup import build_lens
 
 def test_eval_writes_a_table_for_every_variant_and_depth(cfg_factory, tmp_path):
     cfg = cfg_factory("experiment=edof", "scene.val_depths_mm=[4500.0,8000.0]",
-                      "eval.cubic_alpha_mm=[0.0025,0.01]",
+                      "eval.cubic_alpha_mm=[0.0025,0.01]", "eval.variants=[none,cubic,learned]",
                       "callbacks.image_logger=null", "eval.figures=false",
                       config_name="eval.yaml")
     table, results = evaluate(cfg)
@@ -132,7 +132,7 @@ def test_test_folder_gives_centre_crops(tmp_path):
 
 def test_doublet_eval_compares_frozen_and_learned_per_band(cfg_factory, tmp_path):
     cfg = cfg_factory("experiment=doublet", "callbacks.image_logger=null", "eval.figures=false",
-                      config_name="eval.yaml")
+                      "eval.variants=[frozen,learned]", config_name="eval.yaml")
     table, results = evaluate(cfg)
     assert list(results) == ["frozen", "learned"]
     assert "band 0.66-1" in table.splitlines()[0]

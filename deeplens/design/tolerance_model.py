@@ -1,0 +1,380 @@
+"""Manufacturing tolerances as distributions, and lenses drawn from them.
+
+A tolerance *group* (Hydra ``configs/tolerance/<name>.yaml``, also read by
+``deeplens tolerance --group``) gives one distribution per kind of error:
+
+    radius     relative (ΔR/R) or in fringes N (Δc = N λ_f / h², h the semi-diameter)
+    thickness  glass centre thickness (mm)      air_gap  air spacing (mm)
+    index      n_d (absolute)                   abbe     V_d (relative, ΔV/V)
+    decenter   element dx, dy (mm)              tilt     element tilt_x, tilt_y (rad)
+    sensor     last-vertex-to-sensor distance (mm)
+
+each as ``{shape: normal, std: σ, truncate: k}`` (a normal truncated at ±kσ) or
+``{shape: uniform, half_width: t}`` (``σ = t/√3``), or ``null`` (not toleranced).  Every
+parameter is drawn independently; a drawn lens is the nominal lens with
+
+    c' = c / (1 + ε)  (relative)  or  c' = c + N λ_f / h²  (fringes);   p' = p + δ  (others)
+
+applied as a differentiable function of the nominal values (:func:`drawn`), so gradients of
+anything computed through a drawn lens reach the nominal parameters.  A glass of index n(λ)
+becomes ``n_d + Δn + (n(λ) − n_d) / (1 + ε_V)`` (the dispersion n_F − n_C scales as 1/V).
+``compensator: refocus`` moves the sensor by the change of the paraxial image distance of the
+object (``lens.spec.object_distance_mm``) from the nominal lens to the drawn one (an assembler
+refocusing each lens; differentiable in the nominal values), after the drawn sensor error.
+
+A draw is reproducible from its seed: :meth:`ToleranceModel.draw` uses its own
+``torch.Generator`` and a fixed parameter order.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from pathlib import Path
+from dataclasses import dataclass, field
+
+import torch
+
+from ..optics.materials import Air, Material
+from ..optics.surfaces import Aperture
+
+__all__ = ["CONFIG_DIR", "load_group", "KINDS", "Distribution", "ToleranceModel", "LensDraw", "PerturbedMaterial", "drawn",
+           "call_drawn"]
+
+#: the packaged tolerance groups (``configs/tolerance/<name>.yaml`` of the repository)
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "tolerance"
+#: the kinds of error a group may give, with their units
+KINDS = {"radius": "relative or fringes", "thickness": "mm", "air_gap": "mm", "index": "n_d",
+         "abbe": "relative", "decenter": "mm", "tilt": "rad", "sensor": "mm"}
+
+
+def _num(v, where, lo=0.0, lo_open=False):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ValueError(f"{where}: expected a number, got {v!r}")
+    v = float(v)
+    if not math.isfinite(v) or v < lo or (lo_open and v == lo):
+        raise ValueError(f"{where}: expected a finite number {'>' if lo_open else '>='} {lo:g}, "
+                         f"got {v!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """A zero-mean distribution: ``normal`` (``std`` σ, truncated at ±``truncate`` σ) or
+    ``uniform`` (in ±``half_width``)."""
+
+    shape: str
+    scale: float          # σ (normal) or half-width (uniform)
+    truncate: float = math.inf
+
+    @classmethod
+    def from_config(cls, spec, where: str) -> "Distribution | None":
+        """Parse ``{shape, std, truncate}`` / ``{shape, half_width}``; errors name ``where``."""
+        if spec is None:
+            return None
+        if not isinstance(spec, dict):
+            raise ValueError(f"{where}: expected a mapping {{shape: normal|uniform, ...}} or "
+                             f"null, got {spec!r}")
+        spec = dict(spec)
+        spec.pop("unit", None)
+        shape = spec.pop("shape", None)
+        allowed = {"normal": {"std", "truncate"}, "uniform": {"half_width"}}.get(shape, set())
+        extra = set(spec) - allowed
+        if allowed and extra:
+            raise ValueError(f"{where}: unknown keys {sorted(extra)} for shape {shape!r} "
+                             f"(expected {sorted(allowed | {'shape'})})")
+        if shape == "normal":
+            scale = _num(spec.get("std"), f"{where}.std")
+            trunc = _num(spec.get("truncate", 3.0), f"{where}.truncate", 0.0, lo_open=True)
+        elif shape == "uniform":
+            scale = _num(spec.get("half_width"), f"{where}.half_width")
+            trunc = math.inf
+        else:
+            raise ValueError(f"{where}.shape: expected 'normal' or 'uniform', got {shape!r}")
+        return cls(shape, scale, trunc)
+
+    @property
+    def std(self) -> float:
+        """The standard deviation of the (truncated) distribution."""
+        if self.shape == "uniform":
+            return self.scale / math.sqrt(3.0)
+        k = self.truncate
+        if math.isinf(k):
+            return self.scale
+        phi = math.exp(-0.5 * k * k) / math.sqrt(2 * math.pi)
+        mass = math.erf(k / math.sqrt(2))
+        return self.scale * math.sqrt(1.0 - 2.0 * k * phi / mass)
+
+    @property
+    def bound(self) -> float:
+        """The largest possible magnitude of a draw (``inf`` for an untruncated normal)."""
+        return self.scale if self.shape == "uniform" else self.scale * self.truncate
+
+    def sample(self, n: int, generator: torch.Generator) -> torch.Tensor:
+        """``n`` float64 draws (inverse CDF of one uniform each, so each draw uses exactly one
+        number of ``generator``)."""
+        u = torch.rand(n, generator=generator, dtype=torch.float64)
+        if self.shape == "uniform":
+            return (2.0 * u - 1.0) * self.scale
+        k = self.truncate
+        lo = 0.5 * math.erfc(k / math.sqrt(2)) if math.isfinite(k) else 0.0
+        p = (lo + u * (1.0 - 2.0 * lo)).clamp(1e-300, 1 - 1e-16)
+        return torch.special.ndtri(p) * self.scale
+
+
+class PerturbedMaterial(Material):
+    """``base`` with ``n_d`` shifted by ``dn`` and ``V_d`` scaled by ``1 + eps_v``:
+    ``n'(λ) = n_d + dn + (n(λ) − n_d) / (1 + eps_v)``.  ``dn``/``eps_v`` are buffers (so a
+    render's geometry cache sees the change)."""
+
+    def __init__(self, base: Material, dn: float, eps_v: float):
+        super().__init__(f"{base.name}~", base.wavelength_range_nm)
+        self.base = base
+        self.n_d0 = base.nd
+        self.register_buffer("dn", torch.tensor(float(dn), dtype=torch.float64))
+        self.register_buffer("eps_v", torch.tensor(float(eps_v), dtype=torch.float64))
+
+    def _index(self, w: torch.Tensor) -> torch.Tensor:
+        n = self.base.n(w)
+        return (self.n_d0 + self.dn.to(n) + (n - self.n_d0) / (1.0 + self.eps_v.to(n)))
+
+    def to_spec(self) -> str:
+        return self.base.to_spec()
+
+
+@dataclass
+class LensDraw:
+    """One drawn lens: ``relative`` ``{name: ε}`` (``p' = p / (1 + ε)``), ``offsets``
+    ``{name: δ}`` (``p' = p + δ``), ``materials`` ``{medium index: (Δn, ε_V)}``, and the
+    ``seed`` it came from.  ``compensate``: refocus the sensor (paraxial image distance)."""
+
+    seed: int
+    relative: dict = field(default_factory=dict)
+    offsets: dict = field(default_factory=dict)
+    materials: dict = field(default_factory=dict)
+    compensate: bool = False
+
+    def values(self, lens) -> dict:
+        """``{name: drawn value}`` as differentiable functions of the nominal parameters."""
+        params = dict(lens.named_parameters())
+        out = {}
+        for n in set(self.relative) | set(self.offsets):
+            p = params[n]
+            v = p
+            if n in self.relative:
+                v = v / (1.0 + torch.as_tensor(self.relative[n], dtype=torch.float64).to(p))
+            if n in self.offsets:
+                v = v + torch.as_tensor(self.offsets[n], dtype=torch.float64).to(p)
+            out[n] = v
+        return out
+
+
+class ToleranceModel:
+    """The distributions of one tolerance group (module docstring).
+
+    Args:
+        config: ``{kind: distribution or null, ..., compensator: null|refocus,
+            fringe_wavelength_nm: λ_f}``, kinds of :data:`KINDS`; ``radius`` also takes
+            ``unit: relative|fringes``.
+        where: the config key for error messages (``"tolerance"``).
+
+    Raises:
+        ValueError: an unknown key, shape or unit, or a bad number; the message names the key.
+
+    Example:
+        >>> tm = ToleranceModel({"decenter": {"shape": "normal", "std": 0.01, "truncate": 2}})
+        >>> d = tm.draw(lens, seed=3)
+        >>> with drawn(lens, d):
+        ...     img = renderer(scene)
+    """
+
+    def __init__(self, config: dict | None, where: str = "tolerance"):
+        cfg = dict(config or {})
+        self.where = where
+        self.name = str(cfg.pop("name", "") or "")
+        comp = cfg.pop("compensator", None)
+        if comp not in (None, "none", "refocus"):
+            raise ValueError(f"{where}.compensator: expected null or 'refocus', got {comp!r}")
+        self.compensator = comp if comp == "refocus" else None
+        self.fringe_wavelength_nm = _num(cfg.pop("fringe_wavelength_nm", 632.8),
+                                         f"{where}.fringe_wavelength_nm", 0.0, lo_open=True)
+        unknown = set(cfg) - set(KINDS)
+        if unknown:
+            raise ValueError(f"{where}: unknown keys {sorted(unknown)}; expected "
+                             f"{', '.join(KINDS)}, compensator, fringe_wavelength_nm, name")
+        self.radius_unit = "relative"
+        r = cfg.get("radius")
+        if isinstance(r, dict) and "unit" in r:
+            if r["unit"] not in ("relative", "fringes"):
+                raise ValueError(f"{where}.radius.unit: expected 'relative' or 'fringes', got "
+                                 f"{r['unit']!r}")
+            self.radius_unit = r["unit"]
+        self.dists = {k: Distribution.from_config(cfg.get(k), f"{where}.{k}") for k in KINDS}
+        for k in ("radius", "abbe"):
+            d = self.dists[k]
+            if d is not None and not (k == "radius" and self.radius_unit == "fringes") \
+                    and d.bound >= 0.5:
+                raise ValueError(f"{where}.{k}: a relative error must stay within +-0.5 "
+                                 f"(truncate it), got a bound of {d.bound:g}")
+
+    def __bool__(self) -> bool:
+        return any(d is not None and d.scale > 0 for d in self.dists.values())
+
+    # ------------------------------------------------------------------ parameters
+    def parameters_of(self, lens) -> list[tuple[str, str]]:
+        """``[(kind, name)]``: every toleranced quantity of ``lens`` in draw order (names are
+        parameter names, or ``materials.i`` for a glass medium's index and Abbe number)."""
+        out = []
+        for i, s in enumerate(lens.surfaces):
+            if hasattr(s, "c") and not isinstance(s, Aperture):
+                out.append(("radius", f"surfaces.{i}.c"))
+        for i in range(1, len(lens.surfaces)):
+            glass = not isinstance(lens.materials[i], Air)
+            out.append(("thickness" if glass else "air_gap", f"distances.{i}"))
+        for i, m in enumerate(lens.materials):
+            if not isinstance(m, Air):
+                out += [("index", f"materials.{i}"), ("abbe", f"materials.{i}")]
+        for e, (a, b) in enumerate(lens.elements):
+            glass = any(not isinstance(lens.materials[i + 1], Air) for i in range(a, b + 1))
+            if glass:
+                out += [("decenter", f"misalignments.{e}.dx"), ("decenter", f"misalignments.{e}.dy"),
+                        ("tilt", f"misalignments.{e}.tilt_x"), ("tilt", f"misalignments.{e}.tilt_y")]
+        out.append(("sensor", "d_sensor"))
+        return out
+
+    def draw(self, lens, seed: int) -> LensDraw:
+        """The lens drawn by ``seed`` (every quantity consumes one number of a generator
+        seeded by ``seed``, in :meth:`parameters_of` order, toleranced or not)."""
+        g = torch.Generator().manual_seed(int(seed))
+        d = LensDraw(seed=int(seed), compensate=self.compensator == "refocus")
+        lam_mm = self.fringe_wavelength_nm * 1e-6
+        for kind, name in self.parameters_of(lens):
+            dist = self.dists[kind]
+            x = 0.0 if dist is None else float(dist.sample(1, g))
+            if dist is None:
+                torch.rand(1, generator=g)
+            if x == 0.0:
+                continue
+            if kind == "radius" and self.radius_unit == "relative":
+                d.relative[name] = x
+            elif kind == "radius":
+                i = int(name.split(".")[1])
+                h = float(lens.surfaces[i].semi_diameter)
+                d.offsets[name] = x * lam_mm / (h * h)
+            elif kind in ("index", "abbe"):
+                i = int(name.split(".")[1])
+                dn, ev = d.materials.get(i, (0.0, 0.0))
+                d.materials[i] = (x, ev) if kind == "index" else (dn, x)
+            else:
+                d.offsets[name] = x
+        return d
+
+    def half_widths(self, lens) -> tuple[list[str], torch.Tensor]:
+        """``(names, √3 σ)`` of the toleranced *parameters* (glass index and Abbe number are
+        not parameters and are left out) in their units (1/mm for curvatures), for the RSS
+        estimate of :mod:`.sensitivity` (which takes ``σ = half-width / √3``)."""
+        names, t = [], []
+        for kind, name in self.parameters_of(lens):
+            dist = self.dists[kind]
+            if dist is None or kind in ("index", "abbe"):
+                continue
+            s = dist.std
+            if kind == "radius":
+                i = int(name.split(".")[1])
+                if self.radius_unit == "relative":
+                    s *= abs(float(lens.surfaces[i].c))
+                else:
+                    s *= self.fringe_wavelength_nm * 1e-6 / float(lens.surfaces[i].semi_diameter) ** 2
+            if s > 0:
+                names.append(name)
+                t.append(math.sqrt(3.0) * s)
+        return names, torch.tensor(t, dtype=torch.float64)
+
+    def draws(self, lens, n: int, seed: int = 0) -> list[LensDraw]:
+        """``n`` draws with seeds ``seed, seed + 1, ...``."""
+        return [self.draw(lens, seed + k) for k in range(int(n))]
+
+
+@contextlib.contextmanager
+def _swapped_materials(lens, draw: LensDraw):
+    old = {}
+    try:
+        for i, (dn, ev) in draw.materials.items():
+            old[i] = lens.materials[i]
+            lens.materials[i] = PerturbedMaterial(old[i], dn, ev).to(lens.device)
+        yield
+    finally:
+        for i, m in old.items():
+            lens.materials[i] = m
+
+
+def _image_distance(lens) -> torch.Tensor:
+    from ..optics.paraxial import paraxial
+
+    return paraxial(lens).image_distance
+
+
+@contextlib.contextmanager
+def drawn(lens, draw: LensDraw | None):
+    """Within the block, ``lens`` *is* the drawn lens: its toleranced parameters are replaced
+    by the drawn values (differentiable functions of the nominal ones), its glasses by
+    :class:`PerturbedMaterial`, and with ``draw.compensate`` its sensor refocused.  Everything
+    holding ``lens`` (renderer, camera) sees the drawn lens; on exit the nominal parameter
+    objects are back, unchanged.  ``draw=None``: the nominal lens."""
+    if draw is None:
+        yield lens
+        return
+    from torch.nn.utils.stateless import _reparametrize_module
+
+    # the compensator: the sensor follows the paraxial image of the object (differentiably), after
+    # the drawn sensor error; the image distance is measured with the drawn values and glasses
+    nominal = _image_distance(lens) if draw.compensate else None
+    with _swapped_materials(lens, draw):
+        values = draw.values(lens)
+        with _reparametrize_module(lens, dict(values), strict=False):
+            if draw.compensate:
+                shift = (_image_distance(lens) - nominal).to(lens.d_sensor)
+                values["d_sensor"] = values.get("d_sensor", lens.d_sensor) + shift
+        with _reparametrize_module(lens, dict(values), strict=False):
+            yield lens
+
+
+def call_drawn(lens, draw: LensDraw | None, fn):
+    """``fn(lens)`` evaluated on the drawn lens (:func:`drawn`)."""
+    with drawn(lens, draw) as L:
+        return fn(L)
+
+
+def _plain(node):
+    try:
+        from omegaconf import DictConfig, OmegaConf
+
+        if isinstance(node, DictConfig):
+            return OmegaConf.to_container(node, resolve=True)
+    except ImportError:  # pragma: no cover - omegaconf is a dependency
+        pass
+    return node
+
+
+def load_group(spec, where: str = "tolerance") -> ToleranceModel:
+    """A :class:`ToleranceModel` from a group name (``configs/tolerance/<name>.yaml``), a YAML
+    file path or a mapping; errors name ``where`` and the key."""
+    spec = _plain(spec)
+    if isinstance(spec, (str, Path)):
+        p = Path(spec)
+        if not p.suffix:
+            p = CONFIG_DIR / f"{spec}.yaml"
+        if not p.is_file():
+            groups = sorted(q.stem for q in CONFIG_DIR.glob("*.yaml"))
+            raise ValueError(f"{where}: no tolerance group {str(spec)!r} (a name of "
+                             f"{', '.join(groups)}, or a .yaml file)")
+        import yaml
+
+        try:
+            data = yaml.safe_load(p.read_text())
+        except yaml.YAMLError as e:
+            raise ValueError(f"{where}: {p} is not valid YAML ({e})") from None
+        return ToleranceModel(data, where=f"{where} ({p})")
+    if spec is None or isinstance(spec, dict):
+        return ToleranceModel(spec, where=where)
+    raise ValueError(f"{where}: expected a group name, a .yaml file or a mapping, got {spec!r}")

@@ -1,0 +1,435 @@
+"""Diffraction PSFs on the sensor's own pixels, from traced rays (for rendering; differentiable).
+
+For each job (object point, depth, wavelength) an ``N x N`` grid of rays from the object point
+fills the (1.1x enlarged) paraxial entrance pupil and is traced to the sensor.  The pupil
+function is ``P = A exp(2πi L / λ)``: ``A = 1`` for rays that reach the sensor inside the
+pupil disk (vignetting included), 0 otherwise; ``L`` the optical path from the object point
+(a finite depth: a spherical wave; infinity: the plane wave through the first ray) to the
+*reference sphere* centred on the ideal image ``C`` of the object point at that depth on the
+sensor plane (:class:`~deeplens.render.scene.IdealCamera`) through the paraxial exit pupil's
+centre.  Defocus of a depth that the sensor is not focused on, distortion and lateral colour
+are therefore in ``L``, and the kernel is centred on the ideal image like the geometric one
+(:mod:`.psf`).
+
+Propagation (Debye): ``U(x) = Σ_k P_k exp(2πi n' u_k·(x - C) / λ)`` with ``u_k`` the reference
+sphere's normal at ray ``k``; its transverse part is fitted as affine in the grid indices
+(least squares over the valid rays), so the sum is a *matrix Fourier transform*
+``U = E_y P E_x^T`` evaluated directly at ``S x S`` points inside each of the ``K x K``
+sensor pixels (pixel integration by the ``S``-point Gauss-Legendre rule per side,
+``S = ceil(5 NA pitch / λ)``), not on the FFT's native grid.  Energy: by Parseval the whole PSF (one
+period ``1 / Δν`` of the sampled pupil's transform) holds ``Σ A² / (Δν_x Δν_y)``; kernels are
+divided by it, so a kernel sums to the fraction of the light the lens transmits that falls in
+it (>= ``energy``, 99.5 % by default, when ``K`` is chosen automatically).
+
+Sampling (:func:`choose_sampling`): ``N`` so that the wavefront changes by less than
+``max_step_waves`` (1/4 wave) between neighbouring samples and the transform's period holds
+the kernel with a margin; ``K`` from the rays' spread plus the diffraction halo, grown until
+the kernel holds ``energy``.  Memory is estimated before tracing
+(:class:`PSFMemoryError` names the setting to change).
+
+Index convention as :mod:`.psf`: row = sensor row, pixel ``K // 2`` centred on the ideal image.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from ..optics.paraxial import exit_pupil
+from ..optics.rays import Rays
+from .scene import IdealCamera
+from .splat import entrance_pupil
+
+__all__ = ["DiffractionSampling", "PSFMemoryError", "diffraction_psf_many",
+           "choose_sampling", "PUPIL_MARGIN", "PupilSamplingError"]
+
+PUPIL_MARGIN = 1.1        # the traced grid spans 1.1x the paraxial entrance pupil
+MAX_PUPIL_SAMPLES = 1024
+FIT_DEGREE = 12          # the traced OPD's polynomial fit (see _smooth)
+TRACE_SAMPLES = 64       # rays per side traced when the fit holds (finer grids: the fit)
+FIT_MAX_RESIDUAL = 0.1   # waves RMS: a larger fit residual is the wavefront's own structure
+
+
+class PupilSamplingError(ValueError):
+    """The wavefront is too steep to sample (more than ``MAX_PUPIL_SAMPLES`` per side): the
+    lens is far from the diffraction limit at this pixel pitch (its PSF is geometric)."""
+
+
+class PSFMemoryError(MemoryError):
+    """The diffraction PSF would need more memory than allowed (message: how much, which
+    setting to change)."""
+
+
+@dataclass
+class DiffractionSampling:
+    """``pupil`` samples per side, kernel size ``kernel`` (odd), ``sub`` points per pixel side."""
+
+    pupil: int
+    kernel: int
+    sub: int
+
+
+def _grid(n: int, dtype, device):
+    v = torch.linspace(-PUPIL_MARGIN, PUPIL_MARGIN, n, dtype=dtype, device=device)
+    gy, gx = torch.meshgrid(v, v, indexing="ij")
+    return gx, gy
+
+
+def _ideal_xy(camera: IdealCamera, X: float, Y: float, depth_mm: float):
+    if math.isinf(depth_mm):
+        return camera.kappa * X, camera.kappa * Y
+    s = camera.object_scale(depth_mm)
+    return X / s, Y / s
+
+
+def _trace(lens, sensor, jobs, n: int, options=None):
+    """Trace an ``n x n`` pupil grid per job; returns the pupil data per job (see
+    :func:`_pupil_function`)."""
+    dtype, device = lens.dtype, lens.device
+    z_ep, r_ep, z0 = entrance_pupil(lens)
+    gx, gy = _grid(n, dtype, device)
+    inside = (gx ** 2 + gy ** 2) <= PUPIL_MARGIN ** 2
+    E = torch.stack([gx * r_ep, gy * r_ep, torch.full_like(gx, z_ep)], -1).reshape(-1, 3)
+    E = E.double()
+    zs = _start_plane(lens)
+    os_, ds, ls = [], [], []
+    for (X, Y), depth, wl in jobs:
+        n0 = float(lens.materials[0].n(torch.tensor([wl], dtype=torch.float64)).reshape(-1)[0])
+        if math.isinf(depth):
+            d = torch.tensor([X, Y, 1.0], dtype=torch.float64)
+            d = (d / d.norm()).expand_as(E)
+            o = E + ((zs - z_ep) / float(d[0, 2])) * d
+            # from the plane wavefront through the axis point of the start plane
+            L = n0 * (o * d).sum(-1)
+        else:
+            if not depth > 0:
+                raise ValueError(f"point source depth must be > 0 mm, got {depth}")
+            P = torch.tensor([X, Y, z0 - depth], dtype=torch.float64)
+            d = E - P
+            d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
+            t = (zs - float(P[2])) / d[:, 2]
+            o = P + t[:, None] * d
+            # the path from the object point to the start plane, less a constant (the axial
+            # distance), in float64: a float32 path of metres would be quantised to ~1 wave
+            L = n0 * (t - (zs - float(P[2])))
+        os_.append(o)
+        ds.append(d)
+        ls.append(L)
+    w = torch.tensor([wl for _, _, wl in jobs], dtype=dtype, device=device)[:, None]
+    cast = dict(dtype=dtype, device=device)
+    rays = Rays(torch.stack(os_).to(**cast), torch.stack(ds).to(**cast),
+                w.expand(len(jobs), n * n), opl=torch.stack(ls).to(**cast), normalize=False)
+    out = lens.trace_to_sensor(rays, options=options)
+    return out, inside.reshape(-1), (gx, gy)
+
+
+def _start_plane(lens) -> float:
+    from ..optics.sampling import start_plane_z
+    return start_plane_z(lens)
+
+
+def _pupil_function(lens, sensor, jobs, n, options=None, degree: int = FIT_DEGREE):
+    """Per job: ``(A (n, n), phase (n, n) radians, bx, by (direction-cosine slope per grid
+    unit, tensors), n_image, max neighbour step (waves), ray spread (pixels))``.
+
+    With the polynomial fit (``degree >= 0``) a grid finer than ``TRACE_SAMPLES`` per side is
+    not traced: the fit of a ``TRACE_SAMPLES`` grid is evaluated on it and the vignetting mask
+    interpolated (bilinear, threshold 1/2); a wavefront the fit does not hold is traced at
+    ``n`` after all."""
+    fit = degree is not None and degree >= 0
+    nt = min(n, TRACE_SAMPLES) if fit else n
+    if nt < n:
+        try:
+            return _pupil_function_traced(lens, sensor, jobs, nt, options, degree, n)
+        except _FitFailed:
+            pass
+    return _pupil_function_traced(lens, sensor, jobs, n, options, degree if fit else None, n,
+                                  strict=False)
+
+
+class _FitFailed(Exception):
+    pass
+
+
+def _pupil_function_traced(lens, sensor, jobs, n, options, degree, n_out, strict=True):
+    out, inside, (gx, gy) = _trace(lens, sensor, jobs, n, options)
+    camera = IdealCamera(lens, sensor)
+    z_xp, _ = exit_pupil(lens)
+    z_s = lens.z_sensor()
+    w = torch.tensor([wl for _, _, wl in jobs], dtype=lens.dtype, device=lens.device)
+    n_img = lens.materials[-1].n(w)
+    B = None if degree is None or degree < 0 else _basis(n, degree, lens.device)
+    B_out = _basis(n_out, degree, lens.device) if n_out != n else None
+    res = []
+    for b, ((X, Y), depth, wl) in enumerate(jobs):
+        cx, cy = _ideal_xy(camera, X, Y, depth)
+        C = torch.stack([torch.as_tensor(cx, dtype=lens.dtype, device=lens.device),
+                         torch.as_tensor(cy, dtype=lens.dtype, device=lens.device),
+                         z_s.to(lens.dtype)])
+        Exp = torch.stack([torch.zeros_like(z_s), torch.zeros_like(z_s), z_xp.to(z_s)])
+        R = torch.linalg.vector_norm(C - Exp)
+        o, d, opl = out.o[b], out.d[b], out.opl[b]
+        valid = out.valid[b] & inside
+        if not bool(valid.any()):
+            raise ValueError(f"no ray from the object point {(X, Y)} at depth {depth} mm "
+                             f"reaches the sensor at {wl:g} nm (fully vignetted)")
+        safe = lambda t: torch.where(valid.reshape(-1, *([1] * (t.dim() - 1))), t,  # noqa
+                                     torch.zeros_like(t))
+        o, d, opl = safe(o), safe(d), safe(opl)
+        v = o - C
+        bq = (v * d).sum(-1)
+        cq = (v * v).sum(-1) - R * R
+        s = bq + torch.sqrt((bq * bq - cq).clamp_min(0.0))
+        path = opl - n_img[b] * s
+        lam = wl * 1e-6
+        ref = (path * valid).sum() / valid.sum()
+        W = torch.where(valid, (path - ref) / lam, torch.zeros_like(path)).reshape(n, n)
+        if n_out != n:
+            vm = valid.reshape(n, n)
+            c = _fit(W, vm, B)
+            with torch.no_grad():
+                r = (((B @ c).reshape(n, n).to(W.dtype) - W) * vm).pow(2).sum() / vm.sum()
+            if float(r.sqrt()) > FIT_MAX_RESIDUAL:
+                raise _FitFailed
+            mf = torch.nn.functional.interpolate(vm.to(torch.float64)[None, None], (n_out, n_out),
+                                                 mode="bilinear", align_corners=True)[0, 0] >= 0.5
+            Wf = (B_out @ c).reshape(n_out, n_out).to(W.dtype)
+            Wf = torch.where(mf, Wf, torch.zeros_like(Wf))
+        else:
+            W = _smooth(W, valid.reshape(n, n), B) if strict or B is not None else W
+        S = o - s[:, None] * d
+        u = (C - S) / R
+        # affine fit of the sphere normal's transverse part in the grid coordinates
+        m = valid.to(lens.dtype)
+        bx = _slope(u[:, 0], gx.reshape(-1), m)
+        by = _slope(u[:, 1], gy.reshape(-1), m)
+        if n_out != n:
+            W, Am = Wf, mf.to(lens.dtype)
+            vm = mf
+        else:
+            Am, vm = m.reshape(n, n), valid.reshape(n, n)
+        st = _step(W.detach(), vm)
+        hx = (o[:, 0].detach() - float(cx))[valid].abs().max() / sensor.pixel_size_mm
+        hy = (o[:, 1].detach() - float(cy))[valid].abs().max() / sensor.pixel_size_mm
+        res.append((Am, 2 * math.pi * W, bx, by, n_img[b], st,
+                    float(torch.maximum(hx, hy)), lam))
+    return res
+
+
+def _basis(n: int, degree: int, device=None) -> torch.Tensor:
+    """Chebyshev products ``T_i(x / 1.1) T_j(y / 1.1)``, ``i + j <= degree``, on the
+    ``n x n`` grid: ``(n * n, terms)`` float64 (rows y, columns x)."""
+    v = torch.linspace(-1.0, 1.0, n, dtype=torch.float64, device=device)
+    T = [torch.ones_like(v), v]
+    for _ in range(degree - 1):
+        T.append(2 * v * T[-1] - T[-2])
+    return torch.stack([T[j][:, None] * T[i][None, :] for i in range(degree + 1)
+                        for j in range(degree + 1 - i)], -1).reshape(n * n, -1)
+
+
+def _fit(W, m, B):
+    """Least-squares coefficients (float64) of ``W`` (n, n) over the valid samples ``m`` in
+    the basis ``B``, from every ``n // 64``-th sample per side."""
+    n = W.shape[0]
+    step = max(1, n // 64)
+    sel = torch.zeros(n, n, dtype=torch.bool, device=W.device)
+    sel[::step, ::step] = True
+    sel = (sel & m).reshape(-1)
+    Bs = B[sel]
+    G = Bs.T @ Bs
+    return torch.linalg.solve(G + 1e-12 * torch.eye(G.shape[0], dtype=G.dtype, device=G.device)
+                              * G.diagonal().mean(), Bs.T @ W.reshape(-1)[sel].to(torch.float64))
+
+
+def _smooth(W, m, B):
+    """The least-squares fit of ``W`` (n, n) over the valid samples ``m`` by the basis ``B``
+    (:func:`_basis`; ``None``: no fit), solved in float64 from every ``n // 64``-th sample per
+    side (linear in ``W``, so gradients pass).  Removes the traced path's rounding noise
+    (float32: ~0.05 waves per sample, which scatters a few % of the light into a halo).  When
+    the fit leaves more than ``FIT_MAX_RESIDUAL`` waves RMS (a wavefront with structure beyond
+    the degree, e.g. a wide field's high orders) the traced values are kept as they are."""
+    if B is None:
+        return W
+    n = W.shape[0]
+    out = (B @ _fit(W, m, B)).reshape(n, n).to(W.dtype)
+    with torch.no_grad():  # real structure beyond the fit's degree: keep the traced values
+        res = ((out - W) * m).pow(2).sum() / m.sum().clamp_min(1)
+    if float(res.sqrt()) > FIT_MAX_RESIDUAL:
+        return W
+    return torch.where(m, out, torch.zeros_like(out))
+
+
+def _step(W, m, k: int = 4):
+    """Largest wavefront change (waves) between neighbouring samples, as the change over ``k``
+    samples divided by ``k`` (the traced path's rounding noise, ~0.05 waves in float32, would
+    otherwise dominate a fine grid's neighbour differences)."""
+    k = min(k, W.shape[0] - 1)
+    dy = ((W[k:] - W[:-k]).abs() * (m[k:] & m[:-k])).max()
+    dx = ((W[:, k:] - W[:, :-k]).abs() * (m[:, k:] & m[:, :-k])).max()
+    return float(torch.maximum(dx, dy)) / k
+
+
+def _slope(u, g, m):
+    gm = (g * m).sum() / m.sum()
+    um = (u * m).sum() / m.sum()
+    return ((g - gm) * (u - um) * m).sum() / (((g - gm) ** 2) * m).sum()
+
+
+def _kernel(A, phase, bx, by, n_img, lam, n, K, sub, pitch):
+    """``(K, K)`` pixel-integrated kernel (Parseval-normalised) of one pupil function."""
+    dtype = A.dtype
+    dg = 2 * PUPIL_MARGIN / (n - 1)
+    g = torch.linspace(-PUPIL_MARGIN, PUPIL_MARGIN, n, dtype=dtype, device=A.device)
+    # sub-pixel points (pixels from the ideal image point): kernel pixel m spans
+    # [m - K//2 - 1/2, m - K//2 + 1/2]
+    # Gauss-Legendre points and weights inside each pixel (exact for polynomials of degree
+    # 2 sub - 1 across the pixel; 1 point: the pixel centre)
+    x, w = _gauss_legendre(sub)
+    x = torch.as_tensor(x, dtype=dtype, device=A.device)
+    w = torch.as_tensor(w, dtype=dtype, device=A.device)
+    t = (torch.arange(K, dtype=dtype, device=A.device)[:, None] - K // 2 + x[None, :]).reshape(-1)
+    yi = t * pitch           # rows: +y
+    xj = -t * pitch          # columns: -x
+    ky = 2 * math.pi * n_img * by / lam
+    kx = 2 * math.pi * n_img * bx / lam
+    ay = ky * yi[:, None] * g[None, :]      # (K sub, n)
+    ax = kx * xj[:, None] * g[None, :]
+    Ey = torch.complex(torch.cos(ay), torch.sin(ay))
+    Ex = torch.complex(torch.cos(ax), torch.sin(ax))
+    P = torch.complex(A * torch.cos(phase), A * torch.sin(phase))
+    U = Ey @ P @ Ex.transpose(0, 1)         # (K sub, K sub)
+    I = U.real ** 2 + U.imag ** 2
+    I = (I.reshape(K, sub, K, sub) * w[None, :, None, None] * w[None, None, None, :]).sum((1, 3))
+    dnx = (n_img * bx * dg / lam).abs()
+    dny = (n_img * by * dg / lam).abs()
+    return I * (pitch * pitch) * dnx * dny / (A * A).sum()
+
+
+def _gauss_legendre(n: int):
+    """Nodes in ``[-1/2, 1/2]`` and weights summing to 1 of the ``n``-point Gauss-Legendre rule."""
+    import numpy as np
+
+    x, w = np.polynomial.legendre.leggauss(int(n))
+    return (0.5 * x).tolist(), (0.5 * w).tolist()
+
+
+def _halo_px(lam_mm, n_img, bx, pitch):
+    """A generous diffraction halo (pixels): 2 Airy radii of the pupil's numerical aperture."""
+    na = abs(float(n_img * bx)) * 1.0  # direction cosine at the unit pupil radius
+    airy = 0.61 * lam_mm / max(na, 1e-9)
+    return 2 * airy / pitch
+
+
+def choose_sampling(lens, sensor, jobs, options=None, max_step_waves: float = 0.25,
+                    energy: float = 0.995, max_kernel: int = 129, start: int = 64,
+                    memory_limit_gb: float = 2.0) -> DiffractionSampling:
+    """Pupil samples, kernel size and sub-pixel points for ``jobs`` (module docstring), from a
+    trace of ``start`` samples per side without autograd.  Raises :class:`PSFMemoryError`."""
+    with torch.no_grad():
+        n = start
+        for _ in range(6):
+            pf = _pupil_function(lens, sensor, jobs, n, options)
+            step = max(p[5] for p in pf)
+            need = int(math.ceil(n * step / max_step_waves)) if step > 0 else n
+            if need <= n:
+                break
+            n = need + (need % 2)
+            if n > MAX_PUPIL_SAMPLES:
+                raise PupilSamplingError(
+                    f"diffraction PSF: the wavefront changes by {step:.3g} waves between "
+                    f"neighbouring pupil samples and would need {n} per side (at most "
+                    f"{MAX_PUPIL_SAMPLES}): the lens is far from the diffraction limit at this "
+                    f"pixel pitch: use render.psf_model=geometric")
+            check_memory(len(jobs), n, max_kernel, 1, memory_limit_gb, lens.dtype)
+        pitch = sensor.pixel_size_mm
+        K = 3
+        for p in pf:
+            A, ph, bx, by, n_img, _, spread, lam = p
+            K = max(K, 2 * int(math.ceil(spread + _halo_px(lam, n_img, bx, pitch))) + 1)
+        K = min(K, max_kernel | 1)
+        # Gauss-Legendre points per pixel side: pitch * 5 NA / λ (measured against the closed-form
+        # pixel-integrated Airy pattern: <= 0.1 % of the peak at 1-4 λN pixels)
+        sub = 1
+        for p in pf:
+            A, ph, bx, by, n_img, _, spread, lam = p
+            na = max(abs(float(n_img * bx)), abs(float(n_img * by))) * PUPIL_MARGIN
+            sub = max(sub, int(math.ceil(pitch * 5 * na / lam)))
+        sub = min(sub, 64)
+        n = _period_samples(pf, n, K, pitch)
+        check_memory(len(jobs), n, K, sub, memory_limit_gb, lens.dtype)
+        # grow K until it holds `energy` of the light (the period growing with it)
+        for _ in range(12):
+            pf = _pupil_function(lens, sensor, jobs, n, options)
+            kers = [_kernel(p[0], p[1], p[2], p[3], p[4], p[7], n, K, sub, pitch) for p in pf]
+            least = min(float(k.sum()) for k in kers)
+            if least >= energy or K >= (max_kernel | 1):
+                break
+            K = min(K + 2 * max(2, K // 4), max_kernel | 1)
+            n = _period_samples(pf, n, K, pitch)
+            check_memory(len(jobs), n, K, sub, memory_limit_gb, lens.dtype)
+        return DiffractionSampling(n, K, sub)
+
+
+def _period_samples(pf, n, K, pitch):
+    """Pupil samples so that the transform's period ``λ / (n' b Δg)`` is >= 1.5 K pixels."""
+    for p in pf:
+        b = max(abs(float(p[2])), abs(float(p[3])))
+        period_px = p[7] / (float(p[4]) * b * 2 * PUPIL_MARGIN / (n - 1)) / pitch
+        if period_px < 1.5 * K:
+            n = int(math.ceil((n - 1) * 1.5 * K / period_px)) + 1
+            n += n % 2
+    if n > MAX_PUPIL_SAMPLES:
+        raise PupilSamplingError(
+            f"diffraction PSF: {n} pupil samples per side needed (at most "
+            f"{MAX_PUPIL_SAMPLES}) for a {K}-pixel kernel: the lens is far from the diffraction "
+            f"limit at this pixel pitch: use render.psf_model=geometric")
+    return n
+
+
+def check_memory(jobs: int, n: int, K: int, sub: int, limit_gb: float, dtype):
+    """Raise :class:`PSFMemoryError` when the PSFs' trace and transforms would exceed
+    ``limit_gb`` (estimate: ~60 tensors of the traced rays kept for the backward pass, and the
+    complex transform matrices)."""
+    b = torch.finfo(dtype).bits // 8
+    need = jobs * (n * n * 60 * b + 4 * K * sub * n * 2 * b + 4 * (K * sub) ** 2 * 2 * b)
+    if need > limit_gb * 2 ** 30:
+        raise PSFMemoryError(
+            f"diffraction PSF: {jobs} PSFs of {n}x{n} pupil samples and {K}x{K} pixels "
+            f"({sub}x{sub} points each) need about {need / 2 ** 30:.2f} GiB, more than "
+            f"render.psf_memory_gb = {limit_gb:g}: raise render.psf_memory_gb, use fewer depths "
+            f"or wavelengths, a smaller render.psf_max_kernel, or render.psf_model=geometric")
+
+
+def diffraction_psf_many(lens, sensor, jobs, sampling: DiffractionSampling | None = None,
+                         kernel_size=None, options=None, return_info: bool = False, **choose):
+    """Diffraction PSFs ``(K, K)`` of ``jobs = [(point_xy_mm, depth_mm, wavelength_nm)]``, all
+    traced together (one ``(J, N²)`` batch); differentiable in every lens parameter.
+
+    Args:
+        sampling: fixed :class:`DiffractionSampling` (``None``: :func:`choose_sampling`).
+        kernel_size: force ``K`` (odd) for every job (overrides ``sampling.kernel``).
+        return_info: also return ``{"max_step_waves", "energy"}`` measured on this trace (the
+            caller checks the sampling still holds).
+        choose: keyword arguments of :func:`choose_sampling`.
+
+    Returns:
+        A list of kernels (and the info dict with ``return_info``).
+    """
+    jobs = [(tuple(float(v) for v in p), float(d), float(w)) for p, d, w in jobs]
+    if not jobs:
+        return ([], {}) if return_info else []
+    if sampling is None:
+        sampling = choose_sampling(lens, sensor, jobs, options, **choose)
+    K = int(kernel_size or sampling.kernel)
+    if K % 2 == 0:
+        raise ValueError(f"kernel_size must be odd, got {K}")
+    n = sampling.pupil
+    pf = _pupil_function(lens, sensor, jobs, n, options)
+    kers = [_kernel(p[0], p[1], p[2], p[3], p[4], p[7], n, K, sampling.sub,
+                    sensor.pixel_size_mm) for p in pf]
+    if return_info:
+        return kers, {"max_step_waves": max(p[5] for p in pf),
+                      "energy": min(float(k.detach().sum()) for k in kers)}
+    return kers

@@ -1,0 +1,100 @@
+"""Variants x seeds of an evaluation fanned out through a Hydra launcher, then gathered.
+
+``python eval.py experiment=edof eval.seeds=[0,1,2] eval.launcher=joblib eval.n_jobs=2``:
+
+1. **fan-out** (:func:`fan_out`): this process starts one Hydra multirun,
+   ``python eval.py -m <the same overrides> hydra/launcher=<launcher> eval.job=range(0,N)``, whose
+   ``N`` jobs (one per variant x seed, :func:`jobs`) each train and test one variant for one
+   seed into ``<output folder>/<variant>/seed<s>`` (``eval.folder``), as the sequential
+   evaluation would.  ``joblib`` runs them on this machine, ``eval.n_jobs`` at a time (each
+   with the caller's ``OMP_NUM_THREADS``); ``submitit_local`` / ``submitit_slurm`` (the
+   ``hydra-submitit-launcher`` plugin, ``pip install deeplens-do[cluster]``) on a cluster, with
+   ``hydra.launcher.*`` overrides for the partition, time and so on.
+2. **gather**: the same process then runs the evaluation with ``eval.gather=true``: every
+   variant x seed is loaded from its finished run (``eval.reuse_runs``), nothing trains (a
+   missing run is an error naming it), and the tables and figures are written.
+
+``eval.launcher=null`` (the default) runs the variants and seeds one after the other in this
+process.  ``eval.gather=true`` on its own rebuilds the table of a finished folder
+(``hydra.run.dir=<folder>``).
+"""
+
+from __future__ import annotations
+
+import copy
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from omegaconf import DictConfig, open_dict
+
+__all__ = ["jobs", "fan_out", "job_cfg", "LAUNCHERS", "cpu_seconds"]
+
+LAUNCHERS = ("joblib", "submitit_local", "submitit_slurm")
+
+
+def jobs(cfg: DictConfig) -> list[tuple[str, str, float | None, int]]:
+    """``(variant name, kind, alpha_mm, seed)`` of every job, variants outer, seeds inner."""
+    from .evaluate import seeds, variants
+
+    return [(n, k, a, s) for n, k, a in variants(cfg) for s in seeds(cfg)]
+
+
+def job_cfg(cfg: DictConfig) -> tuple[DictConfig, tuple]:
+    """For ``eval.job = k``: the config of job ``k`` (output in ``eval.folder``) and its
+    ``(name, kind, alpha, seed)``."""
+    todo = jobs(cfg)
+    k = cfg.eval.job
+    if not (isinstance(k, int) and 0 <= k < len(todo)):
+        raise ValueError(f"eval.job: expected an integer in [0, {len(todo) - 1}] (one per "
+                         f"variant x seed), got {k!r}")
+    if cfg.eval.get("folder") is None:
+        raise ValueError("eval.job needs eval.folder, the evaluation's output folder")
+    c = copy.deepcopy(cfg)
+    with open_dict(c):
+        c.paths.output_dir = str(cfg.eval.folder)
+    return c, todo[k]
+
+
+def cpu_seconds() -> float:
+    """CPU seconds (user + system) of this process and its finished children."""
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
+def fan_out(cfg: DictConfig, script: str, overrides: list[str]) -> float:
+    """Run every variant x seed as a job of a Hydra multirun of ``script`` with the launcher
+    ``eval.launcher`` (module docstring); returns the wall seconds.  ``overrides`` are this
+    call's command-line overrides (``HydraConfig.get().overrides.task``).
+
+    Raises:
+        ValueError: an unknown launcher or ``eval.n_jobs``; RuntimeError: a job failed (the
+            multirun's exit status and its output folder are named).
+    """
+    launcher = cfg.eval.launcher
+    if launcher not in LAUNCHERS:
+        raise ValueError(f"eval.launcher: expected null or one of {', '.join(LAUNCHERS)}, got "
+                         f"{launcher!r}")
+    n_jobs = cfg.eval.get("n_jobs", 1)
+    if not (isinstance(n_jobs, int) and (n_jobs >= 1 or n_jobs == -1)):
+        raise ValueError(f"eval.n_jobs: expected an integer >= 1 (or -1: every core), got "
+                         f"{n_jobs!r}")
+    out = Path(cfg.paths.output_dir).resolve()
+    n = len(jobs(cfg))
+    drop = ("eval.launcher=", "eval.job=", "eval.folder=", "eval.gather=", "eval.n_jobs=")
+    keep = [o for o in overrides if not o.lstrip("+~").startswith(drop)]
+    cmd = [sys.executable, script, "-m", *keep, f"hydra/launcher={launcher}",
+           f"eval.job=range(0,{n})", f"eval.folder={out}", "eval.figures=false",
+           f"hydra.sweep.dir={out}", "hydra.sweep.subdir=jobs/${hydra.job.num}"]
+    if launcher == "joblib":
+        cmd.append(f"hydra.launcher.n_jobs={n_jobs}")
+    print(f"deeplens eval: fanning {n} variant x seed jobs out through the {launcher} "
+          f"launcher: {' '.join(cmd)}", flush=True)
+    t0 = time.perf_counter()
+    rc = subprocess.call(cmd)
+    if rc != 0:
+        raise RuntimeError(f"eval.launcher={launcher}: the multirun exited with status {rc}; "
+                           f"the jobs' logs are in {out}/jobs/")
+    return time.perf_counter() - t0

@@ -1,0 +1,51 @@
+"""Training and evaluation under manufacturing tolerances (the ``tolerance/`` config group).
+
+Training (``model.tolerance_training: true``): step ``s`` renders through the lens drawn by
+seed ``tolerance_seed(run seed, s)`` around the *current* nominal lens
+(:func:`deeplens.design.tolerance_model.drawn`), so every batch sees another manufactured lens
+and the optics' gradient is taken through the drawn lens to the nominal parameters.
+
+Evaluation under tolerances: :mod:`.tolerance_eval`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+
+from ..design.tolerance_model import ToleranceModel, drawn, load_group
+
+__all__ = ["load_group", "tolerance_seed", "TrainingDraws"]
+
+
+def tolerance_seed(run_seed: int, step: int) -> int:
+    """The seed of the lens drawn at training ``step`` (a new lens every step)."""
+    return (int(run_seed) * 2_000_003 + 7 * int(step) + 104_729) % (2 ** 62)
+
+
+class TrainingDraws:
+    """Per-step drawn lenses for :class:`~deeplens.training.module.EndToEndModule`."""
+
+    def __init__(self, model: ToleranceModel, run_seed: int):
+        if not model:
+            raise ValueError("model.tolerance_training: true needs a tolerance group with a "
+                             "non-zero tolerance (e.g. tolerance=precision); the group has none")
+        self.model, self.run_seed = model, int(run_seed)
+        self._active = None  # the step whose drawn lens is in place
+
+    @contextlib.contextmanager
+    def at(self, lens, step: int):
+        """The context in which ``lens`` is the lens drawn for ``step``; re-entrant (an inner
+        ``at`` inside an outer one for the same step is a no-op, not a second draw)."""
+        if self._active is not None:
+            if self._active != step:
+                raise RuntimeError(f"tolerance draw for step {step} inside the one of step "
+                                   f"{self._active}")
+            yield lens
+            return
+        self._active = step
+        try:
+            with drawn(lens, self.model.draw(lens, tolerance_seed(self.run_seed, step))) as L:
+                yield L
+        finally:
+            self._active = None

@@ -1,0 +1,196 @@
+"""Evaluation under tolerances: ``eval.tolerance=<group> eval.tolerance_samples=N``.
+
+Each variant (and seed) is tested on the lenses drawn by seeds ``eval.tolerance_seed + k``,
+``k < N`` (the same lenses for every variant and run, :meth:`ToleranceModel.draw`); per depth /
+field band the restored PSNR and SSIM distribution over the drawn lenses is summarised by its
+mean, 5th percentile and yield, the fraction of drawn lenses whose PSNR is ``>=
+eval.tolerance_yield_db`` (:func:`summarize_samples`), written into ``eval_table.md/json``, a
+histogram figure (``tolerance_hist.png``) and TensorBoard (``tolerance/<variant>/...``).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+
+from ..design.tolerance_model import ToleranceModel, drawn
+from ..design.tolerance_model import load_group
+
+__all__ = ["EvalTolerance", "evaluate_drawn", "summarize_samples", "format_tolerance_table",
+           "histogram_figure"]
+
+
+def evaluate_drawn(module, trainer, datamodule, model: ToleranceModel, n: int, seed: int = 0):
+    """Test ``module`` (its current weights) on ``n`` drawn lenses (seeds ``seed + k``);
+    returns a list of ``n`` test-metric dicts (the keys of ``trainer.test``)."""
+    if int(n) < 1:
+        raise ValueError(f"eval.tolerance_samples must be >= 1, got {n}")
+    out = []
+    for d in model.draws(module.lens, int(n), int(seed)):
+        with drawn(module.lens, d):
+            trainer.test(module, datamodule=datamodule, verbose=False)
+        out.append({k: float(v) for k, v in trainer.callback_metrics.items()
+                    if k.startswith("test/")})
+    return out
+
+
+def _percentile(x: list[float], q: float) -> float:
+    return float(torch.quantile(torch.tensor(x, dtype=torch.float64), q / 100.0))
+
+
+def summarize_samples(samples: list[dict], columns, threshold_db: float) -> dict:
+    """Per column (``(label, metric suffix)`` of :func:`~.evaluate._columns`) and for
+    ``"mean"`` (over depths): restored PSNR / SSIM ``mean``, ``p5`` (5th percentile), and
+    ``yield`` = fraction of drawn lenses with PSNR ``>= threshold_db``; also the raw values."""
+    out = {"n": len(samples), "threshold_db": float(threshold_db), "columns": {}}
+    depth_sfx = [s for _, s in columns if not s.startswith("band")]
+    rows = [(lab, sfx) for lab, sfx in columns] + [("mean", None)]
+    for lab, sfx in rows:
+        if sfx is None:
+            ps = [sum(m[f"test/psnr_restored/{s}"] for s in depth_sfx) / len(depth_sfx)
+                  for m in samples]
+            ss = [sum(m[f"test/ssim_restored/{s}"] for s in depth_sfx) / len(depth_sfx)
+                  for m in samples]
+        else:
+            ps = [m[f"test/psnr_restored/{sfx}"] for m in samples]
+            ss = [m[f"test/ssim_restored/{sfx}"] for m in samples]
+        out["columns"][lab] = {
+            "psnr_mean": sum(ps) / len(ps), "psnr_p5": _percentile(ps, 5),
+            "ssim_mean": sum(ss) / len(ss), "ssim_p5": _percentile(ss, 5),
+            "yield": sum(p >= threshold_db for p in ps) / len(ps),
+            "psnr": ps, "ssim": ss}
+    return out
+
+
+def format_tolerance_table(per_variant: dict, columns) -> str:
+    """Markdown: a row per variant, a column per depth / band and the mean over depths; cells
+    ``mean / p5 / yield`` of the restored PSNR (dB) over the drawn lenses."""
+    labs = [lab for lab, _ in columns] + ["mean"]
+    head = "| variant | " + " | ".join(
+        lab if (lab == "mean" or lab.startswith("band")) else f"{float(lab) / 1000:g} m"
+        for lab in labs) + " |"
+    rows = [head, "|---|" + "---|" * len(labs)]
+    for v, runs in per_variant.items():
+        for k, s in enumerate(runs):
+            name = v if len(runs) == 1 else f"{v} (seed {k})"
+            cells = [f"{c['psnr_mean']:.2f} / {c['psnr_p5']:.2f} / {100 * c['yield']:.0f}%"
+                     for c in (s["columns"][lab] for lab in labs)]
+            rows.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(rows)
+
+
+def histogram_figure(per_variant: dict, threshold_db: float):
+    """Histograms of the depth-mean restored PSNR over the drawn lenses, one colour per variant,
+    with the threshold and each variant's 5th percentile marked; a matplotlib Figure."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.6), dpi=100)
+    allv = [p for runs in per_variant.values() for s in runs for p in s["columns"]["mean"]["psnr"]]
+    lo, hi = min(allv + [threshold_db]), max(allv + [threshold_db])
+    bins = torch.linspace(lo - 0.05, hi + 0.05, 31).tolist()
+    for i, (v, runs) in enumerate(per_variant.items()):
+        vals = [p for s in runs for p in s["columns"]["mean"]["psnr"]]
+        col = f"C{i}"
+        ax.hist(vals, bins=bins, alpha=0.5, color=col, label=f"{v} (n={len(vals)})")
+        ax.axvline(_percentile(vals, 5), color=col, ls="--", lw=1.2)
+    ax.axvline(threshold_db, color="k", lw=1.5, label=f"yield threshold {threshold_db:g} dB")
+    ax.set_xlabel("restored PSNR, mean over depths (dB)")
+    ax.set_ylabel("drawn lenses")
+    ax.set_title("under tolerances (dashed: 5th percentile)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def check_eval_settings(tol, n, threshold) -> None:
+    """Start-up checks of ``eval.tolerance*`` (errors name the key)."""
+    if tol is None:
+        return
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"eval.tolerance_samples: expected an integer >= 1, got {n!r}")
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) \
+            or not math.isfinite(threshold):
+        raise ValueError(f"eval.tolerance_yield_db: expected a number of dB, got {threshold!r}")
+
+
+class EvalTolerance:
+    """The ``eval.tolerance*`` settings and the samples gathered per variant (a no-op when
+    ``eval.tolerance`` is null)."""
+
+    def __init__(self, model: ToleranceModel | None, n: int = 0, seed: int = 0,
+                 threshold_db: float = 25.0, group: str = ""):
+        self.model, self.n, self.seed, self.threshold_db = model, n, seed, threshold_db
+        self.group = group
+        self.samples: dict[str, list[list[dict]]] = {}
+        self.summary: dict[str, list[dict]] = {}
+
+    @classmethod
+    def from_cfg(cls, cfg) -> "EvalTolerance":
+        ev = cfg.eval
+        spec = ev.get("tolerance", None)
+        if spec is None:
+            return cls(None)
+        n = ev.get("tolerance_samples", 16)
+        thr = ev.get("tolerance_yield_db", 25.0)
+        seed = ev.get("tolerance_seed", 0)
+        check_eval_settings(spec, n, thr)
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError(f"eval.tolerance_seed: expected an integer >= 0, got {seed!r}")
+        if spec == "group":  # the composed tolerance group (tolerance=<name>)
+            model = load_group(cfg.tolerance, where="tolerance")
+            group = str(cfg.tolerance.get("name", "group"))
+        else:
+            model = load_group(spec, where="eval.tolerance")
+            group = str(spec)
+        return cls(model, int(n), int(seed), float(thr), group)
+
+    def run(self, variant: str, objs: dict) -> None:
+        """Test the variant's module (its tested weights) on the drawn lenses."""
+        if self.model is None:
+            return
+        s = evaluate_drawn(objs["module"], objs["trainer"], objs["datamodule"], self.model,
+                       self.n, self.seed)
+        self.samples.setdefault(variant, []).append(s)
+
+    def markdown(self, columns) -> str:
+        if self.model is None:
+            return ""
+        self.summary = {v: [summarize_samples(s, columns, self.threshold_db) for s in runs]
+                        for v, runs in self.samples.items()}
+        return (f"\n## Under tolerances: group {self.group}, {self.n} drawn lenses (seeds "
+                f"{self.seed}..{self.seed + self.n - 1})\n\nrestored PSNR (dB) over the drawn "
+                f"lenses: mean / 5th percentile / yield (PSNR >= {self.threshold_db:g} dB)\n\n"
+                f"{format_tolerance_table(self.summary, columns)}\n")
+
+    def json(self) -> dict:
+        if self.model is None:
+            return {}
+        return {"tolerance": {"group": self.group, "samples": self.n, "seed": self.seed,
+                              "yield_threshold_db": self.threshold_db,
+                              "variants": self.summary}}
+
+    def figures(self, folder: Path, enabled: bool) -> list[str]:
+        """``tolerance_hist.png`` and TensorBoard scalars/figure under ``folder/tensorboard``."""
+        if self.model is None or not enabled or not self.summary:
+            return []
+        from torch.utils.tensorboard import SummaryWriter
+
+        from ..design.plots import save
+
+        fig = histogram_figure(self.summary, self.threshold_db)
+        writer = SummaryWriter(str(Path(folder) / "tensorboard"))
+        try:
+            writer.add_figure("eval/tolerance_hist", fig, close=False)
+            for v, runs in self.summary.items():
+                for k, s in enumerate(runs):
+                    for lab, c in s["columns"].items():
+                        for key in ("psnr_mean", "psnr_p5", "yield", "ssim_mean", "ssim_p5"):
+                            writer.add_scalar(f"tolerance/{v}/{lab}/{key}", c[key], k)
+        finally:
+            writer.close()
+        return [save(fig, Path(folder) / "tolerance_hist.png")]

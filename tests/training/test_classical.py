@@ -1,0 +1,60 @@
+"""The ``classical`` evaluation variant: the optics designed by the design engine, then frozen
+while the restorer trains."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from deeplens.optics.io import load_lens
+from deeplens.training.evaluate import evaluate
+
+
+def test_edof_classical_plate_is_designed_frozen_and_reused(cfg_factory, tmp_path):
+    over = ("experiment=edof", "scene.val_depths_mm=[4500.0,8000.0]",
+            "eval.variants=[classical]", "eval.classical.steps=2",
+            "eval.classical.sampling=grid:12", "eval.classical.n_freq=2",
+            "callbacks.image_logger=null", "eval.figures=false")
+    cfg = cfg_factory(*over, config_name="eval.yaml")
+    _, results = evaluate(cfg)
+    assert list(results) == ["classical"]
+    rec = json.loads((tmp_path / "classical" / "classical_design.json").read_text())
+    assert rec["merit_after"] < rec["merit_before"]
+    designed = load_lens(tmp_path / "classical" / "classical_lens.json")
+    tested = load_lens(tmp_path / "classical" / "seed0" / "checkpoints" / "best.lens.json")
+    a_d = [float(v) for v in designed.surfaces[4].a]
+    a_t = [float(v) for v in tested.surfaces[4].a]
+    assert a_t == pytest.approx(a_d, abs=1e-12)  # frozen: the restorer's lens is the design
+    # the design moved away from its 5 um cubic start (x^3 coefficient alpha / R^3)
+    R = float(designed.surfaces[4].semi_diameter)
+    assert rec["variables_after"] != rec["variables_before"]
+    assert abs(a_d[6] * R ** 3 - 0.005) > 1e-9
+    # a second call reuses the design (same settings) and the finished run
+    mtime = (tmp_path / "classical" / "classical_lens.json").stat().st_mtime_ns
+    evaluate(cfg_factory(*over, config_name="eval.yaml"))
+    assert (tmp_path / "classical" / "classical_lens.json").stat().st_mtime_ns == mtime
+    # other settings design again
+    evaluate(cfg_factory(*over[:-2], "eval.classical.start_alpha_mm=0.0025",
+                         "callbacks.image_logger=null", "eval.figures=false",
+                         config_name="eval.yaml"))
+    rec2 = json.loads((tmp_path / "classical" / "classical_design.json").read_text())
+    assert rec2["key"]["settings"]["start_alpha_mm"] == 0.0025
+
+
+def test_doublet_classical_design_reduces_the_spot(cfg_factory, tmp_path):
+    cfg = cfg_factory("experiment=doublet", "eval.variants=[classical]",
+                      "eval.classical.steps=2", "callbacks.image_logger=null",
+                      "eval.figures=false", config_name="eval.yaml")
+    _, results = evaluate(cfg)
+    assert set(results["classical"]["restored_bands"]) == {"0-0.33", "0.33-0.66", "0.66-1"}
+    rec = json.loads((tmp_path / "classical" / "classical_design.json").read_text())
+    assert rec["merit_after"] < rec["merit_before"]
+    assert "RMS spot over fields [0.0, 10.0, 20.0]" in rec["merit"]
+
+
+def test_classical_settings_are_checked(cfg_factory):
+    cfg = cfg_factory("experiment=edof", "eval.variants=[classical]",
+                      "+eval.classical.stpes=3", config_name="eval.yaml")
+    with pytest.raises(ValueError, match="eval.classical: unknown key.*stpes"):
+        evaluate(cfg)
