@@ -473,3 +473,31 @@ SURF 4""")
                           atol=1e-15)
     normal = lens.trace(parallel_rays([0.0], z0=0.0))
     assert float(normal.opl[0]) == pytest.approx(2 * n * 5.0, rel=1e-14)
+
+
+def test_zemax_image_plane_side_follows_the_direction_of_travel(tmp_path):
+    """After one mirror light travels towards -z: a positive thickness to the image puts the
+    image plane *before* the mirror's vertex (refused with the line and the mirror count); a
+    flat mirror with the image on its vertex gets the sensor 1e-9 mm behind it, along -z."""
+    p = tmp_path / "wrong_side.zmx"
+    p.write_text(_ZMX_PARABOLA.replace("DISZ -1000", "DISZ 1000"))
+    with pytest.raises(ZemaxFileError, match=r"wrong_side\.zmx:\d+: the image plane lies 1000 mm "
+                                             r"before .*towards -z.*after 1 mirror"):
+        read_zmx(p)
+    p = tmp_path / "on_vertex.zmx"   # a window after the mirror, the image on its flat back
+    p.write_text(_ZMX_PARABOLA.replace("DISZ -1000", "DISZ -990").replace("SURF 3\n", """SURF 3
+  TYPE STANDARD
+  CURV 0.0 0 0 0 0 ""
+  GLAS N-BK7 0 0 1.5168 64.17 0 0 0 0 0 0
+  DISZ -2
+  DIAM 30 1 0 0 1 ""
+SURF 4
+  TYPE STANDARD
+  CURV 0.0 0 0 0 0 ""
+  DISZ 0
+  DIAM 30 1 0 0 1 ""
+SURF 5
+"""))
+    with pytest.warns(UserWarning, match="on the last"):
+        lens = read_zmx(p)
+    assert float(lens.d_sensor) == -1e-9

@@ -718,20 +718,25 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
     d_sensor = gap
+    # the direction of travel after the last surface: -z after an odd number of mirrors
+    # (Zemax's sign convention, Lens.directions), so "behind" the last vertex is sign * d > 0
+    sign = -1.0 if len(mirrors) % 2 else 1.0
     if d_sensor == 0 and isinstance(surfaces[-1], Plane):
         # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
         # surface, so it sits _IMAGE_ON_VERTEX_MM behind it (image points move by that times
         # the ray slope: < 1e-8 mm)
-        d_sensor = _IMAGE_ON_VERTEX_MM
+        d_sensor = sign * _IMAGE_ON_VERTEX_MM
         p.note(img.line, f"the image plane lies on the last (flat) surface's vertex: the sensor "
                          f"is placed {_IMAGE_ON_VERTEX_MM:g} mm behind it")
     elif d_sensor == 0:
         p.fail(img.line, "the image plane lies on the vertex of the last surface, which is "
                          "curved: deeplens' flat sensor would cut through it (give the last "
                          "surface a thickness)")
-    elif d_sensor < 0:
-        p.fail(img.line, f"the image plane lies {-d_sensor:g} mm before the last surface's "
-                         f"vertex: deeplens' sensor must follow the last surface")
+    elif sign * d_sensor < 0:
+        travel = (f" (light travels towards {'-' if sign < 0 else '+'}z there, after "
+                  f"{len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''})" if mirrors else "")
+        p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
+                         f"vertex{travel}: deeplens' sensor must follow the last surface")
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
 
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest
