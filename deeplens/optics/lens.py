@@ -310,6 +310,8 @@ class Lens(nn.Module):
                         f"own surface", surfaces=(i,))
         sign = self.directions()
         for i, d in enumerate(self.distances):
+            if isinstance(self.surfaces[i], CoordinateBreak):
+                continue  # not a physical surface: Zemax returns to a tilt's pivot this way
             if i > 0 and float(d) < 0 and sign[i] > 0:
                 raise LensError(f"distance before surface {i} is negative ({float(d):g} mm): "
                                 f"sequential surfaces must be ordered along +z"

@@ -99,15 +99,25 @@ def pupil_pattern(text: str, dtype=torch.float64, device=None) -> torch.Tensor:
 
 
 def start_plane_z(lens) -> float:
-    """An axial position safely before the first surface (its sag and tilt included), mm."""
-    s0 = lens.surfaces[0]
+    """An axial position safely before the first surface (its sag and tilt included), mm.
+
+    Behind leading coordinate breaks (an off-axis mirror tilted by a ``COORDBRK``) the first
+    surface may be tilted: its rim can then reach a whole semi-diameter towards the object."""
+    from .surfaces import CoordinateBreak
+
+    k = 0
+    while k < len(lens.surfaces) - 1 and isinstance(lens.surfaces[k], CoordinateBreak):
+        k += 1
+    s0 = lens.surfaces[k]
     with torch.no_grad():
         r = torch.linspace(0, float(s0.semi_diameter), 33, dtype=torch.float64)
         zero = torch.zeros_like(r)
         ok = s0.in_domain(zero, r)
         sag = torch.where(ok, s0.sag(zero, r), torch.zeros_like(r))
-        z0 = float(lens.z_vertices()[0])
-    return z0 + min(0.0, float(sag.min())) - 1.0 - 0.1 * float(s0.semi_diameter)
+        z0 = float(lens.z_vertices()[:k + 1].min())
+    margin = 0.1 if k == 0 else 1.0
+    return z0 - abs(float(sag.min()) if k else min(0.0, float(sag.min()))) - 1.0 \
+        - margin * float(s0.semi_diameter)
 
 
 def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Tensor,

@@ -74,10 +74,13 @@ import torch
 
 from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, check_wavelength_nm, get_material
-from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, XYPolynomial
+from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, IdealLens, Plane,
+                        XYPolynomial)
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
 from .lensfile import LensFileError
+from .zmx_coordbrk import (coordbrk_lines, coordinate_break, is_identity, misalignment_brackets,
+                           y_fields_only)
 from .zmx_system import (aperture_to_epd, element_tilts, fields_to_angles, lens_pupil_convention,
                          rotationally_symmetric, zemax_tilts)
 from .vendor_glass import (CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
@@ -574,6 +577,13 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     groups = []          # [start, end] index ranges in kept for bracketed elements
     gap = 0.0            # axial distance from the last kept vertex to the current one (mm)
     bracket = None
+    brackets = misalignment_brackets(surfs)   # COORDBRK pairs read as misalignments
+    paired = set(brackets) | set(brackets.values())
+    # a fold or an off-axis section: the beam leaves the local axes, and the file's automatic
+    # semi-diameters (DIAM flag 0) are OpticStudio's footprints of its own (ray-aimed, all
+    # fields) beam, which never vignette there: deeplens recomputes them from its rays
+    folded = any(s.type == "COORDBRK" and not is_identity(s) and k not in paired
+                 for k, s in enumerate(surfs))
     stop_idx = None
     autos = []           # kept indices whose semi-diameter is automatic
     mirrors = []         # indices in kept of GLAS MIRROR surfaces
@@ -581,43 +591,29 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         s = surfs[k]
         prev = media[-1]
         if s.type == "COORDBRK":
+            if s.glass is not None or s.stop:
+                p.fail(s.line, "a COORDBRK surface cannot carry a glass or the stop")
+            if is_identity(s):           # a dummy: its thickness only
+                gap += s.disz * s_mm
+                continue
             dx = s.parm.get(1, (0.0, 0))[0] * s_mm
             dy = s.parm.get(2, (0.0, 0))[0] * s_mm
             tx, ty, tz = (s.parm.get(i, (0.0, 0))[0] for i in (3, 4, 5))
-            order = s.parm.get(6, (0.0, 0))[0]
-            if s.glass is not None or s.stop:
-                p.fail(s.line, "a COORDBRK surface cannot carry a glass or the stop")
-            if bracket is None:
-                if order != 0:
-                    p.fail(s.parm[6][1], "an opening COORDBRK must have order flag 0 (decenter, "
-                                         "then tilt)")
-                if s.disz != 0:
-                    p.fail(s.disz_line, "an opening COORDBRK must have thickness 0 (the "
-                                        "element rotates about its first vertex)")
-                bracket = {"line": s.line, "d": (dx, dy, tx, ty, tz), "start": len(kept),
-                           "zloc": 0.0}
-            else:
-                want = tuple(-v for v in bracket["d"])
-                got = (dx, dy, tx, ty, tz)
-                if (not all(math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
-                            for a, b in zip(want, got))
-                        or (order != 1 and (tx != 0 or ty != 0 or tz != 0))):
-                    p.fail(s.line, f"this COORDBRK does not undo the one on line "
-                                   f"{bracket['line']} (expected decenter/tilt {want} with order "
-                                   f"flag 1, got {got}, order {order:g}); deeplens reads "
-                                   f"coordinate breaks only as the misalignment of one element")
-                if (tx != 0 or ty != 0) and abs(bracket["zloc"]) > 1e-9:
-                    p.fail(s.line, f"the surfaces between the COORDBRK on line {bracket['line']} "
-                                   f"and this one must return to the element's first vertex "
-                                   f"(total thickness 0, got {bracket['zloc']:g} mm): the tilt "
-                                   f"is about the first vertex")
-                if len(kept) == bracket["start"]:
-                    p.fail(s.line, "the coordinate-break bracket holds no surface")
-                groups.append((bracket["start"], len(kept) - 1,
-                               element_tilts(bracket["d"], kept[bracket["start"]:], s.line, p),
-                               bracket["line"]))
+            if k in brackets:            # opens an element's misalignment
+                bracket = {"line": s.line, "d": (dx, dy, tx, ty, tz), "start": len(kept)}
+            elif bracket is not None:    # closes it (misalignment_brackets checked the pair)
+                if len(kept) > bracket["start"]:   # (around dummies only, the pair cancels)
+                    groups.append((bracket["start"], len(kept) - 1,
+                                   element_tilts(bracket["d"], kept[bracket["start"]:],
+                                                 s.line, p), bracket["line"]))
                 gap = gap + s.disz * s_mm   # gap: back at the pivot, + the thickness after
                 bracket = None
+            else:                        # a fold, an off-axis section: the frame turns
+                kept.append((coordinate_break(s, s_mm), prev, s, gap))
+                media.append(prev)
+                gap = s.disz * s_mm
+                if math.isinf(s.disz):
+                    p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
             continue
         mat = prev if s.mirror else _surface_material(s, gcat, cats, glass_fallback, p)
         c = s.curv / s_mm
@@ -648,12 +644,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             if (flat and same_medium and not s.stop and not fixed and s.clap is None
                     and s.sqap is None and s.obsc is None and not s.mirror):
                 gap += s.disz * s_mm
-                if bracket is not None:
-                    bracket["zloc"] += s.disz * s_mm
                 continue   # a dummy surface: its thickness only
         if sd < 0:
             p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be >= 0, got {s.diam!r}")
         auto = not sd > 0     # no DIAM (or 0): an automatic semi-diameter, set once built
+        if folded and not fixed and s.clap is None:
+            auto = True
         sd_build = sd if sd > 0 else _PROVISIONAL_SD_MM
         try:
             if s.type == "XYPOLYNOM":
@@ -699,13 +695,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         kept.append((surf, mat, s, gap))
         media.append(mat)
         gap = s.disz * s_mm
-        if bracket is not None:
-            bracket["zloc"] += s.disz * s_mm
         if math.isinf(s.disz):
             p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
-    if bracket is not None:
-        p.fail(bracket["line"], "this COORDBRK is never undone (no reversing COORDBRK before the "
-                                "image surface)")
     if not kept:
         p.fail(img.line, "no lens surface between the object and the image surface")
     if stop_idx is None:
@@ -721,6 +712,11 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     # the direction of travel after the last surface: -z after an odd number of mirrors
     # (Zemax's sign convention, Lens.directions), so "behind" the last vertex is sign * d > 0
     sign = -1.0 if len(mirrors) % 2 else 1.0
+    # a thickness of the wrong sign inside the lens is reported by Lens (naming that surface)
+    signs = [1.0]
+    for i in range(len(kept)):
+        signs.append(-signs[-1] if i in mirrors else signs[-1])
+    inside_ok = all(kept[i][3] * signs[i] >= 0 for i in range(1, len(kept)))
     if d_sensor == 0 and isinstance(surfaces[-1], Plane):
         # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
         # surface, so it sits _IMAGE_ON_VERTEX_MM behind it (image points move by that times
@@ -732,7 +728,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         p.fail(img.line, "the image plane lies on the vertex of the last surface, which is "
                          "curved: deeplens' flat sensor would cut through it (give the last "
                          "surface a thickness)")
-    elif sign * d_sensor < 0:
+    elif sign * d_sensor < 0 and inside_ok:
         travel = (f" (light travels towards {'-' if sign < 0 else '+'}z there, after "
                   f"{len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''})" if mirrors else "")
         p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
@@ -785,6 +781,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                     elements=[(a, b) for a, b, _, _ in elements],
                     name=sysd["name"] or path.stem, mirrors=mirrors)
     except (ValueError, TypeError) as e:
+        if str(e).startswith("the system is afocal"):
+            p.fail(ap_line, f"{e}: an entrance-pupil diameter or F-number needs the paraxial "
+                            f"data of a lens with power (flat mirrors and folds only have none)")
         raise ZemaxFileError(_locate(f"{path}: {e}", where_of)) from e
     for e, (a, b, d, _) in enumerate(elements):
         if d is not None:
@@ -795,6 +794,14 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
+    if _afocal(lens) and (convert is not None or ftyp[0] in (1, 2, 3) or
+                          [i for i in autos if not (i == stop_idx and ap_type != "stop")]):
+        # an afocal lens (flat folds only) has no paraxial data; read with a floating stop,
+        # field angles and fixed semi-diameters it needs none
+        p.fail(ap_line, "the system is afocal (no paraxial power: flat mirrors and folds only, "
+                        "or a focus at infinity), and this aperture, the field type or "
+                        "automatic semi-diameters need its paraxial data (deeplens' paraxial "
+                        "analysis images at a finite focal length)")
     if convert is not None:
         ap_value = aperture_to_epd(lens, *convert, p)
         try:
@@ -807,6 +814,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
 
     # ---- fields
     lens.ray_aiming = sysd["raim"][0] != 0
+    if folded:
+        sysd, n_fields = y_fields_only(sysd, n_fields, p)
     fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
     autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
     if autos:
@@ -890,6 +899,16 @@ def _auto_semi_diameters(lens, idx, fields, where_of, path):
     except ValueError as e:
         raise ZemaxFileError(_locate(f"{path}: with automatic semi-diameters (no DIAM): {e}",
                                      where_of)) from e
+
+
+def _afocal(lens) -> bool:
+    from ..paraxial import paraxial
+
+    try:
+        paraxial(lens)
+    except ValueError as e:
+        return str(e).startswith("the system is afocal")
+    return False
 
 
 def _locate(msg: str, where_of: dict) -> str:
@@ -1098,6 +1117,12 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
                      [f"PARM {k + 1} {_f(v)}" for k, v in enumerate(d)] +
                      ["PARM 5 0", "PARM 6 0"])
             after = float(lens.distances[i + 1]) if i + 1 < n else float(lens.d_sensor)
+            if isinstance(s, CoordinateBreak):   # a fold or an off-axis section
+                if tilted:
+                    raise ZemaxFileError(f"surface {i}: a coordinate break inside a misaligned "
+                                         f"element has no .zmx equivalent")
+                surf(coordbrk_lines(s, _f) + [f"DISZ {_f(after)}"])
+                continue
             inner = sum(float(lens.distances[j]) for j in range(a + 1, b + 1))
             gap = -inner if tilted and i == b else after   # back to the first vertex
             lines = _surface_lines(s, i, lens.stop_index == i)
@@ -1134,7 +1159,7 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
 
 
 def _surface_lines(s, i, is_stop) -> list[str]:
-    from ..surfaces import BSpline, CoordinateBreak
+    from ..surfaces import BSpline
 
     lines = ["STOP"] if is_stop else []
     sd = s.semi_diameter
@@ -1189,8 +1214,4 @@ def _surface_lines(s, i, is_stop) -> list[str]:
         return lines
     if isinstance(s, BSpline):
         raise ZemaxFileError(f"surface {i}: a B-spline surface has no .zmx equivalent")
-    if isinstance(s, CoordinateBreak):
-        raise ZemaxFileError(f"surface {i}: a coordinate break (a fold or an off-axis section) "
-                             f"is not written to .zmx yet (the reader takes COORDBRK only as an "
-                             f"element's misalignment); save the lens as JSON")
     raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent")

@@ -453,14 +453,29 @@ def test_understood_but_unused_lines_warn_with_line(tmp_path):
 
 
 def test_coordinate_break_that_is_not_a_bracket(tmp_path):
+    """A decenter that is never undone shifts every following surface: read as a
+    CoordinateBreak, the lens images a ray fan exactly as the centred lens images the fan
+    shifted by -dx, with the image (in the shifted frame) shifted by -dx too."""
     cb = ("SURF 2\n  TYPE COORDBRK\n  CURV 0.0\n  DISZ 0\n  PARM 1 0.1\n  PARM 2 0\n  PARM 3 0\n"
           "  PARM 4 0\n  PARM 5 0\n  PARM 6 0\n")
     text = singlet().replace("SURF 4", "SURF 5").replace("SURF 3", "SURF 4")
     text = text.replace("SURF 2\n", cb + "SURF 3\n", 1)
-    with pytest.raises(ZemaxFileError, match=f":{line_of(text, 'COORDBRK') - 1}: this COORDBRK "
-                                             f"is never undone"):
-        read_zmx(write(tmp_path, text))
+    from deeplens.optics.surfaces import CoordinateBreak
 
+    lens = read_zmx(write(tmp_path, text)).double()
+    plain = read_zmx(write(tmp_path, singlet(), "plain.zmx")).double()
+    assert [type(s).__name__ for s in lens.surfaces][:2] == ["Aperture", "CoordinateBreak"]
+    assert float(lens.surfaces[1].dx) == 0.1
+    y = torch.linspace(-2.0, 2.0, 9, dtype=torch.float64)
+    o = torch.stack([torch.zeros_like(y), y, torch.full_like(y, -1.0)], -1)
+    d = torch.tensor([0.05, 0.1, 1.0], dtype=torch.float64)
+    d = (d / d.norm()).expand(9, 3)
+    w = torch.full((9,), 587.5618, dtype=torch.float64)
+    a = lens.trace_to_sensor(Rays(o, d, w))
+    shift = torch.tensor([0.1, 0.0, 0.0], dtype=torch.float64)
+    b = plain.trace_to_sensor(Rays(o - shift, d, w))
+    assert bool(a.valid.all()) and isinstance(lens.surfaces[1], CoordinateBreak)
+    torch.testing.assert_close(a.o, b.o, rtol=0, atol=1e-12)
 
 
 def test_utf16_and_utf8_read_the_same(tmp_path):
@@ -615,7 +630,11 @@ def test_coordinate_break_about_z_only_turns_the_element_about_its_axis(tmp_path
     torch.testing.assert_close(pa[va], pb[vb], rtol=0, atol=1e-14)
 
 
-def test_two_tilts_around_a_freeform_are_refused(tmp_path):
+def test_two_tilts_around_a_freeform_are_coordinate_breaks(tmp_path):
+    """A freeform between breaks tilting about x and y: no misalignment of deeplens expresses
+    OpticStudio's R_x R_y about a surface that is not rotationally symmetric, so the two breaks
+    are read as CoordinateBreak surfaces (exact); the returning break (order flag 1) puts the
+    frame back where it was."""
     text = singlet(s1_type="XYPOLYNOM", s1_extra=("XDAT 1 2", "XDAT 2 4.0", "XDAT 3 0.01"),
                    curv1=0.0, k=0.0)
     lines = text.splitlines()
@@ -635,9 +654,21 @@ def test_two_tilts_around_a_freeform_are_refused(tmp_path):
     out = lines[:i] + cb + body + s3 + [t.replace("SURF 4", "SURF 5") for t in back] + \
         rest[rest.index("SURF 6"):]
     text2 = "\n".join(out) + "\n"
-    with pytest.raises(ZemaxFileError, match=r"tilts about two axes \(or about z\) around a "
-                                             r"surface that is not rotationally symmetric"):
-        read_zmx(write(tmp_path, text2))
+    # a 5 mm thick element, back to the pivot (-5), the image 45 mm after it
+    text2 = (text2.replace("  DISZ -0.0\n", "  DISZ 5.0\n")
+             .replace("  DISZ 0\n  DIAM 8", "  DISZ -5.0\n  DIAM 8")
+             .replace("  DISZ 5\n  PARM 3 -0.5", "  DISZ 45\n  PARM 3 -0.5"))
+    from deeplens.optics.frames import local_frames
+    from deeplens.optics.surfaces import CoordinateBreak
+
+    lens = read_zmx(write(tmp_path, text2)).double()
+    kinds = [type(s).__name__ for s in lens.surfaces]
+    assert kinds == ["Aperture", "CoordinateBreak", "XYPolynomial", "Asphere", "CoordinateBreak"]
+    assert [s.order for s in lens.surfaces if isinstance(s, CoordinateBreak)] == [0, 1]
+    A, b = local_frames(lens)[-1]
+    torch.testing.assert_close(A, torch.eye(3, dtype=torch.float64), rtol=0, atol=1e-15)
+    torch.testing.assert_close(b, torch.zeros(3, dtype=torch.float64), rtol=0, atol=1e-13)
+    assert bool(trace_points(lens, 0.0)[1].all())
 
 
 def test_xypolynom_terms_and_normalisation(tmp_path):
