@@ -2,8 +2,9 @@
 
     OMP_NUM_THREADS=1 python benchmarks/zmx_corpus.py [FOLDER]
 
-Prints, per file, ``loaded`` with the paraxial EFL and EPD (mm), or the one located line of the
-refusal, then the counts.  Point it at another folder of ``.zmx`` files to measure that one.
+Prints, per file, ``loaded`` with the paraxial EFL and EPD (mm), the number of mirrors and of
+coordinate breaks (folds, off-axis sections), or the one located line of the refusal, then the
+counts.  Point it at another folder of ``.zmx`` files to measure that one.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from pathlib import Path
 
 from deeplens.optics.io.zmx import ZemaxFileError, read_zmx
 from deeplens.optics.paraxial import paraxial
+from deeplens.optics.surfaces import CoordinateBreak
 
 
 def main(folder: str | None = None) -> int:
@@ -26,8 +28,10 @@ def main(folder: str | None = None) -> int:
             try:
                 lens = read_zmx(f)
                 p = paraxial(lens)
+                folds = sum(isinstance(s, CoordinateBreak) for s in lens.surfaces)
                 print(f"{f.name:58s} loaded   EFL {float(p.efl):10.4f}  EPD "
-                      f"{float(p.entrance_pupil_diameter):8.4f}")
+                      f"{float(p.entrance_pupil_diameter):8.4f}  mirrors {len(lens.mirrors)}  "
+                      f"breaks {folds}")
                 loaded += 1
             except ZemaxFileError as e:
                 print(f"{f.name:58s} refused  {str(e).replace(str(f), '')[:110]}")

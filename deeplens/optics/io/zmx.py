@@ -673,12 +673,17 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 surf = Plane(sd_build)
             else:
                 surf = Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
+        except ZemaxFileError:
+            raise   # already located (a helper's p.fail): not located twice
         except ValueError as e:
             p.fail(s.type_line or s.line, f"SURF {k}: {e}")
         if s.obsc is not None and not isinstance(surf, Aperture):
-            p.fail(s.obsc[1], f"SURF {k}: a central obscuration on a {type(surf).__name__} "
-                              f"surface is not supported (deeplens has obscurations on flat "
-                              f"surfaces in air)")
+            what = ("mirror" if s.mirror else "surface between two media"
+                    if isinstance(surf, Plane) else "curved surface")
+            p.fail(s.obsc[1], f"SURF {k}: OBSC, a central obscuration on a {what} "
+                              f"({type(surf).__name__}), is not supported (deeplens has "
+                              f"obscurations on flat surfaces in air: put the obscuration on its "
+                              f"own flat dummy surface where that is equivalent)")
         if s.sqap is not None and not (isinstance(surf, Cylinder) or (
                 isinstance(surf, Aperture) and surf.shape == "rect")):
             p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture on a "

@@ -853,7 +853,7 @@ def test_central_obscuration_on_the_stop(tmp_path, line):
 def test_obscuration_on_a_lens_surface_is_refused(tmp_path):
     text = singlet().replace('  DIAM 8 1 0 0 1 ""\nSURF 4', '  DIAM 8 1 0 0 1 ""\n  OBSC 0 1 0\nSURF 4')
     ln = line_of(text, "OBSC")
-    with pytest.raises(ZemaxFileError, match=f":{ln}: SURF 3: a central obscuration on a Asphere"):
+    with pytest.raises(ZemaxFileError, match=f":{ln}: SURF 3: OBSC, a central obscuration on a curved surface"):
         read_zmx(write(tmp_path, text))
 
 

@@ -39,7 +39,7 @@ REFUSED = {
     "optiland_curved_transmission_grating.zmx": "DGRATING",
     "optiland_flat_transmission_grating.zmx": "DGRATING",
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
-    "US05331467-1.zmx": "central obscuration on a Asphere",   # a Cassegrain's secondary
+    "US05331467-1.zmx": "OBSC, a central obscuration on a curved",   # a secondary's shadow
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "optiland_lens2.zmx": "L-BAL35",
@@ -70,6 +70,7 @@ def test_refusal_is_located(name):
     assert str(CORPUS / name) in msg
     assert re.search(rf"{re.escape(name)}:\d+: ", msg) or re.search(r"on line \d+", msg), msg
     assert REFUSED[name] in msg, msg
+    assert msg.count(f"{name}:") <= 1, msg   # located once
 
 
 def _unit_mm(name):
