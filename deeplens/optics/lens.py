@@ -367,10 +367,10 @@ class Lens(nn.Module):
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)
         else:
-            if not float(p.efl) > 0:
-                raise LensError(f"an F-number aperture needs a positive focal length; the "
-                                 f"paraxial EFL is {float(p.efl):.6g} mm (give the aperture as "
-                                f"'epd' or 'stop' instead)", key="aperture")
+            if not (float(p.efl) > 0 and math.isfinite(float(p.efl))):
+                raise LensError(f"an F-number aperture needs a positive focal length (an afocal "
+                                f"system has none); the paraxial EFL is {float(p.efl):.6g} mm "
+                                f"(give the aperture as 'epd' or 'stop' instead)", key="aperture")
             epd = float(p.efl) / float(self.spec.aperture_value)
         sd = 0.5 * epd * abs(float(p.stop_height_per_ep_height))
         if not (sd > 0 and math.isfinite(sd)):

@@ -78,8 +78,12 @@ def _trace(lens, y, u, n):
 def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     """Paraxial data of ``lens`` at ``wavelength_nm`` (default: the spec's primary wavelength).
 
+    An afocal system (no paraxial power, e.g. flat fold mirrors only) has ``efl``, ``bfl``, ``fno``
+    and, for an object at infinity, ``image_distance`` / ``image_z`` equal to ``+inf`` (its
+    pupils are finite).
+
     Raises:
-        ValueError: if the system is afocal (no EFL) or the stop is not imaged (``y_A = 0``).
+        ValueError: if the stop is not imaged (``y_A = 0``).
     """
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     p0 = lens.distances[0]
@@ -88,10 +92,11 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     one, zero = torch.ones_like(p0), torch.zeros_like(p0)
     yA, uA, hA = _trace(lens, one, zero, n)
     _, _, hB = _trace(lens, zero, one, n)
-    if abs(float(uA.detach())) < 1e-15:
-        raise ValueError("the system is afocal: the paraxial EFL is infinite")
-    efl = -n[-1].sign() / uA
-    bfl = -yA / uA
+    if abs(float(uA.detach())) < 1e-15:   # afocal (flat folds only): no focus
+        efl = bfl = torch.full_like(uA, math.inf)
+    else:
+        efl = -n[-1].sign() / uA
+        bfl = -yA / uA
     k = lens.stop_index
     ya_s, yb_s = hA[k], hB[k]
     if abs(float(ya_s.detach())) < 1e-15:

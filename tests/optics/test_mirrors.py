@@ -516,3 +516,36 @@ SURF 5
     with pytest.warns(UserWarning, match="on the last"):
         lens = read_zmx(p)
     assert float(lens.d_sensor) == -1e-9
+
+
+def test_afocal_periscope(tmp_path):
+    """Two parallel 45-degree flat mirrors (a periscope, as optiland's fold files): no paraxial
+    power, so EFL, BFL and F/# are infinite while the entrance pupil is the stop; the light
+    leaves parallel to where it came from, displaced by the mirrors' separation (closed form).
+    Read from Zemax it loads; with fields given as paraxial image heights (which need a finite
+    focal length) it is refused at the FTYP line."""
+    air, t = Air(), math.radians(45.0)
+    lens = Lens([Aperture(5.0), CoordinateBreak(tilt_x=t), Plane(8.0), CoordinateBreak(tilt_x=t),
+                 CoordinateBreak(tilt_x=-t), Plane(8.0), CoordinateBreak(tilt_x=-t)],
+                [air] * 8, [0.0, 10.0, 0.0, 0.0, -30.0, 0.0, 0.0], 20.0, 0, mirrors=[2, 5],
+                spec=None)
+    p = paraxial(lens)
+    assert math.isinf(float(p.efl)) and math.isinf(float(p.bfl)) and math.isinf(float(p.fno))
+    assert float(p.entrance_pupil_diameter) == pytest.approx(10.0, rel=1e-15)
+    rays = parallel_rays(torch.linspace(-4.0, 4.0, 5))
+    out = lens.trace_to_sensor(rays)
+    A, b = local_frames(lens)[-1]
+    g = to_global(local_frames(lens)[-1], out.o)
+    d = out.d @ A.T
+    assert bool(out.valid.all())
+    assert torch.allclose(d, rays.d, atol=1e-15)                  # parallel to the input
+    # up by 30 mm at the fold, then 20 mm on past the second mirror (at z = 10)
+    want = torch.stack([rays.o[:, 0], rays.o[:, 1] + 30.0, torch.full_like(rays.o[:, 0], 30.0)], -1)
+    assert torch.allclose(g, want, atol=1e-12)
+    write_zmx(lens, tmp_path / "periscope.zmx")
+    back = read_zmx(tmp_path / "periscope.zmx")
+    assert math.isinf(float(paraxial(back).efl))
+    text = (tmp_path / "periscope.zmx").read_text().replace("FTYP 0 0", "FTYP 2 0")
+    (tmp_path / "ftyp2.zmx").write_text(text)
+    with pytest.raises(ZemaxFileError, match=r"ftyp2\.zmx:\d+: the system is afocal"):
+        read_zmx(tmp_path / "ftyp2.zmx")

@@ -786,9 +786,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                     elements=[(a, b) for a, b, _, _ in elements],
                     name=sysd["name"] or path.stem, mirrors=mirrors)
     except (ValueError, TypeError) as e:
-        if str(e).startswith("the system is afocal"):
-            p.fail(ap_line, f"{e}: an entrance-pupil diameter or F-number needs the paraxial "
-                            f"data of a lens with power (flat mirrors and folds only have none)")
+        if "F-number aperture needs a positive" in str(e):
+            p.fail(ap_line, str(e))
         raise ZemaxFileError(_locate(f"{path}: {e}", where_of)) from e
     for e, (a, b, d, _) in enumerate(elements):
         if d is not None:
@@ -799,14 +798,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
-    if _afocal(lens) and (convert is not None or ftyp[0] in (1, 2, 3) or
-                          [i for i in autos if not (i == stop_idx and ap_type != "stop")]):
-        # an afocal lens (flat folds only) has no paraxial data; read with a floating stop,
-        # field angles and fixed semi-diameters it needs none
-        p.fail(ap_line, "the system is afocal (no paraxial power: flat mirrors and folds only, "
-                        "or a focus at infinity), and this aperture, the field type or "
-                        "automatic semi-diameters need its paraxial data (deeplens' paraxial "
-                        "analysis images at a finite focal length)")
+    if _afocal(lens) and (convert is not None or ftyp[0] in (1, 2, 3)):
+        # an afocal lens (flat folds only) has an infinite focal length: fields given as image
+        # heights, a working F-number or an object-space NA have no meaning there
+        p.fail(ftyp_line if convert is None else convert[2],
+               "the system is afocal (no paraxial power: flat mirrors and folds only), and "
+               "this aperture or field type needs a finite focal length")
     if convert is not None:
         ap_value = aperture_to_epd(lens, *convert, p)
         try:
@@ -909,11 +906,7 @@ def _auto_semi_diameters(lens, idx, fields, where_of, path):
 def _afocal(lens) -> bool:
     from ..paraxial import paraxial
 
-    try:
-        paraxial(lens)
-    except ValueError as e:
-        return str(e).startswith("the system is afocal")
-    return False
+    return math.isinf(float(paraxial(lens).efl))
 
 
 def _locate(msg: str, where_of: dict) -> str:

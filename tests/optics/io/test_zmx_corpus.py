@@ -33,8 +33,6 @@ REFUSED = {
     "HoO-V2C18Ex46.zmx": "TOROIDAL",    # a toroidal mirror (finite radius of rotation)
     "US08011793-1.zmx": "OBDC",
     "zmax_37992.zmx": "OBDC",
-    "optiland_one_mirror_up_45deg.zmx": "afocal",      # flat folds only: no focal length
-    "optiland_simple_fold_mirror_up.zmx": "afocal",
     "optiland_curved_reflective_grating.zmx": "DGRATING",
     "optiland_curved_transmission_grating.zmx": "DGRATING",
     "optiland_flat_transmission_grating.zmx": "DGRATING",
@@ -183,6 +181,9 @@ def test_loads_with_the_oracles_numbers(name, tmp_path):
         assert float(paraxial(straight).efl) == float(paraxial(lens).efl)
         first, _ = _oracle(ref, lens)
     for what, (dl, ol) in _first_order(lens, first, s_mm, ref).items():
+        if math.isinf(ol):   # afocal (flat folds only): an infinite focal length either way
+            assert math.isinf(dl), what
+            continue
         assert dl == pytest.approx(ol, rel=1e-6, abs=1e-9 * max(1.0, abs(dl))), what
     # OpticStudio without ray aiming: rays at the paraxial entrance pupil (optiland's default)
     dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial")
