@@ -121,6 +121,14 @@ def _from_soa(v: torch.Tensor) -> torch.Tensor:
 _DIR = {1: "+", -1: "-"}
 
 
+def _obscured(s) -> bool:
+    """A surface with a central obscuration (its ``in_aperture`` blocks the centre): traced by
+    the generic path, whose clipping asks the surface (the closed-form and fused kernels clip
+    by the semi-diameter only)."""
+    ob = getattr(s, "obscuration", None)
+    return ob is not None and not isinstance(s, Aperture) and float(ob) > 0
+
+
 def _after_mirrors(mirrors, i: int) -> str:
     """`` (after k mirrors)`` for a message about the space before surface ``i`` ('' if none)."""
     k = sum(1 for j in mirrors if j < i)
@@ -414,7 +422,7 @@ class Lens(nn.Module):
         mirror = i in self.mirrors
         if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
                 and opt.mode == "implicit" and not getattr(s, "deflects", False)
-                and not isinstance(s, Aperture)):
+                and not isinstance(s, Aperture) and not _obscured(s)):
             x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
                                              (pivot + vertex)[2], _compact(n1), _compact(n2),
                                              opt)
@@ -468,6 +476,8 @@ class Lens(nn.Module):
         if type(s) is Plane:
             return "plane"
         if isinstance(s, Asphere):
+            if _obscured(s):
+                return None   # the fused kernels clip by the semi-diameter only: eager
             return "quadric" if s.is_quadric else "newton"
         if type(s) is XYPolynomial:
             return "newton"

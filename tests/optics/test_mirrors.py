@@ -549,3 +549,71 @@ def test_afocal_periscope(tmp_path):
     (tmp_path / "ftyp2.zmx").write_text(text)
     with pytest.raises(ZemaxFileError, match=r"ftyp2\.zmx:\d+: the system is afocal"):
         read_zmx(tmp_path / "ftyp2.zmx")
+
+
+def test_central_obscuration_on_a_mirror(tmp_path):
+    """A Cassegrain whose primary carries the secondary's shadow (Zemax's OBSC on the mirror
+    surface): exactly the rays that meet the primary within the obscuration radius are blocked
+    (closed form: the primary is the first surface, a ray parallel to the axis meets it at its
+    own height) and the others land where they do without it, the same with the closed-form, Newton and compiled options; the obscuration
+    survives the JSON and .zmx round trips (OBSC line)."""
+    from deeplens.optics.intersect import IntersectOptions
+
+    lens = cassegrain()
+    with torch.no_grad():
+        lens.surfaces[0].obscuration.fill_(30.0)
+    x, y = grid(95.0, 19)
+    r = torch.sqrt(x * x + y * y)
+    assert bool(((r - 30.0).abs() > 1e-6).all()) and bool((r < 30).any())
+    rays = parallel_rays(y, x)
+    want = r >= 30.0
+    clear = cassegrain().trace_to_sensor(rays)
+    assert bool(clear.valid.all())
+    for opt in (None, IntersectOptions(closed_form=False), IntersectOptions(compile=True)):
+        out = lens.trace_to_sensor(rays, options=opt)
+        assert torch.equal(out.valid, want), opt
+        assert torch.allclose(out.o[want], clear.o[want], atol=1e-12)   # the rest unchanged
+    d = lens_to_dict(lens)
+    assert d["surfaces"][0]["obscuration_mm"] == 30.0
+    assert lens_to_dict(lens_from_dict(d)) == d
+    write_zmx(lens, tmp_path / "obsc.zmx")
+    assert "OBSC 0 30.0 0" in (tmp_path / "obsc.zmx").read_text()
+    back = read_zmx(tmp_path / "obsc.zmx")
+    assert float(back.surfaces[0].obscuration) == 30.0
+    assert torch.equal(back.trace_to_sensor(rays).valid, want)
+    with pytest.raises(LensError, match="obscuration .* must be smaller than the semi-diameter"):
+        lens.surfaces[0].obscuration.fill_(150.0)
+        lens.check()
+
+
+def _obscured_singlet():
+    air, glass = Air(), get_material("N-BK7")
+    lens = Lens([Aperture(12.0), Asphere(1 / 60.0, 12.0, obscuration=4.0), Asphere(-1 / 80.0, 12.0)],
+                [air, air, glass, air], [0.0, 5.0, 4.0], 50.0, 0)
+    x, y = grid(11.0, 15)
+    r = torch.sqrt(x * x + y * y)
+    assert bool(((r - 4.0).abs() > 1e-6).all())
+    return lens, parallel_rays(y, x), r >= 4.0   # rays meet the front surface at their height
+
+
+@pytest.mark.slow
+def test_central_obscuration_on_a_lens_surface_compiled():
+    """The fused compiled kernels clip by the semi-diameter only: an obscured surface runs
+    eagerly under ``compile=True`` (torch.compile: slow on a loaded CPU)."""
+    from deeplens.optics.intersect import IntersectOptions
+
+    lens, rays, want = _obscured_singlet()
+    assert torch.equal(lens.trace_to_sensor(rays, options=IntersectOptions(compile=True)).valid,
+                       want)
+
+
+def test_central_obscuration_on_a_lens_surface_in_every_tracer_path():
+    """An obscured refracting sphere (as US05331467's front lens carries the secondary's
+    shadow): the closed-form kernel clips by the semi-diameter only, so an obscured surface
+    must take the generic path; every option blocks the same rays."""
+    from deeplens.optics.intersect import IntersectOptions
+
+    lens, rays, want = _obscured_singlet()
+    assert not bool(want.all())
+    for opt in (None, IntersectOptions(closed_form=False)):
+        assert torch.equal(lens.trace_to_sensor(rays, options=opt).valid, want), opt

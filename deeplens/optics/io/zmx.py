@@ -677,9 +677,16 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             raise   # already located (a helper's p.fail): not located twice
         except ValueError as e:
             p.fail(s.type_line or s.line, f"SURF {k}: {e}")
-        if s.obsc is not None and not isinstance(surf, Aperture):
-            what = ("mirror" if s.mirror else "surface between two media"
-                    if isinstance(surf, Plane) else "curved surface")
+        if s.obsc is not None and isinstance(surf, Asphere):
+            # a central obscuration on a lens or mirror surface (a secondary's shadow on a
+            # Cassegrain's primary): an aperture property of the surface
+            ro = s.obsc[0] * s_mm
+            if not 0 < ro < float(surf.semi_diameter) and not auto:
+                p.fail(s.obsc[1], f"SURF {k}: the obscuration radius {s.obsc[0]:g} must be > 0 "
+                                  f"and below the semi-diameter {s.diam:g}")
+            surf.obscuration.fill_(ro)
+        elif s.obsc is not None and not isinstance(surf, Aperture):
+            what = "flat mirror" if s.mirror else "flat surface between two media"
             p.fail(s.obsc[1], f"SURF {k}: OBSC, a central obscuration on a {what} "
                               f"({type(surf).__name__}), is not supported (deeplens has "
                               f"obscurations on flat surfaces in air: put the obscuration on its "
@@ -1194,6 +1201,8 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             lines.append("PARM 1 0")
             lines += [f"PARM {k + 2} {_f(v)}" for k, v in enumerate(a)]
         lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        if float(s.obscuration) > 0:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
         return lines
     if isinstance(s, XYPolynomial):
         if float(s.b) != 0:

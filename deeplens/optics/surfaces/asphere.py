@@ -39,13 +39,22 @@ class Asphere(SagSurface):
         semi_diameter: clear semi-aperture in mm.
         conic: conic constant ``k`` (0 sphere, -1 paraboloid).
         coefficients: ``[a4, a6, ..., a20]`` (at most 9 values), mm^(1-2i).
+        obscuration: radius of a central obscuration, mm (``0``: none; below the
+            semi-diameter): rays that meet the surface at ``x^2 + y^2 < obscuration^2`` are
+            blocked (the shadow of a Cassegrain's secondary on its primary, Zemax's ``OBSC``).
+            A fixed buffer, not a parameter.
 
     Each value is its own parameter: ``surface.c``, ``surface.k``, ``surface.a[0]`` (= a4), ...
     """
 
     def __init__(self, curvature: float, semi_diameter: float, conic: float = 0.0,
-                 coefficients=()):
+                 coefficients=(), obscuration: float = 0.0):
         super().__init__(semi_diameter)
+        obscuration = float(obscuration)
+        if not (obscuration >= 0.0 and obscuration < float("inf")):
+            raise ValueError(f"Asphere: the obscuration radius must be a number >= 0 mm, got "
+                             f"{obscuration!r}")
+        self.register_buffer("obscuration", torch.tensor(obscuration, dtype=torch.float64))
         coefficients = list(coefficients)
         if len(coefficients) > (MAX_ASPHERE_ORDER - 2) // 2:
             raise ValueError(f"Asphere: at most {(MAX_ASPHERE_ORDER - 2) // 2} even coefficients "
@@ -128,8 +137,18 @@ class Asphere(SagSurface):
         g = torch.stack([c * X, c * Y, ck * Z - 1.0], -1)
         return g * torch.rsqrt((g * g).sum(-1, keepdim=True).clamp_min(1e-30))
 
+    def in_aperture(self, x, y):
+        inside = super().in_aperture(x, y)
+        if float(self.obscuration) > 0:
+            ro = self.obscuration.to(x)
+            inside = inside & (x * x + y * y >= ro * ro)
+        return inside
+
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
+        if not float(self.obscuration) < sd and float(self.obscuration) > 0:
+            raise ValueError(f"{where}the central obscuration ({float(self.obscuration):g} mm) "
+                             f"must be smaller than the semi-diameter ({sd:g} mm)")
         arg = 1.0 - (1.0 + float(self.k)) * float(self.c) ** 2 * sd * sd
         if arg <= 0:
             limit = (1.0 / ((1.0 + float(self.k)) * float(self.c) ** 2)) ** 0.5
@@ -138,7 +157,7 @@ class Asphere(SagSurface):
                 f"(R = {1 / float(self.c):g} mm, k = {float(self.k):g}): the sag is only "
                 f"defined for r < {limit:g} mm")
 
-    file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric")
+    file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric", "obscuration_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -153,7 +172,8 @@ class Asphere(SagSurface):
             entry.fail("curvature_per_mm", "missing required field (the vertex curvature in "
                                            "1/mm; or give roc_mm)")
         return cls(c, semi_diameter, conic=entry.get("conic", default=0.0),
-                   coefficients=entry.get("aspheric", "numbers", default=[]))
+                   coefficients=entry.get("aspheric", "numbers", default=[]),
+                   obscuration=entry.get("obscuration_mm", default=0.0))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -162,6 +182,8 @@ class Asphere(SagSurface):
             d["conic"] = float(self.k)
         if len(self.a):
             d["aspheric"] = [float(a) for a in self.a]
+        if float(self.obscuration) > 0:
+            d["obscuration_mm"] = float(self.obscuration)
         return d
 
     def extra_repr(self) -> str:

@@ -850,11 +850,20 @@ def test_central_obscuration_on_the_stop(tmp_path, line):
     assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
 
 
-def test_obscuration_on_a_lens_surface_is_refused(tmp_path):
+def test_obscuration_on_a_lens_surface(tmp_path):
+    """OBSC on a curved lens surface is that surface's obscuration (written back); on a flat
+    surface between glass and air it is refused with its line."""
     text = singlet().replace('  DIAM 8 1 0 0 1 ""\nSURF 4', '  DIAM 8 1 0 0 1 ""\n  OBSC 0 1 0\nSURF 4')
-    ln = line_of(text, "OBSC")
-    with pytest.raises(ZemaxFileError, match=f":{ln}: SURF 3: OBSC, a central obscuration on a curved surface"):
-        read_zmx(write(tmp_path, text))
+    lens = read_zmx(write(tmp_path, text))
+    assert [float(getattr(s, "obscuration", 0.0)) for s in lens.surfaces] == [0.0, 0.0, 1.0]
+    write_zmx(lens, tmp_path / "back.zmx")
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
+    flat = singlet(curv2=0.0).replace('  DIAM 8 1 0 0 1 ""\nSURF 4',
+                                      '  DIAM 8 1 0 0 1 ""\n  OBSC 0 1 0\nSURF 4')
+    ln = line_of(flat, "OBSC")
+    with pytest.raises(ZemaxFileError, match=f":{ln}: SURF 3: OBSC, a central obscuration on a "
+                                             f"flat surface between two media"):
+        read_zmx(write(tmp_path, flat, "flat.zmx"))
 
 
 def test_paraxial_image_height_at_a_finite_object(tmp_path):

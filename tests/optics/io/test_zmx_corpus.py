@@ -37,7 +37,7 @@ REFUSED = {
     "optiland_curved_transmission_grating.zmx": "DGRATING",
     "optiland_flat_transmission_grating.zmx": "DGRATING",
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
-    "US05331467-1.zmx": "OBSC, a central obscuration on a curved",   # a secondary's shadow
+    "US05331467-1.zmx": "E-LAFH3",   # (its OBSC on a lens surface is read)
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "optiland_lens2.zmx": "L-BAL35",
