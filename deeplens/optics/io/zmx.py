@@ -36,14 +36,19 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 * Dummy surfaces (flat, the same medium on both sides, not the stop, automatic ``DIAM``) carry only
   a thickness and are merged into the gaps; a flat air surface with a fixed ``DIAM`` becomes an
   :class:`~deeplens.optics.surfaces.Aperture` (rectangular with ``SQAP``, with a central
-  obscuration with ``OBSC`` or an annular ``CLAP``).  A surface with no ``DIAM`` gets an
-  automatic semi-diameter from real rays; an image plane on a flat last vertex puts the sensor
-  1e-9 mm behind it.
+  obscuration with ``OBSC`` or an annular ``CLAP``); on a curved lens or mirror surface those
+  are the surface's own ``obscuration``.  A surface with no ``DIAM`` gets an automatic
+  semi-diameter from real rays; an image plane on a flat last vertex puts the sensor 1e-9 mm
+  behind it (along the direction of travel: towards -z after an odd number of mirrors).
 * ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
   vertex, and the reversing break) become that element's
   :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``; tilts
   about two axes, or about z, of a rotationally symmetric element become the two tilts that
-  point its axis the same way); any other coordinate break is an error.
+  point its axis the same way); any other coordinate break (a fold, an off-axis mirror, a
+  decenter never undone) becomes a :class:`~deeplens.optics.surfaces.CoordinateBreak` surface
+  (:mod:`.zmx_coordbrk` decides which), and is written back as one.  In a lens with such breaks
+  the automatic semi-diameters (``DIAM`` flag 0) are recomputed from deeplens' rays and fields
+  with an x component are dropped (with a warning).
 * ``GLAS name`` is looked up exactly in the catalogues named by ``GCAT``: the user's ``.agf`` files
   (:mod:`.agf`) by file stem, the vendor catalogues of :mod:`.vendor_glass` (current, then
   previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d``
@@ -53,8 +58,8 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   line, unless the caller passes ``glass_fallback``.
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
-would change the optics if ignored (other surface types, obscurations on lens surfaces,
-telecentric object space, ...) are errors naming the file, the line and the feature.
+would change the optics if ignored (other surface types, obscurations on flat surfaces between
+media, telecentric object space, ...) are errors naming the file, the line and the feature.
 ``GLAS MIRROR`` makes the surface a mirror (``Lens(mirrors=...)``; the medium after it is the one
 before, and the file's negative thicknesses after it are kept: deeplens uses Zemax's sign
 convention, see ``docs/guide/mirrors.md``).
