@@ -30,6 +30,7 @@ import warnings
 
 import torch
 
+from .surfaces.asphere import asphere_dsag_ds, asphere_sag, conic_arg, conic_quadric
 from .intersect import (_ROUNDING_ULPS, _quadric_root, _safe_div, accept_hits,
                         flat_step_xyz, propagate_xyz, quadric_step_xyz, snell_xyz)
 
@@ -153,25 +154,12 @@ NEWTON_CHUNK = 2
 
 
 def asphere_f(x, y, z, c, k, coeffs):
-    """``f = sag(x, y) - z`` and ``∇f`` of an even asphere, as :class:`~.surfaces.Asphere`
-    evaluates them (the same operations in the same order).  ``coeffs``: tuple of 0-d
-    ``a4, a6, ...``.  Returns ``(f, f_x, f_y, f_z)``."""
+    """``f = sag(x, y) - z`` and ``∇f`` of an even asphere: :func:`~.surfaces.asphere.asphere_sag`
+    and :func:`~.surfaces.asphere.asphere_dsag_ds`, the functions :class:`~.surfaces.Asphere`
+    calls.  ``coeffs``: tuple of 0-d ``a4, a6, ...``.  Returns ``(f, f_x, f_y, f_z)``."""
     s = x * x + y * y
-    arg = 1.0 - (1.0 + k) * c * c * s
-    safe = torch.where(arg > 0, arg, torch.ones_like(arg))
-    root = torch.sqrt(safe)
-    sag = c * s / (1.0 + root)
-    g = c / (2.0 * root)
-    if len(coeffs):
-        p = torch.zeros_like(s)
-        for a in reversed(coeffs):
-            p = (p + a) * s
-        sag = sag + p * s
-        q = torch.zeros_like(s)
-        for j in range(len(coeffs) - 1, -1, -1):
-            q = q * s + (j + 2) * coeffs[j]
-        g = g + q * s
-    return sag - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
+    g = asphere_dsag_ds(s, c, k, coeffs)
+    return asphere_sag(s, c, k, coeffs) - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
 
 
 def xy_f(x, y, z, b, coeffs, terms, order):
@@ -206,7 +194,7 @@ def _surface_f(kind, sp, x, y, z):
 def _in_domain(kind, sp, x, y):
     if kind == "asphere":
         c, k, _ = sp
-        return 1.0 - (1.0 + k) * c * c * (x * x + y * y) > 0
+        return conic_arg(x * x + y * y, c, k) > 0
     b, coeffs, terms, order, b_nonzero = sp
     if not b_nonzero:  # as XYPolynomial.in_domain: everywhere when b == 0
         return torch.ones_like(x, dtype=torch.bool)
@@ -265,11 +253,7 @@ def newton_start(kind, sp, o, d, valid, z_shift, tol: float, n: int):
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
     if kind == "asphere":
         c, k, _ = sp
-        ck = c * (1.0 + k)
-        A = c * (dx * dx + dy * dy) + ck * (dz * dz)
-        B = c * (bx * dx + by * dy) + (ck * bz - 1.0) * dz
-        C = c * (bx * bx + by * by) + (ck * bz - 2.0) * bz
-        s, _ = _quadric_root((A, B, C, ck, c), bz, dz, ok)
+        s, _ = _quadric_root(conic_quadric(bx, by, bz, dx, dy, dz, c, k), bz, dz, ok)
     else:
         s = torch.zeros_like(t0)
     eps = torch.finfo(o.dtype).eps

@@ -59,6 +59,8 @@ import warnings
 
 import torch
 
+from .surfaces.asphere import conic_arg, conic_normal, conic_quadric
+
 __all__ = ["IntersectOptions", "default_tolerance", "flat_step", "flat_step_xyz", "intersect",
            "quadric_step", "quadric_step_xyz", "trace_quadric"]
 
@@ -266,23 +268,15 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-oz, dz, ok).detach()
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-    # the conic base as a quadric, as Asphere.quadric_xyz
-    k1 = 1.0 + k
-    ck = c * k1
-    A = c * (dx * dx + dy * dy) + ck * (dz * dz)
-    B = c * (bx * dx + by * dy) + (ck * bz - 1.0) * dz
-    C = c * (bx * bx + by * by) + (ck * bz - 2.0) * bz
-    s, found = _quadric_root((A, B, C, ck, c), bz, dz, ok)
+    quadric = conic_quadric(bx, by, bz, dx, dy, dz, c, k)  # the conic base, as Asphere.quadric
+    s, found = _quadric_root(quadric, bz, dz, ok)
     with torch.no_grad():  # as in intersect(): the vertex-plane point in the conic's domain
-        found = found & (1.0 - k1 * c * c * (bx * bx + by * by) > 0)
+        found = found & (conic_arg(bx * bx + by * by, c, k) > 0)
     ok = ok & found
     t = t0 + s
     x, y, z = bx + s * dx, by + s * dy, bz + s * dz
     t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol, clip)
-    # unit normal (c x, c y, (1+k) c z - 1) / |.|, see Asphere.normal
-    gx, gy, gz = c * x, c * y, ck * z - 1.0
-    inv = torch.rsqrt((gx * gx + gy * gy + gz * gz).clamp_min(1e-30))
-    nx, ny, nz = gx * inv, gy * inv, gz * inv
+    nx, ny, nz = conic_normal(x, y, z, c, quadric[3])  # as Asphere.normal
     ex, ey, ez, ok = snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok)
     return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
 
