@@ -31,6 +31,7 @@ import warnings
 import torch
 
 from .surfaces.asphere import asphere_dsag_ds, asphere_sag, conic_arg, conic_quadric
+from .surfaces.xy_polynomial import xy_f_value, xy_f_z, xy_fold, xy_in_domain, xy_poly
 from .intersect import (_ROUNDING_ULPS, _quadric_root, _safe_div, accept_hits,
                         flat_step_xyz, propagate_xyz, quadric_step_xyz, snell_xyz)
 
@@ -163,25 +164,13 @@ def asphere_f(x, y, z, c, k, coeffs):
 
 
 def xy_f(x, y, z, b, coeffs, terms, order):
-    """``f`` and ``∇f`` of an XY polynomial, as :class:`~.surfaces.XYPolynomial` evaluates them
-    (continued past the fold plane).  ``coeffs``: tuple of 0-d values; ``terms``: the exponent
+    """``f`` and ``∇f`` of an XY polynomial from the functions :class:`~.surfaces.XYPolynomial`
+    calls (:func:`~.surfaces.xy_polynomial.xy_poly`, ``xy_fold``, ``xy_f_value``, ``xy_f_z``;
+    continued past the fold plane).  ``coeffs``: tuple of 0-d values; ``terms``: the exponent
     pairs; ``order``: the degree.  Returns ``(f, f_x, f_y, f_z)``."""
-    px, py = [torch.ones_like(x)], [torch.ones_like(y)]
-    for _ in range(order):
-        px.append(px[-1] * x)
-        py.append(py[-1] * y)
-    P, Px, Py = torch.zeros_like(x), torch.zeros_like(x), torch.zeros_like(x)
-    for a, (i, j) in zip(coeffs, terms):
-        P = P + a * px[i] * py[j]
-        if i:
-            Px = Px + (a * i) * px[i - 1] * py[j]
-        if j:
-            Py = Py + (a * j) * px[i] * py[j - 1]
-    beyond = b.detach() * z.detach() > 0.5
-    z_fold = 0.5 / torch.where(b != 0, b, torch.ones_like(b))
-    zc = torch.where(beyond, z_fold, z)
-    fz = torch.where(beyond, -torch.ones_like(z), 2.0 * b * z - 1.0)
-    return b * zc * zc + P - z, Px, Py, fz
+    P, Px, Py = xy_poly(x, y, coeffs, terms, order)
+    beyond, zc = xy_fold(z, b)
+    return xy_f_value(P, zc, z, b), Px, Py, xy_f_z(z, b, beyond)
 
 
 def _surface_f(kind, sp, x, y, z):
@@ -198,8 +187,8 @@ def _in_domain(kind, sp, x, y):
     b, coeffs, terms, order, b_nonzero = sp
     if not b_nonzero:  # as XYPolynomial.in_domain: everywhere when b == 0
         return torch.ones_like(x, dtype=torch.bool)
-    f, _, _, _ = xy_f(x, y, torch.zeros_like(x), b, coeffs, terms, order)  # f(x, y, 0) = P
-    return 1.0 - 4.0 * b * f >= 0
+    P, _, _ = xy_poly(x, y, coeffs, terms, order)
+    return xy_in_domain(P, b)
 
 
 def detached(sp):
