@@ -32,8 +32,9 @@ import torch
 
 from .surfaces.asphere import asphere_dsag_ds, asphere_sag, conic_arg, conic_quadric
 from .surfaces.xy_polynomial import xy_f_value, xy_f_z, xy_fold, xy_in_domain, xy_poly
-from .intersect import (_ROUNDING_ULPS, _quadric_root, _safe_div, accept_hits,
-                        flat_step_xyz, propagate_xyz, quadric_step_xyz, snell_xyz)
+from .intersect import (_quadric_root, _safe_div, accept_hits, flat_step_xyz, propagate_xyz,
+                        quadric_step_xyz, rounding_tolerance)
+from .refract import snell_xyz
 
 __all__ = ["KINDS", "compiled_surface_run", "surface_run"]
 
@@ -245,9 +246,7 @@ def newton_start(kind, sp, o, d, valid, z_shift, tol: float, n: int):
         s, _ = _quadric_root(conic_quadric(bx, by, bz, dx, dy, dz, c, k), bz, dz, ok)
     else:
         s = torch.zeros_like(t0)
-    eps = torch.finfo(o.dtype).eps
-    big = torch.maximum(torch.maximum(bx.abs(), by.abs()), bz.abs())
-    tol_ray = torch.clamp(_ROUNDING_ULPS * eps * big, min=tol)
+    tol_ray = rounding_tolerance(bx, by, bz, tol)
     s, active, converged, fv = _newton_updates(kind, sp, bx, by, bz, dx, dy, dz, s, ok,
                                                torch.zeros_like(ok), tol_ray, n)
     return torch.stack([bx, by, bz]), s, ok, active, converged, tol_ray, fv

@@ -59,9 +59,13 @@ import warnings
 
 import torch
 
+from .refract import snell_coefficient, snell_xyz
+from .surfaces.aperture import in_rect
 from .surfaces.asphere import conic_arg, conic_normal, conic_quadric
+from .surfaces.base import in_circle
 
-__all__ = ["IntersectOptions", "default_tolerance", "flat_step", "flat_step_xyz", "intersect",
+__all__ = ["IntersectOptions", "accept_hits", "default_tolerance", "flat_step", "flat_step_xyz",
+           "hit_mask", "intersect", "rounding_tolerance", "snell_xyz",
            "quadric_step", "quadric_step_xyz", "trace_quadric"]
 
 
@@ -124,8 +128,7 @@ _STALL_WARN_FRACTION = 0.01
 
 def _tolerance(tol: float, x: torch.Tensor) -> torch.Tensor:
     """Per-ray tolerance ``max(tol, 4 eps |x|_inf)`` (mm) at evaluation points ``x`` (*B, 3)."""
-    eps = torch.finfo(x.dtype).eps
-    return torch.clamp(_ROUNDING_ULPS * eps * x.detach().abs().amax(-1), min=tol)
+    return rounding_tolerance(*x.detach().unbind(-1), tol)
 
 
 def _residual(surface, o, d, t, at=None):
@@ -281,38 +284,40 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
     return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
 
 
-def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool):
-    """The checks every hit passes, on components: ahead of the ray (``t`` above minus a
-    rounding allowance of ``_ROUNDING_ULPS`` ulps of the coordinates, at least ``tol``), inside
-    the clear aperture (with ``clip``), finite.  A ray that fails keeps its origin ``o`` and
+def rounding_tolerance(X, Y, Z, tol: float):
+    """``max(tol, 4 eps |x|_inf)`` (mm) per ray at points with components ``X, Y, Z``
+    (detached): the residual and "ahead of the ray" allowance (module docstring)."""
+    eps = torch.finfo(X.dtype).eps
+    big = torch.maximum(torch.maximum(X.abs(), Y.abs()), Z.abs())
+    return torch.clamp(_ROUNDING_ULPS * eps * big, min=tol)
+
+
+def hit_mask(t, X, Y, Z, ok, tol: float, inside=None):
+    """Hit acceptance, written once (no autograd): ``ok`` and the hit at distance ``t`` lies
+    ahead of the ray (``t >= -``:func:`rounding_tolerance`), inside the clear aperture
+    (``inside``, a mask, or ``None`` when not clipping) and is finite.  ``X, Y, Z``: the hit's
+    detached components.  :func:`intersect`, :func:`accept_hits` and the compiled plane step
+    call it."""
+    with torch.no_grad():
+        ok = ok & (t >= -rounding_tolerance(X, Y, Z, tol))
+        if inside is not None:
+            ok = ok & inside
+        return ok & torch.isfinite(t)
+
+
+def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool,
+                rect: bool = False):
+    """:func:`hit_mask` on components with a circular aperture of radius ``semi_diameter``
+    (``rect``: half-widths ``(2,)``) when ``clip``; a ray that fails keeps its origin ``o`` and
     ``t = 0``.  Returns ``(t, x, y, z, ok)``."""
     X, Y = x.detach(), y.detach()
-    eps = torch.finfo(x.dtype).eps
-    with torch.no_grad():
-        big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
-        ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
-        if clip:
-            ok = ok & (X * X + Y * Y <= semi_diameter * semi_diameter)
-        ok = ok & torch.isfinite(t)
+    inside = None
+    if clip:
+        inside = in_rect(X, Y, semi_diameter) if rect else in_circle(X, Y, semi_diameter)
+    ok = hit_mask(t, X, Y, z.detach(), ok, tol, inside)
     t = torch.where(ok, t, torch.zeros_like(t))
     x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
     return t, x, y, z, ok
-
-
-def snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok):
-    """Snell's law on components, as :func:`~.refract.refract`: the refracted direction
-    ``η d + (sign(cos θ_i) sqrt(1 - η²(1 - cos² θ_i)) - η cos θ_i) n``, ``η = n1 / n2``,
-    ``cos θ_i = d · n``; rays with total internal reflection (``k <= 0``) leave ``ok`` and keep
-    ``d``.  Returns ``(d_x, d_y, d_z, ok)``."""
-    eta = n1 / n2
-    cos_i = dx * nx + dy * ny + dz * nz
-    kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
-    ok = ok & (kk > 0)
-    coef = torch.copysign(torch.sqrt(torch.where(ok, kk, torch.ones_like(kk))), cos_i) - eta * cos_i
-    ex = torch.where(ok, eta * dx + coef * nx, dx)
-    ey = torch.where(ok, eta * dy + coef * ny, dy)
-    ez = torch.where(ok, eta * dz + coef * nz, dz)
-    return ex, ey, ez, ok
 
 
 def flat_step(o, d, valid, opl, z_shift, aperture, n1, n2, tol: float, clip: bool = True,
@@ -345,27 +350,12 @@ def flat_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, aperture, n1, n2,
     ok = valid & (dz.abs() > 1e-12)
     t = _safe_div(-oz, dz, ok)
     x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
-    X, Y = x.detach(), y.detach()
-    eps = torch.finfo(ox.dtype).eps
-    with torch.no_grad():
-        big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
-        ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
-        if clip:
-            if rect:
-                ok = ok & (X.abs() <= aperture[0]) & (Y.abs() <= aperture[1])
-            else:
-                ok = ok & (X * X + Y * Y <= aperture * aperture)
-        ok = ok & torch.isfinite(t)
-    t = torch.where(ok, t, torch.zeros_like(t))
-    x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
+    t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, aperture, tol, clip, rect)
     if not refract:
         return x, y, z + z_shift, dx, dy, dz, ok, opl + n1 * t
-    # Snell's law (refract.refract) at n = (0, 0, -1): cos_i = -d_z
+    # Snell's law (refract.snell_coefficient) at n = (0, 0, -1): cos_i = -d_z
     eta = n1 / n2
-    cos_i = -dz
-    kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
-    ok = ok & (kk > 0)
-    coef = torch.copysign(torch.sqrt(torch.where(ok, kk, torch.ones_like(kk))), cos_i) - eta * cos_i
+    coef, ok = snell_coefficient(-dz, eta, ok)
     ex = torch.where(ok, eta * dx, dx)
     ey = torch.where(ok, eta * dy, dy)
     ez = torch.where(ok, eta * dz - coef, dz)
@@ -503,10 +493,8 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     X, Y = x[..., 0].detach(), x[..., 1].detach()
     if not quadric:  # on a quadric's branch h > 0 the domain 1 - (1+k) c^2 r^2 = h^2 > 0 holds
         ok = ok & surface.in_domain(X, Y)
-    ok = ok & (t.detach() >= -_tolerance(tol, x))
-    if opt.clip_aperture:
-        ok = ok & surface.in_aperture(X, Y)
-    ok = ok & torch.isfinite(t.detach())
+    ok = hit_mask(t.detach(), X, Y, x[..., 2].detach(), ok, tol,
+                  surface.in_aperture(X, Y) if opt.clip_aperture else None)
     t = torch.where(ok, t, torch.zeros_like(t))
     x = torch.where(ok.unsqueeze(-1), x, o)
     return t, x, ok
