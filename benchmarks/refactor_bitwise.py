@@ -149,19 +149,25 @@ CASES = {
 }
 
 #: lenses traced through the real compiled kernels with ``--compiled``
-COMPILED_CASES = ("double_gauss", "acl5040u", "edof", "misaligned_dg")
+COMPILED_CASES = ("double_gauss", "edof", "misaligned_dg")
 
 
-def _f32(lens):
+def _f32(lens, aligned):
     """A float32 copy of ``lens`` and its parameters (the float64 original is untouched)."""
     l32 = copy.deepcopy(lens).to(torch.float32)
-    return l32, _params(l32)
+    return l32, _params(l32, aligned)
 
 
-def _params(lens):
-    ps = [(n, p) for n, p in lens.named_parameters()]
-    for _, p in ps:
-        p.requires_grad_(True)
+def _params(lens, aligned=False):
+    """Make every lens parameter trainable and return them by name; ``aligned``: all but the
+    misalignments that are zero (a trainable misalignment makes its element run eager, so only
+    this set exercises the fused and compiled kernels)."""
+    ps = []
+    for n, p in lens.named_parameters():
+        train = not (aligned and n.startswith("misalignments.") and float(p) == 0.0)
+        p.requires_grad_(train)
+        if train:
+            ps.append((n, p))
     return ps
 
 
@@ -219,6 +225,14 @@ def _plain_kernels():
 
 def _record(store, key, fn):
     """``store[key + ...] = tensors`` of ``fn()`` (a dict of name -> tensor), or the error."""
+    calls = [0]
+    real_call = C.call
+
+    def counting_call(*args):
+        calls[0] += 1
+        return real_call(*args)
+
+    C.call = counting_call
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -226,6 +240,9 @@ def _record(store, key, fn):
     except Exception as e:  # noqa: BLE001 - the error is part of the behaviour recorded
         store[key + "/error"] = f"{type(e).__name__}: {e}"
         return
+    finally:
+        C.call = real_call
+    store[key + "/kernel_calls"] = calls[0]  # > 0: the fused/compiled path ran
     for k, v in res.items():
         store[f"{key}/{k}"] = v.detach().clone() if isinstance(v, torch.Tensor) else v
 
@@ -297,47 +314,54 @@ def record(compiled: bool, only=None) -> dict:
     for name, build in CASES.items():
         if only and name not in only:
             continue
-        lens = build()
-        params = _params(lens)
-        for reverse in (False, True):
-            tag = f"{name}/{'rev' if reverse else 'fwd'}"
-            for mode, opt in eager_opts.items():
-                _record(store, f"{tag}/{mode}", _trace_entry(lens, params, reverse, opt))
-            with _plain_kernels():
-                for mode, opt in FUSED.items():
-                    _record(store, f"{tag}/fused_{mode}", _trace_entry(lens, params, reverse, opt))
-                _record(store, f"{tag}/fused_lens_nograd",
-                        _trace_entry(lens, params, reverse, FUSED["lens"], grad=False))
-                l32, p32 = _f32(lens)
-                _record(store, f"{tag}/fused_f32", _trace_entry(
-                    l32, p32, reverse, FUSED["lens"], torch.float32, False))
-            l32, p32 = _f32(lens)
-            _record(store, f"{tag}/eager_f32", _trace_entry(l32, p32, reverse, None,
-                                                            torch.float32, True))
-        if name in ("double_gauss", "acl5040u", "misaligned_dg", "cooke"):
+        for aligned in (False, True):
+            _record_lens(store, name, build(), aligned, compiled, eager_opts)
+        print(f"  {name}: {sum(1 for k in store if k.startswith(name + '/'))} entries",
+              flush=True)
+    return store
+
+
+def _record_lens(store, name, lens, aligned, compiled, eager_opts):
+    params = _params(lens, aligned)
+    if aligned:
+        name = name + "/aligned"
+    for reverse in (False, True):
+        tag = f"{name}/{'rev' if reverse else 'fwd'}"
+        for mode, opt in eager_opts.items():
+            _record(store, f"{tag}/{mode}", _trace_entry(lens, params, reverse, opt))
+        with _plain_kernels():
+            for mode, opt in FUSED.items():
+                _record(store, f"{tag}/fused_{mode}", _trace_entry(lens, params, reverse, opt))
+            _record(store, f"{tag}/fused_lens_nograd",
+                    _trace_entry(lens, params, reverse, FUSED["lens"], grad=False))
+            l32, p32 = _f32(lens, aligned)
+            _record(store, f"{tag}/fused_f32", _trace_entry(
+                l32, p32, reverse, FUSED["lens"], torch.float32, False))
+        l32, p32 = _f32(lens, aligned)
+        _record(store, f"{tag}/eager_f32", _trace_entry(l32, p32, reverse, None,
+                                                        torch.float32, True))
+        base = name.split("/")[0]
+        if base in ("double_gauss", "acl5040u", "misaligned_dg", "cooke"):
             _record(store, f"{name}/psf/eager", _psf_entry(lens, params, None))
             with _plain_kernels():
                 _record(store, f"{name}/psf/fused_auto", _psf_entry(lens, params, FUSED["auto"]))
-        if name == "edof":
+        if base == "edof":
             _record(store, f"{name}/dpsf/eager", _diffraction_entry(lens, params, None))
             with _plain_kernels():
                 _record(store, f"{name}/dpsf/fused_auto",
                         _diffraction_entry(lens, params, FUSED["auto"]))
-        if compiled and name in COMPILED_CASES:
+        if compiled and aligned and base in COMPILED_CASES:
             for reverse in (False, True):
                 tag = f"{name}/{'rev' if reverse else 'fwd'}"
                 _record(store, f"{tag}/compiled_auto",
                         _trace_entry(lens, params, reverse, FUSED["auto"]))
                 _record(store, f"{tag}/compiled_lens_nograd",
                         _trace_entry(lens, params, reverse, FUSED["lens"], grad=False))
-            if name == "double_gauss":
-                l32, p32 = _f32(lens)
+            if base == "double_gauss":
+                l32, p32 = _f32(lens, aligned)
                 _record(store, f"{name}/fwd/compiled_lens_f32", _trace_entry(
                     l32, p32, False, FUSED["lens"], torch.float32, False))
                 _record(store, f"{name}/psf/compiled_auto", _psf_entry(lens, params, FUSED["auto"]))
-        print(f"  {name}: {sum(1 for k in store if k.startswith(name + '/'))} entries",
-              flush=True)
-    return store
 
 
 def _bytes(v):

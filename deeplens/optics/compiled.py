@@ -30,7 +30,8 @@ import warnings
 
 import torch
 
-from .surfaces.asphere import asphere_dsag_ds, asphere_sag, conic_arg, conic_quadric
+from .surfaces.asphere import (conic_arg, conic_dsag_ds, conic_quadric, conic_root, conic_sag,
+                               even_poly, even_poly_ds)
 from .surfaces.xy_polynomial import xy_f_value, xy_f_z, xy_fold, xy_in_domain, xy_poly
 from .intersect import (_quadric_root, _safe_div, accept_hits, flat_step_xyz, propagate_xyz,
                         quadric_step_xyz, rounding_tolerance)
@@ -156,12 +157,16 @@ NEWTON_CHUNK = 2
 
 
 def asphere_f(x, y, z, c, k, coeffs):
-    """``f = sag(x, y) - z`` and ``∇f`` of an even asphere: :func:`~.surfaces.asphere.asphere_sag`
-    and :func:`~.surfaces.asphere.asphere_dsag_ds`, the functions :class:`~.surfaces.Asphere`
-    calls.  ``coeffs``: tuple of 0-d ``a4, a6, ...``.  Returns ``(f, f_x, f_y, f_z)``."""
+    """``f = sag(x, y) - z`` and ``∇f`` of an even asphere from the functions
+    :class:`~.surfaces.Asphere` calls (:mod:`~.surfaces.asphere`'s ``conic_sag``,
+    ``conic_dsag_ds``, ``even_poly``, ``even_poly_ds``), fused: one conic root for both.  ``coeffs``: tuple of 0-d ``a4, a6, ...``.  Returns ``(f, f_x, f_y, f_z)``."""
     s = x * x + y * y
-    g = asphere_dsag_ds(s, c, k, coeffs)
-    return asphere_sag(s, c, k, coeffs) - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
+    root = conic_root(s, c, k)  # shared by the sag and its slope
+    sag, g = conic_sag(s, c, k, root), conic_dsag_ds(s, c, k, root)
+    if len(coeffs):
+        sag = sag + even_poly(s, coeffs)
+        g = g + even_poly_ds(s, coeffs)
+    return sag - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
 
 
 def xy_f(x, y, z, b, coeffs, terms, order):

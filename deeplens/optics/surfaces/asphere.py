@@ -33,7 +33,8 @@ from torch import nn
 from .base import SagSurface, make_param, register_surface
 
 __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
-           "conic_arg", "conic_normal", "conic_quadric"]
+           "conic_arg", "conic_dsag_ds", "conic_normal", "conic_quadric", "conic_root",
+           "conic_sag", "even_poly", "even_poly_ds"]
 
 MAX_ASPHERE_ORDER = 20
 
@@ -51,32 +52,61 @@ def _positive_or_one(arg):
     return torch.where(arg > 0, arg, torch.ones_like(arg))
 
 
-def asphere_sag(s, c, k, coeffs):
-    """The sag ``z(s)`` (mm) at ``s = r^2``: ``c s / (1 + sqrt(1 - (1+k) c^2 s)) +
-    sum_i a_{2i} s^i`` (Horner), ``coeffs = (a4, a6, ...)`` 0-d tensors.  Outside the conic's
-    domain the root is taken of 1 (finite; the tracer marks those rays invalid)."""
+def conic_root(s, c, k):
+    """``sqrt(1 - (1+k) c^2 s)`` (the root of 1 outside the conic's domain: finite)."""
+    return torch.sqrt(_positive_or_one(conic_arg(s, c, k)))
+
+
+def conic_sag(s, c, k, root=None):
+    """The conic base's sag ``c s / (1 + sqrt(1 - (1+k) c^2 s))`` (mm); ``root``: a
+    :func:`conic_root` already computed (the compiled kernel shares it with the slope)."""
+    num = c.to(s) * s
+    if root is None:
+        root = conic_root(s, c, k)
+    return num / (1.0 + root)
+
+
+def conic_dsag_ds(s, c, k, root=None):
+    """The conic base's ``dz/ds = c / (2 sqrt(1 - (1+k) c^2 s))`` (1/mm), see :func:`conic_sag`."""
     cs = c.to(s)
-    z = cs * s / (1.0 + torch.sqrt(_positive_or_one(conic_arg(s, c, k))))
+    if root is None:
+        root = conic_root(s, c, k)
+    return cs / (2.0 * root)
+
+
+def even_poly(s, coeffs):
+    """``sum_i a_{2i} s^i`` for ``coeffs = (a4, a6, ...)`` (Horner), mm."""
+    p = torch.zeros_like(s)
+    for a in reversed(list(coeffs)):
+        p = (p + a.to(s)) * s
+    return p * s
+
+
+def even_poly_ds(s, coeffs):
+    """``d/ds sum_{i>=2} a_{2i} s^i = sum_i i a_{2i} s^(i-1)`` (Horner)."""
+    q = torch.zeros_like(s)
+    coeffs = list(coeffs)
+    for j in range(len(coeffs) - 1, -1, -1):
+        q = q * s + (j + 2) * coeffs[j].to(s)
+    return q * s
+
+
+def asphere_sag(s, c, k, coeffs, root=None):
+    """The sag ``z(s)`` (mm) at ``s = r^2``: :func:`conic_sag` plus :func:`even_poly` of the
+    coefficients ``coeffs = (a4, a6, ...)`` (0-d tensors).  Outside the conic's domain the root
+    is taken of 1 (finite; the tracer marks those rays invalid)."""
+    z = conic_sag(s, c, k, root)
     if len(coeffs):
-        p = torch.zeros_like(s)
-        for a in reversed(list(coeffs)):
-            p = (p + a.to(s)) * s
-        z = z + p * s
+        z = z + even_poly(s, coeffs)
     return z
 
 
-def asphere_dsag_ds(s, c, k, coeffs):
-    """``dz/ds = c / (2 sqrt(1 - (1+k) c^2 s)) + sum_i i a_{2i} s^(i-1)`` (1/mm); the slopes
-    are ``∂z/∂x = 2 x dz/ds``, ``∂z/∂y = 2 y dz/ds``."""
-    cs = c.to(s)
-    g = cs / (2.0 * torch.sqrt(_positive_or_one(conic_arg(s, c, k))))
+def asphere_dsag_ds(s, c, k, coeffs, root=None):
+    """``dz/ds`` (1/mm): :func:`conic_dsag_ds` plus :func:`even_poly_ds`; the slopes are
+    ``∂z/∂x = 2 x dz/ds``, ``∂z/∂y = 2 y dz/ds``."""
+    g = conic_dsag_ds(s, c, k, root)
     if len(coeffs):
-        # d/ds sum_{i>=2} a_i s^i = sum i a_i s^(i-1)
-        p = torch.zeros_like(s)
-        coeffs = list(coeffs)
-        for j in range(len(coeffs) - 1, -1, -1):
-            p = p * s + (j + 2) * coeffs[j].to(s)
-        g = g + p * s
+        g = g + even_poly_ds(s, coeffs)
     return g
 
 
