@@ -59,12 +59,13 @@ import warnings
 
 import torch
 
+from .options import TraceOptions
 from .refract import snell_coefficient, snell_xyz
 from .surfaces.aperture import in_rect
 from .surfaces.asphere import conic_arg, conic_normal, conic_quadric
 from .surfaces.base import in_circle
 
-__all__ = ["IntersectOptions", "accept_hits", "default_tolerance", "flat_step", "flat_step_xyz",
+__all__ = ["IntersectOptions", "TraceOptions", "accept_hits", "default_tolerance", "flat_step", "flat_step_xyz",
            "hit_mask", "intersect", "rounding_tolerance", "snell_xyz",
            "quadric_step", "quadric_step_xyz", "trace_quadric"]
 
@@ -75,49 +76,9 @@ def default_tolerance(dtype: torch.dtype) -> float:
     return 1e-10 if dtype == torch.float64 else 1e-5
 
 
-class IntersectOptions:
-    """Newton settings: ``tol`` (mm, ``None`` = dtype default; never below ``4 eps |x|``),
-    ``max_iter``, ``mode``; ``clip_aperture=False`` ignores clear apertures (for ray aiming),
-    not surface domains; ``closed_form=False`` runs Newton from the vertex plane also on spheres
-    and conics (the reference path); ``compile="surface"`` runs each aligned sphere, conic,
-    plane, stop, even asphere or XY polynomial's intersect + refract as ``torch.compile``d kernels,
-    ``compile="lens"`` each run of aligned spheres, conics, planes and stops as one kernel, and
-    ``compile=True`` (``"auto"``) picks ``"lens"`` when nothing needs a gradient and
-    ``"surface"`` otherwise (measured faster in each case; :mod:`.compiled`; the first call per
-    lens structure and dtype compiles, later calls and other ray counts reuse it; a
-    ``record``ed trace, ``closed_form=False`` and ``mode="unrolled"`` stay eager);
-    ``checkpoint=True`` makes
-    :meth:`Lens.trace <deeplens.optics.lens.Lens.trace>` keep only each surface's incoming ray
-    state for backward and recompute the surface there (about 40 instead of 120 bytes per ray
-    and surface in float32, for about 1.5x the backward's time)."""
-
-    __slots__ = ("checkpoint", "clip_aperture", "closed_form", "compile", "max_iter", "mode",
-                 "tol")
-
-    def __init__(self, tol: float | None = None, max_iter: int = 30, mode: str = "implicit",
-                 clip_aperture: bool = True, closed_form: bool = True, checkpoint: bool = False,
-                 compile: bool | str = False):
-        if compile is True:
-            compile = "auto"
-        if compile not in (False, None, "auto", "surface", "lens"):
-            raise ValueError(f"compile must be False, True ('auto'), 'surface' or 'lens', got "
-                             f"{compile!r}")
-        self.compile = compile or False
-        self.clip_aperture = bool(clip_aperture)
-        self.closed_form = bool(closed_form)
-        self.checkpoint = bool(checkpoint)
-        if mode not in ("implicit", "unrolled"):
-            raise ValueError(f"intersection mode must be 'implicit' or 'unrolled', got {mode!r}")
-        if max_iter < 1:
-            raise ValueError(f"max_iter must be >= 1, got {max_iter}")
-        if tol is not None and not tol > 0:
-            raise ValueError(f"tol must be > 0 mm, got {tol}")
-        self.tol, self.max_iter, self.mode = tol, int(max_iter), mode
-
-    def __repr__(self):
-        return (f"IntersectOptions(tol={self.tol}, max_iter={self.max_iter}, mode={self.mode!r}, "
-                f"clip_aperture={self.clip_aperture}, closed_form={self.closed_form}, "
-                f"checkpoint={self.checkpoint}, compile={self.compile})")
+#: deprecated name of :class:`~.options.TraceOptions` (the settings now cover the whole trace:
+#: Newton, the closed form, compiled kernels and checkpointing); kept so existing code runs
+IntersectOptions = TraceOptions
 
 
 #: the tolerance never goes below this many float rounding units of the coordinates, ``eps |x|``
@@ -167,7 +128,7 @@ def _warn_stalled(surface, o, d, s, tried, converged, tol_ray, tol, fv=None):
                 f"intersect: {n} of {total} rays did not converge on a {type(surface).__name__} "
                 f"(|f| stalled above the tolerance {tol:g} mm at coordinates up to {scale:.3g} "
                 f"mm in {o.dtype}) and are marked invalid; use float64, a larger "
-                f"IntersectOptions(tol=...) or more max_iter", RuntimeWarning, stacklevel=3)
+                f"TraceOptions(tol=...) or more max_iter", RuntimeWarning, stacklevel=3)
 
 
 def _signbit(x):
@@ -230,7 +191,7 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None):
     Returns:
         ``(x, d_t, valid, opl)`` in the global frame, as :meth:`Lens.trace_surface` returns them.
     """
-    opt = options or IntersectOptions()
+    opt = options or TraceOptions()
     tol = opt.tol if opt.tol is not None else default_tolerance(o.dtype)
     args = (o, d, valid, opl, z_shift, surface.c.to(o), surface.k.to(o),
             surface.semi_diameter.to(o), torch.as_tensor(n1, dtype=o.dtype, device=o.device),
@@ -383,20 +344,20 @@ def propagate_distance(oz, dz, valid, z_plane):
 
 
 def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
-              options: IntersectOptions | None = None):
+              options: TraceOptions | None = None):
     """Intersect rays with ``surface`` in its local frame.
 
     Args:
         surface: a :class:`~deeplens.optics.surfaces.Surface`.
         o, d: ``(*B, 3)`` ray origins (mm) and unit directions in the surface frame.
         valid: ``(*B,)`` incoming validity.
-        options: :class:`IntersectOptions`.
+        options: :class:`~.options.TraceOptions`.
 
     Returns:
         ``(t, x, valid)``: marching distance ``(*B,)`` (mm), hit point ``(*B, 3)`` and the
         updated mask.  For invalid rays ``t`` and ``x`` are finite but meaningless.
     """
-    opt = options or IntersectOptions()
+    opt = options or TraceOptions()
     tol = opt.tol if opt.tol is not None else default_tolerance(o.dtype)
     dz = d[..., 2]
     ok = valid & (dz.abs() > 1e-12)
