@@ -77,7 +77,7 @@ from ..materials import GLASS_TABLE, Air, Material, ModelGlass, check_wavelength
 from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
-from .lensfile import LensFileError
+from ..errors import LensFileError
 from .zmx_system import (aperture_to_epd, element_tilts, fields_to_angles, lens_pupil_convention,
                          rotationally_symmetric, zemax_tilts)
 from .vendor_glass import (CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
