@@ -264,6 +264,17 @@ def _trace_entry(lens, params, reverse, opt, dtype=F64, grad=True):
     return fn
 
 
+def _kernels_and_grads(kers, params, name, seed):
+    """The kernels and the gradients of a seeded random functional of them."""
+    res = {f"{name}{j}": k for j, k in enumerate(kers)}
+    g = torch.Generator().manual_seed(seed)
+    loss = sum((k * torch.rand(k.shape, generator=g, dtype=F64).to(k)).sum() for k in kers)
+    gs = torch.autograd.grad(loss, [p for _, p in params], allow_unused=True)
+    for (n, _), gr in zip(params, gs):
+        res[f"grad:{n}"] = gr if gr is not None else "None"
+    return res
+
+
 def _psf_entry(lens, params, opt):
     from deeplens.render.psf import psf_many
     from deeplens.render.sensor import Sensor
@@ -272,13 +283,7 @@ def _psf_entry(lens, params, opt):
         sensor = Sensor((32, 32), 0.005, channels=[[WL]])
         jobs = [((0.0, 0.0), math.inf, WL), ((0.0, 0.05), math.inf, WL)]
         kers = psf_many(lens, sensor, jobs, n_rays=512, kernel_size=15, options=opt)
-        res = {f"psf{j}": k for j, k in enumerate(kers)}
-        g = torch.Generator().manual_seed(5)
-        loss = sum((k * torch.rand(k.shape, generator=g, dtype=F64).to(k)).sum() for k in kers)
-        gs = torch.autograd.grad(loss, [p for _, p in params], allow_unused=True)
-        for (n, _), gr in zip(params, gs):
-            res[f"grad:{n}"] = gr if gr is not None else "None"
-        return res
+        return _kernels_and_grads(kers, params, "psf", 5)
     return fn
 
 
@@ -291,13 +296,7 @@ def _diffraction_entry(lens, params, opt):
         jobs = [((0.0, 0.0), 6000.0, WL), ((0.3, 0.2), 6000.0, 486.1327)]
         kers = diffraction_psf_many(lens, sensor, jobs, DiffractionSampling(24, 15, 2),
                                     options=opt)
-        res = {f"dpsf{j}": k for j, k in enumerate(kers)}
-        g = torch.Generator().manual_seed(6)
-        loss = sum((k * torch.rand(k.shape, generator=g, dtype=F64).to(k)).sum() for k in kers)
-        gs = torch.autograd.grad(loss, [p for _, p in params], allow_unused=True)
-        for (n, _), gr in zip(params, gs):
-            res[f"grad:{n}"] = gr if gr is not None else "None"
-        return res
+        return _kernels_and_grads(kers, params, "dpsf", 6)
     return fn
 
 

@@ -30,9 +30,6 @@ import warnings
 
 import torch
 
-from .surfaces.asphere import (conic_arg, conic_dsag_ds, conic_quadric, conic_root, conic_sag,
-                               even_poly, even_poly_ds)
-from .surfaces.xy_polynomial import xy_f_value, xy_f_z, xy_fold, xy_in_domain, xy_poly
 from .intersect import (_quadric_root, _safe_div, accept_hits, flat_step_xyz, propagate_xyz,
                         quadric_step_xyz, rounding_tolerance)
 from .refract import snell_xyz
@@ -149,52 +146,21 @@ compiled_surface_run = _compile(surface_run)
 # checks after each chunk whether any ray is still active (the eager loop checks after iterations
 # 1, 2, 4, 8, ...; an extra iteration changes nothing once every ray has converged or failed, so
 # both give the same roots).  The final differentiable Newton step (Eq. 7), the checks, the normal
-# and Snell's law are one more kernel.  ``kind`` (``"asphere"`` or ``"xy"``) and ``sp``, the
-# surface's values (:func:`newton_surface_values`), select the implicit function.
+# and Snell's law are one more kernel.  ``kind`` (the surface's class: its static ``kernel_f``,
+# ``kernel_in_domain`` and ``kernel_start``, written in the surface's own file from the maths
+# its eager methods call) and ``sp``, its values (:func:`newton_surface_values`), select the
+# implicit function.
 
 #: Newton updates per compiled chunk (one host synchronisation per chunk)
 NEWTON_CHUNK = 2
 
 
-def asphere_f(x, y, z, c, k, coeffs):
-    """``f = sag(x, y) - z`` and ``∇f`` of an even asphere from the functions
-    :class:`~.surfaces.Asphere` calls (:mod:`~.surfaces.asphere`'s ``conic_sag``,
-    ``conic_dsag_ds``, ``even_poly``, ``even_poly_ds``), fused: one conic root for both.  ``coeffs``: tuple of 0-d ``a4, a6, ...``.  Returns ``(f, f_x, f_y, f_z)``."""
-    s = x * x + y * y
-    root = conic_root(s, c, k)  # shared by the sag and its slope
-    sag, g = conic_sag(s, c, k, root), conic_dsag_ds(s, c, k, root)
-    if len(coeffs):
-        sag = sag + even_poly(s, coeffs)
-        g = g + even_poly_ds(s, coeffs)
-    return sag - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
-
-
-def xy_f(x, y, z, b, coeffs, terms, order):
-    """``f`` and ``∇f`` of an XY polynomial from the functions :class:`~.surfaces.XYPolynomial`
-    calls (:func:`~.surfaces.xy_polynomial.xy_poly`, ``xy_fold``, ``xy_f_value``, ``xy_f_z``;
-    continued past the fold plane).  ``coeffs``: tuple of 0-d values; ``terms``: the exponent
-    pairs; ``order``: the degree.  Returns ``(f, f_x, f_y, f_z)``."""
-    P, Px, Py = xy_poly(x, y, coeffs, terms, order)
-    beyond, zc = xy_fold(z, b)
-    return xy_f_value(P, zc, z, b), Px, Py, xy_f_z(z, b, beyond)
-
-
 def _surface_f(kind, sp, x, y, z):
-    if kind == "asphere":
-        return asphere_f(x, y, z, *sp)
-    b, coeffs, terms, order, _ = sp
-    return xy_f(x, y, z, b, coeffs, terms, order)
+    return kind.kernel_f(x, y, z, sp)
 
 
 def _in_domain(kind, sp, x, y):
-    if kind == "asphere":
-        c, k, _ = sp
-        return conic_arg(x * x + y * y, c, k) > 0
-    b, coeffs, terms, order, b_nonzero = sp
-    if not b_nonzero:  # as XYPolynomial.in_domain: everywhere when b == 0
-        return torch.ones_like(x, dtype=torch.bool)
-    P, _, _ = xy_poly(x, y, coeffs, terms, order)
-    return xy_in_domain(P, b)
+    return kind.kernel_in_domain(x, y, sp)
 
 
 def detached(sp):
@@ -205,14 +171,11 @@ def detached(sp):
 
 
 def newton_surface_values(surface, like):
-    """``(kind, sp)`` for an :class:`~.surfaces.Asphere` with coefficients or an
-    :class:`~.surfaces.XYPolynomial`: its values in ``like``'s dtype (differentiable) and the
-    static structure."""
-    if hasattr(surface, "terms"):
-        return "xy", (surface.b.to(like), tuple(a.to(like) for a in surface.a),
-                      tuple(surface.terms), surface.order, float(surface.b.detach()) != 0.0)
-    return "asphere", (surface.c.to(like), surface.k.to(like),
-                       tuple(a.to(like) for a in surface.a))
+    """``(kind, sp)``: the surface's class (its static ``kernel_*`` functions: a constant to the
+    compiler) and :meth:`~.surfaces.Surface.kernel_values` in ``like``'s dtype, or ``None``
+    when the surface has no Newton kernel."""
+    sp = surface.kernel_values(like)
+    return (None, None) if sp is None else (type(surface), sp)
 
 
 def _residual_xyz(kind, sp, bx, by, bz, dx, dy, dz, s, at=None):
@@ -246,11 +209,7 @@ def newton_start(kind, sp, o, d, valid, z_shift, tol: float, n: int):
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-oz, dz, ok)
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-    if kind == "asphere":
-        c, k, _ = sp
-        s, _ = _quadric_root(conic_quadric(bx, by, bz, dx, dy, dz, c, k), bz, dz, ok)
-    else:
-        s = torch.zeros_like(t0)
+    s = kind.kernel_start(bx, by, bz, dx, dy, dz, ok, sp, _quadric_root)
     tol_ray = rounding_tolerance(bx, by, bz, tol)
     s, active, converged, fv = _newton_updates(kind, sp, bx, by, bz, dx, dy, dz, s, ok,
                                                torch.zeros_like(ok), tol_ray, n)

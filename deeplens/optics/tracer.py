@@ -29,7 +29,7 @@ import torch.utils.checkpoint
 from .intersect import _warn_stalled, default_tolerance
 from .options import TraceOptions
 from .rays import Rays, compact_broadcast as _compact, from_soa, to_soa
-from .surfaces import Aperture, Asphere, CoordinateBreak, Plane, XYPolynomial
+from .surfaces import Aperture, Asphere, CoordinateBreak, Plane, Surface
 
 __all__ = ["fused_kind", "newton_compiled", "surface_checkpointed", "trace", "trace_compiled"]
 
@@ -79,8 +79,9 @@ def surface_checkpointed(lens, i: int, rays: Rays, n1, n2, z, options) -> Rays:
 
 def fused_kind(lens, i: int):
     """How surface ``i`` runs compiled: a :data:`~.compiled.KINDS` entry when it can join a
-    compiled run (an aligned sphere/conic, plane or stop), ``"newton"`` for an aligned even
-    asphere or XY polynomial, else ``None`` (eager)."""
+    compiled run (an aligned sphere/conic, plane or stop), ``"newton"`` for an aligned surface
+    whose type defines the Newton kernels (:meth:`~.surfaces.Surface.kernel_values`: even
+    aspheres, XY polynomials), else ``None`` (eager)."""
     s = lens.surfaces[i]
     if getattr(s, "deflects", False):
         return None
@@ -92,9 +93,9 @@ def fused_kind(lens, i: int):
         return "stop_rect" if s.shape == "rect" else "stop"
     if type(s) is Plane:
         return "plane"
-    if isinstance(s, Asphere):
-        return "quadric" if s.is_quadric else "newton"
-    if type(s) is XYPolynomial:
+    if isinstance(s, Asphere) and s.is_quadric:
+        return "quadric"
+    if type(s).kernel_values is not Surface.kernel_values:  # the type has Newton kernels
         return "newton"
     return None
 

@@ -17,7 +17,6 @@ import helpers as H
 import pytest
 import torch
 
-import deeplens.optics.compiled as C
 from deeplens.optics import intersect as I
 from deeplens.optics import refract as R
 from deeplens.optics.intersect import IntersectOptions
@@ -30,17 +29,6 @@ from deeplens.optics.surfaces import xy_polynomial as XY
 EAGER = IntersectOptions()
 FUSED = IntersectOptions(compile="surface")
 LENS_RUN = IntersectOptions(compile="lens")
-
-
-@pytest.fixture
-def uncompiled(monkeypatch):
-    """The fused path with the plain functions instead of their compiled wrappers."""
-    for name, fn in (("compiled_surface_run", C.surface_run),
-                     ("compiled_newton_start", C.newton_start),
-                     ("compiled_newton_more", C.newton_more),
-                     ("compiled_newton_last_check", C.newton_last_check),
-                     ("compiled_newton_refract", C.newton_refract)):
-        monkeypatch.setattr(C, name, fn)
 
 
 @contextlib.contextmanager

@@ -167,6 +167,40 @@ class Asphere(SagSurface):
     def paraxial_curvature(self):
         return self.c
 
+    # ---- the compiled Newton kernels' interface (see Surface.kernel_values) ---------------
+    def kernel_values(self, like):
+        """``(c, k, (a4, a6, ...))`` in ``like``'s dtype (differentiable); ``None`` for a
+        sphere or conic (the closed-form kernel runs those)."""
+        if self.is_quadric:
+            return None
+        return (self.c.to(like), self.k.to(like), tuple(a.to(like) for a in self.a))
+
+    @staticmethod
+    def kernel_f(x, y, z, values):
+        """``(f, f_x, f_y, f_z)`` from :func:`conic_sag`, :func:`conic_dsag_ds`,
+        :func:`even_poly` and :func:`even_poly_ds`, fused: one conic root for both."""
+        c, k, coeffs = values
+        s = x * x + y * y
+        root = conic_root(s, c, k)  # shared by the sag and its slope
+        sag, g = conic_sag(s, c, k, root), conic_dsag_ds(s, c, k, root)
+        if len(coeffs):
+            sag = sag + even_poly(s, coeffs)
+            g = g + even_poly_ds(s, coeffs)
+        return sag - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
+
+    @staticmethod
+    def kernel_in_domain(x, y, values):
+        c, k, _ = values
+        return conic_arg(x * x + y * y, c, k) > 0
+
+    @staticmethod
+    def kernel_start(bx, by, bz, dx, dy, dz, ok, values, root_fn):
+        """Newton starts from the conic base's root (``root_fn``: the tracer's
+        :func:`~..intersect._quadric_root`)."""
+        c, k, _ = values
+        s, _ = root_fn(conic_quadric(bx, by, bz, dx, dy, dz, c, k), bz, dz, ok)
+        return s
+
     # ---- the conic base as a quadric (closed-form intersection, cheap normal) -------------
     @property
     def is_quadric(self) -> bool:

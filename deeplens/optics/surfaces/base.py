@@ -118,6 +118,17 @@ class Surface(nn.Module):
         """Unit normal ``∇f / |∇f|`` ``(*B, 3)`` at points ``x`` ``(*B, 3)``."""
         return unit_normal(*self.f_grad(x[..., 0], x[..., 1], x[..., 2]))
 
+    # ---- the compiled Newton kernels (deeplens.optics.compiled) ---------------------------
+    #: A surface type joins the compiled Newton path by defining, in its own file,
+    #: ``kernel_values(like)`` (its values in the rays' dtype, or ``None``), and the static
+    #: methods ``kernel_f(x, y, z, values) -> (f, f_x, f_y, f_z)``,
+    #: ``kernel_in_domain(x, y, values)`` and ``kernel_start(bx, by, bz, dx, dy, dz, ok, values,
+    #: root_fn)`` (Newton's start ``s`` from the vertex-plane point), built from the same
+    #: functions its ``f``/``f_grad``/``in_domain`` call.  A subclass that changes ``f`` must
+    #: redefine them.  Without them the surface runs eager between compiled runs.
+    def kernel_values(self, like):
+        return None
+
     def paraxial_curvature(self) -> torch.Tensor:
         return torch.zeros((), dtype=self.semi_diameter.dtype, device=self.semi_diameter.device)
 

@@ -128,6 +128,35 @@ class XYPolynomial(Surface):
         P, _, _ = self.poly(x, y)
         return xy_in_domain(P, self.b)
 
+    # ---- the compiled Newton kernels' interface (see Surface.kernel_values) ---------------
+    def kernel_values(self, like):
+        """``(b, coefficients, terms, order, b != 0)``: values in ``like``'s dtype
+        (differentiable) and the static structure."""
+        return (self.b.to(like), tuple(a.to(like) for a in self.a), tuple(self.terms),
+                self.order, float(self.b.detach()) != 0.0)
+
+    @staticmethod
+    def kernel_f(x, y, z, values):
+        """``(f, f_x, f_y, f_z)`` from :func:`xy_poly`, :func:`xy_fold`, :func:`xy_f_value` and
+        :func:`xy_f_z` (continued past the fold plane)."""
+        b, coeffs, terms, order, _ = values
+        P, Px, Py = xy_poly(x, y, coeffs, terms, order)
+        beyond, zc = xy_fold(z, b)
+        return xy_f_value(P, zc, z, b), Px, Py, xy_f_z(z, b, beyond)
+
+    @staticmethod
+    def kernel_in_domain(x, y, values):
+        b, coeffs, terms, order, b_nonzero = values
+        if not b_nonzero:  # as in_domain: everywhere when b == 0
+            return torch.ones_like(x, dtype=torch.bool)
+        P, _, _ = xy_poly(x, y, coeffs, terms, order)
+        return xy_in_domain(P, b)
+
+    @staticmethod
+    def kernel_start(bx, by, bz, dx, dy, dz, ok, values, root_fn):
+        """Newton starts from the vertex plane."""
+        return torch.zeros_like(bz)
+
     def sag(self, x, y):
         P, _, _ = self.poly(x, y)
         disc = self._disc(P)
