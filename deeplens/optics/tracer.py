@@ -49,8 +49,7 @@ def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | No
         step = functools.partial(surface_checkpointed, lens)
     if (options is not None and options.compile and options.closed_form
             and options.mode == "implicit" and not record and not lens.folded()):
-        return trace_compiled(lens, rays, order, n, z, reverse, options, step,
-                                    propagate_to)
+        return trace_compiled(lens, rays, order, n, z, reverse, options, step, propagate_to)
     for i in order:
         n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
         if isinstance(lens.surfaces[i], CoordinateBreak):  # a change of frame only
@@ -65,8 +64,9 @@ def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | No
 
 
 def surface_checkpointed(lens, i: int, rays: Rays, n1, n2, z, options) -> Rays:
-    """:meth:`Lens.trace_surface <deeplens.optics.lens.Lens.trace_surface>` that autograd does not record: backward recomputes it from the
-    incoming ray state (``torch.utils.checkpoint``), so only that state is kept per surface."""
+    """:meth:`Lens.trace_surface <deeplens.optics.lens.Lens.trace_surface>` that autograd does
+    not record: backward recomputes it from the incoming ray state (``torch.utils.checkpoint``),
+    so only that state is kept per surface."""
     def surface_step(o, d, wavelength, opl, n1, n2, z):
         out = lens.trace_surface(i, Rays(o, d, wavelength, rays.valid, opl, normalize=False),
                                  n1, n2, z, options)
