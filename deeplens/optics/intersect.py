@@ -65,8 +65,8 @@ from .surfaces.aperture import in_rect
 from .surfaces.asphere import conic_arg, conic_normal, conic_quadric
 from .surfaces.base import in_circle
 
-__all__ = ["IntersectOptions", "TraceOptions", "accept_hits", "default_tolerance", "flat_step", "flat_step_xyz",
-           "hit_mask", "intersect", "rounding_tolerance", "snell_xyz",
+__all__ = ["IntersectOptions", "TraceOptions", "accept_hits", "default_tolerance", "flat_step",
+           "flat_step_xyz", "hit_mask", "intersect", "rounding_tolerance", "snell_xyz",
            "quadric_step", "quadric_step_xyz", "trace_quadric"]
 
 
