@@ -118,10 +118,12 @@ def main(argv=None):
     print(f"{args.rays} rays, float32, torch {torch.__version__}, threads "
           f"{torch.get_num_threads()}, CPU capability {torch.backends.cpu.get_cpu_capability()}, "
           f"min of {args.repeats} alternating runs")
-    print("| row | before s | after s | after/before |\n|---|---|---|---|")
+    print("| row | before s | after s | after/before | before CPU s | after CPU s | after/before "
+          "(CPU) |\n|---|---|---|---|---|---|---|")
     for k in names:
         a, b = best[("before", k)], best[("after", k)]
-        print(f"| {k} | {a:.4f} | {b:.4f} | {b / a:.3f} |")
+        ca, cb = cpu[("before", k)], cpu[("after", k)]
+        print(f"| {k} | {a:.4f} | {b:.4f} | {b / a:.3f} | {ca:.4f} | {cb:.4f} | {cb / ca:.3f} |")
 
 
 if __name__ == "__main__":
