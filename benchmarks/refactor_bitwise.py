@@ -305,7 +305,7 @@ FUSED = {"surface": IntersectOptions(compile="surface"), "lens": IntersectOption
          "surface_ckpt": IntersectOptions(compile="surface", checkpoint=True)}
 
 
-def record(compiled: bool, only=None) -> dict:
+def record(compiled: bool, only=None, compiled_cases=COMPILED_CASES) -> dict:
     torch.manual_seed(0)
     store: dict = {}
     eager_opts = {"eager": IntersectOptions(), "eager_ckpt": IntersectOptions(checkpoint=True),
@@ -314,7 +314,8 @@ def record(compiled: bool, only=None) -> dict:
         if only and name not in only:
             continue
         for aligned in (False, True):
-            _record_lens(store, name, build(), aligned, compiled, eager_opts)
+            _record_lens(store, name, build(), aligned, compiled and name in compiled_cases,
+                         eager_opts)
         print(f"  {name}: {sum(1 for k in store if k.startswith(name + '/'))} entries",
               flush=True)
     return store
@@ -349,7 +350,7 @@ def _record_lens(store, name, lens, aligned, compiled, eager_opts):
             with _plain_kernels():
                 _record(store, f"{name}/dpsf/fused_auto",
                         _diffraction_entry(lens, params, FUSED["auto"]))
-        if compiled and aligned and base in COMPILED_CASES:
+        if compiled and aligned:
             for reverse in (False, True):
                 tag = f"{name}/{'rev' if reverse else 'fwd'}"
                 _record(store, f"{tag}/compiled_auto",
@@ -403,12 +404,14 @@ def main(argv=None):
     r.add_argument("out")
     r.add_argument("--compiled", action="store_true", help="also the real inductor kernels")
     r.add_argument("--only", nargs="*", help="case names (default: all)")
+    r.add_argument("--compiled-cases", nargs="*", default=list(COMPILED_CASES),
+                   help=f"lenses through the real compiled kernels (default: {COMPILED_CASES})")
     c = sub.add_parser("compare")
     c.add_argument("before")
     c.add_argument("after")
     args = ap.parse_args(argv)
     if args.cmd == "record":
-        store = record(args.compiled, args.only)
+        store = record(args.compiled, args.only, tuple(args.compiled_cases))
         torch.save(store, args.out)
         print(f"wrote {len(store)} entries to {args.out}")
         return 0
