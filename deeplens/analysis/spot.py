@@ -17,14 +17,13 @@ rays where light passes.
 from __future__ import annotations
 
 import contextlib
-import math
 from dataclasses import dataclass
 
 import torch
 
-from ..optics.intersect import IntersectOptions
-from ..optics.sampling import field_rays, pupil_pattern
+from ..optics.chief import chief_ray, image_plane_z  # noqa: F401  (re-exported)
 from ..optics.paraxial import paraxial
+from ..optics.sampling import field_rays, pupil_pattern
 
 __all__ = ["PupilRegion", "find_pupil", "spot_diagram", "chief_ray", "SpotResult",
            "image_plane_z"]
@@ -130,18 +129,6 @@ def _safe_sqrt(v: torch.Tensor) -> torch.Tensor:
                        torch.zeros_like(v))
 
 
-def image_plane_z(lens, image_plane="sensor"):
-    """Axial position of the evaluation plane: ``"sensor"``, ``"paraxial"`` or a number (mm)."""
-    if image_plane == "sensor":
-        return lens.z_sensor()
-    if image_plane == "paraxial":
-        return paraxial(lens).image_z
-    if isinstance(image_plane, (int, float)):
-        return torch.as_tensor(float(image_plane), dtype=lens.dtype)
-    raise ValueError(f"image plane must be 'sensor', 'paraxial' or a z position in mm, got "
-                     f"{image_plane!r}")
-
-
 @dataclass
 class SpotResult:
     """Spot of one field and wavelength; positions in mm on the image plane."""
@@ -183,42 +170,3 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
     cen = pts.mean(0)
     rms = _safe_sqrt(((pts - cen) ** 2).sum(-1).mean())
     return SpotResult(field_deg, wavelength_nm, pts, cen, rms, n, rays.shape[0])
-
-
-def chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor",
-              iterations: int = 30):
-    """The real chief ray (aimed by secant iterations at the stop centre).
-
-    Returns ``(y_image_mm, y_pupil_mm)``: its height on the image plane and where it crosses the
-    entrance-pupil plane.  Heights are signed: a positive field angle (rays rising towards
-    ``+y``) images to ``+y`` through an imaging lens.
-    """
-    dtype = lens.dtype
-    with torch.no_grad():
-        p = paraxial(lens)
-        z_ep = float(p.entrance_pupil_z)
-
-        aim = IntersectOptions(clip_aperture=False)
-        z = lens.z_vertices()
-        n = lens.indices(torch.tensor(wavelength_nm, dtype=dtype))
-
-        def stop_y(yp: float) -> float:
-            xy = torch.tensor([[0.0, yp]], dtype=dtype)
-            rays = field_rays(lens, field_deg, wavelength_nm, xy, z_ep)
-            for i in range(lens.stop_index + 1):
-                rays = lens.trace_surface(i, rays, n[i], n[i + 1], z, aim,
-                                          refract_=i < lens.stop_index)
-            return float(rays.o[0, 1])
-
-        y0, y1 = 0.0, 1e-3 * max(float(p.entrance_pupil_diameter), 1e-3)
-        f0, f1 = stop_y(y0), stop_y(y1)
-        for _ in range(iterations):
-            if abs(f1) < 1e-12 or f1 == f0:
-                break
-            y0, y1, f0 = y1, y1 - f1 * (y1 - y0) / (f1 - f0), f1
-            f1 = stop_y(y1)
-    xy = torch.tensor([[0.0, y1]], dtype=dtype)
-    rays = field_rays(lens, field_deg, wavelength_nm, xy, z_ep)
-    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane))
-    y_img = out.o[0, 1] if bool(out.valid[0]) else torch.tensor(math.nan, dtype=dtype)
-    return y_img, y1

@@ -28,7 +28,7 @@ import math
 
 import torch
 
-from ..render.splat import point_source_rays
+from ..optics.sampling import point_source_rays
 from .optimizers import Infeasible
 
 __all__ = ["DepthInvarianceMerit", "geometric_otf", "frequency_grid"]

@@ -18,7 +18,6 @@ the stop and frozen air elements are not).
 
 from __future__ import annotations
 
-import fnmatch
 import json
 import math
 import warnings
@@ -26,6 +25,7 @@ from pathlib import Path
 
 import torch
 
+from ..optics.parameters import glob_names
 from .sensitivity import _unscaled, field_merits, tolerance_parameters
 
 __all__ = ["DEFAULT_TOLERANCES", "load_tolerances", "resolve_tolerances", "monte_carlo",
@@ -83,11 +83,7 @@ def resolve_tolerances(lens, spec: dict | None = None) -> tuple[list[str], torch
     params = dict(lens.named_parameters())
     chosen = {}
     for key, v in spec.items():
-        hits = [n for n in cands if fnmatch.fnmatchcase(n, key)]
-        if not hits:
-            raise ValueError(f"tolerance {key!r} matches no tolerance parameter; available: "
-                             f"{', '.join(cands)}")
-        for n in hits:
+        for n in glob_names(cands, key, "tolerance ", "tolerance parameter"):
             chosen[n] = _halfwidth(v, float(params[n]), f"tolerance {key!r}")
     names = [n for n in cands if n in chosen and chosen[n] > 0]
     return names, torch.tensor([chosen[n] for n in names], dtype=torch.float64)

@@ -20,66 +20,14 @@ tangents, and :meth:`Variables.assign` writes a final ``x`` back.
 
 from __future__ import annotations
 
-import fnmatch
 import math
 
 import torch
 from torch import nn
 
-from ..optics.surfaces import Asphere, BSpline, XYPolynomial
+from ..optics.parameters import parameter_scale, resolve_names
 
 __all__ = ["parameter_scale", "Variables", "resolve_names"]
-
-
-def parameter_scale(lens, name: str) -> float:
-    """mm of sag (at the rim) per unit of the parameter ``name`` (module docstring)."""
-    parts = name.split(".")
-    if parts[0] == "surfaces":
-        s = lens.surfaces[int(parts[1])]
-        R = float(s.semi_diameter)
-        if isinstance(s, XYPolynomial) and parts[2] == "a":
-            i, j = s.terms[int(parts[3])]
-            return R ** (i + j)
-        if isinstance(s, Asphere) and parts[2] == "a":
-            return R ** (2 * int(parts[3]) + 4)
-        if isinstance(s, Asphere) and parts[2] == "c":
-            return R * R / 2
-        if isinstance(s, Asphere) and parts[2] == "k":
-            c, k = float(s.c), float(s.k)
-            arg = 1.0 - (1.0 + k) * c * c * R * R
-            if c == 0.0 or arg <= 0.0:
-                return 1.0
-            q = math.sqrt(arg)
-            return max(abs(c) ** 3 * R ** 4 / (2.0 * q * (1.0 + q) ** 2), 1e-6)
-        if isinstance(s, BSpline):
-            return 1.0
-        return 1.0
-    if parts[0] == "misalignments" and parts[-1].startswith("tilt"):
-        return float(max(s.semi_diameter for s in lens.surfaces))
-    return 1.0
-
-
-def resolve_names(lens, patterns, what: str = "--vary") -> list[str]:
-    """Parameter names matching ``patterns`` (names or ``fnmatch`` globs): in the order of the
-    patterns, each glob's matches in lens order, each name once.
-
-    Raises:
-        ValueError: a pattern matches nothing; the message lists the available names.
-    """
-    names = [n for n, _ in lens.named_parameters()]
-    if isinstance(patterns, str):
-        patterns = [p for p in patterns.split(",") if p.strip()]
-    patterns = [p.strip() for p in patterns]
-    if not patterns:
-        raise ValueError(f"{what}: no variables given")
-    chosen = []
-    for pat in patterns:
-        hits = [n for n in names if fnmatch.fnmatchcase(n, pat)]
-        if not hits:
-            raise ValueError(f"{what}: {pat!r} matches no lens parameter; available: "
-                             f"{', '.join(names)}")
-        chosen += [h for h in hits if h not in chosen]
-    return chosen
 
 
 class _Call(nn.Module):

@@ -30,8 +30,9 @@ import warnings
 
 import torch
 
-from .intersect import (_ROUNDING_ULPS, _quadric_root, _safe_div, accept_hits,
-                        flat_step_xyz, propagate_xyz, quadric_step_xyz, snell_xyz)
+from .intersect import (_quadric_root, _safe_div, accept_hits, flat_step_xyz, propagate_xyz,
+                        quadric_step_xyz, rounding_tolerance)
+from .refract import snell_xyz
 
 __all__ = ["KINDS", "compiled_surface_run", "surface_run"]
 
@@ -145,73 +146,21 @@ compiled_surface_run = _compile(surface_run)
 # checks after each chunk whether any ray is still active (the eager loop checks after iterations
 # 1, 2, 4, 8, ...; an extra iteration changes nothing once every ray has converged or failed, so
 # both give the same roots).  The final differentiable Newton step (Eq. 7), the checks, the normal
-# and Snell's law are one more kernel.  ``kind`` (``"asphere"`` or ``"xy"``) and ``sp``, the
-# surface's values (:func:`newton_surface_values`), select the implicit function.
+# and Snell's law are one more kernel.  ``kind`` (the surface's class: its static ``kernel_f``,
+# ``kernel_in_domain`` and ``kernel_start``, written in the surface's own file from the maths
+# its eager methods call) and ``sp``, its values (:func:`newton_surface_values`), select the
+# implicit function.
 
 #: Newton updates per compiled chunk (one host synchronisation per chunk)
 NEWTON_CHUNK = 2
 
 
-def asphere_f(x, y, z, c, k, coeffs):
-    """``f = sag(x, y) - z`` and ``∇f`` of an even asphere, as :class:`~.surfaces.Asphere`
-    evaluates them (the same operations in the same order).  ``coeffs``: tuple of 0-d
-    ``a4, a6, ...``.  Returns ``(f, f_x, f_y, f_z)``."""
-    s = x * x + y * y
-    arg = 1.0 - (1.0 + k) * c * c * s
-    safe = torch.where(arg > 0, arg, torch.ones_like(arg))
-    root = torch.sqrt(safe)
-    sag = c * s / (1.0 + root)
-    g = c / (2.0 * root)
-    if len(coeffs):
-        p = torch.zeros_like(s)
-        for a in reversed(coeffs):
-            p = (p + a) * s
-        sag = sag + p * s
-        q = torch.zeros_like(s)
-        for j in range(len(coeffs) - 1, -1, -1):
-            q = q * s + (j + 2) * coeffs[j]
-        g = g + q * s
-    return sag - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
-
-
-def xy_f(x, y, z, b, coeffs, terms, order):
-    """``f`` and ``∇f`` of an XY polynomial, as :class:`~.surfaces.XYPolynomial` evaluates them
-    (continued past the fold plane).  ``coeffs``: tuple of 0-d values; ``terms``: the exponent
-    pairs; ``order``: the degree.  Returns ``(f, f_x, f_y, f_z)``."""
-    px, py = [torch.ones_like(x)], [torch.ones_like(y)]
-    for _ in range(order):
-        px.append(px[-1] * x)
-        py.append(py[-1] * y)
-    P, Px, Py = torch.zeros_like(x), torch.zeros_like(x), torch.zeros_like(x)
-    for a, (i, j) in zip(coeffs, terms):
-        P = P + a * px[i] * py[j]
-        if i:
-            Px = Px + (a * i) * px[i - 1] * py[j]
-        if j:
-            Py = Py + (a * j) * px[i] * py[j - 1]
-    beyond = b.detach() * z.detach() > 0.5
-    z_fold = 0.5 / torch.where(b != 0, b, torch.ones_like(b))
-    zc = torch.where(beyond, z_fold, z)
-    fz = torch.where(beyond, -torch.ones_like(z), 2.0 * b * z - 1.0)
-    return b * zc * zc + P - z, Px, Py, fz
-
-
 def _surface_f(kind, sp, x, y, z):
-    if kind == "asphere":
-        return asphere_f(x, y, z, *sp)
-    b, coeffs, terms, order, _ = sp
-    return xy_f(x, y, z, b, coeffs, terms, order)
+    return kind.kernel_f(x, y, z, sp)
 
 
 def _in_domain(kind, sp, x, y):
-    if kind == "asphere":
-        c, k, _ = sp
-        return 1.0 - (1.0 + k) * c * c * (x * x + y * y) > 0
-    b, coeffs, terms, order, b_nonzero = sp
-    if not b_nonzero:  # as XYPolynomial.in_domain: everywhere when b == 0
-        return torch.ones_like(x, dtype=torch.bool)
-    f, _, _, _ = xy_f(x, y, torch.zeros_like(x), b, coeffs, terms, order)  # f(x, y, 0) = P
-    return 1.0 - 4.0 * b * f >= 0
+    return kind.kernel_in_domain(x, y, sp)
 
 
 def detached(sp):
@@ -222,14 +171,11 @@ def detached(sp):
 
 
 def newton_surface_values(surface, like):
-    """``(kind, sp)`` for an :class:`~.surfaces.Asphere` with coefficients or an
-    :class:`~.surfaces.XYPolynomial`: its values in ``like``'s dtype (differentiable) and the
-    static structure."""
-    if hasattr(surface, "terms"):
-        return "xy", (surface.b.to(like), tuple(a.to(like) for a in surface.a),
-                      tuple(surface.terms), surface.order, float(surface.b.detach()) != 0.0)
-    return "asphere", (surface.c.to(like), surface.k.to(like),
-                       tuple(a.to(like) for a in surface.a))
+    """``(kind, sp)``: the surface's class (its static ``kernel_*`` functions: a constant to the
+    compiler) and :meth:`~.surfaces.Surface.kernel_values` in ``like``'s dtype, or ``None``
+    when the surface has no Newton kernel."""
+    sp = surface.kernel_values(like)
+    return (None, None) if sp is None else (type(surface), sp)
 
 
 def _residual_xyz(kind, sp, bx, by, bz, dx, dy, dz, s, at=None):
@@ -263,18 +209,8 @@ def newton_start(kind, sp, o, d, valid, z_shift, tol: float, n: int):
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-oz, dz, ok)
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-    if kind == "asphere":
-        c, k, _ = sp
-        ck = c * (1.0 + k)
-        A = c * (dx * dx + dy * dy) + ck * (dz * dz)
-        B = c * (bx * dx + by * dy) + (ck * bz - 1.0) * dz
-        C = c * (bx * bx + by * by) + (ck * bz - 2.0) * bz
-        s, _ = _quadric_root((A, B, C, ck, c), bz, dz, ok)
-    else:
-        s = torch.zeros_like(t0)
-    eps = torch.finfo(o.dtype).eps
-    big = torch.maximum(torch.maximum(bx.abs(), by.abs()), bz.abs())
-    tol_ray = torch.clamp(_ROUNDING_ULPS * eps * big, min=tol)
+    s = kind.kernel_start(bx, by, bz, dx, dy, dz, ok, sp, _quadric_root)
+    tol_ray = rounding_tolerance(bx, by, bz, tol)
     s, active, converged, fv = _newton_updates(kind, sp, bx, by, bz, dx, dy, dz, s, ok,
                                                torch.zeros_like(ok), tol_ray, n)
     return torch.stack([bx, by, bz]), s, ok, active, converged, tol_ray, fv

@@ -59,7 +59,14 @@ import warnings
 
 import torch
 
-__all__ = ["IntersectOptions", "default_tolerance", "flat_step", "flat_step_xyz", "intersect",
+from .options import TraceOptions
+from .refract import snell_coefficient, snell_xyz
+from .surfaces.aperture import in_rect
+from .surfaces.asphere import conic_arg, conic_normal, conic_quadric
+from .surfaces.base import in_circle
+
+__all__ = ["IntersectOptions", "TraceOptions", "accept_hits", "default_tolerance", "flat_step",
+           "flat_step_xyz", "hit_mask", "intersect", "rounding_tolerance", "snell_xyz",
            "quadric_step", "quadric_step_xyz", "trace_quadric"]
 
 
@@ -69,49 +76,9 @@ def default_tolerance(dtype: torch.dtype) -> float:
     return 1e-10 if dtype == torch.float64 else 1e-5
 
 
-class IntersectOptions:
-    """Newton settings: ``tol`` (mm, ``None`` = dtype default; never below ``4 eps |x|``),
-    ``max_iter``, ``mode``; ``clip_aperture=False`` ignores clear apertures (for ray aiming),
-    not surface domains; ``closed_form=False`` runs Newton from the vertex plane also on spheres
-    and conics (the reference path); ``compile="surface"`` runs each aligned sphere, conic,
-    plane, stop, even asphere or XY polynomial's intersect + refract as ``torch.compile``d kernels,
-    ``compile="lens"`` each run of aligned spheres, conics, planes and stops as one kernel, and
-    ``compile=True`` (``"auto"``) picks ``"lens"`` when nothing needs a gradient and
-    ``"surface"`` otherwise (measured faster in each case; :mod:`.compiled`; the first call per
-    lens structure and dtype compiles, later calls and other ray counts reuse it; a
-    ``record``ed trace, ``closed_form=False`` and ``mode="unrolled"`` stay eager);
-    ``checkpoint=True`` makes
-    :meth:`Lens.trace <deeplens.optics.lens.Lens.trace>` keep only each surface's incoming ray
-    state for backward and recompute the surface there (about 40 instead of 120 bytes per ray
-    and surface in float32, for about 1.5x the backward's time)."""
-
-    __slots__ = ("checkpoint", "clip_aperture", "closed_form", "compile", "max_iter", "mode",
-                 "tol")
-
-    def __init__(self, tol: float | None = None, max_iter: int = 30, mode: str = "implicit",
-                 clip_aperture: bool = True, closed_form: bool = True, checkpoint: bool = False,
-                 compile: bool | str = False):
-        if compile is True:
-            compile = "auto"
-        if compile not in (False, None, "auto", "surface", "lens"):
-            raise ValueError(f"compile must be False, True ('auto'), 'surface' or 'lens', got "
-                             f"{compile!r}")
-        self.compile = compile or False
-        self.clip_aperture = bool(clip_aperture)
-        self.closed_form = bool(closed_form)
-        self.checkpoint = bool(checkpoint)
-        if mode not in ("implicit", "unrolled"):
-            raise ValueError(f"intersection mode must be 'implicit' or 'unrolled', got {mode!r}")
-        if max_iter < 1:
-            raise ValueError(f"max_iter must be >= 1, got {max_iter}")
-        if tol is not None and not tol > 0:
-            raise ValueError(f"tol must be > 0 mm, got {tol}")
-        self.tol, self.max_iter, self.mode = tol, int(max_iter), mode
-
-    def __repr__(self):
-        return (f"IntersectOptions(tol={self.tol}, max_iter={self.max_iter}, mode={self.mode!r}, "
-                f"clip_aperture={self.clip_aperture}, closed_form={self.closed_form}, "
-                f"checkpoint={self.checkpoint}, compile={self.compile})")
+#: deprecated name of :class:`~.options.TraceOptions` (the settings now cover the whole trace:
+#: Newton, the closed form, compiled kernels and checkpointing); kept so existing code runs
+IntersectOptions = TraceOptions
 
 
 #: the tolerance never goes below this many float rounding units of the coordinates, ``eps |x|``
@@ -122,8 +89,7 @@ _STALL_WARN_FRACTION = 0.01
 
 def _tolerance(tol: float, x: torch.Tensor) -> torch.Tensor:
     """Per-ray tolerance ``max(tol, 4 eps |x|_inf)`` (mm) at evaluation points ``x`` (*B, 3)."""
-    eps = torch.finfo(x.dtype).eps
-    return torch.clamp(_ROUNDING_ULPS * eps * x.detach().abs().amax(-1), min=tol)
+    return rounding_tolerance(*x.detach().unbind(-1), tol)
 
 
 def _residual(surface, o, d, t, at=None):
@@ -162,7 +128,7 @@ def _warn_stalled(surface, o, d, s, tried, converged, tol_ray, tol, fv=None):
                 f"intersect: {n} of {total} rays did not converge on a {type(surface).__name__} "
                 f"(|f| stalled above the tolerance {tol:g} mm at coordinates up to {scale:.3g} "
                 f"mm in {o.dtype}) and are marked invalid; use float64, a larger "
-                f"IntersectOptions(tol=...) or more max_iter", RuntimeWarning, stacklevel=3)
+                f"TraceOptions(tol=...) or more max_iter", RuntimeWarning, stacklevel=3)
 
 
 def _signbit(x):
@@ -225,7 +191,7 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None):
     Returns:
         ``(x, d_t, valid, opl)`` in the global frame, as :meth:`Lens.trace_surface` returns them.
     """
-    opt = options or IntersectOptions()
+    opt = options or TraceOptions()
     tol = opt.tol if opt.tol is not None else default_tolerance(o.dtype)
     args = (o, d, valid, opl, z_shift, surface.c.to(o), surface.k.to(o),
             surface.semi_diameter.to(o), torch.as_tensor(n1, dtype=o.dtype, device=o.device),
@@ -266,59 +232,53 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-oz, dz, ok).detach()
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
-    # the conic base as a quadric, as Asphere.quadric_xyz
-    k1 = 1.0 + k
-    ck = c * k1
-    A = c * (dx * dx + dy * dy) + ck * (dz * dz)
-    B = c * (bx * dx + by * dy) + (ck * bz - 1.0) * dz
-    C = c * (bx * bx + by * by) + (ck * bz - 2.0) * bz
-    s, found = _quadric_root((A, B, C, ck, c), bz, dz, ok)
+    quadric = conic_quadric(bx, by, bz, dx, dy, dz, c, k)  # the conic base, as Asphere.quadric
+    s, found = _quadric_root(quadric, bz, dz, ok)
     with torch.no_grad():  # as in intersect(): the vertex-plane point in the conic's domain
-        found = found & (1.0 - k1 * c * c * (bx * bx + by * by) > 0)
+        found = found & (conic_arg(bx * bx + by * by, c, k) > 0)
     ok = ok & found
     t = t0 + s
     x, y, z = bx + s * dx, by + s * dy, bz + s * dz
     t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol, clip)
-    # unit normal (c x, c y, (1+k) c z - 1) / |.|, see Asphere.normal
-    gx, gy, gz = c * x, c * y, ck * z - 1.0
-    inv = torch.rsqrt((gx * gx + gy * gy + gz * gz).clamp_min(1e-30))
-    nx, ny, nz = gx * inv, gy * inv, gz * inv
+    nx, ny, nz = conic_normal(x, y, z, c, quadric[3])  # as Asphere.normal
     ex, ey, ez, ok = snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok)
     return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
 
 
-def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool):
-    """The checks every hit passes, on components: ahead of the ray (``t`` above minus a
-    rounding allowance of ``_ROUNDING_ULPS`` ulps of the coordinates, at least ``tol``), inside
-    the clear aperture (with ``clip``), finite.  A ray that fails keeps its origin ``o`` and
+def rounding_tolerance(X, Y, Z, tol: float):
+    """``max(tol, 4 eps |x|_inf)`` (mm) per ray at points with components ``X, Y, Z``
+    (detached): the residual and "ahead of the ray" allowance (module docstring)."""
+    eps = torch.finfo(X.dtype).eps
+    big = torch.maximum(torch.maximum(X.abs(), Y.abs()), Z.abs())
+    return torch.clamp(_ROUNDING_ULPS * eps * big, min=tol)
+
+
+def hit_mask(t, X, Y, Z, ok, tol: float, inside=None):
+    """Hit acceptance, written once (no autograd): ``ok`` and the hit at distance ``t`` lies
+    ahead of the ray (``t >= -``:func:`rounding_tolerance`), inside the clear aperture
+    (``inside``, a mask, or ``None`` when not clipping) and is finite.  ``X, Y, Z``: the hit's
+    detached components.  :func:`intersect`, :func:`accept_hits` and the compiled plane step
+    call it."""
+    with torch.no_grad():
+        ok = ok & (t >= -rounding_tolerance(X, Y, Z, tol))
+        if inside is not None:
+            ok = ok & inside
+        return ok & torch.isfinite(t)
+
+
+def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool,
+                rect: bool = False):
+    """:func:`hit_mask` on components with a circular aperture of radius ``semi_diameter``
+    (``rect``: half-widths ``(2,)``) when ``clip``; a ray that fails keeps its origin ``o`` and
     ``t = 0``.  Returns ``(t, x, y, z, ok)``."""
     X, Y = x.detach(), y.detach()
-    eps = torch.finfo(x.dtype).eps
-    with torch.no_grad():
-        big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
-        ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
-        if clip:
-            ok = ok & (X * X + Y * Y <= semi_diameter * semi_diameter)
-        ok = ok & torch.isfinite(t)
+    inside = None
+    if clip:
+        inside = in_rect(X, Y, semi_diameter) if rect else in_circle(X, Y, semi_diameter)
+    ok = hit_mask(t, X, Y, z.detach(), ok, tol, inside)
     t = torch.where(ok, t, torch.zeros_like(t))
     x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
     return t, x, y, z, ok
-
-
-def snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok):
-    """Snell's law on components, as :func:`~.refract.refract`: the refracted direction
-    ``η d + (sign(cos θ_i) sqrt(1 - η²(1 - cos² θ_i)) - η cos θ_i) n``, ``η = n1 / n2``,
-    ``cos θ_i = d · n``; rays with total internal reflection (``k <= 0``) leave ``ok`` and keep
-    ``d``.  Returns ``(d_x, d_y, d_z, ok)``."""
-    eta = n1 / n2
-    cos_i = dx * nx + dy * ny + dz * nz
-    kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
-    ok = ok & (kk > 0)
-    coef = torch.copysign(torch.sqrt(torch.where(ok, kk, torch.ones_like(kk))), cos_i) - eta * cos_i
-    ex = torch.where(ok, eta * dx + coef * nx, dx)
-    ey = torch.where(ok, eta * dy + coef * ny, dy)
-    ez = torch.where(ok, eta * dz + coef * nz, dz)
-    return ex, ey, ez, ok
 
 
 def flat_step(o, d, valid, opl, z_shift, aperture, n1, n2, tol: float, clip: bool = True,
@@ -351,27 +311,12 @@ def flat_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, aperture, n1, n2,
     ok = valid & (dz.abs() > 1e-12)
     t = _safe_div(-oz, dz, ok)
     x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
-    X, Y = x.detach(), y.detach()
-    eps = torch.finfo(ox.dtype).eps
-    with torch.no_grad():
-        big = torch.maximum(torch.maximum(X.abs(), Y.abs()), z.detach().abs())
-        ok = ok & (t >= -torch.clamp(_ROUNDING_ULPS * eps * big, min=tol))
-        if clip:
-            if rect:
-                ok = ok & (X.abs() <= aperture[0]) & (Y.abs() <= aperture[1])
-            else:
-                ok = ok & (X * X + Y * Y <= aperture * aperture)
-        ok = ok & torch.isfinite(t)
-    t = torch.where(ok, t, torch.zeros_like(t))
-    x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
+    t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, aperture, tol, clip, rect)
     if not refract:
         return x, y, z + z_shift, dx, dy, dz, ok, opl + n1 * t
-    # Snell's law (refract.refract) at n = (0, 0, -1): cos_i = -d_z
+    # Snell's law (refract.snell_coefficient) at n = (0, 0, -1): cos_i = -d_z
     eta = n1 / n2
-    cos_i = -dz
-    kk = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
-    ok = ok & (kk > 0)
-    coef = torch.copysign(torch.sqrt(torch.where(ok, kk, torch.ones_like(kk))), cos_i) - eta * cos_i
+    coef, ok = snell_coefficient(-dz, eta, ok)
     ex = torch.where(ok, eta * dx, dx)
     ey = torch.where(ok, eta * dy, dy)
     ez = torch.where(ok, eta * dz - coef, dz)
@@ -399,20 +344,20 @@ def propagate_distance(oz, dz, valid, z_plane):
 
 
 def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
-              options: IntersectOptions | None = None):
+              options: TraceOptions | None = None):
     """Intersect rays with ``surface`` in its local frame.
 
     Args:
         surface: a :class:`~deeplens.optics.surfaces.Surface`.
         o, d: ``(*B, 3)`` ray origins (mm) and unit directions in the surface frame.
         valid: ``(*B,)`` incoming validity.
-        options: :class:`IntersectOptions`.
+        options: :class:`~.options.TraceOptions`.
 
     Returns:
         ``(t, x, valid)``: marching distance ``(*B,)`` (mm), hit point ``(*B, 3)`` and the
         updated mask.  For invalid rays ``t`` and ``x`` are finite but meaningless.
     """
-    opt = options or IntersectOptions()
+    opt = options or TraceOptions()
     tol = opt.tol if opt.tol is not None else default_tolerance(o.dtype)
     dz = d[..., 2]
     ok = valid & (dz.abs() > 1e-12)
@@ -509,10 +454,8 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     X, Y = x[..., 0].detach(), x[..., 1].detach()
     if not quadric:  # on a quadric's branch h > 0 the domain 1 - (1+k) c^2 r^2 = h^2 > 0 holds
         ok = ok & surface.in_domain(X, Y)
-    ok = ok & (t.detach() >= -_tolerance(tol, x))
-    if opt.clip_aperture:
-        ok = ok & surface.in_aperture(X, Y)
-    ok = ok & torch.isfinite(t.detach())
+    ok = hit_mask(t.detach(), X, Y, x[..., 2].detach(), ok, tol,
+                  surface.in_aperture(X, Y) if opt.clip_aperture else None)
     t = torch.where(ok, t, torch.zeros_like(t))
     x = torch.where(ok.unsqueeze(-1), x, o)
     return t, x, ok

@@ -15,8 +15,9 @@ off-axis sections) and ray coordinates after it are in the new frame (:mod:`.fra
 
 Each surface is intersected in its element's frame (:mod:`.misalignment`) by Newton's method with
 one differentiable step (:mod:`.intersect`) and refracted by vector Snell's law (:mod:`.refract`).
-With ``IntersectOptions(compile=...)`` aligned spheres, conics, planes, stops and even aspheres
-run through fused ``torch.compile`` kernels on a component-major ray state (:mod:`.compiled`).
+How a whole trace runs (eager, checkpointed, or with ``TraceOptions(compile=...)`` through fused
+``torch.compile`` kernels on a component-major ray state) is the tracer's business
+(:mod:`.tracer`, :mod:`.compiled`); the lens describes the system and one surface's physics.
 """
 
 from __future__ import annotations
@@ -25,19 +26,19 @@ import math
 from dataclasses import dataclass, field
 
 import torch
-import torch.utils.checkpoint
 from torch import nn
 
+from . import tracer
 from .errors import LensError
-from .intersect import (IntersectOptions, default_tolerance, intersect, propagate_distance,
-                        trace_quadric)
+from .intersect import intersect, propagate_distance, trace_quadric
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
+from .options import TraceOptions
 from .paraxial import paraxial
-from .rays import Rays
+from .rays import Rays, compact_broadcast as _compact
 from .reflect import reflect
 from .refract import refract
-from .surfaces import Aperture, Asphere, CoordinateBreak, Plane, Surface, XYPolynomial
+from .surfaces import Aperture, CoordinateBreak, Surface
 from .surfaces.base import make_param
 
 __all__ = ["Lens", "LensSpec"]
@@ -96,37 +97,7 @@ class LensSpec:
             raise LensError(str(e), key="primary_wavelength_nm") from None
 
 
-def _compact(w):
-    """``w`` without its broadcast (stride-0) dimensions' repeats: size 1 there (a view)."""
-    if not isinstance(w, torch.Tensor):
-        return torch.as_tensor(w)
-    for dim, (size, stride) in enumerate(zip(w.shape, w.stride())):
-        if stride == 0 and size > 1:
-            w = w.narrow(dim, 0, 1)
-    return w
-
-
-def _to_soa(v: torch.Tensor) -> torch.Tensor:
-    """``(*B, 3)`` -> component-major ``(3, *B)``, contiguous.  ``torch.stack`` of the
-    components: the same values as ``v.movedim(-1, 0).contiguous()``, whose strided copy is
-    about 4x slower on the CPU (5 vs 1.2 ms for 1e6 float32 rays)."""
-    return torch.stack(v.unbind(-1))
-
-
-def _from_soa(v: torch.Tensor) -> torch.Tensor:
-    """Component-major ``(3, *B)`` -> ``(*B, 3)``, contiguous (see :func:`_to_soa`)."""
-    return torch.stack(v.unbind(0), -1)
-
-
 _DIR = {1: "+", -1: "-"}
-
-
-def _obscured(s) -> bool:
-    """A surface with a central obscuration (its ``in_aperture`` blocks the centre): traced by
-    the generic path, whose clipping asks the surface (the closed-form and fused kernels clip
-    by the semi-diameter only)."""
-    ob = getattr(s, "obscuration", None)
-    return ob is not None and not isinstance(s, Aperture) and float(ob) > 0
 
 
 def _after_mirrors(mirrors, i: int) -> str:
@@ -418,11 +389,11 @@ class Lens(nn.Module):
             o, d = (s.to_previous if reverse else s.to_next)(rays.o, rays.d, z[i])
             return Rays(o, d, rays.wavelength, rays.valid, rays.opl, normalize=False)
         m, pivot, vertex = self._frame(i, z, rays.o)
-        opt = options or IntersectOptions()
+        opt = options or TraceOptions()
         mirror = i in self.mirrors
         if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
                 and opt.mode == "implicit" and not getattr(s, "deflects", False)
-                and not isinstance(s, Aperture) and not _obscured(s)):
+                and not isinstance(s, Aperture) and not tracer.obscured(s)):
             x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
                                              (pivot + vertex)[2], _compact(n1), _compact(n2),
                                              opt)
@@ -447,180 +418,12 @@ class Lens(nn.Module):
             x, d = m.to_global(x + vertex, d, pivot)
         return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
 
-    def _trace_surface_checkpointed(self, i: int, rays: Rays, n1, n2, z, options) -> Rays:
-        """:meth:`trace_surface` that autograd does not record: backward recomputes it from the
-        incoming ray state (``torch.utils.checkpoint``), so only that state is kept per surface."""
-        def surface_step(o, d, wavelength, opl, n1, n2, z):
-            out = self.trace_surface(i, Rays(o, d, wavelength, rays.valid, opl, normalize=False),
-                                     n1, n2, z, options)
-            return out.o, out.d, out.opl, out.valid
-
-        o, d, opl, valid = torch.utils.checkpoint.checkpoint(
-            surface_step, rays.o, rays.d, rays.wavelength, rays.opl, n1, n2, z,
-            use_reentrant=False)
-        return Rays(o, d, rays.wavelength, valid, opl, normalize=False)
-
-    def _fused_kind(self, i: int):
-        """How surface ``i`` runs compiled: a :data:`~.compiled.KINDS` entry when it can join a
-        compiled run (an aligned sphere/conic, plane or stop), ``"newton"`` for an aligned even
-        asphere or XY polynomial, else ``None`` (eager)."""
-        s = self.surfaces[i]
-        if getattr(s, "deflects", False):
-            return None
-        if not self.misalignments[self._element_of[i]].is_identity():
-            return None
-        if type(s) is Aperture:
-            if float(s.obscuration) > 0:
-                return None   # an annular opening: eager
-            return "stop_rect" if s.shape == "rect" else "stop"
-        if type(s) is Plane:
-            return "plane"
-        if isinstance(s, Asphere):
-            if _obscured(s):
-                return None   # the fused kernels clip by the semi-diameter only: eager
-            return "quadric" if s.is_quadric else "newton"
-        if type(s) is XYPolynomial:
-            return "newton"
-        return None
-
-    def _newton_compiled(self, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol: float):
-        """Surface ``i`` (an aligned even asphere or XY polynomial) through the compiled Newton
-        kernels (:mod:`.compiled`); ``soa``: ``(o, d)`` component-major.  Returns
-        ``(o, d, valid, opl)`` with ``o``, ``d`` component-major."""
-        from . import compiled as C
-        from .intersect import _warn_stalled
-
-        s = self.surfaces[i]
-        like = soa[0]
-        kind, sp = C.newton_surface_values(s, like)
-        with torch.no_grad():
-            o, d = soa[0].detach(), soa[1].detach()
-            spd = C.detached(sp)
-            it = min(C.NEWTON_CHUNK, options.max_iter)
-            b, s_star, tried, active, converged, tol_ray, fv = C.call(
-                C.compiled_newton_start, kind, spd, o, d, rays.valid, z_shift.detach(), tol, it)
-            while it < options.max_iter and bool(active.any()):
-                m = min(C.NEWTON_CHUNK, options.max_iter - it)
-                s_star, active, converged, fv = C.call(
-                    C.compiled_newton_more, kind, spd, b, d, s_star, active, converged, tol_ray,
-                    m)
-                it += m
-            if it >= options.max_iter:
-                converged, fv = C.call(C.compiled_newton_last_check, kind, spd, b, d, s_star,
-                                       active, converged, tol_ray)
-            if bool((tried & ~converged).any()):
-                _warn_stalled(s, b.movedim(0, -1), d.movedim(0, -1), s_star, tried, converged,
-                              tol_ray, tol, fv)
-            ok = tried & converged
-            s_star = torch.where(ok, s_star, torch.zeros_like(s_star))
-        args = (kind, sp, soa[0], soa[1], rays.valid, rays.opl, z_shift,
-                s.semi_diameter.to(like), _compact(n1).to(like), _compact(n2).to(like), s_star,
-                ok, tol, options.clip_aperture)
-        if options.checkpoint and torch.is_grad_enabled():
-            return torch.utils.checkpoint.checkpoint(C.call, C.compiled_newton_refract, *args,
-                                                     use_reentrant=False)
-        return C.call(C.compiled_newton_refract, *args)
-
-    def _trace_compiled(self, rays: Rays, order, n, z, reverse: bool, options: IntersectOptions,
-                        step, propagate_to=None) -> Rays:
-        """:meth:`trace` with runs of aligned spheres, conics, planes and stops, and aligned
-        even aspheres and XY polynomials, in compiled kernels (:mod:`.compiled`); every other
-        surface goes through ``step``.  While ``soa`` holds the ray state, ``rays`` carries only
-        its valid mask and optical path (its ``o`` and ``d`` are stale: read for dtype and
-        device only).  ``propagate_to``: ``(z_plane, medium_index)`` or ``None``, as
-        :meth:`trace`; the move joins the last compiled kernel."""
-        from . import compiled as C
-
-        tol = options.tol if options.tol is not None else default_tolerance(rays.dtype)
-        clip = options.clip_aperture
-        checkpoint = options.checkpoint and torch.is_grad_enabled()
-        per_surface = options.compile == "surface"
-        if options.compile == "auto" and torch.is_grad_enabled():
-            per_surface = (rays.o.requires_grad or rays.d.requires_grad or rays.opl.requires_grad
-                           or any(p.requires_grad for p in self.parameters()))
-        order = list(order)
-        soa = None  # (o, d) component-major (3, *B) while between compiled runs
-
-        def propagate_params(like):  # the "propagate" step's (z_plane, n, n)
-            m = _compact(propagate_to[1]).to(like)
-            return propagate_to[0], m, m
-
-        k = 0
-        while k < len(order):
-            i = order[k]
-            kind = self._fused_kind(i)
-            n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
-            if kind is None:
-                if soa is not None:
-                    rays = Rays(soa[0].movedim(0, -1), soa[1].movedim(0, -1), rays.wavelength,
-                                rays.valid, rays.opl, normalize=False)
-                    soa = None
-                rays = step(i, rays, n1, n2, z, options)
-                k += 1
-                continue
-            if soa is None:
-                soa = (_to_soa(rays.o), _to_soa(rays.d))
-            if kind == "newton":
-                _, pivot, vertex = self._frame(i, z, soa[0])
-                o, d, valid, opl = self._newton_compiled(i, soa, rays, n1, n2,
-                                                         (pivot + vertex)[2], options, tol)
-                soa = (o, d)
-                rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
-                k += 1
-                continue
-            kinds, params = [], []
-            while k < len(order) and kind is not None:
-                i = order[k]
-                s = self.surfaces[i]
-                n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
-                _, pivot, vertex = self._frame(i, z, rays.o)
-                like = rays.o
-                if kind == "quadric":
-                    values = (s.c.to(like), s.k.to(like), s.semi_diameter.to(like))
-                elif kind == "stop_rect":
-                    values = (s.half_widths.to(like),)
-                else:
-                    values = (s.semi_diameter.to(like),)
-                params.append(((pivot + vertex)[2], *values, _compact(n1).to(like),
-                               _compact(n2).to(like)))
-                kinds.append(kind)
-                k += 1
-                if k == len(order) and propagate_to is not None:  # the move to the sensor
-                    kinds.append("propagate")
-                    params.append(propagate_params(like))
-                    propagate_to = None
-                if per_surface or k == len(order):
-                    break
-                kind = self._fused_kind(order[k])
-                if kind == "newton":
-                    break
-            args = (*soa, rays.valid, rays.opl, tuple(kinds), tuple(params), tol, clip)
-            if checkpoint:
-                o, d, valid, opl = torch.utils.checkpoint.checkpoint(
-                    C.call, C.compiled_surface_run, *args, use_reentrant=False)
-            else:
-                o, d, valid, opl = C.call(C.compiled_surface_run, *args)
-            soa = (o, d)
-            rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
-        if soa is not None and propagate_to is not None:  # after a Newton surface
-            args = (*soa, rays.valid, rays.opl, ("propagate",), (propagate_params(rays.o),),
-                    tol, clip)
-            o, d, valid, opl = C.call(C.compiled_surface_run, *args)
-            soa, propagate_to = (o, d), None
-            rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
-        if soa is not None:  # back to (*B, 3), contiguous
-            rays = Rays(_from_soa(soa[0]), _from_soa(soa[1]),
-                        rays.wavelength, rays.valid, rays.opl, normalize=False)
-        if propagate_to is not None:  # the last surface ran eager
-            rays = self.propagate_to_z(rays, *propagate_to)
-        return rays
-
     def _check_rays(self, rays: Rays) -> None:
         # wavelengths are checked against every medium's range by Material.n in indices()
         if not isinstance(rays, Rays):
             raise TypeError(f"expected Rays, got {type(rays).__name__}")
 
-    def trace(self, rays: Rays, *, reverse: bool = False, options: IntersectOptions | None = None,
+    def trace(self, rays: Rays, *, reverse: bool = False, options: TraceOptions | None = None,
               record: bool = False, propagate_to=None):
         """Trace through every surface.
 
@@ -628,8 +431,9 @@ class Lens(nn.Module):
             rays: input rays; forward rays start before the first surface and travel to ``+z``;
                 ``reverse=True`` rays start behind the last surface and travel to ``-z``.
             reverse: backward (sensor-to-object) tracing.
-            options: Newton settings (:class:`IntersectOptions`; ``compile=...`` selects the
-                fused kernels of :mod:`.compiled`, except when ``record`` is set).
+            options: :class:`~.options.TraceOptions` (Newton settings; ``compile=...`` selects
+                the fused kernels of :mod:`.compiled`, except when ``record`` is set); the
+                schedule is :mod:`.tracer`'s.
             record: also return the list of per-surface hit points ``(*B, 3)``.
             propagate_to: ``(z_plane, medium_index)``: then move the rays to that plane, as
                 :meth:`propagate_to_z` (with ``compile=...`` inside the last kernel).
@@ -638,29 +442,8 @@ class Lens(nn.Module):
             Rays just after the last surface traced (``(rays, hits)`` when ``record``).
         """
         self._check_rays(rays)
-        w = rays.wavelength
-        n = self.indices(w)
-        z = self.z_vertices()
-        order = range(len(self.surfaces) - 1, -1, -1) if reverse else range(len(self.surfaces))
-        hits = []
-        step = self.trace_surface
-        if options is not None and options.checkpoint and torch.is_grad_enabled():
-            step = self._trace_surface_checkpointed
-        if (options is not None and options.compile and options.closed_form
-                and options.mode == "implicit" and not record and not self.folded()):
-            return self._trace_compiled(rays, order, n, z, reverse, options, step,
-                                        propagate_to)
-        for i in order:
-            n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
-            if isinstance(self.surfaces[i], CoordinateBreak):  # a change of frame only
-                rays = self.trace_surface(i, rays, n1, n2, z, reverse=reverse)
-            else:
-                rays = step(i, rays, n1, n2, z, options)
-            if record:
-                hits.append(rays.o)
-        if propagate_to is not None:
-            rays = self.propagate_to_z(rays, *propagate_to)
-        return (rays, hits) if record else rays
+        return tracer.trace(self, rays, reverse=reverse, options=options, record=record,
+                            propagate_to=propagate_to)
 
     def propagate_to_z(self, rays: Rays, z_plane, medium_index=None) -> Rays:
         """Move rays to the plane ``z = z_plane`` (mm); rays that cannot reach it go invalid."""

@@ -115,3 +115,26 @@ class Rays:
         n_valid = int(self.valid.sum())
         return (f"Rays(shape={tuple(self.shape)}, valid={n_valid}, dtype={self.dtype}, "
                 f"device={self.device})")
+
+
+# ------------------------------------------------------------------ layouts
+def compact_broadcast(w):
+    """``w`` without its broadcast (stride-0) dimensions' repeats: size 1 there (a view)."""
+    if not isinstance(w, torch.Tensor):
+        return torch.as_tensor(w)
+    for dim, (size, stride) in enumerate(zip(w.shape, w.stride())):
+        if stride == 0 and size > 1:
+            w = w.narrow(dim, 0, 1)
+    return w
+
+
+def to_soa(v: torch.Tensor) -> torch.Tensor:
+    """``(*B, 3)`` -> component-major ``(3, *B)``, contiguous.  ``torch.stack`` of the
+    components: the same values as ``v.movedim(-1, 0).contiguous()``, whose strided copy is
+    about 4x slower on the CPU (5 vs 1.2 ms for 1e6 float32 rays)."""
+    return torch.stack(v.unbind(-1))
+
+
+def from_soa(v: torch.Tensor) -> torch.Tensor:
+    """Component-major ``(3, *B)`` -> ``(*B, 3)``, contiguous (see :func:`to_soa`)."""
+    return torch.stack(v.unbind(0), -1)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["refract", "unit_normal"]
+__all__ = ["refract", "snell_coefficient", "snell_xyz", "unit_normal"]
 
 
 def unit_normal(fx, fy, fz):
@@ -24,6 +24,20 @@ def unit_normal(fx, fy, fz):
     norm2 = (g * g).sum(-1, keepdim=True)
     ok = norm2 > 0
     return g / torch.sqrt(torch.where(ok, norm2, torch.ones_like(norm2)))
+
+
+def snell_coefficient(cos_i, eta, ok):
+    """The law itself, written once: ``coef = sign(cos ψ) sqrt(k) - η cos ψ`` with
+    ``k = 1 - η^2 (1 - cos^2 ψ)``, so that ``d_t = η d + coef n`` (either orientation of ``n``);
+    ``ok`` loses the rays with ``k <= 0`` (total internal reflection and the critical angle,
+    module docstring).  Shapes ``(*B,)``; returns ``(coef, ok)``.  :func:`refract` (``(*B, 3)``
+    rays), :func:`snell_xyz` (components) and the compiled plane step call it."""
+    # k does not depend on the normal's orientation; flipping n to cos_i >= 0 turns
+    # (sqrt(k) - eta cos_i) n into (sign(cos_i) sqrt(k) - eta cos_i) n for the given n
+    k = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
+    ok = ok & (k > 0)  # k == 0: grazing exit, infinite derivative (module docstring)
+    sqrt_k = torch.sqrt(torch.where(ok, k, torch.ones_like(k)))
+    return torch.copysign(sqrt_k, cos_i) - eta * cos_i, ok
 
 
 def refract(d: torch.Tensor, n: torch.Tensor, eta: torch.Tensor, valid: torch.Tensor):
@@ -41,12 +55,19 @@ def refract(d: torch.Tensor, n: torch.Tensor, eta: torch.Tensor, valid: torch.Te
     """
     cos_i = (d * n).sum(-1)
     eta = torch.as_tensor(eta, dtype=d.dtype, device=d.device)
-    # k does not depend on the normal's orientation; flipping n to cos_i >= 0 turns
-    # (sqrt(k) - eta cos_i) n into (sign(cos_i) sqrt(k) - eta cos_i) n for the given n
-    k = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
-    ok = valid & (k > 0)  # k == 0: grazing exit, infinite derivative (module docstring)
-    sqrt_k = torch.sqrt(torch.where(ok, k, torch.ones_like(k)))
-    coef = torch.copysign(sqrt_k, cos_i) - eta * cos_i
+    coef, ok = snell_coefficient(cos_i, eta, valid)
     d_t = eta.unsqueeze(-1) * d + coef.unsqueeze(-1) * n
     d_t = torch.where(ok.unsqueeze(-1), d_t, d)
     return d_t, ok
+
+
+def snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok):
+    """:func:`refract` on components (the compiled kernels' layout), ``η = n1 / n2``: rays with
+    total internal reflection leave ``ok`` and keep ``d``.  Returns ``(d_x, d_y, d_z, ok)``."""
+    eta = n1 / n2
+    cos_i = dx * nx + dy * ny + dz * nz
+    coef, ok = snell_coefficient(cos_i, eta, ok)
+    ex = torch.where(ok, eta * dx + coef * nx, dx)
+    ey = torch.where(ok, eta * dy + coef * ny, dy)
+    ez = torch.where(ok, eta * dz + coef * nz, dz)
+    return ex, ey, ez, ok

@@ -14,6 +14,10 @@ Either way the rays start on a plane just before the first surface (or at the ob
 it is nearer), launch point and direction computed in float64 from the pupil points and the
 direction tangents and only then rounded to the lens's dtype, so that float32 rays from an
 object 1e9 mm away keep their pupil positions (:func:`rays_from_tangents`).
+
+Point sources (:func:`point_source_rays`, for PSFs and rendering): rays leave an object point
+(or arrive as a parallel beam from infinity) towards points sampled on the paraxial entrance
+pupil (:func:`entrance_pupil`) enlarged by ``pupil_margin``.
 """
 
 from __future__ import annotations
@@ -23,10 +27,12 @@ import math
 import torch
 
 from .limits import check_allocation
+from .paraxial import paraxial
 from .rays import Rays
 
 __all__ = ["pupil_pattern", "parse_sampling", "hexapolar", "square_grid", "random_disk",
-           "field_rays", "start_plane_z", "rays_from_tangents", "rays_from_point"]
+           "field_rays", "start_plane_z", "rays_from_tangents", "rays_from_point",
+           "entrance_pupil", "point_source_rays"]
 
 
 #: bytes one traced ray takes at least (the peak of ``deeplens report`` tracing 1.5 million rays
@@ -175,3 +181,48 @@ def rays_from_point(P: torch.Tensor, Q: torch.Tensor, z_start: float, wavelength
     z_obj = float(Q[2])
     tangents = (P[:, :2] - Q[:2]) / (P[:, 2:] - z_obj)
     return rays_from_tangents(P, tangents, max(float(z_start), z_obj), wavelength_nm, dtype)
+
+
+def entrance_pupil(lens):
+    """``(z_ep, r_ep, z0)``: the paraxial entrance pupil's position and radius and the first
+    vertex (mm), as :func:`point_source_rays` aims at them (one paraxial trace; pass the result
+    as its ``pupil`` to aim many point sources with one)."""
+    with torch.no_grad():
+        p = paraxial(lens)
+        return (float(p.entrance_pupil_z), 0.5 * float(p.entrance_pupil_diameter),
+                float(lens.z_vertices()[0]))
+
+
+def point_source_rays(lens, point_xy_mm, depth_mm: float, wavelength_nm: float, n_rays: int,
+                      seed: int = 0, pupil_margin: float = 1.1, sampling: str = "random",
+                      pupil=None) -> Rays:
+    """Rays from an object point towards the entrance pupil.
+
+    Args:
+        point_xy_mm: ``(X, Y)`` of the object point (mm) for a finite ``depth_mm``; for
+            ``depth_mm = inf`` the object-space direction tangents ``(tan θx, tan θy)``.
+        depth_mm: distance from the first vertex (mm), or ``math.inf``.
+        n_rays: number of pupil samples (uniform on the enlarged paraxial entrance pupil).
+        sampling: ``"random"`` (``n_rays`` seeded samples) or a deterministic pattern such as
+            ``"grid:64"`` or ``"hexapolar:20"`` (:func:`~deeplens.optics.sampling.pupil_pattern`;
+            ``n_rays`` is then ignored).
+        pupil: :func:`entrance_pupil` of ``lens`` if already known (else computed here).
+    """
+    dtype, device = lens.dtype, lens.device
+    z_ep, r_ep, z0 = pupil if pupil is not None else entrance_pupil(lens)
+    r_ep = r_ep * pupil_margin
+    if sampling == "random":
+        unit = random_disk(n_rays, seed)
+    else:
+        unit = pupil_pattern(sampling)
+    unit = unit * r_ep
+    E = torch.cat([unit, torch.full_like(unit[:, :1], z_ep)], -1).to(device=device)
+    X, Y = float(point_xy_mm[0]), float(point_xy_mm[1])
+    if math.isinf(depth_mm):
+        t = torch.tensor([X, Y], dtype=torch.float64, device=device)
+        return rays_from_tangents(E, t, start_plane_z(lens), wavelength_nm, dtype)
+    if not depth_mm > 0:
+        raise ValueError(f"point source depth must be > 0 mm (in front of the lens), got "
+                         f"{depth_mm}")
+    P = torch.tensor([X, Y, z0 - depth_mm], dtype=torch.float64, device=device)
+    return rays_from_point(E, P, start_plane_z(lens), wavelength_nm, dtype)

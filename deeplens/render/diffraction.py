@@ -40,7 +40,7 @@ import torch
 from ..optics.paraxial import exit_pupil
 from ..optics.rays import Rays
 from .scene import IdealCamera
-from .splat import entrance_pupil
+from ..optics.sampling import entrance_pupil
 
 __all__ = ["DiffractionSampling", "PSFMemoryError", "diffraction_psf_many",
            "choose_sampling", "PUPIL_MARGIN", "PupilSamplingError"]

@@ -16,8 +16,8 @@ import torch
 
 from .scene import IdealCamera
 from ..optics.rays import Rays
-from .splat import (entrance_pupil, point_source_rays, splat_bilinear,
-                    trace_to_sensor_pixels)
+from ..optics.sampling import entrance_pupil, point_source_rays
+from .splat import splat_bilinear, trace_to_sensor_pixels
 
 __all__ = ["psf", "psf_many", "psf_kernel_size", "psf_grid", "psf_grids"]
 

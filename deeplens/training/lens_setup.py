@@ -8,21 +8,21 @@ Learning rates are given in *millimetres of sag* and converted per parameter, so
 step of size ``lr`` changes the surface by about ``lr`` mm at its rim whatever the parameter's
 units: a coefficient of ``x^i y^j`` scales by ``R^-(i+j)``, an even asphere ``a_2k`` by
 ``R^-2k``, a curvature by ``2 / R^2`` (``R`` the semi-diameter); distances and misalignment
-are already in mm (tilts: 1/R rad).  ``parameter_scale`` lives in
-:mod:`deeplens.design.variables` (shared with the design engine) and is re-exported here.
+are already in mm (tilts: 1/R rad).  ``parameter_scale`` and the glob rule live in
+:mod:`deeplens.optics.parameters` (shared with the design engine and the tolerances) and
+``parameter_scale`` is re-exported here.
 """
 
 from __future__ import annotations
 
 import copy
 import math
-import fnmatch
 import inspect
 from pathlib import Path
 
 import torch
 
-from ..design.variables import parameter_scale  # noqa: F401  (re-exported)
+from ..optics.parameters import parameter_scale, select_names
 from ..optics.io import load_lens
 from ..optics.io.lensfile import LensFileError
 from ..optics.io.table import read_table
@@ -39,13 +39,7 @@ def set_trainable(lens, patterns) -> list[str]:
         ValueError: a pattern matches no parameter (the message lists the available names).
     """
     names = [n for n, _ in lens.named_parameters()]
-    chosen = []
-    for pat in patterns or []:
-        hits = [n for n in names if fnmatch.fnmatchcase(n, pat)]
-        if not hits:
-            raise ValueError(f"lens.trainable: {pat!r} matches no lens parameter; available: "
-                             f"{', '.join(names)}")
-        chosen += [h for h in hits if h not in chosen]
+    chosen = select_names(names, patterns or [], "lens.trainable: ")
     params = dict(lens.named_parameters())
     for n in names:
         params[n].requires_grad_(n in chosen)
@@ -80,7 +74,7 @@ def best_focus_distance(lens, depth_mm: float, wavelengths_nm, n_rays: int = 409
     d_z``, so the squared spot size about the centroid, ``Σ |x(z) - x̄(z)|²``, is a quadratic in
     ``z``, minimal at ``z* = -Σ (a - ā)·(u - ū) / Σ |u - ū|²`` with ``a = x_0 - z_0 u``.
     """
-    from ..render.splat import point_source_rays
+    from ..optics.sampling import point_source_rays
 
     a_all, u_all = [], []
     with torch.no_grad():

@@ -187,7 +187,8 @@ class EndToEndModule(L.LightningModule):
                 raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
                                  f"{', '.join(dict(DEFAULTS))}")
             self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc,
-                                            psf_model=getattr(renderer, "psf_model", None))
+                                            psf_model=getattr(renderer, "psf_model", None),
+                                            options=getattr(renderer, "options", None))
         # model.tolerance_training: every training batch through its own drawn lens (tolerance.py)
         from .tolerance import TrainingDraws, load_group
 

@@ -58,12 +58,16 @@ class DepthWienerFilter(nn.Module):
         learn_nsr: whether ``nsr`` is a trainable parameter.
         psf_model: the run's :class:`~deeplens.render.psf_model.PSFModel` (``None``:
             geometric PSFs), shared with the renderer.
+        options: the run's :class:`~deeplens.optics.options.TraceOptions` (the renderer's:
+            ``render.compile``, ``render.newton_tol``, ``render.max_iter``), so the filter's
+            PSF traces run as the renderer's do (``None``: the defaults).
     """
 
     def __init__(self, lens, sensor, depths_mm, depths: int = 5, rays: int = 16384,
-                 nsr: float = 1e-2, learn_nsr: bool = True, psf_model=None):
+                 nsr: float = 1e-2, learn_nsr: bool = True, psf_model=None, options=None):
         super().__init__()
         self.psf_model = psf_model
+        self.options = options
         if not (isinstance(depths, int) and depths >= 1):
             raise ValueError(f"model.deconvolution.depths: expected an integer >= 1, got "
                              f"{depths!r}")
@@ -103,12 +107,13 @@ class DepthWienerFilter(nn.Module):
         specs = [(d, c, wl, w) for d in self.depths_mm for c, wl, w in jobs]
         pts = [((0.0, 0.0), d, wl) for d, _, wl, _ in specs]
         model = ("geometric" if self.psf_model is None
-                 else self.psf_model.resolve(lens, sensor))
+                 else self.psf_model.resolve(lens, sensor, self.options))
         if model == "diffraction":
-            kers = self.psf_model.diffraction(lens, sensor, pts, max_kernel=min(size) - 1)
+            kers = self.psf_model.diffraction(lens, sensor, pts, self.options,
+                                              max_kernel=min(size) - 1)
         else:
             kers = psf_many(lens, sensor, pts, n_rays=n * n, sampling=f"grid:{n}",
-                            max_kernel=min(size) - 1)
+                            max_kernel=min(size) - 1, options=self.options)
         out = []
         for k0 in range(0, len(specs), len(jobs)):
             per = {}

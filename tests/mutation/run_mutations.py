@@ -130,12 +130,12 @@ MUTATIONS = [
              "\"semi_diameter_mm\": diam", TABLES),
     # ------------------------------------------------ optics (the issue: already caught)
     Mutation("refraction_sign", "vector Snell: + eta cos instead of - eta cos",
-             "deeplens/optics/refract.py", "coef = torch.copysign(sqrt_k, cos_i) - eta * cos_i",
-             "coef = torch.copysign(sqrt_k, cos_i) + eta * cos_i", OPTICS, issue=True),
-    Mutation("refraction_sign_quadric", "vector Snell of the closed-form sphere/conic step: "
-             "+ eta cos instead of - eta cos", "deeplens/optics/intersect.py",
-             "cos_i) - eta * cos_i\n    ex = torch.where(ok, eta * dx + coef * nx, dx)",
-             "cos_i) + eta * cos_i\n    ex = torch.where(ok, eta * dx + coef * nx, dx)", OPTICS),
+             "deeplens/optics/refract.py", "return torch.copysign(sqrt_k, cos_i) - eta * cos_i, ok",
+             "return torch.copysign(sqrt_k, cos_i) + eta * cos_i, ok", OPTICS, issue=True),
+    Mutation("refraction_sign_components", "Snell on components (the compiled kernels' layout): "
+             "+ coef n_y instead of + coef n_x", "deeplens/optics/refract.py",
+             "ex = torch.where(ok, eta * dx + coef * nx, dx)",
+             "ex = torch.where(ok, eta * dx + coef * ny, dx)", OPTICS),
     Mutation("sellmeier_sign", "Sellmeier: lambda^2 + C in the denominator",
              "deeplens/optics/materials.py", "n2 = n2 + b * l2 / (l2 - c)",
              "n2 = n2 + b * l2 / (l2 + c)", OPTICS, issue=True),
@@ -143,7 +143,8 @@ MUTATIONS = [
              "deeplens/optics/materials.py", "n2 = a0 + a1 * l2 + u *", "n2 = a0 + a1 * u + u *",
              OPTICS, issue=True),
     Mutation("asphere_sag_power", "asphere: polynomial one power of r^2 short",
-             "deeplens/optics/surfaces/asphere.py", "z = z + p * s\n", "z = z + p\n",
+             "deeplens/optics/surfaces/asphere.py", "        p = (p + a.to(s)) * s\n    return p * s\n",
+             "        p = (p + a.to(s)) * s\n    return p\n",
              OPTICS, issue=True),
     Mutation("eq7_step_sign", "Eq. 7 differentiable Newton step with the wrong sign",
              "deeplens/optics/intersect.py", "s = s_star - _safe_div(fv, fp, ok)",
@@ -235,11 +236,11 @@ MUTATIONS = [
              "silently", "deeplens/optics/compiled.py", "fail_on_recompile_limit_hit=True",
              "fail_on_recompile_limit_hit=False", COMPILED_CALLS),
     Mutation("compiled_run_media_swapped", "fused surface run: media indices before/after "
-             "swapped", "deeplens/optics/lens.py",
+             "swapped", "deeplens/optics/tracer.py",
              "params.append(((pivot + vertex)[2], *values, _compact(n1).to(like),\n"
-             "                               _compact(n2).to(like)))",
+             "                           _compact(n2).to(like)))",
              "params.append(((pivot + vertex)[2], *values, _compact(n2).to(like),\n"
-             "                               _compact(n1).to(like)))", COMPILED),
+             "                           _compact(n1).to(like)))", COMPILED),
     Mutation("compiled_newton_opl", "compiled Newton kernel: optical path without the index",
              "deeplens/optics/compiled.py", "ok, opl + n1 * t)", "ok, opl + t)", COMPILED),
     Mutation("zmx_diam_as_diameter", "Zemax DIAM read as a full diameter",

@@ -22,7 +22,6 @@ import helpers as H
 import pytest
 import torch
 
-import deeplens.optics.compiled as C
 from deeplens.optics.intersect import IntersectOptions
 from deeplens.optics.io import load_lens
 from deeplens.optics.rays import Rays
@@ -32,17 +31,6 @@ from deeplens.optics.surfaces import Aperture, Asphere, Sphere
 F64 = torch.float64
 EAGER = IntersectOptions()
 GENERIC = IntersectOptions(tol=1e-13, closed_form=False)
-
-
-@pytest.fixture
-def uncompiled(monkeypatch):
-    """The fused path with the plain functions instead of their compiled wrappers."""
-    for name, fn in (("compiled_surface_run", C.surface_run),
-                     ("compiled_newton_start", C.newton_start),
-                     ("compiled_newton_more", C.newton_more),
-                     ("compiled_newton_last_check", C.newton_last_check),
-                     ("compiled_newton_refract", C.newton_refract)):
-        monkeypatch.setattr(C, name, fn)
 
 
 def _lens(misalign=False, rect_stop=False):

@@ -83,7 +83,7 @@ from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, IdealLens,
                         XYPolynomial)
 from ..surfaces.xy_polynomial import xy_terms
 from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
-from .lensfile import LensFileError
+from ..errors import LensFileError
 from .zmx_coordbrk import (coordbrk_lines, coordinate_break, is_identity, misalignment_brackets,
                            y_fields_only)
 from .zmx_system import (aperture_to_epd, element_tilts, fields_to_angles, lens_pupil_convention,

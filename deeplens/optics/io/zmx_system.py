@@ -69,7 +69,7 @@ def chief_height(lens, field_deg: float) -> float:
     """Image height (mm, on the sensor) of the chief ray at the primary wavelength: through the
     stop centre with ray aiming (the real chief ray), through the paraxial entrance pupil's
     centre without (as OpticStudio defines it in each case)."""
-    from ...analysis.spot import chief_ray  # local: the real chief ray lives in analysis
+    from ..chief import chief_ray
     from ..intersect import IntersectOptions
     from ..paraxial import paraxial
     from ..sampling import field_rays

@@ -13,7 +13,13 @@ import torch
 from .base import register_surface
 from .plane import Plane
 
-__all__ = ["Aperture"]
+__all__ = ["Aperture", "in_rect"]
+
+
+def in_rect(X, Y, half_widths):
+    """``|X| <= w_x`` and ``|Y| <= w_y``: inside a rectangular opening, ``half_widths`` ``(2,)``
+    mm; :meth:`Aperture.in_aperture` and the compiled kernels' check."""
+    return (X.abs() <= half_widths[0]) & (Y.abs() <= half_widths[1])
 
 
 @register_surface("aperture")
@@ -59,8 +65,7 @@ class Aperture(Plane):
 
     def in_aperture(self, x, y):
         if self.shape == "rect":
-            hw = self.half_widths.to(x)
-            return (x.abs() <= hw[0]) & (y.abs() <= hw[1])
+            return in_rect(x, y, self.half_widths.to(x))
         if float(self.obscuration) > 0:
             ro = self.obscuration.to(x)
             return super().in_aperture(x, y) & (x * x + y * y >= ro * ro)

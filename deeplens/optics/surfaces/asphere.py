@@ -16,6 +16,13 @@ The conic base (no coefficients) is the branch ``h = 1 - (1+k) c z > 0`` of the 
 ``A s^2 + 2 B s + C = 0`` with ``A = c (d_x^2 + d_y^2 + (1+k) d_z^2)``,
 ``B = c (o_x d_x + o_y d_y + (1+k) o_z d_z) - d_z`` and ``C = F(o)``
 (:meth:`Asphere.quadric`; the tracer solves it in closed form, :mod:`..intersect`).
+
+The maths is written once, as component-wise functions of tensors (:func:`conic_arg`,
+:func:`asphere_sag`, :func:`asphere_dsag_ds`, :func:`conic_quadric`, :func:`conic_normal`):
+:class:`Asphere` calls them with its parameters, the eager tracer through it, and the compiled
+kernels (:mod:`..compiled`, :mod:`..intersect`'s ``*_step_xyz``) call the same functions with
+the values already in the rays' dtype (``.to`` is then a no-op), so that a fix or a bug here
+reaches both paths alike.
 """
 
 from __future__ import annotations
@@ -25,9 +32,101 @@ from torch import nn
 
 from .base import SagSurface, make_param, register_surface
 
-__all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER"]
+__all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
+           "conic_arg", "conic_dsag_ds", "conic_normal", "conic_quadric", "conic_root",
+           "conic_sag", "even_poly", "even_poly_ds"]
 
 MAX_ASPHERE_ORDER = 20
+
+
+# ------------------------------------------------------------------ the maths, component-wise
+def conic_arg(s, c, k):
+    """``1 - (1 + k) c^2 s`` at ``s = r^2`` (mm^2); the conic is defined where it is ``> 0``.
+    ``c`` (1/mm), ``k``: 0-d tensors (converted to ``s``'s dtype here)."""
+    c, k = c.to(s), k.to(s)
+    return 1.0 - (1.0 + k) * c * c * s
+
+
+def _positive_or_one(arg):
+    """``arg`` where it is positive, else 1 (a finite square root and derivative everywhere)."""
+    return torch.where(arg > 0, arg, torch.ones_like(arg))
+
+
+def conic_root(s, c, k):
+    """``sqrt(1 - (1+k) c^2 s)`` (the root of 1 outside the conic's domain: finite)."""
+    return torch.sqrt(_positive_or_one(conic_arg(s, c, k)))
+
+
+def conic_sag(s, c, k, root=None):
+    """The conic base's sag ``c s / (1 + sqrt(1 - (1+k) c^2 s))`` (mm); ``root``: a
+    :func:`conic_root` already computed (the compiled kernel shares it with the slope)."""
+    num = c.to(s) * s
+    if root is None:
+        root = conic_root(s, c, k)
+    return num / (1.0 + root)
+
+
+def conic_dsag_ds(s, c, k, root=None):
+    """The conic base's ``dz/ds = c / (2 sqrt(1 - (1+k) c^2 s))`` (1/mm), see :func:`conic_sag`."""
+    cs = c.to(s)
+    if root is None:
+        root = conic_root(s, c, k)
+    return cs / (2.0 * root)
+
+
+def even_poly(s, coeffs):
+    """``sum_i a_{2i} s^i`` for ``coeffs = (a4, a6, ...)`` (Horner), mm."""
+    p = torch.zeros_like(s)
+    for a in reversed(list(coeffs)):
+        p = (p + a.to(s)) * s
+    return p * s
+
+
+def even_poly_ds(s, coeffs):
+    """``d/ds sum_{i>=2} a_{2i} s^i = sum_i i a_{2i} s^(i-1)`` (Horner)."""
+    q = torch.zeros_like(s)
+    coeffs = list(coeffs)
+    for j in range(len(coeffs) - 1, -1, -1):
+        q = q * s + (j + 2) * coeffs[j].to(s)
+    return q * s
+
+
+def asphere_sag(s, c, k, coeffs, root=None):
+    """The sag ``z(s)`` (mm) at ``s = r^2``: :func:`conic_sag` plus :func:`even_poly` of the
+    coefficients ``coeffs = (a4, a6, ...)`` (0-d tensors).  Outside the conic's domain the root
+    is taken of 1 (finite; the tracer marks those rays invalid)."""
+    z = conic_sag(s, c, k, root)
+    if len(coeffs):
+        z = z + even_poly(s, coeffs)
+    return z
+
+
+def asphere_dsag_ds(s, c, k, coeffs, root=None):
+    """``dz/ds`` (1/mm): :func:`conic_dsag_ds` plus :func:`even_poly_ds`; the slopes are
+    ``∂z/∂x = 2 x dz/ds``, ``∂z/∂y = 2 y dz/ds``."""
+    g = conic_dsag_ds(s, c, k, root)
+    if len(coeffs):
+        g = g + even_poly_ds(s, coeffs)
+    return g
+
+
+def conic_quadric(ox, oy, oz, dx, dy, dz, c, k):
+    """``(A, B, C, c', c)`` of ``A s^2 + 2 B s + C = 0`` for rays ``o + s d`` (``(*B,)``
+    components, local frame) on the conic base, ``c' = (1+k) c`` (module docstring)."""
+    c, k1 = c.to(ox), 1.0 + k.to(ox)
+    ck = c * k1
+    A = c * (dx * dx + dy * dy) + ck * (dz * dz)
+    B = c * (ox * dx + oy * dy) + (ck * oz - 1.0) * dz
+    C = c * (ox * ox + oy * oy) + (ck * oz - 2.0) * oz
+    return A, B, C, ck, c
+
+
+def conic_normal(x, y, z, c, ck):
+    """The conic's unit normal ``(c x, c y, c' z - 1) / |.|`` on components (``∇F / 2``, no
+    square root in the gradient itself), ``c' = (1+k) c``.  Returns ``(n_x, n_y, n_z)``."""
+    gx, gy, gz = c * x, c * y, ck * z - 1.0
+    inv = torch.rsqrt((gx * gx + gy * gy + gz * gz).clamp_min(1e-30))
+    return gx * inv, gy * inv, gz * inv
 
 
 @register_surface("asphere", aliases=("sphere", "conic"))
@@ -64,47 +163,52 @@ class Asphere(SagSurface):
         self.a = nn.ParameterList([make_param(v, f"a{2 * i + 4}")
                                    for i, v in enumerate(coefficients)])
 
-    # s = r^2
-    def _arg(self, s):
-        c, k = self.c.to(s), self.k.to(s)
-        return 1.0 - (1.0 + k) * c * c * s
-
     def in_domain(self, x, y):
-        return self._arg(x * x + y * y) > 0
-
-    def _safe_sqrt_arg(self, s):
-        arg = self._arg(s)
-        return torch.where(arg > 0, arg, torch.ones_like(arg))
+        return conic_arg(x * x + y * y, self.c, self.k) > 0
 
     def sag(self, x, y):
-        s = x * x + y * y
-        c = self.c.to(s)
-        z = c * s / (1.0 + torch.sqrt(self._safe_sqrt_arg(s)))
-        if len(self.a):
-            p = torch.zeros_like(s)
-            for a in reversed(list(self.a)):
-                p = (p + a.to(s)) * s
-            z = z + p * s
-        return z
-
-    def _dsag_ds(self, s):
-        c = self.c.to(s)
-        g = c / (2.0 * torch.sqrt(self._safe_sqrt_arg(s)))
-        if len(self.a):
-            # d/ds sum_{i>=2} a_i s^i = sum i a_i s^(i-1)
-            p = torch.zeros_like(s)
-            coeffs = list(self.a)
-            for j in range(len(coeffs) - 1, -1, -1):
-                p = p * s + (j + 2) * coeffs[j].to(s)
-            g = g + p * s
-        return g
+        return asphere_sag(x * x + y * y, self.c, self.k, self.a)
 
     def sag_grad(self, x, y):
-        g = self._dsag_ds(x * x + y * y)
+        g = asphere_dsag_ds(x * x + y * y, self.c, self.k, self.a)
         return 2.0 * x * g, 2.0 * y * g
 
     def paraxial_curvature(self):
         return self.c
+
+    # ---- the compiled Newton kernels' interface (see Surface.kernel_values) ---------------
+    def kernel_values(self, like):
+        """``(c, k, (a4, a6, ...))`` in ``like``'s dtype (differentiable); ``None`` for a
+        sphere or conic (the closed-form kernel runs those)."""
+        if self.is_quadric:
+            return None
+        return (self.c.to(like), self.k.to(like), tuple(a.to(like) for a in self.a))
+
+    @staticmethod
+    def kernel_f(x, y, z, values):
+        """``(f, f_x, f_y, f_z)`` from :func:`conic_sag`, :func:`conic_dsag_ds`,
+        :func:`even_poly` and :func:`even_poly_ds`, fused: one conic root for both."""
+        c, k, coeffs = values
+        s = x * x + y * y
+        root = conic_root(s, c, k)  # shared by the sag and its slope
+        sag, g = conic_sag(s, c, k, root), conic_dsag_ds(s, c, k, root)
+        if len(coeffs):
+            sag = sag + even_poly(s, coeffs)
+            g = g + even_poly_ds(s, coeffs)
+        return sag - z, 2.0 * x * g, 2.0 * y * g, -torch.ones_like(z)
+
+    @staticmethod
+    def kernel_in_domain(x, y, values):
+        c, k, _ = values
+        return conic_arg(x * x + y * y, c, k) > 0
+
+    @staticmethod
+    def kernel_start(bx, by, bz, dx, dy, dz, ok, values, root_fn):
+        """Newton starts from the conic base's root (``root_fn``: the tracer's
+        :func:`~..intersect._quadric_root`)."""
+        c, k, _ = values
+        s, _ = root_fn(conic_quadric(bx, by, bz, dx, dy, dz, c, k), bz, dz, ok)
+        return s
 
     # ---- the conic base as a quadric (closed-form intersection, cheap normal) -------------
     @property
@@ -120,12 +224,7 @@ class Asphere(SagSurface):
 
     def quadric_xyz(self, ox, oy, oz, dx, dy, dz):
         """:meth:`quadric` from the ``(*B,)`` components of ``o`` and ``d``."""
-        c, k1 = self.c.to(ox), 1.0 + self.k.to(ox)
-        ck = c * k1
-        A = c * (dx * dx + dy * dy) + ck * (dz * dz)
-        B = c * (ox * dx + oy * dy) + (ck * oz - 1.0) * dz
-        C = c * (ox * ox + oy * oy) + (ck * oz - 2.0) * oz
-        return A, B, C, ck, c
+        return conic_quadric(ox, oy, oz, dx, dy, dz, self.c, self.k)
 
     def normal(self, x):
         """Unit normal ``(*B, 3)`` at points ``x`` on the surface (same orientation as ``∇f``).
@@ -134,7 +233,8 @@ class Asphere(SagSurface):
             return super().normal(x)
         c, ck = self.c.to(x), (1.0 + self.k.to(x)) * self.c.to(x)
         X, Y, Z = x.unbind(-1)
-        g = torch.stack([c * X, c * Y, ck * Z - 1.0], -1)
+        g = torch.stack([c * X, c * Y, ck * Z - 1.0], -1)  # conic_normal's vector form: the
+        # (*B, 3) layout keeps the eager path's graph (and its gradients' rounding) unchanged
         return g * torch.rsqrt((g * g).sum(-1, keepdim=True).clamp_min(1e-30))
 
     def in_aperture(self, x, y):

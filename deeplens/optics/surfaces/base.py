@@ -32,7 +32,7 @@ from torch import nn
 
 from ..refract import unit_normal
 
-__all__ = ["Surface", "SagSurface", "make_param", "SURFACE_TYPES", "register_surface"]
+__all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
 #: at import and read by the lens-file reader and writer (never changed afterwards)
@@ -53,6 +53,12 @@ def register_surface(name: str, aliases: tuple[str, ...] = ()):
         return cls
 
     return deco
+
+
+def in_circle(X, Y, r):
+    """``X^2 + Y^2 <= r^2``: inside a circular clear aperture of radius ``r`` (mm); the eager
+    :meth:`Surface.in_aperture` and the compiled kernels' aperture check."""
+    return X * X + Y * Y <= r * r
 
 
 def make_param(value, name: str = "value") -> nn.Parameter:
@@ -95,8 +101,7 @@ class Surface(nn.Module):
         return torch.ones_like(x, dtype=torch.bool)
 
     def in_aperture(self, x, y):
-        sd = self.semi_diameter.to(x)
-        return x * x + y * y <= sd * sd
+        return in_circle(x, y, self.semi_diameter.to(x))
 
     def sag(self, x, y):
         raise NotImplementedError
@@ -112,6 +117,17 @@ class Surface(nn.Module):
     def normal(self, x):
         """Unit normal ``∇f / |∇f|`` ``(*B, 3)`` at points ``x`` ``(*B, 3)``."""
         return unit_normal(*self.f_grad(x[..., 0], x[..., 1], x[..., 2]))
+
+    # ---- the compiled Newton kernels (deeplens.optics.compiled) ---------------------------
+    #: A surface type joins the compiled Newton path by defining, in its own file,
+    #: ``kernel_values(like)`` (its values in the rays' dtype, or ``None``), and the static
+    #: methods ``kernel_f(x, y, z, values) -> (f, f_x, f_y, f_z)``,
+    #: ``kernel_in_domain(x, y, values)`` and ``kernel_start(bx, by, bz, dx, dy, dz, ok, values,
+    #: root_fn)`` (Newton's start ``s`` from the vertex-plane point), built from the same
+    #: functions its ``f``/``f_grad``/``in_domain`` call.  A subclass that changes ``f`` must
+    #: redefine them.  Without them the surface runs eager between compiled runs.
+    def kernel_values(self, like):
+        return None
 
     def paraxial_curvature(self) -> torch.Tensor:
         return torch.zeros((), dtype=self.semi_diameter.dtype, device=self.semi_diameter.device)

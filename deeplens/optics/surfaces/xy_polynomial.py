@@ -25,12 +25,60 @@ import torch
 
 from .base import Surface, make_param, register_surface
 
-__all__ = ["XYPolynomial", "xy_terms"]
+__all__ = ["XYPolynomial", "xy_terms", "xy_poly", "xy_fold", "xy_f_value", "xy_f_z",
+           "xy_in_domain"]
 
 
 def xy_terms(order: int) -> list[tuple[int, int]]:
     """The ``(i, j-i)`` exponent pairs ``(px, py)`` in coefficient order, up to ``order``."""
     return [(i, j - i) for j in range(order + 1) for i in range(j + 1)]
+
+
+# ------------------------------------------------------------------ the maths, component-wise
+# Written once: :class:`XYPolynomial` calls these with its parameters, the compiled Newton
+# kernels (:mod:`..compiled`) with the values already in the rays' dtype (``.to`` is a no-op).
+def xy_poly(x, y, coeffs, terms, order: int):
+    """``(P, P_x, P_y)`` at ``(x, y)`` (mm): the polynomial and its slopes, ``coeffs`` 0-d
+    tensors in :func:`xy_terms` order (``terms``), ``order`` the degree."""
+    px, py = [torch.ones_like(x)], [torch.ones_like(y)]
+    for _ in range(order):
+        px.append(px[-1] * x)
+        py.append(py[-1] * y)
+    P = torch.zeros_like(x)
+    Px = torch.zeros_like(x)
+    Py = torch.zeros_like(x)
+    for a, (i, j) in zip(coeffs, terms):
+        a = a.to(x)
+        P = P + a * px[i] * py[j]
+        if i:
+            Px = Px + (a * i) * px[i - 1] * py[j]
+        if j:
+            Py = Py + (a * j) * px[i] * py[j - 1]
+    return P, Px, Py
+
+
+def xy_fold(z, b):
+    """``(beyond, zc)``: whether ``z`` lies past the fold plane ``z* = 1/2b``, and ``z``
+    clamped to it (see the module docstring)."""
+    b = b.to(z)
+    beyond = b.detach() * z.detach() > 0.5
+    z_fold = 0.5 / torch.where(b != 0, b, torch.ones_like(b))
+    return beyond, torch.where(beyond, z_fold, z)
+
+
+def xy_f_value(P, zc, z, b):
+    """``f = b zc^2 + P - z`` (mm), ``zc`` from :func:`xy_fold`."""
+    return b.to(z) * zc * zc + P - z
+
+
+def xy_f_z(z, b, beyond):
+    """``∂f/∂z``: ``2 b z - 1`` on the vertex side of the fold, ``-1`` beyond it."""
+    return torch.where(beyond, -torch.ones_like(z), 2.0 * b.to(z) * z - 1.0)
+
+
+def xy_in_domain(P, b):
+    """Where the sag is defined, ``1 - 4 b P >= 0`` (for ``b != 0``)."""
+    return 1.0 - 4.0 * b.to(P) * P >= 0
 
 
 @register_surface("xy_polynomial")
@@ -57,45 +105,19 @@ class XYPolynomial(Surface):
         self.b = make_param(b, "b")
         self.a = torch.nn.ParameterList([make_param(v, f"a{m}") for m, v in enumerate(coefficients)])
 
-    def _powers(self, v):
-        p = [torch.ones_like(v)]
-        for _ in range(self.order):
-            p.append(p[-1] * v)
-        return p
-
     def poly(self, x, y):
-        """``(P, P_x, P_y)`` at ``(x, y)``."""
-        px, py = self._powers(x), self._powers(y)
-        P = torch.zeros_like(x)
-        Px = torch.zeros_like(x)
-        Py = torch.zeros_like(x)
-        for a, (i, j) in zip(self.a, self.terms):
-            a = a.to(x)
-            P = P + a * px[i] * py[j]
-            if i:
-                Px = Px + (a * i) * px[i - 1] * py[j]
-            if j:
-                Py = Py + (a * j) * px[i] * py[j - 1]
-        return P, Px, Py
-
-    def _beyond_fold(self, z):
-        """``(beyond, zc)``: whether ``z`` lies past the fold plane ``z* = 1/2b``, and ``z``
-        clamped to it (see the module docstring)."""
-        b = self.b.to(z)
-        beyond = b.detach() * z.detach() > 0.5
-        z_fold = 0.5 / torch.where(b != 0, b, torch.ones_like(b))
-        return beyond, torch.where(beyond, z_fold, z)
+        """``(P, P_x, P_y)`` at ``(x, y)`` (:func:`xy_poly`)."""
+        return xy_poly(x, y, self.a, self.terms, self.order)
 
     def f(self, x, y, z):
         P, _, _ = self.poly(x, y)
-        _, zc = self._beyond_fold(z)
-        return self.b.to(z) * zc * zc + P - z
+        _, zc = xy_fold(z, self.b)
+        return xy_f_value(P, zc, z, self.b)
 
     def f_grad(self, x, y, z):
         _, Px, Py = self.poly(x, y)
-        beyond, _ = self._beyond_fold(z)
-        fz = torch.where(beyond, -torch.ones_like(z), 2.0 * self.b.to(z) * z - 1.0)
-        return Px, Py, fz
+        beyond, _ = xy_fold(z, self.b)
+        return Px, Py, xy_f_z(z, self.b, beyond)
 
     def _disc(self, P):
         return 1.0 - 4.0 * self.b.to(P) * P
@@ -104,7 +126,36 @@ class XYPolynomial(Surface):
         if float(self.b.detach()) == 0.0:
             return torch.ones_like(x, dtype=torch.bool)
         P, _, _ = self.poly(x, y)
-        return self._disc(P) >= 0
+        return xy_in_domain(P, self.b)
+
+    # ---- the compiled Newton kernels' interface (see Surface.kernel_values) ---------------
+    def kernel_values(self, like):
+        """``(b, coefficients, terms, order, b != 0)``: values in ``like``'s dtype
+        (differentiable) and the static structure."""
+        return (self.b.to(like), tuple(a.to(like) for a in self.a), tuple(self.terms),
+                self.order, float(self.b.detach()) != 0.0)
+
+    @staticmethod
+    def kernel_f(x, y, z, values):
+        """``(f, f_x, f_y, f_z)`` from :func:`xy_poly`, :func:`xy_fold`, :func:`xy_f_value` and
+        :func:`xy_f_z` (continued past the fold plane)."""
+        b, coeffs, terms, order, _ = values
+        P, Px, Py = xy_poly(x, y, coeffs, terms, order)
+        beyond, zc = xy_fold(z, b)
+        return xy_f_value(P, zc, z, b), Px, Py, xy_f_z(z, b, beyond)
+
+    @staticmethod
+    def kernel_in_domain(x, y, values):
+        b, coeffs, terms, order, b_nonzero = values
+        if not b_nonzero:  # as in_domain: everywhere when b == 0
+            return torch.ones_like(x, dtype=torch.bool)
+        P, _, _ = xy_poly(x, y, coeffs, terms, order)
+        return xy_in_domain(P, b)
+
+    @staticmethod
+    def kernel_start(bx, by, bz, dx, dy, dz, ok, values, root_fn):
+        """Newton starts from the vertex plane."""
+        return torch.zeros_like(bz)
 
     def sag(self, x, y):
         P, _, _ = self.poly(x, y)

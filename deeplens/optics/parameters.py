@@ -1,0 +1,99 @@
+"""Lens parameters by name: selection by glob and their natural scale.
+
+A parameter is named as in ``lens.named_parameters()``: ``surfaces.3.c`` (a curvature),
+``surfaces.16.a.0`` (the a4 coefficient), ``surfaces.*.k``, ``distances.5``, ``d_sensor``,
+``misalignments.2.tilt_x``.  :func:`select_names` / :func:`resolve_names` pick them by name or
+``fnmatch`` glob (design variables, trainable lens parameters, tolerances: one rule, one
+message).  :func:`parameter_scale` gives each one's scale, mm of sag at the rim per unit:
+
+    s_j = ∂(sag at the rim) / ∂p_j
+
+a curvature scales by ``R^2 / 2``, an even asphere ``a_2k`` by ``R^2k``, an XY coefficient of
+``x^i y^j`` by ``R^(i+j)``, a conic ``k`` by ``∂z/∂k = c^3 R^4 / (2 q (1 + q)^2)``
+(``q = sqrt(1 - (1+k) c^2 R^2)``), a tilt by the largest semi-diameter (mm of rim
+displacement per rad); distances, decenters and B-spline heights are already mm.  ``R`` is the
+surface's semi-diameter.  The design optimiser (:mod:`deeplens.design.variables`) and the
+training step sizes (:mod:`deeplens.training.lens_setup`) use it.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+
+from .surfaces import Asphere, BSpline, XYPolynomial
+
+__all__ = ["glob_names", "parameter_scale", "resolve_names", "select_names"]
+
+
+def parameter_scale(lens, name: str) -> float:
+    """mm of sag (at the rim) per unit of the parameter ``name`` (module docstring)."""
+    parts = name.split(".")
+    if parts[0] == "surfaces":
+        s = lens.surfaces[int(parts[1])]
+        R = float(s.semi_diameter)
+        if isinstance(s, XYPolynomial) and parts[2] == "a":
+            i, j = s.terms[int(parts[3])]
+            return R ** (i + j)
+        if isinstance(s, Asphere) and parts[2] == "a":
+            return R ** (2 * int(parts[3]) + 4)
+        if isinstance(s, Asphere) and parts[2] == "c":
+            return R * R / 2
+        if isinstance(s, Asphere) and parts[2] == "k":
+            c, k = float(s.c), float(s.k)
+            arg = 1.0 - (1.0 + k) * c * c * R * R
+            if c == 0.0 or arg <= 0.0:
+                return 1.0
+            q = math.sqrt(arg)
+            return max(abs(c) ** 3 * R ** 4 / (2.0 * q * (1.0 + q) ** 2), 1e-6)
+        if isinstance(s, BSpline):
+            return 1.0
+        return 1.0
+    if parts[0] == "misalignments" and parts[-1].startswith("tilt"):
+        return float(max(s.semi_diameter for s in lens.surfaces))
+    return 1.0
+
+
+def select_names(names, patterns, prefix: str, kind: str = "lens parameter") -> list[str]:
+    """The entries of ``names`` matching ``patterns`` (names or ``fnmatch`` globs): in the
+    order of the patterns, each glob's matches in ``names`` order, each name once.
+
+    Raises:
+        ValueError: ``"{prefix}{pattern!r} matches no {kind}; available: ..."``.
+    """
+    names = list(names)
+    chosen = []
+    for pat in patterns:
+        hits = glob_names(names, pat, prefix, kind)
+        chosen += [h for h in hits if h not in chosen]
+    return chosen
+
+
+def glob_names(names, pattern: str, prefix: str, kind: str = "lens parameter") -> list[str]:
+    """The entries of ``names`` matching one ``pattern`` (a name or ``fnmatch`` glob).
+
+    Raises:
+        ValueError: nothing matches (the message lists ``names``, see :func:`select_names`).
+    """
+    hits = [n for n in names if fnmatch.fnmatchcase(n, pattern)]
+    if not hits:
+        raise ValueError(f"{prefix}{pattern!r} matches no {kind}; available: "
+                         f"{', '.join(names)}")
+    return hits
+
+
+def resolve_names(lens, patterns, what: str = "--vary") -> list[str]:
+    """Parameter names of ``lens`` matching ``patterns`` (names or ``fnmatch`` globs, or one
+    comma-separated string), as :func:`select_names`.
+
+    Raises:
+        ValueError: no pattern given; a pattern matches nothing (the message lists the
+            available names).
+    """
+    names = [n for n, _ in lens.named_parameters()]
+    if isinstance(patterns, str):
+        patterns = [p for p in patterns.split(",") if p.strip()]
+    patterns = [p.strip() for p in patterns]
+    if not patterns:
+        raise ValueError(f"{what}: no variables given")
+    return select_names(names, patterns, f"{what}: ")
