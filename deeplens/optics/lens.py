@@ -388,8 +388,8 @@ class Lens(nn.Module):
         if not self.misalignments[self._element_of[i]].is_identity():
             return None
         if type(s) is Aperture:
-            if float(s.obscuration) > 0:
-                return None   # an annular opening: eager
+            if float(s.obscuration) > 0 or s.decentred:
+                return None   # an annular or decentred opening: eager
             return "stop_rect" if s.shape == "rect" else "stop"
         if type(s) is Plane:
             return "plane"

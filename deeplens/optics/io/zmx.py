@@ -108,12 +108,17 @@ vendor catalogues of :mod:`.vendor_glass`)."""
 _PLACEHOLDER_ND_VD = (1.5, 40.0)
 
 # surface types met in real files that deeplens refuses, and what they are
+_DIFFRACTIVE = "out of scope: deeplens traces refraction and reflection, not diffraction orders"
 _UNSUPPORTED_TYPES = {
-"QED_TYPE": "a Q-type (Forbes) asphere",
-    "QTYPEASP": "a Q-type (Forbes) asphere", "DGRATING": "a diffraction grating",
-"BINARY_2": "a binary-optic (diffractive) surface",
+    "QED_TYPE": "a Q-type (Forbes) asphere", "QTYPEASP": "a Q-type (Forbes) asphere",
+    "DGRATING": f"a diffraction grating, {_DIFFRACTIVE}",
+    "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
+    "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
+    "BINARY_2": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "ODDASPH": "an odd asphere", "BICONICX": "a biconic", "GRINSUR1": "a gradient-index surface",
     "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
+    "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
+    "TILTSURF": "a tilted surface",
 }
 
 # the sensor distance used when a file puts the image plane on the last (flat) vertex
@@ -155,6 +160,7 @@ class _Surf:
     clap: tuple | None = None
     sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
     obsc: tuple | None = None   # (central obscuration radius, line) in file units
+    obdc: tuple | None = None   # (x, y aperture decenter, line) in file units
 
 
 class _Parser:
@@ -327,12 +333,12 @@ def _parse(path: Path):
         elif cur is not None and key == "SQAP":
             cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"),
                         ln)
-        elif cur is not None and key == "OBDC" and all(
-                p.num(t, ln, "OBDC aperture decenter") == 0 for t in toks[1:3]):
-            continue   # an aperture decenter of zero
-        elif cur is not None and key in ("ELAP", "OBDC", "SQOB", "ELOB", "UDAD", "SPID"):
+        elif cur is not None and key == "OBDC":
+            dec = (p.arg(toks, 1, ln, "x decenter"), p.arg(toks, 2, ln, "y decenter"))
+            cur.obdc = (*dec, ln) if any(v != 0 for v in dec) else None
+        elif cur is not None and key in ("ELAP", "SQOB", "ELOB", "UDAD", "SPID"):
             what = {
-                    "ELAP": "an elliptical aperture", "OBDC": "a decentred aperture",
+                    "ELAP": "an elliptical aperture",
                     "SQOB": "a rectangular obscuration", "ELOB": "an elliptical obscuration",
                     "UDAD": "a user-defined aperture", "SPID": "a spider"}[key]
             p.fail(ln, f"{key} on SURF {len(surfs) - 1}: {what} is not supported (deeplens reads "
@@ -445,7 +451,7 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                                      f"(1.5, 40) is OpticStudio's placeholder for a catalogue "
                                      f"glass, not the glass's data: the model-glass fallback "
                                      f"cannot use it{hint}")
-            m = ModelGlass(*s.glass_model)
+            m = _model_glass(s, p)
         else:
             m = fallback if isinstance(fallback, Material) else get_material(str(fallback))
         warnings.warn(f"{p.path}:{s.glass_line}: glass {glass!r} not found in "
@@ -459,9 +465,19 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                          f"line)")
 
 
+def _model_glass(s: _Surf, p: _Parser, name=None) -> ModelGlass:
+    """The model glass of the ``GLAS`` line's ``n_d``/``V_d`` (``V_d = 0``: OpticStudio's
+    non-dispersive model glass, deeplens' ``V_d = inf``)."""
+    n_d, v_d = s.glass_model
+    try:
+        return ModelGlass(n_d, math.inf if v_d == 0 else v_d, name=name)
+    except ValueError as e:
+        p.fail(s.glass_line, f"model glass (GLAS ... n_d V_d): {e}")
+
+
 def _surface_material(s, gcat, catalogues, fallback, p):
     if s.glass is None and s.glass_model is not None and s.glass_line:
-        return ModelGlass(*s.glass_model, name=s.glass_model_name)
+        return _model_glass(s, p, s.glass_model_name)
     if s.glass is None:
         return Air()
     return _resolve_glass(s.glass, s, gcat, catalogues, fallback, p)
@@ -614,6 +630,10 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 bracket = None
             continue
         mat = _surface_material(s, gcat, cats, glass_fallback, p)
+        if s.obdc is not None and s.clap is None and s.sqap is None and s.obsc is None:
+            p.note(s.obdc[2], f"OBDC on SURF {k}: the surface has no aperture (CLAP, SQAP) to "
+                              f"decentre; ignored")
+            s.obdc = None
         c = s.curv / s_mm
         sd = s.diam * s_mm
         if s.clap is not None:
@@ -649,6 +669,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be >= 0, got {s.diam!r}")
         auto = not sd > 0     # no DIAM (or 0): an automatic semi-diameter, set once built
         sd_build = sd if sd > 0 else _PROVISIONAL_SD_MM
+        dec = (0.0, 0.0) if s.obdc is None else _aperture_decenter(
+            s, k, flat and _is_air(mat) and _is_air(prev), s_mm, p)
         try:
             if s.type == "XYPOLYNOM":
                 surf = _xypolynom(s, c, sd_build, s_mm, p)
@@ -658,15 +680,16 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 surf = _cylinder(s, k, c, sd_build, s_mm, p)
             elif s.sqap is not None and flat and _is_air(mat) and _is_air(prev):
                 hx, hy, _ = s.sqap
-                surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
+                surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm,
+                                decenter=dec)
             elif s.obsc is not None and flat and _is_air(mat) and _is_air(prev):
                 # OpticStudio clips only on the obscuration here (and on a CLAP or a fixed
                 # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
                 outer = sd if (s.clap is not None or fixed or s.stop) else 1.01 * sd
                 ro = s.obsc[0] * s_mm
-                surf = Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
+                surf = Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro, decenter=dec)
             elif flat and _is_air(mat) and _is_air(prev):
-                surf = Aperture(sd_build)
+                surf = Aperture(sd_build, decenter=dec)
             elif flat:
                 surf = Plane(sd_build)
             else:
@@ -723,7 +746,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                          "surface a thickness)")
     elif d_sensor < 0:
         p.fail(img.line, f"the image plane lies {-d_sensor:g} mm before the last surface's "
-                         f"vertex: deeplens' sensor must follow the last surface")
+                         f"vertex (a virtual image, as a negative lens's file puts it at its "
+                         f"virtual focus): deeplens' sensor must follow the last surface")
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
 
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest
@@ -888,6 +912,25 @@ def _locate(msg: str, where_of: dict) -> str:
     return msg + (f" ({'; '.join(lines)})" if lines else "")
 
 
+def _aperture_decenter(s: _Surf, k: int, flat_in_air: bool, s_mm, p: _Parser):
+    """``OBDC x y``: the decenter (mm) of the surface's aperture (``CLAP``, annular ``CLAP``,
+    ``SQAP``), for a flat surface in air (a deeplens :class:`Aperture`) that is not the stop."""
+    dx, dy, ln = s.obdc
+    where = f"OBDC on SURF {k} (aperture decenter {dx:g}, {dy:g})"
+    if s.clap is None and s.sqap is None:   # an OBSC alone (no aperture at all: not called)
+        p.fail(ln, f"{where}: a decentred obscuration (OBSC) inside a centred semi-diameter is "
+                   f"not supported (deeplens decentres a CLAP or SQAP opening, with its "
+                   f"obscuration)")
+    if s.stop:
+        p.fail(ln, f"{where}: a decentred aperture stop is not supported (deeplens' entrance "
+                   f"pupil is centred on the axis)")
+    if not flat_in_air:
+        p.fail(ln, f"{where}: a decentred aperture on a lens or mirror surface is not supported "
+                   f"(deeplens decentres apertures on flat surfaces in air; an off-axis mirror "
+                   f"segment is not read)")
+    return (dx * s_mm, dy * s_mm)
+
+
 def _cylinder(s: _Surf, k: int, c, sd, s_mm, p: _Parser):
     """``TOROIDAL`` with ``PARM 1`` (the radius of rotation) 0: a cylinder, curved in y, with
     ``PARM 2..9`` the coefficients of ``y², y⁴, ..., y¹⁶``; ``SQAP`` its rectangular outline."""
@@ -1013,7 +1056,8 @@ def _glass_line(m: Material, cats: list) -> str | None:
         named = m.name != m.to_spec() or is_entry
         label = m.name.upper() if named and len(m.name.split()) == 1 and "/" not in m.name \
             else "___BLANK"
-        return f"GLAS {label} 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
+        v_d = 0.0 if math.isinf(m.v_d) else m.v_d   # OpticStudio's non-dispersive model glass
+        return f"GLAS {label} 1 0 {_f(m.n_d)} {_f(v_d)} 0 0 0 0 0 0"
     raise ZemaxFileError(f"material {m.name!r} ({type(m).__name__}) has no Zemax catalogue name; "
                          f"use a catalogue glass or an n_d/V_d model glass")
 
@@ -1129,8 +1173,12 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
         if s.shape == "rect":
             lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
-        if float(s.obscuration) > 0:
+        elif s.decentred:   # OBDC moves a CLAP (annular: with its obscuration), not a DIAM
+            lines.append(f"CLAP {_f(s.obscuration)} {_f(sd)} 0")
+        if float(s.obscuration) > 0 and not s.decentred:
             lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        if s.decentred:
+            lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
         return lines
     if isinstance(s, Cylinder):
         lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 1 0"]

@@ -50,6 +50,10 @@ REFUSED = {
     "optiland_lens2.zmx": "L-BAL35",
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",
+    "cots_COTS-0002-02-1.zmx": "cross",           # the stop plane inside the next surface's sag
+    "patent2zemax_EP0770895A2-1.zmx": "cross",    # automatic semi-diameters overlap at the rim
+    "patent2zemax_US20030048547A1-3.zmx": "n_d >= 1",   # relative indices < 1 (model glasses)
+    "krakenos_zmax_84383.zmx": "virtual image",   # a negative lens focused at its virtual focus
 }
 
 
@@ -107,6 +111,9 @@ def _oracle(name, lens):
             zm = z_ol[i] - z_ol[-1] + 0.5 * max(z_ol[i + 1] - z_ol[i], 0.0) + 1e-9
             j = int((z_dl <= zm).sum())   # media[j] follows deeplens surface j - 1
         s.material_post = IdealMaterial(n=n_dl[j])
+    # the image surface's own GLAS (the medium after the image) is no medium of the lens, but
+    # optiland's f2 uses it as the image-space index: give it the medium before the image
+    surfs[-1].material_post = IdealMaterial(n=n_dl[-1])
     return optic, s_mm
 
 
