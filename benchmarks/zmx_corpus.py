@@ -13,8 +13,10 @@ import sys
 import warnings
 from pathlib import Path
 
-from deeplens.optics.io.zmx import ZemaxFileError, read_zmx
-from deeplens.optics.paraxial import paraxial
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # this checkout's deeplens
+
+from deeplens.optics.io.zmx import ZemaxFileError, read_zmx  # noqa: E402
+from deeplens.optics.paraxial import paraxial  # noqa: E402
 
 
 def main(folder: str | None = None) -> int:

@@ -76,9 +76,9 @@ from .agf import AGFGlass, GlassCatalogue, decode_zemax_text, read_agf
 from .lensfile import LensFileError
 from .zmx_system import (aperture_to_epd, element_tilts, fields_to_angles, lens_pupil_convention,
                          rotationally_symmetric, zemax_tilts)
-from .vendor_glass import (CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
-                           BuchdahlGlass, catalogue_size, find_in_vendor_catalogues,
-                           previous_glass, vendor_glass)
+from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
+                           BuchdahlGlass, archived_glass, catalogue_size,
+                           find_in_vendor_catalogues, previous_glass, vendor_glass)
 
 __all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "lens_pupil_convention",
            "read_zmx", "write_zmx"]
@@ -419,6 +419,16 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                 if m is not None:
                     return m
     for cat in named:
+        if cat in ARCHIVED_CATALOGUES and cat not in catalogues:
+            searched.append(f"{cat} archived (the vendor's .agf as refractiveindex.info keeps "
+                            f"it, {catalogue_size(cat, previous='archived')} glasses)")
+            m = archived_glass(glass, cat)
+            if m is not None:
+                p.note(s.glass_line, f"glass {glass!r}: from the archived {cat} catalogue (the "
+                                     f"vendor's .agf as refractiveindex.info keeps it; not in the "
+                                     f"current {cat} catalogue)")
+                return m
+    for cat in named:
         if cat in PREVIOUS_CATALOGUES and cat not in catalogues:
             searched.append(f"{cat} previous (Robb & Mercado 1983, "
                             f"{catalogue_size(cat, previous=True)} glasses)")
@@ -431,8 +441,9 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
     elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
     if elsewhere:
         cat = elsewhere[0].split()[0]
-        m = (vendor_glass(glass, cat) if not elsewhere[0].endswith("(previous)")
-             else previous_glass(glass, cat))
+        m = (previous_glass(glass, cat) if elsewhere[0].endswith("(previous)")
+             else archived_glass(glass, cat) if elsewhere[0].endswith("(archived)")
+             else vendor_glass(glass, cat))
         p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
                              f"({', '.join(named)}); using {elsewhere[0]} (exact name)")
         return m
@@ -828,9 +839,25 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                              primary_wavelength_nm=primary)
     except ValueError as e:
         p.fail(sysd["yfln"][1] if sysd["yfln"] else 0, str(e))
+    _check_stop_clear_aperture(lens, kept[stop_idx][2], s_mm, p)
     for ln, msg in p.notes:
         warnings.warn(f"{path}:{ln}: {msg}" if ln else msg, ZemaxWarning, stacklevel=2)
     return lens
+
+
+def _check_stop_clear_aperture(lens: Lens, s: _Surf, s_mm: float, p: _Parser) -> None:
+    """A ``CLAP`` on the stop surface narrower than the stop that the ``ENPD``/``FNUM`` aperture
+    defines vignettes the pupil in OpticStudio; deeplens' stop has one radius, the paraxial one,
+    so such a file is refused rather than traced with the wider beam."""
+    if s.clap is None or lens.spec.aperture_type == "stop":
+        return
+    clap = s.clap[0] * s_mm
+    sd = float(lens.surfaces[lens.stop_index].semi_diameter)
+    if clap < sd * (1 - 1e-9):
+        p.fail(s.clap[1], f"CLAP on the stop surface: its clear radius {clap:g} mm is smaller "
+                          f"than the stop radius {sd:g} mm that the system aperture defines, so "
+                          f"it cuts the entrance pupil; deeplens' stop has one radius (give the "
+                          f"system aperture as FLOA, or an ENPD/FNUM the CLAP does not cut)")
 
 
 def _auto_semi_diameters(lens, idx, fields, where_of, path):

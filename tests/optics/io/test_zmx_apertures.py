@@ -146,3 +146,20 @@ def test_model_glass_below_one_is_refused_with_its_line(tmp_path):
     ln = line_of(text, "GLAS ___BLANK")
     with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: model glass .*n_d >= 1"):
         read_zmx(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("clap,refused", [("CLAP 0 4 0", True), ("CLAP 0 5.5 0", False)])
+def test_a_clear_aperture_that_cuts_the_entrance_pupil_on_the_stop_is_refused(tmp_path, clap,
+                                                                              refused):
+    """ENPD 10 sizes the stop (in object space) to radius 5: a CLAP of 4 on it would vignette
+    the pupil in OpticStudio (deeplens' stop has one radius), one of 5.5 cuts nothing."""
+    text = singlet().replace('  DISZ 2\n  DIAM 5 1 0 0 1 ""\n',
+                             f'  DISZ 2\n  DIAM 5 1 0 0 1 ""\n  {clap}\n', 1)
+    if refused:
+        with pytest.raises(ZemaxFileError, match=f"t.zmx:{line_of(text, 'CLAP')}: CLAP on the "
+                                                 f"stop surface: its clear radius 4 mm is "
+                                                 f"smaller than the stop radius 5 mm"):
+            read_zmx(write(tmp_path, text))
+    else:
+        lens = read_zmx(write(tmp_path, text))
+        assert float(lens.surfaces[lens.stop_index].semi_diameter) == pytest.approx(5.0)

@@ -47,7 +47,7 @@ REFUSED = {
     "US05331467-1.zmx": "MIRROR",   # and an obscuration on a lens surface
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
-    "optiland_lens2.zmx": "L-BAL35",
+    "optiland_lens2.zmx": "CLAP on the stop surface",   # its L-BAL35 is in the archived OHARA
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",
     "cots_COTS-0002-02-1.zmx": "cross",           # the stop plane inside the next surface's sag
