@@ -36,7 +36,9 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 * Dummy surfaces (flat, the same medium on both sides, not the stop, automatic ``DIAM``) carry only
   a thickness and are merged into the gaps; a flat air surface with a fixed ``DIAM`` becomes an
   :class:`~deeplens.optics.surfaces.Aperture` (rectangular with ``SQAP``, with a central
-  obscuration with ``OBSC`` or an annular ``CLAP``).  A surface with no ``DIAM`` gets an
+  obscuration with ``OBSC`` or an annular ``CLAP``; decentred by ``OBDC`` when it is not the
+  stop).  A ``CLAP`` on the stop surface narrower than the stop an ``ENPD``/``FNUM`` aperture
+  defines is refused (it would vignette the pupil; deeplens' stop has one radius).  A surface with no ``DIAM`` gets an
   automatic semi-diameter from real rays; an image plane on a flat last vertex puts the sensor
   1e-9 mm behind it.
 * ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
@@ -46,10 +48,10 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   point its axis the same way); any other coordinate break is an error.
 * ``GLAS name`` is looked up exactly in the catalogues named by ``GCAT``: the user's ``.agf`` files
   (:mod:`.agf`) by file stem, the vendor catalogues of :mod:`.vendor_glass` (current, then
-  previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d``
+  archived .agf, then previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d``
   (a Zemax model glass) becomes a
   :class:`~deeplens.optics.materials.ModelGlass` (deeplens' Cauchy model: exact at n_d and V_d,
-  Zemax's own model differs slightly elsewhere).  A glass not found is an error naming it and its
+  Zemax's own model differs slightly elsewhere; ``V_d = 0`` is non-dispersive).  A glass not found is an error naming it and its
   line, unless the caller passes ``glass_fallback``.
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
@@ -418,26 +420,24 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                 m = _builtin(glass)
                 if m is not None:
                     return m
-    for cat in named:
-        if cat in ARCHIVED_CATALOGUES and cat not in catalogues:
-            searched.append(f"{cat} archived (the vendor's .agf as refractiveindex.info keeps "
-                            f"it, {catalogue_size(cat, previous='archived')} glasses)")
-            m = archived_glass(glass, cat)
-            if m is not None:
-                p.note(s.glass_line, f"glass {glass!r}: from the archived {cat} catalogue (the "
-                                     f"vendor's .agf as refractiveindex.info keeps it; not in the "
-                                     f"current {cat} catalogue)")
-                return m
-    for cat in named:
-        if cat in PREVIOUS_CATALOGUES and cat not in catalogues:
-            searched.append(f"{cat} previous (Robb & Mercado 1983, "
-                            f"{catalogue_size(cat, previous=True)} glasses)")
-            m = previous_glass(glass, cat)
-            if m is not None:
-                p.note(s.glass_line, f"glass {glass!r}: from the previous {cat} catalogue (Robb "
-                                     f"& Mercado 1983, a visible-range fit: n within 6e-5, "
-                                     f"400-700 nm)")
-                return m
+    # the named vendors' older catalogues, newest first:
+    # (names answered, lookup, kind, what the catalogue is (with {n} glasses), why a use is noted)
+    older = ((ARCHIVED_CATALOGUES, archived_glass, "archived",
+              "the vendor's .agf as refractiveindex.info keeps it, {n} glasses",
+              "the vendor's .agf as refractiveindex.info keeps it; not in the current {cat} "
+              "catalogue"),
+             (PREVIOUS_CATALOGUES, previous_glass, "previous", "Robb & Mercado 1983, {n} glasses",
+              "Robb & Mercado 1983, a visible-range fit: n within 6e-5, 400-700 nm"))
+    for known, lookup, kind, what, why in older:
+        for cat in named:
+            if cat in known and cat not in catalogues:
+                n = catalogue_size(cat, previous=kind if kind == "archived" else True)
+                searched.append(f"{cat} {kind} ({what.format(n=n)})")
+                m = lookup(glass, cat)
+                if m is not None:
+                    p.note(s.glass_line, f"glass {glass!r}: from the {kind} {cat} catalogue "
+                                         f"({why.format(cat=cat)})")
+                    return m
     elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
     if elsewhere:
         cat = elsewhere[0].split()[0]
