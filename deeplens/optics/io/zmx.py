@@ -680,8 +680,6 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be >= 0, got {s.diam!r}")
         auto = not sd > 0     # no DIAM (or 0): an automatic semi-diameter, set once built
         sd_build = sd if sd > 0 else _PROVISIONAL_SD_MM
-        dec = (0.0, 0.0) if s.obdc is None else _aperture_decenter(
-            s, k, flat and _is_air(mat) and _is_air(prev), s_mm, p)
         try:
             if s.type == "XYPOLYNOM":
                 surf = _xypolynom(s, c, sd_build, s_mm, p)
@@ -691,22 +689,24 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 surf = _cylinder(s, k, c, sd_build, s_mm, p)
             elif s.sqap is not None and flat and _is_air(mat) and _is_air(prev):
                 hx, hy, _ = s.sqap
-                surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm,
-                                decenter=dec)
+                surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
             elif s.obsc is not None and flat and _is_air(mat) and _is_air(prev):
                 # OpticStudio clips only on the obscuration here (and on a CLAP or a fixed
                 # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
                 outer = sd if (s.clap is not None or fixed or s.stop) else 1.01 * sd
                 ro = s.obsc[0] * s_mm
-                surf = Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro, decenter=dec)
+                surf = Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
             elif flat and _is_air(mat) and _is_air(prev):
-                surf = Aperture(sd_build, decenter=dec)
+                surf = Aperture(sd_build)
             elif flat:
                 surf = Plane(sd_build)
             else:
                 surf = Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
         except ValueError as e:
             p.fail(s.type_line or s.line, f"SURF {k}: {e}")
+        if s.obdc is not None:   # the decenter of the opening of an Aperture (not the stop)
+            dec = _aperture_decenter(s, k, isinstance(surf, Aperture), s_mm, p)
+            surf.decenter.copy_(torch.tensor(dec, dtype=surf.decenter.dtype))
         if s.obsc is not None and not isinstance(surf, Aperture):
             p.fail(s.obsc[1], f"SURF {k}: a central obscuration on a {type(surf).__name__} "
                               f"surface is not supported (deeplens has obscurations on flat "
@@ -947,7 +947,7 @@ def _locate(msg: str, where_of: dict) -> str:
     return msg + (f" ({'; '.join(lines)})" if lines else "")
 
 
-def _aperture_decenter(s: _Surf, k: int, flat_in_air: bool, s_mm, p: _Parser):
+def _aperture_decenter(s: _Surf, k: int, is_aperture: bool, s_mm, p: _Parser):
     """``OBDC x y``: the decenter (mm) of the surface's aperture (``CLAP``, annular ``CLAP``,
     ``SQAP``), for a flat surface in air (a deeplens :class:`Aperture`) that is not the stop."""
     dx, dy, ln = s.obdc
@@ -959,7 +959,7 @@ def _aperture_decenter(s: _Surf, k: int, flat_in_air: bool, s_mm, p: _Parser):
     if s.stop:
         p.fail(ln, f"{where}: a decentred aperture stop is not supported (deeplens' entrance "
                    f"pupil is centred on the axis)")
-    if not flat_in_air:
+    if not is_aperture:
         p.fail(ln, f"{where}: a decentred aperture on a lens or mirror surface is not supported "
                    f"(deeplens decentres apertures on flat surfaces in air; an off-axis mirror "
                    f"segment is not read)")
