@@ -739,8 +739,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     if img.type != "STANDARD" or img.curv != 0:
         p.note(img.line, "the image surface is not flat: deeplens uses a flat sensor at its "
                          "vertex")
+    direction = 1.0   # of travel in the gap before kept[i]: -1 after an odd number of mirrors
     for i in range(1, len(kept)):
-        if kept[i][3] < 0 and stop_idx in (i - 1, i):
+        if getattr(kept[i - 1][2], "mirror", False):
+            direction = -direction
+        if (kept[i][3] * direction < 0 and stop_idx in (i - 1, i)
+                and "COORDBRK" not in (kept[i - 1][2].type, kept[i][2].type)):
             prev_s = kept[i - 1][2]
             p.fail(prev_s.disz_line or prev_s.line,
                    f"a negative thickness ({kept[i][3]:g} mm) between the stop and the next "
