@@ -9,17 +9,22 @@ counts.  Point it at another folder of ``.zmx`` files to measure that one.
 
 from __future__ import annotations
 
+import argparse
 import sys
 import warnings
 from pathlib import Path
 
-from deeplens.optics.io.zmx import ZemaxFileError, read_zmx
-from deeplens.optics.paraxial import paraxial
-from deeplens.optics.surfaces import CoordinateBreak
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # this checkout's deeplens
+
+from deeplens.optics.io.zmx import ZemaxFileError, read_zmx  # noqa: E402
+from deeplens.optics.paraxial import paraxial  # noqa: E402
+from deeplens.optics.surfaces import CoordinateBreak  # noqa: E402
 
 
 def main(folder: str | None = None) -> int:
     root = Path(folder) if folder else Path(__file__).resolve().parents[1] / "tests/data/zmx_real"
+    if not root.is_dir():
+        raise SystemExit(f"zmx_corpus: {root} is not a folder of .zmx files")
     files = sorted(p for p in root.iterdir() if p.suffix.lower() == ".zmx")
     loaded = refused = crashed = 0
     for f in files:
@@ -45,4 +50,8 @@ def main(folder: str | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(*sys.argv[1:2]))
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("folder", nargs="?", default=None,
+                    help="a folder of .zmx files (default: tests/data/zmx_real)")
+    sys.exit(main(ap.parse_args().folder))

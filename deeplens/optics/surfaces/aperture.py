@@ -3,10 +3,14 @@
 Circular: a ray passes if ``x^2 + y^2 <= r^2`` (``r`` = semi-diameter); with a central
 obscuration of radius ``r_o`` (an annular opening), only if also ``x^2 + y^2 >= r_o^2``.
 Rectangular: it passes if ``|x| <= w_x`` and ``|y| <= w_y`` (half-widths in mm).
+A decentred opening (``decenter = (d_x, d_y)``, mm; Zemax's ``OBDC``) is the same test on
+``(x − d_x, y − d_y)``: the opening and its obscuration move together; the plane does not.
 The medium does not change across a stop.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 
@@ -33,11 +37,14 @@ class Aperture(Plane):
         half_width_x, half_width_y: half-widths of a rectangular opening, mm.
         obscuration: radius of a central obscuration of a circular opening, mm (``0``: none;
             ``< semi_diameter``).
+        decenter: ``(d_x, d_y)``, mm: the centre of the opening (and of its obscuration) in the
+            plane; ``(0, 0)`` by default.  A decentred aperture runs eager (the compiled runs
+            clip about the axis).
     """
 
     def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
                  half_width_x: float | None = None, half_width_y: float | None = None,
-                 obscuration: float = 0.0):
+                 obscuration: float = 0.0, decenter: tuple[float, float] = (0.0, 0.0)):
         if shape not in ("circle", "rect"):
             raise ValueError(f"Aperture: shape must be 'circle' or 'rect', got {shape!r}")
         if shape == "rect":
@@ -62,8 +69,21 @@ class Aperture(Plane):
                              f"0 < radius < semi_diameter ({float(semi_diameter):g} mm), got "
                              f"{obscuration!r}")
         self.register_buffer("obscuration", torch.tensor(obscuration, dtype=torch.float64))
+        dec = [float(v) for v in decenter]
+        if len(dec) != 2 or not all(math.isfinite(v) for v in dec):
+            raise ValueError(f"Aperture: decenter must be two finite numbers of mm (d_x, d_y), "
+                             f"got {decenter!r}")
+        self.register_buffer("decenter", torch.tensor(dec, dtype=torch.float64))
+
+    @property
+    def decentred(self) -> bool:
+        """Whether the opening's centre is off the axis."""
+        return bool((self.decenter != 0).any())
 
     def in_aperture(self, x, y):
+        if self.decentred:
+            dec = self.decenter.to(x)
+            x, y = x - dec[0], y - dec[1]
         if self.shape == "rect":
             return in_rect(x, y, self.half_widths.to(x))
         if float(self.obscuration) > 0:
@@ -75,17 +95,22 @@ class Aperture(Plane):
         """Resize a circular stop (used when the aperture is given as EPD or F-number)."""
         self.semi_diameter.fill_(float(value))
 
-    file_fields = ("shape", "half_width_x_mm", "half_width_y_mm", "obscuration_mm")
+    file_fields = ("shape", "half_width_x_mm", "half_width_y_mm", "obscuration_mm",
+                   "decenter_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
         shape = entry.get("shape", "str", default="circle")
         if shape not in ("circle", "rect"):
             entry.fail("shape", f"expected 'circle' or 'rect', got {shape!r}")
+        dec = entry.get("decenter_mm", "numbers", default=[0.0, 0.0])
+        if len(dec) != 2:
+            entry.fail("decenter_mm", f"expected [d_x, d_y] in mm, got {dec!r}")
         if shape == "rect":
             return cls(semi_diameter, "rect", entry.get("half_width_x_mm"),
-                       entry.get("half_width_y_mm"))
-        return cls(semi_diameter, shape, obscuration=entry.get("obscuration_mm", default=0.0))
+                       entry.get("half_width_y_mm"), decenter=dec)
+        return cls(semi_diameter, shape, obscuration=entry.get("obscuration_mm", default=0.0),
+                   decenter=dec)
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -94,4 +119,6 @@ class Aperture(Plane):
         if self.shape == "rect":
             d.update(shape="rect", half_width_x_mm=float(self.half_widths[0]),
                      half_width_y_mm=float(self.half_widths[1]))
+        if self.decentred:
+            d["decenter_mm"] = [float(v) for v in self.decenter]
         return d

@@ -309,7 +309,9 @@ def test_glass_not_found_names_glass_and_line(tmp_path):
     with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: glass 'N-BK7X' not found by exact "
                                              r"name in the catalogues searched \(SCHOTT \(current "
                                              r"vendor catalogue, 123 glasses\); SCHOTT \(deeplens "
-                                             r"built-in, 22 glasses\); SCHOTT previous"):
+                                             r"built-in, 22 glasses\); SCHOTT archived \(the "
+                                             r"vendor's \.agf as refractiveindex\.info keeps it, "
+                                             r"\d+ glasses\); SCHOTT previous"):
         read_zmx(p)
     # never fuzzy: load_lens says the same
     with pytest.raises(LensFileError, match="N-BK7X"):

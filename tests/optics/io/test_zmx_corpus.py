@@ -37,12 +37,15 @@ REFUSED = {
     "optiland_curved_transmission_grating.zmx": "DGRATING",
     "optiland_flat_transmission_grating.zmx": "DGRATING",
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
-    "US05331467-1.zmx": "E-LAFH3",   # (its OBSC on a lens surface is read)
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
-    "optiland_lens2.zmx": "L-BAL35",
+    "optiland_lens2.zmx": "CLAP on the stop surface",   # its L-BAL35 is in the archived OHARA
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",
+    "cots_COTS-0002-02-1.zmx": "cross",           # the stop plane inside the next surface's sag
+    "patent2zemax_EP0770895A2-1.zmx": "cross",    # automatic semi-diameters overlap at the rim
+    "patent2zemax_US20030048547A1-3.zmx": "n_d >= 1",   # relative indices < 1 (model glasses)
+    "krakenos_zmax_84383.zmx": "virtual image",   # a negative lens focused at its virtual focus
 }
 
 
@@ -80,26 +83,32 @@ def _unit_mm(name):
 
 def _file_path_coords(path):
     """Per ``SURF`` block (object first): its ``TYPE``, whether it is ``GLAS MIRROR``, and its
-    path coordinate relative to the image surface (file units): minus the sum of ``|DISZ|`` from
-    it to the image.  Along the light's path, so it is monotonic through mirrors and folds (an
-    independent, minimal reading of the file, not deeplens')."""
+    path coordinate relative to the image surface (file units): minus the sum, from it to the
+    image, of each signed ``DISZ`` times the direction of travel in its space (+1, flipped after
+    every mirror).  Along the light's path, so it follows reversals at mirrors and the back-steps
+    of negative dummy thicknesses (an independent, minimal reading of the file, not deeplens')."""
     blocks = re.split(r"^SURF\s+\d+.*$", decode_zemax_text(path), flags=re.M)[1:]
-    types, mirror, disz = [], [], []
+    types, mirror, step = [], [], []
+    direction = 1.0
     for b in blocks:
         t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
         d = re.search(r"^\s+DISZ\s+(\S+)", b, re.M)
         types.append(t.group(1).upper() if t else "STANDARD")
         mirror.append(bool(re.search(r"^\s+GLAS\s+MIRROR\b", b, re.M)))
-        disz.append(0.0 if d is None or d.group(1).upper() == "INFINITY" else
-                    abs(float(d.group(1))))
-    q = [-sum(disz[k:-1]) for k in range(len(blocks))]
+        if mirror[-1]:
+            direction = -direction
+        step.append(0.0 if d is None or d.group(1).upper() == "INFINITY" else
+                    float(d.group(1)) * direction)
+    q = [-sum(step[k:-1]) for k in range(len(blocks))]
     return types, mirror, q
 
 
 def _dl_path_coords(lens):
     """deeplens' path coordinate of each surface relative to the sensor (mm): minus the sum of
-    ``|distance|`` from it to the sensor."""
-    d = [abs(float(v)) for v in lens.distances[1:]] + [abs(float(lens.d_sensor))]
+    each signed distance times the direction of travel in its medium, from it to the sensor."""
+    sign = lens.directions()
+    d = ([float(v) * sign[i] for i, v in enumerate(lens.distances)][1:]
+         + [float(lens.d_sensor) * sign[-1]])
     return torch.tensor([-sum(d[j:]) for j in range(len(lens.surfaces))], dtype=torch.float64)
 
 
@@ -128,6 +137,20 @@ def _oracle(name, lens):
             zm = q[i] + 0.5 * (q[i + 1] - q[i]) + 1e-9
             j = int((p_dl <= zm).sum())   # media[j] follows deeplens surface j - 1
         s.material_post = IdealMaterial(n=n_dl[j])
+    # OBSC (a central obscuration): optiland's reader skips it, so the oracle gets it here, as
+    # an annular aperture (r_min) on the same surface
+    from optiland.physical_apertures import RadialAperture
+
+    blocks = re.split(r"^SURF\s+\d+.*$", decode_zemax_text(CORPUS / name), flags=re.M)[1:]
+    obsc = [re.search(r"^\s+OBSC\s+0\s+(\S+)", b, re.M) for b, t in zip(blocks, types)
+            if t != "COORDBRK"]
+    for s, m in zip(surfs, obsc):
+        if m is not None and float(m.group(1)) > 0:
+            assert s.aperture is None, "an OBSC beside another aperture: extend the oracle"
+            s.aperture = RadialAperture(r_max=1e30, r_min=float(m.group(1)))
+    # the image surface's own GLAS (the medium after the image) is no medium of the lens, but
+    # optiland's f2 uses it as the image-space index: give it the medium before the image
+    surfs[-1].material_post = IdealMaterial(n=n_dl[-1])
     return optic, s_mm
 
 

@@ -1,0 +1,201 @@
+"""Zemax aperture decenters (``OBDC``) and model glasses (``V_d = 0``, ``n_d < 1``) read from
+``.zmx`` files: the clip is checked against the hit points of an unclipped trace, the writer
+round-trips, and what deeplens cannot model is refused with its line."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from test_zmx import line_of, singlet, write
+
+from deeplens.optics.intersect import IntersectOptions
+from deeplens.optics.io import ZemaxFileError, lens_to_dict, read_zmx, write_zmx
+from deeplens.optics.materials import ModelGlass
+from deeplens.optics.rays import Rays
+from deeplens.optics.surfaces import Aperture
+from deeplens.optics.tracer import fused_kind
+
+
+def _with_field_stop(unit_scale=1.0, clap="CLAP 0 2 0", obdc="OBDC 1 -0.5", extra=()):
+    """The singlet with a flat surface in the image-side air gap 10 mm behind the lens, carrying
+    ``clap`` and ``obdc`` (lengths divided by ``unit_scale``: 10 for a file in cm)."""
+    s = unit_scale
+    text = singlet() if s == 1 else singlet(
+        unit="CM", curv1=0.2, curv2=-0.05, t=0.5, bfl=4.5, aperture="ENPD 1", diam1=0.8,
+        s1_extra=("PARM 1 0", "PARM 2 1e-02", "PARM 3 -2e-02")).replace(
+        "DISZ 2\n", "DISZ 0.2\n").replace("DIAM 5 1", "DIAM 0.5 1").replace(
+        "DIAM 8 1", "DIAM 0.8 1").replace("DIAM 6 1", "DIAM 0.6 1")
+    bfl = "4.5" if s != 1 else "45.0"
+    block = ["SURF 4", "  TYPE STANDARD", "  CURV 0.0", f"  DISZ {35.0 / s!r}",
+             *[f"  {x}" for x in (clap, obdc, *extra) if x]]
+    text = text.replace(f"  DISZ {bfl}\n", f"  DISZ {10.0 / s!r}\n", 1)
+    text = text.replace("SURF 4\n", "\n".join(block) + "\nSURF 5\n", 1)
+    return text
+
+
+def _on_axis_rays(lens, n=41):
+    """A square grid of on-axis rays filling 99 % of the 10 mm entrance pupil (float64)."""
+    g = torch.linspace(-4.95, 4.95, n, dtype=torch.float64)
+    x, y = torch.meshgrid(g, g, indexing="ij")
+    keep = x * x + y * y <= 4.95 ** 2
+    x, y = x[keep], y[keep]
+    o = torch.stack([x, y, torch.full_like(x, -1.0)], -1)
+    d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(o)
+    return Rays(o, d, torch.full(x.shape, 650.0, dtype=torch.float64))
+
+
+def test_decentred_clear_aperture_clips_about_its_centre(tmp_path):
+    """OBDC 1 -0.5 on a CLAP of radius 2: exactly the rays whose hit on that plane lies within
+    2 mm of (1, -0.5) pass (the hit points from a trace that clips nothing); the opposite sign,
+    or no decenter, would pass another set."""
+    lens = read_zmx(write(tmp_path, _with_field_stop())).double()
+    i = next(k for k, s in enumerate(lens.surfaces) if isinstance(s, Aperture) and k > 0)
+    ap = lens.surfaces[i]
+    assert ap.decenter.tolist() == [1.0, -0.5] and fused_kind(lens, i) is None  # runs eager
+    rays = _on_axis_rays(lens)
+    with torch.no_grad():
+        free, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+        clipped = lens.trace(rays)
+    x, y = hits[i][..., 0], hits[i][..., 1]
+
+    def inside(dx, dy):
+        return free.valid & ((x - dx) ** 2 + (y - dy) ** 2 <= 4.0)
+
+    want = inside(1.0, -0.5)
+    assert 0 < int(want.sum()) < int(free.valid.sum())          # the aperture vignettes
+    assert torch.equal(clipped.valid, want)
+    for wrong in (inside(-1.0, 0.5), inside(-1.0, -0.5), inside(0.0, 0.0)):
+        assert not torch.equal(wrong, want)
+
+
+def test_decenter_is_a_length_in_the_file_unit(tmp_path):
+    mm = read_zmx(write(tmp_path, _with_field_stop(), "mm.zmx"))
+    cm = read_zmx(write(tmp_path, _with_field_stop(10.0, "CLAP 0 0.2 0", "OBDC 0.1 -0.05"),
+                        "cm.zmx"))
+    a, b = lens_to_dict(mm), lens_to_dict(cm)
+    assert b["surfaces"][3]["decenter_mm"] == pytest.approx([1.0, -0.5], rel=1e-12)
+    assert a["surfaces"][3]["decenter_mm"] == [1.0, -0.5]
+
+
+@pytest.mark.parametrize("clap,obdc", [("CLAP 0 2 0", "OBDC 1 -0.5"),
+                                       ("CLAP 0.5 2 0", "OBDC -0.25 0.75"),
+                                       ("SQAP 1.5 2.5 0", "OBDC 0.5 0.25")])
+def test_decentred_apertures_round_trip(tmp_path, clap, obdc):
+    """A decentred circle, annulus (annular CLAP: the obscuration moves with it) and rectangle
+    are written back (CLAP/SQAP + OBDC) and read the same, in .zmx and in deeplens' JSON."""
+    from deeplens.optics.io import lens_from_dict
+
+    lens = read_zmx(write(tmp_path, _with_field_stop(clap=clap, obdc=obdc)))
+    write_zmx(lens, tmp_path / "back.zmx")
+    text = (tmp_path / "back.zmx").read_text()
+    assert "OBDC " in text
+    d = lens_to_dict(lens)
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == d
+    assert lens_to_dict(lens_from_dict(d)) == d
+    ap = lens.surfaces[3]
+    dx, dy = (float(v) for v in obdc.split()[1:])
+    assert ap.decenter.tolist() == [dx, dy]
+    if clap.startswith("CLAP 0.5"):
+        assert float(ap.obscuration) == 0.5
+
+
+@pytest.mark.parametrize("where,edit,match", [
+    ("stop", lambda t: t.replace('  DISZ 2\n  DIAM 5 1 0 0 1 ""\n',
+                                 '  DISZ 2\n  DIAM 5 1 0 0 1 ""\n  CLAP 0 5 0\n  OBDC 0.5 0\n', 1),
+     "a decentred aperture stop is not supported"),
+    ("lens", lambda t: t.replace('  DIAM 8 1 0 0 1 ""\nSURF 4',
+                                 '  DIAM 8 1 0 0 1 ""\n  CLAP 0 8 0\n  OBDC 0.5 0\nSURF 4', 1),
+     "a decentred aperture on a lens or mirror surface"),
+    ("obscuration", lambda t: _with_field_stop(clap="OBSC 0 1 0", obdc="OBDC 0.5 0",
+                                               extra=('DIAM 3 1 0 0 1 ""',)),
+     "a decentred obscuration"),
+])
+def test_decenters_deeplens_cannot_model_are_refused_with_their_line(tmp_path, where, edit,
+                                                                     match):
+    text = edit(singlet()) if where != "obscuration" else edit(None)
+    ln = line_of(text, "OBDC")
+    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: OBDC on SURF \\d+ .*{match}"):
+        read_zmx(write(tmp_path, text))
+
+
+def test_a_decenter_without_an_aperture_is_reported_and_ignored(tmp_path):
+    text = _with_field_stop(clap="", obdc="OBDC 1 -0.5", extra=('DIAM 3 0 0 0 1 ""',))
+    ln = line_of(text, "OBDC")
+    with pytest.warns(UserWarning, match=f":{ln}: OBDC on SURF 4: .*no aperture"):
+        lens = read_zmx(write(tmp_path, text))
+    assert not any(isinstance(s, Aperture) and s.decentred for s in lens.surfaces)
+
+
+def test_model_glass_with_zero_abbe_number_is_non_dispersive(tmp_path):
+    """OpticStudio's model glass with V_d = 0 has no dispersion: deeplens' V_d = inf, written
+    back as 0."""
+    text = singlet(glass="GLAS ___BLANK 1 0 1.6 0 0 0 0 0 0 0")
+    lens = read_zmx(write(tmp_path, text))
+    m = lens.materials[2]
+    assert isinstance(m, ModelGlass) and math.isinf(m.v_d)
+    n = m.n(torch.tensor([450.0, 587.5618, 700.0], dtype=torch.float64))
+    assert n.tolist() == pytest.approx([1.6, 1.6, 1.6], abs=1e-15)
+    write_zmx(lens, tmp_path / "back.zmx")
+    assert "GLAS ___BLANK 1 0 1.6 0.0 " in (tmp_path / "back.zmx").read_text()
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
+
+
+def test_model_glass_below_one_is_refused_with_its_line(tmp_path):
+    text = singlet(glass="GLAS ___BLANK 1 0 0.9997 0 0 0 0 0 0 0")
+    ln = line_of(text, "GLAS ___BLANK")
+    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: model glass .*n_d >= 1"):
+        read_zmx(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("clap,refused", [("CLAP 0 4 0", True), ("CLAP 0 5.5 0", False)])
+def test_a_clear_aperture_that_cuts_the_entrance_pupil_on_the_stop_is_refused(tmp_path, clap,
+                                                                              refused):
+    """ENPD 10 sizes the stop (in object space) to radius 5: a CLAP of 4 on it would vignette
+    the pupil in OpticStudio (deeplens' stop has one radius), one of 5.5 cuts nothing."""
+    text = singlet().replace('  DISZ 2\n  DIAM 5 1 0 0 1 ""\n',
+                             f'  DISZ 2\n  DIAM 5 1 0 0 1 ""\n  {clap}\n', 1)
+    if refused:
+        with pytest.raises(ZemaxFileError, match=f"t.zmx:{line_of(text, 'CLAP')}: CLAP on the "
+                                                 f"stop surface: its clear radius 4 mm is "
+                                                 f"smaller than the stop radius 5 mm"):
+            read_zmx(write(tmp_path, text))
+    else:
+        lens = read_zmx(write(tmp_path, text))
+        assert float(lens.surfaces[lens.stop_index].semi_diameter) == pytest.approx(5.0)
+
+
+def test_a_stop_inside_the_next_lens_sag_is_refused_with_its_line(tmp_path):
+    """Phone-lens files put the stop 0.3 mm behind the first lens's vertex (DISZ -0.3 after the
+    stop): refused at the stop's DISZ line, not traced in a wrong order."""
+    text = singlet().replace('  DISZ 2\n  DIAM 5 1 0 0 1 ""\n', '  DISZ -0.3\n  DIAM 5 1 0 0 1 ""\n', 1)
+    ln = line_of(text, "DISZ -0.3")
+    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: a negative thickness \\(-0.3 mm\\) "
+                                             f"between the stop and the next surface"):
+        read_zmx(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("obdc", ["OBDC 0 1", "OBDC 0 -1"])
+def test_decentred_aperture_vignettes_a_field_as_optiland_does(tmp_path, obdc):
+    """At the 5° field a CLAP of 2.5 mm decentred by ±1 mm in y passes a different part of the
+    beam: the share of rays that pass and their centroid on the image agree with optiland's
+    reading of the same file (its OffsetRadialAperture; hexapolar pupils of 40 rings in both);
+    the two signs differ by 0.8 mm in centroid, far beyond the tolerance."""
+    import numpy as np
+    from test_zmx_corpus import _oracle
+
+    from deeplens.analysis.spot import spot_diagram
+
+    p = write(tmp_path, _with_field_stop(clap="CLAP 0 2.5 0", obdc=obdc))
+    lens = read_zmx(p)
+    optic, _ = _oracle(p, lens)
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        s = spot_diagram(lens, 5.0, w, "hexapolar:40", pupil="paraxial")
+    rays = optic.trace(0.0, 1.0, w / 1000.0, 40, "hexapolar")
+    ok = np.asarray(torch.as_tensor(rays.i)) > 0
+    y = np.asarray(torch.as_tensor(rays.y))
+    assert s.n_rays / s.n_launched == pytest.approx(ok.mean(), abs=0.005)
+    assert float(s.centroid[1]) == pytest.approx(y[ok].mean(), abs=2e-3)
+    assert abs(float(s.centroid[1]) - 3.72) > 0.3     # the decenter moved the centroid
