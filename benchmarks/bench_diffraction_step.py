@@ -12,6 +12,8 @@ time (``time.process_time``; robust to other processes on a shared machine) per 
 their ratio.  ``--profile`` prints a cProfile of the diffraction step instead.
 
     OMP_NUM_THREADS=2 python benchmarks/bench_diffraction_step.py --threads 2 --rounds 8
+    OMP_NUM_THREADS=1 python benchmarks/bench_diffraction_step.py --threads 1 --variants \
+        geometric diffraction geometric:direct diffraction:direct diffraction:nocache
     OMP_NUM_THREADS=1 python benchmarks/bench_diffraction_step.py --threads 1 --profile
 """
 
@@ -50,9 +52,22 @@ def build(overrides):
     return objs
 
 
-def set_model(pm, name):
-    """Point the shared PSF model at ``name`` (the renderer and the Wiener filter follow)."""
+def set_model(pm, variant):
+    """Point the shared PSF model at ``variant`` (the renderer and the Wiener filter follow):
+    ``geometric`` or ``diffraction``, optionally with ``:direct`` (the renderer's convolution
+    by ``F.conv2d``, as before the FFT) and ``:nocache`` (the OPD fit's least-squares map
+    recomputed for every job, as before the cache)."""
+    import torch.nn.functional as F
+
+    from deeplens.render import fftconv, psf_conv
+
+    name, *opts = variant.split(":")
     pm.model = pm.choice = name
+    psf_conv.correlate_valid = F.conv2d if "direct" in opts else fftconv.correlate_valid
+    if "nocache" in opts:
+        pm.cache = None
+    elif pm.cache is None:
+        pm.cache = {}
 
 
 def one_step(module, images, step, first):
@@ -72,6 +87,8 @@ def main():
     ap.add_argument("--rounds", type=int, default=6)
     ap.add_argument("--fixed", action="store_true", help="the warm-up step (optics fixed)")
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--variants", nargs="+", default=["geometric", "diffraction"],
+                    help="geometric | diffraction, each optionally :direct and/or :nocache")
     ap.add_argument("overrides", nargs="*")
     args = ap.parse_args()
     import torch
@@ -99,9 +116,9 @@ def main():
         pstats.Stats(pr).sort_stats("cumulative").print_stats(35)
         pstats.Stats(pr).sort_stats("tottime").print_stats(25)
         return
-    times = {"geometric": [], "diffraction": []}
+    times = {v: [] for v in args.variants}
     for r in range(args.rounds + 1):
-        order = ("geometric", "diffraction") if r % 2 == 0 else ("diffraction", "geometric")
+        order = args.variants if r % 2 == 0 else args.variants[::-1]
         for name in order:
             set_model(pm, name)
             t0, c0 = time.perf_counter(), time.process_time()
@@ -121,9 +138,11 @@ def main():
         stat[name] = (min(w), statistics.median(w), min(c), statistics.median(c))
         print(f"| {name} | {stat[name][0]:.3f} | {stat[name][1]:.3f} | {stat[name][2]:.3f} | "
               f"{stat[name][3]:.3f} |")
-    g, d = stat["geometric"], stat["diffraction"]
-    print(f"| ratio | {d[0] / g[0]:.2f} | {d[1] / g[1]:.2f} | {d[2] / g[2]:.2f} | "
-          f"{d[3] / g[3]:.2f} |")
+    g = stat[args.variants[0]]
+    for name in args.variants[1:]:
+        d = stat[name]
+        print(f"| {name} / {args.variants[0]} | {d[0] / g[0]:.2f} | {d[1] / g[1]:.2f} | "
+              f"{d[2] / g[2]:.2f} | {d[3] / g[3]:.2f} |")
 
 
 if __name__ == "__main__":
