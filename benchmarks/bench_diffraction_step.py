@@ -31,25 +31,9 @@ sys.path.insert(0, REPO)
 
 
 def build(overrides):
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-    from hydra.core.hydra_config import HydraConfig
-    from omegaconf import open_dict
+    from bench_train_step import build as compose_and_build
 
-    from deeplens.training.train import build_objects
-
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(config_dir=os.path.join(REPO, "configs"), version_base="1.3"):
-        cfg = compose(config_name="train.yaml", return_hydra_config=True,
-                      overrides=["experiment=edof", "~logger", *overrides])
-    HydraConfig().set_config(cfg)
-    with open_dict(cfg):
-        cfg.paths.output_dir = "/tmp/bench_diffraction_step"
-        cfg.paths.root_dir = REPO
-        cfg.paths.data_dir = os.path.join(REPO, "data")
-    objs = build_objects(cfg)
-    objs["datamodule"].setup("fit")
-    return objs
+    return compose_and_build(REPO, "edof", overrides, "/tmp/bench_diffraction_step")[1]
 
 
 def set_model(pm, variant):

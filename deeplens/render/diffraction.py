@@ -266,7 +266,7 @@ def _projector(m, degree: int, cache: dict | None):
     sel = (sel & m).reshape(-1)
     key = None
     if cache is not None:
-        key = ("fit", n, degree, sel.cpu().numpy().tobytes())
+        key = ("fit", n, degree, str(m.device), sel.cpu().numpy().tobytes())
         if key in cache:
             return cache[key]
     Bs = _basis(n, degree, m.device)[sel]

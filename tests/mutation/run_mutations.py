@@ -295,7 +295,8 @@ MUTATIONS = [
              DIFFRACTION),
     Mutation("diffraction_fit_cache_ignores_mask", "OPD fit's least-squares map cached without "
              "its vignetting mask", "deeplens/render/diffraction.py",
-             'key = ("fit", n, degree, sel.cpu().numpy().tobytes())', 'key = ("fit", n, degree)',
+             'key = ("fit", n, degree, str(m.device), sel.cpu().numpy().tobytes())',
+             'key = ("fit", n, degree, str(m.device))',
              DIFFRACTION),
     Mutation("fftconv_no_flip", "FFT convolution correlates with the flipped kernel",
              "deeplens/render/fftconv.py", "Kf = torch.fft.rfft2(k.flip(-1, -2)[:, 0]",
