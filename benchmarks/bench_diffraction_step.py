@@ -20,7 +20,6 @@ their ratio.  ``--profile`` prints a cProfile of the diffraction step instead.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import statistics
 import sys
@@ -130,5 +129,4 @@ def main():
 
 
 if __name__ == "__main__":
-    with contextlib.suppress(KeyboardInterrupt):
-        main()
+    main()
