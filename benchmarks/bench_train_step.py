@@ -43,31 +43,39 @@ DEFAULT_ROWS = ["edof", "edof|render=balanced", "edof|render=balanced|render.com
                 "doublet"]
 
 
-def _child(spec: str, args) -> dict:
-    import torch
+def build(code: str, experiment: str, overrides, output_dir: str) -> tuple:
+    """``(cfg, objects)`` of ``experiment=...`` plus ``overrides`` composed as ``train.py`` does
+    (no logger) from the checkout at ``code``; the datamodule set up for fitting."""
     from hydra import compose, initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    code = args.code or REPO
     sys.path.insert(0, code)
     from deeplens.training.train import build_objects
 
-    torch.set_num_threads(args.threads)
-    experiment, *overrides = spec.split("|")
     GlobalHydra.instance().clear()
     with initialize_config_dir(config_dir=os.path.join(code, "configs"), version_base="1.3"):
         cfg = compose(config_name="train.yaml", return_hydra_config=True,
                       overrides=[f"experiment={experiment}", "~logger", *overrides])
     HydraConfig().set_config(cfg)
     with open_dict(cfg):
-        cfg.paths.output_dir = "/tmp/bench_train_step"
+        cfg.paths.output_dir = output_dir
         cfg.paths.root_dir = code
         cfg.paths.data_dir = os.path.join(code, "data")
     objs = build_objects(cfg)
+    objs["datamodule"].setup("fit")
+    return cfg, objs
+
+
+def _child(spec: str, args) -> dict:
+    import torch
+
+    code = args.code or REPO
+    torch.set_num_threads(args.threads)
+    experiment, *overrides = spec.split("|")
+    cfg, objs = build(code, experiment, overrides, "/tmp/bench_train_step")
     module, dm = objs["module"], objs["datamodule"]
-    dm.setup("fit")
     batches = iter(dm.train_dataloader())
     first = int(getattr(module, "optics_warmup_steps", 0) or 0)
     import deeplens

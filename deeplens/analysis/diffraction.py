@@ -188,9 +188,11 @@ def psf_fft(lens, field_deg: float, wavelength_nm: float | None = None, n: int |
 
 
 def psf_huygens(lens, field_deg: float, wavelength_nm: float | None = None, n: int = 48,
-                size: int = 64, pixel_mm: float | None = None, image_plane="sensor") -> PSF:
+                size: int = 64, pixel_mm: float | None = None, image_plane="sensor",
+                center=None) -> PSF:
     """Huygens PSF on a ``size x size`` grid of ``pixel_mm`` pixels (default: the FFT pixel of
-    an ``n``-sample pupil at ``2n`` padding) centred on the chief-ray image point."""
+    an ``n``-sample pupil at ``2n`` padding) centred on the chief-ray image point (or on
+    ``center = (x, y)`` mm of the image plane, e.g. another model's pixel grid)."""
     wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     wf = wavefront(lens, field_deg, wl, n=n, image_plane=image_plane)
     if pixel_mm is None:
@@ -199,6 +201,9 @@ def psf_huygens(lens, field_deg: float, wavelength_nm: float | None = None, n: i
     if not (pixel_mm > 0 and math.isfinite(pixel_mm)):
         raise ValueError(f"pixel_mm must be a positive number of mm, got {pixel_mm!r}")
     C = wf.reference_center
+    if center is not None:
+        C = torch.stack([torch.as_tensor(float(v), dtype=C.dtype, device=C.device)
+                         for v in center[:2]] + [C[2]])
     k = (torch.arange(size, dtype=C.dtype, device=C.device) - size // 2) * pixel_mm
     Y, X = torch.meshgrid(k, k, indexing="ij")
     pts = torch.stack([X + C[0], Y + C[1], torch.zeros_like(X) + C[2]], -1).reshape(-1, 3)

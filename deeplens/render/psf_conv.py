@@ -16,9 +16,9 @@ only where the system is shift-invariant over a patch; relative illumination is 
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
+from .fftconv import correlate_valid
 from .psf import _grid_points, psf_grids
 from .scene import IdealCamera, Scene
 
@@ -105,7 +105,7 @@ class PSFConvRenderer(nn.Module):
                 kers = kernels[depth, c, w]
                 r = pad - kers.shape[-1] // 2  # this kernel's window of the extended image
                 x = gt[idx, c:c + 1, r:r + H + kers.shape[-1] - 1, r:r + W + kers.shape[-1] - 1]
-                y = F.conv2d(x, kers.to(x))  # (b, P, H, W)
+                y = correlate_valid(x, kers.to(x))  # (b, P, H, W): F.conv2d by FFT
                 chans[c] = chans[c] + wt * (y * blend[None]).sum(1)
             out[idx] = torch.stack(chans, 1)
         return out

@@ -113,6 +113,7 @@ class PSFModel:
         self.sampling = None       # DiffractionSampling of the run's jobs
         self.jobs = None           # the measured jobs
         self._params = None        # lens parameters where it measured
+        self.cache = {}            # diffraction_psf_many's cache (the OPD fit per pupil mask)
         self.message = f"PSF model: {model} (not measured)"
 
     # ------------------------------------------------------------------ measurement
@@ -128,13 +129,14 @@ class PSFModel:
                 try:
                     smp = choose_sampling(lens, sensor, [job], options,
                                           max_kernel=self.max_kernel,
-                                          memory_limit_gb=self.memory_gb)
+                                          memory_limit_gb=self.memory_gb, cache=self.cache)
                 except PupilSamplingError:
                     steep += 1
                     errs.append(0.0)
                     continue
                 self._widen(smp)
-                d = diffraction_psf_many(lens, sensor, [job], smp, options=options)[0]
+                d = diffraction_psf_many(lens, sensor, [job], smp, options=options,
+                                         cache=self.cache)[0]
                 g = binned_geometric_psf(lens, sensor, job, n, smp.kernel, options)
                 errs.append(tv_distance(g, d))
         self.error = sum(errs) / len(errs)
@@ -185,16 +187,16 @@ class PSFModel:
         mk = self.max_kernel if max_kernel is None else min(self.max_kernel, max_kernel)
         if self.sampling is None:
             self.sampling = choose_sampling(lens, sensor, jobs, options, max_kernel=mk,
-                                            memory_limit_gb=self.memory_gb)
+                                            memory_limit_gb=self.memory_gb, cache=self.cache)
         smp = self.sampling
         if smp.kernel > (mk | 1):
             smp = DiffractionSampling(smp.pupil, mk | 1 if mk % 2 else mk - 1, smp.sub)
         kers, info = diffraction_psf_many(lens, sensor, jobs, smp, options=options,
-                                          return_info=True)
+                                          return_info=True, cache=self.cache)
         if info["max_step_waves"] > 0.5 or (info["energy"] < 0.99 and smp.kernel < (mk | 1)):
             with torch.no_grad():
                 self._widen(choose_sampling(lens, sensor, jobs, options, max_kernel=mk,
-                                            memory_limit_gb=self.memory_gb))
+                                            memory_limit_gb=self.memory_gb, cache=self.cache))
             log.info(f"diffraction sampling widened to {self.sampling}")
             return self.diffraction(lens, sensor, jobs, options, max_kernel)
         return kers

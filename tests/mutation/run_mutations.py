@@ -50,6 +50,8 @@ COMPILED_CALLS = ("tests/optics/test_compiled_calls.py",)
 COMPILED = ("tests/optics/test_compiled.py",)
 ZMX = ("tests/optics/io/test_zmx.py",)
 EVAL_TABLE = ("tests/training/test_eval_table_numbers.py",)
+DIFFRACTION = ("tests/render/test_diffraction.py", "tests/render/test_diffraction_oracle.py",
+               "tests/render/test_fftconv.py", "tests/render/test_physics.py")
 
 
 @dataclass(frozen=True)
@@ -260,6 +262,46 @@ MUTATIONS = [
     Mutation("checkpoint_digest_unchecked", "checkpoint digest never verified on read",
              "deeplens/training/checkpoint.py", "        if digest not in listed:",
              "        if False:", ("tests/training/test_checkpoint_io.py",)),
+    # ------------------------------------------------ diffraction PSF (issue 19)
+    Mutation("diffraction_no_pixel_integration", "diffraction kernel: every sub-pixel point at "
+             "the pixel centre (point samples, no pixel integration)",
+             "deeplens/render/diffraction.py", "return (0.5 * x).tolist(), (0.5 * w).tolist()",
+             "return (0.0 * x).tolist(), (0.5 * w).tolist()", DIFFRACTION),
+    Mutation("diffraction_near_centre_at_infinity", "diffraction kernel: a near object's "
+             "reference sphere centred on the image of infinity (same direction)",
+             "deeplens/render/diffraction.py", "cx, cy = _ideal_xy(camera, X, Y, depth)",
+             "cx, cy = (_ideal_xy(camera, X / depth, Y / depth, math.inf) if math.isfinite("
+             "depth) else _ideal_xy(camera, X, Y, depth))", DIFFRACTION),
+    Mutation("diffraction_near_plane_wave", "diffraction kernel: a near object launched as a "
+             "plane wave (no path from the object point to the start plane)",
+             "deeplens/render/diffraction.py", "L = n0 * (t - (zs - float(P[2])))",
+             "L = n0 * 0 * t", DIFFRACTION),
+    Mutation("diffraction_flip_x", "diffraction kernel mirrored left-right (columns along +x)",
+             "deeplens/render/diffraction.py", "xj = -t * pitch", "xj = t * pitch", DIFFRACTION),
+    Mutation("diffraction_flip_y", "diffraction kernel upside down (rows along -y)",
+             "deeplens/render/diffraction.py", "yi = t * pitch           # rows: +y",
+             "yi = -t * pitch          # rows: +y", DIFFRACTION),
+    Mutation("diffraction_shift_one_pixel", "diffraction kernel shifted by one pixel",
+             "deeplens/render/diffraction.py", "- K // 2 + x[None, :]",
+             "- K // 2 + 1 + x[None, :]", DIFFRACTION),
+    Mutation("diffraction_fixed_wavelength_phase", "diffraction pupil phase at a fixed 587.6 "
+             "nm for every job (wavelength scaling of the OPD)",
+             "deeplens/render/diffraction.py", "lam = wl * 1e-6", "lam = 587.5618e-6",
+             DIFFRACTION),
+    Mutation("diffraction_fixed_wavelength_transform", "diffraction transform scaled at a "
+             "fixed 587.6 nm (wavelength scaling of the PSF's size)",
+             "deeplens/render/diffraction.py",
+             "bx, by, n_img, lam = as_t(bx), as_t(by), as_t(n_img), as_t(lam)",
+             "bx, by, n_img, lam = as_t(bx), as_t(by), as_t(n_img), as_t(587.5618e-6)",
+             DIFFRACTION),
+    Mutation("diffraction_fit_cache_ignores_mask", "OPD fit's least-squares map cached without "
+             "its vignetting mask", "deeplens/render/diffraction.py",
+             'key = ("fit", n, degree, str(m.device), sel.cpu().numpy().tobytes())',
+             'key = ("fit", n, degree, str(m.device))',
+             DIFFRACTION),
+    Mutation("fftconv_no_flip", "FFT convolution correlates with the flipped kernel",
+             "deeplens/render/fftconv.py", "Kf = torch.fft.rfft2(k.flip(-1, -2)[:, 0]",
+             "Kf = torch.fft.rfft2(k[:, 0]", DIFFRACTION),
 ]
 
 

@@ -268,3 +268,49 @@ def test_a_plate_term_starting_at_zero_is_measured_against_its_group(edof_plate)
     assert m.moved(lens)
     with torch.no_grad():
         a[0].sub_(0.32 * scale)
+
+
+def test_float32_rendered_image_gradients_agree_with_float64(edof_plate):
+    """The gradients of a loss on the diffraction-rendered image (plate coefficient, curvature,
+    sensor distance) in float32 (the training dtype) against float64: measured 0.1-4 %.  (A
+    loss on the kernel's far tail alone, e.g. random weights over all its pixels, disagrees by
+    25-130 %: the float32 trace's rounding halo, docs/guide/diffraction.md.)"""
+    depth = 4500.0
+    sensor = Sensor((32, 32), 0.0069, channels=[[WL]])
+    g = torch.Generator().manual_seed(0)
+    img = torch.rand(1, 1, 64, 64, generator=g, dtype=torch.float64)
+    target = torch.rand(1, 1, 32, 32, generator=g, dtype=torch.float64)
+    smp = choose_sampling(edof_plate, sensor, [((0.0, 0.0), depth, WL)])
+    grads = {}
+    for dt in (torch.float64, torch.float32):
+        lens = load_lens("data/lenses/edof_achromat.json").to(torch.float64)
+        lens.load_state_dict(edof_plate.state_dict())
+        lens = lens.to(dt)
+        model = PSFModel("diffraction")
+        model.sampling = smp
+        ps = [lens.surfaces[4].a[6], lens.surfaces[0].c, lens.d_sensor]
+        for p in ps:
+            p.requires_grad_(True)
+        r = PSFConvRenderer(lens, sensor, patches=(1, 1), psf_model=model)
+        loss = ((r(Scene(img.to(dt), [depth])).double() - target) ** 2).mean()
+        grads[dt] = [float(v) for v in torch.autograd.grad(loss, ps)]
+    for a, b in zip(grads[torch.float64], grads[torch.float32]):
+        assert b == pytest.approx(a, rel=0.08), (grads,)
+
+
+def test_batched_cached_kernels_equal_single_uncached_ones():
+    """Jobs of different vignetting masks in one call with the OPD fit's cache (and the same
+    cache reused by a second call) give the kernels of one-job calls without a cache."""
+    lens = load_lens("data/lenses/double_gauss.json").to(torch.float64)
+    sensor = Sensor((32, 32), 0.004, channels=[[WL]])
+    jobs = [((0.0, 0.0), math.inf, WL), ((0.0, math.tan(math.radians(18.0))), math.inf, WL),
+            ((0.05, 0.0), math.inf, 486.1327)]
+    smp = DiffractionSampling(128, 21, 2)
+    cache = {}
+    together = diffraction_psf_many(lens, sensor, jobs, smp, cache=cache)
+    assert len([k for k in cache if k[0] == "fit"]) >= 2  # two masks (vignetted at 18 deg)
+    again = diffraction_psf_many(lens, sensor, jobs[::-1], smp, cache=cache)[::-1]
+    for j, job in enumerate(jobs):
+        alone = diffraction_psf_many(lens, sensor, [job], smp)[0]
+        assert torch.allclose(together[j], alone, rtol=0, atol=1e-10 * float(alone.max()))
+        assert torch.allclose(again[j], alone, rtol=0, atol=1e-10 * float(alone.max()))
