@@ -127,8 +127,16 @@ def _plot(args) -> int:
 
     try:
         fields, waves = _fields_waves(args)
+        freqs = None
+        if args.freqs is not None:
+            freqs = _floats(args.freqs, "--freqs", "cycles/mm (e.g. 10,30,50)")
+            if any(f < 0 for f in freqs):
+                raise _UsageError(f"--freqs must be >= 0 cycles/mm, got {args.freqs!r}")
+        if args.dpi is not None and not args.dpi > 0:
+            raise _UsageError(f"--dpi must be > 0, got {args.dpi}")
         lens = _load(args).to(torch.float64)
-        plot(lens, args.kind, args.output, fields, waves, image_plane=args.image_plane)
+        plot(lens, args.kind, args.output, fields, waves, image_plane=args.image_plane,
+             dpi=args.dpi, freqs=freqs)
     except (ValueError, OSError) as e:
         print(f"deeplens plot: error: {e}", file=sys.stderr)
         return 2
@@ -139,14 +147,22 @@ def _plot(args) -> int:
 def _add_plot_parser(sub) -> None:
     from .analysis.plot import KINDS
 
-    q = sub.add_parser("plot", help="draw an analysis figure of a lens file as a PNG")
+    q = sub.add_parser("plot", help="draw an analysis figure of a lens file (PNG, PDF, SVG)")
     q.add_argument("lens", help="lens file (.json, or the paper authors' .txt table)")
-    q.add_argument("--kind", required=True, choices=list(KINDS), help="which figure")
+    q.add_argument("--kind", required=True, choices=list(KINDS),
+                   help="which figure (mtf: polychromatic over --wavelengths; through-focus: MTF "
+                        "vs focus shift; mtf-field: MTF vs field angle)")
     q.add_argument("--fields", help="field angles in degrees, e.g. 0,7,14,21 (default: file's)")
     q.add_argument("--wavelengths", help="wavelengths in nm, e.g. 486.1,587.6 (default: "
                                          "file's; the first is used for monochromatic plots)")
     q.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
-    q.add_argument("-o", "--output", required=True, help="output PNG path")
+    q.add_argument("-o", "--output", required=True,
+                   help="output file; the suffix picks the format: .pdf, .svg, .eps (vector) or "
+                        ".png, .jpg, .tif (raster)")
+    q.add_argument("--dpi", type=float, help="resolution of raster output (default 150)")
+    q.add_argument("--freqs", help="frequencies in cycles/mm for --kind through-focus and "
+                                   "mtf-field, e.g. 10,30,50 (default ~10/25/50 %% of the "
+                                   "cut-off)")
     _add_lens_options(q)
     q.set_defaults(func=_plot)
 def _fields_waves(args):
