@@ -190,10 +190,9 @@ def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
         a.set_aspect("equal", adjustable="box")
     axes[0].set_ylabel("y (µm)")
     axes[0].legend(markerscale=6, loc="upper right")
-    _title(fig, lens, "spot diagram")
-    fig.text(0.5, 0.005, f"RMS radius about each wavelength's own centroid, {pupil} pupil, "
-             f"{sampling} (as deeplens report); circle: Airy radius {airy_um:.3g} µm "
-             f"(1.22 λ N_w at {prim:g} nm)", ha="center", va="bottom", fontsize=5.5)
+    _title(fig, lens, f"spot diagram: RMS radius about each wavelength's own centroid, {pupil} "
+                      f"pupil, {sampling} (as deeplens report)\ncircle: Airy radius "
+                      f"{airy_um:.3g} µm (1.22 λ N_w at {prim:g} nm)")
     fig.deeplens_data = {"rms_um": rms_um, "airy_um": airy_um, "half_width_um": half}
     return fig
 

@@ -140,7 +140,7 @@ def save(fig, path, colors: int = 256, dpi: float | None = None) -> None:
     buf = io.BytesIO()
     with plt.rc_context(STYLE):
         fig.tight_layout()
-        fig.savefig(buf, format=fmt, dpi=dpi)
+        fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight", pad_inches=0.05)
     plt.close(fig)
     data = buf.getvalue()
     if fmt == "png":

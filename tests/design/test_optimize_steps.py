@@ -141,7 +141,7 @@ def test_design_help_lists_every_application_uncut(capsys):
     assert code == 2 and "spherical-aberration" in err
 
 
-@pytest.mark.parametrize("argv", [[], ["report"], ["plot"], ["optimize"], ["tolerance"],
+@pytest.mark.parametrize("argv", [[], ["report"], ["plot"], ["optimize"], ["tolerance"], ["render"],
                                   ["design", "caustic"], ["design", "nikon"]])
 def test_every_help_works(capsys, argv):
     code, out, err = H.run_cli([*argv, "--help"], capsys)

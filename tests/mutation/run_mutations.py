@@ -274,7 +274,7 @@ MUTATIONS = [
              "deeplens/cli.py", "strict_rays=not args.allow_vignetting", "strict_rays=True",
              OPTIMIZE_CLI),
     Mutation("vector_as_png", "-o x.pdf writes PNG bytes", "deeplens/analysis/style.py",
-             "fig.savefig(buf, format=fmt, dpi=dpi)", 'fig.savefig(buf, format="png", dpi=dpi)',
+             "fig.savefig(buf, format=fmt, dpi=dpi", 'fig.savefig(buf, format="png", dpi=dpi',
              PLOTS),
     Mutation("poly_mtf_no_lateral_colour", "polychromatic MTF ignores where each wavelength "
              "images", "deeplens/analysis/mtf_poly.py",
