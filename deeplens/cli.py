@@ -454,6 +454,24 @@ def _tolerance(args) -> int:
     return 0
 
 
+def _design_help(prog: str) -> str:
+    """``deeplens design --help``: every application with its whole first paragraph."""
+    import textwrap
+
+    from .design.apps import APPS, describe_app
+
+    lines = [f"usage: {prog} NAME [options]   ({prog} NAME --help: that application's "
+             f"options)", "", "run one of the paper's design applications:", ""]
+    for name in APPS:
+        try:
+            text = describe_app(name)
+        except ValueError as e:  # a module missing from this checkout
+            text = str(e)
+        lines.append(f"  {name}")
+        lines += textwrap.wrap(text, 96, initial_indent="      ", subsequent_indent="      ")
+    return "\n".join(lines)
+
+
 def _design(name: str, rest: list, prog: str) -> int:
     from .design.apps import load_app
 
@@ -482,24 +500,6 @@ def _design(name: str, rest: list, prog: str) -> int:
                 print(f"{k}: {v}")
         print(f"(all values: --json; figures in {args.out})")
     return 0
-
-
-def _design_help(prog: str) -> str:
-    """``deeplens design --help``: every application with its whole first paragraph."""
-    import textwrap
-
-    from .design.apps import APPS, describe_app
-
-    lines = [f"usage: {prog} NAME [options]   ({prog} NAME --help: that application's "
-             f"options)", "", "run one of the paper's design applications:", ""]
-    for name in APPS:
-        try:
-            text = describe_app(name)
-        except ValueError as e:  # a module missing from this checkout
-            text = str(e)
-        lines.append(f"  {name}")
-        lines += textwrap.wrap(text, 96, initial_indent="      ", subsequent_indent="      ")
-    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
