@@ -27,12 +27,45 @@ def _floats(text: str, what: str, unit: str) -> list[float]:
     return values
 
 
+def _add_lens_options(parser) -> None:
+    """The reader options of the paper authors' ``.txt`` tables (they carry no stop row)."""
+    g = parser.add_argument_group("table files (.txt)")
+    g.add_argument("--stop-index", type=int, metavar="I",
+                   help="surface index (0-based, the rows after O) whose clear aperture is the "
+                        "stop, for a table without an A row (e.g. 0 for ACL5040U, LA1131, "
+                        "end2end_edof)")
+    g.add_argument("--scale", type=float, metavar="S",
+                   help="multiply every length of the table by S (e.g. 10 for the Nikon patent "
+                        "table in normalised units)")
+
+
+def _load(args):
+    """``load_lens(args.lens)`` with the table options given on the command line."""
+    from pathlib import Path
+
+    from .optics.errors import LensFileError
+    from .optics.io import load_lens
+
+    opts = {k: v for k, v in (("stop_index", getattr(args, "stop_index", None)),
+                              ("scale", getattr(args, "scale", None))) if v is not None}
+    if opts and Path(args.lens).suffix.lower() != ".txt":
+        flags = ", ".join("--" + k.replace("_", "-") for k in opts)
+        raise _UsageError(f"{flags} apply to the paper authors' .txt tables only; "
+                          f"{args.lens} is not one")
+    try:
+        return load_lens(args.lens, **opts)
+    except LensFileError as e:
+        if e.key == "stop_index" and "stop_index" not in opts:
+            raise _UsageError(f"{e}; on the command line: --stop-index I (e.g. --stop-index 0 "
+                              f"for the first surface)") from None
+        raise
+
+
 def _report(args) -> int:
     import torch
 
     from .analysis.checks import AnalysisError, check_wavelength
     from .analysis.report import analysis_report, format_report, lens_report
-    from .optics.io import load_lens
     from .optics.io.zmx import lens_pupil_convention
     from .optics.materials import check_wavelength_nm
     from .optics.sampling import parse_sampling
@@ -49,7 +82,7 @@ def _report(args) -> int:
             waves = _floats(args.wavelengths, "--wavelengths", "nm (e.g. 486.1,587.6)")
         if waves:
             check_wavelength_nm(waves, where="--wavelengths: ")
-        lens = load_lens(args.lens).to(torch.float64)
+        lens = _load(args).to(torch.float64)
         if waves:
             try:
                 check_wavelength(lens, waves, owner=f" of {args.lens}")
@@ -91,12 +124,19 @@ def _plot(args) -> int:
     import torch
 
     from .analysis.plot import plot
-    from .optics.io import load_lens
 
     try:
         fields, waves = _fields_waves(args)
-        lens = load_lens(args.lens).to(torch.float64)
-        plot(lens, args.kind, args.output, fields, waves, image_plane=args.image_plane)
+        freqs = None
+        if args.freqs is not None:
+            freqs = _floats(args.freqs, "--freqs", "cycles/mm (e.g. 10,30,50)")
+            if any(f < 0 for f in freqs):
+                raise _UsageError(f"--freqs must be >= 0 cycles/mm, got {args.freqs!r}")
+        if args.dpi is not None and not args.dpi > 0:
+            raise _UsageError(f"--dpi must be > 0, got {args.dpi}")
+        lens = _load(args).to(torch.float64)
+        plot(lens, args.kind, args.output, fields, waves, image_plane=args.image_plane,
+             dpi=args.dpi, freqs=freqs)
     except (ValueError, OSError) as e:
         print(f"deeplens plot: error: {e}", file=sys.stderr)
         return 2
@@ -107,14 +147,23 @@ def _plot(args) -> int:
 def _add_plot_parser(sub) -> None:
     from .analysis.plot import KINDS
 
-    q = sub.add_parser("plot", help="draw an analysis figure of a lens file as a PNG")
+    q = sub.add_parser("plot", help="draw an analysis figure of a lens file (PNG, PDF, SVG)")
     q.add_argument("lens", help="lens file (.json, or the paper authors' .txt table)")
-    q.add_argument("--kind", required=True, choices=list(KINDS), help="which figure")
+    q.add_argument("--kind", required=True, choices=list(KINDS),
+                   help="which figure (mtf: polychromatic over --wavelengths; through-focus: MTF "
+                        "vs focus shift; mtf-field: MTF vs field angle)")
     q.add_argument("--fields", help="field angles in degrees, e.g. 0,7,14,21 (default: file's)")
     q.add_argument("--wavelengths", help="wavelengths in nm, e.g. 486.1,587.6 (default: "
                                          "file's; the first is used for monochromatic plots)")
     q.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
-    q.add_argument("-o", "--output", required=True, help="output PNG path")
+    q.add_argument("-o", "--output", required=True,
+                   help="output file; the suffix picks the format: .pdf, .svg, .eps (vector) or "
+                        ".png, .jpg, .tif (raster)")
+    q.add_argument("--dpi", type=float, help="resolution of raster output (default 150)")
+    q.add_argument("--freqs", help="frequencies in cycles/mm for --kind through-focus and "
+                                   "mtf-field, e.g. 10,30,50 (default ~10/25/50 %% of the "
+                                   "cut-off)")
+    _add_lens_options(q)
     q.set_defaults(func=_plot)
 def _fields_waves(args):
     from .optics.materials import check_wavelength_nm
@@ -154,7 +203,7 @@ def _optimize(args) -> int:
     from .design.lensopt import optimize_lens
     from .design.merit import Merit, SpotMerit
     from .design.variables import Variables
-    from .optics.io import load_lens, save_lens
+    from .optics.io import save_lens
     from .optics.sampling import parse_sampling
 
     try:
@@ -167,7 +216,7 @@ def _optimize(args) -> int:
             raise _UsageError(f"--out must name a .json lens file, got {args.out!r}")
         if not out.parent.exists():
             raise _UsageError(f"--out: folder {str(out.parent)!r} does not exist")
-        lens = load_lens(args.lens).to(torch.float64)
+        lens = _load(args).to(torch.float64)
         variables = Variables(lens, args.vary)
         constraints = [c for text in args.constraint or [] for c in parse_constraint(lens, text)]
 
@@ -178,8 +227,10 @@ def _optimize(args) -> int:
         rep = report_merit().prepare(lens)
         with torch.no_grad():
             rms_before = (rep.rms(lens) * 1e3).tolist()
+        focus = _refocus(lens, args, fields, waves)
         merit = Merit(SpotMerit(fields, waves, sampling=args.sampling,
-                                reference=args.reference, image_plane=args.image_plane))
+                                reference=args.reference, image_plane=args.image_plane,
+                                strict_rays=not args.allow_vignetting))
         res = optimize_lens(lens, variables, merit, method=args.method, steps=args.steps,
                             constraints=constraints, rounds=args.rounds,
                             jacobian_mode=args.jacobian)
@@ -205,16 +256,121 @@ def _optimize(args) -> int:
               "seconds": res.seconds, "steps": res.steps, "method": args.method,
               "evaluations": sum(r.evaluations for r in res.rounds),
               "stop_reason": res.reason, "variables_before": res.variables_before,
-              "variables_after": res.variables_after, "out": str(out)}
+              "variables_after": res.variables_after, "out": str(out),
+              "accepted_steps": res.accepted, "rejected_steps": res.rejected,
+              "rejections": [{"reason": r, "count": n} for r, n in res.rejections()],
+              "allow_vignetting": bool(args.allow_vignetting), "refocus": focus}
     if args.json:
         print(json.dumps(result, indent=1))
     else:
+        if focus is not None and focus["applied"]:
+            print(f"Quick focus first: sensor {focus['d_sensor_before_mm']:.6g} -> "
+                  f"{focus['d_sensor_after_mm']:.6g} mm (RMS {focus['rms_before_um']:.4g} -> "
+                  f"{focus['rms_after_um']:.4g} um)")
         print(f"Optimised {len(variables)} variable(s) of {args.lens} by {args.method}: merit "
               f"{res.merit_before:.6g} -> {res.merit_after:.6g} mm^2 in {res.steps} steps, "
               f"{res.seconds:.2f} s ({res.reason})")
+        if args.verbose:
+            print(_step_log(res))
+        print(_steps_summary(res, args.allow_vignetting))
         print(_rms_table(rep.fields, rep.waves, rms_before, rms_after))
         print(f"wrote {out}")
     return 0
+
+
+def _refocus(lens, args, fields, waves):
+    """``--refocus``: quick focus (:mod:`deeplens.design.focus`) before optimising; ``auto``
+    moves the sensor only when that at least halves the RMS spot (the start is far out of
+    focus).  Returns a JSON-able record, or ``None`` when not tried."""
+    if args.refocus == "never" or args.image_plane != "sensor":
+        return None
+    from .design.focus import quick_focus
+
+    f = quick_focus(lens, fields, waves, sampling=args.sampling, apply=False)
+    apply = args.refocus == "always" or f.rms_after_mm <= 0.5 * f.rms_before_mm
+    if apply:
+        quick_focus(lens, fields, waves, sampling=args.sampling)
+    return {"applied": apply, "mode": args.refocus, "shift_mm": f.shift_mm,
+            "d_sensor_before_mm": f.d_sensor_before, "d_sensor_after_mm": f.d_sensor_after,
+            "rms_before_um": f.rms_before_mm * 1e3, "rms_after_um": f.rms_after_mm * 1e3}
+
+
+def _step_log(res) -> str:
+    """``optimize --verbose``: each trial in order, accepted or rejected with its reason."""
+    lines = []
+    for h in res.history:
+        if h["step"] == 0:
+            continue
+        lines.append(f"  step {h['step']}: " + (f"accepted, merit {h['merit']:.6g} mm^2"
+                                                if h["accepted"] else
+                                                f"rejected: {h.get('reason', '')}"))
+    return "\n".join(lines)
+
+
+def _steps_summary(res, allow_vignetting: bool) -> str:
+    """``steps: A accepted, R rejected`` and each distinct rejection reason with its count."""
+    lines = [f"steps: {res.accepted} accepted, {res.rejected} rejected"]
+    for reason, n in res.rejections():
+        lines.append(f"  rejected {n}x: {reason}")
+    if not allow_vignetting and any(k == "vignetted" for k, _ in res.rejection_kinds()):
+        lines.append("  (trial steps that vignette a ray are rejected; --allow-vignetting lets "
+                     "the merit drop such rays instead)")
+    return "\n".join(lines)
+
+
+def _render(args) -> int:
+    """``deeplens render LENS IMAGE --depth MM -o OUT.png``: the picture through the lens."""
+    from .render.image import read_image, render_image, write_image
+
+    try:
+        if not (math.isfinite(args.depth) and args.depth > 0):
+            raise _UsageError(f"--depth is the distance in mm from the first vertex to the "
+                              f"picture and must be a finite number > 0, got {args.depth}")
+        if args.spp < 1:
+            raise _UsageError(f"--spp must be >= 1, got {args.spp}")
+        if args.max_side < 2:
+            raise _UsageError(f"--max-side must be >= 2 pixels, got {args.max_side}")
+        pitch = None
+        if args.pixel_size_um is not None:
+            if not args.pixel_size_um > 0:
+                raise _UsageError(f"--pixel-size-um must be > 0, got {args.pixel_size_um}")
+            pitch = args.pixel_size_um * 1e-3
+        lens = _load(args)
+        img = read_image(args.image, max_side=args.max_side, linear=args.linear)
+        out = render_image(lens, img, args.depth, pixel_size_mm=pitch, spp=args.spp,
+                           seed=args.seed)
+        path = write_image(out, args.output, linear=args.linear)
+    except (ValueError, OSError) as e:
+        print(f"deeplens render: error: {e}", file=sys.stderr)
+        return 2
+    print(path)
+    return 0
+
+
+def _add_render_parser(sub) -> None:
+    q = sub.add_parser("render", help="an image through the lens at a depth: the sensor image",
+                       description="Place IMAGE as a plane DEPTH mm in front of the lens (filling "
+                       "its field of view) and render what the sensor records, by backward "
+                       "Monte Carlo ray tracing (R, G, B at 656.3, 587.6, 486.1 nm; relative "
+                       "illumination included; the sensor where the lens file puts it).")
+    q.add_argument("lens", help="lens file (.json, .txt table or .zmx)")
+    q.add_argument("image", help="picture file (PNG, JPEG, ...; sRGB)")
+    q.add_argument("--depth", type=float, required=True,
+                   help="object distance in mm from the first vertex (e.g. 2000)")
+    q.add_argument("-o", "--output", required=True, help="sensor image to write (.png, .jpg ...)")
+    q.add_argument("--spp", type=int, default=16, help="rays per pixel per wavelength "
+                                                      "(noise ~ 1/sqrt(spp); default 16)")
+    q.add_argument("--max-side", type=int, default=512,
+                   help="down-sample the picture so its longer side is at most this many pixels "
+                        "(the sensor has the picture's resolution; default 512)")
+    q.add_argument("--pixel-size-um", type=float,
+                   help="pixel pitch in um (default: the sensor diagonal spans the lens file's "
+                        "sensor size)")
+    q.add_argument("--linear", action="store_true",
+                   help="the files hold linear values (default: sRGB, decoded and re-encoded)")
+    q.add_argument("--seed", type=int, default=0)
+    _add_lens_options(q)
+    q.set_defaults(func=_render)
 
 
 def _tolerance(args) -> int:
@@ -226,7 +382,6 @@ def _tolerance(args) -> int:
     from .design.sensitivity import rss_estimate, sensitivity_matrix
     from .design.tolerance import (load_tolerances, monte_carlo, monte_carlo_figure,
                                    resolve_tolerances)
-    from .optics.io import load_lens
     from .optics.sampling import parse_sampling
 
     try:
@@ -237,7 +392,7 @@ def _tolerance(args) -> int:
         if args.tolerances and args.group:
             raise _UsageError("give --tolerances or --group, not both")
         spec = load_tolerances(args.tolerances) if args.tolerances else None
-        lens = load_lens(args.lens).to(torch.float64)
+        lens = _load(args).to(torch.float64)
         waves = waves or [float(lens.spec.primary_wavelength_nm)]
         model = None
         if args.group:
@@ -299,6 +454,24 @@ def _tolerance(args) -> int:
     return 0
 
 
+def _design_help(prog: str) -> str:
+    """``deeplens design --help``: every application with its whole first paragraph."""
+    import textwrap
+
+    from .design.apps import APPS, describe_app
+
+    lines = [f"usage: {prog} NAME [options]   ({prog} NAME --help: that application's "
+             f"options)", "", "run one of the paper's design applications:", ""]
+    for name in APPS:
+        try:
+            text = describe_app(name)
+        except ValueError as e:  # a module missing from this checkout
+            text = str(e)
+        lines.append(f"  {name}")
+        lines += textwrap.wrap(text, 96, initial_indent="      ", subsequent_indent="      ")
+    return "\n".join(lines)
+
+
 def _design(name: str, rest: list, prog: str) -> int:
     from .design.apps import load_app
 
@@ -307,8 +480,8 @@ def _design(name: str, rest: list, prog: str) -> int:
     except ValueError as e:
         print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
-    p = argparse.ArgumentParser(prog=f"{prog} {name}", description=(app.__doc__ or "").split(
-        "\n")[0])
+    p = argparse.ArgumentParser(prog=f"{prog} {name}", description=(app.__doc__ or "").strip(),
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--json", action="store_true", help="print the result as JSON")
     p.add_argument("--out", default=f"outputs/design/{name}",
                    help="folder for figures and files (default outputs/design/NAME)")
@@ -345,8 +518,10 @@ def main(argv=None) -> int:
     r.add_argument("--json", action="store_true", help="print JSON instead of a table")
     r.add_argument("--analysis", help="also compute these, comma-separated: cardinal,distortion,"
                                       "field,color,vignetting,wavefront,strehl,mtf,ee")
+    _add_lens_options(r)
     r.set_defaults(func=_report)
     _add_plot_parser(sub)
+    _add_render_parser(sub)
 
     o = sub.add_parser("optimize", help="optimise lens variables for the RMS spot")
     o.add_argument("lens", help="lens file")
@@ -366,8 +541,19 @@ def main(argv=None) -> int:
     o.add_argument("--sampling", default="hexapolar:6", help="pupil pattern")
     o.add_argument("--reference", choices=["centroid", "chief"], default="centroid")
     o.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
+    o.add_argument("--allow-vignetting", action="store_true",
+                   help="let a trial step vignette rays (they leave the merit) instead of "
+                        "rejecting it; the default rejects such steps so that the merit never "
+                        "improves by losing rays")
+    o.add_argument("--refocus", choices=["auto", "always", "never"], default="auto",
+                   help="quick focus (sensor distance for the least RMS spot, closed form) "
+                        "before optimising: auto does it when that at least halves the RMS "
+                        "spot (default auto; only with --image-plane sensor)")
+    o.add_argument("-v", "--verbose", action="store_true",
+                   help="print every trial step: accepted (merit) or rejected (why)")
     o.add_argument("--out", required=True, help="where to write the optimised lens (.json)")
     o.add_argument("--json", action="store_true")
+    _add_lens_options(o)
     o.set_defaults(func=_optimize)
 
     t = sub.add_parser("tolerance", help="sensitivities, RSS estimate and Monte Carlo")
@@ -384,14 +570,19 @@ def main(argv=None) -> int:
     t.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
     t.add_argument("--out", help="folder for the Monte Carlo histogram (PNG)")
     t.add_argument("--json", action="store_true")
+    _add_lens_options(t)
     t.set_defaults(func=_tolerance)
 
     d = sub.add_parser("design", help="run one of the paper's design applications",
                        add_help=False)
     d.add_argument("name", help="spherical-aberration, nikon, sensitivity, caustic, "
-                                "misalignment")
+                                "misalignment (deeplens design --help: what each does)")
     d.add_argument("rest", nargs=argparse.REMAINDER)
     d.set_defaults(func=None)
+    words = sys.argv[1:] if argv is None else list(argv)
+    if words[:1] == ["design"] and (len(words) == 1 or words[1] in ("-h", "--help")):
+        print(_design_help("deeplens design"), file=sys.stdout if len(words) > 1 else sys.stderr)
+        return 0 if len(words) > 1 else 2
     args = p.parse_args(argv)
     if args.cmd == "design":
         return _design(args.name, args.rest, "deeplens design")

@@ -18,7 +18,8 @@ from ..optics.surfaces import CoordinateBreak
 from . import style
 
 __all__ = ["layout_figure", "spot_figure", "fan_figure", "field_figure", "distortion_figure",
-           "opd_figure", "psf_figure", "mtf_figure", "ee_figure", "KINDS", "plot"]
+           "opd_figure", "psf_figure", "mtf_figure", "through_focus_figure", "mtf_field_figure",
+           "ee_figure", "KINDS", "FREQ_KINDS", "plot"]
 
 
 @style.styled
@@ -42,7 +43,7 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
             g = to_global(frames[k], p3)
             return g[..., 2].numpy(), g[..., 1].numpy()
 
-        for i, s in enumerate(lens.surfaces):
+        for i, s in enumerate(lens.surfaces if lens.folded() else ()):
             if isinstance(s, CoordinateBreak):
                 continue
             R = float(s.semi_diameter)
@@ -57,6 +58,8 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
             else:
                 ax.plot(*yz(i, z[i] + sag.double(), y.double()), "k-",
                         lw=2 if i in lens.mirrors else 1)
+        if not lens.folded():   # glass elements filled, in the lens's own (global) frame
+            _draw_elements(ax, lens, z)
         zs = lens.z_sensor().double().cpu().expand(2)
         h = lens.sensor_semi_diameter or float(max(s.semi_diameter for s in lens.surfaces))
         ax.plot(*yz(-1, zs, torch.tensor([-h, h], dtype=torch.float64)), "b-", lw=2)
@@ -81,9 +84,52 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
     ax.grid(False)
     ax.set_xlabel("z (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title(lens.name[:80] or "lens")
+    ax.set_title(style.title(lens.name or "lens"))
     fig.tight_layout()
     return fig
+
+
+def _profile(s, z0: float, h: float, dtype):
+    """``(z, y)`` numpy arrays of a surface's y-z section from ``-h`` to ``h`` (the sag beyond
+    the surface's own domain held at its last value)."""
+    y = torch.linspace(-h, h, 101, dtype=dtype)
+    zero = torch.zeros_like(y)
+    sag = torch.where(s.in_domain(zero, y), s.sag(zero, y), zero) if hasattr(s, "sag") else zero
+    return (z0 + sag.double()).numpy(), y.double().numpy()
+
+
+def _draw_elements(ax, lens, z) -> None:
+    """Glass elements as closed, filled outlines (front profile, rim, back profile, rim; the
+    smaller surface continued flat out to the larger one's rim, as lens drawings do), other
+    surfaces as open profiles, the stop as two bars."""
+    from ..optics.materials import Air
+
+    n = len(lens.surfaces)
+    dtype = lens.dtype
+    glass = [not isinstance(lens.materials[i + 1], Air) for i in range(n)]
+    drawn = set()
+    for i in range(n - 1):
+        if not glass[i]:
+            continue
+        a, b = lens.surfaces[i], lens.surfaces[i + 1]
+        h = max(float(a.semi_diameter), float(b.semi_diameter))
+        za, ya = _profile(a, float(z[i]), float(a.semi_diameter), dtype)
+        zb, yb = _profile(b, float(z[i + 1]), float(b.semi_diameter), dtype)
+        import numpy as np
+
+        # outline: front top->bottom, flat step to the rim, across, back bottom->top, across
+        zz = np.concatenate([[za[-1]], za[::-1], [za[0]], [zb[0]], zb, [zb[-1]], [za[-1]]])
+        yy = np.concatenate([[h], ya[::-1], [-h], [-h], yb, [h], [h]])
+        ax.fill(zz, yy, facecolor="#cfe3f3", edgecolor="k", lw=0.8, closed=True)
+        drawn.update((i, i + 1))
+    for i, s in enumerate(lens.surfaces):
+        R = float(s.semi_diameter)
+        if getattr(s, "type_name", "") == "aperture":
+            ax.plot([float(z[i])] * 2, [R, R * 1.3], "k-", lw=2)
+            ax.plot([float(z[i])] * 2, [-R, -R * 1.3], "k-", lw=2)
+        elif i not in drawn:
+            zz, yy = _profile(s, float(z[i]), R, dtype)
+            ax.plot(zz, yy, "k-", lw=1)
 
 
 def _fields(lens, fields_deg):
@@ -125,36 +171,60 @@ def _field_panels(n: int, width: float, height: float):
 
 
 def _title(fig, lens, what):
-    name = lens.name or "lens"
-    fig.suptitle(f"{what}\n{name if len(name) < 48 else name[:45] + '...'}", fontsize=7)
+    """The figure's title: what it shows, then the lens's whole name (wrapped, never cut)."""
+    width = max(40, int(fig.get_figwidth() * 14))   # ~14 characters per inch at 7 pt
+    fig.suptitle(f"{what}\n{style.title(lens.name or 'lens', width)}", fontsize=7)
 
 
 @style.styled
-def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hexapolar:12",
-                image_plane="sensor"):
-    """Spot diagrams (µm, about the primary wavelength's centroid), one panel per field."""
+def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hexapolar:18",
+                image_plane="sensor", pupil: str = "traced"):
+    """Spot diagrams (µm), one panel per field, all panels on one scale, with the Airy circle.
+
+    Points are plotted about the primary wavelength's centroid.  The RMS radius printed per
+    wavelength is about that wavelength's own centroid, over the traced pupil with the same
+    sampling as ``deeplens report`` (so the two agree; :func:`~.spot.spot_diagram`).  The circle
+    is the Airy radius ``1.22 λ N_w`` at the primary wavelength, ``N_w`` the on-axis working
+    F-number.  ``fig.deeplens_data["rms_um"][(field, wavelength)]`` holds the printed values.
+    """
+    from .cardinal import pupils
     from .spot import spot_diagram
 
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     prim = _primary(lens, wavelengths_nm)
-    fig, axes = _field_panels(len(fields), 2.3, 2.3)
+    fig, axes = _field_panels(len(fields), 2.4, 2.6)
+    rms_um, extent = {}, 0.0
     with torch.no_grad():
+        airy_um = 1.22 * prim * 1e-6 * float(pupils(lens, prim).working_fno) * 1e3
         for a, f in zip(axes, fields):
-            ref = spot_diagram(lens, f, prim, sampling, pupil="paraxial",
+            ref = spot_diagram(lens, f, prim, sampling, pupil=pupil,
                                image_plane=image_plane).centroid
-            rms = []
+            lines = []
             for w in waves:
-                s = spot_diagram(lens, f, w, sampling, pupil="paraxial", image_plane=image_plane)
+                s = spot_diagram(lens, f, w, sampling, pupil=pupil, image_plane=image_plane)
                 d = (s.points - ref).double().cpu().numpy() * 1e3
                 a.plot(d[:, 0], d[:, 1], ".", ms=1.2, color=style.wavelength_color(w),
                        label=f"{w:g} nm")
-                rms.append(float(s.rms_radius) * 1e3)
-            a.set_aspect("equal", adjustable="datalim")
-            a.set_title(f"{f:g} deg, RMS {max(rms):.3g} µm")
+                rms_um[(f, w)] = float(s.rms_radius) * 1e3
+                extent = max(extent, float(abs(d).max()))
+                lines.append(f"{w:g} nm: {rms_um[(f, w)]:.3g}")
+            circle = style.circle(airy_um)
+            a.plot(*circle, "k-", lw=0.6)
+            a.set_title(f"{f:g} deg")
+            a.text(0.02, 0.02, "RMS (µm)\n" + "\n".join(lines), transform=a.transAxes,
+                   fontsize=5.5, va="bottom", ha="left", color="0.2")
             a.set_xlabel("x (µm)")
+    half = 1.08 * max(extent, airy_um)
+    for a in axes:   # one scale for every field
+        a.set_xlim(-half, half)
+        a.set_ylim(-half, half)
+        a.set_aspect("equal", adjustable="box")
     axes[0].set_ylabel("y (µm)")
     axes[0].legend(markerscale=6, loc="upper right")
-    _title(fig, lens, "spot diagram")
+    _title(fig, lens, f"spot diagram: RMS radius about each wavelength's own centroid, {pupil} "
+                      f"pupil, {sampling} (as deeplens report)\ncircle: Airy radius "
+                      f"{airy_um:.3g} µm (1.22 λ N_w at {prim:g} nm)")
+    fig.deeplens_data = {"rms_um": rms_um, "airy_um": airy_um, "half_width_um": half}
     return fig
 
 
@@ -279,36 +349,129 @@ def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     return fig
 
 
+def _cutoff(lens, w):
+    """Incoherent cut-off ``1 / (λ N_w)`` (cycles/mm) at ``w`` nm, on-axis working F-number."""
+    from .cardinal import pupils
+
+    return 1.0 / (w * 1e-6 * float(pupils(lens, w).working_fno))
+
+
+def _default_freqs(nu_c):
+    """Three frequencies for through-focus / field plots: ~10, 25 and 50 % of the cut-off,
+    rounded to two significant figures (cycles/mm)."""
+    import math
+
+    def r2(v):
+        k = math.floor(math.log10(v)) - 1
+        return round(v / 10 ** k) * 10 ** k
+    return [float(r2(f * nu_c)) for f in (0.1, 0.25, 0.5)]
+
+
+def _wave_label(waves):
+    return (f"{waves[0]:g} nm" if len(waves) == 1 else
+            "polychromatic " + "/".join(f"{w:g}" for w in waves) + " nm, equal weights")
+
+
 @style.styled
 def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
-               n: int | None = None):
-    """Diffraction MTF, tangential (solid) and sagittal (dashed) per field, with the
-    aberration-free limit of the on-axis working F-number (grey)."""
+               n: int | None = None, points: int = 41):
+    """Diffraction MTF over all the given wavelengths (polychromatic,
+    :func:`~.mtf_poly.polychromatic_mtf`), tangential (solid) and sagittal (dashed) per
+    field, with the aberration-free limit at the primary wavelength (grey)."""
     import numpy as np
 
-    from .cardinal import pupils
-    from .diffraction import mtf
+    from .mtf_poly import polychromatic_mtf
 
-    fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
+    fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
+    w = _primary(lens, wavelengths_nm)
     fig, ax = style.figure(size=(5, 3.5))
     with torch.no_grad():
-        nu_c = 1.0 / (w * 1e-6 * float(pupils(lens, w).working_fno))
+        nu_c = _cutoff(lens, w)
         v = np.linspace(0, 1, 101)
         ax.plot(v * nu_c, 2 / np.pi * (np.arccos(v) - v * np.sqrt(1 - v * v)), color="0.6",
-                label="diffraction limit")
+                label=f"diffraction limit {w:g} nm")
+        freqs = torch.linspace(0, nu_c, points, dtype=torch.float64)
         for k, f in enumerate(fields):
-            m = mtf(lens, f, w, n=n, image_plane=image_plane)
+            m = polychromatic_mtf(lens, f, freqs, waves, direction="both", n=n,
+                                  image_plane=image_plane)
             c = style.field_color(k)
-            ax.plot(m.freq_t.cpu().numpy(), m.mtf_t.cpu().numpy(), "-", color=c,
-                    label=f"{f:g} deg T")
-            ax.plot(m.freq_s.cpu().numpy(), m.mtf_s.cpu().numpy(), "--", color=c,
-                    label=f"{f:g} deg S")
+            ax.plot(freqs.numpy(), m[0].numpy(), "-", color=c, label=f"{f:g} deg T")
+            ax.plot(freqs.numpy(), m[1].numpy(), "--", color=c, label=f"{f:g} deg S")
     ax.set_xlim(0, nu_c)
     ax.set_ylim(0, 1.02)
     ax.set_xlabel("spatial frequency (cycles/mm)")
     ax.set_ylabel("MTF")
     ax.legend(ncol=2)
-    _title(fig, lens, f"diffraction MTF at {w:g} nm")
+    _title(fig, lens, f"diffraction MTF, {_wave_label(waves)}")
+    return fig
+
+
+@style.styled
+def through_focus_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+                         n: int | None = None, freqs=None, defocus_mm=None):
+    """Through-focus MTF: polychromatic diffraction MTF at a few frequencies (default ~10, 25,
+    50 % of the cut-off) against the image-plane shift (default ±4 λ N_w², 11 planes), one
+    panel per field; T solid, S dashed."""
+    import numpy as np
+
+    from .mtf_poly import through_focus_mtf
+
+    fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
+    w = _primary(lens, wavelengths_nm)
+    with torch.no_grad():
+        nu_c = _cutoff(lens, w)
+        freqs = _default_freqs(nu_c) if freqs is None else [float(f) for f in freqs]
+        if defocus_mm is None:
+            dz = 4 * w * 1e-6 * (1.0 / (w * 1e-6 * nu_c)) ** 2
+            defocus_mm = np.linspace(-dz, dz, 11)
+        dz = np.asarray(defocus_mm, dtype=float)
+        fig, axes = _field_panels(len(fields), 2.8, 2.4)
+        data = {}
+        for a, f in zip(axes, fields):
+            m = through_focus_mtf(lens, f, freqs, dz, waves, direction="both", n=n,
+                                  image_plane=image_plane)
+            data[f] = m
+            for j, nu in enumerate(freqs):
+                c = style.field_color(j)
+                a.plot(dz * 1e3, m[:, 0, j].numpy(), "-", color=c, label=f"{nu:g} c/mm T")
+                a.plot(dz * 1e3, m[:, 1, j].numpy(), "--", color=c, label=f"{nu:g} c/mm S")
+            a.set_title(f"{f:g} deg")
+            a.set_ylim(0, 1.02)
+            a.set_xlabel("focus shift (µm)")
+            a.axvline(0, color="k", lw=0.5)
+    axes[0].set_ylabel("MTF")
+    axes[0].legend(fontsize=5.5)
+    _title(fig, lens, f"through-focus MTF, {_wave_label(waves)}")
+    fig.deeplens_data = {"freqs": freqs, "defocus_mm": dz, "mtf": data}
+    return fig
+
+
+@style.styled
+def mtf_field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+                     n: int | None = None, freqs=None, points: int = 7):
+    """Polychromatic diffraction MTF at a few frequencies (default ~10, 25, 50 % of the
+    cut-off) against the field angle, from 0 to the largest field in ``points`` steps; T solid,
+    S dashed."""
+    from .mtf_poly import mtf_vs_field
+
+    waves = _waves(lens, wavelengths_nm)
+    w = _primary(lens, wavelengths_nm)
+    fs = _field_axis(lens, fields_deg, points)
+    fig, ax = style.figure(size=(5, 3.5))
+    with torch.no_grad():
+        freqs = _default_freqs(_cutoff(lens, w)) if freqs is None else [float(f) for f in freqs]
+        m = mtf_vs_field(lens, fs, freqs, waves, direction="both", n=n, image_plane=image_plane)
+        for j, nu in enumerate(freqs):
+            c = style.field_color(j)
+            ax.plot(fs, m[:, 0, j].numpy(), "-", color=c, label=f"{nu:g} c/mm T")
+            ax.plot(fs, m[:, 1, j].numpy(), "--", color=c, label=f"{nu:g} c/mm S")
+    ax.set_xlabel("field (deg)")
+    ax.set_ylabel("MTF")
+    ax.set_ylim(0, 1.02)
+    ax.set_xlim(0, max(fs))
+    ax.legend(ncol=2)
+    _title(fig, lens, f"MTF vs field, {_wave_label(waves)}")
+    fig.deeplens_data = {"fields_deg": fs, "freqs": freqs, "mtf": m}
     return fig
 
 
@@ -318,13 +481,12 @@ def ee_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     """Diffraction encircled energy vs radius (µm) per field."""
     import numpy as np
 
-    from .cardinal import pupils
     from .diffraction import encircled_energy
 
     fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
     fig, ax = style.figure(size=(5, 3.5))
     with torch.no_grad():
-        airy = 1.22 * w * 1e-6 * float(pupils(lens, w).working_fno)
+        airy = 1.22 / _cutoff(lens, w)
         r = np.linspace(0, 8 * airy, 81)
         for k, f in enumerate(fields):
             ee = encircled_energy(lens, f, r, w, n=n, image_plane=image_plane)
@@ -344,13 +506,25 @@ def _layout(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor"):
 
 KINDS = {"layout": _layout, "spot": spot_figure, "fan": fan_figure, "field": field_figure,
          "distortion": distortion_figure, "opd": opd_figure, "psf": psf_figure,
-         "mtf": mtf_figure, "ee": ee_figure}
+         "mtf": mtf_figure, "through-focus": through_focus_figure,
+         "mtf-field": mtf_field_figure, "ee": ee_figure}
+
+#: kinds that take ``freqs`` (cycles/mm)
+FREQ_KINDS = ("through-focus", "mtf-field")
 
 
 def plot(lens, kind: str, path, fields_deg=None, wavelengths_nm=None,
-         image_plane="sensor") -> None:
-    """Draw figure ``kind`` (a key of :data:`KINDS`) and save it as a PNG at ``path``."""
+         image_plane="sensor", dpi: float | None = None, freqs=None) -> None:
+    """Draw figure ``kind`` (a key of :data:`KINDS`) and save it at ``path`` in the format its
+    suffix names (vector for .pdf/.svg/.eps/.ps; :func:`.style.save`), ``dpi`` for rasters;
+    ``freqs`` (cycles/mm) for the kinds of :data:`FREQ_KINDS`."""
     if kind not in KINDS:
         raise ValueError(f"plot kind must be one of {'|'.join(KINDS)}, got {kind!r}")
-    fig = KINDS[kind](lens, fields_deg, wavelengths_nm, image_plane=image_plane)
-    style.save(fig, path)
+    extra = {}
+    if freqs is not None:
+        if kind not in FREQ_KINDS:
+            raise ValueError(f"frequencies apply to the kinds {', '.join(FREQ_KINDS)}, not "
+                             f"{kind!r}")
+        extra["freqs"] = freqs
+    fig = KINDS[kind](lens, fields_deg, wavelengths_nm, image_plane=image_plane, **extra)
+    style.save(fig, path, dpi=dpi)

@@ -3,14 +3,16 @@
 ``@styled`` runs a figure function under the house style; ``figure(...)`` opens a figure
 (Agg backend, so it works without a display); ``wavelength_color(nm)`` maps a wavelength to an
 approximately perceived colour so that the F, d and C lines read as blue, yellow-green and red
-in every plot; ``save(fig, path)`` writes a compact PNG and closes the figure.
+in every plot; ``save(fig, path, dpi=...)`` writes the format the suffix names (vector for .pdf/.svg/.eps/.ps,
+a compact palette PNG for .png) and closes the figure.
 """
 
 from __future__ import annotations
 
 import functools
 
-__all__ = ["STYLE", "figure", "styled", "wavelength_color", "field_color", "save"]
+__all__ = ["STYLE", "figure", "styled", "wavelength_color", "field_color", "save", "title", "circle",
+           "VECTOR_FORMATS", "DEFAULT_DPI"]
 
 STYLE = {
     "figure.dpi": 90,
@@ -86,27 +88,70 @@ def wavelength_color(nm: float) -> str:
     return "#{:02x}{:02x}{:02x}".format(*(int(255 * k * v) for v in (r, g, b)))
 
 
+def title(text: str, width: int = 90) -> str:
+    """``text`` wrapped onto lines of at most ``width`` characters, never cut."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width)) or text
+
+
+def circle(radius: float, n: int = 181):
+    """``(x, y)`` lists of a circle of ``radius`` about the origin (for ``ax.plot``)."""
+    import math
+
+    t = [2 * math.pi * k / (n - 1) for k in range(n)]
+    return [radius * math.cos(v) for v in t], [radius * math.sin(v) for v in t]
+
+
 def field_color(i: int) -> str:
     return _FIELD_COLORS[i % len(_FIELD_COLORS)]
 
 
-def save(fig, path, colors: int = 256) -> None:
-    """Write ``fig`` as a PNG (tight layout) and close it; with Pillow present the image is
-    stored with an adaptive palette of ``colors`` entries (3-5x smaller files)."""
+#: vector formats matplotlib writes (``savefig(format=...)``), by file suffix
+VECTOR_FORMATS = ("pdf", "svg", "eps", "ps")
+#: resolution of raster output when none is asked for (dots per inch)
+DEFAULT_DPI = 150
+
+
+def save(fig, path, colors: int = 256, dpi: float | None = None) -> None:
+    """Write ``fig`` in the format its suffix names and close it.
+
+    ``.pdf``, ``.svg``, ``.eps``, ``.ps`` are written as vector graphics; ``.png`` as a raster at
+    ``dpi`` (default :data:`DEFAULT_DPI`) stored, with Pillow present, with an adaptive palette
+    of ``colors`` entries (3-5x smaller files); ``.jpg``/``.tif`` as plain rasters.
+
+    Raises:
+        ValueError: an unknown suffix or a non-positive ``dpi`` (nothing is written).
+    """
     import io
+    from pathlib import Path
 
     plt = _pyplot()
+    fmt = Path(path).suffix.lower().lstrip(".")
+    fmt = {"jpeg": "jpg", "tiff": "tif"}.get(fmt, fmt)
+    if fmt not in VECTOR_FORMATS + ("png", "jpg", "tif"):
+        plt.close(fig)
+        raise ValueError(f"{path}: the figure format comes from the suffix: .png, .jpg, .tif "
+                         f"(raster) or .pdf, .svg, .eps, .ps (vector), got {fmt!r}")
+    dpi = DEFAULT_DPI if dpi is None else float(dpi)
+    if not dpi > 0:
+        plt.close(fig)
+        raise ValueError(f"dpi must be > 0, got {dpi!r}")
     buf = io.BytesIO()
     with plt.rc_context(STYLE):
         fig.tight_layout()
-        fig.savefig(buf, format="png")
+        fig.savefig(buf, format=fmt, dpi=dpi, bbox_inches="tight", pad_inches=0.05)
     plt.close(fig)
-    try:
-        from PIL import Image
-    except ImportError:  # pragma: no cover - Pillow comes with matplotlib
-        with open(path, "wb") as f:
-            f.write(buf.getvalue())
-        return
-    buf.seek(0)
-    Image.open(buf).convert("RGB").quantize(colors=colors).save(path, format="PNG",
-                                                                optimize=True)
+    data = buf.getvalue()
+    if fmt == "png":
+        try:
+            from PIL import Image
+        except ImportError:  # pragma: no cover - Pillow comes with matplotlib
+            Image = None
+        if Image is not None:
+            out = io.BytesIO()
+            Image.open(io.BytesIO(data)).convert("RGB").quantize(colors=colors).save(
+                out, format="PNG", optimize=True, dpi=(dpi, dpi))
+            data = out.getvalue()
+    with open(path, "wb") as f:
+        f.write(data)

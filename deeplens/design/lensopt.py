@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections import Counter
 from dataclasses import dataclass, field
 
 import torch
@@ -47,6 +48,27 @@ class LensOptResult:
     def history(self) -> list:
         return [h for r in self.rounds for h in r.history]
 
+    @property
+    def accepted(self) -> int:
+        """Accepted steps (the starting points of the rounds not counted)."""
+        return sum(1 for h in self.history if h["accepted"] and h["step"] > 0)
+
+    @property
+    def rejected(self) -> int:
+        """Rejected trial steps."""
+        return sum(r.rejected for r in self.rounds)
+
+    def rejections(self) -> list:
+        """``[(reason, count), ...]`` of the rejected trials, most frequent first."""
+        return Counter(h.get("reason", "") for h in self.history
+                       if not h["accepted"]).most_common()
+
+    def rejection_kinds(self) -> list:
+        """``[(kind, count), ...]`` (``"vignetted"``, ``"geometry"``, ``"constraint"``,
+        ``"no_decrease"``, ``"non_finite"``, ...), most frequent first."""
+        return Counter(h.get("kind", "infeasible") for h in self.history
+                       if not h["accepted"]).most_common()
+
 
 def lens_residual_fn(variables, merit, constraints=()):
     """``x -> residuals`` for :func:`~.optimizers.damped_least_squares` (module docstring)."""
@@ -62,10 +84,10 @@ def lens_residual_fn(variables, merit, constraints=()):
         try:
             L.check()
         except ValueError as e:
-            raise Infeasible(f"the lens is not valid: {e}") from None
+            raise Infeasible(f"the lens is not valid: {e}", kind="geometry") from None
         bad = cset.broken(L)
         if bad:
-            raise Infeasible("constraint broken: " + "; ".join(bad))
+            raise Infeasible("constraint broken: " + "; ".join(bad), kind="constraint")
         r = merit.residuals(L)
         if cset.constraints:
             r = torch.cat([r, cset.residuals(L).to(r)])

@@ -181,7 +181,8 @@ class SpotMerit:
             lost = ref_ok & ~ok
             if self.strict_rays and bool(lost.any()):
                 raise Infeasible(f"{int(lost.sum())} of {int(ref_ok.sum())} rays of field "
-                                 f"{f:g} deg at {wl:g} nm are vignetted or miss a surface")
+                                 f"{f:g} deg at {wl:g} nm are vignetted or miss a surface",
+                                 kind="vignetted")
             ok = ok & ref_ok
             n = ok.sum().clamp(min=1)
             pts = out.o[s, :2]
@@ -190,7 +191,8 @@ class SpotMerit:
                 ref = (pts * okf).sum(0) / n
             else:
                 if not bool(chief.valid[k]):
-                    raise Infeasible(f"the chief ray of field {f:g} deg at {wl:g} nm is lost")
+                    raise Infeasible(f"the chief ray of field {f:g} deg at {wl:g} nm is lost",
+                                     kind="vignetted")
                 ref = chief.o[k, :2]
             dev = (pts - ref) * okf
             res[(f, wl)] = (dev, ok, n, torch.sqrt((dev * dev).sum() / n))
@@ -273,7 +275,7 @@ class DistortionMerit:
             c = lens.trace_to_sensor(field_rays(lens, f, self.wavelength, xy, z_ep),
                                      z_image=z_img)
             if not bool(c.valid[0]):
-                raise Infeasible(f"the chief ray of field {f:g} deg is lost")
+                raise Infeasible(f"the chief ray of field {f:g} deg is lost", kind="vignetted")
             ideal = kappa * math.tan(math.radians(f))
             out.append((c.o[0, 1] - ideal) / ideal)
         return torch.stack(out)

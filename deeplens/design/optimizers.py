@@ -44,7 +44,13 @@ __all__ = ["Infeasible", "OptimResult", "jacobian", "damped_least_squares", "ada
 
 class Infeasible(Exception):
     """Raised by a residual/loss function for a point it cannot (or must not) evaluate: the
-    optimiser rejects the step and damps; the message is kept in the history."""
+    optimiser rejects the step and damps; the message is kept in the history (``"reason"``),
+    and ``kind`` (e.g. ``"vignetted"``, ``"geometry"``, ``"constraint"``) beside it so that
+    callers can act on the kind without reading the text."""
+
+    def __init__(self, message: str = "", kind: str = "infeasible"):
+        super().__init__(message)
+        self.kind = kind
 
 
 @dataclass
@@ -56,7 +62,8 @@ class OptimResult:
         merit: final merit ``sum r^2`` (DLS) or loss (Adam, L-BFGS).
         merit0: merit at ``x0``.
         history: one dict per iteration: ``{"step", "merit", "x" (list), "accepted", ...}``
-            (DLS adds ``"lambda"`` and, for rejected trials, ``"reason"``).
+            (DLS adds ``"lambda"`` and, for rejected trials, ``"reason"`` and ``"kind"``: the
+            :class:`Infeasible` kind, ``"non_finite"`` or ``"no_decrease"``).
         steps: iterations run (Jacobian evaluations for DLS).
         evaluations: residual/loss evaluations.
         reason: why it stopped.
@@ -204,15 +211,15 @@ def _central_jacobian(fn, x):
 
 
 def _evaluate(fn, x):
-    """``(r, None)`` or ``(None, reason)`` for an infeasible or non-finite point."""
+    """``(r, None, None)`` or ``(None, reason, kind)`` for an infeasible or non-finite point."""
     try:
         with torch.no_grad():
             r = fn(x)
     except Infeasible as e:
-        return None, str(e)
+        return None, str(e), e.kind
     if not torch.isfinite(r).all():
-        return None, "the residuals are not finite"
-    return r.detach(), None
+        return None, "the residuals are not finite", "non_finite"
+    return r.detach(), None, None
 
 
 def damped_least_squares(residual_fn, x0, *, steps: int = 50, lam0: float = 1e-3,
@@ -253,7 +260,7 @@ def damped_least_squares(residual_fn, x0, *, steps: int = 50, lam0: float = 1e-3
     t_start = time.perf_counter()
     x = _check_x0(x0)
     lo, hi = _bounds(bounds, x)
-    r, why = _evaluate(residual_fn, x)
+    r, why, _ = _evaluate(residual_fn, x)
     if r is None:
         raise ValueError(f"damped least squares: the starting point is not feasible: {why}")
     F = float((r * r).sum())
@@ -285,7 +292,7 @@ def damped_least_squares(residual_fn, x0, *, steps: int = 50, lam0: float = 1e-3
             if float(delta.abs().max()) <= xtol * (float(x.abs().max()) + xtol):
                 reason = f"step below xtol ({xtol:g})"
                 break
-            r_try, why = _evaluate(residual_fn, x_try)
+            r_try, why, kind = _evaluate(residual_fn, x_try)
             evals += 1
             pred = F - float(((r + J @ delta) ** 2).sum())
             if r_try is not None:
@@ -300,11 +307,13 @@ def damped_least_squares(residual_fn, x0, *, steps: int = 50, lam0: float = 1e-3
                     history.append({"step": it, "merit": F, "x": x.tolist(), "lambda": lam,
                                     "accepted": True})
                     break
-                why = f"merit did not decrease ({F_try:.6g} >= {F:.6g})"
+                why, kind = "the merit did not decrease", "no_decrease"
             rejected += 1
             fails += 1
             history.append({"step": it, "merit": F, "x": x.tolist(), "lambda": lam,
-                            "accepted": False, "reason": why})
+                            "accepted": False, "reason": why, "kind": kind,
+                            "merit_trial": None if r_try is None else F_try,
+                            "x_trial": x_try.tolist()})
             lam *= nu
             nu *= 2.0
             if fails >= max_rejects or lam > 1e20:

@@ -84,8 +84,10 @@ def heatmap_figure(mats, row_labels, col_labels, titles, unit: str):
     return fig
 
 
-def save(fig, path) -> str:
-    """Save ``fig`` as PNG and close it; returns the path as a string."""
-    fig.savefig(path)
-    _plt().close(fig)
+def save(fig, path, dpi: float | None = None) -> str:
+    """Save ``fig`` in the format its suffix names (:func:`deeplens.analysis.style.save`) and
+    close it; returns the path as a string."""
+    from ..analysis.style import save as save_figure
+
+    save_figure(fig, path, dpi=dpi)
     return str(path)

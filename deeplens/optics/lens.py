@@ -459,6 +459,14 @@ class Lens(nn.Module):
         z = torch.as_tensor(z, dtype=rays.dtype, device=rays.device)
         return self.trace(rays, options=options, propagate_to=(z, n_img))
 
+    def info(self, extra: bool = True) -> None:
+        """Print the prescription as a lens-data-editor table (surface, type, radius, thickness,
+        material, semi-diameter, conic; :mod:`.prescription`, whose ``prescription(lens)``
+        gives the rows as dictionaries)."""
+        from .prescription import prescription_table
+
+        print(prescription_table(self, extra=extra))
+
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, surfaces={len(self.surfaces)}, stop={self.stop_index}, "
                 f"d_sensor={float(self.d_sensor.detach()):.6g} mm")

@@ -95,7 +95,7 @@ def _to_image(t: torch.Tensor) -> torch.Tensor:
 
 class ImageLogger(Callback):
     """Logs, after each validation: image grids (ground truth | sensor | restored) per depth,
-    PSFs across depths and fields, the phase plate's height map, the lens layout and the
+    PSFs across depths and fields (a labelled figure: :mod:`.psf_panels`), the phase plate's height map, the lens layout and the
     trainable lens parameters.
 
     What it reads off the module is runtime state only (the lens, sensor and ideal camera, and
@@ -159,13 +159,10 @@ class ImageLogger(Callback):
             exp.add_image(f"images/{tag}", make_grid(rows, nrow=3, padding=2), step)
 
     def _log_psfs(self, exp, m, step):
-        from torchvision.utils import make_grid
-
         from ..render.psf import psf
 
         lens, sensor = m.lens, m.sensor
         w = sensor.mono_wavelength_nm
-        tiles = []
         kmax = 0
         with torch.no_grad():
             ks = []
@@ -179,13 +176,13 @@ class ImageLogger(Callback):
                     except ValueError:
                         ks.append(torch.zeros(3, 3))
             kmax = max(k.shape[-1] for k in ks)
-            for k in ks:
-                p = (kmax - k.shape[-1]) // 2
-                k = torch.nn.functional.pad(k, (p, p, p, p))
-                tiles.append(_to_image((k / k.max().clamp_min(1e-12))[None]))
-        if tiles:
-            grid = make_grid(tiles, nrow=len(self.fields_deg), padding=1, pad_value=0.5)
-            exp.add_image("psf/depth_rows_field_cols", grid, step)
+        if ks:
+            from .psf_panels import psf_panels_figure
+
+            fig = psf_panels_figure([torch.nn.functional.pad(k, ((kmax - k.shape[-1]) // 2,) * 4)
+                                     for k in ks], self.depths_mm, self.fields_deg, w,
+                                    sensor.pixel_size_mm)
+            exp.add_figure("psf/depth_rows_field_cols", fig, step, close=True)
 
     def _log_lens(self, exp, m, step):
         from ..analysis.plot import layout_figure

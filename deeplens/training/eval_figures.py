@@ -7,9 +7,9 @@ TensorBoard images (matplotlib, imported lazily, Agg backend).
   normalised to its own peak) per variant (rows) and depth (columns), drawn with nearest
   neighbour so a sensor pixel is a visible square;
 * ``plates.png``: the phase plate's height map (µm) of every variant that has one;
-* ``samples.png``: ground truth | sensor | restored of the first test image at the nearest,
-  best-focus (smallest PSF of the first variant) and farthest depth, one row per variant and
-  depth.
+* ``samples.png``: the first test image, a row per variant: ground truth, then sensor |
+  restored at the nearest, best-focus (smallest PSF of the first variant) and farthest depth
+  (a variants x depths grid).
 """
 
 from __future__ import annotations
@@ -97,30 +97,48 @@ def plates_figure(modules: dict, plate_surface: int):
 
 
 def samples_figure(modules: dict, datamodules: dict, depths, focus_mm: float):
-    plt = _plt()
+    """The first test image of each variant through its lens and restorer at the nearest,
+    best-focus and farthest depth, as :func:`samples_grid`."""
     show = sorted({min(depths), focus_mm, max(depths)})
-    rows = [(v, d) for v in modules for d in show]
-    fig, axes = plt.subplots(len(rows), 3, squeeze=False, figsize=(6, 2 * len(rows)), dpi=100)
-    first = {}  # the first test image of each variant's data module
+    cells = {}
     for v, dm in datamodules.items():
         dm.setup("test")
-        first[v] = dm.test_set[0]["image"][None]
-    for r, (v, d) in enumerate(rows):
-        m, img = modules[v], first[v]
-        with torch.no_grad():
-            y, gt = m.capture(img, [d], seed=10_000_019, noise=True)
-            pred = m(y.to(next(m.restorer.parameters()).device)).clamp(0, 1)
-        for c, (t, lab) in enumerate(((gt, "ground truth"), (y, "sensor"), (pred, "restored"))):
-            a = t[0].detach().float().clamp(0, 1).cpu()
-            a = a.expand(3, -1, -1) if a.shape[0] == 1 else a
-            ax = axes[r][c]
-            ax.imshow(a.permute(1, 2, 0).numpy() ** (1 / 2.2), interpolation="nearest")
-            ax.set_xticks([])
-            ax.set_yticks([])
-            if r == 0:
-                ax.set_title(lab, fontsize=8)
+        img = dm.test_set[0]["image"][None]
+        m = modules[v]
+        for d in show:
+            with torch.no_grad():
+                y, gt = m.capture(img, [d], seed=10_000_019, noise=True)
+                pred = m(y.to(next(m.restorer.parameters()).device)).clamp(0, 1)
+            cells[(v, d)] = (gt[0], y[0], pred[0])
+    return samples_grid(cells, list(modules), show)
+
+
+def samples_grid(cells: dict, variants, depths_mm):
+    """A grid with a row per variant: its ground truth, then sensor | restored per depth
+    (columns labelled with the depth); ``cells[(variant, depth)] = (gt, sensor, restored)``,
+    each ``(C, H, W)`` linear in [0, 1] (shown with a 1/2.2 gamma)."""
+    plt = _plt()
+    D = len(depths_mm)
+    fig, axes = plt.subplots(len(variants), 1 + 2 * D, squeeze=False,
+                             figsize=(1.5 * (1 + 2 * D), 1.6 * len(variants) + 0.4), dpi=100)
+
+    def show(ax, t, title=None):
+        a = t.detach().float().clamp(0, 1).cpu()
+        a = a.expand(3, -1, -1) if a.shape[0] == 1 else a
+        ax.imshow(a.permute(1, 2, 0).numpy() ** (1 / 2.2), interpolation="nearest")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        if title:
+            ax.set_title(title, fontsize=7)
+
+    for r, v in enumerate(variants):
+        for c, d in enumerate(depths_mm):
+            gt, y, pred = cells[(v, d)]
             if c == 0:
-                ax.set_ylabel(f"{v}\n{d / 1000:g} m", fontsize=8)
+                show(axes[r][0], gt, "ground truth" if r == 0 else None)
+            show(axes[r][1 + 2 * c], y, f"sensor, {d / 1000:g} m" if r == 0 else None)
+            show(axes[r][2 + 2 * c], pred, f"restored, {d / 1000:g} m" if r == 0 else None)
+        axes[r][0].set_ylabel(v, fontsize=8)
     fig.tight_layout()
     return fig
 

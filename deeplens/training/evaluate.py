@@ -517,5 +517,8 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     if cfg.eval.figures:
         from .eval_figures import write_figures
 
-        write_figures(summary, keep, depths, out.parent, plate_surface=cfg.lens.plate_surface)
+        figs = write_figures(summary, keep, depths, out.parent,
+                             plate_surface=cfg.lens.plate_surface)
+        print(f"deeplens eval: figures {', '.join(p.name for p in figs)} in {out.parent}")
+    print(f"deeplens eval: table in {out} and {out.with_suffix('.json')}")
     return table, summary

@@ -34,6 +34,7 @@ from .checkpoint import LOADED_FROM, check_compatible, override_learning_rates
 from .constraints import SagDepartureConstraint
 from .lens_setup import optics_param_groups
 from .metrics import band_masks, masked_psnr, masked_ssim, psnr, ssim
+from .scalars import training_scalars
 
 __all__ = ["EndToEndModule", "NonFiniteLossError"]
 
@@ -375,10 +376,12 @@ class EndToEndModule(L.LightningModule):
             opt_d.zero_grad(set_to_none=True)
             self.manual_backward(d_loss)
             opt_d.step()
-            self.log("train/d_loss", d_loss, batch_size=images.shape[0])
+            self.log("train/loss_discriminator", d_loss, batch_size=images.shape[0])
         n = images.shape[0]
         self.log("train/loss", loss, prog_bar=True, batch_size=n)
-        self.log_dict({f"train/{k}": v for k, v in terms.items()}, batch_size=n)
+        # the terms as minimised (train/loss_ssim is 1 - SSIM; val/ssim_* is SSIM itself)
+        self.log_dict({f"train/loss_{k}": v for k, v in terms.items()}, batch_size=n)
+        self.log_dict(training_scalars(opt_g, self.deconv), batch_size=n)
         self.log("train/psnr_restored", psnr(pred.detach(), gt), batch_size=n)
         self.log("train/psnr_sensor", psnr(y, gt), batch_size=n)
         return loss.detach()

@@ -52,6 +52,11 @@ ZMX = ("tests/optics/io/test_zmx.py",)
 EVAL_TABLE = ("tests/training/test_eval_table_numbers.py",)
 DIFFRACTION = ("tests/render/test_diffraction.py", "tests/render/test_diffraction_oracle.py",
                "tests/render/test_fftconv.py", "tests/render/test_physics.py")
+OPTIMIZE_CLI = ("tests/design/test_optimize_steps.py",)
+PLOTS = ("tests/analysis/test_plot_output.py",)
+RENDER_IMAGE = ("tests/render/test_render_image.py",)
+API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
+TRAINING_UX = ("tests/training/test_training_ux.py",)
 
 
 @dataclass(frozen=True)
@@ -302,6 +307,44 @@ MUTATIONS = [
     Mutation("fftconv_no_flip", "FFT convolution correlates with the flipped kernel",
              "deeplens/render/fftconv.py", "Kf = torch.fft.rfft2(k.flip(-1, -2)[:, 0]",
              "Kf = torch.fft.rfft2(k[:, 0]", DIFFRACTION),
+    # issue 23 part B (CLI, API, plots, training UX)
+    Mutation("quick_focus_sign", "quick focus moves the sensor the wrong way",
+             "deeplens/design/focus.py", "t = -num / den", "t = num / den", OPTIMIZE_CLI),
+    Mutation("vignetting_count_off", "the rejection reason miscounts the vignetted rays",
+             "deeplens/design/merit.py", 'raise Infeasible(f"{int(lost.sum())} of',
+             'raise Infeasible(f"{int(lost.sum()) + 1} of', OPTIMIZE_CLI),
+    Mutation("allow_vignetting_ignored", "optimize --allow-vignetting has no effect",
+             "deeplens/cli.py", "strict_rays=not args.allow_vignetting", "strict_rays=True",
+             OPTIMIZE_CLI),
+    Mutation("vector_as_png", "-o x.pdf writes PNG bytes", "deeplens/analysis/style.py",
+             "fig.savefig(buf, format=fmt, dpi=dpi", 'fig.savefig(buf, format="png", dpi=dpi',
+             PLOTS),
+    Mutation("poly_mtf_no_lateral_colour", "polychromatic MTF ignores where each wavelength "
+             "images", "deeplens/analysis/mtf_poly.py",
+             'return {"tangential": (p.psf.sum(1), p.y + p.center[1]),',
+             'return {"tangential": (p.psf.sum(1), p.y),', PLOTS),
+    Mutation("spot_rms_paraxial_pupil", "spot figure RMS over the paraxial pupil (differs "
+             "from report)", "deeplens/analysis/plot.py",
+             'image_plane="sensor", pupil: str = "traced"):',
+             'image_plane="sensor", pupil: str = "paraxial"):', PLOTS),
+    Mutation("render_upside_down", "deeplens render flips the picture",
+             "deeplens/render/image.py", "scene = Scene(image.to(lens.dtype), float(depth_mm))",
+             "scene = Scene(image.flip(-2).to(lens.dtype), float(depth_mm))", RENDER_IMAGE),
+    Mutation("render_no_srgb_encode", "deeplens render writes linear values as sRGB",
+             "deeplens/render/image.py", "v = v if linear else linear_to_srgb(v)", "v = v",
+             RENDER_IMAGE),
+    Mutation("radius_is_curvature", "Surface.radius returns c, not 1/c",
+             "deeplens/optics/surfaces/base.py", "return math.inf if c == 0.0 else 1.0 / c",
+             "return math.inf if c == 0.0 else c", API),
+    Mutation("pupil_xy_swapped", "normalised pupil coordinates (Px, Py) swapped",
+             "deeplens/optics/normalized.py", "u = newton(u, P * r_stop, iterations)",
+             "u = newton(u, P.flip(-1) * r_stop, iterations)", API),
+    Mutation("field_sin_not_tan", "normalised field direction from sin instead of tan",
+             "deeplens/optics/normalized.py", "tan = torch.tan(torch.deg2rad(H * theta_max))",
+             "tan = torch.sin(torch.deg2rad(H * theta_max))", API),
+    Mutation("psf_panels_own_scale", "TensorBoard PSF panels each normalised to their own peak",
+             "deeplens/training/psf_panels.py", "im = ax.imshow((k / vmax).numpy()",
+             "im = ax.imshow((k / max(float(k.max()), 1e-12)).numpy()", TRAINING_UX),
 ]
 
 

@@ -44,6 +44,14 @@ def test_short_run_logs_scalars_images_and_checkpoints(cfg_factory, tmp_path, ex
     assert any(t.startswith("val/ssim_restored/") for t in scalars)
     assert any(t.startswith("images/") for t in images)
     assert "psf/depth_rows_field_cols" in images
+    panel = acc.Images("psf/depth_rows_field_cols")[-1]     # a labelled figure, not a thumbnail
+    assert panel.width >= 300 and panel.height >= 200
+    # the loss terms say what they are (train/loss_ssim = 1 - SSIM; val/ssim_* = SSIM)
+    assert any(t.startswith("train/loss_") for t in scalars)
+    assert not {"train/ssim", "train/mse", "train/l1"} & scalars
+    assert "lr/net" in scalars and any(t.startswith("lr/") and t != "lr/net" for t in scalars)
+    if experiment == "edof":        # its Wiener filter learns the noise ratio
+        assert "wiener/nsr_c0" in scalars
     assert any(t.startswith("lens_params/") for t in scalars)
     if experiment == "edof":
         assert "lens/phase_plate_height" in images

@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-__all__ = ["APPS", "load_app", "DATA_DIR"]
+__all__ = ["APPS", "load_app", "describe_app", "DATA_DIR"]
 
 #: command name -> module name in this package
 APPS = {"spherical-aberration": "spherical_aberration", "nikon": "nikon",
@@ -38,3 +38,13 @@ def load_app(name: str):
             raise ValueError(f"design application {name!r} is not available in this checkout "
                              f"(module {mod} is missing)") from None
         raise
+
+
+def describe_app(name: str) -> str:
+    """The first paragraph of the application's module docstring, whole (one line)."""
+    doc = (load_app(name).__doc__ or "").strip()
+    text = " ".join(doc.split("\n\n")[0].split())
+    lead = f"``deeplens design {name}``: "
+    if text.startswith(lead):  # the command's own name repeated in its docstring
+        text = text[len(lead)].upper() + text[len(lead) + 1:]
+    return text

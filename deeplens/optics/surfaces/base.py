@@ -132,6 +132,13 @@ class Surface(nn.Module):
     def paraxial_curvature(self) -> torch.Tensor:
         return torch.zeros((), dtype=self.semi_diameter.dtype, device=self.semi_diameter.device)
 
+    @property
+    def radius(self) -> float:
+        """Paraxial radius of curvature ``1 / c`` in mm, ``inf`` for a flat vertex (beside the
+        curvature ``c`` that the surface stores and optimises)."""
+        c = float(self.paraxial_curvature())
+        return math.inf if c == 0.0 else 1.0 / c
+
     def check(self, where: str = "") -> None:
         """Raise ``ValueError`` if the prescription is inconsistent (e.g. aperture beyond domain)."""
 
