@@ -67,8 +67,14 @@ def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
     os.environ.setdefault("DEEPLENS_DATA_DIR", str(data_dir()))
     main = hydra.main(version_base="1.3", config_path=str(config_dir()),
                       config_name=f"{kind}.yaml")(task)
+    args = list(sys.argv[1:] if argv is None else argv)
+    # Hydra names a job after its script (train.py -> "train": the log file, the help title);
+    # here the script is this module, so the name is given (a Hydra override, not a task one;
+    # last, as Hydra's parser takes overrides after its flags, e.g. `-m a=1`)
+    if not any(a.startswith("hydra.job.name=") for a in args):
+        args.append(f"hydra.job.name={kind}")
     saved = sys.argv
-    sys.argv = [prog or f"deeplens {kind}", *(sys.argv[1:] if argv is None else argv)]
+    sys.argv = [prog or f"deeplens {kind}", *args]
     try:
         main()
     finally:
