@@ -369,7 +369,9 @@ def main(argv=None) -> int:
         run(argv[0], argv[1:])
         return 0
     p = argparse.ArgumentParser(prog="deeplens", description="deeplens command line")
-    p.add_argument("--version", action="version", version=_version())
+    # handled above (the version string imports torch: not built for every command)
+    p.add_argument("--version", action="store_true",
+                   help="print the version, where deeplens is imported from, and torch's version")
     sub = p.add_subparsers(dest="cmd", required=True)
     for name, text in _HYDRA_COMMANDS.items():      # listed in -h; handled above
         sub.add_parser(name, help=text)
