@@ -3,7 +3,8 @@
 #   bash dev.sh run    # set up (first time) and run the main job
 #   bash dev.sh test   # set up (first time) and run the default test suite
 #   bash dev.sh lint   # set up (first time) and run ruff (rules in pyproject.toml)
-# Set-up is idempotent: a virtual environment in .venv with `pip install -e .[dev]`.
+#   bash dev.sh docs   # set up (first time) and build the documentation site (mkdocs, strict)
+# Set-up is idempotent: a virtual environment in .venv with `pip install -e .[dev,docs]`.
 set -euo pipefail
 cd "$(dirname "$0")"
 PY=${PYTHON:-python3}
@@ -13,7 +14,7 @@ fi
 stamp=.venv/.deeplens-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e ".[dev]"
+    .venv/bin/python -m pip install -q -e ".[dev,docs]"
     touch "$stamp"
 fi
 cmd=${1:-test}
@@ -21,11 +22,13 @@ shift || true
 case "$cmd" in
     test) exec .venv/bin/python -m pytest -q "$@" ;;
     lint) exec .venv/bin/ruff check deeplens tests "$@" ;;
+    # warnings (a broken link, a missing page or docstring reference) are errors
+    docs) exec .venv/bin/mkdocs build --strict --site-dir "${DOCS_SITE_DIR:-site}" "$@" ;;
     run)
         # the main job: end-to-end training (default experiment=edof; pass overrides freely)
         case " $* " in
             *" experiment="*) exec .venv/bin/python train.py "$@" ;;
             *) exec .venv/bin/python train.py experiment=edof "$@" ;;
         esac ;;
-    *) echo "usage: bash dev.sh run|test|lint [args]" >&2; exit 2 ;;
+    *) echo "usage: bash dev.sh run|test|lint|docs [args]" >&2; exit 2 ;;
 esac

@@ -1,16 +1,9 @@
-"""Train an end-to-end camera:  python train.py experiment=edof  (or experiment=doublet)."""
+"""Train an end-to-end camera:  python train.py experiment=edof  (or experiment=doublet).
 
-import hydra
-from omegaconf import DictConfig
+The same as the installed ``deeplens train experiment=edof`` (deeplens/training/entry.py).
+"""
 
-from deeplens.training.train import train
-
-
-@hydra.main(version_base="1.3", config_path="configs", config_name="train.yaml")
-def main(cfg: DictConfig) -> float | None:
-    metrics, _ = train(cfg)
-    return metrics.get("val/psnr_restored")
-
+from deeplens.training.entry import run
 
 if __name__ == "__main__":
-    main()
+    run("train", prog="train.py")

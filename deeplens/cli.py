@@ -1,4 +1,5 @@
-"""Command line: ``deeplens report|plot|optimize|tolerance|design ...`` (``deeplens -h``)."""
+"""Command line: ``deeplens report|plot|optimize|tolerance|design|train|eval ...``
+(``deeplens -h``, ``deeplens --version``)."""
 
 from __future__ import annotations
 
@@ -502,9 +503,51 @@ def _design(name: str, rest: list, prog: str) -> int:
     return 0
 
 
+def _version() -> str:
+    """``deeplens-do X.Y.Z (deeplens at PATH, torch V)``: the installed distribution's version
+    (the package's own when run from a source checkout)."""
+    from importlib.metadata import PackageNotFoundError, version
+    from pathlib import Path
+
+    from . import __file__ as init, __version__
+
+    try:
+        v = version("deeplens-do")
+    except PackageNotFoundError:
+        v = __version__
+    if v != __version__:    # a checkout imported ahead of an installed distribution
+        v = f"{__version__} (installed distribution deeplens-do {v})"
+    try:
+        from torch import __version__ as torch_version
+    except ImportError:     # pragma: no cover - torch is a core dependency
+        torch_version = "not installed"
+    return f"deeplens-do {v} (deeplens at {Path(init).parent}, torch {torch_version})"
+
+
+#: Hydra applications: every argument after the command is a Hydra override
+_HYDRA_COMMANDS = {"train": "end-to-end training: deeplens train experiment=edof|doublet "
+                            "[KEY=VALUE ...] (Hydra overrides; --help lists the config groups)",
+                   "eval": "optical variants x seeds, each with its own restorer: deeplens eval "
+                           "experiment=edof [KEY=VALUE ...]"}
+
+
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv == ["--version"]:       # printed whole (argparse's version action wraps lines)
+        print(_version())
+        return 0
+    if argv and argv[0] in _HYDRA_COMMANDS:     # Hydra parses its own command line
+        from .training.entry import run
+
+        run(argv[0], argv[1:])
+        return 0
     p = argparse.ArgumentParser(prog="deeplens", description="deeplens command line")
+    # handled above (the version string imports torch: not built for every command)
+    p.add_argument("--version", action="store_true",
+                   help="print the version, where deeplens is imported from, and torch's version")
     sub = p.add_subparsers(dest="cmd", required=True)
+    for name, text in _HYDRA_COMMANDS.items():      # listed in -h; handled above
+        sub.add_parser(name, help=text)
     r = sub.add_parser("report", help="paraxial data and RMS spots of a lens file")
     r.add_argument("lens", help="lens file (.json, the paper authors' .txt table, or Zemax .zmx)")
     r.add_argument("--fields", help="field angles in degrees, e.g. 0,7,14,21 (default: file's)")

@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import torch
 from torch import nn
@@ -35,13 +34,14 @@ from ..optics.lens import Lens
 from ..optics.rays import Rays
 from ..optics.sampling import random_disk
 from ..render.splat import splat_bilinear
+from ..resources import lens_path
 
 __all__ = ["LA1131_PATH", "PARAMS", "DEFAULT_TRUTH", "DEFAULT_START", "DEFAULT_SCALE", "SpotSetup",
            "SpotImager", "centroid", "eq15_residual", "parse_params", "synthesize_target",
            "estimate", "estimate_uncertainty", "load_target_image"]
 
 #: the shipped LA1131 lens file (resolved from the package, not the working directory)
-LA1131_PATH = str(Path(__file__).resolve().parents[2] / "data" / "lenses" / "thorlabs_la1131.json")
+LA1131_PATH = str(lens_path("thorlabs_la1131.json"))
 #: the estimated parameters, in this order (tilts rad, lengths mm)
 PARAMS = ("tilt_x", "tilt_y", "d_sensor", "source_x", "source_y")
 #: hidden values of the simulated experiment (LA1131 near its best focus, tilted by ~2-3 deg)

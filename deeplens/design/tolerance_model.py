@@ -37,12 +37,13 @@ import torch
 
 from ..optics.materials import Air, Material
 from ..optics.surfaces import Aperture
+from ..resources import config_dir
 
 __all__ = ["CONFIG_DIR", "load_group", "KINDS", "Distribution", "ToleranceModel", "LensDraw", "PerturbedMaterial", "drawn",
            "call_drawn"]
 
 #: the packaged tolerance groups (``configs/tolerance/<name>.yaml`` of the repository)
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs" / "tolerance"
+CONFIG_DIR = config_dir() / "tolerance"
 #: the kinds of error a group may give, with their units
 KINDS = {"radius": "relative or fringes", "thickness": "mm", "air_gap": "mm", "index": "n_d",
          "abbe": "relative", "decenter": "mm", "tilt": "rad", "sensor": "mm"}

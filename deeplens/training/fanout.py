@@ -64,10 +64,12 @@ def cpu_seconds() -> float:
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
-def fan_out(cfg: DictConfig, script: str, overrides: list[str]) -> float:
+def fan_out(cfg: DictConfig, script: str | list[str], overrides: list[str]) -> float:
     """Run every variant x seed as a job of a Hydra multirun of ``script`` with the launcher
-    ``eval.launcher`` (module docstring); returns the wall seconds.  ``overrides`` are this
-    call's command-line overrides (``HydraConfig.get().overrides.task``).
+    ``eval.launcher`` (module docstring); returns the wall seconds.  ``script`` is the
+    evaluation script's path (``eval.py``) or the interpreter arguments that start it (``["-m",
+    "deeplens", "eval"]`` for ``deeplens eval``).  ``overrides`` are this call's command-line
+    overrides (``HydraConfig.get().overrides.task``).
 
     Raises:
         ValueError: an unknown launcher or ``eval.n_jobs``; RuntimeError: a job failed (the
@@ -85,7 +87,8 @@ def fan_out(cfg: DictConfig, script: str, overrides: list[str]) -> float:
     n = len(jobs(cfg))
     drop = ("eval.launcher=", "eval.job=", "eval.folder=", "eval.gather=", "eval.n_jobs=")
     keep = [o for o in overrides if not o.lstrip("+~").startswith(drop)]
-    cmd = [sys.executable, script, "-m", *keep, f"hydra/launcher={launcher}",
+    start = [script] if isinstance(script, str) else list(script)
+    cmd = [sys.executable, *start, "-m", *keep, f"hydra/launcher={launcher}",
            f"eval.job=range(0,{n})", f"eval.folder={out}", "eval.figures=false",
            f"hydra.sweep.dir={out}", "hydra.sweep.subdir=jobs/${hydra.job.num}"]
     if launcher == "joblib":

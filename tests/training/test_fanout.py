@@ -53,6 +53,22 @@ def test_jobs_cover_variants_times_seeds_and_a_job_runs_one(cfg_factory, tmp_pat
         fan_out(cfg, "eval.py", [])
 
 
+def test_deeplens_eval_fans_its_jobs_out_as_python_m_deeplens_eval(cfg_factory, tmp_path,
+                                                                    monkeypatch):
+    """``deeplens eval`` (no script file) starts its jobs as ``python -m deeplens eval -m ...``
+    with the caller's overrides, less the fan-out's own."""
+    import deeplens.training.fanout as fanout
+
+    calls = []
+    monkeypatch.setattr(fanout.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    cfg = cfg_factory(*FAST[len(TINY):], "eval.launcher=joblib", config_name="eval.yaml")
+    fan_out(cfg, ["-m", "deeplens", "eval"], ["experiment=edof", "eval.launcher=joblib"])
+    (cmd,) = calls
+    assert cmd[:5] == [sys.executable, "-m", "deeplens", "eval", "-m"]
+    assert "experiment=edof" in cmd and "hydra/launcher=joblib" in cmd
+    assert not any(c.startswith("eval.launcher=") for c in cmd)
+
+
 @pytest.mark.slow
 def test_eval_fans_out_through_joblib_and_gathers(tmp_path):
     out = tmp_path / "run"

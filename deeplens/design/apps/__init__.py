@@ -9,7 +9,8 @@ is asked for.
 from __future__ import annotations
 
 import importlib
-from pathlib import Path
+
+from ...resources import lens_dir
 
 __all__ = ["APPS", "load_app", "describe_app", "DATA_DIR"]
 
@@ -17,8 +18,8 @@ __all__ = ["APPS", "load_app", "describe_app", "DATA_DIR"]
 APPS = {"spherical-aberration": "spherical_aberration", "nikon": "nikon",
         "sensitivity": "sensitivity", "caustic": "caustic", "misalignment": "misalignment"}
 
-#: the lens files shipped with the repository
-DATA_DIR = Path(__file__).resolve().parents[3] / "data" / "lenses"
+#: the shipped lens files (packaged with the wheel, or the checkout's data/lenses)
+DATA_DIR = lens_dir()
 
 
 def load_app(name: str):

@@ -16,6 +16,20 @@ from .table import read_table
 __all__ = ["load_lens"]
 
 
+def _shipped(path: Path) -> Path:
+    """The shipped lens a bare ``path`` names, or FileNotFoundError."""
+    from ...resources import lens_dir
+
+    d = lens_dir()
+    if path.parent == Path(".") and path.suffix.lower() in ("", ".json"):
+        p = d / path.with_suffix(".json").name
+        if p.is_file():
+            return p
+    shipped = ", ".join(sorted(q.stem for q in d.glob("*.json")))
+    raise FileNotFoundError(f"lens file not found: {path} (nor is it a lens shipped with "
+                            f"deeplens: {shipped})")
+
+
 def load_lens(path, **table_options):
     """Read a lens file: our JSON format (``.json``), the paper authors' table (``.txt``) or a
     Zemax file (``.zmx``).
@@ -23,13 +37,17 @@ def load_lens(path, **table_options):
     ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files and to
     :func:`~.zmx.read_zmx` for ``.zmx`` files (``glass_catalogs``, ``glass_fallback``).
 
+    A bare name that is not a file here (``"double_gauss"`` or ``"double_gauss.json"``, no
+    folder) is one of the lenses shipped with deeplens (:func:`deeplens.resources.lens_dir`), so
+    ``load_lens("double_gauss")`` works from any directory.
+
     Raises:
-        FileNotFoundError: no such file.
+        FileNotFoundError: no such file (nor shipped lens; the message lists those).
         LensFileError: the file cannot be read (names the file and the field or line).
     """
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"lens file not found: {path}")
+        path = _shipped(path)
     if path.is_dir():
         raise LensFileError("is a directory, not a lens file", source=path)
     suffix = path.suffix.lower()

@@ -1,0 +1,7 @@
+"""``python -m deeplens ...``: the ``deeplens`` command (:mod:`deeplens.cli`)."""
+
+import sys
+
+from .cli import main
+
+sys.exit(main())

@@ -1,0 +1,81 @@
+"""The training and evaluation commands: ``deeplens train`` / ``deeplens eval`` (installed
+entry points) and the repository's thin ``train.py`` / ``eval.py``, all one code path.
+
+Both are Hydra applications over the shipped configs (:func:`deeplens.resources.config_dir`:
+the wheel's packaged copy, or the checkout's ``configs/``); every argument is a Hydra override
+(``deeplens train experiment=doublet trainer.max_epochs=1``).  The default lenses are found the
+same way: ``paths.data_dir`` is ``$DEEPLENS_DATA_DIR``, which :func:`run` sets to the shipped
+data folder unless it is already set, so a run works from any working directory.  Outputs go
+to ``outputs/`` under the working directory.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from ..resources import config_dir, data_dir
+
+__all__ = ["run"]
+
+
+def _train_task(cfg) -> float | None:
+    from .train import train
+
+    metrics, _ = train(cfg)
+    return metrics.get("val/psnr_restored")
+
+
+def _eval_task(cfg, fanout: list[str]) -> None:
+    from hydra.core.hydra_config import HydraConfig
+    from omegaconf import open_dict
+
+    from .evaluate import evaluate
+
+    if cfg.eval.get("launcher") and cfg.eval.get("job") is None and not cfg.eval.get("gather"):
+        from .fanout import fan_out
+
+        fan_out(cfg, fanout, list(HydraConfig.get().overrides.task))
+        with open_dict(cfg):
+            cfg.eval.gather = True
+    table, _ = evaluate(cfg)
+    print(table)
+
+
+def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
+        fanout: list[str] | None = None) -> None:
+    """Run ``deeplens train`` (``kind="train"``) or ``deeplens eval`` (``"eval"``) with the
+    Hydra overrides ``argv`` (default: ``sys.argv[1:]``); ``prog`` is the program name shown in
+    messages.  ``fanout``: the interpreter arguments that start one more evaluation when
+    ``eval.launcher`` fans variants x seeds out (default ``["-m", "deeplens", "eval"]``;
+    ``eval.py`` passes its own path).
+
+    Raises:
+        ValueError: an unknown ``kind``.
+    """
+    import hydra
+
+    if kind not in ("train", "eval"):
+        raise ValueError(f"unknown deeplens task {kind!r}; expected 'train' or 'eval'")
+    if kind == "train":
+        task = _train_task
+    else:
+        start = ["-m", "deeplens", "eval"] if fanout is None else list(fanout)
+
+        def task(cfg):
+            return _eval_task(cfg, start)
+    os.environ.setdefault("DEEPLENS_DATA_DIR", str(data_dir()))
+    main = hydra.main(version_base="1.3", config_path=str(config_dir()),
+                      config_name=f"{kind}.yaml")(task)
+    args = list(sys.argv[1:] if argv is None else argv)
+    # Hydra names a job after its script (train.py -> "train": the log file, the help title);
+    # here the script is this module, so the name is given (a Hydra override, not a task one;
+    # last, as Hydra's parser takes overrides after its flags, e.g. `-m a=1`)
+    if not any(a.startswith("hydra.job.name=") for a in args):
+        args.append(f"hydra.job.name={kind}")
+    saved = sys.argv
+    sys.argv = [prog or f"deeplens {kind}", *args]
+    try:
+        main()
+    finally:
+        sys.argv = saved

@@ -1,0 +1,34 @@
+"""Build hook (all metadata is in pyproject.toml): the wheel carries the repository's default
+lenses (data/lenses/*.json) and Hydra configs (configs/**/*.yaml) as package data under
+deeplens/_resources/, where deeplens.resources finds them with importlib.resources.  The
+checkout keeps one copy of each file; an editable install reads them from the checkout."""
+
+import shutil
+from pathlib import Path
+
+from setuptools import setup
+from setuptools.command.build_py import build_py
+
+HERE = Path(__file__).resolve().parent
+#: (folder in the checkout, files, folder inside the installed package)
+RESOURCES = [("data/lenses", "*.json", "deeplens/_resources/lenses"),
+             ("configs", "**/*.yaml", "deeplens/_resources/configs")]
+
+
+class BuildPyWithResources(build_py):
+    def run(self):
+        super().run()
+        if self.editable_mode:      # an editable install reads the checkout's files
+            return
+        for src, pattern, dst in RESOURCES:
+            files = sorted((HERE / src).glob(pattern))
+            if not files:
+                raise FileNotFoundError(f"setup.py: no {pattern} under {HERE / src} (an sdist "
+                                        f"without them? see MANIFEST.in)")
+            for f in files:
+                target = Path(self.build_lib) / dst / f.relative_to(HERE / src)
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(f, target)
+
+
+setup(cmdclass={"build_py": BuildPyWithResources})
