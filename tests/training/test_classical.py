@@ -58,3 +58,40 @@ def test_classical_settings_are_checked(cfg_factory):
                       "+eval.classical.stpes=3", config_name="eval.yaml")
     with pytest.raises(ValueError, match="eval.classical: unknown key.*stpes"):
         evaluate(cfg)
+
+
+def test_refined_trains_from_the_classical_design(cfg_factory, tmp_path):
+    """``refined``: end-to-end training started from the classical design (not the file's lens),
+    the design made once and shared with ``classical``."""
+    cfg = cfg_factory("experiment=doublet", "eval.variants=[refined]",
+                      "eval.classical.steps=2", "callbacks.image_logger=null",
+                      "eval.figures=false", config_name="eval.yaml")
+    _, results = evaluate(cfg)
+    assert list(results) == ["refined"]
+    names = list(cfg.lens.trainable)
+
+    def values(lens):
+        p = dict(lens.named_parameters())
+        return [float(p[n]) for n in names]
+
+    start = values(load_lens(cfg.lens.path))
+    designed = values(load_lens(tmp_path / "classical" / "classical_lens.json"))
+    tested = values(load_lens(tmp_path / "refined" / "seed0" / "checkpoints" / "last.lens.json"))
+    assert tested != pytest.approx(designed, rel=1e-9, abs=0)  # the optics trained
+    for t, d, s in zip(tested, designed, start):  # ... from the design, a few small steps away
+        assert abs(t - d) < 0.05 * abs(d - s)
+
+
+def test_refined_variant_config(cfg_factory):
+    from deeplens.training.evaluate import _variant_cfg, classical_dir, variants
+
+    cfg = cfg_factory("experiment=edof", "eval.variants=[classical,refined]",
+                      config_name="eval.yaml")
+    assert [v[1] for v in variants(cfg)] == ["classical", "refined"]
+    design = str(classical_dir(cfg) / "classical_lens.json")
+    frozen, refined = (_variant_cfg(cfg, k) for k in ("classical", "refined"))
+    assert frozen.lens.path == refined.lens.path == design
+    assert list(frozen.lens.trainable) == []
+    assert list(refined.lens.trainable) == list(cfg.lens.trainable) != []
+    # the plate starts as designed: a cubic start would overwrite it
+    assert refined.lens.plate == "learned" and refined.lens.learned_start_alpha_mm is None
