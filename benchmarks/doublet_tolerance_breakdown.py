@@ -10,7 +10,8 @@ centroid does not see an image that moves.  Prints one row per lens and kind: th
 the mean and 95th percentile over the draws, per field, then the shift's mean and 95th pct.
 
     OMP_NUM_THREADS=1 python benchmarks/doublet_tolerance_breakdown.py \
-        [--group commercial] [--n 64] [--fields 0,10,20] NAME=LENS.json ...
+        [--group commercial] [--n 64] [--fields 0,10,20] [--psnr-from EVAL_TABLE.json] \
+        [--json OUT.json] NAME=LENS.json ...
 """
 
 from __future__ import annotations
@@ -43,8 +44,9 @@ def centroids(merit: SpotMerit, lens) -> torch.Tensor:
 
 def breakdown(lens, group, n: int, fields, waves) -> dict:
     """``{kind: {"nominal_um", "mean_um", "p95_um", "shift_mean_um", "shift_p95_um"}}`` (per
-    field; the shift: of the spot's centroid from the nominal lens's, mean over λ) for each kind of ``group``
-    alone, ``all`` and ``all, no compensator``."""
+    field; the shift: of the spot's centroid from the nominal lens's, mean over λ), and the
+    per-draw values ``spot_um``, ``shift_um`` ``(n, F)``, for each kind of ``group`` alone,
+    ``all`` and ``all, no compensator``."""
     base = _group_dict(group)
     merit = SpotMerit(fields, waves, strict_rays=False).prepare(lens)
     with torch.no_grad():
@@ -67,7 +69,36 @@ def breakdown(lens, group, n: int, fields, waves) -> dict:
         out[name] = {"nominal_um": (nominal * 1e3).tolist(), "mean_um": (s.mean(0) * 1e3).tolist(),
                      "p95_um": (torch.quantile(s, 0.95, dim=0) * 1e3).tolist(),
                      "shift_mean_um": (sh.mean(0) * 1e3).tolist(),
-                     "shift_p95_um": (torch.quantile(sh, 0.95, dim=0) * 1e3).tolist()}
+                     "shift_p95_um": (torch.quantile(sh, 0.95, dim=0) * 1e3).tolist(),
+                     "spot_um": (s * 1e3).tolist(), "shift_um": (sh * 1e3).tolist()}
+    return out
+
+
+def psnr_vs_shift(res: dict, eval_json: str, kind: str = "all") -> dict:
+    """For each lens named like a variant of ``eval_json``'s tolerance block (an
+    ``eval_table.json`` of ``eval.tolerance`` with the same group, seed 0 and the same number of
+    drawn lenses): the Pearson correlation over the drawn lenses between the restored PSNR
+    (whole image and edge band) and the image shift at each field, and the PSNR drop (dB) per
+    10 µm of shift (least squares)."""
+    tol = json.loads(open(eval_json).read())["tolerance"]
+    out = {}
+    for name, r in res.items():
+        runs = tol["variants"].get(name)
+        if not runs:
+            continue
+        shift = torch.tensor(r[kind]["shift_um"], dtype=torch.float64)
+        for col in ("mean", "band 0.66-1"):
+            p = torch.tensor(runs[0]["columns"][col]["psnr"], dtype=torch.float64)
+            if p.numel() != shift.shape[0]:
+                raise ValueError(f"{eval_json}: {p.numel()} drawn lenses, breakdown has "
+                                 f"{shift.shape[0]} (--n)")
+            for f in range(shift.shape[1]):
+                x = shift[:, f] - shift[:, f].mean()
+                y = p - p.mean()
+                corr = float((x * y).sum() / (x.norm() * y.norm()))
+                slope = float((x * y).sum() / (x * x).sum()) * 10.0
+                out.setdefault(name, {}).setdefault(col, []).append(
+                    {"corr": corr, "db_per_10um": slope})
     return out
 
 
@@ -88,6 +119,9 @@ if __name__ == "__main__":
     ap.add_argument("--n", type=int, default=64)
     ap.add_argument("--fields", default="0,10,20")
     ap.add_argument("--json", help="write the numbers here")
+    ap.add_argument("--psnr-from", metavar="EVAL_TABLE.json",
+                    help="correlate the restored PSNR of its drawn lenses (variants named like "
+                         "the lenses) with the image shift")
     a = ap.parse_args()
     fields = [float(f) for f in a.fields.split(",")]
     waves = [float(w) for ch in Sensor((8, 8), 0.1).channels for w in ch]
@@ -107,7 +141,13 @@ if __name__ == "__main__":
                 for f in range(len(fields))) + " | " + " | ".join(
                 f"{r['shift_mean_um'][f]:.1f} / {r['shift_p95_um'][f]:.1f}"
                 for f in range(len(fields))) + " |")
+    corr = psnr_vs_shift(res, a.psnr_from) if a.psnr_from else {}
+    for name, cols in corr.items():
+        for col, per_field in cols.items():
+            print(f"{name}, restored PSNR ({col}) vs image shift over the drawn lenses: " + ", ".join(
+                f"{fields[f]:g}°: r = {c['corr']:+.2f}, {c['db_per_10um']:+.2f} dB / 10 um"
+                for f, c in enumerate(per_field)))
     if a.json:
         with open(a.json, "w") as fh:
             json.dump({"group": a.group, "n": a.n, "fields_deg": fields, "wavelengths_nm": waves,
-                       "lenses": res}, fh, indent=1)
+                       "lenses": res, "psnr_vs_shift": corr}, fh, indent=1)
