@@ -11,7 +11,11 @@ the mean and 95th percentile over the draws, per field, then the shift's mean an
 
     OMP_NUM_THREADS=1 python benchmarks/doublet_tolerance_breakdown.py \
         [--group commercial] [--n 64] [--fields 0,10,20] [--psnr-from EVAL_TABLE.json] \
-        [--json OUT.json] NAME=LENS.json ...
+        [--figure PNG] [--json OUT.json] NAME=LENS.json ...
+
+``--psnr-from``: an ``eval_table.json`` of ``eval.tolerance`` (same group, seed 0, ``N``
+lenses) whose variants are named like the lenses: the correlation of each drawn lens's restored
+PSNR with its image shift (and ``--figure``, the scatter of the two).
 """
 
 from __future__ import annotations
@@ -102,6 +106,29 @@ def psnr_vs_shift(res: dict, eval_json: str, kind: str = "all") -> dict:
     return out
 
 
+def psnr_shift_figure(res: dict, eval_json: str, path: str, kind: str = "all") -> None:
+    """Scatter of the restored PSNR (whole image) of every drawn lens against its on-axis
+    image shift, one colour per lens named like a variant of ``eval_json``."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    tol = json.loads(open(eval_json).read())["tolerance"]
+    fig, ax = plt.subplots(figsize=(5.5, 3.6), dpi=100)
+    for name, r in res.items():
+        if tol["variants"].get(name):
+            shift = [v[0] for v in r[kind]["shift_um"]]
+            ax.scatter(shift, tol["variants"][name][0]["columns"]["mean"]["psnr"], s=12,
+                       label=name)
+    ax.set_xlabel("image shift on axis (µm; pixel 80.4 µm)")
+    ax.set_ylabel("restored PSNR (dB)")
+    ax.set_title("drawn lenses: PSNR follows where the image lands")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
 def _group_dict(group: str) -> dict:
     """The group's mapping (a name of configs/tolerance or a .yaml file), checked."""
     import yaml
@@ -119,6 +146,7 @@ if __name__ == "__main__":
     ap.add_argument("--n", type=int, default=64)
     ap.add_argument("--fields", default="0,10,20")
     ap.add_argument("--json", help="write the numbers here")
+    ap.add_argument("--figure", help="with --psnr-from: PNG of PSNR vs on-axis image shift")
     ap.add_argument("--psnr-from", metavar="EVAL_TABLE.json",
                     help="correlate the restored PSNR of its drawn lenses (variants named like "
                          "the lenses) with the image shift")
@@ -147,6 +175,8 @@ if __name__ == "__main__":
             print(f"{name}, restored PSNR ({col}) vs image shift over the drawn lenses: " + ", ".join(
                 f"{fields[f]:g}°: r = {c['corr']:+.2f}, {c['db_per_10um']:+.2f} dB / 10 um"
                 for f, c in enumerate(per_field)))
+    if a.figure and a.psnr_from:
+        psnr_shift_figure(res, a.psnr_from, a.figure)
     if a.json:
         with open(a.json, "w") as fh:
             json.dump({"group": a.group, "n": a.n, "fields_deg": fields, "wavelengths_nm": waves,
