@@ -27,9 +27,11 @@ def load(root: Path) -> dict:
         for f in sorted((root / kind).glob("seed*/eval_table.json")):
             js = json.loads(f.read_text())
             seed = js["seeds"][0]
-            v = js["variants"]["learned"]
+            # the folder's one trained variant (learned, or refined: from the classical design)
+            name = "learned" if "learned" in js["variants"] else next(iter(js["variants"]))
+            v = js["variants"][name]
             tol = js["tolerance"]
-            c = tol["variants"]["learned"][0]["columns"]
+            c = tol["variants"][name][0]["columns"]
             out.setdefault(kind, {})[seed] = {
                 "nominal_psnr": v["mean"]["psnr"], "nominal_ssim": v["mean"]["ssim"],
                 "columns": c, "n": tol["samples"], "group": tol["group"],

@@ -11,6 +11,12 @@ end-to-end design has to beat.
   scene's PSF fields (``scene.psf_fields_deg``) and the sensor's wavelengths; the lens's own
   geometry checks are the constraints, as in end-to-end training.
 
+``eval.classical.max_sag_mm`` (default ``null``: no bound) bounds each designed surface's
+departure from its starting sag as end-to-end training's ``model.max_sag_mm`` does (the same
+grid, :class:`~.constraints.SagDepartureConstraint`), as a hard constraint of the design
+(the largest departure over the grid ``<= max_sag_mm``): ``eval.classical.max_sag_mm=model``
+takes the end-to-end run's own bound, so that both designs are held to the same constraints.
+
 Damped least squares with a float64 central-difference Jacobian.  The designed lens is written
 to ``classical_lens.json`` (with ``classical_design.json``: the settings, merit before/after,
 variables, seconds) in the variant's folder, and reused when its settings are unchanged.
@@ -19,6 +25,7 @@ variables, seconds) in the variant's folder, and reused when its settings are un
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -30,7 +37,7 @@ __all__ = ["design_classical", "DEFAULTS"]
 #: ``eval.classical`` defaults (a partial mapping in the config is completed with these)
 DEFAULTS = {"steps": 15, "sampling": "grid:32", "n_freq": 6, "blur_weight": 1.0,
             "start_alpha_mm": None, "blur_px": None, "fields_deg": None,
-            "spot_sampling": "hexapolar:6"}
+            "spot_sampling": "hexapolar:6", "max_sag_mm": None}
 
 
 def _settings(cfg: DictConfig) -> dict:
@@ -43,7 +50,33 @@ def _settings(cfg: DictConfig) -> dict:
     s = {**DEFAULTS, **given}
     if not (isinstance(s["steps"], int) and s["steps"] >= 1):
         raise ValueError(f"eval.classical.steps: expected an integer >= 1, got {s['steps']!r}")
+    m = s["max_sag_mm"]
+    if m == "model":
+        m = s["max_sag_mm"] = cfg.model.get("max_sag_mm")
+    if m is not None and not (isinstance(m, (int, float)) and not isinstance(m, bool)
+                              and math.isfinite(m) and m > 0):
+        raise ValueError(f"eval.classical.max_sag_mm: expected null, 'model' or a bound > 0 "
+                         f"(mm), got {m!r}")
     return s
+
+
+def sag_departure_constraints(lens, max_sag_mm: float) -> list:
+    """One design constraint per surface with trainable parameters: the largest departure of
+    its sag from the current one over :class:`~.constraints.SagDepartureConstraint`'s grid is
+    at most ``max_sag_mm`` (mm)."""
+    from ..design.constraints import Constraint
+    from .constraints import SagDepartureConstraint
+
+    bound = SagDepartureConstraint(lens, max_sag_mm)
+    out = []
+    for i in bound.surfaces:
+        def fn(L, i=i):
+            X, Y = bound._points(L.surfaces[i], L.distances[0])
+            sag0 = getattr(bound, f"sag0_{i}").to(X)
+            return (L.surfaces[i].sag(X, Y) - sag0).abs().max()
+
+        out.append(Constraint(f"max_sag_departure.{i}", "max", float(max_sag_mm), fn))
+    return out
 
 
 def _start_alpha(cfg: DictConfig, s: dict) -> float:
@@ -78,7 +111,8 @@ def design_classical(cfg: DictConfig, out_dir) -> Path:
     key = {"lens": OmegaConf.to_container(lc, resolve=True),
            "sensor": OmegaConf.to_container(sc, resolve=True),
            "depths_mm": list(cfg.scene.depths_mm), "fields_deg": list(cfg.scene.psf_fields_deg),
-           "settings": s}
+           # max_sag_mm only when set: designs made before the option existed stay valid
+           "settings": {k: v for k, v in s.items() if k != "max_sag_mm" or v is not None}}
     out = Path(out_dir)
     lens_path, rec_path = out / "classical_lens.json", out / "classical_design.json"
     if lens_path.is_file() and rec_path.is_file():
@@ -114,12 +148,16 @@ def design_classical(cfg: DictConfig, out_dir) -> Path:
         merit = SpotMerit(fields_deg=fields, wavelengths_nm=waves, sampling=s["spot_sampling"])
         what = f"RMS spot over fields {fields} deg"
     variables = Variables(lens, list(lc.trainable))
+    bounds = ([] if s["max_sag_mm"] is None
+              else sag_departure_constraints(lens, float(s["max_sag_mm"])))
     res = optimize_lens(lens, variables, merit, method="dls", steps=s["steps"],
-                        jacobian_mode="central")
+                        jacobian_mode="central", constraints=bounds)
     rec = {"key": key, "merit": what, "merit_before": res.merit_before,
            "merit_after": res.merit_after, "variables_before": res.variables_before,
            "variables_after": res.variables_after, "steps": res.steps,
            "seconds": res.seconds, "reason": res.reason}
+    if bounds:
+        rec["sag_departure_mm"] = {c.label: float(c.value(lens).detach()) for c in bounds}
     if plate:
         merit.prepare(lens)
         rec["blur_px"] = float(merit.blur_px)

@@ -15,7 +15,9 @@ the scene defines ``field_bands``).  Variants (``eval.variants``):
 * ``classical``: the optics designed first by the design engine (the same variables as
   ``learned``: a depth-invariant plate for a lens with a plate, the smallest RMS spot over the
   scene's fields otherwise; :mod:`deeplens.training.classical`, ``eval.classical``), then frozen
-  while the restorer trains.
+  while the restorer trains;
+* ``refined``: ``learned`` started from the ``classical`` design (the same variables trained
+  jointly with the restorer from there): what joint training adds on top of the classical one.
 
 Every number is the mean over seeds; ``± std`` is the sample standard deviation over seeds
 (``n - 1``; 0 for a single seed).  A seed changes everything that is random (network
@@ -106,11 +108,11 @@ def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
                              f"lens has none (lens.plate_surface is null); use frozen, learned")
         if v == "cubic":
             out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in _alphas(cfg)]
-        elif v in ("none", "learned", "frozen", "classical"):
+        elif v in ("none", "learned", "frozen", "classical", "refined"):
             out.append((v, v, None))
         else:
             raise ValueError(f"eval.variants: unknown variant {v!r}; expected none, cubic, "
-                             f"classical, learned, frozen")
+                             f"classical, learned, refined, frozen")
     if not out:
         raise ValueError("eval.variants: the list is empty")
     return out
@@ -140,13 +142,15 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
                 c.lens.plate = "learned"
         elif kind == "frozen":
             c.lens.trainable = []
-        elif kind == "classical":  # the lens designed by the design engine (classical.py)
+        elif kind in ("classical", "refined"):  # the design engine's lens (classical.py)
             c.lens.path = str(classical_dir(cfg) / "classical_lens.json")
-            c.lens.trainable, c.lens.learned_start_alpha_mm = [], None
+            c.lens.learned_start_alpha_mm = None  # a plate starts as designed, not cubic
             c.lens.plate = "learned" if cfg.lens.plate_surface is not None else None
+            if kind == "classical":  # frozen; refined trains lens.trainable from there
+                c.lens.trainable = []
         else:
             raise ValueError(f"eval.variants: unknown variant {kind!r}; expected none, cubic, "
-                             f"classical, learned, frozen")
+                             f"classical, learned, refined, frozen")
     return c
 
 
@@ -286,7 +290,7 @@ def _job(cfg: DictConfig, name: str, kind: str, alpha, seed: int):
             raise RuntimeError(f"eval.gather: no finished run of {name} seed {seed} with this "
                                f"configuration in {vc.paths.output_dir}")
         return done
-    if kind == "classical":
+    if kind in ("classical", "refined"):
         from .classical import design_classical
 
         design_classical(cfg, classical_dir(cfg))
