@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 
 __all__ = ["main"]
@@ -531,7 +532,7 @@ _HYDRA_COMMANDS = {"train": "end-to-end training: deeplens train experiment=edof
                            "experiment=edof [KEY=VALUE ...]"}
 
 
-def main(argv=None) -> int:
+def _main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv == ["--version"]:       # printed whole (argparse's version action wraps lines)
         print(_version())
@@ -630,6 +631,19 @@ def main(argv=None) -> int:
     if args.cmd == "design":
         return _design(args.name, args.rest, "deeplens design")
     return args.func(args)
+
+
+def main(argv=None) -> int:
+    """The ``deeplens`` command.  Output piped into a reader that stops early (``deeplens report
+    LENS | head``) ends the command quietly with status 141 (128 + SIGPIPE, as a Unix tool
+    killed by SIGPIPE), not with a ``BrokenPipeError`` traceback."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        # the reader is gone: point stdout at /dev/null so the interpreter's final flush is quiet
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141
 
 
 if __name__ == "__main__":

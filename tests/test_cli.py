@@ -170,3 +170,25 @@ def test_argparse_errors_exit_2(capsys):
     assert code == 2 and "--image-plane" in err
     code, _, err = run([], capsys)
     assert code == 2
+
+
+def test_output_piped_into_a_reader_that_stops_early_ends_quietly():
+    """``deeplens report LENS | head -1``: the reader closes the pipe after one line; the command
+    ends with 141 (128 + SIGPIPE) and no BrokenPipeError traceback on stderr."""
+    import os
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(repo), OMP_NUM_THREADS="1")
+    code = ("import sys; from deeplens.cli import main; "
+            "sys.exit(main(['report', 'double_gauss', '--sampling', 'hexapolar:3']))")
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, env=env, cwd=repo, bufsize=0)
+    first = p.stdout.read(1)       # the reader takes one byte (the lens is loaded) and leaves
+    p.stdout.close()
+    err = p.stderr.read().decode()
+    rc = p.wait(timeout=120)
+    assert first
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err
+    assert rc in (0, 141)   # 0 only if the whole report was written before the reader left

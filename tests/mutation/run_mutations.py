@@ -345,6 +345,9 @@ MUTATIONS = [
     Mutation("psf_panels_own_scale", "TensorBoard PSF panels each normalised to their own peak",
              "deeplens/training/psf_panels.py", "im = ax.imshow((k / vmax).numpy()",
              "im = ax.imshow((k / max(float(k.max()), 1e-12)).numpy()", TRAINING_UX),
+    Mutation("broken_pipe_traceback", "report piped into a reader that stops early: a "
+             "BrokenPipeError traceback", "deeplens/cli.py", "    except BrokenPipeError:",
+             "    except ZeroDivisionError:", ("tests/test_cli.py",)),
 ]
 
 
