@@ -3,7 +3,7 @@
 A run of surfaces ``i .. j`` maps the ray state ``(o, d, valid, opl)`` to the state after
 surface ``j`` by composing, per surface, the pure tensor functions
 :func:`~.intersect.quadric_step` (sphere or conic: closed-form intersection, normal, Snell) and
-:func:`~.intersect.flat_step` (plane or stop).  :func:`surface_run` is that composition; eager
+:func:`~.intersect.flat_step` (plane) and :func:`~.intersect.stop_step_xyz` (a virtual stop).  :func:`surface_run` is that composition; eager
 PyTorch runs its ~60 element-wise operators per surface one at a time, each reading and writing
 whole ``(N,)`` tensors, while ``torch.compile`` (inductor: C++/OpenMP on CPU, Triton on CUDA)
 fuses them into one loop that reads the incoming ray state once and writes the outgoing one
@@ -31,7 +31,7 @@ import warnings
 import torch
 
 from .intersect import (_quadric_root, _safe_div, accept_hits, flat_step_xyz, propagate_xyz,
-                        quadric_step_xyz, rounding_tolerance)
+                        quadric_step_xyz, rounding_tolerance, stop_step_xyz)
 from .refract import snell_xyz
 
 __all__ = ["KINDS", "compiled_surface_run", "surface_run"]
@@ -69,9 +69,10 @@ def surface_run(o, d, valid, opl, kinds: tuple, params: tuple, tol: float, clip:
             state = quadric_step_xyz(*state, *p, tol, clip)
         elif kind == "propagate":
             state = propagate_xyz(*state, p[0], p[1])
-        else:
-            state = flat_step_xyz(*state, *p, tol, clip, rect=kind == "stop_rect",
-                                  refract=kind == "plane")
+        elif kind == "plane":
+            state = flat_step_xyz(*state, *p, tol, clip)
+        else:  # a virtual stop: clips, the ray stays where it was
+            state = stop_step_xyz(*state, *p, tol, clip, rect=kind == "stop_rect")
     x, y, z, dx, dy, dz, valid, opl = state
     return torch.stack([x, y, z]), torch.stack([dx, dy, dz]), valid, opl
 

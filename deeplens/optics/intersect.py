@@ -323,6 +323,34 @@ def flat_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, aperture, n1, n2,
     return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
 
 
+def stop_crossing_xyz(ox, oy, oz, dx, dy, dz, valid):
+    """Where each ray's *line* crosses the plane ``z = 0`` (a virtual stop): ``(X, Y, t, ok)``,
+    ``t = -o_z / d_z`` of either sign (a stop plane inside a neighbouring lens's sag is crossed
+    behind the ray's origin), ``ok``: ``valid``, ``d_z != 0`` and a finite crossing.  No
+    autograd: only the mask is used when the rays are not moved; ``t`` is ``0`` where not ok."""
+    with torch.no_grad():
+        ok = valid & (dz.abs() > 1e-12)
+        t = _safe_div(-oz, dz, ok)
+        X, Y = ox + t * dx, oy + t * dy
+        ok = ok & torch.isfinite(X) & torch.isfinite(Y)
+        return X, Y, torch.where(ok, t, torch.zeros_like(t)), ok
+
+
+def stop_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, aperture, n1, n2, tol: float,
+                  clip: bool = True, rect: bool = False):
+    """A virtual stop at ``z = z_shift`` on components (the compiled runs' ``"stop"`` and
+    ``"stop_rect"`` steps; :meth:`Lens.trace_surface
+    <deeplens.optics.lens.Lens.trace_surface>` does the same for any stop): rays whose line
+    crosses the plane outside the opening (``aperture``: the semi-diameter, or ``(2,)``
+    half-widths when ``rect``) go invalid when ``clip``; the ray state is otherwise unchanged
+    (origin, direction, optical path), so the next surface is intersected from where the ray
+    was.  ``n1``, ``n2``, ``tol``: unused (the :func:`flat_step_xyz` signature)."""
+    X, Y, _, ok = stop_crossing_xyz(ox, oy, oz - z_shift, dx, dy, dz, valid)
+    if clip:
+        ok = ok & (in_rect(X, Y, aperture) if rect else in_circle(X, Y, aperture))
+    return ox, oy, oz, dx, dy, dz, ok, opl
+
+
 def propagate_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_plane, n):
     """Move rays to the plane ``z = z_plane`` (mm) in a medium of index ``n``, on the ``(*B,)``
     components (:meth:`Lens.propagate_to_z <deeplens.optics.lens.Lens.propagate_to_z>` and

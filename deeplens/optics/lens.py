@@ -30,7 +30,8 @@ from torch import nn
 
 from . import tracer
 from .errors import LensError
-from .intersect import intersect, propagate_distance, trace_quadric
+from .intersect import (_safe_div, intersect, propagate_distance, stop_crossing_xyz,
+                        trace_quadric)
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
 from .options import TraceOptions
@@ -404,6 +405,8 @@ class Lens(nn.Module):
         else:
             o, d = m.to_element(rays.o, rays.d, pivot)
             o = o - vertex
+        if isinstance(s, Aperture):
+            return self._cross_stop(s, rays, o, d, m, pivot, vertex, n1, opt, refract_)
         t, x, valid = intersect(s, o, d, rays.valid, options)
         if refract_ and mirror:
             d, valid = reflect(d, s.normal(x), valid)
@@ -417,6 +420,27 @@ class Lens(nn.Module):
         else:
             x, d = m.to_global(x + vertex, d, pivot)
         return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
+
+    @staticmethod
+    def _cross_stop(s, rays: Rays, o, d, m, pivot, vertex, n1, opt, virtual: bool) -> Rays:
+        """A stop is *crossed, not landed on* (``virtual``): the ray's line meets the plane
+        (``o``, ``d`` in the stop's frame) at ``t`` of either sign, rays crossing outside the
+        opening go invalid, and origin, direction and optical path stay as they were, so the
+        next surface is intersected from where the ray was (as OpticStudio traces a stop
+        inside a lens's sag: a negative distance after or before it).  ``virtual=False``
+        (``refract_=False``: ray aiming, the chief ray, recorded hits) moves the rays onto the
+        plane instead, backwards where ``t < 0``."""
+        X, Y, _, ok = stop_crossing_xyz(*o.unbind(-1), *d.unbind(-1), rays.valid)
+        if opt.clip_aperture:
+            ok = ok & s.in_aperture(X, Y)
+        if virtual:
+            return Rays(rays.o, rays.d, rays.wavelength, ok, rays.opl, normalize=False)
+        t = _safe_div(-o[..., 2], d[..., 2], ok)  # with autograd through o and d
+        t = torch.where(ok, t, torch.zeros_like(t))
+        x = o + t.unsqueeze(-1) * d
+        x = x + pivot + vertex if m is None else m.to_global(x + vertex, d, pivot)[0]
+        return Rays(torch.where(ok.unsqueeze(-1), x, rays.o), rays.d, rays.wavelength, ok,
+                    rays.opl + _compact(n1) * t, normalize=False)
 
     def _check_rays(self, rays: Rays) -> None:
         # wavelengths are checked against every medium's range by Material.n in indices()

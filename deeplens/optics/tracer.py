@@ -54,6 +54,11 @@ def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | No
         n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
         if isinstance(lens.surfaces[i], CoordinateBreak):  # a change of frame only
             rays = lens.trace_surface(i, rays, n1, n2, z, reverse=reverse)
+        elif record and isinstance(lens.surfaces[i], Aperture):
+            # a stop is crossed, not landed on: its recorded hit is where the line crosses it
+            hits.append(lens.trace_surface(i, rays, n1, n2, z, options, refract_=False).o)
+            rays = step(i, rays, n1, n2, z, options)
+            continue
         else:
             rays = step(i, rays, n1, n2, z, options)
         if record:
