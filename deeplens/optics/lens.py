@@ -289,49 +289,70 @@ class Lens(nn.Module):
                         f"same on both sides: put the stop in a gap, or give the interface its "
                         f"own surface", surfaces=(i,))
         sign = self.directions()
-        for i, d in enumerate(self.distances):
-            if isinstance(self.surfaces[i], CoordinateBreak):
-                continue  # not a physical surface: Zemax returns to a tilt's pivot this way
-            if i > 0 and float(d) < 0 and sign[i] > 0:
-                raise LensError(f"distance before surface {i} is negative ({float(d):g} mm): "
-                                f"sequential surfaces must be ordered along +z"
-                                f"{_after_mirrors(self.mirrors, i)}", surfaces=(i,))
-            if i > 0 and float(d) > 0 and sign[i] < 0:
-                raise LensError(f"distance before surface {i} is positive ({float(d):g} mm): "
-                                f"sequential surfaces must be ordered along -z, the direction "
-                                f"of travel there{_after_mirrors(self.mirrors, i)}",
-                                surfaces=(i,))
+        z = self.z_vertices().detach()
+        # a stop is crossed, not landed on (:meth:`_cross_stop`): it may lie inside a lens's
+        # sag (a negative distance before or after it), so order and overlap are checked
+        # between consecutive *real* surfaces, the stops between them skipped
+        pairs = self._real_neighbours()
+        spans = [(i - 1, i) for i in range(1, len(self.surfaces))
+                 if not isinstance(self.surfaces[i], (CoordinateBreak, Aperture))
+                 and not isinstance(self.surfaces[i - 1], Aperture)]
+        spans += [(p, q) for p, q in pairs if q > p + 1]   # across stops
+        for p, q in spans:
+            d = float(self.distances[q]) if q == p + 1 else float(z[q] - z[p])
+            what = f"distance before surface {q}" if q == p + 1 else \
+                f"distance from surface {p} to surface {q} (across the stop between them)"
+            if d < 0 and sign[q] > 0:
+                raise LensError(f"{what} is negative ({d:g} mm): sequential surfaces must be "
+                                f"ordered along +z{_after_mirrors(self.mirrors, q)}",
+                                surfaces=(q,))
+            if d > 0 and sign[q] < 0:
+                raise LensError(f"{what} is positive ({d:g} mm): sequential surfaces must be "
+                                f"ordered along -z, the direction of travel there"
+                                f"{_after_mirrors(self.mirrors, q)}", surfaces=(q,))
         if sign[-1] * float(self.d_sensor) <= 0:
             raise LensError(f"sensor distance must be {'>' if sign[-1] > 0 else '<'} 0 mm"
                             f"{_after_mirrors(self.mirrors, len(self.surfaces))}, got "
                             f"{float(self.d_sensor):g}", key="sensor")
         with torch.no_grad():
-            z = self.z_vertices()
-            for i in range(len(self.surfaces) - 1):
-                a, b = self.surfaces[i], self.surfaces[i + 1]
-                if isinstance(a, CoordinateBreak) or isinstance(b, CoordinateBreak):
-                    continue  # different frames
+            for i, j in pairs:
+                a, b = self.surfaces[i], self.surfaces[j]
                 r_max = min(float(a.semi_diameter), float(b.semi_diameter))
                 r = torch.linspace(0, r_max, 65, dtype=torch.float64)
                 zero = torch.zeros_like(r)
                 za = z[i] + a.sag(zero, r)
-                zb = z[i + 1] + b.sag(zero, r)
-                gap = (zb - za) * sign[i + 1]
+                zb = z[j] + b.sag(zero, r)
+                gap = (zb - za) * sign[j]
                 ok = a.in_domain(zero, r) & b.in_domain(zero, r)
                 if bool(((gap < -1e-9) & ok).any()):
                     k = int(torch.nonzero((gap < -1e-9) & ok)[0])
                     raise LensError(
-                        f"surfaces {i} and {i + 1} cross: at r = {float(r[k]):.4g} mm surface "
-                        f"{i + 1} lies {float(-gap[k]):.4g} mm before surface {i} (distance "
-                        f"between them {float(self.distances[i + 1]):g} mm); increase the "
-                        f"thickness or reduce the semi-diameters", surfaces=(i, i + 1))
-            last = len(self.surfaces) - 1
+                        f"surfaces {i} and {j} cross: at r = {float(r[k]):.4g} mm surface "
+                        f"{j} lies {float(-gap[k]):.4g} mm before surface {i} (distance "
+                        f"between them {float(z[j] - z[i]):g} mm); increase the "
+                        f"thickness or reduce the semi-diameters", surfaces=(i, j))
+            last = max([i for i, s in enumerate(self.surfaces)
+                        if not isinstance(s, Aperture)], default=len(self.surfaces) - 1)
             s = self.surfaces[last]
             r = torch.linspace(0, float(s.semi_diameter), 65, dtype=torch.float64)
             zl = z[last] + s.sag(torch.zeros_like(r), r)
-            if bool((sign[-1] * (zl - z[last] - self.d_sensor) > 1e-9).any()):
+            if bool((sign[-1] * (zl - self.z_sensor().detach()) > 1e-9).any()):
                 raise LensError(f"the last surface crosses the sensor plane (sensor distance "
                                 f"{float(self.d_sensor):g} mm)", key="sensor")
+
+    def _real_neighbours(self) -> list[tuple[int, int]]:
+        """Pairs ``(p, q)`` of consecutive surfaces that are neither stops (:class:`Aperture`)
+        nor coordinate breaks, with only stops between them (a coordinate break changes the
+        frame: the pairs across it are not compared)."""
+        pairs, prev = [], None
+        for i, s in enumerate(self.surfaces):
+            if isinstance(s, CoordinateBreak):
+                prev = None
+            elif not isinstance(s, Aperture):
+                if prev is not None:
+                    pairs.append((prev, i))
+                prev = i
+        return pairs
 
     def apply_aperture_spec(self) -> None:
         """Size the stop so that the paraxial entrance pupil matches ``spec`` (EPD or F-number).

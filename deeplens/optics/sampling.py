@@ -109,7 +109,7 @@ def start_plane_z(lens) -> float:
 
     Behind leading coordinate breaks (an off-axis mirror tilted by a ``COORDBRK``) the first
     surface may be tilted: its rim can then reach a whole semi-diameter towards the object."""
-    from .surfaces import CoordinateBreak
+    from .surfaces import Aperture, CoordinateBreak
 
     k = 0
     while k < len(lens.surfaces) - 1 and isinstance(lens.surfaces[k], CoordinateBreak):
@@ -122,8 +122,20 @@ def start_plane_z(lens) -> float:
         sag = torch.where(ok, s0.sag(zero, r), torch.zeros_like(r))
         z0 = float(lens.z_vertices()[:k + 1].min())
     margin = 0.1 if k == 0 else 1.0
-    return z0 - abs(float(sag.min()) if k else min(0.0, float(sag.min()))) - 1.0 \
+    z_start = z0 - abs(float(sag.min()) if k else min(0.0, float(sag.min()))) - 1.0 \
         - margin * float(s0.semi_diameter)
+    j = k
+    while j < len(lens.surfaces) - 1 and isinstance(lens.surfaces[j], Aperture):
+        j += 1   # leading stops: the first real surface may reach through their planes
+    if j > k and not isinstance(lens.surfaces[j], CoordinateBreak):
+        sj = lens.surfaces[j]
+        with torch.no_grad():
+            r = torch.linspace(0, float(sj.semi_diameter), 33, dtype=torch.float64)
+            zero = torch.zeros_like(r)
+            sag = torch.where(sj.in_domain(zero, r), sj.sag(zero, r), torch.zeros_like(r))
+            front = float(lens.z_vertices()[j]) + min(0.0, float(sag.min()))
+        z_start = min(z_start, front - 1.0)   # unchanged unless it reaches before the stop
+    return z_start
 
 
 def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Tensor,

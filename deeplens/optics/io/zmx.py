@@ -756,18 +756,6 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     if img.type != "STANDARD" or img.curv != 0:
         p.note(img.line, "the image surface is not flat: deeplens uses a flat sensor at its "
                          "vertex")
-    direction = 1.0   # of travel in the gap before kept[i]: -1 after an odd number of mirrors
-    for i in range(1, len(kept)):
-        if getattr(kept[i - 1][2], "mirror", False):
-            direction = -direction
-        if (kept[i][3] * direction < 0 and stop_idx in (i - 1, i)
-                and "COORDBRK" not in (kept[i - 1][2].type, kept[i][2].type)):
-            prev_s = kept[i - 1][2]
-            p.fail(prev_s.disz_line or prev_s.line,
-                   f"a negative thickness ({kept[i][3]:g} mm) between the stop and the next "
-                   f"surface (a stop plane inside a lens's sag, as phone-lens prescriptions "
-                   f"place it): deeplens traces surfaces in order along +z and does not follow "
-                   f"a ray backwards to the next surface; not supported")
     surfaces = [k_[0] for k_ in kept]
     distances = [0.0] + [k_[3] for k_ in kept[1:]]
     if not math.isinf(obj_dist):

@@ -42,7 +42,6 @@ REFUSED = {
     "optiland_lens2.zmx": "CLAP on the stop surface",   # its L-BAL35 is in the archived OHARA
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",
-    "cots_COTS-0002-02-1.zmx": "cross",           # the stop plane inside the next surface's sag
     "patent2zemax_EP0770895A2-1.zmx": "cross",    # automatic semi-diameters overlap at the rim
     "patent2zemax_US20030048547A1-3.zmx": "n_d >= 1",   # relative indices < 1 (model glasses)
     "krakenos_zmax_84383.zmx": "virtual image",   # a negative lens focused at its virtual focus
@@ -130,12 +129,22 @@ def _oracle(name, lens):
     q = [v for t, v in zip(types, q) if t != "COORDBRK"]   # optiland's surfaces
     surfs = optic.surface_group.surfaces
     assert len(surfs) == len(q)
+    # deeplens' surfaces are the file's in the light's order (dummies dropped): match them in
+    # that order, each to the file surface at its path coordinate (the nearer of two close
+    # ones), not by position alone: a negative thickness (a stop inside a lens's sag, a
+    # dummy's back-step) makes positions non-monotonic
+    from deeplens.optics.surfaces import CoordinateBreak
+
+    j = 0   # deeplens surfaces passed: media[j] follows deeplens surface j - 1
     for i, s in enumerate(surfs[:-1]):
-        if i == 0:
-            j = 0
-        else:
-            zm = q[i] + 0.5 * (q[i + 1] - q[i]) + 1e-9
-            j = int((p_dl <= zm).sum())   # media[j] follows deeplens surface j - 1
+        while i > 0 and j < len(lens.surfaces):
+            if isinstance(lens.surfaces[j], CoordinateBreak):
+                j += 1   # no optiland surface; the medium does not change across it
+                continue
+            e = abs(float(p_dl[j]) - q[i])
+            if e > 1e-7 * max(1.0, abs(q[i])) or abs(float(p_dl[j]) - q[i + 1]) < e:
+                break
+            j += 1
         s.material_post = IdealMaterial(n=n_dl[j])
     # OBSC (a central obscuration): optiland's reader skips it, so the oracle gets it here, as
     # an annular aperture (r_min) on the same surface
