@@ -330,7 +330,7 @@ def stop_crossing_xyz(ox, oy, oz, dx, dy, dz, valid):
     autograd: only the mask is used when the rays are not moved; ``t`` is ``0`` where not ok."""
     with torch.no_grad():
         ok = valid & (dz.abs() > 1e-12)
-        t = _safe_div(-oz, dz, ok)
+        t = _safe_div(-oz, dz, ok)   # of either sign: no hit_mask
         X, Y = ox + t * dx, oy + t * dy
         ok = ok & torch.isfinite(X) & torch.isfinite(Y)
         return X, Y, torch.where(ok, t, torch.zeros_like(t)), ok

@@ -57,6 +57,7 @@ PLOTS = ("tests/analysis/test_plot_output.py",)
 RENDER_IMAGE = ("tests/render/test_render_image.py",)
 API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
 TRAINING_UX = ("tests/training/test_training_ux.py",)
+VSTOP = ("tests/optics/test_virtual_stop.py",)
 
 
 @dataclass(frozen=True)
@@ -348,6 +349,18 @@ MUTATIONS = [
     Mutation("broken_pipe_traceback", "report piped into a reader that stops early: a "
              "BrokenPipeError traceback", "deeplens/cli.py", "    except BrokenPipeError:",
              "    except ZeroDivisionError:", ("tests/test_cli.py",)),
+    # ------------------------------------------------ a stop inside a lens's sag (issue 22)
+    Mutation("virtual_stop_lands", "the stop moves the rays onto its plane (backwards when the "
+             "next surface lies before it)", "deeplens/optics/lens.py",
+             "        if virtual:\n", "        if False:\n", VSTOP),
+    Mutation("virtual_stop_t_sign", "the stop's crossing computed with the wrong sign of t",
+             "deeplens/optics/intersect.py", "t = _safe_div(-oz, dz, ok)   # of either sign",
+             "t = _safe_div(oz, dz, ok)   # of either sign", VSTOP),
+    Mutation("virtual_stop_ahead_only", "the stop accepts crossings ahead of the ray only "
+             "(t >= 0, as a landed hit): a stop behind the ray blocks it",
+             "deeplens/optics/intersect.py",
+             "ok = ok & torch.isfinite(X) & torch.isfinite(Y)\n",
+             "ok = ok & torch.isfinite(X) & torch.isfinite(Y) & (t >= 0)\n", VSTOP),
 ]
 
 
