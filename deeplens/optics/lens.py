@@ -15,6 +15,8 @@ off-axis sections) and ray coordinates after it are in the new frame (:mod:`.fra
 
 Each surface is intersected in its element's frame (:mod:`.misalignment`) by Newton's method with
 one differentiable step (:mod:`.intersect`) and refracted by vector Snell's law (:mod:`.refract`).
+An aperture stop is crossed, not landed on (:meth:`Lens._cross_stop`): it may lie inside a lens's
+sag, so :meth:`Lens.check` orders and overlaps only the real surfaces around it.
 How a whole trace runs (eager, checkpointed, or with ``TraceOptions(compile=...)`` through fused
 ``torch.compile`` kernels on a component-major ray state) is the tracer's business
 (:mod:`.tracer`, :mod:`.compiled`); the lens describes the system and one surface's physics.
@@ -405,7 +407,9 @@ class Lens(nn.Module):
                       refract_: bool = True, reverse: bool = False) -> Rays:
         """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2`` (reflect
         at a mirror; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
-        frame, or the previous one when ``reverse``)."""
+        frame, or the previous one when ``reverse``).  An :class:`Aperture` clips where the
+        ray's line crosses it and leaves the rays where they were (:meth:`_cross_stop`);
+        ``refract_=False`` moves them onto any surface, a stop's plane included."""
         s = self.surfaces[i]
         if isinstance(s, CoordinateBreak):
             o, d = (s.to_previous if reverse else s.to_next)(rays.o, rays.d, z[i])

@@ -104,36 +104,39 @@ def pupil_pattern(text: str, dtype=torch.float64, device=None) -> torch.Tensor:
     return random_disk(n, seed, dtype, device)
 
 
+def _lowest_sag(s) -> float:
+    """The most negative sag of surface ``s`` along a radius to its semi-diameter (mm; points
+    outside its domain count as 0)."""
+    with torch.no_grad():
+        r = torch.linspace(0, float(s.semi_diameter), 33, dtype=torch.float64)
+        zero = torch.zeros_like(r)
+        sag = torch.where(s.in_domain(zero, r), s.sag(zero, r), torch.zeros_like(r))
+        return float(sag.min())
+
+
 def start_plane_z(lens) -> float:
     """An axial position safely before the first surface (its sag and tilt included), mm.
 
     Behind leading coordinate breaks (an off-axis mirror tilted by a ``COORDBRK``) the first
-    surface may be tilted: its rim can then reach a whole semi-diameter towards the object."""
+    surface may be tilted: its rim can then reach a whole semi-diameter towards the object.
+    Behind leading stops the first lens surface may reach through their planes (a stop inside
+    its sag): the plane is then also 1 mm before that surface."""
     from .surfaces import Aperture, CoordinateBreak
 
     k = 0
     while k < len(lens.surfaces) - 1 and isinstance(lens.surfaces[k], CoordinateBreak):
         k += 1
     s0 = lens.surfaces[k]
-    with torch.no_grad():
-        r = torch.linspace(0, float(s0.semi_diameter), 33, dtype=torch.float64)
-        zero = torch.zeros_like(r)
-        ok = s0.in_domain(zero, r)
-        sag = torch.where(ok, s0.sag(zero, r), torch.zeros_like(r))
-        z0 = float(lens.z_vertices()[:k + 1].min())
+    low = _lowest_sag(s0)
+    z = lens.z_vertices().detach()
     margin = 0.1 if k == 0 else 1.0
-    z_start = z0 - abs(float(sag.min()) if k else min(0.0, float(sag.min()))) - 1.0 \
+    z_start = float(z[:k + 1].min()) - abs(low if k else min(0.0, low)) - 1.0 \
         - margin * float(s0.semi_diameter)
     j = k
     while j < len(lens.surfaces) - 1 and isinstance(lens.surfaces[j], Aperture):
-        j += 1   # leading stops: the first real surface may reach through their planes
+        j += 1
     if j > k and not isinstance(lens.surfaces[j], CoordinateBreak):
-        sj = lens.surfaces[j]
-        with torch.no_grad():
-            r = torch.linspace(0, float(sj.semi_diameter), 33, dtype=torch.float64)
-            zero = torch.zeros_like(r)
-            sag = torch.where(sj.in_domain(zero, r), sj.sag(zero, r), torch.zeros_like(r))
-            front = float(lens.z_vertices()[j]) + min(0.0, float(sag.min()))
+        front = float(z[j]) + min(0.0, _lowest_sag(lens.surfaces[j]))
         z_start = min(z_start, front - 1.0)   # unchanged unless it reaches before the stop
     return z_start
 

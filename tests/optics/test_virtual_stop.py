@@ -194,3 +194,17 @@ def test_zmx_stop_in_sag_matches_optiland(tmp_path):
     ol = float(sd.rms_spot_radius()[0][0])
     assert dl == pytest.approx(ol, rel=5e-3)
     assert not math.isnan(dl)
+
+
+def test_start_plane_before_a_lens_reaching_through_a_leading_stop():
+    """Sampled rays start before the first *lens* surface, 2 mm before the stop plane here."""
+    from deeplens.optics.sampling import field_rays, start_plane_z
+
+    glass = ModelGlass(1.5168, 64.17)
+    lens = Lens([Aperture(R_STOP), Asphere(0.1, 2.5), Asphere(-0.05, 2.5)],
+                [Air(), Air(), glass, Air()], [0.0, -2.0, 3.0], 12.0, 0)
+    assert start_plane_z(lens) <= -3.0
+    pupil = torch.tensor([[0.0, 0.0], [0.0, 1.0], [0.0, 1.6]], dtype=torch.float64)
+    rays = field_rays(lens, 0.0, 587.56, pupil, 0.0)
+    out = lens.trace(rays)
+    assert out.valid.tolist() == [True, True, False]   # 1.6 mm > R_STOP at the stop plane

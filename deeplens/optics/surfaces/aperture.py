@@ -6,6 +6,12 @@ Rectangular: it passes if ``|x| <= w_x`` and ``|y| <= w_y`` (half-widths in mm).
 A decentred opening (``decenter = (d_x, d_y)``, mm; Zemax's ``OBDC``) is the same test on
 ``(x − d_x, y − d_y)``: the opening and its obscuration move together; the plane does not.
 The medium does not change across a stop.
+
+A stop is *crossed, not landed on* (a virtual stop, :meth:`Lens._cross_stop
+<deeplens.optics.lens.Lens._cross_stop>`): the test is made where each ray's line crosses the
+plane, ahead of the ray or behind it, and the ray goes on to the next surface from where it
+was, so a stop may lie inside a neighbouring lens's sag (a negative distance before or after
+it, as phone-lens prescriptions place it).
 """
 
 from __future__ import annotations
