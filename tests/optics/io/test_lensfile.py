@@ -343,8 +343,13 @@ BAD = [
     # geometry checked by Lens (the message names the surfaces)
     ("surfaces cross", _set(0.2, "surfaces", 1, "distance_mm"),
      r"surfaces 0 and 1 cross: .*surface 1 lies .* before surface 0"),
-    ("negative gap", _set(-1.0, "surfaces", 3, "distance_mm"),
-     r"distance before surface 3 is negative \(-1 mm\)"),
+    ("negative gap", _set(-1.0, "surfaces", 4, "distance_mm"),
+     r"distance before surface 4 is negative \(-1 mm\)"),
+    # beside a stop a negative distance is allowed (a stop inside a lens's sag), but the lens
+    # surfaces around it keep their order
+    ("negative gap across a stop", _set(-3.0, "surfaces", 3, "distance_mm"),
+     r"distance from surface 1 to surface 3 \(across the stop between them\) is negative "
+     r"\(-1 mm\)"),
     ("semi-diameter beyond the conic", _set(100.0, "surfaces", 0, "conic"),
      r"surface 0 \(Asphere\): semi-diameter 5 mm lies beyond the domain of the conic "
      r"\(R = 47\.3 mm, k = 100\): the sag is only defined for r < 4\.706"),

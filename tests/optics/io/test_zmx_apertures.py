@@ -166,14 +166,14 @@ def test_a_clear_aperture_that_cuts_the_entrance_pupil_on_the_stop_is_refused(tm
         assert float(lens.surfaces[lens.stop_index].semi_diameter) == pytest.approx(5.0)
 
 
-def test_a_stop_inside_the_next_lens_sag_is_refused_with_its_line(tmp_path):
+def test_a_stop_inside_the_next_lens_sag_loads(tmp_path):
     """Phone-lens files put the stop 0.3 mm behind the first lens's vertex (DISZ -0.3 after the
-    stop): refused at the stop's DISZ line, not traced in a wrong order."""
+    stop): read as written, a virtual stop (``tests/optics/test_virtual_stop.py``)."""
     text = singlet().replace('  DISZ 2\n  DIAM 5 1 0 0 1 ""\n', '  DISZ -0.3\n  DIAM 5 1 0 0 1 ""\n', 1)
-    ln = line_of(text, "DISZ -0.3")
-    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: a negative thickness \\(-0.3 mm\\) "
-                                             f"between the stop and the next surface"):
-        read_zmx(write(tmp_path, text))
+    lens = read_zmx(write(tmp_path, text))
+    assert float(lens.distances[lens.stop_index + 1]) == -0.3
+    write_zmx(lens, tmp_path / "back.zmx")   # and written back as read
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
 
 
 @pytest.mark.parametrize("obdc", ["OBDC 0 1", "OBDC 0 -1"])
