@@ -266,54 +266,45 @@ def hit_mask(t, X, Y, Z, ok, tol: float, inside=None):
         return ok & torch.isfinite(t)
 
 
-def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool,
-                rect: bool = False):
+def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool):
     """:func:`hit_mask` on components with a circular aperture of radius ``semi_diameter``
-    (``rect``: half-widths ``(2,)``) when ``clip``; a ray that fails keeps its origin ``o`` and
-    ``t = 0``.  Returns ``(t, x, y, z, ok)``."""
+    when ``clip``; a ray that fails keeps its origin ``o`` and ``t = 0``.  Returns
+    ``(t, x, y, z, ok)``."""
     X, Y = x.detach(), y.detach()
-    inside = None
-    if clip:
-        inside = in_rect(X, Y, semi_diameter) if rect else in_circle(X, Y, semi_diameter)
+    inside = in_circle(X, Y, semi_diameter) if clip else None
     ok = hit_mask(t, X, Y, z.detach(), ok, tol, inside)
     t = torch.where(ok, t, torch.zeros_like(t))
     x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
     return t, x, y, z, ok
 
 
-def flat_step(o, d, valid, opl, z_shift, aperture, n1, n2, tol: float, clip: bool = True,
-              rect: bool = False, refract: bool = True):
-    """Intersect and refract at an aligned plane ``z = z_shift`` (a :class:`~.surfaces.Plane`
-    or, with ``refract=False``, an :class:`~.surfaces.Aperture`): the same computation as
+def flat_step(o, d, valid, opl, z_shift, aperture, n1, n2, tol: float, clip: bool = True):
+    """Intersect and refract at an aligned plane ``z = z_shift`` (a :class:`~.surfaces.Plane`;
+    a stop is crossed, not landed on: :func:`stop_step_xyz`): the same computation as
     :func:`intersect`'s flat path followed by :func:`~.refract.refract` at the normal
     ``(0, 0, -1)``, as a pure function of tensors (see :func:`quadric_step`).
 
     Args:
         o, d, valid, opl, z_shift, n1, n2, tol, clip: as :func:`quadric_step`.
-        aperture: ``(2,)`` half-widths (mm) when ``rect``, else the 0-d semi-diameter (mm).
-        rect: a rectangular opening ``|x| <= w_x, |y| <= w_y`` instead of ``x^2 + y^2 <= r^2``.
-        refract: refract into ``n2`` (``False``: a stop, the direction is unchanged).
+        aperture: the 0-d semi-diameter (mm).
 
     Returns:
         ``(x (*B, 3), d_t (*B, 3), valid (*B,), opl (*B,))``.
     """
     x, y, z, dx, dy, dz, ok, opl = flat_step_xyz(*o.unbind(-1), *d.unbind(-1), valid, opl,
-                                                 z_shift, aperture, n1, n2, tol, clip, rect,
-                                                 refract)
+                                                 z_shift, aperture, n1, n2, tol, clip)
     return torch.stack([x, y, z], -1), torch.stack([dx, dy, dz], -1), ok, opl
 
 
 def flat_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, aperture, n1, n2, tol: float,
-                  clip: bool = True, rect: bool = False, refract: bool = True):
+                  clip: bool = True):
     """:func:`flat_step` on the ``(*B,)`` components of ``o`` and ``d``; returns
     ``(x, y, z, d_x, d_y, d_z, valid, opl)``."""
     oz = oz - z_shift
     ok = valid & (dz.abs() > 1e-12)
     t = _safe_div(-oz, dz, ok)
     x, y, z = ox + t * dx, oy + t * dy, oz + t * dz
-    t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, aperture, tol, clip, rect)
-    if not refract:
-        return x, y, z + z_shift, dx, dy, dz, ok, opl + n1 * t
+    t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, aperture, tol, clip)
     # Snell's law (refract.snell_coefficient) at n = (0, 0, -1): cos_i = -d_z
     eta = n1 / n2
     coef, ok = snell_coefficient(-dz, eta, ok)
