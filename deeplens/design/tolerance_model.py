@@ -21,6 +21,19 @@ becomes ``n_d + Δn + (n(λ) − n_d) / (1 + ε_V)`` (the dispersion n_F − n_C
 ``compensator: refocus`` moves the sensor by the change of the paraxial image distance of the
 object (``lens.spec.object_distance_mm``) from the nominal lens to the drawn one (an assembler
 refocusing each lens; differentiable in the nominal values), after the drawn sensor error.
+``compensator: center`` (alone or in a list, ``[refocus, center]``) is the lateral half of an
+active alignment: the whole lens (every element, stop included) moves across the axis, as a
+barrel is centred on its sensor, until the image of the on-axis object point (the centroid of
+its spot at the primary wavelength, a ``hexapolar:6`` bundle over 95 % of the paraxial entrance
+pupil) lands where the nominal lens puts it.  A decentred element moves the whole image (the
+doublet's 25 µm decenter moves it by 0.3–0.8 px, docs/results/doublet_tolerance.md); a camera
+is calibrated or aligned for that, so without this compensator a tolerance test scores where
+the image lands rather than how sharp it is.  The translation is found by three fixed-point steps
+(each moves the lens by minus the remaining miss: a rigid translation moves the image by about
+itself, by ``1 − m`` for a finite object of lateral magnification ``m``, and the probe bundle's
+footprint on the moved lens changes the centroid slightly, so the miss shrinks by ~1e-2 or
+better per step: 30 µm becomes ~2e-6 µm on the doublet in float64) and is differentiable in the nominal
+values.  Centring runs after the refocus.
 
 A draw is reproducible from its seed: :meth:`ToleranceModel.draw` uses its own
 ``torch.Generator`` and a fixed parameter order.
@@ -39,8 +52,8 @@ from ..optics.materials import Air, Material
 from ..optics.surfaces import Aperture
 from ..resources import config_dir
 
-__all__ = ["CONFIG_DIR", "load_group", "KINDS", "Distribution", "ToleranceModel", "LensDraw", "PerturbedMaterial", "drawn",
-           "call_drawn"]
+__all__ = ["CONFIG_DIR", "load_group", "KINDS", "COMPENSATORS", "Distribution", "ToleranceModel",
+           "LensDraw", "PerturbedMaterial", "drawn", "call_drawn", "axis_image"]
 
 #: the packaged tolerance groups (``configs/tolerance/<name>.yaml`` of the repository)
 CONFIG_DIR = config_dir() / "tolerance"
@@ -147,13 +160,15 @@ class PerturbedMaterial(Material):
 class LensDraw:
     """One drawn lens: ``relative`` ``{name: ε}`` (``p' = p / (1 + ε)``), ``offsets``
     ``{name: δ}`` (``p' = p + δ``), ``materials`` ``{medium index: (Δn, ε_V)}``, and the
-    ``seed`` it came from.  ``compensate``: refocus the sensor (paraxial image distance)."""
+    ``seed`` it came from.  ``compensate``: refocus the sensor (paraxial image distance);
+    ``center``: centre the lens on the on-axis image (module docstring)."""
 
     seed: int
     relative: dict = field(default_factory=dict)
     offsets: dict = field(default_factory=dict)
     materials: dict = field(default_factory=dict)
     compensate: bool = False
+    center: bool = False
 
     def values(self, lens) -> dict:
         """``{name: drawn value}`` as differentiable functions of the nominal parameters."""
@@ -170,11 +185,32 @@ class LensDraw:
         return out
 
 
+#: the compensators a group may name (module docstring)
+COMPENSATORS = ("refocus", "center")
+
+
+def _compensators(spec, where: str) -> tuple[str, ...]:
+    """``null`` / ``none`` / a name / a list of names -> the tuple of compensator names."""
+    if spec is None or spec == "none":
+        return ()
+    names = [spec] if isinstance(spec, str) else spec
+    if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"{where}: expected null, one of {', '.join(COMPENSATORS)} or a list "
+                         f"of them, got {spec!r}")
+    bad = [n for n in names if n not in COMPENSATORS]
+    if bad:
+        raise ValueError(f"{where}: unknown compensator {bad[0]!r}; expected null, "
+                         f"{', '.join(COMPENSATORS)} or a list of them")
+    if len(set(names)) != len(names):
+        raise ValueError(f"{where}: a compensator is named twice in {list(names)}")
+    return tuple(n for n in COMPENSATORS if n in names)
+
+
 class ToleranceModel:
     """The distributions of one tolerance group (module docstring).
 
     Args:
-        config: ``{kind: distribution or null, ..., compensator: null|refocus,
+        config: ``{kind: distribution or null, ..., compensator: null|refocus|center|[...],
             fringe_wavelength_nm: λ_f}``, kinds of :data:`KINDS`; ``radius`` also takes
             ``unit: relative|fringes``.
         where: the config key for error messages (``"tolerance"``).
@@ -193,10 +229,9 @@ class ToleranceModel:
         cfg = dict(config or {})
         self.where = where
         self.name = str(cfg.pop("name", "") or "")
-        comp = cfg.pop("compensator", None)
-        if comp not in (None, "none", "refocus"):
-            raise ValueError(f"{where}.compensator: expected null or 'refocus', got {comp!r}")
-        self.compensator = comp if comp == "refocus" else None
+        self.compensators = _compensators(cfg.pop("compensator", None), f"{where}.compensator")
+        #: ``"refocus"`` when the sensor is refocused (kept for callers that read one name)
+        self.compensator = "refocus" if "refocus" in self.compensators else None
         self.fringe_wavelength_nm = _num(cfg.pop("fringe_wavelength_nm", 632.8),
                                          f"{where}.fringe_wavelength_nm", 0.0, lo_open=True)
         unknown = set(cfg) - set(KINDS)
@@ -247,7 +282,8 @@ class ToleranceModel:
         """The lens drawn by ``seed`` (every quantity consumes one number of a generator
         seeded by ``seed``, in :meth:`parameters_of` order, toleranced or not)."""
         g = torch.Generator().manual_seed(int(seed))
-        d = LensDraw(seed=int(seed), compensate=self.compensator == "refocus")
+        d = LensDraw(seed=int(seed), compensate="refocus" in self.compensators,
+                     center="center" in self.compensators)
         lam_mm = self.fringe_wavelength_nm * 1e-6
         for kind, name in self.parameters_of(lens):
             dist = self.dists[kind]
@@ -330,14 +366,44 @@ def drawn(lens, draw: LensDraw | None):
     # the compensator: the sensor follows the paraxial image of the object (differentiably), after
     # the drawn sensor error; the image distance is measured with the drawn values and glasses
     nominal = _image_distance(lens) if draw.compensate else None
+    target = axis_image(lens) if draw.center else None
     with _swapped_materials(lens, draw):
         values = draw.values(lens)
         with _reparametrize_module(lens, dict(values), strict=False):
             if draw.compensate:
                 shift = (_image_distance(lens) - nominal).to(lens.d_sensor)
                 values["d_sensor"] = values.get("d_sensor", lens.d_sensor) + shift
+        if draw.center:
+            for _ in range(3):
+                with _reparametrize_module(lens, dict(values), strict=False):
+                    miss = axis_image(lens) - target
+                params = dict(lens.named_parameters())
+                for e in range(len(lens.elements)):
+                    for k, name in enumerate((f"misalignments.{e}.dx", f"misalignments.{e}.dy")):
+                        values[name] = values.get(name, params[name]) - miss[k].to(params[name])
         with _reparametrize_module(lens, dict(values), strict=False):
             yield lens
+
+
+def axis_image(lens, sampling: str = "hexapolar:6", pupil_fill: float = 0.95) -> torch.Tensor:
+    """``(2,)`` (mm): where ``lens`` images the on-axis object point (``lens.spec``'s object
+    distance) on its sensor: the centroid of the rays that reach it, traced at the primary
+    wavelength through ``sampling`` over ``pupil_fill`` of the paraxial entrance pupil;
+    differentiable in the lens's parameters.
+
+    Raises:
+        ValueError: no ray of the bundle reaches the sensor."""
+    from ..optics.sampling import point_source_rays
+
+    rays = point_source_rays(lens, (0.0, 0.0), lens.spec.object_distance_mm,
+                             lens.spec.primary_wavelength_nm, 0, sampling=sampling,
+                             pupil_margin=pupil_fill)
+    out = lens.trace_to_sensor(rays)
+    ok = out.valid.unsqueeze(-1).to(out.o.dtype)
+    if not bool(out.valid.any()):
+        raise ValueError(f"compensator 'center': no ray of the on-axis bundle reaches the sensor "
+                         f"of {lens.name or 'the lens'}")
+    return (torch.nan_to_num(out.o[:, :2]) * ok).sum(0) / ok.sum()
 
 
 def call_drawn(lens, draw: LensDraw | None, fn):
