@@ -15,6 +15,7 @@ samples give a loss non-linear in the image (see :class:`~.backward.MonteCarloRe
 from __future__ import annotations
 
 import torch
+from torch.nn.utils.stateless import _reparametrize_module
 
 __all__ = ["adjoint_render", "decorrelated_seed"]
 
@@ -27,8 +28,8 @@ def decorrelated_seed(seed: int) -> int:
 
 class _AdjointRender(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, renderer, plan, scene, textures, *params):
-        ctx.renderer, ctx.plan, ctx.scene = renderer, plan, scene
+    def forward(ctx, renderer, plan, scene, textures, names, *params):
+        ctx.renderer, ctx.plan, ctx.scene, ctx.names = renderer, plan, scene, names
         ctx.n_params = len(params)
         with torch.no_grad():
             img = renderer.render_plain(plan, scene)
@@ -39,7 +40,20 @@ class _AdjointRender(torch.autograd.Function):
         renderer, plan, scene = ctx.renderer, ctx.plan, ctx.scene
         if renderer.decorrelate:
             plan = plan.with_seed(decorrelated_seed(plan.seed))
-        params = [p for p in renderer.lens.parameters() if p.requires_grad]
+        # the lens's trainable tensors as they are now, each re-entered as a leaf of its own:
+        # within a drawn lens (design.tolerance_model.drawn) some are functions of others (a
+        # compensator's translation depends on the trained coefficients), and a gradient with
+        # respect to the original tensors would count those paths twice (here and in the
+        # autograd graph outside, which receives the returned gradients and chains them)
+        names = [n for n, p in renderer.lens.named_parameters() if p.requires_grad]
+        if names != ctx.names:
+            raise RuntimeError("adjoint render: the lens's trainable tensors changed between the "
+                               f"render ({ctx.names}) and its backward pass ({names}); run the "
+                               "backward inside the context the render ran in (e.g. the drawn "
+                               "lens of design.tolerance_model.drawn)")
+        current = dict(renderer.lens.named_parameters())
+        leaves = {n: current[n].detach().requires_grad_(True) for n in names}
+        params = list(leaves.values())
         tex = scene.textures
         want_tex = ctx.needs_input_grad[3]
         inputs = params + ([tex] if want_tex else [])
@@ -52,7 +66,8 @@ class _AdjointRender(torch.autograd.Function):
                 gk = g[:, channel, pix]
                 if not bool(gk.any()):
                     continue
-                with torch.enable_grad():
+                with torch.enable_grad(), _reparametrize_module(renderer.lens, leaves,
+                                                                strict=False):
                     val = renderer.render_chunk(plan, scene, job, k)
                     if not val.requires_grad:
                         continue
@@ -62,10 +77,11 @@ class _AdjointRender(torch.autograd.Function):
                         acc += o
         p_grads = grads[:len(params)]
         t_grad = grads[len(params)] if want_tex else None
-        return (None, None, None, t_grad, *p_grads)
+        return (None, None, None, t_grad, None, *p_grads)
 
 
 def adjoint_render(renderer, plan, scene) -> torch.Tensor:
     """Render with adjoint back-propagation (see the module docstring)."""
-    params = [p for p in renderer.lens.parameters() if p.requires_grad]
-    return _AdjointRender.apply(renderer, plan, scene, scene.textures, *params)
+    named = [(n, p) for n, p in renderer.lens.named_parameters() if p.requires_grad]
+    return _AdjointRender.apply(renderer, plan, scene, scene.textures, [n for n, _ in named],
+                                *(p for _, p in named))
