@@ -29,7 +29,12 @@ from ..optics.io.table import read_table
 from ..optics.surfaces import XYPolynomial
 
 __all__ = ["build_lens", "set_trainable", "parameter_scale", "optics_param_groups",
-           "cubic_phase_plate", "surface_height_map"]
+           "cubic_phase_plate", "extend_plate", "surface_height_map", "MAX_PLATE_ORDER"]
+
+#: the highest ``lens.plate_order``: the diffraction renderer fits the traced wavefront with
+#: polynomials of total degree 12 (:data:`deeplens.render.diffraction.FIT_DEGREE`), so a plate
+#: of higher order would not be rendered as it is
+MAX_PLATE_ORDER = 12
 
 
 def set_trainable(lens, patterns) -> list[str]:
@@ -66,6 +71,50 @@ def cubic_phase_plate(lens, surface_index: int, alpha_mm: float) -> None:
                 s.a[k].fill_(alpha_mm / R ** 3)
 
 
+def extend_plate(lens, surface_index: int, order: int) -> list[str]:
+    """Raise the XY-polynomial plate ``lens.surfaces[surface_index]`` to polynomial ``order``:
+    the surface is replaced by an :class:`XYPolynomial` of that order with the same ``b``, the
+    same coefficients (in :func:`~deeplens.optics.surfaces.xy_polynomial.xy_terms` order a
+    higher order only appends terms, so every existing coefficient keeps its index) and zeros
+    for the added terms, so the sag is unchanged.  Order ``J`` has ``(J+1)(J+2)/2`` terms;
+    ``order`` equal to the plate's own leaves the lens untouched.
+
+    Returns:
+        The ``named_parameters`` names of the added coefficients (``surfaces.<i>.a.<m>``), in
+        coefficient order (empty when nothing was added).  They are frozen (as every freshly
+        made parameter); :func:`build_lens` unfreezes them when the plate trains.
+
+    Raises:
+        ValueError: ``order`` is not an int in ``[plate's order, MAX_PLATE_ORDER]``, or the
+            surface is not an XY polynomial (config key ``lens.plate_order``).
+    """
+    n = len(lens.surfaces)
+    if not (isinstance(surface_index, int) and not isinstance(surface_index, bool)
+            and 0 <= surface_index < n):
+        raise ValueError(f"lens.plate_surface: expected a surface index in [0, {n - 1}], got "
+                         f"{surface_index!r}")
+    s = lens.surfaces[surface_index]
+    if not isinstance(s, XYPolynomial):
+        raise ValueError(f"lens.plate_order: surface {surface_index} (lens.plate_surface) is a "
+                         f"{type(s).__name__}, not an XY polynomial")
+    if not (isinstance(order, int) and not isinstance(order, bool)
+            and s.order <= order <= MAX_PLATE_ORDER):
+        raise ValueError(f"lens.plate_order: expected an int in [{s.order}, {MAX_PLATE_ORDER}] "
+                         f"(from the plate's own order, {s.order}, whose terms cannot be "
+                         f"dropped, to the diffraction renderer's wavefront fit degree), or "
+                         f"null; got {order!r}")
+    if order == s.order:
+        return []
+    old = [float(a) for a in s.a]  # the parameters are float64: exact
+    extended = XYPolynomial(float(s.semi_diameter), old + [0.0] * ((order + 1) * (order + 2) // 2
+                                                                    - len(old)),
+                            b=float(s.b))
+    extended.to(dtype=s.b.dtype, device=s.b.device)
+    lens.surfaces[surface_index] = extended
+    lens.check()
+    return [f"surfaces.{surface_index}.a.{m}" for m in range(len(old), len(extended.a))]
+
+
 def best_focus_distance(lens, depth_mm: float, wavelengths_nm, n_rays: int = 4096) -> float:
     """Sensor distance ``d_sensor`` (mm after the last vertex) that minimises the on-axis RMS
     spot of a point at ``depth_mm`` over ``wavelengths_nm`` (rays weighted equally).
@@ -99,7 +148,8 @@ def best_focus_distance(lens, depth_mm: float, wavelengths_nm, n_rays: int = 409
 def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | None = None,
                plate_surface: int | None = None, plate_alpha_mm: float = 0.0,
                table_options: dict | None = None, focus_mm: float | None = None,
-               focus_wavelengths_nm=(587.5618,), learned_start_alpha_mm: float | None = None):
+               focus_wavelengths_nm=(587.5618,), learned_start_alpha_mm: float | None = None,
+               plate_order: int | None = None):
     """Load a lens file, optionally set a phase plate, choose what trains, cast to ``dtype``.
 
     Args:
@@ -122,6 +172,11 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
             file; a number starts from the cubic plate of this ``α`` (mm of sag at the rim), e.g.
             to learn a refinement of a Dowski-Cathey plate; config
             ``lens.learned_start_alpha_mm``.
+        plate_order: ``None`` keeps the plate's order in the file; an int raises the plate
+            (``plate_surface``) to that polynomial order with zeros for the added terms
+            (:func:`extend_plate`), for every ``plate`` kind (``none`` and ``cubic`` set the
+            added terms to zero as well).  The added terms train when any coefficient of the
+            plate is in ``trainable``; config ``lens.plate_order``.
 
     Raises:
         LensFileError: the file cannot be read; the message names the file and, where an option
@@ -142,6 +197,11 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
         if e.key == "stop_index":
             raise LensFileError(f"{e} (config: lens.table_options.stop_index=N)") from None
         raise
+    added = []
+    if plate_order is not None:
+        if plate_surface is None:
+            raise ValueError("lens.plate_surface must be set to use lens.plate_order")
+        added = extend_plate(lens, plate_surface, plate_order)
     if focus_mm is not None:
         if not (isinstance(focus_mm, (int, float)) and math.isfinite(focus_mm) and focus_mm > 0):
             raise ValueError(f"lens.focus_mm: expected a depth > 0 mm, got {focus_mm!r}")
@@ -166,7 +226,9 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
         if plate_surface is None:
             raise ValueError("lens.plate_surface must be set to use lens.learned_start_alpha_mm")
         cubic_phase_plate(lens, plate_surface, float(a))
-    set_trainable(lens, list(trainable))
+    chosen = set_trainable(lens, list(trainable))
+    if added and any(n.startswith(f"surfaces.{plate_surface}.a.") for n in chosen):
+        set_trainable(lens, chosen + added)
     if dtype not in ("float32", "float64"):
         raise ValueError(f"lens.dtype must be float32 or float64, got {dtype!r}")
     return lens.to(getattr(torch, dtype))

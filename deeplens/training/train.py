@@ -25,7 +25,7 @@ from ..optics.limits import check_allocation
 from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
 from .checkpoint import AtomicCheckpointIO, read_checkpoint
-from .lens_setup import build_lens
+from .lens_setup import MAX_PLATE_ORDER, build_lens
 from .machine import describe_machine
 from .module import MAX_LR
 from .run_lock import hold_output_folder
@@ -199,6 +199,7 @@ _RULES = {
     "lens.plate_surface": _rule_int(0),
     "lens.plate_alpha_mm": _rule_real(),
     "lens.learned_start_alpha_mm": _rule_real(),
+    "lens.plate_order": _rule_int(1, MAX_PLATE_ORDER),
     "model.net_lr": _rule_real(0, MAX_LR["net_lr"]),
     "model.optics_lr_mm": _rule_real(0, MAX_LR["optics_lr_mm"]),
     "model.disc_lr": _rule_real(0, MAX_LR["disc_lr"]),
@@ -317,6 +318,7 @@ def build_objects(cfg: DictConfig) -> dict:
                       table_options=OmegaConf.to_container(lc.table_options),
                       focus_mm=lc.focus_mm,
                       learned_start_alpha_mm=lc.get("learned_start_alpha_mm"),
+                      plate_order=lc.get("plate_order"),
                       focus_wavelengths_nm=[w for ch in sensor.channels for w in ch])
     n_ch = len(sensor.channels)
     if n_ch not in (1, 3):
