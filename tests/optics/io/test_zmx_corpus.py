@@ -66,9 +66,13 @@ def _load(name):
 def test_refusal_is_located(name):
     with pytest.raises(ZemaxFileError) as e:
         _load(name)
-    msg = str(e.value)
-    assert str(CORPUS / name) in msg
-    assert re.search(rf"{re.escape(name)}:\d+: ", msg) or re.search(r"on line \d+", msg), msg
+    err, msg = e.value, str(e.value)
+    # the location is in the error's attributes; the message is formatted from them
+    assert err.source == str(CORPUS / name)
+    assert err.line is not None and err.line > 0, msg
+    lines = decode_zemax_text(CORPUS / name).splitlines()
+    assert lines[err.line - 1].split()[0].upper() == err.feature, msg
+    assert msg == f"{err.source}:{err.line}: {err.message}"
     assert REFUSED[name] in msg, msg
     assert msg.count(f"{name}:") <= 1, msg   # located once
 
