@@ -346,3 +346,25 @@ def test_aperture_central_obscuration():
             Aperture(bad[0], bad[1], obscuration=bad[2])
     with pytest.raises(ValueError, match="central obscuration"):
         Aperture(None, "rect", 2.0, 1.0, obscuration=0.5)
+
+
+def test_asphere_clear_radius_narrower_than_its_semi_diameter():
+    """A clear aperture narrower than the semi-diameter (a CLAP under an EPD-sized stop): rays
+    beyond it are blocked, the semi-diameter (the paraxial stop radius) stays; saved in the
+    lens file, not in ``state_dict``."""
+
+    s = Asphere(0.05, 7.5, clear_radius=6.75)
+    x = torch.tensor([0.0, 6.7499, 6.7501, 7.4], dtype=F64)
+    assert s.in_aperture(x, torch.zeros_like(x)).tolist() == [True, True, False, False]
+    assert s.in_aperture(torch.zeros_like(x), x).tolist() == [True, True, False, False]
+    assert float(s.semi_diameter) == 7.5 and "clear_radius" not in s.state_dict()
+    d = s.to_dict()
+    assert d["clear_radius_mm"] == 6.75
+    assert float(Asphere.from_dict(_Entry(d), 7.5).clear_radius) == 6.75
+    assert "clear_radius_mm" not in Asphere(0.05, 7.5).to_dict()
+    assert Asphere(0.05, 7.5).in_aperture(x, torch.zeros_like(x)).tolist() == [True] * 4
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="clear radius"):
+            Asphere(0.05, 7.5, clear_radius=bad)
+    with pytest.raises(ValueError, match="clear radius"):
+        Asphere(0.05, 7.5, obscuration=3.0, clear_radius=2.0).check()

@@ -22,7 +22,7 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
-from ..surfaces import Aperture, Plane
+from ..surfaces import Aperture, Asphere, Plane
 from .zmx_coordbrk import coordinate_break, is_identity, misalignment_brackets, y_fields_only
 from .zmx_glass import load_catalogues, surface_material
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
@@ -364,17 +364,31 @@ def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locat
 
 def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locator) -> None:
     """A ``CLAP`` on the stop surface narrower than the stop that the ``ENPD``/``FNUM`` aperture
-    defines vignettes the pupil in OpticStudio; deeplens' stop has one radius, the paraxial one,
-    so such a file is refused rather than traced with the wider beam."""
+    defines: in OpticStudio the pupil keeps the size the system aperture gives it (EPD, F-number,
+    paraxial data) and the clear aperture vignettes its rim.  On a lens or mirror surface
+    (:class:`~deeplens.optics.surfaces.Asphere`) the stop keeps its paraxial radius as its
+    semi-diameter and the ``CLAP`` becomes its ``clear_radius`` (the opening is the smaller
+    one); on other stops (a flat stop in air, a cylinder, a polynomial) it is refused."""
     if s.clap is None or lens.spec.aperture_type == "stop":
         return
     clap = s.clap[0] * s_mm
-    sd = float(lens.surfaces[lens.stop_index].semi_diameter)
-    if clap < sd * (1 - 1e-9):
-        p.fail(s.clap[1], f"CLAP on the stop surface: its clear radius {clap:g} mm is smaller "
-                          f"than the stop radius {sd:g} mm that the system aperture defines, so "
-                          f"it cuts the entrance pupil; deeplens' stop has one radius (give the "
-                          f"system aperture as FLOA, or an ENPD/FNUM the CLAP does not cut)")
+    stop = lens.surfaces[lens.stop_index]
+    sd = float(stop.semi_diameter)
+    if not clap < sd * (1 - 1e-9):
+        return
+    if type(stop) is Asphere:
+        with torch.no_grad():
+            stop.clear_radius.fill_(clap)
+        try:
+            stop.check()
+        except ValueError as e:
+            p.fail(s.clap[1], f"CLAP on the stop surface: {e}")
+        return
+    p.fail(s.clap[1], f"CLAP on the stop surface: its clear radius {clap:g} mm is smaller "
+                      f"than the stop radius {sd:g} mm that the system aperture defines, so "
+                      f"it cuts the entrance pupil; deeplens has such a clear aperture on a lens "
+                      f"or mirror surface, not on a {type(stop).__name__} stop (give the system "
+                      f"aperture as FLOA, or an ENPD/FNUM the CLAP does not cut)")
 
 
 def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator):

@@ -39,7 +39,6 @@ REFUSED = {
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
-    "optiland_lens2.zmx": "CLAP on the stop surface",   # its L-BAL35 is in the archived OHARA
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",
     "patent2zemax_EP0770895A2-1.zmx": "cross",    # automatic semi-diameters overlap at the rim
