@@ -116,6 +116,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             p.fail(obj.glass_line or obj.line, str(e))
 
     where_of = {i: kept[i][2].line for i in range(len(kept))}
+    where_of["sensor"] = img.line
     try:
         spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                         aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves_nm,
@@ -469,11 +470,14 @@ def _afocal(lens) -> bool:
 def _located(p: Locator, e: Exception, where_of: dict, prefix: str = "") -> ZemaxFileError:
     """The error ``e`` of the lens built from the file, located at the ``SURF`` block of the last
     deeplens surface it concerns (``e.surfaces``, a :class:`~deeplens.optics.errors.LensError`'s
-    attribute), with each of those surfaces' block line named in the message."""
+    attribute), with each of those surfaces' block line named in the message; an error about the
+    sensor (``e.key == "sensor"``) at the image surface's block (``where_of["sensor"]``)."""
     idx = [i for i in dict.fromkeys(getattr(e, "surfaces", ())) if i in where_of]
     lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}" for i in idx]
     msg = f"{prefix}{e}" + (f" ({'; '.join(lines)})" if lines else "")
-    return p.error(where_of[idx[-1]] if idx else 0, msg, surfaces=getattr(e, "surfaces", ()))
+    line = where_of[idx[-1]] if idx else (
+        where_of.get("sensor", 0) if getattr(e, "key", None) == "sensor" else 0)
+    return p.error(line, msg, surfaces=getattr(e, "surfaces", ()))
 
 
 def _elements(kept, media, groups, p):

@@ -176,6 +176,9 @@ def test_misalignment_round_trip_through_coordinate_breaks(tmp_path):
     # an error of the built lens: located at the block of the last deeplens surface it names
     (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0"), "SURF 3",
      "SURF", 3, (1, 2)),
+    # an error about the sensor: at the image surface's block
+    (lambda t: t.replace("CURV -0.005", "CURV 0.02").replace("DISZ 45.0", "DISZ 0.3"), "SURF 4",
+     "SURF", 4, ()),
     (lambda t: t.replace("  STOP\n", ""), None, None, None, ()),
 ])
 def test_error_location_is_structured(tmp_path, edit, needle, feature, surf, surfaces):
