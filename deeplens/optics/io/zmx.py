@@ -12,7 +12,9 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
     COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), R = R_x R_y R_z of the tilts
                PARM 3/4/5 in degrees (order flag PARM 6 = 0)
     PARAXIAL   an ideal thin lens of focal length PARM 1
-    TOROIDAL   with PARM 1 (radius of rotation) = 0: a cylinder, z = conic(y) + Σ PARM (i+1) y^{2i}
+    TOROIDAL   the y profile z_y = conic(y) + Σ PARM (i+1) y^{2i} turned about the axis parallel
+               to y at z = R = PARM 1 (radius of rotation): z = R − sgn(ρ) sqrt(ρ² − x²),
+               ρ = R − z_y (a Toroid); R = 0 (infinite) is a cylinder, z = z_y
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 
@@ -42,7 +44,7 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   refused (it would vignette the pupil; deeplens' stop has one radius).  A surface with no
   ``DIAM`` gets an automatic semi-diameter from real rays; an image plane on a flat last vertex
   puts the sensor 1e-9 mm behind it (along the direction of travel: towards -z after an odd
-  number of mirrors).
+  number of mirrors); so does one on a last coordinate break.
 * ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
   vertex, and the reversing break) become that element's
   :class:`~deeplens.optics.misalignment.Misalignment` (``R = R_y(tilt_y) R_x(tilt_x)``; tilts

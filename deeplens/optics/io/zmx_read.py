@@ -22,7 +22,7 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
-from ..surfaces import Aperture, Asphere, Plane
+from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
 from .zmx_coordbrk import coordinate_break, is_identity, misalignment_brackets, y_fields_only
 from .zmx_glass import load_catalogues, surface_material
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
@@ -316,7 +316,7 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator) -> float:
     for i in range(len(kept)):
         signs.append(-signs[-1] if i in mirrors else signs[-1])
     inside_ok = all(kept[i][3] * signs[i] >= 0 for i in range(1, len(kept)))
-    if d_sensor == 0 and isinstance(surfaces[-1], Plane):
+    if d_sensor == 0 and isinstance(surfaces[-1], (Plane, CoordinateBreak)):
         # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
         # surface, so it sits _IMAGE_ON_VERTEX_MM behind it (image points move by that times
         # the ray slope: < 1e-8 mm)

@@ -2,8 +2,9 @@
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
-flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``TOROIDAL`` with no radius of
-rotation -> :class:`~deeplens.optics.surfaces.Cylinder`, ``PARAXIAL`` ->
+flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``TOROIDAL`` ->
+:class:`~deeplens.optics.surfaces.Toroid` (:class:`~deeplens.optics.surfaces.Cylinder` with no
+radius of rotation), ``PARAXIAL`` ->
 :class:`~deeplens.optics.surfaces.IdealLens`, ``XYPOLYNOM`` ->
 :class:`~deeplens.optics.surfaces.XYPolynomial`; a flat surface between one medium, not the stop,
 with no fixed aperture is a dummy (its thickness only).  Lengths are scaled from file units to
@@ -18,7 +19,7 @@ import torch
 
 from ..errors import ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, XYPolynomial
+from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, Toroid, XYPolynomial
 from ..surfaces.xy_polynomial import xy_terms
 from .zmx_parse import Locator, ZmxSurface
 
@@ -150,12 +151,10 @@ def _aperture_decenter(s: ZmxSurface, k: int, is_aperture: bool, s_mm, p: Locato
 
 
 def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
-    """``TOROIDAL`` with ``PARM 1`` (the radius of rotation) 0: a cylinder, curved in y, with
-    ``PARM 2..9`` the coefficients of ``y², y⁴, ..., y¹⁶``; ``SQAP`` its rectangular outline."""
-    if s.parm.get(1, (0.0, 0))[0] != 0:
-        p.fail(s.parm[1][1], f"SURF {k}: a TOROIDAL surface with a finite radius of rotation "
-                             f"(PARM 1 = {s.parm[1][0]:g}) is not supported; cylinders "
-                             f"(PARM 1 = 0) are")
+    """``TOROIDAL``: the y profile (``CURV``, ``CONI``, ``PARM 2..9`` the coefficients of ``y²,
+    y⁴, ..., y¹⁶``) rotated about an axis parallel to y at the radius of rotation ``PARM 1``: a
+    :class:`Toroid`, or with ``PARM 1`` = 0 (an infinite radius) a :class:`Cylinder`, curved in
+    y; ``SQAP`` its rectangular outline."""
     nz = s.xdat.get(1, (0.0, 0))
     if nz[0] != 0 or any(v != 0 for j, (v, _) in s.xdat.items() if j > 2):
         p.fail(nz[1] or s.type_line, f"SURF {k}: TOROIDAL Zernike terms (XDAT) are not supported")
@@ -168,6 +167,9 @@ def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
     hw = None if s.sqap is None else (s.sqap[0] * s_mm, s.sqap[1] * s_mm)
     if hw is not None and sd == PROVISIONAL_SD_MM:
         sd = math.hypot(*hw)
+    r_rot = s.parm.get(1, (0.0, 0))[0]
+    if r_rot != 0:
+        return Toroid(c, sd, r_rot * s_mm, conic=s.coni, coefficients=coeffs, half_widths=hw)
     return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
 
 

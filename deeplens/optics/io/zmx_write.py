@@ -18,7 +18,7 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
-from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, IdealLens, Plane,
+from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, IdealLens, Plane, Toroid,
                         XYPolynomial)
 from .agf import AGFGlass
 from .vendor_glass import BuchdahlGlass
@@ -196,8 +196,9 @@ def _surface_lines(s, i, is_stop) -> list[str]:
         if s.decentred:
             lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
         return lines
-    if isinstance(s, Cylinder):
-        lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 1 0"]
+    if isinstance(s, Cylinder):   # a Toroid too: PARM 1 its radius of rotation
+        r_rot = _f(s.R) if isinstance(s, Toroid) else "0"
+        lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {r_rot}"]
         lines += [f"PARM {j + 2} {_f(a)}" for j, a in enumerate(s.a)]
         lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
         if s.half_widths is not None:

@@ -446,8 +446,9 @@ def line_of(text: str, needle: str) -> int:
 @pytest.mark.parametrize("edit,needle,match", [
     (lambda t: t.replace("TYPE EVENASPH", "TYPE QED_TYPE"), "QED_TYPE",
      r"surface type 'QED_TYPE' \(SURF 2, a Q-type \(Forbes\) asphere\) is not supported"),
-    (lambda t: t.replace("TYPE EVENASPH", "TYPE TOROIDAL").replace("PARM 1 0", "PARM 1 30"),
-     "PARM 1 30", r"SURF 2: a TOROIDAL surface with a finite radius of rotation"),
+    (lambda t: t.replace("TYPE EVENASPH", "TYPE TOROIDAL").replace("PARM 1 0", "PARM 1 3"),
+     "SURF 2", r"surface 1 \(Toroid\): the clear aperture \(x up to 8 mm\) lies beyond the "
+               r"toroid's radius of rotation \(3 mm\)"),
     (lambda t: t.replace("CURV 0.02", "CURV 0.0.2"), "0.0.2",
      r"CURV curvature: expected a number, got '0.0.2'"),
     (lambda t: t.replace("PARM 1 0", "PARM 1 0.001"), "PARM 1", r"EVENASPH PARM 1 \(the r² term\)"),
