@@ -417,3 +417,23 @@ def test_toroid_file_entry_and_checks():
             Toroid(1 / 15.0, 8.0, bad)
     with pytest.raises(ValueError, match="radius of rotation"):
         Toroid(0.0, 8.0, 7.0).check()
+
+
+def test_asphere_decentred_clear_aperture():
+    """An off-axis opening: rays are kept within ``clear_radius`` of ``clear_decenter`` (and
+    within the semi-diameter about the vertex); saved in the lens file."""
+    s = Asphere(-1 / 190.6, 216.0, conic=-1.0, clear_radius=25.4, clear_decenter=(0.0, 190.6))
+    y = torch.tensor([0.0, 165.3, 165.1, 215.9, 216.1, -190.6], dtype=F64)
+    assert s.in_aperture(torch.zeros_like(y), y).tolist() == [False, True, False, True, False,
+                                                              False]
+    x = torch.tensor([25.3, 25.5], dtype=F64)
+    assert s.in_aperture(x, torch.full_like(x, 190.6)).tolist() == [True, False]
+    d = s.to_dict()
+    assert d["clear_decenter_mm"] == [0.0, 190.6] and d["clear_radius_mm"] == 25.4
+    back = Asphere.from_dict(_Entry(d), 216.0)
+    assert back.clear_decenter.tolist() == [0.0, 190.6]
+    assert "clear_decenter_mm" not in Asphere(0.05, 7.5, clear_radius=6.0).to_dict()
+    with pytest.raises(ValueError, match="needs a clear_radius"):
+        Asphere(0.05, 7.5, clear_decenter=(1.0, 0.0))
+    with pytest.raises(ValueError, match="two finite numbers"):
+        Asphere(0.05, 7.5, clear_radius=2.0, clear_decenter=(math.nan, 0.0))

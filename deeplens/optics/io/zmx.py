@@ -39,9 +39,11 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   a thickness and are merged into the gaps; a flat air surface with a fixed ``DIAM`` becomes an
   :class:`~deeplens.optics.surfaces.Aperture` (rectangular with ``SQAP``, with a central
   obscuration with ``OBSC`` or an annular ``CLAP``; decentred by ``OBDC`` when it is not the
-  stop); on a curved lens or mirror surface those are the surface's own ``obscuration``.  A
-  ``CLAP`` on the stop surface narrower than the stop an ``ENPD``/``FNUM`` aperture defines is
-  refused (it would vignette the pupil; deeplens' stop has one radius).  A surface with no
+  stop); on a curved lens or mirror surface those are the surface's own ``obscuration``, and a
+  circular ``CLAP`` with ``OBDC`` its off-axis opening (``clear_radius``, ``clear_decenter``: an
+  off-axis parabola).  A ``CLAP`` on a lens-surface stop narrower than the stop an
+  ``ENPD``/``FNUM`` aperture defines is its ``clear_radius``: the pupil keeps its size and its
+  rim is vignetted (refused on a flat stop in air).  A surface with no
   ``DIAM`` gets an automatic semi-diameter from real rays; an image plane on a flat last vertex
   puts the sensor 1e-9 mm behind it (along the direction of travel: towards -z after an odd
   number of mirrors); so does one on a last coordinate break.

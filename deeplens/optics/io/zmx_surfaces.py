@@ -104,9 +104,22 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         raise   # already located (a helper's p.fail): not located twice
     except ValueError as e:
         p.fail(s.type_line or s.line, f"SURF {k}: {e}")
-    if s.obdc is not None:   # the decenter of the opening of an Aperture (not the stop)
-        dec = _aperture_decenter(s, k, isinstance(surf, Aperture), s_mm, p)
-        surf.decenter.copy_(torch.tensor(dec, dtype=surf.decenter.dtype))
+    if s.obdc is not None:   # the decenter of the opening (not on the stop)
+        dec = _aperture_decenter(s, k, surf, s_mm, p)
+        if isinstance(surf, Aperture):
+            surf.decenter.copy_(torch.tensor(dec, dtype=surf.decenter.dtype))
+        else:   # an off-axis segment of a lens or mirror surface: its CLAP, moved
+            rc = s.clap[0] * s_mm
+            with torch.no_grad():
+                surf.clear_radius.fill_(rc)
+                surf.clear_decenter.copy_(torch.tensor(dec, dtype=torch.float64))
+                # the semi-diameter (the disc about the vertex the surface is defined on)
+                # encloses the whole decentred opening
+                surf.semi_diameter.fill_(math.hypot(*dec) + rc)
+            try:
+                surf.check(where=f"SURF {k} with its decentred clear aperture: ")
+            except ValueError as e:
+                p.fail(s.obdc[2], f"OBDC on SURF {k}: {e}")
     if s.obsc is not None and isinstance(surf, Asphere):
         # a central obscuration on a lens or mirror surface (a secondary's shadow on a
         # Cassegrain's primary): an aperture property of the surface
@@ -131,9 +144,11 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     return surf, auto
 
 
-def _aperture_decenter(s: ZmxSurface, k: int, is_aperture: bool, s_mm, p: Locator):
-    """``OBDC x y``: the decenter (mm) of the surface's aperture (``CLAP``, annular ``CLAP``,
-    ``SQAP``), for a flat surface in air (a deeplens :class:`Aperture`) that is not the stop."""
+def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
+    """``OBDC x y``: the decenter (mm) of the surface's aperture: a ``CLAP`` (circular or
+    annular) or ``SQAP`` on a flat surface in air (a deeplens :class:`Aperture`), or a circular
+    ``CLAP`` on a lens or mirror surface (an :class:`Asphere`: an off-axis segment, such as an
+    off-axis parabola's opening); never on the stop."""
     dx, dy, ln = s.obdc
     where = f"OBDC on SURF {k} (aperture decenter {dx:g}, {dy:g})"
     if s.clap is None and s.sqap is None:   # an OBSC alone (no aperture at all: not called)
@@ -143,10 +158,15 @@ def _aperture_decenter(s: ZmxSurface, k: int, is_aperture: bool, s_mm, p: Locato
     if s.stop:
         p.fail(ln, f"{where}: a decentred aperture stop is not supported (deeplens' entrance "
                    f"pupil is centred on the axis)")
-    if not is_aperture:
-        p.fail(ln, f"{where}: a decentred aperture on a lens or mirror surface is not supported "
-                   f"(deeplens decentres apertures on flat surfaces in air; an off-axis mirror "
-                   f"segment is not read)")
+    if not isinstance(surf, Aperture) and not (
+            type(surf) is Asphere and s.clap is not None and s.sqap is None
+            and s.obsc is None):
+        what = ("a rectangular (SQAP)" if s.sqap is not None else
+                "an annular or obscured" if s.obsc is not None else "a")
+        p.fail(ln, f"{where}: {what} decentred aperture on a lens or mirror surface "
+                   f"({type(surf).__name__}) is not supported (deeplens decentres apertures on "
+                   f"flat surfaces in air, and a circular CLAP on a STANDARD or EVENASPH lens or "
+                   f"mirror surface: an off-axis segment)")
     return (dx * s_mm, dy * s_mm)
 
 

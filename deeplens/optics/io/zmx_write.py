@@ -220,8 +220,10 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             lines.append("PARM 1 0")
             lines += [f"PARM {k + 2} {_f(v)}" for k, v in enumerate(a)]
         lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
-        if math.isfinite(float(s.clear_radius)):   # a clear aperture narrower than the stop
+        if math.isfinite(float(s.clear_radius)):   # narrower than the stop, or off-axis
             lines.append(f"CLAP 0 {_f(s.clear_radius)} 0")
+            if bool(s.clear_decenter.any()):
+                lines.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
         if float(s.obscuration) > 0:
             lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
         return lines

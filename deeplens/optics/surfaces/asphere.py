@@ -151,12 +151,17 @@ class Asphere(SagSurface):
             surface): the pupil keeps its size and the opening is the smaller one, so the rim
             of the pupil is vignetted.  A fixed buffer (not saved in ``state_dict``: it comes
             with the lens file, ``clear_radius_mm``), not a parameter.
+        clear_decenter: ``(d_x, d_y)``, mm: the centre of that clear aperture (an off-axis
+            segment of the surface: an off-axis parabola's opening, Zemax's ``OBDC`` with a
+            ``CLAP``); the semi-diameter must then enclose the whole opening.  A fixed buffer
+            like ``clear_radius`` (lens file: ``clear_decenter_mm``).
 
     Each value is its own parameter: ``surface.c``, ``surface.k``, ``surface.a[0]`` (= a4), ...
     """
 
     def __init__(self, curvature: float, semi_diameter: float, conic: float = 0.0,
-                 coefficients=(), obscuration: float = 0.0, clear_radius: float = math.inf):
+                 coefficients=(), obscuration: float = 0.0, clear_radius: float = math.inf,
+                 clear_decenter: tuple[float, float] = (0.0, 0.0)):
         super().__init__(semi_diameter)
         obscuration = float(obscuration)
         if not (obscuration >= 0.0 and obscuration < float("inf")):
@@ -168,6 +173,15 @@ class Asphere(SagSurface):
             raise ValueError(f"Asphere: the clear radius must be a number > 0 mm (inf: none), "
                              f"got {clear_radius!r}")
         self.register_buffer("clear_radius", torch.tensor(clear_radius, dtype=torch.float64),
+                             persistent=False)
+        dec = [float(v) for v in clear_decenter]
+        if len(dec) != 2 or not all(math.isfinite(v) for v in dec):
+            raise ValueError(f"Asphere: clear_decenter must be two finite numbers (mm), got "
+                             f"{clear_decenter!r}")
+        if any(dec) and not math.isfinite(clear_radius):
+            raise ValueError("Asphere: a clear_decenter needs a clear_radius (the opening it "
+                             "moves)")
+        self.register_buffer("clear_decenter", torch.tensor(dec, dtype=torch.float64),
                              persistent=False)
         coefficients = list(coefficients)
         if len(coefficients) > (MAX_ASPHERE_ORDER - 2) // 2:
@@ -259,7 +273,11 @@ class Asphere(SagSurface):
             inside = inside & (x * x + y * y >= ro * ro)
         if math.isfinite(float(self.clear_radius)):
             rc = self.clear_radius.to(x)
-            inside = inside & (x * x + y * y <= rc * rc)
+            if bool(self.clear_decenter.any()):
+                u, v = x - self.clear_decenter[0].to(x), y - self.clear_decenter[1].to(x)
+                inside = inside & (u * u + v * v <= rc * rc)
+            else:
+                inside = inside & (x * x + y * y <= rc * rc)
         return inside
 
     def check(self, where: str = "") -> None:
@@ -280,7 +298,7 @@ class Asphere(SagSurface):
                 f"defined for r < {limit:g} mm")
 
     file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric", "obscuration_mm",
-                   "clear_radius_mm")
+                   "clear_radius_mm", "clear_decenter_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -297,7 +315,9 @@ class Asphere(SagSurface):
         return cls(c, semi_diameter, conic=entry.get("conic", default=0.0),
                    coefficients=entry.get("aspheric", "numbers", default=[]),
                    obscuration=entry.get("obscuration_mm", default=0.0),
-                   clear_radius=entry.get("clear_radius_mm", default=math.inf))
+                   clear_radius=entry.get("clear_radius_mm", default=math.inf),
+                   clear_decenter=entry.get("clear_decenter_mm", "numbers",
+                                            default=[0.0, 0.0]))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -310,6 +330,8 @@ class Asphere(SagSurface):
             d["obscuration_mm"] = float(self.obscuration)
         if math.isfinite(float(self.clear_radius)):
             d["clear_radius_mm"] = float(self.clear_radius)
+        if bool(self.clear_decenter.any()):
+            d["clear_decenter_mm"] = [float(v) for v in self.clear_decenter]
         return d
 
     def extra_repr(self) -> str:

@@ -106,8 +106,8 @@ def test_decentred_apertures_round_trip(tmp_path, clap, obdc):
                                  '  DISZ 2\n  DIAM 5 1 0 0 1 ""\n  CLAP 0 5 0\n  OBDC 0.5 0\n', 1),
      "a decentred aperture stop is not supported"),
     ("lens", lambda t: t.replace('  DIAM 8 1 0 0 1 ""\nSURF 4',
-                                 '  DIAM 8 1 0 0 1 ""\n  CLAP 0 8 0\n  OBDC 0.5 0\nSURF 4', 1),
-     "a decentred aperture on a lens or mirror surface"),
+                                 '  DIAM 8 1 0 0 1 ""\n  CLAP 1 8 0\n  OBDC 0.5 0\nSURF 4', 1),
+     "an annular or obscured decentred aperture on a lens or mirror surface"),
     ("obscuration", lambda t: _with_field_stop(clap="OBSC 0 1 0", obdc="OBDC 0.5 0",
                                                extra=('DIAM 3 1 0 0 1 ""',)),
      "a decentred obscuration"),
@@ -249,3 +249,48 @@ def test_a_clear_aperture_narrower_than_a_lens_surface_stop_vignettes_the_pupil(
         back = read_zmx(tmp_path / "rt.zmx")
     assert lens_to_dict(back)["surfaces"] == lens_to_dict(lens)["surfaces"]
     assert lens_to_dict(lens)["surfaces"][i]["clear_radius_mm"] == 6.75
+
+
+def test_off_axis_parabola_clips_about_its_decentred_opening(tmp_path):
+    """``zmax_37992`` (a 90° off-axis parabola, R = -190.6 mm, reached through a y decenter of
+    -190.6 mm): its CLAP of 25.4 mm with OBDC (0, 190.6) is the mirror's off-axis opening.  Of a
+    beam wider than the opening, exactly the rays whose hit on the mirror lies within 25.4 mm of
+    (0, 190.6) pass (hit points of a trace that clips nothing; the opposite decenter, or a
+    centred opening, would pass others); the semi-diameter encloses the opening; the rays that
+    pass meet at the parabola's focus (a point at round-off).  Written back as CLAP + OBDC."""
+    from deeplens.optics.sampling import field_rays
+
+    with pytest.warns(Warning):
+        lens = read_zmx(CORPUS / "zmax_37992.zmx")
+    lens = lens.double()
+    i = next(k for k, s in enumerate(lens.surfaces) if k in lens.mirrors)
+    m = lens.surfaces[i]
+    assert m.clear_decenter.tolist() == [0.0, 190.6] and float(m.clear_radius) == 25.4
+    assert float(m.semi_diameter) == pytest.approx(216.0, rel=1e-12)
+    assert fused_kind(lens, i) is None
+    g = torch.linspace(-40.0, 40.0, 41, dtype=torch.float64)
+    x, y = torch.meshgrid(g, g, indexing="ij")
+    xy = torch.stack([x.reshape(-1), y.reshape(-1)], -1)
+    xy = xy[(xy[:, 1] != 0)]   # the central row leaves the mirror inside the image plane
+    free_opt = IntersectOptions(clip_aperture=False)
+    with torch.no_grad():
+        w = float(lens.spec.primary_wavelength_nm)
+        lens.surfaces[0].semi_diameter.fill_(100.0)   # the stop: let the wide beam through
+        rays = field_rays(lens, 0.0, w, xy, -1.0)
+        free, hits = lens.trace(rays, options=free_opt, record=True)
+        clipped = lens.trace(rays)
+        hx, hy = hits[i][..., 0], hits[i][..., 1]
+
+        def inside(cy):
+            return free.valid & (hx ** 2 + (hy - cy) ** 2 <= 25.4 ** 2)
+
+        want = inside(190.6)
+        assert 0 < int(want.sum()) < int(free.valid.sum())
+        assert torch.equal(clipped.valid, want)
+        assert not torch.equal(inside(-190.6), want) and not torch.equal(inside(0.0), want)
+        out = lens.trace_to_sensor(rays)
+        p = out.o[out.valid]
+        assert int(out.valid.sum()) == int(want.sum())
+        assert float((p - p.mean(0)).norm(dim=-1).max()) < 1e-9   # the parabola's focus
+    write_zmx(lens, tmp_path / "rt.zmx")
+    assert "OBDC 0.0 190.6" in (tmp_path / "rt.zmx").read_text()

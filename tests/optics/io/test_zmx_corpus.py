@@ -37,7 +37,6 @@ FILES = sorted(p.name for p in CORPUS.glob("*.zmx"))
 #: file -> the feature its refusal must name (every other file must load)
 REFUSED = {
     "US08011793-1.zmx": "OBDC",
-    "zmax_37992.zmx": "OBDC",
     "optiland_curved_reflective_grating.zmx": "DGRATING",
     "optiland_curved_transmission_grating.zmx": "DGRATING",
     "optiland_flat_transmission_grating.zmx": "DGRATING",
@@ -206,7 +205,13 @@ def _first_order(lens, optic, s_mm, name):
             "BFL": (bfl_dl, bfl_ol)}
 
 
-def _rms_on_axis(lens, optic, s_mm, pupil):
+#: files whose image plane (untilted in the global frame) contains a ray of the on-axis beam:
+#: the central ray of a 90° off-axis parabola leaves the mirror along -y, inside the image
+#: plane, and never meets it; deeplens drops it, optiland lands it somewhere in the plane
+GRAZING = {"zmax_37992.zmx"}
+
+
+def _rms_on_axis(lens, optic, s_mm, pupil, name=None):
     from optiland.analysis import SpotDiagram
 
     w = float(lens.spec.primary_wavelength_nm)
@@ -217,7 +222,29 @@ def _rms_on_axis(lens, optic, s_mm, pupil):
         sd = SpotDiagram(optic, fields=[(0.0, 0.0)], wavelengths=[w / 1000.0], num_rings=12,
                          reference="centroid")
         ol = float(sd.rms_spot_radius()[0][0])
+    if name in GRAZING:
+        # the oracle's spot from its own rays (the same hexapolar pattern) without the rays
+        # that travel inside the image plane (global direction cosine N = 0 there)
+        optic.trace(0.0, 0.0, w / 1000.0, 12, "hexapolar")
+        sg = optic.surface_group
+        x, y, n, i = (torch.as_tensor(a[-1]).reshape(-1).double()
+                      for a in (sg.x, sg.y, sg.N, sg.intensity))
+        grazing = n.abs() < 1e-12
+        assert int(grazing.sum()) == 1
+        if bool(grazing.any()):
+            m = (i > 0) & ~grazing
+            x, y = x[m] - x[m].mean(), y[m] - y[m].mean()
+            ol = float(torch.sqrt((x * x + y * y).mean()))
     return dl, ol
+
+
+def _assert_rms_agrees(dl, ol, what="on-axis RMS spot radius"):
+    """Within 0.5 %; where the oracle's spot is a point at round-off (a perfect focus: an
+    off-axis parabola on its axis), deeplens' must be one too (below 1e-9 of the file unit)."""
+    if ol < 1e-9:
+        assert dl < 1e-9, what
+    else:
+        assert dl == pytest.approx(ol, rel=5e-3), what
 
 
 @pytest.mark.parametrize("name", [f for f in FILES if f not in REFUSED])
@@ -252,8 +279,8 @@ def test_loads_with_the_oracles_numbers(name, tmp_path):
             continue
         assert dl == pytest.approx(ol, rel=1e-6, abs=1e-9 * max(1.0, abs(dl))), what
     # OpticStudio without ray aiming: rays at the paraxial entrance pupil (optiland's default)
-    dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial")
-    assert dl == pytest.approx(ol, rel=5e-3), "on-axis RMS spot radius"
+    dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial", name)
+    _assert_rms_agrees(dl, ol)
     convention = lens_pupil_convention(lens)
     assert convention == ("traced" if _raim_type(name) else "paraxial")
     if convention == "traced":
@@ -292,19 +319,27 @@ def test_folded_files_image_where_optiland_does(name):
         xy = torch.tensor(pupil, dtype=lens.dtype) * half
         out = lens.trace_to_sensor(field_rays(lens, 0.0, w, xy, float(par.entrance_pupil_z)),
                                    options=IntersectOptions(clip_aperture=False))
-        assert bool(out.valid.all())
         g = to_global(local_frames(lens)[-1], out.o)
     # deeplens' global origin is its first vertex; optiland's, the file's SURF 1
     types, _, q = _file_path_coords(CORPUS / name)
     offset = float(_dl_path_coords(lens)[0]) - q[1] * s_mm
-    for (px, py), p in zip(pupil, g):
+    compared = 0
+    for (px, py), p, ok in zip(pupil, g, out.valid.tolist()):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             optic.trace_generic(0.0, 0.0, px, py, w / 1000.0)
         sg = optic.surface_group
         ol = [float(torch.as_tensor(c)[-1].reshape(-1)[0]) for c in (sg.x, sg.y, sg.z)]
+        # a ray leaving the last surface inside the image plane never meets it (GRAZING):
+        # deeplens drops exactly those
+        grazing = name in GRAZING and abs(float(torch.as_tensor(sg.N[-1]).reshape(-1)[0])) < 1e-12
+        assert ok != grazing, (px, py)
+        if grazing:
+            continue
         dl = [float(p[0]) / s_mm, float(p[1]) / s_mm, (float(p[2]) + offset) / s_mm]
         assert dl == pytest.approx(ol, abs=1e-9), (px, py)
+        compared += 1
+    assert compared >= 4
 
 
 def _has_decenters(name):
