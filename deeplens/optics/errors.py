@@ -1,13 +1,13 @@
 """Structured errors of the optics layer: what went wrong, and where, as attributes.
 
 Callers decide from the attributes (``surfaces``, ``key``, ``line``), never from the message
-text: the table reader maps ``surfaces`` to its own line numbers, the JSON reader maps ``key``
-to the field path, and the training set-up maps ``key`` to its configuration key.
+text: the table and Zemax readers map ``surfaces`` to their own line numbers, the JSON reader
+maps ``key`` to the field path, and the training set-up maps ``key`` to its configuration key.
 """
 
 from __future__ import annotations
 
-__all__ = ["LensError", "LensFileError"]
+__all__ = ["LensError", "LensFileError", "ZemaxFileError", "ZemaxWarning"]
 
 
 class LensError(ValueError):
@@ -58,3 +58,44 @@ class LensFileError(ValueError):
             if self.column is not None:
                 where = f"{where}:{self.column}"
         return ": ".join(p for p in (where, self.key, self.message) if p)
+
+
+class ZemaxFileError(LensFileError):
+    """A ``.zmx`` file that cannot be read (or a lens that cannot be written as one).
+
+    ``str(error)`` is ``"SOURCE[:LINE]: MESSAGE"`` (as :class:`LensFileError`); the location is
+    also in attributes, which callers read instead of parsing the message:
+
+    Attributes:
+        source: the ``.zmx`` file (``None`` for a lens the writer cannot express).
+        line: the 1-based line of the record at fault (``None`` when no single line is).
+        feature: the keyword of that record (``"CLAP"``, ``"TYPE"``, ``"GLAS"``, ...), or
+            ``None``.
+        surf: the file's surface number (``SURF n``) whose block holds that line, or ``None``.
+        surfaces: deeplens' surface indices concerned (``()`` when none).
+    """
+
+    def __init__(self, message: str, *, source=None, line: int | None = None,
+                 feature: str | None = None, surf: int | None = None, surfaces=()):
+        self.feature = feature
+        self.surf = surf
+        super().__init__(message, source=source, line=line, surfaces=surfaces)
+
+
+class ZemaxWarning(UserWarning):
+    """A line of a ``.zmx`` file that was understood but is not used (or a glass that came
+    from a catalogue other than the one asked for).
+
+    ``str(warning)`` is ``"SOURCE:LINE: MESSAGE"`` (``MESSAGE`` alone without a line); the parts
+    are attributes: ``message``, ``source``, ``line`` (``None`` when no single line is concerned)
+    and ``feature`` (the record's keyword, or ``None``).
+    """
+
+    def __init__(self, message: str, *, source=None, line: int | None = None,
+                 feature: str | None = None):
+        self.message = message
+        self.source = None if source is None else str(source)
+        self.line = line
+        self.feature = feature
+        where = f"{self.source}:{line}" if self.source and line else ""
+        super().__init__(f"{where}: {message}" if where else message)

@@ -336,8 +336,22 @@ class Lens(nn.Module):
             last = max([i for i, s in enumerate(self.surfaces)
                         if not isinstance(s, Aperture)], default=len(self.surfaces) - 1)
             s = self.surfaces[last]
-            r = torch.linspace(0, float(s.semi_diameter), 65, dtype=torch.float64)
-            zl = z[last] + s.sag(torch.zeros_like(r), r)
+            dec = getattr(s, "clear_decenter", None)
+            if dec is not None and bool(dec.any()):
+                # an off-axis segment (a decentred clear aperture: an off-axis parabola): only
+                # its opening, sampled along the radius through its centre (a rotationally
+                # symmetric sag is extreme there), and of it only what lies within the sensor's
+                # semi-diameter when that is known (an OAP's focus lies beside its segment)
+                c = dec.to(torch.float64)
+                u = c / torch.linalg.vector_norm(c)
+                t = torch.linspace(-1.0, 1.0, 65, dtype=torch.float64)
+                xy = c + (t * float(s.clear_radius)).unsqueeze(-1) * u
+                if self.sensor_semi_diameter is not None:
+                    xy = xy[torch.linalg.vector_norm(xy, dim=-1) <= self.sensor_semi_diameter]
+                zl = z[last] + s.sag(xy[:, 0], xy[:, 1])
+            else:
+                r = torch.linspace(0, float(s.semi_diameter), 65, dtype=torch.float64)
+                zl = z[last] + s.sag(torch.zeros_like(r), r)
             if bool((sign[-1] * (zl - self.z_sensor().detach()) > 1e-9).any()):
                 raise LensError(f"the last surface crosses the sensor plane (sensor distance "
                                 f"{float(self.d_sensor):g} mm)", key="sensor")

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import functools
 
+import math
+
 import torch
 import torch.utils.checkpoint
 
@@ -83,11 +85,16 @@ def surface_checkpointed(lens, i: int, rays: Rays, n1, n2, z, options) -> Rays:
     return Rays(o, d, rays.wavelength, valid, opl, normalize=False)
 
 def obscured(s) -> bool:
-    """A surface with a central obscuration (its ``in_aperture`` blocks the centre): traced by
-    the generic path, whose clipping asks the surface (the closed-form and fused kernels clip
-    by the semi-diameter only)."""
+    """A surface with a central obscuration or a clear radius narrower than its semi-diameter
+    (its ``in_aperture`` blocks more than the semi-diameter does): traced by the generic path,
+    whose clipping asks the surface (the closed-form and fused kernels clip by the
+    semi-diameter only)."""
+    if isinstance(s, Aperture):
+        return False
     ob = getattr(s, "obscuration", None)
-    return ob is not None and not isinstance(s, Aperture) and float(ob) > 0
+    cr = getattr(s, "clear_radius", None)
+    return ((ob is not None and float(ob) > 0)
+            or (cr is not None and math.isfinite(float(cr))))
 
 
 def fused_kind(lens, i: int):

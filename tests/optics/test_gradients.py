@@ -1,7 +1,7 @@
 """Gradients of traced rays with respect to every kind of lens parameter (float64).
 
 For every surface type (sphere, conic, even asphere, XY polynomial with b = 0 and b != 0,
-B-spline) and every parameter kind (the surface's own prescription values, the thicknesses
+B-spline, cylinder, toroid) and every parameter kind (the surface's own prescription values, the thicknesses
 ``lens.distances[i]``, the decenter ``dx, dy`` and tilt ``tilt_x, tilt_y`` of its element, the
 sensor distance ``d_sensor``), three derivatives of a non-constant loss agree to 1e-6:
 
@@ -29,7 +29,7 @@ from deeplens.optics.intersect import IntersectOptions, intersect
 from deeplens.optics.lens import Lens
 from deeplens.optics.materials import get_material
 from deeplens.optics.surfaces import (Aperture, Asphere, BSpline, Cylinder, Plane, Sphere,
-                                      XYPolynomial)
+                                      Toroid, XYPolynomial)
 
 F64 = torch.float64
 R_REF = 3.0  # mm: the radius at which a step's sag change is sized
@@ -56,6 +56,7 @@ SURFACES = {
     "xy_b": lambda: XYPolynomial(8.0, [0.01] + XY_COEFFS[1:], b=0.03),
     "bspline": _bspline,
     "cylinder": lambda: Cylinder(1 / 30, 8.0, conic=-0.5, coefficients=[2e-3, 2e-5]),
+    "toroid": lambda: Toroid(1 / 30, 8.0, 40.0, conic=-0.5, coefficients=[2e-3, 2e-5]),
 }
 
 # (surface kind, parameter name, finite-difference step)
@@ -75,6 +76,9 @@ for _kind in ("xy_b0", "xy_b"):
 _OWN += [("bspline", f"C{p}{q}", DZ) for p, q in ((3, 3), (2, 4), (4, 2), (1, 3), (4, 4))]
 _OWN += [("cylinder", "c", 2 * DZ / R_REF ** 2), ("cylinder", "k", 0.25),
          ("cylinder", "a2", DZ / R_REF ** 2), ("cylinder", "a4", DZ / R_REF ** 4)]
+# the toroid's radius of rotation R: dz/dR = -x^2 / (2 R^2) ~ 2.8e-3 at x = 3, R = 40
+_OWN += [("toroid", "c", 2 * DZ / R_REF ** 2), ("toroid", "k", 0.25),
+         ("toroid", "a2", DZ / R_REF ** 2), ("toroid", "R", 0.04)]
 _LENS = [("distance0", 1e-4), ("distance1", 1e-4), ("distance2", 1e-4), ("dx", 1e-4),
          ("dy", 1e-4), ("tilt_x", 1e-5), ("tilt_y", 1e-5), ("d_sensor", 1e-4)]
 CASES = _OWN + [(kind, name, h) for kind in SURFACES for name, h in _LENS]
@@ -118,7 +122,7 @@ def select(lens: Lens, name: str):
         return (s.b, None) if name == "b" else (s.a[int(name[1:])], None)
     if isinstance(s, Cylinder) and name.startswith("a"):
         return s.a[(int(name[1:]) - 2) // 2], None
-    if name in ("c", "k"):
+    if name in ("c", "k", "R"):
         return getattr(s, name), None
     return s.a[(int(name[1:]) - 4) // 2], None
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from deeplens.optics.surfaces import (
-    SURFACE_TYPES, Aperture, Asphere, BSpline, Cylinder, Plane, Sphere, XYPolynomial,
+    SURFACE_TYPES, Aperture, Asphere, BSpline, Cylinder, Plane, Sphere, Toroid, XYPolynomial,
 )
 from deeplens.optics.surfaces.xy_polynomial import xy_terms
 
@@ -45,6 +45,8 @@ def _surfaces():
         "plane": Plane(8.0),
         "cylinder": Cylinder(1 / 15.0, 8.0, conic=-0.6, coefficients=[1e-3, 2e-4, -3e-6]),
         "cylinder_rect": Cylinder(-1 / 20.0, 8.0, half_widths=(7.0, 5.0)),
+        "toroid": Toroid(1 / 15.0, 8.0, 25.0, conic=-0.6, coefficients=[1e-3, 2e-4]),
+        "toroid_saddle": Toroid(-1 / 20.0, 8.0, 30.0),
     }
 
 
@@ -346,3 +348,92 @@ def test_aperture_central_obscuration():
             Aperture(bad[0], bad[1], obscuration=bad[2])
     with pytest.raises(ValueError, match="central obscuration"):
         Aperture(None, "rect", 2.0, 1.0, obscuration=0.5)
+
+
+def test_asphere_clear_radius_narrower_than_its_semi_diameter():
+    """A clear aperture narrower than the semi-diameter (a CLAP under an EPD-sized stop): rays
+    beyond it are blocked, the semi-diameter (the paraxial stop radius) stays; saved in the
+    lens file, not in ``state_dict``."""
+
+    s = Asphere(0.05, 7.5, clear_radius=6.75)
+    x = torch.tensor([0.0, 6.7499, 6.7501, 7.4], dtype=F64)
+    assert s.in_aperture(x, torch.zeros_like(x)).tolist() == [True, True, False, False]
+    assert s.in_aperture(torch.zeros_like(x), x).tolist() == [True, True, False, False]
+    assert float(s.semi_diameter) == 7.5 and "clear_radius" not in s.state_dict()
+    d = s.to_dict()
+    assert d["clear_radius_mm"] == 6.75
+    assert float(Asphere.from_dict(_Entry(d), 7.5).clear_radius) == 6.75
+    assert "clear_radius_mm" not in Asphere(0.05, 7.5).to_dict()
+    assert Asphere(0.05, 7.5).in_aperture(x, torch.zeros_like(x)).tolist() == [True] * 4
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="clear radius"):
+            Asphere(0.05, 7.5, clear_radius=bad)
+    with pytest.raises(ValueError, match="clear radius"):
+        Asphere(0.05, 7.5, obscuration=3.0, clear_radius=2.0).check()
+
+
+def test_toroid_closed_forms():
+    """The toroid's sections and special cases: with ``R = 1/c`` (k = 0) the profile circle
+    turns about its own centre, a sphere; the x section at y = 0 is a circle of radius ``R``;
+    the y section is the cylinder's profile; ``x^2 >= rho^2`` is outside the domain."""
+    x, y = _points(500, 7.5, seed=11)
+    for R in (12.0, -20.0):
+        assert float((Toroid(1 / R, 8.0, R).sag(x, y) - Sphere(1 / R, 8.0).sag(x, y)).abs().max()
+                     ) < 1e-12
+    t = Toroid(1 / 15.0, 8.0, 25.0, conic=-0.6, coefficients=[1e-3, 2e-4])
+    zero = torch.zeros_like(x)
+    circle = 25.0 - torch.sqrt(25.0 ** 2 - x * x)
+    assert float((t.sag(x, zero) - circle).abs().max()) < 1e-12
+    cyl = Cylinder(1 / 15.0, 8.0, conic=-0.6, coefficients=[1e-3, 2e-4])
+    assert float((t.sag(zero, y) - cyl.sag(zero, y)).abs().max()) < 1e-14
+    # a torus point: its distance from the axis (x = 0, z = R) equals rho = R - z_y(y)
+    z = t.sag(x, y)
+    rho = 25.0 - cyl.sag(zero, y)
+    assert float((torch.sqrt(x * x + (25.0 - z) ** 2) - rho).abs().max()) < 1e-12
+    small = Toroid(0.0, 8.0, 3.0)
+    xx = torch.tensor([2.9, 3.1], dtype=F64)
+    assert small.in_domain(xx, torch.zeros_like(xx)).tolist() == [True, False]
+
+
+def test_toroid_slopes_match_central_differences():
+    t = Toroid(1 / 15.0, 8.0, -25.0, conic=-0.6, coefficients=[1e-3, 2e-4])
+    x, y = _points(200, 7.5, seed=12)
+    h = 1e-6
+    sx, sy = t.sag_grad(x, y)
+    fx = (t.sag(x + h, y) - t.sag(x - h, y)) / (2 * h)
+    fy = (t.sag(x, y + h) - t.sag(x, y - h)) / (2 * h)
+    assert float((sx - fx).abs().max()) < 1e-8 and float((sy - fy).abs().max()) < 1e-8
+
+
+def test_toroid_file_entry_and_checks():
+    t = Toroid(1 / 15.0, 8.0, 25.0, conic=-0.6, coefficients=[1e-3], half_widths=(6.0, 5.0))
+    d = t.to_dict()
+    assert d["type"] == "toroid" and d["radius_of_rotation_mm"] == 25.0
+    back = Toroid.from_dict(_Entry(d), 8.0)
+    x, y = _points(100, 5.0, seed=13)
+    assert torch.equal(back.sag(x, y), t.sag(x, y))
+    for bad in (0.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="radius of rotation"):
+            Toroid(1 / 15.0, 8.0, bad)
+    with pytest.raises(ValueError, match="radius of rotation"):
+        Toroid(0.0, 8.0, 7.0).check()
+
+
+def test_asphere_decentred_clear_aperture():
+    """An off-axis opening: rays are kept within ``clear_radius`` of ``clear_decenter`` (and
+    within the semi-diameter about the vertex); saved in the lens file."""
+    s = Asphere(-1 / 190.6, 216.0, conic=-1.0, clear_radius=25.4, clear_decenter=(0.0, 190.6))
+    y = torch.tensor([0.0, 165.3, 165.1, 215.9, 216.1, -190.6], dtype=F64)
+    assert s.in_aperture(torch.zeros_like(y), y).tolist() == [False, True, False, True, False,
+                                                              False]
+    x = torch.tensor([25.3, 25.5], dtype=F64)
+    assert s.in_aperture(x, torch.full_like(x, 190.6)).tolist() == [True, False]
+    d = s.to_dict()
+    assert d["clear_decenter_mm"] == [0.0, 190.6] and d["clear_radius_mm"] == 25.4
+    back = Asphere.from_dict(_Entry(d), 216.0)
+    assert back.clear_decenter.tolist() == [0.0, 190.6]
+    assert "clear_decenter_mm" not in Asphere(0.05, 7.5, clear_radius=6.0).to_dict()
+    with pytest.raises(ValueError, match="needs a clear_radius"):
+        Asphere(0.05, 7.5, clear_decenter=(1.0, 0.0))
+    with pytest.raises(ValueError, match="two finite numbers"):
+        Asphere(0.05, 7.5, clear_radius=2.0, clear_decenter=(math.nan, 0.0))

@@ -8,7 +8,8 @@ from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
 from .ideal import IdealLens
 from .plane import Plane
+from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
 
 __all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "BSpline", "Cylinder",
-           "Plane", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]
+           "Plane", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]

@@ -27,6 +27,8 @@ reaches both paths alike.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -142,18 +144,45 @@ class Asphere(SagSurface):
             semi-diameter): rays that meet the surface at ``x^2 + y^2 < obscuration^2`` are
             blocked (the shadow of a Cassegrain's secondary on its primary, Zemax's ``OBSC``).
             A fixed buffer, not a parameter.
+        clear_radius: radius of a clear aperture narrower than the semi-diameter, mm (``inf``:
+            none): rays that meet the surface at ``x^2 + y^2 > clear_radius^2`` are blocked.
+            For a stop sized by an EPD or F-number (its semi-diameter, the paraxial stop radius,
+            sets the pupil) with a smaller clear aperture on it (Zemax's ``CLAP`` on the stop
+            surface): the pupil keeps its size and the opening is the smaller one, so the rim
+            of the pupil is vignetted.  A fixed buffer (not saved in ``state_dict``: it comes
+            with the lens file, ``clear_radius_mm``), not a parameter.
+        clear_decenter: ``(d_x, d_y)``, mm: the centre of that clear aperture (an off-axis
+            segment of the surface: an off-axis parabola's opening, Zemax's ``OBDC`` with a
+            ``CLAP``); the semi-diameter must then enclose the whole opening.  A fixed buffer
+            like ``clear_radius`` (lens file: ``clear_decenter_mm``).
 
     Each value is its own parameter: ``surface.c``, ``surface.k``, ``surface.a[0]`` (= a4), ...
     """
 
     def __init__(self, curvature: float, semi_diameter: float, conic: float = 0.0,
-                 coefficients=(), obscuration: float = 0.0):
+                 coefficients=(), obscuration: float = 0.0, clear_radius: float = math.inf,
+                 clear_decenter: tuple[float, float] = (0.0, 0.0)):
         super().__init__(semi_diameter)
         obscuration = float(obscuration)
         if not (obscuration >= 0.0 and obscuration < float("inf")):
             raise ValueError(f"Asphere: the obscuration radius must be a number >= 0 mm, got "
                              f"{obscuration!r}")
         self.register_buffer("obscuration", torch.tensor(obscuration, dtype=torch.float64))
+        clear_radius = float(clear_radius)
+        if not clear_radius > 0:
+            raise ValueError(f"Asphere: the clear radius must be a number > 0 mm (inf: none), "
+                             f"got {clear_radius!r}")
+        self.register_buffer("clear_radius", torch.tensor(clear_radius, dtype=torch.float64),
+                             persistent=False)
+        dec = [float(v) for v in clear_decenter]
+        if len(dec) != 2 or not all(math.isfinite(v) for v in dec):
+            raise ValueError(f"Asphere: clear_decenter must be two finite numbers (mm), got "
+                             f"{clear_decenter!r}")
+        if any(dec) and not math.isfinite(clear_radius):
+            raise ValueError("Asphere: a clear_decenter needs a clear_radius (the opening it "
+                             "moves)")
+        self.register_buffer("clear_decenter", torch.tensor(dec, dtype=torch.float64),
+                             persistent=False)
         coefficients = list(coefficients)
         if len(coefficients) > (MAX_ASPHERE_ORDER - 2) // 2:
             raise ValueError(f"Asphere: at most {(MAX_ASPHERE_ORDER - 2) // 2} even coefficients "
@@ -242,6 +271,13 @@ class Asphere(SagSurface):
         if float(self.obscuration) > 0:
             ro = self.obscuration.to(x)
             inside = inside & (x * x + y * y >= ro * ro)
+        if math.isfinite(float(self.clear_radius)):
+            rc = self.clear_radius.to(x)
+            if bool(self.clear_decenter.any()):
+                u, v = x - self.clear_decenter[0].to(x), y - self.clear_decenter[1].to(x)
+                inside = inside & (u * u + v * v <= rc * rc)
+            else:
+                inside = inside & (x * x + y * y <= rc * rc)
         return inside
 
     def check(self, where: str = "") -> None:
@@ -249,6 +285,10 @@ class Asphere(SagSurface):
         if not float(self.obscuration) < sd and float(self.obscuration) > 0:
             raise ValueError(f"{where}the central obscuration ({float(self.obscuration):g} mm) "
                              f"must be smaller than the semi-diameter ({sd:g} mm)")
+        if float(self.obscuration) > 0 and not float(self.obscuration) < float(self.clear_radius):
+            raise ValueError(f"{where}the central obscuration ({float(self.obscuration):g} mm) "
+                             f"must be smaller than the clear radius "
+                             f"({float(self.clear_radius):g} mm)")
         arg = 1.0 - (1.0 + float(self.k)) * float(self.c) ** 2 * sd * sd
         if arg <= 0:
             limit = (1.0 / ((1.0 + float(self.k)) * float(self.c) ** 2)) ** 0.5
@@ -257,7 +297,8 @@ class Asphere(SagSurface):
                 f"(R = {1 / float(self.c):g} mm, k = {float(self.k):g}): the sag is only "
                 f"defined for r < {limit:g} mm")
 
-    file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric", "obscuration_mm")
+    file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric", "obscuration_mm",
+                   "clear_radius_mm", "clear_decenter_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -273,7 +314,10 @@ class Asphere(SagSurface):
                                            "1/mm; or give roc_mm)")
         return cls(c, semi_diameter, conic=entry.get("conic", default=0.0),
                    coefficients=entry.get("aspheric", "numbers", default=[]),
-                   obscuration=entry.get("obscuration_mm", default=0.0))
+                   obscuration=entry.get("obscuration_mm", default=0.0),
+                   clear_radius=entry.get("clear_radius_mm", default=math.inf),
+                   clear_decenter=entry.get("clear_decenter_mm", "numbers",
+                                            default=[0.0, 0.0]))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -284,6 +328,10 @@ class Asphere(SagSurface):
             d["aspheric"] = [float(a) for a in self.a]
         if float(self.obscuration) > 0:
             d["obscuration_mm"] = float(self.obscuration)
+        if math.isfinite(float(self.clear_radius)):
+            d["clear_radius_mm"] = float(self.clear_radius)
+        if bool(self.clear_decenter.any()):
+            d["clear_decenter_mm"] = [float(v) for v in self.clear_decenter]
         return d
 
     def extra_repr(self) -> str:

@@ -264,7 +264,7 @@ BAD = [
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
      r"aperture, asphere, bspline, conic, coordinate_break, cylinder, ideal_lens, plane, sphere, "
-     r"xy_polynomial\)"),
+     r"toroid, xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -456,6 +456,14 @@ def test_every_registered_surface_type_round_trips():
     from deeplens.optics.surfaces import SURFACE_TYPES
 
     d = all_types_dict()
+    # the toroid (the cylinder's profile turned about an axis: a Zemax TOROIDAL with a finite
+    # radius of rotation), added here so that the other tests keep their indices
+    d["surfaces"].append({"type": "toroid", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": -1 / 40.0, "conic": 0.2,
+                          "coefficients": [1e-4 / 7], "radius_of_rotation_mm": -70.0 / 3,
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([9, 9])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}
     assert canonical <= written, f"add {sorted(canonical - written)} to all_types_dict"

@@ -168,6 +168,43 @@ def test_misalignment_round_trip_through_coordinate_breaks(tmp_path):
     assert (pc[vc & va] - pa[vc & va]).abs().max() > 1e-3
 
 
+@pytest.mark.parametrize("edit,needle,feature,surf,surfaces", [
+    (lambda t: t.replace("TYPE EVENASPH", "TYPE QED_TYPE"), "QED_TYPE", "TYPE", 2, ()),
+    (lambda t: t.replace("CURV 0.02", "CURV 0.0.2"), "0.0.2", "CURV", 2, ()),
+    (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", "UNIT", None, ()),
+    (lambda t: t.replace("GLAS N-BK7", "GLAS N-BK7X"), "N-BK7X", "GLAS", 2, ()),
+    # an error of the built lens: located at the block of the last deeplens surface it names
+    (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0"), "SURF 3",
+     "SURF", 3, (1, 2)),
+    # an error about the sensor: at the image surface's block
+    (lambda t: t.replace("CURV -0.005", "CURV 0.02").replace("DISZ 45.0", "DISZ 0.3"), "SURF 4",
+     "SURF", 4, ()),
+    (lambda t: t.replace("  STOP\n", ""), None, None, None, ()),
+])
+def test_error_location_is_structured(tmp_path, edit, needle, feature, surf, surfaces):
+    """The location is in the error's attributes (what callers read), and the message is
+    formatted from them: ``SOURCE[:LINE]: MESSAGE``."""
+    text = edit(singlet())
+    p = write(tmp_path, text)
+    with pytest.raises(ZemaxFileError) as info:
+        read_zmx(p)
+    e = info.value
+    assert e.source == str(p)
+    assert e.line == (line_of(text, needle) if needle else None)
+    assert (e.feature, e.surf, e.surfaces) == (feature, surf, surfaces)
+    where = f"{e.source}:{e.line}" if e.line else e.source
+    assert str(e) == f"{where}: {e.message}"
+
+
+def test_warning_location_is_structured(tmp_path):
+    p = write(tmp_path, singlet(extra_system=("FOOB 1 2 3",)))
+    with pytest.warns(ZemaxWarning) as rec:
+        read_zmx(p)
+    w = next(r.message for r in rec if "FOOB" in str(r.message))
+    assert (w.source, w.line, w.feature) == (str(p), 13, "FOOB")
+    assert str(w) == f"{p}:13: {w.message}"
+
+
 def test_model_glass_round_trip(tmp_path):
     lens = load_lens(JSON)
     from deeplens.optics.materials import ModelGlass
@@ -409,8 +446,9 @@ def line_of(text: str, needle: str) -> int:
 @pytest.mark.parametrize("edit,needle,match", [
     (lambda t: t.replace("TYPE EVENASPH", "TYPE QED_TYPE"), "QED_TYPE",
      r"surface type 'QED_TYPE' \(SURF 2, a Q-type \(Forbes\) asphere\) is not supported"),
-    (lambda t: t.replace("TYPE EVENASPH", "TYPE TOROIDAL").replace("PARM 1 0", "PARM 1 30"),
-     "PARM 1 30", r"SURF 2: a TOROIDAL surface with a finite radius of rotation"),
+    (lambda t: t.replace("TYPE EVENASPH", "TYPE TOROIDAL").replace("PARM 1 0", "PARM 1 3"),
+     "SURF 2", r"surface 1 \(Toroid\): the clear aperture \(x up to 8 mm\) lies beyond the "
+               r"toroid's radius of rotation \(3 mm\)"),
     (lambda t: t.replace("CURV 0.02", "CURV 0.0.2"), "0.0.2",
      r"CURV curvature: expected a number, got '0.0.2'"),
     (lambda t: t.replace("PARM 1 0", "PARM 1 0.001"), "PARM 1", r"EVENASPH PARM 1 \(the r² term\)"),
@@ -425,7 +463,7 @@ def line_of(text: str, needle: str) -> int:
     (lambda t: t.replace("SURF 2", "SURF 7"), "SURF 7", r"SURF 7 out of order"),
     (lambda t: t.replace("  DIAM 8 1 0 0 1 \"\"\nSURF 4", "  SQAP 2 2\nSURF 4"), "SQAP",
      r"SQAP on SURF 3: a rectangular aperture on a Asphere surface is not supported"),
-    (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0"), None,
+    (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0"), "SURF 3",
      r"surfaces 1 and 2 cross.*deeplens surface 1 is the SURF block on line "
      + str(line_of(singlet(), "SURF 2"))),
 ])

@@ -106,8 +106,8 @@ def test_decentred_apertures_round_trip(tmp_path, clap, obdc):
                                  '  DISZ 2\n  DIAM 5 1 0 0 1 ""\n  CLAP 0 5 0\n  OBDC 0.5 0\n', 1),
      "a decentred aperture stop is not supported"),
     ("lens", lambda t: t.replace('  DIAM 8 1 0 0 1 ""\nSURF 4',
-                                 '  DIAM 8 1 0 0 1 ""\n  CLAP 0 8 0\n  OBDC 0.5 0\nSURF 4', 1),
-     "a decentred aperture on a lens or mirror surface"),
+                                 '  DIAM 8 1 0 0 1 ""\n  CLAP 1 8 0\n  OBDC 0.5 0\nSURF 4', 1),
+     "an annular or obscured decentred aperture on a lens or mirror surface"),
     ("obscuration", lambda t: _with_field_stop(clap="OBSC 0 1 0", obdc="OBDC 0.5 0",
                                                extra=('DIAM 3 1 0 0 1 ""',)),
      "a decentred obscuration"),
@@ -150,10 +150,11 @@ def test_model_glass_below_one_is_refused_with_its_line(tmp_path):
 
 
 @pytest.mark.parametrize("clap,refused", [("CLAP 0 4 0", True), ("CLAP 0 5.5 0", False)])
-def test_a_clear_aperture_that_cuts_the_entrance_pupil_on_the_stop_is_refused(tmp_path, clap,
-                                                                              refused):
-    """ENPD 10 sizes the stop (in object space) to radius 5: a CLAP of 4 on it would vignette
-    the pupil in OpticStudio (deeplens' stop has one radius), one of 5.5 cuts nothing."""
+def test_a_clear_aperture_that_cuts_the_entrance_pupil_on_a_flat_stop_is_refused(tmp_path, clap,
+                                                                                 refused):
+    """ENPD 10 sizes the flat stop in air (an ``Aperture``, in object space) to radius 5: a CLAP
+    of 4 on it would vignette the pupil in OpticStudio, and deeplens' ``Aperture`` has one
+    radius (a lens surface stop takes it: below); one of 5.5 cuts nothing."""
     text = singlet().replace('  DISZ 2\n  DIAM 5 1 0 0 1 ""\n',
                              f'  DISZ 2\n  DIAM 5 1 0 0 1 ""\n  {clap}\n', 1)
     if refused:
@@ -199,3 +200,97 @@ def test_decentred_aperture_vignettes_a_field_as_optiland_does(tmp_path, obdc):
     assert s.n_rays / s.n_launched == pytest.approx(ok.mean(), abs=0.005)
     assert float(s.centroid[1]) == pytest.approx(y[ok].mean(), abs=2e-3)
     assert abs(float(s.centroid[1]) - 3.72) > 0.3     # the decenter moved the centroid
+
+
+CORPUS = __import__("pathlib").Path(__file__).resolve().parents[2] / "data" / "zmx_real"
+
+
+def test_a_clear_aperture_narrower_than_a_lens_surface_stop_vignettes_the_pupil(tmp_path):
+    """``optiland_lens2``: ENPD 15 with the stop on the first (aspheric) lens surface, whose
+    paraxial stop radius is 7.5 mm, and a CLAP of 6.75 mm there.  As in OpticStudio the pupil
+    keeps the size the ENPD gives it (EPD 15, paraxial data unchanged) and the opening is the
+    smaller one: exactly the rays that meet the surface within 6.75 mm pass (hit points from a
+    trace that clips nothing).  Without the clear aperture the on-axis RMS spot would be 49 %
+    larger; with it, it equals optiland's (``test_zmx_corpus``).  Written back as ``CLAP``."""
+    from deeplens.analysis.spot import spot_diagram
+    from deeplens.optics.paraxial import paraxial
+
+    with pytest.warns(Warning):
+        lens = read_zmx(CORPUS / "optiland_lens2.zmx")
+    lens = lens.double()
+    i = lens.stop_index
+    stop = lens.surfaces[i]
+    assert float(stop.semi_diameter) == pytest.approx(7.5, rel=1e-12)
+    assert float(stop.clear_radius) == 6.75
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(15.0, rel=1e-12)
+    assert fused_kind(lens, i) is None   # clipped by the surface's own in_aperture: eager
+    g = torch.linspace(-7.4, 7.4, 61, dtype=torch.float64)
+    x, y = torch.meshgrid(g, g, indexing="ij")
+    keep = x * x + y * y <= 7.4 ** 2
+    o = torch.stack([x[keep], y[keep], torch.full_like(x[keep], -1.0)], -1)
+    d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(o)
+    rays = Rays(o, d, torch.full(o.shape[:1], 587.6, dtype=torch.float64))
+    with torch.no_grad():
+        free, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+        r = torch.linalg.vector_norm(hits[i][..., :2], dim=-1)
+        want = free.valid & (r <= 6.75)
+        assert 0 < int(want.sum()) < int(free.valid.sum())   # the clear aperture vignettes
+        for opt in (None, IntersectOptions(closed_form=False)):
+            assert torch.equal(lens.trace(rays, options=opt).valid, want)
+        w = float(lens.spec.primary_wavelength_nm)
+        with_clap = float(spot_diagram(lens, 0.0, w, "hexapolar:12", pupil="paraxial").rms_radius)
+        stop.clear_radius.fill_(math.inf)
+        without = float(spot_diagram(lens, 0.0, w, "hexapolar:12", pupil="paraxial").rms_radius)
+        stop.clear_radius.fill_(6.75)
+    assert without > 1.3 * with_clap
+    write_zmx(lens, tmp_path / "rt.zmx")
+    assert "CLAP 0 6.75 0" in (tmp_path / "rt.zmx").read_text()
+    with pytest.warns(Warning):
+        back = read_zmx(tmp_path / "rt.zmx")
+    assert lens_to_dict(back)["surfaces"] == lens_to_dict(lens)["surfaces"]
+    assert lens_to_dict(lens)["surfaces"][i]["clear_radius_mm"] == 6.75
+
+
+def test_off_axis_parabola_clips_about_its_decentred_opening(tmp_path):
+    """``zmax_37992`` (a 90° off-axis parabola, R = -190.6 mm, reached through a y decenter of
+    -190.6 mm): its CLAP of 25.4 mm with OBDC (0, 190.6) is the mirror's off-axis opening.  Of a
+    beam wider than the opening, exactly the rays whose hit on the mirror lies within 25.4 mm of
+    (0, 190.6) pass (hit points of a trace that clips nothing; the opposite decenter, or a
+    centred opening, would pass others); the semi-diameter encloses the opening; the rays that
+    pass meet at the parabola's focus (a point at round-off).  Written back as CLAP + OBDC."""
+    from deeplens.optics.sampling import field_rays
+
+    with pytest.warns(Warning):
+        lens = read_zmx(CORPUS / "zmax_37992.zmx")
+    lens = lens.double()
+    i = next(k for k, s in enumerate(lens.surfaces) if k in lens.mirrors)
+    m = lens.surfaces[i]
+    assert m.clear_decenter.tolist() == [0.0, 190.6] and float(m.clear_radius) == 25.4
+    assert float(m.semi_diameter) == pytest.approx(216.0, rel=1e-12)
+    assert fused_kind(lens, i) is None
+    g = torch.linspace(-40.0, 40.0, 41, dtype=torch.float64)
+    x, y = torch.meshgrid(g, g, indexing="ij")
+    xy = torch.stack([x.reshape(-1), y.reshape(-1)], -1)
+    xy = xy[(xy[:, 1] != 0)]   # the central row leaves the mirror inside the image plane
+    free_opt = IntersectOptions(clip_aperture=False)
+    with torch.no_grad():
+        w = float(lens.spec.primary_wavelength_nm)
+        lens.surfaces[0].semi_diameter.fill_(100.0)   # the stop: let the wide beam through
+        rays = field_rays(lens, 0.0, w, xy, -1.0)
+        free, hits = lens.trace(rays, options=free_opt, record=True)
+        clipped = lens.trace(rays)
+        hx, hy = hits[i][..., 0], hits[i][..., 1]
+
+        def inside(cy):
+            return free.valid & (hx ** 2 + (hy - cy) ** 2 <= 25.4 ** 2)
+
+        want = inside(190.6)
+        assert 0 < int(want.sum()) < int(free.valid.sum())
+        assert torch.equal(clipped.valid, want)
+        assert not torch.equal(inside(-190.6), want) and not torch.equal(inside(0.0), want)
+        out = lens.trace_to_sensor(rays)
+        p = out.o[out.valid]
+        assert int(out.valid.sum()) == int(want.sum())
+        assert float((p - p.mean(0)).norm(dim=-1).max()) < 1e-9   # the parabola's focus
+    write_zmx(lens, tmp_path / "rt.zmx")
+    assert "OBDC 0.0 190.6" in (tmp_path / "rt.zmx").read_text()

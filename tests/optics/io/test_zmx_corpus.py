@@ -25,21 +25,24 @@ from deeplens.optics.io import lens_to_dict
 from deeplens.optics.io.zmx import ZemaxFileError, lens_pupil_convention, read_zmx, write_zmx
 from deeplens.optics.paraxial import paraxial
 
+try:
+    from optiland.paraxial_path import UnsupportedParaxialGeometryError
+except ImportError:   # optiland absent (the oracle tests skip) or without this error
+    class UnsupportedParaxialGeometryError(Exception):
+        pass
+
 CORPUS = Path(__file__).resolve().parents[2] / "data" / "zmx_real"
 FILES = sorted(p.name for p in CORPUS.glob("*.zmx"))
 
 #: file -> the feature its refusal must name (every other file must load)
 REFUSED = {
-    "HoO-V2C18Ex46.zmx": "TOROIDAL",    # a toroidal mirror (finite radius of rotation)
     "US08011793-1.zmx": "OBDC",
-    "zmax_37992.zmx": "OBDC",
     "optiland_curved_reflective_grating.zmx": "DGRATING",
     "optiland_curved_transmission_grating.zmx": "DGRATING",
     "optiland_flat_transmission_grating.zmx": "DGRATING",
     "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
-    "optiland_lens2.zmx": "CLAP on the stop surface",   # its L-BAL35 is in the archived OHARA
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",
     "patent2zemax_EP0770895A2-1.zmx": "cross",    # automatic semi-diameters overlap at the rim
@@ -66,9 +69,13 @@ def _load(name):
 def test_refusal_is_located(name):
     with pytest.raises(ZemaxFileError) as e:
         _load(name)
-    msg = str(e.value)
-    assert str(CORPUS / name) in msg
-    assert re.search(rf"{re.escape(name)}:\d+: ", msg) or re.search(r"on line \d+", msg), msg
+    err, msg = e.value, str(e.value)
+    # the location is in the error's attributes; the message is formatted from them
+    assert err.source == str(CORPUS / name)
+    assert err.line is not None and err.line > 0, msg
+    lines = decode_zemax_text(CORPUS / name).splitlines()
+    assert lines[err.line - 1].split()[0].upper() == err.feature, msg
+    assert msg == f"{err.source}:{err.line}: {err.message}"
     assert REFUSED[name] in msg, msg
     assert msg.count(f"{name}:") <= 1, msg   # located once
 
@@ -157,6 +164,20 @@ def _oracle(name, lens):
         if m is not None and float(m.group(1)) > 0:
             assert s.aperture is None, "an OBSC beside another aperture: extend the oracle"
             s.aperture = RadialAperture(r_max=1e30, r_min=float(m.group(1)))
+    # TOROIDAL: OpticStudio's PARM 1 is the radius of rotation (0: infinite) and PARM 2.. the
+    # y², y⁴, ... coefficients; optiland 0.6's reader takes the radius from PARM 2 and the
+    # coefficients from PARM 3.. (one off), so the oracle's toroidal geometry (its own sag,
+    # normal and trace) gets the file's radius of rotation here
+    parms = [dict((int(m.group(1)), float(m.group(2)))
+                  for m in re.finditer(r"^\s+PARM\s+(\d+)\s+(\S+)", b, re.M))
+             for b, t in zip(blocks, types) if t != "COORDBRK"]
+    tor = [t == "TOROIDAL" for t in types if t != "COORDBRK"]
+    for s, is_tor, parm in zip(surfs, tor, parms):
+        if is_tor:
+            assert all(parm.get(i, 0.0) == 0.0 for i in range(2, 10)), \
+                "TOROIDAL y coefficients: extend the oracle"
+            r_rot = parm.get(1, 0.0)
+            s.geometry.set_radius_x(math.inf if r_rot == 0 else r_rot)
     # the image surface's own GLAS (the medium after the image) is no medium of the lens, but
     # optiland's f2 uses it as the image-space index: give it the medium before the image
     surfs[-1].material_post = IdealMaterial(n=n_dl[-1])
@@ -184,7 +205,13 @@ def _first_order(lens, optic, s_mm, name):
             "BFL": (bfl_dl, bfl_ol)}
 
 
-def _rms_on_axis(lens, optic, s_mm, pupil):
+#: files whose image plane (untilted in the global frame) contains a ray of the on-axis beam:
+#: the central ray of a 90° off-axis parabola leaves the mirror along -y, inside the image
+#: plane, and never meets it; deeplens drops it, optiland lands it somewhere in the plane
+GRAZING = {"zmax_37992.zmx"}
+
+
+def _rms_on_axis(lens, optic, s_mm, pupil, name=None):
     from optiland.analysis import SpotDiagram
 
     w = float(lens.spec.primary_wavelength_nm)
@@ -195,7 +222,29 @@ def _rms_on_axis(lens, optic, s_mm, pupil):
         sd = SpotDiagram(optic, fields=[(0.0, 0.0)], wavelengths=[w / 1000.0], num_rings=12,
                          reference="centroid")
         ol = float(sd.rms_spot_radius()[0][0])
+    if name in GRAZING:
+        # the oracle's spot from its own rays (the same hexapolar pattern) without the rays
+        # that travel inside the image plane (global direction cosine N = 0 there)
+        optic.trace(0.0, 0.0, w / 1000.0, 12, "hexapolar")
+        sg = optic.surface_group
+        x, y, n, i = (torch.as_tensor(a[-1]).reshape(-1).double()
+                      for a in (sg.x, sg.y, sg.N, sg.intensity))
+        grazing = n.abs() < 1e-12
+        assert int(grazing.sum()) == 1
+        if bool(grazing.any()):
+            m = (i > 0) & ~grazing
+            x, y = x[m] - x[m].mean(), y[m] - y[m].mean()
+            ol = float(torch.sqrt((x * x + y * y).mean()))
     return dl, ol
+
+
+def _assert_rms_agrees(dl, ol, what="on-axis RMS spot radius"):
+    """Within 0.5 %; where the oracle's spot is a point at round-off (a perfect focus: an
+    off-axis parabola on its axis), deeplens' must be one too (below 1e-9 of the file unit)."""
+    if ol < 1e-9:
+        assert dl < 1e-9, what
+    else:
+        assert dl == pytest.approx(ol, rel=5e-3), what
 
 
 @pytest.mark.parametrize("name", [f for f in FILES if f not in REFUSED])
@@ -212,14 +261,26 @@ def test_loads_with_the_oracles_numbers(name, tmp_path):
         straight = _load(ref)
         assert float(paraxial(straight).efl) == float(paraxial(lens).efl)
         first, _ = _oracle(ref, lens)
-    for what, (dl, ol) in _first_order(lens, first, s_mm, ref).items():
+    try:
+        numbers = _first_order(lens, first, s_mm, ref)
+    except UnsupportedParaxialGeometryError:
+        # tilted powered mirrors whose vertices leave the beam (HoO-V2C18Ex46): optiland
+        # declines first-order data even without decenters; deeplens' (and OpticStudio's)
+        # paraxial trace follows the local axes, ignoring every break, so optiland answers for
+        # the file with every COORDBRK value zeroed (deeplens' numbers must not change)
+        ref = _without_breaks(name, tmp_path)
+        straight = _load(ref)
+        assert float(paraxial(straight).efl) == float(paraxial(lens).efl)
+        first, _ = _oracle(ref, lens)
+        numbers = _first_order(lens, first, s_mm, ref)
+    for what, (dl, ol) in numbers.items():
         if math.isinf(ol):   # afocal (flat folds only): an infinite focal length either way
             assert math.isinf(dl), what
             continue
         assert dl == pytest.approx(ol, rel=1e-6, abs=1e-9 * max(1.0, abs(dl))), what
     # OpticStudio without ray aiming: rays at the paraxial entrance pupil (optiland's default)
-    dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial")
-    assert dl == pytest.approx(ol, rel=5e-3), "on-axis RMS spot radius"
+    dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial", name)
+    _assert_rms_agrees(dl, ol)
     convention = lens_pupil_convention(lens)
     assert convention == ("traced" if _raim_type(name) else "paraxial")
     if convention == "traced":
@@ -258,19 +319,27 @@ def test_folded_files_image_where_optiland_does(name):
         xy = torch.tensor(pupil, dtype=lens.dtype) * half
         out = lens.trace_to_sensor(field_rays(lens, 0.0, w, xy, float(par.entrance_pupil_z)),
                                    options=IntersectOptions(clip_aperture=False))
-        assert bool(out.valid.all())
         g = to_global(local_frames(lens)[-1], out.o)
     # deeplens' global origin is its first vertex; optiland's, the file's SURF 1
     types, _, q = _file_path_coords(CORPUS / name)
     offset = float(_dl_path_coords(lens)[0]) - q[1] * s_mm
-    for (px, py), p in zip(pupil, g):
+    compared = 0
+    for (px, py), p, ok in zip(pupil, g, out.valid.tolist()):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             optic.trace_generic(0.0, 0.0, px, py, w / 1000.0)
         sg = optic.surface_group
         ol = [float(torch.as_tensor(c)[-1].reshape(-1)[0]) for c in (sg.x, sg.y, sg.z)]
+        # a ray leaving the last surface inside the image plane never meets it (GRAZING):
+        # deeplens drops exactly those
+        grazing = name in GRAZING and abs(float(torch.as_tensor(sg.N[-1]).reshape(-1)[0])) < 1e-12
+        assert ok != grazing, (px, py)
+        if grazing:
+            continue
         dl = [float(p[0]) / s_mm, float(p[1]) / s_mm, (float(p[2]) + offset) / s_mm]
         assert dl == pytest.approx(ol, abs=1e-9), (px, py)
+        compared += 1
+    assert compared >= 4
 
 
 def _has_decenters(name):
@@ -286,6 +355,17 @@ def _without_decenters(name, tmp_path):
         if re.search(r"^\s+TYPE\s+COORDBRK", b, re.M):
             parts[i] = re.sub(r"^(\s+PARM\s+[12]\s+)\S+", r"\g<1>0", b, flags=re.M)
     p = tmp_path / f"centred_{name}"
+    p.write_text("".join(parts))
+    return p
+
+
+def _without_breaks(name, tmp_path):
+    """The file with every COORDBRK's decenters and tilts (PARM 1-5) set to 0."""
+    parts = re.split(r"(^SURF\s+\d+.*$)", decode_zemax_text(CORPUS / name), flags=re.M)
+    for i, b in enumerate(parts):
+        if re.search(r"^\s+TYPE\s+COORDBRK", b, re.M):
+            parts[i] = re.sub(r"^(\s+PARM\s+[1-5]\s+)\S+", r"\g<1>0", b, flags=re.M)
+    p = tmp_path / f"unfolded_{name}"
     p.write_text("".join(parts))
     return p
 

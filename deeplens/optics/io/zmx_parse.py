@@ -1,0 +1,362 @@
+"""Zemax ``.zmx`` text -> records -> the raw file (system data and ``SURF`` blocks).
+
+Two steps, both in the file's own units (lengths are scaled to mm by the reader,
+:mod:`.zmx_read`):
+
+* :func:`tokenize`: every non-blank line becomes a :class:`Record` -- its 1-based line number,
+  its keyword (upper case), its tokens, its text and the ``SURF`` block it belongs to;
+* :func:`parse`: the records become the system data (``sysd``: unit, aperture, field type,
+  fields, wavelengths, glass catalogues, ray aiming, each value with the line it came from) and
+  one :class:`ZmxSurface` per ``SURF`` block, with what the reader needs of each line.
+
+Every error is raised through a :class:`Locator`, which knows the file and every record: the
+:class:`~deeplens.optics.errors.ZemaxFileError` it raises carries ``source``, ``line``,
+``feature`` (the record's keyword) and ``surf`` (the file's surface number) as attributes, and
+its message is formatted from them.  Lines understood but not used are collected as notes and
+become :class:`~deeplens.optics.errors.ZemaxWarning` s at the end of a successful read.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import ZemaxFileError, ZemaxWarning
+from .agf import decode_zemax_text
+
+__all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
+
+UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
+"""``UNIT`` name -> millimetres per file unit."""
+
+# surface types met in real files that deeplens refuses, and what they are
+_DIFFRACTIVE = "out of scope: deeplens traces refraction and reflection, not diffraction orders"
+_UNSUPPORTED_TYPES = {
+    "QED_TYPE": "a Q-type (Forbes) asphere", "QTYPEASP": "a Q-type (Forbes) asphere",
+    "DGRATING": f"a diffraction grating, {_DIFFRACTIVE}",
+    "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
+    "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
+    "BINARY_2": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
+    "ODDASPH": "an odd asphere", "BICONICX": "a biconic", "GRINSUR1": "a gradient-index surface",
+    "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
+    "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
+    "TILTSURF": "a tilted surface",
+}
+
+# Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
+_SILENT = {
+    "VERS", "MODE", "NAME", "PFIL", "LANG", "GFAC", "PUSH", "SDMA", "OMMA", "ROPD", "HYPR",
+    "PICB", "FWGN", "POLS", "GLRS", "GSTD", "NSCD",
+    "COFN", "FIMP", "HIDE", "MIRR", "SLAB", "MEMA", "POPS", "FLAP", "BLNK", "TOL",
+    "MOFF", "COMM", "NOTE", "WWGT", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
+    "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "PPAR", "CONF", "DMFS", "BLDM",
+    "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "THSO",
+    "AUTH", "IWDP", "LUID", "EERA", "SSID", "DBDT",
+}
+
+
+
+@dataclass(frozen=True)
+class Record:
+    """One non-blank line of a ``.zmx`` file.
+
+    Attributes:
+        line: its 1-based line number.
+        key: its keyword (the first token, upper case).
+        tokens: every token (the keyword as written first).
+        text: the line as written.
+        surf: the number of the ``SURF`` block it belongs to (counted in file order; its lines
+            are indented), ``None`` for system data.
+    """
+
+    line: int
+    key: str
+    tokens: tuple
+    text: str
+    surf: int | None
+
+
+def tokenize(text: str) -> list[Record]:
+    """The records of a ``.zmx`` text (blank lines skipped)."""
+    out, surf = [], None
+    for ln, line in enumerate(text.splitlines(), start=1):
+        toks = line.split()
+        if not toks:
+            continue
+        key = toks[0].upper()
+        if key == "SURF":
+            surf = 0 if surf is None else surf + 1
+        # a SURF block's lines are indented; an unindented line after the blocks is system data
+        in_block = key == "SURF" or line[:1].isspace()
+        out.append(Record(ln, key, tuple(toks), line, surf if in_block else None))
+    return out
+
+
+@dataclass
+class ZmxSurface:
+    """One ``SURF`` block, values in file units, each with the line it came from where the
+    reader may need to name it."""
+
+    line: int
+    type: str = "STANDARD"
+    type_line: int = 0
+    curv: float = 0.0
+    disz: float = 0.0
+    disz_line: int = 0
+    coni: float = 0.0
+    diam: float = 0.0
+    diam_fixed: bool = False
+    stop: bool = False
+    glass: str | None = None
+    glass_model: tuple | None = None   # (n_d, V_d) on the GLAS line
+    glass_line: int = 0
+    glass_model_name: str | None = None   # GLAS NAME 1 0 n_d V_d: a named model glass
+    parm: dict = field(default_factory=dict)   # index -> (value, line)
+    xdat: dict = field(default_factory=dict)   # index -> (value, line)
+    clap: tuple | None = None
+    sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
+    obsc: tuple | None = None   # (central obscuration radius, line) in file units
+    mirror: bool = False               # GLAS MIRROR
+    obdc: tuple | None = None   # (x, y aperture decenter, line) in file units
+
+
+class Locator:
+    """The file being read: raises located errors and collects notes (warnings to come).
+
+    ``fail(line, message)`` raises a :class:`~deeplens.optics.errors.ZemaxFileError` whose
+    ``source``, ``line``, ``feature`` and ``surf`` come from the file and the record on that line
+    (``line`` 0: the file as a whole); ``note(line, message)`` keeps a note, and
+    :meth:`warn_notes` issues them as :class:`~deeplens.optics.errors.ZemaxWarning` s.
+    """
+
+    def __init__(self, path: Path, records=()):
+        self.path = path
+        self.notes: list[tuple[int, str]] = []
+        self.records = {r.line: r for r in records}
+
+    def error(self, ln, msg, surfaces=()) -> ZemaxFileError:
+        """The located error (not raised) of ``msg`` on line ``ln``."""
+        rec = self.records.get(ln) if ln else None
+        return ZemaxFileError(msg, source=self.path, line=ln or None,
+                              feature=None if rec is None else rec.key,
+                              surf=None if rec is None else rec.surf, surfaces=surfaces)
+
+    def fail(self, ln, msg, surfaces=()):
+        raise self.error(ln, msg, surfaces)
+
+    def note(self, ln, msg):
+        self.notes.append((ln, msg))
+
+    def warning(self, ln, msg) -> ZemaxWarning:
+        rec = self.records.get(ln) if ln else None
+        return ZemaxWarning(msg, source=self.path if ln else None, line=ln or None,
+                            feature=None if rec is None else rec.key)
+
+    def warn_notes(self, stacklevel: int = 3) -> None:
+        for ln, msg in self.notes:
+            warnings.warn(self.warning(ln, msg), stacklevel=stacklevel)
+
+    def num(self, tok, ln, what):
+        try:
+            v = float(tok)
+        except (ValueError, TypeError):
+            self.fail(ln, f"{what}: expected a number, got {tok!r}")
+        if not math.isfinite(v):
+            self.fail(ln, f"{what}: expected a finite number, got {tok!r}")
+        return v
+
+    def arg(self, toks, i, ln, what):
+        if len(toks) <= i:
+            self.fail(ln, f"{toks[0]} line is truncated: missing {what}")
+        return self.num(toks[i], ln, f"{toks[0]} {what}")
+
+
+def parse(path: Path):
+    """The raw file: ``(system dict, [ZmxSurface, ...], locator)``, lengths in file units."""
+    p = Locator(path)
+    try:
+        text = decode_zemax_text(path)
+    except UnicodeDecodeError as e:
+        p.fail(0, f"not a UTF-8 or UTF-16 text file ({e.reason} at byte {e.start})")
+    records = tokenize(text)
+    p.records = {r.line: r for r in records}
+    sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None, "yfln": None,
+            "waves": {}, "wavl": None, "pwav": (1, 0), "gcat": ([], 0), "name": "",
+            "mode": None, "raim": (0, 0)}
+    surfs: list[ZmxSurface] = []
+    cur: ZmxSurface | None = None
+    unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
+    for r in records:
+        ln, toks, key, line = r.line, list(r.tokens), r.key, r.text
+        if key == "SURF":
+            idx = int(p.arg(toks, 1, ln, "surface number"))
+            if idx != len(surfs):
+                p.fail(ln, f"SURF {idx} out of order: expected SURF {len(surfs)}")
+            cur = ZmxSurface(line=ln)
+            surfs.append(cur)
+            continue
+        if key == "NAME":
+            sysd["name"] = line.strip()[4:].strip()
+        elif key == "MODE":
+            if len(toks) > 1 and toks[1].upper() != "SEQ":
+                p.fail(ln, f"MODE {toks[1]}: only sequential (MODE SEQ) files can be read")
+        elif key == "UNIT":
+            if len(toks) < 2 or toks[1].upper() not in UNITS:
+                p.fail(ln, f"UNIT: unknown lens unit {toks[1] if len(toks) > 1 else ''!r}; "
+                           f"expected one of {', '.join(UNITS)}")
+            sysd["unit"] = (toks[1].upper(), ln)
+        elif key == "ENPD":
+            sysd["aperture"] = ("epd", p.arg(toks, 1, ln, "entrance-pupil diameter"), ln)
+        elif key == "FNUM":
+            v = p.arg(toks, 1, ln, "F-number")
+            flag = p.num(toks[2], ln, "FNUM flag") if len(toks) > 2 else 0
+            # flag 1: the paraxial working F-number, converted to an EPD once the lens is built
+            sysd["aperture"] = ("wfno" if flag == 1 else "fno", v, ln)
+        elif key == "FLOA":
+            sysd["aperture"] = ("stop", None, ln)
+        elif key == "OBNA":
+            v = p.arg(toks, 1, ln, "object-space numerical aperture")
+            flag = p.num(toks[2], ln, "OBNA flag") if len(toks) > 2 else 0
+            # flag 0: n sin(θ) of the marginal ray; flag 1: the cone angle θ (degrees)
+            sysd["aperture"] = ("cone" if flag == 1 else "obna", v, ln)
+        elif key == "RAIM":
+            # RAIM <unused> <type: 0 off, 1 paraxial, 2 real> ...
+            sysd["raim"] = (int(p.num(toks[2], ln, "RAIM ray-aiming type")) if len(toks) > 2
+                            else 0, ln)
+        elif key == "FTYP":
+            p.arg(toks, 1, ln, "field type")
+            sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
+        elif key in ("XFLN", "YFLN", "XFLD", "YFLD"):
+            slot = key[0].lower() + "fln"      # XFLD/YFLD: older files; XFLN/YFLN win
+            if len(toks) < 2:
+                p.fail(ln, f"{key} line is truncated: no field values")
+            if key.endswith("FLN") or sysd[slot] is None:
+                sysd[slot] = ([p.num(t, ln, key) for t in toks[1:]], ln)
+        elif key == "WAVM":
+            i = int(p.arg(toks, 1, ln, "wavelength number"))
+            sysd["waves"][i] = (p.arg(toks, 2, ln, "wavelength (µm)"), ln)
+        elif key == "WAVL":
+            sysd["wavl"] = ([p.num(t, ln, "WAVL") for t in toks[1:]], ln)
+        elif key == "PWAV":
+            sysd["pwav"] = (int(p.arg(toks, 1, ln, "primary wavelength number")), ln)
+        elif key == "GCAT":
+            sysd["gcat"] = ([t.upper() for t in toks[1:]], ln)
+        elif cur is not None and key == "TYPE":
+            if len(toks) < 2:
+                p.fail(ln, "TYPE line is truncated: missing the surface type")
+            cur.type, cur.type_line = toks[1].upper(), ln
+            if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM", "PARAXIAL",
+                                "TOROIDAL"):
+                what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
+                p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
+                           f"supported; deeplens reads STANDARD, EVENASPH, COORDBRK, XYPOLYNOM, "
+                           f"PARAXIAL and TOROIDAL cylinders")
+        elif cur is not None and key == "CURV":
+            cur.curv = p.arg(toks, 1, ln, "curvature")
+        elif cur is not None and key == "DISZ":
+            if len(toks) < 2:
+                p.fail(ln, "DISZ line is truncated: missing the thickness")
+            cur.disz = math.inf if toks[1].upper() == "INFINITY" else p.num(toks[1], ln, "DISZ")
+            cur.disz_line = ln
+        elif cur is not None and key == "CONI":
+            cur.coni = p.arg(toks, 1, ln, "conic constant")
+        elif cur is not None and key == "DIAM":
+            cur.diam = p.arg(toks, 1, ln, "semi-diameter")
+            cur.diam_fixed = len(toks) > 2 and toks[2] == "1"
+        elif cur is not None and key == "STOP":
+            cur.stop = True
+        elif cur is not None and key == "PARM":
+            cur.parm[int(p.arg(toks, 1, ln, "parameter number"))] = (
+                p.arg(toks, 2, ln, "parameter value"), ln)
+        elif cur is not None and key == "XDAT":
+            cur.xdat[int(p.arg(toks, 1, ln, "extra-data number"))] = (
+                p.arg(toks, 2, ln, "extra-data value"), ln)
+        elif cur is not None and key == "GLAS":
+            if len(toks) < 2:
+                p.fail(ln, "GLAS line is truncated: missing the glass name")
+            name = toks[1]
+            if name.upper() == "MIRROR":  # a reflecting surface: Lens(mirrors=...)
+                cur.mirror, cur.glass, cur.glass_line = True, None, ln
+                continue
+            if name.upper() in ("AIR", "VACUUM"):
+                cur.glass, cur.glass_model, cur.glass_line = None, None, ln
+                continue   # written by some converters: the same as no GLAS line
+            code = toks[2] if len(toks) > 2 else "0"
+            model = None
+            if len(toks) >= 6:
+                model = (p.num(toks[4], ln, "GLAS n_d"), p.num(toks[5], ln, "GLAS V_d"))
+            if name.upper() == "___BLANK" or code == "1":
+                if model is None:
+                    p.fail(ln, "a model glass (GLAS ___BLANK 1 0 n_d V_d) line is truncated: "
+                               "missing n_d and V_d")
+                cur.glass = None
+                cur.glass_model_name = None if name.upper() == "___BLANK" else name.upper()
+            else:
+                cur.glass = name.upper()
+            cur.glass_model, cur.glass_line = model, ln
+        elif cur is not None and key == "CLAP":
+            lo = p.arg(toks, 1, ln, "minimum radius")
+            hi = p.arg(toks, 2, ln, "maximum radius")
+            if not 0 <= lo < hi:
+                p.fail(ln, f"CLAP: expected 0 <= minimum radius < maximum radius, got {lo:g}, "
+                           f"{hi:g}")
+            cur.clap = (hi, ln)
+            if lo > 0:   # an annular clear aperture
+                cur.obsc = (lo, ln)
+        elif cur is not None and key == "OBSC":
+            lo = p.arg(toks, 1, ln, "minimum radius")
+            hi = p.arg(toks, 2, ln, "maximum radius")
+            if lo != 0 or not hi > 0:
+                p.fail(ln, f"OBSC on SURF {len(surfs) - 1}: only a central circular obscuration "
+                           f"(minimum radius 0, maximum > 0) is supported, got {lo:g}, {hi:g}")
+            cur.obsc = (hi, ln)
+        elif cur is not None and key == "SQAP":
+            cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"),
+                        ln)
+        elif cur is not None and key == "OBDC":
+            dec = (p.arg(toks, 1, ln, "x decenter"), p.arg(toks, 2, ln, "y decenter"))
+            cur.obdc = (*dec, ln) if any(v != 0 for v in dec) else None
+        elif cur is not None and key in ("ELAP", "SQOB", "ELOB", "UDAD", "SPID"):
+            what = {
+                    "ELAP": "an elliptical aperture",
+                    "SQOB": "a rectangular obscuration", "ELOB": "an elliptical obscuration",
+                    "UDAD": "a user-defined aperture", "SPID": "a spider"}[key]
+            p.fail(ln, f"{key} on SURF {len(surfs) - 1}: {what} is not supported (deeplens reads "
+                       f"circular clear apertures: DIAM, CLAP with minimum radius 0)")
+        elif cur is not None and key in ("TCE", "COAT", "PZUP", "SCBD"):
+            if key == "SCBD":
+                p.note(ln, f"{key} (scattering) ignored")
+        elif key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN", "ZVDX", "ZVDY", "ZVCX", "ZVCY",
+                     "ZVAN"):
+            if any(p.num(t, ln, key) != 0 for t in toks[1:]):
+                p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
+                           f"pupil by tracing)")
+        elif key == "ENVD":
+            env = [p.num(t, ln, key) for t in toks[1:3]]
+            if env and (env[0] != 20 or (len(env) > 1 and env[1] != 1)):
+                p.note(ln, f"ENVD: temperature {env[0]:g} °C / pressure {env[1:] or ['?']} atm "
+                           f"ignored: indices are the catalogues' at their reference temperature")
+        elif key == "MNUM":
+            if len(toks) > 1 and p.num(toks[1], ln, key) > 1:
+                n_cfg = int(p.num(toks[1], ln, key))
+                cur_cfg = int(p.num(toks[2], ln, key)) if len(toks) > 2 else 1
+                p.note(ln, f"multi-configuration file ({n_cfg} configurations): the surface data "
+                           f"as saved (configuration {cur_cfg}, the active one) is read; the "
+                           f"other configurations' values are not applied")
+        elif key in _SILENT:
+            continue
+        else:
+            first, count = unused.get(toks[0], (ln, 0))
+            unused[toks[0]] = (first, count + 1)
+    for kw, (first, count) in unused.items():   # one note per keyword, not one per line
+        p.note(first, f"{kw} line not used by deeplens (ignored)"
+                      + (f"; {count} such lines" if count > 1 else ""))
+    if not surfs:
+        p.fail(0, "no SURF line: not a Zemax lens file, or the file is truncated")
+    if len(surfs) < 3:
+        p.fail(surfs[-1].line, f"expected an object surface, at least one lens surface and an "
+                               f"image surface; found {len(surfs)} SURF block(s) (truncated file?)")
+    return sysd, surfs, p
+

@@ -1,0 +1,508 @@
+"""The reader: a parsed ``.zmx`` file (:mod:`.zmx_parse`) -> a :class:`~deeplens.optics.lens.Lens`.
+
+Steps of :func:`read_zmx`, each a function here: the wavelengths and field type
+(:func:`_wavelengths`); the surfaces in order, with dummies merged into gaps and coordinate
+breaks turned into misalignments or :class:`~deeplens.optics.surfaces.CoordinateBreak` surfaces
+(:func:`_sequence`, one block at a time by :func:`.zmx_surfaces.build_surface`, glasses by
+:mod:`.zmx_glass`); the sensor (:func:`_sensor`); the elements (:func:`_elements`); the
+system aperture (:func:`_aperture`); the lens itself, then apertures and fields given other than
+as an EPD and angles (:mod:`.zmx_system`), automatic semi-diameters
+(:func:`_auto_semi_diameters`) and the stop's clear aperture.  What the file format means and how
+it maps onto deeplens is in :mod:`.zmx`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+from ..errors import ZemaxFileError
+from ..lens import Lens, LensSpec
+from ..materials import Material, check_wavelength_nm
+from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
+from .zmx_coordbrk import coordinate_break, is_identity, misalignment_brackets, y_fields_only
+from .zmx_glass import load_catalogues, surface_material
+from .zmx_parse import UNITS, Locator, ZmxSurface, parse
+from .zmx_surfaces import build_surface, is_air
+from .zmx_system import aperture_to_epd, element_tilts, fields_to_angles
+
+__all__ = ["read_zmx"]
+
+# the sensor distance used when a file puts the image plane on the last (flat) vertex
+_IMAGE_ON_VERTEX_MM = 1e-9
+
+
+@dataclass
+class _Sequence:
+    """The surfaces kept from the file, in order (see :func:`_sequence`)."""
+
+    obj_dist: float                 # object distance (mm), before the leading dummy gap
+    obj_medium: Material
+    kept: list = field(default_factory=list)     # (surface, material after, block, gap before)
+    media: list = field(default_factory=list)    # object medium, then the medium after each
+    groups: list = field(default_factory=list)   # (first, last, tilts, line) bracketed elements
+    gap: float = 0.0               # from the last kept vertex to the image surface (mm)
+    stop_idx: int | None = None
+    autos: list = field(default_factory=list)    # kept indices with automatic semi-diameters
+    mirrors: list = field(default_factory=list)  # kept indices of GLAS MIRROR surfaces
+    folded: bool = False           # a fold or an off-axis section (an unpaired COORDBRK)
+
+
+def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
+    """Read a sequential Zemax ``.zmx`` file into a :class:`~deeplens.optics.lens.Lens`.
+
+    Args:
+        path: the ``.zmx`` file (UTF-16 with byte-order mark, or UTF-8).
+        glass_catalogs: ``.agf`` files (paths) or :class:`~.agf.GlassCatalogue` objects; each
+            answers for the ``GCAT`` name equal to its file stem.  A catalogue the file names
+            but the caller does not pass is looked for as ``<NAME>.agf`` next to the ``.zmx``.
+        glass_fallback: ``None`` (default: a glass that is not found is an error), ``"model"``
+            (use the ``n_d``/``V_d`` the ``GLAS`` line carries), or a material spec / material
+            used for every missing glass.  Each use is reported as a :class:`ZemaxWarning`.
+
+    Returns:
+        The lens (lengths in mm, wavelengths in nm).
+
+    Raises:
+        ZemaxFileError: (a :class:`~deeplens.optics.errors.LensFileError`) malformed or
+            truncated lines, unknown surface types, unsupported apertures, coordinate breaks that do not bracket
+            one element, unknown glasses, field types that cannot be converted, wavelengths
+            outside a glass's range; the error's ``source``, ``line``, ``feature`` and
+            ``surf`` say where (its message is formatted from them).
+
+    Example::
+
+        lens = read_zmx("US02532751-1.zmx")
+        lens = read_zmx("vendor_lens.zmx", glass_catalogs=["OHARA.agf"])
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"lens file not found: {path}")
+    sysd, surfs, p = parse(path)
+    cats = load_catalogues(path, sysd["gcat"][0], glass_catalogs, p)
+    unit, _ = sysd["unit"]
+    s_mm = UNITS[unit]
+    gcat, _ = sysd["gcat"]
+    ftyp, ftyp_line, n_fields, waves_nm, primary = _wavelengths(sysd, p)
+    seq = _sequence(surfs, s_mm, gcat, cats, glass_fallback, p)
+    obj, img = surfs[0], surfs[-1]
+    kept, stop_idx, autos = seq.kept, seq.stop_idx, seq.autos
+    surfaces = [k_[0] for k_ in kept]
+    distances = [0.0] + [k_[3] for k_ in kept[1:]]
+    obj_dist = seq.obj_dist
+    if not math.isinf(obj_dist):
+        obj_dist += kept[0][3]   # dummy thickness in front of the first surface
+    d_sensor = _sensor(seq, img, p)
+    sensor_sd = img.diam * s_mm if img.diam > 0 else None
+
+    # ---- elements: bracketed groups, then deeplens' default grouping for the rest
+    elements = _elements(kept, seq.media, seq.groups, p)
+    ap_type, ap_value, ap_line, convert = _aperture(sysd, seq, obj_dist, s_mm, p)
+
+    # ---- glass wavelength ranges, before building (a clear error instead of a NaN)
+    for (surf, mat, s, _), i in zip(kept, range(len(kept))):
+        for w in waves_nm:
+            try:
+                check_wavelength_nm(w, mat)
+            except ValueError as e:
+                p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)})")
+    for w in waves_nm:
+        try:
+            check_wavelength_nm(w, seq.obj_medium)
+        except ValueError as e:
+            p.fail(obj.glass_line or obj.line, str(e))
+
+    where_of = {i: kept[i][2].line for i in range(len(kept))}
+    where_of["sensor"] = img.line
+    try:
+        spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                        aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves_nm,
+                        primary_wavelength_nm=primary)
+        lens = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd, spec,
+                    elements=[(a, b) for a, b, _, _ in elements],
+                    name=sysd["name"] or path.stem, mirrors=seq.mirrors)
+    except (ValueError, TypeError) as e:
+        if getattr(e, "key", None) == "aperture":   # the ENPD/FNUM/FLOA line's value
+            p.fail(ap_line, str(e))
+        raise _located(p, e, where_of) from e
+    for e, (a, b, d, _) in enumerate(elements):
+        if d is not None:
+            m = lens.misalignments[e]
+            dx, dy, tx, ty = d
+            with torch.no_grad():
+                m.dx.fill_(dx)
+                m.dy.fill_(dy)
+                m.tilt_x.fill_(math.radians(tx))
+                m.tilt_y.fill_(math.radians(ty))
+    if _afocal(lens) and (convert is not None or ftyp[0] in (1, 2, 3)):
+        # an afocal lens (flat folds only) has an infinite focal length: fields given as image
+        # heights, a working F-number or an object-space NA have no meaning there
+        p.fail(ftyp_line if convert is None else convert[2],
+               "the system is afocal (no paraxial power: flat mirrors and folds only), and "
+               "this aperture or field type needs a finite focal length")
+    if convert is not None:
+        ap_value = aperture_to_epd(lens, *convert, p)
+        try:
+            lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type="epd",
+                                 aperture_value=ap_value, fields_deg=[0.0],
+                                 wavelengths_nm=waves_nm, primary_wavelength_nm=primary)
+            lens.apply_aperture_spec()
+        except ValueError as e:
+            p.fail(convert[2], str(e))
+
+    # ---- fields
+    lens.ray_aiming = sysd["raim"][0] != 0
+    if seq.folded:
+        sysd, n_fields = y_fields_only(sysd, n_fields, p)
+    fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
+    autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
+    if autos:
+        _auto_semi_diameters(lens, autos, fields, where_of, p)
+    try:
+        lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                             aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
+                             primary_wavelength_nm=primary)
+    except ValueError as e:
+        p.fail(sysd["yfln"][1] if sysd["yfln"] else 0, str(e))
+    _check_stop_clear_aperture(lens, kept[stop_idx][2], s_mm, p)
+    p.warn_notes(stacklevel=3)
+    return lens
+
+
+def _wavelengths(sysd: dict, p: Locator):
+    """``(ftyp, ftyp_line, n_fields, wavelengths_nm, primary_nm)``: the ``FTYP`` values (field
+    type, telecentric and afocal flags, numbers of fields and wavelengths), the active
+    wavelengths (``WAVM``, or ``WAVL`` in older files; µm in the file) and the ``PWAV`` one."""
+    ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
+    if len(ftyp) > 1 and ftyp[1] == 1:
+        p.fail(ftyp_line, "FTYP: object-space telecentric systems (second value 1) are not "
+                          "supported (deeplens needs an entrance pupil at a finite distance)")
+    if len(ftyp) > 6 and ftyp[6] == 1:
+        p.fail(ftyp_line, "FTYP: afocal image space (seventh value 1) is not supported "
+                          "(deeplens images onto a sensor)")
+    n_fields = ftyp[2] if len(ftyp) > 2 and ftyp[2] > 0 else None
+    n_waves = ftyp[3] if len(ftyp) > 3 and ftyp[3] > 0 else None
+    if sysd["waves"]:
+        nums = sorted(sysd["waves"])
+        if n_waves is not None:
+            nums = [i for i in nums if i <= n_waves]
+        waves = [(sysd["waves"][i][0], sysd["waves"][i][1]) for i in nums]
+    elif sysd["wavl"]:
+        vals, ln = sysd["wavl"]
+        waves = [(v, ln) for v in vals]
+        nums = list(range(1, len(vals) + 1))
+    else:
+        p.fail(0, "no wavelength (WAVM or WAVL line)")
+    if not waves:
+        p.fail(ftyp_line, "no active wavelength")
+    waves_nm = []
+    for v, ln in waves:
+        try:
+            check_wavelength_nm(v * 1000.0)
+        except ValueError as e:
+            p.fail(ln, f"wavelength {v!r} µm: {e}")
+        waves_nm.append(v * 1000.0)
+    pw, pw_line = sysd["pwav"]
+    if pw not in nums:
+        p.fail(pw_line, f"PWAV {pw}: the primary wavelength is not one of the active wavelengths "
+                        f"{nums}")
+    primary = waves_nm[nums.index(pw)]
+    return ftyp, ftyp_line, n_fields, waves_nm, primary
+
+
+def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
+              p: Locator) -> _Sequence:
+    """The object and the surfaces between it and the image, in order: dummies (flat, one medium
+    on both sides) merged into the gaps, ``COORDBRK`` pairs that bracket one element read as its
+    misalignment (``groups``), every other non-identity ``COORDBRK`` kept as a
+    :class:`~deeplens.optics.surfaces.CoordinateBreak`, every other block built by
+    :func:`.zmx_surfaces.build_surface`."""
+    obj, img = surfs[0], surfs[-1]
+    if obj.type != "STANDARD" or obj.curv != 0:
+        p.fail(obj.line, "the object surface (SURF 0) must be a flat STANDARD surface")
+    obj_dist = obj.disz * (1 if math.isinf(obj.disz) else s_mm)
+    if not obj_dist > 0:
+        p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be > 0 or "
+                                          f"INFINITY, got {obj.disz!r}")
+    obj_medium = surface_material(obj, gcat, cats, glass_fallback, p, 4)
+    media = [obj_medium]
+    kept = []            # (surface module, material after, zmx surf, gap before it in mm)
+    groups = []          # [start, end] index ranges in kept for bracketed elements
+    gap = 0.0            # axial distance from the last kept vertex to the current one (mm)
+    bracket = None
+    brackets = misalignment_brackets(surfs)   # COORDBRK pairs read as misalignments
+    paired = set(brackets) | set(brackets.values())
+    # a fold or an off-axis section: the beam leaves the local axes, and the file's automatic
+    # semi-diameters (DIAM flag 0) are OpticStudio's footprints of its own (ray-aimed, all
+    # fields) beam, which never vignette there: deeplens recomputes them from its rays
+    folded = any(s.type == "COORDBRK" and not is_identity(s) and k not in paired
+                 for k, s in enumerate(surfs))
+    stop_idx = None
+    autos = []           # kept indices whose semi-diameter is automatic
+    mirrors = []         # indices in kept of GLAS MIRROR surfaces
+    for k in range(1, len(surfs) - 1):
+        s = surfs[k]
+        prev = media[-1]
+        if s.type == "COORDBRK":
+            if s.glass is not None or s.stop:
+                p.fail(s.line, "a COORDBRK surface cannot carry a glass or the stop")
+            if is_identity(s):           # a dummy: its thickness only
+                gap += s.disz * s_mm
+                continue
+            dx = s.parm.get(1, (0.0, 0))[0] * s_mm
+            dy = s.parm.get(2, (0.0, 0))[0] * s_mm
+            tx, ty, tz = (s.parm.get(i, (0.0, 0))[0] for i in (3, 4, 5))
+            if k in brackets:            # opens an element's misalignment
+                bracket = {"line": s.line, "d": (dx, dy, tx, ty, tz), "start": len(kept)}
+            elif bracket is not None:    # closes it (misalignment_brackets checked the pair)
+                if len(kept) > bracket["start"]:   # (around dummies only, the pair cancels)
+                    groups.append((bracket["start"], len(kept) - 1,
+                                   element_tilts(bracket["d"], kept[bracket["start"]:],
+                                                 s.line, p), bracket["line"]))
+                gap = gap + s.disz * s_mm   # gap: back at the pivot, + the thickness after
+                bracket = None
+            else:                        # a fold, an off-axis section: the frame turns
+                kept.append((coordinate_break(s, s_mm), prev, s, gap))
+                media.append(prev)
+                gap = s.disz * s_mm
+                if math.isinf(s.disz):
+                    p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
+            continue
+        mat = prev if s.mirror else surface_material(s, gcat, cats, glass_fallback, p, 4)
+        built = build_surface(s, k, mat, prev, s_mm, folded, p)
+        if built is None:   # a dummy surface: its thickness only
+            gap += s.disz * s_mm
+            continue
+        surf, auto = built
+        if auto:
+            autos.append(len(kept))
+        if s.stop:
+            stop_idx = len(kept)
+        if s.mirror:
+            mirrors.append(len(kept))
+        kept.append((surf, mat, s, gap))
+        media.append(mat)
+        gap = s.disz * s_mm
+        if math.isinf(s.disz):
+            p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
+    if not kept:
+        p.fail(img.line, "no lens surface between the object and the image surface")
+    if stop_idx is None:
+        p.fail(0, "no STOP line: the lens has no aperture stop")
+    if img.type != "STANDARD" or img.curv != 0:
+        p.note(img.line, "the image surface is not flat: deeplens uses a flat sensor at its "
+                         "vertex")
+    seq = _Sequence(obj_dist=obj_dist, obj_medium=obj_medium, kept=kept, media=media,
+                    groups=groups, gap=gap, stop_idx=stop_idx, autos=autos, mirrors=mirrors,
+                    folded=folded)
+    return seq
+
+
+def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator) -> float:
+    """The sensor distance (mm, signed along the direction of travel) from the gap between the
+    last kept vertex and the image surface: an image plane on a flat last vertex moves
+    :data:`_IMAGE_ON_VERTEX_MM` behind it; a curved one there, or an image plane before the last
+    vertex (a virtual image), is refused."""
+    kept, mirrors, surfaces = seq.kept, seq.mirrors, [k_[0] for k_ in seq.kept]
+    d_sensor = seq.gap
+    # the direction of travel after the last surface: -z after an odd number of mirrors
+    # (Zemax's sign convention, Lens.directions), so "behind" the last vertex is sign * d > 0
+    sign = -1.0 if len(mirrors) % 2 else 1.0
+    # a thickness of the wrong sign inside the lens is reported by Lens (naming that surface)
+    signs = [1.0]
+    for i in range(len(kept)):
+        signs.append(-signs[-1] if i in mirrors else signs[-1])
+    inside_ok = all(kept[i][3] * signs[i] >= 0 for i in range(1, len(kept)))
+    if d_sensor == 0 and isinstance(surfaces[-1], (Plane, CoordinateBreak)):
+        # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
+        # surface, so it sits _IMAGE_ON_VERTEX_MM behind it (image points move by that times
+        # the ray slope: < 1e-8 mm)
+        d_sensor = sign * _IMAGE_ON_VERTEX_MM
+        p.note(img.line, f"the image plane lies on the last (flat) surface's vertex: the sensor "
+                         f"is placed {_IMAGE_ON_VERTEX_MM:g} mm behind it")
+    elif d_sensor == 0:
+        p.fail(img.line, "the image plane lies on the vertex of the last surface, which is "
+                         "curved: deeplens' flat sensor would cut through it (give the last "
+                         "surface a thickness)")
+    elif sign * d_sensor < 0 and inside_ok:
+        travel = (f" (light travels towards {'-' if sign < 0 else '+'}z there, after "
+                  f"{len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''})" if mirrors else
+                  " (a virtual image, as a negative lens's file puts it at its virtual focus)")
+        p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
+                         f"vertex{travel}: deeplens' sensor must follow the last surface")
+    return d_sensor
+
+
+def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locator):
+    """``(type, value, line, convert)`` of the system aperture: ``ENPD`` (scaled to mm),
+    ``FNUM v 0`` or ``FLOA`` as deeplens' ``epd``/``fno``/``stop``; an aperture deeplens does not
+    take directly (``FNUM v 1``, ``OBNA``) as a provisional ``epd`` of 1 with ``convert`` =
+    ``(kind, value, line)``, turned into the EPD it defines once the lens is built."""
+    ap = sysd["aperture"]
+    if ap is None:
+        p.fail(0, "no system aperture (ENPD, FNUM or FLOA line)")
+    ap_type, ap_value, ap_line = ap
+    if ap_type == "epd":
+        ap_value *= s_mm
+    convert = None     # an aperture given another way, turned into an EPD once the lens is built
+    if ap_type in ("wfno", "obna", "cone"):
+        if ap_type != "wfno" and math.isinf(obj_dist):
+            p.fail(ap_line, "OBNA (object-space numerical aperture / cone angle) needs an object "
+                            "at a finite distance")
+        if not ap_value > 0:
+            p.fail(ap_line, f"the aperture value must be > 0, got {ap_value!r}")
+        convert = (ap_type, ap_value, ap_line)
+        ap_type, ap_value = "epd", 1.0
+    if ap_type == "stop" and seq.stop_idx in seq.autos:
+        p.fail(seq.kept[seq.stop_idx][2].line, "the stop has no semi-diameter (no DIAM, or 0) and the "
+                                       "system aperture is FLOA (float by stop size): give the "
+                                       "stop a DIAM or the system an ENPD/FNUM")
+    return ap_type, ap_value, ap_line, convert
+
+
+def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locator) -> None:
+    """A ``CLAP`` on the stop surface narrower than the stop that the ``ENPD``/``FNUM`` aperture
+    defines: in OpticStudio the pupil keeps the size the system aperture gives it (EPD, F-number,
+    paraxial data) and the clear aperture vignettes its rim.  On a lens or mirror surface
+    (:class:`~deeplens.optics.surfaces.Asphere`) the stop keeps its paraxial radius as its
+    semi-diameter and the ``CLAP`` becomes its ``clear_radius`` (the opening is the smaller
+    one); on other stops (a flat stop in air, a cylinder, a polynomial) it is refused."""
+    if s.clap is None or lens.spec.aperture_type == "stop":
+        return
+    clap = s.clap[0] * s_mm
+    stop = lens.surfaces[lens.stop_index]
+    sd = float(stop.semi_diameter)
+    if not clap < sd * (1 - 1e-9):
+        return
+    if type(stop) is Asphere:
+        with torch.no_grad():
+            stop.clear_radius.fill_(clap)
+        try:
+            stop.check()
+        except ValueError as e:
+            p.fail(s.clap[1], f"CLAP on the stop surface: {e}")
+        return
+    p.fail(s.clap[1], f"CLAP on the stop surface: its clear radius {clap:g} mm is smaller "
+                      f"than the stop radius {sd:g} mm that the system aperture defines, so "
+                      f"it cuts the entrance pupil; deeplens has such a clear aperture on a lens "
+                      f"or mirror surface, not on a {type(stop).__name__} stop (give the system "
+                      f"aperture as FLOA, or an ENPD/FNUM the CLAP does not cut)")
+
+
+def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator):
+    """Automatic semi-diameters of the surfaces ``idx``, as OpticStudio's: the largest height of
+    the real rays that fill the pupil, over every field and wavelength.  A first paraxial
+    estimate ``1.05 (|y_marginal| + |y_chief|)`` (full field) lets the lens be built; then rays
+    over the paraxial entrance pupil enlarged by 2 % (48 rim points and the chief ray per field
+    and wavelength, apertures ignored) are traced and each surface gets its largest hit radius.
+    OpticStudio does not vignette on automatic semi-diameters, and the 2 % keep rim rays (and
+    the slightly larger pupils of ray aiming) from being clipped by them.  Capped to the
+    surface's domain."""
+    from ..intersect import IntersectOptions
+    from ..paraxial import _indices, _trace, paraxial
+    from ..sampling import field_rays
+
+    field_deg = max(abs(f) for f in fields)
+    with torch.no_grad():
+        par = paraxial(lens)
+        n, p0 = _indices(lens, None)
+        half = 0.5 * float(par.entrance_pupil_diameter)
+        pos = float(par.entrance_pupil_position)
+        s = float(lens.spec.object_distance_mm)
+        t = math.tan(math.radians(field_deg))
+        if math.isinf(s):
+            ym0, um0 = half, 0.0
+        else:
+            um0 = half / (s + pos)
+            ym0 = um0 * s
+        one = torch.ones_like(p0)
+        _, _, hm = _trace(lens, ym0 * one, um0 * one, n)
+        _, _, hc = _trace(lens, -pos * t * one, t * one, n)
+        for i in idx:
+            surf = lens.surfaces[i]
+            sd = 1.05 * (abs(float(hm[i])) + abs(float(hc[i])))
+            c = float(surf.paraxial_curvature())
+            k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
+            if c != 0 and 1 + k > 0:
+                sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
+            surf.semi_diameter.fill_(sd)
+        # real rays
+        phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
+        unit = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
+                          torch.stack([torch.cos(phi), torch.sin(phi)], -1)])
+        pts = unit * (1.02 * half)
+        z_ep = float(par.entrance_pupil_z)
+        top = {i: 0.0 for i in idx}
+        for f in dict.fromkeys(fields):
+            for w in lens.spec.wavelengths_nm:
+                rays = field_rays(lens, float(f), float(w), pts, z_ep)
+                out, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False),
+                                       record=True)
+                ok = out.valid
+                for i in idx:
+                    if bool(ok.any()):
+                        r = torch.linalg.vector_norm(hits[i][ok][:, :2], dim=-1)
+                        top[i] = max(top[i], float(r.max()))
+        for i in idx:
+            if top[i] > 0:
+                surf = lens.surfaces[i]
+                sd = top[i]
+                c = float(surf.paraxial_curvature())
+                k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
+                if c != 0 and 1 + k > 0:
+                    sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
+                surf.semi_diameter.fill_(sd)
+    try:
+        lens.check()
+    except ValueError as e:
+        raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
+
+
+def _afocal(lens) -> bool:
+    from ..paraxial import paraxial
+
+    return math.isinf(float(paraxial(lens).efl))
+
+
+def _located(p: Locator, e: Exception, where_of: dict, prefix: str = "") -> ZemaxFileError:
+    """The error ``e`` of the lens built from the file, located at the ``SURF`` block of the last
+    deeplens surface it concerns (``e.surfaces``, a :class:`~deeplens.optics.errors.LensError`'s
+    attribute), with each of those surfaces' block line named in the message; an error about the
+    sensor (``e.key == "sensor"``) at the image surface's block (``where_of["sensor"]``)."""
+    idx = [i for i in dict.fromkeys(getattr(e, "surfaces", ())) if i in where_of]
+    lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}" for i in idx]
+    msg = f"{prefix}{e}" + (f" ({'; '.join(lines)})" if lines else "")
+    line = where_of[idx[-1]] if idx else (
+        where_of.get("sensor", 0) if getattr(e, "key", None) == "sensor" else 0)
+    return p.error(line, msg, surfaces=getattr(e, "surfaces", ()))
+
+
+def _elements(kept, media, groups, p):
+    """``[(first, last, misalignment or None, line)]`` covering every kept surface."""
+    out = []
+    g = {a: (a, b, d, ln) for a, b, d, ln in groups}
+    i, start = 0, 0
+    n = len(kept)
+    while i < n:
+        if i in g:
+            a, b, d, ln = g[i]
+            if start < i:
+                p.fail(ln, f"the COORDBRK on line {ln} starts inside an element (before it: "
+                           f"SURF line {kept[start][2].line}); it must bracket whole elements")
+            if not (is_air(media[a]) and is_air(media[b + 1])):
+                p.fail(ln, f"the COORDBRK on line {ln} does not bracket a whole element (glass "
+                           f"before its first or after its last surface)")
+            out.append((a, b, d, ln))
+            i = start = b + 1
+            continue
+        if is_air(media[i + 1]) or isinstance(kept[i][0], Aperture):
+            out.append((start, i, None, 0))
+            start = i + 1
+        i += 1
+    if start < n:
+        out.append((start, n - 1, None, 0))
+    return out
+

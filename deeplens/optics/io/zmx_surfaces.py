@@ -1,0 +1,236 @@
+"""One ``SURF`` block of a ``.zmx`` file -> one deeplens surface.
+
+``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
+:class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
+flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``TOROIDAL`` ->
+:class:`~deeplens.optics.surfaces.Toroid` (:class:`~deeplens.optics.surfaces.Cylinder` with no
+radius of rotation), ``PARAXIAL`` ->
+:class:`~deeplens.optics.surfaces.IdealLens`, ``XYPOLYNOM`` ->
+:class:`~deeplens.optics.surfaces.XYPolynomial`; a flat surface between one medium, not the stop,
+with no fixed aperture is a dummy (its thickness only).  Lengths are scaled from file units to
+mm here (``s_mm``); errors are raised through the reader's :class:`~.zmx_parse.Locator`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from ..errors import ZemaxFileError
+from ..materials import Air, Material
+from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, Toroid, XYPolynomial
+from ..surfaces.xy_polynomial import xy_terms
+from .zmx_parse import Locator, ZmxSurface
+
+__all__ = ["build_surface", "is_air", "PROVISIONAL_SD_MM"]
+
+# the semi-diameter a surface with no DIAM is built with before its automatic value is set
+PROVISIONAL_SD_MM = 1e-3
+
+
+def is_air(m: Material) -> bool:
+    return isinstance(m, Air)
+
+
+def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: float,
+                  folded: bool, p: Locator):
+    """The surface of ``SURF k`` (block ``s``), between ``prev`` and ``mat``: ``(surface,
+    auto)`` with ``auto`` whether its semi-diameter is automatic (to be set from real rays once
+    the lens is built), or ``None`` for a dummy surface (only its thickness counts).  ``folded``:
+    the lens has a fold or an off-axis section, where every semi-diameter not fixed is
+    automatic."""
+    if s.obdc is not None and s.clap is None and s.sqap is None and s.obsc is None:
+        p.note(s.obdc[2], f"OBDC on SURF {k}: the surface has no aperture (CLAP, SQAP) to "
+                          f"decentre; ignored")
+        s.obdc = None
+    c = s.curv / s_mm
+    sd = s.diam * s_mm
+    if s.clap is not None:
+        sd = s.clap[0] * s_mm
+    surf = None
+    coeffs, flat, fixed = [], False, s.diam_fixed and s.diam > 0
+    if s.type == "STANDARD" or s.type == "EVENASPH":
+        if s.type == "EVENASPH":
+            for i, (v, ln) in sorted(s.parm.items()):
+                if i == 1 and v != 0:
+                    p.fail(ln, "EVENASPH PARM 1 (the r² term) is not supported: deeplens' "
+                               "even asphere starts at r⁴ (fold it into the curvature in "
+                               "Zemax)")
+                if i > 8 and v != 0:
+                    p.fail(ln, f"EVENASPH PARM {i}: Zemax's even asphere has PARM 1-8")
+            # as many terms as PARM lines (a4 = PARM 2, ...); a file listing all 8 (as
+            # OpticStudio writes) is trimmed of its trailing zero terms
+            top = max([i for i in s.parm if i <= 8] + [1])
+            coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i)
+                      for i in range(2, top + 1)]
+            if top == 8:
+                while coeffs and coeffs[-1] == 0.0:
+                    coeffs.pop()
+        flat = c == 0 and s.coni == 0 and not coeffs
+        same_medium = (type(mat) is type(prev) and mat.name == prev.name)
+        if (flat and same_medium and not s.stop and not fixed and s.clap is None
+                and s.sqap is None and s.obsc is None and not s.mirror):
+            return None   # a dummy surface: its thickness only
+    if sd < 0:
+        p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be >= 0, got {s.diam!r}")
+    auto = not sd > 0     # no DIAM (or 0): an automatic semi-diameter, set once built
+    if folded and not fixed and s.clap is None:
+        auto = True
+    sd_build = sd if sd > 0 else PROVISIONAL_SD_MM
+    try:
+        if s.type == "XYPOLYNOM":
+            surf = _xypolynom(s, c, sd_build, s_mm, p)
+        elif s.type == "PARAXIAL":
+            surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
+        elif s.type == "TOROIDAL":
+            surf = _cylinder(s, k, c, sd_build, s_mm, p)
+        elif s.sqap is not None and flat and is_air(mat) and is_air(prev):
+            hx, hy, _ = s.sqap
+            surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
+        elif s.obsc is not None and flat and is_air(mat) and is_air(prev):
+            # OpticStudio clips only on the obscuration here (and on a CLAP or a fixed
+            # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
+            outer = sd if (s.clap is not None or fixed or s.stop) else 1.01 * sd
+            ro = s.obsc[0] * s_mm
+            surf = Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
+        elif flat and is_air(mat) and is_air(prev) and not s.mirror:
+            surf = Aperture(sd_build)
+        elif flat:
+            surf = Plane(sd_build)
+        else:
+            surf = Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
+    except ZemaxFileError:
+        raise   # already located (a helper's p.fail): not located twice
+    except ValueError as e:
+        p.fail(s.type_line or s.line, f"SURF {k}: {e}")
+    if s.obdc is not None:   # the decenter of the opening (not on the stop)
+        dec = _aperture_decenter(s, k, surf, s_mm, p)
+        if isinstance(surf, Aperture):
+            surf.decenter.copy_(torch.tensor(dec, dtype=surf.decenter.dtype))
+        else:   # an off-axis segment of a lens or mirror surface: its CLAP, moved
+            rc = s.clap[0] * s_mm
+            with torch.no_grad():
+                surf.clear_radius.fill_(rc)
+                surf.clear_decenter.copy_(torch.tensor(dec, dtype=torch.float64))
+                # the semi-diameter (the disc about the vertex the surface is defined on)
+                # encloses the whole decentred opening
+                surf.semi_diameter.fill_(math.hypot(*dec) + rc)
+            try:
+                surf.check(where=f"SURF {k} with its decentred clear aperture: ")
+            except ValueError as e:
+                p.fail(s.obdc[2], f"OBDC on SURF {k}: {e}")
+    if s.obsc is not None and isinstance(surf, Asphere):
+        # a central obscuration on a lens or mirror surface (a secondary's shadow on a
+        # Cassegrain's primary): an aperture property of the surface
+        ro = s.obsc[0] * s_mm
+        if not 0 < ro < float(surf.semi_diameter) and not auto:
+            p.fail(s.obsc[1], f"SURF {k}: the obscuration radius {s.obsc[0]:g} must be > 0 "
+                              f"and below the semi-diameter {s.diam:g}")
+        surf.obscuration.fill_(ro)
+    elif s.obsc is not None and not isinstance(surf, Aperture):
+        what = "flat mirror" if s.mirror else "flat surface between two media"
+        p.fail(s.obsc[1], f"SURF {k}: OBSC, a central obscuration on a {what} "
+                          f"({type(surf).__name__}), is not supported (deeplens has "
+                          f"obscurations on flat surfaces in air: put the obscuration on its "
+                          f"own flat dummy surface where that is equivalent)")
+    if s.sqap is not None and not (isinstance(surf, Cylinder) or (
+            isinstance(surf, Aperture) and surf.shape == "rect")):
+        p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture on a "
+                          f"{type(surf).__name__} surface is not supported (deeplens has "
+                          f"rectangular apertures on flat stops in air and on cylinders)")
+    if auto and isinstance(surf, Aperture) and surf.shape == "rect":
+        auto = False   # its semi-diameter is the rectangle's half-diagonal
+    return surf, auto
+
+
+def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
+    """``OBDC x y``: the decenter (mm) of the surface's aperture: a ``CLAP`` (circular or
+    annular) or ``SQAP`` on a flat surface in air (a deeplens :class:`Aperture`), or a circular
+    ``CLAP`` on a lens or mirror surface (an :class:`Asphere`: an off-axis segment, such as an
+    off-axis parabola's opening); never on the stop."""
+    dx, dy, ln = s.obdc
+    where = f"OBDC on SURF {k} (aperture decenter {dx:g}, {dy:g})"
+    if s.clap is None and s.sqap is None:   # an OBSC alone (no aperture at all: not called)
+        p.fail(ln, f"{where}: a decentred obscuration (OBSC) inside a centred semi-diameter is "
+                   f"not supported (deeplens decentres a CLAP or SQAP opening, with its "
+                   f"obscuration)")
+    if s.stop:
+        p.fail(ln, f"{where}: a decentred aperture stop is not supported (deeplens' entrance "
+                   f"pupil is centred on the axis)")
+    if not isinstance(surf, Aperture) and not (
+            type(surf) is Asphere and s.clap is not None and s.sqap is None
+            and s.obsc is None):
+        what = ("a rectangular (SQAP)" if s.sqap is not None else
+                "an annular or obscured" if s.obsc is not None else "a")
+        p.fail(ln, f"{where}: {what} decentred aperture on a lens or mirror surface "
+                   f"({type(surf).__name__}) is not supported (deeplens decentres apertures on "
+                   f"flat surfaces in air, and a circular CLAP on a STANDARD or EVENASPH lens or "
+                   f"mirror surface: an off-axis segment)")
+    return (dx * s_mm, dy * s_mm)
+
+
+def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``TOROIDAL``: the y profile (``CURV``, ``CONI``, ``PARM 2..9`` the coefficients of ``y²,
+    y⁴, ..., y¹⁶``) rotated about an axis parallel to y at the radius of rotation ``PARM 1``: a
+    :class:`Toroid`, or with ``PARM 1`` = 0 (an infinite radius) a :class:`Cylinder`, curved in
+    y; ``SQAP`` its rectangular outline."""
+    nz = s.xdat.get(1, (0.0, 0))
+    if nz[0] != 0 or any(v != 0 for j, (v, _) in s.xdat.items() if j > 2):
+        p.fail(nz[1] or s.type_line, f"SURF {k}: TOROIDAL Zernike terms (XDAT) are not supported")
+    for i, (v, ln) in s.parm.items():
+        if (i > 9 or i < 1) and v != 0:
+            p.fail(ln, f"SURF {k}: TOROIDAL PARM {i} is not read (PARM 1 radius of rotation, "
+                       f"PARM 2-9 the y² ... y¹⁶ coefficients)")
+    top = max([i for i in s.parm if 2 <= i <= 9 and s.parm[i][0] != 0] + [1])
+    coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (3 - 2 * i) for i in range(2, top + 1)]
+    hw = None if s.sqap is None else (s.sqap[0] * s_mm, s.sqap[1] * s_mm)
+    if hw is not None and sd == PROVISIONAL_SD_MM:
+        sd = math.hypot(*hw)
+    r_rot = s.parm.get(1, (0.0, 0))[0]
+    if r_rot != 0:
+        return Toroid(c, sd, r_rot * s_mm, conic=s.coni, coefficients=coeffs, half_widths=hw)
+    return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
+
+
+def _paraxial_surface(s: ZmxSurface, k: int, mat, prev, sd, s_mm, p: Locator):
+    """``PARAXIAL`` (``PARM 1`` = focal length): deeplens' :class:`IdealLens`, in air."""
+    if 1 not in s.parm or s.parm[1][0] == 0:
+        p.fail(s.type_line or s.line, f"SURF {k}: a PARAXIAL surface needs a non-zero focal "
+                                      f"length (PARM 1)")
+    if not (is_air(mat) and is_air(prev)):
+        p.fail(s.glass_line or s.type_line, f"SURF {k}: a PARAXIAL surface between glasses is "
+                                            f"not supported (deeplens' ideal lens sits in air)")
+    for i, (v, ln) in s.parm.items():
+        if i > 2 and v != 0:
+            p.fail(ln, f"SURF {k}: PARAXIAL PARM {i} is not read (only the focal length, PARM 1)")
+    return IdealLens(s.parm[1][0] * s_mm, sd)
+
+
+def _xypolynom(s: ZmxSurface, c, sd, s_mm, p: Locator):
+    if c != 0:
+        p.fail(s.line, "XYPOLYNOM with a base curvature (CURV != 0) is not supported: deeplens' XY "
+                       "polynomial is z = P(x, y) (put the base sphere into the polynomial)")
+    if 1 not in s.xdat or 2 not in s.xdat:
+        p.fail(s.line, "XYPOLYNOM without XDAT 1 (number of terms) and XDAT 2 (normalisation "
+                       "radius)")
+    nterms = int(s.xdat[1][0])
+    R = s.xdat[2][0] * s_mm
+    if not R > 0:
+        p.fail(s.xdat[2][1], f"XYPOLYNOM normalisation radius must be > 0, got {s.xdat[2][0]!r}")
+    # Zemax term j (1-based): degrees 1, 2, ... each from x^d down to y^d
+    zterms = [(d - i, i) for d in range(1, 64) for i in range(d + 1)]
+    if not 1 <= nterms <= len(zterms):
+        p.fail(s.xdat[1][1], f"XYPOLYNOM number of terms must be 1..{len(zterms)}, got {nterms}")
+    for j, (v, ln) in s.xdat.items():
+        if j > nterms + 2 and v != 0:
+            p.fail(ln, f"XDAT {j} lies beyond the {nterms} terms XDAT 1 declares")
+    vals = {zterms[j - 1]: s.xdat.get(j + 2, (0.0, 0))[0] for j in range(1, nterms + 1)}
+    order = sum(zterms[nterms - 1])
+    coeffs = []
+    for (px, py) in xy_terms(order):
+        a = vals.get((px, py), 0.0)
+        # A (x/R)^px (y/R)^py with lengths scaled to mm: A s_mm / R^(px+py)
+        coeffs.append(a * s_mm / R ** (px + py))
+    return XYPolynomial(sd, coeffs)
+

@@ -1,0 +1,249 @@
+"""The writer: a :class:`~deeplens.optics.lens.Lens` -> a sequential Zemax ``.zmx`` file that
+:func:`~.zmx_read.read_zmx` reads back to the same prescription.
+
+Numbers are written with ``repr`` (shortest round-trip text), so a lens read, written and read
+again is the same bit for bit; what the reader maps onto deeplens (:mod:`.zmx`) is written back
+the same way: element misalignments as ``COORDBRK`` pairs, :class:`CoordinateBreak` surfaces as
+``COORDBRK`` surfaces, mirrors as ``GLAS MIRROR``, apertures as ``DIAM``/``CLAP``/``OBSC``/
+``SQAP``/``OBDC``, glasses by catalogue name (or as model glasses).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+
+from ..errors import ZemaxFileError
+from ..lens import Lens
+from ..materials import GLASS_TABLE, Air, Material, ModelGlass
+from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, IdealLens, Plane, Toroid,
+                        XYPolynomial)
+from .agf import AGFGlass
+from .vendor_glass import BuchdahlGlass
+from .zmx_coordbrk import coordbrk_lines
+from .zmx_glass import BUILTIN_CATALOGUES
+from .zmx_system import rotationally_symmetric, zemax_tilts
+
+__all__ = ["write_zmx"]
+
+
+def _f(v: float) -> str:
+    return repr(float(v))
+
+
+# deeplens catalogue name -> the name Zemax's MISC catalogue uses
+_ZEMAX_NAME = {"FUSED_SILICA": "F_SILICA", "PC": "POLYCARB"}
+
+
+def _glass_line(m: Material, cats: list) -> str | None:
+    """The ``GLAS`` line of medium ``m`` (``None`` for air); adds its catalogue to ``cats``."""
+    if isinstance(m, Air):
+        return None
+    if isinstance(m, (AGFGlass, BuchdahlGlass)):
+        if m.catalogue and m.catalogue not in cats:
+            cats.append(m.catalogue)
+        return f"GLAS {m.name} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
+    name = m.name.upper()
+    rec = GLASS_TABLE.get(name)
+    is_entry = rec is not None and (not isinstance(m, ModelGlass) or m.to_spec() == rec.name)
+    if is_entry:
+        zname = _ZEMAX_NAME.get(name, name)
+        for cat, names in BUILTIN_CATALOGUES.items():
+            if zname in names:
+                if cat not in cats:
+                    cats.append(cat)
+                return f"GLAS {zname} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
+    if isinstance(m, ModelGlass):
+        # a named entry of deeplens' table that is a model glass (SK1, F15, SK16: the paper
+        # authors' n_d/V_d) keeps its name on a model-glass line (code 1)
+        # (as does a model glass a file named: GLAS NAME 1 0 n_d V_d)
+        named = m.name != m.to_spec() or is_entry
+        label = m.name.upper() if named and len(m.name.split()) == 1 and "/" not in m.name \
+            else "___BLANK"
+        v_d = 0.0 if math.isinf(m.v_d) else m.v_d   # OpticStudio's non-dispersive model glass
+        return f"GLAS {label} 1 0 {_f(m.n_d)} {_f(v_d)} 0 0 0 0 0 0"
+    raise ZemaxFileError(f"material {m.name!r} ({type(m).__name__}) has no Zemax catalogue name; "
+                         f"use a catalogue glass or an n_d/V_d model glass")
+
+
+def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
+    """Write ``lens`` as a sequential Zemax ``.zmx`` file that :func:`read_zmx` reads back.
+
+    Args:
+        lens: the lens (current parameter values).
+        path: output file.
+        encoding: ``"utf-8"`` (default) or ``"utf-16"`` (OpticStudio's own, with byte-order mark).
+
+    Raises:
+        ZemaxFileError: a surface or material with no Zemax equivalent (B-spline, rectangular
+            aperture, XY polynomial with ``b != 0``, more than 7 aspheric terms), or a
+            misalignment tilting one element about both x and y.
+    """
+    spec = lens.spec
+    out = ["VERS 170912 299 123456", "MODE SEQ", f"NAME {lens.name}", "UNIT MM X W X CM MR CPMM"]
+    if spec.aperture_type == "epd":
+        out.append(f"ENPD {_f(spec.aperture_value)}")
+    elif spec.aperture_type == "fno":
+        out.append(f"FNUM {_f(spec.aperture_value)} 0")
+    else:
+        out.append("FLOA")
+    if getattr(lens, "ray_aiming", False):
+        out.append("RAIM 0 2 1 1 0 0 0 0 0 1")   # real ray aiming, as the file it came from
+    cats: list[str] = []
+    body: list[str] = []
+    nsurf = 0
+
+    def surf(lines):
+        nonlocal nsurf
+        body.append(f"SURF {nsurf}")
+        body.extend("  " + ln for ln in lines)
+        nsurf += 1
+
+    def glas(m, extra):
+        g = _glass_line(m, cats)
+        if g:
+            extra.append(g)
+
+    od = float(spec.object_distance_mm)
+    obj = ["TYPE STANDARD", "CURV 0.0", f"DISZ {'INFINITY' if math.isinf(od) else _f(od)}"]
+    glas(lens.materials[0], obj)
+    surf(obj)
+    with torch.no_grad():
+        n = len(lens.surfaces)
+        elem_of = {}
+        for e, (a, b) in enumerate(lens.elements):
+            for i in range(a, b + 1):
+                elem_of[i] = e
+        for i, s in enumerate(lens.surfaces):
+            e = elem_of[i]
+            a, b = lens.elements[e]
+            mis = lens.misalignments[e]
+            tilted = not mis.is_identity() and any(
+                float(v) != 0 for v in (mis.dx, mis.dy, mis.tilt_x, mis.tilt_y))
+            d = (float(mis.dx), float(mis.dy), math.degrees(float(mis.tilt_x)),
+                 math.degrees(float(mis.tilt_y)))
+            if tilted and d[2] != 0 and d[3] != 0:
+                if not all(rotationally_symmetric(s_) for s_ in lens.surfaces[a:b + 1]):
+                    raise ZemaxFileError(f"element {e} (surfaces {a}-{b}) is tilted about both x "
+                                         f"and y and is not rotationally symmetric: OpticStudio's "
+                                         f"x-then-y tilts cannot express deeplens' R_y R_x",
+                                         surfaces=range(a, b + 1))
+                d = d[:2] + zemax_tilts(*d[2:])
+            if tilted and i == a:
+                surf(["TYPE COORDBRK", "CURV 0.0", "DISZ 0"] +
+                     [f"PARM {k + 1} {_f(v)}" for k, v in enumerate(d)] +
+                     ["PARM 5 0", "PARM 6 0"])
+            after = float(lens.distances[i + 1]) if i + 1 < n else float(lens.d_sensor)
+            if isinstance(s, CoordinateBreak):   # a fold or an off-axis section
+                if tilted:
+                    raise ZemaxFileError(f"surface {i}: a coordinate break inside a misaligned "
+                                         f"element has no .zmx equivalent", surfaces=(i,))
+                surf(coordbrk_lines(s, _f) + [f"DISZ {_f(after)}"])
+                continue
+            inner = sum(float(lens.distances[j]) for j in range(a + 1, b + 1))
+            gap = -inner if tilted and i == b else after   # back to the first vertex
+            lines = _surface_lines(s, i, lens.stop_index == i)
+            lines.append(f"DISZ {_f(gap)}")
+            if i in lens.mirrors:
+                lines.append("GLAS MIRROR 0 0 0 0 0 0 0 0 0 0 0")
+            else:
+                glas(lens.materials[i + 1], lines)
+            surf(lines)
+            if tilted and i == b:
+                surf(["TYPE COORDBRK", "CURV 0.0", f"DISZ {_f(inner + after)}"] +
+                     [f"PARM {k + 1} {_f(-v)}" for k, v in enumerate(d)] +
+                     ["PARM 5 0", "PARM 6 1"])
+    img = ["TYPE STANDARD", "CURV 0.0", "DISZ 0"]
+    if lens.sensor_semi_diameter is not None:
+        img.append(f"DIAM {_f(lens.sensor_semi_diameter)} 1 0 0 1 \"\"")
+    surf(img)
+    nf, nw = len(spec.fields_deg), len(spec.wavelengths_nm)
+    out.append("GCAT " + " ".join(cats or ["SCHOTT"]))
+    out.append(f"FTYP 0 0 {nf} {nw} 0 0 0")
+    out.append("XFLN " + " ".join("0" for _ in spec.fields_deg))
+    out.append("YFLN " + " ".join(_f(f) for f in spec.fields_deg))
+    for k, w in enumerate(spec.wavelengths_nm, start=1):
+        out.append(f"WAVM {k} {_f(float(w) / 1000.0)} 1")
+    prim = [float(w) for w in spec.wavelengths_nm]
+    pw = float(spec.primary_wavelength_nm)
+    if pw in prim:
+        out.append(f"PWAV {prim.index(pw) + 1}")
+    else:
+        raise ZemaxFileError(f"the primary wavelength {pw} nm is not one of the lens's "
+                             f"wavelengths {prim}: Zemax's PWAV picks one of them")
+    text = "\n".join(out + body) + "\n"
+    Path(path).write_text(text, encoding=encoding)
+
+
+def _surface_lines(s, i, is_stop) -> list[str]:
+    from ..surfaces import BSpline
+
+    lines = ["STOP"] if is_stop else []
+    sd = s.semi_diameter
+    sd = None if sd is None else float(sd)
+    if isinstance(s, Aperture):
+        lines += ["TYPE STANDARD", "CURV 0.0"]
+        if sd is not None:
+            lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        if s.shape == "rect":
+            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        elif s.decentred:   # OBDC moves a CLAP (annular: with its obscuration), not a DIAM
+            lines.append(f"CLAP {_f(s.obscuration)} {_f(sd)} 0")
+        if float(s.obscuration) > 0 and not s.decentred:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        if s.decentred:
+            lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
+        return lines
+    if isinstance(s, Cylinder):   # a Toroid too: PARM 1 its radius of rotation
+        r_rot = _f(s.R) if isinstance(s, Toroid) else "0"
+        lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {r_rot}"]
+        lines += [f"PARM {j + 2} {_f(a)}" for j, a in enumerate(s.a)]
+        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        if s.half_widths is not None:
+            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        return lines
+    if isinstance(s, IdealLens):
+        return lines + ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}",
+                        f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+    if isinstance(s, Plane):
+        return lines + ["TYPE STANDARD", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+    if isinstance(s, Asphere):
+        a = [float(v) for v in s.a]
+        if len(a) > 7:
+            raise ZemaxFileError(f"surface {i}: {len(a)} aspheric terms; Zemax's EVENASPH holds "
+                                 f"a4..a16 (7 terms)", surfaces=(i,))
+        lines += ["TYPE EVENASPH" if a else "TYPE STANDARD", f"CURV {_f(s.c)}",
+                  f"CONI {_f(s.k)}"]
+        if a:
+            lines.append("PARM 1 0")
+            lines += [f"PARM {k + 2} {_f(v)}" for k, v in enumerate(a)]
+        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        if math.isfinite(float(s.clear_radius)):   # narrower than the stop, or off-axis
+            lines.append(f"CLAP 0 {_f(s.clear_radius)} 0")
+            if bool(s.clear_decenter.any()):
+                lines.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
+        if float(s.obscuration) > 0:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        return lines
+    if isinstance(s, XYPolynomial):
+        if float(s.b) != 0:
+            raise ZemaxFileError(f"surface {i}: an XY polynomial with b != 0 (z² term) has no "
+                                 f"XYPOLYNOM equivalent", surfaces=(i,))
+        vals = {t: float(v) for t, v in zip(s.terms, s.a)}
+        if vals.get((0, 0), 0.0) != 0:
+            raise ZemaxFileError(f"surface {i}: an XY polynomial with a constant term has no "
+                                 f"XYPOLYNOM equivalent", surfaces=(i,))
+        R = sd
+        zterms = [(d - k, k) for d in range(1, s.order + 1) for k in range(d + 1)]
+        lines += ["TYPE XYPOLYNOM", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\"",
+                  f"XDAT 1 {len(zterms)}", f"XDAT 2 {_f(R)}"]
+        lines += [f"XDAT {j + 3} {_f(vals.get(t, 0.0) * R ** sum(t))}"
+                  for j, t in enumerate(zterms)]
+        return lines
+    if isinstance(s, BSpline):
+        raise ZemaxFileError(f"surface {i}: a B-spline surface has no .zmx equivalent",
+                             surfaces=(i,))
+    raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent",
+                         surfaces=(i,))
