@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..optics.camera import unpack
 from ..optics.rays import Rays
 from ..optics.sampling import start_plane_z
 from .checks import AnalysisError, check_field, check_wavelength
@@ -82,12 +83,13 @@ def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tenso
 
     The optical paths include the plane-wave launch correction of the module docstring, so
     differences of ``opl`` are optical path differences.  Gradients flow to the lens.
-    ``options`` (:class:`~deeplens.optics.intersect.IntersectOptions`) e.g. to ignore clear
-    apertures.
+    ``options`` (:class:`~deeplens.optics.options.TraceOptions`) e.g. to ignore clear
+    apertures; ``lens`` may be a :class:`~deeplens.optics.camera.Camera` (its options).
 
     Raises:
         AnalysisError: a wavelength outside a medium's range or a field beyond the lens's reach.
     """
+    lens, _, options = unpack(lens, None, options, "trace_pupil")
     w = float(wavelength_nm)
     if check:
         check_wavelength(lens, w)

@@ -32,7 +32,7 @@ from .options import TraceOptions
 from .parameters import select_names
 from .rays import Rays
 
-__all__ = ["Camera", "as_camera", "set_trainable"]
+__all__ = ["Camera", "as_camera", "set_trainable", "unpack"]
 
 
 def set_trainable(lens, patterns, what: str = "lens.trainable") -> list[str]:
@@ -166,3 +166,19 @@ def as_camera(lens_or_camera, sensor=None, options: TraceOptions | None = None,
             raise ValueError(f"{who}a sensor given beside a Camera with another sensor")
         return cam
     return Camera(lens_or_camera, sensor, options)
+
+
+def unpack(lens_or_camera, sensor=None, options: TraceOptions | None = None, where: str = ""):
+    """``(lens, sensor, options)`` for a function that takes a lens (with ``sensor`` and
+    ``options``) or a :class:`Camera` in its place (then ``sensor`` may be ``None`` and the
+    options are the camera's).  A lens passes through with ``sensor`` and ``options`` as
+    given (``None`` stays ``None``: the defaults), so the older calls trace as before.
+
+    Raises:
+        ValueError: a camera together with ``options`` or a different ``sensor``
+            (:func:`as_camera`).
+    """
+    if isinstance(lens_or_camera, Camera):
+        cam = as_camera(lens_or_camera, sensor, options, where)
+        return cam.lens, cam.sensor, cam.options
+    return lens_or_camera, sensor, options
