@@ -405,7 +405,10 @@ def choose_sampling(lens, sensor, jobs, options=None, max_step_waves: float = 0.
                     ) -> DiffractionSampling:
     """Pupil samples, kernel size and sub-pixel points for ``jobs`` (module docstring), from a
     trace of ``start`` samples per side without autograd (``cache``: as for
-    :func:`diffraction_psf_many`).  Raises :class:`PSFMemoryError`."""
+    :func:`diffraction_psf_many`; ``lens``: a lens or a
+    :class:`~deeplens.optics.camera.Camera`, ``sensor`` then ``None``).  Raises
+    :class:`PSFMemoryError`."""
+    lens, sensor, options = unpack(lens, sensor, options, "choose_sampling")
     with torch.no_grad():
         n = start
         for _ in range(6):

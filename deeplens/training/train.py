@@ -235,11 +235,15 @@ def build_renderer(cfg, lens, sensor=None):
     return _build_renderer(cfg, camera)
 
 
-def build_psf_model(cfg, lens, sensor, opts):
+def build_psf_model(cfg, lens, sensor=None, opts=None):
     """``render.psf_model`` (geometric | diffraction | auto), measured on the run's pixels,
-    depths, wavelengths and field patches; its choice is printed (``auto``: with the measured
-    error and the budget).  The Monte Carlo renderer traces rays: diffraction needs
-    ``render.kind=psf``."""
+    depths, wavelengths and field patches through ``lens`` (the run's camera, ``sensor`` and
+    ``opts`` then ``None``; or a lens, its sensor and trace options); its choice is printed
+    (``auto``: with the measured error and the budget).  The Monte Carlo renderer traces rays:
+    diffraction needs ``render.kind=psf``."""
+    from ..optics.camera import unpack
+
+    lens, sensor, opts = unpack(lens, sensor, opts, "build_psf_model")
     from ..render.psf_model import PSFModel, run_jobs
 
     r = cfg.render
@@ -336,7 +340,7 @@ def build_objects(cfg: DictConfig) -> dict:
     camera = build_camera(cfg, lens, sensor)  # one camera: every trace of a step reads it
     renderer = build_renderer(cfg, camera)
     preflight(lens, sensor)
-    renderer.psf_model = build_psf_model(cfg, lens, sensor, camera.options)
+    renderer.psf_model = build_psf_model(cfg, camera)
     restorer = hydra.utils.instantiate(cfg.net, **_image_channels(cfg.net, "net", n_ch))
     mc = cfg.model
     discriminator = (hydra.utils.instantiate(

@@ -97,3 +97,17 @@ def test_spot_diagram_through_a_camera(parts):
     assert torch.equal(got.rms_radius, ref.rms_radius) and got.n_rays == ref.n_rays
     default = spot_diagram(lens, 10.0, 587.6)
     assert not torch.equal(got.rms_radius, default.rms_radius)  # the option was observable
+
+
+def test_diffraction_psfs_through_a_camera(monkeypatch):
+    from deeplens.render.psf_model import PSFModel
+
+    lens = load_lens(LENSES / "edof_achromat.json")
+    sensor = Sensor((16, 16), 0.0069, channels=[[587.6]])
+    cam = Camera(lens, sensor, TraceOptions(tol=1e-11, max_iter=12))
+    jobs = [((0.0, 0.0), 6000.0, 587.6)]
+    ref = PSFModel("diffraction").diffraction(lens, sensor, jobs, cam.options, max_kernel=15)
+    seen = _spy(monkeypatch)
+    got = PSFModel("diffraction").diffraction(cam, None, jobs, max_kernel=15)
+    assert seen and all(o is cam.options for o in seen)
+    assert len(got) == 1 and torch.equal(got[0], ref[0])
