@@ -10,6 +10,7 @@ held copies of the options taken at construction: the assignment below reached n
 
 from __future__ import annotations
 
+import copy
 import traceback
 import warnings
 
@@ -79,3 +80,8 @@ def test_one_setting_on_the_camera_reaches_every_trace_of_a_step(run, cfg_factor
     grads = [p.grad for _, p in module.camera.trainable_parameters()]
     assert grads and all(g is not None and bool(torch.isfinite(g).all()) for g in grads)
     assert any(bool(g.abs().sum() > 0) for g in grads)
+    # a copy of the module (checkpointing, tolerance draws) keeps one camera and one lens
+    clone = copy.deepcopy(module)
+    assert clone.camera is not module.camera and clone.camera.lens is clone.lens
+    assert clone.renderer.camera is clone.camera is clone.deconv.camera
+    assert clone.renderer.lens is clone.lens and clone.camera.options is not mine
