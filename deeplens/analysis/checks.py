@@ -40,10 +40,11 @@ def max_field_deg(lens) -> float:
 
 
 def check_field(lens, field_deg: float, wavelength_nm: float, z_pupil: float,
-                r_pupil: float) -> None:
+                r_pupil: float, options=None) -> None:
     """Raise :class:`AnalysisError` if ``field_deg`` is not a finite angle within (-90, 90) or
     if its ray through the centre of the (paraxial) entrance pupil does not reach the image:
-    the field lies beyond what the lens can image."""
+    the field lies beyond what the lens can image.  ``options``: the trace's
+    :class:`~deeplens.optics.options.TraceOptions` (``None``: the defaults)."""
     from ..optics.sampling import field_rays
 
     f = float(field_deg)
@@ -53,7 +54,8 @@ def check_field(lens, field_deg: float, wavelength_nm: float, z_pupil: float,
     dtype = lens.distances[0].dtype
     with torch.no_grad():
         xy = torch.zeros(1, 2, dtype=dtype, device=lens.distances[0].device)
-        out = lens.trace_to_sensor(field_rays(lens, f, wavelength_nm, xy, z_pupil))
+        out = lens.trace_to_sensor(field_rays(lens, f, wavelength_nm, xy, z_pupil),
+                                   options=options)
     if not bool(out.valid[0]):
         raise AnalysisError(
             f"field {f:g} deg at {wavelength_nm:g} nm is beyond the lens's reach: its chief ray "

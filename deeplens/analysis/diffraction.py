@@ -37,7 +37,8 @@ from dataclasses import dataclass
 
 import torch
 
-from ..optics.intersect import IntersectOptions
+from ..optics.camera import unpack
+from ..optics.options import TraceOptions
 from .checks import AnalysisError
 from .spot import spot_diagram
 from .wavefront import Wavefront, pupil_grid, trace_pupil, wavefront
@@ -46,19 +47,26 @@ __all__ = ["PSF", "psf_fft", "sampled_wavefront", "psf_huygens", "strehl", "MTF"
            "encircled_energy", "frequency_steps"]
 
 
+def _aim(options) -> TraceOptions:
+    """The options of an aiming trace: ``options`` (``None``: the defaults) without clear
+    apertures."""
+    return (options or TraceOptions()).replace(clip_aperture=False)
+
+
 def frequency_steps(lens, field_deg: float, wavelength_nm: float, n: int,
-                    image_plane="sensor") -> tuple[torch.Tensor, torch.Tensor]:
+                    image_plane="sensor", options=None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(Δν_t, Δν_s)`` in cycles/mm: one pupil-sample lag of an ``n``-point pupil grid.
 
     ``Δν = n' |Δd_⊥| / ((n - 1) λ)`` from the directions of the four marginal rays on the image
     plane (normal ``+z``), traced through every surface regardless of clear apertures (as
     optiland does: a vignetted pupil still has a direction-cosine scale); raises
-    :class:`AnalysisError` when a marginal ray misses a surface."""
+    :class:`AnalysisError` when a marginal ray misses a surface.  ``lens``: a lens (with
+    ``options``) or a :class:`~deeplens.optics.camera.Camera`, as for every function here."""
+    lens, _, options = unpack(lens, None, options, "frequency_steps")
     dtype = lens.distances[0].dtype
     m = torch.tensor([[0.0, 1.0], [0.0, -1.0], [1.0, 0.0], [-1.0, 0.0]], dtype=dtype,
                      device=lens.distances[0].device)
-    tr = trace_pupil(lens, field_deg, wavelength_nm, m, image_plane,
-                     options=IntersectOptions(clip_aperture=False))
+    tr = trace_pupil(lens, field_deg, wavelength_nm, m, image_plane, options=_aim(options))
     if not bool(tr.mask.all()):
         raise AnalysisError(f"a marginal ray of field {field_deg:g} deg at {wavelength_nm:g} nm "
                             f"misses a surface: the pupil-to-frequency scale is undefined")
@@ -100,7 +108,7 @@ def _max_step(wf: Wavefront) -> float:
 
 
 def sampled_wavefront(lens, field_deg: float, wavelength_nm: float, n: int | None = None,
-                      image_plane="sensor") -> Wavefront:
+                      image_plane="sensor", options=None) -> Wavefront:
     """The wavefront on a pupil grid fine enough for an FFT PSF.
 
     The pupil phase must change by less than half a wave between neighbouring samples, or light
@@ -112,10 +120,12 @@ def sampled_wavefront(lens, field_deg: float, wavelength_nm: float, n: int | Non
         AnalysisError: the wavefront is too steep for ``n`` (or for 512 samples), with the
             measured step and the sampling it would need.
     """
+    lens, _, options = unpack(lens, None, options, "sampled_wavefront")
     if n is not None:
         if n < 8:
             raise ValueError(f"pupil sampling n must be >= 8, got {n}")
-        wf = wavefront(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane)
+        wf = wavefront(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane,
+                       options=options)
         step = _max_step(wf)
         if step > MAX_STEP_WAVES:
             need = int(math.ceil(n * step / AUTO_STEP_WAVES))
@@ -124,7 +134,8 @@ def sampled_wavefront(lens, field_deg: float, wavelength_nm: float, n: int | Non
                 f"{step:.3g} waves between neighbouring pupil samples (n = {n}); the FFT PSF "
                 f"aliases above {MAX_STEP_WAVES} waves: use n >= {need} (or n=None)")
         return wf
-    wf = wavefront(lens, field_deg, wavelength_nm, n=64, image_plane=image_plane)
+    wf = wavefront(lens, field_deg, wavelength_nm, n=64, image_plane=image_plane,
+                   options=options)
     step = _max_step(wf)
     if step <= AUTO_STEP_WAVES:
         return wf
@@ -135,11 +146,12 @@ def sampled_wavefront(lens, field_deg: float, wavelength_nm: float, n: int | Non
             f"waves RMS) would need {need} pupil samples per side for an FFT PSF (at most "
             f"{MAX_AUTO_SAMPLES}); the lens is far from the diffraction limit here: use the "
             f"geometric MTF / spot, or pass n explicitly")
-    return wavefront(lens, field_deg, wavelength_nm, n=need, image_plane=image_plane)
+    return wavefront(lens, field_deg, wavelength_nm, n=need, image_plane=image_plane,
+                     options=options)
 
 
 def psf_fft(lens, field_deg: float, wavelength_nm: float | None = None, n: int | None = None,
-            grid: int | None = None, image_plane="sensor") -> PSF:
+            grid: int | None = None, image_plane="sensor", options=None) -> PSF:
     """FFT PSF of one field and wavelength (see the module docstring); differentiable.
 
     Args:
@@ -150,8 +162,9 @@ def psf_fft(lens, field_deg: float, wavelength_nm: float | None = None, n: int |
         AnalysisError: a field beyond reach, a wavelength out of range, or a pupil too coarse
             for the wavefront (:func:`sampled_wavefront`).
     """
+    lens, _, options = unpack(lens, None, options, "psf_fft")
     wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
-    wf = sampled_wavefront(lens, field_deg, wl, n, image_plane)
+    wf = sampled_wavefront(lens, field_deg, wl, n, image_plane, options)
     n = wf.opd.shape[0]
     grid = 2 * n if grid is None else int(grid)
     if grid < 2 * n - 1:
@@ -165,11 +178,11 @@ def psf_fft(lens, field_deg: float, wavelength_nm: float | None = None, n: int |
     P = torch.nn.functional.pad(P, (before, after, before, after))
     U = torch.fft.fftshift(torch.fft.fft2(P))
     psf = (U.real ** 2 + U.imag ** 2) / A.sum() ** 2
-    dnt, dns = frequency_steps(lens, field_deg, wl, n, image_plane)
+    dnt, dns = frequency_steps(lens, field_deg, wl, n, image_plane, options)
     # orientation: the FFT axis runs along +x (+y) when the direction cosine falls across the
     # pupil (an imaging lens); otherwise the image is mirrored
     tr = trace_pupil(lens, field_deg, wl, torch.tensor([[0.0, 1.0], [1.0, 0.0]]).to(A),
-                     image_plane, check=False, options=IntersectOptions(clip_aperture=False))
+                     image_plane, check=False, options=_aim(options))
     sy = -1.0 if float(tr.directions[0, 1] - tr.chief_direction[1]) > 0 else 1.0
     sx = -1.0 if float(tr.directions[1, 0] - tr.chief_direction[0]) > 0 else 1.0
     if sy < 0:
@@ -189,14 +202,15 @@ def psf_fft(lens, field_deg: float, wavelength_nm: float | None = None, n: int |
 
 def psf_huygens(lens, field_deg: float, wavelength_nm: float | None = None, n: int = 48,
                 size: int = 64, pixel_mm: float | None = None, image_plane="sensor",
-                center=None) -> PSF:
+                center=None, options=None) -> PSF:
     """Huygens PSF on a ``size x size`` grid of ``pixel_mm`` pixels (default: the FFT pixel of
     an ``n``-sample pupil at ``2n`` padding) centred on the chief-ray image point (or on
     ``center = (x, y)`` mm of the image plane, e.g. another model's pixel grid)."""
+    lens, _, options = unpack(lens, None, options, "psf_huygens")
     wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
-    wf = wavefront(lens, field_deg, wl, n=n, image_plane=image_plane)
+    wf = wavefront(lens, field_deg, wl, n=n, image_plane=image_plane, options=options)
     if pixel_mm is None:
-        dnt, dns = frequency_steps(lens, field_deg, wl, n, image_plane)
+        dnt, dns = frequency_steps(lens, field_deg, wl, n, image_plane, options)
         pixel_mm = float(1.0 / (2 * n * torch.maximum(dnt, dns)))
     if not (pixel_mm > 0 and math.isfinite(pixel_mm)):
         raise ValueError(f"pixel_mm must be a positive number of mm, got {pixel_mm!r}")
@@ -225,9 +239,10 @@ def psf_huygens(lens, field_deg: float, wavelength_nm: float | None = None, n: i
 
 
 def strehl(lens, field_deg: float, wavelength_nm: float | None = None, n: int | None = None,
-           image_plane="sensor") -> torch.Tensor:
+           image_plane="sensor", options=None) -> torch.Tensor:
     """Strehl ratio: the FFT PSF's peak over the aberration-free peak (differentiable)."""
-    return psf_fft(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane).strehl
+    return psf_fft(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane,
+                   options=options).strehl
 
 
 @dataclass
@@ -256,10 +271,12 @@ class MTF:
 
 
 def mtf(lens, field_deg: float, wavelength_nm: float | None = None, n: int | None = None,
-        grid: int | None = None, image_plane="sensor") -> MTF:
+        grid: int | None = None, image_plane="sensor", options=None) -> MTF:
     """Diffraction MTF by FFT of the FFT PSF, tangential (``y``) and sagittal (``x``) slices
     from zero to ``grid/2`` steps (the cut-off lies at ``N - 1`` steps)."""
-    p = psf_fft(lens, field_deg, wavelength_nm, n=n, grid=grid, image_plane=image_plane)
+    lens, _, options = unpack(lens, None, options, "mtf")
+    p = psf_fft(lens, field_deg, wavelength_nm, n=n, grid=grid, image_plane=image_plane,
+                options=options)
     n = p.wavefront.opd.shape[0]
     g = p.psf.shape[0]
     O = torch.fft.fftshift(torch.fft.fft2(torch.fft.ifftshift(p.psf))).abs()
@@ -267,7 +284,8 @@ def mtf(lens, field_deg: float, wavelength_nm: float | None = None, n: int | Non
     dc = O[c, c]
     t = (O[c:, c][:c] / dc).clamp(0.0, 1.0)
     s = (O[c, c:][:c] / dc).clamp(0.0, 1.0)
-    dnt, dns = frequency_steps(lens, field_deg, p.wavefront.trace.wavelength_nm, n, image_plane)
+    dnt, dns = frequency_steps(lens, field_deg, p.wavefront.trace.wavelength_nm, n, image_plane,
+                               options)
     k = torch.arange(c, dtype=t.dtype, device=t.device)
     return MTF(k * dnt, t, k * dns, s, float(field_deg), p.wavefront.trace.wavelength_nm,
                "diffraction")
@@ -275,17 +293,19 @@ def mtf(lens, field_deg: float, wavelength_nm: float | None = None, n: int | Non
 
 def mtf_at(lens, field_deg: float, freq: float, wavelength_nm: float | None = None,
            direction: str = "tangential", n: int | None = None,
-           image_plane="sensor") -> torch.Tensor:
+           image_plane="sensor", options=None) -> torch.Tensor:
     """Diffraction MTF at one frequency (cycles/mm), differentiable: a direct transform of
     the FFT PSF (module docstring).  ``direction``: ``"tangential"`` or ``"sagittal"``."""
+    lens, _, options = unpack(lens, None, options, "mtf_at")
     if direction not in ("tangential", "sagittal"):
         raise ValueError(f"direction must be 'tangential' or 'sagittal', got {direction!r}")
     if not (freq >= 0 and math.isfinite(freq)):
         raise ValueError(f"frequency must be >= 0 cycles/mm, got {freq!r}")
-    p = psf_fft(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane)
+    p = psf_fft(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane, options=options)
     n = p.wavefront.opd.shape[0]
     grid = p.psf.shape[0]
-    dnt, dns = frequency_steps(lens, field_deg, p.wavefront.trace.wavelength_nm, n, image_plane)
+    dnt, dns = frequency_steps(lens, field_deg, p.wavefront.trace.wavelength_nm, n, image_plane,
+                               options)
     k = torch.arange(grid, dtype=p.psf.dtype, device=p.psf.device) - grid // 2
     if direction == "tangential":
         line = p.psf.sum(1)  # line spread along y
@@ -300,13 +320,14 @@ def mtf_at(lens, field_deg: float, freq: float, wavelength_nm: float | None = No
 
 
 def geometric_mtf(lens, field_deg: float, freqs, wavelength_nm: float | None = None,
-                  n: int = 64, image_plane="sensor") -> MTF:
+                  n: int = 64, image_plane="sensor", options=None) -> MTF:
     """Geometric MTF from the rays of an ``n x n`` pupil grid (module docstring)."""
+    lens, _, options = unpack(lens, None, options, "geometric_mtf")
     wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     dtype = lens.distances[0].dtype
     g = pupil_grid(n, dtype, lens.distances[0].device)
     g = g[(g ** 2).sum(-1) <= 1.0 + 1e-12]
-    tr = trace_pupil(lens, field_deg, wl, g, image_plane)
+    tr = trace_pupil(lens, field_deg, wl, g, image_plane, options=options)
     pts = tr.points[tr.mask][:, :2]
     pts = pts - pts.mean(0)
     f = torch.as_tensor(freqs, dtype=dtype, device=pts.device).reshape(-1)
@@ -320,28 +341,30 @@ def geometric_mtf(lens, field_deg: float, freqs, wavelength_nm: float | None = N
 
 def encircled_energy(lens, field_deg: float, radii_mm, wavelength_nm: float | None = None,
                      method: str = "diffraction", n: int | None = None,
-                     image_plane="sensor") -> torch.Tensor:
+                     image_plane="sensor", options=None) -> torch.Tensor:
     """Fraction of energy within each radius (mm) of the centroid, ``(R,)``.
 
     ``method="diffraction"`` integrates the FFT PSF (pixels counted by their centres, the PSF
     grid must be large enough to hold the energy: ``grid = 4n`` here); ``"geometric"`` counts
     the rays of a ``hexapolar`` spot."""
+    lens, _, options = unpack(lens, None, options, "encircled_energy")
     r = torch.as_tensor(radii_mm, dtype=lens.distances[0].dtype,
                         device=lens.distances[0].device).reshape(-1)
     if method == "geometric":
         wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
         s = spot_diagram(lens, field_deg, wl, "hexapolar:30", pupil="paraxial",
-                         image_plane=image_plane)
+                         image_plane=image_plane, options=options)
         d = torch.linalg.vector_norm(s.points - s.centroid, dim=-1)
         return (d[None] <= r[:, None]).to(r.dtype).mean(-1)
     if method != "diffraction":
         raise ValueError(f"encircled-energy method must be 'diffraction' or 'geometric', got "
                          f"{method!r}")
     p = psf_fft(lens, field_deg, wavelength_nm, n=n, grid=None if n is None else 4 * n,
-                image_plane=image_plane)
+                image_plane=image_plane, options=options)
     if n is None:  # finer PSF pixels for the radii: pad the chosen pupil 4x
         m = p.wavefront.opd.shape[0]
-        p = psf_fft(lens, field_deg, wavelength_nm, n=m, grid=4 * m, image_plane=image_plane)
+        p = psf_fft(lens, field_deg, wavelength_nm, n=m, grid=4 * m, image_plane=image_plane,
+                    options=options)
     Y, X = torch.meshgrid(p.y, p.x, indexing="ij")
     tot = p.psf.sum()
     cx = (p.psf * X).sum() / tot

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..optics.camera import unpack
 from ..optics.chief import chief_ray, image_plane_z  # noqa: F401  (re-exported)
 from ..optics.paraxial import paraxial
 from ..optics.sampling import field_rays, pupil_pattern
@@ -146,10 +147,13 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
                  pupil: str = "traced", image_plane="sensor", options=None,
                  region: PupilRegion | None = None) -> SpotResult:
     """Trace a pupil pattern of one field to the image plane; gradients flow to the lens.
+    ``lens`` may be a :class:`~deeplens.optics.camera.Camera` (the spot is traced with its
+    options; the pupil search, :func:`find_pupil`, runs at its own settings as before).
 
     Raises:
         ValueError: when no ray reaches the image (names the field).
     """
+    lens, _, options = unpack(lens, None, options, "spot_diagram")
     dtype = lens.dtype
     if region is None:
         region = find_pupil(lens, field_deg, wavelength_nm, pupil)

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..optics.camera import unpack
 from ..optics.rays import Rays
 from ..optics.sampling import start_plane_z
 from .checks import AnalysisError, check_field, check_wavelength
@@ -82,12 +83,13 @@ def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tenso
 
     The optical paths include the plane-wave launch correction of the module docstring, so
     differences of ``opl`` are optical path differences.  Gradients flow to the lens.
-    ``options`` (:class:`~deeplens.optics.intersect.IntersectOptions`) e.g. to ignore clear
-    apertures.
+    ``options`` (:class:`~deeplens.optics.options.TraceOptions`) e.g. to ignore clear
+    apertures; ``lens`` may be a :class:`~deeplens.optics.camera.Camera` (its options).
 
     Raises:
         AnalysisError: a wavelength outside a medium's range or a field beyond the lens's reach.
     """
+    lens, _, options = unpack(lens, None, options, "trace_pupil")
     w = float(wavelength_nm)
     if check:
         check_wavelength(lens, w)
@@ -95,7 +97,7 @@ def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tenso
     z_ep = p.entrance_pupil_z
     r_ep = 0.5 * p.entrance_pupil_diameter
     if check:
-        check_field(lens, field_deg, w, float(z_ep), float(r_ep))
+        check_field(lens, field_deg, w, float(z_ep), float(r_ep), options)
     shape = pupil.shape[:-1]
     flat = pupil.reshape(-1, 2).to(lens.distances[0])
     zero = torch.zeros(1, 2, dtype=flat.dtype, device=flat.device)
@@ -194,20 +196,24 @@ def _rms_pv(opd, mask):
 
 
 def wavefront(lens, field_deg: float, wavelength_nm: float | None = None, n: int = 64,
-              image_plane="sensor", pupil: torch.Tensor | None = None) -> Wavefront:
+              image_plane="sensor", pupil: torch.Tensor | None = None,
+              options=None) -> Wavefront:
     """OPD map (waves) over an ``n x n`` pupil grid clipped to the unit disk (or over the given
     normalised ``pupil`` points (..., 2)); see the module docstring.  Differentiable.
+    ``lens`` may be a :class:`~deeplens.optics.camera.Camera` (traced with its options), or a
+    lens traced with ``options`` (:class:`~deeplens.optics.options.TraceOptions`).
 
     Example:
         >>> w = wavefront(lens, 14.0, 587.56, n=32)   # doctest: +SKIP
         >>> float(w.rms)                               # waves
     """
+    lens, _, options = unpack(lens, None, options, "wavefront")
     wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     dtype = lens.distances[0].dtype
     if pupil is None:
         pupil = pupil_grid(n, dtype, lens.distances[0].device)
     inside = (pupil ** 2).sum(-1) <= 1.0 + 1e-12
-    tr = trace_pupil(lens, field_deg, wl, pupil, image_plane)
+    tr = trace_pupil(lens, field_deg, wl, pupil, image_plane, options=options)
     z_xp, _ = exit_pupil(lens)
     C = tr.chief_point
     E = torch.stack([torch.zeros_like(z_xp), torch.zeros_like(z_xp), z_xp.to(C)])

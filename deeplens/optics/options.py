@@ -60,6 +60,17 @@ class TraceOptions:
             raise ValueError(f"tol must be > 0 mm, got {tol}")
         self.tol, self.max_iter, self.mode = tol, int(max_iter), mode
 
+    def replace(self, **changes) -> "TraceOptions":
+        """A new :class:`TraceOptions` with ``changes`` (keyword arguments of the constructor)
+        and every other setting of this one, e.g. ``options.replace(clip_aperture=False)`` for
+        the aiming traces of an analysis run at a camera's tolerance and iterations."""
+        kw = {k: getattr(self, k) for k in self.__slots__}
+        unknown = set(changes) - set(kw)
+        if unknown:
+            raise TypeError(f"TraceOptions.replace: unknown settings {sorted(unknown)}")
+        kw.update(changes)
+        return TraceOptions(**kw)
+
     def __repr__(self):
         return (f"TraceOptions(tol={self.tol}, max_iter={self.max_iter}, mode={self.mode!r}, "
                 f"clip_aperture={self.clip_aperture}, closed_form={self.closed_form}, "

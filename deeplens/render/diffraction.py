@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..optics.camera import unpack
 from ..optics.paraxial import exit_pupil
 from ..optics.rays import Rays
 from .scene import IdealCamera
@@ -404,7 +405,10 @@ def choose_sampling(lens, sensor, jobs, options=None, max_step_waves: float = 0.
                     ) -> DiffractionSampling:
     """Pupil samples, kernel size and sub-pixel points for ``jobs`` (module docstring), from a
     trace of ``start`` samples per side without autograd (``cache``: as for
-    :func:`diffraction_psf_many`).  Raises :class:`PSFMemoryError`."""
+    :func:`diffraction_psf_many`; ``lens``: a lens or a
+    :class:`~deeplens.optics.camera.Camera`, ``sensor`` then ``None``).  Raises
+    :class:`PSFMemoryError`."""
+    lens, sensor, options = unpack(lens, sensor, options, "choose_sampling")
     with torch.no_grad():
         n = start
         for _ in range(6):
@@ -487,6 +491,8 @@ def diffraction_psf_many(lens, sensor, jobs, sampling: DiffractionSampling | Non
     traced together (one ``(J, N²)`` batch); differentiable in every lens parameter.
 
     Args:
+        lens, sensor: a :class:`~deeplens.optics.camera.Camera` and ``None`` (its options are
+            the traces'), or a lens and its sensor (with ``options``).
         sampling: fixed :class:`DiffractionSampling` (``None``: :func:`choose_sampling`).
         kernel_size: force ``K`` (odd) for every job (overrides ``sampling.kernel``).
         return_info: also return ``{"max_step_waves", "energy"}`` measured on this trace (the
@@ -498,6 +504,7 @@ def diffraction_psf_many(lens, sensor, jobs, sampling: DiffractionSampling | Non
     Returns:
         A list of kernels (and the info dict with ``return_info``).
     """
+    lens, sensor, options = unpack(lens, sensor, options, "diffraction_psf_many")
     jobs = [(tuple(float(v) for v in p), float(d), float(w)) for p, d, w in jobs]
     if not jobs:
         return ([], {}) if return_info else []

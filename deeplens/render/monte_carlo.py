@@ -32,7 +32,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from ..optics.intersect import IntersectOptions
+from ..optics.camera import Camera, as_camera
+from ..optics.options import TraceOptions
 from .geometry import (LensGeometry, exit_pupil, geometry_key, image_circle_radius,
                        measure_geometry, pixels_inside, sensor_rays)
 from .geometry import reference_weight as _reference_weight
@@ -66,11 +67,15 @@ class RenderPlan:
 
 
 class MonteCarloRenderer(nn.Module):
-    """Renders a :class:`~deeplens.render.scene.Scene` through ``lens`` onto ``sensor``.
+    """Renders a :class:`~deeplens.render.scene.Scene` through a camera's lens onto its sensor.
 
     Args:
-        lens: the :class:`~deeplens.optics.lens.Lens` (its trainable parameters get gradients).
-        sensor: the :class:`~deeplens.render.sensor.Sensor`.
+        lens: the :class:`~deeplens.optics.camera.Camera` (lens, sensor, trace options: every
+            trace reads ``camera.options`` when it runs), or, the older form, the
+            :class:`~deeplens.optics.lens.Lens` (its trainable parameters get gradients) with
+            ``sensor`` and ``options``, from which the renderer builds its camera.
+        sensor: the :class:`~deeplens.render.sensor.Sensor` (with a lens; with a camera:
+            ``None``).
         spp: rays per pixel per wavelength (>= 1).
         vignetting: relative illumination on/off (module docstring).
         adjoint: back-propagate with the adjoint method (memory flat in the ray count) instead of
@@ -85,7 +90,8 @@ class MonteCarloRenderer(nn.Module):
             which finite-difference checks need.
         chunk_rays: rays traced at once (peak memory of the adjoint pass is about 1.1 kB per
             ray of one chunk; 262144 is as fast as larger chunks on CPU).
-        options: Newton settings (:class:`~deeplens.optics.intersect.IntersectOptions`).
+        options: (with a lens) the :class:`~deeplens.optics.options.TraceOptions` of the
+            camera built; ``renderer.options`` reads and sets ``renderer.camera.options``.
         pupil_margin: exit-pupil sampling radius relative to the paraxial exit pupil.
         seed: base seed; each call uses ``seed + call index`` unless ``seed=`` is passed.
 
@@ -93,9 +99,9 @@ class MonteCarloRenderer(nn.Module):
         >>> img = MonteCarloRenderer(lens, sensor, spp=16)(Scene(texture, 5000.0))
     """
 
-    def __init__(self, lens, sensor, spp: int = 16, vignetting: bool = True,
+    def __init__(self, lens: Camera, sensor=None, spp: int = 16, vignetting: bool = True,
                  adjoint: bool = True, chunk_rays: int = 262144, decorrelate: bool = False,
-                 options: IntersectOptions | None = None, pupil_margin: float = 1.05,
+                 options: TraceOptions | None = None, pupil_margin: float = 1.05,
                  seed: int = 0):
         super().__init__()
         if int(spp) < 1:
@@ -107,19 +113,36 @@ class MonteCarloRenderer(nn.Module):
         if decorrelate and not adjoint:
             raise ValueError("MonteCarloRenderer: decorrelate=True needs adjoint=True (the "
                              "independent Jacobian samples are drawn in the adjoint pass)")
-        self.lens = lens
-        self.sensor = sensor
+        camera = as_camera(lens, sensor, options, "MonteCarloRenderer")
+        if camera.sensor is None:
+            raise ValueError("MonteCarloRenderer: the camera has no sensor (Camera(lens, sensor))")
+        self._held = (camera,)  # held, not registered: the module that built it owns it
+        # registered as before (state-dict keys ``lens.*``, ``sensor.*``): the camera's own
+        self.lens, self.sensor = camera.lens, camera.sensor
         self.spp = int(spp)
         self.decorrelate = bool(decorrelate)
         self.vignetting = bool(vignetting)
         self.adjoint = bool(adjoint)
         self.chunk_rays = int(chunk_rays)
-        self.options = options or IntersectOptions()
         self.pupil_margin = float(pupil_margin)
         self.seed = int(seed)
         self._calls = 0
         self._geometry_cache = None  # (key, lens values, geometry): see geometry()
         self.image_circle_mm = None  # measured by active_pixels()
+
+    @property
+    def camera(self) -> Camera:
+        """The :class:`~deeplens.optics.camera.Camera` rendered through."""
+        return self._held[0]
+
+    @property
+    def options(self) -> TraceOptions:
+        """The camera's trace options (read at every trace; setting them sets the camera's)."""
+        return self.camera.options
+
+    @options.setter
+    def options(self, value) -> None:
+        self.camera.options = value
 
     # ------------------------------------------------------------ lens geometry
     def geometry(self, jobs) -> LensGeometry:

@@ -6,6 +6,10 @@ shifts (distortion, lateral colour) stay in the kernel.  ``K`` is sized from the
 the smallest odd size holding 99.9 % of the rays (capped by ``max_kernel``), never a constant.
 Kernels are normalised to sum 1 (the lost energy is reported by :func:`psf`'s
 ``return_energy``).  Index convention: the kernel is in image orientation (row = sensor row).
+
+Every function takes a :class:`~deeplens.optics.camera.Camera` in place of ``lens`` (then
+``sensor`` is ``None`` and the traces run with the camera's options), e.g.
+``psf(camera, None, (0.0, 0.0), 5000.0, 587.6)``, or a lens with its ``sensor`` and ``options``.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import math
 import torch
 
 from .scene import IdealCamera
+from ..optics.camera import unpack
 from ..optics.rays import Rays
 from ..optics.sampling import entrance_pupil, point_source_rays
 from .splat import splat_bilinear, trace_to_sensor_pixels
@@ -49,6 +54,8 @@ def psf(lens, sensor, point_xy_mm, depth_mm: float, wavelength_nm: float, n_rays
     """PSF ``(K, K)`` of an object point (see module docstring); differentiable in the lens.
 
     Args:
+        lens, sensor: a :class:`~deeplens.optics.camera.Camera` and ``None``, or a lens and
+            its sensor.
         point_xy_mm: ``(X, Y)`` object position (mm), or direction tangents for infinity.
         depth_mm: object distance from the first vertex (mm) or ``math.inf``.
         kernel_size: force ``K`` (odd); ``None`` sizes it from the spot.
@@ -80,6 +87,7 @@ def psf_many(lens, sensor, jobs, n_rays: int = 4096, kernel_size=None, seed: int
     Returns:
         A list of ``(K_j, K_j)`` kernels (of ``(kernel, energy)`` with ``return_energy``).
     """
+    lens, sensor, options = unpack(lens, sensor, options, "psf_many")
     jobs = [(tuple(float(v) for v in p), float(d), float(w)) for p, d, w in jobs]
     if not jobs:
         return []
@@ -161,6 +169,7 @@ def psf_grids(lens, sensor, specs, grid=(3, 3), n_rays: int = 4096,
     one trace sizes every grid's kernel (``min(n_rays, 1024)`` rays per point; the grid's
     largest spot), one more traces every kernel (:func:`psf_many`).  Returns a list of
     ``(kernels (gy, gx, K, K), centres (gy, gx, 2))``, one per spec."""
+    lens, sensor, options = unpack(lens, sensor, options, "psf_grids")
     camera = IdealCamera(lens, sensor)
     gy, gx = grid
     specs = [(float(d), float(w)) for d, w in specs]
@@ -182,6 +191,7 @@ def psf_many_sizes(lens, sensor, jobs, n_rays: int, seed: int = 0, options=None,
                    max_kernel: int = 129):
     """The kernel size :func:`psf_kernel_size` measures for each job of :func:`psf_many` from
     ``n_rays`` random rays, without autograd, in one trace."""
+    lens, sensor, options = unpack(lens, sensor, options, "psf_many_sizes")
     with torch.no_grad():
         return [psf_kernel_size(di, dj, valid, max_kernel)
                 for di, dj, valid in _job_offsets(lens, sensor, jobs, n_rays, seed, options)]

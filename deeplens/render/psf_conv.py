@@ -18,6 +18,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..optics.camera import Camera, as_camera
+from ..optics.options import TraceOptions
 from .fftconv import correlate_valid
 from .psf import _grid_points, psf_grids
 from .scene import IdealCamera, Scene
@@ -49,7 +51,9 @@ class PSFConvRenderer(nn.Module):
     """Renders a scene as the ideal image convolved with the lens's PSFs.
 
     Args:
-        lens, sensor: as for :class:`~deeplens.render.monte_carlo.MonteCarloRenderer`.
+        lens, sensor, options: as for :class:`~deeplens.render.monte_carlo.MonteCarloRenderer`
+            (a :class:`~deeplens.optics.camera.Camera`, or a lens with its sensor and trace
+            options).
         n_rays: rays per PSF.
         patches: ``(gy, gx)`` PSF grid over the field (``(1, 1)``: one on-axis PSF).
         kernel_size: force the kernel size (odd); ``None`` sizes it from the spots.
@@ -58,17 +62,36 @@ class PSFConvRenderer(nn.Module):
         psf_model: a :class:`~deeplens.render.psf_model.PSFModel` (``None``: geometric).
     """
 
-    def __init__(self, lens, sensor, n_rays: int = 4096, patches=(1, 1),
+    def __init__(self, lens: Camera, sensor=None, n_rays: int = 4096, patches=(1, 1),
                  kernel_size: int | None = None, supersample: int = 2, options=None,
                  seed: int = 0, psf_model=None):
         super().__init__()
         self.psf_model = psf_model
         if int(n_rays) < 1:
             raise ValueError(f"PSFConvRenderer: n_rays must be >= 1, got {n_rays}")
-        self.lens, self.sensor = lens, sensor
+        camera = as_camera(lens, sensor, options, "PSFConvRenderer")
+        if camera.sensor is None:
+            raise ValueError("PSFConvRenderer: the camera has no sensor (Camera(lens, sensor))")
+        self._held = (camera,)  # held, not registered: the module that built it owns it
+        # registered as before (state-dict keys ``lens.*``, ``sensor.*``): the camera's own
+        self.lens, self.sensor = camera.lens, camera.sensor
         self.n_rays, self.patches = int(n_rays), tuple(int(p) for p in patches)
         self.kernel_size, self.supersample = kernel_size, int(supersample)
-        self.options, self.seed = options, int(seed)
+        self.seed = int(seed)
+
+    @property
+    def camera(self) -> Camera:
+        """The :class:`~deeplens.optics.camera.Camera` rendered through."""
+        return self._held[0]
+
+    @property
+    def options(self) -> TraceOptions:
+        """The camera's trace options (read at every trace; setting them sets the camera's)."""
+        return self.camera.options
+
+    @options.setter
+    def options(self, value) -> None:
+        self.camera.options = value
 
     def forward(self, scene: Scene, seed: int | None = None) -> torch.Tensor:
         if not isinstance(scene, Scene):

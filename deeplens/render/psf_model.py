@@ -25,6 +25,7 @@ import torch
 
 from .diffraction import (DiffractionSampling, PupilSamplingError, choose_sampling,
                           diffraction_psf_many)
+from ..optics.camera import unpack
 from .psf import _job_offsets
 
 __all__ = ["PSFModel", "MODELS", "tv_distance", "run_jobs"]
@@ -119,7 +120,9 @@ class PSFModel:
     # ------------------------------------------------------------------ measurement
     def measure(self, lens, sensor, jobs, options=None) -> str:
         """Measure the geometric model's error on ``jobs`` and (``auto``) choose; returns the
-        sentence stating the choice, the measured error and the budget."""
+        sentence stating the choice, the measured error and the budget.  ``lens`` may be a
+        :class:`~deeplens.optics.camera.Camera` (``sensor`` ``None``: its options trace)."""
+        lens, sensor, options = unpack(lens, sensor, options, "PSFModel.measure")
         jobs = [(tuple(float(v) for v in p), float(d), float(w)) for p, d, w in jobs]
         self.jobs = jobs
         errs, steep = [], 0
@@ -171,7 +174,9 @@ class PSFModel:
         return False
 
     def resolve(self, lens, sensor, options=None) -> str:
-        """The model to use now (re-measuring ``auto`` when the lens moved far)."""
+        """The model to use now (re-measuring ``auto`` when the lens moved far); ``lens`` as
+        for :meth:`measure`."""
+        lens, sensor, options = unpack(lens, sensor, options, "PSFModel.resolve")
         if self.model == "auto" and self.jobs is not None and self.moved(lens):
             before = self.choice
             self.measure(lens, sensor, self.jobs, options)
@@ -183,7 +188,8 @@ class PSFModel:
     # ------------------------------------------------------------------ kernels
     def diffraction(self, lens, sensor, jobs, options=None, max_kernel: int | None = None):
         """Diffraction kernels of ``jobs`` (one shared size), widening the sampling when this
-        trace finds it too coarse."""
+        trace finds it too coarse; ``lens`` as for :meth:`measure`."""
+        lens, sensor, options = unpack(lens, sensor, options, "PSFModel.diffraction")
         mk = self.max_kernel if max_kernel is None else min(self.max_kernel, max_kernel)
         if self.sampling is None:
             self.sampling = choose_sampling(lens, sensor, jobs, options, max_kernel=mk,

@@ -170,9 +170,10 @@ class ImageLogger(Callback):
                 for f in self.fields_deg:
                     t = math.tan(math.radians(f))
                     X = 0.0
-                    Y = t * (d + m.camera.z_ep - m.camera.z0)
-                    try:
-                        ks.append(psf(lens, sensor, (X, Y), d, w, self.psf_rays, seed=0))
+                    Y = t * (d + m.ideal.z_ep - m.ideal.z0)
+                    try:  # traced with the run's trace options (the module's camera)
+                        ks.append(psf(lens, sensor, (X, Y), d, w, self.psf_rays, seed=0,
+                                      options=m.camera.options))
                     except ValueError:
                         ks.append(torch.zeros(3, 3))
             kmax = max(k.shape[-1] for k in ks)

@@ -62,7 +62,7 @@ def psfs_figure(modules: dict, depths, kernel: int = 21, n_rays: int = 8192):
         ch = m.sensor.channels[len(m.sensor.channels) // 2]
         for c, d in enumerate(depths):
             with torch.no_grad():
-                k = sum(psf(m.lens, m.sensor, (0.0, 0.0), d, float(w), n_rays, kernel)
+                k = sum(psf(m.camera, None, (0.0, 0.0), d, float(w), n_rays, kernel)
                         for w in ch)
             ax = axes[r][c]
             ax.imshow((k / k.max()).cpu().numpy(), cmap="inferno", interpolation="nearest")

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import torch
 
-from ..optics.parameters import parameter_scale, select_names
+from ..optics.camera import set_trainable  # the one rule (re-exported)
+from ..optics.parameters import parameter_scale
 from ..optics.io import load_lens
 from ..optics.io.lensfile import LensFileError
 from ..optics.io.table import read_table
@@ -37,18 +38,6 @@ __all__ = ["build_lens", "set_trainable", "parameter_scale", "optics_param_group
 MAX_PLATE_ORDER = 12
 
 
-def set_trainable(lens, patterns) -> list[str]:
-    """Unfreeze the parameters matching ``patterns``; returns their names.
-
-    Raises:
-        ValueError: a pattern matches no parameter (the message lists the available names).
-    """
-    names = [n for n, _ in lens.named_parameters()]
-    chosen = select_names(names, patterns or [], "lens.trainable: ")
-    params = dict(lens.named_parameters())
-    for n in names:
-        params[n].requires_grad_(n in chosen)
-    return chosen
 
 
 def optics_param_groups(lens, lr_mm: float) -> list[dict]:

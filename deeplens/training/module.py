@@ -29,6 +29,7 @@ import torch.nn.functional as F
 from kornia.color import rgb_to_grayscale
 from kornia.metrics import ssim as kornia_ssim
 
+from ..optics.camera import Camera, as_camera
 from ..render import IdealCamera, Scene
 from .checkpoint import LOADED_FROM, check_compatible, override_learning_rates
 from .constraints import SagDepartureConstraint
@@ -67,10 +68,22 @@ def check_learning_rate(key: str, value) -> float:
 class EndToEndModule(L.LightningModule):
     """Joint lens + restorer training.
 
+    The module holds one :class:`~deeplens.optics.camera.Camera` (``module.camera``): the
+    renderer renders through it and the Wiener front end traces its PSFs through it, so one
+    ``camera.options`` reaches every trace of a training step.  The camera owns the lens
+    (:mod:`deeplens.optics.camera`): the module optimises the parameters the camera lets
+    train and fixes them (``optics_warmup_steps``) through :meth:`Camera.lens_fixed
+    <deeplens.optics.camera.Camera.lens_fixed>`.
+
     Args:
-        lens: the :class:`~deeplens.optics.lens.Lens` (its trainable parameters are optimised).
-        sensor: the :class:`~deeplens.render.sensor.Sensor` (with its noise model).
-        renderer: a renderer ``(scene, seed=) -> (B, C, H, W)`` holding ``lens`` and ``sensor``.
+        lens: the :class:`~deeplens.optics.camera.Camera`, or (the older form) the
+            :class:`~deeplens.optics.lens.Lens` with ``sensor``: the module then takes the
+            renderer's camera (a renderer built on this lens and sensor), else builds one with
+            the renderer's ``options``.
+        sensor: the :class:`~deeplens.render.sensor.Sensor` (with its noise model); with a
+            camera, ``None`` or the camera's.
+        renderer: a renderer ``(scene, seed=) -> (B, C, H, W)`` rendering through the camera
+            (a renderer with a ``camera`` attribute must hold the module's).
         restorer: the network ``(B, C, H, W) -> (B, C, H, W)``.
         depths_mm: ``[min, max]`` training depth range (sampled uniformly in 1/depth) or one depth.
         val_depths_mm: depths evaluated (and logged) separately in validation.
@@ -123,6 +136,9 @@ class EndToEndModule(L.LightningModule):
                  optics_worst_depth: dict | None = None, tolerance=None,
                  tolerance_training: bool = False):
         super().__init__()
+        camera = self._camera_of(lens, sensor, renderer)
+        self._held = (camera,)  # held, not registered: state-dict keys lens.*, as before
+        lens, sensor = camera.lens, camera.sensor
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
         self.perceptual = perceptual
         self.discriminator = discriminator
@@ -164,7 +180,7 @@ class EndToEndModule(L.LightningModule):
                              f"[0, 4], got {scene_margin!r}")
         self.scene_margin = float(scene_margin)
         self.automatic_optimization = False
-        self.camera = IdealCamera(lens, sensor)
+        self.ideal = IdealCamera(lens, sensor)  # the ground truth's framing
         self.constraint = SagDepartureConstraint(lens, max_sag_mm)
         self.worst_depth = self._soft_max_setting("worst_depth", worst_depth)
         if self.worst_depth is not None:
@@ -187,9 +203,8 @@ class EndToEndModule(L.LightningModule):
             if unknown:
                 raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
                                  f"{', '.join(dict(DEFAULTS))}")
-            self.deconv = DepthWienerFilter(lens, sensor, self.depths_mm, **dc,
-                                            psf_model=getattr(renderer, "psf_model", None),
-                                            options=getattr(renderer, "options", None))
+            self.deconv = DepthWienerFilter(camera, None, self.depths_mm, **dc,
+                                            psf_model=getattr(renderer, "psf_model", None))
         # model.tolerance_training: every training batch through its own drawn lens (tolerance.py)
         from .tolerance import TrainingDraws, load_group
 
@@ -198,6 +213,29 @@ class EndToEndModule(L.LightningModule):
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
 
     # ------------------------------------------------------------------ the camera
+    @property
+    def camera(self) -> Camera:
+        """The :class:`~deeplens.optics.camera.Camera` of every trace of a step (renderer and
+        Wiener front end); ``module.camera.options = ...`` changes them all."""
+        return self._held[0]
+
+    @staticmethod
+    def _camera_of(lens, sensor, renderer) -> Camera:
+        """The module's camera: ``lens`` if it is one, else the renderer's camera when it
+        holds this lens and sensor, else a new camera with the renderer's options."""
+        held = getattr(renderer, "camera", None)
+        if not isinstance(lens, Camera):
+            if isinstance(held, Camera) and held.lens is lens and held.sensor is sensor:
+                return held
+            lens = as_camera(lens, sensor, getattr(renderer, "options", None))
+        camera = as_camera(lens, sensor, where="EndToEndModule")
+        if isinstance(held, Camera) and held is not camera:
+            raise ValueError("EndToEndModule: the renderer renders through another camera than "
+                             "the module's; build the renderer with the module's camera")
+        if camera.sensor is None:
+            raise ValueError("EndToEndModule: the camera has no sensor (Camera(lens, sensor))")
+        return camera
+
     def sample_depths(self, n: int, step: int) -> list[float]:
         """Training depths: uniform in inverse depth over ``[min, max]`` (seeded by step)."""
         if len(self.depths_mm) == 1:
@@ -217,10 +255,10 @@ class EndToEndModule(L.LightningModule):
             images = rgb_to_grayscale(images)  # a monochrome camera sees (and learns) grey
         # each texture covers the field of view plus ``scene_margin`` of it on every side, so
         # light blurred in from beyond the frame's edge is scene content, not a black surround
-        sizes = torch.stack([self.camera.fov_size_mm(float(d)) for d in depths])
+        sizes = torch.stack([self.ideal.fov_size_mm(float(d)) for d in depths])
         scene = Scene(images.to(dtype), depths, sizes * (1 + 2 * self.scene_margin))
         y = self.renderer(scene, seed=seed)
-        gt = self.camera.render(scene).to(y.dtype)
+        gt = self.ideal.render(scene).to(y.dtype)
         if noise:
             g = torch.Generator(device=y.device).manual_seed(seed + 17)
             y = self.sensor.add_noise(y, generator=g)
@@ -406,20 +444,13 @@ class EndToEndModule(L.LightningModule):
             return contextlib.nullcontext()
         return self.tolerance_draws.at(self.lens, step)
 
-    @contextlib.contextmanager
     def optics_fixed(self, fixed: bool = True):
         """While ``fixed``: the lens parameters do not require gradients, so the render and
         the Wiener filter trace without autograd (the same values; the filter's PSFs come
         from its cache), as during ``optics_warmup_steps``, whose lens gradients were
-        discarded anyway.  Restored on exit."""
-        params = [p for p in self.lens.parameters() if p.requires_grad] if fixed else []
-        for p in params:
-            p.requires_grad_(False)
-        try:
-            yield
-        finally:
-            for p in params:
-                p.requires_grad_(True)
+        discarded anyway.  Restored on exit (:meth:`Camera.lens_fixed
+        <deeplens.optics.camera.Camera.lens_fixed>`: the camera owns the lens)."""
+        return self.camera.lens_fixed(fixed)
 
     def restore_loss(self, depths: torch.Tensor, y: torch.Tensor, gt: torch.Tensor,
                      x: torch.Tensor):
@@ -564,7 +595,7 @@ class EndToEndModule(L.LightningModule):
         if self.deconv is not None:
             net += list(self.deconv.parameters())
         groups = [{"params": net, "lr": self.net_lr, "name": "net"}]
-        return groups + optics_param_groups(self.lens, self.optics_lr_mm)
+        return groups + optics_param_groups(self.camera.lens, self.optics_lr_mm)
 
     def configure_optimizers(self):
         opt_g = self.optimizer(self._param_groups())

@@ -20,7 +20,8 @@ import torch
 from lightning.pytorch.utilities import rank_zero_info
 from omegaconf import DictConfig, OmegaConf
 
-from ..optics.intersect import IntersectOptions
+from ..optics.camera import Camera
+from ..optics.options import TraceOptions
 from ..optics.limits import check_allocation
 from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
@@ -31,7 +32,8 @@ from .module import MAX_LR
 from .run_lock import hold_output_folder
 from .stop_signals import stopped_by_signal
 
-__all__ = ["build_objects", "check_config", "check_sizes", "preflight", "summary", "train"]
+__all__ = ["build_camera", "build_objects", "check_config", "check_sizes", "preflight",
+           "summary", "train"]
 
 # leaf keys whose type is checked at start-up (Hydra already rejects unknown keys)
 _TYPES = {
@@ -214,21 +216,35 @@ _RULES = {
 }
 
 
-def build_renderer(cfg, lens, sensor):
+def build_camera(cfg, lens, sensor) -> Camera:
+    """The run's one :class:`~deeplens.optics.camera.Camera`: ``lens``, ``sensor`` and the
+    trace options of ``render.newton_tol``, ``render.max_iter`` and ``render.compile``, which
+    every trace of a training step reads (renderer, Wiener front end, PSF model)."""
     r = cfg.render
     try:
-        opts = IntersectOptions(tol=r.newton_tol, max_iter=r.max_iter,
-                                compile=r.get("compile", False))
+        opts = TraceOptions(tol=r.newton_tol, max_iter=r.max_iter,
+                            compile=r.get("compile", False))
     except ValueError as e:
         raise ValueError(f"render.compile: {e}") from None
-    return _build_renderer(cfg, lens, sensor, opts)
+    return Camera(lens, sensor, opts)
 
 
-def build_psf_model(cfg, lens, sensor, opts):
+def build_renderer(cfg, lens, sensor=None):
+    """The renderer of ``render.kind`` through ``lens`` (a camera, or a lens and ``sensor``:
+    the camera of :func:`build_camera` is built)."""
+    camera = lens if isinstance(lens, Camera) else build_camera(cfg, lens, sensor)
+    return _build_renderer(cfg, camera)
+
+
+def build_psf_model(cfg, lens, sensor=None, opts=None):
     """``render.psf_model`` (geometric | diffraction | auto), measured on the run's pixels,
-    depths, wavelengths and field patches; its choice is printed (``auto``: with the measured
-    error and the budget).  The Monte Carlo renderer traces rays: diffraction needs
-    ``render.kind=psf``."""
+    depths, wavelengths and field patches through ``lens`` (the run's camera, ``sensor`` and
+    ``opts`` then ``None``; or a lens, its sensor and trace options); its choice is printed
+    (``auto``: with the measured error and the budget).  The Monte Carlo renderer traces rays:
+    diffraction needs ``render.kind=psf``."""
+    from ..optics.camera import unpack
+
+    lens, sensor, opts = unpack(lens, sensor, opts, "build_psf_model")
     from ..render.psf_model import PSFModel, run_jobs
 
     r = cfg.render
@@ -257,16 +273,15 @@ def _log_psf_model(trainer, renderer) -> None:
         exp.add_text("psf_model", pm.message)
 
 
-def _build_renderer(cfg, lens, sensor, opts):
+def _build_renderer(cfg, camera: Camera):
     r = cfg.render
     if r.kind == "mc":
-        return MonteCarloRenderer(lens, sensor, spp=r.spp, vignetting=r.vignetting,
+        return MonteCarloRenderer(camera, spp=r.spp, vignetting=r.vignetting,
                                   adjoint=r.adjoint, decorrelate=r.decorrelate and r.adjoint,
-                                  chunk_rays=r.chunk_rays, options=opts,
-                                  seed=cfg.seed)
+                                  chunk_rays=r.chunk_rays, seed=cfg.seed)
     if r.kind == "psf":
-        return PSFConvRenderer(lens, sensor, n_rays=r.psf_rays, patches=tuple(r.psf_patches),
-                               options=opts, seed=cfg.seed)
+        return PSFConvRenderer(camera, n_rays=r.psf_rays, patches=tuple(r.psf_patches),
+                               seed=cfg.seed)
     raise ValueError(f"render.kind must be 'mc' or 'psf', got {r.kind!r}")
 
 
@@ -324,9 +339,10 @@ def build_objects(cfg: DictConfig) -> dict:
     if n_ch not in (1, 3):
         raise ValueError(f"sensor.channels: {n_ch} channels, but the training textures are RGB: "
                          f"use 1 (monochrome: textures are converted to grey) or 3 channels")
-    renderer = build_renderer(cfg, lens, sensor)
+    camera = build_camera(cfg, lens, sensor)  # one camera: every trace of a step reads it
+    renderer = build_renderer(cfg, camera)
     preflight(lens, sensor)
-    renderer.psf_model = build_psf_model(cfg, lens, sensor, renderer.options)
+    renderer.psf_model = build_psf_model(cfg, camera)
     restorer = hydra.utils.instantiate(cfg.net, **_image_channels(cfg.net, "net", n_ch))
     mc = cfg.model
     discriminator = (hydra.utils.instantiate(
@@ -337,13 +353,14 @@ def build_objects(cfg: DictConfig) -> dict:
     # here are what the config cannot describe
     make_module = hydra.utils.instantiate(cfg.model, discriminator=discriminator,
                                           _convert_="all")
-    module = make_module(lens=lens, sensor=sensor, renderer=renderer, restorer=restorer)
+    module = make_module(lens=camera, sensor=None, renderer=renderer, restorer=restorer)
     datamodule = hydra.utils.instantiate(cfg.data)
     callbacks = [hydra.utils.instantiate(c) for c in (cfg.callbacks or {}).values() if c]
     logger = hydra.utils.instantiate(cfg.logger) if cfg.get("logger") else False
     trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=logger,
                                       plugins=[AtomicCheckpointIO()])
-    return {"lens": lens, "sensor": sensor, "renderer": renderer, "restorer": restorer,
+    return {"lens": lens, "sensor": sensor, "camera": camera, "renderer": renderer,
+            "restorer": restorer,
             "datamodule": datamodule, "module": module, "trainer": trainer, "cfg": cfg}
 
 

@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..optics.camera import Camera, as_camera
 from ..render.psf import psf_many
 
 __all__ = ["DepthWienerFilter", "DEFAULTS", "nsr_range"]
@@ -49,8 +50,10 @@ class DepthWienerFilter(nn.Module):
     """``(B, C, H, W) -> (B, C, H, W)``: the depth-averaged Wiener deconvolution of the lens.
 
     Args:
-        lens, sensor: the camera (held by reference, not registered: the end-to-end module
-            owns them).
+        lens: the :class:`~deeplens.optics.camera.Camera` (held by reference, not registered:
+            the end-to-end module owns it), whose ``options`` every PSF trace reads when it
+            runs; or, the older form, a lens with ``sensor`` and ``options``.
+        sensor: with a lens, the sensor; with a camera, ``None``.
         depths_mm: ``[near, far]`` depth range (mm) or one depth.
         depths: number of depths averaged (uniform in 1/depth, both ends included; >= 1).
         rays: rays per PSF (a square grid over the entrance pupil, deterministic).
@@ -58,16 +61,19 @@ class DepthWienerFilter(nn.Module):
         learn_nsr: whether ``nsr`` is a trainable parameter.
         psf_model: the run's :class:`~deeplens.render.psf_model.PSFModel` (``None``:
             geometric PSFs), shared with the renderer.
-        options: the run's :class:`~deeplens.optics.options.TraceOptions` (the renderer's:
-            ``render.compile``, ``render.newton_tol``, ``render.max_iter``), so the filter's
-            PSF traces run as the renderer's do (``None``: the defaults).
+        options: with a lens, the :class:`~deeplens.optics.options.TraceOptions` of the
+            camera built (``None``: the defaults); with a camera, ``None`` (the camera's).
     """
 
-    def __init__(self, lens, sensor, depths_mm, depths: int = 5, rays: int = 16384,
-                 nsr: float = 1e-2, learn_nsr: bool = True, psf_model=None, options=None):
+    def __init__(self, lens: Camera, sensor=None, depths_mm=None, depths: int = 5,
+                 rays: int = 16384, nsr: float = 1e-2, learn_nsr: bool = True, psf_model=None,
+                 options=None):
         super().__init__()
+        camera = as_camera(lens, sensor, options, "DepthWienerFilter")
+        if camera.sensor is None or depths_mm is None:
+            raise ValueError("DepthWienerFilter: needs a camera with a sensor and depths_mm")
+        lens, sensor = camera.lens, camera.sensor
         self.psf_model = psf_model
-        self.options = options
         if not (isinstance(depths, int) and depths >= 1):
             raise ValueError(f"model.deconvolution.depths: expected an integer >= 1, got "
                              f"{depths!r}")
@@ -80,7 +86,7 @@ class DepthWienerFilter(nn.Module):
             raise ValueError(f"model.deconvolution.nsr: {nsr!r} is outside the range a "
                              f"{str(lens.dtype).removeprefix('torch.')} lens can hold "
                              f"({lo:.3g} .. {hi:.3g})")
-        self._camera = (lens, sensor)  # a tuple: not registered as submodules
+        self._held = (camera,)  # a tuple: not registered (the end-to-end module owns it)
         lo, hi = min(depths_mm), max(depths_mm)
         if depths == 1 or lo == hi:  # the dioptric middle of the range
             self.depths_mm = [2 / (1 / lo + 1 / hi)]
@@ -97,23 +103,34 @@ class DepthWienerFilter(nn.Module):
             self.register_buffer("log_nsr", log_nsr)
         self._cache = None  # (key, (mean conj H, mean |H|^2)) of a lens that is not training
 
+    @property
+    def camera(self) -> Camera:
+        """The :class:`~deeplens.optics.camera.Camera` whose PSFs the filter inverts."""
+        return self._held[0]
+
+    @property
+    def options(self):
+        """The camera's trace options (read at every PSF trace)."""
+        return self.camera.options
+
     # ------------------------------------------------------------------ the optics
     def psfs(self, size) -> torch.Tensor:
         """On-axis PSFs ``(D, C, K, K)`` per depth and sensor channel (``K`` odd, smaller than
         both sides of ``size = (Hs, Ws)``), differentiable in the lens."""
-        lens, sensor = self._camera
+        cam = self.camera
+        lens, sensor, options = cam.lens, cam.sensor, cam.options
         n = max(int(round(math.sqrt(self.rays))), 8)
         jobs = sensor.wavelengths_for(len(sensor.channels))
         specs = [(d, c, wl, w) for d in self.depths_mm for c, wl, w in jobs]
         pts = [((0.0, 0.0), d, wl) for d, _, wl, _ in specs]
         model = ("geometric" if self.psf_model is None
-                 else self.psf_model.resolve(lens, sensor, self.options))
+                 else self.psf_model.resolve(lens, sensor, options))
         if model == "diffraction":
-            kers = self.psf_model.diffraction(lens, sensor, pts, self.options,
+            kers = self.psf_model.diffraction(lens, sensor, pts, options,
                                               max_kernel=min(size) - 1)
         else:
             kers = psf_many(lens, sensor, pts, n_rays=n * n, sampling=f"grid:{n}",
-                            max_kernel=min(size) - 1, options=self.options)
+                            max_kernel=min(size) - 1, options=options)
         out = []
         for k0 in range(0, len(specs), len(jobs)):
             per = {}
@@ -137,7 +154,7 @@ class DepthWienerFilter(nn.Module):
     def otf_moments(self, size):
         """``(E_d conj H, E_d |H|^2)``, each ``(C, Hs, Ws // 2 + 1)``, for an FFT of
         ``size = (Hs, Ws)``; cached while no lens parameter changes or trains."""
-        lens, _ = self._camera
+        lens = self.camera.lens
         params = list(lens.parameters())
         training = torch.is_grad_enabled() and any(p.requires_grad for p in params)
         key = (tuple(size), tuple((p.data_ptr(), p._version) for p in params))
@@ -176,4 +193,5 @@ class DepthWienerFilter(nn.Module):
 #: the settings of :class:`DepthWienerFilter` and their defaults, ``((name, default), ...)``
 #: (config ``model.deconvolution``), read from its signature
 DEFAULTS = tuple((n, p.default) for n, p in inspect.signature(DepthWienerFilter).parameters.items()
-                 if p.default is not inspect.Parameter.empty and n != "psf_model")
+                 if p.default is not inspect.Parameter.empty
+                 and n not in ("psf_model", "sensor", "depths_mm", "options"))

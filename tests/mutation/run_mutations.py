@@ -58,6 +58,8 @@ RENDER_IMAGE = ("tests/render/test_render_image.py",)
 API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
 TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
+CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
+          "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
 
 @dataclass(frozen=True)
@@ -362,6 +364,29 @@ MUTATIONS = [
              "deeplens/optics/intersect.py",
              "ok = ok & torch.isfinite(X) & torch.isfinite(Y)\n",
              "ok = ok & torch.isfinite(X) & torch.isfinite(Y) & (t >= 0)\n", VSTOP),
+    # ------------------------------------------------ the camera (issue 24)
+    Mutation("camera_trace_default_options", "Camera.trace_to_sensor traces at the default "
+             "options, not the camera's", "deeplens/optics/camera.py",
+             "z_image=z_image, options=self.options)", "z_image=z_image, options=None)", CAMERA),
+    Mutation("camera_unpack_drops_options", "a function given a camera traces at the default "
+             "options (PSFs, spot diagram)", "deeplens/optics/camera.py",
+             "return cam.lens, cam.sensor, cam.options", "return cam.lens, cam.sensor, None",
+             CAMERA),
+    Mutation("wiener_default_options", "the Wiener filter's PSFs trace at the default options, "
+             "not the camera's", "deeplens/training/wiener.py",
+             "lens, sensor, options = cam.lens, cam.sensor, cam.options",
+             "lens, sensor, options = cam.lens, cam.sensor, None", CAMERA),
+    Mutation("renderer_options_copied", "the Monte Carlo renderer keeps the options it was built "
+             "with (a copy), so options set on the camera later never reach it",
+             "deeplens/render/monte_carlo.py",
+             "        self.pupil_margin = float(pupil_margin)\n",
+             "        self.pupil_margin = float(pupil_margin)\n"
+             "        self._frozen = camera.options\n"
+             "        type(self).options = property(lambda s: s._frozen)\n", CAMERA),
+    Mutation("lens_fixed_not_restored", "the optics stay frozen after camera.lens_fixed() (warm-up "
+             "never ends)", "deeplens/optics/camera.py",
+             "            for p in params:\n                p.requires_grad_(True)",
+             "            for p in params:\n                pass", CAMERA),
 ]
 
 

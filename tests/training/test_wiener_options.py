@@ -4,8 +4,10 @@ traces too (before, the filter's PSFs ran at the default settings whatever the r
 
 from __future__ import annotations
 
+import pytest
 import torch
 
+from deeplens.optics.camera import Camera
 from deeplens.optics.io import load_lens
 from deeplens.optics.options import TraceOptions
 from deeplens.render import Sensor
@@ -42,8 +44,24 @@ def test_the_filter_traces_its_psfs_with_the_options_it_is_given(monkeypatch):
     k_opts = wf.psfs((24, 24))
     assert seen and all(o is opts for o in seen)
     default = DepthWienerFilter(lens, sensor, [6000.0], depths=1, rays=1024).psfs((24, 24))
-    assert seen[-1] is None  # no options: the defaults, as before
+    # no options: the defaults (a default TraceOptions, traced as None was before)
+    assert repr(seen[-1]) == repr(TraceOptions())
     assert torch.allclose(k_opts, default, rtol=0, atol=1e-12)  # same physics either way
+
+
+def test_the_filter_reads_its_cameras_options_at_every_trace(monkeypatch):
+    """With a camera, the filter holds no copy: options set on the camera later are the
+    ones its next PSF trace runs with; options beside a camera are refused."""
+    lens, sensor = _camera()
+    seen = _spy(monkeypatch)
+    cam = Camera(lens, sensor)
+    wf = DepthWienerFilter(cam, None, [6000.0], depths=1, rays=1024)
+    later = TraceOptions(tol=1e-9, max_iter=17)
+    cam.options = later
+    wf.psfs((24, 24))
+    assert seen and all(o is later for o in seen) and wf.options is later
+    with pytest.raises(ValueError, match="options given beside a Camera"):
+        DepthWienerFilter(cam, None, [6000.0], depths=1, rays=1024, options=TraceOptions())
 
 
 def test_the_module_hands_the_renderers_options_to_the_filter(monkeypatch):
@@ -53,3 +71,5 @@ def test_the_module_hands_the_renderers_options_to_the_filter(monkeypatch):
     module = EndToEndModule(lens, sensor, renderer, torch.nn.Identity(), [6000.0], [6000.0],
                             deconvolution={"depths": 1, "rays": 1024})
     assert module.deconv.options is opts
+    # one camera: the renderer's, held by the module and the filter
+    assert module.camera is renderer.camera is module.deconv.camera
