@@ -57,6 +57,25 @@ def table(res: dict, threshold: float | None = None) -> str:
             rows.append(f"| {kind} | {s} | {r['nominal_psnr']:.2f} / {r['nominal_ssim']:.3f} | "
                         f"{m['psnr_mean']:.2f} | {m['psnr_p5']:.2f} | {100 * m['yield']:.0f}% | "
                         f"{edge:.2f} | {centre:.2f} |")
+    for kind, seeds in res.items():  # mean +- std (n - 1) over the seeds of each kind
+        if len(seeds) < 2:
+            continue
+        cols = [("nominal", lambda r: r["nominal_psnr"]),
+                ("mean", lambda r: r["columns"]["mean"]["psnr_mean"]),
+                ("p5", lambda r: r["columns"]["mean"]["psnr_p5"]),
+                ("edge p5", lambda r: r["columns"].get("band 0.66-1", {}).get("psnr_p5",
+                                                                               float("nan"))),
+                ("centre p5", lambda r: r["columns"].get("band 0-0.33", {}).get("psnr_p5",
+                                                                                 float("nan")))]
+        cells = {}
+        for name, f in cols:
+            v = [f(r) for r in seeds.values()]
+            m = sum(v) / len(v)
+            sd = (sum((x - m) ** 2 for x in v) / (len(v) - 1)) ** 0.5
+            cells[name] = f"{m:.2f} ± {sd:.2f}"
+        rows.append(f"| {kind} | mean ± std ({len(seeds)} seeds) | {cells['nominal']} | "
+                    f"{cells['mean']} | {cells['p5']} | | {cells['edge p5']} | "
+                    f"{cells['centre p5']} |")
     common = sorted(set(res.get("nominal", {})) & set(res.get("aware", {})))
     if common:
         def mean(kind, f):
