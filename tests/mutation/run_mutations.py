@@ -383,6 +383,20 @@ MUTATIONS = [
              "        self.pupil_margin = float(pupil_margin)\n"
              "        self._frozen = camera.options\n"
              "        type(self).options = property(lambda s: s._frozen)\n", CAMERA),
+    # ------------------------------------------------ the centring compensator (issue 21)
+    Mutation("center_sign_flip", "the centring compensator moves the lens the wrong way (+ miss)",
+             "deeplens/design/tolerance_model.py",
+             "values.get(name, params[name]) - miss[k].to(params[name])",
+             "values.get(name, params[name]) + miss[k].to(params[name])",
+             ("tests/design/test_tolerance_model.py",)),
+    Mutation("center_ignored", "compensator: center parsed but never applied",
+             "deeplens/design/tolerance_model.py", "        if draw.center:\n",
+             "        if False and draw.center:\n", ("tests/design/test_tolerance_model.py",)),
+    Mutation("adjoint_grad_through_originals", "the adjoint pass differentiates the lens's "
+             "tensors as they are, not re-entered as leaves (counts a compensator's path twice)",
+             "deeplens/render/adjoint.py",
+             "leaves = {n: current[n].detach().requires_grad_(True) for n in names}",
+             "leaves = {n: current[n] for n in names}", ("tests/design/test_tolerance_model.py",)),
     Mutation("lens_fixed_not_restored", "the optics stay frozen after camera.lens_fixed() (warm-up "
              "never ends)", "deeplens/optics/camera.py",
              "            for p in params:\n                p.requires_grad_(True)",
