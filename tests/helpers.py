@@ -153,3 +153,19 @@ def hexapolar_unit(rings: int):
             px.append(r * math.sin(phi))
             py.append(r * math.cos(phi))
     return np.array(px), np.array(py)
+
+
+def spy_trace_options(monkeypatch) -> list:
+    """Replace the tracer's entry point by a spy that records the ``options`` of every trace
+    (and then traces as before); returns the list it appends to."""
+    from deeplens.optics import tracer
+
+    seen = []
+    real = tracer.trace
+
+    def spy(lens, rays, **kw):
+        seen.append(kw.get("options"))
+        return real(lens, rays, **kw)
+
+    monkeypatch.setattr(tracer, "trace", spy)
+    return seen

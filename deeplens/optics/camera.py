@@ -32,7 +32,7 @@ from .options import TraceOptions
 from .parameters import select_names
 from .rays import Rays
 
-__all__ = ["Camera", "as_camera", "set_trainable", "unpack"]
+__all__ = ["Camera", "HoldsCamera", "as_camera", "set_trainable", "unpack"]
 
 
 def set_trainable(lens, patterns, what: str = "lens.trainable") -> list[str]:
@@ -50,6 +50,27 @@ def set_trainable(lens, patterns, what: str = "lens.trainable") -> list[str]:
     for n in names:
         params[n].requires_grad_(n in chosen)
     return chosen
+
+
+class HoldsCamera:
+    """Mixin of the objects that trace through a camera they hold but do not own (renderers,
+    the Wiener filter): the camera sits in ``self._held = (camera,)``, a tuple, so that
+    ``nn.Module`` does not register it (the module that built it owns it); ``options`` reads and
+    sets the camera's, so nothing keeps a copy."""
+
+    @property
+    def camera(self) -> "Camera":
+        """The :class:`Camera` traced through."""
+        return self._held[0]
+
+    @property
+    def options(self) -> TraceOptions:
+        """The camera's trace options (read at every trace; setting them sets the camera's)."""
+        return self.camera.options
+
+    @options.setter
+    def options(self, value) -> None:
+        self.camera.options = value
 
 
 class Camera(nn.Module):

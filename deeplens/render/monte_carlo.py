@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from ..optics.camera import Camera, as_camera
+from ..optics.camera import Camera, HoldsCamera, as_camera
 from ..optics.options import TraceOptions
 from .geometry import (LensGeometry, exit_pupil, geometry_key, image_circle_radius,
                        measure_geometry, pixels_inside, sensor_rays)
@@ -66,7 +66,7 @@ class RenderPlan:
         return dataclasses.replace(self, seed=int(seed))
 
 
-class MonteCarloRenderer(nn.Module):
+class MonteCarloRenderer(HoldsCamera, nn.Module):
     """Renders a :class:`~deeplens.render.scene.Scene` through a camera's lens onto its sensor.
 
     Args:
@@ -130,19 +130,6 @@ class MonteCarloRenderer(nn.Module):
         self._geometry_cache = None  # (key, lens values, geometry): see geometry()
         self.image_circle_mm = None  # measured by active_pixels()
 
-    @property
-    def camera(self) -> Camera:
-        """The :class:`~deeplens.optics.camera.Camera` rendered through."""
-        return self._held[0]
-
-    @property
-    def options(self) -> TraceOptions:
-        """The camera's trace options (read at every trace; setting them sets the camera's)."""
-        return self.camera.options
-
-    @options.setter
-    def options(self, value) -> None:
-        self.camera.options = value
 
     # ------------------------------------------------------------ lens geometry
     def geometry(self, jobs) -> LensGeometry:

@@ -18,8 +18,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from ..optics.camera import Camera, as_camera
-from ..optics.options import TraceOptions
+from ..optics.camera import Camera, HoldsCamera, as_camera
 from .fftconv import correlate_valid
 from .psf import _grid_points, psf_grids
 from .scene import IdealCamera, Scene
@@ -47,7 +46,7 @@ def blend_weights(shape, grid, dtype=torch.float64, device=None) -> torch.Tensor
     return (wy[:, None, :, None] * wx[None, :, None, :]).reshape(gy * gx, H, W)
 
 
-class PSFConvRenderer(nn.Module):
+class PSFConvRenderer(HoldsCamera, nn.Module):
     """Renders a scene as the ideal image convolved with the lens's PSFs.
 
     Args:
@@ -79,19 +78,6 @@ class PSFConvRenderer(nn.Module):
         self.kernel_size, self.supersample = kernel_size, int(supersample)
         self.seed = int(seed)
 
-    @property
-    def camera(self) -> Camera:
-        """The :class:`~deeplens.optics.camera.Camera` rendered through."""
-        return self._held[0]
-
-    @property
-    def options(self) -> TraceOptions:
-        """The camera's trace options (read at every trace; setting them sets the camera's)."""
-        return self.camera.options
-
-    @options.setter
-    def options(self, value) -> None:
-        self.camera.options = value
 
     def forward(self, scene: Scene, seed: int | None = None) -> torch.Tensor:
         if not isinstance(scene, Scene):

@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..optics.camera import Camera, as_camera
+from ..optics.camera import Camera, HoldsCamera, as_camera
 from ..render.psf import psf_many
 
 __all__ = ["DepthWienerFilter", "DEFAULTS", "nsr_range"]
@@ -46,7 +46,7 @@ def nsr_range(dtype: torch.dtype) -> tuple[float, float]:
     return math.sqrt(fi.tiny), math.sqrt(fi.max)
 
 
-class DepthWienerFilter(nn.Module):
+class DepthWienerFilter(HoldsCamera, nn.Module):
     """``(B, C, H, W) -> (B, C, H, W)``: the depth-averaged Wiener deconvolution of the lens.
 
     Args:
@@ -103,15 +103,6 @@ class DepthWienerFilter(nn.Module):
             self.register_buffer("log_nsr", log_nsr)
         self._cache = None  # (key, (mean conj H, mean |H|^2)) of a lens that is not training
 
-    @property
-    def camera(self) -> Camera:
-        """The :class:`~deeplens.optics.camera.Camera` whose PSFs the filter inverts."""
-        return self._held[0]
-
-    @property
-    def options(self):
-        """The camera's trace options (read at every PSF trace)."""
-        return self.camera.options
 
     # ------------------------------------------------------------------ the optics
     def psfs(self, size) -> torch.Tensor:

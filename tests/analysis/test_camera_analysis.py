@@ -11,9 +11,10 @@ from pathlib import Path
 import pytest
 import torch
 
+from helpers import spy_trace_options
+
 from deeplens.analysis import diffraction as D
 from deeplens.analysis.wavefront import wavefront
-from deeplens.optics import tracer
 from deeplens.optics.camera import Camera
 from deeplens.optics.io import load_lens
 from deeplens.optics.options import TraceOptions
@@ -27,15 +28,7 @@ def lens():
 
 
 def _spy(monkeypatch):
-    seen = []
-    real = tracer.trace
-
-    def spy(lens, rays, **kw):
-        seen.append(kw.get("options"))
-        return real(lens, rays, **kw)
-
-    monkeypatch.setattr(tracer, "trace", spy)
-    return seen
+    return spy_trace_options(monkeypatch)
 
 
 def test_replace_keeps_every_other_setting():

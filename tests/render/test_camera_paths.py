@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from helpers import spy_trace_options
+
 from deeplens.analysis.spot import spot_diagram
-from deeplens.optics import tracer
 from deeplens.optics.camera import Camera
 from deeplens.optics.io import load_lens
 from deeplens.optics.options import TraceOptions
@@ -28,15 +29,7 @@ def parts():
 
 
 def _spy(monkeypatch):
-    seen = []
-    real = tracer.trace
-
-    def spy(lens, rays, **kw):
-        seen.append(kw.get("options"))
-        return real(lens, rays, **kw)
-
-    monkeypatch.setattr(tracer, "trace", spy)
-    return seen
+    return spy_trace_options(monkeypatch)
 
 
 def test_psfs_through_a_camera_equal_the_lens_calls_and_use_its_options(parts, monkeypatch):

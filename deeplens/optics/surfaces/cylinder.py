@@ -104,15 +104,20 @@ class Cylinder(SagSurface):
     file_fields = ("curvature_per_mm", "conic", "coefficients", "half_width_x_mm",
                    "half_width_y_mm")
 
-    @classmethod
-    def from_dict(cls, entry, semi_diameter):
+    @staticmethod
+    def _profile_of(entry) -> dict:
+        """The y profile's keyword arguments (conic, coefficients, half-widths) of a lens-file
+        entry, shared with the surfaces built on this profile (:class:`~.toroid.Toroid`)."""
         hw = None
         if entry.has("half_width_x_mm") or entry.has("half_width_y_mm"):
             hw = (entry.get("half_width_x_mm"), entry.get("half_width_y_mm"))
-        return cls(entry.get("curvature_per_mm"), semi_diameter,
-                   conic=entry.get("conic", default=0.0),
-                   coefficients=entry.get("coefficients", "numbers", default=[]),
-                   half_widths=hw)
+        return {"conic": entry.get("conic", default=0.0),
+                "coefficients": entry.get("coefficients", "numbers", default=[]),
+                "half_widths": hw}
+
+    @classmethod
+    def from_dict(cls, entry, semi_diameter):
+        return cls(entry.get("curvature_per_mm"), semi_diameter, **cls._profile_of(entry))
 
     def to_dict(self) -> dict:
         d = super().to_dict()

@@ -94,14 +94,8 @@ class Toroid(Cylinder):
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
-        hw = None
-        if entry.has("half_width_x_mm") or entry.has("half_width_y_mm"):
-            hw = (entry.get("half_width_x_mm"), entry.get("half_width_y_mm"))
         return cls(entry.get("curvature_per_mm"), semi_diameter,
-                   entry.get("radius_of_rotation_mm"),
-                   conic=entry.get("conic", default=0.0),
-                   coefficients=entry.get("coefficients", "numbers", default=[]),
-                   half_widths=hw)
+                   entry.get("radius_of_rotation_mm"), **cls._profile_of(entry))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
