@@ -13,13 +13,17 @@ of sag, see :mod:`.lens_setup`); the optimisers are factories (``model.optimizer
 ``_partial_``) filled with those groups.  Training uses manual optimisation so that the optional
 discriminator gets its own optimiser, and so that a non-finite loss or gradient stops training
 *before* the optimiser step, with the state just before it saved under ``checkpoints/``.
+
+Parts kept in their own files: the checks of the module's arguments (:mod:`.module_config`),
+the soft maximum over depth bins (:mod:`.depth_weighting`; its running means stay buffers of
+this module) and the non-finite guard (:mod:`.nonfinite`); ``NonFiniteLossError``,
+``check_learning_rate``, ``MAX_LR`` and ``SOFT_MAX_DEFAULTS`` are still importable from here.
 """
 
 from __future__ import annotations
 
 import contextlib
 import functools
-import math
 from pathlib import Path
 
 import lightning as L
@@ -33,36 +37,16 @@ from ..optics.camera import Camera, as_camera
 from ..render import IdealCamera, Scene
 from .checkpoint import LOADED_FROM, check_compatible, override_learning_rates
 from .constraints import SagDepartureConstraint
+from .depth_weighting import SOFT_MAX_DEFAULTS, depth_bin, soft_max_weights
 from .lens_setup import optics_param_groups
 from .metrics import band_masks, masked_psnr, masked_ssim, psnr, ssim
+from .module_config import MAX_LR, check_learning_rate, check_module_settings
+from .nonfinite import NonFiniteLossError, nonfinite_grad, nonfinite_param, stop
 from .scalars import training_scalars
 
-__all__ = ["EndToEndModule", "NonFiniteLossError"]
-
-
-class NonFiniteLossError(FloatingPointError):
-    """Raised when the training loss or a gradient is NaN or infinite; the message names the
-    step (and parameter) and the checkpoint holding the state just before that step."""
-
-
-#: defaults of a soft maximum over depths (``model.worst_depth``, ``model.optics_worst_depth``)
-SOFT_MAX_DEFAULTS = (("temperature", 0.5), ("bins", 4), ("momentum", 0.9))
-
-#: largest accepted learning rates: Adam moves each weight by about ``lr`` per step, so a
-#: network rate above 1, or an optics step above 1 mm of sag, can only run away
-MAX_LR = {"net_lr": 1.0, "optics_lr_mm": 1.0, "disc_lr": 1.0}
-
-
-def check_learning_rate(key: str, value) -> float:
-    """``value`` as a float in ``(0, MAX_LR[key]]``, else ``ValueError`` naming ``model.key``."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"model.{key}: expected a number, got {value!r}") from None
-    if not (math.isfinite(v) and 0 < v <= MAX_LR[key]):
-        raise ValueError(f"model.{key}: expected a finite learning rate in (0, {MAX_LR[key]:g}]"
-                         f"{' mm of sag per step' if key == 'optics_lr_mm' else ''}, got {value}")
-    return v
+# moved to depth_weighting.py / module_config.py / nonfinite.py, still importable from here
+__all__ = ["EndToEndModule", "MAX_LR", "NonFiniteLossError", "SOFT_MAX_DEFAULTS",
+           "check_learning_rate"]
 
 
 class EndToEndModule(L.LightningModule):
@@ -145,65 +129,45 @@ class EndToEndModule(L.LightningModule):
         self.depths_mm = [float(d) for d in depths_mm]
         self.val_depths_mm = [float(d) for d in val_depths_mm]
         self.field_bands = list(field_bands) if field_bands else None
-        self.loss_w = {"mse": 1.0, "l1": 0.0, "ssim": 0.0, "perceptual": 0.0,
-                       "adversarial": 0.0, "constraint": 1.0}
-        unknown = set(loss or {}) - set(self.loss_w)
-        if unknown:
-            raise ValueError(f"model.loss: unknown terms {sorted(unknown)}; expected "
-                             f"{sorted(self.loss_w)}")
-        self.loss_w.update({k: float(v) for k, v in (loss or {}).items()})
-        bad = {k: v for k, v in self.loss_w.items() if not (math.isfinite(v) and v >= 0)}
-        if bad:
-            raise ValueError(f"model.loss: weights must be finite and >= 0, got {bad}")
+        cfg = check_module_settings(  # module_config.py: every argument checked first
+            loss=loss, has_discriminator=discriminator is not None, net_lr=net_lr,
+            optics_lr_mm=optics_lr_mm, disc_lr=disc_lr, optics_warmup_steps=optics_warmup_steps,
+            scene_margin=scene_margin, worst_depth=worst_depth,
+            optics_worst_depth=optics_worst_depth, deconvolution=deconvolution)
+        self.loss_w = cfg["loss"]
         if self.loss_w["perceptual"] > 0 and perceptual is None:
             from ..nets.losses import PerceptualLoss
 
             perceptual = PerceptualLoss(weights_path=perceptual_weights)
             self.perceptual = perceptual
-        if self.loss_w["adversarial"] > 0 and discriminator is None:
-            raise ValueError("model.loss.adversarial > 0 needs a discriminator "
-                             "(model.discriminator)")
-        self.net_lr = check_learning_rate("net_lr", net_lr)
-        self.optics_lr_mm = check_learning_rate("optics_lr_mm", optics_lr_mm)
-        self.disc_lr = check_learning_rate("disc_lr", disc_lr)
+        self.net_lr = cfg["net_lr"]
+        self.optics_lr_mm = cfg["optics_lr_mm"]
+        self.disc_lr = cfg["disc_lr"]
         self.seed = int(seed)
-        optics_warmup_steps = optics_warmup_steps or 0
-        if not (isinstance(optics_warmup_steps, int) and optics_warmup_steps >= 0):
-            raise ValueError(f"model.optics_warmup_steps: expected an integer >= 0, got "
-                             f"{optics_warmup_steps!r}")
-        self.optics_warmup_steps = optics_warmup_steps
+        self.optics_warmup_steps = cfg["optics_warmup_steps"]
         self.optimizer = optimizer or torch.optim.Adam
         self.disc_optimizer = disc_optimizer or functools.partial(torch.optim.Adam,
                                                                   betas=(0.5, 0.999))
-        if not (isinstance(scene_margin, (int, float)) and 0 <= scene_margin <= 4):
-            raise ValueError(f"scene.margin: expected a fraction of the field of view in "
-                             f"[0, 4], got {scene_margin!r}")
-        self.scene_margin = float(scene_margin)
+        self.scene_margin = cfg["scene_margin"]
         self.automatic_optimization = False
         self.ideal = IdealCamera(lens, sensor)  # the ground truth's framing
         self.constraint = SagDepartureConstraint(lens, max_sag_mm)
-        self.worst_depth = self._soft_max_setting("worst_depth", worst_depth)
+        self.worst_depth = cfg["worst_depth"]
         if self.worst_depth is not None:
             # running mean loss per depth bin; -1 until the bin's first sample
             self.register_buffer("depth_loss_ema", torch.full(
                 (self.worst_depth["bins"],), -1.0, dtype=torch.float64))
-        self.optics_worst_depth = self._soft_max_setting("optics_worst_depth",
-                                                         optics_worst_depth)
+        self.optics_worst_depth = cfg["optics_worst_depth"]
         if not any(p.requires_grad for p in lens.parameters()):
             self.optics_worst_depth = None  # frozen optics: no gradient to weigh
         if self.optics_worst_depth is not None:
             self.register_buffer("optics_depth_loss_ema", torch.full(
                 (self.optics_worst_depth["bins"],), -1.0, dtype=torch.float64))
         self.deconv = None
-        if deconvolution is not None:
-            from .wiener import DEFAULTS, DepthWienerFilter
+        if cfg["deconvolution"] is not None:
+            from .wiener import DepthWienerFilter
 
-            dc = dict(deconvolution)
-            unknown = set(dc) - set(dict(DEFAULTS))
-            if unknown:
-                raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
-                                 f"{', '.join(dict(DEFAULTS))}")
-            self.deconv = DepthWienerFilter(camera, None, self.depths_mm, **dc,
+            self.deconv = DepthWienerFilter(camera, None, self.depths_mm, **cfg["deconvolution"],
                                             psf_model=getattr(renderer, "psf_model", None))
         # model.tolerance_training: every training batch through its own drawn lens (tolerance.py)
         from .tolerance import TrainingDraws, load_group
@@ -277,57 +241,23 @@ class EndToEndModule(L.LightningModule):
         """The lens constraint (:class:`~.constraints.SagDepartureConstraint`) now."""
         return self.constraint(self.lens)
 
-    @staticmethod
-    def _soft_max_setting(key: str, value) -> dict | None:
-        """``model.<key>`` (``worst_depth``, ``optics_worst_depth``) checked, defaults filled."""
-        if value is None:
-            return None
-        wd = {**dict(SOFT_MAX_DEFAULTS), **dict(value)}
-        unknown = set(wd) - set(dict(SOFT_MAX_DEFAULTS))
-        if unknown:
-            raise ValueError(f"model.{key}: unknown keys {sorted(unknown)}; expected "
-                             f"{', '.join(dict(SOFT_MAX_DEFAULTS))}")
-        T, K, mom = wd["temperature"], wd["bins"], wd["momentum"]
-        if not (isinstance(T, (int, float)) and math.isfinite(T) and T > 0):
-            raise ValueError(f"model.{key}.temperature: expected a number > 0, got {T!r}")
-        if not (isinstance(K, int) and K >= 1):
-            raise ValueError(f"model.{key}.bins: expected an integer >= 1, got {K!r}")
-        if not (isinstance(mom, (int, float)) and 0 <= mom < 1):
-            raise ValueError(f"model.{key}.momentum: expected a number in [0, 1), got {mom!r}")
-        return {"temperature": float(T), "bins": K, "momentum": float(mom)}
-
     def depth_bin(self, depths, bins: int | None = None) -> torch.Tensor:
         """Index ``(B,)`` of each depth's bin: ``bins`` (default ``worst_depth``'s) equal
-        intervals of 1/depth over the training range (bin 0 the farthest)."""
-        lo, hi = min(self.depths_mm), max(self.depths_mm)
-        K = bins if bins is not None else self.worst_depth["bins"]
-        inv = 1 / torch.as_tensor(depths, dtype=torch.float64)
-        u = (inv - 1 / hi) / max(1 / lo - 1 / hi, 1e-300)
-        return (u * K).floor().clamp(0, K - 1).long()
+        intervals of 1/depth over the training range (bin 0 the farthest;
+        :func:`.depth_weighting.depth_bin`)."""
+        return depth_bin(self.depths_mm, depths,
+                         bins if bins is not None else self.worst_depth["bins"])
 
     def depth_weights(self, per_image: torch.Tensor, depths, which: str = "worst_depth"
                       ) -> torch.Tensor:
         """Sample weights ``(B,)`` of the soft maximum over depth bins (see ``worst_depth``;
         ``which="optics_worst_depth"`` for the optics' setting and running means); updates
-        the bins' running means with ``per_image`` ``(B,)`` (detached) first."""
+        the bins' running means with ``per_image`` ``(B,)`` (detached) first
+        (:func:`.depth_weighting.soft_max_weights`)."""
         wd = getattr(self, which)
         buf = self.depth_loss_ema if which == "worst_depth" else self.optics_depth_loss_ema
         bins = self.depth_bin(depths, wd["bins"]).to(buf.device)
-        v = per_image.detach().to(torch.float64)
-        with torch.no_grad():
-            for b in bins.unique().tolist():
-                x = v[bins == b].mean()
-                e = buf[b]
-                # not seen yet: -1 (NaN in checkpoints written before 2026-11-23)
-                buf[b] = x if not bool(e >= 0) else (
-                    wd["momentum"] * e + (1 - wd["momentum"]) * x)
-            ema = buf
-            seen = ema >= 0
-            logit = torch.where(seen, ema.clamp_min(1e-30).log(), torch.zeros_like(ema))
-            # bins not seen yet take the largest seen value (no bin is favoured for being new)
-            logit = torch.where(seen, logit, logit[seen].max())
-            w = len(ema) * torch.softmax(logit / wd["temperature"], 0)
-        return w[bins].to(per_image.dtype)
+        return soft_max_weights(buf, wd, bins, per_image)
 
     def _per_image_terms(self, pred, gt) -> dict:
         """The MSE, L1 and (1 - SSIM) terms with a non-zero weight, per image ``(B,)``."""
@@ -483,16 +413,11 @@ class EndToEndModule(L.LightningModule):
 
     def _nonfinite_grad(self) -> str | None:
         """Name of the first trainable parameter whose gradient is NaN or infinite."""
-        for n, p in self._named_trained():
-            if p.grad is not None and not torch.isfinite(p.grad).all():
-                return n
-        return None
+        return nonfinite_grad(self._named_trained())
 
     def _nonfinite_param(self) -> str | None:
-        for n, p in self._named_trained():
-            if p.requires_grad and not torch.isfinite(p).all():
-                return n
-        return None
+        """Name of the first trainable parameter whose value is NaN or infinite."""
+        return nonfinite_param(self._named_trained())
 
     def checkpoint_dir(self) -> Path | None:
         """Where this run writes checkpoints: the checkpoint callback's folder, else
@@ -506,30 +431,9 @@ class EndToEndModule(L.LightningModule):
         return Path(t.default_root_dir) / "checkpoints"
 
     def _stop(self, step: int, what: str):
-        """Save the state this step started from (no optimiser step has used the bad values;
-        the buffers its forward pass changed are put back) as
-        ``checkpoints/nonfinite_step<step>.ckpt`` and raise :class:`NonFiniteLossError`."""
-        with torch.no_grad():
-            buffers = dict(self.named_buffers())
-            for n, b in getattr(self, "_buffers_before", {}).items():
-                buffers[n].copy_(b)
-        folder = self.checkpoint_dir()
-        path = None
-        if folder is not None:
-            path = folder / f"nonfinite_step{step}.ckpt"
-            # Lightning counts a checkpoint written inside a step as written after it and adds
-            # one to the logging step on restart; this step never stepped: saved one lower, a
-            # resumed run logs at its global step (no shift of every TensorBoard point)
-            loop = self.trainer.fit_loop.epoch_loop
-            loop._batches_that_stepped -= 1
-            try:
-                self.trainer.save_checkpoint(str(path))
-            finally:
-                loop._batches_that_stepped += 1
-        raise NonFiniteLossError(f"{what}; training stopped before the optimiser step, the "
-                                 f"state just before it saved to {path} (resume with "
-                                 f"ckpt_path={path}; changed model.net_lr / optics_lr_mm "
-                                 f"settings apply on resume)")
+        """Save the state this step started from as ``checkpoints/nonfinite_step<step>.ckpt``
+        and raise :class:`NonFiniteLossError` (:func:`.nonfinite.stop`)."""
+        stop(self, step, what)
 
     def on_load_checkpoint(self, checkpoint):
         """Refuse a checkpoint of another experiment with a message naming its file."""
