@@ -313,7 +313,10 @@ class EndToEndModule(L.LightningModule):
         self._buffers_before = {n: b.detach().clone() for n, b in self.named_buffers()
                                 if not n.startswith("lens.")}
         images = batch["image"]
-        with self.drawn_lens(step):  # tolerance training: the drawn lens until after backward
+        # the optics are fixed (warm-up) *before* the drawn lens replaces their tensors (the
+        # freeze acts on the nominal parameters; the drawn values then carry no graph), and the
+        # drawn lens stays in place until after backward (tolerance training)
+        with self.optics_fixed(step < self.optics_warmup_steps), self.drawn_lens(step):
             loss, terms, y, gt, pred = self.step_loss(images, step)
             finite = bool(torch.isfinite(loss))
             if finite:

@@ -153,3 +153,32 @@ def test_eval_tolerance_group_takes_the_composed_group(cfg_factory):
     et = EvalTolerance.from_cfg(cfg)
     assert et.group == "precision" and et.model.dists["decenter"].scale == 0.5
     assert EvalTolerance.from_cfg(cfg_factory(*DOUBLET, config_name="eval.yaml")).model is None
+
+
+def test_tolerance_training_with_an_optics_warm_up(cfg_factory, tmp_path):
+    """Tolerance training with ``optics_warmup_steps`` and the centring compensator (whose
+    misalignments are functions of the trained coefficients): the warm-up step freezes the
+    nominal parameters before the drawn lens replaces them (it used to try to freeze the drawn,
+    non-leaf values: "you can only change requires_grad flags of leaf variables"), the optics
+    stay put during the warm-up and train after it, and the trainable set is restored."""
+    cfg = cfg_factory(*DOUBLET, "tolerance=commercial_aligned", "model.tolerance_training=true",
+                      "model.optics_warmup_steps=1", "test=false")
+    objs = build_objects(cfg)
+    module = objs["module"]
+    lens = module.lens
+    def coeffs():
+        return torch.stack([c.detach().clone() for c in lens.surfaces[1].a])
+
+    seen = []
+    backward = module.manual_backward
+
+    def spy(loss, *args, **kw):
+        seen.append(coeffs())
+        return backward(loss, *args, **kw)
+
+    module.manual_backward = spy
+    objs["trainer"].fit(module, datamodule=objs["datamodule"])
+    assert len(seen) == 2
+    assert torch.equal(seen[0], seen[1])          # the warm-up step moved nothing
+    assert not torch.equal(coeffs(), seen[1])     # the step after it did
+    assert lens.surfaces[1].a[0].requires_grad and all(isinstance(p, torch.nn.Parameter) for p in lens.parameters())
