@@ -137,8 +137,11 @@ def _fit_until_stopped(cfg_factory, plant):
     module state at the start of step 1 and the module."""
     from deeplens.training.module import NonFiniteLossError
 
+    # no optics warm-up: during one the optics are fixed for the whole step and have no
+    # gradient at all (so there is none to break)
     objs = build_objects(cfg_factory("experiment=edof", "test=false", "trainer.max_epochs=1",
-                                     "callbacks.image_logger=null", "~logger"))
+                                     "callbacks.image_logger=null", "~logger",
+                                     "model.optics_warmup_steps=null"))
     module = objs["module"]
     before = {}
     orig = module.training_step
