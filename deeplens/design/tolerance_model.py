@@ -374,10 +374,10 @@ def drawn(lens, draw: LensDraw | None):
                 shift = (_image_distance(lens) - nominal).to(lens.d_sensor)
                 values["d_sensor"] = values.get("d_sensor", lens.d_sensor) + shift
         if draw.center:
+            params = dict(lens.named_parameters())  # the nominal parameters (no block open)
             for _ in range(3):
                 with _reparametrize_module(lens, dict(values), strict=False):
                     miss = axis_image(lens) - target
-                params = dict(lens.named_parameters())
                 for e in range(len(lens.elements)):
                     for k, name in enumerate((f"misalignments.{e}.dx", f"misalignments.{e}.dy")):
                         values[name] = values.get(name, params[name]) - miss[k].to(params[name])

@@ -45,13 +45,13 @@ class _AdjointRender(torch.autograd.Function):
         # compensator's translation depends on the trained coefficients), and a gradient with
         # respect to the original tensors would count those paths twice (here and in the
         # autograd graph outside, which receives the returned gradients and chains them)
-        names = [n for n, p in renderer.lens.named_parameters() if p.requires_grad]
+        current = dict(renderer.lens.named_parameters())
+        names = [n for n, p in current.items() if p.requires_grad]
         if names != ctx.names:
             raise RuntimeError("adjoint render: the lens's trainable tensors changed between the "
                                f"render ({ctx.names}) and its backward pass ({names}); run the "
                                "backward inside the context the render ran in (e.g. the drawn "
                                "lens of design.tolerance_model.drawn)")
-        current = dict(renderer.lens.named_parameters())
         leaves = {n: current[n].detach().requires_grad_(True) for n in names}
         params = list(leaves.values())
         tex = scene.textures
