@@ -223,7 +223,7 @@ def build_camera(cfg, lens, sensor) -> Camera:
     r = cfg.render
     try:
         opts = TraceOptions(tol=r.newton_tol, max_iter=r.max_iter,
-                            compile=r.get("compile", False))
+                            compile=r.get("compile", "default"))
     except ValueError as e:
         raise ValueError(f"render.compile: {e}") from None
     return Camera(lens, sensor, opts)
