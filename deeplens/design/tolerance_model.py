@@ -385,20 +385,25 @@ def drawn(lens, draw: LensDraw | None):
             yield lens
 
 
-def axis_image(lens, sampling: str = "hexapolar:6", pupil_fill: float = 0.95) -> torch.Tensor:
+def axis_image(lens, sampling: str = "hexapolar:6", pupil_fill: float = 0.95,
+               options=None) -> torch.Tensor:
     """``(2,)`` (mm): where ``lens`` images the on-axis object point (``lens.spec``'s object
     distance) on its sensor: the centroid of the rays that reach it, traced at the primary
     wavelength through ``sampling`` over ``pupil_fill`` of the paraxial entrance pupil;
-    differentiable in the lens's parameters.
+    differentiable in the lens's parameters.  ``lens``: a Lens (traced with ``options``) or a
+    :class:`~deeplens.optics.camera.Camera` (its options are used).
 
     Raises:
         ValueError: no ray of the bundle reaches the sensor."""
+    from ..optics.camera import unpack
     from ..optics.sampling import point_source_rays
+
+    lens, _, options = unpack(lens, None, options, "axis_image")
 
     rays = point_source_rays(lens, (0.0, 0.0), lens.spec.object_distance_mm,
                              lens.spec.primary_wavelength_nm, 0, sampling=sampling,
                              pupil_margin=pupil_fill)
-    out = lens.trace_to_sensor(rays)
+    out = lens.trace_to_sensor(rays, options=options)
     ok = out.valid.unsqueeze(-1).to(out.o.dtype)
     if not bool(out.valid.any()):
         raise ValueError(f"compensator 'center': no ray of the on-axis bundle reaches the sensor "
