@@ -9,12 +9,12 @@ without clear apertures), and the options change the result (so they are not ign
 
 from __future__ import annotations
 
-import math
-from dataclasses import fields, is_dataclass
 from pathlib import Path
 
 import pytest
 import torch
+
+from camera_checks import same, spy_surface_options
 
 from deeplens.analysis import aberrations as A
 from deeplens.analysis import mtf_poly as MP
@@ -24,7 +24,6 @@ from deeplens.analysis.spot import find_pupil, spot_diagram
 from deeplens.optics.camera import Camera
 from deeplens.optics.chief import chief_ray
 from deeplens.optics.io import load_lens
-from deeplens.optics.lens import Lens
 from deeplens.optics.options import TraceOptions
 from deeplens.render.image import render_image
 
@@ -40,59 +39,6 @@ FREE = TraceOptions(tol=1e-3, max_iter=25, clip_aperture=False)
 @pytest.fixture(scope="module")
 def lens():
     return load_lens(LENSES / "double_gauss.json")
-
-
-def spy_surface_options(monkeypatch) -> list:
-    """Record the ``options`` of every surface a ray crosses (each trace, and the aiming
-    traces that step surface by surface, goes through ``Lens.trace_surface``)."""
-    seen = []
-    real = Lens.trace_surface
-
-    def spy(self, i, rays, n1, n2, z, options=None, *args, **kw):
-        seen.append(options)
-        return real(self, i, rays, n1, n2, z, options, *args, **kw)
-
-    monkeypatch.setattr(Lens, "trace_surface", spy)
-    return seen
-
-
-def flat(x) -> list:
-    """The tensors and numbers of a result (tensor, tuple/list, dict, dataclass, figure)."""
-    if isinstance(x, torch.Tensor):
-        return [x.detach()]
-    if isinstance(x, (int, float, str)) or x is None:
-        return [x]
-    if isinstance(x, dict):
-        return [k for k in x] + [v for k in x for v in flat(x[k])]
-    if isinstance(x, (list, tuple)):
-        return [v for e in x for v in flat(e)]
-    if is_dataclass(x):
-        return [v for f in fields(x) for v in flat(getattr(x, f.name))]
-    if hasattr(x, "axes"):  # a matplotlib figure: the data of every line drawn
-        import matplotlib.pyplot as plt
-
-        out = [torch.as_tensor(ln.get_xydata()) for a in x.axes for ln in a.get_lines()]
-        out += flat(getattr(x, "deeplens_data", None))
-        plt.close(x)
-        return out
-    raise TypeError(type(x))
-
-
-def same(a, b) -> bool:
-    fa, fb = flat(a), flat(b)
-    if len(fa) != len(fb):
-        return False
-    for u, v in zip(fa, fb):
-        if isinstance(u, torch.Tensor):
-            if not (isinstance(v, torch.Tensor) and u.shape == v.shape
-                    and torch.equal(torch.nan_to_num(u, nan=1e300), torch.nan_to_num(v, nan=1e300))):
-                return False
-        elif isinstance(u, float) and math.isnan(u):
-            if not (isinstance(v, float) and math.isnan(v)):
-                return False
-        elif u != v:
-            return False
-    return True
 
 
 F = 10.0
