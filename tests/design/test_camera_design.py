@@ -18,6 +18,7 @@ import torch
 
 from camera_checks import same, spy_surface_options
 
+from deeplens.design.caustic import caustic_lens, collimated_square_rays, irradiance
 from deeplens.design.constraints import ConstraintSet, parse_constraint
 from deeplens.design.depth_invariance import DepthInvarianceMerit
 from deeplens.design.focus import quick_focus_shift
@@ -133,3 +134,22 @@ def test_variables_of_a_camera_are_its_lens_parameters(lens):
     cam = Camera(lens)
     v = Variables(cam, "d_sensor")
     assert v.lens is lens and torch.equal(v.x0(), Variables(lens, "d_sensor").x0())
+
+
+def test_caustic_irradiance_through_a_camera(monkeypatch):
+    # a beam wider than the plate's clear aperture: its corners pass only when apertures are
+    # ignored, so the camera's options show in the irradiance
+    L = caustic_lens(5.0, 6, 50.0).to(torch.float64)
+    rays = collimated_square_rays(7.0, 24)
+    free = TraceOptions(clip_aperture=False)
+    ref = irradiance(L, rays, 16, 7.0, options=free)
+    seen = spy_surface_options(monkeypatch)
+    got = irradiance(Camera(L, options=free), rays, 16, 7.0)
+    assert seen and all(o is free for o in seen)
+    monkeypatch.undo()
+    assert torch.equal(got, ref)
+    plain = irradiance(L, rays, 16, 7.0)
+    assert torch.equal(irradiance(Camera(L), rays, 16, 7.0), plain)
+    assert float(got.sum()) > float(plain.sum())
+    with pytest.raises(ValueError, match="options given beside a Camera"):
+        irradiance(Camera(L, options=free), rays, 16, 7.0, options=TraceOptions())
