@@ -98,8 +98,7 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
     (:class:`~.tolerance_model.ToleranceModel`) trial ``k`` is instead the lens it draws with
     seed ``seed + k`` (``names``/``half_widths`` unused): the lenses training and evaluation
     under that group draw.  ``lens``: a Lens or a :class:`~deeplens.optics.camera.Camera` (its
-    options reach every trace of the merit; the draw's own compensator traces run at the
-    defaults).
+    options reach every trace of the merit and of the draws' centring).
 
     Returns:
         ``{"n", "seed", "nominal_um" (F,), "samples_um" (n, F), "percentiles_um":
@@ -113,8 +112,8 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
         from .tolerance_model import call_drawn
 
         def trial(k):
-            return call_drawn(lens, model.draw(lens, int(seed) + k),
-                              lambda L: field_merits(merit, on_camera(cam, L)))
+            return call_drawn(on_camera(cam, lens), model.draw(lens, int(seed) + k),
+                              lambda L: field_merits(merit, L))
         nominal_of = (lambda: field_merits(merit, on_camera(cam, lens)))  # noqa: E731
     else:
         v = _unscaled(lens, names)

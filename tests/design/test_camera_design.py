@@ -27,7 +27,7 @@ from deeplens.design.merit import DistortionMerit, Merit, SpotMerit, TargetMerit
 from deeplens.design.sensitivity import (finite_difference_matrix, rss_estimate,
                                          sensitivity_matrix)
 from deeplens.design.tolerance import monte_carlo
-from deeplens.design.tolerance_model import axis_image
+from deeplens.design.tolerance_model import ToleranceModel, axis_image
 from deeplens.design.variables import Variables, on_camera
 from deeplens.optics.camera import Camera
 from deeplens.optics.io import load_lens
@@ -72,6 +72,15 @@ def _monte_carlo(L):
     return r["nominal_um"], r["samples_um"]
 
 
+def _monte_carlo_drawn(L):
+    """Draws of a tolerance group with the centring compensator (its traces run at the
+    camera's options too)."""
+    model = ToleranceModel({"decenter": {"shape": "normal", "std": 0.01, "truncate": 2},
+                            "compensator": "center"})
+    r = monte_carlo(L, _spot(L), [], [], n=2, seed=3, model=model)
+    return r["nominal_um"], r["samples_um"]
+
+
 CASES = {
     "SpotMerit": lambda L: (lambda m: (m.residuals(L), m.rms(L)))(_spot(L)),
     "DistortionMerit": lambda L: DistortionMerit([10.0]).prepare(L).residuals(L),
@@ -85,6 +94,7 @@ CASES = {
     "finite_difference_matrix": lambda L: finite_difference_matrix(L, _spot(L), NAMES),
     "rss_estimate": lambda L: rss_estimate(L, _spot(L), NAMES, [0.01, 1e-5]),
     "monte_carlo": _monte_carlo,
+    "monte_carlo_drawn": _monte_carlo_drawn,
     "quick_focus_shift": lambda L, **kw: quick_focus_shift(L, [0.0, 10.0], [W], **kw),
     "axis_image": lambda L, **kw: axis_image(L, **kw),
 }
