@@ -373,10 +373,11 @@ class EndToEndModule(L.LightningModule):
     def drawn_lens(self, step: int):
         """The context in which ``self.lens`` is the lens drawn for ``step`` under
         ``model.tolerance_training`` (re-entrant; a no-op without it).  The adjoint render
-        re-traces in the backward pass, so the context must span the backward as well."""
+        re-traces in the backward pass, so the context must span the backward as well.  The
+        centring traces of a draw run at the camera's options, as every trace of the step."""
         if self.tolerance_draws is None:
             return contextlib.nullcontext()
-        return self.tolerance_draws.at(self.lens, step)
+        return self.tolerance_draws.at(self.camera, step)
 
     def optics_fixed(self, fixed: bool = True):
         """While ``fixed``: the lens parameters do not require gradients, so the render and

@@ -35,7 +35,8 @@ class TrainingDraws:
 
     @contextlib.contextmanager
     def at(self, lens, step: int):
-        """The context in which ``lens`` is the lens drawn for ``step``; re-entrant (an inner
+        """The context in which ``lens`` (a lens, or a camera: then the centring traces run at
+        its options) is the lens drawn for ``step``; re-entrant (an inner
         ``at`` inside an outer one for the same step is a no-op, not a second draw)."""
         if self._active is not None:
             if self._active != step:
@@ -45,7 +46,8 @@ class TrainingDraws:
             return
         self._active = step
         try:
-            with drawn(lens, self.model.draw(lens, tolerance_seed(self.run_seed, step))) as L:
+            base = getattr(lens, "lens", lens)  # a camera: its lens is drawn
+            with drawn(lens, self.model.draw(base, tolerance_seed(self.run_seed, step))) as L:
                 yield L
         finally:
             self._active = None

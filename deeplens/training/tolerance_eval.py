@@ -29,7 +29,7 @@ def evaluate_drawn(module, trainer, datamodule, model: ToleranceModel, n: int, s
         raise ValueError(f"eval.tolerance_samples must be >= 1, got {n}")
     out = []
     for d in model.draws(module.lens, int(n), int(seed)):
-        with drawn(module.lens, d):
+        with drawn(module.camera, d):
             trainer.test(module, datamodule=datamodule, verbose=False)
         out.append({k: float(v) for k, v in trainer.callback_metrics.items()
                     if k.startswith("test/")})
