@@ -433,6 +433,7 @@ class Lens(nn.Module):
         mirror = i in self.mirrors
         if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
                 and opt.mode == "implicit" and not getattr(s, "deflects", False)
+                and not getattr(s, "diffracts", False)
                 and not isinstance(s, Aperture) and not tracer.obscured(s)):
             x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
                                              (pivot + vertex)[2], _compact(n1), _compact(n2),
@@ -454,6 +455,11 @@ class Lens(nn.Module):
         elif refract_ and not isinstance(s, Aperture):
             d, valid = refract(d, s.normal(x), _compact(n1) / _compact(n2), valid)
         opl = rays.opl + _compact(n1) * t
+        if refract_ and getattr(s, "diffracts", False):
+            # a grating: its order after the bare surface's refraction or reflection
+            # (surfaces.grating), and its phase in the optical path
+            d, valid = s.diffract(x, d, rays.wavelength, _compact(n1 if mirror else n2), valid)
+            opl = opl + s.phase_opl(x, rays.wavelength)
         if m is None:
             x = x + shift
         else:

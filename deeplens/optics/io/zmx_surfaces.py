@@ -5,7 +5,8 @@
 flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``TOROIDAL`` ->
 :class:`~deeplens.optics.surfaces.Toroid` (:class:`~deeplens.optics.surfaces.Cylinder` with no
 radius of rotation), ``PARAXIAL`` ->
-:class:`~deeplens.optics.surfaces.IdealLens`, ``XYPOLYNOM`` ->
+:class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
+:class:`~deeplens.optics.surfaces.Grating`, ``XYPOLYNOM`` ->
 :class:`~deeplens.optics.surfaces.XYPolynomial`; a flat surface between one medium, not the stop,
 with no fixed aperture is a dummy (its thickness only).  Lengths are scaled from file units to
 mm here (``s_mm``); errors are raised through the reader's :class:`~.zmx_parse.Locator`.
@@ -19,7 +20,8 @@ import torch
 
 from ..errors import ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, Toroid, XYPolynomial
+from ..surfaces import (Aperture, Asphere, Cylinder, Grating, IdealLens, Plane, Toroid,
+                        XYPolynomial)
 from ..surfaces.xy_polynomial import xy_terms
 from .zmx_parse import Locator, ZmxSurface
 
@@ -81,6 +83,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     try:
         if s.type == "XYPOLYNOM":
             surf = _xypolynom(s, c, sd_build, s_mm, p)
+        elif s.type == "DGRATING":
+            surf = _grating(s, k, c, sd_build, p)
         elif s.type == "PARAXIAL":
             surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
         elif s.type == "TOROIDAL":
@@ -191,6 +195,21 @@ def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
     if r_rot != 0:
         return Toroid(c, sd, r_rot * s_mm, conic=s.coni, coefficients=coeffs, half_widths=hw)
     return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
+
+
+def _grating(s: ZmxSurface, k: int, c, sd, p: Locator):
+    """``DGRATING``: a sphere or conic (``CURV``, ``CONI``) ruled with ``PARM 1`` lines per
+    micrometre (in every lens unit) parallel to the local x axis, traced in order ``PARM 2``:
+    a :class:`Grating` (transmitting, or reflecting with ``GLAS MIRROR``)."""
+    for i, (v, ln) in s.parm.items():
+        if i > 2 and v != 0:
+            p.fail(ln, f"SURF {k}: DGRATING PARM {i} is not read (PARM 1 lines per micrometre, "
+                       f"PARM 2 the diffraction order)")
+    order, ln = s.parm.get(2, (0.0, s.type_line))
+    if order != int(order):
+        p.fail(ln, f"SURF {k}: the diffraction order (DGRATING PARM 2) must be an integer, got "
+                   f"{order!r}")
+    return Grating(c, sd, s.parm.get(1, (0.0, 0))[0], int(order), conic=s.coni)
 
 
 def _paraxial_surface(s: ZmxSurface, k: int, mat, prev, sd, s_mm, p: Locator):
