@@ -420,7 +420,8 @@ class Lens(nn.Module):
     def trace_surface(self, i: int, rays: Rays, n1, n2, z, options=None,
                       refract_: bool = True, reverse: bool = False) -> Rays:
         """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2`` (reflect
-        at a mirror; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
+        at a mirror; a :class:`~.surfaces.Grating` then turns the ray into its diffraction
+        order; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
         frame, or the previous one when ``reverse``).  An :class:`Aperture` clips where the
         ray's line crosses it and leaves the rays where they were (:meth:`_cross_stop`);
         ``refract_=False`` moves them onto any surface, a stop's plane included."""
