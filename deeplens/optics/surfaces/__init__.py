@@ -9,8 +9,9 @@ from .cylinder import Cylinder
 from .grating import Grating
 from .ideal import IdealLens
 from .plane import Plane
+from .qtype import QType
 from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
 
 __all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "BSpline", "Cylinder",
-           "Grating", "Plane", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]
+           "Grating", "Plane", "QType", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]

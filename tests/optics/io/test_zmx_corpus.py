@@ -37,7 +37,7 @@ FILES = sorted(p.name for p in CORPUS.glob("*.zmx"))
 #: file -> the feature its refusal must name (every other file must load)
 REFUSED = {
     "US08011793-1.zmx": "OBDC",
-    "thorlabs_ASL5040-UV.zmx": "QED_TYPE",
+    "thorlabs_ASL5040-UV.zmx": "C79-80",   # Corning's; then its Qbfs on a conic base
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "thorlabs_354710-C.zmx": "D-ZK3M",
