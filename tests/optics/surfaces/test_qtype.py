@@ -218,3 +218,50 @@ def test_corpus_file_qbfs_on_a_conic_is_refused_at_its_type_line(tmp_path):
     assert [float(v) for v in s.a] == [-0.8148370167576, -0.32311, 0.10591, -0.05058, 0.00987,
                                        -0.0022]
     assert float(s.k) == -0.67609120640407927
+
+
+def test_rays_through_a_qbfs_lens_land_where_optiland_lands_them():
+    """A Qbfs front surface on a conic (R 30 mm, k −0.5, ρ_n 6.5 mm, 3 terms) of a plano lens:
+    meridional and skew rays from optiland's own trace meet the image plane where optiland's
+    Forbes geometry puts them (to 1e-9 mm: optiland's Newton tolerance); and the type runs eager
+    under a compiled trace (no Newton kernels)."""
+    pytest.importorskip("optiland")
+    import optiland.backend as be
+    from optiland.materials import IdealMaterial
+    from optiland.optic import Optic
+
+    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.tracer import fused_kind
+
+    a = [0.05, -0.02, 0.01]
+    optic = Optic()
+    optic.surfaces.add(index=0, radius=be.inf, thickness=be.inf)
+    optic.surfaces.add(index=1, radius=30.0, thickness=4.0, conic=-0.5,
+                       surface_type="forbes_qbfs", radial_terms=dict(enumerate(a)),
+                       norm_radius=6.5, material=IdealMaterial(n=1.6), is_stop=True)
+    optic.surfaces.add(index=2, radius=be.inf, thickness=30.0)
+    optic.surfaces.add(index=3)
+    optic.set_aperture(aperture_type="EPD", value=10)
+    optic.fields.set_type(field_type="angle")
+    optic.fields.add(y=0)
+    optic.fields.add(y=5)
+    optic.wavelengths.add(value=0.587, is_primary=True)
+    lens = Lens([QType(1 / 30.0, 6.0, 6.5, a, "qbfs", conic=-0.5), Plane(6.0)],
+                [Air(), ModelGlass(1.6, math.inf), Air()], [0.0, 4.0], 30.0, 0)
+    assert fused_kind(lens, 0) is None
+
+    def at(arr, i):
+        return float(torch.as_tensor(arr)[i].reshape(-1)[0])
+
+    for H, P in [((0, 0), (0, 1)), ((0, 1), (0.3, -0.7)), ((0, 0.5), (0.6, 0.6)),
+                 ((0, 1), (0, 0))]:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            optic.trace_generic(Hx=H[0], Hy=H[1], Px=P[0], Py=P[1], wavelength=0.587)
+        sg = optic.surface_group
+        p = torch.tensor([at(sg.x, 1), at(sg.y, 1), at(sg.z, 1)], dtype=F64)
+        d = torch.tensor([at(sg.L, 0), at(sg.M, 0), at(sg.N, 0)], dtype=F64)
+        out = lens.trace_to_sensor(Rays((p - d)[None], d[None], 587.0),
+                                   options=IntersectOptions(clip_aperture=False))
+        ol = [at(sg.x, -1), at(sg.y, -1), at(sg.z, -1)]
+        assert out.o[0].tolist() == pytest.approx(ol, abs=1e-9), (H, P)
