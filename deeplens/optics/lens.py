@@ -420,7 +420,8 @@ class Lens(nn.Module):
     def trace_surface(self, i: int, rays: Rays, n1, n2, z, options=None,
                       refract_: bool = True, reverse: bool = False) -> Rays:
         """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2`` (reflect
-        at a mirror; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
+        at a mirror; a :class:`~.surfaces.Grating` then turns the ray into its diffraction
+        order; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
         frame, or the previous one when ``reverse``).  An :class:`Aperture` clips where the
         ray's line crosses it and leaves the rays where they were (:meth:`_cross_stop`);
         ``refract_=False`` moves them onto any surface, a stop's plane included."""
@@ -433,6 +434,7 @@ class Lens(nn.Module):
         mirror = i in self.mirrors
         if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
                 and opt.mode == "implicit" and not getattr(s, "deflects", False)
+                and not getattr(s, "diffracts", False)
                 and not isinstance(s, Aperture) and not tracer.obscured(s)):
             x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
                                              (pivot + vertex)[2], _compact(n1), _compact(n2),
@@ -454,6 +456,11 @@ class Lens(nn.Module):
         elif refract_ and not isinstance(s, Aperture):
             d, valid = refract(d, s.normal(x), _compact(n1) / _compact(n2), valid)
         opl = rays.opl + _compact(n1) * t
+        if refract_ and getattr(s, "diffracts", False):
+            # a grating: its order after the bare surface's refraction or reflection
+            # (surfaces.grating), and its phase in the optical path
+            d, valid = s.diffract(x, d, rays.wavelength, _compact(n1 if mirror else n2), valid)
+            opl = opl + s.phase_opl(x, rays.wavelength)
         if m is None:
             x = x + shift
         else:

@@ -12,7 +12,7 @@ refraction).  This module decides how a whole trace runs, from one :class:`~.opt
 * ``compile=...``: runs of aligned spheres, conics, planes and stops as fused kernels and aligned
   even aspheres and XY polynomials as compiled Newton chunks (:mod:`.compiled`,
   :func:`trace_compiled`); :func:`fused_kind` says which surface runs how, and everything else
-  (misaligned elements, B-splines, cylinders, ideal lenses, annular stops) runs eager in between.
+  (misaligned elements, B-splines, cylinders, ideal lenses, gratings, annular stops) runs eager in between.
   A folded lens (mirrors, coordinate breaks), a ``record``ed trace, ``closed_form=False`` and
   ``mode="unrolled"`` stay eager.
 
@@ -111,8 +111,8 @@ def fused_kind(lens, i: int):
     whose type defines the Newton kernels (:meth:`~.surfaces.Surface.kernel_values`: even
     aspheres, XY polynomials), else ``None`` (eager)."""
     s = lens.surfaces[i]
-    if getattr(s, "deflects", False):
-        return None
+    if getattr(s, "deflects", False) or getattr(s, "diffracts", False):
+        return None   # an ideal lens, a grating: their own law after the hit, eager
     if not lens.misalignments[lens._element_of[i]].is_identity():
         return None
     if type(s) is Aperture:

@@ -32,10 +32,10 @@ UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 """``UNIT`` name -> millimetres per file unit."""
 
 # surface types met in real files that deeplens refuses, and what they are
-_DIFFRACTIVE = "out of scope: deeplens traces refraction and reflection, not diffraction orders"
+_DIFFRACTIVE = ("out of scope: deeplens traces refraction, reflection and straight-ruled gratings "
+                "(DGRATING), not diffractive phase profiles")
 _UNSUPPORTED_TYPES = {
-    "QED_TYPE": "a Q-type (Forbes) asphere", "QTYPEASP": "a Q-type (Forbes) asphere",
-    "DGRATING": f"a diffraction grating, {_DIFFRACTIVE}",
+    "QTYPEASP": "a Q-type (Forbes) asphere",
     "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "BINARY_2": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
@@ -248,11 +248,11 @@ def parse(path: Path):
                 p.fail(ln, "TYPE line is truncated: missing the surface type")
             cur.type, cur.type_line = toks[1].upper(), ln
             if cur.type not in ("STANDARD", "EVENASPH", "COORDBRK", "XYPOLYNOM", "PARAXIAL",
-                                "TOROIDAL"):
+                                "TOROIDAL", "DGRATING", "QED_TYPE"):
                 what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
                 p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
                            f"supported; deeplens reads STANDARD, EVENASPH, COORDBRK, XYPOLYNOM, "
-                           f"PARAXIAL and TOROIDAL cylinders")
+                           f"PARAXIAL, TOROIDAL, DGRATING and QED_TYPE")
         elif cur is not None and key == "CURV":
             cur.curv = p.arg(toks, 1, ln, "curvature")
         elif cur is not None and key == "DISZ":

@@ -5,7 +5,8 @@
 flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``TOROIDAL`` ->
 :class:`~deeplens.optics.surfaces.Toroid` (:class:`~deeplens.optics.surfaces.Cylinder` with no
 radius of rotation), ``PARAXIAL`` ->
-:class:`~deeplens.optics.surfaces.IdealLens`, ``XYPOLYNOM`` ->
+:class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
+:class:`~deeplens.optics.surfaces.Grating`, ``XYPOLYNOM`` ->
 :class:`~deeplens.optics.surfaces.XYPolynomial`; a flat surface between one medium, not the stop,
 with no fixed aperture is a dummy (its thickness only).  Lengths are scaled from file units to
 mm here (``s_mm``); errors are raised through the reader's :class:`~.zmx_parse.Locator`.
@@ -19,7 +20,9 @@ import torch
 
 from ..errors import ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, Plane, Toroid, XYPolynomial
+from ..surfaces import (Aperture, Asphere, Cylinder, Grating, IdealLens, Plane, QType, Toroid,
+                        XYPolynomial)
+from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from .zmx_parse import Locator, ZmxSurface
 
@@ -81,6 +84,10 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     try:
         if s.type == "XYPOLYNOM":
             surf = _xypolynom(s, c, sd_build, s_mm, p)
+        elif s.type == "DGRATING":
+            surf = _grating(s, k, c, sd_build, p)
+        elif s.type == "QED_TYPE":
+            surf = _qtype(s, k, c, sd_build, s_mm, p)
         elif s.type == "PARAXIAL":
             surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
         elif s.type == "TOROIDAL":
@@ -191,6 +198,56 @@ def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
     if r_rot != 0:
         return Toroid(c, sd, r_rot * s_mm, conic=s.coni, coefficients=coeffs, half_widths=hw)
     return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
+
+
+def _grating(s: ZmxSurface, k: int, c, sd, p: Locator):
+    """``DGRATING``: a sphere or conic (``CURV``, ``CONI``) ruled with ``PARM 1`` lines per
+    micrometre (in every lens unit) parallel to the local x axis, traced in order ``PARM 2``:
+    a :class:`Grating` (transmitting, or reflecting with ``GLAS MIRROR``)."""
+    for i, (v, ln) in s.parm.items():
+        if i > 2 and v != 0:
+            p.fail(ln, f"SURF {k}: DGRATING PARM {i} is not read (PARM 1 lines per micrometre, "
+                       f"PARM 2 the diffraction order)")
+    order, ln = s.parm.get(2, (0.0, s.type_line))
+    if order != int(order):
+        p.fail(ln, f"SURF {k}: the diffraction order (DGRATING PARM 2) must be an integer, got "
+                   f"{order!r}")
+    return Grating(c, sd, s.parm.get(1, (0.0, 0))[0], int(order), conic=s.coni)
+
+
+def _qtype(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``QED_TYPE`` (OpticStudio's Q-type asphere): ``XDAT 1`` the type (0 Qbfs, 1 Qcon),
+    ``XDAT 2`` the number of terms, ``XDAT 3`` the normalisation radius, ``XDAT 4..`` the
+    coefficients ``a_0, a_1, ...`` (lengths): a :class:`QType`.  A Qbfs on a conic base
+    (``CONI`` != 0) is refused: how OpticStudio combines the two could not be checked against
+    an independent reader (deeplens' surface follows Forbes' generalisation, as optiland)."""
+    kind_v, kind_ln = s.xdat.get(1, (0.0, s.type_line))
+    if kind_v not in (0.0, 1.0):
+        p.fail(kind_ln, f"SURF {k}: QED_TYPE XDAT 1 (the type) must be 0 (Qbfs) or 1 (Qcon), got "
+                        f"{kind_v!r}")
+    n_v, n_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= MAX_TERMS:
+        p.fail(n_ln, f"SURF {k}: QED_TYPE XDAT 2 (the number of terms) must be an integer "
+                     f"0..{MAX_TERMS}, got {n_v!r}")
+    rn_v, rn_ln = s.xdat.get(3, (0.0, s.type_line))
+    if not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: QED_TYPE XDAT 3 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in s.xdat.items():
+        if j > n + 3 and v != 0:
+            p.fail(ln, f"XDAT {j} lies beyond the {n} terms XDAT 2 declares")
+    for i, (v, ln) in s.parm.items():
+        if v != 0:
+            p.fail(ln, f"SURF {k}: QED_TYPE PARM {i} is not read (the Q-type data are XDAT)")
+    if kind_v == 0.0 and s.coni != 0:
+        p.fail(s.type_line, f"SURF {k}: a QED_TYPE Qbfs surface on a conic base (CONI "
+                            f"{s.coni:g}) is not supported: how OpticStudio combines the "
+                            f"slope-orthogonal departure with a conic could not be checked here "
+                            f"(Qbfs on a sphere and Qcon on any conic are read)")
+    coeffs = [s.xdat.get(j + 4, (0.0, 0))[0] * s_mm for j in range(n)]
+    return QType(c, sd, rn_v * s_mm, coeffs, "qcon" if kind_v == 1.0 else "qbfs",
+                 conic=s.coni)
 
 
 def _paraxial_surface(s: ZmxSurface, k: int, mat, prev, sd, s_mm, p: Locator):

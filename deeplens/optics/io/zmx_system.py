@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from ..surfaces import Aperture, Asphere, Plane
+from ..surfaces import Aperture, Asphere, Plane, QType
 
 __all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
            "zemax_tilts", "element_tilts", "lens_pupil_convention", "fields_to_angles"]
@@ -110,7 +110,9 @@ def rotationally_symmetric(surf) -> bool:
     """Whether a surface is unchanged by a turn about its own axis (for tilt conversions)."""
     if isinstance(surf, Aperture):
         return surf.shape == "circle"
-    return isinstance(surf, (Asphere, Plane))
+    if getattr(surf, "diffracts", False):   # a grating's lines turn with it
+        return False
+    return isinstance(surf, (Asphere, Plane, QType))
 
 
 def zemax_tilts(ta: float, tb: float) -> tuple[float, float]:

@@ -18,8 +18,8 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
-from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, IdealLens, Plane, Toroid,
-                        XYPolynomial)
+from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, Grating, IdealLens, Plane,
+                        QType, Toroid, XYPolynomial)
 from .agf import AGFGlass
 from .vendor_glass import BuchdahlGlass
 from .zmx_coordbrk import coordbrk_lines
@@ -207,6 +207,23 @@ def _surface_lines(s, i, is_stop) -> list[str]:
     if isinstance(s, IdealLens):
         return lines + ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}",
                         f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+    if isinstance(s, QType):
+        a = [float(v) for v in s.a]
+        return lines + ["TYPE QED_TYPE", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
+                        f"XDAT 1 {1 if s.kind == 'qcon' else 0}", f"XDAT 2 {len(a)}",
+                        f"XDAT 3 {_f(s.norm_radius)}"] + \
+            [f"XDAT {j + 4} {_f(v)}" for j, v in enumerate(a)] + \
+            [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+    if isinstance(s, Grating):
+        lines += ["TYPE DGRATING", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {_f(s.T)}",
+                  f"PARM 2 {s.order}", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+        if math.isfinite(float(s.clear_radius)):
+            lines.append(f"CLAP 0 {_f(s.clear_radius)} 0")
+            if bool(s.clear_decenter.any()):
+                lines.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
+        if float(s.obscuration) > 0:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        return lines
     if isinstance(s, Plane):
         return lines + ["TYPE STANDARD", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Asphere):

@@ -6,10 +6,12 @@ from .base import SURFACE_TYPES, SagSurface, Surface
 from .bspline import BSpline
 from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
+from .grating import Grating
 from .ideal import IdealLens
 from .plane import Plane
+from .qtype import QType
 from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
 
 __all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "BSpline", "Cylinder",
-           "Plane", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]
+           "Grating", "Plane", "QType", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]

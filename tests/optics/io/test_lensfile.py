@@ -263,8 +263,8 @@ BAD = [
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
-     r"aperture, asphere, bspline, conic, coordinate_break, cylinder, ideal_lens, plane, sphere, "
-     r"toroid, xy_polynomial\)"),
+     r"aperture, asphere, bspline, conic, coordinate_break, cylinder, grating, ideal_lens, "
+     r"plane, qtype, sphere, toroid, xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -463,6 +463,19 @@ def test_every_registered_surface_type_round_trips():
                           "coefficients": [1e-4 / 7], "radius_of_rotation_mm": -70.0 / 3,
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([9, 9])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a diffraction grating on a conic (OpticStudio's DGRATING), likewise
+    d["surfaces"].append({"type": "grating", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 90.0, "conic": -0.5, "lines_per_um": 0.3,
+                          "order": -1, "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([10, 10])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a Q-type (Forbes) asphere (OpticStudio's QED_TYPE), likewise
+    d["surfaces"].append({"type": "qtype", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": -1 / 70.0, "conic": 0.0, "norm_radius_mm": 2.6,
+                          "q_coefficients": [1e-3 / 3, -2e-4], "q_kind": "qcon",
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([11, 11])
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}

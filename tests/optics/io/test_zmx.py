@@ -169,7 +169,7 @@ def test_misalignment_round_trip_through_coordinate_breaks(tmp_path):
 
 
 @pytest.mark.parametrize("edit,needle,feature,surf,surfaces", [
-    (lambda t: t.replace("TYPE EVENASPH", "TYPE QED_TYPE"), "QED_TYPE", "TYPE", 2, ()),
+    (lambda t: t.replace("TYPE EVENASPH", "TYPE BICONICX"), "BICONICX", "TYPE", 2, ()),
     (lambda t: t.replace("CURV 0.02", "CURV 0.0.2"), "0.0.2", "CURV", 2, ()),
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", "UNIT", None, ()),
     (lambda t: t.replace("GLAS N-BK7", "GLAS N-BK7X"), "N-BK7X", "GLAS", 2, ()),
@@ -444,8 +444,10 @@ def line_of(text: str, needle: str) -> int:
 
 
 @pytest.mark.parametrize("edit,needle,match", [
+    (lambda t: t.replace("TYPE EVENASPH", "TYPE QTYPEASP"), "QTYPEASP",
+     r"surface type 'QTYPEASP' \(SURF 2, a Q-type \(Forbes\) asphere\) is not supported"),
     (lambda t: t.replace("TYPE EVENASPH", "TYPE QED_TYPE"), "QED_TYPE",
-     r"surface type 'QED_TYPE' \(SURF 2, a Q-type \(Forbes\) asphere\) is not supported"),
+     r"SURF 2: QED_TYPE XDAT 3 \(the normalisation radius\) must be > 0, got 0.0"),
     (lambda t: t.replace("TYPE EVENASPH", "TYPE TOROIDAL").replace("PARM 1 0", "PARM 1 3"),
      "SURF 2", r"surface 1 \(Toroid\): the clear aperture \(x up to 8 mm\) lies beyond the "
                r"toroid's radius of rotation \(3 mm\)"),
