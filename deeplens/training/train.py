@@ -113,13 +113,25 @@ def check_config(cfg: DictConfig) -> None:
 
 
 def _check_render(cfg: DictConfig) -> None:
-    """``render.compile``: a setting of :class:`~deeplens.optics.options.TraceOptions`."""
+    """``render.compile`` (a setting of :class:`~deeplens.optics.options.TraceOptions`) and
+    the PSF model's settings (``render.psf_model``, ``psf_error_budget``, ``psf_remeasure``:
+    :class:`~deeplens.render.psf_model.PSFModel`'s own checks; ``diffraction`` needs
+    ``render.kind=psf``)."""
+    from ..render.psf_model import PSFModel
+
     c = OmegaConf.select(cfg, "render.compile", default=False)
     try:
         TraceOptions(compile=c)
     except ValueError:
         raise ConfigError("render.compile", "false, true ('auto'), 'surface' or 'lens'",
                           c) from None
+    r = cfg.render
+    PSFModel(r.get("psf_model", "geometric"), r.get("psf_error_budget", 0.05),
+             r.get("psf_remeasure", 0.1))
+    if r.get("psf_model") == "diffraction" and r.get("kind") != "psf":
+        raise ConfigError("render.psf_model", f"geometric or auto with render.kind="
+                          f"{r.get('kind')} (rays: geometric optics only; diffraction needs "
+                          f"render=psf)", "diffraction")
 
 
 def _check_channels(cfg: DictConfig) -> None:

@@ -59,6 +59,10 @@ CASES = [
     # train._check_render
     ("_check_render", (*EDOF, "render.compile=fastest"), None, "render.compile", "value",
      "'surface' or 'lens'"),
+    ("_check_render", (*EDOF, "render.psf_model=wave"), None, "render.psf_model", "value",
+     "one of geometric, diffraction, auto"),
+    ("_check_render", (*EDOF, "render.kind=mc", "render.psf_model=diffraction"), None,
+     "render.psf_model", "value", "diffraction needs render=psf"),
     # module_config.check_model_config (with depth_weighting and wiener)
     ("check_model_config", (*EDOF, "model.net_lr=2.0"), None, "model.net_lr", "value",
      r"\(0, 1\]"),
