@@ -19,6 +19,12 @@ Pupil coordinates ``p`` are normalised on the paraxial entrance pupil of the pri
 
 ``aim="real"`` (default) takes the chief ray through the stop centre (aimed by iteration),
 ``aim="paraxial"`` the ray through the paraxial entrance-pupil centre (no ray aiming).
+
+Every function takes a lens (traced with ``options``, a
+:class:`~deeplens.optics.options.TraceOptions`; ``None``: the defaults) or a
+:class:`~deeplens.optics.camera.Camera` in its place (its options are used, and giving
+``options`` as well is refused); the aiming traces run at the same options without clear
+apertures (:func:`~deeplens.optics.chief.aiming_options`).
 """
 
 from __future__ import annotations
@@ -28,7 +34,8 @@ from dataclasses import dataclass
 
 import torch
 
-from ..optics.intersect import IntersectOptions
+from ..optics.camera import unpack
+from ..optics.chief import aiming_options
 from ..optics.sampling import field_rays
 from .checks import AnalysisError, check_field, check_wavelength
 from .paraxial import chief_ray_scale, paraxial
@@ -54,20 +61,23 @@ def _aim(aim):
         raise ValueError(f"aim must be 'real' or 'paraxial', got {aim!r}")
 
 
-def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor"):
+def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor",
+                   options=None):
     """Height ``(,)`` mm on the image plane of the real chief ray (through the stop centre) and
     its entrance-pupil-plane height ``y_p`` (mm), both differentiable.
 
     ``y_p`` is found without gradients (:func:`~deeplens.analysis.spot.chief_ray`), then one
     differentiable Newton step ``y_p - h(y_p)/h'`` on the stop height ``h`` (``h = 0`` at the
-    solution, ``h'`` detached) carries the implicit derivative ``-∂h/∂θ / h'`` to the lens."""
+    solution, ``h'`` detached) carries the implicit derivative ``-∂h/∂θ / h'`` to the lens.
+    ``lens``: a Lens or a Camera (its options are used; module docstring)."""
+    lens, _, options = unpack(lens, None, options, "real_chief_ray")
     dtype = lens.distances[0].dtype
-    _, y1 = chief_ray(lens, field_deg, wavelength_nm, image_plane)
+    _, y1 = chief_ray(lens, field_deg, wavelength_nm, image_plane, options=options)
     p = paraxial(lens)
     z = lens.z_vertices()
     dev = lens.distances[0].device
     n = lens.indices(torch.tensor(wavelength_nm, dtype=dtype, device=dev))
-    aim = IntersectOptions(clip_aperture=False)
+    aim = aiming_options(options)
 
     def stop_h(yp):
         rays = launch(lens, field_deg, wavelength_nm,
@@ -84,18 +94,18 @@ def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="se
     yp = y0 - stop_h(y0) / slope
     rays = launch(lens, field_deg, wavelength_nm, torch.stack([torch.zeros_like(yp), yp])[None],
                   p.entrance_pupil_z)
-    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane))
+    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane), options=options)
     if not bool(out.valid[0]):
         raise AnalysisError(f"the real chief ray of field {field_deg:g} deg at "
                             f"{wavelength_nm:g} nm does not reach the image")
     return out.o[0, 1], yp
 
 
-def _chief_pupil(lens, field_deg, wavelength_nm, aim):
+def _chief_pupil(lens, field_deg, wavelength_nm, aim, options=None):
     """Normalised pupil ``p_y`` of the chief ray."""
     if aim == "paraxial":
         return 0.0
-    _, yp = chief_ray(lens, field_deg, wavelength_nm)
+    _, yp = chief_ray(lens, field_deg, wavelength_nm, options=options)
     return float(yp) / (0.5 * float(paraxial(lens).entrance_pupil_diameter))
 
 
@@ -111,8 +121,10 @@ class RayFan:
 
 
 def ray_fan(lens, field_deg: float, wavelengths_nm=None, n: int = 41,
-            image_plane="sensor") -> RayFan:
-    """Tangential and sagittal ray fans of one field (see the module docstring)."""
+            image_plane="sensor", options=None) -> RayFan:
+    """Tangential and sagittal ray fans of one field (see the module docstring); ``lens``: a
+    Lens or a Camera (its options are used)."""
+    lens, _, options = unpack(lens, None, options, "ray_fan")
     waves = _waves(lens, wavelengths_nm)
     dtype = lens.distances[0].dtype
     p = torch.linspace(-1.0, 1.0, n, dtype=dtype, device=lens.distances[0].device)
@@ -120,11 +132,12 @@ def ray_fan(lens, field_deg: float, wavelengths_nm=None, n: int = 41,
     tang = torch.stack([zero, p], -1)
     sag = torch.stack([p, zero], -1)
     prim = float(lens.spec.primary_wavelength_nm)
-    ref = trace_pupil(lens, field_deg, prim, tang[:1], image_plane).chief_point
+    ref = trace_pupil(lens, field_deg, prim, tang[:1], image_plane,
+                      options=options).chief_point
     ey, ex = {}, {}
     for w in waves:
-        t = trace_pupil(lens, field_deg, w, tang, image_plane)
-        s = trace_pupil(lens, field_deg, w, sag, image_plane)
+        t = trace_pupil(lens, field_deg, w, tang, image_plane, options=options)
+        s = trace_pupil(lens, field_deg, w, sag, image_plane, options=options)
         nan = torch.full_like(p, math.nan)
         ey[w] = torch.where(t.mask, t.points[:, 1] - ref[1], nan)
         ex[w] = torch.where(s.mask, s.points[:, 0] - ref[0], nan)
@@ -138,19 +151,21 @@ def _cross(P1, D1, P2, D2, a):
 
 
 def field_curvature(lens, fields_deg=None, wavelength_nm: float | None = None,
-                    image_plane="sensor", aim: str = "real", delta: float = 1e-5):
+                    image_plane="sensor", aim: str = "real", delta: float = 1e-5, options=None):
     """Tangential and sagittal focus relative to the image plane, ``(z_T - z_I, z_S - z_I)``,
-    each ``(F,)`` in mm, for the fields ``fields_deg`` (default the lens file's)."""
+    each ``(F,)`` in mm, for the fields ``fields_deg`` (default the lens file's); ``lens``: a
+    Lens or a Camera (its options are used)."""
     _aim(aim)
+    lens, _, options = unpack(lens, None, options, "field_curvature")
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
     dtype = lens.distances[0].dtype
     zt, zs = [], []
     for f in _fields(lens, fields_deg):
-        pc = _chief_pupil(lens, f, w, aim)
+        pc = _chief_pupil(lens, f, w, aim, options)
         pts = torch.tensor([[0.0, pc - delta], [0.0, pc + delta], [-delta, pc], [delta, pc]],
                            dtype=dtype, device=lens.distances[0].device)
-        tr = trace_pupil(lens, f, w, pts, image_plane)
+        tr = trace_pupil(lens, f, w, pts, image_plane, options=options)
         if not bool(tr.mask.all()):
             raise AnalysisError(f"the parabasal rays of field {f:g} deg are vignetted")
         X, D = tr.points, tr.directions
@@ -160,9 +175,11 @@ def field_curvature(lens, fields_deg=None, wavelength_nm: float | None = None,
 
 
 def distortion(lens, fields_deg=None, wavelength_nm: float | None = None,
-               image_plane="sensor", aim: str = "real") -> torch.Tensor:
-    """Distortion in percent ``(F,)`` (module docstring); field 0 gives 0.  Differentiable."""
+               image_plane="sensor", aim: str = "real", options=None) -> torch.Tensor:
+    """Distortion in percent ``(F,)`` (module docstring); field 0 gives 0.  Differentiable.
+    ``lens``: a Lens or a Camera (its options are used)."""
     _aim(aim)
+    lens, _, options = unpack(lens, None, options, "distortion")
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
     z = image_plane_z(lens, image_plane)
@@ -175,58 +192,65 @@ def distortion(lens, fields_deg=None, wavelength_nm: float | None = None,
         if aim == "real":
             p = paraxial(lens)
             check_field(lens, f, w, float(p.entrance_pupil_z),
-                        0.5 * float(p.entrance_pupil_diameter))
-            y, _ = real_chief_ray(lens, f, w, image_plane)
+                        0.5 * float(p.entrance_pupil_diameter), options)
+            y, _ = real_chief_ray(lens, f, w, image_plane, options)
         else:
             y = trace_pupil(lens, f, w, torch.zeros(1, 2, dtype=kappa.dtype, device=kappa.device),
-                            image_plane).chief_point[1]
+                            image_plane, options=options).chief_point[1]
         ypar = kappa * math.tan(math.radians(f))
         out.append(100.0 * (y - ypar) / ypar)
     return torch.stack(out)
 
 
 def chief_heights(lens, fields_deg=None, wavelength_nm=None, image_plane="sensor",
-                  aim: str = "real") -> torch.Tensor:
-    """Chief-ray heights on the image plane ``(F,)`` (mm)."""
+                  aim: str = "real", options=None) -> torch.Tensor:
+    """Chief-ray heights on the image plane ``(F,)`` (mm); ``lens``: a Lens or a Camera (its
+    options are used)."""
     _aim(aim)
+    lens, _, options = unpack(lens, None, options, "chief_heights")
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
     dtype = lens.distances[0].dtype
     out = []
     for f in _fields(lens, fields_deg):
         if aim == "real":
-            y, _ = real_chief_ray(lens, f, w, image_plane)
+            y, _ = real_chief_ray(lens, f, w, image_plane, options)
         else:
             zero = torch.zeros(1, 2, dtype=dtype, device=lens.distances[0].device)
-            y = trace_pupil(lens, f, w, zero,
-                            image_plane).chief_point[1]
+            y = trace_pupil(lens, f, w, zero, image_plane, options=options).chief_point[1]
         out.append(y)
     return torch.stack(out)
 
 
 def lateral_color(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
-                  aim: str = "real") -> torch.Tensor:
-    """``y_chief(shortest λ) - y_chief(longest λ)`` per field ``(F,)`` in mm."""
+                  aim: str = "real", options=None) -> torch.Tensor:
+    """``y_chief(shortest λ) - y_chief(longest λ)`` per field ``(F,)`` in mm; ``lens``: a Lens
+    or a Camera (its options are used)."""
+    lens, _, options = unpack(lens, None, options, "lateral_color")
     waves = _waves(lens, wavelengths_nm)
     if len(waves) < 2:
         raise AnalysisError("lateral colour needs at least two wavelengths")
     lo, hi = min(waves), max(waves)
-    return (chief_heights(lens, fields_deg, lo, image_plane, aim)
-            - chief_heights(lens, fields_deg, hi, image_plane, aim))
+    return (chief_heights(lens, fields_deg, lo, image_plane, aim, options)
+            - chief_heights(lens, fields_deg, hi, image_plane, aim, options))
 
 
 def longitudinal_color(lens, wavelengths_nm=None) -> tuple[list, torch.Tensor]:
     """Paraxial focus shift of each wavelength from the primary's, ``(W,)`` mm (+ = further
-    from the lens); returns ``(wavelengths, shifts)``."""
+    from the lens); returns ``(wavelengths, shifts)``.  Paraxial (no ray is traced); ``lens``
+    may be a Camera."""
+    lens, _, _ = unpack(lens, None, None, "longitudinal_color")
     waves = _waves(lens, wavelengths_nm)
     z0 = paraxial(lens).image_z
     return waves, torch.stack([paraxial(lens, w).image_z - z0 for w in waves])
 
 
 def vignetting(lens, fields_deg=None, wavelength_nm: float | None = None, n: int = 41,
-               image_plane="sensor") -> torch.Tensor:
+               image_plane="sensor", options=None) -> torch.Tensor:
     """Vignetting ``1 - T(θ)/T(0)`` per field ``(F,)`` (module docstring); 0 = none, 1 = fully
-    vignetted (a field whose chief ray is lost counts as fully vignetted)."""
+    vignetted (a field whose chief ray is lost counts as fully vignetted).  ``lens``: a Lens or
+    a Camera (its options are used)."""
+    lens, _, options = unpack(lens, None, options, "vignetting")
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
     dtype = lens.distances[0].dtype
@@ -238,7 +262,8 @@ def vignetting(lens, fields_deg=None, wavelength_nm: float | None = None, n: int
 
     def transmitted(f):
         with torch.no_grad():
-            out = lens.trace_to_sensor(field_rays(lens, f, w, g * r_ep, z_ep), z_image=z)
+            out = lens.trace_to_sensor(field_rays(lens, f, w, g * r_ep, z_ep), z_image=z,
+                                       options=options)
         return float(out.valid.to(dtype).mean())
 
     t0 = transmitted(0.0)

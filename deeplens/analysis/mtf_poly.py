@@ -12,6 +12,9 @@ at its pixel positions ``x_k`` about the wavelength's own chief-ray image point,
 point's position.  With one wavelength this is :func:`~.diffraction.mtf_at`'s direct transform.
 
 Through focus: the same at image planes ``z_image + δ``; versus field: the same per field.
+
+Each function takes a lens (traced with ``options``, ``None``: the defaults) or a
+:class:`~deeplens.optics.camera.Camera` in its place (its options reach every PSF trace).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import math
 
 import torch
 
+from ..optics.camera import unpack
 from .diffraction import psf_fft
 from .spot import image_plane_z
 
@@ -49,9 +53,9 @@ def combine_otf(lsfs, positions, freqs, weights=None) -> torch.Tensor:
     return torch.sqrt(re * re + im * im) / sum(w)
 
 
-def _lsf(lens, field_deg, wavelength_nm, n, image_plane):
+def _lsf(lens, field_deg, wavelength_nm, n, image_plane, options=None):
     """``{"tangential": (L, x), "sagittal": (L, x)}`` of one FFT PSF."""
-    p = psf_fft(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane)
+    p = psf_fft(lens, field_deg, wavelength_nm, n=n, image_plane=image_plane, options=options)
     return {"tangential": (p.psf.sum(1), p.y + p.center[1]),
             "sagittal": (p.psf.sum(0), p.x + p.center[0])}
 
@@ -68,14 +72,16 @@ def _check(direction, freqs):
 
 def polychromatic_mtf(lens, field_deg: float, freqs, wavelengths_nm=None, weights=None,
                       direction: str = "tangential", n: int | None = None,
-                      image_plane="sensor") -> torch.Tensor:
+                      image_plane="sensor", options=None) -> torch.Tensor:
     """Polychromatic diffraction MTF ``(F,)`` at ``freqs`` (cycles/mm) of one field (module
     docstring), ``(2, F)`` (tangential, sagittal) for ``direction="both"``; wavelengths
-    default to the lens's, weights to equal."""
+    default to the lens's, weights to equal.  ``lens``: a Lens or a Camera (its options are
+    used)."""
+    lens, _, options = unpack(lens, None, options, "polychromatic_mtf")
     f = _check(direction, freqs)
     waves = list(lens.spec.wavelengths_nm if wavelengths_nm is None else wavelengths_nm)
     with torch.no_grad():
-        parts = [_lsf(lens, field_deg, float(w), n, image_plane) for w in waves]
+        parts = [_lsf(lens, field_deg, float(w), n, image_plane, options) for w in waves]
     out = [combine_otf([p[d][0] for p in parts], [p[d][1] for p in parts], f, weights)
            for d in ("tangential", "sagittal")]
     if direction == "both":
@@ -85,17 +91,23 @@ def polychromatic_mtf(lens, field_deg: float, freqs, wavelengths_nm=None, weight
 
 def through_focus_mtf(lens, field_deg: float, freqs, defocus_mm, wavelengths_nm=None,
                       weights=None, direction: str = "tangential", n: int | None = None,
-                      image_plane="sensor") -> torch.Tensor:
-    """``(D, F)`` (``(D, 2, F)`` for ``"both"``): :func:`polychromatic_mtf` on the planes ``z_image + δ`` for each ``δ`` of
-    ``defocus_mm`` (mm, + away from the lens)."""
+                      image_plane="sensor", options=None) -> torch.Tensor:
+    """``(D, F)`` (``(D, 2, F)`` for ``"both"``): :func:`polychromatic_mtf` on the planes
+    ``z_image + δ`` for each ``δ`` of ``defocus_mm`` (mm, + away from the lens).  ``lens``: a
+    Lens or a Camera (its options are used)."""
+    lens, _, options = unpack(lens, None, options, "through_focus_mtf")
     z0 = float(image_plane_z(lens, image_plane))
     return torch.stack([polychromatic_mtf(lens, field_deg, freqs, wavelengths_nm, weights,
-                                          direction, n, z0 + float(d)) for d in defocus_mm])
+                                          direction, n, z0 + float(d), options)
+                        for d in defocus_mm])
 
 
 def mtf_vs_field(lens, fields_deg, freqs, wavelengths_nm=None, weights=None,
                  direction: str = "tangential", n: int | None = None,
-                 image_plane="sensor") -> torch.Tensor:
-    """``(P, F)`` (``(P, 2, F)`` for ``"both"``): :func:`polychromatic_mtf` per field."""
+                 image_plane="sensor", options=None) -> torch.Tensor:
+    """``(P, F)`` (``(P, 2, F)`` for ``"both"``): :func:`polychromatic_mtf` per field;
+    ``lens``: a Lens or a Camera (its options are used)."""
+    lens, _, options = unpack(lens, None, options, "mtf_vs_field")
     return torch.stack([polychromatic_mtf(lens, float(f), freqs, wavelengths_nm, weights,
-                                          direction, n, image_plane) for f in fields_deg])
+                                          direction, n, image_plane, options)
+                        for f in fields_deg])

@@ -3,7 +3,8 @@
 Each ``*_figure`` computes its data with the tensor-returning functions of this package (no
 gradients) and returns a matplotlib ``Figure``; :data:`KINDS` maps the ``deeplens plot --kind``
 names to them.  Fields in degrees, wavelengths in nm, image-plane quantities in µm or mm as
-labelled.
+labelled.  Each takes a lens (traced with ``options``, ``None``: the defaults) or a
+:class:`~deeplens.optics.camera.Camera` in its place (its options reach every trace).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import torch
 
+from ..optics.camera import unpack
 from ..optics.frames import local_frames, to_global
 from ..optics.sampling import field_rays
 from ..optics.paraxial import paraxial
@@ -23,10 +25,13 @@ __all__ = ["layout_figure", "spot_figure", "fan_figure", "field_figure", "distor
 
 
 @style.styled
-def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float | None = None):
+def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float | None = None,
+                  options=None):
     """A y-z section of ``lens`` with meridional rays of each field; returns a matplotlib Figure.
     A folded lens (mirrors, coordinate breaks) is drawn in the global frame
-    (:func:`~deeplens.optics.frames.local_frames`)."""
+    (:func:`~deeplens.optics.frames.local_frames`).  ``lens``: a Lens (its rays traced with
+    ``options``) or a :class:`~deeplens.optics.camera.Camera` (its options are used)."""
+    lens, _, options = unpack(lens, None, options, "layout_figure")
     fields = list(lens.spec.fields_deg if fields_deg is None else fields_deg)
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     fig, ax = style.figure(size=(8, 4))
@@ -69,7 +74,7 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
             ys = torch.linspace(-r_ep, r_ep, n_rays, dtype=dtype)
             xy = torch.stack([torch.zeros_like(ys), ys], -1)
             rays = field_rays(lens, f, w, xy, float(p.entrance_pupil_z))
-            out, hits = lens.trace(rays, record=True)
+            out, hits = lens.trace(rays, record=True, options=options)
             end = lens.propagate_to_z(out, lens.z_sensor())
             # the start in frame 0, the hit on surface i in the frame after it, the end in the last
             pts = [(0, rays.o)] + [(i + 1, q) for i, q in enumerate(hits)] + [(-1, end.o)]
@@ -178,7 +183,7 @@ def _title(fig, lens, what):
 
 @style.styled
 def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hexapolar:18",
-                image_plane="sensor", pupil: str = "traced"):
+                image_plane="sensor", pupil: str = "traced", options=None):
     """Spot diagrams (µm), one panel per field, all panels on one scale, with the Airy circle.
 
     Points are plotted about the primary wavelength's centroid.  The RMS radius printed per
@@ -190,6 +195,7 @@ def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
     from .cardinal import pupils
     from .spot import spot_diagram
 
+    lens, _, options = unpack(lens, None, options, "spot_figure")
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     prim = _primary(lens, wavelengths_nm)
     fig, axes = _field_panels(len(fields), 2.4, 2.6)
@@ -198,10 +204,11 @@ def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
         airy_um = 1.22 * prim * 1e-6 * float(pupils(lens, prim).working_fno) * 1e3
         for a, f in zip(axes, fields):
             ref = spot_diagram(lens, f, prim, sampling, pupil=pupil,
-                               image_plane=image_plane).centroid
+                               image_plane=image_plane, options=options).centroid
             lines = []
             for w in waves:
-                s = spot_diagram(lens, f, w, sampling, pupil=pupil, image_plane=image_plane)
+                s = spot_diagram(lens, f, w, sampling, pupil=pupil, image_plane=image_plane,
+                                 options=options)
                 d = (s.points - ref).double().cpu().numpy() * 1e3
                 a.plot(d[:, 0], d[:, 1], ".", ms=1.2, color=style.wavelength_color(w),
                        label=f"{w:g} nm")
@@ -229,16 +236,18 @@ def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
 
 
 @style.styled
-def fan_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 41):
+def fan_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 41,
+               options=None):
     """Ray fans: tangential ``e_y(p_y)`` and sagittal ``e_x(p_x)`` in µm, one row per field."""
     from .aberrations import ray_fan
 
+    lens, _, options = unpack(lens, None, options, "fan_figure")
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     fig, ax = style.figure(len(fields), 2, size=(6, 1.6 * len(fields) + 0.6), squeeze=False,
                            sharex=True)
     with torch.no_grad():
         for r, f in enumerate(fields):
-            fan = ray_fan(lens, f, waves, n=n, image_plane=image_plane)
+            fan = ray_fan(lens, f, waves, n=n, image_plane=image_plane, options=options)
             p = fan.p.cpu().numpy()
             for w in waves:
                 c = style.wavelength_color(w)
@@ -263,15 +272,16 @@ def _field_axis(lens, fields_deg, n=9):
 
 
 @style.styled
-def field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor"):
+def field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", options=None):
     """Field curvature: tangential (solid) and sagittal (dashed) focus vs field, mm."""
     from .aberrations import field_curvature
 
+    lens, _, options = unpack(lens, None, options, "field_figure")
     fs = _field_axis(lens, fields_deg)
     fig, ax = style.figure(size=(4, 3.5))
     with torch.no_grad():
         for w in _waves(lens, wavelengths_nm):
-            zt, zs = field_curvature(lens, fs, w, image_plane=image_plane)
+            zt, zs = field_curvature(lens, fs, w, image_plane=image_plane, options=options)
             c = style.wavelength_color(w)
             ax.plot(zt.cpu().numpy(), fs, "-", color=c, label=f"T {w:g} nm")
             ax.plot(zs.cpu().numpy(), fs, "--", color=c, label=f"S {w:g} nm")
@@ -284,15 +294,17 @@ def field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor
 
 
 @style.styled
-def distortion_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor"):
+def distortion_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
+                      options=None):
     """Distortion (%) vs field, f-tan convention."""
     from .aberrations import distortion
 
+    lens, _, options = unpack(lens, None, options, "distortion_figure")
     fs = _field_axis(lens, fields_deg)[1:]
     fig, ax = style.figure(size=(4, 3.5))
     with torch.no_grad():
         for w in _waves(lens, wavelengths_nm):
-            d = distortion(lens, fs, w, image_plane=image_plane)
+            d = distortion(lens, fs, w, image_plane=image_plane, options=options)
             ax.plot(d.cpu().numpy(), fs, color=style.wavelength_color(w), label=f"{w:g} nm")
     ax.axvline(0, color="k", lw=0.5)
     ax.set_xlabel("distortion (%)")
@@ -304,15 +316,17 @@ def distortion_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="s
 
 
 @style.styled
-def opd_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 64):
+def opd_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 64,
+               options=None):
     """OPD maps (waves) over the normalised pupil, one panel per field, primary wavelength."""
     from .wavefront import wavefront
 
+    lens, _, options = unpack(lens, None, options, "opd_figure")
     fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
     fig, axes = _field_panels(len(fields), 2.6, 2.4)
     with torch.no_grad():
         for a, f in zip(axes, fields):
-            wf = wavefront(lens, f, w, n=n, image_plane=image_plane)
+            wf = wavefront(lens, f, w, n=n, image_plane=image_plane, options=options)
             m = wf.opd.masked_fill(~wf.mask, float("nan")).cpu().numpy()
             im = a.imshow(m, origin="lower", extent=(-1, 1, -1, 1), cmap="RdBu_r")
             fig.colorbar(im, ax=a, fraction=0.046, pad=0.04)
@@ -327,15 +341,16 @@ def opd_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
 @style.styled
 def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
                n: int | None = None,
-               half_width_um: float | None = None):
+               half_width_um: float | None = None, options=None):
     """Diffraction (FFT) PSFs, Strehl-normalised, one panel per field, primary wavelength."""
     from .diffraction import psf_fft
 
+    lens, _, options = unpack(lens, None, options, "psf_figure")
     fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
     fig, axes = _field_panels(len(fields), 2.4, 2.4)
     with torch.no_grad():
         for a, f in zip(axes, fields):
-            p = psf_fft(lens, f, w, n=n, image_plane=image_plane)
+            p = psf_fft(lens, f, w, n=n, image_plane=image_plane, options=options)
             x, y = p.x.cpu().numpy() * 1e3, p.y.cpu().numpy() * 1e3
             hw = half_width_um or 0.25 * float(x.max())
             a.imshow(p.psf.cpu().numpy(), origin="lower", extent=(x[0], x[-1], y[0], y[-1]))
@@ -374,7 +389,7 @@ def _wave_label(waves):
 
 @style.styled
 def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
-               n: int | None = None, points: int = 41):
+               n: int | None = None, points: int = 41, options=None):
     """Diffraction MTF over all the given wavelengths (polychromatic,
     :func:`~.mtf_poly.polychromatic_mtf`), tangential (solid) and sagittal (dashed) per
     field, with the aberration-free limit at the primary wavelength (grey)."""
@@ -382,6 +397,7 @@ def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
 
     from .mtf_poly import polychromatic_mtf
 
+    lens, _, options = unpack(lens, None, options, "mtf_figure")
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     w = _primary(lens, wavelengths_nm)
     fig, ax = style.figure(size=(5, 3.5))
@@ -393,7 +409,7 @@ def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
         freqs = torch.linspace(0, nu_c, points, dtype=torch.float64)
         for k, f in enumerate(fields):
             m = polychromatic_mtf(lens, f, freqs, waves, direction="both", n=n,
-                                  image_plane=image_plane)
+                                  image_plane=image_plane, options=options)
             c = style.field_color(k)
             ax.plot(freqs.numpy(), m[0].numpy(), "-", color=c, label=f"{f:g} deg T")
             ax.plot(freqs.numpy(), m[1].numpy(), "--", color=c, label=f"{f:g} deg S")
@@ -408,7 +424,7 @@ def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
 
 @style.styled
 def through_focus_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
-                         n: int | None = None, freqs=None, defocus_mm=None):
+                         n: int | None = None, freqs=None, defocus_mm=None, options=None):
     """Through-focus MTF: polychromatic diffraction MTF at a few frequencies (default ~10, 25,
     50 % of the cut-off) against the image-plane shift (default ±4 λ N_w², 11 planes), one
     panel per field; T solid, S dashed."""
@@ -416,6 +432,7 @@ def through_focus_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane
 
     from .mtf_poly import through_focus_mtf
 
+    lens, _, options = unpack(lens, None, options, "through_focus_figure")
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     w = _primary(lens, wavelengths_nm)
     with torch.no_grad():
@@ -429,7 +446,7 @@ def through_focus_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane
         data = {}
         for a, f in zip(axes, fields):
             m = through_focus_mtf(lens, f, freqs, dz, waves, direction="both", n=n,
-                                  image_plane=image_plane)
+                                  image_plane=image_plane, options=options)
             data[f] = m
             for j, nu in enumerate(freqs):
                 c = style.field_color(j)
@@ -448,19 +465,21 @@ def through_focus_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane
 
 @style.styled
 def mtf_field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
-                     n: int | None = None, freqs=None, points: int = 7):
+                     n: int | None = None, freqs=None, points: int = 7, options=None):
     """Polychromatic diffraction MTF at a few frequencies (default ~10, 25, 50 % of the
     cut-off) against the field angle, from 0 to the largest field in ``points`` steps; T solid,
     S dashed."""
     from .mtf_poly import mtf_vs_field
 
+    lens, _, options = unpack(lens, None, options, "mtf_field_figure")
     waves = _waves(lens, wavelengths_nm)
     w = _primary(lens, wavelengths_nm)
     fs = _field_axis(lens, fields_deg, points)
     fig, ax = style.figure(size=(5, 3.5))
     with torch.no_grad():
         freqs = _default_freqs(_cutoff(lens, w)) if freqs is None else [float(f) for f in freqs]
-        m = mtf_vs_field(lens, fs, freqs, waves, direction="both", n=n, image_plane=image_plane)
+        m = mtf_vs_field(lens, fs, freqs, waves, direction="both", n=n, image_plane=image_plane,
+                         options=options)
         for j, nu in enumerate(freqs):
             c = style.field_color(j)
             ax.plot(fs, m[:, 0, j].numpy(), "-", color=c, label=f"{nu:g} c/mm T")
@@ -477,19 +496,20 @@ def mtf_field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="se
 
 @style.styled
 def ee_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
-              n: int | None = None):
+              n: int | None = None, options=None):
     """Diffraction encircled energy vs radius (µm) per field."""
     import numpy as np
 
     from .diffraction import encircled_energy
 
+    lens, _, options = unpack(lens, None, options, "ee_figure")
     fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
     fig, ax = style.figure(size=(5, 3.5))
     with torch.no_grad():
         airy = 1.22 / _cutoff(lens, w)
         r = np.linspace(0, 8 * airy, 81)
         for k, f in enumerate(fields):
-            ee = encircled_energy(lens, f, r, w, n=n, image_plane=image_plane)
+            ee = encircled_energy(lens, f, r, w, n=n, image_plane=image_plane, options=options)
             ax.plot(r * 1e3, ee.cpu().numpy(), color=style.field_color(k), label=f"{f:g} deg")
     ax.axvline(airy * 1e3, color="0.6", lw=0.8, ls=":", label="Airy radius")
     ax.set_xlabel("radius (µm)")
@@ -500,8 +520,10 @@ def ee_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     return fig
 
 
-def _layout(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor"):
-    return layout_figure(lens, fields_deg, wavelength_nm=_primary(lens, wavelengths_nm))
+def _layout(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", options=None):
+    lens, _, options = unpack(lens, None, options, "layout_figure")
+    return layout_figure(lens, fields_deg, wavelength_nm=_primary(lens, wavelengths_nm),
+                         options=options)
 
 
 KINDS = {"layout": _layout, "spot": spot_figure, "fan": fan_figure, "field": field_figure,
@@ -514,10 +536,11 @@ FREQ_KINDS = ("through-focus", "mtf-field")
 
 
 def plot(lens, kind: str, path, fields_deg=None, wavelengths_nm=None,
-         image_plane="sensor", dpi: float | None = None, freqs=None) -> None:
+         image_plane="sensor", dpi: float | None = None, freqs=None, options=None) -> None:
     """Draw figure ``kind`` (a key of :data:`KINDS`) and save it at ``path`` in the format its
     suffix names (vector for .pdf/.svg/.eps/.ps; :func:`.style.save`), ``dpi`` for rasters;
-    ``freqs`` (cycles/mm) for the kinds of :data:`FREQ_KINDS`."""
+    ``freqs`` (cycles/mm) for the kinds of :data:`FREQ_KINDS`.  ``lens``: a Lens (traced with
+    ``options``) or a :class:`~deeplens.optics.camera.Camera` (its options are used)."""
     if kind not in KINDS:
         raise ValueError(f"plot kind must be one of {'|'.join(KINDS)}, got {kind!r}")
     extra = {}
@@ -526,5 +549,7 @@ def plot(lens, kind: str, path, fields_deg=None, wavelengths_nm=None,
             raise ValueError(f"frequencies apply to the kinds {', '.join(FREQ_KINDS)}, not "
                              f"{kind!r}")
         extra["freqs"] = freqs
-    fig = KINDS[kind](lens, fields_deg, wavelengths_nm, image_plane=image_plane, **extra)
+    lens, _, options = unpack(lens, None, options, "plot")
+    fig = KINDS[kind](lens, fields_deg, wavelengths_nm, image_plane=image_plane,
+                      options=options, **extra)
     style.save(fig, path, dpi=dpi)

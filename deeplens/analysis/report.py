@@ -9,6 +9,7 @@ import math
 
 import torch
 
+from ..optics.camera import unpack
 from ..optics.paraxial import paraxial
 from .spot import chief_ray, find_pupil, image_plane_z, spot_diagram
 
@@ -16,10 +17,13 @@ __all__ = ["lens_report", "format_report"]
 
 
 def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hexapolar:18",
-                pupil: str = "traced", image_plane: str = "sensor") -> dict:
+                pupil: str = "traced", image_plane: str = "sensor", options=None) -> dict:
     """Analyse ``lens`` (float64 recommended).
 
     Args:
+        lens: a Lens (traced with ``options``, ``None``: the defaults) or a
+            :class:`~deeplens.optics.camera.Camera` (its options are used by every trace:
+            pupil search, spots, chief-ray aiming).
         fields_deg: field angles (deg); default the lens file's.
         wavelengths_nm: wavelengths (nm); default the lens file's.
         sampling: pupil pattern (``hexapolar:R``, ``grid:N``, ``random:N[:SEED]``).
@@ -33,6 +37,7 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
         "centroid_mm", "n_rays", "n_launched"}]}``; a fully vignetted field has
         ``rms_spot_um = None`` and ``n_rays = 0``.
     """
+    lens, _, options = unpack(lens, None, options, "lens_report")
     fields = list(lens.spec.fields_deg if fields_deg is None else fields_deg)
     waves = list(lens.spec.wavelengths_nm if wavelengths_nm is None else wavelengths_nm)
     with torch.no_grad():
@@ -44,16 +49,16 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
             for f in fields:
                 row = {"field_deg": float(f), "wavelength_nm": float(w)}
                 try:
-                    region = find_pupil(lens, f, w, pupil)
+                    region = find_pupil(lens, f, w, pupil, options=options)
                     s = spot_diagram(lens, f, w, sampling, pupil, image_plane=z_img,
-                                     region=region)
+                                     region=region, options=options)
                     row.update(rms_spot_um=float(s.rms_radius) * 1e3,
                                centroid_mm=[float(v) for v in s.centroid],
                                n_rays=s.n_rays, n_launched=s.n_launched)
                 except ValueError as e:
                     row.update(rms_spot_um=None, centroid_mm=None, n_rays=0, n_launched=0,
                                note=str(e))
-                y, _ = chief_ray(lens, f, w, z_img)
+                y, _ = chief_ray(lens, f, w, z_img, options=options)
                 row["chief_ray_height_mm"] = None if math.isnan(float(y)) else float(y)
                 rows.append(row)
     return {
@@ -106,12 +111,13 @@ def _opt(x):
 
 
 def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
-                    mtf_freqs=(10.0, 20.0, 40.0, 80.0)) -> dict:
+                    mtf_freqs=(10.0, 20.0, 40.0, 80.0), options=None) -> dict:
     """The ``--analysis`` part of the report: ``{kind: values}`` for each kind of
     :data:`ANALYSES` asked for (fields in deg, lengths in mm unless named ``_um``, OPD in
     waves at the primary wavelength, MTF at ``mtf_freqs`` cycles/mm).  A diffraction value that
     cannot be computed for a field (a wavefront too steep for the FFT) is ``None`` with a
-    ``note``.
+    ``note``.  ``lens``: a Lens (traced with ``options``) or a
+    :class:`~deeplens.optics.camera.Camera` (its options reach every analysis).
 
     Raises:
         ValueError: an unknown kind (the message lists the known ones).
@@ -123,6 +129,7 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
     from .diffraction import encircled_energy, mtf, psf_fft
     from .wavefront import wavefront, zernike_fit
 
+    lens, _, options = unpack(lens, None, options, "analysis_report")
     kinds = list(kinds)
     bad = [k for k in kinds if k not in ANALYSES]
     if bad:
@@ -140,27 +147,30 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                 out[k] = {**cardinal_points(lens, prim).as_dict(),
                           "pupils": pupils(lens, prim).as_dict()}
             elif k == "distortion":
-                d = distortion(lens, fields, prim, image_plane=image_plane)
+                d = distortion(lens, fields, prim, image_plane=image_plane, options=options)
                 out[k] = {"fields_deg": fields, "percent": [float(v) for v in d],
                           "convention": "f-tan, real chief ray vs paraxial chief ray"}
             elif k == "field":
-                zt, zs = field_curvature(lens, fields, prim, image_plane=image_plane)
+                zt, zs = field_curvature(lens, fields, prim, image_plane=image_plane,
+                                         options=options)
                 out[k] = {"fields_deg": fields, "tangential_mm": [float(v) for v in zt],
                           "sagittal_mm": [float(v) for v in zs]}
             elif k == "color":
                 wl, lon = longitudinal_color(lens, waves)
                 row = {"wavelengths_nm": wl, "longitudinal_mm": [float(v) for v in lon]}
                 if len(waves) > 1:
-                    lat = lateral_color(lens, fields, waves, image_plane=image_plane)
+                    lat = lateral_color(lens, fields, waves, image_plane=image_plane,
+                                        options=options)
                     row.update(fields_deg=fields, lateral_um=[1e3 * float(v) for v in lat])
                 out[k] = row
             elif k == "vignetting":
-                v = vignetting(lens, fields, prim, image_plane=image_plane)
+                v = vignetting(lens, fields, prim, image_plane=image_plane, options=options)
                 out[k] = {"fields_deg": fields, "fraction": [float(x) for x in v]}
             elif k == "wavefront":
                 rows = []
                 for f in fields:
-                    w = wavefront(lens, f, prim, n=64, image_plane=image_plane)
+                    w = wavefront(lens, f, prim, n=64, image_plane=image_plane,
+                                  options=options)
                     z = zernike_fit(w, 9, "fringe")
                     rows.append({"field_deg": f, "rms_waves": float(w.rms),
                                  "pv_waves": float(w.pv),
@@ -170,7 +180,8 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                 rows = []
                 for f in fields:
                     try:
-                        st = float(psf_fft(lens, f, prim, image_plane=image_plane).strehl)
+                        st = float(psf_fft(lens, f, prim, image_plane=image_plane,
+                                             options=options).strehl)
                     except AnalysisError as e:
                         rows.append({"field_deg": f, "strehl": None, "note": str(e)})
                         continue
@@ -180,7 +191,7 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                 rows = []
                 for f in fields:
                     try:
-                        m = mtf(lens, f, prim, image_plane=image_plane)
+                        m = mtf(lens, f, prim, image_plane=image_plane, options=options)
                     except AnalysisError as e:
                         rows.append({"field_deg": f, "freq_cycles_per_mm": None,
                                      "tangential": None, "sagittal": None, "note": str(e)})
@@ -197,7 +208,8 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                                    device=lens.distances[0].device)
                 for f in fields:
                     try:
-                        ee = encircled_energy(lens, f, r, prim, image_plane=image_plane)
+                        ee = encircled_energy(lens, f, r, prim, image_plane=image_plane,
+                                              options=options)
                     except AnalysisError as e:
                         rows.append({"field_deg": f, "r80_um": None, "note": str(e)})
                         continue

@@ -55,8 +55,11 @@ def _passes(lens, field_deg, wavelength_nm, xy, z, options=None):
 
 
 def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "traced",
-               grid: int = 129, bisections: int = 40) -> PupilRegion:
+               grid: int = 129, bisections: int = 40, options=None) -> PupilRegion:
     """The region of the entrance-pupil plane to sample for one field (see module docstring).
+
+    ``lens``: a Lens (its search traces run with ``options``, ``None``: the defaults) or a
+    :class:`~deeplens.optics.camera.Camera` (its options are used).
 
     Raises:
         ValueError: for an unknown ``method``, or when no ray of the field reaches the image
@@ -64,6 +67,7 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
     """
     if method not in ("paraxial", "traced"):
         raise ValueError(f"pupil method must be 'paraxial' or 'traced', got {method!r}")
+    lens, _, options = unpack(lens, None, options, "find_pupil")
     dtype = lens.dtype
     with torch.no_grad():
         p = paraxial(lens)
@@ -79,7 +83,7 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
             v = torch.linspace(-W, W, grid, dtype=dtype)
             X, Y = torch.meshgrid(v, v, indexing="xy")
             xy = torch.stack([X.reshape(-1), Y.reshape(-1)], -1)
-            ok = _passes(lens, field_deg, wavelength_nm, xy, z)
+            ok = _passes(lens, field_deg, wavelength_nm, xy, z, options)
             if bool(ok.any()):
                 break
         else:
@@ -87,7 +91,7 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
                              f"vignetted: none of {grid * grid} rays over a {2 * W:.4g} mm square "
                              f"in the entrance-pupil plane (z = {z:.4g} mm) reaches the image")
         c = xy[ok].mean(0)
-        if not bool(_passes(lens, field_deg, wavelength_nm, c[None], z)[0]):
+        if not bool(_passes(lens, field_deg, wavelength_nm, c[None], z, options)[0]):
             c = xy[ok][((xy[ok] - c) ** 2).sum(-1).argmin()]
         # bisect the edge along +x, -x, +y, -y from the centre
         dirs = torch.tensor([[1.0, 0], [-1, 0], [0, 1], [0, -1]], dtype=dtype)
@@ -95,7 +99,7 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
         hi = torch.full((4,), 2 * scale * r, dtype=dtype)
         for _ in range(bisections):
             mid = 0.5 * (lo + hi)
-            okm = _passes(lens, field_deg, wavelength_nm, c + mid[:, None] * dirs, z)
+            okm = _passes(lens, field_deg, wavelength_nm, c + mid[:, None] * dirs, z, options)
             lo = torch.where(okm, mid, lo)
             hi = torch.where(okm, hi, mid)
         xp, xm, yp, ym = lo.tolist()
@@ -147,8 +151,8 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
                  pupil: str = "traced", image_plane="sensor", options=None,
                  region: PupilRegion | None = None) -> SpotResult:
     """Trace a pupil pattern of one field to the image plane; gradients flow to the lens.
-    ``lens`` may be a :class:`~deeplens.optics.camera.Camera` (the spot is traced with its
-    options; the pupil search, :func:`find_pupil`, runs at its own settings as before).
+    ``lens``: a Lens (traced with ``options``) or a :class:`~deeplens.optics.camera.Camera`
+    (its options are used); the pupil search (:func:`find_pupil`) runs at the same options.
 
     Raises:
         ValueError: when no ray reaches the image (names the field).
@@ -156,7 +160,7 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
     lens, _, options = unpack(lens, None, options, "spot_diagram")
     dtype = lens.dtype
     if region is None:
-        region = find_pupil(lens, field_deg, wavelength_nm, pupil)
+        region = find_pupil(lens, field_deg, wavelength_nm, pupil, options=options)
     unit = pupil_pattern(sampling, dtype=dtype)
     rays = field_rays(lens, field_deg, wavelength_nm, region.points(unit), region.z)
     z_img = image_plane_z(lens, image_plane)

@@ -28,6 +28,7 @@ import time
 
 import torch
 
+from ..optics.camera import unpack
 from ..optics.lens import Lens, LensSpec
 from ..optics.materials import ModelGlass, get_material
 from ..optics.rays import Rays
@@ -89,15 +90,18 @@ def collimated_square_rays(half_width_mm: float, n_side: int, z0_mm: float = -1.
     return Rays(o, d, wavelength_nm)
 
 
-def irradiance(lens: Lens, rays: Rays, res: int, half_width_mm: float) -> torch.Tensor:
+def irradiance(lens: Lens, rays: Rays, res: int, half_width_mm: float,
+               options=None) -> torch.Tensor:
     """Irradiance ``(res, res)`` on the sensor plane of ``lens``, normalised so that a beam that
     arrives undeflected and uniform reads 1 in every pixel.  Differentiable in the lens.
 
     Pixels follow :class:`~deeplens.render.sensor.Sensor` (row ``i`` along ``+y``, column ``j``
-    along ``-x``), pitch ``2a / res``.
+    along ``-x``), pitch ``2a / res``.  ``lens``: a Lens (traced with ``options``, ``None``:
+    the defaults) or a :class:`~deeplens.optics.camera.Camera` (its options are used).
     """
+    lens, _, options = unpack(lens, None, options, "irradiance")
     sensor = Sensor((res, res), 2 * half_width_mm / res, channels=[[CAUSTIC_WAVELENGTH_NM]])
-    out = lens.trace_to_sensor(rays)
+    out = lens.trace_to_sensor(rays, options=options)
     i, j = sensor.xy_to_pixel(out.o[:, 0], out.o[:, 1])
     n = rays.shape[0]
     w = torch.where(out.valid, torch.full_like(i, res * res / n), torch.zeros_like(i))

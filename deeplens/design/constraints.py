@@ -31,6 +31,7 @@ import math
 import torch
 
 from ..analysis.paraxial import paraxial
+from ..optics.camera import unpack
 from ..optics.materials import Air
 from ..optics.surfaces import Aperture
 
@@ -76,7 +77,8 @@ class Constraint:
         self.weight, self.tol, self.gap, self.where = float(weight), float(tol), gap, where
 
     def value(self, lens) -> torch.Tensor:
-        return self.fn(lens)
+        """``q`` of ``lens`` (a Lens, or a Camera: its lens; geometry, nothing is traced)."""
+        return self.fn(unpack(lens)[0])
 
     def signed_violation(self, q) -> float:
         """How far ``q`` is outside the limit (mm; ``<= 0`` when met)."""
@@ -205,7 +207,7 @@ class ConstraintSet:
 
     def residuals(self, lens) -> torch.Tensor:
         if not self.constraints:
-            return torch.zeros(0, dtype=lens.distances[0].dtype)
+            return torch.zeros(0, dtype=unpack(lens)[0].distances[0].dtype)
         return torch.cat([c.residual(lens) for c in self.constraints])
 
     def broken(self, lens) -> list[str]:

@@ -28,6 +28,7 @@ import math
 
 import torch
 
+from ..optics.camera import unpack
 from ..optics.sampling import point_source_rays
 from .optimizers import Infeasible
 
@@ -90,12 +91,15 @@ class DepthInvarianceMerit:
         self.masks = None
 
     def _positions(self, lens):
-        """``{(depth, λ): (p (M, 2) pixels, valid (M,))}`` from one trace per key."""
+        """``{(depth, λ): (p (M, 2) pixels, valid (M,))}`` from one trace per key; ``lens``:
+        a Lens (default trace options) or a :class:`~deeplens.optics.camera.Camera` (its
+        options; so for :meth:`prepare`, :meth:`residuals`, :meth:`invariance`, :meth:`blur`)."""
+        lens, _, options = unpack(lens, None, None, "DepthInvarianceMerit")
         out = {}
         for d in self.depths:
             for w in self.waves:
                 rays = point_source_rays(lens, (0.0, 0.0), d, w, 0, sampling=self.sampling)
-                r = lens.trace_to_sensor(rays)
+                r = lens.trace_to_sensor(rays, options=options)
                 out[(d, w)] = (r.o[:, :2] / self.pixel_mm, r.valid)
         return out
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import torch
 
 from ..analysis.spot import find_pupil
+from ..optics.camera import unpack
 from ..optics.sampling import field_rays, pupil_pattern
 
 __all__ = ["FocusResult", "quick_focus_shift", "quick_focus"]
@@ -41,15 +42,16 @@ class FocusResult:
     d_sensor_after: float
 
 
-def _blocks(lens, fields, waves, sampling):
+def _blocks(lens, fields, waves, sampling, options=None):
     """Per (field, wavelength) the valid rays' points on the sensor plane and their slopes."""
     unit = pupil_pattern(sampling, dtype=lens.dtype)
     primary = float(lens.spec.primary_wavelength_nm)
     out = []
     for f in fields:
-        region = find_pupil(lens, f, primary, "traced", grid=65, bisections=24)
+        region = find_pupil(lens, f, primary, "traced", grid=65, bisections=24, options=options)
         for wl in waves:
-            rays = lens.trace_to_sensor(field_rays(lens, f, wl, region.points(unit), region.z))
+            rays = lens.trace_to_sensor(field_rays(lens, f, wl, region.points(unit), region.z),
+                                        options=options)
             ok = rays.valid
             if int(ok.sum()) < 2:
                 continue
@@ -61,15 +63,19 @@ def _blocks(lens, fields, waves, sampling):
     return out
 
 
-def quick_focus_shift(lens, fields=None, waves=None, sampling: str = "hexapolar:6"
-                      ) -> tuple[float, float, float]:
+def quick_focus_shift(lens, fields=None, waves=None, sampling: str = "hexapolar:6",
+                      options=None) -> tuple[float, float, float]:
     """``(t*, E(0) / B, E(t*) / B)``: the sensor shift (mm) and the mean over the ``B`` blocks
-    of the squared RMS radius before and after it (mm^2), by the module docstring's formula."""
+    of the squared RMS radius before and after it (mm^2), by the module docstring's formula.
+    ``lens``: a Lens (traced with ``options``, ``None``: the defaults) or a
+    :class:`~deeplens.optics.camera.Camera` (its options reach the pupil search and the
+    spots)."""
+    lens, _, options = unpack(lens, None, options, "quick_focus_shift")
     fields = list(lens.spec.fields_deg) if fields is None else list(fields)
     waves = list(lens.spec.wavelengths_nm) if waves is None else list(waves)
     with torch.no_grad():
         num = den = e0 = 0.0
-        blocks = _blocks(lens, fields, waves, sampling)
+        blocks = _blocks(lens, fields, waves, sampling, options)
         for a, s in blocks:
             at, st = a - a.mean(0), s - s.mean(0)
             m = a.shape[0]
@@ -82,17 +88,19 @@ def quick_focus_shift(lens, fields=None, waves=None, sampling: str = "hexapolar:
 
 
 def quick_focus(lens, fields=None, waves=None, sampling: str = "hexapolar:6",
-                apply: bool = True) -> FocusResult:
+                apply: bool = True, options=None) -> FocusResult:
     """Move the sensor to the quick-focus plane (module docstring); with ``apply=False`` only
-    report where it would go.
+    report where it would go.  ``lens``: a Lens (traced with ``options``) or a
+    :class:`~deeplens.optics.camera.Camera` (its options are used; its lens's sensor moves).
 
     Raises:
         ValueError: no field reaches the sensor, or the focus lies at or before the last
             vertex (the message gives the distance).
     """
+    lens, _, options = unpack(lens, None, options, "quick_focus")
     fields = list(lens.spec.fields_deg) if fields is None else list(fields)
     waves = list(lens.spec.wavelengths_nm) if waves is None else list(waves)
-    t, e0, e1 = quick_focus_shift(lens, fields, waves, sampling)
+    t, e0, e1 = quick_focus_shift(lens, fields, waves, sampling, options)
     d0 = float(lens.d_sensor.detach())
     d1 = d0 + t
     if not d1 > 0:

@@ -22,8 +22,10 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ..optics.camera import Camera, unpack
 from .constraints import ConstraintSet, check_start, variable_bounds
 from .optimizers import Infeasible, OptimResult, adam, damped_least_squares, lbfgs
+from .variables import on_camera
 
 __all__ = ["optimize_lens", "LensOptResult", "lens_residual_fn"]
 
@@ -70,8 +72,10 @@ class LensOptResult:
                        if not h["accepted"]).most_common()
 
 
-def lens_residual_fn(variables, merit, constraints=()):
-    """``x -> residuals`` for :func:`~.optimizers.damped_least_squares` (module docstring)."""
+def lens_residual_fn(variables, merit, constraints=(), camera: Camera | None = None):
+    """``x -> residuals`` for :func:`~.optimizers.damped_least_squares` (module docstring);
+    with a ``camera`` (holding the variables' lens) the merit sees the lens through it, so its
+    options reach every trace (:func:`~.variables.on_camera`)."""
     cset = ConstraintSet(constraints)
 
     def on_lens(L):
@@ -88,7 +92,7 @@ def lens_residual_fn(variables, merit, constraints=()):
         bad = cset.broken(L)
         if bad:
             raise Infeasible("constraint broken: " + "; ".join(bad), kind="constraint")
-        r = merit.residuals(L)
+        r = merit.residuals(on_camera(camera, L))
         if cset.constraints:
             r = torch.cat([r, cset.residuals(L).to(r)])
         return r
@@ -106,7 +110,9 @@ def optimize_lens(lens, variables, merit, *, method: str = "dls", steps: int = 5
     """Optimise ``variables`` of ``lens`` for ``merit``; writes the result into ``lens``.
 
     Args:
-        lens: the lens (float64 recommended for DLS).
+        lens: the lens (float64 recommended for DLS), or a
+            :class:`~deeplens.optics.camera.Camera` (its lens is optimised and its options
+            reach every trace of the merit: preparation and every evaluation).
         variables: :class:`~.variables.Variables` of ``lens``.
         merit: an object with ``prepare(lens)`` and ``residuals(lens)`` (e.g. :class:`~.merit.Merit`).
         method: ``"dls"`` (damped least squares), ``"adam"`` or ``"lbfgs"``.
@@ -129,6 +135,10 @@ def optimize_lens(lens, variables, merit, *, method: str = "dls", steps: int = 5
     if steps < 1 or rounds < 1:
         raise ValueError(f"steps and rounds must be >= 1, got steps={steps}, rounds={rounds}")
     t0 = time.perf_counter()
+    camera = lens if isinstance(lens, Camera) else None
+    lens = unpack(lens, where="optimize_lens")[0]
+    if camera is not None and variables.lens is not lens:
+        raise ValueError("optimize_lens: the variables belong to another lens than the camera's")
     constraints = list(constraints)
     check_start(lens, constraints)
     lo, hi = variable_bounds(variables, constraints)
@@ -148,8 +158,8 @@ def optimize_lens(lens, variables, merit, *, method: str = "dls", steps: int = 5
     for k, n in enumerate(per):
         if n == 0:
             continue
-        merit.prepare(lens)
-        fn = lens_residual_fn(variables, merit, constraints)
+        merit.prepare(on_camera(camera, lens))
+        fn = lens_residual_fn(variables, merit, constraints, camera)
         x0 = variables.x0()
         if method == "dls":
             res = damped_least_squares(fn, x0, steps=n, lam0=lam0, bounds=box, callback=callback,

@@ -29,6 +29,7 @@ import torch
 
 from ..analysis.paraxial import chief_ray_scale, paraxial
 from ..analysis.spot import chief_ray, find_pupil, image_plane_z
+from ..optics.camera import unpack
 from ..optics.rays import Rays
 from ..optics.sampling import field_rays, pupil_pattern
 from .optimizers import Infeasible
@@ -93,7 +94,11 @@ class SpotMerit:
     # ---------------------------------------------------------------- preparation
     def prepare(self, lens) -> "SpotMerit":
         """Find the pupil region (and chief-ray aim) of every field and wavelength on ``lens``
-        as it is now, and the rays that reach the image; returns ``self``."""
+        as it is now, and the rays that reach the image; returns ``self``.  ``lens``: a Lens
+        (default trace options) or a :class:`~deeplens.optics.camera.Camera` (its options
+        reach every trace: pupil search, chief-ray aiming, the rays; so do they in
+        :meth:`residuals` and :meth:`rms` given the camera)."""
+        lens, _, options = unpack(lens, None, None, "SpotMerit.prepare")
         self.fields = list(lens.spec.fields_deg) if self.fields is None else self.fields
         self.waves = list(lens.spec.wavelengths_nm) if self.waves is None else self.waves
         F, W = len(self.fields), len(self.waves)
@@ -119,17 +124,18 @@ class SpotMerit:
                     if self.per_wavelength_pupil or shared is None:
                         reg = find_pupil(lens, f, wl if self.per_wavelength_pupil else primary,
                                          self.pupil, grid=self.pupil_grid,
-                                         bisections=self.pupil_bisections)
+                                         bisections=self.pupil_bisections, options=options)
                         if self.pupil == "traced":
                             reg.rx *= self.shrink
                             reg.ry *= self.shrink
                         shared = reg
                     self.regions[(f, wl)] = shared
-                    self.masks[(f, wl)] = self._trace(lens, f, wl).valid.clone()
+                    self.masks[(f, wl)] = self._trace(lens, f, wl, options).valid.clone()
                     if int(self.masks[(f, wl)].sum()) == 0:
                         raise ValueError(f"field {f:g} deg at {wl:g} nm: no ray reaches the image")
                     if self.reference == "chief":
-                        self.aims[(f, wl)] = chief_ray(lens, f, wl, self.image_plane)[1]
+                        self.aims[(f, wl)] = chief_ray(lens, f, wl, self.image_plane,
+                                                       options=options)[1]
         return self
 
     def _bundle(self, lens, keys):
@@ -148,9 +154,10 @@ class SpotMerit:
             k0 += r.o.shape[0]
         return Rays(torch.cat(o), torch.cat(d), torch.cat(w), normalize=False), sl
 
-    def _trace(self, lens, f, wl):
+    def _trace(self, lens, f, wl, options=None):
         rays, _ = self._bundle(lens, [(f, wl)])
-        return lens.trace_to_sensor(rays, z_image=image_plane_z(lens, self.image_plane))
+        return lens.trace_to_sensor(rays, z_image=image_plane_z(lens, self.image_plane),
+                                    options=options)
 
     def _need(self):
         if self.regions is None:
@@ -158,12 +165,13 @@ class SpotMerit:
 
     def _blocks(self, lens, keys=None):
         """``{(f, λ): (deviations (M, 2) masked, valid mask, count, rms)}`` for ``keys``
-        (default all), from one trace."""
+        (default all), from one trace; ``lens`` may be a Camera (its options)."""
+        lens, _, options = unpack(lens, None, None, "SpotMerit")
         self._need()
         keys = [(f, wl) for f in self.fields for wl in self.waves] if keys is None else keys
         rays, sl = self._bundle(lens, keys)
         z_img = image_plane_z(lens, self.image_plane)
-        out = lens.trace_to_sensor(rays, z_image=z_img)
+        out = lens.trace_to_sensor(rays, z_image=z_img, options=options)
         if self.reference == "chief":
             dtype = lens.distances[0].dtype
             o, d, w = [], [], []
@@ -172,7 +180,8 @@ class SpotMerit:
                 r = field_rays(lens, f, wl, xy, self.regions[(f, wl)].z)
                 o.append(r.o), d.append(r.d), w.append(r.wavelength)
             chief = lens.trace_to_sensor(Rays(torch.cat(o), torch.cat(d), torch.cat(w),
-                                              normalize=False), z_image=z_img)
+                                              normalize=False), z_image=z_img,
+                                         options=options)
         res = {}
         for k, (f, wl) in enumerate(keys):
             s = sl[(f, wl)]
@@ -203,7 +212,8 @@ class SpotMerit:
 
     # ---------------------------------------------------------------- evaluation
     def residuals(self, lens) -> torch.Tensor:
-        """The residual vector ``(sum_fλ 2 M_fλ,)`` in mm (module docstring)."""
+        """The residual vector ``(sum_fλ 2 M_fλ,)`` in mm (module docstring); ``lens``: a Lens
+        or a Camera (its options are used)."""
         b = self._blocks(lens)
         out = []
         for i, f in enumerate(self.fields):
@@ -236,7 +246,8 @@ class TargetMerit:
         return self
 
     def value(self, lens) -> torch.Tensor:
-        return getattr(paraxial(lens), self.quantity)
+        """The paraxial quantity (no ray is traced); ``lens`` may be a Camera."""
+        return getattr(paraxial(unpack(lens)[0]), self.quantity)
 
     def residuals(self, lens) -> torch.Tensor:
         q = self.value(lens)
@@ -253,6 +264,9 @@ class DistortionMerit:
         self.wavelength, self.image_plane, self.weight = wavelength_nm, image_plane, float(weight)
 
     def prepare(self, lens):
+        """Aim the chief rays on ``lens`` as it is now; ``lens``: a Lens or a
+        :class:`~deeplens.optics.camera.Camera` (its options reach the aiming traces)."""
+        lens, _, options = unpack(lens, None, None, "DistortionMerit.prepare")
         if self.fields is None:
             self.fields = [f for f in lens.spec.fields_deg if float(f) != 0.0]
         if not self.fields:
@@ -260,11 +274,14 @@ class DistortionMerit:
         wl = float(lens.spec.primary_wavelength_nm if self.wavelength is None
                    else self.wavelength)
         self.wavelength = wl
-        self.aims = [chief_ray(lens, f, wl, self.image_plane)[1] for f in self.fields]
+        self.aims = [chief_ray(lens, f, wl, self.image_plane, options=options)[1]
+                     for f in self.fields]
         return self
 
     def distortion(self, lens) -> torch.Tensor:
-        """Relative distortion ``(F,)`` (dimensionless; x100 for percent)."""
+        """Relative distortion ``(F,)`` (dimensionless; x100 for percent); ``lens``: a Lens or a
+        Camera (its options are used)."""
+        lens, _, options = unpack(lens, None, None, "DistortionMerit.distortion")
         dtype = lens.distances[0].dtype
         z_img = image_plane_z(lens, self.image_plane)
         kappa = chief_ray_scale(lens, z_img, self.wavelength)
@@ -273,7 +290,7 @@ class DistortionMerit:
         for f, yp in zip(self.fields, self.aims):
             xy = torch.tensor([[0.0, yp]], dtype=dtype)
             c = lens.trace_to_sensor(field_rays(lens, f, self.wavelength, xy, z_ep),
-                                     z_image=z_img)
+                                     z_image=z_img, options=options)
             if not bool(c.valid[0]):
                 raise Infeasible(f"the chief ray of field {f:g} deg is lost", kind="vignetted")
             ideal = kappa * math.tan(math.radians(f))
@@ -286,7 +303,9 @@ class DistortionMerit:
 
 class Merit:
     """A sum of terms, each with ``prepare(lens)`` and ``residuals(lens) -> (m_k,)``; the merit
-    value is ``sum r^2`` over all of them (constraints from :mod:`.constraints` are terms too)."""
+    value is ``sum r^2`` over all of them (constraints from :mod:`.constraints` are terms too).
+    ``lens`` may be a :class:`~deeplens.optics.camera.Camera`: it is handed to every term, so
+    its options reach every trace (the terms here and the constraints take a camera)."""
 
     def __init__(self, *terms):
         self.terms = [t for t in terms if t is not None]

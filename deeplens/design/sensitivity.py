@@ -29,11 +29,12 @@ import warnings
 
 import torch
 
+from ..optics.camera import Camera, unpack
 from ..optics.materials import Air
 from ..optics.surfaces import Aperture
 from .merit import SpotMerit
 from .optimizers import jacobian
-from .variables import Variables
+from .variables import Variables, on_camera
 
 __all__ = ["tolerance_parameters", "field_merits", "sensitivity_matrix",
            "finite_difference_matrix", "rss_estimate", "KINDS"]
@@ -65,9 +66,15 @@ def tolerance_parameters(lens, kinds=KINDS) -> list[str]:
 
 
 def field_merits(merit: SpotMerit, lens) -> torch.Tensor:
-    """``ε_f = sqrt(mean_λ RMS_fλ^2)`` ``(F,)`` in mm."""
+    """``ε_f = sqrt(mean_λ RMS_fλ^2)`` ``(F,)`` in mm; ``lens``: a Lens or a Camera (its
+    options are used)."""
     rms = merit.rms(lens)
     return torch.sqrt((rms * rms).mean(-1))
+
+
+def _split(lens, where):
+    """``(camera or None, lens)`` of a Lens or a :class:`~deeplens.optics.camera.Camera`."""
+    return (lens if isinstance(lens, Camera) else None), unpack(lens, where=where)[0]
 
 
 def _unscaled(lens, names):
@@ -80,17 +87,23 @@ def sensitivity_matrix(lens, merit: SpotMerit, names, mode: str = "forward") -> 
 
     ``merit`` must be prepared on the nominal ``lens`` (its pupil regions are held fixed).
     ``mode="reverse"`` builds the same matrix from ``F`` vector-Jacobian products instead (one
-    trace and ``F`` backward passes: cheaper when there are fewer fields than parameters)."""
+    trace and ``F`` backward passes: cheaper when there are fewer fields than parameters).
+    ``lens``: a Lens or a :class:`~deeplens.optics.camera.Camera` (its options reach every
+    trace of the merit)."""
+    cam, lens = _split(lens, "sensitivity_matrix")
     v = _unscaled(lens, names)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Converting a tensor with requires_grad")
-        _, J = jacobian(lambda x: v.call(lambda L: field_merits(merit, L), x), v.x0(), mode)
+        _, J = jacobian(lambda x: v.call(lambda L: field_merits(merit, on_camera(cam, L)), x),
+                        v.x0(), mode)
     return J
 
 
 def finite_difference_matrix(lens, merit: SpotMerit, names, steps=None) -> torch.Tensor:
     """Central differences ``(ε(θ + h) - ε(θ - h)) / 2h`` ``(F, P)``; default steps ``h``:
-    1e-5 mm (decenters, spacings), 1e-6 rad (tilts), 1e-6 |c| (curvatures)."""
+    1e-5 mm (decenters, spacings), 1e-6 rad (tilts), 1e-6 |c| (curvatures).  ``lens``: a Lens
+    or a Camera (its options are used)."""
+    cam, lens = _split(lens, "finite_difference_matrix")
     v = _unscaled(lens, names)
     x0 = v.x0()
     cols = []
@@ -106,8 +119,8 @@ def finite_difference_matrix(lens, merit: SpotMerit, names, steps=None) -> torch
                 h = 1e-5
             e = torch.zeros_like(x0)
             e[j] = h
-            fp = v.call(lambda L: field_merits(merit, L), x0 + e)
-            fm = v.call(lambda L: field_merits(merit, L), x0 - e)
+            fp = v.call(lambda L: field_merits(merit, on_camera(cam, L)), x0 + e)
+            fm = v.call(lambda L: field_merits(merit, on_camera(cam, L)), x0 - e)
             cols.append((fp - fm) / (2 * h))
     return torch.stack(cols, -1)
 
@@ -116,6 +129,7 @@ def rss_estimate(lens, merit: SpotMerit, names, sigmas) -> dict:
     """The second-order RSS estimate of the module docstring.
 
     Args:
+        lens: a Lens or a :class:`~deeplens.optics.camera.Camera` (its options are used).
         sigmas: ``(P,)`` standard deviations of the parameters (their units).
 
     Returns:
@@ -125,6 +139,7 @@ def rss_estimate(lens, merit: SpotMerit, names, sigmas) -> dict:
     sig = torch.as_tensor(sigmas, dtype=torch.float64)
     if sig.shape != (len(names),):
         raise ValueError(f"need {len(names)} sigmas, got shape {tuple(sig.shape)}")
+    cam, lens = _split(lens, "rss_estimate")
     v = _unscaled(lens, names)
     F, W = len(merit.fields), len(merit.waves)
     nominal, contrib = [], []
@@ -135,7 +150,7 @@ def rss_estimate(lens, merit: SpotMerit, names, sigmas) -> dict:
             for wl in merit.waves:
                 def res(x, f=f, wl=wl):
                     def on(L):
-                        dev, ok, n, _ = merit._block(L, f, wl)
+                        dev, ok, n, _ = merit._block(on_camera(cam, L), f, wl)
                         return (dev / torch.sqrt(n.to(dev))).reshape(-1)
                     return v.call(on, x)
                 r, J = jacobian(res, v.x0(), "forward")

@@ -26,7 +26,8 @@ from pathlib import Path
 import torch
 
 from ..optics.parameters import glob_names
-from .sensitivity import _unscaled, field_merits, tolerance_parameters
+from .sensitivity import _split, _unscaled, field_merits, tolerance_parameters
+from .variables import on_camera
 
 __all__ = ["DEFAULT_TOLERANCES", "load_tolerances", "resolve_tolerances", "monte_carlo",
            "monte_carlo_figure"]
@@ -96,7 +97,8 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
     rays are dropped as vignetted).  With a tolerance group ``model``
     (:class:`~.tolerance_model.ToleranceModel`) trial ``k`` is instead the lens it draws with
     seed ``seed + k`` (``names``/``half_widths`` unused): the lenses training and evaluation
-    under that group draw.
+    under that group draw.  ``lens``: a Lens or a :class:`~deeplens.optics.camera.Camera` (its
+    options reach every trace of the merit and of the draws' centring).
 
     Returns:
         ``{"n", "seed", "nominal_um" (F,), "samples_um" (n, F), "percentiles_um":
@@ -105,13 +107,14 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
     if n < 1:
         raise ValueError(f"--monte-carlo must be >= 1, got {n}")
     t = torch.as_tensor(half_widths, dtype=torch.float64)
+    cam, lens = _split(lens, "monte_carlo")
     if model is not None:
         from .tolerance_model import call_drawn
 
         def trial(k):
-            return call_drawn(lens, model.draw(lens, int(seed) + k),
+            return call_drawn(on_camera(cam, lens), model.draw(lens, int(seed) + k),
                               lambda L: field_merits(merit, L))
-        nominal_of = (lambda: field_merits(merit, lens))  # noqa: E731
+        nominal_of = (lambda: field_merits(merit, on_camera(cam, lens)))  # noqa: E731
     else:
         v = _unscaled(lens, names)
         x0 = v.x0()
@@ -119,8 +122,9 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
 
         def trial(k):
             u = 2.0 * torch.rand(len(names), generator=g, dtype=torch.float64) - 1.0
-            return v.call(lambda L: field_merits(merit, L), x0 + u * t)
-        nominal_of = (lambda: v.call(lambda L: field_merits(merit, L), x0))  # noqa: E731
+            return v.call(lambda L: field_merits(merit, on_camera(cam, L)), x0 + u * t)
+        def nominal_of():
+            return v.call(lambda L: field_merits(merit, on_camera(cam, L)), x0)
     strict = merit.strict_rays
     merit.strict_rays = False
     samples = []

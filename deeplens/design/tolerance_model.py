@@ -353,16 +353,23 @@ def drawn(lens, draw: LensDraw | None):
     by the drawn values (differentiable functions of the nominal ones), its glasses by
     :class:`PerturbedMaterial`, and with ``draw.compensate`` its sensor refocused.  Everything
     holding ``lens`` (renderer, camera) sees the drawn lens; on exit the nominal parameter
-    objects are back, unchanged.  ``draw=None``: the nominal lens."""
+    objects are back, unchanged.  ``draw=None``: the nominal lens.  ``lens`` may be a
+    :class:`~deeplens.optics.camera.Camera`: its lens is drawn, the centring traces run at its
+    options, and the block gets the camera."""
     if draw is None:
         yield lens
         return
     from torch.nn.utils.stateless import _reparametrize_module
 
+    from ..optics.camera import unpack
+
+    given = lens
+    lens, _, options = unpack(lens, None, None, "drawn")
+
     # the compensator: the sensor follows the paraxial image of the object (differentiably), after
     # the drawn sensor error; the image distance is measured with the drawn values and glasses
     nominal = _image_distance(lens) if draw.compensate else None
-    target = axis_image(lens) if draw.center else None
+    target = axis_image(lens, options=options) if draw.center else None
     with _swapped_materials(lens, draw):
         values = draw.values(lens)
         with _reparametrize_module(lens, dict(values), strict=False):
@@ -373,28 +380,33 @@ def drawn(lens, draw: LensDraw | None):
             params = dict(lens.named_parameters())  # the nominal parameters (no block open)
             for _ in range(3):
                 with _reparametrize_module(lens, dict(values), strict=False):
-                    miss = axis_image(lens) - target
+                    miss = axis_image(lens, options=options) - target
                 for e in range(len(lens.elements)):
                     for k, name in enumerate((f"misalignments.{e}.dx", f"misalignments.{e}.dy")):
                         values[name] = values.get(name, params[name]) - miss[k].to(params[name])
         with _reparametrize_module(lens, dict(values), strict=False):
-            yield lens
+            yield given
 
 
-def axis_image(lens, sampling: str = "hexapolar:6", pupil_fill: float = 0.95) -> torch.Tensor:
+def axis_image(lens, sampling: str = "hexapolar:6", pupil_fill: float = 0.95,
+               options=None) -> torch.Tensor:
     """``(2,)`` (mm): where ``lens`` images the on-axis object point (``lens.spec``'s object
     distance) on its sensor: the centroid of the rays that reach it, traced at the primary
     wavelength through ``sampling`` over ``pupil_fill`` of the paraxial entrance pupil;
-    differentiable in the lens's parameters.
+    differentiable in the lens's parameters.  ``lens``: a Lens (traced with ``options``) or a
+    :class:`~deeplens.optics.camera.Camera` (its options are used).
 
     Raises:
         ValueError: no ray of the bundle reaches the sensor."""
+    from ..optics.camera import unpack
     from ..optics.sampling import point_source_rays
+
+    lens, _, options = unpack(lens, None, options, "axis_image")
 
     rays = point_source_rays(lens, (0.0, 0.0), lens.spec.object_distance_mm,
                              lens.spec.primary_wavelength_nm, 0, sampling=sampling,
                              pupil_margin=pupil_fill)
-    out = lens.trace_to_sensor(rays)
+    out = lens.trace_to_sensor(rays, options=options)
     ok = out.valid.unsqueeze(-1).to(out.o.dtype)
     if not bool(out.valid.any()):
         raise ValueError(f"compensator 'center': no ray of the on-axis bundle reaches the sensor "
@@ -403,7 +415,8 @@ def axis_image(lens, sampling: str = "hexapolar:6", pupil_fill: float = 0.95) ->
 
 
 def call_drawn(lens, draw: LensDraw | None, fn):
-    """``fn(lens)`` evaluated on the drawn lens (:func:`drawn`)."""
+    """``fn(lens)`` evaluated on the drawn lens (:func:`drawn`; ``lens`` may be a camera, then
+    ``fn`` gets the camera of the drawn lens)."""
     with drawn(lens, draw) as L:
         return fn(L)
 

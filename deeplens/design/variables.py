@@ -25,9 +25,22 @@ import math
 import torch
 from torch import nn
 
+from ..optics.camera import Camera
 from ..optics.parameters import parameter_scale, resolve_names
 
-__all__ = ["parameter_scale", "Variables", "resolve_names"]
+__all__ = ["parameter_scale", "Variables", "resolve_names", "on_camera"]
+
+
+def on_camera(camera: Camera | None, lens):
+    """``lens`` as a merit should see it: ``lens`` itself when ``camera`` is ``None``, else
+    ``camera`` when it holds this lens (inside :meth:`Variables.call` the lens is the camera's,
+    with substituted values), else a :class:`~deeplens.optics.camera.Camera` of ``lens`` with
+    ``camera``'s sensor and options, so that the camera's options reach every trace."""
+    if camera is None:
+        return lens
+    if lens is camera.lens:
+        return camera
+    return Camera(lens, camera.sensor, camera.options)
 
 
 class _Call(nn.Module):
@@ -60,6 +73,8 @@ class Variables:
     """
 
     def __init__(self, lens, patterns, scales: dict | None = None, what: str = "--vary"):
+        if isinstance(lens, Camera):  # the variables of the camera's lens
+            lens = lens.lens
         self.lens = lens
         self.names = resolve_names(lens, patterns, what)
         params = dict(lens.named_parameters())

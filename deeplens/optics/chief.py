@@ -14,11 +14,12 @@ import math
 
 import torch
 
+from .camera import unpack
 from .options import TraceOptions
 from .paraxial import paraxial
 from .sampling import field_rays
 
-__all__ = ["chief_ray", "image_plane_z"]
+__all__ = ["aiming_options", "chief_ray", "image_plane_z"]
 
 
 def image_plane_z(lens, image_plane="sensor"):
@@ -33,20 +34,33 @@ def image_plane_z(lens, image_plane="sensor"):
                      f"{image_plane!r}")
 
 
+def aiming_options(options: TraceOptions | None) -> TraceOptions:
+    """The options of an aiming trace: ``options`` (``None``: the defaults) without clear
+    apertures, so a camera's tolerance and iterations reach its aiming traces too."""
+    return (options or TraceOptions()).replace(clip_aperture=False)
+
+
 def chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor",
-              iterations: int = 30):
+              iterations: int = 30, options: TraceOptions | None = None):
     """The real chief ray (aimed by secant iterations at the stop centre).
+
+    Args:
+        lens: a :class:`~.lens.Lens` (traced with ``options``) or a
+            :class:`~.camera.Camera` (its options are used).
+        options: the :class:`~.options.TraceOptions` of the traces (``None``: the defaults);
+            the aiming traces run at these without clear apertures (:func:`aiming_options`).
 
     Returns ``(y_image_mm, y_pupil_mm)``: its height on the image plane and where it crosses the
     entrance-pupil plane.  Heights are signed: a positive field angle (rays rising towards
     ``+y``) images to ``+y`` through an imaging lens.
     """
+    lens, _, options = unpack(lens, None, options, "chief_ray")
     dtype = lens.dtype
     with torch.no_grad():
         p = paraxial(lens)
         z_ep = float(p.entrance_pupil_z)
 
-        aim = TraceOptions(clip_aperture=False)
+        aim = aiming_options(options)
         z = lens.z_vertices()
         n = lens.indices(torch.tensor(wavelength_nm, dtype=dtype))
 
@@ -67,6 +81,6 @@ def chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor"
             f1 = stop_y(y1)
     xy = torch.tensor([[0.0, y1]], dtype=dtype)
     rays = field_rays(lens, field_deg, wavelength_nm, xy, z_ep)
-    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane))
+    out = lens.trace_to_sensor(rays, z_image=image_plane_z(lens, image_plane), options=options)
     y_img = out.o[0, 1] if bool(out.valid[0]) else torch.tensor(math.nan, dtype=dtype)
     return y_img, y1

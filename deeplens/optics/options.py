@@ -8,6 +8,8 @@ scheduler (:mod:`.tracer`: eager or compiled runs, checkpointing) and by the int
 
 from __future__ import annotations
 
+from .compile_policy import CompileLedger
+
 __all__ = ["TraceOptions"]
 
 
@@ -25,7 +27,11 @@ class TraceOptions:
         checkpoint: keep only each surface's incoming ray state for backward and recompute
             the surface there (about 40 instead of 120 bytes per ray and surface in float32,
             for about 1.5x the backward's time).
-        compile: ``"surface"`` runs each aligned sphere, conic, plane, stop, even asphere or XY
+        compile: ``"default"`` (the default): eager until compiling would have paid, then
+            compiled (:mod:`.compile_policy`: the ski-rental rule, per kernel signature, kept
+            in this object's :attr:`ledger`; a one-off call stays eager); ``False`` eager
+            always (the off switch; also ``DEEPLENS_COMPILE=0`` for ``"default"``);
+            ``"surface"`` runs each aligned sphere, conic, plane, stop, even asphere or XY
             polynomial's intersect + refract as ``torch.compile``d kernels, ``"lens"`` each run
             of aligned spheres, conics, planes and stops as one kernel, ``True`` (``"auto"``)
             picks ``"lens"`` when nothing needs a gradient and ``"surface"`` otherwise
@@ -33,22 +39,27 @@ class TraceOptions:
             and dtype compiles, later calls and other ray counts reuse it; a ``record``ed trace,
             ``closed_form=False`` and ``mode="unrolled"`` stay eager).
 
+    Attributes:
+        ledger: the :class:`~.compile_policy.CompileLedger` of ``compile="default"`` (each
+            options object has its own; :meth:`replace` starts a new one).
+
     Raises:
         ValueError: an unknown ``compile`` or ``mode``, ``max_iter < 1``, ``tol <= 0``.
     """
 
-    __slots__ = ("checkpoint", "clip_aperture", "closed_form", "compile", "max_iter", "mode",
-                 "tol")
+    __slots__ = ("checkpoint", "clip_aperture", "closed_form", "compile", "ledger", "max_iter",
+                 "mode", "tol")
 
     def __init__(self, tol: float | None = None, max_iter: int = 30, mode: str = "implicit",
                  clip_aperture: bool = True, closed_form: bool = True, checkpoint: bool = False,
-                 compile: bool | str = False):
+                 compile: bool | str = "default"):
         if compile is True:
             compile = "auto"
-        if compile not in (False, None, "auto", "surface", "lens"):
-            raise ValueError(f"compile must be False, True ('auto'), 'surface' or 'lens', got "
-                             f"{compile!r}")
+        if compile not in (False, None, "default", "auto", "surface", "lens"):
+            raise ValueError(f"compile must be 'default', False, True ('auto'), 'surface' or "
+                             f"'lens', got {compile!r}")
         self.compile = compile or False
+        self.ledger = CompileLedger()
         self.clip_aperture = bool(clip_aperture)
         self.closed_form = bool(closed_form)
         self.checkpoint = bool(checkpoint)
@@ -64,7 +75,7 @@ class TraceOptions:
         """A new :class:`TraceOptions` with ``changes`` (keyword arguments of the constructor)
         and every other setting of this one, e.g. ``options.replace(clip_aperture=False)`` for
         the aiming traces of an analysis run at a camera's tolerance and iterations."""
-        kw = {k: getattr(self, k) for k in self.__slots__}
+        kw = {k: getattr(self, k) for k in self.__slots__ if k != "ledger"}
         unknown = set(changes) - set(kw)
         if unknown:
             raise TypeError(f"TraceOptions.replace: unknown settings {sorted(unknown)}")

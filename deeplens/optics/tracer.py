@@ -7,6 +7,8 @@ refraction).  This module decides how a whole trace runs, from one :class:`~.opt
 * eager: surface after surface through :meth:`~.lens.Lens.trace_surface`;
 * ``checkpoint=True``: each surface inside ``torch.utils.checkpoint`` (backward recomputes it
   from the incoming ray state, :func:`surface_checkpointed`);
+* ``compile="default"`` (the default): eager until compiling has paid for the trace's kernel
+  signature, then as ``compile="auto"`` (:func:`default_mode`, :mod:`.compile_policy`);
 * ``compile=...``: runs of aligned spheres, conics, planes and stops as fused kernels and aligned
   even aspheres and XY polynomials as compiled Newton chunks (:mod:`.compiled`,
   :func:`trace_compiled`); :func:`fused_kind` says which surface runs how, and everything else
@@ -33,7 +35,8 @@ from .options import TraceOptions
 from .rays import Rays, compact_broadcast as _compact, from_soa, to_soa
 from .surfaces import Aperture, Asphere, CoordinateBreak, Plane, Surface
 
-__all__ = ["fused_kind", "newton_compiled", "surface_checkpointed", "trace", "trace_compiled"]
+__all__ = ["default_mode", "fused_kind", "newton_compiled", "surface_checkpointed", "trace",
+           "trace_compiled"]
 
 
 def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | None = None,
@@ -51,7 +54,12 @@ def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | No
         step = functools.partial(surface_checkpointed, lens)
     if (options is not None and options.compile and options.closed_form
             and options.mode == "implicit" and not record and not lens.folded()):
-        return trace_compiled(lens, rays, order, n, z, reverse, options, step, propagate_to)
+        mode = options.compile
+        if mode == "default":
+            mode = default_mode(lens, rays, options, reverse)
+        if mode:
+            return trace_compiled(lens, rays, order, n, z, reverse, options, step, propagate_to,
+                                  mode)
     for i in order:
         n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
         if isinstance(lens.surfaces[i], CoordinateBreak):  # a change of frame only
@@ -158,8 +166,31 @@ def newton_compiled(lens, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol
                                                  use_reentrant=False)
     return C.call(C.compiled_newton_refract, *args)
 
+def _needs_grad(lens, rays: Rays) -> bool:
+    """Whether the trace builds an autograd graph (rays or lens parameters require one)."""
+    return torch.is_grad_enabled() and (
+        rays.o.requires_grad or rays.d.requires_grad or rays.opl.requires_grad
+        or any(p.requires_grad for p in lens.parameters()))
+
+
+def default_mode(lens, rays: Rays, options: TraceOptions, reverse: bool):
+    """``compile="default"``: ``"auto"`` when the ski-rental ledger of ``options`` says that
+    compiling this trace's kernel signature has paid (:mod:`.compile_policy`), else ``False``
+    (eager; the call is charged to the ledger)."""
+    from .compile_policy import MIN_RAYS
+
+    if rays.valid.numel() < MIN_RAYS:  # small calls stay eager (and cost nothing to decide)
+        return False
+    kinds = tuple(fused_kind(lens, i) for i in range(len(lens.surfaces)))
+    n_fused = sum(k is not None for k in kinds)
+    grad = _needs_grad(lens, rays)
+    key = (f"{kinds}|{str(rays.dtype)}|{rays.o.device.type}|grad={grad}|reverse={reverse}")
+    run = options.ledger.charge(key, rays.valid.numel(), n_fused, grad, rays.o.device)
+    return "auto" if run else False
+
+
 def trace_compiled(lens, rays: Rays, order, n, z, reverse: bool, options: TraceOptions,
-                   step, propagate_to=None) -> Rays:
+                   step, propagate_to=None, mode=None) -> Rays:
     """:func:`trace` with runs of aligned spheres, conics, planes and stops, and aligned
     even aspheres and XY polynomials, in compiled kernels (:mod:`.compiled`); every other
     surface goes through ``step``.  While ``soa`` holds the ray state, ``rays`` carries only
@@ -171,10 +202,10 @@ def trace_compiled(lens, rays: Rays, order, n, z, reverse: bool, options: TraceO
     tol = options.tol if options.tol is not None else default_tolerance(rays.dtype)
     clip = options.clip_aperture
     checkpoint = options.checkpoint and torch.is_grad_enabled()
-    per_surface = options.compile == "surface"
-    if options.compile == "auto" and torch.is_grad_enabled():
-        per_surface = (rays.o.requires_grad or rays.d.requires_grad or rays.opl.requires_grad
-                       or any(p.requires_grad for p in lens.parameters()))
+    mode = options.compile if mode is None else mode
+    per_surface = mode == "surface"
+    if mode == "auto":
+        per_surface = _needs_grad(lens, rays)
     order = list(order)
     soa = None  # (o, d) component-major (3, *B) while between compiled runs
 

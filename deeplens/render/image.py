@@ -18,6 +18,7 @@ from pathlib import Path
 
 import torch
 
+from ..optics.camera import unpack
 from .monte_carlo import MonteCarloRenderer
 from .scene import Scene
 from .sensor import RGB_WAVELENGTHS_NM, Sensor
@@ -98,9 +99,12 @@ def default_pixel_size(lens, resolution) -> float:
 
 
 def render_image(lens, image: torch.Tensor, depth_mm: float, *, pixel_size_mm=None,
-                 spp: int = 16, seed: int = 0) -> torch.Tensor:
+                 spp: int = 16, seed: int = 0, options=None) -> torch.Tensor:
     """Render ``image`` ``(C, H, W)`` (linear, C = 1 or 3) placed at ``depth_mm`` in front of
     the lens onto a sensor of the same resolution (module docstring); returns ``(C, H, W)``.
+    ``lens``: a Lens (traced with ``options``, ``None``: the defaults) or a
+    :class:`~deeplens.optics.camera.Camera` (its lens and options; the sensor is the one made
+    here for the image's resolution).
 
     Raises:
         ValueError: a bad depth, channel count or pixel pitch.
@@ -108,12 +112,14 @@ def render_image(lens, image: torch.Tensor, depth_mm: float, *, pixel_size_mm=No
     if image.ndim != 3 or image.shape[0] not in (1, 3):
         raise ValueError(f"render_image: image must be (C, H, W) with C = 1 or 3, got "
                          f"{tuple(image.shape)}")
+    lens, _, options = unpack(lens, None, options, "render_image")
     H, W = image.shape[-2:]
     p = default_pixel_size(lens, (H, W)) if pixel_size_mm is None else float(pixel_size_mm)
     if not p > 0:
         raise ValueError(f"render_image: the pixel pitch must be > 0 mm, got {pixel_size_mm!r}")
     sensor = Sensor((H, W), p, channels=[[w] for w in RGB_WAVELENGTHS_NM])
-    renderer = MonteCarloRenderer(lens, sensor, spp=spp, adjoint=False, seed=seed)
+    renderer = MonteCarloRenderer(lens, sensor, spp=spp, adjoint=False, seed=seed,
+                                  options=options)
     scene = Scene(image.to(lens.dtype), float(depth_mm))
     with torch.no_grad():
         return renderer(scene)[0]

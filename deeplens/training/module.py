@@ -35,6 +35,7 @@ from kornia.metrics import ssim as kornia_ssim
 
 from ..optics.camera import Camera, as_camera
 from ..render import IdealCamera, Scene
+from . import compile_choice
 from .checkpoint import LOADED_FROM, check_compatible, override_learning_rates
 from .constraints import SagDepartureConstraint
 from .depth_weighting import SOFT_MAX_DEFAULTS, depth_bin, soft_max_weights
@@ -438,9 +439,22 @@ class EndToEndModule(L.LightningModule):
         and raise :class:`NonFiniteLossError` (:func:`.nonfinite.stop`)."""
         stop(self, step, what)
 
+    def on_train_batch_start(self, batch, batch_idx):
+        compile_choice.begin_step(self)
+
+    def on_train_batch_end(self, outputs, batch, batch_idx):
+        compile_choice.end_step(self)
+
+    def on_save_checkpoint(self, checkpoint):
+        """Also store the run's choice of tracer (:mod:`.compile_choice`), so that a resumed
+        run traces as the uninterrupted one did."""
+        compile_choice.store(self, checkpoint)
+
     def on_load_checkpoint(self, checkpoint):
-        """Refuse a checkpoint of another experiment with a message naming its file."""
+        """Refuse a checkpoint of another experiment with a message naming its file; apply the
+        choice of tracer it stored (:mod:`.compile_choice`)."""
         path = checkpoint.pop(LOADED_FROM, None)
+        compile_choice.restore(self, checkpoint)
         groups = None
         if self._trainer is not None and self.trainer.state.fn == "fit":
             groups = [g["name"] for g in self._param_groups()]

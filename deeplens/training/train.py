@@ -112,6 +112,10 @@ def check_config(cfg: DictConfig) -> None:
     check_sizes(cfg)
 
 
+#: the values of ``render.compile`` (:class:`~deeplens.optics.options.TraceOptions`)
+_COMPILE_VALUES = "'default', false, true ('auto'), 'surface' or 'lens'"
+
+
 def _check_render(cfg: DictConfig) -> None:
     """``render.compile`` (a setting of :class:`~deeplens.optics.options.TraceOptions`) and
     the PSF model's settings (``render.psf_model``, ``psf_error_budget``, ``psf_remeasure``:
@@ -119,12 +123,11 @@ def _check_render(cfg: DictConfig) -> None:
     ``render.kind=psf``)."""
     from ..render.psf_model import PSFModel
 
-    c = OmegaConf.select(cfg, "render.compile", default=False)
+    c = OmegaConf.select(cfg, "render.compile", default="default")
     try:
         TraceOptions(compile=c)
     except ValueError:
-        raise ConfigError("render.compile", "false, true ('auto'), 'surface' or 'lens'",
-                          c) from None
+        raise ConfigError("render.compile", _COMPILE_VALUES, c) from None
     r = cfg.render
     PSFModel(r.get("psf_model", "geometric"), r.get("psf_error_budget", 0.05),
              r.get("psf_remeasure", 0.1))
@@ -275,10 +278,9 @@ def build_camera(cfg, lens, sensor) -> Camera:
     r = cfg.render
     try:
         opts = TraceOptions(tol=r.newton_tol, max_iter=r.max_iter,
-                            compile=r.get("compile", False))
+                            compile=r.get("compile", "default"))
     except ValueError:
-        raise ConfigError("render.compile", "false, true ('auto'), 'surface' or 'lens'",
-                          r.get("compile", False)) from None
+        raise ConfigError("render.compile", _COMPILE_VALUES, r.get("compile", "default")) from None
     return Camera(lens, sensor, opts)
 
 

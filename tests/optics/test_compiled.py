@@ -29,7 +29,7 @@ from deeplens.optics.sampling import field_rays
 from deeplens.optics.surfaces import Aperture, Asphere, Sphere
 
 F64 = torch.float64
-EAGER = IntersectOptions()
+EAGER = IntersectOptions(compile=False)
 GENERIC = IntersectOptions(tol=1e-13, closed_form=False)
 
 
@@ -177,7 +177,9 @@ def test_fused_path_xy_polynomial_equals_eager(uncompiled, reverse, b):
 
 def test_compile_option_is_checked():
     assert IntersectOptions(compile=True).compile == "auto"
-    assert IntersectOptions().compile is False
+    assert IntersectOptions().compile == "default"
+    assert IntersectOptions(compile=None).compile is False
+    assert IntersectOptions(compile=False).compile is False
     with pytest.raises(ValueError, match="compile must be"):
         IntersectOptions(compile="fast")
 

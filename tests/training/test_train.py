@@ -433,7 +433,8 @@ def test_render_compile_switch_reaches_the_tracer(cfg_factory):
     cfg = cfg_factory("experiment=edof", "render.compile=true")
     r = build_renderer(cfg, objs["lens"], objs["sensor"])
     assert r.options.compile == "auto"
-    with pytest.raises(ValueError, match=r"render.compile: expected false, true .*, got 'fastest'"):
+    with pytest.raises(ValueError, match=r"render.compile: expected 'default', false, .*, "
+                                         r"got 'fastest'"):
         build_renderer(cfg_factory("experiment=edof", "render.compile=fastest"), objs["lens"],
                        objs["sensor"])
 
