@@ -497,6 +497,10 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
         return "", {}
     todo = variants(cfg)
     seed_list = seeds(cfg)
+    if any(k in ("classical", "refined") for _, k, _ in todo) and not list(cfg.lens.trainable):
+        # not in check_eval_config: a classical variant's own config has no trainable terms
+        raise ConfigError("lens.trainable", "the variables the classical variant designs "
+                          "(eval.variants has classical or refined), not an empty list", [])
     if cfg.eval.test_folder is not None:
         _check_test_folder(cfg.eval.test_folder, cfg.data.image_size)
     tol = tolerance_eval.EvalTolerance.from_cfg(cfg)  # checked before anything trains

@@ -219,6 +219,11 @@ def test_eval_checks_every_key_before_anything_runs(cfg_factory, monkeypatch):
     cfg = cfg_factory(*EDOF, "model.deconvolution={depths:0}", config_name=EVAL)
     with pytest.raises(ConfigError, match=r"^model\.deconvolution\.depths: expected"):
         evaluate.evaluate(cfg)
+    cfg = cfg_factory(*DOUBLET, "eval.variants=[frozen,classical]", "lens.trainable=[]",
+                      config_name=EVAL)
+    with pytest.raises(ConfigError, match=r"^lens\.trainable: expected the variables the "
+                                          r"classical variant designs .*, got \[\]$"):
+        evaluate.evaluate(cfg)
     cfg = cfg_factory(*EDOF, "eval.launcher=joblib", "model.net_lr=0", config_name=EVAL)
     with pytest.raises(ConfigError, match=r"^model\.net_lr: expected"):
         entry._eval_task(cfg, ["-m", "deeplens", "eval"])
