@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ..optics.errors import ConfigError
 from ..optics.materials import Air, Material
 from ..optics.surfaces import Aperture
 from ..resources import config_dir
@@ -63,12 +64,12 @@ KINDS = {"radius": "relative or fringes", "thickness": "mm", "air_gap": "mm", "i
 
 
 def _num(v, where, lo=0.0, lo_open=False):
+    what = f"a finite number {'>' if lo_open else '>='} {lo:g}"
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise ValueError(f"{where}: expected a number, got {v!r}")
+        raise ConfigError(where, what, v)
     v = float(v)
     if not math.isfinite(v) or v < lo or (lo_open and v == lo):
-        raise ValueError(f"{where}: expected a finite number {'>' if lo_open else '>='} {lo:g}, "
-                         f"got {v!r}")
+        raise ConfigError(where, what, v)
     return v
 
 
@@ -87,16 +88,14 @@ class Distribution:
         if spec is None:
             return None
         if not isinstance(spec, dict):
-            raise ValueError(f"{where}: expected a mapping {{shape: normal|uniform, ...}} or "
-                             f"null, got {spec!r}")
+            raise ConfigError(where, "a mapping {shape: normal|uniform, ...} or null", spec)
         spec = dict(spec)
         spec.pop("unit", None)
         shape = spec.pop("shape", None)
         allowed = {"normal": {"std", "truncate"}, "uniform": {"half_width"}}.get(shape, set())
         extra = set(spec) - allowed
         if allowed and extra:
-            raise ValueError(f"{where}: unknown keys {sorted(extra)} for shape {shape!r} "
-                             f"(expected {sorted(allowed | {'shape'})})")
+            raise ConfigError.unknown(where, extra, ["shape", "unit", *sorted(allowed)])
         if shape == "normal":
             scale = _num(spec.get("std"), f"{where}.std")
             trunc = _num(spec.get("truncate", 3.0), f"{where}.truncate", 0.0, lo_open=True)
@@ -104,7 +103,7 @@ class Distribution:
             scale = _num(spec.get("half_width"), f"{where}.half_width")
             trunc = math.inf
         else:
-            raise ValueError(f"{where}.shape: expected 'normal' or 'uniform', got {shape!r}")
+            raise ConfigError(f"{where}.shape", "'normal' or 'uniform'", shape)
         return cls(shape, scale, trunc)
 
     @property
@@ -193,16 +192,13 @@ def _compensators(spec, where: str) -> tuple[str, ...]:
     """``null`` / ``none`` / a name / a list of names -> the tuple of compensator names."""
     if spec is None or spec == "none":
         return ()
+    what = f"null, one of {', '.join(COMPENSATORS)} or a list of them (each once)"
     names = [spec] if isinstance(spec, str) else spec
     if not isinstance(names, (list, tuple)) or not all(isinstance(n, str) for n in names):
-        raise ValueError(f"{where}: expected null, one of {', '.join(COMPENSATORS)} or a list "
-                         f"of them, got {spec!r}")
+        raise ConfigError(where, what, spec)
     bad = [n for n in names if n not in COMPENSATORS]
-    if bad:
-        raise ValueError(f"{where}: unknown compensator {bad[0]!r}; expected null, "
-                         f"{', '.join(COMPENSATORS)} or a list of them")
-    if len(set(names)) != len(names):
-        raise ValueError(f"{where}: a compensator is named twice in {list(names)}")
+    if bad or len(set(names)) != len(names):
+        raise ConfigError(where, what, spec)
     return tuple(n for n in COMPENSATORS if n in names)
 
 
@@ -216,7 +212,7 @@ class ToleranceModel:
         where: the config key for error messages (``"tolerance"``).
 
     Raises:
-        ValueError: an unknown key, shape or unit, or a bad number; the message names the key.
+        ConfigError: an unknown key, shape or unit, or a bad number; the message names the key.
 
     Example:
         >>> tm = ToleranceModel({"decenter": {"shape": "normal", "std": 0.01, "truncate": 2}})
@@ -236,22 +232,22 @@ class ToleranceModel:
                                          f"{where}.fringe_wavelength_nm", 0.0, lo_open=True)
         unknown = set(cfg) - set(KINDS)
         if unknown:
-            raise ValueError(f"{where}: unknown keys {sorted(unknown)}; expected "
-                             f"{', '.join(KINDS)}, compensator, fringe_wavelength_nm, name")
+            raise ConfigError.unknown(where, unknown, [*KINDS, "compensator",
+                                                       "fringe_wavelength_nm", "name"])
         self.radius_unit = "relative"
         r = cfg.get("radius")
         if isinstance(r, dict) and "unit" in r:
             if r["unit"] not in ("relative", "fringes"):
-                raise ValueError(f"{where}.radius.unit: expected 'relative' or 'fringes', got "
-                                 f"{r['unit']!r}")
+                raise ConfigError(f"{where}.radius.unit", "'relative' or 'fringes'", r["unit"])
             self.radius_unit = r["unit"]
         self.dists = {k: Distribution.from_config(cfg.get(k), f"{where}.{k}") for k in KINDS}
         for k in ("radius", "abbe"):
             d = self.dists[k]
             if d is not None and not (k == "radius" and self.radius_unit == "fringes") \
                     and d.bound >= 0.5:
-                raise ValueError(f"{where}.{k}: a relative error must stay within +-0.5 "
-                                 f"(truncate it), got a bound of {d.bound:g}")
+                raise ConfigError(f"{where}.{k}", f"a relative error bounded within +-0.5 "
+                                  f"(truncate it; this one's bound is {d.bound:g})",
+                                  cfg.get(k))
 
     def __bool__(self) -> bool:
         return any(d is not None and d.scale > 0 for d in self.dists.values())
@@ -446,15 +442,20 @@ def load_group(spec, where: str = "tolerance") -> ToleranceModel:
             p = CONFIG_DIR / f"{spec}.yaml"
         if not p.is_file():
             groups = sorted(q.stem for q in CONFIG_DIR.glob("*.yaml"))
-            raise ValueError(f"{where}: no tolerance group {str(spec)!r} (a name of "
-                             f"{', '.join(groups)}, or a .yaml file)")
+            raise ConfigError(where, f"a tolerance group ({', '.join(groups)}), a .yaml file "
+                              f"or a mapping", str(spec))
         import yaml
 
         try:
             data = yaml.safe_load(p.read_text())
         except yaml.YAMLError as e:
-            raise ValueError(f"{where}: {p} is not valid YAML ({e})") from None
-        return ToleranceModel(data, where=f"{where} ({p})")
+            raise ConfigError(where, f"a valid YAML file ({e})", str(p)) from None
+        if data is not None and not isinstance(data, dict):
+            raise ConfigError(where, "a YAML mapping of the group's keys", data, source=p)
+        try:
+            return ToleranceModel(data, where=where)
+        except ConfigError as e:  # the key, and the file it came from
+            raise e.with_source(p) from None
     if spec is None or isinstance(spec, dict):
         return ToleranceModel(spec, where=where)
-    raise ValueError(f"{where}: expected a group name, a .yaml file or a mapping, got {spec!r}")
+    raise ConfigError(where, "a group name, a .yaml file or a mapping", spec)

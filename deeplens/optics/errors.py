@@ -3,11 +3,16 @@
 Callers decide from the attributes (``surfaces``, ``key``, ``line``), never from the message
 text: the table and Zemax readers map ``surfaces`` to their own line numbers, the JSON reader
 maps ``key`` to the field path, and the training set-up maps ``key`` to its configuration key.
+
+:class:`ConfigError` is the one error of a configuration value (the Hydra config of training
+and evaluation, a tolerance group): it lives here, at the bottom of the package, so that every
+room may raise it without an upward import.
 """
 
 from __future__ import annotations
 
-__all__ = ["LensError", "LensFileError", "ZemaxFileError", "ZemaxWarning"]
+__all__ = ["ConfigError", "LensError", "LensFileError", "ZemaxFileError", "ZemaxWarning",
+           "format_config_error"]
 
 
 class LensError(ValueError):
@@ -99,3 +104,73 @@ class ZemaxWarning(UserWarning):
         self.feature = feature
         where = f"{self.source}:{line}" if self.source and line else ""
         super().__init__(f"{where}: {message}" if where else message)
+
+
+def format_config_error(key: str, expected: str, got, kind: str = "value",
+                        source: str | None = None) -> str:
+    """The one message format of a bad configuration value (:class:`ConfigError`):
+
+    * ``kind="value"``: ``"{key}: expected {expected}, got {got!r}"``;
+    * ``kind="missing"``: ``"{key}: missing; expected {expected}"`` (``got`` unused);
+    * ``kind="unknown"``: ``"{key}: unknown key(s) {got}; expected some of {expected}"``
+      (``got``: the sorted unknown keys, ``expected``: the known ones);
+
+    prefixed by ``"{source}: "`` when the value came from a file (a tolerance group's YAML).
+    """
+    if kind == "missing":
+        text = f"{key}: missing; expected {expected}"
+    elif kind == "unknown":
+        text = f"{key}: unknown key(s) {got}; expected some of {expected}"
+    else:
+        text = f"{key}: expected {expected}, got {got!r}"
+    return f"{source}: {text}" if source else text
+
+
+class ConfigError(ValueError):
+    """A configuration value that cannot be used (a wrong type, a value out of range, an
+    unknown or a missing key).  ``str(error)`` is :func:`format_config_error`'s, the only place
+    the message is written; callers read the attributes, never the text.
+
+    Attributes:
+        key: the full dotted config key, e.g. ``"model.deconvolution.nsr"`` (a mapping's own
+            key for ``kind="unknown"``, e.g. ``"model.loss"``).
+        expected: what was expected, in words (``kind="unknown"``: the known keys).
+        got: the value received (``kind="unknown"``: the sorted unknown keys; ``kind="missing"``:
+            ``None``).
+        kind: ``"value"``, ``"missing"`` or ``"unknown"``.
+        source: the file the value came from, or ``None``.
+
+    Build one with ``ConfigError(key, expected, got)``, :meth:`missing` or :meth:`unknown`.
+    """
+
+    def __init__(self, key: str, expected: str, got=None, *, kind: str = "value",
+                 source=None):
+        if kind not in ("value", "missing", "unknown"):
+            raise ValueError(f"ConfigError: kind must be value, missing or unknown, got {kind!r}")
+        self.key, self.expected, self.got, self.kind = str(key), str(expected), got, kind
+        self.source = None if source is None else str(source)
+        super().__init__(format_config_error(self.key, self.expected, got, kind, self.source))
+
+    @classmethod
+    def missing(cls, key: str, expected: str, source=None) -> "ConfigError":
+        """``key`` is absent (or null where a value is needed)."""
+        return cls(key, expected, None, kind="missing", source=source)
+
+    @classmethod
+    def unknown(cls, key: str, unknown, known, source=None) -> "ConfigError":
+        """The mapping ``key`` holds keys it does not know: ``unknown`` (listed sorted) of
+        ``known`` (listed in their own order)."""
+        return cls(key, str(list(known)), sorted(str(k) for k in unknown), kind="unknown",
+                   source=source)
+
+    def with_source(self, source) -> "ConfigError":
+        """The same error, naming the file the value came from."""
+        return ConfigError(self.key, self.expected, self.got, kind=self.kind, source=source)
+
+    def __reduce__(self):  # picklable (a fan-out job's error crosses processes)
+        return (_rebuild_config_error, (self.key, self.expected, self.got, self.kind,
+                                        self.source))
+
+
+def _rebuild_config_error(key, expected, got, kind, source) -> ConfigError:
+    return ConfigError(key, expected, got, kind=kind, source=source)

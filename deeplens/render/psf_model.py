@@ -26,6 +26,7 @@ import torch
 from .diffraction import (DiffractionSampling, PupilSamplingError, choose_sampling,
                           diffraction_psf_many)
 from ..optics.camera import unpack
+from ..optics.errors import ConfigError
 from .psf import _job_offsets
 
 __all__ = ["PSFModel", "MODELS", "tv_distance", "run_jobs"]
@@ -98,13 +99,11 @@ class PSFModel:
     def __init__(self, model: str = "auto", error_budget: float = 0.05, remeasure: float = 0.1,
                  memory_gb: float = 2.0, max_kernel: int = 129, n_rays: int = 16384):
         if model not in MODELS:
-            raise ValueError(f"render.psf_model: expected one of {', '.join(MODELS)}, got "
-                             f"{model!r}")
+            raise ConfigError("render.psf_model", f"one of {', '.join(MODELS)}", model)
         if not (0 < float(error_budget) < 1):
-            raise ValueError(f"render.psf_error_budget: expected a fraction in (0, 1), got "
-                             f"{error_budget!r}")
+            raise ConfigError("render.psf_error_budget", "a fraction in (0, 1)", error_budget)
         if not float(remeasure) > 0:
-            raise ValueError(f"render.psf_remeasure: expected > 0, got {remeasure!r}")
+            raise ConfigError("render.psf_remeasure", "a number > 0", remeasure)
         self.model, self.error_budget = model, float(error_budget)
         self.remeasure, self.memory_gb = float(remeasure), float(memory_gb)
         self.max_kernel, self.n_rays = int(max_kernel), int(n_rays)

@@ -7,8 +7,10 @@ Checkpoint files themselves (atomic writes, digests, verified loading) are
 
 from __future__ import annotations
 
+import inspect
 import math
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import torch
@@ -16,11 +18,62 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from lightning.pytorch.utilities import rank_zero_only
 from lightning.pytorch.utilities.exceptions import SIGTERMException
 
+from ..optics.errors import ConfigError
 from ..optics.io import save_lens
 from .checkpoint import AtomicCheckpointIO, CheckpointError
 from .lens_setup import surface_height_map
 
-__all__ = ["AtomicCheckpointIO", "LensCheckpoint", "ImageLogger"]
+__all__ = ["AtomicCheckpointIO", "LensCheckpoint", "ImageLogger", "check_callbacks_config",
+           "check_image_logger"]
+
+#: the config key of :class:`ImageLogger`'s settings (errors name it)
+_LOGGER_KEY = "callbacks.image_logger"
+
+
+def _count(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 1
+
+
+def check_image_logger(every_n_epochs=1, psf_rays=4096, depths_mm=(10_000.0,),
+                       fields_deg=(0.0,), plate_surface=None, key: str = _LOGGER_KEY) -> None:
+    """:class:`ImageLogger`'s arguments checked; raises
+    :class:`~deeplens.optics.errors.ConfigError` naming ``<key>.<argument>``."""
+    if not _count(every_n_epochs):
+        raise ConfigError(f"{key}.every_n_epochs", "an int >= 1", every_n_epochs)
+    if not _count(psf_rays):
+        raise ConfigError(f"{key}.psf_rays", "an int >= 1", psf_rays)
+    num = (lambda x: isinstance(x, (int, float)) and not isinstance(x, bool)  # noqa: E731
+           and math.isfinite(x))
+    def seq(v):
+        return list(v) if isinstance(v, Sequence) and not isinstance(v, str) else [v]
+
+    depths, fields = seq(depths_mm), seq(fields_deg)
+    if not depths or not all(num(d) and d > 0 for d in depths):
+        raise ConfigError(f"{key}.depths_mm", "distances > 0 mm (a non-empty list)", depths)
+    if not fields or not all(num(f) and 0 <= f < 90 for f in fields):
+        raise ConfigError(f"{key}.fields_deg", "angles in [0, 90) deg (a non-empty list)",
+                          fields)
+    if plate_surface is not None and not (isinstance(plate_surface, int)
+                                          and not isinstance(plate_surface, bool)
+                                          and plate_surface >= 0):
+        raise ConfigError(f"{key}.plate_surface", "an int >= 0 (a surface index) or null",
+                          plate_surface)
+
+
+def check_callbacks_config(cfg) -> None:
+    """Start-up check of the callbacks' settings in a composed config (``callbacks.*``):
+    those of every :class:`ImageLogger` (:func:`check_image_logger`)."""
+    from omegaconf import OmegaConf
+
+    for name, node in (OmegaConf.select(cfg, "callbacks", default=None) or {}).items():
+        if not node or node.get("_target_") != f"{__name__}.ImageLogger":
+            continue
+        args = {k: (OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v)
+                for k, v in node.items() if k != "_target_"}
+        known = [p for p in inspect.signature(check_image_logger).parameters if p != "key"]
+        if set(args) - set(known):
+            raise ConfigError.unknown(f"callbacks.{name}", set(args) - set(known), known)
+        check_image_logger(**args, key=f"callbacks.{name}")
 
 
 class LensCheckpoint(ModelCheckpoint):
@@ -113,19 +166,11 @@ class ImageLogger(Callback):
     def __init__(self, every_n_epochs: int = 1, psf_rays: int = 4096, depths_mm=(10_000.0,),
                  fields_deg=(0.0,), plate_surface: int | None = None):
         super().__init__()
-        if int(every_n_epochs) < 1 or int(psf_rays) < 1:
-            raise ValueError(f"callbacks.image_logger: every_n_epochs and psf_rays must be > 0, "
-                             f"got {every_n_epochs} and {psf_rays}")
+        check_image_logger(every_n_epochs, psf_rays, depths_mm, fields_deg, plate_surface)
         self.every_n_epochs = int(every_n_epochs)
         self.psf_rays = int(psf_rays)
         self.depths_mm = [float(d) for d in depths_mm]
         self.fields_deg = [float(f) for f in fields_deg]
-        if not self.depths_mm or not all(math.isfinite(d) and d > 0 for d in self.depths_mm):
-            raise ValueError(f"callbacks.image_logger.depths_mm: expected distances > 0 mm, got "
-                             f"{self.depths_mm}")
-        if not self.fields_deg or not all(0 <= f < 90 for f in self.fields_deg):
-            raise ValueError(f"callbacks.image_logger.fields_deg: expected angles in [0, 90) "
-                             f"deg, got {self.fields_deg}")
         self.plate_surface = None if plate_surface is None else int(plate_surface)
 
     @rank_zero_only

@@ -30,9 +30,10 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from ..optics.errors import ConfigError
 from .checkpoint import write_text_atomic
 
-__all__ = ["design_classical", "DEFAULTS"]
+__all__ = ["check_classical_config", "design_classical", "DEFAULTS"]
 
 #: ``eval.classical`` defaults (a partial mapping in the config is completed with these)
 DEFAULTS = {"steps": 15, "sampling": "grid:32", "n_freq": 6, "blur_weight": 1.0,
@@ -43,21 +44,29 @@ DEFAULTS = {"steps": 15, "sampling": "grid:32", "n_freq": 6, "blur_weight": 1.0,
 def _settings(cfg: DictConfig) -> dict:
     c = cfg.eval.get("classical")
     given = {} if c is None else OmegaConf.to_container(c, resolve=True)
-    unknown = sorted(set(given) - set(DEFAULTS))
+    if not isinstance(given, dict):
+        raise ConfigError("eval.classical", "null or a mapping of the classical design's "
+                          "settings", given)
+    unknown = set(given) - set(DEFAULTS)
     if unknown:
-        raise ValueError(f"eval.classical: unknown key(s) {unknown}; expected some of "
-                         f"{sorted(DEFAULTS)}")
+        raise ConfigError.unknown("eval.classical", unknown, sorted(DEFAULTS))
     s = {**DEFAULTS, **given}
-    if not (isinstance(s["steps"], int) and s["steps"] >= 1):
-        raise ValueError(f"eval.classical.steps: expected an integer >= 1, got {s['steps']!r}")
+    if not (isinstance(s["steps"], int) and not isinstance(s["steps"], bool)
+            and s["steps"] >= 1):
+        raise ConfigError("eval.classical.steps", "an integer >= 1", s["steps"])
     m = s["max_sag_mm"]
     if m == "model":
         m = s["max_sag_mm"] = cfg.model.get("max_sag_mm")
     if m is not None and not (isinstance(m, (int, float)) and not isinstance(m, bool)
                               and math.isfinite(m) and m > 0):
-        raise ValueError(f"eval.classical.max_sag_mm: expected null, 'model' or a bound > 0 "
-                         f"(mm), got {m!r}")
+        raise ConfigError("eval.classical.max_sag_mm", "null, 'model' or a bound > 0 (mm)", m)
     return s
+
+
+def check_classical_config(cfg: DictConfig) -> None:
+    """Start-up check of ``eval.classical`` (known keys, ``steps``, ``max_sag_mm``); raises
+    :class:`~deeplens.optics.errors.ConfigError` naming the key."""
+    _settings(cfg)
 
 
 def sag_departure_constraints(lens, max_sag_mm: float) -> list:
@@ -103,8 +112,8 @@ def design_classical(cfg: DictConfig, out_dir) -> Path:
     s = _settings(cfg)
     lc, sc = cfg.lens, cfg.sensor
     if not list(lc.trainable):
-        raise ValueError("eval.variants: classical designs the lens.trainable variables, but "
-                         "lens.trainable is empty")
+        raise ConfigError("lens.trainable", "the variables the classical variant designs "
+                          "(eval.variants has classical or refined), not an empty list", [])
     plate = lc.plate_surface is not None
     if plate:
         s["start_alpha_mm"] = _start_alpha(cfg, s)

@@ -18,6 +18,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ..optics.errors import ConfigError
+
 __all__ = ["SagDepartureConstraint"]
 
 
@@ -37,8 +39,7 @@ class SagDepartureConstraint(nn.Module):
     def __init__(self, lens, max_sag_mm: float | None, grid: int = 17):
         super().__init__()
         if max_sag_mm is not None and not (math.isfinite(max_sag_mm) and max_sag_mm >= 0):
-            raise ValueError(f"model.max_sag_mm: expected a bound >= 0 mm (or null), got "
-                             f"{max_sag_mm}")
+            raise ConfigError("model.max_sag_mm", "a bound >= 0 mm (or null)", max_sag_mm)
         self.max_sag_mm = max_sag_mm or None
         self.grid = int(grid)
         self.surfaces: list[int] = []

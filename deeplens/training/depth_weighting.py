@@ -15,6 +15,8 @@ import math
 
 import torch
 
+from ..optics.errors import ConfigError
+
 __all__ = ["SOFT_MAX_DEFAULTS", "depth_bin", "soft_max_setting", "soft_max_weights"]
 
 #: defaults of a soft maximum over depths (``model.worst_depth``, ``model.optics_worst_depth``)
@@ -24,21 +26,27 @@ SOFT_MAX_DEFAULTS = (("temperature", 0.5), ("bins", 4), ("momentum", 0.9))
 def soft_max_setting(key: str, value) -> dict | None:
     """``model.<key>`` (``worst_depth``, ``optics_worst_depth``) checked, defaults filled:
     ``None`` or ``{"temperature": float > 0, "bins": int >= 1, "momentum": float in [0, 1)}``;
-    else ``ValueError`` naming ``model.<key>.<field>``."""
+    else :class:`~deeplens.optics.errors.ConfigError` naming ``model.<key>.<field>``."""
     if value is None:
         return None
-    wd = {**dict(SOFT_MAX_DEFAULTS), **dict(value)}
+    if not isinstance(value, dict):
+        try:
+            value = dict(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"model.{key}", "null or a mapping {temperature, bins, "
+                              "momentum}", value) from None
+    wd = {**dict(SOFT_MAX_DEFAULTS), **value}
     unknown = set(wd) - set(dict(SOFT_MAX_DEFAULTS))
     if unknown:
-        raise ValueError(f"model.{key}: unknown keys {sorted(unknown)}; expected "
-                         f"{', '.join(dict(SOFT_MAX_DEFAULTS))}")
+        raise ConfigError.unknown(f"model.{key}", unknown, dict(SOFT_MAX_DEFAULTS))
     T, K, mom = wd["temperature"], wd["bins"], wd["momentum"]
-    if not (isinstance(T, (int, float)) and math.isfinite(T) and T > 0):
-        raise ValueError(f"model.{key}.temperature: expected a number > 0, got {T!r}")
-    if not (isinstance(K, int) and K >= 1):
-        raise ValueError(f"model.{key}.bins: expected an integer >= 1, got {K!r}")
-    if not (isinstance(mom, (int, float)) and 0 <= mom < 1):
-        raise ValueError(f"model.{key}.momentum: expected a number in [0, 1), got {mom!r}")
+    if not (isinstance(T, (int, float)) and not isinstance(T, bool) and math.isfinite(T)
+            and T > 0):
+        raise ConfigError(f"model.{key}.temperature", "a number > 0", T)
+    if not (isinstance(K, int) and not isinstance(K, bool) and K >= 1):
+        raise ConfigError(f"model.{key}.bins", "an integer >= 1", K)
+    if not (isinstance(mom, (int, float)) and not isinstance(mom, bool) and 0 <= mom < 1):
+        raise ConfigError(f"model.{key}.momentum", "a number in [0, 1)", mom)
     return {"temperature": float(T), "bins": K, "momentum": float(mom)}
 
 

@@ -31,7 +31,9 @@ def _eval_task(cfg, fanout: list[str]) -> None:
     from omegaconf import open_dict
 
     from .evaluate import evaluate
+    from .train import check_config
 
+    check_config(cfg)  # every key, before a job is fanned out
     if cfg.eval.get("launcher") and cfg.eval.get("job") is None and not cfg.eval.get("gather"):
         from .fanout import fan_out
 

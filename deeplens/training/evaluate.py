@@ -52,28 +52,37 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from ..optics.errors import ConfigError
 from . import tolerance_eval
 from .checkpoint import write_text_atomic
 from .input_digest import digest_path, input_digests
 from .machine import describe_machine, machine_info
-from .train import build_objects, train
+from .train import build_objects, check_config, train
 
-__all__ = ["evaluate", "format_table", "variants", "summarize", "psf_rms_px", "seeds"]
+__all__ = ["check_eval_config", "evaluate", "format_table", "variants", "summarize",
+           "psf_rms_px", "seeds"]
 
 _PLATE_KINDS = ("none", "cubic")
+#: the variants of ``eval.variants``
+_VARIANTS = ("none", "cubic", "classical", "learned", "refined", "frozen")
 
 
 def _alphas(cfg: DictConfig) -> list[float]:
     a = cfg.eval.cubic_alpha_mm
     vals = list(a) if OmegaConf.is_list(a) or isinstance(a, (list, tuple)) else [a]
+    what = "a number or a non-empty list of numbers (mm)"
     try:
         vals = [float(v) for v in vals]
     except (TypeError, ValueError):
-        raise ValueError(f"eval.cubic_alpha_mm: expected a number or a list of numbers (mm), got "
-                         f"{a!r}") from None
+        raise ConfigError("eval.cubic_alpha_mm", what, _plain(a)) from None
     if not vals:
-        raise ValueError("eval.cubic_alpha_mm: the list is empty")
+        raise ConfigError("eval.cubic_alpha_mm", what, [])
     return vals
+
+
+def _plain(v):
+    """A config node as plain Python (for messages)."""
+    return OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
 
 
 def seeds(cfg: DictConfig) -> list[int]:
@@ -81,13 +90,14 @@ def seeds(cfg: DictConfig) -> list[int]:
     s = cfg.eval.seeds
     vals = [cfg.seed] if s is None else (list(s) if OmegaConf.is_list(s)
                                          or isinstance(s, (list, tuple)) else [s])
+    what = "null or a non-empty list of distinct integers >= 0"
     if not vals:
-        raise ValueError("eval.seeds: the list is empty")
+        raise ConfigError("eval.seeds", what, [])
     for v in vals:
         if not isinstance(v, int) or isinstance(v, bool) or v < 0:
-            raise ValueError(f"eval.seeds: expected integers >= 0, got {v!r}")
+            raise ConfigError("eval.seeds", what, _plain(s))
     if len(set(vals)) != len(vals):
-        raise ValueError(f"eval.seeds: repeated seeds in {vals}")
+        raise ConfigError("eval.seeds", what, vals)
     return [int(v) for v in vals]
 
 
@@ -104,17 +114,19 @@ def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
                  else ["frozen", "classical", "learned"])
     for v in names:
         if v in _PLATE_KINDS and cfg.lens.plate_surface is None:
-            raise ValueError(f"eval.variants: {v!r} needs a phase plate, but the experiment's "
-                             f"lens has none (lens.plate_surface is null); use frozen, learned")
+            raise ConfigError("eval.variants", "variants of a lens without a phase plate "
+                              "(lens.plate_surface is null): frozen, classical, learned, "
+                              "refined", _plain(names))
         if v == "cubic":
             out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in _alphas(cfg)]
         elif v in ("none", "learned", "frozen", "classical", "refined"):
             out.append((v, v, None))
         else:
-            raise ValueError(f"eval.variants: unknown variant {v!r}; expected none, cubic, "
-                             f"classical, learned, refined, frozen")
+            raise ConfigError("eval.variants", f"variants of {', '.join(_VARIANTS)}",
+                              _plain(names))
     if not out:
-        raise ValueError("eval.variants: the list is empty")
+        raise ConfigError("eval.variants", f"null or a non-empty list of {', '.join(_VARIANTS)}",
+                          _plain(names))
     return out
 
 
@@ -149,8 +161,7 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
             if kind == "classical":  # frozen; refined trains lens.trainable from there
                 c.lens.trainable = []
         else:
-            raise ValueError(f"eval.variants: unknown variant {kind!r}; expected none, cubic, "
-                             f"classical, learned, refined, frozen")
+            raise ConfigError("eval.variants", f"variants of {', '.join(_VARIANTS)}", kind)
     return c
 
 
@@ -453,9 +464,31 @@ def _check_test_folder(folder, image_size) -> None:
         raise type(err)(f"eval.test_folder: {err}") from None
 
 
+def check_eval_config(cfg: DictConfig) -> None:
+    """Start-up check of ``eval.*`` (nothing when the config has no ``eval``): the variants
+    and cubic plates, the seeds (one with ``eval.learned_ckpt``), the classical design's
+    settings (:mod:`.classical`), the tolerance test's (:mod:`.tolerance_eval`) and the
+    fan-out's (:mod:`.fanout`); raises :class:`~deeplens.optics.errors.ConfigError` naming
+    the key.  Called by :func:`~.train.check_config`."""
+    if cfg.get("eval") is None:
+        return
+    from .classical import check_classical_config
+    from .fanout import check_fanout_config
+
+    variants(cfg)
+    seed_list = seeds(cfg)
+    if cfg.eval.get("learned_ckpt") is not None and len(seed_list) > 1:
+        raise ConfigError("eval.seeds", "a single seed with eval.learned_ckpt (one trained "
+                          "run)", seed_list)
+    check_classical_config(cfg)
+    tolerance_eval.check_tolerance_eval_config(cfg)
+    check_fanout_config(cfg)
+
+
 def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     """Train/test each variant for each seed; write the markdown and JSON tables and the
     figures; return ``(markdown table, summary)`` (see :func:`summarize`)."""
+    check_config(cfg)  # every key, before anything is read or trained (train.py)
     if cfg.eval.get("job") is not None:  # one variant x seed of a fan-out (fanout.py)
         from .fanout import job_cfg
 
@@ -464,9 +497,10 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
         return "", {}
     todo = variants(cfg)
     seed_list = seeds(cfg)
-    if cfg.eval.learned_ckpt is not None and len(seed_list) > 1:
-        raise ValueError("eval.learned_ckpt is one trained run: use it with a single seed "
-                         f"(eval.seeds has {len(seed_list)})")
+    if any(k in ("classical", "refined") for _, k, _ in todo) and not list(cfg.lens.trainable):
+        # not in check_eval_config: a classical variant's own config has no trainable terms
+        raise ConfigError("lens.trainable", "the variables the classical variant designs "
+                          "(eval.variants has classical or refined), not an empty list", [])
     if cfg.eval.test_folder is not None:
         _check_test_folder(cfg.eval.test_folder, cfg.data.image_size)
     tol = tolerance_eval.EvalTolerance.from_cfg(cfg)  # checked before anything trains

@@ -30,7 +30,9 @@ from pathlib import Path
 
 from omegaconf import DictConfig, open_dict
 
-__all__ = ["jobs", "fan_out", "job_cfg", "LAUNCHERS", "cpu_seconds"]
+from ..optics.errors import ConfigError
+
+__all__ = ["jobs", "fan_out", "job_cfg", "LAUNCHERS", "check_fanout_config", "cpu_seconds"]
 
 LAUNCHERS = ("joblib", "submitit_local", "submitit_slurm")
 
@@ -45,17 +47,46 @@ def jobs(cfg: DictConfig) -> list[tuple[str, str, float | None, int]]:
 def job_cfg(cfg: DictConfig) -> tuple[DictConfig, tuple]:
     """For ``eval.job = k``: the config of job ``k`` (output in ``eval.folder``) and its
     ``(name, kind, alpha, seed)``."""
-    todo = jobs(cfg)
+    todo = _check_job(cfg)
     k = cfg.eval.job
-    if not (isinstance(k, int) and 0 <= k < len(todo)):
-        raise ValueError(f"eval.job: expected an integer in [0, {len(todo) - 1}] (one per "
-                         f"variant x seed), got {k!r}")
-    if cfg.eval.get("folder") is None:
-        raise ValueError("eval.job needs eval.folder, the evaluation's output folder")
     c = copy.deepcopy(cfg)
     with open_dict(c):
         c.paths.output_dir = str(cfg.eval.folder)
     return c, todo[k]
+
+
+def _check_job(cfg: DictConfig) -> list:
+    """``eval.job`` (set) checked against the jobs of ``cfg``, and ``eval.folder`` set;
+    returns the jobs."""
+    todo = jobs(cfg)
+    k = cfg.eval.job
+    if not (isinstance(k, int) and not isinstance(k, bool) and 0 <= k < len(todo)):
+        raise ConfigError("eval.job", f"an integer in [0, {len(todo) - 1}] (one per variant x "
+                          f"seed)", k)
+    if cfg.eval.get("folder") is None:
+        raise ConfigError.missing("eval.folder", "the evaluation's output folder (with "
+                                  "eval.job)")
+    return todo
+
+
+def _check_launcher(cfg: DictConfig, launcher) -> None:
+    if launcher not in LAUNCHERS:
+        raise ConfigError("eval.launcher", f"null or one of {', '.join(LAUNCHERS)}", launcher)
+    n_jobs = cfg.eval.get("n_jobs", 1)
+    if not (isinstance(n_jobs, int) and not isinstance(n_jobs, bool)
+            and (n_jobs >= 1 or n_jobs == -1)):
+        raise ConfigError("eval.n_jobs", "an integer >= 1 (or -1: every core)", n_jobs)
+
+
+def check_fanout_config(cfg: DictConfig) -> None:
+    """Start-up check of ``eval.launcher`` and ``eval.n_jobs`` (when a launcher is set) and of
+    ``eval.job`` / ``eval.folder`` (when a job is set); raises
+    :class:`~deeplens.optics.errors.ConfigError` naming the key."""
+    ev = cfg.eval
+    if ev.get("launcher") is not None:
+        _check_launcher(cfg, ev.launcher)
+    if ev.get("job") is not None:
+        _check_job(cfg)
 
 
 def cpu_seconds() -> float:
@@ -76,13 +107,8 @@ def fan_out(cfg: DictConfig, script: str | list[str], overrides: list[str]) -> f
             multirun's exit status and its output folder are named).
     """
     launcher = cfg.eval.launcher
-    if launcher not in LAUNCHERS:
-        raise ValueError(f"eval.launcher: expected null or one of {', '.join(LAUNCHERS)}, got "
-                         f"{launcher!r}")
+    _check_launcher(cfg, launcher)
     n_jobs = cfg.eval.get("n_jobs", 1)
-    if not (isinstance(n_jobs, int) and (n_jobs >= 1 or n_jobs == -1)):
-        raise ValueError(f"eval.n_jobs: expected an integer >= 1 (or -1: every core), got "
-                         f"{n_jobs!r}")
     out = Path(cfg.paths.output_dir).resolve()
     n = len(jobs(cfg))
     drop = ("eval.launcher=", "eval.job=", "eval.folder=", "eval.gather=", "eval.n_jobs=")

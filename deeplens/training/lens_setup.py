@@ -23,13 +23,14 @@ from pathlib import Path
 import torch
 
 from ..optics.camera import set_trainable  # the one rule (re-exported)
+from ..optics.errors import ConfigError
 from ..optics.parameters import parameter_scale
 from ..optics.io import load_lens
 from ..optics.io.lensfile import LensFileError
 from ..optics.io.table import read_table
 from ..optics.surfaces import XYPolynomial
 
-__all__ = ["build_lens", "set_trainable", "parameter_scale", "optics_param_groups",
+__all__ = ["build_lens", "check_lens_config", "check_lens_settings", "set_trainable", "parameter_scale", "optics_param_groups",
            "cubic_phase_plate", "extend_plate", "surface_height_map", "MAX_PLATE_ORDER"]
 
 #: the highest ``lens.plate_order``: the diffraction renderer fits the traced wavefront with
@@ -74,24 +75,24 @@ def extend_plate(lens, surface_index: int, order: int) -> list[str]:
         made parameter); :func:`build_lens` unfreezes them when the plate trains.
 
     Raises:
-        ValueError: ``order`` is not an int in ``[plate's order, MAX_PLATE_ORDER]``, or the
+        ConfigError: ``order`` is not an int in ``[plate's order, MAX_PLATE_ORDER]``, or the
             surface is not an XY polynomial (config key ``lens.plate_order``).
     """
     n = len(lens.surfaces)
     if not (isinstance(surface_index, int) and not isinstance(surface_index, bool)
             and 0 <= surface_index < n):
-        raise ValueError(f"lens.plate_surface: expected a surface index in [0, {n - 1}], got "
-                         f"{surface_index!r}")
+        raise ConfigError("lens.plate_surface", f"a surface index in [0, {n - 1}]",
+                          surface_index)
     s = lens.surfaces[surface_index]
     if not isinstance(s, XYPolynomial):
-        raise ValueError(f"lens.plate_order: surface {surface_index} (lens.plate_surface) is a "
-                         f"{type(s).__name__}, not an XY polynomial")
+        raise ConfigError("lens.plate_surface", f"the index of an XY-polynomial surface (to use "
+                          f"lens.plate_order; surface {surface_index} is a "
+                          f"{type(s).__name__})", surface_index)
     if not (isinstance(order, int) and not isinstance(order, bool)
             and s.order <= order <= MAX_PLATE_ORDER):
-        raise ValueError(f"lens.plate_order: expected an int in [{s.order}, {MAX_PLATE_ORDER}] "
-                         f"(from the plate's own order, {s.order}, whose terms cannot be "
-                         f"dropped, to the diffraction renderer's wavefront fit degree), or "
-                         f"null; got {order!r}")
+        raise ConfigError("lens.plate_order", f"an int in [{s.order}, {MAX_PLATE_ORDER}] (from "
+                          f"the plate's own order, {s.order}, whose terms cannot be dropped, to "
+                          f"the diffraction renderer's wavefront fit degree), or null", order)
     if order == s.order:
         return []
     old = [float(a) for a in s.a]  # the parameters are float64: exact
@@ -171,15 +172,11 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
         LensFileError: the file cannot be read; the message names the file and, where an option
             would help, the ``lens.table_options`` key.
     """
+    check_lens_settings(path, plate=plate, plate_surface=plate_surface,
+                        plate_alpha_mm=plate_alpha_mm, table_options=table_options,
+                        focus_mm=focus_mm, learned_start_alpha_mm=learned_start_alpha_mm,
+                        plate_order=plate_order, dtype=dtype)
     opts = {k: v for k, v in (table_options or {}).items() if v is not None}
-    if opts and Path(path).suffix.lower() != ".txt":
-        raise ValueError(f"lens.table_options {sorted(opts)} apply to the authors' .txt tables "
-                         f"only, but lens.path is {path}")
-    known = [n for n in inspect.signature(read_table).parameters if n != "path"]
-    unknown = sorted(set(opts) - set(known))
-    if unknown:
-        raise ValueError(f"lens.table_options: unknown option(s) {unknown}; expected some of "
-                         f"{', '.join(known)}")
     try:
         lens = load_lens(path, **opts)
     except LensFileError as e:
@@ -188,12 +185,8 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
         raise
     added = []
     if plate_order is not None:
-        if plate_surface is None:
-            raise ValueError("lens.plate_surface must be set to use lens.plate_order")
         added = extend_plate(lens, plate_surface, plate_order)
     if focus_mm is not None:
-        if not (isinstance(focus_mm, (int, float)) and math.isfinite(focus_mm) and focus_mm > 0):
-            raise ValueError(f"lens.focus_mm: expected a depth > 0 mm, got {focus_mm!r}")
         bare = copy.deepcopy(lens)
         if plate_surface is not None:  # focus the lens without its plate (any variant)
             cubic_phase_plate(bare, plate_surface, 0.0)
@@ -202,25 +195,80 @@ def build_lens(path: str, trainable=(), dtype: str = "float32", plate: str | Non
             lens.d_sensor.fill_(d)
         lens.check()
     if plate in ("none", "cubic"):
-        if plate_surface is None:
-            raise ValueError("lens.plate_surface must be set to use lens.plate")
         cubic_phase_plate(lens, plate_surface, plate_alpha_mm if plate == "cubic" else 0.0)
-    elif plate not in (None, "learned"):
-        raise ValueError(f"lens.plate must be learned, none or cubic; got {plate!r}")
     elif learned_start_alpha_mm is not None:
-        a = learned_start_alpha_mm
-        if not (isinstance(a, (int, float)) and math.isfinite(a)):
-            raise ValueError(f"lens.learned_start_alpha_mm: expected a number (mm) or null, "
-                             f"got {a!r}")
-        if plate_surface is None:
-            raise ValueError("lens.plate_surface must be set to use lens.learned_start_alpha_mm")
-        cubic_phase_plate(lens, plate_surface, float(a))
+        cubic_phase_plate(lens, plate_surface, float(learned_start_alpha_mm))
     chosen = set_trainable(lens, list(trainable))
     if added and any(n.startswith(f"surfaces.{plate_surface}.a.") for n in chosen):
         set_trainable(lens, chosen + added)
-    if dtype not in ("float32", "float64"):
-        raise ValueError(f"lens.dtype must be float32 or float64, got {dtype!r}")
     return lens.to(getattr(torch, dtype))
+
+
+def _real(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def check_lens_settings(path, *, plate=None, plate_surface=None, plate_alpha_mm=0.0,
+                        table_options=None, focus_mm=None, learned_start_alpha_mm=None,
+                        plate_order=None, dtype="float32") -> None:
+    """The ``lens.*`` settings of :func:`build_lens` checked without reading the file (the
+    checks that need the lens, a plate index within its surfaces and a plate order from its
+    own, run in :func:`extend_plate`); raises :class:`~deeplens.optics.errors.ConfigError`
+    naming ``lens.<key>``."""
+    if dtype not in ("float32", "float64"):
+        raise ConfigError("lens.dtype", "'float32' or 'float64'", dtype)
+    if plate not in (None, "learned", "none", "cubic"):
+        raise ConfigError("lens.plate", "null, 'learned', 'none' or 'cubic'", plate)
+    if plate_surface is not None and not (isinstance(plate_surface, int)
+                                          and not isinstance(plate_surface, bool)
+                                          and plate_surface >= 0):
+        raise ConfigError("lens.plate_surface", "an int >= 0 (a surface index) or null",
+                          plate_surface)
+    if plate_alpha_mm is not None and not _real(plate_alpha_mm):
+        raise ConfigError("lens.plate_alpha_mm", "a finite number (mm)", plate_alpha_mm)
+    if learned_start_alpha_mm is not None and not _real(learned_start_alpha_mm):
+        raise ConfigError("lens.learned_start_alpha_mm", "a finite number (mm) or null",
+                          learned_start_alpha_mm)
+    if plate_order is not None and not (isinstance(plate_order, int)
+                                        and not isinstance(plate_order, bool)
+                                        and 1 <= plate_order <= MAX_PLATE_ORDER):
+        raise ConfigError("lens.plate_order", f"an int in [1, {MAX_PLATE_ORDER}] (at least the "
+                          f"plate's own order), or null", plate_order)
+    if focus_mm is not None and not (_real(focus_mm) and focus_mm > 0):
+        raise ConfigError("lens.focus_mm", "a depth > 0 mm, or null", focus_mm)
+    # what needs the plate's surface: lens.plate none/cubic, plate_order, a learned plate's start
+    needs = [k for k, v in (("lens.plate_order", plate_order is not None),
+                            ("lens.plate", plate in ("none", "cubic")),
+                            ("lens.learned_start_alpha_mm", plate in (None, "learned")
+                             and learned_start_alpha_mm is not None)) if v]
+    if needs and plate_surface is None:
+        raise ConfigError.missing("lens.plate_surface", f"the plate's surface index (to use "
+                                  f"{needs[0]})")
+    opts = {k: v for k, v in (table_options or {}).items() if v is not None}
+    if opts and Path(path).suffix.lower() != ".txt":
+        raise ConfigError("lens.table_options", f"null options for a "
+                          f"{Path(path).suffix or 'suffix-less'} lens file (they apply to the "
+                          f"authors' .txt tables only)", opts)
+    known = [n for n in inspect.signature(read_table).parameters if n != "path"]
+    unknown = set(opts) - set(known)
+    if unknown:
+        raise ConfigError.unknown("lens.table_options", unknown, known)
+
+
+def check_lens_config(cfg) -> None:
+    """Start-up check of ``lens.*`` in a composed config (:func:`check_lens_settings`)."""
+    from omegaconf import OmegaConf
+
+    lc = cfg.lens
+    opts = lc.get("table_options")
+    check_lens_settings(lc.get("path"), plate=lc.get("plate"),
+                        plate_surface=lc.get("plate_surface"),
+                        plate_alpha_mm=lc.get("plate_alpha_mm", 0.0),
+                        table_options=(OmegaConf.to_container(opts, resolve=True)
+                                       if OmegaConf.is_config(opts) else opts),
+                        focus_mm=lc.get("focus_mm"),
+                        learned_start_alpha_mm=lc.get("learned_start_alpha_mm"),
+                        plate_order=lc.get("plate_order"), dtype=lc.get("dtype", "float32"))
 
 
 def surface_height_map(surface, n: int = 64) -> torch.Tensor:

@@ -1,16 +1,21 @@
 """The checks of :class:`~.module.EndToEndModule`'s arguments (``model.*`` of the config).
 
 :func:`check_module_settings` checks them all and returns the checked settings; each bad value
-raises ``ValueError`` naming its ``model.<key>`` (or ``scene.margin``) and what was expected.
+raises :class:`~deeplens.optics.errors.ConfigError` naming its ``model.<key>`` (or
+``scene.margin``), what was expected and the value.  :func:`check_model_config` runs the same
+checks on a composed config at start-up (called by :func:`~.train.check_config`, before
+anything is built); the module calls :func:`check_module_settings` again (for API users).
 """
 
 from __future__ import annotations
 
 import math
 
+from ..optics.errors import ConfigError
 from .depth_weighting import soft_max_setting
 
-__all__ = ["LOSS_DEFAULTS", "MAX_LR", "check_learning_rate", "check_module_settings"]
+__all__ = ["LOSS_DEFAULTS", "MAX_LR", "check_learning_rate", "check_model_config",
+           "check_module_settings"]
 
 #: largest accepted learning rates: Adam moves each weight by about ``lr`` per step, so a
 #: network rate above 1, or an optics step above 1 mm of sag, can only run away
@@ -22,14 +27,16 @@ LOSS_DEFAULTS = (("mse", 1.0), ("l1", 0.0), ("ssim", 0.0), ("perceptual", 0.0),
 
 
 def check_learning_rate(key: str, value) -> float:
-    """``value`` as a float in ``(0, MAX_LR[key]]``, else ``ValueError`` naming ``model.key``."""
+    """``value`` as a float in ``(0, MAX_LR[key]]``, else :class:`ConfigError` naming
+    ``model.key``."""
+    what = (f"a finite learning rate in (0, {MAX_LR[key]:g}]"
+            f"{' mm of sag per step' if key == 'optics_lr_mm' else ''}")
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"model.{key}: expected a number, got {value!r}") from None
+        raise ConfigError(f"model.{key}", what, value) from None
     if not (math.isfinite(v) and 0 < v <= MAX_LR[key]):
-        raise ValueError(f"model.{key}: expected a finite learning rate in (0, {MAX_LR[key]:g}]"
-                         f"{' mm of sag per step' if key == 'optics_lr_mm' else ''}, got {value}")
+        raise ConfigError(f"model.{key}", what, value)
     return v
 
 
@@ -51,38 +58,66 @@ def check_module_settings(*, loss, has_discriminator: bool, net_lr, optics_lr_mm
     loss_w = dict(LOSS_DEFAULTS)
     unknown = set(loss or {}) - set(loss_w)
     if unknown:
-        raise ValueError(f"model.loss: unknown terms {sorted(unknown)}; expected "
-                         f"{sorted(loss_w)}")
-    loss_w.update({k: float(v) for k, v in (loss or {}).items()})
-    bad = {k: v for k, v in loss_w.items() if not (math.isfinite(v) and v >= 0)}
-    if bad:
-        raise ValueError(f"model.loss: weights must be finite and >= 0, got {bad}")
+        raise ConfigError.unknown("model.loss", unknown, loss_w)
+    for k, v in (loss or {}).items():
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) \
+            and v >= 0
+        if not ok:
+            raise ConfigError(f"model.loss.{k}", "a finite weight >= 0", v)
+        loss_w[k] = float(v)
     if loss_w["adversarial"] > 0 and not has_discriminator:
-        raise ValueError("model.loss.adversarial > 0 needs a discriminator "
-                         "(model.discriminator)")
+        raise ConfigError("model.loss.adversarial", "0 without a discriminator "
+                          "(model.discriminator is null)", loss_w["adversarial"])
     out = {"loss": loss_w,
            "net_lr": check_learning_rate("net_lr", net_lr),
            "optics_lr_mm": check_learning_rate("optics_lr_mm", optics_lr_mm),
            "disc_lr": check_learning_rate("disc_lr", disc_lr)}
     optics_warmup_steps = optics_warmup_steps or 0
-    if not (isinstance(optics_warmup_steps, int) and optics_warmup_steps >= 0):
-        raise ValueError(f"model.optics_warmup_steps: expected an integer >= 0, got "
-                         f"{optics_warmup_steps!r}")
+    if not (isinstance(optics_warmup_steps, int) and not isinstance(optics_warmup_steps, bool)
+            and optics_warmup_steps >= 0):
+        raise ConfigError("model.optics_warmup_steps", "an integer >= 0 (or null)",
+                          optics_warmup_steps)
     out["optics_warmup_steps"] = optics_warmup_steps
-    if not (isinstance(scene_margin, (int, float)) and 0 <= scene_margin <= 4):
-        raise ValueError(f"scene.margin: expected a fraction of the field of view in "
-                         f"[0, 4], got {scene_margin!r}")
+    if not (isinstance(scene_margin, (int, float)) and not isinstance(scene_margin, bool)
+            and 0 <= scene_margin <= 4):
+        raise ConfigError("scene.margin", "a fraction of the field of view in [0, 4]",
+                          scene_margin)
     out["scene_margin"] = float(scene_margin)
     out["worst_depth"] = soft_max_setting("worst_depth", worst_depth)
     out["optics_worst_depth"] = soft_max_setting("optics_worst_depth", optics_worst_depth)
     dc = None
     if deconvolution is not None:
-        from .wiener import DEFAULTS
+        from .wiener import check_deconvolution
 
         dc = dict(deconvolution)
-        unknown = set(dc) - set(dict(DEFAULTS))
-        if unknown:
-            raise ValueError(f"model.deconvolution: unknown keys {sorted(unknown)}; expected "
-                             f"{', '.join(dict(DEFAULTS))}")
+        check_deconvolution(dc)
     out["deconvolution"] = dc
     return out
+
+
+def check_model_config(cfg) -> None:
+    """Start-up check of ``model.*`` (and ``scene.margin``) in a composed config: the
+    module's own checks (:func:`check_module_settings`, the depth soft maxima of
+    :mod:`.depth_weighting`, the Wiener front end's settings of :mod:`.wiener` for the
+    run's ``lens.dtype``), without building anything."""
+    from omegaconf import OmegaConf
+
+    def plain(key):
+        v = OmegaConf.select(cfg, key, default=None)
+        return OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
+
+    m = cfg.model
+    s = check_module_settings(
+        loss=plain("model.loss"), has_discriminator=plain("model.discriminator") is not None,
+        net_lr=m.get("net_lr", 1e-3), optics_lr_mm=m.get("optics_lr_mm", 1e-4),
+        disc_lr=m.get("disc_lr", 1e-4), optics_warmup_steps=m.get("optics_warmup_steps"),
+        scene_margin=m.get("scene_margin", 0.0), worst_depth=plain("model.worst_depth"),
+        optics_worst_depth=plain("model.optics_worst_depth"),
+        deconvolution=plain("model.deconvolution"))
+    dtype = OmegaConf.select(cfg, "lens.dtype", default=None)
+    if s["deconvolution"] is not None and dtype in ("float32", "float64"):
+        import torch
+
+        from .wiener import check_deconvolution
+
+        check_deconvolution(s["deconvolution"], getattr(torch, dtype))

@@ -14,8 +14,32 @@ import contextlib
 
 
 from ..design.tolerance_model import ToleranceModel, drawn, load_group
+from ..optics.errors import ConfigError
 
-__all__ = ["load_group", "tolerance_seed", "TrainingDraws"]
+__all__ = ["check_tolerance_config", "load_group", "tolerance_seed", "TrainingDraws"]
+
+
+def _needs_a_tolerance() -> ConfigError:
+    return ConfigError("model.tolerance_training", "false, or a tolerance group with a non-zero "
+                       "tolerance (e.g. tolerance=precision)", True)
+
+
+def check_tolerance_config(cfg) -> None:
+    """Start-up check of the composed tolerance group (``tolerance``, read by the module as
+    ``model.tolerance``: parsed by :func:`load_group`, nothing drawn) and of
+    ``model.tolerance_training`` (a bool; true needs a non-zero group); raises
+    :class:`~deeplens.optics.errors.ConfigError` naming the key."""
+    from omegaconf import OmegaConf
+
+    node = OmegaConf.select(cfg, "model.tolerance", default=None)
+    if node is None:
+        node = OmegaConf.select(cfg, "tolerance", default=None)
+    model = load_group(node, where="tolerance") if node is not None else None
+    training = OmegaConf.select(cfg, "model.tolerance_training", default=False)
+    if not isinstance(training, bool):
+        raise ConfigError("model.tolerance_training", "true or false", training)
+    if training and not model:
+        raise _needs_a_tolerance()
 
 
 def tolerance_seed(run_seed: int, step: int) -> int:
@@ -28,8 +52,7 @@ class TrainingDraws:
 
     def __init__(self, model: ToleranceModel, run_seed: int):
         if not model:
-            raise ValueError("model.tolerance_training: true needs a tolerance group with a "
-                             "non-zero tolerance (e.g. tolerance=precision); the group has none")
+            raise _needs_a_tolerance()
         self.model, self.run_seed = model, int(run_seed)
         self._active = None  # the step whose drawn lens is in place
 

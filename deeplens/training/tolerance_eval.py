@@ -17,8 +17,9 @@ import torch
 
 from ..design.tolerance_model import ToleranceModel, drawn
 from ..design.tolerance_model import load_group
+from ..optics.errors import ConfigError
 
-__all__ = ["EvalTolerance", "evaluate_drawn", "summarize_samples", "format_tolerance_table",
+__all__ = ["EvalTolerance", "check_tolerance_eval_config", "evaluate_drawn", "summarize_samples", "format_tolerance_table",
            "histogram_figure"]
 
 
@@ -26,7 +27,7 @@ def evaluate_drawn(module, trainer, datamodule, model: ToleranceModel, n: int, s
     """Test ``module`` (its current weights) on ``n`` drawn lenses (seeds ``seed + k``);
     returns a list of ``n`` test-metric dicts (the keys of ``trainer.test``)."""
     if int(n) < 1:
-        raise ValueError(f"eval.tolerance_samples must be >= 1, got {n}")
+        raise ConfigError("eval.tolerance_samples", "an integer >= 1", n)
     out = []
     for d in model.draws(module.lens, int(n), int(seed)):
         with drawn(module.camera, d):
@@ -107,15 +108,37 @@ def histogram_figure(per_variant: dict, threshold_db: float):
     return fig
 
 
-def check_eval_settings(tol, n, threshold) -> None:
-    """Start-up checks of ``eval.tolerance*`` (errors name the key)."""
-    if tol is None:
-        return
+def _settings(cfg) -> dict | None:
+    """``eval.tolerance*`` checked (errors name the key), the group parsed: ``None`` when
+    ``eval.tolerance`` is null, else ``{model, n, seed, threshold_db, group}``."""
+    ev = cfg.eval
+    spec = ev.get("tolerance", None)
+    if spec is None:
+        return None
+    n = ev.get("tolerance_samples", 16)
+    thr = ev.get("tolerance_yield_db", 25.0)
+    seed = ev.get("tolerance_seed", 0)
     if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise ValueError(f"eval.tolerance_samples: expected an integer >= 1, got {n!r}")
-    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) \
-            or not math.isfinite(threshold):
-        raise ValueError(f"eval.tolerance_yield_db: expected a number of dB, got {threshold!r}")
+        raise ConfigError("eval.tolerance_samples", "an integer >= 1", n)
+    if isinstance(thr, bool) or not isinstance(thr, (int, float)) or not math.isfinite(thr):
+        raise ConfigError("eval.tolerance_yield_db", "a number of dB", thr)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError("eval.tolerance_seed", "an integer >= 0", seed)
+    if spec == "group":  # the composed tolerance group (tolerance=<name>)
+        model = load_group(cfg.tolerance, where="tolerance")
+        group = str(cfg.tolerance.get("name", "group"))
+    else:
+        model = load_group(spec, where="eval.tolerance")
+        group = str(spec)
+    return {"model": model, "n": int(n), "seed": int(seed), "threshold_db": float(thr),
+            "group": group}
+
+
+def check_tolerance_eval_config(cfg) -> None:
+    """Start-up check of ``eval.tolerance``, ``eval.tolerance_samples``, ``eval.tolerance_seed``
+    and ``eval.tolerance_yield_db`` (the group is parsed, nothing drawn); raises
+    :class:`~deeplens.optics.errors.ConfigError` naming the key."""
+    _settings(cfg)
 
 
 class EvalTolerance:
@@ -131,23 +154,10 @@ class EvalTolerance:
 
     @classmethod
     def from_cfg(cls, cfg) -> "EvalTolerance":
-        ev = cfg.eval
-        spec = ev.get("tolerance", None)
-        if spec is None:
+        s = _settings(cfg)
+        if s is None:
             return cls(None)
-        n = ev.get("tolerance_samples", 16)
-        thr = ev.get("tolerance_yield_db", 25.0)
-        seed = ev.get("tolerance_seed", 0)
-        check_eval_settings(spec, n, thr)
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise ValueError(f"eval.tolerance_seed: expected an integer >= 0, got {seed!r}")
-        if spec == "group":  # the composed tolerance group (tolerance=<name>)
-            model = load_group(cfg.tolerance, where="tolerance")
-            group = str(cfg.tolerance.get("name", "group"))
-        else:
-            model = load_group(spec, where="eval.tolerance")
-            group = str(spec)
-        return cls(model, int(n), int(seed), float(thr), group)
+        return cls(s["model"], s["n"], s["seed"], s["threshold_db"], s["group"])
 
     def run(self, variant: str, objs: dict) -> None:
         """Test the variant's module (its tested weights) on the drawn lenses."""

@@ -21,19 +21,22 @@ from lightning.pytorch.utilities import rank_zero_info
 from omegaconf import DictConfig, OmegaConf
 
 from ..optics.camera import Camera
+from ..optics.errors import ConfigError
 from ..optics.options import TraceOptions
 from ..optics.limits import check_allocation
 from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
+from .callbacks import check_callbacks_config
 from .checkpoint import AtomicCheckpointIO, read_checkpoint
-from .lens_setup import MAX_PLATE_ORDER, build_lens
+from .lens_setup import build_lens, check_lens_config
 from .machine import describe_machine
-from .module import MAX_LR
+from .module_config import check_model_config
 from .run_lock import hold_output_folder
 from .stop_signals import stopped_by_signal
+from .tolerance import check_tolerance_config
 
-__all__ = ["build_camera", "build_objects", "check_config", "check_sizes", "preflight",
-           "summary", "train"]
+__all__ = ["STARTUP_CHECKS", "build_camera", "build_objects", "check_config", "check_sizes",
+           "preflight", "summary", "train"]
 
 # leaf keys whose type is checked at start-up (Hydra already rejects unknown keys)
 _TYPES = {
@@ -64,16 +67,26 @@ _TRAINER_TYPES = {"trainer.max_epochs": (int,), "trainer.max_steps": (int,),
 
 
 def check_config(cfg: DictConfig) -> None:
-    """Check the known keys at start-up, for type and then for meaning (a depth of 0 mm, an
-    infinite learning rate, a negative seed, ...); raises ``ValueError`` naming the key, what
-    was expected and the value received."""
+    """The one start-up check of a composed config, run before anything is built (dataset,
+    lens, renderer, model): the types of the known keys, the meaning of the values of the
+    keys no room owns (:data:`_RULES`: a depth of 0 mm, a negative seed, ...), then each
+    room's own validator (:data:`STARTUP_CHECKS`: ``lens.*``, ``model.*`` with the depth soft
+    maxima and the Wiener front end, the tolerance group, the callbacks, ``eval.*``), then the
+    sizes (:func:`check_sizes`).
+
+    Raises:
+        ConfigError: the first bad key (:class:`~deeplens.optics.errors.ConfigError`:
+            ``"{key}: expected {expected}, got {got!r}"``, attributes ``key``, ``expected``,
+            ``got``).
+        MemoryBudgetError: a size whose first allocation cannot fit in memory.
+    """
     for key, typ in _TYPES.items():
         val = OmegaConf.select(cfg, key, default="__missing__")
         if isinstance(val, str) and val == "__missing__":
-            raise ValueError(f"config key {key!r} is missing")
+            raise ConfigError.missing(key, typ.__name__)
         if val is None:
             if key in _NOT_NULL:
-                raise ValueError(f"config key {key!r}: expected {typ.__name__}, got null")
+                raise ConfigError(key, typ.__name__, None)
             continue
         if OmegaConf.is_list(val):
             val = list(val)
@@ -81,14 +94,11 @@ def check_config(cfg: DictConfig) -> None:
         if typ is float and isinstance(val, int) and not isinstance(val, bool):
             ok = True
         if not ok:
-            raise ValueError(f"config key {key!r}: expected {typ.__name__}, got {val!r} "
-                             f"({type(val).__name__})")
+            raise ConfigError(key, typ.__name__, val)
     for key, types in _TRAINER_TYPES.items():
         val = OmegaConf.select(cfg, key, default=None)
         if val is not None and (isinstance(val, bool) or not isinstance(val, types)):
-            raise ValueError(f"config key {key!r}: expected "
-                             f"{' or '.join(t.__name__ for t in types)}, got {val!r} "
-                             f"({type(val).__name__})")
+            raise ConfigError(key, " or ".join(t.__name__ for t in types), val)
     for key, rule in _RULES.items():
         val = OmegaConf.select(cfg, key, default=None)
         if val is None:
@@ -96,8 +106,58 @@ def check_config(cfg: DictConfig) -> None:
         val = OmegaConf.to_container(val) if OmegaConf.is_config(val) else val
         problem = rule(val)
         if problem:
-            raise ValueError(f"config key {key!r}: expected {problem}, got {val!r}")
+            raise ConfigError(key, problem, val)
+    for check in STARTUP_CHECKS:
+        check(cfg)
     check_sizes(cfg)
+
+
+#: the values of ``render.compile`` (:class:`~deeplens.optics.options.TraceOptions`)
+_COMPILE_VALUES = "'default', false, true ('auto'), 'surface' or 'lens'"
+
+
+def _check_render(cfg: DictConfig) -> None:
+    """``render.compile`` (a setting of :class:`~deeplens.optics.options.TraceOptions`) and
+    the PSF model's settings (``render.psf_model``, ``psf_error_budget``, ``psf_remeasure``:
+    :class:`~deeplens.render.psf_model.PSFModel`'s own checks; ``diffraction`` needs
+    ``render.kind=psf``)."""
+    from ..render.psf_model import PSFModel
+
+    c = OmegaConf.select(cfg, "render.compile", default="default")
+    try:
+        TraceOptions(compile=c)
+    except ValueError:
+        raise ConfigError("render.compile", _COMPILE_VALUES, c) from None
+    r = cfg.render
+    PSFModel(r.get("psf_model", "geometric"), r.get("psf_error_budget", 0.05),
+             r.get("psf_remeasure", 0.1))
+    if r.get("psf_model") == "diffraction" and r.get("kind") != "psf":
+        raise ConfigError("render.psf_model", f"geometric or auto with render.kind="
+                          f"{r.get('kind')} (rays: geometric optics only; diffraction needs "
+                          f"render=psf)", "diffraction")
+
+
+def _check_channels(cfg: DictConfig) -> None:
+    """``sensor.channels``: 1 or 3 channels (the textures are RGB); the networks' channel
+    arguments null or the sensor's count (:func:`_image_channels`)."""
+    ch = OmegaConf.select(cfg, "sensor.channels", default=None)
+    n_ch = 3 if ch is None else len(ch)
+    if n_ch not in (1, 3):
+        raise ConfigError("sensor.channels", "1 channel (monochrome: textures are converted "
+                          "to grey) or 3 (the training textures are RGB)",
+                          OmegaConf.to_container(ch) if OmegaConf.is_config(ch) else ch)
+    if cfg.get("net") is not None:
+        _image_channels(cfg.net, "net", n_ch)
+    disc = OmegaConf.select(cfg, "model.discriminator", default=None)
+    if disc:
+        _image_channels(disc, "model.discriminator", n_ch, ("in_channels",))
+
+
+def _check_eval(cfg: DictConfig) -> None:
+    """``eval.*`` (:func:`~deeplens.training.evaluate.check_eval_config`; nothing without)."""
+    from .evaluate import check_eval_config  # evaluate imports this module
+
+    check_eval_config(cfg)
 
 
 def check_sizes(cfg: DictConfig) -> None:
@@ -168,11 +228,6 @@ def _bands(v):
     return None if ok else "at least 2 increasing band edges in [0, 1] (normalised radius)"
 
 
-def _loss_weights(v):
-    bad = {k: w for k, w in v.items() if not (_number(w) and math.isfinite(w) and w >= 0)}
-    return f"finite weights >= 0 (bad: {bad})" if bad else None
-
-
 _POS_INT = _rule_int(1)
 # meaning of the values (after the type checks): key -> rule(value) -> None or what was expected
 _RULES = {
@@ -190,6 +245,7 @@ _RULES = {
     "scene.field_bands": _bands,
     "scene.psf_fields_deg": _rule_list(lambda x: _number(x) and 0 <= x < 90,
                                        "field angles in [0, 90) deg"),
+    "render.kind": lambda v: None if v in ("mc", "psf") else "'mc' or 'psf'",
     "render.spp": _POS_INT, "render.chunk_rays": _POS_INT, "render.max_iter": _POS_INT,
     "render.psf_rays": _POS_INT,
     "render.psf_error_budget": _rule_real(0, 1),
@@ -198,22 +254,21 @@ _RULES = {
     "render.newton_tol": _rule_real(0),
     "render.psf_patches": _rule_list(lambda x: _POS_INT(x) is None, "[rows, cols], both > 0",
                                      (2, 2)),
-    "lens.plate_surface": _rule_int(0),
-    "lens.plate_alpha_mm": _rule_real(),
-    "lens.learned_start_alpha_mm": _rule_real(),
-    "lens.plate_order": _rule_int(1, MAX_PLATE_ORDER),
-    "model.net_lr": _rule_real(0, MAX_LR["net_lr"]),
-    "model.optics_lr_mm": _rule_real(0, MAX_LR["optics_lr_mm"]),
-    "model.disc_lr": _rule_real(0, MAX_LR["disc_lr"]),
+    # lens.*: lens_setup.check_lens_config; model.* learning rates and loss weights:
+    # module_config.check_model_config (STARTUP_CHECKS)
+    # stricter than the constraint itself (which takes 0 for none): a config says null
     "model.max_sag_mm": _rule_real(0),
-    "model.loss": _loss_weights,
     # the dead-leaves texture draws discs of radius 2 px to size / 2: at least 4 pixels
     "data.image_size": _rule_int(4), "data.batch_size": _POS_INT,
     "data.train_steps_per_epoch": _POS_INT, "data.val_size": _POS_INT,
     "data.test_size": _POS_INT, "data.num_workers": _rule_int(0),
-    "callbacks.image_logger.every_n_epochs": _POS_INT,
-    "callbacks.image_logger.psf_rays": _POS_INT,
 }
+
+#: each room's validator of its own keys, run in this order by :func:`check_config` (after
+#: the types and :data:`_RULES`); each takes the composed config and raises
+#: :class:`~deeplens.optics.errors.ConfigError`
+STARTUP_CHECKS = (check_lens_config, _check_channels, _check_render, check_model_config,
+                  check_tolerance_config, check_callbacks_config, _check_eval)
 
 
 def build_camera(cfg, lens, sensor) -> Camera:
@@ -224,8 +279,8 @@ def build_camera(cfg, lens, sensor) -> Camera:
     try:
         opts = TraceOptions(tol=r.newton_tol, max_iter=r.max_iter,
                             compile=r.get("compile", "default"))
-    except ValueError as e:
-        raise ValueError(f"render.compile: {e}") from None
+    except ValueError:
+        raise ConfigError("render.compile", _COMPILE_VALUES, r.get("compile", "default")) from None
     return Camera(lens, sensor, opts)
 
 
@@ -282,7 +337,7 @@ def _build_renderer(cfg, camera: Camera):
     if r.kind == "psf":
         return PSFConvRenderer(camera, n_rays=r.psf_rays, patches=tuple(r.psf_patches),
                                seed=cfg.seed)
-    raise ValueError(f"render.kind must be 'mc' or 'psf', got {r.kind!r}")
+    raise ConfigError("render.kind", "'mc' or 'psf'", r.kind)
 
 
 def preflight(lens, sensor) -> None:
@@ -312,8 +367,8 @@ def _image_channels(node, where: str, n_ch: int, keys=("in_channels", "out_chann
     for k in keys:
         v = node.get(k)
         if v is not None and int(v) != n_ch:
-            raise ValueError(f"{where}.{k}={v}, but the sensor has {n_ch} channel(s) "
-                             f"(sensor.channels); set it to {n_ch} or null")
+            raise ConfigError(f"{where}.{k}", f"{n_ch} or null (the sensor's channel count, "
+                              f"sensor.channels)", v)
         out[k] = n_ch
     return out
 
@@ -336,9 +391,6 @@ def build_objects(cfg: DictConfig) -> dict:
                       plate_order=lc.get("plate_order"),
                       focus_wavelengths_nm=[w for ch in sensor.channels for w in ch])
     n_ch = len(sensor.channels)
-    if n_ch not in (1, 3):
-        raise ValueError(f"sensor.channels: {n_ch} channels, but the training textures are RGB: "
-                         f"use 1 (monochrome: textures are converted to grey) or 3 channels")
     camera = build_camera(cfg, lens, sensor)  # one camera: every trace of a step reads it
     renderer = build_renderer(cfg, camera)
     preflight(lens, sensor)

@@ -32,9 +32,10 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..optics.camera import Camera, HoldsCamera, as_camera
+from ..optics.errors import ConfigError
 from ..render.psf import psf_many
 
-__all__ = ["DepthWienerFilter", "DEFAULTS", "nsr_range"]
+__all__ = ["DepthWienerFilter", "DEFAULTS", "check_deconvolution", "nsr_range"]
 
 
 def nsr_range(dtype: torch.dtype) -> tuple[float, float]:
@@ -74,18 +75,7 @@ class DepthWienerFilter(HoldsCamera, nn.Module):
             raise ValueError("DepthWienerFilter: needs a camera with a sensor and depths_mm")
         lens, sensor = camera.lens, camera.sensor
         self.psf_model = psf_model
-        if not (isinstance(depths, int) and depths >= 1):
-            raise ValueError(f"model.deconvolution.depths: expected an integer >= 1, got "
-                             f"{depths!r}")
-        if not (isinstance(rays, int) and rays >= 64):
-            raise ValueError(f"model.deconvolution.rays: expected an integer >= 64, got {rays!r}")
-        if not (isinstance(nsr, (int, float)) and math.isfinite(nsr) and nsr > 0):
-            raise ValueError(f"model.deconvolution.nsr: expected a number > 0, got {nsr!r}")
-        lo, hi = nsr_range(lens.dtype)
-        if not lo <= nsr <= hi:
-            raise ValueError(f"model.deconvolution.nsr: {nsr!r} is outside the range a "
-                             f"{str(lens.dtype).removeprefix('torch.')} lens can hold "
-                             f"({lo:.3g} .. {hi:.3g})")
+        check_deconvolution({"depths": depths, "rays": rays, "nsr": nsr}, lens.dtype)
         self._held = (camera,)  # a tuple: not registered (the end-to-end module owns it)
         lo, hi = min(depths_mm), max(depths_mm)
         if depths == 1 or lo == hi:  # the dioptric middle of the range
@@ -186,3 +176,32 @@ class DepthWienerFilter(HoldsCamera, nn.Module):
 DEFAULTS = tuple((n, p.default) for n, p in inspect.signature(DepthWienerFilter).parameters.items()
                  if p.default is not inspect.Parameter.empty
                  and n not in ("psf_model", "sensor", "depths_mm", "options"))
+
+
+def check_deconvolution(settings: dict, dtype: torch.dtype | None = None) -> None:
+    """``model.deconvolution`` (the keywords of :class:`DepthWienerFilter`) checked: known keys
+    only (:data:`DEFAULTS`), ``depths`` an int >= 1, ``rays`` an int >= 64, ``nsr`` a number
+    > 0 (within :func:`nsr_range` of ``dtype``, the lens's, when given), ``learn_nsr`` a bool;
+    else
+    :class:`~deeplens.optics.errors.ConfigError` naming ``model.deconvolution.<key>``."""
+    known = dict(DEFAULTS)
+    unknown = set(settings) - set(known)
+    if unknown:
+        raise ConfigError.unknown("model.deconvolution", unknown, known)
+    s = {**known, **settings}
+    depths, rays, nsr = s["depths"], s["rays"], s["nsr"]
+    if not (isinstance(depths, int) and not isinstance(depths, bool) and depths >= 1):
+        raise ConfigError("model.deconvolution.depths", "an integer >= 1", depths)
+    if not (isinstance(rays, int) and not isinstance(rays, bool) and rays >= 64):
+        raise ConfigError("model.deconvolution.rays", "an integer >= 64", rays)
+    if not (isinstance(nsr, (int, float)) and not isinstance(nsr, bool) and math.isfinite(nsr)
+            and nsr > 0):
+        raise ConfigError("model.deconvolution.nsr", "a number > 0", nsr)
+    if not isinstance(s["learn_nsr"], bool):
+        raise ConfigError("model.deconvolution.learn_nsr", "true or false", s["learn_nsr"])
+    if dtype is not None:
+        lo, hi = nsr_range(dtype)
+        if not lo <= nsr <= hi:
+            raise ConfigError("model.deconvolution.nsr", f"a number in the range a "
+                              f"{str(dtype).removeprefix('torch.')} lens can hold "
+                              f"({lo:.3g} .. {hi:.3g})", nsr)

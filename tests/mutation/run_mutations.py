@@ -58,6 +58,7 @@ RENDER_IMAGE = ("tests/render/test_render_image.py",)
 API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
 TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
+CONFIG = ("tests/training/test_config_errors.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -401,6 +402,15 @@ MUTATIONS = [
              "never ends)", "deeplens/optics/camera.py",
              "            for p in params:\n                p.requires_grad_(True)",
              "            for p in params:\n                pass", CAMERA),
+    # ------------------------------------------------ one config check at start-up (issue 24)
+    Mutation("startup_skips_model_check", "check_config no longer calls the model's validator "
+             "(model.* refused only when the module is built, after the lens and the data)",
+             "deeplens/training/train.py", "_check_render, check_model_config,",
+             "_check_render,", CONFIG),
+    Mutation("soft_max_bins_unchecked", "model.worst_depth.bins no longer checked",
+             "deeplens/training/depth_weighting.py",
+             "    if not (isinstance(K, int) and not isinstance(K, bool) and K >= 1):\n",
+             "    if False:\n", CONFIG),
 ]
 
 

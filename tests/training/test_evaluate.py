@@ -163,14 +163,14 @@ def test_psf_rms_grows_away_from_focus():
 
 def test_eval_rejects_bad_variants_and_alphas_before_training(cfg_factory, tmp_path):
     cfg = cfg_factory("experiment=edof", "eval.variants=[none,cubicc]", config_name="eval.yaml")
-    with pytest.raises(ValueError, match="eval.variants: unknown variant 'cubicc'"):
+    with pytest.raises(ValueError, match=r"eval.variants: expected variants of none, .*, got \['none', 'cubicc'\]"):
         evaluate(cfg)
     cfg = cfg_factory("experiment=doublet", "eval.variants=[none,learned]",
                       config_name="eval.yaml")
-    with pytest.raises(ValueError, match="'none' needs a phase plate"):
+    with pytest.raises(ValueError, match=r"eval.variants: expected variants of a lens without a phase plate"):
         evaluate(cfg)
     cfg = cfg_factory("experiment=edof", "eval.seeds=[0,0]", config_name="eval.yaml")
-    with pytest.raises(ValueError, match="eval.seeds: repeated"):
+    with pytest.raises(ValueError, match=r"eval.seeds: expected .*distinct.*, got \[0, 0\]"):
         evaluate(cfg)
     cfg = cfg_factory("experiment=edof", "eval.cubic_alpha_mm=[0.01,big]",
                       config_name="eval.yaml")

@@ -126,7 +126,8 @@ def test_learned_plate_can_start_from_a_cubic_plate():
     assert [n for n, p in lens.named_parameters() if p.requires_grad] == terms
     with pytest.raises(ValueError, match="lens.learned_start_alpha_mm"):
         build_lens(path, plate="learned", plate_surface=4, learned_start_alpha_mm="big")
-    with pytest.raises(ValueError, match="lens.plate_surface must be set"):
+    with pytest.raises(ValueError, match=r"lens.plate_surface: missing; expected .*"
+                                         r"lens.learned_start_alpha_mm"):
         build_lens(path, plate="learned", learned_start_alpha_mm=0.0025)
 
 
@@ -261,7 +262,7 @@ def test_plate_order_gradients_match_finite_differences():
 
 @pytest.mark.parametrize("order, match", [
     (2, r"lens.plate_order: expected an int in \[3, 12\]"),   # would drop the cubic terms
-    (13, r"lens.plate_order: expected an int in \[3, 12\]"),
+    (13, r"lens.plate_order: expected an int in \[1, 12\]"),  # checked before the file is read
     (5.0, r"lens.plate_order: expected an int"),
     (True, r"lens.plate_order: expected an int"),
     ("5", r"lens.plate_order: expected an int"),
@@ -277,22 +278,26 @@ def test_plate_order_bad_values_are_named(order, match):
 def test_plate_order_needs_an_xy_plate():
     from deeplens.training.lens_setup import build_lens, extend_plate
 
-    with pytest.raises(ValueError, match="lens.plate_surface must be set to use lens.plate_order"):
+    with pytest.raises(ValueError, match=r"lens.plate_surface: missing; expected .*lens.plate_order"):
         build_lens(EDOF, plate="learned", plate_order=5)
-    with pytest.raises(ValueError, match=r"lens.plate_order: surface 3 .* not an XY polynomial"):
+    with pytest.raises(ValueError, match=r"lens.plate_surface: expected the index of an XY-polynomial surface .*, got 3"):
         build_lens(EDOF, plate="learned", plate_surface=3, plate_order=5)
     with pytest.raises(ValueError, match=r"lens.plate_surface: expected a surface index"):
         extend_plate(load_lens(DATA / "edof_achromat.json"), 9, 5)
 
 
 def test_plate_order_checked_in_the_config():
-    """``lens.plate_order`` is checked at start-up with the other keys (train.check_config)."""
+    """``lens.plate_order`` is checked at start-up with the other lens keys
+    (lens_setup.check_lens_settings, called by train.check_config)."""
     from omegaconf import OmegaConf
 
-    from deeplens.training.train import _RULES
+    from deeplens.optics.errors import ConfigError
+    from deeplens.training.lens_setup import check_lens_settings
 
-    assert _RULES["lens.plate_order"](5) is None
+    check_lens_settings(EDOF, plate_surface=4, plate_order=5)
     for bad in (0, 13, 2.5, True):
-        assert "an int in [1, 12]" in _RULES["lens.plate_order"](bad)
+        with pytest.raises(ConfigError, match=r"an int in \[1, 12\]") as e:
+            check_lens_settings(EDOF, plate_surface=4, plate_order=bad)
+        assert e.value.key == "lens.plate_order" and e.value.got is bad
     cfg = OmegaConf.load(Path(__file__).resolve().parents[2] / "configs" / "lens" / "edof.yaml")
     assert cfg.plate_order is None  # the default keeps the file's order (results reproducible)
