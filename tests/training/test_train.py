@@ -429,7 +429,10 @@ def test_render_compile_switch_reaches_the_tracer(cfg_factory):
     from deeplens.training.train import build_renderer
 
     objs = build_objects(cfg_factory("experiment=edof"))
-    assert objs["renderer"].options.compile is False
+    assert objs["renderer"].options.compile == "default"   # decided after the first step
+    off = build_renderer(cfg_factory("experiment=edof", "render.compile=false"), objs["lens"],
+                         objs["sensor"])
+    assert off.options.compile is False
     cfg = cfg_factory("experiment=edof", "render.compile=true")
     r = build_renderer(cfg, objs["lens"], objs["sensor"])
     assert r.options.compile == "auto"
