@@ -44,8 +44,8 @@ REFUSED = {
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "thorlabs_354710-C.zmx": "D-ZK3M",
-    "optiland_lens_floa.zmx": "cross",
-    "patent2zemax_EP0770895A2-1.zmx": "cross",    # automatic semi-diameters overlap at the rim
+    "optiland_lens_floa.zmx": "cross",   # the on-axis beam reaches past where surfaces meet
+    "patent2zemax_EP0770895A2-1.zmx": "cross",    # (OpticStudio traces it backwards)
     "patent2zemax_US20030048547A1-3.zmx": "n_d >= 1",   # relative indices < 1 (model glasses)
     "krakenos_zmax_84383.zmx": "virtual image",   # a negative lens focused at its virtual focus
 }
@@ -567,3 +567,57 @@ def test_damaged_real_files_fail_located(tmp_path):
                 assert str(p) in str(e)
                 # a line, or for what the whole file lacks (no STOP, no aperture...) the file
                 assert re.search(r"damaged\.zmx(:\d+)?: ", str(e)), str(e)
+
+
+def test_crossing_automatic_semi_diameters_are_limited_where_the_beam_fits(tmp_path):
+    """EP0770895A2's automatic semi-diameters (OpticStudio's footprints, DIAM flag 0) overlap
+    where 7 pairs of surfaces cross: OpticStudio traced its full-field rim rays backwards
+    through those gaps.  At the file's NA (0.184) the on-axis beam itself goes back between
+    surfaces 31 and 32 (refused, REFUSED); at NA 0.12 it fits: the estimates are limited to
+    where the surfaces meet (one located warning per pair, the radius a root of the edge
+    thickness), and the numbers are optiland's (which traces the backwards rays too)."""
+    from deeplens.optics.errors import ZemaxWarning
+
+    p = _variant(tmp_path, "patent2zemax_EP0770895A2-1.zmx",
+                 [(r"^OBNA .*$", "OBNA 0.12 0")])
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        lens = read_zmx(p)
+    limited = [x.message for x in w if isinstance(x.message, ZemaxWarning)
+               and "overlap where the surfaces cross" in x.message.message]
+    assert len(limited) == 7
+    assert all(x.feature == "SURF" and x.line > 0 for x in limited)
+    # the pair of file surfaces 14/15 (deeplens 13/14): both limited to where they meet
+    a, b = lens.surfaces[13], lens.surfaces[14]
+    r = float(a.semi_diameter)
+    assert float(b.semi_diameter) == r
+    z = lens.z_vertices()
+    t = torch.tensor([r], dtype=torch.float64)
+    edge = float(z[14] + b.sag(torch.zeros_like(t), t) - z[13] - a.sag(torch.zeros_like(t), t))
+    assert abs(edge) < 1e-9
+    assert 58.0 < r < 59.05   # below the file's own (59.05 and 59.52)
+    optic, s_mm = _oracle(p, lens)
+    for what, (dl, ol) in _first_order(lens, optic, s_mm, p).items():
+        assert dl == pytest.approx(ol, rel=1e-9), what
+    dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial")
+    assert dl == pytest.approx(ol, rel=1e-6)
+    # the writer keeps the limited semi-diameters
+    write_zmx(lens, tmp_path / "rt.zmx")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        back = read_zmx(tmp_path / "rt.zmx")
+    assert lens_to_dict(back)["surfaces"] == lens_to_dict(lens)["surfaces"]
+
+
+@pytest.mark.parametrize("name, pair", [("optiland_lens_floa.zmx", (0, 1)),
+                                        ("patent2zemax_EP0770895A2-1.zmx", (31, 32))])
+def test_crossing_refusal_names_the_beam(name, pair):
+    """Where the on-axis beam of the file's own pupil reaches past the radius where two
+    surfaces meet, the refusal names the pair, that radius and the beam's height there."""
+    with pytest.raises(ZemaxFileError) as e:
+        _load(name)
+    m = re.search(r"cross at r = (\S+) mm .* reaches r = (\S+) mm there", str(e.value))
+    assert m and float(m.group(2)) > float(m.group(1)), str(e.value)
+    assert e.value.surfaces == pair
+    if name == "optiland_lens_floa.zmx":   # R = ±20 mm, 5 mm apart: sag(r) = 2.5 mm
+        assert float(m.group(1)) == pytest.approx(math.sqrt(20.0**2 - 17.5**2), rel=1e-5)
