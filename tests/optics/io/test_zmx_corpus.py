@@ -46,7 +46,6 @@ REFUSED = {
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",   # the on-axis beam reaches past where surfaces meet
     "patent2zemax_EP0770895A2-1.zmx": "cross",    # (OpticStudio traces it backwards)
-    "patent2zemax_US20030048547A1-3.zmx": "n_d >= 1",   # relative indices < 1 (model glasses)
     "krakenos_zmax_84383.zmx": "virtual image",   # a negative lens focused at its virtual focus
 }
 
