@@ -142,11 +142,24 @@ def test_model_glass_with_zero_abbe_number_is_non_dispersive(tmp_path):
     assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
 
 
-def test_model_glass_below_one_is_refused_with_its_line(tmp_path):
-    text = singlet(glass="GLAS ___BLANK 1 0 0.9997 0 0 0 0 0 0 0")
+def test_dispersive_model_glass_below_one_is_refused_with_its_line(tmp_path):
+    text = singlet(glass="GLAS ___BLANK 1 0 0.9997 50 0 0 0 0 0 0")
     ln = line_of(text, "GLAS ___BLANK")
-    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: model glass .*n_d >= 1"):
+    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: model glass .*n_d >= 1.*V_d = inf"):
         read_zmx(write(tmp_path, text))
+
+
+def test_non_dispersive_model_glass_below_one_is_a_relative_index(tmp_path):
+    """``GLAS ___BLANK 1 0 0.9997 0``: OpticStudio's indices are relative to air, so a vacuum or
+    purge-gas medium is below 1 (lithography patents); the model glass keeps it, at every
+    wavelength, and the writer writes it back."""
+    text = singlet(glass="GLAS ___BLANK 1 0 0.9997 0 0 0 0 0 0 0")
+    lens = read_zmx(write(tmp_path, text))
+    m = lens.materials[2]
+    assert isinstance(m, ModelGlass) and m.n(193.0) == 0.9997 and m.n(5000.0) == 0.9997
+    write_zmx(lens, tmp_path / "back.zmx")
+    assert "GLAS ___BLANK 1 0 0.9997 0.0 " in (tmp_path / "back.zmx").read_text()
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
 
 
 @pytest.mark.parametrize("clap,refused", [("CLAP 0 4 0", True), ("CLAP 0 5.5 0", False)])
