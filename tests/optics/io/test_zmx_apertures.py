@@ -5,6 +5,7 @@ round-trips, and what deeplens cannot model is refused with its line."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import pytest
 import torch
@@ -307,3 +308,53 @@ def test_off_axis_parabola_clips_about_its_decentred_opening(tmp_path):
         assert float((p - p.mean(0)).norm(dim=-1).max()) < 1e-9   # the parabola's focus
     write_zmx(lens, tmp_path / "rt.zmx")
     assert "OBDC 0.0 190.6" in (tmp_path / "rt.zmx").read_text()
+
+
+def test_off_axis_mirrors_clip_at_their_decentred_rectangles(tmp_path):
+    """``US08011793-1`` (an unobscured four-mirror telescope): three mirrors have a SQAP opening
+    decentred by OBDC.  Of a beam wider than the openings, exactly the rays whose hits (of a
+    trace that clips nothing) lie within each mirror's rectangle about its decenter pass (the
+    opposite decenter would pass others); written back as SQAP + OBDC and read the same."""
+    from deeplens.optics.sampling import field_rays
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(CORPUS / "US08011793-1.zmx")
+    lens = lens.double()
+    rects = {0: (424.0, 192.0, -397.0), 1: (190.0, 95.0, -156.0), 3: (225.435, 140.0, 140.0)}
+    for i, (hx, hy, dy) in rects.items():
+        s = lens.surfaces[i]
+        assert i in lens.mirrors and fused_kind(lens, i) is None
+        assert s.clear_rect.tolist() == [hx, hy] and s.clear_decenter.tolist() == [0.0, dy]
+    from deeplens.optics.paraxial import paraxial
+
+    g = torch.linspace(-150.0, 150.0, 31, dtype=torch.float64)   # the entrance pupil: 143 mm
+    x, y = torch.meshgrid(g, g, indexing="ij")
+    xy = torch.stack([x.reshape(-1), y.reshape(-1)], -1)
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        lens.surfaces[2].semi_diameter.fill_(500.0)   # the stop: let the wide beam through
+        rays = field_rays(lens, 16.0, w, xy, float(paraxial(lens).entrance_pupil_z))
+        free, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+
+        def inside(sign):
+            ok = free.valid.clone()
+            for i, (hx, hy, dy) in rects.items():
+                h = hits[i]
+                ok &= (h[:, 0].abs() <= hx) & ((h[:, 1] - sign * dy).abs() <= hy)
+            return ok
+
+        want = inside(1.0)
+        assert 0 < int(want.sum()) < int(free.valid.sum())
+        assert torch.equal(lens.trace(rays).valid, want)
+        assert not torch.equal(inside(-1.0), want)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(CORPUS / "US08011793-1.zmx")   # the stop as the file sizes it
+    write_zmx(lens, tmp_path / "rt.zmx")
+    text = (tmp_path / "rt.zmx").read_text()
+    assert "SQAP 424.0 192.0 0" in text and "OBDC 0.0 -397.0" in text
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        back = read_zmx(tmp_path / "rt.zmx")
+    assert lens_to_dict(back)["surfaces"] == lens_to_dict(lens)["surfaces"]
