@@ -189,7 +189,11 @@ def _wavelengths(sysd: dict, p: Locator):
     ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
     if len(ftyp) > 1 and ftyp[1] == 1:
         p.fail(ftyp_line, "FTYP: object-space telecentric systems (second value 1) are not "
-                          "supported (deeplens needs an entrance pupil at a finite distance)")
+                          "supported: deeplens' fields are chief-ray angles through an entrance "
+                          "pupil at a finite distance, and with the pupil at infinity every "
+                          "chief ray is parallel to the axis (the fields would be object "
+                          "heights and the pupil a cone of rays about each, which deeplens does "
+                          "not model)")
     if len(ftyp) > 6 and ftyp[6] == 1:
         p.fail(ftyp_line, "FTYP: afocal image space (seventh value 1) is not supported "
                           "(deeplens images onto a sensor)")
@@ -340,9 +344,13 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator) -> float:
     elif sign * d_sensor < 0 and inside_ok:
         travel = (f" (light travels towards {'-' if sign < 0 else '+'}z there, after "
                   f"{len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''})" if mirrors else
-                  " (a virtual image, as a negative lens's file puts it at its virtual focus)")
+                  " (a virtual image, as a negative lens's file puts it at its virtual "
+                  "focus: OpticStudio extends the diverging rays backwards to that plane, a "
+                  "negative propagation distance)")
         p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
-                         f"vertex{travel}: deeplens' sensor must follow the last surface")
+                         f"vertex{travel}: deeplens' sensor must follow the last surface (it "
+                         f"records real images; to evaluate a virtual one, add the optics that "
+                         f"image it, e.g. a PARAXIAL lens, after the last surface)")
     return d_sensor
 
 

@@ -643,3 +643,21 @@ def test_crossing_refusal_names_the_beam(name, pair):
     assert e.value.surfaces == pair
     if name == "optiland_lens_floa.zmx":   # R = ±20 mm, 5 mm apart: sag(r) = 2.5 mm
         assert float(m.group(1)) == pytest.approx(math.sqrt(20.0**2 - 17.5**2), rel=1e-5)
+
+
+@pytest.mark.parametrize("name, glass, base, where", [
+    ("US08427765-1.zmx", "L-TIM28_MOLD", "L-TIM28", "OHARA (archived)"),
+    ("thorlabs_354710-C.zmx", "D-ZK3M", "D-ZK3", "CDGM")])
+def test_a_moulded_glass_names_its_base_glass_without_using_it(name, glass, base, where):
+    """A moulded glass (from a lens moulder's catalogue: RPO, LIGHTPATH) is in no catalogue
+    deeplens has: the refusal names every catalogue searched and the base glass, which is not
+    substituted (D-ZK3M's own GLAS line says n_d 1.601, D-ZK3's is 1.58913)."""
+    with pytest.raises(ZemaxFileError) as e:
+        _load(name)
+    msg = str(e.value)
+    assert f"glass {glass!r} not found" in msg and f"{base!r} ({where}, n_d " in msg
+    assert "not used in its place" in msg
+    for cat in ("SCHOTT", "OHARA", "HOYA", "CDGM", "HIKARI", "SUMITA"):
+        assert cat in msg
+    if glass == "D-ZK3M":
+        assert "n_d 1.58913" in msg and "GLAS line gives n_d 1.601" in msg
