@@ -358,3 +358,9 @@ def test_off_axis_mirrors_clip_at_their_decentred_rectangles(tmp_path):
         warnings.simplefilter("ignore")
         back = read_zmx(tmp_path / "rt.zmx")
     assert lens_to_dict(back)["surfaces"] == lens_to_dict(lens)["surfaces"]
+    # and through deeplens' own lens file (JSON: clear_rect_mm, clear_decenter_mm)
+    from deeplens.optics.io import lens_from_dict
+
+    again = lens_from_dict(lens_to_dict(lens))
+    assert lens_to_dict(again) == lens_to_dict(lens)
+    assert again.surfaces[0].clear_rect.tolist() == [424.0, 192.0]
