@@ -11,8 +11,8 @@ room may raise it without an upward import.
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "LensError", "LensFileError", "ZemaxFileError", "ZemaxWarning",
-           "format_config_error"]
+__all__ = ["ConfigError", "LensError", "LensFileError", "SurfacesCrossError", "ZemaxFileError",
+           "ZemaxWarning", "format_config_error"]
 
 
 class LensError(ValueError):
@@ -30,6 +30,17 @@ class LensError(ValueError):
         self.message = message
         self.surfaces = tuple(int(i) for i in surfaces)
         self.key = key
+
+
+class SurfacesCrossError(LensError):
+    """Two consecutive surfaces that cross within their semi-diameters (a negative edge
+    thickness): a :class:`LensError` whose ``surfaces`` are the pair ``(i, j)`` and whose
+    ``radius`` is the smallest radius (mm) at which they meet, so that a reader whose
+    semi-diameters are only estimates (automatic ones) can limit them there."""
+
+    def __init__(self, message: str, *, surfaces, radius: float):
+        super().__init__(message, surfaces=surfaces)
+        self.radius = float(radius)
 
 
 class LensFileError(ValueError):

@@ -31,7 +31,7 @@ import torch
 from torch import nn
 
 from . import tracer
-from .errors import LensError
+from .errors import LensError, SurfacesCrossError
 from .intersect import (_safe_div, intersect, propagate_distance, stop_crossing_xyz,
                         trace_quadric)
 from .materials import Air, Material, check_wavelength_nm
@@ -328,11 +328,13 @@ class Lens(nn.Module):
                 ok = a.in_domain(zero, r) & b.in_domain(zero, r)
                 if bool(((gap < -1e-9) & ok).any()):
                     k = int(torch.nonzero((gap < -1e-9) & ok)[0])
-                    raise LensError(
+                    raise SurfacesCrossError(
                         f"surfaces {i} and {j} cross: at r = {float(r[k]):.4g} mm surface "
                         f"{j} lies {float(-gap[k]):.4g} mm before surface {i} (distance "
                         f"between them {float(z[j] - z[i]):g} mm); increase the "
-                        f"thickness or reduce the semi-diameters", surfaces=(i, j))
+                        f"thickness or reduce the semi-diameters", surfaces=(i, j),
+                        radius=self._crossing_radius(i, j, float(r[k - 1]) if k else 0.0,
+                                                     float(r[k]), z, sign[j]))
             last = max([i for i, s in enumerate(self.surfaces)
                         if not isinstance(s, Aperture)], default=len(self.surfaces) - 1)
             s = self.surfaces[last]
@@ -355,6 +357,24 @@ class Lens(nn.Module):
             if bool((sign[-1] * (zl - self.z_sensor().detach()) > 1e-9).any()):
                 raise LensError(f"the last surface crosses the sensor plane (sensor distance "
                                 f"{float(self.d_sensor):g} mm)", key="sensor")
+
+    def _crossing_radius(self, i: int, j: int, lo: float, hi: float, z, sign: int) -> float:
+        """The radius in ``[lo, hi]`` (mm) where surfaces ``i`` and ``j`` meet (their gap, along
+        the direction of travel ``sign`` between them, changes sign), by bisection."""
+        a, b = self.surfaces[i], self.surfaces[j]
+
+        def gap(r: float) -> float:
+            t = torch.tensor([r], dtype=torch.float64)
+            zero = torch.zeros_like(t)
+            return float((z[j] + b.sag(zero, t) - z[i] - a.sag(zero, t)) * sign)
+
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if gap(mid) < 0:
+                hi = mid
+            else:
+                lo = mid
+        return lo
 
     def _real_neighbours(self) -> list[tuple[int, int]]:
         """Pairs ``(p, q)`` of consecutive surfaces that are neither stops (:class:`Aperture`)

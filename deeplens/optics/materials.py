@@ -323,19 +323,29 @@ class ModelGlass(Material):
     ``n_d`` at 587.5618 nm and has Abbe number ``V_d`` exactly; elsewhere it approximates.
 
     Args:
-        n_d: index at the d line, ``>= 1``.
+        n_d: index at the d line, ``>= 1``; a non-dispersive medium (``v_d = inf``) may have
+            ``0 < n_d < 1``: a *relative* index, as in files whose indices are relative to air
+            (OpticStudio's are), where a vacuum or purge-gas gap is below 1 (refraction depends
+            only on the ratio of the indices on either side).
         v_d: Abbe number, ``> 0`` (``inf`` gives a non-dispersive medium).
         name: catalogue name; by default the spec string ``"n_d/V_d"``.
-        wavelength_range_nm: range in nm where the model is accepted.
+        wavelength_range_nm: range in nm where the model is accepted (default: 310-2500 nm,
+            where the Cauchy form approximates glasses; every wavelength for a non-dispersive
+            medium, whose index is constant by definition).
     """
 
     def __init__(self, n_d: float, v_d: float, name: str | None = None,
-                 wavelength_range_nm: tuple[float, float] = DEFAULT_RANGE_NM):
+                 wavelength_range_nm: tuple[float, float] | None = None):
         n_d, v_d = float(n_d), float(v_d)
-        if not (math.isfinite(n_d) and n_d >= 1.0):
-            raise ValueError(f"model glass needs a finite n_d >= 1, got n_d = {n_d!r}")
+        if wavelength_range_nm is None:
+            wavelength_range_nm = (0.0, math.inf) if math.isinf(v_d) else DEFAULT_RANGE_NM
         if math.isnan(v_d) or v_d <= 0:
             raise ValueError(f"model glass needs an Abbe number V_d > 0, got V_d = {v_d!r}")
+        if not (math.isfinite(n_d) and (n_d >= 1.0 or (math.isinf(v_d) and n_d > 0.0))):
+            raise ValueError(f"model glass needs a finite n_d >= 1 (or 0 < n_d < 1, a relative "
+                             f"index, when non-dispersive: V_d = inf), got n_d = {n_d!r}"
+                             + ("" if math.isinf(v_d) or not 0 < n_d < 1 else
+                                f", V_d = {v_d!r}"))
         super().__init__(_model_spec(n_d, v_d) if name is None else name, wavelength_range_nm)
         self.n_d, self.v_d = n_d, v_d
         lf, lc, ld = LINE_F / _NM_PER_UM, LINE_C / _NM_PER_UM, LINE_D / _NM_PER_UM
@@ -522,7 +532,8 @@ def _from_record(rec: GlassRecord) -> Material:
 
 
 def _parse_model(spec: str) -> ModelGlass:
-    expected = "expected 'n_d/V_d' with n_d >= 1 and V_d > 0, e.g. '1.5168/64.17'"
+    expected = ("expected 'n_d/V_d' with n_d >= 1 (or 0 < n_d < 1 with V_d = inf) and "
+                "V_d > 0, e.g. '1.5168/64.17'")
     parts = spec.split("/")
     if len(parts) != 2:
         raise ValueError(f"malformed material {spec!r}: {expected}")
@@ -530,7 +541,7 @@ def _parse_model(spec: str) -> ModelGlass:
         n_d, v_d = float(parts[0]), float(parts[1])
     except ValueError:
         raise ValueError(f"malformed material {spec!r}: {expected}") from None
-    if not (math.isfinite(n_d) and n_d >= 1.0):
+    if not (math.isfinite(n_d) and (n_d >= 1.0 or (n_d > 0 and math.isinf(v_d)))):
         raise ValueError(f"malformed material {spec!r}: n_d = {parts[0].strip()} is not >= 1; "
                          f"{expected}")
     if math.isnan(v_d) or v_d <= 0:
@@ -553,7 +564,8 @@ def get_material(spec: str) -> Material:
     Raises:
         UnknownMaterialError: (a ``ValueError``) unknown name; the message lists the 3 closest
             catalogue names.
-        ValueError: malformed ``"n_d/V_d"`` (not two numbers, ``n_d < 1`` or ``V_d <= 0``).
+        ValueError: malformed ``"n_d/V_d"`` (not two numbers, ``n_d < 1`` with a finite
+            ``V_d``, ``n_d <= 0`` or ``V_d <= 0``).
         TypeError: ``spec`` is not a string.
     """
     if not isinstance(spec, str):

@@ -179,12 +179,27 @@ def test_unknown_glass_names_closest_matches():
 @pytest.mark.parametrize("spec,words", [
     ("abc/def", "n_d/V_d"), ("1.5/", "n_d/V_d"), ("1.5/60/2", "n_d/V_d"),
     ("0.9/50", "n_d"), ("1.5/0", "V_d"), ("1.5/-3", "V_d"), ("nan/50", "n_d"), ("1.5/nan", "V_d"),
+    ("0/inf", "n_d"), ("-0.5/inf", "n_d"),
 ])
 def test_malformed_model_spec(spec, words):
     with pytest.raises(ValueError, match="expected 'n_d/V_d'") as exc:
         get_material(spec)
     assert not isinstance(exc.value, UnknownMaterialError)
     assert words in str(exc.value) and spec in str(exc.value)
+
+
+def test_non_dispersive_relative_index_below_one():
+    """A non-dispersive model glass may have 0 < n_d < 1 (an index relative to air: a vacuum or
+    purge-gas gap in a lithography lens); its index is the same at every wavelength, so it has
+    no wavelength range; a dispersive one below 1 is refused."""
+    m = get_material("0.999712/inf")
+    assert isinstance(m, ModelGlass) and m.wavelength_range_nm == (0.0, math.inf)
+    w = torch.tensor([150.0, 193.304, 587.5618, 1e4], dtype=torch.float64)
+    assert torch.equal(m.n(w), torch.full_like(w, 0.999712))
+    assert get_material(m.to_spec()).n(193.0) == m.n(193.0)
+    with pytest.raises(ValueError, match="V_d = inf"):
+        ModelGlass(0.999712, 50.0)
+    assert ModelGlass(1.5, 50.0).wavelength_range_nm == (310.0, 2500.0)
 
 
 def test_non_string_spec():

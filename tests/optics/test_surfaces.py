@@ -437,3 +437,23 @@ def test_asphere_decentred_clear_aperture():
         Asphere(0.05, 7.5, clear_decenter=(1.0, 0.0))
     with pytest.raises(ValueError, match="two finite numbers"):
         Asphere(0.05, 7.5, clear_radius=2.0, clear_decenter=(math.nan, 0.0))
+
+
+def test_asphere_rectangular_decentred_opening():
+    """A rectangular opening (Zemax's SQAP, with OBDC an off-axis mirror's): rays are kept
+    within the half-widths of ``clear_rect`` about ``clear_decenter``; the clear radius defaults
+    to its half-diagonal; saved in the lens file."""
+    s = Asphere(-2.8e-4, 900.0, clear_rect=(424.0, 192.0), clear_decenter=(0.0, -397.0))
+    assert float(s.clear_radius) == math.hypot(424.0, 192.0)
+    x = torch.tensor([0.0, 423.9, 424.1, 0.0, 0.0, 0.0, 0.0], dtype=F64)
+    y = torch.tensor([-397.0, -397.0, -397.0, -205.1, -204.9, -588.9, -589.1], dtype=F64)
+    assert s.in_aperture(x, y).tolist() == [True, True, False, True, False, True, False]
+    d = s.to_dict()
+    assert d["clear_rect_mm"] == [424.0, 192.0] and d["clear_decenter_mm"] == [0.0, -397.0]
+    back = Asphere.from_dict(_Entry(d), 900.0)
+    assert back.clear_rect.tolist() == [424.0, 192.0]
+    assert torch.equal(back.in_aperture(x, y), s.in_aperture(x, y))
+    assert "clear_rect_mm" not in Asphere(0.05, 7.5, clear_radius=6.0).to_dict()
+    for bad in ((0.0, 1.0), (1.0,), (math.inf, 1.0)):
+        with pytest.raises(ValueError, match="clear_rect"):
+            Asphere(0.05, 7.5, clear_rect=bad)

@@ -40,11 +40,15 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   :class:`~deeplens.optics.surfaces.Aperture` (rectangular with ``SQAP``, with a central
   obscuration with ``OBSC`` or an annular ``CLAP``; decentred by ``OBDC`` when it is not the
   stop); on a curved lens or mirror surface those are the surface's own ``obscuration``, and a
-  circular ``CLAP`` with ``OBDC`` its off-axis opening (``clear_radius``, ``clear_decenter``: an
-  off-axis parabola).  A ``CLAP`` on a lens-surface stop narrower than the stop an
+  circular ``CLAP`` or a rectangular ``SQAP`` (``clear_rect``), moved by ``OBDC``, its
+  off-axis opening (``clear_radius``, ``clear_decenter``: an off-axis parabola, an off-axis
+  telescope's mirrors).  A ``CLAP`` on a lens-surface stop narrower than the stop an
   ``ENPD``/``FNUM`` aperture defines is its ``clear_radius``: the pupil keeps its size and its
   rim is vignetted (refused on a flat stop in air).  A surface with no
-  ``DIAM`` gets an automatic semi-diameter from real rays; an image plane on a flat last vertex
+  ``DIAM`` gets an automatic semi-diameter from real rays; automatic semi-diameters of two
+  surfaces that cross within them are limited to where they meet (a warning; the file is
+  refused when its on-axis beam reaches past that radius, rays OpticStudio would trace
+  backwards); an image plane on a flat last vertex
   puts the sensor 1e-9 mm behind it (along the direction of travel: towards -z after an odd
   number of mirrors); so does one on a last coordinate break.
 * ``COORDBRK`` pairs that bracket one element (decenter/tilt, the element, a return to its first
@@ -61,7 +65,8 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   archived .agf, then previous) and deeplens' own catalogue, which answers for ``MISC``.  ``GLAS ___BLANK 1 0 n_d V_d``
   (a Zemax model glass) becomes a
   :class:`~deeplens.optics.materials.ModelGlass` (deeplens' Cauchy model: exact at n_d and V_d,
-  Zemax's own model differs slightly elsewhere; ``V_d = 0`` is non-dispersive).  A glass not found is an error naming it and its
+  Zemax's own model differs slightly elsewhere; ``V_d = 0`` is non-dispersive, and may then
+  have ``n_d < 1``: OpticStudio's indices are relative to air).  A glass not found is an error naming it and its
   line, unless the caller passes ``glass_fallback``.
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that

@@ -147,11 +147,43 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                                               f"the requested fallback {m.name!r}"),
                       stacklevel=stacklevel)
         return m
+    others = [c for c in CURRENT_CATALOGUES if c not in named]
+    if others:
+        searched.append(f"by exact name also {', '.join(others)} (current) and their archived "
+                        f"and previous catalogues")
+    hint += _base_glass_hint(glass, s)
     p.fail(s.glass_line, f"glass {glass!r} not found by exact name in the catalogues searched "
                          f"({'; '.join(searched) or 'none'}){hint}; deeplens never substitutes "
                          f"a similar glass: give the vendor's .agf (glass_catalogs=[...]) or ask "
                          f"for a fallback (glass_fallback='model' uses the n_d/V_d on the GLAS "
                          f"line)")
+
+
+def _base_glass_hint(glass: str, s: ZmxSurface) -> str:
+    """For a name that is a vendor glass's plus a suffix (``L-TIM28_MOLD``: a moulded variant
+    in a lens-moulder's catalogue; ``D-ZK3M``), the base glass and where it is, with the reason
+    it is not used: a moulded glass's index differs from the base glass's by a drop that
+    depends on the glass and the moulding process (no published rule), and the ``GLAS`` line's
+    own ``n_d`` (when it is not OpticStudio's placeholder) says by how much."""
+    g = glass.strip().upper()
+    bases = [g[:-len("_MOLD")]] if g.endswith("_MOLD") else []
+    bases += [g[:-1]] if len(g) > 3 and g[-1].isalpha() and g[-2].isdigit() else []
+    for base in bases:
+        where = find_in_vendor_catalogues(base)
+        if not where:
+            continue
+        cat = where[0].split()[0]
+        m = (previous_glass(base, cat) if where[0].endswith("(previous)")
+             else archived_glass(base, cat) if where[0].endswith("(archived)")
+             else vendor_glass(base, cat))
+        nd = float(m.n(587.5618))
+        own = ("" if s.glass_model is None or tuple(s.glass_model) == _PLACEHOLDER_ND_VD else
+               f"; the GLAS line gives n_d {s.glass_model[0]:g}, V_d {s.glass_model[1]:g} for "
+               f"{glass!r}")
+        return (f"; {base!r} ({where[0]}, n_d {nd:.5f}) is the base glass of this name, not "
+                f"used in its place: a moulded or variant glass's index differs from the base "
+                f"glass's by an amount no rule gives{own}")
+    return ""
 
 
 def model_glass(s: ZmxSurface, p: Locator, name=None) -> ModelGlass:

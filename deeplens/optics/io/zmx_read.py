@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from ..errors import ZemaxFileError
+from ..errors import SurfacesCrossError, ZemaxFileError
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
 from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
@@ -117,13 +117,21 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
 
     where_of = {i: kept[i][2].line for i in range(len(kept))}
     where_of["sensor"] = img.line
+    limited = {}   # (i, j) -> the radius where surfaces i and j meet (estimated diameters)
     try:
         spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                         aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves_nm,
                         primary_wavelength_nm=primary)
-        lens = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd, spec,
-                    elements=[(a, b) for a, b, _, _ in elements],
-                    name=sysd["name"] or path.stem, mirrors=seq.mirrors)
+        while True:
+            try:
+                lens = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd, spec,
+                            elements=[(a, b) for a, b, _, _ in elements],
+                            name=sysd["name"] or path.stem, mirrors=seq.mirrors)
+                break
+            except SurfacesCrossError as e:
+                if not _limit_at_crossing(e, surfaces, lambda i: _estimated(kept, stop_idx, i),
+                                          limited):
+                    raise
     except (ValueError, TypeError) as e:
         if getattr(e, "key", None) == "aperture":   # the ENPD/FNUM/FLOA line's value
             p.fail(ap_line, str(e))
@@ -160,7 +168,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
     autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
     if autos:
-        _auto_semi_diameters(lens, autos, fields, where_of, p)
+        _auto_semi_diameters(lens, autos, fields, where_of, p, limited)
+    if limited:
+        _check_beam_within_crossings(lens, limited, where_of, p)
     try:
         lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                              aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
@@ -179,7 +189,11 @@ def _wavelengths(sysd: dict, p: Locator):
     ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
     if len(ftyp) > 1 and ftyp[1] == 1:
         p.fail(ftyp_line, "FTYP: object-space telecentric systems (second value 1) are not "
-                          "supported (deeplens needs an entrance pupil at a finite distance)")
+                          "supported: deeplens' fields are chief-ray angles through an entrance "
+                          "pupil at a finite distance, and with the pupil at infinity every "
+                          "chief ray is parallel to the axis (the fields would be object "
+                          "heights and the pupil a cone of rays about each, which deeplens does "
+                          "not model)")
     if len(ftyp) > 6 and ftyp[6] == 1:
         p.fail(ftyp_line, "FTYP: afocal image space (seventh value 1) is not supported "
                           "(deeplens images onto a sensor)")
@@ -330,9 +344,13 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator) -> float:
     elif sign * d_sensor < 0 and inside_ok:
         travel = (f" (light travels towards {'-' if sign < 0 else '+'}z there, after "
                   f"{len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''})" if mirrors else
-                  " (a virtual image, as a negative lens's file puts it at its virtual focus)")
+                  " (a virtual image, as a negative lens's file puts it at its virtual "
+                  "focus: OpticStudio extends the diverging rays backwards to that plane, a "
+                  "negative propagation distance)")
         p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
-                         f"vertex{travel}: deeplens' sensor must follow the last surface")
+                         f"vertex{travel}: deeplens' sensor must follow the last surface (it "
+                         f"records real images; to evaluate a virtual one, add the optics that "
+                         f"image it, e.g. a PARAXIAL lens, after the last surface)")
     return d_sensor
 
 
@@ -392,7 +410,82 @@ def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locato
                       f"aperture as FLOA, or an ENPD/FNUM the CLAP does not cut)")
 
 
-def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator):
+def _estimated(kept, stop_idx: int, i: int) -> bool:
+    """Whether kept surface ``i``'s semi-diameter is only an estimate of the beam's footprint:
+    an automatic ``DIAM`` (flag 0, OpticStudio's own estimate written to the file, or none),
+    neither fixed nor a ``CLAP``, and not the stop (whose radius is the pupil's)."""
+    s = kept[i][2]
+    return i != stop_idx and not s.diam_fixed and s.clap is None and s.sqap is None
+
+
+def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict) -> bool:
+    """Two surfaces whose *estimated* semi-diameters (:func:`_estimated`) overlap where they
+    cross (``e``): both are limited to the radius where they meet and the pair is recorded in
+    ``limited``; ``False`` (nothing changed) when either semi-diameter is the file's own.
+
+    OpticStudio's automatic semi-diameters are footprints of rays that it traces even where
+    the next surface lies *behind* the ray (a negative propagation distance: rays beyond the
+    radius where two surfaces meet travel backwards through the gap, a rim that cannot be
+    made).  deeplens traces forwards only, so such rays are lost either way; limiting the
+    estimates there builds the lens, and :func:`_check_beam_within_crossings` refuses the
+    file when the on-axis beam itself reaches past the crossing."""
+    i, j = e.surfaces
+    if not (estimated(i) and estimated(j)) or (i, j) in limited:
+        return False
+    with torch.no_grad():
+        for k in (i, j):
+            sd = surfaces[k].semi_diameter
+            sd.fill_(min(float(sd), e.radius))
+    limited[(i, j)] = e.radius
+    return True
+
+
+def _check_beam_within_crossings(lens, limited: dict, where_of: dict, p: Locator) -> None:
+    """Each pair of surfaces limited at their crossing (:func:`_limit_at_crossing`): the
+    on-axis beam of the file's pupil (real rays at the primary wavelength over the paraxial
+    entrance pupil's rim, apertures ignored) must stay within the crossing radius on both,
+    else the file is refused (the numbers would not be the file's); otherwise a located
+    warning says which radius the rays of other fields are vignetted at."""
+    from ..intersect import IntersectOptions
+    from ..paraxial import paraxial
+    from ..sampling import field_rays
+
+    with torch.no_grad():
+        par = paraxial(lens)
+        half = 0.5 * float(par.entrance_pupil_diameter)
+        phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
+        pts = torch.stack([torch.cos(phi), torch.sin(phi)], -1) * half
+        rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts,
+                          float(par.entrance_pupil_z))
+        out, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+    # a ray lost at a surface keeps its last position in the later records, so in the light's
+    # order the first pair whose records reach past its crossing is where the beam goes back
+    lost = int((~out.valid).sum())
+    for (i, j), r in sorted(limited.items()):
+        reach = max(float(torch.nan_to_num(torch.linalg.vector_norm(hits[k][:, :2], dim=-1),
+                                           nan=0.0).max()) for k in (i, j))
+        where = (f"SURF blocks on lines {where_of[i]} and {where_of[j]} (deeplens surfaces {i} "
+                 f"and {j})")
+        if reach > r * (1 + 1e-9):
+            p.fail(where_of[j], f"the surfaces of the {where} cross at r = {r:.6g} mm (a "
+                                f"negative edge thickness beyond it), and the on-axis beam of "
+                                f"the file's pupil (entrance-pupil diameter {2 * half:.6g} mm) "
+                                f"reaches r = {reach:.6g} mm there"
+                                + (f" ({lost} of 48 rim rays cannot be traced forwards)"
+                                   if lost else "")
+                                + ": OpticStudio traces such rays backwards through the gap "
+                                  "(a negative propagation distance), a lens that cannot be "
+                                  "made; deeplens traces forwards only, so it refuses the "
+                                  "file rather than give other numbers (reduce the aperture, "
+                                  "or thicken the gap)", surfaces=(i, j))
+        p.note(where_of[j], f"the automatic semi-diameters of the {where} overlap where the "
+                            f"surfaces cross, at r = {r:.6g} mm: both are limited to it; "
+                            f"OpticStudio traces rays beyond it backwards through the gap (a "
+                            f"negative propagation distance), deeplens vignettes them (the "
+                            f"on-axis beam, up to r = {reach:.6g} mm here, is not affected)")
+
+
+def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None):
     """Automatic semi-diameters of the surfaces ``idx``, as OpticStudio's: the largest height of
     the real rays that fill the pupil, over every field and wavelength.  A first paraxial
     estimate ``1.05 (|y_marginal| + |y_chief|)`` (full field) lets the lens be built; then rays
@@ -455,10 +548,17 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator):
                 if c != 0 and 1 + k > 0:
                     sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
                 surf.semi_diameter.fill_(sd)
-    try:
-        lens.check()
-    except ValueError as e:
-        raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
+    limited = {} if limited is None else limited
+    while True:
+        try:
+            lens.check()
+            return
+        except SurfacesCrossError as e:
+            if _limit_at_crossing(e, lens.surfaces, lambda i: i in idx, limited):
+                continue
+            raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
+        except ValueError as e:
+            raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
 
 
 def _afocal(lens) -> bool:

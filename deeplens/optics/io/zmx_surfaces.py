@@ -111,12 +111,25 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         raise   # already located (a helper's p.fail): not located twice
     except ValueError as e:
         p.fail(s.type_line or s.line, f"SURF {k}: {e}")
+    if s.sqap is not None and type(surf) is Asphere and s.clap is None and s.obsc is None:
+        # a rectangular opening of a lens or mirror surface (an off-axis mirror's, with OBDC):
+        # the rectangle, within its circumscribed circle; the semi-diameter encloses it
+        hx, hy = s.sqap[0] * s_mm, s.sqap[1] * s_mm
+        if s.stop:
+            p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture stop on a lens or "
+                              f"mirror surface is not supported (deeplens' stops are circular "
+                              f"there)")
+        with torch.no_grad():
+            surf.clear_rect.copy_(torch.tensor([hx, hy], dtype=torch.float64))
+            surf.clear_radius.fill_(math.hypot(hx, hy))
+            surf.semi_diameter.fill_(math.hypot(hx, hy))
+        auto = False
     if s.obdc is not None:   # the decenter of the opening (not on the stop)
         dec = _aperture_decenter(s, k, surf, s_mm, p)
         if isinstance(surf, Aperture):
             surf.decenter.copy_(torch.tensor(dec, dtype=surf.decenter.dtype))
-        else:   # an off-axis segment of a lens or mirror surface: its CLAP, moved
-            rc = s.clap[0] * s_mm
+        else:   # an off-axis segment of a lens or mirror surface: its CLAP or SQAP, moved
+            rc = float(surf.clear_radius) if s.clap is None else s.clap[0] * s_mm
             with torch.no_grad():
                 surf.clear_radius.fill_(rc)
                 surf.clear_decenter.copy_(torch.tensor(dec, dtype=torch.float64))
@@ -142,10 +155,14 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                           f"obscurations on flat surfaces in air: put the obscuration on its "
                           f"own flat dummy surface where that is equivalent)")
     if s.sqap is not None and not (isinstance(surf, Cylinder) or (
-            isinstance(surf, Aperture) and surf.shape == "rect")):
+            isinstance(surf, Aperture) and surf.shape == "rect") or (
+            type(surf) is Asphere and bool(surf.clear_rect.any()))):
+        extra = (" with a CLAP" if s.clap is not None else
+                 " with an OBSC" if s.obsc is not None else "")
         p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture on a "
-                          f"{type(surf).__name__} surface is not supported (deeplens has "
-                          f"rectangular apertures on flat stops in air and on cylinders)")
+                          f"{type(surf).__name__} surface{extra} is not supported (deeplens has "
+                          f"rectangular apertures on flat stops in air, on cylinders, and alone "
+                          f"(no CLAP or OBSC) on a STANDARD or EVENASPH lens or mirror surface)")
     if auto and isinstance(surf, Aperture) and surf.shape == "rect":
         auto = False   # its semi-diameter is the rectangle's half-diagonal
     return surf, auto
@@ -154,8 +171,9 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
 def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
     """``OBDC x y``: the decenter (mm) of the surface's aperture: a ``CLAP`` (circular or
     annular) or ``SQAP`` on a flat surface in air (a deeplens :class:`Aperture`), or a circular
-    ``CLAP`` on a lens or mirror surface (an :class:`Asphere`: an off-axis segment, such as an
-    off-axis parabola's opening); never on the stop."""
+    ``CLAP`` or a ``SQAP`` on a lens or mirror surface (an :class:`Asphere`: an off-axis
+    segment, such as an off-axis parabola's or an off-axis mirror's rectangular opening); never
+    on the stop."""
     dx, dy, ln = s.obdc
     where = f"OBDC on SURF {k} (aperture decenter {dx:g}, {dy:g})"
     if s.clap is None and s.sqap is None:   # an OBSC alone (no aperture at all: not called)
@@ -166,14 +184,14 @@ def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
         p.fail(ln, f"{where}: a decentred aperture stop is not supported (deeplens' entrance "
                    f"pupil is centred on the axis)")
     if not isinstance(surf, Aperture) and not (
-            type(surf) is Asphere and s.clap is not None and s.sqap is None
+            type(surf) is Asphere and (s.clap is None) != (s.sqap is None)
             and s.obsc is None):
-        what = ("a rectangular (SQAP)" if s.sqap is not None else
-                "an annular or obscured" if s.obsc is not None else "a")
+        what = ("an annular or obscured" if s.obsc is not None else
+                "a circular and rectangular (CLAP and SQAP)" if s.sqap is not None else "a")
         p.fail(ln, f"{where}: {what} decentred aperture on a lens or mirror surface "
                    f"({type(surf).__name__}) is not supported (deeplens decentres apertures on "
-                   f"flat surfaces in air, and a circular CLAP on a STANDARD or EVENASPH lens or "
-                   f"mirror surface: an off-axis segment)")
+                   f"flat surfaces in air, and a circular CLAP or a rectangular SQAP on a "
+                   f"STANDARD or EVENASPH lens or mirror surface: an off-axis segment)")
     return (dx * s_mm, dy * s_mm)
 
 

@@ -237,7 +237,16 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             lines.append("PARM 1 0")
             lines += [f"PARM {k + 2} {_f(v)}" for k, v in enumerate(a)]
         lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
-        if math.isfinite(float(s.clear_radius)):   # narrower than the stop, or off-axis
+        if bool(s.clear_rect.any()):   # a rectangular opening (in its circumscribed circle)
+            if abs(float(s.clear_radius) - math.hypot(*map(float, s.clear_rect))) > 1e-12 * \
+                    float(s.clear_radius):
+                raise ZemaxFileError(f"surface {i}: a rectangular clear aperture inside a "
+                                     f"narrower clear circle has no Zemax record (SQAP or "
+                                     f"CLAP, not both)", surfaces=(i,))
+            lines.append(f"SQAP {_f(s.clear_rect[0])} {_f(s.clear_rect[1])} 0")
+            if bool(s.clear_decenter.any()):
+                lines.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
+        elif math.isfinite(float(s.clear_radius)):   # narrower than the stop, or off-axis
             lines.append(f"CLAP 0 {_f(s.clear_radius)} 0")
             if bool(s.clear_decenter.any()):
                 lines.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")

@@ -155,14 +155,30 @@ class Asphere(SagSurface):
             segment of the surface: an off-axis parabola's opening, Zemax's ``OBDC`` with a
             ``CLAP``); the semi-diameter must then enclose the whole opening.  A fixed buffer
             like ``clear_radius`` (lens file: ``clear_decenter_mm``).
+        clear_rect: ``(h_x, h_y)``, mm, or ``None``: a rectangular clear aperture of these
+            half-widths, centred at ``clear_decenter`` (Zemax's ``SQAP``, with ``OBDC`` an
+            off-axis mirror's rectangular opening): rays that meet the surface at
+            ``|x - d_x| > h_x`` or ``|y - d_y| > h_y`` are blocked.  The opening is the
+            rectangle *and* the clear circle, so ``clear_radius`` defaults to the rectangle's
+            half-diagonal (its circumscribed circle, which the semi-diameter must enclose).
+            A fixed buffer like ``clear_radius`` (lens file: ``clear_rect_mm``).
 
     Each value is its own parameter: ``surface.c``, ``surface.k``, ``surface.a[0]`` (= a4), ...
     """
 
     def __init__(self, curvature: float, semi_diameter: float, conic: float = 0.0,
                  coefficients=(), obscuration: float = 0.0, clear_radius: float = math.inf,
-                 clear_decenter: tuple[float, float] = (0.0, 0.0)):
+                 clear_decenter: tuple[float, float] = (0.0, 0.0), clear_rect=None):
         super().__init__(semi_diameter)
+        rect = (0.0, 0.0) if clear_rect is None else tuple(float(v) for v in clear_rect)
+        if len(rect) != 2 or (clear_rect is not None and not all(
+                0 < v < math.inf for v in rect)):
+            raise ValueError(f"Asphere: clear_rect must be two half-widths > 0 mm, got "
+                             f"{clear_rect!r}")
+        if clear_rect is not None and not math.isfinite(float(clear_radius)):
+            clear_radius = math.hypot(*rect)
+        self.register_buffer("clear_rect", torch.tensor(rect, dtype=torch.float64),
+                             persistent=False)
         obscuration = float(obscuration)
         if not (obscuration >= 0.0 and obscuration < float("inf")):
             raise ValueError(f"Asphere: the obscuration radius must be a number >= 0 mm, got "
@@ -278,6 +294,10 @@ class Asphere(SagSurface):
                 inside = inside & (u * u + v * v <= rc * rc)
             else:
                 inside = inside & (x * x + y * y <= rc * rc)
+            if bool(self.clear_rect.any()):
+                u, v = x - self.clear_decenter[0].to(x), y - self.clear_decenter[1].to(x)
+                inside = inside & (u.abs() <= self.clear_rect[0].to(x)) & (
+                    v.abs() <= self.clear_rect[1].to(x))
         return inside
 
     def check(self, where: str = "") -> None:
@@ -298,7 +318,7 @@ class Asphere(SagSurface):
                 f"defined for r < {limit:g} mm")
 
     file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric", "obscuration_mm",
-                   "clear_radius_mm", "clear_decenter_mm")
+                   "clear_radius_mm", "clear_decenter_mm", "clear_rect_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -317,7 +337,8 @@ class Asphere(SagSurface):
                    obscuration=entry.get("obscuration_mm", default=0.0),
                    clear_radius=entry.get("clear_radius_mm", default=math.inf),
                    clear_decenter=entry.get("clear_decenter_mm", "numbers",
-                                            default=[0.0, 0.0]))
+                                            default=[0.0, 0.0]),
+                   clear_rect=entry.get("clear_rect_mm", "numbers", default=None))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -332,6 +353,8 @@ class Asphere(SagSurface):
             d["clear_radius_mm"] = float(self.clear_radius)
         if bool(self.clear_decenter.any()):
             d["clear_decenter_mm"] = [float(v) for v in self.clear_decenter]
+        if bool(self.clear_rect.any()):
+            d["clear_rect_mm"] = [float(v) for v in self.clear_rect]
         return d
 
     def extra_repr(self) -> str:

@@ -463,8 +463,9 @@ def line_of(text: str, needle: str) -> int:
     (lambda t: t.replace("PWAV 2", "PWAV 3"), "PWAV", r"PWAV 3: the primary wavelength is not one"),
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", r"UNIT: unknown lens unit 'FURLONG'"),
     (lambda t: t.replace("SURF 2", "SURF 7"), "SURF 7", r"SURF 7 out of order"),
-    (lambda t: t.replace("  DIAM 8 1 0 0 1 \"\"\nSURF 4", "  SQAP 2 2\nSURF 4"), "SQAP",
-     r"SQAP on SURF 3: a rectangular aperture on a Asphere surface is not supported"),
+    (lambda t: t.replace("  DIAM 8 1 0 0 1 \"\"\nSURF 4", "  CLAP 0 3 0\n  SQAP 2 2\nSURF 4"),
+     "SQAP", r"SQAP on SURF 3: a rectangular aperture on a Asphere surface with a CLAP is not "
+             r"supported"),
     (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0"), "SURF 3",
      r"surfaces 1 and 2 cross.*deeplens surface 1 is the SURF block on line "
      + str(line_of(singlet(), "SURF 2"))),

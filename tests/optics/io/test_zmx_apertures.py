@@ -5,6 +5,7 @@ round-trips, and what deeplens cannot model is refused with its line."""
 from __future__ import annotations
 
 import math
+import warnings
 
 import pytest
 import torch
@@ -142,11 +143,24 @@ def test_model_glass_with_zero_abbe_number_is_non_dispersive(tmp_path):
     assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
 
 
-def test_model_glass_below_one_is_refused_with_its_line(tmp_path):
-    text = singlet(glass="GLAS ___BLANK 1 0 0.9997 0 0 0 0 0 0 0")
+def test_dispersive_model_glass_below_one_is_refused_with_its_line(tmp_path):
+    text = singlet(glass="GLAS ___BLANK 1 0 0.9997 50 0 0 0 0 0 0")
     ln = line_of(text, "GLAS ___BLANK")
-    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: model glass .*n_d >= 1"):
+    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: model glass .*n_d >= 1.*V_d = inf"):
         read_zmx(write(tmp_path, text))
+
+
+def test_non_dispersive_model_glass_below_one_is_a_relative_index(tmp_path):
+    """``GLAS ___BLANK 1 0 0.9997 0``: OpticStudio's indices are relative to air, so a vacuum or
+    purge-gas medium is below 1 (lithography patents); the model glass keeps it, at every
+    wavelength, and the writer writes it back."""
+    text = singlet(glass="GLAS ___BLANK 1 0 0.9997 0 0 0 0 0 0 0")
+    lens = read_zmx(write(tmp_path, text))
+    m = lens.materials[2]
+    assert isinstance(m, ModelGlass) and m.n(193.0) == 0.9997 and m.n(5000.0) == 0.9997
+    write_zmx(lens, tmp_path / "back.zmx")
+    assert "GLAS ___BLANK 1 0 0.9997 0.0 " in (tmp_path / "back.zmx").read_text()
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
 
 
 @pytest.mark.parametrize("clap,refused", [("CLAP 0 4 0", True), ("CLAP 0 5.5 0", False)])
@@ -294,3 +308,59 @@ def test_off_axis_parabola_clips_about_its_decentred_opening(tmp_path):
         assert float((p - p.mean(0)).norm(dim=-1).max()) < 1e-9   # the parabola's focus
     write_zmx(lens, tmp_path / "rt.zmx")
     assert "OBDC 0.0 190.6" in (tmp_path / "rt.zmx").read_text()
+
+
+def test_off_axis_mirrors_clip_at_their_decentred_rectangles(tmp_path):
+    """``US08011793-1`` (an unobscured four-mirror telescope): three mirrors have a SQAP opening
+    decentred by OBDC.  Of a beam wider than the openings, exactly the rays whose hits (of a
+    trace that clips nothing) lie within each mirror's rectangle about its decenter pass (the
+    opposite decenter would pass others); written back as SQAP + OBDC and read the same."""
+    from deeplens.optics.sampling import field_rays
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(CORPUS / "US08011793-1.zmx")
+    lens = lens.double()
+    rects = {0: (424.0, 192.0, -397.0), 1: (190.0, 95.0, -156.0), 3: (225.435, 140.0, 140.0)}
+    for i, (hx, hy, dy) in rects.items():
+        s = lens.surfaces[i]
+        assert i in lens.mirrors and fused_kind(lens, i) is None
+        assert s.clear_rect.tolist() == [hx, hy] and s.clear_decenter.tolist() == [0.0, dy]
+    from deeplens.optics.paraxial import paraxial
+
+    g = torch.linspace(-150.0, 150.0, 31, dtype=torch.float64)   # the entrance pupil: 143 mm
+    x, y = torch.meshgrid(g, g, indexing="ij")
+    xy = torch.stack([x.reshape(-1), y.reshape(-1)], -1)
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        lens.surfaces[2].semi_diameter.fill_(500.0)   # the stop: let the wide beam through
+        rays = field_rays(lens, 16.0, w, xy, float(paraxial(lens).entrance_pupil_z))
+        free, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+
+        def inside(sign):
+            ok = free.valid.clone()
+            for i, (hx, hy, dy) in rects.items():
+                h = hits[i]
+                ok &= (h[:, 0].abs() <= hx) & ((h[:, 1] - sign * dy).abs() <= hy)
+            return ok
+
+        want = inside(1.0)
+        assert 0 < int(want.sum()) < int(free.valid.sum())
+        assert torch.equal(lens.trace(rays).valid, want)
+        assert not torch.equal(inside(-1.0), want)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(CORPUS / "US08011793-1.zmx")   # the stop as the file sizes it
+    write_zmx(lens, tmp_path / "rt.zmx")
+    text = (tmp_path / "rt.zmx").read_text()
+    assert "SQAP 424.0 192.0 0" in text and "OBDC 0.0 -397.0" in text
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        back = read_zmx(tmp_path / "rt.zmx")
+    assert lens_to_dict(back)["surfaces"] == lens_to_dict(lens)["surfaces"]
+    # and through deeplens' own lens file (JSON: clear_rect_mm, clear_decenter_mm)
+    from deeplens.optics.io import lens_from_dict
+
+    again = lens_from_dict(lens_to_dict(lens))
+    assert lens_to_dict(again) == lens_to_dict(lens)
+    assert again.surfaces[0].clear_rect.tolist() == [424.0, 192.0]

@@ -36,14 +36,12 @@ FILES = sorted(p.name for p in CORPUS.glob("*.zmx"))
 
 #: file -> the feature its refusal must name (every other file must load)
 REFUSED = {
-    "US08011793-1.zmx": "OBDC",
     "thorlabs_ASL5040-UV.zmx": "C79-80",   # Corning's; then its Qbfs on a conic base
     "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "thorlabs_354710-C.zmx": "D-ZK3M",
-    "optiland_lens_floa.zmx": "cross",
-    "patent2zemax_EP0770895A2-1.zmx": "cross",    # automatic semi-diameters overlap at the rim
-    "patent2zemax_US20030048547A1-3.zmx": "n_d >= 1",   # relative indices < 1 (model glasses)
+    "optiland_lens_floa.zmx": "cross",   # the on-axis beam reaches past where surfaces meet
+    "patent2zemax_EP0770895A2-1.zmx": "cross",    # (OpticStudio traces it backwards)
     "krakenos_zmax_84383.zmx": "virtual image",   # a negative lens focused at its virtual focus
 }
 
@@ -212,6 +210,18 @@ def _oracle(name, lens, gratings=True):
         if m is not None and float(m.group(1)) > 0:
             assert s.aperture is None, "an OBSC beside another aperture: extend the oracle"
             s.aperture = RadialAperture(r_max=1e30, r_min=float(m.group(1)))
+    # SQAP (with OBDC, its decenter): optiland's reader keeps only CLAP, so the oracle gets
+    # the rectangular opening here (the mirrors of an off-axis telescope)
+    from optiland.physical_apertures import RectangularAperture
+
+    for s, b in zip(surfs, [b for b, t in zip(blocks, types) if t != "COORDBRK"]):
+        m = re.search(r"^\s+SQAP\s+(\S+)\s+(\S+)", b, re.M)
+        if m is not None:
+            d = re.search(r"^\s+OBDC\s+(\S+)\s+(\S+)", b, re.M)
+            dx, dy = (float(d.group(1)), float(d.group(2))) if d else (0.0, 0.0)
+            hx, hy = float(m.group(1)), float(m.group(2))
+            assert s.aperture is None, "a SQAP beside another aperture: extend the oracle"
+            s.aperture = RectangularAperture(dx - hx, dx + hx, dy - hy, dy + hy)
     # TOROIDAL: OpticStudio's PARM 1 is the radius of rotation (0: infinite) and PARM 2.. the
     # y², y⁴, ... coefficients; optiland 0.6's reader takes the radius from PARM 2 and the
     # coefficients from PARM 3.. (one off), so the oracle's toroidal geometry (its own sag,
@@ -259,15 +269,27 @@ def _first_order(lens, optic, s_mm, name):
 GRAZING = {"zmax_37992.zmx"}
 
 
+#: off-axis systems whose openings admit no on-axis beam (an unobscured four-mirror telescope
+#: with rectangular, decentred mirror openings, fields 13-19°): the field (deg) their "on-axis"
+#: checks use instead, the file's first field (no ray vignetted there, in either library)
+REFERENCE_FIELD = {"US08011793-1.zmx": 16.0}
+
+
 def _rms_on_axis(lens, optic, s_mm, pupil, name=None):
     from optiland.analysis import SpotDiagram
 
     w = float(lens.spec.primary_wavelength_nm)
+    f = REFERENCE_FIELD.get(name, 0.0)
     with torch.no_grad():
-        dl = float(spot_diagram(lens, 0.0, w, "hexapolar:12", pupil=pupil).rms_radius) / s_mm
+        spot = spot_diagram(lens, f, w, "hexapolar:12", pupil=pupil)
+        dl = float(spot.rms_radius) / s_mm
+    if f:
+        assert spot.n_rays == spot.n_launched
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        sd = SpotDiagram(optic, fields=[(0.0, 0.0)], wavelengths=[w / 1000.0], num_rings=12,
+        # optiland's normalised field: the angle over its largest (radial) field
+        h = f / float(optic.fields.max_field) if f else 0.0
+        sd = SpotDiagram(optic, fields=[(0.0, h)], wavelengths=[w / 1000.0], num_rings=12,
                          reference="centroid")
         ol = float(sd.rms_spot_radius()[0][0])
     if name in GRAZING:
@@ -340,7 +362,7 @@ def test_loads_with_the_oracles_numbers(name, tmp_path):
     assert convention == ("traced" if _raim_type(name) else "paraxial")
     if convention == "traced":
         # ray aiming: the real rim ray of the sampled pupil grazes the stop's rim
-        _check_rim_ray_fills_stop(lens)
+        _check_rim_ray_fills_stop(lens, REFERENCE_FIELD.get(name, 0.0))
 
 
 def _folded(name):
@@ -430,17 +452,17 @@ def _raim_type(name):
     return int(m.group(1)) if m else 0
 
 
-def _check_rim_ray_fills_stop(lens):
+def _check_rim_ray_fills_stop(lens, field=0.0):
     from deeplens.analysis.spot import find_pupil
     from deeplens.optics.sampling import field_rays
 
     w = float(lens.spec.primary_wavelength_nm)
     with torch.no_grad():
-        region = find_pupil(lens, 0.0, w, "traced")
+        region = find_pupil(lens, field, w, "traced")
         # about the pupil's centre (off the axis for an off-axis section)
         xy = torch.tensor([[region.cx, region.cy + region.ry * (1 - 1e-6)],
                            [region.cx, region.cy + region.ry * (1 + 1e-6)]], dtype=lens.dtype)
-        out = lens.trace_to_sensor(field_rays(lens, 0.0, w, xy, region.z))
+        out = lens.trace_to_sensor(field_rays(lens, field, w, xy, region.z))
     assert out.valid.tolist() == [True, False]
 
 
@@ -622,3 +644,75 @@ def test_damaged_real_files_fail_located(tmp_path):
                 assert str(p) in str(e)
                 # a line, or for what the whole file lacks (no STOP, no aperture...) the file
                 assert re.search(r"damaged\.zmx(:\d+)?: ", str(e)), str(e)
+
+
+def test_crossing_automatic_semi_diameters_are_limited_where_the_beam_fits(tmp_path):
+    """EP0770895A2's automatic semi-diameters (OpticStudio's footprints, DIAM flag 0) overlap
+    where 7 pairs of surfaces cross: OpticStudio traced its full-field rim rays backwards
+    through those gaps.  At the file's NA (0.184) the on-axis beam itself goes back between
+    surfaces 31 and 32 (refused, REFUSED); at NA 0.12 it fits: the estimates are limited to
+    where the surfaces meet (one located warning per pair, the radius a root of the edge
+    thickness), and the numbers are optiland's (which traces the backwards rays too)."""
+    from deeplens.optics.errors import ZemaxWarning
+
+    p = _variant(tmp_path, "patent2zemax_EP0770895A2-1.zmx",
+                 [(r"^OBNA .*$", "OBNA 0.12 0")])
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        lens = read_zmx(p)
+    limited = [x.message for x in w if isinstance(x.message, ZemaxWarning)
+               and "overlap where the surfaces cross" in x.message.message]
+    assert len(limited) == 7
+    assert all(x.feature == "SURF" and x.line > 0 for x in limited)
+    # the pair of file surfaces 14/15 (deeplens 13/14): both limited to where they meet
+    a, b = lens.surfaces[13], lens.surfaces[14]
+    r = float(a.semi_diameter)
+    assert float(b.semi_diameter) == r
+    z = lens.z_vertices()
+    t = torch.tensor([r], dtype=torch.float64)
+    edge = float(z[14] + b.sag(torch.zeros_like(t), t) - z[13] - a.sag(torch.zeros_like(t), t))
+    assert abs(edge) < 1e-9
+    assert 58.0 < r < 59.05   # below the file's own (59.05 and 59.52)
+    optic, s_mm = _oracle(p, lens)
+    for what, (dl, ol) in _first_order(lens, optic, s_mm, p).items():
+        assert dl == pytest.approx(ol, rel=1e-9), what
+    dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial")
+    assert dl == pytest.approx(ol, rel=1e-6)
+    # the writer keeps the limited semi-diameters
+    write_zmx(lens, tmp_path / "rt.zmx")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        back = read_zmx(tmp_path / "rt.zmx")
+    assert lens_to_dict(back)["surfaces"] == lens_to_dict(lens)["surfaces"]
+
+
+@pytest.mark.parametrize("name, pair", [("optiland_lens_floa.zmx", (0, 1)),
+                                        ("patent2zemax_EP0770895A2-1.zmx", (31, 32))])
+def test_crossing_refusal_names_the_beam(name, pair):
+    """Where the on-axis beam of the file's own pupil reaches past the radius where two
+    surfaces meet, the refusal names the pair, that radius and the beam's height there."""
+    with pytest.raises(ZemaxFileError) as e:
+        _load(name)
+    m = re.search(r"cross at r = (\S+) mm .* reaches r = (\S+) mm there", str(e.value))
+    assert m and float(m.group(2)) > float(m.group(1)), str(e.value)
+    assert e.value.surfaces == pair
+    if name == "optiland_lens_floa.zmx":   # R = ±20 mm, 5 mm apart: sag(r) = 2.5 mm
+        assert float(m.group(1)) == pytest.approx(math.sqrt(20.0**2 - 17.5**2), rel=1e-5)
+
+
+@pytest.mark.parametrize("name, glass, base, where", [
+    ("US08427765-1.zmx", "L-TIM28_MOLD", "L-TIM28", "OHARA (archived)"),
+    ("thorlabs_354710-C.zmx", "D-ZK3M", "D-ZK3", "CDGM")])
+def test_a_moulded_glass_names_its_base_glass_without_using_it(name, glass, base, where):
+    """A moulded glass (from a lens moulder's catalogue: RPO, LIGHTPATH) is in no catalogue
+    deeplens has: the refusal names every catalogue searched and the base glass, which is not
+    substituted (D-ZK3M's own GLAS line says n_d 1.601, D-ZK3's is 1.58913)."""
+    with pytest.raises(ZemaxFileError) as e:
+        _load(name)
+    msg = str(e.value)
+    assert f"glass {glass!r} not found" in msg and f"{base!r} ({where}, n_d " in msg
+    assert "not used in its place" in msg
+    for cat in ("SCHOTT", "OHARA", "HOYA", "CDGM", "HIKARI", "SUMITA"):
+        assert cat in msg
+    if glass == "D-ZK3M":
+        assert "n_d 1.58913" in msg and "GLAS line gives n_d 1.601" in msg
