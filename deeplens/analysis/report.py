@@ -35,7 +35,9 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
         {"position_mm", "diameter_mm"}, "image_plane": {...}, "sampling", "pupil",
         "fields": [{"field_deg", "wavelength_nm", "rms_spot_um", "chief_ray_height_mm",
         "centroid_mm", "n_rays", "n_launched"}]}``; a fully vignetted field has
-        ``rms_spot_um = None`` and ``n_rays = 0``.
+        ``rms_spot_um = None`` and ``n_rays = 0``.  An object-space telecentric lens
+        (``lens.object_telecentric``) adds ``"object_telecentric": {"object_heights_mm"}``
+        (one per field, mm).
     """
     lens, _, options = unpack(lens, None, options, "lens_report")
     fields = list(lens.spec.fields_deg if fields_deg is None else fields_deg)
@@ -61,7 +63,7 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
                 y, _ = chief_ray(lens, f, w, z_img, options=options)
                 row["chief_ray_height_mm"] = None if math.isnan(float(y)) else float(y)
                 rows.append(row)
-    return {
+    out = {
         "name": lens.name,
         "efl_mm": float(p.efl),
         "bfl_mm": float(p.bfl),
@@ -76,6 +78,13 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
         "pupil": pupil,
         "fields": rows,
     }
+    if getattr(lens, "object_telecentric", False):
+        # chief rays parallel to the axis: a field angle is the object point's direction from
+        # the first vertex (sampling.field_rays), the object at y = -s tan θ
+        s_obj = float(lens.spec.object_distance_mm)
+        out["object_telecentric"] = {"object_heights_mm": [
+            -s_obj * math.tan(math.radians(float(f))) + 0.0 for f in fields]}
+    return out
 
 
 def format_report(r: dict) -> str:
@@ -87,6 +96,10 @@ def format_report(r: dict) -> str:
         f"(paraxial, {r['primary_wavelength_nm']:g} nm)",
         f"  entrance pupil: {ep['position_mm']:.6g} mm behind the first vertex, "
         f"diameter {ep['diameter_mm']:.6g} mm",
+        *([f"  object space telecentric (chief rays parallel to the axis); object heights "
+           f"{', '.join(f'{h:.6g}' for h in r['object_telecentric']['object_heights_mm'])} mm "
+           f"(field angles: their directions from the first vertex)"]
+          if r.get("object_telecentric") else []),
         f"  image plane: {r['image_plane']['kind']} "
         f"({r['image_plane']['distance_from_last_vertex_mm']:.6g} mm after the last vertex); "
         f"pupil {r['pupil']}, sampling {r['sampling']}",

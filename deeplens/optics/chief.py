@@ -2,8 +2,9 @@
 
 The chief ray of a field passes through the centre of the aperture stop.  :func:`chief_ray`
 aims it there by secant iterations on its height in the paraxial entrance-pupil plane (real
-ray aiming: pupil aberration included), tracing to the stop without clipping apertures, and
-returns where it lands on the image plane (:func:`image_plane_z`: the sensor, the paraxial
+ray aiming: pupil aberration included), tracing to the stop without clipping apertures (the
+chief ray of an object-space telecentric lens, ``lens.object_telecentric``, is parallel to the
+axis in object space by definition and is not aimed), and returns where it lands on the image plane (:func:`image_plane_z`: the sensor, the paraxial
 image or a given ``z``).  Used by spot and aberration analysis, the design merit functions and
 the Zemax reader (image heights of ``FTYP 3`` fields), so it lives with the tracer.
 """
@@ -73,7 +74,11 @@ def chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor"
             return float(rays.o[0, 1])
 
         y0, y1 = 0.0, 1e-3 * max(float(p.entrance_pupil_diameter), 1e-3)
-        f0, f1 = stop_y(y0), stop_y(y1)
+        if getattr(lens, "object_telecentric", False):
+            # the entrance pupil at infinity: the chief ray is parallel to the axis by definition
+            y1, iterations = 0.0, 0
+        else:
+            f0, f1 = stop_y(y0), stop_y(y1)
         for _ in range(iterations):
             if abs(f1) < 1e-12 or f1 == f0:
                 break

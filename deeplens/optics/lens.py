@@ -56,7 +56,10 @@ class LensSpec:
         aperture_type: ``"stop"`` (the stop's own semi-diameter), ``"epd"`` (entrance-pupil
             diameter, mm) or ``"fno"`` (image-space F-number at infinity).
         aperture_value: the value for ``"epd"``/``"fno"`` (ignored for ``"stop"``).
-        fields_deg: field angles in degrees (object-space chief-ray angle, in the y-z plane).
+        fields_deg: field angles in degrees (object-space chief-ray angle, in the y-z plane;
+            for an object-space telecentric lens, ``Lens.object_telecentric``, whose chief rays
+            are parallel to the axis: the object point's direction from the first vertex, object
+            height ``-s tan θ``).
         wavelengths_nm: wavelengths in nm.
         primary_wavelength_nm: the wavelength of paraxial quantities (default: the first).
     """
@@ -160,6 +163,11 @@ class Lens(nn.Module):
         mirrors: indices of reflecting surfaces (their medium after is the medium before;
             see :meth:`directions` for the sign of the distances after them).
 
+    Attribute ``object_telecentric`` (default ``False``): the entrance pupil is at infinity
+    (OpticStudio's telecentric object space, ``FTYP`` second value 1): every field's chief ray
+    is parallel to the axis in object space and its pupil is a cone about it
+    (:func:`~deeplens.optics.sampling.field_rays`); the object must be at a finite distance.
+
     Trainable values: each surface's prescription, ``distances[i]``, ``d_sensor`` and each
     element's :class:`Misalignment` are ``nn.Parameter`` objects created frozen; call
     ``requires_grad_(True)`` on the ones to optimise.
@@ -195,6 +203,7 @@ class Lens(nn.Module):
             if not isinstance(m, Material):
                 raise TypeError(f"material {i} is a {type(m).__name__}, not a Material")
         self.name = name
+        self.object_telecentric = False
         self.surfaces = nn.ModuleList(surfaces)
         self.materials = nn.ModuleList(materials)
         self.distances = nn.ParameterList([make_param(v, f"distance {i}")

@@ -10,6 +10,14 @@ Patterns return points ``(M, 2)`` in the unit disk (normalised pupil coordinates
 Field rays for an object at infinity travel along ``(0, sin θ, cos θ)`` (positive field angle
 = ray rising towards ``+y``); for a finite object the object point sits at
 ``y = -tan θ (z_EP - z_obj)`` so that its chief ray crosses the entrance-pupil centre at ``θ``.
+For an object-space telecentric lens (``lens.object_telecentric``: the entrance pupil at
+infinity) every chief ray is parallel to the axis: the object point of field ``θ`` sits at
+``y = -s tan θ`` (``s`` the object distance: the field angle is the object point's direction
+seen from the first vertex) and a pupil point ``(x, y)`` of the plane ``z_P`` is the ray of
+slopes ``(x, y) / |z_P - z_obj|`` about it, a cone of rays about the chief ray, uniform in slope
+as optiland samples it (on the paraxial entrance pupil of an ``OBNA`` lens, ``r_EP / |z_EP -
+z_obj| = tan θ_NA``: the rim rays have direction cosines ``sin θ_NA``; on the axis these are
+the rays of the non-telecentric construction).
 Either way the rays start on a plane just before the first surface (or at the object point when
 it is nearer), launch point and direction computed in float64 from the pupil points and the
 direction tangents and only then rounded to the lens's dtype, so that float32 rays from an
@@ -155,10 +163,16 @@ def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Ten
 
     Returns:
         :class:`Rays` of shape ``(M,)``, starting before the first surface.
+
+    Raises:
+        ValueError: an object-space telecentric lens with the object at infinity or the pupil
+            plane on the object plane.
     """
     dtype, device = pupil_xy.dtype, pupil_xy.device
     s = lens.spec.object_distance_mm if object_distance_mm is None else object_distance_mm
     th = math.radians(field_deg)
+    if getattr(lens, "object_telecentric", False):
+        return _telecentric_rays(lens, th, wavelength_nm, pupil_xy, float(z_pupil), float(s))
     P = torch.cat([pupil_xy.to(torch.float64),
                    torch.full((pupil_xy.shape[0], 1), float(z_pupil), dtype=torch.float64,
                               device=device)], -1)
@@ -169,6 +183,25 @@ def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Ten
     Q = torch.tensor([0.0, -math.tan(th) * (float(z_pupil) - z_obj), z_obj],
                      dtype=torch.float64, device=device)
     return rays_from_point(P, Q, start_plane_z(lens), wavelength_nm, dtype)
+
+
+def _telecentric_rays(lens, th: float, wavelength_nm, pupil_xy: torch.Tensor, z_pupil: float,
+                      s: float) -> Rays:
+    """:func:`field_rays` of an object-space telecentric lens (see the module docstring): from
+    the object point ``(0, -s tan θ, z_obj)``, slopes ``pupil_xy / |z_pupil - z_obj|``."""
+    if math.isinf(s):
+        raise ValueError("an object-space telecentric lens needs an object at a finite "
+                         "distance (its fields are object heights)")
+    z_obj = float(lens.z_vertices()[0]) - s
+    dz = abs(z_pupil - z_obj)
+    if not dz > 0:
+        raise ValueError(f"object-space telecentric rays: the pupil plane (z = {z_pupil:g} mm) "
+                         f"lies on the object plane")
+    t = pupil_xy.to(torch.float64) / dz
+    Q = torch.tensor([0.0, -math.tan(th) * s, z_obj], dtype=torch.float64,
+                     device=pupil_xy.device).expand(pupil_xy.shape[0], 3)
+    return rays_from_tangents(Q, t, max(start_plane_z(lens), z_obj), wavelength_nm,
+                              pupil_xy.dtype)
 
 
 def rays_from_tangents(P: torch.Tensor, tangents: torch.Tensor, z_start: float,
@@ -211,7 +244,9 @@ def entrance_pupil(lens):
 def point_source_rays(lens, point_xy_mm, depth_mm: float, wavelength_nm: float, n_rays: int,
                       seed: int = 0, pupil_margin: float = 1.1, sampling: str = "random",
                       pupil=None) -> Rays:
-    """Rays from an object point towards the entrance pupil.
+    """Rays from an object point towards the entrance pupil (for an object-space telecentric
+    lens: towards that pupil's disk moved across to the point, a cone about the ray parallel to
+    the axis).
 
     Args:
         point_xy_mm: ``(X, Y)`` of the object point (mm) for a finite ``depth_mm``; for
@@ -234,10 +269,15 @@ def point_source_rays(lens, point_xy_mm, depth_mm: float, wavelength_nm: float, 
     E = torch.cat([unit, torch.full_like(unit[:, :1], z_ep)], -1).to(device=device)
     X, Y = float(point_xy_mm[0]), float(point_xy_mm[1])
     if math.isinf(depth_mm):
+        if getattr(lens, "object_telecentric", False):
+            raise ValueError("an object-space telecentric lens needs point sources at a "
+                             "finite depth")
         t = torch.tensor([X, Y], dtype=torch.float64, device=device)
         return rays_from_tangents(E, t, start_plane_z(lens), wavelength_nm, dtype)
     if not depth_mm > 0:
         raise ValueError(f"point source depth must be > 0 mm (in front of the lens), got "
                          f"{depth_mm}")
     P = torch.tensor([X, Y, z0 - depth_mm], dtype=torch.float64, device=device)
+    if getattr(lens, "object_telecentric", False):
+        E[:, :2] = E[:, :2] + P[:2]   # a cone about the ray parallel to the axis
     return rays_from_point(E, P, start_plane_z(lens), wavelength_nm, dtype)

@@ -33,7 +33,9 @@ takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` wit
 ``half_width_x_mm``/``half_width_y_mm``; ``ideal_lens`` takes ``focal_length_mm``.  The surface
 types are those registered in :data:`~deeplens.optics.surfaces.SURFACE_TYPES`; each type reads
 and writes its own fields (``from_dict``/``to_dict``), so whatever is written can be read.
-Numbers are written with ``repr`` so a file round-trips
+``object.telecentric: true`` (optional, a finite object only) makes object space telecentric:
+every chief ray parallel to the axis, ``fields_deg`` the object points' directions from the
+first vertex (``Lens.object_telecentric``).  Numbers are written with ``repr`` so a file round-trips
 exactly.  Every error names the file and the JSON path of the offending field.
 """
 
@@ -208,12 +210,18 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
                                    f"lengths in mm and wavelengths in nm (convert the values "
                                    f"and write {want!r})")
     obj = r.check(data.get("object", {}), "object", "object")
-    r.keys(obj, {"distance_mm", "medium"}, "object")
+    r.keys(obj, {"distance_mm", "medium", "telecentric"}, "object")
     obj_dist = r.get(obj, "distance_mm", "object", "number_or_inf", default=math.inf)
     if not obj_dist > 0:
         r.fail("object.distance_mm", f"the object distance must be > 0 mm (or \"inf\"), got "
                                      f"{obj_dist!r}")
     obj_medium = r.get(obj, "medium", "object", "str", default="AIR")
+    telecentric = obj.get("telecentric", False)
+    if not isinstance(telecentric, bool):
+        r.fail("object.telecentric", f"expected true or false, got {telecentric!r}")
+    if telecentric and math.isinf(obj_dist):
+        r.fail("object.telecentric", "an object-space telecentric lens needs an object at a "
+                                     "finite distance (object.distance_mm)")
     ap = r.check(data.get("aperture", {"type": "stop"}), "aperture", "object")
     r.keys(ap, {"type", "value"}, "aperture")
     ap_type = r.get(ap, "type", "aperture", "str")
@@ -311,6 +319,7 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
                             surfaces=e.surfaces) from e
     except (ValueError, TypeError) as e:
         raise LensFileError(str(e), source=source) from e
+    lens.object_telecentric = telecentric
     mis = data.get("misalignment")
     if mis is not None:
         if not isinstance(mis, list) or len(mis) != len(lens.elements):
@@ -355,6 +364,8 @@ def lens_to_dict(lens: Lens) -> dict:
         "sensor": {"distance_mm": float(lens.d_sensor)},
         "elements": [list(e) for e in lens.elements],
     }
+    if getattr(lens, "object_telecentric", False):
+        out["object"]["telecentric"] = True
     if lens.sensor_semi_diameter is not None:
         out["sensor"]["semi_diameter_mm"] = float(lens.sensor_semi_diameter)
     if not all(m.is_identity() for m in lens.misalignments):

@@ -71,7 +71,7 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 
 Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
 would change the optics if ignored (other surface types, obscurations on flat surfaces between
-media, telecentric object space, ...) are errors naming the file, the line and the feature, as a
+media, telecentric object space without an ``OBNA`` aperture, ...) are errors naming the file, the line and the feature, as a
 :class:`ZemaxFileError` whose ``source``, ``line``, ``feature`` (the line's keyword) and ``surf``
 (the file's surface number) are attributes (:mod:`deeplens.optics.errors`).
 ``GLAS MIRROR`` makes the surface a mirror (``Lens(mirrors=...)``; the medium after it is the one

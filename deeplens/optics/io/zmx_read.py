@@ -101,6 +101,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest
     elements = _elements(kept, seq.media, seq.groups, p)
     ap_type, ap_value, ap_line, convert = _aperture(sysd, seq, obj_dist, s_mm, p)
+    telecentric = _telecentric(ftyp, ftyp_line, obj_dist, convert, ap_line, p)
 
     # ---- glass wavelength ranges, before building (a clear error instead of a NaN)
     for (surf, mat, s, _), i in zip(kept, range(len(kept))):
@@ -136,6 +137,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         if getattr(e, "key", None) == "aperture":   # the ENPD/FNUM/FLOA line's value
             p.fail(ap_line, str(e))
         raise _located(p, e, where_of) from e
+    lens.object_telecentric = telecentric
     for e, (a, b, d, _) in enumerate(elements):
         if d is not None:
             m = lens.misalignments[e]
@@ -187,13 +189,6 @@ def _wavelengths(sysd: dict, p: Locator):
     type, telecentric and afocal flags, numbers of fields and wavelengths), the active
     wavelengths (``WAVM``, or ``WAVL`` in older files; µm in the file) and the ``PWAV`` one."""
     ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
-    if len(ftyp) > 1 and ftyp[1] == 1:
-        p.fail(ftyp_line, "FTYP: object-space telecentric systems (second value 1) are not "
-                          "supported: deeplens' fields are chief-ray angles through an entrance "
-                          "pupil at a finite distance, and with the pupil at infinity every "
-                          "chief ray is parallel to the axis (the fields would be object "
-                          "heights and the pupil a cone of rays about each, which deeplens does "
-                          "not model)")
     if len(ftyp) > 6 and ftyp[6] == 1:
         p.fail(ftyp_line, "FTYP: afocal image space (seventh value 1) is not supported "
                           "(deeplens images onto a sensor)")
@@ -225,6 +220,31 @@ def _wavelengths(sysd: dict, p: Locator):
                         f"{nums}")
     primary = waves_nm[nums.index(pw)]
     return ftyp, ftyp_line, n_fields, waves_nm, primary
+
+
+def _telecentric(ftyp, ftyp_line: int, obj_dist: float, convert, ap_line: int,
+                 p: Locator) -> bool:
+    """Whether object space is telecentric (``FTYP`` second value 1: the entrance pupil at
+    infinity, every chief ray parallel to the axis, ``Lens.object_telecentric``).  It needs an
+    object at a finite distance, fields given as heights (``FTYP`` first value 1, 2 or 3) and
+    an object-space NA or cone angle (``OBNA``): the cone of rays about each chief ray."""
+    if not (len(ftyp) > 1 and ftyp[1] == 1):
+        return False
+    if math.isinf(obj_dist):
+        p.fail(ftyp_line, "FTYP: object-space telecentric (second value 1) with the object at "
+                          "infinity: the fields of a telecentric system are object heights")
+    if ftyp[0] not in (1, 2, 3):
+        names = {0: "angle", 4: "theodolite angle"}
+        p.fail(ftyp_line, f"FTYP {ftyp[0]} ({names.get(ftyp[0], 'unknown field type')}) "
+                          f"fields with object-space telecentric (second value 1): every chief "
+                          f"ray is parallel to the axis, so fields must be heights (object, "
+                          f"paraxial or real image height: FTYP 1, 2 or 3)")
+    if convert is None or convert[0] not in ("obna", "cone"):
+        p.fail(ap_line, "object-space telecentric (FTYP second value 1): deeplens takes the "
+                        "aperture of a telecentric system as an object-space NA or cone angle "
+                        "(OBNA), the cone of rays about each chief ray; this file gives another "
+                        "system aperture")
+    return True
 
 
 def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
@@ -513,7 +533,10 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None):
             ym0 = um0 * s
         one = torch.ones_like(p0)
         _, _, hm = _trace(lens, ym0 * one, um0 * one, n)
-        _, _, hc = _trace(lens, -pos * t * one, t * one, n)
+        if getattr(lens, "object_telecentric", False):   # chief ray parallel to the axis
+            _, _, hc = _trace(lens, -s * t * one, 0.0 * one, n)
+        else:
+            _, _, hc = _trace(lens, -pos * t * one, t * one, n)
         for i in idx:
             surf = lens.surfaces[i]
             sd = 1.05 * (abs(float(hm[i])) + abs(float(hc[i])))

@@ -153,6 +153,9 @@ def lens_pupil_convention(lens) -> str:
 
 
 def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
+    """The file's fields (``XFLN``/``YFLN`` of the ``FTYP`` field type) as deeplens' field
+    angles (deg): for an object-space telecentric lens (``lens.object_telecentric``) the angle
+    of the object point seen from the first vertex (:func:`~deeplens.optics.sampling.field_rays`)."""
     ys, _yline = sysd["yfln"] if sysd["yfln"] else ([0.0], 0)
     xs, xline = sysd["xfln"] if sysd["xfln"] else ([0.0] * len(ys), 0)
     if n_fields is not None:
@@ -170,6 +173,11 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
 
     h = [math.copysign(math.hypot(x, y), y if y != 0 else 1.0) * s_mm for x, y in zip(xs, ys)]
     d_obj = float(lens.spec.object_distance_mm)
+    # object-space telecentric (the entrance pupil at infinity): a field angle is the object
+    # point's direction from the first vertex (sampling.field_rays), not the chief ray's
+    telecentric = getattr(lens, "object_telecentric", False)
+    if kind == 1 and telecentric:
+        return [math.degrees(math.atan(v / d_obj)) for v in h]
     if kind == 1:
         if math.isinf(d_obj):
             p.fail(ftyp_line, "FTYP 1 (object height) with the object at infinity cannot be "
@@ -192,7 +200,7 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
             if not abs(m) > 1e-12:
                 p.fail(ftyp_line, "FTYP 2 (paraxial image height): the paraxial magnification "
                                   "is zero")
-            z_ep = float(par.entrance_pupil_position)
+            z_ep = 0.0 if telecentric else float(par.entrance_pupil_position)
             return [math.degrees(math.atan(abs(v / m) / (d_obj + z_ep))) * (1 if v >= 0 else -1)
                     for v in h]
         efl = float(paraxial(lens).efl)

@@ -68,6 +68,19 @@ def _glass_line(m: Material, cats: list) -> str | None:
                          f"use a catalogue glass or an n_d/V_d model glass")
 
 
+def _object_na(lens: Lens) -> float:
+    """The object-space NA ``n sin θ`` of an object-space telecentric lens: the cone about
+    each chief ray whose slope ``tan θ = r_EP / |s + z_EP|`` is the paraxial entrance pupil's
+    radius over its distance from the object (the inverse of the reader's ``OBNA``)."""
+    from ..paraxial import _indices, paraxial
+
+    with torch.no_grad():
+        par = paraxial(lens)
+        n0 = float(_indices(lens, None)[0][0])
+        d = abs(float(lens.spec.object_distance_mm) + float(par.entrance_pupil_position))
+        return n0 * math.sin(math.atan(0.5 * float(par.entrance_pupil_diameter) / d))
+
+
 def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
     """Write ``lens`` as a sequential Zemax ``.zmx`` file that :func:`read_zmx` reads back.
 
@@ -83,7 +96,10 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
     """
     spec = lens.spec
     out = ["VERS 170912 299 123456", "MODE SEQ", f"NAME {lens.name}", "UNIT MM X W X CM MR CPMM"]
-    if spec.aperture_type == "epd":
+    telecentric = getattr(lens, "object_telecentric", False)
+    if telecentric:
+        out.append(f"OBNA {_f(_object_na(lens))} 0")
+    elif spec.aperture_type == "epd":
         out.append(f"ENPD {_f(spec.aperture_value)}")
     elif spec.aperture_type == "fno":
         out.append(f"FNUM {_f(spec.aperture_value)} 0")
@@ -161,9 +177,17 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
     surf(img)
     nf, nw = len(spec.fields_deg), len(spec.wavelengths_nm)
     out.append("GCAT " + " ".join(cats or ["SCHOTT"]))
-    out.append(f"FTYP 0 0 {nf} {nw} 0 0 0")
+    if telecentric:
+        # object heights (FTYP 1) with telecentric object space (second value 1): the fields'
+        # object points, s tan θ (sampling.field_rays)
+        s_obj = float(spec.object_distance_mm)
+        out.append(f"FTYP 1 1 {nf} {nw} 0 0 0")
+        fields = [s_obj * math.tan(math.radians(float(f))) for f in spec.fields_deg]
+    else:
+        out.append(f"FTYP 0 0 {nf} {nw} 0 0 0")
+        fields = spec.fields_deg
     out.append("XFLN " + " ".join("0" for _ in spec.fields_deg))
-    out.append("YFLN " + " ".join(_f(f) for f in spec.fields_deg))
+    out.append("YFLN " + " ".join(_f(f) for f in fields))
     for k, w in enumerate(spec.wavelengths_nm, start=1):
         out.append(f"WAVM {k} {_f(float(w) / 1000.0)} 1")
     prim = [float(w) for w in spec.wavelengths_nm]

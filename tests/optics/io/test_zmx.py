@@ -864,13 +864,19 @@ def test_unknown_lines_reported_once_per_keyword(tmp_path):
                     f"3 such lines"]
 
 
-@pytest.mark.parametrize("ftyp,match", [
-    ("FTYP 0 1 2 2 0 0 0", r":7: FTYP: object-space telecentric"),
-    ("FTYP 0 0 2 2 0 0 1", r":7: FTYP: afocal image space"),
+@pytest.mark.parametrize("ftyp,aperture,obj,match", [
+    ("FTYP 1 1 2 2 0 0 0", "ENPD 10", "INFINITY", r":7: FTYP: object-space telecentric "
+                                                     r"\(second value 1\) with the object at infinity"),
+    ("FTYP 0 1 2 2 0 0 0", "OBNA 0.1 0", "100", r":7: FTYP 0 \(angle\) fields with object-space "
+                                                r"telecentric"),
+    ("FTYP 1 1 2 2 0 0 0", "ENPD 10", "100", r":5: object-space telecentric .*\(OBNA\)"),
+    ("FTYP 0 0 2 2 0 0 1", "ENPD 10", "INFINITY", r":7: FTYP: afocal image space"),
 ])
-def test_telecentric_and_afocal_modes_refused(tmp_path, ftyp, match):
+def test_telecentric_and_afocal_modes_refused(tmp_path, ftyp, aperture, obj, match):
+    """Telecentric object space loads with an object at a finite distance, height fields and
+    an OBNA aperture (tests/optics/io/test_zmx_corpus.py); otherwise the refusal names the line."""
     with pytest.raises(ZemaxFileError, match=match):
-        read_zmx(write(tmp_path, singlet(ftyp=ftyp)))
+        read_zmx(write(tmp_path, singlet(ftyp=ftyp, aperture=aperture, obj=obj)))
 
 
 @pytest.mark.parametrize("line", ["OBSC 0 2.25 0", "CLAP 2.25 5 0"])

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from deeplens.analysis.spot import spot_diagram
+from deeplens.analysis.spot import chief_ray, spot_diagram
 from deeplens.optics.io.agf import decode_zemax_text
 from deeplens.optics.io import lens_to_dict
 from deeplens.optics.io.zmx import ZemaxFileError, lens_pupil_convention, read_zmx, write_zmx
@@ -37,7 +37,6 @@ FILES = sorted(p.name for p in CORPUS.glob("*.zmx"))
 #: file -> the feature its refusal must name (every other file must load)
 REFUSED = {
     "thorlabs_ASL5040-UV.zmx": "C79-80",   # Corning's; then its Qbfs on a conic base
-    "US05831776-1.zmx": "object-space telecentric",
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",   # the on-axis beam reaches past where surfaces meet
@@ -716,3 +715,147 @@ def test_a_moulded_glass_names_its_base_glass_without_using_it(name, glass, base
         assert cat in msg
     if glass == "D-ZK3M":
         assert "n_d 1.58913" in msg and "GLAS line gives n_d 1.601" in msg
+
+
+#: the corpus file whose object space is telecentric (FTYP 3 1: real image heights 0, 8, 12 mm;
+#: OBNA 0.15; the lens images 4:1 onto a wafer)
+TELECENTRIC = "US05831776-1.zmx"
+
+
+def _telecentric_oracle(path, lens):
+    """optiland's reading of the file (which does not read FTYP's telecentric flag), given
+    deeplens' object heights as its fields and telecentric object space (its own construction:
+    rays of slopes ``P tan θ_NA`` about a chief ray parallel to the axis)."""
+    optic, s_mm = _oracle(path, lens)
+    s = float(lens.spec.object_distance_mm)
+    heights = [s * math.tan(math.radians(f)) / s_mm for f in lens.spec.fields_deg]
+    optic.set_field_type("object_height")
+    optic.fields.fields.clear()
+    for h in heights:
+        optic.add_field(y=h)
+    optic.obj_space_telecentric = True
+    return optic, s_mm, heights
+
+
+def test_telecentric_chief_rays_are_parallel_and_land_at_the_files_heights():
+    """Every field's chief ray leaves its object point parallel to the axis and lands at the
+    file's real image height (FTYP 3); the largest object height is OpticStudio's own (the
+    object surface's automatic DIAM, 47.99458807792 mm) to 1e-7; the rim rays of the pupil
+    cone have direction cosines ±NA (0.15) about it, for every field."""
+    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.sampling import field_rays
+
+    lens = _load(TELECENTRIC)
+    assert lens.object_telecentric
+    w = float(lens.spec.primary_wavelength_nm)
+    par = paraxial(lens)
+    r, z = 0.5 * float(par.entrance_pupil_diameter), float(par.entrance_pupil_z)
+    heights = []
+    for f, h_img in zip(lens.spec.fields_deg, [0.0, 8.0, 12.0]):
+        xy = torch.tensor([[0.0, 0.0], [0.0, r], [0.0, -r], [r, 0.0], [-r, 0.0]],
+                          dtype=lens.dtype)
+        with torch.no_grad():
+            rays = field_rays(lens, f, w, xy, z)
+            out = lens.trace_to_sensor(rays, options=IntersectOptions(clip_aperture=False))
+            y_chief, _ = chief_ray(lens, f, w)
+        d = rays.d
+        assert d[0].tolist() == [0.0, 0.0, 1.0]
+        assert d[1:, :2].reshape(-1).tolist() == pytest.approx(
+            [0, 0.15, 0, -0.15, 0.15, 0, -0.15, 0], abs=1e-12)
+        # every ray of the field starts from the same object point
+        z_obj = float(lens.z_vertices()[0]) - lens.spec.object_distance_mm
+        o = rays.o + d * ((z_obj - rays.o[:, 2:]) / d[:, 2:])
+        assert o[:, :2].reshape(-1).tolist() == pytest.approx(o[0, :2].tolist() * 5, abs=1e-9)
+        assert abs(float(out.o[0, 1])) == pytest.approx(h_img, abs=1e-9)
+        assert float(y_chief) == float(out.o[0, 1])
+        heights.append(abs(float(rays.o[0, 1])))
+    assert max(heights) == pytest.approx(47.99458807792, rel=1e-7)
+    # point sources (PSFs, rendering): the central ray of an object point is parallel too, and
+    # the cone about it is the field's
+    from deeplens.optics.sampling import point_source_rays
+
+    s = float(lens.spec.object_distance_mm)
+    rays = point_source_rays(lens, (0.0, -heights[-1]), s, w, 0, sampling="hexapolar:2",
+                             pupil_margin=1.0)
+    assert rays.d[0].tolist() == [0.0, 0.0, 1.0]
+    assert float(rays.d[1:, :2].norm(dim=-1).max()) == pytest.approx(0.15, abs=1e-12)
+
+
+def test_telecentric_rays_land_where_optilands_do():
+    """Chief and pupil rays of every field, traced by optiland's telecentric construction
+    (object heights as fields, pupil coordinates ``P`` -> slopes ``P tan θ_NA``), land where
+    deeplens' do, to 1e-9 mm (deeplens' object points sit at ``-h``: the image is mirrored in
+    y).  Rays within 0.7 of the pupil radius: the file's automatic semi-diameters of surfaces
+    25/26 cross, so outer rays of the off-axis fields are traced backwards by optiland and
+    vignetted by deeplens (the reader's warning)."""
+    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.sampling import field_rays
+
+    lens = _load(TELECENTRIC)
+    optic, s_mm, heights = _telecentric_oracle(TELECENTRIC, lens)
+    w = float(lens.spec.primary_wavelength_nm)
+    par = paraxial(lens)
+    r, z = 0.5 * float(par.entrance_pupil_diameter), float(par.entrance_pupil_z)
+    pupil = [(0.0, 0.0), (0.0, 0.7), (0.0, -0.7), (0.7, 0.0), (0.5, 0.5), (-0.6, 0.3)]
+    for f, h in zip(lens.spec.fields_deg, heights):
+        with torch.no_grad():
+            xy = torch.tensor(pupil, dtype=lens.dtype) * r
+            out = lens.trace_to_sensor(field_rays(lens, f, w, xy, z),
+                                       options=IntersectOptions(clip_aperture=False))
+        assert bool(out.valid.all())
+        for (px, py), p in zip(pupil, out.o):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                optic.trace_generic(0.0, h / max(heights), px, -py, w / 1000.0)
+            sg = optic.surface_group
+            x, y = (float(torch.as_tensor(c)[-1].reshape(-1)[0]) for c in (sg.x, sg.y))
+            assert [float(p[0]) / s_mm, float(p[1]) / s_mm] == pytest.approx([x, -y], abs=1e-9)
+
+
+def test_telecentric_rms_matches_optiland_at_every_field(tmp_path):
+    """The RMS spot of every field (paraxial pupil, hexapolar:12) equals optiland's telecentric
+    one within 0.5 %, at an NA (0.1) where no ray reaches the crossing of surfaces 25/26 (at the
+    file's 0.15 the on-axis spot is compared by test_loads_with_the_oracles_numbers)."""
+    from optiland.analysis import SpotDiagram
+
+    p = _variant(tmp_path, TELECENTRIC, [(r"^OBNA .*$", "OBNA 0.1 0")])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(p)
+    optic, s_mm, heights = _telecentric_oracle(p, lens)
+    w = float(lens.spec.primary_wavelength_nm)
+    for f, h in zip(lens.spec.fields_deg, heights):
+        with torch.no_grad():
+            s = spot_diagram(lens, f, w, "hexapolar:12", pupil="paraxial")
+        assert s.n_rays == s.n_launched
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            sd = SpotDiagram(optic, fields=[(0.0, h / max(heights))], wavelengths=[w / 1000.0],
+                             num_rings=12, reference="centroid")
+            ol = float(sd.rms_spot_radius()[0][0])
+        assert float(s.rms_radius) / s_mm == pytest.approx(ol, rel=5e-3), f
+
+
+def test_telecentric_flag_round_trips(tmp_path):
+    """write_zmx writes FTYP 1 1 (object heights, telecentric object space) and the OBNA; read
+    back, the lens is the same (flag, aperture, fields); the JSON lens file keeps it too."""
+    from deeplens.optics.io import load_lens, save_lens
+
+    lens = _load(TELECENTRIC)
+    write_zmx(lens, tmp_path / "rt.zmx")
+    text = (tmp_path / "rt.zmx").read_text()
+    assert re.search(r"^FTYP 1 1 ", text, re.M) and re.search(r"^OBNA 0\.15 0$", text, re.M)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        back = read_zmx(tmp_path / "rt.zmx")
+    assert back.object_telecentric
+    a, b = lens_to_dict(lens), lens_to_dict(back)
+    a.pop("name", None), b.pop("name", None)
+    assert b == a and a["object"]["telecentric"] is True
+    save_lens(lens, tmp_path / "t.json")
+    assert load_lens(tmp_path / "t.json").object_telecentric
+    # and a lens that is not telecentric stays so
+    plain = _load("zmax_55278.zmx")
+    write_zmx(plain, tmp_path / "plain.zmx")
+    assert re.search(r"^FTYP 0 0 ", (tmp_path / "plain.zmx").read_text(), re.M)
+    assert "telecentric" not in lens_to_dict(plain)["object"]
