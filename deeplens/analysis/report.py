@@ -205,7 +205,7 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                 rows = []
                 fno = float(pupils(lens, prim).working_fno)
                 r = torch.linspace(0, 20 * 1.22 * prim * 1e-6 * fno, 201, dtype=torch.float64,
-                                   device=lens.distances[0].device)
+                                   device=lens.device)
                 for f in fields:
                     try:
                         ee = encircled_energy(lens, f, r, prim, image_plane=image_plane,
