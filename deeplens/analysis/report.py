@@ -61,7 +61,7 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
                 y, _ = chief_ray(lens, f, w, z_img, options=options)
                 row["chief_ray_height_mm"] = None if math.isnan(float(y)) else float(y)
                 rows.append(row)
-    return {
+    out = {
         "name": lens.name,
         "efl_mm": float(p.efl),
         "bfl_mm": float(p.bfl),
@@ -76,6 +76,9 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
         "pupil": pupil,
         "fields": rows,
     }
+    if getattr(lens, "virtual_image", False):   # a virtual image plane (rays extended back)
+        out["image_plane"]["virtual"] = True
+    return out
 
 
 def format_report(r: dict) -> str:
@@ -87,7 +90,8 @@ def format_report(r: dict) -> str:
         f"(paraxial, {r['primary_wavelength_nm']:g} nm)",
         f"  entrance pupil: {ep['position_mm']:.6g} mm behind the first vertex, "
         f"diameter {ep['diameter_mm']:.6g} mm",
-        f"  image plane: {r['image_plane']['kind']} "
+        f"  image plane: {r['image_plane']['kind']}"
+        f"{', virtual' if r['image_plane'].get('virtual') else ''} "
         f"({r['image_plane']['distance_from_last_vertex_mm']:.6g} mm after the last vertex); "
         f"pupil {r['pupil']}, sampling {r['sampling']}",
         "",
