@@ -62,3 +62,12 @@ def same(a, b) -> bool:
         elif u != v:
             return False
     return True
+
+
+def assert_traced_at(seen: list, opts) -> None:
+    """Every surface step ``spy_surface_options`` saw ran at ``opts`` or at its aiming copy
+    (``opts.replace(clip_aperture=False)``), and there was at least one."""
+    aim = repr(opts.replace(clip_aperture=False))
+    assert seen, "nothing was traced"
+    bad = [o for o in seen if not (o is opts or repr(o) == aim)]
+    assert not bad, f"{len(bad)} of {len(seen)} surface steps ran at other options: {bad[0]!r}"

@@ -71,11 +71,11 @@ def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="se
     solution, ``h'`` detached) carries the implicit derivative ``-∂h/∂θ / h'`` to the lens.
     ``lens``: a Lens or a Camera (its options are used; module docstring)."""
     lens, _, options = unpack(lens, None, options, "real_chief_ray")
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     _, y1 = chief_ray(lens, field_deg, wavelength_nm, image_plane, options=options)
     p = paraxial(lens)
     z = lens.z_vertices()
-    dev = lens.distances[0].device
+    dev = lens.device
     n = lens.indices(torch.tensor(wavelength_nm, dtype=dtype, device=dev))
     aim = aiming_options(options)
 
@@ -126,8 +126,8 @@ def ray_fan(lens, field_deg: float, wavelengths_nm=None, n: int = 41,
     Lens or a Camera (its options are used)."""
     lens, _, options = unpack(lens, None, options, "ray_fan")
     waves = _waves(lens, wavelengths_nm)
-    dtype = lens.distances[0].dtype
-    p = torch.linspace(-1.0, 1.0, n, dtype=dtype, device=lens.distances[0].device)
+    dtype = lens.dtype
+    p = torch.linspace(-1.0, 1.0, n, dtype=dtype, device=lens.device)
     zero = torch.zeros_like(p)
     tang = torch.stack([zero, p], -1)
     sag = torch.stack([p, zero], -1)
@@ -159,12 +159,12 @@ def field_curvature(lens, fields_deg=None, wavelength_nm: float | None = None,
     lens, _, options = unpack(lens, None, options, "field_curvature")
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     zt, zs = [], []
     for f in _fields(lens, fields_deg):
         pc = _chief_pupil(lens, f, w, aim, options)
         pts = torch.tensor([[0.0, pc - delta], [0.0, pc + delta], [-delta, pc], [delta, pc]],
-                           dtype=dtype, device=lens.distances[0].device)
+                           dtype=dtype, device=lens.device)
         tr = trace_pupil(lens, f, w, pts, image_plane, options=options)
         if not bool(tr.mask.all()):
             raise AnalysisError(f"the parabasal rays of field {f:g} deg are vignetted")
@@ -210,13 +210,13 @@ def chief_heights(lens, fields_deg=None, wavelength_nm=None, image_plane="sensor
     lens, _, options = unpack(lens, None, options, "chief_heights")
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     out = []
     for f in _fields(lens, fields_deg):
         if aim == "real":
             y, _ = real_chief_ray(lens, f, w, image_plane, options)
         else:
-            zero = torch.zeros(1, 2, dtype=dtype, device=lens.distances[0].device)
+            zero = torch.zeros(1, 2, dtype=dtype, device=lens.device)
             y = trace_pupil(lens, f, w, zero, image_plane, options=options).chief_point[1]
         out.append(y)
     return torch.stack(out)
@@ -253,8 +253,8 @@ def vignetting(lens, fields_deg=None, wavelength_nm: float | None = None, n: int
     lens, _, options = unpack(lens, None, options, "vignetting")
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
-    dtype = lens.distances[0].dtype
-    g = pupil_grid(n, dtype, lens.distances[0].device)
+    dtype = lens.dtype
+    g = pupil_grid(n, dtype, lens.device)
     g = g[(g ** 2).sum(-1) <= 1.0 + 1e-12]
     p = paraxial(lens)
     z_ep, r_ep = float(p.entrance_pupil_z), 0.5 * float(p.entrance_pupil_diameter)
@@ -270,4 +270,4 @@ def vignetting(lens, fields_deg=None, wavelength_nm: float | None = None, n: int
     if t0 == 0.0:
         raise AnalysisError(f"no on-axis ray at {w:g} nm reaches the image")
     return torch.tensor([1.0 - transmitted(f) / t0 for f in _fields(lens, fields_deg)],
-                        dtype=dtype, device=lens.distances[0].device)
+                        dtype=dtype, device=lens.device)

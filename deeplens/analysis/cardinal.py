@@ -41,7 +41,7 @@ def _power(surface, n1, n2):
 def _indices(lens, wavelength_nm):
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
     check_wavelength(lens, w)
-    p0 = lens.distances[0]
+    p0 = torch.zeros((), dtype=lens.dtype, device=lens.device)   # dtype and device
     wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
     return [m.n(wt).to(p0) for m in lens.materials], w
 

@@ -51,9 +51,9 @@ def check_field(lens, field_deg: float, wavelength_nm: float, z_pupil: float,
     if not (math.isfinite(f) and abs(f) < 90.0):
         raise AnalysisError(f"field angle must be finite and within (-90, 90) degrees, got "
                             f"{field_deg!r}")
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     with torch.no_grad():
-        xy = torch.zeros(1, 2, dtype=dtype, device=lens.distances[0].device)
+        xy = torch.zeros(1, 2, dtype=dtype, device=lens.device)
         out = lens.trace_to_sensor(field_rays(lens, f, wavelength_nm, xy, z_pupil),
                                    options=options)
     if not bool(out.valid[0]):

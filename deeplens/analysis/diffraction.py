@@ -63,9 +63,9 @@ def frequency_steps(lens, field_deg: float, wavelength_nm: float, n: int,
     :class:`AnalysisError` when a marginal ray misses a surface.  ``lens``: a lens (with
     ``options``) or a :class:`~deeplens.optics.camera.Camera`, as for every function here."""
     lens, _, options = unpack(lens, None, options, "frequency_steps")
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     m = torch.tensor([[0.0, 1.0], [0.0, -1.0], [1.0, 0.0], [-1.0, 0.0]], dtype=dtype,
-                     device=lens.distances[0].device)
+                     device=lens.device)
     tr = trace_pupil(lens, field_deg, wavelength_nm, m, image_plane, options=_aim(options))
     if not bool(tr.mask.all()):
         raise AnalysisError(f"a marginal ray of field {field_deg:g} deg at {wavelength_nm:g} nm "
@@ -324,8 +324,8 @@ def geometric_mtf(lens, field_deg: float, freqs, wavelength_nm: float | None = N
     """Geometric MTF from the rays of an ``n x n`` pupil grid (module docstring)."""
     lens, _, options = unpack(lens, None, options, "geometric_mtf")
     wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
-    dtype = lens.distances[0].dtype
-    g = pupil_grid(n, dtype, lens.distances[0].device)
+    dtype = lens.dtype
+    g = pupil_grid(n, dtype, lens.device)
     g = g[(g ** 2).sum(-1) <= 1.0 + 1e-12]
     tr = trace_pupil(lens, field_deg, wl, g, image_plane, options=options)
     pts = tr.points[tr.mask][:, :2]
@@ -348,8 +348,8 @@ def encircled_energy(lens, field_deg: float, radii_mm, wavelength_nm: float | No
     grid must be large enough to hold the energy: ``grid = 4n`` here); ``"geometric"`` counts
     the rays of a ``hexapolar`` spot."""
     lens, _, options = unpack(lens, None, options, "encircled_energy")
-    r = torch.as_tensor(radii_mm, dtype=lens.distances[0].dtype,
-                        device=lens.distances[0].device).reshape(-1)
+    r = torch.as_tensor(radii_mm, dtype=lens.dtype,
+                        device=lens.device).reshape(-1)
     if method == "geometric":
         wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
         s = spot_diagram(lens, field_deg, wl, "hexapolar:30", pupil="paraxial",

@@ -75,7 +75,10 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
             xy = torch.stack([torch.zeros_like(ys), ys], -1)
             rays = field_rays(lens, f, w, xy, float(p.entrance_pupil_z))
             out, hits = lens.trace(rays, record=True, options=options)
-            end = lens.propagate_to_z(out, lens.z_sensor())
+            # a virtual image plane (Lens.virtual_image): the rays' lines extended backwards
+            # to it, drawn dashed from the last surface
+            virtual = lens.virtual_image
+            end = lens.propagate_to_z(out, lens.z_sensor(), backwards=virtual)
             # the start in frame 0, the hit on surface i in the frame after it, the end in the last
             pts = [(0, rays.o)] + [(i + 1, q) for i, q in enumerate(hits)] + [(-1, end.o)]
             pts = [yz(f, q[..., 2].double().cpu(), q[..., 1].double().cpu()) for f, q in pts]
@@ -83,8 +86,13 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
             for r in range(n_rays):
                 if not bool(ok[r]):
                     continue
-                ax.plot([float(q[0][r]) for q in pts], [float(q[1][r]) for q in pts], "-",
+                real = pts[:-1] if virtual else pts
+                ax.plot([float(q[0][r]) for q in real], [float(q[1][r]) for q in real], "-",
                         color=style.field_color(k), lw=0.6)
+                if virtual:
+                    ax.plot([float(q[0][r]) for q in pts[-2:]],
+                            [float(q[1][r]) for q in pts[-2:]], "--",
+                            color=style.field_color(k), lw=0.6)
     ax.set_aspect("equal")
     ax.grid(False)
     ax.set_xlabel("z (mm)")

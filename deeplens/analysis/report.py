@@ -84,6 +84,8 @@ def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
         s_obj = float(lens.spec.object_distance_mm)
         out["object_telecentric"] = {"object_heights_mm": [
             -s_obj * math.tan(math.radians(float(f))) + 0.0 for f in fields]}
+    if getattr(lens, "virtual_image", False):   # a virtual image plane (rays extended back)
+        out["image_plane"]["virtual"] = True
     return out
 
 
@@ -100,7 +102,8 @@ def format_report(r: dict) -> str:
            f"{', '.join(f'{h:.6g}' for h in r['object_telecentric']['object_heights_mm'])} mm "
            f"(field angles: their directions from the first vertex)"]
           if r.get("object_telecentric") else []),
-        f"  image plane: {r['image_plane']['kind']} "
+        f"  image plane: {r['image_plane']['kind']}"
+        f"{', virtual' if r['image_plane'].get('virtual') else ''} "
         f"({r['image_plane']['distance_from_last_vertex_mm']:.6g} mm after the last vertex); "
         f"pupil {r['pupil']}, sampling {r['sampling']}",
         "",
@@ -218,7 +221,7 @@ def analysis_report(lens, kinds, fields_deg=None, wavelengths_nm=None, image_pla
                 rows = []
                 fno = float(pupils(lens, prim).working_fno)
                 r = torch.linspace(0, 20 * 1.22 * prim * 1e-6 * fno, 201, dtype=torch.float64,
-                                   device=lens.distances[0].device)
+                                   device=lens.device)
                 for f in fields:
                     try:
                         ee = encircled_energy(lens, f, r, prim, image_plane=image_plane,

@@ -99,7 +99,7 @@ def trace_pupil(lens, field_deg: float, wavelength_nm: float, pupil: torch.Tenso
     if check:
         check_field(lens, field_deg, w, float(z_ep), float(r_ep), options)
     shape = pupil.shape[:-1]
-    flat = pupil.reshape(-1, 2).to(lens.distances[0])
+    flat = pupil.reshape(-1, 2).to(dtype=lens.dtype, device=lens.device)
     zero = torch.zeros(1, 2, dtype=flat.dtype, device=flat.device)
     xy = torch.cat([zero, flat], 0) * r_ep
     rays = launch(lens, field_deg, w, xy, z_ep)
@@ -209,9 +209,9 @@ def wavefront(lens, field_deg: float, wavelength_nm: float | None = None, n: int
     """
     lens, _, options = unpack(lens, None, options, "wavefront")
     wl = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
-    dtype = lens.distances[0].dtype
+    dtype = lens.dtype
     if pupil is None:
-        pupil = pupil_grid(n, dtype, lens.distances[0].device)
+        pupil = pupil_grid(n, dtype, lens.device)
     inside = (pupil ** 2).sum(-1) <= 1.0 + 1e-12
     tr = trace_pupil(lens, field_deg, wl, pupil, image_plane, options=options)
     z_xp, _ = exit_pupil(lens)

@@ -139,7 +139,7 @@ def edge_thickness(i):
     def fn(lens):
         r = _edge_r(lens, i)
         a, b = lens.surfaces[i], lens.surfaces[i + 1]
-        rr = torch.tensor(r, dtype=lens.distances[0].dtype)
+        rr = torch.tensor(r, dtype=lens.dtype)
         zero = torch.zeros_like(rr)
         return lens.distances[i + 1] + b.sag(zero, rr) - a.sag(zero, rr)
 
@@ -207,7 +207,7 @@ class ConstraintSet:
 
     def residuals(self, lens) -> torch.Tensor:
         if not self.constraints:
-            return torch.zeros(0, dtype=unpack(lens)[0].distances[0].dtype)
+            return torch.zeros(0, dtype=unpack(lens)[0].dtype)
         return torch.cat([c.residual(lens) for c in self.constraints])
 
     def broken(self, lens) -> list[str]:

@@ -113,7 +113,7 @@ class SpotMerit:
                 raise ValueError(f"spot weights must be {F} per-field values or an ({F}, {W}) "
                                  f"table of non-negative numbers, got shape {tuple(w.shape)}")
         self.weights = w.clone()
-        dtype = lens.distances[0].dtype
+        dtype = lens.dtype
         self.unit = pupil_pattern(self.sampling, dtype=dtype)
         self.regions, self.masks, self.aims = {}, {}, {}
         with torch.no_grad():
@@ -141,7 +141,7 @@ class SpotMerit:
     def _bundle(self, lens, keys):
         """One ray bundle for several ``(field, wavelength)`` keys (one trace for all: the
         tracer's cost is mostly per call, not per ray), plus the slice of each key."""
-        dtype = lens.distances[0].dtype
+        dtype = lens.dtype
         unit = self.unit.to(dtype)
         o, d, w, sl, k0 = [], [], [], {}, 0
         for f, wl in keys:
@@ -173,7 +173,7 @@ class SpotMerit:
         z_img = image_plane_z(lens, self.image_plane)
         out = lens.trace_to_sensor(rays, z_image=z_img, options=options)
         if self.reference == "chief":
-            dtype = lens.distances[0].dtype
+            dtype = lens.dtype
             o, d, w = [], [], []
             for f, wl in keys:
                 xy = torch.tensor([[0.0, self.aims[(f, wl)]]], dtype=dtype)
@@ -282,7 +282,7 @@ class DistortionMerit:
         """Relative distortion ``(F,)`` (dimensionless; x100 for percent); ``lens``: a Lens or a
         Camera (its options are used)."""
         lens, _, options = unpack(lens, None, None, "DistortionMerit.distortion")
-        dtype = lens.distances[0].dtype
+        dtype = lens.dtype
         z_img = image_plane_z(lens, self.image_plane)
         kappa = chief_ray_scale(lens, z_img, self.wavelength)
         z_ep = float(paraxial(lens).entrance_pupil_z)

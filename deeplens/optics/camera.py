@@ -87,6 +87,8 @@ class Camera(nn.Module):
     Raises:
         TypeError: ``lens`` is not a :class:`~.lens.Lens`, ``options`` not a
             :class:`~.options.TraceOptions`.
+        ValueError: a ``sensor`` for a lens whose image plane is virtual
+            (:meth:`Lens.require_real_image <.lens.Lens.require_real_image>`).
     """
 
     def __init__(self, lens: Lens, sensor: nn.Module | None = None,
@@ -94,6 +96,8 @@ class Camera(nn.Module):
         super().__init__()
         if not isinstance(lens, Lens):
             raise TypeError(f"Camera: lens must be a Lens, got {type(lens).__name__}")
+        if sensor is not None:   # a virtual image plane cannot be recorded
+            lens.require_real_image("Camera(lens, sensor)")
         self.lens = lens
         self.sensor = sensor
         self.options = options
@@ -186,6 +190,8 @@ def as_camera(lens_or_camera, sensor=None, options: TraceOptions | None = None,
         if sensor is not None and sensor is not cam.sensor:
             raise ValueError(f"{who}a sensor given beside a Camera with another sensor")
         return cam
+    if sensor is not None and isinstance(lens_or_camera, Lens):   # name the caller
+        lens_or_camera.require_real_image(where or "Camera(lens, sensor)")
     return Camera(lens_or_camera, sensor, options)
 
 
@@ -197,9 +203,12 @@ def unpack(lens_or_camera, sensor=None, options: TraceOptions | None = None, whe
 
     Raises:
         ValueError: a camera together with ``options`` or a different ``sensor``
-            (:func:`as_camera`).
+            (:func:`as_camera`); a lens with a virtual image plane given with a ``sensor``
+            (:meth:`Lens.require_real_image <.lens.Lens.require_real_image>`).
     """
     if isinstance(lens_or_camera, Camera):
         cam = as_camera(lens_or_camera, sensor, options, where)
         return cam.lens, cam.sensor, cam.options
+    if sensor is not None and isinstance(lens_or_camera, Lens):   # a sensor to record on
+        lens_or_camera.require_real_image(where or "a lens with a sensor")
     return lens_or_camera, sensor, options

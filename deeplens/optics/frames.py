@@ -24,10 +24,10 @@ def local_frames(lens) -> list[tuple[torch.Tensor, torch.Tensor]]:
     """``[(A (3, 3), b (3,)), ...]``: the frame of each of the ``N`` surfaces and, last, of the
     sensor (``N + 1`` entries), in the lens's dtype; differentiable in the breaks' values and
     the distances.  A break's own vertex is in the frame before it."""
-    like = lens.distances[0]
     z = lens.z_vertices()
-    A = torch.eye(3, dtype=like.dtype, device=like.device)
-    b = torch.zeros(3, dtype=like.dtype, device=like.device)
+    like = z   # the lens's dtype and device
+    A = torch.eye(3, dtype=lens.dtype, device=lens.device)
+    b = torch.zeros(3, dtype=lens.dtype, device=lens.device)
     out = []
     for i, s in enumerate(lens.surfaces):
         out.append((A, b))

@@ -352,13 +352,17 @@ def propagate_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_plane, n):
     return ox + t * dx, oy + t * dy, oz + t * dz, dx, dy, dz, ok, opl + n * t
 
 
-def propagate_distance(oz, dz, valid, z_plane):
+def propagate_distance(oz, dz, valid, z_plane, backwards: bool = False):
     """``(t, ok)``: the marching distance ``(*B,)`` (mm) to the plane ``z = z_plane`` and
-    whether the ray reaches it (``d_z != 0``, ahead of it); ``t = 0`` where not."""
+    whether the ray reaches it (``d_z != 0``, ahead of it); ``t = 0`` where not.
+    ``backwards``: a plane behind the ray is reached too, along the ray's line extended
+    backwards (``t < 0``: a virtual image plane, :attr:`Lens.virtual_image
+    <deeplens.optics.lens.Lens.virtual_image>`)."""
     ok = valid & (dz.abs() > 1e-12)
     num = torch.where(ok, z_plane - oz, torch.zeros_like(dz))
     t = num / torch.where(ok, dz, torch.ones_like(dz))
-    ok = ok & (t.detach() >= 0)
+    if not backwards:
+        ok = ok & (t.detach() >= 0)
     return torch.where(ok, t, torch.zeros_like(t)), ok
 
 

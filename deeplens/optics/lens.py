@@ -3,9 +3,13 @@
 Geometry (global frame, mm): the optical axis is ``z``; vertex ``i`` sits at
 ``z_i = sum_{j<=i} distances[j]`` (``distances[0]`` is normally 0, placing the first vertex at the
 origin) and the sensor at ``z_N-1 + d_sensor``.  ``materials[0]`` is the object-space medium and
-``materials[i+1]`` the medium after surface ``i``.  Light travels towards ``+z`` in forward
-(object-to-sensor) tracing and towards ``-z`` in backward (sensor-to-object) tracing; the same
-module serves both, and tracing never modifies the lens or its input rays.
+``materials[i+1]`` the medium after surface ``i``.  A lens flagged ``virtual_image`` has a
+virtual image plane instead: ``d_sensor`` lies *before* the last vertex (a negative lens's
+virtual focus, as OpticStudio allows) and the move to it extends the rays backwards along their
+lines; it is for analysis only (no camera can record it, :meth:`Lens.require_real_image`).
+Light travels towards ``+z`` in forward (object-to-sensor) tracing and towards ``-z`` in
+backward (sensor-to-object) tracing; the same module serves both, and tracing never modifies
+the lens or its input rays.
 
 Mirrors and folds (``docs/guide/mirrors.md``): a mirror (``mirrors=``) reflects (:mod:`.reflect`)
 instead of refracting and reverses the direction of travel along the axis, so after an odd
@@ -162,6 +166,10 @@ class Lens(nn.Module):
         name: a title.
         mirrors: indices of reflecting surfaces (their medium after is the medium before;
             see :meth:`directions` for the sign of the distances after them).
+        virtual_image: the image plane is virtual: ``d_sensor`` must then lie *before* the
+            last vertex (``< 0`` along the direction of travel), and :meth:`trace_to_sensor`
+            extends the rays backwards to it (a negative distance: the optical path decreases,
+            as in OpticStudio); analysis only, renderers and cameras with a sensor refuse it.
 
     Attribute ``object_telecentric`` (default ``False``): the entrance pupil is at infinity
     (OpticStudio's telecentric object space, ``FTYP`` second value 1): every field's chief ray
@@ -179,7 +187,7 @@ class Lens(nn.Module):
 
     def __init__(self, surfaces, materials, distances, d_sensor: float, stop_index: int | None,
                  sensor_semi_diameter: float | None = None, spec: LensSpec | None = None,
-                 elements=None, name: str = "", mirrors=()):
+                 elements=None, name: str = "", mirrors=(), virtual_image: bool = False):
         super().__init__()
         surfaces, materials, distances = list(surfaces), list(materials), list(distances)
         n = len(surfaces)
@@ -210,6 +218,7 @@ class Lens(nn.Module):
                                            for i, v in enumerate(distances)])
         self.d_sensor = make_param(d_sensor, "sensor distance")
         self.stop_index = int(stop_index)
+        self.virtual_image = bool(virtual_image)
         self.mirrors = _check_mirrors(mirrors, surfaces, materials)
         if sensor_semi_diameter is not None and not (float(sensor_semi_diameter) > 0 and
                                                      math.isfinite(float(sensor_semi_diameter))):
@@ -321,7 +330,17 @@ class Lens(nn.Module):
                 raise LensError(f"{what} is positive ({d:g} mm): sequential surfaces must be "
                                 f"ordered along -z, the direction of travel there"
                                 f"{_after_mirrors(self.mirrors, q)}", surfaces=(q,))
-        if sign[-1] * float(self.d_sensor) <= 0:
+        if self.virtual_image:
+            if self.folded():
+                raise LensError("a virtual image plane (virtual_image) is supported in unfolded "
+                                "systems only (no mirror, no coordinate break)", key="sensor")
+            if sign[-1] * float(self.d_sensor) >= 0:
+                raise LensError(f"a virtual image plane (virtual_image) must lie before the "
+                                f"last surface: the sensor distance must be "
+                                f"{'<' if sign[-1] > 0 else '>'} 0 mm"
+                                f"{_after_mirrors(self.mirrors, len(self.surfaces))}, got "
+                                f"{float(self.d_sensor):g}", key="sensor")
+        elif sign[-1] * float(self.d_sensor) <= 0:
             raise LensError(f"sensor distance must be {'>' if sign[-1] > 0 else '<'} 0 mm"
                             f"{_after_mirrors(self.mirrors, len(self.surfaces))}, got "
                             f"{float(self.d_sensor):g}", key="sensor")
@@ -363,7 +382,8 @@ class Lens(nn.Module):
             else:
                 r = torch.linspace(0, float(s.semi_diameter), 65, dtype=torch.float64)
                 zl = z[last] + s.sag(torch.zeros_like(r), r)
-            if bool((sign[-1] * (zl - self.z_sensor().detach()) > 1e-9).any()):
+            if (not self.virtual_image   # a virtual plane may cut the lens: nothing is there
+                    and bool((sign[-1] * (zl - self.z_sensor().detach()) > 1e-9).any())):
                 raise LensError(f"the last surface crosses the sensor plane (sensor distance "
                                 f"{float(self.d_sensor):g} mm)", key="sensor")
 
@@ -544,19 +564,39 @@ class Lens(nn.Module):
         return tracer.trace(self, rays, reverse=reverse, options=options, record=record,
                             propagate_to=propagate_to)
 
-    def propagate_to_z(self, rays: Rays, z_plane, medium_index=None) -> Rays:
-        """Move rays to the plane ``z = z_plane`` (mm); rays that cannot reach it go invalid."""
+    def propagate_to_z(self, rays: Rays, z_plane, medium_index=None,
+                       backwards: bool = False) -> Rays:
+        """Move rays to the plane ``z = z_plane`` (mm); rays that cannot reach it go invalid.
+        ``backwards``: a plane behind the rays is reached along their lines extended backwards
+        (a negative distance, the optical path decreasing by ``n |t|``)."""
         z_plane = torch.as_tensor(z_plane, dtype=rays.dtype, device=rays.device)
-        t, ok = propagate_distance(rays.o[..., 2], rays.d[..., 2], rays.valid, z_plane)
+        t, ok = propagate_distance(rays.o[..., 2], rays.d[..., 2], rays.valid, z_plane,
+                                   backwards)
         n = 1.0 if medium_index is None else medium_index
         return Rays(rays.at(t), rays.d, rays.wavelength, ok, rays.opl + n * t, normalize=False)
 
     def trace_to_sensor(self, rays: Rays, *, z_image=None, options=None) -> Rays:
-        """Forward trace and propagate to the sensor plane (or to ``z_image`` when given)."""
+        """Forward trace and propagate to the sensor plane (or to ``z_image`` when given).
+        With :attr:`virtual_image` the image side is virtual: the rays reach the plane along
+        their lines extended backwards where it lies behind them."""
         z = self.z_sensor() if z_image is None else z_image
         n_img = self.materials[-1].n(_compact(rays.wavelength))
         z = torch.as_tensor(z, dtype=rays.dtype, device=rays.device)
+        if self.virtual_image:
+            return self.propagate_to_z(self.trace(rays, options=options), z, n_img,
+                                       backwards=True)
         return self.trace(rays, options=options, propagate_to=(z, n_img))
+
+    def require_real_image(self, what: str) -> None:
+        """Raise a :class:`~.errors.LensError` naming ``what`` when the image plane is virtual
+        (:attr:`virtual_image`): a renderer, a PSF or a camera with a sensor needs light that
+        reaches a physical sensor."""
+        if self.virtual_image:
+            raise LensError(f"{what}: the lens {self.name!r} has a virtual image plane "
+                            f"({float(self.d_sensor):g} mm from its last surface, before it): "
+                            f"a camera cannot record a virtual image; only analysis (paraxial "
+                            f"data, spots, report) works on it; add the optics that image it "
+                            f"onto a real sensor", key="sensor")
 
     def info(self, extra: bool = True) -> None:
         """Print the prescription as a lens-data-editor table (surface, type, radius, thickness,
@@ -568,4 +608,5 @@ class Lens(nn.Module):
 
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, surfaces={len(self.surfaces)}, stop={self.stop_index}, "
-                f"d_sensor={float(self.d_sensor.detach()):.6g} mm")
+                f"d_sensor={float(self.d_sensor.detach()):.6g} mm"
+                + (", virtual_image=True" if self.virtual_image else ""))

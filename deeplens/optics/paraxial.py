@@ -86,7 +86,7 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
         ValueError: if the stop is not imaged (``y_A = 0``).
     """
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
-    p0 = lens.distances[0]
+    p0 = torch.zeros((), dtype=lens.dtype, device=lens.device)   # dtype and device
     wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
     n = _signed_indices(lens, wt)
     one, zero = torch.ones_like(p0), torch.zeros_like(p0)
@@ -119,7 +119,7 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
 
 def _indices(lens, wavelength_nm):
     w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
-    p0 = lens.distances[0]
+    p0 = torch.zeros((), dtype=lens.dtype, device=lens.device)   # dtype and device
     wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
     return _signed_indices(lens, wt), p0
 

@@ -113,6 +113,8 @@ class IdealCamera:
     """
 
     def __init__(self, lens, sensor):
+        if getattr(lens, "virtual_image", False):
+            lens.require_real_image("IdealCamera")
         with torch.no_grad():
             p = paraxial(lens)
             self.z0 = float(lens.z_vertices()[0])

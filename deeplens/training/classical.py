@@ -80,7 +80,7 @@ def sag_departure_constraints(lens, max_sag_mm: float) -> list:
     out = []
     for i in bound.surfaces:
         def fn(L, i=i):
-            X, Y = bound._points(L.surfaces[i], L.distances[0])
+            X, Y = bound._points(L.surfaces[i], L.dtype, L.device)
             sag0 = getattr(bound, f"sag0_{i}").to(X)
             return (L.surfaces[i].sag(X, Y) - sag0).abs().max()
 

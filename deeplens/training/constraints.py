@@ -46,25 +46,25 @@ class SagDepartureConstraint(nn.Module):
         with torch.no_grad():
             for i, s in enumerate(lens.surfaces):
                 if any(p.requires_grad for p in s.parameters()) and hasattr(s, "sag"):
-                    X, Y = self._points(s, lens.distances[0])
+                    X, Y = self._points(s, lens.dtype, lens.device)
                     self.register_buffer(f"sag0_{i}", s.sag(X, Y).detach().clone(),
                                          persistent=False)
                     self.surfaces.append(i)
 
-    def _points(self, surface, like: torch.Tensor):
+    def _points(self, surface, dtype: torch.dtype, device):
         R = float(surface.semi_diameter)
         v = torch.linspace(-R, R, self.grid, dtype=torch.float64) / math.sqrt(2)
         Y, X = torch.meshgrid(v, v, indexing="ij")
-        return X.to(like), Y.to(like)
+        return X.to(dtype=dtype, device=device), Y.to(dtype=dtype, device=device)
 
     def forward(self, lens) -> torch.Tensor:
-        like = lens.distances[0]
-        total = torch.zeros((), device=like.device)
+        total = torch.zeros((), device=lens.device)
         if not self.max_sag_mm:
             return total
         for i in self.surfaces:
             s = lens.surfaces[i]
-            X, Y = self._points(s, like)
-            dep = s.sag(X, Y) - getattr(self, f"sag0_{i}").to(like)
+            X, Y = self._points(s, lens.dtype, lens.device)
+            dep = s.sag(X, Y) - getattr(self, f"sag0_{i}").to(dtype=lens.dtype,
+                                                               device=lens.device)
             total = total + (F.relu(dep.abs() / self.max_sag_mm - 1) ** 2).mean().float()
         return total

@@ -122,7 +122,7 @@ def test_classical_sag_bound_is_the_end_to_end_runs(cfg_factory, tmp_path):
             from deeplens.training.constraints import SagDepartureConstraint
 
             grid = SagDepartureConstraint(start, m)
-            X, Y = grid._points(start.surfaces[i], start.distances[0])
+            X, Y = grid._points(start.surfaces[i], start.dtype, start.device)
             dep = lens.double().surfaces[i].sag(X, Y) - start.surfaces[i].sag(X, Y)
             worst = max(worst, float(dep.abs().max()))
         assert (worst <= m * (1 + 1e-6)) == within, worst

@@ -292,13 +292,24 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     sensor = data.get("sensor")
     if not isinstance(sensor, dict):
         r.fail("sensor", "missing: expected {\"distance_mm\": ..., \"semi_diameter_mm\": ...}")
-    r.keys(sensor, {"distance_mm", "semi_diameter_mm"}, "sensor")
+    r.keys(sensor, {"distance_mm", "semi_diameter_mm", "virtual_image"}, "sensor")
     d_sensor = r.get(sensor, "distance_mm", "sensor")
-    if not (d_sensor > 0 if len(mirrors) % 2 == 0 else d_sensor < 0):
+    virtual = sensor.get("virtual_image", False)
+    if not isinstance(virtual, bool):
+        r.fail("sensor.virtual_image", f"expected true or false, got {virtual!r}")
+    ahead = d_sensor > 0 if len(mirrors) % 2 == 0 else d_sensor < 0
+    if virtual and (ahead or d_sensor == 0):
+        r.fail("sensor.distance_mm", f"a virtual image plane (virtual_image: true) must lie "
+                                     f"before the last surface: the distance must be "
+                                     f"{'< 0' if len(mirrors) % 2 == 0 else '> 0'} mm, got "
+                                     f"{d_sensor!r}")
+    if not virtual and not ahead:
         after = f" after {len(mirrors)} mirrors" if mirrors else ""
         r.fail("sensor.distance_mm", f"the sensor distance must be "
                                      f"{'> 0' if len(mirrors) % 2 == 0 else '< 0'} mm{after}, "
-                                     f"got {d_sensor!r}")
+                                     f"got {d_sensor!r}" + ("" if mirrors else
+                                     " (a virtual image plane before the last surface needs "
+                                     "\"virtual_image\": true in a JSON lens file)"))
     sensor_sd = r.get(sensor, "semi_diameter_mm", "sensor", default=None)
     if sensor_sd is not None and not sensor_sd > 0:
         r.fail("sensor.semi_diameter_mm", f"must be > 0 mm (or left out), got {sensor_sd!r}")
@@ -313,7 +324,7 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
                 r.fail(f"elements[{e}]", f"expected [first, last] surface indices, got {pair!r}")
     try:
         lens = Lens(surfaces, materials, distances, d_sensor, stop, sensor_sd, spec,
-                    elements=elements, name=name, mirrors=mirrors)
+                    elements=elements, name=name, mirrors=mirrors, virtual_image=virtual)
     except LensError as e:
         raise LensFileError(e.message, source=source, key=_SPEC_FIELDS.get(e.key),
                             surfaces=e.surfaces) from e
@@ -368,6 +379,8 @@ def lens_to_dict(lens: Lens) -> dict:
         out["object"]["telecentric"] = True
     if lens.sensor_semi_diameter is not None:
         out["sensor"]["semi_diameter_mm"] = float(lens.sensor_semi_diameter)
+    if lens.virtual_image:
+        out["sensor"]["virtual_image"] = True
     if not all(m.is_identity() for m in lens.misalignments):
         out["misalignment"] = [m.to_dict() for m in lens.misalignments]
     return out

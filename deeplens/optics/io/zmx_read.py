@@ -95,7 +95,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     obj_dist = seq.obj_dist
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
-    d_sensor = _sensor(seq, img, p)
+    virtual = [False]
+    d_sensor = _sensor(seq, img, p, virtual)
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
 
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest
@@ -127,7 +128,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
             try:
                 lens = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd, spec,
                             elements=[(a, b) for a, b, _, _ in elements],
-                            name=sysd["name"] or path.stem, mirrors=seq.mirrors)
+                            name=sysd["name"] or path.stem, mirrors=seq.mirrors,
+                            virtual_image=virtual[0])
                 break
             except SurfacesCrossError as e:
                 if not _limit_at_crossing(e, surfaces, lambda i: _estimated(kept, stop_idx, i),
@@ -335,11 +337,11 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     return seq
 
 
-def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator) -> float:
+def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list) -> float:
     """The sensor distance (mm, signed along the direction of travel) from the gap between the
     last kept vertex and the image surface: an image plane on a flat last vertex moves
-    :data:`_IMAGE_ON_VERTEX_MM` behind it; a curved one there, or an image plane before the last
-    vertex (a virtual image), is refused."""
+    :data:`_IMAGE_ON_VERTEX_MM` behind it; a curved one there is refused; an image plane before
+    the last vertex (a virtual image) sets ``virtual[0]`` (refused after mirrors)."""
     kept, mirrors, surfaces = seq.kept, seq.mirrors, [k_[0] for k_ in seq.kept]
     d_sensor = seq.gap
     # the direction of travel after the last surface: -z after an odd number of mirrors
@@ -361,16 +363,20 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator) -> float:
         p.fail(img.line, "the image plane lies on the vertex of the last surface, which is "
                          "curved: deeplens' flat sensor would cut through it (give the last "
                          "surface a thickness)")
-    elif sign * d_sensor < 0 and inside_ok:
-        travel = (f" (light travels towards {'-' if sign < 0 else '+'}z there, after "
-                  f"{len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''})" if mirrors else
-                  " (a virtual image, as a negative lens's file puts it at its virtual "
-                  "focus: OpticStudio extends the diverging rays backwards to that plane, a "
-                  "negative propagation distance)")
+    elif sign * d_sensor < 0 and inside_ok and mirrors:
         p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
-                         f"vertex{travel}: deeplens' sensor must follow the last surface (it "
-                         f"records real images; to evaluate a virtual one, add the optics that "
-                         f"image it, e.g. a PARAXIAL lens, after the last surface)")
+                         f"vertex (light travels towards {'-' if sign < 0 else '+'}z there, "
+                         f"after {len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''}): a "
+                         f"virtual image plane after mirrors is not supported (deeplens reads "
+                         f"a virtual image only in an unfolded system)")
+    elif sign * d_sensor < 0 and inside_ok:
+        # a virtual image, as a negative lens's file puts it at its virtual focus: OpticStudio
+        # extends the diverging rays backwards to that plane (Lens.virtual_image); analysis
+        # only, the renderers refuse such a lens
+        p.note(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
+                         f"vertex: a virtual image plane (rays extended backwards to it); "
+                         f"analysis only, no camera can record it")
+        virtual[0] = True
     return d_sensor
 
 

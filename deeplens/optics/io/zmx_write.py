@@ -201,6 +201,27 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
     Path(path).write_text(text, encoding=encoding)
 
 
+def _opening_records(s, i: int) -> list[str]:
+    """The clear-aperture records of a curved surface: ``SQAP`` (a rectangular opening in its
+    circumscribed circle) or ``CLAP`` (a circle narrower than the semi-diameter, or off-axis),
+    each with ``OBDC`` when decentred, then ``OBSC`` (a central obscuration)."""
+    out = []
+    rect = getattr(s, "clear_rect", None)
+    if rect is not None and bool(rect.any()):
+        if abs(float(s.clear_radius) - math.hypot(*map(float, rect))) > 1e-12 * \
+                float(s.clear_radius):
+            raise ZemaxFileError(f"surface {i}: a rectangular clear aperture inside a narrower "
+                                 f"clear circle has no Zemax record (SQAP or CLAP, not both)",
+                                 surfaces=(i,))
+        out.append(f"SQAP {_f(rect[0])} {_f(rect[1])} 0")
+    elif math.isfinite(float(s.clear_radius)):
+        out.append(f"CLAP 0 {_f(s.clear_radius)} 0")
+    if out and bool(s.clear_decenter.any()):
+        out.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
+    if float(s.obscuration) > 0:
+        out.append(f"OBSC 0 {_f(s.obscuration)} 0")
+    return out
+
 def _surface_lines(s, i, is_stop) -> list[str]:
     from ..surfaces import BSpline
 
@@ -241,13 +262,7 @@ def _surface_lines(s, i, is_stop) -> list[str]:
     if isinstance(s, Grating):
         lines += ["TYPE DGRATING", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {_f(s.T)}",
                   f"PARM 2 {s.order}", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
-        if math.isfinite(float(s.clear_radius)):
-            lines.append(f"CLAP 0 {_f(s.clear_radius)} 0")
-            if bool(s.clear_decenter.any()):
-                lines.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
-        if float(s.obscuration) > 0:
-            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
-        return lines
+        return lines + _opening_records(s, i)
     if isinstance(s, Plane):
         return lines + ["TYPE STANDARD", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Asphere):
@@ -261,22 +276,7 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             lines.append("PARM 1 0")
             lines += [f"PARM {k + 2} {_f(v)}" for k, v in enumerate(a)]
         lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
-        if bool(s.clear_rect.any()):   # a rectangular opening (in its circumscribed circle)
-            if abs(float(s.clear_radius) - math.hypot(*map(float, s.clear_rect))) > 1e-12 * \
-                    float(s.clear_radius):
-                raise ZemaxFileError(f"surface {i}: a rectangular clear aperture inside a "
-                                     f"narrower clear circle has no Zemax record (SQAP or "
-                                     f"CLAP, not both)", surfaces=(i,))
-            lines.append(f"SQAP {_f(s.clear_rect[0])} {_f(s.clear_rect[1])} 0")
-            if bool(s.clear_decenter.any()):
-                lines.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
-        elif math.isfinite(float(s.clear_radius)):   # narrower than the stop, or off-axis
-            lines.append(f"CLAP 0 {_f(s.clear_radius)} 0")
-            if bool(s.clear_decenter.any()):
-                lines.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
-        if float(s.obscuration) > 0:
-            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
-        return lines
+        return lines + _opening_records(s, i)
     if isinstance(s, XYPolynomial):
         if float(s.b) != 0:
             raise ZemaxFileError(f"surface {i}: an XY polynomial with b != 0 (z² term) has no "

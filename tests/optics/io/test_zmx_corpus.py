@@ -41,7 +41,6 @@ REFUSED = {
     "thorlabs_354710-C.zmx": "D-ZK3M",
     "optiland_lens_floa.zmx": "cross",   # the on-axis beam reaches past where surfaces meet
     "patent2zemax_EP0770895A2-1.zmx": "cross",    # (OpticStudio traces it backwards)
-    "krakenos_zmax_84383.zmx": "virtual image",   # a negative lens focused at its virtual focus
 }
 
 
@@ -859,3 +858,42 @@ def test_telecentric_flag_round_trips(tmp_path):
     write_zmx(plain, tmp_path / "plain.zmx")
     assert re.search(r"^FTYP 0 0 ", (tmp_path / "plain.zmx").read_text(), re.M)
     assert "telecentric" not in lens_to_dict(plain)["object"]
+
+
+def test_virtual_image_plane_matches_optiland():
+    """``krakenos_zmax_84383``: a plano-concave lens whose image plane is its virtual focus,
+    6.5625 mm before the last vertex (``Lens.virtual_image``): the rays' lines extended backwards
+    land where optiland's do, and the optical path decreases along that move as in OpticStudio
+    (optiland's path differences between pupil rays at the image surface, to 1e-12 of the
+    file unit; with the path increasing instead they differ by > 1e-4)."""
+    from deeplens.optics.sampling import field_rays
+
+    name = "krakenos_zmax_84383.zmx"
+    lens = _load(name)
+    assert lens.virtual_image and float(lens.d_sensor) == pytest.approx(-6.5625, abs=1e-6)
+    optic, s_mm = _oracle(name, lens)
+    w = float(lens.spec.primary_wavelength_nm)
+    par = paraxial(lens)
+    half = 0.5 * float(par.entrance_pupil_diameter)
+    py = [0.0, 0.2, 0.4, 0.55]    # within the last surface's CLAP (1.25 mm)
+    with torch.no_grad():
+        xy = torch.tensor([[0.0, v * half] for v in py], dtype=lens.dtype)
+        rays = field_rays(lens, 0.0, w, xy, float(par.entrance_pupil_z))
+        out, last = lens.trace_to_sensor(rays), lens.trace(rays)
+    assert bool(out.valid.all())
+    ys, opd = [], []
+    for v in py:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            optic.trace_generic(0.0, 0.0, 0.0, v, w / 1000.0)
+        sg = optic.surface_group
+        ys.append(float(torch.as_tensor(sg.y)[-1].reshape(-1)[0]))
+        opd.append(float(torch.as_tensor(sg.opd)[-1].reshape(-1)[0]))
+    assert [float(y) / s_mm for y in out.o[:, 1]] == pytest.approx(ys, abs=1e-12)
+    dl = [float(o - out.opl[0]) / s_mm for o in out.opl[1:]]
+    ol = [o - opd[0] for o in opd[1:]]
+    assert dl == pytest.approx(ol, abs=1e-12)
+    # the other sign (the path growing along the backward move) is far from the oracle
+    grown = last.opl + torch.linalg.vector_norm(out.o - last.o, dim=-1)
+    wrong = [float(o - grown[0]) / s_mm for o in grown[1:]]
+    assert max(abs(a - b) for a, b in zip(wrong, ol)) > 1e-4
