@@ -92,13 +92,19 @@ class CompileLedger:
             return False
         if os.environ.get("DEEPLENS_COMPILE", "").strip() == "0":
             return False
-        if self.saved.get(key, 0.0) >= COMPILE_COST_S:
-            return self._can_compile(device)
+        if self.paid(key):
+            return self.can_compile(device)
         self.saved[key] = (self.saved.get(key, 0.0)
                            + n_rays * n_fused * (EAGER_S[grad] - COMPILED_S[grad]))
         return False
 
-    def _can_compile(self, device: torch.device) -> bool:
+    def paid(self, key: str) -> bool:
+        """Whether signature ``key`` has saved the cost of compiling (it now runs compiled)."""
+        return self.saved.get(key, 0.0) >= COMPILE_COST_S
+
+    def can_compile(self, device: torch.device) -> bool:
+        """Whether kernels can be compiled for ``device`` here (checked once per device type;
+        if not, one warning says why)."""
         if device.type not in self._compiler:
             ok, why = compiler_available(device)
             self._compiler[device.type] = ok

@@ -68,13 +68,13 @@ def end_step(module) -> None:
     opts = module.camera.options
     after = opts.ledger.saved
     delta = {k: v - before.get(k, 0.0) for k, v in after.items()}
-    already = sum(1 for v in after.values() if v >= P.COMPILE_COST_S)
+    already = sum(1 for k in after if opts.ledger.paid(k))
     trainer = module.trainer
     left = trainer.estimated_stepping_batches
     left = math.inf if left is None or not math.isfinite(left) else max(
         0, int(left) - int(trainer.global_step))
     choice, why = decide(delta, already, left)
-    if choice and not opts.ledger._can_compile(module.camera.device):
+    if choice and not opts.ledger.can_compile(module.camera.device):
         choice, why = False, why + "; no compiler found"
     _apply(module, choice)
     rank_zero_info(f"deeplens: render.compile=default: tracing "
