@@ -2,7 +2,8 @@
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
-flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``TOROIDAL`` ->
+flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``ODDASPHE`` and an ``EVENASPH``
+with an ``r²`` term (``PARM 1`` != 0) -> :class:`~deeplens.optics.surfaces.OddAsphere`, ``TOROIDAL`` ->
 :class:`~deeplens.optics.surfaces.Toroid` (:class:`~deeplens.optics.surfaces.Cylinder` with no
 radius of rotation), ``PARAXIAL`` ->
 :class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
@@ -20,8 +21,8 @@ import torch
 
 from ..errors import ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import (Aperture, Asphere, Cylinder, Grating, IdealLens, Plane, QType, Toroid,
-                        XYPolynomial)
+from ..surfaces import (Aperture, Asphere, Cylinder, Grating, IdealLens, OddAsphere, Plane, QType,
+                        Toroid, XYPolynomial)
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from .zmx_parse import Locator, ZmxSurface
@@ -53,15 +54,9 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         sd = s.clap[0] * s_mm
     surf = None
     coeffs, flat, fixed = [], False, s.diam_fixed and s.diam > 0
-    if s.type == "STANDARD" or s.type == "EVENASPH":
-        if s.type == "EVENASPH":
-            for i, (v, ln) in sorted(s.parm.items()):
-                if i == 1 and v != 0:
-                    p.fail(ln, "EVENASPH PARM 1 (the r² term) is not supported: deeplens' "
-                               "even asphere starts at r⁴ (fold it into the curvature in "
-                               "Zemax)")
-                if i > 8 and v != 0:
-                    p.fail(ln, f"EVENASPH PARM {i}: Zemax's even asphere has PARM 1-8")
+    radial = _radial_coefficients(s, k, s_mm, p)   # ODDASPHE, EVENASPH with PARM 1: r¹, r², ...
+    if s.type in ("STANDARD", "EVENASPH", "ODDASPHE"):
+        if s.type == "EVENASPH" and radial is None:
             # as many terms as PARM lines (a4 = PARM 2, ...); a file listing all 8 (as
             # OpticStudio writes) is trimmed of its trailing zero terms
             top = max([i for i in s.parm if i <= 8] + [1])
@@ -70,7 +65,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             if top == 8:
                 while coeffs and coeffs[-1] == 0.0:
                     coeffs.pop()
-        flat = c == 0 and s.coni == 0 and not coeffs
+        flat = c == 0 and s.coni == 0 and not coeffs and not radial
         same_medium = (type(mat) is type(prev) and mat.name == prev.name)
         if (flat and same_medium and not s.stop and not fixed and s.clap is None
                 and s.sqap is None and s.obsc is None and not s.mirror):
@@ -105,6 +100,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             surf = Aperture(sd_build)
         elif flat:
             surf = Plane(sd_build)
+        elif radial:
+            surf = OddAsphere(c, sd_build, conic=s.coni, coefficients=radial)
         else:
             surf = Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
     except ZemaxFileError:
@@ -149,7 +146,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                               f"and below the semi-diameter {s.diam:g}")
         surf.obscuration.fill_(ro)
     elif s.obsc is not None and not isinstance(surf, Aperture):
-        what = "flat mirror" if s.mirror else "flat surface between two media"
+        what = (("flat mirror" if s.mirror else "flat surface between two media") if flat
+                else ("mirror" if s.mirror else "lens surface"))
         p.fail(s.obsc[1], f"SURF {k}: OBSC, a central obscuration on a {what} "
                           f"({type(surf).__name__}), is not supported (deeplens has "
                           f"obscurations on flat surfaces in air: put the obscuration on its "
@@ -193,6 +191,31 @@ def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
                    f"flat surfaces in air, and a circular CLAP or a rectangular SQAP on a "
                    f"STANDARD or EVENASPH lens or mirror surface: an off-axis segment)")
     return (dx * s_mm, dy * s_mm)
+
+
+def _radial_coefficients(s: ZmxSurface, k: int, s_mm, p: Locator):
+    """The coefficients ``[a_1, a_2, ...]`` of ``r¹, r², ...`` (mm^(1−i)) of an
+    :class:`OddAsphere`: ``ODDASPHE``'s ``PARM i`` on ``r^i``, and an ``EVENASPH`` whose ``PARM 1``
+    (the ``r²`` term) is not zero, ``PARM i`` on ``r^(2i)`` (the odd powers zero); trailing zero
+    terms trimmed.  ``None`` for every other surface (an ``EVENASPH`` without an ``r²`` term stays
+    an :class:`Asphere`), and ``[]`` for an ``ODDASPHE`` with no term (its conic base)."""
+    if s.type not in ("EVENASPH", "ODDASPHE"):
+        return None
+    for i, (v, ln) in sorted(s.parm.items()):
+        if (i > 8 or i < 1) and v != 0:
+            kind = "even" if s.type == "EVENASPH" else "odd"
+            p.fail(ln, f"SURF {k}: {s.type} PARM {i} is not read: Zemax's {kind} asphere has "
+                       f"PARM 1-8")
+    if s.type == "EVENASPH" and s.parm.get(1, (0.0, 0))[0] == 0:
+        return None
+    power = (lambda i: 2 * i) if s.type == "EVENASPH" else (lambda i: i)
+    a = [0.0] * power(8)
+    for i in range(1, 9):
+        v = s.parm.get(i, (0.0, 0))[0]
+        a[power(i) - 1] = v * s_mm ** (1 - power(i))
+    while a and a[-1] == 0.0:
+        a.pop()
+    return a
 
 
 def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):

@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from ..surfaces import Aperture, Asphere, Plane, QType
+from ..surfaces import Aperture, Asphere, OddAsphere, Plane, QType
 
 __all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
            "zemax_tilts", "element_tilts", "lens_pupil_convention", "fields_to_angles"]
@@ -112,7 +112,7 @@ def rotationally_symmetric(surf) -> bool:
         return surf.shape == "circle"
     if getattr(surf, "diffracts", False):   # a grating's lines turn with it
         return False
-    return isinstance(surf, (Asphere, Plane, QType))
+    return isinstance(surf, (Asphere, OddAsphere, Plane, QType))
 
 
 def zemax_tilts(ta: float, tb: float) -> tuple[float, float]:

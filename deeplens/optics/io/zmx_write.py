@@ -18,8 +18,8 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
-from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, Grating, IdealLens, Plane,
-                        QType, Toroid, XYPolynomial)
+from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, Grating, IdealLens,
+                        OddAsphere, Plane, QType, Toroid, XYPolynomial)
 from .agf import AGFGlass
 from .vendor_glass import BuchdahlGlass
 from .zmx_coordbrk import coordbrk_lines
@@ -79,6 +79,24 @@ def _object_na(lens: Lens) -> float:
         n0 = float(_indices(lens, None)[0][0])
         d = abs(float(lens.spec.object_distance_mm) + float(par.entrance_pupil_position))
         return n0 * math.sin(math.atan(0.5 * float(par.entrance_pupil_diameter) / d))
+
+
+def _odd_asphere_lines(s: OddAsphere, i: int) -> list[str]:
+    """An :class:`OddAsphere`: ``EVENASPH`` with ``PARM 1`` (the r² term) when its odd terms are
+    all zero and it has an r² term (how the reader got it), else ``ODDASPHE`` (``PARM i`` on
+    ``r^i``, up to r⁸)."""
+    a = [float(v) for v in s.a]
+    head = [f"CURV {_f(s.c)}", f"CONI {_f(s.k)}"]
+    if len(a) >= 2 and a[1] != 0 and not any(a[0::2]):
+        if len(a) > 16:
+            raise ZemaxFileError(f"surface {i}: an odd asphere with terms up to r^{len(a)}; "
+                                 f"Zemax's EVENASPH holds r^2..r^16", surfaces=(i,))
+        return ["TYPE EVENASPH"] + head + [f"PARM {k + 1} {_f(v)}"
+                                           for k, v in enumerate(a[1::2])]
+    if len(a) > 8:
+        raise ZemaxFileError(f"surface {i}: an odd asphere with terms up to r^{len(a)}; Zemax's "
+                             f"ODDASPHE holds r^1..r^8", surfaces=(i,))
+    return ["TYPE ODDASPHE"] + head + [f"PARM {k + 1} {_f(v)}" for k, v in enumerate(a)]
 
 
 def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
@@ -259,6 +277,8 @@ def _surface_lines(s, i, is_stop) -> list[str]:
                         f"XDAT 3 {_f(s.norm_radius)}"] + \
             [f"XDAT {j + 4} {_f(v)}" for j, v in enumerate(a)] + \
             [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+    if isinstance(s, OddAsphere):
+        return lines + _odd_asphere_lines(s, i) + [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Grating):
         lines += ["TYPE DGRATING", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {_f(s.T)}",
                   f"PARM 2 {s.order}", f"DIAM {_f(sd)} 1 0 0 1 \"\""]

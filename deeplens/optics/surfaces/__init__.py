@@ -8,10 +8,11 @@ from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
 from .grating import Grating
 from .ideal import IdealLens
+from .odd_asphere import OddAsphere
 from .plane import Plane
 from .qtype import QType
 from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
 
 __all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "BSpline", "Cylinder",
-           "Grating", "Plane", "QType", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]
+           "Grating", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]

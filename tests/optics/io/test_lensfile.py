@@ -264,7 +264,7 @@ BAD = [
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
      r"aperture, asphere, bspline, conic, coordinate_break, cylinder, grating, ideal_lens, "
-     r"plane, qtype, sphere, toroid, xy_polynomial\)"),
+     r"odd_asphere, plane, qtype, sphere, toroid, xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -476,6 +476,13 @@ def test_every_registered_surface_type_round_trips():
                           "q_coefficients": [1e-3 / 3, -2e-4], "q_kind": "qcon",
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([11, 11])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # an odd asphere (OpticStudio's ODDASPHE, or an EVENASPH with an r² term), likewise
+    d["surfaces"].append({"type": "odd_asphere", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 60.0, "conic": -0.3,
+                          "radial_coefficients": [1e-3 / 3, 0.0, -2e-5, 1e-6 / 7],
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([12, 12])
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}
