@@ -3,8 +3,9 @@ r"""Zemax OpticStudio sequential lens files (``.zmx``): read and write.
 Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``)::
 
     STANDARD   z = c r² / (1 + sqrt(1 − (1 + k) c² r²))
-    EVENASPH   z = STANDARD + Σ_{i=1..8} α_i r^{2i}        (PARM i = α_i; deeplens has no r² term,
-                                                          so PARM 1 must be 0)
+    EVENASPH   z = STANDARD + Σ_{i=1..8} α_i r^{2i}        (PARM i = α_i: an Asphere from r⁴, or
+                                                          with PARM 1 != 0 an OddAsphere)
+    ODDASPHE   z = STANDARD + Σ_{i=1..8} β_i r^i           (PARM i = β_i: an OddAsphere)
     XYPOLYNOM  z = Σ_j A_j x^m y^n / R^(m+n)               (XDAT 1 = number of terms, XDAT 2 = the
                                                           normalisation radius R, XDAT 3.. = A_j in
                                                           the order x, y, x², xy, y², x³, ...;

@@ -249,3 +249,16 @@ def test_constructor_and_domain_errors():
         OddAsphere(1 / 5.0, 6.0, 0.0, [1e-3]).check()
     assert math.isfinite(float(OddAsphere(0.0, 6.0, 0.0, [1e-3]).sag(
         torch.tensor(1e30, dtype=F64), torch.tensor(0.0, dtype=F64))))
+
+
+def test_parameter_scale_is_the_rim_sag_derivative():
+    """``parameter_scale`` (the design/training step scale): ∂(sag at the rim)/∂a_i = R^i, by
+    autograd of the surface's own sag."""
+    from deeplens.optics.parameters import parameter_scale
+
+    lens, s = _lens()
+    R = torch.tensor(float(s.semi_diameter), dtype=F64)
+    for i in range(len(A)):
+        s.a[i].requires_grad_(True)
+        g, = torch.autograd.grad(s.sag(R, torch.zeros_like(R)), s.a[i])
+        assert parameter_scale(lens, f"surfaces.0.a.{i}") == pytest.approx(float(g), rel=1e-14)
