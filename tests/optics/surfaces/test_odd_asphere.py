@@ -262,3 +262,43 @@ def test_parameter_scale_is_the_rim_sag_derivative():
         s.a[i].requires_grad_(True)
         g, = torch.autograd.grad(s.sag(R, torch.zeros_like(R)), s.a[i])
         assert parameter_scale(lens, f"surfaces.0.a.{i}") == pytest.approx(float(g), rel=1e-14)
+
+
+@pytest.mark.parametrize("mode", ["surface", "lens"])
+def test_fused_tracer_runs_it_eager_with_the_same_values_and_gradients(uncompiled, mode):
+    """The double Gauss with its first surface an odd asphere (its even terms plus r¹, r³, r⁵):
+    the fused tracer's logic (``uncompiled``: the kernels' arithmetic without the compiler)
+    leaves it to the eager path between its fused runs; rays, paths and gradients (c, a_1, a_3
+    of the odd asphere, a later sphere's c) equal the eager tracer's."""
+    import helpers as H
+
+    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.io import load_lens
+    from deeplens.optics.sampling import field_rays
+
+    lens = load_lens(H.LENS_DIR / "double_gauss.json")
+    s0 = lens.surfaces[0]
+    a4, a6, a8 = (float(v) for v in s0.a)
+    odd = OddAsphere(float(s0.c), float(s0.semi_diameter), float(s0.k),
+                     [1e-4, 0.0, -2e-5, a4, 3e-7, a6, 0.0, a8])
+    lens.surfaces[0] = odd
+    assert fused_kind(lens, 0) is None and fused_kind(lens, 4) is not None
+    params = [odd.c, odd.a[0], odd.a[2], lens.surfaces[4].c]
+    for p in params:
+        p.requires_grad_(True)
+    rays = field_rays(lens, 10.0, H.WAVELENGTH_D, H.disk_points(120, 2.6, seed=2), 6.0)
+
+    def run(opt):
+        out = lens.trace_to_sensor(rays, options=opt)
+        v = out.valid
+        loss = (out.o[v] ** 2).sum() + out.opl[v].sum()
+        return out, torch.autograd.grad(loss, params)
+
+    a, ga = run(IntersectOptions(compile=False))
+    b, gb = run(IntersectOptions(compile=mode))
+    assert torch.equal(a.valid, b.valid) and 0.3 * len(a.valid) < int(a.valid.sum())
+    v = a.valid
+    for x, y in ((a.o, b.o), (a.d, b.d), (a.opl, b.opl)):
+        assert float((x - y)[v].detach().abs().max()) < 1e-12
+    for x, y in zip(ga, gb):
+        assert float(x) != 0.0 and float(y) == pytest.approx(float(x), rel=1e-10)
