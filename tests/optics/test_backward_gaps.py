@@ -208,3 +208,26 @@ def test_the_gaps_round_trip_through_json_and_zmx(tmp_path):
     a, b = lens_to_dict(lens), lens_to_dict(back)
     a.pop("name"), b.pop("name")
     assert a == b
+
+
+@pytest.mark.parametrize("options", [EAGER, NEWTON], ids=["closed_form", "newton"])
+def test_a_reverse_trace_crosses_the_gap_backwards_too(options):
+    """Traced in reverse (sensor to object), the gap is crossed at surface 1 (the previous
+    surface of gap 2): the reversed rays retrace their forward hits on both spheres, the ones
+    beyond the crossing included (lost without the flag)."""
+    lens = _lens()
+    h = torch.tensor([3.0, 10.0, 11.0, -11.2], dtype=torch.float64)
+    o = torch.stack([torch.zeros_like(h), h, torch.full_like(h, -5.0)], -1)
+    d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(4, 3)
+    fwd, hits = lens.trace(Rays(o, d, 587.5618), options=options, record=True)
+    assert bool(fwd.valid.all())
+    back = Rays(fwd.o + 3.0 * fwd.d, -fwd.d, 587.5618)
+    rev, rhits = lens.trace(back, reverse=True, options=options, record=True)
+    assert bool(rev.valid.all())
+    # reverse order: rhits[0] is surface 2, rhits[1] surface 1
+    assert torch.allclose(rhits[0], hits[2], rtol=0, atol=1e-9)
+    assert torch.allclose(rhits[1], hits[1], rtol=0, atol=1e-9)
+    assert torch.allclose(rev.d, -d, rtol=0, atol=1e-9)
+    lens.backward_gaps = ()
+    lost = lens.trace(back, reverse=True, options=options).valid
+    assert lost.tolist() == [True, False, False, False]
