@@ -173,11 +173,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
     autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
     if autos:
-        _auto_semi_diameters(lens, autos, fields, where_of, p, limited)
+        _auto_semi_diameters(lens, autos, fields, where_of, p, limited, original)
     if limited:
-        _check_beam_within_crossings(lens, limited, where_of, p, original,
-                                     lambda: _auto_semi_diameters(lens, autos, fields, where_of,
-                                                                  p, limited) if autos else None)
+        _cross_backwards_where_the_beam_passes(
+            lens, limited, where_of, p, original,
+            lambda: _auto_semi_diameters(lens, autos, fields, where_of, p, limited, original)
+            if autos else None)
     try:
         lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                              aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
@@ -460,7 +461,7 @@ def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict
     radius where two surfaces meet travel backwards through the gap, a rim that cannot be
     made).  deeplens traces forwards only unless the gap is one of the lens's
     :attr:`~deeplens.optics.lens.Lens.backward_gaps`: limiting the estimates builds the lens,
-    and :func:`_check_beam_within_crossings` opts the gap in (and restores the estimates)
+    and :func:`_cross_backwards_where_the_beam_passes` opts the gap in (and restores the estimates)
     where the on-axis beam itself reaches past the crossing."""
     i, j = e.surfaces
     if not (estimated(i) and estimated(j)):
@@ -479,7 +480,7 @@ def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict
     return changed
 
 
-def _check_beam_within_crossings(lens, limited: dict, where_of: dict, p: Locator,
+def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, p: Locator,
                                  original: dict | None = None, redo_autos=None) -> None:
     """Each pair of surfaces limited at their crossing (:func:`_limit_at_crossing`): where the
     on-axis beam of the file's pupil (real rays at the primary wavelength over the paraxial
@@ -494,7 +495,7 @@ def _check_beam_within_crossings(lens, limited: dict, where_of: dict, p: Locator
     pairs a located warning says which radius the rays of other fields are vignetted at."""
     original = {} if original is None else original
     while True:
-        reach, lost, half = _beam_reach(lens, limited)
+        reach, half = _beam_reach(lens, limited)
         over = [(i, j) for (i, j), r in sorted(limited.items())
                 if j not in lens.backward_gaps and reach[(i, j)] > r * (1 + 1e-9)]
         if not over:
@@ -541,9 +542,9 @@ def _pair_blocks(where_of: dict, i: int, j: int) -> str:
 
 
 def _beam_reach(lens, limited: dict):
-    """``(reach, lost, half)``: per pair of ``limited``, the largest radius (mm) the on-axis
-    beam of the paraxial entrance pupil's rim (48 rays, primary wavelength, apertures
-    ignored) reaches on either surface; how many of those rays are lost; the pupil's radius."""
+    """``(reach, half)``: per pair of ``limited``, the largest radius (mm) the on-axis beam of
+    the paraxial entrance pupil's rim (48 rays, primary wavelength, apertures ignored)
+    reaches on either surface, and the pupil's radius (mm)."""
     from ..intersect import IntersectOptions
     from ..paraxial import paraxial
     from ..sampling import field_rays
@@ -555,14 +556,14 @@ def _beam_reach(lens, limited: dict):
         pts = torch.stack([torch.cos(phi), torch.sin(phi)], -1) * half
         rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts,
                           float(par.entrance_pupil_z))
-        out, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+        _, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
     reach = {(i, j): max(float(torch.nan_to_num(torch.linalg.vector_norm(hits[k][:, :2], dim=-1),
                                                 nan=0.0).max()) for k in (i, j))
              for (i, j) in limited}
-    return reach, int((~out.valid).sum()), half
+    return reach, half
 
 
-def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None):
+def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, original=None):
     """Automatic semi-diameters of the surfaces ``idx``, as OpticStudio's: the largest height of
     the real rays that fill the pupil, over every field and wavelength.  A first paraxial
     estimate ``1.05 (|y_marginal| + |y_chief|)`` (full field) lets the lens be built; then rays
@@ -634,7 +635,7 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None):
             lens.check()
             return
         except SurfacesCrossError as e:
-            if _limit_at_crossing(e, lens.surfaces, lambda i: i in idx, limited):
+            if _limit_at_crossing(e, lens.surfaces, lambda i: i in idx, limited, original):
                 continue
             raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
         except ValueError as e:

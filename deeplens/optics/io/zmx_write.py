@@ -165,7 +165,7 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
             if i in crossing:
                 # a surface of a gap crossed backwards (Lens.backward_gaps): its semi-diameter
                 # as an automatic one (DIAM flag 0, OpticStudio's footprint), which is what the
-                # reader opts such a gap in from (zmx_read._check_beam_within_crossings)
+                # reader opts such a gap in from (zmx_read._cross_backwards_where_the_beam_passes)
                 lines = [ln.replace(" 1 0 0 1 \"\"", " 0 0 0 1 \"\"", 1)
                          if ln.startswith("DIAM ") else ln for ln in lines]
             lines.append(f"DISZ {_f(gap)}")
