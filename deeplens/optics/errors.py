@@ -36,7 +36,9 @@ class SurfacesCrossError(LensError):
     """Two consecutive surfaces that cross within their semi-diameters (a negative edge
     thickness): a :class:`LensError` whose ``surfaces`` are the pair ``(i, j)`` and whose
     ``radius`` is the smallest radius (mm) at which they meet, so that a reader whose
-    semi-diameters are only estimates (automatic ones) can limit them there."""
+    semi-diameters are only estimates (automatic ones) can limit them there.  Not raised for
+    a gap the lens crosses backwards (:attr:`Lens.backward_gaps
+    <deeplens.optics.lens.Lens.backward_gaps>`)."""
 
     def __init__(self, message: str, *, surfaces, radius: float):
         super().__init__(message, surfaces=surfaces)

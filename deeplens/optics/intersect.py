@@ -14,7 +14,10 @@ derivative ``dt/dθ = -(∂f/∂θ) / (d · ∇f)``, so memory does not grow wit
 ``mode="unrolled"`` keeps the whole iteration in the graph (for tests and the memory benchmark).
 
 A ray becomes invalid (never NaN) when it does not converge, when ``d · ∇f`` vanishes (grazing),
-when it lands outside the surface's domain or clear aperture, or when ``t`` is negative.
+when it lands outside the surface's domain or clear aperture, or when ``t`` is negative, unless
+the gap is crossed backwards (``backward=True``: a gap of :attr:`Lens.backward_gaps
+<deeplens.optics.lens.Lens.backward_gaps>`, where two surfaces cross and OpticStudio traces the
+rays beyond the crossing back through the gap; the root is the same, only its sign is free).
 
 Tolerance.  ``|f| < tol`` with ``tol = max(tol_user, 4 eps |x0|_inf)`` per ray, ``x0 = o + t0 d``
 (the ray's vertex-plane point, whose size is the hit's): ``f`` evaluated at a point ``x`` carries
@@ -169,7 +172,8 @@ def _quadric_root(quadric, obz, dz, ok):
     return torch.where(hit, s, torch.zeros_like(s)), hit
 
 
-def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None):
+def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None,
+                  backward: bool = False):
     """Intersect and refract at a quadric surface in one pass over per-component tensors.
 
     The same computation as :func:`intersect` on the closed-form path followed by
@@ -187,6 +191,7 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None):
         valid, opl: ``(*B,)`` mask and optical path length (mm).
         z_shift: vertex position (0-d tensor, mm).
         n1, n2: media indices, broadcastable to ``B``.
+        backward: accept a hit behind the ray (:func:`hit_mask`).
 
     Returns:
         ``(x, d_t, valid, opl)`` in the global frame, as :meth:`Lens.trace_surface` returns them.
@@ -196,11 +201,11 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None):
     args = (o, d, valid, opl, z_shift, surface.c.to(o), surface.k.to(o),
             surface.semi_diameter.to(o), torch.as_tensor(n1, dtype=o.dtype, device=o.device),
             torch.as_tensor(n2, dtype=o.dtype, device=o.device))
-    return quadric_step(*args, tol=tol, clip=opt.clip_aperture)
+    return quadric_step(*args, tol=tol, clip=opt.clip_aperture, backward=backward)
 
 
 def quadric_step(o, d, valid, opl, z_shift, c, k, semi_diameter, n1, n2, tol: float,
-                 clip: bool = True):
+                 clip: bool = True, backward: bool = False):
     """The arithmetic of :func:`trace_quadric` as a pure function of tensors (no modules, no
     host synchronisation, no data-dependent Python branch), so that ``torch.compile`` can fuse
     it into one kernel.
@@ -214,18 +219,19 @@ def quadric_step(o, d, valid, opl, z_shift, c, k, semi_diameter, n1, n2, tol: fl
         n1, n2: media indices, broadcastable to ``B``.
         tol: residual tolerance floor (mm), see :func:`default_tolerance`.
         clip: mark rays outside the clear aperture invalid.
+        backward: accept a hit behind the ray (:func:`hit_mask`).
 
     Returns:
         ``(x (*B, 3), d_t (*B, 3), valid (*B,), opl (*B,))``.
     """
     x, y, z, dx, dy, dz, ok, opl = quadric_step_xyz(*o.unbind(-1), *d.unbind(-1), valid, opl,
                                                     z_shift, c, k, semi_diameter, n1, n2, tol,
-                                                    clip)
+                                                    clip, backward)
     return torch.stack([x, y, z], -1), torch.stack([dx, dy, dz], -1), ok, opl
 
 
 def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_diameter, n1, n2,
-                     tol: float, clip: bool = True):
+                     tol: float, clip: bool = True, backward: bool = False):
     """:func:`quadric_step` on the ``(*B,)`` components of ``o`` and ``d``; returns
     ``(x, y, z, d_x, d_y, d_z, valid, opl)``."""
     oz = oz - z_shift
@@ -239,7 +245,8 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
     ok = ok & found
     t = t0 + s
     x, y, z = bx + s * dx, by + s * dy, bz + s * dz
-    t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol, clip)
+    t, x, y, z, ok = accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol, clip,
+                                 backward)
     nx, ny, nz = conic_normal(x, y, z, c, quadric[3])  # as Asphere.normal
     ex, ey, ez, ok = snell_xyz(dx, dy, dz, nx, ny, nz, n1, n2, ok)
     return x, y, z + z_shift, ex, ey, ez, ok, opl + n1 * t
@@ -253,26 +260,29 @@ def rounding_tolerance(X, Y, Z, tol: float):
     return torch.clamp(_ROUNDING_ULPS * eps * big, min=tol)
 
 
-def hit_mask(t, X, Y, Z, ok, tol: float, inside=None):
+def hit_mask(t, X, Y, Z, ok, tol: float, inside=None, backward: bool = False):
     """Hit acceptance, written once (no autograd): ``ok`` and the hit at distance ``t`` lies
-    ahead of the ray (``t >= -``:func:`rounding_tolerance`), inside the clear aperture
-    (``inside``, a mask, or ``None`` when not clipping) and is finite.  ``X, Y, Z``: the hit's
-    detached components.  :func:`intersect`, :func:`accept_hits` and the compiled plane step
-    call it."""
+    ahead of the ray (``t >= -``:func:`rounding_tolerance`; with ``backward``, at either sign:
+    a gap of :attr:`Lens.backward_gaps <deeplens.optics.lens.Lens.backward_gaps>`), inside the
+    clear aperture (``inside``, a mask, or ``None`` when not clipping) and is finite.
+    ``X, Y, Z``: the hit's detached components.  :func:`intersect`, :func:`accept_hits` and
+    the compiled plane step call it."""
     with torch.no_grad():
-        ok = ok & (t >= -rounding_tolerance(X, Y, Z, tol))
+        if not backward:
+            ok = ok & (t >= -rounding_tolerance(X, Y, Z, tol))
         if inside is not None:
             ok = ok & inside
         return ok & torch.isfinite(t)
 
 
-def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool):
+def accept_hits(t, x, y, z, ox, oy, oz, ok, semi_diameter, tol: float, clip: bool,
+                backward: bool = False):
     """:func:`hit_mask` on components with a circular aperture of radius ``semi_diameter``
-    when ``clip``; a ray that fails keeps its origin ``o`` and ``t = 0``.  Returns
-    ``(t, x, y, z, ok)``."""
+    when ``clip`` (``backward``: a hit behind the ray too); a ray that fails keeps its origin
+    ``o`` and ``t = 0``.  Returns ``(t, x, y, z, ok)``."""
     X, Y = x.detach(), y.detach()
     inside = in_circle(X, Y, semi_diameter) if clip else None
-    ok = hit_mask(t, X, Y, z.detach(), ok, tol, inside)
+    ok = hit_mask(t, X, Y, z.detach(), ok, tol, inside, backward)
     t = torch.where(ok, t, torch.zeros_like(t))
     x, y, z = torch.where(ok, x, ox), torch.where(ok, y, oy), torch.where(ok, z, oz)
     return t, x, y, z, ok
@@ -367,7 +377,7 @@ def propagate_distance(oz, dz, valid, z_plane, backwards: bool = False):
 
 
 def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
-              options: TraceOptions | None = None):
+              options: TraceOptions | None = None, backward: bool = False):
     """Intersect rays with ``surface`` in its local frame.
 
     Args:
@@ -375,6 +385,7 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
         o, d: ``(*B, 3)`` ray origins (mm) and unit directions in the surface frame.
         valid: ``(*B,)`` incoming validity.
         options: :class:`~.options.TraceOptions`.
+        backward: accept a hit behind the ray (``t < 0``, :func:`hit_mask`).
 
     Returns:
         ``(t, x, valid)``: marching distance ``(*B,)`` (mm), hit point ``(*B, 3)`` and the
@@ -478,7 +489,7 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     if not quadric:  # on a quadric's branch h > 0 the domain 1 - (1+k) c^2 r^2 = h^2 > 0 holds
         ok = ok & surface.in_domain(X, Y)
     ok = hit_mask(t.detach(), X, Y, x[..., 2].detach(), ok, tol,
-                  surface.in_aperture(X, Y) if opt.clip_aperture else None)
+                  surface.in_aperture(X, Y) if opt.clip_aperture else None, backward)
     t = torch.where(ok, t, torch.zeros_like(t))
     x = torch.where(ok.unsqueeze(-1), x, o)
     return t, x, ok

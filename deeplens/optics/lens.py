@@ -170,6 +170,8 @@ class Lens(nn.Module):
             last vertex (``< 0`` along the direction of travel), and :meth:`trace_to_sensor`
             extends the rays backwards to it (a negative distance: the optical path decreases,
             as in OpticStudio); analysis only, renderers and cameras with a sensor refuse it.
+        backward_gaps: indices ``j`` of real surfaces (not stops or coordinate breaks) whose gap
+            from the previous real surface may be crossed *backwards*: see :attr:`backward_gaps`.
 
     Attribute ``object_telecentric`` (default ``False``): the entrance pupil is at infinity
     (OpticStudio's telecentric object space, ``FTYP`` second value 1): every field's chief ray
@@ -187,7 +189,8 @@ class Lens(nn.Module):
 
     def __init__(self, surfaces, materials, distances, d_sensor: float, stop_index: int | None,
                  sensor_semi_diameter: float | None = None, spec: LensSpec | None = None,
-                 elements=None, name: str = "", mirrors=(), virtual_image: bool = False):
+                 elements=None, name: str = "", mirrors=(), virtual_image: bool = False,
+                 backward_gaps=()):
         super().__init__()
         surfaces, materials, distances = list(surfaces), list(materials), list(distances)
         n = len(surfaces)
@@ -240,6 +243,9 @@ class Lens(nn.Module):
                             f"once", key="elements")
         self.misalignments = nn.ModuleList([Misalignment() for _ in self.elements])
         self._element_of = {i: e for e, (a, b) in enumerate(self.elements) for i in range(a, b + 1)}
+        self._backward = frozenset()
+        self._backward_hit = (frozenset(), frozenset())
+        self.backward_gaps = backward_gaps   # validated (no check yet: that follows)
         self.check()
         if self.spec.aperture_type != "stop":
             self.apply_aperture_spec()
@@ -275,6 +281,52 @@ class Lens(nn.Module):
     def folded(self) -> bool:
         """True when the lens has a mirror or a coordinate break (it then traces eagerly)."""
         return bool(self.mirrors) or any(isinstance(s, CoordinateBreak) for s in self.surfaces)
+
+    @property
+    def backward_gaps(self) -> frozenset:
+        """Gaps that rays may cross backwards, as OpticStudio's sequential trace does: the
+        indices ``j`` of real surfaces whose gap from the previous real surface ``p`` (stops
+        between them skipped) is opted in.  Empty by default: every gap is traced forwards only
+        (a hit must lie ahead of the ray, ``t >= 0``) and surfaces that cross within their
+        semi-diameters are an error (:meth:`check`).
+
+        For a gap in the set, a ray reaches surface ``j`` (surface ``p`` when tracing in
+        reverse) along its line whatever the sign of the distance: where two surfaces cross
+        (a negative edge thickness beyond radius ``r``), rays beyond ``r`` travel back through
+        the gap (``t < 0``) and their optical path *decreases* by ``n |t|``, which is what
+        OpticStudio computes for such a file (the lens cannot be made as drawn).  The crossing
+        check is waived for those pairs only.  The root is the same one as forwards (the
+        crossing in the direction of travel on the surface's own branch, ``h > 0``), so the far
+        side of a sphere is never taken.
+
+        A set of gap indices rather than one switch for the whole lens: only the gaps that
+        need it accept backward hits; everywhere else a hit behind the ray still invalidates it
+        and a crossing is still an error, so a typo elsewhere in a prescription is not hidden.
+        The compiled trace (``TraceOptions(compile=...)``) runs the two surfaces of each such
+        gap eagerly (:func:`~.tracer.fused_kind`) and the rest compiled, as before.
+        Assigning a new set validates it (not the rest of the lens: call :meth:`check`).
+        """
+        return self._backward
+
+    @backward_gaps.setter
+    def backward_gaps(self, gaps) -> None:
+        pairs = dict((q, p) for p, q in self._real_neighbours())
+        out = set()
+        for j in gaps:
+            if isinstance(j, bool) or not isinstance(j, int) or j not in pairs:
+                raise LensError(f"backward gap {j!r}: expected the index of a real surface "
+                                f"after another one (not a stop, a coordinate break or the "
+                                f"first surface); allowed: {sorted(pairs)}",
+                                key="backward_gaps")
+            out.add(int(j))
+        self._backward = frozenset(out)
+        # the surfaces hit through such a gap: forwards (j) and in reverse (p)
+        self._backward_hit = (frozenset(out), frozenset(pairs[j] for j in out))
+
+    def hit_backwards(self, i: int, reverse: bool = False) -> bool:
+        """Whether surface ``i``, traced forwards (or in reverse), is reached through a gap of
+        :attr:`backward_gaps` (a hit behind the ray is then accepted)."""
+        return i in self._backward_hit[1 if reverse else 0]
 
     def z_sensor(self) -> torch.Tensor:
         return self.z_vertices()[-1] + self.d_sensor
@@ -346,6 +398,8 @@ class Lens(nn.Module):
                             f"{float(self.d_sensor):g}", key="sensor")
         with torch.no_grad():
             for i, j in pairs:
+                if j in self._backward:   # crossing surfaces traced backwards: allowed
+                    continue
                 a, b = self.surfaces[i], self.surfaces[j]
                 r_max = min(float(a.semi_diameter), float(b.semi_diameter))
                 r = torch.linspace(0, r_max, 65, dtype=torch.float64)
@@ -473,7 +527,8 @@ class Lens(nn.Module):
         order; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
         frame, or the previous one when ``reverse``).  An :class:`Aperture` clips where the
         ray's line crosses it and leaves the rays where they were (:meth:`_cross_stop`);
-        ``refract_=False`` moves them onto any surface, a stop's plane included."""
+        ``refract_=False`` moves them onto any surface, a stop's plane included.  ``reverse``
+        also says which way a gap of :attr:`backward_gaps` is crossed."""
         s = self.surfaces[i]
         if isinstance(s, CoordinateBreak):
             o, d = (s.to_previous if reverse else s.to_next)(rays.o, rays.d, z[i])
@@ -481,13 +536,14 @@ class Lens(nn.Module):
         m, pivot, vertex = self._frame(i, z, rays.o)
         opt = options or TraceOptions()
         mirror = i in self.mirrors
+        back = i in self._backward_hit[1 if reverse else 0]
         if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
                 and opt.mode == "implicit" and not getattr(s, "deflects", False)
                 and not getattr(s, "diffracts", False)
                 and not isinstance(s, Aperture) and not tracer.obscured(s)):
             x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
                                              (pivot + vertex)[2], _compact(n1), _compact(n2),
-                                             opt)
+                                             opt, backward=back)
             return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
         if m is None:
             shift = pivot + vertex  # one pass over the rays instead of two
@@ -497,7 +553,7 @@ class Lens(nn.Module):
             o = o - vertex
         if isinstance(s, Aperture):
             return self._cross_stop(s, rays, o, d, m, pivot, vertex, n1, opt, refract_)
-        t, x, valid = intersect(s, o, d, rays.valid, options)
+        t, x, valid = intersect(s, o, d, rays.valid, options, backward=back)
         if refract_ and mirror:
             d, valid = reflect(d, s.normal(x), valid)
         elif refract_ and getattr(s, "deflects", False):
@@ -609,4 +665,5 @@ class Lens(nn.Module):
     def extra_repr(self) -> str:
         return (f"name={self.name!r}, surfaces={len(self.surfaces)}, stop={self.stop_index}, "
                 f"d_sensor={float(self.d_sensor.detach()):.6g} mm"
-                + (", virtual_image=True" if self.virtual_image else ""))
+                + (", virtual_image=True" if self.virtual_image else "")
+                + (f", backward_gaps={sorted(self._backward)}" if self._backward else ""))

@@ -67,10 +67,10 @@ def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | No
         elif record and isinstance(lens.surfaces[i], Aperture):
             # a stop is crossed, not landed on: its recorded hit is where the line crosses it
             hits.append(lens.trace_surface(i, rays, n1, n2, z, options, refract_=False).o)
-            rays = step(i, rays, n1, n2, z, options)
+            rays = step(i, rays, n1, n2, z, options, reverse=reverse)
             continue
         else:
-            rays = step(i, rays, n1, n2, z, options)
+            rays = step(i, rays, n1, n2, z, options, reverse=reverse)
         if record:
             hits.append(rays.o)
     if propagate_to is not None:
@@ -78,13 +78,14 @@ def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | No
     return (rays, hits) if record else rays
 
 
-def surface_checkpointed(lens, i: int, rays: Rays, n1, n2, z, options) -> Rays:
+def surface_checkpointed(lens, i: int, rays: Rays, n1, n2, z, options,
+                         reverse: bool = False) -> Rays:
     """:meth:`Lens.trace_surface <deeplens.optics.lens.Lens.trace_surface>` that autograd does
     not record: backward recomputes it from the incoming ray state (``torch.utils.checkpoint``),
     so only that state is kept per surface."""
     def surface_step(o, d, wavelength, opl, n1, n2, z):
         out = lens.trace_surface(i, Rays(o, d, wavelength, rays.valid, opl, normalize=False),
-                                 n1, n2, z, options)
+                                 n1, n2, z, options, reverse=reverse)
         return out.o, out.d, out.opl, out.valid
 
     o, d, opl, valid = torch.utils.checkpoint.checkpoint(
@@ -109,7 +110,11 @@ def fused_kind(lens, i: int):
     """How surface ``i`` runs compiled: a :data:`~.compiled.KINDS` entry when it can join a
     compiled run (an aligned sphere/conic, plane or stop), ``"newton"`` for an aligned surface
     whose type defines the Newton kernels (:meth:`~.surfaces.Surface.kernel_values`: even
-    aspheres, XY polynomials), else ``None`` (eager)."""
+    aspheres, XY polynomials), else ``None`` (eager).  The two surfaces of a gap of
+    :attr:`Lens.backward_gaps <deeplens.optics.lens.Lens.backward_gaps>` run eager (the
+    kernels accept hits ahead of the ray only)."""
+    if lens.hit_backwards(i) or lens.hit_backwards(i, reverse=True):
+        return None
     s = lens.surfaces[i]
     if getattr(s, "deflects", False) or getattr(s, "diffracts", False):
         return None   # an ideal lens, a grating: their own law after the hit, eager
@@ -223,7 +228,7 @@ def trace_compiled(lens, rays: Rays, order, n, z, reverse: bool, options: TraceO
                 rays = Rays(soa[0].movedim(0, -1), soa[1].movedim(0, -1), rays.wavelength,
                             rays.valid, rays.opl, normalize=False)
                 soa = None
-            rays = step(i, rays, n1, n2, z, options)
+            rays = step(i, rays, n1, n2, z, options, reverse=reverse)
             k += 1
             continue
         if soa is None:

@@ -82,7 +82,7 @@ def snell_plus_eta_cos(cos_i, eta, ok):
     return torch.copysign(sqrt_k, cos_i) + eta * cos_i, ok  # planted: + eta cos
 
 
-def hit_mask_behind_accepted(t, X, Y, Z, ok, tol, inside=None):
+def hit_mask_behind_accepted(t, X, Y, Z, ok, tol, inside=None, backward=False):
     with torch.no_grad():
         if inside is not None:
             ok = ok & inside

@@ -18,8 +18,13 @@ A lens file is a JSON object::
       ],
       "sensor": {"distance_mm": 17.43, "semi_diameter_mm": 10.33},
       "elements": [[0, 1], [2, 4], ...],                      (optional)
-      "misalignment": [{"dx_mm": 0, "dy_mm": 0, "tilt_x_rad": 0, "tilt_y_rad": 0}, ...]  (optional)
+      "misalignment": [{"dx_mm": 0, "dy_mm": 0, "tilt_x_rad": 0, "tilt_y_rad": 0}, ...],  (optional)
+      "backward_gaps": [32]                                   (optional)
     }
+
+``backward_gaps``: surface indices whose gap from the previous surface rays may cross
+backwards, as OpticStudio traces crossing surfaces (:attr:`Lens.backward_gaps
+<deeplens.optics.lens.Lens.backward_gaps>`; written only when not empty).
 
 ``distance_mm`` is the axial gap from the previous vertex; ``material`` is the medium *after*
 the surface (a catalogue glass, ``AIR``, or a model glass ``"n_d/V_d"``), or ``"MIRROR"`` for a
@@ -66,7 +71,7 @@ FORMAT_VERSION = 1
 _SPEC_FIELDS = {"aperture": "aperture", "object_distance_mm": "object.distance_mm",
                 "fields_deg": "fields_deg", "wavelengths_nm": "wavelengths_nm",
                 "primary_wavelength_nm": "primary_wavelength_nm", "stop": "stop",
-                "sensor": "sensor", "elements": "elements"}
+                "sensor": "sensor", "elements": "elements", "backward_gaps": "backward_gaps"}
 
 
 class _Reader:
@@ -150,7 +155,7 @@ MAX_LENGTH_MM = 1e12
 _COMMON_KEYS = {"type", "distance_mm", "semi_diameter_mm", "material"}
 _TOP_KEYS = {"format", "version", "name", "units", "object", "aperture", "fields_deg",
              "wavelengths_nm", "primary_wavelength_nm", "stop", "surfaces", "sensor", "elements",
-             "misalignment"}
+             "misalignment", "backward_gaps"}
 
 
 class _Entry:
@@ -322,9 +327,14 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
             if (not isinstance(pair, list) or len(pair) != 2
                     or any(isinstance(v, bool) or not isinstance(v, int) for v in pair)):
                 r.fail(f"elements[{e}]", f"expected [first, last] surface indices, got {pair!r}")
+    backward = data.get("backward_gaps", [])
+    if not isinstance(backward, list) or any(isinstance(v, bool) or not isinstance(v, int)
+                                             for v in backward):
+        r.fail("backward_gaps", f"expected a list of surface indices, got {backward!r}")
     try:
         lens = Lens(surfaces, materials, distances, d_sensor, stop, sensor_sd, spec,
-                    elements=elements, name=name, mirrors=mirrors, virtual_image=virtual)
+                    elements=elements, name=name, mirrors=mirrors, virtual_image=virtual,
+                    backward_gaps=backward)
     except LensError as e:
         raise LensFileError(e.message, source=source, key=_SPEC_FIELDS.get(e.key),
                             surfaces=e.surfaces) from e
@@ -383,6 +393,8 @@ def lens_to_dict(lens: Lens) -> dict:
         out["sensor"]["virtual_image"] = True
     if not all(m.is_identity() for m in lens.misalignments):
         out["misalignment"] = [m.to_dict() for m in lens.misalignments]
+    if lens.backward_gaps:
+        out["backward_gaps"] = sorted(lens.backward_gaps)
     return out
 
 

@@ -120,6 +120,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     where_of = {i: kept[i][2].line for i in range(len(kept))}
     where_of["sensor"] = img.line
     limited = {}   # (i, j) -> the radius where surfaces i and j meet (estimated diameters)
+    original = {}  # surface -> its semi-diameter before it was first limited there
     try:
         spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                         aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves_nm,
@@ -133,7 +134,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 break
             except SurfacesCrossError as e:
                 if not _limit_at_crossing(e, surfaces, lambda i: _estimated(kept, stop_idx, i),
-                                          limited):
+                                          limited, original):
                     raise
     except (ValueError, TypeError) as e:
         if getattr(e, "key", None) == "aperture":   # the ENPD/FNUM/FLOA line's value
@@ -172,9 +173,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
     autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
     if autos:
-        _auto_semi_diameters(lens, autos, fields, where_of, p, limited)
+        _auto_semi_diameters(lens, autos, fields, where_of, p, limited, original)
     if limited:
-        _check_beam_within_crossings(lens, limited, where_of, p)
+        _cross_backwards_where_the_beam_passes(
+            lens, limited, where_of, p, original,
+            lambda: _auto_semi_diameters(lens, autos, fields, where_of, p, limited, original)
+            if autos else None)
     try:
         lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                              aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
@@ -444,34 +448,103 @@ def _estimated(kept, stop_idx: int, i: int) -> bool:
     return i != stop_idx and not s.diam_fixed and s.clap is None and s.sqap is None
 
 
-def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict) -> bool:
+def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict,
+                       original: dict | None = None) -> bool:
     """Two surfaces whose *estimated* semi-diameters (:func:`_estimated`) overlap where they
     cross (``e``): both are limited to the radius where they meet and the pair is recorded in
-    ``limited``; ``False`` (nothing changed) when either semi-diameter is the file's own.
+    ``limited`` (``original``: each surface's semi-diameter before its first limit);
+    ``False`` (nothing changed) when either semi-diameter is the file's own, or both already
+    lie within that radius.
 
     OpticStudio's automatic semi-diameters are footprints of rays that it traces even where
     the next surface lies *behind* the ray (a negative propagation distance: rays beyond the
     radius where two surfaces meet travel backwards through the gap, a rim that cannot be
-    made).  deeplens traces forwards only, so such rays are lost either way; limiting the
-    estimates there builds the lens, and :func:`_check_beam_within_crossings` refuses the
-    file when the on-axis beam itself reaches past the crossing."""
+    made).  deeplens traces forwards only unless the gap is one of the lens's
+    :attr:`~deeplens.optics.lens.Lens.backward_gaps`: limiting the estimates builds the lens,
+    and :func:`_cross_backwards_where_the_beam_passes` opts the gap in (and restores the estimates)
+    where the on-axis beam itself reaches past the crossing."""
     i, j = e.surfaces
-    if not (estimated(i) and estimated(j)) or (i, j) in limited:
+    if not (estimated(i) and estimated(j)):
         return False
+    changed = False
     with torch.no_grad():
         for k in (i, j):
             sd = surfaces[k].semi_diameter
-            sd.fill_(min(float(sd), e.radius))
-    limited[(i, j)] = e.radius
-    return True
+            if float(sd) > e.radius:
+                if original is not None:
+                    original.setdefault(k, float(sd))
+                sd.fill_(e.radius)
+                changed = True
+    if changed:
+        limited[(i, j)] = e.radius
+    return changed
 
 
-def _check_beam_within_crossings(lens, limited: dict, where_of: dict, p: Locator) -> None:
-    """Each pair of surfaces limited at their crossing (:func:`_limit_at_crossing`): the
+def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, p: Locator,
+                                 original: dict | None = None, redo_autos=None) -> None:
+    """Each pair of surfaces limited at their crossing (:func:`_limit_at_crossing`): where the
     on-axis beam of the file's pupil (real rays at the primary wavelength over the paraxial
-    entrance pupil's rim, apertures ignored) must stay within the crossing radius on both,
-    else the file is refused (the numbers would not be the file's); otherwise a located
-    warning says which radius the rays of other fields are vignetted at."""
+    entrance pupil's rim, apertures ignored) reaches past the crossing radius, OpticStudio
+    traces the rays beyond it backwards through the gap (a negative propagation distance):
+    the gap becomes one of the lens's :attr:`~deeplens.optics.lens.Lens.backward_gaps`, the
+    two surfaces get their estimates back (``original``; ``redo_autos`` re-derives the
+    automatic semi-diameters of surfaces without ``DIAM`` once rays may cross it backwards)
+    and one located warning says so.  Pairs are taken in the light's order, and the beam is
+    traced again after each (a ray lost at a surface keeps its last position in the later
+    records, so only the first pair reached past its crossing is certain).  For the other
+    pairs a located warning says which radius the rays of other fields are vignetted at."""
+    original = {} if original is None else original
+    while True:
+        reach, half = _beam_reach(lens, limited)
+        over = [(i, j) for (i, j), r in sorted(limited.items())
+                if j not in lens.backward_gaps and reach[(i, j)] > r * (1 + 1e-9)]
+        if not over:
+            break
+        i, j = over[0]
+        r = limited[(i, j)]
+        lens.backward_gaps = lens.backward_gaps | {j}
+        kept_limits = [(pair, rr) for pair, rr in limited.items()
+                       if pair[1] not in lens.backward_gaps]
+        with torch.no_grad():
+            for k in (i, j):
+                if k in original:   # the estimate, within the crossings still limited
+                    sd = min([original[k]] + [rr for pair, rr in kept_limits if k in pair])
+                    lens.surfaces[k].semi_diameter.fill_(sd)
+        p.note(where_of[j], f"the surfaces of the {_pair_blocks(where_of, i, j)} cross at r = "
+                            f"{r:.6g} mm (a negative edge thickness beyond it), and the on-axis "
+                            f"beam of the file's pupil (entrance-pupil diameter {2 * half:.6g} "
+                            f"mm) reaches r = {reach[(i, j)]:.6g} mm there: OpticStudio traces "
+                            f"the rays beyond the crossing backwards through the gap (a "
+                            f"negative propagation distance, the optical path decreasing), a "
+                            f"lens that cannot be made as drawn; deeplens does the same for "
+                            f"this gap (Lens.backward_gaps {sorted(lens.backward_gaps)}) and "
+                            f"keeps the file's semi-diameters there")
+        if redo_autos is not None:
+            redo_autos()
+        try:
+            lens.check()
+        except ValueError as e:
+            raise _located(p, e, where_of) from e
+    for (i, j), r in sorted(limited.items()):
+        if j in lens.backward_gaps:
+            continue
+        p.note(where_of[j], f"the automatic semi-diameters of the {_pair_blocks(where_of, i, j)} "
+                            f"overlap where the surfaces cross, at r = {r:.6g} mm: both are "
+                            f"limited to it; OpticStudio traces rays beyond it backwards "
+                            f"through the gap (a negative propagation distance), deeplens "
+                            f"vignettes them (the on-axis beam, up to r = {reach[(i, j)]:.6g} "
+                            f"mm here, is not affected)")
+
+
+def _pair_blocks(where_of: dict, i: int, j: int) -> str:
+    return (f"SURF blocks on lines {where_of[i]} and {where_of[j]} (deeplens surfaces {i} "
+            f"and {j})")
+
+
+def _beam_reach(lens, limited: dict):
+    """``(reach, half)``: per pair of ``limited``, the largest radius (mm) the on-axis beam of
+    the paraxial entrance pupil's rim (48 rays, primary wavelength, apertures ignored)
+    reaches on either surface, and the pupil's radius (mm)."""
     from ..intersect import IntersectOptions
     from ..paraxial import paraxial
     from ..sampling import field_rays
@@ -483,35 +556,14 @@ def _check_beam_within_crossings(lens, limited: dict, where_of: dict, p: Locator
         pts = torch.stack([torch.cos(phi), torch.sin(phi)], -1) * half
         rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts,
                           float(par.entrance_pupil_z))
-        out, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
-    # a ray lost at a surface keeps its last position in the later records, so in the light's
-    # order the first pair whose records reach past its crossing is where the beam goes back
-    lost = int((~out.valid).sum())
-    for (i, j), r in sorted(limited.items()):
-        reach = max(float(torch.nan_to_num(torch.linalg.vector_norm(hits[k][:, :2], dim=-1),
-                                           nan=0.0).max()) for k in (i, j))
-        where = (f"SURF blocks on lines {where_of[i]} and {where_of[j]} (deeplens surfaces {i} "
-                 f"and {j})")
-        if reach > r * (1 + 1e-9):
-            p.fail(where_of[j], f"the surfaces of the {where} cross at r = {r:.6g} mm (a "
-                                f"negative edge thickness beyond it), and the on-axis beam of "
-                                f"the file's pupil (entrance-pupil diameter {2 * half:.6g} mm) "
-                                f"reaches r = {reach:.6g} mm there"
-                                + (f" ({lost} of 48 rim rays cannot be traced forwards)"
-                                   if lost else "")
-                                + ": OpticStudio traces such rays backwards through the gap "
-                                  "(a negative propagation distance), a lens that cannot be "
-                                  "made; deeplens traces forwards only, so it refuses the "
-                                  "file rather than give other numbers (reduce the aperture, "
-                                  "or thicken the gap)", surfaces=(i, j))
-        p.note(where_of[j], f"the automatic semi-diameters of the {where} overlap where the "
-                            f"surfaces cross, at r = {r:.6g} mm: both are limited to it; "
-                            f"OpticStudio traces rays beyond it backwards through the gap (a "
-                            f"negative propagation distance), deeplens vignettes them (the "
-                            f"on-axis beam, up to r = {reach:.6g} mm here, is not affected)")
+        _, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+    reach = {(i, j): max(float(torch.nan_to_num(torch.linalg.vector_norm(hits[k][:, :2], dim=-1),
+                                                nan=0.0).max()) for k in (i, j))
+             for (i, j) in limited}
+    return reach, half
 
 
-def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None):
+def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, original=None):
     """Automatic semi-diameters of the surfaces ``idx``, as OpticStudio's: the largest height of
     the real rays that fill the pupil, over every field and wavelength.  A first paraxial
     estimate ``1.05 (|y_marginal| + |y_chief|)`` (full field) lets the lens be built; then rays
@@ -583,7 +635,7 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None):
             lens.check()
             return
         except SurfacesCrossError as e:
-            if _limit_at_crossing(e, lens.surfaces, lambda i: i in idx, limited):
+            if _limit_at_crossing(e, lens.surfaces, lambda i: i in idx, limited, original):
                 continue
             raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
         except ValueError as e:

@@ -146,6 +146,7 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
     surf(obj)
     with torch.no_grad():
         n = len(lens.surfaces)
+        crossing = {i for i in range(n) if lens.hit_backwards(i) or lens.hit_backwards(i, True)}
         elem_of = {}
         for e, (a, b) in enumerate(lens.elements):
             for i in range(a, b + 1):
@@ -179,6 +180,12 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
             inner = sum(float(lens.distances[j]) for j in range(a + 1, b + 1))
             gap = -inner if tilted and i == b else after   # back to the first vertex
             lines = _surface_lines(s, i, lens.stop_index == i)
+            if i in crossing:
+                # a surface of a gap crossed backwards (Lens.backward_gaps): its semi-diameter
+                # as an automatic one (DIAM flag 0, OpticStudio's footprint), which is what the
+                # reader opts such a gap in from (zmx_read._cross_backwards_where_the_beam_passes)
+                lines = [ln.replace(" 1 0 0 1 \"\"", " 0 0 0 1 \"\"", 1)
+                         if ln.startswith("DIAM ") else ln for ln in lines]
             lines.append(f"DISZ {_f(gap)}")
             if i in lens.mirrors:
                 lines.append("GLAS MIRROR 0 0 0 0 0 0 0 0 0 0 0")

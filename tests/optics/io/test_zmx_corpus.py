@@ -39,8 +39,6 @@ REFUSED = {
     "thorlabs_ASL5040-UV.zmx": "C79-80",   # Corning's; then its Qbfs on a conic base
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "thorlabs_354710-C.zmx": "D-ZK3M",
-    "optiland_lens_floa.zmx": "cross",   # the on-axis beam reaches past where surfaces meet
-    "patent2zemax_EP0770895A2-1.zmx": "cross",    # (OpticStudio traces it backwards)
 }
 
 
@@ -237,6 +235,17 @@ def _oracle(name, lens, gratings=True):
     # the image surface's own GLAS (the medium after the image) is no medium of the lens, but
     # optiland's f2 uses it as the image-space index: give it the medium before the image
     surfs[-1].material_post = IdealMaterial(n=n_dl[-1])
+    # FLOA (the pupil floats on the stop's size): OpticStudio's DIAM is a semi-diameter, but
+    # optiland's reader passes it as the stop's *diameter* (its float-by-stop-size value), a
+    # pupil half as wide; the oracle gets the stop's diameter, 2 DIAM, and optiland's own
+    # entrance pupil for it as an EPD (its float-by-stop EPD is a 1-element array)
+    if re.search(r"^FLOA\b", decode_zemax_text(CORPUS / name), re.M):
+        stop = [b for b, t in zip(blocks, types) if t != "COORDBRK"
+                and re.search(r"^\s+STOP\b", b, re.M)]
+        diam = re.search(r"^\s+DIAM\s+(\S+)", stop[0], re.M)
+        optic.set_aperture(aperture_type="float_by_stop_size", value=2.0 * float(diam.group(1)))
+        optic.set_aperture(aperture_type="EPD",
+                           value=float(torch.as_tensor(optic.paraxial.EPD()).reshape(-1)[0]))
     return optic, s_mm
 
 
@@ -267,6 +276,14 @@ def _first_order(lens, optic, s_mm, name):
 GRAZING = {"zmax_37992.zmx"}
 
 
+#: files whose on-axis beam at the paraxial pupil loses rays in both libraries: the oracle's
+#: lost rays are NaN (its spot is NaN), deeplens drops them (invalid); the RMS is compared over
+#: the rays each keeps, and deeplens must keep as many as optiland.  optiland_lens_floa.zmx: an
+#: entrance pupil of radius 20.24 mm on a first surface of radius 20 mm (the outer ring misses
+#: it) and total internal reflection at the second surface from r = 10.1 mm on
+LOSES_RAYS = {"optiland_lens_floa.zmx"}
+
+
 #: off-axis systems whose openings admit no on-axis beam (an unobscured four-mirror telescope
 #: with rectangular, decentred mirror openings, fields 13-19°): the field (deg) their "on-axis"
 #: checks use instead, the file's first field (no ray vignetted there, in either library)
@@ -290,6 +307,14 @@ def _rms_on_axis(lens, optic, s_mm, pupil, name=None):
         sd = SpotDiagram(optic, fields=[(0.0, h)], wavelengths=[w / 1000.0], num_rings=12,
                          reference="centroid")
         ol = float(sd.rms_spot_radius()[0][0])
+    if name in LOSES_RAYS:
+        optic.trace(0.0, h, w / 1000.0, 12, "hexapolar")
+        sg = optic.surface_group
+        x, y = (torch.as_tensor(a[-1]).reshape(-1).double() for a in (sg.x, sg.y))
+        kept = torch.isfinite(x) & torch.isfinite(y)
+        assert math.isnan(ol) and 0 < spot.n_rays == int(kept.sum()) < spot.n_launched
+        x, y = x[kept] - x[kept].mean(), y[kept] - y[kept].mean()
+        ol = float(torch.sqrt((x * x + y * y).mean()))
     if name in GRAZING:
         # the oracle's spot from its own rays (the same hexapolar pattern) without the rays
         # that travel inside the image plane (global direction cosine N = 0 there)
@@ -684,18 +709,47 @@ def test_crossing_automatic_semi_diameters_are_limited_where_the_beam_fits(tmp_p
     assert lens_to_dict(back)["surfaces"] == lens_to_dict(lens)["surfaces"]
 
 
-@pytest.mark.parametrize("name, pair", [("optiland_lens_floa.zmx", (0, 1)),
-                                        ("patent2zemax_EP0770895A2-1.zmx", (31, 32))])
-def test_crossing_refusal_names_the_beam(name, pair):
+@pytest.mark.parametrize("name, gaps", [("optiland_lens_floa.zmx", {1}),
+                                        ("patent2zemax_EP0770895A2-1.zmx", {32, 41, 42, 45})])
+def test_a_beam_past_a_crossing_is_traced_backwards_through_the_gap(name, gaps):
     """Where the on-axis beam of the file's own pupil reaches past the radius where two
-    surfaces meet, the refusal names the pair, that radius and the beam's height there."""
-    with pytest.raises(ZemaxFileError) as e:
-        _load(name)
-    m = re.search(r"cross at r = (\S+) mm .* reaches r = (\S+) mm there", str(e.value))
-    assert m and float(m.group(2)) > float(m.group(1)), str(e.value)
-    assert e.value.surfaces == pair
+    surfaces meet (a negative edge thickness), OpticStudio traces the rays beyond it backwards
+    through the gap: the reader opts exactly those gaps in (``Lens.backward_gaps``), with one
+    located warning per gap naming the pair, the radius and the beam's height there, and keeps
+    the file's semi-diameters; the numbers are optiland's (test_loads_with_the_oracles_numbers).
+    Without the gaps (a forward-only trace) the beam loses the rays that cross them."""
+    from deeplens.optics.errors import ZemaxWarning
+
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        lens = read_zmx(CORPUS / name)
+    assert lens.backward_gaps == gaps
+    notes = [x.message for x in w if isinstance(x.message, ZemaxWarning)
+             and "backwards through the gap (a negative propagation distance, the optical "
+                 "path decreasing)" in x.message.message]
+    assert len(notes) == len(gaps)
+    for note in notes:
+        assert note.source == str(CORPUS / name) and note.feature == "SURF" and note.line > 0
+        m = re.search(r"cross at r = (\S+) mm .* reaches r = (\S+) mm there", note.message)
+        assert m and float(m.group(2)) > float(m.group(1)), note.message
     if name == "optiland_lens_floa.zmx":   # R = ±20 mm, 5 mm apart: sag(r) = 2.5 mm
+        m = re.search(r"cross at r = (\S+) mm", notes[0].message)
         assert float(m.group(1)) == pytest.approx(math.sqrt(20.0**2 - 17.5**2), rel=1e-5)
+        return
+    # EP0770895A2: the file's own DIAMs (OpticStudio's footprints) of the flagged pairs, which
+    # lie beyond the crossings (deeplens surfaces 31/32, the file's SURF 32/33: 71.08 and
+    # 69.96 mm, crossing at 63.285 mm)
+    assert float(lens.surfaces[31].semi_diameter) == 71.082471822130287
+    assert float(lens.surfaces[32].semi_diameter) == 69.957787955681795
+    # the on-axis spot of the oracle test crosses gap 32 backwards: rays hit surface 32
+    # beyond the crossing (63.285 mm); forward-only, they are lost
+    w0 = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        spot = spot_diagram(lens, 0.0, w0, "hexapolar:12", pupil="paraxial")
+        assert spot.n_rays == spot.n_launched
+        lens.backward_gaps = ()
+        forward = spot_diagram(lens, 0.0, w0, "hexapolar:12", pupil="paraxial")
+    assert forward.n_rays < spot.n_launched
 
 
 @pytest.mark.parametrize("name, glass, base, where", [
