@@ -30,7 +30,8 @@ from dataclasses import dataclass
 
 import torch
 
-__all__ = ["paraxial", "ParaxialData", "exit_pupil", "chief_ray_scale"]
+__all__ = ["paraxial", "ParaxialData", "exit_pupil", "chief_ray_scale", "media_indices",
+           "trace_paraxial_ray"]
 
 
 @dataclass
@@ -122,6 +123,22 @@ def _indices(lens, wavelength_nm):
     p0 = torch.zeros((), dtype=lens.dtype, device=lens.device)   # dtype and device
     wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
     return _signed_indices(lens, wt), p0
+
+
+def media_indices(lens, wavelength_nm: float | None = None) -> torch.Tensor:
+    """The media's refractive indices ``(S + 1,)`` at ``wavelength_nm`` (nm; ``None``: the
+    lens's primary wavelength), object space first, each signed by the direction of travel
+    there (negative after an odd number of mirrors), on the lens's dtype and device: the
+    ``n`` that :func:`trace_paraxial_ray` takes."""
+    return torch.stack(list(_indices(lens, wavelength_nm)[0]))
+
+
+def trace_paraxial_ray(lens, y: torch.Tensor, u: torch.Tensor, n: torch.Tensor):
+    """Trace a paraxial ray of height ``y`` (mm) and slope ``u`` at the first vertex (in
+    object space) through every surface, in media of signed indices ``n``
+    (:func:`media_indices`).  Returns ``(y, u, heights)``: the ray after the last surface (at
+    the last vertex) and its height at each vertex (a list of ``S`` 0-d tensors, mm)."""
+    return _trace(lens, y, u, n)
 
 
 def _trace_from(lens, start: int, y, u, n):

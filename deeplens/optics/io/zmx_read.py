@@ -573,13 +573,13 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, 
     the slightly larger pupils of ray aiming) from being clipped by them.  Capped to the
     surface's domain."""
     from ..intersect import IntersectOptions
-    from ..paraxial import _indices, _trace, paraxial
+    from ..paraxial import media_indices, paraxial, trace_paraxial_ray
     from ..sampling import field_rays
 
     field_deg = max(abs(f) for f in fields)
     with torch.no_grad():
         par = paraxial(lens)
-        n, p0 = _indices(lens, None)
+        n = media_indices(lens)
         half = 0.5 * float(par.entrance_pupil_diameter)
         pos = float(par.entrance_pupil_position)
         s = float(lens.spec.object_distance_mm)
@@ -589,12 +589,12 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, 
         else:
             um0 = half / (s + pos)
             ym0 = um0 * s
-        one = torch.ones_like(p0)
-        _, _, hm = _trace(lens, ym0 * one, um0 * one, n)
+        one = torch.ones_like(n[0])
+        _, _, hm = trace_paraxial_ray(lens, ym0 * one, um0 * one, n)
         if getattr(lens, "object_telecentric", False):   # chief ray parallel to the axis
-            _, _, hc = _trace(lens, -s * t * one, 0.0 * one, n)
+            _, _, hc = trace_paraxial_ray(lens, -s * t * one, 0.0 * one, n)
         else:
-            _, _, hc = _trace(lens, -pos * t * one, t * one, n)
+            _, _, hc = trace_paraxial_ray(lens, -pos * t * one, t * one, n)
         for i in idx:
             surf = lens.surfaces[i]
             sd = 1.05 * (abs(float(hm[i])) + abs(float(hc[i])))

@@ -33,13 +33,13 @@ def aperture_to_epd(lens, kind: str, value: float, line: int, p) -> float:
     * ``wfno``: the paraxial working F-number ``W = 1 / (2 n' |u'|)``, ``u'`` the image-space
       slope of the paraxial marginal ray (``W = EFL / EPD`` for an object at infinity in air).
     """
-    from ..paraxial import _indices, _trace, paraxial
+    from ..paraxial import media_indices, paraxial, trace_paraxial_ray
 
     with torch.no_grad():
         par = paraxial(lens)
         pos = float(par.entrance_pupil_position)
         s = float(lens.spec.object_distance_mm)
-        n, p0 = _indices(lens, None)
+        n = media_indices(lens)
         if kind in ("obna", "cone"):
             if kind == "obna":
                 n0 = float(n[0])
@@ -52,13 +52,13 @@ def aperture_to_epd(lens, kind: str, value: float, line: int, p) -> float:
                     p.fail(line, f"OBNA {value:g} (cone angle): must be below 90 degrees")
                 theta = math.radians(value)
             return 2.0 * abs(s + pos) * math.tan(theta)
-        one = torch.ones_like(p0)
+        one = torch.ones_like(n[0])
         if math.isinf(s):
             y0, u0 = 1.0, 0.0          # per unit entrance-pupil radius
         else:
             u0 = 1.0 / (s + pos)
             y0 = u0 * s
-        _, u, _ = _trace(lens, y0 * one, u0 * one, n)
+        _, u, _ = trace_paraxial_ray(lens, y0 * one, u0 * one, n)
         g = abs(float(u))
         if not g > 0:
             p.fail(line, "FNUM (paraxial working F-number): the system is afocal")
@@ -189,13 +189,13 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         if not math.isinf(d_obj):
             # paraxial image height h' = m h at the paraxial image plane: the object height
             # h = h' / m, then as FTYP 1
-            from ..paraxial import _indices, _trace
+            from ..paraxial import media_indices, trace_paraxial_ray
 
             with torch.no_grad():
                 par = paraxial(lens)
-                n, p0 = _indices(lens, None)
-                one = torch.ones_like(p0)
-                y, u, _ = _trace(lens, one, 0.0 * one, n)   # from an object point of height 1
+                n = media_indices(lens)
+                one = torch.ones_like(n[0])
+                y, u, _ = trace_paraxial_ray(lens, one, 0.0 * one, n)   # from an object point of height 1
                 m = float(y + u * par.image_distance)
             if not abs(m) > 1e-12:
                 p.fail(ftyp_line, "FTYP 2 (paraxial image height): the paraxial magnification "

@@ -72,11 +72,11 @@ def _object_na(lens: Lens) -> float:
     """The object-space NA ``n sin θ`` of an object-space telecentric lens: the cone about
     each chief ray whose slope ``tan θ = r_EP / |s + z_EP|`` is the paraxial entrance pupil's
     radius over its distance from the object (the inverse of the reader's ``OBNA``)."""
-    from ..paraxial import _indices, paraxial
+    from ..paraxial import media_indices, paraxial
 
     with torch.no_grad():
         par = paraxial(lens)
-        n0 = float(_indices(lens, None)[0][0])
+        n0 = float(media_indices(lens)[0])
         d = abs(float(lens.spec.object_distance_mm) + float(par.entrance_pupil_position))
         return n0 * math.sin(math.atan(0.5 * float(par.entrance_pupil_diameter) / d))
 
