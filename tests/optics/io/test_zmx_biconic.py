@@ -272,3 +272,13 @@ def test_a_semi_diameter_beyond_the_domain_is_refused_with_its_line(tmp_path):
     p = write(tmp_path, text)
     with pytest.raises(ZemaxFileError, match=r"beyond the domain of the biconic.*along x"):
         read_zmx(p)
+
+
+def test_x_fields_on_a_biconic_lens_warn_that_they_are_not_exact(tmp_path):
+    """An x field component (XFLN) is combined with y into a radial field, exact only for a
+    rotationally symmetric lens: on a biconic lens the warning says it is not exact here."""
+    from deeplens.optics.io.zmx import ZemaxWarning
+
+    p = write(tmp_path, biconic_file().replace("XFLN 0 0", "XFLN 0 2"))
+    with pytest.warns(ZemaxWarning, match=r"NOT exact for this lens \(surface 1, a Biconic"):
+        read_zmx(p)
