@@ -31,7 +31,10 @@ The x-z section has vertex curvature ``c_x``.
 x *radius* ``R_x`` (0: infinite, flat in x) and ``PARM 2`` the x conic ``k_x``; no other
 parameter (OpticStudio User Guide, "Biconic", Parameter definitions for biconic surfaces: 1 Rx,
 2 kx; https://ansyshelp.ansys.com/public/Views/Secured/Zemax/v251/en/OpticStudio_User_Guide/
-OpticStudio_Help/topics/Biconic.html).
+OpticStudio_Help/topics/Biconic.html).  The manual's sag formula is an image there; the one
+above is the one whose ellipsoid conversion (the manual's own example) is exact, and the one
+pyrate's independent ``.zmx`` reader uses with the same ``PARM`` layout (mess42/pyrate,
+``pyrateoptics/raytracer/surface_shape.py`` ``Biconic`` and ``raytracer/io/zmx.py``).
 
 The surface has no compiled Newton kernels: a compiled trace runs it eager between its fused runs
 (:func:`~..tracer.fused_kind`); Newton starts from the vertex plane.
