@@ -315,3 +315,18 @@ def test_a_biconic_mirror_matches_optiland(tmp_path):
     dl, ol = _rms_on_axis(lens, optic, s_mm, "paraxial", str(tmp_path / "mirror.zmx"))
     _assert_rms_agrees(dl, ol)
     assert dl > 0.1
+
+
+def test_report_on_a_refused_biconic_prints_one_located_line(tmp_path, capsys):
+    """`deeplens report` on a file whose biconic has a term it lacks: exit 2, nothing on
+    stdout, one line on stderr naming the file, the line and the feature."""
+    from deeplens.cli import main
+
+    text = biconic_file(extra=("PARM 5 1e-3",))
+    p = write(tmp_path, text)
+    rc = main(["report", str(p), "--sampling", "hexapolar:3"])
+    out, err = capsys.readouterr()
+    assert rc == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1
+    assert f"{p}:{line_of(text, 'PARM 5')}" in lines[0] and "BICONICX PARM 5" in lines[0]
