@@ -16,6 +16,8 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
     TOROIDAL   the y profile z_y = conic(y) + Σ PARM (i+1) y^{2i} turned about the axis parallel
                to y at z = R = PARM 1 (radius of rotation): z = R − sgn(ρ) sqrt(ρ² − x²),
                ρ = R − z_y (a Toroid); R = 0 (infinite) is a cylinder, z = z_y
+    BICONICX   z = (c_x x² + c_y y²) / (1 + sqrt(1 − (1 + k_x) c_x² x² − (1 + k_y) c_y² y²)),
+               c_y = CURV, k_y = CONI, c_x = 1 / PARM 1 (0: flat in x), k_x = PARM 2 (a Biconic)
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 

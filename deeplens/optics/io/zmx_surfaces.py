@@ -5,7 +5,7 @@
 flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``ODDASPHE`` and an ``EVENASPH``
 with an ``r²`` term (``PARM 1`` != 0) -> :class:`~deeplens.optics.surfaces.OddAsphere`, ``TOROIDAL`` ->
 :class:`~deeplens.optics.surfaces.Toroid` (:class:`~deeplens.optics.surfaces.Cylinder` with no
-radius of rotation), ``PARAXIAL`` ->
+radius of rotation), ``BICONICX`` -> :class:`~deeplens.optics.surfaces.Biconic`, ``PARAXIAL`` ->
 :class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
 :class:`~deeplens.optics.surfaces.Grating`, ``XYPOLYNOM`` ->
 :class:`~deeplens.optics.surfaces.XYPolynomial`; a flat surface between one medium, not the stop,
@@ -21,8 +21,8 @@ import torch
 
 from ..errors import ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import (Aperture, Asphere, Cylinder, Grating, IdealLens, OddAsphere, Plane, QType,
-                        Toroid, XYPolynomial)
+from ..surfaces import (Aperture, Asphere, Biconic, Cylinder, Grating, IdealLens, OddAsphere,
+                        Plane, QType, Toroid, XYPolynomial)
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from .zmx_parse import Locator, ZmxSurface
@@ -87,6 +87,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
         elif s.type == "TOROIDAL":
             surf = _cylinder(s, k, c, sd_build, s_mm, p)
+        elif s.type == "BICONICX":
+            surf = _biconic(s, k, c, sd_build, s_mm, p)
         elif s.sqap is not None and flat and is_air(mat) and is_air(prev):
             hx, hy, _ = s.sqap
             surf = Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
@@ -239,6 +241,24 @@ def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
     if r_rot != 0:
         return Toroid(c, sd, r_rot * s_mm, conic=s.coni, coefficients=coeffs, half_widths=hw)
     return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
+
+
+def _biconic(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``BICONICX``: ``CURV``/``CONI`` the y curvature and conic, ``PARM 1`` the x *radius* (0:
+    infinite, flat in x), ``PARM 2`` the x conic (OpticStudio's "Biconic" surface; it has no
+    other parameter and no extra data): a :class:`Biconic`."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if i not in (1, 2) and v != 0:
+            p.fail(ln, f"SURF {k}: BICONICX PARM {i} is not read (a biconic has PARM 1, the x "
+                       f"radius, and PARM 2, the x conic; a Biconic Zernike or other variant "
+                       f"is not supported)")
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if v != 0:
+            p.fail(ln, f"SURF {k}: BICONICX XDAT {j} is not read (a biconic has no extra data; "
+                       f"a Biconic Zernike or other variant is not supported)")
+    r_x = s.parm.get(1, (0.0, 0))[0]
+    c_x = 0.0 if r_x == 0 else 1.0 / (r_x * s_mm)
+    return Biconic(c, sd, c_x, conic=s.coni, conic_x=s.parm.get(2, (0.0, 0))[0])
 
 
 def _grating(s: ZmxSurface, k: int, c, sd, p: Locator):

@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from ..surfaces import Aperture, Asphere, OddAsphere, Plane, QType
+from ..surfaces import Aperture, Asphere, Biconic, Cylinder, OddAsphere, Plane, QType
 
 __all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
            "zemax_tilts", "element_tilts", "lens_pupil_convention", "fields_to_angles"]
@@ -163,8 +163,15 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
     xs = xs + [0.0] * (len(ys) - len(xs))
     kind = ftyp[0]
     if any(x != 0 for x in xs):
-        p.note(xline, "XFLN: x field components are combined with y into a radial field (exact "
-                      "for a rotationally symmetric lens)")
+        anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder))]
+        if anamorphic:   # a biconic, cylinder or toroid: x and y fields image differently
+            p.note(xline, f"XFLN: x field components are combined with y into a radial field, "
+                          f"which is NOT exact for this lens (surface {anamorphic[0]}, a "
+                          f"{type(lens.surfaces[anamorphic[0]]).__name__}, is not rotationally "
+                          f"symmetric): its off-axis numbers are those of y fields")
+        else:
+            p.note(xline, "XFLN: x field components are combined with y into a radial field "
+                          "(exact for a rotationally symmetric lens)")
     if kind == 0:
         return [math.copysign(math.degrees(math.atan(math.hypot(math.tan(math.radians(x)),
                                                                  math.tan(math.radians(y))))),

@@ -18,8 +18,8 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
-from ..surfaces import (Aperture, Asphere, CoordinateBreak, Cylinder, Grating, IdealLens,
-                        OddAsphere, Plane, QType, Toroid, XYPolynomial)
+from ..surfaces import (Aperture, Asphere, Biconic, CoordinateBreak, Cylinder, Grating,
+                        IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial)
 from .agf import AGFGlass
 from .vendor_glass import BuchdahlGlass
 from .zmx_coordbrk import coordbrk_lines
@@ -274,6 +274,10 @@ def _surface_lines(s, i, is_stop) -> list[str]:
         if s.half_widths is not None:
             lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
         return lines
+    if isinstance(s, Biconic):   # PARM 1 the x radius (0: flat in x), PARM 2 the x conic
+        r_x = "0" if float(s.cx) == 0 else _f(1.0 / s.cx)
+        return lines + ["TYPE BICONICX", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
+                        f"PARM 1 {r_x}", f"PARM 2 {_f(s.kx)}", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, IdealLens):
         return lines + ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}",
                         f"DIAM {_f(sd)} 1 0 0 1 \"\""]

@@ -3,6 +3,7 @@
 from .aperture import Aperture
 from .asphere import Asphere, Sphere
 from .base import SURFACE_TYPES, SagSurface, Surface
+from .biconic import Biconic
 from .bspline import BSpline
 from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
@@ -14,5 +15,5 @@ from .qtype import QType
 from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
 
-__all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "BSpline", "Cylinder",
+__all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "BSpline", "Cylinder",
            "Grating", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]

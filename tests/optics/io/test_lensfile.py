@@ -263,7 +263,7 @@ BAD = [
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
-     r"aperture, asphere, bspline, conic, coordinate_break, cylinder, grating, ideal_lens, "
+     r"aperture, asphere, biconic, bspline, conic, coordinate_break, cylinder, grating, ideal_lens, "
      r"odd_asphere, plane, qtype, sphere, toroid, xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
@@ -483,6 +483,13 @@ def test_every_registered_surface_type_round_trips():
                           "radial_coefficients": [1e-3 / 3, 0.0, -2e-5, 1e-6 / 7],
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([12, 12])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a biconic (OpticStudio's BICONICX), likewise
+    d["surfaces"].append({"type": "biconic", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 70.0, "conic": -0.4,
+                          "curvature_x_per_mm": -1 / 30.0, "conic_x": 0.3,
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([13, 13])
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}
