@@ -304,3 +304,15 @@ def test_traces_eager_and_round_trips_through_the_lens_file():
     assert s["type"] == "binary2" and s["order"] == -2 and s["norm_radius_mm"] == 4.0
     assert s["phase_coefficients"] == [-300.0, 20.0] and s["aspheric"] == [1e-5]
     assert lens_to_dict(lens_from_dict(d)) == d
+
+
+def test_cardinal_points_see_the_diffractive_power():
+    """analysis.cardinal's system matrix adds the same power: its EFL is the closed form's at
+    two wavelengths (a surface type ignored there would give an infinite EFL)."""
+    from deeplens.analysis.cardinal import cardinal_points
+
+    rn, a1 = 5.0, -1800.0
+    lens = Lens([Binary2(0.0, 6.0, rn, [a1], 1)], [Air(), Air()], [0.0], 50.0, 0)
+    for wl in (486.1, 656.3):
+        f = -math.pi * rn ** 2 / (a1 * wl * 1e-6)
+        assert float(cardinal_points(lens, wl).efl) == pytest.approx(f, rel=1e-13)
