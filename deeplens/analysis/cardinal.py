@@ -31,11 +31,15 @@ __all__ = ["CardinalPoints", "cardinal_points", "system_matrix", "Pupils", "pupi
            "magnification"]
 
 
-def _power(surface, n1, n2):
-    # an ideal (thin) lens supplies 1/f and maps reduced angles by n2/f
+def _power(surface, n1, n2, wavelength_nm):
+    # an ideal (thin) lens supplies 1/f and maps reduced angles by n2/f; a diffractive phase
+    # (surfaces.Binary2) adds its own power at the wavelength
     if hasattr(surface, "paraxial_power"):
         return surface.paraxial_power() * n2
-    return surface.paraxial_curvature() * (n2 - n1)
+    phi = surface.paraxial_curvature() * (n2 - n1)
+    if hasattr(surface, "paraxial_phase_power"):
+        phi = phi + surface.paraxial_phase_power(wavelength_nm).to(phi)
+    return phi
 
 
 def _indices(lens, wavelength_nm):
@@ -50,7 +54,7 @@ def system_matrix(lens, wavelength_nm: float | None = None, first: int = 0,
                   last: int | None = None) -> torch.Tensor:
     """The ``(2, 2)`` paraxial matrix acting on ``(y, n u)`` from vertex ``first`` (before its
     refraction) to vertex ``last`` (after it); default the whole lens."""
-    n, _ = _indices(lens, wavelength_nm)
+    n, w = _indices(lens, wavelength_nm)
     last = len(lens.surfaces) - 1 if last is None else last
     dist = list(lens.distances)
     one = torch.ones_like(dist[0])
@@ -60,7 +64,7 @@ def system_matrix(lens, wavelength_nm: float | None = None, first: int = 0,
         if i > first:
             t = dist[i] / n[i]
             M = torch.stack([torch.stack([one, t]), torch.stack([zero, one])]) @ M
-        phi = _power(lens.surfaces[i], n[i], n[i + 1]).to(one)
+        phi = _power(lens.surfaces[i], n[i], n[i + 1], w).to(one)
         M = torch.stack([torch.stack([one, zero]), torch.stack([-phi, one])]) @ M
     return M
 

@@ -20,6 +20,8 @@ converging system whichever way the light leaves (a concave mirror of radius ``R
 ``z`` (``BFL = R / 2`` for that mirror).  A coordinate break has no power and paraxial rays
 follow the local axes through it (as in Zemax): a fold is exact, a tilted or decentered
 section is paraxial about its own vertex.
+A diffractive phase (:class:`~.surfaces.Binary2`) adds its paraxial power ``-M A_1 λ / (π R_n²)``
+to its base's ``c (n' - n)``, at the wavelength of the trace.
 All quantities are differentiable torch scalars in mm, at the primary wavelength.
 """
 
@@ -50,11 +52,15 @@ class ParaxialData:
     wavelength_nm: float
 
 
-def _power(surface, n1, n2):
-    """Surface power ``φ = c (n2 - n1)`` (1/mm); an ideal lens supplies its own ``1/f``."""
+def _power(surface, n1, n2, wavelength_nm: float):
+    """Surface power ``φ = c (n2 - n1)`` (1/mm); an ideal lens supplies its own ``1/f``; a
+    diffractive phase (:class:`~.surfaces.Binary2`) adds its own power at ``wavelength_nm``."""
     if hasattr(surface, "paraxial_power"):
         return surface.paraxial_power() * n2
-    return surface.paraxial_curvature() * (n2 - n1)
+    phi = surface.paraxial_curvature() * (n2 - n1)
+    if hasattr(surface, "paraxial_phase_power"):
+        phi = phi + surface.paraxial_phase_power(wavelength_nm).to(phi)
+    return phi
 
 
 def _signed_indices(lens, wt):
@@ -62,18 +68,25 @@ def _signed_indices(lens, wt):
     return [m.n(wt).to(wt) * sign for m, sign in zip(lens.materials, lens.directions())]
 
 
-def _trace(lens, y, u, n):
-    """Trace a paraxial ray (y, u at the first vertex, in object space) to the last vertex.
+def _trace(lens, y, u, n, wavelength_nm=None):
+    """Trace a paraxial ray (y, u at the first vertex, in object space) to the last vertex, at
+    ``wavelength_nm`` (nm; ``None``: the primary one; only a diffractive surface's power needs
+    it, the indices ``n`` are given).
 
     Returns the ray after the last surface and the height at every vertex."""
+    w = _wavelength(lens, wavelength_nm)
     heights = []
     dist = list(lens.distances)
     for i, s in enumerate(lens.surfaces):
         if i > 0:
             y = y + dist[i] * u
         heights.append(y)
-        u = (n[i] * u - y * _power(s, n[i], n[i + 1]).to(y)) / n[i + 1]
+        u = (n[i] * u - y * _power(s, n[i], n[i + 1], w).to(y)) / n[i + 1]
     return y, u, heights
+
+
+def _wavelength(lens, wavelength_nm) -> float:
+    return float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
 
 
 def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
@@ -91,8 +104,8 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
     n = _signed_indices(lens, wt)
     one, zero = torch.ones_like(p0), torch.zeros_like(p0)
-    yA, uA, hA = _trace(lens, one, zero, n)
-    _, _, hB = _trace(lens, zero, one, n)
+    yA, uA, hA = _trace(lens, one, zero, n, w)
+    _, _, hB = _trace(lens, zero, one, n, w)
     if abs(float(uA.detach())) < 1e-15:   # afocal (flat folds only): no focus
         efl = bfl = torch.full_like(uA, math.inf)
     else:
@@ -109,7 +122,7 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     if math.isinf(s):
         img = bfl
     else:
-        y, u, _ = _trace(lens, s * one, one, n)
+        y, u, _ = _trace(lens, s * one, one, n, w)
         img = -y / u
     z_last = lens.z_vertices()[-1]
     return ParaxialData(efl=efl, bfl=bfl, image_distance=img, image_z=z_last + img,
@@ -133,21 +146,25 @@ def media_indices(lens, wavelength_nm: float | None = None) -> torch.Tensor:
     return torch.stack(list(_indices(lens, wavelength_nm)[0]))
 
 
-def trace_paraxial_ray(lens, y: torch.Tensor, u: torch.Tensor, n: torch.Tensor):
+def trace_paraxial_ray(lens, y: torch.Tensor, u: torch.Tensor, n: torch.Tensor,
+                       wavelength_nm: float | None = None):
     """Trace a paraxial ray of height ``y`` (mm) and slope ``u`` at the first vertex (in
     object space) through every surface, in media of signed indices ``n``
     (:func:`media_indices`).  Returns ``(y, u, heights)``: the ray after the last surface (at
-    the last vertex) and its height at each vertex (a list of ``S`` 0-d tensors, mm)."""
-    return _trace(lens, y, u, n)
+    the last vertex) and its height at each vertex (a list of ``S`` 0-d tensors, mm).
+    ``wavelength_nm`` (``None``: the primary one) is the wavelength of ``n``, which a
+    diffractive surface's power depends on."""
+    return _trace(lens, y, u, n, wavelength_nm)
 
 
-def _trace_from(lens, start: int, y, u, n):
+def _trace_from(lens, start: int, y, u, n, wavelength_nm=None):
     """Trace a paraxial ray that sits at vertex ``start`` (before refracting there)."""
+    w = _wavelength(lens, wavelength_nm)
     dist = list(lens.distances)
     for i in range(start, len(lens.surfaces)):
         if i > start:
             y = y + dist[i] * u
-        u = (n[i] * u - y * _power(lens.surfaces[i], n[i], n[i + 1]).to(y)) / n[i + 1]
+        u = (n[i] * u - y * _power(lens.surfaces[i], n[i], n[i + 1], w).to(y)) / n[i + 1]
     return y, u
 
 
@@ -162,11 +179,11 @@ def exit_pupil(lens, wavelength_nm: float | None = None):
     one, zero = torch.ones_like(p0), torch.zeros_like(p0)
     k = lens.stop_index
     z_last = lens.z_vertices()[-1]
-    yc, uc = _trace_from(lens, k, zero, one, n)
+    yc, uc = _trace_from(lens, k, zero, one, n, wavelength_nm)
     if abs(float(uc.detach())) < 1e-15:
         raise ValueError("the exit pupil is at infinity (image-space telecentric lens)")
     dz = -yc / uc  # from the last vertex
-    ye, ue = _trace_from(lens, k, one, zero, n)
+    ye, ue = _trace_from(lens, k, one, zero, n, wavelength_nm)
     m = ye + ue * dz
     return z_last + dz, m.abs() * lens.stop.semi_diameter.to(p0)
 
@@ -179,5 +196,5 @@ def chief_ray_scale(lens, z_image, wavelength_nm: float | None = None):
     z0 = lens.z_vertices()[0]
     p = paraxial(lens, wavelength_nm)
     y0 = -(p.entrance_pupil_z - z0) * one  # passes the EP centre with slope 1
-    y, u = _trace_from(lens, 0, y0, one, n)
+    y, u = _trace_from(lens, 0, y0, one, n, wavelength_nm)
     return y + u * (torch.as_tensor(z_image).to(p0) - lens.z_vertices()[-1])

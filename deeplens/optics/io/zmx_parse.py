@@ -32,13 +32,12 @@ UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 """``UNIT`` name -> millimetres per file unit."""
 
 # surface types met in real files that deeplens refuses, and what they are
-_DIFFRACTIVE = ("out of scope: deeplens traces refraction, reflection and straight-ruled gratings "
-                "(DGRATING), not diffractive phase profiles")
+_DIFFRACTIVE = ("out of scope: deeplens traces refraction, reflection, straight-ruled gratings "
+                "(DGRATING) and radial phases (BINARY_2), not other diffractive phase profiles")
 _UNSUPPORTED_TYPES = {
     "QTYPEASP": "a Q-type (Forbes) asphere",
     "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
-    "BINARY_2": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "GRINSUR1": "a gradient-index surface",
     "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
     "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
@@ -248,11 +247,13 @@ def parse(path: Path):
                 p.fail(ln, "TYPE line is truncated: missing the surface type")
             cur.type, cur.type_line = toks[1].upper(), ln
             if cur.type not in ("STANDARD", "EVENASPH", "ODDASPHE", "COORDBRK", "XYPOLYNOM",
-                                "PARAXIAL", "TOROIDAL", "DGRATING", "QED_TYPE", "BICONICX"):
+                                "PARAXIAL", "TOROIDAL", "DGRATING", "QED_TYPE", "BICONICX",
+                                "BINARY_2"):
                 what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
                 p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
                            f"supported; deeplens reads STANDARD, EVENASPH, ODDASPHE, COORDBRK, "
-                           f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE and BICONICX")
+                           f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE, BICONICX "
+                           f"and BINARY_2")
         elif cur is not None and key == "CURV":
             cur.curv = p.arg(toks, 1, ln, "curvature")
         elif cur is not None and key == "DISZ":

@@ -7,7 +7,8 @@ with an ``r²`` term (``PARM 1`` != 0) -> :class:`~deeplens.optics.surfaces.OddA
 :class:`~deeplens.optics.surfaces.Toroid` (:class:`~deeplens.optics.surfaces.Cylinder` with no
 radius of rotation), ``BICONICX`` -> :class:`~deeplens.optics.surfaces.Biconic`, ``PARAXIAL`` ->
 :class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
-:class:`~deeplens.optics.surfaces.Grating`, ``XYPOLYNOM`` ->
+:class:`~deeplens.optics.surfaces.Grating`, ``BINARY_2`` ->
+:class:`~deeplens.optics.surfaces.Binary2`, ``XYPOLYNOM`` ->
 :class:`~deeplens.optics.surfaces.XYPolynomial`; a flat surface between one medium, not the stop,
 with no fixed aperture is a dummy (its thickness only).  Lengths are scaled from file units to
 mm here (``s_mm``); errors are raised through the reader's :class:`~.zmx_parse.Locator`.
@@ -21,8 +22,9 @@ import torch
 
 from ..errors import ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import (Aperture, Asphere, Biconic, Cylinder, Grating, IdealLens, OddAsphere,
-                        Plane, QType, Toroid, XYPolynomial)
+from ..surfaces import (Aperture, Asphere, Biconic, Binary2, Cylinder, Grating, IdealLens,
+                        OddAsphere, Plane, QType, Toroid, XYPolynomial)
+from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from .zmx_parse import Locator, ZmxSurface
@@ -81,6 +83,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             surf = _xypolynom(s, c, sd_build, s_mm, p)
         elif s.type == "DGRATING":
             surf = _grating(s, k, c, sd_build, p)
+        elif s.type == "BINARY_2":
+            surf = _binary2(s, k, c, sd_build, s_mm, p)
         elif s.type == "QED_TYPE":
             surf = _qtype(s, k, c, sd_build, s_mm, p)
         elif s.type == "PARAXIAL":
@@ -274,6 +278,49 @@ def _grating(s: ZmxSurface, k: int, c, sd, p: Locator):
         p.fail(ln, f"SURF {k}: the diffraction order (DGRATING PARM 2) must be an integer, got "
                    f"{order!r}")
     return Grating(c, sd, s.parm.get(1, (0.0, 0))[0], int(order), conic=s.coni)
+
+
+def _binary2(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``BINARY_2`` (OpticStudio's "Binary 2"): an even asphere (``CURV``, ``CONI``, ``PARM 2..8``
+    the ``r⁴ ... r¹⁶`` terms; ``PARM 1``, the ``r²`` term, must be 0) with the phase ``M Σ A_i
+    ρ^{2i}``: ``PARM 0`` the diffraction order ``M``, ``XDAT 1`` the number of terms, ``XDAT 2``
+    the normalisation radius (a length), ``XDAT 3..`` the ``A_i`` (radians): a :class:`Binary2`
+    (transmitting, or reflecting with ``GLAS MIRROR``)."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if (i < 0 or i > 8) and v != 0:
+            p.fail(ln, f"SURF {k}: BINARY_2 PARM {i} is not read (PARM 0 the diffraction order, "
+                       f"PARM 1-8 the even-asphere terms on r², ..., r¹⁶)")
+    if s.parm.get(1, (0.0, 0))[0] != 0:
+        p.fail(s.parm[1][1], f"SURF {k}: BINARY_2 PARM 1 (the r² term of the base asphere) is "
+                             f"not supported (deeplens' even asphere starts at r⁴): fold it "
+                             f"into the curvature")
+    if 0 not in s.parm:
+        p.fail(s.type_line or s.line, f"SURF {k}: BINARY_2 without PARM 0 (the diffraction "
+                                      f"order)")
+    order, o_ln = s.parm[0]
+    if order != int(order):
+        p.fail(o_ln, f"SURF {k}: the diffraction order (BINARY_2 PARM 0) must be an integer, got "
+                     f"{order!r}")
+    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= MAX_PHASE_TERMS:
+        p.fail(n_ln, f"SURF {k}: BINARY_2 XDAT 1 (the number of phase terms) must be an integer "
+                     f"0..{MAX_PHASE_TERMS}, got {n_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if j > n + 2 and v != 0:
+            p.fail(ln, f"SURF {k}: BINARY_2 XDAT {j} lies beyond the {n} phase terms XDAT 1 "
+                       f"declares")
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n > 0 and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: BINARY_2 XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    top = max([i for i in range(2, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [1])
+    coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(2, top + 1)]
+    phase = [s.xdat.get(j + 3, (0.0, 0))[0] for j in range(n)]
+    while phase and phase[-1] == 0.0:
+        phase.pop()
+    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no phase term: any radius (1 mm)
+    return Binary2(c, sd, rn, phase, int(order), conic=s.coni, coefficients=coeffs)
 
 
 def _qtype(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):

@@ -110,8 +110,8 @@ def rotationally_symmetric(surf) -> bool:
     """Whether a surface is unchanged by a turn about its own axis (for tilt conversions)."""
     if isinstance(surf, Aperture):
         return surf.shape == "circle"
-    if getattr(surf, "diffracts", False):   # a grating's lines turn with it
-        return False
+    if getattr(surf, "diffracts", False) and not getattr(surf, "axisymmetric", False):
+        return False   # a grating's lines turn with it (a radial phase does not)
     return isinstance(surf, (Asphere, OddAsphere, Plane, QType))
 
 

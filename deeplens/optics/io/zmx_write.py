@@ -18,7 +18,7 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
-from ..surfaces import (Aperture, Asphere, Biconic, CoordinateBreak, Cylinder, Grating,
+from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
                         IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial)
 from .agf import AGFGlass
 from .vendor_glass import BuchdahlGlass
@@ -290,6 +290,18 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, OddAsphere):
         return lines + _odd_asphere_lines(s, i) + [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+    if isinstance(s, Binary2):   # PARM 0 the order, PARM 2..8 a4..a16, XDAT the phase
+        a = [float(v) for v in s.a]
+        if len(a) > 7:
+            raise ZemaxFileError(f"surface {i}: {len(a)} aspheric terms; Zemax's BINARY_2 holds "
+                                 f"a4..a16 (7 terms)", surfaces=(i,))
+        A = [float(v) for v in s.A]
+        lines += ["TYPE BINARY_2", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 0 {s.order}",
+                  "PARM 1 0"] + [f"PARM {j + 2} {_f(v)}" for j, v in enumerate(a)]
+        lines += [f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
+        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
+        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        return lines + _opening_records(s, i)
     if isinstance(s, Grating):
         lines += ["TYPE DGRATING", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {_f(s.T)}",
                   f"PARM 2 {s.order}", f"DIAM {_f(sd)} 1 0 0 1 \"\""]

@@ -3,6 +3,7 @@
 from .aperture import Aperture
 from .asphere import Asphere, Sphere
 from .base import SURFACE_TYPES, SagSurface, Surface
+from .binary2 import Binary2
 from .biconic import Biconic
 from .bspline import BSpline
 from .coordinate_break import CoordinateBreak
@@ -15,5 +16,5 @@ from .qtype import QType
 from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
 
-__all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "BSpline", "Cylinder",
+__all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder",
            "Grating", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "Surface", "SagSurface", "SURFACE_TYPES"]

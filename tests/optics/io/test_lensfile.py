@@ -263,8 +263,8 @@ BAD = [
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
-     r"aperture, asphere, biconic, bspline, conic, coordinate_break, cylinder, grating, ideal_lens, "
-     r"odd_asphere, plane, qtype, sphere, toroid, xy_polynomial\)"),
+     r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, grating, "
+     r"ideal_lens, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -490,6 +490,13 @@ def test_every_registered_surface_type_round_trips():
                           "curvature_x_per_mm": -1 / 30.0, "conic_x": 0.3,
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([13, 13])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a Binary 2 diffractive surface (OpticStudio's BINARY_2), likewise
+    d["surfaces"].append({"type": "binary2", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": -1 / 80.0, "conic": 0.2, "aspheric": [1e-5 / 3],
+                          "norm_radius_mm": 2.5, "phase_coefficients": [-150.0, 2.0 / 3],
+                          "order": 1, "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([14, 14])
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}
