@@ -176,6 +176,9 @@ class EndToEndModule(L.LightningModule):
         tol = load_group(tolerance) if tolerance is not None else None  # checked at start-up
         self.tolerance_draws = TrainingDraws(tol, self.seed) if tolerance_training else None
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
+        # per-unit calibration under test: None, or (restored (B, C, H, W), depth_mm) -> the
+        # restored image registered to the nominal lens's mapping (tolerance_eval.py)
+        self.calibration = None
 
     # ------------------------------------------------------------------ the camera
     @property
@@ -478,6 +481,9 @@ class EndToEndModule(L.LightningModule):
                                      seed=10_000_019 + batch_idx * 101, noise=True)
         with torch.no_grad():
             pred_all = self(y_all)
+            if self.calibration is not None:  # eval.calibrate: the unit's registration
+                pred_all = torch.cat([self.calibration(pred_all[k * B:(k + 1) * B], d)
+                                      for k, d in enumerate(self.val_depths_mm)])
         out = {}
         for k, d in enumerate(self.val_depths_mm):
             sl = slice(k * B, (k + 1) * B)
