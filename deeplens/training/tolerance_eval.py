@@ -49,18 +49,19 @@ class DistortionCalibration:
         module: the :class:`~.module.EndToEndModule` (its camera, ideal framing and sensor).
         depths_mm: the depths the map is measured at (one map per depth).
         nodes: grid nodes per side of the sensor.
+        sampling: the pupil pattern of each point's bundle (:func:`~deeplens.render.calibration.image_points`).
     """
 
-    def __init__(self, module, depths_mm, nodes: int = 9):
+    def __init__(self, module, depths_mm, nodes: int = 9, sampling: str = "grid:48"):
         self.camera, self.ideal = module.camera, module.ideal
         self.depths = [float(d) for d in depths_mm]
-        self.nodes = int(nodes)
+        self.nodes, self.sampling = int(nodes), str(sampling)
         self.channels = len(self.camera.sensor.channels)
         self.nominal: dict[float, torch.Tensor] | None = None
 
     def _points(self) -> dict[float, torch.Tensor]:
         return {d: image_points(self.camera, None, d, self.ideal.object_scale(d), self.channels,
-                                nodes=self.nodes) for d in self.depths}
+                                nodes=self.nodes, sampling=self.sampling) for d in self.depths}
 
     def measure_nominal(self) -> None:
         """Measure the nominal lens's grid (call with no drawn lens in place)."""

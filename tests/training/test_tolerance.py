@@ -239,3 +239,39 @@ def test_calibrated_eval_registers_a_translated_lens(cfg_factory):
     raw = evaluate_drawn(module, trainer, dm, Rigid(), n=1)[0][key]
     assert abs(cal - nominal) < 0.3, (nominal, cal, raw)
     assert raw < nominal - 2.0, (nominal, raw)
+
+
+def test_tolerance_training_with_calibration_registers_the_restored_image(cfg_factory,
+                                                                          monkeypatch):
+    """model.calibrate=distortion: within a step the drawn unit's registration is in place
+    (its map measured against the nominal lens's, non-zero under commercial_aligned), the
+    loss is taken on the registered output (it differs from the unregistered one), gradients
+    still reach the optics, and nothing is left in place after the step."""
+    from deeplens.render import calibration
+
+    cfg = cfg_factory(*DOUBLET, "tolerance=commercial_aligned", "model.tolerance_training=true",
+                      "model.calibrate=distortion")
+    module = build_objects(cfg)["module"]
+    seen = []
+    real = calibration.warp
+
+    def spy(img, d):
+        seen.append(float(d.abs().max()))
+        return real(img, d)
+
+    monkeypatch.setattr("deeplens.training.tolerance_eval.warp", spy)
+    images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    with module.drawn_lens(1):
+        loss, *_ = module.step_loss(images, 1)
+        loss.backward()
+    assert len(seen) == 1 and seen[0] > 1e-4  # px: the drawn lens's image moved
+    g = [p.grad for p in module.lens.parameters() if p.requires_grad]
+    assert g and all(x is not None and torch.isfinite(x).all() for x in g)
+    assert any(float(x.abs().max()) > 0 for x in g)
+    assert module.tolerance_draws.register is None
+    module.tolerance_draws.calibration = None  # the same step without calibration
+    for p in module.parameters():
+        p.grad = None
+    with module.drawn_lens(1):
+        loss_raw, *_ = module.step_loss(images, 1)
+    assert float(loss_raw.detach()) != float(loss.detach())
