@@ -23,7 +23,7 @@ def doublet():
     return load_lens(LENS_DIR / "wide_doublet.json").to(torch.float64)
 
 
-def _ramp(H=12, W=10, B=2, C=3):
+def _ramp(H=14, W=13, B=2, C=3):
     i = torch.arange(H, dtype=torch.float64)[:, None]
     j = torch.arange(W, dtype=torch.float64)[None, :]
     a = torch.tensor([1.0, -2.0, 0.5], dtype=torch.float64)[:C, None, None]
@@ -32,27 +32,29 @@ def _ramp(H=12, W=10, B=2, C=3):
     return img, a, b
 
 
-def test_warp_samples_at_the_displaced_position_exactly_on_a_ramp():
-    """Bilinear interpolation is exact on a linear image: out(i, j) = img(i + di, j + dj) in
-    the interior, per channel with its own displacement; the opposite sign is far off."""
+@pytest.mark.parametrize("mode", ["cubic", "bilinear"])
+def test_warp_samples_at_the_displaced_position_exactly_on_a_ramp(mode):
+    """Keys' cubic and bilinear interpolation are exact on a linear image: out(i, j) = img(i + di,
+    j + dj) in the interior, per channel with its own displacement; the opposite sign is far
+    off."""
     img, a, b = _ramp()
     H, W = img.shape[-2:]
     d = torch.zeros(3, H, W, 2, dtype=torch.float64)
     d[0, ..., 0], d[0, ..., 1] = 0.3, -0.7
     d[1, ..., 0], d[1, ..., 1] = -1.25, 0.4
     d[2] = 0.0
-    out = warp(img, d)
+    out = warp(img, d, mode)
     want = img + (a * d[..., 0] + b * d[..., 1])[None]
-    inner = (slice(None), slice(None), slice(2, H - 2), slice(2, W - 2))
+    inner = (slice(None), slice(None), slice(4, H - 4), slice(4, W - 4))
     assert torch.allclose(out[inner], want[inner], atol=1e-12)
     assert torch.allclose(out[:, 2], img[:, 2], atol=1e-12)  # a zero map for a channel
-    flipped = warp(img, -d)
+    flipped = warp(img, -d, mode)
     assert float((flipped[inner] - want[inner]).abs().max()) > 1.0
     # a field that varies over the image: each pixel its own displacement
     i = torch.arange(H, dtype=torch.float64)[:, None].expand(H, W)
     dv = torch.stack([0.1 * i / H, -0.2 + 0.3 * i / H], -1).expand(3, H, W, 2)
     want = img + (a * dv[..., 0] + b * dv[..., 1])[None]
-    assert torch.allclose(warp(img, dv)[inner], want[inner], atol=1e-12)
+    assert torch.allclose(warp(img, dv, mode)[inner], want[inner], atol=1e-12)
 
 
 def test_warp_integer_shift_is_a_roll_and_zero_is_the_image_itself():
