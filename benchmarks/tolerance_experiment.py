@@ -8,8 +8,11 @@ Runs (one process per training kind and seed; OMP_NUM_THREADS=1):
         trainer.max_epochs=4 [tolerance=commercial model.tolerance_training=true] \
         hydra.run.dir=outputs/tolerance_exp/{nominal|aware}/seedS
 
-Then ``python benchmarks/tolerance_experiment.py outputs/tolerance_exp [THRESHOLD_DB]`` prints
-the table (the yield recomputed from the per-lens values when a threshold is given)
+Then ``python benchmarks/tolerance_experiment.py outputs/tolerance_exp [THRESHOLD_DB]
+[--table calibrated/eval_table.json]`` prints the table (the yield recomputed from the per-lens
+values when a threshold is given; ``--table``: each seed folder's table at that relative path,
+e.g. the re-evaluation with ``eval.calibrate=distortion eval.output=<seed
+folder>/calibrated/eval_table.md``)
 (restored PSNR in dB, test set mean over its images; "p5" the 5th percentile over the drawn
 lenses; yield: fraction of drawn lenses at or above the threshold).
 """
@@ -21,10 +24,10 @@ import sys
 from pathlib import Path
 
 
-def load(root: Path) -> dict:
+def load(root: Path, rel: str = "eval_table.json") -> dict:
     out = {}
     for kind in ("nominal", "aware"):
-        for f in sorted((root / kind).glob("seed*/eval_table.json")):
+        for f in sorted((root / kind).glob(f"seed*/{rel}")):
             js = json.loads(f.read_text())
             seed = js["seeds"][0]
             # the folder's one trained variant (learned, or refined: from the classical design)
@@ -35,7 +38,8 @@ def load(root: Path) -> dict:
             out.setdefault(kind, {})[seed] = {
                 "nominal_psnr": v["mean"]["psnr"], "nominal_ssim": v["mean"]["ssim"],
                 "columns": c, "n": tol["samples"], "group": tol["group"],
-                "threshold": tol["yield_threshold_db"]}
+                "threshold": tol["yield_threshold_db"],
+                "calibrate": tol.get("calibrate")}
     return out
 
 
@@ -43,8 +47,8 @@ def table(res: dict, threshold: float | None = None) -> str:
     """``threshold``: recompute the yield from the per-lens values at this PSNR (dB)."""
     bands = None
     rows = ["| training | seed | nominal lens PSNR / SSIM | drawn: mean | drawn: p5 | drawn: yield "
-            "| p5 edge band (0.66-1) | p5 centre band (0-0.33) |",
-            "|---|---|---|---|---|---|---|---|"]
+            "| p5 edge band (0.66-1) | p5 centre band (0-0.33) | headroom: nominal lens - p5 |",
+            "|---|---|---|---|---|---|---|---|---|"]
     for kind, seeds in res.items():
         for s, r in sorted(seeds.items()):
             c = r["columns"]
@@ -56,7 +60,7 @@ def table(res: dict, threshold: float | None = None) -> str:
                 m["yield"] = sum(p >= threshold for p in m["psnr"]) / len(m["psnr"])
             rows.append(f"| {kind} | {s} | {r['nominal_psnr']:.2f} / {r['nominal_ssim']:.3f} | "
                         f"{m['psnr_mean']:.2f} | {m['psnr_p5']:.2f} | {100 * m['yield']:.0f}% | "
-                        f"{edge:.2f} | {centre:.2f} |")
+                        f"{edge:.2f} | {centre:.2f} | {r['nominal_psnr'] - m['psnr_p5']:.2f} |")
     for kind, seeds in res.items():  # mean +- std (n - 1) over the seeds of each kind
         if len(seeds) < 2:
             continue
@@ -66,7 +70,8 @@ def table(res: dict, threshold: float | None = None) -> str:
                 ("edge p5", lambda r: r["columns"].get("band 0.66-1", {}).get("psnr_p5",
                                                                                float("nan"))),
                 ("centre p5", lambda r: r["columns"].get("band 0-0.33", {}).get("psnr_p5",
-                                                                                 float("nan")))]
+                                                                                 float("nan"))),
+                ("headroom", lambda r: r["nominal_psnr"] - r["columns"]["mean"]["psnr_p5"])]
         cells = {}
         for name, f in cols:
             v = [f(r) for r in seeds.values()]
@@ -75,7 +80,7 @@ def table(res: dict, threshold: float | None = None) -> str:
             cells[name] = f"{m:.2f} ± {sd:.2f}"
         rows.append(f"| {kind} | mean ± std ({len(seeds)} seeds) | {cells['nominal']} | "
                     f"{cells['mean']} | {cells['p5']} | | {cells['edge p5']} | "
-                    f"{cells['centre p5']} |")
+                    f"{cells['centre p5']} | {cells['headroom']} |")
     common = sorted(set(res.get("nominal", {})) & set(res.get("aware", {})))
     if common:
         def mean(kind, f):
@@ -88,7 +93,9 @@ def table(res: dict, threshold: float | None = None) -> str:
         any_r = res["nominal"][common[0]]
         rows.append("")
         thr = any_r["threshold"] if threshold is None else threshold
-        rows.append(f"seeds {common}, group {any_r['group']}, {any_r['n']} drawn lenses per "
+        cal = (f", scored after per-unit {any_r['calibrate']} calibration"
+               if any_r.get("calibrate") else "")
+        rows.append(f"seeds {common}, group {any_r['group']}{cal}, {any_r['n']} drawn lenses per "
                     f"checkpoint, yield threshold {thr:g} dB: tolerance-aware - "
                     f"nominal training: 5th-percentile PSNR {dp5:+.2f} dB, nominal-lens PSNR "
                     f"{dnom:+.2f} dB")
@@ -97,5 +104,11 @@ def table(res: dict, threshold: float | None = None) -> str:
 
 
 if __name__ == "__main__":
-    root = Path(sys.argv[1] if len(sys.argv) > 1 else "outputs/tolerance_exp")
-    print(table(load(root), float(sys.argv[2]) if len(sys.argv) > 2 else None))
+    args = sys.argv[1:]
+    rel = "eval_table.json"
+    if "--table" in args:
+        k = args.index("--table")
+        rel = args[k + 1]
+        del args[k:k + 2]
+    root = Path(args[0] if args else "outputs/tolerance_exp")
+    print(table(load(root, rel), float(args[1]) if len(args) > 1 else None))

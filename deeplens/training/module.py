@@ -107,6 +107,10 @@ class EndToEndModule(L.LightningModule):
         tolerance, tolerance_training: the tolerance group (a mapping, group name or file;
             :mod:`.tolerance`) and whether every training batch renders through its own lens
             drawn from it around the current nominal lens (gradients reach the nominal values).
+        calibrate: ``None`` or ``"distortion"`` (needs ``tolerance_training`` and one training
+            depth): each step's drawn lens is calibrated (its distortion map against the
+            nominal lens's, :mod:`deeplens.render.calibration`) and the restored image is
+            registered with it before the loss.
         optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
             (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
@@ -119,7 +123,7 @@ class EndToEndModule(L.LightningModule):
                  worst_depth: dict | None = None, deconvolution: dict | None = None,
                  optics_warmup_steps: int | None = None,
                  optics_worst_depth: dict | None = None, tolerance=None,
-                 tolerance_training: bool = False):
+                 tolerance_training: bool = False, calibrate: str | None = None):
         super().__init__()
         camera = self._camera_of(lens, sensor, renderer)
         self._held = (camera,)  # held, not registered: state-dict keys lens.*, as before
@@ -175,7 +179,21 @@ class EndToEndModule(L.LightningModule):
 
         tol = load_group(tolerance) if tolerance is not None else None  # checked at start-up
         self.tolerance_draws = TrainingDraws(tol, self.seed) if tolerance_training else None
+        from .tolerance_eval import check_calibrate
+
+        if check_calibrate(calibrate, "model.calibrate") is not None:
+            from .tolerance_eval import DistortionCalibration
+
+            if self.tolerance_draws is None or len(self.depths_mm) != 1:
+                raise ValueError("model.calibrate: needs model.tolerance_training and a single "
+                                 "training depth")
+            # coarser than the evaluation's map (9 x 9, grid:48): measured twice every step
+            self.tolerance_draws.calibration = DistortionCalibration(
+                self, self.depths_mm, nodes=5, sampling="grid:32")
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
+        # per-unit calibration under test: None, or (restored (B, C, H, W), depth_mm) -> the
+        # restored image registered to the nominal lens's mapping (tolerance_eval.py)
+        self.calibration = None
 
     # ------------------------------------------------------------------ the camera
     @property
@@ -398,6 +416,9 @@ class EndToEndModule(L.LightningModule):
             if x.requires_grad:  # not while the optics are fixed and no Wiener nsr is learned
                 x.register_hook(lambda g: g * scale["w"].to(g.dtype)[:, None, None, None])
         pred = self.restorer(x)
+        register = None if self.tolerance_draws is None else self.tolerance_draws.register
+        if register is not None:  # model.calibrate: the drawn unit's output registered
+            pred = register(pred, self.depths_mm[0])
         terms = self.image_loss(pred, gt, depths)
         if scale is not None:
             scale["w"] = self.depth_weights(self.per_image_loss(pred, gt), depths,
@@ -478,6 +499,9 @@ class EndToEndModule(L.LightningModule):
                                      seed=10_000_019 + batch_idx * 101, noise=True)
         with torch.no_grad():
             pred_all = self(y_all)
+            if self.calibration is not None:  # eval.calibrate: the unit's registration
+                pred_all = torch.cat([self.calibration(pred_all[k * B:(k + 1) * B], d)
+                                      for k, d in enumerate(self.val_depths_mm)])
         out = {}
         for k, d in enumerate(self.val_depths_mm):
             sl = slice(k * B, (k + 1) * B)

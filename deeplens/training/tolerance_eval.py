@@ -6,6 +6,12 @@ field band the restored PSNR and SSIM distribution over the drawn lenses is summ
 mean, 5th percentile and yield, the fraction of drawn lenses whose PSNR is ``>=
 eval.tolerance_yield_db`` (:func:`summarize_samples`), written into ``eval_table.md/json``, a
 histogram figure (``tolerance_hist.png``) and TensorBoard (``tolerance/<variant>/...``).
+
+``eval.calibrate: distortion`` (default ``null``: off) scores every drawn lens after a per-unit
+distortion calibration (:mod:`deeplens.render.calibration`): the drawn lens's image mapping is
+measured against the nominal lens's on a grid over the sensor at each test depth, and the
+restored image is resampled with that map before its PSNR / SSIM, as a camera maker registers
+every unit.  The nominal lens's own scores are unchanged (its map is zero).
 """
 
 from __future__ import annotations
@@ -18,22 +24,92 @@ import torch
 from ..design.tolerance_model import ToleranceModel, drawn
 from ..design.tolerance_model import load_group
 from ..optics.errors import ConfigError
+from ..render.calibration import CALIBRATIONS, displacement_px, image_points, warp
 
-__all__ = ["EvalTolerance", "check_tolerance_eval_config", "evaluate_drawn", "summarize_samples", "format_tolerance_table",
-           "histogram_figure"]
+__all__ = ["EvalTolerance", "DistortionCalibration", "check_calibrate", "check_tolerance_eval_config",
+           "evaluate_drawn", "summarize_samples", "format_tolerance_table", "histogram_figure"]
 
 
-def evaluate_drawn(module, trainer, datamodule, model: ToleranceModel, n: int, seed: int = 0):
+def check_calibrate(value, key: str) -> str | None:
+    """``None`` or one of :data:`~deeplens.render.calibration.CALIBRATIONS`; else a
+    :class:`ConfigError` naming ``key``."""
+    if value is None or (isinstance(value, str) and value in CALIBRATIONS):
+        return value
+    raise ConfigError(key, f"null (no calibration) or one of {', '.join(CALIBRATIONS)}", value)
+
+
+class DistortionCalibration:
+    """Per-unit distortion calibration of ``module``'s camera at its test depths
+    (:mod:`deeplens.render.calibration`): :meth:`measure_nominal` on the nominal lens, then,
+    with a drawn lens in place, :meth:`unit` gives the registration ``(pred, depth_mm) ->
+    pred`` of that unit (the module's ``calibration`` hook, applied to the restored image
+    before its metrics).
+
+    Args:
+        module: the :class:`~.module.EndToEndModule` (its camera, ideal framing and sensor).
+        depths_mm: the depths the map is measured at (one map per depth).
+        nodes: grid nodes per side of the sensor.
+        sampling: the pupil pattern of each point's bundle (:func:`~deeplens.render.calibration.image_points`).
+    """
+
+    def __init__(self, module, depths_mm, nodes: int = 9, sampling: str = "grid:48"):
+        self.camera, self.ideal = module.camera, module.ideal
+        self.depths = [float(d) for d in depths_mm]
+        self.nodes, self.sampling = int(nodes), str(sampling)
+        self.channels = len(self.camera.sensor.channels)
+        self.nominal: dict[float, torch.Tensor] | None = None
+
+    def _points(self) -> dict[float, torch.Tensor]:
+        return {d: image_points(self.camera, None, d, self.ideal.object_scale(d), self.channels,
+                                nodes=self.nodes, sampling=self.sampling) for d in self.depths}
+
+    def measure_nominal(self) -> None:
+        """Measure the nominal lens's grid (call with no drawn lens in place)."""
+        self.nominal = self._points()
+
+    def maps(self) -> dict[float, torch.Tensor]:
+        """``{depth: (C, H, W, 2)}`` pixel displacements of the lens now in place."""
+        if self.nominal is None:
+            raise RuntimeError("DistortionCalibration: measure_nominal() first")
+        sensor = self.camera.sensor
+        return {d: displacement_px(p, self.nominal[d], sensor) for d, p in self._points().items()}
+
+    def unit(self):
+        """The registration of the lens now in place: ``(pred (B, C, H, W), depth_mm) ->
+        pred`` registered to the nominal lens's image mapping."""
+        maps = self.maps()
+
+        def register(pred, depth_mm):
+            return warp(pred, maps[float(depth_mm)])
+
+        register.maps = maps
+        return register
+
+
+def evaluate_drawn(module, trainer, datamodule, model: ToleranceModel, n: int, seed: int = 0,
+                   calibrate: str | None = None):
     """Test ``module`` (its current weights) on ``n`` drawn lenses (seeds ``seed + k``);
-    returns a list of ``n`` test-metric dicts (the keys of ``trainer.test``)."""
+    returns a list of ``n`` test-metric dicts (the keys of ``trainer.test``).  With
+    ``calibrate="distortion"`` each drawn lens's restored images are registered with its
+    measured distortion map before their metrics (:class:`DistortionCalibration`)."""
     if int(n) < 1:
         raise ConfigError("eval.tolerance_samples", "an integer >= 1", n)
+    check_calibrate(calibrate, "eval.calibrate")
+    cal = None
+    if calibrate == "distortion":
+        cal = DistortionCalibration(module, module.val_depths_mm)
+        cal.measure_nominal()
     out = []
-    for d in model.draws(module.lens, int(n), int(seed)):
-        with drawn(module.camera, d):
-            trainer.test(module, datamodule=datamodule, verbose=False)
-        out.append({k: float(v) for k, v in trainer.callback_metrics.items()
-                    if k.startswith("test/")})
+    try:
+        for d in model.draws(module.lens, int(n), int(seed)):
+            with drawn(module.camera, d):
+                module.calibration = None if cal is None else cal.unit()
+                trainer.test(module, datamodule=datamodule, verbose=False)
+            module.calibration = None
+            out.append({k: float(v) for k, v in trainer.callback_metrics.items()
+                        if k.startswith("test/")})
+    finally:
+        module.calibration = None
     return out
 
 
@@ -114,6 +190,10 @@ def _settings(cfg) -> dict | None:
     ev = cfg.eval
     spec = ev.get("tolerance", None)
     if spec is None:
+        if check_calibrate(ev.get("calibrate", None), "eval.calibrate") is not None:
+            raise ConfigError("eval.calibrate", "null without eval.tolerance (the calibration "
+                              "registers drawn lenses; the nominal lens needs none)",
+                              ev.get("calibrate"))
         return None
     n = ev.get("tolerance_samples", 16)
     thr = ev.get("tolerance_yield_db", 25.0)
@@ -124,6 +204,7 @@ def _settings(cfg) -> dict | None:
         raise ConfigError("eval.tolerance_yield_db", "a number of dB", thr)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ConfigError("eval.tolerance_seed", "an integer >= 0", seed)
+    calibrate = check_calibrate(ev.get("calibrate", None), "eval.calibrate")
     if spec == "group":  # the composed tolerance group (tolerance=<name>)
         model = load_group(cfg.tolerance, where="tolerance")
         group = str(cfg.tolerance.get("name", "group"))
@@ -131,12 +212,12 @@ def _settings(cfg) -> dict | None:
         model = load_group(spec, where="eval.tolerance")
         group = str(spec)
     return {"model": model, "n": int(n), "seed": int(seed), "threshold_db": float(thr),
-            "group": group}
+            "group": group, "calibrate": calibrate}
 
 
 def check_tolerance_eval_config(cfg) -> None:
-    """Start-up check of ``eval.tolerance``, ``eval.tolerance_samples``, ``eval.tolerance_seed``
-    and ``eval.tolerance_yield_db`` (the group is parsed, nothing drawn); raises
+    """Start-up check of ``eval.tolerance``, ``eval.tolerance_samples``, ``eval.tolerance_seed``,
+    ``eval.tolerance_yield_db`` and ``eval.calibrate`` (the group is parsed, nothing drawn); raises
     :class:`~deeplens.optics.errors.ConfigError` naming the key."""
     _settings(cfg)
 
@@ -146,9 +227,9 @@ class EvalTolerance:
     ``eval.tolerance`` is null)."""
 
     def __init__(self, model: ToleranceModel | None, n: int = 0, seed: int = 0,
-                 threshold_db: float = 25.0, group: str = ""):
+                 threshold_db: float = 25.0, group: str = "", calibrate: str | None = None):
         self.model, self.n, self.seed, self.threshold_db = model, n, seed, threshold_db
-        self.group = group
+        self.group, self.calibrate = group, calibrate
         self.samples: dict[str, list[list[dict]]] = {}
         self.summary: dict[str, list[dict]] = {}
 
@@ -157,14 +238,14 @@ class EvalTolerance:
         s = _settings(cfg)
         if s is None:
             return cls(None)
-        return cls(s["model"], s["n"], s["seed"], s["threshold_db"], s["group"])
+        return cls(s["model"], s["n"], s["seed"], s["threshold_db"], s["group"], s["calibrate"])
 
     def run(self, variant: str, objs: dict) -> None:
         """Test the variant's module (its tested weights) on the drawn lenses."""
         if self.model is None:
             return
         s = evaluate_drawn(objs["module"], objs["trainer"], objs["datamodule"], self.model,
-                       self.n, self.seed)
+                           self.n, self.seed, calibrate=self.calibrate)
         self.samples.setdefault(variant, []).append(s)
 
     def markdown(self, columns) -> str:
@@ -172,17 +253,21 @@ class EvalTolerance:
             return ""
         self.summary = {v: [summarize_samples(s, columns, self.threshold_db) for s in runs]
                         for v, runs in self.samples.items()}
+        cal = (f", each scored after its per-unit {self.calibrate} calibration"
+               if self.calibrate else "")
         return (f"\n## Under tolerances: group {self.group}, {self.n} drawn lenses (seeds "
-                f"{self.seed}..{self.seed + self.n - 1})\n\nrestored PSNR (dB) over the drawn "
+                f"{self.seed}..{self.seed + self.n - 1}){cal}\n\nrestored PSNR (dB) over the drawn "
                 f"lenses: mean / 5th percentile / yield (PSNR >= {self.threshold_db:g} dB)\n\n"
                 f"{format_tolerance_table(self.summary, columns)}\n")
 
     def json(self) -> dict:
         if self.model is None:
             return {}
-        return {"tolerance": {"group": self.group, "samples": self.n, "seed": self.seed,
-                              "yield_threshold_db": self.threshold_db,
-                              "variants": self.summary}}
+        out = {"group": self.group, "samples": self.n, "seed": self.seed,
+               "yield_threshold_db": self.threshold_db, "variants": self.summary}
+        if self.calibrate is not None:
+            out["calibrate"] = self.calibrate
+        return {"tolerance": out}
 
     def figures(self, folder: Path, enabled: bool) -> list[str]:
         """``tolerance_hist.png`` and TensorBoard scalars/figure under ``folder/tensorboard``."""
