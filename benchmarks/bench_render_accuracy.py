@@ -477,7 +477,7 @@ def section_psf(case, args, results):
     methods += [(f"MC spp {s} (float32)", -s) for s in args.psf_mc_spp]
     rows, res = [], []
     for name, p in methods:
-        errs, ts, cos, rel = [], [], float("nan"), float("nan")
+        ts, cos, rel = [], float("nan"), float("nan")
         if p is None:
             t0 = time.perf_counter()
             img = case.camera.render(Scene(case.tex.double(), case.depth), supersample=4)
