@@ -169,3 +169,26 @@ def spy_trace_options(monkeypatch) -> list:
 
     monkeypatch.setattr(tracer, "trace", spy)
     return seen
+
+
+def disk_xy(n: int = 200, rmax: float = 6.0, seed: int = 0):
+    """``n`` points (numpy ``(n,)`` x and y, mm) uniform over the disk of radius ``rmax``
+    (numpy generator ``seed``): where surface sags and slopes are compared."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    r = rmax * np.sqrt(rng.random(n))
+    t = 2 * np.pi * rng.random(n)
+    return r * np.cos(t), r * np.sin(t)
+
+
+def read_zmx_quiet(path):
+    """``read_zmx(path)`` with the reader's warnings silenced (synthetic files that exercise
+    one feature; the warnings themselves are tested where they matter)."""
+    import warnings
+
+    from deeplens.optics.io.zmx import read_zmx
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_zmx(path)

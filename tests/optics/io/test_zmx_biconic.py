@@ -23,6 +23,7 @@ from deeplens.optics.options import TraceOptions
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
 from deeplens.optics.surfaces import Biconic
+from helpers import read_zmx_quiet
 
 F64 = torch.float64
 #: the biconic front surface in mm: y curvature and conic, x radius and conic
@@ -49,10 +50,7 @@ def biconic_file(unit="MM", s=1.0, rx=RX, kx=KX, cy=CY, extra=(), bfl=46.0):
     return "\n".join(lines) + "\n"
 
 
-def _read(p):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return read_zmx(p)
+_read = read_zmx_quiet
 
 
 @pytest.mark.parametrize("unit,s", [("MM", 1.0), ("IN", 25.4)])

@@ -8,7 +8,6 @@ the number of phase terms, ``XDAT 2`` the normalisation radius, a length, ``XDAT
 from __future__ import annotations
 
 import math
-import warnings
 
 import pytest
 import torch
@@ -19,6 +18,7 @@ from deeplens.optics.io.zmx import ZemaxFileError, read_zmx, write_zmx
 from deeplens.optics.materials import ModelGlass
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.surfaces import Binary2
+from helpers import read_zmx_quiet
 
 #: the Binary 2 rear surface in mm: curvature, conic, a4, order, R_n, A_1, A_2
 C2, K2, A4, M, RN, PH1, PH2 = -0.01, 0.5, 2e-6, 1, 5.0, -1500.0, 30.0
@@ -47,10 +47,7 @@ def binary2_file(unit="MM", s=1.0, body=None, extra=()):
     return "\n".join(lines) + "\n"
 
 
-def _read(p):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return read_zmx(p)
+_read = read_zmx_quiet
 
 
 def _efl_by_hand():

@@ -15,10 +15,11 @@ from test_zmx import report, singlet, write
 from test_zmx_corpus import _assert_rms_agrees, _first_order, _oracle, _rms_on_axis
 
 from deeplens.optics.io import lens_to_dict
-from deeplens.optics.io.zmx import ZemaxFileError, read_zmx, write_zmx
+from deeplens.optics.io.zmx import ZemaxFileError, write_zmx
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
 from deeplens.optics.surfaces import Asphere, OddAsphere
+from helpers import read_zmx_quiet
 
 #: ODDASPHE PARM 1..5 (r¹..r⁵) and EVENASPH PARM 1..2 (r², r⁴), in a lens in millimetres
 ODD = [2e-4, -5e-4, 1e-5, -2e-6, 3e-8]
@@ -47,10 +48,7 @@ def odd_file(unit="MM", s=1.0, odd=ODD, even=EVEN, bfl=85.5, field=3.0):
     return "\n".join(lines) + "\n"
 
 
-def _read(p):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return read_zmx(p)
+_read = read_zmx_quiet
 
 
 def _folded(text):

@@ -23,6 +23,7 @@ from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
 from deeplens.optics.surfaces import Asphere, Biconic, Plane
 from deeplens.optics.tracer import fused_kind
+from helpers import disk_xy
 
 F64 = torch.float64
 CY, KY, CX, KX = 1 / 30.0, -0.6, 1 / 45.0, 0.8
@@ -39,11 +40,7 @@ def conic_np(r, c, k):
     return c * r * r / (1 + np.sqrt(1 - (1 + k) * c * c * r * r))
 
 
-def _points(n=200, rmax=6.0, seed=0):
-    rng = np.random.default_rng(seed)
-    r = rmax * np.sqrt(rng.random(n))
-    t = 2 * np.pi * rng.random(n)
-    return r * np.cos(t), r * np.sin(t)
+_points = disk_xy
 
 
 def test_sag_is_the_closed_form():

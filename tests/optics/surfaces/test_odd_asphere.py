@@ -20,6 +20,7 @@ from deeplens.optics.options import TraceOptions
 from deeplens.optics.rays import Rays
 from deeplens.optics.surfaces import Asphere, OddAsphere, Plane
 from deeplens.optics.tracer import fused_kind
+from helpers import disk_xy
 
 F64 = torch.float64
 C, K = 1 / 30.0, -0.6
@@ -36,11 +37,7 @@ def sag_np(x, y, c=C, k=K, a=A):
     return z
 
 
-def _points(n=200, rmax=6.0, seed=0):
-    rng = np.random.default_rng(seed)
-    r = rmax * np.sqrt(rng.random(n))
-    t = 2 * np.pi * rng.random(n)
-    return r * np.cos(t), r * np.sin(t)
+_points = disk_xy
 
 
 def test_sag_is_the_closed_form():
