@@ -25,21 +25,11 @@ from dataclasses import dataclass
 import torch
 
 from .checks import check_wavelength
+from ..optics.paraxial import surface_power
 from .paraxial import exit_pupil, paraxial
 
 __all__ = ["CardinalPoints", "cardinal_points", "system_matrix", "Pupils", "pupils",
            "magnification"]
-
-
-def _power(surface, n1, n2, wavelength_nm):
-    # an ideal (thin) lens supplies 1/f and maps reduced angles by n2/f; a diffractive phase
-    # (surfaces.Binary2) adds its own power at the wavelength
-    if hasattr(surface, "paraxial_power"):
-        return surface.paraxial_power() * n2
-    phi = surface.paraxial_curvature() * (n2 - n1)
-    if hasattr(surface, "paraxial_phase_power"):
-        phi = phi + surface.paraxial_phase_power(wavelength_nm).to(phi)
-    return phi
 
 
 def _indices(lens, wavelength_nm):
@@ -64,7 +54,7 @@ def system_matrix(lens, wavelength_nm: float | None = None, first: int = 0,
         if i > first:
             t = dist[i] / n[i]
             M = torch.stack([torch.stack([one, t]), torch.stack([zero, one])]) @ M
-        phi = _power(lens.surfaces[i], n[i], n[i + 1], w).to(one)
+        phi = surface_power(lens.surfaces[i], n[i], n[i + 1], w).to(one)
         M = torch.stack([torch.stack([one, zero]), torch.stack([-phi, one])]) @ M
     return M
 

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import torch
 
 __all__ = ["paraxial", "ParaxialData", "exit_pupil", "chief_ray_scale", "media_indices",
-           "trace_paraxial_ray"]
+           "trace_paraxial_ray", "surface_power"]
 
 
 @dataclass
@@ -52,9 +52,11 @@ class ParaxialData:
     wavelength_nm: float
 
 
-def _power(surface, n1, n2, wavelength_nm: float):
-    """Surface power ``φ = c (n2 - n1)`` (1/mm); an ideal lens supplies its own ``1/f``; a
-    diffractive phase (:class:`~.surfaces.Binary2`) adds its own power at ``wavelength_nm``."""
+def surface_power(surface, n1, n2, wavelength_nm: float):
+    """Paraxial power (1/mm) of ``surface`` between media of indices ``n1``, ``n2``:
+    ``φ = c (n2 - n1)``; an ideal lens supplies its own ``1/f`` (times ``n2``); a diffractive
+    phase (:class:`~.surfaces.Binary2`) adds its own power at ``wavelength_nm`` (nm).  The
+    paraxial traces here and the system matrices of :mod:`deeplens.analysis.cardinal` use it."""
     if hasattr(surface, "paraxial_power"):
         return surface.paraxial_power() * n2
     phi = surface.paraxial_curvature() * (n2 - n1)
@@ -81,7 +83,7 @@ def _trace(lens, y, u, n, wavelength_nm=None):
         if i > 0:
             y = y + dist[i] * u
         heights.append(y)
-        u = (n[i] * u - y * _power(s, n[i], n[i + 1], w).to(y)) / n[i + 1]
+        u = (n[i] * u - y * surface_power(s, n[i], n[i + 1], w).to(y)) / n[i + 1]
     return y, u, heights
 
 
@@ -99,10 +101,8 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     Raises:
         ValueError: if the stop is not imaged (``y_A = 0``).
     """
-    w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
-    p0 = torch.zeros((), dtype=lens.dtype, device=lens.device)   # dtype and device
-    wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
-    n = _signed_indices(lens, wt)
+    w = _wavelength(lens, wavelength_nm)
+    n, p0 = _indices(lens, w)
     one, zero = torch.ones_like(p0), torch.zeros_like(p0)
     yA, uA, hA = _trace(lens, one, zero, n, w)
     _, _, hB = _trace(lens, zero, one, n, w)
@@ -132,7 +132,7 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
 
 
 def _indices(lens, wavelength_nm):
-    w = float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
+    w = _wavelength(lens, wavelength_nm)
     p0 = torch.zeros((), dtype=lens.dtype, device=lens.device)   # dtype and device
     wt = torch.tensor(w, dtype=p0.dtype, device=p0.device)
     return _signed_indices(lens, wt), p0
@@ -164,7 +164,7 @@ def _trace_from(lens, start: int, y, u, n, wavelength_nm=None):
     for i in range(start, len(lens.surfaces)):
         if i > start:
             y = y + dist[i] * u
-        u = (n[i] * u - y * _power(lens.surfaces[i], n[i], n[i + 1], w).to(y)) / n[i + 1]
+        u = (n[i] * u - y * surface_power(lens.surfaces[i], n[i], n[i + 1], w).to(y)) / n[i + 1]
     return y, u
 
 
