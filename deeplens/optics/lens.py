@@ -536,7 +536,7 @@ class Lens(nn.Module):
         m, pivot, vertex = self._frame(i, z, rays.o)
         opt = options or TraceOptions()
         mirror = i in self.mirrors
-        back = i in self._backward_hit[1 if reverse else 0]
+        back = self.hit_backwards(i, reverse)
         if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
                 and opt.mode == "implicit" and not getattr(s, "deflects", False)
                 and not getattr(s, "diffracts", False)
