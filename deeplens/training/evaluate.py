@@ -181,7 +181,8 @@ def _run_key(cfg: DictConfig) -> dict:
     key = {k: (OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v)
            for k, v in ((k, cfg[k]) for k in cfg if k not in _NOT_IN_KEY)}
     if not key["lens"].get("trainable"):  # frozen optics: the optics' settings are unused
-        for k in ("optics_lr_mm", "optics_warmup_steps", "optics_worst_depth"):
+        for k in ("optics_lr_mm", "optics_warmup_steps", "optics_worst_depth",
+                  "optics_invariance"):
             key["model"].pop(k, None)
         key["lens"].pop("learned_start_alpha_mm", None)
     key.get("data", {}).pop("test_folder", None)  # tested on it after training, not trained on
@@ -195,6 +196,7 @@ def _same_run(key: dict) -> dict:
     dict settings given in part completed with their defaults (``{temperature: 0.25}`` and
     ``{temperature: 0.25, bins: 4, momentum: 0.9}`` are the same run)."""
     from .module import SOFT_MAX_DEFAULTS
+    from .module_config import INVARIANCE_DEFAULTS
     from .wiener import DEFAULTS as DECONV_DEFAULTS
 
     key = _drop_nulls(json.loads(json.dumps(key)))
@@ -202,7 +204,8 @@ def _same_run(key: dict) -> dict:
     if isinstance(model, dict):
         for name, defaults in (("worst_depth", SOFT_MAX_DEFAULTS),
                                ("optics_worst_depth", SOFT_MAX_DEFAULTS),
-                               ("deconvolution", DECONV_DEFAULTS)):
+                               ("deconvolution", DECONV_DEFAULTS),
+                               ("optics_invariance", INVARIANCE_DEFAULTS)):
             if isinstance(model.get(name), dict):
                 model[name] = {**dict(defaults), **model[name]}
     return key

@@ -34,6 +34,7 @@ from kornia.color import rgb_to_grayscale
 from kornia.metrics import ssim as kornia_ssim
 
 from ..optics.camera import Camera, as_camera
+from ..optics.errors import ConfigError
 from ..render import IdealCamera, Scene
 from . import compile_choice
 from .checkpoint import LOADED_FROM, check_compatible, override_learning_rates
@@ -99,6 +100,13 @@ class EndToEndModule(L.LightningModule):
         optics_warmup_steps: ``None``/0, or the optics stay fixed for this many first steps (their gradients
             are dropped), so that the restorer learns to decode the starting optics before
             the optics' gradient is trusted (e.g. a learned plate started from a cubic one).
+        optics_invariance: ``None`` or ``{"weight": w, "slack": s}`` (needs
+            ``deconvolution``): while the optics move, the loss gains ``w relu(R / R_0 - 1 -
+            s)^2``, ``R`` the fraction of the OTF's power that changes over the training depths
+            (:func:`~.wiener.depth_change`, from the Wiener front end's PSFs of the same step)
+            and ``R_0`` its value at the first step the optics move: the optics may change
+            anything except become less depth-invariant than they started (by more than the
+            fraction ``s``).  Logged as ``train/loss_invariance`` and ``train/psf_depth_change``.
         optics_worst_depth: ``None`` or ``{"temperature", "bins", "momentum"}`` as for
             ``worst_depth``, applied to the optics' gradient only: the loss stays the plain
             mean (the restorer learns every depth), and each sample's gradient flowing back
@@ -123,7 +131,8 @@ class EndToEndModule(L.LightningModule):
                  worst_depth: dict | None = None, deconvolution: dict | None = None,
                  optics_warmup_steps: int | None = None,
                  optics_worst_depth: dict | None = None, tolerance=None,
-                 tolerance_training: bool = False, calibrate: str | None = None):
+                 tolerance_training: bool = False, calibrate: str | None = None,
+                 optics_invariance: dict | None = None):
         super().__init__()
         camera = self._camera_of(lens, sensor, renderer)
         self._held = (camera,)  # held, not registered: state-dict keys lens.*, as before
@@ -138,7 +147,8 @@ class EndToEndModule(L.LightningModule):
             loss=loss, has_discriminator=discriminator is not None, net_lr=net_lr,
             optics_lr_mm=optics_lr_mm, disc_lr=disc_lr, optics_warmup_steps=optics_warmup_steps,
             scene_margin=scene_margin, worst_depth=worst_depth,
-            optics_worst_depth=optics_worst_depth, deconvolution=deconvolution)
+            optics_worst_depth=optics_worst_depth, deconvolution=deconvolution,
+            optics_invariance=optics_invariance)
         self.loss_w = cfg["loss"]
         if self.loss_w["perceptual"] > 0 and perceptual is None:
             from ..nets.losses import PerceptualLoss
@@ -174,6 +184,17 @@ class EndToEndModule(L.LightningModule):
 
             self.deconv = DepthWienerFilter(camera, None, self.depths_mm, **cfg["deconvolution"],
                                             psf_model=getattr(renderer, "psf_model", None))
+        self.optics_invariance = cfg["optics_invariance"]
+        if not any(p.requires_grad for p in lens.parameters()):
+            self.optics_invariance = None  # frozen optics: nothing to constrain
+        if self.optics_invariance is not None and len(set(self.depths_mm)) < 2:
+            raise ConfigError("model.optics_invariance", "null with one training depth (no PSF "
+                              "change over depth to hold)", optics_invariance)
+        if self.optics_invariance is not None:
+            # the PSF change over depth R (wiener.depth_change) of the optics when they start
+            # moving; -1 until then.  Checkpointed: a resumed run keeps its reference.
+            self.register_buffer("invariance_ref", torch.tensor(-1.0, dtype=torch.float64))
+        self._depth_change = None  # this step's R, for the log
         # model.tolerance_training: every training batch through its own drawn lens (tolerance.py)
         from .tolerance import TrainingDraws, load_group
 
@@ -372,6 +393,9 @@ class EndToEndModule(L.LightningModule):
         # the terms as minimised (train/loss_ssim is 1 - SSIM; val/ssim_* is SSIM itself)
         self.log_dict({f"train/loss_{k}": v for k, v in terms.items()}, batch_size=n)
         self.log_dict(training_scalars(opt_g, self.deconv), batch_size=n)
+        if self._depth_change is not None:
+            self.log("train/psf_depth_change", self._depth_change, batch_size=n)
+            self._depth_change = None
         self.log("train/psnr_restored", psnr(pred.detach(), gt), batch_size=n)
         self.log("train/psnr_sensor", psnr(y, gt), batch_size=n)
         return loss.detach()
@@ -385,8 +409,34 @@ class EndToEndModule(L.LightningModule):
         with self.optics_fixed(step < self.optics_warmup_steps):
             with self.drawn_lens(step):
                 y, gt = self.capture(images, depths, seed=self.seed * 1_000_003 + step)
-            x = self.deconv(y) if self.deconv is not None else y
-        return self.restore_loss(depths, y, gt, x)
+            moments = None
+            if self.deconv is None:
+                x = y
+            elif self.optics_invariance is not None and self._optics_moving():
+                x, moments = self.deconv(y, return_moments=True)
+            else:
+                x = self.deconv(y)
+        loss, terms, y, gt, pred = self.restore_loss(depths, y, gt, x)
+        if moments is not None:
+            pen = self.invariance_penalty(*moments)
+            terms["invariance"] = pen
+            loss = loss + self.optics_invariance["weight"] * pen
+        return loss, terms, y, gt, pred
+
+    def _optics_moving(self) -> bool:
+        return torch.is_grad_enabled() and any(p.requires_grad for p in self.lens.parameters())
+
+    def invariance_penalty(self, ch: torch.Tensor, h2: torch.Tensor) -> torch.Tensor:
+        """``relu(R / R_0 - 1 - slack)^2`` (``optics_invariance``) from this step's OTF
+        moments; the first call sets ``R_0`` (buffer ``invariance_ref``) to this ``R``."""
+        from .wiener import depth_change
+
+        R = depth_change(ch, h2)
+        self._depth_change = float(R.detach())
+        if float(self.invariance_ref) < 0:
+            self.invariance_ref.fill_(float(R.detach()))
+        ref = self.invariance_ref.to(R.dtype).clamp_min(1e-12)
+        return F.relu(R / ref - 1 - self.optics_invariance["slack"]) ** 2
 
     def drawn_lens(self, step: int):
         """The context in which ``self.lens`` is the lens drawn for ``step`` under

@@ -14,8 +14,8 @@ import math
 from ..optics.errors import ConfigError
 from .depth_weighting import soft_max_setting
 
-__all__ = ["LOSS_DEFAULTS", "MAX_LR", "check_learning_rate", "check_model_config",
-           "check_module_settings"]
+__all__ = ["INVARIANCE_DEFAULTS", "LOSS_DEFAULTS", "MAX_LR", "check_invariance",
+           "check_learning_rate", "check_model_config", "check_module_settings"]
 
 #: largest accepted learning rates: Adam moves each weight by about ``lr`` per step, so a
 #: network rate above 1, or an optics step above 1 mm of sag, can only run away
@@ -24,6 +24,44 @@ MAX_LR = {"net_lr": 1.0, "optics_lr_mm": 1.0, "disc_lr": 1.0}
 #: the loss terms and their default weights (``model.loss``)
 LOSS_DEFAULTS = (("mse", 1.0), ("l1", 0.0), ("ssim", 0.0), ("perceptual", 0.0),
                  ("adversarial", 0.0), ("constraint", 1.0))
+
+
+#: the settings of ``model.optics_invariance`` and their defaults (EndToEndModule)
+INVARIANCE_DEFAULTS = (("weight", 1.0), ("slack", 0.0))
+
+
+def check_invariance(settings, deconvolution) -> dict | None:
+    """``model.optics_invariance`` checked: ``None``, or a mapping of known keys
+    (:data:`INVARIANCE_DEFAULTS`) with ``weight`` a finite number > 0 and ``slack`` a finite
+    number >= 0, completed with the defaults; it needs ``model.deconvolution`` (the PSF
+    change over depth is measured on the Wiener front end's OTFs).  Else
+    :class:`ConfigError` naming ``model.optics_invariance[.<key>]``."""
+    if settings is None:
+        return None
+    if not isinstance(settings, dict):
+        raise ConfigError("model.optics_invariance", "null or a mapping {weight, slack}",
+                          settings)
+    known = dict(INVARIANCE_DEFAULTS)
+    unknown = set(settings) - set(known)
+    if unknown:
+        raise ConfigError.unknown("model.optics_invariance", unknown, known)
+    s = {**known, **settings}
+    for k, lo in (("weight", None), ("slack", 0.0)):
+        v = s[k]
+        ok = (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+              and (v > 0 if lo is None else v >= lo))
+        if not ok:
+            raise ConfigError(f"model.optics_invariance.{k}",
+                              "a finite number > 0" if lo is None else "a finite number >= 0", v)
+        s[k] = float(v)
+    if deconvolution is None:
+        raise ConfigError("model.optics_invariance", "null without model.deconvolution (the "
+                          "PSF change over depth is measured on the Wiener front end's OTFs)",
+                          settings)
+    if deconvolution.get("depths", 5) == 1:
+        raise ConfigError("model.optics_invariance", "null with model.deconvolution.depths = 1 "
+                          "(one depth has no PSF change to hold)", settings)
+    return s
 
 
 def check_learning_rate(key: str, value) -> float:
@@ -42,7 +80,7 @@ def check_learning_rate(key: str, value) -> float:
 
 def check_module_settings(*, loss, has_discriminator: bool, net_lr, optics_lr_mm, disc_lr,
                           optics_warmup_steps, scene_margin, worst_depth, optics_worst_depth,
-                          deconvolution) -> dict:
+                          deconvolution, optics_invariance=None) -> dict:
     """The module's settings checked (in this order), as a dict:
 
     * ``loss``: the weights of every term (:data:`LOSS_DEFAULTS` updated with ``loss``; known
@@ -53,7 +91,8 @@ def check_module_settings(*, loss, has_discriminator: bool, net_lr, optics_lr_mm
     * ``worst_depth``, ``optics_worst_depth``: ``None`` or the checked soft-maximum settings
       (:func:`~.depth_weighting.soft_max_setting`);
     * ``deconvolution``: ``None`` or a dict of :class:`~.wiener.DepthWienerFilter` keywords
-      (known keys only).
+      (known keys only);
+    * ``optics_invariance``: ``None`` or ``{weight, slack}`` (:func:`check_invariance`).
     """
     loss_w = dict(LOSS_DEFAULTS)
     unknown = set(loss or {}) - set(loss_w)
@@ -92,6 +131,7 @@ def check_module_settings(*, loss, has_discriminator: bool, net_lr, optics_lr_mm
         dc = dict(deconvolution)
         check_deconvolution(dc)
     out["deconvolution"] = dc
+    out["optics_invariance"] = check_invariance(optics_invariance, dc)
     return out
 
 
@@ -113,7 +153,8 @@ def check_model_config(cfg) -> None:
         disc_lr=m.get("disc_lr", 1e-4), optics_warmup_steps=m.get("optics_warmup_steps"),
         scene_margin=m.get("scene_margin", 0.0), worst_depth=plain("model.worst_depth"),
         optics_worst_depth=plain("model.optics_worst_depth"),
-        deconvolution=plain("model.deconvolution"))
+        deconvolution=plain("model.deconvolution"),
+        optics_invariance=plain("model.optics_invariance"))
     dtype = OmegaConf.select(cfg, "lens.dtype", default=None)
     if s["deconvolution"] is not None and dtype in ("float32", "float64"):
         import torch

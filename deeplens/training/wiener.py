@@ -35,7 +35,7 @@ from ..optics.camera import Camera, HoldsCamera, as_camera
 from ..optics.errors import ConfigError
 from ..render.psf import psf_many
 
-__all__ = ["DepthWienerFilter", "DEFAULTS", "check_deconvolution", "nsr_range"]
+__all__ = ["DepthWienerFilter", "DEFAULTS", "check_deconvolution", "depth_change", "nsr_range"]
 
 
 def nsr_range(dtype: torch.dtype) -> tuple[float, float]:
@@ -160,7 +160,10 @@ class DepthWienerFilter(HoldsCamera, nn.Module):
         return self.log_nsr.clamp(math.log(lo), math.log(hi)).exp()
 
     # ------------------------------------------------------------------ the filter
-    def forward(self, y: torch.Tensor) -> torch.Tensor:
+    def forward(self, y: torch.Tensor, return_moments: bool = False):
+        """The deconvolved image ``(B, C, H, W)`` of the sensor image ``y``; with
+        ``return_moments`` also the OTF moments it used (:meth:`otf_moments`), e.g. for
+        :func:`depth_change` in the same graph."""
         B, C, Hh, Ww = y.shape
         ph, pw = Hh // 2, Ww // 2
         ext = F.pad(y, (pw, pw, ph, ph), mode="reflect" if min(Hh, Ww) > 1 else "replicate")
@@ -168,7 +171,23 @@ class DepthWienerFilter(HoldsCamera, nn.Module):
         ch, h2 = self.otf_moments(size)
         G = ch / (h2 + self.nsr().to(h2.dtype)[:, None, None])
         x = torch.fft.irfft2(torch.fft.rfft2(ext.to(h2.dtype)) * G, s=size)
-        return x[..., ph:ph + Hh, pw:pw + Ww].to(y.dtype)
+        x = x[..., ph:ph + Hh, pw:pw + Ww].to(y.dtype)
+        return (x, (ch, h2)) if return_moments else x
+
+
+def depth_change(ch: torch.Tensor, h2: torch.Tensor) -> torch.Tensor:
+    """The fraction of the OTF's power that changes with depth, from the moments of
+    :meth:`DepthWienerFilter.otf_moments` (``ch = E_d conj H_d``, ``h2 = E_d |H_d|^2``, each
+    ``(C, Hs, Ws // 2 + 1)``):
+
+        R = Σ_{c,f} (E_d |H_d(f)|^2 - |E_d H_d(f)|^2) / Σ_{c,f} E_d |H_d(f)|^2,
+
+    the depth variance of the OTF summed over channels and the rfft half-plane of
+    frequencies, over its power.  ``R`` is in ``[0, 1]``: 0 when the PSF is the same at every
+    depth (a depth-invariant camera), and it does not fall merely because the PSF widens (both
+    sums shrink with the OTF).  Differentiable in the lens through the moments; a scalar."""
+    var = (h2 - ch.abs() ** 2).sum()
+    return var / h2.sum()
 
 
 #: the settings of :class:`DepthWienerFilter` and their defaults, ``((name, default), ...)``

@@ -274,3 +274,19 @@ def test_eval_resumes_finished_runs_and_retrains_changed_ones(cfg_factory, tmp_p
         evaluate(cfg_factory(*args, "render.psf_rays=999", config_name="eval.yaml"))
     with pytest.raises(AssertionError, match="trained again"):
         evaluate(cfg_factory(*args, "model.optics_worst_depth.bins=3", config_name="eval.yaml"))
+
+
+def test_run_key_of_optics_invariance(cfg_factory):
+    """``model.optics_invariance`` is part of a learned run's key (in part given = completed
+    with its defaults) and not of a frozen plate's, whose optics it cannot touch."""
+    import deeplens.training.evaluate as ev
+
+    def key(name, *over):
+        cfg = cfg_factory("experiment=edof", *over, config_name="eval.yaml")
+        return ev._same_run(ev._run_key(ev._variant_cfg(cfg, name)))
+
+    plain = key("learned")
+    inv = key("learned", "model.optics_invariance={weight:2.0}")
+    assert inv != plain and inv["model"]["optics_invariance"] == {"weight": 2.0, "slack": 0.0}
+    assert inv == key("learned", "model.optics_invariance={weight:2.0,slack:0.0}")
+    assert key("cubic", "model.optics_invariance={weight:2.0}") == key("cubic")

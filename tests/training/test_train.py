@@ -561,3 +561,67 @@ def test_optics_worst_depth_weights_only_the_optics_gradient(cfg_factory):
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-7)
     with pytest.raises(ValueError, match="model.optics_worst_depth.temperature"):
         build_objects(cfg_factory("experiment=edof", "model.optics_worst_depth={temperature:0}"))
+
+
+def test_optics_invariance_holds_the_plate_to_its_starting_depth_invariance(cfg_factory):
+    """``model.optics_invariance``: the first moving step records ``R_0`` (penalty 0); a plate
+    made less depth-invariant (a weaker cubic) is penalised by ``w relu(R / R_0 - 1 - s)^2``
+    with ``R`` from the same step's Wiener moments, the loss's lens gradient is the image
+    loss's plus ``w`` times the penalty's, and a step down the penalty's gradient makes the
+    plate more depth-invariant.  ``R_0`` is checkpointed state."""
+    from deeplens.training.lens_setup import cubic_phase_plate
+    from deeplens.training.wiener import depth_change
+
+    over = ("experiment=edof", "render.psf_rays=512", "model.deconvolution.rays=1024",
+            "model.deconvolution.depths=3", "model.optics_warmup_steps=0",
+            "model.optics_worst_depth=null", "model.optics_invariance={weight:3.0,slack:0.05}")
+    m = build_objects(cfg_factory(*over))["module"]
+    images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    loss, terms, *_ = m.step_loss(images, 0)
+    R0 = float(m.invariance_ref)
+    assert 0 < R0 < 1 and float(terms["invariance"].detach()) == 0.0
+    assert "invariance_ref" in m.state_dict()
+    lens_p = [p for p in m.lens.parameters() if p.requires_grad]
+    with torch.no_grad():  # the 5 um start made a 1.25 um plate: its PSF changes with depth
+        cubic_phase_plate(m.lens, 4, 0.00125)
+    loss, terms, y, *_ = m.step_loss(images, 1)
+    assert float(m.invariance_ref) == R0  # the reference stays
+    pen = terms["invariance"]
+    g_all = torch.autograd.grad(loss, lens_p, retain_graph=True)
+    g_pen = torch.autograd.grad(pen, lens_p, retain_graph=True)
+    g_img = torch.autograd.grad(loss - 3.0 * pen, lens_p)
+    for a, b, c in zip(g_all, g_img, g_pen):
+        assert torch.allclose(a, b + 3.0 * c, rtol=1e-4, atol=1e-4 * float(a.abs().max()))
+    # the penalty by hand from the filter's moments of the same lens
+    with torch.no_grad():
+        H, W = y.shape[-2:]
+        size = (H + 2 * (H // 2), W + 2 * (W // 2))  # the filter's FFT size (half-frame margins)
+        R = float(depth_change(*m.deconv.otf_moments(size)))
+    assert R > 1.05 * R0
+    assert float(pen) == pytest.approx((R / R0 - 1.05) ** 2, rel=1e-3)
+    # a small step down the penalty's gradient lowers R
+    with torch.no_grad():
+        for p, g in zip(lens_p, g_pen):
+            p -= 1e-4 * float(p.abs().max() + 1e-12) * g / float(g.abs().max() + 1e-30)
+        R1 = float(depth_change(*m.deconv.otf_moments(size)))
+    assert R1 < R
+
+
+@pytest.mark.parametrize("setting, match", [
+    ("model.optics_invariance={weight:0}", r"model.optics_invariance.weight: expected a finite "
+     r"number > 0"),
+    ("model.optics_invariance={slack:-1}", r"model.optics_invariance.slack"),
+    ("model.optics_invariance={wieght:1}", r"model.optics_invariance: unknown key"),
+    ("model.optics_invariance={weight:1} model.deconvolution=null",
+     r"model.optics_invariance: expected null without model.deconvolution"),
+])
+def test_bad_optics_invariance_is_refused_by_name(cfg_factory, setting, match):
+    with pytest.raises(ValueError, match=match):
+        build_objects(cfg_factory("experiment=edof", *setting.split()))
+
+
+def test_optics_invariance_is_dropped_for_frozen_optics(cfg_factory):
+    m = build_objects(cfg_factory("experiment=edof", "lens.plate=cubic", "lens.trainable=[]",
+                                  "lens.plate_alpha_mm=0.005", "model.deconvolution.rays=256",
+                                  "model.optics_invariance={weight:1}"))["module"]
+    assert m.optics_invariance is None and "invariance_ref" not in m.state_dict()

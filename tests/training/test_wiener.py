@@ -14,7 +14,7 @@ from deeplens.render import Sensor
 from deeplens.render.psf import psf
 from deeplens.training.lens_setup import cubic_phase_plate
 from deeplens.training.metrics import psnr
-from deeplens.training.wiener import DepthWienerFilter
+from deeplens.training.wiener import DepthWienerFilter, depth_change
 
 
 @pytest.fixture(scope="module")
@@ -145,3 +145,56 @@ def test_bad_settings_are_refused_by_name(coded, kw, match):
     lens, sensor = coded
     with pytest.raises(ValueError, match=f"model.deconvolution.{match}"):
         DepthWienerFilter(lens, sensor, [4500.0, 8000.0], **kw)
+
+
+def _otfs(lens, sensor, depths, size=32):
+    """Per-depth OTFs ``(D, size, size // 2 + 1)`` of the on-axis PSF, the kernel centre
+    wrapped to the origin by hand (independent of the filter's roll)."""
+    Hs = []
+    for d in depths:
+        k = psf(lens, sensor, (0.0, 0.0), d, 587.6, n_rays=64 * 64, sampling="grid:64",
+                max_kernel=size - 1)
+        K = k.shape[-1]
+        full = torch.zeros(size, size, dtype=k.dtype)
+        for a in range(K):
+            for b in range(K):
+                full[(a - K // 2) % size, (b - K // 2) % size] += k[a, b]
+        Hs.append(torch.fft.rfft2(full))
+    return torch.stack(Hs)
+
+
+def test_depth_change_is_the_fraction_of_otf_power_that_varies_with_depth():
+    """``depth_change`` against the per-depth OTFs written out (variance over depths of each
+    frequency, summed, over the mean power), 0 for one depth, and smaller for a stronger cubic
+    plate (Dowski and Cathey: the cubic plate's PSF changes little with depth)."""
+    sensor = Sensor((24, 24), 0.0069, channels=[[587.6]])
+    R = {}
+    for alpha in (0.00125, 0.005):
+        lens = load_lens("data/lenses/edof_achromat.json").to(torch.float64)
+        cubic_phase_plate(lens, 4, alpha)
+        wf = DepthWienerFilter(lens, sensor, [4500.0, 8000.0], depths=3, rays=4096)
+        R[alpha] = float(depth_change(*wf.otf_moments((32, 32))))
+        Hs = _otfs(lens, sensor, wf.depths_mm)
+        var = (Hs.abs() ** 2).mean(0) - Hs.mean(0).abs() ** 2
+        ref = float(var.sum() / (Hs.abs() ** 2).mean(0).sum())
+        assert R[alpha] == pytest.approx(ref, rel=1e-9)
+        one = DepthWienerFilter(lens, sensor, [6000.0], depths=1, rays=4096)
+        assert abs(float(depth_change(*one.otf_moments((32, 32))))) < 1e-12
+    assert 0 < R[0.005] < 0.5 * R[0.00125] < 1
+
+
+def test_depth_change_gradient_to_the_plate_matches_central_differences(coded):
+    _, sensor = coded
+    lens = load_lens("data/lenses/edof_achromat.json").to(torch.float64)
+    cubic_phase_plate(lens, 4, 0.0025)
+    a = lens.surfaces[4].a[6]  # the x^3 coefficient
+    a.requires_grad_(True)
+    wf = DepthWienerFilter(lens, sensor, [4500.0, 8000.0], depths=3, rays=4096)
+
+    def R():
+        return depth_change(*wf.otf_moments((32, 32)))
+
+    (grad,) = torch.autograd.grad(R(), a)
+    fd = central_fd(R, a, 1e-6 * float(a.detach().abs()))
+    assert abs(fd) > 0
+    assert float(grad) == pytest.approx(fd, rel=2e-3)
