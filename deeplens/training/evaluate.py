@@ -191,15 +191,40 @@ def _run_key(cfg: DictConfig) -> dict:
     return key
 
 
+def _eval_folder_of(key: dict) -> str | None:
+    """The evaluation folder a run key's run was made in: its ``trainer.default_root_dir`` is
+    ``<folder>/<variant>/seed<s>`` (:func:`_variant_cfg`); ``None`` if the key has none."""
+    trainer = key.get("trainer") if isinstance(key, dict) else None
+    root = trainer.get("default_root_dir") if isinstance(trainer, dict) else None
+    return str(Path(root).parent.parent) if isinstance(root, str) else None
+
+
+def _relocated(x, folder: str | None):
+    """``x`` with every string that is a path under ``folder`` written ``<eval>/...``
+    (recursively), so that a run's key does not depend on where its folder lies."""
+    if folder is None:
+        return x
+    if isinstance(x, dict):
+        return {k: _relocated(v, folder) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_relocated(v, folder) for v in x]
+    if isinstance(x, str) and (x == folder or x.startswith(folder.rstrip("/") + "/")):
+        return "<eval>" + x[len(folder.rstrip("/")):]
+    return x
+
+
 def _same_run(key: dict) -> dict:
-    """A run key in a canonical form: nulls dropped (:func:`_drop_nulls`), and the module's
-    dict settings given in part completed with their defaults (``{temperature: 0.25}`` and
-    ``{temperature: 0.25, bins: 4, momentum: 0.9}`` are the same run)."""
+    """A run key in a canonical form: nulls dropped (:func:`_drop_nulls`), paths inside the
+    evaluation folder written relative to it (a folder moved, copied or linked elsewhere holds
+    the same runs), and the module's dict settings given in part completed with their defaults
+    (``{temperature: 0.25}`` and ``{temperature: 0.25, bins: 4, momentum: 0.9}`` are the same
+    run)."""
     from .module import SOFT_MAX_DEFAULTS
     from .module_config import INVARIANCE_DEFAULTS
     from .wiener import DEFAULTS as DECONV_DEFAULTS
 
     key = _drop_nulls(json.loads(json.dumps(key)))
+    key = _relocated(key, _eval_folder_of(key))
     model = key.get("model") if isinstance(key, dict) else None
     if isinstance(model, dict):
         for name, defaults in (("worst_depth", SOFT_MAX_DEFAULTS),
@@ -250,8 +275,13 @@ def _reuse(cfg: DictConfig):
                    if saved[k] != key["inputs"].get(k)]
         return again(f"is a run of other input files (changed: {', '.join(changed)})" if changed
                      else "is a run of another configuration")
+    tested = rec["tested"]
+    was, now = _eval_folder_of(rec["config"]), _eval_folder_of(key)
+    if was is not None and now is not None and _relocated(tested, was) != tested:
+        # the folder was moved or copied: its checkpoint is where the folder is now
+        tested = now.rstrip("/") + _relocated(tested, was)[len("<eval>"):]
     try:
-        state = read_checkpoint(rec["tested"])["state_dict"]
+        state = read_checkpoint(tested)["state_dict"]
     except (FileNotFoundError, CheckpointError) as e:
         return again(f"names a tested checkpoint that cannot be loaded ({e})")
     objs = build_objects(cfg)

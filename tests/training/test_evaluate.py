@@ -290,3 +290,27 @@ def test_run_key_of_optics_invariance(cfg_factory):
     assert inv != plain and inv["model"]["optics_invariance"] == {"weight": 2.0, "slack": 0.0}
     assert inv == key("learned", "model.optics_invariance={weight:2.0,slack:0.0}")
     assert key("cubic", "model.optics_invariance={weight:2.0}") == key("cubic")
+
+
+def test_a_moved_evaluation_folder_still_holds_its_runs(cfg_factory, tmp_path, monkeypatch):
+    """Finished runs are found again after their evaluation folder is moved (their keys hold
+    the folder's paths, written relative to it, and the tested checkpoint is looked up where
+    the folder is now); a run of another configuration there still trains again."""
+    import shutil
+
+    import deeplens.training.evaluate as ev
+
+    args = ("experiment=edof", "scene.val_depths_mm=[4500.0,8000.0]", "eval.variants=[none]",
+            "callbacks.image_logger=null", "eval.figures=false")
+    a, b = tmp_path / "a", tmp_path / "b"
+    _, first = evaluate(cfg_factory(*args, config_name="eval.yaml", out=a))
+    shutil.move(str(a), str(b))  # the old checkpoint path is gone
+
+    def no_training(cfg):
+        raise AssertionError(f"trained again: {cfg.paths.output_dir}")
+
+    monkeypatch.setattr(ev, "train", no_training)
+    _, again = evaluate(cfg_factory(*args, config_name="eval.yaml", out=b))
+    assert again == first
+    with pytest.raises(AssertionError, match="trained again"):
+        evaluate(cfg_factory(*args, "render.psf_rays=999", config_name="eval.yaml", out=b))
