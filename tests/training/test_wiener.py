@@ -33,6 +33,32 @@ def _blur(x, k):
     return F.conv2d(xe, k.flip(-1, -2)[None, None])
 
 
+def _otfs(lens, sensor, depths, size=32):
+    """Per-depth OTFs ``(D, size, size // 2 + 1)`` of the on-axis PSF, the kernel centre
+    wrapped to the origin by hand (independent of the filter's roll)."""
+    Hs = []
+    for d in depths:
+        k = psf(lens, sensor, (0.0, 0.0), d, 587.6, n_rays=64 * 64, sampling="grid:64",
+                max_kernel=size - 1)
+        K = k.shape[-1]
+        full = torch.zeros(size, size, dtype=k.dtype)
+        for a in range(K):
+            for b in range(K):
+                full[(a - K // 2) % size, (b - K // 2) % size] += k[a, b]
+        Hs.append(torch.fft.rfft2(full))
+    return torch.stack(Hs)
+
+
+def _plate_x3(alpha_mm: float):
+    """A float64 EDOF lens with a cubic plate of ``alpha_mm`` and its x^3 coefficient, set to
+    require gradients."""
+    lens = load_lens("data/lenses/edof_achromat.json").to(torch.float64)
+    cubic_phase_plate(lens, 4, alpha_mm)
+    a = lens.surfaces[4].a[6]  # the x^3 coefficient
+    a.requires_grad_(True)
+    return lens, a
+
+
 def test_one_depth_inverts_the_lens_blur(coded):
     """With one depth and a small noise ratio the filter undoes the PSF it traced (centring
     and orientation right: an unflipped or shifted kernel does not), far better than a
@@ -60,17 +86,7 @@ def test_moments_are_the_mean_over_depths_uniform_in_inverse_depth(coded):
     assert wf.depths_mm == pytest.approx([8000.0, mid, 4500.0])
     ch, h2 = wf.otf_moments((32, 32))
     assert ch.shape == h2.shape == (1, 32, 17)
-    Hs = []
-    for d in wf.depths_mm:
-        k = psf(lens, sensor, (0.0, 0.0), d, 587.6, n_rays=64 * 64, sampling="grid:64",
-                max_kernel=31)
-        K = k.shape[-1]
-        full = torch.zeros(32, 32, dtype=k.dtype)
-        for a in range(K):  # kernel centre to the origin, wrapped (written out, not rolled)
-            for b in range(K):
-                full[(a - K // 2) % 32, (b - K // 2) % 32] += k[a, b]
-        Hs.append(torch.fft.rfft2(full))
-    Hs = torch.stack(Hs)
+    Hs = _otfs(lens, sensor, wf.depths_mm)
     assert torch.allclose(ch[0], Hs.conj().mean(0), atol=1e-12)
     assert torch.allclose(h2[0], (Hs.abs() ** 2).mean(0), atol=1e-12)
     # |E conj H|^2 <= E |H|^2 (Jensen), strictly where the PSF changes with depth
@@ -78,11 +94,8 @@ def test_moments_are_the_mean_over_depths_uniform_in_inverse_depth(coded):
 
 
 def test_gradient_to_the_plate_matches_central_differences(coded):
-    lens, sensor = coded
-    lens = load_lens("data/lenses/edof_achromat.json").to(torch.float64)
-    cubic_phase_plate(lens, 4, 0.0025)
-    a = lens.surfaces[4].a[6]  # the x^3 coefficient
-    a.requires_grad_(True)
+    _, sensor = coded
+    lens, a = _plate_x3(0.0025)
     wf = DepthWienerFilter(lens, sensor, [4500.0, 8000.0], depths=2, rays=4096, nsr=1e-2)
     g = torch.Generator().manual_seed(3)
     y = torch.rand(1, 1, 24, 24, generator=g, dtype=torch.float64)
@@ -147,22 +160,6 @@ def test_bad_settings_are_refused_by_name(coded, kw, match):
         DepthWienerFilter(lens, sensor, [4500.0, 8000.0], **kw)
 
 
-def _otfs(lens, sensor, depths, size=32):
-    """Per-depth OTFs ``(D, size, size // 2 + 1)`` of the on-axis PSF, the kernel centre
-    wrapped to the origin by hand (independent of the filter's roll)."""
-    Hs = []
-    for d in depths:
-        k = psf(lens, sensor, (0.0, 0.0), d, 587.6, n_rays=64 * 64, sampling="grid:64",
-                max_kernel=size - 1)
-        K = k.shape[-1]
-        full = torch.zeros(size, size, dtype=k.dtype)
-        for a in range(K):
-            for b in range(K):
-                full[(a - K // 2) % size, (b - K // 2) % size] += k[a, b]
-        Hs.append(torch.fft.rfft2(full))
-    return torch.stack(Hs)
-
-
 def test_depth_change_is_the_fraction_of_otf_power_that_varies_with_depth():
     """``depth_change`` against the per-depth OTFs written out (variance over depths of each
     frequency, summed, over the mean power), 0 for one depth, and smaller for a stronger cubic
@@ -185,10 +182,7 @@ def test_depth_change_is_the_fraction_of_otf_power_that_varies_with_depth():
 
 def test_depth_change_gradient_to_the_plate_matches_central_differences(coded):
     _, sensor = coded
-    lens = load_lens("data/lenses/edof_achromat.json").to(torch.float64)
-    cubic_phase_plate(lens, 4, 0.0025)
-    a = lens.surfaces[4].a[6]  # the x^3 coefficient
-    a.requires_grad_(True)
+    lens, a = _plate_x3(0.0025)
     wf = DepthWienerFilter(lens, sensor, [4500.0, 8000.0], depths=3, rays=4096)
 
     def R():
