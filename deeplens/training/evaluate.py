@@ -277,9 +277,10 @@ def _reuse(cfg: DictConfig):
                      else "is a run of another configuration")
     tested = rec["tested"]
     was, now = _eval_folder_of(rec["config"]), _eval_folder_of(key)
-    if was is not None and now is not None and _relocated(tested, was) != tested:
+    inside = _relocated(tested, was)
+    if now is not None and inside != tested:
         # the folder was moved or copied: its checkpoint is where the folder is now
-        tested = now.rstrip("/") + _relocated(tested, was)[len("<eval>"):]
+        tested = now.rstrip("/") + inside[len("<eval>"):]
     try:
         state = read_checkpoint(tested)["state_dict"]
     except (FileNotFoundError, CheckpointError) as e:

@@ -172,9 +172,10 @@ class EndToEndModule(L.LightningModule):
             # running mean loss per depth bin; -1 until the bin's first sample
             self.register_buffer("depth_loss_ema", torch.full(
                 (self.worst_depth["bins"],), -1.0, dtype=torch.float64))
-        self.optics_worst_depth = cfg["optics_worst_depth"]
-        if not any(p.requires_grad for p in lens.parameters()):
-            self.optics_worst_depth = None  # frozen optics: no gradient to weigh
+        # frozen optics: no gradient to weigh (optics_worst_depth), nothing to constrain
+        # (optics_invariance)
+        optics_frozen = not any(p.requires_grad for p in lens.parameters())
+        self.optics_worst_depth = None if optics_frozen else cfg["optics_worst_depth"]
         if self.optics_worst_depth is not None:
             self.register_buffer("optics_depth_loss_ema", torch.full(
                 (self.optics_worst_depth["bins"],), -1.0, dtype=torch.float64))
@@ -184,9 +185,7 @@ class EndToEndModule(L.LightningModule):
 
             self.deconv = DepthWienerFilter(camera, None, self.depths_mm, **cfg["deconvolution"],
                                             psf_model=getattr(renderer, "psf_model", None))
-        self.optics_invariance = cfg["optics_invariance"]
-        if not any(p.requires_grad for p in lens.parameters()):
-            self.optics_invariance = None  # frozen optics: nothing to constrain
+        self.optics_invariance = None if optics_frozen else cfg["optics_invariance"]
         if self.optics_invariance is not None and len(set(self.depths_mm)) < 2:
             raise ConfigError("model.optics_invariance", "null with one training depth (no PSF "
                               "change over depth to hold)", optics_invariance)
