@@ -46,6 +46,39 @@ def central_fd(fn, param: torch.Tensor, h: float, index=None) -> float:
     return (8.0 * (f[1] - f[-1]) - (f[2] - f[-2])) / (12.0 * h)
 
 
+def fd_with_error(fn, param: torch.Tensor, h: float, index=None) -> tuple[float, float]:
+    """:func:`central_fd` at ``h`` and an estimate of its error, so that a gradient test's
+    tolerance comes from the computation at hand rather than from one machine's outcome:
+
+    - truncation (and noise): ``|D(h) - D(2h)|``; the O(h^4) term is 16x larger in ``D(2h)``,
+      so this bounds ``D(h)``'s truncation error with room to spare;
+    - rounding: ``fn``'s noise ``s`` (the largest deviation from a straight line of ``fn`` over
+      seven values of ``param`` a few ulps apart, where the true change is linear), which the
+      stencil's weights ``(8 + 8 + 1 + 1) / 12h`` amplify to ``1.5 s / h``; counted 4x.
+
+    Which rounding a trace gets depends on the CPU's vector unit (AVX-512, AVX2, the scalar
+    default path), so a tolerance below this estimate passes on one machine and fails on
+    another.  Returns ``(derivative, error)``.
+    """
+    idx = () if index is None else index
+    d1 = central_fd(fn, param, h, index)
+    d2 = central_fd(fn, param, 2 * h, index)
+    with torch.no_grad():
+        p0 = param[idx].clone()
+        step = max(64 * torch.finfo(torch.float64).eps * float(p0.abs()), 1e-6 * h)
+        ks = torch.arange(-3, 4, dtype=torch.float64)
+        vals = []
+        for k in ks.tolist():
+            param[idx] = p0 + k * step
+            vals.append(float(fn()))
+        param[idx] = p0
+    v = torch.tensor(vals, dtype=torch.float64)
+    A = torch.stack([torch.ones_like(ks), ks], -1)
+    fit = A @ torch.linalg.lstsq(A, v[:, None]).solution
+    noise = float((v - fit[:, 0]).abs().max())
+    return d1, abs(d1 - d2) + 4 * 1.5 * noise / h
+
+
 def singlet(front, back, *, thickness: float = 4.0, glass: str = "N-BK7",
             d_sensor: float = 40.0, stop_index: int = 0, **kw) -> Lens:
     """A one-element lens ``front | glass | back`` in air, first vertex at z = 0."""

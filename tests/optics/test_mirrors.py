@@ -13,6 +13,7 @@ import math
 
 import pytest
 import torch
+from helpers import fd_with_error
 
 from deeplens.optics.errors import LensError
 from deeplens.optics.frames import local_frames, to_global
@@ -209,24 +210,17 @@ def test_sign_convention_is_checked():
 
 
 # ---------------------------------------------------------------------------- gradients
-def _fd(fn, p, h):
-    v = float(p.detach())
-    with torch.no_grad():
-        p.fill_(v + h)
-        up = float(fn())
-        p.fill_(v - h)
-        dn = float(fn())
-        p.fill_(v)
-    return (up - dn) / (2 * h)
-
-
-def _check_grad(lens, p, fn, h, rtol=1e-6):
+def _check_grad(lens, p, fn, h):
+    """The autograd gradient against a fourth-order central difference, within the difference's
+    own error estimate (:func:`helpers.fd_with_error`), which must be small enough (1e-5 of the
+    derivative) for the comparison to mean something."""
     p.requires_grad_(True)
     (g,) = torch.autograd.grad(fn(), p)
-    fd = _fd(fn, p, h)
     p.requires_grad_(False)
+    fd, err = fd_with_error(fn, p, h)
     assert abs(fd) > 1e-6, "a constant loss checks nothing"
-    assert float(g) == pytest.approx(fd, rel=rtol, abs=1e-10)
+    assert err < 1e-5 * abs(fd), "the finite difference is too noisy to check anything"
+    assert abs(float(g) - fd) <= err + 1e-12 * abs(fd)
 
 
 @pytest.mark.parametrize("which", ["c", "k", "distance", "fold"])
@@ -244,8 +238,8 @@ def test_gradients_through_a_mirror_match_finite_differences(which):
         assert bool(out.valid.all())
         return (wgt * (out.o[:, 0] ** 2 + out.o[:, 1] ** 2 + 0.3 * out.o[:, 1])).sum()
 
-    p, h = {"c": (mirror.c, 1e-9), "k": (mirror.k, 1e-6), "distance": (lens.distances[2], 1e-5),
-            "fold": (lens.surfaces[2].tilt_x, 1e-7)}[which]
+    p, h = {"c": (mirror.c, 1e-8), "k": (mirror.k, 1e-4), "distance": (lens.distances[2], 1e-3),
+            "fold": (lens.surfaces[2].tilt_x, 1e-5)}[which]
     _check_grad(lens, p, loss, h)
 
 
