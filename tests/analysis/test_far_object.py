@@ -14,7 +14,7 @@ import pytest
 import torch
 
 import helpers as H
-from deeplens.analysis.spot import spot_diagram
+from deeplens.analysis.spot import find_pupil, spot_diagram
 from deeplens.analysis.wavefront import wavefront
 from deeplens.optics.io.load import load_lens
 from deeplens.render.splat import point_source_rays
@@ -28,13 +28,52 @@ def _double_gauss(dtype, distance):
     return lens
 
 
+EPS32 = torch.finfo(torch.float32).eps
+# Rounding a pupil point to float32 and tracing it through the double Gauss's 11 surfaces moves
+# where it is clipped by some hundred ulps of the pupil radius; rays whose float64 fate changes
+# within this band of the sampled pupil's rim may pass in one precision and not the other
+# (which ones depends on the CPU's vector unit).
+RIM_BAND = 256 * EPS32
+
+
+def _borderline(lens64, region):
+    """Rays of the spot pattern whose float64 fate changes when the sampled pupil region's
+    semi-axes are scaled by ``1 -/+ RIM_BAND``: those near a vignetting edge."""
+    from dataclasses import replace
+
+    from deeplens.optics.sampling import field_rays, pupil_pattern
+
+    unit = pupil_pattern("hexapolar:18", dtype=torch.float64)
+    fate = []
+    for f in (1 - RIM_BAND, 1 + RIM_BAND):
+        r = replace(region, rx=region.rx * f, ry=region.ry * f)
+        rays = field_rays(lens64, 14.0, H.WAVELENGTH_D, r.points(unit), r.z)
+        fate.append(lens64.trace_to_sensor(rays).valid)
+    return int((fate[0] != fate[1]).sum())
+
+
 @pytest.mark.parametrize("distance", DISTANCES)
 def test_float32_spot_equals_float64_from_1_mm_to_infinity(distance):
-    r64 = spot_diagram(_double_gauss(torch.float64, distance), 14.0, H.WAVELENGTH_D)
+    lens64 = _double_gauss(torch.float64, distance)
+    region = find_pupil(lens64, 14.0, H.WAVELENGTH_D, "traced")
+    r64 = spot_diagram(lens64, 14.0, H.WAVELENGTH_D, region=region)
     r32 = spot_diagram(_double_gauss(torch.float32, distance), 14.0, H.WAVELENGTH_D)
-    assert r32.n_rays == r64.n_rays
-    assert float(r32.rms_radius) == pytest.approx(float(r64.rms_radius), rel=2e-3)
-    assert r32.centroid.double().tolist() == pytest.approx(r64.centroid.tolist(), abs=2e-5)
+    # only rays at a vignetting edge may differ: at most the outer ring of the hexapolar:18
+    # pattern (6 x 18 rays), which the sampled ellipse's rim touches the edges with (a lost
+    # pupil, the defect this guards against, moved every ray)
+    edge = _borderline(lens64, region)
+    assert edge <= 6 * 18
+    dn = abs(r32.n_rays - r64.n_rays)
+    assert dn <= edge
+    # float32 positions (~eps32 of the 7 mm image height per ray) move the RMS radius by far
+    # less than 2e-3; each rim ray added or dropped moves the mean square by at most
+    # r_max^2 / N
+    r_max = float(((r64.points - r64.centroid) ** 2).sum(-1).max().sqrt())
+    rms = float(r64.rms_radius)
+    tol = 2e-3 * rms + dn * r_max ** 2 / (2 * r64.n_rays * rms)
+    assert abs(float(r32.rms_radius) - rms) <= tol
+    cen_tol = 2e-5 + dn * r_max / r64.n_rays
+    assert r32.centroid.double().tolist() == pytest.approx(r64.centroid.tolist(), abs=cen_tol)
 
 
 def test_a_distant_object_tends_to_the_object_at_infinity():
@@ -46,10 +85,24 @@ def test_a_distant_object_tends_to_the_object_at_infinity():
 
 @pytest.mark.parametrize("distance", [1e3, 1e9, math.inf])
 def test_float32_wavefront_equals_float64(distance):
-    w64 = wavefront(_double_gauss(torch.float64, distance), 14.0, n=16, image_plane="paraxial")
+    """Each ray's float32 OPD is within the rounding of the optical paths it is made of: the
+    path to the reference sphere (chief ray's, ~48 mm) and the sphere's radius (~31 mm) are
+    each summed from the lens's segments, each rounding to eps32 of the path once, so
+    ``(surfaces + 2) eps32 (|opl| + R) / wavelength``: 0.2 waves here (the lost pupil positions
+    this guards against cost whole waves).  Which ray rounds which way depends on the CPU's
+    vector unit, so the tolerance is this bound, not one machine's outcome."""
+    lens64 = _double_gauss(torch.float64, distance)
+    w64 = wavefront(lens64, 14.0, n=16, image_plane="paraxial")
     w32 = wavefront(_double_gauss(torch.float32, distance), 14.0, n=16, image_plane="paraxial")
-    assert float(w32.rms) == pytest.approx(float(w64.rms), rel=5e-3)
-    assert float(w32.pv) == pytest.approx(float(w64.pv), rel=5e-3)
+    wl_mm = H.WAVELENGTH_D * 1e-6
+    paths = abs(float(w64.trace.chief_opl)) + float(w64.reference_radius)
+    bound = (len(lens64.surfaces) + 2) * EPS32 * paths / wl_mm
+    assert bound < 0.1 * float(w64.pv)  # the check can fail
+    both = w64.mask & w32.mask
+    assert int(both.sum()) > 100 and torch.equal(w64.mask, w32.mask)
+    assert float((w32.opd.double() - w64.opd)[both].abs().max()) <= bound
+    assert abs(float(w32.rms) - float(w64.rms)) <= bound
+    assert abs(float(w32.pv) - float(w64.pv)) <= 2 * bound
 
 
 @pytest.mark.parametrize("depth", [50.0, 1e4, 1e9])
