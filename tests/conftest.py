@@ -8,6 +8,12 @@ GPU/CUDA device (a skip whose reason names ``cuda`` or ``gpu``).  Every file a t
 with the repository (``tests/data/``, ``data/``), so on a clean clone nothing may skip for a
 missing file, a missing optional package or anything else; the offending tests are listed in
 the summary.
+
+``numerics``: the tests whose outcome depends on floating-point rounding (float32 against
+float64, gradients against finite differences, intersections at grazing incidence) carry this
+marker, given here by file so that a new test in those files has it too.  ``.ci/run`` runs them
+a second time under ``ATEN_CPU_CAPABILITY=default`` (PyTorch's scalar kernels), so that a
+tolerance tuned to one CPU's vector unit fails in CI instead of on a user's machine.
 """
 
 from __future__ import annotations
@@ -18,6 +24,19 @@ import pytest
 import torch
 
 ALLOWED_SKIP = re.compile(r"\b(cuda|gpu)\b", re.IGNORECASE)
+
+NUMERICS = ("optics/test_gradients.py", "optics/test_intersect.py", "optics/test_refract.py",
+            "optics/test_normalized.py", "optics/test_mirrors.py", "optics/test_limits.py",
+            "optics/surfaces/", "analysis/test_far_object.py", "render/test_fftconv.py",
+            "render/test_float32_plate_gradient.py", "render/test_diffraction.py",
+            "render/test_camera_paths.py", "training/test_wiener_numerics.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        rel = item.path.as_posix().split("/tests/", 1)[-1]
+        if rel.startswith(NUMERICS):
+            item.add_marker(pytest.mark.numerics)
 
 
 def pytest_addoption(parser):

@@ -46,3 +46,15 @@ def test_no_test_reads_outside_the_repository():
     offenders = [f"{p.relative_to(REPO)}:{i}" for p in TESTS.rglob("*.py") if p != Path(__file__)
                  for i, line in enumerate(p.read_text().splitlines(), 1) if bad.search(line)]
     assert not offenders, offenders
+
+
+def test_ci_reruns_the_rounding_sensitive_tests_on_the_scalar_kernels():
+    """``.ci/run`` runs the ``numerics`` tests again under ``ATEN_CPU_CAPABILITY=default``, and
+    every file or folder the marker is given by exists (a renamed file would silently drop out
+    of the second run)."""
+    from conftest import NUMERICS
+
+    run = (REPO / ".ci" / "run").read_text()
+    assert re.search(r"ATEN_CPU_CAPABILITY=default .*-m \"numerics and not slow\"", run)
+    missing = [p for p in NUMERICS if not (TESTS / p).exists()]
+    assert not missing, missing
