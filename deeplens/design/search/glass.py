@@ -1,11 +1,20 @@
 r"""Glass choice for a design search: model glasses while optimising, real glasses after.
 
-1. **Model glasses as variables.**  :class:`TrainableModelGlass` is the Cauchy model glass of
-   :class:`~deeplens.optics.materials.ModelGlass` with ``n_d`` and ``V_d`` as parameters::
+1. **Model glasses as variables.**  :class:`TrainableModelGlass` is a model glass with ``n_d``
+   and ``V_d`` as parameters, with one of two dispersion laws (λ in µm)::
 
-       n(λ) = A + B / λ²,   B = (n_d − 1) / (V_d (1/λ_F² − 1/λ_C²)),   A = n_d − B / λ_d²
+       "cauchy"  n(λ) = A + B / λ²,  B = (n_d − 1) / (V_d (1/λ_F² − 1/λ_C²)),  A = n_d − B / λ_d²
+       "normal"  n(λ) = n_d + (n_d − 1) / V_d · ((1 − t) s_K7(λ) + t s_F2(λ)),
+                 t = (V_d − V_K7) / (V_F2 − V_K7),  s_G(λ) = (n_G(λ) − n_G,d) / (n_G,F − n_G,C)
 
-   (λ in µm), so in a lens they are the variables ``materials.<i>.n_d`` and ``materials.<i>.v_d``
+   Both give ``n(λ_d) = n_d`` and ``(n_d − 1) / (n_F − n_C) = V_d`` exactly.  ``"cauchy"`` is
+   :class:`~deeplens.optics.materials.ModelGlass` (the paper's model); every Cauchy glass has
+   the same partial dispersions (``P_F,d = 0.699``).  ``"normal"`` (the default) puts the glass
+   on SCHOTT's *normal line*: every partial dispersion ``P_x,y = s(λ_x) − s(λ_y)`` is linear in
+   ``V_d`` through the two glasses that define that line, K7 and F2 (SCHOTT Sellmeier
+   coefficients below), so a model glass predicts a normal real glass's secondary colour, which
+   a Cauchy glass does not (the guide has the measured difference).
+   In a lens they are the variables ``materials.<i>.n_d`` and ``materials.<i>.v_d``
    of :class:`~deeplens.design.variables.Variables`; :func:`use_model_glasses` puts one in
    place of each glass of a lens, and :func:`glass_scales` scales them as the glass distance
    does (``x = (n_d, w_V V_d)``, see :mod:`.glass_region`).
@@ -46,6 +55,28 @@ __all__ = ["TrainableModelGlass", "use_model_glasses", "model_glass_media", "gla
 _K_FC = 1.0 / (LINE_F / 1000.0) ** 2 - 1.0 / (LINE_C / 1000.0) ** 2     # µm⁻²
 _INV_LD2 = 1.0 / (LINE_D / 1000.0) ** 2                                 # µm⁻²
 
+#: the normal line's reference glasses: SCHOTT Sellmeier (B1, B2, B3), (C1, C2, C3) in µm²
+#: (SCHOTT catalogue via opticalglass; tests/design/search/test_glass.py checks them against it)
+NORMAL_LINE_GLASSES = {
+    "K7": ((1.1273555, 0.124412303, 0.827100531), (0.00720341707, 0.0269835916, 100.384588)),
+    "F2": ((1.34533359, 0.209073176, 0.937357162), (0.00997743871, 0.0470450767, 111.886764)),
+}
+DISPERSIONS = ("normal", "cauchy")
+
+
+def _sellmeier(B, C, w_nm):
+    l2 = (w_nm / 1000.0) ** 2
+    return torch.sqrt(1.0 + sum(b * l2 / (l2 - c) for b, c in zip(B, C)))
+
+
+def _shape(name: str, w_nm: torch.Tensor):
+    """``(s_G(λ), V_G)``: the normalised dispersion ``(n(λ) − n_d) / (n_F − n_C)`` of a
+    reference glass (``w_nm``'s dtype) and its Abbe number (float64 constants)."""
+    B, C = NORMAL_LINE_GLASSES[name]
+    ref = _sellmeier(B, C, torch.tensor([LINE_D, LINE_F, LINE_C], dtype=torch.float64)).tolist()
+    dn = ref[1] - ref[2]
+    return (_sellmeier(B, C, w_nm) - ref[0]) / dn, (ref[0] - 1.0) / dn
+
 
 class TrainableModelGlass(Material):
     """A Cauchy model glass whose ``n_d`` and ``V_d`` are ``nn.Parameter`` scalars (module
@@ -58,6 +89,8 @@ class TrainableModelGlass(Material):
         name: a label for reports (default ``"model glass"``); :meth:`to_spec` gives the
             current ``"n_d/V_d"``, so a saved lens holds an ordinary model glass.
         dtype: the parameters' dtype (they follow ``lens.to(...)`` like any parameter).
+        dispersion: ``"normal"`` (normal-line partial dispersions) or ``"cauchy"`` (as
+            :class:`~deeplens.optics.materials.ModelGlass`); module docstring.
 
     The parameters are created frozen (``requires_grad=False``), as the lens's own are: design
     variables substitute values (:meth:`~deeplens.design.variables.Variables.call`); call
@@ -68,36 +101,46 @@ class TrainableModelGlass(Material):
     """
 
     def __init__(self, n_d: float, v_d: float, name: str = "model glass",
-                 dtype: torch.dtype = torch.float64):
+                 dtype: torch.dtype = torch.float64, dispersion: str = "normal"):
+        if dispersion not in DISPERSIONS:
+            raise ValueError(f"model glass dispersion must be one of {', '.join(DISPERSIONS)}, "
+                             f"got {dispersion!r}")
         n_d, v_d = float(n_d), float(v_d)
         if not (math.isfinite(n_d) and n_d >= 1.0):
             raise ValueError(f"model glass needs a finite n_d >= 1, got n_d = {n_d!r}")
         if not (math.isfinite(v_d) and v_d > 0):
             raise ValueError(f"model glass needs a finite Abbe number V_d > 0, got V_d = {v_d!r}")
         super().__init__(name, DEFAULT_RANGE_NM)
+        self.dispersion = dispersion
         self.n_d = nn.Parameter(torch.tensor(n_d, dtype=dtype), requires_grad=False)
         self.v_d = nn.Parameter(torch.tensor(v_d, dtype=dtype), requires_grad=False)
 
     def _index(self, w: torch.Tensor) -> torch.Tensor:
         n_d, v_d = self.n_d.to(w), self.v_d.to(w)
-        b = (n_d - 1.0) / (v_d * _K_FC)                                  # µm²
-        return n_d - b * _INV_LD2 + b / (w / 1000.0) ** 2
+        if self.dispersion == "cauchy":
+            b = (n_d - 1.0) / (v_d * _K_FC)                              # µm²
+            return n_d - b * _INV_LD2 + b / (w / 1000.0) ** 2
+        s_k, v_k = _shape("K7", w)
+        s_f, v_f = _shape("F2", w)
+        t = (v_d - v_k) / (v_f - v_k)
+        return n_d + (n_d - 1.0) / v_d * ((1.0 - t) * s_k + t * s_f)
 
     def values(self) -> tuple[float, float]:
         """The current ``(n_d, V_d)`` as python floats."""
         return float(self.n_d), float(self.v_d)
 
     def frozen(self) -> ModelGlass:
-        """An ordinary :class:`~deeplens.optics.materials.ModelGlass` at the current values."""
+        """A :class:`~deeplens.optics.materials.ModelGlass` (Cauchy) at the current values."""
         return ModelGlass(*self.values())
 
     def to_spec(self) -> str:
+        """``"n_d/V_d"`` at the current values: a saved lens holds a (Cauchy) ModelGlass."""
         n_d, v_d = self.values()
         return f"{n_d!r}/{v_d!r}"
 
     def extra_repr(self) -> str:
         n_d, v_d = self.values()
-        return f"{self.name}: n_d={n_d:.6f}, V_d={v_d:.4f}"
+        return f"{self.name}: n_d={n_d:.6f}, V_d={v_d:.4f}, {self.dispersion}"
 
 
 def _is_model(m) -> bool:
@@ -115,7 +158,7 @@ def model_glass_media(lens) -> list[int]:
 
 
 def use_model_glasses(lens, media: Iterable[int] | None = None,
-                      region: GlassRegion | None = None) -> list[int]:
+                      region: GlassRegion | None = None, dispersion: str = "normal") -> list[int]:
     """Replace glasses of ``lens`` (in place) by :class:`TrainableModelGlass` at their own
     ``(n_d, V_d)`` (projected into ``region`` when given).
 
@@ -124,6 +167,7 @@ def use_model_glasses(lens, media: Iterable[int] | None = None,
         media: indices into ``lens.materials`` (default: every medium that is not air and has
             a finite Abbe number).
         region: the glass region to start inside.
+        dispersion: the model glasses' dispersion law (:class:`TrainableModelGlass`).
 
     Returns:
         The indices replaced (already trainable ones are kept and listed).
@@ -153,7 +197,8 @@ def use_model_glasses(lens, media: Iterable[int] | None = None,
         if region is not None:
             nd, vd = region.project(nd, vd)
         p = next(iter(lens.parameters()), None)
-        g = TrainableModelGlass(nd, vd, name=f"model glass (from {m.name})")
+        g = TrainableModelGlass(nd, vd, name=f"model glass (from {m.name})",
+                                dispersion=dispersion)
         if p is not None:
             g = g.to(device=p.device)
         lens.materials[i] = g

@@ -218,9 +218,11 @@ class GlassRegion:
 
     def __init__(self, catalogues="SCHOTT", radius: float = 0.03, v_weight: float = V_WEIGHT,
                  tau: float = 0.002, exclude: Iterable[str] = ()):
-        for what, v in (("radius", radius), ("v_weight", v_weight), ("tau", tau)):
-            if not (math.isfinite(float(v)) and float(v) > 0):
-                raise ValueError(f"glass region: {what} must be a finite number > 0, got {v!r}")
+        for what, v, lo in (("radius", radius, 2 * self.EPS), ("v_weight", v_weight, 0.0),
+                            ("tau", tau, 0.0)):
+            if not (math.isfinite(float(v)) and float(v) > lo):
+                raise ValueError(f"glass region: {what} must be a finite number > {lo:g}, got "
+                                 f"{v!r}")
         self.catalogues = check_catalogues(catalogues)
         self.radius, self.v_weight, self.tau = float(radius), float(v_weight), float(tau)
         self.glasses = glasses(self.catalogues, exclude)
@@ -256,10 +258,11 @@ class GlassRegion:
         return self.glasses[i], float(d[i])
 
     def project(self, n_d: float, v_d: float) -> tuple[float, float]:
-        """``(n_d, V_d)`` itself when inside, else the point at distance ``radius`` from the
-        nearest real glass towards it (inside: ``D`` never exceeds the exact distance)."""
+        """``(n_d, V_d)`` itself when inside, else the point at distance ``radius − ε`` from
+        the nearest real glass towards it: inside, as ``D ≤ sqrt((radius − ε)² + ε²) ≤ radius``
+        (the module docstring's bound; ``ε = 1e-4 < radius``)."""
         if bool(self.contains(float(n_d), float(v_d))):
             return float(n_d), float(v_d)
         g, d = self.nearest(n_d, v_d)
-        t = self.radius * (1.0 - 1e-9) / d
+        t = (self.radius - self.EPS) / d
         return (g.n_d + t * (float(n_d) - g.n_d), g.v_d + t * (float(v_d) - g.v_d))
