@@ -34,6 +34,7 @@ r"""Glass choice for a design search: model glasses while optimising, real glass
 from __future__ import annotations
 
 import copy
+import functools
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ from torch import nn
 from ...optics.camera import unpack
 from ...optics.materials import DEFAULT_RANGE_NM, LINE_C, LINE_D, LINE_F, Material, ModelGlass
 from ..lensopt import optimize_lens
+from ..optimizers import Infeasible
 from ..variables import Variables
 from .glass_region import V_WEIGHT, CatalogueGlass, GlassRegion, glasses, nearest_glasses
 
@@ -69,13 +71,21 @@ def _sellmeier(B, C, w_nm):
     return torch.sqrt(1.0 + sum(b * l2 / (l2 - c) for b, c in zip(B, C)))
 
 
+@functools.lru_cache(maxsize=None)
+def _reference(name: str) -> tuple[float, float]:
+    """``(n_d, n_F − n_C)`` of a normal-line reference glass (float64)."""
+    B, C = NORMAL_LINE_GLASSES[name]
+    n_d, n_f, n_c = _sellmeier(B, C, torch.tensor([LINE_D, LINE_F, LINE_C],
+                                                  dtype=torch.float64)).tolist()
+    return n_d, n_f - n_c
+
+
 def _shape(name: str, w_nm: torch.Tensor):
     """``(s_G(λ), V_G)``: the normalised dispersion ``(n(λ) − n_d) / (n_F − n_C)`` of a
-    reference glass (``w_nm``'s dtype) and its Abbe number (float64 constants)."""
+    reference glass (``w_nm``'s dtype and device) and its Abbe number."""
     B, C = NORMAL_LINE_GLASSES[name]
-    ref = _sellmeier(B, C, torch.tensor([LINE_D, LINE_F, LINE_C], dtype=torch.float64)).tolist()
-    dn = ref[1] - ref[2]
-    return (_sellmeier(B, C, w_nm) - ref[0]) / dn, (ref[0] - 1.0) / dn
+    n_d, dn = _reference(name)
+    return (_sellmeier(B, C, w_nm) - n_d) / dn, (n_d - 1.0) / dn
 
 
 class TrainableModelGlass(Material):
@@ -151,6 +161,16 @@ def _is_model(m) -> bool:
     return isinstance(m, ModelGlass) and "/" in m.to_spec() and math.isfinite(m.v_d)
 
 
+def _glass_like(m) -> bool:
+    """Not air, dispersive, and defined at the d, F and C lines."""
+    if isinstance(m, TrainableModelGlass):
+        return True
+    try:
+        return m.nd > 1.0 and math.isfinite(m.vd)
+    except ValueError:   # e.g. an infrared crystal without the F line in its range
+        return False
+
+
 def model_glass_media(lens) -> list[int]:
     """Indices into ``lens.materials`` of its model glasses (trainable or ``n_d/V_d``)."""
     lens = unpack(lens)[0]
@@ -179,8 +199,7 @@ def use_model_glasses(lens, media: Iterable[int] | None = None,
     lens = unpack(lens)[0]
     n = len(lens.materials)
     if media is None:
-        media = [i for i, m in enumerate(lens.materials)
-                 if isinstance(m, TrainableModelGlass) or (m.nd > 1.0 and math.isfinite(m.vd))]
+        media = [i for i, m in enumerate(lens.materials) if _glass_like(m)]
     out = []
     for i in media:
         i = int(i)
@@ -190,10 +209,10 @@ def use_model_glasses(lens, media: Iterable[int] | None = None,
         if isinstance(m, TrainableModelGlass):
             out.append(i)
             continue
+        if not _glass_like(m):
+            raise ValueError(f"medium {i} ({m.name}) is not a glass with n_d > 1 and a finite "
+                             f"V_d at the d, F, C lines, and cannot become a model glass")
         nd, vd = m.nd, m.vd
-        if not (nd > 1.0 and math.isfinite(vd)):
-            raise ValueError(f"medium {i} ({m.name}, n_d={nd:g}, V_d={vd:g}) is not a glass "
-                             f"and cannot become a model glass")
         if region is not None:
             nd, vd = region.project(nd, vd)
         p = next(iter(lens.parameters()), None)
@@ -371,7 +390,7 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
                "kept": False}
         try:
             val = float(reoptimize(cand))
-        except (ValueError, RuntimeError, ArithmeticError) as e:
+        except (ValueError, RuntimeError, ArithmeticError, Infeasible) as e:
             row["error"] = f"{type(e).__name__}: {e}"
             val = math.nan
         if not math.isfinite(val):
