@@ -1,0 +1,1 @@
+"""Global lens design search from a specification (issue #36)."""
