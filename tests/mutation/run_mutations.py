@@ -59,6 +59,7 @@ API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
 TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
 CONFIG = ("tests/training/test_config_errors.py",)
+HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -411,6 +412,10 @@ MUTATIONS = [
              "deeplens/training/depth_weighting.py",
              "    if not (isinstance(K, int) and not isinstance(K, bool) and K >= 1):\n",
              "    if False:\n", CONFIG),
+    # ------------------------------------------------ hardening, round three (issue 38)
+    Mutation("zmx_second_stop_wins", "a .zmx with two STOP lines read silently (the last wins)",
+             "deeplens/optics/io/zmx_parse.py", "            if stop_at is not None:",
+             "            if False:", HARDEN_ZMX),
 ]
 
 

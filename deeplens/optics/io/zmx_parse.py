@@ -187,6 +187,7 @@ def parse(path: Path):
     surfs: list[ZmxSurface] = []
     cur: ZmxSurface | None = None
     unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
+    stop_at: tuple[int, int] | None = None   # (SURF number, line) of the first STOP
     for r in records:
         ln, toks, key, line = r.line, list(r.tokens), r.key, r.text
         if key == "SURF":
@@ -267,6 +268,11 @@ def parse(path: Path):
             cur.diam = p.arg(toks, 1, ln, "semi-diameter")
             cur.diam_fixed = len(toks) > 2 and toks[2] == "1"
         elif cur is not None and key == "STOP":
+            if stop_at is not None:   # OpticStudio has one stop: a second is a corrupt file
+                p.fail(ln, f"a second STOP (SURF {len(surfs) - 1}): the stop is already SURF "
+                           f"{stop_at[0]} (STOP on line {stop_at[1]}); a lens has one aperture "
+                           f"stop")
+            stop_at = (len(surfs) - 1, ln)
             cur.stop = True
         elif cur is not None and key == "PARM":
             cur.parm[int(p.arg(toks, 1, ln, "parameter number"))] = (
