@@ -416,6 +416,17 @@ MUTATIONS = [
     Mutation("zmx_second_stop_wins", "a .zmx with two STOP lines read silently (the last wins)",
              "deeplens/optics/io/zmx_parse.py", "            if stop_at is not None:",
              "            if False:", HARDEN_ZMX),
+    Mutation("zmx_lengths_unchecked", "a .zmx DISZ/DIAM/ENPD of 1e308 read (overflowed paraxial "
+             "data)", "deeplens/optics/io/zmx_parse.py",
+             "if math.isfinite(v) and abs(v) * s_mm > MAX_LENGTH_MM:", "if False:", HARDEN_ZMX),
+    Mutation("zmx_length_limit_in_file_units", "the .zmx length limit applied in the file's unit, "
+             "not mm", "deeplens/optics/io/zmx_parse.py",
+             "if math.isfinite(v) and abs(v) * s_mm > MAX_LENGTH_MM:",
+             "if math.isfinite(v) and abs(v) > MAX_LENGTH_MM:", HARDEN_ZMX),
+    Mutation("json_curvature_unlimited", "a JSON curvature of 1e308 per mm accepted (an "
+             "OverflowError traceback)", "deeplens/optics/io/lensfile.py",
+             "                if abs(v) > MAX_CURVATURE_PER_MM:", "                if False:",
+             HARDEN_ZMX),
 ]
 
 

@@ -103,6 +103,14 @@ class _Reader:
                 self.fail(path, f"expected a length of at most {MAX_LENGTH_MM:g} mm in "
                                 f"magnitude, got {v!r} (paraxial data would overflow or round "
                                 f"to nonsense; an object at infinity is \"inf\")")
+            if path.endswith("curvature_per_mm") or path.endswith("curvature_x_per_mm"):
+                if abs(v) > MAX_CURVATURE_PER_MM:
+                    self.fail(path, f"expected a curvature of at most {MAX_CURVATURE_PER_MM:g} "
+                                    f"per mm in magnitude (a radius of at least "
+                                    f"{1 / MAX_CURVATURE_PER_MM:g} mm), got {v!r}")
+            if path.endswith("roc_mm") and v != 0 and abs(v) < 1 / MAX_CURVATURE_PER_MM:
+                self.fail(path, f"expected a radius of at least {1 / MAX_CURVATURE_PER_MM:g} mm "
+                                f"in magnitude (0 for a flat surface), got {v!r}")
             return float(v)
         if kind == "number_or_inf":
             if isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
@@ -151,6 +159,11 @@ class _Reader:
 #: largest length (mm) a lens file may hold: beyond it paraxial quantities overflow (a 1e308 mm
 #: thickness gave an EFL of -1e-305 mm)
 MAX_LENGTH_MM = 1e12
+
+#: largest curvature (1/mm) a lens file may hold: a radius of at least 1 / MAX_LENGTH_MM = 1e-12 mm
+#: (beyond it squares of curvatures overflow: a curvature of 1e308 per mm gave an
+#: ``OverflowError`` traceback)
+MAX_CURVATURE_PER_MM = 1e12
 
 _COMMON_KEYS = {"type", "distance_mm", "semi_diameter_mm", "material"}
 _TOP_KEYS = {"format", "version", "name", "units", "object", "aperture", "fields_deg",

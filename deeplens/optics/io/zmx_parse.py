@@ -25,6 +25,7 @@ from pathlib import Path
 
 from ..errors import ZemaxFileError, ZemaxWarning
 from .agf import decode_zemax_text
+from .lensfile import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 
 __all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
 
@@ -102,10 +103,12 @@ class ZmxSurface:
     type: str = "STANDARD"
     type_line: int = 0
     curv: float = 0.0
+    curv_line: int = 0
     disz: float = 0.0
     disz_line: int = 0
     coni: float = 0.0
     diam: float = 0.0
+    diam_line: int = 0
     diam_fixed: bool = False
     stop: bool = False
     glass: str | None = None
@@ -256,7 +259,7 @@ def parse(path: Path):
                            f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE, BICONICX "
                            f"and BINARY_2")
         elif cur is not None and key == "CURV":
-            cur.curv = p.arg(toks, 1, ln, "curvature")
+            cur.curv, cur.curv_line = p.arg(toks, 1, ln, "curvature"), ln
         elif cur is not None and key == "DISZ":
             if len(toks) < 2:
                 p.fail(ln, "DISZ line is truncated: missing the thickness")
@@ -265,7 +268,7 @@ def parse(path: Path):
         elif cur is not None and key == "CONI":
             cur.coni = p.arg(toks, 1, ln, "conic constant")
         elif cur is not None and key == "DIAM":
-            cur.diam = p.arg(toks, 1, ln, "semi-diameter")
+            cur.diam, cur.diam_line = p.arg(toks, 1, ln, "semi-diameter"), ln
             cur.diam_fixed = len(toks) > 2 and toks[2] == "1"
         elif cur is not None and key == "STOP":
             if stop_at is not None:   # OpticStudio has one stop: a second is a corrupt file
@@ -365,5 +368,38 @@ def parse(path: Path):
     if len(surfs) < 3:
         p.fail(surfs[-1].line, f"expected an object surface, at least one lens surface and an "
                                f"image surface; found {len(surfs)} SURF block(s) (truncated file?)")
+    _check_magnitudes(sysd, surfs, p)
     return sysd, surfs, p
+
+
+def _check_magnitudes(sysd: dict, surfs: list[ZmxSurface], p: Locator) -> None:
+    """Lengths and curvatures within the limits of deeplens lens files
+    (:data:`~.lensfile.MAX_LENGTH_MM`, :data:`~.lensfile.MAX_CURVATURE_PER_MM`), in mm after the
+    ``UNIT`` scaling: beyond them paraxial data overflow or round to nonsense (a ``DISZ 1e308``
+    gave an EFL of -1e-305 mm, a ``CURV 1e308`` an ``OverflowError``)."""
+    s_mm = UNITS[sysd["unit"][0]]
+    unit = sysd["unit"][0]
+
+    def length(v, ln, what, hint=""):
+        if math.isfinite(v) and abs(v) * s_mm > MAX_LENGTH_MM:
+            p.fail(ln, f"{what} {v:g} {unit}: expected a length of at most {MAX_LENGTH_MM:g} mm "
+                       f"in magnitude (the limit of deeplens lens files: paraxial data would "
+                       f"overflow or round to nonsense{hint})")
+
+    if sysd["aperture"] is not None and sysd["aperture"][0] == "epd":
+        length(sysd["aperture"][1], sysd["aperture"][2], "ENPD entrance-pupil diameter")
+    for k, s in enumerate(surfs):
+        if abs(s.curv) / s_mm > MAX_CURVATURE_PER_MM:
+            p.fail(s.curv_line, f"CURV {s.curv:g} per {unit} (SURF {k}): expected a curvature of "
+                                f"at most {MAX_CURVATURE_PER_MM:g} per mm in magnitude (a radius "
+                                f"of at least {1 / MAX_CURVATURE_PER_MM:g} mm, the limit of "
+                                f"deeplens lens files)")
+        length(s.disz, s.disz_line, f"DISZ (SURF {k} thickness)",
+               "; an object at infinity is DISZ INFINITY" if k == 0 else "")
+        length(s.diam, s.diam_line, f"DIAM (SURF {k} semi-diameter)")
+        for rec, what in ((s.clap, "CLAP radius"), (s.obsc, "obscuration radius"),
+                          (s.sqap, "SQAP half-width"), (s.obdc, "OBDC decenter")):
+            if rec is not None:
+                for v in rec[:-1]:
+                    length(v, rec[-1], f"{what} (SURF {k})")
 

@@ -3,10 +3,12 @@ file, the line and what was expected, never read silently or with a traceback.""
 
 from __future__ import annotations
 
-import pytest
-from test_zmx import line_of, singlet, write
+import json
 
-from deeplens.optics.io import ZemaxFileError, read_zmx
+import pytest
+from test_zmx import JSON, line_of, singlet, write
+
+from deeplens.optics.io import LensFileError, ZemaxFileError, load_lens, read_zmx
 
 
 def test_a_second_stop_is_refused_naming_the_first(tmp_path):
@@ -17,3 +19,46 @@ def test_a_second_stop_is_refused_naming_the_first(tmp_path):
                                              rf"stop is already SURF 1 \(STOP on line {first}\)"):
         read_zmx(write(tmp_path, text))
     assert read_zmx(write(tmp_path, singlet(), "one.zmx")).stop_index == 0
+
+
+@pytest.mark.parametrize("old,new,field,match", [
+    ("  DISZ 5.0\n", "  DISZ 1e308\n", "DISZ", r"DISZ \(SURF 2 thickness\) 1e\+308 MM: expected a "
+                                           r"length of at most 1e\+12 mm in magnitude"),
+    ("  DISZ 5.0\n", "  DISZ 1e29\n", "DISZ", r"DISZ \(SURF 2 thickness\) 1e\+29 MM: expected"),
+    ("  DISZ INFINITY\n", "  DISZ 1e300\n", "DISZ",
+     r"DISZ \(SURF 0 thickness\) 1e\+300 MM: .*an object at infinity is DISZ INFINITY"),
+    ("  CURV 0.02\n", "  CURV 1e308\n", "CURV", r"CURV 1e\+308 per MM \(SURF 2\): expected a "
+                                              r"curvature of at most 1e\+12 per mm"),
+    ("  DIAM 8.0 1", "  DIAM 1e300 1", "DIAM", r"DIAM \(SURF 2 semi-diameter\) 1e\+300 MM"),
+    ("ENPD 10", "ENPD 3e12", "ENPD", r"ENPD entrance-pupil diameter 3e\+12 MM"),
+])
+def test_overflowing_numbers_are_refused_at_their_line(tmp_path, old, new, field, match):
+    text = singlet()
+    assert old in text
+    text = text.replace(old, new, 1)
+    with pytest.raises(ZemaxFileError, match=match) as e:
+        read_zmx(write(tmp_path, text))
+    assert e.value.line == line_of(text, new.strip()) and e.value.feature == field
+
+
+def test_the_length_limit_is_in_millimetres(tmp_path):
+    """1e12 mm is the limit whatever the file's unit: 5e11 in inches is 1.27e13 mm."""
+    text = singlet().replace("  DISZ 5.0\n", "  DISZ 5e11\n").replace("UNIT MM", "UNIT IN")
+    with pytest.raises(ZemaxFileError, match=r"DISZ \(SURF 2 thickness\) 5e\+11 IN: expected"):
+        read_zmx(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("key,value,match", [
+    ("curvature_per_mm", 1e308, r"surfaces\[1\].curvature_per_mm: expected a curvature of at "
+                                r"most 1e\+12 per mm"),
+    ("roc_mm", 1e-300, r"surfaces\[1\].roc_mm: expected a radius of at least 1e-12 mm"),
+])
+def test_json_curvatures_have_the_same_limit(tmp_path, key, value, match):
+    d = json.loads(JSON.read_text())
+    d["surfaces"][1].pop("curvature_per_mm")
+    d["surfaces"][1][key] = value
+    p = tmp_path / "c.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(LensFileError, match=match):
+        load_lens(p)
+
