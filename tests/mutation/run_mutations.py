@@ -427,6 +427,13 @@ MUTATIONS = [
              "OverflowError traceback)", "deeplens/optics/io/lensfile.py",
              "                if abs(v) > MAX_CURVATURE_PER_MM:", "                if False:",
              HARDEN_ZMX),
+    Mutation("agf_nan_index_accepted", "an .agf glass with n^2 < 0 or n < 1 at the design "
+             "wavelengths accepted (a report of nan)", "deeplens/optics/io/zmx_read.py",
+             "        _check_index(mat, waves_nm, s, surfs.index(s), p)\n", "", HARDEN_ZMX),
+    Mutation("agf_formula_inf_traceback", "an .agf formula number inf: an OverflowError "
+             "traceback", "deeplens/optics/io/agf.py",
+             "if not math.isfinite(formula) or formula != int(formula)",
+             "if formula != int(formula)", HARDEN_ZMX),
 ]
 
 

@@ -168,7 +168,9 @@ class GlassCatalogue:
         rec = self.records.get(glass.strip().upper())
         if rec is None:
             return None
-        return AGFGlass(rec.name, rec.formula, rec.coefficients, rec.range_nm, self.name)
+        glass = AGFGlass(rec.name, rec.formula, rec.coefficients, rec.range_nm, self.name)
+        glass.source = f"{self.path}:{rec.line}"   # where it is defined, for messages
+        return glass
 
     def __repr__(self) -> str:
         return f"GlassCatalogue({self.name!r}, {len(self)} glasses, {str(self.path)!r})"
@@ -277,7 +279,7 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
                 formula = float(toks[2])
             except ValueError:
                 fail(ln, f"glass {gname!r}: the formula number must be a number, got {toks[2]!r}")
-            if formula != int(formula) or int(formula) not in FORMULAS:
+            if not math.isfinite(formula) or formula != int(formula) or int(formula) not in FORMULAS:
                 fail(ln, f"glass {gname!r}: unknown dispersion formula {toks[2]!r}; known: "
                          f"{', '.join(f'{k} ({v[0]})' for k, v in FORMULAS.items())}")
             vals = nums(toks[4:6], ln, "NM n_d/V_d") if len(toks) >= 6 else [0.0, 0.0]

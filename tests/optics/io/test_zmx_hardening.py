@@ -4,11 +4,19 @@ file, the line and what was expected, never read silently or with a traceback.""
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 from test_zmx import JSON, line_of, singlet, write
 
-from deeplens.optics.io import LensFileError, ZemaxFileError, load_lens, read_zmx
+from deeplens.optics.io import (
+    LensFileError,
+    ZemaxFileError,
+    load_lens,
+    read_agf,
+    read_zmx,
+)
+from deeplens.optics.io.agf import AgfError
 
 
 def test_a_second_stop_is_refused_naming_the_first(tmp_path):
@@ -61,4 +69,42 @@ def test_json_curvatures_have_the_same_limit(tmp_path, key, value, match):
     p.write_text(json.dumps(d))
     with pytest.raises(LensFileError, match=match):
         load_lens(p)
+
+
+# --------------------------------------------------------------------------- .agf glasses
+def _agf(tmp_path, nm_line, cd):
+    p = tmp_path / "ACME.agf"
+    p.write_text(f"CC test catalogue\n{nm_line}\nCD {cd}\nLD 0.3 2.5\n")
+    return p
+
+
+@pytest.mark.parametrize("formula", ["inf", "nan", "1e400"])
+def test_a_non_finite_formula_number_is_a_located_error(tmp_path, formula):
+    p = _agf(tmp_path, f"NM BAD {formula} 0 0 0", "1.0 0.01 0 0 0 0")
+    with pytest.raises(AgfError, match=rf"ACME.agf:2: glass 'BAD': unknown dispersion formula "
+                                       rf"'{formula}'"):
+        read_agf(p)
+
+
+@pytest.mark.parametrize("cd,match", [
+    # Sellmeier 1: n² = 1 - 2 λ²/(λ² - 0.01) < 0 at 550 nm
+    ("-2 0.01 0 0 0 0", r"no real index at 550 nm \(n² < 0 or an overflow\)"),
+    # n² = 1 - 0.5 λ²/(λ² - 0.01): n = 0.69 at 550 nm
+    ("-0.5 0.01 0 0 0 0", r"n = 0.69\d* at 550 nm"),
+    # n² = 1 + 1e300 λ²/(λ² - 1e-300) ~ 1e300: n = 1e150, a coefficient typed wrong
+    ("1e300 1e-300 0 0 0 0", r"n = 1e\+150 at 550 nm"),
+])
+def test_a_glass_without_a_real_index_at_the_design_wavelengths_is_refused(tmp_path, cd, match):
+    agf = _agf(tmp_path, "NM BADGLASS 2 0 0 0", cd)
+    text = singlet(gcat="GCAT ACME", glass="GLAS BADGLASS 0 0 1.5 60 0 0 0 0 0 0")
+    with pytest.raises(ZemaxFileError, match=rf"t.zmx:{line_of(text, 'GLAS BADGLASS')}: glass "
+                                             rf"'BADGLASS' \({re.escape(str(agf))}:2\) of SURF 2: its dispersion "
+                                             rf"formula gives {match}; expected a finite index "
+                                             rf">= 1 \(and <= 10 for a catalogue glass\)") as e:
+        read_zmx(write(tmp_path, text), glass_catalogs=[agf])
+    assert e.value.feature == "GLAS"
+    # the same catalogue with a sound glass reads
+    _agf(tmp_path, "NM BADGLASS 2 0 0 0", "1.03961212 0.00600069867 0.231792344 0.0200179144 "
+                                          "1.01046945 103.560653")
+    read_zmx(write(tmp_path, text), glass_catalogs=[agf])
 
