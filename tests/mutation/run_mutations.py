@@ -434,6 +434,9 @@ MUTATIONS = [
              "traceback", "deeplens/optics/io/agf.py",
              "if not math.isfinite(formula) or formula != int(formula)",
              "if formula != int(formula)", HARDEN_ZMX),
+    Mutation("utf16_without_mark_undetected", "a UTF-16 .zmx without byte-order mark decoded "
+             "as UTF-8 (NUL bytes, nothing read)", "deeplens/optics/io/agf.py",
+             "    if utf16 is not None:", "    if False:", HARDEN_ZMX),
 ]
 
 

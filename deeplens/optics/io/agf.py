@@ -177,18 +177,37 @@ class GlassCatalogue:
 
 
 def decode_zemax_text(path: Path) -> str:
-    """Text of a Zemax file (``.agf``, ``.zmx``): UTF-16 with a byte-order mark, UTF-8, UTF-16
-    without a mark (OpticStudio writes it too: every other byte zero), else Latin-1 (old
-    catalogues have 8-bit comments; their index data is ASCII)."""
+    """Text of a Zemax file (``.agf``, ``.zmx``): UTF-16 with a byte-order mark, UTF-16 LE or BE
+    without a mark (OpticStudio writes it too: every other byte zero; found by that NUL-byte
+    pattern, :func:`_utf16_without_mark`), UTF-8, else Latin-1 (old catalogues have 8-bit
+    comments; their index data is ASCII)."""
     raw = Path(path).read_bytes()
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
         return raw.decode("utf-16")
+    utf16 = _utf16_without_mark(raw)
+    if utf16 is not None:   # before UTF-8: ASCII in UTF-16 is valid UTF-8 (with NUL bytes)
+        return raw[:len(raw) // 2 * 2].decode(utf16)   # a cut-off file may end mid-unit
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        if len(raw) > 1 and raw[1:200:2].count(0) > 0.9 * len(raw[1:200:2]):
-            return raw.decode("utf-16-le")
         return raw.decode("latin-1")
+
+
+def _utf16_without_mark(raw: bytes) -> str | None:
+    """``"utf-16-le"`` or ``"utf-16-be"`` when ``raw`` (no byte-order mark) looks like UTF-16
+    text of mostly ASCII characters, else ``None``: in its first 400 bytes the high bytes of
+    the code units (odd bytes in little-endian, even bytes in big-endian) are nearly all NUL
+    and the low bytes nearly none.  Zemax files are ASCII keywords and numbers."""
+    head = raw[:400]
+    if len(head) < 4:
+        return None
+    even, odd = head[0::2], head[1::2]
+    nul_even, nul_odd = even.count(0) / len(even), odd.count(0) / len(odd)
+    if nul_odd > 0.9 and nul_even < 0.1:
+        return "utf-16-le"
+    if nul_even > 0.9 and nul_odd < 0.1:
+        return "utf-16-be"
+    return None
 
 
 def read_agf(path, name: str | None = None) -> GlassCatalogue:

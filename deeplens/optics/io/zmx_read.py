@@ -55,7 +55,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     """Read a sequential Zemax ``.zmx`` file into a :class:`~deeplens.optics.lens.Lens`.
 
     Args:
-        path: the ``.zmx`` file (UTF-16 with byte-order mark, or UTF-8).
+        path: the ``.zmx`` file (UTF-16 with or without byte-order mark, UTF-8 or Latin-1).
         glass_catalogs: ``.agf`` files (paths) or :class:`~.agf.GlassCatalogue` objects; each
             answers for the ``GCAT`` name equal to its file stem.  A catalogue the file names
             but the caller does not pass is looked for as ``<NAME>.agf`` next to the ``.zmx``.

@@ -7,11 +7,12 @@ import json
 import re
 
 import pytest
-from test_zmx import JSON, line_of, singlet, write
+from test_zmx import JSON, ZMX, line_of, singlet, write
 
 from deeplens.optics.io import (
     LensFileError,
     ZemaxFileError,
+    lens_to_dict,
     load_lens,
     read_agf,
     read_zmx,
@@ -108,3 +109,17 @@ def test_a_glass_without_a_real_index_at_the_design_wavelengths_is_refused(tmp_p
                                           "1.01046945 103.560653")
     read_zmx(write(tmp_path, text), glass_catalogs=[agf])
 
+
+# --------------------------------------------------------------------------- encodings
+@pytest.mark.parametrize("codec", ["utf-16-le", "utf-16-be"])
+def test_utf16_without_a_byte_order_mark_is_decoded(tmp_path, codec):
+    """The shipped file (UTF-16 LE with a mark) without its mark, and byte-swapped."""
+    raw = ZMX.read_bytes()
+    assert raw[:2] == b"\xff\xfe"
+    text = raw[2:].decode("utf-16-le")
+    p = tmp_path / ZMX.name   # the lens is named after the file
+    p.write_bytes(text.encode(codec))
+    assert lens_to_dict(read_zmx(p)) == lens_to_dict(read_zmx(ZMX))
+    agf = tmp_path / "ACME.agf"
+    agf.write_bytes("NM G1 2 0 0 0\nCD 1.0 0.01 0 0 0 0\n".encode(codec))
+    assert read_agf(agf).get("G1") is not None
