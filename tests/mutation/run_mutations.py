@@ -60,6 +60,7 @@ TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
 CONFIG = ("tests/training/test_config_errors.py",)
 HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
+FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -437,6 +438,12 @@ MUTATIONS = [
     Mutation("utf16_without_mark_undetected", "a UTF-16 .zmx without byte-order mark decoded "
              "as UTF-8 (NUL bytes, nothing read)", "deeplens/optics/io/agf.py",
              "    if utf16 is not None:", "    if False:", HARDEN_ZMX),
+    Mutation("lens_file_any_kind", "lens/glass readers open any path (a FIFO blocks, "
+             "/dev/zero is read)", "deeplens/optics/io/filecheck.py",
+             "    if not stat.S_ISREG(st.st_mode):", "    if False:", FILE_KINDS),
+    Mutation("lens_file_unbounded", "lens/glass files read whatever their size",
+             "deeplens/optics/io/filecheck.py", "    if st.st_size > MAX_FILE_BYTES:",
+             "    if False:", FILE_KINDS),
 ]
 
 

@@ -39,7 +39,9 @@ from typing import NamedTuple
 
 import torch
 
+from ..errors import LensFileError
 from ..materials import DEFAULT_RANGE_NM, LINE_D, Material
+from .filecheck import read_file_bytes
 
 __all__ = ["FORMULAS", "AGFGlass", "AgfError", "AgfRecord", "GlassCatalogue", "read_agf"]
 
@@ -176,12 +178,16 @@ class GlassCatalogue:
         return f"GlassCatalogue({self.name!r}, {len(self)} glasses, {str(self.path)!r})"
 
 
-def decode_zemax_text(path: Path) -> str:
+def decode_zemax_text(path: Path, what: str = "Zemax file") -> str:
     """Text of a Zemax file (``.agf``, ``.zmx``): UTF-16 with a byte-order mark, UTF-16 LE or BE
     without a mark (OpticStudio writes it too: every other byte zero; found by that NUL-byte
     pattern, :func:`_utf16_without_mark`), UTF-8, else Latin-1 (old catalogues have 8-bit
-    comments; their index data is ASCII)."""
-    raw = Path(path).read_bytes()
+    comments; their index data is ASCII).
+
+    Raises:
+        LensFileError: not a regular file, or too large (:func:`.filecheck.read_file_bytes`).
+    """
+    raw = read_file_bytes(path, what)   # a regular file of a sane size (.filecheck)
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
         return raw.decode("utf-16")
     utf16 = _utf16_without_mark(raw)
@@ -224,7 +230,8 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
         FileNotFoundError: no such file.
         AgfError: a malformed record (``file:line`` and what was expected), a glass without a
             ``CD`` record (truncated file), an unknown formula number, a glass defined twice,
-            or no glass at all.
+            or no glass at all; a path that is not a regular file (a device, a FIFO, a
+            directory, symbolic links followed) or a file larger than 64 MiB.
 
     Example::
 
@@ -235,7 +242,10 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"glass catalogue not found: {path}")
-    text = decode_zemax_text(path)
+    try:
+        text = decode_zemax_text(path, "glass catalogue")
+    except LensFileError as e:
+        raise AgfError(str(e)) from None
     cat_name = (name or path.stem).upper()
     records: dict[str, AgfRecord] = {}
     notes: list[str] = []

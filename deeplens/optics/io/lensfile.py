@@ -59,6 +59,7 @@ from ..errors import LensError, LensFileError
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
 from ..surfaces import SURFACE_TYPES
+from .filecheck import read_file_bytes
 
 __all__ = ["read_json", "save_lens", "lens_to_dict", "lens_from_dict", "LensFileError",
            "FORMAT_NAME", "FORMAT_VERSION"]
@@ -436,7 +437,7 @@ def read_json(path) -> Lens:
     for invalid JSON)."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_file_bytes(path).decode("utf-8"))
     except UnicodeDecodeError as e:
         raise LensFileError(f"not a UTF-8 text file ({e.reason} at byte {e.start})",
                             source=path) from e

@@ -23,7 +23,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import ZemaxFileError, ZemaxWarning
+from ..errors import LensFileError, ZemaxFileError, ZemaxWarning
 from .agf import decode_zemax_text
 from .lensfile import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 
@@ -179,7 +179,9 @@ def parse(path: Path):
     """The raw file: ``(system dict, [ZmxSurface, ...], locator)``, lengths in file units."""
     p = Locator(path)
     try:
-        text = decode_zemax_text(path)
+        text = decode_zemax_text(path, "lens file")
+    except LensFileError as e:   # not a regular file, or too large
+        p.fail(0, e.message)
     except UnicodeDecodeError as e:
         p.fail(0, f"not a UTF-8 or UTF-16 text file ({e.reason} at byte {e.start})")
     records = tokenize(text)
