@@ -61,6 +61,7 @@ VSTOP = ("tests/optics/test_virtual_stop.py",)
 CONFIG = ("tests/training/test_config_errors.py",)
 HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
 FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
+READ_IMAGE = ("tests/render/test_read_image_depth.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -444,6 +445,16 @@ MUTATIONS = [
     Mutation("lens_file_unbounded", "lens/glass files read whatever their size",
              "deeplens/optics/io/filecheck.py", "    if st.st_size > MAX_FILE_BYTES:",
              "    if False:", FILE_KINDS),
+    Mutation("render_16bit_through_8bit", "deeplens render reads 16-bit greyscale through an "
+             "8-bit conversion (clips)", "deeplens/render/image.py",
+             "            if im.mode in _HIGH_DEPTH:", "            if False:", READ_IMAGE),
+    Mutation("render_16bit_scaled_by_255", "16-bit greyscale scaled by 255",
+             "deeplens/render/image.py", "    else:\n        scale = 65535.0\n",
+             "    else:\n        scale = 255.0\n", READ_IMAGE),
+    Mutation("render_bomb_traceback", "a 20000 x 20000 PNG header: a DecompressionBombError "
+             "traceback", "deeplens/render/image.py",
+             "    except Image.DecompressionBombError as e:", "    except ZeroDivisionError as e:",
+             READ_IMAGE),
 ]
 
 
