@@ -455,6 +455,10 @@ MUTATIONS = [
              "traceback", "deeplens/render/image.py",
              "    except Image.DecompressionBombError as e:", "    except ZeroDivisionError as e:",
              READ_IMAGE),
+    Mutation("zmx_cut_off_silent", "a .zmx cut after a lens surface read silently as a shorter "
+             "lens", "deeplens/optics/io/zmx_parse.py",
+             "    if last.disz_line and last.disz == 0:\n        return\n",
+             "    return\n", HARDEN_ZMX),
 ]
 
 

@@ -371,6 +371,7 @@ def parse(path: Path):
         p.fail(surfs[-1].line, f"expected an object surface, at least one lens surface and an "
                                f"image surface; found {len(surfs)} SURF block(s) (truncated file?)")
     _check_magnitudes(sysd, surfs, p)
+    _check_complete(surfs, p)
     return sysd, surfs, p
 
 
@@ -405,3 +406,16 @@ def _check_magnitudes(sysd: dict, surfs: list[ZmxSurface], p: Locator) -> None:
                 for v in rec[:-1]:
                     length(v, rec[-1], f"{what} (SURF {k})")
 
+
+def _check_complete(surfs: list[ZmxSurface], p: Locator) -> None:
+    """A note (a located warning) when the file looks cut off: every file of the test corpus
+    (OpticStudio's and converters') ends with its image surface, a ``SURF`` block with
+    ``DISZ 0``; a file cut after a lens surface (or inside the image surface's block) would
+    otherwise read as a shorter lens, the cut surface taken as the image surface."""
+    last, k = surfs[-1], len(surfs) - 1
+    if last.disz_line and last.disz == 0:
+        return
+    why = "has no DISZ line" if not last.disz_line else f"has DISZ {last.disz:g}"
+    p.note(last.line, f"the file ends with SURF {k}, which {why}: OpticStudio ends every file "
+                      f"with its image surface (a block with DISZ 0), so the file may be cut "
+                      f"off; it was read as a lens whose image surface is SURF {k}")

@@ -7,17 +7,19 @@ import json
 import re
 
 import pytest
-from test_zmx import JSON, ZMX, line_of, singlet, write
+from test_zmx import JSON, REPO, ZMX, line_of, singlet, write
 
 from deeplens.optics.io import (
     LensFileError,
     ZemaxFileError,
+    ZemaxWarning,
     lens_to_dict,
     load_lens,
     read_agf,
     read_zmx,
 )
 from deeplens.optics.io.agf import AgfError
+from deeplens.optics.io.zmx_parse import parse
 
 
 def test_a_second_stop_is_refused_naming_the_first(tmp_path):
@@ -123,3 +125,34 @@ def test_utf16_without_a_byte_order_mark_is_decoded(tmp_path, codec):
     agf = tmp_path / "ACME.agf"
     agf.write_bytes("NM G1 2 0 0 0\nCD 1.0 0.01 0 0 0 0\n".encode(codec))
     assert read_agf(agf).get("G1") is not None
+
+
+# --------------------------------------------------------------------------- cut-off files
+def test_a_file_cut_after_a_lens_surface_is_warned_about(tmp_path):
+    text = ZMX.read_bytes().decode("utf-16")
+    lines = text.splitlines()
+    last = line_of(text, "SURF 13") - 1        # the file up to the end of SURF 12's block
+    p = tmp_path / "cut.zmx"
+    p.write_text("\n".join(lines[:last]) + "\n")
+    with pytest.warns(ZemaxWarning) as rec:
+        read_zmx(p)
+    cut = [w for w in rec if "may be cut off" in str(w.message)]
+    assert len(cut) == 1
+    assert str(cut[0].message) == (
+        f"{p}:{line_of(text, 'SURF 12')}: the file ends with SURF 12, which has DISZ 17.4277: "
+        f"OpticStudio ends every file with its image surface (a block with DISZ 0), so the file "
+        f"may be cut off; it was read as a lens whose image surface is SURF 12")
+    # cut inside the image surface's block, before its DISZ line
+    p.write_text("\n".join(lines[:last + 3]) + "\n")
+    with pytest.warns(ZemaxWarning, match=r"cut.zmx:\d+: the file ends with SURF 13, which has "
+                                          r"no DISZ line"):
+        read_zmx(p)
+
+
+def test_no_shipped_or_corpus_file_looks_cut_off():
+    files = sorted((REPO / "tests" / "data").rglob("*.zmx")) + sorted(
+        (REPO / "data").rglob("*.zmx"))
+    assert len(files) >= 30
+    for f in files:
+        _, _, p = parse(f)
+        assert not [m for _, m in p.notes if "may be cut off" in m], f.name
