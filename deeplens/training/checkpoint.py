@@ -59,12 +59,25 @@ def sha256_file(path) -> str:
 def _listed_digests(path) -> list[str]:
     """The digests listed beside ``path`` (hex, any case, as ``sha256sum`` or an editor may
     write them), lower-cased."""
+    return _read_digests(path)[0]
+
+
+def _read_digests(path) -> tuple[list[str], str]:
+    """``(digests, why)``: the digests listed beside ``path`` (lower-cased), and when there
+    are none, why (``"it is empty"``, ``"it cannot be read (...)"``, ``"it holds no 64-digit
+    hex SHA-256 (...)"``)."""
     side = checksum_path(path)
     try:
-        lines = side.read_text().lower().split()
-    except (OSError, UnicodeDecodeError):
-        return []
-    return [s for s in lines if len(s) == 64 and all(c in "0123456789abcdef" for c in s)]
+        text = side.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        return [], f"it cannot be read ({type(e).__name__}: {e})"
+    words = text.lower().split()
+    found = [s for s in words if len(s) == 64 and all(c in "0123456789abcdef" for c in s)]
+    if found:
+        return found, ""
+    if not words:
+        return [], "it is empty"
+    return [], f"it holds no 64-digit hex SHA-256 (it starts {text.strip()[:40]!r})"
 
 
 def temp_path(path: Path) -> Path:
@@ -152,13 +165,15 @@ def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> 
     """Verify ``path`` against its digest file and load it with ``weights_only=True``.
 
     A checkpoint without a digest file (written by hand or by an older version) loads with a
-    warning.  With ``state_dict_only`` a bare module state dict (names to tensors) is accepted
+    warning; one whose digest file exists but lists no digest (empty, unreadable or garbage) is
+    refused.  With ``state_dict_only`` a bare module state dict (names to tensors) is accepted
     too: Lightning's spawn launcher (``trainer=ddp_cpu``) hands rank 0's weights back to the
     main process in such a file through the checkpoint I/O.
 
     Raises:
         FileNotFoundError: no file at ``path``.
-        CheckpointError: the digest does not match (truncated or corrupted file), the file is
+        CheckpointError: the digest does not match (truncated or corrupted file), the digest
+            file lists no digest (empty, unreadable or garbage: it says which), the file is
             not a readable checkpoint, or it holds objects that ``weights_only`` refuses; the
             message names the file.
     """
@@ -166,10 +181,15 @@ def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> 
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
     side = checksum_path(path)
-    listed = _listed_digests(path) if side.exists() else []
+    listed, why = _read_digests(path) if side.exists() else ([], "")
     if side.exists() and not listed:
-        warnings.warn(f"checkpoint {path}: its digest file {side.name} lists no SHA-256 "
-                      f"(empty or unreadable): loading it unverified", stacklevel=2)
+        # deeplens writes the digest file atomically, so it is never empty or garbage: one
+        # that is was damaged with the checkpoint, perhaps, and cannot vouch for it
+        raise CheckpointError(
+            f"checkpoint {path} cannot be verified: its digest file {side.name} lists no "
+            f"SHA-256 ({why}); deeplens writes a 64-digit hex digest there, so the digest file "
+            f"was damaged or replaced.  If you trust the checkpoint, delete {side} to load it "
+            f"unverified (with a warning)")
     elif side.exists():
         digest = sha256_file(path)
         if digest not in listed:

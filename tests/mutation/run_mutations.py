@@ -459,6 +459,10 @@ MUTATIONS = [
              "lens", "deeplens/optics/io/zmx_parse.py",
              "    if last.disz_line and last.disz == 0:\n        return\n",
              "    return\n", HARDEN_ZMX),
+    Mutation("garbage_digest_loads", "a garbage .sha256 lets a damaged checkpoint load "
+             "unverified (a warning only)", "deeplens/training/checkpoint.py",
+             "    if side.exists() and not listed:\n", "    if False:\n",
+             ("tests/training/test_faults.py",)),
 ]
 
 

@@ -53,11 +53,34 @@ def test_uppercase_or_empty_digest_does_not_make_a_good_checkpoint_corrupt(tmp_p
     side = checksum_path(p)
     side.write_text(side.read_text().upper())  # as some tools write hex
     assert torch.equal(read_checkpoint(p)["state_dict"]["w"], torch.full((4,), 2.0))
-    side.write_text("")
-    with pytest.warns(UserWarning, match="lists no SHA-256.*unverified"):
+    side.write_text("")   # deeplens never writes an empty one: refused, saying so (issue 38)
+    with pytest.raises(CheckpointError, match=r"cannot be verified: its digest file "
+                                              r"last.ckpt.sha256 lists no SHA-256 \(it is empty\)"):
         read_checkpoint(p)
     side.write_text("0" * 64 + "\n")  # a real mismatch is still refused
     with pytest.raises(CheckpointError, match="corrupt"):
+        read_checkpoint(p)
+
+
+def test_a_garbage_digest_file_does_not_let_a_damaged_checkpoint_load(tmp_path):
+    """A flipped byte in the checkpoint and garbage in its .sha256 (issue 38): refused, saying
+    the digest file is garbage and how to load the checkpoint anyway; once the digest file is
+    deleted it loads unverified with a warning (and fails or not on its own bytes)."""
+    p = tmp_path / "last.ckpt"
+    write_checkpoint(_state(2.0), p)
+    raw = bytearray(p.read_bytes())
+    raw[len(raw) // 2] ^= 0x01
+    p.write_bytes(bytes(raw))
+    side = checksum_path(p)
+    side.write_text("not a digest: garbage\n")
+    with pytest.raises(CheckpointError, match=r"last.ckpt cannot be verified: its digest file "
+                                              r"last.ckpt.sha256 lists no SHA-256 \(it holds no "
+                                              r"64-digit hex SHA-256 \(it starts 'not a digest"
+                                              r".*delete .*last.ckpt.sha256 to load it unverified"):
+        read_checkpoint(p)
+    side.write_bytes(b"\xff\xfe\x00garbage")   # not UTF-8
+    with pytest.raises(CheckpointError, match=r"lists no SHA-256 \(it cannot be read "
+                                              r"\(UnicodeDecodeError"):
         read_checkpoint(p)
 
 
