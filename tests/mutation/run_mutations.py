@@ -463,6 +463,11 @@ MUTATIONS = [
              "unverified (a warning only)", "deeplens/training/checkpoint.py",
              "    if side.exists() and not listed:\n", "    if False:\n",
              ("tests/training/test_faults.py",)),
+    Mutation("perceptual_pickle_traceback", "a pickle as model.perceptual_weights refused with "
+             "torch's raw UnpicklingError", "deeplens/nets/losses.py",
+             "        except Exception as e:  # noqa: BLE001 - torch raises many kinds",
+             "        except ZeroDivisionError as e:  # noqa: BLE001 - torch raises many kinds",
+             ("tests/nets/test_perceptual_weights_file.py",)),
 ]
 
 
