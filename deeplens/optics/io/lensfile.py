@@ -59,6 +59,7 @@ from ..errors import LensError, LensFileError
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
 from ..surfaces import SURFACE_TYPES
+from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 from .filecheck import read_file_bytes
 
 __all__ = ["read_json", "save_lens", "lens_to_dict", "lens_from_dict", "LensFileError",
@@ -157,14 +158,6 @@ class _Reader:
                       f"unknown field{hint} (known: {', '.join(sorted(allowed))})")
 
 
-#: largest length (mm) a lens file may hold: beyond it paraxial quantities overflow (a 1e308 mm
-#: thickness gave an EFL of -1e-305 mm)
-MAX_LENGTH_MM = 1e12
-
-#: largest curvature (1/mm) a lens file may hold: a radius of at least 1 / MAX_LENGTH_MM = 1e-12 mm
-#: (beyond it squares of curvatures overflow: a curvature of 1e308 per mm gave an
-#: ``OverflowError`` traceback)
-MAX_CURVATURE_PER_MM = 1e12
 
 _COMMON_KEYS = {"type", "distance_mm", "semi_diameter_mm", "material"}
 _TOP_KEYS = {"format", "version", "name", "units", "object", "aperture", "fields_deg",

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from ..errors import LensFileError, ZemaxFileError, ZemaxWarning
 from .agf import decode_zemax_text
-from .lensfile import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
+from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 
 __all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
 
@@ -377,7 +377,7 @@ def parse(path: Path):
 
 def _check_magnitudes(sysd: dict, surfs: list[ZmxSurface], p: Locator) -> None:
     """Lengths and curvatures within the limits of deeplens lens files
-    (:data:`~.lensfile.MAX_LENGTH_MM`, :data:`~.lensfile.MAX_CURVATURE_PER_MM`), in mm after the
+    (:data:`~.file_limits.MAX_LENGTH_MM`, :data:`~.file_limits.MAX_CURVATURE_PER_MM`), in mm after the
     ``UNIT`` scaling: beyond them paraxial data overflow or round to nonsense (a ``DISZ 1e308``
     gave an EFL of -1e-305 mm, a ``CURV 1e308`` an ``OverflowError``)."""
     s_mm = UNITS[sysd["unit"][0]]
