@@ -21,12 +21,13 @@ import errno
 import hashlib
 import os
 import shutil
-import tempfile
 import warnings
 from pathlib import Path
 
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
+
+from ..optics.io import atomic
 
 __all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
            "override_learning_rates",
@@ -82,10 +83,9 @@ def _read_digests(path) -> tuple[list[str], str]:
 
 def temp_path(path: Path) -> Path:
     """A new, empty temporary file beside ``path`` whose name no other writer uses
-    (``<name>.<random>.tmp``): two runs or threads writing the same file never share one."""
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    return Path(tmp)
+    (``<name>.<random>.tmp``): two runs or threads writing the same file never share one.
+    Stale ones a killed writer left are removed first (:mod:`deeplens.optics.io.atomic`)."""
+    return atomic.temp_path(path)
 
 
 def _remove_quietly(tmp: Path | None) -> None:
@@ -122,7 +122,7 @@ def write_text_atomic(path: Path, text: str) -> None:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        atomic.replace(tmp, path)   # the umask's mode, not mkstemp's 0600
     except BaseException:
         _remove_quietly(tmp)
         raise
@@ -149,7 +149,7 @@ def write_checkpoint(checkpoint: dict, path) -> str:
         digest = sha256_file(tmp)
         old = _listed_digests(path)[:1] if path.exists() else []
         write_text_atomic(side, "\n".join([digest] + old) + "\n")  # both valid meanwhile
-        os.replace(tmp, path)
+        atomic.replace(tmp, path)
         write_text_atomic(side, digest + "\n")
         return digest
     except BaseException as e:

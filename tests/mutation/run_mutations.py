@@ -62,6 +62,7 @@ CONFIG = ("tests/training/test_config_errors.py",)
 HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
 FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
 READ_IMAGE = ("tests/render/test_read_image_depth.py",)
+ATOMIC = ("tests/training/test_atomic_writes.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -468,6 +469,18 @@ MUTATIONS = [
              "        except Exception as e:  # noqa: BLE001 - torch raises many kinds",
              "        except ZeroDivisionError as e:  # noqa: BLE001 - torch raises many kinds",
              ("tests/nets/test_perceptual_weights_file.py",)),
+    Mutation("atomic_mode_0600", "atomically written files keep mkstemp's mode 0600",
+             "deeplens/optics/io/atomic.py", "    os.chmod(tmp, mode)\n", "", ATOMIC),
+    Mutation("stale_temps_kept", "temporary files of a killed write never cleaned up",
+             "deeplens/optics/io/atomic.py", "    clean_stale_temps(path)\n    fd, tmp",
+             "    fd, tmp", ATOMIC),
+    Mutation("stale_cleanup_any_tmp", "the clean-up removes every *.tmp in the folder",
+             "deeplens/optics/io/atomic.py",
+             'pattern = re.compile(re.escape(path.name) + r"\\." + _RANDOM + r"\\.tmp")',
+             'pattern = re.compile(r".*\\.tmp")', ATOMIC),
+    Mutation("stale_cleanup_live_files", "the clean-up removes a live writer's fresh temporary "
+             "file", "deeplens/optics/io/atomic.py", "now - st.st_mtime > older_than_s",
+             "True", ATOMIC),
 ]
 
 

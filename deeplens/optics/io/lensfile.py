@@ -52,13 +52,13 @@ import difflib
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 from ..errors import LensError, LensFileError
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
 from ..surfaces import SURFACE_TYPES
+from .atomic import replace, temp_path
 from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 from .filecheck import read_file_bytes
 
@@ -413,12 +413,12 @@ def save_lens(lens: Lens, path) -> None:
         from .zmx import write_zmx
 
         return write_zmx(lens, path)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    tmp = temp_path(path)
     try:  # a name of its own: two writers of one lens file never share a temporary file
-        with os.fdopen(fd, "w") as f:
+        with open(tmp, "w") as f:
             json.dump(lens_to_dict(lens), f, indent=1)
             f.write("\n")
-        os.replace(tmp, path)
+        replace(tmp, path)   # the umask's mode, not mkstemp's 0600
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
