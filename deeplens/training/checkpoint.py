@@ -112,6 +112,56 @@ def _disk_full(e: BaseException, folder: Path) -> str | None:
     return f"the disk is full ({free} in {folder}; {type(e).__name__}: {first})"
 
 
+#: the largest file a FAT32 file system holds (bytes): 4 GiB - 1
+FAT32_MAX_FILE_BYTES = 2 ** 32 - 1
+
+
+def _file_too_large(e: BaseException, folder: Path, written: int | None) -> str | None:
+    """``"the file is too large (...)"`` when the write failed on a file-size limit (``EFBIG``:
+    the process's ``ulimit -f`` (``RLIMIT_FSIZE``) or the file system's largest file, e.g.
+    FAT32's 4 GiB), not a full disk.  torch's zip writer reports every short write as
+    ``unexpected pos``; such a write is a size limit when the file stopped at the limit
+    (``written`` bytes, the temporary file's size when the write failed)."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        soft = None if soft == resource.RLIM_INFINITY or soft < 0 else int(soft)
+    except (ImportError, OSError, ValueError):   # no resource module (Windows)
+        soft = None
+    if isinstance(e, OSError):
+        hit = e.errno == errno.EFBIG
+    elif isinstance(e, RuntimeError) and ("unexpected pos" in str(e)
+                                          or "file write failed" in str(e)):
+        hit = written is not None and ((soft is not None and written >= soft)
+                                       or written >= FAT32_MAX_FILE_BYTES)
+    else:
+        hit = False
+    if not hit:
+        return None
+    if soft is not None:
+        limit = f"the process's file-size limit of {soft:,} bytes (ulimit -f, RLIMIT_FSIZE)"
+    else:
+        limit = (f"the largest file the file system of {folder} holds (a FAT32 drive: "
+                 f"{FAT32_MAX_FILE_BYTES:,} bytes)")
+    try:
+        free = f"{shutil.disk_usage(folder).free:,} bytes free"
+    except OSError:
+        free = "free space unknown"
+    at = f" at {written:,} bytes" if written is not None else ""
+    first = str(e).splitlines()[0] if str(e) else ""
+    return (f"the file is too large: the write stopped{at} on {limit}, not on a full disk "
+            f"({free}; EFBIG; {type(e).__name__}: {first}); raise the limit or write to "
+            f"another file system")
+
+
+def _size_or_none(p: Path | None) -> int | None:
+    try:
+        return None if p is None else p.stat().st_size
+    except OSError:
+        return None
+
+
 def write_text_atomic(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a fsynced temporary file and a rename (removed on
     failure)."""
@@ -153,9 +203,11 @@ def write_checkpoint(checkpoint: dict, path) -> str:
         write_text_atomic(side, digest + "\n")
         return digest
     except BaseException as e:
+        written = _size_or_none(tmp)
         _remove_quietly(tmp)
         if isinstance(e, Exception):
-            why = _disk_full(e, path.parent) or f"{type(e).__name__}: {e}"
+            why = (_file_too_large(e, path.parent, written) or _disk_full(e, path.parent)
+                   or f"{type(e).__name__}: {e}")
             raise CheckpointError(f"could not write checkpoint {path}: {why} (the previous "
                                   f"checkpoint there, if any, is unchanged)") from e
         raise

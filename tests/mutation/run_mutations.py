@@ -481,6 +481,10 @@ MUTATIONS = [
     Mutation("stale_cleanup_live_files", "the clean-up removes a live writer's fresh temporary "
              "file", "deeplens/optics/io/atomic.py", "now - st.st_mtime > older_than_s",
              "True", ATOMIC),
+    Mutation("efbig_as_disk_full", "a write stopped by a file-size limit (ulimit -f, FAT32) "
+             "reported as a full disk", "deeplens/training/checkpoint.py",
+             "            why = (_file_too_large(e, path.parent, written) or _disk_full(",
+             "            why = (None or _disk_full(", ("tests/training/test_faults.py",)),
 ]
 
 

@@ -1,6 +1,7 @@
 """Faults found by hostile use (issue 25, items 1, 6, 7): every one gives a message naming the
 key, the file or the cause, never a traceback from deep inside torch or Lightning."""
 
+import errno
 import warnings
 
 import pytest
@@ -133,3 +134,34 @@ def test_bare_state_dict_is_named_as_such(tmp_path):
         warnings.simplefilter("ignore")
         with pytest.raises(CheckpointError, match="bare state dict.*load_state_dict"):
             read_checkpoint(p)
+
+
+def test_a_file_size_limit_is_named_not_a_full_disk(tmp_path, monkeypatch):
+    """``ulimit -f`` (a real RLIMIT_FSIZE, raised back at once) and EFBIG from a FAT32 drive
+    (issue 38): named as a file-size limit; torch's short write said "the disk is full"."""
+    resource = pytest.importorskip("resource")
+    p = tmp_path / "last.ckpt"
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    limit = 65536
+    if hard != resource.RLIM_INFINITY and hard < limit:
+        pytest.skip("the hard file-size limit is below the test's")
+    big = {"state_dict": {"w": torch.zeros(100_000)}}   # 400 kB
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, hard))
+    try:
+        with pytest.raises(CheckpointError) as e:
+            write_checkpoint(big, p)
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    msg = str(e.value)
+    assert (f"could not write checkpoint {p}: the file is too large: the write stopped at "
+            f"65,536 bytes on the process's file-size limit of 65,536 bytes (ulimit -f, "
+            f"RLIMIT_FSIZE), not on a full disk") in msg
+    assert "the disk is full" not in msg and not list(tmp_path.glob("*.tmp"))
+    if soft != resource.RLIM_INFINITY:
+        return   # the FAT32 wording is for processes without a file-size limit
+    monkeypatch.setattr(ck.torch, "save", lambda obj, f: (_ for _ in ()).throw(
+        OSError(errno.EFBIG, "File too large")))
+    with pytest.raises(CheckpointError, match=r"the file is too large: the write stopped at 0 "
+                                              r"bytes on the largest file the file system of .* "
+                                              r"holds \(a FAT32 drive: 4,294,967,295 bytes\)"):
+        write_checkpoint(_state(), p)
