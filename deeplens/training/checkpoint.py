@@ -30,7 +30,7 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 from ..optics.io import atomic
 
 __all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
-           "override_learning_rates",
+           "check_structure", "override_learning_rates",
            "read_checkpoint", "sha256_file", "temp_path", "write_checkpoint",
            "write_text_atomic"]
 
@@ -213,7 +213,8 @@ def write_checkpoint(checkpoint: dict, path) -> str:
         raise
 
 
-def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> dict:
+def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False,
+                    resume: bool = False) -> dict:
     """Verify ``path`` against its digest file and load it with ``weights_only=True``.
 
     A checkpoint without a digest file (written by hand or by an older version) loads with a
@@ -221,6 +222,12 @@ def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> 
     refused.  With ``state_dict_only`` a bare module state dict (names to tensors) is accepted
     too: Lightning's spawn launcher (``trainer=ddp_cpu``) hands rank 0's weights back to the
     main process in such a file through the checkpoint I/O.
+
+    The checkpoint's structure is checked (:func:`check_structure`): a file that passes its
+    digest but is not what deeplens writes (a list where a dict belongs, a ``state_dict`` of
+    other things than tensors; with ``resume``, no optimiser or loop state: a weights-only
+    file) is refused naming the file, the field and what was expected, not with a
+    ``KeyError`` or ``AttributeError`` from Lightning.
 
     Raises:
         FileNotFoundError: no file at ``path``.
@@ -268,7 +275,65 @@ def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> 
                 "resumes only from a checkpoint a training run wrote" if bare
                 else f"no 'state_dict'; got {type(ckpt).__name__}")
         raise CheckpointError(f"{path} is not a training checkpoint ({what})")
+    check_structure(ckpt, path, resume=resume)
     return ckpt
+
+
+#: top-level checkpoint fields and the type Lightning writes for each, when present
+_FIELD_TYPES = {"epoch": int, "global_step": int, "loops": dict, "optimizer_states": list,
+                "lr_schedulers": list, "callbacks": dict, "hyper_parameters": dict,
+                "pytorch-lightning_version": str}
+_TYPE_WORDS = {int: "an integer", dict: "a dict", list: "a list", str: "a string"}
+#: what a run resumes from (absent in a weights-only checkpoint)
+_RESUME_FIELDS = ("epoch", "global_step", "loops", "optimizer_states")
+
+
+def check_structure(ckpt: dict, path, resume: bool = False) -> None:
+    """Raise :class:`CheckpointError` (naming ``path``, the field and what was expected) unless
+    ``ckpt`` has the structure of a checkpoint deeplens (Lightning) writes: ``state_dict`` a
+    dict of parameter names to tensors; ``epoch``, ``global_step`` integers, ``loops``,
+    ``callbacks`` dicts, ``optimizer_states`` a list of dicts each with ``param_groups`` (a list
+    of dicts) and, where present, ``state`` (a dict), ``lr_schedulers`` a list of dicts, where present; with
+    ``resume``, the fields a run resumes from (``epoch``, ``global_step``, ``loops``,
+    ``optimizer_states``) present."""
+    def bad(field, expected, got):
+        what = "missing" if got is None else f"a {type(got).__name__}"
+        raise CheckpointError(f"checkpoint {path} is not one deeplens wrote: {field} is "
+                              f"{what}, expected {expected}")
+
+    sd = ckpt["state_dict"]
+    if not isinstance(sd, dict):
+        bad("state_dict", "a dict of parameter names to tensors", sd)
+    for k, v in sd.items():
+        if not isinstance(k, str) or not torch.is_tensor(v):
+            bad(f"state_dict[{k!r}]", "a tensor (under a parameter name)", v)
+    for field, typ in _FIELD_TYPES.items():
+        if field in ckpt and not (isinstance(ckpt[field], typ)
+                                  and not isinstance(ckpt[field], bool)):
+            bad(field, _TYPE_WORDS[typ], ckpt[field])
+    for i, opt in enumerate(ckpt.get("optimizer_states") or []):
+        if not isinstance(opt, dict):
+            bad(f"optimizer_states[{i}]", "a dict (an optimiser's state_dict)", opt)
+        if "state" in opt and not isinstance(opt["state"], dict):
+            bad(f"optimizer_states[{i}].state", "a dict", opt["state"])
+        groups = opt.get("param_groups")
+        if not isinstance(groups, list):
+            bad(f"optimizer_states[{i}].param_groups", "a list of dicts", groups)
+        for j, g in enumerate(groups):
+            if not isinstance(g, dict):
+                bad(f"optimizer_states[{i}].param_groups[{j}]", "a dict", g)
+    for i, s in enumerate(ckpt.get("lr_schedulers") or []):
+        if not isinstance(s, dict):
+            bad(f"lr_schedulers[{i}]", "a dict (a scheduler's state_dict)", s)
+    if resume:
+        missing = [f for f in _RESUME_FIELDS if f not in ckpt]
+        if missing:
+            raise CheckpointError(
+                f"checkpoint {path} holds no training state to resume from (no "
+                f"{', '.join(missing)}): a weights-only file (ModelCheckpoint("
+                f"save_weights_only=True), or written by hand); a run resumes only from a "
+                f"checkpoint a training run wrote (last.ckpt); to score these weights, run "
+                f"with train=false test=true ckpt_path=...")
 
 
 def _summary(names, n: int = 3) -> str:

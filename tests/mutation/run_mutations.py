@@ -485,6 +485,13 @@ MUTATIONS = [
              "reported as a full disk", "deeplens/training/checkpoint.py",
              "            why = (_file_too_large(e, path.parent, written) or _disk_full(",
              "            why = (None or _disk_full(", ("tests/training/test_faults.py",)),
+    Mutation("checkpoint_structure_unchecked", "a checkpoint that passes its digest but holds a "
+             "list where a dict belongs: a raw KeyError/AttributeError later",
+             "deeplens/training/checkpoint.py", "    check_structure(ckpt, path, resume=resume)\n",
+             "", ("tests/training/test_faults.py",)),
+    Mutation("resume_from_weights_only", "a weights-only checkpoint accepted for resuming",
+             "deeplens/training/checkpoint.py", "    if resume:\n        missing",
+             "    if False:\n        missing", ("tests/training/test_faults.py",)),
 ]
 
 

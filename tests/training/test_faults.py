@@ -165,3 +165,34 @@ def test_a_file_size_limit_is_named_not_a_full_disk(tmp_path, monkeypatch):
                                               r"bytes on the largest file the file system of .* "
                                               r"holds \(a FAT32 drive: 4,294,967,295 bytes\)"):
         write_checkpoint(_state(), p)
+
+
+@pytest.mark.parametrize("ckpt,match", [
+    ({"state_dict": [torch.zeros(2)]},
+     r"state_dict is a list, expected a dict of parameter names to tensors"),
+    ({"state_dict": {"w": 3.0}}, r"state_dict\['w'\] is a float, expected a tensor"),
+    ({"state_dict": {"w": torch.zeros(2)}, "epoch": "3"}, r"epoch is a str, expected an integer"),
+    ({"state_dict": {"w": torch.zeros(2)}, "optimizer_states": [[1, 2]]},
+     r"optimizer_states\[0\] is a list, expected a dict \(an optimiser's state_dict\)"),
+    ({"state_dict": {"w": torch.zeros(2)}, "optimizer_states": [{"state": {}}]},
+     r"optimizer_states\[0\].param_groups is missing, expected a list of dicts"),
+    ({"state_dict": {"w": torch.zeros(2)}, "loops": [1]}, r"loops is a list, expected a dict"),
+])
+def test_a_checkpoint_deeplens_did_not_write_is_named_not_a_key_error(tmp_path, ckpt, match):
+    """It passes its digest (written through write_checkpoint), but a list stands where a dict
+    belongs (issue 38 item 7): Lightning's KeyError / AttributeError came from deep inside."""
+    p = tmp_path / "odd.ckpt"
+    write_checkpoint(ckpt, p)
+    with pytest.raises(CheckpointError, match=rf"checkpoint {p} is not one deeplens wrote: "
+                                              + match):
+        read_checkpoint(p)
+
+
+def test_weights_only_checkpoint_cannot_be_resumed_and_says_so(tmp_path):
+    p = tmp_path / "weights.ckpt"
+    write_checkpoint({"state_dict": {"w": torch.zeros(2)}, "epoch": 3}, p)
+    assert read_checkpoint(p)["epoch"] == 3        # testing it is fine
+    with pytest.raises(CheckpointError, match=r"weights.ckpt holds no training state to resume "
+                                              r"from \(no global_step, loops, optimizer_states\)"
+                                              r": a weights-only file"):
+        read_checkpoint(p, resume=True)
