@@ -30,7 +30,7 @@ from lightning.pytorch.plugins.io import TorchCheckpointIO
 from ..optics.io import atomic
 
 __all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
-           "check_structure", "override_learning_rates",
+           "check_structure", "migrate_missing_buffers", "override_learning_rates",
            "read_checkpoint", "sha256_file", "temp_path", "write_checkpoint",
            "write_text_atomic"]
 
@@ -346,18 +346,59 @@ def _summary(names, n: int = 3) -> str:
     return f"{per}; e.g. " + ", ".join(names[:n]) + (", ..." if len(names) > n else "")
 
 
+#: buffers added to surfaces after checkpoints of their lenses could be written, by their last
+#: name, with the value that means what the older code traced: no obscuration (radius 0), a
+#: centred aperture (decenter (0, 0))
+MIGRATABLE_BUFFERS = {"obscuration": 0.0, "decenter": (0.0, 0.0)}
+
+
+def migrate_missing_buffers(state_dict: dict, module, path=None) -> list[str]:
+    """Add to ``state_dict`` the :data:`MIGRATABLE_BUFFERS` it lacks and ``module`` has, where
+    ``module``'s value is that default (the checkpoint of an earlier deeplens version, whose
+    lens had none); one warning names them.  Returns the names added; a missing buffer whose
+    value in ``module`` is not the default is left missing (:func:`check_compatible` refuses
+    it as a version difference)."""
+    buffers = dict(module.named_buffers())
+    done = []
+    for k, v in module.state_dict().items():
+        default = MIGRATABLE_BUFFERS.get(k.rsplit(".", 1)[-1])
+        if k in state_dict or default is None or k not in buffers:
+            continue
+        if torch.equal(v.detach().cpu().double(), torch.tensor(default, dtype=torch.float64)):
+            state_dict[k] = v.detach().clone()
+            done.append(k)
+    if done:
+        warnings.warn(f"{f'checkpoint {path}' if path else 'the checkpoint'} was written by an "
+                      f"earlier deeplens version, without {len(done)} buffer(s) added since "
+                      f"({_summary(done)}): migrated with their defaults (no obscuration, a "
+                      f"centred aperture: what that version traced)", stacklevel=2)
+    return done
+
+
 def check_compatible(checkpoint: dict, module, path=None, optimizer_groups=None) -> None:
     """Raise :class:`CheckpointError` when ``checkpoint`` was not written for ``module``'s
     experiment: its parameter names or shapes differ, or (``optimizer_groups``: the parameter
     group names the module would optimise) its optimiser trained other parameters.
 
-    The message names the file and the first differing parameters on each side.
+    Buffers added to deeplens since the checkpoint was written are first migrated
+    (:func:`migrate_missing_buffers`, one warning); one that cannot be (this model's value is
+    not the default) is refused as a version difference.  The message names the file and the
+    first differing parameters on each side.
     """
     where = f"checkpoint {path}" if path else "the checkpoint"
+    migrate_missing_buffers(checkpoint["state_dict"], module, path)
     saved = {k: tuple(v.shape) for k, v in checkpoint["state_dict"].items()
              if torch.is_tensor(v)}
     ours = {k: tuple(v.shape) for k, v in module.state_dict().items()}
     missing, extra = set(ours) - set(saved), set(saved) - set(ours)
+    newer = {k for k in missing if k.rsplit(".", 1)[-1] in MIGRATABLE_BUFFERS}
+    if newer and newer == missing and not extra:
+        raise CheckpointError(
+            f"{where} comes from an earlier deeplens version (a version difference, not another "
+            f"experiment): it lacks {len(newer)} buffer(s) added since ({_summary(newer)}), "
+            f"and this model's values of them are not the defaults that version traced "
+            f"({MIGRATABLE_BUFFERS}), so it cannot be migrated: train this lens afresh, or "
+            f"give it the defaults")
     shapes = [f"{k} {saved[k]} vs {ours[k]}" for k in sorted(set(ours) & set(saved))
               if saved[k] != ours[k]]
     problems = []

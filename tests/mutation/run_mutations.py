@@ -492,6 +492,16 @@ MUTATIONS = [
     Mutation("resume_from_weights_only", "a weights-only checkpoint accepted for resuming",
              "deeplens/training/checkpoint.py", "    if resume:\n        missing",
              "    if False:\n        missing", ("tests/training/test_faults.py",)),
+    Mutation("old_checkpoint_not_migrated", "a previous version's checkpoint (no obscuration/"
+             "decenter buffers) refused as another experiment", "deeplens/training/checkpoint.py",
+             '    migrate_missing_buffers(checkpoint["state_dict"], module, path)\n', "",
+             ("tests/training/test_checkpoint_migration.py",)),
+    Mutation("migration_overrides_values", "migration fills missing buffers whatever this "
+             "model's value (a non-default obscuration silently reset)",
+             "deeplens/training/checkpoint.py",
+             "        if torch.equal(v.detach().cpu().double(), torch.tensor(default, "
+             "dtype=torch.float64)):", "        if True:",
+             ("tests/training/test_checkpoint_migration.py",)),
 ]
 
 
