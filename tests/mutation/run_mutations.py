@@ -502,6 +502,14 @@ MUTATIONS = [
              "        if torch.equal(v.detach().cpu().double(), torch.tensor(default, "
              "dtype=torch.float64)):", "        if True:",
              ("tests/training/test_checkpoint_migration.py",)),
+    Mutation("fanout_folder_unquoted", "the fan-out passes its folder to Hydra unquoted "
+             "(E2 (copy), E2,v2 fail)", "deeplens/training/fanout.py",
+             'f"eval.folder={hydra_quote(out)}"', 'f"eval.folder={out}"',
+             ("tests/training/test_fanout_quoting.py",)),
+    Mutation("hydra_quote_no_escapes", "quoted values without escaping quotes and ${",
+             "deeplens/training/fanout.py",
+             """    v = v.replace("'", "\\\\'").replace("${", "\\\\${")""", "    v = v",
+             ("tests/training/test_fanout_quoting.py",)),
 ]
 
 
