@@ -195,8 +195,6 @@ def _rms_table(fields, waves, before, after=None) -> str:
 
 
 def _optimize(args) -> int:
-    import os
-    import tempfile
     from pathlib import Path
 
     import torch
@@ -239,15 +237,8 @@ def _optimize(args) -> int:
         rep = report_merit().prepare(lens)
         with torch.no_grad():
             rms_after = (rep.rms(lens) * 1e3).tolist()
-        # write atomically: nothing half-written if anything above failed
-        fd, tmp = tempfile.mkstemp(suffix=".json", dir=str(out.parent))
-        os.close(fd)
-        try:
-            save_lens(lens, tmp)
-            os.replace(tmp, out)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        # written only now (nothing if anything above failed), atomically, mode from the umask
+        save_lens(lens, out)
     except (ValueError, OSError) as e:
         print(f"deeplens optimize: error: {e}", file=sys.stderr)
         return 2

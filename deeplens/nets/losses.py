@@ -184,13 +184,25 @@ class PerceptualLoss(nn.Module):
         for m in features:
             if isinstance(m, nn.ReLU):
                 m.inplace = False          # intermediate outputs are kept; no in-place edits
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        try:   # tensors and containers only: a pickled object is refused, never run
+            state = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as e:  # noqa: BLE001 - torch raises many kinds; all mean "not weights"
+            first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+            raise ValueError(f"{path}: cannot be read as VGG16 weights: torch.load(weights_only="
+                             f"True) refused it ({type(e).__name__}: {first[:200]}); deeplens "
+                             f"loads tensors only, never arbitrary pickled objects: expected "
+                             f"torchvision's VGG16 state dict ({VGG16_WEIGHTS_FILE}, or a "
+                             f"features-only dict)") from None
         if isinstance(state, dict) and "state_dict" in state and isinstance(state["state_dict"], dict):
             state = state["state_dict"]
-        if any(k.startswith("features.") for k in state):
+        if not isinstance(state, dict):
+            raise ValueError(f"{path} is not a VGG16 state dict: it holds a "
+                             f"{type(state).__name__}, expected a dict of parameter names to "
+                             f"tensors (torchvision's {VGG16_WEIGHTS_FILE})")
+        if any(isinstance(k, str) and k.startswith("features.") for k in state):
             state = {k[len("features."):]: v for k, v in state.items() if k.startswith("features.")}
         wanted = features.state_dict().keys()
-        missing = [k for k in wanted if k not in state]
+        missing = [k for k in wanted if not torch.is_tensor(state.get(k))]
         if missing:
             raise ValueError(f"{path} is not a VGG16 state dict: missing features keys {missing}")
         features.load_state_dict({k: state[k].float() for k in wanted}, strict=True, assign=True)

@@ -42,8 +42,16 @@ def read_image(path, max_side: int | None = None, linear: bool = False) -> torch
     """A picture file as ``(C, H, W)`` float64 in ``[0, 1]`` (C = 1 or 3; alpha dropped),
     down-sampled (area average) so that its longer side is at most ``max_side`` pixels.
 
+    8-bit pictures are divided by 255.  Greyscale pictures of more than 8 bits are read at full
+    precision, each scaled by its type's range: 16-bit (Pillow modes ``I;16*``) by 65535, 32-bit
+    integer (mode ``I``, e.g. a 16-bit picture Pillow decodes as such) by 65535 when its values
+    fit in 16 bits (else refused), 32-bit float (mode ``F``) as it is (its range is [0, 1];
+    values outside are clipped, NaN or infinity refused).  (Pillow decodes 16-bit colour PNGs to
+    8 bits per channel.)
+
     Raises:
-        FileNotFoundError: no such file.  ValueError: not a readable image (names the file).
+        FileNotFoundError: no such file.  ValueError: not a readable image, or one larger than
+            Pillow's decompression-bomb limit (names the file, its size and the limit).
     """
     from PIL import Image, UnidentifiedImageError
 
@@ -52,20 +60,87 @@ def read_image(path, max_side: int | None = None, linear: bool = False) -> torch
         raise FileNotFoundError(f"image not found: {path}")
     try:
         with Image.open(path) as im:
-            im = im.convert("L" if im.mode in ("1", "L", "I", "I;16", "F") else "RGB")
-            if max_side and max(im.size) > max_side:
-                s = max_side / max(im.size)
-                im = im.resize((max(2, round(im.size[0] * s)), max(2, round(im.size[1] * s))),
-                               Image.Resampling.BOX)
-            data = torch.tensor(bytearray(im.tobytes()), dtype=torch.uint8)
-            c = 1 if im.mode == "L" else 3
-            img = data.reshape(im.size[1], im.size[0], c).permute(2, 0, 1).double() / 255.0
+            if im.mode in _HIGH_DEPTH:
+                img = _read_high_depth(im, path, max_side)
+            else:
+                im = im.convert("L" if im.mode in ("1", "L") else "RGB")
+                im = _shrink(im, max_side)
+                data = torch.tensor(bytearray(im.tobytes()), dtype=torch.uint8)
+                c = 1 if im.mode == "L" else 3
+                img = data.reshape(im.size[1], im.size[0], c).permute(2, 0, 1).double() / 255.0
+    except Image.DecompressionBombError as e:
+        raise ValueError(f"{path}: {_bomb_size(path, e)} is beyond Pillow's decompression-bomb limit "
+                         f"({2 * Image.MAX_IMAGE_PIXELS} pixels, twice PIL.Image.MAX_IMAGE_PIXELS"
+                         f"): refused as a possible decompression bomb; the picture is "
+                         f"down-sampled to --max-side ({max_side}) pixels anyway, so shrink it "
+                         f"first (or, for a file you trust, raise PIL.Image.MAX_IMAGE_PIXELS "
+                         f"in Python)") from None
     except (UnidentifiedImageError, OSError) as e:
         raise ValueError(f"{path}: not a readable image ({e})") from None
     if min(img.shape[-2:]) < 2:
         raise ValueError(f"{path}: the image must be at least 2x2 pixels, got "
                          f"{tuple(img.shape[-2:])}")
     return img if linear else srgb_to_linear(img)
+
+
+#: Pillow modes read at full precision (:func:`_read_high_depth`): greyscale beyond 8 bits
+_HIGH_DEPTH = ("I;16", "I;16L", "I;16B", "I;16N", "I", "F")
+
+
+def _shrink(im, max_side):
+    """``im`` area-averaged so that its longer side is at most ``max_side`` pixels."""
+    from PIL import Image
+
+    if max_side and max(im.size) > max_side:
+        s = max_side / max(im.size)
+        im = im.resize((max(2, round(im.size[0] * s)), max(2, round(im.size[1] * s))),
+                       Image.Resampling.BOX)
+    return im
+
+
+def _read_high_depth(im, path: Path, max_side) -> torch.Tensor:
+    """A 16-bit, 32-bit integer or float greyscale picture as ``(1, H, W)`` float64 in
+    ``[0, 1]``, scaled by its type's range (:func:`read_image`); averaged in float32 (exact
+    for 16-bit values), scaled in float64."""
+    import numpy as np
+
+    if im.mode == "F":
+        scale = 1.0
+    elif im.mode == "I":
+        lo, hi = im.getextrema()
+        if lo < 0 or hi > 65535:
+            raise ValueError(f"{path}: a 32-bit integer picture with values in [{lo}, {hi}]: "
+                             f"deeplens reads 8- and 16-bit integer and float pictures (scaled "
+                             f"by 255, 65535 and 1); convert it to 16 bits or to float")
+        scale = 65535.0
+    else:
+        scale = 65535.0
+    a = np.asarray(_shrink(im.convert("F"), max_side), dtype=np.float64) / scale
+    if not np.isfinite(a).all():
+        raise ValueError(f"{path}: the float picture holds NaN or infinite values")
+    return torch.from_numpy(np.clip(a, 0.0, 1.0).copy())[None]
+
+
+def _bomb_size(path: Path, e: Exception) -> str:
+    """The picture's size, ``W x H`` from its header (read by the format's own Pillow plugin,
+    which does not decode the pixels), else the pixel count Pillow's error states."""
+    import re
+
+    from PIL import Image
+
+    try:
+        with open(path, "rb") as fp:
+            prefix = fp.read(16)
+            for fmt in Image.ID:
+                factory, accept = Image.OPEN[fmt]
+                if accept is None or accept(prefix):
+                    fp.seek(0)
+                    w, h = factory(fp, str(path)).size
+                    return f"its size of {w} x {h} = {w * h} pixels"
+    except Exception:  # noqa: BLE001 - only for the message
+        pass
+    m = re.search(r"\((\d+) pixels\)", str(e))
+    return f"its size of {int(m.group(1))} pixels" if m else f"its size ({e})"
 
 
 def write_image(img: torch.Tensor, path, linear: bool = False) -> Path:

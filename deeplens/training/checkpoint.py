@@ -21,15 +21,16 @@ import errno
 import hashlib
 import os
 import shutil
-import tempfile
 import warnings
 from pathlib import Path
 
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
 
+from ..optics.io import atomic
+
 __all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
-           "override_learning_rates",
+           "check_structure", "migrate_missing_buffers", "override_learning_rates",
            "read_checkpoint", "sha256_file", "temp_path", "write_checkpoint",
            "write_text_atomic"]
 
@@ -59,20 +60,32 @@ def sha256_file(path) -> str:
 def _listed_digests(path) -> list[str]:
     """The digests listed beside ``path`` (hex, any case, as ``sha256sum`` or an editor may
     write them), lower-cased."""
+    return _read_digests(path)[0]
+
+
+def _read_digests(path) -> tuple[list[str], str]:
+    """``(digests, why)``: the digests listed beside ``path`` (lower-cased), and when there
+    are none, why (``"it is empty"``, ``"it cannot be read (...)"``, ``"it holds no 64-digit
+    hex SHA-256 (...)"``)."""
     side = checksum_path(path)
     try:
-        lines = side.read_text().lower().split()
-    except (OSError, UnicodeDecodeError):
-        return []
-    return [s for s in lines if len(s) == 64 and all(c in "0123456789abcdef" for c in s)]
+        text = side.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        return [], f"it cannot be read ({type(e).__name__}: {e})"
+    words = text.lower().split()
+    found = [s for s in words if len(s) == 64 and all(c in "0123456789abcdef" for c in s)]
+    if found:
+        return found, ""
+    if not words:
+        return [], "it is empty"
+    return [], f"it holds no 64-digit hex SHA-256 (it starts {text.strip()[:40]!r})"
 
 
 def temp_path(path: Path) -> Path:
     """A new, empty temporary file beside ``path`` whose name no other writer uses
-    (``<name>.<random>.tmp``): two runs or threads writing the same file never share one."""
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    return Path(tmp)
+    (``<name>.<random>.tmp``): two runs or threads writing the same file never share one.
+    Stale ones a killed writer left are removed first (:mod:`deeplens.optics.io.atomic`)."""
+    return atomic.temp_path(path)
 
 
 def _remove_quietly(tmp: Path | None) -> None:
@@ -99,6 +112,56 @@ def _disk_full(e: BaseException, folder: Path) -> str | None:
     return f"the disk is full ({free} in {folder}; {type(e).__name__}: {first})"
 
 
+#: the largest file a FAT32 file system holds (bytes): 4 GiB - 1
+FAT32_MAX_FILE_BYTES = 2 ** 32 - 1
+
+
+def _file_too_large(e: BaseException, folder: Path, written: int | None) -> str | None:
+    """``"the file is too large (...)"`` when the write failed on a file-size limit (``EFBIG``:
+    the process's ``ulimit -f`` (``RLIMIT_FSIZE``) or the file system's largest file, e.g.
+    FAT32's 4 GiB), not a full disk.  torch's zip writer reports every short write as
+    ``unexpected pos``; such a write is a size limit when the file stopped at the limit
+    (``written`` bytes, the temporary file's size when the write failed)."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+        soft = None if soft == resource.RLIM_INFINITY or soft < 0 else int(soft)
+    except (ImportError, OSError, ValueError):   # no resource module (Windows)
+        soft = None
+    if isinstance(e, OSError):
+        hit = e.errno == errno.EFBIG
+    elif isinstance(e, RuntimeError) and ("unexpected pos" in str(e)
+                                          or "file write failed" in str(e)):
+        hit = written is not None and ((soft is not None and written >= soft)
+                                       or written >= FAT32_MAX_FILE_BYTES)
+    else:
+        hit = False
+    if not hit:
+        return None
+    if soft is not None:
+        limit = f"the process's file-size limit of {soft:,} bytes (ulimit -f, RLIMIT_FSIZE)"
+    else:
+        limit = (f"the largest file the file system of {folder} holds (a FAT32 drive: "
+                 f"{FAT32_MAX_FILE_BYTES:,} bytes)")
+    try:
+        free = f"{shutil.disk_usage(folder).free:,} bytes free"
+    except OSError:
+        free = "free space unknown"
+    at = f" at {written:,} bytes" if written is not None else ""
+    first = str(e).splitlines()[0] if str(e) else ""
+    return (f"the file is too large: the write stopped{at} on {limit}, not on a full disk "
+            f"({free}; EFBIG; {type(e).__name__}: {first}); raise the limit or write to "
+            f"another file system")
+
+
+def _size_or_none(p: Path | None) -> int | None:
+    try:
+        return None if p is None else p.stat().st_size
+    except OSError:
+        return None
+
+
 def write_text_atomic(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a fsynced temporary file and a rename (removed on
     failure)."""
@@ -109,7 +172,7 @@ def write_text_atomic(path: Path, text: str) -> None:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        atomic.replace(tmp, path)   # the umask's mode, not mkstemp's 0600
     except BaseException:
         _remove_quietly(tmp)
         raise
@@ -136,29 +199,40 @@ def write_checkpoint(checkpoint: dict, path) -> str:
         digest = sha256_file(tmp)
         old = _listed_digests(path)[:1] if path.exists() else []
         write_text_atomic(side, "\n".join([digest] + old) + "\n")  # both valid meanwhile
-        os.replace(tmp, path)
+        atomic.replace(tmp, path)
         write_text_atomic(side, digest + "\n")
         return digest
     except BaseException as e:
+        written = _size_or_none(tmp)
         _remove_quietly(tmp)
         if isinstance(e, Exception):
-            why = _disk_full(e, path.parent) or f"{type(e).__name__}: {e}"
+            why = (_file_too_large(e, path.parent, written) or _disk_full(e, path.parent)
+                   or f"{type(e).__name__}: {e}")
             raise CheckpointError(f"could not write checkpoint {path}: {why} (the previous "
                                   f"checkpoint there, if any, is unchanged)") from e
         raise
 
 
-def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> dict:
+def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False,
+                    resume: bool = False) -> dict:
     """Verify ``path`` against its digest file and load it with ``weights_only=True``.
 
     A checkpoint without a digest file (written by hand or by an older version) loads with a
-    warning.  With ``state_dict_only`` a bare module state dict (names to tensors) is accepted
+    warning; one whose digest file exists but lists no digest (empty, unreadable or garbage) is
+    refused.  With ``state_dict_only`` a bare module state dict (names to tensors) is accepted
     too: Lightning's spawn launcher (``trainer=ddp_cpu``) hands rank 0's weights back to the
     main process in such a file through the checkpoint I/O.
 
+    The checkpoint's structure is checked (:func:`check_structure`): a file that passes its
+    digest but is not what deeplens writes (a list where a dict belongs, a ``state_dict`` of
+    other things than tensors; with ``resume``, no optimiser or loop state: a weights-only
+    file) is refused naming the file, the field and what was expected, not with a
+    ``KeyError`` or ``AttributeError`` from Lightning.
+
     Raises:
         FileNotFoundError: no file at ``path``.
-        CheckpointError: the digest does not match (truncated or corrupted file), the file is
+        CheckpointError: the digest does not match (truncated or corrupted file), the digest
+            file lists no digest (empty, unreadable or garbage: it says which), the file is
             not a readable checkpoint, or it holds objects that ``weights_only`` refuses; the
             message names the file.
     """
@@ -166,10 +240,15 @@ def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> 
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
     side = checksum_path(path)
-    listed = _listed_digests(path) if side.exists() else []
+    listed, why = _read_digests(path) if side.exists() else ([], "")
     if side.exists() and not listed:
-        warnings.warn(f"checkpoint {path}: its digest file {side.name} lists no SHA-256 "
-                      f"(empty or unreadable): loading it unverified", stacklevel=2)
+        # deeplens writes the digest file atomically, so it is never empty or garbage: one
+        # that is was damaged with the checkpoint, perhaps, and cannot vouch for it
+        raise CheckpointError(
+            f"checkpoint {path} cannot be verified: its digest file {side.name} lists no "
+            f"SHA-256 ({why}); deeplens writes a 64-digit hex digest there, so the digest file "
+            f"was damaged or replaced.  If you trust the checkpoint, delete {side} to load it "
+            f"unverified (with a warning)")
     elif side.exists():
         digest = sha256_file(path)
         if digest not in listed:
@@ -196,7 +275,65 @@ def read_checkpoint(path, map_location="cpu", state_dict_only: bool = False) -> 
                 "resumes only from a checkpoint a training run wrote" if bare
                 else f"no 'state_dict'; got {type(ckpt).__name__}")
         raise CheckpointError(f"{path} is not a training checkpoint ({what})")
+    check_structure(ckpt, path, resume=resume)
     return ckpt
+
+
+#: top-level checkpoint fields and the type Lightning writes for each, when present
+_FIELD_TYPES = {"epoch": int, "global_step": int, "loops": dict, "optimizer_states": list,
+                "lr_schedulers": list, "callbacks": dict, "hyper_parameters": dict,
+                "pytorch-lightning_version": str}
+_TYPE_WORDS = {int: "an integer", dict: "a dict", list: "a list", str: "a string"}
+#: what a run resumes from (absent in a weights-only checkpoint)
+_RESUME_FIELDS = ("epoch", "global_step", "loops", "optimizer_states")
+
+
+def check_structure(ckpt: dict, path, resume: bool = False) -> None:
+    """Raise :class:`CheckpointError` (naming ``path``, the field and what was expected) unless
+    ``ckpt`` has the structure of a checkpoint deeplens (Lightning) writes: ``state_dict`` a
+    dict of parameter names to tensors; ``epoch``, ``global_step`` integers, ``loops``,
+    ``callbacks`` dicts, ``optimizer_states`` a list of dicts each with ``param_groups`` (a list
+    of dicts) and, where present, ``state`` (a dict), ``lr_schedulers`` a list of dicts, where present; with
+    ``resume``, the fields a run resumes from (``epoch``, ``global_step``, ``loops``,
+    ``optimizer_states``) present."""
+    def bad(field, expected, got):
+        what = "missing" if got is None else f"a {type(got).__name__}"
+        raise CheckpointError(f"checkpoint {path} is not one deeplens wrote: {field} is "
+                              f"{what}, expected {expected}")
+
+    sd = ckpt["state_dict"]
+    if not isinstance(sd, dict):
+        bad("state_dict", "a dict of parameter names to tensors", sd)
+    for k, v in sd.items():
+        if not isinstance(k, str) or not torch.is_tensor(v):
+            bad(f"state_dict[{k!r}]", "a tensor (under a parameter name)", v)
+    for field, typ in _FIELD_TYPES.items():
+        if field in ckpt and not (isinstance(ckpt[field], typ)
+                                  and not isinstance(ckpt[field], bool)):
+            bad(field, _TYPE_WORDS[typ], ckpt[field])
+    for i, opt in enumerate(ckpt.get("optimizer_states") or []):
+        if not isinstance(opt, dict):
+            bad(f"optimizer_states[{i}]", "a dict (an optimiser's state_dict)", opt)
+        if "state" in opt and not isinstance(opt["state"], dict):
+            bad(f"optimizer_states[{i}].state", "a dict", opt["state"])
+        groups = opt.get("param_groups")
+        if not isinstance(groups, list):
+            bad(f"optimizer_states[{i}].param_groups", "a list of dicts", groups)
+        for j, g in enumerate(groups):
+            if not isinstance(g, dict):
+                bad(f"optimizer_states[{i}].param_groups[{j}]", "a dict", g)
+    for i, s in enumerate(ckpt.get("lr_schedulers") or []):
+        if not isinstance(s, dict):
+            bad(f"lr_schedulers[{i}]", "a dict (a scheduler's state_dict)", s)
+    if resume:
+        missing = [f for f in _RESUME_FIELDS if f not in ckpt]
+        if missing:
+            raise CheckpointError(
+                f"checkpoint {path} holds no training state to resume from (no "
+                f"{', '.join(missing)}): a weights-only file (ModelCheckpoint("
+                f"save_weights_only=True), or written by hand); a run resumes only from a "
+                f"checkpoint a training run wrote (last.ckpt); to score these weights, run "
+                f"with train=false test=true ckpt_path=...")
 
 
 def _summary(names, n: int = 3) -> str:
@@ -209,18 +346,59 @@ def _summary(names, n: int = 3) -> str:
     return f"{per}; e.g. " + ", ".join(names[:n]) + (", ..." if len(names) > n else "")
 
 
+#: buffers added to surfaces after checkpoints of their lenses could be written, by their last
+#: name, with the value that means what the older code traced: no obscuration (radius 0), a
+#: centred aperture (decenter (0, 0))
+MIGRATABLE_BUFFERS = {"obscuration": 0.0, "decenter": (0.0, 0.0)}
+
+
+def migrate_missing_buffers(state_dict: dict, module, path=None) -> list[str]:
+    """Add to ``state_dict`` the :data:`MIGRATABLE_BUFFERS` it lacks and ``module`` has, where
+    ``module``'s value is that default (the checkpoint of an earlier deeplens version, whose
+    lens had none); one warning names them.  Returns the names added; a missing buffer whose
+    value in ``module`` is not the default is left missing (:func:`check_compatible` refuses
+    it as a version difference)."""
+    buffers = dict(module.named_buffers())
+    done = []
+    for k, v in module.state_dict().items():
+        default = MIGRATABLE_BUFFERS.get(k.rsplit(".", 1)[-1])
+        if k in state_dict or default is None or k not in buffers:
+            continue
+        if torch.equal(v.detach().cpu().double(), torch.tensor(default, dtype=torch.float64)):
+            state_dict[k] = v.detach().clone()
+            done.append(k)
+    if done:
+        warnings.warn(f"{f'checkpoint {path}' if path else 'the checkpoint'} was written by an "
+                      f"earlier deeplens version, without {len(done)} buffer(s) added since "
+                      f"({_summary(done)}): migrated with their defaults (no obscuration, a "
+                      f"centred aperture: what that version traced)", stacklevel=2)
+    return done
+
+
 def check_compatible(checkpoint: dict, module, path=None, optimizer_groups=None) -> None:
     """Raise :class:`CheckpointError` when ``checkpoint`` was not written for ``module``'s
     experiment: its parameter names or shapes differ, or (``optimizer_groups``: the parameter
     group names the module would optimise) its optimiser trained other parameters.
 
-    The message names the file and the first differing parameters on each side.
+    Buffers added to deeplens since the checkpoint was written are first migrated
+    (:func:`migrate_missing_buffers`, one warning); one that cannot be (this model's value is
+    not the default) is refused as a version difference.  The message names the file and the
+    first differing parameters on each side.
     """
     where = f"checkpoint {path}" if path else "the checkpoint"
+    migrate_missing_buffers(checkpoint["state_dict"], module, path)
     saved = {k: tuple(v.shape) for k, v in checkpoint["state_dict"].items()
              if torch.is_tensor(v)}
     ours = {k: tuple(v.shape) for k, v in module.state_dict().items()}
     missing, extra = set(ours) - set(saved), set(saved) - set(ours)
+    newer = {k for k in missing if k.rsplit(".", 1)[-1] in MIGRATABLE_BUFFERS}
+    if newer and newer == missing and not extra:
+        raise CheckpointError(
+            f"{where} comes from an earlier deeplens version (a version difference, not another "
+            f"experiment): it lacks {len(newer)} buffer(s) added since ({_summary(newer)}), "
+            f"and this model's values of them are not the defaults that version traced "
+            f"({MIGRATABLE_BUFFERS}), so it cannot be migrated: train this lens afresh, or "
+            f"give it the defaults")
     shapes = [f"{k} {saved[k]} vs {ours[k]}" for k in sorted(set(ours) & set(saved))
               if saved[k] != ours[k]]
     problems = []

@@ -250,7 +250,7 @@ def _reuse(cfg: DictConfig):
     """``(metrics, objects)`` of a finished run of exactly this variant config in its output
     folder (its :data:`RUN_RECORD` and tested checkpoint), the module holding the tested
     weights; ``None`` when there is none or its config differs."""
-    from .checkpoint import CheckpointError, read_checkpoint
+    from .checkpoint import CheckpointError, migrate_missing_buffers, read_checkpoint
 
     rec_path = Path(cfg.paths.output_dir) / RUN_RECORD
     if not rec_path.is_file():
@@ -286,6 +286,7 @@ def _reuse(cfg: DictConfig):
     except (FileNotFoundError, CheckpointError) as e:
         return again(f"names a tested checkpoint that cannot be loaded ({e})")
     objs = build_objects(cfg)
+    migrate_missing_buffers(state, objs["module"], tested)   # an earlier version's run
     objs["module"].load_state_dict(state)
     print(f"deeplens eval: reusing the finished run in {rec_path.parent}")
     return metrics, objs

@@ -22,6 +22,7 @@ process.  ``eval.gather=true`` on its own rebuilds the table of a finished folde
 from __future__ import annotations
 
 import copy
+import re
 import resource
 import subprocess
 import sys
@@ -32,7 +33,8 @@ from omegaconf import DictConfig, open_dict
 
 from ..optics.errors import ConfigError
 
-__all__ = ["jobs", "fan_out", "job_cfg", "LAUNCHERS", "check_fanout_config", "cpu_seconds"]
+__all__ = ["jobs", "fan_out", "job_cfg", "LAUNCHERS", "check_fanout_config", "cpu_seconds",
+           "hydra_quote"]
 
 LAUNCHERS = ("joblib", "submitit_local", "submitit_slurm")
 
@@ -95,6 +97,17 @@ def cpu_seconds() -> float:
     return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
+def hydra_quote(value: str) -> str:
+    """``value`` as a quoted value of a Hydra command-line override, read back as ``value``
+    whatever it holds (spaces, commas, brackets, ``=``, quotes, backslashes, ``${``): single
+    quotes; a quote and the backslashes before a quote or the end escaped by a backslash
+    (Hydra's override grammar), ``${`` escaped as ``\\${`` (OmegaConf's escape of an
+    interpolation: the value resolves to the literal text)."""
+    v = re.sub(r"(\\+)(?='|$)", lambda m: m.group(1) * 2, str(value))
+    v = v.replace("'", "\\'").replace("${", "\\${")
+    return f"'{v}'"
+
+
 def fan_out(cfg: DictConfig, script: str | list[str], overrides: list[str]) -> float:
     """Run every variant x seed as a job of a Hydra multirun of ``script`` with the launcher
     ``eval.launcher`` (module docstring); returns the wall seconds.  ``script`` is the
@@ -115,8 +128,8 @@ def fan_out(cfg: DictConfig, script: str | list[str], overrides: list[str]) -> f
     keep = [o for o in overrides if not o.lstrip("+~").startswith(drop)]
     start = [script] if isinstance(script, str) else list(script)
     cmd = [sys.executable, *start, "-m", *keep, f"hydra/launcher={launcher}",
-           f"eval.job=range(0,{n})", f"eval.folder={out}", "eval.figures=false",
-           f"hydra.sweep.dir={out}", "hydra.sweep.subdir=jobs/${hydra.job.num}"]
+           f"eval.job=range(0,{n})", f"eval.folder={hydra_quote(out)}", "eval.figures=false",
+           f"hydra.sweep.dir={hydra_quote(out)}", "hydra.sweep.subdir=jobs/${hydra.job.num}"]
     if launcher == "joblib":
         cmd.append(f"hydra.launcher.n_jobs={n_jobs}")
     print(f"deeplens eval: fanning {n} variant x seed jobs out through the {launcher} "

@@ -488,9 +488,9 @@ def _train(cfg: DictConfig):
     ckpt = cfg.get("ckpt_path")
     if ckpt is not None and not Path(ckpt).exists():
         raise FileNotFoundError(f"ckpt_path: no checkpoint at {ckpt}")
-    if ckpt is not None:  # verified, and a training checkpoint (not a bare state dict)
-        read_checkpoint(ckpt)
     trained = bool(cfg.get("train", True))
+    if ckpt is not None:  # verified, a training checkpoint, with what resuming needs
+        read_checkpoint(ckpt, resume=trained)
     _log_psf_model(trainer, objs["renderer"])
     if trained:
         with stopped_by_signal(trainer):

@@ -59,6 +59,10 @@ API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
 TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
 CONFIG = ("tests/training/test_config_errors.py",)
+HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
+FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
+READ_IMAGE = ("tests/render/test_read_image_depth.py",)
+ATOMIC = ("tests/training/test_atomic_writes.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -411,6 +415,101 @@ MUTATIONS = [
              "deeplens/training/depth_weighting.py",
              "    if not (isinstance(K, int) and not isinstance(K, bool) and K >= 1):\n",
              "    if False:\n", CONFIG),
+    # ------------------------------------------------ hardening, round three (issue 38)
+    Mutation("zmx_second_stop_wins", "a .zmx with two STOP lines read silently (the last wins)",
+             "deeplens/optics/io/zmx_parse.py", "            if stop_at is not None:",
+             "            if False:", HARDEN_ZMX),
+    Mutation("zmx_lengths_unchecked", "a .zmx DISZ/DIAM/ENPD of 1e308 read (overflowed paraxial "
+             "data)", "deeplens/optics/io/zmx_parse.py",
+             "if math.isfinite(v) and abs(v) * s_mm > MAX_LENGTH_MM:", "if False:", HARDEN_ZMX),
+    Mutation("zmx_length_limit_in_file_units", "the .zmx length limit applied in the file's unit, "
+             "not mm", "deeplens/optics/io/zmx_parse.py",
+             "if math.isfinite(v) and abs(v) * s_mm > MAX_LENGTH_MM:",
+             "if math.isfinite(v) and abs(v) > MAX_LENGTH_MM:", HARDEN_ZMX),
+    Mutation("json_curvature_unlimited", "a JSON curvature of 1e308 per mm accepted (an "
+             "OverflowError traceback)", "deeplens/optics/io/lensfile.py",
+             "                if abs(v) > MAX_CURVATURE_PER_MM:", "                if False:",
+             HARDEN_ZMX),
+    Mutation("agf_nan_index_accepted", "an .agf glass with n^2 < 0 or n < 1 at the design "
+             "wavelengths accepted (a report of nan)", "deeplens/optics/io/zmx_read.py",
+             "        _check_index(mat, waves_nm, s, surfs.index(s), p)\n", "", HARDEN_ZMX),
+    Mutation("agf_formula_inf_traceback", "an .agf formula number inf: an OverflowError "
+             "traceback", "deeplens/optics/io/agf.py",
+             "if not math.isfinite(formula) or formula != int(formula)",
+             "if formula != int(formula)", HARDEN_ZMX),
+    Mutation("utf16_without_mark_undetected", "a UTF-16 .zmx without byte-order mark decoded "
+             "as UTF-8 (NUL bytes, nothing read)", "deeplens/optics/io/agf.py",
+             "    if utf16 is not None:", "    if False:", HARDEN_ZMX),
+    Mutation("lens_file_any_kind", "lens/glass readers open any path (a FIFO blocks, "
+             "/dev/zero is read)", "deeplens/optics/io/filecheck.py",
+             "    if not stat.S_ISREG(st.st_mode):", "    if False:", FILE_KINDS),
+    Mutation("lens_file_unbounded", "lens/glass files read whatever their size",
+             "deeplens/optics/io/filecheck.py", "    if st.st_size > MAX_FILE_BYTES:",
+             "    if False:", FILE_KINDS),
+    Mutation("render_16bit_through_8bit", "deeplens render reads 16-bit greyscale through an "
+             "8-bit conversion (clips)", "deeplens/render/image.py",
+             "            if im.mode in _HIGH_DEPTH:", "            if False:", READ_IMAGE),
+    Mutation("render_16bit_scaled_by_255", "16-bit greyscale scaled by 255",
+             "deeplens/render/image.py", "    else:\n        scale = 65535.0\n",
+             "    else:\n        scale = 255.0\n", READ_IMAGE),
+    Mutation("render_bomb_traceback", "a 20000 x 20000 PNG header: a DecompressionBombError "
+             "traceback", "deeplens/render/image.py",
+             "    except Image.DecompressionBombError as e:", "    except ZeroDivisionError as e:",
+             READ_IMAGE),
+    Mutation("zmx_cut_off_silent", "a .zmx cut after a lens surface read silently as a shorter "
+             "lens", "deeplens/optics/io/zmx_parse.py",
+             "    if last.disz_line and last.disz == 0:\n        return\n",
+             "    return\n", HARDEN_ZMX),
+    Mutation("garbage_digest_loads", "a garbage .sha256 lets a damaged checkpoint load "
+             "unverified (a warning only)", "deeplens/training/checkpoint.py",
+             "    if side.exists() and not listed:\n", "    if False:\n",
+             ("tests/training/test_faults.py",)),
+    Mutation("perceptual_pickle_traceback", "a pickle as model.perceptual_weights refused with "
+             "torch's raw UnpicklingError", "deeplens/nets/losses.py",
+             "        except Exception as e:  # noqa: BLE001 - torch raises many kinds",
+             "        except ZeroDivisionError as e:  # noqa: BLE001 - torch raises many kinds",
+             ("tests/nets/test_perceptual_weights_file.py",)),
+    Mutation("atomic_mode_0600", "atomically written files keep mkstemp's mode 0600",
+             "deeplens/optics/io/atomic.py", "    os.chmod(tmp, mode)\n", "", ATOMIC),
+    Mutation("stale_temps_kept", "temporary files of a killed write never cleaned up",
+             "deeplens/optics/io/atomic.py", "    clean_stale_temps(path)\n    fd, tmp",
+             "    fd, tmp", ATOMIC),
+    Mutation("stale_cleanup_any_tmp", "the clean-up removes every *.tmp in the folder",
+             "deeplens/optics/io/atomic.py",
+             'pattern = re.compile(re.escape(path.name) + r"\\." + _RANDOM + r"\\.tmp")',
+             'pattern = re.compile(r".*\\.tmp")', ATOMIC),
+    Mutation("stale_cleanup_live_files", "the clean-up removes a live writer's fresh temporary "
+             "file", "deeplens/optics/io/atomic.py", "now - st.st_mtime > older_than_s",
+             "True", ATOMIC),
+    Mutation("efbig_as_disk_full", "a write stopped by a file-size limit (ulimit -f, FAT32) "
+             "reported as a full disk", "deeplens/training/checkpoint.py",
+             "            why = (_file_too_large(e, path.parent, written) or _disk_full(",
+             "            why = (None or _disk_full(", ("tests/training/test_faults.py",)),
+    Mutation("checkpoint_structure_unchecked", "a checkpoint that passes its digest but holds a "
+             "list where a dict belongs: a raw KeyError/AttributeError later",
+             "deeplens/training/checkpoint.py", "    check_structure(ckpt, path, resume=resume)\n",
+             "", ("tests/training/test_faults.py",)),
+    Mutation("resume_from_weights_only", "a weights-only checkpoint accepted for resuming",
+             "deeplens/training/checkpoint.py", "    if resume:\n        missing",
+             "    if False:\n        missing", ("tests/training/test_faults.py",)),
+    Mutation("old_checkpoint_not_migrated", "a previous version's checkpoint (no obscuration/"
+             "decenter buffers) refused as another experiment", "deeplens/training/checkpoint.py",
+             '    migrate_missing_buffers(checkpoint["state_dict"], module, path)\n', "",
+             ("tests/training/test_checkpoint_migration.py",)),
+    Mutation("migration_overrides_values", "migration fills missing buffers whatever this "
+             "model's value (a non-default obscuration silently reset)",
+             "deeplens/training/checkpoint.py",
+             "        if torch.equal(v.detach().cpu().double(), torch.tensor(default, "
+             "dtype=torch.float64)):", "        if True:",
+             ("tests/training/test_checkpoint_migration.py",)),
+    Mutation("fanout_folder_unquoted", "the fan-out passes its folder to Hydra unquoted "
+             "(E2 (copy), E2,v2 fail)", "deeplens/training/fanout.py",
+             'f"eval.folder={hydra_quote(out)}"', 'f"eval.folder={out}"',
+             ("tests/training/test_fanout_quoting.py",)),
+    Mutation("hydra_quote_no_escapes", "quoted values without escaping quotes and ${",
+             "deeplens/training/fanout.py",
+             """    v = v.replace("'", "\\\\'").replace("${", "\\\\${")""", "    v = v",
+             ("tests/training/test_fanout_quoting.py",)),
 ]
 
 

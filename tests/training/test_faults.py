@@ -1,6 +1,7 @@
 """Faults found by hostile use (issue 25, items 1, 6, 7): every one gives a message naming the
 key, the file or the cause, never a traceback from deep inside torch or Lightning."""
 
+import errno
 import warnings
 
 import pytest
@@ -53,11 +54,34 @@ def test_uppercase_or_empty_digest_does_not_make_a_good_checkpoint_corrupt(tmp_p
     side = checksum_path(p)
     side.write_text(side.read_text().upper())  # as some tools write hex
     assert torch.equal(read_checkpoint(p)["state_dict"]["w"], torch.full((4,), 2.0))
-    side.write_text("")
-    with pytest.warns(UserWarning, match="lists no SHA-256.*unverified"):
+    side.write_text("")   # deeplens never writes an empty one: refused, saying so (issue 38)
+    with pytest.raises(CheckpointError, match=r"cannot be verified: its digest file "
+                                              r"last.ckpt.sha256 lists no SHA-256 \(it is empty\)"):
         read_checkpoint(p)
     side.write_text("0" * 64 + "\n")  # a real mismatch is still refused
     with pytest.raises(CheckpointError, match="corrupt"):
+        read_checkpoint(p)
+
+
+def test_a_garbage_digest_file_does_not_let_a_damaged_checkpoint_load(tmp_path):
+    """A flipped byte in the checkpoint and garbage in its .sha256 (issue 38): refused, saying
+    the digest file is garbage and how to load the checkpoint anyway; once the digest file is
+    deleted it loads unverified with a warning (and fails or not on its own bytes)."""
+    p = tmp_path / "last.ckpt"
+    write_checkpoint(_state(2.0), p)
+    raw = bytearray(p.read_bytes())
+    raw[len(raw) // 2] ^= 0x01
+    p.write_bytes(bytes(raw))
+    side = checksum_path(p)
+    side.write_text("not a digest: garbage\n")
+    with pytest.raises(CheckpointError, match=r"last.ckpt cannot be verified: its digest file "
+                                              r"last.ckpt.sha256 lists no SHA-256 \(it holds no "
+                                              r"64-digit hex SHA-256 \(it starts 'not a digest"
+                                              r".*delete .*last.ckpt.sha256 to load it unverified"):
+        read_checkpoint(p)
+    side.write_bytes(b"\xff\xfe\x00garbage")   # not UTF-8
+    with pytest.raises(CheckpointError, match=r"lists no SHA-256 \(it cannot be read "
+                                              r"\(UnicodeDecodeError"):
         read_checkpoint(p)
 
 
@@ -110,3 +134,65 @@ def test_bare_state_dict_is_named_as_such(tmp_path):
         warnings.simplefilter("ignore")
         with pytest.raises(CheckpointError, match="bare state dict.*load_state_dict"):
             read_checkpoint(p)
+
+
+def test_a_file_size_limit_is_named_not_a_full_disk(tmp_path, monkeypatch):
+    """``ulimit -f`` (a real RLIMIT_FSIZE, raised back at once) and EFBIG from a FAT32 drive
+    (issue 38): named as a file-size limit; torch's short write said "the disk is full"."""
+    resource = pytest.importorskip("resource")
+    p = tmp_path / "last.ckpt"
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    limit = 65536
+    if hard != resource.RLIM_INFINITY and hard < limit:
+        pytest.skip("the hard file-size limit is below the test's")
+    big = {"state_dict": {"w": torch.zeros(100_000)}}   # 400 kB
+    resource.setrlimit(resource.RLIMIT_FSIZE, (limit, hard))
+    try:
+        with pytest.raises(CheckpointError) as e:
+            write_checkpoint(big, p)
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    msg = str(e.value)
+    assert (f"could not write checkpoint {p}: the file is too large: the write stopped at "
+            f"65,536 bytes on the process's file-size limit of 65,536 bytes (ulimit -f, "
+            f"RLIMIT_FSIZE), not on a full disk") in msg
+    assert "the disk is full" not in msg and not list(tmp_path.glob("*.tmp"))
+    if soft != resource.RLIM_INFINITY:
+        return   # the FAT32 wording is for processes without a file-size limit
+    monkeypatch.setattr(ck.torch, "save", lambda obj, f: (_ for _ in ()).throw(
+        OSError(errno.EFBIG, "File too large")))
+    with pytest.raises(CheckpointError, match=r"the file is too large: the write stopped at 0 "
+                                              r"bytes on the largest file the file system of .* "
+                                              r"holds \(a FAT32 drive: 4,294,967,295 bytes\)"):
+        write_checkpoint(_state(), p)
+
+
+@pytest.mark.parametrize("ckpt,match", [
+    ({"state_dict": [torch.zeros(2)]},
+     r"state_dict is a list, expected a dict of parameter names to tensors"),
+    ({"state_dict": {"w": 3.0}}, r"state_dict\['w'\] is a float, expected a tensor"),
+    ({"state_dict": {"w": torch.zeros(2)}, "epoch": "3"}, r"epoch is a str, expected an integer"),
+    ({"state_dict": {"w": torch.zeros(2)}, "optimizer_states": [[1, 2]]},
+     r"optimizer_states\[0\] is a list, expected a dict \(an optimiser's state_dict\)"),
+    ({"state_dict": {"w": torch.zeros(2)}, "optimizer_states": [{"state": {}}]},
+     r"optimizer_states\[0\].param_groups is missing, expected a list of dicts"),
+    ({"state_dict": {"w": torch.zeros(2)}, "loops": [1]}, r"loops is a list, expected a dict"),
+])
+def test_a_checkpoint_deeplens_did_not_write_is_named_not_a_key_error(tmp_path, ckpt, match):
+    """It passes its digest (written through write_checkpoint), but a list stands where a dict
+    belongs (issue 38 item 7): Lightning's KeyError / AttributeError came from deep inside."""
+    p = tmp_path / "odd.ckpt"
+    write_checkpoint(ckpt, p)
+    with pytest.raises(CheckpointError, match=rf"checkpoint {p} is not one deeplens wrote: "
+                                              + match):
+        read_checkpoint(p)
+
+
+def test_weights_only_checkpoint_cannot_be_resumed_and_says_so(tmp_path):
+    p = tmp_path / "weights.ckpt"
+    write_checkpoint({"state_dict": {"w": torch.zeros(2)}, "epoch": 3}, p)
+    assert read_checkpoint(p)["epoch"] == 3        # testing it is fine
+    with pytest.raises(CheckpointError, match=r"weights.ckpt holds no training state to resume "
+                                              r"from \(no global_step, loops, optimizer_states\)"
+                                              r": a weights-only file"):
+        read_checkpoint(p, resume=True)

@@ -39,7 +39,9 @@ from typing import NamedTuple
 
 import torch
 
+from ..errors import LensFileError
 from ..materials import DEFAULT_RANGE_NM, LINE_D, Material
+from .filecheck import read_file_bytes
 
 __all__ = ["FORMULAS", "AGFGlass", "AgfError", "AgfRecord", "GlassCatalogue", "read_agf"]
 
@@ -168,25 +170,50 @@ class GlassCatalogue:
         rec = self.records.get(glass.strip().upper())
         if rec is None:
             return None
-        return AGFGlass(rec.name, rec.formula, rec.coefficients, rec.range_nm, self.name)
+        glass = AGFGlass(rec.name, rec.formula, rec.coefficients, rec.range_nm, self.name)
+        glass.source = f"{self.path}:{rec.line}"   # where it is defined, for messages
+        return glass
 
     def __repr__(self) -> str:
         return f"GlassCatalogue({self.name!r}, {len(self)} glasses, {str(self.path)!r})"
 
 
-def decode_zemax_text(path: Path) -> str:
-    """Text of a Zemax file (``.agf``, ``.zmx``): UTF-16 with a byte-order mark, UTF-8, UTF-16
-    without a mark (OpticStudio writes it too: every other byte zero), else Latin-1 (old
-    catalogues have 8-bit comments; their index data is ASCII)."""
-    raw = Path(path).read_bytes()
+def decode_zemax_text(path: Path, what: str = "Zemax file") -> str:
+    """Text of a Zemax file (``.agf``, ``.zmx``): UTF-16 with a byte-order mark, UTF-16 LE or BE
+    without a mark (OpticStudio writes it too: every other byte zero; found by that NUL-byte
+    pattern, :func:`_utf16_without_mark`), UTF-8, else Latin-1 (old catalogues have 8-bit
+    comments; their index data is ASCII).
+
+    Raises:
+        LensFileError: not a regular file, or too large (:func:`.filecheck.read_file_bytes`).
+    """
+    raw = read_file_bytes(path, what)   # a regular file of a sane size (.filecheck)
     if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
         return raw.decode("utf-16")
+    utf16 = _utf16_without_mark(raw)
+    if utf16 is not None:   # before UTF-8: ASCII in UTF-16 is valid UTF-8 (with NUL bytes)
+        return raw[:len(raw) // 2 * 2].decode(utf16)   # a cut-off file may end mid-unit
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        if len(raw) > 1 and raw[1:200:2].count(0) > 0.9 * len(raw[1:200:2]):
-            return raw.decode("utf-16-le")
         return raw.decode("latin-1")
+
+
+def _utf16_without_mark(raw: bytes) -> str | None:
+    """``"utf-16-le"`` or ``"utf-16-be"`` when ``raw`` (no byte-order mark) looks like UTF-16
+    text of mostly ASCII characters, else ``None``: in its first 400 bytes the high bytes of
+    the code units (odd bytes in little-endian, even bytes in big-endian) are nearly all NUL
+    and the low bytes nearly none.  Zemax files are ASCII keywords and numbers."""
+    head = raw[:400]
+    if len(head) < 4:
+        return None
+    even, odd = head[0::2], head[1::2]
+    nul_even, nul_odd = even.count(0) / len(even), odd.count(0) / len(odd)
+    if nul_odd > 0.9 and nul_even < 0.1:
+        return "utf-16-le"
+    if nul_even > 0.9 and nul_odd < 0.1:
+        return "utf-16-be"
+    return None
 
 
 def read_agf(path, name: str | None = None) -> GlassCatalogue:
@@ -203,7 +230,8 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
         FileNotFoundError: no such file.
         AgfError: a malformed record (``file:line`` and what was expected), a glass without a
             ``CD`` record (truncated file), an unknown formula number, a glass defined twice,
-            or no glass at all.
+            or no glass at all; a path that is not a regular file (a device, a FIFO, a
+            directory, symbolic links followed) or a file larger than 64 MiB.
 
     Example::
 
@@ -214,7 +242,10 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"glass catalogue not found: {path}")
-    text = decode_zemax_text(path)
+    try:
+        text = decode_zemax_text(path, "glass catalogue")
+    except LensFileError as e:
+        raise AgfError(str(e)) from None
     cat_name = (name or path.stem).upper()
     records: dict[str, AgfRecord] = {}
     notes: list[str] = []
@@ -277,7 +308,7 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
                 formula = float(toks[2])
             except ValueError:
                 fail(ln, f"glass {gname!r}: the formula number must be a number, got {toks[2]!r}")
-            if formula != int(formula) or int(formula) not in FORMULAS:
+            if not math.isfinite(formula) or formula != int(formula) or int(formula) not in FORMULAS:
                 fail(ln, f"glass {gname!r}: unknown dispersion formula {toks[2]!r}; known: "
                          f"{', '.join(f'{k} ({v[0]})' for k, v in FORMULAS.items())}")
             vals = nums(toks[4:6], ln, "NM n_d/V_d") if len(toks) >= 6 else [0.0, 0.0]

@@ -52,13 +52,15 @@ import difflib
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 from ..errors import LensError, LensFileError
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
 from ..surfaces import SURFACE_TYPES
+from .atomic import replace, temp_path
+from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
+from .filecheck import read_file_bytes
 
 __all__ = ["read_json", "save_lens", "lens_to_dict", "lens_from_dict", "LensFileError",
            "FORMAT_NAME", "FORMAT_VERSION"]
@@ -103,6 +105,14 @@ class _Reader:
                 self.fail(path, f"expected a length of at most {MAX_LENGTH_MM:g} mm in "
                                 f"magnitude, got {v!r} (paraxial data would overflow or round "
                                 f"to nonsense; an object at infinity is \"inf\")")
+            if path.endswith("curvature_per_mm") or path.endswith("curvature_x_per_mm"):
+                if abs(v) > MAX_CURVATURE_PER_MM:
+                    self.fail(path, f"expected a curvature of at most {MAX_CURVATURE_PER_MM:g} "
+                                    f"per mm in magnitude (a radius of at least "
+                                    f"{1 / MAX_CURVATURE_PER_MM:g} mm), got {v!r}")
+            if path.endswith("roc_mm") and v != 0 and abs(v) < 1 / MAX_CURVATURE_PER_MM:
+                self.fail(path, f"expected a radius of at least {1 / MAX_CURVATURE_PER_MM:g} mm "
+                                f"in magnitude (0 for a flat surface), got {v!r}")
             return float(v)
         if kind == "number_or_inf":
             if isinstance(v, str) and v.strip().lower() in ("inf", "infinity"):
@@ -148,9 +158,6 @@ class _Reader:
                       f"unknown field{hint} (known: {', '.join(sorted(allowed))})")
 
 
-#: largest length (mm) a lens file may hold: beyond it paraxial quantities overflow (a 1e308 mm
-#: thickness gave an EFL of -1e-305 mm)
-MAX_LENGTH_MM = 1e12
 
 _COMMON_KEYS = {"type", "distance_mm", "semi_diameter_mm", "material"}
 _TOP_KEYS = {"format", "version", "name", "units", "object", "aperture", "fields_deg",
@@ -406,12 +413,12 @@ def save_lens(lens: Lens, path) -> None:
         from .zmx import write_zmx
 
         return write_zmx(lens, path)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    tmp = temp_path(path)
     try:  # a name of its own: two writers of one lens file never share a temporary file
-        with os.fdopen(fd, "w") as f:
+        with open(tmp, "w") as f:
             json.dump(lens_to_dict(lens), f, indent=1)
             f.write("\n")
-        os.replace(tmp, path)
+        replace(tmp, path)   # the umask's mode, not mkstemp's 0600
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -423,7 +430,7 @@ def read_json(path) -> Lens:
     for invalid JSON)."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_file_bytes(path).decode("utf-8"))
     except UnicodeDecodeError as e:
         raise LensFileError(f"not a UTF-8 text file ({e.reason} at byte {e.start})",
                             source=path) from e

@@ -24,6 +24,7 @@ from pathlib import Path
 from ..errors import LensFileError
 from ..materials import get_material
 from ..surfaces.xy_polynomial import xy_terms
+from .filecheck import read_file_bytes
 from .lensfile import lens_from_dict
 
 __all__ = ["read_table", "table_to_dict"]
@@ -71,7 +72,7 @@ def _parse(path, *, scale, stop_index, object_distance_mm, fields_deg, wavelengt
     if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
         raise LensFileError(f"scale must be a positive number, got {scale!r}", source=path,
                             key="scale")
-    raw = path.read_bytes()
+    raw = read_file_bytes(path)
     try:
         if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
             text = raw.decode("utf-16")

@@ -23,8 +23,9 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import ZemaxFileError, ZemaxWarning
+from ..errors import LensFileError, ZemaxFileError, ZemaxWarning
 from .agf import decode_zemax_text
+from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 
 __all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
 
@@ -102,10 +103,12 @@ class ZmxSurface:
     type: str = "STANDARD"
     type_line: int = 0
     curv: float = 0.0
+    curv_line: int = 0
     disz: float = 0.0
     disz_line: int = 0
     coni: float = 0.0
     diam: float = 0.0
+    diam_line: int = 0
     diam_fixed: bool = False
     stop: bool = False
     glass: str | None = None
@@ -176,7 +179,9 @@ def parse(path: Path):
     """The raw file: ``(system dict, [ZmxSurface, ...], locator)``, lengths in file units."""
     p = Locator(path)
     try:
-        text = decode_zemax_text(path)
+        text = decode_zemax_text(path, "lens file")
+    except LensFileError as e:   # not a regular file, or too large
+        p.fail(0, e.message)
     except UnicodeDecodeError as e:
         p.fail(0, f"not a UTF-8 or UTF-16 text file ({e.reason} at byte {e.start})")
     records = tokenize(text)
@@ -187,6 +192,7 @@ def parse(path: Path):
     surfs: list[ZmxSurface] = []
     cur: ZmxSurface | None = None
     unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
+    stop_at: tuple[int, int] | None = None   # (SURF number, line) of the first STOP
     for r in records:
         ln, toks, key, line = r.line, list(r.tokens), r.key, r.text
         if key == "SURF":
@@ -255,7 +261,7 @@ def parse(path: Path):
                            f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE, BICONICX "
                            f"and BINARY_2")
         elif cur is not None and key == "CURV":
-            cur.curv = p.arg(toks, 1, ln, "curvature")
+            cur.curv, cur.curv_line = p.arg(toks, 1, ln, "curvature"), ln
         elif cur is not None and key == "DISZ":
             if len(toks) < 2:
                 p.fail(ln, "DISZ line is truncated: missing the thickness")
@@ -264,9 +270,14 @@ def parse(path: Path):
         elif cur is not None and key == "CONI":
             cur.coni = p.arg(toks, 1, ln, "conic constant")
         elif cur is not None and key == "DIAM":
-            cur.diam = p.arg(toks, 1, ln, "semi-diameter")
+            cur.diam, cur.diam_line = p.arg(toks, 1, ln, "semi-diameter"), ln
             cur.diam_fixed = len(toks) > 2 and toks[2] == "1"
         elif cur is not None and key == "STOP":
+            if stop_at is not None:   # OpticStudio has one stop: a second is a corrupt file
+                p.fail(ln, f"a second STOP (SURF {len(surfs) - 1}): the stop is already SURF "
+                           f"{stop_at[0]} (STOP on line {stop_at[1]}); a lens has one aperture "
+                           f"stop")
+            stop_at = (len(surfs) - 1, ln)
             cur.stop = True
         elif cur is not None and key == "PARM":
             cur.parm[int(p.arg(toks, 1, ln, "parameter number"))] = (
@@ -359,5 +370,52 @@ def parse(path: Path):
     if len(surfs) < 3:
         p.fail(surfs[-1].line, f"expected an object surface, at least one lens surface and an "
                                f"image surface; found {len(surfs)} SURF block(s) (truncated file?)")
+    _check_magnitudes(sysd, surfs, p)
+    _check_complete(surfs, p)
     return sysd, surfs, p
 
+
+def _check_magnitudes(sysd: dict, surfs: list[ZmxSurface], p: Locator) -> None:
+    """Lengths and curvatures within the limits of deeplens lens files
+    (:data:`~.file_limits.MAX_LENGTH_MM`, :data:`~.file_limits.MAX_CURVATURE_PER_MM`), in mm after the
+    ``UNIT`` scaling: beyond them paraxial data overflow or round to nonsense (a ``DISZ 1e308``
+    gave an EFL of -1e-305 mm, a ``CURV 1e308`` an ``OverflowError``)."""
+    s_mm = UNITS[sysd["unit"][0]]
+    unit = sysd["unit"][0]
+
+    def length(v, ln, what, hint=""):
+        if math.isfinite(v) and abs(v) * s_mm > MAX_LENGTH_MM:
+            p.fail(ln, f"{what} {v:g} {unit}: expected a length of at most {MAX_LENGTH_MM:g} mm "
+                       f"in magnitude (the limit of deeplens lens files: paraxial data would "
+                       f"overflow or round to nonsense{hint})")
+
+    if sysd["aperture"] is not None and sysd["aperture"][0] == "epd":
+        length(sysd["aperture"][1], sysd["aperture"][2], "ENPD entrance-pupil diameter")
+    for k, s in enumerate(surfs):
+        if abs(s.curv) / s_mm > MAX_CURVATURE_PER_MM:
+            p.fail(s.curv_line, f"CURV {s.curv:g} per {unit} (SURF {k}): expected a curvature of "
+                                f"at most {MAX_CURVATURE_PER_MM:g} per mm in magnitude (a radius "
+                                f"of at least {1 / MAX_CURVATURE_PER_MM:g} mm, the limit of "
+                                f"deeplens lens files)")
+        length(s.disz, s.disz_line, f"DISZ (SURF {k} thickness)",
+               "; an object at infinity is DISZ INFINITY" if k == 0 else "")
+        length(s.diam, s.diam_line, f"DIAM (SURF {k} semi-diameter)")
+        for rec, what in ((s.clap, "CLAP radius"), (s.obsc, "obscuration radius"),
+                          (s.sqap, "SQAP half-width"), (s.obdc, "OBDC decenter")):
+            if rec is not None:
+                for v in rec[:-1]:
+                    length(v, rec[-1], f"{what} (SURF {k})")
+
+
+def _check_complete(surfs: list[ZmxSurface], p: Locator) -> None:
+    """A note (a located warning) when the file looks cut off: every file of the test corpus
+    (OpticStudio's and converters') ends with its image surface, a ``SURF`` block with
+    ``DISZ 0``; a file cut after a lens surface (or inside the image surface's block) would
+    otherwise read as a shorter lens, the cut surface taken as the image surface."""
+    last, k = surfs[-1], len(surfs) - 1
+    if last.disz_line and last.disz == 0:
+        return
+    why = "has no DISZ line" if not last.disz_line else f"has DISZ {last.disz:g}"
+    p.note(last.line, f"the file ends with SURF {k}, which {why}: OpticStudio ends every file "
+                      f"with its image surface (a block with DISZ 0), so the file may be cut "
+                      f"off; it was read as a lens whose image surface is SURF {k}")

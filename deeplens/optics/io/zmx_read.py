@@ -55,7 +55,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     """Read a sequential Zemax ``.zmx`` file into a :class:`~deeplens.optics.lens.Lens`.
 
     Args:
-        path: the ``.zmx`` file (UTF-16 with byte-order mark, or UTF-8).
+        path: the ``.zmx`` file (UTF-16 with or without byte-order mark, UTF-8 or Latin-1).
         glass_catalogs: ``.agf`` files (paths) or :class:`~.agf.GlassCatalogue` objects; each
             answers for the ``GCAT`` name equal to its file stem.  A catalogue the file names
             but the caller does not pass is looked for as ``<NAME>.agf`` next to the ``.zmx``.
@@ -111,6 +111,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
                 check_wavelength_nm(w, mat)
             except ValueError as e:
                 p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)})")
+        _check_index(mat, waves_nm, s, surfs.index(s), p)
     for w in waves_nm:
         try:
             check_wavelength_nm(w, seq.obj_medium)
@@ -226,6 +227,30 @@ def _wavelengths(sysd: dict, p: Locator):
                         f"{nums}")
     primary = waves_nm[nums.index(pw)]
     return ftyp, ftyp_line, n_fields, waves_nm, primary
+
+
+def _check_index(mat: Material, waves_nm, s: ZmxSurface, k: int, p: Locator) -> None:
+    """The glass of ``SURF k`` has a finite index at every design wavelength, and one of at
+    least 1 and at most 10 when it comes from a catalogue formula (an ``.agf`` glass): a formula
+    with ``n² < 0`` there gives NaN indices (a report full of ``nan``), and ``n < 1`` or an index
+    beyond any optical material's (germanium's is 4) a coefficient typed wrong.  (OpticStudio's model glasses may be below 1: indices relative to air.)"""
+    from .agf import AGFGlass
+
+    with torch.no_grad():
+        n = mat.n(torch.tensor(waves_nm, dtype=torch.float64))
+    bad = [(w, float(v)) for w, v in zip(waves_nm, n.reshape(-1).tolist())
+           if not math.isfinite(v) or (isinstance(mat, AGFGlass) and not 1.0 <= v <= 10.0)]
+    if not bad:
+        return
+    w, v = bad[0]
+    where = getattr(mat, "source", None)
+    what = (f"glass {mat.name!r}" + (f" ({where})" if where else "")
+            + f" of SURF {k}: its dispersion formula gives ")
+    what += (f"n = {v:g} at {w:g} nm" if math.isfinite(v) else
+             f"no real index at {w:g} nm (n² < 0 or an overflow)")
+    p.fail(s.glass_line or s.line, f"{what}; expected a finite index >= 1 (and <= 10 for a "
+                                   f"catalogue glass) at every design wavelength (check the "
+                                   f"formula number and the CD coefficients)")
 
 
 def _telecentric(ftyp, ftyp_line: int, obj_dist: float, convert, ap_line: int,
