@@ -16,6 +16,17 @@ class _UsageError(ValueError):
     """A bad command-line value (exit status 2, like argparse's own errors)."""
 
 
+def _missing(cmd: str, extra: str, modules=None) -> bool:
+    """Print one line naming the extra to install and return ``True`` when a module ``cmd``
+    needs is missing (:mod:`deeplens.extras`); checked before any work (loading, tracing)."""
+    from .extras import missing_extra
+
+    msg = missing_extra(extra, f"deeplens {cmd}", modules)
+    if msg:
+        print(f"deeplens {cmd}: error: {msg}", file=sys.stderr)
+    return msg is not None
+
+
 def _floats(text: str, what: str, unit: str) -> list[float]:
     try:
         values = [float(v) for v in text.split(",") if v.strip()]
@@ -123,6 +134,8 @@ def _analysis_kinds(text: str) -> list[str]:
 
 def _plot(args) -> int:
     """``deeplens plot LENS --kind KIND [--fields] [--wavelengths] -o OUT.png``."""
+    if _missing("plot", "plot", ("matplotlib",)):
+        return 2
     import torch
 
     from .analysis.plot import plot
@@ -322,6 +335,8 @@ def _steps_summary(res, allow_vignetting: bool) -> str:
 
 def _render(args) -> int:
     """``deeplens render LENS IMAGE --depth MM -o OUT.png``: the picture through the lens."""
+    if _missing("render", "plot", ("PIL",)):     # Pillow reads and writes the pictures
+        return 2
     from .render.image import read_image, render_image, write_image
 
     try:
@@ -376,6 +391,9 @@ def _add_render_parser(sub) -> None:
 
 
 def _tolerance(args) -> int:
+    need = (("yaml",) if args.group else ()) + (("matplotlib",) if args.out else ())
+    if need and _missing("tolerance", "plot", need):
+        return 2
     from pathlib import Path
 
     import torch
@@ -477,6 +495,10 @@ def _design_help(prog: str) -> str:
 def _design(name: str, rest: list, prog: str) -> int:
     from .design.apps import load_app
 
+    if not any(a in ("-h", "--help") for a in rest) and _missing("design", "plot",
+                                                                  ("matplotlib",)):
+        return 2      # every application draws its figures
+
     try:
         app = load_app(name)
     except ValueError as e:
@@ -538,6 +560,8 @@ def _main(argv=None) -> int:
         print(_version())
         return 0
     if argv and argv[0] in _HYDRA_COMMANDS:     # Hydra parses its own command line
+        if _missing(argv[0], "train"):
+            return 2
         from .training.entry import run
 
         run(argv[0], argv[1:])

@@ -54,11 +54,19 @@ def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
 
     Raises:
         ValueError: an unknown ``kind``.
+        SystemExit: (status 2) a module of the ``train`` extra is missing; one line on stderr
+            names it and the pip command (:mod:`deeplens.extras`).
     """
-    import hydra
-
     if kind not in ("train", "eval"):
         raise ValueError(f"unknown deeplens task {kind!r}; expected 'train' or 'eval'")
+    from ..extras import missing_extra
+
+    msg = missing_extra("train", prog or f"deeplens {kind}")
+    if msg:         # one line naming the extra, before Hydra is imported
+        print(f"{prog or f'deeplens {kind}'}: error: {msg}", file=sys.stderr)
+        raise SystemExit(2)
+    import hydra
+
     if kind == "train":
         task = _train_task
     else:

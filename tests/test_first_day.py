@@ -1,0 +1,84 @@
+"""The first day of a user (issue 35): a missing extra, a typo, a missing lens, ``--cfg job``,
+the shipped lens names, the render summary: each is one clear line, checked before any work.
+In-process (``deeplens.cli.main``) except where a separate interpreter is the point."""
+
+import sys
+
+import helpers as H
+import pytest
+
+run = H.run_cli
+
+
+@pytest.fixture
+def no_tracing(monkeypatch):
+    """Fail the test if a lens file is loaded (the extra must be checked before any work)."""
+    import deeplens.optics.io as io
+
+    def boom(*a, **k):
+        raise AssertionError("a lens was loaded before the extra was checked")
+
+    monkeypatch.setattr(io, "load_lens", boom)
+
+
+def _one_line(err: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def test_plot_without_matplotlib_names_the_plot_extra_before_tracing(monkeypatch, capsys,
+                                                                     tmp_path, no_tracing):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)    # as if not installed
+    out = tmp_path / "spot.png"
+    code, _, err = run(["plot", "cooke_triplet", "--kind", "spot", "-o", str(out)], capsys)
+    line = _one_line(err)
+    assert code == 2 and not out.exists()
+    assert "matplotlib" in line and 'pip install "deeplens-do[plot]"' in line
+
+
+@pytest.mark.parametrize("cmd", ["train", "eval"])
+def test_train_without_hydra_names_the_train_extra(monkeypatch, capsys, cmd):
+    monkeypatch.setitem(sys.modules, "hydra", None)
+    code, _, err = run([cmd, "experiment=doublet"], capsys)
+    line = _one_line(err)
+    assert code == 2
+    assert line.startswith(f"deeplens {cmd}: error:") and "hydra" in line
+    assert 'pip install "deeplens-do[train]"' in line
+
+
+def test_train_py_entry_without_lightning_names_the_train_extra(monkeypatch, capsys):
+    from deeplens.training.entry import run as entry_run
+
+    monkeypatch.setitem(sys.modules, "lightning", None)
+    with pytest.raises(SystemExit) as e:
+        entry_run("train", ["experiment=doublet"], prog="train.py")
+    assert e.value.code == 2
+    line = _one_line(capsys.readouterr().err)
+    assert line.startswith("train.py: error:") and "lightning" in line and "[train]" in line
+
+
+def test_design_without_matplotlib_writes_nothing_and_says_so(monkeypatch, capsys, tmp_path):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    out = tmp_path / "sens"
+    code, stdout, err = run(["design", "sensitivity", "--out", str(out)], capsys)
+    line = _one_line(err)
+    assert code == 2 and not out.exists() and "figures in" not in stdout
+    assert 'pip install "deeplens-do[plot]"' in line
+
+
+def test_tolerance_needs_matplotlib_only_for_its_figure(monkeypatch, capsys, tmp_path,
+                                                        no_tracing):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    code, _, err = run(["tolerance", "cooke_triplet", "--monte-carlo", "2",
+                        "--out", str(tmp_path / "t")], capsys)
+    assert code == 2 and "[plot]" in _one_line(err)
+
+
+def test_render_without_pillow_names_the_plot_extra(monkeypatch, capsys, tmp_path, no_tracing):
+    monkeypatch.setitem(sys.modules, "PIL", None)
+    code, _, err = run(["render", "cooke_triplet", str(tmp_path / "a.png"), "--depth", "2000",
+                        "-o", str(tmp_path / "b.png")], capsys)
+    line = _one_line(err)
+    assert code == 2 and "PIL" in line and "[plot]" in line
