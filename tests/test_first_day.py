@@ -82,3 +82,41 @@ def test_render_without_pillow_names_the_plot_extra(monkeypatch, capsys, tmp_pat
                         "-o", str(tmp_path / "b.png")], capsys)
     line = _one_line(err)
     assert code == 2 and "PIL" in line and "[plot]" in line
+
+
+@pytest.fixture
+def clean_hydra():
+    from hydra.core.global_hydra import GlobalHydra
+
+    GlobalHydra.instance().clear()
+    yield
+    GlobalHydra.instance().clear()
+
+
+@pytest.mark.parametrize("kind", ["train", "eval"])
+def test_cfg_job_after_overrides_prints_the_composed_config(kind, capsys, clean_hydra):
+    """``deeplens train experiment=doublet --cfg job``: the first thing a Hydra user types."""
+    from deeplens.training.entry import run as entry_run
+
+    entry_run(kind, ["experiment=doublet", "trainer.max_epochs=3", "--cfg", "job"])
+    out = capsys.readouterr().out
+    assert f"task_name: {'doublet' if kind == 'train' else 'eval'}" in out
+    assert "max_epochs: 3" in out
+    assert "wide_doublet.json" in out
+
+
+def test_cfg_hydra_names_the_job_after_the_command(capsys, clean_hydra):
+    from deeplens.training.entry import run as entry_run
+
+    entry_run("eval", ["experiment=doublet", "--cfg", "hydra"])
+    out = capsys.readouterr().out
+    job = out[out.index("\n  job:\n"):]
+    assert job.split("\n")[2].strip() == "name: eval"
+
+
+def test_info_after_overrides_works(capsys, clean_hydra):
+    from deeplens.training.entry import run as entry_run
+
+    entry_run("train", ["experiment=doublet", "--info", "defaults"])
+    out = capsys.readouterr().out
+    assert "experiment/doublet" in out

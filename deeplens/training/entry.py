@@ -67,22 +67,21 @@ def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
         raise SystemExit(2)
     import hydra
 
-    if kind == "train":
-        task = _train_task
-    else:
-        start = ["-m", "deeplens", "eval"] if fanout is None else list(fanout)
+    start = ["-m", "deeplens", "eval"] if fanout is None else list(fanout)
 
-        def task(cfg):
-            return _eval_task(cfg, start)
+    def task(cfg):
+        return _train_task(cfg) if kind == "train" else _eval_task(cfg, start)
+
+    # Hydra names a job after the task function's module (the log file `train.log`, the
+    # `--help` title, `hydra.job.name`); here that module is this one, so the task says it is
+    # `train` / `eval`.  (An override `hydra.job.name=...` appended to the command line would
+    # break `deeplens train experiment=doublet --cfg job`: Hydra's parser takes overrides only
+    # before its flags.)
+    task.__module__ = kind
     os.environ.setdefault("DEEPLENS_DATA_DIR", str(data_dir()))
     main = hydra.main(version_base="1.3", config_path=str(config_dir()),
                       config_name=f"{kind}.yaml")(task)
     args = list(sys.argv[1:] if argv is None else argv)
-    # Hydra names a job after its script (train.py -> "train": the log file, the help title);
-    # here the script is this module, so the name is given (a Hydra override, not a task one;
-    # last, as Hydra's parser takes overrides after its flags, e.g. `-m a=1`)
-    if not any(a.startswith("hydra.job.name=") for a in args):
-        args.append(f"hydra.job.name={kind}")
     saved = sys.argv
     sys.argv = [prog or f"deeplens {kind}", *args]
     try:
