@@ -20,9 +20,11 @@ __all__ = ["run"]
 
 
 def _train_task(cfg) -> float | None:
+    from .console import quiet_console
     from .train import train
 
-    metrics, _ = train(cfg)
+    with quiet_console():
+        metrics, _ = train(cfg)
     return metrics.get("val/psnr_restored")
 
 
@@ -40,7 +42,10 @@ def _eval_task(cfg, fanout: list[str]) -> None:
         fan_out(cfg, fanout, list(HydraConfig.get().overrides.task))
         with open_dict(cfg):
             cfg.eval.gather = True
-    table, _ = evaluate(cfg)
+    from .console import quiet_console
+
+    with quiet_console():
+        table, _ = evaluate(cfg)
     print(table)
 
 
