@@ -86,11 +86,19 @@ def test_render_without_pillow_names_the_plot_extra(monkeypatch, capsys, tmp_pat
 
 @pytest.fixture
 def clean_hydra():
+    """Hydra's global state cleared, and the root logger's handlers (Hydra's run configures
+    them onto this test's captured stderr) put back afterwards."""
+    import logging
+
     from hydra.core.global_hydra import GlobalHydra
 
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
     GlobalHydra.instance().clear()
     yield
     GlobalHydra.instance().clear()
+    root.handlers[:] = handlers
+    root.setLevel(level)
 
 
 @pytest.mark.parametrize("kind", ["train", "eval"])
@@ -120,3 +128,44 @@ def test_info_after_overrides_works(capsys, clean_hydra):
     entry_run("train", ["experiment=doublet", "--info", "defaults"])
     out = capsys.readouterr().out
     assert "experiment/doublet" in out
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["trainer.max_epoch=3"], "did you mean trainer.max_epochs"),
+    (["experiment=doublet", "model.net_lrr=1"], "did you mean model.net_lr"),
+    (["-m", "seeed=0,1"], "did you mean seed"),                  # a swept key
+])
+def test_config_typo_suggests_the_key_before_any_folder(argv, expected, capsys, monkeypatch,
+                                                        tmp_path, clean_hydra):
+    from deeplens.training.entry import run as entry_run
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        entry_run("train", argv)
+    line = _one_line(capsys.readouterr().err)
+    assert e.value.code == 2 and expected in line and "To append" not in line
+    bad = next(a for a in argv if a.split("=")[0] in line).split("=")[0]
+    assert f"+{bad}=VALUE" in line                          # how to add a key on purpose
+    assert list(tmp_path.iterdir()) == []                   # no output folder
+
+
+def test_missing_lens_is_one_line_before_any_folder(capsys, monkeypatch, tmp_path, clean_hydra):
+    from deeplens.training.entry import run as entry_run
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        entry_run("eval", ["experiment=doublet", "lens.path=my_lens.zmx"])
+    line = _one_line(capsys.readouterr().err)
+    assert e.value.code == 2
+    assert line.startswith("deeplens eval: error: lens.path: no lens file my_lens.zmx")
+    assert "cooke_triplet" in line                          # the shipped names
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_suggest_keys_prefers_the_same_parent():
+    from deeplens.training.precheck import suggest_keys
+
+    keys = ["trainer", "trainer.max_epochs", "trainer.max_steps", "data.max_epochs", "seed"]
+    assert suggest_keys("trainer.max_epoch", keys)[0] == "trainer.max_epochs"
+    assert suggest_keys("sed", keys) == ["seed"]
+    assert suggest_keys("zzz.qqq", keys) == []

@@ -60,7 +60,8 @@ def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
     Raises:
         ValueError: an unknown ``kind``.
         SystemExit: (status 2) a module of the ``train`` extra is missing; one line on stderr
-            names it and the pip command (:mod:`deeplens.extras`).
+            names it and the pip command (:mod:`deeplens.extras`); or a misspelt key or a
+            missing ``lens.path`` (:mod:`.precheck`), before any folder is made.
     """
     if kind not in ("train", "eval"):
         raise ValueError(f"unknown deeplens task {kind!r}; expected 'train' or 'eval'")
@@ -87,6 +88,12 @@ def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
     main = hydra.main(version_base="1.3", config_path=str(config_dir()),
                       config_name=f"{kind}.yaml")(task)
     args = list(sys.argv[1:] if argv is None else argv)
+    from .precheck import precheck
+
+    problem = precheck(kind, args, str(config_dir()))
+    if problem:     # a misspelt key, a missing lens: before Hydra makes the run's folder
+        print(f"{prog or f'deeplens {kind}'}: error: {problem}", file=sys.stderr)
+        raise SystemExit(2)
     saved = sys.argv
     sys.argv = [prog or f"deeplens {kind}", *args]
     try:
