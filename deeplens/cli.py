@@ -40,6 +40,16 @@ def _floats(text: str, what: str, unit: str) -> list[float]:
     return values
 
 
+def _add_sampling_option(parser, what: str = "") -> None:
+    """``--sampling``, with the one default of every RMS spot the command line prints."""
+    from .optics.sampling import DEFAULT_SAMPLING
+
+    parser.add_argument("--sampling", default=DEFAULT_SAMPLING,
+                        help=f"pupil sampling{what}: hexapolar:RINGS, grid:N or random:N[:SEED] "
+                             f"(default %(default)s, the same in report, plot, optimize and "
+                             f"tolerance, so one lens has one RMS)")
+
+
 def _add_lens_options(parser) -> None:
     """The reader options of the paper authors' ``.txt`` tables (they carry no stop row)."""
     g = parser.add_argument_group("table files (.txt)")
@@ -139,6 +149,7 @@ def _plot(args) -> int:
     import torch
 
     from .analysis.plot import plot
+    from .optics.sampling import parse_sampling
 
     try:
         fields, waves = _fields_waves(args)
@@ -149,9 +160,10 @@ def _plot(args) -> int:
                 raise _UsageError(f"--freqs must be >= 0 cycles/mm, got {args.freqs!r}")
         if args.dpi is not None and not args.dpi > 0:
             raise _UsageError(f"--dpi must be > 0, got {args.dpi}")
+        parse_sampling(args.sampling)
         lens = _load(args).to(torch.float64)
         plot(lens, args.kind, args.output, fields, waves, image_plane=args.image_plane,
-             dpi=args.dpi, freqs=freqs)
+             dpi=args.dpi, freqs=freqs, sampling=args.sampling)
     except (ValueError, OSError) as e:
         print(f"deeplens plot: error: {e}", file=sys.stderr)
         return 2
@@ -178,6 +190,7 @@ def _add_plot_parser(sub) -> None:
     q.add_argument("--freqs", help="frequencies in cycles/mm for --kind through-focus and "
                                    "mtf-field, e.g. 10,30,50 (default ~10/25/50 %% of the "
                                    "cut-off)")
+    _add_sampling_option(q, " of --kind spot")
     _add_lens_options(q)
     q.set_defaults(func=_plot)
 def _fields_waves(args):
@@ -577,8 +590,7 @@ def _main(argv=None) -> int:
     r.add_argument("lens", help="lens file (.json, the paper authors' .txt table, or Zemax .zmx)")
     r.add_argument("--fields", help="field angles in degrees, e.g. 0,7,14,21 (default: file's)")
     r.add_argument("--wavelengths", help="wavelengths in nm, e.g. 486.1,587.6 (default: file's)")
-    r.add_argument("--sampling", default="hexapolar:18",
-                   help="pupil sampling: hexapolar:RINGS, grid:N or random:N[:SEED]")
+    _add_sampling_option(r)
     r.add_argument("--pupil", choices=["traced", "paraxial"], default=None,
                    help="sample the pupil found by tracing or the paraxial EP (default: traced; "
                         "for a .zmx file, what its RAIM line says: paraxial without ray aiming)")
@@ -606,7 +618,7 @@ def _main(argv=None) -> int:
     o.add_argument("--rounds", type=int, default=1, help="pupil re-sampling rounds")
     o.add_argument("--constraint", action="append", metavar="NAME=VALUE",
                    help="e.g. min_edge_air=0.5, max_track=60, efl=50 (repeatable)")
-    o.add_argument("--sampling", default="hexapolar:6", help="pupil pattern")
+    _add_sampling_option(o, " of the merit and the RMS table")
     o.add_argument("--reference", choices=["centroid", "chief"], default="centroid")
     o.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
     o.add_argument("--allow-vignetting", action="store_true",
@@ -634,7 +646,7 @@ def _main(argv=None) -> int:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--fields", help="field angles in degrees (default: file's)")
     t.add_argument("--wavelengths", help="wavelengths in nm (default: file's primary)")
-    t.add_argument("--sampling", default="hexapolar:6")
+    _add_sampling_option(t)
     t.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
     t.add_argument("--out", help="folder for the Monte Carlo histogram (PNG)")
     t.add_argument("--json", action="store_true")

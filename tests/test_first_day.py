@@ -169,3 +169,22 @@ def test_suggest_keys_prefers_the_same_parent():
     assert suggest_keys("trainer.max_epoch", keys)[0] == "trainer.max_epochs"
     assert suggest_keys("sed", keys) == ["seed"]
     assert suggest_keys("zzz.qqq", keys) == []
+
+
+@pytest.mark.parametrize("cmd, func", [("report", "_report"), ("plot", "_plot"),
+                                       ("optimize", "_optimize"), ("tolerance", "_tolerance")])
+def test_one_default_sampling_shown_in_help(cmd, func, capsys, monkeypatch):
+    """report, plot, optimize and tolerance sample the pupil alike by default (one lens, one
+    on-axis RMS), and their --help says so."""
+    import deeplens.cli as cli
+    from deeplens.optics.sampling import DEFAULT_SAMPLING
+
+    code, out, _ = run([cmd, "-h"], capsys)
+    assert code == 0
+    assert f"(default {DEFAULT_SAMPLING}" in " ".join(out.split())
+    seen = {}
+    monkeypatch.setattr(cli, func, lambda args: seen.setdefault("s", args.sampling) and 0)
+    extra = {"plot": ["--kind", "spot", "-o", "x.png"], "optimize": ["--vary", "x",
+                                                                    "--out", "x.json"]}
+    run([cmd, "cooke_triplet", *extra.get(cmd, [])], capsys)
+    assert seen["s"] == DEFAULT_SAMPLING

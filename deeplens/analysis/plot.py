@@ -14,7 +14,7 @@ import torch
 
 from ..optics.camera import unpack
 from ..optics.frames import local_frames, to_global
-from ..optics.sampling import field_rays
+from ..optics.sampling import DEFAULT_SAMPLING, field_rays
 from ..optics.paraxial import paraxial
 from ..optics.surfaces import CoordinateBreak
 from . import style
@@ -190,7 +190,7 @@ def _title(fig, lens, what):
 
 
 @style.styled
-def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hexapolar:18",
+def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = DEFAULT_SAMPLING,
                 image_plane="sensor", pupil: str = "traced", options=None):
     """Spot diagrams (µm), one panel per field, all panels on one scale, with the Airy circle.
 
@@ -544,10 +544,12 @@ FREQ_KINDS = ("through-focus", "mtf-field")
 
 
 def plot(lens, kind: str, path, fields_deg=None, wavelengths_nm=None,
-         image_plane="sensor", dpi: float | None = None, freqs=None, options=None) -> None:
+         image_plane="sensor", dpi: float | None = None, freqs=None, options=None,
+         sampling: str | None = None) -> None:
     """Draw figure ``kind`` (a key of :data:`KINDS`) and save it at ``path`` in the format its
     suffix names (vector for .pdf/.svg/.eps/.ps; :func:`.style.save`), ``dpi`` for rasters;
-    ``freqs`` (cycles/mm) for the kinds of :data:`FREQ_KINDS`.  ``lens``: a Lens (traced with
+    ``freqs`` (cycles/mm) for the kinds of :data:`FREQ_KINDS`; ``sampling`` (the pupil
+    pattern) for ``spot`` (other kinds draw their own rays and ignore it).  ``lens``: a Lens (traced with
     ``options``) or a :class:`~deeplens.optics.camera.Camera` (its options are used)."""
     if kind not in KINDS:
         raise ValueError(f"plot kind must be one of {'|'.join(KINDS)}, got {kind!r}")
@@ -557,6 +559,8 @@ def plot(lens, kind: str, path, fields_deg=None, wavelengths_nm=None,
             raise ValueError(f"frequencies apply to the kinds {', '.join(FREQ_KINDS)}, not "
                              f"{kind!r}")
         extra["freqs"] = freqs
+    if sampling is not None and kind == "spot":
+        extra["sampling"] = sampling
     lens, _, options = unpack(lens, None, options, "plot")
     fig = KINDS[kind](lens, fields_deg, wavelengths_nm, image_plane=image_plane,
                       options=options, **extra)
