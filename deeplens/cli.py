@@ -350,7 +350,10 @@ def _render(args) -> int:
     """``deeplens render LENS IMAGE --depth MM -o OUT.png``: the picture through the lens."""
     if _missing("render", "plot", ("PIL",)):     # Pillow reads and writes the pictures
         return 2
-    from .render.image import read_image, render_image, write_image
+    import torch
+
+    from .render.image import default_pixel_size, read_image, render_image, write_image
+    from .render.sensor import RGB_WAVELENGTHS_NM
 
     try:
         if not (math.isfinite(args.depth) and args.depth > 0):
@@ -365,8 +368,20 @@ def _render(args) -> int:
             if not args.pixel_size_um > 0:
                 raise _UsageError(f"--pixel-size-um must be > 0, got {args.pixel_size_um}")
             pitch = args.pixel_size_um * 1e-3
+        focus = _focus_depth(args.focus, args.depth)
         lens = _load(args)
         img = read_image(args.image, max_side=args.max_side, linear=args.linear)
+        H, W = img.shape[-2:]
+        pitch = default_pixel_size(lens, (H, W)) if pitch is None else pitch
+        d_file = float(lens.d_sensor)
+        if focus is not None:
+            from .training.lens_setup import best_focus_distance
+
+            d = best_focus_distance(lens, min(focus, _FAR_MM), RGB_WAVELENGTHS_NM)
+            with torch.no_grad():
+                lens.d_sensor.fill_(d)
+            lens.check()
+        blur_um = _on_axis_blur_um(lens, args.depth, RGB_WAVELENGTHS_NM)
         out = render_image(lens, img, args.depth, pixel_size_mm=pitch, spp=args.spp,
                            seed=args.seed)
         path = write_image(out, args.output, linear=args.linear)
@@ -374,7 +389,72 @@ def _render(args) -> int:
         print(f"deeplens render: error: {e}", file=sys.stderr)
         return 2
     print(path)
+    print(f"  sensor: {W} x {H} pixels, {W * pitch:.4g} x {H * pitch:.4g} mm, pixel pitch "
+          f"{pitch * 1e3:.4g} um")
+    if focus is None:
+        where = "as in the lens file (--focus file)"
+    elif math.isinf(focus):
+        where = "at infinity (--focus inf)"
+    else:
+        where = (f"at {focus:g} mm" + (" (the object depth; --focus to change)"
+                                        if args.focus == "depth" else ""))
+    print(f"  focus: {where}; sensor {float(lens.d_sensor):.5g} mm behind the last vertex "
+          f"(lens file: {d_file:.5g} mm)")
+    if blur_um is None:
+        print(f"  blur: fewer than 3 on-axis rays from {args.depth:g} mm reach the sensor")
+    else:
+        print(f"  blur at {args.depth:g} mm: on-axis RMS spot diameter {blur_um:.3g} um = "
+              f"{blur_um / (pitch * 1e3):.2g} pixels (R, G, B rays pooled)")
     return 0
+
+
+def _focus_depth(text: str, depth: float) -> float | None:
+    """``render --focus``: the distance (mm) to focus at, ``inf``, or ``None`` for the sensor
+    where the lens file puts it (``file``); ``depth`` (the default) is the object depth."""
+    t = text.strip().lower()
+    if t == "depth":
+        return depth
+    if t == "file":
+        return None
+    if t in ("inf", "infinity"):
+        return math.inf
+    try:
+        v = float(t)
+    except ValueError:
+        v = float("nan")
+    if not (v > 0):
+        raise _UsageError(f"--focus must be depth, file, inf or a distance in mm > 0, got "
+                          f"{text!r}")
+    return v
+
+
+#: a point this far (mm) stands for infinity when focusing (the wavefront curvature it leaves,
+#: ~EFL^2 / 1e8 mm of defocus, is far below any sensor pixel)
+_FAR_MM = 1e8
+
+
+def _on_axis_blur_um(lens, depth_mm: float, waves, n_rays: int = 4096) -> float | None:
+    """Blur estimate of ``render``: the RMS spot diameter (um, twice the RMS radius about the
+    centroid) of an on-axis point at ``depth_mm`` on the lens's sensor, the rays of
+    ``waves`` pooled; ``None`` when fewer than 3 rays arrive."""
+    import copy
+
+    import torch
+
+    from .optics.sampling import point_source_rays
+
+    L = copy.deepcopy(lens).double()
+    z_s = float(L.z_sensor())
+    pts = []
+    with torch.no_grad():
+        for w in waves:
+            out = L.trace(point_source_rays(L, (0.0, 0.0), depth_mm, float(w), n_rays, seed=0))
+            o, d = out.o[out.valid], out.d[out.valid]
+            pts.append(o[:, :2] + (z_s - o[:, 2:3]) * d[:, :2] / d[:, 2:3])
+    p = torch.cat(pts)
+    if p.shape[0] < 3:
+        return None
+    return 2e3 * float(((p - p.mean(0)) ** 2).sum(-1).mean().sqrt())
 
 
 def _add_render_parser(sub) -> None:
@@ -382,11 +462,17 @@ def _add_render_parser(sub) -> None:
                        description="Place IMAGE as a plane DEPTH mm in front of the lens (filling "
                        "its field of view) and render what the sensor records, by backward "
                        "Monte Carlo ray tracing (R, G, B at 656.3, 587.6, 486.1 nm; relative "
-                       "illumination included; the sensor where the lens file puts it).")
+                       "illumination included).  The sensor is moved to the best on-axis focus for "
+                       "--focus (default: the picture's depth); the command prints the sensor "
+                       "size, pixel pitch, focus and an estimate of the blur.")
     q.add_argument("lens", help="lens file (.json, .txt table or .zmx)")
     q.add_argument("image", help="picture file (PNG, JPEG, ...; sRGB)")
     q.add_argument("--depth", type=float, required=True,
                    help="object distance in mm from the first vertex (e.g. 2000)")
+    q.add_argument("--focus", default="depth", metavar="MM|depth|inf|file",
+                   help="where the sensor is focused: depth (default: at the picture, as a "
+                        "camera focuses on its subject), a distance in mm, inf, or file (the "
+                        "sensor where the lens file puts it, usually focused at infinity)")
     q.add_argument("-o", "--output", required=True, help="sensor image to write (.png, .jpg ...)")
     q.add_argument("--spp", type=int, default=16, help="rays per pixel per wavelength "
                                                       "(noise ~ 1/sqrt(spp); default 16)")

@@ -188,3 +188,34 @@ def test_one_default_sampling_shown_in_help(cmd, func, capsys, monkeypatch):
                                                                     "--out", "x.json"]}
     run([cmd, "cooke_triplet", *extra.get(cmd, [])], capsys)
     assert seen["s"] == DEFAULT_SAMPLING
+
+
+def _blur(out: str) -> float:
+    import re
+
+    return float(re.search(r"RMS spot diameter ([0-9.e+]+) um", out).group(1))
+
+
+def test_render_focuses_at_the_object_and_says_what_it_did(capsys, tmp_path):
+    import numpy as np
+    from PIL import Image
+
+    src = tmp_path / "photo.png"
+    Image.fromarray(np.full((12, 16, 3), 100, dtype=np.uint8)).save(src)
+    base = ["render", "cooke_triplet", str(src), "--depth", "2000", "--spp", "1",
+            "-o", str(tmp_path / "out.png")]
+    code, out, err = run(base, capsys)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0] == str(tmp_path / "out.png")
+    # 16 x 12 pixels on the file's 21.5 mm semi-diagonal: 43 mm / 20 px = 2.15 mm
+    assert "16 x 12 pixels" in out and "pixel pitch 2150 um" in out
+    assert "focus: at 2000 mm (the object depth" in out
+    sharp = _blur(out)
+    code, out, err = run(base + ["--focus", "file"], capsys)
+    assert code == 0 and "as in the lens file" in out
+    blurred = _blur(out)
+    # the triplet's file focuses far away; at 2 m, ~f^2/u = 5 mm of defocus at F/3.5: ~1 mm
+    assert blurred > 20 * sharp and 500 < blurred < 2000
+    code, _, err = run(base + ["--focus", "near"], capsys)
+    assert code == 2 and "--focus must be depth, file, inf or a distance" in err
