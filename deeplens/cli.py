@@ -1,4 +1,4 @@
-"""Command line: ``deeplens report|plot|optimize|tolerance|design|train|eval ...``
+"""Command line: ``deeplens report|plot|optimize|tolerance|render|lenses|design|train|eval ...``
 (``deeplens -h``, ``deeplens --version``)."""
 
 from __future__ import annotations
@@ -48,6 +48,55 @@ def _add_sampling_option(parser, what: str = "") -> None:
                         help=f"pupil sampling{what}: hexapolar:RINGS, grid:N or random:N[:SEED] "
                              f"(default %(default)s, the same in report, plot, optimize and "
                              f"tolerance, so one lens has one RMS)")
+
+
+def _shipped_names() -> list[str]:
+    from .resources import lens_dir
+
+    return sorted(q.stem for q in lens_dir().glob("*.json"))
+
+
+def _lens_help() -> str:
+    return (f"lens file (.json, the paper authors' .txt table, Zemax .zmx) or a shipped lens: "
+            f"{', '.join(_shipped_names())} (deeplens lenses: one line each)")
+
+
+def _elements(lens) -> int:
+    """Glass (or any non-air) media between surfaces: the elements, a cemented pair counting
+    two."""
+    from .optics.materials import Air
+
+    return sum(not isinstance(m, Air) for m in list(lens.materials)[1:])
+
+
+def _lenses(args) -> int:
+    """``deeplens lenses``: the shipped lenses, one line each (EFL, F/#, elements, what)."""
+    import torch
+
+    from .optics.io import load_lens
+    from .optics.paraxial import paraxial
+    from .resources import lens_dir
+
+    rows = []
+    for name in _shipped_names():
+        lens = load_lens(lens_dir() / f"{name}.json").to(torch.float64)
+        p = paraxial(lens)
+        what = lens.name.split(" (")[0]
+        rows.append({"name": name, "efl_mm": float(p.efl), "fno": float(p.fno),
+                     "elements": _elements(lens), "description": lens.name})
+        rows[-1]["_short"] = what if len(what) <= 60 else what[:57] + "..."
+    if args.json:
+        print(json.dumps([{k: v for k, v in r.items() if k != "_short"} for r in rows],
+                         indent=1))
+        return 0
+    w = max(len(r["name"]) for r in rows)
+    print(f"{'name':<{w}}  {'EFL (mm)':>9}  {'F/#':>5}  {'elements':>8}  what")
+    for r in rows:
+        print(f"{r['name']:<{w}}  {r['efl_mm']:>9.2f}  {r['fno']:>5.2f}  {r['elements']:>8d}  "
+              f"{r['_short']}")
+    print(f"(a name works wherever a lens file does: deeplens report {rows[0]['name']}; files "
+          f"in {lens_dir()})")
+    return 0
 
 
 def _add_lens_options(parser) -> None:
@@ -175,7 +224,7 @@ def _add_plot_parser(sub) -> None:
     from .analysis.plot import KINDS
 
     q = sub.add_parser("plot", help="draw an analysis figure of a lens file (PNG, PDF, SVG)")
-    q.add_argument("lens", help="lens file (.json, or the paper authors' .txt table)")
+    q.add_argument("lens", help=_lens_help())
     q.add_argument("--kind", required=True, choices=list(KINDS),
                    help="which figure (mtf: polychromatic over --wavelengths; through-focus: MTF "
                         "vs focus shift; mtf-field: MTF vs field angle)")
@@ -465,7 +514,7 @@ def _add_render_parser(sub) -> None:
                        "illumination included).  The sensor is moved to the best on-axis focus for "
                        "--focus (default: the picture's depth); the command prints the sensor "
                        "size, pixel pitch, focus and an estimate of the blur.")
-    q.add_argument("lens", help="lens file (.json, .txt table or .zmx)")
+    q.add_argument("lens", help=_lens_help())
     q.add_argument("image", help="picture file (PNG, JPEG, ...; sRGB)")
     q.add_argument("--depth", type=float, required=True,
                    help="object distance in mm from the first vertex (e.g. 2000)")
@@ -665,7 +714,9 @@ def _main(argv=None) -> int:
 
         run(argv[0], argv[1:])
         return 0
-    p = argparse.ArgumentParser(prog="deeplens", description="deeplens command line")
+    p = argparse.ArgumentParser(prog="deeplens", description="deeplens command line",
+                                epilog=f"LENS is a lens file or a shipped lens: "
+                                       f"{', '.join(_shipped_names())} (deeplens lenses)")
     # handled above (the version string imports torch: not built for every command)
     p.add_argument("--version", action="store_true",
                    help="print the version, where deeplens is imported from, and torch's version")
@@ -673,7 +724,7 @@ def _main(argv=None) -> int:
     for name, text in _HYDRA_COMMANDS.items():      # listed in -h; handled above
         sub.add_parser(name, help=text)
     r = sub.add_parser("report", help="paraxial data and RMS spots of a lens file")
-    r.add_argument("lens", help="lens file (.json, the paper authors' .txt table, or Zemax .zmx)")
+    r.add_argument("lens", help=_lens_help())
     r.add_argument("--fields", help="field angles in degrees, e.g. 0,7,14,21 (default: file's)")
     r.add_argument("--wavelengths", help="wavelengths in nm, e.g. 486.1,587.6 (default: file's)")
     _add_sampling_option(r)
@@ -686,11 +737,14 @@ def _main(argv=None) -> int:
                                       "field,color,vignetting,wavefront,strehl,mtf,ee")
     _add_lens_options(r)
     r.set_defaults(func=_report)
+    ls = sub.add_parser("lenses", help="the shipped lenses: name, EFL, F/#, elements")
+    ls.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    ls.set_defaults(func=_lenses)
     _add_plot_parser(sub)
     _add_render_parser(sub)
 
     o = sub.add_parser("optimize", help="optimise lens variables for the RMS spot")
-    o.add_argument("lens", help="lens file")
+    o.add_argument("lens", help=_lens_help())
     o.add_argument("--vary", required=True,
                    help="parameter names or globs, comma-separated (e.g. 'surfaces.*.c')")
     o.add_argument("--fields", help="field angles in degrees (default: file's)")
@@ -723,7 +777,7 @@ def _main(argv=None) -> int:
     o.set_defaults(func=_optimize)
 
     t = sub.add_parser("tolerance", help="sensitivities, RSS estimate and Monte Carlo")
-    t.add_argument("lens", help="lens file")
+    t.add_argument("lens", help=_lens_help())
     t.add_argument("--tolerances", help="JSON file: name/glob -> half-width (default: "
                                         "20 um, 0.5 mrad, 20 um spacing, 0.5%% curvature)")
     t.add_argument("--group", help="a tolerance group (configs/tolerance/NAME.yaml, by name or "

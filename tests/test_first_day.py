@@ -219,3 +219,35 @@ def test_render_focuses_at_the_object_and_says_what_it_did(capsys, tmp_path):
     assert blurred > 20 * sharp and 500 < blurred < 2000
     code, _, err = run(base + ["--focus", "near"], capsys)
     assert code == 2 and "--focus must be depth, file, inf or a distance" in err
+
+
+def test_lenses_lists_every_shipped_lens_with_its_numbers(capsys):
+    import json
+    from pathlib import Path
+
+    from deeplens.optics.paraxial import paraxial
+    from deeplens.optics.io import load_lens
+
+    code, out, err = run(["lenses", "--json"], capsys)
+    assert code == 0, err
+    rows = {r["name"]: r for r in json.loads(out)}
+    shipped = Path(__file__).resolve().parents[1] / "data" / "lenses"
+    assert set(rows) == {p.stem for p in shipped.glob("*.json")}
+    p = paraxial(load_lens("cooke_triplet").double())
+    assert rows["cooke_triplet"]["efl_mm"] == pytest.approx(float(p.efl), rel=1e-12)
+    assert rows["cooke_triplet"]["fno"] == pytest.approx(float(p.fno), rel=1e-12)
+    # elements: the triplet's three singlets, the cemented doublet's two glasses, the
+    # double Gauss's six (two cemented pairs and two singlets)
+    assert [rows[n]["elements"] for n in ("cooke_triplet", "wide_doublet", "double_gauss",
+                                          "thorlabs_la1131")] == [3, 2, 6, 1]
+    code, table, _ = run(["lenses"], capsys)
+    assert code == 0 and len(table.splitlines()) == len(rows) + 2
+    assert "101.18" in table.splitlines()[1 + sorted(rows).index("cooke_triplet")]
+
+
+def test_help_names_the_shipped_lenses(capsys):
+    code, out, _ = run(["-h"], capsys)
+    flat = " ".join(out.split())
+    assert code == 0 and "cooke_triplet, double_gauss" in flat and "deeplens lenses" in flat
+    code, out, _ = run(["report", "-h"], capsys)
+    assert "wide_doublet" in out
