@@ -3,7 +3,9 @@ lenses (data/lenses/*.json) and Hydra configs (configs/**/*.yaml) as package dat
 deeplens/_resources/, where deeplens.resources finds them with importlib.resources.  The
 checkout keeps one copy of each file; an editable install reads them from the checkout."""
 
+import json
 import shutil
+import subprocess
 from pathlib import Path
 
 from setuptools import setup
@@ -29,6 +31,20 @@ class BuildPyWithResources(build_py):
                 target = Path(self.build_lib) / dst / f.relative_to(HERE / src)
                 target.parent.mkdir(parents=True, exist_ok=True)
                 shutil.copyfile(f, target)
+        # the commit the wheel was built from (deeplens.build_info): an evaluation's table
+        # names it when it runs outside a checkout; nothing when built without git
+        try:
+            commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=HERE,
+                                    capture_output=True, text=True, timeout=10)
+            dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                                   cwd=HERE, capture_output=True, text=True, timeout=10)
+        except (OSError, subprocess.SubprocessError):
+            return
+        if commit.returncode == 0 and commit.stdout.strip():
+            target = Path(self.build_lib) / "deeplens/_resources/build.json"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text(json.dumps({"commit": commit.stdout.strip(),
+                                          "modified": bool(dirty.stdout.strip())}))
 
 
 setup(cmdclass={"build_py": BuildPyWithResources})
