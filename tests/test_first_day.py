@@ -251,3 +251,34 @@ def test_help_names_the_shipped_lenses(capsys):
     assert code == 0 and "cooke_triplet, double_gauss" in flat and "deeplens lenses" in flat
     code, out, _ = run(["report", "-h"], capsys)
     assert "wide_doublet" in out
+
+
+def test_readme_extras_table_matches_pyproject():
+    """Every distribution of an extra in pyproject.toml is named in that extra's README row."""
+    import re
+    import tomllib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    text = (root / "README.md").read_text()
+    table = text[text.index("| extra |"):].split("\n\n")[0].splitlines()[2:]
+    rows = {}
+    for line in table:
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        rows[cells[0].split("`")[1] if "`" in cells[0] else ""] = cells[1]
+
+    def names(specs):
+        return [re.split(r"[<>=\[ ;]", s, maxsplit=1)[0].lower() for s in specs]
+
+    extras = {"": names(project["dependencies"]),
+              **{k: names(v) for k, v in project["optional-dependencies"].items()}}
+    assert set(rows) == set(extras) - {"design"}, rows.keys()
+    for extra, dists in extras.items():
+        if extra == "design":
+            continue
+        for d in dists:
+            if d == "deeplens-do":      # an extra that includes others names them in backticks
+                continue
+            assert re.search(rf"(?<![\w-]){re.escape(d)}(?![\w-])", rows[extra].lower()), \
+                (extra, d, rows[extra])
