@@ -615,10 +615,14 @@ def _tolerance(args) -> int:
             print(f"    {p}th percentile (um): "
                   + " ".join(f"{x:10.4f}" for x in mc["percentiles_um"][p]))
         print("    RMS over trials (um): " + " ".join(f"{x:10.4f}" for x in mc["rms_um"]))
-    print("  largest sensitivities (um per unit, any field):")
+    from .design.labels import parameter_label
+
+    print("  largest sensitivities (um per unit: mm, rad, 1/mm; any field):")
     J = torch.tensor(result["sensitivity_um_per_unit"]).abs().max(0).values
     for j in J.argsort(descending=True)[:8].tolist():
-        print(f"    {names[j]:<28} {float(J[j]):.4g}   (+-{result['half_widths'][j]:g})")
+        label, unit, _ = parameter_label(lens, names[j])
+        print(f"    {names[j]:<28} {float(J[j]):.4g}   (+-{result['half_widths'][j]:g})   "
+              f"{label}: {float(J[j]) * 1e-3:.4g} um per {unit}")
     return 0
 
 

@@ -246,13 +246,14 @@ def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = DEFA
 @style.styled
 def fan_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 41,
                options=None):
-    """Ray fans: tangential ``e_y(p_y)`` and sagittal ``e_x(p_x)`` in µm, one row per field."""
+    """Ray fans: tangential ``e_y(p_y)`` and sagittal ``e_x(p_x)`` in µm, one row per field,
+    every panel on one shared scale (so the fields and the two sections compare by eye)."""
     from .aberrations import ray_fan
 
     lens, _, options = unpack(lens, None, options, "fan_figure")
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     fig, ax = style.figure(len(fields), 2, size=(6, 1.6 * len(fields) + 0.6), squeeze=False,
-                           sharex=True)
+                           sharex=True, sharey=True)
     with torch.no_grad():
         for r, f in enumerate(fields):
             fan = ray_fan(lens, f, waves, n=n, image_plane=image_plane, options=options)
