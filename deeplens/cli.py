@@ -816,9 +816,19 @@ def _main(argv=None) -> int:
 def main(argv=None) -> int:
     """The ``deeplens`` command.  Output piped into a reader that stops early (``deeplens report
     LENS | head``) ends the command quietly with status 141 (128 + SIGPIPE, as a Unix tool
-    killed by SIGPIPE), not with a ``BrokenPipeError`` traceback."""
+    killed by SIGPIPE), not with a ``BrokenPipeError`` traceback.  The known warnings that say
+    nothing about the user's work (:data:`deeplens.training.console.NOISY_WARNINGS`, e.g.
+    torch's own ``torch.jit.script`` deprecation on the first forward-mode Jacobian) are not
+    shown."""
+    import warnings
+
+    from .training.console import NOISY_WARNINGS
+
     try:
-        return _main(argv)
+        with warnings.catch_warnings():     # torch's own deprecations, not the user's news
+            for pattern in NOISY_WARNINGS:
+                warnings.filterwarnings("ignore", message=pattern)
+            return _main(argv)
     except BrokenPipeError:
         # the reader is gone: point stdout at /dev/null so the interpreter's final flush is quiet
         devnull = os.open(os.devnull, os.O_WRONLY)

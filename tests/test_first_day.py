@@ -282,3 +282,21 @@ def test_readme_extras_table_matches_pyproject():
                 continue
             assert re.search(rf"(?<![\w-]){re.escape(d)}(?![\w-])", rows[extra].lower()), \
                 (extra, d, rows[extra])
+
+
+def test_cli_hides_torchs_own_deprecation_but_not_other_warnings(monkeypatch, capsys):
+    import warnings
+
+    import deeplens.cli as cli
+
+    def noisy(args):
+        warnings.warn("`torch.jit.script` is deprecated. Please switch to `torch.compile`",
+                      FutureWarning)
+        warnings.warn("something about the user's lens")
+        return 0
+
+    monkeypatch.setattr(cli, "_report", noisy)
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        assert run(["report", "cooke_triplet"], capsys)[0] == 0
+    assert [str(w.message) for w in got] == ["something about the user's lens"]

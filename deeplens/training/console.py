@@ -31,6 +31,8 @@ NOISY_WARNINGS = (
     # the training stream splits its items over workers itself (data/datamodule.py), so its
     # length is exact for any number of workers
     r"Your `IterableDataset` has `__len__` defined",
+    # torch's own forward-mode AD loads its decompositions with torch.jit.script (torch >= 2.9)
+    r"`torch.jit.script` is deprecated",
 )
 _LIGHTNING_LOGGERS = ("lightning", "lightning.pytorch", "lightning.fabric")
 
