@@ -1,4 +1,4 @@
-"""Command line: ``deeplens report|plot|optimize|tolerance|design|train|eval ...``
+"""Command line: ``deeplens report|plot|optimize|tolerance|render|lenses|design|train|eval ...``
 (``deeplens -h``, ``deeplens --version``)."""
 
 from __future__ import annotations
@@ -16,6 +16,17 @@ class _UsageError(ValueError):
     """A bad command-line value (exit status 2, like argparse's own errors)."""
 
 
+def _missing(cmd: str, extra: str, modules=None) -> bool:
+    """Print one line naming the extra to install and return ``True`` when a module ``cmd``
+    needs is missing (:mod:`deeplens.extras`); checked before any work (loading, tracing)."""
+    from .extras import missing_extra
+
+    msg = missing_extra(extra, f"deeplens {cmd}", modules)
+    if msg:
+        print(f"deeplens {cmd}: error: {msg}", file=sys.stderr)
+    return msg is not None
+
+
 def _floats(text: str, what: str, unit: str) -> list[float]:
     try:
         values = [float(v) for v in text.split(",") if v.strip()]
@@ -27,6 +38,65 @@ def _floats(text: str, what: str, unit: str) -> list[float]:
     if not all(math.isfinite(v) for v in values):
         raise _UsageError(f"{what} must be finite numbers, got {text!r}")
     return values
+
+
+def _add_sampling_option(parser, what: str = "") -> None:
+    """``--sampling``, with the one default of every RMS spot the command line prints."""
+    from .optics.sampling import DEFAULT_SAMPLING
+
+    parser.add_argument("--sampling", default=DEFAULT_SAMPLING,
+                        help=f"pupil sampling{what}: hexapolar:RINGS, grid:N or random:N[:SEED] "
+                             f"(default %(default)s, the same in report, plot, optimize and "
+                             f"tolerance, so one lens has one RMS)")
+
+
+def _shipped_names() -> list[str]:
+    from .resources import lens_dir
+
+    return sorted(q.stem for q in lens_dir().glob("*.json"))
+
+
+def _lens_help() -> str:
+    return (f"lens file (.json, the paper authors' .txt table, Zemax .zmx) or a shipped lens: "
+            f"{', '.join(_shipped_names())} (deeplens lenses: one line each)")
+
+
+def _elements(lens) -> int:
+    """Glass (or any non-air) media between surfaces: the elements, a cemented pair counting
+    two."""
+    from .optics.materials import Air
+
+    return sum(not isinstance(m, Air) for m in list(lens.materials)[1:])
+
+
+def _lenses(args) -> int:
+    """``deeplens lenses``: the shipped lenses, one line each (EFL, F/#, elements, what)."""
+    import torch
+
+    from .optics.io import load_lens
+    from .optics.paraxial import paraxial
+    from .resources import lens_dir
+
+    rows = []
+    for name in _shipped_names():
+        lens = load_lens(lens_dir() / f"{name}.json").to(torch.float64)
+        p = paraxial(lens)
+        what = lens.name.split(" (")[0]
+        rows.append({"name": name, "efl_mm": float(p.efl), "fno": float(p.fno),
+                     "elements": _elements(lens), "description": lens.name})
+        rows[-1]["_short"] = what if len(what) <= 60 else what[:57] + "..."
+    if args.json:
+        print(json.dumps([{k: v for k, v in r.items() if k != "_short"} for r in rows],
+                         indent=1))
+        return 0
+    w = max(len(r["name"]) for r in rows)
+    print(f"{'name':<{w}}  {'EFL (mm)':>9}  {'F/#':>5}  {'elements':>8}  what")
+    for r in rows:
+        print(f"{r['name']:<{w}}  {r['efl_mm']:>9.2f}  {r['fno']:>5.2f}  {r['elements']:>8d}  "
+              f"{r['_short']}")
+    print(f"(a name works wherever a lens file does: deeplens report {rows[0]['name']}; files "
+          f"in {lens_dir()})")
+    return 0
 
 
 def _add_lens_options(parser) -> None:
@@ -123,9 +193,12 @@ def _analysis_kinds(text: str) -> list[str]:
 
 def _plot(args) -> int:
     """``deeplens plot LENS --kind KIND [--fields] [--wavelengths] -o OUT.png``."""
+    if _missing("plot", "plot", ("matplotlib",)):
+        return 2
     import torch
 
     from .analysis.plot import plot
+    from .optics.sampling import parse_sampling
 
     try:
         fields, waves = _fields_waves(args)
@@ -136,9 +209,10 @@ def _plot(args) -> int:
                 raise _UsageError(f"--freqs must be >= 0 cycles/mm, got {args.freqs!r}")
         if args.dpi is not None and not args.dpi > 0:
             raise _UsageError(f"--dpi must be > 0, got {args.dpi}")
+        parse_sampling(args.sampling)
         lens = _load(args).to(torch.float64)
         plot(lens, args.kind, args.output, fields, waves, image_plane=args.image_plane,
-             dpi=args.dpi, freqs=freqs)
+             dpi=args.dpi, freqs=freqs, sampling=args.sampling)
     except (ValueError, OSError) as e:
         print(f"deeplens plot: error: {e}", file=sys.stderr)
         return 2
@@ -150,7 +224,7 @@ def _add_plot_parser(sub) -> None:
     from .analysis.plot import KINDS
 
     q = sub.add_parser("plot", help="draw an analysis figure of a lens file (PNG, PDF, SVG)")
-    q.add_argument("lens", help="lens file (.json, or the paper authors' .txt table)")
+    q.add_argument("lens", help=_lens_help())
     q.add_argument("--kind", required=True, choices=list(KINDS),
                    help="which figure (mtf: polychromatic over --wavelengths; through-focus: MTF "
                         "vs focus shift; mtf-field: MTF vs field angle)")
@@ -165,6 +239,7 @@ def _add_plot_parser(sub) -> None:
     q.add_argument("--freqs", help="frequencies in cycles/mm for --kind through-focus and "
                                    "mtf-field, e.g. 10,30,50 (default ~10/25/50 %% of the "
                                    "cut-off)")
+    _add_sampling_option(q, " of --kind spot")
     _add_lens_options(q)
     q.set_defaults(func=_plot)
 def _fields_waves(args):
@@ -313,7 +388,12 @@ def _steps_summary(res, allow_vignetting: bool) -> str:
 
 def _render(args) -> int:
     """``deeplens render LENS IMAGE --depth MM -o OUT.png``: the picture through the lens."""
-    from .render.image import read_image, render_image, write_image
+    if _missing("render", "plot", ("PIL",)):     # Pillow reads and writes the pictures
+        return 2
+    import torch
+
+    from .render.image import default_pixel_size, read_image, render_image, write_image
+    from .render.sensor import RGB_WAVELENGTHS_NM
 
     try:
         if not (math.isfinite(args.depth) and args.depth > 0):
@@ -328,8 +408,20 @@ def _render(args) -> int:
             if not args.pixel_size_um > 0:
                 raise _UsageError(f"--pixel-size-um must be > 0, got {args.pixel_size_um}")
             pitch = args.pixel_size_um * 1e-3
+        focus = _focus_depth(args.focus, args.depth)
         lens = _load(args)
         img = read_image(args.image, max_side=args.max_side, linear=args.linear)
+        H, W = img.shape[-2:]
+        pitch = default_pixel_size(lens, (H, W)) if pitch is None else pitch
+        d_file = float(lens.d_sensor)
+        if focus is not None:
+            from .training.lens_setup import best_focus_distance
+
+            d = best_focus_distance(lens, min(focus, _FAR_MM), RGB_WAVELENGTHS_NM)
+            with torch.no_grad():
+                lens.d_sensor.fill_(d)
+            lens.check()
+        blur_um = _on_axis_blur_um(lens, args.depth, RGB_WAVELENGTHS_NM)
         out = render_image(lens, img, args.depth, pixel_size_mm=pitch, spp=args.spp,
                            seed=args.seed)
         path = write_image(out, args.output, linear=args.linear)
@@ -337,7 +429,72 @@ def _render(args) -> int:
         print(f"deeplens render: error: {e}", file=sys.stderr)
         return 2
     print(path)
+    print(f"  sensor: {W} x {H} pixels, {W * pitch:.4g} x {H * pitch:.4g} mm, pixel pitch "
+          f"{pitch * 1e3:.4g} um")
+    if focus is None:
+        where = "as in the lens file (--focus file)"
+    elif math.isinf(focus):
+        where = "at infinity (--focus inf)"
+    else:
+        where = (f"at {focus:g} mm" + (" (the object depth; --focus to change)"
+                                        if args.focus == "depth" else ""))
+    print(f"  focus: {where}; sensor {float(lens.d_sensor):.5g} mm behind the last vertex "
+          f"(lens file: {d_file:.5g} mm)")
+    if blur_um is None:
+        print(f"  blur: fewer than 3 on-axis rays from {args.depth:g} mm reach the sensor")
+    else:
+        print(f"  blur at {args.depth:g} mm: on-axis RMS spot diameter {blur_um:.3g} um = "
+              f"{blur_um / (pitch * 1e3):.2g} pixels (R, G, B rays pooled)")
     return 0
+
+
+def _focus_depth(text: str, depth: float) -> float | None:
+    """``render --focus``: the distance (mm) to focus at, ``inf``, or ``None`` for the sensor
+    where the lens file puts it (``file``); ``depth`` (the default) is the object depth."""
+    t = text.strip().lower()
+    if t == "depth":
+        return depth
+    if t == "file":
+        return None
+    if t in ("inf", "infinity"):
+        return math.inf
+    try:
+        v = float(t)
+    except ValueError:
+        v = float("nan")
+    if not (v > 0):
+        raise _UsageError(f"--focus must be depth, file, inf or a distance in mm > 0, got "
+                          f"{text!r}")
+    return v
+
+
+#: a point this far (mm) stands for infinity when focusing (the wavefront curvature it leaves,
+#: ~EFL^2 / 1e8 mm of defocus, is far below any sensor pixel)
+_FAR_MM = 1e8
+
+
+def _on_axis_blur_um(lens, depth_mm: float, waves, n_rays: int = 4096) -> float | None:
+    """Blur estimate of ``render``: the RMS spot diameter (um, twice the RMS radius about the
+    centroid) of an on-axis point at ``depth_mm`` on the lens's sensor, the rays of
+    ``waves`` pooled; ``None`` when fewer than 3 rays arrive."""
+    import copy
+
+    import torch
+
+    from .optics.sampling import point_source_rays
+
+    L = copy.deepcopy(lens).double()
+    z_s = float(L.z_sensor())
+    pts = []
+    with torch.no_grad():
+        for w in waves:
+            out = L.trace(point_source_rays(L, (0.0, 0.0), depth_mm, float(w), n_rays, seed=0))
+            o, d = out.o[out.valid], out.d[out.valid]
+            pts.append(o[:, :2] + (z_s - o[:, 2:3]) * d[:, :2] / d[:, 2:3])
+    p = torch.cat(pts)
+    if p.shape[0] < 3:
+        return None
+    return 2e3 * float(((p - p.mean(0)) ** 2).sum(-1).mean().sqrt())
 
 
 def _add_render_parser(sub) -> None:
@@ -345,11 +502,17 @@ def _add_render_parser(sub) -> None:
                        description="Place IMAGE as a plane DEPTH mm in front of the lens (filling "
                        "its field of view) and render what the sensor records, by backward "
                        "Monte Carlo ray tracing (R, G, B at 656.3, 587.6, 486.1 nm; relative "
-                       "illumination included; the sensor where the lens file puts it).")
-    q.add_argument("lens", help="lens file (.json, .txt table or .zmx)")
+                       "illumination included).  The sensor is moved to the best on-axis focus for "
+                       "--focus (default: the picture's depth); the command prints the sensor "
+                       "size, pixel pitch, focus and an estimate of the blur.")
+    q.add_argument("lens", help=_lens_help())
     q.add_argument("image", help="picture file (PNG, JPEG, ...; sRGB)")
     q.add_argument("--depth", type=float, required=True,
                    help="object distance in mm from the first vertex (e.g. 2000)")
+    q.add_argument("--focus", default="depth", metavar="MM|depth|inf|file",
+                   help="where the sensor is focused: depth (default: at the picture, as a "
+                        "camera focuses on its subject), a distance in mm, inf, or file (the "
+                        "sensor where the lens file puts it, usually focused at infinity)")
     q.add_argument("-o", "--output", required=True, help="sensor image to write (.png, .jpg ...)")
     q.add_argument("--spp", type=int, default=16, help="rays per pixel per wavelength "
                                                       "(noise ~ 1/sqrt(spp); default 16)")
@@ -367,6 +530,9 @@ def _add_render_parser(sub) -> None:
 
 
 def _tolerance(args) -> int:
+    need = (("yaml",) if args.group else ()) + (("matplotlib",) if args.out else ())
+    if need and _missing("tolerance", "plot", need):
+        return 2
     from pathlib import Path
 
     import torch
@@ -440,10 +606,14 @@ def _tolerance(args) -> int:
             print(f"    {p}th percentile (um): "
                   + " ".join(f"{x:10.4f}" for x in mc["percentiles_um"][p]))
         print("    RMS over trials (um): " + " ".join(f"{x:10.4f}" for x in mc["rms_um"]))
-    print("  largest sensitivities (um per unit, any field):")
+    from .design.labels import parameter_label
+
+    print("  largest sensitivities (um per unit: mm, rad, 1/mm; any field):")
     J = torch.tensor(result["sensitivity_um_per_unit"]).abs().max(0).values
     for j in J.argsort(descending=True)[:8].tolist():
-        print(f"    {names[j]:<28} {float(J[j]):.4g}   (+-{result['half_widths'][j]:g})")
+        label, unit, _ = parameter_label(lens, names[j])
+        print(f"    {names[j]:<28} {float(J[j]):.4g}   (+-{result['half_widths'][j]:g})   "
+              f"{label}: {float(J[j]) * 1e-3:.4g} um per {unit}")
     return 0
 
 
@@ -467,6 +637,10 @@ def _design_help(prog: str) -> str:
 
 def _design(name: str, rest: list, prog: str) -> int:
     from .design.apps import load_app
+
+    if not any(a in ("-h", "--help") for a in rest) and _missing("design", "plot",
+                                                                  ("matplotlib",)):
+        return 2      # every application draws its figures
 
     try:
         app = load_app(name)
@@ -529,11 +703,15 @@ def _main(argv=None) -> int:
         print(_version())
         return 0
     if argv and argv[0] in _HYDRA_COMMANDS:     # Hydra parses its own command line
+        if _missing(argv[0], "train"):
+            return 2
         from .training.entry import run
 
         run(argv[0], argv[1:])
         return 0
-    p = argparse.ArgumentParser(prog="deeplens", description="deeplens command line")
+    p = argparse.ArgumentParser(prog="deeplens", description="deeplens command line",
+                                epilog=f"LENS is a lens file or a shipped lens: "
+                                       f"{', '.join(_shipped_names())} (deeplens lenses)")
     # handled above (the version string imports torch: not built for every command)
     p.add_argument("--version", action="store_true",
                    help="print the version, where deeplens is imported from, and torch's version")
@@ -541,11 +719,10 @@ def _main(argv=None) -> int:
     for name, text in _HYDRA_COMMANDS.items():      # listed in -h; handled above
         sub.add_parser(name, help=text)
     r = sub.add_parser("report", help="paraxial data and RMS spots of a lens file")
-    r.add_argument("lens", help="lens file (.json, the paper authors' .txt table, or Zemax .zmx)")
+    r.add_argument("lens", help=_lens_help())
     r.add_argument("--fields", help="field angles in degrees, e.g. 0,7,14,21 (default: file's)")
     r.add_argument("--wavelengths", help="wavelengths in nm, e.g. 486.1,587.6 (default: file's)")
-    r.add_argument("--sampling", default="hexapolar:18",
-                   help="pupil sampling: hexapolar:RINGS, grid:N or random:N[:SEED]")
+    _add_sampling_option(r)
     r.add_argument("--pupil", choices=["traced", "paraxial"], default=None,
                    help="sample the pupil found by tracing or the paraxial EP (default: traced; "
                         "for a .zmx file, what its RAIM line says: paraxial without ray aiming)")
@@ -555,11 +732,14 @@ def _main(argv=None) -> int:
                                       "field,color,vignetting,wavefront,strehl,mtf,ee")
     _add_lens_options(r)
     r.set_defaults(func=_report)
+    ls = sub.add_parser("lenses", help="the shipped lenses: name, EFL, F/#, elements")
+    ls.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    ls.set_defaults(func=_lenses)
     _add_plot_parser(sub)
     _add_render_parser(sub)
 
     o = sub.add_parser("optimize", help="optimise lens variables for the RMS spot")
-    o.add_argument("lens", help="lens file")
+    o.add_argument("lens", help=_lens_help())
     o.add_argument("--vary", required=True,
                    help="parameter names or globs, comma-separated (e.g. 'surfaces.*.c')")
     o.add_argument("--fields", help="field angles in degrees (default: file's)")
@@ -573,7 +753,7 @@ def _main(argv=None) -> int:
     o.add_argument("--rounds", type=int, default=1, help="pupil re-sampling rounds")
     o.add_argument("--constraint", action="append", metavar="NAME=VALUE",
                    help="e.g. min_edge_air=0.5, max_track=60, efl=50 (repeatable)")
-    o.add_argument("--sampling", default="hexapolar:6", help="pupil pattern")
+    _add_sampling_option(o, " of the merit and the RMS table")
     o.add_argument("--reference", choices=["centroid", "chief"], default="centroid")
     o.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
     o.add_argument("--allow-vignetting", action="store_true",
@@ -592,7 +772,7 @@ def _main(argv=None) -> int:
     o.set_defaults(func=_optimize)
 
     t = sub.add_parser("tolerance", help="sensitivities, RSS estimate and Monte Carlo")
-    t.add_argument("lens", help="lens file")
+    t.add_argument("lens", help=_lens_help())
     t.add_argument("--tolerances", help="JSON file: name/glob -> half-width (default: "
                                         "20 um, 0.5 mrad, 20 um spacing, 0.5%% curvature)")
     t.add_argument("--group", help="a tolerance group (configs/tolerance/NAME.yaml, by name or "
@@ -601,7 +781,7 @@ def _main(argv=None) -> int:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--fields", help="field angles in degrees (default: file's)")
     t.add_argument("--wavelengths", help="wavelengths in nm (default: file's primary)")
-    t.add_argument("--sampling", default="hexapolar:6")
+    _add_sampling_option(t)
     t.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
     t.add_argument("--out", help="folder for the Monte Carlo histogram (PNG)")
     t.add_argument("--json", action="store_true")
@@ -627,9 +807,19 @@ def _main(argv=None) -> int:
 def main(argv=None) -> int:
     """The ``deeplens`` command.  Output piped into a reader that stops early (``deeplens report
     LENS | head``) ends the command quietly with status 141 (128 + SIGPIPE, as a Unix tool
-    killed by SIGPIPE), not with a ``BrokenPipeError`` traceback."""
+    killed by SIGPIPE), not with a ``BrokenPipeError`` traceback.  The known warnings that say
+    nothing about the user's work (:data:`deeplens.training.console.NOISY_WARNINGS`, e.g.
+    torch's own ``torch.jit.script`` deprecation on the first forward-mode Jacobian) are not
+    shown."""
+    import warnings
+
+    from .training.console import NOISY_WARNINGS
+
     try:
-        return _main(argv)
+        with warnings.catch_warnings():     # torch's own deprecations, not the user's news
+            for pattern in NOISY_WARNINGS:
+                warnings.filterwarnings("ignore", message=pattern)
+            return _main(argv)
     except BrokenPipeError:
         # the reader is gone: point stdout at /dev/null so the interpreter's final flush is quiet
         devnull = os.open(os.devnull, os.O_WRONLY)

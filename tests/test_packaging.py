@@ -28,6 +28,10 @@ SOURCES = ["pyproject.toml", "setup.py", "MANIFEST.in", "README.md", "LICENSE", 
            "configs", "data/lenses"]
 
 
+#: what the test wheels record as the commit they were built from
+BUILD_COMMIT = "abc1234"
+
+
 def build_wheel(dest: Path) -> Path:
     """Build the wheel from a copy of the checkout's sources (the checkout stays clean)."""
     src = dest / "src"
@@ -39,9 +43,11 @@ def build_wheel(dest: Path) -> Path:
         else:
             shutil.copy2(s, d)
     out = dest / "dist"
+    # a copy has no git: the commit it was built from is passed as an sdist build would
+    env = dict(os.environ, DEEPLENS_BUILD_COMMIT=BUILD_COMMIT)
     r = subprocess.run([sys.executable, "-m", "pip", "wheel", str(src), "--no-deps",
                         "--no-build-isolation", "--no-index", "-q", "-w", str(out)],
-                       capture_output=True, text=True, cwd=dest)
+                       capture_output=True, text=True, cwd=dest, env=env)
     assert r.returncode == 0, r.stdout + r.stderr
     (wheel,) = out.glob("deeplens_do-*.whl")
     return wheel
@@ -131,6 +137,12 @@ def test_installed_wheel_works_outside_the_checkout(tmp_path, wheel):
     version = run("--version")
     assert f"deeplens at {venv}" in version, version       # the installed copy, not the checkout
     assert "EFL 27.4427 mm" in run("report", "double_gauss")
+    assert "cooke_triplet" in run("lenses")
+    # the commit the wheel was built from (setup.py records it; the checkout has git)
+    src = subprocess.run([str(venv / "bin" / "python"), "-c", "from deeplens.build_info import "
+                          "describe_source; print(describe_source())"], cwd=work, env=env,
+                         capture_output=True, text=True, check=True).stdout
+    assert src.strip().endswith(f"commit {BUILD_COMMIT} (recorded at build)"), src
     out = json.loads(run("design", "sensitivity", "--json", "--out", "sens"))
     assert out["fd_max_rel_err"] < 1e-5      # forward-mode AD = central differences
     assert list((work / "sens").glob("*.png"))

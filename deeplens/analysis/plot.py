@@ -14,7 +14,7 @@ import torch
 
 from ..optics.camera import unpack
 from ..optics.frames import local_frames, to_global
-from ..optics.sampling import field_rays
+from ..optics.sampling import DEFAULT_SAMPLING, field_rays
 from ..optics.paraxial import paraxial
 from ..optics.surfaces import CoordinateBreak
 from . import style
@@ -183,6 +183,36 @@ def _field_panels(n: int, width: float, height: float):
     return fig, axes[:n]
 
 
+def _diffraction_fields(lens, fields, waves, image_plane, options, explicit: bool):
+    """The fields a diffraction figure can draw, and a note on those it leaves out: a field
+    whose marginal rays miss a surface at one of ``waves`` has no pupil-to-frequency scale
+    (:func:`~.diffraction.frequency_steps`; the shipped Cooke triplet's 11.86 deg edge field).
+    Fields the user named (``explicit``) are not left out: their error is raised.
+
+    Raises:
+        AnalysisError: an ``explicit`` field that cannot be drawn, or no field left.
+    """
+    from .checks import AnalysisError
+    from .diffraction import frequency_steps
+
+    keep, dropped, why = [], [], ""
+    for f in fields:
+        try:
+            for w in waves:
+                frequency_steps(lens, f, w, 16, image_plane=image_plane, options=options)
+            keep.append(f)
+        except AnalysisError as e:
+            if explicit:
+                raise
+            dropped.append(f)
+            why = why or str(e)
+    if not keep:
+        raise AnalysisError(why)
+    note = (f" (left out: {', '.join(f'{f:g}' for f in dropped)} deg, their marginal rays "
+            f"miss a surface)" if dropped else "")
+    return keep, note
+
+
 def _title(fig, lens, what):
     """The figure's title: what it shows, then the lens's whole name (wrapped, never cut)."""
     width = max(40, int(fig.get_figwidth() * 14))   # ~14 characters per inch at 7 pt
@@ -190,7 +220,7 @@ def _title(fig, lens, what):
 
 
 @style.styled
-def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hexapolar:18",
+def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = DEFAULT_SAMPLING,
                 image_plane="sensor", pupil: str = "traced", options=None):
     """Spot diagrams (µm), one panel per field, all panels on one scale, with the Airy circle.
 
@@ -246,13 +276,14 @@ def spot_figure(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hex
 @style.styled
 def fan_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor", n: int = 41,
                options=None):
-    """Ray fans: tangential ``e_y(p_y)`` and sagittal ``e_x(p_x)`` in µm, one row per field."""
+    """Ray fans: tangential ``e_y(p_y)`` and sagittal ``e_x(p_x)`` in µm, one row per field,
+    every panel on one shared scale (so the fields and the two sections compare by eye)."""
     from .aberrations import ray_fan
 
     lens, _, options = unpack(lens, None, options, "fan_figure")
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     fig, ax = style.figure(len(fields), 2, size=(6, 1.6 * len(fields) + 0.6), squeeze=False,
-                           sharex=True)
+                           sharex=True, sharey=True)
     with torch.no_grad():
         for r, f in enumerate(fields):
             fan = ray_fan(lens, f, waves, n=n, image_plane=image_plane, options=options)
@@ -355,6 +386,9 @@ def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
 
     lens, _, options = unpack(lens, None, options, "psf_figure")
     fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
+    with torch.no_grad():
+        fields, note = _diffraction_fields(lens, fields, [w], image_plane, options,
+                                           fields_deg is not None)
     fig, axes = _field_panels(len(fields), 2.4, 2.4)
     with torch.no_grad():
         for a, f in zip(axes, fields):
@@ -368,7 +402,7 @@ def psf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
             a.set_xlabel("x (µm)")
             a.grid(False)
     axes[0].set_ylabel("y (µm)")
-    _title(fig, lens, f"PSF at {w:g} nm")
+    _title(fig, lens, f"PSF at {w:g} nm{note}")
     return fig
 
 
@@ -410,6 +444,8 @@ def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     w = _primary(lens, wavelengths_nm)
     fig, ax = style.figure(size=(5, 3.5))
     with torch.no_grad():
+        fields, note = _diffraction_fields(lens, fields, waves, image_plane, options,
+                                           fields_deg is not None)
         nu_c = _cutoff(lens, w)
         v = np.linspace(0, 1, 101)
         ax.plot(v * nu_c, 2 / np.pi * (np.arccos(v) - v * np.sqrt(1 - v * v)), color="0.6",
@@ -426,7 +462,7 @@ def mtf_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     ax.set_xlabel("spatial frequency (cycles/mm)")
     ax.set_ylabel("MTF")
     ax.legend(ncol=2)
-    _title(fig, lens, f"diffraction MTF, {_wave_label(waves)}")
+    _title(fig, lens, f"diffraction MTF, {_wave_label(waves)}{note}")
     return fig
 
 
@@ -444,6 +480,8 @@ def through_focus_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane
     fields, waves = _fields(lens, fields_deg), _waves(lens, wavelengths_nm)
     w = _primary(lens, wavelengths_nm)
     with torch.no_grad():
+        fields, note = _diffraction_fields(lens, fields, waves, image_plane, options,
+                                           fields_deg is not None)
         nu_c = _cutoff(lens, w)
         freqs = _default_freqs(nu_c) if freqs is None else [float(f) for f in freqs]
         if defocus_mm is None:
@@ -466,7 +504,7 @@ def through_focus_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane
             a.axvline(0, color="k", lw=0.5)
     axes[0].set_ylabel("MTF")
     axes[0].legend(fontsize=5.5)
-    _title(fig, lens, f"through-focus MTF, {_wave_label(waves)}")
+    _title(fig, lens, f"through-focus MTF, {_wave_label(waves)}{note}")
     fig.deeplens_data = {"freqs": freqs, "defocus_mm": dz, "mtf": data}
     return fig
 
@@ -485,6 +523,7 @@ def mtf_field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="se
     fs = _field_axis(lens, fields_deg, points)
     fig, ax = style.figure(size=(5, 3.5))
     with torch.no_grad():
+        fs, note = _diffraction_fields(lens, fs, waves, image_plane, options, False)
         freqs = _default_freqs(_cutoff(lens, w)) if freqs is None else [float(f) for f in freqs]
         m = mtf_vs_field(lens, fs, freqs, waves, direction="both", n=n, image_plane=image_plane,
                          options=options)
@@ -497,7 +536,7 @@ def mtf_field_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="se
     ax.set_ylim(0, 1.02)
     ax.set_xlim(0, max(fs))
     ax.legend(ncol=2)
-    _title(fig, lens, f"MTF vs field, {_wave_label(waves)}")
+    _title(fig, lens, f"MTF vs field, {_wave_label(waves)}{note}")
     fig.deeplens_data = {"fields_deg": fs, "freqs": freqs, "mtf": m}
     return fig
 
@@ -514,6 +553,8 @@ def ee_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     fields, w = _fields(lens, fields_deg), _primary(lens, wavelengths_nm)
     fig, ax = style.figure(size=(5, 3.5))
     with torch.no_grad():
+        fields, note = _diffraction_fields(lens, fields, [w], image_plane, options,
+                                           fields_deg is not None)
         airy = 1.22 / _cutoff(lens, w)
         r = np.linspace(0, 8 * airy, 81)
         for k, f in enumerate(fields):
@@ -524,7 +565,7 @@ def ee_figure(lens, fields_deg=None, wavelengths_nm=None, image_plane="sensor",
     ax.set_ylabel("encircled energy")
     ax.set_ylim(0, 1.02)
     ax.legend()
-    _title(fig, lens, f"encircled energy at {w:g} nm")
+    _title(fig, lens, f"encircled energy at {w:g} nm{note}")
     return fig
 
 
@@ -544,10 +585,12 @@ FREQ_KINDS = ("through-focus", "mtf-field")
 
 
 def plot(lens, kind: str, path, fields_deg=None, wavelengths_nm=None,
-         image_plane="sensor", dpi: float | None = None, freqs=None, options=None) -> None:
+         image_plane="sensor", dpi: float | None = None, freqs=None, options=None,
+         sampling: str | None = None) -> None:
     """Draw figure ``kind`` (a key of :data:`KINDS`) and save it at ``path`` in the format its
     suffix names (vector for .pdf/.svg/.eps/.ps; :func:`.style.save`), ``dpi`` for rasters;
-    ``freqs`` (cycles/mm) for the kinds of :data:`FREQ_KINDS`.  ``lens``: a Lens (traced with
+    ``freqs`` (cycles/mm) for the kinds of :data:`FREQ_KINDS`; ``sampling`` (the pupil
+    pattern) for ``spot`` (other kinds draw their own rays and ignore it).  ``lens``: a Lens (traced with
     ``options``) or a :class:`~deeplens.optics.camera.Camera` (its options are used)."""
     if kind not in KINDS:
         raise ValueError(f"plot kind must be one of {'|'.join(KINDS)}, got {kind!r}")
@@ -557,6 +600,8 @@ def plot(lens, kind: str, path, fields_deg=None, wavelengths_nm=None,
             raise ValueError(f"frequencies apply to the kinds {', '.join(FREQ_KINDS)}, not "
                              f"{kind!r}")
         extra["freqs"] = freqs
+    if sampling is not None and kind == "spot":
+        extra["sampling"] = sampling
     lens, _, options = unpack(lens, None, options, "plot")
     fig = KINDS[kind](lens, fields_deg, wavelengths_nm, image_plane=image_plane,
                       options=options, **extra)

@@ -11,12 +11,13 @@ import torch
 
 from ..optics.camera import unpack
 from ..optics.paraxial import paraxial
+from ..optics.sampling import DEFAULT_SAMPLING
 from .spot import chief_ray, find_pupil, image_plane_z, spot_diagram
 
 __all__ = ["lens_report", "format_report"]
 
 
-def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = "hexapolar:18",
+def lens_report(lens, fields_deg=None, wavelengths_nm=None, sampling: str = DEFAULT_SAMPLING,
                 pupil: str = "traced", image_plane: str = "sensor", options=None) -> dict:
     """Analyse ``lens`` (float64 recommended).
 

@@ -65,21 +65,37 @@ def history_figure(history, title: str = "merit"):
     return fig
 
 
-def heatmap_figure(mats, row_labels, col_labels, titles, unit: str):
-    """One heat map per matrix in ``mats`` (rows: parameters, columns as labelled)."""
+def heatmap_figure(mats, row_labels, col_labels, titles, unit: str, row_units=None):
+    """Heat maps of the matrices ``mats`` (rows: parameters, columns as labelled), one column of
+    panels per matrix.  With ``row_units`` (one unit per row, e.g. ``"µm"``, ``"mrad"``) the
+    rows are split by unit into one row of panels each, with a colour scale of its own (shared
+    by the matrices, so they compare) and ``unit`` formatted with it (``"µm per {unit}"``);
+    numbers in different units never share a colour scale."""
     plt = _plt()
-    fig, axes = plt.subplots(1, len(mats), figsize=(3.2 * len(mats), 0.3 * len(row_labels) + 1.8),
-                             dpi=90, squeeze=False)
-    for ax, m, t in zip(axes[0], mats, titles):
-        m = torch.as_tensor(m, dtype=torch.float64)
-        v = float(m.abs().max()) or 1.0
-        im = ax.imshow(m.numpy(), cmap="RdBu_r", vmin=-v, vmax=v, aspect="auto")
-        ax.set_yticks(range(len(row_labels)))
-        ax.set_yticklabels(row_labels, fontsize=6)
-        ax.set_xticks(range(len(col_labels)))
-        ax.set_xticklabels(col_labels, fontsize=7)
-        ax.set_title(t, fontsize=8)
-        fig.colorbar(im, ax=ax, label=unit, shrink=0.8)
+    n = len(row_labels)
+    units = list(row_units) if row_units is not None else [None] * n
+    groups = {}
+    for i, u in enumerate(units):
+        groups.setdefault(u, []).append(i)
+    mats = [torch.as_tensor(m, dtype=torch.float64) for m in mats]
+    heights = [len(rows) for rows in groups.values()]
+    # the last, narrow column holds each row's colour bar
+    fig, axes = plt.subplots(len(groups), len(mats) + 1, squeeze=False, dpi=90,
+                             figsize=(3.4 * len(mats) + 1.6, 0.3 * n + 1.4 * len(groups)),
+                             gridspec_kw={"height_ratios": heights,
+                                          "width_ratios": [1] * len(mats) + [0.06]})
+    for g, (u, rows) in enumerate(groups.items()):
+        v = max(float(m[rows].abs().max()) for m in mats) or 1.0
+        for c, (m, t) in enumerate(zip(mats, titles)):
+            ax = axes[g][c]
+            im = ax.imshow(m[rows].numpy(), cmap="RdBu_r", vmin=-v, vmax=v, aspect="auto")
+            ax.set_yticks(range(len(rows)))
+            ax.set_yticklabels([row_labels[i] for i in rows] if c == 0 else [], fontsize=6)
+            ax.set_xticks(range(len(col_labels)))
+            ax.set_xticklabels(col_labels if g == len(groups) - 1 else [], fontsize=7)
+            if g == 0:
+                ax.set_title(t, fontsize=8)
+        fig.colorbar(im, cax=axes[g][-1], label=unit if u is None else unit.format(unit=u))
     fig.tight_layout()
     return fig
 

@@ -152,8 +152,7 @@ class PSFModel:
                f"{sensor.pixel_size_mm * 1e3:.3g} um pixels; budget "
                f"{100 * self.error_budget:.1f} %"
                + (f"; {steep} too aberrated to sample, geometric" if steep else "") + ")")
-        log.info(msg)
-        self.message = msg
+        self.message = msg     # printed once by the caller (train.build_psf_model)
         return msg
 
     def _widen(self, smp: DiffractionSampling):

@@ -20,9 +20,11 @@ __all__ = ["run"]
 
 
 def _train_task(cfg) -> float | None:
+    from .console import quiet_console
     from .train import train
 
-    metrics, _ = train(cfg)
+    with quiet_console():
+        metrics, _ = train(cfg)
     return metrics.get("val/psnr_restored")
 
 
@@ -40,7 +42,10 @@ def _eval_task(cfg, fanout: list[str]) -> None:
         fan_out(cfg, fanout, list(HydraConfig.get().overrides.task))
         with open_dict(cfg):
             cfg.eval.gather = True
-    table, _ = evaluate(cfg)
+    from .console import quiet_console
+
+    with quiet_console():
+        table, _ = evaluate(cfg)
     print(table)
 
 
@@ -54,27 +59,41 @@ def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
 
     Raises:
         ValueError: an unknown ``kind``.
+        SystemExit: (status 2) a module of the ``train`` extra is missing; one line on stderr
+            names it and the pip command (:mod:`deeplens.extras`); or a misspelt key or a
+            missing ``lens.path`` (:mod:`.precheck`), before any folder is made.
     """
-    import hydra
-
     if kind not in ("train", "eval"):
         raise ValueError(f"unknown deeplens task {kind!r}; expected 'train' or 'eval'")
-    if kind == "train":
-        task = _train_task
-    else:
-        start = ["-m", "deeplens", "eval"] if fanout is None else list(fanout)
+    from ..extras import missing_extra
 
-        def task(cfg):
-            return _eval_task(cfg, start)
+    msg = missing_extra("train", prog or f"deeplens {kind}")
+    if msg:         # one line naming the extra, before Hydra is imported
+        print(f"{prog or f'deeplens {kind}'}: error: {msg}", file=sys.stderr)
+        raise SystemExit(2)
+    import hydra
+
+    start = ["-m", "deeplens", "eval"] if fanout is None else list(fanout)
+
+    def task(cfg):
+        return _train_task(cfg) if kind == "train" else _eval_task(cfg, start)
+
+    # Hydra names a job after the task function's module (the log file `train.log`, the
+    # `--help` title, `hydra.job.name`); here that module is this one, so the task says it is
+    # `train` / `eval`.  (An override `hydra.job.name=...` appended to the command line would
+    # break `deeplens train experiment=doublet --cfg job`: Hydra's parser takes overrides only
+    # before its flags.)
+    task.__module__ = kind
     os.environ.setdefault("DEEPLENS_DATA_DIR", str(data_dir()))
     main = hydra.main(version_base="1.3", config_path=str(config_dir()),
                       config_name=f"{kind}.yaml")(task)
     args = list(sys.argv[1:] if argv is None else argv)
-    # Hydra names a job after its script (train.py -> "train": the log file, the help title);
-    # here the script is this module, so the name is given (a Hydra override, not a task one;
-    # last, as Hydra's parser takes overrides after its flags, e.g. `-m a=1`)
-    if not any(a.startswith("hydra.job.name=") for a in args):
-        args.append(f"hydra.job.name={kind}")
+    from .precheck import precheck
+
+    problem = precheck(kind, args, str(config_dir()))
+    if problem:     # a misspelt key, a missing lens: before Hydra makes the run's folder
+        print(f"{prog or f'deeplens {kind}'}: error: {problem}", file=sys.stderr)
+        raise SystemExit(2)
     saved = sys.argv
     sys.argv = [prog or f"deeplens {kind}", *args]
     try:

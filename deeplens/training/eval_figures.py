@@ -2,12 +2,14 @@
 TensorBoard images (matplotlib, imported lazily, Agg backend).
 
 * ``psnr_vs_depth.png``: restored (solid, ± std over seeds as error bars) and sensor (dashed)
-  PSNR against depth, one colour per variant;
+  PSNR against depth, one colour per variant, on the test set the table ends with (the images
+  of ``eval.test_folder`` when it is set; the title names it);
 * ``psfs.png``: on-axis PSFs (green channel's wavelengths summed, ``kernel`` pixels, each
   normalised to its own peak) per variant (rows) and depth (columns), drawn with nearest
-  neighbour so a sensor pixel is a visible square;
+  neighbour so a sensor pixel is a visible square, by the PSF model the run rendered with
+  (``render.psf_model``'s choice: diffraction or geometric; the title says which);
 * ``plates.png``: the phase plate's height map (µm) of every variant that has one;
-* ``samples.png``: the first test image, a row per variant: ground truth, then sensor |
+* ``samples.png``: the first test image (of ``eval.test_folder`` when set), a row per variant: ground truth, then sensor |
   restored at the nearest, best-focus (smallest PSF of the first variant) and farthest depth
   (a variants x depths grid).
 """
@@ -30,7 +32,7 @@ def _plt():
     return plt
 
 
-def psnr_vs_depth_figure(summary: dict, depths):
+def psnr_vs_depth_figure(summary: dict, depths, test_set: str | None = None):
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
     x = [d / 1000 for d in depths]
@@ -46,24 +48,54 @@ def psnr_vs_depth_figure(summary: dict, depths):
     ax.set_ylabel("PSNR (dB)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
+    if test_set:
+        ax.set_title(f"test set: {test_set}", fontsize=9)
     fig.tight_layout()
     return fig
 
 
-def psfs_figure(modules: dict, depths, kernel: int = 21, n_rays: int = 8192):
+def run_psf(module, depth_mm: float, wavelengths_nm, kernel: int = 21,
+            n_rays: int = 8192) -> tuple[torch.Tensor, str]:
+    """The on-axis PSF ``(kernel, kernel)`` of ``module``'s camera at ``depth_mm``, the
+    wavelengths summed, by the model its renderer uses: the diffraction kernels of its
+    :class:`~deeplens.render.psf_model.PSFModel` when that chose ``diffraction`` (centre
+    ``kernel`` pixels), else the geometric ray-traced PSF.  Returns ``(psf, model name)``."""
     from ..render.psf import psf
 
+    pm = getattr(getattr(module, "renderer", None), "psf_model", None)
+    model = "geometric"
+    if pm is not None and pm.choice is not None:
+        model = pm.resolve(module.camera, None)
+    with torch.no_grad():
+        if model == "diffraction":
+            kers = pm.diffraction(module.camera, None,
+                                  [((0.0, 0.0), float(depth_mm), float(w))
+                                   for w in wavelengths_nm])
+            k = sum(kers)
+            K = k.shape[-1]
+            if K >= kernel:
+                r = (K - kernel) // 2
+                k = k[r:r + kernel, r:r + kernel]
+            else:
+                r = (kernel - K) // 2
+                k = torch.nn.functional.pad(k, (r, kernel - K - r, r, kernel - K - r))
+            return k, model
+        return sum(psf(module.camera, None, (0.0, 0.0), depth_mm, float(w), n_rays, kernel)
+                   for w in wavelengths_nm), model
+
+
+def psfs_figure(modules: dict, depths, kernel: int = 21, n_rays: int = 8192):
     plt = _plt()
     names = list(modules)
     fig, axes = plt.subplots(len(names), len(depths), squeeze=False,
                              figsize=(1.6 * len(depths) + 0.6, 1.6 * len(names) + 0.4), dpi=100)
+    models = set()
     for r, v in enumerate(names):
         m = modules[v]
         ch = m.sensor.channels[len(m.sensor.channels) // 2]
         for c, d in enumerate(depths):
-            with torch.no_grad():
-                k = sum(psf(m.camera, None, (0.0, 0.0), d, float(w), n_rays, kernel)
-                        for w in ch)
+            k, model = run_psf(m, d, ch, kernel, n_rays)
+            models.add(model)
             ax = axes[r][c]
             ax.imshow((k / k.max()).cpu().numpy(), cmap="inferno", interpolation="nearest")
             ax.set_xticks([])
@@ -72,7 +104,8 @@ def psfs_figure(modules: dict, depths, kernel: int = 21, n_rays: int = 8192):
                 ax.set_title(f"{d / 1000:g} m", fontsize=8)
             if c == 0:
                 ax.set_ylabel(v, fontsize=8)
-    fig.suptitle(f"on-axis PSFs, {kernel} x {kernel} sensor pixels", fontsize=9)
+    fig.suptitle(f"on-axis PSFs ({' and '.join(sorted(models))}, the run's PSF model), "
+                 f"{kernel} x {kernel} sensor pixels", fontsize=9)
     fig.tight_layout()
     return fig
 
@@ -144,7 +177,7 @@ def samples_grid(cells: dict, variants, depths_mm):
 
 
 def write_figures(summary: dict, kept: dict, depths, folder: Path,
-                  plate_surface: int | None = None) -> list[Path]:
+                  plate_surface: int | None = None, test_set: str | None = None) -> list[Path]:
     """Write the evaluation figures into ``folder`` and log them to TensorBoard
     (``folder/tensorboard``); returns the PNG paths.
 
@@ -153,6 +186,7 @@ def write_figures(summary: dict, kept: dict, depths, folder: Path,
         kept: ``{variant: {"module": EndToEndModule, "datamodule": ..., "kind": str}}`` of the
             first seed (its lens and best restorer).
         depths: test depths (mm).
+        test_set: what ``summary`` and the ``datamodule``s test on (the PSNR figure's title).
     """
     plt = _plt()
     from torch.utils.tensorboard import SummaryWriter
@@ -165,7 +199,7 @@ def write_figures(summary: dict, kept: dict, depths, folder: Path,
     first = next(iter(summary.values()))
     rms = first.get("psf_rms_px")
     focus = min(depths, key=lambda d: rms[f"{d:g}"]) if rms else depths[len(depths) // 2]
-    figs = {"psnr_vs_depth": psnr_vs_depth_figure(summary, depths),
+    figs = {"psnr_vs_depth": psnr_vs_depth_figure(summary, depths, test_set),
             "psfs": psfs_figure(modules, depths),
             "samples": samples_figure(modules, {v: k["datamodule"] for v, k in kept.items()},
                                       depths, focus)}

@@ -321,6 +321,7 @@ def _test_on_folder(cfg: DictConfig, objs: dict, folder) -> dict:
     import hydra
 
     dm = hydra.utils.instantiate(cfg.data, test_folder=str(folder))
+    objs["folder_datamodule"] = dm      # the evaluation's figures show these images
     trainer = objs["trainer"]
     trainer.test(objs["module"], datamodule=dm, verbose=False)
     return {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("test/")}
@@ -346,24 +347,21 @@ def _job(cfg: DictConfig, name: str, kind: str, alpha, seed: int):
 
 
 def provenance(cfg: DictConfig) -> str:
-    """One line: the renderer, threads, CPU capability, commit and CPU time so far."""
+    """One line: the renderer, threads, CPU capability, the deeplens version and commit (of
+    the imported package, whatever the working directory: :mod:`deeplens.build_info`) and
+    CPU time so far."""
     import os
-    import subprocess
 
+    from ..build_info import describe_source
     from .fanout import cpu_seconds
 
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                                text=True, cwd=cfg.paths.root_dir, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        commit = ""
     psf_model = cfg.render.get("psf_model", None)
     render = (f"render.psf_model={psf_model}" if psf_model is not None
               else "geometric ray-traced PSFs (no render.psf_model)")
     return (f"renderer: {render}, render.kind={cfg.render.get('kind', '?')}; "
             f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, torch threads "
-            f"{torch.get_num_threads()}, CPU {torch.backends.cpu.get_cpu_capability()}; commit "
-            f"{commit or 'unknown'}; CPU time {cpu_seconds() / 60:.1f} min (this process and its "
+            f"{torch.get_num_threads()}, CPU {torch.backends.cpu.get_cpu_capability()}; "
+            f"{describe_source()}; CPU time {cpu_seconds() / 60:.1f} min (this process and its "
             f"jobs)")
 
 
@@ -558,7 +556,10 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
             rms_seeds.append({d: psf_rms_px(module.lens, module.sensor, d) for d in depths})
             tol.run(name, objs)
             if s == seed_list[0]:
-                keep[name] = {"module": module, "datamodule": objs["datamodule"], "kind": kind}
+                # the figures show the test set the table ends with: the user's images when
+                # eval.test_folder is set, else the procedural textures
+                keep[name] = {"module": module, "kind": kind,
+                              "datamodule": objs.get("folder_datamodule", objs["datamodule"])}
         psf_rms[name] = {d: sum(r[d] for r in rms_seeds) / len(rms_seeds) for d in depths}
     summary = summarize(runs, depths, bands, psf_rms)
     table = format_table(summary, _columns(cfg))
@@ -590,8 +591,13 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     if cfg.eval.figures:
         from .eval_figures import write_figures
 
-        figs = write_figures(summary, keep, depths, out.parent,
-                             plate_surface=cfg.lens.plate_surface)
+        folder = cfg.eval.test_folder
+        shown = summary if folder is None else {  # the textures' PSF sizes pick the focus
+            v: {**e, "psf_rms_px": summary[v].get("psf_rms_px")} for v, e in folder_summary.items()}
+        figs = write_figures(shown, keep, depths,
+                             out.parent, plate_surface=cfg.lens.plate_surface,
+                             test_set=(f"{cfg.data.test_size} procedural textures"
+                                       if folder is None else f"the images of {folder}"))
         print(f"deeplens eval: figures {', '.join(p.name for p in figs)} in {out.parent}")
     print(f"deeplens eval: table in {out} and {out.with_suffix('.json')}")
     return table, summary

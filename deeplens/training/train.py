@@ -36,7 +36,7 @@ from .stop_signals import stopped_by_signal
 from .tolerance import check_tolerance_config
 
 __all__ = ["STARTUP_CHECKS", "build_camera", "build_objects", "check_config", "check_sizes",
-           "preflight", "summary", "train"]
+           "log_every_n_steps", "preflight", "summary", "train"]
 
 # leaf keys whose type is checked at start-up (Hydra already rejects unknown keys)
 _TYPES = {
@@ -410,10 +410,28 @@ def build_objects(cfg: DictConfig) -> dict:
     callbacks = [hydra.utils.instantiate(c) for c in (cfg.callbacks or {}).values() if c]
     logger = hydra.utils.instantiate(cfg.logger) if cfg.get("logger") else False
     trainer = hydra.utils.instantiate(cfg.trainer, callbacks=callbacks, logger=logger,
-                                      plugins=[AtomicCheckpointIO()])
+                                      plugins=[AtomicCheckpointIO()],
+                                      log_every_n_steps=log_every_n_steps(cfg))
     return {"lens": lens, "sensor": sensor, "camera": camera, "renderer": renderer,
             "restorer": restorer,
             "datamodule": datamodule, "module": module, "trainer": trainer, "cfg": cfg}
+
+
+def log_every_n_steps(cfg: DictConfig) -> int:
+    """``trainer.log_every_n_steps`` (Lightning's default 50 when absent), lowered to the
+    training batches of one epoch (``data.train_steps_per_epoch``, or an integer
+    ``trainer.limit_train_batches`` / ``overfit_batches`` below it) and to a positive
+    ``trainer.max_steps``: a short run (the README's two steps) still logs its ``train/*``
+    scalars once, at its last step, instead of none."""
+    t = cfg.trainer
+    n = t.get("log_every_n_steps")
+    n = 50 if n is None else int(n)
+    caps = [int(cfg.data.train_steps_per_epoch)]
+    for key in ("limit_train_batches", "overfit_batches", "max_steps"):
+        v = t.get(key)
+        if isinstance(v, int) and not isinstance(v, bool) and v >= 1:
+            caps.append(v)
+    return max(1, min(n, *caps))
 
 
 def _test_checkpoint(cfg: DictConfig, trainer, trained: bool) -> str | None:
@@ -504,8 +522,9 @@ def _train(cfg: DictConfig):
     objs["tested"] = tested
     objs["summary"] = summary(cfg, metrics, trainer, tested)
     pm = getattr(objs["renderer"], "psf_model", None)
-    if pm is not None:
-        objs["summary"] += f"\n  {pm.message}"
+    if pm is not None:  # the measurement's sentence was printed at start-up
+        objs["summary"] += (f"\n  PSF model:         {pm.choice} (render.psf_model="
+                            f"{pm.model})")
     if trainer.is_global_zero:
         print(objs["summary"])
     return metrics, objs

@@ -63,7 +63,7 @@ def test_summary_statistics_over_seeds():
     assert s["spread_db"] == pytest.approx(6.0)
 
 
-def test_eval_seed_loop_test_folder_and_figures(cfg_factory, tmp_path):
+def test_eval_seed_loop_test_folder_and_figures(cfg_factory, tmp_path, monkeypatch):
     """Two seeds of two variants on a folder of the user's own images: one run per variant and
     seed, the test set is those images, and every figure is written."""
     from torchvision.io import write_png
@@ -78,7 +78,23 @@ def test_eval_seed_loop_test_folder_and_figures(cfg_factory, tmp_path):
                       "eval.variants=[none,learned]", "eval.seeds=[0,1]",
                       f"eval.test_folder={folder}", "callbacks.image_logger=null",
                       config_name="eval.yaml")
+    import deeplens.training.eval_figures as ef
+
+    seen = {}
+    real = ef.write_figures
+
+    def spy(summary, kept, depths, out, **kw):
+        seen.update(summary=summary, kept=kept, **kw)
+        return real(summary, kept, depths, out, **kw)
+
+    monkeypatch.setattr(ef, "write_figures", spy)
     table, results = evaluate(cfg)
+    # the figures show the user's images (issue 35), not the textures
+    rec = json.loads((tmp_path / "eval_table.json").read_text())["test_folder"]["variants"]
+    for v in ("none", "learned"):
+        assert seen["kept"][v]["datamodule"].test_folder == folder
+        assert seen["summary"][v]["restored"] == rec[v]["restored"]
+    assert seen["test_set"] == f"the images of {folder}"
     assert "±" in table and "mine" in (tmp_path / "eval_table.md").read_text()
     for v in ("none", "learned"):
         assert results[v]["seeds"] == 2

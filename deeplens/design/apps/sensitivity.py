@@ -55,13 +55,20 @@ def run(args) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     files = []
     try:
+        from ..labels import DISPLAY_PER_UNIT, parameter_label
         from ..plots import heatmap_figure, save
 
-        # one matrix per field as in the paper's figure: rows parameters, column the merit
-        mats = [J[f:f + 1].T * 1e3 for f in range(len(fields))]
-        files.append(save(heatmap_figure(mats, names, ["∂ε/∂θ"],
+        # one matrix per field as in the paper's figure: rows parameters (human labels, in
+        # µm / mrad / 1/m: design.labels), column the merit; one colour scale per unit
+        lab = [parameter_label(lens, n) for n in names]
+        per = torch.tensor([1e3 / DISPLAY_PER_UNIT[k][1] for _, _, k in lab],
+                           dtype=J.dtype)
+        mats = [(J[f] * per)[:, None] for f in range(len(fields))]
+        files.append(save(heatmap_figure(mats, [f"{t} ({u})" for t, u, _ in lab], ["∂ε/∂θ"],
                                          [f"field {f:g} deg" for f in fields],
-                                         "µm per mm (or per rad)"), out / "sensitivity.png"))
+                                         "µm of RMS spot per {unit}",
+                                         row_units=[u for _, u, _ in lab]),
+                          out / "sensitivity.png"))
     except ImportError:
         pass
     result = {"lens": lens.name, "fields_deg": fields, "wavelength_nm": args.wavelength,
