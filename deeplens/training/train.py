@@ -31,7 +31,7 @@ from .checkpoint import AtomicCheckpointIO, read_checkpoint
 from .lens_setup import build_lens, check_lens_config
 from .machine import describe_machine
 from .module_config import check_model_config
-from .run_lock import hold_output_folder
+from .run_lock import held_by_hydra, hold_output_folder
 from .stop_signals import stopped_by_signal
 from .tolerance import check_tolerance_config
 
@@ -496,7 +496,9 @@ def train(cfg: DictConfig):
     """
     # the ranks a DDP launcher starts (LOCAL_RANK / NODE_RANK > 0) share rank 0's folder
     child = any(os.environ.get(k, "0") != "0" for k in ("LOCAL_RANK", "NODE_RANK"))
-    with contextlib.nullcontext() if child else hold_output_folder(cfg.paths.output_dir):
+    # `deeplens train` holds the folder already, from before Hydra wrote into it (run_lock)
+    held = child or held_by_hydra(cfg.paths.output_dir)
+    with contextlib.nullcontext() if held else hold_output_folder(cfg.paths.output_dir):
         return _train(cfg)
 
 

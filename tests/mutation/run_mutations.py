@@ -63,6 +63,7 @@ HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
 FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
 READ_IMAGE = ("tests/render/test_read_image_depth.py",)
 ATOMIC = ("tests/training/test_atomic_writes.py",)
+RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -510,6 +511,16 @@ MUTATIONS = [
              "deeplens/training/fanout.py",
              """    v = v.replace("'", "\\\\'").replace("${", "\\\\${")""", "    v = v",
              ("tests/training/test_fanout_quoting.py",)),
+    Mutation("lock_after_hydra_writes", "deeplens train takes the folder lock in the task, after "
+             "Hydra rewrote the live run's .hydra files", "configs/train.yaml",
+             "    output_folder_lock:\n      _target_: deeplens.training.run_lock.OutputFolderLock\n",
+             "", RUN_LOCK),
+    Mutation("lock_refusal_swallowed", "the callback's refusal raised as an exception (Hydra "
+             "turns it into a warning and runs the job)", "deeplens/training/run_lock.py",
+             "            raise RunRefused(e) from None", "            raise", RUN_LOCK),
+    Mutation("task_locks_twice", "the task locks the folder the callback holds (a run refuses "
+             "itself)", "deeplens/training/train.py",
+             "held = child or held_by_hydra(cfg.paths.output_dir)", "held = child", RUN_LOCK),
 ]
 
 
