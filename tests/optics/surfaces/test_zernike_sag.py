@@ -370,3 +370,60 @@ def test_rays_land_where_optiland_lands_them():
                                    options=IntersectOptions(clip_aperture=False))
         ol = [at(sg.x, -1), at(sg.y, -1), at(sg.z, -1)]
         assert out.o[0].tolist() == pytest.approx(ol, abs=1e-9), (H, P)
+
+
+@pytest.mark.parametrize("mode", ["surface", "lens"])
+def test_fused_tracer_runs_it_eager_with_the_same_values_and_gradients(uncompiled, mode):
+    """The double Gauss with its first surface a Zernike sag (its even asphere plus defocus,
+    coma and spherical terms): the fused tracer's logic (``uncompiled``) leaves it to the eager
+    path between its fused runs; rays, paths and gradients (c, A_8, A_11 of the Zernike sag, a
+    later sphere's c) equal the eager tracer's."""
+    import helpers as H
+
+    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.io import load_lens
+    from deeplens.optics.sampling import field_rays
+
+    lens = load_lens(H.LENS_DIR / "double_gauss.json")
+    s0 = lens.surfaces[0]
+    sd = float(s0.semi_diameter)
+    zs = ZernikeSag(float(s0.c), sd, 1.1 * sd, [0.0, 0.0, 0.0, 2e-3, 0.0, 0.0, 0.0, 5e-4, 0.0,
+                                                0.0, -1e-3],
+                    conic=float(s0.k), coefficients=[0.0] + [float(v) for v in s0.a][:7])
+    lens.surfaces[0] = zs
+    assert fused_kind(lens, 0) is None and fused_kind(lens, 4) is not None
+    params = [zs.c, zs.zernike[7], zs.zernike[10], lens.surfaces[4].c]
+    for p in params:
+        p.requires_grad_(True)
+    rays = field_rays(lens, 10.0, H.WAVELENGTH_D, H.disk_points(120, 2.6, seed=2), 6.0)
+
+    def run(opt):
+        out = lens.trace_to_sensor(rays, options=opt)
+        v = out.valid
+        loss = (out.o[v] ** 2).sum() + out.opl[v].sum()
+        return out, torch.autograd.grad(loss, params)
+
+    a, ga = run(IntersectOptions(compile=False))
+    b, gb = run(IntersectOptions(compile=mode))
+    assert torch.equal(a.valid, b.valid) and 0.3 * len(a.valid) < int(a.valid.sum())
+    v = a.valid
+    for x, y in ((a.o, b.o), (a.d, b.d), (a.opl, b.opl)):
+        assert float((x - y)[v].detach().abs().max()) < 1e-12
+    for x, y in zip(ga, gb):
+        assert float(x) != 0.0 and float(y) == pytest.approx(float(x), rel=1e-10)
+
+
+def test_parameter_scale_is_the_rim_sag_derivative():
+    """``parameter_scale`` (the design/training step scale) of the even terms and the curvature:
+    ∂(sag at the rim)/∂θ by autograd of the surface's own sag (α_i: R^(2i); c: R²/2 up to the
+    conic's higher orders, which it ignores as for every asphere)."""
+    from deeplens.optics.parameters import parameter_scale
+
+    lens, s = _lens()
+    R = torch.tensor(float(s.semi_diameter), dtype=F64)
+    for i in range(len(ALPHA)):
+        s.a[i].requires_grad_(True)
+        g, = torch.autograd.grad(s.sag(R, torch.zeros_like(R)), s.a[i])
+        assert parameter_scale(lens, f"surfaces.0.a.{i}") == pytest.approx(float(g), rel=1e-14)
+    assert parameter_scale(lens, "surfaces.0.c") == pytest.approx(float(R) ** 2 / 2)
+    assert parameter_scale(lens, "surfaces.0.zernike.3") == 1.0
