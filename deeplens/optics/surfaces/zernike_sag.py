@@ -287,6 +287,12 @@ class ZernikeSag(SagSurface):
                 cur = cur + 2.0 * zernike_norm(n, 0) * r2 * A / rn2
         return cur
 
+    def rotationally_symmetric(self) -> bool:
+        """Whether every non-zero Zernike term has ``m = 0`` (then the surface is unchanged by a
+        turn about its axis)."""
+        return all(noll_nm(j)[1] == 0 for j, A in enumerate(self.zernike, start=1)
+                   if float(A) != 0.0)
+
     def quadric(self, o, d):
         """The conic base as a quadric (Newton's start; the surface itself is not one)."""
         return conic_quadric(*o.unbind(-1), *d.unbind(-1), self.c, self.k)

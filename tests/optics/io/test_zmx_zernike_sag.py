@@ -149,3 +149,18 @@ def test_paraxial_focus_uses_the_vertex_curvature():
     efl = 1.0 / (c * (n - 1.0))    # a plano-convex lens: the flat back adds no power
     assert float(paraxial(lens).efl) == pytest.approx(efl, rel=1e-12)
     assert np.isfinite(efl)
+
+
+def test_x_fields_on_a_non_symmetric_zernike_sag_are_reported_as_not_exact(tmp_path):
+    """XFLN combined radially is exact only for a rotationally symmetric lens: the file's Z6 and
+    Z8 (astigmatism, coma) make it not, and the note says so; with only m = 0 terms it is."""
+    from deeplens.optics.io.zmx import ZemaxWarning
+
+    text = FILE.read_text().replace("XFLN 0 0", "XFLN 0 1")
+    with pytest.warns(ZemaxWarning, match=r"NOT exact for this lens \(surface 1, a ZernikeSag"):
+        read_zmx(write(tmp_path, text))
+    sym = text.replace("XDAT 8 0.003", "XDAT 8 0").replace("XDAT 10 0.001", "XDAT 10 0")
+    lens = read_zmx_quiet(write(tmp_path, sym, "sym.zmx"))
+    assert lens.surfaces[1].rotationally_symmetric()
+    with pytest.warns(ZemaxWarning, match=r"exact for a rotationally symmetric lens"):
+        read_zmx(write(tmp_path, sym, "sym2.zmx"))
