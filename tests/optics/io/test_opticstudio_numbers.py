@@ -173,3 +173,27 @@ def test_opticstudios_exit_pupil_is_a_real_parabasal_ray_crossing():
     eps_os = ((COOKE_OS["expp"] - ours["expp"]) / a) ** 0.5
     assert 3.0e-4 < eps_os < 3.8e-4
     assert _real_crossing(lens, eps_os) == pytest.approx(COOKE_OS["expp"], abs=1e-10)
+
+
+def test_double_gauss_matches_optiland():
+    """The issue's third system, the Schott double Gauss (F/5 image-space, stop between the
+    groups): no OpticStudio numbers for it are in the thread, so its first-order data are
+    checked against optiland's own ``DoubleGauss`` sample (an independent paraxial trace with
+    the same glasses from refractiveindex.info), to 1e-12 mm."""
+    pytest.importorskip("optiland")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from optiland.samples.objectives import DoubleGauss
+
+        par = DoubleGauss().paraxial
+        ref = {"efl": float(par.f2()), "epd": float(par.EPD()), "enpp": float(par.EPL()),
+               "expp": float(par.XPL()), "expd": float(par.XPD()), "bfp": float(par.F2()),
+               "p2": float(par.P2())}
+    lens, ours = first_order("double_gauss_schott")
+    assert [m.name for m in lens.materials[1:]] == [
+        "N-SSK2", "AIR", "N-SK2", "F5", "AIR", "AIR", "F5", "N-SK16", "AIR", "N-SK16", "AIR"]
+    for key, v in ref.items():
+        assert ours[key] == pytest.approx(v, rel=1e-13, abs=1e-12), key
+    assert ours["fno"] == pytest.approx(5.0, rel=1e-14)
