@@ -9,7 +9,8 @@ message).  :func:`parameter_scale` gives each one's scale, mm of sag at the rim 
     s_j = ∂(sag at the rim) / ∂p_j
 
 a curvature scales by ``R^2 / 2`` (a biconic's ``c`` and ``cx`` too), an even asphere ``a_2k``
-by ``R^2k`` (an odd asphere's ``a_i`` by ``R^i``), an XY coefficient of
+by ``R^2k`` (an odd asphere's ``a_i`` by ``R^i``, a Zernike sag's even ``a[i]`` on ``r^(2i+2)``
+by ``R^(2i+2)``; its Zernike coefficients are mm, scale 1), an XY coefficient of
 ``x^i y^j`` by ``R^(i+j)``, a conic ``k`` by ``∂z/∂k = c^3 R^4 / (2 q (1 + q)^2)``
 (``q = sqrt(1 - (1+k) c^2 R^2)``), a tilt by the largest semi-diameter (mm of rim
 displacement per rad); distances, decenters and B-spline heights are already mm.  ``R`` is the
@@ -22,7 +23,7 @@ from __future__ import annotations
 import fnmatch
 import math
 
-from .surfaces import Asphere, Biconic, BSpline, OddAsphere, XYPolynomial
+from .surfaces import Asphere, Biconic, BSpline, OddAsphere, XYPolynomial, ZernikeSag
 
 __all__ = ["glob_names", "parameter_scale", "resolve_names", "select_names"]
 
@@ -40,9 +41,11 @@ def parameter_scale(lens, name: str) -> float:
             return R ** (2 * int(parts[3]) + 4)
         if isinstance(s, OddAsphere) and parts[2] == "a":
             return R ** (int(parts[3]) + 1)
-        if isinstance(s, (Asphere, OddAsphere, Biconic)) and parts[2] in ("c", "cx"):
+        if isinstance(s, ZernikeSag) and parts[2] == "a":
+            return R ** (2 * int(parts[3]) + 2)
+        if isinstance(s, (Asphere, OddAsphere, Biconic, ZernikeSag)) and parts[2] in ("c", "cx"):
             return R * R / 2
-        if isinstance(s, (Asphere, OddAsphere, Biconic)) and parts[2] in ("k", "kx"):
+        if isinstance(s, (Asphere, OddAsphere, Biconic, ZernikeSag)) and parts[2] in ("k", "kx"):
             # a biconic's x conic scales as a conic of curvature c_x (its x-z section)
             c, k = ((float(s.cx), float(s.kx)) if parts[2] == "kx"
                     else (float(s.c), float(s.k)))

@@ -18,6 +18,9 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
                ρ = R − z_y (a Toroid); R = 0 (infinite) is a cylinder, z = z_y
     BICONICX   z = (c_x x² + c_y y²) / (1 + sqrt(1 − (1 + k_x) c_x² x² − (1 + k_y) c_y² y²)),
                c_y = CURV, k_y = CONI, c_x = 1 / PARM 1 (0: flat in x), k_x = PARM 2 (a Biconic)
+    SZERNSAG   z = EVENASPH (PARM 1..8 on r², ..., r¹⁶) + Σ_j A_j Z_j(r / R_n, φ): Zernike
+               standard terms in Noll's order (XDAT 1 = number of terms, XDAT 2 = R_n, XDAT 3.. =
+               A_j; PARM 0 the extrapolate flag; a ZernikeSag)
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 

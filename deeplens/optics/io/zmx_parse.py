@@ -40,7 +40,8 @@ _UNSUPPORTED_TYPES = {
     "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "GRINSUR1": "a gradient-index surface",
-    "SZERNSAG": "a Zernike sag surface", "USERSURF": "a user-defined (DLL) surface",
+    "FZERNSAG": "a Zernike Fringe sag surface (deeplens reads the Zernike Standard sag, "
+                "SZERNSAG)", "USERSURF": "a user-defined (DLL) surface",
     "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
     "TILTSURF": "a tilted surface",
 }
@@ -254,12 +255,12 @@ def parse(path: Path):
             cur.type, cur.type_line = toks[1].upper(), ln
             if cur.type not in ("STANDARD", "EVENASPH", "ODDASPHE", "COORDBRK", "XYPOLYNOM",
                                 "PARAXIAL", "TOROIDAL", "DGRATING", "QED_TYPE", "BICONICX",
-                                "BINARY_2"):
+                                "BINARY_2", "SZERNSAG"):
                 what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
                 p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
                            f"supported; deeplens reads STANDARD, EVENASPH, ODDASPHE, COORDBRK, "
-                           f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE, BICONICX "
-                           f"and BINARY_2")
+                           f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE, BICONICX, "
+                           f"BINARY_2 and SZERNSAG")
         elif cur is not None and key == "CURV":
             cur.curv, cur.curv_line = p.arg(toks, 1, ln, "curvature"), ln
         elif cur is not None and key == "DISZ":

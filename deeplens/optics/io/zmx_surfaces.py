@@ -9,7 +9,8 @@ radius of rotation), ``BICONICX`` -> :class:`~deeplens.optics.surfaces.Biconic`,
 :class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
 :class:`~deeplens.optics.surfaces.Grating`, ``BINARY_2`` ->
 :class:`~deeplens.optics.surfaces.Binary2`, ``XYPOLYNOM`` ->
-:class:`~deeplens.optics.surfaces.XYPolynomial`; a flat surface between one medium, not the stop,
+:class:`~deeplens.optics.surfaces.XYPolynomial`, ``SZERNSAG`` ->
+:class:`~deeplens.optics.surfaces.ZernikeSag`; a flat surface between one medium, not the stop,
 with no fixed aperture is a dummy (its thickness only).  Lengths are scaled from file units to
 mm here (``s_mm``); errors are raised through the reader's :class:`~.zmx_parse.Locator`.
 """
@@ -23,10 +24,11 @@ import torch
 from ..errors import ZemaxFileError
 from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, Cylinder, Grating, IdealLens,
-                        OddAsphere, Plane, QType, Toroid, XYPolynomial)
+                        OddAsphere, Plane, QType, Toroid, XYPolynomial, ZernikeSag)
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
+from ..surfaces.zernike_sag import MAX_ZERNIKE_TERMS
 from .zmx_parse import Locator, ZmxSurface
 
 __all__ = ["build_surface", "is_air", "PROVISIONAL_SD_MM"]
@@ -87,6 +89,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             surf = _binary2(s, k, c, sd_build, s_mm, p)
         elif s.type == "QED_TYPE":
             surf = _qtype(s, k, c, sd_build, s_mm, p)
+        elif s.type == "SZERNSAG":
+            surf = _zernike_sag(s, k, c, sd_build, s_mm, p)
         elif s.type == "PARAXIAL":
             surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
         elif s.type == "TOROIDAL":
@@ -356,6 +360,49 @@ def _qtype(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
     coeffs = [s.xdat.get(j + 4, (0.0, 0))[0] * s_mm for j in range(n)]
     return QType(c, sd, rn_v * s_mm, coeffs, "qcon" if kind_v == 1.0 else "qbfs",
                  conic=s.coni)
+
+
+def _zernike_sag(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``SZERNSAG`` (OpticStudio's "Zernike Standard Sag"): an even asphere (``CURV``, ``CONI``,
+    ``PARM 1..8`` the ``r², r⁴, ..., r¹⁶`` terms) plus Zernike standard terms in Noll's order:
+    ``PARM 0`` the extrapolate flag (1: the terms also beyond the normalisation radius),
+    ``PARM 9``/``PARM 10`` the Zernike decenter (must be 0), ``XDAT 1`` the number of terms,
+    ``XDAT 2`` the normalisation radius, ``XDAT 3..`` the coefficients ``A_1, A_2, ...``
+    (lengths): a :class:`ZernikeSag`."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if i in (9, 10) and v != 0:
+            p.fail(ln, f"SURF {k}: SZERNSAG PARM {i} (the Zernike decenter in "
+                       f"{'x' if i == 9 else 'y'}) is not supported: deeplens' Zernike terms are "
+                       f"centred on the vertex")
+        if (i < 0 or i > 10) and v != 0:
+            p.fail(ln, f"SURF {k}: SZERNSAG PARM {i} is not read (PARM 0 the extrapolate flag, "
+                       f"PARM 1-8 the even terms on r², ..., r¹⁶, PARM 9-10 the Zernike "
+                       f"decenter)")
+    ext, ext_ln = s.parm.get(0, (1.0, s.type_line))
+    if ext not in (0.0, 1.0):
+        p.fail(ext_ln, f"SURF {k}: SZERNSAG PARM 0 (the extrapolate flag) must be 0 or 1, got "
+                       f"{ext!r}")
+    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= MAX_ZERNIKE_TERMS:
+        p.fail(n_ln, f"SURF {k}: SZERNSAG XDAT 1 (the number of Zernike terms) must be an "
+                     f"integer 0..{MAX_ZERNIKE_TERMS}, got {n_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if (j > n + 2 or j < 1) and v != 0:
+            p.fail(ln, f"SURF {k}: SZERNSAG XDAT {j} lies beyond the {n} Zernike terms XDAT 1 "
+                       f"declares")
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n > 0 and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: SZERNSAG XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    top = max([i for i in range(1, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [0])
+    coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(1, top + 1)]
+    zern = [s.xdat.get(j + 3, (0.0, 0))[0] * s_mm for j in range(n)]
+    while zern and zern[-1] == 0.0:
+        zern.pop()
+    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no Zernike term: any radius (1 mm)
+    return ZernikeSag(c, sd, rn, zern, conic=s.coni, coefficients=coeffs,
+                      extrapolate=ext == 1.0)
 
 
 def _paraxial_surface(s: ZmxSurface, k: int, mat, prev, sd, s_mm, p: Locator):

@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from ..surfaces import Aperture, Asphere, Biconic, Cylinder, OddAsphere, Plane, QType
+from ..surfaces import Aperture, Asphere, Biconic, Cylinder, OddAsphere, Plane, QType, ZernikeSag
 
 __all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
            "zemax_tilts", "element_tilts", "lens_pupil_convention", "fields_to_angles"]
@@ -112,6 +112,8 @@ def rotationally_symmetric(surf) -> bool:
         return surf.shape == "circle"
     if getattr(surf, "diffracts", False) and not getattr(surf, "axisymmetric", False):
         return False   # a grating's lines turn with it (a radial phase does not)
+    if isinstance(surf, ZernikeSag):
+        return surf.rotationally_symmetric()
     return isinstance(surf, (Asphere, OddAsphere, Plane, QType))
 
 
@@ -163,7 +165,8 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
     xs = xs + [0.0] * (len(ys) - len(xs))
     kind = ftyp[0]
     if any(x != 0 for x in xs):
-        anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder))]
+        anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder))
+                      or (isinstance(s, ZernikeSag) and not s.rotationally_symmetric())]
         if anamorphic:   # a biconic, cylinder or toroid: x and y fields image differently
             p.note(xline, f"XFLN: x field components are combined with y into a radial field, "
                           f"which is NOT exact for this lens (surface {anamorphic[0]}, a "

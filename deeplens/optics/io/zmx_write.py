@@ -19,7 +19,7 @@ from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
-                        IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial)
+                        IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial, ZernikeSag)
 from .agf import AGFGlass
 from .vendor_glass import BuchdahlGlass
 from .zmx_coordbrk import coordbrk_lines
@@ -290,6 +290,15 @@ def _surface_lines(s, i, is_stop) -> list[str]:
             [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, OddAsphere):
         return lines + _odd_asphere_lines(s, i) + [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
+    if isinstance(s, ZernikeSag):   # PARM 0 extrapolate, 1..8 r²..r¹⁶, XDAT the Zernike terms
+        a = [float(v) for v in s.a]
+        A = [float(v) for v in s.zernike]
+        lines += ["TYPE SZERNSAG", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
+                  f"PARM 0 {int(s.extrapolate)}"]
+        lines += [f"PARM {j + 1} {_f(v)}" for j, v in enumerate(a)]
+        lines += ["PARM 9 0", "PARM 10 0", f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
+        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
+        return lines + [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Binary2):   # PARM 0 the order, PARM 2..8 a4..a16, XDAT the phase
         a = [float(v) for v in s.a]
         if len(a) > 7:
