@@ -489,9 +489,9 @@ def section_train_step(sec: Section) -> None:
         sizes = dict(experiment=exp, sensor_px=n, image_px=2 * n, pixel_size_mm=pixel,
                      overrides=overrides)
         pred = None
-        if exp in last:
-            n0, t0 = last[exp]
-            pred = t0 * (n / n0) ** 2
+        if exp in last:  # the set-up as before, the steps scaled by the pixel count
+            n0, build_s, steps_s = last[exp]
+            pred = build_s + steps_s * (n / n0) ** 2
         if not sec.fits(pred):
             sec.skip(f"{exp} {n} px", pred, **sizes)
             continue
@@ -508,7 +508,10 @@ def section_train_step(sec: Section) -> None:
                     wall_s=time.perf_counter() - t0, **sizes)
             continue
         wall = time.perf_counter() - t0
-        last[exp] = (n, wall)
+        n_steps = plan["train_warmup"] + plan["train_steps"]
+        steps_s = sum(res[k]["step"] * n_steps for k in ("optics train", "optics fixed")
+                      if k in res)
+        last[exp] = (n, max(0.0, wall - steps_s), steps_s)
         for label in ("optics train", "optics fixed"):
             if label not in res:
                 continue
