@@ -524,7 +524,21 @@ def section_train_step(sec: Section) -> None:
         _free(ctx)
 
 
-_SUMMARY_ROW = re.compile(r"^\s+(\S+(?: m)?)\s+([\d.]+) / ([\d.]+) \| ([\d.]+) / ([\d.]+)\s*$")
+_SUMMARY_ROW = re.compile(r"^\s+(\S+(?: m)?)\s+(-?[\d.]+) / (-?[\d.]+)\s*\|\s*(-?[\d.]+) / "
+                          r"(-?[\d.]+)\s*$")
+
+
+def parse_summary(log: str) -> list[dict]:
+    """The test rows of ``train.py``'s closing summary (``deeplens.training.train.summary``):
+    per depth (or field band) the restored and the sensor image's PSNR (dB) and SSIM."""
+    rows = []
+    for line in log.splitlines():
+        t = _SUMMARY_ROW.match(line)
+        if t:
+            rows.append({"name": f"test {t.group(1)}", "psnr_restored_db": float(t.group(2)),
+                         "ssim_restored": float(t.group(3)), "psnr_sensor_db": float(t.group(4)),
+                         "ssim_sensor": float(t.group(5))})
+    return rows
 
 
 def section_e2e(sec: Section) -> None:
@@ -550,12 +564,8 @@ def section_e2e(sec: Section) -> None:
            "last_ckpt": (run_dir / "checkpoints" / "last.ckpt").is_file()}
     sec.row(name="train.py " + " ".join(overrides[:2]), overrides=overrides, **res,
             wall_s=wall)
-    for line in log.splitlines():
-        t = _SUMMARY_ROW.match(line)
-        if t:
-            sec.row(name=f"test {t.group(1)}", psnr_restored_db=float(t.group(2)),
-                    ssim_restored=float(t.group(3)), psnr_sensor_db=float(t.group(4)),
-                    ssim_sensor=float(t.group(5)))
+    for row in parse_summary(log):
+        sec.row(**row)
     if r.returncode != 0:
         raise RuntimeError(f"train.py exited with {r.returncode}: {log.strip()[-600:]}")
 

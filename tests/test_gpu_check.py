@@ -167,6 +167,29 @@ def test_cuda_test_files_are_found(gc):
         assert re.search(r"^def test_\w*cuda\w*\(", (REPO / f).read_text(), re.M), f
 
 
+def test_e2e_reads_the_test_rows_of_the_run_summary(gc):
+    """The rows come from the summary ``train.py`` prints (its own function writes it here)."""
+    from types import SimpleNamespace
+
+    from omegaconf import OmegaConf
+
+    from deeplens.training.train import summary
+
+    metrics = {}
+    for tag, vals in (("d4500mm", (20.46, 0.489, 17.98, 0.365)),
+                      ("d8000mm", (20.7, 0.521, 7.98, 0.058))):
+        for key, v in zip(("psnr_restored", "ssim_restored", "psnr_sensor", "ssim_sensor"), vals):
+            metrics[f"test/{key}/{tag}"] = v
+    trainer = SimpleNamespace(current_epoch=1, global_step=2, checkpoint_callback=None)
+    log = "some output\n" + summary(OmegaConf.create({"task_name": "edof"}), metrics, trainer,
+                                    None) + "\nmore output\n"
+    assert gc.parse_summary(log) == [
+        {"name": "test 4.5 m", "psnr_restored_db": 20.46, "ssim_restored": 0.489,
+         "psnr_sensor_db": 17.98, "ssim_sensor": 0.365},
+        {"name": "test 8 m", "psnr_restored_db": 20.7, "ssim_restored": 0.521,
+         "psnr_sensor_db": 7.98, "ssim_sensor": 0.058}]
+
+
 def test_read_results_names_a_file_without_json(tmp_path, gc):
     p = tmp_path / "x.md"
     p.write_text("# no json here\n")
@@ -202,5 +225,7 @@ def test_dry_run_script_runs_every_section(tmp_path):
     steps = {(x["experiment"], x["sensor_px"]) for x in secs["train_step"]["rows"]}
     assert steps == {(e, n) for e in ("edof", "doublet") for n in mod.DRY_PLAN["train_px"]}
     assert all(_finite_positive(x["step_s"]) for x in secs["train_step"]["rows"])
-    e2e = secs["e2e"]["rows"][0]
+    e2e, *tested = secs["e2e"]["rows"]
     assert e2e["returncode"] == 0 and e2e["steps"] == 2 and e2e["last_ckpt"] is True
+    assert [t["name"] for t in tested] == ["test 4.5 m", "test 5.5 m", "test 6.5 m", "test 8 m"]
+    assert all(_finite_positive(t["psnr_restored_db"]) for t in tested)
