@@ -4,6 +4,7 @@
 #   bash dev.sh test   # set up (first time) and run the default test suite
 #   bash dev.sh lint   # set up (first time) and run ruff (rules in pyproject.toml)
 #   bash dev.sh docs   # set up (first time) and build the documentation site (mkdocs, strict)
+#   bash dev.sh setup  # set up (first time) only
 # Set-up is idempotent: a virtual environment in .venv with `pip install -e .[dev,docs]`.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -20,6 +21,7 @@ fi
 cmd=${1:-test}
 shift || true
 case "$cmd" in
+    setup) exit 0 ;;
     test) exec .venv/bin/python -m pytest -q "$@" ;;
     lint) exec .venv/bin/ruff check deeplens tests "$@" ;;
     # warnings (a broken link, a missing page or docstring reference) are errors
@@ -30,5 +32,5 @@ case "$cmd" in
             *" experiment="*) exec .venv/bin/python train.py "$@" ;;
             *) exec .venv/bin/python train.py experiment=edof "$@" ;;
         esac ;;
-    *) echo "usage: bash dev.sh run|test|lint|docs [args]" >&2; exit 2 ;;
+    *) echo "usage: bash dev.sh run|test|lint|docs|setup [args]" >&2; exit 2 ;;
 esac

@@ -25,6 +25,11 @@ Usage::
     python benchmarks/bench_train_step.py --rows "edof|render=balanced"
     python benchmarks/bench_train_step.py --base /tmp/before   # a checkout to compare
     OMP_NUM_THREADS=1 python benchmarks/bench_train_step.py --threads 1
+    python benchmarks/bench_train_step.py --device cuda           # module and batches on a GPU
+
+On a CUDA device every part is timed between ``torch.cuda.synchronize`` calls, and each row
+also records ``peak MiB``: ``torch.cuda.max_memory_allocated`` over the timed steps minus the
+memory allocated before them.
 """
 
 from __future__ import annotations
@@ -73,9 +78,18 @@ def _child(spec: str, args) -> dict:
 
     code = args.code or REPO
     torch.set_num_threads(args.threads)
+    device = torch.device(getattr(args, "device", None) or "cpu")
+    cuda = device.type == "cuda"
+
+    def sync():
+        if cuda:
+            torch.cuda.synchronize(device)
+
     experiment, *overrides = spec.split("|")
-    cfg, objs = build(code, experiment, overrides, "/tmp/bench_train_step")
+    cfg, objs = build(code, experiment, overrides,
+                      getattr(args, "output_dir", None) or "/tmp/bench_train_step")
     module, dm = objs["module"], objs["datamodule"]
+    module.to(device)
     batches = iter(dm.train_dataloader())
     first = int(getattr(module, "optics_warmup_steps", 0) or 0)
     import deeplens
@@ -84,39 +98,52 @@ def _child(spec: str, args) -> dict:
     split = hasattr(module, "restore_loss")  # older code: the step timed as a whole
     fixed = getattr(module, "optics_fixed", lambda on: contextlib.nullcontext())
     out = {"code": code, "spec": spec, "threads": args.threads, "batch": int(cfg.data.batch_size),
-           "image": int(cfg.data.image_size), "sensor": list(cfg.sensor.resolution)}
+           "image": int(cfg.data.image_size), "sensor": list(cfg.sensor.resolution),
+           "pixel_size_mm": float(cfg.sensor.pixel_size_mm), "device": str(device),
+           "dtype": str(module.lens.dtype).replace("torch.", "")}
     for label, step0 in (("optics train", first + 10), ("optics fixed", 0)):
         if label == "optics fixed" and first == 0:
             continue
         parts = {k: [] for k in ("capture", "deconv", "restorer", "backward", "step", "cpu")}
         for i in range(args.warmup + args.steps):
-            images = next(batches)["image"]
+            images = next(batches)["image"].to(device)
             step = step0 + i
+            if i == args.warmup and cuda:  # the peak over the timed steps only
+                torch.cuda.reset_peak_memory_stats(device)
+                base = torch.cuda.memory_allocated(device)
+            sync()
             t0, c0 = time.perf_counter(), time.process_time()
             # step_loss's parts, timed one by one (the same calls in the same order)
             if split:
                 depths = module.sample_depths(images.shape[0], step)
                 with fixed(step < first):
                     y, gt = module.capture(images, depths, seed=module.seed * 1_000_003 + step)
+                    sync()
                     t1 = time.perf_counter()
                     x = module.deconv(y) if module.deconv is not None else y
+                    sync()
                     t2 = time.perf_counter()
                 loss, *_ = module.restore_loss(depths, y, gt, x)
             else:
                 loss, *_ = module.step_loss(images, step)
                 t1 = t2 = t0
+            sync()
             t3 = time.perf_counter()
             module.zero_grad(set_to_none=True)
             loss.backward()
             if step < first:
                 for p in module.lens.parameters():
                     p.grad = None
+            sync()
             t4 = time.perf_counter()
             if i >= args.warmup:
                 for k, v in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0,
                                         time.process_time() - c0)):
                     parts[k].append(v)
         out[label] = {k: statistics.median(v) for k, v in parts.items()}
+        out[label]["loss"] = float(loss.detach())
+        if cuda:
+            out[label]["peak_mib"] = (torch.cuda.max_memory_allocated(device) - base) / 2 ** 20
         if not split:
             out[label].update(capture=None, deconv=None, restorer=None)
     return out
@@ -127,6 +154,7 @@ def main() -> None:
     ap.add_argument("--rows", nargs="*", default=DEFAULT_ROWS,
                     help='each "experiment|override|override..."')
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:1, ...")
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--warmup", type=int, default=2)
     ap.add_argument("--json", default=None)
@@ -139,7 +167,7 @@ def main() -> None:
         print(json.dumps(_child(args.one, args)))
         return
     results = []
-    print(f"training step, {args.threads} threads, median of {args.steps} steps after "
+    print(f"training step, {args.device}, {args.threads} threads, median of {args.steps} steps after "
           f"{args.warmup}; load average {os.getloadavg()[0]:.1f} at the start\n")
     print("| code | experiment and overrides | optics | capture s | deconv s | restorer s "
           "| backward s | step s | CPU s |")
@@ -148,7 +176,7 @@ def main() -> None:
     for spec, (name, code) in ((s, c) for s in args.rows for c in codes):
         cmd = [sys.executable, os.path.abspath(__file__), "--one", spec, "--threads",
                str(args.threads), "--steps", str(args.steps), "--warmup", str(args.warmup),
-               "--code", code]
+               "--code", code, "--device", args.device]
         env = dict(os.environ, OMP_NUM_THREADS=str(args.threads))
         r = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, check=False)
         if r.returncode != 0:

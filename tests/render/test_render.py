@@ -331,6 +331,48 @@ def test_decorrelated_adjoint_pairs_the_image_with_independent_jacobian_samples(
         MonteCarloRenderer(lens, sensor, adjoint=False, decorrelate=True)
 
 
+def _singlet_setup(device, seed_tex=2):
+    """The f ~ 50 mm singlet with its curvature, conic and sensor distance trainable, a 12 x 12
+    sensor, an RGB texture at 1 m and a fixed target, on ``device``."""
+    lens = singlet().to(device)
+    for p in (lens.surfaces[1].c, lens.surfaces[2].k, lens.d_sensor):
+        p.requires_grad_(True)
+    g = torch.Generator().manual_seed(seed_tex)
+    tex = torch.rand(3, 32, 32, generator=g, dtype=torch.float64).to(device)
+    target = torch.rand(1, 3, 12, 12, generator=g, dtype=torch.float64).to(device)
+    params = [p for p in lens.parameters() if p.requires_grad]
+    return lens, Sensor((12, 12), 0.02), Scene(tex, 1000.0), target, params
+
+
+def _loss_and_grads(device, adjoint, seed, spp=8):
+    lens, sensor, scene, target, params = _singlet_setup(device)
+    r = MonteCarloRenderer(lens, sensor, spp=spp, adjoint=adjoint, chunk_rays=200)
+    img = r(scene, seed=seed)
+    assert img.device.type == torch.device(device).type and bool(torch.isfinite(img).all())
+    loss = ((img - target) ** 2).sum()
+    grads = torch.autograd.grad(loss, params)
+    return torch.cat([loss.detach()[None], *[g.reshape(1) for g in grads]]).cpu()
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cuda_adjoint_render_equals_autograd_and_agrees_with_the_cpu():
+    """On CUDA the adjoint gradient equals plain autograd's for the same samples (float64: only
+    the order of the sums differs), and loss and gradients agree with the CPU's in expectation:
+    the CUDA generator draws other samples, so the means over 10 seeds per device must agree
+    within 6 standard errors of their difference (a chance failure ~1e-5 per value, t with 18
+    degrees of freedom)."""
+    a = _loss_and_grads("cuda", True, 7)
+    b = _loss_and_grads("cuda", False, 7)
+    assert torch.allclose(a, b, rtol=1e-10, atol=1e-14)
+    assert bool((a[1:].abs() > 0).all())
+    runs = {dev: torch.stack([_loss_and_grads(dev, True, off + k, spp=16) for k in range(10)])
+            for dev, off in (("cpu", 0), ("cuda", 1000))}
+    mean = {d: v.mean(0) for d, v in runs.items()}
+    se = torch.sqrt(sum(v.var(0) / v.shape[0] for v in runs.values()))
+    assert bool(((mean["cuda"] - mean["cpu"]).abs() <= 6 * se).all()), (mean, se)
+    assert bool((se < 0.25 * mean["cpu"].abs()).all())  # the comparison resolves every value
+
+
 @pytest.mark.parametrize("adjoint", [False, True])
 def test_image_gradient_matches_finite_difference(adjoint):
     lens = singlet()
