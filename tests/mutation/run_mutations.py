@@ -63,6 +63,7 @@ HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
 FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
 READ_IMAGE = ("tests/render/test_read_image_depth.py",)
 ATOMIC = ("tests/training/test_atomic_writes.py",)
+LENS2_FTYP3 = ("tests/optics/io/test_zmx_real_image_height.py",)
 RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
@@ -526,6 +527,10 @@ MUTATIONS = [
     Mutation("task_locks_twice", "the task locks the folder the callback holds (a run refuses "
              "itself)", "deeplens/training/train.py",
              "held = child or held_by_hydra(cfg.paths.output_dir)", "held = child", RUN_LOCK),
+    # issue 37 (lens files users have), second round
+    Mutation("ftyp3_no_step_back", "FTYP 3 solve gives up at a trial angle whose chief ray "
+             "fails instead of stepping back", "deeplens/optics/io/zmx_system.py",
+             "bad, t = t, 0.5 * (lo + t)", "bad, t = t, t", LENS2_FTYP3),
 ]
 
 
