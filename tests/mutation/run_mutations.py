@@ -64,6 +64,7 @@ FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
 READ_IMAGE = ("tests/render/test_read_image_depth.py",)
 ATOMIC = ("tests/training/test_atomic_writes.py",)
 LENS2_FTYP3 = ("tests/optics/io/test_zmx_real_image_height.py",)
+LENS2_GLASS = ("tests/optics/io/test_zmx_glass_rules.py",)
 RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
@@ -531,6 +532,15 @@ MUTATIONS = [
     Mutation("ftyp3_no_step_back", "FTYP 3 solve gives up at a trial angle whose chief ray "
              "fails instead of stepping back", "deeplens/optics/io/zmx_system.py",
              "bad, t = t, 0.5 * (lo + t)", "bad, t = t, t", LENS2_FTYP3),
+    Mutation("model_glass_preferred", "a named catalogue glass silently replaced by the model "
+             "glass of the GLAS line's (stale) n_d/V_d", "deeplens/optics/io/zmx_parse.py",
+             'if name.upper() == "___BLANK" or code == "1":',
+             'if name.upper() == "___BLANK" or code == "1" or model is not None:', LENS2_GLASS),
+    Mutation("glass_fallback_silent", "the model-glass fallback used without its warning",
+             "deeplens/optics/io/zmx_glass.py",
+             '        warnings.warn(p.warning(s.glass_line, f"glass {glass!r}{where}; using',
+             '        (lambda *a, **k: None)(p.warning(s.glass_line, f"glass {glass!r}{where}; '
+             'using', LENS2_GLASS),
 ]
 
 

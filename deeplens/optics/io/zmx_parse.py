@@ -139,15 +139,17 @@ class Locator:
         self.notes: list[tuple[int, str]] = []
         self.records = {r.line: r for r in records}
 
-    def error(self, ln, msg, surfaces=()) -> ZemaxFileError:
-        """The located error (not raised) of ``msg`` on line ``ln``."""
+    def error(self, ln, msg, surfaces=(), details=None) -> ZemaxFileError:
+        """The located error (not raised) of ``msg`` on line ``ln`` (``details``: the longer
+        explanation kept out of the one-line message)."""
         rec = self.records.get(ln) if ln else None
         return ZemaxFileError(msg, source=self.path, line=ln or None,
                               feature=None if rec is None else rec.key,
-                              surf=None if rec is None else rec.surf, surfaces=surfaces)
+                              surf=None if rec is None else rec.surf, surfaces=surfaces,
+                              details=details)
 
-    def fail(self, ln, msg, surfaces=()):
-        raise self.error(ln, msg, surfaces)
+    def fail(self, ln, msg, surfaces=(), details=None):
+        raise self.error(ln, msg, surfaces, details)
 
     def note(self, ln, msg):
         self.notes.append((ln, msg))
