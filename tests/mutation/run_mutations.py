@@ -65,6 +65,7 @@ READ_IMAGE = ("tests/render/test_read_image_depth.py",)
 ATOMIC = ("tests/training/test_atomic_writes.py",)
 LENS2_FTYP3 = ("tests/optics/io/test_zmx_real_image_height.py",)
 LENS2_GLASS = ("tests/optics/io/test_zmx_glass_rules.py",)
+LENS2_SETUPS = ("tests/optics/io/test_zmx_virtual_object.py",)
 RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
@@ -541,6 +542,11 @@ MUTATIONS = [
              '        warnings.warn(p.warning(s.glass_line, f"glass {glass!r}{where}; using',
              '        (lambda *a, **k: None)(p.warning(s.glass_line, f"glass {glass!r}{where}; '
              'using', LENS2_GLASS),
+    Mutation("virtual_object_launched_behind", "rays of a virtual object started on its plane "
+             "(behind the lens) instead of before the first surface",
+             "deeplens/optics/sampling.py",
+             "z0 = float(z_start) if virtual else max(float(z_start), z_obj)",
+             "z0 = max(float(z_start), z_obj)", LENS2_SETUPS),
 ]
 
 

@@ -224,9 +224,9 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     obj = r.check(data.get("object", {}), "object", "object")
     r.keys(obj, {"distance_mm", "medium", "telecentric"}, "object")
     obj_dist = r.get(obj, "distance_mm", "object", "number_or_inf", default=math.inf)
-    if not obj_dist > 0:
-        r.fail("object.distance_mm", f"the object distance must be > 0 mm (or \"inf\"), got "
-                                     f"{obj_dist!r}")
+    if not (obj_dist > 0 or obj_dist < 0):
+        r.fail("object.distance_mm", f"the object distance must be > 0 mm (or \"inf\"), or < 0 "
+                                     f"mm for a virtual object, got {obj_dist!r}")
     obj_medium = r.get(obj, "medium", "object", "str", default="AIR")
     telecentric = obj.get("telecentric", False)
     if not isinstance(telecentric, bool):
