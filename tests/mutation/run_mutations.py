@@ -547,6 +547,14 @@ MUTATIONS = [
              "deeplens/optics/sampling.py",
              "z0 = float(z_start) if virtual else max(float(z_start), z_obj)",
              "z0 = max(float(z_start), z_obj)", LENS2_SETUPS),
+    Mutation("sqap_ignored_off_asphere", "a rectangular clear aperture (SQAP) on a surface "
+             "other than an even asphere read but not clipped", "deeplens/optics/surfaces/base.py",
+             'rect = None if self._own_clear_rect else self._buffers.get("clear_rect")',
+             "rect = None", ("tests/optics/io/test_zmx_sqap_any_surface.py",)),
+    Mutation("xasphere_rn_power", "Extended Asphere term i divided by R_n^i instead of "
+             "R_n^(2i)", "deeplens/optics/io/zmx_surfaces.py",
+             "ai = v * s_mm / rn ** (2 * i)", "ai = v * s_mm / rn ** i",
+             ("tests/optics/io/test_zmx_xasphere.py",)),
 ]
 
 

@@ -257,12 +257,12 @@ def parse(path: Path):
             cur.type, cur.type_line = toks[1].upper(), ln
             if cur.type not in ("STANDARD", "EVENASPH", "ODDASPHE", "COORDBRK", "XYPOLYNOM",
                                 "PARAXIAL", "TOROIDAL", "DGRATING", "QED_TYPE", "BICONICX",
-                                "BINARY_2", "SZERNSAG"):
+                                "BINARY_2", "SZERNSAG", "XASPHERE"):
                 what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
                 p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
                            f"supported; deeplens reads STANDARD, EVENASPH, ODDASPHE, COORDBRK, "
                            f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE, BICONICX, "
-                           f"BINARY_2 and SZERNSAG")
+                           f"BINARY_2, SZERNSAG and XASPHERE")
         elif cur is not None and key == "CURV":
             cur.curv, cur.curv_line = p.arg(toks, 1, ln, "curvature"), ln
         elif cur is not None and key == "DISZ":
