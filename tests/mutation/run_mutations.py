@@ -547,6 +547,9 @@ MUTATIONS = [
              "deeplens/optics/sampling.py",
              "z0 = float(z_start) if virtual else max(float(z_start), z_obj)",
              "z0 = max(float(z_start), z_obj)", LENS2_SETUPS),
+    Mutation("virtual_object_wavefront_clamped", "the wavefront launch of a virtual object "
+             "started on the object plane (behind the lens)", "deeplens/analysis/wavefront.py",
+             "if s > 0:   # a virtual object", "if True:   # a virtual object", LENS2_SETUPS),
     Mutation("sqap_ignored_off_asphere", "a rectangular clear aperture (SQAP) on a surface "
              "other than an even asphere read but not clipped", "deeplens/optics/surfaces/base.py",
              'rect = None if self._own_clear_rect else self._buffers.get("clear_rect")',

@@ -92,3 +92,33 @@ def test_a_virtual_object_survives_both_file_formats(tmp_path):
     assert again.spec.object_distance_mm == pytest.approx(S_OBJ, abs=1e-12)
     assert float(paraxial(again).image_distance) == pytest.approx(
         float(paraxial(lens).image_distance), rel=1e-12)
+
+
+def test_the_wavefront_of_a_virtual_object_is_measured_from_it(tmp_path):
+    """Optical paths from a virtual object point are negative (the rays reach it after the
+    start plane): on axis at the paraxial image, the OPD is the lens's spherical aberration
+    alone, growing as the fourth power of the pupil (W040 y⁴); a reference on the wrong side
+    would leave a defocus growing as y²."""
+    from deeplens.analysis.wavefront import wavefront
+
+    rms = [float(wavefront(relay(tmp_path, aperture=f"ENPD {d}"), 0.0, n=16,
+                           image_plane="paraxial").rms) for d in (1.0, 2.0)]
+    assert rms[0] < 1e-3
+    assert rms[1] / rms[0] == pytest.approx(16.0, rel=0.02)
+
+
+@pytest.mark.parametrize("aim", ["paraxial", "stop"])
+def test_normalized_rays_of_a_virtual_object_start_before_the_lens(tmp_path, aim):
+    """normalized_rays (normalised field and pupil) launches the same way: before the first
+    surface, along lines through the virtual object point of its field."""
+    from deeplens.optics.normalized import normalized_rays
+
+    lens = relay(tmp_path)
+    z0 = float(lens.z_vertices()[0])
+    z_obj = z0 - S_OBJ
+    rays = normalized_rays(lens, (0.0, 1.0), [(0.0, 0.0), (0.0, 0.7), (0.5, -0.5)], aim=aim)
+    assert bool(rays.valid.all()) and bool((rays.o[:, 2] < z0).all())
+    t = (z_obj - rays.o[:, 2]) / rays.d[:, 2]
+    at = rays.o + t[:, None] * rays.d
+    assert at[:, 0].abs().max().item() < 1e-12          # one object point: x = 0 ...
+    assert (at[:, 1] - at[0, 1]).abs().max().item() < 1e-12   # ... and one height
