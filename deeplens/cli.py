@@ -109,6 +109,18 @@ def _add_lens_options(parser) -> None:
     g.add_argument("--scale", type=float, metavar="S",
                    help="multiply every length of the table by S (e.g. 10 for the Nikon patent "
                         "table in normalised units)")
+    z = parser.add_argument_group("Zemax files (.zmx)")
+    z.add_argument("--glass-catalog", action="append", metavar="PATH", dest="glass_catalog",
+                   help="a glass catalogue (.agf) to look glasses up in, answering for the GCAT "
+                        "name equal to its file stem (repeatable; also the DEEPLENS_GLASS_PATH "
+                        "environment variable: .agf files and folders, separated by "
+                        f"{os.pathsep!r})")
+    try:     # optimize has its own -v (every trial step); it shows these details too
+        z.add_argument("-v", "--verbose", action="store_true",
+                       help="with an error, print its details too (e.g. every glass catalogue "
+                            "searched)")
+    except argparse.ArgumentError:
+        pass
 
 
 def _load(args):
@@ -124,12 +136,25 @@ def _load(args):
         flags = ", ".join("--" + k.replace("_", "-") for k in opts)
         raise _UsageError(f"{flags} apply to the paper authors' .txt tables only; "
                           f"{args.lens} is not one")
+    catalogs = getattr(args, "glass_catalog", None)
+    if catalogs:
+        if Path(args.lens).suffix.lower() != ".zmx":
+            raise _UsageError(f"--glass-catalog applies to Zemax files (.zmx) only; {args.lens} "
+                              f"is not one")
+        missing = [c for c in catalogs if not Path(c).is_file()]
+        if missing:
+            raise _UsageError(f"--glass-catalog: no such file: {missing[0]}")
+        opts["glass_catalogs"] = list(catalogs)
     try:
         return load_lens(args.lens, **opts)
     except LensFileError as e:
         if e.key == "stop_index" and "stop_index" not in opts:
             raise _UsageError(f"{e}; on the command line: --stop-index I (e.g. --stop-index 0 "
                               f"for the first surface)") from None
+        details = getattr(e, "details", None)
+        if details:     # one line; the details with -v
+            e.args = (f"{e}\n  {details}" if getattr(args, "verbose", False)
+                      else f"{e} (-v: details)",)
         raise
 
 

@@ -143,7 +143,8 @@ def launch(lens, field_deg: float, wavelength_nm: float, xy: torch.Tensor,
         z_obj = lens.z_vertices()[0].to(f64) - s
         depth = zp - z_obj
         t = t0 + xy64 / depth
-        z_start = torch.maximum(z_start, z_obj)
+        if s > 0:   # a virtual object (s < 0) lies behind the start plane: the path is < 0
+            z_start = torch.maximum(z_start, z_obj)
         ratio = (z_start - z_obj) / depth
     ones = torch.ones_like(xy64[:, :1])
     o = torch.cat([xy64 + (z_start - zp) * t, z_start * ones], -1)

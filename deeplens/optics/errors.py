@@ -91,12 +91,17 @@ class ZemaxFileError(LensFileError):
             ``None``.
         surf: the file's surface number (``SURF n``) whose block holds that line, or ``None``.
         surfaces: deeplens' surface indices concerned (``()`` when none).
+        details: the longer explanation that is not part of the one-line message (e.g. every
+            glass catalogue searched for a glass not found), or ``None``; ``deeplens ... -v``
+            prints it.
     """
 
     def __init__(self, message: str, *, source=None, line: int | None = None,
-                 feature: str | None = None, surf: int | None = None, surfaces=()):
+                 feature: str | None = None, surf: int | None = None, surfaces=(),
+                 details: str | None = None):
         self.feature = feature
         self.surf = surf
+        self.details = details
         super().__init__(message, source=source, line=line, surfaces=surfaces)
 
 

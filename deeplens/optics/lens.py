@@ -56,7 +56,10 @@ class LensSpec:
     """How the lens is used: object distance, aperture, fields and wavelengths.
 
     Attributes:
-        object_distance_mm: distance from the object plane to the first vertex (``inf``).
+        object_distance_mm: distance from the object plane to the first vertex (``inf``); a
+            negative distance is a virtual object, ``|s|`` behind the first vertex (as in a
+            relay fed by a converging beam): object-space rays are aimed at it and start before
+            the first surface.
         aperture_type: ``"stop"`` (the stop's own semi-diameter), ``"epd"`` (entrance-pupil
             diameter, mm) or ``"fno"`` (image-space F-number at infinity).
         aperture_value: the value for ``"epd"``/``"fno"`` (ignored for ``"stop"``).
@@ -84,9 +87,11 @@ class LensSpec:
             if v is None or not (float(v) > 0 and math.isfinite(float(v))):
                 raise LensError(f"aperture {self.aperture_type}: value must be a positive number, "
                                 f"got {v!r}", key="aperture")
-        if not self.object_distance_mm > 0:
-            raise LensError(f"object distance must be > 0 mm (or inf), got "
-                            f"{self.object_distance_mm!r}", key="object_distance_mm")
+        s = self.object_distance_mm
+        if not (s > 0 or (s < 0 and math.isfinite(s))):
+            raise LensError(f"object distance must be > 0 mm (a real object; or inf) or < 0 mm "
+                            f"(a virtual object behind the first vertex), got {s!r}",
+                            key="object_distance_mm")
         if not len(self.fields_deg):
             raise LensError("at least one field angle is needed", key="fields_deg")
         for f in self.fields_deg:

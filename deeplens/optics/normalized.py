@@ -59,7 +59,7 @@ def _launch(lens, H, u, z_ep, theta_max):
         return P, tan, z0
     z_obj = float(lens.z_vertices()[0]) - s
     q = -tan * (z_ep - z_obj)                    # object points, (M, 2)
-    return P, (u - q) / (z_ep - z_obj), max(z0, z_obj)
+    return P, (u - q) / (z_ep - z_obj), (z0 if s < 0 else max(z0, z_obj))  # s < 0: virtual
 
 
 def _stop_xy(lens, P, tangents, z0, wavelength_nm):

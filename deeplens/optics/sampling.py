@@ -188,7 +188,7 @@ def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Ten
     z_obj = float(lens.z_vertices()[0]) - s
     Q = torch.tensor([0.0, -math.tan(th) * (float(z_pupil) - z_obj), z_obj],
                      dtype=torch.float64, device=device)
-    return rays_from_point(P, Q, start_plane_z(lens), wavelength_nm, dtype)
+    return rays_from_point(P, Q, start_plane_z(lens), wavelength_nm, dtype, virtual=s < 0)
 
 
 def _telecentric_rays(lens, th: float, wavelength_nm, pupil_xy: torch.Tensor, z_pupil: float,
@@ -229,12 +229,15 @@ def rays_from_tangents(P: torch.Tensor, tangents: torch.Tensor, z_start: float,
 
 
 def rays_from_point(P: torch.Tensor, Q: torch.Tensor, z_start: float, wavelength_nm,
-                    dtype) -> Rays:
+                    dtype, virtual: bool = False) -> Rays:
     """Rays from the object point ``Q`` ``(3,)`` through the points ``P`` ``(M, 3)`` (float64,
-    mm), started on the plane ``z = max(z_start, Q_z)`` (see :func:`rays_from_tangents`)."""
+    mm), started on the plane ``z = max(z_start, Q_z)`` (see :func:`rays_from_tangents`).
+    ``virtual``: ``Q`` is a virtual object behind the lens's first vertex; the rays travel
+    towards it along the same lines and start on ``z = z_start``."""
     z_obj = float(Q[2])
     tangents = (P[:, :2] - Q[:2]) / (P[:, 2:] - z_obj)
-    return rays_from_tangents(P, tangents, max(float(z_start), z_obj), wavelength_nm, dtype)
+    z0 = float(z_start) if virtual else max(float(z_start), z_obj)
+    return rays_from_tangents(P, tangents, z0, wavelength_nm, dtype)
 
 
 def entrance_pupil(lens):

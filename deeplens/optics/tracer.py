@@ -124,10 +124,10 @@ def fused_kind(lens, i: int):
         if float(s.obscuration) > 0 or s.decentred:
             return None   # an annular or decentred opening: eager
         return "stop_rect" if s.shape == "rect" else "stop"
-    if type(s) is Plane:
-        return "plane"
     if obscured(s):
         return None   # the fused kernels clip by the semi-diameter only: eager
+    if type(s) is Plane:
+        return "plane"
     if isinstance(s, Asphere) and s.is_quadric:
         return "quadric"
     if type(s).kernel_values is not Surface.kernel_values:  # the type has Newton kernels

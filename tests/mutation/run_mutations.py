@@ -63,6 +63,9 @@ HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
 FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
 READ_IMAGE = ("tests/render/test_read_image_depth.py",)
 ATOMIC = ("tests/training/test_atomic_writes.py",)
+LENS2_FTYP3 = ("tests/optics/io/test_zmx_real_image_height.py",)
+LENS2_GLASS = ("tests/optics/io/test_zmx_glass_rules.py",)
+LENS2_SETUPS = ("tests/optics/io/test_zmx_virtual_object.py",)
 RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
@@ -526,6 +529,35 @@ MUTATIONS = [
     Mutation("task_locks_twice", "the task locks the folder the callback holds (a run refuses "
              "itself)", "deeplens/training/train.py",
              "held = child or held_by_hydra(cfg.paths.output_dir)", "held = child", RUN_LOCK),
+    # issue 37 (lens files users have), second round
+    Mutation("ftyp3_no_step_back", "FTYP 3 solve gives up at a trial angle whose chief ray "
+             "fails instead of stepping back", "deeplens/optics/io/zmx_system.py",
+             "bad, t = t, 0.5 * (lo + t)", "bad, t = t, t", LENS2_FTYP3),
+    Mutation("model_glass_preferred", "a named catalogue glass silently replaced by the model "
+             "glass of the GLAS line's (stale) n_d/V_d", "deeplens/optics/io/zmx_parse.py",
+             'if name.upper() == "___BLANK" or code == "1":',
+             'if name.upper() == "___BLANK" or code == "1" or model is not None:', LENS2_GLASS),
+    Mutation("glass_fallback_silent", "the model-glass fallback used without its warning",
+             "deeplens/optics/io/zmx_glass.py",
+             '        warnings.warn(p.warning(s.glass_line, f"glass {glass!r}{where}; using',
+             '        (lambda *a, **k: None)(p.warning(s.glass_line, f"glass {glass!r}{where}; '
+             'using', LENS2_GLASS),
+    Mutation("virtual_object_launched_behind", "rays of a virtual object started on its plane "
+             "(behind the lens) instead of before the first surface",
+             "deeplens/optics/sampling.py",
+             "z0 = float(z_start) if virtual else max(float(z_start), z_obj)",
+             "z0 = max(float(z_start), z_obj)", LENS2_SETUPS),
+    Mutation("virtual_object_wavefront_clamped", "the wavefront launch of a virtual object "
+             "started on the object plane (behind the lens)", "deeplens/analysis/wavefront.py",
+             "if s > 0:   # a virtual object", "if True:   # a virtual object", LENS2_SETUPS),
+    Mutation("sqap_ignored_off_asphere", "a rectangular clear aperture (SQAP) on a surface "
+             "other than an even asphere read but not clipped", "deeplens/optics/surfaces/base.py",
+             'rect = None if self._own_clear_rect else self._buffers.get("clear_rect")',
+             "rect = None", ("tests/optics/io/test_zmx_sqap_any_surface.py",)),
+    Mutation("xasphere_rn_power", "Extended Asphere term i divided by R_n^i instead of "
+             "R_n^(2i)", "deeplens/optics/io/zmx_surfaces.py",
+             "ai = v * s_mm / rn ** (2 * i)", "ai = v * s_mm / rn ** i",
+             ("tests/optics/io/test_zmx_xasphere.py",)),
 ]
 
 

@@ -57,7 +57,8 @@ from pathlib import Path
 from ..errors import LensError, LensFileError
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
-from ..surfaces import SURFACE_TYPES
+from ..surfaces import SURFACE_TYPES, Aperture, Cylinder, IdealLens
+from ..surfaces.base import SagSurface, clear_rect_of, set_clear_rect
 from .atomic import replace, temp_path
 from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 from .filecheck import read_file_bytes
@@ -192,11 +193,25 @@ def _surface_from_dict(r: _Reader, s: dict, path: str):
         hint = f"; did you mean {close[0]!r}?" if close else ""
         r.fail(f"{path}.type", f"unknown surface type {kind!r}{hint} (known: "
                                f"{', '.join(sorted(SURFACE_TYPES))})")
-    r.keys(s, _COMMON_KEYS | set(cls.file_fields), path)
+    # a rectangular clear aperture (clear_rect_mm) on any sag surface whose type does not read
+    # it itself (set_clear_rect)
+    generic_rect = (issubclass(cls, SagSurface) and "clear_rect_mm" not in cls.file_fields
+                    and not issubclass(cls, (Aperture, Cylinder, IdealLens)))
+    r.keys(s, _COMMON_KEYS | set(cls.file_fields) | ({"clear_rect_mm"} if generic_rect else set()),
+           path)
     sd = r.get(s, "semi_diameter_mm", path)
     if not sd > 0:
         r.fail(f"{path}.semi_diameter_mm", f"must be > 0 mm, got {sd!r}")
-    return cls.from_dict(_Entry(r, s, path), sd)
+    surf = cls.from_dict(_Entry(r, s, path), sd)
+    if generic_rect and "clear_rect_mm" in s:
+        rect = r.get(s, "clear_rect_mm", path, "numbers")
+        try:
+            if len(rect) != 2:
+                raise ValueError(f"expected two half-widths (mm), got {rect!r}")
+            set_clear_rect(surf, rect)
+        except ValueError as e:
+            r.fail(f"{path}.clear_rect_mm", str(e))
+    return surf
 
 
 def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
@@ -224,9 +239,9 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     obj = r.check(data.get("object", {}), "object", "object")
     r.keys(obj, {"distance_mm", "medium", "telecentric"}, "object")
     obj_dist = r.get(obj, "distance_mm", "object", "number_or_inf", default=math.inf)
-    if not obj_dist > 0:
-        r.fail("object.distance_mm", f"the object distance must be > 0 mm (or \"inf\"), got "
-                                     f"{obj_dist!r}")
+    if not (obj_dist > 0 or obj_dist < 0):
+        r.fail("object.distance_mm", f"the object distance must be > 0 mm (or \"inf\"), or < 0 "
+                                     f"mm for a virtual object, got {obj_dist!r}")
     obj_medium = r.get(obj, "medium", "object", "str", default="AIR")
     telecentric = obj.get("telecentric", False)
     if not isinstance(telecentric, bool):
@@ -374,6 +389,9 @@ def lens_to_dict(lens: Lens) -> dict:
     surfaces = []
     for i, s in enumerate(lens.surfaces):
         d = s.to_dict()
+        rect = clear_rect_of(s)
+        if rect is not None and "clear_rect_mm" not in d:
+            d["clear_rect_mm"] = list(rect)
         d["distance_mm"] = float(lens.distances[i])
         d["material"] = "MIRROR" if i in lens.mirrors else lens.materials[i + 1].to_spec()
         surfaces.append(d)

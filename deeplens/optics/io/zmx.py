@@ -21,13 +21,17 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
     SZERNSAG   z = EVENASPH (PARM 1..8 on r², ..., r¹⁶) + Σ_j A_j Z_j(r / R_n, φ): Zernike
                standard terms in Noll's order (XDAT 1 = number of terms, XDAT 2 = R_n, XDAT 3.. =
                A_j; PARM 0 the extrapolate flag; a ZernikeSag)
+    XASPHERE   z = STANDARD + Σ_{i=1..N} α_i (r / R_n)^{2i} (Extended Asphere: XDAT 1 = N, XDAT 2 =
+               R_n, XDAT 3.. = α_1, α_2, ... in lens units; read up to ρ²⁰ as an Asphere, or an
+               OddAsphere with an r² term)
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 
 * ``UNIT`` (MM, CM, IN, METER) scales every length to mm; ``WAVM``/``WAVL`` are micrometres in the
   file and become nm; ``PWAV`` picks the primary wavelength; ``FTYP`` gives the field type and the
   number of active fields and wavelengths.
-* ``SURF 0`` is the object (its ``DISZ``, possibly ``INFINITY``, is the object distance), the last
+* ``SURF 0`` is the object (its ``DISZ``, possibly ``INFINITY``, is the object distance; a
+  negative one is a virtual object behind the first vertex), the last
   ``SURF`` the image (the gap before it is the sensor distance, its ``DIAM`` the sensor
   semi-diameter).  ``DIAM`` is a semi-diameter.  ``DISZ`` is the gap to the next vertex.
 * Aperture: ``ENPD`` -> ``epd``, ``FNUM v 0`` -> ``fno`` (image-space F-number at infinity),

@@ -1,17 +1,29 @@
 """The glass of a ``.zmx`` ``GLAS`` line: exact lookup in the catalogues the file names.
 
-Per catalogue on the ``GCAT`` line (all vendor catalogues if it names none): the user's ``.agf``
-of that name (it overrides), the current vendor catalogue (:mod:`.vendor_glass`), deeplens'
-built-in entries (:data:`BUILTIN_CATALOGUES`); then the named vendors' archived and previous
-catalogues; then, with a note, a vendor catalogue the file does not name (exact name only).
-``GLAS ___BLANK 1 0 n_d V_d`` (and ``GLAS NAME 1 0 n_d V_d``) is a model glass.  A glass not found
-is an error naming it and its line, unless the caller asked for a fallback.
+Order, when a name is in more than one place: per catalogue on the ``GCAT`` line (all vendor
+catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
+catalogue (:mod:`.vendor_glass`), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`); then
+the named vendors' archived and previous catalogues; then the user's other catalogues
+(``glass_catalogs``, then :data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue
+the file does not name (exact name only).
+
+A named glass found in a catalogue is that catalogue's glass, as in OpticStudio (its manual,
+"Using Material Catalogs": the name is looked for in the loaded catalogues and the glass's
+coefficients are used); the ``n_d``/``V_d`` columns of the line describe a model glass only
+(``GLAS ___BLANK 1 0 n_d V_d``, or ``GLAS NAME 1 0 n_d V_d``: the ``Model`` material solve), and
+OpticStudio leaves them stale on a catalogue glass's line.  A glass not found is a one-line
+error naming it, its line and the catalogue to give, unless the caller asked for a fallback,
+which is a located warning naming the values used.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import warnings
+from pathlib import Path
+
+import torch
 
 from ..materials import Air, Material, ModelGlass, get_material
 from .agf import GlassCatalogue, read_agf
@@ -20,8 +32,8 @@ from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PREVIOUS_CAT
                            previous_glass, vendor_glass)
 from .zmx_parse import Locator, ZmxSurface
 
-__all__ = ["BUILTIN_CATALOGUES", "load_catalogues", "surface_material", "resolve_glass",
-           "model_glass"]
+__all__ = ["BUILTIN_CATALOGUES", "GLASS_PATH_ENV", "glass_path_catalogues", "load_catalogues",
+           "surface_material", "resolve_glass", "model_glass"]
 
 # Which of deeplens' own catalogue entries answer for which Zemax catalogue name.
 BUILTIN_CATALOGUES = {
@@ -37,15 +49,50 @@ vendor catalogues of :mod:`.vendor_glass`)."""
 _PLACEHOLDER_ND_VD = (1.5, 40.0)
 
 
-def load_catalogues(path, gcat, glass_catalogs, p: Locator) -> dict[str, GlassCatalogue]:
-    """The user's catalogues by name: those passed (paths or :class:`~.agf.GlassCatalogue`), and
-    for each name on the ``GCAT`` line the caller did not pass, an ``.agf`` of that name next to
-    the ``.zmx`` (how OpticStudio's own folders are laid out, so ``deeplens report x.zmx`` finds
-    them).  The catalogues' own notes become the reader's."""
+#: the environment variable of the user's glass catalogues: ``.agf`` files and folders of them,
+#: separated by :data:`os.pathsep`
+GLASS_PATH_ENV = "DEEPLENS_GLASS_PATH"
+
+#: how the one-line refusal of a glass not found says where to give a catalogue
+_GIVE = "pass --glass-catalog {f}"
+
+
+def glass_path_catalogues(value: str | None = None) -> list[Path]:
+    """The ``.agf`` files of :data:`GLASS_PATH_ENV` (``value``: that variable's text, read from
+    the environment when ``None``): each entry a file, or a folder whose ``*.agf`` files (any
+    case of the suffix) are taken in name order.  An entry that does not exist is an error
+    naming it (a typo must not silently drop a catalogue)."""
+    if value is None:
+        value = os.environ.get(GLASS_PATH_ENV, "")
+    out = []
+    for entry in (e for e in value.split(os.pathsep) if e.strip()):
+        path = Path(entry).expanduser()
+        if path.is_dir():
+            out += sorted(f for f in path.iterdir()
+                          if f.suffix.lower() == ".agf" and f.is_file())
+        elif path.is_file():
+            out.append(path)
+        else:
+            raise FileNotFoundError(f"{GLASS_PATH_ENV}: {entry!r} is neither an .agf file nor a "
+                                    f"folder")
+    return out
+
+
+def load_catalogues(path, gcat, glass_catalogs, p: Locator,
+                    env: str | None = None) -> dict[str, GlassCatalogue]:
+    """The user's catalogues by name: those passed (paths or :class:`~.agf.GlassCatalogue`), then
+    those of :data:`GLASS_PATH_ENV` (``env``: its text, read from the environment when ``None``)
+    whose names were not passed, and for each name on the ``GCAT`` line still missing, an
+    ``.agf`` of that name next to the ``.zmx`` (how OpticStudio's own folders are laid out, so
+    ``deeplens report x.zmx`` finds them).  The catalogues' own notes become the reader's."""
     cats: dict[str, GlassCatalogue] = {}
     for c in glass_catalogs:
         cat = c if isinstance(c, GlassCatalogue) else read_agf(c)
-        cats[cat.name] = cat
+        cats.setdefault(cat.name, cat)
+    for f in glass_path_catalogues(env):
+        if f.stem.upper() not in cats:
+            cat = read_agf(f)
+            cats.setdefault(cat.name, cat)
     for name in gcat:
         if name not in cats:
             for f in sorted(path.parent.iterdir()):
@@ -64,39 +111,68 @@ def _builtin(glass: str) -> Material | None:
         return None
 
 
+def _nd_vd(m: Material) -> tuple[float, float]:
+    """``(n_d, V_d)`` of a material at the d, F and C lines."""
+    n = [float(m.n(torch.tensor(w, dtype=torch.float64))) for w in (587.5618, 486.1327, 656.2725)]
+    return n[0], (n[0] - 1.0) / (n[1] - n[2]) if n[1] != n[2] else math.inf
+
+
+def _checked(m: Material, glass: str, s: ZmxSurface, where: str, p: Locator) -> Material:
+    """The catalogue glass ``m`` found for a named ``GLAS`` line.  OpticStudio uses the
+    catalogue's data for a named glass; the ``n_d``/``V_d`` columns of the line matter only
+    for a model glass (a ``Model`` material solve), so they are never used here.  When they
+    disagree with the catalogue's (|Δn_d| > 1e-3, not OpticStudio's 1.5/40 placeholder nor
+    zeros) a located note says so: the file was written with another glass of that name."""
+    model = s.glass_model
+    if model is None or tuple(model) == _PLACEHOLDER_ND_VD or not model[0] > 1.0:
+        return m
+    try:
+        nd, vd = _nd_vd(m)
+    except (ValueError, RuntimeError):   # a catalogue glass not defined at the d line
+        return m
+    if abs(model[0] - nd) > 1e-3:
+        p.note(s.glass_line, f"glass {glass!r}: the GLAS line's n_d {model[0]:g}, V_d "
+                             f"{model[1]:g} differ from {where}'s n_d {nd:.6f}, V_d {vd:.2f}; "
+                             f"the catalogue glass is used (as OpticStudio does for a named "
+                             f"glass: the n_d/V_d columns describe only model glasses)")
+    return m
+
+
 def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                   stacklevel: int = 2):
     """The material of ``GLAS glass`` on ``s.glass_line``: exact lookup, in catalogue order.
 
     Per catalogue the file names on ``GCAT`` (all vendor catalogues if it names none): the
     user's ``.agf`` of that name (it overrides), the current vendor catalogue
-    (:mod:`.vendor_glass`), deeplens' built-in entries; then the previous (1983) vendor
-    catalogues of the named ones; then, with a warning, a vendor catalogue the file does not
-    name (exact name only).
+    (:mod:`.vendor_glass`), deeplens' built-in entries; then the archived and previous vendor
+    catalogues of the named ones; then the user's catalogues the file does not name (in the
+    order given: ``glass_catalogs``, then :data:`GLASS_PATH_ENV`); then, with a note, a shipped
+    vendor catalogue the file does not name (exact name only).  A glass found is the
+    catalogue's (the ``GLAS`` line's ``n_d``/``V_d`` are not used: :func:`_checked`).  A glass
+    not found is a one-line error (the catalogues searched are in its ``details``), or, when
+    the caller asked for a fallback, a located warning naming the glass and the values used.
     """
     searched = []
     named = list(gcat) if gcat else list(CURRENT_CATALOGUES) + ["MISC"]
-    # the user's catalogues answer for their own names; unnamed ones are searched last
-    order = named + [c for c in catalogues if c not in named]
-    for cat in order:
+    for cat in named:
         if cat in catalogues:
-            searched.append(f"{cat} (user catalogue {catalogues[cat].path.name}, "
+            searched.append(f"{cat} (user catalogue {catalogues[cat].path}, "
                             f"{len(catalogues[cat])} glasses)")
             m = catalogues[cat].get(glass)
             if m is not None:
-                return m
+                return _checked(m, glass, s, f"the user catalogue {cat}", p)
             continue
         if cat in CURRENT_CATALOGUES:
             searched.append(f"{cat} (current vendor catalogue, {catalogue_size(cat)} glasses)")
             m = vendor_glass(glass, cat)
             if m is not None:
-                return m
+                return _checked(m, glass, s, f"the {cat} catalogue", p)
         if cat in BUILTIN_CATALOGUES:
             searched.append(f"{cat} (deeplens built-in, {len(BUILTIN_CATALOGUES[cat])} glasses)")
             if glass in BUILTIN_CATALOGUES[cat]:
                 m = _builtin(glass)
                 if m is not None:
-                    return m
+                    return _checked(m, glass, s, f"deeplens' {cat} entry", p)
     # the named vendors' older catalogues, newest first:
     # (names answered, lookup, kind, what the catalogue is (with {n} glasses), why a use is noted)
     older = ((ARCHIVED_CATALOGUES, archived_glass, "archived",
@@ -114,7 +190,17 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                 if m is not None:
                     p.note(s.glass_line, f"glass {glass!r}: from the {kind} {cat} catalogue "
                                          f"({why.format(cat=cat)})")
-                    return m
+                    return _checked(m, glass, s, f"the {kind} {cat} catalogue", p)
+    # the user's catalogues the file does not name, in the order given
+    for cat in (c for c in catalogues if c not in named):
+        searched.append(f"{cat} (user catalogue {catalogues[cat].path}, "
+                        f"{len(catalogues[cat])} glasses)")
+        m = catalogues[cat].get(glass)
+        if m is not None:
+            p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
+                                 f"({', '.join(named)}); using the user catalogue {cat} "
+                                 f"({catalogues[cat].path}, exact name)")
+            return _checked(m, glass, s, f"the user catalogue {cat}", p)
     elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
     if elsewhere:
         cat = elsewhere[0].split()[0]
@@ -123,40 +209,50 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
              else vendor_glass(glass, cat))
         p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
                              f"({', '.join(named)}); using {elsewhere[0]} (exact name)")
-        return m
+        return _checked(m, glass, s, elsewhere[0], p)
     missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES
                and c not in CURRENT_CATALOGUES and c not in PREVIOUS_CATALOGUES]
-    hint = (f"; catalogue(s) {', '.join(missing)} named on the GCAT line are not shipped with "
-            f"deeplens and were not given: pass glass_catalogs=['{missing[0]}.agf', ...] or put "
-            f"{missing[0]}.agf next to the .zmx" if missing else "")
-    if fallback is not None:
-        if fallback == "model":
-            if s.glass_model is None or not s.glass_model[0] > 1.0:
-                p.fail(s.glass_line, f"glass {glass!r} not found, and the GLAS line has no usable "
-                                     f"n_d/V_d for the model-glass fallback")
-            if tuple(s.glass_model) == _PLACEHOLDER_ND_VD:
-                p.fail(s.glass_line, f"glass {glass!r} not found, and the GLAS line's n_d/V_d "
-                                     f"(1.5, 40) is OpticStudio's placeholder for a catalogue "
-                                     f"glass, not the glass's data: the model-glass fallback "
-                                     f"cannot use it{hint}")
-            m = model_glass(s, p)
-        else:
-            m = fallback if isinstance(fallback, Material) else get_material(str(fallback))
-        warnings.warn(p.warning(s.glass_line, f"glass {glass!r} not found in "
-                                              f"{'; '.join(searched) or 'any catalogue'}; using "
-                                              f"the requested fallback {m.name!r}"),
-                      stacklevel=stacklevel)
-        return m
+    give = (_GIVE.format(f=" or ".join(f"{c}.agf" for c in missing)) if missing
+            else "pass the vendor's .agf that has it with --glass-catalog")
+    where = (f" (catalogue {' or '.join(missing)}) is not shipped" if missing else
+             f" is not in the shipped {', '.join(named)} catalogue{'s' if len(named) > 1 else ''}")
     others = [c for c in CURRENT_CATALOGUES if c not in named]
     if others:
         searched.append(f"by exact name also {', '.join(others)} (current) and their archived "
                         f"and previous catalogues")
-    hint += _base_glass_hint(glass, s)
-    p.fail(s.glass_line, f"glass {glass!r} not found by exact name in the catalogues searched "
-                         f"({'; '.join(searched) or 'none'}){hint}; deeplens never substitutes "
-                         f"a similar glass: give the vendor's .agf (glass_catalogs=[...]) or ask "
-                         f"for a fallback (glass_fallback='model' uses the n_d/V_d on the GLAS "
-                         f"line)")
+    details = (f"catalogues searched by exact name: {'; '.join(searched) or 'none'}"
+               f"{_base_glass_hint(glass, s)}.  deeplens never substitutes a similar glass.  "
+               f"A catalogue is given by --glass-catalog PATH (repeatable), read_zmx(..., "
+               f"glass_catalogs=[PATH, ...]), the {GLASS_PATH_ENV} environment variable (.agf "
+               f"files and folders, separated by {os.pathsep!r}) or as NAME.agf next to the "
+               f".zmx; glass_fallback='model' uses the n_d/V_d on the GLAS line instead")
+    if fallback is not None:
+        if fallback == "model":
+            if s.glass_model is None or not s.glass_model[0] > 1.0:
+                p.fail(s.glass_line, f"glass {glass!r}{where}, and the GLAS line has no usable "
+                                     f"n_d/V_d for the model-glass fallback; {give}",
+                       details=details)
+            if tuple(s.glass_model) == _PLACEHOLDER_ND_VD:
+                p.fail(s.glass_line, f"glass {glass!r}{where}, and the GLAS line's n_d/V_d "
+                                     f"(1.5, 40) is OpticStudio's placeholder for a catalogue "
+                                     f"glass, not the glass's data: the model-glass fallback "
+                                     f"cannot use it; {give}", details=details)
+            m = model_glass(s, p)
+            used = (f"the GLAS line's model values n_d {s.glass_model[0]:g}, V_d "
+                    f"{s.glass_model[1]:g} (OpticStudio does not update these for a catalogue "
+                    f"glass: they may be stale)")
+        else:
+            m = fallback if isinstance(fallback, Material) else get_material(str(fallback))
+            try:
+                nd, vd = _nd_vd(m)
+                used = f"the requested fallback {m.name!r} (n_d {nd:.6g}, V_d {vd:.4g})"
+            except (ValueError, RuntimeError):
+                used = f"the requested fallback {m.name!r}"
+        warnings.warn(p.warning(s.glass_line, f"glass {glass!r}{where}; using {used}; for the "
+                                              f"glass itself {give}"),
+                      stacklevel=stacklevel)
+        return m
+    p.fail(s.glass_line, f"glass {glass!r}{where}; {give}", details=details)
 
 
 def _base_glass_hint(glass: str, s: ZmxSurface) -> str:

@@ -139,15 +139,17 @@ class Locator:
         self.notes: list[tuple[int, str]] = []
         self.records = {r.line: r for r in records}
 
-    def error(self, ln, msg, surfaces=()) -> ZemaxFileError:
-        """The located error (not raised) of ``msg`` on line ``ln``."""
+    def error(self, ln, msg, surfaces=(), details=None) -> ZemaxFileError:
+        """The located error (not raised) of ``msg`` on line ``ln`` (``details``: the longer
+        explanation kept out of the one-line message)."""
         rec = self.records.get(ln) if ln else None
         return ZemaxFileError(msg, source=self.path, line=ln or None,
                               feature=None if rec is None else rec.key,
-                              surf=None if rec is None else rec.surf, surfaces=surfaces)
+                              surf=None if rec is None else rec.surf, surfaces=surfaces,
+                              details=details)
 
-    def fail(self, ln, msg, surfaces=()):
-        raise self.error(ln, msg, surfaces)
+    def fail(self, ln, msg, surfaces=(), details=None):
+        raise self.error(ln, msg, surfaces, details)
 
     def note(self, ln, msg):
         self.notes.append((ln, msg))
@@ -255,12 +257,12 @@ def parse(path: Path):
             cur.type, cur.type_line = toks[1].upper(), ln
             if cur.type not in ("STANDARD", "EVENASPH", "ODDASPHE", "COORDBRK", "XYPOLYNOM",
                                 "PARAXIAL", "TOROIDAL", "DGRATING", "QED_TYPE", "BICONICX",
-                                "BINARY_2", "SZERNSAG"):
+                                "BINARY_2", "SZERNSAG", "XASPHERE"):
                 what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
                 p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
                            f"supported; deeplens reads STANDARD, EVENASPH, ODDASPHE, COORDBRK, "
                            f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE, BICONICX, "
-                           f"BINARY_2 and SZERNSAG")
+                           f"BINARY_2, SZERNSAG and XASPHERE")
         elif cur is not None and key == "CURV":
             cur.curv, cur.curv_line = p.arg(toks, 1, ln, "curvature"), ln
         elif cur is not None and key == "DISZ":

@@ -289,9 +289,10 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     if obj.type != "STANDARD" or obj.curv != 0:
         p.fail(obj.line, "the object surface (SURF 0) must be a flat STANDARD surface")
     obj_dist = obj.disz * (1 if math.isinf(obj.disz) else s_mm)
-    if not obj_dist > 0:
-        p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be > 0 or "
-                                          f"INFINITY, got {obj.disz!r}")
+    if not (obj_dist > 0 or (obj_dist < 0 and math.isfinite(obj_dist))):
+        p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be > 0, "
+                                          f"< 0 (a virtual object) or INFINITY, got "
+                                          f"{obj.disz!r}")
     obj_medium = surface_material(obj, gcat, cats, glass_fallback, p, 4)
     media = [obj_medium]
     kept = []            # (surface module, material after, zmx surf, gap before it in mm)

@@ -10,7 +10,9 @@ radius of rotation), ``BICONICX`` -> :class:`~deeplens.optics.surfaces.Biconic`,
 :class:`~deeplens.optics.surfaces.Grating`, ``BINARY_2`` ->
 :class:`~deeplens.optics.surfaces.Binary2`, ``XYPOLYNOM`` ->
 :class:`~deeplens.optics.surfaces.XYPolynomial`, ``SZERNSAG`` ->
-:class:`~deeplens.optics.surfaces.ZernikeSag`; a flat surface between one medium, not the stop,
+:class:`~deeplens.optics.surfaces.ZernikeSag`, ``XASPHERE`` -> :class:`~deeplens.optics.surfaces.Asphere`
+(or :class:`~deeplens.optics.surfaces.OddAsphere` with a ρ² term); ``SQAP`` on any of these (a
+rectangular clear aperture, :func:`~deeplens.optics.surfaces.base.set_clear_rect}); a flat surface between one medium, not the stop,
 with no fixed aperture is a dummy (its thickness only).  Lengths are scaled from file units to
 mm here (``s_mm``); errors are raised through the reader's :class:`~.zmx_parse.Locator`.
 """
@@ -25,6 +27,7 @@ from ..errors import ZemaxFileError
 from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, Cylinder, Grating, IdealLens,
                         OddAsphere, Plane, QType, Toroid, XYPolynomial, ZernikeSag)
+from ..surfaces.base import SagSurface, clear_rect_of, set_clear_rect
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
@@ -91,6 +94,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             surf = _qtype(s, k, c, sd_build, s_mm, p)
         elif s.type == "SZERNSAG":
             surf = _zernike_sag(s, k, c, sd_build, s_mm, p)
+        elif s.type == "XASPHERE":
+            surf = _xasphere(s, k, c, sd_build, s_mm, p)
         elif s.type == "PARAXIAL":
             surf = _paraxial_surface(s, k, mat, prev, sd_build, s_mm, p)
         elif s.type == "TOROIDAL":
@@ -118,18 +123,20 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         raise   # already located (a helper's p.fail): not located twice
     except ValueError as e:
         p.fail(s.type_line or s.line, f"SURF {k}: {e}")
-    if s.sqap is not None and type(surf) is Asphere and s.clap is None and s.obsc is None:
-        # a rectangular opening of a lens or mirror surface (an off-axis mirror's, with OBDC):
-        # the rectangle, within its circumscribed circle; the semi-diameter encloses it
+    if (s.sqap is not None and isinstance(surf, SagSurface) and s.clap is None
+            and s.obsc is None and not isinstance(surf, (Aperture, Cylinder, IdealLens))):
+        # a rectangular opening of a lens or mirror surface of any sag type (an off-axis
+        # mirror's, with OBDC): the rectangle, within its circumscribed circle; the
+        # semi-diameter encloses it
         hx, hy = s.sqap[0] * s_mm, s.sqap[1] * s_mm
         if s.stop:
             p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture stop on a lens or "
                               f"mirror surface is not supported (deeplens' stops are circular "
                               f"there)")
-        with torch.no_grad():
-            surf.clear_rect.copy_(torch.tensor([hx, hy], dtype=torch.float64))
-            surf.clear_radius.fill_(math.hypot(hx, hy))
-            surf.semi_diameter.fill_(math.hypot(hx, hy))
+        try:
+            set_clear_rect(surf, (hx, hy))
+        except ValueError as e:
+            p.fail(s.sqap[2], f"SQAP on SURF {k}: {e}")
         auto = False
     if s.obdc is not None:   # the decenter of the opening (not on the stop)
         dec = _aperture_decenter(s, k, surf, s_mm, p)
@@ -164,13 +171,13 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                           f"own flat dummy surface where that is equivalent)")
     if s.sqap is not None and not (isinstance(surf, Cylinder) or (
             isinstance(surf, Aperture) and surf.shape == "rect") or (
-            type(surf) is Asphere and bool(surf.clear_rect.any()))):
+            clear_rect_of(surf) is not None)):
         extra = (" with a CLAP" if s.clap is not None else
                  " with an OBSC" if s.obsc is not None else "")
         p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture on a "
                           f"{type(surf).__name__} surface{extra} is not supported (deeplens has "
                           f"rectangular apertures on flat stops in air, on cylinders, and alone "
-                          f"(no CLAP or OBSC) on a STANDARD or EVENASPH lens or mirror surface)")
+                          f"(no CLAP or OBSC) on any other lens or mirror surface)")
     if auto and isinstance(surf, Aperture) and surf.shape == "rect":
         auto = False   # its semi-diameter is the rectangle's half-diagonal
     return surf, auto
@@ -446,3 +453,57 @@ def _xypolynom(s: ZmxSurface, c, sd, s_mm, p: Locator):
         coeffs.append(a * s_mm / R ** (px + py))
     return XYPolynomial(sd, coeffs)
 
+
+
+#: the most terms of OpticStudio's Extended Asphere (XDAT 1), and the most deeplens reads: its
+#: even asphere holds r² .. r²⁰ (:data:`~deeplens.optics.surfaces.asphere.MAX_ASPHERE_ORDER`)
+XASPHERE_MAX_TERMS, XASPHERE_READ_TERMS = 240, 10
+
+
+def _xasphere(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``XASPHERE`` (OpticStudio's "Extended Asphere"): the STANDARD sag (``CURV``, ``CONI``)
+    plus ``Σ_{i=1..N} α_i ρ^{2i}``, ``ρ = r / R_n``, the coefficients ``α_i`` in lens units:
+    ``XDAT 1`` the maximum term number ``N`` (<= 240), ``XDAT 2`` the normalisation radius
+    ``R_n``, ``XDAT 3..`` ``α_1`` (on ρ²), ``α_2`` (on ρ⁴), ... (OpticStudio User Guide,
+    "Extended Asphere": the even asphere's series in a normalised radial coordinate, even
+    powers only).  The same surface as an even asphere: ``a_{2i} = α_i / R_n^{2i}`` (mm), an
+    :class:`Asphere` (an :class:`OddAsphere` with its odd terms zero when ``α_1`` != 0).
+    Terms up to ρ²⁰ (10) are read; a non-zero one beyond is refused with its line."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if v != 0:
+            p.fail(ln, f"SURF {k}: XASPHERE PARM {i} is not read (the Extended Asphere's data "
+                       f"are XDAT 1 the number of terms, XDAT 2 the normalisation radius, XDAT "
+                       f"3.. the coefficients on ρ², ρ⁴, ...)")
+    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= XASPHERE_MAX_TERMS:
+        p.fail(n_ln, f"SURF {k}: XASPHERE XDAT 1 (the maximum term number) must be an integer "
+                     f"0..{XASPHERE_MAX_TERMS}, got {n_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if (j > n + 2 or j < 1) and v != 0:
+            p.fail(ln, f"SURF {k}: XASPHERE XDAT {j} lies beyond the {n} terms XDAT 1 declares")
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    alpha = [(s.xdat.get(i + 2, (0.0, 0))[0], s.xdat.get(i + 2, (0.0, rn_ln))[1])
+             for i in range(1, n + 1)]
+    while alpha and alpha[-1][0] == 0.0:
+        alpha.pop()
+    if alpha and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: XASPHERE XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    if len(alpha) > XASPHERE_READ_TERMS:
+        p.fail(alpha[-1][1], f"SURF {k}: XASPHERE term {len(alpha)} (on ρ^{2 * len(alpha)}) is "
+                             f"not supported: deeplens' even asphere holds terms up to ρ²⁰ "
+                             f"({XASPHERE_READ_TERMS} terms)")
+    rn = rn_v * s_mm
+    a = []   # a_{2i}, mm^(1-2i)
+    for i, (v, ln) in enumerate(alpha, 1):
+        ai = v * s_mm / rn ** (2 * i)
+        if v != 0 and not (math.isfinite(ai) and ai != 0.0):
+            p.fail(ln, f"SURF {k}: XASPHERE term {i}: {v!r} / R_n^{2 * i} (R_n = {rn:g} mm) is "
+                       f"not representable as an even-asphere coefficient")
+        a.append(ai)
+    if a and a[0] != 0.0:   # a ρ² term: the odd asphere's r² slot, odd powers zero
+        radial = [0.0] * (2 * len(a))
+        radial[1::2] = a
+        return OddAsphere(c, sd, conic=s.coni, coefficients=radial)
+    return Asphere(c, sd, conic=s.coni, coefficients=a[1:])

@@ -3,7 +3,7 @@ r"""First-order quantities of a lens read from a ``.zmx`` file, computed on the 
 * apertures given other than as an entrance-pupil diameter (object-space NA or cone angle, the
   paraxial working F-number) -> the EPD they define (:func:`aperture_to_epd`);
 * field types -> field angles (:func:`fields_to_angles`): object heights, paraxial and real
-  image heights (the chief ray solved by secant iterations, :func:`real_image_height_angle`);
+  image heights (the chief ray bracketed and solved, :func:`real_image_height_angle`);
 * OpticStudio's coordinate-break tilts ``R = R_x R_y R_z`` <-> deeplens' ``R_y R_x`` for a
   rotationally symmetric element (:func:`element_tilts`, :func:`zemax_tilts`);
 * the pupil convention the file's ``RAIM`` line asks for (:func:`lens_pupil_convention`).
@@ -85,25 +85,75 @@ def chief_height(lens, field_deg: float) -> float:
 
 
 def real_image_height_angle(lens, h: float, line: int, p) -> float:
-    """The field angle (deg, > 0) whose chief ray lands at real image height ``h`` (mm, > 0):
-    secant iterations from the paraxial estimate."""
+    """The field angle (deg, > 0) whose chief ray lands at real image height ``h`` (mm, > 0).
+
+    The root of ``g(θ) = |y_chief(θ)| - h`` is bracketed first: the axis (``θ = 0``, height 0)
+    is the lower end, the first trial is the paraxial estimate ``h / slope``.  A trial whose
+    chief ray fails (``NaN``: it misses a surface or is totally reflected, as far-off-axis rays
+    of a wide-angle lens do beyond its field) is stepped back by bisection between the last
+    good angle and the failing one; a trial still short of ``h`` steps forward by the scaling
+    estimate (never past half-way to the smallest failing angle).  Inside the bracket,
+    regula falsi (the Illinois variant), falling back to bisection where a trial fails."""
     t0 = 1e-3
     slope = abs(chief_height(lens, t0)) / t0
     if not slope > 0:
         p.fail(line, "FTYP 3 (real image height): the chief ray does not reach the image")
-    a = min(h / slope, 89.0)
-    b = a * 1.001
-    ga, gb = abs(chief_height(lens, a)) - h, abs(chief_height(lens, b)) - h
-    for _ in range(60):
-        if not (math.isfinite(ga) and math.isfinite(gb)) or gb == ga:
+    tol = 1e-12 * max(1.0, h)
+
+    def g(theta: float) -> float:
+        return abs(chief_height(lens, theta)) - h
+
+    lo, glo = 0.0, -h          # below the height: the axis images at 0
+    bad = 90.0                 # the smallest angle known to fail (90 deg never reaches)
+    hi = ghi = None
+    t = min(h / slope, 89.0)
+    for _ in range(200):
+        gt = g(t)
+        if not math.isfinite(gt):
+            bad, t = t, 0.5 * (lo + t)              # step back
+        elif abs(gt) <= tol:
+            return t
+        elif gt < 0:
+            lo, glo = t, gt                         # step forward
+            t = min(max(lo * h / (glo + h), 1.05 * lo), 0.5 * (lo + bad))
+        else:
+            hi, ghi = t, gt
             break
-        a, b, ga = b, b - gb * (b - a) / (gb - ga), gb
-        b = min(max(b, 1e-9), 89.9)
-        gb = abs(chief_height(lens, b)) - h
-        if abs(gb) <= 1e-12 * max(1.0, h):
-            return b
-    p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height {h:g} mm (the "
-                 f"field lies beyond what the lens images)")
+        if bad - lo <= 1e-12 * bad:
+            break
+    if hi is None:
+        p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height {h:g} mm "
+                     f"(the field lies beyond what the lens images: the chief ray of {lo:.6g} deg "
+                     f"lands at {glo + h:.6g} mm; from {bad:.6g} deg on it misses a surface or "
+                     f"is totally reflected)")
+    side = 0
+    for _ in range(200):
+        if math.isfinite(ghi):
+            t = (lo * ghi - hi * glo) / (ghi - glo)
+            if not lo < t < hi:
+                t = 0.5 * (lo + hi)
+        else:
+            t = 0.5 * (lo + hi)
+        gt = g(t)
+        if not math.isfinite(gt):
+            hi, ghi, side = t, math.inf, 0          # a failing angle inside: bisect below it
+        elif abs(gt) <= tol:
+            return t
+        elif gt < 0:
+            lo, glo = t, gt
+            if side == -1 and math.isfinite(ghi):
+                ghi *= 0.5                          # Illinois: keep the far end moving
+            side = -1
+        else:
+            hi, ghi = t, gt
+            if side == 1:
+                glo *= 0.5
+            side = 1
+        if hi - lo <= 1e-13 * hi:
+            break
+    if math.isfinite(ghi) and abs(ghi) < abs(glo):
+        return hi
+    return lo
 
 
 def rotationally_symmetric(surf) -> bool:

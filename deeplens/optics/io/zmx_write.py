@@ -248,6 +248,18 @@ def _opening_records(s, i: int) -> list[str]:
     return out
 
 def _surface_lines(s, i, is_stop) -> list[str]:
+    """The records of surface ``i`` after its ``SURF`` line, with the ``SQAP`` of a rectangular
+    clear aperture on a type whose own records do not write it (:func:`set_clear_rect`)."""
+    from ..surfaces.base import clear_rect_of
+
+    lines = _type_lines(s, i, is_stop)
+    rect = clear_rect_of(s)
+    if rect is not None and not any(ln.startswith("SQAP") for ln in lines):
+        lines.append(f"SQAP {_f(rect[0])} {_f(rect[1])} 0")
+    return lines
+
+
+def _type_lines(s, i, is_stop) -> list[str]:
     from ..surfaces import BSpline
 
     lines = ["STOP"] if is_stop else []
@@ -319,9 +331,12 @@ def _surface_lines(s, i, is_stop) -> list[str]:
         return lines + ["TYPE STANDARD", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
     if isinstance(s, Asphere):
         a = [float(v) for v in s.a]
-        if len(a) > 7:
-            raise ZemaxFileError(f"surface {i}: {len(a)} aspheric terms; Zemax's EVENASPH holds "
-                                 f"a4..a16 (7 terms)", surfaces=(i,))
+        if len(a) > 7:   # beyond EVENASPH's a16: OpticStudio's Extended Asphere, R_n = 1 mm
+            lines += ["TYPE XASPHERE", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
+                      f"XDAT 1 {len(a) + 1}", "XDAT 2 1", "XDAT 3 0"]
+            lines += [f"XDAT {k + 4} {_f(v)}" for k, v in enumerate(a)]
+            lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+            return lines + _opening_records(s, i)
         lines += ["TYPE EVENASPH" if a else "TYPE STANDARD", f"CURV {_f(s.c)}",
                   f"CONI {_f(s.k)}"]
         if a:

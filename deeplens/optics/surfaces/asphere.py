@@ -166,6 +166,8 @@ class Asphere(SagSurface):
     Each value is its own parameter: ``surface.c``, ``surface.k``, ``surface.a[0]`` (= a4), ...
     """
 
+    _own_clear_rect = True   # in_aperture below applies clear_rect with the clear circle
+
     def __init__(self, curvature: float, semi_diameter: float, conic: float = 0.0,
                  coefficients=(), obscuration: float = 0.0, clear_radius: float = math.inf,
                  clear_decenter: tuple[float, float] = (0.0, 0.0), clear_rect=None):

@@ -32,7 +32,8 @@ from torch import nn
 
 from ..refract import unit_normal
 
-__all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface"]
+__all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface",
+           "set_clear_rect", "clear_rect_of"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
 #: at import and read by the lens-file reader and writer (never changed afterwards)
@@ -161,8 +162,22 @@ class Surface(nn.Module):
 class SagSurface(Surface):
     """A surface given by a height ``z = sag(x, y)``; ``f = sag - z``.
 
-    Subclasses implement ``sag`` and ``sag_grad`` (returning ``(∂z/∂x, ∂z/∂y)``).
+    Subclasses implement ``sag`` and ``sag_grad`` (returning ``(∂z/∂x, ∂z/∂y)``).  Any sag
+    surface can carry a rectangular clear aperture (:func:`set_clear_rect`: Zemax's ``SQAP``),
+    which :meth:`in_aperture` applies with the semi-diameter's circle.
     """
+
+    #: the type applies ``clear_rect`` in its own :meth:`in_aperture` (the even asphere family)
+    _own_clear_rect = False
+
+    def in_aperture(self, x, y):
+        inside = super().in_aperture(x, y)
+        rect = None if self._own_clear_rect else self._buffers.get("clear_rect")
+        if rect is not None and bool(rect.any()):
+            dec = self._buffers["clear_decenter"]
+            u, v = x - dec[0].to(x), y - dec[1].to(x)
+            inside = inside & (u.abs() <= rect[0].to(x)) & (v.abs() <= rect[1].to(x))
+        return inside
 
     def sag_grad(self, x, y):
         raise NotImplementedError
@@ -173,3 +188,40 @@ class SagSurface(Surface):
     def f_grad(self, x, y, z):
         sx, sy = self.sag_grad(x, y)
         return sx, sy, -torch.ones_like(z)
+
+
+def set_clear_rect(surface: SagSurface, half_widths) -> None:
+    """Give ``surface`` a rectangular clear aperture of half-widths ``(h_x, h_y)`` (mm) about its
+    vertex (Zemax's ``SQAP`` on a lens or mirror surface of any type): rays meeting it at
+    ``|x| > h_x`` or ``|y| > h_y`` are blocked.  The opening is the rectangle within its
+    circumscribed circle: the clear radius and the semi-diameter become the half-diagonal.
+    Fixed buffers, not saved in ``state_dict`` (they come with the lens file,
+    ``clear_rect_mm``); a surface with one traces on the generic (eager) path, whose clipping
+    asks the surface."""
+    if not isinstance(surface, SagSurface):
+        raise TypeError(f"a rectangular clear aperture needs a sag surface, got "
+                        f"{type(surface).__name__}")
+    hx, hy = (float(v) for v in half_widths)
+    if not (0 < hx < math.inf and 0 < hy < math.inf):
+        raise ValueError(f"{type(surface).__name__}: clear_rect must be two half-widths > 0 mm, "
+                         f"got {half_widths!r}")
+    rect = torch.tensor([hx, hy], dtype=torch.float64)
+    diag = math.hypot(hx, hy)
+    with torch.no_grad():
+        for name, value in (("clear_rect", rect), ("clear_radius", torch.tensor(diag,
+                            dtype=torch.float64)), ("clear_decenter", torch.zeros(2,
+                            dtype=torch.float64))):
+            if name in surface._buffers:
+                if name != "clear_decenter":
+                    surface._buffers[name].copy_(value)
+            else:
+                surface.register_buffer(name, value, persistent=False)
+        surface.semi_diameter.fill_(diag)
+
+
+def clear_rect_of(surface) -> tuple[float, float] | None:
+    """The half-widths (mm) of ``surface``'s rectangular clear aperture, or ``None``."""
+    rect = getattr(surface, "_buffers", {}).get("clear_rect")
+    if rect is None or not bool(rect.any()):
+        return None
+    return float(rect[0]), float(rect[1])

@@ -319,7 +319,7 @@ BAD = [
      r"aperture\.value: missing required field"),
     ("aperture value negative", _set({"type": "fno", "value": -2.0}, "aperture"),
      r"aperture\.value: the fno must be > 0, got -2\.0"),
-    ("object distance negative", _set(-100.0, "object", "distance_mm"),
+    ("object distance zero", _set(0.0, "object", "distance_mm"),
      r"object\.distance_mm: the object distance must be > 0 mm"),
     ("object distance string", _set("far", "object", "distance_mm"),
      r"object\.distance_mm: expected a finite number or \"inf\", got 'far'"),

@@ -249,12 +249,12 @@ def test_report_prints_numbers(tmp_path):
 @pytest.mark.parametrize("extra,needle,what", [
     (("PARM 3 0.5",), "PARM 3 0.5", r"BICONICX PARM 3 is not read"),
     (("XDAT 1 2",), "XDAT 1 2", r"BICONICX XDAT 1 is not read"),
-    (("SQAP 3 2 0",), "SQAP 3 2 0", r"SQAP on SURF 2: a rectangular aperture on a Biconic"),
     (("OBSC 0 1 0",), "OBSC 0 1 0", r"OBSC, a central obscuration on a lens surface"),
 ])
 def test_what_a_biconic_lacks_is_refused_with_its_line(tmp_path, extra, needle, what):
     """A PARM beyond 2 (OpticStudio's biconic has PARM 1 and 2 only; a Biconic Zernike's terms),
-    extra data, a rectangular aperture or an obscuration on it: one error naming file and line.
+    extra data or an obscuration on it: one error naming file and line (a rectangular aperture
+    is read: tests/optics/io/test_zmx_sqap_any_surface.py).
     Zero-valued PARM lines (OpticStudio writes them) are accepted."""
     text = biconic_file(extra=extra)
     p = write(tmp_path, text)

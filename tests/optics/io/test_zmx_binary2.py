@@ -137,12 +137,17 @@ def test_odd_data_is_refused_with_its_line(tmp_path, body, needle, match):
     assert str(p) in str(e.value)
 
 
-def test_a_rectangular_aperture_on_a_binary2_is_refused_with_its_line(tmp_path):
+def test_a_rectangular_aperture_on_a_binary2_is_its_clear_aperture(tmp_path):
+    """SQAP on any lens surface (tests/optics/io/test_zmx_sqap_any_surface.py): on a BINARY_2
+    too, kept by the .zmx writer."""
+    from deeplens.optics.surfaces.base import clear_rect_of
+
     text = binary2_file(extra=("SQAP 3 2 0",))
-    p = write(tmp_path, text)
-    with pytest.raises(ZemaxFileError) as e:
-        read_zmx(p)
-    assert e.value.line == line_of(text, "SQAP")
+    lens = read_zmx(write(tmp_path, text))
+    i = next(j for j, s in enumerate(lens.surfaces) if clear_rect_of(s) is not None)
+    assert clear_rect_of(lens.surfaces[i]) == (3.0, 2.0)
+    write_zmx(lens, tmp_path / "out.zmx")
+    assert clear_rect_of(read_zmx(tmp_path / "out.zmx").surfaces[i]) == (3.0, 2.0)
 
 
 def test_report_on_a_refused_binary2_prints_one_located_line(tmp_path, capsys):
