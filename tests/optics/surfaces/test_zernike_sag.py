@@ -380,9 +380,7 @@ def test_fused_tracer_runs_it_eager_with_the_same_values_and_gradients(uncompile
     later sphere's c) equal the eager tracer's."""
     import helpers as H
 
-    from deeplens.optics.intersect import IntersectOptions
     from deeplens.optics.io import load_lens
-    from deeplens.optics.sampling import field_rays
 
     lens = load_lens(H.LENS_DIR / "double_gauss.json")
     s0 = lens.surfaces[0]
@@ -395,22 +393,7 @@ def test_fused_tracer_runs_it_eager_with_the_same_values_and_gradients(uncompile
     params = [zs.c, zs.zernike[7], zs.zernike[10], lens.surfaces[4].c]
     for p in params:
         p.requires_grad_(True)
-    rays = field_rays(lens, 10.0, H.WAVELENGTH_D, H.disk_points(120, 2.6, seed=2), 6.0)
-
-    def run(opt):
-        out = lens.trace_to_sensor(rays, options=opt)
-        v = out.valid
-        loss = (out.o[v] ** 2).sum() + out.opl[v].sum()
-        return out, torch.autograd.grad(loss, params)
-
-    a, ga = run(IntersectOptions(compile=False))
-    b, gb = run(IntersectOptions(compile=mode))
-    assert torch.equal(a.valid, b.valid) and 0.3 * len(a.valid) < int(a.valid.sum())
-    v = a.valid
-    for x, y in ((a.o, b.o), (a.d, b.d), (a.opl, b.opl)):
-        assert float((x - y)[v].detach().abs().max()) < 1e-12
-    for x, y in zip(ga, gb):
-        assert float(x) != 0.0 and float(y) == pytest.approx(float(x), rel=1e-10)
+    H.assert_compiled_run_equals_eager(lens, params, mode)
 
 
 def test_parameter_scale_is_the_rim_sag_derivative():
