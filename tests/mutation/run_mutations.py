@@ -64,6 +64,7 @@ FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
 READ_IMAGE = ("tests/render/test_read_image_depth.py",)
 ATOMIC = ("tests/training/test_atomic_writes.py",)
 RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
+LIMITS = ("tests/optics/test_limits.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -526,6 +527,24 @@ MUTATIONS = [
     Mutation("task_locks_twice", "the task locks the folder the callback holds (a run refuses "
              "itself)", "deeplens/training/train.py",
              "held = child or held_by_hydra(cfg.paths.output_dir)", "held = child", RUN_LOCK),
+    # ------------------------------------------------ hardening, round three, part 2 (issue 38)
+    Mutation("budget_ignores_rlimit", "the memory budget ignores the process's address-space "
+             "limit (ulimit -v): an allocator error instead of the setting",
+             "deeplens/optics/limits.py",
+             "for x in (_physical(), _address_space(), _cgroup())",
+             "for x in (_physical(), _cgroup())", LIMITS),
+    Mutation("budget_ignores_cgroup", "the memory budget ignores the cgroup's memory limit "
+             "(Slurm --mem): the OOM killer instead of the setting", "deeplens/optics/limits.py",
+             "for x in (_physical(), _address_space(), _cgroup())",
+             "for x in (_physical(), _address_space())", LIMITS),
+    Mutation("cgroup_leaf_only", "only the process's own cgroup read, not its ancestors (a "
+             "Slurm job's limit set on job_N, the task in job_N/step_0)",
+             "deeplens/optics/limits.py", "                if d == base or base not in d.parents:",
+             "                if True:", LIMITS),
+    Mutation("rlimit_ignores_mapped", "the address-space budget counts the whole limit, not what "
+             "is left of it (torch's libraries already map gigabytes)",
+             "deeplens/optics/limits.py", "    return (max(soft - used, 0),",
+             "    return (soft,", LIMITS),
 ]
 
 
