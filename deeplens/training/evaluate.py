@@ -271,8 +271,9 @@ def _reuse(cfg: DictConfig):
     key = _run_key(cfg)
     if _same_run(rec["config"]) != _same_run(key):
         saved = rec["config"].get("inputs")
-        changed = [k for k in (saved if isinstance(saved, dict) else {})
-                   if saved[k] != key["inputs"].get(k)]
+        saved = saved if isinstance(saved, dict) else {}
+        changed = [k for k in dict.fromkeys([*saved, *key["inputs"]])
+                   if saved.get(k) != key["inputs"].get(k)]
         return again(f"is a run of other input files (changed: {', '.join(changed)})" if changed
                      else "is a run of another configuration")
     tested = rec["tested"]

@@ -65,6 +65,7 @@ READ_IMAGE = ("tests/render/test_read_image_depth.py",)
 ATOMIC = ("tests/training/test_atomic_writes.py",)
 RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
 LIMITS = ("tests/optics/test_limits.py",)
+INPUT_KEYS = ("tests/training/test_input_keys.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -545,6 +546,22 @@ MUTATIONS = [
              "is left of it (torch's libraries already map gigabytes)",
              "deeplens/optics/limits.py", "    return (max(soft - used, 0),",
              "    return (soft,", LIMITS),
+    Mutation("classical_key_on_path", "the classical design keyed on the lens path (an edited "
+             "lens reuses the old design and its run)", "deeplens/training/classical.py",
+             '    key["inputs"] = input_digests(key, outputs=[out_dir])\n', "", INPUT_KEYS),
+    Mutation("zmx_catalogues_not_digested", "a .zmx lens's run key without the .agf catalogues "
+             "its GCAT line loads (an edited glass reuses the old runs)",
+             "deeplens/training/input_digest.py",
+             "            out.update(zmx_catalogue_digests(tree, _catalogs, prefix))\n",
+             "            pass\n", INPUT_KEYS),
+    Mutation("zmx_options_catalogues_ignored", "the key digests the .agf next to the .zmx although "
+             "lens.table_options.glass_catalogs answers for its name",
+             "deeplens/training/input_digest.py",
+             '            cats = _glass_catalogs(tree) if k == "path" else ()',
+             "            cats = ()", INPUT_KEYS),
+    Mutation("catalogue_files_ignore_passed", "catalogue_files lists the .agf next to the lens "
+             "for a name a passed catalogue answers", "deeplens/optics/io/zmx_glass.py",
+             "            names.add(Path(c).stem.upper())\n", "", INPUT_KEYS),
 ]
 
 
