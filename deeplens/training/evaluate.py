@@ -525,8 +525,10 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     check_config(cfg)  # every key, before anything is read or trained (train.py)
     if cfg.eval.get("job") is not None:  # one variant x seed of a fan-out (fanout.py)
         from .fanout import job_cfg
+        from .fanout_stop import watch_parent
 
         jc, (name, kind, alpha, s) = job_cfg(cfg)
+        watch_parent()   # stop when the evaluation that fanned the job out is gone (kill -9)
         _job(jc, name, kind, alpha, s)
         return "", {}
     todo = variants(cfg)

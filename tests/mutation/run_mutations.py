@@ -66,6 +66,7 @@ ATOMIC = ("tests/training/test_atomic_writes.py",)
 RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
 LIMITS = ("tests/optics/test_limits.py",)
 INPUT_KEYS = ("tests/training/test_input_keys.py",)
+FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -562,6 +563,28 @@ MUTATIONS = [
     Mutation("catalogue_files_ignore_passed", "catalogue_files lists the .agf next to the lens "
              "for a name a passed catalogue answers", "deeplens/optics/io/zmx_glass.py",
              "            names.add(Path(c).stem.upper())\n", "", INPUT_KEYS),
+    Mutation("fanout_signal_not_forwarded", "SIGTERM/Ctrl-C to a fanned-out eval not passed on "
+             "to its jobs (they train on until the grace's SIGKILL)",
+             "deeplens/training/fanout_stop.py",
+             "            _signal_group(pgid, signal.SIGTERM)\n", "            pass\n", FANOUT_STOP),
+    Mutation("fanout_no_process_group", "the multirun started in the evaluation's own process "
+             "group (the group signals reach nothing; the jobs go on training)",
+             "deeplens/training/fanout_stop.py", "start_new_session=True,",
+             "start_new_session=False,", FANOUT_STOP),
+    Mutation("fanout_no_pdeathsig", "the multirun not told to die with the evaluation (kill -9 "
+             "leaves it running)", "deeplens/training/fanout_stop.py",
+             "    return lambda: prctl(1, signal.SIGTERM, 0, 0, 0)",
+             "    return None", FANOUT_STOP),
+    Mutation("job_watchdog_off", "a job's watchdog never stops it (kill -9 of the evaluation: "
+             "the jobs go on writing)", "deeplens/training/fanout_stop.py",
+             "        while parent_alive(token):", "        while True:", FANOUT_STOP),
+    Mutation("job_watchdog_not_started", "a fanned-out job does not start its watchdog",
+             "deeplens/training/evaluate.py", "        watch_parent()   # stop",
+             "        pass   # stop", FANOUT_STOP),
+    Mutation("watchdog_zombie_alive", "a killed evaluation not yet reaped (a zombie) counts as "
+             "alive", "deeplens/training/fanout_stop.py",
+             'if not fields or fields[0] in ("Z", "X"):', 'if not fields or fields[0] in ("X",):',
+             FANOUT_STOP),
 ]
 
 
