@@ -112,12 +112,13 @@ def test_catalogue_files_are_those_the_reader_reads(zmx_with_agf, tmp_path, monk
     assert catalogue_files(zmx_with_agf) == []
 
 
-def test_an_edited_glass_changes_the_run_key(cfg_factory, zmx_with_agf):
+def test_an_edited_glass_changes_the_run_key(cfg_factory, zmx_with_agf, capsys):
     """Before: only the .zmx's own bytes were digested, so a run with the old index was reused
     after the glass was edited in its .agf."""
     cfg = cfg_factory("experiment=doublet", f"lens.path={zmx_with_agf}",
                       config_name="eval.yaml")
-    key = ev._run_key(ev._variant_cfg(cfg, "frozen", seed=0))
+    vc = ev._variant_cfg(cfg, "frozen", seed=0)
+    key = ev._run_key(vc)
     assert set(key["inputs"]) >= {"lens.path", "lens.path[GCAT OHARA]"}
     (zmx_with_agf.parent / "schott.agf").write_text(_agf(1.01))   # not read: same key
     assert ev._run_key(ev._variant_cfg(cfg, "frozen", seed=0)) == key
@@ -126,6 +127,13 @@ def test_an_edited_glass_changes_the_run_key(cfg_factory, zmx_with_agf):
     assert edited["inputs"]["lens.path"] == key["inputs"]["lens.path"]
     assert edited["inputs"]["lens.path[GCAT OHARA]"] != key["inputs"]["lens.path[GCAT OHARA]"]
     assert ev._same_run(edited) != ev._same_run(key)
+    # a finished run recorded with the old glass is trained again, naming the catalogue
+    folder = Path(vc.paths.output_dir)
+    folder.mkdir(parents=True)
+    (folder / ev.RUN_RECORD).write_text(json.dumps({"config": key, "metrics": {},
+                                                    "tested": "best.ckpt"}))
+    assert ev._reuse(vc) is None
+    assert "(changed: lens.path[GCAT OHARA]): training again" in capsys.readouterr().out
 
 
 def test_a_catalogue_passed_in_the_options_replaces_the_one_next_to_the_lens(zmx_with_agf,
