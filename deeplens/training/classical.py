@@ -19,7 +19,9 @@ takes the end-to-end run's own bound, so that both designs are held to the same 
 
 Damped least squares with a float64 central-difference Jacobian.  The designed lens is written
 to ``classical_lens.json`` (with ``classical_design.json``: the settings, merit before/after,
-variables, seconds) in the variant's folder, and reused when its settings are unchanged.
+variables, seconds) in the variant's folder, and reused when its settings and the content of its
+inputs (the lens file, and the ``.agf`` catalogues a ``.zmx`` loads: :mod:`.input_digest`) are
+unchanged.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from ..optics.errors import ConfigError
 from .checkpoint import write_text_atomic
+from .input_digest import input_digests
 
 __all__ = ["check_classical_config", "design_classical", "DEFAULTS"]
 
@@ -122,6 +125,10 @@ def design_classical(cfg: DictConfig, out_dir) -> Path:
            "depths_mm": list(cfg.scene.depths_mm), "fields_deg": list(cfg.scene.psf_fields_deg),
            # max_sag_mm only when set: designs made before the option existed stay valid
            "settings": {k: v for k, v in s.items() if k != "max_sag_mm" or v is not None}}
+    # the content of the lens file (and of the .agf catalogues a .zmx loads), not only its path:
+    # a lens edited in place is designed again (and the variant's runs, keyed on the designed
+    # lens's content, trained again)
+    key["inputs"] = input_digests(key, outputs=[out_dir])
     out = Path(out_dir)
     lens_path, rec_path = out / "classical_lens.json", out / "classical_design.json"
     if lens_path.is_file() and rec_path.is_file():

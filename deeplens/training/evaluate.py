@@ -271,8 +271,9 @@ def _reuse(cfg: DictConfig):
     key = _run_key(cfg)
     if _same_run(rec["config"]) != _same_run(key):
         saved = rec["config"].get("inputs")
-        changed = [k for k in (saved if isinstance(saved, dict) else {})
-                   if saved[k] != key["inputs"].get(k)]
+        saved = saved if isinstance(saved, dict) else {}
+        changed = [k for k in dict.fromkeys([*saved, *key["inputs"]])
+                   if saved.get(k) != key["inputs"].get(k)]
         return again(f"is a run of other input files (changed: {', '.join(changed)})" if changed
                      else "is a run of another configuration")
     tested = rec["tested"]
@@ -524,8 +525,10 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     check_config(cfg)  # every key, before anything is read or trained (train.py)
     if cfg.eval.get("job") is not None:  # one variant x seed of a fan-out (fanout.py)
         from .fanout import job_cfg
+        from .fanout_stop import watch_parent
 
         jc, (name, kind, alpha, s) = job_cfg(cfg)
+        watch_parent()   # stop when the evaluation that fanned the job out is gone (kill -9)
         _job(jc, name, kind, alpha, s)
         return "", {}
     todo = variants(cfg)

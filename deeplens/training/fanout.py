@@ -14,6 +14,14 @@
    variant x seed is loaded from its finished run (``eval.reuse_runs``), nothing trains (a
    missing run is an error naming it), and the tables and figures are written.
 
+Stopping: SIGTERM, Ctrl-C or SIGHUP to the evaluation stop the multirun and every job it started
+(:func:`~.fanout_stop.run_process_tree`: the multirun runs as its own process group, which gets
+SIGTERM, then SIGKILL after :data:`~.fanout_stop.STOP_GRACE_S` seconds).  ``kill -9`` of the
+evaluation cannot be caught: the multirun then gets SIGTERM from the kernel (Linux
+``PR_SET_PDEATHSIG``) and each joblib job, which watches the evaluation's process
+(:func:`~.fanout_stop.watch_parent`), ends itself within half a second without writing a further
+checkpoint.
+
 ``eval.launcher=null`` (the default) runs the variants and seeds one after the other in this
 process.  ``eval.gather=true`` on its own rebuilds the table of a finished folder
 (``hydra.run.dir=<folder>``).
@@ -22,9 +30,9 @@ process.  ``eval.gather=true`` on its own rebuilds the table of a finished folde
 from __future__ import annotations
 
 import copy
+import os
 import re
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -32,6 +40,7 @@ from pathlib import Path
 from omegaconf import DictConfig, open_dict
 
 from ..optics.errors import ConfigError
+from .fanout_stop import PARENT_ENV, parent_token, run_process_tree
 
 __all__ = ["jobs", "fan_out", "job_cfg", "LAUNCHERS", "check_fanout_config", "cpu_seconds",
            "hydra_quote"]
@@ -135,7 +144,10 @@ def fan_out(cfg: DictConfig, script: str | list[str], overrides: list[str]) -> f
     print(f"deeplens eval: fanning {n} variant x seed jobs out through the {launcher} "
           f"launcher: {' '.join(cmd)}", flush=True)
     t0 = time.perf_counter()
-    rc = subprocess.call(cmd)
+    env = dict(os.environ)
+    if launcher == "joblib":   # the jobs run on this machine: they watch this process
+        env[PARENT_ENV] = parent_token()
+    rc = run_process_tree(cmd, env=env)
     if rc != 0:
         raise RuntimeError(f"eval.launcher={launcher}: the multirun exited with status {rc}; "
                            f"the jobs' logs are in {out}/jobs/")

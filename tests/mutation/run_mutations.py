@@ -67,6 +67,9 @@ LENS2_FTYP3 = ("tests/optics/io/test_zmx_real_image_height.py",)
 LENS2_GLASS = ("tests/optics/io/test_zmx_glass_rules.py",)
 LENS2_SETUPS = ("tests/optics/io/test_zmx_virtual_object.py",)
 RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
+LIMITS = ("tests/optics/test_limits.py",)
+INPUT_KEYS = ("tests/training/test_input_keys.py",)
+FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -558,6 +561,62 @@ MUTATIONS = [
              "R_n^(2i)", "deeplens/optics/io/zmx_surfaces.py",
              "ai = v * s_mm / rn ** (2 * i)", "ai = v * s_mm / rn ** i",
              ("tests/optics/io/test_zmx_xasphere.py",)),
+    # ------------------------------------------------ hardening, round three, part 2 (issue 38)
+    Mutation("budget_ignores_rlimit", "the memory budget ignores the process's address-space "
+             "limit (ulimit -v): an allocator error instead of the setting",
+             "deeplens/optics/limits.py",
+             "for x in (_physical(), _address_space(), _cgroup())",
+             "for x in (_physical(), _cgroup())", LIMITS),
+    Mutation("budget_ignores_cgroup", "the memory budget ignores the cgroup's memory limit "
+             "(Slurm --mem): the OOM killer instead of the setting", "deeplens/optics/limits.py",
+             "for x in (_physical(), _address_space(), _cgroup())",
+             "for x in (_physical(), _address_space())", LIMITS),
+    Mutation("cgroup_leaf_only", "only the process's own cgroup read, not its ancestors (a "
+             "Slurm job's limit set on job_N, the task in job_N/step_0)",
+             "deeplens/optics/limits.py", "                if d == base or base not in d.parents:",
+             "                if True:", LIMITS),
+    Mutation("rlimit_ignores_mapped", "the address-space budget counts the whole limit, not what "
+             "is left of it (torch's libraries already map gigabytes)",
+             "deeplens/optics/limits.py", "    return (max(soft - used, 0),",
+             "    return (soft,", LIMITS),
+    Mutation("classical_key_on_path", "the classical design keyed on the lens path (an edited "
+             "lens reuses the old design and its run)", "deeplens/training/classical.py",
+             '    key["inputs"] = input_digests(key, outputs=[out_dir])\n', "", INPUT_KEYS),
+    Mutation("zmx_catalogues_not_digested", "a .zmx lens's run key without the .agf catalogues "
+             "its GCAT line loads (an edited glass reuses the old runs)",
+             "deeplens/training/input_digest.py",
+             "            out.update(zmx_catalogue_digests(tree, _catalogs, prefix))\n",
+             "            pass\n", INPUT_KEYS),
+    Mutation("zmx_options_catalogues_ignored", "the key digests the .agf next to the .zmx although "
+             "lens.table_options.glass_catalogs answers for its name",
+             "deeplens/training/input_digest.py",
+             '            cats = _glass_catalogs(tree) if k == "path" else ()',
+             "            cats = ()", INPUT_KEYS),
+    Mutation("catalogue_files_ignore_passed", "catalogue_files lists the .agf next to the lens "
+             "for a name a passed catalogue answers", "deeplens/optics/io/zmx_glass.py",
+             "            names.add(Path(c).stem.upper())\n", "", INPUT_KEYS),
+    Mutation("fanout_signal_not_forwarded", "SIGTERM/Ctrl-C to a fanned-out eval not passed on "
+             "to its jobs (they train on until the grace's SIGKILL)",
+             "deeplens/training/fanout_stop.py",
+             "            _signal_group(pgid, signal.SIGTERM)\n", "            pass\n", FANOUT_STOP),
+    Mutation("fanout_no_process_group", "the multirun started in the evaluation's own process "
+             "group (the group signals reach nothing; the jobs go on training)",
+             "deeplens/training/fanout_stop.py", "start_new_session=True,",
+             "start_new_session=False,", FANOUT_STOP),
+    Mutation("fanout_no_pdeathsig", "the multirun not told to die with the evaluation (kill -9 "
+             "leaves it running)", "deeplens/training/fanout_stop.py",
+             "    return lambda: prctl(1, signal.SIGTERM, 0, 0, 0)",
+             "    return None", FANOUT_STOP),
+    Mutation("job_watchdog_off", "a job's watchdog never stops it (kill -9 of the evaluation: "
+             "the jobs go on writing)", "deeplens/training/fanout_stop.py",
+             "        while parent_alive(token):", "        while True:", FANOUT_STOP),
+    Mutation("job_watchdog_not_started", "a fanned-out job does not start its watchdog",
+             "deeplens/training/evaluate.py", "        watch_parent()   # stop",
+             "        pass   # stop", FANOUT_STOP),
+    Mutation("watchdog_zombie_alive", "a killed evaluation not yet reaped (a zombie) counts as "
+             "alive", "deeplens/training/fanout_stop.py",
+             'if not fields or fields[0] in ("Z", "X"):', 'if not fields or fields[0] in ("X",):',
+             FANOUT_STOP),
 ]
 
 

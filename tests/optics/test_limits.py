@@ -3,6 +3,7 @@ error naming the key and the memory it would need, never an allocator traceback 
 killer."""
 
 import copy
+import os
 import json
 
 import pytest
@@ -93,3 +94,115 @@ def test_absurd_numbers_in_a_lens_file_are_named(tmp_path):
         load_lens(_write(tmp_path, None, "[" * 100_000 + "]" * 100_000))
     with pytest.raises(LensFileError, match="unreadable JSON number"):
         load_lens(_write(tmp_path, None, '{"format": ' + "1" * 5000 + "}"))
+
+
+# ---- the process's own limits (issue 38 item 10): ulimit -v, the cgroup's memory limit
+
+def _only(monkeypatch, **found):
+    """The budget's sources replaced by ``found`` (name -> (bytes, text) or None)."""
+    from deeplens.optics import limits
+
+    monkeypatch.delenv("DEEPLENS_MEMORY_BUDGET", raising=False)
+    for name in ("_physical", "_address_space", "_cgroup"):
+        monkeypatch.setattr(limits, name, lambda v=found.get(name): v)
+
+
+def test_the_smallest_limit_is_the_budget_and_the_message_names_it(monkeypatch):
+    _only(monkeypatch, _physical=(64 << 30, "this machine's physical memory"),
+          _address_space=(3 << 30, "this process's address-space limit (ulimit -v ...)"),
+          _cgroup=(8 << 30, "the cgroup memory limit in /x/memory.max"))
+    assert memory_budget_bytes() == 3 << 30
+    with pytest.raises(MemoryBudgetError, match=r"render\.spp: .* more than the 3 GiB this "
+                       r"process may use, set by this process's address-space limit \(ulimit "
+                       r"-v") as e:
+        check_allocation("render.spp", 4 << 30, 1, "rays")
+    assert e.value.budget == 3 << 30
+    _only(monkeypatch, _physical=(64 << 30, "this machine's physical memory"),
+          _cgroup=(2 << 30, "the cgroup memory limit in /x/memory.max"))
+    with pytest.raises(MemoryBudgetError, match=r"2 GiB .* the cgroup memory limit in /x/"):
+        check_allocation("render.spp", 3 << 30, 1, "rays")
+    assert check_allocation("render.spp", 1 << 30, 1, "rays") == 1 << 30
+
+
+def test_the_address_space_limit_counts_what_is_already_mapped(monkeypatch):
+    import resource
+
+    from deeplens.optics import limits
+
+    monkeypatch.setattr(resource, "getrlimit", lambda which: (
+        (5 << 30, resource.RLIM_INFINITY) if which == resource.RLIMIT_AS else (-1, -1)))
+    monkeypatch.setattr(limits, "_mapped_bytes", lambda: 2 << 30)
+    n, text = limits._address_space()
+    assert n == 3 << 30 and "ulimit -v" in text and "5 GiB" in text
+    monkeypatch.setattr(resource, "getrlimit",
+                        lambda which: (resource.RLIM_INFINITY, resource.RLIM_INFINITY))
+    assert limits._address_space() is None
+
+
+def _tree(root, files):
+    for rel, text in files.items():
+        p = root / rel
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(text)
+
+
+def test_cgroup_v2_limit_is_the_tightest_along_the_path(tmp_path):
+    from deeplens.optics import limits
+
+    root, me = tmp_path / "cg", tmp_path / "self_cgroup"
+    me.write_text("0::/system.slice/slurmstepd.scope/job_7/step_0\n")
+    _tree(root, {"memory.max": "max\n",
+                 "system.slice/slurmstepd.scope/memory.max": "max\n",
+                 "system.slice/slurmstepd.scope/job_7/memory.max": f"{3 << 30}\n",
+                 "system.slice/slurmstepd.scope/job_7/step_0/memory.max": "max\n"})
+    n, text = limits._cgroup(root, me)
+    assert n == 3 << 30 and "job_7/memory.max" in text and "--mem" in text
+    _tree(root, {"system.slice/slurmstepd.scope/job_7/step_0/memory.max": f"{1 << 30}\n"})
+    assert limits._cgroup(root, me)[0] == 1 << 30
+    _tree(root, {"system.slice/slurmstepd.scope/job_7/step_0/memory.max": "garbage\n",
+                 "system.slice/slurmstepd.scope/job_7/memory.max": "max\n"})
+    assert limits._cgroup(root, me) is None     # unlimited or unreadable everywhere
+    assert limits._cgroup(tmp_path / "absent", tmp_path / "absent_self") is None
+
+
+def test_cgroup_v1_limit_and_its_unlimited_value(tmp_path):
+    from deeplens.optics import limits
+
+    root, me = tmp_path / "cg", tmp_path / "self_cgroup"
+    me.write_text("5:cpu,cpuacct:/a\n4:memory:/slurm/uid_1/job_9\n0::/\n")
+    _tree(root, {"memory/memory.limit_in_bytes": "9223372036854771712\n",
+                 "memory/slurm/uid_1/job_9/memory.limit_in_bytes": f"{5 << 30}\n",
+                 "cpu,cpuacct/a/memory.limit_in_bytes": "1\n"})   # not the memory controller
+    n, text = limits._cgroup(root, me)
+    assert n == 5 << 30 and "job_9/memory.limit_in_bytes" in text
+    _tree(root, {"memory/slurm/uid_1/job_9/memory.limit_in_bytes": "9223372036854771712\n"})
+    assert limits._cgroup(root, me) is None
+
+
+@pytest.mark.slow
+def test_a_real_ulimit_v_is_named_instead_of_an_allocator_error(tmp_path):
+    """Under ``ulimit -v`` a request that fits in physical memory but not under the limit is
+    refused naming the limit (before the patch: torch's raw 'can't allocate memory')."""
+    import subprocess
+    import sys
+
+    code = ("import os, resource\n"
+            "from deeplens.optics import limits\n"
+            "soft = resource.getrlimit(resource.RLIMIT_AS)[0]\n"
+            "need = soft + (1 << 30)\n"    # more than the whole limit, less than the machine
+            "phys = limits._physical()\n"
+            "assert phys is None or need < phys[0], 'machine too small for this test'\n"
+            "try:\n"
+            "    limits.check_allocation('render.spp', need, 1, 'bytes')\n"
+            "except limits.MemoryBudgetError as e:\n"
+            "    print('REFUSED', e)\n")
+    env = {k: v for k, v in os.environ.items() if k != "DEEPLENS_MEMORY_BUDGET"}
+    env["OMP_NUM_THREADS"] = "1"
+    limit_kib = 8 << 20   # 8 GiB of address space: room for Python and torch's libraries
+    r = subprocess.run(["bash", "-c", f'ulimit -v {limit_kib} && exec "$0" -c "$1"',
+                        sys.executable, code], capture_output=True, text=True, env=env,
+                       timeout=60)
+    if "machine too small" in r.stderr:
+        pytest.skip("physical memory below the test's 9 GiB request")
+    assert r.returncode == 0, r.stderr
+    assert "REFUSED render.spp:" in r.stdout and "ulimit -v" in r.stdout, r.stdout

@@ -59,11 +59,16 @@ def test_deeplens_eval_fans_its_jobs_out_as_python_m_deeplens_eval(cfg_factory, 
     with the caller's overrides, less the fan-out's own."""
     import deeplens.training.fanout as fanout
 
-    calls = []
-    monkeypatch.setattr(fanout.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    from deeplens.training.fanout_stop import PARENT_ENV, parent_token
+
+    calls, envs = [], []
+    monkeypatch.setattr(fanout, "run_process_tree",
+                        lambda cmd, env=None: calls.append(cmd) or envs.append(env) or 0)
     cfg = cfg_factory(*FAST[len(TINY):], "eval.launcher=joblib", config_name="eval.yaml")
     fan_out(cfg, ["-m", "deeplens", "eval"], ["experiment=edof", "eval.launcher=joblib"])
     (cmd,) = calls
+    # the jobs are told which process to watch (they stop when it is gone, even by kill -9)
+    assert envs[0][PARENT_ENV] == parent_token()
     assert cmd[:5] == [sys.executable, "-m", "deeplens", "eval", "-m"]
     assert "experiment=edof" in cmd and "hydra/launcher=joblib" in cmd
     assert not any(c.startswith("eval.launcher=") for c in cmd)

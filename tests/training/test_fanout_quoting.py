@@ -31,7 +31,7 @@ def test_the_fan_out_command_reads_back_the_folder(cfg_factory, tmp_path, monkey
 
     out = tmp_path / "E2 (copy),v2"
     calls = []
-    monkeypatch.setattr(fanout.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    monkeypatch.setattr(fanout, "run_process_tree", lambda cmd, env=None: calls.append(cmd) or 0)
     cfg = cfg_factory("experiment=edof", "eval.launcher=joblib", config_name="eval.yaml",
                       out=out)
     fan_out(cfg, ["-m", "deeplens", "eval"], ["experiment=edof", "eval.launcher=joblib"])

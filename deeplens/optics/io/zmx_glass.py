@@ -32,7 +32,8 @@ from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PREVIOUS_CAT
                            previous_glass, vendor_glass)
 from .zmx_parse import Locator, ZmxSurface
 
-__all__ = ["BUILTIN_CATALOGUES", "GLASS_PATH_ENV", "glass_path_catalogues", "load_catalogues",
+__all__ = ["BUILTIN_CATALOGUES", "GLASS_PATH_ENV", "adjacent_catalogue", "catalogue_files",
+           "glass_path_catalogues", "load_catalogues",
            "surface_material", "resolve_glass", "model_glass"]
 
 # Which of deeplens' own catalogue entries answer for which Zemax catalogue name.
@@ -95,13 +96,58 @@ def load_catalogues(path, gcat, glass_catalogs, p: Locator,
             cats.setdefault(cat.name, cat)
     for name in gcat:
         if name not in cats:
-            for f in sorted(path.parent.iterdir()):
-                if f.suffix.lower() == ".agf" and f.stem.upper() == name and f.is_file():
-                    cats[name] = read_agf(f)
-                    break
+            f = adjacent_catalogue(path, name)
+            if f is not None:
+                cats[name] = read_agf(f)
     for note in (n for cat in cats.values() for n in cat.notes):
         p.note(0, note)
     return cats
+
+
+def adjacent_catalogue(path, name: str) -> Path | None:
+    """The ``<NAME>.agf`` next to the ``.zmx`` ``path`` that answers for the ``GCAT`` name
+    ``name`` (stem compared in upper case, suffix in any case; the first in sorted order), or
+    ``None``."""
+    for f in sorted(Path(path).parent.iterdir()):
+        if f.suffix.lower() == ".agf" and f.stem.upper() == name and f.is_file():
+            return f
+    return None
+
+
+def catalogue_files(path, glass_catalogs=(), env: str | None = None) -> list[Path]:
+    """The ``.agf`` files :func:`~.zmx.read_zmx` reads for the ``.zmx`` ``path`` called with
+    ``glass_catalogs``, in :func:`load_catalogues`' order: the paths passed, those of
+    :data:`GLASS_PATH_ENV` (``env``: its text; the environment when ``None``) whose names were
+    not passed, then for each name on the file's ``GCAT`` line that none of them answers, the
+    ``<NAME>.agf`` next to the file (:func:`adjacent_catalogue`).
+    Only the file's lines are parsed (no glass is read), so that a caller keying a run on its
+    inputs can digest the catalogues as well as the lens file.
+
+    Raises:
+        ZemaxFileError: the file cannot be parsed (as :func:`~.zmx.read_zmx` would).
+    """
+    from .zmx_parse import parse
+
+    path = Path(path)
+    sysd, _, _ = parse(path)
+    files, names = [], set()
+    for c in glass_catalogs:
+        if isinstance(c, GlassCatalogue):   # given in memory, not read from a file here
+            names.add(c.name)
+        else:
+            files.append(Path(c))
+            names.add(Path(c).stem.upper())
+    for f in glass_path_catalogues(env):
+        if f.stem.upper() not in names:
+            files.append(f)
+            names.add(f.stem.upper())
+    for name in sysd["gcat"][0]:
+        if name not in names:
+            f = adjacent_catalogue(path, name)
+            if f is not None:
+                files.append(f)
+                names.add(name)
+    return files
 
 
 def _builtin(glass: str) -> Material | None:
