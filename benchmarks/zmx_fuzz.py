@@ -20,8 +20,11 @@ its paraxial EFL, BFL and entrance pupil computed; the outcome is one of
 * ``unlocated``: refused with deeplens' own error but no file or line in the message;
 * ``traceback``: any other exception (a defect: the user sees a raw traceback);
 * ``hang``: no answer within the timeout (a defect);
-* ``nonsense``: loaded, status fine, but a first-order number is NaN or infinite where the
-  original's is finite, with no warning (a defect: a wrong result without an error).
+* ``nonsense``: loaded without a warning, but a first-order number is NaN or infinite where
+  the original's is finite, or a file cut off or with a block written twice reads with other
+  first-order numbers than the original (a defect: a wrong result without an error; a cut
+  after the image surface's data reads the same lens and is ``ok``); an encoding that reads
+  otherwise than the original.
 
 Usage::
 
@@ -151,6 +154,11 @@ def main() -> int:
                         not math.isfinite(v) and math.isfinite(b)
                         for v, b in zip(nums, base_nums)):
                     status, detail = "nonsense", f"first order {nums} (original {base_nums})"
+                if status == "ok" and kind in ("truncate", "duplicate") and not warned and (
+                        base_nums is None or any(abs(v - b) > 1e-9 * max(abs(b), 1.0)
+                                                 for v, b in zip(nums, base_nums))):
+                    status, detail = "nonsense", (f"read as another lens without a warning: "
+                                                  f"first order {nums} (original {base_nums})")
                 if kind == "encoding" and status != base[0]:
                     status, detail = "nonsense" if status == "ok" else status, \
                         f"{detail} (the original reads as {base[0]})"
