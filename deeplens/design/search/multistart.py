@@ -200,7 +200,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
                          "reason": f"no lens: {e}", "seconds": 0.0})
             continue
         made += 1
-        r = refine(lens, spec, cfg.screen if kind == "thin" else cfg.flat_screen)
+        r = refine(lens, spec, cfg.screen if kind == "thin" else cfg.flat_screen,
+                   flat=kind == "flat")
         rec = {"origin": f"start {tried - 1}", "kind": kind, "ok": r.ok, "reason": r.reason,
                "seconds": r.seconds, "history": r.history, "steps": r.steps}
         if r.ok:
@@ -232,7 +233,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
             polished.append(p)
             rec["rms_um"] = p.metrics["rms_um"]
         runs.append(rec)
-        say(f"polish {k + 1}: {rec.get('rms_um', math.nan):.2f} um ({dsg.origin})")
+        say(f"polish {k + 1}: {rec.get('rms_um', math.nan):.2f} um ({dsg.origin}; "
+            f"{r.steps} steps, {r.reason[:70]})")
     pool += polished
     # basin hopping from the best design
     current = deduplicate(pool, cfg.dedup_tol)[0]
@@ -241,7 +243,7 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         lens = copy.deepcopy(current.lens)
         rec = {"origin": f"hop {h} from {current.origin}", "ok": False}
         try:
-            v = search_variables(lens, asph)
+            v = search_variables(lens, asph, efl_solve=True)
             x = v.x0() + cfg.hop_size * torch.randn(len(v), generator=gen, dtype=torch.float64)
             v.assign(x)
             lens.check()
@@ -272,7 +274,10 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
                     current = p
         rec["accepted"] = accepted
         runs.append(rec)
-        say(f"hop {h + 1}/{cfg.hops}: {rec.get('rms_um', math.nan):.2f} um"
+        feas = "" if not rec.get("ok") or "rms_um" not in rec else (
+            "" if pool[-1].metrics["feasible"] else " (infeasible: "
+            + "; ".join(pool[-1].metrics["constraints_broken"])[:60] + ")")
+        say(f"hop {h + 1}/{cfg.hops}: {rec.get('rms_um', math.nan):.2f} um{feas}"
             f"{' (accepted)' if accepted else ''}; current {current.metrics['rms_um']:.2f} um")
     # keep the best distinct designs, finished
     kept = []

@@ -7,14 +7,16 @@ Merit ``F = sum r^2`` over
   polychromatic centroid, block weights ``w_fλ = sqrt(W_f W_λ / sum W_λ)`` (the spec's field and
   wavelength weights), so a field's blocks sum to ``W_f`` times its polychromatic mean square
   spot radius (mm²);
-* the focal length (:class:`FocalPower`): ``r = w (f / EFL - 1)``, ``w = f`` by default, so
-  ``r ≈ EFL - f`` in mm: a micrometre of focal length weighs as a micrometre of RMS spot (the
-  search then makes it exact, :func:`~.start.solve_efl`, which must not cost spot quality);
-  the power ``1 / EFL`` stays finite for a flat start;
+* the focal length, exact by a solve (:class:`EflSolved`: the last refracting curvature is
+  not a variable but the angle solve's value at every trial point, as lens-design programs
+  hold a focal length), or a penalty (:class:`FocalPower`): ``r = w (f / EFL - 1)``,
+  ``w = f`` by default, so ``r ≈ EFL - f`` in mm (for a flat start, whose power ``1 / EFL``
+  is near zero);
 * the constraints (:mod:`deeplens.design.constraints` penalties ``w max(0, b - q)``), soft while
   a start is far from them and hard (a step breaking one is rejected) once they all hold.
 
-Variables: the curvature of every refracting surface, every axial gap after the first vertex
+Variables: the curvature of every refracting surface (but the last, with the solve), every
+axial gap after the first vertex
 (glass, air, both sides of the stop: the stop moves within its gap), the sensor distance, and
 the conic, ``a4`` and ``a6`` of the surfaces given as aspheric.
 """
@@ -36,7 +38,7 @@ from ..merit import Merit, SpotMerit
 from ..variables import Variables
 from .spec import DesignSpec
 
-__all__ = ["FocalPower", "StopLimitedSpotMerit", "stop_limited", "spot_merit", "search_merit", "spec_constraints", "search_variables",
+__all__ = ["FocalPower", "EflSolved", "solved_curvature", "StopLimitedSpotMerit", "stop_limited", "spot_merit", "search_merit", "spec_constraints", "search_variables",
            "real_surfaces"]
 
 
@@ -97,7 +99,7 @@ def spot_merit(spec: DesignSpec, *, sampling: str = "hexapolar:4", field_scale: 
     curriculum) and wavelengths, with the weights of the module docstring, on the pupils the
     stop alone sets (:class:`StopLimitedSpotMerit`)."""
     W = torch.tensor(spec.wavelength_weights, dtype=torch.float64)
-    Fw = torch.tensor(spec.field_weights, dtype=torch.float64)
+    Fw = torch.tensor(spec.weights_of_fields, dtype=torch.float64)
     w = torch.sqrt(Fw[:, None] * W[None, :] / W.sum())
     fields = [field_scale * f for f in spec.fields_deg]
     return StopLimitedSpotMerit(fields, list(spec.wavelengths_nm), weights=w, sampling=sampling,
@@ -106,15 +108,80 @@ def spot_merit(spec: DesignSpec, *, sampling: str = "hexapolar:4", field_scale: 
 
 
 def search_merit(spec: DesignSpec, constraints=(), *, sampling: str = "hexapolar:4",
-                 field_scale: float = 1.0, efl_weight: float | None = None) -> Merit:
-    """Spot + focal length + soft constraints (module docstring)."""
+                 field_scale: float = 1.0, efl_weight: float | None = None,
+                 efl_solve: bool = True):
+    """Spot + soft constraints on the EFL-solved lens (:class:`EflSolved`), or with
+    ``efl_solve=False`` spot + focal-length penalty + soft constraints (module docstring)."""
     from ..constraints import ConstraintSet
 
-    terms = [spot_merit(spec, sampling=sampling, field_scale=field_scale),
-             FocalPower(spec.efl_mm, efl_weight)]
+    terms = [spot_merit(spec, sampling=sampling, field_scale=field_scale)]
+    if not efl_solve:
+        terms.append(FocalPower(spec.efl_mm, efl_weight))
     if constraints:
         terms.append(ConstraintSet(constraints))
-    return Merit(*terms)
+    return EflSolved(Merit(*terms), spec.efl_mm) if efl_solve else Merit(*terms)
+
+
+class _Holder(torch.nn.Module):
+    def __init__(self, lens):
+        super().__init__()
+        self.lens = lens
+
+    def forward(self, fn):
+        return fn(self.lens)
+
+
+def last_refracting(lens) -> int:
+    return real_surfaces(lens)[-1]
+
+
+def solved_curvature(lens, efl: float) -> torch.Tensor:
+    """The last refracting surface's curvature that makes the paraxial EFL ``efl`` (the angle
+    solve of :func:`~.start.solve_efl`), differentiable in every other parameter."""
+    last = last_refracting(lens)
+    name = f"lens.surfaces.{last}.c"
+    c0 = lens.surfaces[last].c
+
+    def parts(L):
+        n = media_indices(L)
+        one = torch.ones((), dtype=L.dtype, device=L.device)
+        _, u0, hs = trace_paraxial_ray(L, one, 0 * one, n)
+        return u0, hs[last], n[last], n[last + 1]
+
+    u0, y, n1, n2 = torch.func.functional_call(_Holder(lens), {name: torch.zeros_like(c0)},
+                                               (parts,), strict=False)
+    return n2 * (u0 + 1.0 / efl) / (y * (n2 - n1))
+
+
+class EflSolved:
+    """A merit evaluated on the lens with its last refracting curvature given by the EFL solve
+    (:func:`solved_curvature`): the focal length is exact at every trial point, so the
+    optimiser never trades focal length for spot size and needs no stiff penalty (which would
+    make the power direction 10^4 times stiffer than the bending one).  ``lens`` may be a
+    Camera (its options reach the inner merit)."""
+
+    def __init__(self, merit, efl: float):
+        self.merit, self.efl = merit, float(efl)
+
+    def _on(self, lens, what):
+        L, _, options = unpack(lens)
+        c = solved_curvature(L, self.efl)
+        name = f"lens.surfaces.{last_refracting(L)}.c"
+
+        def fn(Ls):
+            from ...optics.camera import Camera
+            return what(Ls if options is None else Camera(Ls, None, options))
+
+        return torch.func.functional_call(_Holder(L), {name: c.to(L.surfaces[0].semi_diameter
+                                                                 .dtype)}, (fn,), strict=False)
+
+    def prepare(self, lens):
+        with torch.no_grad():
+            self._on(lens, self.merit.prepare)
+        return self
+
+    def residuals(self, lens) -> torch.Tensor:
+        return self._on(lens, self.merit.residuals)
 
 
 # ---------------------------------------------------------------------------- constraints
@@ -184,9 +251,11 @@ def spec_constraints(lens, spec: DesignSpec) -> list[Constraint]:
 
 
 # ---------------------------------------------------------------------------- variables
-def search_variables(lens, aspheric_surfaces=()) -> Variables:
-    """The variables of the module docstring."""
-    names = [f"surfaces.{i}.c" for i in real_surfaces(lens)]
+def search_variables(lens, aspheric_surfaces=(), efl_solve: bool = True) -> Variables:
+    """The variables of the module docstring (without the last refracting curvature when the
+    EFL solve sets it)."""
+    real = real_surfaces(lens)
+    names = [f"surfaces.{i}.c" for i in (real[:-1] if efl_solve else real)]
     names += [f"distances.{j}" for j in range(1, len(lens.surfaces))]
     names.append("d_sensor")
     for i in aspheric_surfaces:

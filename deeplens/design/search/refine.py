@@ -34,6 +34,7 @@ from ..constraints import ConstraintSet
 from ..lensopt import optimize_lens
 from .problem import real_surfaces, search_merit, search_variables, spec_constraints
 from .spec import DesignSpec
+from .start import solve_efl
 
 __all__ = ["Stage", "RefineResult", "refine", "fit_semi_diameters", "set_curriculum",
            "repair_edges", "aspheric_choice",
@@ -47,14 +48,18 @@ _FLOATING = TraceOptions(clip_aperture=False)
 
 @dataclass(frozen=True)
 class Stage:
-    """One stage: ``steps`` DLS iterations on ``sampling`` (split over ``rounds`` pupil
-    re-samplings) at ``aperture`` x the EPD and ``field`` x the fields."""
+    """One stage: ``steps`` iterations of ``method`` (``"dls"``, or ``"lbfgs"``: quasi-Newton
+    on the merit, which keeps converging where the least-squares model cannot, at a minimum
+    with large residuals such as a singlet's least spherical aberration) on ``sampling``
+    (split over ``rounds`` pupil re-samplings) at ``aperture`` x the EPD and ``field`` x the
+    fields."""
 
     steps: int
     sampling: str = "hexapolar:4"
     aperture: float = 1.0
     field: float = 1.0
     rounds: int = 1
+    method: str = "dls"
 
 
 #: a flat start's curriculum: the aperture and field grown over the run
@@ -129,6 +134,25 @@ def fit_semi_diameters(lens, fields, waves, margin: float = 1.05, pad_mm: float 
             s.semi_diameter.fill_(sd)
 
 
+class _Normalised:
+    """A merit whose residuals are divided by the root of its value at preparation, so that a
+    gradient method starts at a merit of 1 whatever the design's scale (L-BFGS's first step
+    and its stopping rule are absolute)."""
+
+    def __init__(self, merit):
+        self.merit, self.scale = merit, 1.0
+
+    def prepare(self, lens):
+        self.merit.prepare(lens)
+        with torch.no_grad():
+            r = self.merit.residuals(lens)
+        self.scale = 1.0 / max(float(torch.sqrt((r * r).sum())), 1e-300)
+        return self
+
+    def residuals(self, lens):
+        return self.merit.residuals(lens) * self.scale
+
+
 def repair_edges(lens, spec: DesignSpec, margin_mm: float = 0.01) -> None:
     """Widen every gap between consecutive refracting surfaces whose centre or edge (at the
     smaller semi-diameter) is below the spec's minimum (``min_edge_glass_mm`` /
@@ -154,8 +178,10 @@ def repair_edges(lens, spec: DesignSpec, margin_mm: float = 0.01) -> None:
 
 
 def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
-           efl_weight: float | None = None) -> RefineResult:
-    """Run ``stages`` on ``lens`` (float64; changed in place), see the module docstring."""
+           efl_weight: float | None = None, flat: bool = False) -> RefineResult:
+    """Run ``stages`` on ``lens`` (float64; changed in place), see the module docstring.
+    The focal length is held by the EFL solve (:class:`~.problem.EflSolved`), except in the
+    first stage of a ``flat`` start (no power to solve from: a penalty then)."""
     t0 = time.perf_counter()
     res = RefineResult(ok=False)
     try:
@@ -167,11 +193,18 @@ def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
             lens.check()
             cons = spec_constraints(lens, spec)
             hard = not ConstraintSet(cons).broken(lens)
+            solve = not flat
             merit = search_merit(spec, cons, sampling=st.sampling, field_scale=st.field,
-                                 efl_weight=efl_weight)
-            v = search_variables(lens, aspheric_surfaces)
-            out = optimize_lens(Camera(lens, None, _FLOATING), v, merit, method="dls", steps=st.steps, rounds=st.rounds,
+                                 efl_weight=efl_weight, efl_solve=solve)
+            v = search_variables(lens, aspheric_surfaces, efl_solve=solve)
+            if st.method != "dls":
+                merit = _Normalised(merit)
+            out = optimize_lens(Camera(lens, None, _FLOATING), v, merit, method=st.method,
+                                steps=st.steps, rounds=st.rounds,
                                 constraints=cons if hard else (), jacobian_mode="central")
+            if solve:
+                solve_efl(lens, spec.efl_mm)
+            flat = False   # a flat start has power after its first stage
             res.history += [h["merit"] for h in out.history if h["accepted"]]
             res.merit, res.reason, res.hard = out.merit_after, out.reason, hard
             res.steps += out.steps

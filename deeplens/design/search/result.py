@@ -52,7 +52,7 @@ def polychromatic_rms(lens, spec: DesignSpec, sampling: str = "hexapolar:12",
 def evaluate(lens, spec: DesignSpec, sampling: str = "hexapolar:12") -> dict:
     """The report of the module docstring (a JSON-able dict; lengths in mm, spots in µm)."""
     poly, rms = polychromatic_rms(lens, spec, sampling)
-    Wf = spec.field_weights
+    Wf = spec.weights_of_fields
     total = math.sqrt(sum(w * p * p for w, p in zip(Wf, poly)) / sum(Wf))
     with torch.no_grad():
         p = paraxial(lens)

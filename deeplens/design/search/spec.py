@@ -231,7 +231,23 @@ class DesignSpec:
 
     @property
     def fields_deg(self) -> list[float]:
-        return [round(x * self.hfov_deg, 12) for x in self.field_fractions]
+        """The field angles (deg), each once (fractions that coincide, as every fraction of a
+        zero field does, are one field whose weight is their sum: :attr:`weights_of_fields`)."""
+        out = []
+        for x in self.field_fractions:
+            f = round(x * self.hfov_deg, 12)
+            if f not in out:
+                out.append(f)
+        return out
+
+    @property
+    def weights_of_fields(self) -> list[float]:
+        """The weight of each of :attr:`fields_deg`."""
+        fields = self.fields_deg
+        w = [0.0] * len(fields)
+        for x, wx in zip(self.field_fractions, self.field_weights):
+            w[fields.index(round(x * self.hfov_deg, 12))] += wx
+        return w
 
     @property
     def glass_list(self) -> list[str]:
@@ -240,13 +256,14 @@ class DesignSpec:
     def stop_positions(self) -> list:
         """The stop positions the search tries: ``"front"``, ``0 .. elements-2`` (air gaps)
         and ``"back"`` for ``"search"``, else the one asked for (``"middle"``: gap
-        ``(elements - 1) // 2``; a singlet's middle is its front)."""
+        ``N // 2 - 1 + N % 2``: after the middle element of three, between the middle two of
+        four; a singlet's middle is its front)."""
         gaps = list(range(self.elements - 1))
         if self.stop == "search":
             return ["front", *gaps, "back"]
         if self.stop == "middle":
-            return [(self.elements - 1) // 2 - (1 if self.elements % 2 == 0 else 0)] \
-                if self.elements > 1 else ["front"]
+            return [self.elements // 2 - 1 + self.elements % 2] if self.elements > 1 \
+                else ["front"]
         return [self.stop]
 
     # ------------------------------------------------------------------ IO

@@ -395,7 +395,7 @@ def _layout(spec: DesignSpec, u, glass_strategy=None) -> ThinLens:
     ut = u[1 + 3 * N:4 * N]
     us, ua = u[4 * N], u[4 * N + 1]
     glasses = (glass_strategy or crown_flint_by_sign)(spec.glass_list, signs, ug)
-    mags = [0.6 + 2.4 * x for x in up]
+    mags = [0.6 + 3.9 * x for x in up]
     k = [m if s == "+" else -m for m, s in zip(mags, signs)]
     spacings = [f * (0.03 + 0.22 * x) for x in ut]
     bendings = [-0.75 + 1.5 * x for x in ub]
