@@ -53,6 +53,9 @@ def add_arguments(p) -> None:
     g.add_argument("--polish", type=int, default=3, help="distinct designs polished")
     g.add_argument("--hops", type=int, default=6, help="basin-hopping hops (0: none)")
     g.add_argument("--keep", type=int, default=3, help="distinct designs kept and written")
+    g.add_argument("--screen-steps", type=int, default=12, help="DLS steps per start (12)")
+    g.add_argument("--polish-steps", type=int, default=30, help="DLS steps per polish (30)")
+    g.add_argument("--hop-steps", type=int, default=20, help="DLS steps per hop (20)")
     g.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -79,11 +82,17 @@ def spec_from_args(args):
 
 
 def run(args) -> dict:
-    from ..search import SearchConfig, search, write_outputs
+    from ..search import SearchConfig, Stage, search, write_outputs
 
     spec = spec_from_args(args)
+    for flag in ("screen_steps", "polish_steps", "hop_steps"):
+        if getattr(args, flag) < 1:
+            raise ValueError(f"--{flag.replace('_', '-')} must be >= 1, got {getattr(args, flag)}")
     cfg = SearchConfig(starts=args.starts, start_kind=args.start_kind, polish_count=args.polish,
-                       hops=args.hops, keep=args.keep, seed=args.seed)
+                       hops=args.hops, keep=args.keep, seed=args.seed,
+                       screen=(Stage(args.screen_steps, "hexapolar:3"),),
+                       polish=(Stage(args.polish_steps, "hexapolar:5", rounds=2),),
+                       hop=(Stage(args.hop_steps, "hexapolar:4"),))
 
     def progress(text):
         if not args.quiet:

@@ -45,6 +45,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from ...analysis.paraxial import paraxial
@@ -52,7 +53,6 @@ from ...optics.lens import Lens, LensSpec
 from ...optics.materials import Air, get_material
 from ...optics.paraxial import media_indices, trace_paraxial_ray
 from ...optics.surfaces import Aperture, Asphere
-from ..optimizers import damped_least_squares
 from .spec import DesignSpec
 
 __all__ = ["ThinLens", "thin_lens_solve", "thin_lens_start", "flat_start", "solve_efl",
@@ -133,6 +133,37 @@ def _indices(glass: str, spec: DesignSpec) -> tuple[float, float]:
     return n0, (n0 - 1.0) / dn if dn != 0 else math.inf
 
 
+def _levenberg_marquardt(fn, x0, steps: int = 200) -> np.ndarray:
+    """Minimise ``|fn(x)|^2`` (a few variables, plain floats: torch's per-op overhead would
+    dominate) by Levenberg-Marquardt with a central-difference Jacobian."""
+    x = np.asarray(x0, dtype=np.float64)
+    r = fn(x)
+    F, lam = float(r @ r), 1e-3
+    for _ in range(steps):
+        J = np.empty((r.size, x.size))
+        for j in range(x.size):
+            h = 1e-7 * max(1.0, abs(x[j]))
+            e = np.zeros_like(x)
+            e[j] = h
+            J[:, j] = (fn(x + e) - fn(x - e)) / (2 * h)
+        A, g = J.T @ J, J.T @ r
+        D = np.maximum(np.diag(A), 1e-12 * max(float(np.diag(A).max()), 1e-300))
+        while True:
+            dx = np.linalg.solve(A + lam * np.diag(D), -g)
+            r2 = fn(x + dx)
+            F2 = float(r2 @ r2)
+            if F2 < F:
+                done = F - F2 < 1e-15 * max(F, 1e-300)
+                x, r, F, lam = x + dx, r2, F2, max(lam / 3, 1e-12)
+                break
+            lam *= 4
+            if lam > 1e12:
+                return x
+        if done:
+            break
+    return x
+
+
 def thin_lens_solve(spec: DesignSpec, k, spacings, glasses) -> tuple[list, list]:
     """Powers (1/mm) and spacings (mm) of the thin system (module docstring): ``k`` sampled
     normalised powers (``f φ_i``), ``spacings`` (mm), ``glasses`` specs.  Returns
@@ -140,11 +171,12 @@ def thin_lens_solve(spec: DesignSpec, k, spacings, glasses) -> tuple[list, list]
     f = spec.efl_mm
     N = len(k)
     nv = [_indices(g, spec) for g in glasses]
-    k0 = torch.tensor([float(x) for x in k], dtype=torch.float64)
+    k0 = np.array([float(x) for x in k])
     t = [float(x) for x in spacings]
+    colour = N >= 2 and len(spec.wavelengths_nm) >= 2
 
     def heights(phi):
-        y, u, ys = torch.ones((), dtype=phi.dtype), torch.zeros((), dtype=phi.dtype), []
+        y, u, ys = 1.0, 0.0, []
         for i in range(N):
             ys.append(y)
             u = u - y * phi[i]
@@ -156,19 +188,17 @@ def thin_lens_solve(spec: DesignSpec, k, spacings, glasses) -> tuple[list, list]
         phi = x / f
         ys, Phi = heights(phi)
         r = [1e4 * (f * Phi - 1.0)]
-        if N >= 2 and len(spec.wavelengths_nm) >= 2:
+        if colour:
             r.append(1e4 * f * sum(ys[i] ** 2 * phi[i] / nv[i][1] for i in range(N)))
         if N >= 3:
             r.append(0.1 * f * sum(phi[i] / nv[i][0] for i in range(N)))
-        r = torch.stack([torch.as_tensor(v, dtype=x.dtype) for v in r])
-        return torch.cat([r, 0.3 * (x - k0)])
+        return np.concatenate([np.array(r), 0.3 * (x - k0)])
 
-    res = damped_least_squares(residuals, k0.clone(), steps=100, jacobian_mode="forward")
-    phi = [float(v) / f for v in res.x]
-    _, Phi = heights(torch.tensor(phi, dtype=torch.float64))
-    s = 1.0 / (f * float(Phi))
+    phi = [float(v) / f for v in _levenberg_marquardt(residuals, k0)]
+    _, Phi = heights(phi)
+    s = 1.0 / (f * float(Phi)) if Phi != 0 else math.inf
     if not (s > 0 and math.isfinite(s)):
-        raise StartError(f"the thin-lens solve gives no positive power (f Φ = {1 / s:.3g})")
+        raise StartError(f"the thin-lens solve gives no positive power (f Φ = {f * Phi:.3g})")
     return [p * s for p in phi], [x / s for x in t]
 
 
