@@ -10,7 +10,8 @@ over the three fields, hexapolar:12 rays, no vignetting) with the shipped lens's
 same way on its own semi-diameters (it vignettes its outer field).
 
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/design_search.py [--seeds 0,1,2,3,4]
-        [--starts 6] [--hops 3] [--lens cooke|double_gauss] [--json OUT.json]
+        [--starts 4] [--hops 2] [--screen-steps 40] [--polish-steps 60] [--hop-steps 30]
+        [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -37,12 +38,14 @@ SPECS = {
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--lens", choices=sorted(SPECS), default="cooke")
+    p.add_argument("--lens", choices=sorted(SPECS), default="cooke",
+                   help="the shipped lens whose spec is searched")
     p.add_argument("--seeds", default="0,1,2,3,4")
-    p.add_argument("--starts", type=int, default=6)
-    p.add_argument("--hops", type=int, default=3)
-    p.add_argument("--screen-steps", type=int, default=15)
-    p.add_argument("--polish-steps", type=int, default=30)
+    p.add_argument("--starts", type=int, default=4)
+    p.add_argument("--hops", type=int, default=2)
+    p.add_argument("--screen-steps", type=int, default=40)
+    p.add_argument("--polish-steps", type=int, default=60)
+    p.add_argument("--hop-steps", type=int, default=30)
     p.add_argument("--json", help="also write the numbers here")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
@@ -51,9 +54,12 @@ def main(argv=None) -> int:
     rows = []
     for seed in [int(s) for s in args.seeds.split(",")]:
         cfg = SearchConfig(starts=args.starts, hops=args.hops, seed=seed, polish_count=1,
-                           screen=(Stage(args.screen_steps, "hexapolar:3"),),
-                           polish=(Stage(args.polish_steps, "hexapolar:4", rounds=2),),
-                           hop=(Stage(args.screen_steps, "hexapolar:3"),), keep=1)
+                           screen=(Stage(args.screen_steps, "hexapolar:3",
+                                         rounds=max(1, args.screen_steps // 20)),),
+                           polish=(Stage(args.polish_steps, "hexapolar:4",
+                                         rounds=max(1, args.polish_steps // 20)),),
+                           hop=(Stage(args.hop_steps, "hexapolar:3",
+                                      rounds=max(1, args.hop_steps // 20)),), keep=1)
         t0, c0 = time.perf_counter(), time.process_time()
         res = search(spec, cfg, progress=lambda s, seed=seed: print(f"  seed {seed}: {s}",
                                                                      file=sys.stderr, flush=True))

@@ -8,11 +8,11 @@ global strategy: quasi-random starts, de-duplication, basin hopping, the best k 
 """
 
 from .multistart import Design, SearchConfig, SearchResult, search
-from .refine import Stage, refine
+from .refine import Stage
 from .result import evaluate, write_outputs
 from .spec import DesignSpec, SpecError
 from .start import StartError, flat_start, solve_efl, thin_lens_start
 
 __all__ = ["DesignSpec", "SpecError", "SearchConfig", "SearchResult", "Design", "search",
-           "Stage", "refine", "evaluate", "write_outputs", "thin_lens_start", "flat_start",
+           "Stage", "evaluate", "write_outputs", "thin_lens_start", "flat_start",
            "solve_efl", "StartError"]
