@@ -41,11 +41,11 @@ def main(argv=None) -> int:
     p.add_argument("--lens", choices=sorted(SPECS), default="cooke",
                    help="the shipped lens whose spec is searched")
     p.add_argument("--seeds", default="0,1,2,3,4")
-    p.add_argument("--starts", type=int, default=4)
+    p.add_argument("--starts", type=int, default=3)
     p.add_argument("--hops", type=int, default=2)
-    p.add_argument("--screen-steps", type=int, default=40)
-    p.add_argument("--polish-steps", type=int, default=60)
-    p.add_argument("--hop-steps", type=int, default=30)
+    p.add_argument("--screen-steps", type=int, default=30)
+    p.add_argument("--polish-steps", type=int, default=40)
+    p.add_argument("--hop-steps", type=int, default=20)
     p.add_argument("--json", help="also write the numbers here")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
@@ -54,11 +54,11 @@ def main(argv=None) -> int:
     rows = []
     for seed in [int(s) for s in args.seeds.split(",")]:
         cfg = SearchConfig(starts=args.starts, hops=args.hops, seed=seed, polish_count=1,
-                           screen=(Stage(args.screen_steps, "hexapolar:3",
+                           screen=(Stage(args.screen_steps, "hexapolar:6",
                                          rounds=max(1, args.screen_steps // 20)),),
-                           polish=(Stage(args.polish_steps, "hexapolar:4",
+                           polish=(Stage(args.polish_steps, "hexapolar:6",
                                          rounds=max(1, args.polish_steps // 20)),),
-                           hop=(Stage(args.hop_steps, "hexapolar:3",
+                           hop=(Stage(args.hop_steps, "hexapolar:6",
                                       rounds=max(1, args.hop_steps // 20)),), keep=1)
         t0, c0 = time.perf_counter(), time.process_time()
         res = search(spec, cfg, progress=lambda s, seed=seed: print(f"  seed {seed}: {s}",

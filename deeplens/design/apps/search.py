@@ -90,9 +90,9 @@ def run(args) -> dict:
             raise ValueError(f"--{flag.replace('_', '-')} must be >= 1, got {getattr(args, flag)}")
     cfg = SearchConfig(starts=args.starts, start_kind=args.start_kind, polish_count=args.polish,
                        hops=args.hops, keep=args.keep, seed=args.seed,
-                       screen=(Stage(args.screen_steps, "hexapolar:3"),),
-                       polish=(Stage(args.polish_steps, "hexapolar:5", rounds=2),),
-                       hop=(Stage(args.hop_steps, "hexapolar:4"),))
+                       screen=(Stage(args.screen_steps, "hexapolar:6"),),
+                       polish=(Stage(args.polish_steps, "hexapolar:6", rounds=2),),
+                       hop=(Stage(args.hop_steps, "hexapolar:6"),))
 
     def progress(text):
         if not args.quiet:

@@ -58,10 +58,10 @@ class SearchConfig:
     flat_screen: tuple = CURRICULUM
     score_sampling: str = "hexapolar:6"
     polish_count: int = 3
-    polish: tuple = (Stage(30, "hexapolar:5", rounds=2),)
+    polish: tuple = (Stage(30, "hexapolar:6", rounds=2),)
     hops: int = 6
     hop_size: float = 0.5
-    hop: tuple = (Stage(20, "hexapolar:4"),)
+    hop: tuple = (Stage(20, "hexapolar:6"),)
     temperature: float = 0.0
     keep: int = 3
     dedup_tol: float = 0.02

@@ -158,7 +158,10 @@ class EflSolved:
     (:func:`solved_curvature`): the focal length is exact at every trial point, so the
     optimiser never trades focal length for spot size and needs no stiff penalty (which would
     make the power direction 10^4 times stiffer than the bending one).  ``lens`` may be a
-    Camera (its options reach the inner merit)."""
+    Camera (its options reach the inner merit).  The soft constraint penalties inside the
+    merit see the solved curvature; the hard-constraint test of
+    :func:`~deeplens.design.lensopt.lens_residual_fn` sees the stored one (the last stage's
+    solve), which differs from it only by the trial step's change of focal power."""
 
     def __init__(self, merit, efl: float):
         self.merit, self.efl = merit, float(efl)
