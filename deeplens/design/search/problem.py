@@ -42,6 +42,11 @@ __all__ = ["FocalPower", "EflSolved", "solved_curvature", "StopLimitedSpotMerit"
            "real_surfaces"]
 
 
+#: a spec's limits hold within this (mm): the soft penalties of a refinement leave violations
+#: of this order, which a hard limit would count against an otherwise good design
+TOLERANCE_MM = 1e-3
+
+
 def real_surfaces(lens) -> list[int]:
     """Indices of the refracting surfaces (not stops)."""
     return [i for i, s in enumerate(lens.surfaces) if not isinstance(s, Aperture)]
@@ -250,6 +255,8 @@ def spec_constraints(lens, spec: DesignSpec) -> list[Constraint]:
     if spec.max_diameter_mm is not None:
         out.append(Constraint("max_diameter", "max", 0.5 * spec.max_diameter_mm,
                               lambda L, h=spec.hfov_deg: paraxial_footprint(L, h)))
+    for c in out:   # a design meets a limit within a micrometre (soft penalties leave less)
+        c.tol = TOLERANCE_MM
     return out
 
 
