@@ -16,7 +16,8 @@
    (``polish``), with aspheric terms on the ``spec.aspheres`` most bent surfaces if allowed.
 5. **Basin hopping** (Wales and Doye 1997): ``hops`` times, the current design's scaled
    variables (mm of sag at the rim, mm of gap) are kicked by ``hop_size`` x a standard normal
-   vector, the focal length restored by the angle solve, and the result refined (``hop``);
+   vector (up to 5 tries for a valid lens), the focal length restored by the angle solve, and
+   the result refined (``hop``);
    it replaces the current design when it scores better (greedy; ``temperature > 0`` accepts a
    worse one with probability ``exp(-Δ / T)``, Δ in µm of RMS spot).
 6. **Keep** the best ``keep`` distinct designs; each gets its focal length made exact
@@ -240,18 +241,24 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
     current = deduplicate(pool, cfg.dedup_tol)[0]
     asph = aspheric_choice(current.lens, spec.aspheres) if spec.aspheres else ()
     for h in range(int(cfg.hops)):
-        lens = copy.deepcopy(current.lens)
         rec = {"origin": f"hop {h} from {current.origin}", "ok": False}
-        try:
-            v = search_variables(lens, asph, efl_solve=True)
-            x = v.x0() + cfg.hop_size * torch.randn(len(v), generator=gen, dtype=torch.float64)
-            v.assign(x)
-            lens.check()
-            solve_efl(lens, spec.efl_mm)
-        except (ValueError, RuntimeError) as e:
-            rec["reason"] = f"kick: {e}"
+        for _ in range(5):   # up to 5 kicks for one that leaves a valid lens
+            lens = copy.deepcopy(current.lens)
+            try:
+                v = search_variables(lens, asph, efl_solve=True)
+                x = v.x0() + cfg.hop_size * torch.randn(len(v), generator=gen,
+                                                        dtype=torch.float64)
+                v.assign(x)
+                lens.check()
+                solve_efl(lens, spec.efl_mm)
+                lens.check()
+                break
+            except (ValueError, RuntimeError) as e:
+                rec["reason"] = f"kick: {e}"
+                lens = None
+        if lens is None:
             runs.append(rec)
-            say(f"hop {h + 1}/{cfg.hops}: the kick left the feasible region")
+            say(f"hop {h + 1}/{cfg.hops}: 5 kicks left the feasible region")
             continue
         r = refine(lens, spec, cfg.hop, aspheric_surfaces=asph)
         rec.update(ok=r.ok, reason=r.reason, seconds=r.seconds, history=r.history, steps=r.steps)
