@@ -191,7 +191,7 @@ def parse(path: Path):
     p.records = {r.line: r for r in records}
     sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None, "yfln": None,
             "waves": {}, "wavl": None, "pwav": (1, 0), "gcat": ([], 0), "name": "",
-            "mode": None, "raim": (0, 0)}
+            "mode": None, "raim": (0, 0), "mnum": None, "mce": []}
     surfs: list[ZmxSurface] = []
     cur: ZmxSurface | None = None
     unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
@@ -354,14 +354,18 @@ def parse(path: Path):
                 p.note(ln, f"ENVD: temperature {env[0]:g} °C / pressure {env[1:] or ['?']} atm "
                            f"ignored: indices are the catalogues' at their reference temperature")
         elif key == "MNUM":
-            if len(toks) > 1 and p.num(toks[1], ln, key) > 1:
-                n_cfg = int(p.num(toks[1], ln, key))
-                cur_cfg = int(p.num(toks[2], ln, key)) if len(toks) > 2 else 1
-                p.note(ln, f"multi-configuration file ({n_cfg} configurations): the surface data "
-                           f"as saved (configuration {cur_cfg}, the active one) is read; the "
-                           f"other configurations' values are not applied")
+            # MNUM <configurations> <active configuration>: the operand rows follow
+            # (:mod:`.zmx_mconf` reads them)
+            n_cfg = int(p.arg(toks, 1, ln, "number of configurations"))
+            cur_cfg = int(p.num(toks[2], ln, "MNUM active configuration")) if len(toks) > 2 else 1
+            if n_cfg < 1 or not 1 <= cur_cfg <= n_cfg:
+                p.fail(ln, f"MNUM {n_cfg} {cur_cfg}: expected at least 1 configuration and an "
+                           f"active configuration between 1 and the number of configurations")
+            sysd["mnum"] = (n_cfg, cur_cfg, ln)
         elif key in _SILENT:
             continue
+        elif sysd["mnum"] is not None and r.surf is None:
+            sysd["mce"].append(r)   # a multi-configuration operand row (after MNUM)
         else:
             first, count = unused.get(toks[0], (ln, 0))
             unused[toks[0]] = (first, count + 1)
