@@ -104,7 +104,7 @@ from __future__ import annotations
 
 from ..errors import ZemaxFileError, ZemaxWarning
 from .zmx_glass import BUILTIN_CATALOGUES
-from .zmx_mconf import read_zmx_configs
+from .zmx_configs import read_zmx_configs
 from .zmx_read import read_zmx
 from .zmx_system import lens_pupil_convention
 from .zmx_write import write_zmx

@@ -67,7 +67,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
             ``None`` (default): the active one, as saved (a :class:`ZemaxWarning` says the file
             has others).  Its operands (``THIC``, ``CRVT``, ``CONN``, ``GLSS``, ``APER``,
             ``YFIE``, ``XFIE``, ``WAVE``, ``PRWV``) replace the saved values (:mod:`.zmx_mconf`;
-            :func:`~.zmx_mconf.read_zmx_configs` reads them all).
+            :func:`~.zmx_configs.read_zmx_configs` reads them all).
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
