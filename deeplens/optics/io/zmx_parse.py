@@ -32,6 +32,8 @@ __all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
 UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 """``UNIT`` name -> millimetres per file unit."""
 
+_MAX_CONFIGS = 10000   # MNUM: more is a damaged number (read_zmx_configs builds one lens each)
+
 # surface types met in real files that deeplens refuses, and what they are
 _DIFFRACTIVE = ("out of scope: deeplens traces refraction, reflection, straight-ruled gratings "
                 "(DGRATING) and radial phases (BINARY_2), not other diffractive phase profiles")
@@ -356,11 +358,14 @@ def parse(path: Path):
         elif key == "MNUM":
             # MNUM <configurations> <active configuration>: the operand rows follow
             # (:mod:`.zmx_mconf` reads them)
-            n_cfg = int(p.arg(toks, 1, ln, "number of configurations"))
-            cur_cfg = int(p.num(toks[2], ln, "MNUM active configuration")) if len(toks) > 2 else 1
-            if n_cfg < 1 or not 1 <= cur_cfg <= n_cfg:
-                p.fail(ln, f"MNUM {n_cfg} {cur_cfg}: expected at least 1 configuration and an "
-                           f"active configuration between 1 and the number of configurations")
+            n_cfg = p.arg(toks, 1, ln, "number of configurations")
+            cur_cfg = p.num(toks[2], ln, "MNUM active configuration") if len(toks) > 2 else 1
+            if not (n_cfg == int(n_cfg) and 1 <= n_cfg <= _MAX_CONFIGS and cur_cfg == int(cur_cfg)
+                    and 1 <= cur_cfg <= n_cfg):
+                p.fail(ln, f"MNUM {n_cfg:g} {cur_cfg:g}: expected a whole number of "
+                           f"configurations from 1 to {_MAX_CONFIGS} and an active configuration "
+                           f"from 1 to that number")
+            n_cfg, cur_cfg = int(n_cfg), int(cur_cfg)
             sysd["mnum"] = (n_cfg, cur_cfg, ln)
         elif key in _SILENT:
             continue

@@ -285,3 +285,24 @@ def test_optiland_reading_of_each_single_configuration_file(tmp_path):
             optic = load_zemax_file(str(path))
         assert float(optic.paraxial.f2()) == pytest.approx(_efl(_read(ZOOM, config=k)),
                                                            rel=1e-9)
+
+
+@pytest.mark.parametrize("mnum", ["MNUM 0 1", "MNUM 3 4", "MNUM 2.5 1", "MNUM 1e308 1"])
+def test_bad_mnum_is_located(tmp_path, mnum):
+    p = _operand_file(tmp_path, "", mnum=mnum)
+    with pytest.raises(ZemaxFileError, match=r"lens\.zmx:\d+: MNUM .*expected a whole number of "
+                                             r"configurations from 1 to 10000") as err:
+        _read(p)
+    assert err.value.feature == "MNUM"
+
+
+def test_a_file_without_mnum_has_one_configuration(tmp_path):
+    p = _write(tmp_path, _single(2))
+    assert lens_to_dict(_read(p, config=1)) == lens_to_dict(_read(p))
+    with pytest.raises(ZemaxFileError, match=r"configuration 2 requested: the file has 1 "
+                                             r"configuration"):
+        _read(p, config=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ZemaxWarning)
+        (only,) = read_zmx_configs(p)
+    assert lens_to_dict(only) == lens_to_dict(_read(p))
