@@ -35,7 +35,9 @@ Rows that do not change the optics deeplens models are skipped: ``MOFF`` (blank)
 (``PRAM``/``PARn`` parameters, ``STPS`` stop surface, ``APMX`` clear apertures, ``SDIA``,
 ``TEMP``, ``IGNR``, ...) is an error naming the file, the line and the operand when its value in
 the requested configuration differs from the saved (active) configuration's: it would change the
-lens, and is never ignored.  Configurations that do not differ there are read.
+lens, and is never ignored.  Configurations that do not differ there are read.  A row with an
+unknown name is such an operand when it has an operand row's shape (four letters, two whole
+numbers, a value); other lines after ``MNUM`` are reported as unused (a warning).
 
 :func:`.zmx_configs.read_zmx_configs` reads every configuration; surfaces that no configuration
 changes are shared **by object** (see its docstring).
@@ -98,6 +100,12 @@ def _value_token(r) -> tuple[str, int]:
     return " ".join(parts).strip('"'), i
 
 
+def _operand_shaped(toks) -> bool:
+    """Whether a row reads as ``<operand> <number> <configuration> <value> ...`` (two whole
+    numbers after a four-letter name)."""
+    return (len(toks) >= 4 and len(toks[0]) == 4 and toks[1].isdigit() and toks[2].isdigit())
+
+
 def operands(sysd: dict, p: Locator) -> tuple[int, int, dict]:
     """``(n, active, table)``: the number of configurations, the active one (``MNUM``; 1 and 1
     without it) and ``{(operand, number): {configuration: (value text, line)}}`` in file order."""
@@ -105,7 +113,12 @@ def operands(sysd: dict, p: Locator) -> tuple[int, int, dict]:
         return 1, 1, {}
     n, active, _ = sysd["mnum"]
     table: dict = {}
+    names = set(APPLIED) | _SKIPPED | _VIGNETTING | set(_KNOWN)
     for r in sysd["mce"]:
+        if r.key not in names and not _operand_shaped(r.tokens):
+            # not an operand row (a system line after MNUM deeplens does not know)
+            p.note(r.line, f"{r.tokens[0]} line not used by deeplens (ignored)")
+            continue
         if len(r.tokens) < 3:
             p.fail(r.line, f"{r.key}: a multi-configuration operand row is '<operand> <number> "
                            f"<configuration> <value> ...'; this one is truncated")

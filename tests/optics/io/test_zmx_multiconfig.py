@@ -306,3 +306,11 @@ def test_a_file_without_mnum_has_one_configuration(tmp_path):
         warnings.simplefilter("ignore", ZemaxWarning)
         (only,) = read_zmx_configs(p)
     assert lens_to_dict(only) == lens_to_dict(_read(p))
+
+
+def test_a_line_after_mnum_that_is_not_an_operand_row_is_reported_not_refused(tmp_path):
+    p = _operand_file(tmp_path, "THIC 2 2 20\nGLCZ 1\n")
+    ln = p.read_text().splitlines().index("GLCZ 1") + 1
+    with pytest.warns(ZemaxWarning, match=rf"lens\.zmx:{ln}: GLCZ line not used"):
+        lens = read_zmx(p, config=2)
+    assert float(lens.distances[2]) == 20.0
