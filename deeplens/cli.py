@@ -145,6 +145,12 @@ def _load(args):
         if missing:
             raise _UsageError(f"--glass-catalog: no such file: {missing[0]}")
         opts["glass_catalogs"] = list(catalogs)
+    config = getattr(args, "config", None)
+    if config is not None:
+        if Path(args.lens).suffix.lower() != ".zmx":
+            raise _UsageError(f"--config applies to Zemax files (.zmx) only; {args.lens} is not "
+                              f"one")
+        opts["config"] = config
     try:
         return load_lens(args.lens, **opts)
     except LensFileError as e:
@@ -753,6 +759,9 @@ def _main(argv=None) -> int:
                         "for a .zmx file, what its RAIM line says: paraxial without ray aiming)")
     r.add_argument("--image-plane", choices=["sensor", "paraxial"], default="sensor")
     r.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    r.add_argument("--config", type=int, metavar="N",
+                   help="configuration N (from 1) of a multi-configuration Zemax file (MNUM: "
+                        "zoom, focus); default: the active one, as saved")
     r.add_argument("--analysis", help="also compute these, comma-separated: cardinal,distortion,"
                                       "field,color,vignetting,wavefront,strehl,mtf,ee")
     _add_lens_options(r)

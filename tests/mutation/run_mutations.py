@@ -70,6 +70,7 @@ RUN_LOCK = ("tests/training/test_run_lock_hydra.py",)
 LIMITS = ("tests/optics/test_limits.py",)
 INPUT_KEYS = ("tests/training/test_input_keys.py",)
 FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
+MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -617,6 +618,24 @@ MUTATIONS = [
              "alive", "deeplens/training/fanout_stop.py",
              'if not fields or fields[0] in ("Z", "X"):', 'if not fields or fields[0] in ("X",):',
              FANOUT_STOP),
+    # ------------------------------------------------ multi-configuration .zmx (issue 37 item 6)
+    Mutation("mconf_thic_ignored", "a configuration's THIC row not applied (every configuration "
+             "reads the saved gaps)", "deeplens/optics/io/zmx_mconf.py",
+             "            s.disz, s.disz_line = v, ln", "            s.disz_line = ln", MCONF),
+    Mutation("mconf_unsupported_silent", "an unsupported operand that changes the lens ignored",
+             "deeplens/optics/io/zmx_mconf.py", "            if not same:\n",
+             "            if False:\n", MCONF),
+    Mutation("mconf_field_off_by_one", "YFIE f sets field f - 1", "deeplens/optics/io/zmx_mconf.py",
+             "        vals[num - 1] = v\n        sysd[slot]", "        vals[num - 2] = v\n        sysd[slot]",
+             MCONF),
+    Mutation("mconf_object_1e10_finite", "THIC 0 of 1e10 read as a finite object distance",
+             "deeplens/optics/io/zmx_mconf.py", "if num == 0 and v >= 1e10:", "if False:", MCONF),
+    Mutation("mconf_not_shared", "read_zmx_configs shares no surface (copies)",
+             "deeplens/optics/io/zmx_configs.py", "            L.surfaces[i] = s", "            pass",
+             MCONF),
+    Mutation("mconf_shared_size_first", "a shared surface keeps configuration 1's automatic "
+             "semi-diameter, not the largest", "deeplens/optics/io/zmx_configs.py",
+             "s.semi_diameter.fill_(max(sizes))", "s.semi_diameter.fill_(sizes[0])", MCONF),
 ]
 
 

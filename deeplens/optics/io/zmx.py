@@ -87,6 +87,9 @@ media, telecentric object space without an ``OBNA`` aperture, ...) are errors na
 ``GLAS MIRROR`` makes the surface a mirror (``Lens(mirrors=...)``; the medium after it is the one
 before, and the file's negative thicknesses after it are kept: deeplens uses Zemax's sign
 convention, see ``docs/guide/mirrors.md``).
+Multi-configuration files (``MNUM``: zoom, focus): ``read_zmx(path, config=N)`` reads configuration
+``N`` (default: the active one, as saved) and :func:`read_zmx_configs` every one, sharing the
+surfaces no configuration changes; :mod:`.zmx_mconf` lists the operands applied and refused.
 :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
 written and read again has the same prescription.
 
@@ -101,9 +104,10 @@ from __future__ import annotations
 
 from ..errors import ZemaxFileError, ZemaxWarning
 from .zmx_glass import BUILTIN_CATALOGUES
+from .zmx_configs import read_zmx_configs
 from .zmx_read import read_zmx
 from .zmx_system import lens_pupil_convention
 from .zmx_write import write_zmx
 
 __all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "lens_pupil_convention",
-           "read_zmx", "write_zmx"]
+           "read_zmx", "read_zmx_configs", "write_zmx"]

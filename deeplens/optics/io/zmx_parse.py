@@ -32,6 +32,8 @@ __all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
 UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 """``UNIT`` name -> millimetres per file unit."""
 
+_MAX_CONFIGS = 10000   # MNUM: more is a damaged number (read_zmx_configs builds one lens each)
+
 # surface types met in real files that deeplens refuses, and what they are
 _DIFFRACTIVE = ("out of scope: deeplens traces refraction, reflection, straight-ruled gratings "
                 "(DGRATING) and radial phases (BINARY_2), not other diffractive phase profiles")
@@ -191,7 +193,7 @@ def parse(path: Path):
     p.records = {r.line: r for r in records}
     sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None, "yfln": None,
             "waves": {}, "wavl": None, "pwav": (1, 0), "gcat": ([], 0), "name": "",
-            "mode": None, "raim": (0, 0)}
+            "mode": None, "raim": (0, 0), "mnum": None, "mce": []}
     surfs: list[ZmxSurface] = []
     cur: ZmxSurface | None = None
     unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
@@ -354,14 +356,21 @@ def parse(path: Path):
                 p.note(ln, f"ENVD: temperature {env[0]:g} °C / pressure {env[1:] or ['?']} atm "
                            f"ignored: indices are the catalogues' at their reference temperature")
         elif key == "MNUM":
-            if len(toks) > 1 and p.num(toks[1], ln, key) > 1:
-                n_cfg = int(p.num(toks[1], ln, key))
-                cur_cfg = int(p.num(toks[2], ln, key)) if len(toks) > 2 else 1
-                p.note(ln, f"multi-configuration file ({n_cfg} configurations): the surface data "
-                           f"as saved (configuration {cur_cfg}, the active one) is read; the "
-                           f"other configurations' values are not applied")
+            # MNUM <configurations> <active configuration>: the operand rows follow
+            # (:mod:`.zmx_mconf` reads them)
+            n_cfg = p.arg(toks, 1, ln, "number of configurations")
+            cur_cfg = p.num(toks[2], ln, "MNUM active configuration") if len(toks) > 2 else 1
+            if not (n_cfg == int(n_cfg) and 1 <= n_cfg <= _MAX_CONFIGS and cur_cfg == int(cur_cfg)
+                    and 1 <= cur_cfg <= n_cfg):
+                p.fail(ln, f"MNUM {n_cfg:g} {cur_cfg:g}: expected a whole number of "
+                           f"configurations from 1 to {_MAX_CONFIGS} and an active configuration "
+                           f"from 1 to that number")
+            n_cfg, cur_cfg = int(n_cfg), int(cur_cfg)
+            sysd["mnum"] = (n_cfg, cur_cfg, ln)
         elif key in _SILENT:
             continue
+        elif sysd["mnum"] is not None and r.surf is None:
+            sysd["mce"].append(r)   # a multi-configuration operand row (after MNUM)
         else:
             first, count = unused.get(toks[0], (ln, 0))
             unused[toks[0]] = (first, count + 1)

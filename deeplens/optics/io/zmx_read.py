@@ -25,6 +25,7 @@ from ..materials import Material, check_wavelength_nm
 from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
 from .zmx_coordbrk import coordinate_break, is_identity, misalignment_brackets, y_fields_only
 from .zmx_glass import load_catalogues, surface_material
+from .zmx_mconf import configuration
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
 from .zmx_surfaces import build_surface, is_air
 from .zmx_system import aperture_to_epd, element_tilts, fields_to_angles
@@ -51,7 +52,7 @@ class _Sequence:
     folded: bool = False           # a fold or an off-axis section (an unpaired COORDBRK)
 
 
-def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
+def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Lens:
     """Read a sequential Zemax ``.zmx`` file into a :class:`~deeplens.optics.lens.Lens`.
 
     Args:
@@ -62,6 +63,11 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
         glass_fallback: ``None`` (default: a glass that is not found is an error), ``"model"``
             (use the ``n_d``/``V_d`` the ``GLAS`` line carries), or a material spec / material
             used for every missing glass.  Each use is reported as a :class:`ZemaxWarning`.
+        config: the configuration of a multi-configuration file (``MNUM``) to read, from 1;
+            ``None`` (default): the active one, as saved (a :class:`ZemaxWarning` says the file
+            has others).  Its operands (``THIC``, ``CRVT``, ``CONN``, ``GLSS``, ``APER``,
+            ``YFIE``, ``XFIE``, ``WAVE``, ``PRWV``) replace the saved values (:mod:`.zmx_mconf`;
+            :func:`~.zmx_configs.read_zmx_configs` reads them all).
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -82,6 +88,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None) -> Lens:
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
     sysd, surfs, p = parse(path)
+    sysd, surfs, n_cfg, k_cfg = configuration(sysd, surfs, p, config)
+    if n_cfg > 1 and config is None:
+        p.note(sysd["mnum"][2], f"multi-configuration file ({n_cfg} configurations): the surface "
+                                f"data as saved (configuration {k_cfg}, the active one) is read; "
+                                f"read_zmx(path, config=N) reads configuration N, "
+                                f"read_zmx_configs(path) every one")
     cats = load_catalogues(path, sysd["gcat"][0], glass_catalogs, p)
     unit, _ = sysd["unit"]
     s_mm = UNITS[unit]

@@ -1,0 +1,229 @@
+r"""Multi-configuration ``.zmx`` files (zoom, focus): one :class:`~deeplens.optics.lens.Lens` per
+configuration.
+
+OpticStudio's multi-configuration editor is saved after the ``SURF`` blocks: ``MNUM n k`` (``n``
+configurations, ``k`` the active one, whose values the ``SURF`` blocks and system data hold),
+then one row per operand and configuration, operand by operand::
+
+    THIC   5   1 12.5 0 0 0 1 1 1 0 0 "" 0      <operand> <number> <configuration> <value> ...
+    THIC   5   2 31.0 ...
+    YFIE   2   1 20 ...                          (field 2's y value in configuration 1)
+    GLSS   3   2 N-SK16 ...                      (a glass name; "" is air)
+    MOFF   0   1 "" 0 0 0 1 1 0 0.0 "" 0         (a blank row)
+
+The number is a surface (``THIC``, ``CRVT``, ``CONN``, ``GLSS``), a field (``YFIE``, ``XFIE``), a
+wavelength (``WAVE``) or 0 (``APER``, ``PRWV``); the columns after the value (solves, pick-ups,
+display flags) are not read: the value itself is what the configuration uses.  Configuration
+``N`` is the saved lens with each operand's value for ``N`` put in its place:
+
+=========  ====================================================================
+``THIC s``  ``DISZ`` of ``SURF s`` (file units; on ``SURF 0`` a value of 1e10 or more, or
+            ``INFINITY``, is an object at infinity, OpticStudio's convention)
+``CRVT s``  ``CURV`` of ``SURF s``
+``CONN s``  ``CONI`` of ``SURF s``
+``GLSS s``  ``GLAS`` of ``SURF s`` (a catalogue name looked up as the ``GLAS`` line's; empty or
+            ``AIR`` is air, ``MIRROR`` a mirror)
+``APER 0``  the system aperture's value (``ENPD``, ``FNUM``, ``OBNA``; not with ``FLOA``)
+``YFIE f``  / ``XFIE f``: field ``f``'s y / x value (``YFLN`` / ``XFLN``, in the ``FTYP`` units)
+``WAVE w``  wavelength ``w`` (µm, as ``WAVM``)
+``PRWV 0``  the primary wavelength's number (``PWAV``)
+=========  ====================================================================
+
+Rows that do not change the optics deeplens models are skipped: ``MOFF`` (blank), ``LTTL``
+(title), ``WLWT`` / ``FLWT`` (weights, not used), and the vignetting factors ``FVDX``, ``FVDY``,
+``FVCX``, ``FVCY``, ``FVAN`` (a warning when not 0, as for ``VDXN`` ...).  Any other operand
+(``PRAM``/``PARn`` parameters, ``STPS`` stop surface, ``APMX`` clear apertures, ``SDIA``,
+``TEMP``, ``IGNR``, ...) is an error naming the file, the line and the operand when its value in
+the requested configuration differs from the saved (active) configuration's: it would change the
+lens, and is never ignored.  Configurations that do not differ there are read.  A row with an
+unknown name is such an operand when it has an operand row's shape (four letters, two whole
+numbers, a value); other lines after ``MNUM`` are reported as unused (a warning).
+
+:func:`.zmx_configs.read_zmx_configs` reads every configuration; surfaces that no configuration
+changes are shared **by object** (see its docstring).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+from .zmx_parse import Locator, ZmxSurface, _check_magnitudes
+
+__all__ = ["APPLIED", "configuration", "operands"]
+
+APPLIED = {
+    "THIC": "a surface thickness (DISZ)", "CRVT": "a surface curvature (CURV)",
+    "CONN": "a conic constant (CONI)", "GLSS": "a surface glass (GLAS)",
+    "APER": "the system aperture value", "YFIE": "a field's y value (YFLN)",
+    "XFIE": "a field's x value (XFLN)", "WAVE": "a wavelength (WAVM)",
+    "PRWV": "the primary wavelength (PWAV)",
+}
+"""Operands applied to the configuration read, and what they set."""
+
+_SKIPPED = {"MOFF", "LTTL", "WLWT", "FLWT"}
+_VIGNETTING = {"FVDX", "FVDY", "FVCX", "FVCY", "FVAN"}
+
+# operands of OpticStudio's editor deeplens refuses when they change the lens, and what they are
+_KNOWN = {
+    "PRAM": "a surface parameter (PARM)", "PAR1": "a surface parameter", "PAR2": "a surface "
+    "parameter", "PAR3": "a surface parameter", "PAR4": "a surface parameter",
+    "PAR5": "a surface parameter", "PAR6": "a surface parameter", "PAR7": "a surface parameter",
+    "PAR8": "a surface parameter", "XDAT": "a surface's extra data (XDAT)",
+    "STPS": "the stop surface", "APMX": "a clear aperture's maximum radius",
+    "APMN": "a clear aperture's minimum radius", "APTP": "a surface aperture's type",
+    "APDX": "an aperture decenter", "APDY": "an aperture decenter", "SDIA": "a semi-diameter",
+    "TEMP": "the temperature", "PRES": "the pressure", "IGNR": "ignoring a surface",
+    "MIND": "a model glass's index", "MABB": "a model glass's Abbe number",
+    "MDPG": "a model glass's partial dispersion", "CWGT": "a configuration weight",
+    "RAAM": "ray aiming", "FLTP": "the field type", "SATP": "the system aperture type",
+    "NPAR": "a non-sequential parameter", "NPOS": "a non-sequential position",
+    "COTN": "a coating", "EDVA": "editor data",
+}
+
+
+def _value_token(r) -> tuple[str, int]:
+    """The value column of operand row ``r`` (a quoted string joined back): ``(text, index of
+    the next token)``."""
+    toks = r.tokens
+    if len(toks) < 4:
+        return "", len(toks)
+    if not toks[3].startswith('"'):
+        return toks[3], 4
+    parts, i = [], 3
+    while i < len(toks):
+        parts.append(toks[i])
+        i += 1
+        joined = " ".join(parts)
+        if len(joined) > 1 and joined.endswith('"'):
+            break
+    return " ".join(parts).strip('"'), i
+
+
+def _operand_shaped(toks) -> bool:
+    """Whether a row reads as ``<operand> <number> <configuration> <value> ...`` (two whole
+    numbers after a four-letter name)."""
+    return (len(toks) >= 4 and len(toks[0]) == 4 and toks[1].isdigit() and toks[2].isdigit())
+
+
+def operands(sysd: dict, p: Locator) -> tuple[int, int, dict]:
+    """``(n, active, table)``: the number of configurations, the active one (``MNUM``; 1 and 1
+    without it) and ``{(operand, number): {configuration: (value text, line)}}`` in file order."""
+    if sysd.get("mnum") is None:
+        return 1, 1, {}
+    n, active, _ = sysd["mnum"]
+    table: dict = {}
+    names = set(APPLIED) | _SKIPPED | _VIGNETTING | set(_KNOWN)
+    for r in sysd["mce"]:
+        if r.key not in names and not _operand_shaped(r.tokens):
+            # not an operand row (a system line after MNUM deeplens does not know)
+            p.note(r.line, f"{r.tokens[0]} line not used by deeplens (ignored)")
+            continue
+        if len(r.tokens) < 3:
+            p.fail(r.line, f"{r.key}: a multi-configuration operand row is '<operand> <number> "
+                           f"<configuration> <value> ...'; this one is truncated")
+        num = p.num(r.tokens[1], r.line, f"{r.key} number (surface, field or wavelength)")
+        cfg = p.num(r.tokens[2], r.line, f"{r.key} configuration number")
+        if num != int(num) or num < 0 or cfg != int(cfg) or not 1 <= cfg <= n:
+            p.fail(r.line, f"{r.key} {r.tokens[1]} {r.tokens[2]}: expected a number >= 0 and a "
+                           f"configuration from 1 to {n} (MNUM {n})")
+        table.setdefault((r.key, int(num)), {})[int(cfg)] = (_value_token(r)[0], r.line)
+    return n, active, table
+
+
+def configuration(sysd: dict, surfs: list[ZmxSurface], p: Locator, config: int | None):
+    """``(sysd, surfs, n, k)``: the system data and ``SURF`` blocks of configuration ``config``
+    (copies; ``None``: the active one, as saved), the number of configurations and the one read.
+
+    Raises:
+        ZemaxFileError: ``config`` out of range (located at ``MNUM``), a malformed operand row,
+            an operand deeplens does not apply whose value differs from the saved
+            configuration's, an operand's number out of range.
+    """
+    n, active, table = operands(sysd, p)
+    mnum_line = sysd["mnum"][2] if sysd.get("mnum") else 0
+    k = active if config is None else config
+    if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= n:
+        p.fail(mnum_line, f"configuration {config!r} requested: the file has {n} "
+                          f"configuration{'s' if n > 1 else ''} (MNUM), numbered from 1")
+    sysd, surfs = copy.deepcopy(sysd), copy.deepcopy(surfs)
+    for (key, num), rows in table.items():
+        if k not in rows:
+            continue    # no value for this configuration: the saved one
+        text, ln = rows[k]
+        if key in _SKIPPED:
+            continue
+        if key in _VIGNETTING:
+            if text not in ("", "0") and p.num(text, ln, key) != 0:
+                p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
+                           f"pupil by tracing)")
+            continue
+        if key not in APPLIED:
+            same = active in rows and rows[active][0] == text
+            if not same:
+                what = _KNOWN.get(key, "an operand deeplens does not know")
+                p.fail(ln, f"multi-configuration operand {key} ({what}) has a value in "
+                           f"configuration {k} ({text!r}) other than the saved configuration "
+                           f"{active}'s: it would change the lens, and deeplens applies only "
+                           f"{', '.join(APPLIED)}")
+            continue
+        _apply(key, num, text, ln, sysd, surfs, p)
+    _check_magnitudes(sysd, surfs, p)
+    return sysd, surfs, n, k
+
+
+def _apply(key, num, text, ln, sysd, surfs, p: Locator) -> None:
+    """Put one operand's value in place (see the module's table)."""
+    if key in ("THIC", "CRVT", "CONN", "GLSS"):
+        if not num < len(surfs):
+            p.fail(ln, f"{key} {num}: no SURF {num} (the file has SURF 0 to {len(surfs) - 1})")
+        s = surfs[num]
+        if key == "GLSS":
+            name = text.strip().upper()
+            s.glass_model, s.glass_model_name, s.glass_line = None, None, ln
+            s.mirror = name == "MIRROR"
+            s.glass = None if name in ("", "AIR", "VACUUM", "MIRROR") else name
+            return
+        if key == "THIC" and text.upper() == "INFINITY":
+            v = math.inf
+        else:
+            v = p.num(text, ln, f"{key} value")
+        if key == "THIC":
+            if num == 0 and v >= 1e10:
+                v = math.inf     # OpticStudio's object at infinity in the editor
+            s.disz, s.disz_line = v, ln
+        elif key == "CRVT":
+            s.curv, s.curv_line = v, ln
+        else:
+            s.coni = v
+        return
+    v = p.num(text, ln, f"{key} value")
+    if key == "APER":
+        ap = sysd["aperture"]
+        if ap is None or ap[0] == "stop":
+            p.fail(ln, "APER: the system aperture is FLOA (float by stop size) or not given, "
+                       "so a configuration's aperture value has no meaning here")
+        sysd["aperture"] = (ap[0], v, ln)
+    elif key in ("YFIE", "XFIE"):
+        slot = key[0].lower() + "fln"
+        if sysd[slot] is None or not 1 <= num <= len(sysd[slot][0]):
+            have = len(sysd[slot][0]) if sysd[slot] else 0
+            p.fail(ln, f"{key} {num}: no field {num} ({have} {slot.upper()} values)")
+        vals = list(sysd[slot][0])
+        vals[num - 1] = v
+        sysd[slot] = (vals, ln)
+    elif key == "WAVE":
+        if sysd["waves"]:
+            if num not in sysd["waves"]:
+                p.fail(ln, f"WAVE {num}: no wavelength {num} (WAVM {sorted(sysd['waves'])})")
+            sysd["waves"][num] = (v, ln)
+        elif sysd["wavl"] and 1 <= num <= len(sysd["wavl"][0]):
+            vals = list(sysd["wavl"][0])
+            vals[num - 1] = v
+            sysd["wavl"] = (vals, ln)
+        else:
+            p.fail(ln, f"WAVE {num}: no wavelength {num}")
+    elif key == "PRWV":
+        if v != int(v):
+            p.fail(ln, f"PRWV: expected a wavelength number, got {text!r}")
+        sysd["pwav"] = (int(v), ln)
