@@ -497,6 +497,8 @@ def _build(rd: _Reader, path: Path) -> Lens:
         else:
             n = max(s["coef"], default=-1) + 1
             coef = [s["coef"].get(j, 0.0) * u ** (1 - 2 * (j + 2)) for j in range(n)]
+            while coef and coef[-1] == 0:   # trailing zero terms (A 1e-6; B 0) are no terms
+                coef.pop()
             surf = Asphere(c, sd, s["k"], coef)
         if s["stop"]:
             if stop is not None:
