@@ -413,7 +413,7 @@ def read_seq(path) -> Lens:
     """Read a CODE V ``.seq`` file (the common subset: see :mod:`.codev`).
 
     Args:
-        path: the ``.seq`` file (UTF-8 or Latin-1 text).
+        path: the ``.seq`` file (UTF-8, UTF-16 with byte-order mark, or Latin-1 text).
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -433,7 +433,7 @@ def read_seq(path) -> Lens:
     src = str(path)
     raw = path.read_bytes()
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig")
     except UnicodeDecodeError:
         text = raw.decode("latin-1")
     rd = _Reader(src)

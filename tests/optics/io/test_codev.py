@@ -291,3 +291,14 @@ def test_writer_refuses_what_it_cannot_write(tmp_path):
     lens.mirrors = frozenset({1})
     with pytest.raises(LensFileError, match="mirrors"):
         write_seq(lens, tmp_path / "m.seq")
+
+
+def test_utf16_and_load_lens_dispatch(tmp_path):
+    """A UTF-16 file (with its byte-order mark) reads as its UTF-8 twin; load_lens and
+    save_lens choose the CODE V reader and writer by the .seq suffix."""
+    text = (SEQ / "singlet.seq").read_text()
+    (tmp_path / "u16.seq").write_bytes(text.encode("utf-16"))
+    a, b = load_lens(tmp_path / "u16.seq"), read_seq(SEQ / "singlet.seq")
+    assert lens_to_dict(a) == lens_to_dict(b)
+    save_lens(a, tmp_path / "out.seq")
+    assert (tmp_path / "out.seq").read_text().startswith("RDM N\n")
