@@ -67,6 +67,7 @@ from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
 from ..surfaces import Aperture, Asphere, Plane
 from .agf import AGFGlass
+from .filecheck import read_file_bytes
 from .vendor_glass import (BuchdahlGlass, archived_glass, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
 
@@ -431,7 +432,7 @@ def read_seq(path) -> Lens:
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
     src = str(path)
-    raw = path.read_bytes()
+    raw = read_file_bytes(path)   # a regular file of at most 64 MiB (filecheck)
     try:
         text = raw.decode("utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig")
     except UnicodeDecodeError:
