@@ -95,46 +95,55 @@ def _commands(text: str, source: str) -> list[tuple[int, list[str]]]:
     out: list[tuple[int, list[str]]] = []
     pending, start = "", 0
     for k, raw in enumerate(text.splitlines(), start=1):
-        line, quote = [], None
-        for ch in raw:   # cut the comment (a '!' outside quotes)
-            if quote is None and ch == "!":
-                break
-            if ch in "'\"":
-                quote = None if quote == ch else (ch if quote is None else quote)
-            line.append(ch)
-        s = "".join(line).rstrip()
         if not pending:
             start = k
+        s = pending + _without_comment(raw).rstrip()
         if s.endswith("&"):
-            pending += s[:-1] + " "
+            pending = s[:-1] + " "
             continue
-        s, pending = pending + s, ""
-        for part in _split_outside_quotes(s, ";"):
-            toks = re.findall(r"'[^']*'|\"[^\"]*\"|[^\s'\"]+", part)
-            if any(t[0] in "'\"" and (len(t) < 2 or t[-1] != t[0]) for t in toks) or \
-                    part.count("'") % 2 or (part.count('"') % 2 and "'" not in part):
-                raise LensFileError("unbalanced quote", source=source, line=start)
-            toks = [t[1:-1] if t[0] in "'\"" else t for t in toks]
-            if toks:
-                out.append((start, toks))
+        pending = ""
+        out += [(start, toks) for toks in _tokens(s, source, start) if toks]
     if pending:
         raise LensFileError("the last command ends in '&' (a continuation with no next line)",
                             source=source, line=start)
     return out
 
 
-def _split_outside_quotes(s: str, sep: str) -> list[str]:
-    parts, cur, quote = [], [], None
-    for ch in s:
+def _without_comment(line: str) -> str:
+    """``line`` up to its first ``!`` outside quotes."""
+    quote = None
+    for j, ch in enumerate(line):
+        if quote is None and ch == "!":
+            return line[:j]
         if ch in "'\"":
-            quote = None if quote == ch else (ch if quote is None else quote)
-        if ch == sep and quote is None:
-            parts.append("".join(cur))
-            cur = []
+            quote = ch if quote is None else (None if quote == ch else quote)
+    return line
+
+
+def _tokens(s: str, source: str, line: int) -> list[list[str]]:
+    """The commands of one logical line: split at ``;`` and blanks outside quotes."""
+    cmds, toks, cur, quote, quoted = [], [], [], None, False
+    for ch in s + ";":
+        if quote is not None:
+            if ch == quote:
+                quote = None
+            else:
+                cur.append(ch)
+        elif ch in "'\"":
+            quote, quoted = ch, True
+        elif ch.isspace() or ch == ";":
+            if cur or quoted:
+                toks.append("".join(cur))
+            cur, quoted = [], False
+            if ch == ";":
+                cmds.append(toks)
+                toks = []
         else:
             cur.append(ch)
-    parts.append("".join(cur))
-    return parts
+    if quote is not None:
+        raise LensFileError(f"unbalanced quote {quote}: expected a closing {quote} on the same "
+                            f"line", source=source, line=line)
+    return cmds
 
 
 # --------------------------------------------------------------------------- glasses

@@ -302,3 +302,17 @@ def test_utf16_and_load_lens_dispatch(tmp_path):
     assert lens_to_dict(a) == lens_to_dict(b)
     save_lens(a, tmp_path / "out.seq")
     assert (tmp_path / "out.seq").read_text().startswith("RDM N\n")
+
+
+def test_quotes_comments_and_continuations(tmp_path):
+    """``!`` and ``;`` inside quotes are text; a title keeps its apostrophe; an unclosed quote
+    is refused at its line."""
+    head = ('RDM; LEN "VERSION: 11.2; LENS ! 84"\nTIT "Smith\'s lens ! not a comment"\n'
+            + _HEAD)
+    lens = read_seq(_seq(tmp_path, "S 50 5 NBK7_SCHOTT\n  STO\nS -50 &\n 45\nSI 0 0\n",
+                         head=head))
+    assert lens.name == "Smith's lens ! not a comment"
+    assert float(lens.d_sensor) == 45.0
+    with pytest.raises(LensFileError, match="unbalanced quote") as e:
+        read_seq(_seq(tmp_path, "S 50 5 NBK7_SCHOTT\n", head="TIT 'open\n" + _HEAD, name="q.seq"))
+    assert e.value.line == 1
