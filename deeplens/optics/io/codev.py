@@ -20,12 +20,12 @@ quote a string, keywords are case-insensitive.  Mapping onto
   must be 0.  ``S r t [glass]`` a surface, ``t`` the gap to the next vertex; no glass is air.
   ``SI r t`` the image: ``r`` must be 0, ``t`` (a defocus) is added to the last gap.  A flat
   surface in air that is not the stop and has no ``CIR`` is a dummy: its thickness joins the gap.
-* After a surface command, ``STO`` makes it the stop; ``SPH``/``CON``/``ASP`` its type; ``K``,
+* After a surface command, ``STO`` (or ``STOP``) makes it the stop; ``SPH``/``CON``/``ASP`` its type; ``K``,
   ``A`` ... ``J`` its conic and coefficients; ``CIR r`` (or ``CIR CLR r``) its clear
   semi-diameter; ``THI``, ``GLA``, ``RDY``/``CUY`` change its thickness, glass, radius or
   curvature.  ``CIR`` on ``SI`` is the sensor semi-diameter.  A surface without ``CIR`` gets
   the paraxial estimate ``1.05 (|y_marginal| + |y_chief|)`` at the largest field (capped to its
-  conic's domain).  ``CIR EDG`` (a mechanical edge) is read and not used.
+  conic's domain; two estimates that cross are limited to where the surfaces meet).  ``CIR EDG`` (a mechanical edge) is read and not used.
 * Glasses: ``NAME_CATALOGUE`` (CODE V drops the hyphen: ``NBK7_SCHOTT`` is SCHOTT's ``N-BK7``)
   from the vendor catalogues of :mod:`.vendor_glass` (current, archived, previous); a bare name
   from deeplens' catalogue (:func:`~deeplens.optics.materials.get_material`), else from the one
@@ -62,7 +62,7 @@ from pathlib import Path
 
 import torch
 
-from ..errors import LensFileError
+from ..errors import LensFileError, SurfacesCrossError
 from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
 from ..surfaces import Aperture, Asphere, Plane
@@ -372,9 +372,9 @@ class _Reader:
         if args and re.fullmatch(r"S(\d+|O|I|S)(\.\.\S+)?", args[0].upper()):
             self.fail(line, f"{cmd} {args[0]}: surface qualifiers are not supported; expected "
                             f"the command in the surface's own block")
-        if cmd == "STO":
+        if cmd in ("STO", "STOP"):
             if args or s["kind"] != "S":
-                self.fail(line, "STO: expected it alone, after an S surface")
+                self.fail(line, f"{cmd}: expected it alone, after an S surface")
             s["stop"] = True
         elif cmd in ("SPH", "CON", "ASP"):
             if args:
@@ -497,7 +497,7 @@ def _build(rd: _Reader, path: Path) -> Lens:
         if flat_air and not s["stop"] and s["cir"] is None:
             gap += s["t"] * u          # a dummy surface
             continue
-        sd = s["cir"][0] * u if s["cir"] is not None else 1.0
+        sd = s["cir"][0] * u if s["cir"] is not None else _provisional(c, s["k"])
         if s["cir"] is None:
             autos.append(len(surfaces))
         if flat_air:
@@ -556,12 +556,23 @@ def _build(rd: _Reader, path: Path) -> Lens:
     autos = [i for i in autos if i != stop]
     if autos:
         _paraxial_semi_diameters(lens, autos, max(abs(f) for f in fields))
-        try:
-            lens.check()
-        except ValueError as e:
-            idx = getattr(e, "surfaces", ())
-            fail(where[idx[0]] if idx else None,
-                 f"{e} (with paraxial semi-diameters; give CIR)")
+        for _ in range(2 * len(surfaces)):   # each round limits one surface for good
+            try:
+                lens.check()
+                break
+            except SurfacesCrossError as e:
+                # estimated semi-diameters of two surfaces that meet within them: limited to
+                # where they meet (a real lens's edge; CODE V's own come from real rays)
+                hit = [i for i in e.surfaces if i in autos and
+                       float(lens.surfaces[i].semi_diameter) > e.radius * (1 - 1e-9)]
+                if not hit:
+                    fail(where[e.surfaces[0]], str(e))
+                for i in hit:
+                    lens.surfaces[i].semi_diameter.fill_(e.radius * (1 - 1e-6))
+            except ValueError as e:
+                idx = getattr(e, "surfaces", ())
+                fail(where[idx[0]] if idx else None,
+                     f"{e} (with paraxial semi-diameters; give CIR)")
     cir = next(s["cir"] for s in body if s["stop"])
     if cir is not None:
         got = float(lens.surfaces[stop].semi_diameter)
@@ -608,6 +619,14 @@ def _fields(rd: _Reader, lens: Lens, obj_dist: float, u: float) -> list[float]:
                       "expected YAN or YOB")
     f = float(par.efl)
     return [math.degrees(math.atan(h * u / f)) for h in vals]
+
+
+def _provisional(c: float, k: float) -> float:
+    """A semi-diameter (mm) to build the lens with before the paraxial estimate: 1 mm, or half
+    the conic's domain when that is smaller."""
+    if c != 0 and 1 + k > 0:
+        return min(1.0, 0.5 / (abs(c) * math.sqrt(1 + k)))
+    return 1.0
 
 
 def _paraxial_semi_diameters(lens: Lens, idx, field_deg: float) -> None:

@@ -316,3 +316,23 @@ def test_quotes_comments_and_continuations(tmp_path):
     with pytest.raises(LensFileError, match="unbalanced quote") as e:
         read_seq(_seq(tmp_path, "S 50 5 NBK7_SCHOTT\n", head="TIT 'open\n" + _HEAD, name="q.seq"))
     assert e.value.line == 1
+
+
+def test_estimated_semi_diameters_stop_where_surfaces_meet(tmp_path):
+    """Two surfaces without CIR whose paraxial estimates cross (a thin biconvex lens, a wide
+    beam) are limited to where they meet: sags 20 - sqrt(400 - r²) summing to the 1 mm centre
+    thickness, r = sqrt(400 - 19.5²); with CIR given the crossing is refused at its line."""
+    body = "S 0 1\n  STO\nS 20 1 NBK7_SCHOTT\nS -20 30\nSI 0 0\n"
+    lens = read_seq(_seq(tmp_path, body, head=_HEAD.replace("EPD 10", "EPD 30")))
+    r = math.sqrt(400 - 19.5 ** 2)
+    for i in (1, 2):
+        assert float(lens.surfaces[i].semi_diameter) == pytest.approx(r, rel=1e-5)
+    body = "S 0 1\n  STO\nS 20 1 NBK7_SCHOTT\n  CIR 6\nS -20 30\n  CIR 6\nSI 0 0\n"
+    with pytest.raises(LensFileError, match="cross") as e:
+        read_seq(_seq(tmp_path, body, head=_HEAD.replace("EPD 10", "EPD 30"), name="b.seq"))
+    assert e.value.line == 8
+
+
+def test_stop_spelled_out(tmp_path):
+    lens = read_seq(_seq(tmp_path, "S 50 5 NBK7_SCHOTT\nS -50 45\n  STOP\nSI 0 0\n"))
+    assert lens.stop_index == 1
