@@ -20,12 +20,13 @@ quote a string, keywords are case-insensitive.  Mapping onto
   must be 0.  ``S r t [glass]`` a surface, ``t`` the gap to the next vertex; no glass is air.
   ``SI r t`` the image: ``r`` must be 0, ``t`` (a defocus) is added to the last gap.  A flat
   surface in air that is not the stop and has no ``CIR`` is a dummy: its thickness joins the gap.
-* After a surface command, ``STO`` (or ``STOP``) makes it the stop; ``SPH``/``CON``/``ASP`` its type; ``K``,
-  ``A`` ... ``J`` its conic and coefficients; ``CIR r`` (or ``CIR CLR r``) its clear
-  semi-diameter; ``THI``, ``GLA``, ``RDY``/``CUY`` change its thickness, glass, radius or
+* After a surface command, ``STO`` (or ``STOP``) makes it the stop; ``SPH``/``CON``/``ASP``
+  its type; ``K``, ``A`` ... ``J`` its conic and coefficients; ``CIR r`` (or ``CIR CLR r``) its
+  clear semi-diameter; ``THI``, ``GLA``, ``RDY``/``CUY`` change its thickness, glass, radius or
   curvature.  ``CIR`` on ``SI`` is the sensor semi-diameter.  A surface without ``CIR`` gets
   the paraxial estimate ``1.05 (|y_marginal| + |y_chief|)`` at the largest field (capped to its
-  conic's domain; two estimates that cross are limited to where the surfaces meet).  ``CIR EDG`` (a mechanical edge) is read and not used.
+  conic's domain; two estimates that cross are limited to where the surfaces meet).
+  ``CIR EDG`` (a mechanical edge) is read and not used.
 * Glasses: ``NAME_CATALOGUE`` (CODE V drops the hyphen: ``NBK7_SCHOTT`` is SCHOTT's ``N-BK7``)
   from the vendor catalogues of :mod:`.vendor_glass` (current, archived, previous); a bare name
   from deeplens' catalogue (:func:`~deeplens.optics.materials.get_material`), else from the one
