@@ -44,7 +44,11 @@ quote a string, keywords are case-insensitive.  Mapping onto
   vignetting factors (``VUY``, ``VLY``, ...) other than 0 are reported as a
   :class:`CodeVWarning` (deeplens fills the whole pupil).
 
-Everything else (mirrors ``REFL``, decenters and tilts, other surface types, ``NA``/``NAO``,
+``REFL`` in place of a glass makes the surface a mirror (``Lens(mirrors=...)``: the medium
+after it is the one before, and the file's negative thicknesses after it are kept, CODE V's
+sign convention being deeplens' and OpticStudio's).
+
+Everything else (decenters and tilts, other surface types, ``NA``/``NAO``,
 real image heights, obscurations, surface qualifiers such as ``S3``) is refused: a
 :class:`~deeplens.optics.errors.LensFileError` naming the file, the line and what was expected.
 
@@ -195,10 +199,6 @@ def _catalogue_glass(name: str, cat: str) -> Material | None:
 def _glass(tok: str, source: str, line: int) -> Material:
     """The material a glass token names (see the module docstring)."""
     up = tok.upper()
-    if up == "REFL":
-        raise LensFileError("REFL (a mirror) is not supported by deeplens' CODE V reader; "
-                            "expected a glass name, NAME_CATALOGUE or a fictitious glass "
-                            "NNNNNN.VVVV", source=source, line=line)
     if re.fullmatch(r"[\d.]+", tok):
         m = _fictitious(tok)
         if m is None:
@@ -417,7 +417,7 @@ class _Reader:
             self.fail(line, f"unsupported command {cmd!r}; deeplens reads surfaces (S, SPH, "
                             f"CON, ASP, K, A..J, CIR, STO, THI, GLA, RDY, CUY), the system "
                             f"(DIM, RDM, WL, REF, EPD, FNO, YAN, YOB, YIM) and nothing else "
-                            f"(mirrors, decenters, other surface types are refused)")
+                            f"(decenters, other surface types are refused)")
 
 
 def read_seq(path) -> Lens:
@@ -490,11 +490,16 @@ def _build(rd: _Reader, path: Path) -> Lens:
     # surfaces: dummies into gaps
     surfaces, distances, where, autos, stop = [], [], [], [], None
     gap, lead = 0.0, 0.0   # lead: leading dummies' thickness, added to the object distance
+    mirrors = []
     for s in body:
-        mat = Air() if s["glass"] is None else _glass(s["glass"][0], src, s["glass"][1])
+        mirror = s["glass"] is not None and s["glass"][0].upper() == "REFL"
+        if mirror:   # the medium after a mirror is the one before it
+            mat = media[-1]
+        else:
+            mat = Air() if s["glass"] is None else _glass(s["glass"][0], src, s["glass"][1])
         c = s["c"] / u
         flat_air = (c == 0 and s["type"] == "SPH" and isinstance(mat, Air)
-                    and isinstance(media[-1], Air))
+                    and isinstance(media[-1], Air) and not mirror)
         if flat_air and not s["stop"] and s["cir"] is None:
             gap += s["t"] * u          # a dummy surface
             continue
@@ -517,6 +522,8 @@ def _build(rd: _Reader, path: Path) -> Lens:
             stop = len(surfaces)
         if not surfaces:
             lead, gap = gap, 0.0
+        if mirror:
+            mirrors.append(len(surfaces))
         surfaces.append(surf)
         distances.append(gap)
         where.append(s["line"])
@@ -546,7 +553,8 @@ def _build(rd: _Reader, path: Path) -> Lens:
         fail(line, str(e))
     name = rd.title or path.stem
     try:
-        lens = Lens(surfaces, media, distances, d_sensor, stop, sensor_sd, spec, name=name)
+        lens = Lens(surfaces, media, distances, d_sensor, stop, sensor_sd, spec, name=name,
+                    mirrors=mirrors)
     except ValueError as e:
         idx = getattr(e, "surfaces", ())
         fail(where[idx[0]] if idx else None, str(e))
@@ -698,15 +706,13 @@ def write_seq(lens: Lens, path) -> None:
     """Write ``lens`` as a CODE V ``.seq`` file that :func:`read_seq` reads back.
 
     Raises:
-        LensFileError: something with no CODE V equivalent here (mirrors, misalignments,
+        LensFileError: something with no CODE V equivalent here (misalignments,
             other surface types, a telecentric object, a virtual image, a material with no
             CODE V name); ``surfaces`` names the surfaces concerned.
     """
     from ..paraxial import paraxial
 
     spec = lens.spec
-    if lens.mirrors:
-        raise LensFileError("mirrors are not written to .seq files", surfaces=sorted(lens.mirrors))
     if not all(m.is_identity() for m in lens.misalignments):
         raise LensFileError("a misaligned element is not written to .seq files")
     if getattr(lens, "object_telecentric", False) or lens.virtual_image:
@@ -737,7 +743,7 @@ def write_seq(lens: Lens, path) -> None:
         for i, s in enumerate(lens.surfaces):
             head, *mods = _surface_lines(s, i)
             after = float(lens.distances[i + 1]) if i + 1 < n else float(lens.d_sensor)
-            g = _glass_token(lens.materials[i + 1], i)
+            g = "REFL" if i in lens.mirrors else _glass_token(lens.materials[i + 1], i)
             out.append(f"S {head} {_f(after)}" + (f" {g}" if g else ""))
             if i == lens.stop_index:
                 mods.insert(0, "STO")

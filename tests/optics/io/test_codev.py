@@ -72,7 +72,7 @@ def test_asphere_terms_are_read():
     assert [float(v) for v in s.a] == [2e-6]   # A only: the B and C zeros are trailing
 
 
-@pytest.mark.parametrize("seq", [p for p, _ in PAIRS])
+@pytest.mark.parametrize("seq", [p for p, _ in PAIRS] + ["paraboloid"])
 def test_seq_round_trip_is_identical(seq, tmp_path):
     """.seq -> Lens -> .seq -> Lens: the same lens file dictionary, bit for bit."""
     a = read_seq(SEQ / f"{seq}.seq")
@@ -251,7 +251,7 @@ def test_automatic_semi_diameters(tmp_path):
 
 @pytest.mark.parametrize("body,line,match", [
     ("S 50 5 NBK7_SCHOTT\n  STO\n  XDE 1\nS -50 45\nSI 0 0\n", 8, "unsupported command 'XDE'"),
-    ("S 50 5 REFL\n  STO\nS -50 45\nSI 0 0\n", 6, "REFL"),
+    ("S 50 5 NBK7_SCHOTT\n  STO\nS -50 45\n  ADE 3\nSI 0 0\n", 9, "'ADE'"),
     ("S 50 5 NBK7_SCHOTT\n  STO\n  K -1\nS -50 45\nSI 0 0\n", 8, "expected CON or ASP"),
     ("S 50 5 NOSUCH_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", 6, "NOSUCH not found in the SCHOTT"),
     ("S 50 5 517642\n  STO\nS -50 45\nSI 0 0\n", 6, "ambiguous"),
@@ -288,9 +288,30 @@ def test_system_refusals(tmp_path, head, line, match):
 
 def test_writer_refuses_what_it_cannot_write(tmp_path):
     lens = load_lens("cooke_triplet")
-    lens.mirrors = frozenset({1})
-    with pytest.raises(LensFileError, match="mirrors"):
+    with torch.no_grad():
+        lens.misalignments[0].dx.fill_(0.1)
+    with pytest.raises(LensFileError, match="misaligned"):
         write_seq(lens, tmp_path / "m.seq")
+
+
+def test_mirror(monkeypatch, tmp_path):
+    """REFL: an f/1 paraboloid (R = -200 mm, K = -1) has EFL |R|/2 = 100 mm, its focus 100 mm
+    in front of it (the negative thickness kept) and a perfect on-axis image (float64 rays:
+    below 1e-9 mm); rayoptics reads the file, and the one write_seq makes, to the same focal
+    length (its sign convention for a mirror's EFL is the opposite one)."""
+    lens = read_seq(SEQ / "paraboloid.seq")
+    assert lens.mirrors == frozenset({0})
+    with torch.no_grad():
+        p = paraxial(lens)
+        assert float(p.efl) == pytest.approx(100.0, rel=1e-12)
+        assert float(lens.d_sensor) == -100.0
+        assert float(spot_diagram(lens, 0.0, 550.0).rms_radius) < 1e-9
+    efl, _ = _rayoptics(SEQ / "paraboloid.seq", monkeypatch, tmp_path)
+    assert abs(efl) == pytest.approx(100.0, rel=1e-12)
+    write_seq(lens, tmp_path / "w.seq")
+    assert "S -0.005 -100.0 REFL" in (tmp_path / "w.seq").read_text()
+    efl, _ = _rayoptics(tmp_path / "w.seq", monkeypatch, tmp_path)
+    assert abs(efl) == pytest.approx(100.0, rel=1e-12)
 
 
 def test_utf16_and_load_lens_dispatch(tmp_path):
