@@ -586,10 +586,28 @@ def _build(rd: _Reader, path: Path) -> Lens:
     if cir is not None:
         got = float(lens.surfaces[stop].semi_diameter)
         if cir[0] * u < got * (1 - 1e-9):
-            fail(cir[1], f"CIR {cir[0]} on the stop is narrower than the beam the "
-                         f"{kind} gives there ({got / u!r}): expected a CIR at least that "
-                         f"wide (deeplens does not vignette at the stop)")
+            _stop_clear_radius(lens, cir[0] * u, got, kind, cir[1], fail, u)
     return lens
+
+
+def _stop_clear_radius(lens: Lens, clear: float, got: float, kind: str, line: int, fail,
+                       u: float) -> None:
+    """A ``CIR`` on the stop narrower than the beam the EPD or F-number gives there (``got``,
+    mm): CODE V keeps the pupil and the clear aperture vignettes its rim.  On a lens or mirror
+    surface (an :class:`Asphere`) the stop keeps its paraxial radius as its semi-diameter and the
+    ``CIR`` becomes its ``clear_radius``; a flat stop in air is refused."""
+    stop = lens.surfaces[lens.stop_index]
+    if type(stop) is not Asphere:
+        fail(line, f"CIR {clear / u!r} on the stop is narrower than the beam the {kind} gives "
+                   f"there ({got / u!r}): deeplens vignettes a pupil so only on a lens or mirror "
+                   f"surface, not on a {type(stop).__name__} stop; expected a CIR at least "
+                   f"that wide")
+    with torch.no_grad():
+        stop.clear_radius.fill_(clear)
+    try:
+        stop.check()
+    except ValueError as e:
+        fail(line, f"CIR on the stop: {e}")
 
 
 def _fields(rd: _Reader, lens: Lens, obj_dist: float, u: float) -> list[float]:
@@ -669,7 +687,7 @@ def _f(v) -> str:
     return repr(float(v))
 
 
-def _surface_lines(s, i: int) -> list[str]:
+def _surface_lines(s, i: int, stop: bool = False) -> list[str]:
     """Surface ``i`` as ``[curvature, modifier lines ...]`` (``CON``/``ASP`` and coefficients)."""
     if isinstance(s, Aperture):
         if s.shape != "circle" or float(s.obscuration) > 0 or s.decentred:
@@ -679,10 +697,11 @@ def _surface_lines(s, i: int) -> list[str]:
     if isinstance(s, Plane):
         return ["0.0"]
     if type(s).__name__ in ("Asphere", "Sphere"):
-        if float(s.obscuration) > 0 or math.isfinite(float(s.clear_radius)) or \
-                bool(s.clear_rect.any()):
-            raise LensFileError(f"surface {i}: an obscuration or a clear aperture narrower "
-                                f"than the semi-diameter has no CODE V equivalent here",
+        if float(s.obscuration) > 0 or (math.isfinite(float(s.clear_radius)) and not stop) or \
+                bool(s.clear_rect.any()) or any(float(v) for v in s.clear_decenter):
+            raise LensFileError(f"surface {i}: an obscuration, a decentred clear aperture or "
+                                f"one narrower than the semi-diameter (other than on the stop) "
+                                f"has no CODE V equivalent here",
                                 surfaces=(i,))
         a = [float(v) for v in s.a]
         while a and a[-1] == 0:
@@ -741,13 +760,15 @@ def write_seq(lens: Lens, path) -> None:
         out.append(obj + (f" {g}" if g else ""))
         n = len(lens.surfaces)
         for i, s in enumerate(lens.surfaces):
-            head, *mods = _surface_lines(s, i)
+            is_stop = i == lens.stop_index
+            head, *mods = _surface_lines(s, i, is_stop)
             after = float(lens.distances[i + 1]) if i + 1 < n else float(lens.d_sensor)
             g = "REFL" if i in lens.mirrors else _glass_token(lens.materials[i + 1], i)
             out.append(f"S {head} {_f(after)}" + (f" {g}" if g else ""))
-            if i == lens.stop_index:
+            if is_stop:
                 mods.insert(0, "STO")
-            mods.append(f"CIR {_f(s.semi_diameter)}")
+            clear = float(getattr(s, "clear_radius", math.inf))
+            mods.append(f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}")
             out += ["  " + m for m in mods]
     out.append("SI 0.0 0.0")
     if lens.sensor_semi_diameter is not None:

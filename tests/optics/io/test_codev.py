@@ -256,7 +256,8 @@ def test_automatic_semi_diameters(tmp_path):
     ("S 50 5 NOSUCH_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", 6, "NOSUCH not found in the SCHOTT"),
     ("S 50 5 517642\n  STO\nS -50 45\nSI 0 0\n", 6, "ambiguous"),
     ("S 50 x NBK7_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", 6, "S thickness: expected a number"),
-    ("S 50 5 NBK7_SCHOTT\n  STO\n  CIR 4\nS -50 45\nSI 0 0\n", 8, "narrower than the beam"),
+    ("S 0 1\n  STO\n  CIR 4\nS 50 5 NBK7_SCHOTT\nS -50 45\nSI 0 0\n", 8,
+     "narrower than the beam .* not on a Aperture stop"),
     ("S 50 5 NBK7_SCHOTT\n  STO\n  CIR OBS 1\nS -50 45\nSI 0 0\n", 8, "CIR OBS"),
     ("S 50 5 NBK7_SCHOTT\n  STO S1\nS -50 45\nSI 0 0\n", 7, "STO"),
     ("S 50 5 NBK7_SCHOTT\nS -50 45\nSI 0 0\n", None, "no stop"),
@@ -357,3 +358,21 @@ def test_estimated_semi_diameters_stop_where_surfaces_meet(tmp_path):
 def test_stop_spelled_out(tmp_path):
     lens = read_seq(_seq(tmp_path, "S 50 5 NBK7_SCHOTT\nS -50 45\n  STOP\nSI 0 0\n"))
     assert lens.stop_index == 1
+
+
+def test_stop_clear_aperture_narrower_than_the_pupil(tmp_path):
+    """A CIR on a lens-surface stop narrower than the EPD's beam (CODE V keeps the pupil and
+    vignettes its rim): the stop keeps the paraxial radius 12.5 mm as its semi-diameter and
+    CIR 12 becomes its clear radius, which cuts the rim rays; written and read back the same."""
+    body = ("S 61.47 6 NBK7_SCHOTT\n  STO\n  CIR 12\nS -44.64 2.5 NSF5_SCHOTT\nS -129.94 96\n"
+            "SI 0 0\n")
+    p = _seq(tmp_path, body, head=_HEAD.replace("EPD 10", "EPD 25"))
+    lens = read_seq(p)
+    stop = lens.surfaces[0]
+    assert float(stop.semi_diameter) == pytest.approx(12.5, rel=1e-12)
+    assert float(stop.clear_radius) == 12.0
+    with torch.no_grad():
+        spot = spot_diagram(lens, 0.0, 587.5618, pupil="paraxial")
+    assert spot.n_rays < spot.n_launched
+    write_seq(lens, tmp_path / "w.seq")
+    assert lens_to_dict(read_seq(tmp_path / "w.seq")) == lens_to_dict(lens)
