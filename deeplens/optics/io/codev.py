@@ -34,8 +34,9 @@ quote a string, keywords are case-insensitive.  Mapping onto
   ``V_d = VV.VV``: ``517000.642000`` is 1.517 / 64.2) as a
   :class:`~deeplens.optics.materials.ModelGlass`.
 * ``WL`` wavelengths in nm, ``REF`` the reference one (1-based; needed with several).
-* ``EPD`` -> ``epd``; ``FNO`` -> ``fno`` (image-space F-number, object at infinity).  ``CIR`` on
-  the stop may be wider than the beam the EPD gives (a physical stop), not narrower.
+* ``EPD`` -> ``epd``; ``FNO`` -> ``fno`` (image-space F-number, object at infinity).  A ``CIR``
+  on the stop narrower than the beam the EPD gives is the stop's ``clear_radius`` (a lens or
+  mirror surface; refused on a flat stop in air).
 * Fields: ``YAN`` (degrees), ``YOB`` (object heights, finite object: ``θ = atan(h / (s +
   z_EP))``), ``YIM`` (paraxial image heights, object at infinity: ``θ = atan(h' / f)``); the
   ``X`` components must be 0.
