@@ -129,8 +129,9 @@ def test_json_to_seq_to_json(tmp_path):
 
 # --------------------------------------------------------------------------- rayoptics oracle
 def _rayoptics(path, monkeypatch, tmp_path):
+    # rayoptics' reader opens a log file in the working folder of its import: a scratch one
+    monkeypatch.chdir(tmp_path)
     cmdproc = pytest.importorskip("rayoptics.codev.cmdproc")
-    monkeypatch.chdir(tmp_path)   # rayoptics' reader writes a log file in the working folder
     opm, (_, not_found) = cmdproc.read_lens(Path(path))
     assert not not_found, f"rayoptics did not find {not_found}"
     sm = opm["seq_model"]
@@ -178,8 +179,8 @@ def test_rayoptics_reads_what_write_seq_writes(src, monkeypatch, tmp_path):
 def test_asphere_geometry_in_rayoptics(monkeypatch, tmp_path):
     """rayoptics reads asphere.seq's ASP, K and A as we do (its B270 is not in its catalogues,
     so only the geometry is compared)."""
+    monkeypatch.chdir(tmp_path)   # (see _rayoptics)
     cmdproc = pytest.importorskip("rayoptics.codev.cmdproc")
-    monkeypatch.chdir(tmp_path)
     opm, _ = cmdproc.read_lens(SEQ / "asphere.seq")
     prof = opm["seq_model"].ifcs[1].profile
     s = read_seq(SEQ / "asphere.seq").surfaces[0]
