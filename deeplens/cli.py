@@ -57,8 +57,8 @@ def _shipped_names() -> list[str]:
 
 
 def _lens_help() -> str:
-    return (f"lens file (.json, the paper authors' .txt table, Zemax .zmx) or a shipped lens: "
-            f"{', '.join(_shipped_names())} (deeplens lenses: one line each)")
+    return (f"lens file (.json, the paper authors' .txt table, Zemax .zmx, CODE V .seq) or a "
+            f"shipped lens: {', '.join(_shipped_names())} (deeplens lenses: one line each)")
 
 
 def _elements(lens) -> int:

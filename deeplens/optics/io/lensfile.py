@@ -425,12 +425,17 @@ def lens_to_dict(lens: Lens) -> dict:
 
 def save_lens(lens: Lens, path) -> None:
     """Write ``lens`` as JSON, atomically (write to a temporary file, then rename); a path
-    ending in ``.zmx`` writes a Zemax file (:func:`~.zmx.write_zmx`)."""
+    ending in ``.zmx`` writes a Zemax file (:func:`~.zmx.write_zmx`), one in ``.seq`` a CODE V
+    file (:func:`~.codev.write_seq`)."""
     path = Path(path)
     if path.suffix.lower() == ".zmx":
         from .zmx import write_zmx
 
         return write_zmx(lens, path)
+    if path.suffix.lower() == ".seq":
+        from .codev import write_seq
+
+        return write_seq(lens, path)
     tmp = temp_path(path)
     try:  # a name of its own: two writers of one lens file never share a temporary file
         with open(tmp, "w") as f:

@@ -1,7 +1,7 @@
 """``load_lens``: read a lens file of any supported format, chosen by its suffix.
 
 ``.json`` is the deeplens format (:mod:`.lensfile`), ``.txt`` the paper authors' table
-(:mod:`.table`), ``.zmx`` a Zemax lens file (:mod:`.zmx`).  This module imports both readers; they do not import each other upwards
+(:mod:`.table`), ``.zmx`` a Zemax lens file (:mod:`.zmx`), ``.seq`` a CODE V file (:mod:`.codev`).  This module imports both readers; they do not import each other upwards
 (``table`` builds on ``lensfile``, ``lensfile`` knows nothing of tables).
 """
 
@@ -31,8 +31,8 @@ def _shipped(path: Path) -> Path:
 
 
 def load_lens(path, **table_options):
-    """Read a lens file: our JSON format (``.json``), the paper authors' table (``.txt``) or a
-    Zemax file (``.zmx``).
+    """Read a lens file: our JSON format (``.json``), the paper authors' table (``.txt``), a
+    Zemax file (``.zmx``) or a CODE V file (``.seq``).
 
     ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files and to
     :func:`~.zmx.read_zmx` for ``.zmx`` files (``glass_catalogs``, ``glass_fallback``).
@@ -55,11 +55,18 @@ def load_lens(path, **table_options):
         from .zmx import read_zmx
 
         return read_zmx(path, **table_options)
+    if suffix == ".seq":
+        from .codev import read_seq
+
+        if table_options:
+            raise TypeError(f"options {sorted(table_options)} do not apply to .seq files")
+        return read_seq(path)
     if suffix == ".txt":
         return read_table(path, **table_options)
     if suffix != ".json":
         raise LensFileError(f"unsupported lens file type {path.suffix!r}: deeplens reads its "
-                            f"JSON format (.json), the paper authors' tables (.txt) and Zemax files (.zmx)",
+                            f"JSON format (.json), the paper authors' tables (.txt), Zemax files (.zmx) and CODE V "
+                            f"files (.seq)",
                             source=path)
     if table_options:
         raise TypeError(f"options {sorted(table_options)} apply to .txt tables only")

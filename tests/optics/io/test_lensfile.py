@@ -402,9 +402,9 @@ def test_degenerate_json(text, expected, tmp_path):
 def test_missing_and_unsupported_files(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"lens file not found: .*nope\.json"):
         load_lens(tmp_path / "nope.json")
-    z = tmp_path / "lens.seq"   # CODE V: not read (.zmx is: tests/optics/io/test_zmx.py)
+    z = tmp_path / "lens.len"   # OSLO: not read (.zmx, .seq are: test_zmx.py, test_codev.py)
     z.write_bytes("VERS 1\n".encode("utf-16"))
-    with pytest.raises(LensFileError, match=r"lens\.seq: unsupported lens file type '\.seq'"):
+    with pytest.raises(LensFileError, match=r"lens\.len: unsupported lens file type '\.len'"):
         load_lens(z)
     u = tmp_path / "utf16.json"
     u.write_bytes(json.dumps(all_types_dict()).encode("utf-16"))

@@ -1,0 +1,778 @@
+r"""CODE V sequence files (``.seq``): read and write the common subset.
+
+Surface sag of the types read (``c`` the curvature, ``k = K``, ``r² = x² + y²``)::
+
+    SPH   z = c r² / (1 + sqrt(1 − c² r²))                              (the default)
+    CON   z = c r² / (1 + sqrt(1 − (1 + k) c² r²))
+    ASP   z = CON + A r⁴ + B r⁶ + C r⁸ + D r¹⁰ + E r¹² + F r¹⁴ + G r¹⁶ + H r¹⁸ + J r²⁰
+
+all read as an :class:`~deeplens.optics.surfaces.Asphere` (a flat stop in air as an
+:class:`~deeplens.optics.surfaces.Aperture`).
+
+The file is a sequence of commands, one per line or several separated by ``;``; ``!`` starts a
+comment, ``&`` at the end of a line continues the command on the next, ``'...'`` or ``"..."``
+quote a string, keywords are case-insensitive.  Mapping onto
+:class:`~deeplens.optics.lens.Lens` (mm, nm):
+
+* ``DIM M|C|I`` scales every length to mm (mm, cm, inch).  ``RDM Y`` (the default) reads the
+  first number of a surface command as a radius (``0``: flat), ``RDM N`` as a curvature.
+* ``SO r t [glass]`` is the object: ``t`` its distance (``|t| >= 1e10``: at infinity), ``r``
+  must be 0.  ``S r t [glass]`` a surface, ``t`` the gap to the next vertex; no glass is air.
+  ``SI r t`` the image: ``r`` must be 0, ``t`` (a defocus) is added to the last gap.  A flat
+  surface in air that is not the stop and has no ``CIR`` is a dummy: its thickness joins the gap.
+* After a surface command, ``STO`` (or ``STOP``) makes it the stop; ``SPH``/``CON``/``ASP``
+  its type; ``K``, ``A`` ... ``J`` its conic and coefficients; ``CIR r`` (or ``CIR CLR r``) its
+  clear semi-diameter; ``THI``, ``GLA``, ``RDY``/``CUY`` change its thickness, glass, radius or
+  curvature.  ``CIR`` on ``SI`` is the sensor semi-diameter.  A surface without ``CIR`` gets
+  the paraxial estimate ``1.05 (|y_marginal| + |y_chief|)`` at the largest field (capped to its
+  conic's domain; two estimates that cross are limited to where the surfaces meet).
+  ``CIR EDG`` (a mechanical edge) is read and not used.
+* Glasses: ``NAME_CATALOGUE`` (CODE V drops the hyphen: ``NBK7_SCHOTT`` is SCHOTT's ``N-BK7``)
+  from the vendor catalogues of :mod:`.vendor_glass` (current, archived, previous); a bare name
+  from deeplens' catalogue (:func:`~deeplens.optics.materials.get_material`), else from the one
+  vendor catalogue that holds it; a fictitious glass ``NNNNNN.VVVV`` (``n_d = 1.NNNNNN``,
+  ``V_d = VV.VV``: ``517000.642000`` is 1.517 / 64.2) as a
+  :class:`~deeplens.optics.materials.ModelGlass`.
+* ``WL`` wavelengths in nm, ``REF`` the reference one (1-based; needed with several).
+* ``EPD`` -> ``epd``; ``FNO`` -> ``fno`` (image-space F-number, object at infinity).  A ``CIR``
+  on the stop narrower than the beam the EPD gives is the stop's ``clear_radius`` (a lens or
+  mirror surface; refused on a flat stop in air).
+* Fields: ``YAN`` (degrees), ``YOB`` (object heights, finite object: ``θ = atan(h / (s +
+  z_EP))``), ``YIM`` (paraxial image heights, object at infinity: ``θ = atan(h' / f)``); the
+  ``X`` components must be 0.
+* Read and not used: ``TIT``/``TITLE`` (the lens name), ``LEN``, ``INI``, ``WTW``, ``WTF``,
+  ``GO``, ``SLB``, ``TEM``, ``PRE``, solves and variables (``PIM``, ``CCY``, ``THC``, ...);
+  vignetting factors (``VUY``, ``VLY``, ...) other than 0 are reported as a
+  :class:`CodeVWarning` (deeplens fills the whole pupil).
+
+``REFL`` in place of a glass makes the surface a mirror (``Lens(mirrors=...)``: the medium
+after it is the one before, and the file's negative thicknesses after it are kept, CODE V's
+sign convention being deeplens' and OpticStudio's).
+
+Everything else (decenters and tilts, other surface types, ``NA``/``NAO``,
+real image heights, obscurations, surface qualifiers such as ``S3``) is refused: a
+:class:`~deeplens.optics.errors.LensFileError` naming the file, the line and what was expected.
+
+:func:`write_seq` writes what :func:`read_seq` reads (curvature mode ``RDM N``, numbers with
+``repr``), so a lens read, written and read again has the same prescription; a lens whose
+aperture is its stop's size is written with the ``EPD`` that stop gives.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import warnings
+from decimal import Decimal
+from pathlib import Path
+
+import torch
+
+from ..errors import LensFileError, SurfacesCrossError
+from ..lens import Lens, LensSpec
+from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
+from ..surfaces import Aperture, Asphere, Plane
+from .agf import AGFGlass
+from .filecheck import read_file_bytes
+from .vendor_glass import (BuchdahlGlass, archived_glass, find_in_vendor_catalogues,
+                           previous_glass, vendor_glass)
+
+__all__ = ["CodeVWarning", "read_seq", "write_seq"]
+
+_UNITS = {"M": 1.0, "MM": 1.0, "C": 10.0, "CM": 10.0, "I": 25.4, "IN": 25.4}
+_ASPH = "ABCDEFGHJ"                 # r⁴ ... r²⁰
+_INFINITE = 1e10                    # CODE V: an object this far (or farther) is at infinity
+# read and not used (titles, weights, solves, variables, end of input)
+_IGNORED = {"LEN", "INI", "WTW", "WTF", "GO", "SLB", "TEM", "PRE", "CWL", "PIM", "CCY", "THC",
+            "CCX", "GLC", "DER"}
+_VIGNETTING = {"VUX", "VLX", "VUY", "VLY"}
+_FIELDS = {"XAN", "YAN", "XOB", "YOB", "XIM", "YIM"}
+_BASE_CATALOGUES = ("SCHOTT",)      # deeplens-table glasses written as NAME_SCHOTT
+
+
+class CodeVWarning(UserWarning):
+    """A line of a ``.seq`` file that was understood but is not used."""
+
+
+# --------------------------------------------------------------------------- tokens
+def _commands(text: str, source: str) -> list[tuple[int, list[str]]]:
+    """``[(line, tokens)]``: one entry per command, ``line`` 1-based (the line it starts on),
+    comments removed, continuations joined, quoted strings kept as one token (unquoted)."""
+    out: list[tuple[int, list[str]]] = []
+    pending, start = "", 0
+    for k, raw in enumerate(text.splitlines(), start=1):
+        if not pending:
+            start = k
+        s = pending + _without_comment(raw).rstrip()
+        if s.endswith("&"):
+            pending = s[:-1] + " "
+            continue
+        pending = ""
+        out += [(start, toks) for toks in _tokens(s, source, start) if toks]
+    if pending:
+        raise LensFileError("the last command ends in '&' (a continuation with no next line)",
+                            source=source, line=start)
+    return out
+
+
+def _without_comment(line: str) -> str:
+    """``line`` up to its first ``!`` outside quotes."""
+    quote = None
+    for j, ch in enumerate(line):
+        if quote is None and ch == "!":
+            return line[:j]
+        if ch in "'\"":
+            quote = ch if quote is None else (None if quote == ch else quote)
+    return line
+
+
+def _tokens(s: str, source: str, line: int) -> list[list[str]]:
+    """The commands of one logical line: split at ``;`` and blanks outside quotes."""
+    cmds, toks, cur, quote, quoted = [], [], [], None, False
+    for ch in s + ";":
+        if quote is not None:
+            if ch == quote:
+                quote = None
+            else:
+                cur.append(ch)
+        elif ch in "'\"":
+            quote, quoted = ch, True
+        elif ch.isspace() or ch == ";":
+            if cur or quoted:
+                toks.append("".join(cur))
+            cur, quoted = [], False
+            if ch == ";":
+                cmds.append(toks)
+                toks = []
+        else:
+            cur.append(ch)
+    if quote is not None:
+        raise LensFileError(f"unbalanced quote {quote}: expected a closing {quote} on the same "
+                            f"line", source=source, line=line)
+    return cmds
+
+
+# --------------------------------------------------------------------------- glasses
+def _fictitious(tok: str) -> ModelGlass | None:
+    """``NNNNNN.VVVV`` -> ModelGlass(1.NNNNNN, VV.VV), or ``None`` if ``tok`` is not one."""
+    m = re.fullmatch(r"(\d+)\.(\d+)", tok)
+    if m is None:
+        return None
+    n_d = float(Decimal("1." + m.group(1)))
+    v_d = float(Decimal("0." + m.group(2)) * 100)
+    return ModelGlass(n_d, v_d)
+
+
+def _fictitious_code(m: ModelGlass, i: int) -> str:
+    """The fictitious-glass token of ``m`` (exact: ``_fictitious`` gives back ``n_d``, ``V_d``)."""
+    if not (1.0 < m.n_d < 2.0 and 0.0 < m.v_d < 100.0):
+        raise LensFileError(f"medium after surface {i}: a model glass n_d = {m.n_d!r}, "
+                            f"V_d = {m.v_d!r} has no CODE V fictitious-glass code (expected "
+                            f"1 < n_d < 2 and 0 < V_d < 100)", surfaces=(i,))
+    n = format(Decimal(repr(m.n_d)) - 1, "f").split(".")[1]
+    v = format(Decimal(repr(m.v_d)) / 100, "f").split(".")[1]
+    return f"{n}.{v}"
+
+
+def _hyphenated(name: str) -> list[str]:
+    """``name`` and the names CODE V writes without their hyphen: ``NBK7`` -> ``N-BK7``."""
+    return [name] + [name[:k] + "-" + name[k:] for k in (1, 2)
+                     if len(name) > k and name[:k].isalpha()]
+
+
+def _catalogue_glass(name: str, cat: str) -> Material | None:
+    for look in (vendor_glass, archived_glass):
+        for cand in _hyphenated(name):
+            g = look(cand, cat)
+            if g is not None:
+                return g
+    g = previous_glass(name, cat)
+    if g is not None:
+        return g
+    from .zmx_glass import BUILTIN_CATALOGUES   # deeplens' own SCHOTT entries (B270, ...)
+
+    for cand in _hyphenated(name):
+        if cand in BUILTIN_CATALOGUES.get(cat, ()) and cand in GLASS_TABLE:
+            return get_material(cand)
+    return None
+
+
+def _glass(tok: str, source: str, line: int) -> Material:
+    """The material a glass token names (see the module docstring)."""
+    up = tok.upper()
+    if re.fullmatch(r"[\d.]+", tok):
+        m = _fictitious(tok)
+        if m is None:
+            raise LensFileError(f"glass {tok!r}: a numeric glass must be a fictitious-glass "
+                                f"code NNNNNN.VVVV (n_d = 1.NNNNNN, V_d = VV.VV); a code "
+                                f"without its decimal point is ambiguous", source=source,
+                                line=line)
+        return m
+    if "_" in up:
+        name, cat = up.rsplit("_", 1)
+        g = _catalogue_glass(name, cat)
+        if g is None:
+            raise LensFileError(f"glass {tok!r}: {name} not found in the {cat} catalogue "
+                                f"(searched current, archived and previous vendor catalogues "
+                                f"with and without a hyphen after the prefix)", source=source,
+                                line=line)
+        return g
+    for cand in _hyphenated(up):
+        if cand in GLASS_TABLE:
+            return get_material(cand)
+    hits = [c for c in find_in_vendor_catalogues(up) if " " not in c]
+    for cand in _hyphenated(up)[1:]:
+        hits += [c for c in find_in_vendor_catalogues(cand) if " " not in c]
+    hits = list(dict.fromkeys(hits))
+    if len(hits) == 1:
+        return _catalogue_glass(up, hits[0])
+    if hits:
+        raise LensFileError(f"glass {tok!r} is in several vendor catalogues ({', '.join(hits)}); "
+                            f"expected NAME_CATALOGUE, e.g. {up}_{hits[0]}", source=source,
+                            line=line)
+    raise LensFileError(f"glass {tok!r} not found (deeplens' catalogue and the current vendor "
+                        f"catalogues); expected NAME_CATALOGUE or a fictitious glass "
+                        f"NNNNNN.VVVV", source=source, line=line)
+
+
+def _glass_token(m: Material, i: int) -> str | None:
+    """The glass token of the medium after surface ``i`` (``None`` for air)."""
+    if isinstance(m, Air):
+        return None
+    if isinstance(m, (AGFGlass, BuchdahlGlass)) and m.catalogue and "_" not in m.catalogue \
+            and m.catalogue.isalnum():
+        return "".join(m.name.replace("-", "").split()).upper() + "_" + m.catalogue.upper()
+    if isinstance(m, ModelGlass):
+        return _fictitious_code(m, i)
+    rec = GLASS_TABLE.get(m.name.upper())
+    if rec is not None:
+        from .zmx_glass import BUILTIN_CATALOGUES
+
+        for cat in _BASE_CATALOGUES:
+            if rec.name in BUILTIN_CATALOGUES.get(cat, ()):
+                return rec.name.replace("-", "").upper() + "_" + cat
+    raise LensFileError(f"medium after surface {i}: {m.name!r} ({type(m).__name__}) has no "
+                        f"CODE V catalogue name; expected a vendor catalogue glass, a SCHOTT "
+                        f"glass of deeplens' catalogue or an n_d/V_d model glass",
+                        surfaces=(i,))
+
+
+# --------------------------------------------------------------------------- reader
+def _num(tok: str, what: str, source: str, line: int) -> float:
+    try:
+        v = float(tok)
+    except ValueError:
+        raise LensFileError(f"{what}: expected a number, got {tok!r}", source=source,
+                            line=line) from None
+    if not math.isfinite(v):
+        raise LensFileError(f"{what}: expected a finite number, got {tok!r}", source=source,
+                            line=line)
+    return v
+
+
+class _Reader:
+    """Commands -> the file's system data and surface records (lengths still in file units)."""
+
+    def __init__(self, source: str):
+        self.src = source
+        self.radius_mode = True
+        self.unit = 1.0
+        self.title = ""
+        self.wl = None          # ([nm], line)
+        self.ref = None         # (k, line)
+        self.pupil = None       # (kind, value, line)
+        self.fields = {}        # cmd -> ([values], line)
+        self.surfs = []         # dicts: kind, line, c, t, glass, ...
+        self.stage = "system"   # "system", "surfaces" (after SO), "done" (after SI)
+
+    def fail(self, line, msg):
+        raise LensFileError(msg, source=self.src, line=line)
+
+    def nums(self, toks, line, what, n=None):
+        if n is not None and len(toks) != n:
+            self.fail(line, f"{what}: expected {n} number{'s' if n != 1 else ''}, got "
+                            f"{len(toks)} ({' '.join(toks) or 'none'})")
+        if not toks:
+            self.fail(line, f"{what}: expected at least one number")
+        return [_num(t, what, self.src, line) for t in toks]
+
+    def command(self, line: int, toks: list[str]) -> None:
+        cmd, args = toks[0].upper(), toks[1:]
+        if cmd in ("TIT", "TITLE"):
+            self.title = " ".join(args)
+        elif cmd in _IGNORED:
+            return
+        elif cmd == "DIM":
+            if len(args) != 1 or args[0].upper() not in _UNITS:
+                self.fail(line, f"DIM: expected M, C or I (mm, cm, inch), got {' '.join(args)!r}")
+            if self.surfs:
+                self.fail(line, "DIM after the surfaces: expected it before SO")
+            self.unit = _UNITS[args[0].upper()]
+        elif cmd == "RDM":
+            if len(args) > 1 or (args and args[0].upper() not in ("Y", "N", "YES", "NO")):
+                self.fail(line, f"RDM: expected Y or N, got {' '.join(args)!r}")
+            self.radius_mode = not args or args[0].upper().startswith("Y")
+        elif cmd == "WL":
+            self.wl = (self.nums(args, line, "WL (wavelengths, nm)"), line)
+        elif cmd == "REF":
+            v = self.nums(args, line, "REF (reference wavelength number)", 1)[0]
+            if v != int(v):
+                self.fail(line, f"REF: expected a wavelength number 1, 2, ..., got {args[0]}")
+            self.ref = (int(v), line)
+        elif cmd in ("EPD", "FNO"):
+            v = self.nums(args, line, cmd, 1)[0]
+            if self.pupil is not None:
+                self.fail(line, f"{cmd}: the system aperture is already given by "
+                                f"{self.pupil[0]} on line {self.pupil[2]}")
+            self.pupil = (cmd, v, line)
+        elif cmd in ("NA", "NAO"):
+            self.fail(line, f"{cmd} (a numerical aperture) is not supported: expected EPD or FNO")
+        elif cmd in _FIELDS:
+            self.fields[cmd] = (self.nums(args, line, cmd), line)
+        elif cmd in ("XRI", "YRI"):
+            self.fail(line, f"{cmd} (real image heights) is not supported: expected YAN, YOB "
+                            f"or YIM")
+        elif cmd in _VIGNETTING:
+            vals = self.nums(args, line, cmd)
+            if any(vals):
+                warnings.warn(CodeVWarning(f"{self.src}:{line}: {cmd}: vignetting factors are "
+                                           f"not used (deeplens fills the whole pupil)"),
+                              stacklevel=4)
+        elif cmd in ("SO", "S", "SI"):
+            self.surface(cmd, args, line)
+        else:
+            self.modifier(cmd, args, line)
+
+    def surface(self, cmd, args, line):
+        if cmd == "SO" and self.stage != "system":
+            self.fail(line, "SO: a second object surface")
+        if cmd != "SO" and self.stage != "surfaces":
+            self.fail(line, f"{cmd}: expected SO (the object) first" if self.stage == "system"
+                      else f"{cmd} after SI (the image is the last surface)")
+        if len(args) not in (2, 3):
+            self.fail(line, f"{cmd}: expected '{cmd} radius thickness [glass]', got "
+                            f"{' '.join(args)!r}")
+        r, t = (_num(a, f"{cmd} {w}", self.src, line)
+                for a, w in zip(args, ("radius" if self.radius_mode else "curvature",
+                                       "thickness")))
+        self.surfs.append({"kind": cmd, "line": line, "c": self.curvature(r), "t": t,
+                           "glass": (args[2], line) if len(args) == 3 else None, "stop": False,
+                           "type": "SPH", "k": 0.0, "coef": {}, "cir": None})
+        self.stage = {"SO": "surfaces", "S": "surfaces", "SI": "done"}[cmd]
+
+    def curvature(self, v: float) -> float:
+        if self.radius_mode:
+            return 0.0 if v == 0 else 1.0 / v
+        return v
+
+    def modifier(self, cmd, args, line):
+        if not self.surfs:
+            self.fail(line, f"unsupported command {cmd!r} (before the surfaces); expected a "
+                            f"system command (DIM, RDM, WL, REF, EPD, FNO, YAN, YOB, YIM, TIT) "
+                            f"or SO")
+        s = self.surfs[-1]
+        if args and re.fullmatch(r"S(\d+|O|I|S)(\.\.\S+)?", args[0].upper()):
+            self.fail(line, f"{cmd} {args[0]}: surface qualifiers are not supported; expected "
+                            f"the command in the surface's own block")
+        if cmd in ("STO", "STOP"):
+            if args or s["kind"] != "S":
+                self.fail(line, f"{cmd}: expected it alone, after an S surface")
+            s["stop"] = True
+        elif cmd in ("SPH", "CON", "ASP"):
+            if args:
+                self.fail(line, f"{cmd}: expected no value")
+            s["type"] = cmd
+        elif cmd == "K" or (len(cmd) == 1 and cmd in _ASPH):
+            v = self.nums(args, line, cmd, 1)[0]
+            need = ("CON", "ASP") if cmd == "K" else ("ASP",)
+            if s["type"] not in need:
+                self.fail(line, f"{cmd} on a {s['type']} surface: expected "
+                                f"{' or '.join(need)} before it")
+            if cmd == "K":
+                s["k"] = v
+            else:
+                s["coef"][_ASPH.index(cmd)] = v
+        elif cmd == "CIR":
+            quals = [a.upper() for a in args[:-1]]
+            v = self.nums(args[-1:], line, "CIR (semi-diameter)", 1)[0]
+            if quals in ([], ["CLR"]):
+                if not v > 0:
+                    self.fail(line, f"CIR: expected a semi-diameter > 0, got {args[-1]}")
+                s["cir"] = (v, line)
+            elif quals != ["EDG"]:
+                self.fail(line, f"CIR {' '.join(quals)}: only a clear aperture (CIR r, CIR CLR "
+                                f"r) or an edge (CIR EDG r, not used) is supported")
+        elif cmd == "THI":
+            s["t"] = self.nums(args, line, "THI", 1)[0]
+        elif cmd == "GLA":
+            if len(args) != 1:
+                self.fail(line, "GLA: expected one glass")
+            s["glass"] = (args[0], line)
+        elif cmd in ("RDY", "CUY"):
+            v = self.nums(args, line, cmd, 1)[0]
+            s["c"] = (0.0 if v == 0 else 1.0 / v) if cmd == "RDY" else v
+        elif cmd == "CUF":
+            if self.nums(args, line, cmd, 1)[0] != 0:
+                self.fail(line, "CUF other than 0 is not supported")
+        else:
+            self.fail(line, f"unsupported command {cmd!r}; deeplens reads surfaces (S, SPH, "
+                            f"CON, ASP, K, A..J, CIR, STO, THI, GLA, RDY, CUY), the system "
+                            f"(DIM, RDM, WL, REF, EPD, FNO, YAN, YOB, YIM) and nothing else "
+                            f"(decenters, other surface types are refused)")
+
+
+def read_seq(path) -> Lens:
+    """Read a CODE V ``.seq`` file (the common subset: see :mod:`.codev`).
+
+    Args:
+        path: the ``.seq`` file (UTF-8, UTF-16 with byte-order mark, or Latin-1 text).
+
+    Returns:
+        The lens (lengths in mm, wavelengths in nm).
+
+    Raises:
+        FileNotFoundError: no such file.
+        LensFileError: an unsupported command or value; ``source`` and ``line`` say where, the
+            message what was expected.
+
+    Example::
+
+        lens = read_seq("tests/data/codev/cooke_triplet.seq")
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"lens file not found: {path}")
+    src = str(path)
+    raw = read_file_bytes(path)   # a regular file of at most 64 MiB (filecheck)
+    try:
+        text = raw.decode("utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    rd = _Reader(src)
+    for line, toks in _commands(text, src):
+        rd.command(line, toks)
+    return _build(rd, path)
+
+
+def _build(rd: _Reader, path: Path) -> Lens:
+    src, u = rd.src, rd.unit
+    fail = rd.fail
+    if not rd.surfs or rd.surfs[-1]["kind"] != "SI":
+        fail(rd.surfs[-1]["line"] if rd.surfs else None,
+             "no image surface: expected SO, the surfaces and SI")
+    obj, img, body = rd.surfs[0], rd.surfs[-1], rd.surfs[1:-1]
+    if not body:
+        fail(img["line"], "no surface between SO and SI")
+    for s, what in ((obj, "SO (the object)"), (img, "SI (the image)")):
+        if s["c"] != 0 or s["type"] != "SPH" or s["stop"]:
+            fail(s["line"], f"{what}: expected a flat surface (radius 0)")
+    if img["glass"] is not None:
+        fail(img["line"], "SI: the image surface takes no glass")
+    # wavelengths
+    if rd.wl is None:
+        fail(None, "no wavelengths: expected a WL line (nm)")
+    waves, wl_line = rd.wl
+    if rd.ref is None:
+        if len(waves) > 1:
+            fail(wl_line, "several wavelengths and no REF line: expected REF k (the reference "
+                          "wavelength's number)")
+        ref = 1
+    else:
+        ref, ref_line = rd.ref
+        if not 1 <= ref <= len(waves):
+            fail(ref_line, f"REF {ref}: expected 1..{len(waves)} (the WL numbers)")
+    primary = waves[ref - 1]
+    # object
+    media = [Air() if obj["glass"] is None else _glass(obj["glass"][0], src, obj["glass"][1])]
+    od = obj["t"] * u
+    obj_dist = math.inf if abs(obj["t"]) >= _INFINITE else od
+    if obj_dist == 0:
+        fail(obj["line"], "SO: the object distance must not be 0")
+    # surfaces: dummies into gaps
+    surfaces, distances, where, autos, stop = [], [], [], [], None
+    gap, lead = 0.0, 0.0   # lead: leading dummies' thickness, added to the object distance
+    mirrors = []
+    for s in body:
+        mirror = s["glass"] is not None and s["glass"][0].upper() == "REFL"
+        if mirror:   # the medium after a mirror is the one before it
+            mat = media[-1]
+        else:
+            mat = Air() if s["glass"] is None else _glass(s["glass"][0], src, s["glass"][1])
+        c = s["c"] / u
+        flat_air = (c == 0 and s["type"] == "SPH" and isinstance(mat, Air)
+                    and isinstance(media[-1], Air) and not mirror)
+        if flat_air and not s["stop"] and s["cir"] is None:
+            gap += s["t"] * u          # a dummy surface
+            continue
+        sd = s["cir"][0] * u if s["cir"] is not None else _provisional(c, s["k"])
+        if s["cir"] is None:
+            autos.append(len(surfaces))
+        if flat_air:
+            surf = Aperture(sd)
+        elif s["type"] == "SPH" and c == 0:
+            surf = Plane(sd)
+        else:
+            n = max(s["coef"], default=-1) + 1
+            coef = [s["coef"].get(j, 0.0) * u ** (1 - 2 * (j + 2)) for j in range(n)]
+            while coef and coef[-1] == 0:   # trailing zero terms (A 1e-6; B 0) are no terms
+                coef.pop()
+            surf = Asphere(c, sd, s["k"], coef)
+        if s["stop"]:
+            if stop is not None:
+                fail(s["line"], f"STO: a second stop (the first is on line {where[stop]})")
+            stop = len(surfaces)
+        if not surfaces:
+            lead, gap = gap, 0.0
+        if mirror:
+            mirrors.append(len(surfaces))
+        surfaces.append(surf)
+        distances.append(gap)
+        where.append(s["line"])
+        media.append(mat)
+        gap = s["t"] * u
+    if stop is None:
+        fail(None, "no stop: expected STO after the stop surface's S line")
+    if not math.isinf(obj_dist):
+        obj_dist += lead
+    d_sensor = gap + img["t"] * u
+    sensor_sd = img["cir"][0] * u if img["cir"] is not None else None
+    # system aperture
+    if rd.pupil is None:
+        fail(None, "no system aperture: expected EPD or FNO")
+    kind, value, ap_line = rd.pupil
+    if kind == "FNO" and not math.isinf(obj_dist):
+        fail(ap_line, "FNO with the object at a finite distance: deeplens' F-number is the "
+                      "image-space one at infinity; expected EPD")
+    ap_type, ap_value = ("epd", value * u) if kind == "EPD" else ("fno", value)
+    try:
+        spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                        aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves,
+                        primary_wavelength_nm=primary)
+    except ValueError as e:
+        key = getattr(e, "key", None)
+        line = {"aperture": ap_line, "object_distance_mm": obj["line"]}.get(key, wl_line)
+        fail(line, str(e))
+    name = rd.title or path.stem
+    try:
+        lens = Lens(surfaces, media, distances, d_sensor, stop, sensor_sd, spec, name=name,
+                    mirrors=mirrors)
+    except ValueError as e:
+        idx = getattr(e, "surfaces", ())
+        fail(where[idx[0]] if idx else None, str(e))
+    fields = _fields(rd, lens, obj_dist, u)
+    lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                         aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves,
+                         primary_wavelength_nm=primary)
+    autos = [i for i in autos if i != stop]
+    if autos:
+        _paraxial_semi_diameters(lens, autos, max(abs(f) for f in fields))
+        for _ in range(2 * len(surfaces)):   # each round limits one surface for good
+            try:
+                lens.check()
+                break
+            except SurfacesCrossError as e:
+                # estimated semi-diameters of two surfaces that meet within them: limited to
+                # where they meet (a real lens's edge; CODE V's own come from real rays)
+                hit = [i for i in e.surfaces if i in autos and
+                       float(lens.surfaces[i].semi_diameter) > e.radius * (1 - 1e-9)]
+                if not hit:
+                    fail(where[e.surfaces[0]], str(e))
+                for i in hit:
+                    lens.surfaces[i].semi_diameter.fill_(e.radius * (1 - 1e-6))
+            except ValueError as e:
+                idx = getattr(e, "surfaces", ())
+                fail(where[idx[0]] if idx else None,
+                     f"{e} (with paraxial semi-diameters; give CIR)")
+    cir = next(s["cir"] for s in body if s["stop"])
+    if cir is not None:
+        got = float(lens.surfaces[stop].semi_diameter)
+        if cir[0] * u < got * (1 - 1e-9):
+            _stop_clear_radius(lens, cir[0] * u, got, kind, cir[1], fail, u)
+    return lens
+
+
+def _stop_clear_radius(lens: Lens, clear: float, got: float, kind: str, line: int, fail,
+                       u: float) -> None:
+    """A ``CIR`` on the stop narrower than the beam the EPD or F-number gives there (``got``,
+    mm): CODE V keeps the pupil and the clear aperture vignettes its rim.  On a lens or mirror
+    surface (an :class:`Asphere`) the stop keeps its paraxial radius as its semi-diameter and the
+    ``CIR`` becomes its ``clear_radius``; a flat stop in air is refused."""
+    stop = lens.surfaces[lens.stop_index]
+    if type(stop) is not Asphere:
+        fail(line, f"CIR {clear / u!r} on the stop is narrower than the beam the {kind} gives "
+                   f"there ({got / u!r}): deeplens vignettes a pupil so only on a lens or mirror "
+                   f"surface, not on a {type(stop).__name__} stop; expected a CIR at least "
+                   f"that wide")
+    with torch.no_grad():
+        stop.clear_radius.fill_(clear)
+    try:
+        stop.check()
+    except ValueError as e:
+        fail(line, f"CIR on the stop: {e}")
+
+
+def _fields(rd: _Reader, lens: Lens, obj_dist: float, u: float) -> list[float]:
+    """The field angles (degrees) of the file's YAN, YOB or YIM values."""
+    from ..paraxial import paraxial
+
+    given = dict(rd.fields)
+    if not given:
+        return [0.0]
+    for x in ("XAN", "XOB", "XIM"):
+        if x in given:
+            vals, line = given.pop(x)
+            if any(vals):
+                rd.fail(line, f"{x}: x field components other than 0 are not supported "
+                              f"(deeplens' fields lie in the y-z plane)")
+    if len(given) != 1:
+        rd.fail(max(v[1] for v in rd.fields.values()),
+                f"fields given as {' and '.join(sorted(given)) or 'x only'}: expected one of "
+                f"YAN, YOB, YIM")
+    (kind, (vals, line)), = given.items()
+    x_len = {x: len(v[0]) for x, v in rd.fields.items() if x[0] == "X"}
+    for x, n in x_len.items():
+        if n != len(vals):
+            rd.fail(line, f"{kind} has {len(vals)} fields and {x} {n}: expected the same count")
+    if kind == "YAN":
+        return vals
+    with torch.no_grad():
+        par = paraxial(lens)
+    if kind == "YOB":
+        if math.isinf(obj_dist):
+            rd.fail(line, "YOB (object heights) with the object at infinity: expected YAN")
+        d = obj_dist + float(par.entrance_pupil_position)
+        return [math.degrees(math.atan(h * u / d)) for h in vals]
+    if not math.isinf(obj_dist):
+        rd.fail(line, "YIM (paraxial image heights) with a finite object is not supported: "
+                      "expected YAN or YOB")
+    f = float(par.efl)
+    return [math.degrees(math.atan(h * u / f)) for h in vals]
+
+
+def _provisional(c: float, k: float) -> float:
+    """A semi-diameter (mm) to build the lens with before the paraxial estimate: 1 mm, or half
+    the conic's domain when that is smaller."""
+    if c != 0 and 1 + k > 0:
+        return min(1.0, 0.5 / (abs(c) * math.sqrt(1 + k)))
+    return 1.0
+
+
+def _paraxial_semi_diameters(lens: Lens, idx, field_deg: float) -> None:
+    """Semi-diameters ``1.05 (|y_m| + |y_c|)`` of the surfaces ``idx``: the paraxial marginal
+    and chief ray heights at the largest field, capped below a conic's domain edge."""
+    from ..paraxial import media_indices, paraxial, trace_paraxial_ray
+
+    with torch.no_grad():
+        par = paraxial(lens)
+        n = media_indices(lens)
+        half = 0.5 * float(par.entrance_pupil_diameter)
+        pos = float(par.entrance_pupil_position)
+        s = float(lens.spec.object_distance_mm)
+        t = math.tan(math.radians(field_deg))
+        one = torch.ones_like(n[0])
+        um = 0.0 if math.isinf(s) else half / (s + pos)
+        ym = half if math.isinf(s) else um * s
+        _, _, hm = trace_paraxial_ray(lens, ym * one, um * one, n)
+        _, _, hc = trace_paraxial_ray(lens, -pos * t * one, t * one, n)
+        for i in idx:
+            surf = lens.surfaces[i]
+            sd = 1.05 * (abs(float(hm[i])) + abs(float(hc[i])))
+            c, k = float(getattr(surf, "c", 0.0)), float(getattr(surf, "k", 0.0))
+            if c != 0 and 1 + k > 0:
+                sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
+            surf.semi_diameter.fill_(sd)
+
+
+# --------------------------------------------------------------------------- writer
+def _f(v) -> str:
+    return repr(float(v))
+
+
+def _surface_lines(s, i: int, stop: bool = False) -> list[str]:
+    """Surface ``i`` as ``[curvature, modifier lines ...]`` (``CON``/``ASP`` and coefficients)."""
+    if isinstance(s, Aperture):
+        if s.shape != "circle" or float(s.obscuration) > 0 or s.decentred:
+            raise LensFileError(f"surface {i}: a rectangular, obscured or decentred aperture "
+                                f"has no CODE V equivalent here", surfaces=(i,))
+        return ["0.0"]
+    if isinstance(s, Plane):
+        return ["0.0"]
+    if type(s).__name__ in ("Asphere", "Sphere"):
+        if float(s.obscuration) > 0 or (math.isfinite(float(s.clear_radius)) and not stop) or \
+                bool(s.clear_rect.any()) or any(float(v) for v in s.clear_decenter):
+            raise LensFileError(f"surface {i}: an obscuration, a decentred clear aperture or "
+                                f"one narrower than the semi-diameter (other than on the stop) "
+                                f"has no CODE V equivalent here",
+                                surfaces=(i,))
+        a = [float(v) for v in s.a]
+        while a and a[-1] == 0:
+            a.pop()
+        k = float(s.k)
+        out = [_f(s.c)]
+        if a:
+            if len(a) > len(_ASPH):
+                raise LensFileError(f"surface {i}: {len(a)} aspheric terms; CODE V's ASP holds "
+                                    f"A..J (r⁴..r²⁰)", surfaces=(i,))
+            out += ["ASP", f"K {_f(k)}"] + [f"{_ASPH[j]} {_f(v)}" for j, v in enumerate(a)]
+        elif k != 0:
+            out += ["CON", f"K {_f(k)}"]
+        return out
+    raise LensFileError(f"surface {i}: {type(s).__name__} has no CODE V equivalent in "
+                        f"deeplens' writer (spheres, conics, even aspheres, planes and circular "
+                        f"apertures)", surfaces=(i,))
+
+
+def write_seq(lens: Lens, path) -> None:
+    """Write ``lens`` as a CODE V ``.seq`` file that :func:`read_seq` reads back.
+
+    Raises:
+        LensFileError: something with no CODE V equivalent here (misalignments,
+            other surface types, a telecentric object, a virtual image, a material with no
+            CODE V name); ``surfaces`` names the surfaces concerned.
+    """
+    from ..paraxial import paraxial
+
+    spec = lens.spec
+    if not all(m.is_identity() for m in lens.misalignments):
+        raise LensFileError("a misaligned element is not written to .seq files")
+    if getattr(lens, "object_telecentric", False) or lens.virtual_image:
+        raise LensFileError("a telecentric object or a virtual image is not written to .seq "
+                            "files")
+    title = lens.name.replace("'", '"') if lens.name else "deeplens"
+    out = ["RDM N", f"TIT '{title}'", "DIM M"]
+    waves = [float(w) for w in spec.wavelengths_nm]
+    out.append("WL " + " ".join(_f(w) for w in waves))
+    pw = float(spec.primary_wavelength_nm)
+    if pw not in waves:
+        raise LensFileError(f"the primary wavelength {pw} nm is not one of the lens's "
+                            f"wavelengths {waves}: CODE V's REF picks one of them")
+    out.append(f"REF {waves.index(pw) + 1}")
+    with torch.no_grad():
+        if spec.aperture_type == "fno":
+            out.append(f"FNO {_f(spec.aperture_value)}")
+        elif spec.aperture_type == "epd":
+            out.append(f"EPD {_f(spec.aperture_value)}")
+        else:
+            out.append(f"EPD {_f(paraxial(lens).entrance_pupil_diameter)}")
+        out.append("YAN " + " ".join(_f(f) for f in spec.fields_deg))
+        od = float(spec.object_distance_mm)
+        obj = f"SO 0.0 {'1e+20' if math.isinf(od) else _f(od)}"
+        g = _glass_token(lens.materials[0], -1)
+        out.append(obj + (f" {g}" if g else ""))
+        n = len(lens.surfaces)
+        for i, s in enumerate(lens.surfaces):
+            is_stop = i == lens.stop_index
+            head, *mods = _surface_lines(s, i, is_stop)
+            after = float(lens.distances[i + 1]) if i + 1 < n else float(lens.d_sensor)
+            g = "REFL" if i in lens.mirrors else _glass_token(lens.materials[i + 1], i)
+            out.append(f"S {head} {_f(after)}" + (f" {g}" if g else ""))
+            if is_stop:
+                mods.insert(0, "STO")
+            clear = float(getattr(s, "clear_radius", math.inf))
+            mods.append(f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}")
+            out += ["  " + m for m in mods]
+    out.append("SI 0.0 0.0")
+    if lens.sensor_semi_diameter is not None:
+        out.append(f"  CIR {_f(lens.sensor_semi_diameter)}")
+    out.append("GO")
+    Path(path).write_text("\n".join(out) + "\n")
