@@ -813,10 +813,10 @@ def _main(argv=None) -> int:
     _add_lens_options(t)
     t.set_defaults(func=_tolerance)
 
-    d = sub.add_parser("design", help="run one of the paper's design applications",
-                       add_help=False)
+    d = sub.add_parser("design", help="run one of the paper's design applications, or design "
+                                      "search from a specification", add_help=False)
     d.add_argument("name", help="spherical-aberration, nikon, sensitivity, caustic, "
-                                "misalignment (deeplens design --help: what each does)")
+                                "misalignment, search (deeplens design --help: what each does)")
     d.add_argument("rest", nargs=argparse.REMAINDER)
     d.set_defaults(func=None)
     words = sys.argv[1:] if argv is None else list(argv)

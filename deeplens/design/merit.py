@@ -5,8 +5,10 @@ The merit is ``F = sum_i r_i^2`` over the concatenated residuals of its terms:
 * spot (:class:`SpotMerit`), per field ``f`` and wavelength ``λ`` with weight ``w_fλ``, for each
   of the ``M_fλ`` rays of a fixed pupil pattern landing at ``p_m`` on the image plane:
   ``r_m = w_fλ (p_m - p_ref) / sqrt(M_fλ)``, so that the block's sum of squares is
-  ``w_fλ^2 RMS_fλ^2``; ``p_ref`` is the centroid of the valid rays (``"centroid"``) or where the
-  real chief ray lands (``"chief"``);
+  ``w_fλ^2 RMS_fλ^2``; ``p_ref`` is the centroid of the valid rays (``"centroid"``), where the
+  real chief ray lands (``"chief"``), or the field's polychromatic centroid
+  ``sum_λ w_fλ^2 c_fλ / sum_λ w_fλ^2`` shared by its wavelengths (``"polychromatic"``: lateral
+  colour then counts, as in a polychromatic spot diagram);
 * first-order targets (:class:`TargetMerit`): ``r = w (q - q*) / |q*|`` for ``q`` the paraxial
   EFL, BFL or F-number;
 * distortion (:class:`DistortionMerit`): ``r_f = w (y_chief,f - κ tan θ_f) / (κ tan θ_f)``,
@@ -57,7 +59,7 @@ class SpotMerit:
         wavelengths_nm: wavelengths (nm); default the lens spec's.
         weights: ``(F, W)`` weights, a per-field list, or ``None`` (all 1).
         sampling: pupil pattern (``hexapolar:R``, ``grid:N``, ``random:N``).
-        reference: ``"centroid"`` or ``"chief"``.
+        reference: ``"centroid"``, ``"chief"`` or ``"polychromatic"`` (module docstring).
         image_plane: ``"sensor"``, ``"paraxial"`` or a z position (mm).
         pupil: ``"traced"`` or ``"paraxial"`` pupil regions.
         shrink: the traced regions are scaled by this factor (< 1 leaves a margin so that a
@@ -73,8 +75,9 @@ class SpotMerit:
                  image_plane="sensor", pupil: str = "traced", shrink: float = 0.98,
                  strict_rays: bool = True, per_wavelength_pupil: bool = False,
                  pupil_grid: int = 65, pupil_bisections: int = 24):
-        if reference not in ("centroid", "chief"):
-            raise ValueError(f"spot reference must be 'centroid' or 'chief', got {reference!r}")
+        if reference not in ("centroid", "chief", "polychromatic"):
+            raise ValueError(f"spot reference must be 'centroid', 'chief' or 'polychromatic', "
+                             f"got {reference!r}")
         if pupil not in ("traced", "paraxial"):
             raise ValueError(f"pupil must be 'traced' or 'paraxial', got {pupil!r}")
         if not 0 < shrink <= 1:
@@ -196,16 +199,35 @@ class SpotMerit:
             n = ok.sum().clamp(min=1)
             pts = out.o[s, :2]
             okf = ok.unsqueeze(-1).to(pts.dtype)
-            if self.reference == "centroid":
+            if self.reference != "chief":
                 ref = (pts * okf).sum(0) / n
             else:
                 if not bool(chief.valid[k]):
                     raise Infeasible(f"the chief ray of field {f:g} deg at {wl:g} nm is lost",
                                      kind="vignetted")
                 ref = chief.o[k, :2]
-            dev = (pts - ref) * okf
-            res[(f, wl)] = (dev, ok, n, torch.sqrt((dev * dev).sum() / n))
+            res[(f, wl)] = (pts, ok, n, ref, okf)
+        refs = ({key: v[3] for key, v in res.items()} if self.reference != "polychromatic"
+                else self._polychromatic_refs(res))
+        for key, (pts, ok, n, _, okf) in res.items():
+            dev = (pts - refs[key]) * okf
+            res[key] = (dev, ok, n, torch.sqrt((dev * dev).sum() / n))
         return res
+
+    def _polychromatic_refs(self, res):
+        """Per field, the centroid of its blocks' centroids weighted by ``w_fλ^2`` (the point
+        that minimises the field's weighted sum of squares), shared by its wavelengths."""
+        refs = {}
+        for f in {f for f, _ in res}:
+            keys = [k for k in res if k[0] == f]
+            i = self.fields.index(f)
+            w2 = torch.stack([self.weights[i, self.waves.index(wl)] ** 2 for _, wl in keys])
+            if float(w2.sum()) <= 0:
+                w2 = torch.ones_like(w2)
+            c = torch.stack([res[k][3] for k in keys])
+            ref = (w2.to(c)[:, None] * c).sum(0) / w2.sum().to(c)
+            refs.update({k: ref for k in keys})
+        return refs
 
     def _block(self, lens, f, wl):
         return self._blocks(lens, [(f, wl)])[(f, wl)]

@@ -37,7 +37,7 @@ run = H.run_cli
 
 def test_registry_names_and_errors(monkeypatch):
     assert set(apps.APPS) == {"spherical-aberration", "nikon", "sensitivity", "caustic",
-                              "misalignment"}
+                              "misalignment", "search"}
     with pytest.raises(ValueError, match="unknown design application 'nikkon'.*nikon"):
         load_app("nikkon")
     monkeypatch.setitem(apps.APPS, "ghost", "no_such_module")

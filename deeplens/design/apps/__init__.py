@@ -16,7 +16,8 @@ __all__ = ["APPS", "load_app", "describe_app", "DATA_DIR"]
 
 #: command name -> module name in this package
 APPS = {"spherical-aberration": "spherical_aberration", "nikon": "nikon",
-        "sensitivity": "sensitivity", "caustic": "caustic", "misalignment": "misalignment"}
+        "sensitivity": "sensitivity", "caustic": "caustic", "misalignment": "misalignment",
+        "search": "search"}
 
 #: the shipped lens files (packaged with the wheel, or the checkout's data/lenses)
 DATA_DIR = lens_dir()

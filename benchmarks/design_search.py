@@ -1,0 +1,89 @@
+"""Design search from no starting lens against a shipped design (issue 36).
+
+For the shipped Cooke triplet (``data/lenses/cooke_triplet.json``) the spec is its own first
+order: EFL 101.18 mm, F/3.464 (its paraxial values), half field 11.86 deg sampled at 0, 0.7, 1,
+the d, F, C lines; three singlets of SCHOTT glass, the stop in the middle gap, centre
+thicknesses 1-12 mm, edges >= 0.5 mm, air >= 0.2 mm, total track <= 130 mm (the shipped lens:
+116.5 mm).  Each seed runs :func:`deeplens.design.search.search`; the table compares the best
+design's polychromatic RMS spot (:func:`deeplens.design.search.evaluate`, the root-mean-square
+over the three fields, hexapolar:12 rays, no vignetting) with the shipped lens's, evaluated the
+same way on its own semi-diameters (it vignettes its outer field).
+
+    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/design_search.py [--seeds 0,1,2,3,4]
+        [--starts 4] [--hops 2] [--screen-steps 40] [--polish-steps 60] [--hop-steps 30]
+        [--json OUT.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+
+import torch
+
+from deeplens.design.search import DesignSpec, SearchConfig, Stage, evaluate, search
+from deeplens.optics.io import load_lens
+
+SPECS = {
+    "cooke": (DesignSpec(efl_mm=101.18, fno=3.464, hfov_deg=11.86, elements=3,
+                         wavelengths_nm=[486.1327, 587.5618, 656.2725], glasses="SCHOTT",
+                         stop="middle", min_center_glass_mm=1.0, max_center_glass_mm=12.0,
+                         min_edge_glass_mm=0.5, min_air_mm=0.2, max_track_mm=130.0),
+              "cooke_triplet.json"),
+}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--lens", choices=sorted(SPECS), default="cooke",
+                   help="the shipped lens whose spec is searched")
+    p.add_argument("--seeds", default="0,1,2,3,4")
+    p.add_argument("--starts", type=int, default=3)
+    p.add_argument("--hops", type=int, default=2)
+    p.add_argument("--screen-steps", type=int, default=30)
+    p.add_argument("--polish-steps", type=int, default=40)
+    p.add_argument("--hop-steps", type=int, default=20)
+    p.add_argument("--json", help="also write the numbers here")
+    args = p.parse_args(argv)
+    torch.set_num_threads(1)
+    spec, name = SPECS[args.lens]
+    shipped = evaluate(load_lens(name).to(torch.float64), spec)
+    rows = []
+    for seed in [int(s) for s in args.seeds.split(",")]:
+        cfg = SearchConfig(starts=args.starts, hops=args.hops, seed=seed, polish_count=1,
+                           screen=(Stage(args.screen_steps, "hexapolar:6",
+                                         rounds=max(1, args.screen_steps // 20)),),
+                           polish=(Stage(args.polish_steps, "hexapolar:6",
+                                         rounds=max(1, args.polish_steps // 20)),),
+                           hop=(Stage(args.hop_steps, "hexapolar:6",
+                                      rounds=max(1, args.hop_steps // 20)),), keep=1)
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = search(spec, cfg, progress=lambda s, seed=seed: print(f"  seed {seed}: {s}",
+                                                                     file=sys.stderr, flush=True))
+        m = res.best.metrics
+        rows.append({"seed": seed, "rms_um": m["rms_um"], "rms_poly_um": m["rms_poly_um"],
+                     "feasible": m["feasible"], "efl_mm": m["efl_mm"], "fno": m["fno"],
+                     "track_mm": m["total_track_mm"], "glasses": list(res.best.glasses),
+                     "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0})
+        print(f"seed {seed}: {m['rms_um']:.2f} um (fields {', '.join(f'{x:.1f}' for x in m['rms_poly_um'])}), "
+              f"{rows[-1]['wall_s']:.0f} s wall, {rows[-1]['cpu_s']:.0f} s CPU", flush=True)
+    best = min(r["rms_um"] for r in rows)
+    med = statistics.median(r["rms_um"] for r in rows)
+    ref = shipped["rms_um"]
+    print("\n| spec | seeds | shipped RMS (um) | best (um) | median (um) | best/shipped | "
+          "median/shipped | CPU s per seed (median) |")
+    print("|---|---|---|---|---|---|---|---|")
+    print(f"| {args.lens} | {len(rows)} | {ref:.2f} | {best:.2f} | {med:.2f} | {best / ref:.2f} | "
+          f"{med / ref:.2f} | {statistics.median(r['cpu_s'] for r in rows):.0f} |")
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump({"spec": spec.to_dict(), "shipped": shipped, "runs": rows,
+                       "args": vars(args)}, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

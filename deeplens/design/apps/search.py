@@ -1,0 +1,110 @@
+"""``deeplens design search``: design a lens from a specification, beyond the nearest local
+minimum (quasi-random thin-lens starts refined by damped least squares, then basin hopping).
+
+Writes ``OUT/best.json`` (a lens file every command reads), ``OUT/design_K.json`` (the other
+kept designs), ``OUT/result.json`` (RMS spot per field and wavelength, EFL, F/#, total track,
+constraints, time, every refinement) and, with matplotlib, ``convergence.png`` and
+``layout.png``.  The spec comes from ``--spec FILE`` (YAML or JSON, keys as
+:class:`~deeplens.design.search.spec.DesignSpec`'s fields) and/or flags (flags win).  Example:
+``deeplens design search --efl 50 --fno 5 --hfov 20 --elements 3 --wavelengths
+486.1,587.6,656.3 --glasses SCHOTT --seed 0 --out DIR``.
+"""
+
+from __future__ import annotations
+
+import sys
+
+#: flag -> spec field (the values are parsed by DesignSpec, which names the field on error)
+_SPEC_FLAGS = {"efl": "efl_mm", "fno": "fno", "epd": "epd_mm", "hfov": "hfov_deg",
+               "elements": "elements", "aspheres": "aspheres", "wavelengths": "wavelengths_nm",
+               "wavelength_weights": "wavelength_weights", "primary": "primary_wavelength_nm",
+               "fields": "field_fractions", "field_weights": "field_weights", "stop": "stop",
+               "glasses": "glasses", "object_distance": "object_distance_mm",
+               "max_track": "max_track_mm", "min_center_glass": "min_center_glass_mm",
+               "max_center_glass": "max_center_glass_mm", "min_edge_glass": "min_edge_glass_mm",
+               "min_air": "min_air_mm", "min_bfl": "min_bfl_mm", "max_diameter": "max_diameter_mm"}
+
+
+def add_arguments(p) -> None:
+    s = p.add_argument_group("specification (mm, degrees, nm)")
+    s.add_argument("--spec", help="YAML or JSON spec file (flags below override its values)")
+    s.add_argument("--efl", type=float, help="effective focal length")
+    s.add_argument("--fno", type=float, help="F-number (or --epd)")
+    s.add_argument("--epd", type=float, help="entrance-pupil diameter (or --fno)")
+    s.add_argument("--hfov", type=float, help="half field of view")
+    s.add_argument("--elements", type=int, help="number of singlets (default 3)")
+    s.add_argument("--aspheres", type=int, help="surfaces allowed conic + a4, a6 (default 0)")
+    s.add_argument("--wavelengths", help="comma-separated, e.g. 486.1,587.6,656.3")
+    s.add_argument("--wavelength-weights", help="comma-separated relative weights")
+    s.add_argument("--primary", type=float, help="primary wavelength (default: the middle)")
+    s.add_argument("--fields", help="fractions of the half field (default 0,0.7,1)")
+    s.add_argument("--field-weights", help="comma-separated relative weights")
+    s.add_argument("--stop", help="front, middle, back, search (default) or an air-gap index")
+    s.add_argument("--glasses", help="SCHOTT (default), MODEL, or comma-separated glass names")
+    s.add_argument("--object-distance", type=float, help="object to first vertex (default inf)")
+    for flag in ("max-track", "min-center-glass", "max-center-glass", "min-edge-glass",
+                 "min-air", "min-bfl", "max-diameter"):
+        s.add_argument(f"--{flag}", type=float, help=f"{flag.replace('-', ' ')} (mm)")
+    g = p.add_argument_group("search")
+    g.add_argument("--seed", type=int, default=0, help="seed of the starts and hops")
+    g.add_argument("--starts", type=int, default=16, help="quasi-random starts (default 16)")
+    g.add_argument("--start-kind", choices=["thin", "flat", "mixed"], default="thin",
+                   help="thin-lens solve, flat surfaces with a curriculum, or both")
+    g.add_argument("--polish", type=int, default=3, help="distinct designs polished")
+    g.add_argument("--hops", type=int, default=6, help="basin-hopping hops (0: none)")
+    g.add_argument("--keep", type=int, default=3, help="distinct designs kept and written")
+    g.add_argument("--screen-steps", type=int, default=12, help="DLS steps per start (12)")
+    g.add_argument("--polish-steps", type=int, default=30, help="DLS steps per polish (30)")
+    g.add_argument("--hop-steps", type=int, default=20, help="DLS steps per hop (20)")
+    g.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+
+
+def spec_from_args(args):
+    """The :class:`~deeplens.design.search.spec.DesignSpec` of ``--spec`` and the flags."""
+    from ..search.spec import DesignSpec
+
+    data = {}
+    if args.spec:
+        data = DesignSpec.from_file(args.spec).to_dict()
+    for flag, name in _SPEC_FLAGS.items():
+        v = getattr(args, flag, None)
+        if v is not None:
+            data[name] = v
+    if args.fno is not None:
+        data.pop("epd_mm", None)
+    if args.epd is not None:
+        data.pop("fno", None)
+    for k in ("efl_mm", "hfov_deg"):
+        if k not in data:
+            raise ValueError(f"--{k.split('_')[0]} (or {k!r} in --spec) is required")
+    return DesignSpec.from_dict({k: v for k, v in data.items() if v is not None},
+                                source=args.spec or "")
+
+
+def run(args) -> dict:
+    from ..search import SearchConfig, Stage, search, write_outputs
+
+    spec = spec_from_args(args)
+    for flag in ("screen_steps", "polish_steps", "hop_steps"):
+        if getattr(args, flag) < 1:
+            raise ValueError(f"--{flag.replace('_', '-')} must be >= 1, got {getattr(args, flag)}")
+    cfg = SearchConfig(starts=args.starts, start_kind=args.start_kind, polish_count=args.polish,
+                       hops=args.hops, keep=args.keep, seed=args.seed,
+                       screen=(Stage(args.screen_steps, "hexapolar:6"),),
+                       polish=(Stage(args.polish_steps, "hexapolar:6", rounds=2),),
+                       hop=(Stage(args.hop_steps, "hexapolar:6"),))
+
+    def progress(text):
+        if not args.quiet:
+            print(f"[search] {text}", file=sys.stderr, flush=True)
+
+    try:
+        res = search(spec, cfg, progress=progress)
+    except RuntimeError as e:
+        raise ValueError(str(e)) from None
+    paths = write_outputs(args.out, res, spec)
+    best = res.best.metrics
+    return {"rms_um": best["rms_um"], "rms_poly_um": best["rms_poly_um"],
+            "efl_mm": best["efl_mm"], "fno": best["fno"], "total_track_mm": best["total_track_mm"],
+            "feasible": best["feasible"], "seconds": res.seconds, "designs": len(res.designs),
+            "best": paths.get("best"), "result": paths.get("result")}

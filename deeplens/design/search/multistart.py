@@ -1,0 +1,307 @@
+"""The global strategy: quasi-random starts, each refined by DLS, then basin hopping.
+
+1. **Starts.**  ``starts`` points of a scrambled Sobol sequence (``torch.quasirandom.
+   SobolEngine``, seeded) in the start cube of :mod:`.start` (sign pattern, glasses, powers,
+   bendings, spacings, stop position); each becomes a thin-lens start (or a flat start, or
+   alternately both: ``start_kind``).  Points that give no lens are skipped and replaced by
+   further points (up to 4 x ``starts`` draws).
+2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
+   scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
+   first, then by the polychromatic RMS spot.
+3. **De-duplicate.**  Two designs are the same when they have the same glasses and their
+   signatures (every curvature times ``f``, every gap and the sensor distance over ``f``)
+   differ by less than ``dedup_tol`` everywhere: DLS from neighbouring starts ends in the same
+   basin, and polishing it twice buys nothing.
+4. **Polish.**  The best ``polish_count`` distinct designs are refined longer on finer rays
+   (``polish``), with aspheric terms on the ``spec.aspheres`` most bent surfaces if allowed.
+5. **Basin hopping** (Wales and Doye 1997): ``hops`` times, the current design's scaled
+   variables (mm of sag at the rim, mm of gap) are kicked by ``hop_size`` x a standard normal
+   vector (up to 5 tries for a valid lens), the focal length restored by the angle solve, and
+   the result refined (``hop``);
+   it replaces the current design when it scores better (greedy; ``temperature > 0`` accepts a
+   worse one with probability ``exp(-Δ / T)``, Δ in µm of RMS spot).
+6. **Keep** the best ``keep`` distinct designs; each gets its focal length made exact
+   (:func:`~.start.solve_efl`), semi-diameters fitted to its beam and a dense evaluation.
+
+Everything random comes from ``seed`` (the Sobol scrambling and a ``torch.Generator`` for the
+hops), and the arithmetic is float64 on the CPU, so a seed reproduces its designs.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from .problem import search_variables
+from .refine import (CURRICULUM, STANDARD, Stage, aspheric_choice, fit_semi_diameters, refine,
+                     repair_edges)
+from .result import evaluate
+from .spec import DesignSpec
+from .start import StartError, flat_start, solve_efl, start_dimensions, thin_lens_start
+
+__all__ = ["SearchConfig", "Design", "SearchResult", "search", "signature", "same_design",
+           "deduplicate"]
+
+START_KINDS = ("thin", "flat", "mixed")
+
+
+@dataclass
+class SearchConfig:
+    """The search budget and strategy (module docstring)."""
+
+    starts: int = 16
+    start_kind: str = "thin"
+    screen: tuple = STANDARD
+    flat_screen: tuple = CURRICULUM
+    score_sampling: str = "hexapolar:6"
+    polish_count: int = 3
+    polish: tuple = (Stage(30, "hexapolar:6", rounds=2),)
+    hops: int = 6
+    hop_size: float = 0.5
+    hop: tuple = (Stage(20, "hexapolar:6"),)
+    temperature: float = 0.0
+    keep: int = 3
+    dedup_tol: float = 0.02
+    seed: int = 0
+    final_sampling: str = "hexapolar:12"
+
+    def __post_init__(self):
+        if self.start_kind not in START_KINDS:
+            raise ValueError(f"start_kind must be one of {', '.join(START_KINDS)}, got "
+                             f"{self.start_kind!r}")
+        for name in ("starts", "keep", "polish_count"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if int(self.hops) < 0 or not (self.hop_size >= 0 and self.temperature >= 0):
+            raise ValueError(f"hops, hop_size and temperature must be >= 0, got {self.hops!r}, "
+                             f"{self.hop_size!r}, {self.temperature!r}")
+
+    def to_dict(self) -> dict:
+        d = dict(self.__dict__)
+        for k in ("screen", "flat_screen", "polish", "hop"):
+            d[k] = [s.__dict__ for s in d[k]]
+        return d
+
+
+@dataclass
+class Design:
+    """A design: the lens (float64), its score (:func:`~.result.evaluate`), where it came from
+    (``"start 3"``, ``"hop 2"``) and its signature (:func:`signature`)."""
+
+    lens: object
+    metrics: dict
+    origin: str
+    signature: torch.Tensor = None
+    glasses: tuple = ()
+
+    @property
+    def key(self):
+        """Sort key: feasible first, then RMS spot."""
+        return (not self.metrics["feasible"], self.metrics["rms_um"])
+
+
+@dataclass
+class SearchResult:
+    """The kept designs (best first), one record per refinement (``runs``), the time."""
+
+    designs: list
+    runs: list = field(default_factory=list)
+    seconds: float = 0.0
+    config: SearchConfig | None = None
+    starts_tried: int = 0
+
+    @property
+    def best(self) -> Design:
+        return self.designs[0]
+
+    def to_dict(self) -> dict:
+        return {"best": self.designs[0].metrics if self.designs else None,
+                "designs": [{"origin": d.origin, "glasses": list(d.glasses), **d.metrics}
+                            for d in self.designs],
+                "runs": [{k: v for k, v in r.items() if k != "history"} for r in self.runs],
+                "seconds": self.seconds, "starts_tried": self.starts_tried,
+                "config": self.config.to_dict() if self.config else None}
+
+
+def signature(lens, efl: float) -> torch.Tensor:
+    """Curvatures x ``f``, gaps / ``f`` and sensor distance / ``f`` (dimensionless)."""
+    from .problem import real_surfaces
+
+    with torch.no_grad():
+        c = [float(lens.surfaces[i].c) * efl for i in real_surfaces(lens)]
+        real = real_surfaces(lens)
+        z = lens.z_vertices()
+        gaps = [float(z[q] - z[p]) / efl for p, q in zip(real, real[1:])]
+        return torch.tensor(c + gaps + [float(lens.d_sensor) / efl], dtype=torch.float64)
+
+
+def _glasses(lens) -> tuple:
+    return tuple(m.name for m in lens.materials)
+
+
+def same_design(a: Design, b: Design, tol: float) -> bool:
+    """Module docstring, step 3."""
+    return (a.glasses == b.glasses and a.signature.shape == b.signature.shape
+            and float((a.signature - b.signature).abs().max()) < tol)
+
+
+def deduplicate(designs, tol: float) -> list:
+    """The designs sorted best first, each kept only if no better one is the same."""
+    out = []
+    for d in sorted(designs, key=lambda d: d.key):
+        if not any(same_design(d, k, tol) for k in out):
+            out.append(d)
+    return out
+
+
+def _score(lens, spec, origin, sampling) -> Design:
+    m = evaluate(lens, spec, sampling)
+    return Design(lens, m, origin, signature(lens, spec.efl_mm), _glasses(lens))
+
+
+def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strategy=None,
+           progress=None) -> SearchResult:
+    """Design lenses for ``spec`` (module docstring).
+
+    Args:
+        spec: the :class:`~.spec.DesignSpec`.
+        config: the :class:`SearchConfig` (budget, seed).
+        glass_strategy: ``(glasses, signs, u) -> [glass per element]`` for the starts (default
+            :func:`~.start.crown_flint_by_sign`): the hook where glass handling plugs in.
+        progress: ``progress(text)`` called after each refinement (a progress indicator).
+
+    Returns:
+        :class:`SearchResult` with up to ``config.keep`` distinct designs, best first.
+
+    Raises:
+        RuntimeError: no start gave a lens that could be refined (the message says why the
+            first few failed).
+    """
+    cfg = config or SearchConfig()
+    t0 = time.perf_counter()
+    say = progress or (lambda text: None)
+    runs, pool = [], []
+    d = start_dimensions(spec.elements)
+    sobol = torch.quasirandom.SobolEngine(d, scramble=True, seed=int(cfg.seed))
+    gen = torch.Generator().manual_seed(int(cfg.seed))
+    tried, made = 0, 0
+    while made < cfg.starts and tried < 4 * cfg.starts:
+        u = sobol.draw(1, dtype=torch.float64)[0]
+        kind = cfg.start_kind if cfg.start_kind != "mixed" else ("thin", "flat")[tried % 2]
+        tried += 1
+        try:
+            lens = (thin_lens_start if kind == "thin" else flat_start)(
+                spec, u, glass_strategy=glass_strategy)
+        except StartError as e:
+            runs.append({"origin": f"start {tried - 1}", "kind": kind, "ok": False,
+                         "reason": f"no lens: {e}", "seconds": 0.0})
+            continue
+        made += 1
+        r = refine(lens, spec, cfg.screen if kind == "thin" else cfg.flat_screen,
+                   flat=kind == "flat")
+        rec = {"origin": f"start {tried - 1}", "kind": kind, "ok": r.ok, "reason": r.reason,
+               "seconds": r.seconds, "history": r.history, "steps": r.steps}
+        if r.ok:
+            try:
+                dsg = _score(lens, spec, f"start {tried - 1} ({kind})", cfg.score_sampling)
+                pool.append(dsg)
+                rec["rms_um"] = dsg.metrics["rms_um"]
+            except (ValueError, RuntimeError) as e:
+                rec["ok"], rec["reason"] = False, f"evaluation: {e}"
+        runs.append(rec)
+        best = min((p.metrics["rms_um"] for p in pool), default=math.inf)
+        say(f"start {made}/{cfg.starts} ({kind}): "
+            + (f"{rec['rms_um']:.2f} um" if "rms_um" in rec else f"failed ({rec['reason'][:60]})")
+            + f"; best {best:.2f} um; {time.perf_counter() - t0:.0f} s")
+    if not pool:
+        why = "; ".join(r["reason"][:120] for r in runs[:3])
+        raise RuntimeError(f"design search: none of {tried} starts gave a refinable lens "
+                           f"({why})")
+    # polish the best distinct designs
+    polished = []
+    for k, dsg in enumerate(deduplicate(pool, cfg.dedup_tol)[:cfg.polish_count]):
+        lens = copy.deepcopy(dsg.lens)
+        asph = aspheric_choice(lens, spec.aspheres) if spec.aspheres else ()
+        r = refine(lens, spec, cfg.polish, aspheric_surfaces=asph)
+        rec = {"origin": f"polish {k} of {dsg.origin}", "ok": r.ok, "reason": r.reason,
+               "seconds": r.seconds, "history": r.history, "steps": r.steps}
+        if r.ok:
+            p = _score(lens, spec, f"{dsg.origin}, polished", cfg.score_sampling)
+            polished.append(p)
+            rec["rms_um"] = p.metrics["rms_um"]
+        runs.append(rec)
+        say(f"polish {k + 1}: {rec.get('rms_um', math.nan):.2f} um ({dsg.origin}; "
+            f"{r.steps} steps, {r.reason[:70]})")
+    pool += polished
+    # basin hopping from the best design
+    current = deduplicate(pool, cfg.dedup_tol)[0]
+    asph = aspheric_choice(current.lens, spec.aspheres) if spec.aspheres else ()
+    for h in range(int(cfg.hops)):
+        rec = {"origin": f"hop {h} from {current.origin}", "ok": False}
+        for _ in range(5):   # up to 5 kicks for one that leaves a valid lens
+            lens = copy.deepcopy(current.lens)
+            try:
+                v = search_variables(lens, asph, efl_solve=True)
+                x = v.x0() + cfg.hop_size * torch.randn(len(v), generator=gen,
+                                                        dtype=torch.float64)
+                v.assign(x)
+                lens.check()
+                solve_efl(lens, spec.efl_mm)
+                lens.check()
+                break
+            except (ValueError, RuntimeError) as e:
+                rec["reason"] = f"kick: {e}"
+                lens = None
+        if lens is None:
+            runs.append(rec)
+            say(f"hop {h + 1}/{cfg.hops}: 5 kicks left the feasible region")
+            continue
+        r = refine(lens, spec, cfg.hop, aspheric_surfaces=asph)
+        rec.update(ok=r.ok, reason=r.reason, seconds=r.seconds, history=r.history, steps=r.steps)
+        accepted = False
+        if r.ok:
+            try:
+                p = _score(lens, spec, f"hop {h}", cfg.score_sampling)
+            except (ValueError, RuntimeError) as e:
+                rec["ok"], rec["reason"] = False, f"evaluation: {e}"
+            else:
+                pool.append(p)
+                rec["rms_um"] = p.metrics["rms_um"]
+                delta = p.metrics["rms_um"] - current.metrics["rms_um"]
+                if p.key < current.key:
+                    accepted = True
+                elif cfg.temperature > 0 and p.metrics["feasible"] >= current.metrics["feasible"]:
+                    accepted = float(torch.rand(1, generator=gen)) < math.exp(
+                        -delta / cfg.temperature)
+                if accepted:
+                    current = p
+        rec["accepted"] = accepted
+        runs.append(rec)
+        feas = "" if not rec.get("ok") or "rms_um" not in rec else (
+            "" if pool[-1].metrics["feasible"] else " (infeasible: "
+            + "; ".join(pool[-1].metrics["constraints_broken"])[:60] + ")")
+        say(f"hop {h + 1}/{cfg.hops}: {rec.get('rms_um', math.nan):.2f} um{feas}"
+            f"{' (accepted)' if accepted else ''}; current {current.metrics['rms_um']:.2f} um")
+    # keep the best distinct designs, finished
+    kept = []
+    for dsg in deduplicate(pool, cfg.dedup_tol):
+        if len(kept) >= cfg.keep:
+            break
+        lens = copy.deepcopy(dsg.lens)
+        try:
+            solve_efl(lens, spec.efl_mm)
+            fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
+            repair_edges(lens, spec)
+            lens.check()
+            lens.name = (f"design search: {spec.elements} element(s), f {spec.efl_mm:g} mm "
+                         f"F/{spec.f_number:.3g}, HFOV {spec.hfov_deg:g} deg ({dsg.origin}, "
+                         f"seed {cfg.seed})")
+            kept.append(_score(lens, spec, dsg.origin, cfg.final_sampling))
+        except (ValueError, RuntimeError):
+            continue
+    kept.sort(key=lambda d: d.key)
+    return SearchResult(kept, runs, time.perf_counter() - t0, cfg, tried)

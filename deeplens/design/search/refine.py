@@ -1,0 +1,231 @@
+"""One local refinement of a lens for a spec: stages of damped least squares.
+
+A stage (:class:`Stage`) sets the curriculum (the entrance pupil at ``aperture`` times the
+spec's, fields at ``field`` times the spec's), fits every refracting surface's semi-diameter to
+the real beam (:func:`fit_semi_diameters`: the largest height of rim and chief rays of every
+field and wavelength, times 1.05, + 0.1 mm; no vignetting), widens any gap whose edge then
+falls short (:func:`repair_edges`), prepares the merit of :mod:`.problem` on
+``sampling`` over the pupils the stop alone sets and runs ``steps`` DLS iterations (Jacobian by float64 central differences, the
+cheapest for tens of variables, :mod:`deeplens.design.optimizers`).  While optimising, clear
+apertures float with the beam (``TraceOptions(clip_aperture=False)``: no ray is clipped, so a
+step is never rejected because the beam grew past a semi-diameter fitted a moment ago); the
+semi-diameters are re-fitted after every stage, and the final evaluation clips at them.  Constraints are hard
+(a trial step that breaks one is rejected) from the first stage that starts with all of them
+met, soft (penalties only) before.  A stage that cannot start (a field fully vignetted,
+surfaces that cross once the semi-diameters follow the beam) ends the refinement: the start
+is then reported as failed, with the reason.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from ...analysis.spot import find_pupil
+from ...optics.sampling import field_rays
+from ...optics.surfaces import Aperture
+from ...optics.camera import Camera
+from ...optics.materials import Air
+from ...optics.options import TraceOptions
+from ..constraints import ConstraintSet
+from ..lensopt import optimize_lens
+from .problem import real_surfaces, search_merit, search_variables, spec_constraints
+from .spec import DesignSpec
+from .start import solve_efl
+
+__all__ = ["Stage", "RefineResult", "refine", "fit_semi_diameters", "set_curriculum",
+           "repair_edges", "aspheric_choice",
+           "CURRICULUM", "STANDARD"]
+
+
+#: trace options while optimising: clear apertures float with the beam (no clipping; the rays
+#: fill the pupils the stop alone sets, found at each preparation), as in lens-design programs
+_FLOATING = TraceOptions(clip_aperture=False)
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage: ``steps`` iterations of ``method`` (``"dls"``, or ``"lbfgs"``: quasi-Newton
+    on the merit, which keeps converging where the least-squares model cannot, at a minimum
+    with large residuals such as a singlet's least spherical aberration) on ``sampling``
+    (split over ``rounds`` pupil re-samplings) at ``aperture`` x the EPD and ``field`` x the
+    fields."""
+
+    steps: int
+    sampling: str = "hexapolar:6"
+    aperture: float = 1.0
+    field: float = 1.0
+    rounds: int = 1
+    method: str = "dls"
+
+
+#: a flat start's curriculum: the aperture and field grown over the run
+CURRICULUM = (Stage(8, "hexapolar:6", 0.3, 0.0), Stage(8, "hexapolar:6", 0.6, 0.5),
+              Stage(12, "hexapolar:6", 1.0, 1.0))
+#: a thin-lens start's refinement: the whole spec at once.  127 rays per field and wavelength
+#: (hexapolar:6): on 37 (hexapolar:3) DLS fits the few rays it sees while the RMS spot of the
+#: dense evaluation grows again (a Cooke start: 690 -> 422 -> 121 -> 273 µm over 3 x 20 steps);
+#: the tracer's cost is per operation, not per ray, at these sizes
+STANDARD = (Stage(12, "hexapolar:6"),)
+
+
+@dataclass
+class RefineResult:
+    """``ok``: every stage ran; ``merit``: the last stage's final merit (its own sampling);
+    ``history``: the merit after each accepted DLS step, over all stages; ``reason``: why it
+    stopped (or failed); ``hard``: the constraints were hard in the last stage."""
+
+    ok: bool
+    merit: float = math.inf
+    history: list = field(default_factory=list)
+    reason: str = ""
+    seconds: float = 0.0
+    hard: bool = False
+    steps: int = 0
+
+
+def set_curriculum(lens, spec: DesignSpec, aperture: float = 1.0) -> None:
+    """Size the stop for ``aperture`` x the spec's EPD (in place)."""
+    lens.spec.aperture_type = "epd"
+    lens.spec.aperture_value = aperture * spec.epd
+    lens.apply_aperture_spec()
+
+
+def fit_semi_diameters(lens, fields, waves, margin: float = 1.05, pad_mm: float = 0.1,
+                       rim: int = 16) -> None:
+    """Set every refracting surface's semi-diameter to the real beam's height there (module
+    docstring), in place: the beam is the stop-limited pupil (traced) of every field, its rim
+    and centre at every wavelength, traced with the other surfaces unclipped.
+
+    Raises:
+        ValueError: a field is fully vignetted (no ray passes the stop).
+    """
+    real = real_surfaces(lens)
+    with torch.no_grad():
+        saved = [lens.surfaces[i].semi_diameter.clone() for i in real]
+        for i in real:
+            lens.surfaces[i].semi_diameter.fill_(1e4)
+        try:
+            t = torch.arange(rim, dtype=lens.dtype) * (2 * math.pi / rim)
+            unit = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
+                              torch.stack([torch.sin(t), torch.cos(t)], -1)])
+            reach = torch.zeros(len(lens.surfaces), dtype=torch.float64)
+            primary = float(lens.spec.primary_wavelength_nm)
+            for f in fields:
+                reg = find_pupil(lens, f, primary, "traced", grid=33, bisections=16)
+                for wl in waves:
+                    rays = field_rays(lens, f, wl, reg.points(unit), reg.z)
+                    out, hits = lens.trace(rays, record=True)
+                    ok = out.valid
+                    for i in real:
+                        h = torch.linalg.vector_norm(hits[i][..., :2], dim=-1)[ok]
+                        if h.numel():
+                            reach[i] = torch.maximum(reach[i], h.max().double().cpu())
+        except Exception:
+            for i, v in zip(real, saved):
+                lens.surfaces[i].semi_diameter.copy_(v)
+            raise
+        for i, v in zip(real, saved):
+            s = lens.surfaces[i]
+            sd = margin * float(reach[i]) + pad_mm if float(reach[i]) > 0 else float(v)
+            c = abs(float(s.c)) if hasattr(s, "c") else 0.0
+            if c > 0:
+                sd = min(sd, 0.995 / c)
+            s.semi_diameter.fill_(sd)
+
+
+class _Normalised:
+    """A merit whose residuals are divided by the root of its value at preparation, so that a
+    gradient method starts at a merit of 1 whatever the design's scale (L-BFGS's first step
+    and its stopping rule are absolute)."""
+
+    def __init__(self, merit):
+        self.merit, self.scale = merit, 1.0
+
+    def prepare(self, lens):
+        self.merit.prepare(lens)
+        with torch.no_grad():
+            r = self.merit.residuals(lens)
+        self.scale = 1.0 / max(float(torch.sqrt((r * r).sum())), 1e-300)
+        return self
+
+    def residuals(self, lens):
+        return self.merit.residuals(lens) * self.scale
+
+
+def repair_edges(lens, spec: DesignSpec, margin_mm: float = 0.01) -> None:
+    """Widen every gap between consecutive refracting surfaces whose centre or edge (at the
+    smaller semi-diameter) is below the spec's minimum (``min_edge_glass_mm`` /
+    ``min_center_glass_mm`` for glass, ``min_air_mm`` for air; 0 if none), by the shortfall +
+    ``margin_mm``, in place: the edge-thickness solve of lens-design programs, needed after the
+    semi-diameters grow with the beam."""
+    real = real_surfaces(lens)
+    with torch.no_grad():
+        for p, q in zip(real, real[1:]):
+            glass = not isinstance(lens.materials[p + 1], Air)
+            need_e = (spec.min_edge_glass_mm if glass else spec.min_air_mm) or 0.0
+            need_c = (spec.min_center_glass_mm if glass else spec.min_air_mm) or 0.0
+            a, b = lens.surfaces[p], lens.surfaces[q]
+            r = torch.tensor(min(float(a.semi_diameter), float(b.semi_diameter)),
+                             dtype=lens.dtype)
+            zero = torch.zeros_like(r)
+            z = lens.z_vertices()
+            centre = float(z[q] - z[p])
+            edge = centre + float(b.sag(zero, r) - a.sag(zero, r))
+            short = max(need_e - edge, need_c - centre)
+            if short > 0:
+                lens.distances[q].add_(short + margin_mm)
+
+
+def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
+           efl_weight: float | None = None, flat: bool = False) -> RefineResult:
+    """Run ``stages`` on ``lens`` (float64; changed in place), see the module docstring.
+    The focal length is held by the EFL solve (:class:`~.problem.EflSolved`), except in the
+    first stage of a ``flat`` start (no power to solve from: a penalty then)."""
+    t0 = time.perf_counter()
+    res = RefineResult(ok=False)
+    try:
+        for st in stages:
+            set_curriculum(lens, spec, st.aperture)
+            fields = [st.field * f for f in spec.fields_deg]
+            fit_semi_diameters(lens, fields, spec.wavelengths_nm)
+            repair_edges(lens, spec)
+            lens.check()
+            cons = spec_constraints(lens, spec)
+            hard = not ConstraintSet(cons).broken(lens)
+            solve = not flat
+            merit = search_merit(spec, cons, sampling=st.sampling, field_scale=st.field,
+                                 efl_weight=efl_weight, efl_solve=solve)
+            v = search_variables(lens, aspheric_surfaces, efl_solve=solve)
+            if st.method != "dls":
+                merit = _Normalised(merit)
+            out = optimize_lens(Camera(lens, None, _FLOATING), v, merit, method=st.method,
+                                steps=st.steps, rounds=st.rounds,
+                                constraints=cons if hard else (), jacobian_mode="central")
+            if solve:
+                solve_efl(lens, spec.efl_mm)
+            flat = False   # a flat start has power after its first stage
+            res.history += [h["merit"] for h in out.history if h["accepted"]]
+            res.merit, res.reason, res.hard = out.merit_after, out.reason, hard
+            res.steps += out.steps
+        set_curriculum(lens, spec, 1.0)
+        fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
+        repair_edges(lens, spec)
+        lens.check()
+        res.ok = True
+    except (ValueError, RuntimeError) as e:
+        res.ok, res.reason = False, f"{type(e).__name__}: {e}"
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+def aspheric_choice(lens, count: int) -> list[int]:
+    """The ``count`` refracting surfaces with the largest sag at the rim (``|c| R^2``): where
+    an aspheric term has the most to correct."""
+    real = [i for i in real_surfaces(lens) if not isinstance(lens.surfaces[i], Aperture)]
+    sag = {i: abs(float(lens.surfaces[i].c)) * float(lens.surfaces[i].semi_diameter) ** 2
+           for i in real}
+    return sorted(sorted(real, key=lambda i: -sag[i])[:count])

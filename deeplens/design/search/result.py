@@ -1,0 +1,125 @@
+"""What a design is worth, and the files a search writes.
+
+:func:`evaluate` reports a lens against a spec on dense rays (``hexapolar:12``, whole traced
+pupils, the sensor plane): per field ``f`` and wavelength ``λ`` the RMS radius about the field's
+polychromatic centroid, per field the polychromatic RMS spot
+
+    ρ_f = sqrt( sum_λ W_λ ρ_fλ^2 / sum_λ W_λ )
+
+(all rays of all wavelengths, weighted by ``W_λ``, about their common centroid; equal ray counts
+per wavelength), the headline ``rms_um = sqrt(sum_f W_f ρ_f^2 / sum_f W_f)``, the paraxial EFL
+and F-number, the total track (first vertex to sensor), the back clearance and every
+constraint's value and state.  :func:`write_outputs` writes ``best.json`` (a lens file every
+command reads), ``result.json`` and, when matplotlib is importable, ``convergence.png`` and
+``layout.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import torch
+
+from ...analysis.paraxial import paraxial
+from ...optics.io import save_lens
+from ..constraints import ConstraintSet
+from ..merit import SpotMerit
+from .problem import back_clearance, paraxial_footprint, spec_constraints, spot_merit
+from .spec import DesignSpec
+
+__all__ = ["evaluate", "write_outputs", "polychromatic_rms"]
+
+
+def polychromatic_rms(lens, spec: DesignSpec, sampling: str = "hexapolar:12",
+                      fields_deg=None) -> tuple[list, list]:
+    """``(per field polychromatic RMS (mm), per field and wavelength RMS about the field's
+    polychromatic centroid (mm))`` (module docstring); ``fields_deg`` defaults to the spec's."""
+    m = SpotMerit(spec.fields_deg, list(spec.wavelengths_nm), weights=spot_merit(spec).weights_in,
+                  sampling=sampling, reference="polychromatic", strict_rays=False, shrink=1.0,
+                  per_wavelength_pupil=True)
+    if fields_deg is not None:
+        m.fields = [float(f) for f in fields_deg]
+    with torch.no_grad():
+        m.prepare(lens)
+        rms = m.rms(lens).double().cpu()
+    W = torch.tensor(spec.wavelength_weights, dtype=torch.float64)
+    poly = torch.sqrt((rms ** 2 * W).sum(1) / W.sum())
+    return poly.tolist(), rms.tolist()
+
+
+def evaluate(lens, spec: DesignSpec, sampling: str = "hexapolar:12") -> dict:
+    """The report of the module docstring (a JSON-able dict; lengths in mm, spots in µm)."""
+    poly, rms = polychromatic_rms(lens, spec, sampling)
+    Wf = spec.weights_of_fields
+    total = math.sqrt(sum(w * p * p for w, p in zip(Wf, poly)) / sum(Wf))
+    with torch.no_grad():
+        p = paraxial(lens)
+        track = float(lens.z_sensor() - lens.z_vertices()[0])
+        cons = spec_constraints(lens, spec)
+        cset = ConstraintSet(cons)
+        values = {c.label: float(c.value(lens)) for c in cons}
+        broken = cset.broken(lens)
+        foot = float(paraxial_footprint(lens, spec.hfov_deg))
+        semi = max(float(s.semi_diameter) for s in lens.surfaces)
+    return {"rms_um": total * 1e3,
+            "rms_poly_um": [x * 1e3 for x in poly],
+            "rms_um_per_field_wavelength": [[x * 1e3 for x in row] for row in rms],
+            "fields_deg": spec.fields_deg, "wavelengths_nm": list(spec.wavelengths_nm),
+            "efl_mm": float(p.efl), "fno": float(p.fno), "epd_mm": float(p.entrance_pupil_diameter),
+            "total_track_mm": track, "back_clearance_mm": float(back_clearance(lens)),
+            "max_semi_diameter_mm": semi, "paraxial_footprint_mm": foot,
+            "constraints": values, "constraints_broken": broken, "feasible": not broken,
+            "sampling": sampling}
+
+
+def write_outputs(out, result, spec: DesignSpec) -> dict:
+    """Write ``best.json``, ``design_K.json`` (the other kept designs), ``result.json`` and
+    the figures (if matplotlib imports) into the folder ``out``; returns the paths."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for k, d in enumerate(result.designs):
+        path = out / ("best.json" if k == 0 else f"design_{k}.json")
+        save_lens(d.lens, path)
+        paths["best" if k == 0 else f"design_{k}"] = str(path)
+    data = result.to_dict()
+    data["spec"] = spec.to_dict()
+    data["files"] = paths
+    (out / "result.json").write_text(json.dumps(data, indent=1), encoding="utf-8")
+    paths["result"] = str(out / "result.json")
+    figs = _figure(result, out)
+    if figs:
+        paths["figures"] = figs
+    return paths
+
+
+def _figure(result, out: Path) -> list | None:
+    """``convergence.png`` (the merit of every refinement against its accepted steps) and
+    ``layout.png`` (the best design with its fields' rays)."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    from ...analysis.plot import layout_figure
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for run in result.runs:
+        if run.get("history"):
+            ax.semilogy(run["history"], lw=0.7, alpha=0.7)
+    ax.set_xlabel("accepted DLS step (one line per start or hop)")
+    ax.set_ylabel("merit sum r^2 (mm^2, its own sampling)")
+    ax.set_title("design search convergence")
+    fig.tight_layout()
+    fig.savefig(out / "convergence.png", dpi=110)
+    plt.close(fig)
+    paths = [str(out / "convergence.png")]
+    if result.designs:
+        fig = layout_figure(result.designs[0].lens)
+        fig.savefig(out / "layout.png", dpi=110)
+        plt.close(fig)
+        paths.append(str(out / "layout.png"))
+    return paths
