@@ -130,3 +130,18 @@ def test_searched_variant_is_frozen_in_the_eval_table(cfg_factory, tmp_path, sea
     assert rec["config"]["lens"]["path"].endswith("search/best.json")
     assert rec["config"]["lens"]["trainable"] == ["surfaces.*.c"]
     assert rec["config"]["lens"]["search"]["spec"]["elements"] == 1
+
+
+@pytest.mark.slow
+def test_the_shipped_experiment_trains_its_outer_aspheres(cfg_factory, tmp_path):
+    """configs/experiment/doublet_search.yaml as shipped (two elements, aspheres), with a
+    one-start budget: its globs choose the outer surfaces' a4 and a6, and a step trains."""
+    from deeplens.training.train import train
+
+    cfg = cfg_factory(*SEARCH, "debug=fdr", "lens.search.config={starts:1,hops:0,screen:2,"
+                      "polish:2,polish_count:1,keep:1,seed:0}")
+    metrics, objs = train(cfg)
+    assert [n for n, p in objs["lens"].named_parameters() if p.requires_grad] == [
+        "surfaces.1.a.0", "surfaces.1.a.1", "surfaces.4.a.0", "surfaces.4.a.1"]
+    assert len(load_lens(tmp_path / "search" / "best.json").surfaces) == 5
+    assert torch.isfinite(torch.tensor(metrics["train/loss"]))
