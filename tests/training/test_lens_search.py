@@ -132,6 +132,20 @@ def test_searched_variant_is_frozen_in_the_eval_table(cfg_factory, tmp_path, sea
     assert rec["config"]["lens"]["search"]["spec"]["elements"] == 1
 
 
+def test_a_fanned_out_evaluation_searches_before_its_jobs(cfg_factory, tmp_path, monkeypatch,
+                                                          searches):
+    """The jobs of a fan-out run at once: the evaluation searches first, the jobs reuse it."""
+    from deeplens.training import entry, evaluate as evaluate_mod, fanout
+
+    found = []
+    monkeypatch.setattr(fanout, "fan_out", lambda cfg, *a: found.append(
+        (tmp_path / "search" / RECORD).is_file()))
+    monkeypatch.setattr(evaluate_mod, "evaluate", lambda cfg: ("", {}))
+    cfg = cfg_factory(*SEARCH, *SHRINK, "eval.launcher=joblib", config_name="eval.yaml")
+    entry._eval_task(cfg, ["-m", "deeplens", "eval"])
+    assert found == [True] and len(searches) == 1
+
+
 @pytest.mark.slow
 def test_the_shipped_experiment_trains_its_outer_aspheres(cfg_factory, tmp_path):
     """configs/experiment/doublet_search.yaml as shipped (two elements, aspheres), with a
