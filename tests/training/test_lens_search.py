@@ -4,6 +4,7 @@ the design search makes from ``lens.search.spec`` (deeplens/training/lens_search
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -144,6 +145,22 @@ def test_a_fanned_out_evaluation_searches_before_its_jobs(cfg_factory, tmp_path,
     cfg = cfg_factory(*SEARCH, *SHRINK, "eval.launcher=joblib", config_name="eval.yaml")
     entry._eval_task(cfg, ["-m", "deeplens", "eval"])
     assert found == [True] and len(searches) == 1
+
+
+def test_precheck_needs_no_lens_file_for_a_search():
+    from hydra.core.global_hydra import GlobalHydra
+
+    from deeplens.training.precheck import precheck
+
+    configs = str(Path(__file__).resolve().parents[2] / "configs")
+
+    GlobalHydra.instance().clear()
+    assert precheck("train", ["experiment=doublet_search", "lens.path=null"],
+                    configs) is None
+    GlobalHydra.instance().clear()
+    assert precheck("train", ["experiment=doublet", "lens.path=null"],
+                    configs).startswith("lens.path: expected a lens file")
+    GlobalHydra.instance().clear()
 
 
 @pytest.mark.slow
