@@ -37,8 +37,14 @@ def _eval_task(cfg, fanout: list[str]) -> None:
 
     check_config(cfg)  # every key, before a job is fanned out
     if cfg.eval.get("launcher") and cfg.eval.get("job") is None and not cfg.eval.get("gather"):
+        from .evaluate import variants
         from .fanout import fan_out
 
+        if any(k == "searched" or (k == "learned" and cfg.lens.get("start") == "search")
+               for _, k, _ in variants(cfg)):   # one search here, not one per job at once
+            from .lens_search import search_dir, searched_lens
+
+            searched_lens(cfg, search_dir(cfg))
         fan_out(cfg, fanout, list(HydraConfig.get().overrides.task))
         with open_dict(cfg):
             cfg.eval.gather = True

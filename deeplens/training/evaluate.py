@@ -17,7 +17,12 @@ the scene defines ``field_bands``).  Variants (``eval.variants``):
   scene's fields otherwise; :mod:`deeplens.training.classical`, ``eval.classical``), then frozen
   while the restorer trains;
 * ``refined``: ``learned`` started from the ``classical`` design (the same variables trained
-  jointly with the restorer from there): what joint training adds on top of the classical one.
+  jointly with the restorer from there): what joint training adds on top of the classical one;
+* ``searched``: the lens the design search makes from ``lens.search.spec`` (searched
+  classically, :mod:`.lens_search`), frozen while the restorer trains.  With
+  ``lens.start=search``, ``learned`` trains ``lens.search.trainable`` jointly from that lens;
+  ``frozen``, ``classical`` and ``refined`` stay the file's lens (``lens.path``).  The search
+  runs once per evaluation folder (``<folder>/search``).
 
 Every number is the mean over seeds; ``± std`` is the sample standard deviation over seeds
 (``n - 1``; 0 for a single seed).  A seed changes everything that is random (network
@@ -64,7 +69,7 @@ __all__ = ["check_eval_config", "evaluate", "format_table", "variants", "summari
 
 _PLATE_KINDS = ("none", "cubic")
 #: the variants of ``eval.variants``
-_VARIANTS = ("none", "cubic", "classical", "learned", "refined", "frozen")
+_VARIANTS = ("none", "cubic", "classical", "learned", "refined", "frozen", "searched")
 
 
 def _alphas(cfg: DictConfig) -> list[float]:
@@ -111,15 +116,19 @@ def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
     names = cfg.eval.variants
     if names is None:
         names = (["none", "cubic", "classical", "learned"] if cfg.lens.plate_surface is not None
+                 else ["searched", "learned"] if cfg.lens.get("start") == "search"
                  else ["frozen", "classical", "learned"])
     for v in names:
         if v in _PLATE_KINDS and cfg.lens.plate_surface is None:
             raise ConfigError("eval.variants", "variants of a lens without a phase plate "
                               "(lens.plate_surface is null): frozen, classical, learned, "
-                              "refined", _plain(names))
+                              "refined, searched", _plain(names))
+        if v == "searched" and cfg.lens.get("search") is None:
+            raise ConfigError.missing("lens.search", "the design search's spec (eval.variants "
+                                      "has searched)")
         if v == "cubic":
             out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in _alphas(cfg)]
-        elif v in ("none", "learned", "frozen", "classical", "refined"):
+        elif v in ("none", "learned", "frozen", "classical", "refined", "searched"):
             out.append((v, v, None))
         else:
             raise ConfigError("eval.variants", f"variants of {', '.join(_VARIANTS)}",
@@ -144,11 +153,28 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
         out = out / f"seed{c.seed}"
         c.paths.output_dir = str(out)
         c.test = True
+        if kind == "searched" or (kind == "learned" and cfg.lens.get("start") == "search"):
+            # the design search's lens (lens_search.py), shared by the variants and seeds; the
+            # spec stays in the run key (lens.search), with the content of best.json
+            from .lens_search import search_dir, search_trainable
+
+            c.lens.path = str(search_dir(cfg) / "best.json")
+            c.lens.trainable = [] if kind == "searched" else search_trainable(cfg)
+            c.lens.search = {k: v for k, v in _plain(cfg.lens.search).items()
+                             if k != "trainable" or kind == "learned"}
+            # a searched lens has no phase plate (an EDOF config's searched variant)
+            c.lens.plate = c.lens.plate_surface = c.lens.plate_order = None
+            c.lens.learned_start_alpha_mm = None
+        else:  # the file's lens: the search's settings do not change these runs
+            c.lens.search = None
+        c.lens.start = "file"
         if kind == "none":
             c.lens.plate, c.lens.trainable = "none", []
         elif kind == "cubic":
             c.lens.plate, c.lens.trainable = "cubic", []
             c.lens.plate_alpha_mm = float(_alphas(cfg)[0] if alpha_mm is None else alpha_mm)
+        elif kind == "searched":
+            pass  # set above
         elif kind == "learned":
             if cfg.lens.plate_surface is not None:
                 c.lens.plate = "learned"
@@ -180,6 +206,8 @@ _NOT_IN_KEY = ("paths", "eval", "hydra", "task_name")
 def _run_key(cfg: DictConfig) -> dict:
     key = {k: (OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v)
            for k, v in ((k, cfg[k]) for k in cfg if k not in _NOT_IN_KEY)}
+    if key["lens"].get("start") == "file":  # the default: runs made before the key existed
+        key["lens"].pop("start")
     if not key["lens"].get("trainable"):  # frozen optics: the optics' settings are unused
         for k in ("optics_lr_mm", "optics_warmup_steps", "optics_worst_depth",
                   "optics_invariance"):
@@ -341,7 +369,15 @@ def _job(cfg: DictConfig, name: str, kind: str, alpha, seed: int):
     if kind in ("classical", "refined"):
         from .classical import design_classical
 
-        design_classical(cfg, classical_dir(cfg))
+        fc = copy.deepcopy(cfg)  # the file's lens: its design does not depend on lens.search
+        with open_dict(fc):
+            fc.lens.pop("start", None)
+            fc.lens.pop("search", None)
+        design_classical(fc, classical_dir(cfg))
+    if kind == "searched" or (kind == "learned" and cfg.lens.get("start") == "search"):
+        from .lens_search import search_dir, searched_lens
+
+        searched_lens(cfg, search_dir(cfg))
     ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
     torch.manual_seed(seed)
     return _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))

@@ -256,8 +256,11 @@ def check_lens_settings(path, *, plate=None, plate_surface=None, plate_alpha_mm=
 
 
 def check_lens_config(cfg) -> None:
-    """Start-up check of ``lens.*`` in a composed config (:func:`check_lens_settings`)."""
+    """Start-up check of ``lens.*`` in a composed config (:func:`check_lens_settings`;
+    ``lens.start`` and ``lens.search``: :func:`~.lens_search.check_search_settings`)."""
     from omegaconf import OmegaConf
+
+    from .lens_search import check_search_settings
 
     lc = cfg.lens
     opts = lc.get("table_options")
@@ -269,6 +272,7 @@ def check_lens_config(cfg) -> None:
                         focus_mm=lc.get("focus_mm"),
                         learned_start_alpha_mm=lc.get("learned_start_alpha_mm"),
                         plate_order=lc.get("plate_order"), dtype=lc.get("dtype", "float32"))
+    check_search_settings(lc, cfg.get("sensor"))
 
 
 def surface_height_map(surface, n: int = 64) -> torch.Tensor:

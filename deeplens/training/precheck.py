@@ -62,6 +62,8 @@ def _lens_problem(cfg) -> str | None:
 
     try:
         path = OmegaConf.select(cfg, "lens.path", throw_on_resolution_failure=True)
+        if OmegaConf.select(cfg, "lens.start", default=None) == "search":
+            return None   # the lens comes from lens.search (the start-up check reads it)
     except Exception:   # an interpolation only Hydra's run can resolve: Hydra checks it
         return None
     shipped = ", ".join(sorted(q.stem for q in lens_dir().glob("*.json")))

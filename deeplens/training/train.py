@@ -28,7 +28,7 @@ from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
 from .callbacks import check_callbacks_config
 from .checkpoint import AtomicCheckpointIO, read_checkpoint
-from .lens_setup import build_lens, check_lens_config
+from .lens_setup import build_lens, check_lens_config, set_trainable
 from .machine import describe_machine
 from .module_config import check_model_config
 from .run_lock import held_by_hydra, hold_output_folder
@@ -382,7 +382,12 @@ def build_objects(cfg: DictConfig) -> dict:
                     channels=None if sc.channels is None else [list(c) for c in sc.channels],
                     full_well=sc.full_well, read_noise=sc.read_noise)
     lc = cfg.lens
-    lens = build_lens(lc.path, trainable=list(lc.trainable), dtype=lc.dtype,
+    path, trainable = lc.path, list(lc.trainable)
+    if lc.get("start") == "search":   # the design search's lens (lens_search.py)
+        from .lens_search import search_trainable, searched_lens
+
+        path, trainable = str(searched_lens(cfg)), []
+    lens = build_lens(path, trainable=trainable, dtype=lc.dtype,
                       plate=lc.plate, plate_surface=lc.plate_surface,
                       plate_alpha_mm=lc.plate_alpha_mm,
                       table_options=OmegaConf.to_container(lc.table_options),
@@ -390,6 +395,8 @@ def build_objects(cfg: DictConfig) -> dict:
                       learned_start_alpha_mm=lc.get("learned_start_alpha_mm"),
                       plate_order=lc.get("plate_order"),
                       focus_wavelengths_nm=[w for ch in sensor.channels for w in ch])
+    if lc.get("start") == "search":   # globs over the searched lens's parameter names
+        set_trainable(lens, search_trainable(cfg), "lens.search.trainable")
     n_ch = len(sensor.channels)
     camera = build_camera(cfg, lens, sensor)  # one camera: every trace of a step reads it
     renderer = build_renderer(cfg, camera)

@@ -26,6 +26,7 @@ ROOT = Path(__file__).resolve().parents[2]
 TXT = ROOT / "tests" / "data" / "lenses" / "LA1131.txt"
 EDOF = ("experiment=edof",)
 DOUBLET = ("experiment=doublet",)
+SEARCH = ("experiment=doublet_search",)
 EVAL = "eval.yaml"
 
 # (validator, overrides, config, key, kind, what the expected part must say)
@@ -51,6 +52,35 @@ CASES = [
      "lens.plate_surface", "missing", "to use lens.plate"),
     ("check_lens_config", (*DOUBLET, f"lens.path={TXT}", "+lens.table_options.stop_indx=1"),
      None, "lens.table_options", "unknown", "stop_index"),
+    # lens_search.check_search_settings (through check_lens_config): lens.start, lens.search
+    ("check_lens_config", (*SEARCH, "lens.start=sarch"), None, "lens.start", "value",
+     "'file' .* or 'search'"),
+    ("check_lens_config", (*DOUBLET, "lens.start=search"), None, "lens.search", "missing",
+     "spec, config and trainable"),
+    ("check_lens_config", (*SEARCH, "+lens.search.spek={}"), None, "lens.search", "unknown",
+     "'spec'"),
+    ("check_lens_config", (*SEARCH, "lens.search.spec.fno=-2"), None, "lens.search.spec.fno",
+     "value", "positive"),
+    ("check_lens_config", (*SEARCH, "lens.search.spec.elements=9"), None,
+     "lens.search.spec.elements", "value", "1..8"),
+    ("check_lens_config", (*SEARCH, "+lens.search.spec.focal_mm=10"), None,
+     "lens.search.spec.focal_mm", "value", "unknown spec field"),
+    ("check_lens_config", (*SEARCH, "lens.search.spec.glasses=N-BK8"), None,
+     "lens.search.spec.glasses", "value", "N-BK8"),
+    ("check_lens_config", (*SEARCH, "lens.search.config.starts=0"), None,
+     "lens.search.config.starts", "value", "integer >= 1"),
+    ("check_lens_config", (*SEARCH, "+lens.search.config.startz=2"), None,
+     "lens.search.config", "unknown", "'starts'"),
+    ("check_lens_config", (*SEARCH, "lens.search.config.screen=[{stepz:2}]"), None,
+     r"lens.search.config.screen[0]", "unknown", "'steps'"),
+    ("check_lens_config", (*SEARCH, "lens.search.config.polish=[{steps:2,method:newton}]"),
+     None, r"lens.search.config.polish[0].method", "value", "'dls' or 'lbfgs'"),
+    ("check_lens_config", (*SEARCH, "lens.search.trainable=[1]"), None,
+     "lens.search.trainable", "value", "globs of the searched lens"),
+    ("check_lens_config", (*SEARCH, "lens.plate_surface=2"), None, "lens.plate_surface",
+     "value", "null with lens.start=search"),
+    ("check_lens_config", (*SEARCH, f"lens.path={TXT}", "lens.table_options.scale=2.0"), None,
+     "lens.table_options", "value", "null options with lens.start=search"),
     # train._check_channels
     ("_check_channels", (*EDOF, "sensor.channels=[[486.1],[656.3]]"), None, "sensor.channels",
      "value", "1 channel"),
@@ -121,6 +151,8 @@ CASES = [
      "without a phase plate"),
     ("_check_eval", (*EDOF, "eval.cubic_alpha_mm=[0.01,big]"), EVAL, "eval.cubic_alpha_mm",
      "value", "list of numbers"),
+    ("_check_eval", (*DOUBLET, "eval.variants=[searched]"), EVAL, "lens.search", "missing",
+     "searched"),
     ("_check_eval", (*EDOF, "eval.seeds=[0,0]"), EVAL, "eval.seeds", "value", "distinct"),
     ("_check_eval", (*EDOF, "eval.seeds=[0,1]", "eval.learned_ckpt=x.ckpt"), EVAL,
      "eval.seeds", "value", "a single seed with eval.learned_ckpt"),
@@ -213,7 +245,7 @@ def test_every_startup_validator_is_needed(cfg_factory, monkeypatch):
 
 
 def test_shipped_experiments_pass(cfg_factory):
-    for exp in ("edof", "doublet"):
+    for exp in ("edof", "doublet", "doublet_search"):
         train_mod.check_config(cfg_factory(f"experiment={exp}", tiny=False))
         train_mod.check_config(cfg_factory(f"experiment={exp}", tiny=False, config_name=EVAL))
 

@@ -12,11 +12,20 @@ from deeplens.training.train import build_objects, train
 
 ROOT = Path(__file__).resolve().parents[2]
 EXPERIMENTS = sorted(p.stem for p in (ROOT / "configs" / "experiment").glob("*.yaml"))
+#: per experiment, overrides that shrink what the tiny configs do not (a design search: a
+#: singlet, one start of 2 DLS steps, no hops; the shipped spec and globs, searched with a small
+#: budget: tests/training/test_lens_search.py, slow)
+SHRINK = {"doublet_search": ("lens.search.spec.elements=1", "lens.search.spec.aspheres=0",
+                             "lens.search.spec.glasses=N-BK7",
+                             "lens.search.config={starts:1,hops:0,screen:2,polish:2,"
+                             "polish_count:1,keep:1,seed:0}",
+                             "lens.search.trainable=[surfaces.*.c]",
+                             "render.psf_model=geometric")}
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_experiment_fast_dev_run(cfg_factory, experiment):
-    cfg = cfg_factory(f"experiment={experiment}", "debug=fdr")
+    cfg = cfg_factory(f"experiment={experiment}", "debug=fdr", *SHRINK.get(experiment, ()))
     metrics, objs = train(cfg)
     assert math.isfinite(metrics["train/loss"])
 
@@ -33,7 +42,7 @@ def _read_events(logdir):
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
 def test_short_run_logs_scalars_images_and_checkpoints(cfg_factory, tmp_path, experiment):
-    cfg = cfg_factory(f"experiment={experiment}", "test=false")
+    cfg = cfg_factory(f"experiment={experiment}", "test=false", *SHRINK.get(experiment, ()))
     metrics, objs = train(cfg)
     acc = _read_events(tmp_path / "tensorboard")
     scalars = set(acc.Tags()["scalars"])
