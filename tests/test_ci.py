@@ -60,6 +60,7 @@ def test_ci_reruns_the_rounding_sensitive_tests_on_the_scalar_kernels():
     spec.loader.exec_module(root)
     NUMERICS = root.NUMERICS
     run = (REPO / ".ci" / "run").read_text()
-    assert re.search(r"ATEN_CPU_CAPABILITY=default .*-m \"numerics and not slow\"", run)
+    assert re.search(r"ATEN_CPU_CAPABILITY=default TORCHINDUCTOR_CACHE_DIR=\S+ .*\n.*"
+                     r"-m \"numerics and not slow\"", run)
     missing = [p for p in NUMERICS if not (TESTS / p).exists()]
     assert not missing, missing
