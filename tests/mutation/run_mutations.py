@@ -60,6 +60,7 @@ TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
 REFRACT = ("tests/optics/test_refract.py",)
 CROSSING = ("tests/optics/test_crossing_azimuths.py",)
+PIXEL = ("tests/render/test_diffraction_pixel.py",)
 CONFIG = ("tests/training/test_config_errors.py",)
 HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
 FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
@@ -636,6 +637,18 @@ MUTATIONS = [
              "azimuth of the crossing", "deeplens/optics/lens.py",
              "        cos_a, sin_a = math.cos(azimuth), math.sin(azimuth)\n",
              "        cos_a, sin_a = 0.0, 1.0\n", CROSSING),
+    Mutation("subpixel_cap_64", "the diffraction kernel's sub-pixel points capped at 64 again "
+             "(a sharp PSF at coarse pixels under-integrated, a perfect lens refused)",
+             "deeplens/render/diffraction.py",
+             "        # no cap: beyond MAX_SUB_POINTS the transform integrates the pixel exactly "
+             "(issue 38)\n", "        sub = min(sub, 64)\n", PIXEL),
+    Mutation("exact_pixel_no_sinc", "the exact pixel integral without the pixel's transfer "
+             "function (point samples of the intensity)", "deeplens/render/diffraction.py",
+             "        sinc = torch.sinc(w * (pitch / (2 * math.pi)))\n",
+             "        sinc = torch.ones_like(w)\n", PIXEL),
+    Mutation("sampling_limit_blames_aberrations", "a PSF sharper than a pixel refused as an "
+             "aberrated lens", "deeplens/render/diffraction.py",
+             "        if spread + halo <= 1.0:\n", "        if False:\n", PIXEL),
 ]
 
 
