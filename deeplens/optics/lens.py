@@ -113,6 +113,19 @@ class LensSpec:
 
 
 _DIR = {1: "+", -1: "-"}
+# azimuths (degrees from +x) along which Lens.check samples surfaces for crossings: the y
+# section first (where a crossing of rotationally symmetric surfaces is reported), then x, then
+# every 22.5 degrees round the circle (surfaces without rotational symmetry, issue 38)
+_CHECK_AZIMUTHS_DEG = (90.0, 0.0) + tuple(22.5 * k for k in range(16) if k not in (0, 4))
+
+
+def _check_directions() -> tuple[torch.Tensor, torch.Tensor]:
+    """``(cos φ, sin φ)`` of :data:`_CHECK_AZIMUTHS_DEG`, float64, shape ``(A, 1)`` each, exact
+    0 and ±1 on the axes (so that the y section samples ``x = 0`` exactly)."""
+    phi = torch.deg2rad(torch.tensor(_CHECK_AZIMUTHS_DEG, dtype=torch.float64)).unsqueeze(-1)
+    cos_a, sin_a = torch.cos(phi), torch.sin(phi)
+    snap = lambda t: torch.where(t.abs() < 1e-12, torch.zeros_like(t), t)  # noqa: E731
+    return snap(cos_a), snap(sin_a)
 
 
 def _after_mirrors(mirrors, i: int) -> str:
@@ -407,21 +420,31 @@ class Lens(nn.Module):
                     continue
                 a, b = self.surfaces[i], self.surfaces[j]
                 r_max = min(float(a.semi_diameter), float(b.semi_diameter))
-                r = torch.linspace(0, r_max, 65, dtype=torch.float64)
-                zero = torch.zeros_like(r)
-                za = z[i] + a.sag(zero, r)
-                zb = z[j] + b.sag(zero, r)
-                gap = (zb - za) * sign[j]
-                ok = a.in_domain(zero, r) & b.in_domain(zero, r)
-                if bool(((gap < -1e-9) & ok).any()):
-                    k = int(torch.nonzero((gap < -1e-9) & ok)[0])
+                # along several azimuths, not the y section only (issue 38: a biconic or any
+                # surface without rotational symmetry may cross its neighbour along x while
+                # the y sections stay apart); y first, so a crossing of rotationally symmetric
+                # surfaces is reported where it was before
+                cos_a, sin_a = _check_directions()                       # (A, 1) each
+                r = torch.linspace(0, r_max, 65, dtype=torch.float64)    # (R,)
+                x, y = r * cos_a, r * sin_a                              # (A, R)
+                gap = (z[j] + b.sag(x, y) - z[i] - a.sag(x, y)) * sign[j]
+                bad = (gap < -1e-9) & a.in_domain(x, y) & b.in_domain(x, y)
+                if bool(bad.any()):
+                    # the azimuth whose first crossing comes first (ties: the earlier azimuth)
+                    first = torch.where(bad.any(-1), bad.int().argmax(-1), bad.shape[-1])
+                    m = int(torch.argmin(first))
+                    k = int(first[m])
+                    deg = _CHECK_AZIMUTHS_DEG[m]
+                    along = "" if deg == 90.0 else " along x" if deg == 0.0 else \
+                        f" at azimuth {deg:g} deg from +x"
                     raise SurfacesCrossError(
-                        f"surfaces {i} and {j} cross: at r = {float(r[k]):.4g} mm surface "
-                        f"{j} lies {float(-gap[k]):.4g} mm before surface {i} (distance "
+                        f"surfaces {i} and {j} cross: at r = {float(r[k]):.4g} mm{along} surface "
+                        f"{j} lies {float(-gap[m, k]):.4g} mm before surface {i} (distance "
                         f"between them {float(z[j] - z[i]):g} mm); increase the "
                         f"thickness or reduce the semi-diameters", surfaces=(i, j),
                         radius=self._crossing_radius(i, j, float(r[k - 1]) if k else 0.0,
-                                                     float(r[k]), z, sign[j]))
+                                                     float(r[k]), z, sign[j],
+                                                     math.radians(deg)))
             last = max([i for i, s in enumerate(self.surfaces)
                         if not isinstance(s, Aperture)], default=len(self.surfaces) - 1)
             s = self.surfaces[last]
@@ -438,23 +461,27 @@ class Lens(nn.Module):
                 if self.sensor_semi_diameter is not None:
                     xy = xy[torch.linalg.vector_norm(xy, dim=-1) <= self.sensor_semi_diameter]
                 zl = z[last] + s.sag(xy[:, 0], xy[:, 1])
-            else:
+            else:   # along the same azimuths as the pairs above
                 r = torch.linspace(0, float(s.semi_diameter), 65, dtype=torch.float64)
-                zl = z[last] + s.sag(torch.zeros_like(r), r)
+                cos_a, sin_a = _check_directions()
+                zl = z[last] + s.sag(r * cos_a, r * sin_a)
             if (not self.virtual_image   # a virtual plane may cut the lens: nothing is there
                     and bool((sign[-1] * (zl - self.z_sensor().detach()) > 1e-9).any())):
                 raise LensError(f"the last surface crosses the sensor plane (sensor distance "
                                 f"{float(self.d_sensor):g} mm)", key="sensor")
 
-    def _crossing_radius(self, i: int, j: int, lo: float, hi: float, z, sign: int) -> float:
+    def _crossing_radius(self, i: int, j: int, lo: float, hi: float, z, sign: int,
+                         azimuth: float = math.pi / 2) -> float:
         """The radius in ``[lo, hi]`` (mm) where surfaces ``i`` and ``j`` meet (their gap, along
-        the direction of travel ``sign`` between them, changes sign), by bisection."""
+        the direction of travel ``sign`` between them, changes sign) along the ``azimuth``
+        (radians from +x; the default is the +y section), by bisection."""
         a, b = self.surfaces[i], self.surfaces[j]
+        cos_a, sin_a = math.cos(azimuth), math.sin(azimuth)
 
         def gap(r: float) -> float:
-            t = torch.tensor([r], dtype=torch.float64)
-            zero = torch.zeros_like(t)
-            return float((z[j] + b.sag(zero, t) - z[i] - a.sag(zero, t)) * sign)
+            x = torch.tensor([r * cos_a], dtype=torch.float64)
+            y = torch.tensor([r * sin_a], dtype=torch.float64)
+            return float((z[j] + b.sag(x, y) - z[i] - a.sag(x, y)) * sign)
 
         for _ in range(60):
             mid = 0.5 * (lo + hi)

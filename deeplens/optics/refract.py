@@ -4,6 +4,9 @@ With unit normal ``n`` oriented along the propagation (``cos ψ = d·n > 0``) an
 
     d_t = η d + (sqrt(1 - η^2 (1 - cos^2 ψ)) - η cos ψ) n
 
+evaluated as ``(1 - η^2) / (sqrt(k) + η cos ψ)`` (:func:`snell_coefficient`), which has no
+cancellation: equal indices leave ``d`` unchanged exactly, also at grazing incidence.
+
 The ray is totally internally reflected (marked invalid) where ``k = 1 - η^2 (1 - cos^2 ψ) <= 0``:
 at the critical angle itself (``k == 0``, which float arithmetic does produce) the refracted ray
 grazes the surface, carries no power, and ``d sqrt(k)/dk`` is infinite, so keeping it valid put
@@ -34,10 +37,19 @@ def snell_coefficient(cos_i, eta, ok):
     rays), :func:`snell_xyz` (components) and the compiled plane step call it."""
     # k does not depend on the normal's orientation; flipping n to cos_i >= 0 turns
     # (sqrt(k) - eta cos_i) n into (sign(cos_i) sqrt(k) - eta cos_i) n for the given n
-    k = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)
+    # Written without cancellation (issue 38): k = (1 - η)(1 + η) + η² cos²ψ, not
+    # 1 - η² (1 - cos²ψ), whose 1 - cos²ψ rounds to 1 at grazing incidence in float32 (η = 1,
+    # cos ψ = 1e-4 gave k = 0: the ray was lost); and sqrt(k) - η|cos ψ| = (k - η² cos²ψ) /
+    # (sqrt(k) + η|cos ψ|) = (1 - η)(1 + η) / (sqrt(k) + η|cos ψ|), a sum of two non-negative
+    # terms in the denominator, so that η = 1 gives coef = 0 and d_t = d exactly.
+    eta_sq_c2 = (eta * cos_i) * (eta * cos_i)
+    one_minus_eta_sq = (1.0 - eta) * (1.0 + eta)
+    k = one_minus_eta_sq + eta_sq_c2
     ok = ok & (k > 0)  # k == 0: grazing exit, infinite derivative (module docstring)
     sqrt_k = torch.sqrt(torch.where(ok, k, torch.ones_like(k)))
-    return torch.copysign(sqrt_k, cos_i) - eta * cos_i, ok
+    denom = sqrt_k + (eta * cos_i).abs()  # >= sqrt(k) > 0 where ok
+    sign = torch.copysign(torch.ones_like(cos_i), cos_i)  # exact ±1: same branch as before
+    return sign * (one_minus_eta_sq / denom), ok
 
 
 def refract(d: torch.Tensor, n: torch.Tensor, eta: torch.Tensor, valid: torch.Tensor):

@@ -16,7 +16,9 @@ sphere's normal at ray ``k``; its transverse part is fitted as affine in the gri
 (least squares over the valid rays), so the sum is a *matrix Fourier transform*
 ``U = E_y P E_x^T`` evaluated directly at ``S x S`` points inside each of the ``K x K``
 sensor pixels (pixel integration by the ``S``-point Gauss-Legendre rule per side,
-``S = ceil(5 NA pitch / λ)``), not on the FFT's native grid.  Energy: by Parseval the whole PSF (one
+``S = ceil(5 NA pitch / λ)``; beyond ``MAX_SUB_POINTS`` = 64, a PSF much sharper than the
+pixel, exactly: the pupil's autocorrelation times the pixel's sinc, :func:`_kernel_exact`),
+not on the FFT's native grid.  Energy: by Parseval the whole PSF (one
 period ``1 / Δν`` of the sampled pupil's transform) holds ``Σ A² / (Δν_x Δν_y)``; kernels are
 divided by it, so a kernel sums to the fraction of the light the lens transmits that falls in
 it (>= ``energy``, 99.5 % by default, when ``K`` is chosen automatically).
@@ -44,18 +46,25 @@ from .scene import IdealCamera
 from ..optics.sampling import entrance_pupil
 
 __all__ = ["DiffractionSampling", "PSFMemoryError", "diffraction_psf_many",
-           "choose_sampling", "PUPIL_MARGIN", "PupilSamplingError"]
+           "choose_sampling", "PUPIL_MARGIN", "PixelSamplingError", "PupilSamplingError"]
 
 PUPIL_MARGIN = 1.1        # the traced grid spans 1.1x the paraxial entrance pupil
 MAX_PUPIL_SAMPLES = 1024
 FIT_DEGREE = 12          # the traced OPD's polynomial fit (see _smooth)
 TRACE_SAMPLES = 64       # rays per side traced when the fit holds (finer grids: the fit)
 FIT_MAX_RESIDUAL = 0.1   # waves RMS: a larger fit residual is the wavefront's own structure
+MAX_SUB_POINTS = 64      # more points per pixel side than this: the exact pixel integral instead
 
 
 class PupilSamplingError(ValueError):
     """The wavefront is too steep to sample (more than ``MAX_PUPIL_SAMPLES`` per side): the
     lens is far from the diffraction limit at this pixel pitch (its PSF is geometric)."""
+
+
+class PixelSamplingError(PupilSamplingError):
+    """The PSF is much sharper than a pixel (rays and diffraction halo within one pixel) and
+    the pupil grid that keeps the sampled PSF's periodic copies off the kernel would exceed
+    ``MAX_PUPIL_SAMPLES``: a sampling limit, not aberrations (the geometric PSF is close)."""
 
 
 class PSFMemoryError(MemoryError):
@@ -65,7 +74,9 @@ class PSFMemoryError(MemoryError):
 
 @dataclass
 class DiffractionSampling:
-    """``pupil`` samples per side, kernel size ``kernel`` (odd), ``sub`` points per pixel side."""
+    """``pupil`` samples per side, kernel size ``kernel`` (odd), ``sub`` points per pixel side
+    (above :data:`MAX_SUB_POINTS`: the exact pixel integral, :func:`_kernel_exact`, whatever
+    the number)."""
 
     pupil: int
     kernel: int
@@ -327,6 +338,8 @@ def _kernel(A, phase, bx, by, n_img, lam, n, K, sub, pitch):
     """``(..., K, K)`` pixel-integrated kernels (Parseval-normalised) of pupil functions
     ``A, phase (..., n, n)`` with slopes ``bx, by``, index ``n_img`` and wavelength ``lam`` (mm)
     of shape ``(...)`` (or scalars): one batched matrix Fourier transform."""
+    if sub > MAX_SUB_POINTS:
+        return _kernel_exact(A, phase, bx, by, n_img, lam, n, K, pitch)
     dtype, device = A.dtype, A.device
     as_t = lambda v: torch.as_tensor(v, dtype=dtype, device=device)  # noqa: E731
     bx, by, n_img, lam = as_t(bx), as_t(by), as_t(n_img), as_t(lam)
@@ -364,6 +377,50 @@ def _kernel(A, phase, bx, by, n_img, lam, n, K, sub, pitch):
     I = U.real ** 2 + U.imag ** 2
     lead = I.shape[:-2]
     I = (I.reshape(*lead, K, sub, K, sub) * w[:, None, None] * w).sum((-3, -1))
+    dnx = (n_img * bx * dg / lam).abs()
+    dny = (n_img * by * dg / lam).abs()
+    return I * (pitch * pitch) * (dnx * dny / (A * A).sum((-1, -2)))[..., None, None]
+
+
+def _kernel_exact(A, phase, bx, by, n_img, lam, n, K, pitch):
+    """:func:`_kernel` with the pixel integral done exactly (issue 38: a PSF much sharper than
+    a pixel slipped between a capped number of sub-pixel points).  The sampled pupil makes the
+    intensity a trigonometric polynomial, ``I(y, x) = Σ_{m,l} C_ml exp(i k_y m Δg y)
+    exp(i k_x l Δg x)`` with ``C`` the pupil's autocorrelation (the OTF on the pupil grid,
+    ``C_ml = Σ P_{r+m,c+l} conj(P_rc)``, by FFT), so its mean over a pixel multiplies each term
+    by the pixel's transfer function ``sinc(k m Δg p / 2)`` (``sin u / u``): the kernel is
+    ``Re(M_y C M_x^T)`` with ``M (K, 2n)`` the phase factors at the pixel centres times that
+    sinc.  Exact for every pitch; cost ``O(n² log n + K n²)`` whatever the pitch."""
+    dtype, device = A.dtype, A.device
+    as_t = lambda v: torch.as_tensor(v, dtype=dtype, device=device)  # noqa: E731
+    bx, by, n_img, lam = as_t(bx), as_t(by), as_t(n_img), as_t(lam)
+    dg = 2 * PUPIL_MARGIN / (n - 1)
+    with torch.no_grad():   # crop the rows and columns where no pupil is non-zero (exact)
+        on = (A != 0).reshape(-1, n, n).any(0)
+        rows, cols = on.any(1).nonzero()[:, 0], on.any(0).nonzero()[:, 0]
+    if len(rows) and len(cols):
+        r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+        A, phase = A[..., r0:r1, c0:c1], phase[..., r0:r1, c0:c1]
+    R, C = A.shape[-2:]
+    P = torch.complex(A * torch.cos(phase), A * torch.sin(phase))
+    F = torch.fft.fft2(P, s=(2 * R, 2 * C))
+    corr = torch.fft.ifft2(torch.complex(F.real ** 2 + F.imag ** 2, torch.zeros_like(F.real)))
+    # lag of each index (0 .. R-1, then -R .. -1), and the pixel centres (rows +y, columns -x)
+    my = torch.fft.fftfreq(2 * R, 1.0 / (2 * R), dtype=dtype, device=device)
+    mx = torch.fft.fftfreq(2 * C, 1.0 / (2 * C), dtype=dtype, device=device)
+    t = torch.arange(K, dtype=dtype, device=device) - K // 2
+    ky = (2 * math.pi * n_img * by / lam)[..., None, None]
+    kx = (2 * math.pi * n_img * bx / lam)[..., None, None]
+    wy = ky * dg * my            # (..., 1, 2R) angular frequency of each lag, rad/mm
+    wx = kx * dg * mx
+
+    def factors(w, centre):      # (..., K, 2R): exp(i w c) sinc(w p / 2)
+        a = w * centre[:, None]
+        sinc = torch.sinc(w * (pitch / (2 * math.pi)))
+        return torch.complex(torch.cos(a) * sinc, torch.sin(a) * sinc)
+
+    My, Mx = factors(wy, t * pitch), factors(wx, -t * pitch)
+    I = (My @ corr @ Mx.transpose(-1, -2)).real
     dnx = (n_img * bx * dg / lam).abs()
     dny = (n_img * by * dg / lam).abs()
     return I * (pitch * pitch) * (dnx * dny / (A * A).sum((-1, -2)))[..., None, None]
@@ -438,7 +495,7 @@ def choose_sampling(lens, sensor, jobs, options=None, max_step_waves: float = 0.
             A, ph, bx, by, n_img, _, spread, lam = p
             na = max(abs(float(n_img * bx)), abs(float(n_img * by))) * PUPIL_MARGIN
             sub = max(sub, int(math.ceil(pitch * 5 * na / lam)))
-        sub = min(sub, 64)
+        # no cap: beyond MAX_SUB_POINTS the transform integrates the pixel exactly (issue 38)
         n = _period_samples(pf, n, K, pitch)
         check_memory(len(jobs), n, K, sub, memory_limit_gb, lens.dtype)
         # grow K until it holds `energy` of the light (the period growing with it)
@@ -463,10 +520,24 @@ def _period_samples(pf, n, K, pitch):
             n = int(math.ceil((n - 1) * 1.5 * K / period_px)) + 1
             n += n % 2
     if n > MAX_PUPIL_SAMPLES:
+        # which limit: the rays' spread (aberrations) or the pixel being much wider than the
+        # diffraction pattern of a sharp PSF (issue 38: a perfect lens was told it was
+        # aberrated)
+        spread = max(float(p[6]) for p in pf)
+        halo = max(_halo_px(p[7], p[4], max(abs(float(p[2])), abs(float(p[3]))), pitch)
+                   for p in pf)
+        head = (f"diffraction PSF: {n} pupil samples per side needed (at most "
+                f"{MAX_PUPIL_SAMPLES}) for a {K}-pixel kernel")
+        if spread + halo <= 1.0:
+            raise PixelSamplingError(
+                f"{head}: the PSF is much sharper than a pixel at this pitch ({pitch * 1e3:.3g} "
+                f"um pixels, the rays within {spread:.2g} pixels, the diffraction halo within "
+                f"{halo:.2g} pixels): a pupil grid fine enough to keep the sampled PSF's "
+                f"periodic copies off the kernel is too large, and the geometric PSF is then "
+                f"close to the diffraction one: use render.psf_model=geometric")
         raise PupilSamplingError(
-            f"diffraction PSF: {n} pupil samples per side needed (at most "
-            f"{MAX_PUPIL_SAMPLES}) for a {K}-pixel kernel: the lens is far from the diffraction "
-            f"limit at this pixel pitch: use render.psf_model=geometric")
+            f"{head}: the lens is far from the diffraction limit at this pixel pitch (the rays "
+            f"spread over {spread:.3g} pixels): use render.psf_model=geometric")
     return n
 
 
@@ -475,7 +546,11 @@ def check_memory(jobs: int, n: int, K: int, sub: int, limit_gb: float, dtype):
     ``limit_gb`` (estimate: ~60 tensors of the traced rays kept for the backward pass, and the
     complex transform matrices)."""
     b = torch.finfo(dtype).bits // 8
-    need = jobs * (n * n * 60 * b + 4 * K * sub * n * 2 * b + 4 * (K * sub) ** 2 * 2 * b)
+    if sub > MAX_SUB_POINTS:   # the exact pixel integral: FFTs of 2n x 2n, (K, 2n) factors
+        transforms = 4 * (2 * n) ** 2 * 2 * b + 4 * K * 2 * n * 2 * b + 4 * K * K * 2 * b
+    else:
+        transforms = 4 * K * sub * n * 2 * b + 4 * (K * sub) ** 2 * 2 * b
+    need = jobs * (n * n * 60 * b + transforms)
     if need > limit_gb * 2 ** 30:
         raise PSFMemoryError(
             f"diffraction PSF: {jobs} PSFs of {n}x{n} pupil samples and {K}x{K} pixels "

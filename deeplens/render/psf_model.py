@@ -8,7 +8,9 @@ rays of a pupil grid per pixel, :func:`binned_geometric_psf`), its mean
 over the jobs (the fraction of the image's energy misplaced; the worst job is reported too),
 and takes the cheaper model (geometric) when that is within ``error_budget``
 (default 0.05: 5 % of the energy), else diffraction.  A job whose wavefront is too steep to
-sample (:class:`~.diffraction.PupilSamplingError`) is in the geometric regime and counts as 0.
+sample (:class:`~.diffraction.PupilSamplingError`) is in the geometric regime and counts as 0,
+and so does one much sharper than a pixel whose pupil grid would be too large
+(:class:`~.diffraction.PixelSamplingError`; the message says which).
 It measures again when a group of lens parameters (one tensor, or one list such as a plate's
 coefficients) has moved by more than ``remeasure`` of its own norm since the last measurement.
 
@@ -23,8 +25,8 @@ import math
 
 import torch
 
-from .diffraction import (DiffractionSampling, PupilSamplingError, choose_sampling,
-                          diffraction_psf_many)
+from .diffraction import (DiffractionSampling, PixelSamplingError, PupilSamplingError,
+                          choose_sampling, diffraction_psf_many)
 from ..optics.camera import unpack
 from ..optics.errors import ConfigError
 from .psf import _job_offsets
@@ -124,7 +126,7 @@ class PSFModel:
         lens, sensor, options = unpack(lens, sensor, options, "PSFModel.measure")
         jobs = [(tuple(float(v) for v in p), float(d), float(w)) for p, d, w in jobs]
         self.jobs = jobs
-        errs, steep = [], 0
+        errs, steep, sharp = [], 0, 0
         n = max(int(round(math.sqrt(self.n_rays))), 8)
         with torch.no_grad():
             for job in jobs:
@@ -132,6 +134,10 @@ class PSFModel:
                     smp = choose_sampling(lens, sensor, [job], options,
                                           max_kernel=self.max_kernel,
                                           memory_limit_gb=self.memory_gb, cache=self.cache)
+                except PixelSamplingError:   # sharper than a pixel: a sampling limit
+                    sharp += 1
+                    errs.append(0.0)
+                    continue
                 except PupilSamplingError:
                     steep += 1
                     errs.append(0.0)
@@ -151,7 +157,8 @@ class PSFModel:
                f"(worst {100 * self.worst:.1f} %) over {len(jobs)} PSFs at "
                f"{sensor.pixel_size_mm * 1e3:.3g} um pixels; budget "
                f"{100 * self.error_budget:.1f} %"
-               + (f"; {steep} too aberrated to sample, geometric" if steep else "") + ")")
+               + (f"; {steep} too aberrated to sample, geometric" if steep else "")
+               + (f"; {sharp} much sharper than a pixel, geometric" if sharp else "") + ")")
         self.message = msg     # printed once by the caller (train.build_psf_model)
         return msg
 

@@ -58,6 +58,9 @@ RENDER_IMAGE = ("tests/render/test_render_image.py",)
 API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
 TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
+REFRACT = ("tests/optics/test_refract.py",)
+CROSSING = ("tests/optics/test_crossing_azimuths.py",)
+PIXEL = ("tests/render/test_diffraction_pixel.py",)
 CONFIG = ("tests/training/test_config_errors.py",)
 HARDEN_ZMX = ("tests/optics/io/test_zmx_hardening.py",)
 FILE_KINDS = ("tests/optics/io/test_file_kinds.py",)
@@ -636,6 +639,35 @@ MUTATIONS = [
     Mutation("mconf_shared_size_first", "a shared surface keeps configuration 1's automatic "
              "semi-diameter, not the largest", "deeplens/optics/io/zmx_configs.py",
              "s.semi_diameter.fill_(max(sizes))", "s.semi_diameter.fill_(sizes[0])", MCONF),
+    # ------------------------------------------------ issue 38: numerical defects
+    Mutation("snell_k_cancels", "Snell's k evaluated as 1 - eta^2 (1 - cos^2): equal indices "
+             "lose grazing rays in float32", "deeplens/optics/refract.py",
+             "    k = one_minus_eta_sq + eta_sq_c2\n",
+             "    k = 1.0 - (eta * eta) * (1.0 - cos_i * cos_i)\n", REFRACT),
+    Mutation("snell_coef_cancels", "Snell's coefficient as sqrt(k) - eta cos (cancels for "
+             "nearly equal indices)", "deeplens/optics/refract.py",
+             "    return sign * (one_minus_eta_sq / denom), ok\n",
+             "    return sign * sqrt_k - eta * cos_i, ok\n", REFRACT),
+    Mutation("check_along_y_only", "Lens.check looks for crossing surfaces along y only (a "
+             "biconic crossing its neighbour along x is accepted)", "deeplens/optics/lens.py",
+             "_CHECK_AZIMUTHS_DEG = (90.0, 0.0) + tuple(22.5 * k for k in range(16) if k not in "
+             "(0, 4))", "_CHECK_AZIMUTHS_DEG = (90.0,)", CROSSING),
+    Mutation("crossing_radius_along_y", "the crossing radius bisected along y whatever the "
+             "azimuth of the crossing", "deeplens/optics/lens.py",
+             "        cos_a, sin_a = math.cos(azimuth), math.sin(azimuth)\n",
+             "        cos_a, sin_a = 0.0, 1.0\n", CROSSING),
+    Mutation("subpixel_cap_64", "the diffraction kernel's sub-pixel points capped at 64 again "
+             "(a sharp PSF at coarse pixels under-integrated, a perfect lens refused)",
+             "deeplens/render/diffraction.py",
+             "        # no cap: beyond MAX_SUB_POINTS the transform integrates the pixel exactly "
+             "(issue 38)\n", "        sub = min(sub, 64)\n", PIXEL),
+    Mutation("exact_pixel_no_sinc", "the exact pixel integral without the pixel's transfer "
+             "function (point samples of the intensity)", "deeplens/render/diffraction.py",
+             "        sinc = torch.sinc(w * (pitch / (2 * math.pi)))\n",
+             "        sinc = torch.ones_like(w)\n", PIXEL),
+    Mutation("sampling_limit_blames_aberrations", "a PSF sharper than a pixel refused as an "
+             "aberrated lens", "deeplens/render/diffraction.py",
+             "        if spread + halo <= 1.0:\n", "        if False:\n", PIXEL),
 ]
 
 

@@ -356,6 +356,9 @@ def test_scale_is_a_similarity(tmp_path):
     import torch
 
     text = replace_line(GOOD, LINE["X"], "X 1 0 16 AIR 0.004 0 1e-3 -2e-3 0.01 3e-3 0.02")
+    # 1.5 mm after it: at 1 mm this XY polynomial crosses the B-spline along -x (r = 7.1 mm),
+    # which Lens.check finds since it samples more azimuths than y (issue 38)
+    text = replace_line(text, LINE["B"], GOOD.splitlines()[LINE["B"] - 1].replace("B 1 ", "B 1.5 "))
     p = write(tmp_path, text)
     a, b = read_table(p), read_table(p, scale=10.0)
     assert float(b.d_sensor) == pytest.approx(10 * float(a.d_sensor), rel=1e-15)
