@@ -29,6 +29,7 @@ NUMERICS = ("optics/test_gradients.py", "optics/test_intersect.py", "optics/test
             "optics/test_normalized.py", "optics/test_mirrors.py", "optics/test_limits.py",
             "optics/surfaces/", "analysis/test_far_object.py", "render/test_fftconv.py",
             "render/test_float32_plate_gradient.py", "render/test_diffraction.py",
+            "render/test_diffraction_pixel.py",
             "render/test_camera_paths.py", "training/test_wiener_numerics.py")
 
 
