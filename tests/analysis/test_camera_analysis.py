@@ -44,8 +44,9 @@ def test_replace_keeps_every_other_setting():
 @pytest.mark.parametrize("what", ["wavefront", "mtf", "strehl", "geometric_mtf",
                                   "encircled_energy"])
 def test_analysis_through_a_camera(what, lens, monkeypatch):
-    # Newton from the vertex plane on spheres too: a different last bit, so the camera's
-    # options are observable in the result
+    # Newton from the vertex plane on spheres too (whether that changes the last bit depends on
+    # the CPU's vector unit and the refraction formula's rounding, so the spy, not the value,
+    # shows that the camera's options were used)
     opts = TraceOptions(tol=1e-11, max_iter=25, closed_form=False)
     cam = Camera(lens, options=opts)
     call = {
@@ -64,5 +65,3 @@ def test_analysis_through_a_camera(what, lens, monkeypatch):
     for o in seen:  # the camera's, or its aiming copy (no clear apertures)
         assert o is opts or repr(o) == repr(opts.replace(clip_aperture=False)), o
     assert torch.equal(got, ref)
-    monkeypatch.undo()
-    assert not torch.equal(got, call(lens))  # the options changed the result
