@@ -658,29 +658,11 @@ def _provisional(c: float, k: float) -> float:
 
 
 def _paraxial_semi_diameters(lens: Lens, idx, field_deg: float) -> None:
-    """Semi-diameters ``1.05 (|y_m| + |y_c|)`` of the surfaces ``idx``: the paraxial marginal
-    and chief ray heights at the largest field, capped below a conic's domain edge."""
-    from ..paraxial import media_indices, paraxial, trace_paraxial_ray
+    """Semi-diameters of the surfaces ``idx`` from the paraxial marginal and chief rays (the
+    ``.zmx`` reader's first estimate, :func:`.zmx_read.paraxial_semi_diameters`)."""
+    from .zmx_read import paraxial_semi_diameters
 
-    with torch.no_grad():
-        par = paraxial(lens)
-        n = media_indices(lens)
-        half = 0.5 * float(par.entrance_pupil_diameter)
-        pos = float(par.entrance_pupil_position)
-        s = float(lens.spec.object_distance_mm)
-        t = math.tan(math.radians(field_deg))
-        one = torch.ones_like(n[0])
-        um = 0.0 if math.isinf(s) else half / (s + pos)
-        ym = half if math.isinf(s) else um * s
-        _, _, hm = trace_paraxial_ray(lens, ym * one, um * one, n)
-        _, _, hc = trace_paraxial_ray(lens, -pos * t * one, t * one, n)
-        for i in idx:
-            surf = lens.surfaces[i]
-            sd = 1.05 * (abs(float(hm[i])) + abs(float(hc[i])))
-            c, k = float(getattr(surf, "c", 0.0)), float(getattr(surf, "k", 0.0))
-            if c != 0 and 1 + k > 0:
-                sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
-            surf.semi_diameter.fill_(sd)
+    paraxial_semi_diameters(lens, idx, field_deg)
 
 
 # --------------------------------------------------------------------------- writer

@@ -601,20 +601,14 @@ def _beam_reach(lens, limited: dict):
     return reach, half
 
 
-def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, original=None):
-    """Automatic semi-diameters of the surfaces ``idx``, as OpticStudio's: the largest height of
-    the real rays that fill the pupil, over every field and wavelength.  A first paraxial
-    estimate ``1.05 (|y_marginal| + |y_chief|)`` (full field) lets the lens be built; then rays
-    over the paraxial entrance pupil enlarged by 2 % (48 rim points and the chief ray per field
-    and wavelength, apertures ignored) are traced and each surface gets its largest hit radius.
-    OpticStudio does not vignette on automatic semi-diameters, and the 2 % keep rim rays (and
-    the slightly larger pupils of ray aiming) from being clipped by them.  Capped to the
-    surface's domain."""
-    from ..intersect import IntersectOptions
+def paraxial_semi_diameters(lens, idx, field_deg: float) -> None:
+    """Semi-diameters ``1.05 (|y_marginal| + |y_chief|)`` of the surfaces ``idx`` (in place):
+    the paraxial marginal ray's and the full field's chief ray's heights (``field_deg``, the
+    chief ray parallel to the axis for an object-space telecentric lens), capped below a
+    conic's domain edge ``0.999 / (|c| sqrt(1 + k))``.  The first estimate of automatic
+    semi-diameters of the ``.zmx`` and CODE V readers."""
     from ..paraxial import media_indices, paraxial, trace_paraxial_ray
-    from ..sampling import field_rays
 
-    field_deg = max(abs(f) for f in fields)
     with torch.no_grad():
         par = paraxial(lens)
         n = media_indices(lens)
@@ -641,6 +635,26 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, 
             if c != 0 and 1 + k > 0:
                 sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
             surf.semi_diameter.fill_(sd)
+
+
+def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, original=None):
+    """Automatic semi-diameters of the surfaces ``idx``, as OpticStudio's: the largest height of
+    the real rays that fill the pupil, over every field and wavelength.  A first paraxial
+    estimate ``1.05 (|y_marginal| + |y_chief|)`` (full field) lets the lens be built; then rays
+    over the paraxial entrance pupil enlarged by 2 % (48 rim points and the chief ray per field
+    and wavelength, apertures ignored) are traced and each surface gets its largest hit radius.
+    OpticStudio does not vignette on automatic semi-diameters, and the 2 % keep rim rays (and
+    the slightly larger pupils of ray aiming) from being clipped by them.  Capped to the
+    surface's domain."""
+    from ..intersect import IntersectOptions
+    from ..paraxial import paraxial
+    from ..sampling import field_rays
+
+    with torch.no_grad():
+        par = paraxial(lens)   # before the estimate (a stop-sized aperture's pupil moves with it)
+        half = 0.5 * float(par.entrance_pupil_diameter)
+    paraxial_semi_diameters(lens, idx, max(abs(f) for f in fields))
+    with torch.no_grad():
         # real rays
         phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
         unit = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
