@@ -11,7 +11,8 @@ the summary.
 
 ``numerics``: the tests whose outcome depends on floating-point rounding (float32 against
 float64, gradients against finite differences, intersections at grazing incidence) carry this
-marker, given here by file so that a new test in those files has it too.  ``.ci/run`` runs them
+marker, given here by file so that a new test in those files has it too (a single test
+elsewhere carries ``@pytest.mark.numerics`` itself).  ``.ci/run`` runs them
 a second time under ``ATEN_CPU_CAPABILITY=default`` (PyTorch's scalar kernels), so that a
 tolerance tuned to one CPU's vector unit fails in CI instead of on a user's machine.
 """

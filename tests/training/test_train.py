@@ -572,6 +572,7 @@ def test_optics_worst_depth_weights_only_the_optics_gradient(cfg_factory):
         build_objects(cfg_factory("experiment=edof", "model.optics_worst_depth={temperature:0}"))
 
 
+@pytest.mark.numerics
 def test_optics_invariance_holds_the_plate_to_its_starting_depth_invariance(cfg_factory):
     """``model.optics_invariance``: the first moving step records ``R_0`` (penalty 0); a plate
     made less depth-invariant (a weaker cubic) is penalised by ``w relu(R / R_0 - 1 - s)^2``
@@ -608,12 +609,14 @@ def test_optics_invariance_holds_the_plate_to_its_starting_depth_invariance(cfg_
         R = float(depth_change(*m.deconv.otf_moments(size)))
     assert R > 1.05 * R0
     assert float(pen) == pytest.approx((R / R0 - 1.05) ** 2, rel=1e-3)
-    # a small step down the penalty's gradient lowers R
+    # a step down the penalty's gradient lowers R, by more than float32's rounding of R (about
+    # 100 eps32 R: a 1e-4 step moved R by +4e-6 under ATEN_CPU_CAPABILITY=default and -3e-6
+    # under AVX-512, noise; a 1e-2 step moves it by -2.5e-3, in the linear regime)
     with torch.no_grad():
         for p, g in zip(lens_p, g_pen):
-            p -= 1e-4 * float(p.abs().max() + 1e-12) * g / float(g.abs().max() + 1e-30)
+            p -= 1e-2 * float(p.abs().max() + 1e-12) * g / float(g.abs().max() + 1e-30)
         R1 = float(depth_change(*m.deconv.otf_moments(size)))
-    assert R1 < R
+    assert R - R1 > 1e3 * torch.finfo(torch.float32).eps * R
 
 
 @pytest.mark.parametrize("setting, match", [
