@@ -32,7 +32,7 @@ import math
 import torch
 from torch import nn
 
-from .base import SagSurface, make_param, register_surface
+from .base import SagSurface, check_conic_domain, make_param, register_surface
 
 __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
            "conic_arg", "conic_dsag_ds", "conic_normal", "conic_quadric", "conic_root",
@@ -311,13 +311,7 @@ class Asphere(SagSurface):
             raise ValueError(f"{where}the central obscuration ({float(self.obscuration):g} mm) "
                              f"must be smaller than the clear radius "
                              f"({float(self.clear_radius):g} mm)")
-        arg = 1.0 - (1.0 + float(self.k)) * float(self.c) ** 2 * sd * sd
-        if arg <= 0:
-            limit = (1.0 / ((1.0 + float(self.k)) * float(self.c) ** 2)) ** 0.5
-            raise ValueError(
-                f"{where}semi-diameter {sd:g} mm lies beyond the domain of the conic "
-                f"(R = {1 / float(self.c):g} mm, k = {float(self.k):g}): the sag is only "
-                f"defined for r < {limit:g} mm")
+        check_conic_domain(sd, float(self.c), float(self.k), "conic", where)
 
     file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric", "obscuration_mm",
                    "clear_radius_mm", "clear_decenter_mm", "clear_rect_mm")

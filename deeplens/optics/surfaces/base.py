@@ -62,6 +62,18 @@ def in_circle(X, Y, r):
     return X * X + Y * Y <= r * r
 
 
+def check_conic_domain(sd: float, c: float, k: float, what: str, where: str = "") -> None:
+    """Raise ``ValueError`` when the semi-diameter ``sd`` (mm) lies beyond the domain of a
+    conic of curvature ``c`` (1/mm) and conic constant ``k``: its sag is defined only for
+    ``r^2 (1 + k) c^2 < 1``.  ``what`` names the conic in the message (``"conic"``,
+    ``"Q-type surface's conic base"``, ...)."""
+    if 1.0 - (1.0 + k) * c * c * sd * sd <= 0:
+        limit = (1.0 / ((1.0 + k) * c * c)) ** 0.5
+        raise ValueError(f"{where}semi-diameter {sd:g} mm lies beyond the domain of the {what} "
+                         f"(R = {1 / c:g} mm, k = {k:g}): the sag is only defined for "
+                         f"r < {limit:g} mm")
+
+
 def make_param(value, name: str = "value") -> nn.Parameter:
     """A float64 ``nn.Parameter`` that is frozen until the user unfreezes it."""
     t = torch.as_tensor(value, dtype=torch.float64)

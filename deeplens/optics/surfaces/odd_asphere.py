@@ -36,7 +36,7 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
-from .base import SagSurface, make_param, register_surface
+from .base import SagSurface, check_conic_domain, make_param, register_surface
 
 __all__ = ["OddAsphere", "MAX_ODD_ORDER", "odd_dsag", "odd_poly", "safe_radius"]
 
@@ -148,13 +148,7 @@ class OddAsphere(SagSurface):
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
-        arg = 1.0 - (1.0 + float(self.k)) * float(self.c) ** 2 * sd * sd
-        if arg <= 0:
-            limit = (1.0 / ((1.0 + float(self.k)) * float(self.c) ** 2)) ** 0.5
-            raise ValueError(
-                f"{where}semi-diameter {sd:g} mm lies beyond the domain of the odd asphere's "
-                f"conic base (R = {1 / float(self.c):g} mm, k = {float(self.k):g}): the sag is "
-                f"only defined for r < {limit:g} mm")
+        check_conic_domain(sd, float(self.c), float(self.k), "odd asphere's conic base", where)
 
     file_fields = ("curvature_per_mm", "conic", "radial_coefficients")
 

@@ -35,7 +35,7 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_root, conic_sag
-from .base import SagSurface, make_param, register_surface
+from .base import SagSurface, check_conic_domain, make_param, register_surface
 
 __all__ = ["QType", "MAX_TERMS", "jacobi_rows", "qbfs_matrix", "qcon_matrix", "qtype_dsag_ds",
            "qtype_sag", "qtype_series"]
@@ -284,11 +284,8 @@ class QType(SagSurface):
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
-        arg = 1.0 - (1.0 + float(self.k)) * float(self.c) ** 2 * sd * sd
-        if arg <= 0:
-            raise ValueError(f"{where}semi-diameter {sd:g} mm lies beyond the domain of the "
-                             f"Q-type surface's conic base (R = {1 / float(self.c):g} mm, "
-                             f"k = {float(self.k):g})")
+        check_conic_domain(sd, float(self.c), float(self.k), "Q-type surface's conic base",
+                           where)
 
     file_fields = ("curvature_per_mm", "conic", "norm_radius_mm", "q_coefficients", "q_kind")
 

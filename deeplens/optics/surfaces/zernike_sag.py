@@ -57,7 +57,7 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
-from .base import SagSurface, make_param, register_surface
+from .base import SagSurface, check_conic_domain, make_param, register_surface
 
 __all__ = ["ZernikeSag", "MAX_EVEN_TERMS", "MAX_ZERNIKE_TERMS", "noll_nm", "zernike_norm",
            "zernike_series", "zernike_values"]
@@ -299,11 +299,8 @@ class ZernikeSag(SagSurface):
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
-        arg = 1.0 - (1.0 + float(self.k)) * float(self.c) ** 2 * sd * sd
-        if arg <= 0:
-            raise ValueError(f"{where}semi-diameter {sd:g} mm lies beyond the domain of the "
-                             f"Zernike sag surface's conic base (R = {1 / float(self.c):g} mm, "
-                             f"k = {float(self.k):g})")
+        check_conic_domain(sd, float(self.c), float(self.k),
+                           "Zernike sag surface's conic base", where)
 
     file_fields = ("curvature_per_mm", "conic", "even_coefficients", "norm_radius_mm",
                    "zernike_coefficients", "zernike_extrapolate")
