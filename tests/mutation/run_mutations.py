@@ -275,8 +275,9 @@ MUTATIONS = [
     Mutation("compiled_newton_opl", "compiled Newton kernel: optical path without the index",
              "deeplens/optics/compiled.py", "ok, opl + n1 * t)", "ok, opl + t)", COMPILED),
     Mutation("zmx_diam_as_diameter", "Zemax DIAM read as a full diameter",
-             "deeplens/optics/io/zmx_parse.py", 'cur.diam = p.arg(toks, 1, ln, "semi-diameter")',
-             'cur.diam = 0.5 * p.arg(toks, 1, ln, "semi-diameter")', ZMX),
+             "deeplens/optics/io/zmx_parse.py",
+             'cur.diam, cur.diam_line = p.arg(toks, 1, ln, "semi-diameter"), ln',
+             'cur.diam, cur.diam_line = 0.5 * p.arg(toks, 1, ln, "semi-diameter"), ln', ZMX),
     Mutation("zmx_conic_sign", "Zemax CONI read with the wrong sign",
              "deeplens/optics/io/zmx_parse.py",
              'cur.coni = p.arg(toks, 1, ln, "conic constant")',
@@ -433,8 +434,8 @@ MUTATIONS = [
              "    if False:\n", CONFIG),
     # ------------------------------------------------ hardening, round three (issue 38)
     Mutation("zmx_second_stop_wins", "a .zmx with two STOP lines read silently (the last wins)",
-             "deeplens/optics/io/zmx_parse.py", "            if stop_at is not None:",
-             "            if False:", HARDEN_ZMX),
+             "deeplens/optics/io/zmx_parse.py", "    if st.stop_at is not None:",
+             "    if False:", HARDEN_ZMX),
     Mutation("zmx_lengths_unchecked", "a .zmx DISZ/DIAM/ENPD of 1e308 read (overflowed paraxial "
              "data)", "deeplens/optics/io/zmx_parse.py",
              "if math.isfinite(v) and abs(v) * s_mm > MAX_LENGTH_MM:", "if False:", HARDEN_ZMX),
@@ -562,7 +563,7 @@ MUTATIONS = [
              'rect = None if self._own_clear_rect else self._buffers.get("clear_rect")',
              "rect = None", ("tests/optics/io/test_zmx_sqap_any_surface.py",)),
     Mutation("xasphere_rn_power", "Extended Asphere term i divided by R_n^i instead of "
-             "R_n^(2i)", "deeplens/optics/io/zmx_surfaces.py",
+             "R_n^(2i)", "deeplens/optics/io/surface_handlers.py",
              "ai = v * s_mm / rn ** (2 * i)", "ai = v * s_mm / rn ** i",
              ("tests/optics/io/test_zmx_xasphere.py",)),
     # ------------------------------------------------ hardening, round three, part 2 (issue 38)

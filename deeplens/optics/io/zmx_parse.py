@@ -26,6 +26,7 @@ from pathlib import Path
 from ..errors import LensFileError, ZemaxFileError, ZemaxWarning
 from .agf import decode_zemax_text
 from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
+from .surface_handlers import FORMATS
 
 __all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
 
@@ -180,8 +181,296 @@ class Locator:
         return self.num(toks[i], ln, f"{toks[0]} {what}")
 
 
+class _Parse:
+    """A parse in progress: the system data, the ``SURF`` blocks so far (``cur`` the open one),
+    the first ``STOP`` and the keywords not used; each operand handler reads one record into
+    it."""
+
+    def __init__(self, p: Locator):
+        self.p = p
+        self.sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None,
+                     "yfln": None, "waves": {}, "wavl": None, "pwav": (1, 0), "gcat": ([], 0),
+                     "name": "", "mode": None, "raim": (0, 0), "mnum": None, "mce": []}
+        self.surfs: list[ZmxSurface] = []
+        self.cur: ZmxSurface | None = None
+        self.unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
+        self.stop_at: tuple[int, int] | None = None   # (SURF number, line) of the first STOP
+
+
+# ---- system operands: read wherever they stand
+def _name(st: _Parse, r: Record) -> None:
+    st.sysd["name"] = r.text.strip()[4:].strip()
+
+
+def _mode(st: _Parse, r: Record) -> None:
+    toks = r.tokens
+    if len(toks) > 1 and toks[1].upper() != "SEQ":
+        st.p.fail(r.line, f"MODE {toks[1]}: only sequential (MODE SEQ) files can be read")
+
+
+def _unit(st: _Parse, r: Record) -> None:
+    toks = r.tokens
+    if len(toks) < 2 or toks[1].upper() not in UNITS:
+        st.p.fail(r.line, f"UNIT: unknown lens unit {toks[1] if len(toks) > 1 else ''!r}; "
+                          f"expected one of {', '.join(UNITS)}")
+    st.sysd["unit"] = (toks[1].upper(), r.line)
+
+
+def _enpd(st: _Parse, r: Record) -> None:
+    st.sysd["aperture"] = ("epd", st.p.arg(r.tokens, 1, r.line, "entrance-pupil diameter"),
+                           r.line)
+
+
+def _fnum(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    v = p.arg(toks, 1, ln, "F-number")
+    flag = p.num(toks[2], ln, "FNUM flag") if len(toks) > 2 else 0
+    # flag 1: the paraxial working F-number, converted to an EPD once the lens is built
+    st.sysd["aperture"] = ("wfno" if flag == 1 else "fno", v, ln)
+
+
+def _floa(st: _Parse, r: Record) -> None:
+    st.sysd["aperture"] = ("stop", None, r.line)
+
+
+def _obna(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    v = p.arg(toks, 1, ln, "object-space numerical aperture")
+    flag = p.num(toks[2], ln, "OBNA flag") if len(toks) > 2 else 0
+    # flag 0: n sin(θ) of the marginal ray; flag 1: the cone angle θ (degrees)
+    st.sysd["aperture"] = ("cone" if flag == 1 else "obna", v, ln)
+
+
+def _raim(st: _Parse, r: Record) -> None:
+    # RAIM <unused> <type: 0 off, 1 paraxial, 2 real> ...
+    toks, ln = r.tokens, r.line
+    st.sysd["raim"] = (int(st.p.num(toks[2], ln, "RAIM ray-aiming type")) if len(toks) > 2
+                       else 0, ln)
+
+
+def _ftyp(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    p.arg(toks, 1, ln, "field type")
+    st.sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
+
+
+def _field(st: _Parse, r: Record) -> None:
+    p, toks, ln, key = st.p, r.tokens, r.line, r.key
+    slot = key[0].lower() + "fln"      # XFLD/YFLD: older files; XFLN/YFLN win
+    if len(toks) < 2:
+        p.fail(ln, f"{key} line is truncated: no field values")
+    if key.endswith("FLN") or st.sysd[slot] is None:
+        st.sysd[slot] = ([p.num(t, ln, key) for t in toks[1:]], ln)
+
+
+def _wavm(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    i = int(p.arg(toks, 1, ln, "wavelength number"))
+    st.sysd["waves"][i] = (p.arg(toks, 2, ln, "wavelength (µm)"), ln)
+
+
+def _wavl(st: _Parse, r: Record) -> None:
+    st.sysd["wavl"] = ([st.p.num(t, r.line, "WAVL") for t in r.tokens[1:]], r.line)
+
+
+def _pwav(st: _Parse, r: Record) -> None:
+    st.sysd["pwav"] = (int(st.p.arg(r.tokens, 1, r.line, "primary wavelength number")), r.line)
+
+
+def _gcat(st: _Parse, r: Record) -> None:
+    st.sysd["gcat"] = ([t.upper() for t in r.tokens[1:]], r.line)
+
+
+def _vignetting(st: _Parse, r: Record) -> None:
+    p, toks, ln, key = st.p, r.tokens, r.line, r.key
+    if any(p.num(t, ln, key) != 0 for t in toks[1:]):
+        p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
+                   f"pupil by tracing)")
+
+
+def _envd(st: _Parse, r: Record) -> None:
+    p, toks, ln, key = st.p, r.tokens, r.line, r.key
+    env = [p.num(t, ln, key) for t in toks[1:3]]
+    if env and (env[0] != 20 or (len(env) > 1 and env[1] != 1)):
+        p.note(ln, f"ENVD: temperature {env[0]:g} °C / pressure {env[1:] or ['?']} atm "
+                   f"ignored: indices are the catalogues' at their reference temperature")
+
+
+def _mnum(st: _Parse, r: Record) -> None:
+    # MNUM <configurations> <active configuration>: the operand rows follow
+    # (:mod:`.zmx_mconf` reads them)
+    p, toks, ln = st.p, r.tokens, r.line
+    n_cfg = p.arg(toks, 1, ln, "number of configurations")
+    cur_cfg = p.num(toks[2], ln, "MNUM active configuration") if len(toks) > 2 else 1
+    if not (n_cfg == int(n_cfg) and 1 <= n_cfg <= _MAX_CONFIGS and cur_cfg == int(cur_cfg)
+            and 1 <= cur_cfg <= n_cfg):
+        p.fail(ln, f"MNUM {n_cfg:g} {cur_cfg:g}: expected a whole number of "
+                   f"configurations from 1 to {_MAX_CONFIGS} and an active configuration "
+                   f"from 1 to that number")
+    n_cfg, cur_cfg = int(n_cfg), int(cur_cfg)
+    st.sysd["mnum"] = (n_cfg, cur_cfg, ln)
+
+
+# ---- surface operands: read inside a SURF block (before the first one, as an unknown line)
+def _type(st: _Parse, r: Record) -> None:
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    if len(toks) < 2:
+        p.fail(ln, "TYPE line is truncated: missing the surface type")
+    cur.type, cur.type_line = toks[1].upper(), ln
+    if FORMATS.for_zmx_type(cur.type) is None:
+        known = FORMATS.zmx_types()
+        what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
+        p.fail(ln, f"surface type {toks[1]!r} (SURF {len(st.surfs) - 1}, {what}) is not "
+                   f"supported; deeplens reads {', '.join(known[:-1])} and {known[-1]}")
+
+
+def _curv(st: _Parse, r: Record) -> None:
+    cur = st.cur
+    cur.curv, cur.curv_line = st.p.arg(r.tokens, 1, r.line, "curvature"), r.line
+
+
+def _disz(st: _Parse, r: Record) -> None:
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    if len(toks) < 2:
+        p.fail(ln, "DISZ line is truncated: missing the thickness")
+    cur.disz = math.inf if toks[1].upper() == "INFINITY" else p.num(toks[1], ln, "DISZ")
+    cur.disz_line = ln
+
+
+def _coni(st: _Parse, r: Record) -> None:
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    cur.coni = p.arg(toks, 1, ln, "conic constant")
+
+
+def _diam(st: _Parse, r: Record) -> None:
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    cur.diam, cur.diam_line = p.arg(toks, 1, ln, "semi-diameter"), ln
+    cur.diam_fixed = len(toks) > 2 and toks[2] == "1"
+
+
+def _stop(st: _Parse, r: Record) -> None:
+    p, ln, surfs = st.p, r.line, st.surfs
+    if st.stop_at is not None:   # OpticStudio has one stop: a second is a corrupt file
+        p.fail(ln, f"a second STOP (SURF {len(surfs) - 1}): the stop is already SURF "
+                   f"{st.stop_at[0]} (STOP on line {st.stop_at[1]}); a lens has one aperture "
+                   f"stop")
+    st.stop_at = (len(surfs) - 1, ln)
+    st.cur.stop = True
+
+
+def _parm(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    st.cur.parm[int(p.arg(toks, 1, ln, "parameter number"))] = (
+        p.arg(toks, 2, ln, "parameter value"), ln)
+
+
+def _xdat(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    st.cur.xdat[int(p.arg(toks, 1, ln, "extra-data number"))] = (
+        p.arg(toks, 2, ln, "extra-data value"), ln)
+
+
+def _glas(st: _Parse, r: Record) -> None:
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    if len(toks) < 2:
+        p.fail(ln, "GLAS line is truncated: missing the glass name")
+    name = toks[1]
+    if name.upper() == "MIRROR":  # a reflecting surface: Lens(mirrors=...)
+        cur.mirror, cur.glass, cur.glass_line = True, None, ln
+        return
+    if name.upper() in ("AIR", "VACUUM"):
+        cur.glass, cur.glass_model, cur.glass_line = None, None, ln
+        return   # written by some converters: the same as no GLAS line
+    code = toks[2] if len(toks) > 2 else "0"
+    model = None
+    if len(toks) >= 6:
+        model = (p.num(toks[4], ln, "GLAS n_d"), p.num(toks[5], ln, "GLAS V_d"))
+    if name.upper() == "___BLANK" or code == "1":
+        if model is None:
+            p.fail(ln, "a model glass (GLAS ___BLANK 1 0 n_d V_d) line is truncated: "
+                       "missing n_d and V_d")
+        cur.glass = None
+        cur.glass_model_name = None if name.upper() == "___BLANK" else name.upper()
+    else:
+        cur.glass = name.upper()
+    cur.glass_model, cur.glass_line = model, ln
+
+
+def _clap(st: _Parse, r: Record) -> None:
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    lo = p.arg(toks, 1, ln, "minimum radius")
+    hi = p.arg(toks, 2, ln, "maximum radius")
+    if not 0 <= lo < hi:
+        p.fail(ln, f"CLAP: expected 0 <= minimum radius < maximum radius, got {lo:g}, "
+                   f"{hi:g}")
+    cur.clap = (hi, ln)
+    if lo > 0:   # an annular clear aperture
+        cur.obsc = (lo, ln)
+
+
+def _obsc(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    lo = p.arg(toks, 1, ln, "minimum radius")
+    hi = p.arg(toks, 2, ln, "maximum radius")
+    if lo != 0 or not hi > 0:
+        p.fail(ln, f"OBSC on SURF {len(st.surfs) - 1}: only a central circular obscuration "
+                   f"(minimum radius 0, maximum > 0) is supported, got {lo:g}, {hi:g}")
+    st.cur.obsc = (hi, ln)
+
+
+def _sqap(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    st.cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"), ln)
+
+
+def _obdc(st: _Parse, r: Record) -> None:
+    p, toks, ln = st.p, r.tokens, r.line
+    dec = (p.arg(toks, 1, ln, "x decenter"), p.arg(toks, 2, ln, "y decenter"))
+    st.cur.obdc = (*dec, ln) if any(v != 0 for v in dec) else None
+
+
+_APERTURES_REFUSED = {
+    "ELAP": "an elliptical aperture", "SQOB": "a rectangular obscuration",
+    "ELOB": "an elliptical obscuration", "UDAD": "a user-defined aperture", "SPID": "a spider"}
+
+
+def _aperture_refused(st: _Parse, r: Record) -> None:
+    key = r.key
+    st.p.fail(r.line, f"{key} on SURF {len(st.surfs) - 1}: {_APERTURES_REFUSED[key]} is not "
+                      f"supported (deeplens reads circular clear apertures: DIAM, CLAP with "
+                      f"minimum radius 0)")
+
+
+def _surface_ignored(st: _Parse, r: Record) -> None:
+    if r.key == "SCBD":
+        st.p.note(r.line, f"{r.key} (scattering) ignored")
+
+
+#: system operand -> its handler (read wherever it stands)
+_SYSTEM_OPERANDS = {
+    "NAME": _name, "MODE": _mode, "UNIT": _unit, "ENPD": _enpd, "FNUM": _fnum, "FLOA": _floa,
+    "OBNA": _obna, "RAIM": _raim, "FTYP": _ftyp, "XFLN": _field, "YFLN": _field,
+    "XFLD": _field, "YFLD": _field, "WAVM": _wavm, "WAVL": _wavl, "PWAV": _pwav,
+    "GCAT": _gcat, "ENVD": _envd, "MNUM": _mnum,
+    **dict.fromkeys(("VDXN", "VDYN", "VCXN", "VCYN", "VANN", "ZVDX", "ZVDY", "ZVCX", "ZVCY",
+                     "ZVAN"), _vignetting),
+}
+#: surface operand -> its handler (read inside a SURF block)
+_SURFACE_OPERANDS = {
+    "TYPE": _type, "CURV": _curv, "DISZ": _disz, "CONI": _coni, "DIAM": _diam, "STOP": _stop,
+    "PARM": _parm, "XDAT": _xdat, "GLAS": _glas, "CLAP": _clap, "OBSC": _obsc, "SQAP": _sqap,
+    "OBDC": _obdc, **dict.fromkeys(_APERTURES_REFUSED, _aperture_refused),
+    **dict.fromkeys(("TCE", "COAT", "PZUP", "SCBD"), _surface_ignored),
+}
+
+
 def parse(path: Path):
-    """The raw file: ``(system dict, [ZmxSurface, ...], locator)``, lengths in file units."""
+    """The raw file: ``(system dict, [ZmxSurface, ...], locator)``, lengths in file units.
+
+    Each record is read by the handler of its keyword in :data:`_SYSTEM_OPERANDS` (anywhere) or
+    :data:`_SURFACE_OPERANDS` (inside a ``SURF`` block); :data:`_SILENT` keywords are skipped,
+    rows after ``MNUM`` kept for :mod:`.zmx_mconf`, and any other keyword noted once as not
+    used."""
     p = Locator(path)
     try:
         text = decode_zemax_text(path, "lens file")
@@ -191,192 +480,31 @@ def parse(path: Path):
         p.fail(0, f"not a UTF-8 or UTF-16 text file ({e.reason} at byte {e.start})")
     records = tokenize(text)
     p.records = {r.line: r for r in records}
-    sysd = {"unit": ("MM", 0), "aperture": None, "ftyp": None, "xfln": None, "yfln": None,
-            "waves": {}, "wavl": None, "pwav": (1, 0), "gcat": ([], 0), "name": "",
-            "mode": None, "raim": (0, 0), "mnum": None, "mce": []}
-    surfs: list[ZmxSurface] = []
-    cur: ZmxSurface | None = None
-    unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
-    stop_at: tuple[int, int] | None = None   # (SURF number, line) of the first STOP
+    st = _Parse(p)
     for r in records:
-        ln, toks, key, line = r.line, list(r.tokens), r.key, r.text
-        if key == "SURF":
-            idx = int(p.arg(toks, 1, ln, "surface number"))
-            if idx != len(surfs):
-                p.fail(ln, f"SURF {idx} out of order: expected SURF {len(surfs)}")
-            cur = ZmxSurface(line=ln)
-            surfs.append(cur)
+        if r.key == "SURF":
+            idx = int(p.arg(r.tokens, 1, r.line, "surface number"))
+            if idx != len(st.surfs):
+                p.fail(r.line, f"SURF {idx} out of order: expected SURF {len(st.surfs)}")
+            st.cur = ZmxSurface(line=r.line)
+            st.surfs.append(st.cur)
             continue
-        if key == "NAME":
-            sysd["name"] = line.strip()[4:].strip()
-        elif key == "MODE":
-            if len(toks) > 1 and toks[1].upper() != "SEQ":
-                p.fail(ln, f"MODE {toks[1]}: only sequential (MODE SEQ) files can be read")
-        elif key == "UNIT":
-            if len(toks) < 2 or toks[1].upper() not in UNITS:
-                p.fail(ln, f"UNIT: unknown lens unit {toks[1] if len(toks) > 1 else ''!r}; "
-                           f"expected one of {', '.join(UNITS)}")
-            sysd["unit"] = (toks[1].upper(), ln)
-        elif key == "ENPD":
-            sysd["aperture"] = ("epd", p.arg(toks, 1, ln, "entrance-pupil diameter"), ln)
-        elif key == "FNUM":
-            v = p.arg(toks, 1, ln, "F-number")
-            flag = p.num(toks[2], ln, "FNUM flag") if len(toks) > 2 else 0
-            # flag 1: the paraxial working F-number, converted to an EPD once the lens is built
-            sysd["aperture"] = ("wfno" if flag == 1 else "fno", v, ln)
-        elif key == "FLOA":
-            sysd["aperture"] = ("stop", None, ln)
-        elif key == "OBNA":
-            v = p.arg(toks, 1, ln, "object-space numerical aperture")
-            flag = p.num(toks[2], ln, "OBNA flag") if len(toks) > 2 else 0
-            # flag 0: n sin(θ) of the marginal ray; flag 1: the cone angle θ (degrees)
-            sysd["aperture"] = ("cone" if flag == 1 else "obna", v, ln)
-        elif key == "RAIM":
-            # RAIM <unused> <type: 0 off, 1 paraxial, 2 real> ...
-            sysd["raim"] = (int(p.num(toks[2], ln, "RAIM ray-aiming type")) if len(toks) > 2
-                            else 0, ln)
-        elif key == "FTYP":
-            p.arg(toks, 1, ln, "field type")
-            sysd["ftyp"] = ([int(p.num(t, ln, "FTYP")) for t in toks[1:]], ln)
-        elif key in ("XFLN", "YFLN", "XFLD", "YFLD"):
-            slot = key[0].lower() + "fln"      # XFLD/YFLD: older files; XFLN/YFLN win
-            if len(toks) < 2:
-                p.fail(ln, f"{key} line is truncated: no field values")
-            if key.endswith("FLN") or sysd[slot] is None:
-                sysd[slot] = ([p.num(t, ln, key) for t in toks[1:]], ln)
-        elif key == "WAVM":
-            i = int(p.arg(toks, 1, ln, "wavelength number"))
-            sysd["waves"][i] = (p.arg(toks, 2, ln, "wavelength (µm)"), ln)
-        elif key == "WAVL":
-            sysd["wavl"] = ([p.num(t, ln, "WAVL") for t in toks[1:]], ln)
-        elif key == "PWAV":
-            sysd["pwav"] = (int(p.arg(toks, 1, ln, "primary wavelength number")), ln)
-        elif key == "GCAT":
-            sysd["gcat"] = ([t.upper() for t in toks[1:]], ln)
-        elif cur is not None and key == "TYPE":
-            if len(toks) < 2:
-                p.fail(ln, "TYPE line is truncated: missing the surface type")
-            cur.type, cur.type_line = toks[1].upper(), ln
-            if cur.type not in ("STANDARD", "EVENASPH", "ODDASPHE", "COORDBRK", "XYPOLYNOM",
-                                "PARAXIAL", "TOROIDAL", "DGRATING", "QED_TYPE", "BICONICX",
-                                "BINARY_2", "SZERNSAG", "XASPHERE"):
-                what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
-                p.fail(ln, f"surface type {toks[1]!r} (SURF {len(surfs) - 1}, {what}) is not "
-                           f"supported; deeplens reads STANDARD, EVENASPH, ODDASPHE, COORDBRK, "
-                           f"XYPOLYNOM, PARAXIAL, TOROIDAL, DGRATING, QED_TYPE, BICONICX, "
-                           f"BINARY_2, SZERNSAG and XASPHERE")
-        elif cur is not None and key == "CURV":
-            cur.curv, cur.curv_line = p.arg(toks, 1, ln, "curvature"), ln
-        elif cur is not None and key == "DISZ":
-            if len(toks) < 2:
-                p.fail(ln, "DISZ line is truncated: missing the thickness")
-            cur.disz = math.inf if toks[1].upper() == "INFINITY" else p.num(toks[1], ln, "DISZ")
-            cur.disz_line = ln
-        elif cur is not None and key == "CONI":
-            cur.coni = p.arg(toks, 1, ln, "conic constant")
-        elif cur is not None and key == "DIAM":
-            cur.diam, cur.diam_line = p.arg(toks, 1, ln, "semi-diameter"), ln
-            cur.diam_fixed = len(toks) > 2 and toks[2] == "1"
-        elif cur is not None and key == "STOP":
-            if stop_at is not None:   # OpticStudio has one stop: a second is a corrupt file
-                p.fail(ln, f"a second STOP (SURF {len(surfs) - 1}): the stop is already SURF "
-                           f"{stop_at[0]} (STOP on line {stop_at[1]}); a lens has one aperture "
-                           f"stop")
-            stop_at = (len(surfs) - 1, ln)
-            cur.stop = True
-        elif cur is not None and key == "PARM":
-            cur.parm[int(p.arg(toks, 1, ln, "parameter number"))] = (
-                p.arg(toks, 2, ln, "parameter value"), ln)
-        elif cur is not None and key == "XDAT":
-            cur.xdat[int(p.arg(toks, 1, ln, "extra-data number"))] = (
-                p.arg(toks, 2, ln, "extra-data value"), ln)
-        elif cur is not None and key == "GLAS":
-            if len(toks) < 2:
-                p.fail(ln, "GLAS line is truncated: missing the glass name")
-            name = toks[1]
-            if name.upper() == "MIRROR":  # a reflecting surface: Lens(mirrors=...)
-                cur.mirror, cur.glass, cur.glass_line = True, None, ln
-                continue
-            if name.upper() in ("AIR", "VACUUM"):
-                cur.glass, cur.glass_model, cur.glass_line = None, None, ln
-                continue   # written by some converters: the same as no GLAS line
-            code = toks[2] if len(toks) > 2 else "0"
-            model = None
-            if len(toks) >= 6:
-                model = (p.num(toks[4], ln, "GLAS n_d"), p.num(toks[5], ln, "GLAS V_d"))
-            if name.upper() == "___BLANK" or code == "1":
-                if model is None:
-                    p.fail(ln, "a model glass (GLAS ___BLANK 1 0 n_d V_d) line is truncated: "
-                               "missing n_d and V_d")
-                cur.glass = None
-                cur.glass_model_name = None if name.upper() == "___BLANK" else name.upper()
-            else:
-                cur.glass = name.upper()
-            cur.glass_model, cur.glass_line = model, ln
-        elif cur is not None and key == "CLAP":
-            lo = p.arg(toks, 1, ln, "minimum radius")
-            hi = p.arg(toks, 2, ln, "maximum radius")
-            if not 0 <= lo < hi:
-                p.fail(ln, f"CLAP: expected 0 <= minimum radius < maximum radius, got {lo:g}, "
-                           f"{hi:g}")
-            cur.clap = (hi, ln)
-            if lo > 0:   # an annular clear aperture
-                cur.obsc = (lo, ln)
-        elif cur is not None and key == "OBSC":
-            lo = p.arg(toks, 1, ln, "minimum radius")
-            hi = p.arg(toks, 2, ln, "maximum radius")
-            if lo != 0 or not hi > 0:
-                p.fail(ln, f"OBSC on SURF {len(surfs) - 1}: only a central circular obscuration "
-                           f"(minimum radius 0, maximum > 0) is supported, got {lo:g}, {hi:g}")
-            cur.obsc = (hi, ln)
-        elif cur is not None and key == "SQAP":
-            cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"),
-                        ln)
-        elif cur is not None and key == "OBDC":
-            dec = (p.arg(toks, 1, ln, "x decenter"), p.arg(toks, 2, ln, "y decenter"))
-            cur.obdc = (*dec, ln) if any(v != 0 for v in dec) else None
-        elif cur is not None and key in ("ELAP", "SQOB", "ELOB", "UDAD", "SPID"):
-            what = {
-                    "ELAP": "an elliptical aperture",
-                    "SQOB": "a rectangular obscuration", "ELOB": "an elliptical obscuration",
-                    "UDAD": "a user-defined aperture", "SPID": "a spider"}[key]
-            p.fail(ln, f"{key} on SURF {len(surfs) - 1}: {what} is not supported (deeplens reads "
-                       f"circular clear apertures: DIAM, CLAP with minimum radius 0)")
-        elif cur is not None and key in ("TCE", "COAT", "PZUP", "SCBD"):
-            if key == "SCBD":
-                p.note(ln, f"{key} (scattering) ignored")
-        elif key in ("VDXN", "VDYN", "VCXN", "VCYN", "VANN", "ZVDX", "ZVDY", "ZVCX", "ZVCY",
-                     "ZVAN"):
-            if any(p.num(t, ln, key) != 0 for t in toks[1:]):
-                p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
-                           f"pupil by tracing)")
-        elif key == "ENVD":
-            env = [p.num(t, ln, key) for t in toks[1:3]]
-            if env and (env[0] != 20 or (len(env) > 1 and env[1] != 1)):
-                p.note(ln, f"ENVD: temperature {env[0]:g} °C / pressure {env[1:] or ['?']} atm "
-                           f"ignored: indices are the catalogues' at their reference temperature")
-        elif key == "MNUM":
-            # MNUM <configurations> <active configuration>: the operand rows follow
-            # (:mod:`.zmx_mconf` reads them)
-            n_cfg = p.arg(toks, 1, ln, "number of configurations")
-            cur_cfg = p.num(toks[2], ln, "MNUM active configuration") if len(toks) > 2 else 1
-            if not (n_cfg == int(n_cfg) and 1 <= n_cfg <= _MAX_CONFIGS and cur_cfg == int(cur_cfg)
-                    and 1 <= cur_cfg <= n_cfg):
-                p.fail(ln, f"MNUM {n_cfg:g} {cur_cfg:g}: expected a whole number of "
-                           f"configurations from 1 to {_MAX_CONFIGS} and an active configuration "
-                           f"from 1 to that number")
-            n_cfg, cur_cfg = int(n_cfg), int(cur_cfg)
-            sysd["mnum"] = (n_cfg, cur_cfg, ln)
-        elif key in _SILENT:
+        op = _SYSTEM_OPERANDS.get(r.key)
+        if op is None and st.cur is not None:
+            op = _SURFACE_OPERANDS.get(r.key)
+        if op is not None:
+            op(st, r)
+        elif r.key in _SILENT:
             continue
-        elif sysd["mnum"] is not None and r.surf is None:
-            sysd["mce"].append(r)   # a multi-configuration operand row (after MNUM)
+        elif st.sysd["mnum"] is not None and r.surf is None:
+            st.sysd["mce"].append(r)   # a multi-configuration operand row (after MNUM)
         else:
-            first, count = unused.get(toks[0], (ln, 0))
-            unused[toks[0]] = (first, count + 1)
-    for kw, (first, count) in unused.items():   # one note per keyword, not one per line
+            first, count = st.unused.get(r.tokens[0], (r.line, 0))
+            st.unused[r.tokens[0]] = (first, count + 1)
+    for kw, (first, count) in st.unused.items():   # one note per keyword, not one per line
         p.note(first, f"{kw} line not used by deeplens (ignored)"
                       + (f"; {count} such lines" if count > 1 else ""))
+    surfs, sysd = st.surfs, st.sysd
     if not surfs:
         p.fail(0, "no SURF line: not a Zemax lens file, or the file is truncated")
     if len(surfs) < 3:

@@ -18,11 +18,11 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
-from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
-                        IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial, ZernikeSag)
+from ..surfaces import CoordinateBreak
+from ..surfaces.base import clear_rect_of
 from .agf import AGFGlass
+from .surface_handlers import FORMATS
 from .vendor_glass import BuchdahlGlass
-from .zmx_coordbrk import coordbrk_lines
 from .zmx_glass import BUILTIN_CATALOGUES
 from .zmx_system import rotationally_symmetric, zemax_tilts
 
@@ -79,24 +79,6 @@ def _object_na(lens: Lens) -> float:
         n0 = float(media_indices(lens)[0])
         d = abs(float(lens.spec.object_distance_mm) + float(par.entrance_pupil_position))
         return n0 * math.sin(math.atan(0.5 * float(par.entrance_pupil_diameter) / d))
-
-
-def _odd_asphere_lines(s: OddAsphere, i: int) -> list[str]:
-    """An :class:`OddAsphere`: ``EVENASPH`` with ``PARM 1`` (the r² term) when its odd terms are
-    all zero and it has an r² term (how the reader got it), else ``ODDASPHE`` (``PARM i`` on
-    ``r^i``, up to r⁸)."""
-    a = [float(v) for v in s.a]
-    head = [f"CURV {_f(s.c)}", f"CONI {_f(s.k)}"]
-    if len(a) >= 2 and a[1] != 0 and not any(a[0::2]):
-        if len(a) > 16:
-            raise ZemaxFileError(f"surface {i}: an odd asphere with terms up to r^{len(a)}; "
-                                 f"Zemax's EVENASPH holds r^2..r^16", surfaces=(i,))
-        return ["TYPE EVENASPH"] + head + [f"PARM {k + 1} {_f(v)}"
-                                           for k, v in enumerate(a[1::2])]
-    if len(a) > 8:
-        raise ZemaxFileError(f"surface {i}: an odd asphere with terms up to r^{len(a)}; Zemax's "
-                             f"ODDASPHE holds r^1..r^8", surfaces=(i,))
-    return ["TYPE ODDASPHE"] + head + [f"PARM {k + 1} {_f(v)}" for k, v in enumerate(a)]
 
 
 def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
@@ -175,7 +157,7 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
                 if tilted:
                     raise ZemaxFileError(f"surface {i}: a coordinate break inside a misaligned "
                                          f"element has no .zmx equivalent", surfaces=(i,))
-                surf(coordbrk_lines(s, _f) + [f"DISZ {_f(after)}"])
+                surf(FORMATS.for_surface(s).write_zmx(s, i) + [f"DISZ {_f(after)}"])
                 continue
             inner = sum(float(lens.distances[j]) for j in range(a + 1, b + 1))
             gap = -inner if tilted and i == b else after   # back to the first vertex
@@ -226,141 +208,17 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
     Path(path).write_text(text, encoding=encoding)
 
 
-def _opening_records(s, i: int) -> list[str]:
-    """The clear-aperture records of a curved surface: ``SQAP`` (a rectangular opening in its
-    circumscribed circle) or ``CLAP`` (a circle narrower than the semi-diameter, or off-axis),
-    each with ``OBDC`` when decentred, then ``OBSC`` (a central obscuration)."""
-    out = []
-    rect = getattr(s, "clear_rect", None)
-    if rect is not None and bool(rect.any()):
-        if abs(float(s.clear_radius) - math.hypot(*map(float, rect))) > 1e-12 * \
-                float(s.clear_radius):
-            raise ZemaxFileError(f"surface {i}: a rectangular clear aperture inside a narrower "
-                                 f"clear circle has no Zemax record (SQAP or CLAP, not both)",
-                                 surfaces=(i,))
-        out.append(f"SQAP {_f(rect[0])} {_f(rect[1])} 0")
-    elif math.isfinite(float(s.clear_radius)):
-        out.append(f"CLAP 0 {_f(s.clear_radius)} 0")
-    if out and bool(s.clear_decenter.any()):
-        out.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
-    if float(s.obscuration) > 0:
-        out.append(f"OBSC 0 {_f(s.obscuration)} 0")
-    return out
-
 def _surface_lines(s, i, is_stop) -> list[str]:
-    """The records of surface ``i`` after its ``SURF`` line, with the ``SQAP`` of a rectangular
-    clear aperture on a type whose own records do not write it (:func:`set_clear_rect`)."""
-    from ..surfaces.base import clear_rect_of
-
-    lines = _type_lines(s, i, is_stop)
+    """The records of surface ``i`` after its ``SURF`` line: ``STOP``, then what its type's
+    handler in the file-format registry writes (:mod:`.surface_handlers`), with the ``SQAP`` of
+    a rectangular clear aperture on a type whose own records do not write it
+    (:func:`~deeplens.optics.surfaces.base.set_clear_rect`)."""
+    handler = FORMATS.for_surface(s)
+    if handler is None or not handler.writes_zmx():
+        raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent",
+                             surfaces=(i,))
+    lines = (["STOP"] if is_stop else []) + handler.write_zmx(s, i)
     rect = clear_rect_of(s)
     if rect is not None and not any(ln.startswith("SQAP") for ln in lines):
         lines.append(f"SQAP {_f(rect[0])} {_f(rect[1])} 0")
     return lines
-
-
-def _type_lines(s, i, is_stop) -> list[str]:
-    from ..surfaces import BSpline
-
-    lines = ["STOP"] if is_stop else []
-    sd = s.semi_diameter
-    sd = None if sd is None else float(sd)
-    if isinstance(s, Aperture):
-        lines += ["TYPE STANDARD", "CURV 0.0"]
-        if sd is not None:
-            lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
-        if s.shape == "rect":
-            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
-        elif s.decentred:   # OBDC moves a CLAP (annular: with its obscuration), not a DIAM
-            lines.append(f"CLAP {_f(s.obscuration)} {_f(sd)} 0")
-        if float(s.obscuration) > 0 and not s.decentred:
-            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
-        if s.decentred:
-            lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
-        return lines
-    if isinstance(s, Cylinder):   # a Toroid too: PARM 1 its radius of rotation
-        r_rot = _f(s.R) if isinstance(s, Toroid) else "0"
-        lines += ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {r_rot}"]
-        lines += [f"PARM {j + 2} {_f(a)}" for j, a in enumerate(s.a)]
-        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
-        if s.half_widths is not None:
-            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
-        return lines
-    if isinstance(s, Biconic):   # PARM 1 the x radius (0: flat in x), PARM 2 the x conic
-        r_x = "0" if float(s.cx) == 0 else _f(1.0 / s.cx)
-        return lines + ["TYPE BICONICX", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
-                        f"PARM 1 {r_x}", f"PARM 2 {_f(s.kx)}", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
-    if isinstance(s, IdealLens):
-        return lines + ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}",
-                        f"DIAM {_f(sd)} 1 0 0 1 \"\""]
-    if isinstance(s, QType):
-        a = [float(v) for v in s.a]
-        return lines + ["TYPE QED_TYPE", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
-                        f"XDAT 1 {1 if s.kind == 'qcon' else 0}", f"XDAT 2 {len(a)}",
-                        f"XDAT 3 {_f(s.norm_radius)}"] + \
-            [f"XDAT {j + 4} {_f(v)}" for j, v in enumerate(a)] + \
-            [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
-    if isinstance(s, OddAsphere):
-        return lines + _odd_asphere_lines(s, i) + [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
-    if isinstance(s, ZernikeSag):   # PARM 0 extrapolate, 1..8 r²..r¹⁶, XDAT the Zernike terms
-        a = [float(v) for v in s.a]
-        A = [float(v) for v in s.zernike]
-        lines += ["TYPE SZERNSAG", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
-                  f"PARM 0 {int(s.extrapolate)}"]
-        lines += [f"PARM {j + 1} {_f(v)}" for j, v in enumerate(a)]
-        lines += ["PARM 9 0", "PARM 10 0", f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
-        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
-        return lines + [f"DIAM {_f(sd)} 1 0 0 1 \"\""]
-    if isinstance(s, Binary2):   # PARM 0 the order, PARM 2..8 a4..a16, XDAT the phase
-        a = [float(v) for v in s.a]
-        if len(a) > 7:
-            raise ZemaxFileError(f"surface {i}: {len(a)} aspheric terms; Zemax's BINARY_2 holds "
-                                 f"a4..a16 (7 terms)", surfaces=(i,))
-        A = [float(v) for v in s.A]
-        lines += ["TYPE BINARY_2", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 0 {s.order}",
-                  "PARM 1 0"] + [f"PARM {j + 2} {_f(v)}" for j, v in enumerate(a)]
-        lines += [f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
-        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
-        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
-        return lines + _opening_records(s, i)
-    if isinstance(s, Grating):
-        lines += ["TYPE DGRATING", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {_f(s.T)}",
-                  f"PARM 2 {s.order}", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
-        return lines + _opening_records(s, i)
-    if isinstance(s, Plane):
-        return lines + ["TYPE STANDARD", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\""]
-    if isinstance(s, Asphere):
-        a = [float(v) for v in s.a]
-        if len(a) > 7:   # beyond EVENASPH's a16: OpticStudio's Extended Asphere, R_n = 1 mm
-            lines += ["TYPE XASPHERE", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
-                      f"XDAT 1 {len(a) + 1}", "XDAT 2 1", "XDAT 3 0"]
-            lines += [f"XDAT {k + 4} {_f(v)}" for k, v in enumerate(a)]
-            lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
-            return lines + _opening_records(s, i)
-        lines += ["TYPE EVENASPH" if a else "TYPE STANDARD", f"CURV {_f(s.c)}",
-                  f"CONI {_f(s.k)}"]
-        if a:
-            lines.append("PARM 1 0")
-            lines += [f"PARM {k + 2} {_f(v)}" for k, v in enumerate(a)]
-        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
-        return lines + _opening_records(s, i)
-    if isinstance(s, XYPolynomial):
-        if float(s.b) != 0:
-            raise ZemaxFileError(f"surface {i}: an XY polynomial with b != 0 (z² term) has no "
-                                 f"XYPOLYNOM equivalent", surfaces=(i,))
-        vals = {t: float(v) for t, v in zip(s.terms, s.a)}
-        if vals.get((0, 0), 0.0) != 0:
-            raise ZemaxFileError(f"surface {i}: an XY polynomial with a constant term has no "
-                                 f"XYPOLYNOM equivalent", surfaces=(i,))
-        R = sd
-        zterms = [(d - k, k) for d in range(1, s.order + 1) for k in range(d + 1)]
-        lines += ["TYPE XYPOLYNOM", "CURV 0.0", f"DIAM {_f(sd)} 1 0 0 1 \"\"",
-                  f"XDAT 1 {len(zterms)}", f"XDAT 2 {_f(R)}"]
-        lines += [f"XDAT {j + 3} {_f(vals.get(t, 0.0) * R ** sum(t))}"
-                  for j, t in enumerate(zterms)]
-        return lines
-    if isinstance(s, BSpline):
-        raise ZemaxFileError(f"surface {i}: a B-spline surface has no .zmx equivalent",
-                             surfaces=(i,))
-    raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent",
-                         surfaces=(i,))

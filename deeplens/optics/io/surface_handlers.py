@@ -1,0 +1,793 @@
+"""The built-in file handlers: one :class:`~.surface_formats.SurfaceFormat` per surface type.
+
+Each reads its Zemax ``TYPE`` (and CODE V type) and writes its deeplens class (the registry,
+how a new type registers and how lookups work: :mod:`.surface_formats`):
+
+==========================  ===========================================  ==========================
+handler                     reads (Zemax ``TYPE`` / CODE V)               writes (deeplens class)
+==========================  ===========================================  ==========================
+:class:`ApertureFormat`     (through ``STANDARD`` / ``SPH``)              ``Aperture``
+:class:`PlaneFormat`        (through ``STANDARD`` / ``SPH``)              ``Plane``
+:class:`AsphereFormat`      ``STANDARD``, ``EVENASPH`` / ``SPH CON ASP``  ``Asphere`` (and ``Sphere``)
+:class:`OddAsphereFormat`   ``ODDASPHE``                                  ``OddAsphere``
+:class:`CoordinateBreakFormat` ``COORDBRK`` (read by the reader's sequence) ``CoordinateBreak``
+:class:`XYPolynomialFormat` ``XYPOLYNOM``                                 ``XYPolynomial``
+:class:`ParaxialFormat`     ``PARAXIAL``                                  ``IdealLens``
+:class:`ToroidalFormat`     ``TOROIDAL``                                  ``Cylinder``, ``Toroid``
+:class:`GratingFormat`      ``DGRATING``                                  ``Grating``
+:class:`QTypeFormat`        ``QED_TYPE``                                  ``QType``
+:class:`BiconicFormat`      ``BICONICX``                                  ``Biconic``
+:class:`Binary2Format`      ``BINARY_2``                                  ``Binary2``
+:class:`ZernikeSagFormat`   ``SZERNSAG``                                  ``ZernikeSag``
+:class:`ExtendedAsphereFormat` ``XASPHERE`` (an ``Asphere`` is written so  --
+                            beyond r¹⁶)
+==========================  ===========================================  ==========================
+
+``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
+:class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
+flat surface in air, with ``SQAP``/``OBSC``/annular ``CLAP``), ``ODDASPHE`` and an ``EVENASPH``
+with an ``r²`` term (``PARM 1`` != 0) -> :class:`~deeplens.optics.surfaces.OddAsphere`,
+``TOROIDAL`` -> :class:`~deeplens.optics.surfaces.Toroid` (:class:`~deeplens.optics.surfaces.Cylinder`
+with no radius of rotation), ``BICONICX`` -> :class:`~deeplens.optics.surfaces.Biconic`,
+``PARAXIAL`` -> :class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
+:class:`~deeplens.optics.surfaces.Grating`, ``BINARY_2`` ->
+:class:`~deeplens.optics.surfaces.Binary2`, ``XYPOLYNOM`` ->
+:class:`~deeplens.optics.surfaces.XYPolynomial`, ``SZERNSAG`` ->
+:class:`~deeplens.optics.surfaces.ZernikeSag`, ``XASPHERE`` -> :class:`~deeplens.optics.surfaces.Asphere`
+(or :class:`~deeplens.optics.surfaces.OddAsphere` with a ρ² term).  Lengths are scaled from file
+units to mm (``s_mm``); errors are raised through the reader's :class:`~.zmx_parse.Locator`.
+The openings common to every type (``CLAP``, ``SQAP``, ``OBSC``, ``OBDC``) and dummy surfaces
+are :func:`.zmx_surfaces.build_surface`'s.
+
+Numbers are written with ``repr`` (shortest round-trip text), so a lens read, written and read
+again is the same bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+from ..errors import LensFileError, ZemaxFileError
+from ..materials import Air, Material
+from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
+                        IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial, ZernikeSag)
+from ..surfaces.binary2 import MAX_PHASE_TERMS
+from ..surfaces.qtype import MAX_TERMS
+from ..surfaces.xy_polynomial import xy_terms
+from ..surfaces.zernike_sag import MAX_ZERNIKE_TERMS
+from .surface_formats import FORMATS, SurfaceFormat, ZmxContext, register_format
+from .zmx_coordbrk import coordbrk_lines
+
+if TYPE_CHECKING:   # annotations only: the parser imports this module
+    from .zmx_parse import Locator, ZmxSurface
+
+#: the registry (:mod:`.surface_formats`), filled with this module's handlers: import it from
+#: here so that they are registered
+__all__ = ["FORMATS", "PROVISIONAL_SD_MM", "is_air", "XASPHERE_MAX_TERMS", "XASPHERE_READ_TERMS"]
+
+# the semi-diameter a surface with no DIAM is built with before its automatic value is set
+PROVISIONAL_SD_MM = 1e-3
+
+#: CODE V's aspheric coefficients A, B, ... J on r⁴ ... r²⁰
+CODEV_ASPH = "ABCDEFGHJ"
+
+
+def is_air(m: Material) -> bool:
+    return isinstance(m, Air)
+
+
+def _f(v) -> str:
+    return repr(float(v))
+
+
+def _diam(sd) -> str:
+    return f"DIAM {_f(sd)} 1 0 0 1 \"\""
+
+
+# --------------------------------------------------------------------------- Zemax readers
+def _radial_coefficients(s: ZmxSurface, k: int, s_mm, p: Locator):
+    """The coefficients ``[a_1, a_2, ...]`` of ``r¹, r², ...`` (mm^(1−i)) of an
+    :class:`OddAsphere`: ``ODDASPHE``'s ``PARM i`` on ``r^i``, and an ``EVENASPH`` whose ``PARM 1``
+    (the ``r²`` term) is not zero, ``PARM i`` on ``r^(2i)`` (the odd powers zero); trailing zero
+    terms trimmed.  ``None`` for every other surface (an ``EVENASPH`` without an ``r²`` term stays
+    an :class:`Asphere`), and ``[]`` for an ``ODDASPHE`` with no term (its conic base)."""
+    if s.type not in ("EVENASPH", "ODDASPHE"):
+        return None
+    for i, (v, ln) in sorted(s.parm.items()):
+        if (i > 8 or i < 1) and v != 0:
+            kind = "even" if s.type == "EVENASPH" else "odd"
+            p.fail(ln, f"SURF {k}: {s.type} PARM {i} is not read: Zemax's {kind} asphere has "
+                       f"PARM 1-8")
+    if s.type == "EVENASPH" and s.parm.get(1, (0.0, 0))[0] == 0:
+        return None
+    power = (lambda i: 2 * i) if s.type == "EVENASPH" else (lambda i: i)
+    a = [0.0] * power(8)
+    for i in range(1, 9):
+        v = s.parm.get(i, (0.0, 0))[0]
+        a[power(i) - 1] = v * s_mm ** (1 - power(i))
+    while a and a[-1] == 0.0:
+        a.pop()
+    return a
+
+
+def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``TOROIDAL``: the y profile (``CURV``, ``CONI``, ``PARM 2..9`` the coefficients of ``y²,
+    y⁴, ..., y¹⁶``) rotated about an axis parallel to y at the radius of rotation ``PARM 1``: a
+    :class:`Toroid`, or with ``PARM 1`` = 0 (an infinite radius) a :class:`Cylinder`, curved in
+    y; ``SQAP`` its rectangular outline."""
+    nz = s.xdat.get(1, (0.0, 0))
+    if nz[0] != 0 or any(v != 0 for j, (v, _) in s.xdat.items() if j > 2):
+        p.fail(nz[1] or s.type_line, f"SURF {k}: TOROIDAL Zernike terms (XDAT) are not supported")
+    for i, (v, ln) in s.parm.items():
+        if (i > 9 or i < 1) and v != 0:
+            p.fail(ln, f"SURF {k}: TOROIDAL PARM {i} is not read (PARM 1 radius of rotation, "
+                       f"PARM 2-9 the y² ... y¹⁶ coefficients)")
+    top = max([i for i in s.parm if 2 <= i <= 9 and s.parm[i][0] != 0] + [1])
+    coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (3 - 2 * i) for i in range(2, top + 1)]
+    hw = None if s.sqap is None else (s.sqap[0] * s_mm, s.sqap[1] * s_mm)
+    if hw is not None and sd == PROVISIONAL_SD_MM:
+        sd = math.hypot(*hw)
+    r_rot = s.parm.get(1, (0.0, 0))[0]
+    if r_rot != 0:
+        return Toroid(c, sd, r_rot * s_mm, conic=s.coni, coefficients=coeffs, half_widths=hw)
+    return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
+
+
+def _biconic(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``BICONICX``: ``CURV``/``CONI`` the y curvature and conic, ``PARM 1`` the x *radius* (0:
+    infinite, flat in x), ``PARM 2`` the x conic (OpticStudio's "Biconic" surface; it has no
+    other parameter and no extra data): a :class:`Biconic`."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if i not in (1, 2) and v != 0:
+            p.fail(ln, f"SURF {k}: BICONICX PARM {i} is not read (a biconic has PARM 1, the x "
+                       f"radius, and PARM 2, the x conic; a Biconic Zernike or other variant "
+                       f"is not supported)")
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if v != 0:
+            p.fail(ln, f"SURF {k}: BICONICX XDAT {j} is not read (a biconic has no extra data; "
+                       f"a Biconic Zernike or other variant is not supported)")
+    r_x = s.parm.get(1, (0.0, 0))[0]
+    c_x = 0.0 if r_x == 0 else 1.0 / (r_x * s_mm)
+    return Biconic(c, sd, c_x, conic=s.coni, conic_x=s.parm.get(2, (0.0, 0))[0])
+
+
+def _grating(s: ZmxSurface, k: int, c, sd, p: Locator):
+    """``DGRATING``: a sphere or conic (``CURV``, ``CONI``) ruled with ``PARM 1`` lines per
+    micrometre (in every lens unit) parallel to the local x axis, traced in order ``PARM 2``:
+    a :class:`Grating` (transmitting, or reflecting with ``GLAS MIRROR``)."""
+    for i, (v, ln) in s.parm.items():
+        if i > 2 and v != 0:
+            p.fail(ln, f"SURF {k}: DGRATING PARM {i} is not read (PARM 1 lines per micrometre, "
+                       f"PARM 2 the diffraction order)")
+    order, ln = s.parm.get(2, (0.0, s.type_line))
+    if order != int(order):
+        p.fail(ln, f"SURF {k}: the diffraction order (DGRATING PARM 2) must be an integer, got "
+                   f"{order!r}")
+    return Grating(c, sd, s.parm.get(1, (0.0, 0))[0], int(order), conic=s.coni)
+
+
+def _binary2(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``BINARY_2`` (OpticStudio's "Binary 2"): an even asphere (``CURV``, ``CONI``, ``PARM 2..8``
+    the ``r⁴ ... r¹⁶`` terms; ``PARM 1``, the ``r²`` term, must be 0) with the phase ``M Σ A_i
+    ρ^{2i}``: ``PARM 0`` the diffraction order ``M``, ``XDAT 1`` the number of terms, ``XDAT 2``
+    the normalisation radius (a length), ``XDAT 3..`` the ``A_i`` (radians): a :class:`Binary2`
+    (transmitting, or reflecting with ``GLAS MIRROR``)."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if (i < 0 or i > 8) and v != 0:
+            p.fail(ln, f"SURF {k}: BINARY_2 PARM {i} is not read (PARM 0 the diffraction order, "
+                       f"PARM 1-8 the even-asphere terms on r², ..., r¹⁶)")
+    if s.parm.get(1, (0.0, 0))[0] != 0:
+        p.fail(s.parm[1][1], f"SURF {k}: BINARY_2 PARM 1 (the r² term of the base asphere) is "
+                             f"not supported (deeplens' even asphere starts at r⁴): fold it "
+                             f"into the curvature")
+    if 0 not in s.parm:
+        p.fail(s.type_line or s.line, f"SURF {k}: BINARY_2 without PARM 0 (the diffraction "
+                                      f"order)")
+    order, o_ln = s.parm[0]
+    if order != int(order):
+        p.fail(o_ln, f"SURF {k}: the diffraction order (BINARY_2 PARM 0) must be an integer, got "
+                     f"{order!r}")
+    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= MAX_PHASE_TERMS:
+        p.fail(n_ln, f"SURF {k}: BINARY_2 XDAT 1 (the number of phase terms) must be an integer "
+                     f"0..{MAX_PHASE_TERMS}, got {n_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if j > n + 2 and v != 0:
+            p.fail(ln, f"SURF {k}: BINARY_2 XDAT {j} lies beyond the {n} phase terms XDAT 1 "
+                       f"declares")
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n > 0 and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: BINARY_2 XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    top = max([i for i in range(2, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [1])
+    coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(2, top + 1)]
+    phase = [s.xdat.get(j + 3, (0.0, 0))[0] for j in range(n)]
+    while phase and phase[-1] == 0.0:
+        phase.pop()
+    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no phase term: any radius (1 mm)
+    return Binary2(c, sd, rn, phase, int(order), conic=s.coni, coefficients=coeffs)
+
+
+def _qtype(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``QED_TYPE`` (OpticStudio's Q-type asphere): ``XDAT 1`` the type (0 Qbfs, 1 Qcon),
+    ``XDAT 2`` the number of terms, ``XDAT 3`` the normalisation radius, ``XDAT 4..`` the
+    coefficients ``a_0, a_1, ...`` (lengths): a :class:`QType`.  A Qbfs on a conic base
+    (``CONI`` != 0) is refused: how OpticStudio combines the two could not be checked against
+    an independent reader (deeplens' surface follows Forbes' generalisation, as optiland)."""
+    kind_v, kind_ln = s.xdat.get(1, (0.0, s.type_line))
+    if kind_v not in (0.0, 1.0):
+        p.fail(kind_ln, f"SURF {k}: QED_TYPE XDAT 1 (the type) must be 0 (Qbfs) or 1 (Qcon), got "
+                        f"{kind_v!r}")
+    n_v, n_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= MAX_TERMS:
+        p.fail(n_ln, f"SURF {k}: QED_TYPE XDAT 2 (the number of terms) must be an integer "
+                     f"0..{MAX_TERMS}, got {n_v!r}")
+    rn_v, rn_ln = s.xdat.get(3, (0.0, s.type_line))
+    if not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: QED_TYPE XDAT 3 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in s.xdat.items():
+        if j > n + 3 and v != 0:
+            p.fail(ln, f"XDAT {j} lies beyond the {n} terms XDAT 2 declares")
+    for i, (v, ln) in s.parm.items():
+        if v != 0:
+            p.fail(ln, f"SURF {k}: QED_TYPE PARM {i} is not read (the Q-type data are XDAT)")
+    if kind_v == 0.0 and s.coni != 0:
+        p.fail(s.type_line, f"SURF {k}: a QED_TYPE Qbfs surface on a conic base (CONI "
+                            f"{s.coni:g}) is not supported: how OpticStudio combines the "
+                            f"slope-orthogonal departure with a conic could not be checked here "
+                            f"(Qbfs on a sphere and Qcon on any conic are read)")
+    coeffs = [s.xdat.get(j + 4, (0.0, 0))[0] * s_mm for j in range(n)]
+    return QType(c, sd, rn_v * s_mm, coeffs, "qcon" if kind_v == 1.0 else "qbfs",
+                 conic=s.coni)
+
+
+def _zernike_sag(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``SZERNSAG`` (OpticStudio's "Zernike Standard Sag"): an even asphere (``CURV``, ``CONI``,
+    ``PARM 1..8`` the ``r², r⁴, ..., r¹⁶`` terms) plus Zernike standard terms in Noll's order:
+    ``PARM 0`` the extrapolate flag (1: the terms also beyond the normalisation radius),
+    ``PARM 9``/``PARM 10`` the Zernike decenter (must be 0), ``XDAT 1`` the number of terms,
+    ``XDAT 2`` the normalisation radius, ``XDAT 3..`` the coefficients ``A_1, A_2, ...``
+    (lengths): a :class:`ZernikeSag`."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if i in (9, 10) and v != 0:
+            p.fail(ln, f"SURF {k}: SZERNSAG PARM {i} (the Zernike decenter in "
+                       f"{'x' if i == 9 else 'y'}) is not supported: deeplens' Zernike terms are "
+                       f"centred on the vertex")
+        if (i < 0 or i > 10) and v != 0:
+            p.fail(ln, f"SURF {k}: SZERNSAG PARM {i} is not read (PARM 0 the extrapolate flag, "
+                       f"PARM 1-8 the even terms on r², ..., r¹⁶, PARM 9-10 the Zernike "
+                       f"decenter)")
+    ext, ext_ln = s.parm.get(0, (1.0, s.type_line))
+    if ext not in (0.0, 1.0):
+        p.fail(ext_ln, f"SURF {k}: SZERNSAG PARM 0 (the extrapolate flag) must be 0 or 1, got "
+                       f"{ext!r}")
+    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= MAX_ZERNIKE_TERMS:
+        p.fail(n_ln, f"SURF {k}: SZERNSAG XDAT 1 (the number of Zernike terms) must be an "
+                     f"integer 0..{MAX_ZERNIKE_TERMS}, got {n_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if (j > n + 2 or j < 1) and v != 0:
+            p.fail(ln, f"SURF {k}: SZERNSAG XDAT {j} lies beyond the {n} Zernike terms XDAT 1 "
+                       f"declares")
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n > 0 and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: SZERNSAG XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    top = max([i for i in range(1, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [0])
+    coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(1, top + 1)]
+    zern = [s.xdat.get(j + 3, (0.0, 0))[0] * s_mm for j in range(n)]
+    while zern and zern[-1] == 0.0:
+        zern.pop()
+    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no Zernike term: any radius (1 mm)
+    return ZernikeSag(c, sd, rn, zern, conic=s.coni, coefficients=coeffs,
+                      extrapolate=ext == 1.0)
+
+
+def _paraxial_surface(s: ZmxSurface, k: int, mat, prev, sd, s_mm, p: Locator):
+    """``PARAXIAL`` (``PARM 1`` = focal length): deeplens' :class:`IdealLens`, in air."""
+    if 1 not in s.parm or s.parm[1][0] == 0:
+        p.fail(s.type_line or s.line, f"SURF {k}: a PARAXIAL surface needs a non-zero focal "
+                                      f"length (PARM 1)")
+    if not (is_air(mat) and is_air(prev)):
+        p.fail(s.glass_line or s.type_line, f"SURF {k}: a PARAXIAL surface between glasses is "
+                                            f"not supported (deeplens' ideal lens sits in air)")
+    for i, (v, ln) in s.parm.items():
+        if i > 2 and v != 0:
+            p.fail(ln, f"SURF {k}: PARAXIAL PARM {i} is not read (only the focal length, PARM 1)")
+    return IdealLens(s.parm[1][0] * s_mm, sd)
+
+
+def _xypolynom(s: ZmxSurface, c, sd, s_mm, p: Locator):
+    if c != 0:
+        p.fail(s.line, "XYPOLYNOM with a base curvature (CURV != 0) is not supported: deeplens' XY "
+                       "polynomial is z = P(x, y) (put the base sphere into the polynomial)")
+    if 1 not in s.xdat or 2 not in s.xdat:
+        p.fail(s.line, "XYPOLYNOM without XDAT 1 (number of terms) and XDAT 2 (normalisation "
+                       "radius)")
+    nterms = int(s.xdat[1][0])
+    R = s.xdat[2][0] * s_mm
+    if not R > 0:
+        p.fail(s.xdat[2][1], f"XYPOLYNOM normalisation radius must be > 0, got {s.xdat[2][0]!r}")
+    # Zemax term j (1-based): degrees 1, 2, ... each from x^d down to y^d
+    zterms = [(d - i, i) for d in range(1, 64) for i in range(d + 1)]
+    if not 1 <= nterms <= len(zterms):
+        p.fail(s.xdat[1][1], f"XYPOLYNOM number of terms must be 1..{len(zterms)}, got {nterms}")
+    for j, (v, ln) in s.xdat.items():
+        if j > nterms + 2 and v != 0:
+            p.fail(ln, f"XDAT {j} lies beyond the {nterms} terms XDAT 1 declares")
+    vals = {zterms[j - 1]: s.xdat.get(j + 2, (0.0, 0))[0] for j in range(1, nterms + 1)}
+    order = sum(zterms[nterms - 1])
+    coeffs = []
+    for (px, py) in xy_terms(order):
+        a = vals.get((px, py), 0.0)
+        # A (x/R)^px (y/R)^py with lengths scaled to mm: A s_mm / R^(px+py)
+        coeffs.append(a * s_mm / R ** (px + py))
+    return XYPolynomial(sd, coeffs)
+
+
+
+#: the most terms of OpticStudio's Extended Asphere (XDAT 1), and the most deeplens reads: its
+#: even asphere holds r² .. r²⁰ (:data:`~deeplens.optics.surfaces.asphere.MAX_ASPHERE_ORDER`)
+XASPHERE_MAX_TERMS, XASPHERE_READ_TERMS = 240, 10
+
+
+def _xasphere(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+    """``XASPHERE`` (OpticStudio's "Extended Asphere"): the STANDARD sag (``CURV``, ``CONI``)
+    plus ``Σ_{i=1..N} α_i ρ^{2i}``, ``ρ = r / R_n``, the coefficients ``α_i`` in lens units:
+    ``XDAT 1`` the maximum term number ``N`` (<= 240), ``XDAT 2`` the normalisation radius
+    ``R_n``, ``XDAT 3..`` ``α_1`` (on ρ²), ``α_2`` (on ρ⁴), ... (OpticStudio User Guide,
+    "Extended Asphere": the even asphere's series in a normalised radial coordinate, even
+    powers only).  The same surface as an even asphere: ``a_{2i} = α_i / R_n^{2i}`` (mm), an
+    :class:`Asphere` (an :class:`OddAsphere` with its odd terms zero when ``α_1`` != 0).
+    Terms up to ρ²⁰ (10) are read; a non-zero one beyond is refused with its line."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if v != 0:
+            p.fail(ln, f"SURF {k}: XASPHERE PARM {i} is not read (the Extended Asphere's data "
+                       f"are XDAT 1 the number of terms, XDAT 2 the normalisation radius, XDAT "
+                       f"3.. the coefficients on ρ², ρ⁴, ...)")
+    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= XASPHERE_MAX_TERMS:
+        p.fail(n_ln, f"SURF {k}: XASPHERE XDAT 1 (the maximum term number) must be an integer "
+                     f"0..{XASPHERE_MAX_TERMS}, got {n_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if (j > n + 2 or j < 1) and v != 0:
+            p.fail(ln, f"SURF {k}: XASPHERE XDAT {j} lies beyond the {n} terms XDAT 1 declares")
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    alpha = [(s.xdat.get(i + 2, (0.0, 0))[0], s.xdat.get(i + 2, (0.0, rn_ln))[1])
+             for i in range(1, n + 1)]
+    while alpha and alpha[-1][0] == 0.0:
+        alpha.pop()
+    if alpha and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: XASPHERE XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    if len(alpha) > XASPHERE_READ_TERMS:
+        p.fail(alpha[-1][1], f"SURF {k}: XASPHERE term {len(alpha)} (on ρ^{2 * len(alpha)}) is "
+                             f"not supported: deeplens' even asphere holds terms up to ρ²⁰ "
+                             f"({XASPHERE_READ_TERMS} terms)")
+    rn = rn_v * s_mm
+    a = []   # a_{2i}, mm^(1-2i)
+    for i, (v, ln) in enumerate(alpha, 1):
+        ai = v * s_mm / rn ** (2 * i)
+        if v != 0 and not (math.isfinite(ai) and ai != 0.0):
+            p.fail(ln, f"SURF {k}: XASPHERE term {i}: {v!r} / R_n^{2 * i} (R_n = {rn:g} mm) is "
+                       f"not representable as an even-asphere coefficient")
+        a.append(ai)
+    if a and a[0] != 0.0:   # a ρ² term: the odd asphere's r² slot, odd powers zero
+        radial = [0.0] * (2 * len(a))
+        radial[1::2] = a
+        return OddAsphere(c, sd, conic=s.coni, coefficients=radial)
+    return Asphere(c, sd, conic=s.coni, coefficients=a[1:])
+
+
+# --------------------------------------------------------------------------- writers' helpers
+def _opening_records(s, i: int) -> list[str]:
+    """The clear-aperture records of a curved surface: ``SQAP`` (a rectangular opening in its
+    circumscribed circle) or ``CLAP`` (a circle narrower than the semi-diameter, or off-axis),
+    each with ``OBDC`` when decentred, then ``OBSC`` (a central obscuration)."""
+    out = []
+    rect = getattr(s, "clear_rect", None)
+    if rect is not None and bool(rect.any()):
+        if abs(float(s.clear_radius) - math.hypot(*map(float, rect))) > 1e-12 * \
+                float(s.clear_radius):
+            raise ZemaxFileError(f"surface {i}: a rectangular clear aperture inside a narrower "
+                                 f"clear circle has no Zemax record (SQAP or CLAP, not both)",
+                                 surfaces=(i,))
+        out.append(f"SQAP {_f(rect[0])} {_f(rect[1])} 0")
+    elif math.isfinite(float(s.clear_radius)):
+        out.append(f"CLAP 0 {_f(s.clear_radius)} 0")
+    if out and bool(s.clear_decenter.any()):
+        out.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
+    if float(s.obscuration) > 0:
+        out.append(f"OBSC 0 {_f(s.obscuration)} 0")
+    return out
+
+
+def _odd_asphere_lines(s: OddAsphere, i: int) -> list[str]:
+    """An :class:`OddAsphere`: ``EVENASPH`` with ``PARM 1`` (the r² term) when its odd terms are
+    all zero and it has an r² term (how the reader got it), else ``ODDASPHE`` (``PARM i`` on
+    ``r^i``, up to r⁸)."""
+    a = [float(v) for v in s.a]
+    head = [f"CURV {_f(s.c)}", f"CONI {_f(s.k)}"]
+    if len(a) >= 2 and a[1] != 0 and not any(a[0::2]):
+        if len(a) > 16:
+            raise ZemaxFileError(f"surface {i}: an odd asphere with terms up to r^{len(a)}; "
+                                 f"Zemax's EVENASPH holds r^2..r^16", surfaces=(i,))
+        return ["TYPE EVENASPH"] + head + [f"PARM {k + 1} {_f(v)}"
+                                           for k, v in enumerate(a[1::2])]
+    if len(a) > 8:
+        raise ZemaxFileError(f"surface {i}: an odd asphere with terms up to r^{len(a)}; Zemax's "
+                             f"ODDASPHE holds r^1..r^8", surfaces=(i,))
+    return ["TYPE ODDASPHE"] + head + [f"PARM {k + 1} {_f(v)}" for k, v in enumerate(a)]
+
+
+# --------------------------------------------------------------------------- the handlers
+@register_format
+class ApertureFormat(SurfaceFormat):
+    """:class:`Aperture` (a flat opening in air): read through ``STANDARD`` (a flat surface in
+    air, :class:`AsphereFormat`) and CODE V's ``SPH``; written as ``STANDARD`` with ``DIAM`` and
+    its ``SQAP``, ``CLAP``/``OBSC``, ``OBDC``."""
+
+    classes = (Aperture,)
+
+    def write_zmx(self, s, i):
+        lines = ["TYPE STANDARD", "CURV 0.0"]
+        sd = None if s.semi_diameter is None else float(s.semi_diameter)
+        if sd is not None:
+            lines.append(_diam(sd))
+        if s.shape == "rect":
+            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        elif s.decentred:   # OBDC moves a CLAP (annular: with its obscuration), not a DIAM
+            lines.append(f"CLAP {_f(s.obscuration)} {_f(sd)} 0")
+        if float(s.obscuration) > 0 and not s.decentred:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        if s.decentred:
+            lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
+        return lines
+
+    def write_codev(self, s, i, stop):
+        if s.shape != "circle" or float(s.obscuration) > 0 or s.decentred:
+            raise LensFileError(f"surface {i}: a rectangular, obscured or decentred aperture "
+                                f"has no CODE V equivalent here", surfaces=(i,))
+        return ["0.0"]
+
+
+@register_format
+class PlaneFormat(SurfaceFormat):
+    """:class:`Plane` (a flat surface between two media, or a flat mirror): read through
+    ``STANDARD`` and CODE V's ``SPH``; written as a flat ``STANDARD``."""
+
+    classes = (Plane,)
+
+    def write_zmx(self, s, i):
+        return ["TYPE STANDARD", "CURV 0.0", _diam(s.semi_diameter)]
+
+    def write_codev(self, s, i, stop):
+        return ["0.0"]
+
+
+class _StandardFamily(SurfaceFormat):
+    """What ``STANDARD``, ``EVENASPH`` and ``ODDASPHE`` share: a flat one is a dummy (when
+    nothing else marks it), an :class:`Aperture` in air or a :class:`Plane`; a curved one an
+    :class:`Asphere`, or an :class:`OddAsphere` with odd or ``r²`` terms."""
+
+    @staticmethod
+    def _terms(s, ctx: ZmxContext):
+        """``(coeffs, radial)``: an :class:`Asphere`'s ``a4, a6, ...`` and an
+        :class:`OddAsphere`'s ``a1, a2, ...`` (``None``: not an odd asphere)."""
+        s_mm = ctx.s_mm
+        radial = _radial_coefficients(s, ctx.k, s_mm, ctx.p)   # ODDASPHE, EVENASPH with PARM 1
+        coeffs = []
+        if s.type == "EVENASPH" and radial is None:
+            # as many terms as PARM lines (a4 = PARM 2, ...); a file listing all 8 (as
+            # OpticStudio writes) is trimmed of its trailing zero terms
+            top = max([i for i in s.parm if i <= 8] + [1])
+            coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i)
+                      for i in range(2, top + 1)]
+            if top == 8:
+                while coeffs and coeffs[-1] == 0.0:
+                    coeffs.pop()
+        return coeffs, radial
+
+    def zmx_flat(self, s, ctx):
+        coeffs, radial = self._terms(s, ctx)
+        return ctx.c == 0 and s.coni == 0 and not coeffs and not radial
+
+    def read_zmx(self, s, ctx):
+        coeffs, radial = self._terms(s, ctx)
+        c, sd, sd_build, s_mm, flat = ctx.c, ctx.sd, ctx.sd_build, ctx.s_mm, ctx.flat
+        in_air = is_air(ctx.mat) and is_air(ctx.prev)
+        if s.sqap is not None and flat and in_air:
+            hx, hy, _ = s.sqap
+            return Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
+        if s.obsc is not None and flat and in_air:
+            # OpticStudio clips only on the obscuration here (and on a CLAP or a fixed
+            # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
+            outer = sd if (s.clap is not None or ctx.fixed or s.stop) else 1.01 * sd
+            ro = s.obsc[0] * s_mm
+            return Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
+        if flat and in_air and not s.mirror:
+            return Aperture(sd_build)
+        if flat:
+            return Plane(sd_build)
+        if radial:
+            return OddAsphere(c, sd_build, conic=s.coni, coefficients=radial)
+        return Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)
+
+
+@register_format
+class AsphereFormat(_StandardFamily):
+    """:class:`Asphere` (a sphere, a conic, an even asphere): Zemax ``STANDARD``/``EVENASPH``
+    (``PARM 2..8`` on ``r⁴ ... r¹⁶``), beyond ``r¹⁶`` ``XASPHERE``; CODE V ``SPH``/``CON``/``ASP``
+    with ``K`` and ``A`` ... ``J`` on ``r⁴ ... r²⁰``."""
+
+    classes = (Asphere,)
+    zmx_types = ("STANDARD", "EVENASPH")
+    codev_types = ("SPH", "CON", "ASP")
+    codev_data = ("K",) + tuple(CODEV_ASPH)
+
+    def write_zmx(self, s, i):
+        a = [float(v) for v in s.a]
+        sd = s.semi_diameter
+        if len(a) > 7:   # beyond EVENASPH's a16: OpticStudio's Extended Asphere, R_n = 1 mm
+            lines = ["TYPE XASPHERE", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
+                     f"XDAT 1 {len(a) + 1}", "XDAT 2 1", "XDAT 3 0"]
+            lines += [f"XDAT {k + 4} {_f(v)}" for k, v in enumerate(a)]
+            lines.append(_diam(sd))
+            return lines + _opening_records(s, i)
+        lines = ["TYPE EVENASPH" if a else "TYPE STANDARD", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}"]
+        if a:
+            lines.append("PARM 1 0")
+            lines += [f"PARM {k + 2} {_f(v)}" for k, v in enumerate(a)]
+        lines.append(_diam(sd))
+        return lines + _opening_records(s, i)
+
+    def codev_modifier(self, rec, cmd, value, fail):
+        need = ("CON", "ASP") if cmd == "K" else ("ASP",)
+        if rec["type"] not in need:
+            fail(f"{cmd} on a {rec['type']} surface: expected {' or '.join(need)} before it")
+        if cmd == "K":
+            rec["k"] = value
+        else:
+            rec["coef"][CODEV_ASPH.index(cmd)] = value
+
+    def read_codev(self, rec, c, sd, u, flat_air):
+        if flat_air:
+            return Aperture(sd)
+        if rec["type"] == "SPH" and c == 0:
+            return Plane(sd)
+        n = max(rec["coef"], default=-1) + 1
+        coef = [rec["coef"].get(j, 0.0) * u ** (1 - 2 * (j + 2)) for j in range(n)]
+        while coef and coef[-1] == 0:   # trailing zero terms (A 1e-6; B 0) are no terms
+            coef.pop()
+        return Asphere(c, sd, rec["k"], coef)
+
+    def write_codev(self, s, i, stop):
+        if float(s.obscuration) > 0 or (math.isfinite(float(s.clear_radius)) and not stop) or \
+                bool(s.clear_rect.any()) or any(float(v) for v in s.clear_decenter):
+            raise LensFileError(f"surface {i}: an obscuration, a decentred clear aperture or "
+                                f"one narrower than the semi-diameter (other than on the stop) "
+                                f"has no CODE V equivalent here",
+                                surfaces=(i,))
+        a = [float(v) for v in s.a]
+        while a and a[-1] == 0:
+            a.pop()
+        k = float(s.k)
+        out = [_f(s.c)]
+        if a:
+            if len(a) > len(CODEV_ASPH):
+                raise LensFileError(f"surface {i}: {len(a)} aspheric terms; CODE V's ASP holds "
+                                    f"A..J (r⁴..r²⁰)", surfaces=(i,))
+            out += ["ASP", f"K {_f(k)}"] + [f"{CODEV_ASPH[j]} {_f(v)}" for j, v in enumerate(a)]
+        elif k != 0:
+            out += ["CON", f"K {_f(k)}"]
+        return out
+
+
+@register_format
+class OddAsphereFormat(_StandardFamily):
+    """:class:`OddAsphere`: Zemax ``ODDASPHE`` (``PARM i`` on ``r^i``, i = 1..8; an ``EVENASPH``
+    with ``PARM 1``, the ``r²`` term, is read as one too), written as ``EVENASPH`` when only its
+    even terms and an ``r²`` term are non-zero, else ``ODDASPHE``."""
+
+    classes = (OddAsphere,)
+    zmx_types = ("ODDASPHE",)
+
+    def write_zmx(self, s, i):
+        return _odd_asphere_lines(s, i) + [_diam(s.semi_diameter)]
+
+
+@register_format
+class CoordinateBreakFormat(SurfaceFormat):
+    """:class:`CoordinateBreak`: Zemax ``COORDBRK`` (``PARM 1..6``: decenter x, y, tilt about
+    x, y, z in degrees, order).  Read by the reader's sequence, not one block at a time
+    (:func:`.zmx_read._sequence`: a pair bracketing an element is its misalignment, any other a
+    :class:`CoordinateBreak`, :mod:`.zmx_coordbrk`); written here."""
+
+    classes = (CoordinateBreak,)
+    zmx_types = ("COORDBRK",)
+
+    def write_zmx(self, s, i):
+        return coordbrk_lines(s, _f)
+
+
+@register_format
+class XYPolynomialFormat(SurfaceFormat):
+    """:class:`XYPolynomial`: Zemax ``XYPOLYNOM`` (``XDAT 1`` the number of terms, ``XDAT 2``
+    the normalisation radius, ``XDAT 3..`` the coefficients of ``x^i y^j`` by degree)."""
+
+    classes = (XYPolynomial,)
+    zmx_types = ("XYPOLYNOM",)
+
+    def read_zmx(self, s, ctx):
+        return _xypolynom(s, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        if float(s.b) != 0:
+            raise ZemaxFileError(f"surface {i}: an XY polynomial with b != 0 (z² term) has no "
+                                 f"XYPOLYNOM equivalent", surfaces=(i,))
+        vals = {t: float(v) for t, v in zip(s.terms, s.a)}
+        if vals.get((0, 0), 0.0) != 0:
+            raise ZemaxFileError(f"surface {i}: an XY polynomial with a constant term has no "
+                                 f"XYPOLYNOM equivalent", surfaces=(i,))
+        sd = float(s.semi_diameter)
+        R = sd
+        zterms = [(d - k, k) for d in range(1, s.order + 1) for k in range(d + 1)]
+        lines = ["TYPE XYPOLYNOM", "CURV 0.0", _diam(sd), f"XDAT 1 {len(zterms)}",
+                 f"XDAT 2 {_f(R)}"]
+        lines += [f"XDAT {j + 3} {_f(vals.get(t, 0.0) * R ** sum(t))}"
+                  for j, t in enumerate(zterms)]
+        return lines
+
+
+@register_format
+class ParaxialFormat(SurfaceFormat):
+    """:class:`IdealLens`: Zemax ``PARAXIAL`` (``PARM 1`` the focal length), in air."""
+
+    classes = (IdealLens,)
+    zmx_types = ("PARAXIAL",)
+
+    def read_zmx(self, s, ctx):
+        return _paraxial_surface(s, ctx.k, ctx.mat, ctx.prev, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        return ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}", _diam(s.semi_diameter)]
+
+
+@register_format
+class ToroidalFormat(SurfaceFormat):
+    """:class:`Cylinder` and :class:`Toroid`: Zemax ``TOROIDAL`` (``PARM 1`` the radius of
+    rotation, 0 for a cylinder; ``PARM 2..9`` the y profile's ``y² ... y¹⁶`` terms; ``SQAP`` its
+    rectangular outline)."""
+
+    classes = (Cylinder,)
+    zmx_types = ("TOROIDAL",)
+
+    def read_zmx(self, s, ctx):
+        return _cylinder(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        r_rot = _f(s.R) if isinstance(s, Toroid) else "0"
+        lines = ["TYPE TOROIDAL", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {r_rot}"]
+        lines += [f"PARM {j + 2} {_f(a)}" for j, a in enumerate(s.a)]
+        lines.append(_diam(s.semi_diameter))
+        if s.half_widths is not None:
+            lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        return lines
+
+
+@register_format
+class GratingFormat(SurfaceFormat):
+    """:class:`Grating`: Zemax ``DGRATING`` (``PARM 1`` lines per micrometre, ``PARM 2`` the
+    diffraction order)."""
+
+    classes = (Grating,)
+    zmx_types = ("DGRATING",)
+
+    def read_zmx(self, s, ctx):
+        return _grating(s, ctx.k, ctx.c, ctx.sd_build, ctx.p)
+
+    def write_zmx(self, s, i):
+        lines = ["TYPE DGRATING", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {_f(s.T)}",
+                 f"PARM 2 {s.order}", _diam(s.semi_diameter)]
+        return lines + _opening_records(s, i)
+
+
+@register_format
+class QTypeFormat(SurfaceFormat):
+    """:class:`QType`: Zemax ``QED_TYPE`` (``XDAT 1`` the kind, ``XDAT 2`` the number of terms,
+    ``XDAT 3`` the normalisation radius, ``XDAT 4..`` the coefficients)."""
+
+    classes = (QType,)
+    zmx_types = ("QED_TYPE",)
+
+    def read_zmx(self, s, ctx):
+        return _qtype(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        a = [float(v) for v in s.a]
+        return ["TYPE QED_TYPE", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
+                f"XDAT 1 {1 if s.kind == 'qcon' else 0}", f"XDAT 2 {len(a)}",
+                f"XDAT 3 {_f(s.norm_radius)}"] + \
+            [f"XDAT {j + 4} {_f(v)}" for j, v in enumerate(a)] + [_diam(s.semi_diameter)]
+
+
+@register_format
+class BiconicFormat(SurfaceFormat):
+    """:class:`Biconic`: Zemax ``BICONICX`` (``PARM 1`` the x radius, 0 flat in x; ``PARM 2``
+    the x conic)."""
+
+    classes = (Biconic,)
+    zmx_types = ("BICONICX",)
+
+    def read_zmx(self, s, ctx):
+        return _biconic(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        r_x = "0" if float(s.cx) == 0 else _f(1.0 / s.cx)
+        return ["TYPE BICONICX", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 1 {r_x}",
+                f"PARM 2 {_f(s.kx)}", _diam(s.semi_diameter)]
+
+
+@register_format
+class Binary2Format(SurfaceFormat):
+    """:class:`Binary2`: Zemax ``BINARY_2`` (``PARM 0`` the order, ``PARM 2..8`` ``a4 ... a16``,
+    ``XDAT`` the phase terms)."""
+
+    classes = (Binary2,)
+    zmx_types = ("BINARY_2",)
+
+    def read_zmx(self, s, ctx):
+        return _binary2(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        a = [float(v) for v in s.a]
+        if len(a) > 7:
+            raise ZemaxFileError(f"surface {i}: {len(a)} aspheric terms; Zemax's BINARY_2 holds "
+                                 f"a4..a16 (7 terms)", surfaces=(i,))
+        A = [float(v) for v in s.A]
+        lines = ["TYPE BINARY_2", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 0 {s.order}",
+                 "PARM 1 0"] + [f"PARM {j + 2} {_f(v)}" for j, v in enumerate(a)]
+        lines += [f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
+        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
+        lines.append(_diam(s.semi_diameter))
+        return lines + _opening_records(s, i)
+
+
+@register_format
+class ZernikeSagFormat(SurfaceFormat):
+    """:class:`ZernikeSag`: Zemax ``SZERNSAG`` (``PARM 0`` extrapolate, ``PARM 1..8``
+    ``r² ... r¹⁶``, ``XDAT`` the Zernike standard terms)."""
+
+    classes = (ZernikeSag,)
+    zmx_types = ("SZERNSAG",)
+
+    def read_zmx(self, s, ctx):
+        return _zernike_sag(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        a = [float(v) for v in s.a]
+        A = [float(v) for v in s.zernike]
+        lines = ["TYPE SZERNSAG", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
+                 f"PARM 0 {int(s.extrapolate)}"]
+        lines += [f"PARM {j + 1} {_f(v)}" for j, v in enumerate(a)]
+        lines += ["PARM 9 0", "PARM 10 0", f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
+        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
+        return lines + [_diam(s.semi_diameter)]
+
+
+@register_format
+class ExtendedAsphereFormat(SurfaceFormat):
+    """Zemax ``XASPHERE`` (OpticStudio's Extended Asphere) -> an :class:`Asphere` (or an
+    :class:`OddAsphere` with a ρ² term); an :class:`Asphere` with terms beyond ``r¹⁶`` is
+    written as one by :class:`AsphereFormat`."""
+
+    zmx_types = ("XASPHERE",)
+
+    def read_zmx(self, s, ctx):
+        return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
