@@ -7,7 +7,11 @@ Surface sag of the types read (``c`` the curvature, ``k = K``, ``r² = x² + y²
     ASP   z = CON + A r⁴ + B r⁶ + C r⁸ + D r¹⁰ + E r¹² + F r¹⁴ + G r¹⁶ + H r¹⁸ + J r²⁰
 
 all read as an :class:`~deeplens.optics.surfaces.Asphere` (a flat stop in air as an
-:class:`~deeplens.optics.surfaces.Aperture`).
+:class:`~deeplens.optics.surfaces.Aperture`).  Each surface type is read and written by its
+handler in the file-format registry (:mod:`.surface_formats`; the built-in ones, with the
+Zemax records of the same types, in :mod:`.surface_handlers`): the type commands ``SPH``/``CON``/
+``ASP`` and the modifiers a type owns (``K``, ``A`` ... ``J``) are looked up there, and the
+writer asks the handler of the surface's class.
 
 The file is a sequence of commands, one per line or several separated by ``;``; ``!`` starts a
 comment, ``&`` at the end of a line continues the command on the next, ``'...'`` or ``"..."``
@@ -71,16 +75,16 @@ import torch
 from ..errors import LensFileError, SurfacesCrossError
 from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
-from ..surfaces import Aperture, Asphere, Plane
+from ..surfaces import Asphere
 from .agf import AGFGlass
 from .filecheck import read_file_bytes
+from .surface_handlers import FORMATS
 from .vendor_glass import (BuchdahlGlass, archived_glass, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
 
 __all__ = ["CodeVWarning", "read_seq", "write_seq"]
 
 _UNITS = {"M": 1.0, "MM": 1.0, "C": 10.0, "CM": 10.0, "I": 25.4, "IN": 25.4}
-_ASPH = "ABCDEFGHJ"                 # r⁴ ... r²⁰
 _INFINITE = 1e10                    # CODE V: an object this far (or farther) is at infinity
 # read and not used (titles, weights, solves, variables, end of input)
 _IGNORED = {"LEN", "INI", "WTW", "WTF", "GO", "SLB", "TEM", "PRE", "CWL", "PIM", "CCY", "THC",
@@ -378,20 +382,14 @@ class _Reader:
             if args or s["kind"] != "S":
                 self.fail(line, f"{cmd}: expected it alone, after an S surface")
             s["stop"] = True
-        elif cmd in ("SPH", "CON", "ASP"):
+        elif FORMATS.for_codev_type(cmd) is not None:   # a surface type: SPH, CON, ASP
             if args:
                 self.fail(line, f"{cmd}: expected no value")
             s["type"] = cmd
-        elif cmd == "K" or (len(cmd) == 1 and cmd in _ASPH):
+        elif cmd in FORMATS.for_codev_type(s["type"]).codev_data:   # K, A..J of an asphere
             v = self.nums(args, line, cmd, 1)[0]
-            need = ("CON", "ASP") if cmd == "K" else ("ASP",)
-            if s["type"] not in need:
-                self.fail(line, f"{cmd} on a {s['type']} surface: expected "
-                                f"{' or '.join(need)} before it")
-            if cmd == "K":
-                s["k"] = v
-            else:
-                s["coef"][_ASPH.index(cmd)] = v
+            FORMATS.for_codev_type(s["type"]).codev_modifier(
+                s, cmd, v, lambda msg: self.fail(line, msg))
         elif cmd == "CIR":
             quals = [a.upper() for a in args[:-1]]
             v = self.nums(args[-1:], line, "CIR (semi-diameter)", 1)[0]
@@ -507,16 +505,7 @@ def _build(rd: _Reader, path: Path) -> Lens:
         sd = s["cir"][0] * u if s["cir"] is not None else _provisional(c, s["k"])
         if s["cir"] is None:
             autos.append(len(surfaces))
-        if flat_air:
-            surf = Aperture(sd)
-        elif s["type"] == "SPH" and c == 0:
-            surf = Plane(sd)
-        else:
-            n = max(s["coef"], default=-1) + 1
-            coef = [s["coef"].get(j, 0.0) * u ** (1 - 2 * (j + 2)) for j in range(n)]
-            while coef and coef[-1] == 0:   # trailing zero terms (A 1e-6; B 0) are no terms
-                coef.pop()
-            surf = Asphere(c, sd, s["k"], coef)
+        surf = FORMATS.for_codev_type(s["type"]).read_codev(s, c, sd, u, flat_air)
         if s["stop"]:
             if stop is not None:
                 fail(s["line"], f"STO: a second stop (the first is on line {where[stop]})")
@@ -671,37 +660,14 @@ def _f(v) -> str:
 
 
 def _surface_lines(s, i: int, stop: bool = False) -> list[str]:
-    """Surface ``i`` as ``[curvature, modifier lines ...]`` (``CON``/``ASP`` and coefficients)."""
-    if isinstance(s, Aperture):
-        if s.shape != "circle" or float(s.obscuration) > 0 or s.decentred:
-            raise LensFileError(f"surface {i}: a rectangular, obscured or decentred aperture "
-                                f"has no CODE V equivalent here", surfaces=(i,))
-        return ["0.0"]
-    if isinstance(s, Plane):
-        return ["0.0"]
-    if type(s).__name__ in ("Asphere", "Sphere"):
-        if float(s.obscuration) > 0 or (math.isfinite(float(s.clear_radius)) and not stop) or \
-                bool(s.clear_rect.any()) or any(float(v) for v in s.clear_decenter):
-            raise LensFileError(f"surface {i}: an obscuration, a decentred clear aperture or "
-                                f"one narrower than the semi-diameter (other than on the stop) "
-                                f"has no CODE V equivalent here",
-                                surfaces=(i,))
-        a = [float(v) for v in s.a]
-        while a and a[-1] == 0:
-            a.pop()
-        k = float(s.k)
-        out = [_f(s.c)]
-        if a:
-            if len(a) > len(_ASPH):
-                raise LensFileError(f"surface {i}: {len(a)} aspheric terms; CODE V's ASP holds "
-                                    f"A..J (r⁴..r²⁰)", surfaces=(i,))
-            out += ["ASP", f"K {_f(k)}"] + [f"{_ASPH[j]} {_f(v)}" for j, v in enumerate(a)]
-        elif k != 0:
-            out += ["CON", f"K {_f(k)}"]
-        return out
-    raise LensFileError(f"surface {i}: {type(s).__name__} has no CODE V equivalent in "
-                        f"deeplens' writer (spheres, conics, even aspheres, planes and circular "
-                        f"apertures)", surfaces=(i,))
+    """Surface ``i`` as ``[curvature, modifier lines ...]``: what its type's handler in the
+    file-format registry writes (:mod:`.surface_handlers`)."""
+    handler = FORMATS.for_surface(s)
+    if handler is None or not handler.writes_codev():
+        raise LensFileError(f"surface {i}: {type(s).__name__} has no CODE V equivalent in "
+                            f"deeplens' writer (spheres, conics, even aspheres, planes and "
+                            f"circular apertures)", surfaces=(i,))
+    return handler.write_codev(s, i, stop)
 
 
 def write_seq(lens: Lens, path) -> None:

@@ -296,6 +296,22 @@ def test_writer_refuses_what_it_cannot_write(tmp_path):
         write_seq(lens, tmp_path / "m.seq")
 
 
+
+def test_writer_refuses_a_subclass_its_type_handler_does_not_write(tmp_path):
+    """The writer asks the surface's own handler (the most derived registered class), not a
+    base class's: an IdealLens (a Plane subclass) has no CODE V record and is refused naming
+    the surface, where the isinstance chain once wrote it as a flat plane (f = 50 mm lost)."""
+    from deeplens.optics.lens import Lens
+    from deeplens.optics.materials import Air
+    from deeplens.optics.surfaces import Aperture, IdealLens
+
+    air = Air()
+    lens = Lens([Aperture(1.5), IdealLens(50.0, 10.0)], [air, air, air], [0.0, 2.0], 48.0, 0)
+    with pytest.raises(LensFileError, match="surface 1: IdealLens has no CODE V") as e:
+        write_seq(lens, tmp_path / "ideal.seq")
+    assert e.value.surfaces == (1,)
+    assert not (tmp_path / "ideal.seq").exists()
+
 def test_mirror(monkeypatch, tmp_path):
     """REFL: an f/1 paraboloid (R = -200 mm, K = -1) has EFL |R|/2 = 100 mm, its focus 100 mm
     in front of it (the negative thickness kept) and a perfect on-axis image (float64 rays:
