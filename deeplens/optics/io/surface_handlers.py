@@ -35,7 +35,9 @@ with no radius of rotation), ``BICONICX`` -> :class:`~deeplens.optics.surfaces.B
 :class:`~deeplens.optics.surfaces.XYPolynomial`, ``SZERNSAG`` ->
 :class:`~deeplens.optics.surfaces.ZernikeSag`, ``XASPHERE`` -> :class:`~deeplens.optics.surfaces.Asphere`
 (or :class:`~deeplens.optics.surfaces.OddAsphere` with a ρ² term).  Lengths are scaled from file
-units to mm (``s_mm``); errors are raised through the reader's :class:`~.zmx_parse.Locator`.
+units to mm (``s_mm``); ``s`` is always a block, :class:`~.zmx_parse.ZmxSurface`, and errors
+are raised through the reader's :class:`~.zmx_parse.Locator` ``p`` (neither imported here: the
+parser imports this module).
 The openings common to every type (``CLAP``, ``SQAP``, ``OBSC``, ``OBDC``) and dummy surfaces
 are :func:`.zmx_surfaces.build_surface`'s.
 
@@ -46,7 +48,6 @@ again is the same bit for bit.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from ..errors import LensFileError, ZemaxFileError
 from ..materials import Air, Material
@@ -58,9 +59,6 @@ from ..surfaces.xy_polynomial import xy_terms
 from ..surfaces.zernike_sag import MAX_ZERNIKE_TERMS
 from .surface_formats import FORMATS, SurfaceFormat, ZmxContext, register_format
 from .zmx_coordbrk import coordbrk_lines
-
-if TYPE_CHECKING:   # annotations only: the parser imports this module
-    from .zmx_parse import Locator, ZmxSurface
 
 #: the registry (:mod:`.surface_formats`), filled with this module's handlers: import it from
 #: here so that they are registered
@@ -86,7 +84,7 @@ def _diam(sd) -> str:
 
 
 # --------------------------------------------------------------------------- Zemax readers
-def _radial_coefficients(s: ZmxSurface, k: int, s_mm, p: Locator):
+def _radial_coefficients(s, k: int, s_mm, p):
     """The coefficients ``[a_1, a_2, ...]`` of ``r¹, r², ...`` (mm^(1−i)) of an
     :class:`OddAsphere`: ``ODDASPHE``'s ``PARM i`` on ``r^i``, and an ``EVENASPH`` whose ``PARM 1``
     (the ``r²`` term) is not zero, ``PARM i`` on ``r^(2i)`` (the odd powers zero); trailing zero
@@ -111,7 +109,7 @@ def _radial_coefficients(s: ZmxSurface, k: int, s_mm, p: Locator):
     return a
 
 
-def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+def _cylinder(s, k: int, c, sd, s_mm, p):
     """``TOROIDAL``: the y profile (``CURV``, ``CONI``, ``PARM 2..9`` the coefficients of ``y²,
     y⁴, ..., y¹⁶``) rotated about an axis parallel to y at the radius of rotation ``PARM 1``: a
     :class:`Toroid`, or with ``PARM 1`` = 0 (an infinite radius) a :class:`Cylinder`, curved in
@@ -134,7 +132,7 @@ def _cylinder(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
     return Cylinder(c, sd, conic=s.coni, coefficients=coeffs, half_widths=hw)
 
 
-def _biconic(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+def _biconic(s, k: int, c, sd, s_mm, p):
     """``BICONICX``: ``CURV``/``CONI`` the y curvature and conic, ``PARM 1`` the x *radius* (0:
     infinite, flat in x), ``PARM 2`` the x conic (OpticStudio's "Biconic" surface; it has no
     other parameter and no extra data): a :class:`Biconic`."""
@@ -152,7 +150,7 @@ def _biconic(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
     return Biconic(c, sd, c_x, conic=s.coni, conic_x=s.parm.get(2, (0.0, 0))[0])
 
 
-def _grating(s: ZmxSurface, k: int, c, sd, p: Locator):
+def _grating(s, k: int, c, sd, p):
     """``DGRATING``: a sphere or conic (``CURV``, ``CONI``) ruled with ``PARM 1`` lines per
     micrometre (in every lens unit) parallel to the local x axis, traced in order ``PARM 2``:
     a :class:`Grating` (transmitting, or reflecting with ``GLAS MIRROR``)."""
@@ -167,7 +165,7 @@ def _grating(s: ZmxSurface, k: int, c, sd, p: Locator):
     return Grating(c, sd, s.parm.get(1, (0.0, 0))[0], int(order), conic=s.coni)
 
 
-def _binary2(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+def _binary2(s, k: int, c, sd, s_mm, p):
     """``BINARY_2`` (OpticStudio's "Binary 2"): an even asphere (``CURV``, ``CONI``, ``PARM 2..8``
     the ``r⁴ ... r¹⁶`` terms; ``PARM 1``, the ``r²`` term, must be 0) with the phase ``M Σ A_i
     ρ^{2i}``: ``PARM 0`` the diffraction order ``M``, ``XDAT 1`` the number of terms, ``XDAT 2``
@@ -210,7 +208,7 @@ def _binary2(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
     return Binary2(c, sd, rn, phase, int(order), conic=s.coni, coefficients=coeffs)
 
 
-def _qtype(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+def _qtype(s, k: int, c, sd, s_mm, p):
     """``QED_TYPE`` (OpticStudio's Q-type asphere): ``XDAT 1`` the type (0 Qbfs, 1 Qcon),
     ``XDAT 2`` the number of terms, ``XDAT 3`` the normalisation radius, ``XDAT 4..`` the
     coefficients ``a_0, a_1, ...`` (lengths): a :class:`QType`.  A Qbfs on a conic base
@@ -245,7 +243,7 @@ def _qtype(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
                  conic=s.coni)
 
 
-def _zernike_sag(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+def _zernike_sag(s, k: int, c, sd, s_mm, p):
     """``SZERNSAG`` (OpticStudio's "Zernike Standard Sag"): an even asphere (``CURV``, ``CONI``,
     ``PARM 1..8`` the ``r², r⁴, ..., r¹⁶`` terms) plus Zernike standard terms in Noll's order:
     ``PARM 0`` the extrapolate flag (1: the terms also beyond the normalisation radius),
@@ -288,7 +286,7 @@ def _zernike_sag(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
                       extrapolate=ext == 1.0)
 
 
-def _paraxial_surface(s: ZmxSurface, k: int, mat, prev, sd, s_mm, p: Locator):
+def _paraxial_surface(s, k: int, mat, prev, sd, s_mm, p):
     """``PARAXIAL`` (``PARM 1`` = focal length): deeplens' :class:`IdealLens`, in air."""
     if 1 not in s.parm or s.parm[1][0] == 0:
         p.fail(s.type_line or s.line, f"SURF {k}: a PARAXIAL surface needs a non-zero focal "
@@ -302,7 +300,7 @@ def _paraxial_surface(s: ZmxSurface, k: int, mat, prev, sd, s_mm, p: Locator):
     return IdealLens(s.parm[1][0] * s_mm, sd)
 
 
-def _xypolynom(s: ZmxSurface, c, sd, s_mm, p: Locator):
+def _xypolynom(s, c, sd, s_mm, p):
     if c != 0:
         p.fail(s.line, "XYPOLYNOM with a base curvature (CURV != 0) is not supported: deeplens' XY "
                        "polynomial is z = P(x, y) (put the base sphere into the polynomial)")
@@ -336,7 +334,7 @@ def _xypolynom(s: ZmxSurface, c, sd, s_mm, p: Locator):
 XASPHERE_MAX_TERMS, XASPHERE_READ_TERMS = 240, 10
 
 
-def _xasphere(s: ZmxSurface, k: int, c, sd, s_mm, p: Locator):
+def _xasphere(s, k: int, c, sd, s_mm, p):
     """``XASPHERE`` (OpticStudio's "Extended Asphere"): the STANDARD sag (``CURV``, ``CONI``)
     plus ``Σ_{i=1..N} α_i ρ^{2i}``, ``ρ = r / R_n``, the coefficients ``α_i`` in lens units:
     ``XDAT 1`` the maximum term number ``N`` (<= 240), ``XDAT 2`` the normalisation radius
