@@ -3,25 +3,21 @@
 Each reads its Zemax ``TYPE`` (and CODE V type) and writes its deeplens class (the registry,
 how a new type registers and how lookups work: :mod:`.surface_formats`):
 
-==========================  ===========================================  ==========================
-handler                     reads (Zemax ``TYPE`` / CODE V)               writes (deeplens class)
-==========================  ===========================================  ==========================
-:class:`ApertureFormat`     (through ``STANDARD`` / ``SPH``)              ``Aperture``
-:class:`PlaneFormat`        (through ``STANDARD`` / ``SPH``)              ``Plane``
-:class:`AsphereFormat`      ``STANDARD``, ``EVENASPH`` / ``SPH CON ASP``  ``Asphere`` (and ``Sphere``)
-:class:`OddAsphereFormat`   ``ODDASPHE``                                  ``OddAsphere``
-:class:`CoordinateBreakFormat` ``COORDBRK`` (read by the reader's sequence) ``CoordinateBreak``
-:class:`XYPolynomialFormat` ``XYPOLYNOM``                                 ``XYPolynomial``
-:class:`ParaxialFormat`     ``PARAXIAL``                                  ``IdealLens``
-:class:`ToroidalFormat`     ``TOROIDAL``                                  ``Cylinder``, ``Toroid``
-:class:`GratingFormat`      ``DGRATING``                                  ``Grating``
-:class:`QTypeFormat`        ``QED_TYPE``                                  ``QType``
-:class:`BiconicFormat`      ``BICONICX``                                  ``Biconic``
-:class:`Binary2Format`      ``BINARY_2``                                  ``Binary2``
-:class:`ZernikeSagFormat`   ``SZERNSAG``                                  ``ZernikeSag``
-:class:`ExtendedAsphereFormat` ``XASPHERE`` (an ``Asphere`` is written so  --
-                            beyond r¹⁶)
-==========================  ===========================================  ==========================
+* :class:`ApertureFormat`: writes ``Aperture`` (read through ``STANDARD`` / CODE V ``SPH``);
+* :class:`PlaneFormat`: writes ``Plane`` (read through ``STANDARD`` / ``SPH``);
+* :class:`AsphereFormat`: reads ``STANDARD``, ``EVENASPH`` / ``SPH``, ``CON``, ``ASP``; writes
+  ``Asphere`` (and ``Sphere``);
+* :class:`OddAsphereFormat`: reads ``ODDASPHE``; writes ``OddAsphere``;
+* :class:`CoordinateBreakFormat`: ``COORDBRK`` (read by the reader's sequence);
+  writes ``CoordinateBreak``;
+* :class:`XYPolynomialFormat` (``XYPOLYNOM``, ``XYPolynomial``), :class:`ParaxialFormat`
+  (``PARAXIAL``, ``IdealLens``), :class:`ToroidalFormat` (``TOROIDAL``, ``Cylinder`` and
+  ``Toroid``), :class:`GratingFormat` (``DGRATING``, ``Grating``), :class:`QTypeFormat`
+  (``QED_TYPE``, ``QType``), :class:`BiconicFormat` (``BICONICX``, ``Biconic``),
+  :class:`Binary2Format` (``BINARY_2``, ``Binary2``), :class:`ZernikeSagFormat` (``SZERNSAG``,
+  ``ZernikeSag``);
+* :class:`ExtendedAsphereFormat`: reads ``XASPHERE`` (an ``Asphere`` with terms beyond r¹⁶ is
+  written so by :class:`AsphereFormat`).
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a

@@ -96,8 +96,10 @@ written and read again has the same prescription.
 This module is the public face of the Zemax reader and writer; the work is done in
 :mod:`.zmx_parse` (text -> records -> system data and ``SURF`` blocks, with their lines),
 :mod:`.zmx_read` (blocks -> :class:`~deeplens.optics.lens.Lens`), with :mod:`.zmx_surfaces` (one
-block -> one surface), :mod:`.zmx_glass` (``GLAS`` -> material), :mod:`.zmx_coordbrk` and
-:mod:`.zmx_system`, and :mod:`.zmx_write` (lens -> ``.zmx``).
+block -> one surface, by its type's handler), :mod:`.zmx_glass` (``GLAS`` -> material),
+:mod:`.zmx_coordbrk` and :mod:`.zmx_system`, and :mod:`.zmx_write` (lens -> ``.zmx``); each
+surface type's records are read and written by its handler in the file-format registry
+(:mod:`.surface_formats`, the built-in handlers in :mod:`.surface_handlers`).
 """
 
 from __future__ import annotations
