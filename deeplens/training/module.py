@@ -199,10 +199,10 @@ class EndToEndModule(L.LightningModule):
 
         tol = load_group(tolerance) if tolerance is not None else None  # checked at start-up
         self.tolerance_draws = TrainingDraws(tol, self.seed) if tolerance_training else None
-        from .tolerance_eval import check_calibrate
+        from .tolerance import check_calibrate
 
         if check_calibrate(calibrate, "model.calibrate") is not None:
-            from .tolerance_eval import DistortionCalibration
+            from .tolerance import DistortionCalibration
 
             if self.tolerance_draws is None or len(self.depths_mm) != 1:
                 raise ValueError("model.calibrate: needs model.tolerance_training and a single "
@@ -212,7 +212,7 @@ class EndToEndModule(L.LightningModule):
                 self, self.depths_mm, nodes=5, sampling="grid:32")
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
         # per-unit calibration under test: None, or (restored (B, C, H, W), depth_mm) -> the
-        # restored image registered to the nominal lens's mapping (tolerance_eval.py)
+        # restored image registered to the nominal lens's mapping (tolerance.DistortionCalibration)
         self.calibration = None
 
     # ------------------------------------------------------------------ the camera

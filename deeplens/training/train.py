@@ -66,13 +66,14 @@ _TRAINER_TYPES = {"trainer.max_epochs": (int,), "trainer.max_steps": (int,),
                   "trainer.limit_test_batches": (int, float)}
 
 
-def check_config(cfg: DictConfig) -> None:
+def check_config(cfg: DictConfig, extra=()) -> None:
     """The one start-up check of a composed config, run before anything is built (dataset,
     lens, renderer, model): the types of the known keys, the meaning of the values of the
     keys no room owns (:data:`_RULES`: a depth of 0 mm, a negative seed, ...), then each
     room's own validator (:data:`STARTUP_CHECKS`: ``lens.*``, ``model.*`` with the depth soft
-    maxima and the Wiener front end, the tolerance group, the callbacks, ``eval.*``), then the
-    sizes (:func:`check_sizes`).
+    maxima and the Wiener front end, the tolerance group, the callbacks), then the validators
+    ``extra`` of a floor above (the evaluation's ``eval.*``:
+    :func:`deeplens.evaluation.evaluate.check_config`), then the sizes (:func:`check_sizes`).
 
     Raises:
         ConfigError: the first bad key (:class:`~deeplens.optics.errors.ConfigError`:
@@ -107,7 +108,7 @@ def check_config(cfg: DictConfig) -> None:
         problem = rule(val)
         if problem:
             raise ConfigError(key, problem, val)
-    for check in STARTUP_CHECKS:
+    for check in (*STARTUP_CHECKS, *extra):
         check(cfg)
     check_sizes(cfg)
 
@@ -151,13 +152,6 @@ def _check_channels(cfg: DictConfig) -> None:
     disc = OmegaConf.select(cfg, "model.discriminator", default=None)
     if disc:
         _image_channels(disc, "model.discriminator", n_ch, ("in_channels",))
-
-
-def _check_eval(cfg: DictConfig) -> None:
-    """``eval.*`` (:func:`~deeplens.training.evaluate.check_eval_config`; nothing without)."""
-    from .evaluate import check_eval_config  # evaluate imports this module
-
-    check_eval_config(cfg)
 
 
 def check_sizes(cfg: DictConfig) -> None:
@@ -266,9 +260,10 @@ _RULES = {
 
 #: each room's validator of its own keys, run in this order by :func:`check_config` (after
 #: the types and :data:`_RULES`); each takes the composed config and raises
-#: :class:`~deeplens.optics.errors.ConfigError`
+#: :class:`~deeplens.optics.errors.ConfigError`.  ``eval.*`` is the evaluation's
+#: (:data:`deeplens.evaluation.evaluate.EVAL_CHECKS`, run after these by its ``check_config``)
 STARTUP_CHECKS = (check_lens_config, _check_channels, _check_render, check_model_config,
-                  check_tolerance_config, check_callbacks_config, _check_eval)
+                  check_tolerance_config, check_callbacks_config)
 
 
 def build_camera(cfg, lens, sensor) -> Camera:

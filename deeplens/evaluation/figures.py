@@ -1,4 +1,4 @@
-"""Figures of an evaluation (:func:`deeplens.training.evaluate.evaluate`), as PNG files and
+"""Figures of an evaluation (:func:`deeplens.evaluation.evaluate.evaluate`), as PNG files and
 TensorBoard images (matplotlib, imported lazily, Agg backend).
 
 * ``psnr_vs_depth.png``: restored (solid, ± std over seeds as error bars) and sensor (dashed)
@@ -111,7 +111,7 @@ def psfs_figure(modules: dict, depths, kernel: int = 21, n_rays: int = 8192):
 
 
 def plates_figure(modules: dict, plate_surface: int):
-    from .lens_setup import surface_height_map
+    from ..training.lens_setup import surface_height_map
 
     plt = _plt()
     names = list(modules)
@@ -182,7 +182,7 @@ def write_figures(summary: dict, kept: dict, depths, folder: Path,
     (``folder/tensorboard``); returns the PNG paths.
 
     Args:
-        summary: :func:`~deeplens.training.evaluate.summarize`'s result.
+        summary: :func:`~deeplens.evaluation.evaluate.summarize`'s result.
         kept: ``{variant: {"module": EndToEndModule, "datamodule": ..., "kind": str}}`` of the
             first seed (its lens and best restorer).
         depths: test depths (mm).

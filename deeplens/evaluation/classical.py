@@ -13,14 +13,14 @@ end-to-end design has to beat.
 
 ``eval.classical.max_sag_mm`` (default ``null``: no bound) bounds each designed surface's
 departure from its starting sag as end-to-end training's ``model.max_sag_mm`` does (the same
-grid, :class:`~.constraints.SagDepartureConstraint`), as a hard constraint of the design
+grid, :class:`~deeplens.training.constraints.SagDepartureConstraint`), as a hard constraint of the design
 (the largest departure over the grid ``<= max_sag_mm``): ``eval.classical.max_sag_mm=model``
 takes the end-to-end run's own bound, so that both designs are held to the same constraints.
 
 Damped least squares with a float64 central-difference Jacobian.  The designed lens is written
 to ``classical_lens.json`` (with ``classical_design.json``: the settings, merit before/after,
 variables, seconds) in the variant's folder, and reused when its settings and the content of its
-inputs (the lens file, and the ``.agf`` catalogues a ``.zmx`` loads: :mod:`.input_digest`) are
+inputs (the lens file, and the ``.agf`` catalogues a ``.zmx`` loads: :mod:`deeplens.training.input_digest`) are
 unchanged.
 """
 
@@ -33,8 +33,8 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from ..optics.errors import ConfigError
-from .checkpoint import write_text_atomic
-from .input_digest import input_digests
+from ..training.checkpoint import write_text_atomic
+from ..training.input_digest import input_digests
 
 __all__ = ["check_classical_config", "design_classical", "DEFAULTS"]
 
@@ -74,10 +74,10 @@ def check_classical_config(cfg: DictConfig) -> None:
 
 def sag_departure_constraints(lens, max_sag_mm: float) -> list:
     """One design constraint per surface with trainable parameters: the largest departure of
-    its sag from the current one over :class:`~.constraints.SagDepartureConstraint`'s grid is
+    its sag from the current one over :class:`~deeplens.training.constraints.SagDepartureConstraint`'s grid is
     at most ``max_sag_mm`` (mm)."""
     from ..design.constraints import Constraint
-    from .constraints import SagDepartureConstraint
+    from ..training.constraints import SagDepartureConstraint
 
     bound = SagDepartureConstraint(lens, max_sag_mm)
     out = []
@@ -110,7 +110,7 @@ def design_classical(cfg: DictConfig, out_dir) -> Path:
     from ..design.variables import Variables
     from ..optics.io import save_lens
     from ..render.sensor import Sensor
-    from .lens_setup import build_lens
+    from ..training.lens_setup import build_lens
 
     s = _settings(cfg)
     lc, sc = cfg.lens, cfg.sensor
