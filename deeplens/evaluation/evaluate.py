@@ -65,14 +65,12 @@ from ..optics.errors import ConfigError
 from ..render.splat import point_source_rays, trace_to_sensor_pixels
 from ..training.checkpoint import (CheckpointError, migrate_missing_buffers, read_checkpoint,
                                    write_text_atomic)
-from ..training.depth_weighting import SOFT_MAX_DEFAULTS
 from ..training.input_digest import digest_path, input_digests
 from ..training.lens_search import search_dir, search_trainable, searched_lens
 from ..training.machine import describe_machine, machine_info
-from ..training.module_config import INVARIANCE_DEFAULTS
+from ..training.settings import MODEL_SETTINGS, completed
 from ..training.train import build_objects, train
 from ..training.train import check_config as check_training_config
-from ..training.wiener import DEFAULTS as DECONV_DEFAULTS
 from . import tolerance as tolerance_eval
 from .classical import check_classical_config, design_classical
 from .fanout import check_fanout_config, cpu_seconds, job_cfg
@@ -193,12 +191,9 @@ def _same_run(key: dict) -> dict:
     key = _relocated(key, _eval_folder_of(key))
     model = key.get("model") if isinstance(key, dict) else None
     if isinstance(model, dict):
-        for name, defaults in (("worst_depth", SOFT_MAX_DEFAULTS),
-                               ("optics_worst_depth", SOFT_MAX_DEFAULTS),
-                               ("deconvolution", DECONV_DEFAULTS),
-                               ("optics_invariance", INVARIANCE_DEFAULTS)):
+        for name in MODEL_SETTINGS:   # worst_depth, ..., completed with their defaults
             if isinstance(model.get(name), dict):
-                model[name] = {**dict(defaults), **model[name]}
+                model[name] = completed(name, model[name])
     return key
 
 

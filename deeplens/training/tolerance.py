@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 
 import torch
+from omegaconf import OmegaConf
 
 from ..design.tolerance_model import ToleranceModel, drawn, load_group
 from ..optics.errors import ConfigError
@@ -92,8 +93,6 @@ def check_tolerance_config(cfg) -> None:
     ``model.tolerance``: parsed by :func:`load_group`, nothing drawn) and of
     ``model.tolerance_training`` (a bool; true needs a non-zero group); raises
     :class:`~deeplens.optics.errors.ConfigError` naming the key."""
-    from omegaconf import OmegaConf
-
     node = OmegaConf.select(cfg, "model.tolerance", default=None)
     if node is None:
         node = OmegaConf.select(cfg, "tolerance", default=None)
@@ -121,6 +120,24 @@ def tolerance_seed(run_seed: int, step: int) -> int:
 
 class TrainingDraws:
     """Per-step drawn lenses for :class:`~deeplens.training.module.EndToEndModule`."""
+
+    @classmethod
+    def of_module(cls, module, tolerance, training: bool, calibrate) -> TrainingDraws | None:
+        """The draws of ``module`` (an ``EndToEndModule``: its seed, training depths, camera
+        and ideal framing): ``None`` unless ``training`` (``model.tolerance_training``); the
+        group ``tolerance`` (checked at start-up) is read either way; with ``calibrate``
+        (``"distortion"``, one training depth) each step's drawn lens is calibrated
+        (:class:`DistortionCalibration` on a 5 x 5 grid, ``grid:32``: coarser than the
+        evaluation's 9 x 9, ``grid:48``, measured twice every step)."""
+        tol = load_group(tolerance) if tolerance is not None else None
+        draws = cls(tol, module.seed) if training else None
+        if check_calibrate(calibrate, "model.calibrate") is not None:
+            if draws is None or len(module.depths_mm) != 1:
+                raise ValueError("model.calibrate: needs model.tolerance_training and a single "
+                                 "training depth")
+            draws.calibration = DistortionCalibration(module, module.depths_mm, nodes=5,
+                                                      sampling="grid:32")
+        return draws
 
     def __init__(self, model: ToleranceModel, run_seed: int, calibration=None):
         if not model:

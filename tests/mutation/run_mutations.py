@@ -428,7 +428,7 @@ MUTATIONS = [
              "deeplens/training/train.py", "_check_render, check_model_config,",
              "_check_render,", CONFIG),
     Mutation("soft_max_bins_unchecked", "model.worst_depth.bins no longer checked",
-             "deeplens/training/depth_weighting.py",
+             "deeplens/training/settings.py",
              "    if not (isinstance(K, int) and not isinstance(K, bool) and K >= 1):\n",
              "    if False:\n", CONFIG),
     # ------------------------------------------------ hardening, round three (issue 38)
