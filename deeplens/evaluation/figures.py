@@ -20,6 +20,9 @@ from pathlib import Path
 
 import torch
 
+from ..render.psf import psf
+from ..training.lens_setup import surface_height_map
+
 __all__ = ["write_figures"]
 
 
@@ -60,8 +63,6 @@ def run_psf(module, depth_mm: float, wavelengths_nm, kernel: int = 21,
     wavelengths summed, by the model its renderer uses: the diffraction kernels of its
     :class:`~deeplens.render.psf_model.PSFModel` when that chose ``diffraction`` (centre
     ``kernel`` pixels), else the geometric ray-traced PSF.  Returns ``(psf, model name)``."""
-    from ..render.psf import psf
-
     pm = getattr(getattr(module, "renderer", None), "psf_model", None)
     model = "geometric"
     if pm is not None and pm.choice is not None:
@@ -111,8 +112,6 @@ def psfs_figure(modules: dict, depths, kernel: int = 21, n_rays: int = 8192):
 
 
 def plates_figure(modules: dict, plate_surface: int):
-    from ..training.lens_setup import surface_height_map
-
     plt = _plt()
     names = list(modules)
     fig, axes = plt.subplots(1, len(names), squeeze=False, figsize=(2.6 * len(names), 2.6),

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import torch
 
+from ..design.plots import save
 from ..design.tolerance_model import ToleranceModel, drawn, load_group
 from ..optics.errors import ConfigError
 from ..training.tolerance import DistortionCalibration, check_calibrate
@@ -218,7 +219,6 @@ class EvalTolerance:
             return []
         from torch.utils.tensorboard import SummaryWriter
 
-        from ..design.plots import save
 
         fig = histogram_figure(self.summary, self.threshold_db)
         writer = SummaryWriter(str(Path(folder) / "tensorboard"))
