@@ -14,10 +14,14 @@ of sag, see :mod:`.lens_setup`); the optimisers are factories (``model.optimizer
 discriminator gets its own optimiser, and so that a non-finite loss or gradient stops training
 *before* the optimiser step, with the state just before it saved under ``checkpoints/``.
 
-Parts kept in their own files: the checks of the module's arguments (:mod:`.module_config`),
-the soft maximum over depth bins (:mod:`.depth_weighting`; its running means stay buffers of
-this module) and the non-finite guard (:mod:`.nonfinite`); ``NonFiniteLossError``,
-``check_learning_rate`` and ``MAX_LR`` are still importable from here.
+Parts kept in their own files: the checks of the module's arguments and its camera
+(:mod:`.module_config`), its dict settings (:mod:`.settings`: frozen dataclasses), the soft
+maximum over depth bins and the invariance penalty (:mod:`.depth_weighting`: modules owning
+their buffers, saved under the checkpoint names :data:`CHECKPOINT_NAMES`), the image loss
+terms (:mod:`.image_loss`), the per-depth metrics (:func:`.metrics.image_metrics`), the
+non-finite guard (:mod:`.nonfinite`) and the checks of a loaded checkpoint
+(:func:`.checkpoint.check_on_load`); ``NonFiniteLossError``, ``check_learning_rate`` and
+``MAX_LR`` are still importable from here.
 """
 
 from __future__ import annotations
@@ -27,20 +31,19 @@ import functools
 
 import lightning as L
 import torch
-from lightning.pytorch.utilities import rank_zero_info
 from kornia.color import rgb_to_grayscale
 
 from ..nets.losses import PerceptualLoss, adversarial_loss
-from ..optics.camera import Camera, as_camera
+from ..optics.camera import Camera
 from ..optics.errors import ConfigError
 from ..render import IdealCamera, Scene
 from . import compile_choice, image_loss
-from .checkpoint import LOADED_FROM, check_compatible, override_learning_rates
+from .checkpoint import LOADED_FROM, check_on_load
 from .constraints import SagDepartureConstraint
 from .depth_weighting import DepthSoftMax, InvariancePenalty
 from .lens_setup import optics_param_groups
 from .metrics import image_metrics, psnr
-from .module_config import MAX_LR, check_learning_rate, check_module_settings
+from .module_config import MAX_LR, check_learning_rate, check_module_settings, module_camera
 from .nonfinite import (NonFiniteLossError, nonfinite_grad, nonfinite_param, stop,
                         trained_parameters)
 from .scalars import training_scalars
@@ -143,7 +146,7 @@ class EndToEndModule(L.LightningModule):
                  tolerance_training: bool = False, calibrate: str | None = None,
                  optics_invariance: dict | None = None):
         super().__init__()
-        camera = self._camera_of(lens, sensor, renderer)
+        camera = module_camera(lens, sensor, renderer)
         self._held = (camera,)  # held, not registered: state-dict keys lens.*, as before
         lens, sensor = camera.lens, camera.sensor
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
@@ -211,23 +214,6 @@ class EndToEndModule(L.LightningModule):
         """The :class:`~deeplens.optics.camera.Camera` of every trace of a step (renderer and
         Wiener front end); ``module.camera.options = ...`` changes them all."""
         return self._held[0]
-
-    @staticmethod
-    def _camera_of(lens, sensor, renderer) -> Camera:
-        """The module's camera: ``lens`` if it is one, else the renderer's camera when it
-        holds this lens and sensor, else a new camera with the renderer's options."""
-        held = getattr(renderer, "camera", None)
-        if not isinstance(lens, Camera):
-            if isinstance(held, Camera) and held.lens is lens and held.sensor is sensor:
-                return held
-            lens = as_camera(lens, sensor, getattr(renderer, "options", None))
-        camera = as_camera(lens, sensor, where="EndToEndModule")
-        if isinstance(held, Camera) and held is not camera:
-            raise ValueError("EndToEndModule: the renderer renders through another camera than "
-                             "the module's; build the renderer with the module's camera")
-        if camera.sensor is None:
-            raise ValueError("EndToEndModule: the camera has no sensor (Camera(lens, sensor))")
-        return camera
 
     def sample_depths(self, n: int, step: int) -> list[float]:
         """Training depths: uniform in inverse depth over ``[min, max]`` (seeded by step)."""
@@ -413,21 +399,15 @@ class EndToEndModule(L.LightningModule):
         compile_choice.store(self, checkpoint)
 
     def on_load_checkpoint(self, checkpoint):
-        """Refuse a checkpoint of another experiment with a message naming its file; apply the
-        choice of tracer it stored (:mod:`.compile_choice`)."""
+        """Refuse a checkpoint of another experiment with a message naming its file (resuming:
+        this run's learning rates apply; :func:`.checkpoint.check_on_load`); apply the choice
+        of tracer it stored (:mod:`.compile_choice`)."""
         path = checkpoint.pop(LOADED_FROM, None)
         compile_choice.restore(self, checkpoint)
-        groups = None
-        if self._trainer is not None and self.trainer.state.fn == "fit":
-            groups = [g["name"] for g in self._param_groups()]
-        check_compatible(checkpoint, self, path, groups)
-        if groups is not None:  # resuming: this run's learning rates apply, and we say so
-            changed = override_learning_rates(checkpoint, [
-                self._param_groups(), [{"name": "discriminator", "lr": self.disc_lr}]])
-            if changed:
-                rank_zero_info(f"deeplens: resuming from {path or 'the checkpoint'} with this "
-                               f"run's learning rates, not the checkpoint's ("
-                               f"{'; '.join(changed)}); Adam's moment estimates are kept")
+        resuming = self._trainer is not None and self.trainer.state.fn == "fit"
+        check_on_load(checkpoint, self, path, [
+            self._param_groups(), [{"name": "discriminator", "lr": self.disc_lr}]]
+            if resuming else None)
 
     # ------------------------------------------------------------------ validation / test
     def _eval_step(self, batch, batch_idx, stage: str):

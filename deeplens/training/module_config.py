@@ -14,12 +14,13 @@ import math
 import torch
 from omegaconf import OmegaConf
 
+from ..optics.camera import Camera, as_camera
 from ..optics.errors import ConfigError
 from .settings import Invariance, SoftMax
 from .wiener import check_deconvolution
 
 __all__ = ["LOSS_DEFAULTS", "MAX_LR", "check_learning_rate", "check_model_config",
-           "check_module_settings"]
+           "check_module_settings", "module_camera"]
 
 #: largest accepted learning rates: Adam moves each weight by about ``lr`` per step, so a
 #: network rate above 1, or an optics step above 1 mm of sag, can only run away
@@ -121,3 +122,25 @@ def check_model_config(cfg) -> None:
     dtype = OmegaConf.select(cfg, "lens.dtype", default=None)
     if s["deconvolution"] is not None and dtype in ("float32", "float64"):
         check_deconvolution(s["deconvolution"], getattr(torch, dtype))
+
+
+def module_camera(lens, sensor, renderer) -> Camera:
+    """The camera of an :class:`~.module.EndToEndModule`: ``lens`` if it is one, else the
+    renderer's camera when it holds this lens and sensor, else a new camera with the
+    renderer's options.
+
+    Raises:
+        ValueError: the renderer renders through another camera, or the camera has no sensor.
+    """
+    held = getattr(renderer, "camera", None)
+    if not isinstance(lens, Camera):
+        if isinstance(held, Camera) and held.lens is lens and held.sensor is sensor:
+            return held
+        lens = as_camera(lens, sensor, getattr(renderer, "options", None))
+    camera = as_camera(lens, sensor, where="EndToEndModule")
+    if isinstance(held, Camera) and held is not camera:
+        raise ValueError("EndToEndModule: the renderer renders through another camera than "
+                         "the module's; build the renderer with the module's camera")
+    if camera.sensor is None:
+        raise ValueError("EndToEndModule: the camera has no sensor (Camera(lens, sensor))")
+    return camera
