@@ -1,7 +1,7 @@
 """Which deeplens is running: the version (``deeplens.__version__``) and, where it can be
 known, the commit: the git checkout the package is imported from, or the commit ``setup.py``
 recorded in the wheel (``deeplens/_resources/build.json``) when it was built from a checkout.
-An evaluation's table states it (:func:`deeplens.training.evaluate.provenance`), whatever the
+An evaluation's table states it (:func:`deeplens.evaluation.evaluate.provenance`), whatever the
 working directory of the run.
 """
 

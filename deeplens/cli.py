@@ -736,7 +736,7 @@ def _main(argv=None) -> int:
     if argv and argv[0] in _HYDRA_COMMANDS:     # Hydra parses its own command line
         if _missing(argv[0], "train"):
             return 2
-        from .training.entry import run
+        from .evaluation.entry import run
 
         run(argv[0], argv[1:])
         return 0

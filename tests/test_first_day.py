@@ -49,7 +49,7 @@ def test_train_without_hydra_names_the_train_extra(monkeypatch, capsys, cmd):
 
 
 def test_train_py_entry_without_lightning_names_the_train_extra(monkeypatch, capsys):
-    from deeplens.training.entry import run as entry_run
+    from deeplens.evaluation.entry import run as entry_run
 
     monkeypatch.setitem(sys.modules, "lightning", None)
     with pytest.raises(SystemExit) as e:
@@ -104,7 +104,7 @@ def clean_hydra():
 @pytest.mark.parametrize("kind", ["train", "eval"])
 def test_cfg_job_after_overrides_prints_the_composed_config(kind, capsys, clean_hydra):
     """``deeplens train experiment=doublet --cfg job``: the first thing a Hydra user types."""
-    from deeplens.training.entry import run as entry_run
+    from deeplens.evaluation.entry import run as entry_run
 
     entry_run(kind, ["experiment=doublet", "trainer.max_epochs=3", "--cfg", "job"])
     out = capsys.readouterr().out
@@ -114,7 +114,7 @@ def test_cfg_job_after_overrides_prints_the_composed_config(kind, capsys, clean_
 
 
 def test_cfg_hydra_names_the_job_after_the_command(capsys, clean_hydra):
-    from deeplens.training.entry import run as entry_run
+    from deeplens.evaluation.entry import run as entry_run
 
     entry_run("eval", ["experiment=doublet", "--cfg", "hydra"])
     out = capsys.readouterr().out
@@ -123,7 +123,7 @@ def test_cfg_hydra_names_the_job_after_the_command(capsys, clean_hydra):
 
 
 def test_info_after_overrides_works(capsys, clean_hydra):
-    from deeplens.training.entry import run as entry_run
+    from deeplens.evaluation.entry import run as entry_run
 
     entry_run("train", ["experiment=doublet", "--info", "defaults"])
     out = capsys.readouterr().out
@@ -137,7 +137,7 @@ def test_info_after_overrides_works(capsys, clean_hydra):
 ])
 def test_config_typo_suggests_the_key_before_any_folder(argv, expected, capsys, monkeypatch,
                                                         tmp_path, clean_hydra):
-    from deeplens.training.entry import run as entry_run
+    from deeplens.evaluation.entry import run as entry_run
 
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit) as e:
@@ -150,7 +150,7 @@ def test_config_typo_suggests_the_key_before_any_folder(argv, expected, capsys, 
 
 
 def test_missing_lens_is_one_line_before_any_folder(capsys, monkeypatch, tmp_path, clean_hydra):
-    from deeplens.training.entry import run as entry_run
+    from deeplens.evaluation.entry import run as entry_run
 
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit) as e:

@@ -215,10 +215,15 @@ class ToleranceModel:
         ConfigError: an unknown key, shape or unit, or a bad number; the message names the key.
 
     Example:
+        >>> from deeplens.optics import load_lens
+        >>> from deeplens.optics.paraxial import paraxial
+        >>> lens = load_lens("double_gauss")
         >>> tm = ToleranceModel({"decenter": {"shape": "normal", "std": 0.01, "truncate": 2}})
         >>> d = tm.draw(lens, seed=3)
-        >>> with drawn(lens, d):
-        ...     img = renderer(scene)
+        >>> with drawn(lens, d):            # anything traced here sees the drawn lens
+        ...     efl = paraxial(lens).efl    # (a decenter leaves the paraxial focal length)
+        >>> round(float(efl), 2)
+        27.44
     """
 
     def __init__(self, config: dict | None, where: str = "tolerance"):

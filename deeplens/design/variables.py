@@ -68,8 +68,12 @@ class Variables:
         ``scale``: ``(n,)`` float64 scales; ``labels``: one label per entry.
 
     Example:
+        >>> from deeplens.optics import load_lens
+        >>> lens = load_lens("double_gauss")
         >>> v = Variables(lens, "surfaces.0.c,surfaces.0.k")
-        >>> rms = v.call(lambda L: some_merit(L), v.x0())
+        >>> c = v.call(lambda L: L.surfaces[0].c, v.x0())   # any merit of the lens
+        >>> bool(c == lens.surfaces[0].c)
+        True
     """
 
     def __init__(self, lens, patterns, scales: dict | None = None, what: str = "--vary"):

@@ -96,7 +96,14 @@ class MonteCarloRenderer(HoldsCamera, nn.Module):
         seed: base seed; each call uses ``seed + call index`` unless ``seed=`` is passed.
 
     Example:
-        >>> img = MonteCarloRenderer(lens, sensor, spp=16)(Scene(texture, 5000.0))
+        >>> import torch
+        >>> from deeplens.optics import load_lens
+        >>> from deeplens.render import Scene, Sensor
+        >>> lens, sensor = load_lens("edof_achromat"), Sensor((16, 16), 0.0069)
+        >>> texture = torch.rand(1, 3, 32, 32)                   # (B, C, H, W)
+        >>> img = MonteCarloRenderer(lens, sensor, spp=16)(Scene(texture, [5000.0]))
+        >>> img.shape                                            # (B, C, H, W) of the sensor
+        torch.Size([1, 3, 16, 16])
     """
 
     def __init__(self, lens: Camera, sensor=None, spp: int = 16, vignetting: bool = True,

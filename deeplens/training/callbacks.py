@@ -17,11 +17,15 @@ import torch
 from lightning.pytorch.callbacks import Callback, ModelCheckpoint
 from lightning.pytorch.utilities import rank_zero_only
 from lightning.pytorch.utilities.exceptions import SIGTERMException
+from omegaconf import OmegaConf
 
+from ..analysis.plot import layout_figure
 from ..optics.errors import ConfigError
 from ..optics.io import save_lens
+from ..render.psf import psf
 from .checkpoint import AtomicCheckpointIO, CheckpointError
 from .lens_setup import surface_height_map
+from .psf_panels import psf_panels_figure
 
 __all__ = ["AtomicCheckpointIO", "LensCheckpoint", "ImageLogger", "check_callbacks_config",
            "check_image_logger"]
@@ -63,8 +67,6 @@ def check_image_logger(every_n_epochs=1, psf_rays=4096, depths_mm=(10_000.0,),
 def check_callbacks_config(cfg) -> None:
     """Start-up check of the callbacks' settings in a composed config (``callbacks.*``):
     those of every :class:`ImageLogger` (:func:`check_image_logger`)."""
-    from omegaconf import OmegaConf
-
     for name, node in (OmegaConf.select(cfg, "callbacks", default=None) or {}).items():
         if not node or node.get("_target_") != f"{__name__}.ImageLogger":
             continue
@@ -204,8 +206,6 @@ class ImageLogger(Callback):
             exp.add_image(f"images/{tag}", make_grid(rows, nrow=3, padding=2), step)
 
     def _log_psfs(self, exp, m, step):
-        from ..render.psf import psf
-
         lens, sensor = m.lens, m.sensor
         w = sensor.mono_wavelength_nm
         kmax = 0
@@ -223,16 +223,12 @@ class ImageLogger(Callback):
                         ks.append(torch.zeros(3, 3))
             kmax = max(k.shape[-1] for k in ks)
         if ks:
-            from .psf_panels import psf_panels_figure
-
             fig = psf_panels_figure([torch.nn.functional.pad(k, ((kmax - k.shape[-1]) // 2,) * 4)
                                      for k in ks], self.depths_mm, self.fields_deg, w,
                                     sensor.pixel_size_mm)
             exp.add_figure("psf/depth_rows_field_cols", fig, step, close=True)
 
     def _log_lens(self, exp, m, step):
-        from ..analysis.plot import layout_figure
-
         lens = m.lens
         if self.plate_surface is not None:
             h = surface_height_map(lens.surfaces[self.plate_surface])

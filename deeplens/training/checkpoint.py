@@ -26,13 +26,13 @@ from pathlib import Path
 
 import torch
 from lightning.pytorch.plugins.io import TorchCheckpointIO
+from lightning.pytorch.utilities import rank_zero_info
 
 from ..optics.io import atomic
 
-__all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "checksum_path",
-           "check_structure", "migrate_missing_buffers", "override_learning_rates",
-           "read_checkpoint", "sha256_file", "temp_path", "write_checkpoint",
-           "write_text_atomic"]
+__all__ = ["AtomicCheckpointIO", "CheckpointError", "check_compatible", "check_on_load",
+           "checksum_path", "check_structure", "migrate_missing_buffers", "override_learning_rates",
+           "read_checkpoint", "sha256_file", "temp_path", "write_checkpoint", "write_text_atomic"]
 
 #: key under which :class:`AtomicCheckpointIO` records the file a loaded checkpoint came from
 LOADED_FROM = "deeplens_loaded_from"
@@ -373,6 +373,21 @@ def migrate_missing_buffers(state_dict: dict, module, path=None) -> list[str]:
                       f"({_summary(done)}): migrated with their defaults (no obscuration, a "
                       f"centred aperture: what that version traced)", stacklevel=2)
     return done
+
+
+def check_on_load(checkpoint: dict, module, path, resume_groups=None) -> None:
+    """A checkpoint being loaded into ``module`` checked (:func:`check_compatible`: another
+    experiment's is refused, naming ``path``); when resuming (``resume_groups``: the run's
+    ``[[optimiser param groups], ...]``, ``None`` when not fitting) this run's learning rates
+    replace the checkpoint's (:func:`override_learning_rates`), which is said once."""
+    groups = None if resume_groups is None else [g["name"] for g in resume_groups[0]]
+    check_compatible(checkpoint, module, path, groups)
+    if resume_groups is not None:
+        changed = override_learning_rates(checkpoint, resume_groups)
+        if changed:
+            rank_zero_info(f"deeplens: resuming from {path or 'the checkpoint'} with this "
+                           f"run's learning rates, not the checkpoint's ("
+                           f"{'; '.join(changed)}); Adam's moment estimates are kept")
 
 
 def check_compatible(checkpoint: dict, module, path=None, optimizer_groups=None) -> None:

@@ -15,6 +15,8 @@ import hashlib
 import os
 from pathlib import Path
 
+from ..optics.errors import LensFileError
+from ..optics.io.zmx_glass import catalogue_files
 from .checkpoint import sha256_file
 
 __all__ = ["digest_path", "input_digests", "zmx_catalogue_digests"]
@@ -47,9 +49,6 @@ def zmx_catalogue_digests(path, glass_catalogs=(), prefix: str = "lens.path"
     :func:`~deeplens.optics.io.zmx_glass.catalogue_files`): an edited glass changes the key of
     the runs made with the lens although the ``.zmx`` is unchanged.  A file that cannot be
     parsed gives none (reading the lens reports it)."""
-    from ..optics.errors import LensFileError
-    from ..optics.io.zmx_glass import catalogue_files
-
     try:
         files = catalogue_files(path, [c for c in glass_catalogs if isinstance(c, str)])
     except (LensFileError, OSError):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from kornia.metrics import ssim as kornia_ssim
 
-__all__ = ["psnr", "ssim", "band_masks", "masked_psnr", "masked_ssim"]
+__all__ = ["psnr", "ssim", "band_masks", "image_metrics", "masked_psnr", "masked_ssim"]
 
 
 def psnr(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -49,7 +49,24 @@ def masked_psnr(pred, target, mask) -> torch.Tensor:
 
 def masked_ssim(pred, target, mask, window: int = 11) -> torch.Tensor:
     """Mean of the SSIM map over the pixels of ``mask``."""
-    from kornia.metrics import ssim as _ssim
-
-    smap = _ssim(pred.clamp(0, 1), target, window).mean(1)  # (B, H, W)
+    smap = kornia_ssim(pred.clamp(0, 1), target, window).mean(1)  # (B, H, W)
     return smap[:, mask.to(pred.device)].mean()
+
+
+def image_metrics(stage: str, tag: str, y, gt, pred, field_bands=None) -> dict:
+    """The logged metrics of one depth of a ``stage`` (``val``/``test``) batch:
+    ``{stage}/{psnr,ssim}_{sensor,restored}/{tag}`` of the sensor image ``y`` and the restored
+    ``pred`` against ``gt`` (each ``(B, C, H, W)``), and the same per field band
+    (``.../band<lo>-<hi>``) when ``field_bands`` are given."""
+    log = {f"{stage}/psnr_sensor/{tag}": psnr(y, gt),
+           f"{stage}/psnr_restored/{tag}": psnr(pred, gt),
+           f"{stage}/ssim_sensor/{tag}": ssim(y, gt),
+           f"{stage}/ssim_restored/{tag}": ssim(pred, gt)}
+    if field_bands:
+        for k, m in enumerate(band_masks(gt.shape[-2:], field_bands)):
+            b = f"band{field_bands[k]:g}-{field_bands[k + 1]:g}"
+            log[f"{stage}/psnr_sensor/{b}"] = masked_psnr(y, gt, m)
+            log[f"{stage}/psnr_restored/{b}"] = masked_psnr(pred, gt, m)
+            log[f"{stage}/ssim_sensor/{b}"] = masked_ssim(y, gt, m)
+            log[f"{stage}/ssim_restored/{b}"] = masked_ssim(pred, gt, m)
+    return log

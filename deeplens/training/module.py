@@ -14,41 +14,62 @@ of sag, see :mod:`.lens_setup`); the optimisers are factories (``model.optimizer
 discriminator gets its own optimiser, and so that a non-finite loss or gradient stops training
 *before* the optimiser step, with the state just before it saved under ``checkpoints/``.
 
-Parts kept in their own files: the checks of the module's arguments (:mod:`.module_config`),
-the soft maximum over depth bins (:mod:`.depth_weighting`; its running means stay buffers of
-this module) and the non-finite guard (:mod:`.nonfinite`); ``NonFiniteLossError``,
-``check_learning_rate``, ``MAX_LR`` and ``SOFT_MAX_DEFAULTS`` are still importable from here.
+Parts kept in their own files: the checks of the module's arguments and its camera
+(:mod:`.module_config`), its dict settings (:mod:`.settings`: frozen dataclasses), the soft
+maximum over depth bins and the invariance penalty (:mod:`.depth_weighting`: modules owning
+their buffers, saved under the checkpoint names :data:`CHECKPOINT_NAMES`), the image loss
+terms (:mod:`.image_loss`), the per-depth metrics (:func:`.metrics.image_metrics`), the
+non-finite guard (:mod:`.nonfinite`) and the checks of a loaded checkpoint
+(:func:`.checkpoint.check_on_load`); ``NonFiniteLossError``, ``check_learning_rate`` and
+``MAX_LR`` are still importable from here.
 """
 
 from __future__ import annotations
 
 import contextlib
 import functools
-from pathlib import Path
 
 import lightning as L
 import torch
-from lightning.pytorch.utilities import rank_zero_info
-import torch.nn.functional as F
 from kornia.color import rgb_to_grayscale
-from kornia.metrics import ssim as kornia_ssim
 
-from ..optics.camera import Camera, as_camera
+from ..nets.losses import PerceptualLoss, adversarial_loss
+from ..optics.camera import Camera
 from ..optics.errors import ConfigError
 from ..render import IdealCamera, Scene
-from . import compile_choice
-from .checkpoint import LOADED_FROM, check_compatible, override_learning_rates
+from . import compile_choice, image_loss
+from .checkpoint import LOADED_FROM, check_on_load
 from .constraints import SagDepartureConstraint
-from .depth_weighting import SOFT_MAX_DEFAULTS, depth_bin, soft_max_weights
+from .depth_weighting import DepthSoftMax, InvariancePenalty
 from .lens_setup import optics_param_groups
-from .metrics import band_masks, masked_psnr, masked_ssim, psnr, ssim
-from .module_config import MAX_LR, check_learning_rate, check_module_settings
-from .nonfinite import NonFiniteLossError, nonfinite_grad, nonfinite_param, stop
+from .metrics import image_metrics, psnr
+from .module_config import MAX_LR, check_learning_rate, check_module_settings, module_camera
+from .nonfinite import (NonFiniteLossError, nonfinite_grad, nonfinite_param, stop,
+                        trained_parameters)
 from .scalars import training_scalars
+from .tolerance import TrainingDraws
+from .wiener import DepthWienerFilter
 
-# moved to depth_weighting.py / module_config.py / nonfinite.py, still importable from here
-__all__ = ["EndToEndModule", "MAX_LR", "NonFiniteLossError", "SOFT_MAX_DEFAULTS",
-           "check_learning_rate"]
+# moved to module_config.py / nonfinite.py, still importable from here
+__all__ = ["EndToEndModule", "MAX_LR", "NonFiniteLossError", "check_learning_rate"]
+
+#: the checkpoint names of the buffers the settings' modules own (the names checkpoints have
+#: always had): ``{name in the module: name in a checkpoint}``
+CHECKPOINT_NAMES = {"depth_softmax.loss_ema": "depth_loss_ema",
+                    "optics_depth_softmax.loss_ema": "optics_depth_loss_ema",
+                    "invariance.ref": "invariance_ref"}
+
+
+def _to_checkpoint_names(module, state_dict, prefix, local_metadata):
+    for ours, theirs in CHECKPOINT_NAMES.items():
+        if prefix + ours in state_dict:
+            state_dict[prefix + theirs] = state_dict.pop(prefix + ours)
+
+
+def _from_checkpoint_names(state_dict, prefix, *args):
+    for ours, theirs in CHECKPOINT_NAMES.items():
+        if prefix + theirs in state_dict:
+            state_dict[prefix + ours] = state_dict.pop(prefix + theirs)
 
 
 class EndToEndModule(L.LightningModule):
@@ -85,33 +106,24 @@ class EndToEndModule(L.LightningModule):
             its initial shape within ``max_sag_mm`` over the aperture (quadratic penalty, weight
             ``loss["constraint"]``; :mod:`.constraints`).
         seed: the run's seed (training depths and render/noise seeds derive from it and the step).
-        worst_depth: ``None`` (the image loss is the plain mean over the batch) or
-            ``{"temperature": T, "bins": K, "momentum": m}``: a soft maximum over depths.  The
-            training range is cut into ``K`` bins uniform in 1/depth; each bin keeps a running
-            mean ``E_b`` (momentum ``m``) of the per-image loss of its samples, and a sample of
-            bin ``b`` is weighted by ``K softmax_b(log E_b / T)`` (mean weight 1 over bins, so
-            ``T -> inf`` is the plain mean and small ``T`` trains on the worst bin).  Weights
-            the MSE, L1 and SSIM terms; the running means are a checkpointed buffer.
-        deconvolution: ``None`` (the restorer sees the sensor image) or the keyword arguments
-            of a :class:`~.wiener.DepthWienerFilter` (``{"depths", "rays", "nsr",
-            "learn_nsr"}``): the sensor image is first deconvolved with the depth-averaged
-            Wiener filter of the current lens (PSF-aware restoration), and the restorer
-            refines that.  Its noise-to-signal ratio trains with the network.
+        worst_depth: ``None`` (the image loss is the plain mean over the batch) or the mapping
+            of a :class:`~.settings.SoftMax`: the MSE, L1 and SSIM terms weighted per sample
+            by a soft maximum over depth bins (running means: a checkpointed buffer).
+        deconvolution: ``None`` (the restorer sees the sensor image) or the mapping of a
+            :class:`~.wiener.Deconvolution`: the sensor image is first deconvolved with the
+            depth-averaged Wiener filter of the current lens (:class:`~.wiener.DepthWienerFilter`;
+            its noise-to-signal ratio trains with the network), and the restorer refines that.
         optics_warmup_steps: ``None``/0, or the optics stay fixed for this many first steps (their gradients
             are dropped), so that the restorer learns to decode the starting optics before
             the optics' gradient is trusted (e.g. a learned plate started from a cubic one).
-        optics_invariance: ``None`` or ``{"weight": w, "slack": s}`` (needs
-            ``deconvolution``): while the optics move, the loss gains ``w relu(R / R_0 - 1 -
-            s)^2``, ``R`` the fraction of the OTF's power that changes over the training depths
-            (:func:`~.wiener.depth_change`, from the Wiener front end's PSFs of the same step)
-            and ``R_0`` its value at the first step the optics move: the optics may change
-            anything except become less depth-invariant than they started (by more than the
-            fraction ``s``).  Logged as ``train/loss_invariance`` and ``train/psf_depth_change``.
-        optics_worst_depth: ``None`` or ``{"temperature", "bins", "momentum"}`` as for
+        optics_invariance: ``None`` or the mapping of a :class:`~.settings.Invariance` (needs
+            ``deconvolution``): while the optics move, the loss gains the penalty of
+            :class:`~.depth_weighting.InvariancePenalty` (logged as ``train/loss_invariance``
+            and ``train/psf_depth_change``).
+        optics_worst_depth: ``None`` or a :class:`~.settings.SoftMax` mapping as for
             ``worst_depth``, applied to the optics' gradient only: the loss stays the plain
-            mean (the restorer learns every depth), and each sample's gradient flowing back
-            into the optics (and the deconvolution front end) is scaled by its depth bin's
-            soft-maximum weight, so the optics are designed for the worst depth.
+            mean, and each sample's gradient flowing back into the optics (and the
+            deconvolution front end) is scaled by its bin's weight.
         tolerance, tolerance_training: the tolerance group (a mapping, group name or file;
             :mod:`.tolerance`) and whether every training batch renders through its own lens
             drawn from it around the current nominal lens (gradients reach the nominal values).
@@ -134,7 +146,7 @@ class EndToEndModule(L.LightningModule):
                  tolerance_training: bool = False, calibrate: str | None = None,
                  optics_invariance: dict | None = None):
         super().__init__()
-        camera = self._camera_of(lens, sensor, renderer)
+        camera = module_camera(lens, sensor, renderer)
         self._held = (camera,)  # held, not registered: state-dict keys lens.*, as before
         lens, sensor = camera.lens, camera.sensor
         self.lens, self.sensor, self.renderer, self.restorer = lens, sensor, renderer, restorer
@@ -151,8 +163,6 @@ class EndToEndModule(L.LightningModule):
             optics_invariance=optics_invariance)
         self.loss_w = cfg["loss"]
         if self.loss_w["perceptual"] > 0 and perceptual is None:
-            from ..nets.losses import PerceptualLoss
-
             perceptual = PerceptualLoss(weights_path=perceptual_weights)
             self.perceptual = perceptual
         self.net_lr = cfg["net_lr"]
@@ -167,52 +177,35 @@ class EndToEndModule(L.LightningModule):
         self.automatic_optimization = False
         self.ideal = IdealCamera(lens, sensor)  # the ground truth's framing
         self.constraint = SagDepartureConstraint(lens, max_sag_mm)
+        # the soft maxima over depth (their running means: buffers of their own modules)
         self.worst_depth = cfg["worst_depth"]
-        if self.worst_depth is not None:
-            # running mean loss per depth bin; -1 until the bin's first sample
-            self.register_buffer("depth_loss_ema", torch.full(
-                (self.worst_depth["bins"],), -1.0, dtype=torch.float64))
+        self.depth_softmax = (None if self.worst_depth is None
+                              else DepthSoftMax(self.worst_depth, self.depths_mm))
         # frozen optics: no gradient to weigh (optics_worst_depth), nothing to constrain
         # (optics_invariance)
         optics_frozen = not any(p.requires_grad for p in lens.parameters())
         self.optics_worst_depth = None if optics_frozen else cfg["optics_worst_depth"]
-        if self.optics_worst_depth is not None:
-            self.register_buffer("optics_depth_loss_ema", torch.full(
-                (self.optics_worst_depth["bins"],), -1.0, dtype=torch.float64))
+        self.optics_depth_softmax = (None if self.optics_worst_depth is None
+                                     else DepthSoftMax(self.optics_worst_depth, self.depths_mm))
+        self._register_state_dict_hook(_to_checkpoint_names)
+        self._register_load_state_dict_pre_hook(_from_checkpoint_names)
         self.deconv = None
         if cfg["deconvolution"] is not None:
-            from .wiener import DepthWienerFilter
-
             self.deconv = DepthWienerFilter(camera, None, self.depths_mm, **cfg["deconvolution"],
                                             psf_model=getattr(renderer, "psf_model", None))
         self.optics_invariance = None if optics_frozen else cfg["optics_invariance"]
         if self.optics_invariance is not None and len(set(self.depths_mm)) < 2:
             raise ConfigError("model.optics_invariance", "null with one training depth (no PSF "
                               "change over depth to hold)", optics_invariance)
-        if self.optics_invariance is not None:
-            # the PSF change over depth R (wiener.depth_change) of the optics when they start
-            # moving; -1 until then.  Checkpointed: a resumed run keeps its reference.
-            self.register_buffer("invariance_ref", torch.tensor(-1.0, dtype=torch.float64))
-        self._depth_change = None  # this step's R, for the log
+        # its reference R_0 is a buffer of its own (checkpointed: a resumed run keeps it)
+        self.invariance = (None if self.optics_invariance is None
+                           else InvariancePenalty(self.optics_invariance))
         # model.tolerance_training: every training batch through its own drawn lens (tolerance.py)
-        from .tolerance import TrainingDraws, load_group
-
-        tol = load_group(tolerance) if tolerance is not None else None  # checked at start-up
-        self.tolerance_draws = TrainingDraws(tol, self.seed) if tolerance_training else None
-        from .tolerance_eval import check_calibrate
-
-        if check_calibrate(calibrate, "model.calibrate") is not None:
-            from .tolerance_eval import DistortionCalibration
-
-            if self.tolerance_draws is None or len(self.depths_mm) != 1:
-                raise ValueError("model.calibrate: needs model.tolerance_training and a single "
-                                 "training depth")
-            # coarser than the evaluation's map (9 x 9, grid:48): measured twice every step
-            self.tolerance_draws.calibration = DistortionCalibration(
-                self, self.depths_mm, nodes=5, sampling="grid:32")
+        self.tolerance_draws = TrainingDraws.of_module(self, tolerance, tolerance_training,
+                                                       calibrate)
         self.val_vis = None  # (gt, sensor, restored) of the first validation batch, for callbacks
         # per-unit calibration under test: None, or (restored (B, C, H, W), depth_mm) -> the
-        # restored image registered to the nominal lens's mapping (tolerance_eval.py)
+        # restored image registered to the nominal lens's mapping (tolerance.DistortionCalibration)
         self.calibration = None
 
     # ------------------------------------------------------------------ the camera
@@ -221,23 +214,6 @@ class EndToEndModule(L.LightningModule):
         """The :class:`~deeplens.optics.camera.Camera` of every trace of a step (renderer and
         Wiener front end); ``module.camera.options = ...`` changes them all."""
         return self._held[0]
-
-    @staticmethod
-    def _camera_of(lens, sensor, renderer) -> Camera:
-        """The module's camera: ``lens`` if it is one, else the renderer's camera when it
-        holds this lens and sensor, else a new camera with the renderer's options."""
-        held = getattr(renderer, "camera", None)
-        if not isinstance(lens, Camera):
-            if isinstance(held, Camera) and held.lens is lens and held.sensor is sensor:
-                return held
-            lens = as_camera(lens, sensor, getattr(renderer, "options", None))
-        camera = as_camera(lens, sensor, where="EndToEndModule")
-        if isinstance(held, Camera) and held is not camera:
-            raise ValueError("EndToEndModule: the renderer renders through another camera than "
-                             "the module's; build the renderer with the module's camera")
-        if camera.sensor is None:
-            raise ValueError("EndToEndModule: the camera has no sensor (Camera(lens, sensor))")
-        return camera
 
     def sample_depths(self, n: int, step: int) -> list[float]:
         """Training depths: uniform in inverse depth over ``[min, max]`` (seeded by step)."""
@@ -280,67 +256,15 @@ class EndToEndModule(L.LightningModule):
         """The lens constraint (:class:`~.constraints.SagDepartureConstraint`) now."""
         return self.constraint(self.lens)
 
-    def depth_bin(self, depths, bins: int | None = None) -> torch.Tensor:
-        """Index ``(B,)`` of each depth's bin: ``bins`` (default ``worst_depth``'s) equal
-        intervals of 1/depth over the training range (bin 0 the farthest;
-        :func:`.depth_weighting.depth_bin`)."""
-        return depth_bin(self.depths_mm, depths,
-                         bins if bins is not None else self.worst_depth["bins"])
-
-    def depth_weights(self, per_image: torch.Tensor, depths, which: str = "worst_depth"
-                      ) -> torch.Tensor:
-        """Sample weights ``(B,)`` of the soft maximum over depth bins (see ``worst_depth``;
-        ``which="optics_worst_depth"`` for the optics' setting and running means); updates
-        the bins' running means with ``per_image`` ``(B,)`` (detached) first
-        (:func:`.depth_weighting.soft_max_weights`)."""
-        wd = getattr(self, which)
-        buf = self.depth_loss_ema if which == "worst_depth" else self.optics_depth_loss_ema
-        bins = self.depth_bin(depths, wd["bins"]).to(buf.device)
-        return soft_max_weights(buf, wd, bins, per_image)
-
-    def _per_image_terms(self, pred, gt) -> dict:
-        """The MSE, L1 and (1 - SSIM) terms with a non-zero weight, per image ``(B,)``."""
-        w = self.loss_w
-        per = {}
-        if w["mse"]:
-            per["mse"] = ((pred - gt) ** 2).flatten(1).mean(1)
-        if w["l1"]:
-            per["l1"] = (pred - gt).abs().flatten(1).mean(1)
-        if w["ssim"]:
-            per["ssim"] = 1 - kornia_ssim(pred.clamp(0, 1), gt, 11).flatten(1).mean(1)
-        return per
-
     def per_image_loss(self, pred, gt) -> torch.Tensor:
         """The weighted MSE + L1 + SSIM loss of each image ``(B,)``, detached."""
-        with torch.no_grad():
-            total = torch.zeros(pred.shape[0], dtype=pred.dtype, device=pred.device)
-            for k, v in self._per_image_terms(pred, gt).items():
-                total = total + self.loss_w[k] * v
-        return total
+        return image_loss.per_image(self.loss_w, pred, gt)
 
     def image_loss(self, pred, gt, depths=None) -> dict:
-        """Loss terms; with ``worst_depth`` and ``depths`` given, the MSE, L1 and SSIM terms
-        are weighted per sample (:meth:`depth_weights`, from their weighted per-image sum)."""
-        w = self.loss_w
-        terms = {}
-        if self.worst_depth is not None and depths is not None:
-            per = self._per_image_terms(pred, gt)
-            if per:
-                total = sum(w[k] * v for k, v in per.items())
-                sw = self.depth_weights(total, depths)
-                terms.update({k: (sw * v).mean() for k, v in per.items()})
-        else:
-            if w["mse"]:
-                terms["mse"] = F.mse_loss(pred, gt)
-            if w["l1"]:
-                terms["l1"] = F.l1_loss(pred, gt)
-            if w["ssim"]:
-                terms["ssim"] = 1 - ssim(pred, gt)
-        if w["perceptual"]:
-            if pred.shape[1] == 1:  # VGG16 takes RGB: a grey image is its own three channels
-                pred, gt = pred.expand(-1, 3, -1, -1), gt.expand(-1, 3, -1, -1)
-            terms["perceptual"] = self.perceptual(pred, gt)
-        return terms
+        """Loss terms (:func:`.image_loss.terms`); with ``worst_depth`` and ``depths`` given,
+        the MSE, L1 and SSIM terms are weighted per sample by the soft maximum over depth."""
+        return image_loss.terms(self.loss_w, pred, gt, depths, self.depth_softmax,
+                                self.perceptual)
 
     # ------------------------------------------------------------------ training
     def training_step(self, batch, batch_idx):
@@ -363,23 +287,21 @@ class EndToEndModule(L.LightningModule):
                 self.manual_backward(loss)
         if not finite:  # (outside the drawn lens: the stop saves the nominal one)
             detail = ", ".join(f"{k}={float(v.detach()):.4g}" for k, v in terms.items())
-            self._stop(step, f"non-finite loss {float(loss)} at step {step} ({detail})")
-        bad = self._nonfinite_grad()
+            stop(self, step, f"non-finite loss {float(loss)} at step {step} ({detail})")
+        bad = nonfinite_grad(trained_parameters(self))
         if bad:
             opt_g.zero_grad(set_to_none=True)
-            self._stop(step, f"non-finite gradient of {bad} at step {step}")
+            stop(self, step, f"non-finite gradient of {bad} at step {step}")
         if step < self.optics_warmup_steps:  # optics fixed: Adam skips parameters without grad
             for p in self.lens.parameters():
                 p.grad = None
         opt_g.step()
-        bad = self._nonfinite_param()
+        bad = nonfinite_param(trained_parameters(self))
         if bad:  # cannot happen with finite gradients and a bounded Adam rate; say so if it does
             raise NonFiniteLossError(f"{bad} became non-finite in the optimiser step at step "
                                      f"{step} (learning rate too large?); the last good state "
                                      f"is the last checkpoint")
         if self.discriminator is not None and self.loss_w["adversarial"]:
-            from ..nets.losses import adversarial_loss
-
             opt_d = opts[1]
             d_loss = 0.5 * (adversarial_loss(self.discriminator(gt), True)
                             + adversarial_loss(self.discriminator(pred.detach()), False))
@@ -392,9 +314,9 @@ class EndToEndModule(L.LightningModule):
         # the terms as minimised (train/loss_ssim is 1 - SSIM; val/ssim_* is SSIM itself)
         self.log_dict({f"train/loss_{k}": v for k, v in terms.items()}, batch_size=n)
         self.log_dict(training_scalars(opt_g, self.deconv), batch_size=n)
-        if self._depth_change is not None:
-            self.log("train/psf_depth_change", self._depth_change, batch_size=n)
-            self._depth_change = None
+        if self.invariance is not None and self.invariance.last is not None:
+            self.log("train/psf_depth_change", self.invariance.last, batch_size=n)
+            self.invariance.last = None
         self.log("train/psnr_restored", psnr(pred.detach(), gt), batch_size=n)
         self.log("train/psnr_sensor", psnr(y, gt), batch_size=n)
         return loss.detach()
@@ -417,25 +339,13 @@ class EndToEndModule(L.LightningModule):
                 x = self.deconv(y)
         loss, terms, y, gt, pred = self.restore_loss(depths, y, gt, x)
         if moments is not None:
-            pen = self.invariance_penalty(*moments)
+            pen = self.invariance(*moments)
             terms["invariance"] = pen
-            loss = loss + self.optics_invariance["weight"] * pen
+            loss = loss + self.optics_invariance.weight * pen
         return loss, terms, y, gt, pred
 
     def _optics_moving(self) -> bool:
         return torch.is_grad_enabled() and any(p.requires_grad for p in self.lens.parameters())
-
-    def invariance_penalty(self, ch: torch.Tensor, h2: torch.Tensor) -> torch.Tensor:
-        """``relu(R / R_0 - 1 - slack)^2`` (``optics_invariance``) from this step's OTF
-        moments; the first call sets ``R_0`` (buffer ``invariance_ref``) to this ``R``."""
-        from .wiener import depth_change
-
-        R = depth_change(ch, h2)
-        self._depth_change = float(R.detach())
-        if float(self.invariance_ref) < 0:
-            self.invariance_ref.fill_(float(R.detach()))
-        ref = self.invariance_ref.to(R.dtype).clamp_min(1e-12)
-        return F.relu(R / ref - 1 - self.optics_invariance["slack"]) ** 2
 
     def drawn_lens(self, step: int):
         """The context in which ``self.lens`` is the lens drawn for ``step`` under
@@ -470,45 +380,12 @@ class EndToEndModule(L.LightningModule):
             pred = register(pred, self.depths_mm[0])
         terms = self.image_loss(pred, gt, depths)
         if scale is not None:
-            scale["w"] = self.depth_weights(self.per_image_loss(pred, gt), depths,
-                                            "optics_worst_depth")
+            scale["w"] = self.optics_depth_softmax(self.per_image_loss(pred, gt), depths)
         if self.discriminator is not None and self.loss_w["adversarial"]:
-            from ..nets.losses import adversarial_loss
-
             terms["adversarial"] = adversarial_loss(self.discriminator(pred), True)
         terms["constraint"] = self.constraint_loss()
         loss = sum(self.loss_w[k] * v for k, v in terms.items())
         return loss, terms, y, gt, pred
-
-    def _named_trained(self):
-        yield from ((f"lens.{n}", p) for n, p in self.lens.named_parameters())
-        yield from ((f"restorer.{n}", p) for n, p in self.restorer.named_parameters())
-        if self.deconv is not None:
-            yield from ((f"deconv.{n}", p) for n, p in self.deconv.named_parameters())
-
-    def _nonfinite_grad(self) -> str | None:
-        """Name of the first trainable parameter whose gradient is NaN or infinite."""
-        return nonfinite_grad(self._named_trained())
-
-    def _nonfinite_param(self) -> str | None:
-        """Name of the first trainable parameter whose value is NaN or infinite."""
-        return nonfinite_param(self._named_trained())
-
-    def checkpoint_dir(self) -> Path | None:
-        """Where this run writes checkpoints: the checkpoint callback's folder, else
-        ``<default_root_dir>/checkpoints``; ``None`` without a trainer."""
-        t = self._trainer
-        if t is None:
-            return None
-        cb = t.checkpoint_callback
-        if cb is not None and getattr(cb, "dirpath", None):
-            return Path(cb.dirpath)
-        return Path(t.default_root_dir) / "checkpoints"
-
-    def _stop(self, step: int, what: str):
-        """Save the state this step started from as ``checkpoints/nonfinite_step<step>.ckpt``
-        and raise :class:`NonFiniteLossError` (:func:`.nonfinite.stop`)."""
-        stop(self, step, what)
 
     def on_train_batch_start(self, batch, batch_idx):
         compile_choice.begin_step(self)
@@ -522,21 +399,15 @@ class EndToEndModule(L.LightningModule):
         compile_choice.store(self, checkpoint)
 
     def on_load_checkpoint(self, checkpoint):
-        """Refuse a checkpoint of another experiment with a message naming its file; apply the
-        choice of tracer it stored (:mod:`.compile_choice`)."""
+        """Refuse a checkpoint of another experiment with a message naming its file (resuming:
+        this run's learning rates apply; :func:`.checkpoint.check_on_load`); apply the choice
+        of tracer it stored (:mod:`.compile_choice`)."""
         path = checkpoint.pop(LOADED_FROM, None)
         compile_choice.restore(self, checkpoint)
-        groups = None
-        if self._trainer is not None and self.trainer.state.fn == "fit":
-            groups = [g["name"] for g in self._param_groups()]
-        check_compatible(checkpoint, self, path, groups)
-        if groups is not None:  # resuming: this run's learning rates apply, and we say so
-            changed = override_learning_rates(checkpoint, [
-                self._param_groups(), [{"name": "discriminator", "lr": self.disc_lr}]])
-            if changed:
-                rank_zero_info(f"deeplens: resuming from {path or 'the checkpoint'} with this "
-                               f"run's learning rates, not the checkpoint's ("
-                               f"{'; '.join(changed)}); Adam's moment estimates are kept")
+        resuming = self._trainer is not None and self.trainer.state.fn == "fit"
+        check_on_load(checkpoint, self, path, [
+            self._param_groups(), [{"name": "discriminator", "lr": self.disc_lr}]]
+            if resuming else None)
 
     # ------------------------------------------------------------------ validation / test
     def _eval_step(self, batch, batch_idx, stage: str):
@@ -557,19 +428,7 @@ class EndToEndModule(L.LightningModule):
             y, gt, pred = y_all[sl], gt_all[sl], pred_all[sl]
             tag = f"d{d:g}mm"
             out[tag] = (gt, y, pred)
-            log = {f"{stage}/psnr_sensor/{tag}": psnr(y, gt),
-                   f"{stage}/psnr_restored/{tag}": psnr(pred, gt),
-                   f"{stage}/ssim_sensor/{tag}": ssim(y, gt),
-                   f"{stage}/ssim_restored/{tag}": ssim(pred, gt)}
-            if self.field_bands:
-                masks = band_masks(gt.shape[-2:], self.field_bands)
-                for k, m in enumerate(masks):
-                    b = f"band{self.field_bands[k]:g}-{self.field_bands[k + 1]:g}"
-                    log[f"{stage}/psnr_sensor/{b}"] = masked_psnr(y, gt, m)
-                    log[f"{stage}/psnr_restored/{b}"] = masked_psnr(pred, gt, m)
-                    log[f"{stage}/ssim_sensor/{b}"] = masked_ssim(y, gt, m)
-                    log[f"{stage}/ssim_restored/{b}"] = masked_ssim(pred, gt, m)
-            self.log_dict(log, batch_size=B)
+            self.log_dict(image_metrics(stage, tag, y, gt, pred, self.field_bands), batch_size=B)
         self.log(f"{stage}/psnr_restored", torch.stack(
             [psnr(v[2], v[0]) for v in out.values()]).mean(), prog_bar=stage == "val",
             batch_size=B)

@@ -11,11 +11,16 @@ from __future__ import annotations
 
 import math
 
-from ..optics.errors import ConfigError
-from .depth_weighting import soft_max_setting
+import torch
+from omegaconf import OmegaConf
 
-__all__ = ["INVARIANCE_DEFAULTS", "LOSS_DEFAULTS", "MAX_LR", "check_invariance",
-           "check_learning_rate", "check_model_config", "check_module_settings"]
+from ..optics.camera import Camera, as_camera
+from ..optics.errors import ConfigError
+from .settings import Invariance, SoftMax
+from .wiener import check_deconvolution
+
+__all__ = ["LOSS_DEFAULTS", "MAX_LR", "check_learning_rate", "check_model_config",
+           "check_module_settings", "module_camera"]
 
 #: largest accepted learning rates: Adam moves each weight by about ``lr`` per step, so a
 #: network rate above 1, or an optics step above 1 mm of sag, can only run away
@@ -24,44 +29,6 @@ MAX_LR = {"net_lr": 1.0, "optics_lr_mm": 1.0, "disc_lr": 1.0}
 #: the loss terms and their default weights (``model.loss``)
 LOSS_DEFAULTS = (("mse", 1.0), ("l1", 0.0), ("ssim", 0.0), ("perceptual", 0.0),
                  ("adversarial", 0.0), ("constraint", 1.0))
-
-
-#: the settings of ``model.optics_invariance`` and their defaults (EndToEndModule)
-INVARIANCE_DEFAULTS = (("weight", 1.0), ("slack", 0.0))
-
-
-def check_invariance(settings, deconvolution) -> dict | None:
-    """``model.optics_invariance`` checked: ``None``, or a mapping of known keys
-    (:data:`INVARIANCE_DEFAULTS`) with ``weight`` a finite number > 0 and ``slack`` a finite
-    number >= 0, completed with the defaults; it needs ``model.deconvolution`` (the PSF
-    change over depth is measured on the Wiener front end's OTFs).  Else
-    :class:`ConfigError` naming ``model.optics_invariance[.<key>]``."""
-    if settings is None:
-        return None
-    if not isinstance(settings, dict):
-        raise ConfigError("model.optics_invariance", "null or a mapping {weight, slack}",
-                          settings)
-    known = dict(INVARIANCE_DEFAULTS)
-    unknown = set(settings) - set(known)
-    if unknown:
-        raise ConfigError.unknown("model.optics_invariance", unknown, known)
-    s = {**known, **settings}
-    for k, lo in (("weight", None), ("slack", 0.0)):
-        v = s[k]
-        ok = (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-              and (v > 0 if lo is None else v >= lo))
-        if not ok:
-            raise ConfigError(f"model.optics_invariance.{k}",
-                              "a finite number > 0" if lo is None else "a finite number >= 0", v)
-        s[k] = float(v)
-    if deconvolution is None:
-        raise ConfigError("model.optics_invariance", "null without model.deconvolution (the "
-                          "PSF change over depth is measured on the Wiener front end's OTFs)",
-                          settings)
-    if deconvolution.get("depths", 5) == 1:
-        raise ConfigError("model.optics_invariance", "null with model.deconvolution.depths = 1 "
-                          "(one depth has no PSF change to hold)", settings)
-    return s
 
 
 def check_learning_rate(key: str, value) -> float:
@@ -88,11 +55,11 @@ def check_module_settings(*, loss, has_discriminator: bool, net_lr, optics_lr_mm
     * ``net_lr``, ``optics_lr_mm``, ``disc_lr``: floats (:func:`check_learning_rate`);
     * ``optics_warmup_steps``: an int >= 0 (``None`` -> 0);
     * ``scene_margin``: a float in ``[0, 4]`` (fraction of the field of view);
-    * ``worst_depth``, ``optics_worst_depth``: ``None`` or the checked soft-maximum settings
-      (:func:`~.depth_weighting.soft_max_setting`);
+    * ``worst_depth``, ``optics_worst_depth``: ``None`` or the checked
+      :class:`~.settings.SoftMax`;
     * ``deconvolution``: ``None`` or a dict of :class:`~.wiener.DepthWienerFilter` keywords
-      (known keys only);
-    * ``optics_invariance``: ``None`` or ``{weight, slack}`` (:func:`check_invariance`).
+      (known keys only: :class:`~.wiener.Deconvolution`);
+    * ``optics_invariance``: ``None`` or the checked :class:`~.settings.Invariance`.
     """
     loss_w = dict(LOSS_DEFAULTS)
     unknown = set(loss or {}) - set(loss_w)
@@ -122,25 +89,22 @@ def check_module_settings(*, loss, has_discriminator: bool, net_lr, optics_lr_mm
         raise ConfigError("scene.margin", "a fraction of the field of view in [0, 4]",
                           scene_margin)
     out["scene_margin"] = float(scene_margin)
-    out["worst_depth"] = soft_max_setting("worst_depth", worst_depth)
-    out["optics_worst_depth"] = soft_max_setting("optics_worst_depth", optics_worst_depth)
+    out["worst_depth"] = SoftMax.from_config("worst_depth", worst_depth)
+    out["optics_worst_depth"] = SoftMax.from_config("optics_worst_depth", optics_worst_depth)
     dc = None
     if deconvolution is not None:
-        from .wiener import check_deconvolution
-
         dc = dict(deconvolution)
         check_deconvolution(dc)
     out["deconvolution"] = dc
-    out["optics_invariance"] = check_invariance(optics_invariance, dc)
+    out["optics_invariance"] = Invariance.from_config(optics_invariance, dc)
     return out
 
 
 def check_model_config(cfg) -> None:
     """Start-up check of ``model.*`` (and ``scene.margin``) in a composed config: the
     module's own checks (:func:`check_module_settings`, the depth soft maxima of
-    :mod:`.depth_weighting`, the Wiener front end's settings of :mod:`.wiener` for the
+    :mod:`.settings`, the Wiener front end's settings of :mod:`.wiener` for the
     run's ``lens.dtype``), without building anything."""
-    from omegaconf import OmegaConf
 
     def plain(key):
         v = OmegaConf.select(cfg, key, default=None)
@@ -157,8 +121,26 @@ def check_model_config(cfg) -> None:
         optics_invariance=plain("model.optics_invariance"))
     dtype = OmegaConf.select(cfg, "lens.dtype", default=None)
     if s["deconvolution"] is not None and dtype in ("float32", "float64"):
-        import torch
-
-        from .wiener import check_deconvolution
-
         check_deconvolution(s["deconvolution"], getattr(torch, dtype))
+
+
+def module_camera(lens, sensor, renderer) -> Camera:
+    """The camera of an :class:`~.module.EndToEndModule`: ``lens`` if it is one, else the
+    renderer's camera when it holds this lens and sensor, else a new camera with the
+    renderer's options.
+
+    Raises:
+        ValueError: the renderer renders through another camera, or the camera has no sensor.
+    """
+    held = getattr(renderer, "camera", None)
+    if not isinstance(lens, Camera):
+        if isinstance(held, Camera) and held.lens is lens and held.sensor is sensor:
+            return held
+        lens = as_camera(lens, sensor, getattr(renderer, "options", None))
+    camera = as_camera(lens, sensor, where="EndToEndModule")
+    if isinstance(held, Camera) and held is not camera:
+        raise ValueError("EndToEndModule: the renderer renders through another camera than "
+                         "the module's; build the renderer with the module's camera")
+    if camera.sensor is None:
+        raise ValueError("EndToEndModule: the camera has no sensor (Camera(lens, sensor))")
+    return camera

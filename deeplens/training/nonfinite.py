@@ -2,16 +2,40 @@
 training *before* the optimiser step, with the state just before it saved under
 ``checkpoints/nonfinite_step<step>.ckpt`` (:func:`stop`).
 
-The functions take the :class:`~.module.EndToEndModule` (or anything with its
-``_named_trained``/``named_buffers``/``checkpoint_dir``/``trainer``); the module's methods
-``_nonfinite_grad``, ``_nonfinite_param`` and ``_stop`` delegate here.
+The functions take the :class:`~.module.EndToEndModule` (or anything with its ``lens``,
+``restorer``, ``deconv``, ``named_buffers`` and ``trainer``) or the ``(name, parameter)`` pairs
+of its trained parameters (:func:`trained_parameters`).
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import torch
 
-__all__ = ["NonFiniteLossError", "nonfinite_grad", "nonfinite_param", "stop"]
+__all__ = ["NonFiniteLossError", "checkpoint_dir", "nonfinite_grad", "nonfinite_param", "stop",
+           "trained_parameters"]
+
+
+def trained_parameters(module):
+    """The ``(name, parameter)`` pairs of ``module``'s trained parts: the lens, the restorer
+    and the Wiener front end (``deconv``, when it has one), named as in its state dict."""
+    yield from ((f"lens.{n}", p) for n, p in module.lens.named_parameters())
+    yield from ((f"restorer.{n}", p) for n, p in module.restorer.named_parameters())
+    if module.deconv is not None:
+        yield from ((f"deconv.{n}", p) for n, p in module.deconv.named_parameters())
+
+
+def checkpoint_dir(module) -> Path | None:
+    """Where ``module``'s run writes checkpoints: the checkpoint callback's folder, else
+    ``<default_root_dir>/checkpoints``; ``None`` without a trainer."""
+    t = module._trainer
+    if t is None:
+        return None
+    cb = t.checkpoint_callback
+    if cb is not None and getattr(cb, "dirpath", None):
+        return Path(cb.dirpath)
+    return Path(t.default_root_dir) / "checkpoints"
 
 
 class NonFiniteLossError(FloatingPointError):
@@ -46,7 +70,7 @@ def stop(module, step: int, what: str):
         buffers = dict(module.named_buffers())
         for n, b in getattr(module, "_buffers_before", {}).items():
             buffers[n].copy_(b)
-    folder = module.checkpoint_dir()
+    folder = checkpoint_dir(module)
     path = None
     if folder is not None:
         path = folder / f"nonfinite_step{step}.ckpt"

@@ -20,6 +20,8 @@ import io
 import re
 from pathlib import Path
 
+from ..resources import lens_dir
+
 __all__ = ["config_keys", "precheck", "suggest_keys"]
 
 
@@ -57,8 +59,6 @@ def suggest_keys(key: str, keys: list[str], n: int = 3, cutoff: float = 0.7) -> 
 
 def _lens_problem(cfg) -> str | None:
     from omegaconf import OmegaConf
-
-    from ..resources import lens_dir
 
     try:
         path = OmegaConf.select(cfg, "lens.path", throw_on_resolution_failure=True)

@@ -8,6 +8,7 @@ wavelength.  Rows are depths, columns fields.
 
 from __future__ import annotations
 
+from ..analysis.style import _pyplot
 
 __all__ = ["psf_panels_figure"]
 
@@ -20,8 +21,6 @@ def psf_panels_figure(kernels, depths_mm, fields_deg, wavelength_nm: float,
     Raises:
         ValueError: the number of kernels is not ``len(depths) * len(fields)``.
     """
-    from ..analysis.style import _pyplot
-
     D, F = len(depths_mm), len(fields_deg)
     if len(kernels) != D * F:
         raise ValueError(f"psf_panels_figure: {D} depths x {F} fields need {D * F} kernels, "

@@ -9,18 +9,78 @@ would be (:mod:`deeplens.render.calibration`): its distortion map against the cu
 lens's is measured (no gradient: a measurement) and the restorer's output is registered with it
 before the loss, so training scores the camera as the calibrated evaluation does.
 
-Evaluation under tolerances: :mod:`.tolerance_eval`.
+Evaluation under tolerances: :mod:`deeplens.evaluation.tolerance`.
 """
 
 from __future__ import annotations
 
 import contextlib
 
+import torch
+from omegaconf import OmegaConf
 
 from ..design.tolerance_model import ToleranceModel, drawn, load_group
 from ..optics.errors import ConfigError
+from ..render.calibration import CALIBRATIONS, displacement_px, image_points, warp
 
-__all__ = ["check_tolerance_config", "load_group", "tolerance_seed", "TrainingDraws"]
+__all__ = ["DistortionCalibration", "check_calibrate", "check_tolerance_config", "load_group",
+           "tolerance_seed", "TrainingDraws"]
+
+
+def check_calibrate(value, key: str) -> str | None:
+    """``None`` or one of :data:`~deeplens.render.calibration.CALIBRATIONS`; else a
+    :class:`ConfigError` naming ``key``."""
+    if value is None or (isinstance(value, str) and value in CALIBRATIONS):
+        return value
+    raise ConfigError(key, f"null (no calibration) or one of {', '.join(CALIBRATIONS)}", value)
+
+
+class DistortionCalibration:
+    """Per-unit distortion calibration of ``module``'s camera at its test depths
+    (:mod:`deeplens.render.calibration`): :meth:`measure_nominal` on the nominal lens, then,
+    with a drawn lens in place, :meth:`unit` gives the registration ``(pred, depth_mm) ->
+    pred`` of that unit (the module's ``calibration`` hook, applied to the restored image
+    before its metrics).
+
+    Args:
+        module: the :class:`~.module.EndToEndModule` (its camera, ideal framing and sensor).
+        depths_mm: the depths the map is measured at (one map per depth).
+        nodes: grid nodes per side of the sensor.
+        sampling: the pupil pattern of each point's bundle (:func:`~deeplens.render.calibration.image_points`).
+    """
+
+    def __init__(self, module, depths_mm, nodes: int = 9, sampling: str = "grid:48"):
+        self.camera, self.ideal = module.camera, module.ideal
+        self.depths = [float(d) for d in depths_mm]
+        self.nodes, self.sampling = int(nodes), str(sampling)
+        self.channels = len(self.camera.sensor.channels)
+        self.nominal: dict[float, torch.Tensor] | None = None
+
+    def _points(self) -> dict[float, torch.Tensor]:
+        return {d: image_points(self.camera, None, d, self.ideal.object_scale(d), self.channels,
+                                nodes=self.nodes, sampling=self.sampling) for d in self.depths}
+
+    def measure_nominal(self) -> None:
+        """Measure the nominal lens's grid (call with no drawn lens in place)."""
+        self.nominal = self._points()
+
+    def maps(self) -> dict[float, torch.Tensor]:
+        """``{depth: (C, H, W, 2)}`` pixel displacements of the lens now in place."""
+        if self.nominal is None:
+            raise RuntimeError("DistortionCalibration: measure_nominal() first")
+        sensor = self.camera.sensor
+        return {d: displacement_px(p, self.nominal[d], sensor) for d, p in self._points().items()}
+
+    def unit(self):
+        """The registration of the lens now in place: ``(pred (B, C, H, W), depth_mm) ->
+        pred`` registered to the nominal lens's image mapping."""
+        maps = self.maps()
+
+        def register(pred, depth_mm):
+            return warp(pred, maps[float(depth_mm)])
+
+        register.maps = maps
+        return register
 
 
 def _needs_a_tolerance() -> ConfigError:
@@ -33,8 +93,6 @@ def check_tolerance_config(cfg) -> None:
     ``model.tolerance``: parsed by :func:`load_group`, nothing drawn) and of
     ``model.tolerance_training`` (a bool; true needs a non-zero group); raises
     :class:`~deeplens.optics.errors.ConfigError` naming the key."""
-    from omegaconf import OmegaConf
-
     node = OmegaConf.select(cfg, "model.tolerance", default=None)
     if node is None:
         node = OmegaConf.select(cfg, "tolerance", default=None)
@@ -45,8 +103,6 @@ def check_tolerance_config(cfg) -> None:
     if training and not model:
         raise _needs_a_tolerance()
     cal = OmegaConf.select(cfg, "model.calibrate", default=None)
-    from .tolerance_eval import check_calibrate
-
     if check_calibrate(cal, "model.calibrate") is not None:
         if not training:
             raise ConfigError("model.calibrate", "null without model.tolerance_training (the "
@@ -65,12 +121,30 @@ def tolerance_seed(run_seed: int, step: int) -> int:
 class TrainingDraws:
     """Per-step drawn lenses for :class:`~deeplens.training.module.EndToEndModule`."""
 
+    @classmethod
+    def of_module(cls, module, tolerance, training: bool, calibrate) -> TrainingDraws | None:
+        """The draws of ``module`` (an ``EndToEndModule``: its seed, training depths, camera
+        and ideal framing): ``None`` unless ``training`` (``model.tolerance_training``); the
+        group ``tolerance`` (checked at start-up) is read either way; with ``calibrate``
+        (``"distortion"``, one training depth) each step's drawn lens is calibrated
+        (:class:`DistortionCalibration` on a 5 x 5 grid, ``grid:32``: coarser than the
+        evaluation's 9 x 9, ``grid:48``, measured twice every step)."""
+        tol = load_group(tolerance) if tolerance is not None else None
+        draws = cls(tol, module.seed) if training else None
+        if check_calibrate(calibrate, "model.calibrate") is not None:
+            if draws is None or len(module.depths_mm) != 1:
+                raise ValueError("model.calibrate: needs model.tolerance_training and a single "
+                                 "training depth")
+            draws.calibration = DistortionCalibration(module, module.depths_mm, nodes=5,
+                                                      sampling="grid:32")
+        return draws
+
     def __init__(self, model: ToleranceModel, run_seed: int, calibration=None):
         if not model:
             raise _needs_a_tolerance()
         self.model, self.run_seed = model, int(run_seed)
         self._active = None  # the step whose drawn lens is in place
-        #: ``None`` or a :class:`~.tolerance_eval.DistortionCalibration`: the nominal lens is
+        #: ``None`` or a :class:`DistortionCalibration`: the nominal lens is
         #: measured on entering a step's draw, the drawn lens inside it
         self.calibration = calibration
         #: while a draw with calibration is in place: its registration ``(pred, depth) -> pred``

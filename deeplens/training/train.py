@@ -20,14 +20,19 @@ import torch
 from lightning.pytorch.utilities import rank_zero_info
 from omegaconf import DictConfig, OmegaConf
 
-from ..optics.camera import Camera
+from ..analysis.spot import find_pupil
+from ..optics.camera import Camera, unpack
 from ..optics.errors import ConfigError
-from ..optics.options import TraceOptions
 from ..optics.limits import check_allocation
+from ..optics.options import TraceOptions
+from ..optics.sampling import RAY_BYTES
 from ..render import MonteCarloRenderer, Sensor
 from ..render.psf_conv import PSFConvRenderer
+from ..render.psf_model import PSFModel, run_jobs
+from ..render.scene import IdealCamera
 from .callbacks import check_callbacks_config
 from .checkpoint import AtomicCheckpointIO, read_checkpoint
+from .lens_search import search_trainable, searched_lens
 from .lens_setup import build_lens, check_lens_config, set_trainable
 from .machine import describe_machine
 from .module_config import check_model_config
@@ -66,13 +71,14 @@ _TRAINER_TYPES = {"trainer.max_epochs": (int,), "trainer.max_steps": (int,),
                   "trainer.limit_test_batches": (int, float)}
 
 
-def check_config(cfg: DictConfig) -> None:
+def check_config(cfg: DictConfig, extra=()) -> None:
     """The one start-up check of a composed config, run before anything is built (dataset,
     lens, renderer, model): the types of the known keys, the meaning of the values of the
     keys no room owns (:data:`_RULES`: a depth of 0 mm, a negative seed, ...), then each
     room's own validator (:data:`STARTUP_CHECKS`: ``lens.*``, ``model.*`` with the depth soft
-    maxima and the Wiener front end, the tolerance group, the callbacks, ``eval.*``), then the
-    sizes (:func:`check_sizes`).
+    maxima and the Wiener front end, the tolerance group, the callbacks), then the validators
+    ``extra`` of a floor above (the evaluation's ``eval.*``:
+    :func:`deeplens.evaluation.evaluate.check_config`), then the sizes (:func:`check_sizes`).
 
     Raises:
         ConfigError: the first bad key (:class:`~deeplens.optics.errors.ConfigError`:
@@ -107,7 +113,7 @@ def check_config(cfg: DictConfig) -> None:
         problem = rule(val)
         if problem:
             raise ConfigError(key, problem, val)
-    for check in STARTUP_CHECKS:
+    for check in (*STARTUP_CHECKS, *extra):
         check(cfg)
     check_sizes(cfg)
 
@@ -121,8 +127,6 @@ def _check_render(cfg: DictConfig) -> None:
     the PSF model's settings (``render.psf_model``, ``psf_error_budget``, ``psf_remeasure``:
     :class:`~deeplens.render.psf_model.PSFModel`'s own checks; ``diffraction`` needs
     ``render.kind=psf``)."""
-    from ..render.psf_model import PSFModel
-
     c = OmegaConf.select(cfg, "render.compile", default="default")
     try:
         TraceOptions(compile=c)
@@ -153,19 +157,10 @@ def _check_channels(cfg: DictConfig) -> None:
         _image_channels(disc, "model.discriminator", n_ch, ("in_channels",))
 
 
-def _check_eval(cfg: DictConfig) -> None:
-    """``eval.*`` (:func:`~deeplens.training.evaluate.check_eval_config`; nothing without)."""
-    from .evaluate import check_eval_config  # evaluate imports this module
-
-    check_eval_config(cfg)
-
-
 def check_sizes(cfg: DictConfig) -> None:
     """Refuse sizes whose first allocation cannot fit in memory (a typo such as
     ``data.image_size=1000000``), naming the key and the bytes it would need
     (:func:`~deeplens.optics.limits.check_allocation`)."""
-    from ..optics.sampling import RAY_BYTES
-
     b = cfg.data.batch_size
     h, w = cfg.sensor.resolution
     n_ch = 3 if cfg.sensor.get("channels") is None else len(cfg.sensor.channels)
@@ -266,9 +261,10 @@ _RULES = {
 
 #: each room's validator of its own keys, run in this order by :func:`check_config` (after
 #: the types and :data:`_RULES`); each takes the composed config and raises
-#: :class:`~deeplens.optics.errors.ConfigError`
+#: :class:`~deeplens.optics.errors.ConfigError`.  ``eval.*`` is the evaluation's
+#: (:data:`deeplens.evaluation.evaluate.EVAL_CHECKS`, run after these by its ``check_config``)
 STARTUP_CHECKS = (check_lens_config, _check_channels, _check_render, check_model_config,
-                  check_tolerance_config, check_callbacks_config, _check_eval)
+                  check_tolerance_config, check_callbacks_config)
 
 
 def build_camera(cfg, lens, sensor) -> Camera:
@@ -297,10 +293,7 @@ def build_psf_model(cfg, lens, sensor=None, opts=None):
     ``opts`` then ``None``; or a lens, its sensor and trace options); its choice is printed
     (``auto``: with the measured error and the budget).  The Monte Carlo renderer traces rays:
     diffraction needs ``render.kind=psf``."""
-    from ..optics.camera import unpack
-
     lens, sensor, opts = unpack(lens, sensor, opts, "build_psf_model")
-    from ..render.psf_model import PSFModel, run_jobs
 
     r = cfg.render
     pm = PSFModel(r.get("psf_model", "geometric"), r.get("psf_error_budget", 0.05),
@@ -343,9 +336,6 @@ def _build_renderer(cfg, camera: Camera):
 def preflight(lens, sensor) -> None:
     """Fail before training when the lens passes no light: checks the on-axis field and the
     sensor's corner field at every sensor wavelength (the message names field and numbers)."""
-    from ..analysis.spot import find_pupil
-    from ..render.scene import IdealCamera
-
     cam = IdealCamera(lens, sensor)
     corner = cam.field_angle_deg(sensor.half_diagonal_mm)
     waves = sorted({w for ch in sensor.channels for w in ch} | {sensor.mono_wavelength_nm})
@@ -384,7 +374,6 @@ def build_objects(cfg: DictConfig) -> dict:
     lc = cfg.lens
     path, trainable = lc.path, list(lc.trainable)
     if lc.get("start") == "search":   # the design search's lens (lens_search.py)
-        from .lens_search import search_trainable, searched_lens
 
         path, trainable = str(searched_lens(cfg)), []
     lens = build_lens(path, trainable=trainable, dtype=lc.dtype,

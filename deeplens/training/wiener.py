@@ -24,8 +24,9 @@ back, so the filter's circular boundary does not wrap one edge's content onto th
 
 from __future__ import annotations
 
-import inspect
+import dataclasses
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -35,7 +36,20 @@ from ..optics.camera import Camera, HoldsCamera, as_camera
 from ..optics.errors import ConfigError
 from ..render.psf import psf_many
 
-__all__ = ["DepthWienerFilter", "DEFAULTS", "check_deconvolution", "depth_change", "nsr_range"]
+__all__ = ["Deconvolution", "DepthWienerFilter", "check_deconvolution", "depth_change",
+           "nsr_range"]
+
+
+@dataclass(frozen=True)
+class Deconvolution:
+    """The settings of :class:`DepthWienerFilter` (``model.deconvolution``) and their defaults,
+    the filter's own: checked by :func:`check_deconvolution`; the run key completes a setting
+    given in part with them (:mod:`deeplens.training.settings`)."""
+
+    depths: int = 5
+    rays: int = 16384
+    nsr: float = 1e-2
+    learn_nsr: bool = True
 
 
 def nsr_range(dtype: torch.dtype) -> tuple[float, float]:
@@ -66,8 +80,10 @@ class DepthWienerFilter(HoldsCamera, nn.Module):
             camera built (``None``: the defaults); with a camera, ``None`` (the camera's).
     """
 
-    def __init__(self, lens: Camera, sensor=None, depths_mm=None, depths: int = 5,
-                 rays: int = 16384, nsr: float = 1e-2, learn_nsr: bool = True, psf_model=None,
+    def __init__(self, lens: Camera, sensor=None, depths_mm=None,
+                 depths: int = Deconvolution.depths, rays: int = Deconvolution.rays,
+                 nsr: float = Deconvolution.nsr, learn_nsr: bool = Deconvolution.learn_nsr,
+                 psf_model=None,
                  options=None):
         super().__init__()
         camera = as_camera(lens, sensor, options, "DepthWienerFilter")
@@ -190,20 +206,13 @@ def depth_change(ch: torch.Tensor, h2: torch.Tensor) -> torch.Tensor:
     return var / h2.sum()
 
 
-#: the settings of :class:`DepthWienerFilter` and their defaults, ``((name, default), ...)``
-#: (config ``model.deconvolution``), read from its signature
-DEFAULTS = tuple((n, p.default) for n, p in inspect.signature(DepthWienerFilter).parameters.items()
-                 if p.default is not inspect.Parameter.empty
-                 and n not in ("psf_model", "sensor", "depths_mm", "options"))
-
-
 def check_deconvolution(settings: dict, dtype: torch.dtype | None = None) -> None:
     """``model.deconvolution`` (the keywords of :class:`DepthWienerFilter`) checked: known keys
-    only (:data:`DEFAULTS`), ``depths`` an int >= 1, ``rays`` an int >= 64, ``nsr`` a number
+    only (the fields of :class:`Deconvolution`), ``depths`` an int >= 1, ``rays`` an int >= 64, ``nsr`` a number
     > 0 (within :func:`nsr_range` of ``dtype``, the lens's, when given), ``learn_nsr`` a bool;
     else
     :class:`~deeplens.optics.errors.ConfigError` naming ``model.deconvolution.<key>``."""
-    known = dict(DEFAULTS)
+    known = {f.name: f.default for f in dataclasses.fields(Deconvolution)}
     unknown = set(settings) - set(known)
     if unknown:
         raise ConfigError.unknown("model.deconvolution", unknown, known)

@@ -283,10 +283,10 @@ MUTATIONS = [
              'cur.coni = p.arg(toks, 1, ln, "conic constant")',
              'cur.coni = -p.arg(toks, 1, ln, "conic constant")', ZMX),
     Mutation("eval_std_population", "eval table: seed spread with n instead of n - 1",
-             "deeplens/training/evaluate.py", "sum((v - m) ** 2 for v in values) / (n - 1))",
+             "deeplens/evaluation/evaluate.py", "sum((v - m) ** 2 for v in values) / (n - 1))",
              "sum((v - m) ** 2 for v in values) / n)", EVAL_TABLE),
     Mutation("eval_ssim_under_psnr", "eval table: the SSIM column shows the sensor image's",
-             "deeplens/training/evaluate.py",
+             "deeplens/evaluation/evaluate.py",
              'entry[img] = {f"{d:g}": cell(f"test/psnr_{img}/d{d:g}mm", f"test/ssim_{img}/d{d:g}mm")',
              'entry[img] = {f"{d:g}": cell(f"test/psnr_{img}/d{d:g}mm", f"test/ssim_sensor/d{d:g}mm")',
              EVAL_TABLE),
@@ -429,7 +429,7 @@ MUTATIONS = [
              "deeplens/training/train.py", "_check_render, check_model_config,",
              "_check_render,", CONFIG),
     Mutation("soft_max_bins_unchecked", "model.worst_depth.bins no longer checked",
-             "deeplens/training/depth_weighting.py",
+             "deeplens/training/settings.py",
              "    if not (isinstance(K, int) and not isinstance(K, bool) and K >= 1):\n",
              "    if False:\n", CONFIG),
     # ------------------------------------------------ hardening, round three (issue 38)
@@ -520,11 +520,11 @@ MUTATIONS = [
              "dtype=torch.float64)):", "        if True:",
              ("tests/training/test_checkpoint_migration.py",)),
     Mutation("fanout_folder_unquoted", "the fan-out passes its folder to Hydra unquoted "
-             "(E2 (copy), E2,v2 fail)", "deeplens/training/fanout.py",
+             "(E2 (copy), E2,v2 fail)", "deeplens/evaluation/fanout.py",
              'f"eval.folder={hydra_quote(out)}"', 'f"eval.folder={out}"',
              ("tests/training/test_fanout_quoting.py",)),
     Mutation("hydra_quote_no_escapes", "quoted values without escaping quotes and ${",
-             "deeplens/training/fanout.py",
+             "deeplens/evaluation/fanout.py",
              """    v = v.replace("'", "\\\\'").replace("${", "\\\\${")""", "    v = v",
              ("tests/training/test_fanout_quoting.py",)),
     Mutation("lock_after_hydra_writes", "deeplens train takes the folder lock in the task, after "
@@ -585,7 +585,7 @@ MUTATIONS = [
              "deeplens/optics/limits.py", "    return (max(soft - used, 0),",
              "    return (soft,", LIMITS),
     Mutation("classical_key_on_path", "the classical design keyed on the lens path (an edited "
-             "lens reuses the old design and its run)", "deeplens/training/classical.py",
+             "lens reuses the old design and its run)", "deeplens/evaluation/classical.py",
              '    key["inputs"] = input_digests(key, outputs=[out_dir])\n', "", INPUT_KEYS),
     Mutation("zmx_catalogues_not_digested", "a .zmx lens's run key without the .agf catalogues "
              "its GCAT line loads (an edited glass reuses the old runs)",
@@ -602,24 +602,24 @@ MUTATIONS = [
              "            names.add(Path(c).stem.upper())\n", "", INPUT_KEYS),
     Mutation("fanout_signal_not_forwarded", "SIGTERM/Ctrl-C to a fanned-out eval not passed on "
              "to its jobs (they train on until the grace's SIGKILL)",
-             "deeplens/training/fanout_stop.py",
+             "deeplens/evaluation/fanout_stop.py",
              "            _signal_group(pgid, signal.SIGTERM)\n", "            pass\n", FANOUT_STOP),
     Mutation("fanout_no_process_group", "the multirun started in the evaluation's own process "
              "group (the group signals reach nothing; the jobs go on training)",
-             "deeplens/training/fanout_stop.py", "start_new_session=True,",
+             "deeplens/evaluation/fanout_stop.py", "start_new_session=True,",
              "start_new_session=False,", FANOUT_STOP),
     Mutation("fanout_no_pdeathsig", "the multirun not told to die with the evaluation (kill -9 "
-             "leaves it running)", "deeplens/training/fanout_stop.py",
+             "leaves it running)", "deeplens/evaluation/fanout_stop.py",
              "    return lambda: prctl(1, signal.SIGTERM, 0, 0, 0)",
              "    return None", FANOUT_STOP),
     Mutation("job_watchdog_off", "a job's watchdog never stops it (kill -9 of the evaluation: "
-             "the jobs go on writing)", "deeplens/training/fanout_stop.py",
+             "the jobs go on writing)", "deeplens/evaluation/fanout_stop.py",
              "        while parent_alive(token):", "        while True:", FANOUT_STOP),
     Mutation("job_watchdog_not_started", "a fanned-out job does not start its watchdog",
-             "deeplens/training/evaluate.py", "        watch_parent()   # stop",
+             "deeplens/evaluation/evaluate.py", "        watch_parent()   # stop",
              "        pass   # stop", FANOUT_STOP),
     Mutation("watchdog_zombie_alive", "a killed evaluation not yet reaped (a zombie) counts as "
-             "alive", "deeplens/training/fanout_stop.py",
+             "alive", "deeplens/evaluation/fanout_stop.py",
              'if not fields or fields[0] in ("Z", "X"):', 'if not fields or fields[0] in ("X",):',
              FANOUT_STOP),
     # ------------------------------------------------ multi-configuration .zmx (issue 37 item 6)

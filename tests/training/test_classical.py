@@ -8,7 +8,7 @@ import json
 import pytest
 
 from deeplens.optics.io import load_lens
-from deeplens.training.evaluate import evaluate
+from deeplens.evaluation.evaluate import evaluate
 
 
 def test_edof_classical_plate_is_designed_frozen_and_reused(cfg_factory, tmp_path):
@@ -83,7 +83,7 @@ def test_refined_trains_from_the_classical_design(cfg_factory, tmp_path):
 
 
 def test_refined_variant_config(cfg_factory):
-    from deeplens.training.evaluate import _variant_cfg, classical_dir, variants
+    from deeplens.evaluation.evaluate import _variant_cfg, classical_dir, variants
 
     cfg = cfg_factory("experiment=edof", "eval.variants=[classical,refined]",
                       config_name="eval.yaml")
@@ -100,7 +100,7 @@ def test_refined_variant_config(cfg_factory):
 def test_classical_sag_bound_is_the_end_to_end_runs(cfg_factory, tmp_path):
     """``eval.classical.max_sag_mm=model``: the design keeps every designed surface within the
     end-to-end run's ``model.max_sag_mm`` of its start, where the unbounded design leaves it."""
-    from deeplens.training.classical import design_classical
+    from deeplens.evaluation.classical import design_classical
 
     def design(bound, out):
         cfg = cfg_factory("experiment=doublet", "eval.classical.steps=3",

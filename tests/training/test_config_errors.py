@@ -1,7 +1,7 @@
 """One config-validation layer, one message format (issue 24).
 
 Every bad value of a composed config (the real Hydra configs, ``configs/``) fails in
-:func:`deeplens.training.train.check_config`, before any lens, sensor, network, data module or
+:func:`deeplens.training.train.check_config` (``eval.*``: :func:`deeplens.evaluation.evaluate.check_config`), before any lens, sensor, network, data module or
 trainer is built, with a :class:`~deeplens.optics.errors.ConfigError` whose message is
 ``"{key}: expected {expected}, got {got!r}"`` (``"{key}: missing; expected ..."``,
 ``"{key}: unknown key(s) [...]; expected some of [...]"``) and whose ``key`` is the full
@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from deeplens.evaluation import evaluate as eval_mod
 from deeplens.optics.errors import ConfigError, format_config_error
 from deeplens.training import train as train_mod
 
@@ -144,37 +145,38 @@ CASES = [
      "callbacks.image_logger.every_n_epochs", "value", "int >= 1"),
     ("check_callbacks_config", (*EDOF, "+callbacks.image_logger.colour=1"), None,
      "callbacks.image_logger", "unknown", "'psf_rays'"),
-    # evaluate.check_eval_config (with classical, tolerance_eval, fanout)
-    ("_check_eval", (*EDOF, "eval.variants=[none,cubicc]"), EVAL, "eval.variants", "value",
+    # evaluation: evaluate.check_eval_config (with classical, tolerance, fanout), the
+    # evaluation floor's own validator (EVAL_CHECKS), run by evaluate.check_config
+    ("check_eval_config", (*EDOF, "eval.variants=[none,cubicc]"), EVAL, "eval.variants", "value",
      "variants of none"),
-    ("_check_eval", (*DOUBLET, "eval.variants=[none]"), EVAL, "eval.variants", "value",
+    ("check_eval_config", (*DOUBLET, "eval.variants=[none]"), EVAL, "eval.variants", "value",
      "without a phase plate"),
-    ("_check_eval", (*EDOF, "eval.cubic_alpha_mm=[0.01,big]"), EVAL, "eval.cubic_alpha_mm",
+    ("check_eval_config", (*EDOF, "eval.cubic_alpha_mm=[0.01,big]"), EVAL, "eval.cubic_alpha_mm",
      "value", "list of numbers"),
-    ("_check_eval", (*DOUBLET, "eval.variants=[searched]"), EVAL, "lens.search", "missing",
+    ("check_eval_config", (*DOUBLET, "eval.variants=[searched]"), EVAL, "lens.search", "missing",
      "searched"),
-    ("_check_eval", (*EDOF, "eval.seeds=[0,0]"), EVAL, "eval.seeds", "value", "distinct"),
-    ("_check_eval", (*EDOF, "eval.seeds=[0,1]", "eval.learned_ckpt=x.ckpt"), EVAL,
+    ("check_eval_config", (*EDOF, "eval.seeds=[0,0]"), EVAL, "eval.seeds", "value", "distinct"),
+    ("check_eval_config", (*EDOF, "eval.seeds=[0,1]", "eval.learned_ckpt=x.ckpt"), EVAL,
      "eval.seeds", "value", "a single seed with eval.learned_ckpt"),
-    ("_check_eval", (*EDOF, "+eval.classical.stpes=3"), EVAL, "eval.classical", "unknown",
+    ("check_eval_config", (*EDOF, "+eval.classical.stpes=3"), EVAL, "eval.classical", "unknown",
      "'steps'"),
-    ("_check_eval", (*EDOF, "eval.classical.steps=0"), EVAL, "eval.classical.steps", "value",
+    ("check_eval_config", (*EDOF, "eval.classical.steps=0"), EVAL, "eval.classical.steps", "value",
      "integer >= 1"),
-    ("_check_eval", (*DOUBLET, "eval.tolerance=precision", "eval.tolerance_samples=0"), EVAL,
+    ("check_eval_config", (*DOUBLET, "eval.tolerance=precision", "eval.tolerance_samples=0"), EVAL,
      "eval.tolerance_samples", "value", "integer >= 1"),
-    ("_check_eval", (*DOUBLET, "eval.tolerance=precise"), EVAL, "eval.tolerance", "value",
+    ("check_eval_config", (*DOUBLET, "eval.tolerance=precise"), EVAL, "eval.tolerance", "value",
      "a tolerance group"),
-    ("_check_eval", (*DOUBLET, "eval.tolerance=precision", "eval.calibrate=distorsion"), EVAL,
+    ("check_eval_config", (*DOUBLET, "eval.tolerance=precision", "eval.calibrate=distorsion"), EVAL,
      "eval.calibrate", "value", "null .* or one of distortion"),
-    ("_check_eval", (*DOUBLET, "eval.calibrate=distortion"), EVAL, "eval.calibrate", "value",
+    ("check_eval_config", (*DOUBLET, "eval.calibrate=distortion"), EVAL, "eval.calibrate", "value",
      "null without eval.tolerance"),
-    ("_check_eval", (*EDOF, "eval.launcher=dask"), EVAL, "eval.launcher", "value",
+    ("check_eval_config", (*EDOF, "eval.launcher=dask"), EVAL, "eval.launcher", "value",
      "joblib"),
-    ("_check_eval", (*EDOF, "eval.launcher=joblib", "eval.n_jobs=0"), EVAL, "eval.n_jobs",
+    ("check_eval_config", (*EDOF, "eval.launcher=joblib", "eval.n_jobs=0"), EVAL, "eval.n_jobs",
      "value", "integer >= 1"),
-    ("_check_eval", (*EDOF, "eval.job=99", "eval.folder=x"), EVAL, "eval.job", "value",
+    ("check_eval_config", (*EDOF, "eval.job=99", "eval.folder=x"), EVAL, "eval.job", "value",
      r"integer in \[0, "),
-    ("_check_eval", (*EDOF, "eval.job=0"), EVAL, "eval.folder", "missing", "output folder"),
+    ("check_eval_config", (*EDOF, "eval.job=0"), EVAL, "eval.folder", "missing", "output folder"),
 ]
 
 _SHAPES = {"value": r"^{key}: expected .*{exp}.*, got .+$",
@@ -214,46 +216,52 @@ def nothing_built(monkeypatch):
     monkeypatch.setattr(lightning, "seed_everything", boom)
 
 
+def _is_eval_row(case) -> bool:
+    return case[0] in {c.__name__ for c in eval_mod.EVAL_CHECKS}
+
+
 @pytest.mark.parametrize("case", CASES, ids=_ids())
 def test_bad_config_fails_at_startup_in_one_format(cfg_factory, nothing_built, case):
     cfg = _compose(cfg_factory, case)
     with pytest.raises(ConfigError) as e:
-        train_mod.build_objects(cfg)
+        # eval.* is the evaluation floor's: evaluate() checks it (with everything else) first
+        (eval_mod.evaluate if _is_eval_row(case) else train_mod.build_objects)(cfg)
     _assert_error(e.value, case)
 
 
 def test_every_startup_validator_is_needed(cfg_factory, monkeypatch):
-    """Mutation check: with any one validator taken out of ``STARTUP_CHECKS``, the table's
-    rows of that validator are no longer caught with their key (so the table test fails)."""
-    checks = train_mod.STARTUP_CHECKS
-    names = {c.__name__ for c in checks}
-    assert names <= {c[0] for c in CASES}, "a start-up validator without a row in the table"
-    for dropped in checks:
-        monkeypatch.setattr(train_mod, "STARTUP_CHECKS",
-                            tuple(c for c in checks if c is not dropped))
-        rows = [c for c in CASES if c[0] == dropped.__name__]
-        missed = 0
-        for case in rows:
-            try:
-                train_mod.check_config(_compose(cfg_factory, case))
-            except ConfigError as err:
-                missed += err.key != case[3]
-            else:
-                missed += 1
-        assert missed >= 1, f"{dropped.__name__} removed, yet its rows still fail"
-    monkeypatch.setattr(train_mod, "STARTUP_CHECKS", checks)
+    """Mutation check: with any one validator taken out of ``STARTUP_CHECKS`` (or of the
+    evaluation's ``EVAL_CHECKS``), the table's rows of that validator are no longer caught with
+    their key (so the table test fails)."""
+    for mod, attr in ((train_mod, "STARTUP_CHECKS"), (eval_mod, "EVAL_CHECKS")):
+        checks = getattr(mod, attr)
+        names = {c.__name__ for c in checks}
+        assert names <= {c[0] for c in CASES}, "a start-up validator without a row in the table"
+        for dropped in checks:
+            monkeypatch.setattr(mod, attr, tuple(c for c in checks if c is not dropped))
+            rows = [c for c in CASES if c[0] == dropped.__name__]
+            missed = 0
+            for case in rows:
+                try:
+                    eval_mod.check_config(_compose(cfg_factory, case))
+                except ConfigError as err:
+                    missed += err.key != case[3]
+                else:
+                    missed += 1
+            assert missed >= 1, f"{dropped.__name__} removed, yet its rows still fail"
+        monkeypatch.setattr(mod, attr, checks)
 
 
 def test_shipped_experiments_pass(cfg_factory):
     for exp in ("edof", "doublet", "doublet_search"):
         train_mod.check_config(cfg_factory(f"experiment={exp}", tiny=False))
-        train_mod.check_config(cfg_factory(f"experiment={exp}", tiny=False, config_name=EVAL))
+        eval_mod.check_config(cfg_factory(f"experiment={exp}", tiny=False, config_name=EVAL))
 
 
 def test_eval_checks_every_key_before_anything_runs(cfg_factory, monkeypatch):
     """``evaluate`` and ``deeplens eval`` (with a fan-out) check first: nothing trains, no job
     is fanned out."""
-    from deeplens.training import entry, evaluate, fanout
+    from deeplens.evaluation import entry, evaluate, fanout
 
     def boom(*a, **k):
         raise AssertionError("ran before the config was checked")

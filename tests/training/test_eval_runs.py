@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 import torch
 
-import deeplens.training.evaluate as ev
-from deeplens.training.evaluate import evaluate
+import deeplens.evaluation.evaluate as ev
+from deeplens.evaluation.evaluate import evaluate
 
 ROOT = Path(__file__).resolve().parents[2]
 ARGS = ("experiment=edof", "scene.val_depths_mm=[4500.0,8000.0]", "eval.variants=[none]",

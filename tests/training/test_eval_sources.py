@@ -11,7 +11,7 @@ import torch
 
 from deeplens import __version__
 from deeplens.build_info import describe_source, source_commit
-from deeplens.training.eval_figures import psfs_figure, run_psf
+from deeplens.evaluation.figures import psfs_figure, run_psf
 from deeplens.training.train import build_objects
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,7 +40,7 @@ def test_source_commit_recorded_at_build_and_unknown(tmp_path):
 def test_provenance_names_version_and_commit_outside_the_checkout(cfg_factory, tmp_path):
     from omegaconf import open_dict
 
-    from deeplens.training.evaluate import provenance
+    from deeplens.evaluation.evaluate import provenance
 
     cfg = cfg_factory("experiment=doublet")
     with open_dict(cfg):

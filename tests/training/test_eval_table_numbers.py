@@ -10,7 +10,7 @@ import re
 import numpy as np
 import pytest
 
-from deeplens.training.evaluate import format_table, summarize
+from deeplens.evaluation.evaluate import format_table, summarize
 
 DEPTHS, BANDS = [4500.0, 8000.0], [0.0, 0.5, 1.0]
 

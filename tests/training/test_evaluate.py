@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from deeplens.training.evaluate import _variant_cfg, evaluate, psf_rms_px, summarize
+from deeplens.evaluation.evaluate import _variant_cfg, evaluate, psf_rms_px, summarize
 from deeplens.training.lens_setup import build_lens
 
 
@@ -78,16 +78,16 @@ def test_eval_seed_loop_test_folder_and_figures(cfg_factory, tmp_path, monkeypat
                       "eval.variants=[none,learned]", "eval.seeds=[0,1]",
                       f"eval.test_folder={folder}", "callbacks.image_logger=null",
                       config_name="eval.yaml")
-    import deeplens.training.eval_figures as ef
+    import deeplens.evaluation.evaluate as ev
 
     seen = {}
-    real = ef.write_figures
+    real = ev.write_figures
 
     def spy(summary, kept, depths, out, **kw):
         seen.update(summary=summary, kept=kept, **kw)
         return real(summary, kept, depths, out, **kw)
 
-    monkeypatch.setattr(ef, "write_figures", spy)
+    monkeypatch.setattr(ev, "write_figures", spy)
     table, results = evaluate(cfg)
     # the figures show the user's images (issue 35), not the textures
     rec = json.loads((tmp_path / "eval_table.json").read_text())["test_folder"]["variants"]
@@ -246,7 +246,7 @@ def test_eval_resumes_finished_runs_and_retrains_changed_ones(cfg_factory, tmp_p
     """A second evaluation into the same folder loads each finished variant x seed run (same
     metrics, the module holding the tested weights) instead of training it again; a run whose
     configuration changed is trained again."""
-    import deeplens.training.evaluate as ev
+    import deeplens.evaluation.evaluate as ev
     from deeplens.training.checkpoint import read_checkpoint
 
     args = ("experiment=edof", "scene.val_depths_mm=[4500.0,8000.0]",
@@ -295,7 +295,7 @@ def test_eval_resumes_finished_runs_and_retrains_changed_ones(cfg_factory, tmp_p
 def test_run_key_of_optics_invariance(cfg_factory):
     """``model.optics_invariance`` is part of a learned run's key (in part given = completed
     with its defaults) and not of a frozen plate's, whose optics it cannot touch."""
-    import deeplens.training.evaluate as ev
+    import deeplens.evaluation.evaluate as ev
 
     def key(name, *over):
         cfg = cfg_factory("experiment=edof", *over, config_name="eval.yaml")
@@ -314,7 +314,7 @@ def test_a_moved_evaluation_folder_still_holds_its_runs(cfg_factory, tmp_path, m
     the folder is now); a run of another configuration there still trains again."""
     import shutil
 
-    import deeplens.training.evaluate as ev
+    import deeplens.evaluation.evaluate as ev
 
     args = ("experiment=edof", "scene.val_depths_mm=[4500.0,8000.0]", "eval.variants=[none]",
             "callbacks.image_logger=null", "eval.figures=false")

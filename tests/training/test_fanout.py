@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from omegaconf import open_dict
 
-from deeplens.training.evaluate import evaluate
-from deeplens.training.fanout import fan_out, jobs
+from deeplens.evaluation.evaluate import evaluate
+from deeplens.evaluation.fanout import fan_out, jobs
 
 ROOT = Path(__file__).resolve().parents[2]
 _spec = importlib.util.spec_from_file_location("_training_conftest",
@@ -57,9 +57,9 @@ def test_deeplens_eval_fans_its_jobs_out_as_python_m_deeplens_eval(cfg_factory, 
                                                                     monkeypatch):
     """``deeplens eval`` (no script file) starts its jobs as ``python -m deeplens eval -m ...``
     with the caller's overrides, less the fan-out's own."""
-    import deeplens.training.fanout as fanout
+    import deeplens.evaluation.fanout as fanout
 
-    from deeplens.training.fanout_stop import PARENT_ENV, parent_token
+    from deeplens.evaluation.fanout_stop import PARENT_ENV, parent_token
 
     calls, envs = [], []
     monkeypatch.setattr(fanout, "run_process_tree",

@@ -8,7 +8,7 @@ import pytest
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import OmegaConf
 
-from deeplens.training.fanout import fan_out, hydra_quote
+from deeplens.evaluation.fanout import fan_out, hydra_quote
 
 NAMES = ["/data/E2 (copy)", "/data/E2,v2", "/data/it's", "/data/a\\b", "/data/trail\\",
          "/data/[a]=b", "/data/x${y}", "/data/a\\'b", "/data/ü é", "/data/glob*?"]
@@ -27,7 +27,7 @@ def test_a_quoted_value_reads_back_as_itself(name):
 
 
 def test_the_fan_out_command_reads_back_the_folder(cfg_factory, tmp_path, monkeypatch):
-    import deeplens.training.fanout as fanout
+    import deeplens.evaluation.fanout as fanout
 
     out = tmp_path / "E2 (copy),v2"
     calls = []

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from deeplens.training.fanout_stop import (ORPHAN_STATUS, PARENT_ENV, parent_alive, parent_token,
+from deeplens.evaluation.fanout_stop import (ORPHAN_STATUS, PARENT_ENV, parent_alive, parent_token,
                                            process_start)
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -30,7 +30,7 @@ pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="POSIX process g
 # ignores SIGTERM when asked to (a job stuck in a step)
 WORKER = textwrap.dedent("""
     import os, signal, sys, time
-    from deeplens.training.fanout_stop import watch_parent
+    from deeplens.evaluation.fanout_stop import watch_parent
     if sys.argv[2] == "stubborn":
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
     watch_parent(poll_s=0.05)
@@ -60,7 +60,7 @@ MULTIRUN = textwrap.dedent("""
 # the evaluation: names itself to its jobs and runs the multirun as a process tree
 DRIVER = textwrap.dedent("""
     import os, sys
-    from deeplens.training.fanout_stop import PARENT_ENV, parent_token, run_process_tree
+    from deeplens.evaluation.fanout_stop import PARENT_ENV, parent_token, run_process_tree
     env = {**os.environ, PARENT_ENV: parent_token()}
     run_process_tree([sys.executable, *sys.argv[1:]], env=env, grace_s=float(os.environ["GRACE"]),
                      poll_s=0.05)
@@ -163,11 +163,10 @@ def test_a_watched_parent_and_the_values_that_watch_nothing():
 def test_a_fanned_out_job_watches_the_evaluation(cfg_factory, tmp_path, monkeypatch):
     """``evaluate`` with ``eval.job`` (what every joblib worker runs) starts the watchdog before
     the job trains."""
-    import deeplens.training.evaluate as ev
-    import deeplens.training.fanout_stop as fs
+    import deeplens.evaluation.evaluate as ev
 
     order = []
-    monkeypatch.setattr(fs, "watch_parent", lambda *a, **k: order.append("watch"))
+    monkeypatch.setattr(ev, "watch_parent", lambda *a, **k: order.append("watch"))
     monkeypatch.setattr(ev, "_job", lambda *a, **k: order.append("job"))
     cfg = cfg_factory("experiment=edof", "eval.variants=[none]", "eval.job=0",
                       f"eval.folder={tmp_path / 'eval'}", config_name="eval.yaml")

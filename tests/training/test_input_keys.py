@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 import deeplens.optics.io.zmx_glass as zmx_glass
-import deeplens.training.evaluate as ev
+import deeplens.evaluation.evaluate as ev
 from deeplens.optics.io import read_zmx
 from deeplens.optics.io.zmx_glass import catalogue_files
 from deeplens.optics.materials import GLASS_TABLE
@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_a_lens_edited_in_place_is_designed_again(cfg_factory, tmp_path, capsys):
     """Before: the design's key held ``lens.path`` as text, so the edited lens (same path)
     reused the old design, and the classical run keyed on that design reused its run."""
-    from deeplens.training.classical import design_classical
+    from deeplens.evaluation.classical import design_classical
 
     lens = tmp_path / "lens.json"
     shutil.copy(ROOT / "data" / "lenses" / "wide_doublet.json", lens)

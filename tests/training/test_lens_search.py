@@ -11,7 +11,7 @@ import torch
 
 import deeplens.design.search as design_search
 from deeplens.optics.io import load_lens
-from deeplens.training.evaluate import _run_key, _same_run, _variant_cfg, evaluate
+from deeplens.evaluation.evaluate import _run_key, _same_run, _variant_cfg, evaluate
 from deeplens.training.lens_search import RECORD, searched_lens
 from deeplens.training.train import build_objects
 
@@ -110,7 +110,7 @@ def test_variant_configs_and_run_keys_of_a_search(cfg_factory, tmp_path):
     del old["lens"]["search"]
     assert "start" not in old["lens"] and _same_run(old) == frozen
     # start: search evaluates searched and learned by default
-    from deeplens.training.evaluate import variants
+    from deeplens.evaluation.evaluate import variants
 
     assert [v for v, _, _ in variants(cfg)] == ["searched", "learned"]
 
@@ -136,7 +136,7 @@ def test_searched_variant_is_frozen_in_the_eval_table(cfg_factory, tmp_path, sea
 def test_a_fanned_out_evaluation_searches_before_its_jobs(cfg_factory, tmp_path, monkeypatch,
                                                           searches):
     """The jobs of a fan-out run at once: the evaluation searches first, the jobs reuse it."""
-    from deeplens.training import entry, evaluate as evaluate_mod, fanout
+    from deeplens.evaluation import entry, evaluate as evaluate_mod, fanout
 
     found = []
     monkeypatch.setattr(fanout, "fan_out", lambda cfg, *a: found.append(

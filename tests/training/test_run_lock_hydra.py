@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from hydra.core.global_hydra import GlobalHydra
 
-from deeplens.training.entry import run
+from deeplens.evaluation.entry import run
 from deeplens.training.run_lock import LOCK_NAME, hold_output_folder
 
 _spec = importlib.util.spec_from_file_location("_training_conftest",

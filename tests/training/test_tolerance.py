@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from deeplens.training.tolerance import tolerance_seed
-from deeplens.training.tolerance_eval import summarize_samples, evaluate_drawn
+from deeplens.evaluation.tolerance import summarize_samples, evaluate_drawn
 from deeplens.training.train import build_objects
 
 DOUBLET = ("experiment=doublet", "callbacks.image_logger=null")
@@ -85,7 +85,7 @@ def test_eval_writes_the_tolerance_table_json_and_histogram(cfg_factory, tmp_pat
     cfg = cfg_factory(*DOUBLET, "eval.variants=[frozen]", "eval.tolerance=commercial",
                       "eval.tolerance_samples=2", "eval.tolerance_yield_db=0",
                       "trainer.max_epochs=1", config_name="eval.yaml")
-    from deeplens.training.evaluate import evaluate
+    from deeplens.evaluation.evaluate import evaluate
 
     evaluate(cfg)
     md = (tmp_path / "eval_table.md").read_text()
@@ -99,7 +99,7 @@ def test_eval_writes_the_tolerance_table_json_and_histogram(cfg_factory, tmp_pat
 
 
 def test_eval_tolerance_settings_are_checked_before_training(cfg_factory):
-    from deeplens.training.evaluate import evaluate
+    from deeplens.evaluation.evaluate import evaluate
 
     cfg = cfg_factory(*DOUBLET, "eval.tolerance=precise", config_name="eval.yaml")
     with pytest.raises(ValueError, match=r"eval.tolerance: expected a tolerance group "
@@ -147,7 +147,7 @@ def test_tolerance_training_runs_and_leaves_the_nominal_lens(cfg_factory, tmp_pa
 
 
 def test_eval_tolerance_group_takes_the_composed_group(cfg_factory):
-    from deeplens.training.tolerance_eval import EvalTolerance
+    from deeplens.evaluation.tolerance import EvalTolerance
 
     cfg = cfg_factory(*DOUBLET, "tolerance=precision", "eval.tolerance=group",
                       "tolerance.decenter.std=0.5", config_name="eval.yaml")
@@ -259,7 +259,7 @@ def test_tolerance_training_with_calibration_registers_the_restored_image(cfg_fa
         seen.append(float(d.abs().max()))
         return real(img, d)
 
-    monkeypatch.setattr("deeplens.training.tolerance_eval.warp", spy)
+    monkeypatch.setattr("deeplens.training.tolerance.warp", spy)
     images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
     with module.drawn_lens(1):
         loss, *_ = module.step_loss(images, 1)

@@ -403,7 +403,7 @@ def test_worst_depth_weights_are_a_soft_maximum_over_depth_bins(cfg_factory):
     cfg = cfg_factory("experiment=edof", "model.worst_depth={temperature:0.5,bins:2,momentum:0.5}")
     m = build_objects(cfg)["module"]
     near, far = 4500.0, 8000.0  # the range's ends: bins 1 and 0
-    assert m.depth_bin([far, near, 7999.0, 4501.0]).tolist() == [0, 1, 0, 1]
+    assert m.depth_softmax.bin([far, near, 7999.0, 4501.0]).tolist() == [0, 1, 0, 1]
     gt = torch.full((2, 3, 8, 8), 0.5)
     pred = gt.clone()
     pred[0] += 0.1    # far sample: MSE 0.01
@@ -412,11 +412,11 @@ def test_worst_depth_weights_are_a_soft_maximum_over_depth_bins(cfg_factory):
     terms = m.image_loss(pred, gt, [far, near])
     ratio = (0.01 / 0.0025) ** (1 / 0.5)  # 16: the far bin's weight over the near bin's
     w_far, w_near = 2 * ratio / (1 + ratio), 2 / (1 + ratio)
-    assert torch.allclose(m.depth_loss_ema, torch.tensor([0.01, 0.0025], dtype=torch.float64))
+    assert torch.allclose(m.depth_softmax.loss_ema, torch.tensor([0.01, 0.0025], dtype=torch.float64))
     assert float(terms["mse"]) == pytest.approx((w_far * 0.01 + w_near * 0.0025) / 2, rel=1e-5)
     # running means: momentum 0.5 towards the new values
     m.image_loss(pred.flip(0), gt, [far, near])  # far now MSE 0.0025, near 0.01
-    assert torch.allclose(m.depth_loss_ema, torch.tensor([0.00625, 0.00625], dtype=torch.float64))
+    assert torch.allclose(m.depth_softmax.loss_ema, torch.tensor([0.00625, 0.00625], dtype=torch.float64))
     # a plain run's loss is the batch mean
     plain = build_objects(cfg_factory("experiment=edof"))["module"]
     plain.loss_w.update(ssim=0.0)
@@ -542,7 +542,7 @@ def test_optics_worst_depth_weights_only_the_optics_gradient(cfg_factory):
     m = build_objects(cfg_factory(*over))["module"]
     images = torch.rand(4, 3, 32, 32, generator=torch.Generator().manual_seed(0))
     depths = m.sample_depths(4, 5)
-    bins = m.depth_bin(depths, 2)
+    bins = m.optics_depth_softmax.bin(depths)
     assert len(set(bins.tolist())) == 2  # both bins in the batch (else the test is vacuous)
     lens_p = [p for p in m.lens.parameters() if p.requires_grad]
     net_p = list(m.restorer.parameters())
@@ -588,14 +588,14 @@ def test_optics_invariance_holds_the_plate_to_its_starting_depth_invariance(cfg_
     m = build_objects(cfg_factory(*over))["module"]
     images = torch.rand(2, 3, 32, 32, generator=torch.Generator().manual_seed(0))
     loss, terms, *_ = m.step_loss(images, 0)
-    R0 = float(m.invariance_ref)
+    R0 = float(m.invariance.ref)
     assert 0 < R0 < 1 and float(terms["invariance"].detach()) == 0.0
     assert "invariance_ref" in m.state_dict()
     lens_p = [p for p in m.lens.parameters() if p.requires_grad]
     with torch.no_grad():  # the 5 um start made a 1.25 um plate: its PSF changes with depth
         cubic_phase_plate(m.lens, 4, 0.00125)
     loss, terms, y, *_ = m.step_loss(images, 1)
-    assert float(m.invariance_ref) == R0  # the reference stays
+    assert float(m.invariance.ref) == R0  # the reference stays
     pen = terms["invariance"]
     g_all = torch.autograd.grad(loss, lens_p, retain_graph=True)
     g_pen = torch.autograd.grad(pen, lens_p, retain_graph=True)

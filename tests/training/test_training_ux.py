@@ -4,7 +4,7 @@
 import pytest
 import torch
 
-from deeplens.training.eval_figures import samples_grid
+from deeplens.evaluation.figures import samples_grid
 from deeplens.training.psf_panels import psf_panels_figure
 from deeplens.training.scalars import training_scalars
 

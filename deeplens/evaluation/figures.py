@@ -1,4 +1,4 @@
-"""Figures of an evaluation (:func:`deeplens.training.evaluate.evaluate`), as PNG files and
+"""Figures of an evaluation (:func:`deeplens.evaluation.evaluate.evaluate`), as PNG files and
 TensorBoard images (matplotlib, imported lazily, Agg backend).
 
 * ``psnr_vs_depth.png``: restored (solid, ± std over seeds as error bars) and sensor (dashed)
@@ -19,6 +19,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
+
+from ..render.psf import psf
+from ..training.lens_setup import surface_height_map
 
 __all__ = ["write_figures"]
 
@@ -60,8 +63,6 @@ def run_psf(module, depth_mm: float, wavelengths_nm, kernel: int = 21,
     wavelengths summed, by the model its renderer uses: the diffraction kernels of its
     :class:`~deeplens.render.psf_model.PSFModel` when that chose ``diffraction`` (centre
     ``kernel`` pixels), else the geometric ray-traced PSF.  Returns ``(psf, model name)``."""
-    from ..render.psf import psf
-
     pm = getattr(getattr(module, "renderer", None), "psf_model", None)
     model = "geometric"
     if pm is not None and pm.choice is not None:
@@ -111,8 +112,6 @@ def psfs_figure(modules: dict, depths, kernel: int = 21, n_rays: int = 8192):
 
 
 def plates_figure(modules: dict, plate_surface: int):
-    from .lens_setup import surface_height_map
-
     plt = _plt()
     names = list(modules)
     fig, axes = plt.subplots(1, len(names), squeeze=False, figsize=(2.6 * len(names), 2.6),
@@ -182,7 +181,7 @@ def write_figures(summary: dict, kept: dict, depths, folder: Path,
     (``folder/tensorboard``); returns the PNG paths.
 
     Args:
-        summary: :func:`~deeplens.training.evaluate.summarize`'s result.
+        summary: :func:`~deeplens.evaluation.evaluate.summarize`'s result.
         kept: ``{variant: {"module": EndToEndModule, "datamodule": ..., "kind": str}}`` of the
             first seed (its lens and best restorer).
         depths: test depths (mm).

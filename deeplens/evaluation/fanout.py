@@ -41,6 +41,7 @@ from omegaconf import DictConfig, open_dict
 
 from ..optics.errors import ConfigError
 from .fanout_stop import PARENT_ENV, parent_token, run_process_tree
+from .variants import seeds, variants
 
 __all__ = ["jobs", "fan_out", "job_cfg", "LAUNCHERS", "check_fanout_config", "cpu_seconds",
            "hydra_quote"]
@@ -50,8 +51,6 @@ LAUNCHERS = ("joblib", "submitit_local", "submitit_slurm")
 
 def jobs(cfg: DictConfig) -> list[tuple[str, str, float | None, int]]:
     """``(variant name, kind, alpha_mm, seed)`` of every job, variants outer, seeds inner."""
-    from .evaluate import seeds, variants
-
     return [(n, k, a, s) for n, k, a in variants(cfg) for s in seeds(cfg)]
 
 

@@ -13,14 +13,14 @@ end-to-end design has to beat.
 
 ``eval.classical.max_sag_mm`` (default ``null``: no bound) bounds each designed surface's
 departure from its starting sag as end-to-end training's ``model.max_sag_mm`` does (the same
-grid, :class:`~.constraints.SagDepartureConstraint`), as a hard constraint of the design
+grid, :class:`~deeplens.training.constraints.SagDepartureConstraint`), as a hard constraint of the design
 (the largest departure over the grid ``<= max_sag_mm``): ``eval.classical.max_sag_mm=model``
 takes the end-to-end run's own bound, so that both designs are held to the same constraints.
 
 Damped least squares with a float64 central-difference Jacobian.  The designed lens is written
 to ``classical_lens.json`` (with ``classical_design.json``: the settings, merit before/after,
 variables, seconds) in the variant's folder, and reused when its settings and the content of its
-inputs (the lens file, and the ``.agf`` catalogues a ``.zmx`` loads: :mod:`.input_digest`) are
+inputs (the lens file, and the ``.agf`` catalogues a ``.zmx`` loads: :mod:`deeplens.training.input_digest`) are
 unchanged.
 """
 
@@ -32,9 +32,18 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from ..design.constraints import Constraint
+from ..design.depth_invariance import DepthInvarianceMerit
+from ..design.lensopt import optimize_lens
+from ..design.merit import SpotMerit
+from ..design.variables import Variables
 from ..optics.errors import ConfigError
-from .checkpoint import write_text_atomic
-from .input_digest import input_digests
+from ..optics.io import save_lens
+from ..render.sensor import Sensor
+from ..training.checkpoint import write_text_atomic
+from ..training.constraints import SagDepartureConstraint
+from ..training.input_digest import input_digests
+from ..training.lens_setup import build_lens
 
 __all__ = ["check_classical_config", "design_classical", "DEFAULTS"]
 
@@ -74,11 +83,8 @@ def check_classical_config(cfg: DictConfig) -> None:
 
 def sag_departure_constraints(lens, max_sag_mm: float) -> list:
     """One design constraint per surface with trainable parameters: the largest departure of
-    its sag from the current one over :class:`~.constraints.SagDepartureConstraint`'s grid is
+    its sag from the current one over :class:`~deeplens.training.constraints.SagDepartureConstraint`'s grid is
     at most ``max_sag_mm`` (mm)."""
-    from ..design.constraints import Constraint
-    from .constraints import SagDepartureConstraint
-
     bound = SagDepartureConstraint(lens, max_sag_mm)
     out = []
     for i in bound.surfaces:
@@ -106,12 +112,6 @@ def design_classical(cfg: DictConfig, out_dir) -> Path:
     """Design the lens of the ``classical`` variant for ``cfg`` (module docstring); returns the
     path of the designed lens file in ``out_dir`` (reused when designed with the same
     settings)."""
-    from ..design.lensopt import optimize_lens
-    from ..design.variables import Variables
-    from ..optics.io import save_lens
-    from ..render.sensor import Sensor
-    from .lens_setup import build_lens
-
     s = _settings(cfg)
     lc, sc = cfg.lens, cfg.sensor
     if not list(lc.trainable):
@@ -147,8 +147,6 @@ def design_classical(cfg: DictConfig, out_dir) -> Path:
                       table_options=OmegaConf.to_container(lc.table_options),
                       focus_mm=lc.focus_mm, focus_wavelengths_nm=waves)
     if plate:
-        from ..design.depth_invariance import DepthInvarianceMerit
-
         lo, hi = (float(d) for d in cfg.scene.depths_mm)
         # depths uniform in 1/depth over the training range (as the scene samples them)
         depths = [1.0 / (1.0 / lo + (1.0 / hi - 1.0 / lo) * k / 3) for k in range(4)]
@@ -157,8 +155,6 @@ def design_classical(cfg: DictConfig, out_dir) -> Path:
                                      sampling=s["sampling"])
         what = f"depth invariance over {lo:g}-{hi:g} mm"
     else:
-        from ..design.merit import SpotMerit
-
         fields = s["fields_deg"] if s["fields_deg"] is not None else list(
             cfg.scene.psf_fields_deg)
         merit = SpotMerit(fields_deg=fields, wavelengths_nm=waves, sampling=s["spot_sampling"])

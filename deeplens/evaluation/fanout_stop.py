@@ -23,6 +23,8 @@ import sys
 import threading
 import time
 
+from ..training.stop_signals import StoppedBySignal
+
 __all__ = ["ORPHAN_STATUS", "PARENT_ENV", "POLL_S", "STOP_GRACE_S", "parent_alive",
            "parent_token", "process_start", "run_process_tree", "watch_parent"]
 
@@ -135,11 +137,9 @@ def run_process_tree(cmd: list[str], env=None, grace_s: float = STOP_GRACE_S,
     """Run ``cmd`` as the leader of its own process group (a new session) and return its exit
     status.  SIGTERM, SIGINT or SIGHUP to this process (in the main thread) stop the whole group,
     the command and every process it started (the joblib workers): SIGTERM to the group, then
-    SIGKILL to what is left after ``grace_s`` seconds; then :class:`~.stop_signals.StoppedBySignal`
+    SIGKILL to what is left after ``grace_s`` seconds; then :class:`~deeplens.training.stop_signals.StoppedBySignal`
     (status ``128 + signal``) is raised.  The command also gets SIGTERM when this process dies
     by ``kill -9`` (:func:`_die_with_parent`)."""
-    from .stop_signals import StoppedBySignal
-
     received: list[int] = []
     proc = subprocess.Popen(cmd, env=env, start_new_session=True,
                             preexec_fn=_die_with_parent())

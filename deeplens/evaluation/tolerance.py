@@ -21,69 +21,13 @@ from pathlib import Path
 
 import torch
 
-from ..design.tolerance_model import ToleranceModel, drawn
-from ..design.tolerance_model import load_group
+from ..design.plots import save
+from ..design.tolerance_model import ToleranceModel, drawn, load_group
 from ..optics.errors import ConfigError
-from ..render.calibration import CALIBRATIONS, displacement_px, image_points, warp
+from ..training.tolerance import DistortionCalibration, check_calibrate
 
-__all__ = ["EvalTolerance", "DistortionCalibration", "check_calibrate", "check_tolerance_eval_config",
-           "evaluate_drawn", "summarize_samples", "format_tolerance_table", "histogram_figure"]
-
-
-def check_calibrate(value, key: str) -> str | None:
-    """``None`` or one of :data:`~deeplens.render.calibration.CALIBRATIONS`; else a
-    :class:`ConfigError` naming ``key``."""
-    if value is None or (isinstance(value, str) and value in CALIBRATIONS):
-        return value
-    raise ConfigError(key, f"null (no calibration) or one of {', '.join(CALIBRATIONS)}", value)
-
-
-class DistortionCalibration:
-    """Per-unit distortion calibration of ``module``'s camera at its test depths
-    (:mod:`deeplens.render.calibration`): :meth:`measure_nominal` on the nominal lens, then,
-    with a drawn lens in place, :meth:`unit` gives the registration ``(pred, depth_mm) ->
-    pred`` of that unit (the module's ``calibration`` hook, applied to the restored image
-    before its metrics).
-
-    Args:
-        module: the :class:`~.module.EndToEndModule` (its camera, ideal framing and sensor).
-        depths_mm: the depths the map is measured at (one map per depth).
-        nodes: grid nodes per side of the sensor.
-        sampling: the pupil pattern of each point's bundle (:func:`~deeplens.render.calibration.image_points`).
-    """
-
-    def __init__(self, module, depths_mm, nodes: int = 9, sampling: str = "grid:48"):
-        self.camera, self.ideal = module.camera, module.ideal
-        self.depths = [float(d) for d in depths_mm]
-        self.nodes, self.sampling = int(nodes), str(sampling)
-        self.channels = len(self.camera.sensor.channels)
-        self.nominal: dict[float, torch.Tensor] | None = None
-
-    def _points(self) -> dict[float, torch.Tensor]:
-        return {d: image_points(self.camera, None, d, self.ideal.object_scale(d), self.channels,
-                                nodes=self.nodes, sampling=self.sampling) for d in self.depths}
-
-    def measure_nominal(self) -> None:
-        """Measure the nominal lens's grid (call with no drawn lens in place)."""
-        self.nominal = self._points()
-
-    def maps(self) -> dict[float, torch.Tensor]:
-        """``{depth: (C, H, W, 2)}`` pixel displacements of the lens now in place."""
-        if self.nominal is None:
-            raise RuntimeError("DistortionCalibration: measure_nominal() first")
-        sensor = self.camera.sensor
-        return {d: displacement_px(p, self.nominal[d], sensor) for d, p in self._points().items()}
-
-    def unit(self):
-        """The registration of the lens now in place: ``(pred (B, C, H, W), depth_mm) ->
-        pred`` registered to the nominal lens's image mapping."""
-        maps = self.maps()
-
-        def register(pred, depth_mm):
-            return warp(pred, maps[float(depth_mm)])
-
-        register.maps = maps
-        return register
+__all__ = ["EvalTolerance", "check_tolerance_eval_config", "evaluate_drawn",
+           "summarize_samples", "format_tolerance_table", "histogram_figure"]
 
 
 def evaluate_drawn(module, trainer, datamodule, model: ToleranceModel, n: int, seed: int = 0,
@@ -275,7 +219,6 @@ class EvalTolerance:
             return []
         from torch.utils.tensorboard import SummaryWriter
 
-        from ..design.plots import save
 
         fig = histogram_figure(self.summary, self.threshold_db)
         writer = SummaryWriter(str(Path(folder) / "tensorboard"))

@@ -14,12 +14,12 @@ the scene defines ``field_bands``).  Variants (``eval.variants``):
   e.g. the doublet: measures the optics' share of the gain against ``learned``);
 * ``classical``: the optics designed first by the design engine (the same variables as
   ``learned``: a depth-invariant plate for a lens with a plate, the smallest RMS spot over the
-  scene's fields otherwise; :mod:`deeplens.training.classical`, ``eval.classical``), then frozen
+  scene's fields otherwise; :mod:`deeplens.evaluation.classical`, ``eval.classical``), then frozen
   while the restorer trains;
 * ``refined``: ``learned`` started from the ``classical`` design (the same variables trained
   jointly with the restorer from there): what joint training adds on top of the classical one;
 * ``searched``: the lens the design search makes from ``lens.search.spec`` (searched
-  classically, :mod:`.lens_search`), frozen while the restorer trains.  With
+  classically, :mod:`deeplens.training.lens_search`), frozen while the restorer trains.  With
   ``lens.start=search``, ``learned`` trains ``lens.search.trainable`` jointly from that lens;
   ``frozen``, ``classical`` and ``refined`` stay the file's lens (``lens.path``).  The search
   runs once per evaluation folder (``<folder>/search``).
@@ -32,7 +32,7 @@ seed every variant sees the same test images.
 ``eval.reuse_runs`` (default true): a variant x seed run that already finished in the output
 folder with the same configuration and the same input files (its ``eval_run.json`` records the
 configuration and the SHA-256 of every file it names, e.g. the lens file:
-:mod:`.input_digest`) is loaded, not trained again, so an evaluation killed part-way resumes
+:mod:`deeplens.training.input_digest`) is loaded, not trained again, so an evaluation killed part-way resumes
 (``hydra.run.dir=<its folder>``), and variants or seeds run as separate processes into one
 folder are then gathered by one more call.  A damaged record or a missing or corrupt tested
 checkpoint means "train again", with a message saying why.
@@ -43,7 +43,7 @@ centre crops; the table carries a second block for the folder.
 
 Outputs (in ``eval.output``'s folder, each written atomically): ``eval_table.md`` (a row per
 variant and image, a column per depth or band), ``eval_table.json`` (see :func:`summarize`),
-and the figures of :mod:`deeplens.training.eval_figures` (``*.png``, also logged to TensorBoard
+and the figures of :mod:`deeplens.evaluation.figures` (``*.png``, also logged to TensorBoard
 under ``<output folder>/tensorboard``).
 """
 
@@ -52,92 +52,34 @@ from __future__ import annotations
 import copy
 import json
 import math
+import os
 from pathlib import Path
 
+import hydra
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from ..build_info import describe_source
+from ..data.datamodule import CenterCropFolderDataset
 from ..optics.errors import ConfigError
-from . import tolerance_eval
-from .checkpoint import write_text_atomic
-from .input_digest import digest_path, input_digests
-from .machine import describe_machine, machine_info
-from .train import build_objects, check_config, train
+from ..render.splat import point_source_rays, trace_to_sensor_pixels
+from ..training.checkpoint import (CheckpointError, migrate_missing_buffers, read_checkpoint,
+                                   write_text_atomic)
+from ..training.input_digest import digest_path, input_digests
+from ..training.lens_search import search_dir, search_trainable, searched_lens
+from ..training.machine import describe_machine, machine_info
+from ..training.settings import MODEL_SETTINGS, completed
+from ..training.train import build_objects, train
+from ..training.train import check_config as check_training_config
+from . import tolerance as tolerance_eval
+from .classical import check_classical_config, design_classical
+from .fanout import check_fanout_config, cpu_seconds, job_cfg
+from .fanout_stop import watch_parent
+from .figures import write_figures
+from .variants import _VARIANTS, _alphas, _plain, seeds, variants
 
-__all__ = ["check_eval_config", "evaluate", "format_table", "variants", "summarize",
-           "psf_rms_px", "seeds"]
-
-_PLATE_KINDS = ("none", "cubic")
-#: the variants of ``eval.variants``
-_VARIANTS = ("none", "cubic", "classical", "learned", "refined", "frozen", "searched")
-
-
-def _alphas(cfg: DictConfig) -> list[float]:
-    a = cfg.eval.cubic_alpha_mm
-    vals = list(a) if OmegaConf.is_list(a) or isinstance(a, (list, tuple)) else [a]
-    what = "a number or a non-empty list of numbers (mm)"
-    try:
-        vals = [float(v) for v in vals]
-    except (TypeError, ValueError):
-        raise ConfigError("eval.cubic_alpha_mm", what, _plain(a)) from None
-    if not vals:
-        raise ConfigError("eval.cubic_alpha_mm", what, [])
-    return vals
-
-
-def _plain(v):
-    """A config node as plain Python (for messages)."""
-    return OmegaConf.to_container(v, resolve=True) if OmegaConf.is_config(v) else v
-
-
-def seeds(cfg: DictConfig) -> list[int]:
-    """The seeds of ``eval.seeds`` (``null``: the run's ``seed``), checked."""
-    s = cfg.eval.seeds
-    vals = [cfg.seed] if s is None else (list(s) if OmegaConf.is_list(s)
-                                         or isinstance(s, (list, tuple)) else [s])
-    what = "null or a non-empty list of distinct integers >= 0"
-    if not vals:
-        raise ConfigError("eval.seeds", what, [])
-    for v in vals:
-        if not isinstance(v, int) or isinstance(v, bool) or v < 0:
-            raise ConfigError("eval.seeds", what, _plain(s))
-    if len(set(vals)) != len(vals):
-        raise ConfigError("eval.seeds", what, vals)
-    return [int(v) for v in vals]
-
-
-def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
-    """``(name, kind, alpha_mm)`` of every variant to evaluate, in table order.
-
-    Raises:
-        ValueError: an unknown variant, or ``none``/``cubic`` for a lens without a plate.
-    """
-    out = []
-    names = cfg.eval.variants
-    if names is None:
-        names = (["none", "cubic", "classical", "learned"] if cfg.lens.plate_surface is not None
-                 else ["searched", "learned"] if cfg.lens.get("start") == "search"
-                 else ["frozen", "classical", "learned"])
-    for v in names:
-        if v in _PLATE_KINDS and cfg.lens.plate_surface is None:
-            raise ConfigError("eval.variants", "variants of a lens without a phase plate "
-                              "(lens.plate_surface is null): frozen, classical, learned, "
-                              "refined, searched", _plain(names))
-        if v == "searched" and cfg.lens.get("search") is None:
-            raise ConfigError.missing("lens.search", "the design search's spec (eval.variants "
-                                      "has searched)")
-        if v == "cubic":
-            out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in _alphas(cfg)]
-        elif v in ("none", "learned", "frozen", "classical", "refined", "searched"):
-            out.append((v, v, None))
-        else:
-            raise ConfigError("eval.variants", f"variants of {', '.join(_VARIANTS)}",
-                              _plain(names))
-    if not out:
-        raise ConfigError("eval.variants", f"null or a non-empty list of {', '.join(_VARIANTS)}",
-                          _plain(names))
-    return out
-
+__all__ = ["EVAL_CHECKS", "check_config", "check_eval_config", "evaluate", "format_table",
+           "variants", "summarize", "psf_rms_px", "seeds"]
 
 def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
                  alpha_mm: float | None = None, seed: int | None = None,
@@ -156,8 +98,6 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
         if kind == "searched" or (kind == "learned" and cfg.lens.get("start") == "search"):
             # the design search's lens (lens_search.py), shared by the variants and seeds; the
             # spec stays in the run key (lens.search), with the content of best.json
-            from .lens_search import search_dir, search_trainable
-
             c.lens.path = str(search_dir(cfg) / "best.json")
             c.lens.trainable = [] if kind == "searched" else search_trainable(cfg)
             c.lens.search = {k: v for k, v in _plain(cfg.lens.search).items()
@@ -247,20 +187,13 @@ def _same_run(key: dict) -> dict:
     the same runs), and the module's dict settings given in part completed with their defaults
     (``{temperature: 0.25}`` and ``{temperature: 0.25, bins: 4, momentum: 0.9}`` are the same
     run)."""
-    from .module import SOFT_MAX_DEFAULTS
-    from .module_config import INVARIANCE_DEFAULTS
-    from .wiener import DEFAULTS as DECONV_DEFAULTS
-
     key = _drop_nulls(json.loads(json.dumps(key)))
     key = _relocated(key, _eval_folder_of(key))
     model = key.get("model") if isinstance(key, dict) else None
     if isinstance(model, dict):
-        for name, defaults in (("worst_depth", SOFT_MAX_DEFAULTS),
-                               ("optics_worst_depth", SOFT_MAX_DEFAULTS),
-                               ("deconvolution", DECONV_DEFAULTS),
-                               ("optics_invariance", INVARIANCE_DEFAULTS)):
+        for name in MODEL_SETTINGS:   # worst_depth, ..., completed with their defaults
             if isinstance(model.get(name), dict):
-                model[name] = {**dict(defaults), **model[name]}
+                model[name] = completed(name, model[name])
     return key
 
 
@@ -278,8 +211,6 @@ def _reuse(cfg: DictConfig):
     """``(metrics, objects)`` of a finished run of exactly this variant config in its output
     folder (its :data:`RUN_RECORD` and tested checkpoint), the module holding the tested
     weights; ``None`` when there is none or its config differs."""
-    from .checkpoint import CheckpointError, migrate_missing_buffers, read_checkpoint
-
     rec_path = Path(cfg.paths.output_dir) / RUN_RECORD
     if not rec_path.is_file():
         return None
@@ -347,8 +278,6 @@ def _run(cfg: DictConfig, ckpt: str | None, reuse: bool = False):
 def _test_on_folder(cfg: DictConfig, objs: dict, folder) -> dict:
     """Test metrics of the module in ``objs`` (holding the tested weights) on the centre crops
     of ``folder`` (``eval.test_folder``), with the run's own data settings otherwise."""
-    import hydra
-
     dm = hydra.utils.instantiate(cfg.data, test_folder=str(folder))
     objs["folder_datamodule"] = dm      # the evaluation's figures show these images
     trainer = objs["trainer"]
@@ -367,16 +296,12 @@ def _job(cfg: DictConfig, name: str, kind: str, alpha, seed: int):
                                f"configuration in {vc.paths.output_dir}")
         return done
     if kind in ("classical", "refined"):
-        from .classical import design_classical
-
         fc = copy.deepcopy(cfg)  # the file's lens: its design does not depend on lens.search
         with open_dict(fc):
             fc.lens.pop("start", None)
             fc.lens.pop("search", None)
         design_classical(fc, classical_dir(cfg))
     if kind == "searched" or (kind == "learned" and cfg.lens.get("start") == "search"):
-        from .lens_search import search_dir, searched_lens
-
         searched_lens(cfg, search_dir(cfg))
     ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
     torch.manual_seed(seed)
@@ -387,11 +312,6 @@ def provenance(cfg: DictConfig) -> str:
     """One line: the renderer, threads, CPU capability, the deeplens version and commit (of
     the imported package, whatever the working directory: :mod:`deeplens.build_info`) and
     CPU time so far."""
-    import os
-
-    from ..build_info import describe_source
-    from .fanout import cpu_seconds
-
     psf_model = cfg.render.get("psf_model", None)
     render = (f"render.psf_model={psf_model}" if psf_model is not None
               else "geometric ray-traced PSFs (no render.psf_model)")
@@ -405,8 +325,6 @@ def provenance(cfg: DictConfig) -> str:
 def psf_rms_px(lens, sensor, depth_mm: float, n_rays: int = 4096, seed: int = 0) -> float:
     """Geometric rms radius (pixels) of the on-axis PSF at ``depth_mm``, about its centroid,
     averaged over the sensor's wavelengths (each channel's wavelengths, equally weighted)."""
-    from ..render.splat import point_source_rays, trace_to_sensor_pixels
-
     vals = []
     with torch.no_grad():
         for ch in sensor.channels:
@@ -524,8 +442,6 @@ def _atomic_write(path: Path, text: str) -> None:
 
 def _check_test_folder(folder, image_size) -> None:
     """Read every image of ``eval.test_folder`` once before anything trains."""
-    from ..data.datamodule import CenterCropFolderDataset
-
     try:
         ds = CenterCropFolderDataset(folder, image_size)
         for k in range(len(ds)):
@@ -537,14 +453,11 @@ def _check_test_folder(folder, image_size) -> None:
 def check_eval_config(cfg: DictConfig) -> None:
     """Start-up check of ``eval.*`` (nothing when the config has no ``eval``): the variants
     and cubic plates, the seeds (one with ``eval.learned_ckpt``), the classical design's
-    settings (:mod:`.classical`), the tolerance test's (:mod:`.tolerance_eval`) and the
+    settings (:mod:`.classical`), the tolerance test's (:mod:`.tolerance`) and the
     fan-out's (:mod:`.fanout`); raises :class:`~deeplens.optics.errors.ConfigError` naming
-    the key.  Called by :func:`~.train.check_config`."""
+    the key.  Run by :func:`check_config` (:data:`EVAL_CHECKS`)."""
     if cfg.get("eval") is None:
         return
-    from .classical import check_classical_config
-    from .fanout import check_fanout_config
-
     variants(cfg)
     seed_list = seeds(cfg)
     if cfg.eval.get("learned_ckpt") is not None and len(seed_list) > 1:
@@ -555,14 +468,24 @@ def check_eval_config(cfg: DictConfig) -> None:
     check_fanout_config(cfg)
 
 
+#: the evaluation's validators of its own keys, run by :func:`check_config` after the training
+#: floor's (:data:`deeplens.training.train.STARTUP_CHECKS`)
+EVAL_CHECKS = (check_eval_config,)
+
+
+def check_config(cfg: DictConfig) -> None:
+    """The one start-up check of an evaluation's composed config: the training floor's
+    (:func:`deeplens.training.train.check_config`) with :data:`EVAL_CHECKS` (``eval.*``) run
+    after its validators, before the sizes; raises
+    :class:`~deeplens.optics.errors.ConfigError` naming the key."""
+    check_training_config(cfg, extra=EVAL_CHECKS)
+
+
 def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     """Train/test each variant for each seed; write the markdown and JSON tables and the
     figures; return ``(markdown table, summary)`` (see :func:`summarize`)."""
     check_config(cfg)  # every key, before anything is read or trained (train.py)
     if cfg.eval.get("job") is not None:  # one variant x seed of a fan-out (fanout.py)
-        from .fanout import job_cfg
-        from .fanout_stop import watch_parent
-
         jc, (name, kind, alpha, s) = job_cfg(cfg)
         watch_parent()   # stop when the evaluation that fanned the job out is gone (kill -9)
         _job(jc, name, kind, alpha, s)
@@ -628,8 +551,6 @@ def evaluate(cfg: DictConfig) -> tuple[str, dict]:
     _atomic_write(out.with_suffix(".json"), json.dumps(record, indent=2))
     tol.figures(out.parent, bool(cfg.eval.figures))
     if cfg.eval.figures:
-        from .eval_figures import write_figures
-
         folder = cfg.eval.test_folder
         shown = summary if folder is None else {  # the textures' PSF sizes pick the focus
             v: {**e, "psf_rms_px": summary[v].get("psf_rms_px")} for v, e in folder_summary.items()}

@@ -20,8 +20,8 @@ __all__ = ["run"]
 
 
 def _train_task(cfg) -> float | None:
-    from .console import quiet_console
-    from .train import train
+    from ..training.console import quiet_console
+    from ..training.train import train
 
     with quiet_console():
         metrics, _ = train(cfg)
@@ -32,24 +32,19 @@ def _eval_task(cfg, fanout: list[str]) -> None:
     from hydra.core.hydra_config import HydraConfig
     from omegaconf import open_dict
 
-    from .evaluate import evaluate
-    from .train import check_config
+    from ..training.console import quiet_console
+    from ..training.lens_search import search_dir, searched_lens
+    from .evaluate import check_config, evaluate, variants
+    from .fanout import fan_out
 
     check_config(cfg)  # every key, before a job is fanned out
     if cfg.eval.get("launcher") and cfg.eval.get("job") is None and not cfg.eval.get("gather"):
-        from .evaluate import variants
-        from .fanout import fan_out
-
         if any(k == "searched" or (k == "learned" and cfg.lens.get("start") == "search")
                for _, k, _ in variants(cfg)):   # one search here, not one per job at once
-            from .lens_search import search_dir, searched_lens
-
             searched_lens(cfg, search_dir(cfg))
         fan_out(cfg, fanout, list(HydraConfig.get().overrides.task))
         with open_dict(cfg):
             cfg.eval.gather = True
-    from .console import quiet_console
-
     with quiet_console():
         table, _ = evaluate(cfg)
     print(table)
@@ -67,7 +62,7 @@ def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
         ValueError: an unknown ``kind``.
         SystemExit: (status 2) a module of the ``train`` extra is missing; one line on stderr
             names it and the pip command (:mod:`deeplens.extras`); or a misspelt key or a
-            missing ``lens.path`` (:mod:`.precheck`), before any folder is made.
+            missing ``lens.path`` (:mod:`deeplens.training.precheck`), before any folder is made.
     """
     if kind not in ("train", "eval"):
         raise ValueError(f"unknown deeplens task {kind!r}; expected 'train' or 'eval'")
@@ -94,7 +89,7 @@ def run(kind: str, argv: list[str] | None = None, prog: str | None = None,
     main = hydra.main(version_base="1.3", config_path=str(config_dir()),
                       config_name=f"{kind}.yaml")(task)
     args = list(sys.argv[1:] if argv is None else argv)
-    from .precheck import precheck
+    from ..training.precheck import precheck
 
     problem = precheck(kind, args, str(config_dir()))
     if problem:     # a misspelt key, a missing lens: before Hydra makes the run's folder
