@@ -33,7 +33,7 @@ from torch import nn
 from ..refract import unit_normal
 
 __all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface",
-           "set_clear_rect", "clear_rect_of"]
+           "set_clear_rect", "clear_rect_of", "curvature_scale", "conic_scale"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
 #: at import and read by the lens-file reader and writer (never changed afterwards)
@@ -72,6 +72,24 @@ def check_conic_domain(sd: float, c: float, k: float, what: str, where: str = ""
         raise ValueError(f"{where}semi-diameter {sd:g} mm lies beyond the domain of the {what} "
                          f"(R = {1 / c:g} mm, k = {k:g}): the sag is only defined for "
                          f"r < {limit:g} mm")
+
+
+def curvature_scale(R: float) -> float:
+    """The scale of a curvature (1/mm) on a surface of semi-diameter ``R`` (mm): ``R^2 / 2``,
+    mm of sag at the rim per 1/mm (the derivative of ``c R^2 / (1 + sqrt(1 - (1+k) c^2 R^2))``
+    at ``c = 0``; within ``(1+k) c^2 R^2`` of it at the current curvature)."""
+    return R * R / 2
+
+
+def conic_scale(c: float, k: float, R: float) -> float:
+    """The scale of a conic constant: ``∂z/∂k = c^3 R^4 / (2 q (1 + q)^2)`` at the rim ``R``
+    (mm), ``q = sqrt(1 - (1+k) c^2 R^2)``; 1 for a flat base (``c = 0``: the conic does not
+    change the sag) or a rim beyond the conic's domain, and at least 1e-6."""
+    arg = 1.0 - (1.0 + k) * c * c * R * R
+    if c == 0.0 or arg <= 0.0:
+        return 1.0
+    q = math.sqrt(arg)
+    return max(abs(c) ** 3 * R ** 4 / (2.0 * q * (1.0 + q) ** 2), 1e-6)
 
 
 def make_param(value, name: str = "value") -> nn.Parameter:
@@ -154,6 +172,17 @@ class Surface(nn.Module):
 
     def check(self, where: str = "") -> None:
         """Raise ``ValueError`` if the prescription is inconsistent (e.g. aperture beyond domain)."""
+
+    # ---- the natural scale of each parameter (deeplens.optics.parameters) ----------------
+    def sag_scale(self, name: str) -> float:
+        """mm of sag at the rim (``r = R``, the semi-diameter) per unit of this surface's
+        parameter ``name`` (as in ``named_parameters()``, relative to the surface: ``"c"``,
+        ``"a.3"``): the design optimiser's and the training step's scale
+        (:func:`~deeplens.optics.parameters.parameter_scale`).  Each type gives its own
+        (:func:`curvature_scale`, :func:`conic_scale`, ``R^n`` for a coefficient of ``r^n``);
+        the default, 1, is for values already in mm and for parameters that do not move the
+        sag (a phase, a focal length, a frame change)."""
+        return 1.0
 
     # ---- serialisation ----------------------------------------------------------------
     def to_dict(self) -> dict:

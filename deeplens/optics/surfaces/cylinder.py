@@ -18,7 +18,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .base import SagSurface, make_param, register_surface
+from .base import SagSurface, conic_scale, curvature_scale, make_param, register_surface
 
 __all__ = ["Cylinder"]
 
@@ -100,6 +100,19 @@ class Cylinder(SagSurface):
             raise ValueError(f"{where}the clear aperture (y up to {ymax:g} mm) lies beyond the "
                              f"domain of the cylinder's conic section (R = "
                              f"{1 / float(self.c):g} mm, k = {float(self.k):g})")
+
+    def sag_scale(self, name: str) -> float:
+        """The y profile's: ``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (of
+        ``y^(2i+2)``): ``R^(2i+2)`` at ``y = R`` (the semi-diameter); else 1
+        (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
+        R, parts = float(self.semi_diameter), name.split(".")
+        if parts[0] == "c":
+            return curvature_scale(R)
+        if parts[0] == "k":
+            return conic_scale(float(self.c), float(self.k), R)
+        if parts[0] == "a":
+            return R ** (2 * int(parts[1]) + 2)
+        return 1.0
 
     file_fields = ("curvature_per_mm", "conic", "coefficients", "half_width_x_mm",
                    "half_width_y_mm")

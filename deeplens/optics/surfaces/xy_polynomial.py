@@ -193,6 +193,15 @@ class XYPolynomial(Surface):
             return torch.zeros_like(self.b)
         return self.a[ix2] + self.a[iy2]
 
+    def sag_scale(self, name: str) -> float:
+        """``a.m`` (of ``x^i y^j``): ``R^(i+j)``, the bound of the term on the rim; ``b``
+        (1/mm): 1 (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
+        parts = name.split(".")
+        if parts[0] == "a":
+            i, j = self.terms[int(parts[1])]
+            return float(self.semi_diameter) ** (i + j)
+        return 1.0
+
     file_fields = ("coefficients", "b")
 
     @classmethod
