@@ -198,8 +198,8 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None,
     """
     opt = options or TraceOptions()
     tol = opt.tol if opt.tol is not None else default_tolerance(o.dtype)
-    args = (o, d, valid, opl, z_shift, surface.c.to(o), surface.k.to(o),
-            surface.semi_diameter.to(o), torch.as_tensor(n1, dtype=o.dtype, device=o.device),
+    args = (o, d, valid, opl, z_shift, *surface.fused_values(o),   # c, k and the clip radius
+            torch.as_tensor(n1, dtype=o.dtype, device=o.device),
             torch.as_tensor(n2, dtype=o.dtype, device=o.device))
     return quadric_step(*args, tol=tol, clip=opt.clip_aperture, backward=backward)
 

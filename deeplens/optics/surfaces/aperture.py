@@ -20,6 +20,7 @@ import math
 
 import torch
 
+from ..interactions import STOP_CROSSING
 from .base import register_surface
 from .plane import Plane
 
@@ -47,6 +48,9 @@ class Aperture(Plane):
             plane; ``(0, 0)`` by default.  A decentred aperture runs eager (the compiled runs
             clip about the axis).
     """
+
+    #: crossed, not landed on (:meth:`Lens._cross_stop <deeplens.optics.lens.Lens._cross_stop>`)
+    interaction = STOP_CROSSING
 
     def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
                  half_width_x: float | None = None, half_width_y: float | None = None,
@@ -96,6 +100,19 @@ class Aperture(Plane):
             ro = self.obscuration.to(x)
             return super().in_aperture(x, y) & (x * x + y * y >= ro * ro)
         return super().in_aperture(x, y)
+
+    @property
+    def fused(self) -> str | None:
+        """``"stop"`` or ``"stop_rect"`` (the fused kernels clip by the circle or rectangle
+        about the axis); ``None`` (eager) for an annular or decentred opening."""
+        if float(self.obscuration) > 0 or self.decentred:
+            return None
+        return "stop_rect" if self.shape == "rect" else "stop"
+
+    def fused_values(self, like) -> tuple:
+        """``(half_widths,)`` for ``"stop_rect"``, else ``(semi_diameter,)``, in ``like``'s dtype."""
+        return ((self.half_widths.to(like),) if self.shape == "rect"
+                else (self.semi_diameter.to(like),))
 
     def set_semi_diameter(self, value: float) -> None:
         """Resize a circular stop (used when the aperture is given as EPD or F-number)."""

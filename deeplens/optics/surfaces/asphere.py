@@ -264,6 +264,15 @@ class Asphere(SagSurface):
         """True without aspheric coefficients: the surface is its conic base."""
         return len(self.a) == 0
 
+    @property
+    def fused_geometry(self) -> str:
+        """``"quadric"`` (a sphere or conic: the closed-form fused step), else ``"newton"``."""
+        return "quadric" if self.is_quadric else "newton"
+
+    def fused_values(self, like) -> tuple:
+        """``(c, k, semi_diameter)`` for the ``"quadric"`` kind, in ``like``'s dtype."""
+        return (self.c.to(like), self.k.to(like), self.semi_diameter.to(like))
+
     def quadric(self, o, d):
         """Coefficients ``(A, B, C)`` of ``A s^2 + 2 B s + C = 0`` for rays ``o + s d`` on the
         conic base, then ``c' = (1+k) c`` (the branch test is ``h = 1 - c' (o_z + s d_z) > 0``)

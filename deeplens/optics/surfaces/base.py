@@ -30,6 +30,7 @@ import math
 import torch
 from torch import nn
 
+from ..interactions import REFRACTION
 from ..refract import unit_normal
 
 __all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface",
@@ -112,6 +113,12 @@ class Surface(nn.Module):
     file_fields: tuple[str, ...] = ()
     #: a flat surface is intersected in closed form (no Newton iterations)
     is_flat = False
+    #: what happens after the hit (:mod:`~deeplens.optics.interactions`): the tracer asks it
+    #: and its declared flags, never the surface's class
+    interaction = REFRACTION
+    #: the compiled geometry of this type when its law and opening allow a fused run
+    #: (:attr:`fused`): ``"plane"``, ``"quadric"``, ``"newton"`` or ``None`` (eager)
+    fused_geometry: str | None = None
 
     def __init__(self, semi_diameter: float):
         super().__init__()
@@ -162,6 +169,48 @@ class Surface(nn.Module):
 
     def paraxial_curvature(self) -> torch.Tensor:
         return torch.zeros((), dtype=self.semi_diameter.dtype, device=self.semi_diameter.device)
+
+    # ---- declared capabilities (asked by the tracer, :mod:`deeplens.optics.tracer`) ------
+    @property
+    def law(self) -> str:
+        """The name of :attr:`interaction` (``"refract"``, ``"ideal"``, ``"diffract"``,
+        ``"stop"``, ``"frame"``)."""
+        return self.interaction.name
+
+    @property
+    def diffracts(self) -> bool:
+        """The surface diffracts (its law is :class:`~deeplens.optics.interactions.Diffraction`)."""
+        return self.interaction.name == "diffract"
+
+    def _plain_opening(self) -> bool:
+        """Whether the surface clips by its semi-diameter's circle only (the closed-form and
+        fused kernels clip by nothing else)."""
+        ob = self._buffers.get("obscuration")
+        cr = self._buffers.get("clear_radius")
+        return not ((ob is not None and float(ob) > 0)
+                    or (cr is not None and math.isfinite(float(cr))))
+
+    @property
+    def closed_form(self) -> bool:
+        """The eager tracer may intersect and refract the surface in closed form
+        (:func:`~deeplens.optics.intersect.trace_quadric`): a quadric with a fusable law
+        (Snell's) and a plain circular opening."""
+        return self.is_quadric and self.interaction.fusable and self.interaction.lands \
+            and self._plain_opening()
+
+    @property
+    def fused(self) -> str | None:
+        """The :data:`~deeplens.optics.compiled.KINDS` entry (or ``"newton"``) this surface runs
+        as in a compiled trace when its element is aligned, or ``None`` (eager): its
+        :attr:`fused_geometry` when its law is fusable and its opening is the plain circle."""
+        if not (self.interaction.fusable and self._plain_opening()):
+            return None
+        return self.fused_geometry
+
+    def fused_values(self, like) -> tuple:
+        """The values the fused kind takes (:data:`~deeplens.optics.compiled.KINDS`, after
+        ``z_shift``), in ``like``'s dtype: the semi-diameter by default."""
+        return (self.semi_diameter.to(like),)
 
     @property
     def radius(self) -> float:

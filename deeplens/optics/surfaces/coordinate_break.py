@@ -26,6 +26,7 @@ import math
 
 import torch
 
+from ..interactions import FRAME_CHANGE
 from .base import Surface, make_param, register_surface
 
 __all__ = ["CoordinateBreak"]
@@ -53,6 +54,8 @@ class CoordinateBreak(Surface):
 
     file_fields = ("dx_mm", "dy_mm", "tilt_x_rad", "tilt_y_rad", "tilt_z_rad", "order")
     is_flat = True
+    #: re-expresses the rays in the next frame (:meth:`to_next`, :meth:`to_previous`)
+    interaction = FRAME_CHANGE
 
     def __init__(self, dx: float = 0.0, dy: float = 0.0, tilt_x: float = 0.0,
                  tilt_y: float = 0.0, tilt_z: float = 0.0, semi_diameter: float = 1.0,

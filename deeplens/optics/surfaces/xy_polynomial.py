@@ -93,6 +93,9 @@ class XYPolynomial(Surface):
     The coefficients are one parameter each: ``surface.a[m]``; ``surface.b``.
     """
 
+    #: the compiled Newton kernels below
+    fused_geometry = "newton"
+
     def __init__(self, semi_diameter: float, coefficients=(0.0,), b: float = 0.0):
         super().__init__(semi_diameter)
         n = len(coefficients)
