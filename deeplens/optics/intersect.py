@@ -64,9 +64,8 @@ import torch
 
 from .options import TraceOptions
 from .refract import snell_coefficient, snell_xyz
-from .surfaces.aperture import in_rect
+from .openings import in_circle, in_rect
 from .surfaces.asphere import conic_arg, conic_normal, conic_quadric
-from .surfaces.base import in_circle
 
 __all__ = ["IntersectOptions", "TraceOptions", "accept_hits", "default_tolerance", "flat_step",
            "flat_step_xyz", "hit_mask", "intersect", "rounding_tolerance", "snell_xyz",

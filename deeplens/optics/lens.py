@@ -445,16 +445,16 @@ class Lens(nn.Module):
             last = max([i for i, s in enumerate(self.surfaces)
                         if s.law != "stop"], default=len(self.surfaces) - 1)
             s = self.surfaces[last]
-            dec = getattr(s, "clear_decenter", None)
-            if dec is not None and bool(dec.any()):
+            centre, radius = s.opening.bounds()
+            if centre != (0.0, 0.0):
                 # an off-axis segment (a decentred clear aperture: an off-axis parabola): only
                 # its opening, sampled along the radius through its centre (a rotationally
                 # symmetric sag is extreme there), and of it only what lies within the sensor's
                 # semi-diameter when that is known (an OAP's focus lies beside its segment)
-                c = dec.to(torch.float64)
+                c = torch.tensor(centre, dtype=torch.float64)
                 u = c / torch.linalg.vector_norm(c)
                 t = torch.linspace(-1.0, 1.0, 65, dtype=torch.float64)
-                xy = c + (t * float(s.clear_radius)).unsqueeze(-1) * u
+                xy = c + (t * radius).unsqueeze(-1) * u
                 if self.sensor_semi_diameter is not None:
                     xy = xy[torch.linalg.vector_norm(xy, dim=-1) <= self.sensor_semi_diameter]
                 zl = z[last] + s.sag(xy[:, 0], xy[:, 1])
@@ -509,7 +509,7 @@ class Lens(nn.Module):
         semi-diameter becomes the paraxial stop radius, ``EPD/2 · |y_stop / y_EP|``."""
 
         stop = self.stop
-        if stop.law == "stop" and stop.shape != "circle":
+        if stop.law == "stop" and stop.opening.outer.kind == "rect":
             raise LensError("an EPD or F-number aperture needs a circular stop (this Aperture is "
                             "rectangular)", key="aperture")
         p = paraxial(self)

@@ -133,7 +133,7 @@ def newton_compiled(lens, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol
         ok = tried & converged
         s_star = torch.where(ok, s_star, torch.zeros_like(s_star))
     args = (kind, sp, soa[0], soa[1], rays.valid, rays.opl, z_shift,
-            s.semi_diameter.to(like), _compact(n1).to(like), _compact(n2).to(like), s_star,
+            s.opening.kernel_clip[1].to(like), _compact(n1).to(like), _compact(n2).to(like), s_star,
             ok, tol, options.clip_aperture)
     if options.checkpoint and torch.is_grad_enabled():
         return torch.utils.checkpoint.checkpoint(C.call, C.compiled_newton_refract, *args,

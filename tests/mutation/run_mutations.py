@@ -560,7 +560,7 @@ MUTATIONS = [
              "if s > 0:   # a virtual object", "if True:   # a virtual object", LENS2_SETUPS),
     Mutation("sqap_ignored_off_asphere", "a rectangular clear aperture (SQAP) on a surface "
              "other than an even asphere read but not clipped", "deeplens/optics/surfaces/base.py",
-             'rect = None if self._own_clear_rect else self._buffers.get("clear_rect")',
+             'rect = self._buffers.get("clear_rect")',
              "rect = None", ("tests/optics/io/test_zmx_sqap_any_surface.py",)),
     Mutation("xasphere_rn_power", "Extended Asphere term i divided by R_n^i instead of "
              "R_n^(2i)", "deeplens/optics/io/zmx_surfaces.py",

@@ -31,6 +31,7 @@ import torch
 from torch import nn
 
 from ..interactions import REFRACTION
+from ..openings import Circle, Opening, Rectangle, in_circle
 from ..refract import unit_normal
 
 __all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface",
@@ -55,12 +56,6 @@ def register_surface(name: str, aliases: tuple[str, ...] = ()):
         return cls
 
     return deco
-
-
-def in_circle(X, Y, r):
-    """``X^2 + Y^2 <= r^2``: inside a circular clear aperture of radius ``r`` (mm); the eager
-    :meth:`Surface.in_aperture` and the compiled kernels' aperture check."""
-    return X * X + Y * Y <= r * r
 
 
 def check_conic_domain(sd: float, c: float, k: float, what: str, where: str = "") -> None:
@@ -138,8 +133,32 @@ class Surface(nn.Module):
     def in_domain(self, x, y):
         return torch.ones_like(x, dtype=torch.bool)
 
+    # ---- the opening (deeplens.optics.openings) --------------------------------------
+    _opening: Opening | None = None
+
+    @property
+    def opening(self) -> Opening:
+        """Where the surface lets rays through (:mod:`~deeplens.optics.openings`): an opening
+        assigned to it (``surface.opening = Circle(3.0) - Circle(1.0)``), else the one its type
+        builds from its own values (:meth:`_build_opening`: the semi-diameter's circle by
+        default; the obscuration, clear radius, decenter and rectangle of the types that carry
+        them, which stay buffers under their lens-file names so that ``state_dict`` and lens
+        files do not change)."""
+        return self._opening if self._opening is not None else self._build_opening()
+
+    @opening.setter
+    def opening(self, value: Opening) -> None:
+        if not isinstance(value, Opening):
+            raise TypeError(f"{type(self).__name__}.opening: expected an Opening "
+                            f"(deeplens.optics.openings), got {type(value).__name__}")
+        self._opening = value
+
+    def _build_opening(self) -> Opening:
+        return Circle(self.semi_diameter, check=False)
+
     def in_aperture(self, x, y):
-        return in_circle(x, y, self.semi_diameter.to(x))
+        """``(*B,)`` bool: ``(x, y)`` (mm, local frame) lies in the :attr:`opening`."""
+        return self.opening.contains(x, y)
 
     def sag(self, x, y):
         raise NotImplementedError
@@ -183,12 +202,10 @@ class Surface(nn.Module):
         return self.interaction.name == "diffract"
 
     def _plain_opening(self) -> bool:
-        """Whether the surface clips by its semi-diameter's circle only (the closed-form and
-        fused kernels clip by nothing else)."""
-        ob = self._buffers.get("obscuration")
-        cr = self._buffers.get("clear_radius")
-        return not ((ob is not None and float(ob) > 0)
-                    or (cr is not None and math.isfinite(float(cr))))
+        """Whether the opening is one centred circle (the closed-form and fused kernels clip
+        by nothing else, :attr:`~deeplens.optics.openings.Opening.kernel_clip`)."""
+        clip = self.opening.kernel_clip
+        return clip is not None and clip[0] == "circle"
 
     @property
     def closed_form(self) -> bool:
@@ -209,8 +226,9 @@ class Surface(nn.Module):
 
     def fused_values(self, like) -> tuple:
         """The values the fused kind takes (:data:`~deeplens.optics.compiled.KINDS`, after
-        ``z_shift``), in ``like``'s dtype: the semi-diameter by default."""
-        return (self.semi_diameter.to(like),)
+        ``z_shift``), in ``like``'s dtype: the opening's clip radius by default (the
+        semi-diameter unless another opening was assigned)."""
+        return (self.opening.kernel_clip[1].to(like),)
 
     @property
     def radius(self) -> float:
@@ -254,20 +272,16 @@ class SagSurface(Surface):
 
     Subclasses implement ``sag`` and ``sag_grad`` (returning ``(∂z/∂x, ∂z/∂y)``).  Any sag
     surface can carry a rectangular clear aperture (:func:`set_clear_rect`: Zemax's ``SQAP``),
-    which :meth:`in_aperture` applies with the semi-diameter's circle.
+    which its :attr:`opening` intersects with the semi-diameter's circle.
     """
 
-    #: the type applies ``clear_rect`` in its own :meth:`in_aperture` (the even asphere family)
-    _own_clear_rect = False
-
-    def in_aperture(self, x, y):
-        inside = super().in_aperture(x, y)
-        rect = None if self._own_clear_rect else self._buffers.get("clear_rect")
-        if rect is not None and bool(rect.any()):
-            dec = self._buffers["clear_decenter"]
-            u, v = x - dec[0].to(x), y - dec[1].to(x)
-            inside = inside & (u.abs() <= rect[0].to(x)) & (v.abs() <= rect[1].to(x))
-        return inside
+    def _build_opening(self) -> Opening:
+        """The semi-diameter's circle, and the rectangle of :func:`set_clear_rect` when set."""
+        circle = super()._build_opening()
+        rect = self._buffers.get("clear_rect")
+        if rect is None or not bool(rect.any()):
+            return circle
+        return circle & Rectangle(rect, self._buffers["clear_decenter"], check=False)
 
     def sag_grad(self, x, y):
         raise NotImplementedError

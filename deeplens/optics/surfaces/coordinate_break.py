@@ -27,6 +27,7 @@ import math
 import torch
 
 from ..interactions import FRAME_CHANGE
+from ..openings import Everywhere, Opening
 from .base import Surface, make_param, register_surface
 
 __all__ = ["CoordinateBreak"]
@@ -81,8 +82,8 @@ class CoordinateBreak(Surface):
     def sag(self, x, y):
         return torch.zeros_like(x)
 
-    def in_aperture(self, x, y):
-        return torch.ones_like(x, dtype=torch.bool)
+    def _build_opening(self) -> Opening:
+        return Everywhere()
 
     def rotation(self, like: torch.Tensor) -> torch.Tensor:
         """``R = R_x(tilt_x) R_y(tilt_y) R_z(tilt_z)`` (order 1: ``R_z R_y R_x``), ``(3, 3)`` in

@@ -18,6 +18,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ..openings import Opening, Rectangle
 from .base import SagSurface, conic_scale, curvature_scale, make_param, register_surface
 
 __all__ = ["Cylinder"]
@@ -63,11 +64,11 @@ class Cylinder(SagSurface):
     def in_domain(self, x, y):
         return self._arg(y) > 0
 
-    def in_aperture(self, x, y):
+    def _build_opening(self) -> Opening:
+        """The rectangle ``|x| <= w_x, |y| <= w_y`` when given, else the semi-diameter's circle."""
         if self.half_widths is None:
-            return super().in_aperture(x, y)
-        hw = self.half_widths.to(x)
-        return (x.abs() <= hw[0]) & (y.abs() <= hw[1])
+            return super()._build_opening()
+        return Rectangle(self.half_widths, check=False)
 
     def sag(self, x, y):
         c = self.c.to(y)
