@@ -6,9 +6,14 @@ optical axis.  A surface provides
 * ``f(x, y, z)``         the implicit function (mm); for a sag surface ``f = sag(x, y) - z``
 * ``f_grad(x, y, z)``    ``(∂f/∂x, ∂f/∂y, ∂f/∂z)``, analytic, differentiable in ``θ``
 * ``in_domain(x, y)``    where ``f`` is defined (e.g. inside a conic's sqrt domain)
-* ``in_aperture(x, y)``  inside the clear aperture (circular semi-diameter by default)
+* ``in_aperture(x, y)``  inside the surface's ``opening`` (:mod:`..openings`; the
+  semi-diameter's circle by default)
 * ``sag(x, y)``          the surface height, for layouts and crossing checks
 * ``paraxial_curvature`` the vertex curvature used by paraxial analysis (1/mm)
+
+What happens after the hit is the surface's ``interaction`` (:mod:`..interactions`), how it
+runs compiled its ``fused_geometry``/``fused_values``, and the natural scale of each of its
+parameters its ``sag_scale``: the tracer and :mod:`..parameters` ask these, never the class.
 
 Serialisation: each type registers its lens-file ``type`` name with :func:`register_surface`
 and owns both directions: ``to_dict()`` writes its entry, ``from_dict(entry, semi_diameter)``
@@ -182,7 +187,8 @@ class Surface(nn.Module):
     #: ``kernel_in_domain(x, y, values)`` and ``kernel_start(bx, by, bz, dx, dy, dz, ok, values,
     #: root_fn)`` (Newton's start ``s`` from the vertex-plane point), built from the same
     #: functions its ``f``/``f_grad``/``in_domain`` call.  A subclass that changes ``f`` must
-    #: redefine them.  Without them the surface runs eager between compiled runs.
+    #: redefine them, and declare ``fused_geometry = "newton"``.  Without them the surface runs
+    #: eager between compiled runs.
     def kernel_values(self, like):
         return None
 
