@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""A training step's render with and without ``IntersectOptions(compile=True)``.
+"""A training step's render with and without ``TraceOptions(compile=True)``.
 
 The render half of the ``render=balanced`` training step as ``bench_render_accuracy.py`` times
 it (its lenses, sensors, textures and preset; a batch of 4 planes, 64 x 64 RGB, render +
@@ -25,7 +25,7 @@ import torch
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_render_accuracy as B  # noqa: E402
 
-from deeplens.optics.intersect import IntersectOptions  # noqa: E402
+from deeplens.optics.options import TraceOptions  # noqa: E402
 from deeplens.render import MonteCarloRenderer, Scene  # noqa: E402
 
 
@@ -44,7 +44,7 @@ def main() -> None:
         batch = Scene(B.make_textures(len(depths), seed=555).to(getattr(torch, dtype)), depths)
         grads = {}
         for comp in (False, True):
-            opts = IntersectOptions(tol=cfg["newton_tol"], max_iter=cfg["max_iter"], compile=comp)
+            opts = TraceOptions(tol=cfg["newton_tol"], max_iter=cfg["max_iter"], compile=comp)
 
             def step(seed):
                 r = MonteCarloRenderer(lens, sensor, spp=cfg["spp"], vignetting=cfg["vignetting"],

@@ -3,7 +3,7 @@
 
 Reproduces the claim of the dO paper (Sec. II-C, Fig. 4): solving ``f(o + t d; θ) = 0`` by
 Newton *without* autograd and then taking one differentiable Newton step (Eq. 7,
-``IntersectOptions(mode="implicit")``) needs several times less memory for the backward pass than
+``TraceOptions(mode="implicit")``) needs several times less memory for the backward pass than
 recording every Newton iteration in the autograd graph (``mode="unrolled"``).
 
 Workload (one configuration = surface, size, number of rays, mode):
@@ -16,7 +16,7 @@ Workload (one configuration = surface, size, number of rays, mode):
     deformation;
 * ``N`` rays starting 1 mm before the vertex plane, spread over 85 % of the aperture and tilted up
   to 8 degrees, so that Newton needs several iterations from the vertex-plane start;
-* ``t, x, ok = intersect(surface, o, d, valid, IntersectOptions(mode=...))`` and the non-constant
+* ``t, x, ok = intersect(surface, o, d, valid, TraceOptions(mode=...))`` and the non-constant
   loss ``sum(ok * x * w)`` with fixed random weights ``w``; ``loss.backward()`` to the coefficients
   (``--ray-grad``: and to ``o`` and ``d``, as inside a lens where upstream surfaces move the rays;
   the implicit step then keeps more, and the ratio drops to about the Newton iteration count).
@@ -204,7 +204,7 @@ def newton_stats(surface, o, d, valid, tol, max_iter):
 
 def run_one(cfg: dict) -> dict:
     import torch
-    from deeplens.optics.intersect import IntersectOptions, default_tolerance, intersect
+    from deeplens.optics.intersect import TraceOptions, default_tolerance, intersect
 
     if cfg.get("threads"):
         torch.set_num_threads(cfg["threads"])
@@ -221,7 +221,7 @@ def run_one(cfg: dict) -> dict:
     for p in params:
         p.requires_grad_(True)
     n_coeffs = sum(p.numel() for p in params)
-    opts = IntersectOptions(mode=cfg["mode"], tol=cfg.get("tol"), max_iter=cfg["max_iter"])
+    opts = TraceOptions(mode=cfg["mode"], tol=cfg.get("tol"), max_iter=cfg["max_iter"])
     tol = opts.tol if opts.tol is not None else default_tolerance(dtype)
 
     def step(o, d, valid, w):

@@ -47,7 +47,7 @@ def _setup(pkg, lens_file, n, dtype=torch.float32):
 
 
 def _options(pkg, **kw):
-    return importlib.import_module(f"{pkg}.optics.intersect").IntersectOptions(**kw)
+    return importlib.import_module(f"{pkg}.optics.intersect").TraceOptions(**kw)
 
 
 def _forward(lens, rays, opt):

@@ -73,7 +73,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
 
 from deeplens.data.textures import dead_leaves  # noqa: E402
-from deeplens.optics.intersect import IntersectOptions, default_tolerance  # noqa: E402
+from deeplens.optics.intersect import TraceOptions, default_tolerance  # noqa: E402
 from deeplens.render import IdealCamera, MonteCarloRenderer, Scene, Sensor  # noqa: E402
 from deeplens.render.psf_conv import PSFConvRenderer  # noqa: E402
 from deeplens.training.lens_setup import (  # noqa: E402
@@ -136,7 +136,7 @@ def grad_vector(lens) -> torch.Tensor:
 def mc(lens, sensor, spp, tol=None, max_iter=30):
     return MonteCarloRenderer(lens, sensor, spp=spp, vignetting=False, adjoint=True,
                               chunk_rays=CHUNK,
-                              options=IntersectOptions(tol=tol, max_iter=max_iter))
+                              options=TraceOptions(tol=tol, max_iter=max_iter))
 
 
 @contextlib.contextmanager
@@ -486,7 +486,7 @@ def section_psf(case, args, results):
             for k in range(args.reps):
                 if p > 0:
                     r = PSFConvRenderer(lens, case.sensor, n_rays=args.psf_rays, patches=(p, p),
-                                        options=IntersectOptions())
+                                        options=TraceOptions())
                 else:
                     r = mc(lens, case.sensor, -p)
                 img, g, dt = case.run(r, "float32", seed=77 + k)
@@ -530,7 +530,7 @@ def lens_dtype(key: str) -> str:
 
 
 def preset_renderer(cfg, lens, sensor):
-    opts = IntersectOptions(tol=cfg["newton_tol"], max_iter=cfg["max_iter"])
+    opts = TraceOptions(tol=cfg["newton_tol"], max_iter=cfg["max_iter"])
     if cfg["kind"] == "psf":
         return PSFConvRenderer(lens, sensor, n_rays=cfg["psf_rays"],
                                patches=tuple(cfg["psf_patches"]), options=opts)

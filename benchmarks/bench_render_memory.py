@@ -164,9 +164,9 @@ def build_setup(cfg: dict):
     with torch.no_grad():
         target = IdealCamera(lens, sensor).render(scene)  # the sharp image (1, 1, H, W)
     options = None
-    if cfg["mode"].endswith("-compiled"):  # IntersectOptions(compile=True): fused kernels
-        from deeplens.optics.intersect import IntersectOptions
-        options = IntersectOptions(compile=True)
+    if cfg["mode"].endswith("-compiled"):  # TraceOptions(compile=True): fused kernels
+        from deeplens.optics.options import TraceOptions
+        options = TraceOptions(compile=True)
     renderer = MonteCarloRenderer(lens, sensor, spp=cfg["spp"],
                                   adjoint=cfg["mode"].startswith("adjoint"),
                                   chunk_rays=cfg["chunk_rays"], vignetting=False, options=options)
@@ -424,7 +424,7 @@ def main(argv=None):
                          "the renderer's own default is 1048576)")
     ap.add_argument("--modes", type=str, default="plain,adjoint",
                     help="of plain, adjoint, plain-compiled, adjoint-compiled (the last two with "
-                         "IntersectOptions(compile=True); their compilation happens in the "
+                         "TraceOptions(compile=True); their compilation happens in the "
                          "warm-up, on the tiny sensor)")
     ap.add_argument("--plate-alpha-mm", type=float, default=0.01,
                     help="cubic plate sag at the rim, mm (configs/eval.yaml's cubic_alpha_mm)")

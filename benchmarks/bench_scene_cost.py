@@ -52,7 +52,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, REPO)
 
 from deeplens.data.textures import dead_leaves  # noqa: E402
-from deeplens.optics.intersect import IntersectOptions  # noqa: E402
+from deeplens.optics.options import TraceOptions  # noqa: E402
 from deeplens.render import IdealCamera, MonteCarloRenderer, Scene, Sensor  # noqa: E402
 from deeplens.render.psf_conv import PSFConvRenderer  # noqa: E402
 from deeplens.training.lens_setup import build_lens, cubic_phase_plate  # noqa: E402
@@ -140,7 +140,7 @@ def timed(fn, reps):
 def mc(lens, sensor, cfg):
     return MonteCarloRenderer(lens, sensor, spp=cfg["spp"], vignetting=cfg["vignetting"],
                               adjoint=cfg["adjoint"], chunk_rays=cfg["chunk_rays"],
-                              options=IntersectOptions(cfg["newton_tol"], cfg["max_iter"]))
+                              options=TraceOptions(cfg["newton_tol"], cfg["max_iter"]))
 
 
 def render_backward(lens, renderers_scenes):

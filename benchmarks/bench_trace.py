@@ -6,10 +6,10 @@ Rows (each code base runs in its own fresh subprocess, so memory and cold start 
 * ``forward``: ``lens.trace_to_sensor(rays)`` under ``torch.no_grad()``;
 * ``trace + backward``: the same trace with every curvature trainable, the RMS spot radius
   ``sqrt(mean |p - mean p|^2)`` over the valid rays and ``loss.backward()``; again with
-  ``IntersectOptions(checkpoint=True)`` where the code has it (surfaces recomputed in backward);
+  ``TraceOptions(checkpoint=True)`` where the code has it (surfaces recomputed in backward);
 * ``cold start``: a fresh interpreter: ``import torch, deeplens``, load the lens, build the rays,
   one trace + backward (the seconds column is the whole wall time, rays/s uses it too);
-* ``compile=...`` rows (code with ``IntersectOptions(compile=...)``): the same rows through the
+* ``compile=...`` rows (code with ``TraceOptions(compile=...)``): the same rows through the
   compiled kernels, ``"lens"`` (one kernel per run of spheres/planes/stop) and ``"surface"``
   (one per surface) for each; ``compile=True`` picks ``"lens"`` without and ``"surface"`` with
   gradients.  Their compilation is warmed up before anything is measured, and has its own rows:
@@ -103,14 +103,14 @@ def _child(args) -> None:
     rays = field_rays(lens, 0.0, WAVELENGTH_NM, xy, z_ep)
     n_surf = len(lens.surfaces)
 
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
     try:
-        ckpt = IntersectOptions(checkpoint=True)
+        ckpt = TraceOptions(checkpoint=True)
     except TypeError:  # code without the option
         ckpt = None
     try:
-        comp = {m: IntersectOptions(compile=m) for m in ("lens", "surface")}
-        comp["surface+ckpt"] = IntersectOptions(compile="surface", checkpoint=True)
+        comp = {m: TraceOptions(compile=m) for m in ("lens", "surface")}
+        comp["surface+ckpt"] = TraceOptions(compile="surface", checkpoint=True)
     except TypeError:  # code without compiled kernels
         comp = None
 
@@ -138,10 +138,10 @@ def _child(args) -> None:
         res["import_s"] = time.perf_counter() - t_start
         t0, c0 = time.perf_counter(), time.process_time()
         with torch.no_grad():
-            lens.trace_to_sensor(rays, options=IntersectOptions(compile=True))
+            lens.trace_to_sensor(rays, options=TraceOptions(compile=True))
         res["first_fwd_s"], res["first_fwd_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
         t0, c0 = time.perf_counter(), time.process_time()
-        trace_backward(None, IntersectOptions(compile=True))
+        trace_backward(None, TraceOptions(compile=True))
         res["first_bwd_s"], res["first_bwd_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
         res["cold_s"] = time.perf_counter() - t_start
         print(json.dumps(res))

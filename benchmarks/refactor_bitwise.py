@@ -40,7 +40,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from deeplens.optics import compiled as C  # noqa: E402
-from deeplens.optics.intersect import IntersectOptions  # noqa: E402
+from deeplens.optics.options import TraceOptions  # noqa: E402
 from deeplens.optics.io import load_lens  # noqa: E402
 from deeplens.optics.lens import Lens  # noqa: E402
 from deeplens.optics.materials import Air, get_material  # noqa: E402
@@ -300,16 +300,16 @@ def _diffraction_entry(lens, params, opt):
     return fn
 
 
-FUSED = {"surface": IntersectOptions(compile="surface"), "lens": IntersectOptions(compile="lens"),
-         "auto": IntersectOptions(compile="auto"),
-         "surface_ckpt": IntersectOptions(compile="surface", checkpoint=True)}
+FUSED = {"surface": TraceOptions(compile="surface"), "lens": TraceOptions(compile="lens"),
+         "auto": TraceOptions(compile="auto"),
+         "surface_ckpt": TraceOptions(compile="surface", checkpoint=True)}
 
 
 def record(compiled: bool, only=None, compiled_cases=COMPILED_CASES) -> dict:
     torch.manual_seed(0)
     store: dict = {}
-    eager_opts = {"eager": IntersectOptions(), "eager_ckpt": IntersectOptions(checkpoint=True),
-                  "generic": IntersectOptions(tol=1e-13, closed_form=False)}
+    eager_opts = {"eager": TraceOptions(), "eager_ckpt": TraceOptions(checkpoint=True),
+                  "generic": TraceOptions(tol=1e-13, closed_form=False)}
     for name, build in CASES.items():
         if only and name not in only:
             continue

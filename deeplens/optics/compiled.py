@@ -7,7 +7,7 @@ surface ``j`` by composing, per surface, the pure tensor functions
 PyTorch runs its ~60 element-wise operators per surface one at a time, each reading and writing
 whole ``(N,)`` tensors, while ``torch.compile`` (inductor: C++/OpenMP on CPU, Triton on CUDA)
 fuses them into one loop that reads the incoming ray state once and writes the outgoing one
-once (``IntersectOptions(compile="surface")``: one kernel per surface; ``compile="lens"`` or
+once (``TraceOptions(compile="surface")``: one kernel per surface; ``compile="lens"`` or
 ``True``: one kernel per run, the state between surfaces never reaches memory).  The arithmetic
 is the same function as the eager path's, so results agree to float rounding (the compiler may
 reorder or contract operations).  Even aspheres and XY polynomials run Newton's method in

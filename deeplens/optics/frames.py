@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import torch
 
-from .surfaces import CoordinateBreak
 
 __all__ = ["local_frames", "to_global"]
 
@@ -31,7 +30,7 @@ def local_frames(lens) -> list[tuple[torch.Tensor, torch.Tensor]]:
     out = []
     for i, s in enumerate(lens.surfaces):
         out.append((A, b))
-        if isinstance(s, CoordinateBreak):
+        if s.interaction.changes_frame:   # a coordinate break
             R = s.rotation(like)
             zero = torch.zeros_like(z[i])
             zc = torch.stack([zero, zero, z[i]])

@@ -64,11 +64,10 @@ import torch
 
 from .options import TraceOptions
 from .refract import snell_coefficient, snell_xyz
-from .surfaces.aperture import in_rect
+from .openings import in_circle, in_rect
 from .surfaces.asphere import conic_arg, conic_normal, conic_quadric
-from .surfaces.base import in_circle
 
-__all__ = ["IntersectOptions", "TraceOptions", "accept_hits", "default_tolerance", "flat_step",
+__all__ = ["TraceOptions", "accept_hits", "default_tolerance", "flat_step",
            "flat_step_xyz", "hit_mask", "intersect", "rounding_tolerance", "snell_xyz",
            "quadric_step", "quadric_step_xyz", "trace_quadric"]
 
@@ -79,9 +78,19 @@ def default_tolerance(dtype: torch.dtype) -> float:
     return 1e-10 if dtype == torch.float64 else 1e-5
 
 
-#: deprecated name of :class:`~.options.TraceOptions` (the settings now cover the whole trace:
-#: Newton, the closed form, compiled kernels and checkpointing); kept so existing code runs
-IntersectOptions = TraceOptions
+def __getattr__(name: str):
+    """``IntersectOptions``, the former name of :class:`~.options.TraceOptions` (the settings
+    now cover the whole trace: Newton, the closed form, compiled kernels and checkpointing),
+    still resolves for one release, with a ``DeprecationWarning``."""
+    if name == "IntersectOptions":
+        warnings.warn(DEPRECATED_OPTIONS, DeprecationWarning, stacklevel=2)
+        return TraceOptions
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+#: the warning of the former name ``IntersectOptions``
+DEPRECATED_OPTIONS = ("IntersectOptions is deprecated and will be removed: use TraceOptions "
+                      "(from deeplens.optics import TraceOptions), the same class")
 
 
 #: the tolerance never goes below this many float rounding units of the coordinates, ``eps |x|``
@@ -182,7 +191,7 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None,
     ``y``, ``z`` components (``(*B,)`` each) instead of ``(*B, 3)`` tensors: the shift touches
     ``z`` only, and each step reads one component at a time, about 2x less memory traffic.
     The arithmetic is the pure tensor function :func:`quadric_step` (which
-    ``IntersectOptions(compile=...)`` runs compiled, :mod:`.compiled`).
+    ``TraceOptions(compile=...)`` runs compiled, :mod:`.compiled`).
 
     Args:
         surface: a surface with ``is_quadric`` (an :class:`~.surfaces.Asphere` without
@@ -198,8 +207,8 @@ def trace_quadric(surface, o, d, valid, opl, z_shift, n1, n2, options=None,
     """
     opt = options or TraceOptions()
     tol = opt.tol if opt.tol is not None else default_tolerance(o.dtype)
-    args = (o, d, valid, opl, z_shift, surface.c.to(o), surface.k.to(o),
-            surface.semi_diameter.to(o), torch.as_tensor(n1, dtype=o.dtype, device=o.device),
+    args = (o, d, valid, opl, z_shift, *surface.fused_values(o),   # c, k and the clip radius
+            torch.as_tensor(n1, dtype=o.dtype, device=o.device),
             torch.as_tensor(n2, dtype=o.dtype, device=o.device))
     return quadric_step(*args, tol=tol, clip=opt.clip_aperture, backward=backward)
 

@@ -43,9 +43,7 @@ from .misalignment import Misalignment
 from .options import TraceOptions
 from .paraxial import paraxial
 from .rays import Rays, compact_broadcast as _compact
-from .reflect import reflect
-from .refract import refract
-from .surfaces import Aperture, CoordinateBreak, Surface
+from .surfaces import Surface
 from .surfaces.base import make_param
 
 __all__ = ["Lens", "LensSpec"]
@@ -143,7 +141,7 @@ def _check_mirrors(mirrors, surfaces, materials) -> frozenset:
             raise LensError(f"mirror index {i!r} is not a surface index (0..{len(surfaces) - 1})",
                             key="mirrors")
         s = surfaces[i]
-        if isinstance(s, (Aperture, CoordinateBreak)) or getattr(s, "deflects", False):
+        if not s.interaction.reflects:   # a stop, a frame change, an ideal lens
             raise LensError(f"surface {i} ({type(s).__name__}) cannot be a mirror",
                             surfaces=(i,), key="mirrors")
         if materials[i + 1] is not materials[i] and materials[i + 1].to_spec() != \
@@ -160,7 +158,7 @@ def _default_elements(surfaces, materials) -> list[tuple[int, int]]:
     (or any surface with air on both sides) is an element of its own."""
     groups, start = [], 0
     for i in range(len(surfaces)):
-        if isinstance(materials[i + 1], Air) or isinstance(surfaces[i], Aperture):
+        if isinstance(materials[i + 1], Air) or surfaces[i].law == "stop":
             groups.append((start, i))
             start = i + 1
     if start < len(surfaces):
@@ -298,7 +296,7 @@ class Lens(nn.Module):
 
     def folded(self) -> bool:
         """True when the lens has a mirror or a coordinate break (it then traces eagerly)."""
-        return bool(self.mirrors) or any(isinstance(s, CoordinateBreak) for s in self.surfaces)
+        return bool(self.mirrors) or any(s.interaction.changes_frame for s in self.surfaces)
 
     @property
     def backward_gaps(self) -> frozenset:
@@ -367,7 +365,7 @@ class Lens(nn.Module):
                 s.check(where=f"surface {i} ({type(s).__name__}): ")
             except ValueError as e:
                 raise LensError(str(e), surfaces=(i,)) from None
-            if isinstance(s, Aperture):  # a stop does not refract: one medium on both sides
+            if s.interaction.same_medium:  # a stop does not refract: one medium on both sides
                 with torch.no_grad():
                     w = torch.tensor(waves, dtype=torch.float64)
                     n1, n2 = self.materials[i].n(w), self.materials[i + 1].n(w)
@@ -385,8 +383,7 @@ class Lens(nn.Module):
         # between consecutive *real* surfaces, the stops between them skipped
         pairs = self._real_neighbours()
         spans = [(i - 1, i) for i in range(1, len(self.surfaces))
-                 if not isinstance(self.surfaces[i], (CoordinateBreak, Aperture))
-                 and not isinstance(self.surfaces[i - 1], Aperture)]
+                 if self.surfaces[i].interaction.lands and self.surfaces[i - 1].law != "stop"]
         spans += [(p, q) for p, q in pairs if q > p + 1]   # across stops
         for p, q in spans:
             d = float(self.distances[q]) if q == p + 1 else float(z[q] - z[p])
@@ -446,18 +443,18 @@ class Lens(nn.Module):
                                                      float(r[k]), z, sign[j],
                                                      math.radians(deg)))
             last = max([i for i, s in enumerate(self.surfaces)
-                        if not isinstance(s, Aperture)], default=len(self.surfaces) - 1)
+                        if s.law != "stop"], default=len(self.surfaces) - 1)
             s = self.surfaces[last]
-            dec = getattr(s, "clear_decenter", None)
-            if dec is not None and bool(dec.any()):
+            centre, radius = s.opening.bounds()
+            if centre != (0.0, 0.0):
                 # an off-axis segment (a decentred clear aperture: an off-axis parabola): only
                 # its opening, sampled along the radius through its centre (a rotationally
                 # symmetric sag is extreme there), and of it only what lies within the sensor's
                 # semi-diameter when that is known (an OAP's focus lies beside its segment)
-                c = dec.to(torch.float64)
+                c = torch.tensor(centre, dtype=torch.float64)
                 u = c / torch.linalg.vector_norm(c)
                 t = torch.linspace(-1.0, 1.0, 65, dtype=torch.float64)
-                xy = c + (t * float(s.clear_radius)).unsqueeze(-1) * u
+                xy = c + (t * radius).unsqueeze(-1) * u
                 if self.sensor_semi_diameter is not None:
                     xy = xy[torch.linalg.vector_norm(xy, dim=-1) <= self.sensor_semi_diameter]
                 zl = z[last] + s.sag(xy[:, 0], xy[:, 1])
@@ -497,9 +494,9 @@ class Lens(nn.Module):
         frame: the pairs across it are not compared)."""
         pairs, prev = [], None
         for i, s in enumerate(self.surfaces):
-            if isinstance(s, CoordinateBreak):
+            if s.law == "frame":
                 prev = None
-            elif not isinstance(s, Aperture):
+            elif s.law != "stop":
                 if prev is not None:
                     pairs.append((prev, i))
                 prev = i
@@ -512,7 +509,7 @@ class Lens(nn.Module):
         semi-diameter becomes the paraxial stop radius, ``EPD/2 · |y_stop / y_EP|``."""
 
         stop = self.stop
-        if isinstance(stop, Aperture) and stop.shape != "circle":
+        if stop.law == "stop" and stop.opening.outer.kind == "rect":
             raise LensError("an EPD or F-number aperture needs a circular stop (this Aperture is "
                             "rectangular)", key="aperture")
         p = paraxial(self)
@@ -554,54 +551,37 @@ class Lens(nn.Module):
 
     def trace_surface(self, i: int, rays: Rays, n1, n2, z, options=None,
                       refract_: bool = True, reverse: bool = False) -> Rays:
-        """Intersect surface ``i`` and refract from medium index ``n1`` into ``n2`` (reflect
-        at a mirror; a :class:`~.surfaces.Grating` then turns the ray into its diffraction
-        order; at a :class:`~.surfaces.CoordinateBreak`, re-express the rays in the next
-        frame, or the previous one when ``reverse``).  An :class:`Aperture` clips where the
-        ray's line crosses it and leaves the rays where they were (:meth:`_cross_stop`);
-        ``refract_=False`` moves them onto any surface, a stop's plane included.  ``reverse``
-        also says which way a gap of :attr:`backward_gaps` is crossed."""
-        s = self.surfaces[i]
-        if isinstance(s, CoordinateBreak):
+        """Intersect surface ``i`` and apply its interaction (``surface.interaction``,
+        :mod:`.interactions`: refraction from medium index ``n1`` into ``n2``, reflection at a
+        mirror, a grating's order, an ideal lens's deflection), in the surface's element frame.
+        A frame change (a coordinate break) re-expresses the rays in the next frame (the
+        previous one when ``reverse``); a stop clips where the ray's line crosses it and leaves
+        the rays where they were (:meth:`_cross_stop`).  ``refract_=False`` moves the rays onto
+        any surface, a stop's plane included, and applies no law.  ``reverse`` also says which
+        way a gap of :attr:`backward_gaps` is crossed."""
+        s, law = self.surfaces[i], self.surfaces[i].interaction
+        if law.changes_frame:
             o, d = (s.to_previous if reverse else s.to_next)(rays.o, rays.d, z[i])
             return Rays(o, d, rays.wavelength, rays.valid, rays.opl, normalize=False)
         m, pivot, vertex = self._frame(i, z, rays.o)
-        opt = options or TraceOptions()
-        mirror = i in self.mirrors
-        back = self.hit_backwards(i, reverse)
-        if (m is None and refract_ and not mirror and s.is_quadric and opt.closed_form
-                and opt.mode == "implicit" and not getattr(s, "deflects", False)
-                and not getattr(s, "diffracts", False)
-                and not isinstance(s, Aperture) and not tracer.obscured(s)):
+        opt, mirror, back = options or TraceOptions(), i in self.mirrors, self.hit_backwards(i, reverse)
+        n1, n2 = _compact(n1), _compact(n2)
+        if (m is None and refract_ and not mirror and opt.closed_form and opt.mode == "implicit"
+                and s.closed_form):
             x, d, valid, opl = trace_quadric(s, rays.o, rays.d, rays.valid, rays.opl,
-                                             (pivot + vertex)[2], _compact(n1), _compact(n2),
-                                             opt, backward=back)
+                                             (pivot + vertex)[2], n1, n2, opt, backward=back)
             return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
-        if m is None:
-            shift = pivot + vertex  # one pass over the rays instead of two
-            o, d = rays.o - shift, rays.d
-        else:
-            o, d = m.to_element(rays.o, rays.d, pivot)
+        shift = pivot + vertex   # aligned: one pass over the rays instead of two
+        o, d = (rays.o - shift, rays.d) if m is None else m.to_element(rays.o, rays.d, pivot)
+        if m is not None:
             o = o - vertex
-        if isinstance(s, Aperture):
+        if not law.lands:
             return self._cross_stop(s, rays, o, d, m, pivot, vertex, n1, opt, refract_)
         t, x, valid = intersect(s, o, d, rays.valid, options, backward=back)
-        if refract_ and mirror:
-            d, valid = reflect(d, s.normal(x), valid)
-        elif refract_ and getattr(s, "deflects", False):
-            d, valid = s.deflect(x, d, valid)  # an ideal (paraxial) lens
-        elif refract_ and not isinstance(s, Aperture):
-            d, valid = refract(d, s.normal(x), _compact(n1) / _compact(n2), valid)
-        opl = rays.opl + _compact(n1) * t
-        if refract_ and getattr(s, "diffracts", False):
-            # a grating: its order after the bare surface's refraction or reflection
-            # (surfaces.grating), and its phase in the optical path
-            d, valid = s.diffract(x, d, rays.wavelength, _compact(n1 if mirror else n2), valid)
-            opl = opl + s.phase_opl(x, rays.wavelength)
-        if m is None:
-            x = x + shift
-        else:
-            x, d = m.to_global(x + vertex, d, pivot)
+        opl = rays.opl + n1 * t
+        if refract_:
+            d, valid, opl = law(s, x, d, n1, n2, rays.wavelength, valid, opl, mirror)
+        x, d = (x + shift, d) if m is None else m.to_global(x + vertex, d, pivot)
         return Rays(x, d, rays.wavelength, valid, opl, normalize=False)
 
     @staticmethod
@@ -623,7 +603,7 @@ class Lens(nn.Module):
         x = o + t.unsqueeze(-1) * d
         x = x + pivot + vertex if m is None else m.to_global(x + vertex, d, pivot)[0]
         return Rays(torch.where(ok.unsqueeze(-1), x, rays.o), rays.d, rays.wavelength, ok,
-                    rays.opl + _compact(n1) * t, normalize=False)
+                    rays.opl + n1 * t, normalize=False)
 
     def _check_rays(self, rays: Rays) -> None:
         # wavelengths are checked against every medium's range by Material.n in indices()

@@ -29,7 +29,7 @@ import math
 
 import torch
 
-from .intersect import IntersectOptions
+from .options import TraceOptions
 from .paraxial import paraxial
 from .rays import Rays
 from .sampling import rays_from_tangents, start_plane_z
@@ -67,7 +67,7 @@ def _stop_xy(lens, P, tangents, z0, wavelength_nm):
     rays = rays_from_tangents(P, tangents, z0, wavelength_nm, torch.float64)
     z = lens.z_vertices()
     n = lens.indices(torch.tensor(float(wavelength_nm), dtype=torch.float64))
-    aim = IntersectOptions(clip_aperture=False)
+    aim = TraceOptions(clip_aperture=False)
     for i in range(lens.stop_index + 1):
         rays = lens.trace_surface(i, rays, n[i], n[i + 1], z, aim, refract_=i < lens.stop_index)
     return rays.o[:, :2], rays.valid

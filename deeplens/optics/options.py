@@ -3,7 +3,9 @@
 One object carries every knob that changes how rays are traced through a lens, read by the
 scheduler (:mod:`.tracer`: eager or compiled runs, checkpointing) and by the intersection
 (:mod:`.intersect`: Newton tolerance and iterations, the closed form, clear apertures).
-``IntersectOptions`` (:mod:`.intersect`) is its former name, kept as an alias.
+``IntersectOptions`` is its former name (``deeplens.optics.IntersectOptions`` and
+``deeplens.optics.intersect.IntersectOptions`` still resolve to it, with a
+``DeprecationWarning``).
 """
 
 from __future__ import annotations

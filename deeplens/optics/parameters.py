@@ -8,12 +8,16 @@ message).  :func:`parameter_scale` gives each one's scale, mm of sag at the rim 
 
     s_j = ∂(sag at the rim) / ∂p_j
 
-a curvature scales by ``R^2 / 2`` (a biconic's ``c`` and ``cx`` too), an even asphere ``a_2k``
+each surface type gives its own (:meth:`~.surfaces.Surface.sag_scale`, in the type's file):
+a curvature scales by ``R^2 / 2`` (every type with one: sphere and asphere, odd asphere,
+Zernike sag, biconic ``c`` and ``cx``, cylinder, toroid and Q-type), an even asphere ``a_2k``
 by ``R^2k`` (an odd asphere's ``a_i`` by ``R^i``, a Zernike sag's even ``a[i]`` on ``r^(2i+2)``
-by ``R^(2i+2)``; its Zernike coefficients are mm, scale 1), an XY coefficient of
-``x^i y^j`` by ``R^(i+j)``, a conic ``k`` by ``∂z/∂k = c^3 R^4 / (2 q (1 + q)^2)``
-(``q = sqrt(1 - (1+k) c^2 R^2)``), a tilt by the largest semi-diameter (mm of rim
-displacement per rad); distances, decenters and B-spline heights are already mm.  ``R`` is the
+by ``R^(2i+2)``, a cylinder's or toroid's ``a_2i`` on ``y^2i`` by ``R^2i``; Zernike and Q-type
+coefficients are mm, scale 1), an XY coefficient of ``x^i y^j`` by ``R^(i+j)``, a conic ``k``
+by ``∂z/∂k = c^3 R^4 / (2 q (1 + q)^2)`` (``q = sqrt(1 - (1+k) c^2 R^2)``), a toroid's radius
+of rotation ``R_t`` by ``R^2 / (2 R_t^2)``; a tilt scales by the largest semi-diameter (mm of
+rim displacement per rad); distances, decenters and B-spline heights are already mm, and
+parameters that do not move the sag (a phase, a focal length) have scale 1.  ``R`` is the
 surface's semi-diameter.  The design optimiser (:mod:`deeplens.design.variables`) and the
 training step sizes (:mod:`deeplens.training.lens_setup`) use it.
 """
@@ -21,42 +25,17 @@ training step sizes (:mod:`deeplens.training.lens_setup`) use it.
 from __future__ import annotations
 
 import fnmatch
-import math
-
-from .surfaces import Asphere, Biconic, BSpline, OddAsphere, XYPolynomial, ZernikeSag
 
 __all__ = ["glob_names", "parameter_scale", "resolve_names", "select_names"]
 
 
 def parameter_scale(lens, name: str) -> float:
-    """mm of sag (at the rim) per unit of the parameter ``name`` (module docstring)."""
+    """mm of sag (at the rim) per unit of the parameter ``name`` (module docstring): a
+    surface's parameter asks its surface (:meth:`~.surfaces.Surface.sag_scale`), a tilt is
+    the largest semi-diameter, anything else (mm) is 1."""
     parts = name.split(".")
     if parts[0] == "surfaces":
-        s = lens.surfaces[int(parts[1])]
-        R = float(s.semi_diameter)
-        if isinstance(s, XYPolynomial) and parts[2] == "a":
-            i, j = s.terms[int(parts[3])]
-            return R ** (i + j)
-        if isinstance(s, Asphere) and parts[2] == "a":
-            return R ** (2 * int(parts[3]) + 4)
-        if isinstance(s, OddAsphere) and parts[2] == "a":
-            return R ** (int(parts[3]) + 1)
-        if isinstance(s, ZernikeSag) and parts[2] == "a":
-            return R ** (2 * int(parts[3]) + 2)
-        if isinstance(s, (Asphere, OddAsphere, Biconic, ZernikeSag)) and parts[2] in ("c", "cx"):
-            return R * R / 2
-        if isinstance(s, (Asphere, OddAsphere, Biconic, ZernikeSag)) and parts[2] in ("k", "kx"):
-            # a biconic's x conic scales as a conic of curvature c_x (its x-z section)
-            c, k = ((float(s.cx), float(s.kx)) if parts[2] == "kx"
-                    else (float(s.c), float(s.k)))
-            arg = 1.0 - (1.0 + k) * c * c * R * R
-            if c == 0.0 or arg <= 0.0:
-                return 1.0
-            q = math.sqrt(arg)
-            return max(abs(c) ** 3 * R ** 4 / (2.0 * q * (1.0 + q) ** 2), 1e-6)
-        if isinstance(s, BSpline):
-            return 1.0
-        return 1.0
+        return lens.surfaces[int(parts[1])].sag_scale(".".join(parts[2:]))
     if parts[0] == "misalignments" and parts[-1].startswith("tilt"):
         return float(max(s.semi_diameter for s in lens.surfaces))
     return 1.0

@@ -135,10 +135,8 @@ def start_plane_z(lens) -> float:
     surface may be tilted: its rim can then reach a whole semi-diameter towards the object.
     Behind leading stops the first lens surface may reach through their planes (a stop inside
     its sag): the plane is then also 1 mm before that surface."""
-    from .surfaces import Aperture, CoordinateBreak
-
     k = 0
-    while k < len(lens.surfaces) - 1 and isinstance(lens.surfaces[k], CoordinateBreak):
+    while k < len(lens.surfaces) - 1 and lens.surfaces[k].law == "frame":
         k += 1
     s0 = lens.surfaces[k]
     low = _lowest_sag(s0)
@@ -147,9 +145,9 @@ def start_plane_z(lens) -> float:
     z_start = float(z[:k + 1].min()) - abs(low if k else min(0.0, low)) - 1.0 \
         - margin * float(s0.semi_diameter)
     j = k
-    while j < len(lens.surfaces) - 1 and isinstance(lens.surfaces[j], Aperture):
+    while j < len(lens.surfaces) - 1 and lens.surfaces[j].law == "stop":
         j += 1
-    if j > k and not isinstance(lens.surfaces[j], CoordinateBreak):
+    if j > k and lens.surfaces[j].law != "frame":
         front = float(z[j]) + min(0.0, _lowest_sag(lens.surfaces[j]))
         z_start = min(z_start, front - 1.0)   # unchanged unless it reaches before the stop
     return z_start

@@ -25,15 +25,12 @@ from __future__ import annotations
 
 import functools
 
-import math
-
 import torch
 import torch.utils.checkpoint
 
 from .intersect import _warn_stalled, default_tolerance
 from .options import TraceOptions
 from .rays import Rays, compact_broadcast as _compact, from_soa, to_soa
-from .surfaces import Aperture, Asphere, CoordinateBreak, Plane, Surface
 
 __all__ = ["default_mode", "fused_kind", "newton_compiled", "surface_checkpointed", "trace",
            "trace_compiled"]
@@ -62,9 +59,10 @@ def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | No
                                   mode)
     for i in order:
         n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
-        if isinstance(lens.surfaces[i], CoordinateBreak):  # a change of frame only
+        law = lens.surfaces[i].interaction
+        if law.changes_frame:  # a change of frame only
             rays = lens.trace_surface(i, rays, n1, n2, z, reverse=reverse)
-        elif record and isinstance(lens.surfaces[i], Aperture):
+        elif record and not law.lands:
             # a stop is crossed, not landed on: its recorded hit is where the line crosses it
             hits.append(lens.trace_surface(i, rays, n1, n2, z, options, refract_=False).o)
             rays = step(i, rays, n1, n2, z, options, reverse=reverse)
@@ -93,46 +91,17 @@ def surface_checkpointed(lens, i: int, rays: Rays, n1, n2, z, options,
         use_reentrant=False)
     return Rays(o, d, rays.wavelength, valid, opl, normalize=False)
 
-def obscured(s) -> bool:
-    """A surface with a central obscuration or a clear radius narrower than its semi-diameter
-    (its ``in_aperture`` blocks more than the semi-diameter does): traced by the generic path,
-    whose clipping asks the surface (the closed-form and fused kernels clip by the
-    semi-diameter only)."""
-    if isinstance(s, Aperture):
-        return False
-    ob = getattr(s, "obscuration", None)
-    cr = getattr(s, "clear_radius", None)
-    return ((ob is not None and float(ob) > 0)
-            or (cr is not None and math.isfinite(float(cr))))
-
-
 def fused_kind(lens, i: int):
-    """How surface ``i`` runs compiled: a :data:`~.compiled.KINDS` entry when it can join a
-    compiled run (an aligned sphere/conic, plane or stop), ``"newton"`` for an aligned surface
-    whose type defines the Newton kernels (:meth:`~.surfaces.Surface.kernel_values`: even
-    aspheres, XY polynomials), else ``None`` (eager).  The two surfaces of a gap of
-    :attr:`Lens.backward_gaps <deeplens.optics.lens.Lens.backward_gaps>` run eager (the
-    kernels accept hits ahead of the ray only)."""
+    """How surface ``i`` runs compiled: its declared :attr:`~.surfaces.Surface.fused` kind (a
+    :data:`~.compiled.KINDS` entry, or ``"newton"`` for a type with Newton kernels, or
+    ``None``: eager) when its element is aligned and it is not reached through a gap of
+    :attr:`Lens.backward_gaps <deeplens.optics.lens.Lens.backward_gaps>` (the kernels accept
+    hits ahead of the ray only); else ``None``."""
     if lens.hit_backwards(i) or lens.hit_backwards(i, reverse=True):
         return None
-    s = lens.surfaces[i]
-    if getattr(s, "deflects", False) or getattr(s, "diffracts", False):
-        return None   # an ideal lens, a grating: their own law after the hit, eager
     if not lens.misalignments[lens._element_of[i]].is_identity():
         return None
-    if type(s) is Aperture:
-        if float(s.obscuration) > 0 or s.decentred:
-            return None   # an annular or decentred opening: eager
-        return "stop_rect" if s.shape == "rect" else "stop"
-    if obscured(s):
-        return None   # the fused kernels clip by the semi-diameter only: eager
-    if type(s) is Plane:
-        return "plane"
-    if isinstance(s, Asphere) and s.is_quadric:
-        return "quadric"
-    if type(s).kernel_values is not Surface.kernel_values:  # the type has Newton kernels
-        return "newton"
-    return None
+    return lens.surfaces[i].fused
 
 def newton_compiled(lens, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol: float):
     """Surface ``i`` (an aligned even asphere or XY polynomial) through the compiled Newton
@@ -164,7 +133,7 @@ def newton_compiled(lens, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol
         ok = tried & converged
         s_star = torch.where(ok, s_star, torch.zeros_like(s_star))
     args = (kind, sp, soa[0], soa[1], rays.valid, rays.opl, z_shift,
-            s.semi_diameter.to(like), _compact(n1).to(like), _compact(n2).to(like), s_star,
+            s.opening.kernel_clip[1].to(like), _compact(n1).to(like), _compact(n2).to(like), s_star,
             ok, tol, options.clip_aperture)
     if options.checkpoint and torch.is_grad_enabled():
         return torch.utils.checkpoint.checkpoint(C.call, C.compiled_newton_refract, *args,
@@ -248,12 +217,7 @@ def trace_compiled(lens, rays: Rays, order, n, z, reverse: bool, options: TraceO
             n1, n2 = (n[i + 1], n[i]) if reverse else (n[i], n[i + 1])
             _, pivot, vertex = lens._frame(i, z, rays.o)
             like = rays.o
-            if kind == "quadric":
-                values = (s.c.to(like), s.k.to(like), s.semi_diameter.to(like))
-            elif kind == "stop_rect":
-                values = (s.half_widths.to(like),)
-            else:
-                values = (s.semi_diameter.to(like),)
+            values = s.fused_values(like)
             params.append(((pivot + vertex)[2], *values, _compact(n1).to(like),
                            _compact(n2).to(like)))
             kinds.append(kind)

@@ -181,7 +181,7 @@ MUTATIONS = [
              "deeplens/optics/intersect.py", "s = s_star - _safe_div(fv, fp, ok)",
              "s = s_star + _safe_div(fv, fp, ok)", OPTICS, issue=True),
     Mutation("opl_without_index", "optical path length without the refractive index",
-             "deeplens/optics/lens.py", "opl = rays.opl + _compact(n1) * t",
+             "deeplens/optics/lens.py", "opl = rays.opl + n1 * t",
              "opl = rays.opl + t", OPTICS, issue=True),
     Mutation("opl_without_index_quadric", "optical path length without the refractive index in "
              "the closed-form sphere/conic step", "deeplens/optics/intersect.py",
@@ -258,7 +258,8 @@ MUTATIONS = [
              "their area shares", "deeplens/render/geometry.py",
              "val += share * float(", "val += 0.5 * float(", GEOMETRY),
     Mutation("stop_between_media_accepted", "an aperture stop between two media accepted",
-             "deeplens/optics/lens.py", "if isinstance(s, Aperture):  # a stop does not refract",
+             "deeplens/optics/lens.py",
+             "if s.interaction.same_medium:  # a stop does not refract",
              "if False:  # a stop does not refract", ("tests/optics/test_stop_media.py",)),
     Mutation("compiled_donated_buffers", "compiled kernels keep buffer donation (a second "
              "backward raises)", "deeplens/optics/compiled.py",
@@ -560,7 +561,7 @@ MUTATIONS = [
              "if s > 0:   # a virtual object", "if True:   # a virtual object", LENS2_SETUPS),
     Mutation("sqap_ignored_off_asphere", "a rectangular clear aperture (SQAP) on a surface "
              "other than an even asphere read but not clipped", "deeplens/optics/surfaces/base.py",
-             'rect = None if self._own_clear_rect else self._buffers.get("clear_rect")',
+             'rect = self._buffers.get("clear_rect")',
              "rect = None", ("tests/optics/io/test_zmx_sqap_any_surface.py",)),
     Mutation("xasphere_rn_power", "Extended Asphere term i divided by R_n^i instead of "
              "R_n^(2i)", "deeplens/optics/io/surface_handlers.py",

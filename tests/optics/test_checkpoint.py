@@ -1,4 +1,4 @@
-"""``IntersectOptions(checkpoint=True)``: each surface is recomputed in backward from its incoming
+"""``TraceOptions(checkpoint=True)``: each surface is recomputed in backward from its incoming
 ray state (``torch.utils.checkpoint``).  Values and the gradients w.r.t. every parameter kind
 (curvature, conic, asphere coefficient, thickness, sensor distance, misalignment, the wavelength)
 must equal the recorded trace's exactly (float64), forward and reverse, and the graph kept between
@@ -8,7 +8,7 @@ import helpers as H
 import pytest
 import torch
 
-from deeplens.optics.intersect import IntersectOptions
+from deeplens.optics.options import TraceOptions
 from deeplens.optics.io import load_lens
 from deeplens.optics.rays import Rays
 from deeplens.optics.sampling import field_rays
@@ -45,7 +45,7 @@ def test_checkpointed_trace_equals_recorded_trace(reverse):
     w = torch.randn(200, 3, generator=torch.Generator().manual_seed(4), dtype=F64)
     results = []
     for ck in (False, True):
-        opt = IntersectOptions(checkpoint=ck)
+        opt = TraceOptions(checkpoint=ck)
         out = (lens.trace(rays, reverse=True, options=opt) if reverse
                else lens.trace_to_sensor(rays, options=opt))
         v = out.valid
@@ -79,7 +79,7 @@ def test_checkpoint_keeps_a_smaller_graph():
             return t
 
         with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
-            out = lens.trace_to_sensor(rays, options=IntersectOptions(checkpoint=ck))
+            out = lens.trace_to_sensor(rays, options=TraceOptions(checkpoint=ck))
         saved[ck] = total[0]
         return out
 

@@ -1,4 +1,4 @@
-"""``IntersectOptions(compile=...)``: runs of aligned spheres, conics, planes and stops, and even
+"""``TraceOptions(compile=...)``: runs of aligned spheres, conics, planes and stops, and even
 aspheres' Newton iterations, through fused ``torch.compile`` kernels (:mod:`deeplens.optics.compiled`).
 
 Two layers, so that the default suite pays little compilation:
@@ -22,15 +22,15 @@ import helpers as H
 import pytest
 import torch
 
-from deeplens.optics.intersect import IntersectOptions
+from deeplens.optics.options import TraceOptions
 from deeplens.optics.io import load_lens
 from deeplens.optics.rays import Rays
 from deeplens.optics.sampling import field_rays
 from deeplens.optics.surfaces import Aperture, Asphere, Sphere
 
 F64 = torch.float64
-EAGER = IntersectOptions(compile=False)
-GENERIC = IntersectOptions(tol=1e-13, closed_form=False)
+EAGER = TraceOptions(compile=False)
+GENERIC = TraceOptions(tol=1e-13, closed_form=False)
 
 
 def _lens(misalign=False, rect_stop=False):
@@ -97,7 +97,7 @@ def _assert_same(lens, params, rays, opt, reverse, ref_opt=EAGER, tol=1e-12, gto
 @pytest.mark.parametrize("misalign", [False, True], ids=["aligned", "misaligned"])
 def test_fused_path_equals_eager(uncompiled, mode, reverse, misalign):
     lens, params = _lens(misalign=misalign)
-    _assert_same(lens, params, _rays(lens, reverse=reverse), IntersectOptions(compile=mode),
+    _assert_same(lens, params, _rays(lens, reverse=reverse), TraceOptions(compile=mode),
                  reverse)
 
 
@@ -111,15 +111,15 @@ def test_fused_path_last_element_eager(uncompiled, mode):
     with torch.no_grad():
         last.dy.fill_(-0.03)
     last.dy.requires_grad_(True)
-    _assert_same(lens, params + [last.dy], _rays(lens), IntersectOptions(compile=mode), False)
+    _assert_same(lens, params + [last.dy], _rays(lens), TraceOptions(compile=mode), False)
 
 
 def test_fused_path_rect_stop_and_checkpoint(uncompiled):
     lens, params = _lens(rect_stop=True)
     rays = _rays(lens)
-    _assert_same(lens, params, rays, IntersectOptions(compile="lens", checkpoint=True), False)
+    _assert_same(lens, params, rays, TraceOptions(compile="lens", checkpoint=True), False)
     # the rectangle clips: fewer rays pass than through the circular stop
-    n_rect = int(lens.trace_to_sensor(rays, options=IntersectOptions(compile=True)).valid.sum())
+    n_rect = int(lens.trace_to_sensor(rays, options=TraceOptions(compile=True)).valid.sum())
     lens_c, _ = _lens()
     assert n_rect < int(lens_c.trace_to_sensor(rays).valid.sum())
 
@@ -141,10 +141,10 @@ def test_fused_path_total_internal_reflection_and_newton_chunks(uncompiled):
         for p in params:
             p.requires_grad_(True)
         rays = H.collimated(H.disk_points(300, 5.5, seed=5), [0.1, 0.05, 1.0], -2.0)
-        for opt in (IntersectOptions(compile="lens"),
-                    IntersectOptions(compile="surface", max_iter=2, tol=1e-12),
-                    IntersectOptions(compile="surface", max_iter=3, tol=1e-12)):
-            ref = IntersectOptions(max_iter=opt.max_iter, tol=opt.tol)
+        for opt in (TraceOptions(compile="lens"),
+                    TraceOptions(compile="surface", max_iter=2, tol=1e-12),
+                    TraceOptions(compile="surface", max_iter=3, tol=1e-12)):
+            ref = TraceOptions(max_iter=opt.max_iter, tol=opt.tol)
             a, _ = _assert_same(lens, params, rays, opt, False, ref_opt=ref)
             tir = a.valid.logical_not() & (a.o[:, :2].norm(dim=-1) < 4.5)
             assert int(tir.sum()) > 10  # TIR, not only aperture misses
@@ -172,16 +172,16 @@ def test_fused_path_xy_polynomial_equals_eager(uncompiled, reverse, b):
         rays = Rays(o, torch.cat([d, -torch.ones(200, 1, dtype=F64)], -1), H.WAVELENGTH_D)
     else:
         rays = field_rays(lens, 0.5, H.WAVELENGTH_D, H.disk_points(200, 7.0, seed=2), 0.0)
-    _assert_same(lens, params, rays, IntersectOptions(compile="lens"), reverse)
+    _assert_same(lens, params, rays, TraceOptions(compile="lens"), reverse)
 
 
 def test_compile_option_is_checked():
-    assert IntersectOptions(compile=True).compile == "auto"
-    assert IntersectOptions().compile == "default"
-    assert IntersectOptions(compile=None).compile is False
-    assert IntersectOptions(compile=False).compile is False
+    assert TraceOptions(compile=True).compile == "auto"
+    assert TraceOptions().compile == "default"
+    assert TraceOptions(compile=None).compile is False
+    assert TraceOptions(compile=False).compile is False
     with pytest.raises(ValueError, match="compile must be"):
-        IntersectOptions(compile="fast")
+        TraceOptions(compile="fast")
 
 
 # ----------------------------------------------------------------- the compiled kernels
@@ -190,7 +190,7 @@ def test_compiled_surface_kernels_float64():
     and reverse share them): the compiled trace equals the eager one and the generic Newton
     path's, vignetted rays included."""
     lens, _ = _lens()
-    opt = IntersectOptions(compile="surface")
+    opt = TraceOptions(compile="surface")
     for reverse in (False, True):
         rays = _rays(lens, reverse=reverse)
         with torch.no_grad():
@@ -216,7 +216,7 @@ def test_compiled_surface_kernels_float64_gradients():
     params = list({id(p): p for p in params}.values())
     for p in params:
         p.requires_grad_(True)
-    opt = IntersectOptions(compile="surface")
+    opt = TraceOptions(compile="surface")
     rays = _rays(lens)
     _assert_same(lens, params, rays, opt, False)
     _assert_same(lens, params, rays, opt, False, ref_opt=GENERIC, tol=1e-11, gtol=1e-8)
@@ -261,7 +261,7 @@ def test_compiled_lens_run_float32_forward():
                             [0.05, 0.0, 1.0], -5.0)
         with torch.no_grad():
             a = lens.trace_to_sensor(rays)
-            b = lens.trace_to_sensor(rays, options=IntersectOptions(compile=True))
+            b = lens.trace_to_sensor(rays, options=TraceOptions(compile=True))
         assert torch.equal(a.valid, b.valid) and 0.3 * n < int(a.valid.sum()) < n
         eps = torch.finfo(torch.float32).eps
         assert float((a.o - b.o)[a.valid].abs().max()) < 4 * 8 * eps * 50  # 4 steps, |x| < 50

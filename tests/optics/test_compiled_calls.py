@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import deeplens.optics.compiled as C
-from deeplens.optics.intersect import IntersectOptions
+from deeplens.optics.options import TraceOptions
 from deeplens.optics.io import load_lens
 from deeplens.optics.sampling import field_rays
 
@@ -62,7 +62,7 @@ def test_two_gradients_from_one_compiled_lens_trace():
     c = lens.surfaces[0].c
     c.requires_grad_(True)
     grads = []
-    for opt in (IntersectOptions(), IntersectOptions(compile=True)):
+    for opt in (TraceOptions(), TraceOptions(compile=True)):
         rays = field_rays(lens, 5.0, H.WAVELENGTH_D, H.disk_points(100, 2.0, seed=3), 6.0)
         out = lens.trace_to_sensor(rays, options=opt)
         loss = (out.o[..., :2] ** 2).sum()

@@ -25,7 +25,7 @@ import pytest
 import torch
 
 import helpers as H
-from deeplens.optics.intersect import IntersectOptions, intersect
+from deeplens.optics.intersect import TraceOptions, intersect
 from deeplens.optics.lens import Lens
 from deeplens.optics.materials import get_material
 from deeplens.optics.surfaces import (Aperture, Asphere, BSpline, Cylinder, Plane, Sphere,
@@ -128,7 +128,7 @@ def select(lens: Lens, name: str):
 
 
 def image_loss(lens, rays, mode="implicit"):
-    out = lens.trace_to_sensor(rays, options=IntersectOptions(mode=mode))
+    out = lens.trace_to_sensor(rays, options=TraceOptions(mode=mode))
     return H.weighted_image_sum(out, WEIGHTS), out.valid
 
 
@@ -166,7 +166,7 @@ def test_rms_spot_gradient_matches_finite_difference():
               (lens.misalignments[0].tilt_x, 1e-5)]
 
     def rms(mode="implicit"):
-        out = lens.trace_to_sensor(rays, options=IntersectOptions(mode=mode))
+        out = lens.trace_to_sensor(rays, options=TraceOptions(mode=mode))
         assert bool(out.valid.all())
         xy = out.o[:, :2]
         return torch.sqrt(((xy - xy.mean(0)) ** 2).sum(-1).mean())
@@ -230,7 +230,7 @@ def test_regression_unrolled_gradient_of_ray_starting_on_surface():
     o = torch.tensor([[0.0, 0.0, -1.0], [0.5, 0.3, -1.0]], dtype=F64)
     d = torch.tensor([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], dtype=F64)
     for mode in ("implicit", "unrolled"):
-        t, x, ok = intersect(s, o, d, torch.ones(2, dtype=torch.bool), IntersectOptions(mode=mode))
+        t, x, ok = intersect(s, o, d, torch.ones(2, dtype=torch.bool), TraceOptions(mode=mode))
         assert bool(ok.all())
         for i in range(2):
             (g,) = torch.autograd.grad(x[i, 2], s.a[0], retain_graph=True)
@@ -248,7 +248,7 @@ def test_regression_unrolled_derivative_converges_with_the_value():
     d = torch.tensor([0.05, -0.08, 1.0], dtype=F64)
     d = (d / d.norm()).expand(50, 3)
     t, x, ok = intersect(s, o, d, torch.ones(50, dtype=torch.bool),
-                         IntersectOptions(mode="unrolled"))
+                         TraceOptions(mode="unrolled"))
     assert bool(ok.all())
     (g,) = torch.autograd.grad(t.sum(), s.b)
     with torch.no_grad():
@@ -270,7 +270,7 @@ def test_intersection_gradient_matches_implicit_function_theorem(kind):
     for mode in ("implicit", "unrolled"):
         o_ = o.clone().requires_grad_(True)
         t, x, ok = intersect(s, o_, d, torch.ones(30, dtype=torch.bool),
-                             IntersectOptions(mode=mode))
+                             TraceOptions(mode=mode))
         assert bool(ok.all())
         (g,) = torch.autograd.grad(t.sum(), o_)
         with torch.no_grad():

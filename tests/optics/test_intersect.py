@@ -13,7 +13,7 @@ import math
 import pytest
 import torch
 
-from deeplens.optics.intersect import IntersectOptions, default_tolerance, intersect
+from deeplens.optics.intersect import TraceOptions, default_tolerance, intersect
 from deeplens.optics.surfaces import Asphere, BSpline, Plane, Sphere, XYPolynomial
 
 F64 = torch.float64
@@ -60,7 +60,7 @@ def test_sphere_matches_closed_form_quadratic(radius, mode):
     # start before the whole cap (|sag| < |R|), so every hit lies ahead of its ray
     o, d = _random_rays(500, sd, z0=-abs(radius) - 1.0, seed=int(abs(radius)))
     valid = torch.ones(500, dtype=torch.bool)
-    t, x, ok = intersect(s, o, d, valid, IntersectOptions(mode=mode))
+    t, x, ok = intersect(s, o, d, valid, TraceOptions(mode=mode))
     t_ref, exists = _sphere_closed_form(1.0 / radius, o, d)
     assert bool(exists.all())
     x_ref = o + t_ref.unsqueeze(-1) * d
@@ -110,7 +110,7 @@ def test_float32_far_origin_meets_a_tight_tolerance(mode):
     assert bool(ok_ref.all())
     x_ref = o + t_ref.unsqueeze(-1) * d
     for tol in (2e-6, 1e-6):
-        opt = IntersectOptions(tol=tol, mode=mode)
+        opt = TraceOptions(tol=tol, mode=mode)
         t, x, ok = intersect(s, o.float(), d.float(), torch.ones(400, dtype=torch.bool), opt)
         assert bool(ok.all()), f"tol {tol}: {int((~ok).sum())} of 400 rays dropped"
         assert float((x.double() - x_ref).abs().max()) < 5e-6  # |x| <= 6 mm
@@ -157,7 +157,7 @@ def _freeform_surfaces():
 def test_freeform_hit_on_surface_and_on_ray(name, mode):
     s = _freeform_surfaces()[name]
     o, d = _random_rays(400, 6.0, seed=3)
-    t, x, ok = intersect(s, o, d, torch.ones(400, dtype=torch.bool), IntersectOptions(mode=mode))
+    t, x, ok = intersect(s, o, d, torch.ones(400, dtype=torch.bool), TraceOptions(mode=mode))
     assert bool(ok.sum() > 300)
     X, Y, Z = x[ok].unbind(-1)
     assert float(s.f(X, Y, Z).abs().max()) < default_tolerance(F64)
@@ -174,8 +174,8 @@ def test_modes_agree_on_values():
     for s in _freeform_surfaces().values():
         o, d = _random_rays(200, 6.0, seed=4)
         v = torch.ones(200, dtype=torch.bool)
-        ti, xi, oki = intersect(s, o, d, v, IntersectOptions(mode="implicit"))
-        tu, xu, oku = intersect(s, o, d, v, IntersectOptions(mode="unrolled"))
+        ti, xi, oki = intersect(s, o, d, v, TraceOptions(mode="implicit"))
+        tu, xu, oku = intersect(s, o, d, v, TraceOptions(mode="unrolled"))
         assert torch.equal(oki, oku)
         assert float((ti - tu)[oki].abs().max()) < 1e-12
 
@@ -205,12 +205,12 @@ def test_miss_is_invalid_and_finite():
     o = torch.tensor([[8.0, 0.0, -1.0], [4.5, 0.0, -1.0], [0.0, 0.0, -1.0]], dtype=F64)
     d = torch.tensor([[0.0, 0.0, 1.0]] * 3, dtype=F64)
     for mode in ("implicit", "unrolled"):
-        t, x, ok = intersect(s, o, d, torch.ones(3, dtype=torch.bool), IntersectOptions(mode=mode))
+        t, x, ok = intersect(s, o, d, torch.ones(3, dtype=torch.bool), TraceOptions(mode=mode))
         assert ok.tolist() == [False, False, True]
         assert bool(torch.isfinite(t).all() and torch.isfinite(x).all())
     # without aperture clipping the ray at r = 4.5 < R is valid, the one at r = 8 > R is not
     _, _, ok = intersect(s, o, d, torch.ones(3, dtype=torch.bool),
-                         IntersectOptions(clip_aperture=False))
+                         TraceOptions(clip_aperture=False))
     assert ok.tolist() == [False, True, True]
 
 
@@ -238,7 +238,7 @@ def test_out_of_conic_domain_is_invalid():
     o = torch.tensor([[5.5, 0.0, -1.0], [3.0, 0.0, -1.0]], dtype=F64)
     d = torch.tensor([[0.0, 0.0, 1.0]] * 2, dtype=F64)
     t, x, ok = intersect(s, o, d, torch.ones(2, dtype=torch.bool),
-                         IntersectOptions(clip_aperture=False))
+                         TraceOptions(clip_aperture=False))
     assert ok.tolist() == [False, True]
     assert bool(torch.isfinite(t).all() and torch.isfinite(x).all())
 
@@ -247,7 +247,7 @@ def test_nonconvergence_is_invalid():
     """One Newton step cannot reach 1e-10 on a strongly aspheric surface: invalid, finite."""
     s = Asphere(1 / 8.0, 6.0, conic=-2.0, coefficients=[1e-3])
     o, d = _random_rays(50, 6.0, seed=8)
-    t, x, ok = intersect(s, o, d, torch.ones(50, dtype=torch.bool), IntersectOptions(max_iter=1))
+    t, x, ok = intersect(s, o, d, torch.ones(50, dtype=torch.bool), TraceOptions(max_iter=1))
     t2, x2, ok2 = intersect(s, o, d, torch.ones(50, dtype=torch.bool))
     assert bool(ok2.sum() > 40)
     assert int(ok.sum()) < int(ok2.sum())
@@ -256,11 +256,11 @@ def test_nonconvergence_is_invalid():
 
 def test_intersect_options_validation():
     with pytest.raises(ValueError, match="mode"):
-        IntersectOptions(mode="fast")
+        TraceOptions(mode="fast")
     with pytest.raises(ValueError, match="max_iter"):
-        IntersectOptions(max_iter=0)
+        TraceOptions(max_iter=0)
     with pytest.raises(ValueError, match="tol"):
-        IntersectOptions(tol=0.0)
+        TraceOptions(tol=0.0)
     assert default_tolerance(F64) == 1e-10
     assert default_tolerance(torch.float32) == 1e-5
 
@@ -319,7 +319,7 @@ def test_grazing_stray_ray_keeps_other_rays_gradients_finite(mode):
     lens = load_lens(LENS_DIR / "double_gauss.json").float()
     tilt = lens.misalignments[0].tilt_x
     tilt.requires_grad_(True)
-    opt = IntersectOptions(mode=mode)
+    opt = TraceOptions(mode=mode)
     o, d = _stray_and_good_rays(torch.float32)
     out = lens.trace_to_sensor(Rays(o, d, WAVELENGTH_D), options=opt)
     assert out.valid.tolist() == [True, False]

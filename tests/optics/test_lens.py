@@ -9,7 +9,7 @@ import torch
 
 import helpers as H
 from deeplens.optics.paraxial import paraxial
-from deeplens.optics.intersect import IntersectOptions, intersect
+from deeplens.optics.intersect import TraceOptions, intersect
 from deeplens.optics.io import load_lens
 from deeplens.optics.lens import Lens
 from deeplens.optics.materials import get_material
@@ -58,9 +58,9 @@ def _domain_lens():
 
 
 SCENARIOS = {
-    "aperture": (_aperture_lens, IntersectOptions),
-    "tir": (_tir_lens, IntersectOptions),
-    "domain": (_domain_lens, lambda **kw: IntersectOptions(clip_aperture=False, **kw)),
+    "aperture": (_aperture_lens, TraceOptions),
+    "tir": (_tir_lens, TraceOptions),
+    "domain": (_domain_lens, lambda **kw: TraceOptions(clip_aperture=False, **kw)),
 }
 
 
@@ -228,7 +228,7 @@ def test_forward_then_backward_returns_to_start(mode):
     xy = H.disk_points(100, 3.0, seed=4)
     start = H.cat_rays(H.collimated(xy, [0.0, 0.0, 1.0], -5.0),
                        H.collimated(xy, [0.05, math.tan(math.radians(10)), 1.0], -5.0))
-    opt = IntersectOptions(mode=mode)
+    opt = TraceOptions(mode=mode)
     fwd = lens.trace_to_sensor(start, options=opt)
     assert int(fwd.valid.sum()) > 150
     back = Rays(fwd.o, -fwd.d, fwd.wavelength, fwd.valid, normalize=False)

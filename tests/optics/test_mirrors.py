@@ -365,13 +365,13 @@ def test_zemax_mirror_file_loads(tmp_path):
 def test_compiled_options_run_a_folded_lens_eagerly():
     """The compiled kernels refract only: a lens with mirrors or breaks runs the eager path
     under ``compile=...`` and gives the eager result bit for bit."""
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
 
     lens = newtonian()
     assert lens.folded()
     rays = parallel_rays(*reversed(grid(40.0, 5)))
     eager = lens.trace_to_sensor(rays)
-    comp = lens.trace_to_sensor(rays, options=IntersectOptions(compile=True))
+    comp = lens.trace_to_sensor(rays, options=TraceOptions(compile=True))
     assert torch.equal(comp.o, eager.o) and torch.equal(comp.valid, eager.valid)
 
 
@@ -379,13 +379,13 @@ def test_newton_path_for_rays_travelling_minus_z():
     """Intersections after a mirror (rays towards -z): the Newton path (``closed_form=False``,
     paper Eq. 7) agrees with the closed form, and an aspheric mirror (always Newton) gets the
     finite-difference gradient of its a4 term."""
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
 
     lens = cassegrain()
     x, y = grid(90.0, 7)
     rays = parallel_rays(y, x, direction=(0.0, 0.002, 1.0))
     a = lens.trace_to_sensor(rays)
-    b = lens.trace_to_sensor(rays, options=IntersectOptions(closed_form=False))
+    b = lens.trace_to_sensor(rays, options=TraceOptions(closed_form=False))
     assert bool(a.valid.all()) and torch.equal(a.valid, b.valid)
     assert torch.allclose(a.o, b.o, atol=1e-10, rtol=0)
     air = Air()
@@ -540,7 +540,7 @@ def test_central_obscuration_on_a_mirror(tmp_path):
     (closed form: the primary is the first surface, a ray parallel to the axis meets it at its
     own height) and the others land where they do without it, the same with the closed-form, Newton and compiled options; the obscuration
     survives the JSON and .zmx round trips (OBSC line)."""
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
 
     lens = cassegrain()
     with torch.no_grad():
@@ -552,7 +552,7 @@ def test_central_obscuration_on_a_mirror(tmp_path):
     want = r >= 30.0
     clear = cassegrain().trace_to_sensor(rays)
     assert bool(clear.valid.all())
-    for opt in (None, IntersectOptions(closed_form=False), IntersectOptions(compile=True)):
+    for opt in (None, TraceOptions(closed_form=False), TraceOptions(compile=True)):
         out = lens.trace_to_sensor(rays, options=opt)
         assert torch.equal(out.valid, want), opt
         assert torch.allclose(out.o[want], clear.o[want], atol=1e-12)   # the rest unchanged
@@ -583,10 +583,10 @@ def _obscured_singlet():
 def test_central_obscuration_on_a_lens_surface_compiled():
     """The fused compiled kernels clip by the semi-diameter only: an obscured surface runs
     eagerly under ``compile=True`` (torch.compile: slow on a loaded CPU)."""
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
 
     lens, rays, want = _obscured_singlet()
-    assert torch.equal(lens.trace_to_sensor(rays, options=IntersectOptions(compile=True)).valid,
+    assert torch.equal(lens.trace_to_sensor(rays, options=TraceOptions(compile=True)).valid,
                        want)
 
 
@@ -594,9 +594,9 @@ def test_central_obscuration_on_a_lens_surface_in_every_tracer_path():
     """An obscured refracting sphere (as US05331467's front lens carries the secondary's
     shadow): the closed-form kernel clips by the semi-diameter only, so an obscured surface
     must take the generic path; every option blocks the same rays."""
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
 
     lens, rays, want = _obscured_singlet()
     assert not bool(want.all())
-    for opt in (None, IntersectOptions(closed_form=False)):
+    for opt in (None, TraceOptions(closed_form=False)):
         assert torch.equal(lens.trace_to_sensor(rays, options=opt).valid, want), opt

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from deeplens.analysis.spot import chief_ray
-from deeplens.optics.intersect import IntersectOptions
+from deeplens.optics.options import TraceOptions
 from deeplens.optics.io import load_lens
 from deeplens.optics.normalized import normalized_rays, pupil_to_stop
 from deeplens.optics.paraxial import paraxial
@@ -25,7 +25,7 @@ def cooke():
 
 def stop_hits(lens, rays):
     """Where the rays cross the stop, by a full trace that records every surface's hits."""
-    _, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+    _, hits = lens.trace(rays, options=TraceOptions(clip_aperture=False), record=True)
     return hits[lens.stop_index][:, :2]
 
 

@@ -19,16 +19,16 @@ import torch
 
 from deeplens.optics import intersect as I
 from deeplens.optics import refract as R
-from deeplens.optics.intersect import IntersectOptions
+from deeplens.optics.options import TraceOptions
 from deeplens.optics.io import load_lens
 from deeplens.optics.rays import Rays
 from deeplens.optics.sampling import field_rays
 from deeplens.optics.surfaces import asphere as A
 from deeplens.optics.surfaces import xy_polynomial as XY
 
-EAGER = IntersectOptions()
-FUSED = IntersectOptions(compile="surface")
-LENS_RUN = IntersectOptions(compile="lens")
+EAGER = TraceOptions()
+FUSED = TraceOptions(compile="surface")
+LENS_RUN = TraceOptions(compile="lens")
 
 
 @contextlib.contextmanager

@@ -2,7 +2,7 @@
 
 ``intersect`` solves ``A s^2 + 2 B s + C = 0`` in closed form on a quadric surface (no Newton
 iterations) and starts an asphere's Newton iteration from its conic base's root;
-``IntersectOptions(closed_form=False)`` runs the generic Newton path from the vertex plane on
+``TraceOptions(closed_form=False)`` runs the generic Newton path from the vertex plane on
 every surface (the code before the fast path).  Checked in float64:
 
 * the same rays are valid, and ``t`` and the hit points agree to 1e-12 mm, for spheres and conics
@@ -22,14 +22,14 @@ import helpers as H
 import pytest
 import torch
 
-from deeplens.optics.intersect import IntersectOptions, intersect
+from deeplens.optics.intersect import TraceOptions, intersect
 from deeplens.optics.io import load_lens
 from deeplens.optics.sampling import field_rays
 from deeplens.optics.surfaces import Asphere, Sphere
 
 F64 = torch.float64
-FAST = IntersectOptions(tol=1e-13)
-GENERIC = IntersectOptions(tol=1e-13, closed_form=False)
+FAST = TraceOptions(tol=1e-13)
+GENERIC = TraceOptions(tol=1e-13, closed_form=False)
 
 QUADRICS = {
     "sphere+": lambda: Sphere(1 / 12.0, 9.0),
@@ -143,8 +143,8 @@ def test_asphere_newton_starts_at_the_conic_root():
     valid = torch.ones(len(o), dtype=torch.bool)
     two = {"tol": 1e-12, "max_iter": 2}
     with pytest.warns(RuntimeWarning, match="did not converge"):
-        _, _, ok_vertex = intersect(s, o, d, valid, IntersectOptions(closed_form=False, **two))
-    t, _, ok = intersect(s, o, d, valid, IntersectOptions(**two))
+        _, _, ok_vertex = intersect(s, o, d, valid, TraceOptions(closed_form=False, **two))
+    t, _, ok = intersect(s, o, d, valid, TraceOptions(**two))
     t_ref, _, ok_ref = intersect(s, o, d, valid, GENERIC)
     assert int(ok_ref.sum()) > 350 and not bool((ok & ~ok_ref).any())
     assert int(ok.sum()) >= int(ok_ref.sum()) - 2

@@ -583,7 +583,7 @@ def _beam_reach(lens, limited: dict):
     """``(reach, half)``: per pair of ``limited``, the largest radius (mm) the on-axis beam of
     the paraxial entrance pupil's rim (48 rays, primary wavelength, apertures ignored)
     reaches on either surface, and the pupil's radius (mm)."""
-    from ..intersect import IntersectOptions
+    from ..options import TraceOptions
     from ..paraxial import paraxial
     from ..sampling import field_rays
 
@@ -594,7 +594,7 @@ def _beam_reach(lens, limited: dict):
         pts = torch.stack([torch.cos(phi), torch.sin(phi)], -1) * half
         rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts,
                           float(par.entrance_pupil_z))
-        _, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+        _, hits = lens.trace(rays, options=TraceOptions(clip_aperture=False), record=True)
     reach = {(i, j): max(float(torch.nan_to_num(torch.linalg.vector_norm(hits[k][:, :2], dim=-1),
                                                 nan=0.0).max()) for k in (i, j))
              for (i, j) in limited}
@@ -646,7 +646,7 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, 
     OpticStudio does not vignette on automatic semi-diameters, and the 2 % keep rim rays (and
     the slightly larger pupils of ray aiming) from being clipped by them.  Capped to the
     surface's domain."""
-    from ..intersect import IntersectOptions
+    from ..options import TraceOptions
     from ..paraxial import paraxial
     from ..sampling import field_rays
 
@@ -665,7 +665,7 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, 
         for f in dict.fromkeys(fields):
             for w in lens.spec.wavelengths_nm:
                 rays = field_rays(lens, float(f), float(w), pts, z_ep)
-                out, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False),
+                out, hits = lens.trace(rays, options=TraceOptions(clip_aperture=False),
                                        record=True)
                 ok = out.valid
                 for i in idx:

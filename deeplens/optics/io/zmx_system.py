@@ -70,7 +70,7 @@ def chief_height(lens, field_deg: float) -> float:
     stop centre with ray aiming (the real chief ray), through the paraxial entrance pupil's
     centre without (as OpticStudio defines it in each case)."""
     from ..chief import chief_ray
-    from ..intersect import IntersectOptions
+    from ..options import TraceOptions
     from ..paraxial import paraxial
     from ..sampling import field_rays
 
@@ -80,7 +80,7 @@ def chief_height(lens, field_deg: float) -> float:
             return float(chief_ray(lens, field_deg, w)[0])
         z_ep = float(paraxial(lens).entrance_pupil_z)
         rays = field_rays(lens, field_deg, w, torch.zeros(1, 2, dtype=lens.dtype), z_ep)
-        out = lens.trace_to_sensor(rays, options=IntersectOptions(clip_aperture=False))
+        out = lens.trace_to_sensor(rays, options=TraceOptions(clip_aperture=False))
         return float(out.o[0, 1]) if bool(out.valid[0]) else math.nan
 
 

@@ -20,16 +20,12 @@ import math
 
 import torch
 
+from ..interactions import STOP_CROSSING
+from ..openings import Circle, Opening, Rectangle, in_rect
 from .base import register_surface
 from .plane import Plane
 
 __all__ = ["Aperture", "in_rect"]
-
-
-def in_rect(X, Y, half_widths):
-    """``|X| <= w_x`` and ``|Y| <= w_y``: inside a rectangular opening, ``half_widths`` ``(2,)``
-    mm; :meth:`Aperture.in_aperture` and the compiled kernels' check."""
-    return (X.abs() <= half_widths[0]) & (Y.abs() <= half_widths[1])
 
 
 @register_surface("aperture")
@@ -47,6 +43,9 @@ class Aperture(Plane):
             plane; ``(0, 0)`` by default.  A decentred aperture runs eager (the compiled runs
             clip about the axis).
     """
+
+    #: crossed, not landed on (:meth:`Lens._cross_stop <deeplens.optics.lens.Lens._cross_stop>`)
+    interaction = STOP_CROSSING
 
     def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
                  half_width_x: float | None = None, half_width_y: float | None = None,
@@ -86,16 +85,25 @@ class Aperture(Plane):
         """Whether the opening's centre is off the axis."""
         return bool((self.decenter != 0).any())
 
-    def in_aperture(self, x, y):
-        if self.decentred:
-            dec = self.decenter.to(x)
-            x, y = x - dec[0], y - dec[1]
-        if self.shape == "rect":
-            return in_rect(x, y, self.half_widths.to(x))
+    def _build_opening(self) -> Opening:
+        """The circle (semi-diameter) or rectangle (half-widths) about the decenter, less the
+        obscuration's circle about the same centre."""
+        dec = self.decenter if self.decentred else None
+        outer = (Rectangle(self.half_widths, dec, check=False) if self.shape == "rect"
+                 else Circle(self.semi_diameter, dec, check=False))
         if float(self.obscuration) > 0:
-            ro = self.obscuration.to(x)
-            return super().in_aperture(x, y) & (x * x + y * y >= ro * ro)
-        return super().in_aperture(x, y)
+            return outer - Circle(self.obscuration, dec, check=False)
+        return outer
+
+    @property
+    def fused(self) -> str | None:
+        """``"stop"`` or ``"stop_rect"``: the fused kernels clip by the opening's centred circle
+        or rectangle (:attr:`~deeplens.optics.openings.Opening.kernel_clip`, also the values,
+        :meth:`fused_values`); ``None`` (eager) for an annular or decentred opening."""
+        clip = self.opening.kernel_clip
+        if clip is None:
+            return None
+        return "stop_rect" if clip[0] == "rect" else "stop"
 
     def set_semi_diameter(self, value: float) -> None:
         """Resize a circular stop (used when the aperture is given as EPD or F-number)."""

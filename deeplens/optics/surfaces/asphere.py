@@ -32,7 +32,9 @@ import math
 import torch
 from torch import nn
 
-from .base import SagSurface, check_conic_domain, make_param, register_surface
+from ..openings import Circle, Opening, Rectangle
+from .base import (SagSurface, check_conic_domain, conic_scale, curvature_scale, make_param,
+                   register_surface)
 
 __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
            "conic_arg", "conic_dsag_ds", "conic_normal", "conic_quadric", "conic_root",
@@ -166,8 +168,6 @@ class Asphere(SagSurface):
     Each value is its own parameter: ``surface.c``, ``surface.k``, ``surface.a[0]`` (= a4), ...
     """
 
-    _own_clear_rect = True   # in_aperture below applies clear_rect with the clear circle
-
     def __init__(self, curvature: float, semi_diameter: float, conic: float = 0.0,
                  coefficients=(), obscuration: float = 0.0, clear_radius: float = math.inf,
                  clear_decenter: tuple[float, float] = (0.0, 0.0), clear_rect=None):
@@ -263,6 +263,16 @@ class Asphere(SagSurface):
         """True without aspheric coefficients: the surface is its conic base."""
         return len(self.a) == 0
 
+    @property
+    def fused_geometry(self) -> str:
+        """``"quadric"`` (a sphere or conic: the closed-form fused step), else ``"newton"``."""
+        return "quadric" if self.is_quadric else "newton"
+
+    def fused_values(self, like) -> tuple:
+        """``(c, k, r)`` for the ``"quadric"`` kind, in ``like``'s dtype: ``r`` the clip radius
+        of the opening (the semi-diameter unless another circle was assigned)."""
+        return (self.c.to(like), self.k.to(like), self.opening.kernel_clip[1].to(like))
+
     def quadric(self, o, d):
         """Coefficients ``(A, B, C)`` of ``A s^2 + 2 B s + C = 0`` for rays ``o + s d`` on the
         conic base, then ``c' = (1+k) c`` (the branch test is ``h = 1 - c' (o_z + s d_z) > 0``)
@@ -284,23 +294,18 @@ class Asphere(SagSurface):
         # (*B, 3) layout keeps the eager path's graph (and its gradients' rounding) unchanged
         return g * torch.rsqrt((g * g).sum(-1, keepdim=True).clamp_min(1e-30))
 
-    def in_aperture(self, x, y):
-        inside = super().in_aperture(x, y)
-        if float(self.obscuration) > 0:
-            ro = self.obscuration.to(x)
-            inside = inside & (x * x + y * y >= ro * ro)
+    def _build_opening(self) -> Opening:
+        """The semi-diameter's circle, with the clear circle (about ``clear_decenter``) and
+        the clear rectangle when given, less the central obscuration's circle."""
+        opening = Circle(self.semi_diameter, check=False)
         if math.isfinite(float(self.clear_radius)):
-            rc = self.clear_radius.to(x)
-            if bool(self.clear_decenter.any()):
-                u, v = x - self.clear_decenter[0].to(x), y - self.clear_decenter[1].to(x)
-                inside = inside & (u * u + v * v <= rc * rc)
-            else:
-                inside = inside & (x * x + y * y <= rc * rc)
+            dec = self.clear_decenter if bool(self.clear_decenter.any()) else None
+            opening = opening & Circle(self.clear_radius, dec, check=False)
             if bool(self.clear_rect.any()):
-                u, v = x - self.clear_decenter[0].to(x), y - self.clear_decenter[1].to(x)
-                inside = inside & (u.abs() <= self.clear_rect[0].to(x)) & (
-                    v.abs() <= self.clear_rect[1].to(x))
-        return inside
+                opening = opening & Rectangle(self.clear_rect, self.clear_decenter, check=False)
+        if float(self.obscuration) > 0:
+            opening = opening - Circle(self.obscuration, check=False)
+        return opening
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
@@ -312,6 +317,18 @@ class Asphere(SagSurface):
                              f"must be smaller than the clear radius "
                              f"({float(self.clear_radius):g} mm)")
         check_conic_domain(sd, float(self.c), float(self.k), "conic", where)
+
+    def sag_scale(self, name: str) -> float:
+        """``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (``a_{2i+4}``):
+        ``R^(2i+4)``; else 1 (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
+        R, parts = float(self.semi_diameter), name.split(".")
+        if parts[0] == "c":
+            return curvature_scale(R)
+        if parts[0] == "k":
+            return conic_scale(float(self.c), float(self.k), R)
+        if parts[0] == "a":
+            return R ** (2 * int(parts[1]) + 4)
+        return 1.0
 
     file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric", "obscuration_mm",
                    "clear_radius_mm", "clear_decenter_mm", "clear_rect_mm")

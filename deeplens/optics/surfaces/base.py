@@ -6,9 +6,14 @@ optical axis.  A surface provides
 * ``f(x, y, z)``         the implicit function (mm); for a sag surface ``f = sag(x, y) - z``
 * ``f_grad(x, y, z)``    ``(∂f/∂x, ∂f/∂y, ∂f/∂z)``, analytic, differentiable in ``θ``
 * ``in_domain(x, y)``    where ``f`` is defined (e.g. inside a conic's sqrt domain)
-* ``in_aperture(x, y)``  inside the clear aperture (circular semi-diameter by default)
+* ``in_aperture(x, y)``  inside the surface's ``opening`` (:mod:`..openings`; the
+  semi-diameter's circle by default)
 * ``sag(x, y)``          the surface height, for layouts and crossing checks
 * ``paraxial_curvature`` the vertex curvature used by paraxial analysis (1/mm)
+
+What happens after the hit is the surface's ``interaction`` (:mod:`..interactions`), how it
+runs compiled its ``fused_geometry``/``fused_values``, and the natural scale of each of its
+parameters its ``sag_scale``: the tracer and :mod:`..parameters` ask these, never the class.
 
 Serialisation: each type registers its lens-file ``type`` name with :func:`register_surface`
 and owns both directions: ``to_dict()`` writes its entry, ``from_dict(entry, semi_diameter)``
@@ -30,10 +35,12 @@ import math
 import torch
 from torch import nn
 
+from ..interactions import REFRACTION
+from ..openings import Circle, Opening, Rectangle, in_circle
 from ..refract import unit_normal
 
 __all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface",
-           "set_clear_rect", "clear_rect_of"]
+           "set_clear_rect", "clear_rect_of", "curvature_scale", "conic_scale"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
 #: at import and read by the lens-file reader and writer (never changed afterwards)
@@ -56,12 +63,6 @@ def register_surface(name: str, aliases: tuple[str, ...] = ()):
     return deco
 
 
-def in_circle(X, Y, r):
-    """``X^2 + Y^2 <= r^2``: inside a circular clear aperture of radius ``r`` (mm); the eager
-    :meth:`Surface.in_aperture` and the compiled kernels' aperture check."""
-    return X * X + Y * Y <= r * r
-
-
 def check_conic_domain(sd: float, c: float, k: float, what: str, where: str = "") -> None:
     """Raise ``ValueError`` when the semi-diameter ``sd`` (mm) lies beyond the domain of a
     conic of curvature ``c`` (1/mm) and conic constant ``k``: its sag is defined only for
@@ -72,6 +73,24 @@ def check_conic_domain(sd: float, c: float, k: float, what: str, where: str = ""
         raise ValueError(f"{where}semi-diameter {sd:g} mm lies beyond the domain of the {what} "
                          f"(R = {1 / c:g} mm, k = {k:g}): the sag is only defined for "
                          f"r < {limit:g} mm")
+
+
+def curvature_scale(R: float) -> float:
+    """The scale of a curvature (1/mm) on a surface of semi-diameter ``R`` (mm): ``R^2 / 2``,
+    mm of sag at the rim per 1/mm (the derivative of ``c R^2 / (1 + sqrt(1 - (1+k) c^2 R^2))``
+    at ``c = 0``; within ``(1+k) c^2 R^2`` of it at the current curvature)."""
+    return R * R / 2
+
+
+def conic_scale(c: float, k: float, R: float) -> float:
+    """The scale of a conic constant: ``∂z/∂k = c^3 R^4 / (2 q (1 + q)^2)`` at the rim ``R``
+    (mm), ``q = sqrt(1 - (1+k) c^2 R^2)``; 1 for a flat base (``c = 0``: the conic does not
+    change the sag) or a rim beyond the conic's domain, and at least 1e-6."""
+    arg = 1.0 - (1.0 + k) * c * c * R * R
+    if c == 0.0 or arg <= 0.0:
+        return 1.0
+    q = math.sqrt(arg)
+    return max(abs(c) ** 3 * R ** 4 / (2.0 * q * (1.0 + q) ** 2), 1e-6)
 
 
 def make_param(value, name: str = "value") -> nn.Parameter:
@@ -94,6 +113,12 @@ class Surface(nn.Module):
     file_fields: tuple[str, ...] = ()
     #: a flat surface is intersected in closed form (no Newton iterations)
     is_flat = False
+    #: what happens after the hit (:mod:`~deeplens.optics.interactions`): the tracer asks it
+    #: and its declared flags, never the surface's class
+    interaction = REFRACTION
+    #: the compiled geometry of this type when its law and opening allow a fused run
+    #: (:attr:`fused`): ``"plane"``, ``"quadric"``, ``"newton"`` or ``None`` (eager)
+    fused_geometry: str | None = None
 
     def __init__(self, semi_diameter: float):
         super().__init__()
@@ -113,8 +138,32 @@ class Surface(nn.Module):
     def in_domain(self, x, y):
         return torch.ones_like(x, dtype=torch.bool)
 
+    # ---- the opening (deeplens.optics.openings) --------------------------------------
+    _opening: Opening | None = None
+
+    @property
+    def opening(self) -> Opening:
+        """Where the surface lets rays through (:mod:`~deeplens.optics.openings`): an opening
+        assigned to it (``surface.opening = Circle(3.0) - Circle(1.0)``), else the one its type
+        builds from its own values (:meth:`_build_opening`: the semi-diameter's circle by
+        default; the obscuration, clear radius, decenter and rectangle of the types that carry
+        them, which stay buffers under their lens-file names so that ``state_dict`` and lens
+        files do not change)."""
+        return self._opening if self._opening is not None else self._build_opening()
+
+    @opening.setter
+    def opening(self, value: Opening) -> None:
+        if not isinstance(value, Opening):
+            raise TypeError(f"{type(self).__name__}.opening: expected an Opening "
+                            f"(deeplens.optics.openings), got {type(value).__name__}")
+        self._opening = value
+
+    def _build_opening(self) -> Opening:
+        return Circle(self.semi_diameter, check=False)
+
     def in_aperture(self, x, y):
-        return in_circle(x, y, self.semi_diameter.to(x))
+        """``(*B,)`` bool: ``(x, y)`` (mm, local frame) lies in the :attr:`opening`."""
+        return self.opening.contains(x, y)
 
     def sag(self, x, y):
         raise NotImplementedError
@@ -138,12 +187,54 @@ class Surface(nn.Module):
     #: ``kernel_in_domain(x, y, values)`` and ``kernel_start(bx, by, bz, dx, dy, dz, ok, values,
     #: root_fn)`` (Newton's start ``s`` from the vertex-plane point), built from the same
     #: functions its ``f``/``f_grad``/``in_domain`` call.  A subclass that changes ``f`` must
-    #: redefine them.  Without them the surface runs eager between compiled runs.
+    #: redefine them, and declare ``fused_geometry = "newton"``.  Without them the surface runs
+    #: eager between compiled runs.
     def kernel_values(self, like):
         return None
 
     def paraxial_curvature(self) -> torch.Tensor:
         return torch.zeros((), dtype=self.semi_diameter.dtype, device=self.semi_diameter.device)
+
+    # ---- declared capabilities (asked by the tracer, :mod:`deeplens.optics.tracer`) ------
+    @property
+    def law(self) -> str:
+        """The name of :attr:`interaction` (``"refract"``, ``"ideal"``, ``"diffract"``,
+        ``"stop"``, ``"frame"``)."""
+        return self.interaction.name
+
+    @property
+    def diffracts(self) -> bool:
+        """The surface diffracts (its law is :class:`~deeplens.optics.interactions.Diffraction`)."""
+        return self.interaction.name == "diffract"
+
+    def _plain_opening(self) -> bool:
+        """Whether the opening is one centred circle (the closed-form and fused kernels clip
+        by nothing else, :attr:`~deeplens.optics.openings.Opening.kernel_clip`)."""
+        clip = self.opening.kernel_clip
+        return clip is not None and clip[0] == "circle"
+
+    @property
+    def closed_form(self) -> bool:
+        """The eager tracer may intersect and refract the surface in closed form
+        (:func:`~deeplens.optics.intersect.trace_quadric`): a quadric with a fusable law
+        (Snell's) and a plain circular opening."""
+        return self.is_quadric and self.interaction.fusable and self.interaction.lands \
+            and self._plain_opening()
+
+    @property
+    def fused(self) -> str | None:
+        """The :data:`~deeplens.optics.compiled.KINDS` entry (or ``"newton"``) this surface runs
+        as in a compiled trace when its element is aligned, or ``None`` (eager): its
+        :attr:`fused_geometry` when its law is fusable and its opening is the plain circle."""
+        if not (self.interaction.fusable and self._plain_opening()):
+            return None
+        return self.fused_geometry
+
+    def fused_values(self, like) -> tuple:
+        """The values the fused kind takes (:data:`~deeplens.optics.compiled.KINDS`, after
+        ``z_shift``), in ``like``'s dtype: the opening's clip radius by default (the
+        semi-diameter unless another opening was assigned)."""
+        return (self.opening.kernel_clip[1].to(like),)
 
     @property
     def radius(self) -> float:
@@ -154,6 +245,17 @@ class Surface(nn.Module):
 
     def check(self, where: str = "") -> None:
         """Raise ``ValueError`` if the prescription is inconsistent (e.g. aperture beyond domain)."""
+
+    # ---- the natural scale of each parameter (deeplens.optics.parameters) ----------------
+    def sag_scale(self, name: str) -> float:
+        """mm of sag at the rim (``r = R``, the semi-diameter) per unit of this surface's
+        parameter ``name`` (as in ``named_parameters()``, relative to the surface: ``"c"``,
+        ``"a.3"``): the design optimiser's and the training step's scale
+        (:func:`~deeplens.optics.parameters.parameter_scale`).  Each type gives its own
+        (:func:`curvature_scale`, :func:`conic_scale`, ``R^n`` for a coefficient of ``r^n``);
+        the default, 1, is for values already in mm and for parameters that do not move the
+        sag (a phase, a focal length, a frame change)."""
+        return 1.0
 
     # ---- serialisation ----------------------------------------------------------------
     def to_dict(self) -> dict:
@@ -176,20 +278,16 @@ class SagSurface(Surface):
 
     Subclasses implement ``sag`` and ``sag_grad`` (returning ``(∂z/∂x, ∂z/∂y)``).  Any sag
     surface can carry a rectangular clear aperture (:func:`set_clear_rect`: Zemax's ``SQAP``),
-    which :meth:`in_aperture` applies with the semi-diameter's circle.
+    which its :attr:`opening` intersects with the semi-diameter's circle.
     """
 
-    #: the type applies ``clear_rect`` in its own :meth:`in_aperture` (the even asphere family)
-    _own_clear_rect = False
-
-    def in_aperture(self, x, y):
-        inside = super().in_aperture(x, y)
-        rect = None if self._own_clear_rect else self._buffers.get("clear_rect")
-        if rect is not None and bool(rect.any()):
-            dec = self._buffers["clear_decenter"]
-            u, v = x - dec[0].to(x), y - dec[1].to(x)
-            inside = inside & (u.abs() <= rect[0].to(x)) & (v.abs() <= rect[1].to(x))
-        return inside
+    def _build_opening(self) -> Opening:
+        """The semi-diameter's circle, and the rectangle of :func:`set_clear_rect` when set."""
+        circle = super()._build_opening()
+        rect = self._buffers.get("clear_rect")
+        if rect is None or not bool(rect.any()):
+            return circle
+        return circle & Rectangle(rect, self._buffers["clear_decenter"], check=False)
 
     def sag_grad(self, x, y):
         raise NotImplementedError

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import torch
 
-from .base import SagSurface, make_param, register_surface
+from .base import SagSurface, conic_scale, curvature_scale, make_param, register_surface
 
 __all__ = ["Biconic"]
 
@@ -119,6 +119,19 @@ class Biconic(SagSurface):
                 f"{where}semi-diameter {sd:g} mm lies beyond the domain of the biconic "
                 f"(c_x = {cx:g}/mm, k_x = {kx:g}, c_y = {cy:g}/mm, k_y = {ky:g}): along {axis} the sag is only "
                 f"defined for |{axis}| < {q ** -0.5:g} mm")
+
+    def sag_scale(self, name: str) -> float:
+        """``c``, ``cx``: ``R^2/2``; ``k``, ``kx``: :func:`~.base.conic_scale` of the section's
+        own curvature (a biconic's x conic scales as a conic of curvature ``c_x``, its x-z
+        section); else 1 (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
+        R = float(self.semi_diameter)
+        if name in ("c", "cx"):
+            return curvature_scale(R)
+        if name == "k":
+            return conic_scale(float(self.c), float(self.k), R)
+        if name == "kx":
+            return conic_scale(float(self.cx), float(self.kx), R)
+        return 1.0
 
     file_fields = ("curvature_per_mm", "conic", "curvature_x_per_mm", "conic_x")
 

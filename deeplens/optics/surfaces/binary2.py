@@ -62,6 +62,7 @@ import math
 import torch
 from torch import nn
 
+from ..interactions import DIFFRACTION
 from .asphere import Asphere
 from .base import make_param, register_surface
 from .grating import grating_direction
@@ -93,7 +94,7 @@ class Binary2(Asphere):
     """
 
     #: the tracer applies :meth:`diffract` after refraction or reflection (and runs it eager)
-    diffracts = True
+    interaction = DIFFRACTION
     #: the phase turns with the surface about its axis (unlike a grating's lines)
     axisymmetric = True
 

@@ -26,6 +26,8 @@ import math
 
 import torch
 
+from ..interactions import FRAME_CHANGE
+from ..openings import Everywhere, Opening
 from .base import Surface, make_param, register_surface
 
 __all__ = ["CoordinateBreak"]
@@ -53,6 +55,8 @@ class CoordinateBreak(Surface):
 
     file_fields = ("dx_mm", "dy_mm", "tilt_x_rad", "tilt_y_rad", "tilt_z_rad", "order")
     is_flat = True
+    #: re-expresses the rays in the next frame (:meth:`to_next`, :meth:`to_previous`)
+    interaction = FRAME_CHANGE
 
     def __init__(self, dx: float = 0.0, dy: float = 0.0, tilt_x: float = 0.0,
                  tilt_y: float = 0.0, tilt_z: float = 0.0, semi_diameter: float = 1.0,
@@ -78,8 +82,8 @@ class CoordinateBreak(Surface):
     def sag(self, x, y):
         return torch.zeros_like(x)
 
-    def in_aperture(self, x, y):
-        return torch.ones_like(x, dtype=torch.bool)
+    def _build_opening(self) -> Opening:
+        return Everywhere()
 
     def rotation(self, like: torch.Tensor) -> torch.Tensor:
         """``R = R_x(tilt_x) R_y(tilt_y) R_z(tilt_z)`` (order 1: ``R_z R_y R_x``), ``(3, 3)`` in

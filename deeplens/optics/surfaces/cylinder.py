@@ -18,7 +18,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .base import SagSurface, make_param, register_surface
+from ..openings import Opening, Rectangle
+from .base import SagSurface, conic_scale, curvature_scale, make_param, register_surface
 
 __all__ = ["Cylinder"]
 
@@ -63,11 +64,11 @@ class Cylinder(SagSurface):
     def in_domain(self, x, y):
         return self._arg(y) > 0
 
-    def in_aperture(self, x, y):
+    def _build_opening(self) -> Opening:
+        """The rectangle ``|x| <= w_x, |y| <= w_y`` when given, else the semi-diameter's circle."""
         if self.half_widths is None:
-            return super().in_aperture(x, y)
-        hw = self.half_widths.to(x)
-        return (x.abs() <= hw[0]) & (y.abs() <= hw[1])
+            return super()._build_opening()
+        return Rectangle(self.half_widths, check=False)
 
     def sag(self, x, y):
         c = self.c.to(y)
@@ -100,6 +101,19 @@ class Cylinder(SagSurface):
             raise ValueError(f"{where}the clear aperture (y up to {ymax:g} mm) lies beyond the "
                              f"domain of the cylinder's conic section (R = "
                              f"{1 / float(self.c):g} mm, k = {float(self.k):g})")
+
+    def sag_scale(self, name: str) -> float:
+        """The y profile's: ``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (of
+        ``y^(2i+2)``): ``R^(2i+2)`` at ``y = R`` (the semi-diameter); else 1
+        (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
+        R, parts = float(self.semi_diameter), name.split(".")
+        if parts[0] == "c":
+            return curvature_scale(R)
+        if parts[0] == "k":
+            return conic_scale(float(self.c), float(self.k), R)
+        if parts[0] == "a":
+            return R ** (2 * int(parts[1]) + 2)
+        return 1.0
 
     file_fields = ("curvature_per_mm", "conic", "coefficients", "half_width_x_mm",
                    "half_width_y_mm")

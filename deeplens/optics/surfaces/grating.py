@@ -36,6 +36,7 @@ import math
 
 import torch
 
+from ..interactions import DIFFRACTION
 from .asphere import Asphere
 from .base import make_param, register_surface
 
@@ -86,7 +87,7 @@ class Grating(Asphere):
     """
 
     #: the tracer applies :meth:`diffract` after refraction or reflection (and runs it eager)
-    diffracts = True
+    interaction = DIFFRACTION
 
     def __init__(self, curvature: float, semi_diameter: float, lines_per_um: float,
                  order: int, conic: float = 0.0, obscuration: float = 0.0,

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import torch
 
+from ..interactions import IDEAL_DEFLECTION
 from .base import make_param, register_surface
 from .plane import Plane
 
@@ -28,7 +29,8 @@ class IdealLens(Plane):
     Parameter: ``surface.focal`` (mm).
     """
 
-    deflects = True
+    #: the tracer hands the hit to :meth:`deflect` (never a mirror; eager)
+    interaction = IDEAL_DEFLECTION
 
     def __init__(self, focal_length: float, semi_diameter: float):
         super().__init__(semi_diameter)

@@ -36,7 +36,8 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
-from .base import SagSurface, check_conic_domain, make_param, register_surface
+from .base import (SagSurface, check_conic_domain, conic_scale, curvature_scale, make_param,
+                   register_surface)
 
 __all__ = ["OddAsphere", "MAX_ODD_ORDER", "odd_dsag", "odd_poly", "safe_radius"]
 
@@ -149,6 +150,18 @@ class OddAsphere(SagSurface):
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
         check_conic_domain(sd, float(self.c), float(self.k), "odd asphere's conic base", where)
+
+    def sag_scale(self, name: str) -> float:
+        """``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (``a_{i+1}`` of ``r^(i+1)``): ``R^(i+1)``
+        (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
+        R, parts = float(self.semi_diameter), name.split(".")
+        if parts[0] == "c":
+            return curvature_scale(R)
+        if parts[0] == "k":
+            return conic_scale(float(self.c), float(self.k), R)
+        if parts[0] == "a":
+            return R ** (int(parts[1]) + 1)
+        return 1.0
 
     file_fields = ("curvature_per_mm", "conic", "radial_coefficients")
 

@@ -18,6 +18,7 @@ class Plane(SagSurface):
     """
 
     is_flat = True
+    fused_geometry = "plane"
 
     def sag(self, x, y):
         return torch.zeros_like(x)

@@ -24,7 +24,7 @@ import math
 
 import torch
 
-from .base import make_param, register_surface
+from .base import curvature_scale, make_param, register_surface
 from .cylinder import Cylinder
 
 __all__ = ["Toroid"]
@@ -89,6 +89,15 @@ class Toroid(Cylinder):
         if not sd < abs(float(self.R)):
             raise ValueError(f"{where}the clear aperture (x up to {sd:g} mm) lies beyond the "
                              f"toroid's radius of rotation ({float(self.R):g} mm)")
+
+    def sag_scale(self, name: str) -> float:
+        """The y profile's scales (:meth:`Cylinder.sag_scale <.cylinder.Cylinder.sag_scale>`);
+        the radius of rotation ``R`` scales as the x section's curvature ``1/R`` does:
+        ``|∂z/∂R| = (r^2/2) / R^2`` at the rim ``r`` (the semi-diameter)."""
+        if name == "R":
+            r = float(self.semi_diameter)
+            return curvature_scale(r) / float(self.R) ** 2
+        return super().sag_scale(name)
 
     file_fields = Cylinder.file_fields + ("radius_of_rotation_mm",)
 

@@ -93,6 +93,9 @@ class XYPolynomial(Surface):
     The coefficients are one parameter each: ``surface.a[m]``; ``surface.b``.
     """
 
+    #: the compiled Newton kernels below
+    fused_geometry = "newton"
+
     def __init__(self, semi_diameter: float, coefficients=(0.0,), b: float = 0.0):
         super().__init__(semi_diameter)
         n = len(coefficients)
@@ -192,6 +195,15 @@ class XYPolynomial(Surface):
         if ix2 is None:
             return torch.zeros_like(self.b)
         return self.a[ix2] + self.a[iy2]
+
+    def sag_scale(self, name: str) -> float:
+        """``a.m`` (of ``x^i y^j``): ``R^(i+j)``, the bound of the term on the rim; ``b``
+        (1/mm): 1 (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
+        parts = name.split(".")
+        if parts[0] == "a":
+            i, j = self.terms[int(parts[1])]
+            return float(self.semi_diameter) ** (i + j)
+        return 1.0
 
     file_fields = ("coefficients", "b")
 

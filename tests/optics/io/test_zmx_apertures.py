@@ -11,7 +11,7 @@ import pytest
 import torch
 from test_zmx import line_of, singlet, write
 
-from deeplens.optics.intersect import IntersectOptions
+from deeplens.optics.options import TraceOptions
 from deeplens.optics.io import ZemaxFileError, lens_to_dict, read_zmx, write_zmx
 from deeplens.optics.materials import ModelGlass
 from deeplens.optics.rays import Rays
@@ -57,7 +57,7 @@ def test_decentred_clear_aperture_clips_about_its_centre(tmp_path):
     assert ap.decenter.tolist() == [1.0, -0.5] and fused_kind(lens, i) is None  # runs eager
     rays = _on_axis_rays(lens)
     with torch.no_grad():
-        free, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+        free, hits = lens.trace(rays, options=TraceOptions(clip_aperture=False), record=True)
         clipped = lens.trace(rays)
     x, y = hits[i][..., 0], hits[i][..., 1]
 
@@ -245,11 +245,11 @@ def test_a_clear_aperture_narrower_than_a_lens_surface_stop_vignettes_the_pupil(
     d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(o)
     rays = Rays(o, d, torch.full(o.shape[:1], 587.6, dtype=torch.float64))
     with torch.no_grad():
-        free, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+        free, hits = lens.trace(rays, options=TraceOptions(clip_aperture=False), record=True)
         r = torch.linalg.vector_norm(hits[i][..., :2], dim=-1)
         want = free.valid & (r <= 6.75)
         assert 0 < int(want.sum()) < int(free.valid.sum())   # the clear aperture vignettes
-        for opt in (None, IntersectOptions(closed_form=False)):
+        for opt in (None, TraceOptions(closed_form=False)):
             assert torch.equal(lens.trace(rays, options=opt).valid, want)
         w = float(lens.spec.primary_wavelength_nm)
         with_clap = float(spot_diagram(lens, 0.0, w, "hexapolar:12", pupil="paraxial").rms_radius)
@@ -286,7 +286,7 @@ def test_off_axis_parabola_clips_about_its_decentred_opening(tmp_path):
     x, y = torch.meshgrid(g, g, indexing="ij")
     xy = torch.stack([x.reshape(-1), y.reshape(-1)], -1)
     xy = xy[(xy[:, 1] != 0)]   # the central row leaves the mirror inside the image plane
-    free_opt = IntersectOptions(clip_aperture=False)
+    free_opt = TraceOptions(clip_aperture=False)
     with torch.no_grad():
         w = float(lens.spec.primary_wavelength_nm)
         lens.surfaces[0].semi_diameter.fill_(100.0)   # the stop: let the wide beam through
@@ -335,7 +335,7 @@ def test_off_axis_mirrors_clip_at_their_decentred_rectangles(tmp_path):
     with torch.no_grad():
         lens.surfaces[2].semi_diameter.fill_(500.0)   # the stop: let the wide beam through
         rays = field_rays(lens, 16.0, w, xy, float(paraxial(lens).entrance_pupil_z))
-        free, hits = lens.trace(rays, options=IntersectOptions(clip_aperture=False), record=True)
+        free, hits = lens.trace(rays, options=TraceOptions(clip_aperture=False), record=True)
 
         def inside(sign):
             ok = free.valid.clone()

@@ -406,7 +406,7 @@ def test_folded_files_image_where_optiland_does(name):
     ``local_frames``, against optiland's global ray trace of the same file (its own COORDBRK
     reading), to 1e-9 mm.  A spot's RMS alone would not see a fold turned the wrong way."""
     from deeplens.optics.frames import local_frames, to_global
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
     from deeplens.optics.sampling import field_rays
 
     lens = _load(name)
@@ -418,7 +418,7 @@ def test_folded_files_image_where_optiland_does(name):
     with torch.no_grad():
         xy = torch.tensor(pupil, dtype=lens.dtype) * half
         out = lens.trace_to_sensor(field_rays(lens, 0.0, w, xy, float(par.entrance_pupil_z)),
-                                   options=IntersectOptions(clip_aperture=False))
+                                   options=TraceOptions(clip_aperture=False))
         g = to_global(local_frames(lens)[-1], out.o)
     # deeplens' global origin is its first vertex; optiland's, the file's SURF 1
     types, _, q = _file_path_coords(CORPUS / name)
@@ -799,7 +799,7 @@ def test_telecentric_chief_rays_are_parallel_and_land_at_the_files_heights():
     file's real image height (FTYP 3); the largest object height is OpticStudio's own (the
     object surface's automatic DIAM, 47.99458807792 mm) to 1e-7; the rim rays of the pupil
     cone have direction cosines ±NA (0.15) about it, for every field."""
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
     from deeplens.optics.sampling import field_rays
 
     lens = _load(TELECENTRIC)
@@ -813,7 +813,7 @@ def test_telecentric_chief_rays_are_parallel_and_land_at_the_files_heights():
                           dtype=lens.dtype)
         with torch.no_grad():
             rays = field_rays(lens, f, w, xy, z)
-            out = lens.trace_to_sensor(rays, options=IntersectOptions(clip_aperture=False))
+            out = lens.trace_to_sensor(rays, options=TraceOptions(clip_aperture=False))
             y_chief, _ = chief_ray(lens, f, w)
         d = rays.d
         assert d[0].tolist() == [0.0, 0.0, 1.0]
@@ -845,7 +845,7 @@ def test_telecentric_rays_land_where_optilands_do():
     y).  Rays within 0.7 of the pupil radius: the file's automatic semi-diameters of surfaces
     25/26 cross, so outer rays of the off-axis fields are traced backwards by optiland and
     vignetted by deeplens (the reader's warning)."""
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
     from deeplens.optics.sampling import field_rays
 
     lens = _load(TELECENTRIC)
@@ -858,7 +858,7 @@ def test_telecentric_rays_land_where_optilands_do():
         with torch.no_grad():
             xy = torch.tensor(pupil, dtype=lens.dtype) * r
             out = lens.trace_to_sensor(field_rays(lens, f, w, xy, z),
-                                       options=IntersectOptions(clip_aperture=False))
+                                       options=TraceOptions(clip_aperture=False))
         assert bool(out.valid.all())
         for (px, py), p in zip(pupil, out.o):
             with warnings.catch_warnings():

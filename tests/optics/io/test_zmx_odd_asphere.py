@@ -112,7 +112,7 @@ def test_first_order_and_spot_match_optiland(tmp_path, unit, s):
 def test_off_axis_rays_land_where_optilands_do(tmp_path):
     """Chief and pupil rays of the 3° field (skew ones too), traced by optiland through its odd
     and even asphere geometries, land on the image plane where deeplens' do (1e-9 mm)."""
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
     from deeplens.optics.sampling import field_rays
 
     p = write(tmp_path, odd_file())
@@ -125,7 +125,7 @@ def test_off_axis_rays_land_where_optilands_do(tmp_path):
     with torch.no_grad():
         xy = torch.tensor(pupil, dtype=lens.dtype) * r
         out = lens.trace_to_sensor(field_rays(lens, 3.0, w, xy, z),
-                                   options=IntersectOptions(clip_aperture=False))
+                                   options=TraceOptions(clip_aperture=False))
     assert bool(out.valid.all())
     sign = None
     for (px, py), q in zip(pupil, out.o):

@@ -13,7 +13,7 @@ import warnings
 import pytest
 import torch
 
-from deeplens.optics.intersect import IntersectOptions
+from deeplens.optics.options import TraceOptions
 from deeplens.optics.io import lens_from_dict, lens_to_dict
 from deeplens.optics.lens import Lens
 from deeplens.optics.materials import Air, ModelGlass
@@ -242,7 +242,7 @@ def test_matches_optilands_phase_surface():
 
         o = torch.tensor([[at("x", 0), at("y", 0), at("z", 0)]], dtype=F64)
         d = torch.tensor([[at("L", 0), at("M", 0), at("N", 0)]], dtype=F64)
-        out = lens.trace_to_sensor(Rays(o, d, wl), options=IntersectOptions(clip_aperture=False))
+        out = lens.trace_to_sensor(Rays(o, d, wl), options=TraceOptions(clip_aperture=False))
         assert bool(out.valid[0])
         got = out.o[0].tolist() + out.d[0].tolist() + [float(out.opl[0])]
         # optiland's direction on the image plane is refracted again into its air: the

@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 import torch
 
-from deeplens.optics.intersect import IntersectOptions
 from deeplens.optics.io import lens_from_dict, lens_to_dict
 from deeplens.optics.io.zmx import read_zmx, write_zmx
 from deeplens.optics.lens import Lens
@@ -268,7 +267,7 @@ def _both(name, H, P):
     p = torch.tensor([at(sg.x, k), at(sg.y, k), at(sg.z, k) - z0], dtype=F64)
     d = torch.tensor([at(sg.L, k - 1), at(sg.M, k - 1), at(sg.N, k - 1)], dtype=F64)
     out = lens.trace_to_sensor(Rays((p - d)[None], d[None], w),
-                               options=IntersectOptions(clip_aperture=False))
+                               options=TraceOptions(clip_aperture=False))
     assert bool(out.valid[0])
     dl = out.o[0].tolist() + out.d[0].tolist()
     ol = [at(sg.x, -1), at(sg.y, -1), at(sg.z, -1) - z0,

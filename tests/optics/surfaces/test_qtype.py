@@ -230,7 +230,7 @@ def test_rays_through_a_qbfs_lens_land_where_optiland_lands_them():
     from optiland.materials import IdealMaterial
     from optiland.optic import Optic
 
-    from deeplens.optics.intersect import IntersectOptions
+    from deeplens.optics.options import TraceOptions
     from deeplens.optics.tracer import fused_kind
 
     a = [0.05, -0.02, 0.01]
@@ -262,6 +262,6 @@ def test_rays_through_a_qbfs_lens_land_where_optiland_lands_them():
         p = torch.tensor([at(sg.x, 1), at(sg.y, 1), at(sg.z, 1)], dtype=F64)
         d = torch.tensor([at(sg.L, 0), at(sg.M, 0), at(sg.N, 0)], dtype=F64)
         out = lens.trace_to_sensor(Rays((p - d)[None], d[None], 587.0),
-                                   options=IntersectOptions(clip_aperture=False))
+                                   options=TraceOptions(clip_aperture=False))
         ol = [at(sg.x, -1), at(sg.y, -1), at(sg.z, -1)]
         assert out.o[0].tolist() == pytest.approx(ol, abs=1e-9), (H, P)
