@@ -11,7 +11,7 @@ first-order numbers (``optiland``, ``rayoptics``, or ``none``) and the rate: it 
 oracle tests (tests/optics/io/test_zmx_corpus.py::test_loads_with_the_oracles_numbers and
 test_zmx_corpus_rayoptics.py::test_rayoptics_confirms_first_order_numbers) and reads their
 outcome per file; rayoptics counts for a file only where it confirms all four numbers (not a
-file of its ``NOT_CONFIRMED`` list).  ``--no-oracles`` skips them (about a minute).
+file of its ``NOT_CONFIRMED`` list).  ``--no-oracles`` skips them (about two minutes on one core).
 """
 
 from __future__ import annotations
