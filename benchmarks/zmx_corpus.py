@@ -5,11 +5,20 @@
 Prints, per file, ``loaded`` with the paraxial EFL and EPD (mm), the number of mirrors and of
 coordinate breaks (folds, off-axis sections), or the one located line of the refusal, then the
 counts.  Point it at another folder of ``.zmx`` files to measure that one.
+
+On the default corpus it also prints, per loaded file, which independent readings confirm its
+first-order numbers (``optiland``, ``rayoptics``, or ``none``) and the rate: it runs the two
+oracle tests (tests/optics/io/test_zmx_corpus.py::test_loads_with_the_oracles_numbers and
+test_zmx_corpus_rayoptics.py::test_rayoptics_confirms_first_order_numbers) and reads their
+outcome per file; rayoptics counts for a file only where it confirms all four numbers (not a
+file of its ``NOT_CONFIRMED`` list).  ``--no-oracles`` skips them (about two minutes on one core).
 """
 
 from __future__ import annotations
 
 import argparse
+import re
+import subprocess
 import sys
 import warnings
 from pathlib import Path
@@ -21,12 +30,38 @@ from deeplens.optics.paraxial import paraxial  # noqa: E402
 from deeplens.optics.surfaces import CoordinateBreak  # noqa: E402
 
 
-def main(folder: str | None = None) -> int:
-    root = Path(folder) if folder else Path(__file__).resolve().parents[1] / "tests/data/zmx_real"
+REPO = Path(__file__).resolve().parents[1]
+ORACLE_TESTS = {
+    "optiland": "tests/optics/io/test_zmx_corpus.py::test_loads_with_the_oracles_numbers",
+    "rayoptics": "tests/optics/io/test_zmx_corpus_rayoptics.py"
+                 "::test_rayoptics_confirms_first_order_numbers",
+}
+
+
+def oracle_confirmations() -> dict[str, list[str]]:
+    """``{file name: [oracles whose test passes for it]}`` from one pytest run of both tests."""
+    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-rA", "-p", "no:cacheprovider",
+                          "-p", "no:logging", *ORACLE_TESTS.values()],
+                         cwd=REPO, capture_output=True, text=True).stdout
+    sys.path.insert(0, str(REPO / "tests/optics/io"))
+    from test_zmx_corpus_rayoptics import NOT_CONFIRMED
+
+    confirmed: dict[str, list[str]] = {}
+    for oracle, test in ORACLE_TESTS.items():
+        for m in re.finditer(rf"^PASSED {re.escape(test)}\[(.+)\]\s*$", out, re.M):
+            if oracle == "rayoptics" and m.group(1) in NOT_CONFIRMED:
+                continue
+            confirmed.setdefault(m.group(1), []).append(oracle)
+    return confirmed
+
+
+def main(folder: str | None = None, oracles: bool = True) -> int:
+    root = Path(folder) if folder else REPO / "tests/data/zmx_real"
+    by = oracle_confirmations() if oracles and folder is None else None
     if not root.is_dir():
         raise SystemExit(f"zmx_corpus: {root} is not a folder of .zmx files")
     files = sorted(p for p in root.iterdir() if p.suffix.lower() == ".zmx")
-    loaded = refused = crashed = 0
+    loaded = refused = crashed = confirmed = 0
     for f in files:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -36,8 +71,10 @@ def main(folder: str | None = None) -> int:
                 folds = sum(isinstance(s, CoordinateBreak) for s in lens.surfaces)
                 print(f"{f.name:58s} loaded   EFL {float(p.efl):10.4f}  EPD "
                       f"{float(p.entrance_pupil_diameter):8.4f}  mirrors {len(lens.mirrors)}  "
-                      f"breaks {folds}")
+                      f"breaks {folds}" + (f"  confirmed by {'+'.join(by.get(f.name, ['none']))}"
+                                           if by is not None else ""))
                 loaded += 1
+                confirmed += by is not None and f.name in by
             except ZemaxFileError as e:
                 print(f"{f.name:58s} refused  {str(e).replace(str(f), '')[:110]}")
                 refused += 1
@@ -46,6 +83,11 @@ def main(folder: str | None = None) -> int:
                 crashed += 1
     print(f"\n{loaded} / {len(files)} load, {refused} refused with their location, "
           f"{crashed} unlocated errors")
+    if by is not None:
+        for o in ORACLE_TESTS:
+            print(f"{sum(o in v for v in by.values())} / {loaded} loaded files confirmed by {o}")
+        print(f"{confirmed} / {loaded} loaded files ({confirmed / max(loaded, 1):.0%}) confirmed by "
+              f"an independent reading; {confirmed} / {len(files)} of all files")
     return 1 if crashed else 0
 
 
@@ -54,4 +96,7 @@ if __name__ == "__main__":
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folder", nargs="?", default=None,
                     help="a folder of .zmx files (default: tests/data/zmx_real)")
-    sys.exit(main(ap.parse_args().folder))
+    ap.add_argument("--no-oracles", action="store_true",
+                    help="skip the oracle tests (the default corpus only)")
+    a = ap.parse_args()
+    sys.exit(main(a.folder, not a.no_oracles))

@@ -74,6 +74,8 @@ LIMITS = ("tests/optics/test_limits.py",)
 INPUT_KEYS = ("tests/training/test_input_keys.py",)
 FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
 MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
+RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
+MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -670,6 +672,21 @@ MUTATIONS = [
     Mutation("sampling_limit_blames_aberrations", "a PSF sharper than a pixel refused as an "
              "aberrated lens", "deeplens/render/diffraction.py",
              "        if spread + halo <= 1.0:\n", "        if False:\n", PIXEL),
+    # ------------------------------------------------ rayoptics oracle, configurations (issue 37)
+    Mutation("efl_mirror_sign", "the EFL's sign after an odd number of mirrors flipped "
+             "(-1/u' for -sign(n')/u')", "deeplens/optics/paraxial.py",
+             "        efl = -n[-1].sign() / uA\n", "        efl = -1.0 / uA\n", RAYOPTICS),
+    Mutation("efl_reduced", "the EFL as 1/phi instead of the image-side n'/phi (an image in glass)",
+             "deeplens/optics/paraxial.py", "        efl = -n[-1].sign() / uA\n",
+             "        efl = -n[-1].sign() / (uA * n[-1].abs())\n", RAYOPTICS),
+    Mutation("obna_as_slope", "OBNA's marginal ray given the slope sin(theta) instead of "
+             "tan(theta)", "deeplens/optics/io/zmx_system.py",
+             "            return 2.0 * abs(s + pos) * math.tan(theta)",
+             "            return 2.0 * abs(s + pos) * math.sin(theta)", RAYOPTICS),
+    Mutation("mconf_write_surface_off_by_one", "write_zmx_configs numbers a surface operand "
+             "one surface on", "deeplens/optics/io/zmx_write_configs.py",
+             "put(_SURFACE_OPERANDS[key], s, k, tb[1])",
+             "put(_SURFACE_OPERANDS[key], s + 1, k, tb[1])", MCONF_WRITE),
 ]
 
 

@@ -89,7 +89,8 @@ before, and the file's negative thicknesses after it are kept: deeplens uses Zem
 convention, see ``docs/guide/mirrors.md``).
 Multi-configuration files (``MNUM``: zoom, focus): ``read_zmx(path, config=N)`` reads configuration
 ``N`` (default: the active one, as saved) and :func:`read_zmx_configs` every one, sharing the
-surfaces no configuration changes; :mod:`.zmx_mconf` lists the operands applied and refused.
+surfaces no configuration changes; :mod:`.zmx_mconf` lists the operands applied and refused;
+:func:`write_zmx_configs` writes such lenses back as one file (:mod:`.zmx_write_configs`).
 :func:`write_zmx` writes what :func:`read_zmx` reads, so a lens read,
 written and read again has the same prescription.
 
@@ -110,6 +111,7 @@ from .zmx_configs import read_zmx_configs
 from .zmx_read import read_zmx
 from .zmx_system import lens_pupil_convention
 from .zmx_write import write_zmx
+from .zmx_write_configs import write_zmx_configs
 
 __all__ = ["BUILTIN_CATALOGUES", "ZemaxFileError", "ZemaxWarning", "lens_pupil_convention",
-           "read_zmx", "read_zmx_configs", "write_zmx"]
+           "read_zmx", "read_zmx_configs", "write_zmx", "write_zmx_configs"]
