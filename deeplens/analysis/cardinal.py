@@ -26,7 +26,7 @@ import torch
 
 from .checks import check_wavelength
 from ..optics.paraxial import surface_power
-from .paraxial import exit_pupil, paraxial
+from ..optics.paraxial import exit_pupil, paraxial
 
 __all__ = ["CardinalPoints", "cardinal_points", "system_matrix", "Pupils", "pupils",
            "magnification"]
