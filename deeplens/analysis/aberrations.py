@@ -61,7 +61,7 @@ def _aim(aim):
         raise ValueError(f"aim must be 'real' or 'paraxial', got {aim!r}")
 
 
-def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor",
+def real_chief_ray(lens, field_deg: float, wavelength_nm: float | None = None, image_plane="sensor",
                    options=None):
     """Height ``(,)`` mm on the image plane of the real chief ray (through the stop centre) and
     its entrance-pupil-plane height ``y_p`` (mm), both differentiable.
@@ -71,6 +71,8 @@ def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="se
     solution, ``h'`` detached) carries the implicit derivative ``-∂h/∂θ / h'`` to the lens.
     ``lens``: a Lens or a Camera (its options are used; module docstring)."""
     lens, _, options = unpack(lens, None, options, "real_chief_ray")
+    if wavelength_nm is None:   # the lens's primary wavelength, as the other analysis functions
+        wavelength_nm = float(lens.spec.primary_wavelength_nm)
     dtype = lens.dtype
     _, y1 = chief_ray(lens, field_deg, wavelength_nm, image_plane, options=options)
     p = paraxial(lens)
