@@ -14,7 +14,7 @@ import time
 
 import torch
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.design.apps import DATA_DIR
 from deeplens.design.apps import nikon as N
 from deeplens.design.lensopt import lens_residual_fn

@@ -40,7 +40,7 @@ WL = 587.5618
 def object_point(lens, field_deg, depth_mm):
     """The object point ``(X, Y)`` (mm) whose chief ray crosses the paraxial entrance-pupil
     centre at ``field_deg`` (the convention of :mod:`deeplens.analysis.wavefront`)."""
-    from deeplens.analysis.paraxial import paraxial
+    from deeplens.optics.paraxial import paraxial
 
     z_obj = float(lens.z_vertices()[0]) - depth_mm
     z_ep = float(paraxial(lens).entrance_pupil_z)

@@ -86,7 +86,7 @@ def _child(args) -> None:
     import torch
 
     import deeplens  # noqa: F401
-    from deeplens.analysis.paraxial import paraxial
+    from deeplens.optics.paraxial import paraxial
     from deeplens.optics.io import load_lens
     from deeplens.optics.sampling import field_rays, random_disk
 

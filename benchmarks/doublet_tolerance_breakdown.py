@@ -27,7 +27,8 @@ import torch
 
 from deeplens.design.merit import SpotMerit
 from deeplens.design.sensitivity import field_merits
-from deeplens.design.tolerance_model import CONFIG_DIR, KINDS, call_drawn, load_group
+from deeplens.design.tolerance_groups import CONFIG_DIR, load_group
+from deeplens.optics.tolerance_model import KINDS, call_drawn
 from deeplens.optics.io import load_lens
 from deeplens.render.sensor import Sensor
 

@@ -351,7 +351,7 @@ def section_trace(sec: Section) -> None:
     import torch
     from bench_trace import LENS, WAVELENGTH_NM
 
-    from deeplens.analysis.paraxial import paraxial
+    from deeplens.optics.paraxial import paraxial
     from deeplens.optics.io import load_lens
     from deeplens.optics.sampling import field_rays, random_disk
 

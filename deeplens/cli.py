@@ -586,7 +586,7 @@ def _tolerance(args) -> int:
         waves = waves or [float(lens.spec.primary_wavelength_nm)]
         model = None
         if args.group:
-            from .design.tolerance_model import load_group
+            from .design.tolerance_groups import load_group
 
             model = load_group(args.group, where="--group")
             names, t = model.half_widths(lens)

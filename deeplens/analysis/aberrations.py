@@ -11,7 +11,7 @@ Pupil coordinates ``p`` are normalised on the paraxial entrance pupil of the pri
   ``z_T - z_I`` and ``z_S - z_I`` (mm);
 * distortion: ``D = 100 (y_real - y_par) / y_par`` (%), ``y_real`` the real chief ray's height
   on the image plane and ``y_par = κ tan θ`` the paraxial chief ray's there
-  (:func:`~deeplens.analysis.paraxial.chief_ray_scale`), the "f-tan" convention;
+  (:func:`~deeplens.optics.paraxial.chief_ray_scale`), the "f-tan" convention;
 * lateral colour: ``y_chief(λ_short) - y_chief(λ_long)`` (mm) per field; longitudinal colour:
   the paraxial image position of each wavelength minus the primary's (mm);
 * vignetting: ``1 - T(θ)/T(0)`` with ``T`` the fraction of a uniform grid over the paraxial
@@ -38,7 +38,7 @@ from ..optics.camera import unpack
 from ..optics.chief import aiming_options
 from ..optics.sampling import field_rays
 from .checks import AnalysisError, check_field, check_wavelength
-from .paraxial import chief_ray_scale, paraxial
+from ..optics.paraxial import chief_ray_scale, paraxial
 from .spot import chief_ray, image_plane_z
 from .wavefront import launch, pupil_grid, trace_pupil
 
@@ -61,7 +61,7 @@ def _aim(aim):
         raise ValueError(f"aim must be 'real' or 'paraxial', got {aim!r}")
 
 
-def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="sensor",
+def real_chief_ray(lens, field_deg: float, wavelength_nm: float | None = None, image_plane="sensor",
                    options=None):
     """Height ``(,)`` mm on the image plane of the real chief ray (through the stop centre) and
     its entrance-pupil-plane height ``y_p`` (mm), both differentiable.
@@ -71,6 +71,8 @@ def real_chief_ray(lens, field_deg: float, wavelength_nm: float, image_plane="se
     solution, ``h'`` detached) carries the implicit derivative ``-∂h/∂θ / h'`` to the lens.
     ``lens``: a Lens or a Camera (its options are used; module docstring)."""
     lens, _, options = unpack(lens, None, options, "real_chief_ray")
+    if wavelength_nm is None:   # the lens's primary wavelength, as the other analysis functions
+        wavelength_nm = float(lens.spec.primary_wavelength_nm)
     dtype = lens.dtype
     _, y1 = chief_ray(lens, field_deg, wavelength_nm, image_plane, options=options)
     p = paraxial(lens)

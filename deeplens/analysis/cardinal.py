@@ -14,7 +14,10 @@ Pupils are images of the stop (at any conjugate the same planes); the marginal r
 object point to the rim of the stop fixes the object- and image-space numerical apertures, the
 paraxial working F-number ``1 / (2 n' u')`` and, with a chief ray, the paraxial magnification
 ``m = y'/y``.
-Every value is a differentiable torch scalar (mm, or dimensionless), at one wavelength (nm).
+Every value is a differentiable torch scalar (mm, or dimensionless), at one wavelength (nm;
+``None``: the lens spec's primary wavelength).  Each function takes a lens or a
+:class:`~deeplens.optics.camera.Camera` in its place (paraxial: the camera's options do not
+apply), as the other analysis functions do.
 """
 
 from __future__ import annotations
@@ -25,8 +28,9 @@ from dataclasses import dataclass
 import torch
 
 from .checks import check_wavelength
+from ..optics.camera import unpack
 from ..optics.paraxial import surface_power
-from .paraxial import exit_pupil, paraxial
+from ..optics.paraxial import exit_pupil, paraxial
 
 __all__ = ["CardinalPoints", "cardinal_points", "system_matrix", "Pupils", "pupils",
            "magnification"]
@@ -44,6 +48,7 @@ def system_matrix(lens, wavelength_nm: float | None = None, first: int = 0,
                   last: int | None = None) -> torch.Tensor:
     """The ``(2, 2)`` paraxial matrix acting on ``(y, n u)`` from vertex ``first`` (before its
     refraction) to vertex ``last`` (after it); default the whole lens."""
+    lens = unpack(lens, where="system_matrix")[0]
     n, w = _indices(lens, wavelength_nm)
     last = len(lens.surfaces) - 1 if last is None else last
     dist = list(lens.distances)
@@ -88,6 +93,7 @@ def cardinal_points(lens, wavelength_nm: float | None = None) -> CardinalPoints:
     Raises:
         ValueError: for an afocal system (zero power) or an unusable wavelength.
     """
+    lens = unpack(lens, where="cardinal_points")[0]
     n, w = _indices(lens, wavelength_nm)
     M = system_matrix(lens, w)
     A, C, D = M[0, 0], M[1, 0], M[1, 1]
@@ -148,6 +154,7 @@ def pupils(lens, wavelength_nm: float | None = None,
     it is traced with the system matrix to the paraxial image, where its slope gives the
     image-space NA.  Raises ``ValueError`` for an object at a focal point (image at infinity).
     """
+    lens = unpack(lens, where="pupils")[0]
     n, w = _indices(lens, wavelength_nm)
     s = _object_distance(lens, object_distance_mm)
     p = paraxial(lens, w)
@@ -186,6 +193,7 @@ def magnification(lens, wavelength_nm: float | None = None,
     Raises:
         ValueError: for an object at infinity (use the EFL and the field angle instead).
     """
+    lens = unpack(lens, where="magnification")[0]
     n, w = _indices(lens, wavelength_nm)
     s = _object_distance(lens, object_distance_mm)
     if math.isinf(s):

@@ -1,6 +1,14 @@
-"""Paraxial analysis moved to :mod:`deeplens.optics.paraxial` (the lens itself needs it to size
-its stop); this module re-exports it so that ``deeplens.analysis.paraxial`` keeps working."""
+"""Deprecated alias of :mod:`deeplens.optics.paraxial` (paraxial analysis moved there: the lens
+itself needs it to size its stop).  Importing this module warns once (``DeprecationWarning``)
+and re-exports the same objects; it goes in the next release: import from
+``deeplens.optics.paraxial``."""
+
+import warnings
 
 from ..optics.paraxial import ParaxialData, chief_ray_scale, exit_pupil, paraxial
+
+warnings.warn("deeplens.analysis.paraxial is deprecated and will be removed in the next "
+              "release: import from deeplens.optics.paraxial (the same objects)",
+              DeprecationWarning, stacklevel=2)
 
 __all__ = ["paraxial", "ParaxialData", "exit_pupil", "chief_ray_scale"]

@@ -54,7 +54,7 @@ def _passes(lens, field_deg, wavelength_nm, xy, z, options=None):
     return out.valid
 
 
-def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "traced",
+def find_pupil(lens, field_deg: float, wavelength_nm: float | None = None, method: str = "traced",
                grid: int = 129, bisections: int = 40, options=None) -> PupilRegion:
     """The region of the entrance-pupil plane to sample for one field (see module docstring).
 
@@ -68,6 +68,8 @@ def find_pupil(lens, field_deg: float, wavelength_nm: float, method: str = "trac
     if method not in ("paraxial", "traced"):
         raise ValueError(f"pupil method must be 'paraxial' or 'traced', got {method!r}")
     lens, _, options = unpack(lens, None, options, "find_pupil")
+    if wavelength_nm is None:   # the lens's primary wavelength, as the other analysis functions
+        wavelength_nm = float(lens.spec.primary_wavelength_nm)
     dtype = lens.dtype
     with torch.no_grad():
         p = paraxial(lens)
@@ -147,7 +149,8 @@ class SpotResult:
     n_launched: int
 
 
-def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "hexapolar:18",
+def spot_diagram(lens, field_deg: float, wavelength_nm: float | None = None,
+                 sampling: str = "hexapolar:18",
                  pupil: str = "traced", image_plane="sensor", options=None,
                  region: PupilRegion | None = None) -> SpotResult:
     """Trace a pupil pattern of one field to the image plane; gradients flow to the lens.
@@ -158,6 +161,8 @@ def spot_diagram(lens, field_deg: float, wavelength_nm: float, sampling: str = "
         ValueError: when no ray reaches the image (names the field).
     """
     lens, _, options = unpack(lens, None, options, "spot_diagram")
+    if wavelength_nm is None:   # the lens's primary wavelength, as the other analysis functions
+        wavelength_nm = float(lens.spec.primary_wavelength_nm)
     dtype = lens.dtype
     if region is None:
         region = find_pupil(lens, field_deg, wavelength_nm, pupil, options=options)

@@ -40,7 +40,7 @@ from ..optics.camera import unpack
 from ..optics.rays import Rays
 from ..optics.sampling import start_plane_z
 from .checks import AnalysisError, check_field, check_wavelength
-from .paraxial import exit_pupil, paraxial
+from ..optics.paraxial import exit_pupil, paraxial
 from .spot import image_plane_z
 
 __all__ = ["PupilTrace", "trace_pupil", "launch", "pupil_grid", "Wavefront", "wavefront",

@@ -12,7 +12,7 @@ The merit is ``F = sum_i r_i^2`` over the concatenated residuals of its terms:
 * first-order targets (:class:`TargetMerit`): ``r = w (q - q*) / |q*|`` for ``q`` the paraxial
   EFL, BFL or F-number;
 * distortion (:class:`DistortionMerit`): ``r_f = w (y_chief,f - κ tan θ_f) / (κ tan θ_f)``,
-  ``κ`` the paraxial chief-ray scale (:func:`~deeplens.analysis.paraxial.chief_ray_scale`);
+  ``κ`` the paraxial chief-ray scale (:func:`~deeplens.optics.paraxial.chief_ray_scale`);
 * image / irradiance (:func:`image_residual`): ``r = (I - I*) / sqrt(N)`` and optionally
   ``sqrt(μ) (C(I) - C(I*))``, ``C`` the intensity centroid (paper Eq. 15).
 
@@ -29,7 +29,7 @@ import math
 
 import torch
 
-from ..analysis.paraxial import chief_ray_scale, paraxial
+from ..optics.paraxial import chief_ray_scale, paraxial
 from ..analysis.spot import chief_ray, find_pupil, image_plane_z
 from ..optics.camera import unpack
 from ..optics.rays import Rays

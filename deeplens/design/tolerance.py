@@ -95,7 +95,7 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
     """Evaluate ``n`` perturbed lenses (module docstring); ``merit`` is a
     :class:`~.merit.SpotMerit` prepared on the nominal lens (``strict_rays`` is ignored: lost
     rays are dropped as vignetted).  With a tolerance group ``model``
-    (:class:`~.tolerance_model.ToleranceModel`) trial ``k`` is instead the lens it draws with
+    (:class:`~deeplens.optics.tolerance_model.ToleranceModel`) trial ``k`` is instead the lens it draws with
     seed ``seed + k`` (``names``/``half_widths`` unused): the lenses training and evaluation
     under that group draw.  ``lens``: a Lens or a :class:`~deeplens.optics.camera.Camera` (its
     options reach every trace of the merit and of the draws' centring).
@@ -109,7 +109,7 @@ def monte_carlo(lens, merit, names, half_widths, n: int = 100, seed: int = 0,
     t = torch.as_tensor(half_widths, dtype=torch.float64)
     cam, lens = _split(lens, "monte_carlo")
     if model is not None:
-        from .tolerance_model import call_drawn
+        from ..optics.tolerance_model import call_drawn
 
         def trial(k):
             return call_drawn(on_camera(cam, lens), model.draw(lens, int(seed) + k),

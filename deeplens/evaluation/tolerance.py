@@ -22,7 +22,8 @@ from pathlib import Path
 import torch
 
 from ..design.plots import save
-from ..design.tolerance_model import ToleranceModel, drawn, load_group
+from ..design.tolerance_groups import load_group
+from ..optics.tolerance_model import ToleranceModel, drawn
 from ..optics.errors import ConfigError
 from ..training.tolerance import DistortionCalibration, check_calibrate
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from .surfaces.base import make_param
+from .surfaces.base import host_flags, make_param
 
 __all__ = ["Misalignment"]
 
@@ -34,9 +34,14 @@ class Misalignment(nn.Module):
         self.tilt_y = make_param(tilt_y, "tilt_y")
 
     def is_identity(self) -> bool:
-        """True when every value is zero and none is trainable (the transform is skipped)."""
-        return all(not p.requires_grad and float(p) == 0.0
-                   for p in (self.dx, self.dy, self.tilt_x, self.tilt_y))
+        """True when every value is zero and none is trainable (the transform is skipped).  The
+        values are read from the host once per change (:func:`~.surfaces.base.host_flags`):
+        the tracer asks at every surface of every trace."""
+        values = (self.dx, self.dy, self.tilt_x, self.tilt_y)
+        if any(p.requires_grad for p in values):
+            return False
+        return host_flags(self, "_zero_flags", values,
+                          lambda *v: all(float(p) == 0.0 for p in v))
 
     def rotation(self, like: torch.Tensor) -> torch.Tensor:
         """``R = R_y(tilt_y) R_x(tilt_x)`` as a ``(3, 3)`` tensor of ``like``'s dtype/device."""

@@ -41,7 +41,7 @@ class _AdjointRender(torch.autograd.Function):
         if renderer.decorrelate:
             plan = plan.with_seed(decorrelated_seed(plan.seed))
         # the lens's trainable tensors as they are now, each re-entered as a leaf of its own:
-        # within a drawn lens (design.tolerance_model.drawn) some are functions of others (a
+        # within a drawn lens (optics.tolerance_model.drawn) some are functions of others (a
         # compensator's translation depends on the trained coefficients), and a gradient with
         # respect to the original tensors would count those paths twice (here and in the
         # autograd graph outside, which receives the returned gradients and chains them)
@@ -51,7 +51,7 @@ class _AdjointRender(torch.autograd.Function):
             raise RuntimeError("adjoint render: the lens's trainable tensors changed between the "
                                f"render ({ctx.names}) and its backward pass ({names}); run the "
                                "backward inside the context the render ran in (e.g. the drawn "
-                               "lens of design.tolerance_model.drawn)")
+                               "lens of optics.tolerance_model.drawn)")
         leaves = {n: current[n].detach().requires_grad_(True) for n in names}
         params = list(leaves.values())
         tex = scene.textures

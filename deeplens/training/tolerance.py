@@ -2,7 +2,7 @@
 
 Training (``model.tolerance_training: true``): step ``s`` renders through the lens drawn by
 seed ``tolerance_seed(run seed, s)`` around the *current* nominal lens
-(:func:`deeplens.design.tolerance_model.drawn`), so every batch sees another manufactured lens
+(:func:`deeplens.optics.tolerance_model.drawn`), so every batch sees another manufactured lens
 and the optics' gradient is taken through the drawn lens to the nominal parameters.
 With ``model.calibrate: distortion`` each step's drawn lens is also calibrated as a built unit
 would be (:mod:`deeplens.render.calibration`): its distortion map against the current nominal
@@ -19,7 +19,8 @@ import contextlib
 import torch
 from omegaconf import OmegaConf
 
-from ..design.tolerance_model import ToleranceModel, drawn, load_group
+from ..design.tolerance_groups import load_group
+from ..optics.tolerance_model import ToleranceModel, drawn
 from ..optics.errors import ConfigError
 from ..render.calibration import CALIBRATIONS, displacement_px, image_points, warp
 

@@ -22,7 +22,7 @@ from deeplens.analysis.cardinal import cardinal_points, magnification, pupils
 from deeplens.analysis.checks import AnalysisError
 from deeplens.analysis.diffraction import (encircled_energy, geometric_mtf, mtf, mtf_at,
                                            psf_fft, psf_huygens, strehl)
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.analysis.wavefront import (pupil_grid, wavefront, zernike_basis, zernike_fit,
                                          zernike_nm)
 from deeplens.optics.io import lens_from_dict, load_lens

@@ -101,3 +101,22 @@ def test_longitudinal_colour_is_paraxial_and_takes_a_camera(lens, monkeypatch):
     got = A.longitudinal_color(Camera(lens, options=NEWTON), [486.1, 656.3])
     assert not seen  # paraxial: no ray is traced
     assert same(got, A.longitudinal_color(lens, [486.1, 656.3]))
+
+
+def test_the_paraxial_functions_take_a_camera_and_the_primary_wavelength(lens):
+    """One calling form (issue 39, item 6): the cardinal-point functions take a camera like the
+    tracing ones, and the functions whose wavelength was required (the pupil search, the spot,
+    the real chief ray) default to the lens's primary wavelength like the rest."""
+    from deeplens.analysis import cardinal as C
+
+    cam = Camera(lens, options=NEWTON)
+    for f in (C.system_matrix, C.cardinal_points, C.pupils):
+        assert same(f(cam), f(lens))
+    assert same(C.magnification(cam, object_distance_mm=500.0),
+                C.magnification(lens, object_distance_mm=500.0))
+    w = float(lens.spec.primary_wavelength_nm)
+    assert same(find_pupil(lens, F, grid=33, bisections=12),
+                find_pupil(lens, F, w, grid=33, bisections=12))
+    assert same(spot_diagram(lens, F, sampling="hexapolar:4"),
+                spot_diagram(lens, F, w, "hexapolar:4"))
+    assert same(A.real_chief_ray(lens, F), A.real_chief_ray(lens, F, w))

@@ -34,7 +34,7 @@ optiland = pytest.importorskip("optiland")
 
 import torch  # noqa: E402
 
-from deeplens.analysis.paraxial import paraxial  # noqa: E402
+from deeplens.optics.paraxial import paraxial  # noqa: E402
 from deeplens.optics.io import read_table  # noqa: E402
 from deeplens.optics.lens import Lens  # noqa: E402
 from deeplens.optics.materials import get_material  # noqa: E402

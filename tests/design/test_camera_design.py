@@ -27,7 +27,7 @@ from deeplens.design.merit import DistortionMerit, Merit, SpotMerit, TargetMerit
 from deeplens.design.sensitivity import (finite_difference_matrix, rss_estimate,
                                          sensitivity_matrix)
 from deeplens.design.tolerance import monte_carlo
-from deeplens.design.tolerance_model import ToleranceModel, axis_image
+from deeplens.optics.tolerance_model import ToleranceModel, axis_image
 from deeplens.design.variables import Variables, on_camera
 from deeplens.optics.camera import Camera
 from deeplens.optics.io import load_lens

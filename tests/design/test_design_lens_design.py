@@ -9,7 +9,7 @@ import pytest
 import torch
 from helpers import LENS_DIR, singlet
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.design.constraints import ConstraintError, parse_constraint
 from deeplens.design.lensopt import lens_residual_fn, optimize_lens
 from deeplens.design.merit import Merit, SpotMerit, TargetMerit

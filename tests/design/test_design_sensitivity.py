@@ -31,7 +31,7 @@ def cooke():
 
 def test_cooke_triplet_first_order_data(cooke):
     """The shipped prescription reproduces Smith's EFL 101.181 mm and BFL 77.405 mm."""
-    from deeplens.analysis.paraxial import paraxial
+    from deeplens.optics.paraxial import paraxial
 
     p = paraxial(cooke)
     assert float(p.efl) == pytest.approx(101.181, abs=2e-3)

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import helpers
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.design.apps import misalignment as app
 from deeplens.design.misalignment import (DEFAULT_SCALE, LA1131_PATH, PARAMS, SpotImager,
                                           SpotSetup, centroid, eq15_residual,

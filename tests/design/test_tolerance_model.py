@@ -1,4 +1,4 @@
-"""Tolerance groups (deeplens.design.tolerance_model): drawn statistics against the configured
+"""Tolerance groups (deeplens.optics.tolerance_model, deeplens.design.tolerance_groups): drawn statistics against the configured
 distributions, the drawn lens against one built explicitly, gradients through a drawn lens
 against central differences (float64), the refocus compensator, config errors naming the key."""
 
@@ -9,8 +9,9 @@ import pytest
 import torch
 from helpers import LENS_DIR, central_fd, rel_err
 
-from deeplens.design.tolerance_model import (Distribution, ToleranceModel, axis_image,
-                                             call_drawn, drawn, load_group)
+from deeplens.design.tolerance_groups import load_group
+from deeplens.optics.tolerance_model import (Distribution, ToleranceModel, axis_image,
+                                             call_drawn, drawn)
 from deeplens.optics.io import load_lens
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays

@@ -410,12 +410,12 @@ MUTATIONS = [
              "        type(self).options = property(lambda s: s._frozen)\n", CAMERA),
     # ------------------------------------------------ the centring compensator (issue 21)
     Mutation("center_sign_flip", "the centring compensator moves the lens the wrong way (+ miss)",
-             "deeplens/design/tolerance_model.py",
+             "deeplens/optics/tolerance_model.py",
              "values.get(name, params[name]) - miss[k].to(params[name])",
              "values.get(name, params[name]) + miss[k].to(params[name])",
              ("tests/design/test_tolerance_model.py",)),
     Mutation("center_ignored", "compensator: center parsed but never applied",
-             "deeplens/design/tolerance_model.py", "        if draw.center:\n",
+             "deeplens/optics/tolerance_model.py", "        if draw.center:\n",
              "        if False and draw.center:\n", ("tests/design/test_tolerance_model.py",)),
     Mutation("adjoint_grad_through_originals", "the adjoint pass differentiates the lens's "
              "tensors as they are, not re-entered as leaves (counts a compensator's path twice)",

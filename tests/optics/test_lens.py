@@ -556,12 +556,3 @@ def test_lens_dtype_and_device_follow_its_values():
     lens = lens.float()
     assert lens.dtype == torch.float32 == lens.surfaces[0].c.dtype
 
-
-def test_old_import_paths_still_work():
-    """``deeplens.analysis.paraxial`` (named by the README and used by the analysis and design
-    code) re-exports :mod:`deeplens.optics.paraxial`."""
-    import deeplens.analysis.paraxial as old_paraxial
-    import deeplens.optics.paraxial as new_paraxial
-
-    assert old_paraxial.paraxial is new_paraxial.paraxial
-    assert old_paraxial.exit_pupil is new_paraxial.exit_pupil

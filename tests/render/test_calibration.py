@@ -9,7 +9,7 @@ import pytest
 import torch
 from helpers import LENS_DIR
 
-from deeplens.design.tolerance_model import LensDraw, drawn
+from deeplens.optics.tolerance_model import LensDraw, drawn
 from deeplens.optics.io import load_lens
 from deeplens.optics.sampling import point_source_rays
 from deeplens.render import IdealCamera, MonteCarloRenderer, Scene, Sensor

@@ -119,7 +119,7 @@ CASES = [
      "model.deconvolution.nsr", "value", "float32 lens can hold"),
     ("check_model_config", (*DOUBLET, "model.deconvolution={nrs:0.1}"), None,
      "model.deconvolution", "unknown", "'nsr'"),
-    # tolerance.check_tolerance_config (design/tolerance_model's parser)
+    # tolerance.check_tolerance_config (optics/tolerance_model's parser)
     ("check_tolerance_config", (*DOUBLET, "tolerance=precision",
                                 "tolerance.decenter={shape:normal,std:-1}"), None,
      "tolerance.decenter.std", "value", "finite number >= 0"),
@@ -298,7 +298,7 @@ def test_config_error_formats_and_attributes(tmp_path):
 
 
 def test_tolerance_file_errors_name_the_file_and_the_key(tmp_path):
-    from deeplens.design.tolerance_model import load_group
+    from deeplens.design.tolerance_groups import load_group
 
     g = tmp_path / "mine.yaml"
     g.write_text("decenter: {shape: uniform, half_width: -0.01}\n")

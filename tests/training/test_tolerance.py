@@ -70,7 +70,7 @@ def test_eval_under_tolerances_is_deterministic_and_zero_tolerance_is_nominal(cf
     module, trainer, dm = objs["module"], objs["trainer"], objs["datamodule"]
     trainer.test(module, datamodule=dm, verbose=False)
     nominal = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("test/")}
-    from deeplens.design.tolerance_model import load_group
+    from deeplens.design.tolerance_groups import load_group
 
     zero = evaluate_drawn(module, trainer, dm, load_group("none"), n=1, seed=0)
     assert zero[0] == nominal  # exactly
@@ -114,7 +114,7 @@ def test_eval_tolerance_settings_are_checked_before_training(cfg_factory):
 def test_tolerance_training_runs_and_leaves_the_nominal_lens(cfg_factory, tmp_path):
     """A short fit under tolerances: the optics still train (the nominal aspheres move), the
     lens is the nominal one afterwards, and the checkpoint holds the nominal lens's keys."""
-    from deeplens.design.tolerance_model import PerturbedMaterial
+    from deeplens.optics.tolerance_model import PerturbedMaterial
     from deeplens.training.checkpoint import read_checkpoint
 
     cfg = cfg_factory(*DOUBLET, "tolerance=commercial", "model.tolerance_training=true",
@@ -194,7 +194,7 @@ def test_calibrated_eval_zero_tolerance_is_nominal_and_deterministic(cfg_factory
     module, trainer, dm = objs["module"], objs["trainer"], objs["datamodule"]
     trainer.test(module, datamodule=dm, verbose=False)
     nominal = {k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("test/")}
-    from deeplens.design.tolerance_model import load_group
+    from deeplens.design.tolerance_groups import load_group
 
     zero = evaluate_drawn(module, trainer, dm, load_group("none"), n=1, seed=0,
                           calibrate="distortion")
@@ -215,7 +215,7 @@ def test_calibrated_eval_registers_a_translated_lens(cfg_factory):
     """A drawn lens that is the nominal one moved rigidly by one pixel across the axis: the
     restored image moves with it, and the calibrated score is the nominal one within 0.3 dB
     (the uncalibrated one is far below)."""
-    from deeplens.design.tolerance_model import LensDraw
+    from deeplens.optics.tolerance_model import LensDraw
 
     cfg = cfg_factory(*DOUBLET, "data.test_size=2", "sensor.resolution=[24,24]",
                       "render.spp=8")

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from ...analysis.paraxial import paraxial
+from ...optics.paraxial import paraxial
 from ...optics.io import load_lens, save_lens
 from ..lensopt import optimize_lens
 from ..merit import Merit, SpotMerit, TargetMerit

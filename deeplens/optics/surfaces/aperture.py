@@ -22,7 +22,7 @@ import torch
 
 from ..interactions import STOP_CROSSING
 from ..openings import Circle, Opening, Rectangle, in_rect
-from .base import register_surface
+from .base import host_flags, register_surface
 from .plane import Plane
 
 __all__ = ["Aperture", "in_rect"]
@@ -88,10 +88,14 @@ class Aperture(Plane):
     def _build_opening(self) -> Opening:
         """The circle (semi-diameter) or rectangle (half-widths) about the decenter, less the
         obscuration's circle about the same centre."""
-        dec = self.decenter if self.decentred else None
+        decentred, obscured = host_flags(self, "_opening_flags",
+                                         (self.decenter, self.obscuration),
+                                         lambda dec, obs: (bool((dec != 0).any()),
+                                                           float(obs) > 0))
+        dec = self.decenter if decentred else None
         outer = (Rectangle(self.half_widths, dec, check=False) if self.shape == "rect"
                  else Circle(self.semi_diameter, dec, check=False))
-        if float(self.obscuration) > 0:
+        if obscured:
             return outer - Circle(self.obscuration, dec, check=False)
         return outer
 

@@ -33,8 +33,8 @@ import torch
 from torch import nn
 
 from ..openings import Circle, Opening, Rectangle
-from .base import (SagSurface, check_conic_domain, conic_scale, curvature_scale, make_param,
-                   register_surface)
+from .base import (SagSurface, check_conic_domain, conic_scale, curvature_scale, host_flags,
+                   make_param, register_surface)
 
 __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
            "conic_arg", "conic_dsag_ds", "conic_normal", "conic_quadric", "conic_root",
@@ -297,13 +297,18 @@ class Asphere(SagSurface):
     def _build_opening(self) -> Opening:
         """The semi-diameter's circle, with the clear circle (about ``clear_decenter``) and
         the clear rectangle when given, less the central obscuration's circle."""
+        clear, decentred, rect, obscured = host_flags(
+            self, "_opening_flags",
+            (self.clear_radius, self.clear_decenter, self.clear_rect, self.obscuration),
+            lambda r, dec, rect, obs: (math.isfinite(float(r)), bool(dec.any()),
+                                       bool(rect.any()), float(obs) > 0))
         opening = Circle(self.semi_diameter, check=False)
-        if math.isfinite(float(self.clear_radius)):
-            dec = self.clear_decenter if bool(self.clear_decenter.any()) else None
+        if clear:
+            dec = self.clear_decenter if decentred else None
             opening = opening & Circle(self.clear_radius, dec, check=False)
-            if bool(self.clear_rect.any()):
+            if rect:
                 opening = opening & Rectangle(self.clear_rect, self.clear_decenter, check=False)
-        if float(self.obscuration) > 0:
+        if obscured:
             opening = opening - Circle(self.obscuration, check=False)
         return opening
 

@@ -93,6 +93,28 @@ def conic_scale(c: float, k: float, R: float) -> float:
     return max(abs(c) ** 3 * R ** 4 / (2.0 * q * (1.0 + q) ** 2), 1e-6)
 
 
+def host_flags(module: nn.Module, slot: str, tensors: tuple, read):
+    """``read(*tensors)`` (Python values read from the tensors: host synchronisations), kept on
+    ``module`` under ``slot`` and read again only when one of ``tensors`` changed: another
+    tensor object (``.to()``, a buffer assigned anew) or an in-place change (its version
+    counter: ``copy_``, ``fill_``, ``load_state_dict``).  The cache holds the tensors
+    themselves, so that a freed tensor's ``id`` cannot be taken for a live one.  A surface
+    builds its :attr:`~Surface.opening` at every clip from such flags (an obscuration's
+    ``> 0``, a clear radius's finiteness): read once, not at every trace.  Inference tensors
+    (no version counter) are read every time."""
+    try:
+        versions = tuple(t._version for t in tensors)
+    except RuntimeError:   # an inference tensor: no version counter
+        return read(*tensors)
+    cached = module.__dict__.get(slot)
+    if (cached is not None and cached[1] == versions
+            and all(a is b for a, b in zip(cached[0], tensors))):
+        return cached[2]
+    value = read(*tensors)
+    module.__dict__[slot] = (tensors, versions, value)
+    return value
+
+
 def make_param(value, name: str = "value") -> nn.Parameter:
     """A float64 ``nn.Parameter`` that is frozen until the user unfreezes it."""
     t = torch.as_tensor(value, dtype=torch.float64)

@@ -21,7 +21,7 @@ import pytest
 import torch
 from test_start import seidel_spherical
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.design.focus import quick_focus
 from deeplens.design.search import DesignSpec, SearchConfig, Stage, evaluate, search, solve_efl
 from deeplens.design.search.multistart import Design, deduplicate, same_design

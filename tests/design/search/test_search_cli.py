@@ -8,7 +8,7 @@ import pytest
 import torch
 from helpers import run_cli
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import load_lens
 
 SINGLET = ["design", "search", "--efl", "100", "--fno", "16", "--hfov", "0", "--elements", "1",

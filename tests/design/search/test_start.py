@@ -14,7 +14,7 @@ import math
 import pytest
 import torch
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.design.search.spec import DesignSpec
 from deeplens.design.search.start import (StartError, ThinLens, best_form_bending, flat_start,
                                           solve_efl, start_dimensions, thin_lens_solve,

@@ -23,7 +23,7 @@ import helpers as H
 import pytest
 import torch
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.cli import main as cli_main
 from deeplens.optics.io import (
     LensFileError,

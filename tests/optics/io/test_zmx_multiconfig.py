@@ -22,7 +22,7 @@ import helpers as H
 import pytest
 import torch
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import ZemaxFileError, ZemaxWarning, lens_to_dict, load_lens, read_zmx
 from deeplens.optics.io.zmx import read_zmx_configs
 

@@ -15,7 +15,7 @@ import pytest
 import torch
 from test_zmx import singlet, write
 
-from deeplens.analysis.paraxial import paraxial
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.io import lens_to_dict, read_zmx, write_zmx
 from deeplens.optics.io.lensfile import lens_from_dict
 from deeplens.optics.sampling import field_rays
