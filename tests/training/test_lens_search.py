@@ -185,7 +185,7 @@ PLATE = ("experiment=edof_search", "render.psf_model=geometric", "callbacks.imag
          "render.psf_rays=512", "model.deconvolution.rays=256",
          "lens.trainable=[surfaces.4.a.6,surfaces.4.a.9]",
          "lens.search.plate.starts=1", "lens.search.plate.steps=1",
-         "+lens.search.plate.sampling=grid:6", "+lens.search.plate.n_freq=1",
+         "lens.search.plate.sampling=grid:6", "lens.search.plate.n_freq=1",
          "+lens.search.plate.blur_px=6.0", "sensor.channels=[[587.5618]]")
 
 
