@@ -17,9 +17,9 @@ DEPTHS = [4500.0, 8000.0]
 WAVES = [587.6]
 
 
-def _lens(alpha_mm=0.0, trainable=PLATE):
+def _lens(alpha_mm=0.0, trainable=PLATE, focus_waves=(587.5618,)):
     return build_lens(LENS, trainable, "float64", plate="cubic", plate_surface=4,
-                      plate_alpha_mm=alpha_mm, focus_mm=5760.0)
+                      plate_alpha_mm=alpha_mm, focus_mm=5760.0, focus_wavelengths_nm=focus_waves)
 
 
 def _tiny(seed=0, **kw):
@@ -94,8 +94,8 @@ def test_at_the_experiments_settings_the_search_beats_the_5um_cubic_plate():
     depths = [1.0 / (1 / 4500 + (1 / 8000 - 1 / 4500) * k / 3) for k in range(4)]
     waves = [656.2725, 587.5618, 486.1327]
     cfg = PlateSearchConfig(starts=11)
-    lens = _lens()
+    lens = _lens(focus_waves=waves)   # focused as training focuses it: over R, G, B
     r = plate_search(lens, 4, PLATE, depths, waves, 0.0069, cfg)
-    cubic = plate_score(_lens(0.005), plate_merit(depths, waves, 0.0069, r.blur_px, cfg))[0]
+    cubic = plate_score(_lens(0.005, focus_waves=waves), plate_merit(depths, waves, 0.0069, r.blur_px, cfg))[0]
     assert r.best.score < cubic < 0.01 * r.runs[0].score
     assert r.best.origin == "start 11"
