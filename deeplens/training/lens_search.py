@@ -233,7 +233,10 @@ def check_search_settings(lc, sensor_cfg=None) -> None:
         raise ConfigError.missing("lens.search", "the search's spec, config and trainable "
                                   "(lens.start=search)")
     if is_plate_search(search):
-        _check_plate_search(lc)
+        if start == "search":
+            _check_plate_search(lc)
+        else:  # an evaluation variant's run from the searched plate (its lens.path)
+            plate_search_config(search)
         return
     search_settings(search, sensor_cfg)
     if start != "search":

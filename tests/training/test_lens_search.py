@@ -235,6 +235,8 @@ def test_plate_search_variants_keep_the_plate_and_bad_settings_are_named(cfg_fac
         assert v.lens.learned_start_alpha_mm is None and v.lens.start == "file"
     assert list(learned.lens.trainable) == ["surfaces.4.a.6", "surfaces.4.a.9"]
     assert list(searched.lens.trainable) == []
+    for v in (learned, searched):   # the variants' runs pass the start-up checks
+        check_lens_config(v)
     for over, key in (("lens.learned_start_alpha_mm=0.005", "lens.learned_start_alpha_mm"),
                       ("lens.search.plate.starts=0", "lens.search.plate.starts"),
                       ("+lens.search.plate.stepz=3", "lens.search.plate"),
