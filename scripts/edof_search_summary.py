@@ -1,10 +1,12 @@
 """Summarise an ``experiment=edof_search`` evaluation folder: the plate search's result (the
 plate's terms, split into the cubic family's coma and trefoil parts) and, per seed, the learned
-run's restored test PSNR per depth, mean and worst depth, and the plate it ended with.
+run's (``seeds``) and the frozen searched plate's (``searched``) restored test PSNR per depth,
+mean and worst depth, and the plate each tested.
 
     python scripts/edof_search_summary.py DIR OUT.json
 
-``DIR`` is the evaluation's ``hydra.run.dir`` (``DIR/search``, ``DIR/learned/seed<s>``).
+``DIR`` is the evaluation's ``hydra.run.dir`` (``DIR/search``, ``DIR/learned/seed<s>``,
+``DIR/searched/seed<s>``).
 """
 
 from __future__ import annotations
@@ -49,8 +51,10 @@ def main(folder: str, out: str) -> dict:
                           "start_scores": [r["start_score"] for r in res["runs"]],
                           "refined_scores": [r["score"] for r in res["runs"]],
                           "plate_um": terms, "cubic_parts_um": cubic_parts(terms)},
-               "seeds": {}}
-    for run in sorted((d / "learned").glob("seed*")):
+               "seeds": {}, "searched": {}}
+    runs = [("seeds", r) for r in sorted((d / "learned").glob("seed*"))]
+    runs += [("searched", r) for r in sorted((d / "searched").glob("seed*"))]
+    for where, run in runs:
         rp = run / "eval_run.json"
         if not rp.is_file():
             continue
@@ -67,7 +71,7 @@ def main(folder: str, out: str) -> dict:
             t = plate_terms(lens)
             entry["plate_um"] = t
             entry["cubic_parts_um"] = cubic_parts(t)
-        summary["seeds"][run.name] = entry
+        summary[where][run.name] = entry
     Path(out).write_text(json.dumps(summary, indent=1))
     return summary
 
