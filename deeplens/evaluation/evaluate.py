@@ -102,8 +102,11 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
             c.lens.trainable = [] if kind == "searched" else search_trainable(cfg)
             c.lens.search = {k: v for k, v in _plain(cfg.lens.search).items()
                              if k != "trainable" or kind == "learned"}
-            # a searched lens has no phase plate (an EDOF config's searched variant)
-            c.lens.plate = c.lens.plate_surface = c.lens.plate_order = None
+            from .lens_search import is_plate_search
+
+            if not is_plate_search(cfg.lens.search):  # a plate search keeps its plate
+                # a searched lens has no phase plate (an EDOF config's searched variant)
+                c.lens.plate = c.lens.plate_surface = c.lens.plate_order = None
             c.lens.learned_start_alpha_mm = None
         else:  # the file's lens: the search's settings do not change these runs
             c.lens.search = None

@@ -25,6 +25,22 @@ key is unchanged.  ``<folder>`` is ``<run output folder>/search`` for a training
 ``<evaluation folder>/search`` for an evaluation (shared by its ``searched`` and ``learned``
 variants and seeds).  The files are moved into place one by one (atomic renames), the record
 last, so a search killed part-way is made again.
+
+**A phase plate's search** (EDOF, :mod:`deeplens.design.plate_search`): with a plate
+(``lens.plate_surface``), ``lens.search`` is ``{plate: {PlateSearchConfig fields}}`` instead::
+
+    start: search
+    search:
+      plate: {starts: 16, steps: 8, box_mm: 0.006, seed: 0}
+
+The file's lens keeps its plate surface, sensor focus and ``lens.trainable``; the search
+(:func:`~deeplens.design.plate_search.plate_search`) sets the plate's trainable coefficients
+from a zero plate to the best of its starts for the depth-invariance merit over the scene's
+depth range (four depths uniform in 1/depth, as the ``classical`` variant) at the sensor's
+wavelengths and pixel pitch, and training starts from that plate.  Its lens is
+``<folder>/best.json`` with ``result.json`` (every start, the kept designs, the plate's terms)
+and the same ``search_record.json``, keyed by the settings, the lens file's content and the
+sources of the plate search and its merit.
 """
 
 from __future__ import annotations
@@ -48,8 +64,8 @@ __all__ = ["START_CHOICES", "SEARCH_KEYS", "search_settings", "check_search_sett
 
 #: the values of ``lens.start``
 START_CHOICES = ("file", "search")
-#: the keys of ``lens.search``
-SEARCH_KEYS = ("spec", "config", "trainable")
+#: the keys of ``lens.search`` (``plate``: a phase plate's search, alone)
+SEARCH_KEYS = ("spec", "config", "trainable", "plate")
 #: the stage fields of a SearchConfig, and the keys of one stage
 _STAGE_FIELDS = ("screen", "flat_screen", "polish", "hop")
 _STAGE_KEYS = ("steps", "sampling", "aperture", "field", "rounds", "method")
@@ -174,6 +190,10 @@ def search_settings(search, sensor_cfg=None):
     unknown = set(s) - set(SEARCH_KEYS)
     if unknown:
         raise ConfigError.unknown("lens.search", unknown, SEARCH_KEYS)
+    if "plate" in s:
+        raise ConfigError("lens.search", "spec, config and trainable (a lens search); "
+                          "lens.search.plate (a phase plate's search) goes alone, with "
+                          "lens.plate_surface", s)
     spec = s.get("spec")
     if not isinstance(spec, dict):
         raise ConfigError("lens.search.spec", "a mapping of DesignSpec fields (efl_mm, fno or "
@@ -212,6 +232,12 @@ def check_search_settings(lc, sensor_cfg=None) -> None:
     if start == "search" and search is None:
         raise ConfigError.missing("lens.search", "the search's spec, config and trainable "
                                   "(lens.start=search)")
+    if is_plate_search(search):
+        if start == "search":
+            _check_plate_search(lc)
+        else:  # an evaluation variant's run from the searched plate (its lens.path)
+            plate_search_config(search)
+        return
     search_settings(search, sensor_cfg)
     if start != "search":
         return
@@ -230,8 +256,63 @@ def check_search_settings(lc, sensor_cfg=None) -> None:
 
 
 def search_trainable(cfg: DictConfig) -> list[str]:
-    """``lens.search.trainable`` of ``cfg`` (checked)."""
+    """``lens.search.trainable`` of ``cfg`` (checked); a plate search: ``lens.trainable``."""
+    if is_plate_search(cfg.lens.search):
+        return list(_plain(cfg.lens.trainable) or [])
     return search_settings(cfg.lens.search, cfg.get("sensor"))[2]
+
+
+def is_plate_search(search) -> bool:
+    """Whether ``lens.search`` asks for a phase plate's search (it has a ``plate`` key)."""
+    s = _plain(search)
+    return isinstance(s, dict) and "plate" in s
+
+
+def plate_search_config(search):
+    """The :class:`~deeplens.design.plate_search.PlateSearchConfig` of ``lens.search.plate``.
+
+    Raises:
+        ConfigError: naming ``lens.search`` or ``lens.search.plate[.<field>]``.
+    """
+    from ..design.plate_search import PlateSearchConfig
+
+    s = _plain(search)
+    other = set(s) - {"plate"}
+    if other:
+        raise ConfigError("lens.search", "only plate (a phase plate's search); spec, config and "
+                          "trainable belong to a lens search", s)
+    given = {} if s["plate"] is None else s["plate"]
+    if not isinstance(given, dict):
+        raise ConfigError("lens.search.plate", "null or a mapping of PlateSearchConfig fields",
+                          given)
+    known = [f.name for f in dataclasses.fields(PlateSearchConfig)]
+    unknown = set(given) - set(known)
+    if unknown:
+        raise ConfigError.unknown("lens.search.plate", unknown, known)
+    try:
+        return PlateSearchConfig(**given)
+    except ValueError as e:
+        field = next((k for k in given if f" {k} " in f" {e} "), None)
+        key = f"lens.search.plate.{field}" if field else "lens.search.plate"
+        raise ConfigError(key, str(e).split(": ", 1)[-1], given.get(field, given)) from None
+
+
+def _check_plate_search(lc) -> None:
+    plate_search_config(lc.get("search"))
+    if lc.get("plate_surface") is None:
+        raise ConfigError.missing("lens.plate_surface", "the plate's surface index (to use "
+                                  "lens.search.plate)")
+    if lc.get("plate") not in (None, "learned"):
+        raise ConfigError("lens.plate", "null or 'learned' with lens.search.plate (the search "
+                          "sets the plate)", lc.get("plate"))
+    if lc.get("learned_start_alpha_mm") is not None:
+        raise ConfigError("lens.learned_start_alpha_mm", "null with lens.search.plate (the "
+                          "plate starts from the search's)", lc.get("learned_start_alpha_mm"))
+    prefix = f"surfaces.{lc.get('plate_surface')}.a."
+    if not any(isinstance(t, str) and t.startswith(prefix)
+               for t in (_plain(lc.get("trainable")) or [])):
+        raise ConfigError("lens.trainable", f"some of the plate's coefficients ({prefix}*: what "
+                          f"lens.search.plate searches)", _plain(lc.get("trainable")))
 
 
 def search_dir(cfg: DictConfig) -> Path:
@@ -239,13 +320,14 @@ def search_dir(cfg: DictConfig) -> Path:
     return Path(cfg.paths.output_dir) / "search"
 
 
-def _code_digest() -> str:
-    """SHA-256 over the search package's sources (names and contents, sorted)."""
+def _code_digest(files=None) -> str:
+    """SHA-256 over the search package's sources (names and contents, sorted), or ``files``."""
     import deeplens.design.search as pkg
 
-    root = Path(pkg.__file__).resolve().parent
+    if files is None:
+        files = Path(pkg.__file__).resolve().parent.glob("*.py")
     h = hashlib.sha256()
-    for f in sorted(root.glob("*.py")):
+    for f in sorted(files):
         h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
     return "sha256:" + h.hexdigest()
 
@@ -254,6 +336,8 @@ def search_key(cfg: DictConfig) -> dict:
     """What a search's result depends on: the spec and settings as used, the code's version."""
     from .. import __version__
 
+    if is_plate_search(cfg.lens.search):
+        return _plate_key(cfg)
     spec, config, _ = search_settings(cfg.lens.search, cfg.get("sensor"))
     return json.loads(json.dumps({"spec": spec.to_dict(), "config": config.to_dict(),
                                   "code": {"deeplens": __version__,
@@ -284,6 +368,8 @@ def searched_lens(cfg: DictConfig, out_dir=None, progress=print) -> Path:
     if _reusable(out, key):
         progress(f"deeplens: reusing the searched lens {best}")
         return best
+    if is_plate_search(cfg.lens.search):
+        return _searched_plate(cfg, out, key, progress)
     spec, config, _ = search_settings(cfg.lens.search, cfg.get("sensor"))
     progress(f"deeplens: design search for lens.search.spec ({spec.elements} element(s), "
              f"f {spec.efl_mm:g} mm F/{spec.f_number:.3g}, HFOV {spec.hfov_deg:g} deg; "
@@ -307,4 +393,84 @@ def searched_lens(cfg: DictConfig, out_dir=None, progress=print) -> Path:
     progress(f"deeplens: searched lens {best}: RMS spot {m['rms_um']:.3g} um, EFL "
              f"{m['efl_mm']:.4g} mm, {'feasible' if m['feasible'] else 'INFEASIBLE'}, "
              f"{result.seconds:.0f} s")
+    return best
+
+
+def _plate_problem(cfg: DictConfig):
+    """``(depths_mm, wavelengths_nm, pixel_mm, focus_wavelengths_nm)`` of a plate search: four
+    depths uniform in 1/depth over ``scene.depths_mm`` (the ``classical`` variant's), the
+    sensor's wavelengths (each once, in channel order), its pixel pitch, and every channel's
+    wavelengths (with repeats, as training focuses the sensor)."""
+    from ..render.sensor import Sensor
+
+    lo, hi = (float(d) for d in cfg.scene.depths_mm)
+    depths = [1.0 / (1.0 / lo + (1.0 / hi - 1.0 / lo) * k / 3) for k in range(4)]
+    sc = cfg.sensor
+    sensor = Sensor(tuple(sc.resolution), sc.pixel_size_mm,
+                    channels=None if sc.channels is None else [list(c) for c in sc.channels])
+    focus = [float(w) for ch in sensor.channels for w in ch]
+    return depths, list(dict.fromkeys(focus)), float(sc.pixel_size_mm), focus
+
+
+def _plate_key(cfg: DictConfig) -> dict:
+    import deeplens.design.depth_invariance as di
+    import deeplens.design.plate_search as ps
+
+    from .. import __version__
+
+    lc = cfg.lens
+    depths, waves, pixel, _ = _plate_problem(cfg)
+    lens = {k: _plain(lc.get(k)) for k in ("path", "trainable", "plate_surface", "plate_order",
+                                           "focus_mm", "table_options")}
+    return json.loads(json.dumps({
+        "plate": plate_search_config(lc.search).to_dict(), "lens": lens,
+        "lens_file": digest_path(lc.path), "depths_mm": depths, "wavelengths_nm": waves,
+        "pixel_mm": pixel,
+        "code": {"deeplens": __version__,
+                 "plate_search": _code_digest([Path(ps.__file__), Path(di.__file__)])}}))
+
+
+def _searched_plate(cfg: DictConfig, out: Path, key: dict, progress) -> Path:
+    """Run the plate search of ``cfg`` and write ``best.json``, ``result.json`` and the record
+    into ``out``; returns the path of ``best.json``."""
+    from ..design.plate_search import describe_plate, plate_search
+    from ..optics.io import save_lens
+    from .lens_setup import build_lens
+
+    lc = cfg.lens
+    config = plate_search_config(lc.search)
+    depths, waves, pixel, focus = _plate_problem(cfg)
+    lens = build_lens(lc.path, trainable=list(lc.trainable), dtype="float64", plate="none",
+                      plate_surface=lc.plate_surface,
+                      table_options=_plain(lc.get("table_options")), focus_mm=lc.focus_mm,
+                      plate_order=lc.get("plate_order"), focus_wavelengths_nm=focus)
+    prefix = f"surfaces.{lc.plate_surface}.a."
+    names = [n for n, p in lens.named_parameters() if p.requires_grad and n.startswith(prefix)]
+    progress(f"deeplens: plate search over {len(names)} coefficients of surface "
+             f"{lc.plate_surface} ({config.starts} Sobol starts + the zero plate, "
+             f"{config.steps} DLS steps each, seed {config.seed}) into {out}")
+    result = plate_search(lens, int(lc.plate_surface), names, depths, waves, pixel, config,
+                          progress=lambda t: progress(f"deeplens: plate search: {t}"))
+    terms = describe_plate(lens.surfaces[int(lc.plate_surface)])
+    out.mkdir(parents=True, exist_ok=True)
+    (out / RECORD).unlink(missing_ok=True)   # from here on the folder is not reusable
+    best = out / "best.json"
+    tmp = out / f".best.tmp-{os.getpid()}.json"
+    save_lens(lens, tmp)
+    os.replace(tmp, best)
+    res = {"labels": result.labels, "blur_px": result.blur_px, "skipped": result.skipped,
+           "seconds": result.seconds, "config": result.config,
+           "designs": [dataclasses.asdict(d) for d in result.designs],
+           "runs": [dataclasses.asdict(d) for d in result.runs],
+           "plate_terms_mm_at_rim": [[m, c] for m, c in terms]}
+    write_text_atomic(out / "result.json", json.dumps(res, indent=1))
+    b = result.best
+    write_text_atomic(out / RECORD, json.dumps(
+        {"key": key, "best_digest": digest_path(best), "score": b.score,
+         "invariance": b.invariance, "blur_px": b.blur_px, "seconds": result.seconds},
+        indent=1))
+    lead = ", ".join(f"{m} {c * 1e3:+.2f}" for m, c in terms[:4])
+    progress(f"deeplens: searched plate {best}: score {b.score:.4g} (invariance "
+             f"{b.invariance:.3g}, blur {b.blur_px:.2f} px, from {b.origin}); terms (um of sag "
+             f"at the rim) {lead}; {result.seconds:.0f} s")
     return best

@@ -176,3 +176,72 @@ def test_the_shipped_experiment_trains_its_outer_aspheres(cfg_factory, tmp_path)
         "surfaces.1.a.0", "surfaces.1.a.1", "surfaces.4.a.0", "surfaces.4.a.1"]
     assert len(load_lens(tmp_path / "search" / "best.json").surfaces) == 5
     assert torch.isfinite(torch.tensor(metrics["train/loss"]))
+
+
+# the EDOF plate search (lens.search.plate): two plate terms, the zero plate and one start of
+# one DLS step on a coarse merit (a 6 x 6 pupil grid, one frequency step, one wavelength), a
+# given blur
+PLATE = ("experiment=edof_search", "render.psf_model=geometric", "callbacks.image_logger=null",
+         "render.psf_rays=512", "model.deconvolution.rays=256",
+         "lens.trainable=[surfaces.4.a.6,surfaces.4.a.9]",
+         "lens.search.plate.starts=1", "lens.search.plate.steps=1",
+         "lens.search.plate.sampling=grid:6", "lens.search.plate.n_freq=1",
+         "+lens.search.plate.blur_px=6.0", "sensor.channels=[[587.5618]]")
+
+
+def test_plate_search_is_the_learned_plates_start_and_is_reused(cfg_factory, tmp_path,
+                                                                 monkeypatch):
+    import deeplens.design.plate_search as ps
+
+    calls, real = [], ps.plate_search
+    monkeypatch.setattr(ps, "plate_search", lambda *a, **k: calls.append(a) or real(*a, **k))
+    objs = build_objects(cfg_factory(*PLATE))
+    assert len(calls) == 1
+    best = tmp_path / "search" / "best.json"
+    assert best.is_file() and (tmp_path / "search" / "result.json").is_file()
+    lens, searched = objs["lens"], load_lens(best)
+    plate = [float(a) for a in searched.surfaces[4].a]
+    assert any(v != 0.0 for v in plate)            # the search moved the zero plate
+    assert all(plate[k] == 0.0 for k in range(10) if k not in (6, 9))
+    for k in range(10):   # training starts from the searched plate (float32), same focus
+        assert float(lens.surfaces[4].a[k].detach()) == pytest.approx(plate[k], rel=1e-6, abs=0.0)
+    assert float(lens.d_sensor) == pytest.approx(float(searched.d_sensor), rel=1e-6)
+    assert [n for n, p in lens.named_parameters() if p.requires_grad] == [
+        "surfaces.4.a.6", "surfaces.4.a.9"]
+    rec = json.loads((tmp_path / "search" / RECORD).read_text())
+    assert rec["key"]["plate"]["starts"] == 1 and len(rec["key"]["depths_mm"]) == 4
+    res = json.loads((tmp_path / "search" / "result.json").read_text())
+    assert res["runs"][0]["origin"] == "zero plate" and res["plate_terms_mm_at_rim"]
+    # reused while unchanged; a changed setting or lens file is another search
+    searched_lens(cfg_factory(*PLATE))
+    assert len(calls) == 1
+    from deeplens.training.lens_search import search_key
+
+    key = search_key(cfg_factory(*PLATE))
+    assert key == rec["key"]
+    assert search_key(cfg_factory(*PLATE, "lens.search.plate.seed=1")) != key
+    assert search_key(cfg_factory(*PLATE, "lens.focus_mm=6000.0")) != key
+
+
+def test_plate_search_variants_keep_the_plate_and_bad_settings_are_named(cfg_factory,
+                                                                        tmp_path):
+    from deeplens.training.lens_setup import check_lens_config
+
+    cfg = cfg_factory(*PLATE, config_name="eval.yaml")
+    best = str(tmp_path / "search" / "best.json")
+    learned, searched = _variant_cfg(cfg, "learned"), _variant_cfg(cfg, "searched")
+    for v in (learned, searched):
+        assert v.lens.path == best and v.lens.plate_surface == 4 and v.lens.plate == "learned"
+        assert v.lens.learned_start_alpha_mm is None and v.lens.start == "file"
+    assert list(learned.lens.trainable) == ["surfaces.4.a.6", "surfaces.4.a.9"]
+    assert list(searched.lens.trainable) == []
+    for v in (learned, searched):   # the variants' runs pass the start-up checks
+        check_lens_config(v)
+    for over, key in (("lens.learned_start_alpha_mm=0.005", "lens.learned_start_alpha_mm"),
+                      ("lens.search.plate.starts=0", "lens.search.plate.starts"),
+                      ("+lens.search.plate.stepz=3", "lens.search.plate"),
+                      ("+lens.search.spec={efl_mm:10}", "lens.search"),
+                      ("lens.plate=cubic", "lens.plate"),
+                      ("lens.trainable=[d_sensor]", "lens.trainable")):
+        with pytest.raises(ValueError, match=key.replace(".", r"\.")):
+            check_lens_config(cfg_factory(*PLATE, over))
