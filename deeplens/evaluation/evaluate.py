@@ -66,7 +66,8 @@ from ..render.splat import point_source_rays, trace_to_sensor_pixels
 from ..training.checkpoint import (CheckpointError, migrate_missing_buffers, read_checkpoint,
                                    write_text_atomic)
 from ..training.input_digest import digest_path, input_digests
-from ..training.lens_search import search_dir, search_trainable, searched_lens
+from ..training.lens_search import (is_plate_search, search_dir, search_trainable,
+                                    searched_lens)
 from ..training.machine import describe_machine, machine_info
 from ..training.settings import MODEL_SETTINGS, completed
 from ..training.train import build_objects, train
@@ -102,8 +103,6 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
             c.lens.trainable = [] if kind == "searched" else search_trainable(cfg)
             c.lens.search = {k: v for k, v in _plain(cfg.lens.search).items()
                              if k != "trainable" or kind == "learned"}
-            from .lens_search import is_plate_search
-
             if not is_plate_search(cfg.lens.search):  # a plate search keeps its plate
                 # a searched lens has no phase plate (an EDOF config's searched variant)
                 c.lens.plate = c.lens.plate_surface = c.lens.plate_order = None

@@ -58,8 +58,10 @@ from omegaconf import DictConfig, OmegaConf
 from ..optics.errors import ConfigError
 from .checkpoint import write_text_atomic
 from .input_digest import digest_path
+from .lens_setup import build_lens, check_lens_settings
 
-__all__ = ["START_CHOICES", "SEARCH_KEYS", "search_settings", "check_search_settings",
+__all__ = ["START_CHOICES", "SEARCH_KEYS", "search_settings", "check_lens_config",
+           "check_search_settings",
            "searched_lens", "search_trainable", "search_dir", "RECORD"]
 
 #: the values of ``lens.start``
@@ -435,7 +437,6 @@ def _searched_plate(cfg: DictConfig, out: Path, key: dict, progress) -> Path:
     into ``out``; returns the path of ``best.json``."""
     from ..design.plate_search import describe_plate, plate_search
     from ..optics.io import save_lens
-    from .lens_setup import build_lens
 
     lc = cfg.lens
     config = plate_search_config(lc.search)
@@ -474,3 +475,19 @@ def _searched_plate(cfg: DictConfig, out: Path, key: dict, progress) -> Path:
              f"{b.invariance:.3g}, blur {b.blur_px:.2f} px, from {b.origin}); terms (um of sag "
              f"at the rim) {lead}; {result.seconds:.0f} s")
     return best
+
+
+def check_lens_config(cfg) -> None:
+    """Start-up check of ``lens.*`` in a composed config (:func:`~.lens_setup.check_lens_settings`;
+    ``lens.start`` and ``lens.search``: :func:`check_search_settings`)."""
+    lc = cfg.lens
+    opts = lc.get("table_options")
+    check_lens_settings(lc.get("path"), plate=lc.get("plate"),
+                        plate_surface=lc.get("plate_surface"),
+                        plate_alpha_mm=lc.get("plate_alpha_mm", 0.0),
+                        table_options=(OmegaConf.to_container(opts, resolve=True)
+                                       if OmegaConf.is_config(opts) else opts),
+                        focus_mm=lc.get("focus_mm"),
+                        learned_start_alpha_mm=lc.get("learned_start_alpha_mm"),
+                        plate_order=lc.get("plate_order"), dtype=lc.get("dtype", "float32"))
+    check_search_settings(lc, cfg.get("sensor"))

@@ -30,7 +30,7 @@ from ..optics.io.lensfile import LensFileError
 from ..optics.io.table import read_table
 from ..optics.surfaces import XYPolynomial
 
-__all__ = ["build_lens", "check_lens_config", "check_lens_settings", "set_trainable", "parameter_scale", "optics_param_groups",
+__all__ = ["build_lens", "check_lens_settings", "set_trainable", "parameter_scale", "optics_param_groups",
            "cubic_phase_plate", "extend_plate", "surface_height_map", "MAX_PLATE_ORDER"]
 
 #: the highest ``lens.plate_order``: the diffraction renderer fits the traced wavefront with
@@ -253,26 +253,6 @@ def check_lens_settings(path, *, plate=None, plate_surface=None, plate_alpha_mm=
     unknown = set(opts) - set(known)
     if unknown:
         raise ConfigError.unknown("lens.table_options", unknown, known)
-
-
-def check_lens_config(cfg) -> None:
-    """Start-up check of ``lens.*`` in a composed config (:func:`check_lens_settings`;
-    ``lens.start`` and ``lens.search``: :func:`~.lens_search.check_search_settings`)."""
-    from omegaconf import OmegaConf
-
-    from .lens_search import check_search_settings
-
-    lc = cfg.lens
-    opts = lc.get("table_options")
-    check_lens_settings(lc.get("path"), plate=lc.get("plate"),
-                        plate_surface=lc.get("plate_surface"),
-                        plate_alpha_mm=lc.get("plate_alpha_mm", 0.0),
-                        table_options=(OmegaConf.to_container(opts, resolve=True)
-                                       if OmegaConf.is_config(opts) else opts),
-                        focus_mm=lc.get("focus_mm"),
-                        learned_start_alpha_mm=lc.get("learned_start_alpha_mm"),
-                        plate_order=lc.get("plate_order"), dtype=lc.get("dtype", "float32"))
-    check_search_settings(lc, cfg.get("sensor"))
 
 
 def surface_height_map(surface, n: int = 64) -> torch.Tensor:

@@ -33,7 +33,8 @@ from ..render.scene import IdealCamera
 from .callbacks import check_callbacks_config
 from .checkpoint import AtomicCheckpointIO, read_checkpoint
 from .lens_search import search_trainable, searched_lens
-from .lens_setup import build_lens, check_lens_config, set_trainable
+from .lens_search import check_lens_config
+from .lens_setup import build_lens, set_trainable
 from .machine import describe_machine
 from .module_config import check_model_config
 from .run_lock import held_by_hydra, hold_output_folder
@@ -249,7 +250,7 @@ _RULES = {
     "render.newton_tol": _rule_real(0),
     "render.psf_patches": _rule_list(lambda x: _POS_INT(x) is None, "[rows, cols], both > 0",
                                      (2, 2)),
-    # lens.*: lens_setup.check_lens_config; model.* learning rates and loss weights:
+    # lens.*: lens_search.check_lens_config; model.* learning rates and loss weights:
     # module_config.check_model_config (STARTUP_CHECKS)
     # stricter than the constraint itself (which takes 0 for none): a config says null
     "model.max_sag_mm": _rule_real(0),

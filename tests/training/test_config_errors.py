@@ -42,7 +42,7 @@ CASES = [
     ("rules", (*EDOF, "scene.depths_mm=[0,1000]"), None, "scene.depths_mm", "value",
      "distances > 0 mm"),
     ("rules", (*EDOF, "render.kind=raytrace"), None, "render.kind", "value", "'mc' or 'psf'"),
-    # lens_setup.check_lens_config
+    # lens_search.check_lens_config
     ("check_lens_config", (*EDOF, "lens.dtype=float16"), None, "lens.dtype", "value",
      "'float32' or 'float64'"),
     ("check_lens_config", (*EDOF, "lens.focus_mm=-5"), None, "lens.focus_mm", "value",

@@ -225,7 +225,7 @@ def test_plate_search_is_the_learned_plates_start_and_is_reused(cfg_factory, tmp
 
 def test_plate_search_variants_keep_the_plate_and_bad_settings_are_named(cfg_factory,
                                                                         tmp_path):
-    from deeplens.training.lens_setup import check_lens_config
+    from deeplens.training.lens_search import check_lens_config
 
     cfg = cfg_factory(*PLATE, config_name="eval.yaml")
     best = str(tmp_path / "search" / "best.json")
