@@ -33,6 +33,16 @@ SPECS = {
                          stop="middle", min_center_glass_mm=1.0, max_center_glass_mm=12.0,
                          min_edge_glass_mm=0.5, min_air_mm=0.2, max_track_mm=130.0),
               "cooke_triplet.json"),
+    # the shipped double Gauss: f 27.44 mm, F/3.61, half field 21 deg (its fields 0-21 deg),
+    # the d line only (its wavelengths); six air-spaced singlets (the shipped lens cements two
+    # pairs), SCHOTT glass (its SSK4, SK1, F15, SK16 are SCHOTT's), the stop in the middle gap;
+    # limits from the shipped lens: centre glass 0.9-4 mm (it has 0.97-3.18), air >= 0.05 mm
+    # (0.076), total track <= 40 mm (36.6)
+    "double_gauss": (DesignSpec(efl_mm=27.4427, fno=3.6113, hfov_deg=21.0, elements=6,
+                                wavelengths_nm=[587.5618], glasses="SCHOTT", stop="middle",
+                                min_center_glass_mm=0.9, max_center_glass_mm=4.0,
+                                min_edge_glass_mm=0.3, min_air_mm=0.05, max_track_mm=40.0),
+                     "double_gauss.json"),
 }
 
 

@@ -77,7 +77,8 @@ def _spec(**kw):
 
 @pytest.mark.parametrize("kw", [dict(elements=1, stop="front"), dict(elements=2, stop="search"),
                                 dict(), dict(object_distance_mm=600.0),
-                                dict(elements=4, stop="back", glasses="MODEL")])
+                                dict(elements=4, stop="back", glasses="MODEL"),
+                                dict(elements=6, stop="middle", efl_mm=27.4, hfov_deg=21.0)])
 def test_thin_lens_start_meets_the_focal_length(kw):
     """Every start the sampler makes has the paraxial EFL of the spec to 1e-9 (relative) and
     the F-number to the same (the stop is sized for the EPD), a real image on the sensor."""
