@@ -5,6 +5,10 @@
    bendings, spacings, stop position); each becomes a thin-lens start (or a flat start, or
    alternately both: ``start_kind``).  Points that give no lens are skipped and replaced by
    further points (up to 4 x ``starts`` draws).
+   **1b. Prescreen** (``prescreen > starts``): instead, ``prescreen`` starts (up to 4 x
+   ``prescreen`` draws) each get a cheap refinement (``prescreen_stage``: a few DLS steps on
+   few rays) and an RMS spot on ``prescreen_sampling``; the best ``starts`` of them (feasible
+   first) go on to step 2.
 2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
    scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
    first, then by the polychromatic RMS spot.
@@ -80,6 +84,9 @@ class SearchConfig:
     dedup_tol: float = 0.02
     seed: int = 0
     final_sampling: str = "hexapolar:12"
+    prescreen: int = 0
+    prescreen_stage: tuple = (Stage(4, "hexapolar:3"),)
+    prescreen_sampling: str = "hexapolar:4"
     substitute_k: int = 2
     substitute: tuple = (Stage(15, "hexapolar:6"),)
     glass_radius: float = 0.03
@@ -88,6 +95,8 @@ class SearchConfig:
         if self.start_kind not in START_KINDS:
             raise ValueError(f"start_kind must be one of {', '.join(START_KINDS)}, got "
                              f"{self.start_kind!r}")
+        if int(self.prescreen) < 0:
+            raise ValueError(f"prescreen must be >= 0, got {self.prescreen!r}")
         for name in ("starts", "keep", "polish_count", "substitute_k"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
@@ -100,7 +109,7 @@ class SearchConfig:
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
-        for k in ("screen", "flat_screen", "polish", "hop", "substitute"):
+        for k in ("screen", "flat_screen", "polish", "hop", "substitute", "prescreen_stage"):
             d[k] = [s.__dict__ for s in d[k]]
         return d
 
@@ -282,27 +291,56 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         from .glass_region import GlassRegion
 
         region = GlassRegion(spec.catalogues, radius=cfg.glass_radius)
-    while made < cfg.starts and tried < 4 * cfg.starts:
-        u = sobol.draw(1, dtype=torch.float64)[0]
-        kind = cfg.start_kind if cfg.start_kind != "mixed" else ("thin", "flat")[tried % 2]
-        tried += 1
-        try:
-            lens = (thin_lens_start if kind == "thin" else flat_start)(
-                spec, u, glass_strategy=glass_strategy)
-        except StartError as e:
-            runs.append({"origin": f"start {tried - 1}", "kind": kind, "ok": False,
-                         "reason": f"no lens: {e}", "seconds": 0.0})
-            continue
+    def fresh(limit):
+        """``(index, kind, lens, flat)`` of each new start that gives a lens."""
+        nonlocal tried
+        while tried < limit:
+            u = sobol.draw(1, dtype=torch.float64)[0]
+            kind = cfg.start_kind if cfg.start_kind != "mixed" else ("thin", "flat")[tried % 2]
+            tried += 1
+            try:
+                lens = (thin_lens_start if kind == "thin" else flat_start)(
+                    spec, u, glass_strategy=glass_strategy)
+            except StartError as e:
+                runs.append({"origin": f"start {tried - 1}", "kind": kind, "ok": False,
+                             "reason": f"no lens: {e}", "seconds": 0.0})
+                continue
+            if region is not None:
+                use_model_glasses(lens, region=region)
+            yield tried - 1, kind, lens, kind == "flat"
+
+    source = fresh(4 * cfg.starts)
+    if cfg.prescreen > cfg.starts:   # step 1b: the best `starts` of `prescreen` cheap runs
+        cands = []
+        for idx, kind, lens, flat in fresh(4 * cfg.prescreen):
+            r = refine(lens, spec, cfg.prescreen_stage, flat=flat, glass_region=region)
+            rec = {"origin": f"start {idx}", "kind": kind, "prescreen": True, "ok": r.ok,
+                   "reason": r.reason, "seconds": r.seconds, "steps": r.steps}
+            if r.ok:
+                try:
+                    m = evaluate(lens, spec, cfg.prescreen_sampling)
+                    rec["rms_um"] = m["rms_um"]
+                    cands.append((m["rms_um"] + (0.0 if m["feasible"] else 1e6), idx, kind,
+                                  lens))
+                except (ValueError, RuntimeError) as e:
+                    rec["ok"], rec["reason"] = False, f"evaluation: {e}"
+            runs.append(rec)
+            if len(cands) >= cfg.prescreen:
+                break
+        cands.sort(key=lambda c: (c[0], c[1]))
+        say(f"prescreen: {len(cands)} starts, best "
+            + ", ".join(f"{c[0]:.0f}" for c in cands[:cfg.starts]) + " um"
+            + f"; {time.perf_counter() - t0:.0f} s")
+        source = iter([(idx, kind, lens, False) for _, idx, kind, lens in cands[:cfg.starts]])
+    for idx, kind, lens, flat in source:
         made += 1
-        if region is not None:
-            use_model_glasses(lens, region=region)
         r = refine(lens, spec, cfg.screen if kind == "thin" else cfg.flat_screen,
-                   flat=kind == "flat", glass_region=region)
-        rec = {"origin": f"start {tried - 1}", "kind": kind, "ok": r.ok, "reason": r.reason,
+                   flat=flat, glass_region=region)
+        rec = {"origin": f"start {idx}", "kind": kind, "ok": r.ok, "reason": r.reason,
                "seconds": r.seconds, "history": r.history, "steps": r.steps}
         if r.ok:
             try:
-                dsg = _score(lens, spec, f"start {tried - 1} ({kind})", cfg.score_sampling)
+                dsg = _score(lens, spec, f"start {idx} ({kind})", cfg.score_sampling)
                 pool.append(dsg)
                 rec["rms_um"] = dsg.metrics["rms_um"]
             except (ValueError, RuntimeError) as e:
@@ -312,6 +350,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         say(f"start {made}/{cfg.starts} ({kind}): "
             + (f"{rec['rms_um']:.2f} um" if "rms_um" in rec else f"failed ({rec['reason'][:60]})")
             + f"; best {best:.2f} um; {time.perf_counter() - t0:.0f} s")
+        if made >= cfg.starts:   # before the next draw: `tried` counts the points used
+            break
     if not pool:
         why = "; ".join(r["reason"][:120] for r in runs[:3])
         raise RuntimeError(f"design search: none of {tried} starts gave a refinable lens "
