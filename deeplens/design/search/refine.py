@@ -30,7 +30,7 @@ from ...optics.surfaces import Aperture
 from ...optics.camera import Camera
 from ...optics.materials import Air
 from ...optics.options import TraceOptions
-from ..constraints import ConstraintSet
+from ..constraints import ConstraintSet, variable_bounds
 from ..lensopt import optimize_lens
 from .glass import project_model_glasses
 from .problem import real_surfaces, search_merit, search_variables, spec_constraints
@@ -209,6 +209,13 @@ def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
                                  glass_region=glass_region)
             v = search_variables(lens, aspheric_surfaces, efl_solve=solve,
                                  glasses=glass_region is not None)
+            if hard:   # a thickness within its limit's tolerance (1e-3 mm) but past the
+                # limit itself would lie outside the optimiser's box: clip it onto the limit
+                lo, hi = variable_bounds(v, cons)
+                x0 = v.x0()
+                x = torch.minimum(torch.maximum(x0, lo), hi)
+                if not torch.equal(x, x0):
+                    v.assign(x)
             if st.method != "dls":
                 merit = _Normalised(merit)
             out = optimize_lens(Camera(lens, None, _FLOATING), v, merit, method=st.method,
