@@ -38,7 +38,9 @@
    replaces the model design.  Its ``glass_record`` keeps the model glasses, the glasses put
    in, both RMS spots and every candidate tried.
 
-Everything random comes from ``seed`` (the Sobol scrambling and a ``torch.Generator`` for the
+``time_limit_s``: no new start, polish or hop begins once this much wall time has passed
+(the one under way finishes, the designs found so far are kept and finished; glass
+substitution still runs).  Everything random comes from ``seed`` (the Sobol scrambling and a ``torch.Generator`` for the
 hops), and the arithmetic is float64 on the CPU, so a seed reproduces its designs.
 """
 
@@ -90,11 +92,14 @@ class SearchConfig:
     substitute_k: int = 2
     substitute: tuple = (Stage(15, "hexapolar:6"),)
     glass_radius: float = 0.03
+    time_limit_s: float | None = None
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
             raise ValueError(f"start_kind must be one of {', '.join(START_KINDS)}, got "
                              f"{self.start_kind!r}")
+        if self.time_limit_s is not None and not float(self.time_limit_s) > 0:
+            raise ValueError(f"time_limit_s must be None or > 0, got {self.time_limit_s!r}")
         if int(self.prescreen) < 0:
             raise ValueError(f"prescreen must be >= 0, got {self.prescreen!r}")
         for name in ("starts", "keep", "polish_count", "substitute_k"):
@@ -309,6 +314,9 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
                 use_model_glasses(lens, region=region)
             yield tried - 1, kind, lens, kind == "flat"
 
+    def out_of_time() -> bool:
+        return cfg.time_limit_s is not None and time.perf_counter() - t0 > cfg.time_limit_s
+
     source = fresh(4 * cfg.starts)
     if cfg.prescreen > cfg.starts:   # step 1b: the best `starts` of `prescreen` cheap runs
         cands = []
@@ -325,7 +333,7 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
                 except (ValueError, RuntimeError) as e:
                     rec["ok"], rec["reason"] = False, f"evaluation: {e}"
             runs.append(rec)
-            if len(cands) >= cfg.prescreen:
+            if len(cands) >= cfg.prescreen or out_of_time():
                 break
         cands.sort(key=lambda c: (c[0], c[1]))
         say(f"prescreen: {len(cands)} starts, best "
@@ -350,7 +358,7 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         say(f"start {made}/{cfg.starts} ({kind}): "
             + (f"{rec['rms_um']:.2f} um" if "rms_um" in rec else f"failed ({rec['reason'][:60]})")
             + f"; best {best:.2f} um; {time.perf_counter() - t0:.0f} s")
-        if made >= cfg.starts:   # before the next draw: `tried` counts the points used
+        if made >= cfg.starts or out_of_time():   # before the next draw
             break
     if not pool:
         why = "; ".join(r["reason"][:120] for r in runs[:3])
@@ -359,6 +367,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
     # polish the best distinct designs
     polished = []
     for k, dsg in enumerate(deduplicate(pool, cfg.dedup_tol)[:cfg.polish_count]):
+        if out_of_time():
+            break
         lens = copy.deepcopy(dsg.lens)
         asph = aspheric_choice(lens, spec.aspheres) if spec.aspheres else ()
         r = refine(lens, spec, cfg.polish, aspheric_surfaces=asph, glass_region=region)
@@ -376,6 +386,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
     current = deduplicate(pool, cfg.dedup_tol)[0]
     asph = aspheric_choice(current.lens, spec.aspheres) if spec.aspheres else ()
     for h in range(int(cfg.hops)):
+        if out_of_time():
+            break
         rec = {"origin": f"hop {h} from {current.origin}", "ok": False}
         for _ in range(5):   # up to 5 kicks for one that leaves a valid lens
             lens = copy.deepcopy(current.lens)

@@ -147,3 +147,18 @@ def test_prescreen_sends_on_the_best_cheap_starts():
     assert screened == ranked[:2]
     with pytest.raises(ValueError, match="prescreen must be >= 0"):
         SearchConfig(prescreen=-1)
+
+
+def test_time_limit_stops_new_refinements():
+    """With a time limit already spent after the first start, the search keeps that start's
+    design and begins nothing else (no second start, polish or hop)."""
+    spec = DesignSpec(**SINGLET)
+    cfg = dict(SMALL, starts=3, hops=2, screen=(Stage(1, "hexapolar:2"),),
+               polish=(Stage(1, "hexapolar:2"),), score_sampling="hexapolar:2",
+               final_sampling="hexapolar:3", time_limit_s=1e-9)
+    res = search(spec, SearchConfig(seed=0, **cfg))
+    done = [r["origin"] for r in res.runs if "rms_um" in r or r.get("steps")]
+    assert len(done) == 1 and done[0].startswith("start")
+    assert len(res.designs) == 1 and res.best.metrics["efl_mm"] == pytest.approx(100.0, rel=1e-9)
+    with pytest.raises(ValueError, match="time_limit_s must be None or > 0"):
+        SearchConfig(time_limit_s=0)
