@@ -20,7 +20,8 @@
    (``polish``), with aspheric terms on the ``spec.aspheres`` most bent surfaces if allowed.
 5. **Basin hopping** (Wales and Doye 1997): ``hops`` times, the current design's scaled
    variables (mm of sag at the rim, mm of gap) are kicked by ``hop_size`` x a standard normal
-   vector (up to 5 tries for a valid lens), the focal length restored by the angle solve, and
+   vector (up to 5 tries for a valid lens, each kick half the last: a compact lens's 0.1 mm
+   air gaps close under 0.5 mm kicks), the focal length restored by the angle solve, and
    the result refined (``hop``);
    it replaces the current design when it scores better (greedy; ``temperature > 0`` accepts a
    worse one with probability ``exp(-Δ / T)``, Δ in µm of RMS spot).
@@ -389,12 +390,13 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         if out_of_time():
             break
         rec = {"origin": f"hop {h} from {current.origin}", "ok": False}
-        for _ in range(5):   # up to 5 kicks for one that leaves a valid lens
+        for attempt in range(5):   # up to 5 kicks, each half the last, for a valid lens
             lens = copy.deepcopy(current.lens)
+            size = cfg.hop_size * 0.5 ** attempt
+            rec["kick"] = size
             try:
                 v = search_variables(lens, asph, efl_solve=True)
-                x = v.x0() + cfg.hop_size * torch.randn(len(v), generator=gen,
-                                                        dtype=torch.float64)
+                x = v.x0() + size * torch.randn(len(v), generator=gen, dtype=torch.float64)
                 v.assign(x)
                 lens.check()
                 solve_efl(lens, spec.efl_mm)
