@@ -20,8 +20,9 @@
    (``polish``), with aspheric terms on the ``spec.aspheres`` most bent surfaces if allowed.
 5. **Basin hopping** (Wales and Doye 1997): ``hops`` times, the current design's scaled
    variables (mm of sag at the rim, mm of gap) are kicked by ``hop_size`` x a standard normal
-   vector (up to 5 tries for a valid lens, each kick half the last: a compact lens's 0.1 mm
-   air gaps close under 0.5 mm kicks), the focal length restored by the angle solve, and
+   vector (up to 5 tries for a valid lens, each kick half the last), gaps whose centre or edge
+   then falls short widened (:func:`~.refine.repair_edges`: a design resting on its edge
+   limits crosses under any kick), the focal length restored by the angle solve, and
    the result refined (``hop``);
    it replaces the current design when it scores better (greedy; ``temperature > 0`` accepts a
    worse one with probability ``exp(-Δ / T)``, Δ in µm of RMS spot).
@@ -398,6 +399,7 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
                 v = search_variables(lens, asph, efl_solve=True)
                 x = v.x0() + size * torch.randn(len(v), generator=gen, dtype=torch.float64)
                 v.assign(x)
+                repair_edges(lens, spec)   # a design on its edge limits crosses under a kick
                 lens.check()
                 solve_efl(lens, spec.efl_mm)
                 lens.check()
