@@ -68,6 +68,7 @@ def main(argv=None) -> int:
     p.add_argument("--glass-mode", choices=["catalogue", "model"], default="catalogue")
     p.add_argument("--substitute-k", type=int, default=2)
     p.add_argument("--substitute-steps", type=int, default=15)
+    p.add_argument("--substitute-radius", type=float, default=None)
     p.add_argument("--json", help="also write the numbers here")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
@@ -85,6 +86,7 @@ def main(argv=None) -> int:
                            hop=(Stage(args.hop_steps, "hexapolar:6",
                                       rounds=max(1, args.hop_steps // 20)),), keep=1,
                            prescreen=args.prescreen, substitute_k=args.substitute_k,
+                           substitute_radius=args.substitute_radius,
                            substitute=(Stage(args.substitute_steps, "hexapolar:6"),))
         t0, c0 = time.perf_counter(), time.process_time()
         res = search(spec, cfg, progress=lambda s, seed=seed: print(f"  seed {seed}: {s}",

@@ -38,7 +38,10 @@
    every combination up to 27, else one element at a time), each candidate re-optimised
    (``substitute`` stages) and scored as in step 2; the best candidate, finished as in step 6,
    replaces the model design.  Its ``glass_record`` keeps the model glasses, the glasses put
-   in, both RMS spots and every candidate tried.
+   in, both RMS spots and every candidate tried.  ``substitute_radius`` (default ``None``: the
+   search's region): before substitution the model glasses are projected into a region of
+   this radius and the model design is re-optimised there (``substitute`` stages), so that
+   substitution starts from glasses within that distance of real ones.
 
 ``time_limit_s``: no new start, polish or hop begins once this much wall time has passed
 (the one under way finishes, the designs found so far are kept and finished; glass
@@ -94,12 +97,18 @@ class SearchConfig:
     substitute_k: int = 2
     substitute: tuple = (Stage(15, "hexapolar:6"),)
     glass_radius: float = 0.03
+    substitute_radius: float | None = None
     time_limit_s: float | None = None
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
             raise ValueError(f"start_kind must be one of {', '.join(START_KINDS)}, got "
                              f"{self.start_kind!r}")
+        if self.substitute_radius is not None and not (
+                math.isfinite(float(self.substitute_radius))
+                and float(self.substitute_radius) > 2 * 1e-4):
+            raise ValueError(f"substitute_radius must be None or a finite number > 0.0002, got "
+                             f"{self.substitute_radius!r}")
         if self.time_limit_s is not None and not float(self.time_limit_s) > 0:
             raise ValueError(f"time_limit_s must be None or > 0, got {self.time_limit_s!r}")
         if int(self.prescreen) < 0:
@@ -233,10 +242,16 @@ def substitute_design(dsg: Design, spec: DesignSpec, cfg: SearchConfig,
     t0 = time.perf_counter()
     if region is not None:
         lens = copy.deepcopy(dsg.lens)
+        if cfg.substitute_radius is not None:   # pull the glasses towards real ones first
+            from .glass import project_model_glasses
+            from .glass_region import GlassRegion
+
+            region = GlassRegion(spec.catalogues, radius=cfg.substitute_radius)
+            project_model_glasses(lens, region)
         if refine(lens, spec, cfg.substitute, glass_region=region).ok:
             try:
                 d2 = _finish(lens, spec, dsg.origin, cfg)
-                if d2.key <= dsg.key:
+                if cfg.substitute_radius is not None or d2.key <= dsg.key:
                     dsg = d2
             except (ValueError, RuntimeError):
                 pass

@@ -94,6 +94,8 @@ def test_glass_mode_spec_errors():
         SearchConfig(substitute_k=0)
     with pytest.raises(ValueError, match="glass_radius must be a finite number > 0"):
         SearchConfig(glass_radius=0.0)
+    with pytest.raises(ValueError, match="substitute_radius must be None or a finite number"):
+        SearchConfig(substitute_radius=-1.0)
 
 
 @pytest.mark.slow
