@@ -76,6 +76,7 @@ FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
 MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
 RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
+GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -687,6 +688,19 @@ MUTATIONS = [
              "one surface on", "deeplens/optics/io/zmx_write_configs.py",
              "put(_SURFACE_OPERANDS[key], s, k, tb[1])",
              "put(_SURFACE_OPERANDS[key], s + 1, k, tb[1])", MCONF_WRITE),
+    # ------------------------------------------------ glass choice in the design search
+    Mutation("substitute_other_catalogue", "substitution candidates drawn from a catalogue "
+             "the spec did not choose", "deeplens/design/search/glass.py",
+             "cands[i] = nearest_glasses(nd, vd, catalogues, k, v_weight, exclude)",
+             "cands[i] = nearest_glasses(nd, vd, \"OHARA\", k, v_weight, exclude)",
+             GLASS_SEARCH),
+    Mutation("model_glass_not_a_variable", "model glasses left out of the search's variables",
+             "deeplens/design/search/refine.py", "glasses=glass_region is not None)",
+             "glasses=False)", GLASS_SEARCH),
+    Mutation("search_seed_ignored", "the starts' Sobol points not seeded",
+             "deeplens/design/search/multistart.py",
+             "scramble=True, seed=int(cfg.seed))", "scramble=True, seed=None)",
+             GLASS_SEARCH + ("tests/design/search/test_multistart.py",)),
 ]
 
 

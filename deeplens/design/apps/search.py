@@ -19,7 +19,7 @@ _SPEC_FLAGS = {"efl": "efl_mm", "fno": "fno", "epd": "epd_mm", "hfov": "hfov_deg
                "elements": "elements", "aspheres": "aspheres", "wavelengths": "wavelengths_nm",
                "wavelength_weights": "wavelength_weights", "primary": "primary_wavelength_nm",
                "fields": "field_fractions", "field_weights": "field_weights", "stop": "stop",
-               "glasses": "glasses", "object_distance": "object_distance_mm",
+               "glasses": "glasses", "glass_mode": "glass_mode", "object_distance": "object_distance_mm",
                "max_track": "max_track_mm", "min_center_glass": "min_center_glass_mm",
                "max_center_glass": "max_center_glass_mm", "min_edge_glass": "min_edge_glass_mm",
                "min_air": "min_air_mm", "min_bfl": "min_bfl_mm", "max_diameter": "max_diameter_mm"}
@@ -40,7 +40,13 @@ def add_arguments(p) -> None:
     s.add_argument("--fields", help="fractions of the half field (default 0,0.7,1)")
     s.add_argument("--field-weights", help="comma-separated relative weights")
     s.add_argument("--stop", help="front, middle, back, search (default) or an air-gap index")
-    s.add_argument("--glasses", help="SCHOTT (default), MODEL, or comma-separated glass names")
+    s.add_argument("--glasses", help="SCHOTT (default), MODEL, or comma-separated glass names; "
+                   "with --glass-mode model: vendor catalogues (SCHOTT, OHARA, HOYA, CDGM, "
+                   "HIKARI, SUMITA, comma-separated)")
+    s.add_argument("--glass-mode", choices=["catalogue", "model"],
+                   help="catalogue: glasses picked from --glasses and kept (default); model: "
+                   "model glasses (n_d, V_d variables) in the catalogues' glass region, "
+                   "substituted by the nearest real glasses at the end")
     s.add_argument("--object-distance", type=float, help="object to first vertex (default inf)")
     for flag in ("max-track", "min-center-glass", "max-center-glass", "min-edge-glass",
                  "min-air", "min-bfl", "max-diameter"):
@@ -56,6 +62,10 @@ def add_arguments(p) -> None:
     g.add_argument("--screen-steps", type=int, default=12, help="DLS steps per start (12)")
     g.add_argument("--polish-steps", type=int, default=30, help="DLS steps per polish (30)")
     g.add_argument("--hop-steps", type=int, default=20, help="DLS steps per hop (20)")
+    g.add_argument("--substitute-k", type=int, default=2,
+                   help="real glasses tried per model glass (--glass-mode model; default 2)")
+    g.add_argument("--substitute-steps", type=int, default=15,
+                   help="DLS steps re-optimising each substitution candidate (15)")
     g.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -85,14 +95,16 @@ def run(args) -> dict:
     from ..search import SearchConfig, Stage, search, write_outputs
 
     spec = spec_from_args(args)
-    for flag in ("screen_steps", "polish_steps", "hop_steps"):
+    for flag in ("screen_steps", "polish_steps", "hop_steps", "substitute_steps"):
         if getattr(args, flag) < 1:
             raise ValueError(f"--{flag.replace('_', '-')} must be >= 1, got {getattr(args, flag)}")
     cfg = SearchConfig(starts=args.starts, start_kind=args.start_kind, polish_count=args.polish,
                        hops=args.hops, keep=args.keep, seed=args.seed,
                        screen=(Stage(args.screen_steps, "hexapolar:6"),),
                        polish=(Stage(args.polish_steps, "hexapolar:6", rounds=2),),
-                       hop=(Stage(args.hop_steps, "hexapolar:6"),))
+                       hop=(Stage(args.hop_steps, "hexapolar:6"),),
+                       substitute_k=args.substitute_k,
+                       substitute=(Stage(args.substitute_steps, "hexapolar:6"),))
 
     def progress(text):
         if not args.quiet:
@@ -107,4 +119,7 @@ def run(args) -> dict:
     return {"rms_um": best["rms_um"], "rms_poly_um": best["rms_poly_um"],
             "efl_mm": best["efl_mm"], "fno": best["fno"], "total_track_mm": best["total_track_mm"],
             "feasible": best["feasible"], "seconds": res.seconds, "designs": len(res.designs),
-            "best": paths.get("best"), "result": paths.get("result")}
+            "best": paths.get("best"), "result": paths.get("result"),
+            **({"model_rms_um": res.best.glass_record["model_rms_um"],
+                "glasses_substituted": res.best.glass_record["substituted"]}
+               if res.best.glass_record else {})}

@@ -5,6 +5,10 @@
    bendings, spacings, stop position); each becomes a thin-lens start (or a flat start, or
    alternately both: ``start_kind``).  Points that give no lens are skipped and replaced by
    further points (up to 4 x ``starts`` draws).
+   **1b. Prescreen** (``prescreen > starts``): instead, ``prescreen`` starts (up to 4 x
+   ``prescreen`` draws) each get a cheap refinement (``prescreen_stage``: a few DLS steps on
+   few rays) and an RMS spot on ``prescreen_sampling``; the best ``starts`` of them (feasible
+   first) go on to step 2.
 2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
    scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
    first, then by the polychromatic RMS spot.
@@ -16,14 +20,32 @@
    (``polish``), with aspheric terms on the ``spec.aspheres`` most bent surfaces if allowed.
 5. **Basin hopping** (Wales and Doye 1997): ``hops`` times, the current design's scaled
    variables (mm of sag at the rim, mm of gap) are kicked by ``hop_size`` x a standard normal
-   vector (up to 5 tries for a valid lens), the focal length restored by the angle solve, and
+   vector (up to 5 tries for a valid lens, each kick half the last), gaps whose centre or edge
+   then falls short widened (:func:`~.refine.repair_edges`: a design resting on its edge
+   limits crosses under any kick), the focal length restored by the angle solve, and
    the result refined (``hop``);
    it replaces the current design when it scores better (greedy; ``temperature > 0`` accepts a
    worse one with probability ``exp(-Δ / T)``, Δ in µm of RMS spot).
 6. **Keep** the best ``keep`` distinct designs; each gets its focal length made exact
    (:func:`~.start.solve_efl`), semi-diameters fitted to its beam and a dense evaluation.
+7. **Glass substitution** (a spec with ``glass_mode="model"`` only).  Every start's glasses
+   become :class:`~.glass.TrainableModelGlass` (normal-line dispersion) at the start's
+   ``(n_d, V_d)`` projected into the :class:`~.glass_region.GlassRegion` of the spec's
+   catalogues (radius ``glass_radius``); every refinement varies their ``n_d`` and ``V_d``
+   with the region's penalty in the merit and projects them back onto the region after each
+   stage.  Each kept design's model glasses are then replaced by real glasses of those
+   catalogues (:func:`~.glass.substitute_glasses`: the ``substitute_k`` nearest per element,
+   every combination up to 27, else one element at a time), each candidate re-optimised
+   (``substitute`` stages) and scored as in step 2; the best candidate, finished as in step 6,
+   replaces the model design.  Its ``glass_record`` keeps the model glasses, the glasses put
+   in, both RMS spots and every candidate tried.  ``substitute_radius`` (default ``None``: the
+   search's region): before substitution the model glasses are projected into a region of
+   this radius and the model design is re-optimised there (``substitute`` stages), so that
+   substitution starts from glasses within that distance of real ones.
 
-Everything random comes from ``seed`` (the Sobol scrambling and a ``torch.Generator`` for the
+``time_limit_s``: no new start, polish or hop begins once this much wall time has passed
+(the one under way finishes, the designs found so far are kept and finished; glass
+substitution still runs).  Everything random comes from ``seed`` (the Sobol scrambling and a ``torch.Generator`` for the
 hops), and the arithmetic is float64 on the CPU, so a seed reproduces its designs.
 """
 
@@ -36,6 +58,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from .glass import TrainableModelGlass, substitute_glasses, use_model_glasses
 from .problem import search_variables
 from .refine import (CURRICULUM, STANDARD, Stage, aspheric_choice, fit_semi_diameters, refine,
                      repair_edges)
@@ -44,7 +67,7 @@ from .spec import DesignSpec
 from .start import StartError, flat_start, solve_efl, start_dimensions, thin_lens_start
 
 __all__ = ["SearchConfig", "Design", "SearchResult", "search", "signature", "same_design",
-           "deduplicate"]
+           "deduplicate", "substitute_design"]
 
 START_KINDS = ("thin", "flat", "mixed")
 
@@ -68,21 +91,41 @@ class SearchConfig:
     dedup_tol: float = 0.02
     seed: int = 0
     final_sampling: str = "hexapolar:12"
+    prescreen: int = 0
+    prescreen_stage: tuple = (Stage(4, "hexapolar:3"),)
+    prescreen_sampling: str = "hexapolar:4"
+    substitute_k: int = 2
+    substitute: tuple = (Stage(15, "hexapolar:6"),)
+    glass_radius: float = 0.03
+    substitute_radius: float | None = None
+    time_limit_s: float | None = None
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
             raise ValueError(f"start_kind must be one of {', '.join(START_KINDS)}, got "
                              f"{self.start_kind!r}")
-        for name in ("starts", "keep", "polish_count"):
+        if self.substitute_radius is not None and not (
+                math.isfinite(float(self.substitute_radius))
+                and float(self.substitute_radius) > 2 * 1e-4):
+            raise ValueError(f"substitute_radius must be None or a finite number > 0.0002, got "
+                             f"{self.substitute_radius!r}")
+        if self.time_limit_s is not None and not float(self.time_limit_s) > 0:
+            raise ValueError(f"time_limit_s must be None or > 0, got {self.time_limit_s!r}")
+        if int(self.prescreen) < 0:
+            raise ValueError(f"prescreen must be >= 0, got {self.prescreen!r}")
+        for name in ("starts", "keep", "polish_count", "substitute_k"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if not (math.isfinite(float(self.glass_radius)) and float(self.glass_radius) > 0):
+            raise ValueError(f"glass_radius must be a finite number > 0, got "
+                             f"{self.glass_radius!r}")
         if int(self.hops) < 0 or not (self.hop_size >= 0 and self.temperature >= 0):
             raise ValueError(f"hops, hop_size and temperature must be >= 0, got {self.hops!r}, "
                              f"{self.hop_size!r}, {self.temperature!r}")
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
-        for k in ("screen", "flat_screen", "polish", "hop"):
+        for k in ("screen", "flat_screen", "polish", "hop", "substitute", "prescreen_stage"):
             d[k] = [s.__dict__ for s in d[k]]
         return d
 
@@ -90,13 +133,16 @@ class SearchConfig:
 @dataclass
 class Design:
     """A design: the lens (float64), its score (:func:`~.result.evaluate`), where it came from
-    (``"start 3"``, ``"hop 2"``) and its signature (:func:`signature`)."""
+    (``"start 3"``, ``"hop 2"``), its signature (:func:`signature`), its media's names
+    (``"model"`` for a model glass) and, after glass substitution, ``glass_record``
+    (module docstring, step 7)."""
 
     lens: object
     metrics: dict
     origin: str
     signature: torch.Tensor = None
     glasses: tuple = ()
+    glass_record: dict | None = None
 
     @property
     def key(self):
@@ -120,7 +166,9 @@ class SearchResult:
 
     def to_dict(self) -> dict:
         return {"best": self.designs[0].metrics if self.designs else None,
-                "designs": [{"origin": d.origin, "glasses": list(d.glasses), **d.metrics}
+                "designs": [{"origin": d.origin, "glasses": list(d.glasses), **d.metrics,
+                             **({"glass_substitution": d.glass_record} if d.glass_record
+                                else {})}
                             for d in self.designs],
                 "runs": [{k: v for k, v in r.items() if k != "history"} for r in self.runs],
                 "seconds": self.seconds, "starts_tried": self.starts_tried,
@@ -128,7 +176,8 @@ class SearchResult:
 
 
 def signature(lens, efl: float) -> torch.Tensor:
-    """Curvatures x ``f``, gaps / ``f`` and sensor distance / ``f`` (dimensionless)."""
+    """Curvatures x ``f``, gaps / ``f`` and sensor distance / ``f`` (dimensionless), then the
+    ``n_d`` and ``V_d / 100`` of every trainable model glass (glass-map units)."""
     from .problem import real_surfaces
 
     with torch.no_grad():
@@ -136,11 +185,15 @@ def signature(lens, efl: float) -> torch.Tensor:
         real = real_surfaces(lens)
         z = lens.z_vertices()
         gaps = [float(z[q] - z[p]) / efl for p, q in zip(real, real[1:])]
-        return torch.tensor(c + gaps + [float(lens.d_sensor) / efl], dtype=torch.float64)
+        glass = [x for m in lens.materials if isinstance(m, TrainableModelGlass)
+                 for x in (m.values()[0], 0.01 * m.values()[1])]
+        return torch.tensor(c + gaps + [float(lens.d_sensor) / efl] + glass,
+                            dtype=torch.float64)
 
 
 def _glasses(lens) -> tuple:
-    return tuple(m.name for m in lens.materials)
+    return tuple("model" if isinstance(m, TrainableModelGlass) else m.name
+                 for m in lens.materials)
 
 
 def same_design(a: Design, b: Design, tol: float) -> bool:
@@ -161,6 +214,72 @@ def deduplicate(designs, tol: float) -> list:
 def _score(lens, spec, origin, sampling) -> Design:
     m = evaluate(lens, spec, sampling)
     return Design(lens, m, origin, signature(lens, spec.efl_mm), _glasses(lens))
+
+
+def _finish(lens, spec, origin, cfg) -> Design:
+    """Step 6 on ``lens`` (in place): exact focal length, fitted semi-diameters, edges, name,
+    dense evaluation."""
+    solve_efl(lens, spec.efl_mm)
+    fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
+    repair_edges(lens, spec)
+    lens.check()
+    lens.name = (f"design search: {spec.elements} element(s), f {spec.efl_mm:g} mm "
+                 f"F/{spec.f_number:.3g}, HFOV {spec.hfov_deg:g} deg ({origin}, "
+                 f"seed {cfg.seed})")
+    return _score(lens, spec, origin, cfg.final_sampling)
+
+
+def substitute_design(dsg: Design, spec: DesignSpec, cfg: SearchConfig,
+                      region=None) -> Design:
+    """Step 7 of the module docstring on one finished model-glass design: the real-glass
+    design (finished), with its ``glass_record``.  With the ``region``, the model design is
+    first given the same ``substitute`` stages as each candidate (model glasses still free
+    in the region), so that the two RMS spots compared had the same optimisation budget.
+
+    Raises:
+        RuntimeError: no candidate could be re-optimised.
+    """
+    t0 = time.perf_counter()
+    if region is not None:
+        lens = copy.deepcopy(dsg.lens)
+        if cfg.substitute_radius is not None:   # pull the glasses towards real ones first
+            from .glass import project_model_glasses
+            from .glass_region import GlassRegion
+
+            region = GlassRegion(spec.catalogues, radius=cfg.substitute_radius)
+            project_model_glasses(lens, region)
+        if refine(lens, spec, cfg.substitute, glass_region=region).ok:
+            try:
+                d2 = _finish(lens, spec, dsg.origin, cfg)
+                if cfg.substitute_radius is not None or d2.key <= dsg.key:
+                    dsg = d2
+            except (ValueError, RuntimeError):
+                pass
+    model = {i: m.values() for i, m in enumerate(dsg.lens.materials)
+             if isinstance(m, TrainableModelGlass)}
+
+    def reoptimize(cand) -> float:
+        r = refine(cand, spec, cfg.substitute)
+        if not r.ok:
+            raise RuntimeError(r.reason)
+        m = evaluate(cand, spec, cfg.score_sampling)
+        return m["rms_um"] + (0.0 if m["feasible"] else 1e6)
+
+    sub = substitute_glasses(dsg.lens, spec.catalogues, reoptimize, k=cfg.substitute_k)
+    real = _finish(sub.lens, spec, f"{dsg.origin}, real glasses", cfg)
+    model_rms, real_rms = dsg.metrics["rms_um"], real.metrics["rms_um"]
+    real.glass_record = {
+        "catalogues": list(spec.catalogues), "dispersion": "normal",
+        "model_glasses": {str(i): {"n_d": nd, "v_d": vd} for i, (nd, vd) in model.items()},
+        "substituted": {str(i): g.label for i, g in sub.chosen.items()},
+        "model_rms_um": model_rms, "model_feasible": dsg.metrics["feasible"],
+        "model_rms_poly_um": dsg.metrics["rms_poly_um"],
+        "real_rms_um": real_rms, "merit_loss": real_rms / model_rms - 1.0,
+        "strategy": sub.strategy, "seconds": time.perf_counter() - t0,
+        "candidates": [{"glasses": {str(i): g for i, g in row["glasses"].items()},
+                        "score_um": row["merit"], "error": row["error"], "kept": row["kept"]}
+                       for row in sub.table]}
+    return real
 
 
 def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strategy=None,
@@ -189,25 +308,64 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
     sobol = torch.quasirandom.SobolEngine(d, scramble=True, seed=int(cfg.seed))
     gen = torch.Generator().manual_seed(int(cfg.seed))
     tried, made = 0, 0
-    while made < cfg.starts and tried < 4 * cfg.starts:
-        u = sobol.draw(1, dtype=torch.float64)[0]
-        kind = cfg.start_kind if cfg.start_kind != "mixed" else ("thin", "flat")[tried % 2]
-        tried += 1
-        try:
-            lens = (thin_lens_start if kind == "thin" else flat_start)(
-                spec, u, glass_strategy=glass_strategy)
-        except StartError as e:
-            runs.append({"origin": f"start {tried - 1}", "kind": kind, "ok": False,
-                         "reason": f"no lens: {e}", "seconds": 0.0})
-            continue
+    region = None
+    if spec.glass_mode == "model":
+        from .glass_region import GlassRegion
+
+        region = GlassRegion(spec.catalogues, radius=cfg.glass_radius)
+    def fresh(limit):
+        """``(index, kind, lens, flat)`` of each new start that gives a lens."""
+        nonlocal tried
+        while tried < limit:
+            u = sobol.draw(1, dtype=torch.float64)[0]
+            kind = cfg.start_kind if cfg.start_kind != "mixed" else ("thin", "flat")[tried % 2]
+            tried += 1
+            try:
+                lens = (thin_lens_start if kind == "thin" else flat_start)(
+                    spec, u, glass_strategy=glass_strategy)
+            except StartError as e:
+                runs.append({"origin": f"start {tried - 1}", "kind": kind, "ok": False,
+                             "reason": f"no lens: {e}", "seconds": 0.0})
+                continue
+            if region is not None:
+                use_model_glasses(lens, region=region)
+            yield tried - 1, kind, lens, kind == "flat"
+
+    def out_of_time() -> bool:
+        return cfg.time_limit_s is not None and time.perf_counter() - t0 > cfg.time_limit_s
+
+    source = fresh(4 * cfg.starts)
+    if cfg.prescreen > cfg.starts:   # step 1b: the best `starts` of `prescreen` cheap runs
+        cands = []
+        for idx, kind, lens, flat in fresh(4 * cfg.prescreen):
+            r = refine(lens, spec, cfg.prescreen_stage, flat=flat, glass_region=region)
+            rec = {"origin": f"start {idx}", "kind": kind, "prescreen": True, "ok": r.ok,
+                   "reason": r.reason, "seconds": r.seconds, "steps": r.steps}
+            if r.ok:
+                try:
+                    m = evaluate(lens, spec, cfg.prescreen_sampling)
+                    rec["rms_um"] = m["rms_um"]
+                    cands.append((m["rms_um"] + (0.0 if m["feasible"] else 1e6), idx, kind,
+                                  lens))
+                except (ValueError, RuntimeError) as e:
+                    rec["ok"], rec["reason"] = False, f"evaluation: {e}"
+            runs.append(rec)
+            if len(cands) >= cfg.prescreen or out_of_time():
+                break
+        cands.sort(key=lambda c: (c[0], c[1]))
+        say(f"prescreen: {len(cands)} starts, best "
+            + ", ".join(f"{c[0]:.0f}" for c in cands[:cfg.starts]) + " um"
+            + f"; {time.perf_counter() - t0:.0f} s")
+        source = iter([(idx, kind, lens, False) for _, idx, kind, lens in cands[:cfg.starts]])
+    for idx, kind, lens, flat in source:
         made += 1
         r = refine(lens, spec, cfg.screen if kind == "thin" else cfg.flat_screen,
-                   flat=kind == "flat")
-        rec = {"origin": f"start {tried - 1}", "kind": kind, "ok": r.ok, "reason": r.reason,
+                   flat=flat, glass_region=region)
+        rec = {"origin": f"start {idx}", "kind": kind, "ok": r.ok, "reason": r.reason,
                "seconds": r.seconds, "history": r.history, "steps": r.steps}
         if r.ok:
             try:
-                dsg = _score(lens, spec, f"start {tried - 1} ({kind})", cfg.score_sampling)
+                dsg = _score(lens, spec, f"start {idx} ({kind})", cfg.score_sampling)
                 pool.append(dsg)
                 rec["rms_um"] = dsg.metrics["rms_um"]
             except (ValueError, RuntimeError) as e:
@@ -217,6 +375,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         say(f"start {made}/{cfg.starts} ({kind}): "
             + (f"{rec['rms_um']:.2f} um" if "rms_um" in rec else f"failed ({rec['reason'][:60]})")
             + f"; best {best:.2f} um; {time.perf_counter() - t0:.0f} s")
+        if made >= cfg.starts or out_of_time():   # before the next draw
+            break
     if not pool:
         why = "; ".join(r["reason"][:120] for r in runs[:3])
         raise RuntimeError(f"design search: none of {tried} starts gave a refinable lens "
@@ -224,9 +384,11 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
     # polish the best distinct designs
     polished = []
     for k, dsg in enumerate(deduplicate(pool, cfg.dedup_tol)[:cfg.polish_count]):
+        if out_of_time():
+            break
         lens = copy.deepcopy(dsg.lens)
         asph = aspheric_choice(lens, spec.aspheres) if spec.aspheres else ()
-        r = refine(lens, spec, cfg.polish, aspheric_surfaces=asph)
+        r = refine(lens, spec, cfg.polish, aspheric_surfaces=asph, glass_region=region)
         rec = {"origin": f"polish {k} of {dsg.origin}", "ok": r.ok, "reason": r.reason,
                "seconds": r.seconds, "history": r.history, "steps": r.steps}
         if r.ok:
@@ -241,14 +403,18 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
     current = deduplicate(pool, cfg.dedup_tol)[0]
     asph = aspheric_choice(current.lens, spec.aspheres) if spec.aspheres else ()
     for h in range(int(cfg.hops)):
+        if out_of_time():
+            break
         rec = {"origin": f"hop {h} from {current.origin}", "ok": False}
-        for _ in range(5):   # up to 5 kicks for one that leaves a valid lens
+        for attempt in range(5):   # up to 5 kicks, each half the last, for a valid lens
             lens = copy.deepcopy(current.lens)
+            size = cfg.hop_size * 0.5 ** attempt
+            rec["kick"] = size
             try:
                 v = search_variables(lens, asph, efl_solve=True)
-                x = v.x0() + cfg.hop_size * torch.randn(len(v), generator=gen,
-                                                        dtype=torch.float64)
+                x = v.x0() + size * torch.randn(len(v), generator=gen, dtype=torch.float64)
                 v.assign(x)
+                repair_edges(lens, spec)   # a design on its edge limits crosses under a kick
                 lens.check()
                 solve_efl(lens, spec.efl_mm)
                 lens.check()
@@ -260,7 +426,7 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
             runs.append(rec)
             say(f"hop {h + 1}/{cfg.hops}: 5 kicks left the feasible region")
             continue
-        r = refine(lens, spec, cfg.hop, aspheric_surfaces=asph)
+        r = refine(lens, spec, cfg.hop, aspheric_surfaces=asph, glass_region=region)
         rec.update(ok=r.ok, reason=r.reason, seconds=r.seconds, history=r.history, steps=r.steps)
         accepted = False
         if r.ok:
@@ -293,15 +459,33 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
             break
         lens = copy.deepcopy(dsg.lens)
         try:
-            solve_efl(lens, spec.efl_mm)
-            fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
-            repair_edges(lens, spec)
-            lens.check()
-            lens.name = (f"design search: {spec.elements} element(s), f {spec.efl_mm:g} mm "
-                         f"F/{spec.f_number:.3g}, HFOV {spec.hfov_deg:g} deg ({dsg.origin}, "
-                         f"seed {cfg.seed})")
-            kept.append(_score(lens, spec, dsg.origin, cfg.final_sampling))
+            kept.append(_finish(lens, spec, dsg.origin, cfg))
         except (ValueError, RuntimeError):
             continue
     kept.sort(key=lambda d: d.key)
+    if region is not None:   # step 7: real glasses for every kept model-glass design
+        real = []
+        for k, dsg in enumerate(kept):
+            t1 = time.perf_counter()
+            try:
+                r = substitute_design(dsg, spec, cfg, region)
+            except (ValueError, RuntimeError) as e:
+                runs.append({"origin": f"substitution of {dsg.origin}", "ok": False,
+                             "reason": f"{type(e).__name__}: {e}",
+                             "seconds": time.perf_counter() - t1})
+                say(f"substitution {k + 1}/{len(kept)} failed: {str(e)[:80]}")
+                continue
+            real.append(r)
+            g = r.glass_record
+            runs.append({"origin": f"substitution of {dsg.origin}", "ok": True,
+                         "reason": "", "seconds": g["seconds"], "rms_um": g["real_rms_um"],
+                         "model_rms_um": g["model_rms_um"]})
+            say(f"substitution {k + 1}/{len(kept)}: model {g['model_rms_um']:.2f} um -> "
+                f"{', '.join(g['substituted'].values())}: {g['real_rms_um']:.2f} um "
+                f"({len(g['candidates'])} candidates, {g['seconds']:.0f} s)")
+        if kept and not real:
+            raise RuntimeError("design search: glass substitution failed for every kept "
+                               "design (" + "; ".join(r["reason"][:120] for r in runs[-2:])
+                               + ")")
+        kept = sorted(real, key=lambda d: d.key)
     return SearchResult(kept, runs, time.perf_counter() - t0, cfg, tried)

@@ -114,9 +114,11 @@ def spot_merit(spec: DesignSpec, *, sampling: str = "hexapolar:4", field_scale: 
 
 def search_merit(spec: DesignSpec, constraints=(), *, sampling: str = "hexapolar:4",
                  field_scale: float = 1.0, efl_weight: float | None = None,
-                 efl_solve: bool = True):
+                 efl_solve: bool = True, glass_region=None):
     """Spot + soft constraints on the EFL-solved lens (:class:`EflSolved`), or with
-    ``efl_solve=False`` spot + focal-length penalty + soft constraints (module docstring)."""
+    ``efl_solve=False`` spot + focal-length penalty + soft constraints (module docstring);
+    with a ``glass_region`` (:class:`~.glass_region.GlassRegion`) also its
+    :class:`~.glass.GlassRegionPenalty` on the lens's model glasses."""
     from ..constraints import ConstraintSet
 
     terms = [spot_merit(spec, sampling=sampling, field_scale=field_scale)]
@@ -124,6 +126,10 @@ def search_merit(spec: DesignSpec, constraints=(), *, sampling: str = "hexapolar
         terms.append(FocalPower(spec.efl_mm, efl_weight))
     if constraints:
         terms.append(ConstraintSet(constraints))
+    if glass_region is not None:
+        from .glass import GlassRegionPenalty
+
+        terms.append(GlassRegionPenalty(glass_region))
     return EflSolved(Merit(*terms), spec.efl_mm) if efl_solve else Merit(*terms)
 
 
@@ -261,9 +267,12 @@ def spec_constraints(lens, spec: DesignSpec) -> list[Constraint]:
 
 
 # ---------------------------------------------------------------------------- variables
-def search_variables(lens, aspheric_surfaces=(), efl_solve: bool = True) -> Variables:
+def search_variables(lens, aspheric_surfaces=(), efl_solve: bool = True,
+                     glasses: bool = False) -> Variables:
     """The variables of the module docstring (without the last refracting curvature when the
-    EFL solve sets it)."""
+    EFL solve sets it); with ``glasses`` also the ``n_d`` and ``V_d`` of every trainable model
+    glass (:func:`~.glass.glass_variable_names`, scaled as the glass distance:
+    :func:`~.glass.glass_scales`)."""
     real = real_surfaces(lens)
     names = [f"surfaces.{i}.c" for i in (real[:-1] if efl_solve else real)]
     names += [f"distances.{j}" for j in range(1, len(lens.surfaces))]
@@ -271,4 +280,10 @@ def search_variables(lens, aspheric_surfaces=(), efl_solve: bool = True) -> Vari
     for i in aspheric_surfaces:
         names += [f"surfaces.{i}.k"] + [f"surfaces.{i}.a.{j}"
                                          for j in range(len(lens.surfaces[i].a))]
+    if glasses:
+        from .glass import glass_scales, glass_variable_names
+
+        gnames = glass_variable_names(lens)
+        if gnames:
+            return Variables(lens, names + gnames, scales=glass_scales(lens))
     return Variables(lens, names)

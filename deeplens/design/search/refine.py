@@ -30,8 +30,9 @@ from ...optics.surfaces import Aperture
 from ...optics.camera import Camera
 from ...optics.materials import Air
 from ...optics.options import TraceOptions
-from ..constraints import ConstraintSet
+from ..constraints import ConstraintSet, variable_bounds
 from ..lensopt import optimize_lens
+from .glass import project_model_glasses
 from .problem import real_surfaces, search_merit, search_variables, spec_constraints
 from .spec import DesignSpec
 from .start import solve_efl
@@ -181,10 +182,16 @@ def repair_edges(lens, spec: DesignSpec, margin_mm: float = 0.01) -> None:
 
 
 def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
-           efl_weight: float | None = None, flat: bool = False) -> RefineResult:
+           efl_weight: float | None = None, flat: bool = False,
+           glass_region=None) -> RefineResult:
     """Run ``stages`` on ``lens`` (float64; changed in place), see the module docstring.
     The focal length is held by the EFL solve (:class:`~.problem.EflSolved`), except in the
-    first stage of a ``flat`` start (no power to solve from: a penalty then)."""
+    first stage of a ``flat`` start (no power to solve from: a penalty then).
+
+    ``glass_region`` (a :class:`~.glass_region.GlassRegion`): the lens's trainable model
+    glasses are variables too, the merit gets the region's penalty, and after every stage any
+    model glass left outside the region is projected onto it
+    (:func:`~.glass.project_model_glasses`)."""
     t0 = time.perf_counter()
     res = RefineResult(ok=False)
     try:
@@ -198,13 +205,24 @@ def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
             hard = not ConstraintSet(cons).broken(lens)
             solve = not flat
             merit = search_merit(spec, cons, sampling=st.sampling, field_scale=st.field,
-                                 efl_weight=efl_weight, efl_solve=solve)
-            v = search_variables(lens, aspheric_surfaces, efl_solve=solve)
+                                 efl_weight=efl_weight, efl_solve=solve,
+                                 glass_region=glass_region)
+            v = search_variables(lens, aspheric_surfaces, efl_solve=solve,
+                                 glasses=glass_region is not None)
+            if hard:   # a thickness within its limit's tolerance (1e-3 mm) but past the
+                # limit itself would lie outside the optimiser's box: clip it onto the limit
+                lo, hi = variable_bounds(v, cons)
+                x0 = v.x0()
+                x = torch.minimum(torch.maximum(x0, lo), hi)
+                if not torch.equal(x, x0):
+                    v.assign(x)
             if st.method != "dls":
                 merit = _Normalised(merit)
             out = optimize_lens(Camera(lens, None, _FLOATING), v, merit, method=st.method,
                                 steps=st.steps, rounds=st.rounds,
                                 constraints=cons if hard else (), jacobian_mode="central")
+            if glass_region is not None:
+                project_model_glasses(lens, glass_region)
             if solve:
                 solve_efl(lens, spec.efl_mm)
             flat = False   # a flat start has power after its first stage

@@ -12,10 +12,18 @@ and F-number, the total track (first vertex to sensor), the back clearance and e
 constraint's value and state.  :func:`write_outputs` writes ``best.json`` (a lens file every
 command reads), ``result.json`` and, when matplotlib is importable, ``convergence.png`` and
 ``layout.png``.
+
+A lens file names a glass of the built-in table (:func:`~deeplens.optics.materials.get_material`)
+or gives a model glass ``n_d/V_d``; most vendor-catalogue glasses a ``glass_mode="model"``
+search puts in (e.g. HOYA's, or 102 of SCHOTT's 123) are not in that table.  Such a glass is
+written as the model glass of its ``n_d`` and ``V_d`` (:func:`file_lens`: same index at the d
+line and the same Abbe number, Cauchy partial dispersions), and ``result.json`` lists each one
+under ``lens_files`` with the RMS spot of the lens as written beside the design's own.
 """
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from pathlib import Path
@@ -24,12 +32,13 @@ import torch
 
 from ...analysis.paraxial import paraxial
 from ...optics.io import save_lens
+from ...optics.materials import LINE_C, LINE_D, LINE_F, ModelGlass, get_material
 from ..constraints import ConstraintSet
 from ..merit import SpotMerit
 from .problem import back_clearance, paraxial_footprint, spec_constraints, spot_merit
 from .spec import DesignSpec
 
-__all__ = ["evaluate", "write_outputs", "polychromatic_rms"]
+__all__ = ["evaluate", "write_outputs", "polychromatic_rms", "file_lens"]
 
 
 def polychromatic_rms(lens, spec: DesignSpec, sampling: str = "hexapolar:12",
@@ -74,19 +83,53 @@ def evaluate(lens, spec: DesignSpec, sampling: str = "hexapolar:12") -> dict:
             "sampling": sampling}
 
 
+def file_lens(lens) -> tuple[object, dict]:
+    """``(lens to write, {medium: {"glass", "written_as"}})``: a copy of ``lens`` in which
+    every medium whose file spec (``to_spec()``) does not read back as the same glass (index
+    within 1e-7 at the d, F and C lines) is the model glass ``n_d/V_d`` of that medium
+    (module docstring); the lens itself when nothing needs replacing."""
+    w = torch.tensor([LINE_D, LINE_F, LINE_C], dtype=torch.float64)
+    swap = {}
+    for i, m in enumerate(lens.materials):
+        try:
+            same = bool((get_material(m.to_spec()).n(w) - m.n(w)).abs().max() <= 1e-7)
+        except (ValueError, TypeError):
+            same = False
+        if not same:
+            swap[i] = ModelGlass(m.nd, m.vd)
+    if not swap:
+        return lens, {}
+    out = copy.deepcopy(lens)
+    notes = {}
+    for i, g in swap.items():
+        m = lens.materials[i]
+        label = f"{m.catalogue}:{m.name}" if getattr(m, "catalogue", "") else m.name
+        out.materials[i] = g
+        notes[str(i)] = {"glass": label, "written_as": g.to_spec()}
+    return out, notes
+
+
 def write_outputs(out, result, spec: DesignSpec) -> dict:
     """Write ``best.json``, ``design_K.json`` (the other kept designs), ``result.json`` and
     the figures (if matplotlib imports) into the folder ``out``; returns the paths."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {}
+    paths, notes = {}, {}
     for k, d in enumerate(result.designs):
-        path = out / ("best.json" if k == 0 else f"design_{k}.json")
-        save_lens(d.lens, path)
-        paths["best" if k == 0 else f"design_{k}"] = str(path)
+        key = "best" if k == 0 else f"design_{k}"
+        path = out / f"{key}.json"
+        lens, swapped = file_lens(d.lens)
+        save_lens(lens, path)
+        paths[key] = str(path)
+        if swapped:
+            notes[key] = {"glasses_written_as_model": swapped,
+                          "rms_um_as_written": evaluate(lens, spec, d.metrics["sampling"])
+                          ["rms_um"], "rms_um": d.metrics["rms_um"]}
     data = result.to_dict()
     data["spec"] = spec.to_dict()
     data["files"] = paths
+    if notes:
+        data["lens_files"] = notes
     (out / "result.json").write_text(json.dumps(data, indent=1), encoding="utf-8")
     paths["result"] = str(out / "result.json")
     figs = _figure(result, out)

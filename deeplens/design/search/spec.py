@@ -8,9 +8,14 @@ wavelength (first-order quantities) is ``primary_wavelength_nm`` or else the mid
 list.  Form: ``elements`` singlets (air-spaced), ``aspheres`` of their surfaces allowed a conic
 and ``a4, a6`` (0: all spherical), the stop ``"front"``, ``"back"``, ``"middle"``, an air gap
 index ``k`` (after element ``k``, 0-based), or ``"search"`` (the search tries each position).
-Glass: ``glasses`` names a set (``"SCHOTT"``: the SCHOTT glasses of
+Glass: ``glass_mode`` ``"catalogue"`` (the default) picks each element's glass from a set
+and keeps it; ``glasses`` names the set (``"SCHOTT"``: the SCHOTT glasses of
 :data:`~deeplens.optics.materials.GLASS_TABLE`; ``"model"``: a small grid of ``n_d/V_d`` model
-glasses) or lists glasses by name (``"N-SK16,N-SF2"``).  Limits (mm; ``None`` = none):
+glasses) or lists glasses by name (``"N-SK16,N-SF2"``).  ``glass_mode`` ``"model"`` makes every
+element's glass a model glass whose ``n_d`` and ``V_d`` are design variables held inside the
+glass region of the vendor catalogues ``glasses`` names (``"SCHOTT"``, ``"SCHOTT,OHARA"``:
+:data:`~.glass_region.CATALOGUES`), substituted at the end by the nearest real glasses of those
+catalogues (:mod:`.glass`, :func:`~.multistart.search`).  Limits (mm; ``None`` = none):
 ``max_track_mm`` (first vertex to image), ``min/max_center_glass_mm``, ``min_edge_glass_mm``,
 ``min_air_mm`` (centre and edge of every air gap), ``min_bfl_mm``, ``max_diameter_mm`` (every
 clear aperture).  ``object_distance_mm`` (``inf``) places the object.
@@ -31,9 +36,11 @@ from pathlib import Path
 
 from ...optics.materials import GLASS_TABLE, ModelGlass, check_wavelength_nm, get_material
 
-__all__ = ["DesignSpec", "SpecError", "glass_set", "GLASS_SETS", "STOP_CHOICES"]
+__all__ = ["DesignSpec", "SpecError", "glass_set", "GLASS_SETS", "STOP_CHOICES", "GLASS_MODES",
+           "catalogue_start_glasses"]
 
 STOP_CHOICES = ("front", "middle", "back", "search")
+GLASS_MODES = ("catalogue", "model")
 
 #: model glasses (n_d, V_d) of the ``"model"`` set: crowns and flints along the glass line
 _MODEL_SET = ((1.5168, 64.17), (1.62041, 60.32), (1.69100, 54.71), (1.62004, 36.37),
@@ -78,6 +85,22 @@ def glass_set(glasses: str) -> list[str]:
         except ValueError as e:
             raise SpecError(f"{e} (sets: {', '.join(GLASS_SETS)})", field="glasses") from None
     return names
+
+
+def catalogue_start_glasses(catalogues) -> list[str]:
+    """The ``"n_d/V_d"`` specs of the glasses of vendor ``catalogues`` (each point once, in
+    catalogue order): the glasses a ``glass_mode="model"`` search starts from.
+
+    Raises:
+        SpecError: an unknown catalogue (the message lists the valid names).
+    """
+    from .glass_region import glasses
+
+    try:
+        pool = glasses(catalogues)
+    except ValueError as e:
+        raise SpecError(str(e), field="glasses") from None
+    return list(dict.fromkeys(f"{g.n_d:.6f}/{g.v_d:.4f}" for g in pool))
 
 
 def _pos(v, name, allow_none=False, allow_inf=False):
@@ -125,6 +148,7 @@ class DesignSpec:
     aspheres: int = 0
     stop: object = "search"
     glasses: str = "SCHOTT"
+    glass_mode: str = "catalogue"
     object_distance_mm: float = math.inf
     max_track_mm: float | None = None
     min_center_glass_mm: float | None = 1.0
@@ -176,7 +200,21 @@ class DesignSpec:
             raise SpecError(f"expected an integer in 0..{2 * self.elements} (surfaces), got "
                             f"{self.aspheres!r}", field="aspheres")
         self.stop = self._stop(self.stop)
-        glass_set(self.glasses)
+        mode = str(self.glass_mode).strip().lower()
+        if mode not in GLASS_MODES:
+            raise SpecError(f"expected one of {', '.join(GLASS_MODES)}, got {self.glass_mode!r}",
+                            field="glass_mode")
+        self.glass_mode = mode
+        if mode == "model":
+            from .glass_region import check_catalogues
+
+            try:
+                self.glasses = ",".join(check_catalogues(self.glasses))
+            except ValueError as e:
+                raise SpecError(f"glass_mode 'model' needs vendor catalogue names: {e}",
+                                field="glasses") from None
+        else:
+            glass_set(self.glasses)
         self.object_distance_mm = _pos(self.object_distance_mm, "object_distance_mm",
                                        allow_inf=True)
         for name in ("max_track_mm", "min_center_glass_mm", "max_center_glass_mm",
@@ -251,7 +289,16 @@ class DesignSpec:
 
     @property
     def glass_list(self) -> list[str]:
+        """The glass specs the starts choose from: the set's glasses, or with ``glass_mode``
+        ``"model"`` the ``n_d/V_d`` points of the catalogues' glasses."""
+        if self.glass_mode == "model":
+            return catalogue_start_glasses(self.glasses)
         return glass_set(self.glasses)
+
+    @property
+    def catalogues(self) -> tuple[str, ...]:
+        """The vendor catalogues of a ``glass_mode="model"`` spec (empty otherwise)."""
+        return tuple(self.glasses.split(",")) if self.glass_mode == "model" else ()
 
     def stop_positions(self) -> list:
         """The stop positions the search tries: ``"front"``, ``0 .. elements-2`` (air gaps)

@@ -67,11 +67,11 @@ class StartError(ValueError):
 
 #: the sign patterns (powers, object to image) tried for each element count
 _PATTERNS = {1: ("+",), 2: ("+-", "-+"), 3: ("+-+", "++-"), 4: ("+--+", "++-+", "+-++"),
-             5: ("++--+", "+-+-+", "++-++")}
+             5: ("++--+", "+-+-+", "++-++"), 6: ("++--++", "+-+-++", "++-+-+")}
 
 
 def sign_patterns(n: int) -> tuple[str, ...]:
-    """Power-sign patterns for ``n`` elements (alternating ones beyond five)."""
+    """Power-sign patterns for ``n`` elements (alternating ones beyond six)."""
     if n in _PATTERNS:
         return _PATTERNS[n]
     alt = "".join("+-"[i % 2] for i in range(n - 1)) + "+"
@@ -425,9 +425,12 @@ def _layout(spec: DesignSpec, u, glass_strategy=None) -> ThinLens:
     ut = u[1 + 3 * N:4 * N]
     us, ua = u[4 * N], u[4 * N + 1]
     glasses = (glass_strategy or crown_flint_by_sign)(spec.glass_list, signs, ug)
-    mags = [0.6 + 3.9 * x for x in up]
+    # beyond three elements the powers and spacings shrink with the count (the total power
+    # and length are shared): |f phi_i| in 0.6 + 3.9 min(1, 3/N) [0, 1), spacings
+    # f (0.03 + 0.22 [0, 1)) min(1, 3/(N-1))
+    mags = [0.6 + 3.9 * min(1.0, 3.0 / N) * x for x in up]
     k = [m if s == "+" else -m for m, s in zip(mags, signs)]
-    spacings = [f * (0.03 + 0.22 * x) for x in ut]
+    spacings = [f * (0.03 + 0.22 * x) * min(1.0, 3.0 / max(N - 1, 1)) for x in ut]
     bendings = [-0.75 + 1.5 * x for x in ub]
     stop = _pick(spec.stop_positions(), us)
     if stop in ("front", "back"):
