@@ -69,7 +69,7 @@ START_CHOICES = ("file", "search")
 #: the keys of ``lens.search`` (``plate``: a phase plate's search, alone)
 SEARCH_KEYS = ("spec", "config", "trainable", "plate")
 #: the stage fields of a SearchConfig, and the keys of one stage
-_STAGE_FIELDS = ("screen", "flat_screen", "polish", "hop")
+_STAGE_FIELDS = ("screen", "flat_screen", "polish", "hop", "prescreen_stage", "substitute")
 _STAGE_KEYS = ("steps", "sampling", "aperture", "field", "rounds", "method")
 #: the file holding the key of the search in its folder
 RECORD = "search_record.json"
@@ -81,6 +81,18 @@ def _plain(v):
 
 def _int(v, lo: int) -> bool:
     return isinstance(v, int) and not isinstance(v, bool) and v >= lo
+
+
+def _sampling(v) -> bool:
+    from ..optics.sampling import parse_sampling
+
+    if not isinstance(v, str):
+        return False
+    try:
+        parse_sampling(v)
+    except ValueError:
+        return False
+    return True
 
 
 def _real(v, lo: float = 0.0) -> bool:
@@ -142,10 +154,14 @@ def _search_config(given, key: str):
              "dedup_tol": (_real, "a number >= 0"),
              "start_kind": (lambda v: v in ("thin", "flat", "mixed"),
                             "'thin', 'flat' or 'mixed'"),
-             "score_sampling": (lambda v: isinstance(v, str) and v, "a pupil sampling such as "
-                                "'hexapolar:6'"),
-             "final_sampling": (lambda v: isinstance(v, str) and v, "a pupil sampling such as "
-                                "'hexapolar:12'")}
+             "score_sampling": (_sampling, "a pupil sampling such as 'hexapolar:6'"),
+             "final_sampling": (_sampling, "a pupil sampling such as 'hexapolar:12'"),
+             "prescreen_sampling": (_sampling, "a pupil sampling such as 'hexapolar:4'"),
+             "prescreen": (lambda v: _int(v, 0), "an integer >= 0"),
+             "substitute_k": (lambda v: _int(v, 1), "an integer >= 1"),
+             "glass_radius": (_real, "a number > 0"),
+             "substitute_radius": (lambda v: v is None or _real(v), "null or a number > 0"),
+             "time_limit_s": (lambda v: v is None or _real(v), "null or a number of seconds > 0")}
     for name, v in given.items():
         if name in _STAGE_FIELDS:
             vals[name] = _stages(v, f"{key}.{name}")

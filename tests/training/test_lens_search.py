@@ -245,3 +245,26 @@ def test_plate_search_variants_keep_the_plate_and_bad_settings_are_named(cfg_fac
                       ("lens.trainable=[d_sensor]", "lens.trainable")):
         with pytest.raises(ValueError, match=key.replace(".", r"\.")):
             check_lens_config(cfg_factory(*PLATE, over))
+
+
+def test_every_search_config_field_is_checked_and_accepted():
+    """Each SearchConfig field (the glass search's too) has a rule: its default passes through
+    lens.search.config to an equal SearchConfig, and a wrong value is a ConfigError naming the
+    key (never a KeyError)."""
+    import dataclasses
+
+    from deeplens.design.search import SearchConfig
+    from deeplens.optics.errors import ConfigError
+    from deeplens.training.lens_search import _search_config
+
+    default = SearchConfig()
+    for f in dataclasses.fields(SearchConfig):
+        v = getattr(default, f.name)
+        if isinstance(v, tuple):   # stages: given as plain mappings in a config
+            v = [{"steps": st.steps, "sampling": st.sampling, "aperture": st.aperture,
+                  "field": st.field, "rounds": st.rounds, "method": st.method} for st in v]
+        got = _search_config({f.name: v}, "lens.search.config")
+        assert getattr(got, f.name) == getattr(default, f.name), f.name
+        with pytest.raises(ConfigError) as e:
+            _search_config({f.name: "nonsense!"}, "lens.search.config")
+        assert "lens.search.config" in str(e.value), f.name

@@ -28,7 +28,7 @@ import math
 
 import torch
 
-from ...analysis.paraxial import paraxial
+from ...optics.paraxial import paraxial
 from ...optics.camera import unpack
 from ...optics.materials import Air
 from ...optics.paraxial import media_indices, trace_paraxial_ray

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import torch
 
-from ...analysis.paraxial import paraxial
+from ...optics.paraxial import paraxial
 from ...optics.io import save_lens
 from ...optics.materials import LINE_C, LINE_D, LINE_F, ModelGlass, get_material
 from ..constraints import ConstraintSet

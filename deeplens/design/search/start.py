@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ...analysis.paraxial import paraxial
+from ...optics.paraxial import paraxial
 from ...optics.lens import Lens, LensSpec
 from ...optics.materials import Air, get_material
 from ...optics.paraxial import media_indices, trace_paraxial_ray
