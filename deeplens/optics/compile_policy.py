@@ -15,9 +15,12 @@ which a run switches depends on what it traces, not on the machine's load: a run
 deterministic as before, and the training module stores the ledger in its checkpoints so that a
 resumed run switches at the same step.
 
-Constants (measured, ``benchmarks/bench_compile_policy.py`` and ``docs/benchmarks.md``):
-per ray and fused surface, eager costs :data:`EAGER_S` and compiled :data:`COMPILED_S` seconds
-(double Gauss, float32, CPU, two threads); compiling costs :data:`COMPILE_COST_S`.  Calls of
+Constants (measured, ``benchmarks/bench_compile_kinds.py`` and ``docs/benchmarks.md``): per ray
+and fused surface of each kind (sphere or conic, Newton surface, plane or stop), eager costs
+:data:`EAGER_S` and compiled :data:`COMPILED_S` CPU seconds (float32, one thread); compiling
+costs :data:`COMPILE_COST_S`.  At more threads both traces get faster by about the same factor,
+so the model's seconds are CPU seconds, not wall seconds: the step at which a run switches does
+not depend on the thread count either.  Calls of
 fewer than :data:`MIN_RAYS` rays always run eager (they cost little, and a compiled kernel
 specialises on ray counts 0 and 1).
 
@@ -36,18 +39,46 @@ import warnings
 
 import torch
 
-__all__ = ["COMPILED_S", "COMPILE_COST_S", "EAGER_S", "MIN_RAYS", "CompileLedger",
-           "compiler_available"]
+__all__ = ["COMPILED_S", "COMPILE_COST_S", "COST_AS", "EAGER_S", "MIN_RAYS", "CompileLedger",
+           "compiler_available", "saving_per_ray", "saving_per_ray_surface"]
 
 #: seconds to compile one kernel signature (cold inductor cache, CPU; measured 25-39 s)
 COMPILE_COST_S = 30.0
-#: eager seconds per ray and fused surface, without / with gradients (double Gauss, float32,
-#: two threads: 0.475 s forward and 0.903 s trace + backward for 1e6 rays x 11 surfaces)
-EAGER_S = {False: 4.3e-8, True: 8.2e-8}
-#: the same, compiled (0.053 s and 0.194 s)
-COMPILED_S = {False: 4.8e-9, True: 1.8e-8}
+#: eager CPU seconds per ray through one fused surface, by the surface's fused kind
+#: (:func:`~.tracer.fused_kind`) and gradients (without / with): one thread, 1e5 rays through
+#: eight surfaces of one kind, the shape parameters trainable
+#: (``benchmarks/bench_compile_kinds.py``, docs/benchmarks.md).  A Newton surface (even
+#: asphere, XY polynomial) iterates its intersection: eager it costs 3-5 spheres, and compiling
+#: saves 2-4 times what it saves on a sphere.
+EAGER_S = {
+    "quadric": {False: 8.2e-8, True: 1.95e-7},
+    "newton": {False: 2.8e-7, True: 5.0e-7},
+    "plane": {False: 9.3e-8, True: 1.49e-7},
+}
+#: the same, compiled (for ``"newton"`` the even asphere's, whose saving is the smaller: an XY
+#: polynomial saves 3.2e-7 / 4.8e-7)
+COMPILED_S = {
+    "quadric": {False: 3.05e-8, True: 1.12e-7},
+    "newton": {False: 9.4e-8, True: 1.63e-7},
+    "plane": {False: 1.6e-8, True: 4.9e-8},
+}
+#: fused kinds costed as another: a stop is a plane's intersection and clip, no refraction
+COST_AS = {"stop": "plane", "stop_rect": "plane"}
 #: calls with fewer rays always run eager
 MIN_RAYS = 4096
+
+
+def saving_per_ray_surface(kind: str, grad: bool) -> float:
+    """Modelled seconds compiling saves per ray through one fused surface of ``kind`` (a
+    :func:`~.tracer.fused_kind` value); never negative."""
+    k = COST_AS.get(kind, kind)
+    return max(EAGER_S[k][grad] - COMPILED_S[k][grad], 0.0)
+
+
+def saving_per_ray(kinds, grad: bool) -> float:
+    """Modelled seconds compiling saves per ray through a lens whose surfaces have the fused
+    kinds ``kinds`` (``None``: runs eager either way)."""
+    return sum(saving_per_ray_surface(k, grad) for k in kinds if k is not None)
 
 
 def compiler_available(device: torch.device) -> tuple[bool, str]:
@@ -84,18 +115,19 @@ class CompileLedger:
         self.saved: dict[str, float] = {}
         self._compiler: dict[str, bool] = {}
 
-    def charge(self, key: str, n_rays: int, n_fused: int, grad: bool,
+    def charge(self, key: str, n_rays: int, kinds, grad: bool,
                device: torch.device) -> bool:
-        """Whether this call of ``n_rays`` rays through ``n_fused`` compilable surfaces
-        should run compiled; an eager call adds what compiling would have saved on it."""
-        if n_rays < MIN_RAYS or n_fused == 0:
+        """Whether this call of ``n_rays`` rays through surfaces of the fused kinds ``kinds``
+        (:func:`~.tracer.fused_kind` per surface, ``None`` for an eager one) should run
+        compiled; an eager call adds what compiling would have saved on it
+        (:func:`saving_per_ray`)."""
+        if n_rays < MIN_RAYS or all(k is None for k in kinds):
             return False
         if os.environ.get("DEEPLENS_COMPILE", "").strip() == "0":
             return False
         if self.paid(key):
             return self.can_compile(device)
-        self.saved[key] = (self.saved.get(key, 0.0)
-                           + n_rays * n_fused * (EAGER_S[grad] - COMPILED_S[grad]))
+        self.saved[key] = self.saved.get(key, 0.0) + n_rays * saving_per_ray(kinds, grad)
         return False
 
     def paid(self, key: str) -> bool:

@@ -156,10 +156,9 @@ def default_mode(lens, rays: Rays, options: TraceOptions, reverse: bool):
     if rays.valid.numel() < MIN_RAYS:  # small calls stay eager (and cost nothing to decide)
         return False
     kinds = tuple(fused_kind(lens, i) for i in range(len(lens.surfaces)))
-    n_fused = sum(k is not None for k in kinds)
     grad = _needs_grad(lens, rays)
     key = (f"{kinds}|{str(rays.dtype)}|{rays.o.device.type}|grad={grad}|reverse={reverse}")
-    run = options.ledger.charge(key, rays.valid.numel(), n_fused, grad, rays.o.device)
+    run = options.ledger.charge(key, rays.valid.numel(), kinds, grad, rays.o.device)
     return "auto" if run else False
 
 

@@ -57,11 +57,55 @@ def test_the_test_lens_is_compilable():
         == N_FUSED
 
 
-def _switch_call(n_rays: int, n_fused: int, grad: bool) -> int:
-    """The 0-based index of the first compiled call under the ski-rental rule, computed from the
+def _cost_kinds(lens) -> list[str]:
+    """Each surface's cost class read from its type and coefficients (not from ``fused_kind``):
+    an aperture or a plane costs a plane, a sphere or conic a quadric, an asphere with
+    coefficients a Newton surface."""
+    out = []
+    for s in lens.surfaces:
+        name = type(s).__name__
+        if name in ("Aperture", "Plane"):
+            out.append("plane")
+        elif name in ("Asphere", "Sphere"):
+            out.append("newton" if len(s.a) else "quadric")
+        else:
+            raise AssertionError(f"the test lens has an unexpected surface {name}")
+    return out
+
+
+def _per_call(n_rays: int, grad: bool) -> float:
+    """The modelled saving of one call of ``n_rays`` rays through the test lens, from the
     module's constants independently of the ledger's code."""
-    per_call = n_rays * n_fused * (P.EAGER_S[grad] - P.COMPILED_S[grad])
-    return math.ceil(P.COMPILE_COST_S / per_call)
+    return n_rays * sum(P.EAGER_S[k][grad] - P.COMPILED_S[k][grad]
+                        for k in _cost_kinds(_singlet()))
+
+
+def _switch_call(n_rays: int, grad: bool) -> int:
+    """The 0-based index of the first compiled call under the ski-rental rule."""
+    return math.ceil(P.COMPILE_COST_S / _per_call(n_rays, grad))
+
+
+def test_every_fused_kind_has_a_cost_and_compiling_saves():
+    from deeplens.optics import compiled as C
+
+    for kind in [k for k in C.KINDS if k != "propagate"] + ["newton"]:
+        for grad in (False, True):
+            assert P.saving_per_ray_surface(kind, grad) > 0, (kind, grad)
+    # the measured fact the per-kind model exists for: a Newton surface iterates its
+    # intersection, so compiling it saves more than it saves on a sphere
+    for grad in (False, True):
+        assert P.saving_per_ray_surface("newton", grad) > P.saving_per_ray_surface("quadric", grad)
+    assert P.saving_per_ray(("quadric", None, "newton"), False) == (
+        P.saving_per_ray_surface("quadric", False) + P.saving_per_ray_surface("newton", False))
+
+
+def test_the_ledger_charges_each_surface_by_its_kind():
+    lens, opts = _singlet(), TraceOptions()
+    n = 20_000
+    with torch.no_grad():
+        lens.trace(_rays(n), options=opts)
+    (saved,) = opts.ledger.saved.values()
+    assert saved == pytest.approx(_per_call(n, False), rel=1e-12)
 
 
 def test_default_is_the_policy_and_false_switches_it_off():
@@ -73,7 +117,7 @@ def test_eager_until_compiling_has_paid_then_compiled(calls, monkeypatch):
     monkeypatch.setattr(P, "COMPILE_COST_S", 0.1)  # a few calls of 2e4 rays
     lens, opts = _singlet(), TraceOptions()
     n = 20_000
-    k = _switch_call(n, N_FUSED, grad=False)
+    k = _switch_call(n, grad=False)
     assert 2 <= k <= 50
     with torch.no_grad():
         for i in range(k + 3):
@@ -101,7 +145,7 @@ def test_signatures_are_charged_separately(calls, monkeypatch):
     """With and without gradients are different kernels: each pays for its own compile."""
     lens, opts = _singlet(), TraceOptions()
     n = 20_000
-    monkeypatch.setattr(P, "COMPILE_COST_S", n * N_FUSED * (P.EAGER_S[True] - P.COMPILED_S[True]) * 1.5)
+    monkeypatch.setattr(P, "COMPILE_COST_S", _per_call(n, True) * 1.5)
     lens.d_sensor.requires_grad_(True)
     for _ in range(2):
         lens.trace(_rays(n), options=opts)   # with gradients: 1.5 calls' worth, then compiled
@@ -142,7 +186,7 @@ def test_ledger_round_trip_switches_at_the_same_call(calls, monkeypatch):
     """A run resumed from a stored ledger switches where the uninterrupted run did."""
     monkeypatch.setattr(P, "COMPILE_COST_S", 0.1)
     lens, n = _singlet(), 20_000
-    k = _switch_call(n, N_FUSED, grad=False)
+    k = _switch_call(n, grad=False)
     a = TraceOptions()
     with torch.no_grad():
         for _ in range(k - 1):
