@@ -33,7 +33,7 @@ import torch
 from torch import nn
 
 from ..openings import Circle, Opening, Rectangle
-from .base import (SagSurface, check_conic_domain, conic_scale, curvature_scale, host_flags,
+from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, host_flags,
                    make_param, register_surface)
 
 __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
@@ -326,14 +326,7 @@ class Asphere(SagSurface):
     def sag_scale(self, name: str) -> float:
         """``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (``a_{2i+4}``):
         ``R^(2i+4)``; else 1 (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
-        R, parts = float(self.semi_diameter), name.split(".")
-        if parts[0] == "c":
-            return curvature_scale(R)
-        if parts[0] == "k":
-            return conic_scale(float(self.c), float(self.k), R)
-        if parts[0] == "a":
-            return R ** (2 * int(parts[1]) + 4)
-        return 1.0
+        return conic_polynomial_scale(self, name, lambda i: 2 * i + 4)
 
     file_fields = ("curvature_per_mm", "roc_mm", "conic", "aspheric", "obscuration_mm",
                    "clear_radius_mm", "clear_decenter_mm", "clear_rect_mm")

@@ -93,6 +93,21 @@ def conic_scale(c: float, k: float, R: float) -> float:
     return max(abs(c) ** 3 * R ** 4 / (2.0 * q * (1.0 + q) ** 2), 1e-6)
 
 
+def conic_polynomial_scale(surface, name: str, power=None) -> float:
+    """The parameter scale of a conic base plus polynomial terms (``surface`` has ``c``, ``k``
+    and ``semi_diameter``): ``c``: :func:`curvature_scale`; ``k``: :func:`conic_scale`;
+    ``a.i``: ``R^power(i)`` (the term's power of the radius at the rim; ``power=None``: the
+    surface has no ``a``); any other name: 1."""
+    R, parts = float(surface.semi_diameter), name.split(".")
+    if parts[0] == "c":
+        return curvature_scale(R)
+    if parts[0] == "k":
+        return conic_scale(float(surface.c), float(surface.k), R)
+    if parts[0] == "a" and power is not None:
+        return R ** power(int(parts[1]))
+    return 1.0
+
+
 def host_flags(module: nn.Module, slot: str, tensors: tuple, read):
     """``read(*tensors)`` (Python values read from the tensors: host synchronisations), kept on
     ``module`` under ``slot`` and read again only when one of ``tensors`` changed: another

@@ -19,7 +19,7 @@ import torch
 from torch import nn
 
 from ..openings import Opening, Rectangle
-from .base import SagSurface, conic_scale, curvature_scale, make_param, register_surface
+from .base import SagSurface, conic_polynomial_scale, make_param, register_surface
 
 __all__ = ["Cylinder"]
 
@@ -106,14 +106,7 @@ class Cylinder(SagSurface):
         """The y profile's: ``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (of
         ``y^(2i+2)``): ``R^(2i+2)`` at ``y = R`` (the semi-diameter); else 1
         (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
-        R, parts = float(self.semi_diameter), name.split(".")
-        if parts[0] == "c":
-            return curvature_scale(R)
-        if parts[0] == "k":
-            return conic_scale(float(self.c), float(self.k), R)
-        if parts[0] == "a":
-            return R ** (2 * int(parts[1]) + 2)
-        return 1.0
+        return conic_polynomial_scale(self, name, lambda i: 2 * i + 2)
 
     file_fields = ("curvature_per_mm", "conic", "coefficients", "half_width_x_mm",
                    "half_width_y_mm")

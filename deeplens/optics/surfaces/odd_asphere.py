@@ -36,7 +36,7 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
-from .base import (SagSurface, check_conic_domain, conic_scale, curvature_scale, make_param,
+from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, make_param,
                    register_surface)
 
 __all__ = ["OddAsphere", "MAX_ODD_ORDER", "odd_dsag", "odd_poly", "safe_radius"]
@@ -154,14 +154,7 @@ class OddAsphere(SagSurface):
     def sag_scale(self, name: str) -> float:
         """``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (``a_{i+1}`` of ``r^(i+1)``): ``R^(i+1)``
         (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
-        R, parts = float(self.semi_diameter), name.split(".")
-        if parts[0] == "c":
-            return curvature_scale(R)
-        if parts[0] == "k":
-            return conic_scale(float(self.c), float(self.k), R)
-        if parts[0] == "a":
-            return R ** (int(parts[1]) + 1)
-        return 1.0
+        return conic_polynomial_scale(self, name, lambda i: i + 1)
 
     file_fields = ("curvature_per_mm", "conic", "radial_coefficients")
 

@@ -35,7 +35,7 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_root, conic_sag
-from .base import (SagSurface, check_conic_domain, conic_scale, curvature_scale, make_param,
+from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, make_param,
                    register_surface)
 
 __all__ = ["QType", "MAX_TERMS", "jacobi_rows", "qbfs_matrix", "qcon_matrix", "qtype_dsag_ds",
@@ -292,12 +292,7 @@ class QType(SagSurface):
         """The conic base's: ``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; the Q
         coefficients ``a.m`` are lengths (mm): 1 (:meth:`Surface.sag_scale
         <.base.Surface.sag_scale>`)."""
-        R = float(self.semi_diameter)
-        if name == "c":
-            return curvature_scale(R)
-        if name == "k":
-            return conic_scale(float(self.c), float(self.k), R)
-        return 1.0
+        return conic_polynomial_scale(self, name)
 
     file_fields = ("curvature_per_mm", "conic", "norm_radius_mm", "q_coefficients", "q_kind")
 

@@ -57,7 +57,7 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
-from .base import (SagSurface, check_conic_domain, conic_scale, curvature_scale, make_param,
+from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, make_param,
                    register_surface)
 
 __all__ = ["ZernikeSag", "MAX_EVEN_TERMS", "MAX_ZERNIKE_TERMS", "noll_nm", "zernike_norm",
@@ -306,14 +306,7 @@ class ZernikeSag(SagSurface):
     def sag_scale(self, name: str) -> float:
         """``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (of ``r^(2i+2)``): ``R^(2i+2)``; ``zernike.j`` (mm): 1
         (:meth:`Surface.sag_scale <.base.Surface.sag_scale>`)."""
-        R, parts = float(self.semi_diameter), name.split(".")
-        if parts[0] == "c":
-            return curvature_scale(R)
-        if parts[0] == "k":
-            return conic_scale(float(self.c), float(self.k), R)
-        if parts[0] == "a":
-            return R ** (2 * int(parts[1]) + 2)
-        return 1.0
+        return conic_polynomial_scale(self, name, lambda i: 2 * i + 2)
 
     file_fields = ("curvature_per_mm", "conic", "even_coefficients", "norm_radius_mm",
                    "zernike_coefficients", "zernike_extrapolate")
