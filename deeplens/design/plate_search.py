@@ -159,12 +159,7 @@ def _set_cubic(lens, plate_surface: int, alpha_mm: float) -> None:
     if not isinstance(s, XYPolynomial):
         raise ValueError(f"plate search: surface {plate_surface} is a {type(s).__name__}, not "
                          f"an XY polynomial")
-    R = float(s.semi_diameter)
-    with torch.no_grad():
-        for k, (i, j) in enumerate(s.terms):
-            s.a[k].zero_()
-            if (i, j) in ((3, 0), (0, 3)):
-                s.a[k].fill_(alpha_mm / R ** 3)
+    s.set_cubic(alpha_mm)
 
 
 def plate_search(lens, plate_surface: int, variables, depths_mm, wavelengths_nm,

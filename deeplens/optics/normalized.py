@@ -156,8 +156,12 @@ def normalized_rays(lens, H, P, wavelength_nm: float | None = None, *, aim: str 
         rays that could not be aimed (they miss a surface on the way to the stop) are invalid.
 
     Example:
-        >>> rays = normalized_rays(lens.to(torch.float64), (0, 1), [(0, 0), (0, 1), (0, -1)])
-        >>> lens.trace_to_sensor(rays).o[:, 1]     # chief, upper and lower marginal rays
+        >>> from deeplens.optics import load_lens
+        >>> lens = load_lens("double_gauss").to(torch.float64)
+        >>> rays = normalized_rays(lens, (0, 0.7), [(0, 0), (0, 1), (0, -1)])
+        >>> out = lens.trace_to_sensor(rays)   # chief, upper and lower marginal rays at 0.7 field
+        >>> out.valid.tolist(), [round(y, 2) for y in out.o[:, 1].tolist()]
+        ([True, True, True], [7.14, 7.15, 7.14])
     """
     if aim not in ("stop", "paraxial"):
         raise ValueError(f"aim must be 'stop' or 'paraxial', got {aim!r}")

@@ -53,12 +53,7 @@ def cubic_phase_plate(lens, surface_index: int, alpha_mm: float) -> None:
     s = lens.surfaces[surface_index]
     if not isinstance(s, XYPolynomial) or s.order < 3:
         raise ValueError(f"surface {surface_index} is not an XY polynomial of order >= 3")
-    R = float(s.semi_diameter)
-    with torch.no_grad():
-        for k, (i, j) in enumerate(s.terms):
-            s.a[k].zero_()
-            if (i, j) in ((3, 0), (0, 3)):
-                s.a[k].fill_(alpha_mm / R ** 3)
+    s.set_cubic(alpha_mm)
 
 
 def extend_plate(lens, surface_index: int, order: int) -> list[str]:

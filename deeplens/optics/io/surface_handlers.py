@@ -67,6 +67,23 @@ PROVISIONAL_SD_MM = 1e-3
 CODEV_ASPH = "ABCDEFGHJ"
 
 
+def _xdat_term_count(p, s, k, type_name: str, count_what: str, maximum: int, terms: str,
+                     below: bool = True) -> int:
+    """``XDAT 1`` of surface ``k`` (a ``type_name`` surface): the number of terms, an integer
+    ``0..maximum``; no non-zero ``XDAT j`` beyond the ``n + 2`` it declares (nor, with
+    ``below``, at ``j < 1``).  Returns ``n``; a bad value fails at its line."""
+    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= maximum:
+        p.fail(n_ln, f"SURF {k}: {type_name} XDAT 1 ({count_what}) must be an integer "
+                     f"0..{maximum}, got {n_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if (j > n + 2 or (below and j < 1)) and v != 0:
+            p.fail(ln, f"SURF {k}: {type_name} XDAT {j} lies beyond the {n} {terms} XDAT 1 "
+                       f"declares")
+    return n
+
+
 def is_air(m: Material) -> bool:
     return isinstance(m, Air)
 
@@ -182,15 +199,8 @@ def _binary2(s, k: int, c, sd, s_mm, p):
     if order != int(order):
         p.fail(o_ln, f"SURF {k}: the diffraction order (BINARY_2 PARM 0) must be an integer, got "
                      f"{order!r}")
-    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
-    if n_v != int(n_v) or not 0 <= n_v <= MAX_PHASE_TERMS:
-        p.fail(n_ln, f"SURF {k}: BINARY_2 XDAT 1 (the number of phase terms) must be an integer "
-                     f"0..{MAX_PHASE_TERMS}, got {n_v!r}")
-    n = int(n_v)
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if j > n + 2 and v != 0:
-            p.fail(ln, f"SURF {k}: BINARY_2 XDAT {j} lies beyond the {n} phase terms XDAT 1 "
-                       f"declares")
+    n = _xdat_term_count(p, s, k, "BINARY_2", "the number of phase terms", MAX_PHASE_TERMS,
+                         "phase terms", below=False)
     rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
     if n > 0 and not rn_v > 0:
         p.fail(rn_ln, f"SURF {k}: BINARY_2 XDAT 2 (the normalisation radius) must be > 0, got "
@@ -259,15 +269,8 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p):
     if ext not in (0.0, 1.0):
         p.fail(ext_ln, f"SURF {k}: SZERNSAG PARM 0 (the extrapolate flag) must be 0 or 1, got "
                        f"{ext!r}")
-    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
-    if n_v != int(n_v) or not 0 <= n_v <= MAX_ZERNIKE_TERMS:
-        p.fail(n_ln, f"SURF {k}: SZERNSAG XDAT 1 (the number of Zernike terms) must be an "
-                     f"integer 0..{MAX_ZERNIKE_TERMS}, got {n_v!r}")
-    n = int(n_v)
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if (j > n + 2 or j < 1) and v != 0:
-            p.fail(ln, f"SURF {k}: SZERNSAG XDAT {j} lies beyond the {n} Zernike terms XDAT 1 "
-                       f"declares")
+    n = _xdat_term_count(p, s, k, "SZERNSAG", "the number of Zernike terms", MAX_ZERNIKE_TERMS,
+                         "Zernike terms")
     rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
     if n > 0 and not rn_v > 0:
         p.fail(rn_ln, f"SURF {k}: SZERNSAG XDAT 2 (the normalisation radius) must be > 0, got "
@@ -344,14 +347,8 @@ def _xasphere(s, k: int, c, sd, s_mm, p):
             p.fail(ln, f"SURF {k}: XASPHERE PARM {i} is not read (the Extended Asphere's data "
                        f"are XDAT 1 the number of terms, XDAT 2 the normalisation radius, XDAT "
                        f"3.. the coefficients on ρ², ρ⁴, ...)")
-    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
-    if n_v != int(n_v) or not 0 <= n_v <= XASPHERE_MAX_TERMS:
-        p.fail(n_ln, f"SURF {k}: XASPHERE XDAT 1 (the maximum term number) must be an integer "
-                     f"0..{XASPHERE_MAX_TERMS}, got {n_v!r}")
-    n = int(n_v)
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if (j > n + 2 or j < 1) and v != 0:
-            p.fail(ln, f"SURF {k}: XASPHERE XDAT {j} lies beyond the {n} terms XDAT 1 declares")
+    n = _xdat_term_count(p, s, k, "XASPHERE", "the maximum term number", XASPHERE_MAX_TERMS,
+                         "terms")
     rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
     alpha = [(s.xdat.get(i + 2, (0.0, 0))[0], s.xdat.get(i + 2, (0.0, rn_ln))[1])
              for i in range(1, n + 1)]

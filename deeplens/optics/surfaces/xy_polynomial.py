@@ -160,6 +160,20 @@ class XYPolynomial(Surface):
         """Newton starts from the vertex plane."""
         return torch.zeros_like(bz)
 
+    def set_cubic(self, alpha_mm: float) -> None:
+        """Make this surface the Dowski-Cathey cubic phase plate ``z = α ((x/R)^3 + (y/R)^3)``
+        (``α`` mm of sag at the rim on the x and y axes, ``R`` the semi-diameter): every
+        coefficient zero but ``x^3`` and ``y^3``; ``b`` unchanged.  Needs order >= 3."""
+        if self.order < 3:
+            raise ValueError(f"a cubic plate needs an XY polynomial of order >= 3, not "
+                             f"{self.order}")
+        R = float(self.semi_diameter)
+        with torch.no_grad():
+            for k, (i, j) in enumerate(self.terms):
+                self.a[k].zero_()
+                if (i, j) in ((3, 0), (0, 3)):
+                    self.a[k].fill_(alpha_mm / R ** 3)
+
     def sag(self, x, y):
         P, _, _ = self.poly(x, y)
         disc = self._disc(P)
