@@ -14,13 +14,16 @@ ROOT = Path(__file__).resolve().parents[2]
 EXPERIMENTS = sorted(p.stem for p in (ROOT / "configs" / "experiment").glob("*.yaml"))
 #: per experiment, overrides that shrink what the tiny configs do not (a design search: a
 #: singlet, one start of 2 DLS steps, no hops; the shipped spec and globs, searched with a small
-#: budget: tests/training/test_lens_search.py, slow)
+#: budget: tests/training/test_lens_search.py, slow; the plate search: one start, one step)
 SHRINK = {"doublet_search": ("lens.search.spec.elements=1", "lens.search.spec.aspheres=0",
                              "lens.search.spec.glasses=N-BK7",
                              "lens.search.config={starts:1,hops:0,screen:2,polish:2,"
                              "polish_count:1,keep:1,seed:0}",
                              "lens.search.trainable=[surfaces.*.c]",
-                             "render.psf_model=geometric")}
+                             "render.psf_model=geometric"),
+          # a plate search: one start of one DLS step on a coarse merit
+          "edof_search": ("lens.search.plate={starts:1,steps:1,box_mm:0.006,"
+                          "blur_alpha_mm:0.005,sampling:'grid:8',n_freq:2,seed:0}",)}
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
@@ -59,10 +62,11 @@ def test_short_run_logs_scalars_images_and_checkpoints(cfg_factory, tmp_path, ex
     assert any(t.startswith("train/loss_") for t in scalars)
     assert not {"train/ssim", "train/mse", "train/l1"} & scalars
     assert "lr/net" in scalars and any(t.startswith("lr/") and t != "lr/net" for t in scalars)
-    if experiment == "edof":        # its Wiener filter learns the noise ratio
+    edof = experiment.startswith("edof")   # edof and edof_search: a plate, depths
+    if edof:        # its Wiener filter learns the noise ratio
         assert "wiener/nsr_c0" in scalars
     assert any(t.startswith("lens_params/") for t in scalars)
-    if experiment == "edof":
+    if edof:
         assert "lens/phase_plate_height" in images
         assert any("d4500mm" in t for t in depth_tags)
     else:
