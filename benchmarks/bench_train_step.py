@@ -17,9 +17,11 @@ validation):
 * ``data``: fetching the batch from the data loader (not in ``step``);
 * within ``capture`` and ``deconv`` together (forward only; the backward is not split):
   ``rays`` (PSF ray tracing: the diffraction pupil trace and OPD fit, or the geometric PSF
-  trace), ``prop`` (diffraction propagation, pupil to kernels) and ``conv`` (the render's
-  FFT convolution of the image with the kernels), timed by wrapping those functions from
-  outside the package (exclusive times: a timed call inside another is not counted twice);
+  trace), ``prop`` (diffraction propagation, pupil to kernels), ``conv`` (the render's FFT
+  convolution of the image with the kernels) and ``ideal`` (``IdealCamera.render``: the
+  textures resampled onto the sensor grid, for the render and for the ground truth), timed by
+  wrapping those functions from outside the package (exclusive times: a timed call inside
+  another is not counted twice); the Monte Carlo render (``doublet``) is not split;
 * ``RSS MiB``: the row process's resident-set high-water mark (``getrusage``) after the
   timed steps of that phase (the phases run in the table's order in one process, so the
   second phase's figure is at least the first's), and ``base MiB`` the mark before any step.
@@ -118,20 +120,25 @@ class _Stages:
                ("deeplens.render.diffraction", "_kernels", "prop"),
                ("deeplens.render.psf_conv", "psf_grids", "rays"),
                ("deeplens.render.psf_conv", "correlate_valid", "conv"),
-               ("deeplens.training.wiener", "psf_many", "rays"))
+               ("deeplens.training.wiener", "psf_many", "rays"),
+               ("deeplens.render.scene", "IdealCamera.render", "ideal"))
 
     def __init__(self, sync):
         import importlib
 
-        self.sync, self.total, self.stack = sync, {"rays": 0.0, "prop": 0.0, "conv": 0.0}, []
+        self.sync, self.total, self.stack = sync, dict.fromkeys(("rays", "prop", "conv", "ideal"),
+                                                             0.0), []
         self.wrapped = []
         for mod, name, stage in self.TARGETS:
             try:
-                m = importlib.import_module(mod)
-                fn = getattr(m, name)
+                owner = importlib.import_module(mod)
+                *path, attr = name.split(".")
+                for part in path:  # a method: replaced on its class
+                    owner = getattr(owner, part)
+                fn = getattr(owner, attr)
             except (ImportError, AttributeError):
                 continue  # older code: that stage reads 0
-            setattr(m, name, self._wrap(fn, stage))
+            setattr(owner, attr, self._wrap(fn, stage))
             self.wrapped.append(f"{mod}.{name}")
 
     def _wrap(self, fn, stage):
@@ -193,7 +200,7 @@ def _child(spec: str, args) -> dict:
         if label == "optics fixed" and first == 0:
             continue
         parts = {k: [] for k in ("capture", "deconv", "restorer", "backward", "step", "cpu",
-                                 "data", "rays", "prop", "conv")}
+                                 "data", "rays", "prop", "conv", "ideal")}
         for i in range(args.warmup + args.steps):
             td = time.perf_counter()
             images = next(batches)["image"].to(device)
@@ -233,7 +240,7 @@ def _child(spec: str, args) -> dict:
                 st = stages.reset()
                 for k, v in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t4 - t0,
                                         time.process_time() - c0, td, st["rays"], st["prop"],
-                                        st["conv"])):
+                                        st["conv"], st["ideal"])):
                     parts[k].append(v)
         out[label] = {k: statistics.median(v) for k, v in parts.items()}
         out[label]["loss"] = float(loss.detach())
@@ -270,8 +277,8 @@ def main() -> None:
           f"{args.warmup}; load average {os.getloadavg()[0]:.1f} at the start\n")
     print("| code | experiment and overrides | sensor px | optics | capture s | deconv s "
           "| restorer s | backward s | step s | CPU s | data s | rays s | prop s | conv s "
-          "| base MiB | RSS MiB |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| ideal s | base MiB | RSS MiB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     codes = ([("before", args.base)] if args.base else []) + [("after", REPO)]
     sizes = [z.strip() for z in args.sizes.split(",") if z.strip()]
     rows = [r if z == "shipped" else f"{r}|@size={int(z)}" for r in args.rows for z in sizes]
@@ -284,7 +291,7 @@ def main() -> None:
         if r.returncode != 0:
             sys.stderr.write(r.stderr[-3000:])
             print(f"| {name} | `{spec.replace('|', ' ')}` | | failed (stderr above) "
-                  "||||||||||||||", flush=True)
+                  "|||||||||||||||", flush=True)
             continue
         res = json.loads(r.stdout.strip().splitlines()[-1])
         results.append(res)
@@ -297,6 +304,7 @@ def main() -> None:
                       f"{f['capture']} | {f['deconv']} | {f['restorer']} | {f['backward']} | "
                       f"**{f['step']}** | {f['cpu']} | {f.get('data', '')} | "
                       f"{f.get('rays', '')} | {f.get('prop', '')} | {f.get('conv', '')} | "
+                      f"{f.get('ideal', '')} | "
                       f"{res.get('base_mib', 0):.0f} | {p.get('rss_mib', 0):.0f} |", flush=True)
     if args.json:
         with open(args.json, "w") as f:
