@@ -124,22 +124,38 @@ class _Stages:
                ("deeplens.render.scene", "IdealCamera.render", "ideal"))
 
     def __init__(self, sync):
-        import importlib
-
         self.sync, self.total, self.stack = sync, dict.fromkeys(("rays", "prop", "conv", "ideal"),
                                                              0.0), []
         self.wrapped = []
-        for mod, name, stage in self.TARGETS:
+        for (mod, name, stage), (owner, attr, fn) in zip(self.TARGETS, self.originals()):
+            if owner is None:
+                continue  # older code: that stage reads 0
+            setattr(owner, attr, self._wrap(fn, stage))
+            self.wrapped.append(f"{mod}.{name}")
+
+    @classmethod
+    def originals(cls) -> list:
+        """``(owner, attribute, function)`` per target as they are now (``owner`` None where
+        the code lacks it)."""
+        import importlib
+
+        out = []
+        for mod, name, _ in cls.TARGETS:
             try:
                 owner = importlib.import_module(mod)
                 *path, attr = name.split(".")
                 for part in path:  # a method: replaced on its class
                     owner = getattr(owner, part)
-                fn = getattr(owner, attr)
+                out.append((owner, attr, getattr(owner, attr)))
             except (ImportError, AttributeError):
-                continue  # older code: that stage reads 0
-            setattr(owner, attr, self._wrap(fn, stage))
-            self.wrapped.append(f"{mod}.{name}")
+                out.append((None, None, None))
+        return out
+
+    @staticmethod
+    def restore(saved: list) -> None:
+        for owner, attr, fn in saved:
+            if owner is not None:
+                setattr(owner, attr, fn)
 
     def _wrap(self, fn, stage):
         def timed(*a, **k):
@@ -163,6 +179,20 @@ class _Stages:
 
 
 def _child(spec: str, args) -> dict:
+    """One row (``spec``) measured in this process; the wrapped functions are restored after
+    (``gpu_check.py`` calls this in one process for several rows)."""
+    code = args.code or REPO
+    sys.path.insert(0, code)  # the stages' modules from the code measured
+    import deeplens  # noqa: F401 - imported from ``code`` before the snapshot
+
+    saved = _Stages.originals()
+    try:
+        return _row(spec, args)
+    finally:
+        _Stages.restore(saved)
+
+
+def _row(spec: str, args) -> dict:
     import torch
 
     code = args.code or REPO
