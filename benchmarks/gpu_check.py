@@ -518,7 +518,7 @@ def section_train_step(sec: Section) -> None:
             p = res[label]
             sec.row(name=f"{exp} {n} px, {label}", **sizes, dtype=res["dtype"],
                     batch=res["batch"], warmup=plan["train_warmup"], steps=plan["train_steps"],
-                    **{f"{k}_s" if k not in ("loss", "peak_mib") else k: v
+                    **{f"{k}_s" if k not in ("loss", "peak_mib", "rss_mib") else k: v
                        for k, v in p.items()},
                     memory="cuda max_memory_allocated" if ctx.cuda else None, wall_s=wall)
         _free(ctx)
