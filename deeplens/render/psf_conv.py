@@ -77,6 +77,16 @@ class PSFConvRenderer(HoldsCamera, nn.Module):
         self.n_rays, self.patches = int(n_rays), tuple(int(p) for p in patches)
         self.kernel_size, self.supersample = kernel_size, int(supersample)
         self.seed = int(seed)
+        self._psf_cache = None  # (key, options, kernels) of a lens that is not training
+
+    def _psf_key(self, specs, model, seed):
+        """What the PSF kernels depend on besides the trace options: the lens's and the
+        sensor's tensors (identity and in-place version), the jobs and the settings."""
+        tensors = [*self.lens.parameters(), *self.lens.buffers(), *self.sensor.parameters(),
+                   *self.sensor.buffers()]
+        return (tuple(specs), model, self.patches, self.n_rays, self.kernel_size,
+                None if model == "diffraction" else int(seed),
+                tuple((t.data_ptr(), t._version) for t in tensors))
 
 
     def forward(self, scene: Scene, seed: int | None = None) -> torch.Tensor:
@@ -91,15 +101,27 @@ class PSFConvRenderer(HoldsCamera, nn.Module):
         specs = [(depth, c, w) for depth in sorted(set(depths)) for c, w, _ in jobs]
         model = ("geometric" if self.psf_model is None
                  else self.psf_model.resolve(self.lens, self.sensor, self.options))
-        if model == "diffraction":
-            grids = self.diffraction_grids([(d, w) for d, _, w in specs])
+        # the kernels are kept while no lens or sensor tensor changes and none trains (the
+        # optics' warm-up of a training run, an evaluation): the same values, traced once
+        training = torch.is_grad_enabled() and any(p.requires_grad
+                                                   for p in self.lens.parameters())
+        key = self._psf_key(specs, model, seed)
+        cached = self._psf_cache
+        if (not training and cached is not None and cached[0] == key
+                and cached[1] is self.options):
+            kernels = dict(cached[2])
         else:
-            grids = psf_grids(self.lens, self.sensor, [(d, w) for d, _, w in specs],
-                              self.patches, self.n_rays, self.kernel_size, seed,
-                              self.options)  # one trace
-        for (depth, c, w), (kers, _) in zip(specs, grids):
-            K = kers.shape[-1]
-            kernels[depth, c, w] = kers.reshape(-1, 1, K, K).flip(-1, -2)
+            if model == "diffraction":
+                grids = self.diffraction_grids([(d, w) for d, _, w in specs])
+            else:
+                grids = psf_grids(self.lens, self.sensor, [(d, w) for d, _, w in specs],
+                                  self.patches, self.n_rays, self.kernel_size, seed,
+                                  self.options)  # one trace
+            for (depth, c, w), (kers, _) in zip(specs, grids):
+                K = kers.shape[-1]
+                kernels[depth, c, w] = kers.reshape(-1, 1, K, K).flip(-1, -2)
+            self._psf_cache = None if training else (
+                key, self.options, {k: v.detach() for k, v in kernels.items()})
         # the ideal image extended by the largest kernel's half width: light that the blur
         # brings in from beyond the frame's edge is scene content (scene.margin), not black
         pad = max(k.shape[-1] for k in kernels.values()) // 2

@@ -475,3 +475,41 @@ def test_bad_input_messages(edof):
         MonteCarloRenderer(edof, sensor)(Scene(torch.ones(2, 4, 4, dtype=torch.float64), 5e3))
     with pytest.raises(ValueError, match="micrometres"):
         Sensor((8, 8), 0.05, channels=[[0.55]])
+
+
+def test_psf_convolution_keeps_its_kernels_while_the_optics_do_not_change(edof, monkeypatch):
+    """The PSF renderer traces its kernels once while no lens or sensor tensor changes and
+    none trains (a training run's optics warm-up, an evaluation): the same image, no second
+    trace; an in-place change of a lens tensor, another seed or a lens that trains traces
+    again."""
+    import deeplens.render.psf_conv as pcm
+
+    sensor = Sensor((16, 16), 0.0195)
+    g = torch.Generator().manual_seed(0)
+    scene = Scene(torch.rand(1, 32, 32, generator=g, dtype=torch.float64), 3000.0)
+    lens = copy.deepcopy(edof)
+    for p in lens.parameters():
+        p.requires_grad_(False)
+    calls = []
+    real = pcm.psf_grids
+
+    def spy(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    monkeypatch.setattr(pcm, "psf_grids", spy)
+    r = PSFConvRenderer(lens, sensor, n_rays=2000)
+    first = r(scene)
+    again = r(scene)
+    assert len(calls) == 1 and torch.equal(first, again)
+    assert torch.equal(PSFConvRenderer(lens, sensor, n_rays=2000)(scene), first)  # not stale
+    r(scene, seed=1)                  # another ray sample: traced
+    assert len(calls) == 3
+    with torch.no_grad():
+        lens.d_sensor.add_(1e-3)      # an in-place change: traced
+    moved = r(scene)
+    assert len(calls) == 4 and not torch.equal(moved, first)
+    lens.d_sensor.requires_grad_(True)   # a lens that trains: traced every time
+    r(scene)
+    r(scene)
+    assert len(calls) == 6
