@@ -101,8 +101,9 @@ class PSFConvRenderer(HoldsCamera, nn.Module):
         specs = [(depth, c, w) for depth in sorted(set(depths)) for c, w, _ in jobs]
         model = ("geometric" if self.psf_model is None
                  else self.psf_model.resolve(self.lens, self.sensor, self.options))
-        # the kernels are kept while no lens or sensor tensor changes and none trains (the
-        # optics' warm-up of a training run, an evaluation): the same values, traced once
+        # the kernels are kept while no lens or sensor tensor changes, none trains and the
+        # depths repeat (validation and test batches of a frozen lens): the same values, traced
+        # once (a training batch draws its own depths, so it traces its own)
         training = torch.is_grad_enabled() and any(p.requires_grad
                                                    for p in self.lens.parameters())
         key = self._psf_key(specs, model, seed)

@@ -56,6 +56,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from ..optics.errors import ConfigError
+from ..optics.sampling import parse_sampling
 from .checkpoint import write_text_atomic
 from .input_digest import digest_path
 from .lens_setup import build_lens, check_lens_settings
@@ -84,8 +85,6 @@ def _int(v, lo: int) -> bool:
 
 
 def _sampling(v) -> bool:
-    from ..optics.sampling import parse_sampling
-
     if not isinstance(v, str):
         return False
     try:
