@@ -209,8 +209,13 @@ def _wavelengths(sysd: dict, p: Locator):
     wavelengths (``WAVM``, or ``WAVL`` in older files; µm in the file) and the ``PWAV`` one."""
     ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
     if len(ftyp) > 6 and ftyp[6] == 1:
-        p.fail(ftyp_line, "FTYP: afocal image space (seventh value 1) is not supported "
-                          "(deeplens images onto a sensor)")
+        # OpticStudio's afocal image space changes how aberrations are reported (angles in
+        # image space instead of positions on the image surface), not the prescription nor its
+        # first-order data: the lens is read as written and images onto the image surface
+        p.note(ftyp_line, "FTYP: afocal image space (seventh value 1): OpticStudio reports "
+                          "this system's aberrations as angles in image space; deeplens reads "
+                          "the same prescription and images onto the image surface at the "
+                          "file's distance (spots in mm there, not angles), and writes it so")
     n_fields = ftyp[2] if len(ftyp) > 2 and ftyp[2] > 0 else None
     n_waves = ftyp[3] if len(ftyp) > 3 and ftyp[3] > 0 else None
     if sysd["waves"]:

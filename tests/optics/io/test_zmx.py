@@ -888,13 +888,29 @@ def test_unknown_lines_reported_once_per_keyword(tmp_path):
     ("FTYP 0 1 2 2 0 0 0", "OBNA 0.1 0", "100", r":7: FTYP 0 \(angle\) fields with object-space "
                                                 r"telecentric"),
     ("FTYP 1 1 2 2 0 0 0", "ENPD 10", "100", r":5: object-space telecentric .*\(OBNA\)"),
-    ("FTYP 0 0 2 2 0 0 1", "ENPD 10", "INFINITY", r":7: FTYP: afocal image space"),
 ])
-def test_telecentric_and_afocal_modes_refused(tmp_path, ftyp, aperture, obj, match):
+def test_telecentric_modes_refused(tmp_path, ftyp, aperture, obj, match):
     """Telecentric object space loads with an object at a finite distance, height fields and
     an OBNA aperture (tests/optics/io/test_zmx_corpus.py); otherwise the refusal names the line."""
     with pytest.raises(ZemaxFileError, match=match):
         read_zmx(write(tmp_path, singlet(ftyp=ftyp, aperture=aperture, obj=obj)))
+
+
+def test_afocal_image_space_loads_the_same_prescription_with_a_located_warning(tmp_path):
+    """FTYP's seventh value 1 (OpticStudio's afocal image space: aberrations reported as
+    angles) changes no surface, pupil or field: the lens is the one read without the flag, with
+    one warning at the FTYP line that names what deeplens does instead."""
+    plain = read_zmx(write(tmp_path, singlet(ftyp="FTYP 0 0 2 2 0 0 0"), "plain.zmx"))
+    with pytest.warns(ZemaxWarning) as rec:
+        lens = read_zmx(write(tmp_path, singlet(ftyp="FTYP 0 0 2 2 0 0 1")))
+    notes = [str(r.message) for r in rec if "afocal image space" in str(r.message)]
+    assert notes == [f"{tmp_path / 't.zmx'}:7: FTYP: afocal image space (seventh value 1): "
+                     "OpticStudio reports this system's aberrations as angles in image space; "
+                     "deeplens reads the same prescription and images onto the image surface at "
+                     "the file's distance (spots in mm there, not angles), and writes it so"]
+    a, b = lens_to_dict(lens), lens_to_dict(plain)
+    a.pop("name", None), b.pop("name", None)
+    assert a == b
 
 
 @pytest.mark.parametrize("line", ["OBSC 0 2.25 0", "CLAP 2.25 5 0"])
