@@ -71,11 +71,10 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         # a rectangular opening of a lens or mirror surface of any sag type (an off-axis
         # mirror's, with OBDC): the rectangle, within its circumscribed circle; the
         # semi-diameter encloses it
+        # (on the stop, the opening vignettes the pupil the system aperture gives: ENPD, FNUM,
+        # OBNA; under FLOA, which sizes the pupil by the stop, it is refused once the aperture
+        # is known, zmx_read._check_stop_clear_aperture)
         hx, hy = s.sqap[0] * s_mm, s.sqap[1] * s_mm
-        if s.stop:
-            p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture stop on a lens or "
-                              f"mirror surface is not supported (deeplens' stops are circular "
-                              f"there)")
         try:
             set_clear_rect(surf, (hx, hy))
         except ValueError as e:

@@ -976,3 +976,35 @@ def test_multi_configuration_is_reported(tmp_path):
     with pytest.warns(ZemaxWarning, match=f":{ln}: multi-configuration file \\(3 configurations\\)"
                                           f": the surface data as saved \\(configuration 2"):
         read_zmx(write(tmp_path, text))
+
+
+def _stop_on_the_lens(sqap="SQAP 3.1 4.1 0", aperture="ENPD 10"):
+    """The singlet with its stop on the first lens surface (SURF 2) carrying ``sqap``."""
+    text = singlet(aperture=aperture).replace("SURF 1\n  STOP\n", "SURF 1\n", 1)
+    return text.replace("SURF 2\n", "SURF 2\n  STOP\n", 1).replace(
+        '  DIAM 8.0 1 0 0 1 ""\nSURF 3', f'  DIAM 8.0 1 0 0 1 ""\n  {sqap}\nSURF 3', 1)
+
+
+def test_rectangular_opening_on_a_lens_stop_vignettes_the_pupil(tmp_path):
+    """SQAP on a stop that is a lens surface, under ENPD: the pupil is the ENPD's circle
+    (OpticStudio's system aperture) and the rectangle clips it; the stop is the entrance pupil
+    (nothing before it bends the rays), so exactly the pattern points with |x| <= 3.1 and
+    |y| <= 4.1 mm (pupil radius 5 mm) pass.  Under FLOA (the pupil sized by the stop) the
+    rectangle cannot size a pupil: refused at the SQAP line."""
+    from deeplens.analysis.spot import spot_diagram
+    from deeplens.optics.sampling import pupil_pattern
+    from deeplens.optics.surfaces.base import clear_rect_of
+
+    text = _stop_on_the_lens()
+    assert text.count("STOP") == 1 and "SQAP 3.1 4.1 0" in text
+    lens = read_zmx(write(tmp_path, text))
+    assert clear_rect_of(lens.surfaces[lens.stop_index]) == (3.1, 4.1)
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(10.0, rel=1e-12)
+    s = spot_diagram(lens, 0.0, 550.0, "hexapolar:10", pupil="paraxial")
+    xy = pupil_pattern("hexapolar:10") * 5.0
+    inside = (xy[:, 0].abs() <= 3.1) & (xy[:, 1].abs() <= 4.1)
+    assert s.n_rays == int(inside.sum()) < s.n_launched
+    floa = _stop_on_the_lens(aperture="FLOA")
+    ln = line_of(floa, "SQAP")
+    with pytest.raises(ZemaxFileError, match=f":{ln}: SQAP on the stop surface under FLOA"):
+        read_zmx(write(tmp_path, floa, "floa.zmx"))
