@@ -164,10 +164,13 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
-    if _afocal(lens) and (convert is not None or ftyp[0] in (1, 2, 3)):
+    needs_efl = ftyp[0] in (2, 3) or (convert is not None and convert[0] == "wfno")
+    if _afocal(lens) and needs_efl:
         # an afocal lens (flat folds only) has an infinite focal length: fields given as image
-        # heights, a working F-number or an object-space NA have no meaning there
-        p.fail(ftyp_line if convert is None else convert[2],
+        # heights or a working F-number have no meaning there; object heights and an
+        # object-space NA (a finite object) need only the entrance pupil, which the surfaces
+        # before the stop place whatever the power after it
+        p.fail(ftyp_line if convert is None or ftyp[0] in (2, 3) else convert[2],
                "the system is afocal (no paraxial power: flat mirrors and folds only), and "
                "this aperture or field type needs a finite focal length")
     if convert is not None:

@@ -1008,3 +1008,21 @@ def test_rectangular_opening_on_a_lens_stop_vignettes_the_pupil(tmp_path):
     ln = line_of(floa, "SQAP")
     with pytest.raises(ZemaxFileError, match=f":{ln}: SQAP on the stop surface under FLOA"):
         read_zmx(write(tmp_path, floa, "floa.zmx"))
+
+
+def test_afocal_system_with_a_finite_object_takes_object_heights_and_an_na(tmp_path):
+    """A plane-parallel plate (no power: an infinite focal length) with the object 100 mm before
+    the stop: object heights (FTYP 1) and an object-space NA (OBNA) need only the entrance
+    pupil (the stop, nothing before it), so they load: EPD = 2 * 100 * tan(asin 0.1), the 5 mm
+    field under atan(5 / 100); image heights (FTYP 2) need a focal length: refused at FTYP."""
+    plate = dict(curv1=0.0, curv2=0.0, s1_type="STANDARD", s1_extra=(), k=0.0, obj="100",
+                 aperture="OBNA 0.1 0")
+    lens = read_zmx(write(tmp_path, singlet(ftyp="FTYP 1 0 2 2 0 0 0", **plate)))
+    assert math.isinf(float(paraxial(lens).efl))
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(
+        200.0 * math.tan(math.asin(0.1)), rel=1e-12)
+    assert [abs(f) for f in lens.spec.fields_deg] == pytest.approx(
+        [0.0, math.degrees(math.atan(0.05))], rel=1e-12)
+    text = singlet(ftyp="FTYP 2 0 2 2 0 0 0", **plate)
+    with pytest.raises(ZemaxFileError, match=f":{line_of(text, 'FTYP')}: the system is afocal"):
+        read_zmx(write(tmp_path, text, "img.zmx"))
