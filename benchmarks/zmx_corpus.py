@@ -152,8 +152,8 @@ def main(folder: str | None = None, oracles: bool = True) -> int:
                       f"{float(p.entrance_pupil_diameter):8.4f}  mirrors {len(lens.mirrors)}  "
                       f"breaks {folds}" + (f"  confirmed by {'+'.join(by.get(f.name, ['none']))}"
                                            if by is not None else ""))
-                if confirm is not None and not ok:
-                    print(f"{'':58s}          not confirmed: " + "; ".join(
+                if confirm is not None and why:
+                    print(f"{'':58s}          {'not confirmed' if not ok else 'also'}: " + "; ".join(
                         f"{o}: {w}" for o, w in why.items()))
                 loaded += 1
                 confirmed += by is not None and f.name in by
