@@ -23,7 +23,6 @@ from ..errors import SurfacesCrossError, ZemaxFileError
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
 from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
-from ..surfaces.base import clear_rect_of
 from .zmx_coordbrk import coordinate_break, is_identity, misalignment_brackets, y_fields_only
 from .zmx_glass import load_catalogues, surface_material
 from .zmx_mconf import configuration
@@ -464,17 +463,9 @@ def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locato
     paraxial data) and the clear aperture vignettes its rim.  On a lens or mirror surface
     (:class:`~deeplens.optics.surfaces.Asphere`) the stop keeps its paraxial radius as its
     semi-diameter and the ``CLAP`` becomes its ``clear_radius`` (the opening is the smaller
-    one); on other stops (a flat stop in air, a cylinder, a polynomial) it is refused.  A
-    ``SQAP`` on a lens or mirror stop is its rectangular opening in the same way (set when the
-    surface was built); under ``FLOA`` (the pupil sized by the stop) it is refused: deeplens'
-    stop sizes the pupil by a circle there."""
-    stop = lens.surfaces[lens.stop_index]
-    if (s.sqap is not None and lens.spec.aperture_type == "stop"
-            and clear_rect_of(stop) is not None):
-        p.fail(s.sqap[2], "SQAP on the stop surface under FLOA (float by stop size): a "
-                          "rectangular aperture stop on a lens or mirror surface does not size "
-                          "a pupil in deeplens (its stops are circular there); give the system "
-                          "aperture as ENPD, FNUM or OBNA, and the SQAP vignettes that pupil")
+    one); on other stops (a flat stop in air, a cylinder, a polynomial) it is refused.  (A
+    ``SQAP`` on a lens or mirror stop is its rectangular opening within the stop's circle, set
+    when the surface was built.)"""
     if s.clap is None or lens.spec.aperture_type == "stop":
         return
     clap = s.clap[0] * s_mm

@@ -986,28 +986,45 @@ def _stop_on_the_lens(sqap="SQAP 3.1 4.1 0", aperture="ENPD 10"):
 
 
 def test_rectangular_opening_on_a_lens_stop_vignettes_the_pupil(tmp_path):
-    """SQAP on a stop that is a lens surface, under ENPD: the pupil is the ENPD's circle
-    (OpticStudio's system aperture) and the rectangle clips it; the stop is the entrance pupil
-    (nothing before it bends the rays), so exactly the pattern points with |x| <= 3.1 and
-    |y| <= 4.1 mm (pupil radius 5 mm) pass.  Under FLOA (the pupil sized by the stop) the
-    rectangle cannot size a pupil: refused at the SQAP line."""
+    """SQAP on a stop that is a lens surface: the pupil keeps the size the system aperture
+    gives it (ENPD 10; under FLOA the stop's DIAM, 8 mm, as OpticStudio floats it) and the
+    rectangle clips it; the stop is the entrance pupil (nothing before it bends the rays), so
+    exactly the pattern points with |x| <= 3.1 and |y| <= 4.1 mm pass."""
     from deeplens.analysis.spot import spot_diagram
     from deeplens.optics.sampling import pupil_pattern
     from deeplens.optics.surfaces.base import clear_rect_of
 
-    text = _stop_on_the_lens()
-    assert text.count("STOP") == 1 and "SQAP 3.1 4.1 0" in text
+    for aperture, radius in (("ENPD 10", 5.0), ("FLOA", 8.0)):
+        text = _stop_on_the_lens(aperture=aperture)
+        assert text.count("STOP") == 1 and "SQAP 3.1 4.1 0" in text
+        lens = read_zmx(write(tmp_path, text))
+        assert clear_rect_of(lens.surfaces[lens.stop_index]) == (3.1, 4.1)
+        assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(2 * radius,
+                                                                              rel=1e-12)
+        s = spot_diagram(lens, 0.0, 550.0, "hexapolar:10", pupil="paraxial")
+        xy = pupil_pattern("hexapolar:10") * radius
+        inside = (xy[:, 0].abs() <= 3.1) & (xy[:, 1].abs() <= 4.1)
+        assert s.n_rays == int(inside.sum()) < s.n_launched, aperture
+
+
+def test_decentred_opening_on_a_flat_mirror(tmp_path):
+    """SQAP with OBDC on a flat fold mirror (a dove or roof prism's face): the flat surface
+    carries the rectangle moved by the decenter; a ray through the opening's centre passes,
+    one just outside its edge on either side is blocked; written back with its SQAP and OBDC."""
+    from deeplens.optics.surfaces.base import clear_rect_of
+
+    mirror = ["SURF 4", "  TYPE STANDARD", "  CURV 0.0", "  DISZ -20", "  GLAS MIRROR",
+              '  DIAM 20 1 0 0 1 ""', "  SQAP 2 3 0", "  OBDC 0 5", "SURF 5"]
+    text = singlet(bfl=30.0).replace("SURF 4\n", "\n".join(mirror) + "\n", 1)
     lens = read_zmx(write(tmp_path, text))
-    assert clear_rect_of(lens.surfaces[lens.stop_index]) == (3.1, 4.1)
-    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(10.0, rel=1e-12)
-    s = spot_diagram(lens, 0.0, 550.0, "hexapolar:10", pupil="paraxial")
-    xy = pupil_pattern("hexapolar:10") * 5.0
-    inside = (xy[:, 0].abs() <= 3.1) & (xy[:, 1].abs() <= 4.1)
-    assert s.n_rays == int(inside.sum()) < s.n_launched
-    floa = _stop_on_the_lens(aperture="FLOA")
-    ln = line_of(floa, "SQAP")
-    with pytest.raises(ZemaxFileError, match=f":{ln}: SQAP on the stop surface under FLOA"):
-        read_zmx(write(tmp_path, floa, "floa.zmx"))
+    m = lens.surfaces[-1]
+    assert clear_rect_of(m) == (2.0, 3.0) and [float(v) for v in m.clear_decenter] == [0, 5]
+    xy = torch.tensor([[0.0, 5.0], [0.0, 1.9], [0.0, 8.1], [2.1, 5.0]], dtype=torch.float64)
+    assert m.opening.contains(xy[:, 0], xy[:, 1]).tolist() == [True, False, False, False]
+    write_zmx(lens, tmp_path / "back.zmx")
+    back = (tmp_path / "back.zmx").read_text()
+    assert "  SQAP 2.0 3.0 0\n  OBDC 0.0 5.0\n" in back
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
 
 
 def test_afocal_system_with_a_finite_object_takes_object_heights_and_an_na(tmp_path):
