@@ -12,6 +12,18 @@ oracle tests (tests/optics/io/test_zmx_corpus.py::test_loads_with_the_oracles_nu
 test_zmx_corpus_rayoptics.py::test_rayoptics_confirms_first_order_numbers) and reads their
 outcome per file; rayoptics counts for a file only where it confirms all four numbers (not a
 file of its ``NOT_CONFIRMED`` list).  ``--no-oracles`` skips them (about two minutes on one core).
+
+On another folder (files the tests have not seen) the oracles run here, file by file, with the
+tests' own oracle code (the same helpers, pointed at that folder): optiland's and rayoptics'
+readings of the file, given deeplens' refractive indices, must give the same EFL, entrance pupil
+diameter and position and back focal point (optiland to 1e-6 relative, rayoptics to 1e-9, as the
+tests); near-afocal systems agree where both focal lengths (and back focal distances) are
+beyond 1e12 file units (their powers equal to 1e-12 per unit: the round-off of a vanishing
+power), a back focal point also to 1e-6 of the focal length (a focus on the image plane); a
+file with coordinate breaks that optiland reads differently is compared once more with every
+break zeroed (deeplens' paraxial data follow the local axes, as the corpus test where optiland
+declines them), shown as ``optiland(breaks zeroed)``.  Each oracle's first disagreeing quantity,
+or why it could not read the file, is printed under the file.
 """
 
 from __future__ import annotations
@@ -55,13 +67,99 @@ def oracle_confirmations() -> dict[str, list[str]]:
     return confirmed
 
 
+def folder_oracles(root: Path):
+    """``confirm(name, lens) -> (oracles that confirm, {oracle: why not})`` for the files of
+    ``root``: the corpus tests' oracle helpers, pointed at ``root``."""
+    import math
+    import tempfile
+
+    import pytest
+
+    sys.path.insert(0, str(REPO / "tests/optics/io"))
+    import test_zmx_corpus as tc
+    import test_zmx_corpus_rayoptics as tr
+
+    tc.CORPUS = tr.CORPUS = root
+
+    def optiland(name, lens, tmp):
+        optic, s_mm = tc._oracle(name, lens)
+        first, ref = optic, name
+        if tc._has_decenters(name):
+            ref = tc._without_decenters(name, tmp)
+            first, _ = tc._oracle(ref, lens)
+        if tc._has_gratings(name):
+            first, _ = tc._oracle(name, lens, gratings=False)
+        try:
+            numbers = tc._first_order(lens, first, s_mm, ref)
+        except tc.UnsupportedParaxialGeometryError:
+            numbers = None
+        bad = "declines paraxial data" if numbers is None else _differs(numbers)
+        if bad and any(isinstance(s, CoordinateBreak) for s in lens.surfaces):
+            # deeplens' paraxial data follow the local axes, ignoring every break (as the
+            # corpus test where optiland declines them): the file with the breaks zeroed
+            ref = tc._without_breaks(name, tmp)
+            first, _ = tc._oracle(ref, lens)
+            if not _differs(tc._first_order(lens, first, s_mm, ref)):
+                return "unbroken"
+        return bad or None
+
+    def _differs(numbers):
+        for what, (dl, ol) in numbers.items():
+            if math.isinf(ol) and math.isinf(dl):
+                continue
+            if abs(dl - ol) <= max(1e-6 * abs(ol), 1e-9 * max(1.0, abs(dl))):
+                continue
+            if what in ("EFL", "BFL") and abs(1.0 / dl - 1.0 / ol) <= 1e-12:
+                continue   # afocal but for round-off (1 / 1e-12 units) either way: a focus at
+                # "infinity", its distance the round-off of a vanishing power
+            if what == "BFL" and abs(dl - ol) <= 1e-6 * abs(numbers["EFL"][1]):
+                continue   # a focus on the image plane: to 1e-6 of the focal length
+            return f"{what} {dl:.6g} vs {ol:.6g}"
+        return None
+
+    def rayoptics(name, lens, tmp):
+        with pytest.MonkeyPatch.context() as mp:
+            opm = tr._rayoptics(name, lens, mp, tmp)
+            numbers = tr._numbers(name, lens, opm)
+            for what, (dl, ro) in numbers.items():
+                if tr._agrees(dl, ro) or (what in ("EFL", "BFL")
+                                          and abs(1.0 / dl - 1.0 / ro) <= 1e-12):
+                    continue
+                if what == "BFL" and abs(dl - ro) <= 1e-9 * abs(numbers["EFL"][1]):
+                    continue
+                return f"{what} {dl:.6g} vs {ro:.6g}"
+        return None
+
+    def confirm(name, lens):
+        ok, why = [], {}
+        for oracle, check in (("optiland", optiland), ("rayoptics", rayoptics)):
+            with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    bad = check(name, lens, Path(tmp))
+                except Exception as e:  # noqa: BLE001 - an oracle that cannot read the file
+                    bad = f"cannot: {type(e).__name__}: {str(e).splitlines()[0][:60]}" if str(
+                        e) else f"cannot: {type(e).__name__}"
+            if bad is None or bad == "unbroken":
+                ok.append(oracle if bad is None else f"{oracle}(breaks zeroed)")
+            else:
+                why[oracle] = bad
+        return ok, why
+
+    return confirm
+
+
 def main(folder: str | None = None, oracles: bool = True) -> int:
     root = Path(folder) if folder else REPO / "tests/data/zmx_real"
     by = oracle_confirmations() if oracles and folder is None else None
     if not root.is_dir():
         raise SystemExit(f"zmx_corpus: {root} is not a folder of .zmx files")
     files = sorted(p for p in root.iterdir() if p.suffix.lower() == ".zmx")
+    confirm = folder_oracles(root.resolve()) if oracles and folder is not None else None
+    if confirm is not None:
+        by = {}
     loaded = refused = crashed = confirmed = 0
+    counts: dict[str, int] = {}
     for f in files:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -69,10 +167,19 @@ def main(folder: str | None = None, oracles: bool = True) -> int:
                 lens = read_zmx(f)
                 p = paraxial(lens)
                 folds = sum(isinstance(s, CoordinateBreak) for s in lens.surfaces)
+                if confirm is not None:
+                    ok, why = confirm(f.name, lens)
+                    if ok:
+                        by[f.name] = ok
+                    for o in ok:
+                        counts[o.split("(")[0]] = counts.get(o.split("(")[0], 0) + 1
                 print(f"{f.name:58s} loaded   EFL {float(p.efl):10.4f}  EPD "
                       f"{float(p.entrance_pupil_diameter):8.4f}  mirrors {len(lens.mirrors)}  "
                       f"breaks {folds}" + (f"  confirmed by {'+'.join(by.get(f.name, ['none']))}"
                                            if by is not None else ""))
+                if confirm is not None and why:
+                    print(f"{'':58s}          {'not confirmed' if not ok else 'also'}: " + "; ".join(
+                        f"{o}: {w}" for o, w in why.items()))
                 loaded += 1
                 confirmed += by is not None and f.name in by
             except ZemaxFileError as e:
@@ -85,7 +192,8 @@ def main(folder: str | None = None, oracles: bool = True) -> int:
           f"{crashed} unlocated errors")
     if by is not None:
         for o in ORACLE_TESTS:
-            print(f"{sum(o in v for v in by.values())} / {loaded} loaded files confirmed by {o}")
+            n = counts.get(o, 0) if confirm is not None else sum(o in v for v in by.values())
+            print(f"{n} / {loaded} loaded files confirmed by {o}")
         print(f"{confirmed} / {loaded} loaded files ({confirmed / max(loaded, 1):.0%}) confirmed by "
               f"an independent reading; {confirmed} / {len(files)} of all files")
     return 1 if crashed else 0
@@ -97,6 +205,6 @@ if __name__ == "__main__":
     ap.add_argument("folder", nargs="?", default=None,
                     help="a folder of .zmx files (default: tests/data/zmx_real)")
     ap.add_argument("--no-oracles", action="store_true",
-                    help="skip the oracle tests (the default corpus only)")
+                    help="skip the oracles (optiland, rayoptics)")
     a = ap.parse_args()
     sys.exit(main(a.folder, not a.no_oracles))

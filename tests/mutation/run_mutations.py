@@ -701,6 +701,19 @@ MUTATIONS = [
              "deeplens/design/search/multistart.py",
              "scramble=True, seed=int(cfg.seed))", "scramble=True, seed=None)",
              GLASS_SEARCH + ("tests/design/search/test_multistart.py",)),
+    # ------------------------------------------------ unseen real files (issue 37)
+    Mutation("sqap_stop_floa_pupil_widened", "a SQAP on a lens stop under FLOA floats the "
+             "pupil on the rectangle's half-diagonal, not the stop's DIAM",
+             "deeplens/optics/io/zmx_surfaces.py", "        if s.stop and sd > 0:",
+             "        if False:", ("tests/optics/io/test_zmx.py",)),
+    Mutation("afocal_object_heights_refused", "an afocal system with a finite object refused "
+             "for object-height fields and an OBNA", "deeplens/optics/io/zmx_read.py",
+             "    needs_efl = ftyp[0] in (2, 3) or", "    needs_efl = True or",
+             ("tests/optics/io/test_zmx.py",)),
+    Mutation("flat_face_opening_not_decentred", "a decentred SQAP on a flat mirror read as a "
+             "Plane (no off-vertex opening)", "deeplens/optics/io/surface_handlers.py",
+             "        if flat and s.obdc is None:", "        if flat:",
+             ("tests/optics/io/test_zmx.py",)),
 ]
 
 

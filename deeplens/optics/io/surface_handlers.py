@@ -493,7 +493,7 @@ class _StandardFamily(SurfaceFormat):
         coeffs, radial = self._terms(s, ctx)
         c, sd, sd_build, s_mm, flat = ctx.c, ctx.sd, ctx.sd_build, ctx.s_mm, ctx.flat
         in_air = is_air(ctx.mat) and is_air(ctx.prev)
-        if s.sqap is not None and flat and in_air:
+        if s.sqap is not None and flat and in_air and not s.mirror:
             hx, hy, _ = s.sqap
             return Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
         if s.obsc is not None and flat and in_air:
@@ -504,8 +504,10 @@ class _StandardFamily(SurfaceFormat):
             return Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
         if flat and in_air and not s.mirror:
             return Aperture(sd_build)
-        if flat:
+        if flat and s.obdc is None:
             return Plane(sd_build)
+        # (a flat surface between media or a flat mirror with a decentred opening, OBDC: a
+        # flat Asphere, whose clear aperture can be off the vertex, as a curved one's)
         if radial:
             return OddAsphere(c, sd_build, conic=s.coni, coefficients=radial)
         return Asphere(c, sd_build, conic=s.coni, coefficients=coeffs)

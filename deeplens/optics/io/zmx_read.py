@@ -163,10 +163,13 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
-    if _afocal(lens) and (convert is not None or ftyp[0] in (1, 2, 3)):
+    needs_efl = ftyp[0] in (2, 3) or (convert is not None and convert[0] == "wfno")
+    if _afocal(lens) and needs_efl:
         # an afocal lens (flat folds only) has an infinite focal length: fields given as image
-        # heights, a working F-number or an object-space NA have no meaning there
-        p.fail(ftyp_line if convert is None else convert[2],
+        # heights or a working F-number have no meaning there; object heights and an
+        # object-space NA (a finite object) need only the entrance pupil, which the surfaces
+        # before the stop place whatever the power after it
+        p.fail(ftyp_line if convert is None or ftyp[0] in (2, 3) else convert[2],
                "the system is afocal (no paraxial power: flat mirrors and folds only), and "
                "this aperture or field type needs a finite focal length")
     if convert is not None:
@@ -209,8 +212,13 @@ def _wavelengths(sysd: dict, p: Locator):
     wavelengths (``WAVM``, or ``WAVL`` in older files; µm in the file) and the ``PWAV`` one."""
     ftyp, ftyp_line = sysd["ftyp"] if sysd["ftyp"] else ([0], 0)
     if len(ftyp) > 6 and ftyp[6] == 1:
-        p.fail(ftyp_line, "FTYP: afocal image space (seventh value 1) is not supported "
-                          "(deeplens images onto a sensor)")
+        # OpticStudio's afocal image space changes how aberrations are reported (angles in
+        # image space instead of positions on the image surface), not the prescription nor its
+        # first-order data: the lens is read as written and images onto the image surface
+        p.note(ftyp_line, "FTYP: afocal image space (seventh value 1): OpticStudio reports "
+                          "this system's aberrations as angles in image space; deeplens reads "
+                          "the same prescription and images onto the image surface at the "
+                          "file's distance (spots in mm there, not angles), and writes it so")
     n_fields = ftyp[2] if len(ftyp) > 2 and ftyp[2] > 0 else None
     n_waves = ftyp[3] if len(ftyp) > 3 and ftyp[3] > 0 else None
     if sysd["waves"]:
@@ -455,7 +463,9 @@ def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locato
     paraxial data) and the clear aperture vignettes its rim.  On a lens or mirror surface
     (:class:`~deeplens.optics.surfaces.Asphere`) the stop keeps its paraxial radius as its
     semi-diameter and the ``CLAP`` becomes its ``clear_radius`` (the opening is the smaller
-    one); on other stops (a flat stop in air, a cylinder, a polynomial) it is refused."""
+    one); on other stops (a flat stop in air, a cylinder, a polynomial) it is refused.  (A
+    ``SQAP`` on a lens or mirror stop is its rectangular opening within the stop's circle, set
+    when the surface was built.)"""
     if s.clap is None or lens.spec.aperture_type == "stop":
         return
     clap = s.clap[0] * s_mm

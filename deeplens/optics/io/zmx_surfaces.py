@@ -72,14 +72,16 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         # mirror's, with OBDC): the rectangle, within its circumscribed circle; the
         # semi-diameter encloses it
         hx, hy = s.sqap[0] * s_mm, s.sqap[1] * s_mm
-        if s.stop:
-            p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture stop on a lens or "
-                              f"mirror surface is not supported (deeplens' stops are circular "
-                              f"there)")
         try:
             set_clear_rect(surf, (hx, hy))
         except ValueError as e:
             p.fail(s.sqap[2], f"SQAP on SURF {k}: {e}")
+        if s.stop and sd > 0:
+            # on the stop, the opening vignettes the pupil: a floating pupil (FLOA) keeps the
+            # stop's DIAM as its radius, as OpticStudio sizes it, and an ENPD/FNUM/OBNA pupil
+            # its own size; the rectangle clips within that circle
+            with torch.no_grad():
+                surf.semi_diameter.fill_(sd)
         auto = False
     if s.obdc is not None:   # the decenter of the opening (not on the stop)
         dec = _aperture_decenter(s, k, surf, s_mm, p)
@@ -145,7 +147,8 @@ def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
             type(surf) is Asphere and (s.clap is None) != (s.sqap is None)
             and s.obsc is None):
         what = ("an annular or obscured" if s.obsc is not None else
-                "a circular and rectangular (CLAP and SQAP)" if s.sqap is not None else "a")
+                "a circular and rectangular (CLAP and SQAP)" if s.sqap is not None
+                and s.clap is not None else "a")
         p.fail(ln, f"{where}: {what} decentred aperture on a lens or mirror surface "
                    f"({type(surf).__name__}) is not supported (deeplens decentres apertures on "
                    f"flat surfaces in air, and a circular CLAP or a rectangular SQAP on a "

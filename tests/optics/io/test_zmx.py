@@ -888,13 +888,29 @@ def test_unknown_lines_reported_once_per_keyword(tmp_path):
     ("FTYP 0 1 2 2 0 0 0", "OBNA 0.1 0", "100", r":7: FTYP 0 \(angle\) fields with object-space "
                                                 r"telecentric"),
     ("FTYP 1 1 2 2 0 0 0", "ENPD 10", "100", r":5: object-space telecentric .*\(OBNA\)"),
-    ("FTYP 0 0 2 2 0 0 1", "ENPD 10", "INFINITY", r":7: FTYP: afocal image space"),
 ])
-def test_telecentric_and_afocal_modes_refused(tmp_path, ftyp, aperture, obj, match):
+def test_telecentric_modes_refused(tmp_path, ftyp, aperture, obj, match):
     """Telecentric object space loads with an object at a finite distance, height fields and
     an OBNA aperture (tests/optics/io/test_zmx_corpus.py); otherwise the refusal names the line."""
     with pytest.raises(ZemaxFileError, match=match):
         read_zmx(write(tmp_path, singlet(ftyp=ftyp, aperture=aperture, obj=obj)))
+
+
+def test_afocal_image_space_loads_the_same_prescription_with_a_located_warning(tmp_path):
+    """FTYP's seventh value 1 (OpticStudio's afocal image space: aberrations reported as
+    angles) changes no surface, pupil or field: the lens is the one read without the flag, with
+    one warning at the FTYP line that names what deeplens does instead."""
+    plain = read_zmx(write(tmp_path, singlet(ftyp="FTYP 0 0 2 2 0 0 0"), "plain.zmx"))
+    with pytest.warns(ZemaxWarning) as rec:
+        lens = read_zmx(write(tmp_path, singlet(ftyp="FTYP 0 0 2 2 0 0 1")))
+    notes = [str(r.message) for r in rec if "afocal image space" in str(r.message)]
+    assert notes == [f"{tmp_path / 't.zmx'}:7: FTYP: afocal image space (seventh value 1): "
+                     "OpticStudio reports this system's aberrations as angles in image space; "
+                     "deeplens reads the same prescription and images onto the image surface at "
+                     "the file's distance (spots in mm there, not angles), and writes it so"]
+    a, b = lens_to_dict(lens), lens_to_dict(plain)
+    a.pop("name", None), b.pop("name", None)
+    assert a == b
 
 
 @pytest.mark.parametrize("line", ["OBSC 0 2.25 0", "CLAP 2.25 5 0"])
@@ -960,3 +976,70 @@ def test_multi_configuration_is_reported(tmp_path):
     with pytest.warns(ZemaxWarning, match=f":{ln}: multi-configuration file \\(3 configurations\\)"
                                           f": the surface data as saved \\(configuration 2"):
         read_zmx(write(tmp_path, text))
+
+
+def _stop_on_the_lens(sqap="SQAP 3.1 4.1 0", aperture="ENPD 10"):
+    """The singlet with its stop on the first lens surface (SURF 2) carrying ``sqap``."""
+    text = singlet(aperture=aperture).replace("SURF 1\n  STOP\n", "SURF 1\n", 1)
+    return text.replace("SURF 2\n", "SURF 2\n  STOP\n", 1).replace(
+        '  DIAM 8.0 1 0 0 1 ""\nSURF 3', f'  DIAM 8.0 1 0 0 1 ""\n  {sqap}\nSURF 3', 1)
+
+
+def test_rectangular_opening_on_a_lens_stop_vignettes_the_pupil(tmp_path):
+    """SQAP on a stop that is a lens surface: the pupil keeps the size the system aperture
+    gives it (ENPD 10; under FLOA the stop's DIAM, 8 mm, as OpticStudio floats it) and the
+    rectangle clips it; the stop is the entrance pupil (nothing before it bends the rays), so
+    exactly the pattern points with |x| <= 3.1 and |y| <= 4.1 mm pass."""
+    from deeplens.analysis.spot import spot_diagram
+    from deeplens.optics.sampling import pupil_pattern
+    from deeplens.optics.surfaces.base import clear_rect_of
+
+    for aperture, radius in (("ENPD 10", 5.0), ("FLOA", 8.0)):
+        text = _stop_on_the_lens(aperture=aperture)
+        assert text.count("STOP") == 1 and "SQAP 3.1 4.1 0" in text
+        lens = read_zmx(write(tmp_path, text))
+        assert clear_rect_of(lens.surfaces[lens.stop_index]) == (3.1, 4.1)
+        assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(2 * radius,
+                                                                              rel=1e-12)
+        s = spot_diagram(lens, 0.0, 550.0, "hexapolar:10", pupil="paraxial")
+        xy = pupil_pattern("hexapolar:10") * radius
+        inside = (xy[:, 0].abs() <= 3.1) & (xy[:, 1].abs() <= 4.1)
+        assert s.n_rays == int(inside.sum()) < s.n_launched, aperture
+
+
+def test_decentred_opening_on_a_flat_mirror(tmp_path):
+    """SQAP with OBDC on a flat fold mirror (a dove or roof prism's face): the flat surface
+    carries the rectangle moved by the decenter; a ray through the opening's centre passes,
+    one just outside its edge on either side is blocked; written back with its SQAP and OBDC."""
+    from deeplens.optics.surfaces.base import clear_rect_of
+
+    mirror = ["SURF 4", "  TYPE STANDARD", "  CURV 0.0", "  DISZ -20", "  GLAS MIRROR",
+              '  DIAM 20 1 0 0 1 ""', "  SQAP 2 3 0", "  OBDC 0 5", "SURF 5"]
+    text = singlet(bfl=30.0).replace("SURF 4\n", "\n".join(mirror) + "\n", 1)
+    lens = read_zmx(write(tmp_path, text))
+    m = lens.surfaces[-1]
+    assert clear_rect_of(m) == (2.0, 3.0) and [float(v) for v in m.clear_decenter] == [0, 5]
+    xy = torch.tensor([[0.0, 5.0], [0.0, 1.9], [0.0, 8.1], [2.1, 5.0]], dtype=torch.float64)
+    assert m.opening.contains(xy[:, 0], xy[:, 1]).tolist() == [True, False, False, False]
+    write_zmx(lens, tmp_path / "back.zmx")
+    back = (tmp_path / "back.zmx").read_text()
+    assert "  SQAP 2.0 3.0 0\n  OBDC 0.0 5.0\n" in back
+    assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
+
+
+def test_afocal_system_with_a_finite_object_takes_object_heights_and_an_na(tmp_path):
+    """A plane-parallel plate (no power: an infinite focal length) with the object 100 mm before
+    the stop: object heights (FTYP 1) and an object-space NA (OBNA) need only the entrance
+    pupil (the stop, nothing before it), so they load: EPD = 2 * 100 * tan(asin 0.1), the 5 mm
+    field under atan(5 / 100); image heights (FTYP 2) need a focal length: refused at FTYP."""
+    plate = dict(curv1=0.0, curv2=0.0, s1_type="STANDARD", s1_extra=(), k=0.0, obj="100",
+                 aperture="OBNA 0.1 0")
+    lens = read_zmx(write(tmp_path, singlet(ftyp="FTYP 1 0 2 2 0 0 0", **plate)))
+    assert math.isinf(float(paraxial(lens).efl))
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(
+        200.0 * math.tan(math.asin(0.1)), rel=1e-12)
+    assert [abs(f) for f in lens.spec.fields_deg] == pytest.approx(
+        [0.0, math.degrees(math.atan(0.05))], rel=1e-12)
+    text = singlet(ftyp="FTYP 2 0 2 2 0 0 0", **plate)
+    with pytest.raises(ZemaxFileError, match=f":{line_of(text, 'FTYP')}: the system is afocal"):
+        read_zmx(write(tmp_path, text, "img.zmx"))

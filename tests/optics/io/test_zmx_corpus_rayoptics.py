@@ -37,6 +37,10 @@ NOT_CONFIRMED = {
     # commands it does not support and keeps its default pupil (EPD 1); the EPD is checked
     # against the stop's DIAM through rayoptics' own marginal ray instead (test below)
     "optiland_lens_floa.zmx": ({"EPD"}, "FLOA not read by rayoptics (zmxread: not supported)"),
+    "nerfzemax_Ray_generation_for_NeRF_data_demo.zmx": (
+        {"EPD"}, "FLOA not read by rayoptics (zmxread: not supported)"),
+    "deeplens_zemax_double_gaussian.zmx": (
+        {"EPD"}, "FLOA not read by rayoptics (zmxread: not supported)"),
     # an object space of index n0 = 0.999982 (the file's air at its temperature and pressure,
     # relative to the air at the reference conditions): rayoptics' entrance pupil distance is
     # deeplens' / n0² (to 1e-15: its compute_first_order divides by n_0 a principal-ray slope
