@@ -88,12 +88,45 @@ OPS = {
 }
 
 
+#: one dependent chain this long per element: a loop body longer than the out-of-order window,
+#: so iterations hardly overlap and the time per operation is its latency
+LAT_DEPTH = 1024
+
+
+def _chain(op):
+    def f(x):
+        for _ in range(LAT_DEPTH):
+            x = op(x)
+        return x
+    return f
+
+
+def latency(repeats: int) -> dict:
+    """Nanoseconds per dependent vector operation (16 float32 lanes, AVX-512)."""
+    import torch
+    x = torch.rand(16 * 256) + 1.0
+    res = {}
+    for name, op in OPS.items():
+        if "multiply-add" in name:
+            continue
+        fn = torch.compile(_chain(op), dynamic=False, options={"max_fusion_size": 1 << 16})
+        fn(x)
+        best = float("inf")
+        for _ in range(repeats):
+            t0 = time.process_time()
+            for _ in range(20):
+                fn(x)
+            best = min(best, (time.process_time() - t0) / 20)
+        res[name] = {"ns_per_vector_op": 1e9 * best / (x.numel() / 16 * LAT_DEPTH)}
+    return res
+
+
 def arithmetic(repeats: int) -> dict:
     import torch
     x = torch.rand(ELEMS) + 1.0
     res = {}
     for name, op in OPS.items():
-        fn = torch.compile(_chains(op), dynamic=False)
+        fn = torch.compile(_chains(op), dynamic=False, options={"max_fusion_size": 4096})
         fn(x)
         calls = 200
         best = float("inf")
@@ -169,6 +202,33 @@ def count_ops(src: str) -> dict:
         else:
             counts["other"] += 1
     return counts
+
+
+def critical_path(src: str, lat: dict) -> float:
+    """Longest dependency chain (ns) through one vectorised loop body: each ``auto tmpN = ...``
+    costs its class's latency (``lat``: class -> ns; loads, scalars, broadcasts and mask casts
+    0) and waits for the ``tmp`` values it reads."""
+    body = _vector_body(src)
+    done = {}
+    for line in body.splitlines():
+        line = line.strip()
+        m = re.match(r"auto (tmp\d+) = (.*);$", line)
+        if not m:
+            continue
+        name, rhs = m.groups()
+        start = max((done.get(d, 0.0) for d in re.findall(r"tmp\d+", rhs)), default=0.0)
+        cost = 0.0
+        if not ("ptr" in rhs or rhs.startswith(("float(", "static_cast<", "double(", "int"))
+                or re.fullmatch(r"at::vec::Vectorized<\w+>\(tmp\d+\)", rhs)
+                or re.fullmatch(r"tmp\d+\.template cast<[\w, ]+>\(\)", rhs)):
+            for cls, pat in _CLASSES:
+                if re.search(pat, rhs):
+                    cost = lat.get(cls, lat["mul/add"])
+                    break
+            else:
+                cost = lat["mul/add"]
+        done[name] = start + cost
+    return max(done.values(), default=0.0)
 
 
 def _kernel_child(args) -> None:
@@ -335,7 +395,9 @@ def kernel(args) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--parts", default="bandwidth,arithmetic,kernel,graph")
+    ap.add_argument("--parts", default="bandwidth,arithmetic,latency,kernel,graph")
+    ap.add_argument("--sources", default=None,
+                    help="a folder of kernels written by --dump: the critical paths only")
     ap.add_argument("--mib", type=int, default=256, help="MiB per triad array")
     ap.add_argument("--rays", default="1e6")
     ap.add_argument("--repeats", type=int, default=5)
@@ -359,6 +421,8 @@ def main() -> None:
         res["bandwidth"] = bandwidth(args.mib, args.repeats)
     if "arithmetic" in parts:
         res["arithmetic"] = arithmetic(args.repeats)
+    if "latency" in parts:
+        res["latency"] = latency(args.repeats)
     if "kernel" in parts:
         res["kernel"] = kernel(args)
     if "graph" in parts:
@@ -375,6 +439,30 @@ def main() -> None:
               "G element-ops/s |\n|---|---|---|")
         for name, r in res["arithmetic"].items():
             print(f"| {name} | {r['ns_per_elem_op']:.3f} | {r['elem_ops_per_s'] / 1e9:.2f} |")
+        print()
+    if "latency" in res:
+        print("| operation (float32, one dependent chain) | ns per dependent 16-lane vector op |"
+              "\n|---|---|")
+        for name, r in res["latency"].items():
+            print(f"| {name} | {r['ns_per_vector_op']:.3f} |")
+        print()
+        L = res["latency"]
+        simple = 0.5 * (L["multiply (x * a)"]["ns_per_vector_op"]
+                        + L["add (x + b)"]["ns_per_vector_op"])
+        lat = {"mul/add": simple, "fma": simple, "select": simple, "compare": simple,
+               "other": simple, "division": L["division (a / x)"]["ns_per_vector_op"],
+               "sqrt": L["sqrt"]["ns_per_vector_op"], "rsqrt": L["rsqrt"]["ns_per_vector_op"]}
+        srcs = []
+        if args.sources:
+            srcs = [(os.path.basename(f), open(f).read())
+                    for f in sorted(glob.glob(os.path.join(args.sources, "*.cpp")))]
+        elif args.dump:
+            srcs = [(os.path.basename(f), open(f).read())
+                    for f in sorted(glob.glob(os.path.join(args.dump, "*.cpp")))]
+        for name, src in srcs:
+            cp = critical_path(src, lat)
+            print(f"critical path of {name[:50]}: {cp:.1f} ns per 16 rays = {cp / 16:.2f} ns "
+                  f"per ray")
         print()
     if "kernel" in res:
         k = res["kernel"]
