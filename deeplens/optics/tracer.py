@@ -32,8 +32,8 @@ from .intersect import _warn_stalled, default_tolerance
 from .options import TraceOptions
 from .rays import Rays, compact_broadcast as _compact, from_soa, to_soa
 
-__all__ = ["default_mode", "fused_kind", "newton_compiled", "surface_checkpointed", "trace",
-           "trace_compiled"]
+__all__ = ["default_mode", "from_soa_copy", "fused_kind", "newton_compiled",
+           "surface_checkpointed", "trace", "trace_compiled"]
 
 
 def trace(lens, rays: Rays, *, reverse: bool = False, options: TraceOptions | None = None,
@@ -140,6 +140,22 @@ def newton_compiled(lens, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol
                                                  use_reentrant=False)
     return C.call(C.compiled_newton_refract, *args)
 
+def from_soa_copy(v: torch.Tensor) -> torch.Tensor:
+    """Component-major ``(3, *B)`` -> ``(*B, 3)``, contiguous: the values of
+    :func:`~.rays.from_soa`.  Without autograd on the CPU, one strided copy per component
+    into a new tensor: 1.1 ms instead of 5.3 ms for 1e6 float32 rays at one thread (the
+    interleaving ``torch.stack(..., -1)`` is a slow path there), 10 % of a compiled double
+    Gauss forward (``docs/benchmarks.md``, "Against the reference code").  With autograd, and
+    on other devices, :func:`~.rays.from_soa` (the copies' backward would build full-size
+    zero tensors per component)."""
+    if v.device.type != "cpu" or (torch.is_grad_enabled() and v.requires_grad):
+        return from_soa(v)
+    out = v.new_empty((*v.shape[1:], v.shape[0]))
+    for i in range(v.shape[0]):
+        out[..., i] = v[i]
+    return out
+
+
 def _needs_grad(lens, rays: Rays) -> bool:
     """Whether the trace builds an autograd graph (rays or lens parameters require one)."""
     return torch.is_grad_enabled() and (
@@ -245,7 +261,7 @@ def trace_compiled(lens, rays: Rays, order, n, z, reverse: bool, options: TraceO
         soa, propagate_to = (o, d), None
         rays = Rays(rays.o, rays.d, rays.wavelength, valid, opl, normalize=False)
     if soa is not None:  # back to (*B, 3), contiguous
-        rays = Rays(from_soa(soa[0]), from_soa(soa[1]),
+        rays = Rays(from_soa_copy(soa[0]), from_soa_copy(soa[1]),
                     rays.wavelength, rays.valid, rays.opl, normalize=False)
     if propagate_to is not None:  # the last surface ran eager
         rays = lens.propagate_to_z(rays, *propagate_to)

@@ -124,6 +124,42 @@ def test_fused_path_rect_stop_and_checkpoint(uncompiled):
     assert n_rect < int(lens_c.trace_to_sensor(rays).valid.sum())
 
 
+def test_from_soa_copy_is_from_soa():
+    """The compiled trace's last layout change (``tracer.from_soa_copy``: per-component copies
+    without autograd on the CPU) gives ``rays.from_soa``'s tensor bitwise, contiguous, for one
+    and two batch dimensions; with autograd it is ``from_soa`` itself (same gradient)."""
+    from deeplens.optics.rays import from_soa
+    from deeplens.optics.tracer import from_soa_copy
+
+    g = torch.Generator().manual_seed(0)
+    for shape in ((3, 37), (3, 5, 7)):
+        v = torch.randn(shape, generator=g)
+        a, b = from_soa_copy(v), from_soa(v)
+        assert a.shape == b.shape == (*shape[1:], 3) and a.is_contiguous()
+        assert torch.equal(a, b)
+        w = v.clone().requires_grad_(True)
+        out = from_soa_copy(w)
+        assert out.grad_fn is not None and torch.equal(out.detach(), b)
+        (out * torch.arange(3.0)).sum().backward()
+        assert torch.equal(w.grad, torch.arange(3.0)[:, None, None].expand(shape).reshape(shape)
+                           if len(shape) == 3 else torch.arange(3.0)[:, None].expand(shape))
+
+
+def test_fused_path_forward_without_grad_equals_eager(uncompiled):
+    """Without autograd (where ``from_soa_copy`` copies per component) the fused path's spot
+    points, directions and valid rays equal the eager tracer's (float64, as the gradient tests;
+    the plain functions in place of the compiled ones)."""
+    lens, _ = _lens()
+    rays = _rays(lens)
+    with torch.no_grad():
+        a = lens.trace_to_sensor(rays, options=EAGER)
+        for mode in ("surface", "lens"):
+            b = lens.trace_to_sensor(rays, options=TraceOptions(compile=mode))
+            assert torch.equal(a.valid, b.valid) and a.o.is_contiguous() == b.o.is_contiguous()
+            torch.testing.assert_close(b.o, a.o, rtol=0, atol=1e-12)
+            torch.testing.assert_close(b.d, a.d, rtol=0, atol=1e-12)
+
+
 @pytest.mark.filterwarnings("ignore:intersect.*did not converge:RuntimeWarning")  # max_iter=2
 def test_fused_path_total_internal_reflection_and_newton_chunks(uncompiled):
     """A strong conic and an asphere into air (some rays totally internally reflected), and a
