@@ -43,8 +43,7 @@ _UNSUPPORTED_TYPES = {
     "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "GRINSUR1": "a gradient-index surface",
-    "FZERNSAG": "a Zernike Fringe sag surface (deeplens reads the Zernike Standard sag, "
-                "SZERNSAG)", "USERSURF": "a user-defined (DLL) surface",
+    "USERSURF": "a user-defined (DLL) surface",
     "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
     "TILTSURF": "a tilted surface",
 }
