@@ -436,9 +436,14 @@ class ApertureFormat(SurfaceFormat):
         if s.shape == "rect":
             lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
         elif s.decentred:   # OBDC moves a CLAP (annular: with its obscuration), not a DIAM
+            if float(s.obscuration_inner) > 0:
+                raise ZemaxFileError(f"surface {i}: a decentred opening with a ring obscuration "
+                                     f"has no Zemax record here (OBDC moves a CLAP, whose "
+                                     f"obscuration is central)", surfaces=(i,))
             lines.append(f"CLAP {_f(s.obscuration)} {_f(sd)} 0")
-        if float(s.obscuration) > 0 and not s.decentred:
-            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        if float(s.obscuration) > 0 and not s.decentred:   # a ring: OBSC inner outer
+            ri = float(s.obscuration_inner)
+            lines.append(f"OBSC {_f(ri) if ri > 0 else 0} {_f(s.obscuration)} 0")
         if s.decentred:
             lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
         return lines
@@ -503,7 +508,9 @@ class _StandardFamily(SurfaceFormat):
             # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
             outer = sd if (s.clap is not None or ctx.fixed or s.stop) else 1.01 * sd
             ro = s.obsc[0] * s_mm
-            return Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
+            ri = 0.0 if s.obsc_inner is None else s.obsc_inner[0] * s_mm   # a ring baffle
+            return Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro,
+                            obscuration_inner=ri)
         if flat and in_air and not s.mirror:
             return Aperture(sd_build)
         if flat and s.obdc is None:

@@ -99,6 +99,14 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                 surf.check(where=f"SURF {k} with its decentred clear aperture: ")
             except ValueError as e:
                 p.fail(s.obdc[2], f"OBDC on SURF {k}: {e}")
+    if s.obsc_inner is not None and not isinstance(surf, Aperture):
+        what = "mirror" if s.mirror else ("flat surface between two media" if flat
+                                          else "lens surface")
+        p.fail(s.obsc_inner[1], f"SURF {k}: OBSC {s.obsc_inner[0]:g} {s.obsc[0]:g}, a ring "
+                                f"obscuration (a baffle; minimum radius > 0), on a {what} "
+                                f"({type(surf).__name__}) is not supported (deeplens has ring "
+                                f"obscurations on flat surfaces in air: put the ring on its own "
+                                f"flat dummy surface where that is equivalent)")
     if s.obsc is not None and isinstance(surf, Asphere):
         # a central obscuration on a lens or mirror surface (a secondary's shadow on a
         # Cassegrain's primary): an aperture property of the surface
