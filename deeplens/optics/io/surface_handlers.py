@@ -648,6 +648,44 @@ class XYPolynomialFormat(SurfaceFormat):
 
 
 @register_format
+class TiltedFormat(SurfaceFormat):
+    """Zemax ``TILTSURF`` (OpticStudio's "Tilted" surface: a plane ``z = x tan θ_x + y tan θ_y``,
+    ``PARM 1`` = ``tan θ_x``, ``PARM 2`` = ``tan θ_y``, no curvature; it does not change the
+    local frame; OpticStudio User Guide, "Tilted").  Both tangents zero: the flat ``STANDARD``
+    surface (a dummy, an opening or an interface, read as one); otherwise an
+    :class:`XYPolynomial` with the linear terms ``y tan θ_y + x tan θ_x`` (written back as
+    ``XYPOLYNOM``)."""
+
+    zmx_types = ("TILTSURF",)
+
+    @staticmethod
+    def _tangents(s, k, p):
+        for i, (v, ln) in sorted(s.parm.items()):
+            if i not in (1, 2) and v != 0:
+                p.fail(ln, f"SURF {k}: TILTSURF PARM {i} is not read (PARM 1 and 2 are the x "
+                           f"and y tangents)")
+        if s.curv != 0:
+            p.fail(s.curv_line or s.type_line, f"SURF {k}: a TILTSURF (a tilted plane) has no "
+                                               f"curvature, got CURV {s.curv:g}")
+        return s.parm.get(1, (0.0, 0))[0], s.parm.get(2, (0.0, 0))[0]
+
+    @staticmethod
+    def _as_standard(s):
+        import dataclasses
+
+        return dataclasses.replace(s, type="STANDARD", parm={})
+
+    def zmx_flat(self, s, ctx):
+        return self._tangents(s, ctx.k, ctx.p) == (0.0, 0.0)
+
+    def read_zmx(self, s, ctx):
+        tx, ty = self._tangents(s, ctx.k, ctx.p)
+        if (tx, ty) == (0.0, 0.0):
+            return FORMATS.for_zmx_type("STANDARD").read_zmx(self._as_standard(s), ctx)
+        return XYPolynomial(ctx.sd_build, [0.0, ty, tx])   # 1, y, x (dimensionless slopes)
+
+
+@register_format
 class ParaxialFormat(SurfaceFormat):
     """:class:`IdealLens`: Zemax ``PARAXIAL`` (``PARM 1`` the focal length), in air."""
 

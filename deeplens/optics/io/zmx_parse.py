@@ -45,7 +45,6 @@ _UNSUPPORTED_TYPES = {
     "GRINSUR1": "a gradient-index surface",
     "USERSURF": "a user-defined (DLL) surface",
     "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
-    "TILTSURF": "a tilted surface",
 }
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
