@@ -118,10 +118,14 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     elif s.obsc is not None and not isinstance(surf, Aperture):
         what = (("flat mirror" if s.mirror else "flat surface between two media") if flat
                 else ("mirror" if s.mirror else "lens surface"))
-        p.fail(s.obsc[1], f"SURF {k}: OBSC, a central obscuration on a {what} "
-                          f"({type(surf).__name__}), is not supported (deeplens has "
-                          f"obscurations on flat surfaces in air: put the obscuration on its "
-                          f"own flat dummy surface where that is equivalent)")
+        rec = ("CLAP with a minimum radius (an annular clear aperture, whose inner circle is a "
+               "central obscuration)" if s.clap is not None and s.clap[1] == s.obsc[1]
+               else "OBSC, a central obscuration")
+        p.fail(s.obsc[1], f"SURF {k}: {rec} on a {what} ({type(surf).__name__}), is not "
+                          f"supported (deeplens has central obscurations on flat surfaces in "
+                          f"air and on STANDARD and EVENASPH lens and mirror surfaces: put the "
+                          f"obscuration on its own flat dummy surface where that is "
+                          f"equivalent)")
     if s.sqap is not None and not (isinstance(surf, Cylinder) or (
             isinstance(surf, Aperture) and surf.shape == "rect") or (
             clear_rect_of(surf) is not None)):

@@ -213,6 +213,9 @@ def test_fringe_file_has_the_known_sag_and_round_trips(tmp_path):
                                          r"be an integer 0..37"),
     ("PARM 9 0", "PARM 9 0.5", "PARM 9", r"FZERNSAG PARM 9 \(the Zernike decenter in x\)"),
     ("XDAT 1 11", "XDAT 1 10", "XDAT 13", r"FZERNSAG XDAT 13 lies beyond the 10 Zernike terms"),
+    ("  XDAT 13 -0.002\n", "  XDAT 13 -0.002\n  CLAP 1 4.5 0\n", "CLAP 1 4.5",
+     r"SURF 2: CLAP with a minimum radius \(an annular clear aperture, whose inner circle is a "
+     r"central obscuration\) on a lens surface \(ZernikeFringeSag\), is not supported"),
 ])
 def test_fringe_data_refused_with_their_line(tmp_path, old, new, needle, match):
     text = _fringe_text().replace(old, new)
