@@ -818,7 +818,10 @@ class ZernikeSagFormat(SurfaceFormat):
         lines += [f"PARM {j + 1} {_f(v)}" for j, v in enumerate(a)]
         lines += ["PARM 9 0", "PARM 10 0", f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
         lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
-        return lines + [_diam(s.semi_diameter)]
+        lines.append(_diam(s.semi_diameter))
+        if float(s.obscuration) > 0:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        return lines
 
 
 @register_format

@@ -20,7 +20,7 @@ import torch
 
 from ..errors import ZemaxFileError
 from ..materials import Material
-from ..surfaces import Aperture, Asphere, Cylinder, IdealLens
+from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, ZernikeSag
 from ..surfaces.base import SagSurface, clear_rect_of, set_clear_rect
 from .surface_formats import ZmxContext
 from .surface_handlers import FORMATS, PROVISIONAL_SD_MM, is_air
@@ -107,7 +107,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                                 f"({type(surf).__name__}) is not supported (deeplens has ring "
                                 f"obscurations on flat surfaces in air: put the ring on its own "
                                 f"flat dummy surface where that is equivalent)")
-    if s.obsc is not None and isinstance(surf, Asphere):
+    if s.obsc is not None and isinstance(surf, (Asphere, ZernikeSag)):
         # a central obscuration on a lens or mirror surface (a secondary's shadow on a
         # Cassegrain's primary): an aperture property of the surface
         ro = s.obsc[0] * s_mm

@@ -72,7 +72,8 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
-from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, make_param,
+from ..openings import Circle, Opening
+from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, host_flags, make_param,
                    register_surface)
 
 __all__ = ["ZernikeSag", "ZernikeFringeSag", "MAX_EVEN_TERMS", "MAX_ZERNIKE_TERMS",
@@ -257,6 +258,9 @@ class ZernikeSag(SagSurface):
             mm^(1−2i).
         extrapolate: keep the Zernike terms beyond ``ρ = 1`` (OpticStudio's flag 1, the
             default) or drop them there (0).
+        obscuration: radius of a central obscuration, mm (``0``: none; below the
+            semi-diameter): rays meeting the surface at ``x² + y² < obscuration²`` are blocked
+            (a telescope primary's hole, Zemax's annular ``CLAP`` or ``OBSC``).
 
     Parameters: ``surface.c``, ``surface.k``, ``surface.a[i − 1]`` (``α_i``, the coefficient
     of ``r^(2i)``) and ``surface.zernike[j − 1]`` (``A_j``), each frozen until made trainable;
@@ -269,7 +273,8 @@ class ZernikeSag(SagSurface):
     max_terms = MAX_ZERNIKE_TERMS
 
     def __init__(self, curvature: float, semi_diameter: float, norm_radius: float,
-                 zernike=(), conic: float = 0.0, coefficients=(), extrapolate: bool = True):
+                 zernike=(), conic: float = 0.0, coefficients=(), extrapolate: bool = True,
+                 obscuration: float = 0.0):
         super().__init__(semi_diameter)
         rn = float(norm_radius)
         if not (rn > 0 and math.isfinite(rn)):
@@ -283,6 +288,14 @@ class ZernikeSag(SagSurface):
             raise ValueError(f"ZernikeSag: at most {MAX_EVEN_TERMS} even coefficients (r^2.."
                              f"r^{2 * MAX_EVEN_TERMS}), got {len(coefficients)}")
         self.extrapolate = bool(extrapolate)
+        obscuration = float(obscuration)
+        if not 0.0 <= obscuration < float(semi_diameter):
+            raise ValueError(f"{type(self).__name__}: the obscuration radius must be >= 0 mm and "
+                             f"below the semi-diameter ({float(semi_diameter):g} mm), got "
+                             f"{obscuration!r}")
+        # not in state_dict (checkpoints keep their keys); it comes with the lens file
+        self.register_buffer("obscuration", torch.tensor(obscuration, dtype=torch.float64),
+                             persistent=False)
         self.register_buffer("norm_radius", torch.tensor(rn, dtype=torch.float64))
         self.c = make_param(curvature, "curvature")
         self.k = make_param(conic, "conic")
@@ -293,6 +306,13 @@ class ZernikeSag(SagSurface):
 
     def in_domain(self, x, y):
         return conic_arg(x * x + y * y, self.c, self.k) > 0
+
+    def _build_opening(self) -> Opening:
+        """The semi-diameter's circle (and a clear rectangle when set), less the central
+        obscuration's circle."""
+        opening = super()._build_opening()
+        obscured = host_flags(self, "_obscured", (self.obscuration,), lambda o: float(o) > 0)
+        return opening - Circle(self.obscuration, check=False) if obscured else opening
 
     def _zernike(self, x, y, slopes: bool):
         rn = self.norm_radius.to(x)
@@ -349,6 +369,9 @@ class ZernikeSag(SagSurface):
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
+        if not float(self.obscuration) < sd:
+            raise ValueError(f"{where}the central obscuration ({float(self.obscuration):g} mm) "
+                             f"must be smaller than the semi-diameter ({sd:g} mm)")
         check_conic_domain(sd, float(self.c), float(self.k),
                            "Zernike sag surface's conic base", where)
 
@@ -358,7 +381,7 @@ class ZernikeSag(SagSurface):
         return conic_polynomial_scale(self, name, lambda i: 2 * i + 2)
 
     file_fields = ("curvature_per_mm", "conic", "even_coefficients", "norm_radius_mm",
-                   "zernike_coefficients", "zernike_extrapolate")
+                   "zernike_coefficients", "zernike_extrapolate", "obscuration_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -369,7 +392,7 @@ class ZernikeSag(SagSurface):
                    entry.get("zernike_coefficients", "numbers", default=[]),
                    conic=entry.get("conic", default=0.0),
                    coefficients=entry.get("even_coefficients", "numbers", default=[]),
-                   extrapolate=bool(ext))
+                   extrapolate=bool(ext), obscuration=entry.get("obscuration_mm", default=0.0))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -379,6 +402,8 @@ class ZernikeSag(SagSurface):
         d["norm_radius_mm"] = float(self.norm_radius)
         d["zernike_coefficients"] = [float(v) for v in self.zernike]
         d["zernike_extrapolate"] = int(self.extrapolate)
+        if float(self.obscuration) > 0:
+            d["obscuration_mm"] = float(self.obscuration)
         return d
 
     def extra_repr(self) -> str:

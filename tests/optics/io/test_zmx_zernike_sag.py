@@ -213,12 +213,37 @@ def test_fringe_file_has_the_known_sag_and_round_trips(tmp_path):
                                          r"be an integer 0..37"),
     ("PARM 9 0", "PARM 9 0.5", "PARM 9", r"FZERNSAG PARM 9 \(the Zernike decenter in x\)"),
     ("XDAT 1 11", "XDAT 1 10", "XDAT 13", r"FZERNSAG XDAT 13 lies beyond the 10 Zernike terms"),
-    ("  XDAT 13 -0.002\n", "  XDAT 13 -0.002\n  CLAP 1 4.5 0\n", "CLAP 1 4.5",
-     r"SURF 2: CLAP with a minimum radius \(an annular clear aperture, whose inner circle is a "
-     r"central obscuration\) on a lens surface \(ZernikeFringeSag\), is not supported"),
+    ("  XDAT 13 -0.002\n", "  XDAT 13 -0.002\n  OBSC 1 2 0\n", "OBSC 1 2",
+     r"SURF 2: OBSC 1 2, a ring obscuration \(a baffle; minimum radius > 0\), on a lens "
+     r"surface \(ZernikeFringeSag\) is not supported"),
 ])
 def test_fringe_data_refused_with_their_line(tmp_path, old, new, needle, match):
     text = _fringe_text().replace(old, new)
     ln = line_of(text, needle)
     with pytest.raises(ZemaxFileError, match=f":{ln}: .*{match}"):
         read_zmx(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("record", ["CLAP 1 4.5 0", "OBSC 0 1 0"])
+def test_a_central_obscuration_on_a_zernike_sag_blocks_the_centre_and_round_trips(tmp_path,
+                                                                                  record):
+    """An annular CLAP (1-4.5 mm) or an OBSC of 1 mm on the FZERNSAG face (a telescope
+    primary's hole): the surface's opening passes exactly the points at 1 <= r <= 4.5; written
+    back as OBSC, read again, and through the lens file, the same lens."""
+    from deeplens.optics.io import lens_from_dict
+
+    text = _fringe_text().replace("  XDAT 13 -0.002\n", f"  XDAT 13 -0.002\n  {record}\n")
+    lens = read_zmx_quiet(write(tmp_path, text))
+    s = lens.surfaces[1]
+    assert type(s) is ZernikeFringeSag and float(s.obscuration) == 1.0
+    r = torch.tensor([0.0, 0.5, 0.999, 1.0, 3.0, 4.5, 4.6], dtype=F64)
+    assert s.opening.contains(r, torch.zeros_like(r)).tolist() == [
+        False, False, False, True, True, True, False]
+    p = tmp_path / "back.zmx"
+    write_zmx(lens, p)
+    assert "OBSC 0 1.0 0" in p.read_text()
+    d = lens_to_dict(lens)
+    assert d["surfaces"][1]["obscuration_mm"] == 1.0
+    assert lens_to_dict(read_zmx_quiet(p)) == d and lens_to_dict(lens_from_dict(d)) == d
+    keys = list(lens.state_dict())
+    assert "surfaces.1.c" in keys and "surfaces.1.obscuration" not in keys
