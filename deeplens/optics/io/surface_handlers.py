@@ -48,11 +48,11 @@ import math
 from ..errors import LensFileError, ZemaxFileError
 from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
-                        IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial, ZernikeSag)
+                        IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial,
+                        ZernikeFringeSag, ZernikeSag)
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
-from ..surfaces.zernike_sag import MAX_ZERNIKE_TERMS
 from .surface_formats import FORMATS, SurfaceFormat, ZmxContext, register_format
 from .zmx_coordbrk import coordbrk_lines
 
@@ -249,31 +249,33 @@ def _qtype(s, k: int, c, sd, s_mm, p):
                  conic=s.coni)
 
 
-def _zernike_sag(s, k: int, c, sd, s_mm, p):
+def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
     """``SZERNSAG`` (OpticStudio's "Zernike Standard Sag"): an even asphere (``CURV``, ``CONI``,
     ``PARM 1..8`` the ``r², r⁴, ..., r¹⁶`` terms) plus Zernike standard terms in Noll's order:
     ``PARM 0`` the extrapolate flag (1: the terms also beyond the normalisation radius),
     ``PARM 9``/``PARM 10`` the Zernike decenter (must be 0), ``XDAT 1`` the number of terms,
     ``XDAT 2`` the normalisation radius, ``XDAT 3..`` the coefficients ``A_1, A_2, ...``
-    (lengths): a :class:`ZernikeSag`."""
+    (lengths): a :class:`ZernikeSag`.  ``FZERNSAG`` (``cls`` :class:`ZernikeFringeSag`, the
+    "Zernike Fringe Sag") has the same records with the Fringe terms (at most 37)."""
+    tn = "FZERNSAG" if cls is ZernikeFringeSag else "SZERNSAG"
     for i, (v, ln) in sorted(s.parm.items()):
         if i in (9, 10) and v != 0:
-            p.fail(ln, f"SURF {k}: SZERNSAG PARM {i} (the Zernike decenter in "
+            p.fail(ln, f"SURF {k}: {tn} PARM {i} (the Zernike decenter in "
                        f"{'x' if i == 9 else 'y'}) is not supported: deeplens' Zernike terms are "
                        f"centred on the vertex")
         if (i < 0 or i > 10) and v != 0:
-            p.fail(ln, f"SURF {k}: SZERNSAG PARM {i} is not read (PARM 0 the extrapolate flag, "
+            p.fail(ln, f"SURF {k}: {tn} PARM {i} is not read (PARM 0 the extrapolate flag, "
                        f"PARM 1-8 the even terms on r², ..., r¹⁶, PARM 9-10 the Zernike "
                        f"decenter)")
     ext, ext_ln = s.parm.get(0, (1.0, s.type_line))
     if ext not in (0.0, 1.0):
-        p.fail(ext_ln, f"SURF {k}: SZERNSAG PARM 0 (the extrapolate flag) must be 0 or 1, got "
+        p.fail(ext_ln, f"SURF {k}: {tn} PARM 0 (the extrapolate flag) must be 0 or 1, got "
                        f"{ext!r}")
-    n = _xdat_term_count(p, s, k, "SZERNSAG", "the number of Zernike terms", MAX_ZERNIKE_TERMS,
+    n = _xdat_term_count(p, s, k, tn, "the number of Zernike terms", cls.max_terms,
                          "Zernike terms")
     rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
     if n > 0 and not rn_v > 0:
-        p.fail(rn_ln, f"SURF {k}: SZERNSAG XDAT 2 (the normalisation radius) must be > 0, got "
+        p.fail(rn_ln, f"SURF {k}: {tn} XDAT 2 (the normalisation radius) must be > 0, got "
                       f"{rn_v!r}")
     top = max([i for i in range(1, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [0])
     coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(1, top + 1)]
@@ -281,8 +283,8 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p):
     while zern and zern[-1] == 0.0:
         zern.pop()
     rn = rn_v * s_mm if rn_v > 0 else 1.0   # no Zernike term: any radius (1 mm)
-    return ZernikeSag(c, sd, rn, zern, conic=s.coni, coefficients=coeffs,
-                      extrapolate=ext == 1.0)
+    return cls(c, sd, rn, zern, conic=s.coni, coefficients=coeffs,
+               extrapolate=ext == 1.0)
 
 
 def _paraxial_surface(s, k: int, mat, prev, sd, s_mm, p):
@@ -434,9 +436,14 @@ class ApertureFormat(SurfaceFormat):
         if s.shape == "rect":
             lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
         elif s.decentred:   # OBDC moves a CLAP (annular: with its obscuration), not a DIAM
+            if float(s.obscuration_inner) > 0:
+                raise ZemaxFileError(f"surface {i}: a decentred opening with a ring obscuration "
+                                     f"has no Zemax record here (OBDC moves a CLAP, whose "
+                                     f"obscuration is central)", surfaces=(i,))
             lines.append(f"CLAP {_f(s.obscuration)} {_f(sd)} 0")
-        if float(s.obscuration) > 0 and not s.decentred:
-            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        if float(s.obscuration) > 0 and not s.decentred:   # a ring: OBSC inner outer
+            ri = float(s.obscuration_inner)
+            lines.append(f"OBSC {_f(ri) if ri > 0 else 0} {_f(s.obscuration)} 0")
         if s.decentred:
             lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
         return lines
@@ -501,7 +508,9 @@ class _StandardFamily(SurfaceFormat):
             # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
             outer = sd if (s.clap is not None or ctx.fixed or s.stop) else 1.01 * sd
             ro = s.obsc[0] * s_mm
-            return Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro)
+            ri = 0.0 if s.obsc_inner is None else s.obsc_inner[0] * s_mm   # a ring baffle
+            return Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro,
+                            obscuration_inner=ri)
         if flat and in_air and not s.mirror:
             return Aperture(sd_build)
         if flat and s.obdc is None:
@@ -639,6 +648,44 @@ class XYPolynomialFormat(SurfaceFormat):
 
 
 @register_format
+class TiltedFormat(SurfaceFormat):
+    """Zemax ``TILTSURF`` (OpticStudio's "Tilted" surface: a plane ``z = x tan θ_x + y tan θ_y``,
+    ``PARM 1`` = ``tan θ_x``, ``PARM 2`` = ``tan θ_y``, no curvature; it does not change the
+    local frame; OpticStudio User Guide, "Tilted").  Both tangents zero: the flat ``STANDARD``
+    surface (a dummy, an opening or an interface, read as one); otherwise an
+    :class:`XYPolynomial` with the linear terms ``y tan θ_y + x tan θ_x`` (written back as
+    ``XYPOLYNOM``)."""
+
+    zmx_types = ("TILTSURF",)
+
+    @staticmethod
+    def _tangents(s, k, p):
+        for i, (v, ln) in sorted(s.parm.items()):
+            if i not in (1, 2) and v != 0:
+                p.fail(ln, f"SURF {k}: TILTSURF PARM {i} is not read (PARM 1 and 2 are the x "
+                           f"and y tangents)")
+        if s.curv != 0:
+            p.fail(s.curv_line or s.type_line, f"SURF {k}: a TILTSURF (a tilted plane) has no "
+                                               f"curvature, got CURV {s.curv:g}")
+        return s.parm.get(1, (0.0, 0))[0], s.parm.get(2, (0.0, 0))[0]
+
+    @staticmethod
+    def _as_standard(s):
+        import dataclasses
+
+        return dataclasses.replace(s, type="STANDARD", parm={})
+
+    def zmx_flat(self, s, ctx):
+        return self._tangents(s, ctx.k, ctx.p) == (0.0, 0.0)
+
+    def read_zmx(self, s, ctx):
+        tx, ty = self._tangents(s, ctx.k, ctx.p)
+        if (tx, ty) == (0.0, 0.0):
+            return FORMATS.for_zmx_type("STANDARD").read_zmx(self._as_standard(s), ctx)
+        return XYPolynomial(ctx.sd_build, [0.0, ty, tx])   # 1, y, x (dimensionless slopes)
+
+
+@register_format
 class ParaxialFormat(SurfaceFormat):
     """:class:`IdealLens`: Zemax ``PARAXIAL`` (``PARM 1`` the focal length), in air."""
 
@@ -766,12 +813,27 @@ class ZernikeSagFormat(SurfaceFormat):
     def write_zmx(self, s, i):
         a = [float(v) for v in s.a]
         A = [float(v) for v in s.zernike]
-        lines = ["TYPE SZERNSAG", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
+        lines = [f"TYPE {self.zmx_types[0]}", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
                  f"PARM 0 {int(s.extrapolate)}"]
         lines += [f"PARM {j + 1} {_f(v)}" for j, v in enumerate(a)]
         lines += ["PARM 9 0", "PARM 10 0", f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
         lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
-        return lines + [_diam(s.semi_diameter)]
+        lines.append(_diam(s.semi_diameter))
+        if float(s.obscuration) > 0:
+            lines.append(f"OBSC 0 {_f(s.obscuration)} 0")
+        return lines
+
+
+@register_format
+class ZernikeFringeSagFormat(ZernikeSagFormat):
+    """:class:`ZernikeFringeSag`: Zemax ``FZERNSAG`` (the records of ``SZERNSAG``, the Zernike
+    Fringe terms in ``XDAT 3..``)."""
+
+    classes = (ZernikeFringeSag,)
+    zmx_types = ("FZERNSAG",)
+
+    def read_zmx(self, s, ctx):
+        return _zernike_sag(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p, ZernikeFringeSag)
 
 
 @register_format

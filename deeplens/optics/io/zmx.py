@@ -21,6 +21,10 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
     SZERNSAG   z = EVENASPH (PARM 1..8 on r², ..., r¹⁶) + Σ_j A_j Z_j(r / R_n, φ): Zernike
                standard terms in Noll's order (XDAT 1 = number of terms, XDAT 2 = R_n, XDAT 3.. =
                A_j; PARM 0 the extrapolate flag; a ZernikeSag)
+    FZERNSAG   as SZERNSAG with the Zernike Fringe terms (at most 37, unnormalised, the
+               Fringe order: a ZernikeFringeSag)
+    TILTSURF   z = x PARM 1 + y PARM 2 (tangents of the tilts): the flat STANDARD surface when
+               both are 0, else an XYPolynomial of those slopes
     XASPHERE   z = STANDARD + Σ_{i=1..N} α_i (r / R_n)^{2i} (Extended Asphere: XDAT 1 = N, XDAT 2 =
                R_n, XDAT 3.. = α_1, α_2, ... in lens units; read up to ρ²⁰ as an Asphere, or an
                OddAsphere with an r² term)

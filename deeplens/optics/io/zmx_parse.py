@@ -43,10 +43,8 @@ _UNSUPPORTED_TYPES = {
     "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "GRINSUR1": "a gradient-index surface",
-    "FZERNSAG": "a Zernike Fringe sag surface (deeplens reads the Zernike Standard sag, "
-                "SZERNSAG)", "USERSURF": "a user-defined (DLL) surface",
+    "USERSURF": "a user-defined (DLL) surface",
     "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
-    "TILTSURF": "a tilted surface",
 }
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
@@ -123,7 +121,8 @@ class ZmxSurface:
     xdat: dict = field(default_factory=dict)   # index -> (value, line)
     clap: tuple | None = None
     sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
-    obsc: tuple | None = None   # (central obscuration radius, line) in file units
+    obsc: tuple | None = None   # (obscuration's outer radius, line) in file units
+    obsc_inner: tuple | None = None   # (a ring obscuration's inner radius > 0, line): OBSC lo hi
     mirror: bool = False               # GLAS MIRROR
     obdc: tuple | None = None   # (x, y aperture decenter, line) in file units
 
@@ -405,17 +404,28 @@ def _clap(st: _Parse, r: Record) -> None:
                    f"{hi:g}")
     cur.clap = (hi, ln)
     if lo > 0:   # an annular clear aperture
+        if cur.obsc is not None:
+            p.fail(ln, f"CLAP on SURF {len(st.surfs) - 1}: an annular clear aperture on a "
+                       f"surface that already has an obscuration (OBSC, line {cur.obsc[1]}): "
+                       f"one per surface is supported")
         cur.obsc = (lo, ln)
 
 
 def _obsc(st: _Parse, r: Record) -> None:
+    """``OBSC lo hi``: a circular obscuration of radius ``hi`` (``lo`` = 0, a central one) or a
+    ring ``lo <= r <= hi`` (``lo > 0``: a ring baffle, which rays pass inside and outside)."""
     p, toks, ln = st.p, r.tokens, r.line
     lo = p.arg(toks, 1, ln, "minimum radius")
     hi = p.arg(toks, 2, ln, "maximum radius")
-    if lo != 0 or not hi > 0:
-        p.fail(ln, f"OBSC on SURF {len(st.surfs) - 1}: only a central circular obscuration "
-                   f"(minimum radius 0, maximum > 0) is supported, got {lo:g}, {hi:g}")
+    if not 0 <= lo < hi:
+        p.fail(ln, f"OBSC on SURF {len(st.surfs) - 1}: expected 0 <= minimum radius < maximum "
+                   f"radius, got {lo:g}, {hi:g}")
+    if st.cur.obsc is not None:
+        p.fail(ln, f"OBSC on SURF {len(st.surfs) - 1}: the surface already has an obscuration "
+                   f"(an annular CLAP or another OBSC, line {st.cur.obsc[1]}); one per surface "
+                   f"is supported")
     st.cur.obsc = (hi, ln)
+    st.cur.obsc_inner = (lo, ln) if lo > 0 else None
 
 
 def _sqap(st: _Parse, r: Record) -> None:
@@ -541,6 +551,7 @@ def _check_magnitudes(sysd: dict, surfs: list[ZmxSurface], p: Locator) -> None:
                "; an object at infinity is DISZ INFINITY" if k == 0 else "")
         length(s.diam, s.diam_line, f"DIAM (SURF {k} semi-diameter)")
         for rec, what in ((s.clap, "CLAP radius"), (s.obsc, "obscuration radius"),
+                          (s.obsc_inner, "ring obscuration's inner radius"),
                           (s.sqap, "SQAP half-width"), (s.obdc, "OBDC decenter")):
             if rec is not None:
                 for v in rec[:-1]:

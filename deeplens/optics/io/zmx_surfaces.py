@@ -20,7 +20,7 @@ import torch
 
 from ..errors import ZemaxFileError
 from ..materials import Material
-from ..surfaces import Aperture, Asphere, Cylinder, IdealLens
+from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, ZernikeSag
 from ..surfaces.base import SagSurface, clear_rect_of, set_clear_rect
 from .surface_formats import ZmxContext
 from .surface_handlers import FORMATS, PROVISIONAL_SD_MM, is_air
@@ -99,7 +99,15 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                 surf.check(where=f"SURF {k} with its decentred clear aperture: ")
             except ValueError as e:
                 p.fail(s.obdc[2], f"OBDC on SURF {k}: {e}")
-    if s.obsc is not None and isinstance(surf, Asphere):
+    if s.obsc_inner is not None and not isinstance(surf, Aperture):
+        what = "mirror" if s.mirror else ("flat surface between two media" if flat
+                                          else "lens surface")
+        p.fail(s.obsc_inner[1], f"SURF {k}: OBSC {s.obsc_inner[0]:g} {s.obsc[0]:g}, a ring "
+                                f"obscuration (a baffle; minimum radius > 0), on a {what} "
+                                f"({type(surf).__name__}) is not supported (deeplens has ring "
+                                f"obscurations on flat surfaces in air: put the ring on its own "
+                                f"flat dummy surface where that is equivalent)")
+    if s.obsc is not None and isinstance(surf, (Asphere, ZernikeSag)):
         # a central obscuration on a lens or mirror surface (a secondary's shadow on a
         # Cassegrain's primary): an aperture property of the surface
         ro = s.obsc[0] * s_mm
@@ -110,10 +118,14 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     elif s.obsc is not None and not isinstance(surf, Aperture):
         what = (("flat mirror" if s.mirror else "flat surface between two media") if flat
                 else ("mirror" if s.mirror else "lens surface"))
-        p.fail(s.obsc[1], f"SURF {k}: OBSC, a central obscuration on a {what} "
-                          f"({type(surf).__name__}), is not supported (deeplens has "
-                          f"obscurations on flat surfaces in air: put the obscuration on its "
-                          f"own flat dummy surface where that is equivalent)")
+        rec = ("CLAP with a minimum radius (an annular clear aperture, whose inner circle is a "
+               "central obscuration)" if s.clap is not None and s.clap[1] == s.obsc[1]
+               else "OBSC, a central obscuration")
+        p.fail(s.obsc[1], f"SURF {k}: {rec} on a {what} ({type(surf).__name__}), is not "
+                          f"supported (deeplens has central obscurations on flat surfaces in "
+                          f"air and on STANDARD and EVENASPH lens and mirror surfaces: put the "
+                          f"obscuration on its own flat dummy surface where that is "
+                          f"equivalent)")
     if s.sqap is not None and not (isinstance(surf, Cylinder) or (
             isinstance(surf, Aperture) and surf.shape == "rect") or (
             clear_rect_of(surf) is not None)):

@@ -15,8 +15,8 @@ from .plane import Plane
 from .qtype import QType
 from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
-from .zernike_sag import ZernikeSag
+from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
 __all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder",
-           "Grating", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag",
+           "Grating", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
            "Surface", "SagSurface", "SURFACE_TYPES"]

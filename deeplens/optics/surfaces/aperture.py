@@ -1,7 +1,9 @@
 """Aperture stop: an opaque plane ``z = 0`` with a circular or rectangular opening.
 
 Circular: a ray passes if ``x^2 + y^2 <= r^2`` (``r`` = semi-diameter); with a central
-obscuration of radius ``r_o`` (an annular opening), only if also ``x^2 + y^2 >= r_o^2``.
+obscuration of radius ``r_o`` (an annular opening), only if also ``x^2 + y^2 >= r_o^2``; with a
+ring obscuration ``r_i <= ρ <= r_o`` (a ring baffle, Zemax's ``OBSC r_i r_o``, ``r_i > 0``), if
+``x^2 + y^2 >= r_o^2`` or ``x^2 + y^2 <= r_i^2`` (both circles' rims pass).
 Rectangular: it passes if ``|x| <= w_x`` and ``|y| <= w_y`` (half-widths in mm).
 A decentred opening (``decenter = (d_x, d_y)``, mm; Zemax's ``OBDC``) is the same test on
 ``(x − d_x, y − d_y)``: the opening and its obscuration move together; the plane does not.
@@ -38,7 +40,10 @@ class Aperture(Plane):
         shape: ``"circle"`` or ``"rect"``.
         half_width_x, half_width_y: half-widths of a rectangular opening, mm.
         obscuration: radius of a central obscuration of a circular opening, mm (``0``: none;
-            ``< semi_diameter``).
+            ``< semi_diameter``); with ``obscuration_inner``, the ring's outer radius.
+        obscuration_inner: the inner radius of a ring obscuration, mm (``0``: the obscuration
+            is central; else ``0 < obscuration_inner < obscuration``): rays pass inside it and
+            outside ``obscuration``.
         decenter: ``(d_x, d_y)``, mm: the centre of the opening (and of its obscuration) in the
             plane; ``(0, 0)`` by default.  A decentred aperture runs eager (the compiled runs
             clip about the axis).
@@ -49,7 +54,8 @@ class Aperture(Plane):
 
     def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
                  half_width_x: float | None = None, half_width_y: float | None = None,
-                 obscuration: float = 0.0, decenter: tuple[float, float] = (0.0, 0.0)):
+                 obscuration: float = 0.0, decenter: tuple[float, float] = (0.0, 0.0),
+                 obscuration_inner: float = 0.0):
         if shape not in ("circle", "rect"):
             raise ValueError(f"Aperture: shape must be 'circle' or 'rect', got {shape!r}")
         if shape == "rect":
@@ -74,6 +80,15 @@ class Aperture(Plane):
                              f"0 < radius < semi_diameter ({float(semi_diameter):g} mm), got "
                              f"{obscuration!r}")
         self.register_buffer("obscuration", torch.tensor(obscuration, dtype=torch.float64))
+        ri = float(obscuration_inner)
+        if ri != 0.0 and not 0 < ri < obscuration:
+            raise ValueError(f"Aperture: a ring obscuration needs 0 < inner radius < the "
+                             f"obscuration's radius ({obscuration:g} mm), got "
+                             f"{obscuration_inner!r}")
+        # not in state_dict (as before rings existed: checkpoints keep their keys); it comes
+        # with the lens file (obscuration_inner_mm)
+        self.register_buffer("obscuration_inner", torch.tensor(ri, dtype=torch.float64),
+                             persistent=False)
         dec = [float(v) for v in decenter]
         if len(dec) != 2 or not all(math.isfinite(v) for v in dec):
             raise ValueError(f"Aperture: decenter must be two finite numbers of mm (d_x, d_y), "
@@ -88,13 +103,15 @@ class Aperture(Plane):
     def _build_opening(self) -> Opening:
         """The circle (semi-diameter) or rectangle (half-widths) about the decenter, less the
         obscuration's circle about the same centre."""
-        decentred, obscured = host_flags(self, "_opening_flags",
-                                         (self.decenter, self.obscuration),
-                                         lambda dec, obs: (bool((dec != 0).any()),
-                                                           float(obs) > 0))
+        decentred, obscured, ring = host_flags(
+            self, "_opening_flags", (self.decenter, self.obscuration, self.obscuration_inner),
+            lambda dec, obs, ri: (bool((dec != 0).any()), float(obs) > 0, float(ri) > 0))
         dec = self.decenter if decentred else None
         outer = (Rectangle(self.half_widths, dec, check=False) if self.shape == "rect"
                  else Circle(self.semi_diameter, dec, check=False))
+        if ring:   # the ring r_i <= ρ <= r_o is taken out; inside r_i passes
+            return outer - (Circle(self.obscuration, dec, check=False)
+                            - Circle(self.obscuration_inner, dec, check=False))
         if obscured:
             return outer - Circle(self.obscuration, dec, check=False)
         return outer
@@ -114,7 +131,7 @@ class Aperture(Plane):
         self.semi_diameter.fill_(float(value))
 
     file_fields = ("shape", "half_width_x_mm", "half_width_y_mm", "obscuration_mm",
-                   "decenter_mm")
+                   "obscuration_inner_mm", "decenter_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -128,12 +145,15 @@ class Aperture(Plane):
             return cls(semi_diameter, "rect", entry.get("half_width_x_mm"),
                        entry.get("half_width_y_mm"), decenter=dec)
         return cls(semi_diameter, shape, obscuration=entry.get("obscuration_mm", default=0.0),
-                   decenter=dec)
+                   decenter=dec,
+                   obscuration_inner=entry.get("obscuration_inner_mm", default=0.0))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
         if float(self.obscuration) > 0:
             d["obscuration_mm"] = float(self.obscuration)
+        if float(self.obscuration_inner) > 0:
+            d["obscuration_inner_mm"] = float(self.obscuration_inner)
         if self.shape == "rect":
             d.update(shape="rect", half_width_x_mm=float(self.half_widths[0]),
                      half_width_y_mm=float(self.half_widths[1]))

@@ -17,8 +17,23 @@ even ``j`` the cosine term and an odd ``j`` the sine term (:func:`noll_nm`).  Th
 OpticStudio's "Zernike Standard" set: its Zernike Standard Coefficients table lists ``Z1 = 1``,
 ``Z2 = 4^(1/2) ρ cos φ``, ``Z3 = 4^(1/2) ρ sin φ``, ``Z4 = 3^(1/2) (2ρ² − 1)``, ``Z5 = 6^(1/2) ρ²
 sin 2φ``, ``Z6 = 6^(1/2) ρ² cos 2φ``, ``Z7 = 8^(1/2) (3ρ³ − 2ρ) sin φ``, ..., ``Z11 = 5^(1/2) (6ρ⁴ −
-6ρ² + 1)``, ... (unit RMS over the unit disc; optiland's ``ZernikeNoll`` is the same set).  The
-Zernike Fringe set (``FZERNSAG``: another order, no ``N_n^m``) is a different surface.
+6ρ² + 1)``, ... (unit RMS over the unit disc; optiland's ``ZernikeNoll`` is the same set).
+
+**Zernike Fringe sag** (OpticStudio's ``FZERNSAG``, :class:`ZernikeFringeSag`): the same surface
+with the Fringe set, at most 37 terms, no normalisation (``N = 1``: every term is ``R_n^|m|`` times
+``cos``/``sin``, 1 at the rim for ``m = 0``), numbered by :func:`fringe_nm`: in groups ``d = (n +
+|m|)/2 = 0, 1, ..., 5`` (terms ``d² + 1 .. (d + 1)²``), within a group by falling ``|m| = d, d − 1,
+..., 0`` (``n = 2d − |m|``), the cosine term before the sine term; term 37 is the 12th-order
+spherical ``R_12^0`` (not the next group's first).  So ``Z1 = 1``, ``Z2 = ρ cos φ``, ``Z3 = ρ sin
+φ``, ``Z4 = 2ρ² − 1``, ``Z5 = ρ² cos 2φ``, ``Z6 = ρ² sin 2φ``, ``Z7 = (3ρ³ − 2ρ) cos φ``, ``Z8 = (3ρ³
+− 2ρ) sin φ``, ``Z9 = 6ρ⁴ − 6ρ² + 1``, ``Z10 = ρ³ cos 3φ``, ..., ``Z16 = 20ρ⁶ − 30ρ⁴ + 12ρ² − 1``,
+..., ``Z36 = R_10^0``, ``Z37 = 924ρ¹² − 2772ρ¹⁰ + 3150ρ⁸ − 1680ρ⁶ + 420ρ⁴ − 42ρ² + 1``.  Sources:
+the University of Arizona FRINGE program's ordering (J. S. Loomis, FRINGE manual, 1982; its
+36-term table reproduced at https://webs.optics.arizona.edu/gsmith/FRINGE.html, which numbers
+from 0 without piston: deeplens' ``j`` is its index + 1), and the Fringe terms OpticStudio prints
+(Z1..Z9, Z16, Z25, Z36, Z37 with the 12th-order term as Z37, in Opt. Express 20, 15928 (2012),
+Tables 1-2, "provided by ZEMAX").  optiland's ``ZernikeFringe`` numbers the same way up to 36 and
+continues its groups past it (its 37 is ``n = 6, m = 6``).
 
 **Evaluation.**  No polar coordinates: with ``u = x / R_n``, ``v = y / R_n`` and ``s = ρ² = u² +
 v²``, ``ρ^|m| cos(|m| φ) = Re (u + i v)^|m| = C_|m|`` and ``ρ^|m| sin(|m| φ) = Im (u + i v)^|m| =
@@ -57,14 +72,18 @@ import torch
 from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
-from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, make_param,
+from ..openings import Circle, Opening
+from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, host_flags, make_param,
                    register_surface)
 
-__all__ = ["ZernikeSag", "MAX_EVEN_TERMS", "MAX_ZERNIKE_TERMS", "noll_nm", "zernike_norm",
-           "zernike_series", "zernike_values"]
+__all__ = ["ZernikeSag", "ZernikeFringeSag", "MAX_EVEN_TERMS", "MAX_ZERNIKE_TERMS",
+           "MAX_FRINGE_TERMS", "noll_nm", "fringe_nm", "zernike_norm", "zernike_series",
+           "zernike_values"]
 
 #: OpticStudio's Zernike Standard Sag takes up to 231 terms (every ``n <= 20``)
 MAX_ZERNIKE_TERMS = 231
+#: OpticStudio's Zernike Fringe Sag takes up to 37 terms
+MAX_FRINGE_TERMS = 37
 #: the even part's terms: ``r², r⁴, ..., r¹⁶`` (OpticStudio's PARM 1..8)
 MAX_EVEN_TERMS = 8
 
@@ -84,20 +103,43 @@ def noll_nm(j: int) -> tuple[int, int]:
     return n, (mabs if j % 2 == 0 else -mabs)
 
 
+def fringe_nm(j: int) -> tuple[int, int]:
+    """The Fringe index ``1 <= j <= 37`` -> ``(n, m)`` (module docstring; ``m > 0`` the cosine
+    term, ``m < 0`` the sine term): ``d = floor(sqrt(j − 1))``, the place ``p = j − d² − 1`` in
+    the group, ``|m| = d − p // 2``, ``n = 2d − |m|``, an even ``p`` the cosine; ``j = 37`` is
+    ``(12, 0)``."""
+    if not 1 <= j <= MAX_FRINGE_TERMS:
+        raise ValueError(f"the Fringe index runs 1..{MAX_FRINGE_TERMS}, got {j}")
+    if j == MAX_FRINGE_TERMS:
+        return 12, 0
+    d = math.isqrt(j - 1)
+    pos = j - d * d - 1
+    mabs = d - pos // 2
+    n = 2 * d - mabs
+    if mabs == 0:
+        return n, 0
+    return n, (mabs if pos % 2 == 0 else -mabs)
+
+
 def zernike_norm(n: int, m: int) -> float:
     """``N_n^m = sqrt(2 (n + 1) / (1 + δ_{m0}))``: unit RMS over the unit disc."""
     return math.sqrt((2.0 * (n + 1)) / (2.0 if m == 0 else 1.0))
 
 
+#: the term orderings: basis name -> (index -> (n, m), (n, m) -> normalisation factor)
+BASES = {"standard": (noll_nm, zernike_norm), "fringe": (fringe_nm, lambda n, m: 1.0)}
+
+
 @lru_cache(maxsize=None)
-def _layout(n_terms: int):
+def _layout(n_terms: int, basis: str = "standard"):
     """For each ``|m|`` up to the highest: ``(q_max, [(q, j − 1, is_cos, N)])``, the terms of the
-    first ``n_terms`` Noll indices grouped by ``|m|`` (``q = (n − |m|) / 2``)."""
+    first ``n_terms`` indices of ``basis`` (``"standard"``: Noll's, ``"fringe"``) grouped by
+    ``|m|`` (``q = (n − |m|) / 2``)."""
+    nm, norm = BASES[basis]
     groups: dict[int, list] = {}
     for j in range(1, n_terms + 1):
-        n, m = noll_nm(j)
-        groups.setdefault(abs(m), []).append(((n - abs(m)) // 2, j - 1, m >= 0,
-                                              zernike_norm(n, m)))
+        n, m = nm(j)
+        groups.setdefault(abs(m), []).append(((n - abs(m)) // 2, j - 1, m >= 0, norm(n, m)))
     return tuple((mabs, max(q for q, *_ in terms), tuple(terms))
                  for mabs, terms in sorted(groups.items()))
 
@@ -135,10 +177,11 @@ def zernike_series(t, mabs: int, betas):
     return F, dF
 
 
-def zernike_values(u, v, coeffs, slopes: bool = True):
-    """``(W, ∂W/∂u, ∂W/∂v)`` at the normalised ``(u, v)`` for the Noll coefficients ``coeffs =
-    (A_1, ..., A_N)`` (0-d tensors, mm): the Zernike part of the sag (module docstring).  With
-    ``slopes=False`` the slopes are ``None``."""
+def zernike_values(u, v, coeffs, slopes: bool = True, basis: str = "standard"):
+    """``(W, ∂W/∂u, ∂W/∂v)`` at the normalised ``(u, v)`` (``(*B,)`` each) for the coefficients
+    ``coeffs = (A_1, ..., A_N)`` (0-d tensors, mm) in ``basis``'s order (``"standard"``: Noll's,
+    normalised; ``"fringe"``): the Zernike part of the sag (module docstring), ``(*B,)`` each.
+    With ``slopes=False`` the slopes are ``None``."""
     coeffs = list(coeffs)
     W = torch.zeros_like(u)
     Wu = torch.zeros_like(u) if slopes else None
@@ -150,7 +193,7 @@ def zernike_values(u, v, coeffs, slopes: bool = True):
     C, S = torch.ones_like(u), torch.zeros_like(u)     # C_m, S_m at the current m
     C_prev, S_prev = None, None
     m_at = 0
-    for mabs, q_max, terms in _layout(len(coeffs)):
+    for mabs, q_max, terms in _layout(len(coeffs), basis):
         while m_at < mabs:   # advance (C, S) to this |m|
             C_prev, S_prev = C, S
             C, S = u * C - v * S, u * S + v * C
@@ -215,27 +258,44 @@ class ZernikeSag(SagSurface):
             mm^(1−2i).
         extrapolate: keep the Zernike terms beyond ``ρ = 1`` (OpticStudio's flag 1, the
             default) or drop them there (0).
+        obscuration: radius of a central obscuration, mm (``0``: none; below the
+            semi-diameter): rays meeting the surface at ``x² + y² < obscuration²`` are blocked
+            (a telescope primary's hole, Zemax's annular ``CLAP`` or ``OBSC``).
 
     Parameters: ``surface.c``, ``surface.k``, ``surface.a[i − 1]`` (``α_i``, the coefficient
     of ``r^(2i)``) and ``surface.zernike[j − 1]`` (``A_j``), each frozen until made trainable;
     the normalisation radius is a fixed buffer.
     """
 
+    #: the term ordering and normalisation (:data:`BASES`)
+    basis = "standard"
+    #: the most terms the basis takes
+    max_terms = MAX_ZERNIKE_TERMS
+
     def __init__(self, curvature: float, semi_diameter: float, norm_radius: float,
-                 zernike=(), conic: float = 0.0, coefficients=(), extrapolate: bool = True):
+                 zernike=(), conic: float = 0.0, coefficients=(), extrapolate: bool = True,
+                 obscuration: float = 0.0):
         super().__init__(semi_diameter)
         rn = float(norm_radius)
         if not (rn > 0 and math.isfinite(rn)):
             raise ValueError(f"ZernikeSag: the normalisation radius must be a positive number "
                              f"of mm, got {norm_radius!r}")
         zernike, coefficients = list(zernike), list(coefficients)
-        if len(zernike) > MAX_ZERNIKE_TERMS:
-            raise ValueError(f"ZernikeSag: at most {MAX_ZERNIKE_TERMS} Zernike terms, got "
-                             f"{len(zernike)}")
+        if len(zernike) > self.max_terms:
+            raise ValueError(f"{type(self).__name__}: at most {self.max_terms} Zernike terms, "
+                             f"got {len(zernike)}")
         if len(coefficients) > MAX_EVEN_TERMS:
             raise ValueError(f"ZernikeSag: at most {MAX_EVEN_TERMS} even coefficients (r^2.."
                              f"r^{2 * MAX_EVEN_TERMS}), got {len(coefficients)}")
         self.extrapolate = bool(extrapolate)
+        obscuration = float(obscuration)
+        if not 0.0 <= obscuration < float(semi_diameter):
+            raise ValueError(f"{type(self).__name__}: the obscuration radius must be >= 0 mm and "
+                             f"below the semi-diameter ({float(semi_diameter):g} mm), got "
+                             f"{obscuration!r}")
+        # not in state_dict (checkpoints keep their keys); it comes with the lens file
+        self.register_buffer("obscuration", torch.tensor(obscuration, dtype=torch.float64),
+                             persistent=False)
         self.register_buffer("norm_radius", torch.tensor(rn, dtype=torch.float64))
         self.c = make_param(curvature, "curvature")
         self.k = make_param(conic, "conic")
@@ -247,10 +307,17 @@ class ZernikeSag(SagSurface):
     def in_domain(self, x, y):
         return conic_arg(x * x + y * y, self.c, self.k) > 0
 
+    def _build_opening(self) -> Opening:
+        """The semi-diameter's circle (and a clear rectangle when set), less the central
+        obscuration's circle."""
+        opening = super()._build_opening()
+        obscured = host_flags(self, "_obscured", (self.obscuration,), lambda o: float(o) > 0)
+        return opening - Circle(self.obscuration, check=False) if obscured else opening
+
     def _zernike(self, x, y, slopes: bool):
         rn = self.norm_radius.to(x)
         u, v = x / rn, y / rn
-        W, Wu, Wv = zernike_values(u, v, self.zernike, slopes)
+        W, Wu, Wv = zernike_values(u, v, self.zernike, slopes, self.basis)
         if not self.extrapolate and len(self.zernike):
             inside = u * u + v * v <= 1.0
             zero = torch.zeros_like(W)
@@ -280,18 +347,20 @@ class ZernikeSag(SagSurface):
         if len(self.a):
             cur = cur + 2.0 * self.a[0]
         rn2 = self.norm_radius.to(self.c) ** 2
+        nm, norm = BASES[self.basis]
         for j, A in enumerate(self.zernike, start=1):
-            n, m = noll_nm(j)
+            n, m = nm(j)
             if m == 0 and n >= 2:
                 h = n // 2
                 r2 = (-1) ** (h - 1) * h * (h + 1)
-                cur = cur + 2.0 * zernike_norm(n, 0) * r2 * A / rn2
+                cur = cur + 2.0 * norm(n, 0) * r2 * A / rn2
         return cur
 
     def rotationally_symmetric(self) -> bool:
         """Whether every non-zero Zernike term has ``m = 0`` (then the surface is unchanged by a
         turn about its axis)."""
-        return all(noll_nm(j)[1] == 0 for j, A in enumerate(self.zernike, start=1)
+        nm = BASES[self.basis][0]
+        return all(nm(j)[1] == 0 for j, A in enumerate(self.zernike, start=1)
                    if float(A) != 0.0)
 
     def quadric(self, o, d):
@@ -300,6 +369,9 @@ class ZernikeSag(SagSurface):
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
+        if not float(self.obscuration) < sd:
+            raise ValueError(f"{where}the central obscuration ({float(self.obscuration):g} mm) "
+                             f"must be smaller than the semi-diameter ({sd:g} mm)")
         check_conic_domain(sd, float(self.c), float(self.k),
                            "Zernike sag surface's conic base", where)
 
@@ -309,7 +381,7 @@ class ZernikeSag(SagSurface):
         return conic_polynomial_scale(self, name, lambda i: 2 * i + 2)
 
     file_fields = ("curvature_per_mm", "conic", "even_coefficients", "norm_radius_mm",
-                   "zernike_coefficients", "zernike_extrapolate")
+                   "zernike_coefficients", "zernike_extrapolate", "obscuration_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -320,7 +392,7 @@ class ZernikeSag(SagSurface):
                    entry.get("zernike_coefficients", "numbers", default=[]),
                    conic=entry.get("conic", default=0.0),
                    coefficients=entry.get("even_coefficients", "numbers", default=[]),
-                   extrapolate=bool(ext))
+                   extrapolate=bool(ext), obscuration=entry.get("obscuration_mm", default=0.0))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -330,9 +402,23 @@ class ZernikeSag(SagSurface):
         d["norm_radius_mm"] = float(self.norm_radius)
         d["zernike_coefficients"] = [float(v) for v in self.zernike]
         d["zernike_extrapolate"] = int(self.extrapolate)
+        if float(self.obscuration) > 0:
+            d["obscuration_mm"] = float(self.obscuration)
         return d
 
     def extra_repr(self) -> str:
         return (f"c={float(self.c.detach()):.6g}/mm, k={float(self.k.detach()):.6g}, "
                 f"rn={float(self.norm_radius):.6g} mm, n_even={len(self.a)}, "
                 f"n_zernike={len(self.zernike)}, " + super().extra_repr())
+
+
+@register_surface("zernike_fringe_sag")
+class ZernikeFringeSag(ZernikeSag):
+    """An even asphere plus Zernike Fringe terms (OpticStudio's ``FZERNSAG``; the module
+    docstring): :class:`ZernikeSag` with the Fringe numbering (:func:`fringe_nm`, at most
+    ``MAX_FRINGE_TERMS`` = 37 terms) and no normalisation factor.  Arguments, parameters and
+    lens-file fields as :class:`ZernikeSag` (``zernike``: ``[A_1, ..., A_N]`` in Fringe order,
+    mm)."""
+
+    basis = "fringe"
+    max_terms = MAX_FRINGE_TERMS

@@ -264,7 +264,8 @@ BAD = [
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
      r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, grating, "
-     r"ideal_lens, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, zernike_sag\)"),
+     r"ideal_lens, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, zernike_fringe_sag, "
+     r"zernike_sag\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
     ("misspelt top-level field", _set([0.0], "field_deg"),
@@ -505,6 +506,14 @@ def test_every_registered_surface_type_round_trips():
                           "norm_radius_mm": 2.6, "zernike_coefficients": [0.0, 1e-4, 0.0, 2e-3 / 3],
                           "zernike_extrapolate": 1, "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([15, 15])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a Zernike Fringe sag (OpticStudio's FZERNSAG), likewise
+    d["surfaces"].append({"type": "zernike_fringe_sag", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": -1 / 95.0, "conic": 0.1,
+                          "even_coefficients": [1e-4 / 7],
+                          "norm_radius_mm": 2.7, "zernike_coefficients": [0.0, 0.0, 0.0, 1e-3 / 3],
+                          "zernike_extrapolate": 0, "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([16, 16])
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}

@@ -364,3 +364,78 @@ def test_off_axis_mirrors_clip_at_their_decentred_rectangles(tmp_path):
     again = lens_from_dict(lens_to_dict(lens))
     assert lens_to_dict(again) == lens_to_dict(lens)
     assert again.surfaces[0].clear_rect.tolist() == [424.0, 192.0]
+
+
+def _ring_baffle(ring="OBSC 1.2 2 0"):
+    """The singlet with a flat ring baffle (``ring``: OBSC lo hi) in the image-side air gap, its
+    plane 10 mm behind the lens, inside a fixed 6 mm opening."""
+    return _with_field_stop(clap=ring, obdc="", extra=('DIAM 6 1 0 0 1 ""',))
+
+
+def test_ring_baffle_blocks_only_its_ring(tmp_path):
+    """``OBSC 1.2 2`` on a flat surface in air (a ring baffle): exactly the rays whose hit on
+    that plane lies at ρ <= 1.2 or ρ >= 2 (within the 6 mm DIAM) pass (hit points from a trace
+    that clips nothing); a central obscuration of 2 mm, or the ring's radii swapped for an
+    annular opening, would pass another set.  It traces eager (no fused kind)."""
+    lens = read_zmx(write(tmp_path, _ring_baffle())).double()
+    i = next(k for k, s in enumerate(lens.surfaces) if isinstance(s, Aperture) and k > 0)
+    ap = lens.surfaces[i]
+    assert (float(ap.obscuration_inner), float(ap.obscuration)) == (1.2, 2.0)
+    assert fused_kind(lens, i) is None
+    rays = _on_axis_rays(lens)
+    with torch.no_grad():
+        free, hits = lens.trace(rays, options=TraceOptions(clip_aperture=False), record=True)
+        clipped = lens.trace(rays)
+    r2 = hits[i][..., 0] ** 2 + hits[i][..., 1] ** 2
+    want = free.valid & ((r2 <= 1.2 ** 2) | (r2 >= 4.0)) & (r2 <= 36.0)
+    assert 0 < int((free.valid & ~want).sum()) and int((want & (r2 <= 1.44)).sum()) > 0
+    assert torch.equal(clipped.valid, want)
+    for wrong in (free.valid & (r2 >= 4.0), free.valid & (r2 >= 1.44) & (r2 <= 4.0)):
+        assert not torch.equal(wrong, want)
+
+
+def test_ring_baffle_round_trips_through_zmx_and_the_lens_file(tmp_path):
+    from deeplens.optics.io import lens_from_dict
+
+    lens = read_zmx(write(tmp_path, _ring_baffle()))
+    p = tmp_path / "back.zmx"
+    write_zmx(lens, p)
+    assert "OBSC 1.2 2.0 0" in p.read_text()
+    back = read_zmx(p)
+    assert lens_to_dict(back) == lens_to_dict(lens)
+    d = lens_to_dict(lens)
+    e = next(s for s in d["surfaces"] if s.get("obscuration_inner_mm"))
+    assert (e["obscuration_inner_mm"], e["obscuration_mm"]) == (1.2, 2.0)
+    assert lens_to_dict(lens_from_dict(d)) == d
+    # checkpoints keep their keys: the ring's inner radius comes with the lens file
+    assert not any(k.endswith("obscuration_inner") for k in lens.state_dict())
+    central = read_zmx(write(tmp_path, _ring_baffle("OBSC 0 2 0"), "c.zmx"))
+    write_zmx(central, tmp_path / "c2.zmx")
+    assert "OBSC 0 2.0 0" in (tmp_path / "c2.zmx").read_text()
+
+
+@pytest.mark.parametrize("edit,needle,match", [
+    (lambda t: t.replace('  DIAM 8 1 0 0 1 ""\nSURF 4', '  DIAM 8 1 0 0 1 ""\n  OBSC 1 2 0\nSURF 4',
+                         1), "OBSC 1 2",
+     r"SURF 3: OBSC 1 2, a ring obscuration \(a baffle; minimum radius > 0\), on a lens "
+     r"surface \(Asphere\) is not supported"),
+    (lambda t: _ring_baffle("OBSC 2 1.2 0"), "OBSC 2 1.2",
+     r"OBSC on SURF 4: expected 0 <= minimum radius < maximum radius, got 2, 1.2"),
+    (lambda t: _ring_baffle("OBSC 1.2 2 0").replace("OBSC 1.2 2 0", "CLAP 0.5 6 0\n  OBSC 1.2 2 0"),
+     "OBSC 1.2 2", r"OBSC on SURF 4: the surface already has an obscuration \(an annular CLAP"),
+])
+def test_ring_obscurations_deeplens_cannot_model_are_refused_with_their_line(tmp_path, edit,
+                                                                            needle, match):
+    text = edit(singlet())
+    ln = line_of(text, needle)
+    with pytest.raises(ZemaxFileError, match=f"t.zmx:{ln}: {match}"):
+        read_zmx(write(tmp_path, text))
+
+
+def test_aperture_ring_obscuration_constructor_errors():
+    with pytest.raises(ValueError, match="a ring obscuration needs 0 < inner radius"):
+        Aperture(5.0, obscuration=2.0, obscuration_inner=2.5)
+    ring = Aperture(5.0, obscuration=2.0, obscuration_inner=1.0)
+    x = torch.tensor([0.0, 1.0, 1.5, 2.0, 4.0, 5.5], dtype=torch.float64)
+    assert ring.opening.contains(x, torch.zeros_like(x)).tolist() == [
+        True, True, False, True, True, False]

@@ -123,11 +123,31 @@ def _load_optiland(name, gratings):
     from optiland.fileio import load_zemax_file
 
     path = CORPUS / name   # CORPUS / an absolute path = that path
+    text = decode_zemax_text(path)
+    if re.search(r"^\s+TYPE\s+TILTSURF", text, re.M):
+        # optiland 0.6's reader has no TILTSURF: a tilted plane with both tangents 0 is the flat
+        # STANDARD surface (OpticStudio's "Tilted": z = x tan θx + y tan θy)
+        parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
+        for i, b in enumerate(parts):
+            if re.search(r"^\s+TYPE\s+TILTSURF", b, re.M):
+                assert all(float(v) == 0.0 for v in re.findall(r"^\s+PARM\s+\d+\s+(\S+)", b,
+                                                                 re.M)), \
+                    "a TILTSURF with a tangent: extend the oracle"
+                b = re.sub(r"^(\s+TYPE\s+)TILTSURF", r"\g<1>STANDARD", b, flags=re.M)
+                parts[i] = re.sub(r"^\s+PARM\s+.*\n", "", b, flags=re.M)
+        text = "".join(parts)
+        if not _has_gratings(name):
+            with tempfile.TemporaryDirectory() as tmp:
+                p = Path(tmp) / Path(name).name
+                p.write_text(text)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    return load_zemax_file(str(p))
     if not _has_gratings(name):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             return load_zemax_file(str(path))
-    parts = re.split(r"(^SURF\s+\d+.*$)", decode_zemax_text(path), flags=re.M)
+    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
     found = []   # (surface number, lines/µm, order)
     for i, b in enumerate(parts):
         if re.search(r"^\s+TYPE\s+DGRATING", b, re.M):

@@ -16,7 +16,7 @@ from test_zmx import line_of, write
 
 from deeplens.optics.io import lens_to_dict
 from deeplens.optics.io.zmx import ZemaxFileError, read_zmx, write_zmx
-from deeplens.optics.surfaces import ZernikeSag
+from deeplens.optics.surfaces import ZernikeFringeSag, ZernikeSag
 from helpers import read_zmx_quiet
 
 FILE = Path(__file__).resolve().parents[2] / "data" / "zmx_opticstudio" / "zernike_sag_singlet.zmx"
@@ -127,7 +127,6 @@ def test_no_extrapolation_round_trips(tmp_path):
     ("XDAT 1 11", "XDAT 1 10", "XDAT 13", r"SZERNSAG XDAT 13 lies beyond the 10 Zernike terms"),
     ("XDAT 2 5", "XDAT 2 0", "XDAT 2 0", r"XDAT 2 \(the normalisation radius\) must be > 0"),
     ("PARM 8 0", "PARM 11 0.1", "PARM 11", r"SZERNSAG PARM 11 is not read"),
-    ("TYPE SZERNSAG", "TYPE FZERNSAG", "FZERNSAG", r"Zernike Fringe sag surface"),
 ])
 def test_unsupported_data_are_refused_with_their_line(tmp_path, old, new, needle, match):
     text = FILE.read_text()
@@ -164,3 +163,87 @@ def test_x_fields_on_a_non_symmetric_zernike_sag_are_reported_as_not_exact(tmp_p
     assert lens.surfaces[1].rotationally_symmetric()
     with pytest.warns(ZemaxWarning, match=r"exact for a rotationally symmetric lens"):
         read_zmx(write(tmp_path, sym, "sym2.zmx"))
+
+
+def _fringe_text():
+    """The singlet with its SURF 2 a Zernike Fringe sag (``FZERNSAG``) of the same records."""
+    return FILE.read_text().replace("TYPE SZERNSAG", "TYPE FZERNSAG").replace(
+        "Zernike standard sag singlet", "Zernike fringe sag singlet")
+
+
+def fringe_sag_by_hand(x, y):
+    """SURF 2 as FZERNSAG, worked out from the Fringe table (no normalisation): Z4 = 2ρ² − 1,
+    Z6 = ρ² sin 2φ, Z8 = (3ρ³ − 2ρ) sin φ, Z11 = ρ³ sin 3φ."""
+    r2 = x * x + y * y
+    p, a = math.sqrt(r2) / 5.0, math.atan2(y, x)
+    base = 0.025 * r2 / (1 + math.sqrt(1 - 0.5 * 0.025 ** 2 * r2)) + 1e-3 * r2 + 2e-5 * r2 ** 2
+    return (base + 0.01 * (2 * p * p - 1) + 0.003 * p * p * math.sin(2 * a)
+            + 0.001 * (3 * p ** 3 - 2 * p) * math.sin(a) - 0.002 * p ** 3 * math.sin(3 * a))
+
+
+def test_fringe_file_has_the_known_sag_and_round_trips(tmp_path):
+    """``FZERNSAG`` is read into a :class:`ZernikeFringeSag` whose sag is the one worked out by
+    hand from the Fringe terms (not the Standard ones of the same numbers), its paraxial EFL
+    uses the Fringe defocus (``c + 2 α_1 + 2 · 2 A_4 / R_n²``); written back it is ``FZERNSAG``
+    with the same records, and read again the same lens bit for bit."""
+    from deeplens.optics.paraxial import paraxial
+
+    lens = read_zmx_quiet(write(tmp_path, _fringe_text()))
+    s = lens.surfaces[1]
+    assert type(s) is ZernikeFringeSag
+    x = torch.tensor([p[0] for p in POINTS], dtype=F64)
+    y = torch.tensor([p[1] for p in POINTS], dtype=F64)
+    assert s.sag(x, y).tolist() == pytest.approx([fringe_sag_by_hand(*p) for p in POINTS],
+                                                 abs=1e-15)
+    assert abs(float(s.sag(x, y)[1]) - sag_by_hand(*POINTS[1])) > 1e-3
+    c = 0.025 + 2e-3 + 2 * 2 * 0.01 / 25.0
+    n = float(lens.materials[2].n(torch.tensor(587.5618, dtype=F64)))
+    assert float(paraxial(lens).efl) == pytest.approx(1.0 / (c * (n - 1.0)), rel=1e-12)
+    p = tmp_path / "back.zmx"
+    write_zmx(lens, p)
+    text = p.read_text()
+    assert "TYPE FZERNSAG" in text and "SZERNSAG" not in text and "XDAT 13 -0.002" in text
+    back = read_zmx_quiet(p)
+    assert lens_to_dict(back) == lens_to_dict(lens)
+    assert lens_to_dict(back)["surfaces"][1]["type"] == "zernike_fringe_sag"
+
+
+@pytest.mark.parametrize("old,new,needle,match", [
+    ("XDAT 1 11", "XDAT 1 38", "XDAT 1", r"FZERNSAG XDAT 1 \(the number of Zernike terms\) must "
+                                         r"be an integer 0..37"),
+    ("PARM 9 0", "PARM 9 0.5", "PARM 9", r"FZERNSAG PARM 9 \(the Zernike decenter in x\)"),
+    ("XDAT 1 11", "XDAT 1 10", "XDAT 13", r"FZERNSAG XDAT 13 lies beyond the 10 Zernike terms"),
+    ("  XDAT 13 -0.002\n", "  XDAT 13 -0.002\n  OBSC 1 2 0\n", "OBSC 1 2",
+     r"SURF 2: OBSC 1 2, a ring obscuration \(a baffle; minimum radius > 0\), on a lens "
+     r"surface \(ZernikeFringeSag\) is not supported"),
+])
+def test_fringe_data_refused_with_their_line(tmp_path, old, new, needle, match):
+    text = _fringe_text().replace(old, new)
+    ln = line_of(text, needle)
+    with pytest.raises(ZemaxFileError, match=f":{ln}: .*{match}"):
+        read_zmx(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("record", ["CLAP 1 4.5 0", "OBSC 0 1 0"])
+def test_a_central_obscuration_on_a_zernike_sag_blocks_the_centre_and_round_trips(tmp_path,
+                                                                                  record):
+    """An annular CLAP (1-4.5 mm) or an OBSC of 1 mm on the FZERNSAG face (a telescope
+    primary's hole): the surface's opening passes exactly the points at 1 <= r <= 4.5; written
+    back as OBSC, read again, and through the lens file, the same lens."""
+    from deeplens.optics.io import lens_from_dict
+
+    text = _fringe_text().replace("  XDAT 13 -0.002\n", f"  XDAT 13 -0.002\n  {record}\n")
+    lens = read_zmx_quiet(write(tmp_path, text))
+    s = lens.surfaces[1]
+    assert type(s) is ZernikeFringeSag and float(s.obscuration) == 1.0
+    r = torch.tensor([0.0, 0.5, 0.999, 1.0, 3.0, 4.5, 4.6], dtype=F64)
+    assert s.opening.contains(r, torch.zeros_like(r)).tolist() == [
+        False, False, False, True, True, True, False]
+    p = tmp_path / "back.zmx"
+    write_zmx(lens, p)
+    assert "OBSC 0 1.0 0" in p.read_text()
+    d = lens_to_dict(lens)
+    assert d["surfaces"][1]["obscuration_mm"] == 1.0
+    assert lens_to_dict(read_zmx_quiet(p)) == d and lens_to_dict(lens_from_dict(d)) == d
+    keys = list(lens.state_dict())
+    assert "surfaces.1.c" in keys and "surfaces.1.obscuration" not in keys

@@ -29,7 +29,8 @@ import torch
 from deeplens.optics.parameters import parameter_scale
 from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary2, BSpline,
                                       CoordinateBreak, Cylinder, Grating, IdealLens, OddAsphere,
-                                      Plane, QType, Toroid, XYPolynomial, ZernikeSag)
+                                      Plane, QType, Toroid, XYPolynomial, ZernikeFringeSag,
+                                      ZernikeSag)
 
 F64 = torch.float64
 R = 5.0   # mm, every example's semi-diameter
@@ -51,9 +52,11 @@ EXAMPLES = {
     XYPolynomial: lambda: XYPolynomial(R, [0.0, 1e-3, 2e-3, 1e-3, 5e-4, -1e-3], b=1e-3),
     ZernikeSag: lambda: ZernikeSag(0.01, R, R, [0.0, 1e-3, 2e-3, 1e-3], conic=-0.5,
                                    coefficients=[1e-4]),
+    ZernikeFringeSag: lambda: ZernikeFringeSag(-0.01, R, R, [0.0, 1e-3, 2e-3, 1e-3], conic=0.3,
+                                               coefficients=[1e-4, 1e-6]),
 }
 #: documented as mm (or 1/mm) with scale 1 by convention, not the rim derivative
-CONVENTION = {(ZernikeSag, "zernike"), (BSpline, "coefficients"), (XYPolynomial, "b")}
+CONVENTION = {(ZernikeSag, "zernike"), (ZernikeFringeSag, "zernike"), (BSpline, "coefficients"), (XYPolynomial, "b")}
 
 
 def _rim(surface):
