@@ -66,6 +66,11 @@ def add_arguments(p) -> None:
                    help="real glasses tried per model glass (--glass-mode model; default 2)")
     g.add_argument("--substitute-steps", type=int, default=15,
                    help="DLS steps re-optimising each substitution candidate (15)")
+    g.add_argument("--seidel-screen", type=int, default=0,
+                   help="Sobol thin-lens systems screened by their third-order RMS spot, in "
+                        "total; the best distinct become the --starts starts (0: off)")
+    g.add_argument("--seidel-steps", type=int, default=100,
+                   help="batched Adam steps of the third-order screen (100)")
     g.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -104,7 +109,8 @@ def run(args) -> dict:
                        polish=(Stage(args.polish_steps, "hexapolar:6", rounds=2),),
                        hop=(Stage(args.hop_steps, "hexapolar:6"),),
                        substitute_k=args.substitute_k,
-                       substitute=(Stage(args.substitute_steps, "hexapolar:6"),))
+                       substitute=(Stage(args.substitute_steps, "hexapolar:6"),),
+                       seidel_screen=args.seidel_screen, seidel_steps=args.seidel_steps)
 
     def progress(text):
         if not args.quiet:
