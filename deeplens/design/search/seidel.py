@@ -467,9 +467,11 @@ def seidel_screen(spec: DesignSpec, points: int, keep: int, seed: int = 0, steps
             rms, pen, ok = merit(lm, lt, la, X)   # torch._dynamo, seconds of start-up
             loss = torch.where(ok & torch.isfinite(rms), torch.log1p(rms) + 10 * pen,
                                torch.zeros_like(rms))
-            grads = torch.autograd.grad(loss.sum(), params)
+            grads = torch.autograd.grad(loss.sum(), params, allow_unused=True)
             with torch.no_grad():
                 for v, g, m1, m2 in zip(params, grads, mom, sq):
+                    if g is None:   # a singlet has no spacings
+                        continue
                     g = g.nan_to_num(0.0, 0.0, 0.0)
                     m1.mul_(0.9).add_(0.1 * g)
                     m2.mul_(0.999).add_(0.001 * g * g)

@@ -254,3 +254,46 @@ def test_lens_system_refuses_aspheres():
         lens.surfaces[1].k.fill_(-0.5)
     with pytest.raises(ValueError, match="surface 1"):
         sd.lens_system(lens)
+
+
+@pytest.mark.slow
+def test_search_takes_its_starts_from_the_screen():
+    """``seidel_screen``: the search's screened starts are the screen's (its record first, the
+    starts named ``seidel``), the focal length exact; bad settings name the field."""
+    from deeplens.design.search import SearchConfig, Stage, search
+
+    spec = DesignSpec(efl_mm=100.0, fno=8.0, hfov_deg=3.0, elements=1,
+                      wavelengths_nm=[587.5618], glasses="N-BK7,N-SK16", stop="front",
+                      min_center_glass_mm=2.0, max_center_glass_mm=8.0, min_edge_glass_mm=0.5)
+    cfg = SearchConfig(seed=0, starts=2, screen=(Stage(1, "hexapolar:2"),), polish_count=1,
+                       polish=(Stage(1, "hexapolar:2"),), hops=0, keep=1,
+                       score_sampling="hexapolar:2", final_sampling="hexapolar:3",
+                       seidel_screen=128, seidel_steps=5)
+    res = search(spec, cfg)
+    assert res.runs[0]["origin"] == "seidel screen" and res.runs[0]["sampled"] == 128
+    screened = [r for r in res.runs if r["origin"].startswith("start")]
+    assert len(screened) == 2 and all(r["origin"].startswith("start seidel") for r in screened)
+    assert res.runs[0]["thick_rms_um"] == sorted(res.runs[0]["thick_rms_um"])
+    assert res.best.metrics["efl_mm"] == pytest.approx(100.0, rel=1e-9)
+    with pytest.raises(ValueError, match="seidel_screen and seidel_steps must be >= 0"):
+        SearchConfig(seidel_screen=-1)
+    with pytest.raises(ValueError, match="start_kind='thin' and prescreen=0"):
+        SearchConfig(seidel_screen=10, prescreen=20)
+
+
+@pytest.mark.slow
+def test_cli_flag(tmp_path, capsys):
+    import json
+
+    from helpers import run_cli
+
+    args = ["design", "search", "--efl", "100", "--fno", "16", "--hfov", "2", "--elements", "1",
+            "--wavelengths", "587.5618", "--glasses", "N-BK7", "--stop", "front", "--starts",
+            "1", "--polish", "1", "--hops", "0", "--keep", "1", "--screen-steps", "1",
+            "--polish-steps", "1", "--quiet", "--json", "--seidel-screen", "32",
+            "--seidel-steps", "2", "--out", str(tmp_path)]
+    code, out, err = run_cli(args, capsys)
+    assert code == 0, err
+    res = json.loads((tmp_path / "result.json").read_text())
+    assert res["config"]["seidel_screen"] == 32 and res["config"]["seidel_steps"] == 2
+    assert res["runs"][0]["origin"] == "seidel screen"
