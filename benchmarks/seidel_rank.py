@@ -13,7 +13,7 @@ For a spec of ``benchmarks/design_search.py`` (``--lens cooke|double_gauss``):
   points keeps ``--points`` distinct thin systems; each thickened, the same numbers, plus the
   thin system's own third-order RMS (the number the screen ranks by).
 
-    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/seidel_rank.py --lens cooke --points 300
+    OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/seidel_rank.py --lens cooke --points 200
 """
 
 from __future__ import annotations
