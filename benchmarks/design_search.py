@@ -12,7 +12,7 @@ same way on its own semi-diameters (it vignettes its outer field).
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/design_search.py [--lens cooke]
         [--seeds 0,1,2,3,4] [--starts 3] [--hops 2] [--screen-steps 30] [--polish-steps 40]
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
-        [--substitute-steps 15] [--json OUT.json]
+        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--json OUT.json]
 
 ``--glass-mode model``: the spec's glasses become model glasses in SCHOTT's glass region
 (vendor catalogue), substituted at the end by the nearest real SCHOTT glasses; the table adds
@@ -69,6 +69,9 @@ def main(argv=None) -> int:
     p.add_argument("--substitute-k", type=int, default=2)
     p.add_argument("--substitute-steps", type=int, default=15)
     p.add_argument("--substitute-radius", type=float, default=None)
+    p.add_argument("--seidel-screen", type=int, default=0,
+                   help="third-order screen: Sobol thin systems sampled (0: off)")
+    p.add_argument("--seidel-steps", type=int, default=100)
     p.add_argument("--json", help="also write the numbers here")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
@@ -85,7 +88,8 @@ def main(argv=None) -> int:
                                          rounds=max(1, args.polish_steps // 20)),),
                            hop=(Stage(args.hop_steps, "hexapolar:6",
                                       rounds=max(1, args.hop_steps // 20)),), keep=1,
-                           prescreen=args.prescreen, substitute_k=args.substitute_k,
+                           prescreen=args.prescreen, seidel_screen=args.seidel_screen,
+                           seidel_steps=args.seidel_steps, substitute_k=args.substitute_k,
                            substitute_radius=args.substitute_radius,
                            substitute=(Stage(args.substitute_steps, "hexapolar:6"),))
         t0, c0 = time.perf_counter(), time.process_time()

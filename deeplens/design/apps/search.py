@@ -12,6 +12,7 @@ constraints, time, every refinement) and, with matplotlib, ``convergence.png`` a
 
 from __future__ import annotations
 
+import math
 import sys
 
 #: flag -> spec field (the values are parsed by DesignSpec, which names the field on error)
@@ -66,6 +67,12 @@ def add_arguments(p) -> None:
                    help="real glasses tried per model glass (--glass-mode model; default 2)")
     g.add_argument("--substitute-steps", type=int, default=15,
                    help="DLS steps re-optimising each substitution candidate (15)")
+    g.add_argument("--seidel-screen", type=int, default=2048,
+                   help="Sobol thin-lens systems screened by their third-order RMS spot, in "
+                        "total; the best distinct become the --starts starts (default 2048; "
+                        "0: off; used for thin starts of an object at infinity only)")
+    g.add_argument("--seidel-steps", type=int, default=100,
+                   help="batched Adam steps of the third-order screen (100)")
     g.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -104,7 +111,10 @@ def run(args) -> dict:
                        polish=(Stage(args.polish_steps, "hexapolar:6", rounds=2),),
                        hop=(Stage(args.hop_steps, "hexapolar:6"),),
                        substitute_k=args.substitute_k,
-                       substitute=(Stage(args.substitute_steps, "hexapolar:6"),))
+                       substitute=(Stage(args.substitute_steps, "hexapolar:6"),),
+                       seidel_screen=args.seidel_screen if args.start_kind == "thin"
+                       and math.isinf(spec.object_distance_mm) else 0,
+                       seidel_steps=args.seidel_steps)
 
     def progress(text):
         if not args.quiet:

@@ -9,6 +9,11 @@
    ``prescreen`` draws) each get a cheap refinement (``prescreen_stage``: a few DLS steps on
    few rays) and an RMS spot on ``prescreen_sampling``; the best ``starts`` of them (feasible
    first) go on to step 2.
+   **1c. Third-order screen** (``seidel_screen > 0``): instead, ``seidel_screen`` Sobol points
+   (in total, for the whole search) become thin systems at once, ``seidel_steps`` batched Adam
+   steps refine them on their third-order RMS spot, and the best distinct ones, thickened and
+   ranked again by the thick lens's third-order RMS, are the ``starts`` starts
+   (:func:`~.seidel.screened_starts`).
 2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
    scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
    first, then by the polychromatic RMS spot.
@@ -99,6 +104,8 @@ class SearchConfig:
     glass_radius: float = 0.03
     substitute_radius: float | None = None
     time_limit_s: float | None = None
+    seidel_screen: int = 0
+    seidel_steps: int = 100
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
@@ -111,6 +118,12 @@ class SearchConfig:
                              f"{self.substitute_radius!r}")
         if self.time_limit_s is not None and not float(self.time_limit_s) > 0:
             raise ValueError(f"time_limit_s must be None or > 0, got {self.time_limit_s!r}")
+        if int(self.seidel_screen) < 0 or int(self.seidel_steps) < 0:
+            raise ValueError(f"seidel_screen and seidel_steps must be >= 0, got "
+                             f"{self.seidel_screen!r}, {self.seidel_steps!r}")
+        if int(self.seidel_screen) and (self.prescreen or self.start_kind != "thin"):
+            raise ValueError("seidel_screen needs start_kind='thin' and prescreen=0 (it "
+                             "chooses the thin-lens starts itself)")
         if int(self.prescreen) < 0:
             raise ValueError(f"prescreen must be >= 0, got {self.prescreen!r}")
         for name in ("starts", "keep", "polish_count", "substitute_k"):
@@ -335,6 +348,20 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         return cfg.time_limit_s is not None and time.perf_counter() - t0 > cfg.time_limit_s
 
     source = fresh(4 * cfg.starts)
+    if cfg.seidel_screen > 0:   # step 1c: starts from the third-order screen
+        from .seidel import screened_starts
+
+        got, info = screened_starts(spec, int(cfg.seidel_screen), cfg.starts, seed=cfg.seed,
+                                    steps=int(cfg.seidel_steps), glass_strategy=glass_strategy)
+        runs.append(info)
+        tried = info["sampled"]
+        say(f"third-order screen: {info['sampled']} systems, {len(got)} starts at "
+            + ", ".join(f"{x:.0f}" for x in info["thick_rms_um"]) + " um (third order); "
+            + f"{info['seconds']:.0f} s")
+        if region is not None:
+            for _, lens in got:
+                use_model_glasses(lens, region=region)
+        source = iter([(label, "thin", lens, False) for label, lens in got])
     if cfg.prescreen > cfg.starts:   # step 1b: the best `starts` of `prescreen` cheap runs
         cands = []
         for idx, kind, lens, flat in fresh(4 * cfg.prescreen):
