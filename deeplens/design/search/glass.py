@@ -29,6 +29,15 @@ r"""Glass choice for a design search: model glasses while optimising, real glass
    Each candidate lens is a copy re-optimised by ``reoptimize(lens) -> merit`` (default:
    :func:`dls_reoptimizer`, a few damped-least-squares steps); the lowest merit is kept.  Only
    glasses of the chosen catalogues are ever put in (and checked again before returning).
+4. **Snapping** (a continuation before the substitution).  :func:`snap_model_glasses`
+   re-optimises the lens (geometry and model glasses together) a few times with a growing
+   pull of each model glass towards its nearest real glass (:class:`NearestGlassPull`: the
+   region's residual plus ``strength · δ_nearest``, the nearest glass re-picked at every
+   evaluation, so a glass may move on to another real glass while the rest of the lens
+   follows).  At the last strength every model glass sits on a real glass to within
+   ``~1e-4`` of ``δ``, and the exact substitution that follows changes almost nothing, so the
+   design the model glasses found is kept instead of being re-converged from a jump of up
+   to the region's radius.
 """
 
 from __future__ import annotations
@@ -52,7 +61,8 @@ from .glass_region import V_WEIGHT, CatalogueGlass, GlassRegion, glasses, neares
 
 __all__ = ["TrainableModelGlass", "use_model_glasses", "model_glass_media", "glass_variable_names",
            "glass_scales", "GlassRegionPenalty", "project_model_glasses", "dls_reoptimizer",
-           "SubstitutionResult", "substitute_glasses"]
+           "SubstitutionResult", "substitute_glasses", "NearestGlassPull", "snap_strengths",
+           "snap_model_glasses"]
 
 _K_FC = 1.0 / (LINE_F / 1000.0) ** 2 - 1.0 / (LINE_C / 1000.0) ** 2     # µm⁻²
 _INV_LD2 = 1.0 / (LINE_D / 1000.0) ** 2                                 # µm⁻²
@@ -434,3 +444,83 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
             raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
                                f"the chosen catalogues")
     return SubstitutionResult(best["lens"], chosen, best["merit"], table, use)
+
+
+class NearestGlassPull:
+    """A region-like object for :class:`GlassRegionPenalty` and :func:`project_model_glasses`
+    that also pulls every model glass towards its nearest real glass (module docstring,
+    item 4): ``excess = region.excess + strength · sqrt(δ_min² + ε²)``, ``δ_min`` the distance
+    to the nearest glass of ``region.glasses`` (re-picked at every evaluation; continuous,
+    smooth but at the Voronoi edges between two glasses), ``ε = 1e-6``.  ``contains`` and
+    ``project`` are the region's, so a glass is still kept inside it.
+
+    Args:
+        region: the search's :class:`~.glass_region.GlassRegion` (its glasses are the pool).
+        strength: the pull per unit of ``δ`` relative to the region's excess, ``>= 0``.
+    """
+
+    EPS = 1e-6
+
+    def __init__(self, region: GlassRegion, strength: float):
+        if not (math.isfinite(float(strength)) and float(strength) >= 0):
+            raise ValueError(f"nearest-glass pull strength must be finite and >= 0, got "
+                             f"{strength!r}")
+        self.region, self.strength = region, float(strength)
+
+    def nearest_distance(self, n_d, v_d) -> torch.Tensor:
+        """``sqrt(δ_min² + ε²)`` of ``(n_d, V_d)`` (broadcast shape; differentiable)."""
+        from .glass_region import _coords
+
+        p = _coords(n_d, v_d, self.region.v_weight)
+        g = self.region.points.to(p)
+        d2 = ((p.unsqueeze(-2) - g) ** 2).sum(-1).min(-1).values
+        return torch.sqrt(d2 + self.EPS ** 2)
+
+    def excess(self, n_d, v_d) -> torch.Tensor:
+        return self.region.excess(n_d, v_d) + self.strength * self.nearest_distance(n_d, v_d)
+
+    def contains(self, n_d, v_d):
+        return self.region.contains(n_d, v_d)
+
+    def project(self, n_d: float, v_d: float) -> tuple[float, float]:
+        return self.region.project(n_d, v_d)
+
+
+def snap_strengths(merit: float, count: int = 6, first_delta: float = 0.01,
+                   last_delta: float = 1e-4, penalty_weight: float = 10.0) -> list[float]:
+    """A geometric schedule of pull strengths for :func:`snap_model_glasses`: at stage ``j``
+    a glass ``δ_j`` from its nearest real glass costs as much as the whole merit ``merit``
+    (``sum r²``), ``δ_j`` going geometrically from ``first_delta`` to ``last_delta``;
+    ``penalty_weight`` is :class:`GlassRegionPenalty`'s weight (the residual is
+    ``weight · strength · δ``)."""
+    if not (math.isfinite(merit) and merit > 0):
+        raise ValueError(f"snap_strengths needs a finite merit > 0, got {merit!r}")
+    if int(count) < 1 or not (0 < last_delta <= first_delta):
+        raise ValueError(f"snap_strengths: need count >= 1 and 0 < last_delta <= first_delta, "
+                         f"got {count!r}, {first_delta!r}, {last_delta!r}")
+    deltas = [first_delta * (last_delta / first_delta) ** (j / max(int(count) - 1, 1))
+              for j in range(int(count))]
+    return [math.sqrt(merit) / (penalty_weight * d) for d in deltas]
+
+
+def snap_model_glasses(lens, region: GlassRegion, reoptimize: Callable, strengths) -> list:
+    """The continuation of the module docstring (item 4), in place: for each strength,
+    ``reoptimize(lens, NearestGlassPull(region, strength))`` (a re-optimisation of the
+    geometry and the model glasses whose merit includes :class:`GlassRegionPenalty` of that
+    region-like object; it returns anything and raises on failure).
+
+    Returns:
+        one row per stage: ``{"strength": s, "distance": {medium: δ to the nearest real
+        glass}, "nearest": {medium: "CAT:NAME"}}`` after the stage.
+    """
+    lens_ = unpack(lens)[0]
+    rows = []
+    for s in strengths:
+        reoptimize(lens, NearestGlassPull(region, s))
+        row = {"strength": float(s), "distance": {}, "nearest": {}}
+        for i, m in enumerate(lens_.materials):
+            if isinstance(m, TrainableModelGlass):
+                g, d = region.nearest(*m.values())
+                row["distance"][i], row["nearest"][i] = d, g.label
+        rows.append(row)
+    return rows
