@@ -13,7 +13,7 @@ same way on its own semi-diameters (it vignettes its outer field).
         [--seeds 0,1,2,3,4] [--starts 3] [--hops 2] [--screen-steps 30] [--polish-steps 40]
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
         [--substitute-steps 15] [--substitution nearest|snap] [--snap-steps 5]
-        [--snap-count 6] [--json OUT.json] [--save-models DIR | --from-models DIR]
+        [--snap-count 6] [--rank-keep N] [--rank-k 4] [--json OUT.json] [--save-models DIR | --from-models DIR]
 
 ``--glass-mode model``: the spec's glasses become model glasses in SCHOTT's glass region
 (vendor catalogue), substituted at the end by the nearest real SCHOTT glasses; the table adds
@@ -100,6 +100,10 @@ def main(argv=None) -> int:
                    help="SearchConfig.substitution (default: its default)")
     p.add_argument("--snap-steps", type=int, default=5)
     p.add_argument("--snap-count", type=int, default=6)
+    p.add_argument("--rank-keep", type=int, default=None,
+                   help="SearchConfig.rank_keep: re-optimise only the best N of the "
+                        "--rank-k nearest per element, ranked by a linearised prediction")
+    p.add_argument("--rank-k", type=int, default=4)
     p.add_argument("--json", help="also write the numbers here")
     p.add_argument("--save-models", metavar="DIR",
                    help="save each seed's model-glass designs before substitution")
@@ -126,7 +130,9 @@ def main(argv=None) -> int:
                            substitute_radius=args.substitute_radius,
                            substitute=(Stage(args.substitute_steps, "hexapolar:6"),),
                            snap_stage=(Stage(args.snap_steps, "hexapolar:6"),),
-                           snap_count=args.snap_count,
+                           snap_count=args.snap_count, rank_k=args.rank_k,
+                           **({"rank_keep": args.rank_keep} if args.rank_keep is not None
+                              else {}),
                            **({"substitution": args.substitution} if args.substitution else {}))
         t0, c0 = time.perf_counter(), time.process_time()
 

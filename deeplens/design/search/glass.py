@@ -321,7 +321,7 @@ class SubstitutionResult:
         merit: its merit (what ``reoptimize`` returned).
         table: one row per candidate tried: ``{"glasses": {medium: "CAT:NAME"}, "distance":
             {medium: δ}, "merit": float or None, "error": str, "kept": bool}``.
-        strategy: ``"product"`` or ``"greedy"``.
+        strategy: ``"product"``, ``"greedy"`` or ``"ranked"``.
     """
 
     lens: object
@@ -339,7 +339,8 @@ class SubstitutionResult:
 def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, merit=None,
                        k: int = 3, strategy: str = "auto", max_combinations: int = 27,
                        v_weight: float = V_WEIGHT, exclude: Iterable[str] = (),
-                       media: Iterable[int] | None = None) -> SubstitutionResult:
+                       media: Iterable[int] | None = None, rank: Callable | None = None,
+                       rank_keep: int = 4) -> SubstitutionResult:
     """Replace the model glasses of ``lens`` by real glasses of ``catalogues`` (module
     docstring).
 
@@ -356,6 +357,11 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
         v_weight: ``w_V`` of the distance.
         exclude: glass-name globs never used (:func:`~.glass_region.glasses`).
         media: indices into ``lens.materials`` to substitute (default: every model glass).
+        rank: ``rank(candidate_lens) -> predicted merit`` (lower is better; cheap, e.g.
+            :func:`~.substitution.linearised_ranker`): every combination of the ``k`` nearest
+            is ranked by it, and only the ``rank_keep`` best are re-optimised (strategy
+            ``"ranked"``); the table's rows get ``"predicted"``.
+        rank_keep: how many ranked candidates are re-optimised, ``>= 1``.
 
     Returns:
         A :class:`SubstitutionResult`.
@@ -391,13 +397,19 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
     table: list[dict] = []
     best: dict = {}
 
-    def evaluate(assign: dict):
+    def build(assign: dict):
         cand = copy.deepcopy(lens)
         for i, (g, _) in assign.items():
             cand.materials[i] = g.material()
+        return cand
+
+    def evaluate(assign: dict, predicted=None):
+        cand = build(assign)
         row = {"glasses": {i: g.label for i, (g, _) in assign.items()},
                "distance": {i: d for i, (_, d) in assign.items()}, "merit": None, "error": "",
                "kept": False}
+        if predicted is not None:
+            row["predicted"] = predicted
         try:
             val = float(reoptimize(cand))
         except (ValueError, RuntimeError, ArithmeticError, Infeasible) as e:
@@ -410,8 +422,8 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
         table.append(row)
         return val, cand, row
 
-    def consider(assign: dict, into: dict):
-        val, cand, row = evaluate(assign)
+    def consider(assign: dict, into: dict, predicted=None):
+        val, cand, row = evaluate(assign, predicted)
         if math.isfinite(val) and ("merit" not in into or val < into["merit"]):
             into.update(merit=val, lens=cand, assign=dict(assign), row=row)
 
@@ -420,7 +432,22 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
         n_comb *= len(cands[i])
     use = strategy if strategy != "auto" else ("product" if n_comb <= max_combinations
                                                else "greedy")
-    if use == "product":
+    if rank is not None:
+        if int(rank_keep) < 1:
+            raise ValueError(f"rank_keep must be >= 1, got {rank_keep!r}")
+        use = "ranked"
+        scored = []
+        for j, combo in enumerate(itertools.product(*(cands[i] for i in media))):
+            assign = dict(zip(media, combo))
+            try:
+                p = float(rank(build(assign)))
+            except (ValueError, RuntimeError, ArithmeticError, Infeasible):
+                p = math.inf
+            scored.append((p if math.isfinite(p) else math.inf, j, assign))
+        scored.sort(key=lambda t: (t[0], t[1]))
+        for p, _, assign in scored[:int(rank_keep)]:
+            consider(assign, best, p)
+    elif use == "product":
         for combo in itertools.product(*(cands[i] for i in media)):
             consider(dict(zip(media, combo)), best)
     else:

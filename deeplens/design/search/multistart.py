@@ -102,6 +102,8 @@ class SearchConfig:
     substitution: str = "nearest"
     snap_stage: tuple = (Stage(5, "hexapolar:6"),)
     snap_count: int = 6
+    rank_keep: int = 0
+    rank_k: int = 4
     time_limit_s: float | None = None
 
     def __post_init__(self):
@@ -120,7 +122,9 @@ class SearchConfig:
             raise ValueError(f"time_limit_s must be None or > 0, got {self.time_limit_s!r}")
         if int(self.prescreen) < 0:
             raise ValueError(f"prescreen must be >= 0, got {self.prescreen!r}")
-        for name in ("starts", "keep", "polish_count", "substitute_k"):
+        if int(self.rank_keep) < 0:
+            raise ValueError(f"rank_keep must be >= 0, got {self.rank_keep!r}")
+        for name in ("starts", "keep", "polish_count", "substitute_k", "rank_k"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if not (math.isfinite(float(self.glass_radius)) and float(self.glass_radius) > 0):
@@ -293,7 +297,14 @@ def substitute_design(dsg: Design, spec: DesignSpec, cfg: SearchConfig,
             base = lens
         except (ValueError, RuntimeError) as e:
             snap_rows = [{"error": f"{type(e).__name__}: {e}"}]
-    sub = substitute_glasses(base, spec.catalogues, reoptimize, k=cfg.substitute_k)
+    if cfg.rank_keep > 0:   # rank the rank_k nearest by a linearised re-optimisation
+        from .substitution import linearised_ranker
+
+        sub = substitute_glasses(base, spec.catalogues, reoptimize, k=cfg.rank_k,
+                                 rank=linearised_ranker(base, spec, cfg.score_sampling),
+                                 rank_keep=cfg.rank_keep)
+    else:
+        sub = substitute_glasses(base, spec.catalogues, reoptimize, k=cfg.substitute_k)
     real = _finish(sub.lens, spec, f"{dsg.origin}, real glasses", cfg)
     model_rms, real_rms = dsg.metrics["rms_um"], real.metrics["rms_um"]
     real.glass_record = {
@@ -306,7 +317,8 @@ def substitute_design(dsg: Design, spec: DesignSpec, cfg: SearchConfig,
         "strategy": sub.strategy, "seconds": time.perf_counter() - t0,
         "substitution": cfg.substitution, "snap": snap_rows,
         "candidates": [{"glasses": {str(i): g for i, g in row["glasses"].items()},
-                        "score_um": row["merit"], "error": row["error"], "kept": row["kept"]}
+                        "score_um": row["merit"], "error": row["error"], "kept": row["kept"],
+                        **({"predicted": row["predicted"]} if "predicted" in row else {})}
                        for row in sub.table]}
     return real
 
