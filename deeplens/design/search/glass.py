@@ -31,9 +31,9 @@ r"""Glass choice for a design search: model glasses while optimising, real glass
    glasses of the chosen catalogues are ever put in (and checked again before returning).
 4. **Snapping** (a continuation before the substitution).  :func:`snap_model_glasses`
    re-optimises the lens (geometry and model glasses together) a few times with a growing
-   pull of each model glass towards its nearest real glass (:class:`NearestGlassPull`: the
-   region's residual plus ``strength · δ_nearest``, the nearest glass re-picked at every
-   evaluation, so a glass may move on to another real glass while the rest of the lens
+   pull of each model glass towards its nearest real glass (:class:`NearestGlassPull`: two
+   residuals ``strength · (Δn_d, w_V ΔV_d)`` to it, the nearest glass re-picked before every
+   stage, so a glass may move on to another real glass while the rest of the lens
    follows).  At the last strength every model glass sits on a real glass to within
    ``~1e-4`` of ``δ``, and the exact substitution that follows changes almost nothing, so the
    design the model glasses found is kept instead of being re-converged from a jump of up
@@ -268,13 +268,19 @@ class GlassRegionPenalty:
         return self
 
     def residuals(self, lens) -> torch.Tensor:
-        """``(G,)`` residuals, one per trainable glass (dimensionless)."""
+        """``(G,)`` residuals, one per trainable glass (dimensionless); with a
+        :class:`NearestGlassPull` as the region, ``(3 G,)``: each glass's excess and its
+        pull."""
         lens = unpack(lens)[0]
-        out = [self.weight * self.region.excess(m.n_d, m.v_d)
-               for m in lens.materials if isinstance(m, TrainableModelGlass)]
+        out = []
+        for m in lens.materials:
+            if isinstance(m, TrainableModelGlass):
+                out.append(self.weight * self.region.excess(m.n_d, m.v_d).reshape(1))
+                if hasattr(self.region, "pull"):   # a NearestGlassPull: 2 more residuals
+                    out.append(self.weight * self.region.pull(m.n_d, m.v_d).reshape(-1))
         if not out:
             return torch.zeros(0, dtype=lens.dtype, device=lens.device)
-        return torch.stack(out).reshape(-1)
+        return torch.cat(out)
 
 
 def project_model_glasses(lens, region: GlassRegion) -> dict:
@@ -475,36 +481,56 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
 
 class NearestGlassPull:
     """A region-like object for :class:`GlassRegionPenalty` and :func:`project_model_glasses`
-    that also pulls every model glass towards its nearest real glass (module docstring,
-    item 4): ``excess = region.excess + strength · sqrt(δ_min² + ε²)``, ``δ_min`` the distance
-    to the nearest glass of ``region.glasses`` (re-picked at every evaluation; continuous,
-    smooth but at the Voronoi edges between two glasses), ``ε = 1e-6``.  ``contains`` and
-    ``project`` are the region's, so a glass is still kept inside it.
+    that also pulls every model glass towards a real glass (module docstring, item 4): beside
+    the region's excess, :meth:`pull` gives two residuals per glass,
+    ``strength · (n_d − n_t, w_V (V_d − V_t))``, ``t`` the nearest of ``targets`` (default:
+    every glass of the region), so the pull costs ``strength² δ²`` (the penalty's weight
+    times).  Two linear residuals, not one ``strength · δ``: damped least squares linearises a
+    distance along the line to the target only, sees no cost across it, and takes steps
+    across it that the merit then rejects (a singlet's snap stalled at ``δ`` 0.015 so).
+    :func:`snap_model_glasses` gives as ``targets`` each model glass's nearest real glass at
+    the start of a stage, so each glass is pulled to its own target, smoothly (the nearest of
+    *all* glasses changes on the edges between two glasses, where a finite-difference
+    Jacobian mixes both).  ``contains`` and ``project`` are the region's, so a glass is still
+    kept inside it.
 
     Args:
-        region: the search's :class:`~.glass_region.GlassRegion` (its glasses are the pool).
-        strength: the pull per unit of ``δ`` relative to the region's excess, ``>= 0``.
+        region: the search's :class:`~.glass_region.GlassRegion`.
+        strength: the pull per unit of ``δ``, relative to the region's excess, ``>= 0``.
+        targets: :class:`~.glass_region.CatalogueGlass` es to pull towards.
     """
 
-    EPS = 1e-6
-
-    def __init__(self, region: GlassRegion, strength: float):
+    def __init__(self, region: GlassRegion, strength: float, targets=None):
         if not (math.isfinite(float(strength)) and float(strength) >= 0):
             raise ValueError(f"nearest-glass pull strength must be finite and >= 0, got "
                              f"{strength!r}")
         self.region, self.strength = region, float(strength)
+        self.targets = tuple(region.glasses if targets is None else targets)
+        if not self.targets:
+            raise ValueError("nearest-glass pull: no target glass")
+        self.points = torch.tensor([(g.n_d, region.v_weight * g.v_d) for g in self.targets],
+                                   dtype=torch.float64)
 
-    def nearest_distance(self, n_d, v_d) -> torch.Tensor:
-        """``sqrt(δ_min² + ε²)`` of ``(n_d, V_d)`` (broadcast shape; differentiable)."""
+    def offset(self, n_d, v_d) -> torch.Tensor:
+        """``(..., 2)``: ``(n_d, w_V V_d)`` minus that of the nearest target (differentiable;
+        the nearest is picked without a gradient)."""
         from .glass_region import _coords
 
         p = _coords(n_d, v_d, self.region.v_weight)
-        g = self.region.points.to(p)
-        d2 = ((p.unsqueeze(-2) - g) ** 2).sum(-1).min(-1).values
-        return torch.sqrt(d2 + self.EPS ** 2)
+        g = self.points.to(p)
+        j = ((p.unsqueeze(-2) - g) ** 2).sum(-1).argmin(-1)
+        return p - g[j]
+
+    def nearest_distance(self, n_d, v_d) -> torch.Tensor:
+        """``δ`` to the nearest target (broadcast shape)."""
+        return torch.linalg.vector_norm(self.offset(n_d, v_d), dim=-1)
+
+    def pull(self, n_d, v_d) -> torch.Tensor:
+        """``(..., 2)`` residuals ``strength · offset``."""
+        return self.strength * self.offset(n_d, v_d)
 
     def excess(self, n_d, v_d) -> torch.Tensor:
-        return self.region.excess(n_d, v_d) + self.strength * self.nearest_distance(n_d, v_d)
+        return self.region.excess(n_d, v_d)
 
     def contains(self, n_d, v_d):
         return self.region.contains(n_d, v_d)
@@ -513,13 +539,13 @@ class NearestGlassPull:
         return self.region.project(n_d, v_d)
 
 
-def snap_strengths(merit: float, count: int = 6, first_delta: float = 0.01,
+def snap_strengths(merit: float, count: int = 6, first_delta: float = 0.03,
                    last_delta: float = 1e-4, penalty_weight: float = 10.0) -> list[float]:
     """A geometric schedule of pull strengths for :func:`snap_model_glasses`: at stage ``j``
-    a glass ``δ_j`` from its nearest real glass costs as much as the whole merit ``merit``
-    (``sum r²``), ``δ_j`` going geometrically from ``first_delta`` to ``last_delta``;
-    ``penalty_weight`` is :class:`GlassRegionPenalty`'s weight (the residual is
-    ``weight · strength · δ``)."""
+    a glass ``δ_j`` from its target costs as much as the whole merit ``merit`` (``sum r²``),
+    ``(penalty_weight · strength_j · δ_j)² = merit``, ``δ_j`` going geometrically from
+    ``first_delta`` to ``last_delta``; ``penalty_weight`` is :class:`GlassRegionPenalty`'s
+    weight."""
     if not (math.isfinite(merit) and merit > 0):
         raise ValueError(f"snap_strengths needs a finite merit > 0, got {merit!r}")
     if int(count) < 1 or not (0 < last_delta <= first_delta):
@@ -532,8 +558,9 @@ def snap_strengths(merit: float, count: int = 6, first_delta: float = 0.01,
 
 def snap_model_glasses(lens, region: GlassRegion, reoptimize: Callable, strengths) -> list:
     """The continuation of the module docstring (item 4), in place: for each strength,
-    ``reoptimize(lens, NearestGlassPull(region, strength))`` (a re-optimisation of the
-    geometry and the model glasses whose merit includes :class:`GlassRegionPenalty` of that
+    ``reoptimize(lens, NearestGlassPull(region, strength, targets))`` with ``targets`` the
+    nearest real glass of each model glass at that moment (a re-optimisation of the geometry
+    and the model glasses whose merit includes :class:`GlassRegionPenalty` of that
     region-like object; it returns anything and raises on failure).
 
     Returns:
@@ -543,7 +570,9 @@ def snap_model_glasses(lens, region: GlassRegion, reoptimize: Callable, strength
     lens_ = unpack(lens)[0]
     rows = []
     for s in strengths:
-        reoptimize(lens, NearestGlassPull(region, s))
+        targets = [region.nearest(*m.values())[0] for m in lens_.materials
+                   if isinstance(m, TrainableModelGlass)]
+        reoptimize(lens, NearestGlassPull(region, s, targets))
         row = {"strength": float(s), "distance": {}, "nearest": {}}
         for i, m in enumerate(lens_.materials):
             if isinstance(m, TrainableModelGlass):

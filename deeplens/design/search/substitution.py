@@ -26,45 +26,64 @@ import torch
 from ...optics.camera import Camera
 from ..lensopt import lens_residual_fn
 from ..optimizers import jacobian
+from ..variables import Variables
 from .problem import search_merit, search_variables
 from .refine import _FLOATING, set_curriculum
 from .spec import DesignSpec
 
-__all__ = ["linearised_ranker"]
+__all__ = ["linear_ranker", "linearised_ranker"]
 
 
-def linearised_ranker(lens, spec: DesignSpec, sampling: str = "hexapolar:6",
-                      ridge: float = 1e-6) -> Callable:
-    """``rank(candidate_lens) -> F_c`` of the module docstring (mm², the spot merit's units)
-    for candidates that differ from ``lens`` only in their media.
+def linear_ranker(lens, merit, variables: Variables, camera: Camera | None = None,
+                  ridge: float = 1e-6) -> Callable:
+    """``rank(candidate_lens) -> F_c`` of the module docstring for ``merit`` (already prepared
+    on ``lens``: its ``residuals`` are read as they are) and the ``variables`` of ``lens`` (the
+    geometry re-optimised), for candidates that differ from ``lens`` only in their media.
 
     Args:
-        lens: the design (float64; not modified: a copy is prepared).
-        spec: its :class:`~.spec.DesignSpec` (fields, wavelengths, focal length).
-        sampling: the pupil sampling of the merit.
+        lens: the design (float64); ``variables`` must be of this lens.
+        merit: an object with ``residuals(lens) -> (m,)`` (a prepared
+            :class:`~deeplens.design.merit.Merit`).
+        variables: :class:`~deeplens.design.variables.Variables` of ``lens``.
+        camera: trace options for the merit (a Camera of ``lens``), as in
+            :func:`~deeplens.design.lensopt.lens_residual_fn`.
         ridge: ``μ / s_max²``, ``>= 0``.
 
     Raises:
-        ValueError: a negative ``ridge``; the errors of the merit's preparation.
+        ValueError: a negative ``ridge``.
     """
     if not ridge >= 0:
         raise ValueError(f"ridge must be >= 0, got {ridge!r}")
-    L = copy.deepcopy(lens)
-    set_curriculum(L, spec, 1.0)
-    cam = Camera(L, None, _FLOATING)
-    merit = search_merit(spec, (), sampling=sampling, efl_solve=True)
-    merit.prepare(cam)
-    v = search_variables(L, efl_solve=True)
-    _, J = jacobian(lens_residual_fn(v, merit, camera=cam), v.x0(), "central")
+    _, J = jacobian(lens_residual_fn(variables, merit, camera=camera), variables.x0(),
+                    "central")
     U, S, _ = torch.linalg.svd(J, full_matrices=False)
     mu = ridge * float(S[0]) ** 2 if S.numel() else 0.0
     keep = mu / (S ** 2 + mu) if mu > 0 else torch.zeros_like(S)
+    opts = None if camera is None else camera.options
 
     def rank(cand) -> float:
         with torch.no_grad():
-            r = merit.residuals(Camera(cand, None, _FLOATING)).to(U)
+            r = merit.residuals(cand if opts is None else Camera(cand, None, opts)).to(U)
             c = U.T @ r
             perp = r - U @ c
             return float((perp @ perp) + (keep * c * c).sum())
 
     return rank
+
+
+def linearised_ranker(lens, spec: DesignSpec, sampling: str = "hexapolar:6",
+                      ridge: float = 1e-6) -> Callable:
+    """:func:`linear_ranker` for a search design: the merit of :func:`~.problem.search_merit`
+    on ``sampling`` (focal length by the angle solve, no constraints) and the geometry
+    variables of :func:`~.problem.search_variables`, on a copy of ``lens`` at full aperture
+    with floating clear apertures (as :func:`~.refine.refine` optimises).
+
+    Raises:
+        ValueError: a negative ``ridge``; the errors of the merit's preparation.
+    """
+    L = copy.deepcopy(lens)
+    set_curriculum(L, spec, 1.0)
+    cam = Camera(L, None, _FLOATING)
+    merit = search_merit(spec, (), sampling=sampling, efl_solve=True)
+    merit.prepare(cam)
+    return linear_ranker(L, merit, search_variables(L, efl_solve=True), cam, ridge)
