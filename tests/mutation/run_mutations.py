@@ -77,6 +77,7 @@ MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
 RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
+SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -697,6 +698,16 @@ MUTATIONS = [
     Mutation("model_glass_not_a_variable", "model glasses left out of the search's variables",
              "deeplens/design/search/refine.py", "glasses=glass_region is not None)",
              "glasses=False)", GLASS_SEARCH),
+    Mutation("rank_keeps_the_worst", "ranked substitution candidates sorted worst first",
+             "deeplens/design/search/glass.py", "scored.sort(key=lambda t: (t[0], t[1]))",
+             "scored.sort(key=lambda t: (-t[0], t[1]))", SUBSTITUTION),
+    Mutation("snap_without_pull", "the snap's pull strength ignored (no pull)",
+             "deeplens/design/search/glass.py", "return self.strength * self.offset(n_d, v_d)",
+             "return 0.0 * self.offset(n_d, v_d)", SUBSTITUTION),
+    Mutation("substitution_keeps_unoptimised_lens", "the kept candidate is the lens before its "
+             "re-optimisation", "deeplens/design/search/glass.py",
+             "            val = float(reoptimize(cand))",
+             "            val = float(reoptimize(copy.deepcopy(cand)))", SUBSTITUTION),
     Mutation("search_seed_ignored", "the starts' Sobol points not seeded",
              "deeplens/design/search/multistart.py",
              "scramble=True, seed=int(cfg.seed))", "scramble=True, seed=None)",

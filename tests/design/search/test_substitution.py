@@ -4,9 +4,8 @@ linearised re-optimisation before the best few are re-optimised.
 
 Planted bugs this file fails (tests/mutation/run_mutations.py): ``rank_keeps_the_worst``
 (the ranked candidates sorted worst first), ``snap_without_pull`` (the pull's strength
-ignored).  Skipping the candidates' re-optimisation fails
-:func:`test_ranked_substitution_of_an_achromat_finds_the_best_pair` (the real glasses at the
-model geometry are far worse than the model design).
+ignored), ``substitution_keeps_unoptimised_lens`` (the kept lens is the candidate before its
+re-optimisation).
 """
 
 from __future__ import annotations
@@ -146,6 +145,9 @@ def test_ranked_substitution_of_an_achromat_finds_the_best_pair(achromat):
     assert ranked.merit <= model                          # real beats model: within 5 %
     assert ranked.merit < 0.5 * near.merit                # and far better than nearest
     assert ranked.table[0]["predicted"] > 0 and ranked.table[0]["kept"]
+    # the lens returned is the re-optimised candidate whose merit is reported
+    assert float(spot.prepare(ranked.lens)(ranked.lens)) == pytest.approx(ranked.merit,
+                                                                          rel=1e-9)
 
 
 @pytest.mark.slow
