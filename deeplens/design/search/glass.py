@@ -564,8 +564,9 @@ def snap_model_glasses(lens, region: GlassRegion, reoptimize: Callable, strength
     region-like object; it returns anything and raises on failure).
 
     Returns:
-        one row per stage: ``{"strength": s, "distance": {medium: δ to the nearest real
-        glass}, "nearest": {medium: "CAT:NAME"}}`` after the stage.
+        one row per stage: ``{"strength": s, "glass": {medium: {"n_d", "v_d"}}, "distance":
+        {medium: δ to the nearest real glass}, "nearest": {medium: "CAT:NAME"}}`` after the
+        stage.
     """
     lens_ = unpack(lens)[0]
     rows = []
@@ -573,10 +574,11 @@ def snap_model_glasses(lens, region: GlassRegion, reoptimize: Callable, strength
         targets = [region.nearest(*m.values())[0] for m in lens_.materials
                    if isinstance(m, TrainableModelGlass)]
         reoptimize(lens, NearestGlassPull(region, s, targets))
-        row = {"strength": float(s), "distance": {}, "nearest": {}}
+        row = {"strength": float(s), "glass": {}, "distance": {}, "nearest": {}}
         for i, m in enumerate(lens_.materials):
             if isinstance(m, TrainableModelGlass):
                 g, d = region.nearest(*m.values())
+                row["glass"][i] = {"n_d": m.values()[0], "v_d": m.values()[1]}
                 row["distance"][i], row["nearest"][i] = d, g.label
         rows.append(row)
     return rows

@@ -42,6 +42,14 @@
    search's region): before substitution the model glasses are projected into a region of
    this radius and the model design is re-optimised there (``substitute`` stages), so that
    substitution starts from glasses within that distance of real ones.
+   ``substitution="snap"``: before substitution a copy of the model design is re-optimised
+   ``snap_count`` times (``snap_stage``) with a growing pull of each model glass onto its
+   nearest real glass (:func:`~.glass.snap_model_glasses`, strengths
+   :func:`~.glass.snap_strengths` of the design's merit), and the substitution starts from
+   it.  ``rank_keep > 0``: the ``rank_k`` nearest glasses per element are combined, ranked by
+   a linearised re-optimisation (:func:`~.substitution.linearised_ranker`: the candidate's
+   exact residuals at the design's geometry, projected off the geometry Jacobian) and only
+   the ``rank_keep`` best are re-optimised.
 
 ``time_limit_s``: no new start, polish or hop begins once this much wall time has passed
 (the one under way finishes, the designs found so far are kept and finished; glass
@@ -99,7 +107,7 @@ class SearchConfig:
     substitute: tuple = (Stage(15, "hexapolar:6"),)
     glass_radius: float = 0.03
     substitute_radius: float | None = None
-    substitution: str = "nearest"
+    substitution: str = "snap"
     snap_stage: tuple = (Stage(5, "hexapolar:6"),)
     snap_count: int = 6
     rank_keep: int = 0
