@@ -698,6 +698,10 @@ MUTATIONS = [
     Mutation("model_glass_not_a_variable", "model glasses left out of the search's variables",
              "deeplens/design/search/refine.py", "glasses=glass_region is not None)",
              "glasses=False)", GLASS_SEARCH),
+    Mutation("search_seed_ignored", "the starts' Sobol points not seeded",
+             "deeplens/design/search/multistart.py",
+             "scramble=True, seed=int(cfg.seed))", "scramble=True, seed=None)",
+             GLASS_SEARCH + ("tests/design/search/test_multistart.py",)),
     Mutation("rank_keeps_the_worst", "ranked substitution candidates sorted worst first",
              "deeplens/design/search/glass.py", "scored.sort(key=lambda t: (t[0], t[1]))",
              "scored.sort(key=lambda t: (-t[0], t[1]))", SUBSTITUTION),
@@ -708,10 +712,6 @@ MUTATIONS = [
              "re-optimisation", "deeplens/design/search/glass.py",
              "            val = float(reoptimize(cand))",
              "            val = float(reoptimize(copy.deepcopy(cand)))", SUBSTITUTION),
-    Mutation("search_seed_ignored", "the starts' Sobol points not seeded",
-             "deeplens/design/search/multistart.py",
-             "scramble=True, seed=int(cfg.seed))", "scramble=True, seed=None)",
-             GLASS_SEARCH + ("tests/design/search/test_multistart.py",)),
 ]
 
 
