@@ -12,13 +12,22 @@ same way on its own semi-diameters (it vignettes its outer field).
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/design_search.py [--lens cooke]
         [--seeds 0,1,2,3,4] [--starts 3] [--hops 2] [--screen-steps 30] [--polish-steps 40]
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
-        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--json OUT.json]
+        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100]
+        [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
+        [--rank-k 4] [--json OUT.json] [--save-models DIR | --from-models DIR]
 
 ``--glass-mode model``: the spec's glasses become model glasses in SCHOTT's glass region
 (vendor catalogue), substituted at the end by the nearest real SCHOTT glasses; the table adds
 the model-glass design's RMS spot and the substitution's merit loss (real / model - 1, both
 after the same re-optimisation budget).  ``--prescreen N``: N starts each get 4 DLS steps on
 hexapolar:3 rays and the best ``--starts`` of them go on (``SearchConfig.prescreen``).
+
+``--save-models DIR`` (model glass): the kept model-glass designs of each seed, just before
+their substitution, are saved to ``DIR/<lens>_seed<k>.pt`` (``torch.save`` of the lenses with
+their trainable model glasses, so the normal-line dispersion is kept).  ``--from-models DIR``:
+no search; each seed's saved designs are loaded and only the substitution runs (with this
+call's ``--substitute-*`` options), so that substitution variants are compared on the same
+model designs for minutes of CPU instead of a 20-30 minute search each.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import statistics
 import sys
 import time
@@ -33,6 +43,9 @@ import time
 import torch
 
 from deeplens.design.search import DesignSpec, SearchConfig, Stage, evaluate, search
+from deeplens.design.search.glass_region import GlassRegion
+from deeplens.design.search.multistart import (Design, SearchResult, signature,
+                                               substitute_design)
 from deeplens.optics.io import load_lens
 
 SPECS = {
@@ -54,6 +67,21 @@ SPECS = {
 }
 
 
+def substitute_saved(saved, spec, cfg, say) -> SearchResult:
+    """The substitution step of :func:`search` alone, on saved model-glass designs."""
+    region = GlassRegion(spec.catalogues, radius=cfg.glass_radius)
+    t0, real = time.perf_counter(), []
+    for k, d in enumerate(saved):
+        dsg = Design(d["lens"], d["metrics"], d["origin"], signature(d["lens"], spec.efl_mm))
+        r = substitute_design(dsg, spec, cfg, region)
+        g = r.glass_record
+        say(f"substitution {k + 1}/{len(saved)}: model {g['model_rms_um']:.2f} um -> "
+            f"{', '.join(g['substituted'].values())}: {g['real_rms_um']:.2f} um "
+            f"({len(g['candidates'])} candidates, {g['seconds']:.0f} s)")
+        real.append(r)
+    return SearchResult(sorted(real, key=lambda d: d.key), [], time.perf_counter() - t0, cfg)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--lens", choices=sorted(SPECS), default="cooke",
@@ -72,8 +100,22 @@ def main(argv=None) -> int:
     p.add_argument("--seidel-screen", type=int, default=0,
                    help="third-order screen: Sobol thin systems sampled (0: off)")
     p.add_argument("--seidel-steps", type=int, default=100)
+    p.add_argument("--substitution", choices=["nearest", "snap"], default=None,
+                   help="SearchConfig.substitution (default: its default)")
+    p.add_argument("--snap-steps", type=int, default=5)
+    p.add_argument("--snap-count", type=int, default=6)
+    p.add_argument("--rank-keep", type=int, default=None,
+                   help="SearchConfig.rank_keep: re-optimise only the best N of the "
+                        "--rank-k nearest per element, ranked by a linearised prediction")
+    p.add_argument("--rank-k", type=int, default=4)
     p.add_argument("--json", help="also write the numbers here")
+    p.add_argument("--save-models", metavar="DIR",
+                   help="save each seed's model-glass designs before substitution")
+    p.add_argument("--from-models", metavar="DIR",
+                   help="no search: substitute the model-glass designs saved in DIR")
     args = p.parse_args(argv)
+    if (args.save_models or args.from_models) and args.glass_mode != "model":
+        p.error("--save-models and --from-models need --glass-mode model")
     torch.set_num_threads(1)
     spec, name = SPECS[args.lens]
     if args.glass_mode == "model":
@@ -91,10 +133,29 @@ def main(argv=None) -> int:
                            prescreen=args.prescreen, seidel_screen=args.seidel_screen,
                            seidel_steps=args.seidel_steps, substitute_k=args.substitute_k,
                            substitute_radius=args.substitute_radius,
-                           substitute=(Stage(args.substitute_steps, "hexapolar:6"),))
+                           substitute=(Stage(args.substitute_steps, "hexapolar:6"),),
+                           snap_stage=(Stage(args.snap_steps, "hexapolar:6"),),
+                           snap_count=args.snap_count, rank_k=args.rank_k,
+                           **({"rank_keep": args.rank_keep} if args.rank_keep is not None
+                              else {}),
+                           **({"substitution": args.substitution} if args.substitution else {}))
         t0, c0 = time.perf_counter(), time.process_time()
-        res = search(spec, cfg, progress=lambda s, seed=seed: print(f"  seed {seed}: {s}",
-                                                                     file=sys.stderr, flush=True))
+
+        def say(s, seed=seed):
+            print(f"  seed {seed}: {s}", file=sys.stderr, flush=True)
+
+        path = f"{args.save_models or args.from_models}/{args.lens}_seed{seed}.pt"
+        if args.from_models:
+            res = substitute_saved(torch.load(path, weights_only=False), spec, cfg, say)
+        else:
+            save = None
+            if args.save_models:
+                os.makedirs(args.save_models, exist_ok=True)
+
+                def save(kept, path=path):
+                    torch.save([{"lens": d.lens, "metrics": d.metrics, "origin": d.origin}
+                                for d in kept], path)
+            res = search(spec, cfg, progress=say, model_designs=save)
         m = res.best.metrics
         rows.append({"seed": seed, "rms_um": m["rms_um"], "rms_poly_um": m["rms_poly_um"],
                      "feasible": m["feasible"], "efl_mm": m["efl_mm"], "fno": m["fno"],

@@ -70,7 +70,8 @@ START_CHOICES = ("file", "search")
 #: the keys of ``lens.search`` (``plate``: a phase plate's search, alone)
 SEARCH_KEYS = ("spec", "config", "trainable", "plate")
 #: the stage fields of a SearchConfig, and the keys of one stage
-_STAGE_FIELDS = ("screen", "flat_screen", "polish", "hop", "prescreen_stage", "substitute")
+_STAGE_FIELDS = ("screen", "flat_screen", "polish", "hop", "prescreen_stage", "substitute",
+                 "snap_stage")
 _STAGE_KEYS = ("steps", "sampling", "aperture", "field", "rounds", "method")
 #: the file holding the key of the search in its folder
 RECORD = "search_record.json"
@@ -135,6 +136,7 @@ def _stages(value, key: str) -> tuple:
 
 def _search_config(given, key: str):
     from ..design.search import SearchConfig
+    from ..design.search.multistart import SUBSTITUTIONS
 
     given = {} if given is None else given
     if not isinstance(given, dict):
@@ -160,7 +162,13 @@ def _search_config(given, key: str):
              "substitute_k": (lambda v: _int(v, 1), "an integer >= 1"),
              "glass_radius": (_real, "a number > 0"),
              "substitute_radius": (lambda v: v is None or _real(v), "null or a number > 0"),
-             "time_limit_s": (lambda v: v is None or _real(v), "null or a number of seconds > 0")}
+             "time_limit_s": (lambda v: v is None or _real(v), "null or a number of seconds > 0"),
+             "substitution": (lambda v: v in SUBSTITUTIONS, " or ".join(map(repr, SUBSTITUTIONS))),
+             "snap_count": (lambda v: _int(v, 1), "an integer >= 1"),
+             "rank_keep": (lambda v: _int(v, 0), "an integer >= 0"),
+             "rank_k": (lambda v: _int(v, 1), "an integer >= 1"),
+             "seidel_screen": (lambda v: _int(v, 0), "an integer >= 0"),
+             "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0")}
     for name, v in given.items():
         if name in _STAGE_FIELDS:
             vals[name] = _stages(v, f"{key}.{name}")

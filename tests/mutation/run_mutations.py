@@ -77,6 +77,7 @@ MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
 RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
+SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -707,6 +708,16 @@ MUTATIONS = [
              "deeplens/design/search/multistart.py",
              "scramble=True, seed=int(cfg.seed))", "scramble=True, seed=None)",
              GLASS_SEARCH + ("tests/design/search/test_multistart.py",)),
+    Mutation("rank_keeps_the_worst", "ranked substitution candidates sorted worst first",
+             "deeplens/design/search/glass.py", "scored.sort(key=lambda t: (t[0], t[1]))",
+             "scored.sort(key=lambda t: (-t[0], t[1]))", SUBSTITUTION),
+    Mutation("snap_without_pull", "the snap's pull strength ignored (no pull)",
+             "deeplens/design/search/glass.py", "return self.strength * self.offset(n_d, v_d)",
+             "return 0.0 * self.offset(n_d, v_d)", SUBSTITUTION),
+    Mutation("substitution_keeps_unoptimised_lens", "the kept candidate is the lens before its "
+             "re-optimisation", "deeplens/design/search/glass.py",
+             "            val = float(reoptimize(cand))",
+             "            val = float(reoptimize(copy.deepcopy(cand)))", SUBSTITUTION),
     # ------------------------------------------------ unseen real files (issue 37)
     Mutation("sqap_stop_floa_pupil_widened", "a SQAP on a lens stop under FLOA floats the "
              "pupil on the rectangle's half-diagonal, not the stop's DIAM",

@@ -29,6 +29,15 @@ r"""Glass choice for a design search: model glasses while optimising, real glass
    Each candidate lens is a copy re-optimised by ``reoptimize(lens) -> merit`` (default:
    :func:`dls_reoptimizer`, a few damped-least-squares steps); the lowest merit is kept.  Only
    glasses of the chosen catalogues are ever put in (and checked again before returning).
+4. **Snapping** (a continuation before the substitution).  :func:`snap_model_glasses`
+   re-optimises the lens (geometry and model glasses together) a few times with a growing
+   pull of each model glass towards its nearest real glass (:class:`NearestGlassPull`: two
+   residuals ``strength · (Δn_d, w_V ΔV_d)`` to it, the nearest glass re-picked before every
+   stage, so a glass may move on to another real glass while the rest of the lens
+   follows).  At the last strength every model glass sits on a real glass to within
+   ``~1e-4`` of ``δ``, and the exact substitution that follows changes almost nothing, so the
+   design the model glasses found is kept instead of being re-converged from a jump of up
+   to the region's radius.
 """
 
 from __future__ import annotations
@@ -52,7 +61,8 @@ from .glass_region import V_WEIGHT, CatalogueGlass, GlassRegion, glasses, neares
 
 __all__ = ["TrainableModelGlass", "use_model_glasses", "model_glass_media", "glass_variable_names",
            "glass_scales", "GlassRegionPenalty", "project_model_glasses", "dls_reoptimizer",
-           "SubstitutionResult", "substitute_glasses"]
+           "SubstitutionResult", "substitute_glasses", "NearestGlassPull", "snap_strengths",
+           "snap_model_glasses"]
 
 _K_FC = 1.0 / (LINE_F / 1000.0) ** 2 - 1.0 / (LINE_C / 1000.0) ** 2     # µm⁻²
 _INV_LD2 = 1.0 / (LINE_D / 1000.0) ** 2                                 # µm⁻²
@@ -258,13 +268,19 @@ class GlassRegionPenalty:
         return self
 
     def residuals(self, lens) -> torch.Tensor:
-        """``(G,)`` residuals, one per trainable glass (dimensionless)."""
+        """``(G,)`` residuals, one per trainable glass (dimensionless); with a
+        :class:`NearestGlassPull` as the region, ``(3 G,)``: each glass's excess and its
+        pull."""
         lens = unpack(lens)[0]
-        out = [self.weight * self.region.excess(m.n_d, m.v_d)
-               for m in lens.materials if isinstance(m, TrainableModelGlass)]
+        out = []
+        for m in lens.materials:
+            if isinstance(m, TrainableModelGlass):
+                out.append(self.weight * self.region.excess(m.n_d, m.v_d).reshape(1))
+                if hasattr(self.region, "pull"):   # a NearestGlassPull: 2 more residuals
+                    out.append(self.weight * self.region.pull(m.n_d, m.v_d).reshape(-1))
         if not out:
             return torch.zeros(0, dtype=lens.dtype, device=lens.device)
-        return torch.stack(out).reshape(-1)
+        return torch.cat(out)
 
 
 def project_model_glasses(lens, region: GlassRegion) -> dict:
@@ -311,7 +327,7 @@ class SubstitutionResult:
         merit: its merit (what ``reoptimize`` returned).
         table: one row per candidate tried: ``{"glasses": {medium: "CAT:NAME"}, "distance":
             {medium: δ}, "merit": float or None, "error": str, "kept": bool}``.
-        strategy: ``"product"`` or ``"greedy"``.
+        strategy: ``"product"``, ``"greedy"`` or ``"ranked"``.
     """
 
     lens: object
@@ -329,7 +345,8 @@ class SubstitutionResult:
 def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, merit=None,
                        k: int = 3, strategy: str = "auto", max_combinations: int = 27,
                        v_weight: float = V_WEIGHT, exclude: Iterable[str] = (),
-                       media: Iterable[int] | None = None) -> SubstitutionResult:
+                       media: Iterable[int] | None = None, rank: Callable | None = None,
+                       rank_keep: int = 4) -> SubstitutionResult:
     """Replace the model glasses of ``lens`` by real glasses of ``catalogues`` (module
     docstring).
 
@@ -346,6 +363,11 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
         v_weight: ``w_V`` of the distance.
         exclude: glass-name globs never used (:func:`~.glass_region.glasses`).
         media: indices into ``lens.materials`` to substitute (default: every model glass).
+        rank: ``rank(candidate_lens) -> predicted merit`` (lower is better; cheap, e.g.
+            :func:`~.substitution.linearised_ranker`): every combination of the ``k`` nearest
+            is ranked by it, and only the ``rank_keep`` best are re-optimised (strategy
+            ``"ranked"``); the table's rows get ``"predicted"``.
+        rank_keep: how many ranked candidates are re-optimised, ``>= 1``.
 
     Returns:
         A :class:`SubstitutionResult`.
@@ -381,13 +403,19 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
     table: list[dict] = []
     best: dict = {}
 
-    def evaluate(assign: dict):
+    def build(assign: dict):
         cand = copy.deepcopy(lens)
         for i, (g, _) in assign.items():
             cand.materials[i] = g.material()
+        return cand
+
+    def evaluate(assign: dict, predicted=None):
+        cand = build(assign)
         row = {"glasses": {i: g.label for i, (g, _) in assign.items()},
                "distance": {i: d for i, (_, d) in assign.items()}, "merit": None, "error": "",
                "kept": False}
+        if predicted is not None:
+            row["predicted"] = predicted
         try:
             val = float(reoptimize(cand))
         except (ValueError, RuntimeError, ArithmeticError, Infeasible) as e:
@@ -400,8 +428,8 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
         table.append(row)
         return val, cand, row
 
-    def consider(assign: dict, into: dict):
-        val, cand, row = evaluate(assign)
+    def consider(assign: dict, into: dict, predicted=None):
+        val, cand, row = evaluate(assign, predicted)
         if math.isfinite(val) and ("merit" not in into or val < into["merit"]):
             into.update(merit=val, lens=cand, assign=dict(assign), row=row)
 
@@ -410,7 +438,22 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
         n_comb *= len(cands[i])
     use = strategy if strategy != "auto" else ("product" if n_comb <= max_combinations
                                                else "greedy")
-    if use == "product":
+    if rank is not None:
+        if int(rank_keep) < 1:
+            raise ValueError(f"rank_keep must be >= 1, got {rank_keep!r}")
+        use = "ranked"
+        scored = []
+        for j, combo in enumerate(itertools.product(*(cands[i] for i in media))):
+            assign = dict(zip(media, combo))
+            try:
+                p = float(rank(build(assign)))
+            except (ValueError, RuntimeError, ArithmeticError, Infeasible):
+                p = math.inf
+            scored.append((p if math.isfinite(p) else math.inf, j, assign))
+        scored.sort(key=lambda t: (t[0], t[1]))
+        for p, _, assign in scored[:int(rank_keep)]:
+            consider(assign, best, p)
+    elif use == "product":
         for combo in itertools.product(*(cands[i] for i in media)):
             consider(dict(zip(media, combo)), best)
     else:
@@ -434,3 +477,108 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
             raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
                                f"the chosen catalogues")
     return SubstitutionResult(best["lens"], chosen, best["merit"], table, use)
+
+
+class NearestGlassPull:
+    """A region-like object for :class:`GlassRegionPenalty` and :func:`project_model_glasses`
+    that also pulls every model glass towards a real glass (module docstring, item 4): beside
+    the region's excess, :meth:`pull` gives two residuals per glass,
+    ``strength · (n_d − n_t, w_V (V_d − V_t))``, ``t`` the nearest of ``targets`` (default:
+    every glass of the region), so the pull costs ``strength² δ²`` (the penalty's weight
+    times).  Two linear residuals, not one ``strength · δ``: damped least squares linearises a
+    distance along the line to the target only, sees no cost across it, and takes steps
+    across it that the merit then rejects (a singlet's snap stalled at ``δ`` 0.015 so).
+    :func:`snap_model_glasses` gives as ``targets`` each model glass's nearest real glass at
+    the start of a stage, so each glass is pulled to its own target, smoothly (the nearest of
+    *all* glasses changes on the edges between two glasses, where a finite-difference
+    Jacobian mixes both).  ``contains`` and ``project`` are the region's, so a glass is still
+    kept inside it.
+
+    Args:
+        region: the search's :class:`~.glass_region.GlassRegion`.
+        strength: the pull per unit of ``δ``, relative to the region's excess, ``>= 0``.
+        targets: :class:`~.glass_region.CatalogueGlass` es to pull towards.
+    """
+
+    def __init__(self, region: GlassRegion, strength: float, targets=None):
+        if not (math.isfinite(float(strength)) and float(strength) >= 0):
+            raise ValueError(f"nearest-glass pull strength must be finite and >= 0, got "
+                             f"{strength!r}")
+        self.region, self.strength = region, float(strength)
+        self.targets = tuple(region.glasses if targets is None else targets)
+        if not self.targets:
+            raise ValueError("nearest-glass pull: no target glass")
+        self.points = torch.tensor([(g.n_d, region.v_weight * g.v_d) for g in self.targets],
+                                   dtype=torch.float64)
+
+    def offset(self, n_d, v_d) -> torch.Tensor:
+        """``(..., 2)``: ``(n_d, w_V V_d)`` minus that of the nearest target (differentiable;
+        the nearest is picked without a gradient)."""
+        from .glass_region import _coords
+
+        p = _coords(n_d, v_d, self.region.v_weight)
+        g = self.points.to(p)
+        j = ((p.unsqueeze(-2) - g) ** 2).sum(-1).argmin(-1)
+        return p - g[j]
+
+    def nearest_distance(self, n_d, v_d) -> torch.Tensor:
+        """``δ`` to the nearest target (broadcast shape)."""
+        return torch.linalg.vector_norm(self.offset(n_d, v_d), dim=-1)
+
+    def pull(self, n_d, v_d) -> torch.Tensor:
+        """``(..., 2)`` residuals ``strength · offset``."""
+        return self.strength * self.offset(n_d, v_d)
+
+    def excess(self, n_d, v_d) -> torch.Tensor:
+        return self.region.excess(n_d, v_d)
+
+    def contains(self, n_d, v_d):
+        return self.region.contains(n_d, v_d)
+
+    def project(self, n_d: float, v_d: float) -> tuple[float, float]:
+        return self.region.project(n_d, v_d)
+
+
+def snap_strengths(merit: float, count: int = 6, first_delta: float = 0.03,
+                   last_delta: float = 1e-4, penalty_weight: float = 10.0) -> list[float]:
+    """A geometric schedule of pull strengths for :func:`snap_model_glasses`: at stage ``j``
+    a glass ``δ_j`` from its target costs as much as the whole merit ``merit`` (``sum r²``),
+    ``(penalty_weight · strength_j · δ_j)² = merit``, ``δ_j`` going geometrically from
+    ``first_delta`` to ``last_delta``; ``penalty_weight`` is :class:`GlassRegionPenalty`'s
+    weight."""
+    if not (math.isfinite(merit) and merit > 0):
+        raise ValueError(f"snap_strengths needs a finite merit > 0, got {merit!r}")
+    if int(count) < 1 or not (0 < last_delta <= first_delta):
+        raise ValueError(f"snap_strengths: need count >= 1 and 0 < last_delta <= first_delta, "
+                         f"got {count!r}, {first_delta!r}, {last_delta!r}")
+    deltas = [first_delta * (last_delta / first_delta) ** (j / max(int(count) - 1, 1))
+              for j in range(int(count))]
+    return [math.sqrt(merit) / (penalty_weight * d) for d in deltas]
+
+
+def snap_model_glasses(lens, region: GlassRegion, reoptimize: Callable, strengths) -> list:
+    """The continuation of the module docstring (item 4), in place: for each strength,
+    ``reoptimize(lens, NearestGlassPull(region, strength, targets))`` with ``targets`` the
+    nearest real glass of each model glass at that moment (a re-optimisation of the geometry
+    and the model glasses whose merit includes :class:`GlassRegionPenalty` of that
+    region-like object; it returns anything and raises on failure).
+
+    Returns:
+        one row per stage: ``{"strength": s, "glass": {medium: {"n_d", "v_d"}}, "distance":
+        {medium: δ to the nearest real glass}, "nearest": {medium: "CAT:NAME"}}`` after the
+        stage.
+    """
+    lens_ = unpack(lens)[0]
+    rows = []
+    for s in strengths:
+        targets = [region.nearest(*m.values())[0] for m in lens_.materials
+                   if isinstance(m, TrainableModelGlass)]
+        reoptimize(lens, NearestGlassPull(region, s, targets))
+        row = {"strength": float(s), "glass": {}, "distance": {}, "nearest": {}}
+        for i, m in enumerate(lens_.materials):
+            if isinstance(m, TrainableModelGlass):
+                g, d = region.nearest(*m.values())
+                row["glass"][i] = {"n_d": m.values()[0], "v_d": m.values()[1]}
+                row["distance"][i], row["nearest"][i] = d, g.label
+        rows.append(row)
+    return rows

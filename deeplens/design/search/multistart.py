@@ -47,6 +47,14 @@
    search's region): before substitution the model glasses are projected into a region of
    this radius and the model design is re-optimised there (``substitute`` stages), so that
    substitution starts from glasses within that distance of real ones.
+   ``substitution="snap"``: before substitution a copy of the model design is re-optimised
+   ``snap_count`` times (``snap_stage``) with a growing pull of each model glass onto its
+   nearest real glass (:func:`~.glass.snap_model_glasses`, strengths
+   :func:`~.glass.snap_strengths` of the design's merit), and the substitution starts from
+   it.  ``rank_keep > 0``: the ``rank_k`` nearest glasses per element are combined, ranked by
+   a linearised re-optimisation (:func:`~.substitution.linearised_ranker`: the candidate's
+   exact residuals at the design's geometry, projected off the geometry Jacobian) and only
+   the ``rank_keep`` best are re-optimised.
 
 ``time_limit_s``: no new start, polish or hop begins once this much wall time has passed
 (the one under way finishes, the designs found so far are kept and finished; glass
@@ -75,6 +83,7 @@ __all__ = ["SearchConfig", "Design", "SearchResult", "search", "signature", "sam
            "deduplicate", "substitute_design"]
 
 START_KINDS = ("thin", "flat", "mixed")
+SUBSTITUTIONS = ("nearest", "snap")
 
 
 @dataclass
@@ -103,6 +112,11 @@ class SearchConfig:
     substitute: tuple = (Stage(15, "hexapolar:6"),)
     glass_radius: float = 0.03
     substitute_radius: float | None = None
+    substitution: str = "snap"
+    snap_stage: tuple = (Stage(5, "hexapolar:6"),)
+    snap_count: int = 6
+    rank_keep: int = 0
+    rank_k: int = 4
     time_limit_s: float | None = None
     seidel_screen: int = 0
     seidel_steps: int = 100
@@ -116,6 +130,9 @@ class SearchConfig:
                 and float(self.substitute_radius) > 2 * 1e-4):
             raise ValueError(f"substitute_radius must be None or a finite number > 0.0002, got "
                              f"{self.substitute_radius!r}")
+        if self.substitution not in SUBSTITUTIONS:
+            raise ValueError(f"substitution must be one of {', '.join(SUBSTITUTIONS)}, got "
+                             f"{self.substitution!r}")
         if self.time_limit_s is not None and not float(self.time_limit_s) > 0:
             raise ValueError(f"time_limit_s must be None or > 0, got {self.time_limit_s!r}")
         if int(self.seidel_screen) < 0 or int(self.seidel_steps) < 0:
@@ -126,7 +143,9 @@ class SearchConfig:
                              "chooses the thin-lens starts itself)")
         if int(self.prescreen) < 0:
             raise ValueError(f"prescreen must be >= 0, got {self.prescreen!r}")
-        for name in ("starts", "keep", "polish_count", "substitute_k"):
+        if int(self.rank_keep) < 0:
+            raise ValueError(f"rank_keep must be >= 0, got {self.rank_keep!r}")
+        for name in ("starts", "keep", "polish_count", "substitute_k", "rank_k"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if not (math.isfinite(float(self.glass_radius)) and float(self.glass_radius) > 0):
@@ -138,7 +157,8 @@ class SearchConfig:
 
     def to_dict(self) -> dict:
         d = dict(self.__dict__)
-        for k in ("screen", "flat_screen", "polish", "hop", "substitute", "prescreen_stage"):
+        for k in ("screen", "flat_screen", "polish", "hop", "substitute", "prescreen_stage",
+                  "snap_stage"):
             d[k] = [s.__dict__ for s in d[k]]
         return d
 
@@ -242,6 +262,12 @@ def _finish(lens, spec, origin, cfg) -> Design:
     return _score(lens, spec, origin, cfg.final_sampling)
 
 
+def _ok(r):
+    if not r.ok:
+        raise RuntimeError(r.reason)
+    return r
+
+
 def substitute_design(dsg: Design, spec: DesignSpec, cfg: SearchConfig,
                       region=None) -> Design:
     """Step 7 of the module docstring on one finished model-glass design: the real-glass
@@ -278,7 +304,28 @@ def substitute_design(dsg: Design, spec: DesignSpec, cfg: SearchConfig,
         m = evaluate(cand, spec, cfg.score_sampling)
         return m["rms_um"] + (0.0 if m["feasible"] else 1e6)
 
-    sub = substitute_glasses(dsg.lens, spec.catalogues, reoptimize, k=cfg.substitute_k)
+    base, snap_rows = dsg.lens, []
+    if cfg.substitution == "snap" and region is not None:   # pull the glasses onto real ones
+        from .glass import snap_model_glasses, snap_strengths
+
+        lens = copy.deepcopy(dsg.lens)
+        merit0 = sum(spec.weights_of_fields) * (dsg.metrics["rms_um"] / 1000.0) ** 2
+        try:
+            snap_rows = snap_model_glasses(
+                lens, region, lambda L, pull: _ok(refine(L, spec, cfg.snap_stage,
+                                                         glass_region=pull)),
+                snap_strengths(merit0, cfg.snap_count))
+            base = lens
+        except (ValueError, RuntimeError) as e:
+            snap_rows = [{"error": f"{type(e).__name__}: {e}"}]
+    if cfg.rank_keep > 0:   # rank the rank_k nearest by a linearised re-optimisation
+        from .substitution import linearised_ranker
+
+        sub = substitute_glasses(base, spec.catalogues, reoptimize, k=cfg.rank_k,
+                                 rank=linearised_ranker(base, spec, cfg.score_sampling),
+                                 rank_keep=cfg.rank_keep)
+    else:
+        sub = substitute_glasses(base, spec.catalogues, reoptimize, k=cfg.substitute_k)
     real = _finish(sub.lens, spec, f"{dsg.origin}, real glasses", cfg)
     model_rms, real_rms = dsg.metrics["rms_um"], real.metrics["rms_um"]
     real.glass_record = {
@@ -289,14 +336,16 @@ def substitute_design(dsg: Design, spec: DesignSpec, cfg: SearchConfig,
         "model_rms_poly_um": dsg.metrics["rms_poly_um"],
         "real_rms_um": real_rms, "merit_loss": real_rms / model_rms - 1.0,
         "strategy": sub.strategy, "seconds": time.perf_counter() - t0,
+        "substitution": cfg.substitution, "snap": snap_rows,
         "candidates": [{"glasses": {str(i): g for i, g in row["glasses"].items()},
-                        "score_um": row["merit"], "error": row["error"], "kept": row["kept"]}
+                        "score_um": row["merit"], "error": row["error"], "kept": row["kept"],
+                        **({"predicted": row["predicted"]} if "predicted" in row else {})}
                        for row in sub.table]}
     return real
 
 
 def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strategy=None,
-           progress=None) -> SearchResult:
+           progress=None, model_designs=None) -> SearchResult:
     """Design lenses for ``spec`` (module docstring).
 
     Args:
@@ -305,6 +354,10 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         glass_strategy: ``(glasses, signs, u) -> [glass per element]`` for the starts (default
             :func:`~.start.crown_flint_by_sign`): the hook where glass handling plugs in.
         progress: ``progress(text)`` called after each refinement (a progress indicator).
+        model_designs: ``model_designs(designs)`` called with the kept, finished model-glass
+            designs (:class:`Design`, best first) just before their glass substitution (a spec
+            with ``glass_mode="model"`` only): a hook to save them and re-run only the
+            substitution (``benchmarks/design_search.py --save-models``).
 
     Returns:
         :class:`SearchResult` with up to ``config.keep`` distinct designs, best first.
@@ -491,6 +544,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
             continue
     kept.sort(key=lambda d: d.key)
     if region is not None:   # step 7: real glasses for every kept model-glass design
+        if model_designs is not None:
+            model_designs(kept)
         real = []
         for k, dsg in enumerate(kept):
             t1 = time.perf_counter()

@@ -28,7 +28,8 @@ SPEC = dict(efl_mm=100.0, fno=8.0, hfov_deg=0.0, elements=1, wavelengths_nm=[486
             max_center_glass_mm=4.0)
 TINY = dict(starts=1, screen=(Stage(2, "hexapolar:2"),), polish_count=1,
             polish=(Stage(1, "hexapolar:2"),), hops=0, keep=1, score_sampling="hexapolar:2",
-            final_sampling="hexapolar:3", substitute=(Stage(1, "hexapolar:2"),), substitute_k=2)
+            final_sampling="hexapolar:3", substitute=(Stage(1, "hexapolar:2"),), substitute_k=2,
+            snap_stage=(Stage(1, "hexapolar:2"),), snap_count=2)
 
 
 @pytest.fixture(scope="module")
@@ -50,9 +51,12 @@ def test_model_glass_search_uses_only_the_chosen_catalogue(runs):
         assert isinstance(m, AGFGlass) and not isinstance(m, TrainableModelGlass)
         assert m.catalogue == "HOYA" and f"HOYA:{m.name}" in hoya
         assert rec["substituted"][str(i)] == f"HOYA:{m.name}"
-        # the glass put in is one of the k nearest real glasses of the model glass
+        # the glass put in is one of the k nearest real glasses of the model glass, snapped
+        # (the default substitution: pulled onto its nearest real glass first)
         mg = rec["model_glasses"][str(i)]
-        near = [g.label for g, _ in nearest_glasses(mg["n_d"], mg["v_d"], "HOYA", k=2)]
+        assert rec["substitution"] == "snap"
+        sg = rec["snap"][-1]["glass"][i]
+        near = [g.label for g, _ in nearest_glasses(sg["n_d"], sg["v_d"], "HOYA", k=2)]
         assert rec["substituted"][str(i)] in near
         # the model glass stayed inside HOYA's region while optimising
         assert bool(GlassRegion("HOYA").contains(mg["n_d"], mg["v_d"]))

@@ -1,0 +1,237 @@
+"""Glass substitution that keeps what the model glasses found (issue 36, item 4): snapping (a
+growing pull of each model glass onto its nearest real glass) and candidates ranked by a
+linearised re-optimisation before the best few are re-optimised.
+
+Planted bugs this file fails (tests/mutation/run_mutations.py): ``rank_keeps_the_worst``
+(the ranked candidates sorted worst first), ``snap_without_pull`` (the pull's strength
+ignored), ``substitution_keeps_unoptimised_lens`` (the kept lens is the candidate before its
+re-optimisation).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import pytest
+import torch
+
+from deeplens.design.lensopt import lens_residual_fn, optimize_lens
+from deeplens.design.merit import Merit, SpotMerit, TargetMerit
+from deeplens.design.optimizers import jacobian
+from deeplens.design.search import DesignSpec, SearchConfig, Stage, search
+from deeplens.design.search.glass import (
+    GlassRegionPenalty, NearestGlassPull, dls_reoptimizer, glass_scales, glass_variable_names,
+    project_model_glasses, snap_strengths, substitute_glasses, use_model_glasses)
+from deeplens.design.search.glass_region import GlassRegion, glass_distance, glasses
+from deeplens.design.search.substitution import linear_ranker
+from deeplens.design.variables import Variables
+from deeplens.optics.io.agf import AGFGlass
+from deeplens.optics.lens import Lens, LensSpec
+from deeplens.optics.materials import LINE_C, LINE_D, LINE_F, get_material
+from deeplens.optics.surfaces import Sphere
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+@pytest.fixture(scope="module")
+def schott():
+    return GlassRegion("SCHOTT")
+
+
+# ------------------------------------------------------------------------ the pull, schedule
+def test_nearest_pull_is_the_offset_to_the_nearest_target_with_its_gradient(schott):
+    pts = [(1.52, 63.0), (1.75, 30.0), (1.62, 75.0), (1.9, 40.0)]
+    labels = glasses("SCHOTT")
+    allg = torch.tensor([(g.n_d, g.v_d) for g in labels], dtype=torch.float64)
+    pull = NearestGlassPull(schott, 3.0)
+    for nd, vd in pts:
+        dist = glass_distance(allg[:, 0], allg[:, 1], nd, vd)
+        g = labels[int(dist.argmin())]
+        assert float(pull.nearest_distance(nd, vd)) == pytest.approx(float(dist.min()),
+                                                                      rel=1e-12)
+        want = [3.0 * (nd - g.n_d), 3.0 * 0.01 * (vd - g.v_d)]
+        assert pull.pull(nd, vd).tolist() == pytest.approx(want, rel=1e-12, abs=1e-15)
+        assert float(pull.excess(nd, vd)) == float(schott.excess(nd, vd))
+    # with a target: the offset to that glass, not to the nearest of all
+    g = next(g for g in labels if g.name == "N-SF6")
+    one = NearestGlassPull(schott, 1.0, [g])
+    assert float(one.nearest_distance(1.52, 63.0)) == pytest.approx(
+        float(glass_distance(g.n_d, g.v_d, 1.52, 63.0)), rel=1e-12)
+    # the penalty carries the pull: per glass its excess and the two pull residuals
+    lens = _doublet()
+    use_model_glasses(lens, region=schott)
+    r = GlassRegionPenalty(schott, weight=10.0).residuals(lens)
+    rp = GlassRegionPenalty(pull, weight=10.0).residuals(lens)
+    assert r.shape == (2,) and rp.shape == (6,)
+    for k, m in enumerate(lens.materials[1:3]):
+        assert rp[3 * k] == r[k]
+        assert rp[3 * k + 1:3 * k + 3].tolist() == pytest.approx(
+            (10.0 * pull.pull(*m.values())).tolist(), rel=1e-12)
+    # d pull / d(n_d, V_d) = strength * diag(1, w_V): against central differences
+    x = torch.tensor([1.62, 75.0], dtype=torch.float64, requires_grad=True)
+    (pull.pull(x[0], x[1]) ** 2).sum().backward()
+    for j, h in ((0, 1e-6), (1, 1e-4)):
+        e = torch.zeros(2, dtype=torch.float64)
+        e[j] = h
+        f = [float((pull.pull(*(x.detach() + sgn * e)) ** 2).sum()) for sgn in (1, -1)]
+        assert float(x.grad[j]) == pytest.approx((f[0] - f[1]) / (2 * h), rel=1e-6, abs=1e-12)
+    assert bool(pull.contains(1.5168, 64.17)) and pull.project(1.3, 90.0) == schott.project(
+        1.3, 90.0)
+    with pytest.raises(ValueError, match="strength must be finite and >= 0"):
+        NearestGlassPull(schott, -1.0)
+
+
+def test_snap_strengths_make_each_stage_distance_cost_the_merit():
+    s = snap_strengths(4e-4, count=5, first_delta=0.01, last_delta=1e-4)
+    assert snap_strengths(4e-4, count=1) == [math.sqrt(4e-4) / (10.0 * 0.03)]
+    deltas = [0.01 * 0.01 ** (j / 4) for j in range(5)]
+    for sj, dj in zip(s, deltas):
+        assert (10.0 * sj * dj) ** 2 == pytest.approx(4e-4, rel=1e-12)
+    assert s == sorted(s)
+    with pytest.raises(ValueError, match="finite merit > 0"):
+        snap_strengths(0.0)
+    with pytest.raises(ValueError, match="last_delta <= first_delta"):
+        snap_strengths(1.0, first_delta=1e-4, last_delta=1e-2)
+
+
+# --------------------------------------------------------------- an achromat, ranked candidates
+def _doublet():
+    spec = LensSpec(fields_deg=[0.0], wavelengths_nm=[LINE_D, LINE_F, LINE_C])
+    return Lens([Sphere(1 / 61.0, 12.0), Sphere(-1 / 44.0, 12.0), Sphere(-1 / 130.0, 12.0)],
+                [get_material("AIR"), get_material("1.5168/64.17"),
+                 get_material("1.6727/32.25"), get_material("AIR")],
+                [0.0, 6.0, 2.5], 96.0, 0, spec=spec).double()
+
+
+@pytest.fixture(scope="module")
+def achromat(schott):
+    """A cemented achromat (f = 100 mm, F/4.2, on axis, F/d/C) with model glasses optimised in
+    SCHOTT's region: it ends among the fluor crowns (n_d 1.516, V_d 84.8 and 1.672 / 43.3)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = _doublet()
+        use_model_glasses(lens, region=schott)
+        spot = Merit(SpotMerit([0.0], [LINE_F, LINE_D, LINE_C], sampling="hexapolar:3"),
+                     TargetMerit("efl", 100.0, 0.1))
+        v = Variables(lens, ["surfaces.*.c", "d_sensor"] + glass_variable_names(lens),
+                      scales=glass_scales(lens))
+        optimize_lens(lens, v, Merit(*spot.terms, GlassRegionPenalty(schott)), steps=15,
+                      jacobian_mode="central")
+        project_model_glasses(lens, schott)
+        model = float(spot.prepare(lens)(lens))
+        reopt = dls_reoptimizer(spot, "surfaces.*.c,d_sensor", steps=8, jacobian_mode="central")
+        return lens, spot, model, reopt
+
+
+def test_ranked_substitution_of_an_achromat_finds_the_best_pair(achromat):
+    """Nearest-neighbour (k = 1) puts in N-FK51A + N-BAF51 and re-optimises to ~4 x the model
+    design's merit; every pair of the 3 nearest (9 re-optimisations, the slow test below)
+    finds N-FK51A + N-KZFS11 (an anomalous-dispersion pair, below the model's merit).  Ranked
+    by the linearised re-optimisation, that pair is the only one re-optimised."""
+    lens, spot, model, reopt = achromat
+    near = substitute_glasses(lens, "SCHOTT", reopt, k=1)
+    spot.prepare(lens)
+    rank = linear_ranker(lens, spot, Variables(lens, "surfaces.*.c,d_sensor"))
+    ranked = substitute_glasses(lens, "SCHOTT", reopt, k=3, rank=rank, rank_keep=1)
+    assert near.names == {1: "SCHOTT:N-FK51A", 2: "SCHOTT:N-BAF51"}
+    assert ranked.strategy == "ranked" and len(ranked.table) == 1
+    assert ranked.names == {1: "SCHOTT:N-FK51A", 2: "SCHOTT:N-KZFS11"}
+    assert ranked.merit <= model                          # real beats model: within 5 %
+    assert ranked.merit < 0.5 * near.merit                # and far better than nearest
+    assert ranked.table[0]["predicted"] > 0 and ranked.table[0]["kept"]
+    # the lens returned is the re-optimised candidate whose merit is reported
+    assert float(spot.prepare(ranked.lens)(ranked.lens)) == pytest.approx(ranked.merit,
+                                                                          rel=1e-9)
+
+
+@pytest.mark.slow
+def test_ranked_substitution_matches_the_exhaustive_one(achromat):
+    lens, spot, model, reopt = achromat
+    full = substitute_glasses(lens, "SCHOTT", reopt, k=3)
+    spot.prepare(lens)
+    rank = linear_ranker(lens, spot, Variables(lens, "surfaces.*.c,d_sensor"))
+    ranked = substitute_glasses(lens, "SCHOTT", reopt, k=3, rank=rank, rank_keep=1)
+    assert full.strategy == "product" and len(full.table) == 9
+    assert ranked.names == full.names
+    assert ranked.merit == pytest.approx(full.merit, rel=1e-9)
+    # the prediction puts the re-optimisation's best pair first
+    preds = {tuple(r["glasses"].values()): rank(_with(lens, r["glasses"])) for r in full.table}
+    assert min(preds, key=preds.get) == tuple(full.names.values())
+
+
+def _with(lens, names: dict):
+    import copy
+
+    cand = copy.deepcopy(lens)
+    for i, label in names.items():
+        g = next(g for g in glasses("SCHOTT") if g.label == label)
+        cand.materials[i] = g.material()
+    return cand
+
+
+def test_linear_ranker_against_its_closed_forms(achromat):
+    """``ridge -> inf``: no re-optimisation, the candidate's own merit at the model geometry;
+    ``ridge = 0``: the linear least-squares residual, here against ``torch.linalg.lstsq`` on
+    a forward-mode Jacobian (the ranker uses central differences)."""
+    lens, spot, _, _ = achromat
+    spot.prepare(lens)
+    v = Variables(lens, "surfaces.*.c,d_sensor")
+    cand = _with(lens, {1: "SCHOTT:N-FK51A", 2: "SCHOTT:N-KZFS11"})
+    r = spot.residuals(cand).detach()
+    assert linear_ranker(lens, spot, v, ridge=1e12)(cand) == pytest.approx(float(r @ r),
+                                                                             rel=1e-9)
+    _, J = jacobian(lens_residual_fn(v, spot), v.x0(), "forward")
+    x = torch.linalg.lstsq(J, -r.unsqueeze(-1)).solution.squeeze(-1)
+    ls = float(((r + J @ x) ** 2).sum())
+    got = linear_ranker(lens, spot, v, ridge=0.0)(cand)
+    # central-difference Jacobian error (h^2 x third derivative) is ~1e-10 relative to J
+    assert got == pytest.approx(ls, rel=1e-5, abs=1e-12 * float(r @ r))
+    assert ls < 0.01 * float(r @ r)                       # re-optimising the geometry matters
+    assert linear_ranker(lens, spot, v, ridge=1e-3)(cand) >= got
+    with pytest.raises(ValueError, match="ridge must be >= 0"):
+        linear_ranker(lens, spot, v, ridge=-1.0)
+    with pytest.raises(ValueError, match="rank_keep must be >= 1"):
+        substitute_glasses(lens, "SCHOTT", lambda L: 0.0, k=1, rank=lambda L: 0.0, rank_keep=0)
+
+
+# ---------------------------------------------------------------- snapping inside the search
+#: an F/8 singlet, two colours, HOYA only (as tests/design/search/test_glass_search.py)
+SPEC = dict(efl_mm=100.0, fno=8.0, hfov_deg=0.0, elements=1, wavelengths_nm=[486.1327, 656.2725],
+            glasses="HOYA", glass_mode="model", stop="front", min_center_glass_mm=2.0,
+            max_center_glass_mm=4.0)
+TINY = dict(starts=1, screen=(Stage(2, "hexapolar:2"),), polish_count=1,
+            polish=(Stage(1, "hexapolar:2"),), hops=0, keep=1, score_sampling="hexapolar:2",
+            final_sampling="hexapolar:3", substitute=(Stage(1, "hexapolar:2"),), substitute_k=1,
+            snap_stage=(Stage(2, "hexapolar:2"),), snap_count=4)
+
+
+def test_snapping_ends_with_every_medium_a_real_catalogue_glass():
+    res = search(DesignSpec(**SPEC), SearchConfig(seed=2, substitution="snap", **TINY))
+    d = res.best
+    rec = d.glass_record
+    assert rec["substitution"] == "snap" and len(rec["snap"]) == 4
+    hoya = {g.label for g in glasses("HOYA")}
+    first, last = rec["snap"][0], rec["snap"][-1]
+    (i,) = last["distance"]
+    # the pull converged: the model glass ends on a real glass (the last stage's strength
+    # makes a distance of 1e-4 cost the whole merit; the model glass started ~0.03 away)
+    assert last["distance"][i] < 1e-5 and first["distance"][i] > last["distance"][i]
+    assert rec["model_glasses"][str(i)] != pytest.approx(
+        {"n_d": d.lens.materials[i].nd, "v_d": d.lens.materials[i].vd}, abs=1e-3)
+    # ... and that glass, exactly, is what the substitution (k = 1) puts in
+    m = d.lens.materials[i]
+    assert isinstance(m, AGFGlass) and m.catalogue == "HOYA" and f"HOYA:{m.name}" in hoya
+    assert rec["substituted"] == {str(i): last["nearest"][i]} == {str(i): f"HOYA:{m.name}"}
+    for j, med in enumerate(d.lens.materials):
+        assert med.name in ("AIR", "VACUUM") or (isinstance(med, AGFGlass)
+                                                 and med.catalogue == "HOYA"), (j, med)
+    with pytest.raises(ValueError, match="substitution must be one of nearest, snap"):
+        SearchConfig(substitution="snapp")
+    with pytest.raises(ValueError, match="rank_keep must be >= 0"):
+        SearchConfig(rank_keep=-1)
