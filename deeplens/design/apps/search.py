@@ -22,7 +22,8 @@ _SPEC_FLAGS = {"efl": "efl_mm", "fno": "fno", "epd": "epd_mm", "hfov": "hfov_deg
                "glasses": "glasses", "glass_mode": "glass_mode", "object_distance": "object_distance_mm",
                "max_track": "max_track_mm", "min_center_glass": "min_center_glass_mm",
                "max_center_glass": "max_center_glass_mm", "min_edge_glass": "min_edge_glass_mm",
-               "min_air": "min_air_mm", "min_bfl": "min_bfl_mm", "max_diameter": "max_diameter_mm"}
+               "min_air": "min_air_mm", "min_bfl": "min_bfl_mm", "max_diameter": "max_diameter_mm",
+               "max_distortion": "max_distortion_pct"}
 
 
 def add_arguments(p) -> None:
@@ -51,6 +52,8 @@ def add_arguments(p) -> None:
     for flag in ("max-track", "min-center-glass", "max-center-glass", "min-edge-glass",
                  "min-air", "min-bfl", "max-diameter"):
         s.add_argument(f"--{flag}", type=float, help=f"{flag.replace('-', ' ')} (mm)")
+    s.add_argument("--max-distortion", type=float, help="largest |distortion| over the non-zero "
+                   "fields (percent; default: none)")
     g = p.add_argument_group("search")
     g.add_argument("--seed", type=int, default=0, help="seed of the starts and hops")
     g.add_argument("--starts", type=int, default=16, help="quasi-random starts (default 16)")
