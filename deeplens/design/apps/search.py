@@ -69,6 +69,10 @@ def add_arguments(p) -> None:
                    help="real glasses tried per model glass (--glass-mode model; default 2)")
     g.add_argument("--substitute-steps", type=int, default=15,
                    help="DLS steps re-optimising each substitution candidate (15)")
+    g.add_argument("--count-trade", metavar="LO-HI",
+                   help="element count as a variable: search at --elements, then thin down to "
+                   "LO and split up to HI elements (each refined --polish-steps DLS steps); "
+                   "writes OUT/count_trade.json and OUT/elements_N.json")
     g.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -113,6 +117,8 @@ def run(args) -> dict:
         if not args.quiet:
             print(f"[search] {text}", file=sys.stderr, flush=True)
 
+    if args.count_trade:
+        return _count_trade(args, spec, cfg, progress)
     try:
         res = search(spec, cfg, progress=progress)
     except RuntimeError as e:
@@ -126,3 +132,49 @@ def run(args) -> dict:
             **({"model_rms_um": res.best.glass_record["model_rms_um"],
                 "glasses_substituted": res.best.glass_record["substituted"]}
                if res.best.glass_record else {})}
+
+
+def _counts(text: str) -> list[int]:
+    try:
+        lo, hi = (int(v) for v in text.split("-"))
+    except ValueError:
+        raise ValueError(f"--count-trade: expected LO-HI element counts such as 2-4, got "
+                         f"{text!r}") from None
+    if not 1 <= lo <= hi <= 8:
+        raise ValueError(f"--count-trade: expected 1 <= LO <= HI <= 8, got {text!r}")
+    return list(range(lo, hi + 1))
+
+
+def _count_trade(args, spec, cfg, progress) -> dict:
+    """``--count-trade``: :func:`~deeplens.design.search.count.count_trade`, its table in
+    ``OUT/count_trade.json`` and each count's lens in ``OUT/elements_N.json``."""
+    import json
+    from pathlib import Path
+
+    from ...optics.io import save_lens
+    from ..search import Stage
+    from ..search.count import count_trade
+    from ..search.result import file_lens
+
+    counts = _counts(args.count_trade)
+    if not counts[0] <= spec.elements <= counts[-1]:
+        raise ValueError(f"--count-trade {args.count_trade}: the range must hold --elements "
+                         f"({spec.elements}), where the search runs")
+    try:
+        steps = count_trade(spec, counts, cfg, (Stage(args.polish_steps, "hexapolar:6"),),
+                            progress=progress)
+    except RuntimeError as e:
+        raise ValueError(str(e)) from None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for st in steps:
+        row = st.row()
+        if st.ok:
+            path = out / f"elements_{st.elements}.json"
+            save_lens(file_lens(st.lens)[0], path)
+            row["lens"] = str(path)
+        rows.append(row)
+    table = {"spec": spec.to_dict(), "seed": args.seed, "trade": rows}
+    (out / "count_trade.json").write_text(json.dumps(table, indent=1), encoding="utf-8")
+    return {"trade": rows, "table": str(out / "count_trade.json")}
