@@ -44,7 +44,7 @@ from ...optics.lens import Lens
 from ...optics.materials import Air
 from ...optics.paraxial import media_indices, paraxial, trace_paraxial_ray
 from ...optics.surfaces import Aperture
-from .refine import STANDARD, aspheric_choice, refine
+from .refine import STANDARD, aspheric_choice, fit_semi_diameters, refine, repair_edges
 from .result import evaluate
 from .spec import DesignSpec
 from .start import StartError, place_sensor, solve_efl
@@ -177,7 +177,8 @@ class CountStep:
         m = self.metrics or {}
         return {"elements": self.elements, "origin": self.origin, "ok": self.ok,
                 "reason": self.reason, "rms_um": m.get("rms_um"), "efl_mm": m.get("efl_mm"),
-                "feasible": m.get("feasible"), "total_track_mm": m.get("total_track_mm"),
+                "feasible": m.get("feasible"), "broken": m.get("constraints_broken"),
+                "total_track_mm": m.get("total_track_mm"),
                 "seconds": round(self.seconds, 2)}
 
 
@@ -197,6 +198,17 @@ def _finish(lens, spec: DesignSpec, origin: str, stages, t0: float) -> CountStep
         return CountStep(spec.elements, origin, False, f"StartError: {e}", None, lens,
                          time.perf_counter() - t0)
     res = refine(lens, spec, stages, aspheric_surfaces=aspheric_choice(lens, spec.aspheres))
+    if res.ok:   # the refinement's last edge repair may move a gap: solve again (as a search
+        try:     # design is finished), until the focal length holds
+            for _ in range(3):
+                solve_efl(lens, spec.efl_mm)
+                fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
+                repair_edges(lens, spec)
+                if abs(float(paraxial(lens).efl) / spec.efl_mm - 1.0) < 1e-9:
+                    break
+            lens.check()
+        except (ValueError, RuntimeError) as e:
+            res.ok, res.reason = False, f"{type(e).__name__}: {e}"
     metrics = evaluate(lens, spec) if res.ok else None
     return CountStep(spec.elements, origin, res.ok, res.reason, metrics, lens,
                      time.perf_counter() - t0)
