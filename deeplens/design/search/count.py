@@ -44,6 +44,7 @@ from ...optics.lens import Lens
 from ...optics.materials import Air
 from ...optics.paraxial import media_indices, paraxial, trace_paraxial_ray
 from ...optics.surfaces import Aperture
+from .imaging import repair_stop_gaps
 from .refine import STANDARD, aspheric_choice, fit_semi_diameters, refine, repair_edges
 from .result import evaluate
 from .spec import DesignSpec
@@ -192,6 +193,7 @@ def _respec(spec: DesignSpec, n: int) -> DesignSpec:
 def _finish(lens, spec: DesignSpec, origin: str, stages, t0: float) -> CountStep:
     """Angle solve, sensor at the paraxial image, refinement, evaluation (module docstring)."""
     try:
+        repair_stop_gaps(lens)   # halved curvatures move a rim towards a stop
         solve_efl(lens, spec.efl_mm)
         place_sensor(lens)
     except StartError as e:

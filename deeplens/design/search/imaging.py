@@ -37,7 +37,7 @@ from ...optics.sampling import field_rays
 from ...optics.surfaces import Aperture
 from ..constraints import Constraint
 
-__all__ = ["stop_constraints", "distortion_pct", "distortion_constraint"]
+__all__ = ["stop_constraints", "repair_stop_gaps", "distortion_pct", "distortion_constraint"]
 
 #: the chief ray is traced without clear apertures (they follow the beam only between stages)
 _UNCLIPPED = TraceOptions(clip_aperture=False)
@@ -77,6 +77,22 @@ def stop_constraints(lens, tol: float = 1e-3) -> list[Constraint]:
                 c.tol = tol
                 out.append(c)
     return out
+
+
+def repair_stop_gaps(lens, margin_mm: float = 1e-3) -> None:
+    """Widen the gap on the short side of every stop whose ``stop_gap`` constraint is unmet
+    (in place): the stop (and everything behind it) moves back, or the surface after it (and
+    everything behind that), by the shortfall + ``margin_mm``; so that a refinement can start
+    with the stop's constraints met, and keep them hard."""
+    with torch.no_grad():
+        for c in stop_constraints(lens, 0.0):
+            short = -float(c.value(lens))
+            if short > 0:
+                k = int(c.label.split(".")[1])
+                j = k if c.label.endswith("before") else next(
+                    i for i in range(k + 1, len(lens.surfaces))
+                    if not isinstance(lens.surfaces[i], Aperture))
+                lens.distances[j].add_(short + margin_mm)
 
 
 def distortion_pct(lens, fields_deg, wavelength_nm: float) -> torch.Tensor:

@@ -14,7 +14,7 @@ import torch
 
 from deeplens.analysis.aberrations import distortion
 from deeplens.design.search import DesignSpec, SpecError
-from deeplens.design.search.imaging import distortion_pct, stop_constraints
+from deeplens.design.search.imaging import distortion_pct, repair_stop_gaps, stop_constraints
 from deeplens.design.search.problem import spec_constraints
 from deeplens.optics.io import lens_from_dict, load_lens
 
@@ -109,3 +109,16 @@ def test_spec_constraints_add_distortion_only_when_asked():
     with pytest.raises(SpecError) as e:
         DesignSpec(**base, max_distortion_pct=-1.0)
     assert e.value.field == "max_distortion_pct"
+
+
+@pytest.mark.parametrize("c1", [0.05, -0.08])
+def test_repair_moves_the_lens_behind_the_stop_by_the_shortfall(c1):
+    lens = _singlet(-2.0, c1)
+    (con,) = stop_constraints(lens)
+    short = -float(con.value(lens))
+    assert short >= 2.0
+    repair_stop_gaps(lens, margin_mm=1e-3)
+    assert float(con.value(lens)) == pytest.approx(1e-3, abs=1e-12)
+    before = float(lens.distances[1])
+    repair_stop_gaps(lens)                      # nothing to repair: nothing moves
+    assert float(lens.distances[1]) == before
