@@ -45,7 +45,8 @@ from ...optics.materials import Air
 from ...optics.paraxial import media_indices, paraxial, trace_paraxial_ray
 from ...optics.surfaces import Aperture
 from .imaging import repair_stop_gaps
-from .refine import STANDARD, aspheric_choice, fit_semi_diameters, refine, repair_edges
+from .refine import (STANDARD, aspheric_choice, fit_semi_diameters, refine, repair_edges,
+                     set_curriculum)
 from .result import evaluate
 from .spec import DesignSpec
 from .start import StartError, place_sensor, solve_efl
@@ -193,8 +194,10 @@ def _respec(spec: DesignSpec, n: int) -> DesignSpec:
 def _finish(lens, spec: DesignSpec, origin: str, stages, t0: float) -> CountStep:
     """Angle solve, sensor at the paraxial image, refinement, evaluation (module docstring)."""
     try:
-        repair_stop_gaps(lens)   # halved curvatures move a rim towards a stop
-        solve_efl(lens, spec.efl_mm)
+        for _ in range(2):   # halved curvatures move a rim towards a stop, whose opening
+            set_curriculum(lens, spec, 1.0)   # (sized for the EPD) the solve changes
+            repair_stop_gaps(lens)
+            solve_efl(lens, spec.efl_mm)
         place_sensor(lens)
     except StartError as e:
         return CountStep(spec.elements, origin, False, f"StartError: {e}", None, lens,
@@ -206,6 +209,7 @@ def _finish(lens, spec: DesignSpec, origin: str, stages, t0: float) -> CountStep
                 solve_efl(lens, spec.efl_mm)
                 fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
                 repair_edges(lens, spec)
+                repair_stop_gaps(lens)
                 if abs(float(paraxial(lens).efl) / spec.efl_mm - 1.0) < 1e-9:
                     break
             lens.check()
