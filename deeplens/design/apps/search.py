@@ -23,7 +23,8 @@ _SPEC_FLAGS = {"efl": "efl_mm", "fno": "fno", "epd": "epd_mm", "hfov": "hfov_deg
                "glasses": "glasses", "glass_mode": "glass_mode", "object_distance": "object_distance_mm",
                "max_track": "max_track_mm", "min_center_glass": "min_center_glass_mm",
                "max_center_glass": "max_center_glass_mm", "min_edge_glass": "min_edge_glass_mm",
-               "min_air": "min_air_mm", "min_bfl": "min_bfl_mm", "max_diameter": "max_diameter_mm"}
+               "min_air": "min_air_mm", "min_bfl": "min_bfl_mm", "max_diameter": "max_diameter_mm",
+               "max_distortion": "max_distortion_pct"}
 
 
 def add_arguments(p) -> None:
@@ -52,6 +53,8 @@ def add_arguments(p) -> None:
     for flag in ("max-track", "min-center-glass", "max-center-glass", "min-edge-glass",
                  "min-air", "min-bfl", "max-diameter"):
         s.add_argument(f"--{flag}", type=float, help=f"{flag.replace('-', ' ')} (mm)")
+    s.add_argument("--max-distortion", type=float, help="largest |distortion| over the non-zero "
+                   "fields (percent; default: none)")
     g = p.add_argument_group("search")
     g.add_argument("--seed", type=int, default=0, help="seed of the starts and hops")
     g.add_argument("--starts", type=int, default=16, help="quasi-random starts (default 16)")
@@ -76,6 +79,10 @@ def add_arguments(p) -> None:
                         "0: off; used for thin starts of an object at infinity only)")
     g.add_argument("--seidel-steps", type=int, default=100,
                    help="batched Adam steps of the third-order screen (100)")
+    g.add_argument("--count-trade", metavar="LO-HI",
+                   help="element count as a variable: search at --elements, then thin down to "
+                   "LO and split up to HI elements (each refined --polish-steps DLS steps); "
+                   "writes OUT/count_trade.json and OUT/elements_N.json")
     g.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -124,6 +131,8 @@ def run(args) -> dict:
         if not args.quiet:
             print(f"[search] {text}", file=sys.stderr, flush=True)
 
+    if args.count_trade:
+        return _count_trade(args, spec, cfg, progress)
     try:
         res = search(spec, cfg, progress=progress)
     except RuntimeError as e:
@@ -137,3 +146,49 @@ def run(args) -> dict:
             **({"model_rms_um": res.best.glass_record["model_rms_um"],
                 "glasses_substituted": res.best.glass_record["substituted"]}
                if res.best.glass_record else {})}
+
+
+def _counts(text: str) -> list[int]:
+    try:
+        lo, hi = (int(v) for v in text.split("-"))
+    except ValueError:
+        raise ValueError(f"--count-trade: expected LO-HI element counts such as 2-4, got "
+                         f"{text!r}") from None
+    if not 1 <= lo <= hi <= 8:
+        raise ValueError(f"--count-trade: expected 1 <= LO <= HI <= 8, got {text!r}")
+    return list(range(lo, hi + 1))
+
+
+def _count_trade(args, spec, cfg, progress) -> dict:
+    """``--count-trade``: :func:`~deeplens.design.search.count.count_trade`, its table in
+    ``OUT/count_trade.json`` and each count's lens in ``OUT/elements_N.json``."""
+    import json
+    from pathlib import Path
+
+    from ...optics.io import save_lens
+    from ..search import Stage
+    from ..search.count import count_trade
+    from ..search.result import file_lens
+
+    counts = _counts(args.count_trade)
+    if not counts[0] <= spec.elements <= counts[-1]:
+        raise ValueError(f"--count-trade {args.count_trade}: the range must hold --elements "
+                         f"({spec.elements}), where the search runs")
+    try:
+        steps = count_trade(spec, counts, cfg, (Stage(args.polish_steps, "hexapolar:6"),),
+                            progress=progress)
+    except RuntimeError as e:
+        raise ValueError(str(e)) from None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for st in steps:
+        row = st.row()
+        if st.ok:
+            path = out / f"elements_{st.elements}.json"
+            save_lens(file_lens(st.lens)[0], path)
+            row["lens"] = str(path)
+        rows.append(row)
+    table = {"spec": spec.to_dict(), "seed": args.seed, "trade": rows}
+    (out / "count_trade.json").write_text(json.dumps(table, indent=1), encoding="utf-8")
+    return {"trade": rows, "table": str(out / "count_trade.json")}

@@ -13,7 +13,9 @@ Merit ``F = sum r^2`` over
   ``w = f`` by default, so ``r ≈ EFL - f`` in mm (for a flat start, whose power ``1 / EFL``
   is near zero);
 * the constraints (:mod:`deeplens.design.constraints` penalties ``w max(0, b - q)``), soft while
-  a start is far from them and hard (a step breaking one is rejected) once they all hold.
+  a start is far from them and hard (a step breaking one is rejected) once they all hold.  Besides the spec's limits, every stop stays between its refracting neighbours
+  (``stop_gap.*``, :mod:`.imaging`: a stop is traced as a virtual plane, so nothing else keeps
+  it from sliding past a lens), and with ``max_distortion_pct`` the distortion is bounded.
 
 Variables: the curvature of every refracting surface (but the last, with the solve), every
 axial gap after the first vertex
@@ -263,6 +265,11 @@ def spec_constraints(lens, spec: DesignSpec) -> list[Constraint]:
                               lambda L, h=spec.hfov_deg: paraxial_footprint(L, h)))
     for c in out:   # a design meets a limit within a micrometre (soft penalties leave less)
         c.tol = TOLERANCE_MM
+    from .imaging import distortion_constraint, stop_constraints
+
+    out += stop_constraints(lens, TOLERANCE_MM)   # the stop stays between its neighbours
+    if spec.max_distortion_pct is not None:
+        out.append(distortion_constraint(spec))
     return out
 
 

@@ -9,7 +9,8 @@ polychromatic centroid, per field the polychromatic RMS spot
 (all rays of all wavelengths, weighted by ``W_λ``, about their common centroid; equal ray counts
 per wavelength), the headline ``rms_um = sqrt(sum_f W_f ρ_f^2 / sum_f W_f)``, the paraxial EFL
 and F-number, the total track (first vertex to sensor), the back clearance and every
-constraint's value and state.  :func:`write_outputs` writes ``best.json`` (a lens file every
+constraint's value and state, and the distortion (percent) at each non-zero field
+(:func:`~.imaging.distortion_pct`).  :func:`write_outputs` writes ``best.json`` (a lens file every
 command reads), ``result.json`` and, when matplotlib is importable, ``convergence.png`` and
 ``layout.png``.
 
@@ -35,6 +36,7 @@ from ...optics.io import save_lens
 from ...optics.materials import LINE_C, LINE_D, LINE_F, ModelGlass, get_material
 from ..constraints import ConstraintSet
 from ..merit import SpotMerit
+from .imaging import distortion_pct
 from .problem import back_clearance, paraxial_footprint, spec_constraints, spot_merit
 from .spec import DesignSpec
 
@@ -72,6 +74,11 @@ def evaluate(lens, spec: DesignSpec, sampling: str = "hexapolar:12") -> dict:
         broken = cset.broken(lens)
         foot = float(paraxial_footprint(lens, spec.hfov_deg))
         semi = max(float(s.semi_diameter) for s in lens.surfaces)
+        nonzero = [f for f in spec.fields_deg if f > 0]
+        try:
+            dist = [float(v) for v in distortion_pct(lens, nonzero, spec.primary_wavelength_nm)]
+        except ValueError:
+            dist = None
     return {"rms_um": total * 1e3,
             "rms_poly_um": [x * 1e3 for x in poly],
             "rms_um_per_field_wavelength": [[x * 1e3 for x in row] for row in rms],
@@ -80,7 +87,8 @@ def evaluate(lens, spec: DesignSpec, sampling: str = "hexapolar:12") -> dict:
             "total_track_mm": track, "back_clearance_mm": float(back_clearance(lens)),
             "max_semi_diameter_mm": semi, "paraxial_footprint_mm": foot,
             "constraints": values, "constraints_broken": broken, "feasible": not broken,
-            "sampling": sampling}
+            "sampling": sampling,
+            "distortion_pct": dist, "distortion_fields_deg": nonzero}
 
 
 def file_lens(lens) -> tuple[object, dict]:

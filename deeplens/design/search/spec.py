@@ -18,7 +18,9 @@ glass region of the vendor catalogues ``glasses`` names (``"SCHOTT"``, ``"SCHOTT
 catalogues (:mod:`.glass`, :func:`~.multistart.search`).  Limits (mm; ``None`` = none):
 ``max_track_mm`` (first vertex to image), ``min/max_center_glass_mm``, ``min_edge_glass_mm``,
 ``min_air_mm`` (centre and edge of every air gap), ``min_bfl_mm``, ``max_diameter_mm`` (every
-clear aperture).  ``object_distance_mm`` (``inf``) places the object.
+clear aperture); ``max_distortion_pct`` (percent, ``None`` = none: the largest ``|distortion|``
+over the non-zero fields, :mod:`.imaging`, for a lens a camera scores against the ideal
+``f tan θ`` image).  ``object_distance_mm`` (``inf``) places the object.
 
 A spec comes from a YAML/JSON mapping (:meth:`DesignSpec.from_file`, keys as the field names),
 from command-line flags, or from Python; every bad value raises :class:`SpecError` naming the
@@ -157,6 +159,7 @@ class DesignSpec:
     min_air_mm: float | None = 0.2
     min_bfl_mm: float | None = None
     max_diameter_mm: float | None = None
+    max_distortion_pct: float | None = None
     name: str = ""
 
     def __post_init__(self):
@@ -218,7 +221,7 @@ class DesignSpec:
         self.object_distance_mm = _pos(self.object_distance_mm, "object_distance_mm",
                                        allow_inf=True)
         for name in ("max_track_mm", "min_center_glass_mm", "max_center_glass_mm",
-                     "min_edge_glass_mm", "min_bfl_mm", "max_diameter_mm"):
+                     "min_edge_glass_mm", "min_bfl_mm", "max_diameter_mm", "max_distortion_pct"):
             setattr(self, name, _pos(getattr(self, name), name, allow_none=True))
         if self.min_air_mm is not None:
             self.min_air_mm = float(self.min_air_mm)

@@ -48,3 +48,21 @@ def test_spec_file_and_flags(tmp_path, capsys):
     code, out, err = run_cli([*SINGLET[:2], "--efl", "50", "--fno", "4", "--hfov", "5",
                               "--glasses", "N-BK77", "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and "unknown glass 'N-BK77'" in err
+
+
+@pytest.mark.slow   # a search and a split with refinement: ~10-20 s
+def test_count_trade_writes_a_lens_per_count(tmp_path, capsys):
+    flags = [*SINGLET[:SINGLET.index("--keep")], *SINGLET[SINGLET.index("--keep") + 2:]]
+    code, out, err = run_cli([*flags, "--hfov", "2", "--count-trade", "1-2", "--seed", "0",
+                              "--out", str(tmp_path)], capsys)
+    assert code == 0, err
+    rows = json.loads(out)["trade"]
+    assert [r["elements"] for r in rows] == [1, 2]
+    assert rows[0]["origin"] == "searched" and rows[1]["origin"].startswith("split")
+    two = load_lens(tmp_path / "elements_2.json").to(torch.float64)
+    assert len(two.surfaces) == 5                     # the stop and two singlets
+    assert float(paraxial(two).efl) == pytest.approx(100.0, rel=1e-9)
+    table = json.loads((tmp_path / "count_trade.json").read_text())
+    assert table["trade"] == rows
+    code, out, err = run_cli([*flags, "--count-trade", "2-3", "--out", str(tmp_path)], capsys)
+    assert code == 2 and "must hold --elements" in err
