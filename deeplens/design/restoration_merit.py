@@ -223,7 +223,10 @@ class RestorationMerit:
         S = object_spectrum(self.size, self.spectrum_level, dtype=H.real.dtype).to(H.real.device)
         s2 = self.noise_var(sensor)
         h2 = (H.real ** 2 + H.imag ** 2)
-        G = H.conj().mean(0) * S / (h2.mean(0) * S + s2)          # (C, N, N)
+        # S = 0 at f = 0: without noise the ratio is 0 / 0 there; the filter passes 0 (nothing
+        # to restore), and the clamp keeps the gradient finite (its numerator's is 0 too)
+        den = (h2.mean(0) * S + s2).clamp_min(torch.finfo(S.dtype).tiny)
+        G = H.conj().mean(0) * S / den                              # (C, N, N)
         E = G[None] * H - 1
         err = (E.real ** 2 + E.imag ** 2) * S + (G.real ** 2 + G.imag ** 2)[None] * s2
         return err.mean(dim=(1, 2, 3))
