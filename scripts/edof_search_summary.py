@@ -46,6 +46,8 @@ def main(folder: str, out: str) -> dict:
     terms = {m: c * 1e3 for m, c in res["plate_terms_mm_at_rim"]}
     summary = {"search": {"score": rec["score"], "invariance": rec["invariance"],
                           "blur_px": rec["blur_px"], "seconds": rec["seconds"],
+                          # the restoration merit's worst-depth expected PSNR (dB), else None
+                          "psnr_db": rec.get("psnr_db"),
                           "config": res["config"], "best_origin": res["designs"][0]["origin"],
                           "kept_scores": [k["score"] for k in res["designs"]],
                           "start_scores": [r["start_score"] for r in res["runs"]],

@@ -1,6 +1,8 @@
 """A global search for an EDOF phase plate: the plate's polynomial coefficients that minimise the
 depth-invariance merit (:class:`~.depth_invariance.DepthInvarianceMerit`) at a given blur size,
-from many starts rather than from one hand-picked plate (issue 36).
+or (``merit="restoration"``) the expected restoration error of the depth-averaged Wiener filter
+at the worst depth (:class:`~.restoration_merit.RestorationMerit`), from many starts rather than
+from one hand-picked plate (issue 36).
 
 1. **Starts.**  The zero plate, then ``starts`` points of a scrambled Sobol sequence
    (``torch.quasirandom.SobolEngine``, seeded) in the box ``[-box_mm, box_mm]`` of every
@@ -16,6 +18,11 @@ from many starts rather than from one hand-picked plate (issue 36).
    :func:`plate_score`: the merit's sum of squared residuals with the rays of that plate and the
    common blur target, so a plate is ranked by its depth invariance *and* its distance from
    the blur size.
+   With ``merit="restoration"`` there is no blur target (the error itself trades blur
+   against depth change and noise): the score is the restoration merit's sum of squared
+   residuals (a soft maximum of the per-depth expected error), with the worst-depth expected
+   PSNR beside it, and the DLS Jacobian is reverse-mode autograd (the diffraction PSFs are
+   differentiable; central differences cost 2n evaluations instead of one graph).
 4. **De-duplicate, keep.**  Plates whose scaled coefficients differ by less than
    ``dedup_tol_mm`` everywhere are one design (neighbouring starts end in the same basin); the
    best ``keep`` distinct designs are kept, best first.
@@ -37,10 +44,14 @@ import torch
 
 from .depth_invariance import DepthInvarianceMerit
 from .lensopt import optimize_lens
+from .restoration_merit import RestorationMerit
 from .variables import Variables
 
 __all__ = ["PlateSearchConfig", "PlateDesign", "PlateSearchResult", "plate_search",
-           "plate_score", "plate_merit", "describe_plate"]
+           "plate_score", "plate_merit", "plate_restoration_merit", "describe_plate", "MERITS"]
+
+#: the plate search's merits (:attr:`PlateSearchConfig.merit`)
+MERITS = ("invariance", "restoration")
 
 
 @dataclass
@@ -63,6 +74,12 @@ class PlateSearchConfig:
         dedup_tol_mm: two plates are one design when every scaled coefficient differs by less.
         keep: distinct designs kept.
         seed: seed of the Sobol scrambling.
+        merit: ``"invariance"`` (:class:`DepthInvarianceMerit` at the blur target) or
+            ``"restoration"`` (:class:`RestorationMerit`: the depth-averaged Wiener filter's
+            expected error, diffraction PSFs, a soft maximum over depths; needs the sensor).
+        restoration_depths: depths of the restoration merit, uniform in 1/depth over the
+            search's depth range (the Wiener filter's 5 by default).
+        restoration_power: ``p`` of the restoration merit's soft maximum over depths.
     """
 
     starts: int = 16
@@ -76,8 +93,24 @@ class PlateSearchConfig:
     dedup_tol_mm: float = 2e-4
     keep: int = 3
     seed: int = 0
+    merit: str = "invariance"
+    restoration_depths: int = 5
+    restoration_power: float = 4.0
 
     def __post_init__(self):
+        if self.merit not in MERITS:
+            raise ValueError(f"plate search: merit must be one of {', '.join(MERITS)}, got "
+                             f"{self.merit!r}")
+        if not (isinstance(self.restoration_depths, int)
+                and not isinstance(self.restoration_depths, bool)
+                and self.restoration_depths >= 2):
+            raise ValueError(f"plate search: restoration_depths must be an integer >= 2, got "
+                             f"{self.restoration_depths!r}")
+        if not (isinstance(self.restoration_power, (int, float))
+                and not isinstance(self.restoration_power, bool)
+                and math.isfinite(self.restoration_power) and self.restoration_power >= 1):
+            raise ValueError(f"plate search: restoration_power must be a number >= 1, got "
+                             f"{self.restoration_power!r}")
         for name in ("starts", "steps", "keep", "n_freq"):
             v = getattr(self, name)
             if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
@@ -104,26 +137,29 @@ class PlateSearchConfig:
 @dataclass
 class PlateDesign:
     """One refined plate: scaled coefficients ``x`` (mm of sag at the rim, one per variable),
-    its score (:func:`plate_score`) and invariance, the start's, and where it came from."""
+    its score (:func:`plate_score`) and invariance and blur (``None`` with the restoration
+    merit), the start's score, where it came from, and (restoration merit) its worst-depth
+    expected PSNR (dB)."""
 
     x: list
     score: float
-    invariance: float
-    blur_px: float
+    invariance: float | None
+    blur_px: float | None
     start_x: list
     start_score: float
     origin: str
+    psnr_db: float | None = None
 
 
 @dataclass
 class PlateSearchResult:
     """The kept designs (best first), every refinement (``runs``), the variables' labels, the
-    blur target, skipped starts and the time."""
+    blur target (``None`` with the restoration merit), skipped starts and the time."""
 
     designs: list
     runs: list
     labels: list
-    blur_px: float
+    blur_px: float | None
     skipped: int = 0
     seconds: float = 0.0
     config: dict = field(default_factory=dict)
@@ -141,9 +177,26 @@ def plate_merit(depths_mm, wavelengths_nm, pixel_mm: float, blur_px: float,
                                 sampling=config.sampling)
 
 
-def plate_score(lens, merit: DepthInvarianceMerit) -> tuple[float, float, float]:
+def plate_restoration_merit(depths_mm, sensor, config: PlateSearchConfig) -> RestorationMerit:
+    """A fresh :class:`RestorationMerit` (not prepared) at ``config.restoration_depths`` depths
+    uniform in 1/depth over ``[min(depths_mm), max(depths_mm)]``, diffraction PSFs."""
+    if sensor is None:
+        raise ValueError("plate search: merit 'restoration' needs the sensor (noise, channels)")
+    lo, hi = min(depths_mm), max(depths_mm)
+    n = config.restoration_depths
+    depths = [1.0 / (1.0 / hi + k / (n - 1) * (1.0 / lo - 1.0 / hi)) for k in range(n)]
+    return RestorationMerit(depths, sensor, psf_model="diffraction",
+                            power=float(config.restoration_power),
+                            max_step_waves=0.25, energy=0.995)
+
+
+def plate_score(lens, merit) -> tuple[float, float | None, float | None]:
     """``(score, invariance, blur)`` of ``lens`` as it is: ``merit`` prepared on it (its own
-    rays), score = sum of squared residuals (invariance + blur term), blur in pixels."""
+    rays), score = sum of squared residuals (invariance + blur term), blur in pixels; for a
+    :class:`RestorationMerit`, ``(score, worst-depth expected PSNR in dB, None)``."""
+    if isinstance(merit, RestorationMerit):
+        merit.prepare(lens)
+        return merit.score(lens) + (None,)
     with torch.no_grad():
         merit.prepare(lens)
         r, blur = merit._terms(lens)  # the invariance residuals and the rms blur (one trace)
@@ -164,7 +217,7 @@ def _set_cubic(lens, plate_surface: int, alpha_mm: float) -> None:
 
 def plate_search(lens, plate_surface: int, variables, depths_mm, wavelengths_nm,
                  pixel_mm: float, config: PlateSearchConfig | None = None,
-                 progress=None) -> PlateSearchResult:
+                 progress=None, sensor=None) -> PlateSearchResult:
     """Search the plate ``lens.surfaces[plate_surface]`` (module docstring).
 
     Args:
@@ -178,6 +231,8 @@ def plate_search(lens, plate_surface: int, variables, depths_mm, wavelengths_nm,
         pixel_mm: sensor pixel pitch (mm).
         config: :class:`PlateSearchConfig` (default: its defaults).
         progress: ``progress(text)`` per start, or ``None``.
+        sensor: the :class:`~deeplens.render.sensor.Sensor` (needed by ``merit="restoration"``:
+            its channels, noise and pixel pitch; float64 like the lens).
 
     Returns:
         :class:`PlateSearchResult`; ``lens`` holds its best plate.
@@ -196,11 +251,22 @@ def plate_search(lens, plate_surface: int, variables, depths_mm, wavelengths_nm,
     if bad:
         raise ValueError(f"plate search: {', '.join(bad)} are not coefficients of the plate "
                          f"(surface {plate_surface}: {prefix}.*)")
-    _set_cubic(lens, plate_surface, config.blur_alpha_mm)
-    blur = config.blur_px
-    if blur is None:
-        blur = float(plate_merit(depths_mm, wavelengths_nm, pixel_mm, None, config)
-                     .prepare(lens).blur_px)
+    restoration = config.merit == "restoration"
+    if restoration:
+        plate_restoration_merit(depths_mm, sensor, config)   # the sensor checked first
+        blur = None
+
+        def new_merit():
+            return plate_restoration_merit(depths_mm, sensor, config)
+    else:
+        _set_cubic(lens, plate_surface, config.blur_alpha_mm)
+        blur = config.blur_px
+        if blur is None:
+            blur = float(plate_merit(depths_mm, wavelengths_nm, pixel_mm, None, config)
+                         .prepare(lens).blur_px)
+
+        def new_merit():
+            return plate_merit(depths_mm, wavelengths_nm, pixel_mm, blur, config)
     _set_cubic(lens, plate_surface, 0.0)
     n = len(v)
     sobol = torch.quasirandom.SobolEngine(n, scramble=True, seed=int(config.seed))
@@ -212,19 +278,25 @@ def plate_search(lens, plate_surface: int, variables, depths_mm, wavelengths_nm,
         trial = copy.deepcopy(lens)
         tv = Variables(trial, v.names)
         tv.assign(x0)
-        merit = plate_merit(depths_mm, wavelengths_nm, pixel_mm, blur, config)
+        merit = new_merit()
         try:
             s0 = plate_score(trial, merit)
             optimize_lens(trial, tv, merit, method="dls", steps=config.steps,
-                          jacobian_mode="central")
-            s1 = plate_score(trial, plate_merit(depths_mm, wavelengths_nm, pixel_mm, blur,
-                                                config))
+                          jacobian_mode="reverse" if restoration else "central")
+            s1 = plate_score(trial, new_merit())
         except (ValueError, Infeasible) as e:
             skipped += 1
             if progress:
                 progress(f"{origin}: skipped ({e})")
             continue
         x1 = tv.x0()
+        if restoration:
+            runs.append(PlateDesign([float(t) for t in x1], s1[0], None, None,
+                                    [float(t) for t in x0], s0[0], origin, psnr_db=s1[1]))
+            if progress:
+                progress(f"{origin}: score {s0[0]:.4g} -> {s1[0]:.4g} (worst-depth expected "
+                         f"PSNR {s0[1]:.2f} -> {s1[1]:.2f} dB)")
+            continue
         runs.append(PlateDesign([float(t) for t in x1], s1[0], s1[1], s1[2],
                                 [float(t) for t in x0], s0[0], origin))
         if progress:
@@ -241,7 +313,8 @@ def plate_search(lens, plate_surface: int, variables, depths_mm, wavelengths_nm,
         if len(kept) == config.keep:
             break
     v.assign(torch.tensor(kept[0].x, dtype=torch.float64))
-    return PlateSearchResult(kept, runs, list(v.labels), float(blur), skipped,
+    return PlateSearchResult(kept, runs, list(v.labels), None if blur is None else float(blur),
+                             skipped,
                              time.perf_counter() - t0, config.to_dict())
 
 

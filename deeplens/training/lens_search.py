@@ -437,9 +437,23 @@ def _plate_problem(cfg: DictConfig):
     return depths, list(dict.fromkeys(focus)), float(sc.pixel_size_mm), focus
 
 
+def _plate_sensor(cfg: DictConfig):
+    """The run's sensor (float64: pixel grid, channels, noise) for the restoration merit."""
+    import torch
+
+    from ..render.sensor import Sensor
+
+    sc = cfg.sensor
+    return Sensor(tuple(sc.resolution), sc.pixel_size_mm,
+                  channels=None if sc.channels is None else [list(c) for c in sc.channels],
+                  full_well=float(sc.get("full_well", 0.0) or 0.0),
+                  read_noise=float(sc.get("read_noise", 0.0) or 0.0)).to(torch.float64)
+
+
 def _plate_key(cfg: DictConfig) -> dict:
     import deeplens.design.depth_invariance as di
     import deeplens.design.plate_search as ps
+    import deeplens.design.restoration_merit as rm
 
     from .. import __version__
 
@@ -447,12 +461,18 @@ def _plate_key(cfg: DictConfig) -> dict:
     depths, waves, pixel, _ = _plate_problem(cfg)
     lens = {k: _plain(lc.get(k)) for k in ("path", "trainable", "plate_surface", "plate_order",
                                            "focus_mm", "table_options")}
+    config = plate_search_config(lc.search)
+    extra = {}
+    if config.merit == "restoration":   # the merit reads the sensor's noise
+        extra["sensor_noise"] = [float(cfg.sensor.get("full_well", 0.0) or 0.0),
+                                 float(cfg.sensor.get("read_noise", 0.0) or 0.0)]
     return json.loads(json.dumps({
-        "plate": plate_search_config(lc.search).to_dict(), "lens": lens,
+        "plate": config.to_dict(), "lens": lens,
         "lens_file": digest_path(lc.path), "depths_mm": depths, "wavelengths_nm": waves,
-        "pixel_mm": pixel,
+        "pixel_mm": pixel, **extra,
         "code": {"deeplens": __version__,
-                 "plate_search": _code_digest([Path(ps.__file__), Path(di.__file__)])}}))
+                 "plate_search": _code_digest([Path(ps.__file__), Path(di.__file__),
+                                               Path(rm.__file__)])}}))
 
 
 def _searched_plate(cfg: DictConfig, out: Path, key: dict, progress) -> Path:
@@ -473,8 +493,10 @@ def _searched_plate(cfg: DictConfig, out: Path, key: dict, progress) -> Path:
     progress(f"deeplens: plate search over {len(names)} coefficients of surface "
              f"{lc.plate_surface} ({config.starts} Sobol starts + the zero plate, "
              f"{config.steps} DLS steps each, seed {config.seed}) into {out}")
+    sensor = _plate_sensor(cfg) if config.merit == "restoration" else None
     result = plate_search(lens, int(lc.plate_surface), names, depths, waves, pixel, config,
-                          progress=lambda t: progress(f"deeplens: plate search: {t}"))
+                          progress=lambda t: progress(f"deeplens: plate search: {t}"),
+                          sensor=sensor)
     terms = describe_plate(lens.surfaces[int(lc.plate_surface)])
     out.mkdir(parents=True, exist_ok=True)
     (out / RECORD).unlink(missing_ok=True)   # from here on the folder is not reusable
@@ -491,12 +513,13 @@ def _searched_plate(cfg: DictConfig, out: Path, key: dict, progress) -> Path:
     b = result.best
     write_text_atomic(out / RECORD, json.dumps(
         {"key": key, "best_digest": digest_path(best), "score": b.score,
-         "invariance": b.invariance, "blur_px": b.blur_px, "seconds": result.seconds},
-        indent=1))
+         "invariance": b.invariance, "blur_px": b.blur_px, "psnr_db": b.psnr_db,
+         "seconds": result.seconds}, indent=1))
     lead = ", ".join(f"{m} {c * 1e3:+.2f}" for m, c in terms[:4])
-    progress(f"deeplens: searched plate {best}: score {b.score:.4g} (invariance "
-             f"{b.invariance:.3g}, blur {b.blur_px:.2f} px, from {b.origin}); terms (um of sag "
-             f"at the rim) {lead}; {result.seconds:.0f} s")
+    what = (f"worst-depth expected PSNR {b.psnr_db:.2f} dB" if b.psnr_db is not None
+            else f"invariance {b.invariance:.3g}, blur {b.blur_px:.2f} px")
+    progress(f"deeplens: searched plate {best}: score {b.score:.4g} ({what}, from {b.origin}); "
+             f"terms (um of sag at the rim) {lead}; {result.seconds:.0f} s")
     return best
 
 

@@ -223,6 +223,23 @@ def test_plate_search_is_the_learned_plates_start_and_is_reused(cfg_factory, tmp
     assert search_key(cfg_factory(*PLATE, "lens.focus_mm=6000.0")) != key
 
 
+def test_the_restoration_merits_search_is_keyed_on_the_sensors_noise(cfg_factory):
+    """lens.search.plate.merit=restoration reads the sensor's noise: the key holds it (and
+    the merit's source, in the code digest), so another noise level is another search; the
+    invariance merit's key is unchanged by the option's existence."""
+    from deeplens.training.lens_search import search_key
+
+    inv = search_key(cfg_factory(*PLATE))
+    assert "sensor_noise" not in inv
+    rest = search_key(cfg_factory(*PLATE, "+lens.search.plate.merit=restoration"))
+    assert rest["plate"]["merit"] == "restoration" and rest["sensor_noise"] == [2000.0, 0.005]
+    assert rest != inv
+    assert search_key(cfg_factory(*PLATE, "+lens.search.plate.merit=restoration",
+                                  "sensor.read_noise=0.01")) != rest
+    with pytest.raises(ValueError, match=r"lens\.search\.plate"):
+        search_key(cfg_factory(*PLATE, "+lens.search.plate.merit=sharpness"))
+
+
 def test_plate_search_variants_keep_the_plate_and_bad_settings_are_named(cfg_factory,
                                                                         tmp_path):
     from deeplens.training.lens_search import check_lens_config
