@@ -16,6 +16,9 @@ import warnings
 import pytest
 import torch
 
+from test_glass_search import SPEC
+from test_glass_search import TINY as GLASS_SEARCH_TINY
+
 from deeplens.design.lensopt import lens_residual_fn, optimize_lens
 from deeplens.design.merit import Merit, SpotMerit, TargetMerit
 from deeplens.design.optimizers import jacobian
@@ -23,7 +26,7 @@ from deeplens.design.search import DesignSpec, SearchConfig, Stage, search
 from deeplens.design.search.glass import (
     GlassRegionPenalty, NearestGlassPull, dls_reoptimizer, glass_scales, glass_variable_names,
     project_model_glasses, snap_strengths, substitute_glasses, use_model_glasses)
-from deeplens.design.search.glass_region import GlassRegion, glass_distance, glasses
+from deeplens.design.search.glass_region import glass_distance, glasses
 from deeplens.design.search.substitution import linear_ranker
 from deeplens.design.variables import Variables
 from deeplens.optics.io.agf import AGFGlass
@@ -32,16 +35,7 @@ from deeplens.optics.materials import LINE_C, LINE_D, LINE_F, get_material
 from deeplens.optics.surfaces import Sphere
 
 
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
-
-
-@pytest.fixture(scope="module")
-def schott():
-    return GlassRegion("SCHOTT")
+pytestmark = pytest.mark.usefixtures("quiet_warnings")
 
 
 # ------------------------------------------------------------------------ the pull, schedule
@@ -201,14 +195,10 @@ def test_linear_ranker_against_its_closed_forms(achromat):
 
 
 # ---------------------------------------------------------------- snapping inside the search
-#: an F/8 singlet, two colours, HOYA only (as tests/design/search/test_glass_search.py)
-SPEC = dict(efl_mm=100.0, fno=8.0, hfov_deg=0.0, elements=1, wavelengths_nm=[486.1327, 656.2725],
-            glasses="HOYA", glass_mode="model", stop="front", min_center_glass_mm=2.0,
-            max_center_glass_mm=4.0)
-TINY = dict(starts=1, screen=(Stage(2, "hexapolar:2"),), polish_count=1,
-            polish=(Stage(1, "hexapolar:2"),), hops=0, keep=1, score_sampling="hexapolar:2",
-            final_sampling="hexapolar:3", substitute=(Stage(1, "hexapolar:2"),), substitute_k=1,
-            snap_stage=(Stage(2, "hexapolar:2"),), snap_count=4)
+#: an F/8 singlet, two colours, HOYA only, and test_glass_search.py's tiny search with one
+#: substitution candidate and four snapping stages of two steps
+TINY = {**GLASS_SEARCH_TINY, "substitute_k": 1, "snap_stage": (Stage(2, "hexapolar:2"),),
+        "snap_count": 4}
 
 
 def test_snapping_ends_with_every_medium_a_real_catalogue_glass():
