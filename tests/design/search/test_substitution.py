@@ -16,6 +16,7 @@ import warnings
 import pytest
 import torch
 
+from test_glass import _doublet  # the cemented doublet of 1.5168/64.17 and 1.6727/32.25
 from test_glass_search import SPEC
 from test_glass_search import TINY as GLASS_SEARCH_TINY
 
@@ -30,9 +31,7 @@ from deeplens.design.search.glass_region import glass_distance, glasses
 from deeplens.design.search.substitution import linear_ranker
 from deeplens.design.variables import Variables
 from deeplens.optics.io.agf import AGFGlass
-from deeplens.optics.lens import Lens, LensSpec
-from deeplens.optics.materials import LINE_C, LINE_D, LINE_F, get_material
-from deeplens.optics.surfaces import Sphere
+from deeplens.optics.materials import LINE_C, LINE_D, LINE_F
 
 
 pytestmark = pytest.mark.usefixtures("quiet_warnings")
@@ -95,14 +94,6 @@ def test_snap_strengths_make_each_stage_distance_cost_the_merit():
 
 
 # --------------------------------------------------------------- an achromat, ranked candidates
-def _doublet():
-    spec = LensSpec(fields_deg=[0.0], wavelengths_nm=[LINE_D, LINE_F, LINE_C])
-    return Lens([Sphere(1 / 61.0, 12.0), Sphere(-1 / 44.0, 12.0), Sphere(-1 / 130.0, 12.0)],
-                [get_material("AIR"), get_material("1.5168/64.17"),
-                 get_material("1.6727/32.25"), get_material("AIR")],
-                [0.0, 6.0, 2.5], 96.0, 0, spec=spec).double()
-
-
 @pytest.fixture(scope="module")
 def achromat(schott):
     """A cemented achromat (f = 100 mm, F/4.2, on axis, F/d/C) with model glasses optimised in
