@@ -231,23 +231,32 @@ def critical_path(src: str, lat: dict) -> float:
     return max(done.values(), default=0.0)
 
 
-def _kernel_child(args) -> None:
-    """Runs with TORCHINDUCTOR_CACHE_DIR set to an empty folder: compile, time, count."""
+def _double_gauss_on_axis(n: int):
+    """The double Gauss lens and ``n`` on-axis float32 rays at the d line, uniform over its
+    entrance pupil (seed 0); imports deeplens, so ``REPO`` must be on ``sys.path`` first."""
     import torch
-    sys.path.insert(0, REPO)
+
     from deeplens.optics.io import load_lens
-    from deeplens.optics.options import TraceOptions
     from deeplens.optics.paraxial import paraxial
     from deeplens.optics.sampling import field_rays, random_disk
 
-    torch.set_num_threads(1)
     lens = load_lens(os.path.join(REPO, "data", "lenses", "double_gauss.json"))
     with torch.no_grad():
         p = paraxial(lens)
         r_ep, z_ep = 0.5 * float(p.entrance_pupil_diameter), float(p.entrance_pupil_z)
-    n = int(float(args.rays))
     xy = (r_ep * random_disk(n, seed=0)).to(torch.float32)
-    rays = field_rays(lens, 0.0, WAVELENGTH_NM, xy, z_ep)
+    return lens, field_rays(lens, 0.0, WAVELENGTH_NM, xy, z_ep)
+
+
+def _kernel_child(args) -> None:
+    """Runs with TORCHINDUCTOR_CACHE_DIR set to an empty folder: compile, time, count."""
+    import torch
+    sys.path.insert(0, REPO)
+    from deeplens.optics.options import TraceOptions
+
+    torch.set_num_threads(1)
+    n = int(float(args.rays))
+    lens, rays = _double_gauss_on_axis(n)
     opt = TraceOptions(compile=True)
     with torch.no_grad():
         lens.trace_to_sensor(rays[:4096], options=opt)
@@ -292,20 +301,12 @@ def _graph_child(args) -> None:
     sys.path.insert(0, os.path.join(REPO, "benchmarks"))
     from procmem import maxrss_bytes, reset_peak_rss, rss_bytes
     sys.path.insert(0, REPO)
-    from deeplens.optics.io import load_lens
     from deeplens.optics.options import TraceOptions
-    from deeplens.optics.paraxial import paraxial
-    from deeplens.optics.sampling import field_rays, random_disk
 
     torch.set_num_threads(1)
-    lens = load_lens(os.path.join(REPO, "data", "lenses", "double_gauss.json"))
-    curv = [s.c for s in lens.surfaces if hasattr(s, "c")]
-    with torch.no_grad():
-        p = paraxial(lens)
-        r_ep, z_ep = 0.5 * float(p.entrance_pupil_diameter), float(p.entrance_pupil_z)
     n = int(float(args.rays))
-    xy = (r_ep * random_disk(n, seed=0)).to(torch.float32)
-    rays = field_rays(lens, 0.0, WAVELENGTH_NM, xy, z_ep)
+    lens, rays = _double_gauss_on_axis(n)
+    curv = [s.c for s in lens.surfaces if hasattr(s, "c")]
     opts = {"eager": TraceOptions(compile=False),
             "compiled, per surface (compile=True)": TraceOptions(compile="surface"),
             "compiled, per run (compile=\"lens\")": TraceOptions(compile="lens"),

@@ -60,6 +60,7 @@ import time
 from procmem import maxrss_bytes as _maxrss_bytes
 from procmem import reset_peak_rss as _reset_peak_rss
 from procmem import rss_bytes as _rss_bytes
+from procmem import set_malloc_thresholds
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LENS = os.path.join("data", "lenses", "double_gauss.json")
@@ -68,17 +69,6 @@ WAVELENGTH_NM = 587.5618
 
 
 # ============================================================================ child process
-
-def _mallopt(mmap_threshold: int, trim_threshold: int) -> None:
-    try:
-        import ctypes
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(-3, mmap_threshold)   # M_MMAP_THRESHOLD
-        libc.mallopt(-1, trim_threshold)   # M_TRIM_THRESHOLD
-        libc.malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-
 
 def _child(args) -> None:
     t_start = time.perf_counter()
@@ -173,7 +163,7 @@ def _child(args) -> None:
         rays = all_rays
 
     # memory: RSS follows the live memory
-    _mallopt(16 * 1024, 128 * 1024)
+    set_malloc_thresholds(16 * 1024, 128 * 1024)
     graph = {}
 
     def held():
@@ -209,7 +199,7 @@ def _child(args) -> None:
             res[key + "_grads"] = grads
 
     # timing: glibc recycles tensors in its heap; wall and process CPU time, min of N
-    _mallopt(32 * 1024 * 1024, 64 * 1024 * 1024)
+    set_malloc_thresholds(32 * 1024 * 1024, 64 * 1024 * 1024)
 
     def timed(fn):
         fn()

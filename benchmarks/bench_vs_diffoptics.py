@@ -41,7 +41,7 @@ import subprocess
 import sys
 import time
 
-from procmem import maxrss_bytes, reset_peak_rss, rss_bytes
+from procmem import maxrss_bytes, reset_peak_rss, rss_bytes, set_malloc_thresholds
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LENS = os.path.join(REPO, "data", "lenses", "double_gauss.json")
@@ -49,17 +49,6 @@ REF_LENS = os.path.join("examples", "lenses", "DoubleGauss", "US02532751-1.txt")
 WAVELENGTH_NM = 587.5618
 MIB = 1024.0 * 1024.0
 ROWS = ("ours eager", "ours compiled", "DiffOptics")
-
-
-def _mallopt(mmap_threshold: int, trim_threshold: int) -> None:
-    try:
-        import ctypes
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(-3, mmap_threshold)   # M_MMAP_THRESHOLD
-        libc.mallopt(-1, trim_threshold)   # M_TRIM_THRESHOLD
-        libc.malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
 
 
 class Setup:
@@ -155,7 +144,7 @@ def _child_time(args) -> None:
                compiled_vs_eager_mm=float((pc - pe)[ve & vc].abs().max()),
                ref_vs_eager_mm=float((pr - pe)[both].abs().max()),
                ref_vs_eager_rms_mm=float(((pr - pe)[both] ** 2).sum(-1).mean().sqrt()))
-    _mallopt(32 * 1024 * 1024, 64 * 1024 * 1024)
+    set_malloc_thresholds(32 * 1024 * 1024, 64 * 1024 * 1024)
     for row in ROWS:  # warm-up at full size
         for grad in (False, True):
             s.call(row, grad)
@@ -184,7 +173,7 @@ def _child_mem(args) -> None:
         small.rays = s.rays[:4096]
         small.ours(args.row, grad)
     s.call(args.row, grad)  # warm-up at full size (allocator, caches)
-    _mallopt(16 * 1024, 128 * 1024)
+    set_malloc_thresholds(16 * 1024, 128 * 1024)
     rss0 = rss_bytes()
     reset_peak_rss()
     s.call(args.row, grad)

@@ -1,4 +1,5 @@
-"""Process memory for the benchmarks (Linux): current and peak resident set size.
+"""Process memory for the benchmarks (Linux): current and peak resident set size, and glibc's
+malloc thresholds.
 
 Shared by the benchmark scripts, which import it from their own folder (``python
 benchmarks/bench_*.py`` puts that folder first on ``sys.path``).
@@ -10,7 +11,7 @@ import os
 import resource
 import sys
 
-__all__ = ["rss_bytes", "maxrss_bytes", "reset_peak_rss"]
+__all__ = ["rss_bytes", "maxrss_bytes", "reset_peak_rss", "set_malloc_thresholds"]
 
 
 def rss_bytes() -> int:
@@ -36,3 +37,17 @@ def reset_peak_rss() -> bool:
     except OSError:
         return False
     return maxrss_bytes() <= rss_bytes() + 4 * 1024 * 1024
+
+
+def set_malloc_thresholds(mmap_threshold: int, trim_threshold: int) -> None:
+    """glibc's ``M_MMAP_THRESHOLD`` and ``M_TRIM_THRESHOLD`` (bytes), then ``malloc_trim(0)``: small
+    ones make the RSS follow the live memory (for memory readings), large ones let glibc recycle
+    tensors in its heap (for timings).  Nothing where there is no glibc."""
+    try:
+        import ctypes
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, mmap_threshold)   # M_MMAP_THRESHOLD
+        libc.mallopt(-1, trim_threshold)   # M_TRIM_THRESHOLD
+        libc.malloc_trim(0)
+    except (OSError, AttributeError):
+        pass

@@ -2,7 +2,6 @@
 registry, and the optimize/tolerance/design command lines."""
 
 import json
-import warnings
 
 import helpers as H
 import pytest
@@ -12,11 +11,7 @@ from deeplens.design import apps
 from deeplens.design.apps import load_app
 
 
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
+pytestmark = pytest.mark.usefixtures("quiet_warnings")
 
 
 def _args(name, tmp_path, **kw):

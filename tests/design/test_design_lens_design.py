@@ -3,7 +3,6 @@ the optimum, an unmet constraint named at the start, crossing steps rejected, th
 Jacobian against central differences, and bad variable names."""
 
 import math
-import warnings
 
 import pytest
 import torch
@@ -21,11 +20,7 @@ from deeplens.optics.surfaces import Sphere
 W = 587.5618
 
 
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
+pytestmark = pytest.mark.usefixtures("quiet_warnings")
 
 
 def _singlet(c1, c2, d_sensor=99.0):

@@ -2,7 +2,6 @@
 estimate against Monte Carlo, tolerance files."""
 
 import json
-import warnings
 
 import pytest
 import torch
@@ -17,11 +16,7 @@ from deeplens.optics.io import load_lens
 W = 587.5618
 
 
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
+pytestmark = pytest.mark.usefixtures("quiet_warnings")
 
 
 @pytest.fixture(scope="module")

@@ -182,6 +182,7 @@ MUTATIONS = [
              "    d = math.isqrt(j - 1)\n    pos = j - d * d - 1\n",
              "    d = math.isqrt(j)\n    pos = j - d * d\n",
              ("tests/optics/surfaces/test_zernike_fringe_sag.py",
+              "tests/optics/surfaces/test_zernike_sag.py",
               "tests/optics/io/test_zmx_zernike_sag.py")),
     Mutation("asphere_sag_power", "asphere: polynomial one power of r^2 short",
              "deeplens/optics/surfaces/asphere.py", "        p = (p + a.to(s)) * s\n    return p * s\n",

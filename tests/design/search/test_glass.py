@@ -8,7 +8,6 @@ Float64 throughout where values are compared.  The catalogues are read once per 
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 import pytest
@@ -32,16 +31,7 @@ from deeplens.optics.surfaces import Sphere
 FDC = torch.tensor([LINE_F, LINE_D, LINE_C], dtype=torch.float64)
 
 
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
-
-
-@pytest.fixture(scope="module")
-def schott():
-    return GlassRegion("SCHOTT")
+pytestmark = pytest.mark.usefixtures("quiet_warnings")
 
 
 # ----------------------------------------------------------------------------- catalogue data

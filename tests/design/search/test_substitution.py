@@ -16,6 +16,10 @@ import warnings
 import pytest
 import torch
 
+from test_glass import _doublet  # the cemented doublet of 1.5168/64.17 and 1.6727/32.25
+from test_glass_search import SPEC
+from test_glass_search import TINY as GLASS_SEARCH_TINY
+
 from deeplens.design.lensopt import lens_residual_fn, optimize_lens
 from deeplens.design.merit import Merit, SpotMerit, TargetMerit
 from deeplens.design.optimizers import jacobian
@@ -23,25 +27,14 @@ from deeplens.design.search import DesignSpec, SearchConfig, Stage, search
 from deeplens.design.search.glass import (
     GlassRegionPenalty, NearestGlassPull, dls_reoptimizer, glass_scales, glass_variable_names,
     project_model_glasses, snap_strengths, substitute_glasses, use_model_glasses)
-from deeplens.design.search.glass_region import GlassRegion, glass_distance, glasses
+from deeplens.design.search.glass_region import glass_distance, glasses
 from deeplens.design.search.substitution import linear_ranker
 from deeplens.design.variables import Variables
 from deeplens.optics.io.agf import AGFGlass
-from deeplens.optics.lens import Lens, LensSpec
-from deeplens.optics.materials import LINE_C, LINE_D, LINE_F, get_material
-from deeplens.optics.surfaces import Sphere
+from deeplens.optics.materials import LINE_C, LINE_D, LINE_F
 
 
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
-
-
-@pytest.fixture(scope="module")
-def schott():
-    return GlassRegion("SCHOTT")
+pytestmark = pytest.mark.usefixtures("quiet_warnings")
 
 
 # ------------------------------------------------------------------------ the pull, schedule
@@ -101,14 +94,6 @@ def test_snap_strengths_make_each_stage_distance_cost_the_merit():
 
 
 # --------------------------------------------------------------- an achromat, ranked candidates
-def _doublet():
-    spec = LensSpec(fields_deg=[0.0], wavelengths_nm=[LINE_D, LINE_F, LINE_C])
-    return Lens([Sphere(1 / 61.0, 12.0), Sphere(-1 / 44.0, 12.0), Sphere(-1 / 130.0, 12.0)],
-                [get_material("AIR"), get_material("1.5168/64.17"),
-                 get_material("1.6727/32.25"), get_material("AIR")],
-                [0.0, 6.0, 2.5], 96.0, 0, spec=spec).double()
-
-
 @pytest.fixture(scope="module")
 def achromat(schott):
     """A cemented achromat (f = 100 mm, F/4.2, on axis, F/d/C) with model glasses optimised in
@@ -201,14 +186,10 @@ def test_linear_ranker_against_its_closed_forms(achromat):
 
 
 # ---------------------------------------------------------------- snapping inside the search
-#: an F/8 singlet, two colours, HOYA only (as tests/design/search/test_glass_search.py)
-SPEC = dict(efl_mm=100.0, fno=8.0, hfov_deg=0.0, elements=1, wavelengths_nm=[486.1327, 656.2725],
-            glasses="HOYA", glass_mode="model", stop="front", min_center_glass_mm=2.0,
-            max_center_glass_mm=4.0)
-TINY = dict(starts=1, screen=(Stage(2, "hexapolar:2"),), polish_count=1,
-            polish=(Stage(1, "hexapolar:2"),), hops=0, keep=1, score_sampling="hexapolar:2",
-            final_sampling="hexapolar:3", substitute=(Stage(1, "hexapolar:2"),), substitute_k=1,
-            snap_stage=(Stage(2, "hexapolar:2"),), snap_count=4)
+#: an F/8 singlet, two colours, HOYA only, and test_glass_search.py's tiny search with one
+#: substitution candidate and four snapping stages of two steps
+TINY = {**GLASS_SEARCH_TINY, "substitute_k": 1, "snap_stage": (Stage(2, "hexapolar:2"),),
+        "snap_count": 4}
 
 
 def test_snapping_ends_with_every_medium_a_real_catalogue_glass():

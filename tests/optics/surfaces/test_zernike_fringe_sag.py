@@ -1,29 +1,26 @@
 """The Zernike Fringe sag (:class:`~deeplens.optics.surfaces.ZernikeFringeSag`, OpticStudio's
-``FZERNSAG``): single terms against the Fringe polynomials written out here (the University of
-Arizona FRINGE table; Z37 the 12th-order spherical as OpticStudio prints it), the numbering
-against optiland's independent ``ZernikeFringe`` (terms 1..36; its 37th differs), the sag of all
-37 terms against an independent factorial sum, slopes and parameter derivatives against central
-differences (float64), the vertex curvature, the lens file, trace gradients and rays through a
-lens against optiland's own trace of its Fringe geometry."""
+``FZERNSAG``): its written-out reference (the Fringe polynomials of the University of Arizona
+FRINGE table, Z37 the 12th-order spherical as OpticStudio prints it, and an independent factorial
+sum), the numbering against optiland's independent ``ZernikeFringe`` (terms 1..36; its 37th
+differs), the sag of all 37 terms against the factorial sum and optiland, the vertex curvature and
+the 37-term limit.  The checks it shares with the Zernike Standard sag (single terms against the
+table, the closed form, slopes and parameter derivatives against central differences, the lens
+file, trace gradients, rays against optiland's own trace) run for both in
+``test_zernike_sag.py``, parametrized over the two coefficient conventions, with this module's
+``TERMS``, ``ZC`` and ``sag_np``."""
 
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 import pytest
 import torch
+from helpers import disk_xy as _points
 
-from deeplens.optics.io import lens_from_dict, lens_to_dict
-from deeplens.optics.lens import Lens
-from deeplens.optics.materials import Air, ModelGlass
-from deeplens.optics.options import TraceOptions
-from deeplens.optics.rays import Rays
-from deeplens.optics.surfaces import Plane, ZernikeFringeSag, ZernikeSag
+from deeplens.optics.surfaces import ZernikeFringeSag, ZernikeSag
 from deeplens.optics.surfaces.zernike_sag import fringe_nm
 
-F64 = torch.float64
 C, K, RN = 1 / 40.0, -0.5, 5.0
 ALPHA = [1e-3, 2e-5, -3e-7]                       # r², r⁴, r⁶
 # Fringe-ordered A_1..A_16 (mm): piston, tilts, defocus, astigmatism, coma, spherical, trefoil,
@@ -94,30 +91,6 @@ def sag_np(x, y, c=C, k=K, alpha=ALPHA, zc=ZC, rn=RN):
                    for j in range(1, len(zc) + 1))
 
 
-def _points(n=200, rmax=6.0, seed=0):
-    rng = np.random.default_rng(seed)
-    r = rmax * np.sqrt(rng.uniform(0, 1, n))
-    t = rng.uniform(0, 2 * np.pi, n)
-    return r * np.cos(t), r * np.sin(t)
-
-
-@pytest.mark.parametrize("j", sorted(TERMS))
-def test_each_term_is_the_fringe_polynomial(j):
-    """One coefficient ``A_j`` alone on a flat base is ``A_j Z_j(ρ, φ)`` of the written-out Fringe
-    table (to 1e-13 of its size), inside and a little beyond the normalisation radius; the
-    neighbours ``Z_{j±1}`` are not it (a term index off by one fails here)."""
-    zc = [0.0] * (j - 1) + [0.7]
-    s = ZernikeFringeSag(0.0, 6.0, RN, zc)
-    x, y = _points(60, 5.5, seed=j)
-    z = s.sag(torch.tensor(x), torch.tensor(y)).numpy()
-    p, a = np.hypot(x, y) / RN, np.arctan2(y, x)
-    ref = 0.7 * TERMS[j](p, a)
-    assert np.abs(z - ref).max() < 1e-13 * max(1.0, np.abs(ref).max())
-    for other in (j - 1, j + 1):
-        if other in TERMS:
-            assert np.abs(z - 0.7 * TERMS[other](p, a)).max() > 1e-3
-
-
 def test_fringe_numbering_matches_optiland_up_to_36():
     """``fringe_nm`` for j <= 36 against optiland's ZernikeFringe numbering (its own ``(n, m) ->
     j`` rule: the University of Arizona order); j = 37 is OpticStudio's 12th-order spherical,
@@ -158,66 +131,6 @@ def test_sag_of_37_terms_is_the_factorial_sum_and_optilands_fringe():
     assert np.abs(s36.sag(X, Y).numpy() - ol).max() < 1e-12
 
 
-def test_sag_is_the_closed_form():
-    x, y = _points()
-    s = ZernikeFringeSag(C, 6.5, RN, ZC, conic=K, coefficients=ALPHA)
-    z = s.sag(torch.tensor(x), torch.tensor(y)).numpy()
-    ref = sag_np(x, y)
-    assert np.abs(ref).max() > 0.4
-    assert np.abs(z - ref).max() < 1e-14
-    # not the Zernike Standard surface of the same numbers
-    st = ZernikeSag(C, 6.5, RN, ZC, conic=K, coefficients=ALPHA)
-    assert np.abs(st.sag(torch.tensor(x), torch.tensor(y)).numpy() - ref).max() > 1e-3
-
-
-def test_slopes_match_central_differences():
-    """The analytic slopes against central differences of the written-out sag (h = 1e-6 mm:
-    truncation ~ h² z''' ~ 1e-13, rounding ~ eps |z| / h ~ 1e-10) and against autograd of the
-    surface's own sag (to round-off), the axis included."""
-    x, y = _points(100, seed=3)
-    x, y = np.append(x, 0.0), np.append(y, 0.0)
-    s = ZernikeFringeSag(C, 6.5, RN, ZC, conic=K, coefficients=ALPHA)
-    X, Y = torch.tensor(x), torch.tensor(y)
-    gx, gy = s.sag_grad(X, Y)
-    h = 1e-6
-    fx = (sag_np(x + h, y) - sag_np(x - h, y)) / (2 * h)
-    fy = (sag_np(x, y + h) - sag_np(x, y - h)) / (2 * h)
-    assert np.abs(gx.numpy() - fx).max() < 1e-8
-    assert np.abs(gy.numpy() - fy).max() < 1e-8
-    Xg, Yg = X.clone().requires_grad_(True), Y.clone().requires_grad_(True)
-    ax, ay = torch.autograd.grad(s.sag(Xg, Yg).sum(), (Xg, Yg))
-    assert torch.allclose(ax, gx, atol=1e-15, rtol=0) and torch.allclose(ay, gy, atol=1e-15,
-                                                                          rtol=0)
-
-
-def test_sag_parameter_derivatives_match_central_differences():
-    """∂z/∂θ by autograd for c, k, α_1..α_3 and every A_j against central differences of the
-    written-out sag (float64; the sag is linear in α and A, so only rounding enters there)."""
-    x, y = _points(40, seed=4)
-    s = ZernikeFringeSag(C, 6.5, RN, ZC, conic=K, coefficients=ALPHA)
-    params = [s.c, s.k, *s.a, *s.zernike]
-    for p in params:
-        p.requires_grad_(True)
-    X, Y = torch.tensor(x), torch.tensor(y)
-    w = torch.linspace(0.5, 1.5, len(x), dtype=F64)
-    grads = torch.autograd.grad((w * s.sag(X, Y)).sum(), params)
-    base = dict(c=C, k=K, alpha=list(ALPHA), zc=list(ZC))
-
-    def q(name, i, d):
-        kw = {k: (list(v) if isinstance(v, list) else v) for k, v in base.items()}
-        if name in ("c", "k"):
-            kw[name] += d
-        else:
-            kw[name][i] += d
-        return float((w.numpy() * sag_np(x, y, **kw)).sum())
-
-    names = [("c", 0, 1e-7), ("k", 0, 1e-5)] + [("alpha", i, 1e-9) for i in range(3)] + \
-        [("zc", i, 1e-5) for i in range(len(ZC))]
-    for g, (name, i, h) in zip(grads, names):
-        fd = (q(name, i, h) - q(name, i, -h)) / (2 * h)
-        assert float(g) == pytest.approx(fd, rel=1e-6, abs=1e-9), (name, i)
-
-
 def test_paraxial_curvature_is_the_mean_vertex_curvature():
     """``c + 2 α_1 + 2 Σ r_n A_j / R_n²`` (the ρ² coefficients r_n of the m = 0 Fringe terms:
     Z4 2, Z9 −6, Z16 12, Z37 −42): half the Laplacian of the sag at the vertex, by second
@@ -236,93 +149,7 @@ def test_paraxial_curvature_is_the_mean_vertex_curvature():
     assert sym.rotationally_symmetric() and not s.rotationally_symmetric()
 
 
-def test_constructor_errors_and_lens_file():
+def test_constructor_errors():
     with pytest.raises(ValueError, match="ZernikeFringeSag: at most 37 Zernike terms"):
         ZernikeFringeSag(C, 5.0, RN, [0.0] * 38)
     ZernikeSag(C, 5.0, RN, [0.0] * 38)   # the Standard set goes on to 231
-    lens = _lens()[0]
-    d = lens_to_dict(lens)
-    e = d["surfaces"][0]
-    assert e["type"] == "zernike_fringe_sag" and e["zernike_coefficients"] == ZC
-    back = lens_from_dict(d)
-    assert type(back.surfaces[0]) is ZernikeFringeSag and lens_to_dict(back) == d
-    with torch.no_grad():
-        assert torch.equal(lens.trace_to_sensor(_rays()).o, back.trace_to_sensor(_rays()).o)
-
-
-def _lens(c=C, k=K, alpha=ALPHA, zc=ZC):
-    s = ZernikeFringeSag(c, 6.0, RN, zc, conic=k, coefficients=alpha)
-    return Lens([s, Plane(6.0)], [Air(), ModelGlass(1.6, 40.0), Air()], [0.0, 4.0], 30.0, 0), s
-
-
-def _rays():
-    y = torch.linspace(-4.5, 4.5, 7, dtype=F64)
-    o = torch.stack([0.3 * y, y, torch.full_like(y, -1.0)], -1)
-    d = torch.tensor([0.01, 0.03, 1.0], dtype=F64)
-    d = (d / d.norm()).expand(7, 3)
-    return Rays(o, d, 587.0)
-
-
-@pytest.mark.parametrize("name,h", [("c", 1e-7), ("z4", 1e-6), ("z8", 1e-6), ("z16", 1e-6)])
-def test_trace_gradients_match_central_differences(name, h):
-    """d/dθ of (Σ x_image² + Σ y_image² + Σ opl) through the lens, against central differences
-    (float64; the FD truncation ~ h² and rounding ~ eps / h are both below 1e-6 relative)."""
-    def q(delta):
-        c, zc = C, list(ZC)
-        if name == "c":
-            c += delta
-        else:
-            zc[int(name[1:]) - 1] += delta
-        lens, s = _lens(c, K, ALPHA, zc)
-        p = s.c if name == "c" else s.zernike[int(name[1:]) - 1]
-        p.requires_grad_(True)
-        out = lens.trace_to_sensor(_rays())
-        assert out.valid.all()
-        return (out.o[:, :2] ** 2).sum() + out.opl.sum(), p
-
-    v, p = q(0.0)
-    ad, = torch.autograd.grad(v, p)
-    fd = float((q(h)[0] - q(-h)[0]).detach()) / (2 * h)
-    assert abs(fd) > 1e-3
-    assert float(ad) == pytest.approx(fd, rel=2e-6)
-
-
-def test_rays_land_where_optiland_lands_them():
-    """A plano lens whose front is a Zernike Fringe sag (R 40 mm, k −0.5, ρ_n 6.5 mm, Fringe
-    terms 1..16): rays from optiland's own trace of its ZernikeFringe geometry (tolerance
-    1e-13) meet the image plane where deeplens puts them, to 1e-9 mm."""
-    pytest.importorskip("optiland")
-    import optiland.backend as be
-    from optiland.materials import IdealMaterial
-    from optiland.optic import Optic
-
-    optic = Optic()
-    optic.surfaces.add(index=0, radius=be.inf, thickness=be.inf)
-    optic.surfaces.add(index=1, radius=40.0, thickness=4.0, conic=K, surface_type="zernike",
-                       zernike_type="fringe", coefficients=ZC, norm_radius=6.5, tol=1e-13,
-                       material=IdealMaterial(n=1.6), is_stop=True)
-    optic.surfaces.add(index=2, radius=be.inf, thickness=30.0)
-    optic.surfaces.add(index=3)
-    optic.set_aperture(aperture_type="EPD", value=10)
-    optic.fields.set_type(field_type="angle")
-    optic.fields.add(y=0)
-    optic.fields.add(y=5)
-    optic.wavelengths.add(value=0.587, is_primary=True)
-    lens = Lens([ZernikeFringeSag(1 / 40.0, 6.0, 6.5, ZC, conic=K), Plane(6.0)],
-                [Air(), ModelGlass(1.6, math.inf), Air()], [0.0, 4.0], 30.0, 0)
-
-    def at(arr, i):
-        return float(torch.as_tensor(arr)[i].reshape(-1)[0])
-
-    for H, P in [((0, 0), (0, 1)), ((0, 1), (0.3, -0.7)), ((0, 0.5), (0.6, 0.6)),
-                 ((0, 1), (0, 0)), ((0, 0), (-0.8, 0.1))]:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            optic.trace_generic(Hx=H[0], Hy=H[1], Px=P[0], Py=P[1], wavelength=0.587)
-        sg = optic.surface_group
-        p = torch.tensor([at(sg.x, 1), at(sg.y, 1), at(sg.z, 1)], dtype=F64)
-        d = torch.tensor([at(sg.L, 0), at(sg.M, 0), at(sg.N, 0)], dtype=F64)
-        out = lens.trace_to_sensor(Rays((p - d)[None], d[None], 587.0),
-                                   options=TraceOptions(clip_aperture=False))
-        ol = [at(sg.x, -1), at(sg.y, -1), at(sg.z, -1)]
-        assert out.o[0].tolist() == pytest.approx(ol, abs=1e-9), (H, P)

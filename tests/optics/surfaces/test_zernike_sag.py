@@ -3,16 +3,24 @@
 Standard table), Noll's numbering and the sag against optiland's independent ``ZernikeNoll``, the
 slopes and parameter derivatives of the sag against central differences, ray hits against a
 bisection, trace gradients against central differences, the paraxial curvature, the extrapolate
-flag, float32, the lens file, and rays through a lens against optiland's own trace."""
+flag, float32, the lens file, and rays through a lens against optiland's own trace.
+
+The checks the Zernike Fringe sag (``ZernikeFringeSag``) shares with it run here for both, over
+``CASES``: the single terms, the closed form, slopes, parameter derivatives, the lens file, trace
+gradients and optiland's trace, each against its own written-out table and coefficient
+convention (the Fringe one from ``test_zernike_fringe_sag.py``)."""
 
 from __future__ import annotations
 
 import math
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 import pytest
+import test_zernike_fringe_sag as fringe
 import torch
+from helpers import disk_xy as _points
 
 from deeplens.optics.intersect import intersect
 from deeplens.optics.io import lens_from_dict, lens_to_dict
@@ -20,7 +28,7 @@ from deeplens.optics.lens import Lens
 from deeplens.optics.materials import Air, ModelGlass
 from deeplens.optics.options import TraceOptions
 from deeplens.optics.rays import Rays
-from deeplens.optics.surfaces import Plane, ZernikeSag
+from deeplens.optics.surfaces import Plane, ZernikeFringeSag, ZernikeSag
 from deeplens.optics.surfaces.zernike_sag import noll_nm
 from deeplens.optics.tracer import fused_kind
 
@@ -68,28 +76,45 @@ def sag_np(x, y, c=C, k=K, alpha=ALPHA, zc=ZC, rn=RN):
     return z + zern_np(x, y, zc, rn)
 
 
-def _points(n=200, rmax=6.0, seed=0):
-    rng = np.random.default_rng(seed)
-    r = rmax * np.sqrt(rng.uniform(0, 1, n))
-    t = rng.uniform(0, 2 * np.pi, n)
-    return r * np.cos(t), r * np.sin(t)
+class Case(NamedTuple):
+    """One coefficient convention: the surface class, its ``A_1..`` (mm), the other convention's
+    class (the same numbers on it are another surface), the written-out terms and sag (numpy, of
+    ``(x, y, c, k, alpha, zc, rn)``), the least peak sag of ``sag_np`` (mm) at the sampled points,
+    optiland's ``zernike_type`` and the lens file's ``type``."""
+    cls: type
+    zc: list
+    other: type
+    terms: dict
+    sag_np: object
+    peak: float
+    optiland: str
+    file_type: str
 
 
-@pytest.mark.parametrize("j", sorted(TERMS))
-def test_each_term_is_opticstudios_polynomial(j):
+CASES = {
+    "noll": Case(ZernikeSag, ZC, ZernikeFringeSag, TERMS, sag_np, 0.5, "noll", "zernike_sag"),
+    "fringe": Case(ZernikeFringeSag, fringe.ZC, ZernikeSag, fringe.TERMS, fringe.sag_np, 0.4,
+                   "fringe", "zernike_fringe_sag"),
+}
+
+
+@pytest.mark.parametrize("kind,j", [(k, j) for k, c in CASES.items() for j in sorted(c.terms)])
+def test_each_term_is_the_written_out_polynomial(kind, j):
     """One coefficient ``A_j`` alone on a flat base is ``A_j Z_j(ρ, φ)`` of the written-out table
-    (to 1e-14 relative), inside and a little beyond the normalisation radius (the polynomial
-    continued); the neighbours ``Z_{j±1}`` are not it (an index off by one fails here)."""
+    (OpticStudio's Standard table; the Fringe table) to 1e-13 of its size, inside and a little
+    beyond the normalisation radius (the polynomial continued); the neighbours ``Z_{j±1}`` are
+    not it (an index off by one fails here)."""
+    case = CASES[kind]
     zc = [0.0] * (j - 1) + [0.7]
-    s = ZernikeSag(0.0, 6.0, RN, zc)
+    s = case.cls(0.0, 6.0, RN, zc)
     x, y = _points(60, 5.5, seed=j)
     z = s.sag(torch.tensor(x), torch.tensor(y)).numpy()
     p, a = np.hypot(x, y) / RN, np.arctan2(y, x)
-    ref = 0.7 * TERMS[j](p, a)
+    ref = 0.7 * case.terms[j](p, a)
     assert np.abs(z - ref).max() < 1e-13 * max(1.0, np.abs(ref).max())
     for other in (j - 1, j + 1):
-        if other in TERMS:
-            assert np.abs(z - 0.7 * TERMS[other](p, a)).max() > 1e-3
+        if other in case.terms:
+            assert np.abs(z - 0.7 * case.terms[other](p, a)).max() > 1e-3
 
 
 def test_noll_numbering_matches_optiland():
@@ -124,22 +149,30 @@ def test_sag_of_231_terms_matches_optiland_zernike_noll():
     assert np.abs(z - ref).max() < 1e-11
 
 
-def test_sag_is_the_closed_form():
+@pytest.mark.parametrize("kind", CASES)
+def test_sag_is_the_closed_form(kind):
+    """The whole sag against the written-out one (to 1e-14 mm); not the other convention's
+    surface of the same numbers."""
+    case = CASES[kind]
     x, y = _points()
-    s = ZernikeSag(C, 6.5, RN, ZC, conic=K, coefficients=ALPHA)
+    s = case.cls(C, 6.5, RN, case.zc, conic=K, coefficients=ALPHA)
     z = s.sag(torch.tensor(x), torch.tensor(y)).numpy()
-    ref = sag_np(x, y)
-    assert np.abs(ref).max() > 0.5
+    ref = case.sag_np(x, y)
+    assert np.abs(ref).max() > case.peak
     assert np.abs(z - ref).max() < 1e-14
+    st = case.other(C, 6.5, RN, case.zc, conic=K, coefficients=ALPHA)
+    assert np.abs(st.sag(torch.tensor(x), torch.tensor(y)).numpy() - ref).max() > 1e-3
 
 
-def test_slopes_match_central_differences():
+@pytest.mark.parametrize("kind", CASES)
+def test_slopes_match_central_differences(kind):
     """The analytic slopes against central differences of the written-out sag (h = 1e-6 mm:
     truncation ~ h² z''' ~ 1e-13, rounding ~ eps |z| / h ~ 1e-10) and against autograd of the
     surface's own sag (to round-off), the axis included."""
+    case, sag_np = CASES[kind], CASES[kind].sag_np
     x, y = _points(100, seed=3)
     x, y = np.append(x, 0.0), np.append(y, 0.0)
-    s = ZernikeSag(C, 6.5, RN, ZC, conic=K, coefficients=ALPHA)
+    s = case.cls(C, 6.5, RN, case.zc, conic=K, coefficients=ALPHA)
     X, Y = torch.tensor(x), torch.tensor(y)
     gx, gy = s.sag_grad(X, Y)
     h = 1e-6
@@ -153,11 +186,13 @@ def test_slopes_match_central_differences():
                                                                           rtol=0)
 
 
-def test_sag_parameter_derivatives_match_central_differences():
-    """∂z/∂θ by autograd for c, k, α_1, α_2 and every A_j against central differences of the
-    written-out sag (float64)."""
+@pytest.mark.parametrize("kind", CASES)
+def test_sag_parameter_derivatives_match_central_differences(kind):
+    """∂z/∂θ by autograd for c, k, α_1..α_3 and every A_j against central differences of the
+    written-out sag (float64; the sag is linear in α and A, so only rounding enters there)."""
+    case, sag_np, ZC = CASES[kind], CASES[kind].sag_np, CASES[kind].zc
     x, y = _points(40, seed=4)
-    s = ZernikeSag(C, 6.5, RN, ZC, conic=K, coefficients=ALPHA)
+    s = case.cls(C, 6.5, RN, ZC, conic=K, coefficients=ALPHA)
     params = [s.c, s.k, *s.a, *s.zernike]
     for p in params:
         p.requires_grad_(True)
@@ -254,8 +289,8 @@ def test_intersection_matches_bisection():
     assert np.abs(x.numpy() - ref).max() < 1e-12
 
 
-def _lens(c=C, k=K, alpha=ALPHA, zc=ZC):
-    s = ZernikeSag(c, 6.0, RN, zc, conic=k, coefficients=alpha)
+def _lens(c=C, k=K, alpha=ALPHA, zc=ZC, cls=ZernikeSag):
+    s = cls(c, 6.0, RN, zc, conic=k, coefficients=alpha)
     return Lens([s, Plane(6.0)], [Air(), ModelGlass(1.6, 40.0), Air()], [0.0, 4.0], 30.0, 0), s
 
 
@@ -267,13 +302,15 @@ def _rays():
     return Rays(o, d, 587.0)
 
 
-@pytest.mark.parametrize("name,h", [("c", 1e-7), ("k", 1e-5), ("alpha1", 1e-8),
-                                    ("z4", 1e-6), ("z6", 1e-6), ("z8", 1e-6), ("z11", 1e-6)])
-def test_trace_gradients_match_central_differences(name, h):
+@pytest.mark.parametrize("kind,name,h", [
+    *[("noll", n, h) for n, h in [("c", 1e-7), ("k", 1e-5), ("alpha1", 1e-8), ("z4", 1e-6),
+                                  ("z6", 1e-6), ("z8", 1e-6), ("z11", 1e-6)]],
+    *[("fringe", n, h) for n, h in [("c", 1e-7), ("z4", 1e-6), ("z8", 1e-6), ("z16", 1e-6)]]])
+def test_trace_gradients_match_central_differences(kind, name, h):
     """d/dθ of (Σ x_image² + Σ y_image² + Σ opl) through the lens, against central differences
     (float64; the FD truncation ~ h² and rounding ~ eps / h are both below 1e-6 relative)."""
     def q(delta):
-        c, k, alpha, zc = C, K, list(ALPHA), list(ZC)
+        c, k, alpha, zc = C, K, list(ALPHA), list(CASES[kind].zc)
         if name == "c":
             c += delta
         elif name == "k":
@@ -282,7 +319,7 @@ def test_trace_gradients_match_central_differences(name, h):
             alpha[int(name[5:]) - 1] += delta
         else:
             zc[int(name[1:]) - 1] += delta
-        lens, s = _lens(c, k, alpha, zc)
+        lens, s = _lens(c, k, alpha, zc, CASES[kind].cls)
         p = {"c": s.c, "k": s.k}.get(name)
         if p is None:
             p = s.a[int(name[5:]) - 1] if name.startswith("alpha") else s.zernike[int(name[1:]) - 1]
@@ -298,17 +335,19 @@ def test_trace_gradients_match_central_differences(name, h):
     assert float(ad) == pytest.approx(fd, rel=2e-6)
 
 
-def test_traces_eager_and_saves():
+@pytest.mark.parametrize("kind", CASES)
+def test_traces_eager_and_saves(kind):
     """No compiled Newton kernels (``fused_kind`` None); the lens file round-trips to the same
-    trace."""
-    lens, s = _lens()
+    surface class and the same trace."""
+    case = CASES[kind]
+    lens, s = _lens(zc=case.zc, cls=case.cls)
     assert fused_kind(lens, 0) is None
     d = lens_to_dict(lens)
     e = d["surfaces"][0]
-    assert e["type"] == "zernike_sag" and e["zernike_coefficients"] == ZC
+    assert e["type"] == case.file_type and e["zernike_coefficients"] == case.zc
     assert e["even_coefficients"] == ALPHA and e["norm_radius_mm"] == RN
     back = lens_from_dict(d)
-    assert lens_to_dict(back) == d
+    assert type(back.surfaces[0]) is case.cls and lens_to_dict(back) == d
     with torch.no_grad():
         assert torch.equal(lens.trace_to_sensor(_rays()).o, back.trace_to_sensor(_rays()).o)
     d["surfaces"][0]["zernike_extrapolate"] = 2
@@ -329,21 +368,22 @@ def test_constructor_errors():
         noll_nm(0)
 
 
-def test_rays_land_where_optiland_lands_them():
-    """A plano lens whose front is a Zernike standard sag (R 40 mm, k −0.5, ρ_n 6.5 mm, Noll
-    terms 1..11): rays from optiland's own trace of its ZernikeNoll geometry (tolerance 1e-12)
-    meet the image plane where deeplens puts them, to 1e-9 mm."""
+@pytest.mark.parametrize("kind", CASES)
+def test_rays_land_where_optiland_lands_them(kind):
+    """A plano lens whose front is a Zernike standard (Noll terms 1..11) or Fringe (terms 1..16)
+    sag (R 40 mm, k −0.5, ρ_n 6.5 mm): rays from optiland's own trace of its ZernikeNoll or
+    ZernikeFringe geometry (tolerance 1e-13) meet the image plane where deeplens puts them, to
+    1e-9 mm."""
     pytest.importorskip("optiland")
     import optiland.backend as be
     from optiland.materials import IdealMaterial
     from optiland.optic import Optic
 
-    from deeplens.optics.options import TraceOptions
-
+    case, ZC = CASES[kind], CASES[kind].zc
     optic = Optic()
     optic.surfaces.add(index=0, radius=be.inf, thickness=be.inf)
     optic.surfaces.add(index=1, radius=40.0, thickness=4.0, conic=K, surface_type="zernike",
-                       zernike_type="noll", coefficients=ZC, norm_radius=6.5, tol=1e-13,
+                       zernike_type=case.optiland, coefficients=ZC, norm_radius=6.5, tol=1e-13,
                        material=IdealMaterial(n=1.6), is_stop=True)
     optic.surfaces.add(index=2, radius=be.inf, thickness=30.0)
     optic.surfaces.add(index=3)
@@ -352,7 +392,7 @@ def test_rays_land_where_optiland_lands_them():
     optic.fields.add(y=0)
     optic.fields.add(y=5)
     optic.wavelengths.add(value=0.587, is_primary=True)
-    lens = Lens([ZernikeSag(1 / 40.0, 6.0, 6.5, ZC, conic=K), Plane(6.0)],
+    lens = Lens([case.cls(1 / 40.0, 6.0, 6.5, ZC, conic=K), Plane(6.0)],
                 [Air(), ModelGlass(1.6, math.inf), Air()], [0.0, 4.0], 30.0, 0)
 
     def at(arr, i):
