@@ -23,7 +23,10 @@ SHRINK = {"doublet_search": ("lens.search.spec.elements=1", "lens.search.spec.as
                              "render.psf_model=geometric"),
           # a plate search: one start of one DLS step on a coarse merit
           "edof_search": ("lens.search.plate={starts:1,steps:1,box_mm:0.006,"
-                          "blur_alpha_mm:0.005,sampling:'grid:8',n_freq:2,seed:0}",)}
+                          "blur_alpha_mm:0.005,sampling:'grid:8',n_freq:2,seed:0}",),
+          # the restoration merit's plate search: one start of one step at two depths
+          "edof_search_restoration": ("lens.search.plate={starts:1,steps:1,box_mm:0.006,"
+                                      "seed:0,merit:restoration,restoration_depths:2}",)}
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
