@@ -140,6 +140,7 @@ def newton_compiled(lens, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol
                                                  use_reentrant=False)
     return C.call(C.compiled_newton_refract, *args)
 
+
 def from_soa_copy(v: torch.Tensor) -> torch.Tensor:
     """Component-major ``(3, *B)`` -> ``(*B, 3)``, contiguous: the values of
     :func:`~.rays.from_soa`.  Without autograd on the CPU, one strided copy per component
