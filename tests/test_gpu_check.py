@@ -160,7 +160,7 @@ def test_gpu_plan_budgets_and_shell_agree(gc):
 def test_cuda_test_files_are_found(gc):
     files = gc.cuda_test_files()
     for f in ("tests/optics/test_lens.py", "tests/optics/test_materials.py",
-              "tests/render/test_render.py"):
+              "tests/render/test_render.py", "tests/render/test_diffraction.py"):
         assert f in files
     # and each has a test that `pytest -k cuda` selects
     for f in files:

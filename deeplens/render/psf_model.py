@@ -174,7 +174,10 @@ class PSFModel:
         now = _groups(lens)
         for name, p0 in self._params.items():
             ref = float(p0.norm())
-            if ref > 0 and float((now[name] - p0).norm()) > self.remeasure * ref:
+            # the snapshot stays where it was taken (set-up runs before the module moves to
+            # its device): compare on the lens's device
+            if ref > 0 and float((now[name] - p0.to(now[name].device)).norm()) > \
+                    self.remeasure * ref:
                 return True
         return False
 

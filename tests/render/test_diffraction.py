@@ -241,6 +241,23 @@ def test_auto_measures_again_when_the_lens_moved():
     assert m.moved(lens)
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+def test_cuda_lens_moved_after_a_cpu_measurement():
+    """Training measures the PSF model at set-up, on the CPU, and then moves the module to the
+    GPU: ``moved`` compares the lens on its device with the CPU snapshot (it raised a device
+    mismatch on the first GPU run, at every EDOF training step)."""
+    lens = ideal_lens(object_distance=5000.0)
+    sensor = Sensor((16, 16), 0.08, channels=[[WL]])
+    m = PSFModel("auto", n_rays=1024, remeasure=0.1)
+    m.measure(lens, sensor, run_jobs(lens, sensor, [5000.0], depths=1))
+    lens = lens.to("cuda")
+    assert not m.moved(lens)
+    with torch.no_grad():
+        for p in lens.parameters():
+            p.mul_(1.5)
+    assert m.moved(lens)
+
+
 def test_memory_check_names_the_setting():
     with pytest.raises(PSFMemoryError, match="render.psf_memory_gb"):
         check_memory(40, 1024, 129, 8, 0.5, torch.float32)
