@@ -110,7 +110,7 @@ def _trace(lens, sensor, jobs, n: int, options=None):
     for (X, Y), depth, wl in jobs:
         n0 = float(lens.materials[0].n(torch.tensor([wl], dtype=torch.float64)).reshape(-1)[0])
         if math.isinf(depth):
-            d = torch.tensor([X, Y, 1.0], dtype=torch.float64)
+            d = torch.tensor([X, Y, 1.0], dtype=torch.float64, device=E.device)
             d = (d / d.norm()).expand_as(E)
             o = E + ((zs - z_ep) / float(d[0, 2])) * d
             # from the plane wavefront through the axis point of the start plane
@@ -118,7 +118,7 @@ def _trace(lens, sensor, jobs, n: int, options=None):
         else:
             if not depth > 0:
                 raise ValueError(f"point source depth must be > 0 mm, got {depth}")
-            P = torch.tensor([X, Y, z0 - depth], dtype=torch.float64)
+            P = torch.tensor([X, Y, z0 - depth], dtype=torch.float64, device=E.device)
             d = E - P
             d = d / torch.linalg.vector_norm(d, dim=-1, keepdim=True)
             t = (zs - float(P[2])) / d[:, 2]
