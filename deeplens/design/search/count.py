@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 import time
 
 import torch
@@ -49,7 +48,7 @@ from .refine import (STANDARD, aspheric_choice, fit_semi_diameters, refine, repa
                      set_curriculum)
 from .result import evaluate
 from .spec import DesignSpec
-from .start import StartError, place_sensor, solve_efl
+from .start import StartError, _sag, place_sensor, solve_efl
 
 __all__ = ["elements", "element_powers", "contributions", "remove_element", "split_element",
            "thin", "split", "count_trade"]
@@ -130,10 +129,6 @@ def remove_element(lens, e: int) -> Lens:
     stop = lens.stop_index - 2 if lens.stop_index > b else lens.stop_index
     return _rebuild(lens, surfaces, materials, distances, d_sensor, stop,
                     f"{lens.name} (element {e} removed)")
-
-
-def _sag(c: float, h: float) -> float:
-    return c * h * h / (1.0 + math.sqrt(max(1.0 - c * c * h * h, 0.0)))
 
 
 def split_element(lens, e: int, gap_mm: float = 0.2) -> Lens:
