@@ -36,6 +36,7 @@ from torch import nn
 
 from . import tracer
 from .errors import LensError, SurfacesCrossError
+from .frames import travel_directions
 from .intersect import (_safe_div, intersect, propagate_distance, stop_crossing_xyz,
                         trace_quadric)
 from .materials import Air, Material, check_wavelength_nm
@@ -287,12 +288,20 @@ class Lens(nn.Module):
 
     def directions(self) -> list[int]:
         """The direction of travel along the local axis in each of the ``N + 1`` media: ``+1``
-        (``+z``) in object space, flipped by every mirror.  Distances into a medium carry its
-        sign (negative after an odd number of mirrors)."""
-        out = [1]
-        for i in range(len(self.surfaces)):
-            out.append(-out[-1] if i in self.mirrors else out[-1])
-        return out
+        (``+z``) in object space, then the sign of the traced axis's local ``z`` component
+        after each surface (:func:`~.frames.travel_directions`: coordinate breaks turn it,
+        mirrors reflect it about their vertex normals, refracting surfaces refract it at the
+        primary wavelength).  Distances into a medium carry its sign.  Without coordinate
+        breaks, and with folds written as ``break, mirror, break``, this is the mirror count's
+        parity (negative after an odd number of mirrors, Zemax's convention); mirrors tilted
+        inside break pairs that return the frame (a roof prism) can turn the beam round
+        without the parity changing, and the traced axis follows them."""
+        indices = None
+        if any(s.interaction.changes_frame for s in self.surfaces):
+            with torch.no_grad():
+                w = torch.tensor(float(self.spec.primary_wavelength_nm), dtype=torch.float64)
+                indices = [float(m.n(w)) for m in self.materials]
+        return travel_directions(list(self.surfaces), self.mirrors, indices)
 
     def folded(self) -> bool:
         """True when the lens has a mirror or a coordinate break (it then traces eagerly)."""

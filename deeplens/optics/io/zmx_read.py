@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 
 from ..errors import SurfacesCrossError, ZemaxFileError
+from ..frames import travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
 from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
@@ -108,7 +109,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
     virtual = [False]
-    d_sensor = _sensor(seq, img, p, virtual)
+    d_sensor = _sensor(seq, img, p, virtual, primary)
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
 
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest
@@ -387,20 +388,30 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     return seq
 
 
-def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list) -> float:
+def _axis_indices(seq: _Sequence, primary: float):
+    """The media's indices at the primary wavelength (nm) for :func:`travel_directions`, or
+    ``None`` when one cannot be evaluated there (the wavelength checks report it later)."""
+    try:
+        with torch.no_grad():
+            w = torch.tensor(float(primary), dtype=torch.float64)
+            return [float(m.n(w)) for m in seq.media]
+    except (ValueError, TypeError):
+        return None
+
+
+def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary: float) -> float:
     """The sensor distance (mm, signed along the direction of travel) from the gap between the
     last kept vertex and the image surface: an image plane on a flat last vertex moves
     :data:`_IMAGE_ON_VERTEX_MM` behind it; a curved one there is refused; an image plane before
     the last vertex (a virtual image) sets ``virtual[0]`` (refused after mirrors)."""
     kept, mirrors, surfaces = seq.kept, seq.mirrors, [k_[0] for k_ in seq.kept]
     d_sensor = seq.gap
-    # the direction of travel after the last surface: -z after an odd number of mirrors
-    # (Zemax's sign convention, Lens.directions), so "behind" the last vertex is sign * d > 0
-    sign = -1.0 if len(mirrors) % 2 else 1.0
-    # a thickness of the wrong sign inside the lens is reported by Lens (naming that surface)
-    signs = [1.0]
-    for i in range(len(kept)):
-        signs.append(-signs[-1] if i in mirrors else signs[-1])
+    # the direction of travel in each medium, from the traced axis (Lens.directions: -z after
+    # an odd number of mirrors unless breaks turn the beam round), so "behind" the last vertex
+    # is sign * d > 0; a thickness of the wrong sign inside the lens is reported by Lens
+    # (naming that surface)
+    signs = [float(v) for v in travel_directions(surfaces, mirrors, _axis_indices(seq, primary))]
+    sign = signs[-1]
     inside_ok = all(kept[i][3] * signs[i] >= 0 for i in range(1, len(kept)))
     if d_sensor == 0 and isinstance(surfaces[-1], (Plane, CoordinateBreak)):
         # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
