@@ -311,7 +311,8 @@ class Lens(nn.Module):
     def backward_gaps(self) -> frozenset:
         """Gaps that rays may cross backwards, as OpticStudio's sequential trace does: the
         indices ``j`` of real surfaces whose gap from the previous real surface ``p`` (stops
-        between them skipped) is opted in.  Empty by default: every gap is traced forwards only
+        and coordinate breaks between them skipped) is opted in.  Empty by default: every gap
+        is traced forwards only
         (a hit must lie ahead of the ray, ``t >= 0``) and surfaces that cross within their
         semi-diameters are an error (:meth:`check`).
 
@@ -320,7 +321,12 @@ class Lens(nn.Module):
         (a negative edge thickness beyond radius ``r``), rays beyond ``r`` travel back through
         the gap (``t < 0``) and their optical path *decreases* by ``n |t|``, which is what
         OpticStudio computes for such a file (the lens cannot be made as drawn).  The crossing
-        check is waived for those pairs only.  The root is the same one as forwards (the
+        check is waived for those pairs only.  Across coordinate breaks: the two mirrors of a
+        roof written at one vertex (breaks tilting each, OpticStudio's Amici prism files): the
+        half of the beam that meets the second mirror's plane first is traced back to it
+        (``t < 0``, as OpticStudio's sequential trace does; both orders end on the same ray,
+        the two reflections composing a 180-degree rotation about the ridge).  The root is the
+        same one as forwards (the
         crossing in the direction of travel on the surface's own branch, ``h > 0``), so the far
         side of a sphere is never taken.
 
@@ -335,7 +341,7 @@ class Lens(nn.Module):
 
     @backward_gaps.setter
     def backward_gaps(self, gaps) -> None:
-        pairs = dict((q, p) for p, q in self._real_neighbours())
+        pairs = dict((q, p) for p, q in self._real_neighbours(across_breaks=True))
         out = set()
         for j in gaps:
             if isinstance(j, bool) or not isinstance(j, int) or j not in pairs:
@@ -497,14 +503,16 @@ class Lens(nn.Module):
                 lo = mid
         return lo
 
-    def _real_neighbours(self) -> list[tuple[int, int]]:
+    def _real_neighbours(self, across_breaks: bool = False) -> list[tuple[int, int]]:
         """Pairs ``(p, q)`` of consecutive surfaces that are neither stops (:class:`Aperture`)
         nor coordinate breaks, with only stops between them (a coordinate break changes the
-        frame: the pairs across it are not compared)."""
+        frame: the pairs across it are not compared); ``across_breaks``: with stops and
+        coordinate breaks between them (the gaps :attr:`backward_gaps` may name)."""
         pairs, prev = [], None
         for i, s in enumerate(self.surfaces):
             if s.law == "frame":
-                prev = None
+                if not across_breaks:
+                    prev = None
             elif s.law != "stop":
                 if prev is not None:
                     pairs.append((prev, i))

@@ -164,6 +164,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
+    _roof_gaps(lens, where_of, p)
     needs_efl = ftyp[0] in (2, 3) or (convert is not None and convert[0] == "wfno")
     if _afocal(lens) and needs_efl:
         # an afocal lens (flat folds only) has an infinite focal length: fields given as image
@@ -537,6 +538,25 @@ def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict
     if changed:
         limited[(i, j)] = e.radius
     return changed
+
+
+def _roof_gaps(lens, where_of: dict, p: Locator) -> None:
+    """Two mirrors at one vertex with only coordinate breaks between them (a roof written as
+    OpticStudio's Amici prism files write it: each mirror tilted by its own break pair): half
+    of the beam meets the second mirror's plane before the first, and OpticStudio's sequential
+    trace takes it back to it (a negative propagation distance).  The gap becomes one of the
+    lens's :attr:`~deeplens.optics.lens.Lens.backward_gaps`, with one located warning."""
+    for i, j in lens._real_neighbours(across_breaks=True):
+        if not (i in lens.mirrors and j in lens.mirrors and
+                any(lens.surfaces[k].law == "frame" for k in range(i + 1, j)) and
+                all(float(lens.distances[k]) == 0.0 for k in range(i + 1, j + 1))):
+            continue
+        lens.backward_gaps = lens.backward_gaps | {j}
+        p.note(where_of[j], f"the mirrors of the {_pair_blocks(where_of, i, j)} meet at one "
+                            f"vertex, turned by coordinate breaks (a roof): rays that meet the "
+                            f"second mirror's plane before the first are traced back to it, as "
+                            f"OpticStudio's sequential trace does (Lens.backward_gaps "
+                            f"{sorted(lens.backward_gaps)})")
 
 
 def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, p: Locator,
