@@ -13,7 +13,9 @@ the lens or its input rays.
 
 Mirrors and folds (``docs/guide/mirrors.md``): a mirror (``mirrors=``) reflects (:mod:`.reflect`)
 instead of refracting and reverses the direction of travel along the axis, so after an odd
-number of mirrors the distances are negative (Zemax's convention, :meth:`Lens.directions`); a
+number of mirrors the distances are negative (Zemax's convention; in general the sign of the
+traced axis's local z component, :meth:`Lens.directions`, which mirrors tilted inside
+coordinate-break pairs, as in a roof prism, can turn round without the count changing); a
 :class:`~.surfaces.CoordinateBreak` changes the frame of every following surface (folds,
 off-axis sections) and ray coordinates after it are in the new frame (:mod:`.frames`).
 
@@ -125,6 +127,35 @@ def _check_directions() -> tuple[torch.Tensor, torch.Tensor]:
     cos_a, sin_a = torch.cos(phi), torch.sin(phi)
     snap = lambda t: torch.where(t.abs() < 1e-12, torch.zeros_like(t), t)  # noqa: E731
     return snap(cos_a), snap(sin_a)
+
+
+def against_travel(surfaces, distances, sign) -> list[tuple[int, float, str]]:
+    """The gaps whose distance opposes the direction of travel: ``(q, d, what)`` for each real
+    surface ``q`` whose distance ``d`` (mm) from the surface before it (from the previous real
+    surface across stops) has the sign opposite to ``sign[q]`` (:meth:`Lens.directions`);
+    ``distances``: the ``N`` distances (floats, mm, ``Lens.distances``); ``what`` names the
+    distance for a message.  A stop is crossed, not landed on (:meth:`Lens._cross_stop`): it
+    may lie inside a lens's sag (a negative distance before or after it), so order is checked
+    between consecutive *real* surfaces, the stops between them skipped; the distance before
+    a coordinate break is not checked (the break is not a surface the light meets)."""
+    pairs, prev = [], None
+    for i, s in enumerate(surfaces):
+        if s.law == "frame":
+            prev = None
+        elif s.law != "stop":
+            if prev is not None and i > prev + 1:
+                pairs.append((prev, i))   # across stops
+            prev = i
+    spans = [(i - 1, i) for i in range(1, len(surfaces))
+             if surfaces[i].interaction.lands and surfaces[i - 1].law != "stop"] + pairs
+    out = []
+    for p, q in spans:
+        d = distances[q] if q == p + 1 else math.fsum(distances[p + 1:q + 1])
+        what = f"distance before surface {q}" if q == p + 1 else \
+            f"distance from surface {p} to surface {q} (across the stop between them)"
+        if (d < 0 and sign[q] > 0) or (d > 0 and sign[q] < 0):
+            out.append((q, d, what))
+    return out
 
 
 def _after_mirrors(mirrors, i: int) -> str:
@@ -393,29 +424,19 @@ class Lens(nn.Module):
                         f"own surface", surfaces=(i,))
         sign = self.directions()
         z = self.z_vertices().detach()
-        # a stop is crossed, not landed on (:meth:`_cross_stop`): it may lie inside a lens's
-        # sag (a negative distance before or after it), so order and overlap are checked
-        # between consecutive *real* surfaces, the stops between them skipped
         pairs = self._real_neighbours()
-        spans = [(i - 1, i) for i in range(1, len(self.surfaces))
-                 if self.surfaces[i].interaction.lands and self.surfaces[i - 1].law != "stop"]
-        spans += [(p, q) for p, q in pairs if q > p + 1]   # across stops
-        for p, q in spans:
-            d = float(self.distances[q]) if q == p + 1 else float(z[q] - z[p])
-            what = f"distance before surface {q}" if q == p + 1 else \
-                f"distance from surface {p} to surface {q} (across the stop between them)"
-            if d < 0 and sign[q] > 0:
+        for q, d, what in against_travel(list(self.surfaces),
+                                         [float(v) for v in self.distances], sign):
+            if q in self._backward:   # crossed backwards (OpticStudio's virtual propagation)
+                continue
+            if d < 0:
                 raise LensError(f"{what} is negative ({d:g} mm): sequential surfaces must be "
                                 f"ordered along +z{_after_mirrors(self.mirrors, q)}",
                                 surfaces=(q,))
-            if d > 0 and sign[q] < 0:
-                raise LensError(f"{what} is positive ({d:g} mm): sequential surfaces must be "
-                                f"ordered along -z, the direction of travel there"
-                                f"{_after_mirrors(self.mirrors, q)}", surfaces=(q,))
+            raise LensError(f"{what} is positive ({d:g} mm): sequential surfaces must be "
+                            f"ordered along -z, the direction of travel there"
+                            f"{_after_mirrors(self.mirrors, q)}", surfaces=(q,))
         if self.virtual_image:
-            if self.folded():
-                raise LensError("a virtual image plane (virtual_image) is supported in unfolded "
-                                "systems only (no mirror, no coordinate break)", key="sensor")
             if sign[-1] * float(self.d_sensor) >= 0:
                 raise LensError(f"a virtual image plane (virtual_image) must lie before the "
                                 f"last surface: the sensor distance must be "

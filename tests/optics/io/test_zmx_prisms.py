@@ -15,6 +15,15 @@ deviation), an exit face and a thick lens after it.  Checked against
 * the thick lens's EFL and BFL (travelling -z) in closed form.
 
 The old rule (the parity) refuses the file: the planted-bug test.
+
+A beam-splitter cube written as OpticStudio files write it: a flat mirror at normal incidence
+and the thickness after it left *positive*, so the light after the mirror travels -z while
+every later surface and the image plane lie along +z: OpticStudio's virtual propagation (its
+thickness-sign rule: after an odd number of mirrors a positive thickness is virtual), the rays
+taken back along their lines.  The reader makes those gaps ``Lens.backward_gaps`` and the image
+plane virtual; checked against optiland's global trace and the closed form (the glass and the
+air after the mirror cancel the passes before it: a ray of direction tangent ``u`` lands at
+``y_0 + (a - b) u``, ``a`` the air before the block, ``b`` the air from block to mirror).
 """
 
 from __future__ import annotations
@@ -28,7 +37,7 @@ import torch
 from deeplens.optics import frames
 from deeplens.optics.frames import local_frames, to_global, travel_directions
 from deeplens.optics.io import read_zmx
-from deeplens.optics.io.zmx import ZemaxFileError, ZemaxWarning
+from deeplens.optics.io.zmx import ZemaxWarning
 from deeplens.optics.lens import Lens
 from deeplens.optics.materials import Air
 from deeplens.optics.options import TraceOptions
@@ -225,21 +234,30 @@ def test_the_roof_rays_land_where_optilands_global_trace_lands_them(tmp_path):
 
 
 # ---------------------------------------------------------------------------- planted bug
-def test_the_parity_rule_refuses_the_roof(tmp_path, monkeypatch):
+def _assert_roof_reading(lens):
+    """What the roof file must read as: a real image (no virtual gaps after the roof, only the
+    roof's own), a converging lens (EFL > 0, the thick lens's value)."""
+    c1, c2 = -1.0 / R1, -1.0 / R2
+    phi = (N - 1) * (c1 - c2) + (N - 1) ** 2 * T * c1 * c2 / N
+    assert not lens.virtual_image
+    assert lens.backward_gaps == frozenset({7})
+    assert float(paraxial(lens).efl) == pytest.approx(1.0 / phi, rel=1e-12)
+
+
+def test_the_parity_rule_misreads_the_roof(tmp_path, monkeypatch):
     """The old rule (directions by the mirror count) planted back: the file's -20 mm after two
-    mirrors is then 'against the direction of travel' and the file is refused."""
+    mirrors is then 'against the direction of travel', so every gap after the roof reads as
+    virtual propagation, the image as virtual and the converging lens's EFL as negative (the
+    rays still land where they did: the trace itself is geometric)."""
     import deeplens.optics.io.lensfile as lensfile
     import deeplens.optics.io.zmx_read as zmx_read
     import deeplens.optics.lens as lens_mod
 
-    p = tmp_path / "roof.zmx"
-    p.write_text(roof_file())
+    _assert_roof_reading(_read(tmp_path, roof_file(), "roof"))
     for mod in (lens_mod, zmx_read, lensfile):
         monkeypatch.setattr(mod, "travel_directions", _parity)
-    with pytest.raises(ZemaxFileError, match="negative"):
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            read_zmx(p)
+    with pytest.raises(AssertionError):
+        _assert_roof_reading(_read(tmp_path, roof_file(), "roof"))
     assert frames.travel_directions is not _parity   # only the importers were patched
 
 
@@ -264,3 +282,94 @@ def test_a_lens_built_directly_with_a_roof_takes_negative_distances_after_it():
     assert lens.directions()[-1] == -1
     with pytest.raises(ValueError, match="ordered along -z"):
         Lens(surfaces, [air] * 11, dist[:-1] + [20.0], 30.0, 0, mirrors=[3, 6])
+
+
+# ---------------------------------------------------------------------------- the cube
+A_AIR, B_AIR = 4.0, 20.0   # stop to block, block to mirror (and mirror-side air after it)
+
+
+def cube_file():
+    """A stop, a 10 mm block with its diagonal (a break pair tilting a dummy face inside the
+    glass), air to a flat mirror at normal incidence, then the same thicknesses *positive*
+    after the mirror (virtual propagation) through the block again to the image plane."""
+    blocks = [_surf(disz="INFINITY"), _surf(disz=A_AIR, stop=True),
+              _surf(disz=5.0, glas=_GLASS, diam=10.0),
+              _surf("COORDBRK", parms=[0, 0, -45.0, 0, 0, 0]),
+              _surf(glas=_GLASS, diam=14.0),
+              _surf("COORDBRK", disz=5.0, parms=[0, 0, 45.0, 0, 0, 0]),
+              _surf(disz=B_AIR, diam=10.0),
+              _surf(disz=B_AIR, glas="MIRROR", diam=10.0),
+              _surf(disz=5.0, glas=_GLASS, diam=10.0),
+              _surf("COORDBRK", parms=[0, 0, 45.0, 0, 0, 0]),
+              _surf(glas=_GLASS, diam=14.0),
+              _surf("COORDBRK", disz=5.0, parms=[0, 0, -45.0, 0, 0, 0]),
+              _surf(disz=B_AIR, diam=10.0), _surf()]
+    lines = []
+    for k, b in enumerate(blocks):
+        lines += [f"SURF {k}"] + b
+    return _HEAD + "\n".join(lines) + "\n"
+
+
+def test_the_cube_reads_its_positive_thicknesses_after_the_mirror_as_virtual(tmp_path):
+    p = tmp_path / "cube.zmx"
+    p.write_text(cube_file())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        lens = read_zmx(p).double()
+    said = [str(w.message) for w in caught if issubclass(w.category, ZemaxWarning)]
+    assert sum("runs against the direction of travel" in m for m in said) == 3   # one a gap
+    assert any("virtual image plane" in m and ":100:" in m for m in said)
+    # after the mirror (deeplens surface 6) light travels -z; the gaps before surfaces 7
+    # (the block's face again), 9 (the diagonal, across a break) and 11 (the exit face,
+    # across a break) run along +z: crossed backwards; the image plane is virtual
+    assert sorted(lens.mirrors) == [6]
+    assert lens.directions()[7:] == [-1] * 6
+    assert lens.backward_gaps == frozenset({7, 9, 11}) and lens.virtual_image
+    land = _landings(lens)
+    z_img = float(lens.z_sensor())
+    for (f, px, py), (pt, ok) in land.items():
+        assert ok, (f, px, py)
+        u = math.tan(math.radians(f))
+        half = 4.0   # ENPD 8: the stop is the first surface, the pupil is on it
+        want = [px * half, py * half + (A_AIR - B_AIR) * u, z_img]
+        assert [float(v) for v in pt] == pytest.approx(want, abs=1e-12), (f, px, py)
+    # the planted bug: gaps against the direction of travel traced forwards only
+    lens.backward_gaps = ()
+    assert not any(ok for _, ok in _landings(lens).values())
+
+
+def test_the_cube_rays_land_where_optilands_global_trace_lands_them(tmp_path):
+    pytest.importorskip("optiland")
+    from optiland.fileio import load_zemax_file
+    from optiland.materials import AbbeMaterial, IdealMaterial
+
+    p = tmp_path / "cube.zmx"
+    p.write_text(cube_file())
+    lens = _read(tmp_path, cube_file(), "cube")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        optic = load_zemax_file(str(p))
+    for s in optic.surface_group.surfaces:
+        if isinstance(s.material_post, AbbeMaterial):
+            s.material_post = IdealMaterial(n=N)
+    for (f, px, py), (pt, ok) in _landings(lens).items():
+        assert ok
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            optic.trace_generic(0.0, f / FIELDS[-1], px, py, W / 1000.0)
+            sg = optic.surface_group
+            ol = [float(torch.as_tensor(c)[-1].reshape(-1)[0]) for c in (sg.x, sg.y, sg.z)]
+        assert [float(v) for v in pt] == pytest.approx(ol, abs=1e-9), (f, px, py)
+
+
+def test_a_positive_thickness_after_a_mirror_is_still_refused_unless_opted_in():
+    """In ``Lens`` the rule is unchanged: a distance against the direction of travel is an
+    error unless its gap is one of ``backward_gaps`` (the reader opts a file's in, with a
+    warning), and before any mirror the reader never opts one in."""
+    air = Air()
+    surfaces = [Aperture(4.0), Plane(6.0), Plane(6.0)]
+    with pytest.raises(ValueError, match="ordered along -z"):
+        Lens(surfaces, [air] * 4, [0.0, 20.0, 20.0], 10.0, 0, mirrors=[1])
+    lens = Lens(surfaces, [air] * 4, [0.0, 20.0, 20.0], 10.0, 0, mirrors=[1],
+                backward_gaps=[2], virtual_image=True)
+    assert lens.directions() == [1, 1, -1, -1]
