@@ -373,3 +373,28 @@ def test_a_positive_thickness_after_a_mirror_is_still_refused_unless_opted_in():
     lens = Lens(surfaces, [air] * 4, [0.0, 20.0, 20.0], 10.0, 0, mirrors=[1],
                 backward_gaps=[2], virtual_image=True)
     assert lens.directions() == [1, 1, -1, -1]
+
+
+@pytest.mark.parametrize("make", [roof_file, cube_file], ids=["roof", "cube"])
+def test_round_trips_keep_the_reading(tmp_path, make):
+    """JSON and .zmx written back and read again: the same virtual image flag, direction of
+    travel in image space and landing points; the JSON file also the same directions and
+    backward gaps (the .zmx reading may drop a flat dummy surface inside the glass, such as
+    the cube's second diagonal, which renumbers the surfaces after it)."""
+    from deeplens.optics.io import lens_from_dict, lens_to_dict
+    from deeplens.optics.io.zmx import write_zmx
+
+    lens = _read(tmp_path, make(), "first")
+    back_json = lens_from_dict(lens_to_dict(lens)).double()
+    write_zmx(lens, tmp_path / "again.zmx")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        back_zmx = read_zmx(tmp_path / "again.zmx").double()
+    want = _landings(lens)
+    assert back_json.directions() == lens.directions()
+    assert back_json.backward_gaps == lens.backward_gaps
+    for other in (back_json, back_zmx):
+        assert other.directions()[-1] == lens.directions()[-1]
+        assert other.virtual_image == lens.virtual_image
+        for key, (p, ok) in _landings(other).items():
+            assert ok and torch.allclose(p, want[key][0], atol=1e-12, rtol=0), key
