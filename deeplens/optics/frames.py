@@ -9,14 +9,24 @@ vertex ``z_b`` with decenter ``δ`` and rotation ``R`` gives
 
 A lens without breaks has one frame, ``A = I``, ``b = 0``.  Used by layouts through a fold and
 to place a folded system's image in space.
+
+:func:`travel_directions` gives the direction of travel along each medium's local axis (the
+sign of the distances there, :meth:`Lens.directions <deeplens.optics.lens.Lens.directions>`)
+from the traced axis: the beam's direction after each surface in that surface's frame.
 """
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 
-__all__ = ["local_frames", "to_global"]
+__all__ = ["local_frames", "to_global", "travel_directions"]
+
+#: an axis direction whose local z component is smaller than this (a beam travelling across
+#: the frame, as between the two mirrors of a roof) keeps the sign of the medium before it
+_ACROSS = 1e-9
 
 
 def local_frames(lens) -> list[tuple[torch.Tensor, torch.Tensor]]:
@@ -45,3 +55,66 @@ def to_global(frame, x: torch.Tensor) -> torch.Tensor:
     pass ``b = 0``)."""
     A, b = frame
     return x @ A.T.to(x) + b.to(x)
+
+
+def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
+    """The direction of travel (``+1``: towards ``+z``, ``-1``: towards ``-z``) along the local
+    axis of each of the ``N + 1`` media of a sequential system: object space first, then the
+    medium after each surface, in the frame the distance after that surface is measured in.
+
+    It is the sign of the local ``z`` component of the *traced axis*: a unit vector that starts
+    along ``+z`` in object space, is re-expressed by every coordinate break (``d_after = R^T
+    d_before``; decenters do not turn it), is reflected by every mirror about the mirror's
+    vertex normal (the local ``z`` axis of its frame) and refracted there by vector Snell's law
+    (``indices``: the ``N + 1`` media indices at one wavelength; ``None`` or total internal
+    reflection: left as it is; a grating as its zeroth order, an ideal lens not at all).  This is where OpticStudio's sequential trace takes the beam,
+    and so the sign its thicknesses carry for real propagation.  Without coordinate breaks the
+    axis meets every surface at normal incidence and the rule is the mirror count's parity
+    (``-1`` after an odd number of mirrors, Zemax's convention); with a fold written as
+    ``break, mirror, break`` it is the same; where mirrors tilted inside break pairs that return
+    the frame turn the beam round (a roof: the beam leaves along ``-z`` of an unturned frame
+    after two mirrors), the parity is wrong and this is right.  An axis that crosses the frame
+    (``|d_z| < 1e-9``, between the two mirrors of a roof) keeps the sign before it.
+
+    Args:
+        surfaces: the ``N`` surfaces (:class:`~.surfaces.CoordinateBreak` turns the frame).
+        mirrors: indices of the reflecting surfaces.
+        indices: ``N + 1`` refractive indices (floats) or ``None``.
+
+    Returns:
+        ``N + 1`` ints, each ``+1`` or ``-1``.
+    """
+    mirrors = set(mirrors)
+    if not any(s.interaction.changes_frame for s in surfaces):   # normal incidence everywhere
+        out = [1]
+        for i in range(len(surfaces)):
+            out.append(-out[-1] if i in mirrors else out[-1])
+        return out
+    like = torch.zeros((), dtype=torch.float64)
+    a = [0.0, 0.0, 1.0]
+    out = [1]
+    for i, s in enumerate(surfaces):
+        if s.interaction.changes_frame:
+            with torch.no_grad():
+                R = s.rotation(like).tolist()
+            a = [sum(R[j][k] * a[j] for j in range(3)) for k in range(3)]   # R^T a
+        elif i in mirrors:
+            a = [a[0], a[1], -a[2]]
+        elif indices is not None and s.law in ("refract", "diffract"):   # order 0
+            a = _refract_axis(a, float(indices[i]), float(indices[i + 1]))
+        n = math.sqrt(sum(c * c for c in a))
+        a = [c / n for c in a]
+        out.append(out[-1] if abs(a[2]) < _ACROSS else (1 if a[2] > 0 else -1))
+    return out
+
+
+def _refract_axis(a, n1: float, n2: float):
+    """Unit direction ``a`` refracted from index ``n1`` into ``n2`` at a surface whose normal is
+    the local ``z`` axis; unchanged at total internal reflection or a non-positive index."""
+    if not (n1 > 0 and n2 > 0) or n1 == n2:
+        return a
+    r = n1 / n2
+    sin2 = r * r * (a[0] * a[0] + a[1] * a[1])
+    if sin2 >= 1.0:
+        return a
+    return [r * a[0], r * a[1], math.copysign(math.sqrt(1.0 - sin2), a[2])]

@@ -13,7 +13,9 @@ the lens or its input rays.
 
 Mirrors and folds (``docs/guide/mirrors.md``): a mirror (``mirrors=``) reflects (:mod:`.reflect`)
 instead of refracting and reverses the direction of travel along the axis, so after an odd
-number of mirrors the distances are negative (Zemax's convention, :meth:`Lens.directions`); a
+number of mirrors the distances are negative (Zemax's convention; in general the sign of the
+traced axis's local z component, :meth:`Lens.directions`, which mirrors tilted inside
+coordinate-break pairs, as in a roof prism, can turn round without the count changing); a
 :class:`~.surfaces.CoordinateBreak` changes the frame of every following surface (folds,
 off-axis sections) and ray coordinates after it are in the new frame (:mod:`.frames`).
 
@@ -36,6 +38,7 @@ from torch import nn
 
 from . import tracer
 from .errors import LensError, SurfacesCrossError
+from .frames import travel_directions
 from .intersect import (_safe_div, intersect, propagate_distance, stop_crossing_xyz,
                         trace_quadric)
 from .materials import Air, Material, check_wavelength_nm
@@ -124,6 +127,35 @@ def _check_directions() -> tuple[torch.Tensor, torch.Tensor]:
     cos_a, sin_a = torch.cos(phi), torch.sin(phi)
     snap = lambda t: torch.where(t.abs() < 1e-12, torch.zeros_like(t), t)  # noqa: E731
     return snap(cos_a), snap(sin_a)
+
+
+def against_travel(surfaces, distances, sign) -> list[tuple[int, float, str]]:
+    """The gaps whose distance opposes the direction of travel: ``(q, d, what)`` for each real
+    surface ``q`` whose distance ``d`` (mm) from the surface before it (from the previous real
+    surface across stops) has the sign opposite to ``sign[q]`` (:meth:`Lens.directions`);
+    ``distances``: the ``N`` distances (floats, mm, ``Lens.distances``); ``what`` names the
+    distance for a message.  A stop is crossed, not landed on (:meth:`Lens._cross_stop`): it
+    may lie inside a lens's sag (a negative distance before or after it), so order is checked
+    between consecutive *real* surfaces, the stops between them skipped; the distance before
+    a coordinate break is not checked (the break is not a surface the light meets)."""
+    pairs, prev = [], None
+    for i, s in enumerate(surfaces):
+        if s.law == "frame":
+            prev = None
+        elif s.law != "stop":
+            if prev is not None and i > prev + 1:
+                pairs.append((prev, i))   # across stops
+            prev = i
+    spans = [(i - 1, i) for i in range(1, len(surfaces))
+             if surfaces[i].interaction.lands and surfaces[i - 1].law != "stop"] + pairs
+    out = []
+    for p, q in spans:
+        d = distances[q] if q == p + 1 else math.fsum(distances[p + 1:q + 1])
+        what = f"distance before surface {q}" if q == p + 1 else \
+            f"distance from surface {p} to surface {q} (across the stop between them)"
+        if (d < 0 and sign[q] > 0) or (d > 0 and sign[q] < 0):
+            out.append((q, d, what))
+    return out
 
 
 def _after_mirrors(mirrors, i: int) -> str:
@@ -287,12 +319,20 @@ class Lens(nn.Module):
 
     def directions(self) -> list[int]:
         """The direction of travel along the local axis in each of the ``N + 1`` media: ``+1``
-        (``+z``) in object space, flipped by every mirror.  Distances into a medium carry its
-        sign (negative after an odd number of mirrors)."""
-        out = [1]
-        for i in range(len(self.surfaces)):
-            out.append(-out[-1] if i in self.mirrors else out[-1])
-        return out
+        (``+z``) in object space, then the sign of the traced axis's local ``z`` component
+        after each surface (:func:`~.frames.travel_directions`: coordinate breaks turn it,
+        mirrors reflect it about their vertex normals, refracting surfaces refract it at the
+        primary wavelength).  Distances into a medium carry its sign.  Without coordinate
+        breaks, and with folds written as ``break, mirror, break``, this is the mirror count's
+        parity (negative after an odd number of mirrors, Zemax's convention); mirrors tilted
+        inside break pairs that return the frame (a roof prism) can turn the beam round
+        without the parity changing, and the traced axis follows them."""
+        indices = None
+        if any(s.interaction.changes_frame for s in self.surfaces):
+            with torch.no_grad():
+                w = torch.tensor(float(self.spec.primary_wavelength_nm), dtype=torch.float64)
+                indices = [float(m.n(w)) for m in self.materials]
+        return travel_directions(list(self.surfaces), self.mirrors, indices)
 
     def folded(self) -> bool:
         """True when the lens has a mirror or a coordinate break (it then traces eagerly)."""
@@ -302,7 +342,8 @@ class Lens(nn.Module):
     def backward_gaps(self) -> frozenset:
         """Gaps that rays may cross backwards, as OpticStudio's sequential trace does: the
         indices ``j`` of real surfaces whose gap from the previous real surface ``p`` (stops
-        between them skipped) is opted in.  Empty by default: every gap is traced forwards only
+        and coordinate breaks between them skipped) is opted in.  Empty by default: every gap
+        is traced forwards only
         (a hit must lie ahead of the ray, ``t >= 0``) and surfaces that cross within their
         semi-diameters are an error (:meth:`check`).
 
@@ -311,7 +352,12 @@ class Lens(nn.Module):
         (a negative edge thickness beyond radius ``r``), rays beyond ``r`` travel back through
         the gap (``t < 0``) and their optical path *decreases* by ``n |t|``, which is what
         OpticStudio computes for such a file (the lens cannot be made as drawn).  The crossing
-        check is waived for those pairs only.  The root is the same one as forwards (the
+        check is waived for those pairs only.  Across coordinate breaks: the two mirrors of a
+        roof written at one vertex (breaks tilting each, OpticStudio's Amici prism files): the
+        half of the beam that meets the second mirror's plane first is traced back to it
+        (``t < 0``, as OpticStudio's sequential trace does; both orders end on the same ray,
+        the two reflections composing a 180-degree rotation about the ridge).  The root is the
+        same one as forwards (the
         crossing in the direction of travel on the surface's own branch, ``h > 0``), so the far
         side of a sphere is never taken.
 
@@ -326,7 +372,7 @@ class Lens(nn.Module):
 
     @backward_gaps.setter
     def backward_gaps(self, gaps) -> None:
-        pairs = dict((q, p) for p, q in self._real_neighbours())
+        pairs = dict((q, p) for p, q in self._real_neighbours(across_breaks=True))
         out = set()
         for j in gaps:
             if isinstance(j, bool) or not isinstance(j, int) or j not in pairs:
@@ -378,29 +424,19 @@ class Lens(nn.Module):
                         f"own surface", surfaces=(i,))
         sign = self.directions()
         z = self.z_vertices().detach()
-        # a stop is crossed, not landed on (:meth:`_cross_stop`): it may lie inside a lens's
-        # sag (a negative distance before or after it), so order and overlap are checked
-        # between consecutive *real* surfaces, the stops between them skipped
         pairs = self._real_neighbours()
-        spans = [(i - 1, i) for i in range(1, len(self.surfaces))
-                 if self.surfaces[i].interaction.lands and self.surfaces[i - 1].law != "stop"]
-        spans += [(p, q) for p, q in pairs if q > p + 1]   # across stops
-        for p, q in spans:
-            d = float(self.distances[q]) if q == p + 1 else float(z[q] - z[p])
-            what = f"distance before surface {q}" if q == p + 1 else \
-                f"distance from surface {p} to surface {q} (across the stop between them)"
-            if d < 0 and sign[q] > 0:
+        for q, d, what in against_travel(list(self.surfaces),
+                                         [float(v) for v in self.distances], sign):
+            if q in self._backward:   # crossed backwards (OpticStudio's virtual propagation)
+                continue
+            if d < 0:
                 raise LensError(f"{what} is negative ({d:g} mm): sequential surfaces must be "
                                 f"ordered along +z{_after_mirrors(self.mirrors, q)}",
                                 surfaces=(q,))
-            if d > 0 and sign[q] < 0:
-                raise LensError(f"{what} is positive ({d:g} mm): sequential surfaces must be "
-                                f"ordered along -z, the direction of travel there"
-                                f"{_after_mirrors(self.mirrors, q)}", surfaces=(q,))
+            raise LensError(f"{what} is positive ({d:g} mm): sequential surfaces must be "
+                            f"ordered along -z, the direction of travel there"
+                            f"{_after_mirrors(self.mirrors, q)}", surfaces=(q,))
         if self.virtual_image:
-            if self.folded():
-                raise LensError("a virtual image plane (virtual_image) is supported in unfolded "
-                                "systems only (no mirror, no coordinate break)", key="sensor")
             if sign[-1] * float(self.d_sensor) >= 0:
                 raise LensError(f"a virtual image plane (virtual_image) must lie before the "
                                 f"last surface: the sensor distance must be "
@@ -488,14 +524,16 @@ class Lens(nn.Module):
                 lo = mid
         return lo
 
-    def _real_neighbours(self) -> list[tuple[int, int]]:
+    def _real_neighbours(self, across_breaks: bool = False) -> list[tuple[int, int]]:
         """Pairs ``(p, q)`` of consecutive surfaces that are neither stops (:class:`Aperture`)
         nor coordinate breaks, with only stops between them (a coordinate break changes the
-        frame: the pairs across it are not compared)."""
+        frame: the pairs across it are not compared); ``across_breaks``: with stops and
+        coordinate breaks between them (the gaps :attr:`backward_gaps` may name)."""
         pairs, prev = [], None
         for i, s in enumerate(self.surfaces):
             if s.law == "frame":
-                prev = None
+                if not across_breaks:
+                    prev = None
             elif s.law != "stop":
                 if prev is not None:
                     pairs.append((prev, i))

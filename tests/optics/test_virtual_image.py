@@ -195,11 +195,33 @@ def test_analysis_works_on_a_virtual_image():
     plt.close(fig)
 
 
-def test_a_folded_virtual_image_is_refused():
-    """Only unfolded systems take the flag (a virtual image after a fold is untested)."""
+def test_a_convex_mirrors_virtual_image_behind_it_closed_form():
+    """After a mirror the flag works as before one (a convex mirror of radius R = 100 mm: its
+    virtual focus lies R / 2 behind it, a positive distance after the mirror where light
+    travels towards -z): every ray parallel to the axis, reflected at its exact hit point on
+    the sphere, reaches the plane z = 50 along its line extended backwards (1e-12 mm); without
+    the flag the plane behind the rays is never reached."""
     from deeplens.optics.surfaces import Asphere
 
     air = get_material("AIR")
-    with pytest.raises(LensError, match="unfolded systems only"):
-        Lens([Asphere(-0.01, 5.0)], [air, air], [0.0], 10.0, 0, mirrors=[0],
-             virtual_image=True)
+    R, z_img = 100.0, 50.0
+    lens = Lens([Asphere(1.0 / R, 5.0)], [air, air], [0.0], z_img, 0, mirrors=[0],
+                virtual_image=True)
+    h = torch.tensor([0.01, 0.5, 2.0, 4.5], dtype=torch.float64)
+    o = torch.stack([torch.zeros_like(h), h, torch.full_like(h, -5.0)], -1)
+    d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(4, 3)
+    out = lens.trace_to_sensor(Rays(o, d, torch.full((4,), 587.5618, dtype=torch.float64)))
+    assert bool(out.valid.all())
+    # closed form: hit at sag z_s; unit normal towards the centre (0, 0, R); reflect; extend
+    zs = R - torch.sqrt(R * R - h * h)
+    n = torch.stack([torch.zeros_like(h), -h, R - zs], -1) / R
+    dr = d - 2 * (d * n).sum(-1, keepdim=True) * n
+    t = (z_img - zs) / dr[:, 2]
+    assert bool((t < 0).all())   # behind the rays: a virtual image
+    want_y = h + t * dr[:, 1]
+    assert torch.allclose(out.o[:, 1], want_y, atol=1e-12, rtol=0)
+    assert torch.allclose(out.o[:, 2], torch.full_like(h, z_img), atol=1e-12, rtol=0)
+    assert float(want_y[0]) == pytest.approx(0.0, abs=1e-9)   # the paraxial virtual focus
+    real = Lens([Asphere(1.0 / R, 5.0)], [air, air], [0.0], -z_img, 0, mirrors=[0])
+    assert not bool(real.propagate_to_z(real.trace(Rays(o, d, out.wavelength)),
+                                        torch.tensor(z_img, dtype=torch.float64)).valid.any())

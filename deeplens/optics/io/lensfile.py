@@ -54,7 +54,10 @@ import math
 import os
 from pathlib import Path
 
+import torch
+
 from ..errors import LensError, LensFileError
+from ..frames import travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
 from ..surfaces import SURFACE_TYPES, Aperture, Cylinder, IdealLens
@@ -324,16 +327,21 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     virtual = sensor.get("virtual_image", False)
     if not isinstance(virtual, bool):
         r.fail("sensor.virtual_image", f"expected true or false, got {virtual!r}")
-    ahead = d_sensor > 0 if len(mirrors) % 2 == 0 else d_sensor < 0
+    # the direction of travel after the last surface (Lens.directions: the traced axis; the
+    # mirror count's parity unless coordinate breaks turn the beam round)
+    with torch.no_grad():
+        w = torch.tensor(float(spec.primary_wavelength_nm), dtype=torch.float64)
+        forward = travel_directions(surfaces, mirrors, [float(m.n(w)) for m in materials])[-1] > 0
+    ahead = d_sensor > 0 if forward else d_sensor < 0
     if virtual and (ahead or d_sensor == 0):
         r.fail("sensor.distance_mm", f"a virtual image plane (virtual_image: true) must lie "
                                      f"before the last surface: the distance must be "
-                                     f"{'< 0' if len(mirrors) % 2 == 0 else '> 0'} mm, got "
+                                     f"{'< 0' if forward else '> 0'} mm, got "
                                      f"{d_sensor!r}")
     if not virtual and not ahead:
         after = f" after {len(mirrors)} mirrors" if mirrors else ""
         r.fail("sensor.distance_mm", f"the sensor distance must be "
-                                     f"{'> 0' if len(mirrors) % 2 == 0 else '< 0'} mm{after}, "
+                                     f"{'> 0' if forward else '< 0'} mm{after}, "
                                      f"got {d_sensor!r}" + ("" if mirrors else
                                      " (a virtual image plane before the last surface needs "
                                      "\"virtual_image\": true in a JSON lens file)"))

@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 
 from ..errors import SurfacesCrossError, ZemaxFileError
+from ..frames import travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
 from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
@@ -108,7 +109,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
     virtual = [False]
-    d_sensor = _sensor(seq, img, p, virtual)
+    d_sensor = _sensor(seq, img, p, virtual, primary)
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
 
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest
@@ -132,6 +133,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
 
     where_of = {i: kept[i][2].line for i in range(len(kept))}
     where_of["sensor"] = img.line
+    virtual_gaps = _virtual_gaps(seq, surfaces, distances, primary, where_of, p)
     limited = {}   # (i, j) -> the radius where surfaces i and j meet (estimated diameters)
     original = {}  # surface -> its semi-diameter before it was first limited there
     try:
@@ -143,7 +145,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
                 lens = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd, spec,
                             elements=[(a, b) for a, b, _, _ in elements],
                             name=sysd["name"] or path.stem, mirrors=seq.mirrors,
-                            virtual_image=virtual[0])
+                            virtual_image=virtual[0], backward_gaps=virtual_gaps)
                 break
             except SurfacesCrossError as e:
                 if not _limit_at_crossing(e, surfaces, lambda i: _estimated(kept, stop_idx, i),
@@ -163,6 +165,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
+    _roof_gaps(lens, where_of, p)
     needs_efl = ftyp[0] in (2, 3) or (convert is not None and convert[0] == "wfno")
     if _afocal(lens) and needs_efl:
         # an afocal lens (flat folds only) has an infinite focal length: fields given as image
@@ -387,20 +390,32 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     return seq
 
 
-def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list) -> float:
+def _axis_indices(seq: _Sequence, primary: float):
+    """The media's indices at the primary wavelength (nm) for :func:`travel_directions`, or
+    ``None`` when one cannot be evaluated there (the wavelength checks report it later)."""
+    try:
+        with torch.no_grad():
+            w = torch.tensor(float(primary), dtype=torch.float64)
+            return [float(m.n(w)) for m in seq.media]
+    except (ValueError, TypeError):
+        return None
+
+
+def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary: float) -> float:
     """The sensor distance (mm, signed along the direction of travel) from the gap between the
     last kept vertex and the image surface: an image plane on a flat last vertex moves
     :data:`_IMAGE_ON_VERTEX_MM` behind it; a curved one there is refused; an image plane before
-    the last vertex (a virtual image) sets ``virtual[0]`` (refused after mirrors)."""
+    the last vertex (a virtual image: in an unfolded system, or after a flat mirror whose
+    following thicknesses already run against the direction of travel, :func:`_virtual_gaps`)
+    sets ``virtual[0]``."""
     kept, mirrors, surfaces = seq.kept, seq.mirrors, [k_[0] for k_ in seq.kept]
     d_sensor = seq.gap
-    # the direction of travel after the last surface: -z after an odd number of mirrors
-    # (Zemax's sign convention, Lens.directions), so "behind" the last vertex is sign * d > 0
-    sign = -1.0 if len(mirrors) % 2 else 1.0
-    # a thickness of the wrong sign inside the lens is reported by Lens (naming that surface)
-    signs = [1.0]
-    for i in range(len(kept)):
-        signs.append(-signs[-1] if i in mirrors else signs[-1])
+    # the direction of travel in each medium, from the traced axis (Lens.directions: -z after
+    # an odd number of mirrors unless breaks turn the beam round), so "behind" the last vertex
+    # is sign * d > 0; a thickness of the wrong sign inside the lens is reported by Lens
+    # (naming that surface)
+    signs = [float(v) for v in travel_directions(surfaces, mirrors, _axis_indices(seq, primary))]
+    sign = signs[-1]
     inside_ok = all(kept[i][3] * signs[i] >= 0 for i in range(1, len(kept)))
     if d_sensor == 0 and isinstance(surfaces[-1], (Plane, CoordinateBreak)):
         # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
@@ -413,12 +428,21 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list) -> float
         p.fail(img.line, "the image plane lies on the vertex of the last surface, which is "
                          "curved: deeplens' flat sensor would cut through it (give the last "
                          "surface a thickness)")
+    elif sign * d_sensor < 0 and mirrors and _virtual_before_image(seq, signs):
+        # OpticStudio's virtual propagation after a flat mirror (_virtual_gaps) continuing to
+        # the image plane: a virtual image, reached along the rays' lines extended backwards
+        p.note(img.line, f"the image plane lies {abs(d_sensor):g} mm against the direction of "
+                         f"travel after the last (flat) mirror, as the thicknesses before it: a "
+                         f"virtual image plane (OpticStudio's virtual propagation, rays "
+                         f"extended backwards to it); analysis only, no camera can record it")
+        virtual[0] = True
     elif sign * d_sensor < 0 and inside_ok and mirrors:
         p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
                          f"vertex (light travels towards {'-' if sign < 0 else '+'}z there, "
                          f"after {len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''}): a "
-                         f"virtual image plane after mirrors is not supported (deeplens reads "
-                         f"a virtual image only in an unfolded system)")
+                         f"virtual image plane after mirrors is read only where the "
+                         f"thicknesses after the last mirror, a flat one, already run against "
+                         f"the direction of travel (OpticStudio's virtual propagation)")
     elif sign * d_sensor < 0 and inside_ok:
         # a virtual image, as a negative lens's file puts it at its virtual focus: OpticStudio
         # extends the diverging rays backwards to that plane (Lens.virtual_image); analysis
@@ -428,6 +452,19 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list) -> float
                          f"analysis only, no camera can record it")
         virtual[0] = True
     return d_sensor
+
+
+def _virtual_before_image(seq: _Sequence, signs) -> bool:
+    """Whether the last mirror is flat and the last non-zero thickness after it opposes the
+    direction of travel there (the light after the mirror already propagates virtually)."""
+    kept, last = seq.kept, max(seq.mirrors)
+    if not getattr(kept[last][0], "is_flat", False):   # as _virtual_gaps: flat mirrors only
+        return False
+    for i in range(len(kept) - 1, last, -1):
+        d = kept[i][3]
+        if d != 0:
+            return d * signs[i] < 0
+    return False
 
 
 def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locator):
@@ -526,6 +563,71 @@ def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict
     if changed:
         limited[(i, j)] = e.radius
     return changed
+
+
+def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of: dict,
+                  p: Locator) -> list:
+    """Gaps after a mirror whose thickness opposes the direction of travel (the traced axis,
+    :func:`travel_directions`): OpticStudio's *virtual propagation* (its thickness-sign rule:
+    after an odd number of mirrors a positive thickness is virtual; the sequential trace takes
+    the rays back along their lines, the optical path decreasing).  A beam-splitter cube
+    written with the thickness after a flat mirror left positive is one.  Read so only after a
+    *flat* mirror (the last one before the gap): after a curved mirror a thickness of the wrong
+    sign is more likely a slip than a virtual system, and stays an error.  A gap runs from one
+    real surface to the next (stops and coordinate breaks between them); its thicknesses are
+    summed within each frame and each sum compared with the direction there.  Each such gap
+    becomes one of the lens's :attr:`~deeplens.optics.lens.Lens.backward_gaps`, with a
+    located warning; before the first mirror such a thickness is still an error (``Lens``
+    reports it)."""
+    if not seq.mirrors:
+        return []
+    signs = travel_directions(surfaces, seq.mirrors, _axis_indices(seq, primary))
+    first = min(seq.mirrors)
+    out, prev = [], None
+    for q, s in enumerate(surfaces):
+        if s.law in ("frame", "stop"):
+            continue
+        last_mirror = max((m for m in seq.mirrors if m < q), default=None)
+        if (prev is not None and q > first
+                and getattr(surfaces[last_mirror], "is_flat", False)):
+            against, seg = [], 0.0
+            for k in range(prev + 1, q + 1):
+                seg += distances[k]
+                if k == q or surfaces[k].law == "frame":   # the end of a frame's stretch
+                    if seg * signs[k] < 0:
+                        against.append(seg)
+                    seg = 0.0
+            if against:
+                out.append(q)
+                mm = ", ".join(f"{v:g}" for v in against)
+                p.note(where_of[q], f"the gap before deeplens surface {q} runs against the "
+                                    f"direction of travel after the mirror ({mm} mm, light "
+                                    f"travelling "
+                                    f"towards {'+' if signs[q] > 0 else '-'}z there): "
+                                    f"OpticStudio's virtual propagation, the rays taken back "
+                                    f"along their lines (the optical path decreasing); deeplens "
+                                    f"does the same for this gap (Lens.backward_gaps)")
+        prev = q
+    return out
+
+
+def _roof_gaps(lens, where_of: dict, p: Locator) -> None:
+    """Two mirrors at one vertex with only coordinate breaks between them (a roof written as
+    OpticStudio's Amici prism files write it: each mirror tilted by its own break pair): half
+    of the beam meets the second mirror's plane before the first, and OpticStudio's sequential
+    trace takes it back to it (a negative propagation distance).  The gap becomes one of the
+    lens's :attr:`~deeplens.optics.lens.Lens.backward_gaps`, with one located warning."""
+    for i, j in lens._real_neighbours(across_breaks=True):
+        if not (i in lens.mirrors and j in lens.mirrors and
+                any(lens.surfaces[k].law == "frame" for k in range(i + 1, j)) and
+                all(float(lens.distances[k]) == 0.0 for k in range(i + 1, j + 1))):
+            continue
+        lens.backward_gaps = lens.backward_gaps | {j}
+        p.note(where_of[j], f"the mirrors of the {_pair_blocks(where_of, i, j)} meet at one "
+                            f"vertex, turned by coordinate breaks (a roof): rays that meet the "
+                            f"second mirror's plane before the first are traced back to it, as "
+                            f"OpticStudio's sequential trace does (Lens.backward_gaps "
+                            f"{sorted(lens.backward_gaps)})")
 
 
 def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, p: Locator,

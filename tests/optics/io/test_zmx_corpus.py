@@ -102,8 +102,13 @@ def _file_path_coords(path):
 
 def _dl_path_coords(lens):
     """deeplens' path coordinate of each surface relative to the sensor (mm): minus the sum of
-    each signed distance times the direction of travel in its medium, from it to the sensor."""
-    sign = lens.directions()
+    each signed distance times the mirror count's parity in its medium, from it to the sensor:
+    the bookkeeping of :func:`_file_path_coords` (the same sum over the same distances: their
+    difference places deeplens' first vertex relative to the file's SURF 1; in a roof prism
+    the parity is not the direction of travel, ``Lens.directions``, but the two sums agree)."""
+    sign = [1]
+    for i in range(len(lens.surfaces)):
+        sign.append(-sign[-1] if i in lens.mirrors else sign[-1])
     d = ([float(v) * sign[i] for i, v in enumerate(lens.distances)][1:]
          + [float(lens.d_sensor) * sign[-1]])
     return torch.tensor([-sum(d[j:]) for j in range(len(lens.surfaces))], dtype=torch.float64)
@@ -279,11 +284,12 @@ def _first_order(lens, optic, s_mm, name):
     first = float(_dl_path_coords(lens)[0]) - q[1] * s_mm   # deeplens surface 0 after SURF 1
     ep_dl = (float(p.entrance_pupil_z) - float(lens.z_vertices()[0]) + first) / s_mm
     ep_ol = float(optic.paraxial.EPL())
-    sign = lens.directions()[-1]
+    sign = (-1) ** len(lens.mirrors)
     bfl_dl = (float(p.bfl) + float(lens.z_vertices()[-1]) - float(lens.z_sensor())) / s_mm
     bfl_ol = float(optic.paraxial.F2())
-    # optiland's f2 is -1 / u' along the last local axis, deeplens' EFL -σ / u' (positive for
-    # a converging beam whichever way it leaves): they differ by σ after an odd number of mirrors
+    # optiland's f2 is -1 / u' with its image-space index signed by the mirror count's parity,
+    # deeplens' EFL -σ / u' (σ the traced direction of travel; positive for a converging beam
+    # whichever way it leaves): they differ by that parity (after an odd number of mirrors)
     return {"EFL": (sign * float(p.efl) / s_mm, float(optic.paraxial.f2())),
             "EPD": (float(p.entrance_pupil_diameter) / s_mm, float(optic.paraxial.EPD())),
             "EP position": (ep_dl, ep_ol),

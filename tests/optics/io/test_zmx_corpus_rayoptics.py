@@ -176,7 +176,7 @@ def _numbers(name, lens, opm):
     _, _, q = _file_path_coords(CORPUS / name)
     first = float(_dl_path_coords(lens)[0]) - q[1] * s_mm   # deeplens surface 0 after SURF 1
     ep_dl = (float(p.entrance_pupil_z) - float(lens.z_vertices()[0]) + first) / s_mm
-    sign = lens.directions()[-1]
+    sign = (-1) ** len(lens.mirrors)   # rayoptics' image-space index sign (the mirror parity)
     bfl_dl = (float(p.bfl) + float(lens.z_vertices()[-1]) - float(lens.z_sensor())) / s_mm
     # both EFLs are image-side focal lengths, |n'|/φ (an image in glass: cots_COTS-0002-*'s
     # n' = 1.328); deeplens' is positive for a converging beam whichever way it leaves, so after
