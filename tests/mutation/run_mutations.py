@@ -76,6 +76,7 @@ FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
 MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
 RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
+TABULATED = ("tests/optics/io/test_tabulated_glass.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
@@ -557,6 +558,13 @@ MUTATIONS = [
              "glass of the GLAS line's (stale) n_d/V_d", "deeplens/optics/io/zmx_parse.py",
              'if name.upper() == "___BLANK" or code == "1":',
              'if name.upper() == "___BLANK" or code == "1" or model is not None:', LENS2_GLASS),
+    Mutation("tabulated_glass_silent", "an LZOS glass fitted to its index table used without "
+             "the located note naming the source", "deeplens/optics/io/zmx_glass.py",
+             'p.note(s.glass_line, f"glass {glass!r}: {m.note()}")', "pass", TABULATED),
+    Mutation("tabulated_glass_fit_in_n", "the Schott formula fitted to n instead of n²",
+             "deeplens/optics/io/tabulated_glass.py",
+             "np.asarray(n, dtype=np.float64) ** 2, rcond=None)",
+             "np.asarray(n, dtype=np.float64), rcond=None)", TABULATED),
     Mutation("glass_fallback_silent", "the model-glass fallback used without its warning",
              "deeplens/optics/io/zmx_glass.py",
              '        warnings.warn(p.warning(s.glass_line, f"glass {glass!r}{where}; using',
