@@ -686,6 +686,47 @@ class TiltedFormat(SurfaceFormat):
 
 
 @register_format
+class JonesMatrixFormat(SurfaceFormat):
+    """Zemax ``JONESMAT`` (OpticStudio's "Jones Matrix" surface: an idealised polarizer or
+    retarder, ``PARM 1..8`` = Re/Im of the matrix elements A, B, C, D acting on (E_x, E_y)).
+    The matrix changes a ray's polarization state and amplitude, not its path (Nicholson,
+    "How to Use the Jones Matrix Surface", Zemax knowledge base, 2007: a "black box" for
+    polarization effects "which do not affect beam direction"); the surface is a plane.  deeplens
+    traces no polarization, so it is read as the flat ``STANDARD`` surface (an interface or a
+    dummy, as the file's media make it) with one located note saying that the matrix is not
+    applied.  A curvature or a ``PARM`` beyond 8 is refused with its line."""
+
+    zmx_types = ("JONESMAT",)
+
+    @staticmethod
+    def _check(s, k, p):
+        for i, (v, ln) in sorted(s.parm.items()):
+            if not 1 <= i <= 8 and v != 0:
+                p.fail(ln, f"SURF {k}: JONESMAT PARM {i} is not read (PARM 1..8 are the Jones "
+                           f"matrix's A, B, C, D, real and imaginary parts)")
+        if s.curv != 0:
+            p.fail(s.curv_line or s.type_line, f"SURF {k}: a JONESMAT (Jones matrix) surface is "
+                                               f"a plane, got CURV {s.curv:g}")
+
+    def zmx_flat(self, s, ctx):
+        self._check(s, ctx.k, ctx.p)
+        return True
+
+    def read_zmx(self, s, ctx):
+        import dataclasses
+
+        self._check(s, ctx.k, ctx.p)
+        m = [s.parm.get(i, (0.0, 0))[0] for i in range(1, 9)]
+        ctx.p.note(s.type_line, f"SURF {ctx.k}: JONESMAT (Jones matrix A = {m[0]:g}{m[1]:+g}i, "
+                                f"B = {m[2]:g}{m[3]:+g}i, C = {m[4]:g}{m[5]:+g}i, D = "
+                                f"{m[6]:g}{m[7]:+g}i) read as a plane: it changes polarization "
+                                f"and amplitude, not a ray's path, and deeplens traces no "
+                                f"polarization, so its transmission is not applied")
+        return FORMATS.for_zmx_type("STANDARD").read_zmx(
+            dataclasses.replace(s, type="STANDARD", parm={}), ctx)
+
+
+@register_format
 class ParaxialFormat(SurfaceFormat):
     """:class:`IdealLens`: Zemax ``PARAXIAL`` (``PARM 1`` the focal length), in air."""
 
