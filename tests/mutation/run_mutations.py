@@ -78,6 +78,7 @@ RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
 TABULATED = ("tests/optics/io/test_tabulated_glass.py",)
 JONESMAT = ("tests/optics/io/test_zmx_jonesmat.py",)
+ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
@@ -559,6 +560,10 @@ MUTATIONS = [
              "glass of the GLAS line's (stale) n_d/V_d", "deeplens/optics/io/zmx_parse.py",
              'if name.upper() == "___BLANK" or code == "1":',
              'if name.upper() == "___BLANK" or code == "1" or model is not None:', LENS2_GLASS),
+    Mutation("zernike_vertex_note_dropped", "a Zernike sag whose m = 0 terms curve the vertex "
+             "read without the note that the paraxial data include them",
+             "deeplens/optics/io/surface_handlers.py", "        if dc != 0.0:\n            p.note(",
+             "        if dc != 0.0:\n            (lambda *a: None)(", ZERN_NOTE),
     Mutation("jonesmat_silent", "a JONESMAT surface read as a plane without the note that its "
              "matrix is not applied", "deeplens/optics/io/surface_handlers.py",
              "        ctx.p.note(s.type_line, f\"SURF {ctx.k}: JONESMAT",

@@ -45,6 +45,8 @@ from __future__ import annotations
 
 import math
 
+import torch
+
 from ..errors import LensFileError, ZemaxFileError
 from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
@@ -53,6 +55,7 @@ from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cy
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
+from ..surfaces.zernike_sag import BASES
 from .surface_formats import FORMATS, SurfaceFormat, ZmxContext, register_format
 from .zmx_coordbrk import coordbrk_lines
 
@@ -283,8 +286,24 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
     while zern and zern[-1] == 0.0:
         zern.pop()
     rn = rn_v * s_mm if rn_v > 0 else 1.0   # no Zernike term: any radius (1 mm)
-    return cls(c, sd, rn, zern, conic=s.coni, coefficients=coeffs,
-               extrapolate=ext == 1.0)
+    surf = cls(c, sd, rn, zern, conic=s.coni, coefficients=coeffs, extrapolate=ext == 1.0)
+    # the rotationally symmetric terms (m = 0, n >= 2: Z4, Z9, ... in Fringe order, Z4, Z11, ...
+    # in Noll's) curve the vertex: deeplens' paraxial data take the sag's vertex curvature with
+    # them; a reader that takes CURV (+ the r² term) alone gets other first-order numbers
+    nm = BASES[surf.basis][0]
+    terms = [j for j, A in enumerate(zern, start=1) if A != 0.0 and nm(j)[1] == 0
+             and nm(j)[0] >= 2]
+    if terms:
+        with torch.no_grad():
+            dc = float(surf.paraxial_curvature()) - (c + 2.0 * (coeffs[0] if coeffs else 0.0))
+        if dc != 0.0:
+            p.note(s.xdat.get(terms[0] + 2, (0.0, s.type_line))[1] or s.type_line,
+                   f"SURF {k}: the rotationally symmetric Zernike terms "
+                   f"{', '.join(f'Z{j}' for j in terms)} add {dc:.4g} /mm to the vertex "
+                   f"curvature ({c:.6g} /mm from CURV): deeplens' paraxial data (EFL, pupils, "
+                   f"back focus) include them, as the sag's curvature at the vertex; a reading "
+                   f"from CURV alone (rayoptics 0.9's) gives other first-order numbers")
+    return surf
 
 
 def _paraxial_surface(s, k: int, mat, prev, sd, s_mm, p):
