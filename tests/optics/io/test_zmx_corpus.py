@@ -173,7 +173,7 @@ def _load_optiland(name, gratings):
 
     path = CORPUS / name   # CORPUS / an absolute path = that path
     text = decode_zemax_text(path)
-    if re.search(r"^\s+TYPE\s+TILTSURF", text, re.M):
+    if re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT)", text, re.M):
         # optiland 0.6's reader has no TILTSURF: a tilted plane with both tangents 0 is the flat
         # STANDARD surface (OpticStudio's "Tilted": z = x tan θx + y tan θy)
         parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
@@ -183,6 +183,11 @@ def _load_optiland(name, gratings):
                                                                  re.M)), \
                     "a TILTSURF with a tangent: extend the oracle"
                 b = re.sub(r"^(\s+TYPE\s+)TILTSURF", r"\g<1>STANDARD", b, flags=re.M)
+                parts[i] = re.sub(r"^\s+PARM\s+.*\n", "", b, flags=re.M)
+            elif re.search(r"^\s+TYPE\s+JONESMAT", b, re.M):
+                # nor JONESMAT: OpticStudio's Jones matrix surface is a plane whose matrix
+                # changes polarization and amplitude only (deeplens reads it so, with a note)
+                b = re.sub(r"^(\s+TYPE\s+)JONESMAT", r"\g<1>STANDARD", b, flags=re.M)
                 parts[i] = re.sub(r"^\s+PARM\s+.*\n", "", b, flags=re.M)
         text = "".join(parts)
         if not _has_gratings(name):

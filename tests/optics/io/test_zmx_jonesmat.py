@@ -82,3 +82,16 @@ def test_a_curved_or_unknown_jones_matrix_is_refused_at_its_line(tmp_path, kw, l
     with pytest.raises(ZemaxFileError) as e:
         read_zmx(f)
     assert e.value.line == line and what in str(e.value), str(e.value)
+
+
+def test_the_optiland_oracle_reads_the_jones_plane_as_deeplens_does(tmp_path):
+    """optiland 0.6 has no JONESMAT: the corpus oracle gives it the plane (``STANDARD``), and
+    its EFL, pupil and back focus equal deeplens' (the third unseen set's
+    ``zospy_ref_polarization``)."""
+    pytest.importorskip("optiland")
+    from test_zmx_corpus import _first_order, _oracle
+
+    lens, _, f = _read(tmp_path, "jones.zmx", type="JONESMAT", parms=_POLARIZER)
+    numbers = _first_order(lens, _oracle(f, lens)[0], 1.0, f)
+    for what, (dl, ol) in numbers.items():
+        assert dl == pytest.approx(ol, rel=1e-9), what
