@@ -76,6 +76,9 @@ FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
 MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
 RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
+TABULATED = ("tests/optics/io/test_tabulated_glass.py",)
+JONESMAT = ("tests/optics/io/test_zmx_jonesmat.py",)
+ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
@@ -557,6 +560,26 @@ MUTATIONS = [
              "glass of the GLAS line's (stale) n_d/V_d", "deeplens/optics/io/zmx_parse.py",
              'if name.upper() == "___BLANK" or code == "1":',
              'if name.upper() == "___BLANK" or code == "1" or model is not None:', LENS2_GLASS),
+    Mutation("zernike_vertex_note_dropped", "a Zernike sag whose m = 0 terms curve the vertex "
+             "read without the note that the paraxial data include them",
+             "deeplens/optics/io/surface_handlers.py", "        if dc != 0.0:\n            p.note(",
+             "        if dc != 0.0:\n            (lambda *a: None)(", ZERN_NOTE),
+    Mutation("jonesmat_silent", "a JONESMAT surface read as a plane without the note that its "
+             "matrix is not applied", "deeplens/optics/io/surface_handlers.py",
+             "        ctx.p.note(s.type_line, f\"SURF {ctx.k}: JONESMAT",
+             "        (lambda *a: None)(s.type_line, f\"SURF {ctx.k}: JONESMAT", JONESMAT),
+    Mutation("jonesmat_curved_accepted", "a curved JONESMAT read as a plane",
+             "deeplens/optics/io/surface_handlers.py",
+             "        if s.curv != 0:\n            p.fail(s.curv_line or s.type_line, f\"SURF {k}: a "
+             "JONESMAT", "        if False:\n            p.fail(s.curv_line or s.type_line, "
+             "f\"SURF {k}: a JONESMAT", JONESMAT),
+    Mutation("tabulated_glass_silent", "an LZOS glass fitted to its index table used without "
+             "the located note naming the source", "deeplens/optics/io/zmx_glass.py",
+             'p.note(s.glass_line, f"glass {glass!r}: {m.note()}")', "pass", TABULATED),
+    Mutation("tabulated_glass_fit_in_n", "the Schott formula fitted to n instead of n²",
+             "deeplens/optics/io/tabulated_glass.py",
+             "np.asarray(n, dtype=np.float64) ** 2, rcond=None)",
+             "np.asarray(n, dtype=np.float64), rcond=None)", TABULATED),
     Mutation("glass_fallback_silent", "the model-glass fallback used without its warning",
              "deeplens/optics/io/zmx_glass.py",
              '        warnings.warn(p.warning(s.glass_line, f"glass {glass!r}{where}; using',

@@ -45,6 +45,8 @@ from __future__ import annotations
 
 import math
 
+import torch
+
 from ..errors import LensFileError, ZemaxFileError
 from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
@@ -53,6 +55,7 @@ from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cy
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
+from ..surfaces.zernike_sag import BASES
 from .surface_formats import FORMATS, SurfaceFormat, ZmxContext, register_format
 from .zmx_coordbrk import coordbrk_lines
 
@@ -283,8 +286,24 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
     while zern and zern[-1] == 0.0:
         zern.pop()
     rn = rn_v * s_mm if rn_v > 0 else 1.0   # no Zernike term: any radius (1 mm)
-    return cls(c, sd, rn, zern, conic=s.coni, coefficients=coeffs,
-               extrapolate=ext == 1.0)
+    surf = cls(c, sd, rn, zern, conic=s.coni, coefficients=coeffs, extrapolate=ext == 1.0)
+    # the rotationally symmetric terms (m = 0, n >= 2: Z4, Z9, ... in Fringe order, Z4, Z11, ...
+    # in Noll's) curve the vertex: deeplens' paraxial data take the sag's vertex curvature with
+    # them; a reader that takes CURV (+ the r² term) alone gets other first-order numbers
+    nm = BASES[surf.basis][0]
+    terms = [j for j, A in enumerate(zern, start=1) if A != 0.0 and nm(j)[1] == 0
+             and nm(j)[0] >= 2]
+    if terms:
+        with torch.no_grad():
+            dc = float(surf.paraxial_curvature()) - (c + 2.0 * (coeffs[0] if coeffs else 0.0))
+        if dc != 0.0:
+            p.note(s.xdat.get(terms[0] + 2, (0.0, s.type_line))[1] or s.type_line,
+                   f"SURF {k}: the rotationally symmetric Zernike terms "
+                   f"{', '.join(f'Z{j}' for j in terms)} add {dc:.4g} /mm to the vertex "
+                   f"curvature ({c:.6g} /mm from CURV): deeplens' paraxial data (EFL, pupils, "
+                   f"back focus) include them, as the sag's curvature at the vertex; a reading "
+                   f"from CURV alone (rayoptics 0.9's) gives other first-order numbers")
+    return surf
 
 
 def _paraxial_surface(s, k: int, mat, prev, sd, s_mm, p):
@@ -683,6 +702,47 @@ class TiltedFormat(SurfaceFormat):
         if (tx, ty) == (0.0, 0.0):
             return FORMATS.for_zmx_type("STANDARD").read_zmx(self._as_standard(s), ctx)
         return XYPolynomial(ctx.sd_build, [0.0, ty, tx])   # 1, y, x (dimensionless slopes)
+
+
+@register_format
+class JonesMatrixFormat(SurfaceFormat):
+    """Zemax ``JONESMAT`` (OpticStudio's "Jones Matrix" surface: an idealised polarizer or
+    retarder, ``PARM 1..8`` = Re/Im of the matrix elements A, B, C, D acting on (E_x, E_y)).
+    The matrix changes a ray's polarization state and amplitude, not its path (Nicholson,
+    "How to Use the Jones Matrix Surface", Zemax knowledge base, 2007: a "black box" for
+    polarization effects "which do not affect beam direction"); the surface is a plane.  deeplens
+    traces no polarization, so it is read as the flat ``STANDARD`` surface (an interface or a
+    dummy, as the file's media make it) with one located note saying that the matrix is not
+    applied.  A curvature or a ``PARM`` beyond 8 is refused with its line."""
+
+    zmx_types = ("JONESMAT",)
+
+    @staticmethod
+    def _check(s, k, p):
+        for i, (v, ln) in sorted(s.parm.items()):
+            if not 1 <= i <= 8 and v != 0:
+                p.fail(ln, f"SURF {k}: JONESMAT PARM {i} is not read (PARM 1..8 are the Jones "
+                           f"matrix's A, B, C, D, real and imaginary parts)")
+        if s.curv != 0:
+            p.fail(s.curv_line or s.type_line, f"SURF {k}: a JONESMAT (Jones matrix) surface is "
+                                               f"a plane, got CURV {s.curv:g}")
+
+    def zmx_flat(self, s, ctx):
+        self._check(s, ctx.k, ctx.p)
+        return True
+
+    def read_zmx(self, s, ctx):
+        import dataclasses
+
+        self._check(s, ctx.k, ctx.p)
+        m = [s.parm.get(i, (0.0, 0))[0] for i in range(1, 9)]
+        ctx.p.note(s.type_line, f"SURF {ctx.k}: JONESMAT (Jones matrix A = {m[0]:g}{m[1]:+g}i, "
+                                f"B = {m[2]:g}{m[3]:+g}i, C = {m[4]:g}{m[5]:+g}i, D = "
+                                f"{m[6]:g}{m[7]:+g}i) read as a plane: it changes polarization "
+                                f"and amplitude, not a ray's path, and deeplens traces no "
+                                f"polarization, so its transmission is not applied")
+        return FORMATS.for_zmx_type("STANDARD").read_zmx(
+            dataclasses.replace(s, type="STANDARD", parm={}), ctx)
 
 
 @register_format

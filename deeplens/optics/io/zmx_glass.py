@@ -2,7 +2,8 @@
 
 Order, when a name is in more than one place: per catalogue on the ``GCAT`` line (all vendor
 catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
-catalogue (:mod:`.vendor_glass`), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`); then
+catalogue (:mod:`.vendor_glass`), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`), a
+catalogue kept only as index tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then
 the named vendors' archived and previous catalogues; then the user's other catalogues
 (``glass_catalogs``, then :data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue
 the file does not name (exact name only).
@@ -27,6 +28,7 @@ import torch
 
 from ..materials import Air, Material, ModelGlass, get_material
 from .agf import GlassCatalogue, read_agf
+from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
                            archived_glass, catalogue_size, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
@@ -219,6 +221,13 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                 m = _builtin(glass)
                 if m is not None:
                     return _checked(m, glass, s, f"deeplens' {cat} entry", p)
+        if cat in TABULATED_CATALOGUES:
+            searched.append(f"{cat} (index tables fitted by the Schott formula, "
+                            f"{tabulated_catalogue_size(cat)} glasses)")
+            m = tabulated_glass(glass, cat)
+            if m is not None:
+                p.note(s.glass_line, f"glass {glass!r}: {m.note()}")
+                return _checked(m, glass, s, f"the fitted {cat} table", p)
     # the named vendors' older catalogues, newest first:
     # (names answered, lookup, kind, what the catalogue is (with {n} glasses), why a use is noted)
     older = ((ARCHIVED_CATALOGUES, archived_glass, "archived",
@@ -257,7 +266,8 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                              f"({', '.join(named)}); using {elsewhere[0]} (exact name)")
         return _checked(m, glass, s, elsewhere[0], p)
     missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES
-               and c not in CURRENT_CATALOGUES and c not in PREVIOUS_CATALOGUES]
+               and c not in CURRENT_CATALOGUES and c not in PREVIOUS_CATALOGUES
+               and c not in TABULATED_CATALOGUES]
     give = (_GIVE.format(f=" or ".join(f"{c}.agf" for c in missing)) if missing
             else "pass the vendor's .agf that has it with --glass-catalog")
     where = (f" (catalogue {' or '.join(missing)}) is not shipped" if missing else

@@ -114,6 +114,55 @@ def _dl_path_coords(lens):
     return torch.tensor([-sum(d[j:]) for j in range(len(lens.surfaces))], dtype=torch.float64)
 
 
+def _medium_after(lens, p_dl, q):
+    """For each file surface ``i`` but the image (``q``: the path coordinates of the file's
+    non-``COORDBRK`` surfaces, object first), the index ``j`` of deeplens' medium after it
+    (``lens.materials[j]`` follows deeplens surface ``j - 1``; ``p_dl``: deeplens' path
+    coordinates in file units).  deeplens' surfaces are the file's in the light's order
+    (dummies dropped): each file surface takes the deeplens surface at its path coordinate (the
+    nearer of two close ones), not by position alone: a negative thickness (a stop inside a
+    lens's sag, a dummy's back-step) makes positions non-monotonic.  Where several file surfaces
+    share one coordinate (a stop on a lens's vertex: ``DISZ 0``) and deeplens has as many there,
+    they are matched one to one (else the stop would take the lens's glass, no refraction at
+    the lens's first face); with fewer (a dummy dropped), the group's last medium."""
+    from deeplens.optics.surfaces import CoordinateBreak
+
+    def close(a, b):
+        return abs(a - b) <= 1e-7 * max(1.0, abs(b))
+
+    def at(k, z):   # deeplens' non-break surfaces from k on at path coordinate z
+        n = 0
+        while k < len(lens.surfaces):
+            if not isinstance(lens.surfaces[k], CoordinateBreak):
+                if not close(float(p_dl[k]), z):
+                    break
+                n += 1
+            k += 1
+        return n
+
+    out, j = [], 0
+    for i in range(len(q) - 1):
+        if i > 0:
+            group = 1
+            while i + group < len(q) - 1 and close(q[i + group], q[i]):
+                group += 1
+            one_to_one = group > 1 and at(j, q[i]) == group
+            moved = False
+            while j < len(lens.surfaces):
+                if isinstance(lens.surfaces[j], CoordinateBreak):
+                    j += 1   # no file surface of its own; the medium does not change across it
+                    continue
+                e = abs(float(p_dl[j]) - q[i])
+                if e > 1e-7 * max(1.0, abs(q[i])) or abs(float(p_dl[j]) - q[i + 1]) < e:
+                    break
+                if moved and one_to_one:
+                    break
+                j += 1
+                moved = True
+        out.append(j)
+    return out
+
+
 def _has_gratings(name):
     return bool(re.search(r"^\s+TYPE\s+DGRATING", decode_zemax_text(CORPUS / name), re.M))
 
@@ -129,7 +178,7 @@ def _load_optiland(name, gratings):
 
     path = CORPUS / name   # CORPUS / an absolute path = that path
     text = decode_zemax_text(path)
-    if re.search(r"^\s+TYPE\s+TILTSURF", text, re.M):
+    if re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT)", text, re.M):
         # optiland 0.6's reader has no TILTSURF: a tilted plane with both tangents 0 is the flat
         # STANDARD surface (OpticStudio's "Tilted": z = x tan θx + y tan θy)
         parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
@@ -139,6 +188,11 @@ def _load_optiland(name, gratings):
                                                                  re.M)), \
                     "a TILTSURF with a tangent: extend the oracle"
                 b = re.sub(r"^(\s+TYPE\s+)TILTSURF", r"\g<1>STANDARD", b, flags=re.M)
+                parts[i] = re.sub(r"^\s+PARM\s+.*\n", "", b, flags=re.M)
+            elif re.search(r"^\s+TYPE\s+JONESMAT", b, re.M):
+                # nor JONESMAT: OpticStudio's Jones matrix surface is a plane whose matrix
+                # changes polarization and amplitude only (deeplens reads it so, with a note)
+                b = re.sub(r"^(\s+TYPE\s+)JONESMAT", r"\g<1>STANDARD", b, flags=re.M)
                 parts[i] = re.sub(r"^\s+PARM\s+.*\n", "", b, flags=re.M)
         text = "".join(parts)
         if not _has_gratings(name):
@@ -203,22 +257,7 @@ def _oracle(name, lens, gratings=True):
     q = [v for t, v in zip(types, q) if t != "COORDBRK"]   # optiland's surfaces
     surfs = optic.surface_group.surfaces
     assert len(surfs) == len(q)
-    # deeplens' surfaces are the file's in the light's order (dummies dropped): match them in
-    # that order, each to the file surface at its path coordinate (the nearer of two close
-    # ones), not by position alone: a negative thickness (a stop inside a lens's sag, a
-    # dummy's back-step) makes positions non-monotonic
-    from deeplens.optics.surfaces import CoordinateBreak
-
-    j = 0   # deeplens surfaces passed: media[j] follows deeplens surface j - 1
-    for i, s in enumerate(surfs[:-1]):
-        while i > 0 and j < len(lens.surfaces):
-            if isinstance(lens.surfaces[j], CoordinateBreak):
-                j += 1   # no optiland surface; the medium does not change across it
-                continue
-            e = abs(float(p_dl[j]) - q[i])
-            if e > 1e-7 * max(1.0, abs(q[i])) or abs(float(p_dl[j]) - q[i + 1]) < e:
-                break
-            j += 1
+    for s, j in zip(surfs[:-1], _medium_after(lens, p_dl, q)):
         s.material_post = IdealMaterial(n=n_dl[j])
     # OBSC (a central obscuration): optiland's reader skips it, so the oracle gets it here, as
     # an annular aperture (r_min) on the same surface
@@ -981,3 +1020,56 @@ def test_virtual_image_plane_matches_optiland():
     grown = last.opl + torch.linalg.vector_norm(out.o - last.o, dim=-1)
     wrong = [float(o - grown[0]) / s_mm for o in grown[1:]]
     assert max(abs(a - b) for a, b in zip(wrong, ol)) > 1e-4
+
+
+_STOP_ON_THE_LENS = """VERS 240000 3 0
+MODE SEQ
+UNIT MM X W X CM MR CPMM
+ENPD 4
+FTYP 0 0 1 1 0 0 0
+WAVM 1 0.5875618 1
+PWAV 1
+YFLN 0
+SURF 0
+  TYPE STANDARD
+  CURV 0
+  DISZ INFINITY
+SURF 1
+  STOP
+  TYPE STANDARD
+  CURV 0
+  DISZ 0
+SURF 2
+  TYPE STANDARD
+  CURV 0.05
+  DISZ 1
+  GLAS ___BLANK 1 0 1.5 0 0 0 0 0 0 0
+SURF 3
+  TYPE STANDARD
+  CURV -0.05
+  DISZ 19.792
+SURF 4
+  TYPE STANDARD
+  CURV 0
+  DISZ 0
+"""
+
+
+def test_oracle_media_match_a_stop_on_a_lens_vertex(tmp_path):
+    """A stop at ``DISZ 0`` in front of the first lens face (OpticStudio's new-system default,
+    four files of the third unseen set): the stop and the face share one path coordinate, and
+    the oracles must give the stop air after it and the face the glass (one to one); before,
+    both took the glass, the face did not refract, and both oracles gave EFL 40 for this
+    singlet, whose thick-lens EFL is worked out here by hand (the helper the rayoptics oracle
+    shares)."""
+    f = tmp_path / "stop_on_lens.zmx"
+    f.write_text(_STOP_ON_THE_LENS)
+    lens = _load(f)
+    q = _file_path_coords(f)[2]
+    n = [float(m.n(587.5618)) for m in lens.materials]
+    media = [n[j] for j in _medium_after(lens, _dl_path_coords(lens), q)]
+    assert media == [1.0, 1.0, 1.5, 1.0]   # object space, after the stop, the lens, after it
+    phi = 0.5 * 0.05 + 0.5 * 0.05 - 0.5 * 0.5 * 1.0 * 0.05 * 0.05 / 1.5   # thick lens, n 1.5
+    numbers = _first_order(lens, _oracle(f, lens)[0], 1.0, f)
+    assert numbers["EFL"][0] == pytest.approx(1.0 / phi, rel=1e-12)
+    assert numbers["EFL"][1] == pytest.approx(1.0 / phi, rel=1e-9)

@@ -26,9 +26,8 @@ import pytest
 
 from deeplens.optics.io.agf import decode_zemax_text
 from deeplens.optics.paraxial import paraxial
-from deeplens.optics.surfaces import CoordinateBreak
 from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _file_path_coords, _load,
-                             _unit_mm)
+                             _medium_after, _unit_mm)
 
 #: file -> (the quantities rayoptics cannot confirm, the verified reason).  Every other loaded
 #: file is confirmed on all four numbers.
@@ -68,16 +67,7 @@ def _media_per_gap(name, lens):
     keep = [k for k, t in enumerate(types) if t != "COORDBRK"]
     q = [q_all[k] for k in keep]
     out = [None] * len(types)
-    j = 0   # deeplens surfaces passed: materials[j] follows deeplens surface j - 1
-    for i, k in enumerate(keep[:-1]):
-        while i > 0 and j < len(lens.surfaces):
-            if isinstance(lens.surfaces[j], CoordinateBreak):
-                j += 1
-                continue
-            e = abs(float(p_dl[j]) - q[i])
-            if e > 1e-7 * max(1.0, abs(q[i])) or abs(float(p_dl[j]) - q[i + 1]) < e:
-                break
-            j += 1
+    for k, j in zip(keep[:-1], _medium_after(lens, p_dl, q)):
         out[k] = n_dl[j]
     for k, n in enumerate(out):
         if n is None:   # a COORDBRK: the medium before it
