@@ -755,6 +755,11 @@ MUTATIONS = [
              "Plane (no off-vertex opening)", "deeplens/optics/io/surface_handlers.py",
              "        if flat and s.obdc is None:", "        if flat:",
              ("tests/optics/io/test_zmx.py",)),
+    Mutation("json_vendor_glass_by_name", "a vendor glass written to a JSON lens file by name "
+             "only (the file cannot be read back)", "deeplens/optics/io/lensfile.py",
+             "    if not isinstance(m, (AGFGlass, BuchdahlGlass)):\n        return name",
+             "    if True:\n        return name",
+             ("tests/optics/io/test_lensfile_formula_glass.py",)),
 ]
 
 

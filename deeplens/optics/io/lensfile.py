@@ -27,7 +27,8 @@ backwards, as OpticStudio traces crossing surfaces (:attr:`Lens.backward_gaps
 <deeplens.optics.lens.Lens.backward_gaps>`; written only when not empty).
 
 ``distance_mm`` is the axial gap from the previous vertex; ``material`` is the medium *after*
-the surface (a catalogue glass, ``AIR``, or a model glass ``"n_d/V_d"``), or ``"MIRROR"`` for a
+the surface (a catalogue glass, ``AIR``, a model glass ``"n_d/V_d"``, or a glass given by its
+dispersion formula, below), or ``"MIRROR"`` for a
 reflecting surface (the medium after it is the one before it; distances after an odd number of
 mirrors are negative, and so is the sensor distance then).  A ``coordinate_break`` entry
 (``dx_mm``, ``dy_mm``, ``tilt_x_rad``, ``tilt_y_rad``, ``tilt_z_rad``) changes the frame of every
@@ -38,6 +39,13 @@ takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` wit
 ``half_width_x_mm``/``half_width_y_mm``; ``ideal_lens`` takes ``focal_length_mm``.  The surface
 types are those registered in :data:`~deeplens.optics.surfaces.SURFACE_TYPES`; each type reads
 and writes its own fields (``from_dict``/``to_dict``), so whatever is written can be read.
+A glass that :func:`~deeplens.optics.materials.get_material` does not know by name (a vendor
+glass read from a ``.zmx`` file: OHARA's ``S-LAH64``, an archived or fitted catalogue's glass, a
+user's ``.agf``) is written with its formula, so the file reads back the same indices without
+the catalogue: ``{"glass": "S-LAH64", "catalogue": "OHARA", "agf_formula": 2,
+"coefficients": [...], "wavelength_range_nm": [lo, hi]}`` (the Zemax AGF formula numbers,
+:data:`~deeplens.optics.io.agf.FORMULAS`, λ in µm) or, for a glass of the previous catalogues,
+``{"glass": "BK7", "catalogue": "SCHOTT", "buchdahl": [n0, nu1, nu2], "lambda0_um": 0.574}``.
 ``object.telecentric: true`` (optional, a finite object only) makes object space telecentric:
 every chief ray parallel to the axis, ``fields_deg`` the object points' directions from the
 first vertex (``Lens.object_telecentric``).  Numbers are written with ``repr`` so a file round-trips
@@ -245,7 +253,9 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     if not (obj_dist > 0 or obj_dist < 0):
         r.fail("object.distance_mm", f"the object distance must be > 0 mm (or \"inf\"), or < 0 "
                                      f"mm for a virtual object, got {obj_dist!r}")
-    obj_medium = r.get(obj, "medium", "object", "str", default="AIR")
+    obj_medium = obj.get("medium", "AIR") if isinstance(obj, dict) else "AIR"
+    if not isinstance(obj_medium, dict):
+        obj_medium = r.get(obj, "medium", "object", "str", default="AIR")
     telecentric = obj.get("telecentric", False)
     if not isinstance(telecentric, bool):
         r.fail("object.telecentric", f"expected true or false, got {telecentric!r}")
@@ -284,10 +294,13 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     surfaces, materials, distances, mirrors = [], [], [], []
 
     def material(spec_str, path, surfaces=()):
-        try:
-            m = get_material(spec_str)
-        except ValueError as e:
-            r.fail(path, str(e), surfaces)
+        if isinstance(spec_str, dict):
+            m = _formula_glass(r, spec_str, path, surfaces)
+        else:
+            try:
+                m = get_material(spec_str)
+            except ValueError as e:
+                r.fail(path, str(e), surfaces)
         for key, w in (("wavelengths_nm", spec.wavelengths_nm),
                        ("primary_wavelength_nm", spec.primary_wavelength_nm)):
             try:
@@ -306,8 +319,10 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
         except ValueError as e:
             r.fail(path, str(e), surfaces=(i,))
         distances.append(r.get(s, "distance_mm", path))
-        medium = r.get(s, "material", path, "str", default="AIR")
-        if medium.strip().upper() == "MIRROR":
+        medium = s.get("material", "AIR") if isinstance(s, dict) else "AIR"
+        if not isinstance(medium, dict):
+            medium = r.get(s, "material", path, "str", default="AIR")
+        if isinstance(medium, str) and medium.strip().upper() == "MIRROR":
             mirrors.append(i)
             materials.append(materials[-1])
         else:
@@ -401,14 +416,15 @@ def lens_to_dict(lens: Lens) -> dict:
         if rect is not None and "clear_rect_mm" not in d:
             d["clear_rect_mm"] = list(rect)
         d["distance_mm"] = float(lens.distances[i])
-        d["material"] = "MIRROR" if i in lens.mirrors else lens.materials[i + 1].to_spec()
+        d["material"] = "MIRROR" if i in lens.mirrors else _material_json(lens.materials[i + 1],
+                                                                           spec)
         surfaces.append(d)
     out = {
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "name": lens.name,
         "units": {"length": "mm", "wavelength": "nm"},
         "object": {"distance_mm": ("inf" if math.isinf(spec.object_distance_mm)
                                    else float(spec.object_distance_mm)),
-                   "medium": lens.materials[0].to_spec()},
+                   "medium": _material_json(lens.materials[0], spec)},
         "aperture": ap,
         "fields_deg": [float(f) for f in spec.fields_deg],
         "wavelengths_nm": [float(w) for w in spec.wavelengths_nm],
@@ -429,6 +445,74 @@ def lens_to_dict(lens: Lens) -> dict:
     if lens.backward_gaps:
         out["backward_gaps"] = sorted(lens.backward_gaps)
     return out
+
+
+def _material_json(m, spec):
+    """``m`` as a lens file writes it: its spec string where :func:`get_material` gives back the
+    same indices at the lens's wavelengths (to 1e-12), else its formula (module docstring)."""
+    from .agf import AGFGlass
+    from .vendor_glass import BuchdahlGlass
+
+    name = m.to_spec()
+    if not isinstance(m, (AGFGlass, BuchdahlGlass)):
+        return name
+    waves = sorted({float(w) for w in spec.wavelengths_nm} | {float(spec.primary_wavelength_nm)})
+    try:
+        same = get_material(name)
+        w = torch.tensor(waves, dtype=torch.float64)
+        if bool(((same.n(w).double() - m.n(w).double()).abs() <= 1e-12).all()):
+            return name
+    except ValueError:
+        pass
+    out = {"glass": m.name, "catalogue": str(getattr(m, "catalogue", "") or "")}
+    if isinstance(m, AGFGlass):
+        out["agf_formula"] = int(m.formula)
+        out["coefficients"] = [float(c) for c in m.coefficients]
+    else:
+        out["buchdahl"] = [float(m.n0), float(m.nu1), float(m.nu2)]
+        out["lambda0_um"] = float(m.lambda0_um)
+    lo, hi = m.wavelength_range_nm
+    out["wavelength_range_nm"] = [float(lo), float(hi)]
+    return out
+
+
+def _formula_glass(r: _Reader, d: dict, path: str, surfaces=()):
+    """The glass of a ``{"glass": ..., "agf_formula" | "buchdahl": ...}`` material entry."""
+    from .agf import AGFGlass
+    from .vendor_glass import BuchdahlGlass
+
+    r.keys(d, {"glass", "catalogue", "agf_formula", "coefficients", "buchdahl", "lambda0_um",
+               "wavelength_range_nm"}, path)
+    name = r.get(d, "glass", path, "str")
+    cat = r.get(d, "catalogue", path, "str", default="")
+    rng = r.get(d, "wavelength_range_nm", path, "numbers")
+    if len(rng) != 2 or not 0 < rng[0] < rng[1]:
+        r.fail(f"{path}.wavelength_range_nm", f"expected [lo, hi] in nm with 0 < lo < hi, got "
+                                              f"{rng!r}", surfaces)
+    has_agf, has_b = "agf_formula" in d, "buchdahl" in d
+    if has_agf == has_b:
+        r.fail(path, "expected exactly one of 'agf_formula' (with 'coefficients') or "
+                     "'buchdahl' for a glass given by its formula", surfaces)
+    try:
+        if has_agf:
+            m = AGFGlass(name, r.get(d, "agf_formula", path, "int"),
+                         r.get(d, "coefficients", path, "numbers"), tuple(rng), catalogue=cat)
+        else:
+            b = r.get(d, "buchdahl", path, "numbers")
+            if len(b) != 3:
+                r.fail(f"{path}.buchdahl", f"expected [n0, nu1, nu2], got {b!r}", surfaces)
+            m = BuchdahlGlass(name, *b, catalogue=cat,
+                              lambda0_um=r.get(d, "lambda0_um", path, default=0.574))
+            m.wavelength_range_nm = tuple(rng)
+    except ValueError as e:
+        r.fail(path, str(e), surfaces)
+    w = torch.tensor([float(rng[0]), 0.5 * (rng[0] + rng[1]), float(rng[1])],
+                     dtype=torch.float64)
+    n = m.n(w)
+    if not bool(torch.isfinite(n).all()) or not bool((n >= 1.0).all()):
+        r.fail(path, f"glass {name!r}: its formula gives indices {n.tolist()} over "
+                     f"{rng[0]:g}-{rng[1]:g} nm; expected finite indices >= 1", surfaces)
+    return m
 
 
 def save_lens(lens: Lens, path) -> None:
