@@ -719,6 +719,17 @@ MUTATIONS = [
              "re-optimisation", "deeplens/design/search/glass.py",
              "            val = float(reoptimize(cand))",
              "            val = float(reoptimize(copy.deepcopy(cand)))", SUBSTITUTION),
+    Mutation("sequential_skips_reoptimisation", "the sequential substitution's candidates not "
+             "re-optimised (scored as put in)", "deeplens/design/search/glass.py",
+             "                v = float(reoptimize(cand))",
+             "                v = float(score(cand) if score else 0.0)", SUBSTITUTION),
+    Mutation("loss_against_unconverged_model", "the substitution's loss measured against the "
+             "model design as the search left it, not converged",
+             "deeplens/design/search/glass_stage.py", "            ref = d2\n",
+             "            pass\n", SUBSTITUTION),
+    Mutation("real_design_not_converged", "the kept real-glass candidate not converged under "
+             "the reference's rule", "deeplens/design/search/glass_stage.py",
+             "max_rounds=cfg.converge_rounds)", "max_rounds=0)", SUBSTITUTION),
     # ------------------------------------------------ unseen real files (issue 37)
     Mutation("sqap_stop_floa_pupil_widened", "a SQAP on a lens stop under FLOA floats the "
              "pupil on the rectangle's half-diagonal, not the stop's DIAM",
