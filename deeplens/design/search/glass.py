@@ -29,6 +29,9 @@ r"""Glass choice for a design search: model glasses while optimising, real glass
    Each candidate lens is a copy re-optimised by ``reoptimize(lens) -> merit`` (default:
    :func:`dls_reoptimizer`, a few damped-least-squares steps); the lowest merit is kept.  Only
    glasses of the chosen catalogues are ever put in (and checked again before returning).
+   :func:`substitute_sequentially` instead replaces one model glass at a time, the most
+   sensitive first, each candidate re-optimised with the remaining model glasses free, so
+   that they make up for the real glass put in.
 4. **Snapping** (a continuation before the substitution).  :func:`snap_model_glasses`
    re-optimises the lens (geometry and model glasses together) a few times with a growing
    pull of each model glass towards its nearest real glass (:class:`NearestGlassPull`: two

@@ -54,7 +54,12 @@
    it.  ``rank_keep > 0``: the ``rank_k`` nearest glasses per element are combined, ranked by
    a linearised re-optimisation (:func:`~.substitution.linearised_ranker`: the candidate's
    exact residuals at the design's geometry, projected off the geometry Jacobian) and only
-   the ``rank_keep`` best are re-optimised.
+   the ``rank_keep`` best are re-optimised.  ``substitute_strategy="sequential"``: one element
+   at a time instead, the most sensitive first, the remaining model glasses free
+   (:func:`~.glass.substitute_sequentially`).  The reference of the comparison is the model
+   design *converged* (rounds of ``substitute`` stages until one improves its RMS spot by less
+   than ``converge_tol``, at most ``converge_rounds``), and the kept real candidate is
+   converged by the same rule (:mod:`.glass_stage`).
 
 ``time_limit_s``: no new start, polish or hop begins once this much wall time has passed
 (the one under way finishes, the designs found so far are kept and finished; glass
