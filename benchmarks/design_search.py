@@ -15,7 +15,8 @@ same way on its own semi-diameters (it vignettes its outer field).
         [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
         [--rank-k 4] [--substitute-strategy joint|sequential] [--converge-tol 0.01]
-        [--converge-rounds 8] [--json OUT.json] [--save-models DIR | --from-models DIR]
+        [--converge-rounds 8] [--json OUT.json]
+        [--save-models DIR [--models-only] | --from-models DIR]
 
 ``--glass-mode model``: the spec's glasses become model glasses in SCHOTT's glass region
 (vendor catalogue), substituted at the end by the nearest real SCHOTT glasses; the table adds
@@ -31,7 +32,8 @@ their substitution, are saved to ``DIR/<lens>_seed<k>.pt`` (``torch.save`` of th
 their trainable model glasses, so the normal-line dispersion is kept).  ``--from-models DIR``:
 no search; each seed's saved designs are loaded and only the substitution runs (with this
 call's ``--substitute-*`` options), so that substitution variants are compared on the same
-model designs for minutes of CPU instead of a 20-30 minute search each.
+model designs for minutes of CPU instead of a 20-30 minute search each.  ``--models-only``
+(with ``--save-models``): stop each seed once its designs are saved (no substitution).
 """
 
 from __future__ import annotations
@@ -69,6 +71,10 @@ SPECS = {
                                 min_edge_glass_mm=0.3, min_air_mm=0.05, max_track_mm=40.0),
                      "double_gauss.json"),
 }
+
+
+class _Saved(Exception):
+    """Raised by the save hook of ``--models-only`` to stop a seed after saving."""
 
 
 def substitute_saved(saved, spec, cfg, say) -> SearchResult:
@@ -121,9 +127,13 @@ def main(argv=None) -> int:
     p.add_argument("--json", help="also write the numbers here")
     p.add_argument("--save-models", metavar="DIR",
                    help="save each seed's model-glass designs before substitution")
+    p.add_argument("--models-only", action="store_true",
+                   help="with --save-models: stop each seed once its designs are saved")
     p.add_argument("--from-models", metavar="DIR",
                    help="no search: substitute the model-glass designs saved in DIR")
     args = p.parse_args(argv)
+    if args.models_only and not args.save_models:
+        p.error("--models-only needs --save-models DIR")
     if (args.save_models or args.from_models) and args.glass_mode != "model":
         p.error("--save-models and --from-models need --glass-mode model")
     torch.set_num_threads(1)
@@ -168,7 +178,14 @@ def main(argv=None) -> int:
                 def save(kept, path=path):
                     torch.save([{"lens": d.lens, "metrics": d.metrics, "origin": d.origin}
                                 for d in kept], path)
-            res = search(spec, cfg, progress=say, model_designs=save)
+                    if args.models_only:
+                        raise _Saved(path)
+            try:
+                res = search(spec, cfg, progress=say, model_designs=save)
+            except _Saved:
+                print(f"seed {seed}: model designs saved to {path} "
+                      f"({time.process_time() - c0:.0f} s CPU)", flush=True)
+                continue
         m = res.best.metrics
         rows.append({"seed": seed, "rms_um": m["rms_um"], "rms_poly_um": m["rms_poly_um"],
                      "feasible": m["feasible"], "efl_mm": m["efl_mm"], "fno": m["fno"],
@@ -187,6 +204,8 @@ def main(argv=None) -> int:
                  f"{g['model_rms_unconverged_um']:.2f}), loss {100 * g['merit_loss']:+.1f} %, "
                  if g else "")
               + f"{rows[-1]['wall_s']:.0f} s wall, {rows[-1]['cpu_s']:.0f} s CPU", flush=True)
+    if not rows:
+        return 0
     best = min(r["rms_um"] for r in rows)
     med = statistics.median(r["rms_um"] for r in rows)
     ref = shipped["rms_um"]
