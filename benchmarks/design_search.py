@@ -107,6 +107,8 @@ def main(argv=None) -> int:
     p.add_argument("--substitute-k", type=int, default=2)
     p.add_argument("--substitute-steps", type=int, default=15)
     p.add_argument("--substitute-radius", type=float, default=None)
+    p.add_argument("--glass-radius", type=float, default=None,
+                   help="SearchConfig.glass_radius: the model glasses' region (default 0.03)")
     p.add_argument("--seidel-screen", type=int, default=0,
                    help="third-order screen: Sobol thin systems sampled (0: off)")
     p.add_argument("--seidel-steps", type=int, default=100)
@@ -159,6 +161,7 @@ def main(argv=None) -> int:
                            **({"rank_keep": args.rank_keep} if args.rank_keep is not None
                               else {}),
                            **({"substitution": args.substitution} if args.substitution else {}),
+                           **({"glass_radius": args.glass_radius} if args.glass_radius else {}),
                            **{k: getattr(args, k) for k in ("substitute_strategy",
                                                               "converge_tol", "converge_rounds")
                               if getattr(args, k) is not None})
