@@ -154,6 +154,11 @@ def substitute_design(dsg, spec: DesignSpec, cfg, region, finish: Callable):
     real.glass_record = {
         "catalogues": list(spec.catalogues), "dispersion": "normal",
         "model_glasses": {str(i): {"n_d": nd, "v_d": vd} for i, (nd, vd) in model.items()},
+        # how far each model glass of the reference is from the nearest real glass (δ; the
+        # region's radius is the most it can be): what no substitution can give back
+        "model_glass_distance": ({str(i): float(region.nearest(nd, vd)[1])
+                                  for i, (nd, vd) in model.items()}
+                                 if region is not None else None),
         "substituted": {str(i): g.label for i, g in sub.chosen.items()},
         "model_rms_um": model_rms, "model_feasible": ref.metrics["feasible"],
         "model_rms_poly_um": ref.metrics["rms_poly_um"],

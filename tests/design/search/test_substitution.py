@@ -312,6 +312,14 @@ def test_the_loss_is_measured_against_the_converged_model_design():
     assert rc is not None and rc["rounds"] >= 1 and rc["history"][0] == min(
         c["score_um"] for c in rec["candidates"] if c["score_um"] is not None)
     assert rec["strategy"] == "sequential" and rec["substitute_strategy"] == "sequential"
+    # each model glass's distance to the nearest real glass: at most the region's bound,
+    # radius + tau log N (GlassRegion's smooth distance)
+    n_glass = len(glasses("HOYA"))
+    for i, g in rec["model_glasses"].items():
+        d = rec["model_glass_distance"][i]
+        want = min(glass_distance(x.n_d, x.v_d, g["n_d"], g["v_d"]) for x in glasses("HOYA"))
+        assert d == pytest.approx(float(want), rel=1e-9)
+        assert 0 <= d <= cfg.glass_radius + 0.002 * math.log(n_glass) + 1e-12
     hoya = {g.label for g in glasses("HOYA")}
     assert set(rec["substituted"].values()) <= hoya
     assert all(set(c["glasses"].values()) <= hoya for c in rec["candidates"])
