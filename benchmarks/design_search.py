@@ -201,7 +201,7 @@ def main(argv=None) -> int:
                             model_convergence=g["model_convergence"],
                             real_convergence=g["real_convergence"],
                             model_glasses=g["model_glasses"], substituted=g["substituted"],
-                            substitution_s=g["seconds"])
+                            substitution_s=g["seconds"], glass_record=g)
         print(f"seed {seed}: {m['rms_um']:.2f} um (fields {', '.join(f'{x:.1f}' for x in m['rms_poly_um'])}), "
               + (f"model glass {g['model_rms_um']:.2f} um (unconverged "
                  f"{g['model_rms_unconverged_um']:.2f}), loss {100 * g['merit_loss']:+.1f} %, "
