@@ -118,12 +118,12 @@ class SearchConfig:
     substitute: tuple = (Stage(15, "hexapolar:6"),)
     glass_radius: float = 0.03
     substitute_radius: float | None = None
-    substitution: str = "snap"
+    substitution: str = "nearest"
     snap_stage: tuple = (Stage(5, "hexapolar:6"),)
     snap_count: int = 6
     rank_keep: int = 0
     rank_k: int = 4
-    substitute_strategy: str = "joint"
+    substitute_strategy: str = "sequential"
     converge_tol: float = 0.01
     converge_rounds: int = 8
     time_limit_s: float | None = None
