@@ -701,7 +701,7 @@ MUTATIONS = [
              "the spec did not choose", "deeplens/design/search/glass.py",
              "cands[i] = nearest_glasses(nd, vd, catalogues, k, v_weight, exclude)",
              "cands[i] = nearest_glasses(nd, vd, \"OHARA\", k, v_weight, exclude)",
-             GLASS_SEARCH),
+             GLASS_SEARCH + ("tests/design/search/test_glass.py",)),
     Mutation("model_glass_not_a_variable", "model glasses left out of the search's variables",
              "deeplens/design/search/refine.py", "glasses=glass_region is not None)",
              "glasses=False)", GLASS_SEARCH),
@@ -719,17 +719,6 @@ MUTATIONS = [
              "re-optimisation", "deeplens/design/search/glass.py",
              "            val = float(reoptimize(cand))",
              "            val = float(reoptimize(copy.deepcopy(cand)))", SUBSTITUTION),
-    Mutation("sequential_skips_reoptimisation", "the sequential substitution's candidates not "
-             "re-optimised (scored as put in)", "deeplens/design/search/glass.py",
-             "                v = float(reoptimize(cand))",
-             "                v = float(score(cand) if score else 0.0)", SUBSTITUTION),
-    Mutation("loss_against_unconverged_model", "the substitution's loss measured against the "
-             "model design as the search left it, not converged",
-             "deeplens/design/search/glass_stage.py", "            ref = d2\n",
-             "            pass\n", SUBSTITUTION),
-    Mutation("real_design_not_converged", "the kept real-glass candidate not converged under "
-             "the reference's rule", "deeplens/design/search/glass_stage.py",
-             "max_rounds=cfg.converge_rounds)", "max_rounds=0)", SUBSTITUTION),
     # ------------------------------------------------ unseen real files (issue 37)
     Mutation("sqap_stop_floa_pupil_widened", "a SQAP on a lens stop under FLOA floats the "
              "pupil on the rectangle's half-diagonal, not the stop's DIAM",
@@ -743,6 +732,23 @@ MUTATIONS = [
              "Plane (no off-vertex opening)", "deeplens/optics/io/surface_handlers.py",
              "        if flat and s.obdc is None:", "        if flat:",
              ("tests/optics/io/test_zmx.py",)),
+    # ---------------------------- issue 36: the converged reference, sequential substitution
+    Mutation("sequential_skips_reoptimisation", "the sequential substitution's candidates not "
+             "re-optimised (scored as put in)", "deeplens/design/search/glass.py",
+             "                v = float(reoptimize(cand))",
+             "                v = float(score(cand) if score else 0.0)", SUBSTITUTION),
+    Mutation("loss_against_unconverged_model", "the substitution's loss measured against the "
+             "model design as the search left it, not converged",
+             "deeplens/design/search/glass_stage.py", "            ref = d2\n",
+             "            pass\n", SUBSTITUTION),
+    Mutation("real_design_not_converged", "the kept real-glass candidate not converged under "
+             "the reference's rule", "deeplens/design/search/glass_stage.py",
+             "max_rounds=cfg.converge_rounds)", "max_rounds=0)", SUBSTITUTION),
+    Mutation("sequential_other_catalogue", "sequential substitution's candidates drawn from a "
+             "catalogue the spec did not choose", "deeplens/design/search/glass.py",
+             "for g, d in nearest_glasses(*values(cur.materials[i]), catalogues, k, v_weight,",
+             "for g, d in nearest_glasses(*values(cur.materials[i]), \"OHARA\", k, v_weight,",
+             GLASS_SEARCH),
 ]
 
 
