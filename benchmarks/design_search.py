@@ -14,12 +14,17 @@ same way on its own semi-diameters (it vignettes its outer field).
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
         [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
-        [--rank-k 4] [--json OUT.json] [--save-models DIR | --from-models DIR]
+        [--rank-k 4] [--substitute-strategy joint|sequential] [--converge-tol 0.01]
+        [--converge-rounds 8] [--json OUT.json]
+        [--save-models DIR [--models-only] | --from-models DIR]
 
 ``--glass-mode model``: the spec's glasses become model glasses in SCHOTT's glass region
 (vendor catalogue), substituted at the end by the nearest real SCHOTT glasses; the table adds
-the model-glass design's RMS spot and the substitution's merit loss (real / model - 1, both
-after the same re-optimisation budget).  ``--prescreen N``: N starts each get 4 DLS steps on
+the model-glass design's RMS spot and the substitution's merit loss (real / model - 1).  Both
+are converged under the same rule (``SearchConfig.converge_tol``, ``converge_rounds``: rounds
+of ``--substitute-steps`` DLS steps until one improves the RMS spot by less than
+``--converge-tol``), so the loss is not the unconverged model design's shortfall; the table
+also lists the model design as the search left it (unconverged).  ``--prescreen N``: N starts each get 4 DLS steps on
 hexapolar:3 rays and the best ``--starts`` of them go on (``SearchConfig.prescreen``).
 
 ``--save-models DIR`` (model glass): the kept model-glass designs of each seed, just before
@@ -27,7 +32,8 @@ their substitution, are saved to ``DIR/<lens>_seed<k>.pt`` (``torch.save`` of th
 their trainable model glasses, so the normal-line dispersion is kept).  ``--from-models DIR``:
 no search; each seed's saved designs are loaded and only the substitution runs (with this
 call's ``--substitute-*`` options), so that substitution variants are compared on the same
-model designs for minutes of CPU instead of a 20-30 minute search each.
+model designs for minutes of CPU instead of a 20-30 minute search each.  ``--models-only``
+(with ``--save-models``): stop each seed once its designs are saved (no substitution).
 """
 
 from __future__ import annotations
@@ -67,6 +73,10 @@ SPECS = {
 }
 
 
+class _Saved(Exception):
+    """Raised by the save hook of ``--models-only`` to stop a seed after saving."""
+
+
 def substitute_saved(saved, spec, cfg, say) -> SearchResult:
     """The substitution step of :func:`search` alone, on saved model-glass designs."""
     region = GlassRegion(spec.catalogues, radius=cfg.glass_radius)
@@ -97,6 +107,8 @@ def main(argv=None) -> int:
     p.add_argument("--substitute-k", type=int, default=2)
     p.add_argument("--substitute-steps", type=int, default=15)
     p.add_argument("--substitute-radius", type=float, default=None)
+    p.add_argument("--glass-radius", type=float, default=None,
+                   help="SearchConfig.glass_radius: the model glasses' region (default 0.03)")
     p.add_argument("--seidel-screen", type=int, default=0,
                    help="third-order screen: Sobol thin systems sampled (0: off)")
     p.add_argument("--seidel-steps", type=int, default=100)
@@ -108,12 +120,22 @@ def main(argv=None) -> int:
                    help="SearchConfig.rank_keep: re-optimise only the best N of the "
                         "--rank-k nearest per element, ranked by a linearised prediction")
     p.add_argument("--rank-k", type=int, default=4)
+    p.add_argument("--substitute-strategy", choices=["joint", "sequential"], default=None,
+                   help="SearchConfig.substitute_strategy (default: its default)")
+    p.add_argument("--converge-tol", type=float, default=None,
+                   help="SearchConfig.converge_tol (default: its default)")
+    p.add_argument("--converge-rounds", type=int, default=None,
+                   help="SearchConfig.converge_rounds (default: its default)")
     p.add_argument("--json", help="also write the numbers here")
     p.add_argument("--save-models", metavar="DIR",
                    help="save each seed's model-glass designs before substitution")
+    p.add_argument("--models-only", action="store_true",
+                   help="with --save-models: stop each seed once its designs are saved")
     p.add_argument("--from-models", metavar="DIR",
                    help="no search: substitute the model-glass designs saved in DIR")
     args = p.parse_args(argv)
+    if args.models_only and not args.save_models:
+        p.error("--models-only needs --save-models DIR")
     if (args.save_models or args.from_models) and args.glass_mode != "model":
         p.error("--save-models and --from-models need --glass-mode model")
     torch.set_num_threads(1)
@@ -138,7 +160,11 @@ def main(argv=None) -> int:
                            snap_count=args.snap_count, rank_k=args.rank_k,
                            **({"rank_keep": args.rank_keep} if args.rank_keep is not None
                               else {}),
-                           **({"substitution": args.substitution} if args.substitution else {}))
+                           **({"substitution": args.substitution} if args.substitution else {}),
+                           **({"glass_radius": args.glass_radius} if args.glass_radius else {}),
+                           **{k: getattr(args, k) for k in ("substitute_strategy",
+                                                              "converge_tol", "converge_rounds")
+                              if getattr(args, k) is not None})
         t0, c0 = time.perf_counter(), time.process_time()
 
         def say(s, seed=seed):
@@ -155,7 +181,14 @@ def main(argv=None) -> int:
                 def save(kept, path=path):
                     torch.save([{"lens": d.lens, "metrics": d.metrics, "origin": d.origin}
                                 for d in kept], path)
-            res = search(spec, cfg, progress=say, model_designs=save)
+                    if args.models_only:
+                        raise _Saved(path)
+            try:
+                res = search(spec, cfg, progress=say, model_designs=save)
+            except _Saved:
+                print(f"seed {seed}: model designs saved to {path} "
+                      f"({time.process_time() - c0:.0f} s CPU)", flush=True)
+                continue
         m = res.best.metrics
         rows.append({"seed": seed, "rms_um": m["rms_um"], "rms_poly_um": m["rms_poly_um"],
                      "feasible": m["feasible"], "efl_mm": m["efl_mm"], "fno": m["fno"],
@@ -164,12 +197,18 @@ def main(argv=None) -> int:
         g = res.best.glass_record
         if g:
             rows[-1].update(model_rms_um=g["model_rms_um"], merit_loss=g["merit_loss"],
+                            model_rms_unconverged_um=g["model_rms_unconverged_um"],
+                            model_convergence=g["model_convergence"],
+                            real_convergence=g["real_convergence"],
                             model_glasses=g["model_glasses"], substituted=g["substituted"],
-                            substitution_s=g["seconds"])
+                            substitution_s=g["seconds"], glass_record=g)
         print(f"seed {seed}: {m['rms_um']:.2f} um (fields {', '.join(f'{x:.1f}' for x in m['rms_poly_um'])}), "
-              + (f"model glass {g['model_rms_um']:.2f} um, loss {100 * g['merit_loss']:+.1f} %, "
+              + (f"model glass {g['model_rms_um']:.2f} um (unconverged "
+                 f"{g['model_rms_unconverged_um']:.2f}), loss {100 * g['merit_loss']:+.1f} %, "
                  if g else "")
               + f"{rows[-1]['wall_s']:.0f} s wall, {rows[-1]['cpu_s']:.0f} s CPU", flush=True)
+    if not rows:
+        return 0
     best = min(r["rms_um"] for r in rows)
     med = statistics.median(r["rms_um"] for r in rows)
     ref = shipped["rms_um"]
@@ -179,11 +218,14 @@ def main(argv=None) -> int:
     print(f"| {args.lens} | {len(rows)} | {ref:.2f} | {best:.2f} | {med:.2f} | {best / ref:.2f} | "
           f"{med / ref:.2f} | {statistics.median(r['cpu_s'] for r in rows):.0f} |")
     if args.glass_mode == "model":
-        print("\n| seed | model glass RMS (um) | real glass RMS (um) | loss | glasses |")
-        print("|---|---|---|---|---|")
+        print("\n| seed | model glass RMS, as searched (um) | converged (um) | real glass RMS "
+              "(um) | loss | glasses | CPU s |")
+        print("|---|---|---|---|---|---|---|")
         for r in rows:
-            print(f"| {r['seed']} | {r['model_rms_um']:.2f} | {r['rms_um']:.2f} | "
-                  f"{100 * r['merit_loss']:+.1f} % | {', '.join(r['substituted'].values())} |")
+            print(f"| {r['seed']} | {r['model_rms_unconverged_um']:.2f} | "
+                  f"{r['model_rms_um']:.2f} | {r['rms_um']:.2f} | "
+                  f"{100 * r['merit_loss']:+.1f} % | {', '.join(r['substituted'].values())} | "
+                  f"{r['cpu_s']:.0f} |")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump({"spec": spec.to_dict(), "shipped": shipped, "runs": rows,

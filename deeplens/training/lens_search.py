@@ -167,6 +167,10 @@ def _search_config(given, key: str):
              "snap_count": (lambda v: _int(v, 1), "an integer >= 1"),
              "rank_keep": (lambda v: _int(v, 0), "an integer >= 0"),
              "rank_k": (lambda v: _int(v, 1), "an integer >= 1"),
+             "substitute_strategy": (lambda v: v in ("joint", "sequential"),
+                                     "'joint' or 'sequential'"),
+             "converge_tol": (_real, "a number >= 0"),
+             "converge_rounds": (lambda v: _int(v, 0), "an integer >= 0"),
              "seidel_screen": (lambda v: _int(v, 0), "an integer >= 0"),
              "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0")}
     for name, v in given.items():

@@ -724,7 +724,7 @@ MUTATIONS = [
              "the spec did not choose", "deeplens/design/search/glass.py",
              "cands[i] = nearest_glasses(nd, vd, catalogues, k, v_weight, exclude)",
              "cands[i] = nearest_glasses(nd, vd, \"OHARA\", k, v_weight, exclude)",
-             GLASS_SEARCH),
+             GLASS_SEARCH + ("tests/design/search/test_glass.py",)),
     Mutation("model_glass_not_a_variable", "model glasses left out of the search's variables",
              "deeplens/design/search/refine.py", "glasses=glass_region is not None)",
              "glasses=False)", GLASS_SEARCH),
@@ -760,6 +760,23 @@ MUTATIONS = [
              "    if not isinstance(m, (AGFGlass, BuchdahlGlass)):\n        return name",
              "    if True:\n        return name",
              ("tests/optics/io/test_lensfile_formula_glass.py",)),
+    # ---------------------------- issue 36: the converged reference, sequential substitution
+    Mutation("sequential_skips_reoptimisation", "the sequential substitution's candidates not "
+             "re-optimised (scored as put in)", "deeplens/design/search/glass.py",
+             "                v = float(reoptimize(cand))",
+             "                v = float(score(cand) if score else 0.0)", SUBSTITUTION),
+    Mutation("loss_against_unconverged_model", "the substitution's loss measured against the "
+             "model design as the search left it, not converged",
+             "deeplens/design/search/glass_stage.py", "            ref = d2\n",
+             "            pass\n", SUBSTITUTION),
+    Mutation("real_design_not_converged", "the kept real-glass candidate not converged under "
+             "the reference's rule", "deeplens/design/search/glass_stage.py",
+             "max_rounds=cfg.converge_rounds)", "max_rounds=0)", SUBSTITUTION),
+    Mutation("sequential_other_catalogue", "sequential substitution's candidates drawn from a "
+             "catalogue the spec did not choose", "deeplens/design/search/glass.py",
+             "for g, d in nearest_glasses(*values(cur.materials[i]), catalogues, k, v_weight,",
+             "for g, d in nearest_glasses(*values(cur.materials[i]), \"OHARA\", k, v_weight,",
+             GLASS_SEARCH),
 ]
 
 

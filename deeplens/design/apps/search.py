@@ -70,9 +70,14 @@ def add_arguments(p) -> None:
                    help="real glasses tried per model glass (--glass-mode model; default 2)")
     g.add_argument("--substitute-steps", type=int, default=15,
                    help="DLS steps re-optimising each substitution candidate (15)")
-    g.add_argument("--substitution", choices=["snap", "nearest"], default="snap",
-                   help="snap: model glasses pulled onto real ones while re-optimising, then "
-                        "substituted (default); nearest: substituted as they are")
+    g.add_argument("--substitution", choices=["snap", "nearest"], default="nearest",
+                   help="nearest: model glasses substituted as they are (default); snap: first "
+                        "pulled onto real ones while re-optimising")
+    g.add_argument("--substitute-strategy", choices=["sequential", "joint"],
+                   default="sequential",
+                   help="sequential: one element at a time, the most sensitive first, the "
+                        "remaining model glasses re-optimised (default); joint: every "
+                        "combination of the nearest glasses (one element at a time past 27)")
     g.add_argument("--seidel-screen", type=int, default=2048,
                    help="Sobol thin-lens systems screened by their third-order RMS spot, in "
                         "total; the best distinct become the --starts starts (default 2048; "
@@ -123,6 +128,7 @@ def run(args) -> dict:
                        substitute_k=args.substitute_k,
                        substitute=(Stage(args.substitute_steps, "hexapolar:6"),),
                        substitution=args.substitution,
+                       substitute_strategy=args.substitute_strategy,
                        seidel_screen=args.seidel_screen if args.start_kind == "thin"
                        and math.isinf(spec.object_distance_mm) else 0,
                        seidel_steps=args.seidel_steps)

@@ -29,6 +29,9 @@ r"""Glass choice for a design search: model glasses while optimising, real glass
    Each candidate lens is a copy re-optimised by ``reoptimize(lens) -> merit`` (default:
    :func:`dls_reoptimizer`, a few damped-least-squares steps); the lowest merit is kept.  Only
    glasses of the chosen catalogues are ever put in (and checked again before returning).
+   :func:`substitute_sequentially` instead replaces one model glass at a time, the most
+   sensitive first, each candidate re-optimised with the remaining model glasses free, so
+   that they make up for the real glass put in.
 4. **Snapping** (a continuation before the substitution).  :func:`snap_model_glasses`
    re-optimises the lens (geometry and model glasses together) a few times with a growing
    pull of each model glass towards its nearest real glass (:class:`NearestGlassPull`: two
@@ -61,8 +64,8 @@ from .glass_region import V_WEIGHT, CatalogueGlass, GlassRegion, glasses, neares
 
 __all__ = ["TrainableModelGlass", "use_model_glasses", "model_glass_media", "glass_variable_names",
            "glass_scales", "GlassRegionPenalty", "project_model_glasses", "dls_reoptimizer",
-           "SubstitutionResult", "substitute_glasses", "NearestGlassPull", "snap_strengths",
-           "snap_model_glasses"]
+           "SubstitutionResult", "substitute_glasses", "substitute_sequentially",
+           "NearestGlassPull", "snap_strengths", "snap_model_glasses"]
 
 _K_FC = 1.0 / (LINE_F / 1000.0) ** 2 - 1.0 / (LINE_C / 1000.0) ** 2     # µm⁻²
 _INV_LD2 = 1.0 / (LINE_D / 1000.0) ** 2                                 # µm⁻²
@@ -582,3 +585,114 @@ def snap_model_glasses(lens, region: GlassRegion, reoptimize: Callable, strength
                 row["distance"][i], row["nearest"][i] = d, g.label
         rows.append(row)
     return rows
+
+
+def substitute_sequentially(lens, catalogues, reoptimize: Callable, *, k: int = 2,
+                            score: Callable | None = None, v_weight: float = V_WEIGHT,
+                            exclude: Iterable[str] = (),
+                            media: Iterable[int] | None = None) -> SubstitutionResult:
+    """Replace the model glasses of ``lens`` one at a time, the most sensitive first, letting
+    the remaining model glasses follow (module docstring, item 3, the sequential variant).
+
+    At each step, every model glass not yet replaced is scored by ``score`` of a copy with
+    that glass alone swapped for its nearest real glass (no re-optimisation; the medium whose
+    swap raises ``score`` most goes first; without ``score``, the media's order).  Its ``k``
+    nearest real glasses, nearest to where that model glass is *now*, are each put in on a
+    copy, and ``reoptimize`` re-optimises it; it should vary the model glasses still left, so
+    that they make up for the real glass's difference (its ``n_d``, ``V_d`` and partial
+    dispersions).  The best candidate is kept and the next medium is chosen.  ``m`` media
+    cost ``k m`` re-optimisations (the joint product costs ``k^m``).
+
+    Args:
+        lens: a :class:`~deeplens.optics.lens.Lens` with model glasses; not modified.
+        catalogues: catalogue names (:func:`~.glass_region.check_catalogues`).
+        reoptimize: ``reoptimize(candidate_lens) -> merit`` (lower is better; in place).
+        k: candidates per model glass (nearest first), ``>= 1``.
+        score: ``score(lens) -> merit`` without re-optimising (the order), or ``None``.
+        v_weight, exclude: as :func:`substitute_glasses`.
+        media: indices into ``lens.materials`` to substitute (default: every model glass).
+
+    Returns:
+        A :class:`SubstitutionResult` (strategy ``"sequential"``); each row of its table is one
+        candidate, its ``glasses`` every real glass in that candidate, and its ``step`` the
+        medium replaced.
+
+    Raises:
+        ValueError: an unknown catalogue, no model glass, ``k < 1``; RuntimeError: every
+            candidate of some step failed (the table's errors are quoted).
+    """
+    if int(k) < 1:
+        raise ValueError(f"k must be >= 1, got {k!r}")
+    pool = {g.label for g in glasses(catalogues, exclude)}   # validates the catalogue names
+    lens = unpack(lens, where="substitute_sequentially")[0]
+    media = model_glass_media(lens) if media is None else [int(i) for i in media]
+    if not media:
+        raise ValueError("substitute_sequentially: the lens has no model glass to substitute")
+    for i in media:
+        if not (0 <= i < len(lens.materials)) or not _is_model(lens.materials[i]):
+            raise ValueError(f"medium {i} is not a model glass of the lens")
+
+    def values(m):
+        return m.values() if isinstance(m, TrainableModelGlass) else (m.n_d, m.v_d)
+
+    def order_next(cur, left):
+        if score is None or len(left) == 1:
+            return left[0]
+        try:
+            base = float(score(cur))
+        except (ValueError, RuntimeError, ArithmeticError, Infeasible):
+            return left[0]
+        worst, pick = -math.inf, left[0]
+        for i in left:
+            trial = copy.deepcopy(cur)
+            g, _ = nearest_glasses(*values(trial.materials[i]), catalogues, 1, v_weight,
+                                   exclude)[0]
+            trial.materials[i] = g.material()
+            try:
+                s = float(score(trial))
+            except (ValueError, RuntimeError, ArithmeticError, Infeasible):
+                s = math.inf
+            s = s if math.isfinite(s) else math.inf
+            if s - base > worst:
+                worst, pick = s - base, i
+        return pick
+
+    table: list[dict] = []
+    cur, chosen, done, merit = lens, {}, {}, math.nan
+    left = list(media)
+    while left:
+        i = order_next(cur, left)
+        best = None
+        for g, d in nearest_glasses(*values(cur.materials[i]), catalogues, k, v_weight,
+                                    exclude):
+            cand = copy.deepcopy(cur)
+            cand.materials[i] = g.material()
+            row = {"glasses": {**{j: x.label for j, x in chosen.items()}, i: g.label},
+                   "distance": {**done, i: d}, "step": i, "merit": None, "error": "",
+                   "kept": False}
+            try:
+                v = float(reoptimize(cand))
+            except (ValueError, RuntimeError, ArithmeticError, Infeasible) as e:
+                row["error"] = f"{type(e).__name__}: {e}"
+                v = math.nan
+            if not math.isfinite(v):
+                row["error"] = row["error"] or f"non-finite merit {v!r}"
+            else:
+                row["merit"] = v
+                if best is None or v < best[0]:
+                    best = (v, cand, g, d, row)
+            table.append(row)
+        if best is None:
+            errors = "; ".join(r["error"] for r in table[-3:])
+            raise RuntimeError(f"substitute_sequentially: no candidate for medium {i} could be "
+                               f"re-optimised ({errors})")
+        merit, cur, g, d, _ = best
+        chosen[i], done[i] = g, d
+        left.remove(i)
+    best[4]["kept"] = True
+    for i, g in chosen.items():   # the promise: only glasses of the chosen catalogues
+        m = cur.materials[i]
+        if g.label not in pool or m.catalogue != g.catalogue or m.name != g.name:
+            raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
+                               f"the chosen catalogues")
+    return SubstitutionResult(cur, chosen, merit, table, "sequential")

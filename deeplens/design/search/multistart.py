@@ -54,7 +54,12 @@
    it.  ``rank_keep > 0``: the ``rank_k`` nearest glasses per element are combined, ranked by
    a linearised re-optimisation (:func:`~.substitution.linearised_ranker`: the candidate's
    exact residuals at the design's geometry, projected off the geometry Jacobian) and only
-   the ``rank_keep`` best are re-optimised.
+   the ``rank_keep`` best are re-optimised.  ``substitute_strategy="sequential"``: one element
+   at a time instead, the most sensitive first, the remaining model glasses free
+   (:func:`~.glass.substitute_sequentially`).  The reference of the comparison is the model
+   design *converged* (rounds of ``substitute`` stages until one improves its RMS spot by less
+   than ``converge_tol``, at most ``converge_rounds``), and the kept real candidate is
+   converged by the same rule (:mod:`.glass_stage`).
 
 ``time_limit_s``: no new start, polish or hop begins once this much wall time has passed
 (the one under way finishes, the designs found so far are kept and finished; glass
@@ -71,7 +76,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from .glass import TrainableModelGlass, substitute_glasses, use_model_glasses
+from .glass import TrainableModelGlass, use_model_glasses
 from .problem import search_variables
 from .refine import (CURRICULUM, STANDARD, Stage, aspheric_choice, fit_semi_diameters, refine,
                      repair_edges)
@@ -84,6 +89,7 @@ __all__ = ["SearchConfig", "Design", "SearchResult", "search", "signature", "sam
 
 START_KINDS = ("thin", "flat", "mixed")
 SUBSTITUTIONS = ("nearest", "snap")
+SUBSTITUTE_STRATEGIES = ("joint", "sequential")
 
 
 @dataclass
@@ -112,11 +118,14 @@ class SearchConfig:
     substitute: tuple = (Stage(15, "hexapolar:6"),)
     glass_radius: float = 0.03
     substitute_radius: float | None = None
-    substitution: str = "snap"
+    substitution: str = "nearest"
     snap_stage: tuple = (Stage(5, "hexapolar:6"),)
     snap_count: int = 6
     rank_keep: int = 0
     rank_k: int = 4
+    substitute_strategy: str = "sequential"
+    converge_tol: float = 0.01
+    converge_rounds: int = 8
     time_limit_s: float | None = None
     seidel_screen: int = 0
     seidel_steps: int = 100
@@ -133,6 +142,15 @@ class SearchConfig:
         if self.substitution not in SUBSTITUTIONS:
             raise ValueError(f"substitution must be one of {', '.join(SUBSTITUTIONS)}, got "
                              f"{self.substitution!r}")
+        if self.substitute_strategy not in SUBSTITUTE_STRATEGIES:
+            raise ValueError(f"substitute_strategy must be one of "
+                             f"{', '.join(SUBSTITUTE_STRATEGIES)}, got "
+                             f"{self.substitute_strategy!r}")
+        if not (math.isfinite(float(self.converge_tol)) and float(self.converge_tol) >= 0):
+            raise ValueError(f"converge_tol must be a finite number >= 0, got "
+                             f"{self.converge_tol!r}")
+        if int(self.converge_rounds) < 0:
+            raise ValueError(f"converge_rounds must be >= 0, got {self.converge_rounds!r}")
         if self.time_limit_s is not None and not float(self.time_limit_s) > 0:
             raise ValueError(f"time_limit_s must be None or > 0, got {self.time_limit_s!r}")
         if int(self.seidel_screen) < 0 or int(self.seidel_steps) < 0:
@@ -262,86 +280,18 @@ def _finish(lens, spec, origin, cfg) -> Design:
     return _score(lens, spec, origin, cfg.final_sampling)
 
 
-def _ok(r):
-    if not r.ok:
-        raise RuntimeError(r.reason)
-    return r
-
-
 def substitute_design(dsg: Design, spec: DesignSpec, cfg: SearchConfig,
                       region=None) -> Design:
     """Step 7 of the module docstring on one finished model-glass design: the real-glass
-    design (finished), with its ``glass_record``.  With the ``region``, the model design is
-    first given the same ``substitute`` stages as each candidate (model glasses still free
-    in the region), so that the two RMS spots compared had the same optimisation budget.
+    design (finished), with its ``glass_record`` (:func:`~.glass_stage.substitute_design`:
+    the model design converged first, so that the two merits compared are both converged).
 
     Raises:
         RuntimeError: no candidate could be re-optimised.
     """
-    t0 = time.perf_counter()
-    if region is not None:
-        lens = copy.deepcopy(dsg.lens)
-        if cfg.substitute_radius is not None:   # pull the glasses towards real ones first
-            from .glass import project_model_glasses
-            from .glass_region import GlassRegion
+    from .glass_stage import substitute_design as run
 
-            region = GlassRegion(spec.catalogues, radius=cfg.substitute_radius)
-            project_model_glasses(lens, region)
-        if refine(lens, spec, cfg.substitute, glass_region=region).ok:
-            try:
-                d2 = _finish(lens, spec, dsg.origin, cfg)
-                if cfg.substitute_radius is not None or d2.key <= dsg.key:
-                    dsg = d2
-            except (ValueError, RuntimeError):
-                pass
-    model = {i: m.values() for i, m in enumerate(dsg.lens.materials)
-             if isinstance(m, TrainableModelGlass)}
-
-    def reoptimize(cand) -> float:
-        r = refine(cand, spec, cfg.substitute)
-        if not r.ok:
-            raise RuntimeError(r.reason)
-        m = evaluate(cand, spec, cfg.score_sampling)
-        return m["rms_um"] + (0.0 if m["feasible"] else 1e6)
-
-    base, snap_rows = dsg.lens, []
-    if cfg.substitution == "snap" and region is not None:   # pull the glasses onto real ones
-        from .glass import snap_model_glasses, snap_strengths
-
-        lens = copy.deepcopy(dsg.lens)
-        merit0 = sum(spec.weights_of_fields) * (dsg.metrics["rms_um"] / 1000.0) ** 2
-        try:
-            snap_rows = snap_model_glasses(
-                lens, region, lambda L, pull: _ok(refine(L, spec, cfg.snap_stage,
-                                                         glass_region=pull)),
-                snap_strengths(merit0, cfg.snap_count))
-            base = lens
-        except (ValueError, RuntimeError) as e:
-            snap_rows = [{"error": f"{type(e).__name__}: {e}"}]
-    if cfg.rank_keep > 0:   # rank the rank_k nearest by a linearised re-optimisation
-        from .substitution import linearised_ranker
-
-        sub = substitute_glasses(base, spec.catalogues, reoptimize, k=cfg.rank_k,
-                                 rank=linearised_ranker(base, spec, cfg.score_sampling),
-                                 rank_keep=cfg.rank_keep)
-    else:
-        sub = substitute_glasses(base, spec.catalogues, reoptimize, k=cfg.substitute_k)
-    real = _finish(sub.lens, spec, f"{dsg.origin}, real glasses", cfg)
-    model_rms, real_rms = dsg.metrics["rms_um"], real.metrics["rms_um"]
-    real.glass_record = {
-        "catalogues": list(spec.catalogues), "dispersion": "normal",
-        "model_glasses": {str(i): {"n_d": nd, "v_d": vd} for i, (nd, vd) in model.items()},
-        "substituted": {str(i): g.label for i, g in sub.chosen.items()},
-        "model_rms_um": model_rms, "model_feasible": dsg.metrics["feasible"],
-        "model_rms_poly_um": dsg.metrics["rms_poly_um"],
-        "real_rms_um": real_rms, "merit_loss": real_rms / model_rms - 1.0,
-        "strategy": sub.strategy, "seconds": time.perf_counter() - t0,
-        "substitution": cfg.substitution, "snap": snap_rows,
-        "candidates": [{"glasses": {str(i): g for i, g in row["glasses"].items()},
-                        "score_um": row["merit"], "error": row["error"], "kept": row["kept"],
-                        **({"predicted": row["predicted"]} if "predicted" in row else {})}
-                       for row in sub.table]}
-    return real
+    return run(dsg, spec, cfg, region, _finish)
 
 
 def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strategy=None,

@@ -51,13 +51,13 @@ def test_model_glass_search_uses_only_the_chosen_catalogue(runs):
         assert isinstance(m, AGFGlass) and not isinstance(m, TrainableModelGlass)
         assert m.catalogue == "HOYA" and f"HOYA:{m.name}" in hoya
         assert rec["substituted"][str(i)] == f"HOYA:{m.name}"
-        # the glass put in is one of the k nearest real glasses of the model glass, snapped
-        # (the default substitution: pulled onto its nearest real glass first)
+        # the glass put in is one of the k nearest real glasses of the (converged) model
+        # glass (the default: no snapping, sequential, here one element)
         mg = rec["model_glasses"][str(i)]
-        assert rec["substitution"] == "snap"
-        sg = rec["snap"][-1]["glass"][i]
-        near = [g.label for g, _ in nearest_glasses(sg["n_d"], sg["v_d"], "HOYA", k=2)]
+        assert rec["substitution"] == "nearest" and rec["substitute_strategy"] == "sequential"
+        near = [g.label for g, _ in nearest_glasses(mg["n_d"], mg["v_d"], "HOYA", k=2)]
         assert rec["substituted"][str(i)] in near
+        assert [c["glasses"][str(i)] for c in rec["candidates"]] == near
         # the model glass stayed inside HOYA's region while optimising
         assert bool(GlassRegion("HOYA").contains(mg["n_d"], mg["v_d"]))
         # ... and was a variable: it left the catalogue point the start gave it

@@ -297,4 +297,5 @@ def test_cli_flag(tmp_path, capsys):
     res = json.loads((tmp_path / "result.json").read_text())
     assert res["config"]["seidel_screen"] == 32 and res["config"]["seidel_steps"] == 2
     assert res["config"]["substitution"] == "nearest"
+    assert res["config"]["substitute_strategy"] == "sequential"   # the command's default
     assert res["runs"][0]["origin"] == "seidel screen"

@@ -2,10 +2,16 @@
 growing pull of each model glass onto its nearest real glass) and candidates ranked by a
 linearised re-optimisation before the best few are re-optimised.
 
+Sequential substitution (one element at a time, the most sensitive first, the remaining
+model glasses re-optimised) and the fair reference (the model design converged before the
+comparison, :mod:`deeplens.design.search.glass_stage`).
+
 Planted bugs this file fails (tests/mutation/run_mutations.py): ``rank_keeps_the_worst``
 (the ranked candidates sorted worst first), ``snap_without_pull`` (the pull's strength
 ignored), ``substitution_keeps_unoptimised_lens`` (the kept lens is the candidate before its
-re-optimisation).
+re-optimisation), ``sequential_skips_reoptimisation`` (the sequential candidates not
+re-optimised), ``loss_against_unconverged_model`` (the loss measured against the model design
+as the search left it), ``real_design_not_converged`` (the kept candidate not converged).
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ import warnings
 import pytest
 import torch
 
-from test_glass import _doublet  # the cemented doublet of 1.5168/64.17 and 1.6727/32.25
+from test_glass import FDC, _doublet  # the cemented doublet of 1.5168/64.17 and 1.6727/32.25
 from test_glass_search import SPEC
 from test_glass_search import TINY as GLASS_SEARCH_TINY
 
@@ -26,8 +32,9 @@ from deeplens.design.optimizers import jacobian
 from deeplens.design.search import DesignSpec, SearchConfig, Stage, search
 from deeplens.design.search.glass import (
     GlassRegionPenalty, NearestGlassPull, dls_reoptimizer, glass_scales, glass_variable_names,
-    project_model_glasses, snap_strengths, substitute_glasses, use_model_glasses)
-from deeplens.design.search.glass_region import glass_distance, glasses
+    project_model_glasses, snap_strengths, substitute_glasses, substitute_sequentially,
+    use_model_glasses)
+from deeplens.design.search.glass_region import glass_distance, glasses, nearest_glasses
 from deeplens.design.search.substitution import linear_ranker
 from deeplens.design.variables import Variables
 from deeplens.optics.io.agf import AGFGlass
@@ -216,3 +223,109 @@ def test_snapping_ends_with_every_medium_a_real_catalogue_glass():
         SearchConfig(substitution="snapp")
     with pytest.raises(ValueError, match="rank_keep must be >= 0"):
         SearchConfig(rank_keep=-1)
+
+
+# ------------------------------------------------------------------ sequential substitution
+def test_sequential_substitution_goes_most_sensitive_first_and_lets_the_rest_follow():
+    """A stand-in re-optimisation that moves every model glass still left to a fixed point P
+    next to N-LAK9 (a closed-form "compensation") and marks the lens.  The first medium
+    replaced is the one whose swap to its nearest glass raises ``score`` most; the second
+    medium's candidates are the nearest glasses of P, where its model glass moved, not of
+    where it started; the lens returned is the re-optimised candidate kept."""
+    lens = _doublet("1.5300/62.0", "1.6500/34.0")
+    use_model_glasses(lens)
+    model = {i: lens.materials[i].n(FDC).detach() for i in (1, 2)}
+    lak9 = next(g for g in glasses("SCHOTT") if g.name == "N-LAK9")
+    p = (lak9.n_d + 1e-4, lak9.v_d)
+    calls = []
+
+    def mismatch(L, i):
+        return float(((L.materials[i].n(FDC) - model[i]) ** 2).sum())
+
+    def score(L):
+        return mismatch(L, 1) + 30.0 * mismatch(L, 2)
+
+    def reoptimize(L):
+        calls.append(L)
+        for m in L.materials:
+            if hasattr(m, "v_d") and hasattr(m, "values"):   # a model glass still left
+                with torch.no_grad():
+                    m.n_d.fill_(p[0])
+                    m.v_d.fill_(p[1])
+        L.name = f"re-optimised {len(calls)}"
+        return score(L)
+
+    # the expected order, from the rule: swap each alone to its nearest, compare
+    swap = {}
+    for i in (1, 2):
+        g, _ = nearest_glasses(*lens.materials[i].values(), "SCHOTT", 1)[0]
+        t = _doublet("1.5300/62.0", "1.6500/34.0")
+        use_model_glasses(t)
+        t.materials[i] = g.material()
+        swap[i] = score(t)
+    first = max(swap, key=swap.get)
+    second = 3 - first
+    before = [lens.materials[i].values() for i in (1, 2)]
+    res = substitute_sequentially(lens, "SCHOTT", reoptimize, k=2, score=score)
+    assert res.strategy == "sequential" and len(res.table) == 4 and len(calls) == 4
+    assert [r["step"] for r in res.table] == [first, first, second, second]
+    near0 = [g.label for g, _ in nearest_glasses(*lens.materials[first].values(), "SCHOTT", 2)]
+    assert [r["glasses"][first] for r in res.table[:2]] == near0
+    near_p = [g.label for g, _ in nearest_glasses(*p, "SCHOTT", 2)]
+    assert near_p[0] == "SCHOTT:N-LAK9"
+    assert [r["glasses"][second] for r in res.table[2:]] == near_p   # where it moved to
+    started = [g.label for g, _ in nearest_glasses(*lens.materials[second].values(),
+                                                   "SCHOTT", 2)]
+    assert not set(started) & set(near_p)                            # not where it started
+    kept = [r for r in res.table if r["kept"]]
+    assert len(kept) == 1 and kept[0]["merit"] == res.merit == score(res.lens)
+    assert res.lens.name.startswith("re-optimised")
+    assert res.merit == min(r["merit"] for r in res.table[2:])
+    for i in (1, 2):
+        m = res.lens.materials[i]
+        assert isinstance(m, AGFGlass) and m.catalogue == "SCHOTT"
+        assert res.names[i] == f"SCHOTT:{m.name}"
+    assert [lens.materials[i].values() for i in (1, 2)] == before    # the input is unchanged
+    with pytest.raises(ValueError, match="k must be >= 1"):
+        substitute_sequentially(lens, "SCHOTT", reoptimize, k=0)
+    with pytest.raises(ValueError, match="valid names"):
+        substitute_sequentially(lens, "SCHOT", reoptimize)
+
+
+# ------------------------------------------------------- the fair reference, inside the search
+def test_the_loss_is_measured_against_the_converged_model_design():
+    """The tiny search leaves its model design after 3 DLS steps: converging it (rounds of the
+    substitution's stage, rel_tol 0, at most 3) lowers its RMS spot, and that converged merit,
+    not the search's, is the reference of the loss; the kept real candidate gets the same
+    rounds.  Sequential substitution inside the search puts in HOYA glasses only."""
+    cfg = SearchConfig(seed=2, **{**TINY, "substitution": "nearest",
+                                  "substitute_strategy": "sequential", "converge_tol": 0.0,
+                                  "converge_rounds": 3})
+    res = search(DesignSpec(**SPEC), cfg)
+    rec = res.best.glass_record
+    mc, rc = rec["model_convergence"], rec["real_convergence"]
+    assert rec["model_converged"] and 1 <= mc["rounds"] <= 3 and len(mc["history"]) >= 2
+    assert mc["history"] == sorted(mc["history"], reverse=True)
+    assert rec["model_rms_um"] < rec["model_rms_unconverged_um"]
+    assert rec["merit_loss"] == pytest.approx(rec["real_rms_um"] / rec["model_rms_um"] - 1,
+                                              rel=1e-12)
+    assert rc is not None and rc["rounds"] >= 1 and rc["history"][0] == min(
+        c["score_um"] for c in rec["candidates"] if c["score_um"] is not None)
+    assert rec["strategy"] == "sequential" and rec["substitute_strategy"] == "sequential"
+    # each model glass's distance to the nearest real glass: at most the region's bound,
+    # radius + tau log N (GlassRegion's smooth distance)
+    n_glass = len(glasses("HOYA"))
+    for i, g in rec["model_glasses"].items():
+        d = rec["model_glass_distance"][i]
+        want = min(glass_distance(x.n_d, x.v_d, g["n_d"], g["v_d"]) for x in glasses("HOYA"))
+        assert d == pytest.approx(float(want), rel=1e-9)
+        assert 0 <= d <= cfg.glass_radius + 0.002 * math.log(n_glass) + 1e-12
+    hoya = {g.label for g in glasses("HOYA")}
+    assert set(rec["substituted"].values()) <= hoya
+    assert all(set(c["glasses"].values()) <= hoya for c in rec["candidates"])
+    with pytest.raises(ValueError, match="substitute_strategy must be one of joint, sequential"):
+        SearchConfig(substitute_strategy="one by one")
+    with pytest.raises(ValueError, match="converge_tol must be"):
+        SearchConfig(converge_tol=-1.0)
+    with pytest.raises(ValueError, match="converge_rounds must be >= 0"):
+        SearchConfig(converge_rounds=-1)
