@@ -168,7 +168,8 @@ def _search_config(given, key: str):
              "rank_keep": (lambda v: _int(v, 0), "an integer >= 0"),
              "rank_k": (lambda v: _int(v, 1), "an integer >= 1"),
              "seidel_screen": (lambda v: _int(v, 0), "an integer >= 0"),
-             "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0")}
+             "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0"),
+             "seidel_rebalance": (lambda v: _int(v, 0), "an integer >= 0")}
     for name, v in given.items():
         if name in _STAGE_FIELDS:
             vals[name] = _stages(v, f"{key}.{name}")

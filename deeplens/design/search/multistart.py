@@ -13,7 +13,9 @@
    (in total, for the whole search) become thin systems at once, ``seidel_steps`` batched Adam
    steps refine them on their third-order RMS spot, and the best distinct ones, thickened and
    ranked again by the thick lens's third-order RMS, are the ``starts`` starts
-   (:func:`~.seidel.screened_starts`).
+   (:func:`~.seidel.screened_starts`); with ``seidel_rebalance = K > 0`` every thickened
+   system first gets ``K`` batched Adam steps on its own third-order merit (curvatures and
+   distances, :mod:`.thick_polish`), which the thickening of strong elements upsets.
 2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
    scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
    first, then by the polychromatic RMS spot.
@@ -120,6 +122,7 @@ class SearchConfig:
     time_limit_s: float | None = None
     seidel_screen: int = 0
     seidel_steps: int = 100
+    seidel_rebalance: int = 0
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
@@ -138,6 +141,8 @@ class SearchConfig:
         if int(self.seidel_screen) < 0 or int(self.seidel_steps) < 0:
             raise ValueError(f"seidel_screen and seidel_steps must be >= 0, got "
                              f"{self.seidel_screen!r}, {self.seidel_steps!r}")
+        if int(self.seidel_rebalance) < 0:
+            raise ValueError(f"seidel_rebalance must be >= 0, got {self.seidel_rebalance!r}")
         if int(self.seidel_screen) and (self.prescreen or self.start_kind != "thin"):
             raise ValueError("seidel_screen needs start_kind='thin' and prescreen=0 (it "
                              "chooses the thin-lens starts itself)")
@@ -405,7 +410,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         from .seidel import screened_starts
 
         got, info = screened_starts(spec, int(cfg.seidel_screen), cfg.starts, seed=cfg.seed,
-                                    steps=int(cfg.seidel_steps), glass_strategy=glass_strategy)
+                                    steps=int(cfg.seidel_steps), glass_strategy=glass_strategy,
+                                    rebalance=int(cfg.seidel_rebalance))
         runs.append(info)
         tried = info["sampled"]
         say(f"third-order screen: {info['sampled']} systems, {len(got)} starts at "

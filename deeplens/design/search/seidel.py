@@ -582,12 +582,16 @@ def _penalty(sys, phi, X, t, n0, f, spec, min_c, min_e, min_air, max_t):
 
 
 def screened_starts(spec: DesignSpec, points: int, starts: int, seed: int = 0,
-                    steps: int = 100, glass_strategy=None) -> tuple[list, dict]:
+                    steps: int = 100, glass_strategy=None,
+                    rebalance: int = 0) -> tuple[list, dict]:
     """The search's hook (:class:`~.multistart.SearchConfig` ``seidel_screen``): the
     :func:`seidel_screen` of ``points`` Sobol points keeps ``4 starts`` distinct thin
     systems; each is thickened (:func:`~.start.thick_lens`, focal length exact; those that
     give no lens are skipped) and the thick lenses are ranked again by their own third-order
     RMS (:func:`lens_system`, :func:`third_order_rms`): the best ``starts`` are returned.
+
+    ``rebalance > 0``: before that ranking every thick lens gets ``rebalance`` batched Adam
+    steps on its own third-order merit (:func:`~.thick_polish.rebalance_thick`).
 
     ``glass_strategy`` is not supported here (the screen picks glasses as
     :func:`~.start.crown_flint_by_sign` does); passing one raises ``ValueError``.
@@ -618,6 +622,18 @@ def screened_starts(spec: DesignSpec, points: int, starts: int, seed: int = 0,
             continue
         if math.isfinite(t3):
             cands.append((t3, j, rms, lens))
+    if rebalance > 0 and cands:
+        from .thick_polish import rebalance_thick
+
+        new, _, _ = rebalance_thick([c[3] for c in cands], spec, steps=int(rebalance))
+        again = []
+        for (_, j, rms, _), lens in zip(cands, new):
+            t3 = float(third_order_rms(lens_system(lens, spec.wavelengths_nm), spec.epd,
+                                       spec.hfov_deg, ff, spec.weights_of_fields,
+                                       _weights_with_primary(spec)))
+            if math.isfinite(t3):
+                again.append((t3, j, rms, lens))
+        cands = again
     cands.sort(key=lambda c: (c[0], c[1]))
     out = [(f"seidel {j} ({tl_rms:.0f}/{t3:.0f} um)", lens)
            for t3, j, tl_rms, lens in cands[:int(starts)]]
