@@ -12,7 +12,7 @@ same way on its own semi-diameters (it vignettes its outer field).
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/design_search.py [--lens cooke]
         [--seeds 0,1,2,3,4] [--starts 3] [--hops 2] [--screen-steps 30] [--polish-steps 40]
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
-        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--seidel-rebalance 0]
+        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--seidel-rebalance 300]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
         [--rank-k 4] [--json OUT.json] [--save-models DIR | --from-models DIR]
 
@@ -100,9 +100,10 @@ def main(argv=None) -> int:
     p.add_argument("--seidel-screen", type=int, default=0,
                    help="third-order screen: Sobol thin systems sampled (0: off)")
     p.add_argument("--seidel-steps", type=int, default=100)
-    p.add_argument("--seidel-rebalance", type=int, default=0,
+    p.add_argument("--seidel-rebalance", type=int,
+                   default=SearchConfig.seidel_rebalance,
                    help="SearchConfig.seidel_rebalance: Adam steps re-balancing each "
-                        "thickened start's third order (0: off)")
+                        "thickened start's third order (default: SearchConfig's; 0: off)")
     p.add_argument("--substitution", choices=["nearest", "snap"], default=None,
                    help="SearchConfig.substitution (default: its default)")
     p.add_argument("--snap-steps", type=int, default=5)

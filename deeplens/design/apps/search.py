@@ -79,9 +79,9 @@ def add_arguments(p) -> None:
                         "0: off; used for thin starts of an object at infinity only)")
     g.add_argument("--seidel-steps", type=int, default=100,
                    help="batched Adam steps of the third-order screen (100)")
-    g.add_argument("--seidel-rebalance", type=int, default=0,
+    g.add_argument("--seidel-rebalance", type=int, default=300,
                    help="batched Adam steps re-balancing each thickened start's third order "
-                        "before the starts are ranked (0: off)")
+                        "before the starts are ranked (default 300; 0: off)")
     g.add_argument("--count-trade", metavar="LO-HI",
                    help="element count as a variable: search at --elements, then thin down to "
                    "LO and split up to HI elements (each refined --polish-steps DLS steps); "

@@ -13,9 +13,10 @@
    (in total, for the whole search) become thin systems at once, ``seidel_steps`` batched Adam
    steps refine them on their third-order RMS spot, and the best distinct ones, thickened and
    ranked again by the thick lens's third-order RMS, are the ``starts`` starts
-   (:func:`~.seidel.screened_starts`); with ``seidel_rebalance = K > 0`` every thickened
-   system first gets ``K`` batched Adam steps on its own third-order merit (curvatures and
-   distances, :mod:`.thick_polish`), which the thickening of strong elements upsets.
+   (:func:`~.seidel.screened_starts`); with ``seidel_rebalance = K > 0`` (default 300)
+   every thickened system first gets ``K`` batched Adam steps on its own third-order merit
+   (curvatures and distances, :mod:`.thick_polish`), which the thickening of strong
+   elements upsets.
 2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
    scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
    first, then by the polychromatic RMS spot.
@@ -122,7 +123,7 @@ class SearchConfig:
     time_limit_s: float | None = None
     seidel_screen: int = 0
     seidel_steps: int = 100
-    seidel_rebalance: int = 0
+    seidel_rebalance: int = 300
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:

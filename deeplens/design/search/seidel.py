@@ -57,7 +57,9 @@ weights: the same statistic as :func:`~.result.evaluate`'s ``rms_um``, in third 
 scaled to the focal length (``φ -> s φ``, ``t -> t / s``); a few batched Adam steps on the
 third-order merit (plus penalties for what the thickening cannot build) move their powers,
 bendings, spacings and stop place, the focal length held by that scaling; the best distinct
-ones become :class:`~.start.ThinLens` systems for the thickening.
+ones become :class:`~.start.ThinLens` systems for the thickening.  :func:`screened_starts`
+thickens them, re-balances each thick lens's third order (``rebalance`` Adam steps,
+:mod:`.thick_polish`) and ranks them by it.
 """
 
 from __future__ import annotations

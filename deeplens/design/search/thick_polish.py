@@ -20,7 +20,9 @@ Here every thickened start is re-balanced on the same third-order merit, in a ba
   (:func:`~.seidel.third_order_rms`, refocused) and the squared relative shortfalls ``P`` of
   what a real lens needs (:func:`thick_penalty`: ``|c| h <= 0.8``, centre and edge of glass
   and air at the paraxial beam's height ``h = 1.08 (|y| + |ȳ|) + 0.2``, centre glass within
-  ``max_center_glass``, a real image at least ``0.05 f`` behind the last surface, the track);
+  ``max_center_glass``, the stop plane clear of the surfaces beside it at its rim (the
+  search's ``stop_gap`` constraints, :mod:`.imaging`), a real image at least ``0.05 f``
+  behind the last surface, the track);
 * ``steps`` Adam steps; each system keeps the iterate of lowest merit among those with
   ``P <= 1e-6`` (else its start).
 
@@ -83,6 +85,17 @@ def thick_penalty(sys: ParaxialSystem, refracting: torch.Tensor, spec: DesignSpe
         if spec.max_center_glass_mm is not None:
             pen = pen + torch.where(glass, (r(centre - float(spec.max_center_glass_mm)) / f)
                                     ** 2, torch.zeros_like(centre)) * 100
+    st = int(sys.stop)
+    if st not in idx:   # the stop plane clear of its neighbours at its rim (imaging.py)
+        rs = y[:, st].abs()
+        prev = [j for j in idx if j < st]
+        nxt = [j for j in idx if j > st]
+        if prev:
+            gap = zc[:, st] - zc[:, prev[-1]] - _sag(c[:, prev[-1]], rs)
+            pen = pen + (r(-gap) / f) ** 2 * 100
+        if nxt:
+            gap = zc[:, nxt[0]] + _sag(c[:, nxt[0]], rs) - zc[:, st]
+            pen = pen + (r(-gap) / f) ** 2 * 100
     bfl = -y[:, -1] / u[:, -1]
     pen = pen + (r(0.05 * f - bfl) / f) ** 2 * 100
     if spec.max_track_mm is not None:
@@ -175,6 +188,7 @@ def _write_back(lens, c, d, spec: DesignSpec, sys: ParaxialSystem):
     from the paraxial beam, the exact EFL and the sensor on the image; ``None`` if that is not
     a valid lens."""
     from ...optics.surfaces import Aperture
+    from .imaging import repair_stop_gaps
     from .start import StartError, place_sensor, solve_efl
 
     L = copy.deepcopy(lens)
@@ -192,6 +206,7 @@ def _write_back(lens, c, d, spec: DesignSpec, sys: ParaxialSystem):
                 s.semi_diameter.fill_(min(float(h[j]), 0.95 / cj) if cj > 0 else float(h[j]))
         solve_efl(L, spec.efl_mm)
         L.apply_aperture_spec()
+        repair_stop_gaps(L)   # what the penalty's feasibility tolerance left
         place_sensor(L)
         L.check()
     except (StartError, ValueError, RuntimeError):

@@ -115,3 +115,27 @@ def test_config_field_is_checked():
 
     with pytest.raises(ValueError, match="seidel_rebalance must be >= 0"):
         SearchConfig(seidel_rebalance=-1)
+
+
+def test_penalty_keeps_the_stop_plane_clear_of_the_surface_before_it():
+    """A stop 0.1 mm behind a rear surface that bulges towards it (``c = 0.03 / mm``): the
+    surface's sag at the stop's rim (the marginal ray's height there) crosses the stop plane,
+    and the penalty is ``100 ((sag - 0.1 mm) / f)²``; 1 mm behind, zero."""
+    spec = DesignSpec(**{**SINGLET, "stop": "back", "max_center_glass_mm": 4.0})
+    n = 1.5
+    refr = torch.tensor([True, True, False])
+
+    def system(gap):
+        c = torch.tensor([[0.04, 0.03, 0.0]], dtype=torch.float64)
+        d = torch.tensor([[0.0, 3.0, gap]], dtype=torch.float64)
+        nn = torch.tensor([[[1.0, n, 1.0, 1.0]]], dtype=torch.float64)
+        return sd.ParaxialSystem(c, d, nn, 2, 0)
+
+    sys = system(0.1)
+    y, _, _, _ = sd.paraxial_rays(sys, spec.epd, 0.0)
+    rs = abs(float(y[0, 2]))
+    sag = 0.03 * rs * rs / (1 + math.sqrt(1 - (0.03 * rs) ** 2))
+    assert sag > 0.1
+    assert float(thick_penalty(sys, refr, spec)) == pytest.approx(
+        100 * ((sag - 0.1) / 100.0) ** 2, rel=1e-9)
+    assert float(thick_penalty(system(1.0), refr, spec)) == 0.0
