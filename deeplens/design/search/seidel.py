@@ -643,7 +643,7 @@ def screened_starts(spec: DesignSpec, points: int, starts: int, seed: int = 0,
             "no screened system gave a lens", "sampled": scr.sampled, "steps": int(steps),
             "thin_rms_um": [c[2] for c in cands[:int(starts)]],
             "thick_rms_um": [c[0] for c in cands[:int(starts)]], "thickening_failed": failed,
-            "seconds": time.perf_counter() - t0}
+            "rebalance": int(rebalance), "seconds": time.perf_counter() - t0}
     return out, info
 
 
