@@ -13,6 +13,7 @@ same way on its own semi-diameters (it vignettes its outer field).
         [--seeds 0,1,2,3,4] [--starts 3] [--hops 2] [--screen-steps 30] [--polish-steps 40]
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
         [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--seidel-rebalance 300]
+        [--seidel-rebalance-floor thin|none]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
         [--rank-k 4] [--json OUT.json] [--save-models DIR | --from-models DIR]
 
@@ -104,6 +105,10 @@ def main(argv=None) -> int:
                    default=SearchConfig.seidel_rebalance,
                    help="SearchConfig.seidel_rebalance: Adam steps re-balancing each "
                         "thickened start's third order (default: SearchConfig's; 0: off)")
+    p.add_argument("--seidel-rebalance-floor", choices=["thin", "none"],
+                   default=SearchConfig.seidel_rebalance_floor,
+                   help="SearchConfig.seidel_rebalance_floor: no gain below the thin "
+                        "system's third order (thin) or none")
     p.add_argument("--substitution", choices=["nearest", "snap"], default=None,
                    help="SearchConfig.substitution (default: its default)")
     p.add_argument("--snap-steps", type=int, default=5)
@@ -136,7 +141,8 @@ def main(argv=None) -> int:
                                       rounds=max(1, args.hop_steps // 20)),), keep=1,
                            prescreen=args.prescreen, seidel_screen=args.seidel_screen,
                            seidel_steps=args.seidel_steps,
-                           seidel_rebalance=args.seidel_rebalance, substitute_k=args.substitute_k,
+                           seidel_rebalance=args.seidel_rebalance,
+                           seidel_rebalance_floor=args.seidel_rebalance_floor, substitute_k=args.substitute_k,
                            substitute_radius=args.substitute_radius,
                            substitute=(Stage(args.substitute_steps, "hexapolar:6"),),
                            snap_stage=(Stage(args.snap_steps, "hexapolar:6"),),

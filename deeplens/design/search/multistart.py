@@ -16,7 +16,8 @@
    (:func:`~.seidel.screened_starts`); with ``seidel_rebalance = K > 0`` (default 300)
    every thickened system first gets ``K`` batched Adam steps on its own third-order merit
    (curvatures and distances, :mod:`.thick_polish`), which the thickening of strong
-   elements upsets.
+   elements upsets; ``seidel_rebalance_floor="thin"`` (default): no gain below the thin
+   system's own third-order RMS (``"none"``: none).
 2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
    scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
    first, then by the polychromatic RMS spot.
@@ -87,6 +88,7 @@ __all__ = ["SearchConfig", "Design", "SearchResult", "search", "signature", "sam
 
 START_KINDS = ("thin", "flat", "mixed")
 SUBSTITUTIONS = ("nearest", "snap")
+REBALANCE_FLOORS = ("thin", "none")
 
 
 @dataclass
@@ -124,6 +126,7 @@ class SearchConfig:
     seidel_screen: int = 0
     seidel_steps: int = 100
     seidel_rebalance: int = 300
+    seidel_rebalance_floor: str = "thin"
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
@@ -144,6 +147,9 @@ class SearchConfig:
                              f"{self.seidel_screen!r}, {self.seidel_steps!r}")
         if int(self.seidel_rebalance) < 0:
             raise ValueError(f"seidel_rebalance must be >= 0, got {self.seidel_rebalance!r}")
+        if self.seidel_rebalance_floor not in REBALANCE_FLOORS:
+            raise ValueError(f"seidel_rebalance_floor must be one of "
+                             f"{', '.join(REBALANCE_FLOORS)}, got {self.seidel_rebalance_floor!r}")
         if int(self.seidel_screen) and (self.prescreen or self.start_kind != "thin"):
             raise ValueError("seidel_screen needs start_kind='thin' and prescreen=0 (it "
                              "chooses the thin-lens starts itself)")
@@ -412,7 +418,8 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
 
         got, info = screened_starts(spec, int(cfg.seidel_screen), cfg.starts, seed=cfg.seed,
                                     steps=int(cfg.seidel_steps), glass_strategy=glass_strategy,
-                                    rebalance=int(cfg.seidel_rebalance))
+                                    rebalance=int(cfg.seidel_rebalance),
+                                    rebalance_floor=cfg.seidel_rebalance_floor)
         runs.append(info)
         tried = info["sampled"]
         say(f"third-order screen: {info['sampled']} systems, {len(got)} starts at "

@@ -585,7 +585,7 @@ def _penalty(sys, phi, X, t, n0, f, spec, min_c, min_e, min_air, max_t):
 
 def screened_starts(spec: DesignSpec, points: int, starts: int, seed: int = 0,
                     steps: int = 100, glass_strategy=None,
-                    rebalance: int = 0) -> tuple[list, dict]:
+                    rebalance: int = 0, rebalance_floor: str = "thin") -> tuple[list, dict]:
     """The search's hook (:class:`~.multistart.SearchConfig` ``seidel_screen``): the
     :func:`seidel_screen` of ``points`` Sobol points keeps ``4 starts`` distinct thin
     systems; each is thickened (:func:`~.start.thick_lens`, focal length exact; those that
@@ -593,7 +593,9 @@ def screened_starts(spec: DesignSpec, points: int, starts: int, seed: int = 0,
     RMS (:func:`lens_system`, :func:`third_order_rms`): the best ``starts`` are returned.
 
     ``rebalance > 0``: before that ranking every thick lens gets ``rebalance`` batched Adam
-    steps on its own third-order merit (:func:`~.thick_polish.rebalance_thick`).
+    steps on its own third-order merit (:func:`~.thick_polish.rebalance_thick`); with
+    ``rebalance_floor="thin"`` nothing is gained below its thin system's third-order RMS
+    (``"none"``: no floor).
 
     ``glass_strategy`` is not supported here (the screen picks glasses as
     :func:`~.start.crown_flint_by_sign` does); passing one raises ``ValueError``.
@@ -627,7 +629,9 @@ def screened_starts(spec: DesignSpec, points: int, starts: int, seed: int = 0,
     if rebalance > 0 and cands:
         from .thick_polish import rebalance_thick
 
-        new, _, _ = rebalance_thick([c[3] for c in cands], spec, steps=int(rebalance))
+        floors = [c[2] for c in cands] if rebalance_floor == "thin" else None
+        new, _, _ = rebalance_thick([c[3] for c in cands], spec, steps=int(rebalance),
+                                    floors=floors)
         again = []
         for (_, j, rms, _), lens in zip(cands, new):
             t3 = float(third_order_rms(lens_system(lens, spec.wavelengths_nm), spec.epd,
@@ -643,7 +647,7 @@ def screened_starts(spec: DesignSpec, points: int, starts: int, seed: int = 0,
             "no screened system gave a lens", "sampled": scr.sampled, "steps": int(steps),
             "thin_rms_um": [c[2] for c in cands[:int(starts)]],
             "thick_rms_um": [c[0] for c in cands[:int(starts)]], "thickening_failed": failed,
-            "rebalance": int(rebalance), "seconds": time.perf_counter() - t0}
+            "rebalance": int(rebalance), "rebalance_floor": rebalance_floor, "seconds": time.perf_counter() - t0}
     return out, info
 
 

@@ -117,7 +117,7 @@ def _efl(sys: ParaxialSystem) -> torch.Tensor:
 
 
 def _rebalance_batch(systems: list, refracting: torch.Tensor, spec: DesignSpec, steps: int,
-                     lr: float, weights_w: list) -> tuple:
+                     lr: float, weights_w: list, floor: torch.Tensor | None = None) -> tuple:
     """Adam on a batch of systems of one layout; ``(c, d, rms_before, rms_after)`` with
     ``c``, ``d`` ``(B, S)`` of the best feasible iterate (or the start)."""
     f = float(spec.efl_mm)
@@ -147,7 +147,8 @@ def _rebalance_batch(systems: list, refracting: torch.Tensor, spec: DesignSpec, 
         rms = third_order_rms(sys, spec.epd, spec.hfov_deg, ff, fw, weights_w)
         pen = thick_penalty(sys, refracting, spec)
         good = ok & torch.isfinite(rms) & torch.isfinite(pen)
-        loss = torch.where(good, torch.log1p(rms) + 10 * pen, torch.full_like(rms, math.inf))
+        r = rms if floor is None else torch.maximum(rms, floor)   # no gain below the floor
+        loss = torch.where(good, torch.log1p(r) + 10 * pen, torch.full_like(rms, math.inf))
         return loss, rms, pen, sys
 
     with torch.no_grad():
@@ -214,8 +215,8 @@ def _write_back(lens, c, d, spec: DesignSpec, sys: ParaxialSystem):
     return L
 
 
-def rebalance_thick(lenses: list, spec: DesignSpec, steps: int = 100,
-                    lr: float = 0.02) -> tuple[list, list, list]:
+def rebalance_thick(lenses: list, spec: DesignSpec, steps: int = 100, lr: float = 0.02,
+                    floors: list | None = None) -> tuple[list, list, list]:
     """Re-balance thickened starts on their third-order merit (module docstring).
 
     Args:
@@ -224,6 +225,10 @@ def rebalance_thick(lenses: list, spec: DesignSpec, steps: int = 100,
         spec: the spec (object at infinity).
         steps: Adam steps (0: the lenses are returned as they are, their RMS as NaN).
         lr: Adam's step (the variables ``c f`` and ``log(d / f)`` are of order one).
+        floors: per lens a third-order RMS (µm) below which nothing is gained (the merit is
+            ``log(1 + max(RMS₃, floor)) + 10 P``): e.g. the thin system's own, so that the
+            re-balancing undoes what the thickening upset without pushing the third order
+            further than the screen did (``None``: no floor).
 
     Returns:
         ``(lenses, rms_before, rms_after)``: new lenses (a lens that could not be re-balanced
@@ -255,8 +260,10 @@ def rebalance_thick(lenses: list, spec: DesignSpec, steps: int = 100,
         groups.setdefault(key, []).append(i)
     for key, idx in groups.items():
         refracting = torch.tensor([not a for a in key[3]])
+        fl = None if floors is None else torch.tensor([float(floors[i]) for i in idx],
+                                                      dtype=torch.float64)
         c, d, r0, r1, found = _rebalance_batch([systems[i] for i in idx], refracting, spec,
-                                               steps, lr, ww)
+                                               steps, lr, ww, fl)
         for k, i in enumerate(idx):
             before[i] = after[i] = float(r0[k])
             if not bool(found[k]):

@@ -298,5 +298,6 @@ def test_cli_flag(tmp_path, capsys):
     res = json.loads((tmp_path / "result.json").read_text())
     assert res["config"]["seidel_screen"] == 32 and res["config"]["seidel_steps"] == 2
     assert res["config"]["seidel_rebalance"] == 7 and res["runs"][0]["rebalance"] == 7
+    assert res["runs"][0]["rebalance_floor"] == "thin"
     assert res["config"]["substitution"] == "nearest"
     assert res["runs"][0]["origin"] == "seidel screen"
