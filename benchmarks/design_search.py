@@ -12,7 +12,7 @@ same way on its own semi-diameters (it vignettes its outer field).
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/design_search.py [--lens cooke]
         [--seeds 0,1,2,3,4] [--starts 3] [--hops 2] [--screen-steps 30] [--polish-steps 40]
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
-        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--seidel-rebalance 300]
+        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--seidel-rebalance 0]
         [--seidel-rebalance-floor thin|none]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
         [--rank-k 4] [--json OUT.json] [--save-models DIR | --from-models DIR]
