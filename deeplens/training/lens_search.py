@@ -136,7 +136,7 @@ def _stages(value, key: str) -> tuple:
 
 def _search_config(given, key: str):
     from ..design.search import SearchConfig
-    from ..design.search.multistart import SUBSTITUTIONS
+    from ..design.search.multistart import REBALANCE_FLOORS, SUBSTITUTIONS
 
     given = {} if given is None else given
     if not isinstance(given, dict):
@@ -172,7 +172,10 @@ def _search_config(given, key: str):
              "converge_tol": (_real, "a number >= 0"),
              "converge_rounds": (lambda v: _int(v, 0), "an integer >= 0"),
              "seidel_screen": (lambda v: _int(v, 0), "an integer >= 0"),
-             "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0")}
+             "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0"),
+             "seidel_rebalance": (lambda v: _int(v, 0), "an integer >= 0"),
+             "seidel_rebalance_floor": (lambda v: v in REBALANCE_FLOORS,
+                                        " or ".join(map(repr, REBALANCE_FLOORS)))}
     for name, v in given.items():
         if name in _STAGE_FIELDS:
             vals[name] = _stages(v, f"{key}.{name}")

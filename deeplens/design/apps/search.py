@@ -84,6 +84,12 @@ def add_arguments(p) -> None:
                         "0: off; used for thin starts of an object at infinity only)")
     g.add_argument("--seidel-steps", type=int, default=100,
                    help="batched Adam steps of the third-order screen (100)")
+    g.add_argument("--seidel-rebalance", type=int, default=0,
+                   help="batched Adam steps re-balancing each thickened start's third order "
+                        "before the starts are ranked (default 0: off; 300 measured)")
+    g.add_argument("--seidel-rebalance-floor", choices=["thin", "none"], default="thin",
+                   help="thin: the re-balancing gains nothing below the thin system's own "
+                        "third-order RMS (default); none: no floor")
     g.add_argument("--count-trade", metavar="LO-HI",
                    help="element count as a variable: search at --elements, then thin down to "
                    "LO and split up to HI elements (each refined --polish-steps DLS steps); "
@@ -131,7 +137,9 @@ def run(args) -> dict:
                        substitute_strategy=args.substitute_strategy,
                        seidel_screen=args.seidel_screen if args.start_kind == "thin"
                        and math.isinf(spec.object_distance_mm) else 0,
-                       seidel_steps=args.seidel_steps)
+                       seidel_steps=args.seidel_steps,
+                       seidel_rebalance=args.seidel_rebalance,
+                       seidel_rebalance_floor=args.seidel_rebalance_floor)
 
     def progress(text):
         if not args.quiet:

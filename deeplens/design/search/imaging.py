@@ -79,17 +79,25 @@ def stop_constraints(lens, tol: float = 1e-3) -> list[Constraint]:
     return out
 
 
-def repair_stop_gaps(lens, margin_mm: float = 1e-3) -> None:
+def repair_stop_gaps(lens, margin_mm: float = 1e-3, stop_only: bool = False) -> None:
     """Widen the gap on the short side of every stop whose ``stop_gap`` constraint is unmet
     (in place): the stop (and everything behind it) moves back, or the surface after it (and
     everything behind that), by the shortfall + ``margin_mm``; so that a refinement can start
-    with the stop's constraints met, and keep them hard."""
+    with the stop's constraints met, and keep them hard.  ``stop_only``: the stop alone moves
+    within its gap (the gap on its other side shrinks by as much; the lenses and the image
+    stay where they are), which leaves the focus and the track as they were."""
     with torch.no_grad():
         for c in stop_constraints(lens, 0.0):
             short = -float(c.value(lens))
             if short > 0:
                 k = int(c.label.split(".")[1])
-                j = k if c.label.endswith("before") else next(
+                before = c.label.endswith("before")
+                if stop_only and 0 < k < len(lens.surfaces) - 1:
+                    step = (short + margin_mm) * (1.0 if before else -1.0)
+                    lens.distances[k].add_(step)
+                    lens.distances[k + 1].sub_(step)
+                    continue
+                j = k if before else next(
                     i for i in range(k + 1, len(lens.surfaces))
                     if not isinstance(lens.surfaces[i], Aperture))
                 lens.distances[j].add_(short + margin_mm)

@@ -13,7 +13,11 @@
    (in total, for the whole search) become thin systems at once, ``seidel_steps`` batched Adam
    steps refine them on their third-order RMS spot, and the best distinct ones, thickened and
    ranked again by the thick lens's third-order RMS, are the ``starts`` starts
-   (:func:`~.seidel.screened_starts`).
+   (:func:`~.seidel.screened_starts`); with ``seidel_rebalance = K > 0`` (default 0: off)
+   every thickened system first gets ``K`` batched Adam steps on its own third-order merit
+   (curvatures and distances, :mod:`.thick_polish`), which the thickening of strong
+   elements upsets; ``seidel_rebalance_floor="thin"`` (default): no gain below the thin
+   system's own third-order RMS (``"none"``: none).
 2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
    scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
    first, then by the polychromatic RMS spot.
@@ -90,6 +94,7 @@ __all__ = ["SearchConfig", "Design", "SearchResult", "search", "signature", "sam
 START_KINDS = ("thin", "flat", "mixed")
 SUBSTITUTIONS = ("nearest", "snap")
 SUBSTITUTE_STRATEGIES = ("joint", "sequential")
+REBALANCE_FLOORS = ("thin", "none")
 
 
 @dataclass
@@ -129,6 +134,8 @@ class SearchConfig:
     time_limit_s: float | None = None
     seidel_screen: int = 0
     seidel_steps: int = 100
+    seidel_rebalance: int = 0
+    seidel_rebalance_floor: str = "thin"
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
@@ -156,6 +163,11 @@ class SearchConfig:
         if int(self.seidel_screen) < 0 or int(self.seidel_steps) < 0:
             raise ValueError(f"seidel_screen and seidel_steps must be >= 0, got "
                              f"{self.seidel_screen!r}, {self.seidel_steps!r}")
+        if int(self.seidel_rebalance) < 0:
+            raise ValueError(f"seidel_rebalance must be >= 0, got {self.seidel_rebalance!r}")
+        if self.seidel_rebalance_floor not in REBALANCE_FLOORS:
+            raise ValueError(f"seidel_rebalance_floor must be one of "
+                             f"{', '.join(REBALANCE_FLOORS)}, got {self.seidel_rebalance_floor!r}")
         if int(self.seidel_screen) and (self.prescreen or self.start_kind != "thin"):
             raise ValueError("seidel_screen needs start_kind='thin' and prescreen=0 (it "
                              "chooses the thin-lens starts itself)")
@@ -355,7 +367,9 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         from .seidel import screened_starts
 
         got, info = screened_starts(spec, int(cfg.seidel_screen), cfg.starts, seed=cfg.seed,
-                                    steps=int(cfg.seidel_steps), glass_strategy=glass_strategy)
+                                    steps=int(cfg.seidel_steps), glass_strategy=glass_strategy,
+                                    rebalance=int(cfg.seidel_rebalance),
+                                    rebalance_floor=cfg.seidel_rebalance_floor)
         runs.append(info)
         tried = info["sampled"]
         say(f"third-order screen: {info['sampled']} systems, {len(got)} starts at "

@@ -33,6 +33,7 @@ from ...optics.options import TraceOptions
 from ..constraints import ConstraintSet, variable_bounds
 from ..lensopt import optimize_lens
 from .glass import project_model_glasses
+from .imaging import repair_stop_gaps
 from .problem import real_surfaces, search_merit, search_variables, spec_constraints
 from .spec import DesignSpec
 from .start import solve_efl
@@ -200,6 +201,8 @@ def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
             fields = [st.field * f for f in spec.fields_deg]
             fit_semi_diameters(lens, fields, spec.wavelengths_nm)
             repair_edges(lens, spec)
+            repair_stop_gaps(lens, stop_only=True)   # the stop resized for the EPD may cut a
+            # surface: it moves within its gap (the focus unchanged)
             lens.check()
             cons = spec_constraints(lens, spec)
             hard = not ConstraintSet(cons).broken(lens)
@@ -232,6 +235,7 @@ def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
         set_curriculum(lens, spec, 1.0)
         fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
         repair_edges(lens, spec)
+        repair_stop_gaps(lens, stop_only=True)
         lens.check()
         res.ok = True
     except (ValueError, RuntimeError) as e:

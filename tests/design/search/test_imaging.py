@@ -122,3 +122,29 @@ def test_repair_moves_the_lens_behind_the_stop_by_the_shortfall(c1):
     before = float(lens.distances[1])
     repair_stop_gaps(lens)                      # nothing to repair: nothing moves
     assert float(lens.distances[1]) == before
+
+
+@pytest.mark.parametrize("side", ["before", "after"])
+def test_repair_stop_only_moves_the_stop_within_its_gap(side):
+    """``stop_only``: the Cooke triplet's stop pushed 0.5 mm into the surface before (after)
+    it comes back by the shortfall + margin, the gap on its other side shrinks by as much,
+    and every refracting surface and the sensor stay where they were."""
+    lens = load_lens(ROOT / "data" / "lenses" / "cooke_triplet.json").to(torch.float64)
+    k = lens.stop_index
+    cons = {c.label: c for c in stop_constraints(lens)}
+    con = cons[f"stop_gap.{k}.{side}"]
+    with torch.no_grad():       # the stop moved (alone) to 0.5 mm past the surface
+        step = float(con.value(lens)) + 0.5
+        sign = -1.0 if side == "before" else 1.0
+        lens.distances[k] += sign * step
+        lens.distances[k + 1] -= sign * step
+    assert float(con.value(lens)) == pytest.approx(-0.5, abs=1e-9)
+    z0 = lens.z_vertices().clone()
+    sensor = float(lens.z_sensor())
+    repair_stop_gaps(lens, margin_mm=1e-3, stop_only=True)
+    assert float(con.value(lens)) == pytest.approx(1e-3, abs=1e-9)
+    z = lens.z_vertices()
+    keep = [i for i in range(len(lens.surfaces)) if i != k]
+    assert torch.allclose(z[keep], z0[keep], rtol=0, atol=1e-12)
+    assert float(lens.z_sensor()) == pytest.approx(sensor, abs=1e-12)
+    assert float(z[k] - z0[k]) == pytest.approx(-sign * 0.501, abs=1e-9)

@@ -291,11 +291,14 @@ def test_cli_flag(tmp_path, capsys):
             "--wavelengths", "587.5618", "--glasses", "N-BK7", "--stop", "front", "--starts",
             "1", "--polish", "1", "--hops", "0", "--keep", "1", "--screen-steps", "1",
             "--polish-steps", "1", "--quiet", "--json", "--seidel-screen", "32",
-            "--seidel-steps", "2", "--substitution", "nearest", "--out", str(tmp_path)]
+            "--seidel-steps", "2", "--seidel-rebalance", "7", "--substitution", "nearest",
+            "--out", str(tmp_path)]
     code, out, err = run_cli(args, capsys)
     assert code == 0, err
     res = json.loads((tmp_path / "result.json").read_text())
     assert res["config"]["seidel_screen"] == 32 and res["config"]["seidel_steps"] == 2
+    assert res["config"]["seidel_rebalance"] == 7 and res["runs"][0]["rebalance"] == 7
+    assert res["runs"][0]["rebalance_floor"] == "thin"
     assert res["config"]["substitution"] == "nearest"
     assert res["config"]["substitute_strategy"] == "sequential"   # the command's default
     assert res["runs"][0]["origin"] == "seidel screen"
