@@ -13,7 +13,7 @@
    (in total, for the whole search) become thin systems at once, ``seidel_steps`` batched Adam
    steps refine them on their third-order RMS spot, and the best distinct ones, thickened and
    ranked again by the thick lens's third-order RMS, are the ``starts`` starts
-   (:func:`~.seidel.screened_starts`); with ``seidel_rebalance = K > 0`` (default 0: off)
+   (:func:`~.screen.screened_starts`); with ``seidel_rebalance = K > 0`` (default 0: off)
    every thickened system first gets ``K`` batched Adam steps on its own third-order merit
    (curvatures and distances, :mod:`.thick_polish`), which the thickening of strong
    elements upsets; ``seidel_rebalance_floor="thin"`` (default): no gain below the thin
@@ -364,7 +364,7 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
 
     source = fresh(4 * cfg.starts)
     if cfg.seidel_screen > 0:   # step 1c: starts from the third-order screen
-        from .seidel import screened_starts
+        from .screen import screened_starts
 
         got, info = screened_starts(spec, int(cfg.seidel_screen), cfg.starts, seed=cfg.seed,
                                     steps=int(cfg.seidel_steps), glass_strategy=glass_strategy,
