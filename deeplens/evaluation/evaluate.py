@@ -22,7 +22,11 @@ the scene defines ``field_bands``).  Variants (``eval.variants``):
   classically, :mod:`deeplens.training.lens_search`), frozen while the restorer trains.  With
   ``lens.start=search``, ``learned`` trains ``lens.search.trainable`` jointly from that lens;
   ``frozen``, ``classical`` and ``refined`` stay the file's lens (``lens.path``).  The search
-  runs once per evaluation folder (``<folder>/search``).
+  runs once per evaluation folder (``<folder>/search``);
+* ``perfect``: the ceiling: an aberration-free lens (an ideal thin lens with the experiment's
+  focal length and F-number, in focus at the scene's depth: :mod:`.perfect`; geometric delta
+  PSF, diffraction left out), frozen while the restorer trains with the same budget, sensor,
+  noise and renderer.
 
 Every number is the mean over seeds; ``± std`` is the sample standard deviation over seeds
 (``n - 1``; 0 for a single seed).  A seed changes everything that is random (network
@@ -77,6 +81,7 @@ from .classical import check_classical_config, design_classical
 from .fanout import check_fanout_config, cpu_seconds, job_cfg
 from .fanout_stop import watch_parent
 from .figures import write_figures
+from .perfect import PERFECT_LENS, write_perfect_lens
 from .variants import _VARIANTS, _alphas, _plain, seeds, variants
 
 __all__ = ["EVAL_CHECKS", "check_config", "check_eval_config", "evaluate", "format_table",
@@ -117,6 +122,12 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
             c.lens.plate_alpha_mm = float(_alphas(cfg)[0] if alpha_mm is None else alpha_mm)
         elif kind == "searched":
             pass  # set above
+        elif kind == "perfect":  # the ceiling: an aberration-free lens (perfect.py)
+            c.lens.path = str(perfect_dir(cfg) / PERFECT_LENS)
+            c.lens.trainable, c.lens.focus_mm = [], None
+            c.lens.plate = c.lens.plate_surface = c.lens.plate_order = None
+            c.lens.learned_start_alpha_mm = None
+            c.render.psf_model = "geometric"  # a delta PSF by construction (perfect.py)
         elif kind == "learned":
             if cfg.lens.plate_surface is not None:
                 c.lens.plate = "learned"
@@ -131,6 +142,11 @@ def _variant_cfg(cfg: DictConfig, name: str, kind: str | None = None,
         else:
             raise ConfigError("eval.variants", f"variants of {', '.join(_VARIANTS)}", kind)
     return c
+
+
+def perfect_dir(cfg: DictConfig) -> Path:
+    """The folder of the ``perfect`` variant, where its lens is written."""
+    return Path(cfg.paths.output_dir) / "perfect"
 
 
 def classical_dir(cfg: DictConfig) -> Path:
@@ -305,6 +321,8 @@ def _job(cfg: DictConfig, name: str, kind: str, alpha, seed: int):
         design_classical(fc, classical_dir(cfg))
     if kind == "searched" or (kind == "learned" and cfg.lens.get("start") == "search"):
         searched_lens(cfg, search_dir(cfg))
+    if kind == "perfect":
+        write_perfect_lens(cfg, perfect_dir(cfg))
     ckpt = cfg.eval.learned_ckpt if kind == "learned" else None
     torch.manual_seed(seed)
     return _run(vc, ckpt, reuse=bool(cfg.eval.get("reuse_runs", True)))

@@ -12,7 +12,8 @@ __all__ = ["seeds", "variants"]
 
 _PLATE_KINDS = ("none", "cubic")
 #: the variants of ``eval.variants``
-_VARIANTS = ("none", "cubic", "classical", "learned", "refined", "frozen", "searched")
+_VARIANTS = ("none", "cubic", "classical", "learned", "refined", "frozen", "searched",
+             "perfect")
 
 
 def _alphas(cfg: DictConfig) -> list[float]:
@@ -65,13 +66,13 @@ def variants(cfg: DictConfig) -> list[tuple[str, str, float | None]]:
         if v in _PLATE_KINDS and cfg.lens.plate_surface is None:
             raise ConfigError("eval.variants", "variants of a lens without a phase plate "
                               "(lens.plate_surface is null): frozen, classical, learned, "
-                              "refined, searched", _plain(names))
+                              "refined, searched, perfect", _plain(names))
         if v == "searched" and cfg.lens.get("search") is None:
             raise ConfigError.missing("lens.search", "the design search's spec (eval.variants "
                                       "has searched)")
         if v == "cubic":
             out += [(f"cubic@{a * 1e3:g}um", "cubic", a) for a in _alphas(cfg)]
-        elif v in ("none", "learned", "frozen", "classical", "refined", "searched"):
+        elif v in ("none", "learned", "frozen", "classical", "refined", "searched", "perfect"):
             out.append((v, v, None))
         else:
             raise ConfigError("eval.variants", f"variants of {', '.join(_VARIANTS)}",
