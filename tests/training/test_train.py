@@ -26,7 +26,10 @@ SHRINK = {"doublet_search": ("lens.search.spec.elements=1", "lens.search.spec.as
                           "blur_alpha_mm:0.005,sampling:'grid:8',n_freq:2,seed:0}",),
           # the restoration merit's plate search: one start of one step at two depths
           "edof_search_restoration": ("lens.search.plate={starts:1,steps:1,box_mm:0.006,"
-                                      "seed:0,merit:restoration,restoration_depths:2}",)}
+                                      "seed:0,merit:restoration,restoration_depths:2}",),
+          # the same search; the plate's depth invariance held while it trains
+          "edof_search_held": ("lens.search.plate={starts:1,steps:1,box_mm:0.006,"
+                               "seed:0,merit:restoration,restoration_depths:2}",)}
 
 
 @pytest.mark.parametrize("experiment", EXPERIMENTS)
