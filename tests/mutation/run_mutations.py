@@ -163,8 +163,8 @@ MUTATIONS = [
              "\"semi_diameter_mm\": diam", TABLES),
     # ------------------------------------------------ optics (the issue: already caught)
     Mutation("refraction_sign", "vector Snell: + eta cos instead of - eta cos",
-             "deeplens/optics/refract.py", "return torch.copysign(sqrt_k, cos_i) - eta * cos_i, ok",
-             "return torch.copysign(sqrt_k, cos_i) + eta * cos_i, ok", OPTICS, issue=True),
+             "deeplens/optics/refract.py", "return sign * (one_minus_eta_sq / denom), ok",
+             "return sign * sqrt_k + eta * cos_i, ok", OPTICS, issue=True),
     Mutation("refraction_sign_components", "Snell on components (the compiled kernels' layout): "
              "+ coef n_y instead of + coef n_x", "deeplens/optics/refract.py",
              "ex = torch.where(ok, eta * dx + coef * nx, dx)",
@@ -366,8 +366,8 @@ MUTATIONS = [
              'return {"tangential": (p.psf.sum(1), p.y),', PLOTS),
     Mutation("spot_rms_paraxial_pupil", "spot figure RMS over the paraxial pupil (differs "
              "from report)", "deeplens/analysis/plot.py",
-             'image_plane="sensor", pupil: str = "traced"):',
-             'image_plane="sensor", pupil: str = "paraxial"):', PLOTS),
+             'image_plane="sensor", pupil: str = "traced", options=None):',
+             'image_plane="sensor", pupil: str = "paraxial", options=None):', PLOTS),
     Mutation("render_upside_down", "deeplens render flips the picture",
              "deeplens/render/image.py", "scene = Scene(image.to(lens.dtype), float(depth_mm))",
              "scene = Scene(image.flip(-2).to(lens.dtype), float(depth_mm))", RENDER_IMAGE),
