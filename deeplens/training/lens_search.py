@@ -168,7 +168,10 @@ def _search_config(given, key: str):
              "rank_keep": (lambda v: _int(v, 0), "an integer >= 0"),
              "rank_k": (lambda v: _int(v, 1), "an integer >= 1"),
              "seidel_screen": (lambda v: _int(v, 0), "an integer >= 0"),
-             "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0")}
+             "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0"),
+             "converge_steps": (lambda v: _int(v, 0), "an integer >= 0"),
+             "converge_tol": (_real, "a number >= 0"),
+             "converge_chunk": (lambda v: _int(v, 1), "an integer >= 1")}
     for name, v in given.items():
         if name in _STAGE_FIELDS:
             vals[name] = _stages(v, f"{key}.{name}")

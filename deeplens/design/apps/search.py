@@ -79,6 +79,12 @@ def add_arguments(p) -> None:
                         "0: off; used for thin starts of an object at infinity only)")
     g.add_argument("--seidel-steps", type=int, default=100,
                    help="batched Adam steps of the third-order screen (100)")
+    g.add_argument("--converge-steps", type=int, default=120,
+                   help="DLS steps at most refining each kept design on the final rays until "
+                        "converged (default 120; 0: off)")
+    g.add_argument("--converge-tol", type=float, default=0.01,
+                   help="converged: two rounds of 10 steps each lowered the merit by less "
+                        "than this fraction (default 0.01)")
     g.add_argument("--count-trade", metavar="LO-HI",
                    help="element count as a variable: search at --elements, then thin down to "
                    "LO and split up to HI elements (each refined --polish-steps DLS steps); "
@@ -125,7 +131,8 @@ def run(args) -> dict:
                        substitution=args.substitution,
                        seidel_screen=args.seidel_screen if args.start_kind == "thin"
                        and math.isinf(spec.object_distance_mm) else 0,
-                       seidel_steps=args.seidel_steps)
+                       seidel_steps=args.seidel_steps, converge_steps=args.converge_steps,
+                       converge_tol=args.converge_tol)
 
     def progress(text):
         if not args.quiet:
