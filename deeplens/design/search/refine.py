@@ -14,6 +14,15 @@ semi-diameters are re-fitted after every stage, and the final evaluation clips a
 met, soft (penalties only) before.  A stage that cannot start (a field fully vignetted,
 surfaces that cross once the semi-diameters follow the beam) ends the refinement: the start
 is then reported as failed, with the reason.
+
+Each round of a stage (its ``rounds``, which re-find the pupils) first sizes the stop for the
+EPD and projects the lens onto the constraints that can be met without changing its optics:
+a stop that has slid into a neighbour's sag (its ``stop_gap`` constraint, which the stop's
+growth on resizing alone can break) is shifted back by the shortfall (:func:`place_stops`),
+and a centre thickness past its limit is set onto it; so the round can keep its constraints
+hard rather than end a few µm infeasible (a double Gauss design at 9.5 µm was discarded for
+a stop 0.10 mm inside the surface before it).  :func:`refine_to_convergence` runs rounds of
+a few steps until :func:`run_to_convergence`'s relative stop rule ends them.
 """
 
 from __future__ import annotations
