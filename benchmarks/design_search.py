@@ -14,7 +14,7 @@ same way on its own semi-diameters (it vignettes its outer field).
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
         [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
-        [--rank-k 4] [--converge-steps N] [--json OUT.json]
+        [--rank-k 4] [--converge-steps 120] [--json OUT.json]
         [--save-models DIR | --from-models DIR]
 
 ``--glass-mode model``: the spec's glasses become model glasses in SCHOTT's glass region
@@ -109,10 +109,10 @@ def main(argv=None) -> int:
                    help="SearchConfig.rank_keep: re-optimise only the best N of the "
                         "--rank-k nearest per element, ranked by a linearised prediction")
     p.add_argument("--rank-k", type=int, default=4)
-    p.add_argument("--converge-steps", type=int, default=None,
+    p.add_argument("--converge-steps", type=int, default=120,
                    help="SearchConfig.converge_steps: the kept design refined on the final "
-                        "rays until converged, at most this many DLS steps (0: off; default: "
-                        "SearchConfig's)")
+                        "rays until converged, at most this many DLS steps (0: off; default "
+                        "120, as the command)")
     p.add_argument("--json", help="also write the numbers here")
     p.add_argument("--save-models", metavar="DIR",
                    help="save each seed's model-glass designs before substitution")
@@ -143,8 +143,7 @@ def main(argv=None) -> int:
                            snap_count=args.snap_count, rank_k=args.rank_k,
                            **({"rank_keep": args.rank_keep} if args.rank_keep is not None
                               else {}),
-                           **({"converge_steps": args.converge_steps}
-                              if args.converge_steps is not None else {}),
+                           converge_steps=args.converge_steps,
                            **({"substitution": args.substitution} if args.substitution else {}))
         t0, c0 = time.perf_counter(), time.process_time()
 

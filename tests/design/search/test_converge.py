@@ -152,9 +152,9 @@ def test_a_refinement_round_projects_a_thickness_past_its_limit_and_ends_feasibl
 
 
 def test_search_config_converge_fields():
-    assert SearchConfig().converge_steps > 0    # on by default
+    assert SearchConfig().converge_steps == 0   # off by default (on in the command)
     for bad in ({"converge_steps": -1}, {"converge_chunk": 0}, {"converge_tol": -0.1},
                 {"converge_tol": math.inf}):
         with pytest.raises(ValueError, match="converge"):
             SearchConfig(**bad)
-    assert copy.copy(SearchConfig(converge_steps=0)).converge_steps == 0
+    assert copy.copy(SearchConfig(converge_steps=40)).converge_steps == 40
