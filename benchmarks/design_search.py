@@ -16,7 +16,7 @@ same way on its own semi-diameters (it vignettes its outer field).
         [--seidel-rebalance-floor thin|none]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
         [--rank-k 4] [--substitute-strategy joint|sequential] [--converge-tol 0.01]
-        [--converge-rounds 8] [--json OUT.json]
+        [--converge-rounds 8] [--converge-steps 120] [--json OUT.json]
         [--save-models DIR [--models-only] | --from-models DIR]
 
 ``--glass-mode model``: the spec's glasses become model glasses in SCHOTT's glass region
@@ -135,6 +135,10 @@ def main(argv=None) -> int:
                    help="SearchConfig.converge_tol (default: its default)")
     p.add_argument("--converge-rounds", type=int, default=None,
                    help="SearchConfig.converge_rounds (default: its default)")
+    p.add_argument("--converge-steps", type=int, default=120,
+                   help="SearchConfig.converge_steps: the kept design refined on the final "
+                        "rays until converged, at most this many DLS steps (0: off; default "
+                        "120, as the command)")
     p.add_argument("--json", help="also write the numbers here")
     p.add_argument("--save-models", metavar="DIR",
                    help="save each seed's model-glass designs before substitution")
@@ -171,6 +175,7 @@ def main(argv=None) -> int:
                            snap_count=args.snap_count, rank_k=args.rank_k,
                            **({"rank_keep": args.rank_keep} if args.rank_keep is not None
                               else {}),
+                           converge_steps=args.converge_steps,
                            **({"substitution": args.substitution} if args.substitution else {}),
                            **({"glass_radius": args.glass_radius} if args.glass_radius else {}),
                            **{k: getattr(args, k) for k in ("substitute_strategy",

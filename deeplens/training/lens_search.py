@@ -175,7 +175,9 @@ def _search_config(given, key: str):
              "seidel_steps": (lambda v: _int(v, 0), "an integer >= 0"),
              "seidel_rebalance": (lambda v: _int(v, 0), "an integer >= 0"),
              "seidel_rebalance_floor": (lambda v: v in REBALANCE_FLOORS,
-                                        " or ".join(map(repr, REBALANCE_FLOORS)))}
+                                        " or ".join(map(repr, REBALANCE_FLOORS))),
+             "converge_steps": (lambda v: _int(v, 0), "an integer >= 0"),
+             "converge_chunk": (lambda v: _int(v, 1), "an integer >= 1")}
     for name, v in given.items():
         if name in _STAGE_FIELDS:
             vals[name] = _stages(v, f"{key}.{name}")

@@ -742,6 +742,15 @@ MUTATIONS = [
              "re-optimisation", "deeplens/design/search/glass.py",
              "            val = float(reoptimize(cand))",
              "            val = float(reoptimize(copy.deepcopy(cand)))", SUBSTITUTION),
+    Mutation("stop_shift_moves_the_lens", "place_stops moves the stop and everything behind "
+             "it instead of the stop alone", "deeplens/design/search/refine.py",
+             "                        lens.distances[k + 1].sub_(sign * step)",
+             "                        pass", ("tests/design/search/test_refine_converge.py",)),
+    Mutation("converge_rule_absolute", "the convergence rule compares a chunk's gain with tol "
+             "itself, not tol times the merit", "deeplens/design/search/refine.py",
+             "flat = flat + 1 if before - merit < tol * before else 0",
+             "flat = flat + 1 if before - merit < tol else 0",
+             ("tests/design/search/test_refine_converge.py",)),
     # ------------------------------------------------ unseen real files (issue 37)
     Mutation("sqap_stop_floa_pupil_widened", "a SQAP on a lens stop under FLOA floats the "
              "pupil on the rectangle's half-diagonal, not the stop's DIAM",

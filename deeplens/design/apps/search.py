@@ -90,6 +90,13 @@ def add_arguments(p) -> None:
     g.add_argument("--seidel-rebalance-floor", choices=["thin", "none"], default="thin",
                    help="thin: the re-balancing gains nothing below the thin system's own "
                         "third-order RMS (default); none: no floor")
+    g.add_argument("--converge-steps", type=int, default=120,
+                   help="DLS steps at most refining each kept design on the final rays until "
+                        "converged (default 120; 0: off)")
+    g.add_argument("--converge-tol", type=float, default=0.01,
+                   help="converged: two rounds of 10 steps each lowered the merit by less "
+                        "than this fraction; also the glass substitution's convergence rule "
+                        "(default 0.01)")
     g.add_argument("--count-trade", metavar="LO-HI",
                    help="element count as a variable: search at --elements, then thin down to "
                    "LO and split up to HI elements (each refined --polish-steps DLS steps); "
@@ -139,7 +146,8 @@ def run(args) -> dict:
                        and math.isinf(spec.object_distance_mm) else 0,
                        seidel_steps=args.seidel_steps,
                        seidel_rebalance=args.seidel_rebalance,
-                       seidel_rebalance_floor=args.seidel_rebalance_floor)
+                       seidel_rebalance_floor=args.seidel_rebalance_floor,
+                       converge_steps=args.converge_steps, converge_tol=args.converge_tol)
 
     def progress(text):
         if not args.quiet:

@@ -35,8 +35,14 @@
    the result refined (``hop``);
    it replaces the current design when it scores better (greedy; ``temperature > 0`` accepts a
    worse one with probability ``exp(-Δ / T)``, Δ in µm of RMS spot).
-6. **Keep** the best ``keep`` distinct designs; each gets its focal length made exact
-   (:func:`~.start.solve_efl`), semi-diameters fitted to its beam and a dense evaluation.
+6. **Keep** the best ``keep`` distinct designs; each is refined on the final rays
+   (``final_sampling``) until converged (:func:`~.refine.refine_to_convergence`: rounds of
+   ``converge_chunk`` DLS steps until two rounds in a row each lower the merit by less than
+   ``converge_tol`` of it, at most ``converge_steps`` steps; 0, the default here: off; the
+   command and the benchmark use 120), then gets its focal
+   length made exact (:func:`~.start.solve_efl`), semi-diameters fitted to its beam and a
+   dense evaluation; the converged design replaces the design as found only if it scores
+   better.
 7. **Glass substitution** (a spec with ``glass_mode="model"`` only).  Every start's glasses
    become :class:`~.glass.TrainableModelGlass` (normal-line dispersion) at the start's
    ``(n_d, V_d)`` projected into the :class:`~.glass_region.GlassRegion` of the spec's
@@ -83,7 +89,7 @@ import torch
 from .glass import TrainableModelGlass, use_model_glasses
 from .problem import search_variables
 from .refine import (CURRICULUM, STANDARD, Stage, aspheric_choice, fit_semi_diameters, refine,
-                     repair_edges)
+                     refine_to_convergence, repair_edges)
 from .result import evaluate
 from .spec import DesignSpec
 from .start import StartError, flat_start, solve_efl, start_dimensions, thin_lens_start
@@ -136,6 +142,8 @@ class SearchConfig:
     seidel_steps: int = 100
     seidel_rebalance: int = 0
     seidel_rebalance_floor: str = "thin"
+    converge_steps: int = 0
+    converge_chunk: int = 10
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
@@ -171,6 +179,11 @@ class SearchConfig:
         if int(self.seidel_screen) and (self.prescreen or self.start_kind != "thin"):
             raise ValueError("seidel_screen needs start_kind='thin' and prescreen=0 (it "
                              "chooses the thin-lens starts itself)")
+        if int(self.converge_steps) < 0 or int(self.converge_chunk) < 1 or not (
+                math.isfinite(float(self.converge_tol)) and float(self.converge_tol) >= 0):
+            raise ValueError(f"converge_steps must be >= 0, converge_chunk >= 1 and "
+                             f"converge_tol a finite number >= 0, got {self.converge_steps!r}, "
+                             f"{self.converge_chunk!r}, {self.converge_tol!r}")
         if int(self.prescreen) < 0:
             raise ValueError(f"prescreen must be >= 0, got {self.prescreen!r}")
         if int(self.rank_keep) < 0:
@@ -496,16 +509,37 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
             + "; ".join(pool[-1].metrics["constraints_broken"])[:60] + ")")
         say(f"hop {h + 1}/{cfg.hops}: {rec.get('rms_um', math.nan):.2f} um{feas}"
             f"{' (accepted)' if accepted else ''}; current {current.metrics['rms_um']:.2f} um")
-    # keep the best distinct designs, finished
+    # keep the best distinct designs, each refined to convergence on the final rays, finished
     kept = []
     for dsg in deduplicate(pool, cfg.dedup_tol):
         if len(kept) >= cfg.keep:
             break
-        lens = copy.deepcopy(dsg.lens)
         try:
-            kept.append(_finish(lens, spec, dsg.origin, cfg))
+            done = _finish(copy.deepcopy(dsg.lens), spec, dsg.origin, cfg)
         except (ValueError, RuntimeError):
             continue
+        if cfg.converge_steps > 0 and not out_of_time():
+            plain = done.metrics["rms_um"]
+            lens = copy.deepcopy(dsg.lens)
+            r = refine_to_convergence(lens, spec, cfg.final_sampling, tol=cfg.converge_tol,
+                                      max_steps=int(cfg.converge_steps),
+                                      chunk=int(cfg.converge_chunk),
+                                      aspheric_surfaces=aspheric_choice(lens, spec.aspheres)
+                                      if spec.aspheres else (), glass_region=region)
+            rec = {"origin": f"converge {dsg.origin}", "ok": r.ok, "reason": r.reason,
+                   "seconds": r.seconds, "history": r.history, "steps": r.steps}
+            if r.ok:
+                try:
+                    conv = _finish(lens, spec, f"{dsg.origin}, converged", cfg)
+                    rec["rms_um"] = conv.metrics["rms_um"]
+                    if conv.key < done.key:
+                        done = conv
+                except (ValueError, RuntimeError) as e:
+                    rec["ok"], rec["reason"] = False, f"evaluation: {e}"
+            runs.append(rec)
+            say(f"converge: {rec.get('rms_um', math.nan):.2f} um from {plain:.2f} um "
+                f"({dsg.origin}; {r.steps} steps, {r.reason[:60]})")
+        kept.append(done)
     kept.sort(key=lambda d: d.key)
     if region is not None:   # step 7: real glasses for every kept model-glass design
         if model_designs is not None:

@@ -14,6 +14,15 @@ semi-diameters are re-fitted after every stage, and the final evaluation clips a
 met, soft (penalties only) before.  A stage that cannot start (a field fully vignetted,
 surfaces that cross once the semi-diameters follow the beam) ends the refinement: the start
 is then reported as failed, with the reason.
+
+Each round of a stage (its ``rounds``, which re-find the pupils) first sizes the stop for the
+EPD and projects the lens onto the constraints that can be met without changing its optics:
+a stop that has slid into a neighbour's sag (its ``stop_gap`` constraint, which the stop's
+growth on resizing alone can break) is shifted back by the shortfall (:func:`place_stops`),
+and a centre thickness past its limit is set onto it; so the round can keep its constraints
+hard rather than end a few µm infeasible (a double Gauss design at 9.5 µm was discarded for
+a stop 0.10 mm inside the surface before it).  :func:`refine_to_convergence` runs rounds of
+a few steps until :func:`run_to_convergence`'s relative stop rule ends them.
 """
 
 from __future__ import annotations
@@ -33,13 +42,14 @@ from ...optics.options import TraceOptions
 from ..constraints import ConstraintSet, variable_bounds
 from ..lensopt import optimize_lens
 from .glass import project_model_glasses
-from .imaging import repair_stop_gaps
+from .imaging import repair_stop_gaps, stop_constraints
 from .problem import real_surfaces, search_merit, search_variables, spec_constraints
 from .spec import DesignSpec
 from .start import solve_efl
 
 __all__ = ["Stage", "RefineResult", "refine", "fit_semi_diameters", "set_curriculum",
-           "repair_edges", "aspheric_choice",
+           "repair_edges", "aspheric_choice", "place_stops", "run_to_convergence",
+           "refine_to_convergence",
            "CURRICULUM", "STANDARD"]
 
 
@@ -182,6 +192,82 @@ def repair_edges(lens, spec: DesignSpec, margin_mm: float = 0.01) -> None:
                 lens.distances[q].add_(short + margin_mm)
 
 
+def place_stops(lens, spec: DesignSpec, aperture: float = 1.0, margin_mm: float = 2e-3,
+                iterations: int = 4) -> None:
+    """Move every stop that breaks its ``stop_gap`` constraint (:mod:`.imaging`) back between
+    its neighbours, in place: the stop is resized for ``aperture`` x the spec's EPD (its
+    semi-diameter follows the pupil, so a stop that met its constraint during a refinement,
+    at the semi-diameter it had then, can break it once resized), and the stop alone is
+    shifted within its air gap by the shortfall + ``margin_mm`` (``distances[k]`` and
+    ``distances[k+1]`` change by opposite amounts: no lens moves), or, where the other side
+    of the gap has less room than that, the short side is widened
+    (:func:`~.imaging.repair_stop_gaps`).  Shifting the stop moves the pupils, hence its
+    size; repeated up to ``iterations`` times, the stop resized each time.  The projection
+    onto the stop's constraints that lets the next stage start with them met (and keep them
+    hard), instead of leaving a design a few µm infeasible after its last stage."""
+    with torch.no_grad():
+        for _ in range(iterations):
+            set_curriculum(lens, spec, aperture)
+            short = [(c, -float(c.value(lens))) for c in stop_constraints(lens, 0.0)]
+            short = [(c, s) for c, s in short if s > 0]
+            if not short:
+                return
+            for c, s in short:
+                k = int(c.label.split(".")[1])
+                before = c.label.endswith("before")
+                other = next((o for o in stop_constraints(lens, 0.0)
+                              if o.label == f"stop_gap.{k}.{'after' if before else 'before'}"),
+                             None)
+                room = math.inf if other is None else float(other.value(lens))
+                step = s + margin_mm
+                if room >= step + margin_mm:   # the stop alone moves, the lens stays
+                    sign = 1.0 if before else -1.0
+                    lens.distances[k].add_(sign * step)
+                    if k + 1 < len(lens.distances):
+                        lens.distances[k + 1].sub_(sign * step)
+                else:
+                    repair_stop_gaps(lens, margin_mm)
+        set_curriculum(lens, spec, aperture)
+
+
+def _round(lens, spec, st: Stage, steps: int, aspheric_surfaces, efl_weight, flat: bool,
+           glass_region):
+    """One round of a stage: the stop sized and placed (:func:`place_stops`), semi-diameters
+    fitted, edges repaired, constraints hard if they all hold, ``steps`` iterations; the EFL
+    re-solved after.  Returns ``(LensOptResult, hard)``."""
+    place_stops(lens, spec, st.aperture)
+    fields = [st.field * f for f in spec.fields_deg]
+    fit_semi_diameters(lens, fields, spec.wavelengths_nm)
+    repair_edges(lens, spec)
+    lens.check()
+    cons = spec_constraints(lens, spec)
+    solve = not flat
+    v = search_variables(lens, aspheric_surfaces, efl_solve=solve,
+                         glasses=glass_region is not None)
+    # a centre thickness past its limit (a kick, the soft penalties of a stage before) is
+    # projected onto it: the optimiser's box, where a hard stage keeps it (a thickness within
+    # its limit's tolerance but past the limit itself would lie outside that box)
+    lo, hi = variable_bounds(v, cons)
+    x0 = v.x0()
+    x = torch.minimum(torch.maximum(x0, lo), hi)
+    if not torch.equal(x, x0):
+        v.assign(x)
+        repair_edges(lens, spec)
+        lens.check()
+    hard = not ConstraintSet(cons).broken(lens)
+    merit = search_merit(spec, cons, sampling=st.sampling, field_scale=st.field,
+                         efl_weight=efl_weight, efl_solve=solve, glass_region=glass_region)
+    if st.method != "dls":
+        merit = _Normalised(merit)
+    out = optimize_lens(Camera(lens, None, _FLOATING), v, merit, method=st.method, steps=steps,
+                        constraints=cons if hard else (), jacobian_mode="central")
+    if glass_region is not None:
+        project_model_glasses(lens, glass_region)
+    if solve:
+        solve_efl(lens, spec.efl_mm)
+    return out, hard
+
+
 def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
            efl_weight: float | None = None, flat: bool = False,
            glass_region=None) -> RefineResult:
@@ -197,42 +283,84 @@ def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
     res = RefineResult(ok=False)
     try:
         for st in stages:
-            set_curriculum(lens, spec, st.aperture)
-            fields = [st.field * f for f in spec.fields_deg]
-            fit_semi_diameters(lens, fields, spec.wavelengths_nm)
-            repair_edges(lens, spec)
-            repair_stop_gaps(lens, stop_only=True)   # the stop resized for the EPD may cut a
-            # surface: it moves within its gap (the focus unchanged)
-            lens.check()
-            cons = spec_constraints(lens, spec)
-            hard = not ConstraintSet(cons).broken(lens)
-            solve = not flat
-            merit = search_merit(spec, cons, sampling=st.sampling, field_scale=st.field,
-                                 efl_weight=efl_weight, efl_solve=solve,
-                                 glass_region=glass_region)
-            v = search_variables(lens, aspheric_surfaces, efl_solve=solve,
-                                 glasses=glass_region is not None)
-            if hard:   # a thickness within its limit's tolerance (1e-3 mm) but past the
-                # limit itself would lie outside the optimiser's box: clip it onto the limit
-                lo, hi = variable_bounds(v, cons)
-                x0 = v.x0()
-                x = torch.minimum(torch.maximum(x0, lo), hi)
-                if not torch.equal(x, x0):
-                    v.assign(x)
-            if st.method != "dls":
-                merit = _Normalised(merit)
-            out = optimize_lens(Camera(lens, None, _FLOATING), v, merit, method=st.method,
-                                steps=st.steps, rounds=st.rounds,
-                                constraints=cons if hard else (), jacobian_mode="central")
-            if glass_region is not None:
-                project_model_glasses(lens, glass_region)
-            if solve:
-                solve_efl(lens, spec.efl_mm)
-            flat = False   # a flat start has power after its first stage
+            per = [st.steps // st.rounds + (1 if k < st.steps % st.rounds else 0)
+                   for k in range(st.rounds)]
+            for n in per:   # each round re-sizes the stop for the EPD before its pupils are
+                # found (optimize_lens's own rounds would find them at the stop's old size,
+                # and the entrance pupil drifts with the front group)
+                if n == 0:
+                    continue
+                out, hard = _round(lens, spec, st, n, aspheric_surfaces, efl_weight, flat,
+                                   glass_region)
+                flat = False   # a flat start has power after its first stage
+                res.history += [h["merit"] for h in out.history if h["accepted"]]
+                res.merit, res.reason, res.hard = out.merit_after, out.reason, hard
+                res.steps += out.steps
+        place_stops(lens, spec, 1.0)
+        fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
+        repair_edges(lens, spec)
+        lens.check()
+        res.ok = True
+    except (ValueError, RuntimeError) as e:
+        res.ok, res.reason = False, f"{type(e).__name__}: {e}"
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+def run_to_convergence(step, *, tol: float, max_steps: int, chunk: int = 10,
+                       patience: int = 2) -> tuple[float, int, str, list]:
+    """The stop rule of a refinement run to convergence: ``step(n)`` runs ``n`` more
+    iterations and returns ``(merit_before, merit_after, steps_done)`` (each chunk may
+    re-prepare its merit, so a chunk's gain is measured on its own merit); chunks of
+    ``chunk`` iterations run until ``patience`` consecutive chunks each lowered the merit by
+    less than ``tol`` times their merit before (a relative rule: the same for any scale of the
+    merit), until ``max_steps`` iterations, or until a chunk does no step (the optimiser
+    stopped itself).
+
+    Returns:
+        ``(merit, steps, reason, merits)``: the final merit, the iterations run, why it
+        stopped and the merit after each chunk.
+    """
+    if not (tol >= 0 and max_steps >= 0 and chunk >= 1 and patience >= 1):
+        raise ValueError(f"run_to_convergence: tol, max_steps >= 0, chunk, patience >= 1, got "
+                         f"{tol!r}, {max_steps!r}, {chunk!r}, {patience!r}")
+    merit, done, flat, merits = math.nan, 0, 0, []
+    while done < max_steps:
+        before, merit, n = step(min(chunk, max_steps - done))
+        before, merit = float(before), float(merit)
+        merits.append(merit)
+        done += n
+        if n == 0:
+            return merit, done, "the optimiser stopped", merits
+        flat = flat + 1 if before - merit < tol * before else 0
+        if flat >= patience:
+            return merit, done, (f"converged: {patience} chunk(s) of {chunk} steps each "
+                                 f"lowered the merit by less than {tol:g} of it"), merits
+    return merit, done, f"reached the step limit ({max_steps})", merits
+
+
+def refine_to_convergence(lens, spec: DesignSpec, sampling: str = "hexapolar:12", *,
+                          tol: float = 0.01, max_steps: int = 120, chunk: int = 10,
+                          aspheric_surfaces=(), glass_region=None) -> RefineResult:
+    """DLS on ``lens`` (in place) in rounds of ``chunk`` steps on ``sampling`` (the stop
+    placed and sized, pupils found, semi-diameters fitted, edges repaired before each, as in
+    :func:`refine`) until :func:`run_to_convergence`'s rule stops it: a polish whose length
+    follows the design (its number of variables, how far it is from its minimum) rather than
+    a fixed count of steps.  A round that cannot start ends it: ``ok`` is then ``False``, and
+    the lens keeps the last round's result."""
+    t0 = time.perf_counter()
+    res = RefineResult(ok=False)
+    try:
+        def step(n):
+            out, hard = _round(lens, spec, Stage(n, sampling), n, aspheric_surfaces, None,
+                               False, glass_region)
             res.history += [h["merit"] for h in out.history if h["accepted"]]
-            res.merit, res.reason, res.hard = out.merit_after, out.reason, hard
-            res.steps += out.steps
-        set_curriculum(lens, spec, 1.0)
+            res.hard = hard
+            return out.merit_before, out.merit_after, out.steps
+
+        res.merit, res.steps, res.reason, _ = run_to_convergence(
+            step, tol=tol, max_steps=max_steps, chunk=chunk)
+        place_stops(lens, spec, 1.0)
         fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
         repair_edges(lens, spec)
         repair_stop_gaps(lens, stop_only=True)

@@ -29,7 +29,7 @@ SPEC = dict(efl_mm=100.0, fno=8.0, hfov_deg=0.0, elements=1, wavelengths_nm=[486
 TINY = dict(starts=1, screen=(Stage(2, "hexapolar:2"),), polish_count=1,
             polish=(Stage(1, "hexapolar:2"),), hops=0, keep=1, score_sampling="hexapolar:2",
             final_sampling="hexapolar:3", substitute=(Stage(1, "hexapolar:2"),), substitute_k=2,
-            snap_stage=(Stage(1, "hexapolar:2"),), snap_count=2)
+            snap_stage=(Stage(1, "hexapolar:2"),), snap_count=2, converge_steps=0)
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,8 @@ from deeplens.optics.io import load_lens
 SINGLET = ["design", "search", "--efl", "100", "--fno", "16", "--hfov", "0", "--elements", "1",
            "--wavelengths", "587.5618", "--glasses", "N-BK7", "--stop", "front", "--starts", "1",
            "--polish", "1", "--hops", "1", "--keep", "2", "--screen-steps", "2",
-           "--polish-steps", "2", "--hop-steps", "2", "--quiet", "--json"]
+           "--polish-steps", "2", "--hop-steps", "2", "--converge-steps", "4", "--quiet",
+           "--json"]
 
 
 def test_search_writes_a_lens_every_command_reads(tmp_path, capsys):
@@ -29,6 +30,8 @@ def test_search_writes_a_lens_every_command_reads(tmp_path, capsys):
     assert {"rms_um_per_field_wavelength", "efl_mm", "fno", "total_track_mm", "constraints",
             "feasible"} <= set(res["best"])
     assert res["seconds"] > 0 and res["runs"]
+    conv = [run for run in res["runs"] if run["origin"].startswith("converge")]
+    assert conv and all(run["steps"] <= 4 for run in conv)   # --converge-steps reached
     code, out, err = run_cli(["report", str(tmp_path / "best.json"), "--json",
                               "--sampling", "hexapolar:3"], capsys)
     assert code == 0, err
