@@ -740,8 +740,8 @@ MUTATIONS = [
              "return 0.0 * self.offset(n_d, v_d)", SUBSTITUTION),
     Mutation("substitution_keeps_unoptimised_lens", "the kept candidate is the lens before its "
              "re-optimisation", "deeplens/design/search/glass.py",
-             "            val = float(reoptimize(cand))",
-             "            val = float(reoptimize(copy.deepcopy(cand)))", SUBSTITUTION),
+             "        val = float(reoptimize(cand))",
+             "        val = float(reoptimize(copy.deepcopy(cand)))", SUBSTITUTION),
     Mutation("stop_shift_moves_the_lens", "place_stops moves the stop and everything behind "
              "it instead of the stop alone", "deeplens/design/search/refine.py",
              "                        lens.distances[k + 1].sub_(sign * step)",
@@ -772,8 +772,9 @@ MUTATIONS = [
     # ---------------------------- issue 36: the converged reference, sequential substitution
     Mutation("sequential_skips_reoptimisation", "the sequential substitution's candidates not "
              "re-optimised (scored as put in)", "deeplens/design/search/glass.py",
-             "                v = float(reoptimize(cand))",
-             "                v = float(score(cand) if score else 0.0)", SUBSTITUTION),
+             "            v = _score(reoptimize, cand, row)",
+             "            v = _score(lambda c: score(c) if score else 0.0, cand, row)",
+             SUBSTITUTION),
     Mutation("loss_against_unconverged_model", "the substitution's loss measured against the "
              "model design as the search left it, not converged",
              "deeplens/design/search/glass_stage.py", "            ref = d2\n",

@@ -345,6 +345,21 @@ class SubstitutionResult:
         return {i: g.label for i, g in self.chosen.items()}
 
 
+def _score(reoptimize, cand, row: dict) -> float:
+    """``reoptimize(cand)`` as a float, NaN where it fails or is not finite; ``row`` (a
+    substitution table row) gets the merit or the error."""
+    try:
+        val = float(reoptimize(cand))
+    except (ValueError, RuntimeError, ArithmeticError, Infeasible) as e:
+        row["error"] = f"{type(e).__name__}: {e}"
+        val = math.nan
+    if not math.isfinite(val):
+        row["error"] = row["error"] or f"non-finite merit {val!r}"
+    else:
+        row["merit"] = val
+    return val
+
+
 def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, merit=None,
                        k: int = 3, strategy: str = "auto", max_combinations: int = 27,
                        v_weight: float = V_WEIGHT, exclude: Iterable[str] = (),
@@ -419,15 +434,7 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
                "kept": False}
         if predicted is not None:
             row["predicted"] = predicted
-        try:
-            val = float(reoptimize(cand))
-        except (ValueError, RuntimeError, ArithmeticError, Infeasible) as e:
-            row["error"] = f"{type(e).__name__}: {e}"
-            val = math.nan
-        if not math.isfinite(val):
-            row["error"] = row["error"] or f"non-finite merit {val!r}"
-        else:
-            row["merit"] = val
+        val = _score(reoptimize, cand, row)
         table.append(row)
         return val, cand, row
 
@@ -670,15 +677,8 @@ def substitute_sequentially(lens, catalogues, reoptimize: Callable, *, k: int = 
             row = {"glasses": {**{j: x.label for j, x in chosen.items()}, i: g.label},
                    "distance": {**done, i: d}, "step": i, "merit": None, "error": "",
                    "kept": False}
-            try:
-                v = float(reoptimize(cand))
-            except (ValueError, RuntimeError, ArithmeticError, Infeasible) as e:
-                row["error"] = f"{type(e).__name__}: {e}"
-                v = math.nan
-            if not math.isfinite(v):
-                row["error"] = row["error"] or f"non-finite merit {v!r}"
-            else:
-                row["merit"] = v
+            v = _score(reoptimize, cand, row)
+            if math.isfinite(v):
                 if best is None or v < best[0]:
                     best = (v, cand, g, d, row)
             table.append(row)

@@ -230,6 +230,17 @@ def place_stops(lens, spec: DesignSpec, aperture: float = 1.0, margin_mm: float 
         set_curriculum(lens, spec, aperture)
 
 
+def _settle(lens, spec: DesignSpec) -> None:
+    """A refinement's end (in place): the stop sized for the EPD and placed between its
+    neighbours, semi-diameters fitted to the spec's full field, edges repaired, the stop moved
+    within its gap if the repair made it cut a surface, the lens checked."""
+    place_stops(lens, spec, 1.0)
+    fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
+    repair_edges(lens, spec)
+    repair_stop_gaps(lens, stop_only=True)
+    lens.check()
+
+
 def _round(lens, spec, st: Stage, steps: int, aspheric_surfaces, efl_weight, flat: bool,
            glass_region):
     """One round of a stage: the stop sized and placed (:func:`place_stops`), semi-diameters
@@ -296,10 +307,7 @@ def refine(lens, spec: DesignSpec, stages=STANDARD, aspheric_surfaces=(),
                 res.history += [h["merit"] for h in out.history if h["accepted"]]
                 res.merit, res.reason, res.hard = out.merit_after, out.reason, hard
                 res.steps += out.steps
-        place_stops(lens, spec, 1.0)
-        fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
-        repair_edges(lens, spec)
-        lens.check()
+        _settle(lens, spec)
         res.ok = True
     except (ValueError, RuntimeError) as e:
         res.ok, res.reason = False, f"{type(e).__name__}: {e}"
@@ -360,11 +368,7 @@ def refine_to_convergence(lens, spec: DesignSpec, sampling: str = "hexapolar:12"
 
         res.merit, res.steps, res.reason, _ = run_to_convergence(
             step, tol=tol, max_steps=max_steps, chunk=chunk)
-        place_stops(lens, spec, 1.0)
-        fit_semi_diameters(lens, spec.fields_deg, spec.wavelengths_nm)
-        repair_edges(lens, spec)
-        repair_stop_gaps(lens, stop_only=True)
-        lens.check()
+        _settle(lens, spec)
         res.ok = True
     except (ValueError, RuntimeError) as e:
         res.ok, res.reason = False, f"{type(e).__name__}: {e}"
