@@ -53,11 +53,18 @@ def report(path, *extra):
 
 
 def air_normalised(d: dict) -> dict:
-    """``lens_to_dict`` with VACUUM written as AIR (index 1 both; Zemax has one air)."""
+    """``lens_to_dict`` with VACUUM written as AIR (index 1 both; Zemax has one air), and a
+    glass written with its formula (a catalogue the built-in table does not hold, or holds
+    with other indices: the .zmx's previous-catalogue SSK4 against the table's rounded n_d/V_d)
+    named by its glass name."""
     d = copy.deepcopy(d)
-    d["object"]["medium"] = d["object"]["medium"].replace("VACUUM", "AIR")
+
+    def name(m):
+        return m["glass"] if isinstance(m, dict) else m.replace("VACUUM", "AIR")
+
+    d["object"]["medium"] = name(d["object"]["medium"])
     for s in d["surfaces"]:
-        s["material"] = s["material"].replace("VACUUM", "AIR")
+        s["material"] = name(s["material"])
     return d
 
 
