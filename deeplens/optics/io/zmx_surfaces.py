@@ -123,7 +123,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                else "OBSC, a central obscuration")
         p.fail(s.obsc[1], f"SURF {k}: {rec} on a {what} ({type(surf).__name__}), is not "
                           f"supported (deeplens has central obscurations on flat surfaces in "
-                          f"air and on STANDARD and EVENASPH lens and mirror surfaces: put the "
+                          f"air and on STANDARD, EVENASPH and Zernike sag lens and mirror "
+                          f"surfaces: put the "
                           f"obscuration on its own flat dummy surface where that is "
                           f"equivalent)")
     if s.sqap is not None and not (isinstance(surf, Cylinder) or (
