@@ -751,6 +751,24 @@ MUTATIONS = [
              "flat = flat + 1 if before - merit < tol * before else 0",
              "flat = flat + 1 if before - merit < tol else 0",
              ("tests/design/search/test_refine_converge.py",)),
+    # ---------------------------------- session 12: re-balancing, the ceiling, the roof
+    Mutation("rebalance_floor_ignored", "the re-balancing's floor ignored (a start gains below "
+             "its thin system's third-order RMS)", "deeplens/design/search/thick_polish.py",
+             "        r = rms if floor is None else torch.maximum(rms, floor)",
+             "        r = rms", ("tests/design/search/test_thick_polish.py",)),
+    Mutation("rebalance_efl_not_scaled", "the re-balanced systems not scaled back to the focal "
+             "length", "deeplens/design/search/thick_polish.py",
+             "        return ParaxialSystem(c / s[:, None], d * s[:, None], n, stop, primary), ok",
+             "        return ParaxialSystem(c, d, n, stop, primary), ok",
+             ("tests/design/search/test_thick_polish.py",)),
+    Mutation("perfect_sensor_at_f", "the perfect lens's sensor at f, not at the scene's image "
+             "distance f s / (s - f)", "deeplens/evaluation/perfect.py",
+             "    v = f if math.isinf(s) else f * s / (s - f)", "    v = f",
+             ("tests/training/test_perfect_variant.py",)),
+    Mutation("travel_axis_not_reflected", "the traced axis not reflected by a mirror inside "
+             "coordinate breaks (the mirror count's parity lost)", "deeplens/optics/frames.py",
+             "            a = [a[0], a[1], -a[2]]", "            a = [a[0], a[1], a[2]]",
+             ("tests/optics/io/test_zmx_prisms.py",)),
     # ------------------------------------------------ unseen real files (issue 37)
     Mutation("sqap_stop_floa_pupil_widened", "a SQAP on a lens stop under FLOA floats the "
              "pupil on the rectangle's half-diagonal, not the stop's DIAM",
