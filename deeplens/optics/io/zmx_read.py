@@ -491,6 +491,17 @@ def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locat
         p.fail(seq.kept[seq.stop_idx][2].line, "the stop has no semi-diameter (no DIAM, or 0) and the "
                                        "system aperture is FLOA (float by stop size): give the "
                                        "stop a DIAM or the system an ENPD/FNUM")
+    if ap_type == "stop":
+        s = seq.kept[seq.stop_idx][2]
+        if s.clap is not None and s.diam > 0 and s.clap[0] != s.diam:
+            # the file gives the stop two sizes; deeplens takes a CLAP as the surface's
+            # semi-diameter (zmx_surfaces.build_surface), so the pupil floats on it
+            p.note(s.clap[1], f"FLOA (float by stop size): the stop's CLAP radius {s.clap[0]:g} "
+                              f"and its DIAM {s.diam:g} "
+                              f"({'fixed' if s.diam_fixed else 'automatic'}) differ; the pupil "
+                              f"floats on the CLAP's radius (EPD in proportion: "
+                              f"x {s.clap[0] / s.diam:.6g} against the DIAM's); give both the "
+                              f"same value to choose")
     return ap_type, ap_value, ap_line, convert
 
 

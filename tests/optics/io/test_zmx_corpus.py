@@ -306,11 +306,21 @@ def _oracle(name, lens, gratings=True):
     if re.search(r"^FLOA\b", decode_zemax_text(CORPUS / name), re.M):
         stop = [b for b, t in zip(blocks, types) if t != "COORDBRK"
                 and re.search(r"^\s+STOP\b", b, re.M)]
-        diam = re.search(r"^\s+DIAM\s+(\S+)", stop[0], re.M)
-        optic.set_aperture(aperture_type="float_by_stop_size", value=2.0 * float(diam.group(1)))
+        optic.set_aperture(aperture_type="float_by_stop_size", value=2.0 * _floa_stop_radius(stop[0]))
         optic.set_aperture(aperture_type="EPD",
                            value=float(torch.as_tensor(optic.paraxial.EPD()).reshape(-1)[0]))
     return optic, s_mm
+
+
+def _floa_stop_radius(block):
+    """The radius a ``FLOA`` pupil floats on, from the stop's ``SURF`` block (file units): its
+    ``DIAM``, or the maximum radius of its ``CLAP`` where it has one (deeplens takes a ``CLAP``
+    as the surface's semi-diameter; where the two differ the reader says so in a located note,
+    Zemax guide, What is read)."""
+    clap = re.search(r"^\s+CLAP\s+\S+\s+(\S+)", block, re.M)
+    if clap is not None:
+        return float(clap.group(1))
+    return float(re.search(r"^\s+DIAM\s+(\S+)", block, re.M).group(1))
 
 
 def _first_order(lens, optic, s_mm, name):

@@ -26,20 +26,15 @@ import pytest
 
 from deeplens.optics.io.agf import decode_zemax_text
 from deeplens.optics.paraxial import paraxial
-from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _file_path_coords, _load,
-                             _medium_after, _unit_mm)
+from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _file_path_coords,
+                             _floa_stop_radius, _load, _medium_after, _unit_mm)
 
 #: file -> (the quantities rayoptics cannot confirm, the verified reason).  Every other loaded
 #: file is confirmed on all four numbers.
 NOT_CONFIRMED = {
-    # rayoptics 0.9.8 has no floating (float-by-stop-size) aperture: zmxread lists FLOA among the
-    # commands it does not support and keeps its default pupil (EPD 1); the EPD is checked
-    # against the stop's DIAM through rayoptics' own marginal ray instead (test below)
-    "optiland_lens_floa.zmx": ({"EPD"}, "FLOA not read by rayoptics (zmxread: not supported)"),
-    "nerfzemax_Ray_generation_for_NeRF_data_demo.zmx": (
-        {"EPD"}, "FLOA not read by rayoptics (zmxread: not supported)"),
-    "deeplens_zemax_double_gaussian.zmx": (
-        {"EPD"}, "FLOA not read by rayoptics (zmxread: not supported)"),
+    # (the three FLOA files, optiland_lens_floa, nerfzemax_Ray_generation_for_NeRF_data_demo and
+    # deeplens_zemax_double_gaussian, are confirmed since rayoptics' own marginal ray is scaled to
+    # the stop's size: _float_by_stop_size, test_floating_stop_pupil_is_rayoptics_own_ray)
     # an object space of index n0 = 0.999982 (the file's air at its temperature and pressure,
     # relative to the air at the reference conditions): rayoptics' entrance pupil distance is
     # deeplens' / n0² (to 1e-15: its compute_first_order divides by n_0 a principal-ray slope
@@ -49,6 +44,9 @@ NOT_CONFIRMED = {
     "patent2zemax_US20030048547A1-3.zmx": ({"EPD", "EP position"},
                                            "rayoptics' EP distance is reduced by n0² (n0 != 1)"),
 }
+
+#: where deeplens puts the sensor behind an image plane on the last vertex (mm; Zemax guide)
+IMAGE_ON_VERTEX_MM = 1e-9
 
 #: the numbers compared, by name
 QUANTITIES = ("EFL", "EPD", "EP position", "BFL")
@@ -110,8 +108,78 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
     pupil = opm["optical_spec"]["pupil"]
     if tuple(pupil.key) == ("object", "NA"):
         pupil.value = math.tan(math.asin(pupil.value / ns[0]))
+    # Zernike sag surfaces: zmxread reads CURV alone; deeplens' stated rule (the Zemax guide)
+    # takes the vertex curvature of the rotationally symmetric part, worked out here from the file
+    for k, cv in _zernike_vertex_curvatures(name).items():
+        sm.ifcs[k].profile.cv = cv
     _update(opm)
+    if re.search(r"^FLOA\b", decode_zemax_text(CORPUS / name), re.M):
+        _float_by_stop_size(name, opm)
     return opm
+
+
+def _surf_blocks(name):
+    """The file's ``SURF`` blocks, ``SURF 0`` first (block ``k`` is rayoptics' ``ifcs[k]``)."""
+    return re.split(r"^SURF\s+\d+.*$", decode_zemax_text(CORPUS / name), flags=re.M)[1:]
+
+
+def _float_by_stop_size(name, opm):
+    """FLOA (the pupil floats on the stop's semi-diameter ``DIAM``): rayoptics 0.9.8 lists FLOA
+    among the commands it does not support and keeps its default pupil (EPD 1).  The pupil the
+    file means is the one whose axial marginal ray meets the stop's rim: rayoptics' own axial
+    paraxial ray, scaled (a paraxial ray is linear in the pupil size), ``value *= r / |y_stop|``
+    with ``r`` the stop's ``DIAM`` (its ``CLAP``'s radius where it has one: deeplens' stated rule,
+    :func:`test_zmx_corpus._floa_stop_radius`); then every first-order number is rayoptics' own,
+    and the EPD depends on the file's stop size, not on deeplens' reading of it."""
+    sm = opm["seq_model"]
+    blocks = _surf_blocks(name)
+    stop = next(k for k, b in enumerate(blocks) if re.search(r"^\s+STOP\b", b, re.M))
+    # rayoptics keeps no stop index for a stop on SURF 1 (None: its first surface)
+    assert (sm.stop_surface if sm.stop_surface is not None else 1) == stop, \
+        "rayoptics' stop is not the file's: extend the oracle"
+    radius = _floa_stop_radius(blocks[stop])
+    pupil = opm["optical_spec"]["pupil"]
+    assert tuple(pupil.key) == ("object", "epd"), pupil.key
+    y_stop = abs(opm["analysis_results"]["parax_data"].ax_ray[stop][0])
+    pupil.value *= radius / y_stop
+    _update(opm)
+
+
+#: the rotationally symmetric Zernike terms (m = 0, n >= 2) by index: Fringe order (University
+#: of Arizona): Z4, Z9, Z16, Z25, Z36 (n = 2, 4, .., 10: j = (n/2 + 1)²) and Z37 (n = 12), no
+#: normalisation; Noll's order (OpticStudio's Standard): the first term of each even row n,
+#: j = n (n + 1) / 2 + 1 (Z4, Z11, Z22, Z37, ...), normalised by sqrt(n + 1)
+_M0_TERMS = {
+    "FZERNSAG": {**{(n // 2 + 1) ** 2: (n, 1.0) for n in range(2, 11, 2)}, 37: (12, 1.0)},
+    "SZERNSAG": {n * (n + 1) // 2 + 1: (n, math.sqrt(n + 1)) for n in range(2, 21, 2)},
+}
+
+
+def _zernike_vertex_curvatures(name):
+    """``{SURF k: vertex curvature}`` (file units) of the file's Zernike sag surfaces under the rule
+    deeplens states (Zemax guide, What is read): ``CURV + 2 PARM 1 + 2 Σ N_n A_j r_n / R_n²`` over
+    the rotationally symmetric terms, ``r_n = (-1)^(n/2 - 1) (n/2)(n/2 + 1)`` the ρ² coefficient of
+    the radial polynomial ``R_n^0``, ``A_j`` = ``XDAT j + 2``, ``R_n`` = ``XDAT 2``: written out
+    here from the polynomials' definitions, not taken from deeplens."""
+    out = {}
+    for k, b in enumerate(_surf_blocks(name)):
+        t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
+        if t is None or t.group(1) not in _M0_TERMS:
+            continue
+
+        def rec(key, i=None, b=b):
+            pat = rf"^\s+{key}\s+{i}\s+(\S+)" if i is not None else rf"^\s+{key}\s+(\S+)"
+            m = re.search(pat, b, re.M)
+            return float(m.group(1)) if m else 0.0
+
+        cv = rec("CURV") + 2.0 * rec("PARM", 1)
+        n_terms, r_n = int(rec("XDAT", 1)), rec("XDAT", 2)
+        for j, (n, norm) in _M0_TERMS[t.group(1)].items():
+            if j <= n_terms:
+                h = n // 2
+                cv += 2.0 * norm * (-1) ** (h - 1) * h * (h + 1) * rec("XDAT", j + 2) / r_n ** 2
+        out[k] = cv
+    return out
 
 
 def _update(opm):
@@ -165,6 +233,10 @@ def _numbers(name, lens, opm):
     p = paraxial(lens)
     _, _, q = _file_path_coords(CORPUS / name)
     first = float(_dl_path_coords(lens)[0]) - q[1] * s_mm   # deeplens surface 0 after SURF 1
+    if q[-2] == 0.0 and abs(float(lens.d_sensor)) == IMAGE_ON_VERTEX_MM:
+        # an image plane on the last vertex: deeplens puts the sensor 1e-9 mm behind it (Zemax
+        # guide, a located warning), which moves every path coordinate from the sensor by that
+        first += IMAGE_ON_VERTEX_MM
     ep_dl = (float(p.entrance_pupil_z) - float(lens.z_vertices()[0]) + first) / s_mm
     sign = (-1) ** len(lens.mirrors)   # rayoptics' image-space index sign (the mirror parity)
     bfl_dl = (float(p.bfl) + float(lens.z_vertices()[-1]) - float(lens.z_sensor())) / s_mm
@@ -207,24 +279,24 @@ def test_rayoptics_confirms_first_order_numbers(name, monkeypatch, tmp_path):
         assert _agrees(dl, ro), f"{what}: deeplens {dl!r} vs rayoptics {ro!r}"
 
 
-def test_floating_stop_pupil_through_rayoptics_marginal_ray(monkeypatch, tmp_path):
-    """FLOA (the pupil floats on the stop's semi-diameter DIAM), which rayoptics does not read:
-    its own axial paraxial ray, scaled to reach the stop's rim, gives the entrance pupil,
-    ``EPD = 2 DIAM y_EP / |y_stop|`` (``y_EP``: that ray's height at its entrance pupil, its
-    ``enp_radius``; ``y_stop``: at the stop surface)."""
-    name = "optiland_lens_floa.zmx"
+@pytest.mark.parametrize("name", ["optiland_lens_floa.zmx",
+                                  "nerfzemax_Ray_generation_for_NeRF_data_demo.zmx",
+                                  "deeplens_zemax_double_gaussian.zmx"])
+def test_floating_stop_pupil_is_rayoptics_own_ray(name, monkeypatch, tmp_path):
+    """FLOA (the pupil floats on the stop's semi-diameter DIAM), which rayoptics 0.9.8 does not
+    read (its default pupil, EPD 1, stays): the oracle scales rayoptics' own axial paraxial ray
+    to reach the stop's rim.  That ray meets the stop at DIAM (1e-12), the default was not the
+    pupil (the adaptation is needed), and the EPD it gives is deeplens' (1e-9)."""
     lens = _load(name)
     opm = _rayoptics(name, lens, monkeypatch, tmp_path)
-    sm = opm["seq_model"]
     pd = opm["analysis_results"]["parax_data"]
-    blocks = re.split(r"^SURF\s+\d+.*$", decode_zemax_text(CORPUS / name), flags=re.M)[1:]
+    blocks = _surf_blocks(name)
     stop = next(k for k, b in enumerate(blocks) if re.search(r"^\s+STOP\b", b, re.M))
-    assert sm.stop_surface == stop
     diam = float(re.search(r"^\s+DIAM\s+(\S+)", blocks[stop], re.M).group(1))
-    y_stop = abs(pd.ax_ray[stop][0])
-    epd_ro = 2.0 * pd.fod.enp_radius * diam / y_stop
+    assert abs(pd.ax_ray[stop][0]) == pytest.approx(diam, rel=1e-12)
+    assert opm["optical_spec"]["pupil"].value != pytest.approx(1.0, rel=1e-3)
     epd_dl = float(paraxial(lens).entrance_pupil_diameter) / _unit_mm(name)
-    assert _agrees(epd_dl, epd_ro), (epd_dl, epd_ro)
+    assert _agrees(epd_dl, _enp(opm)[0]), (epd_dl, _enp(opm)[0])
 
 
 def test_object_space_index_in_rayoptics_pupil(monkeypatch, tmp_path):
@@ -237,3 +309,39 @@ def test_object_space_index_in_rayoptics_pupil(monkeypatch, tmp_path):
     assert abs(n0 - 1.0) > 1e-5
     dl, ro = _numbers(name, lens, opm)["EP position"]
     assert ro * n0 ** 2 == pytest.approx(dl, rel=1e-12)
+
+
+SINGLET = CORPUS.parent / "zmx_opticstudio" / "zernike_sag_singlet.zmx"
+
+
+@pytest.mark.parametrize("kind", ["SZERNSAG", "FZERNSAG"])
+def test_zernike_sag_vertex_curvature_rule_through_rayoptics(kind, monkeypatch, tmp_path):
+    """A Zernike sag singlet (Standard, and the same records read as Fringe terms): deeplens'
+    EFL, EPD, pupil position and back focus equal rayoptics' once rayoptics, which reads CURV
+    alone, is given the vertex curvature of the rule deeplens states, worked out by the oracle
+    from the file (``CURV + 2 PARM 1 + 2 Σ N_n A_j r_n / R_n²``: Noll Z4 and Z11, Fringe Z4 only,
+    since Fringe Z11 is a trefoil); the rule matters: from CURV alone the EFL is > 1 % apart."""
+    import sys
+
+    import test_zmx_corpus as tc
+    from deeplens.optics.io.zmx import read_zmx
+
+    (tmp_path / "z.zmx").write_text(SINGLET.read_text().replace("TYPE SZERNSAG", f"TYPE {kind}"))
+    monkeypatch.setattr(tc, "CORPUS", tmp_path)
+    monkeypatch.setattr(sys.modules[__name__], "CORPUS", tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(tmp_path / "z.zmx")
+    scratch = tmp_path / "ro"
+    scratch.mkdir()
+    cv = _zernike_vertex_curvatures("z.zmx")
+    m0 = 2.0 * (2.0 * 0.01 * (math.sqrt(3) if kind == "SZERNSAG" else 1.0)
+                + (6.0 * math.sqrt(5) * 0.002 if kind == "SZERNSAG" else 0.0)) / 25.0
+    assert cv == {2: pytest.approx(0.025 + 2 * 0.001 + m0, rel=1e-14)}
+    opm = _rayoptics("z.zmx", lens, monkeypatch, scratch)
+    for what, (dl, ro) in _numbers("z.zmx", lens, opm).items():
+        assert _agrees(dl, ro), f"{what}: deeplens {dl!r} vs rayoptics {ro!r}"
+    opm["seq_model"].ifcs[2].profile.cv = 0.025   # CURV alone
+    _update(opm)
+    dl, ro = _numbers("z.zmx", lens, opm)["EFL"]
+    assert abs(dl - ro) > 0.01 * abs(dl)
