@@ -194,6 +194,7 @@ class _Parse:
         self.cur: ZmxSurface | None = None
         self.unused: dict[str, tuple[int, int]] = {}   # keyword -> (first line, count)
         self.stop_at: tuple[int, int] | None = None   # (SURF number, line) of the first STOP
+        self.skip: tuple[int, int, int] | None = None   # (line, expected, written): a SURF gap
 
 
 # ---- system operands: read wherever they stand
@@ -494,8 +495,13 @@ def parse(path: Path):
     for r in records:
         if r.key == "SURF":
             idx = int(p.arg(r.tokens, 1, r.line, "surface number"))
-            if idx != len(st.surfs):
-                p.fail(r.line, f"SURF {idx} out of order: expected SURF {len(st.surfs)}")
+            if idx > len(st.surfs) > 0 and st.skip is None:
+                st.skip = (r.line, len(st.surfs), idx)   # read in file order; checked below
+            elif idx != len(st.surfs) + (st.skip[2] - st.skip[1] if st.skip else 0):
+                want = len(st.surfs) + (st.skip[2] - st.skip[1] if st.skip else 0)
+                p.fail(r.line, f"SURF {idx} out of order: expected SURF {want}" + (
+                    f" (the numbers skip from {st.skip[1] - 1} to {st.skip[2]} at line "
+                    f"{st.skip[0]})" if st.skip else ""))
             st.cur = ZmxSurface(line=r.line)
             st.surfs.append(st.cur)
             continue
@@ -514,6 +520,8 @@ def parse(path: Path):
     for kw, (first, count) in st.unused.items():   # one note per keyword, not one per line
         p.note(first, f"{kw} line not used by deeplens (ignored)"
                       + (f"; {count} such lines" if count > 1 else ""))
+    if st.skip is not None:
+        _check_skip(st.skip, records, p)
     surfs, sysd = st.surfs, st.sysd
     if not surfs:
         p.fail(0, "no SURF line: not a Zemax lens file, or the file is truncated")
@@ -523,6 +531,49 @@ def parse(path: Path):
     _check_magnitudes(sysd, surfs, p)
     _check_complete(surfs, p)
     return sysd, surfs, p
+
+
+#: records that name a surface by its number (or may: a pickup's or solve's source, a tolerance
+#: operand, a multi-configuration operand, the global coordinate reference surface)
+_NAMES_SURFACES = {"PZUP", "PPAR", "CURVSOLV", "THSO", "MAZH", "GLRS", "TOL", "TOLE", "MNUM"}
+
+
+def _names_a_surface(r: Record) -> bool:
+    """Whether record ``r`` names a surface by its number (conservatively: every record of
+    :data:`_NAMES_SURFACES` but ``GLRS 0`` and ``TOL TOFF``, a ``CURV`` whose solve type is not 0
+    (none) or 1 (variable), a ``GLAS`` whose solve type is not 0 (fixed), 1 (model) or 3
+    (substitute))."""
+    t = r.tokens
+    if r.key == "GLRS":
+        return len(t) > 1 and t[1] not in ("0", "0.0")
+    if r.key == "TOL":
+        return not (len(t) > 1 and t[1].upper() == "TOFF")
+    if r.key in _NAMES_SURFACES:
+        return True
+    if r.key == "CURV":
+        return len(t) > 2 and t[2] not in ("0", "1")
+    if r.key == "GLAS":
+        return len(t) > 2 and t[2] not in ("0", "1", "3")
+    return False
+
+
+def _check_skip(skip: tuple[int, int, int], records, p: Locator) -> None:
+    """A ``SURF`` number that skips (``SURF 39`` after ``SURF 37``): the blocks are read in file
+    order, the written numbers from there on one more than their places (``skip`` = (line, the
+    expected number, the written one)).  Refused when a record names a surface by number (then
+    that number means one surface by the file's numbering and another by place); otherwise one
+    located note."""
+    ln, expected, written = skip
+    refs = [r for r in records if _names_a_surface(r)]
+    if refs:
+        r = refs[0]
+        p.fail(r.line, f"{r.key} names a surface by number, and the SURF numbers skip from "
+                       f"{expected - 1} to {written} (line {ln}): from SURF {written} on the "
+                       f"file's numbers and the surfaces' places differ by {written - expected}, "
+                       f"so the number is ambiguous; renumber the SURF lines")
+    p.note(ln, f"SURF {written} follows SURF {expected - 1} (no SURF {expected}): the blocks are "
+               f"read in file order (SURF {written} is the lens' surface {expected}, and so on); "
+               f"no line of the file names a surface by number")
 
 
 def _check_magnitudes(sysd: dict, surfs: list[ZmxSurface], p: Locator) -> None:

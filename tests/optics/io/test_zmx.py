@@ -487,7 +487,8 @@ def line_of(text: str, needle: str) -> int:
     (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 550"), "WAVM 1", r"wavelength 550.0 µm"),
     (lambda t: t.replace("PWAV 2", "PWAV 3"), "PWAV", r"PWAV 3: the primary wavelength is not one"),
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", r"UNIT: unknown lens unit 'FURLONG'"),
-    (lambda t: t.replace("SURF 2", "SURF 7"), "SURF 7", r"SURF 7 out of order"),
+    (lambda t: t.replace("SURF 2", "SURF 7"), "SURF 3",
+     r"SURF 3 out of order: expected SURF 8 \(the numbers skip from 1 to 7 at line "),
     (lambda t: t.replace("  DIAM 8 1 0 0 1 \"\"\nSURF 4", "  CLAP 0 3 0\n  SQAP 2 2\nSURF 4"),
      "SQAP", r"SQAP on SURF 3: a rectangular aperture on a Asphere surface with a CLAP is not "
              r"supported"),
