@@ -79,6 +79,9 @@ MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
 TABULATED = ("tests/optics/io/test_tabulated_glass.py",)
 JONESMAT = ("tests/optics/io/test_zmx_jonesmat.py",)
 ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
+SURF_SKIP = ("tests/optics/io/test_zmx_surf_numbers.py",)
+FLOA_CLAP = ("tests/optics/io/test_zmx_floa_stop_clap.py",)
+ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
@@ -805,6 +808,18 @@ MUTATIONS = [
              "for g, d in nearest_glasses(*values(cur.materials[i]), catalogues, k, v_weight,",
              "for g, d in nearest_glasses(*values(cur.materials[i]), \"OHARA\", k, v_weight,",
              GLASS_SEARCH),
+    # issue 37, session 13 (files4): SURF-number skips, FLOA on a CLAP, the Zernike vertex
+    Mutation("surf_skip_refs_ignored", "SURF numbers that skip one read in file order even "
+             "when a line names a surface by number", "deeplens/optics/io/zmx_parse.py",
+             "refs = [r for r in records if _names_a_surface(r)]", "refs = []", SURF_SKIP),
+    Mutation("floa_clap_note_dropped", "a FLOA stop whose CLAP and DIAM differ floated on the "
+             "CLAP without the note", "deeplens/optics/io/zmx_read.py",
+             "s.clap is not None and s.diam > 0 and s.clap[0] != s.diam:",
+             "s.clap is not None and s.diam > 0 and s.clap[0] == s.diam:", FLOA_CLAP),
+    Mutation("zernike_vertex_terms_dropped", "the m = 0 Zernike terms left out of a Zernike "
+             "sag's paraxial curvature", "deeplens/optics/surfaces/zernike_sag.py",
+             "                cur = cur + 2.0 * norm(n, 0) * r2 * A / rn2",
+             "                cur = cur + 0.0 * norm(n, 0) * r2 * A / rn2", ZERN_RAYOPTICS),
 ]
 
 
