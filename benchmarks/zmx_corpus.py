@@ -84,14 +84,15 @@ def folder_oracles(root: Path):
     tc.CORPUS = tr.CORPUS = root
 
     def optiland(name, lens, tmp):
-        optic, s_mm = tc._oracle(name, lens)
-        first, ref = optic, name
-        if tc._has_decenters(name):
-            ref = tc._without_decenters(name, tmp)
-            first, _ = tc._oracle(ref, lens)
-        if tc._has_gratings(name):
-            first, _ = tc._oracle(name, lens, gratings=False)
-        try:
+        s_mm = tc._unit_mm(name)
+        try:   # the oracle itself asks optiland for a floating pupil (FLOA): it may decline too
+            optic, _ = tc._oracle(name, lens)
+            first, ref = optic, name
+            if tc._has_decenters(name):
+                ref = tc._without_decenters(name, tmp)
+                first, _ = tc._oracle(ref, lens)
+            if tc._has_gratings(name):
+                first, _ = tc._oracle(name, lens, gratings=False)
             numbers = tc._first_order(lens, first, s_mm, ref)
         except tc.UnsupportedParaxialGeometryError:
             numbers = None

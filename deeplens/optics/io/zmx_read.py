@@ -239,6 +239,12 @@ def _wavelengths(sysd: dict, p: Locator):
         p.fail(ftyp_line, "no active wavelength")
     waves_nm = []
     for v, ln in waves:
+        if math.isfinite(v) and v > 100.0:   # WAVM is in µm by the format: no unit to guess
+            hint = (f"; if {v:g} is in nanometres, write {v / 1000.0:g}" if v < 3000.0 else "")
+            kind = (f" ({v / 1000.0:g} mm: a millimetre or terahertz wave)" if v >= 1000.0
+                    else "")
+            p.fail(ln, f"wavelength {v!r} µm{kind} (WAVM values are micrometres) is beyond "
+                       f"deeplens' range of 0.01-100 µm (10 nm to 100 µm){hint}")
         try:
             check_wavelength_nm(v * 1000.0)
         except ValueError as e:

@@ -485,6 +485,12 @@ def line_of(text: str, needle: str) -> int:
      r"along -z, the direction of travel there \(after 1 mirror\)"),
     (lambda t: t.replace("ENPD 10", "OBNA 0.1 0"), "OBNA", r"OBNA"),
     (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 550"), "WAVM 1", r"wavelength 550.0 µm"),
+    (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 550"), "WAVM 1",
+     r"wavelength 550.0 µm \(WAVM values are micrometres\) is beyond deeplens' range of "
+     r"0.01-100 µm \(10 nm to 100 µm\); if 550 is in nanometres, write 0.55$"),
+    (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 3000"), "WAVM 1",   # a millimetre-wave lens
+     r"wavelength 3000.0 µm \(3 mm: a millimetre or terahertz wave\) \(WAVM values are "
+     r"micrometres\) is beyond deeplens' range of 0.01-100 µm \(10 nm to 100 µm\)$"),
     (lambda t: t.replace("PWAV 2", "PWAV 3"), "PWAV", r"PWAV 3: the primary wavelength is not one"),
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", r"UNIT: unknown lens unit 'FURLONG'"),
     (lambda t: t.replace("SURF 2", "SURF 7"), "SURF 3",

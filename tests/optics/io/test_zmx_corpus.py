@@ -114,7 +114,25 @@ def _dl_path_coords(lens):
     return torch.tensor([-sum(d[j:]) for j in range(len(lens.surfaces))], dtype=torch.float64)
 
 
-def _medium_after(lens, p_dl, q):
+def _plain_planes(path):
+    """Per non-``COORDBRK`` ``SURF`` block (object first): whether it is a plain plane
+    (``STANDARD``, ``CURV 0``, neither the stop nor a mirror), the kind of surface deeplens may
+    drop as a dummy (an independent reading of the file)."""
+    blocks = re.split(r"^SURF\s+\d+.*$", decode_zemax_text(path), flags=re.M)[1:]
+    out = []
+    for b in blocks:
+        t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
+        t = t.group(1).upper() if t else "STANDARD"
+        if t == "COORDBRK":
+            continue
+        c = re.search(r"^\s+CURV\s+(\S+)", b, re.M)
+        out.append(t == "STANDARD" and (c is None or float(c.group(1)) == 0.0)
+                   and not re.search(r"^\s+STOP\b", b, re.M)
+                   and not re.search(r"^\s+GLAS\s+MIRROR\b", b, re.M))
+    return out
+
+
+def _medium_after(lens, p_dl, q, plain=None):
     """For each file surface ``i`` but the image (``q``: the path coordinates of the file's
     non-``COORDBRK`` surfaces, object first), the index ``j`` of deeplens' medium after it
     (``lens.materials[j]`` follows deeplens surface ``j - 1``; ``p_dl``: deeplens' path
@@ -124,7 +142,10 @@ def _medium_after(lens, p_dl, q):
     lens's sag, a dummy's back-step) makes positions non-monotonic.  Where several file surfaces
     share one coordinate (a stop on a lens's vertex: ``DISZ 0``) and deeplens has as many there,
     they are matched one to one (else the stop would take the lens's glass, no refraction at
-    the lens's first face); with fewer (a dummy dropped), the group's last medium."""
+    the lens's first face); with fewer (a dummy dropped), the group's last medium, except that
+    where ``plain`` (:func:`_plain_planes`) marks every member but one as a plain plane and
+    deeplens has one surface there, the planes before that member keep the medium before the
+    group (a dummy at ``DISZ 0`` in front of a lens face: else the face would not refract)."""
     from deeplens.optics.surfaces import CoordinateBreak
 
     def close(a, b):
@@ -147,6 +168,11 @@ def _medium_after(lens, p_dl, q):
             while i + group < len(q) - 1 and close(q[i + group], q[i]):
                 group += 1
             one_to_one = group > 1 and at(j, q[i]) == group
+            members = plain[i:i + group] if plain is not None else []
+            if (plain is not None and group > 1 and not one_to_one and at(j, q[i]) == 1
+                    and plain[i] and sum(not m for m in members) == 1):
+                out.append(j)   # a dummy before the group's one surface: the medium before it
+                continue
             moved = False
             while j < len(lens.surfaces):
                 if isinstance(lens.surfaces[j], CoordinateBreak):
@@ -257,7 +283,7 @@ def _oracle(name, lens, gratings=True):
     q = [v for t, v in zip(types, q) if t != "COORDBRK"]   # optiland's surfaces
     surfs = optic.surface_group.surfaces
     assert len(surfs) == len(q)
-    for s, j in zip(surfs[:-1], _medium_after(lens, p_dl, q)):
+    for s, j in zip(surfs[:-1], _medium_after(lens, p_dl, q, _plain_planes(CORPUS / name))):
         s.material_post = IdealMaterial(n=n_dl[j])
     # OBSC (a central obscuration): optiland's reader skips it, so the oracle gets it here, as
     # an annular aperture (r_min) on the same surface
@@ -1079,6 +1105,27 @@ def test_oracle_media_match_a_stop_on_a_lens_vertex(tmp_path):
     n = [float(m.n(587.5618)) for m in lens.materials]
     media = [n[j] for j in _medium_after(lens, _dl_path_coords(lens), q)]
     assert media == [1.0, 1.0, 1.5, 1.0]   # object space, after the stop, the lens, after it
+    phi = 0.5 * 0.05 + 0.5 * 0.05 - 0.5 * 0.5 * 1.0 * 0.05 * 0.05 / 1.5   # thick lens, n 1.5
+    numbers = _first_order(lens, _oracle(f, lens)[0], 1.0, f)
+    assert numbers["EFL"][0] == pytest.approx(1.0 / phi, rel=1e-12)
+    assert numbers["EFL"][1] == pytest.approx(1.0 / phi, rel=1e-9)
+
+
+def test_oracle_media_match_a_dummy_on_a_lens_vertex(tmp_path):
+    """A plain plane at ``DISZ 0`` in front of the first lens face (a dummy, which deeplens
+    drops; a double Gauss of the fourth unseen set has one after its object): the oracles must
+    give the dummy the air before it and the face the glass; before, the dummy took the glass,
+    the face did not refract, and both oracles gave EFL 40 for this singlet (its thick-lens EFL
+    worked out by hand, as for the stop on a vertex)."""
+    f = tmp_path / "dummy_on_lens.zmx"
+    f.write_text(_STOP_ON_THE_LENS.replace("SURF 1\n  STOP\n", "SURF 1\n").replace(
+        "  CURV -0.05\n", "  STOP\n  CURV -0.05\n"))
+    lens = _load(f)
+    assert len(lens.surfaces) == 2   # the dummy is dropped; the stop is the rear face
+    q = _file_path_coords(f)[2]
+    n = [float(m.n(587.5618)) for m in lens.materials]
+    media = [n[j] for j in _medium_after(lens, _dl_path_coords(lens), q, _plain_planes(f))]
+    assert media == [1.0, 1.0, 1.5, 1.0]   # object space, after the dummy, the lens, after it
     phi = 0.5 * 0.05 + 0.5 * 0.05 - 0.5 * 0.5 * 1.0 * 0.05 * 0.05 / 1.5   # thick lens, n 1.5
     numbers = _first_order(lens, _oracle(f, lens)[0], 1.0, f)
     assert numbers["EFL"][0] == pytest.approx(1.0 / phi, rel=1e-12)

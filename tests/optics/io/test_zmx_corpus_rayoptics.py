@@ -27,7 +27,7 @@ import pytest
 from deeplens.optics.io.agf import decode_zemax_text
 from deeplens.optics.paraxial import paraxial
 from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _file_path_coords,
-                             _floa_stop_radius, _load, _medium_after, _unit_mm)
+                             _floa_stop_radius, _load, _medium_after, _plain_planes, _unit_mm)
 
 #: file -> (the quantities rayoptics cannot confirm, the verified reason).  Every other loaded
 #: file is confirmed on all four numbers.
@@ -65,7 +65,7 @@ def _media_per_gap(name, lens):
     keep = [k for k, t in enumerate(types) if t != "COORDBRK"]
     q = [q_all[k] for k in keep]
     out = [None] * len(types)
-    for k, j in zip(keep[:-1], _medium_after(lens, p_dl, q)):
+    for k, j in zip(keep[:-1], _medium_after(lens, p_dl, q, _plain_planes(CORPUS / name))):
         out[k] = n_dl[j]
     for k, n in enumerate(out):
         if n is None:   # a COORDBRK: the medium before it
