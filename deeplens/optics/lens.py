@@ -461,7 +461,11 @@ class Lens(nn.Module):
                 r = torch.linspace(0, r_max, 65, dtype=torch.float64)    # (R,)
                 x, y = r * cos_a, r * sin_a                              # (A, R)
                 gap = (z[j] + b.sag(x, y) - z[i] - a.sag(x, y)) * sign[j]
-                bad = (gap < -1e-9) & a.in_domain(x, y) & b.in_domain(x, y)
+                # only where both surfaces exist for the rays: inside both openings' outlines
+                # (a rectangle's corners, not its circumscribed circle: a cube's diagonal
+                # touches its faces at the edges; an obscuration's disc is still glass)
+                bad = ((gap < -1e-9) & a.in_domain(x, y) & b.in_domain(x, y)
+                       & a.opening.outer.contains(x, y) & b.opening.outer.contains(x, y))
                 if bool(bad.any()):
                     # the azimuth whose first crossing comes first (ties: the earlier azimuth)
                     first = torch.where(bad.any(-1), bad.int().argmax(-1), bad.shape[-1])
