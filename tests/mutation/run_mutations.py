@@ -604,6 +604,17 @@ MUTATIONS = [
              "R_n^(2i)", "deeplens/optics/io/surface_handlers.py",
              "ai = v * s_mm / rn ** (2 * i)", "ai = v * s_mm / rn ** i",
              ("tests/optics/io/test_zmx_xasphere.py",)),
+    Mutation("sqap_sag_surfaces_only", "a rectangular clear aperture refused on an implicit "
+             "surface (a TILTSURF's XYPolynomial) although it is tested at the hit's x, y",
+             "deeplens/optics/surfaces/base.py",
+             "    return issubclass(cls, Surface) and bool(cls.interaction.lands)",
+             "    return issubclass(cls, SagSurface) and bool(cls.interaction.lands)",
+             ("tests/optics/io/test_zmx_sqap_tilted.py",)),
+    Mutation("crossing_outside_openings", "surfaces checked for crossing over their whole "
+             "circumscribed circle, outside a rectangular opening (a cube's diagonal refused)",
+             "deeplens/optics/lens.py",
+             "& a.opening.outer.contains(x, y) & b.opening.outer.contains(x, y))", ")",
+             ("tests/optics/io/test_zmx_sqap_tilted.py",)),
     # ------------------------------------------------ hardening, round three, part 2 (issue 38)
     Mutation("budget_ignores_rlimit", "the memory budget ignores the process's address-space "
              "limit (ulimit -v): an allocator error instead of the setting",
