@@ -70,6 +70,11 @@ class LensSpec:
             height ``-s tan θ``).
         wavelengths_nm: wavelengths in nm.
         primary_wavelength_nm: the wavelength of paraxial quantities (default: the first).
+        wavelength_unit_stated: the wavelengths were read with their unit stated (a ``.zmx``
+            file's ``WAVM``, µm by the format): the unit guards for bare numbers
+            (:func:`~.materials.check_wavelength_nm`: above 100 µm looks like ångström or
+            picometres) are not applied; every medium's range still is (:meth:`Lens.check`),
+            so a millimetre-wave lens of constant-index media loads.
     """
 
     object_distance_mm: float = math.inf
@@ -78,6 +83,7 @@ class LensSpec:
     fields_deg: list = field(default_factory=lambda: [0.0])
     wavelengths_nm: list = field(default_factory=lambda: [587.5618])
     primary_wavelength_nm: float | None = None
+    wavelength_unit_stated: bool = False
 
     def __post_init__(self):
         if self.aperture_type not in ("stop", "epd", "fno"):
@@ -102,13 +108,15 @@ class LensSpec:
         if not len(self.wavelengths_nm):
             raise LensError("at least one wavelength is needed", key="wavelengths_nm")
         try:
-            check_wavelength_nm(list(self.wavelengths_nm), where="lens wavelengths: ")
+            check_wavelength_nm(list(self.wavelengths_nm), where="lens wavelengths: ",
+                                stated_unit=self.wavelength_unit_stated)
         except ValueError as e:
             raise LensError(str(e), key="wavelengths_nm") from None
         if self.primary_wavelength_nm is None:
             self.primary_wavelength_nm = float(self.wavelengths_nm[0])
         try:
-            check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ")
+            check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ",
+                                stated_unit=self.wavelength_unit_stated)
         except ValueError as e:
             raise LensError(str(e), key="primary_wavelength_nm") from None
 
