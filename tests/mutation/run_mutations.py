@@ -615,6 +615,15 @@ MUTATIONS = [
              "deeplens/optics/lens.py",
              "& a.opening.outer.contains(x, y) & b.opening.outer.contains(x, y))", ")",
              ("tests/optics/io/test_zmx_sqap_tilted.py",)),
+    Mutation("long_wave_medium_range_ignored", "the > 100 µm unit guard applied although the "
+             "medium's range covers the wavelength (a constant index at 3 mm refused)",
+             "deeplens/optics/materials.py", "    if hi > 1e5 and not (stated_unit or covered):",
+             "    if hi > 1e5 and not stated_unit:", ("tests/optics/io/test_zmx_long_waves.py",)),
+    Mutation("zmx_wavm_unit_not_stated", "a .zmx lens's wavelengths treated as bare numbers "
+             "(the WAVM µm unit forgotten: a millimetre-wave file refused)",
+             "deeplens/optics/io/zmx_read.py",
+             "primary_wavelength_nm=primary, wavelength_unit_stated=True)",
+             "primary_wavelength_nm=primary)", ("tests/optics/io/test_zmx_long_waves.py",)),
     # ------------------------------------------------ hardening, round three, part 2 (issue 38)
     Mutation("budget_ignores_rlimit", "the memory budget ignores the process's address-space "
              "limit (ulimit -v): an allocator error instead of the setting",
