@@ -624,6 +624,11 @@ MUTATIONS = [
              "deeplens/optics/io/zmx_read.py",
              "primary_wavelength_nm=primary, wavelength_unit_stated=True)",
              "primary_wavelength_nm=primary)", ("tests/optics/io/test_zmx_long_waves.py",)),
+    Mutation("object_at_zero_refused_before_gap", "an object at DISZ 0 refused although dummy "
+             "gaps put it before the first traced surface", "deeplens/optics/io/zmx_read.py",
+             "    if not (obj_dist >= 0 or (obj_dist < 0 and math.isfinite(obj_dist))):",
+             "    if not (obj_dist > 0 or (obj_dist < 0 and math.isfinite(obj_dist))):",
+             ("tests/optics/io/test_zmx_object_at_zero.py",)),
     # ------------------------------------------------ hardening, round three, part 2 (issue 38)
     Mutation("budget_ignores_rlimit", "the memory budget ignores the process's address-space "
              "limit (ulimit -v): an allocator error instead of the setting",

@@ -108,6 +108,13 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     obj_dist = seq.obj_dist
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
+        if obj_dist == 0:
+            p.fail(obj.disz_line or obj.line,
+                   f"the object lies on the first surface deeplens traces (SURF "
+                   f"{surfs.index(kept[0][2])}): the object distance (DISZ of SURF 0, "
+                   f"{obj.disz!r}) and the dummy gaps after it add up to 0; deeplens puts a "
+                   f"finite object at a distance != 0 from the first vertex (> 0, or < 0 for a "
+                   f"virtual object): insert a gap, or give the object a small distance")
     virtual = [False]
     d_sensor = _sensor(seq, img, p, virtual, primary)
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
@@ -330,9 +337,12 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     if obj.type != "STANDARD" or obj.curv != 0:
         p.fail(obj.line, "the object surface (SURF 0) must be a flat STANDARD surface")
     obj_dist = obj.disz * (1 if math.isinf(obj.disz) else s_mm)
-    if not (obj_dist > 0 or (obj_dist < 0 and math.isfinite(obj_dist))):
-        p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be > 0, "
-                                          f"< 0 (a virtual object) or INFINITY, got "
+    if not (obj_dist >= 0 or (obj_dist < 0 and math.isfinite(obj_dist))):
+        # (0: the object on SURF 1; read_zmx then asks for a gap before the first surface
+        # deeplens keeps, _object_distance)
+        p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be a "
+                                          f"number of lens units (> 0; < 0, a virtual object; "
+                                          f"0 before a dummy gap) or INFINITY, got "
                                           f"{obj.disz!r}")
     obj_medium = surface_material(obj, gcat, cats, glass_fallback, p, 4)
     media = [obj_medium]
