@@ -70,6 +70,11 @@ class LensSpec:
             height ``-s tan θ``).
         wavelengths_nm: wavelengths in nm.
         primary_wavelength_nm: the wavelength of paraxial quantities (default: the first).
+        wavelength_unit_stated: the wavelengths were read with their unit stated (a ``.zmx``
+            file's ``WAVM``, µm by the format): the unit guards for bare numbers
+            (:func:`~.materials.check_wavelength_nm`: above 100 µm looks like ångström or
+            picometres) are not applied; every medium's range still is (:meth:`Lens.check`),
+            so a millimetre-wave lens of constant-index media loads.
     """
 
     object_distance_mm: float = math.inf
@@ -78,6 +83,7 @@ class LensSpec:
     fields_deg: list = field(default_factory=lambda: [0.0])
     wavelengths_nm: list = field(default_factory=lambda: [587.5618])
     primary_wavelength_nm: float | None = None
+    wavelength_unit_stated: bool = False
 
     def __post_init__(self):
         if self.aperture_type not in ("stop", "epd", "fno"):
@@ -102,13 +108,15 @@ class LensSpec:
         if not len(self.wavelengths_nm):
             raise LensError("at least one wavelength is needed", key="wavelengths_nm")
         try:
-            check_wavelength_nm(list(self.wavelengths_nm), where="lens wavelengths: ")
+            check_wavelength_nm(list(self.wavelengths_nm), where="lens wavelengths: ",
+                                stated_unit=self.wavelength_unit_stated)
         except ValueError as e:
             raise LensError(str(e), key="wavelengths_nm") from None
         if self.primary_wavelength_nm is None:
             self.primary_wavelength_nm = float(self.wavelengths_nm[0])
         try:
-            check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ")
+            check_wavelength_nm(self.primary_wavelength_nm, where="primary wavelength: ",
+                                stated_unit=self.wavelength_unit_stated)
         except ValueError as e:
             raise LensError(str(e), key="primary_wavelength_nm") from None
 
@@ -461,7 +469,11 @@ class Lens(nn.Module):
                 r = torch.linspace(0, r_max, 65, dtype=torch.float64)    # (R,)
                 x, y = r * cos_a, r * sin_a                              # (A, R)
                 gap = (z[j] + b.sag(x, y) - z[i] - a.sag(x, y)) * sign[j]
-                bad = (gap < -1e-9) & a.in_domain(x, y) & b.in_domain(x, y)
+                # only where both surfaces exist for the rays: inside both openings' outlines
+                # (a rectangle's corners, not its circumscribed circle: a cube's diagonal
+                # touches its faces at the edges; an obscuration's disc is still glass)
+                bad = ((gap < -1e-9) & a.in_domain(x, y) & b.in_domain(x, y)
+                       & a.opening.outer.contains(x, y) & b.opening.outer.contains(x, y))
                 if bool(bad.any()):
                     # the azimuth whose first crossing comes first (ties: the earlier azimuth)
                     first = torch.where(bad.any(-1), bad.int().argmax(-1), bad.shape[-1])

@@ -117,7 +117,8 @@ def _minmax(w) -> tuple[float, float] | None:
     return _minmax(t)
 
 
-def check_wavelength_nm(w, material: "Material | None" = None, where: str = "") -> None:
+def check_wavelength_nm(w, material: "Material | None" = None, where: str = "", *,
+                        stated_unit: bool = False) -> None:
     """Raise ``ValueError`` unless every wavelength in ``w`` (nm) is usable.
 
     Args:
@@ -125,12 +126,17 @@ def check_wavelength_nm(w, material: "Material | None" = None, where: str = "") 
             Tensors are read detached (no autograd effect) with a single device synchronisation.
         material: if given, every value must lie in its ``wavelength_range_nm`` (inclusive).
         where: context put in front of the message, e.g. ``"lens wavelengths: "``.
+        stated_unit: the values were read with their unit stated (a ``.zmx`` file's ``WAVM``,
+            in µm by the format): the two unit guards below, which are for bare numbers, are
+            not applied (every other check is).
 
     Raises:
         ValueError: a value is not finite or ``<= 0``; all values are ``< 10`` (they look like
-            micrometres); a value is ``> 1e5`` nm (100 µm; it looks like ångström or picometres);
-            a value is ``< 10`` nm among plausible ones; or a value lies outside the material's
-            range (the message names the material, the value and the range).
+            micrometres); a value is ``> 1e5`` nm (100 µm; it looks like ångström or picometres)
+            and ``material``'s range does not reach it (a medium defined there, such as a
+            constant index or a millimetre-wave material, says the value is meant); a value is
+            ``< 10`` nm among plausible ones; or a value lies outside the material's range (the
+            message names the material, the value and the range).
     """
     mm = _minmax(w)
     if mm is None:
@@ -140,7 +146,7 @@ def check_wavelength_nm(w, material: "Material | None" = None, where: str = "") 
     if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0:
         bad = lo if (math.isnan(lo) or lo <= 0) else hi
         raise ValueError(f"{pre}wavelengths must be finite and > 0 nm; got {_fmt(bad)}")
-    if hi < 10.0:
+    if hi < 10.0 and not stated_unit:
         if lo == hi:
             got, fix = _fmt(lo), f"use {_fmt(lo * _NM_PER_UM)}"
         else:
@@ -148,7 +154,9 @@ def check_wavelength_nm(w, material: "Material | None" = None, where: str = "") 
             fix = f"use [{_fmt(lo * _NM_PER_UM)}, {_fmt(hi * _NM_PER_UM)}] (multiply by 1000)"
         raise ValueError(f"{pre}deeplens takes wavelengths in nanometres; got {got} — did you pass "
                          f"micrometres? {fix}")
-    if hi > 1e5:
+    covered = (material is not None and material.wavelength_range_nm[0] <= lo
+               and hi <= material.wavelength_range_nm[1])
+    if hi > 1e5 and not (stated_unit or covered):
         raise ValueError(f"{pre}deeplens takes wavelengths in nanometres; got {_fmt(hi)}, which is "
                          f"over 100 µm — did you pass ångström (divide by 10) or picometres "
                          f"(divide by 1000)? e.g. 587.56 nm = 5875.6 Å = 587560 pm")

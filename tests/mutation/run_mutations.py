@@ -604,6 +604,31 @@ MUTATIONS = [
              "R_n^(2i)", "deeplens/optics/io/surface_handlers.py",
              "ai = v * s_mm / rn ** (2 * i)", "ai = v * s_mm / rn ** i",
              ("tests/optics/io/test_zmx_xasphere.py",)),
+    Mutation("sqap_sag_surfaces_only", "a rectangular clear aperture refused on an implicit "
+             "surface (a TILTSURF's XYPolynomial) although it is tested at the hit's x, y",
+             "deeplens/optics/surfaces/base.py",
+             "    return issubclass(cls, Surface) and bool(cls.interaction.lands)",
+             "    return issubclass(cls, SagSurface) and bool(cls.interaction.lands)",
+             ("tests/optics/io/test_zmx_sqap_tilted.py",)),
+    Mutation("crossing_outside_openings", "surfaces checked for crossing over their whole "
+             "circumscribed circle, outside a rectangular opening (a cube's diagonal refused)",
+             "deeplens/optics/lens.py",
+             "& a.opening.outer.contains(x, y) & b.opening.outer.contains(x, y))", ")",
+             ("tests/optics/io/test_zmx_sqap_tilted.py",)),
+    Mutation("long_wave_medium_range_ignored", "the > 100 µm unit guard applied although the "
+             "medium's range covers the wavelength (a constant index at 3 mm refused)",
+             "deeplens/optics/materials.py", "    if hi > 1e5 and not (stated_unit or covered):",
+             "    if hi > 1e5 and not stated_unit:", ("tests/optics/io/test_zmx_long_waves.py",)),
+    Mutation("zmx_wavm_unit_not_stated", "a .zmx lens's wavelengths treated as bare numbers "
+             "(the WAVM µm unit forgotten: a millimetre-wave file refused)",
+             "deeplens/optics/io/zmx_read.py",
+             "primary_wavelength_nm=primary, wavelength_unit_stated=True)",
+             "primary_wavelength_nm=primary)", ("tests/optics/io/test_zmx_long_waves.py",)),
+    Mutation("object_at_zero_refused_before_gap", "an object at DISZ 0 refused although dummy "
+             "gaps put it before the first traced surface", "deeplens/optics/io/zmx_read.py",
+             "    if not (obj_dist >= 0 or (obj_dist < 0 and math.isfinite(obj_dist))):",
+             "    if not (obj_dist > 0 or (obj_dist < 0 and math.isfinite(obj_dist))):",
+             ("tests/optics/io/test_zmx_object_at_zero.py",)),
     # ------------------------------------------------ hardening, round three, part 2 (issue 38)
     Mutation("budget_ignores_rlimit", "the memory budget ignores the process's address-space "
              "limit (ulimit -v): an allocator error instead of the setting",

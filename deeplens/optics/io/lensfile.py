@@ -69,7 +69,7 @@ from ..frames import travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
 from ..surfaces import SURFACE_TYPES, Aperture, Cylinder, IdealLens
-from ..surfaces.base import SagSurface, clear_rect_of, set_clear_rect
+from ..surfaces.base import clear_rect_of, set_clear_rect, takes_clear_rect
 from .atomic import replace, temp_path
 from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 from .filecheck import read_file_bytes
@@ -204,9 +204,9 @@ def _surface_from_dict(r: _Reader, s: dict, path: str):
         hint = f"; did you mean {close[0]!r}?" if close else ""
         r.fail(f"{path}.type", f"unknown surface type {kind!r}{hint} (known: "
                                f"{', '.join(sorted(SURFACE_TYPES))})")
-    # a rectangular clear aperture (clear_rect_mm) on any sag surface whose type does not read
-    # it itself (set_clear_rect)
-    generic_rect = (issubclass(cls, SagSurface) and "clear_rect_mm" not in cls.file_fields
+    # a rectangular clear aperture (clear_rect_mm) on any surface the rays land on whose type
+    # does not read it itself (set_clear_rect)
+    generic_rect = (takes_clear_rect(cls) and "clear_rect_mm" not in cls.file_fields
                     and not issubclass(cls, (Aperture, Cylinder, IdealLens)))
     r.keys(s, _COMMON_KEYS | set(cls.file_fields) | ({"clear_rect_mm"} if generic_rect else set()),
            path)

@@ -108,6 +108,13 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     obj_dist = seq.obj_dist
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
+        if obj_dist == 0:
+            p.fail(obj.disz_line or obj.line,
+                   f"the object lies on the first surface deeplens traces (SURF "
+                   f"{surfs.index(kept[0][2])}): the object distance (DISZ of SURF 0, "
+                   f"{obj.disz!r}) and the dummy gaps after it add up to 0; deeplens puts a "
+                   f"finite object at a distance != 0 from the first vertex (> 0, or < 0 for a "
+                   f"virtual object): insert a gap, or give the object a small distance")
     virtual = [False]
     d_sensor = _sensor(seq, img, p, virtual, primary)
     sensor_sd = img.diam * s_mm if img.diam > 0 else None
@@ -118,18 +125,21 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     telecentric = _telecentric(ftyp, ftyp_line, obj_dist, convert, ap_line, p)
 
     # ---- glass wavelength ranges, before building (a clear error instead of a NaN)
+    # (WAVM states µm: a wave beyond 100 µm is meant, and loads where every medium of the
+    # lens is defined there, check_wavelength_nm's material range)
     for (surf, mat, s, _), i in zip(kept, range(len(kept))):
         for w in waves_nm:
             try:
-                check_wavelength_nm(w, mat)
+                check_wavelength_nm(w, mat, stated_unit=True)
             except ValueError as e:
-                p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)})")
+                p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)})"
+                                               f"{_long_wave_hint(w)}")
         _check_index(mat, waves_nm, s, surfs.index(s), p)
     for w in waves_nm:
         try:
-            check_wavelength_nm(w, seq.obj_medium)
+            check_wavelength_nm(w, seq.obj_medium, stated_unit=True)
         except ValueError as e:
-            p.fail(obj.glass_line or obj.line, str(e))
+            p.fail(obj.glass_line or obj.line, f"{e}{_long_wave_hint(w)}")
 
     where_of = {i: kept[i][2].line for i in range(len(kept))}
     where_of["sensor"] = img.line
@@ -139,7 +149,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     try:
         spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                         aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves_nm,
-                        primary_wavelength_nm=primary)
+                        primary_wavelength_nm=primary,
+                        wavelength_unit_stated=True)
         while True:
             try:
                 lens = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd, spec,
@@ -180,7 +191,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
         try:
             lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type="epd",
                                  aperture_value=ap_value, fields_deg=[0.0],
-                                 wavelengths_nm=waves_nm, primary_wavelength_nm=primary)
+                                 wavelengths_nm=waves_nm, primary_wavelength_nm=primary,
+                                 wavelength_unit_stated=True)
             lens.apply_aperture_spec()
         except ValueError as e:
             p.fail(convert[2], str(e))
@@ -201,7 +213,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     try:
         lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                              aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
-                             primary_wavelength_nm=primary)
+                             primary_wavelength_nm=primary, wavelength_unit_stated=True)
     except ValueError as e:
         p.fail(sysd["yfln"][1] if sysd["yfln"] else 0, str(e))
     _check_stop_clear_aperture(lens, kept[stop_idx][2], s_mm, p)
@@ -239,14 +251,8 @@ def _wavelengths(sysd: dict, p: Locator):
         p.fail(ftyp_line, "no active wavelength")
     waves_nm = []
     for v, ln in waves:
-        if math.isfinite(v) and v > 100.0:   # WAVM is in µm by the format: no unit to guess
-            hint = (f"; if {v:g} is in nanometres, write {v / 1000.0:g}" if v < 3000.0 else "")
-            kind = (f" ({v / 1000.0:g} mm: a millimetre or terahertz wave)" if v >= 1000.0
-                    else "")
-            p.fail(ln, f"wavelength {v!r} µm{kind} (WAVM values are micrometres) is beyond "
-                       f"deeplens' range of 0.01-100 µm (10 nm to 100 µm){hint}")
-        try:
-            check_wavelength_nm(v * 1000.0)
+        try:   # WAVM is in µm by the format: no unit to guess (the media's ranges decide)
+            check_wavelength_nm(v * 1000.0, stated_unit=True)
         except ValueError as e:
             p.fail(ln, f"wavelength {v!r} µm: {e}")
         waves_nm.append(v * 1000.0)
@@ -256,6 +262,19 @@ def _wavelengths(sysd: dict, p: Locator):
                         f"{nums}")
     primary = waves_nm[nums.index(pw)]
     return ftyp, ftyp_line, n_fields, waves_nm, primary
+
+
+def _long_wave_hint(w_nm: float) -> str:
+    """What a refusal at a wavelength beyond 100 µm adds: the ``WAVM`` value in µm, what it is,
+    what deeplens accepts there, and the nanometre slip when the value could be one."""
+    if not w_nm > 1e5:
+        return ""
+    v = w_nm / 1000.0
+    kind = f" ({v / 1000.0:g} mm: a millimetre or terahertz wave)" if v >= 1000.0 else ""
+    slip = f"; if {v:g} is in nanometres, write {v / 1000.0:g}" if v < 3000.0 else ""
+    return (f"; the wavelength is WAVM {v:g} µm{kind} (WAVM values are micrometres): a wave "
+            f"beyond 100 µm loads where every medium of the lens is defined there (a constant "
+            f"index, a model glass with V_d 0, or a catalogue glass whose range reaches it){slip}")
 
 
 def _check_index(mat: Material, waves_nm, s: ZmxSurface, k: int, p: Locator) -> None:
@@ -318,9 +337,12 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     if obj.type != "STANDARD" or obj.curv != 0:
         p.fail(obj.line, "the object surface (SURF 0) must be a flat STANDARD surface")
     obj_dist = obj.disz * (1 if math.isinf(obj.disz) else s_mm)
-    if not (obj_dist > 0 or (obj_dist < 0 and math.isfinite(obj_dist))):
-        p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be > 0, "
-                                          f"< 0 (a virtual object) or INFINITY, got "
+    if not (obj_dist >= 0 or (obj_dist < 0 and math.isfinite(obj_dist))):
+        # (0: the object on SURF 1; read_zmx then asks for a gap before the first surface
+        # deeplens keeps, _object_distance)
+        p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be a "
+                                          f"number of lens units (> 0; < 0, a virtual object; "
+                                          f"0 before a dummy gap) or INFINITY, got "
                                           f"{obj.disz!r}")
     obj_medium = surface_material(obj, gcat, cats, glass_fallback, p, 4)
     media = [obj_medium]

@@ -21,7 +21,7 @@ import torch
 from ..errors import ZemaxFileError
 from ..materials import Material
 from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, ZernikeSag
-from ..surfaces.base import SagSurface, clear_rect_of, set_clear_rect
+from ..surfaces.base import clear_rect_of, set_clear_rect, takes_clear_rect
 from .surface_formats import ZmxContext
 from .surface_handlers import FORMATS, PROVISIONAL_SD_MM, is_air
 from .zmx_parse import Locator, ZmxSurface
@@ -66,11 +66,12 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         raise   # already located (a helper's p.fail): not located twice
     except ValueError as e:
         p.fail(s.type_line or s.line, f"SURF {k}: {e}")
-    if (s.sqap is not None and isinstance(surf, SagSurface) and s.clap is None
+    if (s.sqap is not None and takes_clear_rect(surf) and s.clap is None
             and s.obsc is None and not isinstance(surf, (Aperture, Cylinder, IdealLens))):
-        # a rectangular opening of a lens or mirror surface of any sag type (an off-axis
-        # mirror's, with OBDC): the rectangle, within its circumscribed circle; the
-        # semi-diameter encloses it
+        # a rectangular opening of a lens or mirror surface of any type the rays land on (an
+        # off-axis mirror's, with OBDC; a TILTSURF's, an implicit XYPolynomial: the rectangle
+        # is tested at the hit's local x, y, as OpticStudio's surface apertures are): the
+        # rectangle, within its circumscribed circle; the semi-diameter encloses it
         hx, hy = s.sqap[0] * s_mm, s.sqap[1] * s_mm
         try:
             set_clear_rect(surf, (hx, hy))
@@ -135,7 +136,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         p.fail(s.sqap[2], f"SQAP on SURF {k}: a rectangular aperture on a "
                           f"{type(surf).__name__} surface{extra} is not supported (deeplens has "
                           f"rectangular apertures on flat stops in air, on cylinders, and alone "
-                          f"(no CLAP or OBSC) on any other lens or mirror surface)")
+                          f"(no CLAP or OBSC) on any other lens or mirror surface, tilted "
+                          f"planes and XY polynomials included)")
     if auto and isinstance(surf, Aperture) and surf.shape == "rect":
         auto = False   # its semi-diameter is the rectangle's half-diagonal
     return surf, auto

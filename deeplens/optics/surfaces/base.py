@@ -40,7 +40,7 @@ from ..openings import Circle, Opening, Rectangle, in_circle
 from ..refract import unit_normal
 
 __all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface",
-           "set_clear_rect", "clear_rect_of", "curvature_scale", "conic_scale"]
+           "set_clear_rect", "clear_rect_of", "takes_clear_rect", "curvature_scale", "conic_scale"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
 #: at import and read by the lens-file reader and writer (never changed afterwards)
@@ -196,7 +196,13 @@ class Surface(nn.Module):
         self._opening = value
 
     def _build_opening(self) -> Opening:
-        return Circle(self.semi_diameter, check=False)
+        """The semi-diameter's circle, and the rectangle of :func:`set_clear_rect` when set
+        (tested at the hit point's local ``x, y``, whatever the surface's shape)."""
+        circle = Circle(self.semi_diameter, check=False)
+        rect = self._buffers.get("clear_rect")
+        if rect is None or not bool(rect.any()):
+            return circle
+        return circle & Rectangle(rect, self._buffers["clear_decenter"], check=False)
 
     def in_aperture(self, x, y):
         """``(*B,)`` bool: ``(x, y)`` (mm, local frame) lies in the :attr:`opening`."""
@@ -313,18 +319,11 @@ class Surface(nn.Module):
 class SagSurface(Surface):
     """A surface given by a height ``z = sag(x, y)``; ``f = sag - z``.
 
-    Subclasses implement ``sag`` and ``sag_grad`` (returning ``(∂z/∂x, ∂z/∂y)``).  Any sag
-    surface can carry a rectangular clear aperture (:func:`set_clear_rect`: Zemax's ``SQAP``),
-    which its :attr:`opening` intersects with the semi-diameter's circle.
+    Subclasses implement ``sag`` and ``sag_grad`` (returning ``(∂z/∂x, ∂z/∂y)``).  Like any
+    surface rays land on, a sag surface can carry a rectangular clear aperture
+    (:func:`set_clear_rect`: Zemax's ``SQAP``), which its :attr:`opening` intersects with the
+    semi-diameter's circle.
     """
-
-    def _build_opening(self) -> Opening:
-        """The semi-diameter's circle, and the rectangle of :func:`set_clear_rect` when set."""
-        circle = super()._build_opening()
-        rect = self._buffers.get("clear_rect")
-        if rect is None or not bool(rect.any()):
-            return circle
-        return circle & Rectangle(rect, self._buffers["clear_decenter"], check=False)
 
     def sag_grad(self, x, y):
         raise NotImplementedError
@@ -337,17 +336,27 @@ class SagSurface(Surface):
         return sx, sy, -torch.ones_like(z)
 
 
-def set_clear_rect(surface: SagSurface, half_widths) -> None:
+def takes_clear_rect(surface_or_type) -> bool:
+    """Whether :func:`set_clear_rect` applies to this surface (or surface class): any surface
+    the rays land on (its interaction ``lands``: a sag surface, an implicit one such as
+    :class:`~.xy_polynomial.XYPolynomial`), since the rectangle is tested at the hit point's
+    local ``x, y`` (:meth:`Surface.in_aperture`), not on the sag; not a stop or a frame change
+    (:class:`~.aperture.Aperture` has its own rectangle, a coordinate break no opening)."""
+    cls = surface_or_type if isinstance(surface_or_type, type) else type(surface_or_type)
+    return issubclass(cls, Surface) and bool(cls.interaction.lands)
+
+
+def set_clear_rect(surface: Surface, half_widths) -> None:
     """Give ``surface`` a rectangular clear aperture of half-widths ``(h_x, h_y)`` (mm) about its
-    vertex (Zemax's ``SQAP`` on a lens or mirror surface of any type): rays meeting it at
-    ``|x| > h_x`` or ``|y| > h_y`` are blocked.  The opening is the rectangle within its
+    vertex (Zemax's ``SQAP`` on a lens or mirror surface of any type, a tilted plane's
+    included): rays meeting it at local ``|x| > h_x`` or ``|y| > h_y`` are blocked.  The opening is the rectangle within its
     circumscribed circle: the clear radius and the semi-diameter become the half-diagonal.
     Fixed buffers, not saved in ``state_dict`` (they come with the lens file,
     ``clear_rect_mm``); a surface with one traces on the generic (eager) path, whose clipping
     asks the surface."""
-    if not isinstance(surface, SagSurface):
-        raise TypeError(f"a rectangular clear aperture needs a sag surface, got "
-                        f"{type(surface).__name__}")
+    if not takes_clear_rect(surface):
+        raise TypeError(f"a rectangular clear aperture needs a surface the rays land on (not a "
+                        f"stop or a frame change), got {type(surface).__name__}")
     hx, hy = (float(v) for v in half_widths)
     if not (0 < hx < math.inf and 0 < hy < math.inf):
         raise ValueError(f"{type(surface).__name__}: clear_rect must be two half-widths > 0 mm, "

@@ -484,13 +484,19 @@ def line_of(text: str, needle: str) -> int:
      r"distance before surface 2 is positive \(5 mm\): sequential surfaces must be ordered "
      r"along -z, the direction of travel there \(after 1 mirror\)"),
     (lambda t: t.replace("ENPD 10", "OBNA 0.1 0"), "OBNA", r"OBNA"),
-    (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 550"), "WAVM 1", r"wavelength 550.0 µm"),
-    (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 550"), "WAVM 1",
-     r"wavelength 550.0 µm \(WAVM values are micrometres\) is beyond deeplens' range of "
-     r"0.01-100 µm \(10 nm to 100 µm\); if 550 is in nanometres, write 0.55$"),
-    (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 3000"), "WAVM 1",   # a millimetre-wave lens
-     r"wavelength 3000.0 µm \(3 mm: a millimetre or terahertz wave\) \(WAVM values are "
-     r"micrometres\) is beyond deeplens' range of 0.01-100 µm \(10 nm to 100 µm\)$"),
+    # a wave beyond 100 µm (WAVM states µm) is refused where a medium is not defined there:
+    # at that glass's line, with its range and the nanometre slip
+    (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 550"), "GLAS N-BK7",
+     r"wavelength 550000 nm is outside the valid range 310–2500 nm of material 'N-BK7' "
+     r"\(glass of SURF 2\); the wavelength is WAVM 550 µm \(WAVM values are micrometres\): "
+     r"a wave beyond 100 µm loads where every medium of the lens is defined there .*; if 550 "
+     r"is in nanometres, write 0.55$"),
+    (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 3000"), "GLAS N-BK7",   # a millimetre wave
+     r"wavelength 3e\+06 nm is outside the valid range 310–2500 nm of material 'N-BK7' "
+     r"\(glass of SURF 2\); the wavelength is WAVM 3000 µm \(3 mm: a millimetre or terahertz "
+     r"wave\) \(WAVM values are micrometres\): a wave beyond 100 µm loads where every medium "
+     r"of the lens is defined there \(a constant index, a model glass with V_d 0, or a "
+     r"catalogue glass whose range reaches it\)$"),
     (lambda t: t.replace("PWAV 2", "PWAV 3"), "PWAV", r"PWAV 3: the primary wavelength is not one"),
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", r"UNIT: unknown lens unit 'FURLONG'"),
     (lambda t: t.replace("SURF 2", "SURF 7"), "SURF 3",
