@@ -805,6 +805,16 @@ MUTATIONS = [
              "for g, d in nearest_glasses(*values(cur.materials[i]), catalogues, k, v_weight,",
              "for g, d in nearest_glasses(*values(cur.materials[i]), \"OHARA\", k, v_weight,",
              GLASS_SEARCH),
+    # ----------------------------------------- issue 36: the combined substitution (default)
+    Mutation("combined_keeps_the_worse", "the combined substitution keeps the worse of its "
+             "sequential and ranked sets", "deeplens/design/search/glass.py",
+             "    best = min(parts, key=lambda r: r.merit)",
+             "    best = max(parts, key=lambda r: r.merit)", SUBSTITUTION),
+    Mutation("combined_ranked_other_catalogue", "the combined substitution's ranked set drawn "
+             "from a catalogue the spec did not choose", "deeplens/design/search/glass.py",
+             "                lens, catalogues, reoptimize, k=m, v_weight=v_weight,",
+             "                lens, \"SCHOTT\", reoptimize, k=m, v_weight=v_weight,",
+             SUBSTITUTION),
 ]
 
 
