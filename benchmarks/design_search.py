@@ -15,7 +15,8 @@ same way on its own semi-diameters (it vignettes its outer field).
         [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--seidel-rebalance 0]
         [--seidel-rebalance-floor thin|none]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
-        [--rank-k 4] [--substitute-strategy joint|sequential] [--converge-tol 0.01]
+        [--rank-k 4] [--substitute-strategy joint|sequential|combined] [--combined-k 6]
+        [--combined-keep 6] [--converge-tol 0.01]
         [--converge-rounds 8] [--converge-steps 120] [--json OUT.json]
         [--save-models DIR [--models-only] | --from-models DIR]
 
@@ -129,8 +130,14 @@ def main(argv=None) -> int:
                    help="SearchConfig.rank_keep: re-optimise only the best N of the "
                         "--rank-k nearest per element, ranked by a linearised prediction")
     p.add_argument("--rank-k", type=int, default=4)
-    p.add_argument("--substitute-strategy", choices=["joint", "sequential"], default=None,
+    p.add_argument("--substitute-strategy", choices=["joint", "sequential", "combined"],
+                   default=None,
                    help="SearchConfig.substitute_strategy (default: its default)")
+    p.add_argument("--combined-k", type=int, default=None,
+                   help="SearchConfig.combined_k: nearest glasses per element ranked by the "
+                        "combined strategy (default: its default)")
+    p.add_argument("--combined-keep", type=int, default=None,
+                   help="SearchConfig.combined_keep: ranked candidates re-optimised")
     p.add_argument("--converge-tol", type=float, default=None,
                    help="SearchConfig.converge_tol (default: its default)")
     p.add_argument("--converge-rounds", type=int, default=None,
@@ -179,7 +186,8 @@ def main(argv=None) -> int:
                            **({"substitution": args.substitution} if args.substitution else {}),
                            **({"glass_radius": args.glass_radius} if args.glass_radius else {}),
                            **{k: getattr(args, k) for k in ("substitute_strategy",
-                                                              "converge_tol", "converge_rounds")
+                                                              "converge_tol", "converge_rounds",
+                                                              "combined_k", "combined_keep")
                               if getattr(args, k) is not None})
         t0, c0 = time.perf_counter(), time.process_time()
 

@@ -136,7 +136,8 @@ def _stages(value, key: str) -> tuple:
 
 def _search_config(given, key: str):
     from ..design.search import SearchConfig
-    from ..design.search.multistart import REBALANCE_FLOORS, SUBSTITUTIONS
+    from ..design.search.multistart import (REBALANCE_FLOORS, SUBSTITUTE_STRATEGIES,
+                                            SUBSTITUTIONS)
 
     given = {} if given is None else given
     if not isinstance(given, dict):
@@ -167,8 +168,8 @@ def _search_config(given, key: str):
              "snap_count": (lambda v: _int(v, 1), "an integer >= 1"),
              "rank_keep": (lambda v: _int(v, 0), "an integer >= 0"),
              "rank_k": (lambda v: _int(v, 1), "an integer >= 1"),
-             "substitute_strategy": (lambda v: v in ("joint", "sequential"),
-                                     "'joint' or 'sequential'"),
+             "substitute_strategy": (lambda v: v in SUBSTITUTE_STRATEGIES,
+                                     " or ".join(map(repr, SUBSTITUTE_STRATEGIES))),
              "converge_tol": (_real, "a number >= 0"),
              "converge_rounds": (lambda v: _int(v, 0), "an integer >= 0"),
              "seidel_screen": (lambda v: _int(v, 0), "an integer >= 0"),
@@ -177,7 +178,9 @@ def _search_config(given, key: str):
              "seidel_rebalance_floor": (lambda v: v in REBALANCE_FLOORS,
                                         " or ".join(map(repr, REBALANCE_FLOORS))),
              "converge_steps": (lambda v: _int(v, 0), "an integer >= 0"),
-             "converge_chunk": (lambda v: _int(v, 1), "an integer >= 1")}
+             "converge_chunk": (lambda v: _int(v, 1), "an integer >= 1"),
+             "combined_k": (lambda v: _int(v, 1), "an integer >= 1"),
+             "combined_keep": (lambda v: _int(v, 1), "an integer >= 1")}
     for name, v in given.items():
         if name in _STAGE_FIELDS:
             vals[name] = _stages(v, f"{key}.{name}")

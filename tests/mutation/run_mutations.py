@@ -845,6 +845,16 @@ MUTATIONS = [
              "sag's paraxial curvature", "deeplens/optics/surfaces/zernike_sag.py",
              "                cur = cur + 2.0 * norm(n, 0) * r2 * A / rn2",
              "                cur = cur + 0.0 * norm(n, 0) * r2 * A / rn2", ZERN_RAYOPTICS),
+    # ----------------------------------------- issue 36: the combined substitution (default)
+    Mutation("combined_keeps_the_worse", "the combined substitution keeps the worse of its "
+             "sequential and ranked sets", "deeplens/design/search/glass.py",
+             "    best = min(parts, key=lambda r: r.merit)",
+             "    best = max(parts, key=lambda r: r.merit)", SUBSTITUTION),
+    Mutation("combined_ranked_other_catalogue", "the combined substitution's ranked set drawn "
+             "from a catalogue the spec did not choose", "deeplens/design/search/glass.py",
+             "                lens, catalogues, reoptimize, k=m, v_weight=v_weight,",
+             "                lens, \"SCHOTT\", reoptimize, k=m, v_weight=v_weight,",
+             SUBSTITUTION),
 ]
 
 

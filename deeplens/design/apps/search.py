@@ -73,11 +73,15 @@ def add_arguments(p) -> None:
     g.add_argument("--substitution", choices=["snap", "nearest"], default="nearest",
                    help="nearest: model glasses substituted as they are (default); snap: first "
                         "pulled onto real ones while re-optimising")
-    g.add_argument("--substitute-strategy", choices=["sequential", "joint"],
-                   default="sequential",
-                   help="sequential: one element at a time, the most sensitive first, the "
-                        "remaining model glasses re-optimised (default); joint: every "
-                        "combination of the nearest glasses (one element at a time past 27)")
+    g.add_argument("--substitute-strategy", choices=["combined", "sequential", "joint"],
+                   default="combined",
+                   help="combined: the sequential candidates and the best 6 of every "
+                        "combination of the 6 nearest glasses per element (fewer past 729 "
+                        "combinations) ranked by a linearised re-optimisation, the better "
+                        "kept (default); sequential: one element at a time, the most "
+                        "sensitive first, the remaining model glasses re-optimised; joint: "
+                        "every combination of the nearest glasses (one element at a time "
+                        "past 27)")
     g.add_argument("--seidel-screen", type=int, default=2048,
                    help="Sobol thin-lens systems screened by their third-order RMS spot, in "
                         "total; the best distinct become the --starts starts (default 2048; "

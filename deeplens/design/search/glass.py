@@ -31,7 +31,10 @@ r"""Glass choice for a design search: model glasses while optimising, real glass
    glasses of the chosen catalogues are ever put in (and checked again before returning).
    :func:`substitute_sequentially` instead replaces one model glass at a time, the most
    sensitive first, each candidate re-optimised with the remaining model glasses free, so
-   that they make up for the real glass put in.
+   that they make up for the real glass put in.  :func:`substitute_combined` runs both the
+   sequential candidates and a ranked joint set (every combination of a few more nearest
+   glasses per element, ranked by a cheap prediction, the best few re-optimised) and keeps
+   the lower merit.
 4. **Snapping** (a continuation before the substitution).  :func:`snap_model_glasses`
    re-optimises the lens (geometry and model glasses together) a few times with a growing
    pull of each model glass towards its nearest real glass (:class:`NearestGlassPull`: two
@@ -65,7 +68,8 @@ from .glass_region import V_WEIGHT, CatalogueGlass, GlassRegion, glasses, neares
 __all__ = ["TrainableModelGlass", "use_model_glasses", "model_glass_media", "glass_variable_names",
            "glass_scales", "GlassRegionPenalty", "project_model_glasses", "dls_reoptimizer",
            "SubstitutionResult", "substitute_glasses", "substitute_sequentially",
-           "NearestGlassPull", "snap_strengths", "snap_model_glasses"]
+           "NearestGlassPull", "snap_strengths", "snap_model_glasses", "substitute_combined",
+           "ranked_per_element", "RANK_CAP"]
 
 _K_FC = 1.0 / (LINE_F / 1000.0) ** 2 - 1.0 / (LINE_C / 1000.0) ** 2     # µm⁻²
 _INV_LD2 = 1.0 / (LINE_D / 1000.0) ** 2                                 # µm⁻²
@@ -696,3 +700,110 @@ def substitute_sequentially(lens, catalogues, reoptimize: Callable, *, k: int = 
             raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
                                f"the chosen catalogues")
     return SubstitutionResult(cur, chosen, merit, table, "sequential")
+
+
+#: the most joint combinations :func:`substitute_combined` ranks: ``rank_k`` nearest glasses
+#: per element, fewer when ``rank_k^m`` would pass it (3 elements: 6 each, 216 combinations;
+#: 6 elements: 3 each, 729)
+RANK_CAP = 729
+
+
+def ranked_per_element(elements: int, k: int, cap: int = RANK_CAP) -> int:
+    """The largest ``m <= k`` with ``m^elements <= cap`` (at least 1): how many nearest glasses
+    per element :func:`substitute_combined` combines.
+
+    Raises:
+        ValueError: ``elements < 1``, ``k < 1`` or ``cap < 1``.
+    """
+    if int(elements) < 1 or int(k) < 1 or int(cap) < 1:
+        raise ValueError(f"ranked_per_element needs elements, k and cap >= 1, got "
+                         f"{elements!r}, {k!r}, {cap!r}")
+    m = int(k)
+    while m > 1 and m ** int(elements) > int(cap):
+        m -= 1
+    return m
+
+
+def substitute_combined(lens, catalogues, reoptimize_free: Callable, reoptimize: Callable,
+                        rank: Callable, *, k: int = 2, rank_k: int = 6, rank_keep: int = 6,
+                        score: Callable | None = None, cap: int = RANK_CAP,
+                        v_weight: float = V_WEIGHT,
+                        exclude: Iterable[str] = ()) -> SubstitutionResult:
+    """Two candidate sets from the same model design, the lower merit kept (module docstring,
+    item 3):
+
+    1. **sequential** (:func:`substitute_sequentially`): ``k`` nearest glasses per element,
+       one element at a time, each candidate re-optimised by ``reoptimize_free`` (which should
+       leave the remaining model glasses free);
+    2. **ranked joint** (:func:`substitute_glasses` with ``rank``): every combination of the
+       :func:`ranked_per_element` ``(m, rank_k, cap)`` nearest glasses per element (``m``
+       model glasses) is ranked by ``rank(candidate) -> predicted merit`` (e.g.
+       :func:`~.substitution.linearised_ranker`), and the ``rank_keep`` best are
+       re-optimised by ``reoptimize``.
+
+    Sequential substitution looks only at the nearest glasses, but lets the glasses still to
+    come make up for each one; the ranked set reaches glasses farther away (a design whose
+    model glasses sit on the region's edge may want a real glass that is not among the two
+    nearest: the guide has a Cooke triplet where it does).  A set whose candidates all fail
+    is left out; the result's table holds both sets' rows, each with ``"part"``
+    (``"sequential"`` or ``"ranked"``), and ``"kept"`` only on the row kept.
+
+    Args:
+        lens: a :class:`~deeplens.optics.lens.Lens` with model glasses; not modified.
+        catalogues: catalogue names (:func:`~.glass_region.check_catalogues`).
+        reoptimize_free, reoptimize: ``(candidate_lens) -> merit`` (lower is better; in place).
+        rank: ``(candidate_lens) -> predicted merit`` (cheap; lower is better).
+        k: sequential candidates per element, ``>= 1``.
+        rank_k: nearest glasses per element for the ranked set (before ``cap``), ``>= 1``.
+        rank_keep: ranked candidates re-optimised, ``>= 1``.
+        score: the sequential order's ``score(lens)`` (:func:`substitute_sequentially`).
+        cap: the most combinations ranked, ``>= 1``.
+        v_weight, exclude: as :func:`substitute_glasses`.
+
+    Returns:
+        A :class:`SubstitutionResult` (strategy ``"combined"``).
+
+    Raises:
+        ValueError: an unknown catalogue, no model glass, ``k``, ``rank_k``, ``rank_keep`` or
+            ``cap < 1``; RuntimeError: both sets failed (both errors quoted).
+    """
+    for name, v in (("k", k), ("rank_k", rank_k), ("rank_keep", rank_keep), ("cap", cap)):
+        if int(v) < 1:
+            raise ValueError(f"{name} must be >= 1, got {v!r}")
+    pool = {g.label for g in glasses(catalogues, exclude)}   # validates the catalogue names
+    lens = unpack(lens, where="substitute_combined")[0]
+    media = model_glass_media(lens)
+    if not media:
+        raise ValueError("substitute_combined: the lens has no model glass to substitute")
+    m = ranked_per_element(len(media), rank_k, cap)
+    parts, errors = [], []
+    for part, run in (
+            ("sequential", lambda: substitute_sequentially(
+                lens, catalogues, reoptimize_free, k=k, score=score, v_weight=v_weight,
+                exclude=exclude)),
+            ("ranked", lambda: substitute_glasses(
+                lens, catalogues, reoptimize, k=m, v_weight=v_weight, exclude=exclude,
+                rank=rank, rank_keep=rank_keep))):
+        try:
+            res = run()
+        except RuntimeError as e:
+            errors.append(f"{part}: {e}")
+            continue
+        for row in res.table:
+            row["part"] = part
+        parts.append(res)
+    if not parts:
+        raise RuntimeError("substitute_combined: no candidate could be re-optimised ("
+                           + "; ".join(errors) + ")")
+    best = min(parts, key=lambda r: r.merit)   # the first (sequential) on a tie
+    table = []
+    for res in parts:
+        for row in res.table:
+            row["kept"] = bool(row["kept"]) and res is best
+            table.append(row)
+    for i, g in best.chosen.items():   # the promise: only glasses of the chosen catalogues
+        mat = best.lens.materials[i]
+        if g.label not in pool or mat.catalogue != g.catalogue or mat.name != g.name:
+            raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
+                               f"the chosen catalogues")
+    return SubstitutionResult(best.lens, dict(best.chosen), best.merit, table, "combined")

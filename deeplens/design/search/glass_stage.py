@@ -17,7 +17,12 @@ real-glass design, and the two are compared fairly (issue 36, item 4).
    geometry only).  ``"sequential"``: one element at a time, the most sensitive first, each of
    its ``substitute_k`` nearest glasses re-optimised with the remaining model glasses free in
    the region (:func:`~.glass.substitute_sequentially`).  ``rank_keep > 0`` ranks the
-   ``rank_k`` nearest by a linearised re-optimisation first (joint only).
+   ``rank_k`` nearest by a linearised re-optimisation first (joint only).  ``"combined"``
+   (the default): the sequential candidates and a ranked joint set, every combination of
+   the ``combined_k`` nearest per element (fewer when there are more than
+   :data:`~.glass.RANK_CAP` combinations) ranked by the linearised re-optimisation
+   (:func:`~.substitution.linearised_ranker`) and the ``combined_keep`` best re-optimised;
+   the lower merit is kept (:func:`~.glass.substitute_combined`).
 4. **The same convergence for the kept candidate**: rounds of the ``substitute`` stages under
    the same rule, then the design is finished (exact focal length, semi-diameters, dense
    evaluation).  ``merit_loss = real_rms_um / model_rms_um - 1``.
@@ -31,7 +36,8 @@ from typing import Callable
 
 from .converge import until_converged
 from .glass import (TrainableModelGlass, project_model_glasses, snap_model_glasses,
-                    snap_strengths, substitute_glasses, substitute_sequentially)
+                    snap_strengths, substitute_combined, substitute_glasses,
+                    substitute_sequentially)
 from .refine import refine
 from .result import evaluate
 from .spec import DesignSpec
@@ -127,7 +133,20 @@ def substitute_design(dsg, spec: DesignSpec, cfg, region, finish: Callable):
             base = lens
         except (ValueError, RuntimeError) as e:
             snap_rows = [{"error": f"{type(e).__name__}: {e}"}]
-    if cfg.substitute_strategy == "sequential" and region is not None:
+    rank = None
+    if cfg.substitute_strategy == "combined":
+        from .substitution import linearised_ranker
+
+        try:
+            rank = linearised_ranker(base, spec, cfg.score_sampling)
+        except (ValueError, RuntimeError):   # no prediction: the sequential set alone
+            rank = None
+    if rank is not None:
+        sub = substitute_combined(base, spec.catalogues, reoptimize_free, reoptimize, rank,
+                                  k=cfg.substitute_k, rank_k=cfg.combined_k,
+                                  rank_keep=cfg.combined_keep,
+                                  score=lambda L: _score(L, spec, cfg.score_sampling))
+    elif cfg.substitute_strategy in ("sequential", "combined") and region is not None:
         sub = substitute_sequentially(base, spec.catalogues, reoptimize_free,
                                       k=cfg.substitute_k,
                                       score=lambda L: _score(L, spec, cfg.score_sampling))
@@ -173,6 +192,7 @@ def substitute_design(dsg, spec: DesignSpec, cfg, region, finish: Callable):
         "candidates": [{"glasses": {str(i): g for i, g in row["glasses"].items()},
                         "score_um": row["merit"], "error": row["error"], "kept": row["kept"],
                         **({"predicted": row["predicted"]} if "predicted" in row else {}),
-                        **({"step": row["step"]} if "step" in row else {})}
+                        **({"step": row["step"]} if "step" in row else {}),
+                        **({"part": row["part"]} if "part" in row else {})}
                        for row in sub.table]}
     return real

@@ -66,7 +66,11 @@
    exact residuals at the design's geometry, projected off the geometry Jacobian) and only
    the ``rank_keep`` best are re-optimised.  ``substitute_strategy="sequential"``: one element
    at a time instead, the most sensitive first, the remaining model glasses free
-   (:func:`~.glass.substitute_sequentially`).  The reference of the comparison is the model
+   (:func:`~.glass.substitute_sequentially`).  ``"combined"`` (the default): the sequential
+   candidates and a ranked joint set (every combination of the ``combined_k`` nearest per
+   element, at most :data:`~.glass.RANK_CAP` of them, ranked by the linearised
+   re-optimisation; the ``combined_keep`` best re-optimised), the lower merit kept
+   (:func:`~.glass.substitute_combined`).  The reference of the comparison is the model
    design *converged* (rounds of ``substitute`` stages until one improves its RMS spot by less
    than ``converge_tol``, at most ``converge_rounds``), and the kept real candidate is
    converged by the same rule (:mod:`.glass_stage`).
@@ -99,7 +103,7 @@ __all__ = ["SearchConfig", "Design", "SearchResult", "search", "signature", "sam
 
 START_KINDS = ("thin", "flat", "mixed")
 SUBSTITUTIONS = ("nearest", "snap")
-SUBSTITUTE_STRATEGIES = ("joint", "sequential")
+SUBSTITUTE_STRATEGIES = ("joint", "sequential", "combined")
 REBALANCE_FLOORS = ("thin", "none")
 
 
@@ -134,7 +138,7 @@ class SearchConfig:
     snap_count: int = 6
     rank_keep: int = 0
     rank_k: int = 4
-    substitute_strategy: str = "sequential"
+    substitute_strategy: str = "combined"
     converge_tol: float = 0.01
     converge_rounds: int = 8
     time_limit_s: float | None = None
@@ -144,6 +148,8 @@ class SearchConfig:
     seidel_rebalance_floor: str = "thin"
     converge_steps: int = 0
     converge_chunk: int = 10
+    combined_k: int = 6
+    combined_keep: int = 6
 
     def __post_init__(self):
         if self.start_kind not in START_KINDS:
@@ -188,7 +194,8 @@ class SearchConfig:
             raise ValueError(f"prescreen must be >= 0, got {self.prescreen!r}")
         if int(self.rank_keep) < 0:
             raise ValueError(f"rank_keep must be >= 0, got {self.rank_keep!r}")
-        for name in ("starts", "keep", "polish_count", "substitute_k", "rank_k"):
+        for name in ("starts", "keep", "polish_count", "substitute_k", "rank_k", "combined_k",
+                     "combined_keep"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if not (math.isfinite(float(self.glass_radius)) and float(self.glass_radius) > 0):

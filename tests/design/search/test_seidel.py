@@ -300,5 +300,5 @@ def test_cli_flag(tmp_path, capsys):
     assert res["config"]["seidel_rebalance"] == 7 and res["runs"][0]["rebalance"] == 7
     assert res["runs"][0]["rebalance_floor"] == "thin"
     assert res["config"]["substitution"] == "nearest"
-    assert res["config"]["substitute_strategy"] == "sequential"   # the command's default
+    assert res["config"]["substitute_strategy"] == "combined"   # the command's default
     assert res["runs"][0]["origin"] == "seidel screen"

@@ -32,8 +32,8 @@ from deeplens.design.optimizers import jacobian
 from deeplens.design.search import DesignSpec, SearchConfig, Stage, search
 from deeplens.design.search.glass import (
     GlassRegionPenalty, NearestGlassPull, dls_reoptimizer, glass_scales, glass_variable_names,
-    project_model_glasses, snap_strengths, substitute_glasses, substitute_sequentially,
-    use_model_glasses)
+    RANK_CAP, project_model_glasses, ranked_per_element, snap_strengths, substitute_combined,
+    TrainableModelGlass, substitute_glasses, substitute_sequentially, use_model_glasses)
 from deeplens.design.search.glass_region import glass_distance, glasses, nearest_glasses
 from deeplens.design.search.substitution import linear_ranker
 from deeplens.design.variables import Variables
@@ -200,7 +200,8 @@ TINY = {**GLASS_SEARCH_TINY, "substitute_k": 1, "snap_stage": (Stage(2, "hexapol
 
 
 def test_snapping_ends_with_every_medium_a_real_catalogue_glass():
-    res = search(DesignSpec(**SPEC), SearchConfig(seed=2, substitution="snap", **TINY))
+    res = search(DesignSpec(**SPEC), SearchConfig(seed=2, substitution="snap",
+                                                  substitute_strategy="sequential", **TINY))
     d = res.best
     rec = d.glass_record
     assert rec["substitution"] == "snap" and len(rec["snap"]) == 4
@@ -292,6 +293,101 @@ def test_sequential_substitution_goes_most_sensitive_first_and_lets_the_rest_fol
         substitute_sequentially(lens, "SCHOT", reoptimize)
 
 
+# -------------------------------------------------------------------- combined substitution
+def _target_merit(target: dict):
+    """A stand-in re-optimisation (and prediction): the sum over media of the squared glass
+    distance ``δ`` from the glass each medium holds to a target real glass; 0 exactly when
+    every medium holds its target."""
+    def merit(L) -> float:
+        out = 0.0
+        for i, t in target.items():
+            m = L.materials[i]
+            nd, vd = m.values() if hasattr(m, "values") else (m.nd, m.vd)
+            out += float(glass_distance(nd, vd, t.n_d, t.v_d)) ** 2
+        return out
+    return merit
+
+
+def test_combined_substitution_reaches_past_the_nearest_and_keeps_the_better_set():
+    """Medium 2's target is the 5th nearest HOYA glass of its model glass: out of the
+    sequential set's reach (its 2 nearest; the stand-in does not move the model glasses), so
+    the sequential set ends above 0.  The ranked set combines the 6 nearest of each medium
+    (36 combinations), ranks them by a perfect prediction and re-optimises the best 2: the
+    targets, merit 0, kept.  With the prediction reversed and one ranked candidate
+    re-optimised (the worst), the sequential set's result is kept instead."""
+    lens = _doublet("1.5300/62.0", "1.6500/34.0")
+    use_model_glasses(lens)
+    near = {i: nearest_glasses(*lens.materials[i].values(), "HOYA", 6) for i in (1, 2)}
+    target = {1: near[1][0][0], 2: near[2][4][0]}
+    merit = _target_merit(target)
+    res = substitute_combined(lens, "HOYA", merit, merit, merit, k=2, rank_k=6, rank_keep=2,
+                              score=merit)
+    seq = [r for r in res.table if r["part"] == "sequential"]
+    ranked = [r for r in res.table if r["part"] == "ranked"]
+    assert res.strategy == "combined" and len(seq) == 4 and len(ranked) == 2
+    assert res.names == {1: target[1].label, 2: target[2].label} and res.merit == 0.0
+    assert min(r["merit"] for r in seq) > 0                     # sequential cannot reach it
+    assert [r["kept"] for r in res.table].count(True) == 1
+    assert next(r for r in res.table if r["kept"]) is ranked[0]
+    assert ranked[0]["predicted"] == 0.0 <= ranked[1]["predicted"]
+    hoya = {g.label for g in glasses("HOYA")}
+    assert all(set(r["glasses"].values()) <= hoya for r in res.table)
+    for i in (1, 2):
+        m = res.lens.materials[i]
+        assert isinstance(m, AGFGlass) and m.catalogue == "HOYA"
+    # a reversed prediction: the one ranked candidate is the worst pair, sequential wins
+    worst = substitute_combined(lens, "HOYA", merit, merit, lambda L: -merit(L), k=2,
+                                rank_k=6, rank_keep=1, score=merit)
+    w_seq = [r for r in worst.table if r["part"] == "sequential"]
+    w_ranked = [r for r in worst.table if r["part"] == "ranked"]
+    assert len(w_ranked) == 1 and w_ranked[0]["merit"] > min(r["merit"] for r in w_seq)
+    kept = [r for r in worst.table if r["kept"]]
+    assert len(kept) == 1 and kept[0]["part"] == "sequential"
+    assert worst.merit == min(r["merit"] for r in w_seq) == merit(worst.lens)
+    assert all(isinstance(m, TrainableModelGlass) for m in (lens.materials[1],
+                                                             lens.materials[2]))
+    with pytest.raises(ValueError, match="rank_keep must be >= 1"):
+        substitute_combined(lens, "HOYA", merit, merit, merit, rank_keep=0)
+    with pytest.raises(ValueError, match="valid names"):
+        substitute_combined(lens, "HOY", merit, merit, merit)
+
+
+def test_combined_substitution_survives_one_failing_set_and_reports_both_failing():
+    lens = _doublet("1.5300/62.0", "1.6500/34.0")
+    use_model_glasses(lens)
+    near = {i: nearest_glasses(*lens.materials[i].values(), "HOYA", 6) for i in (1, 2)}
+    merit = _target_merit({1: near[1][0][0], 2: near[2][4][0]})
+
+    def fail(L):
+        raise RuntimeError("no step")
+
+    res = substitute_combined(lens, "HOYA", fail, merit, merit, rank_keep=2)
+    assert {r["part"] for r in res.table if r["merit"] is not None} == {"ranked"}
+    assert res.merit == 0.0
+    with pytest.raises(RuntimeError, match="sequential: .*ranked: "):
+        substitute_combined(lens, "HOYA", fail, fail, merit, rank_keep=2)
+
+
+@pytest.mark.parametrize("elements, k, want", [(1, 6, 6), (3, 6, 6), (4, 6, 5), (6, 6, 3),
+                                               (7, 6, 2), (10, 6, 1), (3, 2, 2)])
+def test_ranked_per_element_is_the_largest_count_under_the_cap(elements, k, want):
+    m = ranked_per_element(elements, k)
+    assert m == want
+    assert m ** elements <= RANK_CAP or m == 1
+    assert m == k or (m + 1) ** elements > RANK_CAP
+    with pytest.raises(ValueError, match="elements, k and cap >= 1"):
+        ranked_per_element(0, k)
+
+
+def test_combined_is_the_default_and_its_settings_are_checked():
+    cfg = SearchConfig()
+    assert cfg.substitute_strategy == "combined"
+    assert (cfg.combined_k, cfg.combined_keep) == (6, 6)
+    for name in ("combined_k", "combined_keep"):
+        with pytest.raises(ValueError, match=f"{name} must be >= 1"):
+            SearchConfig(**{name: 0})
+
+
 # ------------------------------------------------------- the fair reference, inside the search
 def test_the_loss_is_measured_against_the_converged_model_design():
     """The tiny search leaves its model design after 3 DLS steps: converging it (rounds of the
@@ -323,7 +419,8 @@ def test_the_loss_is_measured_against_the_converged_model_design():
     hoya = {g.label for g in glasses("HOYA")}
     assert set(rec["substituted"].values()) <= hoya
     assert all(set(c["glasses"].values()) <= hoya for c in rec["candidates"])
-    with pytest.raises(ValueError, match="substitute_strategy must be one of joint, sequential"):
+    with pytest.raises(ValueError,
+                       match="substitute_strategy must be one of joint, sequential, combined"):
         SearchConfig(substitute_strategy="one by one")
     with pytest.raises(ValueError, match="converge_tol must be"):
         SearchConfig(converge_tol=-1.0)
