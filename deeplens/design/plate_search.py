@@ -9,7 +9,8 @@ from one hand-picked plate (issue 36).
    variable, in the scaled units of :class:`~.variables.Variables`: mm of sag at the rim, so
    the cubic ``x^3`` and ``y^3`` terms, the quadratic (defocus, astigmatism) and the mixed
    ``x^2 y``, ``x y^2`` (coma-like) terms are all drawn alike.  A point whose rays do not reach
-   the sensor at every depth and wavelength is skipped (and counted).
+   the sensor at every depth and wavelength is skipped (and counted), and so is a start whose
+   refined plate's diffraction PSF would exceed the merit's memory budget.
 2. **Refine.**  Each start is refined by damped least squares
    (:func:`~.lensopt.optimize_lens`, central-difference Jacobian, ``steps``) on the merit's
    residuals: the change of the on-axis PSF's geometric OTF over the depths, plus the rms blur
@@ -241,6 +242,7 @@ def plate_search(lens, plate_surface: int, variables, depths_mm, wavelengths_nm,
         ValueError: a variable is not a coefficient of the plate, or no start gave a plate
             whose rays reach the sensor.
     """
+    from ..render.diffraction import PSFMemoryError
     from .optimizers import Infeasible
 
     config = config or PlateSearchConfig()
@@ -284,7 +286,10 @@ def plate_search(lens, plate_surface: int, variables, depths_mm, wavelengths_nm,
             optimize_lens(trial, tv, merit, method="dls", steps=config.steps,
                           jacobian_mode="reverse" if restoration else "central")
             s1 = plate_score(trial, new_merit())
-        except (ValueError, Infeasible) as e:
+        except (ValueError, Infeasible, PSFMemoryError) as e:
+            # PSFMemoryError: the refined plate's diffraction PSF (sampled afresh for its score)
+            # needs more memory than the merit's budget; the DLS, on the start's sampling, can
+            # walk to a plate that large (seen with restoration_power 16 from the zero plate)
             skipped += 1
             if progress:
                 progress(f"{origin}: skipped ({e})")

@@ -99,3 +99,26 @@ def test_at_the_experiments_settings_the_search_beats_the_5um_cubic_plate():
     cubic = plate_score(_lens(0.005, focus_waves=waves), plate_merit(depths, waves, 0.0069, r.blur_px, cfg))[0]
     assert r.best.score < cubic < 0.01 * r.runs[0].score
     assert r.best.origin == "start 11"
+
+
+def test_a_refined_plate_whose_psf_exceeds_the_memory_budget_is_skipped(monkeypatch):
+    # the restoration merit's fresh sampling of a refined plate can need more memory than its
+    # budget (PSFMemoryError): that start is skipped and reported, the search goes on
+    import deeplens.design.plate_search as ps
+    from deeplens.render.diffraction import PSFMemoryError
+
+    calls, real = [], ps.plate_score
+
+    def score(lens, merit):
+        calls.append(1)
+        if len(calls) == 4:   # zero plate: start, refined; start 1: start, refined <- this
+            raise PSFMemoryError("diffraction PSF: too large for the test")
+        return real(lens, merit)
+
+    monkeypatch.setattr(ps, "plate_score", score)
+    said = []
+    cfg = PlateSearchConfig(starts=1, steps=1, sampling="grid:8", n_freq=2, seed=0)
+    r = plate_search(_lens(trainable=CUBIC), 4, CUBIC, DEPTHS, WAVES, 0.0069, cfg,
+                     progress=said.append)
+    assert r.skipped == 1 and [d.origin for d in r.runs] == ["zero plate"]
+    assert any("start 1: skipped" in m and "too large for the test" in m for m in said)
