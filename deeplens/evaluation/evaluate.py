@@ -168,7 +168,7 @@ def _run_key(cfg: DictConfig) -> dict:
         key["lens"].pop("start")
     if not key["lens"].get("trainable"):  # frozen optics: the optics' settings are unused
         for k in ("optics_lr_mm", "optics_warmup_steps", "optics_worst_depth",
-                  "optics_invariance"):
+                  "optics_invariance", "optics_psf_energy"):
             key["model"].pop(k, None)
         key["lens"].pop("learned_start_alpha_mm", None)
     key.get("data", {}).pop("test_folder", None)  # tested on it after training, not trained on

@@ -46,6 +46,7 @@ from .metrics import image_metrics, psnr
 from .module_config import MAX_LR, check_learning_rate, check_module_settings, module_camera
 from .nonfinite import (NonFiniteLossError, nonfinite_grad, nonfinite_param, stop,
                         trained_parameters)
+from .psf_energy import PsfEnergy, psf_energy_loss
 from .scalars import training_scalars
 from .tolerance import TrainingDraws
 from .wiener import DepthWienerFilter
@@ -131,6 +132,10 @@ class EndToEndModule(L.LightningModule):
             depth): each step's drawn lens is calibrated (its distortion map against the
             nominal lens's, :mod:`deeplens.render.calibration`) and the restored image is
             registered with it before the loss.
+        optics_psf_energy: ``None`` or the mapping of a :class:`~.psf_energy.PsfEnergy`:
+            while the optics move, the loss gains ``weight * mean(1 - E)``, ``E`` the share of
+            each edge field's light in its own pixel (:mod:`.psf_energy`; an optics-only term,
+            logged as ``train/loss_psf_energy``).
         optimizer, disc_optimizer: factories ``(param_groups) -> torch.optim.Optimizer``
             (config: Hydra ``_partial_``); default Adam, and Adam with ``betas=(0.5, 0.999)``.
     """
@@ -144,7 +149,8 @@ class EndToEndModule(L.LightningModule):
                  optics_warmup_steps: int | None = None,
                  optics_worst_depth: dict | None = None, tolerance=None,
                  tolerance_training: bool = False, calibrate: str | None = None,
-                 optics_invariance: dict | None = None):
+                 optics_invariance: dict | None = None,
+                 optics_psf_energy: dict | None = None):
         super().__init__()
         camera = module_camera(lens, sensor, renderer)
         self._held = (camera,)  # held, not registered: state-dict keys lens.*, as before
@@ -194,6 +200,8 @@ class EndToEndModule(L.LightningModule):
             self.deconv = DepthWienerFilter(camera, None, self.depths_mm, **cfg["deconvolution"],
                                             psf_model=getattr(renderer, "psf_model", None))
         self.optics_invariance = None if optics_frozen else cfg["optics_invariance"]
+        psf_energy = PsfEnergy.from_config(optics_psf_energy)
+        self.optics_psf_energy = None if optics_frozen else psf_energy
         if self.optics_invariance is not None and len(set(self.depths_mm)) < 2:
             raise ConfigError("model.optics_invariance", "null with one training depth (no PSF "
                               "change over depth to hold)", optics_invariance)
@@ -342,6 +350,11 @@ class EndToEndModule(L.LightningModule):
             pen = self.invariance(*moments)
             terms["invariance"] = pen
             loss = loss + self.optics_invariance.weight * pen
+        if (self.optics_psf_energy is not None and step >= self.optics_warmup_steps
+                and self._optics_moving()):   # psf_energy.py: the weight is inside the term
+            terms["psf_energy"] = psf_energy_loss(self.camera, self.ideal,
+                                                  self.optics_psf_energy, self.val_depths_mm)
+            loss = loss + terms["psf_energy"]
         return loss, terms, y, gt, pred
 
     def _optics_moving(self) -> bool:

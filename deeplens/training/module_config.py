@@ -16,6 +16,7 @@ from omegaconf import OmegaConf
 
 from ..optics.camera import Camera, as_camera
 from ..optics.errors import ConfigError
+from .psf_energy import PsfEnergy
 from .settings import Invariance, SoftMax
 from .wiener import check_deconvolution
 
@@ -119,6 +120,7 @@ def check_model_config(cfg) -> None:
         optics_worst_depth=plain("model.optics_worst_depth"),
         deconvolution=plain("model.deconvolution"),
         optics_invariance=plain("model.optics_invariance"))
+    PsfEnergy.from_config(plain("model.optics_psf_energy"))
     dtype = OmegaConf.select(cfg, "lens.dtype", default=None)
     if s["deconvolution"] is not None and dtype in ("float32", "float64"):
         check_deconvolution(s["deconvolution"], getattr(torch, dtype))

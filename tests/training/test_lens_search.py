@@ -19,7 +19,8 @@ SEARCH = ("experiment=doublet_search",)
 # a singlet of N-BK7, one start of 2 DLS steps, no hops: a search of about 2 s
 SHRINK = ("lens.search.spec.elements=1", "lens.search.spec.aspheres=0",
           "lens.search.spec.glasses=N-BK7",
-          "lens.search.config={starts:1,hops:0,screen:2,polish:2,polish_count:1,keep:1,seed:0}",
+          "lens.search.config={starts:1,hops:0,screen:2,polish:2,polish_count:1,keep:1,seed:0,"
+          "converge_steps:0}",
           "lens.search.trainable=[surfaces.*.c]", "render.psf_model=geometric",
           "callbacks.image_logger=null")
 
@@ -173,7 +174,8 @@ def test_the_shipped_experiment_trains_its_curvatures_and_aspheres(cfg_factory, 
     # (the one-start lens is blurred enough that render.psf_model=auto picks diffraction, which
     # the Monte Carlo renderer refuses: geometric, as SHRINK in test_train.py)
     cfg = cfg_factory(*SEARCH, "debug=fdr", "lens.search.config={starts:1,hops:0,screen:2,"
-                      "polish:2,polish_count:1,keep:1,seed:0}", "render.psf_model=geometric")
+                      "polish:2,polish_count:1,keep:1,seed:0,converge_steps:0}",
+                      "render.psf_model=geometric")
     metrics, objs = train(cfg)
     assert [n for n, p in objs["lens"].named_parameters() if p.requires_grad] == [
         f"surfaces.{i}.{v}" for i in (1, 2, 3, 4) for v in ("c", "a.0", "a.1")]

@@ -18,7 +18,7 @@ EXPERIMENTS = sorted(p.stem for p in (ROOT / "configs" / "experiment").glob("*.y
 SHRINK = {"doublet_search": ("lens.search.spec.elements=1", "lens.search.spec.aspheres=0",
                              "lens.search.spec.glasses=N-BK7",
                              "lens.search.config={starts:1,hops:0,screen:2,polish:2,"
-                             "polish_count:1,keep:1,seed:0}",
+                             "polish_count:1,keep:1,seed:0,converge_steps:0}",
                              "lens.search.trainable=[surfaces.*.c]",
                              "render.psf_model=geometric"),
           # a plate search: one start of one DLS step on a coarse merit
