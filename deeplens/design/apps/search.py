@@ -90,6 +90,10 @@ def add_arguments(p) -> None:
     g.add_argument("--seidel-rebalance-floor", choices=["thin", "none"], default="thin",
                    help="thin: the re-balancing gains nothing below the thin system's own "
                         "third-order RMS (default); none: no floor")
+    g.add_argument("--seidel-ranking", choices=["union", "rebalanced"], default="union",
+                   help="union: the best --starts of the plain and of the re-balanced "
+                        "ranking of the thickened starts, each start once (up to 2 x "
+                        "--starts; default); rebalanced: the re-balanced ranking's alone")
     g.add_argument("--converge-steps", type=int, default=120,
                    help="DLS steps at most refining each kept design on the final rays until "
                         "converged (default 120; 0: off)")
@@ -147,6 +151,7 @@ def run(args) -> dict:
                        seidel_steps=args.seidel_steps,
                        seidel_rebalance=args.seidel_rebalance,
                        seidel_rebalance_floor=args.seidel_rebalance_floor,
+                       seidel_ranking=args.seidel_ranking,
                        converge_steps=args.converge_steps, converge_tol=args.converge_tol)
 
     def progress(text):
