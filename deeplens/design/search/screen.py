@@ -134,6 +134,10 @@ def screened_starts(spec: DesignSpec, points: int, starts: int, seed: int = 0,
         chosen = [(*c, "rebalanced") for c in again[:int(starts)]]
     else:
         chosen = union_of_rankings(cands, again, starts)
+        plain_lenses = [c[3] for c in cands]
+        # a start the re-balancing left as it was (its plain lens itself) is a plain start
+        chosen = [c if not any(c[3] is L for L in plain_lenses) else (*c[:4], "plain")
+                  for c in chosen]
     out = [(f"seidel {j} ({tl_rms:.0f}/{t3:.0f} um{', re-balanced' if kind == 'rebalanced' else ''})",
             lens) for t3, j, tl_rms, lens, kind in chosen]
     info = {"origin": "seidel screen", "ok": bool(out), "reason": "" if out else
