@@ -84,9 +84,10 @@ def add_arguments(p) -> None:
                         "0: off; used for thin starts of an object at infinity only)")
     g.add_argument("--seidel-steps", type=int, default=100,
                    help="batched Adam steps of the third-order screen (100)")
-    g.add_argument("--seidel-rebalance", type=int, default=0,
+    g.add_argument("--seidel-rebalance", type=int, default=300,
                    help="batched Adam steps re-balancing each thickened start's third order "
-                        "before the starts are ranked (default 0: off; 300 measured)")
+                        "(default 300; 0: off); with --seidel-ranking union both the plain "
+                        "and the re-balanced starts are refined")
     g.add_argument("--seidel-rebalance-floor", choices=["thin", "none"], default="thin",
                    help="thin: the re-balancing gains nothing below the thin system's own "
                         "third-order RMS (default); none: no floor")

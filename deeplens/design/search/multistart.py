@@ -13,7 +13,7 @@
    (in total, for the whole search) become thin systems at once, ``seidel_steps`` batched Adam
    steps refine them on their third-order RMS spot, and the best distinct ones, thickened and
    ranked again by the thick lens's third-order RMS, are the ``starts`` starts
-   (:func:`~.screen.screened_starts`); with ``seidel_rebalance = K > 0`` (default 0: off)
+   (:func:`~.screen.screened_starts`); with ``seidel_rebalance = K > 0`` (default 300; 0: off)
    every thickened system also gets ``K`` batched Adam steps on its own third-order merit
    (curvatures and distances, :mod:`.thick_polish`), which the thickening of strong
    elements upsets; ``seidel_rebalance_floor="thin"`` (default): no gain below the thin
@@ -145,7 +145,7 @@ class SearchConfig:
     time_limit_s: float | None = None
     seidel_screen: int = 0
     seidel_steps: int = 100
-    seidel_rebalance: int = 0
+    seidel_rebalance: int = 300
     seidel_rebalance_floor: str = "thin"
     seidel_ranking: str = "union"
     converge_steps: int = 0

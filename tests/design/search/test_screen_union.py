@@ -96,7 +96,9 @@ def test_ranking_setting_is_checked():
         SearchConfig(seidel_ranking="plain")
     with pytest.raises(ValueError, match="ranking must be one of union, rebalanced"):
         screened_starts(TRIPLET, 8, 1, ranking="both")
-    assert SearchConfig().seidel_ranking == "union"
+    cfg = SearchConfig()   # the measured default (docs/guide/design-search.md)
+    assert (cfg.seidel_rebalance, cfg.seidel_rebalance_floor, cfg.seidel_ranking) == (
+        300, "thin", "union")
 
 
 
