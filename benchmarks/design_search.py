@@ -12,8 +12,8 @@ same way on its own semi-diameters (it vignettes its outer field).
     OMP_NUM_THREADS=1 PYTHONPATH=. python benchmarks/design_search.py [--lens cooke]
         [--seeds 0,1,2,3,4] [--starts 3] [--hops 2] [--screen-steps 30] [--polish-steps 40]
         [--hop-steps 20] [--prescreen 0] [--glass-mode catalogue|model] [--substitute-k 2]
-        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--seidel-rebalance 0]
-        [--seidel-rebalance-floor thin|none]
+        [--substitute-steps 15] [--seidel-screen 0] [--seidel-steps 100] [--seidel-rebalance 300]
+        [--seidel-rebalance-floor thin|none] [--seidel-ranking union|rebalanced]
         [--substitution nearest|snap] [--snap-steps 5] [--snap-count 6] [--rank-keep N]
         [--rank-k 4] [--substitute-strategy joint|sequential|combined] [--combined-k 6]
         [--combined-keep 6] [--converge-tol 0.01]
@@ -122,6 +122,11 @@ def main(argv=None) -> int:
                    default=SearchConfig.seidel_rebalance_floor,
                    help="SearchConfig.seidel_rebalance_floor: no gain below the thin "
                         "system's third order (thin) or none")
+    p.add_argument("--seidel-ranking", choices=["union", "rebalanced"],
+                   default=SearchConfig.seidel_ranking,
+                   help="SearchConfig.seidel_ranking: the best --starts of the plain and of "
+                        "the re-balanced ranking, each start once (union), or of the "
+                        "re-balanced one alone")
     p.add_argument("--substitution", choices=["nearest", "snap"], default=None,
                    help="SearchConfig.substitution (default: its default)")
     p.add_argument("--snap-steps", type=int, default=5)
@@ -175,7 +180,8 @@ def main(argv=None) -> int:
                            prescreen=args.prescreen, seidel_screen=args.seidel_screen,
                            seidel_steps=args.seidel_steps,
                            seidel_rebalance=args.seidel_rebalance,
-                           seidel_rebalance_floor=args.seidel_rebalance_floor, substitute_k=args.substitute_k,
+                           seidel_rebalance_floor=args.seidel_rebalance_floor,
+                           seidel_ranking=args.seidel_ranking, substitute_k=args.substitute_k,
                            substitute_radius=args.substitute_radius,
                            substitute=(Stage(args.substitute_steps, "hexapolar:6"),),
                            snap_stage=(Stage(args.snap_steps, "hexapolar:6"),),

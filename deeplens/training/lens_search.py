@@ -136,8 +136,8 @@ def _stages(value, key: str) -> tuple:
 
 def _search_config(given, key: str):
     from ..design.search import SearchConfig
-    from ..design.search.multistart import (REBALANCE_FLOORS, SUBSTITUTE_STRATEGIES,
-                                            SUBSTITUTIONS)
+    from ..design.search.multistart import (REBALANCE_FLOORS, SEIDEL_RANKINGS,
+                                            SUBSTITUTE_STRATEGIES, SUBSTITUTIONS)
 
     given = {} if given is None else given
     if not isinstance(given, dict):
@@ -177,6 +177,8 @@ def _search_config(given, key: str):
              "seidel_rebalance": (lambda v: _int(v, 0), "an integer >= 0"),
              "seidel_rebalance_floor": (lambda v: v in REBALANCE_FLOORS,
                                         " or ".join(map(repr, REBALANCE_FLOORS))),
+             "seidel_ranking": (lambda v: v in SEIDEL_RANKINGS,
+                                " or ".join(map(repr, SEIDEL_RANKINGS))),
              "converge_steps": (lambda v: _int(v, 0), "an integer >= 0"),
              "converge_chunk": (lambda v: _int(v, 1), "an integer >= 1"),
              "combined_k": (lambda v: _int(v, 1), "an integer >= 1"),

@@ -797,6 +797,19 @@ MUTATIONS = [
              "coordinate breaks (the mirror count's parity lost)", "deeplens/optics/frames.py",
              "            a = [a[0], a[1], -a[2]]", "            a = [a[0], a[1], a[2]]",
              ("tests/optics/io/test_zmx_prisms.py",)),
+    # ---------------------------------- the union of the screen's two rankings (issue 36)
+    Mutation("union_not_deduplicated", "the union of the plain and re-balanced rankings keeps a "
+             "start found in both twice", "deeplens/design/search/screen.py",
+             "            if i < len(top) and not any(same(top[i][3], o[3]) for o in out):",
+             "            if i < len(top):", ("tests/design/search/test_screen_union.py",)),
+    Mutation("union_is_rebalanced_only", "seidel_ranking='union' returns the re-balanced "
+             "ranking alone", "deeplens/design/search/screen.py",
+             '    if rebalance > 0 and ranking == "rebalanced":', "    if rebalance > 0:",
+             ("tests/design/search/test_screen_union.py",)),
+    Mutation("union_cut_to_starts", "the search refines only the first `starts` starts of the "
+             "union", "deeplens/design/search/multistart.py",
+             "        budget = max(budget, len(got))", "        budget = budget",
+             ("tests/design/search/test_screen_union.py",)),
     # ------------------------------------------------ unseen real files (issue 37)
     Mutation("sqap_stop_floa_pupil_widened", "a SQAP on a lens stop under FLOA floats the "
              "pupil on the rectangle's half-diagonal, not the stop's DIAM",

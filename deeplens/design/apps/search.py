@@ -88,12 +88,17 @@ def add_arguments(p) -> None:
                         "0: off; used for thin starts of an object at infinity only)")
     g.add_argument("--seidel-steps", type=int, default=100,
                    help="batched Adam steps of the third-order screen (100)")
-    g.add_argument("--seidel-rebalance", type=int, default=0,
+    g.add_argument("--seidel-rebalance", type=int, default=300,
                    help="batched Adam steps re-balancing each thickened start's third order "
-                        "before the starts are ranked (default 0: off; 300 measured)")
+                        "(default 300; 0: off); with --seidel-ranking union both the plain "
+                        "and the re-balanced starts are refined")
     g.add_argument("--seidel-rebalance-floor", choices=["thin", "none"], default="thin",
                    help="thin: the re-balancing gains nothing below the thin system's own "
                         "third-order RMS (default); none: no floor")
+    g.add_argument("--seidel-ranking", choices=["union", "rebalanced"], default="union",
+                   help="union: the best --starts of the plain and of the re-balanced "
+                        "ranking of the thickened starts, each start once (up to 2 x "
+                        "--starts; default); rebalanced: the re-balanced ranking's alone")
     g.add_argument("--converge-steps", type=int, default=120,
                    help="DLS steps at most refining each kept design on the final rays until "
                         "converged (default 120; 0: off)")
@@ -151,6 +156,7 @@ def run(args) -> dict:
                        seidel_steps=args.seidel_steps,
                        seidel_rebalance=args.seidel_rebalance,
                        seidel_rebalance_floor=args.seidel_rebalance_floor,
+                       seidel_ranking=args.seidel_ranking,
                        converge_steps=args.converge_steps, converge_tol=args.converge_tol)
 
     def progress(text):

@@ -13,11 +13,15 @@
    (in total, for the whole search) become thin systems at once, ``seidel_steps`` batched Adam
    steps refine them on their third-order RMS spot, and the best distinct ones, thickened and
    ranked again by the thick lens's third-order RMS, are the ``starts`` starts
-   (:func:`~.screen.screened_starts`); with ``seidel_rebalance = K > 0`` (default 0: off)
-   every thickened system first gets ``K`` batched Adam steps on its own third-order merit
+   (:func:`~.screen.screened_starts`); with ``seidel_rebalance = K > 0`` (default 300; 0: off)
+   every thickened system also gets ``K`` batched Adam steps on its own third-order merit
    (curvatures and distances, :mod:`.thick_polish`), which the thickening of strong
    elements upsets; ``seidel_rebalance_floor="thin"`` (default): no gain below the thin
-   system's own third-order RMS (``"none"``: none).
+   system's own third-order RMS (``"none"``: none).  ``seidel_ranking="union"`` (default):
+   the best ``starts`` of the plain ranking and the best ``starts`` of the re-balanced
+   ranking are refined, each start once (up to ``2 starts``; re-balancing brings the Cooke
+   triplet's best starts to the top and pushes the double Gauss's off it);
+   ``"rebalanced"``: the re-balanced ranking's best ``starts`` alone.
 2. **Screen.**  Each start is refined briefly (``screen`` stages, coarse pupil sampling) and
    scored by :func:`~.result.evaluate` on finer rays (``score_sampling``): feasible designs
    first, then by the polychromatic RMS spot.
@@ -105,6 +109,7 @@ START_KINDS = ("thin", "flat", "mixed")
 SUBSTITUTIONS = ("nearest", "snap")
 SUBSTITUTE_STRATEGIES = ("joint", "sequential", "combined")
 REBALANCE_FLOORS = ("thin", "none")
+SEIDEL_RANKINGS = ("union", "rebalanced")   # screen.RANKINGS (not imported: screen is lazy)
 
 
 @dataclass
@@ -144,8 +149,9 @@ class SearchConfig:
     time_limit_s: float | None = None
     seidel_screen: int = 0
     seidel_steps: int = 100
-    seidel_rebalance: int = 0
+    seidel_rebalance: int = 300
     seidel_rebalance_floor: str = "thin"
+    seidel_ranking: str = "union"
     converge_steps: int = 0
     converge_chunk: int = 10
     combined_k: int = 6
@@ -182,6 +188,9 @@ class SearchConfig:
         if self.seidel_rebalance_floor not in REBALANCE_FLOORS:
             raise ValueError(f"seidel_rebalance_floor must be one of "
                              f"{', '.join(REBALANCE_FLOORS)}, got {self.seidel_rebalance_floor!r}")
+        if self.seidel_ranking not in SEIDEL_RANKINGS:
+            raise ValueError(f"seidel_ranking must be one of {', '.join(SEIDEL_RANKINGS)}, got "
+                             f"{self.seidel_ranking!r}")
         if int(self.seidel_screen) and (self.prescreen or self.start_kind != "thin"):
             raise ValueError("seidel_screen needs start_kind='thin' and prescreen=0 (it "
                              "chooses the thin-lens starts itself)")
@@ -383,13 +392,15 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
         return cfg.time_limit_s is not None and time.perf_counter() - t0 > cfg.time_limit_s
 
     source = fresh(4 * cfg.starts)
+    budget = int(cfg.starts)   # starts refined (the screen's union may give up to 2 x)
     if cfg.seidel_screen > 0:   # step 1c: starts from the third-order screen
         from .screen import screened_starts
 
         got, info = screened_starts(spec, int(cfg.seidel_screen), cfg.starts, seed=cfg.seed,
                                     steps=int(cfg.seidel_steps), glass_strategy=glass_strategy,
                                     rebalance=int(cfg.seidel_rebalance),
-                                    rebalance_floor=cfg.seidel_rebalance_floor)
+                                    rebalance_floor=cfg.seidel_rebalance_floor,
+                                    ranking=cfg.seidel_ranking)
         runs.append(info)
         tried = info["sampled"]
         say(f"third-order screen: {info['sampled']} systems, {len(got)} starts at "
@@ -399,6 +410,7 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
             for _, lens in got:
                 use_model_glasses(lens, region=region)
         source = iter([(label, "thin", lens, False) for label, lens in got])
+        budget = max(budget, len(got))
     if cfg.prescreen > cfg.starts:   # step 1b: the best `starts` of `prescreen` cheap runs
         cands = []
         for idx, kind, lens, flat in fresh(4 * cfg.prescreen):
@@ -436,10 +448,10 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
                 rec["ok"], rec["reason"] = False, f"evaluation: {e}"
         runs.append(rec)
         best = min((p.metrics["rms_um"] for p in pool), default=math.inf)
-        say(f"start {made}/{cfg.starts} ({kind}): "
+        say(f"start {made}/{budget} ({kind}): "
             + (f"{rec['rms_um']:.2f} um" if "rms_um" in rec else f"failed ({rec['reason'][:60]})")
             + f"; best {best:.2f} um; {time.perf_counter() - t0:.0f} s")
-        if made >= cfg.starts or out_of_time():   # before the next draw
+        if made >= budget or out_of_time():   # before the next draw
             break
     if not pool:
         why = "; ".join(r["reason"][:120] for r in runs[:3])
