@@ -557,7 +557,7 @@ def search(spec: DesignSpec, config: SearchConfig | None = None, *, glass_strate
                     rec["ok"], rec["reason"] = False, f"evaluation: {e}"
             runs.append(rec)
             say(f"converge: {rec.get('rms_um', math.nan):.2f} um from {plain:.2f} um "
-                f"({dsg.origin}; {r.steps} steps, {r.reason[:60]})")
+                f"({dsg.origin}; {r.steps} steps, {r.reason})")
         kept.append(done)
     kept.sort(key=lambda d: d.key)
     if region is not None:   # step 7: real glasses for every kept model-glass design
