@@ -750,8 +750,8 @@ MUTATIONS = [
     # ------------------------------------------------ glass choice in the design search
     Mutation("substitute_other_catalogue", "substitution candidates drawn from a catalogue "
              "the spec did not choose", "deeplens/design/search/glass.py",
-             "cands[i] = nearest_glasses(nd, vd, catalogues, k, v_weight, exclude)",
-             "cands[i] = nearest_glasses(nd, vd, \"OHARA\", k, v_weight, exclude)",
+             "i: nearest_glasses(*_model_values(lens.materials[i]), catalogues, k, v_weight, exclude)",
+             "i: nearest_glasses(*_model_values(lens.materials[i]), \"OHARA\", k, v_weight, exclude)",
              GLASS_SEARCH + ("tests/design/search/test_glass.py",)),
     Mutation("model_glass_not_a_variable", "model glasses left out of the search's variables",
              "deeplens/design/search/refine.py", "glasses=glass_region is not None)",
@@ -843,8 +843,8 @@ MUTATIONS = [
              "max_rounds=cfg.converge_rounds)", "max_rounds=0)", SUBSTITUTION),
     Mutation("sequential_other_catalogue", "sequential substitution's candidates drawn from a "
              "catalogue the spec did not choose", "deeplens/design/search/glass.py",
-             "for g, d in nearest_glasses(*values(cur.materials[i]), catalogues, k, v_weight,",
-             "for g, d in nearest_glasses(*values(cur.materials[i]), \"OHARA\", k, v_weight,",
+             "for g, d in nearest_glasses(*_model_values(cur.materials[i]), catalogues, k,",
+             "for g, d in nearest_glasses(*_model_values(cur.materials[i]), \"OHARA\", k,",
              GLASS_SEARCH),
     # issue 37, session 13 (files4): SURF-number skips, FLOA on a CLAP, the Zernike vertex
     Mutation("surf_skip_refs_ignored", "SURF numbers that skip one read in file order even "

@@ -194,6 +194,36 @@ def model_glass_media(lens) -> list[int]:
     return [i for i, m in enumerate(lens.materials) if _is_model(m)]
 
 
+def _model_values(m) -> tuple[float, float]:
+    """``(n_d, V_d)`` of a model glass, trainable or ``n_d/V_d``."""
+    return m.values() if isinstance(m, TrainableModelGlass) else (m.n_d, m.v_d)
+
+
+def _substitutable_media(lens, media, where: str) -> list[int]:
+    """``media`` (default: every model glass of ``lens``) checked to be model glasses of it.
+
+    Raises:
+        ValueError: no model glass, or an index that is not one (``where`` names the caller).
+    """
+    media = model_glass_media(lens) if media is None else [int(i) for i in media]
+    if not media:
+        raise ValueError(f"{where}: the lens has no model glass to substitute")
+    for i in media:
+        if not (0 <= i < len(lens.materials)) or not _is_model(lens.materials[i]):
+            raise ValueError(f"medium {i} is not a model glass of the lens")
+    return media
+
+
+def _check_chosen(lens, chosen: dict, pool: set) -> None:
+    """The promise of every substitution: each medium of ``chosen`` holds its real glass, a
+    glass of ``pool`` (the labels of the chosen catalogues)."""
+    for i, g in chosen.items():
+        m = lens.materials[i]
+        if g.label not in pool or m.catalogue != g.catalogue or m.name != g.name:
+            raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
+                               f"the chosen catalogues")
+
+
 def use_model_glasses(lens, media: Iterable[int] | None = None,
                       region: GlassRegion | None = None, dispersion: str = "normal") -> list[int]:
     """Replace glasses of ``lens`` (in place) by :class:`TrainableModelGlass` at their own
@@ -410,17 +440,10 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
                              "for the default damped-least-squares re-optimisation")
         reoptimize = dls_reoptimizer(merit)
     lens = unpack(lens, where="substitute_glasses")[0]
-    media = model_glass_media(lens) if media is None else [int(i) for i in media]
-    if not media:
-        raise ValueError("substitute_glasses: the lens has no model glass to substitute")
-    for i in media:
-        if not (0 <= i < len(lens.materials)) or not _is_model(lens.materials[i]):
-            raise ValueError(f"medium {i} is not a model glass of the lens")
-    cands: dict[int, list[tuple[CatalogueGlass, float]]] = {}
-    for i in media:
-        m = lens.materials[i]
-        nd, vd = m.values() if isinstance(m, TrainableModelGlass) else (m.n_d, m.v_d)
-        cands[i] = nearest_glasses(nd, vd, catalogues, k, v_weight, exclude)
+    media = _substitutable_media(lens, media, "substitute_glasses")
+    cands: dict[int, list[tuple[CatalogueGlass, float]]] = {
+        i: nearest_glasses(*_model_values(lens.materials[i]), catalogues, k, v_weight, exclude)
+        for i in media}
 
     table: list[dict] = []
     best: dict = {}
@@ -485,11 +508,7 @@ def substitute_glasses(lens, catalogues, reoptimize: Callable | None = None, *, 
         raise RuntimeError(f"substitute_glasses: no candidate could be re-optimised ({errors})")
     best["row"]["kept"] = True
     chosen = {i: g for i, (g, _) in best["assign"].items()}
-    for i, g in chosen.items():   # the promise: only glasses of the chosen catalogues
-        m = best["lens"].materials[i]
-        if g.label not in pool or m.catalogue != g.catalogue or m.name != g.name:
-            raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
-                               f"the chosen catalogues")
+    _check_chosen(best["lens"], chosen, pool)
     return SubstitutionResult(best["lens"], chosen, best["merit"], table, use)
 
 
@@ -636,15 +655,7 @@ def substitute_sequentially(lens, catalogues, reoptimize: Callable, *, k: int = 
         raise ValueError(f"k must be >= 1, got {k!r}")
     pool = {g.label for g in glasses(catalogues, exclude)}   # validates the catalogue names
     lens = unpack(lens, where="substitute_sequentially")[0]
-    media = model_glass_media(lens) if media is None else [int(i) for i in media]
-    if not media:
-        raise ValueError("substitute_sequentially: the lens has no model glass to substitute")
-    for i in media:
-        if not (0 <= i < len(lens.materials)) or not _is_model(lens.materials[i]):
-            raise ValueError(f"medium {i} is not a model glass of the lens")
-
-    def values(m):
-        return m.values() if isinstance(m, TrainableModelGlass) else (m.n_d, m.v_d)
+    media = _substitutable_media(lens, media, "substitute_sequentially")
 
     def order_next(cur, left):
         if score is None or len(left) == 1:
@@ -656,7 +667,7 @@ def substitute_sequentially(lens, catalogues, reoptimize: Callable, *, k: int = 
         worst, pick = -math.inf, left[0]
         for i in left:
             trial = copy.deepcopy(cur)
-            g, _ = nearest_glasses(*values(trial.materials[i]), catalogues, 1, v_weight,
+            g, _ = nearest_glasses(*_model_values(trial.materials[i]), catalogues, 1, v_weight,
                                    exclude)[0]
             trial.materials[i] = g.material()
             try:
@@ -674,7 +685,7 @@ def substitute_sequentially(lens, catalogues, reoptimize: Callable, *, k: int = 
     while left:
         i = order_next(cur, left)
         best = None
-        for g, d in nearest_glasses(*values(cur.materials[i]), catalogues, k, v_weight,
+        for g, d in nearest_glasses(*_model_values(cur.materials[i]), catalogues, k, v_weight,
                                     exclude):
             cand = copy.deepcopy(cur)
             cand.materials[i] = g.material()
@@ -694,11 +705,7 @@ def substitute_sequentially(lens, catalogues, reoptimize: Callable, *, k: int = 
         chosen[i], done[i] = g, d
         left.remove(i)
     best[4]["kept"] = True
-    for i, g in chosen.items():   # the promise: only glasses of the chosen catalogues
-        m = cur.materials[i]
-        if g.label not in pool or m.catalogue != g.catalogue or m.name != g.name:
-            raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
-                               f"the chosen catalogues")
+    _check_chosen(cur, chosen, pool)
     return SubstitutionResult(cur, chosen, merit, table, "sequential")
 
 
@@ -772,9 +779,7 @@ def substitute_combined(lens, catalogues, reoptimize_free: Callable, reoptimize:
             raise ValueError(f"{name} must be >= 1, got {v!r}")
     pool = {g.label for g in glasses(catalogues, exclude)}   # validates the catalogue names
     lens = unpack(lens, where="substitute_combined")[0]
-    media = model_glass_media(lens)
-    if not media:
-        raise ValueError("substitute_combined: the lens has no model glass to substitute")
+    media = _substitutable_media(lens, None, "substitute_combined")
     m = ranked_per_element(len(media), rank_k, cap)
     parts, errors = [], []
     for part, run in (
@@ -801,9 +806,5 @@ def substitute_combined(lens, catalogues, reoptimize_free: Callable, reoptimize:
         for row in res.table:
             row["kept"] = bool(row["kept"]) and res is best
             table.append(row)
-    for i, g in best.chosen.items():   # the promise: only glasses of the chosen catalogues
-        mat = best.lens.materials[i]
-        if g.label not in pool or mat.catalogue != g.catalogue or mat.name != g.name:
-            raise RuntimeError(f"internal error: medium {i} holds {g.label}, not a glass of "
-                               f"the chosen catalogues")
+    _check_chosen(best.lens, best.chosen, pool)   # the arguments handed to both sets too
     return SubstitutionResult(best.lens, dict(best.chosen), best.merit, table, "combined")
