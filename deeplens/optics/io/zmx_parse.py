@@ -495,10 +495,10 @@ def parse(path: Path):
     for r in records:
         if r.key == "SURF":
             idx = int(p.arg(r.tokens, 1, r.line, "surface number"))
+            want = len(st.surfs) + (st.skip[2] - st.skip[1] if st.skip else 0)
             if idx > len(st.surfs) > 0 and st.skip is None:
                 st.skip = (r.line, len(st.surfs), idx)   # read in file order; checked below
-            elif idx != len(st.surfs) + (st.skip[2] - st.skip[1] if st.skip else 0):
-                want = len(st.surfs) + (st.skip[2] - st.skip[1] if st.skip else 0)
+            elif idx != want:
                 p.fail(r.line, f"SURF {idx} out of order: expected SURF {want}" + (
                     f" (the numbers skip from {st.skip[1] - 1} to {st.skip[2]} at line "
                     f"{st.skip[0]})" if st.skip else ""))
