@@ -337,9 +337,9 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     if obj.type != "STANDARD" or obj.curv != 0:
         p.fail(obj.line, "the object surface (SURF 0) must be a flat STANDARD surface")
     obj_dist = obj.disz * (1 if math.isinf(obj.disz) else s_mm)
-    if not (obj_dist >= 0 or (obj_dist < 0 and math.isfinite(obj_dist))):
-        # (0: the object on SURF 1; read_zmx then asks for a gap before the first surface
-        # deeplens keeps, _object_distance)
+    if not (obj_dist >= 0 or math.isfinite(obj_dist)):   # NaN or -INFINITY
+        # (0: the object on SURF 1; read_zmx adds the dummy gaps before the first surface
+        # deeplens keeps and refuses a sum of 0)
         p.fail(obj.disz_line or obj.line, f"the object distance (DISZ of SURF 0) must be a "
                                           f"number of lens units (> 0; < 0, a virtual object; "
                                           f"0 before a dummy gap) or INFINITY, got "
