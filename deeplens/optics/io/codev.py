@@ -53,7 +53,11 @@ quote a string, keywords are case-insensitive.  Mapping onto
 after it is the one before, and the file's negative thicknesses after it are kept, CODE V's
 sign convention being deeplens' and OpticStudio's).
 
-Everything else (decenters and tilts, other surface types, ``NA``/``NAO``,
+Decenters and tilts (``XDE`` ... ``CDE``, ``DAR``, ``BEN``, ``REV``, ``RET``) become
+:class:`~deeplens.optics.surfaces.CoordinateBreak` surfaces (:mod:`.codev_decenter`, which
+states each convention and its source).
+
+Everything else (other surface types, ``NA``/``NAO``,
 real image heights, obscurations, surface qualifiers such as ``S3``) is refused: a
 :class:`~deeplens.optics.errors.LensFileError` naming the file, the line and what was expected.
 
@@ -77,6 +81,8 @@ from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
 from ..surfaces import Asphere
 from .agf import AGFGlass
+from .codev_decenter import (DECENTER_COMMANDS, decenter_command, expand_decenters,
+                             write_break)
 from .filecheck import read_file_bytes
 from .surface_handlers import FORMATS
 from .vendor_glass import (BuchdahlGlass, archived_glass, find_in_vendor_catalogues,
@@ -344,6 +350,8 @@ class _Reader:
                               stacklevel=4)
         elif cmd in ("SO", "S", "SI"):
             self.surface(cmd, args, line)
+        elif cmd in DECENTER_COMMANDS and self.surfs:   # decenters and tilts: codev_decenter
+            decenter_command(self.surfs[-1], cmd, args, line, self.nums, self.fail)
         else:
             self.modifier(cmd, args, line)
 
@@ -415,8 +423,9 @@ class _Reader:
         else:
             self.fail(line, f"unsupported command {cmd!r}; deeplens reads surfaces (S, SPH, "
                             f"CON, ASP, K, A..J, CIR, STO, THI, GLA, RDY, CUY), the system "
-                            f"(DIM, RDM, WL, REF, EPD, FNO, YAN, YOB, YIM) and nothing else "
-                            f"(decenters, other surface types are refused)")
+                            f"(DIM, RDM, WL, REF, EPD, FNO, YAN, YOB, YIM), decenters (XDE .. CDE, "
+                            f"DAR, BEN, REV, RET) and nothing else (other surface types are "
+                            f"refused)")
 
 
 def read_seq(path) -> Lens:
@@ -466,6 +475,7 @@ def _build(rd: _Reader, path: Path) -> Lens:
             fail(s["line"], f"{what}: expected a flat surface (radius 0)")
     if img["glass"] is not None:
         fail(img["line"], "SI: the image surface takes no glass")
+    obj, body, img = expand_decenters(obj, body, img, u, fail)   # -> coordinate breaks
     # wavelengths
     if rd.wl is None:
         fail(None, "no wavelengths: expected a WL line (nm)")
@@ -491,6 +501,15 @@ def _build(rd: _Reader, path: Path) -> Lens:
     gap, lead = 0.0, 0.0   # lead: leading dummies' thickness, added to the object distance
     mirrors = []
     for s in body:
+        if s["kind"] == "CB":   # a decenter's coordinate break (codev_decenter)
+            if not surfaces:
+                lead, gap = gap, 0.0
+            surfaces.append(s["cb"])
+            distances.append(gap)
+            where.append(s["line"])
+            media.append(media[-1])
+            gap = s["t"] * u
+            continue
         mirror = s["glass"] is not None and s["glass"][0].upper() == "REFL"
         if mirror:   # the medium after a mirror is the one before it
             mat = media[-1]
@@ -710,8 +729,11 @@ def write_seq(lens: Lens, path) -> None:
         n = len(lens.surfaces)
         for i, s in enumerate(lens.surfaces):
             is_stop = i == lens.stop_index
-            head, *mods = _surface_lines(s, i, is_stop)
             after = float(lens.distances[i + 1]) if i + 1 < n else float(lens.d_sensor)
+            if s.interaction.changes_frame:   # a coordinate break: a decentred dummy
+                out += write_break(s, i, after, lens.materials[i + 1])
+                continue
+            head, *mods = _surface_lines(s, i, is_stop)
             g = "REFL" if i in lens.mirrors else _glass_token(lens.materials[i + 1], i)
             out.append(f"S {head} {_f(after)}" + (f" {g}" if g else ""))
             if is_stop:

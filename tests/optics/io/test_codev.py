@@ -251,8 +251,9 @@ def test_automatic_semi_diameters(tmp_path):
 
 
 @pytest.mark.parametrize("body,line,match", [
-    ("S 50 5 NBK7_SCHOTT\n  STO\n  XDE 1\nS -50 45\nSI 0 0\n", 8, "unsupported command 'XDE'"),
-    ("S 50 5 NBK7_SCHOTT\n  STO\nS -50 45\n  ADE 3\nSI 0 0\n", 9, "'ADE'"),
+    ("S 50 5 NBK7_SCHOTT\n  STO\n  XDE 1\n  RET S1\nS -50 45\nSI 0 0\n", 8, "RET with XDE"),
+    ("S 50 5 NBK7_SCHOTT\n  STO\nS -50 45\n  ADE 3\n  BDE 2\n  BEN\nSI 0 0\n", 11,
+     "BEN with both ADE and BDE"),
     ("S 50 5 NBK7_SCHOTT\n  STO\n  K -1\nS -50 45\nSI 0 0\n", 8, "expected CON or ASP"),
     ("S 50 5 NOSUCH_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", 6, "NOSUCH not found in the SCHOTT"),
     ("S 50 5 517642\n  STO\nS -50 45\nSI 0 0\n", 6, "ambiguous"),
