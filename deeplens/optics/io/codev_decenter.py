@@ -140,6 +140,25 @@ def _euler(R: torch.Tensor) -> tuple[float, float, float]:
     return math.atan2(-r[1][2], r[2][2]), ty, math.atan2(-r[0][1], r[0][0])
 
 
+#: how far before a decentred image plane that lies on its break the break is moved (mm): the
+#: sensor must lie a positive distance after the last surface along the direction of travel
+IMAGE_BREAK_MM = 1e-9
+
+
+def _before_image(cb: CoordinateBreak, sign: float) -> tuple[float, CoordinateBreak, float]:
+    """The same frame as ``cb`` (order 0) reached from a point ``IMAGE_BREAK_MM`` before its
+    origin along its own axis (``sign``: the direction of travel): ``(dz, break, gap)``, ``dz``
+    (mm) to add to the distance before the break, ``gap`` (mm) from the break to the image
+    plane.  Exact: the origin and axes of the frame after the break are unchanged."""
+    like = torch.zeros((), dtype=torch.float64)
+    R = cb.rotation(like).detach()
+    gap = sign * IMAGE_BREAK_MM
+    P = cb.offset(like).detach() - R[:, 2] * gap
+    out = _break(float(P[0]), float(P[1]), float(cb.tilt_x), float(cb.tilt_y),
+                 float(cb.tilt_z))
+    return float(P[2]), out, gap
+
+
 class _Frame:
     """The running frame ``(A, b)``: a point ``p`` of the current frame, relative to the current
     vertex, is ``A p + b`` in object-space coordinates (mm, float64)."""
@@ -208,6 +227,18 @@ def expand_decenters(obj: dict, body: list[dict], img: dict, u: float, fail):
             frame.cross(item["cb"])
         prev = item
 
+    def place(cb: CoordinateBreak, on_image: bool, where: int) -> None:
+        """Emit the break ``cb`` of the current vertex; one whose image plane lies on it
+        (``on_image``) moved :data:`IMAGE_BREAK_MM` back along its axis (same frame)."""
+        if not on_image:
+            emit(_cb_item(cb, 0.0, where))
+            return
+        sign = next((math.copysign(1.0, r["t"]) for r in reversed(out + [prev])
+                     if r["t"] != 0 and r is not obj), 1.0)
+        dz, cb, gap = _before_image(cb, sign)
+        lead(dz / u)
+        emit(_cb_item(cb, gap / u, where))
+
     for n, s in enumerate(body + [img], start=1):
         s = dict(s)
         if prev is not obj or finite:
@@ -238,7 +269,7 @@ def expand_decenters(obj: dict, body: list[dict], img: dict, u: float, fail):
             p = frame.A.T @ (target.b - frame.b)
             lead(float(p[2]) / u)
             p = frame.A.T @ (target.b - frame.b)
-            emit(_cb_item(_break(float(p[0]), float(p[1]), *_euler(R)), 0.0, where))
+            place(_break(float(p[0]), float(p[1]), *_euler(R)), image and s["t"] == 0, where)
             frames[n] = frame.copy()
             s["t"] = t_after
             if image:
@@ -260,7 +291,7 @@ def expand_decenters(obj: dict, body: list[dict], img: dict, u: float, fail):
             emit(_cb_item(_inverse(v, u), t_after - v[2], where))
             continue
         lead(v[2])
-        emit(_cb_item(_forward(v, u), 0.0, where))
+        place(_forward(v, u), image and s["t"] == 0, where)
         frames[n] = frame.copy()
         if image:
             img = s
