@@ -84,6 +84,7 @@ FLOA_CLAP = ("tests/optics/io/test_zmx_floa_stop_clap.py",)
 ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
+CODEV_DECENTER = ("tests/optics/io/test_codev_decenter.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -868,6 +869,22 @@ MUTATIONS = [
              "                lens, catalogues, reoptimize, k=m, v_weight=v_weight,",
              "                lens, \"SCHOTT\", reoptimize, k=m, v_weight=v_weight,",
              SUBSTITUTION),
+    # ----------------------------------------- issue 37: CODE V decenters and tilts (seq2)
+    Mutation("codev_ade_sign", "CODE V's ADE read as a right-handed tilt (its sign flipped in "
+             "every break)", "deeplens/optics/io/codev_decenter.py",
+             "        d[\"v\"][_VALUES.index(cmd)] = nums(args, line, cmd, 1)[0]\n",
+             "        d[\"v\"][_VALUES.index(cmd)] = nums(args, line, cmd, 1)[0] * "
+             "(-1 if cmd == \"ADE\" else 1)\n", CODEV_DECENTER),
+    Mutation("codev_dar_no_return", "DAR read as a basic decenter (the frame not returned after "
+             "the surface)", "deeplens/optics/io/codev_decenter.py",
+             "        if typ == \"DAR\":\n            s[\"t\"] = 0.0\n            emit(s)\n"
+             "            emit(_cb_item(_inverse(v, u), t_after - v[2], where))\n",
+             "        if typ == \"DAR\":\n            emit(s)\n", CODEV_DECENTER),
+    Mutation("codev_inverse_forward_order", "the inverse break of DAR and REV applied in the "
+             "forward order (decenter, then tilt) instead of the reverse",
+             "deeplens/optics/io/codev_decenter.py",
+             "                  -math.radians(v[5]), order=1)",
+             "                  -math.radians(v[5]), order=0)", CODEV_DECENTER),
 ]
 
 
