@@ -572,8 +572,14 @@ def _build(rd: _Reader, path: Path) -> Lens:
                          aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves,
                          primary_wavelength_nm=primary)
     autos = [i for i in autos if i != stop]
-    if autos:
+    if autos and any(s.interaction.changes_frame for s in surfaces):
+        # decentred: the beam leaves the local axes, the paraxial estimate would clip it
+        from .zmx_read import real_ray_semi_diameters
+
+        real_ray_semi_diameters(lens, autos, fields)
+    elif autos:
         _paraxial_semi_diameters(lens, autos, max(abs(f) for f in fields))
+    if autos:
         for _ in range(2 * len(surfaces)):   # each round limits one surface for good
             try:
                 lens.check()

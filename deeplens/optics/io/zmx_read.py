@@ -796,7 +796,29 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, 
     and wavelength, apertures ignored) are traced and each surface gets its largest hit radius.
     OpticStudio does not vignette on automatic semi-diameters, and the 2 % keep rim rays (and
     the slightly larger pupils of ray aiming) from being clipped by them.  Capped to the
-    surface's domain."""
+    surface's domain (:func:`real_ray_semi_diameters`); then estimates of surfaces that cross are
+    limited to where they meet."""
+    real_ray_semi_diameters(lens, idx, fields)
+    limited = {} if limited is None else limited
+    while True:
+        try:
+            lens.check()
+            return
+        except SurfacesCrossError as e:
+            if _limit_at_crossing(e, lens.surfaces, lambda i: i in idx, limited, original):
+                continue
+            raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
+        except ValueError as e:
+            raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
+
+
+def real_ray_semi_diameters(lens, idx, fields) -> None:
+    """Semi-diameters (mm, in place) of the surfaces ``idx``: the largest hit radius of real
+    rays over the paraxial entrance pupil enlarged by 2 % (48 rim points and the chief ray per
+    field in ``fields`` (degrees) and wavelength, apertures ignored), after the paraxial
+    estimate :func:`paraxial_semi_diameters` that lets the rays through; capped to a conic's
+    domain.  The ``.zmx`` reader's automatic semi-diameters (:func:`_auto_semi_diameters`) and the
+    CODE V reader's for a lens with coordinate breaks."""
     from ..options import TraceOptions
     from ..paraxial import paraxial
     from ..sampling import field_rays
@@ -832,17 +854,6 @@ def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, 
                 if c != 0 and 1 + k > 0:
                     sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
                 surf.semi_diameter.fill_(sd)
-    limited = {} if limited is None else limited
-    while True:
-        try:
-            lens.check()
-            return
-        except SurfacesCrossError as e:
-            if _limit_at_crossing(e, lens.surfaces, lambda i: i in idx, limited, original):
-                continue
-            raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
-        except ValueError as e:
-            raise _located(p, e, where_of, "with automatic semi-diameters (no DIAM): ") from e
 
 
 def _afocal(lens) -> bool:
