@@ -379,3 +379,29 @@ def test_automatic_semi_diameters_of_a_decentred_lens_do_not_vignette(name):
         b = spot_diagram(wide, float(f), w, sampling="hexapolar:6")
         assert a.n_rays == b.n_rays == a.n_launched
         assert float(a.rms_radius) == pytest.approx(float(b.rms_radius), abs=1e-12)
+
+
+@pytest.mark.parametrize("ext", ["zmx", "json"])
+@pytest.mark.parametrize("name", ["folded_lenses", "dec_test", "compound"])
+def test_a_decentred_seq_lens_keeps_its_rays_through_zmx_and_json(name, ext, tmp_path):
+    """``.seq`` -> lens -> ``.zmx`` (breaks as ``COORDBRK``) or JSON -> lens: every ray lands at
+    the same point of the image surface, in the same direction (1e-10 mm)."""
+    from deeplens.optics.io import load_lens, save_lens
+
+    if name == "compound":
+        src = tmp_path / "compound.seq"
+        src.write_text(COMPOUND)
+    else:
+        src = RAYOPTICS / f"{name}.seq"
+    a = _read(src)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        save_lens(a, tmp_path / f"out.{ext}")
+        b = load_lens(tmp_path / f"out.{ext}").double()
+    rays = _oracle_rays()
+    o = [[x, y, -10.0] for (x, y, _), _ in rays]
+    pa, da, oka = _trace(a, o, [d for _, d in rays])
+    pb, db, okb = _trace(b, o, [d for _, d in rays])
+    assert bool(oka.all()) and bool(okb.all())
+    assert torch.allclose(pa[:, :2], pb[:, :2], atol=TOL, rtol=0)
+    assert torch.allclose(da, db, atol=TOL, rtol=0)
