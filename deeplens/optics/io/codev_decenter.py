@@ -89,6 +89,9 @@ def decenter_command(s: dict, cmd: str, args: list[str], line: int, nums, fail) 
     d = s.setdefault("dec", {"v": [0.0] * 6, "type": None, "type_line": None, "ret": None,
                              "line": line})
     if cmd in _VALUES:
+        if len(args) > 1 and args[0].upper()[:1] == "S":
+            fail(line, f"{cmd} {args[0]}: surface qualifiers are not supported; expected the "
+                       f"command in the surface's own block")
         d["v"][_VALUES.index(cmd)] = nums(args, line, cmd, 1)[0]
         return
     if cmd == "RET":

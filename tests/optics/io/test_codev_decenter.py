@@ -340,6 +340,7 @@ def test_a_break_inside_glass_is_not_written(tmp_path):
     ("S 0 5\n  STO\nS 0 5\n  DAR\n  BEN\nSI 0 0\n", 11, "already has the decenter type DAR"),
     ("S 0 5\n  STO\nS 0 5\n  DAR 1\nSI 0 0\n", 10, "DAR: expected no value"),
     ("S 0 5\n  STO\nS 0 5\n  ADE\nSI 0 0\n", 10, "ADE: expected 1 number"),
+    ("S 0 5\n  STO\nS 0 5\n  ADE S2 3\nSI 0 0\n", 10, "ADE S2: surface qualifiers"),
 ])
 def test_refusals_name_file_and_line(tmp_path, body, line, match):
     p = _seq(tmp_path, body)
