@@ -298,15 +298,17 @@ class GridSag(SagSurface):
 
     def sag_scale(self, name: str) -> float:
         """``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``a.i`` (of ``r^(2i+2)``):
-        ``R^(2i+2)``; ``grid_z`` (mm): 1; ``grid_dz_dx``: ``h_x`` and ``grid_dz_dy``: ``h_y``
-        (a node's slope moves the sag by about a cell's width times it); ``grid_d2z_dxdy``:
-        ``h_x h_y``."""
+        ``R^(2i+2)``; the grids, per node value, the most the sag moves per unit of one: ``grid_z``
+        (mm) 1 (at the node), ``grid_dz_dx`` ``4/27 h_x`` and ``grid_dz_dy`` ``4/27 h_y`` (the
+        largest ``|B_a|``, a third of the cell from the node), ``grid_d2z_dxdy`` ``(4/27)² h_x
+        h_y``."""
+        m = 4.0 / 27.0
         if name == "grid_dz_dx":
-            return float(self.grid_spacing[0])
+            return m * float(self.grid_spacing[0])
         if name == "grid_dz_dy":
-            return float(self.grid_spacing[1])
+            return m * float(self.grid_spacing[1])
         if name == "grid_d2z_dxdy":
-            return float(self.grid_spacing[0] * self.grid_spacing[1])
+            return m * m * float(self.grid_spacing[0] * self.grid_spacing[1])
         return conic_polynomial_scale(self, name, lambda i: 2 * i + 2)
 
     file_fields = ("curvature_per_mm", "conic", "even_coefficients", "grid_spacing_mm",

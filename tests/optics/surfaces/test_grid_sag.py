@@ -7,8 +7,6 @@ interpolant's; outside the grid rays miss; the lens file round-trips."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 import torch
@@ -317,12 +315,22 @@ def test_finite_difference_slopes_are_exact_for_quadratics():
     assert torch.allclose(zxy, torch.full_like(X, 0.25), atol=1e-12)
 
 
-def test_parameter_scales():
-    """``parameter_scale`` of a node's sag (mm) is 1, of its slopes the cell sizes."""
+def test_parameter_scales_are_the_largest_sag_change_per_node_value():
+    """``parameter_scale`` of the grids (one scale per tensor: per node value) is the largest
+    ``|∂ sag / ∂θ|`` of one interior node's value over the four cells around it (the sag is
+    linear in the grid values: the change of the sag when the value moves by 1, on a fine
+    sample): 1 for its sag, ``4/27 h`` for its slopes, ``(4/27)² h_x h_y`` for its cross
+    derivative; the base's curvature keeps ``R²/2``."""
     from deeplens.optics.parameters import parameter_scale
 
     lens, s = _bumpy()
-    assert parameter_scale(lens, "surfaces.0.grid_z") == 1.0
-    assert parameter_scale(lens, "surfaces.0.grid_dz_dx") == 1.75
-    assert parameter_scale(lens, "surfaces.0.grid_d2z_dxdy") == pytest.approx(1.75 ** 2)
-    assert math.isfinite(parameter_scale(lens, "surfaces.0.c"))
+    X, Y = nodes(121, 121, 3.5 / 120, 3.5 / 120, dec=(1.75, 1.75))   # around node (7, 7)
+    for name in ("grid_z", "grid_dz_dx", "grid_dz_dy", "grid_d2z_dxdy"):
+        p = getattr(s, name)
+        with torch.no_grad():
+            z0 = s.sag(X, Y)
+            p[7, 7] += 1.0
+            ref = float((s.sag(X, Y) - z0).abs().max())
+            p[7, 7] -= 1.0
+        assert parameter_scale(lens, f"surfaces.0.{name}") == pytest.approx(ref, rel=1e-3), name
+    assert parameter_scale(lens, "surfaces.0.c") == pytest.approx(6.0 ** 2 / 2)
