@@ -334,3 +334,55 @@ def test_parameter_scales_are_the_largest_sag_change_per_node_value():
             p[7, 7] -= 1.0
         assert parameter_scale(lens, f"surfaces.0.{name}") == pytest.approx(ref, rel=1e-3), name
     assert parameter_scale(lens, "surfaces.0.c") == pytest.approx(6.0 ** 2 / 2)
+
+
+@pytest.mark.parametrize("mode", ["surface", "lens"])
+def test_fused_tracer_runs_it_eager_with_the_same_values_and_gradients(uncompiled, mode):
+    """The double Gauss with its first surface a grid sag (its asphere's base, the even terms
+    on the grid: a 35 x 35 grid of the asphere's polynomial part plus a small bump): the fused
+    tracer's logic (``uncompiled``) leaves it to the eager path between its fused runs; rays,
+    paths and gradients (the grid's base curvature, every node's sag, a later sphere's c) equal
+    the eager tracer's."""
+    import helpers as H
+
+    from deeplens.optics.io import load_lens
+    from deeplens.optics.sampling import field_rays
+
+    lens = load_lens(H.LENS_DIR / "double_gauss.json")
+    s0 = lens.surfaces[0]
+    sd = float(s0.semi_diameter)
+    a4, a6, a8 = (float(v) for v in s0.a)
+
+    def f(X, Y):
+        r2 = X * X + Y * Y
+        bump = 1e-4 * torch.sin(X) * torch.cos(Y)
+        return (a4 * r2 ** 2 + a6 * r2 ** 3 + a8 * r2 ** 4 + bump,
+                (4 * a4 * r2 + 6 * a6 * r2 ** 2 + 8 * a8 * r2 ** 3) * X
+                + 1e-4 * torch.cos(X) * torch.cos(Y),
+                (4 * a4 * r2 + 6 * a6 * r2 ** 2 + 8 * a8 * r2 ** 3) * Y
+                - 1e-4 * torch.sin(X) * torch.sin(Y),
+                4 * (2 * a4 + 6 * a6 * r2 + 12 * a8 * r2 ** 2) * X * Y
+                - 1e-4 * torch.cos(X) * torch.sin(Y))
+    gs = sampled(f, 35, 35, 2 * sd / 34, 2 * sd / 34, curvature=float(s0.c), sd=sd,
+                 conic=float(s0.k))
+    lens.surfaces[0] = gs
+    assert fused_kind(lens, 0) is None and fused_kind(lens, 4) is not None
+    params = [gs.c, gs.grid_z, lens.surfaces[4].c]
+    for p in params:
+        p.requires_grad_(True)
+    rays = field_rays(lens, 10.0, H.WAVELENGTH_D, H.disk_points(120, 2.6, seed=2), 6.0)
+
+    def run(opt):
+        out = lens.trace_to_sensor(rays, options=opt)
+        v = out.valid
+        return out, torch.autograd.grad((out.o[v] ** 2).sum() + out.opl[v].sum(), params)
+
+    a, ga = run(TraceOptions(compile=False))
+    b, gb = run(TraceOptions(compile=mode))
+    assert torch.equal(a.valid, b.valid) and 0.3 * len(a.valid) < int(a.valid.sum())
+    v = a.valid
+    for x, y in ((a.o, b.o), (a.d, b.d), (a.opl, b.opl)):
+        assert float((x - y)[v].detach().abs().max()) < 1e-12
+    for x, y in zip(ga, gb):
+        assert float(x.abs().max()) > 0
+        assert torch.allclose(x, y, rtol=1e-10, atol=1e-12 * float(x.abs().max()))
