@@ -118,6 +118,11 @@ def _grid_sag(s, ctx) -> GridSag:
     coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(1, top + 1)]
     surf = GridSag(ctx.c, ctx.sd_build, (hx, hy), z, zx, zy, zxy, decenter=(xd * s_mm, yd * s_mm),
                    conic=s.coni, coefficients=coeffs)
+    (x0, x1), (y0, y1) = surf.grid_extent()
+    if ctx.sd > 0 and min(-x0, x1, -y0, y1) < ctx.sd:
+        p.note(g_ln, f"SURF {k}: the semi-diameter ({ctx.sd:g} mm) reaches beyond the grid (x "
+                     f"{x0:g}..{x1:g} mm, y {y0:g}..{y1:g} mm): rays that land outside the grid "
+                     f"are blocked (deeplens does not extrapolate the grid)")
     with torch.no_grad():
         dc = float(surf.paraxial_curvature()) - (ctx.c + 2.0 * (coeffs[0] if coeffs else 0.0))
     if dc != 0.0 and math.isfinite(dc):

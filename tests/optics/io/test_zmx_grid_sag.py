@@ -256,3 +256,19 @@ def test_garr_before_gdat_is_refused_on_its_line(tmp_path):
         read_zmx_quiet(write(tmp_path, text))
     assert e.value.line == line_of(text, "GARR 0 ")
     assert math.isfinite(e.value.line)
+
+
+def test_an_aperture_beyond_the_grid_is_noted(tmp_path):
+    """A semi-diameter (DIAM 10 mm) that reaches beyond the grid (x ±4.65, y ±4.6 mm): a located
+    note says that rays landing outside it are blocked; and so they are."""
+    text = grid_lens(garr(poly, 7, 5, 1.55, 2.3))
+    with pytest.warns(Warning, match=r"SURF 1: the semi-diameter \(10 mm\) reaches beyond the "
+                                     r"grid \(x -4.65..4.65 mm, y -4.6..4.6 mm\)") as rec:
+        lens = read_zmx(write(tmp_path, text))
+    assert any(getattr(w.message, "line", None) == line_of(text, "GDAT") for w in rec)
+    o = torch.tensor([[0.0, 4.0, -1.0], [0.0, 4.8, -1.0]], dtype=F64)
+    d = torch.tensor([[0.0, 0.0, 1.0]] * 2, dtype=F64)
+    with torch.no_grad():
+        out = lens.trace_to_sensor(Rays(o, d, 550.0), options=TraceOptions(clip_aperture=False))
+    assert out.valid.tolist() == [True, False]
+
