@@ -272,3 +272,15 @@ def test_an_aperture_beyond_the_grid_is_noted(tmp_path):
         out = lens.trace_to_sensor(Rays(o, d, 550.0), options=TraceOptions(clip_aperture=False))
     assert out.valid.tolist() == [True, False]
 
+
+def test_x_fields_on_a_grid_sag_lens_are_noted_as_not_exact(tmp_path):
+    """An x field component on a lens with a grid sag (not rotationally symmetric in general):
+    the note that combines x and y into a radial field says it is NOT exact, naming the
+    surface."""
+    text = grid_lens(garr(poly, 7, 5, 3.1, 4.6)).replace("XFLN 0", "XFLN 1")
+    text = text.replace("YFLN 0", "YFLN 1")
+    with pytest.warns(Warning, match=r"XFLN: x field components are combined with y into a "
+                                     r"radial field, which is NOT exact for this lens \(surface "
+                                     r"0, a GridSag"):
+        read_zmx(write(tmp_path, text))
+
