@@ -386,3 +386,23 @@ def test_fused_tracer_runs_it_eager_with_the_same_values_and_gradients(uncompile
     for x, y in zip(ga, gb):
         assert float(x.abs().max()) > 0
         assert torch.allclose(x, y, rtol=1e-10, atol=1e-12 * float(x.abs().max()))
+
+
+def test_float32_sag_within_its_rounding():
+    """The sphere grid evaluated in float32 (points and grids) against float64: within the
+    rounding of the 16 Hermite terms (each basis value <= 1 in size) and of the coordinates
+    (eps |x| times the slope): ``32 eps (max|z| + h max|z_x| + h max|z_y| + h² max|z_xy|) +
+    4 eps max|x| max|slope|``."""
+    c, h = 0.01, 0.875
+    s = sampled(sphere(c), 25, 25, h, h)
+    x, y = inside(2000, s, seed=4)
+    z64 = s.sag(x, y)
+    z32 = s.float().sag(x.float(), y.float())
+    assert z32.dtype == torch.float32
+    eps = float(torch.finfo(torch.float32).eps)
+    Z, Zx, Zy, Zxy = (float(g.abs().max()) for g in (s.grid_z, s.grid_dz_dx, s.grid_dz_dy,
+                                                      s.grid_d2z_dxdy))
+    bound = 32 * eps * (Z + h * Zx + h * Zy + h * h * Zxy) + 4 * eps * 10.5 * max(Zx, Zy)
+    err = float((z32.double() - z64).abs().max())
+    assert err < bound
+    assert err > 0
