@@ -30,11 +30,12 @@ polynomial of degree <= 3 in ``x`` and in ``y`` (``x^p y^q``, ``p, q <= 3``) exa
 nodes carry its exact derivatives; for a smooth sag the error is at most ``h_x⁴/384 max|∂⁴z/∂x⁴|
 + h_y⁴/384 (max|∂⁴z/∂y⁴| + h_x/4 max|∂⁵z/∂x∂y⁴|)`` (the one-dimensional Hermite bound, applied
 in ``y`` and then in ``x``, whose basis sums to ``|A_0| + |A_1| = 1``, ``|B_0| + |B_1| =
-u(1 − u) <= 1/4``).  This is OpticStudio's bicubic spline ("The surface shape is determined by
-either a linear or a bicubic spline interpolation of the sag values"; the data carry ``z``,
-``dz/dx``, ``dz/dy``, ``d2z/dxdy`` per node: OpticStudio User Guide, *Grid Sag*,
-ansyshelp.ansys.com, v242).  The linear interpolation OpticStudio also offers is not here (its
-slopes jump at every grid line).
+u(1 − u) <= 1/4``).  OpticStudio's surface is "determined by either a linear or a bicubic
+spline interpolation of the sag values", its data ``z``, ``dz/dx``, ``dz/dy``, ``d2z/dxdy`` per
+node (OpticStudio User Guide, *Grid Sag*, ansyshelp.ansys.com, v242); the page gives no formula,
+and this interpolant is taken for its bicubic: the one bicubic per cell that those sixteen corner
+values fix (the classic bicubic interpolation, e.g. Numerical Recipes' ``bcuint``).  The linear
+interpolation OpticStudio also offers is not here (its slopes jump at every grid line).
 
 **Outside the grid** (``x`` beyond ``[x_0, x_{n_x−1}]`` or ``y`` beyond ``[y_0, y_{n_y−1}]``)
 the surface is not defined: :meth:`GridSag.in_domain` is false there and the tracer marks
