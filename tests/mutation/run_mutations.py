@@ -885,6 +885,30 @@ MUTATIONS = [
              "deeplens/optics/io/codev_decenter.py",
              "                  -math.radians(v[5]), order=1)",
              "                  -math.radians(v[5]), order=0)", CODEV_DECENTER),
+    # ----------------------------------------- issue 37 item 5: the grid sag surface (GRID_SAG)
+    Mutation("grid_sag_xy_swapped", "grid sag: x looked up along the grid's y and y along its "
+             "x", "deeplens/optics/surfaces/grid_sag.py",
+             "        sx, nx, hx = self._index(x, 0)\n        sy, ny, hy = self._index(y, 1)\n"
+             "        ix, u = self._cell(sx, nx)\n        iy, v = self._cell(sy, ny)\n"
+             "        G = ",
+             "        sx, nx, hx = self._index(y, 0)\n        sy, ny, hy = self._index(x, 1)\n"
+             "        ix, u = self._cell(sx, nx)\n        iy, v = self._cell(sy, ny)\n"
+             "        G = ", ("tests/optics/surfaces/test_grid_sag.py",)),
+    Mutation("grid_sag_slopes_per_cell", "grid sag: the node slopes taken per cell, not per mm "
+             "(not multiplied by the cell size)", "deeplens/optics/surfaces/grid_sag.py",
+             "out = out + (Z[jy, jx] * bu[a] * bv[b] + hx * Zx[jy, jx] * bu[2 + a] * bv[b]\n"
+             "                             + hy * Zy[jy, jx] * bu[a] * bv[2 + b]",
+             "out = out + (Z[jy, jx] * bu[a] * bv[b] + Zx[jy, jx] * bu[2 + a] * bv[b]\n"
+             "                             + Zy[jy, jx] * bu[a] * bv[2 + b]",
+             ("tests/optics/surfaces/test_grid_sag.py",)),
+    Mutation("grid_sag_rows_from_bottom", "GRID_SAG: the file's rows read from -y up (they run "
+             "from +y down)", "deeplens/optics/io/zmx_grid_sag.py",
+             "grid = a[:, :4].reshape(ny, nx, 4).flip(0)", "grid = a[:, :4].reshape(ny, nx, 4)",
+             ("tests/optics/io/test_zmx_grid_sag.py",)),
+    Mutation("grid_sag_cross_derivative_units", "GRID_SAG: the cross derivative scaled like a "
+             "length (it is per length)", "deeplens/optics/io/zmx_grid_sag.py",
+             "zxy = grid[..., 3] / s_mm", "zxy = grid[..., 3] * s_mm",
+             ("tests/optics/io/test_zmx_grid_sag.py",)),
 ]
 
 

@@ -17,7 +17,9 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
   :class:`Binary2Format` (``BINARY_2``, ``Binary2``), :class:`ZernikeSagFormat` (``SZERNSAG``,
   ``ZernikeSag``);
 * :class:`ExtendedAsphereFormat`: reads ``XASPHERE`` (an ``Asphere`` with terms beyond r¹⁶ is
-  written so by :class:`AsphereFormat`).
+  written so by :class:`AsphereFormat`);
+* :class:`~.zmx_grid_sag.GridSagFormat` (in its own module, :mod:`.zmx_grid_sag`): ``GRID_SAG``,
+  ``GridSag``.
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
@@ -906,3 +908,8 @@ class ExtendedAsphereFormat(SurfaceFormat):
 
     def read_zmx(self, s, ctx):
         return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+
+# GRID_SAG's handler lives in its own module; importing it registers it (after the built-in
+# ones: the parser lists the types read in registration order)
+from . import zmx_grid_sag  # noqa: E402,F401

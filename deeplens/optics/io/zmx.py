@@ -30,6 +30,9 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
                OddAsphere with an r² term)
     JONESMAT   z = 0 (a Jones matrix surface, PARM 1..8 its A..D: read as the plane, its
                polarization and transmission not applied, with a located note)
+    GRID_SAG   z = EVENASPH (PARM 1..8 on r², ..., r¹⁶) + the bicubic Hermite interpolant of
+               the grid GDAT nx ny delx dely xdec ydec, GARR i z dz/dx dz/dy d2z/dxdy nodata
+               (from the top left, -x +y); PARM 0 = 0 (bicubic); a GridSag (:mod:`.zmx_grid_sag`)
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 

@@ -44,7 +44,7 @@ _UNSUPPORTED_TYPES = {
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "GRINSUR1": "a gradient-index surface",
     "USERSURF": "a user-defined (DLL) surface",
-    "GRID_SAG": "a grid-sag surface", "IRREGULA": "an irregular surface",
+    "IRREGULA": "an irregular surface",
 }
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
@@ -125,6 +125,10 @@ class ZmxSurface:
     obsc_inner: tuple | None = None   # (a ring obscuration's inner radius > 0, line): OBSC lo hi
     mirror: bool = False               # GLAS MIRROR
     obdc: tuple | None = None   # (x, y aperture decenter, line) in file units
+    # GDAT nx ny delx dely [xdec ydec]: a grid surface's header, (values..., line), file units
+    grid: tuple | None = None
+    # GARR i z dz/dx dz/dy d2z/dxdy [nodata]: index -> (z, zx, zy, zxy, nodata, line)
+    grid_rows: dict = field(default_factory=dict)
 
 
 class Locator:
@@ -440,6 +444,38 @@ def _obdc(st: _Parse, r: Record) -> None:
     st.cur.obdc = (*dec, ln) if any(v != 0 for v in dec) else None
 
 
+def _gdat(st: _Parse, r: Record) -> None:
+    """``GDAT nx ny delx dely [xdec ydec]``: the header of a grid surface's data (the numbers of
+    points, the spacings and the grid's decenter, in lens units; read by the ``GRID_SAG``
+    handler, :mod:`.zmx_grid_sag`)."""
+    p, toks, ln = st.p, r.tokens, r.line
+    vals = [p.arg(toks, i, ln, what) for i, what in
+            enumerate(("number of x points", "number of y points", "x spacing", "y spacing"), 1)]
+    dec = [p.num(t, ln, "GDAT decenter") for t in toks[5:7]]
+    st.cur.grid = (*vals, *(dec + [0.0] * (2 - len(dec))), ln)
+
+
+def _garr(st: _Parse, r: Record) -> None:
+    """``GARR i z dz/dx dz/dy d2z/dxdy [nodata]``: grid point ``i`` (from 0, row by row from the
+    top left, -x +y) of the ``GDAT`` before it."""
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    k = len(st.surfs) - 1
+    if cur.grid is None:
+        p.fail(ln, f"GARR on SURF {k} before its GDAT line: the grid's header (GDAT nx ny delx "
+                   f"dely) must come first")
+    i = p.arg(toks, 1, ln, "grid point index")
+    if i != int(i) or i < 0:
+        p.fail(ln, f"GARR on SURF {k}: the grid point index must be an integer >= 0, got "
+                   f"{toks[1]!r}")
+    if int(i) in cur.grid_rows:
+        p.fail(ln, f"GARR on SURF {k}: grid point {int(i)} is given twice (first on line "
+                   f"{cur.grid_rows[int(i)][-1]})")
+    vals = [p.arg(toks, j, ln, what) for j, what in
+            enumerate(("sag", "dz/dx", "dz/dy", "d2z/dxdy"), 2)]
+    nodata = p.num(toks[6], ln, "GARR nodata flag") if len(toks) > 6 else 0.0
+    cur.grid_rows[int(i)] = (*vals, nodata, ln)
+
+
 _APERTURES_REFUSED = {
     "ELAP": "an elliptical aperture", "SQOB": "a rectangular obscuration",
     "ELOB": "an elliptical obscuration", "UDAD": "a user-defined aperture", "SPID": "a spider"}
@@ -470,7 +506,8 @@ _SYSTEM_OPERANDS = {
 _SURFACE_OPERANDS = {
     "TYPE": _type, "CURV": _curv, "DISZ": _disz, "CONI": _coni, "DIAM": _diam, "STOP": _stop,
     "PARM": _parm, "XDAT": _xdat, "GLAS": _glas, "CLAP": _clap, "OBSC": _obsc, "SQAP": _sqap,
-    "OBDC": _obdc, **dict.fromkeys(_APERTURES_REFUSED, _aperture_refused),
+    "OBDC": _obdc, "GDAT": _gdat, "GARR": _garr,
+    **dict.fromkeys(_APERTURES_REFUSED, _aperture_refused),
     **dict.fromkeys(("TCE", "COAT", "PZUP", "SCBD"), _surface_ignored),
 }
 

@@ -18,6 +18,7 @@ import math
 import torch
 
 from ..surfaces import Aperture, Asphere, Biconic, Cylinder, OddAsphere, Plane, QType, ZernikeSag
+from ..surfaces.grid_sag import GridSag
 
 __all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
            "zemax_tilts", "element_tilts", "lens_pupil_convention", "fields_to_angles"]
@@ -215,9 +216,9 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
     xs = xs + [0.0] * (len(ys) - len(xs))
     kind = ftyp[0]
     if any(x != 0 for x in xs):
-        anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder))
+        anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder, GridSag))
                       or (isinstance(s, ZernikeSag) and not s.rotationally_symmetric())]
-        if anamorphic:   # a biconic, cylinder or toroid: x and y fields image differently
+        if anamorphic:   # a biconic, cylinder, toroid or grid: x and y fields image differently
             p.note(xline, f"XFLN: x field components are combined with y into a radial field, "
                           f"which is NOT exact for this lens (surface {anamorphic[0]}, a "
                           f"{type(lens.surfaces[anamorphic[0]]).__name__}, is not rotationally "

@@ -9,6 +9,7 @@ from .bspline import BSpline
 from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
 from .grating import Grating
+from .grid_sag import GridSag
 from .ideal import IdealLens
 from .odd_asphere import OddAsphere
 from .plane import Plane
@@ -18,5 +19,5 @@ from .xy_polynomial import XYPolynomial
 from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
 __all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder",
-           "Grating", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
+           "Grating", "GridSag", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
            "Surface", "SagSurface", "SURFACE_TYPES"]

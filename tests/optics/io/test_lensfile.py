@@ -264,7 +264,8 @@ BAD = [
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
      r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, grating, "
-     r"ideal_lens, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, zernike_fringe_sag, "
+     r"grid_sag, ideal_lens, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
+     r"zernike_fringe_sag, "
      r"zernike_sag\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
@@ -514,6 +515,18 @@ def test_every_registered_surface_type_round_trips():
                           "norm_radius_mm": 2.7, "zernike_coefficients": [0.0, 0.0, 0.0, 1e-3 / 3],
                           "zernike_extrapolate": 0, "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([16, 16])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a grid sag (OpticStudio's GRID_SAG), likewise: a 3 x 4 grid (rows of rising y)
+    d["surfaces"].append({"type": "grid_sag", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 85.0, "conic": -0.1,
+                          "even_coefficients": [1e-4 / 3], "grid_spacing_mm": [1.75, 2.6],
+                          "grid_decenter_mm": [0.1, -1 / 3],
+                          "grid_sag_mm": [[0.0, 1e-3, 2e-3 / 3], [0.0, -1e-3 / 7, 0.0],
+                                          [1e-4, 0.0, 0.0], [0.0, 0.0, 5e-4]],
+                          "grid_dz_dx": [[0.0, 1e-4, 0.0]] * 4, "grid_dz_dy": [[0.0] * 3] * 4,
+                          "grid_d2z_dxdy_per_mm": [[0.0, 0.0, 1e-5 / 3]] * 4,
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([17, 17])
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}
