@@ -9,7 +9,9 @@ FOLDER defaults to tests/data/codev_real.  Per file: ``loaded`` with the paraxia
 entrance pupil diameter (EPD) and position from the file's surface 1 (ENP), and the rear focal
 point from the image plane (BFP), each to float64 round-off (1e-9 relative), rayoptics being
 given deeplens' refractive indices (the oracle code is tests/optics/io/codev_oracle.py, the
-corpus test's own); or the one located line of the refusal.  Then the counts: loaded /
+corpus test's own; a file without RDM, which deeplens reads in radius mode and rayoptics in
+curvature mode, is given to rayoptics with ``RDM Y``, and marked so); or the one located line of
+the refusal.  Then the counts: loaded /
 confirmed / disagree / refused (and unlocated errors, which should not exist).
 """
 
@@ -35,7 +37,7 @@ def main(folder: str | None = None, oracle: bool = True) -> int:
         raise SystemExit(f"seq_corpus: {root} is not a folder of .seq files")
     files = sorted(p for p in root.iterdir() if p.suffix.lower() == ".seq")
     if oracle:
-        from codev_oracle import agrees, numbers
+        from codev_oracle import agrees, has_rdm, numbers
     loaded = confirmed = disagree = refused = crashed = unconfirmed = 0
     for f in files:
         with warnings.catch_warnings():
@@ -64,6 +66,8 @@ def main(folder: str | None = None, oracle: bool = True) -> int:
                 else:
                     confirmed += 1
                     verdict = "confirmed (EFL, EPD, ENP, BFP)"
+                if not has_rdm(f):   # rayoptics' own default is curvature mode
+                    verdict += " [no RDM: radius mode, rayoptics given RDM Y]"
             except Exception as e:  # noqa: BLE001 - the oracle cannot read it
                 unconfirmed += 1
                 verdict = f"rayoptics cannot: {type(e).__name__}: {str(e)[:60]}"

@@ -431,6 +431,8 @@ class _Reader:
         if len(args) not in (2, 3):
             self.fail(line, f"{cmd}: expected '{cmd} radius thickness [glass]', got "
                             f"{' '.join(args)!r}")
+        if cmd == "SO" and args[1].lower() in ("inf", "+inf", "infinity"):
+            args = [args[0], "1e20", *args[2:]]   # an object at infinity (|t| >= 1e10)
         r, t = (_num(a, f"{cmd} {w}", self.src, line)
                 for a, w in zip(args, ("radius" if self.radius_mode else "curvature",
                                        "thickness")))

@@ -100,9 +100,20 @@ def _match(lens, sm, s_mm):
     return lead or 0.0, after
 
 
-def rayoptics_model(path, lens):
+def has_rdm(path) -> bool:
+    """Whether the file has an ``RDM`` command (radius or curvature mode)."""
+    text = Path(path).read_text(errors="replace")
+    return any(cmd.split()[:1] and cmd.split()[0].upper() == "RDM"
+               for line in text.splitlines() for cmd in line.split("!")[0].split(";"))
+
+
+def rayoptics_model(path, lens, radius_mode=None):
     """rayoptics' reading of ``path`` with deeplens' indices (lengths in the file's units), and
-    the path coordinate of deeplens' first surface from the file's surface 1."""
+    the path coordinate of deeplens' first surface from the file's surface 1.
+
+    A file without ``RDM`` is read by deeplens in radius mode (or as ``radius_mode`` says) and by
+    rayoptics in curvature mode (its own convention, cmdproc's ``spec_data``): the oracle gets
+    deeplens' reading, an ``RDM`` line put before the file's first line of a scratch copy."""
     from opticalglass.opticalmedium import ConstantIndex
 
     path = Path(path)
@@ -112,6 +123,9 @@ def rayoptics_model(path, lens):
 
         src = tmp / path.name
         shutil.copyfile(path, src)
+        if radius_mode is not None or not has_rdm(path):
+            rdm = "RDM N" if radius_mode is False else "RDM Y"
+            src.write_bytes(rdm.encode() + b"\n" + path.read_bytes())
         opm, _ = cmdproc.read_lens(src)
     sm = opm["seq_model"]
     s_mm = unit_mm(path)
@@ -126,7 +140,7 @@ def rayoptics_model(path, lens):
     return opm, lead
 
 
-def numbers(path, lens) -> dict[str, tuple[float, float]]:
+def numbers(path, lens, radius_mode=None) -> dict[str, tuple[float, float]]:
     """``{quantity: (deeplens, rayoptics)}`` in the file's length unit: the EFL (image-side; after
     an odd number of mirrors rayoptics' sign is the other one), the entrance pupil diameter, its
     position from the file's surface 1 (``ENP``) and the rear focal point from the image plane
@@ -134,7 +148,7 @@ def numbers(path, lens) -> dict[str, tuple[float, float]]:
     from rayoptics.parax.firstorder import compute_principle_points
 
     s_mm = unit_mm(path)
-    opm, lead = rayoptics_model(path, lens)
+    opm, lead = rayoptics_model(path, lens, radius_mode)
     sm = opm["seq_model"]
     with _scratch_cwd():
         fod = opm["analysis_results"]["parax_data"].fod

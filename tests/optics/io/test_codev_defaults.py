@@ -150,3 +150,11 @@ def test_ac_zero_is_read(tmp_path):
     b = read_seq(_seq(tmp_path, HEAD + BODY, "b.seq"))
     assert lens_to_dict(a) == lens_to_dict(b)
     assert math.isfinite(float(paraxial(a).efl))
+
+
+def test_so_inf_is_an_object_at_infinity(tmp_path):
+    """``SO 0 inf`` (as optiland's files write it) is the object at infinity, as ``SO 0 1e10``."""
+    a = read_seq(_seq(tmp_path, HEAD.replace("SO 0 1e10", "SO 0 inf") + BODY))
+    b = read_seq(_seq(tmp_path, HEAD + BODY, "b.seq"))
+    assert math.isinf(a.spec.object_distance_mm)
+    assert lens_to_dict(a) == lens_to_dict(b)
