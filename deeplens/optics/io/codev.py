@@ -53,8 +53,15 @@ quote a string, keywords are case-insensitive.  Mapping onto
 after it is the one before, and the file's negative thicknesses after it are kept, CODE V's
 sign convention being deeplens' and OpticStudio's).
 
+Defaults (docs/guide/codev.md, "Defaults"; each with a located :class:`CodeVWarning`): no
+``STO``: the first surface is the stop; several ``WL`` without ``REF``: the first is the
+reference; no ``SI``: ``SI 0 0``; no ``RDM``: radii (``read_seq(..., radius_mode=False)``:
+curvatures).  ``PRV`` ... ``END`` private glasses (indices at the ``PWL`` wavelengths) are
+:class:`~.codev_private.PrivateGlass` splines; ``CIR OBS r`` / ``CIR HOL r`` a central
+obscuration; ``PIK`` pickups of ``RDY``, ``CUY``, ``THI`` are applied; ``AC 0`` is read.
+
 Everything else (decenters and tilts, other surface types, ``NA``/``NAO``,
-real image heights, obscurations, surface qualifiers such as ``S3``) is refused: a
+real image heights, surface qualifiers such as ``S3``) is refused: a
 :class:`~deeplens.optics.errors.LensFileError` naming the file, the line and what was expected.
 
 :func:`write_seq` writes what :func:`read_seq` reads (curvature mode ``RDM N``, numbers with
