@@ -260,6 +260,13 @@ def _glass_token(m: Material, i: int) -> str | None:
         return "".join(m.name.replace("-", "").split()).upper() + "_" + m.catalogue.upper()
     if isinstance(m, ModelGlass):
         return _fictitious_code(m, i)
+    from .codev_private import PrivateGlass
+
+    if isinstance(m, PrivateGlass):   # its table is written in a PRV block (write_seq)
+        if "'" in m.name or not m.name.strip():
+            raise LensFileError(f"medium after surface {i}: private glass name {m.name!r} "
+                                f"cannot be quoted in a .seq file", surfaces=(i,))
+        return f"'{m.name}'"
     rec = GLASS_TABLE.get(m.name.upper())
     if rec is not None:
         from .zmx_glass import BUILTIN_CATALOGUES
@@ -866,6 +873,27 @@ def _surface_lines(s, i: int, stop: bool = False) -> list[str]:
     return handler.write_codev(s, i, stop)
 
 
+def _private_blocks(lens: Lens) -> list[str]:
+    """A ``PRV`` block per private glass of the lens (its table, as read)."""
+    from .codev_private import PrivateGlass
+
+    out, seen = [], {}
+    for m in lens.materials:
+        if not isinstance(m, PrivateGlass):
+            continue
+        key = m.name.upper()
+        if key in seen:
+            if seen[key] is not m and (seen[key].table_nm, seen[key].table_n) != (m.table_nm,
+                                                                                 m.table_n):
+                raise LensFileError(f"two private glasses named {m.name!r} with different "
+                                    f"tables")
+            continue
+        seen[key] = m
+        out += ["PRV", "  PWL " + " ".join(_f(w) for w in m.table_nm),
+                f"  '{m.name}' " + " ".join(_f(n) for n in m.table_n), "END"]
+    return out
+
+
 def write_seq(lens: Lens, path) -> None:
     """Write ``lens`` as a CODE V ``.seq`` file that :func:`read_seq` reads back.
 
@@ -899,6 +927,7 @@ def write_seq(lens: Lens, path) -> None:
         else:
             out.append(f"EPD {_f(paraxial(lens).entrance_pupil_diameter)}")
         out.append("YAN " + " ".join(_f(f) for f in spec.fields_deg))
+        out += _private_blocks(lens)
         od = float(spec.object_distance_mm)
         obj = f"SO 0.0 {'1e+20' if math.isinf(od) else _f(od)}"
         g = _glass_token(lens.materials[0], -1)
@@ -914,6 +943,8 @@ def write_seq(lens: Lens, path) -> None:
                 mods.insert(0, "STO")
             clear = float(getattr(s, "clear_radius", math.inf))
             mods.append(f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}")
+            if float(getattr(s, "obscuration", 0.0)) > 0:
+                mods.append(f"CIR OBS {_f(s.obscuration)}")
             out += ["  " + m for m in mods]
     out.append("SI 0.0 0.0")
     if lens.sensor_semi_diameter is not None:
