@@ -246,6 +246,13 @@ def _glass(tok: str, source: str, line: int, private=None) -> Material:
         raise LensFileError(f"glass {tok!r} is in several vendor catalogues ({', '.join(hits)}); "
                             f"expected NAME_CATALOGUE, e.g. {up}_{hits[0]}", source=source,
                             line=line)
+    older = list(dict.fromkeys(c for cand in _hyphenated(up)
+                               for c in find_in_vendor_catalogues(cand) if " " in c))
+    if older:   # only in archived or previous catalogues: a bare name does not choose one
+        cat = older[0].split()[0]
+        raise LensFileError(f"glass {tok!r} is in no current catalogue, only in "
+                            f"{', '.join(older)}; expected NAME_CATALOGUE, e.g. {up}_{cat}",
+                            source=source, line=line)
     raise LensFileError(f"glass {tok!r} not found (deeplens' catalogue and the current vendor "
                         f"catalogues); expected NAME_CATALOGUE or a fictitious glass "
                         f"NNNNNN.VVVV", source=source, line=line)
