@@ -38,7 +38,7 @@ def main(folder: str | None = None, oracle: bool = True) -> int:
     files = sorted(p for p in root.iterdir() if p.suffix.lower() == ".seq")
     if oracle:
         from codev_oracle import agrees, has_rdm, numbers
-    loaded = confirmed = disagree = refused = crashed = unconfirmed = 0
+    loaded = confirmed = disagree = refused = crashed = unconfirmed = no_rdm = 0
     for f in files:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -68,6 +68,7 @@ def main(folder: str | None = None, oracle: bool = True) -> int:
                     verdict = "confirmed (EFL, EPD, ENP, BFP)"
                 if not has_rdm(f):   # rayoptics' own default is curvature mode
                     verdict += " [no RDM: radius mode, rayoptics given RDM Y]"
+                    no_rdm += 1
             except Exception as e:  # noqa: BLE001 - the oracle cannot read it
                 unconfirmed += 1
                 verdict = f"rayoptics cannot: {type(e).__name__}: {str(e)[:60]}"
@@ -75,7 +76,9 @@ def main(folder: str | None = None, oracle: bool = True) -> int:
               f"{float(p.entrance_pupil_diameter):9.4f}  mirrors {len(lens.mirrors)}  {verdict}")
     print(f"\n{len(files)} files: {loaded} loaded / {confirmed} confirmed / {disagree} disagree / "
           f"{refused} refused" + (f" / {unconfirmed} not read by rayoptics" if unconfirmed else "")
-          + (f" / {crashed} unlocated errors" if crashed else ""))
+          + (f" / {crashed} unlocated errors" if crashed else "")
+          + (f"\n({no_rdm} of the loaded files have no RDM line: read as radii with a warning, "
+             f"rayoptics given RDM Y)" if no_rdm else ""))
     return 1 if crashed else 0
 
 

@@ -887,6 +887,14 @@ MUTATIONS = [
     Mutation("pik_factor_ignored", "a PIK pickup's factor ignored (target = source + offset)",
              "deeplens/optics/io/codev.py", "        v = factor * v + offset",
              "        v = v + offset", CODEV_DEFAULTS),
+    Mutation("fno_finite_not_working", "FNO with a finite object: the EPD of twice the "
+             "F-number", "deeplens/optics/io/codev.py",
+             "    return abs(to_pupil) / (fno * abs(u_k))",
+             "    return abs(to_pupil) / (2.0 * fno * abs(u_k))", CODEV_DEFAULTS),
+    Mutation("yim_finite_magnification_inverted", "YIM with a finite object: the magnification "
+             "inverted", "deeplens/optics/io/codev.py",
+             "        m = abs(float(n[0]) / (float(n[-1]) * float(u_k)))",
+             "        m = abs(float(n[-1]) * float(u_k) / float(n[0]))", CODEV_DEFAULTS),
     Mutation("codev_si_defocus_dropped", "SI's thickness (a defocus) not added to the last gap",
              "deeplens/optics/io/codev.py", "    d_sensor = gap + img[\"t\"] * u",
              "    d_sensor = gap", CODEV_CORPUS),

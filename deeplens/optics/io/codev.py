@@ -671,10 +671,12 @@ def _build(rd: _Reader, path: Path) -> Lens:
     if rd.pupil is None:
         fail(None, "no system aperture: expected EPD or FNO")
     kind, value, ap_line = rd.pupil
-    if kind == "FNO" and not math.isinf(obj_dist):
-        fail(ap_line, "FNO with the object at a finite distance: deeplens' F-number is the "
-                      "image-space one at infinity; expected EPD")
     ap_type, ap_value = ("epd", value * u) if kind == "EPD" else ("fno", value)
+    fno_finite = kind == "FNO" and not math.isinf(obj_dist)
+    if fno_finite:   # the EPD this working F-number gives, once the lens exists
+        if not value > 0:
+            fail(ap_line, f"FNO {value!r}: expected an F-number > 0")
+        ap_type, ap_value = "epd", 1.0
     try:
         spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                         aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves,
@@ -690,6 +692,15 @@ def _build(rd: _Reader, path: Path) -> Lens:
     except ValueError as e:
         idx = getattr(e, "surfaces", ())
         fail(where[idx[0]] if idx else None, str(e))
+    if fno_finite:
+        ap_value = _working_fno_epd(lens, obj_dist, value, ap_line, fail)
+        _warn(src, ap_line, f"FNO {value!r} with the object at a finite distance: read as the "
+                            f"working (image-space paraxial) F-number, |u'| = 1/(2 F), as "
+                            f"rayoptics does: EPD {ap_value!r} mm")
+        lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                             aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves,
+                             primary_wavelength_nm=primary)
+        lens.apply_aperture_spec()
     fields = _fields(rd, lens, obj_dist, u)
     lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                          aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves,
@@ -722,6 +733,26 @@ def _build(rd: _Reader, path: Path) -> Lens:
         if cir[0] * u < got * (1 - 1e-9):
             _stop_clear_radius(lens, cir[0] * u, got, kind, cir[1], fail, u)
     return lens
+
+
+def _working_fno_epd(lens: Lens, obj_dist: float, fno: float, line: int, fail) -> float:
+    """The entrance pupil diameter (mm) whose axial marginal ray leaves the lens at the slope
+    ``|u'| = 1 / (2 F)`` (a working F-number, rayoptics' reading of CODE V's ``FNO``:
+    ``compute_first_order`` sets the image-space marginal slope to ``-1 / (2 F)``).  The
+    marginal ray from the object point with slope ``u0`` leaves at ``u_k u0`` (linear), and
+    meets the entrance pupil at height ``u0 (s + l_EP)``."""
+    from ..paraxial import media_indices, paraxial, trace_paraxial_ray
+
+    with torch.no_grad():
+        n = media_indices(lens)
+        one = torch.ones((), dtype=n.dtype, device=n.device)
+        _, u_k, _ = trace_paraxial_ray(lens, obj_dist * one, one, n)
+        to_pupil = obj_dist + float(paraxial(lens).entrance_pupil_position)
+    u_k = float(u_k)
+    if u_k == 0 or to_pupil == 0:
+        fail(line, "FNO with a finite object: the marginal ray leaves parallel or the "
+                   "entrance pupil is on the object; expected EPD")
+    return abs(to_pupil) / (fno * abs(u_k))
 
 
 def _obscuration(lens: Lens, i: int, r: float, line: int, kind: str, fail, src: str) -> None:
@@ -842,8 +873,20 @@ def _fields(rd: _Reader, lens: Lens, obj_dist: float, u: float) -> list[float]:
         d = obj_dist + float(par.entrance_pupil_position)
         return [math.degrees(math.atan(h * u / d)) for h in vals]
     if not math.isinf(obj_dist):
-        rd.fail(line, "YIM (paraxial image heights) with a finite object is not supported: "
-                      "expected YAN or YOB")
+        # the object heights whose paraxial images are these (|m| from the Lagrange invariant of
+        # the axial marginal ray, m = n u / (n' u')), then as YOB
+        from ..paraxial import media_indices, trace_paraxial_ray
+
+        with torch.no_grad():
+            n = media_indices(lens)
+            one = torch.ones((), dtype=n.dtype, device=n.device)
+            _, u_k, _ = trace_paraxial_ray(lens, obj_dist * one, one, n)
+        if float(u_k) == 0:
+            rd.fail(line, "YIM with a finite object: the image is at infinity (no paraxial "
+                          "image height); expected YAN or YOB")
+        m = abs(float(n[0]) / (float(n[-1]) * float(u_k)))
+        d = obj_dist + float(par.entrance_pupil_position)
+        return [math.degrees(math.atan(h * u / m / d)) for h in vals]
     f = float(par.efl)
     return [math.degrees(math.atan(h * u / f)) for h in vals]
 

@@ -281,7 +281,7 @@ def test_refusals_name_file_and_line(tmp_path, body, line, match):
      "1 indices for the 2 PWL"),
     (_HEAD.replace("WL 587.5618", "WL 587; REF 3"), 2, "REF 3"),
     (_HEAD.replace("DIM M", "DIM Q"), 1, "DIM"),
-    (_HEAD.replace("SO 0 1e10", "SO 0 100").replace("EPD 10", "FNO 4"), 3, "FNO"),
+    (_HEAD.replace("SO 0 1e10", "SO 0 100").replace("EPD 10", "FNO -4"), 3, "FNO -4"),
 ])
 def test_system_refusals(tmp_path, head, line, match):
     p = _seq(tmp_path, "S 50 5 NBK7_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", head=head)

@@ -20,10 +20,11 @@ from deeplens.optics.paraxial import paraxial
 CORPUS = Path(__file__).resolve().parents[2] / "data" / "codev_real"
 FILES = sorted(p.name for p in CORPUS.glob("*.seq"))
 
-#: how a file is read when not by default, and why.  landscape_lens.seq has no RDM line and
-#: curvatures as its first numbers (``S -0.2 0.22`` with EPD 1: a radius of 0.2 mm could not hold
-#: the beam): its author's program, rayoptics, reads a file without RDM in curvature mode.
-READ_AS = {"landscape_lens.seq": {"radius_mode": False}}
+#: how a file is read when not by default, and why.  landscape_lens.seq and singlet.seq have no
+#: RDM line and curvatures as their first numbers (``S -0.2 0.22`` with EPD 1, ``s 0.1 1`` with
+#: a 15 mm gap behind: radii of 0.2 and 0.1 mm could not hold the beam): their author's program,
+#: rayoptics, reads a file without RDM in curvature mode.
+READ_AS = {"landscape_lens.seq": {"radius_mode": False}, "singlet.seq": {"radius_mode": False}}
 
 
 def _load(name):
@@ -34,7 +35,7 @@ def _load(name):
 
 def test_the_corpus_is_listed_in_sources():
     listed = re.findall(r"^\| (\S+\.seq) \|", (CORPUS / "SOURCES.md").read_text(), re.M)
-    assert sorted(listed) == FILES and len(FILES) == 16
+    assert sorted(listed) == FILES and len(FILES) == 17
 
 
 @pytest.mark.parametrize("name", FILES)

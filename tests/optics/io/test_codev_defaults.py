@@ -169,3 +169,41 @@ def test_a_bare_name_only_in_older_catalogues_names_them(tmp_path):
         read_seq(p)
     assert e.value.line == 8
     read_seq(_seq(tmp_path, HEAD + BODY.replace("NBK7_SCHOTT", "BK7_SCHOTT"), "b.seq"))
+
+
+def _singlet_trace(n, y, u, s_img=None):
+    """The paraxial ray (height y, slope u at the first vertex) through BODY's singlet (R 50,
+    -50, 5 mm of index n, in air), by hand: ``(y, u)`` after the last vertex, or the height
+    ``s_img`` beyond it."""
+    u = (u - y * (n - 1.0) / 50.0) / n
+    y = y + 5.0 * u
+    u = n * u - y * (1.0 - n) / -50.0
+    return (y, u) if s_img is None else y + s_img * u
+
+
+def test_fno_with_a_finite_object_is_a_working_f_number(tmp_path):
+    """FNO with a finite object (rayoptics' reading, with a warning): the axial marginal ray
+    leaves at |u'| = 1 / (2 F), traced here by hand through the singlet (stop on its first
+    vertex: the entrance pupil there)."""
+    head = HEAD.replace("SO 0 1e10", "SO 0 200").replace("EPD 10", "FNO 4")
+    with pytest.warns(CodeVWarning, match=r"t\.seq:5: FNO 4\.0 with the object at a finite"):
+        lens = read_seq(_seq(tmp_path, head + BODY))
+    n = float(lens.materials[1].n(587.5618))
+    h = lens.spec.aperture_value / 2.0
+    _, u = _singlet_trace(n, h, h / 200.0)
+    assert abs(u) == pytest.approx(1.0 / 8.0, rel=1e-12)
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(2 * h, rel=1e-12)
+
+
+def test_yim_with_a_finite_object_gives_those_paraxial_image_heights(tmp_path):
+    """YIM with a finite object: the chief ray of each field angle (object height
+    ``(s + l_EP) tan θ``, the pupil on the first vertex) reaches the paraxial image plane at the
+    given height, traced here by hand."""
+    head = HEAD.replace("SO 0 1e10", "SO 0 200").replace("YAN 0 5", "YIM 0 3")
+    lens = read_seq(_seq(tmp_path, head + BODY))
+    n = float(lens.materials[1].n(587.5618))
+    y, u = _singlet_trace(n, 200.0, 1.0)     # the axial ray from the object point (slope 1)
+    s_img = -y / u                            # the paraxial image plane behind the last vertex
+    t = math.tan(math.radians(lens.spec.fields_deg[1]))
+    y_img = _singlet_trace(n, 0.0, t, s_img)  # the chief ray through the first vertex's centre
+    assert abs(y_img) == pytest.approx(3.0, rel=1e-12)
