@@ -37,12 +37,14 @@ quote a string, keywords are case-insensitive.  Mapping onto
   vendor catalogue that holds it; a fictitious glass ``NNNNNN.VVVV`` (``n_d = 1.NNNNNN``,
   ``V_d = VV.VV``: ``517000.642000`` is 1.517 / 64.2) as a
   :class:`~deeplens.optics.materials.ModelGlass`.
-* ``WL`` wavelengths in nm, ``REF`` the reference one (1-based; needed with several).
-* ``EPD`` -> ``epd``; ``FNO`` -> ``fno`` (image-space F-number, object at infinity).  A ``CIR``
+* ``WL`` wavelengths in nm, ``REF`` the reference one (1-based; the first without one).
+* ``EPD`` -> ``epd``; ``FNO`` -> ``fno`` (image-space F-number) at infinity, with a finite
+  object the ``epd`` that gives the working F-number ``|u'| = 1/(2F)`` (a warning).  A ``CIR``
   on the stop narrower than the beam the EPD gives is the stop's ``clear_radius`` (a lens or
   mirror surface; refused on a flat stop in air).
 * Fields: ``YAN`` (degrees), ``YOB`` (object heights, finite object: ``θ = atan(h / (s +
-  z_EP))``), ``YIM`` (paraxial image heights, object at infinity: ``θ = atan(h' / f)``); the
+  z_EP))``), ``YIM`` (paraxial image heights: at infinity ``θ = atan(h' / f)``, with a finite
+  object the object heights ``h' / |m|``, then as ``YOB``); the
   ``X`` components must be 0.
 * Read and not used: ``TIT``/``TITLE`` (the lens name), ``LEN``, ``INI``, ``WTW``, ``WTF``,
   ``GO``, ``SLB``, ``TEM``, ``PRE``, solves and variables (``PIM``, ``CCY``, ``THC``, ...);
