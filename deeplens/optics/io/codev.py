@@ -312,8 +312,8 @@ class _Reader:
         self.rdm_line = None    # the file's RDM line
         self.prv = None         # inside a PRV block: {"line", "wl": ([nm], line) | None}
         self.private = {}       # NAME -> PrivateGlass (PRV blocks)
-        self.pickups = []       # (line, target param, target surface, source param, surface,
-        #                          factor, offset)
+        self.pickups = []       # (line, (target param, surface), (source param, surface),
+        #                          factor, offset): applied in _build
         self.unit = 1.0
         self.title = ""
         self.wl = None          # ([nm], line)
