@@ -85,6 +85,8 @@ ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CODEV_DECENTER = ("tests/optics/io/test_codev_decenter.py",)
+CODEV_DEFAULTS = ("tests/optics/io/test_codev_defaults.py",)
+CODEV_CORPUS = ("tests/optics/io/test_codev_corpus.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -909,6 +911,34 @@ MUTATIONS = [
              "length (it is per length)", "deeplens/optics/io/zmx_grid_sag.py",
              "zxy = grid[..., 3] / s_mm", "zxy = grid[..., 3] * s_mm",
              ("tests/optics/io/test_zmx_grid_sag.py",)),
+    # ------------------------------------------ issue 37 (branch seq1): CODE V defaults, PRV
+    Mutation("codev_no_sto_last_surface", "a .seq file without STO gets its stop on the last "
+             "surface instead of the first", "deeplens/optics/io/codev.py",
+             '        body[0]["stop"] = True', '        body[-1]["stop"] = True', CODEV_DEFAULTS),
+    Mutation("codev_ref_default_last", "several WL without REF: the last wavelength taken as "
+             "the reference instead of the first", "deeplens/optics/io/codev.py",
+             "        ref = 1\n", "        ref = len(waves)\n", CODEV_DEFAULTS),
+    Mutation("prv_spline_slope_sign", "a PRV glass's spline with the wrong sign of its "
+             "curvature term in the slope", "deeplens/optics/io/codev_private.py",
+             "    c1 = d - h * (2.0 * m[:-1] + m[1:]) / 6.0",
+             "    c1 = d + h * (2.0 * m[:-1] + m[1:]) / 6.0", CODEV_DEFAULTS),
+    Mutation("cir_obs_file_units", "CIR OBS radius not converted from the file's unit to mm",
+             "deeplens/optics/io/codev.py", "_obscuration(lens, i, r * u, line,",
+             "_obscuration(lens, i, r, line,", CODEV_DEFAULTS),
+    Mutation("pik_factor_ignored", "a PIK pickup's factor ignored (target = source + offset)",
+             "deeplens/optics/io/codev.py", "        v = factor * v + offset",
+             "        v = v + offset", CODEV_DEFAULTS),
+    Mutation("fno_finite_not_working", "FNO with a finite object: the EPD of twice the "
+             "F-number", "deeplens/optics/io/codev.py",
+             "    return abs(to_pupil) / (fno * abs(u_k))",
+             "    return abs(to_pupil) / (2.0 * fno * abs(u_k))", CODEV_DEFAULTS),
+    Mutation("yim_finite_magnification_inverted", "YIM with a finite object: the magnification "
+             "inverted", "deeplens/optics/io/codev.py",
+             "        m = abs(float(n[0]) / (float(n[-1]) * float(u_k)))",
+             "        m = abs(float(n[-1]) * float(u_k) / float(n[0]))", CODEV_DEFAULTS),
+    Mutation("codev_si_defocus_dropped", "SI's thickness (a defocus) not added to the last gap",
+             "deeplens/optics/io/codev.py", "    d_sensor = gap + img[\"t\"] * u",
+             "    d_sensor = gap", CODEV_CORPUS),
 ]
 
 

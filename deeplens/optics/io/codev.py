@@ -37,12 +37,14 @@ quote a string, keywords are case-insensitive.  Mapping onto
   vendor catalogue that holds it; a fictitious glass ``NNNNNN.VVVV`` (``n_d = 1.NNNNNN``,
   ``V_d = VV.VV``: ``517000.642000`` is 1.517 / 64.2) as a
   :class:`~deeplens.optics.materials.ModelGlass`.
-* ``WL`` wavelengths in nm, ``REF`` the reference one (1-based; needed with several).
-* ``EPD`` -> ``epd``; ``FNO`` -> ``fno`` (image-space F-number, object at infinity).  A ``CIR``
+* ``WL`` wavelengths in nm, ``REF`` the reference one (1-based; the first without one).
+* ``EPD`` -> ``epd``; ``FNO`` -> ``fno`` (image-space F-number) at infinity, with a finite
+  object the ``epd`` that gives the working F-number ``|u'| = 1/(2F)`` (a warning).  A ``CIR``
   on the stop narrower than the beam the EPD gives is the stop's ``clear_radius`` (a lens or
   mirror surface; refused on a flat stop in air).
 * Fields: ``YAN`` (degrees), ``YOB`` (object heights, finite object: ``θ = atan(h / (s +
-  z_EP))``), ``YIM`` (paraxial image heights, object at infinity: ``θ = atan(h' / f)``); the
+  z_EP))``), ``YIM`` (paraxial image heights: at infinity ``θ = atan(h' / f)``, with a finite
+  object the object heights ``h' / |m|``, then as ``YOB``); the
   ``X`` components must be 0.
 * Read and not used: ``TIT``/``TITLE`` (the lens name), ``LEN``, ``INI``, ``WTW``, ``WTF``,
   ``GO``, ``SLB``, ``TEM``, ``PRE``, solves and variables (``PIM``, ``CCY``, ``THC``, ...);
@@ -57,8 +59,15 @@ Decenters and tilts (``XDE`` ... ``CDE``, ``DAR``, ``BEN``, ``REV``, ``RET``) be
 :class:`~deeplens.optics.surfaces.CoordinateBreak` surfaces (:mod:`.codev_decenter`, which
 states each convention and its source).
 
-Everything else (other surface types, ``NA``/``NAO``,
-real image heights, obscurations, surface qualifiers such as ``S3``) is refused: a
+Defaults (docs/guide/codev.md, "Defaults"; each with a located :class:`CodeVWarning`): no
+``STO``: the first surface is the stop; several ``WL`` without ``REF``: the first is the
+reference; no ``SI``: ``SI 0 0``; no ``RDM``: radii (``read_seq(..., radius_mode=False)``:
+curvatures).  ``PRV`` ... ``END`` private glasses (indices at the ``PWL`` wavelengths) are
+:class:`~.codev_private.PrivateGlass` splines; ``CIR OBS r`` / ``CIR HOL r`` a central
+obscuration; ``PIK`` pickups of ``RDY``, ``CUY``, ``THI`` are applied; ``AC 0`` is read.
+
+Everything else (other surface types, ``NA``/``NAO``, real image heights, surface qualifiers
+such as ``S3``) is refused: a
 :class:`~deeplens.optics.errors.LensFileError` naming the file, the line and what was expected.
 
 :func:`write_seq` writes what :func:`read_seq` reads (curvature mode ``RDM N``, numbers with
@@ -94,7 +103,9 @@ _UNITS = {"M": 1.0, "MM": 1.0, "C": 10.0, "CM": 10.0, "I": 25.4, "IN": 25.4}
 _INFINITE = 1e10                    # CODE V: an object this far (or farther) is at infinity
 # read and not used (titles, weights, solves, variables, end of input)
 _IGNORED = {"LEN", "INI", "WTW", "WTF", "GO", "SLB", "TEM", "PRE", "CWL", "PIM", "CCY", "THC",
-            "CCX", "GLC", "DER"}
+            "CCX", "GLC", "DER", "CLS", "CUM", "THM"}
+# pickups (PIK) of these surface parameters are applied: (target) = factor * (source) + offset
+_PICKUPS = ("RDY", "CUY", "THI")
 _VIGNETTING = {"VUX", "VLX", "VUY", "VLY"}
 _FIELDS = {"XAN", "YAN", "XOB", "YOB", "XIM", "YIM"}
 _BASE_CATALOGUES = ("SCHOTT",)      # deeplens-table glasses written as NAME_SCHOTT
@@ -207,9 +218,12 @@ def _catalogue_glass(name: str, cat: str) -> Material | None:
     return None
 
 
-def _glass(tok: str, source: str, line: int) -> Material:
-    """The material a glass token names (see the module docstring)."""
+def _glass(tok: str, source: str, line: int, private=None) -> Material:
+    """The material a glass token names (see the module docstring); ``private``: the file's
+    ``PRV`` glasses by upper-case name, found first."""
     up = tok.upper()
+    if private and up in private:
+        return private[up]
     if re.fullmatch(r"[\d.]+", tok):
         m = _fictitious(tok)
         if m is None:
@@ -240,6 +254,13 @@ def _glass(tok: str, source: str, line: int) -> Material:
         raise LensFileError(f"glass {tok!r} is in several vendor catalogues ({', '.join(hits)}); "
                             f"expected NAME_CATALOGUE, e.g. {up}_{hits[0]}", source=source,
                             line=line)
+    older = list(dict.fromkeys(c for cand in _hyphenated(up)
+                               for c in find_in_vendor_catalogues(cand) if " " in c))
+    if older:   # only in archived or previous catalogues: a bare name does not choose one
+        cat = older[0].split()[0]
+        raise LensFileError(f"glass {tok!r} is in no current catalogue, only in "
+                            f"{', '.join(older)}; expected NAME_CATALOGUE, e.g. {up}_{cat}",
+                            source=source, line=line)
     raise LensFileError(f"glass {tok!r} not found (deeplens' catalogue and the current vendor "
                         f"catalogues); expected NAME_CATALOGUE or a fictitious glass "
                         f"NNNNNN.VVVV", source=source, line=line)
@@ -254,6 +275,13 @@ def _glass_token(m: Material, i: int) -> str | None:
         return "".join(m.name.replace("-", "").split()).upper() + "_" + m.catalogue.upper()
     if isinstance(m, ModelGlass):
         return _fictitious_code(m, i)
+    from .codev_private import PrivateGlass
+
+    if isinstance(m, PrivateGlass):   # its table is written in a PRV block (write_seq)
+        if "'" in m.name or not m.name.strip():
+            raise LensFileError(f"medium after surface {i}: private glass name {m.name!r} "
+                                f"cannot be quoted in a .seq file", surfaces=(i,))
+        return f"'{m.name}'"
     rec = GLASS_TABLE.get(m.name.upper())
     if rec is not None:
         from .zmx_glass import BUILTIN_CATALOGUES
@@ -283,9 +311,15 @@ def _num(tok: str, what: str, source: str, line: int) -> float:
 class _Reader:
     """Commands -> the file's system data and surface records (lengths still in file units)."""
 
-    def __init__(self, source: str):
+    def __init__(self, source: str, radius_mode: bool | None = None):
         self.src = source
-        self.radius_mode = True
+        self.radius_mode = True if radius_mode is None else bool(radius_mode)
+        self.rdm_forced = radius_mode is not None   # the caller's choice beats the file's RDM
+        self.rdm_line = None    # the file's RDM line
+        self.prv = None         # inside a PRV block: {"line", "wl": ([nm], line) | None}
+        self.private = {}       # NAME -> PrivateGlass (PRV blocks)
+        self.pickups = []       # (line, (target param, surface), (source param, surface),
+        #                          factor, offset): applied in _build
         self.unit = 1.0
         self.title = ""
         self.wl = None          # ([nm], line)
@@ -308,7 +342,19 @@ class _Reader:
 
     def command(self, line: int, toks: list[str]) -> None:
         cmd, args = toks[0].upper(), toks[1:]
-        if cmd in ("TIT", "TITLE"):
+        if self.prv is not None:
+            self.private_glass(cmd, toks, line)
+        elif cmd == "PRV":
+            if args:
+                self.fail(line, "PRV: expected it alone (then PWL, the glasses, END)")
+            self.prv = {"line": line, "wl": None}
+        elif cmd == "PIK":
+            self.pickup(args, line)
+        elif cmd == "AC":
+            # read as a zero coefficient only: deeplens knows no meaning of a non-zero AC
+            if self.nums(args, line, "AC", 1)[0] != 0:
+                self.fail(line, "AC other than 0 is not supported (expected AC 0)")
+        elif cmd in ("TIT", "TITLE"):
             self.title = " ".join(args)
         elif cmd in _IGNORED:
             return
@@ -321,7 +367,9 @@ class _Reader:
         elif cmd == "RDM":
             if len(args) > 1 or (args and args[0].upper() not in ("Y", "N", "YES", "NO")):
                 self.fail(line, f"RDM: expected Y or N, got {' '.join(args)!r}")
-            self.radius_mode = not args or args[0].upper().startswith("Y")
+            self.rdm_line = line
+            if not self.rdm_forced:
+                self.radius_mode = not args or args[0].upper().startswith("Y")
         elif cmd == "WL":
             self.wl = (self.nums(args, line, "WL (wavelengths, nm)"), line)
         elif cmd == "REF":
@@ -355,6 +403,56 @@ class _Reader:
         else:
             self.modifier(cmd, args, line)
 
+    def private_glass(self, cmd, toks, line):
+        """A line inside ``PRV ... END``: ``PWL`` wavelengths, a glass ``'NAME' n1 n2 ...``,
+        or ``END``."""
+        from .codev_private import PrivateGlass
+
+        if cmd == "END":
+            if self.prv["wl"] is None:
+                self.fail(line, "END of a PRV block with no PWL line: expected PWL (nm)")
+            self.prv = None
+        elif cmd == "PWL":
+            self.prv["wl"] = (self.nums(toks[1:], line, "PWL (private catalogue wavelengths, "
+                                                         "nm)"), line)
+        else:
+            if self.prv["wl"] is None:
+                self.fail(line, f"private glass {toks[0]!r} before the PWL line: expected PWL "
+                                f"(the wavelengths, nm) first")
+            waves, wl_line = self.prv["wl"]
+            n = self.nums(toks[1:], line, f"private glass {toks[0]!r} (indices)")
+            if len(n) != len(waves):
+                self.fail(line, f"private glass {toks[0]!r}: {len(n)} indices for the "
+                                f"{len(waves)} PWL wavelengths of line {wl_line}: expected one "
+                                f"index per wavelength")
+            try:
+                self.private[toks[0].upper()] = PrivateGlass(toks[0], waves, n)
+            except ValueError as e:
+                self.fail(line, str(e))
+
+    def pickup(self, args, line):
+        """``PIK P Sk [Zn] Q Sm [Zn] [factor [offset]]``: parameter P of surface k is factor times
+        parameter Q of surface m plus offset (RDY, CUY, THI; zoom position 1 only)."""
+        toks = [a.upper() for a in args]
+        parts, j = [], 0
+        for _ in range(2):
+            if j + 1 >= len(toks) or toks[j] not in _PICKUPS or \
+                    not re.fullmatch(r"S(\d+|O|I)", toks[j + 1]):
+                self.fail(line, f"PIK {' '.join(args)}: expected 'PIK P Sk Q Sm [factor "
+                                f"[offset]]' with P, Q among {', '.join(_PICKUPS)}")
+            q = toks[j + 1][1:]
+            parts.append((toks[j], 0 if q == "O" else (-1 if q == "I" else int(q))))
+            j += 2
+            if j < len(toks) and re.fullmatch(r"Z\d+", toks[j]):
+                if toks[j] != "Z1":
+                    self.fail(line, f"PIK: zoom position {toks[j]}: only Z1 is read")
+                j += 1
+        nums = self.nums(args[j:], line, "PIK factor, offset") if j < len(toks) else []
+        if len(nums) > 2:
+            self.fail(line, "PIK: expected at most a factor and an offset after the source")
+        factor, offset = (nums + [1.0, 0.0][len(nums):])[:2]
+        self.pickups.append((line, parts[0], parts[1], factor, offset))
+
     def surface(self, cmd, args, line):
         if cmd == "SO" and self.stage != "system":
             self.fail(line, "SO: a second object surface")
@@ -364,6 +462,8 @@ class _Reader:
         if len(args) not in (2, 3):
             self.fail(line, f"{cmd}: expected '{cmd} radius thickness [glass]', got "
                             f"{' '.join(args)!r}")
+        if cmd == "SO" and args[1].lower() in ("inf", "+inf", "infinity"):
+            args = [args[0], "1e20", *args[2:]]   # an object at infinity (|t| >= 1e10)
         r, t = (_num(a, f"{cmd} {w}", self.src, line)
                 for a, w in zip(args, ("radius" if self.radius_mode else "curvature",
                                        "thickness")))
@@ -399,15 +499,22 @@ class _Reader:
             FORMATS.for_codev_type(s["type"]).codev_modifier(
                 s, cmd, v, lambda msg: self.fail(line, msg))
         elif cmd == "CIR":
-            quals = [a.upper() for a in args[:-1]]
+            # qualifiers: CLR, EDG, OBS or HOL, and an aperture label L'name' (not used)
+            quals = [a.upper() for a in args[:-1]
+                     if a.upper() in ("CLR", "EDG", "OBS", "HOL") or not a.upper().startswith("L")]
             v = self.nums(args[-1:], line, "CIR (semi-diameter)", 1)[0]
+            if quals in ([], ["CLR"], ["OBS"], ["HOL"]) and not v > 0:
+                self.fail(line, f"CIR: expected a radius > 0, got {args[-1]}")
             if quals in ([], ["CLR"]):
-                if not v > 0:
-                    self.fail(line, f"CIR: expected a semi-diameter > 0, got {args[-1]}")
                 s["cir"] = (v, line)
+            elif quals in (["OBS"], ["HOL"]):
+                if s["kind"] != "S":
+                    self.fail(line, f"CIR {quals[0]}: expected it on an S surface")
+                s["obs"] = (v, line, quals[0])
             elif quals != ["EDG"]:
                 self.fail(line, f"CIR {' '.join(quals)}: only a clear aperture (CIR r, CIR CLR "
-                                f"r) or an edge (CIR EDG r, not used) is supported")
+                                f"r), a central obscuration or hole (CIR OBS r, CIR HOL r) or an "
+                                f"edge (CIR EDG r, not used) is supported")
         elif cmd == "THI":
             s["t"] = self.nums(args, line, "THI", 1)[0]
         elif cmd == "GLA":
@@ -428,11 +535,15 @@ class _Reader:
                             f"refused)")
 
 
-def read_seq(path) -> Lens:
+def read_seq(path, radius_mode: bool | None = None) -> Lens:
     """Read a CODE V ``.seq`` file (the common subset: see :mod:`.codev`).
 
     Args:
         path: the ``.seq`` file (UTF-8, UTF-16 with byte-order mark, or Latin-1 text).
+        radius_mode: ``None`` (default): the file's ``RDM`` line, radius mode without one (with
+            a :class:`CodeVWarning`: rayoptics reads such a file in curvature mode); ``True``
+            or ``False``: read the surfaces' first numbers as radii or curvatures whatever the
+            file says.
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -455,18 +566,39 @@ def read_seq(path) -> Lens:
         text = raw.decode("utf-16" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8-sig")
     except UnicodeDecodeError:
         text = raw.decode("latin-1")
-    rd = _Reader(src)
+    rd = _Reader(src, radius_mode)
     for line, toks in _commands(text, src):
         rd.command(line, toks)
+    if rd.prv is not None:
+        rd.fail(rd.prv["line"], "PRV block with no END: expected END after its glasses")
+    if rd.rdm_line is None and radius_mode is None and any(
+            s["c"] != 0 for s in rd.surfs):
+        _warn(src, None, "no RDM line: the surfaces' first numbers are read as radii (RDM Y, "
+                         "deeplens' reading of CODE V's default; rayoptics reads them as "
+                         "curvatures); read_seq(..., radius_mode=False) reads curvatures")
     return _build(rd, path)
+
+
+def _warn(src: str, line: int | None, msg: str) -> None:
+    warnings.warn(CodeVWarning(f"{src}:{line}: {msg}" if line else f"{src}: {msg}"),
+                  stacklevel=3)
 
 
 def _build(rd: _Reader, path: Path) -> Lens:
     src, u = rd.src, rd.unit
     fail = rd.fail
+    if rd.surfs and rd.surfs[-1]["kind"] == "S":
+        # CODE V's image surface always exists (S inserts surfaces before it): a file without
+        # SI has a flat image at the last surface's thickness (rayoptics: the same plane)
+        last = rd.surfs[-1]
+        _warn(src, last["line"], "no SI line: the image is a plane at the last surface's "
+                                 "thickness (SI 0 0)")
+        rd.surfs.append({"kind": "SI", "line": last["line"], "c": 0.0, "t": 0.0, "glass": None,
+                         "stop": False, "type": "SPH", "k": 0.0, "coef": {}, "cir": None})
     if not rd.surfs or rd.surfs[-1]["kind"] != "SI":
         fail(rd.surfs[-1]["line"] if rd.surfs else None,
              "no image surface: expected SO, the surfaces and SI")
+    _apply_pickups(rd)
     obj, img, body = rd.surfs[0], rd.surfs[-1], rd.surfs[1:-1]
     if not body:
         fail(img["line"], "no surface between SO and SI")
@@ -482,8 +614,9 @@ def _build(rd: _Reader, path: Path) -> Lens:
     waves, wl_line = rd.wl
     if rd.ref is None:
         if len(waves) > 1:
-            fail(wl_line, "several wavelengths and no REF line: expected REF k (the reference "
-                          "wavelength's number)")
+            # rayoptics' and optiland's CODE V readers both take the first (no CODE V source)
+            _warn(src, wl_line, f"several wavelengths and no REF line: the first, {waves[0]!r} "
+                                f"nm, is the reference wavelength (REF 1)")
         ref = 1
     else:
         ref, ref_line = rd.ref
@@ -491,7 +624,13 @@ def _build(rd: _Reader, path: Path) -> Lens:
             fail(ref_line, f"REF {ref}: expected 1..{len(waves)} (the WL numbers)")
     primary = waves[ref - 1]
     # object
-    media = [Air() if obj["glass"] is None else _glass(obj["glass"][0], src, obj["glass"][1])]
+    if not any(s["stop"] for s in body):
+        # rayoptics and optiland: the first surface (no CODE V source found)
+        _warn(src, body[0]["line"], "no STO line: the stop is the first surface (S 1)")
+        body[0]["stop"] = True
+    priv = rd.private
+    media = [Air() if obj["glass"] is None else _glass(obj["glass"][0], src, obj["glass"][1],
+                                                       priv)]
     od = obj["t"] * u
     obj_dist = math.inf if abs(obj["t"]) >= _INFINITE else od
     if obj_dist == 0:
@@ -499,6 +638,7 @@ def _build(rd: _Reader, path: Path) -> Lens:
     # surfaces: dummies into gaps
     surfaces, distances, where, autos, stop = [], [], [], [], None
     gap, lead = 0.0, 0.0   # lead: leading dummies' thickness, added to the object distance
+    obs = []               # (surface index, (radius, line, OBS | HOL))
     mirrors = []
     for s in body:
         if s["kind"] == "CB":   # a decenter's coordinate break (codev_decenter)
@@ -514,17 +654,21 @@ def _build(rd: _Reader, path: Path) -> Lens:
         if mirror:   # the medium after a mirror is the one before it
             mat = media[-1]
         else:
-            mat = Air() if s["glass"] is None else _glass(s["glass"][0], src, s["glass"][1])
+            mat = Air() if s["glass"] is None else _glass(s["glass"][0], src, s["glass"][1],
+                                                          priv)
+            _check_private(mat, waves, s, fail)
         c = s["c"] / u
         flat_air = (c == 0 and s["type"] == "SPH" and isinstance(mat, Air)
                     and isinstance(media[-1], Air) and not mirror)
-        if flat_air and not s["stop"] and s["cir"] is None:
+        if flat_air and not s["stop"] and s["cir"] is None and s.get("obs") is None:
             gap += s["t"] * u          # a dummy surface
             continue
         sd = s["cir"][0] * u if s["cir"] is not None else _provisional(c, s["k"])
         if s["cir"] is None:
             autos.append(len(surfaces))
         surf = FORMATS.for_codev_type(s["type"]).read_codev(s, c, sd, u, flat_air)
+        if s.get("obs") is not None:
+            obs.append((len(surfaces), s["obs"]))
         if s["stop"]:
             if stop is not None:
                 fail(s["line"], f"STO: a second stop (the first is on line {where[stop]})")
@@ -548,10 +692,12 @@ def _build(rd: _Reader, path: Path) -> Lens:
     if rd.pupil is None:
         fail(None, "no system aperture: expected EPD or FNO")
     kind, value, ap_line = rd.pupil
-    if kind == "FNO" and not math.isinf(obj_dist):
-        fail(ap_line, "FNO with the object at a finite distance: deeplens' F-number is the "
-                      "image-space one at infinity; expected EPD")
     ap_type, ap_value = ("epd", value * u) if kind == "EPD" else ("fno", value)
+    fno_finite = kind == "FNO" and not math.isinf(obj_dist)
+    if fno_finite:   # the EPD this working F-number gives, once the lens exists
+        if not value > 0:
+            fail(ap_line, f"FNO {value!r}: expected an F-number > 0")
+        ap_type, ap_value = "epd", 1.0
     try:
         spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                         aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves,
@@ -567,6 +713,15 @@ def _build(rd: _Reader, path: Path) -> Lens:
     except ValueError as e:
         idx = getattr(e, "surfaces", ())
         fail(where[idx[0]] if idx else None, str(e))
+    if fno_finite:
+        ap_value = _working_fno_epd(lens, obj_dist, value, ap_line, fail)
+        _warn(src, ap_line, f"FNO {value!r} with the object at a finite distance: read as the "
+                            f"working (image-space paraxial) F-number, |u'| = 1/(2 F), as "
+                            f"rayoptics does: EPD {ap_value!r} mm")
+        lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
+                             aperture_value=ap_value, fields_deg=[0.0], wavelengths_nm=waves,
+                             primary_wavelength_nm=primary)
+        lens.apply_aperture_spec()
     fields = _fields(rd, lens, obj_dist, u)
     lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                          aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves,
@@ -597,12 +752,100 @@ def _build(rd: _Reader, path: Path) -> Lens:
                 idx = getattr(e, "surfaces", ())
                 fail(where[idx[0]] if idx else None,
                      f"{e} (with paraxial semi-diameters; give CIR)")
+    for i, (r, line, kind) in obs:
+        _obscuration(lens, i, r * u, line, kind, fail, src)
     cir = next(s["cir"] for s in body if s["stop"])
     if cir is not None:
         got = float(lens.surfaces[stop].semi_diameter)
         if cir[0] * u < got * (1 - 1e-9):
             _stop_clear_radius(lens, cir[0] * u, got, kind, cir[1], fail, u)
     return lens
+
+
+def _working_fno_epd(lens: Lens, obj_dist: float, fno: float, line: int, fail) -> float:
+    """The entrance pupil diameter (mm) whose axial marginal ray leaves the lens at the slope
+    ``|u'| = 1 / (2 F)`` (a working F-number, rayoptics' reading of CODE V's ``FNO``:
+    ``compute_first_order`` sets the image-space marginal slope to ``-1 / (2 F)``).  The
+    marginal ray from the object point with slope ``u0`` leaves at ``u_k u0`` (linear), and
+    meets the entrance pupil at height ``u0 (s + l_EP)``."""
+    from ..paraxial import media_indices, paraxial, trace_paraxial_ray
+
+    with torch.no_grad():
+        n = media_indices(lens)
+        one = torch.ones((), dtype=n.dtype, device=n.device)
+        _, u_k, _ = trace_paraxial_ray(lens, obj_dist * one, one, n)
+        to_pupil = obj_dist + float(paraxial(lens).entrance_pupil_position)
+    u_k = float(u_k)
+    if u_k == 0 or to_pupil == 0:
+        fail(line, "FNO with a finite object: the marginal ray leaves parallel or the "
+                   "entrance pupil is on the object; expected EPD")
+    return abs(to_pupil) / (fno * abs(u_k))
+
+
+def _obscuration(lens: Lens, i: int, r: float, line: int, kind: str, fail, src: str) -> None:
+    """``CIR OBS r`` (a central obscuration) or ``CIR HOL r`` (a hole) on surface ``i``: rays
+    that meet the surface within ``r`` (mm) of its axis are blocked.  A hole lets a ray through
+    the surface without its refraction or reflection, which in a sequential trace leaves the
+    system: the same blocking (with a warning naming the choice)."""
+    s = lens.surfaces[i]
+    if not hasattr(s, "obscuration"):
+        fail(line, f"CIR {kind} on a {type(s).__name__}: deeplens has obscurations on lens, "
+                   f"mirror and aperture surfaces only")
+    if kind == "HOL":
+        _warn(src, line, f"CIR HOL {r!r} mm: a hole in surface {i} read as a "
+                                       f"central obscuration (a ray through it leaves the "
+                                       f"sequential path)")
+    sd = float(s.semi_diameter)
+    if not r < sd:
+        fail(line, f"CIR {kind} {r!r} mm: expected a radius below the surface's semi-diameter "
+                   f"({sd!r} mm)")
+    with torch.no_grad():
+        s.obscuration.fill_(r)
+    try:
+        s.check()
+    except ValueError as e:
+        fail(line, f"CIR {kind}: {e}")
+
+
+def _check_private(mat: Material, waves, s: dict, fail) -> None:
+    """A private (``PRV``) glass must be defined at every wavelength of the lens."""
+    from .codev_private import PrivateGlass
+
+    if not isinstance(mat, PrivateGlass):
+        return
+    lo, hi = mat.wavelength_range_nm
+    out = [w for w in waves if not lo <= w <= hi]
+    if out:
+        fail(s["glass"][1], f"private glass {mat.name!r} is tabulated at {lo!r} - {hi!r} nm; "
+                            f"the lens's wavelengths {out} nm lie outside: expected PWL "
+                            f"wavelengths that span the WL ones")
+    try:
+        mat.n(torch.tensor(waves, dtype=torch.float64))
+    except ValueError as e:
+        fail(s["glass"][1], str(e))
+
+
+def _apply_pickups(rd: _Reader) -> None:
+    """The file's pickups (``PIK``), in file order: target = factor * source + offset."""
+    n = len(rd.surfs)
+    for line, (p, k), (q, m), factor, offset in rd.pickups:
+        for j, what in ((k, "target"), (m, "source")):
+            if not -n <= j < n:
+                rd.fail(line, f"PIK: {what} surface S{j} does not exist (S0 .. S{n - 1})")
+        src, dst = rd.surfs[m], rd.surfs[k]
+        if q == "THI":
+            v = src["t"]
+        elif q == "CUY":
+            v = src["c"]
+        else:
+            v = 0.0 if src["c"] == 0 else 1.0 / src["c"]
+        v = factor * v + offset
+        if p == "THI":
+            dst["t"] = v
+        elif p == "CUY":
+            dst["c"] = v
+        else:
+            dst["c"] = 0.0 if v == 0 else 1.0 / v
 
 
 def _stop_clear_radius(lens: Lens, clear: float, got: float, kind: str, line: int, fail,
@@ -657,8 +900,20 @@ def _fields(rd: _Reader, lens: Lens, obj_dist: float, u: float) -> list[float]:
         d = obj_dist + float(par.entrance_pupil_position)
         return [math.degrees(math.atan(h * u / d)) for h in vals]
     if not math.isinf(obj_dist):
-        rd.fail(line, "YIM (paraxial image heights) with a finite object is not supported: "
-                      "expected YAN or YOB")
+        # the object heights whose paraxial images are these (|m| from the Lagrange invariant of
+        # the axial marginal ray, m = n u / (n' u')), then as YOB
+        from ..paraxial import media_indices, trace_paraxial_ray
+
+        with torch.no_grad():
+            n = media_indices(lens)
+            one = torch.ones((), dtype=n.dtype, device=n.device)
+            _, u_k, _ = trace_paraxial_ray(lens, obj_dist * one, one, n)
+        if float(u_k) == 0:
+            rd.fail(line, "YIM with a finite object: the image is at infinity (no paraxial "
+                          "image height); expected YAN or YOB")
+        m = abs(float(n[0]) / (float(n[-1]) * float(u_k)))
+        d = obj_dist + float(par.entrance_pupil_position)
+        return [math.degrees(math.atan(h * u / m / d)) for h in vals]
     f = float(par.efl)
     return [math.degrees(math.atan(h * u / f)) for h in vals]
 
@@ -695,6 +950,27 @@ def _surface_lines(s, i: int, stop: bool = False) -> list[str]:
     return handler.write_codev(s, i, stop)
 
 
+def _private_blocks(lens: Lens) -> list[str]:
+    """A ``PRV`` block per private glass of the lens (its table, as read)."""
+    from .codev_private import PrivateGlass
+
+    out, seen = [], {}
+    for m in lens.materials:
+        if not isinstance(m, PrivateGlass):
+            continue
+        key = m.name.upper()
+        if key in seen:
+            if seen[key] is not m and (seen[key].table_nm, seen[key].table_n) != (m.table_nm,
+                                                                                 m.table_n):
+                raise LensFileError(f"two private glasses named {m.name!r} with different "
+                                    f"tables")
+            continue
+        seen[key] = m
+        out += ["PRV", "  PWL " + " ".join(_f(w) for w in m.table_nm),
+                f"  '{m.name}' " + " ".join(_f(n) for n in m.table_n), "END"]
+    return out
+
+
 def write_seq(lens: Lens, path) -> None:
     """Write ``lens`` as a CODE V ``.seq`` file that :func:`read_seq` reads back.
 
@@ -728,6 +1004,7 @@ def write_seq(lens: Lens, path) -> None:
         else:
             out.append(f"EPD {_f(paraxial(lens).entrance_pupil_diameter)}")
         out.append("YAN " + " ".join(_f(f) for f in spec.fields_deg))
+        out += _private_blocks(lens)
         od = float(spec.object_distance_mm)
         obj = f"SO 0.0 {'1e+20' if math.isinf(od) else _f(od)}"
         g = _glass_token(lens.materials[0], -1)
@@ -746,6 +1023,8 @@ def write_seq(lens: Lens, path) -> None:
                 mods.insert(0, "STO")
             clear = float(getattr(s, "clear_radius", math.inf))
             mods.append(f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}")
+            if float(getattr(s, "obscuration", 0.0)) > 0:
+                mods.append(f"CIR OBS {_f(s.obscuration)}")
             out += ["  " + m for m in mods]
     out.append("SI 0.0 0.0")
     if lens.sensor_semi_diameter is not None:

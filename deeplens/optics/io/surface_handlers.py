@@ -470,9 +470,10 @@ class ApertureFormat(SurfaceFormat):
         return lines
 
     def write_codev(self, s, i, stop):
-        if s.shape != "circle" or float(s.obscuration) > 0 or s.decentred:
-            raise LensFileError(f"surface {i}: a rectangular, obscured or decentred aperture "
-                                f"has no CODE V equivalent here", surfaces=(i,))
+        # a central obscuration is written by write_seq (CIR OBS); a ring one has no equivalent
+        if s.shape != "circle" or float(s.obscuration_inner) > 0 or s.decentred:
+            raise LensFileError(f"surface {i}: a rectangular, ring-obscured or decentred "
+                                f"aperture has no CODE V equivalent here", surfaces=(i,))
         return ["0.0"]
 
 
@@ -591,12 +592,12 @@ class AsphereFormat(_StandardFamily):
         return Asphere(c, sd, rec["k"], coef)
 
     def write_codev(self, s, i, stop):
-        if float(s.obscuration) > 0 or (math.isfinite(float(s.clear_radius)) and not stop) or \
+        # a central obscuration is written by write_seq (CIR OBS)
+        if (math.isfinite(float(s.clear_radius)) and not stop) or \
                 bool(s.clear_rect.any()) or any(float(v) for v in s.clear_decenter):
-            raise LensFileError(f"surface {i}: an obscuration, a decentred clear aperture or "
-                                f"one narrower than the semi-diameter (other than on the stop) "
-                                f"has no CODE V equivalent here",
-                                surfaces=(i,))
+            raise LensFileError(f"surface {i}: a decentred clear aperture or one narrower than "
+                                f"the semi-diameter (other than on the stop) has no CODE V "
+                                f"equivalent here", surfaces=(i,))
         a = [float(v) for v in s.a]
         while a and a[-1] == 0:
             a.pop()

@@ -260,9 +260,10 @@ def test_automatic_semi_diameters(tmp_path):
     ("S 50 x NBK7_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", 6, "S thickness: expected a number"),
     ("S 0 1\n  STO\n  CIR 4\nS 50 5 NBK7_SCHOTT\nS -50 45\nSI 0 0\n", 8,
      "narrower than the beam .* not on a Aperture stop"),
-    ("S 50 5 NBK7_SCHOTT\n  STO\n  CIR OBS 1\nS -50 45\nSI 0 0\n", 8, "CIR OBS"),
+    ("S 50 5 NBK7_SCHOTT\n  STO\n  CIR OBS 60\nS -50 45\nSI 0 0\n", 8, "CIR OBS .*below"),
+    ("S 50 5 NBK7_SCHOTT\n  STO\n  CIR RHO 1\nS -50 45\nSI 0 0\n", 8, "CIR RHO"),
     ("S 50 5 NBK7_SCHOTT\n  STO S1\nS -50 45\nSI 0 0\n", 7, "STO"),
-    ("S 50 5 NBK7_SCHOTT\nS -50 45\nSI 0 0\n", None, "no stop"),
+    ("S 50 5 NBK7_SCHOTT\n  STO\n  AC 1\nS -50 45\nSI 0 0\n", 8, "AC other than 0"),
     ("S 50 5 NBK7_SCHOTT\n  STO\nS -50 45\nSI -100 0\n", 9, "SI .*flat"),
     ("S 50 5 NBK7_SCHOTT\n  STO\nS -50 &\n", 8, "continuation"),
 ])
@@ -277,10 +278,11 @@ def test_refusals_name_file_and_line(tmp_path, body, line, match):
     (_HEAD.replace("EPD 10", "NA 0.1"), 3, "NA"),
     (_HEAD.replace("EPD 10", ""), None, "no system aperture"),
     (_HEAD.replace("YAN 0 5", "XAN 0 1; YAN 0 5"), 4, "XAN"),
-    (_HEAD.replace("WL 587.5618", "WL 486 587"), 2, "REF"),
+    (_HEAD.replace("WL 587.5618", "WL 486 587\nPRV\nPWL 400 500\n'G' 1.5\nEND"), 5,
+     "1 indices for the 2 PWL"),
     (_HEAD.replace("WL 587.5618", "WL 587; REF 3"), 2, "REF 3"),
     (_HEAD.replace("DIM M", "DIM Q"), 1, "DIM"),
-    (_HEAD.replace("SO 0 1e10", "SO 0 100").replace("EPD 10", "FNO 4"), 3, "FNO"),
+    (_HEAD.replace("SO 0 1e10", "SO 0 100").replace("EPD 10", "FNO -4"), 3, "FNO -4"),
 ])
 def test_system_refusals(tmp_path, head, line, match):
     p = _seq(tmp_path, "S 50 5 NBK7_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", head=head)

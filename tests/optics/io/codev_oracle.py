@@ -1,0 +1,181 @@
+"""rayoptics' reading of a CODE V ``.seq`` file (a test-only oracle) and the first-order numbers
+deeplens and rayoptics give for it; shared by tests/optics/io/test_codev_corpus.py and
+benchmarks/seq_corpus.py.
+
+rayoptics reads the file with its own CODE V reader (``rayoptics.codev.cmdproc.read_lens``) and
+is then given deeplens' refractive index at the reference wavelength for every gap (an
+``opticalglass`` ``ConstantIndex`` medium), so the comparison checks the reading of the
+prescription (surfaces, spacings, stop, pupil, units, mirrors, defaults) independently of the
+two libraries' glass data.  Each rayoptics surface is matched to deeplens' by its path
+coordinate (the running sum of ``|thickness|``) and curvature: deeplens folds a flat surface in
+air that is not the stop into the gap (CODE V's dummies), rayoptics keeps it.
+
+Both sides are float64 paraxial traces of the same numbers, so they agree to round-off: about
+1e-13 relative on these files; :func:`agrees` allows 1e-9 relative (round-off grown through a
+few tens of surfaces and an object at 1e11 units; a thickness read off by one surface moves the
+numbers by more than 1e-4).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import shutil
+import tempfile
+import warnings
+from pathlib import Path
+
+import torch
+
+from deeplens.optics.paraxial import paraxial
+
+_UNITS = {"M": 1.0, "MM": 1.0, "C": 10.0, "CM": 10.0, "I": 25.4, "IN": 25.4}
+QUANTITIES = ("EFL", "EPD", "ENP", "BFP")
+
+
+def unit_mm(path) -> float:
+    """The file's length unit in mm (its ``DIM`` line; mm without one)."""
+    for line in Path(path).read_text(errors="replace").splitlines():
+        for cmd in line.split("!")[0].split(";"):
+            toks = cmd.split()
+            if len(toks) >= 2 and toks[0].upper() == "DIM":
+                return _UNITS.get(toks[1].upper(), 1.0)
+    return 1.0
+
+
+def agrees(dl: float, ro: float) -> bool:
+    """Equal to float64 round-off of a paraxial trace (module docstring)."""
+    if math.isinf(dl) or math.isinf(ro):
+        return math.isinf(dl) and math.isinf(ro)
+    return abs(dl - ro) <= 1e-9 * max(1.0, abs(dl), abs(ro))
+
+
+@contextlib.contextmanager
+def _scratch_cwd():
+    # rayoptics' reader opens a log file in the working folder and may write glass replacement
+    # files beside the file it reads: both in a scratch folder
+    old = os.getcwd()
+    with tempfile.TemporaryDirectory() as tmp:
+        os.chdir(tmp)
+        try:
+            yield Path(tmp)
+        finally:
+            os.chdir(old)
+
+
+def _update(opm):
+    opm["seq_model"].update_model()
+    opm["optical_spec"].update_model()
+    opm.update_optical_properties()
+    return opm["analysis_results"]["parax_data"].fod
+
+
+def _match(lens, sm, s_mm):
+    """``(lead, after)``: the path coordinate (file units) of deeplens' first surface from the
+    file's surface 1, and for each rayoptics gap the index of deeplens' medium in it."""
+    p_dl, acc = [], 0.0
+    for i, d in enumerate(lens.distances):
+        acc += abs(float(d)) if i else 0.0
+        p_dl.append(acc / s_mm)
+    c_dl = [float(getattr(s, "c", 0.0)) * s_mm for s in lens.surfaces]
+    q, acc = [], 0.0
+    for k in range(1, len(sm.ifcs) - 1):
+        q.append(acc)
+        acc += abs(sm.gaps[k].thi)
+    after, i, lead = [0], 0, None
+    for k, qk in enumerate(q, start=1):
+        cv = sm.ifcs[k].profile.cv
+        if i < len(p_dl):
+            base = p_dl[i] + (lead if lead is not None else qk)
+            same_z = abs(base - qk) <= 1e-9 * max(1.0, abs(qk))
+            same_c = abs(cv - c_dl[i]) <= 1e-12 * max(1.0, abs(cv))
+            if same_z and same_c:
+                lead = qk if lead is None else lead
+                i += 1
+        after.append(i)   # deeplens' medium i after this surface (materials[i])
+    if i != len(p_dl):
+        raise AssertionError(f"rayoptics' surfaces do not match deeplens' ({i} of {len(p_dl)} "
+                             f"found): extend the oracle")
+    return lead or 0.0, after
+
+
+def has_rdm(path) -> bool:
+    """Whether the file has an ``RDM`` command (radius or curvature mode)."""
+    text = Path(path).read_text(errors="replace")
+    return any(cmd.split()[:1] and cmd.split()[0].upper() == "RDM"
+               for line in text.splitlines() for cmd in line.split("!")[0].split(";"))
+
+
+def rayoptics_model(path, lens, radius_mode=None):
+    """rayoptics' reading of ``path`` with deeplens' indices (lengths in the file's units), and
+    the path coordinate of deeplens' first surface from the file's surface 1.
+
+    A file without ``RDM`` is read by deeplens in radius mode (or as ``radius_mode`` says) and by
+    rayoptics in curvature mode (its own convention, cmdproc's ``spec_data``): the oracle gets
+    deeplens' reading, an ``RDM`` line put before the file's first line of a scratch copy."""
+    from opticalglass.opticalmedium import ConstantIndex
+
+    path = Path(path)
+    with _scratch_cwd() as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from rayoptics.codev import cmdproc   # (its import opens the log file)
+
+        src = tmp / path.name
+        shutil.copyfile(path, src)
+        if radius_mode is not None or not has_rdm(path):
+            rdm = "RDM N" if radius_mode is False else "RDM Y"
+            src.write_bytes(rdm.encode() + b"\n" + path.read_bytes())
+        opm, _ = cmdproc.read_lens(src)
+    sm = opm["seq_model"]
+    s_mm = unit_mm(path)
+    lead, after = _match(lens, sm, s_mm)
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        n = [float(m.n(w)) for m in lens.materials]
+    for g, j in zip(sm.gaps, after):
+        g.medium = ConstantIndex(n[j], f"n={n[j]!r}")
+    with _scratch_cwd():
+        _update(opm)
+    return opm, lead
+
+
+def numbers(path, lens, radius_mode=None) -> dict[str, tuple[float, float]]:
+    """``{quantity: (deeplens, rayoptics)}`` in the file's length unit: the EFL (image-side; after
+    an odd number of mirrors rayoptics' sign is the other one), the entrance pupil diameter, its
+    position from the file's surface 1 (``ENP``) and the rear focal point from the image plane
+    (``BFP``)."""
+    from rayoptics.parax.firstorder import compute_principle_points
+
+    s_mm = unit_mm(path)
+    opm, lead = rayoptics_model(path, lens, radius_mode)
+    sm = opm["seq_model"]
+    with _scratch_cwd():
+        fod = opm["analysis_results"]["parax_data"].fod
+        wvl = opm["optical_spec"]["wvls"].central_wvl
+        n_0 = sm.z_dir[0] * sm.central_rndx(0)
+        n_k = sm.z_dir[-1] * sm.central_rndx(-1)
+        p_ray, q_ray, _ = compute_principle_points(sm.path(wl=wvl), sm.overall_length(), n_0,
+                                                   n_k)
+        stop = sm.stop_surface if sm.stop_surface is not None else 1
+        enp_ro = q_ray[stop][0] / (sm.gaps[0].medium.rindex(wvl) * p_ray[stop][0])
+        efl_ro = fod.efl if fod.efl != 0.0 else math.inf
+        # rayoptics keeps SI's thickness as a focus shift (deeplens adds it to the last gap)
+        image = sm.gaps[-1].thi + opm["optical_spec"]["focus"].focus_shift
+        bfp_ro = fod.bfl - image if fod.efl != 0.0 else math.inf
+        epd_ro = 2.0 * fod.enp_radius
+        t = sm.gaps[0].thi
+        if abs(t) >= 1e10:   # CODE V's infinity: rayoptics keeps it finite; the EPD's 1/T term
+            sm.gaps[0].thi = 2.0 * t   # removed by evaluating at T and 2T
+            epd_ro = 2.0 * (2.0 * _update(opm).enp_radius) - epd_ro
+            sm.gaps[0].thi = t
+            _update(opm)
+    with torch.no_grad():
+        p = paraxial(lens)
+        sign = (-1) ** len(lens.mirrors)
+        efl_dl = sign * float(p.efl) / s_mm
+        bfp_dl = (float(p.bfl) + float(lens.z_vertices()[-1]) - float(lens.z_sensor())) / s_mm
+        enp_dl = float(p.entrance_pupil_position) / s_mm + lead
+        epd_dl = float(p.entrance_pupil_diameter) / s_mm
+    return {"EFL": (efl_dl, efl_ro), "EPD": (epd_dl, epd_ro), "ENP": (enp_dl, enp_ro),
+            "BFP": (bfp_dl, bfp_ro)}
