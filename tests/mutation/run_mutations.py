@@ -76,6 +76,7 @@ FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
 MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
 RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
+MCONF_OPS = ("tests/optics/io/test_zmx_multiconfig_operands.py",)
 TABULATED = ("tests/optics/io/test_tabulated_glass.py",)
 JONESMAT = ("tests/optics/io/test_zmx_jonesmat.py",)
 ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
@@ -868,6 +869,24 @@ MUTATIONS = [
              "                lens, catalogues, reoptimize, k=m, v_weight=v_weight,",
              "                lens, \"SCHOTT\", reoptimize, k=m, v_weight=v_weight,",
              SUBSTITUTION),
+    # ------------------- multi-configuration operands of real files (issue 37 item 6, branch mconf)
+    Mutation("mconf_pram_number_from_solve_column", "PRAM's parameter number read from the row's "
+             "fifth field (the solve type) instead of its sixth", "deeplens/optics/io/zmx_mconf.py",
+             "            second = int(r.tokens[5])", "            second = int(r.tokens[4])",
+             MCONF_OPS),
+    Mutation("mconf_apmn_sets_maximum", "APMN sets the aperture's maximum radius and APMX its "
+             "minimum", "deeplens/optics/io/zmx_mconf.py",
+             'lo, hi = (v, hi) if key == "APMN" else (lo, v)',
+             'lo, hi = (lo, v) if key == "APMN" else (v, hi)', MCONF_OPS),
+    Mutation("mconf_sdia_ignored", "an SDIA row not applied (the saved semi-diameter kept)",
+             "deeplens/optics/io/zmx_mconf.py", "        s.diam, s.diam_line = v, ln",
+             "        s.diam_line = ln", MCONF_OPS),
+    Mutation("mconf_stps_off_by_one", "STPS puts the stop on the surface before the one named",
+             "deeplens/optics/io/zmx_mconf.py", "        surfs[int(v)].stop = True",
+             "        surfs[int(v) - 1].stop = True", MCONF_OPS),
+    Mutation("mconf_temperature_silent", "a configuration's temperature ignored without its note",
+             "deeplens/optics/io/zmx_mconf.py", 'if v != (20.0 if key == "TEMP" else 1.0):',
+             "if False:", MCONF_OPS),
 ]
 
 
