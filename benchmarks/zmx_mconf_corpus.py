@@ -14,6 +14,9 @@ For each file with ``MNUM n`` (n > 1) and each configuration ``k``:
   same lens as configuration ``k`` (``lens_to_dict`` equal: every surface, tilt, glass, gap,
   field, wavelength and aperture) with the same EFL, BFL, EPD and entrance-pupil position (to
   1e-12 relative);
+* ``= the saved records``: the configuration is the same lens as the file with its ``MNUM``
+  block cut (the saved records hold one configuration, the active one: a check of the rows'
+  reading against the file itself; older files write ``MNUM n`` without saying which);
 * ``oracles``: optiland's and rayoptics' readings of that single-configuration file confirm
   configuration ``k``'s EFL, EPD, entrance-pupil position and back focal point, with the corpus
   tests' own oracle code (benchmarks/zmx_corpus.py ``folder_oracles``: each oracle gets deeplens'
@@ -39,6 +42,7 @@ sys.path.insert(0, str(REPO / "benchmarks"))
 sys.path.insert(0, str(REPO / "tests/optics/io"))
 
 from deeplens.optics.io import lens_to_dict  # noqa: E402
+from deeplens.optics.io.agf import decode_zemax_text  # noqa: E402
 from deeplens.optics.io.zmx import ZemaxFileError, read_zmx  # noqa: E402
 from deeplens.optics.paraxial import paraxial  # noqa: E402
 from zmx_corpus import folder_oracles  # noqa: E402
@@ -86,6 +90,7 @@ def main(folder: str) -> int:
     files = sorted(p for p in root.iterdir() if p.suffix.lower() == ".zmx"
                    and configurations(p)[0] > 1)
     tot = loaded = confirmed = refused = crashed = 0
+    files_saved_checked = files_saved_match = 0
     causes: dict[str, int] = {}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -93,6 +98,16 @@ def main(folder: str) -> int:
         for f in files:
             n, active = configurations(f)
             print(f"{f.name}  (MNUM {n} {active})")
+            # the saved records alone (the file with its MNUM block cut): the configuration
+            # they hold must be one of the configurations read (the rows' reading checked on
+            # the file itself; OpticStudio's older files write MNUM n without the active one)
+            text = decode_zemax_text(f)
+            (tmp / "saved.zmx").write_text(text[:text.index("\nMNUM") + 1])
+            try:
+                saved = lens_to_dict(_read(tmp / "saved.zmx"))
+            except ZemaxFileError:
+                saved = None
+            matches_saved = 0
             for k in range(1, n + 1):
                 tot += 1
                 head = f"  config {k}"
@@ -125,18 +140,29 @@ def main(folder: str) -> int:
                             lens_to_dict(lens), lens_to_dict(single))
                 except ZemaxFileError as e:
                     same = f"single-configuration file refused: line {e.line} {e.feature}"
+                is_saved = saved is not None and saved == lens_to_dict(lens)
+                matches_saved += is_saved
                 ok, why = confirm(name, lens)
                 good = same is None and bool(ok)
                 confirmed += good
                 print(f"{head}  loaded   EFL {num['EFL']:12.6g}  EPD {num['EPD']:10.6g}  "
                       f"same {'yes' if same is None else 'NO'}  oracles "
-                      f"{'+'.join(ok) or 'none'}  {'CONFIRMED' if good else ''}")
+                      f"{'+'.join(ok) or 'none'}  {'CONFIRMED' if good else ''}"
+                      f"{'  (= the saved records)' if is_saved else ''}")
                 if same is not None:
                     print(f"{'':14s}same: {same}")
                 if why and not ok:
                     print(f"{'':14s}" + "; ".join(f"{o}: {w}" for o, w in why.items()))
+            if saved is not None:
+                files_saved_checked += 1
+                files_saved_match += matches_saved > 0
+                if not matches_saved:
+                    print("  the saved records equal no configuration read")
     print(f"\n{len(files)} files, {tot} configurations: {loaded} loaded, {confirmed} confirmed "
           f"(same + an oracle), {refused} refused with their location, {crashed} unlocated")
+    print(f"saved records (the file without its MNUM block) equal one of the configurations "
+          f"read: {files_saved_match} of {files_saved_checked} files whose records deeplens "
+          f"reads")
     if causes:
         print("refusals by feature: " + ", ".join(f"{k} {v}" for k, v in sorted(causes.items())))
     return 1 if crashed else 0

@@ -887,6 +887,10 @@ MUTATIONS = [
     Mutation("mconf_temperature_silent", "a configuration's temperature ignored without its note",
              "deeplens/optics/io/zmx_mconf.py", 'if v != (20.0 if key == "TEMP" else 1.0):',
              "if False:", MCONF_OPS),
+    Mutation("mconf_rows_rounding_kept", "a row that repeats the saved value to its 13 digits "
+             "replaces the saved 17-digit value (the active configuration is not the saved lens)",
+             "deeplens/optics/io/zmx_mconf.py", "abs(saved - v) <= 5e-13 * abs(saved)",
+             "abs(saved - v) < 0 * abs(saved)", MCONF_OPS),
 ]
 
 

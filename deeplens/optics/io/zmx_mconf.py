@@ -18,7 +18,10 @@ parameter or extra-data number, in the row's sixth field (OpticStudio's "Int2": 
 ...`` is parameter 3 of ``SURF 8``, a coordinate break's tilt about x, in configuration 2).  The
 other columns after the value (solves, pick-ups, display flags) are not read: the value itself
 is what the configuration uses.  Configuration ``N`` is the saved lens with each operand's value
-for ``N`` put in its place:
+for ``N`` put in its place.  OpticStudio writes the rows' values to 13 significant digits
+(``%.12E``) and the saved records to 17: a row value that repeats the saved one to the row's
+precision (within 5e-13 relative) keeps the saved value, so the active configuration is the
+saved lens bit for bit:
 
 =========  ====================================================================
 ``THIC s``  ``DISZ`` of ``SURF s`` (file units; on ``SURF 0`` a value of 1e10 or more, or
@@ -215,9 +218,10 @@ def _apply(key, num, second, text, ln, sysd, surfs, p: Locator) -> None:
             p.fail(ln, f"{key} {num}: no SURF {num} (the file has SURF 0 to {len(surfs) - 1})")
         v = p.num(text, ln, f"{key} value")
         if key == "EDVA":
-            surfs[num].xdat[second] = (v, ln)
+            surfs[num].xdat[second] = (_repeat(surfs[num].xdat.get(second), v), ln)
         else:
-            surfs[num].parm[second if key == "PRAM" else int(key[3:])] = (v, ln)
+            i = second if key == "PRAM" else int(key[3:])
+            surfs[num].parm[i] = (_repeat(surfs[num].parm.get(i), v), ln)
         return
     if key in ("SDIA", "APMN", "APMX"):
         if not num < len(surfs):
@@ -258,11 +262,11 @@ def _apply(key, num, second, text, ln, sysd, surfs, p: Locator) -> None:
         if key == "THIC":
             if num == 0 and v >= 1e10:
                 v = math.inf     # OpticStudio's object at infinity in the editor
-            s.disz, s.disz_line = v, ln
+            s.disz, s.disz_line = _repeat(s.disz, v), ln
         elif key == "CRVT":
-            s.curv, s.curv_line = v, ln
+            s.curv, s.curv_line = _repeat(s.curv, v), ln
         else:
-            s.coni = v
+            s.coni = _repeat(s.coni, v)
         return
     v = p.num(text, ln, f"{key} value")
     if key == "APER":
@@ -270,23 +274,23 @@ def _apply(key, num, second, text, ln, sysd, surfs, p: Locator) -> None:
         if ap is None or ap[0] == "stop":
             p.fail(ln, "APER: the system aperture is FLOA (float by stop size) or not given, "
                        "so a configuration's aperture value has no meaning here")
-        sysd["aperture"] = (ap[0], v, ln)
+        sysd["aperture"] = (ap[0], _repeat(ap[1], v), ln)
     elif key in ("YFIE", "XFIE"):
         slot = key[0].lower() + "fln"
         if sysd[slot] is None or not 1 <= num <= len(sysd[slot][0]):
             have = len(sysd[slot][0]) if sysd[slot] else 0
             p.fail(ln, f"{key} {num}: no field {num} ({have} {slot.upper()} values)")
         vals = list(sysd[slot][0])
-        vals[num - 1] = v
+        vals[num - 1] = _repeat(vals[num - 1], v)
         sysd[slot] = (vals, ln)
     elif key == "WAVE":
         if sysd["waves"]:
             if num not in sysd["waves"]:
                 p.fail(ln, f"WAVE {num}: no wavelength {num} (WAVM {sorted(sysd['waves'])})")
-            sysd["waves"][num] = (v, ln)
+            sysd["waves"][num] = (_repeat(sysd["waves"][num], v), ln)
         elif sysd["wavl"] and 1 <= num <= len(sysd["wavl"][0]):
             vals = list(sysd["wavl"][0])
-            vals[num - 1] = v
+            vals[num - 1] = _repeat(vals[num - 1], v)
             sysd["wavl"] = (vals, ln)
         else:
             p.fail(ln, f"WAVE {num}: no wavelength {num}")
@@ -296,13 +300,25 @@ def _apply(key, num, second, text, ln, sysd, surfs, p: Locator) -> None:
         sysd["pwav"] = (int(v), ln)
 
 
+def _repeat(saved, v: float) -> float:
+    """``v``, a row's value, or the saved record's value ``saved`` (a number, or ``(number,
+    line)``) where ``v`` repeats it to the 13 significant digits OpticStudio writes the rows
+    with (within 5e-13 relative): the saved record has 17."""
+    if isinstance(saved, tuple):
+        saved = saved[0]
+    if isinstance(saved, (int, float)) and math.isfinite(saved) and saved != v \
+            and abs(saved - v) <= 5e-13 * abs(saved):
+        return float(saved)
+    return v
+
+
 def _apply_size(key, num, v, ln, s: ZmxSurface, p: Locator) -> None:
     """``SDIA`` (the ``DIAM`` semi-diameter), ``APMN`` / ``APMX`` (a circular aperture's, ``CLAP``,
     or else a circular obscuration's, ``OBSC``, minimum / maximum radius) of ``SURF num``."""
     if key == "SDIA":
         if v < 0:
             p.fail(ln, f"SDIA {num}: a semi-diameter must be >= 0, got {v:g}")
-        s.diam, s.diam_line = v, ln
+        s.diam, s.diam_line = _repeat(s.diam, v), ln
         return
     if s.clap is not None:       # CLAP lo hi: clap = (hi, line), obsc = (lo, line) when lo > 0
         lo = s.obsc[0] if s.obsc is not None else 0.0

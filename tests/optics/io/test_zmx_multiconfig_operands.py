@@ -197,3 +197,31 @@ def test_opticstudio_format_file_shares_the_unchanged_surfaces():
     # shared, with the largest semi-diameter (one physical surface passes every beam)
     assert [x is y for x, y in zip(a.surfaces, b.surfaces)] == [False, False, True, True]
     assert float(c.surfaces[2].semi_diameter) == max(SDIA.values())
+
+
+def test_the_active_configuration_is_the_saved_records_not_its_rounded_rows(tmp_path):
+    """OpticStudio writes the active configuration's operand rows rounded to 13 significant
+    digits (``CRVT 1 1 1.044274562912E-002`` beside ``CURV 1.044274562912348200E-002`` in its
+    sc_temp3 sample): the active configuration is read from the saved records, bit for bit."""
+    base = _base().replace("  CURV -0.015\n", "  CURV -1.500000000000123400E-002\n", 1)
+    rows = "CRVT 3 1 -1.500000000000E-002 1 0\nCRVT 3 2 -1.200000000000E-002 1 0\n"
+    p = _write(tmp_path, base + "MNUM 2 1\n" + rows)
+    saved = lens_to_dict(_read(_write(tmp_path, base, "saved.zmx")))
+    assert lens_to_dict(_read(p)) == saved
+    assert lens_to_dict(_read(p, config=1)) == saved
+    assert lens_to_dict(_read(p, config=2)) != saved
+
+
+def test_mnum_without_an_active_number_says_which_configuration_is_read(tmp_path):
+    """OpticStudio's older files write ``MNUM n`` alone (its sc_temp5 sample: the saved records
+    hold configuration 2): configuration 1 is read, and the note says the MNUM line names no
+    active configuration (not that configuration 1 is the data as saved)."""
+    rows = "THIC 2 1 10\nTHIC 2 2 20\n"
+    p = _write(tmp_path, _base().replace("  DISZ 10\n", "  DISZ 20\n", 1) + "MNUM 2\n" + rows)
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        lens = read_zmx(p)
+    msgs = " ".join(str(w.message) for w in got)
+    assert "configuration 1 (the MNUM line names no active configuration" in msgs
+    assert lens_to_dict(lens) == lens_to_dict(_read(p, config=1))
+    assert lens_to_dict(lens) != lens_to_dict(_read(p, config=2))

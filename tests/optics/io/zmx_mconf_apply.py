@@ -32,6 +32,7 @@ changes nothing).  The rules, each OpticStudio's meaning of the operand (OpticSt
 
 from __future__ import annotations
 
+import math
 import re
 
 from deeplens.optics.io.agf import decode_zemax_text
@@ -61,6 +62,16 @@ def _rows(lines, start):
     return rows, other
 
 
+def _repeats(old, new) -> bool:
+    """Whether the row value ``new`` repeats the record's ``old`` to 5e-13 relative (rows carry
+    13 significant digits, records 17)."""
+    try:
+        a, b = float(old), float(new)
+    except (TypeError, ValueError):
+        return False
+    return math.isfinite(a) and abs(a - b) <= 5e-13 * abs(a)
+
+
 def configurations(path) -> tuple[int, int]:
     """``(number of configurations, active one)`` from the ``MNUM`` line (1, 1 without)."""
     m = re.search(r"^MNUM\s+(\d+)(?:\s+(\d+))?", decode_zemax_text(path), re.M)
@@ -68,7 +79,9 @@ def configurations(path) -> tuple[int, int]:
 
 
 def single_configuration(path, k: int) -> str:
-    """The text of ``path`` as a single-configuration file holding configuration ``k``."""
+    """The text of ``path`` as a single-configuration file holding configuration ``k``.  A row
+    value that repeats the saved record's to the 13 significant digits OpticStudio writes rows
+    with (within 5e-13 relative) leaves the saved record as it is (17 digits)."""
     lines = decode_zemax_text(path).splitlines()
     start = next(i for i, ln in enumerate(lines) if ln.startswith("MNUM"))
     n, active = configurations(path)
@@ -107,7 +120,8 @@ def single_configuration(path, k: int) -> str:
             head.insert(block(s)[1], new if new is not None else f"  {key} {text}")
             return
         f = head[j].split()
-        f[nth] = text
+        if not _repeats(f[nth] if nth < len(f) else None, text):
+            f[nth] = text
         head[j] = "  " + " ".join(f)
 
     def set_system(key, idx, text):
@@ -116,7 +130,8 @@ def single_configuration(path, k: int) -> str:
             if f and f[0] == key and not ln.startswith(" "):
                 if idx >= len(f):
                     raise NotApplied(f"{key} has no field {idx}")
-                f[idx] = text
+                if not _repeats(f[idx], text):
+                    f[idx] = text
                 head[j] = " ".join(f)
                 return True
         return False
@@ -148,7 +163,8 @@ def single_configuration(path, k: int) -> str:
                 head.insert(b, f"  {key} {p} {v}")
             else:
                 fl = head[j].split()
-                fl[2] = v
+                if not _repeats(fl[2], v):
+                    fl[2] = v
                 head[j] = "  " + " ".join(fl)
         elif op in ("APMN", "APMX"):
             key = "CLAP" if surf_line(num, "CLAP") is not None else "OBSC"
@@ -172,7 +188,7 @@ def single_configuration(path, k: int) -> str:
             done = False
             for j, ln in enumerate(head):
                 fl = ln.split()
-                if fl[:2] == ["WAVM", str(num)]:
+                if fl[:2] == ["WAVM", str(num)] and not _repeats(fl[2], v):
                     fl[2] = v
                     head[j] = " ".join(fl)
                     done = True
