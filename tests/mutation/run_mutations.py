@@ -891,6 +891,13 @@ MUTATIONS = [
              "replaces the saved 17-digit value (the active configuration is not the saved lens)",
              "deeplens/optics/io/zmx_mconf.py", "abs(saved - v) <= 5e-13 * abs(saved)",
              "abs(saved - v) < 0 * abs(saved)", MCONF_OPS),
+    Mutation("mconf_write_pram_number_dropped", "write_zmx_configs writes PRAM rows without the "
+             "parameter number (sixth field 0)", "deeplens/optics/io/zmx_write_configs.py",
+             "tb[2], int(ta[1]), ta[2])", "tb[2], 0, ta[2])", MCONF_WRITE),
+    Mutation("mconf_write_sdia_dropped", "write_zmx_configs writes no SDIA row for a differing "
+             "DIAM (configuration 1's kept)", "deeplens/optics/io/zmx_write_configs.py",
+             '                    put("SDIA", s, k, tb[1], 0, ta[1])', "                    pass",
+             MCONF_WRITE),
 ]
 
 
