@@ -70,8 +70,9 @@ def write_zmx_configs(lenses: list, path, encoding: str = "utf-8") -> None:
 
     The lenses are configurations of one design: the same surfaces (type, aspheric terms,
     apertures' kinds), fields and wavelengths in number, differing in gaps, curvatures, conics,
-    catalogue glasses, the aperture value, field and wavelength values and the primary
-    wavelength (see the module's table).  One lens writes a plain file (no ``MNUM``).
+    catalogue glasses, surface parameters and extra data, semi-diameters and aperture radii, the
+    aperture value, field and wavelength values and the primary wavelength (see the module's
+    table).  One lens writes a plain file (no ``MNUM``).
 
     Args:
         lenses: the configurations, each a :class:`~deeplens.optics.lens.Lens`.
