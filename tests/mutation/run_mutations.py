@@ -876,8 +876,9 @@ MUTATIONS = [
              MCONF_OPS),
     Mutation("mconf_apmn_sets_maximum", "APMN sets the aperture's maximum radius and APMX its "
              "minimum", "deeplens/optics/io/zmx_mconf.py",
-             'lo, hi = (v, hi) if key == "APMN" else (lo, v)',
-             'lo, hi = (lo, v) if key == "APMN" else (v, hi)', MCONF_OPS),
+             'lo, hi = (_repeat(lo, v), hi) if key == "APMN" else (lo, _repeat(hi, v))',
+             'lo, hi = (lo, _repeat(hi, v)) if key == "APMN" else (_repeat(lo, v), hi)',
+             MCONF_OPS),
     Mutation("mconf_sdia_ignored", "an SDIA row not applied (the saved semi-diameter kept)",
              "deeplens/optics/io/zmx_mconf.py", "        s.diam, s.diam_line = v, ln",
              "        s.diam_line = ln", MCONF_OPS),

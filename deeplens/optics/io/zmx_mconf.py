@@ -323,7 +323,7 @@ def _apply_size(key, num, v, ln, s: ZmxSurface, p: Locator) -> None:
     if s.clap is not None:       # CLAP lo hi: clap = (hi, line), obsc = (lo, line) when lo > 0
         lo = s.obsc[0] if s.obsc is not None else 0.0
         hi = s.clap[0]
-        lo, hi = (v, hi) if key == "APMN" else (lo, v)
+        lo, hi = (_repeat(lo, v), hi) if key == "APMN" else (lo, _repeat(hi, v))
         if not 0 <= lo < hi:
             p.fail(ln, f"{key} {num}: the circular aperture (CLAP) of SURF {num} would have "
                        f"minimum radius {lo:g} and maximum {hi:g}; expected 0 <= minimum < maximum")
@@ -331,7 +331,7 @@ def _apply_size(key, num, v, ln, s: ZmxSurface, p: Locator) -> None:
     elif s.obsc is not None:     # OBSC lo hi: obsc = (hi, line), obsc_inner = (lo, line) if lo > 0
         lo = s.obsc_inner[0] if s.obsc_inner is not None else 0.0
         hi = s.obsc[0]
-        lo, hi = (v, hi) if key == "APMN" else (lo, v)
+        lo, hi = (_repeat(lo, v), hi) if key == "APMN" else (lo, _repeat(hi, v))
         if not 0 <= lo < hi:
             p.fail(ln, f"{key} {num}: the circular obscuration (OBSC) of SURF {num} would have "
                        f"minimum radius {lo:g} and maximum {hi:g}; expected 0 <= minimum < maximum")
