@@ -76,6 +76,7 @@ FANOUT_STOP = ("tests/training/test_fanout_stop.py",)
 MCONF = ("tests/optics/io/test_zmx_multiconfig.py",)
 RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 MCONF_WRITE = ("tests/optics/io/test_zmx_write_configs.py",)
+MCONF_OPS = ("tests/optics/io/test_zmx_multiconfig_operands.py",)
 TABULATED = ("tests/optics/io/test_tabulated_glass.py",)
 JONESMAT = ("tests/optics/io/test_zmx_jonesmat.py",)
 ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
@@ -939,6 +940,36 @@ MUTATIONS = [
     Mutation("codev_si_defocus_dropped", "SI's thickness (a defocus) not added to the last gap",
              "deeplens/optics/io/codev.py", "    d_sensor = gap + img[\"t\"] * u",
              "    d_sensor = gap", CODEV_CORPUS),
+    # ------------------- multi-configuration operands of real files (issue 37 item 6, branch mconf)
+    Mutation("mconf_pram_number_from_solve_column", "PRAM's parameter number read from the row's "
+             "fifth field (the solve type) instead of its sixth", "deeplens/optics/io/zmx_mconf.py",
+             "            second = int(r.tokens[5])", "            second = int(r.tokens[4])",
+             MCONF_OPS),
+    Mutation("mconf_apmn_sets_maximum", "APMN sets the aperture's maximum radius and APMX its "
+             "minimum", "deeplens/optics/io/zmx_mconf.py",
+             'lo, hi = (_repeat(lo, v), hi) if key == "APMN" else (lo, _repeat(hi, v))',
+             'lo, hi = (lo, _repeat(hi, v)) if key == "APMN" else (_repeat(lo, v), hi)',
+             MCONF_OPS),
+    Mutation("mconf_sdia_ignored", "an SDIA row not applied (the saved semi-diameter kept)",
+             "deeplens/optics/io/zmx_mconf.py", "        s.diam, s.diam_line = v, ln",
+             "        s.diam_line = ln", MCONF_OPS),
+    Mutation("mconf_stps_off_by_one", "STPS puts the stop on the surface before the one named",
+             "deeplens/optics/io/zmx_mconf.py", "        surfs[int(v)].stop = True",
+             "        surfs[int(v) - 1].stop = True", MCONF_OPS),
+    Mutation("mconf_temperature_silent", "a configuration's temperature ignored without its note",
+             "deeplens/optics/io/zmx_mconf.py", 'if v != (20.0 if key == "TEMP" else 1.0):',
+             "if False:", MCONF_OPS),
+    Mutation("mconf_rows_rounding_kept", "a row that repeats the saved value to its 13 digits "
+             "replaces the saved 17-digit value (the active configuration is not the saved lens)",
+             "deeplens/optics/io/zmx_mconf.py", "abs(saved - v) <= 5e-13 * abs(saved)",
+             "abs(saved - v) < 0 * abs(saved)", MCONF_OPS),
+    Mutation("mconf_write_pram_number_dropped", "write_zmx_configs writes PRAM rows without the "
+             "parameter number (sixth field 0)", "deeplens/optics/io/zmx_write_configs.py",
+             "tb[2], int(ta[1]), ta[2])", "tb[2], 0, ta[2])", MCONF_WRITE),
+    Mutation("mconf_write_sdia_dropped", "write_zmx_configs writes no SDIA row for a differing "
+             "DIAM (configuration 1's kept)", "deeplens/optics/io/zmx_write_configs.py",
+             '                    put("SDIA", s, k, tb[1], 0, ta[1])', "                    pass",
+             MCONF_WRITE),
 ]
 
 

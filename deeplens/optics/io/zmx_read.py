@@ -66,9 +66,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
             used for every missing glass.  Each use is reported as a :class:`ZemaxWarning`.
         config: the configuration of a multi-configuration file (``MNUM``) to read, from 1;
             ``None`` (default): the active one, as saved (a :class:`ZemaxWarning` says the file
-            has others).  Its operands (``THIC``, ``CRVT``, ``CONN``, ``GLSS``, ``APER``,
-            ``YFIE``, ``XFIE``, ``WAVE``, ``PRWV``) replace the saved values (:mod:`.zmx_mconf`;
-            :func:`~.zmx_configs.read_zmx_configs` reads them all).
+            has others).  Its operands (``THIC``, ``CRVT``, ``CONN``, ``GLSS``, ``PRAM``,
+            ``APER``, ``YFIE``, ... the table of :mod:`.zmx_mconf`) replace the saved values
+            (:func:`~.zmx_configs.read_zmx_configs` reads them all).
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -91,9 +91,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     sysd, surfs, p = parse(path)
     sysd, surfs, n_cfg, k_cfg = configuration(sysd, surfs, p, config)
     if n_cfg > 1 and config is None:
-        p.note(sysd["mnum"][2], f"multi-configuration file ({n_cfg} configurations): the surface "
-                                f"data as saved (configuration {k_cfg}, the active one) is read; "
-                                f"read_zmx(path, config=N) reads configuration N, "
+        named = len(p.records[sysd["mnum"][2]].tokens) > 2   # MNUM n k; older files: MNUM n
+        which = (f"the surface data as saved (configuration {k_cfg}, the active one)" if named
+                 else f"configuration {k_cfg} (the MNUM line names no active configuration; "
+                      f"the surface data as saved may hold another)")
+        p.note(sysd["mnum"][2], f"multi-configuration file ({n_cfg} configurations): {which} "
+                                f"is read; read_zmx(path, config=N) reads configuration N, "
                                 f"read_zmx_configs(path) every one")
     cats = load_catalogues(path, sysd["gcat"][0], glass_catalogs, p)
     unit, _ = sysd["unit"]

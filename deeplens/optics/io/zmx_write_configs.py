@@ -13,19 +13,23 @@ a line that differs                 operand (number)
 ``CURV`` of ``SURF s``              ``CRVT s``
 ``CONI`` of ``SURF s``              ``CONN s``
 ``GLAS`` of ``SURF s``              ``GLSS s`` (catalogue glasses and mirrors only)
+``PARM p`` of ``SURF s``            ``PRAM s`` with ``p`` in the row's sixth field
+``XDAT n`` of ``SURF s``            ``EDVA s`` with ``n`` in the row's sixth field
+``CLAP`` / ``OBSC`` radii           ``APMN s`` / ``APMX s`` (minimum / maximum radius)
 ``ENPD`` / ``FNUM``                 ``APER 0``
 ``YFLN`` / ``XFLN`` value ``f``     ``YFIE f`` / ``XFIE f``
 ``WAVM w``                          ``WAVE w``
 ``PWAV``                            ``PRWV 0``
 ``GCAT``                            none: every configuration's catalogues
-``DIAM`` of ``SURF s``              none: the largest of the configurations' is written (one
-                                    physical surface passes every configuration's beam)
+``DIAM`` of ``SURF s``              ``SDIA s`` (a surface :func:`.zmx_configs.share_surfaces`
+                                    shares has one semi-diameter, the largest, in every lens)
 ``NAME``                            none: configuration 1's
 ==================================  ==============================
 
-Anything else that differs (a surface's type, an asphere's coefficients, the number of
-surfaces, fields or wavelengths, a model glass) has no operand deeplens reads: it is refused
-with a :class:`ValueError` naming the configuration and the record.
+Anything else that differs (a surface's type, the number of surfaces, fields or wavelengths --
+a coordinate break that one configuration has with tilts 0 and deeplens therefore drops --, a
+model glass, the stop) has no operand deeplens writes: it is refused with a :class:`ValueError`
+naming the configuration and the record.
 """
 
 from __future__ import annotations
@@ -59,14 +63,6 @@ def _where(lines: list[str]) -> list[int | None]:
     return out
 
 
-def _diam_line(a: list[str], b: str) -> str:
-    """``DIAM`` line ``a[0]`` with the largest semi-diameter of ``a`` and ``b``'s."""
-    va, vb = a[0].split(), b.split()
-    if float(vb[1]) > float(va[1]):
-        va[1] = vb[1]
-    return " ".join(va)
-
-
 def write_zmx_configs(lenses: list, path, encoding: str = "utf-8") -> None:
     """Write ``lenses`` (configuration 1 first) as one multi-configuration ``.zmx`` file that
     :func:`~.zmx_configs.read_zmx_configs` reads back as the same configurations (and
@@ -74,8 +70,9 @@ def write_zmx_configs(lenses: list, path, encoding: str = "utf-8") -> None:
 
     The lenses are configurations of one design: the same surfaces (type, aspheric terms,
     apertures' kinds), fields and wavelengths in number, differing in gaps, curvatures, conics,
-    catalogue glasses, the aperture value, field and wavelength values and the primary
-    wavelength (see the module's table).  One lens writes a plain file (no ``MNUM``).
+    catalogue glasses, surface parameters and extra data, semi-diameters and aperture radii, the
+    aperture value, field and wavelength values and the primary wavelength (see the module's
+    table).  One lens writes a plain file (no ``MNUM``).
 
     Args:
         lenses: the configurations, each a :class:`~deeplens.optics.lens.Lens`.
@@ -94,10 +91,15 @@ def write_zmx_configs(lenses: list, path, encoding: str = "utf-8") -> None:
         texts = [_lines(lens, Path(tmp), k) for k, lens in enumerate(lenses, start=1)]
     base = texts[0]
     where = _where(base)
-    rows: dict[tuple[str, int], dict[int, str]] = {}   # (operand, number) -> {config: value}
+    # (operand, number, second number) -> {config: value}; the second number: PRAM's
+    # parameter, EDVA's extra-data number (the row's sixth field), 0 for the others
+    rows: dict[tuple[str, int, int], dict[int, str]] = {}
+    first: dict[tuple[str, int, int], str] = {}   # configuration 1's value of each row
 
-    def put(op: str, num: int, k: int, value: str) -> None:
-        rows.setdefault((op, num), {})[k] = value
+    def put(op: str, num: int, k: int, value: str, second: int = 0, base_value=None) -> None:
+        rows.setdefault((op, num, second), {})[k] = value
+        if base_value is not None:
+            first[(op, num, second)] = base_value
 
     out = list(base)
     for k, lines in enumerate(texts[1:], start=2):
@@ -118,11 +120,19 @@ def write_zmx_configs(lenses: list, path, encoding: str = "utf-8") -> None:
             s = where[i]
             if s is not None:
                 if key == "DIAM" and ta[2:] == tb[2:]:
-                    out[i] = "  " + _diam_line([out[i].strip()], b.strip())
+                    put("SDIA", s, k, tb[1], 0, ta[1])
                 elif key in _SURFACE_OPERANDS and key != "GLAS" and ta[2:] == tb[2:]:
                     put(_SURFACE_OPERANDS[key], s, k, tb[1])
                 elif key == "GLAS" and len(ta) > 2 and len(tb) > 2 and ta[2] == tb[2] == "0":
                     put("GLSS", s, k, tb[1])   # catalogue glasses (code 0) and MIRROR
+                elif key in ("PARM", "XDAT") and len(ta) == len(tb) == 3 and ta[1] == tb[1]:
+                    put("PRAM" if key == "PARM" else "EDVA", s, k, tb[2], int(ta[1]), ta[2])
+                elif (key in ("CLAP", "OBSC") and len(ta) == len(tb) and ta[3:] == tb[3:]
+                      and (key == "CLAP" or not _has_record(base, where, s, "CLAP"))):
+                    # the reader applies APMN / APMX to the CLAP, or without one to the OBSC
+                    for op, j in (("APMN", 1), ("APMX", 2)):
+                        if ta[j] != tb[j]:
+                            put(op, s, k, tb[j], 0, ta[j])
                 else:
                     refuse(i, f"record {a.strip()!r} vs {b.strip()!r}")
             elif key in ("ENPD", "FNUM") and ta[2:] == tb[2:]:
@@ -143,17 +153,23 @@ def write_zmx_configs(lenses: list, path, encoding: str = "utf-8") -> None:
     n = len(lenses)
     if n > 1:
         # configuration 1's value in every operand's row too (the saved lens's)
-        first = {}
-        for (op, num) in rows:
-            first[(op, num)] = _value_in_base(base, where, op, num)
+        for (op, num, second) in rows:
+            if (op, num, second) not in first:
+                first[(op, num, second)] = _value_in_base(base, where, op, num)
         out.append(f"MNUM {n} 1")
-        for (op, num), vals in rows.items():
+        for (op, num, second), vals in rows.items():
+            v1 = first[(op, num, second)]
             for k in range(1, n + 1):
-                v = first[(op, num)] if k == 1 else vals.get(k, first[(op, num)])
+                v = v1 if k == 1 else vals.get(k, v1)
                 if op == "GLSS" and v.upper() == "AIR":
                     v = '""'
-                out.append(f'{op} {num:3d} {k:3d} {v} 0 0 0 1 1 1 0 0 "" 0')
+                out.append(f'{op} {num:3d} {k:3d} {v} 0 {second} 0 1 1 1 0 0 "" 0')
     Path(path).write_text("\n".join(out) + "\n", encoding=encoding)
+
+
+def _has_record(base: list[str], where: list, s: int, key: str) -> bool:
+    """Whether ``SURF s`` of configuration 1's file has a ``key`` line."""
+    return any(w == s and ln.split()[:1] == [key] for ln, w in zip(base, where))
 
 
 def _value_in_base(base: list[str], where: list, op: str, num: int) -> str:

@@ -208,9 +208,9 @@ def test_object_thickness_of_1e10_is_infinity(tmp_path):
 
 
 @pytest.mark.parametrize("rows, operand", [
-    ("PRAM 1 1 0 0\nPRAM 1 2 0.001 0\n", "PRAM"),
-    ("STPS 0 1 1 0\nSTPS 0 2 3 0\n", "STPS"),
-    ("SDIA 2 2 9 0\n", "SDIA"),
+    ("IGNR 2 1 0 0\nIGNR 2 2 1 0\n", "IGNR"),
+    ("MIND 3 1 1.6 0\nMIND 3 2 1.7 0\n", "MIND"),
+    ("APDX 2 2 0.5 0\n", "APDX"),
     ("ZQXW 2 2 9 0\n", "ZQXW"),     # not an operand deeplens knows: refused all the same
 ])
 def test_unsupported_operand_that_changes_the_lens_is_refused(tmp_path, rows, operand):
@@ -232,7 +232,7 @@ def test_unsupported_operand_that_changes_the_lens_is_refused(tmp_path, rows, op
 
 
 def test_unsupported_operand_with_the_saved_value_is_read(tmp_path):
-    p = _operand_file(tmp_path, "PRAM 1 1 0 0\nPRAM 1 2 0 0\n")
+    p = _operand_file(tmp_path, "IGNR 1 1 0 0\nIGNR 1 2 0 0\n")
     assert lens_to_dict(_read(p, config=2)) == lens_to_dict(_read(p, config=1))
 
 

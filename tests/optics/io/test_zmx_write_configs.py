@@ -128,7 +128,8 @@ def test_every_operand_round_trips(tmp_path):
     write_zmx_configs(lenses, tmp_path / "out.zmx")
     text = (tmp_path / "out.zmx").read_text()
     ops = {ln.split()[0] for ln in text[text.index("MNUM"):].splitlines()[1:]}
-    assert ops == {"CRVT", "CONN", "GLSS", "APER", "WAVE", "PRWV", "THIC"}
+    # SDIA: the stop's semi-diameter, each configuration's own pupil (APER changes it)
+    assert ops == {"CRVT", "CONN", "GLSS", "APER", "WAVE", "PRWV", "THIC", "SDIA"}
     _same_lenses(lenses, _configs(tmp_path / "out.zmx"))
 
 
@@ -158,3 +159,28 @@ def test_a_difference_no_operand_carries_is_refused(tmp_path):
         write_zmx_configs([a, b], tmp_path / "bad.zmx")
     with pytest.raises(ValueError, match="no configuration"):
         write_zmx_configs([], tmp_path / "none.zmx")
+
+
+def test_surface_parameters_apertures_and_semi_diameters_round_trip(tmp_path):
+    """PARM / XDAT / CLAP-OBSC radii / DIAM that differ between configurations are written as
+    PRAM / EDVA / APMN-APMX / SDIA rows (the parameter or extra-data number in the row's sixth
+    field) and read back as the same lenses."""
+    text = ZOOM.read_text()
+    base = text[:text.index("MNUM")]
+    base = base.replace("SURF 2\n  TYPE STANDARD\n",
+                        "SURF 2\n  TYPE EVENASPH\n  PARM 1 0\n  PARM 2 0\n  PARM 3 0\n", 1)
+    base = base.replace("SURF 3\n  TYPE STANDARD\n  CURV -0.015\n",
+                        "SURF 3\n  TYPE STANDARD\n  CURV -0.015\n  CLAP 1 6.5 0\n", 1)
+    rows = ("PRAM 2 2 2e-06 0 2 0\nPRAM 2 3 -1e-06 0 2 0\nPRAM 2 3 1e-09 0 3 0\n"
+            "APMN 3 2 2 0\nSDIA 4 3 6 0\n")
+    src = tmp_path / "src.zmx"
+    src.write_text(base + "MNUM 3 1\n" + rows)
+    lenses = _configs(src)
+    assert len({str(lens_to_dict(L)) for L in lenses}) == 3
+    write_zmx_configs(lenses, tmp_path / "out.zmx")
+    out = (tmp_path / "out.zmx").read_text()
+    mce = out[out.index("MNUM"):].splitlines()[1:]
+    # the annular CLAP's inner circle is written as a central OBSC: its radius is an APMX row
+    assert {ln.split()[0] for ln in mce} >= {"PRAM", "APMX"}
+    assert {ln.split()[5] for ln in mce if ln.startswith("PRAM")} == {"2", "3"}
+    _same_lenses(lenses, _configs(tmp_path / "out.zmx"))
