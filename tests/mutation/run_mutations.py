@@ -83,6 +83,7 @@ SURF_SKIP = ("tests/optics/io/test_zmx_surf_numbers.py",)
 FLOA_CLAP = ("tests/optics/io/test_zmx_floa_stop_clap.py",)
 ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
+BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
@@ -885,6 +886,11 @@ MUTATIONS = [
              "    if (isinstance(s, Aperture) and not is_stop and s.shape == \"circle\"",
              "    if (False and isinstance(s, Aperture) and not is_stop and s.shape == \"circle\"",
              SET5_RULES),
+    Mutation("binary2_power_halved", "a Binary 2 phase's paraxial power halved (2π for π in "
+             "-M A_1 λ / (π R_n²))", "deeplens/optics/surfaces/binary2.py",
+             "(float(wavelength_nm) * 1e-6) / (math.pi * rn.to(a1) ** 2)",
+             "(float(wavelength_nm) * 1e-6) / (2.0 * math.pi * rn.to(a1) ** 2)",
+             BINARY2_RAYOPTICS),
 ]
 
 
