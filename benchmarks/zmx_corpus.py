@@ -17,9 +17,9 @@ On another folder (files the tests have not seen) the oracles run here, file by 
 tests' own oracle code (the same helpers, pointed at that folder): optiland's and rayoptics'
 readings of the file, given deeplens' refractive indices, must give the same EFL, entrance pupil
 diameter and position and back focal point (optiland to 1e-6 relative, rayoptics to 1e-9, as the
-tests; rayoptics, which reads neither ``FLOA`` nor a Zernike sag's terms, gets its own marginal
-ray scaled to the stop's size and the vertex curvature of deeplens' stated Zernike rule, worked
-out from the file: test_zmx_corpus_rayoptics._rayoptics); near-afocal systems agree where both focal lengths (and back focal distances) are
+tests; rayoptics, which reads neither ``FLOA`` nor a Zernike sag's terms nor a Binary 2 phase,
+gets its own marginal ray scaled to the stop's size, the vertex curvature of deeplens' stated
+Zernike rule and the Binary 2 phase's thin-lens power as curvature, worked out from the file: test_zmx_corpus_rayoptics._rayoptics); near-afocal systems agree where both focal lengths (and back focal distances) are
 beyond 1e12 file units (their powers equal to 1e-12 per unit: the round-off of a vanishing
 power), a back focal point also to 1e-6 of the focal length (a focus on the image plane); a
 file with coordinate breaks that optiland reads differently is compared once more with every

@@ -22,7 +22,7 @@ import math
 import torch
 
 
-__all__ = ["local_frames", "to_global", "travel_directions"]
+__all__ = ["local_frames", "to_global", "travel_directions", "vertex_normal"]
 
 #: an axis direction whose local z component is smaller than this (a beam travelling across
 #: the frame, as between the two mirrors of a roof) keeps the sign of the medium before it
@@ -65,7 +65,9 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
     It is the sign of the local ``z`` component of the *traced axis*: a unit vector that starts
     along ``+z`` in object space, is re-expressed by every coordinate break (``d_after = R^T
     d_before``; decenters do not turn it), is reflected by every mirror about the mirror's
-    vertex normal (the local ``z`` axis of its frame) and refracted there by vector Snell's law
+    vertex normal (:func:`vertex_normal`: the local ``z`` axis for every surface whose sag has no
+    linear term; a tilted plane's own normal, OpticStudio's ``TILTSURF``) and refracted there by
+    vector Snell's law
     (``indices``: the ``N + 1`` media indices at one wavelength; ``None`` or total internal
     reflection: left as it is; a grating as its zeroth order, an ideal lens not at all).  This is where OpticStudio's sequential trace takes the beam,
     and so the sign its thicknesses carry for real propagation.  Without coordinate breaks the
@@ -99,22 +101,46 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
                 R = s.rotation(like).tolist()
             a = [sum(R[j][k] * a[j] for j in range(3)) for k in range(3)]   # R^T a
         elif i in mirrors:
-            a = [a[0], a[1], -a[2]]
+            nv = vertex_normal(s)
+            an = sum(a[k] * nv[k] for k in range(3))
+            a = [a[k] - 2.0 * an * nv[k] for k in range(3)]
         elif indices is not None and s.law in ("refract", "diffract"):   # order 0
-            a = _refract_axis(a, float(indices[i]), float(indices[i + 1]))
+            a = _refract_axis(a, float(indices[i]), float(indices[i + 1]), vertex_normal(s))
         n = math.sqrt(sum(c * c for c in a))
         a = [c / n for c in a]
         out.append(out[-1] if abs(a[2]) < _ACROSS else (1 if a[2] > 0 else -1))
     return out
 
 
-def _refract_axis(a, n1: float, n2: float):
-    """Unit direction ``a`` refracted from index ``n1`` into ``n2`` at a surface whose normal is
-    the local ``z`` axis; unchanged at total internal reflection or a non-positive index."""
+def vertex_normal(surface) -> list[float]:
+    """The unit normal ``[n_x, n_y, n_z]`` of ``surface`` at its vertex (the origin of its
+    frame), from its implicit function's gradient: ``±e_z`` for every surface whose sag has no
+    linear term, a tilted plane's own normal (``z = x tan θ_x + y tan θ_y``: ``(tan θ_x, tan θ_y,
+    -1)`` normalised).  The local ``z`` axis where the surface has no gradient there."""
+    zero = torch.zeros((), dtype=torch.float64)
+    try:
+        with torch.no_grad():
+            g = [float(v) for v in surface.f_grad(zero, zero, zero)]
+    except (NotImplementedError, AttributeError, TypeError, RuntimeError):
+        return [0.0, 0.0, 1.0]
+    n = math.sqrt(sum(c * c for c in g))
+    if not (n > 0 and math.isfinite(n)):
+        return [0.0, 0.0, 1.0]
+    return [c / n for c in g]
+
+
+def _refract_axis(a, n1: float, n2: float, normal=(0.0, 0.0, 1.0)):
+    """Unit direction ``a`` refracted from index ``n1`` into ``n2`` at a surface of unit normal
+    ``normal`` (either orientation; the local ``z`` axis by default) by vector Snell's law;
+    unchanged at total internal reflection or a non-positive index."""
     if not (n1 > 0 and n2 > 0) or n1 == n2:
         return a
+    cos_i = sum(a[k] * normal[k] for k in range(3))
+    nv = [c if cos_i >= 0 else -c for c in normal]   # oriented along the direction of travel
+    cos_i = abs(cos_i)
     r = n1 / n2
-    sin2 = r * r * (a[0] * a[0] + a[1] * a[1])
+    sin2 = r * r * (1.0 - cos_i * cos_i)
     if sin2 >= 1.0:
         return a
-    return [r * a[0], r * a[1], math.copysign(math.sqrt(1.0 - sin2), a[2])]
+    cos_t = math.sqrt(1.0 - sin2)
+    return [r * a[k] + (cos_t - r * cos_i) * nv[k] for k in range(3)]

@@ -83,6 +83,8 @@ ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
 SURF_SKIP = ("tests/optics/io/test_zmx_surf_numbers.py",)
 FLOA_CLAP = ("tests/optics/io/test_zmx_floa_stop_clap.py",)
 ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
+SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
+BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CODEV_DECENTER = ("tests/optics/io/test_codev_decenter.py",)
@@ -970,6 +972,27 @@ MUTATIONS = [
              "DIAM (configuration 1's kept)", "deeplens/optics/io/zmx_write_configs.py",
              '                    put("SDIA", s, k, tb[1], 0, ta[1])', "                    pass",
              MCONF_WRITE),
+    # issue 37, branch set5: the fifth unseen set's rules
+    Mutation("tilted_mirror_z_normal", "a mirror reflects the traced axis about the local z "
+             "axis, not its own vertex normal (a TILTSURF mirror)", "deeplens/optics/frames.py",
+             "            nv = vertex_normal(s)\n            an =",
+             "            nv = [0.0, 0.0, 1.0]\n            an =", SET5_RULES),
+    Mutation("fixed_diam_clips_flat_plane", "a fixed DIAM on a flat plane in one medium clips "
+             "(refusing an OBSC wider than it)", "deeplens/optics/io/zmx_surfaces.py",
+             "    if (fixed and flat and same_medium and not s.stop and not s.mirror and "
+             "s.clap is None",
+             "    if (False and fixed and flat and same_medium and not s.stop and not s.mirror "
+             "and s.clap is None", SET5_RULES),
+    Mutation("opening_written_without_clap", "an opening that is not the stop written with a "
+             "fixed DIAM only (OpticStudio does not clip on it)", "deeplens/optics/io/zmx_write.py",
+             "    if (isinstance(s, Aperture) and not is_stop and s.shape == \"circle\"",
+             "    if (False and isinstance(s, Aperture) and not is_stop and s.shape == \"circle\"",
+             SET5_RULES),
+    Mutation("binary2_power_halved", "a Binary 2 phase's paraxial power halved (2π for π in "
+             "-M A_1 λ / (π R_n²))", "deeplens/optics/surfaces/binary2.py",
+             "(float(wavelength_nm) * 1e-6) / (math.pi * rn.to(a1) ** 2)",
+             "(float(wavelength_nm) * 1e-6) / (2.0 * math.pi * rn.to(a1) ** 2)",
+             BINARY2_RAYOPTICS),
 ]
 
 

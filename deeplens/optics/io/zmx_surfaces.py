@@ -54,6 +54,23 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     if (flat and same_medium and not s.stop and not fixed and s.clap is None
             and s.sqap is None and s.obsc is None and not s.mirror):
         return None   # a dummy surface: its thickness only
+    # OpticStudio applies a floating aperture (a circular aperture at the semi-diameter) for a
+    # user-defined semi-diameter only on a surface with refractive power and no surface
+    # aperture (OpticStudio User Guide, "Semi-Diameters"): on a flat surface in one medium (a
+    # dummy, or an OBSC's plane in air) a fixed DIAM is drawn, never clips.  The surface is
+    # kept (its place, its obscuration) with an automatic semi-diameter: the beam's extent
+    if (fixed and flat and same_medium and not s.stop and not s.mirror and s.clap is None
+            and s.sqap is None):
+        what = ("beside an OBSC (a surface aperture)" if s.obsc is not None else
+                "of a flat surface in one medium with no surface aperture (CLAP, SQAP, OBSC)")
+        p.note(s.diam_line, f"SURF {k}: the fixed DIAM {s.diam:g} {what} does not clip rays in "
+                            f"OpticStudio (its floating aperture is applied only on a surface "
+                            f"with power and no surface aperture); read with an automatic "
+                            f"semi-diameter (the beam's extent): give the surface a CLAP to "
+                            f"make it an opening")
+        fixed = False
+        sd = 0.0
+        ctx = dataclasses.replace(ctx, sd=sd, fixed=False)
     if sd < 0:
         p.fail(s.line, f"SURF {k}: the semi-diameter (DIAM) must be >= 0, got {s.diam!r}")
     auto = not sd > 0     # no DIAM (or 0): an automatic semi-diameter, set once built

@@ -18,7 +18,7 @@ import torch
 from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
-from ..surfaces import CoordinateBreak
+from ..surfaces import Aperture, CoordinateBreak
 from ..surfaces.base import clear_rect_of
 from .agf import AGFGlass
 from .surface_handlers import FORMATS
@@ -218,6 +218,11 @@ def _surface_lines(s, i, is_stop) -> list[str]:
         raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent",
                              surfaces=(i,))
     lines = (["STOP"] if is_stop else []) + handler.write_zmx(s, i)
+    if (isinstance(s, Aperture) and not is_stop and s.shape == "circle"
+            and not any(ln.startswith("CLAP") for ln in lines)):
+        # an opening that is not the stop: OpticStudio clips a flat surface only on a surface
+        # aperture (a fixed DIAM there is drawn, never clips): its circle is a CLAP
+        lines.append(f"CLAP 0 {float(s.semi_diameter)!r} 0")
     rect = clear_rect_of(s)
     if rect is not None and not any(ln.startswith("SQAP") for ln in lines):
         lines.append(f"SQAP {_f(rect[0])} {_f(rect[1])} 0")

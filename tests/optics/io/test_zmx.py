@@ -296,12 +296,22 @@ def test_dummy_surfaces_are_merged(tmp_path):
     dummy = "  TYPE STANDARD\n  CURV 0.0\n  DISZ 1.5\n  DIAM 3 0 0 0 1 \"\"\n"
     got = lens_to_dict(read_zmx(write(tmp_path, insert_after_stop(text, dummy), "b.zmx")))
     assert got == ref
-    # a flat air surface with a fixed (user) semi-diameter clips rays: kept as an aperture
+    # a flat air surface with a fixed (user) semi-diameter: kept, but it does not clip (in
+    # OpticStudio a floating aperture is for a surface with power and no surface aperture;
+    # User Guide, "Semi-Diameters"): its semi-diameter is the beam's extent, 1.02 (5 + 0.5
+    # tan 5°) (the 10 mm pupil on the stop 0.5 mm before it, the 5° field), with a note
     fixed = dummy.replace("DIAM 3 0", "DIAM 3 1")
-    got = lens_to_dict(read_zmx(write(tmp_path, insert_after_stop(text, fixed), "c.zmx")))
+    with pytest.warns(ZemaxWarning, match=r"c.zmx:\d+: SURF 2: the fixed DIAM 3 of a flat "
+                                          r"surface .* does not clip rays"):
+        got = lens_to_dict(read_zmx(write(tmp_path, insert_after_stop(text, fixed), "c.zmx")))
     assert [s["type"] for s in got["surfaces"]] == ["aperture", "aperture", "asphere", "asphere"]
-    assert got["surfaces"][1]["semi_diameter_mm"] == 3.0
+    beam = 1.02 * (5.0 + 0.5 * math.tan(math.radians(5.0)))
+    assert got["surfaces"][1]["semi_diameter_mm"] == pytest.approx(beam, rel=1e-3)
     assert [s["distance_mm"] for s in got["surfaces"]] == [0.0, 0.5, 1.5, 5.0]
+    # a CLAP (a surface aperture) makes it an opening of that size
+    clap = fixed + "  CLAP 0 3 0\n"
+    got = lens_to_dict(read_zmx(write(tmp_path, insert_after_stop(text, clap), "d.zmx")))
+    assert got["surfaces"][1]["semi_diameter_mm"] == 3.0
 
 
 def test_field_types(tmp_path):

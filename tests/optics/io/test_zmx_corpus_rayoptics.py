@@ -112,6 +112,13 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
     # takes the vertex curvature of the rotationally symmetric part, worked out here from the file
     for k, cv in _zernike_vertex_curvatures(name).items():
         sm.ifcs[k].profile.cv = cv
+    # Binary 2 surfaces: zmxread reads the base surface alone; the phase's r² term adds the
+    # paraxial power of a thin diffractive lens, given to rayoptics as the curvature that
+    # refracts the same (a surface's paraxial power is (n' - n) c)
+    wl = float(lens.spec.primary_wavelength_nm) * 1e-6 / _unit_mm(name)   # file units
+    for k, phi in _binary2_powers(name, wl).items():
+        assert ns[k] != ns[k - 1], "a Binary 2 surface between equal media: extend the oracle"
+        sm.ifcs[k].profile.cv += phi / (ns[k] - ns[k - 1])
     _update(opm)
     if re.search(r"^FLOA\b", decode_zemax_text(CORPUS / name), re.M):
         _float_by_stop_size(name, opm)
@@ -179,6 +186,28 @@ def _zernike_vertex_curvatures(name):
                 h = n // 2
                 cv += 2.0 * norm * (-1) ** (h - 1) * h * (h + 1) * rec("XDAT", j + 2) / r_n ** 2
         out[k] = cv
+    return out
+
+
+def _binary2_powers(name, wl):
+    """``{SURF k: paraxial power}`` (file units⁻¹) of the file's ``BINARY_2`` surfaces at the
+    wavelength ``wl`` (file units): OpticStudio's Binary 2 phase ``Φ = M Σ A_i ρ^(2i)`` (radians,
+    ``ρ = r / R_n``; ``M`` = ``PARM 0``, ``R_n`` = ``XDAT 2``, ``A_1`` = ``XDAT 3``) bends a ray by
+    ``(λ / 2π) dΦ/dr``, so its ``r²`` term is a thin lens of power ``-M A_1 λ / (π R_n²)``
+    (written out here from the phase's definition, not taken from deeplens)."""
+    out = {}
+    for k, b in enumerate(_surf_blocks(name)):
+        t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
+        if t is None or t.group(1) != "BINARY_2":
+            continue
+
+        def rec(key, i, default=0.0, b=b):
+            m = re.search(rf"^\s+{key}\s+{i}\s+(\S+)", b, re.M)
+            return float(m.group(1)) if m else default
+
+        m_order, r_n = rec("PARM", 0, 1.0), rec("XDAT", 2)
+        a1 = rec("XDAT", 3) if rec("XDAT", 1) >= 1 else 0.0
+        out[k] = -m_order * a1 * wl / (math.pi * r_n ** 2)
     return out
 
 
@@ -344,4 +373,38 @@ def test_zernike_sag_vertex_curvature_rule_through_rayoptics(kind, monkeypatch, 
     opm["seq_model"].ifcs[2].profile.cv = 0.025   # CURV alone
     _update(opm)
     dl, ro = _numbers("z.zmx", lens, opm)["EFL"]
+    assert abs(dl - ro) > 0.01 * abs(dl)
+
+
+def test_binary2_power_through_rayoptics(monkeypatch, tmp_path):
+    """The hybrid singlet of test_zmx_binary2 (a Binary 2 back face: M 1, R_n 5 mm, A_1 -1500):
+    deeplens' EFL, EPD, pupil position and back focus equal rayoptics' once rayoptics, which
+    reads the base surface alone, is given the phase's thin-lens power ``-M A_1 λ / (π R_n²)``
+    as curvature; without it the EFL is > 1 % apart."""
+    import sys
+
+    import test_zmx_corpus as tc
+    from test_zmx_binary2 import binary2_file
+
+    from deeplens.optics.io.zmx import read_zmx
+
+    (tmp_path / "b.zmx").write_text(binary2_file())
+    monkeypatch.setattr(tc, "CORPUS", tmp_path)
+    monkeypatch.setattr(sys.modules[__name__], "CORPUS", tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(tmp_path / "b.zmx")
+    scratch = tmp_path / "ro"
+    scratch.mkdir()
+    wl = 587.5618e-6
+    phi = _binary2_powers("b.zmx", wl)
+    assert list(phi) == [3] and phi[3] == pytest.approx(1500.0 * wl / (math.pi * 25.0),
+                                                        rel=1e-14)
+    opm = _rayoptics("b.zmx", lens, monkeypatch, scratch)
+    for what, (dl, ro) in _numbers("b.zmx", lens, opm).items():
+        assert _agrees(dl, ro), f"{what}: deeplens {dl!r} vs rayoptics {ro!r}"
+    n_glass = _media_per_gap("b.zmx", lens)[2]
+    opm["seq_model"].ifcs[3].profile.cv -= phi[3] / (1.0 - n_glass)   # the base surface alone
+    _update(opm)
+    dl, ro = _numbers("b.zmx", lens, opm)["EFL"]
     assert abs(dl - ro) > 0.01 * abs(dl)
