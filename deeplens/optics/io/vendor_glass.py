@@ -30,15 +30,9 @@ only (a tabulated entry is not offered), mapped exactly onto the AGF formulas::
     formula 2  n² = 1 + c0 + Σ B_i λ² / (λ² − C_i)      -> AGF 2 (3 terms) or 11 (5 terms), c0 = 0
     formula 3  n² = c0 + Σ c_i λ^(e_i)                 -> AGF 13 (Extended 3: e_i in 2, 4, −2 ... −12)
 
-Crystals under the names of Zemax's ``INFRARED`` catalogue, from their primary measurements
-(Sellmeier, ``n² = 1 + Σ B_i λ² / (λ² − λ_i²)``; the same coefficients as the refractiveindex.info
-database, CC0)::
-
-    CAF2      Malitson, Appl. Opt. 2, 1103 (1963)                       0.23 - 9.7 µm
-    BAF2      Malitson, J. Opt. Soc. Am. 54, 628 (1964)                 0.27 - 10.3 µm
-    MGF2      Dodge, Appl. Opt. 23, 1980 (1984), ordinary ray           0.20 - 7.0 µm
-    SAPPHIRE  Malitson & Dodge, J. Opt. Soc. Am. 62, 1405 (1972), o-ray  0.20 - 5.0 µm
-    ZNSE      Connolly et al., Proc. SPIE 0181 (1979)                   0.54 - 18.2 µm
+Crystals under the names of OpticStudio's ``INFRARED`` catalogue (germanium, silicon, ZnS,
+ZnSe, GaAs, the fluorides, sapphire, fused silica, alkali halides), from their primary published
+dispersion formulas: :mod:`.infrared_glass`.
 
 Lookup is by exact name (case-insensitive; blanks inside a spreadsheet's name are dropped).  The catalogues are read once per process
 (:func:`functools.lru_cache`; about a second in all) and never changed afterwards.
@@ -55,6 +49,7 @@ import torch
 
 from ..materials import Material
 from .agf import AGFGlass
+from .infrared_glass import CRYSTALS, infrared_glass
 
 __all__ = ["VENDOR_CATALOGUES", "CURRENT_CATALOGUES", "CRYSTALS", "PREVIOUS_CATALOGUES",
            "ARCHIVED_CATALOGUES", "BuchdahlGlass", "vendor_glass", "previous_glass",
@@ -68,20 +63,6 @@ VENDOR_CATALOGUES = {
     "CDGM": ("cdgm", "CDGMCatalog", 1),
     "HIKARI": ("hikari", "HikariCatalog", 13),
     "SUMITA": ("sumita", "SumitaCatalog", 1),
-}
-
-#: Zemax's INFRARED names -> (B_1..3, λ_1..3 in µm, range in nm, source)
-CRYSTALS = {
-    "CAF2": ((0.5675888, 0.4710914, 3.8484723), (0.050263605, 0.1003909, 34.649040),
-             (230.0, 9700.0), "Malitson 1963"),
-    "BAF2": ((0.643356, 0.506762, 3.8261), (0.057789, 0.10968, 46.3864), (270.0, 10300.0),
-             "Malitson 1964"),
-    "MGF2": ((0.48755108, 0.39875031, 2.3120353), (0.04338408, 0.09461442, 23.793604),
-             (200.0, 7000.0), "Dodge 1984, ordinary ray"),
-    "SAPPHIRE": ((1.4313493, 0.65054713, 5.3414021), (0.0726631, 0.1193242, 18.028251),
-                 (200.0, 5000.0), "Malitson & Dodge 1972, ordinary ray"),
-    "ZNSE": ((4.45813734, 0.467216334, 2.89566290), (0.200859853, 0.391371166, 47.1362108),
-             (540.0, 18200.0), "Connolly 1979"),
 }
 
 #: every catalogue name answered by a current catalogue (the six vendors and INFRARED)
@@ -260,12 +241,7 @@ def vendor_glass(glass: str, catalogue: str) -> AGFGlass | None:
     """``glass`` from the current vendor catalogue ``catalogue`` (exact name), or ``None``."""
     cat = catalogue.upper()
     if cat == "INFRARED":
-        rec = CRYSTALS.get(_key(glass))
-        if rec is None:
-            return None
-        B, lam, rng, _ = rec
-        coefs = [v for b, lm in zip(B, lam) for v in (b, lm * lm)]
-        return AGFGlass(_key(glass), 2, coefs, rng, catalogue="INFRARED")
+        return infrared_glass(glass)
     if cat not in VENDOR_CATALOGUES:
         return None
     rec = _vendor_table(cat).get(_key(glass))

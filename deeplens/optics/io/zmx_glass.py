@@ -28,6 +28,7 @@ import torch
 
 from ..materials import Air, Material, ModelGlass, get_material
 from .agf import GlassCatalogue, read_agf
+from .infrared_glass import crystal_note
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
                            archived_glass, catalogue_size, find_in_vendor_catalogues,
@@ -214,6 +215,8 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
             searched.append(f"{cat} (current vendor catalogue, {catalogue_size(cat)} glasses)")
             m = vendor_glass(glass, cat)
             if m is not None:
+                if cat == "INFRARED":   # deeplens' crystals: say whose formula is used
+                    p.note(s.glass_line, f"glass {glass!r}: {crystal_note(glass)}")
                 return _checked(m, glass, s, f"the {cat} catalogue", p)
         if cat in BUILTIN_CATALOGUES:
             searched.append(f"{cat} (deeplens built-in, {len(BUILTIN_CATALOGUES[cat])} glasses)")
@@ -262,8 +265,9 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
         m = (previous_glass(glass, cat) if elsewhere[0].endswith("(previous)")
              else archived_glass(glass, cat) if elsewhere[0].endswith("(archived)")
              else vendor_glass(glass, cat))
+        about = f": {crystal_note(glass)}" if elsewhere[0] == "INFRARED" else ""
         p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
-                             f"({', '.join(named)}); using {elsewhere[0]} (exact name)")
+                             f"({', '.join(named)}); using {elsewhere[0]} (exact name){about}")
         return _checked(m, glass, s, elsewhere[0], p)
     missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES
                and c not in CURRENT_CATALOGUES and c not in PREVIOUS_CATALOGUES
