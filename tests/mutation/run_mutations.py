@@ -90,6 +90,7 @@ SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CODEV_DECENTER = ("tests/optics/io/test_codev_decenter.py",)
 CODEV_DEFAULTS = ("tests/optics/io/test_codev_defaults.py",)
 CODEV_CORPUS = ("tests/optics/io/test_codev_corpus.py",)
+IRGLASS = ("tests/optics/io/test_infrared_glass.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -993,6 +994,19 @@ MUTATIONS = [
              "(float(wavelength_nm) * 1e-6) / (math.pi * rn.to(a1) ** 2)",
              "(float(wavelength_nm) * 1e-6) / (2.0 * math.pi * rn.to(a1) ** 2)",
              BINARY2_RAYOPTICS),
+    Mutation("infrared_coefficient_changed", "a coefficient of an INFRARED crystal mistyped "
+             "(germanium's second Sellmeier B 14.5142535 as 14.5142355)",
+             "deeplens/optics/io/infrared_glass.py", "(14.5142535, 0.1626427)",
+             "(14.5142355, 0.1626427)", IRGLASS),
+    Mutation("infrared_range_um_as_nm", "an INFRARED crystal's range in µm taken as nm (no "
+             "×1000)", "deeplens/optics/io/infrared_glass.py",
+             "(lo * 1000.0, hi * 1000.0)", "(lo, hi)", IRGLASS),
+    Mutation("klein_pole_not_squared", "ZnS's Klein formula with the pole λ_i for λ_i² (a "
+             "length for an area: µm for µm²)", "deeplens/optics/io/infrared_glass.py",
+             "c2, c4 = l1 * l1, l2 * l2", "c2, c4 = l1, l2", IRGLASS),
+    Mutation("infrared_use_silent", "an INFRARED crystal used without the located note naming "
+             "its source", "deeplens/optics/io/zmx_glass.py",
+             'p.note(s.glass_line, f"glass {glass!r}: {crystal_note(glass)}")', "pass", IRGLASS),
 ]
 
 
