@@ -204,3 +204,22 @@ def test_a_zmx_wavelength_outside_germanium_is_refused_at_the_glass_line(tmp_pat
     assert e.value.line == 19 and str(e.value).endswith(
         "wavelength 550 nm is outside the valid range 2000–14000 nm of material 'GERMANIUM' "
         "(glass of SURF 1)")
+
+
+def test_a_crystal_lens_round_trips_through_json_and_zmx(tmp_path):
+    """A ZnS singlet (AGF 9, the Klein form) written as JSON (the glass by its formula) and as
+    ``.zmx`` (``GCAT INFRARED``, ``GLAS ZNS``) reads back with the same index and EFL."""
+    from deeplens.optics.io import load_lens, save_lens
+
+    f = tmp_path / "zns.zmx"
+    f.write_text(_SINGLET.format(wave=10, gcat="INFRARED").replace("GLAS GERMANIUM", "GLAS ZNS"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ZemaxWarning)
+        lens = read_zmx(f)
+        efl = float(paraxial(lens).efl)
+        for out in (tmp_path / "zns.json", tmp_path / "zns_out.zmx"):
+            save_lens(lens, out)
+            back = load_lens(out)
+            assert back.materials[1].name == "ZNS"
+            assert float(paraxial(back).efl) == efl
+    assert "GCAT INFRARED" in (tmp_path / "zns_out.zmx").read_text()
