@@ -24,7 +24,7 @@ test_infrared_glass.py``)::
               295 K (22 °C)                                                     2.0 - 14.0 µm
     SILICON   Salzberg & Villa, J. Opt. Soc. Am. 47, 244 (1957), 26 °C; Sellmeier
               fit of their data by Tatian, Appl. Opt. 23, 4477 (1984)            1.357 - 11.04 µm
-    ZNS       Debenham, Appl. Opt. 23, 2238 (1984) (CVD ZnS, 20 °C); the modified
+    ZNS       Debenham, Appl. Opt. 23, 2238 (1984) (cubic ZnS, 20 °C); the modified
               Sellmeier fit of Klein, Appl. Opt. 25, 1873 (1986)                 0.405 - 13.0 µm
     GAAS      Skauli et al., J. Appl. Phys. 94, 6447 (2003), 22 °C               0.97 - 17.0 µm
     SILICA    Malitson, J. Opt. Soc. Am. 55, 1205 (1965), fused silica, 20 °C    0.21 - 6.7 µm
@@ -36,7 +36,7 @@ test_infrared_glass.py``)::
     CSBR      Rodney & Spindler, J. Res. Nat. Bur. Stand. 51, 123 (1953), 27 °C  0.365 - 39 µm
 
 OpticStudio's own ``INFRARED`` coefficients are not public; they may be other fits of other
-measurements (germanium's and silicon's published indices differ by 1e-3 to 3e-3 between
+measurements (germanium's and silicon's published indices differ by 1e-3 to 7e-3 between
 measurements and temperatures), so each use is reported in a located note naming the source.
 The names follow OpticStudio's convention for its ``INFRARED`` catalogue (chemical formula or
 element name, upper case); no copy of ``INFRARED.AGF`` was at hand to confirm each one.
@@ -116,7 +116,7 @@ CRYSTALS = {
                       "Salzberg & Villa, J. Opt. Soc. Am. 47, 244 (1957), Tatian's fit",
                       "26 °C"),
     "ZNS": _entry(_klein(8.393, [(0.14383, 0.2421), (4430.99, 36.71)]), (0.405, 13.0),
-                  "Debenham, Appl. Opt. 23, 2238 (1984), Klein's fit (CVD ZnS)", "20 °C"),
+                  "Debenham, Appl. Opt. 23, 2238 (1984), Klein's fit (cubic ZnS)", "20 °C"),
     "GAAS": _entry(_sellmeier([(5.466742, 0.4431307), (0.0242996, 0.8746453),
                                (1.957522, 36.9166)], a=4.372514), (0.97, 17.0),
                    "Skauli et al., J. Appl. Phys. 94, 6447 (2003)", "22 °C"),
@@ -157,4 +157,4 @@ def crystal_note(glass: str) -> str:
     lo, hi = (v / 1000.0 for v in rec.range_nm)
     return (f"INFRARED crystal from {rec.source}, {rec.temperature}, valid {lo:g}-{hi:g} µm "
             f"(OpticStudio's own INFRARED coefficients may be another fit: indices may differ "
-            f"in the 4th decimal)")
+            f"by 1e-3 or more)")
