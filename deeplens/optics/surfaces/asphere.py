@@ -95,6 +95,19 @@ def even_poly_ds(s, coeffs):
     return q * s
 
 
+def even_terms_r2(s, coeffs):
+    """``(Σ_i α_i s^i, Σ_i i α_i s^(i−1))`` for ``coeffs = (α_1, α_2, ...)`` (Horner, ``s = r²``):
+    OpticStudio's even-asphere terms from r² up (the base of its Zernike and grid sags), mm and
+    its derivative in ``s``."""
+    p = torch.zeros_like(s)
+    dp = torch.zeros_like(s)
+    for i in range(len(coeffs), 0, -1):
+        a = coeffs[i - 1].to(s)
+        p = p * s + a
+        dp = dp * s + i * a
+    return p * s, dp
+
+
 def asphere_sag(s, c, k, coeffs, root=None):
     """The sag ``z(s)`` (mm) at ``s = r^2``: :func:`conic_sag` plus :func:`even_poly` of the
     coefficients ``coeffs = (a4, a6, ...)`` (0-d tensors).  Outside the conic's domain the root

@@ -61,7 +61,7 @@ import math
 import torch
 from torch import nn
 
-from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
+from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag, even_terms_r2
 from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, make_param,
                    register_surface)
 
@@ -105,17 +105,6 @@ def grid_slopes(z, hx: float, hy: float):
 
     zx = diff(z, hx, 1)
     return zx, diff(z, hy, 0), diff(zx, hy, 0)
-
-
-def _even(s, coeffs):
-    """``(Σ_i α_i s^i, Σ_i i α_i s^(i−1))`` for ``coeffs = (α_1, α_2, ...)`` (Horner, ``s = r²``)."""
-    p = torch.zeros_like(s)
-    dp = torch.zeros_like(s)
-    for i in range(len(coeffs), 0, -1):
-        a = coeffs[i - 1].to(s)
-        p = p * s + a
-        dp = dp * s + i * a
-    return p * s, dp
 
 
 def _grid_array(values, name: str, shape=None):
@@ -248,13 +237,13 @@ class GridSag(SagSurface):
     # ---- the sag -----------------------------------------------------------------------
     def sag(self, x, y):
         s = x * x + y * y
-        p, _ = _even(s, self.a)
+        p, _ = even_terms_r2(s, self.a)
         G, _, _ = self.grid_part(x, y, slopes=False)
         return conic_sag(s, self.c, self.k) + p + G
 
     def sag_grad(self, x, y):
         s = x * x + y * y
-        _, dp = _even(s, self.a)
+        _, dp = even_terms_r2(s, self.a)
         g = 2.0 * (conic_dsag_ds(s, self.c, self.k) + dp)
         _, Gx, Gy = self.grid_part(x, y, slopes=True)
         return x * g + Gx, y * g + Gy

@@ -71,7 +71,7 @@ from functools import lru_cache
 import torch
 from torch import nn
 
-from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
+from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag, even_terms_r2
 from ..openings import Circle, Opening
 from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, host_flags, make_param,
                    register_surface)
@@ -232,17 +232,6 @@ def zernike_values(u, v, coeffs, slopes: bool = True, basis: str = "standard"):
     return W, Wu, Wv
 
 
-def _even(s, coeffs):
-    """``(Σ_i α_i s^i, Σ_i i α_i s^(i−1))`` for ``coeffs = (α_1, α_2, ...)`` (Horner, ``s = r²``)."""
-    p = torch.zeros_like(s)
-    dp = torch.zeros_like(s)
-    for i in range(len(coeffs), 0, -1):
-        a = coeffs[i - 1].to(s)
-        p = p * s + a
-        dp = dp * s + i * a
-    return p * s, dp
-
-
 @register_surface("zernike_sag")
 class ZernikeSag(SagSurface):
     """An even asphere plus Zernike standard (Noll) terms (module docstring).
@@ -330,13 +319,13 @@ class ZernikeSag(SagSurface):
 
     def sag(self, x, y):
         s = x * x + y * y
-        p, _ = _even(s, self.a)
+        p, _ = even_terms_r2(s, self.a)
         W, _, _ = self._zernike(x, y, slopes=False)
         return conic_sag(s, self.c, self.k) + p + W
 
     def sag_grad(self, x, y):
         s = x * x + y * y
-        _, dp = _even(s, self.a)
+        _, dp = even_terms_r2(s, self.a)
         g = 2.0 * (conic_dsag_ds(s, self.c, self.k) + dp)
         _, Wx, Wy = self._zernike(x, y, slopes=True)
         return x * g + Wx, y * g + Wy
