@@ -19,7 +19,9 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
 * :class:`ExtendedAsphereFormat`: reads ``XASPHERE`` (an ``Asphere`` with terms beyond r¹⁶ is
   written so by :class:`AsphereFormat`);
 * :class:`~.zmx_grid_sag.GridSagFormat` (in its own module, :mod:`.zmx_grid_sag`): ``GRID_SAG``,
-  ``GridSag``.
+  ``GridSag``;
+* :class:`~.zmx_irregular.IrregularFormat` (in its own module, :mod:`.zmx_irregular`):
+  ``IRREGULA``, ``Irregular``.
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
@@ -911,6 +913,7 @@ class ExtendedAsphereFormat(SurfaceFormat):
         return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 
 
-# GRID_SAG's handler lives in its own module; importing it registers it (after the built-in
-# ones: the parser lists the types read in registration order)
+# GRID_SAG's and IRREGULA's handlers live in their own modules; importing them registers them
+# (after the built-in ones: the parser lists the types read in registration order)
 from . import zmx_grid_sag  # noqa: E402,F401
+from . import zmx_irregular  # noqa: E402,F401

@@ -46,7 +46,6 @@ _UNSUPPORTED_TYPES = {
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "GRINSUR1": "a gradient-index surface",
     "USERSURF": "a user-defined (DLL) surface",
-    "IRREGULA": "an irregular surface",
 }
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
