@@ -47,8 +47,7 @@ import math
 import torch
 
 from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag
-from .base import (Surface, check_conic_domain, conic_polynomial_scale, host_flags, make_param,
-                   register_surface)
+from .base import Surface, check_conic_domain, host_flags, make_param, register_surface
 
 __all__ = ["Irregular"]
 
@@ -201,11 +200,27 @@ class Irregular(Surface):
                            "irregular surface's conic (decentred)", where)
 
     def sag_scale(self, name: str) -> float:
-        """``c``: ``R^2/2``; ``k``: :func:`~.base.conic_scale`; ``tilt_x``/``tilt_y``: ``R``
-        (mm of sag at the rim per radian); the Z terms, decenters (mm) and the angle: 1."""
-        if name in ("tilt_x", "tilt_y"):
-            return float(self.semi_diameter)
-        return conic_polynomial_scale(self, name)
+        """The largest change of the sag on the rim ``r = R`` (72 azimuths) per unit of the
+        parameter ``name`` (central differences in float64; the decenter, tilts and Z terms
+        move the rim unevenly, so no single closed form serves them all); 1 where the parameter
+        does not move the sag (the angle of zero astigmatism and coma)."""
+        param = dict(self.named_parameters()).get(name)
+        if param is None:
+            return 1.0
+        R = float(self.semi_diameter)
+        phi = torch.arange(72, dtype=torch.float64) * (2 * math.pi / 72)
+        x = (R * torch.cos(phi)).to(self.c)
+        y = (R * torch.sin(phi)).to(self.c)
+        p0 = float(param.detach())
+        h = 1e-6 * max(1.0, abs(p0))
+        with torch.no_grad():
+            param.fill_(p0 + h)
+            up = self.sag(x, y)
+            param.fill_(p0 - h)
+            down = self.sag(x, y)
+            param.fill_(p0)
+        ref = float(((up - down) / (2 * h)).abs().max())
+        return ref if ref >= 1e-9 else 1.0
 
     # ---- lens files --------------------------------------------------------------------
     @classmethod

@@ -29,7 +29,7 @@ import torch
 from deeplens.optics.parameters import parameter_scale
 from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary2, BSpline,
                                       CoordinateBreak, Cylinder, Grating, GridSag, IdealLens,
-                                      OddAsphere,
+                                      Irregular, OddAsphere,
                                       Plane, QType, Toroid, XYPolynomial, ZernikeFringeSag,
                                       ZernikeSag)
 
@@ -57,6 +57,9 @@ EXAMPLES = {
                                                coefficients=[1e-4, 1e-6]),
     GridSag: lambda: GridSag(0.01, R, (2.5, 2.5), torch.zeros(5, 5), conic=-0.5,
                              coefficients=[1e-4, -2e-6]),
+    Irregular: lambda: Irregular(0.01, R, 1.2 * R, conic=-0.5, decenter=(0.3, -0.2),
+                                 tilt=(0.002, -0.001), z_spherical=1e-3, z_astigmatism=-2e-3,
+                                 z_coma=1e-3, angle=0.3),
 }
 #: grids of node values (one tensor, one scale per node value): checked per node in
 #: tests/optics/surfaces/test_grid_sag.py (the largest sag change per unit of one node's value)
