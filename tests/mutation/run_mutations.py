@@ -83,6 +83,7 @@ ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
 SURF_SKIP = ("tests/optics/io/test_zmx_surf_numbers.py",)
 FLOA_CLAP = ("tests/optics/io/test_zmx_floa_stop_clap.py",)
 ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
+IRREGULAR = ("tests/optics/surfaces/test_irregular.py", "tests/optics/io/test_zmx_irregular.py")
 SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
 BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
@@ -993,6 +994,15 @@ MUTATIONS = [
              "(float(wavelength_nm) * 1e-6) / (math.pi * rn.to(a1) ** 2)",
              "(float(wavelength_nm) * 1e-6) / (2.0 * math.pi * rn.to(a1) ** 2)",
              BINARY2_RAYOPTICS),
+    # ----------------------------------------- issue 37 item 5: OpticStudio's Irregular surface
+    Mutation("irregular_coma_sign", "irregular surface: the coma term Zc applied with the wrong "
+             "sign (in the sag and its slopes alike)", "deeplens/optics/surfaces/irregular.py",
+             "zs, za, zc = self.zs.to(xs), self.za.to(xs), self.zc.to(xs)",
+             "zs, za, zc = self.zs.to(xs), self.za.to(xs), -self.zc.to(xs)", IRREGULAR),
+    Mutation("irregular_terms_from_x", "irregular surface: astigmatism and coma oriented from the "
+             "x axis instead of the y axis (θ = 0 puts them along x)",
+             "deeplens/optics/surfaces/irregular.py", "w = v * ct + u * st", "w = u * ct + v * st",
+             IRREGULAR),
 ]
 
 
