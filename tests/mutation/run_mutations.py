@@ -83,6 +83,7 @@ ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
 SURF_SKIP = ("tests/optics/io/test_zmx_surf_numbers.py",)
 FLOA_CLAP = ("tests/optics/io/test_zmx_floa_stop_clap.py",)
 ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
+PARAX_XY = ("tests/optics/io/test_zmx_parax_xy.py", "tests/optics/surfaces/test_ideal_xy.py")
 IRREGULAR = ("tests/optics/surfaces/test_irregular.py", "tests/optics/io/test_zmx_irregular.py")
 SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
 BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
@@ -1003,6 +1004,10 @@ MUTATIONS = [
              "x axis instead of the y axis (θ = 0 puts them along x)",
              "deeplens/optics/surfaces/irregular.py", "w = v * ct + u * st", "w = u * ct + v * st",
              IRREGULAR),
+    Mutation("parax_xy_powers_swapped", "PARAX_XY: PARM 1 read as the y power and PARM 2 as the x "
+             "power", "deeplens/optics/io/surface_handlers.py",
+             "px, py = (s.parm.get(i, (0.0, 0))[0] / ctx.s_mm for i in (1, 2))",
+             "px, py = (s.parm.get(i, (0.0, 0))[0] / ctx.s_mm for i in (2, 1))", PARAX_XY),
 ]
 
 

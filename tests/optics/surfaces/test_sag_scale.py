@@ -29,6 +29,7 @@ import torch
 from deeplens.optics.parameters import parameter_scale
 from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary2, BSpline,
                                       CoordinateBreak, Cylinder, Grating, GridSag, IdealLens,
+                                      IdealLensXY,
                                       Irregular, OddAsphere,
                                       Plane, QType, Toroid, XYPolynomial, ZernikeFringeSag,
                                       ZernikeSag)
@@ -47,6 +48,7 @@ EXAMPLES = {
     Cylinder: lambda: Cylinder(0.01, R, conic=-0.5, coefficients=[1e-3, 1e-5]),
     Grating: lambda: Grating(0.01, R, 0.5, 1, conic=-0.5),
     IdealLens: lambda: IdealLens(50.0, R),
+    IdealLensXY: lambda: IdealLensXY(0.0, 0.02, R),
     OddAsphere: lambda: OddAsphere(0.01, R, conic=-0.5, coefficients=[1e-3, 1e-4, 1e-5]),
     QType: lambda: QType(0.01, R, R, [1e-3, 2e-4], "qbfs", conic=-0.5),
     Toroid: lambda: Toroid(0.01, R, 100.0, conic=-0.5, coefficients=[1e-3]),
