@@ -83,6 +83,8 @@ ZERN_NOTE = ("tests/optics/io/test_zmx_zernike_paraxial_note.py",)
 SURF_SKIP = ("tests/optics/io/test_zmx_surf_numbers.py",)
 FLOA_CLAP = ("tests/optics/io/test_zmx_floa_stop_clap.py",)
 ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
+PARAX_XY = ("tests/optics/io/test_zmx_parax_xy.py", "tests/optics/surfaces/test_ideal_xy.py")
+IRREGULAR = ("tests/optics/surfaces/test_irregular.py", "tests/optics/io/test_zmx_irregular.py")
 SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
 BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
@@ -1007,6 +1009,19 @@ MUTATIONS = [
     Mutation("infrared_use_silent", "an INFRARED crystal used without the located note naming "
              "its source", "deeplens/optics/io/zmx_glass.py",
              'p.note(s.glass_line, f"glass {glass!r}: {crystal_note(glass)}")', "pass", IRGLASS),
+    # ----------------------------------------- issue 37 item 5: OpticStudio's Irregular surface
+    Mutation("irregular_coma_sign", "irregular surface: the coma term Zc applied with the wrong "
+             "sign (in the sag and its slopes alike)", "deeplens/optics/surfaces/irregular.py",
+             "zs, za, zc = self.zs.to(xs), self.za.to(xs), self.zc.to(xs)",
+             "zs, za, zc = self.zs.to(xs), self.za.to(xs), -self.zc.to(xs)", IRREGULAR),
+    Mutation("irregular_terms_from_x", "irregular surface: astigmatism and coma oriented from the "
+             "x axis instead of the y axis (θ = 0 puts them along x)",
+             "deeplens/optics/surfaces/irregular.py", "w = v * ct + u * st", "w = u * ct + v * st",
+             IRREGULAR),
+    Mutation("parax_xy_powers_swapped", "PARAX_XY: PARM 1 read as the y power and PARM 2 as the x "
+             "power", "deeplens/optics/io/surface_handlers.py",
+             "px, py = (s.parm.get(i, (0.0, 0))[0] / ctx.s_mm for i in (1, 2))",
+             "px, py = (s.parm.get(i, (0.0, 0))[0] / ctx.s_mm for i in (2, 1))", PARAX_XY),
 ]
 
 

@@ -19,7 +19,9 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
 * :class:`ExtendedAsphereFormat`: reads ``XASPHERE`` (an ``Asphere`` with terms beyond r¹⁶ is
   written so by :class:`AsphereFormat`);
 * :class:`~.zmx_grid_sag.GridSagFormat` (in its own module, :mod:`.zmx_grid_sag`): ``GRID_SAG``,
-  ``GridSag``.
+  ``GridSag``;
+* :class:`~.zmx_irregular.IrregularFormat` (in its own module, :mod:`.zmx_irregular`):
+  ``IRREGULA``, ``Irregular``.
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
@@ -52,7 +54,7 @@ import torch
 from ..errors import LensFileError, ZemaxFileError
 from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
-                        IdealLens, OddAsphere, Plane, QType, Toroid, XYPolynomial,
+                        IdealLens, IdealLensXY, OddAsphere, Plane, QType, Toroid, XYPolynomial,
                         ZernikeFringeSag, ZernikeSag)
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
@@ -762,6 +764,45 @@ class ParaxialFormat(SurfaceFormat):
         return ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}", _diam(s.semi_diameter)]
 
 
+def _paraxial_xy_surface(s, ctx):
+    """``PARAX_XY`` (``PARM 1`` the x power, ``PARM 2`` the y power, 1/lens units): deeplens'
+    :class:`IdealLensXY`, in air."""
+    k, p = ctx.k, ctx.p
+    if not (is_air(ctx.mat) and is_air(ctx.prev)):
+        p.fail(s.glass_line or s.type_line, f"SURF {k}: a PARAX_XY surface between glasses is "
+                                            f"not supported (deeplens' ideal lens sits in air)")
+    for i, (v, ln) in s.parm.items():
+        if i > 2 and v != 0:
+            p.fail(ln, f"SURF {k}: PARAX_XY PARM {i} is not read (PARM 1 the x power, PARM 2 the "
+                       f"y power)")
+    px, py = (s.parm.get(i, (0.0, 0))[0] / ctx.s_mm for i in (1, 2))
+    if px == 0.0 and py == 0.0:
+        p.fail(s.type_line or s.line, f"SURF {k}: a PARAX_XY surface needs a non-zero x or y "
+                                      f"power (PARM 1, PARM 2)")
+    if px != py:
+        p.note(s.type_line or s.line,
+               f"SURF {k}: PARAX_XY with x power {px:.6g} /mm and y power {py:.6g} /mm: rays are "
+               f"traced through both; deeplens' paraxial data (EFL, pupils, back focus) take "
+               f"the y section")
+    return IdealLensXY(px, py, ctx.sd_build)
+
+
+@register_format
+class ParaxialXYFormat(SurfaceFormat):
+    """:class:`IdealLensXY`: Zemax ``PARAX_XY`` (``PARM 1``, ``PARM 2`` the x and y powers), in
+    air."""
+
+    classes = (IdealLensXY,)
+    zmx_types = ("PARAX_XY",)
+
+    def read_zmx(self, s, ctx):
+        return _paraxial_xy_surface(s, ctx)
+
+    def write_zmx(self, s, i):
+        return ["TYPE PARAX_XY", "CURV 0.0", f"PARM 1 {_f(s.power_x)}", f"PARM 2 {_f(s.power_y)}",
+                _diam(s.semi_diameter)]
+
+
 @register_format
 class ToroidalFormat(SurfaceFormat):
     """:class:`Cylinder` and :class:`Toroid`: Zemax ``TOROIDAL`` (``PARM 1`` the radius of
@@ -911,6 +952,7 @@ class ExtendedAsphereFormat(SurfaceFormat):
         return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 
 
-# GRID_SAG's handler lives in its own module; importing it registers it (after the built-in
-# ones: the parser lists the types read in registration order)
+# GRID_SAG's and IRREGULA's handlers live in their own modules; importing them registers them
+# (after the built-in ones: the parser lists the types read in registration order)
 from . import zmx_grid_sag  # noqa: E402,F401
+from . import zmx_irregular  # noqa: E402,F401

@@ -65,7 +65,7 @@ from __future__ import annotations
 import copy
 import math
 
-from .zmx_parse import Locator, ZmxSurface, _check_magnitudes
+from .zmx_parse import OBJECT_AT_INFINITY, Locator, ZmxSurface, _check_magnitudes
 
 __all__ = ["APPLIED", "configuration", "operands"]
 
@@ -260,7 +260,7 @@ def _apply(key, num, second, text, ln, sysd, surfs, p: Locator) -> None:
         else:
             v = p.num(text, ln, f"{key} value")
         if key == "THIC":
-            if num == 0 and v >= 1e10:
+            if num == 0 and v >= OBJECT_AT_INFINITY:
                 v = math.inf     # OpticStudio's object at infinity in the editor
             s.disz, s.disz_line = _repeat(s.disz, v), ln
         elif key == "CRVT":

@@ -33,6 +33,8 @@ __all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
 UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 """``UNIT`` name -> millimetres per file unit."""
 
+#: an object (``SURF 0``) thickness of this many lens units or more is an object at infinity
+OBJECT_AT_INFINITY = 1e10
 _MAX_CONFIGS = 10000   # MNUM: more is a damaged number (read_zmx_configs builds one lens each)
 
 # surface types met in real files that deeplens refuses, and what they are
@@ -44,7 +46,6 @@ _UNSUPPORTED_TYPES = {
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "GRINSUR1": "a gradient-index surface",
     "USERSURF": "a user-defined (DLL) surface",
-    "IRREGULA": "an irregular surface",
 }
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
@@ -339,6 +340,13 @@ def _disz(st: _Parse, r: Record) -> None:
         p.fail(ln, "DISZ line is truncated: missing the thickness")
     cur.disz = math.inf if toks[1].upper() == "INFINITY" else p.num(toks[1], ln, "DISZ")
     cur.disz_line = ln
+    if len(st.surfs) == 1 and math.isfinite(cur.disz) and cur.disz >= OBJECT_AT_INFINITY:
+        # the object surface's thickness: 1e10 lens units or more is an object at infinity
+        # (as the multi-configuration THIC rows and CODE V's SO read it; OpTaliX writes 1e20)
+        p.note(ln, f"object distance DISZ {toks[1]} (SURF 0) is {OBJECT_AT_INFINITY:g} lens "
+                   f"units or more: read as an object at infinity (write DISZ INFINITY to say "
+                   f"so, or a smaller number for a finite object)")
+        cur.disz = math.inf
 
 
 def _coni(st: _Parse, r: Record) -> None:

@@ -11,6 +11,8 @@ from .cylinder import Cylinder
 from .grating import Grating
 from .grid_sag import GridSag
 from .ideal import IdealLens
+from .ideal_xy import IdealLensXY
+from .irregular import Irregular
 from .odd_asphere import OddAsphere
 from .plane import Plane
 from .qtype import QType
@@ -18,6 +20,6 @@ from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
 from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
-__all__ = ["IdealLens", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder",
-           "Grating", "GridSag", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
+__all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder",
+           "Grating", "GridSag", "Irregular", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
            "Surface", "SagSurface", "SURFACE_TYPES"]

@@ -264,7 +264,7 @@ BAD = [
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
      r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, grating, "
-     r"grid_sag, ideal_lens, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
+     r"grid_sag, ideal_lens, ideal_lens_xy, irregular, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
      r"zernike_fringe_sag, "
      r"zernike_sag\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
@@ -527,6 +527,21 @@ def test_every_registered_surface_type_round_trips():
                           "grid_d2z_dxdy_per_mm": [[0.0, 0.0, 1e-5 / 3]] * 4,
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([17, 17])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # OpticStudio's Irregular surface (IRREGULA), likewise
+    d["surfaces"].append({"type": "irregular", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 80.0, "conic": -0.3, "r_max_mm": 2.6,
+                          "decenter_x_mm": 0.1, "decenter_y_mm": -1 / 3, "tilt_x_rad": 1e-3 / 3,
+                          "tilt_y_rad": -2e-4, "z_spherical_mm": 1e-4 / 3,
+                          "z_astigmatism_mm": -2e-4, "z_coma_mm": 1e-4 / 7,
+                          "angle_rad": 0.3, "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([18, 18])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # an anamorphic ideal lens (OpticStudio's PARAX_XY), likewise
+    d["surfaces"].append({"type": "ideal_lens_xy", "semi_diameter_mm": 2.5,
+                          "power_x_per_mm": 0.0, "power_y_per_mm": 1 / 70.0,
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([19, 19])
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}

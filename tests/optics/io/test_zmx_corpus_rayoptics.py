@@ -112,6 +112,18 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
     # takes the vertex curvature of the rotationally symmetric part, worked out here from the file
     for k, cv in _zernike_vertex_curvatures(name).items():
         sm.ifcs[k].profile.cv = cv
+    # Irregular surfaces: zmxread reads CURV alone; deeplens' stated rule takes the y section at
+    # the surface's vertex, worked out here from the file
+    for k, cv in _irregular_vertex_curvatures(name).items():
+        sm.ifcs[k].profile.cv = cv
+    # Paraxial XY surfaces (anamorphic ideal lenses): zmxread reads a plane; deeplens' stated
+    # rule takes the y section, given here as rayoptics' own ideal thin lens of the y power
+    for k, phi in _parax_xy_powers(name).items():
+        import rayoptics.oprops.thinlens as ro_thinlens
+
+        thin = ro_thinlens.ThinLens(power=phi)
+        thin.z_type = "PARAXIAL"
+        sm.ifcs[k] = thin
     # Binary 2 surfaces: zmxread reads the base surface alone; the phase's r² term adds the
     # paraxial power of a thin diffractive lens, given to rayoptics as the curvature that
     # refracts the same (a surface's paraxial power is (n' - n) c)
@@ -186,6 +198,40 @@ def _zernike_vertex_curvatures(name):
                 h = n // 2
                 cv += 2.0 * norm * (-1) ** (h - 1) * h * (h + 1) * rec("XDAT", j + 2) / r_n ** 2
         out[k] = cv
+    return out
+
+
+def _irregular_vertex_curvatures(name):
+    """``{SURF k: vertex curvature}`` (file units) of the file's ``IRREGULA`` surfaces under the
+    rule deeplens states (Zemax guide, What is read): the y section of ``c r² / (1 + ...) + Zs ρ⁴
+    + Za w² + Zc ρ² w`` at the vertex, ``w = (y cos θ + x sin θ) / r_max``: ``CURV + 2 Za cos²θ /
+    r_max²`` (``Za`` = ``PARM 6``, θ = ``PARM 8`` in degrees, ``r_max`` the ``DIAM``), written out
+    here from the sag, not taken from deeplens."""
+    out = {}
+    for k, b in enumerate(_surf_blocks(name)):
+        t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
+        if t is None or t.group(1) != "IRREGULA":
+            continue
+
+        def rec(key, i=None, b=b):
+            pat = rf"^\s+{key}\s+{i}\s+(\S+)" if i is not None else rf"^\s+{key}\s+(\S+)"
+            m = re.search(pat, b, re.M)
+            return float(m.group(1)) if m else 0.0
+
+        za, theta, r_max = rec("PARM", 6), math.radians(rec("PARM", 8)), rec("DIAM")
+        out[k] = rec("CURV") + (2.0 * za * math.cos(theta) ** 2 / r_max ** 2 if za else 0.0)
+    return out
+
+
+def _parax_xy_powers(name):
+    """``{SURF k: y power}`` (file units⁻¹) of the file's ``PARAX_XY`` surfaces: ``PARM 2``."""
+    out = {}
+    for k, b in enumerate(_surf_blocks(name)):
+        t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
+        if t is None or t.group(1) != "PARAX_XY":
+            continue
+        m = re.search(r"^\s+PARM\s+2\s+(\S+)", b, re.M)
+        out[k] = float(m.group(1)) if m else 0.0
     return out
 
 

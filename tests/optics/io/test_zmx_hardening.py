@@ -36,8 +36,10 @@ def test_a_second_stop_is_refused_naming_the_first(tmp_path):
     ("  DISZ 5.0\n", "  DISZ 1e308\n", "DISZ", r"DISZ \(SURF 2 thickness\) 1e\+308 MM: expected a "
                                            r"length of at most 1e\+12 mm in magnitude"),
     ("  DISZ 5.0\n", "  DISZ 1e29\n", "DISZ", r"DISZ \(SURF 2 thickness\) 1e\+29 MM: expected"),
-    ("  DISZ INFINITY\n", "  DISZ 1e300\n", "DISZ",
-     r"DISZ \(SURF 0 thickness\) 1e\+300 MM: .*an object at infinity is DISZ INFINITY"),
+    # (a positive one, 1e10 lens units or more, is an object at infinity:
+    # test_zmx_object_at_infinity.py; a virtual object that far is refused)
+    ("  DISZ INFINITY\n", "  DISZ -1e300\n", "DISZ",
+     r"DISZ \(SURF 0 thickness\) -1e\+300 MM: .*an object at infinity is DISZ INFINITY"),
     ("  CURV 0.02\n", "  CURV 1e308\n", "CURV", r"CURV 1e\+308 per MM \(SURF 2\): expected a "
                                               r"curvature of at most 1e\+12 per mm"),
     ("  DIAM 8.0 1", "  DIAM 1e300 1", "DIAM", r"DIAM \(SURF 2 semi-diameter\) 1e\+300 MM"),

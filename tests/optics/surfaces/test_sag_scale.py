@@ -29,7 +29,8 @@ import torch
 from deeplens.optics.parameters import parameter_scale
 from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary2, BSpline,
                                       CoordinateBreak, Cylinder, Grating, GridSag, IdealLens,
-                                      OddAsphere,
+                                      IdealLensXY,
+                                      Irregular, OddAsphere,
                                       Plane, QType, Toroid, XYPolynomial, ZernikeFringeSag,
                                       ZernikeSag)
 
@@ -47,6 +48,7 @@ EXAMPLES = {
     Cylinder: lambda: Cylinder(0.01, R, conic=-0.5, coefficients=[1e-3, 1e-5]),
     Grating: lambda: Grating(0.01, R, 0.5, 1, conic=-0.5),
     IdealLens: lambda: IdealLens(50.0, R),
+    IdealLensXY: lambda: IdealLensXY(0.0, 0.02, R),
     OddAsphere: lambda: OddAsphere(0.01, R, conic=-0.5, coefficients=[1e-3, 1e-4, 1e-5]),
     QType: lambda: QType(0.01, R, R, [1e-3, 2e-4], "qbfs", conic=-0.5),
     Toroid: lambda: Toroid(0.01, R, 100.0, conic=-0.5, coefficients=[1e-3]),
@@ -57,6 +59,9 @@ EXAMPLES = {
                                                coefficients=[1e-4, 1e-6]),
     GridSag: lambda: GridSag(0.01, R, (2.5, 2.5), torch.zeros(5, 5), conic=-0.5,
                              coefficients=[1e-4, -2e-6]),
+    Irregular: lambda: Irregular(0.01, R, 1.2 * R, conic=-0.5, decenter=(0.3, -0.2),
+                                 tilt=(0.002, -0.001), z_spherical=1e-3, z_astigmatism=-2e-3,
+                                 z_coma=1e-3, angle=0.3),
 }
 #: grids of node values (one tensor, one scale per node value): checked per node in
 #: tests/optics/surfaces/test_grid_sag.py (the largest sag change per unit of one node's value)
