@@ -90,6 +90,7 @@ from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
 from ..surfaces import Asphere
 from .agf import AGFGlass
+from .codev_apertures import APERTURE_COMMANDS, aperture_command, apply_aperture, write_aperture
 from .codev_decenter import (DECENTER_COMMANDS, decenter_command, expand_decenters,
                              write_break)
 from .filecheck import read_file_bytes
@@ -321,6 +322,7 @@ class _Reader:
         self.pickups = []       # (line, (target param, surface), (source param, surface),
         #                          factor, offset): applied in _build
         self.unit = 1.0
+        self.dim_line = None    # the file's DIM line
         self.title = ""
         self.wl = None          # ([nm], line)
         self.ref = None         # (k, line)
@@ -358,12 +360,27 @@ class _Reader:
             self.title = " ".join(args)
         elif cmd in _IGNORED:
             return
+        elif cmd == "POL":
+            # polarization ray tracing: off (N) changes no ray; deeplens traces none
+            if [a.upper() for a in args] not in (["N"], ["NO"]):
+                self.fail(line, f"POL {' '.join(args)}: polarization ray tracing is not "
+                                f"supported; expected POL N")
+        elif cmd == "CA" and not args:
+            # no CODE V source for a bare CA found; rayoptics' reader takes it (spec_data) and
+            # sets nothing: read and not used, said
+            _warn(self.src, line, "CA (no value): read and not used (rayoptics' reader does "
+                                  "the same); the surfaces' apertures are their CIR/REX/REY")
         elif cmd == "DIM":
             if len(args) != 1 or args[0].upper() not in _UNITS:
                 self.fail(line, f"DIM: expected M, C or I (mm, cm, inch), got {' '.join(args)!r}")
-            if self.surfs:
-                self.fail(line, "DIM after the surfaces: expected it before SO")
-            self.unit = _UNITS[args[0].upper()]
+            # the unit of every length in the file, wherever DIM stands (the lengths are
+            # scaled when the lens is built; rayoptics' reader also reads DIM after the
+            # surfaces, as in its threemir.seq, and keeps the numbers as written)
+            unit = _UNITS[args[0].upper()]
+            if self.dim_line is not None and unit != self.unit:
+                self.fail(line, f"DIM {args[0]}: a second, different unit (line "
+                                f"{self.dim_line}); expected one DIM")
+            self.unit, self.dim_line = unit, line
         elif cmd == "RDM":
             if len(args) > 1 or (args and args[0].upper() not in ("Y", "N", "YES", "NO")):
                 self.fail(line, f"RDM: expected Y or N, got {' '.join(args)!r}")
@@ -400,6 +417,8 @@ class _Reader:
             self.surface(cmd, args, line)
         elif cmd in DECENTER_COMMANDS and self.surfs:   # decenters and tilts: codev_decenter
             decenter_command(self.surfs[-1], cmd, args, line, self.nums, self.fail)
+        elif cmd in APERTURE_COMMANDS and self.surfs:   # rectangles: codev_apertures
+            aperture_command(self.surfs[-1], cmd, args, line, self.nums, self.fail)
         else:
             self.modifier(cmd, args, line)
 
@@ -660,13 +679,15 @@ def _build(rd: _Reader, path: Path) -> Lens:
         c = s["c"] / u
         flat_air = (c == 0 and s["type"] == "SPH" and isinstance(mat, Air)
                     and isinstance(media[-1], Air) and not mirror)
-        if flat_air and not s["stop"] and s["cir"] is None and s.get("obs") is None:
+        if flat_air and not s["stop"] and s["cir"] is None and s.get("obs") is None \
+                and not s.get("rect"):
             gap += s["t"] * u          # a dummy surface
             continue
         sd = s["cir"][0] * u if s["cir"] is not None else _provisional(c, s["k"])
-        if s["cir"] is None:
+        if s["cir"] is None and not s.get("rect"):
             autos.append(len(surfaces))
         surf = FORMATS.for_codev_type(s["type"]).read_codev(s, c, sd, u, flat_air)
+        surf = apply_aperture(s, surf, u, flat_air, fail)   # REX, REY: a rectangle
         if s.get("obs") is not None:
             obs.append((len(surfaces), s["obs"]))
         if s["stop"]:
@@ -1021,8 +1042,9 @@ def write_seq(lens: Lens, path) -> None:
             out.append(f"S {head} {_f(after)}" + (f" {g}" if g else ""))
             if is_stop:
                 mods.insert(0, "STO")
+            rect = write_aperture(s)   # REX, REY (ADX, ADY): codev_apertures
             clear = float(getattr(s, "clear_radius", math.inf))
-            mods.append(f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}")
+            mods += rect or [f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}"]
             if float(getattr(s, "obscuration", 0.0)) > 0:
                 mods.append(f"CIR OBS {_f(s.obscuration)}")
             out += ["  " + m for m in mods]

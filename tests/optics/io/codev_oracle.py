@@ -234,14 +234,15 @@ def _close(a, b, tol) -> bool:
     return bool(np.all(np.abs(np.asarray(a, dtype=float) - np.asarray(b, dtype=float)) <= tol))
 
 
-def match_frames(lens, sm, s_mm):
+def match_frames(lens, sm, s_mm, focus_shift=0.0):
     """``(lead, after)`` for a lens with coordinate breaks: deeplens' surfaces other than breaks
     matched, in order, to rayoptics surfaces at the same place (vertex and rotation in the
     object-space frame, curvature), rayoptics' origin (its surface 1) being ``lead`` before
     deeplens' first vertex along the object-space axis (the leading dummies deeplens folds into
     the object distance); the image surface must match the sensor.  ``after``: for each
-    rayoptics gap the index of deeplens' medium in it.  Raises ``AssertionError`` when no
-    ``lead`` matches every surface."""
+    rayoptics gap the index of deeplens' medium in it.  ``focus_shift``: rayoptics' (its reader
+    keeps SI's thickness so): the sensor lies that far along the image surface's own axis.
+    Raises ``AssertionError`` when no ``lead`` matches every surface."""
     dl, (img_v, img_A) = _frames_dl(lens, s_mm)
     ro = [(list(map(float, t)), [list(map(float, row)) for row in r]) for r, t in sm.gbl_tfrms]
     cv = [float(ifc.profile.cv) for ifc in sm.ifcs]
@@ -267,6 +268,7 @@ def match_frames(lens, sm, s_mm):
             k += 1
         else:
             t, r = ro[-1]
+            t = [t[q] + focus_shift * r[q][2] for q in range(3)]
             if _close([img_v[0], img_v[1], img_v[2] + lead], t, tol) and _close(img_A, r, 1e-12):
                 after, m = [], 0
                 for g in range(len(sm.gaps)):
@@ -308,7 +310,8 @@ def ray_landings(path, lens, radius_mode=None):
             src.write_bytes(rdm.encode() + b"\n" + path.read_bytes())
         opm, _ = cmdproc.read_lens(src)
     sm = opm["seq_model"]
-    lead, after = match_frames(lens, sm, s_mm)
+    foc = float(opm["optical_spec"]["focus"].focus_shift)
+    lead, after = match_frames(lens, sm, s_mm, foc)
     w = float(lens.spec.primary_wavelength_nm)
     with torch.no_grad():
         n = [float(m.n(w)) for m in lens.materials]
@@ -357,6 +360,7 @@ def ray_landings(path, lens, radius_mode=None):
                     out["failed"].append((j, "deeplens" if ok else "rayoptics"))
                 continue
             pt, dr = np.asarray(ray[-1][0]), np.asarray(ray[-1][1])
+            pt = pt + dr * (foc - pt[2]) / dr[2]   # to the focus-shifted plane (its own z)
             mine = r.o[j].numpy() / s_mm
             out["rays"] += 1
             out["dp"] = max(out["dp"], float(np.hypot(*(mine[:2] - pt[:2]))))
