@@ -90,6 +90,7 @@ SUBSTITUTION = ("tests/design/search/test_substitution.py",)
 CODEV_DECENTER = ("tests/optics/io/test_codev_decenter.py",)
 CODEV_DEFAULTS = ("tests/optics/io/test_codev_defaults.py",)
 CODEV_CORPUS = ("tests/optics/io/test_codev_corpus.py",)
+CODEV_APERTURES = ("tests/optics/io/test_codev_apertures.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -993,6 +994,21 @@ MUTATIONS = [
              "(float(wavelength_nm) * 1e-6) / (math.pi * rn.to(a1) ** 2)",
              "(float(wavelength_nm) * 1e-6) / (2.0 * math.pi * rn.to(a1) ** 2)",
              BINARY2_RAYOPTICS),
+    # ------------------- CODE V rectangular apertures (issue 37, branch seq3)
+    Mutation("codev_rex_full_width", "CODE V's REX/REY read as full widths (half-widths halved)",
+             "deeplens/optics/io/codev_apertures.py",
+             '    hx, hy = r["REX"][0] * u, r["REY"][0] * u',
+             '    hx, hy = r["REX"][0] * u / 2, r["REY"][0] * u / 2', CODEV_APERTURES),
+    Mutation("codev_ady_sign", "CODE V's ADX/ADY read as the negated aperture centre",
+             "deeplens/optics/io/codev_apertures.py",
+             '    dec = (r["ADX"][0] * u if "ADX" in r else 0.0, r["ADY"][0] * u if "ADY" in r '
+             'else 0.0)',
+             '    dec = (-r["ADX"][0] * u if "ADX" in r else 0.0, -r["ADY"][0] * u if "ADY" in r '
+             'else 0.0)', CODEV_APERTURES),
+    Mutation("codev_decentred_image_focus_shift_dropped", "a decentred image's SI thickness (its "
+             "focus shift) dropped", "deeplens/optics/io/codev_decenter.py",
+             '        place(_forward(v, u), image, where, s["t"] if image else 0.0)',
+             '        place(_forward(v, u), image, where, 0.0)', CODEV_APERTURES),
 ]
 
 
