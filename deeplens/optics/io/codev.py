@@ -57,7 +57,10 @@ sign convention being deeplens' and OpticStudio's).
 
 Decenters and tilts (``XDE`` ... ``CDE``, ``DAR``, ``BEN``, ``REV``, ``RET``) become
 :class:`~deeplens.optics.surfaces.CoordinateBreak` surfaces (:mod:`.codev_decenter`, which
-states each convention and its source).
+states each convention and its source); rectangular apertures (``REX``, ``REY``, ``ADX``,
+``ADY``) a surface's clear rectangle or a rectangular aperture (:mod:`.codev_apertures`).
+``DIM`` may stand anywhere (the unit of every length); ``POL N`` and a bare ``CA`` (with a
+warning) are read and not used.
 
 Defaults (docs/guide/codev.md, "Defaults"; each with a located :class:`CodeVWarning`): no
 ``STO``: the first surface is the stop; several ``WL`` without ``REF``: the first is the
