@@ -94,6 +94,7 @@ from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
 from ..surfaces import Asphere
 from .agf import AGFGlass
 from .codev_apertures import APERTURE_COMMANDS, aperture_command, apply_aperture, write_aperture
+from .codev_zoom import apply_zoom, zoom_command, zoom_count
 from .codev_decenter import (DECENTER_COMMANDS, decenter_command, expand_decenters,
                              write_break)
 from .filecheck import read_file_bytes
@@ -101,7 +102,7 @@ from .surface_handlers import FORMATS
 from .vendor_glass import (BuchdahlGlass, archived_glass, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
 
-__all__ = ["CodeVWarning", "read_seq", "write_seq"]
+__all__ = ["CodeVWarning", "read_seq", "read_seq_zooms", "write_seq"]
 
 _UNITS = {"M": 1.0, "MM": 1.0, "C": 10.0, "CM": 10.0, "I": 25.4, "IN": 25.4}
 _INFINITE = 1e10                    # CODE V: an object this far (or farther) is at infinity
@@ -332,6 +333,7 @@ class _Reader:
         self.pupil = None       # (kind, value, line)
         self.fields = {}        # cmd -> ([values], line)
         self.surfs = []         # dicts: kind, line, c, t, glass, ...
+        self.zoom = {"n": None, "params": []}   # ZOO lines (codev_zoom)
         self.stage = "system"   # "system", "surfaces" (after SO), "done" (after SI)
 
     def fail(self, line, msg):
@@ -355,6 +357,8 @@ class _Reader:
             self.prv = {"line": line, "wl": None}
         elif cmd == "PIK":
             self.pickup(args, line)
+        elif cmd == "ZOO":   # zoom positions and zoomed values: codev_zoom
+            zoom_command(self.zoom, args, line, self.nums, self.fail)
         elif cmd == "AC":
             # read as a zero coefficient only: deeplens knows no meaning of a non-zero AC
             if self.nums(args, line, "AC", 1)[0] != 0:
@@ -557,7 +561,7 @@ class _Reader:
                             f"refused)")
 
 
-def read_seq(path, radius_mode: bool | None = None) -> Lens:
+def read_seq(path, radius_mode: bool | None = None, zoom: int | None = None) -> Lens:
     """Read a CODE V ``.seq`` file (the common subset: see :mod:`.codev`).
 
     Args:
@@ -566,6 +570,9 @@ def read_seq(path, radius_mode: bool | None = None) -> Lens:
             a :class:`CodeVWarning`: rayoptics reads such a file in curvature mode); ``True``
             or ``False``: read the surfaces' first numbers as radii or curvatures whatever the
             file says.
+        zoom: the zoom position of a zoom lens (``ZOO`` lines, :mod:`.codev_zoom`), from 1;
+            ``None``: position 1 (with a :class:`CodeVWarning` when the file has others).
+            :func:`read_seq_zooms` reads every position.
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -580,6 +587,48 @@ def read_seq(path, radius_mode: bool | None = None) -> Lens:
         lens = read_seq("tests/data/codev/cooke_triplet.seq")
     """
     path = Path(path)
+    rd = _read_commands(path, radius_mode)
+    n = zoom_count(rd.zoom)
+    if zoom is None and n > 1:
+        _warn(rd.src, rd.zoom["n"][1], f"a zoom lens with {n} positions: position 1 read; "
+                                       f"read_seq(path, zoom=N) reads position N, "
+                                       f"read_seq_zooms(path) every position")
+    apply_zoom(rd, 1 if zoom is None else int(zoom))
+    return _build(rd, path)
+
+
+def read_seq_zooms(path, radius_mode: bool | None = None) -> list[Lens]:
+    """Every zoom position of a CODE V ``.seq`` file, one :class:`Lens` each (position 1
+    first; a file without ``ZOO`` gives one lens), as :func:`~.zmx_configs.read_zmx_configs`
+    gives a ``.zmx`` file's configurations: each lens is :func:`read_seq` ``(path, zoom=N)``,
+    and the surfaces no position changes are shared **by object**
+    (:func:`~.zmx_configs.share_surfaces`: the same module in every lens, its semi-diameter the
+    largest of the positions'), so a change to a shared surface changes every position.
+
+    Raises:
+        LensFileError: as :func:`read_seq` for any position, or a shared surface whose largest
+            semi-diameter does not fit a position (surfaces that then cross), located at the
+            ``ZOO n`` line.
+    """
+    from .zmx_configs import share_surfaces
+
+    path = Path(path)
+    rd = _read_commands(path, radius_mode)
+    n = zoom_count(rd.zoom)
+    lenses = [read_seq(path, radius_mode, zoom=k) for k in range(1, n + 1)]
+    share_surfaces(lenses)
+    for k, lens in enumerate(lenses, start=1):
+        try:
+            lens.check()
+        except ValueError as e:
+            rd.fail(rd.zoom["n"][1], f"zoom position {k}, with the surfaces shared between the "
+                                     f"positions (each the largest semi-diameter of any "
+                                     f"position): {e}")
+    return lenses
+
+
+def _read_commands(path: Path, radius_mode: bool | None) -> "_Reader":
+    """The file's commands read into a :class:`_Reader` (nothing built yet)."""
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
     src = str(path)
@@ -598,7 +647,7 @@ def read_seq(path, radius_mode: bool | None = None) -> Lens:
         _warn(src, None, "no RDM line: the surfaces' first numbers are read as radii (RDM Y, "
                          "deeplens' reading of CODE V's default; rayoptics reads them as "
                          "curvatures); read_seq(..., radius_mode=False) reads curvatures")
-    return _build(rd, path)
+    return rd
 
 
 def _warn(src: str, line: int | None, msg: str) -> None:
