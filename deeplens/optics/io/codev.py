@@ -60,7 +60,8 @@ Decenters and tilts (``XDE`` ... ``CDE``, ``DAR``, ``BEN``, ``REV``, ``RET``) be
 states each convention and its source); rectangular apertures (``REX``, ``REY``, ``ADX``,
 ``ADY``) a surface's clear rectangle or a rectangular aperture (:mod:`.codev_apertures`).
 ``DIM`` may stand anywhere (the unit of every length); ``POL N`` and a bare ``CA`` (with a
-warning) are read and not used.
+warning) are read and not used.  A zoom lens (``ZOO``, :mod:`.codev_zoom`) is read at one zoom
+position (``read_seq(path, zoom=N)``) or at every one (:func:`read_seq_zooms`).
 
 Defaults (docs/guide/codev.md, "Defaults"; each with a located :class:`CodeVWarning`): no
 ``STO``: the first surface is the stop; several ``WL`` without ``REF``: the first is the

@@ -123,3 +123,24 @@ def test_a_position_beyond_the_file_is_refused():
     with pytest.raises(LensFileError, match=r"zoom position 4 requested: the file has 3") as e:
         read_seq(ZOOM / "zoom3.seq", zoom=4)
     assert e.value.line == 10
+
+
+def test_cli_report_config_reads_a_zoom_position(capsys):
+    """``deeplens report zoom3.seq --config N`` reports zoom position ``N``: its EFL and fields
+    are those of ``read_seq(..., zoom=N)``."""
+    import json
+
+    import helpers as H
+
+    from deeplens.optics.paraxial import paraxial
+
+    for k in (2, 3):
+        code, out, err = H.run_cli(["report", str(ZOOM / "zoom3.seq"), "--config", str(k),
+                                    "--json", "--sampling", "hexapolar:2"], capsys)
+        assert code == 0, err
+        rep = json.loads(out)
+        lens = read_seq(ZOOM / "zoom3.seq", zoom=k)
+        assert rep["efl_mm"] == pytest.approx(float(paraxial(lens).efl), rel=1e-12)
+        assert sorted({f["field_deg"] for f in rep["fields"]}) == list(lens.spec.fields_deg)
+    code, out, err = H.run_cli(["report", str(ZOOM / "zoom3.seq"), "--config", "4"], capsys)
+    assert code == 2 and "zoom position 4 requested: the file has 3" in err
