@@ -11,8 +11,13 @@ point from the image plane (BFP), each to float64 round-off (1e-9 relative), ray
 given deeplens' refractive indices (the oracle code is tests/optics/io/codev_oracle.py, the
 corpus test's own; a file without RDM, which deeplens reads in radius mode and rayoptics in
 curvature mode, is given to rayoptics with ``RDM Y``, and marked so); or the one located line of
-the refusal.  Then the counts: loaded /
-confirmed / disagree / refused (and unlocated errors, which should not exist).
+the refusal.  A decentred or tilted lens (coordinate breaks) is confirmed by real rays instead:
+its surfaces must lie where rayoptics' do (vertices, orientations and curvatures in the
+object-space frame) and the same rays (4 per field, given in object space) must land on the
+image surface at the same points in the same directions, to float64 round-off
+(``codev_oracle.ray_landings``, ``ray_agrees``).  Each verdict names the kind of confirmation:
+``paraxial`` or ``real rays``.  Then the counts: loaded / confirmed / disagree / refused (and
+unlocated errors, which should not exist).
 """
 
 from __future__ import annotations
@@ -31,13 +36,30 @@ from deeplens.optics.io.codev import read_seq  # noqa: E402
 from deeplens.optics.paraxial import paraxial  # noqa: E402
 
 
+def _by_rays(f, lens, ray_landings, ray_agrees) -> tuple[bool, str]:
+    """A decentred lens: ``(confirmed, verdict)`` from real rays (module docstring)."""
+    try:
+        r = ray_landings(f, lens)
+    except AssertionError as e:   # the surfaces do not lie where rayoptics' do
+        return False, f"DISAGREE {e}"
+    if r["failed"]:
+        return False, f"DISAGREE rays traced by one side only: {r['failed']}"
+    if not r["rays"]:
+        return False, "DISAGREE no ray traced by both"
+    text = (f"{r['rays']} rays, landings within {r['dp']:.1e}, directions within "
+            f"{r['dd']:.1e}")
+    if not ray_agrees(r["dp"], r["dd"], r["length"]):
+        return False, f"DISAGREE real rays: {text}"
+    return True, f"confirmed, real rays ({text})"
+
+
 def main(folder: str | None = None, oracle: bool = True) -> int:
     root = Path(folder) if folder else REPO / "tests/data/codev_real"
     if not root.is_dir():
         raise SystemExit(f"seq_corpus: {root} is not a folder of .seq files")
     files = sorted(p for p in root.iterdir() if p.suffix.lower() == ".seq")
     if oracle:
-        from codev_oracle import agrees, has_rdm, numbers
+        from codev_oracle import agrees, has_rdm, numbers, ray_agrees, ray_landings
     loaded = confirmed = disagree = refused = crashed = unconfirmed = no_rdm = 0
     for f in files:
         with warnings.catch_warnings():
@@ -57,15 +79,19 @@ def main(folder: str | None = None, oracle: bool = True) -> int:
         verdict = ""
         if oracle:
             try:
-                nums = numbers(f, lens)
-                bad = [f"{q} {dl:.10g} vs {ro:.10g}" for q, (dl, ro) in nums.items()
-                       if not agrees(dl, ro)]
-                if bad:
-                    disagree += 1
-                    verdict = "DISAGREE " + "; ".join(bad)
+                if any(s.interaction.changes_frame for s in lens.surfaces):
+                    ok, verdict = _by_rays(f, lens, ray_landings, ray_agrees)
                 else:
+                    nums = numbers(f, lens)
+                    bad = [f"{q} {dl:.10g} vs {ro:.10g}" for q, (dl, ro) in nums.items()
+                           if not agrees(dl, ro)]
+                    ok = not bad
+                    verdict = ("confirmed, paraxial (EFL, EPD, ENP, BFP)" if ok
+                               else "DISAGREE " + "; ".join(bad))
+                if ok:
                     confirmed += 1
-                    verdict = "confirmed (EFL, EPD, ENP, BFP)"
+                else:
+                    disagree += 1
                 if not has_rdm(f):   # rayoptics' own default is curvature mode
                     verdict += " [no RDM: radius mode, rayoptics given RDM Y]"
                     no_rdm += 1

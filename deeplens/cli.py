@@ -147,9 +147,9 @@ def _load(args):
         opts["glass_catalogs"] = list(catalogs)
     config = getattr(args, "config", None)
     if config is not None:
-        if Path(args.lens).suffix.lower() != ".zmx":
-            raise _UsageError(f"--config applies to Zemax files (.zmx) only; {args.lens} is not "
-                              f"one")
+        if Path(args.lens).suffix.lower() not in (".zmx", ".seq"):
+            raise _UsageError(f"--config applies to Zemax files (.zmx) and CODE V zoom lenses "
+                              f"(.seq) only; {args.lens} is neither")
         opts["config"] = config
     try:
         return load_lens(args.lens, **opts)
@@ -761,7 +761,8 @@ def _main(argv=None) -> int:
     r.add_argument("--json", action="store_true", help="print JSON instead of a table")
     r.add_argument("--config", type=int, metavar="N",
                    help="configuration N (from 1) of a multi-configuration Zemax file (MNUM: "
-                        "zoom, focus); default: the active one, as saved")
+                        "zoom, focus), or zoom position N of a CODE V zoom lens (ZOO); default: "
+                        "the active one, as saved (a .seq file: position 1)")
     r.add_argument("--analysis", help="also compute these, comma-separated: cardinal,distortion,"
                                       "field,color,vignetting,wavefront,strehl,mtf,ee")
     _add_lens_options(r)

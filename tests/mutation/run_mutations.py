@@ -93,6 +93,8 @@ CODEV_DECENTER = ("tests/optics/io/test_codev_decenter.py",)
 CODEV_DEFAULTS = ("tests/optics/io/test_codev_defaults.py",)
 CODEV_CORPUS = ("tests/optics/io/test_codev_corpus.py",)
 IRGLASS = ("tests/optics/io/test_infrared_glass.py",)
+CODEV_APERTURES = ("tests/optics/io/test_codev_apertures.py",)
+CODEV_ZOOM = ("tests/optics/io/test_codev_zoom.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -1022,6 +1024,35 @@ MUTATIONS = [
              "power", "deeplens/optics/io/surface_handlers.py",
              "px, py = (s.parm.get(i, (0.0, 0))[0] / ctx.s_mm for i in (1, 2))",
              "px, py = (s.parm.get(i, (0.0, 0))[0] / ctx.s_mm for i in (2, 1))", PARAX_XY),
+    # ------------------- CODE V rectangular apertures (issue 37, branch seq3)
+    Mutation("codev_rex_full_width", "CODE V's REX/REY read as full widths (half-widths halved)",
+             "deeplens/optics/io/codev_apertures.py",
+             '    hx, hy = r["REX"][0] * u, r["REY"][0] * u',
+             '    hx, hy = r["REX"][0] * u / 2, r["REY"][0] * u / 2', CODEV_APERTURES),
+    Mutation("codev_ady_sign", "CODE V's ADX/ADY read as the negated aperture centre",
+             "deeplens/optics/io/codev_apertures.py",
+             '    dec = (r["ADX"][0] * u if "ADX" in r else 0.0, r["ADY"][0] * u if "ADY" in r '
+             'else 0.0)',
+             '    dec = (-r["ADX"][0] * u if "ADX" in r else 0.0, -r["ADY"][0] * u if "ADY" in r '
+             'else 0.0)', CODEV_APERTURES),
+    Mutation("codev_decentred_image_focus_shift_dropped", "a decentred image's SI thickness (its "
+             "focus shift) dropped", "deeplens/optics/io/codev_decenter.py",
+             '        place(_forward(v, u), image, where, s["t"] if image else 0.0)',
+             '        place(_forward(v, u), image, where, 0.0)', CODEV_APERTURES),
+    # ------------------- CODE V zoom positions (issue 37, branch seq3)
+    Mutation("codev_zoom_off_by_one", "zoom position N read with the values of position N + 1 "
+             "(the last for N = n)", "deeplens/optics/io/codev_zoom.py",
+             "        v = vals[position - 1]", "        v = vals[min(position, n - 1)]",
+             CODEV_ZOOM),
+    Mutation("codev_zoom_not_shared", "read_seq_zooms shares no surface between the positions",
+             "deeplens/optics/io/codev.py", "    share_surfaces(lenses)\n    for k, lens in "
+             "enumerate(lenses, start=1):\n        try:\n            lens.check()\n        "
+             "except ValueError as e:\n            rd.fail(",
+             "    for k, lens in enumerate(lenses, start=1):\n        try:\n            "
+             "lens.check()\n        except ValueError as e:\n            rd.fail(", CODEV_ZOOM),
+    Mutation("codev_zoom_field_ignored", "a zoomed field (ZOO YAN Fk) not applied",
+             "deeplens/optics/io/codev_zoom.py", "            fv[k - 1] = v\n",
+             "            pass\n", CODEV_ZOOM),
 ]
 
 

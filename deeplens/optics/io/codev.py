@@ -57,7 +57,11 @@ sign convention being deeplens' and OpticStudio's).
 
 Decenters and tilts (``XDE`` ... ``CDE``, ``DAR``, ``BEN``, ``REV``, ``RET``) become
 :class:`~deeplens.optics.surfaces.CoordinateBreak` surfaces (:mod:`.codev_decenter`, which
-states each convention and its source).
+states each convention and its source); rectangular apertures (``REX``, ``REY``, ``ADX``,
+``ADY``) a surface's clear rectangle or a rectangular aperture (:mod:`.codev_apertures`).
+``DIM`` may stand anywhere (the unit of every length); ``POL N`` and a bare ``CA`` (with a
+warning) are read and not used.  A zoom lens (``ZOO``, :mod:`.codev_zoom`) is read at one zoom
+position (``read_seq(path, zoom=N)``) or at every one (:func:`read_seq_zooms`).
 
 Defaults (docs/guide/codev.md, "Defaults"; each with a located :class:`CodeVWarning`): no
 ``STO``: the first surface is the stop; several ``WL`` without ``REF``: the first is the
@@ -90,6 +94,8 @@ from ..lens import Lens, LensSpec
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
 from ..surfaces import Asphere
 from .agf import AGFGlass
+from .codev_apertures import APERTURE_COMMANDS, aperture_command, apply_aperture, write_aperture
+from .codev_zoom import apply_zoom, zoom_command, zoom_count
 from .codev_decenter import (DECENTER_COMMANDS, decenter_command, expand_decenters,
                              write_break)
 from .filecheck import read_file_bytes
@@ -97,7 +103,7 @@ from .surface_handlers import FORMATS
 from .vendor_glass import (BuchdahlGlass, archived_glass, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
 
-__all__ = ["CodeVWarning", "read_seq", "write_seq"]
+__all__ = ["CodeVWarning", "read_seq", "read_seq_zooms", "write_seq"]
 
 _UNITS = {"M": 1.0, "MM": 1.0, "C": 10.0, "CM": 10.0, "I": 25.4, "IN": 25.4}
 _INFINITE = 1e10                    # CODE V: an object this far (or farther) is at infinity
@@ -321,12 +327,14 @@ class _Reader:
         self.pickups = []       # (line, (target param, surface), (source param, surface),
         #                          factor, offset): applied in _build
         self.unit = 1.0
+        self.dim_line = None    # the file's DIM line
         self.title = ""
         self.wl = None          # ([nm], line)
         self.ref = None         # (k, line)
         self.pupil = None       # (kind, value, line)
         self.fields = {}        # cmd -> ([values], line)
         self.surfs = []         # dicts: kind, line, c, t, glass, ...
+        self.zoom = {"n": None, "params": []}   # ZOO lines (codev_zoom)
         self.stage = "system"   # "system", "surfaces" (after SO), "done" (after SI)
 
     def fail(self, line, msg):
@@ -350,6 +358,8 @@ class _Reader:
             self.prv = {"line": line, "wl": None}
         elif cmd == "PIK":
             self.pickup(args, line)
+        elif cmd == "ZOO":   # zoom positions and zoomed values: codev_zoom
+            zoom_command(self.zoom, args, line, self.nums, self.fail)
         elif cmd == "AC":
             # read as a zero coefficient only: deeplens knows no meaning of a non-zero AC
             if self.nums(args, line, "AC", 1)[0] != 0:
@@ -358,12 +368,27 @@ class _Reader:
             self.title = " ".join(args)
         elif cmd in _IGNORED:
             return
+        elif cmd == "POL":
+            # polarization ray tracing: off (N) changes no ray; deeplens traces none
+            if [a.upper() for a in args] not in (["N"], ["NO"]):
+                self.fail(line, f"POL {' '.join(args)}: polarization ray tracing is not "
+                                f"supported; expected POL N")
+        elif cmd == "CA" and not args:
+            # no CODE V source for a bare CA found; rayoptics' reader takes it (spec_data) and
+            # sets nothing: read and not used, said
+            _warn(self.src, line, "CA (no value): read and not used (rayoptics' reader does "
+                                  "the same); the surfaces' apertures are their CIR/REX/REY")
         elif cmd == "DIM":
             if len(args) != 1 or args[0].upper() not in _UNITS:
                 self.fail(line, f"DIM: expected M, C or I (mm, cm, inch), got {' '.join(args)!r}")
-            if self.surfs:
-                self.fail(line, "DIM after the surfaces: expected it before SO")
-            self.unit = _UNITS[args[0].upper()]
+            # the unit of every length in the file, wherever DIM stands (the lengths are
+            # scaled when the lens is built; rayoptics' reader also reads DIM after the
+            # surfaces, as in its threemir.seq, and keeps the numbers as written)
+            unit = _UNITS[args[0].upper()]
+            if self.dim_line is not None and unit != self.unit:
+                self.fail(line, f"DIM {args[0]}: a second, different unit (line "
+                                f"{self.dim_line}); expected one DIM")
+            self.unit, self.dim_line = unit, line
         elif cmd == "RDM":
             if len(args) > 1 or (args and args[0].upper() not in ("Y", "N", "YES", "NO")):
                 self.fail(line, f"RDM: expected Y or N, got {' '.join(args)!r}")
@@ -400,6 +425,8 @@ class _Reader:
             self.surface(cmd, args, line)
         elif cmd in DECENTER_COMMANDS and self.surfs:   # decenters and tilts: codev_decenter
             decenter_command(self.surfs[-1], cmd, args, line, self.nums, self.fail)
+        elif cmd in APERTURE_COMMANDS and self.surfs:   # rectangles: codev_apertures
+            aperture_command(self.surfs[-1], cmd, args, line, self.nums, self.fail)
         else:
             self.modifier(cmd, args, line)
 
@@ -535,7 +562,7 @@ class _Reader:
                             f"refused)")
 
 
-def read_seq(path, radius_mode: bool | None = None) -> Lens:
+def read_seq(path, radius_mode: bool | None = None, zoom: int | None = None) -> Lens:
     """Read a CODE V ``.seq`` file (the common subset: see :mod:`.codev`).
 
     Args:
@@ -544,6 +571,9 @@ def read_seq(path, radius_mode: bool | None = None) -> Lens:
             a :class:`CodeVWarning`: rayoptics reads such a file in curvature mode); ``True``
             or ``False``: read the surfaces' first numbers as radii or curvatures whatever the
             file says.
+        zoom: the zoom position of a zoom lens (``ZOO`` lines, :mod:`.codev_zoom`), from 1;
+            ``None``: position 1 (with a :class:`CodeVWarning` when the file has others).
+            :func:`read_seq_zooms` reads every position.
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -558,6 +588,48 @@ def read_seq(path, radius_mode: bool | None = None) -> Lens:
         lens = read_seq("tests/data/codev/cooke_triplet.seq")
     """
     path = Path(path)
+    rd = _read_commands(path, radius_mode)
+    n = zoom_count(rd.zoom)
+    if zoom is None and n > 1:
+        _warn(rd.src, rd.zoom["n"][1], f"a zoom lens with {n} positions: position 1 read; "
+                                       f"read_seq(path, zoom=N) reads position N, "
+                                       f"read_seq_zooms(path) every position")
+    apply_zoom(rd, 1 if zoom is None else int(zoom))
+    return _build(rd, path)
+
+
+def read_seq_zooms(path, radius_mode: bool | None = None) -> list[Lens]:
+    """Every zoom position of a CODE V ``.seq`` file, one :class:`Lens` each (position 1
+    first; a file without ``ZOO`` gives one lens), as :func:`~.zmx_configs.read_zmx_configs`
+    gives a ``.zmx`` file's configurations: each lens is :func:`read_seq` ``(path, zoom=N)``,
+    and the surfaces no position changes are shared **by object**
+    (:func:`~.zmx_configs.share_surfaces`: the same module in every lens, its semi-diameter the
+    largest of the positions'), so a change to a shared surface changes every position.
+
+    Raises:
+        LensFileError: as :func:`read_seq` for any position, or a shared surface whose largest
+            semi-diameter does not fit a position (surfaces that then cross), located at the
+            ``ZOO n`` line.
+    """
+    from .zmx_configs import share_surfaces
+
+    path = Path(path)
+    rd = _read_commands(path, radius_mode)
+    n = zoom_count(rd.zoom)
+    lenses = [read_seq(path, radius_mode, zoom=k) for k in range(1, n + 1)]
+    share_surfaces(lenses)
+    for k, lens in enumerate(lenses, start=1):
+        try:
+            lens.check()
+        except ValueError as e:
+            rd.fail(rd.zoom["n"][1], f"zoom position {k}, with the surfaces shared between the "
+                                     f"positions (each the largest semi-diameter of any "
+                                     f"position): {e}")
+    return lenses
+
+
+def _read_commands(path: Path, radius_mode: bool | None) -> "_Reader":
+    """The file's commands read into a :class:`_Reader` (nothing built yet)."""
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
     src = str(path)
@@ -576,7 +648,7 @@ def read_seq(path, radius_mode: bool | None = None) -> Lens:
         _warn(src, None, "no RDM line: the surfaces' first numbers are read as radii (RDM Y, "
                          "deeplens' reading of CODE V's default; rayoptics reads them as "
                          "curvatures); read_seq(..., radius_mode=False) reads curvatures")
-    return _build(rd, path)
+    return rd
 
 
 def _warn(src: str, line: int | None, msg: str) -> None:
@@ -660,13 +732,15 @@ def _build(rd: _Reader, path: Path) -> Lens:
         c = s["c"] / u
         flat_air = (c == 0 and s["type"] == "SPH" and isinstance(mat, Air)
                     and isinstance(media[-1], Air) and not mirror)
-        if flat_air and not s["stop"] and s["cir"] is None and s.get("obs") is None:
+        if flat_air and not s["stop"] and s["cir"] is None and s.get("obs") is None \
+                and not s.get("rect"):
             gap += s["t"] * u          # a dummy surface
             continue
         sd = s["cir"][0] * u if s["cir"] is not None else _provisional(c, s["k"])
-        if s["cir"] is None:
+        if s["cir"] is None and not s.get("rect"):
             autos.append(len(surfaces))
         surf = FORMATS.for_codev_type(s["type"]).read_codev(s, c, sd, u, flat_air)
+        surf = apply_aperture(s, surf, u, flat_air, fail)   # REX, REY: a rectangle
         if s.get("obs") is not None:
             obs.append((len(surfaces), s["obs"]))
         if s["stop"]:
@@ -1021,8 +1095,9 @@ def write_seq(lens: Lens, path) -> None:
             out.append(f"S {head} {_f(after)}" + (f" {g}" if g else ""))
             if is_stop:
                 mods.insert(0, "STO")
+            rect = write_aperture(s)   # REX, REY (ADX, ADY): codev_apertures
             clear = float(getattr(s, "clear_radius", math.inf))
-            mods.append(f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}")
+            mods += rect or [f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}"]
             if float(getattr(s, "obscuration", 0.0)) > 0:
                 mods.append(f"CIR OBS {_f(s.obscuration)}")
             out += ["  " + m for m in mods]

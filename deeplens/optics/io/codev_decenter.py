@@ -148,15 +148,17 @@ def _euler(R: torch.Tensor) -> tuple[float, float, float]:
 IMAGE_BREAK_MM = 1e-9
 
 
-def _before_image(cb: CoordinateBreak, sign: float) -> tuple[float, CoordinateBreak, float]:
-    """The same frame as ``cb`` (order 0) reached from a point ``IMAGE_BREAK_MM`` before its
-    origin along its own axis (``sign``: the direction of travel): ``(dz, break, gap)``, ``dz``
-    (mm) to add to the distance before the break, ``gap`` (mm) from the break to the image
-    plane.  Exact: the origin and axes of the frame after the break are unchanged."""
+def _before_image(cb: CoordinateBreak, sign: float,
+                  shift: float = 0.0) -> tuple[float, CoordinateBreak, float]:
+    """The same frame as ``cb`` (order 0), moved ``shift`` (mm) along its own axis (an image
+    plane's focus shift), reached from a point ``IMAGE_BREAK_MM`` before that origin along the
+    axis (``sign``: the direction of travel): ``(dz, break, gap)``, ``dz`` (mm) to add to the
+    distance before the break, ``gap`` (mm) from the break to the image plane.  Exact: the axes
+    of the frame after the break are unchanged, its origin moved by ``shift`` along them."""
     like = torch.zeros((), dtype=torch.float64)
     R = cb.rotation(like).detach()
     gap = sign * IMAGE_BREAK_MM
-    P = cb.offset(like).detach() - R[:, 2] * gap
+    P = cb.offset(like).detach() + R[:, 2] * (shift - gap)
     out = _break(float(P[0]), float(P[1]), float(cb.tilt_x), float(cb.tilt_y),
                  float(cb.tilt_z))
     return float(P[2]), out, gap
@@ -230,15 +232,16 @@ def expand_decenters(obj: dict, body: list[dict], img: dict, u: float, fail):
             frame.cross(item["cb"])
         prev = item
 
-    def place(cb: CoordinateBreak, on_image: bool, where: int) -> None:
+    def place(cb: CoordinateBreak, on_image: bool, where: int, shift: float = 0.0) -> None:
         """Emit the break ``cb`` of the current vertex; one whose image plane lies on it
-        (``on_image``) moved :data:`IMAGE_BREAK_MM` back along its axis (same frame)."""
+        (``on_image``) moved :data:`IMAGE_BREAK_MM` back along its axis (same frame), after
+        moving it ``shift`` (lens units: the image's focus shift) along that axis."""
         if not on_image:
             emit(_cb_item(cb, 0.0, where))
             return
         sign = next((math.copysign(1.0, r["t"]) for r in reversed(out + [prev])
                      if r["t"] != 0 and r is not obj), 1.0)
-        dz, cb, gap = _before_image(cb, sign)
+        dz, cb, gap = _before_image(cb, sign, shift * u)
         lead(dz / u)
         emit(_cb_item(cb, gap / u, where))
 
@@ -294,9 +297,13 @@ def expand_decenters(obj: dict, body: list[dict], img: dict, u: float, fail):
             emit(_cb_item(_inverse(v, u), t_after - v[2], where))
             continue
         lead(v[2])
-        place(_forward(v, u), image and s["t"] == 0, where)
+        # a decentred image: SI's thickness is its focus shift along the image's own axis (the
+        # z displacement from the nominal image surface: rayoptics' FocusRange.focus_shift, the
+        # SI thickness its reader keeps); the image plane is put on a break at that place
+        place(_forward(v, u), image, where, s["t"] if image else 0.0)
         frames[n] = frame.copy()
         if image:
+            s["t"] = 0.0
             img = s
             continue
         if typ == "DAR":

@@ -35,7 +35,9 @@ def load_lens(path, **table_options):
     Zemax file (``.zmx``) or a CODE V file (``.seq``).
 
     ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files and to
-    :func:`~.zmx.read_zmx` for ``.zmx`` files (``glass_catalogs``, ``glass_fallback``).
+    :func:`~.zmx.read_zmx` for ``.zmx`` files (``glass_catalogs``, ``glass_fallback``,
+    ``config``); for ``.seq`` files ``config=N`` is zoom position ``N``
+    (:func:`~.codev.read_seq` ``zoom=N``).
 
     A bare name that is not a file here (``"double_gauss"`` or ``"double_gauss.json"``, no
     folder) is one of the lenses shipped with deeplens (:func:`deeplens.resources.lens_dir`), so
@@ -58,9 +60,10 @@ def load_lens(path, **table_options):
     if suffix == ".seq":
         from .codev import read_seq
 
+        zoom = table_options.pop("config", None)   # a zoom position, as a .zmx configuration
         if table_options:
             raise TypeError(f"options {sorted(table_options)} do not apply to .seq files")
-        return read_seq(path)
+        return read_seq(path, zoom=zoom)
     if suffix == ".txt":
         return read_table(path, **table_options)
     if suffix != ".json":

@@ -56,6 +56,7 @@ from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
                         IdealLens, IdealLensXY, OddAsphere, Plane, QType, Toroid, XYPolynomial,
                         ZernikeFringeSag, ZernikeSag)
+from ..surfaces.base import clear_rect_of
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
@@ -472,10 +473,11 @@ class ApertureFormat(SurfaceFormat):
         return lines
 
     def write_codev(self, s, i, stop):
-        # a central obscuration is written by write_seq (CIR OBS); a ring one has no equivalent
-        if s.shape != "circle" or float(s.obscuration_inner) > 0 or s.decentred:
-            raise LensFileError(f"surface {i}: a rectangular, ring-obscured or decentred "
-                                f"aperture has no CODE V equivalent here", surfaces=(i,))
+        # a central obscuration is written by write_seq (CIR OBS); a ring one has no equivalent;
+        # a rectangle (decentred or not) as REX/REY (ADX/ADY) by write_seq (codev_apertures)
+        if float(s.obscuration_inner) > 0 or (s.decentred and s.shape == "circle"):
+            raise LensFileError(f"surface {i}: a ring-obscured or decentred circular aperture "
+                                f"has no CODE V equivalent here", surfaces=(i,))
         return ["0.0"]
 
 
@@ -595,8 +597,10 @@ class AsphereFormat(_StandardFamily):
 
     def write_codev(self, s, i, stop):
         # a central obscuration is written by write_seq (CIR OBS)
-        if (math.isfinite(float(s.clear_radius)) and not stop) or \
-                bool(s.clear_rect.any()) or any(float(v) for v in s.clear_decenter):
+        rect = clear_rect_of(s)   # REX/REY (ADX/ADY), written by write_seq: its clear circle
+        as_read = rect is not None and float(s.clear_radius) == math.hypot(*rect)   # circumscribes
+        if not as_read and ((math.isfinite(float(s.clear_radius)) and not stop) or
+                            rect is not None or any(float(v) for v in s.clear_decenter)):
             raise LensFileError(f"surface {i}: a decentred clear aperture or one narrower than "
                                 f"the semi-diameter (other than on the stop) has no CODE V "
                                 f"equivalent here", surfaces=(i,))

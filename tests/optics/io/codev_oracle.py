@@ -14,6 +14,16 @@ Both sides are float64 paraxial traces of the same numbers, so they agree to rou
 1e-13 relative on these files; :func:`agrees` allows 1e-9 relative (round-off grown through a
 few tens of surfaces and an object at 1e11 units; a thickness read off by one surface moves the
 numbers by more than 1e-4).
+
+A decentred or tilted lens (one with coordinate breaks) is confirmed by real rays instead
+(:func:`ray_landings`): paraxial numbers along the local axes say nothing of where a tilted
+surface sends the beam.  Each deeplens surface other than a break is matched to a rayoptics
+surface by its place in space (vertex, orientation and curvature in the object-space frame:
+``deeplens.optics.frames.local_frames`` and rayoptics' ``seq_model.gbl_tfrms``), rayoptics is
+given deeplens' indices as above, and the same rays (per field: the chief ray and three rays at
+0.7 of the entrance pupil's radius, given in object space) are traced by both; their landing
+points and directions on the image surface, in its own frame, must agree to float64 round-off
+(:func:`ray_agrees`).
 """
 
 from __future__ import annotations
@@ -32,6 +42,10 @@ from deeplens.optics.paraxial import paraxial
 
 _UNITS = {"M": 1.0, "MM": 1.0, "C": 10.0, "CM": 10.0, "I": 25.4, "IN": 25.4}
 QUANTITIES = ("EFL", "EPD", "ENP", "BFP")
+#: real-ray tolerances (:func:`ray_agrees`): per unit of path length for the landing points,
+#: absolute for the direction cosines
+RAY_POINT_REL = 1e-11
+RAY_DIR_ABS = 1e-11
 
 
 def unit_mm(path) -> float:
@@ -179,3 +193,177 @@ def numbers(path, lens, radius_mode=None) -> dict[str, tuple[float, float]]:
         epd_dl = float(p.entrance_pupil_diameter) / s_mm
     return {"EFL": (efl_dl, efl_ro), "EPD": (epd_dl, epd_ro), "ENP": (enp_dl, enp_ro),
             "BFP": (bfp_dl, bfp_ro)}
+
+
+# --------------------------------------------------------------------------- real rays
+def ray_agrees(dp: float, dd: float, length: float) -> bool:
+    """Landing points ``dp`` apart (file units) and directions ``dd`` apart, for rays that
+    travelled ``length`` (file units, from the launch plane to the image, summed over the
+    gaps): float64 round-off.  Each intersection rounds the point to ~1e-16 of the coordinates
+    involved and the error grows with the path (and a few tens of surfaces): 1e-11 per unit of
+    path, 1e-11 in the direction cosines, is a thousand times that.  A wrong tilt of 1e-6 degree
+    moves a landing point by ~2e-8 per unit of path after it, a thickness read off by 1e-6
+    moves it by the ray's slope times 1e-6."""
+    return dp <= RAY_POINT_REL * max(1.0, length) and dd <= RAY_DIR_ABS
+
+
+def _frames_dl(lens, s_mm):
+    """deeplens' surfaces other than breaks: ``[(index, vertex (3,), rotation (3, 3), c)]`` in
+    the object-space frame, file units, origin at deeplens' first vertex; and the sensor's
+    ``(vertex, rotation)``."""
+    from deeplens.optics.frames import local_frames
+
+    with torch.no_grad():
+        fr = local_frames(lens)
+        z = lens.z_vertices()
+        out = []
+        for i, s in enumerate(lens.surfaces):
+            if s.interaction.changes_frame:
+                continue
+            A, b = fr[i]
+            v = (A[:, 2] * z[i] + b) / s_mm
+            out.append((i, v.tolist(), A.tolist(), float(getattr(s, "c", 0.0)) * s_mm))
+        A, b = fr[-1]
+        img = (((A[:, 2] * (z[-1] + lens.d_sensor) + b) / s_mm).tolist(), A.tolist())
+    return out, img
+
+
+def _close(a, b, tol) -> bool:
+    import numpy as np
+
+    return bool(np.all(np.abs(np.asarray(a, dtype=float) - np.asarray(b, dtype=float)) <= tol))
+
+
+def match_frames(lens, sm, s_mm, focus_shift=0.0):
+    """``(lead, after)`` for a lens with coordinate breaks: deeplens' surfaces other than breaks
+    matched, in order, to rayoptics surfaces at the same place (vertex and rotation in the
+    object-space frame, curvature), rayoptics' origin (its surface 1) being ``lead`` before
+    deeplens' first vertex along the object-space axis (the leading dummies deeplens folds into
+    the object distance); the image surface must match the sensor.  ``after``: for each
+    rayoptics gap the index of deeplens' medium in it.  ``focus_shift``: rayoptics' (its reader
+    keeps SI's thickness so): the sensor lies that far along the image surface's own axis.
+    Raises ``AssertionError`` when no ``lead`` matches every surface."""
+    dl, (img_v, img_A) = _frames_dl(lens, s_mm)
+    ro = [(list(map(float, t)), [list(map(float, row)) for row in r]) for r, t in sm.gbl_tfrms]
+    cv = [float(ifc.profile.cv) for ifc in sm.ifcs]
+    n_ro = len(sm.ifcs)
+    scale = max([1.0] + [abs(x) for v, _ in ro[1:] for x in v])
+    tol = 1e-9 * scale
+
+    def same(j, k, lead):
+        _, v, A, c = dl[j]
+        t, r = ro[k]
+        return (_close([v[0], v[1], v[2] + lead], t, tol) and _close(A, r, 1e-12)
+                and abs(c - cv[k]) <= 1e-12 * max(1.0, abs(c)))
+
+    for k0 in range(1, n_ro - 1):
+        lead = ro[k0][0][2] - dl[0][1][2]
+        hit, k = [], k0
+        for j in range(len(dl)):
+            while k < n_ro - 1 and not same(j, k, lead):
+                k += 1
+            if k == n_ro - 1:
+                break
+            hit.append(k)
+            k += 1
+        else:
+            t, r = ro[-1]
+            t = [t[q] + focus_shift * r[q][2] for q in range(3)]
+            if _close([img_v[0], img_v[1], img_v[2] + lead], t, tol) and _close(img_A, r, 1e-12):
+                after, m = [], 0
+                for g in range(len(sm.gaps)):
+                    while m < len(hit) and hit[m] <= g:
+                        m += 1
+                    after.append(dl[m - 1][0] + 1 if m else 0)
+                return lead, after
+    raise AssertionError("rayoptics' surfaces do not lie where deeplens' do (vertices, "
+                         "orientations, curvatures in the object-space frame)")
+
+
+def ray_landings(path, lens, radius_mode=None):
+    """deeplens' and rayoptics' landings of the same real rays on the image surface of a lens
+    with coordinate breaks (module docstring), in the file's units.
+
+    Returns:
+        ``{"rays": n, "dp": max point distance, "dd": max direction difference, "length": max
+        path from the launch plane, "failed": [...]}``; ``failed`` lists rays one side traced
+        and the other did not (deeplens ``valid`` False, or a rayoptics ``TraceError``), which
+        is a disagreement.  Rays neither side traces are left out.
+    """
+    import numpy as np
+    from opticalglass.opticalmedium import ConstantIndex
+
+    from deeplens.optics.options import TraceOptions
+    from deeplens.optics.rays import Rays
+
+    path = Path(path)
+    s_mm = unit_mm(path)
+    with _scratch_cwd() as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        from rayoptics.codev import cmdproc
+        from rayoptics.raytr.traceerror import TraceError
+
+        src = tmp / path.name
+        shutil.copyfile(path, src)
+        if radius_mode is not None or not has_rdm(path):
+            rdm = "RDM N" if radius_mode is False else "RDM Y"
+            src.write_bytes(rdm.encode() + b"\n" + path.read_bytes())
+        opm, _ = cmdproc.read_lens(src)
+    sm = opm["seq_model"]
+    foc = float(opm["optical_spec"]["focus"].focus_shift)
+    lead, after = match_frames(lens, sm, s_mm, foc)
+    w = float(lens.spec.primary_wavelength_nm)
+    with torch.no_grad():
+        n = [float(m.n(w)) for m in lens.materials]
+        p = paraxial(lens)
+        z_ep = float(p.entrance_pupil_position) / s_mm
+        r_ep = float(p.entrance_pupil_diameter) / s_mm / 2
+        z0 = float(lens.z_vertices()[0]) / s_mm
+    for g, j in zip(sm.gaps, after):
+        g.medium = ConstantIndex(n[j], f"n={n[j]!r}")
+    obj = float(lens.spec.object_distance_mm)
+    finite = math.isfinite(obj)
+    gap0 = obj / s_mm - lead if finite else max(10.0, 2.0 * r_ep)   # object plane before S1
+    sm.gaps[0].thi = gap0
+    with _scratch_cwd(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        sm.update_model()
+    starts = []   # (point on the launch plane, direction), rayoptics' global frame
+    for f in lens.spec.fields_deg:
+        t = math.radians(float(f))
+        for ex, ey in ((0.0, 0.0), (0.0, 0.7 * r_ep), (0.0, -0.7 * r_ep), (0.7 * r_ep, 0.0)):
+            e = np.array([ex, ey, z0 + z_ep + lead])
+            if finite:
+                o = np.array([0.0, -(gap0 + e[2]) * math.tan(t), -gap0])
+                d = (e - o) / np.linalg.norm(e - o)
+            else:
+                d = np.array([0.0, math.sin(t), math.cos(t)])
+                o = e - d * (e[2] + gap0) / d[2]
+            starts.append((o, d))
+    out = {"rays": 0, "dp": 0.0, "dd": 0.0, "length": 0.0, "failed": []}
+    o_dl = torch.tensor(np.array([o - [0.0, 0.0, lead] for o, _ in starts]) * s_mm,
+                        dtype=torch.float64)
+    d_dl = torch.tensor(np.array([d for _, d in starts]), dtype=torch.float64)
+    with torch.no_grad():
+        r = lens.double().trace_to_sensor(Rays(o_dl, d_dl, w),
+                                          options=TraceOptions(clip_aperture=False))
+    with _scratch_cwd(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for j, (o, d) in enumerate(starts):
+            try:
+                ray = sm.trace(np.array([o[0], o[1], 0.0]), d, w)[0]
+            except TraceError:
+                ray = None
+            ok = bool(r.valid[j])
+            if ray is None or not ok:
+                if ok != (ray is None):
+                    out["failed"].append((j, "deeplens" if ok else "rayoptics"))
+                continue
+            pt, dr = np.asarray(ray[-1][0]), np.asarray(ray[-1][1])
+            pt = pt + dr * (foc - pt[2]) / dr[2]   # to the focus-shifted plane (its own z)
+            mine = r.o[j].numpy() / s_mm
+            out["rays"] += 1
+            out["dp"] = max(out["dp"], float(np.hypot(*(mine[:2] - pt[:2]))))
+            out["dd"] = max(out["dd"], float(np.abs(r.d[j].numpy() - dr).max()))
+            out["length"] = max(out["length"], float(sum(abs(seg[2]) for seg in ray[:-1])))
+    return out

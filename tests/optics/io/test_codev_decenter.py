@@ -406,3 +406,41 @@ def test_a_decentred_seq_lens_keeps_its_rays_through_zmx_and_json(name, ext, tmp
     assert bool(oka.all()) and bool(okb.all())
     assert torch.allclose(pa[:, :2], pb[:, :2], atol=TOL, rtol=0)
     assert torch.allclose(da, db, atol=TOL, rtol=0)
+
+
+# --------------------------------------------------------------------------- the oracle
+@pytest.mark.parametrize("name", ["dar_test", "folded_lenses"])
+def test_the_corpus_oracle_confirms_decentred_files_by_real_rays(name):
+    """The benchmark's oracle for decentred files (codev_oracle.ray_landings): the surfaces lie
+    where rayoptics puts them, and 4 rays per field (dar_test: a finite object, rays from the
+    object plane; folded_lenses: glasses between BEN folds, rayoptics given deeplens' indices)
+    land at the same points in the same directions, to the oracle's round-off bound."""
+    pytest.importorskip("rayoptics")
+    from codev_oracle import ray_agrees, ray_landings
+
+    lens = _read(RAYOPTICS / f"{name}.seq")
+    r = ray_landings(RAYOPTICS / f"{name}.seq", lens)
+    assert r["rays"] == 4 * len(lens.spec.fields_deg) and not r["failed"]
+    assert ray_agrees(r["dp"], r["dd"], r["length"])
+
+
+def test_the_corpus_oracle_rejects_a_misread_decentred_lens():
+    """The oracle can fail: a conic of -1e-3 on a lens surface of folded_lenses (which leaves
+    every vertex, orientation and curvature in place) moves the landings beyond the bound; a
+    tilt off by 1e-9 rad puts a surface where rayoptics' is not."""
+    pytest.importorskip("rayoptics")
+    from codev_oracle import ray_agrees, ray_landings
+
+    path = RAYOPTICS / "folded_lenses.seq"
+    lens = _read(path)
+    i = next(i for i, s in enumerate(lens.surfaces) if float(getattr(s, "c", 0.0)) != 0)
+    with torch.no_grad():
+        lens.surfaces[i].k.fill_(-1e-3)
+    r = ray_landings(path, lens)
+    assert r["rays"] == 4 and not ray_agrees(r["dp"], r["dd"], r["length"])
+    lens = _read(path)
+    cb = next(s for s in lens.surfaces if isinstance(s, CoordinateBreak) and float(s.tilt_x))
+    with torch.no_grad():
+        cb.tilt_x.add_(1e-9)
+    with pytest.raises(AssertionError, match="do not lie where"):
+        ray_landings(path, lens)

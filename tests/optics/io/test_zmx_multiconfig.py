@@ -267,7 +267,7 @@ def test_cli_report_config(tmp_path, capsys):
     assert code == 2 and "configuration 4 requested: the file has 3 configurations" in err
     json_lens = REPO / "data" / "lenses" / "double_gauss.json"
     code, out, err = H.run_cli(["report", str(json_lens), "--config", "2"], capsys)
-    assert code == 2 and "--config applies to Zemax files (.zmx) only" in err
+    assert code == 2 and "--config applies to Zemax files (.zmx) and CODE V zoom lenses" in err
 
 
 def test_optiland_reading_of_each_single_configuration_file(tmp_path):
