@@ -2,7 +2,8 @@
 
 Order, when a name is in more than one place: per catalogue on the ``GCAT`` line (all vendor
 catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
-catalogue (:mod:`.vendor_glass`), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`), a
+catalogue (:mod:`.vendor_glass`; also deeplens' own formula entries ``INFRARED`` and ``CORNING``,
+each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`), a
 catalogue kept only as index tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then
 the named vendors' archived and previous catalogues; then the user's other catalogues
 (``glass_catalogs``, then :data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue
