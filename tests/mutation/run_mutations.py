@@ -95,6 +95,7 @@ CODEV_CORPUS = ("tests/optics/io/test_codev_corpus.py",)
 IRGLASS = ("tests/optics/io/test_infrared_glass.py",)
 CODEV_APERTURES = ("tests/optics/io/test_codev_apertures.py",)
 CODEV_ZOOM = ("tests/optics/io/test_codev_zoom.py",)
+CORNING = ("tests/optics/io/test_corning_glass.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -1010,7 +1011,8 @@ MUTATIONS = [
              "c2, c4 = l1 * l1, l2 * l2", "c2, c4 = l1, l2", IRGLASS),
     Mutation("infrared_use_silent", "an INFRARED crystal used without the located note naming "
              "its source", "deeplens/optics/io/zmx_glass.py",
-             'p.note(s.glass_line, f"glass {glass!r}: {crystal_note(glass)}")', "pass", IRGLASS),
+             'p.note(s.glass_line, f"glass {glass!r}: {_SOURCE_NOTES[cat](glass)}")', "pass",
+             IRGLASS),
     # ----------------------------------------- issue 37 item 5: OpticStudio's Irregular surface
     Mutation("irregular_coma_sign", "irregular surface: the coma term Zc applied with the wrong "
              "sign (in the sag and its slopes alike)", "deeplens/optics/surfaces/irregular.py",
@@ -1053,6 +1055,22 @@ MUTATIONS = [
     Mutation("codev_zoom_field_ignored", "a zoomed field (ZOO YAN Fk) not applied",
              "deeplens/optics/io/codev_zoom.py", "            fv[k - 1] = v\n",
              "            pass\n", CODEV_ZOOM),
+    # ------------------------------------------ issue 37 item 2: Corning's C79-80 (HPFS 7980)
+    Mutation("corning_range_to_tan", "C79-80 given the 6.7 µm of Tan's check of silica instead "
+             "of Malitson's own 0.21-3.71 µm", "deeplens/optics/io/corning_glass.py",
+             "range_nm=(210.0, 3710.0),", "range_nm=(210.0, 6700.0),", CORNING),
+    Mutation("corning_use_silent", "C79-80 used without the located note naming its source",
+             "deeplens/optics/io/zmx_glass.py",
+             '_SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note}',
+             '_SOURCE_NOTES = {"INFRARED": crystal_note}', CORNING),
+    Mutation("corning_not_searched_elsewhere", "C79-80 not found for a file whose GCAT names "
+             "another catalogue (OpTaliX's SPECIAL)", "deeplens/optics/io/vendor_glass.py",
+             '    hits += ["CORNING"] if _key(glass) in CORNING_GLASSES else []\n', "", CORNING),
+    Mutation("corning_partial_said_shipped", "a Corning glass deeplens lacks refused as 'not in "
+             "the shipped CORNING catalogue' (no CORNING.agf asked for)",
+             "deeplens/optics/io/zmx_glass.py",
+             "(c not in CURRENT_CATALOGUES or (gcat and c in PARTIAL_CATALOGUES))",
+             "c not in CURRENT_CATALOGUES", CORNING),
 ]
 
 

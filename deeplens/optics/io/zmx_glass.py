@@ -2,7 +2,8 @@
 
 Order, when a name is in more than one place: per catalogue on the ``GCAT`` line (all vendor
 catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
-catalogue (:mod:`.vendor_glass`), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`), a
+catalogue (:mod:`.vendor_glass`; also deeplens' own formula entries ``INFRARED`` and ``CORNING``,
+each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`), a
 catalogue kept only as index tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then
 the named vendors' archived and previous catalogues; then the user's other catalogues
 (``glass_catalogs``, then :data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue
@@ -28,10 +29,11 @@ import torch
 
 from ..materials import Air, Material, ModelGlass, get_material
 from .agf import GlassCatalogue, read_agf
+from .corning_glass import corning_note
 from .infrared_glass import crystal_note
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
-from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PREVIOUS_CATALOGUES,
-                           archived_glass, catalogue_size, find_in_vendor_catalogues,
+from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
+                           PREVIOUS_CATALOGUES, archived_glass, catalogue_size, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
 from .zmx_parse import Locator, ZmxSurface
 
@@ -48,6 +50,9 @@ BUILTIN_CATALOGUES = {
 }
 """Zemax catalogue name -> the names deeplens' built-in catalogue resolves for it (after the
 vendor catalogues of :mod:`.vendor_glass`)."""
+
+#: catalogue -> the located note of a use of one of deeplens' own formula entries in it
+_SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note}
 
 # the n_d / V_d OpticStudio writes on the GLAS line of a catalogue glass it has not evaluated
 _PLACEHOLDER_ND_VD = (1.5, 40.0)
@@ -215,8 +220,8 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
             searched.append(f"{cat} (current vendor catalogue, {catalogue_size(cat)} glasses)")
             m = vendor_glass(glass, cat)
             if m is not None:
-                if cat == "INFRARED":   # deeplens' crystals: say whose formula is used
-                    p.note(s.glass_line, f"glass {glass!r}: {crystal_note(glass)}")
+                if cat in _SOURCE_NOTES:   # deeplens' own formulas: say whose is used
+                    p.note(s.glass_line, f"glass {glass!r}: {_SOURCE_NOTES[cat](glass)}")
                 return _checked(m, glass, s, f"the {cat} catalogue", p)
         if cat in BUILTIN_CATALOGUES:
             searched.append(f"{cat} (deeplens built-in, {len(BUILTIN_CATALOGUES[cat])} glasses)")
@@ -265,17 +270,22 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
         m = (previous_glass(glass, cat) if elsewhere[0].endswith("(previous)")
              else archived_glass(glass, cat) if elsewhere[0].endswith("(archived)")
              else vendor_glass(glass, cat))
-        about = f": {crystal_note(glass)}" if elsewhere[0] == "INFRARED" else ""
+        about = (f": {_SOURCE_NOTES[elsewhere[0]](glass)}" if elsewhere[0] in _SOURCE_NOTES
+                 else "")
         p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
                              f"({', '.join(named)}); using {elsewhere[0]} (exact name){about}")
         return _checked(m, glass, s, elsewhere[0], p)
+    # a catalogue the file names of which deeplens ships a few names only (CORNING) counts as
+    # not shipped: the glass is the vendor's, and its .agf is what to give
     missing = [c for c in named if c not in catalogues and c not in BUILTIN_CATALOGUES
-               and c not in CURRENT_CATALOGUES and c not in PREVIOUS_CATALOGUES
-               and c not in TABULATED_CATALOGUES]
+               and (c not in CURRENT_CATALOGUES or (gcat and c in PARTIAL_CATALOGUES))
+               and c not in PREVIOUS_CATALOGUES and c not in TABULATED_CATALOGUES]
     give = (_GIVE.format(f=" or ".join(f"{c}.agf" for c in missing)) if missing
             else "pass the vendor's .agf that has it with --glass-catalog")
     where = (f" (catalogue {' or '.join(missing)}) is not shipped" if missing else
              f" is not in the shipped {', '.join(named)} catalogue{'s' if len(named) > 1 else ''}")
+    for c in (c for c in missing if c in PARTIAL_CATALOGUES):
+        searched.append(f"of {c} deeplens ships only {', '.join(PARTIAL_CATALOGUES[c])}")
     others = [c for c in CURRENT_CATALOGUES if c not in named]
     if others:
         searched.append(f"by exact name also {', '.join(others)} (current) and their archived "

@@ -36,7 +36,7 @@ FILES = sorted(p.name for p in CORPUS.glob("*.zmx"))
 
 #: file -> the feature its refusal must name (every other file must load)
 REFUSED = {
-    "thorlabs_ASL5040-UV.zmx": "C79-80",   # Corning's; then its Qbfs on a conic base
+    "thorlabs_ASL5040-UV.zmx": "Qbfs surface on a conic base",   # its glass C79-80 is read
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "thorlabs_354710-C.zmx": "D-ZK3M",
 }

@@ -193,9 +193,9 @@ def test_zmx_and_lens_file_round_trip(tmp_path, kind):
 
 
 def test_corpus_file_qbfs_on_a_conic_is_refused_at_its_type_line(tmp_path):
-    """thorlabs_ASL5040-UV: refused first for its Corning glass (the corpus test); with a
-    catalogue glass instead, its Qbfs on a conic base (k = -0.676) is refused at the TYPE line;
-    read as Qcon it loads (the reading of XDAT 1..9 and its units)."""
+    """thorlabs_ASL5040-UV (its Corning glass C79-80 swapped for N-BK7, so that only the
+    surface is tested): its Qbfs on a conic base (k = -0.676) is refused at the TYPE line; read
+    as Qcon it loads (the reading of XDAT 1..9 and its units)."""
     from pathlib import Path
 
     from deeplens.optics.io.agf import decode_zemax_text
