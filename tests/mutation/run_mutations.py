@@ -638,7 +638,7 @@ MUTATIONS = [
              "primary_wavelength_nm=primary)", ("tests/optics/io/test_zmx_long_waves.py",)),
     Mutation("object_at_zero_refused_before_gap", "an object at DISZ 0 refused although dummy "
              "gaps put it before the first traced surface", "deeplens/optics/io/zmx_read.py",
-             "    if not (obj_dist >= 0 or (obj_dist < 0 and math.isfinite(obj_dist))):",
+             "    if not (obj_dist >= 0 or math.isfinite(obj_dist)):",
              "    if not (obj_dist > 0 or (obj_dist < 0 and math.isfinite(obj_dist))):",
              ("tests/optics/io/test_zmx_object_at_zero.py",)),
     # ------------------------------------------------ hardening, round three, part 2 (issue 38)
@@ -700,15 +700,18 @@ MUTATIONS = [
     # ------------------------------------------------ multi-configuration .zmx (issue 37 item 6)
     Mutation("mconf_thic_ignored", "a configuration's THIC row not applied (every configuration "
              "reads the saved gaps)", "deeplens/optics/io/zmx_mconf.py",
-             "            s.disz, s.disz_line = v, ln", "            s.disz_line = ln", MCONF),
+             "            s.disz, s.disz_line = _repeat(s.disz, v), ln",
+             "            s.disz_line = ln", MCONF),
     Mutation("mconf_unsupported_silent", "an unsupported operand that changes the lens ignored",
              "deeplens/optics/io/zmx_mconf.py", "            if not same:\n",
              "            if False:\n", MCONF),
     Mutation("mconf_field_off_by_one", "YFIE f sets field f - 1", "deeplens/optics/io/zmx_mconf.py",
-             "        vals[num - 1] = v\n        sysd[slot]", "        vals[num - 2] = v\n        sysd[slot]",
+             "        vals[num - 1] = _repeat(vals[num - 1], v)\n        sysd[slot]",
+             "        vals[num - 2] = _repeat(vals[num - 2], v)\n        sysd[slot]",
              MCONF),
     Mutation("mconf_object_1e10_finite", "THIC 0 of 1e10 read as a finite object distance",
-             "deeplens/optics/io/zmx_mconf.py", "if num == 0 and v >= 1e10:", "if False:", MCONF),
+             "deeplens/optics/io/zmx_mconf.py", "if num == 0 and v >= OBJECT_AT_INFINITY:", "if False:",
+             MCONF),
     Mutation("mconf_not_shared", "read_zmx_configs shares no surface (copies)",
              "deeplens/optics/io/zmx_configs.py", "            L.surfaces[i] = s", "            pass",
              MCONF),
@@ -807,7 +810,7 @@ MUTATIONS = [
              ("tests/training/test_perfect_variant.py",)),
     Mutation("travel_axis_not_reflected", "the traced axis not reflected by a mirror inside "
              "coordinate breaks (the mirror count's parity lost)", "deeplens/optics/frames.py",
-             "            a = [a[0], a[1], -a[2]]", "            a = [a[0], a[1], a[2]]",
+             "            a = [a[k] - 2.0 * an * nv[k] for k in range(3)]", "            a = list(a)",
              ("tests/optics/io/test_zmx_prisms.py",)),
     # ---------------------------------- the union of the screen's two rankings (issue 36)
     Mutation("union_not_deduplicated", "the union of the plain and re-balanced rankings keeps a "
@@ -959,8 +962,9 @@ MUTATIONS = [
              'lo, hi = (lo, _repeat(hi, v)) if key == "APMN" else (_repeat(lo, v), hi)',
              MCONF_OPS),
     Mutation("mconf_sdia_ignored", "an SDIA row not applied (the saved semi-diameter kept)",
-             "deeplens/optics/io/zmx_mconf.py", "        s.diam, s.diam_line = v, ln",
-             "        s.diam_line = ln", MCONF_OPS),
+             "deeplens/optics/io/zmx_mconf.py",
+             "        s.diam, s.diam_line = _repeat(s.diam, v), ln", "        s.diam_line = ln",
+             MCONF_OPS),
     Mutation("mconf_stps_off_by_one", "STPS puts the stop on the surface before the one named",
              "deeplens/optics/io/zmx_mconf.py", "        surfs[int(v)].stop = True",
              "        surfs[int(v) - 1].stop = True", MCONF_OPS),
