@@ -84,6 +84,7 @@ SURF_SKIP = ("tests/optics/io/test_zmx_surf_numbers.py",)
 FLOA_CLAP = ("tests/optics/io/test_zmx_floa_stop_clap.py",)
 ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
+SET6_RULES = ("tests/optics/io/test_zmx_set6_rules.py",)
 BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
@@ -993,6 +994,17 @@ MUTATIONS = [
              "(float(wavelength_nm) * 1e-6) / (math.pi * rn.to(a1) ** 2)",
              "(float(wavelength_nm) * 1e-6) / (2.0 * math.pi * rn.to(a1) ** 2)",
              BINARY2_RAYOPTICS),
+    # issue 37, branch set6: the sixth unseen set's readings
+    Mutation("even_r2_paraxial_dropped", "an even asphere's r² term left out of its paraxial "
+             "curvature (CURV alone)", "deeplens/optics/surfaces/odd_asphere.py",
+             "            return self.c + 2.0 * self.a[1]", "            return self.c",
+             SET6_RULES),
+    Mutation("oracle_floa_epd_signed", "the corpus oracle keeps optiland's signed float-by-stop "
+             "EPD (negative on a mirror stop met below the axis)",
+             "tests/optics/io/test_zmx_corpus.py",
+             "value=abs(float(torch.as_tensor(optic.paraxial.EPD()).reshape(-1)[0])))",
+             "value=(float(torch.as_tensor(optic.paraxial.EPD()).reshape(-1)[0])))",
+             SET6_RULES),
 ]
 
 
