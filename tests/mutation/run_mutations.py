@@ -1005,6 +1005,15 @@ MUTATIONS = [
              "value=abs(float(torch.as_tensor(optic.paraxial.EPD()).reshape(-1)[0])))",
              "value=(float(torch.as_tensor(optic.paraxial.EPD()).reshape(-1)[0])))",
              SET6_RULES),
+    Mutation("rect_stop_resized_to_pupil", "a rectangular stop under an EPD aperture shrunk or "
+             "grown to the pupil's radius (its rectangle scaled with the semi-diameter)",
+             "deeplens/optics/lens.py",
+             "        with torch.no_grad():\n            stop.semi_diameter.fill_(sd)\n",
+             "        with torch.no_grad():\n            stop.semi_diameter.fill_(sd)\n"
+             "            if getattr(stop, \"shape\", \"circle\") == \"rect\":\n"
+             "                f = sd / float(torch.linalg.vector_norm(stop.half_widths))\n"
+             "                stop.half_widths.mul_(f)\n",
+             SET6_RULES),
 ]
 
 

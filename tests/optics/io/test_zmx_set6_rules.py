@@ -123,3 +123,32 @@ def test_floating_stop_behind_a_mirror(monkeypatch, tmp_path):
     optic = _both_oracles_agree(monkeypatch, tmp_path, "t.zmx", lens)
     optic.set_aperture(aperture_type="float_by_stop_size", value=10.0)
     assert float(optic.paraxial.EPD()[0]) == pytest.approx(-20.0, rel=1e-12)   # why abs()
+
+
+def test_rectangular_stop_under_an_epd_keeps_its_rectangle(tmp_path):
+    """A rectangular stop (``SQAP 2 4``) first in air under ``ENPD 10`` (refused before: an EPD
+    sized the stop and a rectangle has no radius): the paraxial pupil is the file's, EPD 10 mm
+    (the stop is its own entrance pupil), and the rectangle stays as it is and vignettes, as
+    OpticStudio's surface apertures do: of an on-axis grid filling the pupil exactly the rays
+    with |x| <= 2 and |y| <= 4 at the stop pass."""
+    import torch
+    from test_zmx_apertures import _on_axis_rays
+
+    from deeplens.optics.options import TraceOptions
+
+    glass = f"___BLANK 1 0 {N} 0 0 0 0 0 0 0"
+    stop = _surf(disz=10.0, stop=True) + ["  SQAP 2 4 0"]
+    write(tmp_path, _file([_surf(disz="INFINITY"), stop,
+                           _surf(curv=0.02, disz=5.0, glas=glass, diam=8.0),
+                           _surf(disz=90.0, diam=8.0), _surf()]))
+    lens = _read(tmp_path / "t.zmx")
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(10.0, rel=1e-12)
+    assert tuple(float(v) for v in lens.stop.half_widths) == (2.0, 4.0)
+    rays = _on_axis_rays(lens)
+    with torch.no_grad():
+        free = lens.trace(rays, options=TraceOptions(clip_aperture=False))
+        clipped = lens.trace(rays)
+    x, y = rays.o[..., 0], rays.o[..., 1]
+    want = free.valid & (x.abs() <= 2.0) & (y.abs() <= 4.0)
+    assert 0 < int(want.sum()) < int(free.valid.sum())   # the rectangle vignettes the pupil
+    assert torch.equal(clipped.valid, want)
