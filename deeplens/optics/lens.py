@@ -556,12 +556,13 @@ class Lens(nn.Module):
         """Size the stop so that the paraxial entrance pupil matches ``spec`` (EPD or F-number).
 
         The stop may be an :class:`Aperture` or a lens surface (as in most vendor files): its
-        semi-diameter becomes the paraxial stop radius, ``EPD/2 · |y_stop / y_EP|``."""
+        semi-diameter becomes the paraxial stop radius, ``EPD/2 · |y_stop / y_EP|``.  A
+        rectangular :class:`Aperture` keeps its rectangle, which clips the rays outside it
+        (OpticStudio's surface apertures vignette whatever the system aperture: User Guide,
+        *Aperture (surface properties)*); its nominal semi-diameter, which the paraxial pupil
+        is computed from, becomes that radius."""
 
         stop = self.stop
-        if stop.law == "stop" and stop.opening.outer.kind == "rect":
-            raise LensError("an EPD or F-number aperture needs a circular stop (this Aperture is "
-                            "rectangular)", key="aperture")
         p = paraxial(self)
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)

@@ -86,6 +86,7 @@ ZERN_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 PARAX_XY = ("tests/optics/io/test_zmx_parax_xy.py", "tests/optics/surfaces/test_ideal_xy.py")
 IRREGULAR = ("tests/optics/surfaces/test_irregular.py", "tests/optics/io/test_zmx_irregular.py")
 SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
+SET6_RULES = ("tests/optics/io/test_zmx_set6_rules.py",)
 BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
@@ -1075,6 +1076,26 @@ MUTATIONS = [
              "deeplens/optics/io/zmx_glass.py",
              "(c not in CURRENT_CATALOGUES or (gcat and c in PARTIAL_CATALOGUES))",
              "c not in CURRENT_CATALOGUES", CORNING),
+    # issue 37, branch set6: the sixth unseen set's readings
+    Mutation("even_r2_paraxial_dropped", "an even asphere's r² term left out of its paraxial "
+             "curvature (CURV alone)", "deeplens/optics/surfaces/odd_asphere.py",
+             "            return self.c + 2.0 * self.a[1]", "            return self.c",
+             SET6_RULES),
+    Mutation("oracle_floa_epd_signed", "the corpus oracle keeps optiland's signed float-by-stop "
+             "EPD (negative on a mirror stop met below the axis)",
+             "tests/optics/io/test_zmx_corpus.py",
+             "value=abs(float(torch.as_tensor(optic.paraxial.EPD()).reshape(-1)[0])))",
+             "value=(float(torch.as_tensor(optic.paraxial.EPD()).reshape(-1)[0])))",
+             SET6_RULES),
+    Mutation("rect_stop_resized_to_pupil", "a rectangular stop under an EPD aperture shrunk or "
+             "grown to the pupil's radius (its rectangle scaled with the semi-diameter)",
+             "deeplens/optics/lens.py",
+             "        with torch.no_grad():\n            stop.semi_diameter.fill_(sd)\n",
+             "        with torch.no_grad():\n            stop.semi_diameter.fill_(sd)\n"
+             "            if getattr(stop, \"shape\", \"circle\") == \"rect\":\n"
+             "                f = sd / float(torch.linalg.vector_norm(stop.half_widths))\n"
+             "                stop.half_widths.mul_(f)\n",
+             SET6_RULES),
 ]
 
 

@@ -26,8 +26,9 @@ import pytest
 
 from deeplens.optics.io.agf import decode_zemax_text
 from deeplens.optics.paraxial import paraxial
-from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _file_path_coords,
-                             _floa_stop_radius, _load, _medium_after, _plain_planes, _unit_mm)
+from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _even_r2_terms,
+                             _file_path_coords, _floa_stop_radius, _load, _medium_after,
+                             _plain_planes, _unit_mm)
 
 #: file -> (the quantities rayoptics cannot confirm, the verified reason).  Every other loaded
 #: file is confirmed on all four numbers.
@@ -124,6 +125,10 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
         thin = ro_thinlens.ThinLens(power=phi)
         thin.z_type = "PARAXIAL"
         sm.ifcs[k] = thin
+    # even aspheres with an r² term: zmxread's paraxial model takes CURV alone; deeplens' rule
+    # (the vertex curvature, CURV + 2 PARM 1) is given to it as for the Zernike terms
+    for k, a1 in _even_r2_terms(name).items():
+        sm.ifcs[k].profile.cv += 2.0 * a1
     # Binary 2 surfaces: zmxread reads the base surface alone; the phase's r² term adds the
     # paraxial power of a thin diffractive lens, given to rayoptics as the curvature that
     # refracts the same (a surface's paraxial power is (n' - n) c)
