@@ -559,9 +559,10 @@ class Lens(nn.Module):
         semi-diameter becomes the paraxial stop radius, ``EPD/2 · |y_stop / y_EP|``."""
 
         stop = self.stop
-        if stop.law == "stop" and stop.opening.outer.kind == "rect":
-            raise LensError("an EPD or F-number aperture needs a circular stop (this Aperture is "
-                            "rectangular)", key="aperture")
+        if stop.law == "stop" and stop.opening.outer.kind in ("rect", "ellipse"):
+            raise LensError(f"an EPD or F-number aperture needs a circular stop (this Aperture is "
+                            f"{stop.opening.outer.kind}: give the aperture as 'stop')",
+                            key="aperture")
         p = paraxial(self)
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)

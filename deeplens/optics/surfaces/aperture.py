@@ -5,6 +5,8 @@ obscuration of radius ``r_o`` (an annular opening), only if also ``x^2 + y^2 >= 
 ring obscuration ``r_i <= ρ <= r_o`` (a ring baffle, Zemax's ``OBSC r_i r_o``, ``r_i > 0``), if
 ``x^2 + y^2 >= r_o^2`` or ``x^2 + y^2 <= r_i^2`` (both circles' rims pass).
 Rectangular: it passes if ``|x| <= w_x`` and ``|y| <= w_y`` (half-widths in mm).
+Elliptical: it passes if ``(x / a)^2 + (y / b)^2 <= 1`` (half-axes ``a = w_x``, ``b = w_y`` in mm,
+held in the same ``half_widths`` buffer; Zemax's ``ELAP``, CODE V's ``ELX``/``ELY``).
 A decentred opening (``decenter = (d_x, d_y)``, mm; Zemax's ``OBDC``) is the same test on
 ``(x − d_x, y − d_y)``: the opening and its obscuration move together; the plane does not.
 The medium does not change across a stop.
@@ -23,7 +25,7 @@ import math
 import torch
 
 from ..interactions import STOP_CROSSING
-from ..openings import Circle, Opening, Rectangle, in_rect
+from ..openings import Circle, Ellipse, Opening, Rectangle, in_rect
 from .base import host_flags, register_surface
 from .plane import Plane
 
@@ -37,8 +39,9 @@ class Aperture(Plane):
     Args:
         semi_diameter: radius of a circular opening, mm (for a rectangle: its half-diagonal
             is used as semi-diameter when not given).
-        shape: ``"circle"`` or ``"rect"``.
-        half_width_x, half_width_y: half-widths of a rectangular opening, mm.
+        shape: ``"circle"``, ``"rect"`` or ``"ellipse"``.
+        half_width_x, half_width_y: half-widths of a rectangular opening, or half-axes (along
+            x, along y) of an elliptical one, mm.
         obscuration: radius of a central obscuration of a circular opening, mm (``0``: none;
             ``< semi_diameter``); with ``obscuration_inner``, the ring's outer radius.
         obscuration_inner: the inner radius of a ring obscuration, mm (``0``: the obscuration
@@ -56,17 +59,20 @@ class Aperture(Plane):
                  half_width_x: float | None = None, half_width_y: float | None = None,
                  obscuration: float = 0.0, decenter: tuple[float, float] = (0.0, 0.0),
                  obscuration_inner: float = 0.0):
-        if shape not in ("circle", "rect"):
-            raise ValueError(f"Aperture: shape must be 'circle' or 'rect', got {shape!r}")
-        if shape == "rect":
+        if shape not in ("circle", "rect", "ellipse"):
+            raise ValueError(f"Aperture: shape must be 'circle', 'rect' or 'ellipse', got "
+                             f"{shape!r}")
+        if shape != "circle":
+            what = "rectangular" if shape == "rect" else "elliptical"
             if half_width_x is None or half_width_y is None:
-                raise ValueError("Aperture: a rectangular aperture needs half_width_x and "
-                                 "half_width_y (mm)")
-            if not (half_width_x > 0 and half_width_y > 0):
-                raise ValueError(f"Aperture: half-widths must be > 0 mm, got "
+                raise ValueError(f"Aperture: a {what} aperture needs half_width_x and "
+                                 f"half_width_y (mm)")
+            if not (0 < half_width_x < math.inf and 0 < half_width_y < math.inf):
+                raise ValueError(f"Aperture: half-widths must be finite and > 0 mm, got "
                                  f"{half_width_x}, {half_width_y}")
-            if semi_diameter is None:
-                semi_diameter = (half_width_x ** 2 + half_width_y ** 2) ** 0.5
+            if semi_diameter is None:   # the circumscribed circle
+                semi_diameter = ((half_width_x ** 2 + half_width_y ** 2) ** 0.5 if shape == "rect"
+                                 else max(half_width_x, half_width_y))
         if semi_diameter is None:
             raise ValueError("Aperture: a circular aperture needs semi_diameter (mm)")
         super().__init__(semi_diameter)
@@ -108,6 +114,7 @@ class Aperture(Plane):
             lambda dec, obs, ri: (bool((dec != 0).any()), float(obs) > 0, float(ri) > 0))
         dec = self.decenter if decentred else None
         outer = (Rectangle(self.half_widths, dec, check=False) if self.shape == "rect"
+                 else Ellipse(self.half_widths, dec, check=False) if self.shape == "ellipse"
                  else Circle(self.semi_diameter, dec, check=False))
         if ring:   # the ring r_i <= ρ <= r_o is taken out; inside r_i passes
             return outer - (Circle(self.obscuration, dec, check=False)
@@ -136,13 +143,13 @@ class Aperture(Plane):
     @classmethod
     def from_dict(cls, entry, semi_diameter):
         shape = entry.get("shape", "str", default="circle")
-        if shape not in ("circle", "rect"):
-            entry.fail("shape", f"expected 'circle' or 'rect', got {shape!r}")
+        if shape not in ("circle", "rect", "ellipse"):
+            entry.fail("shape", f"expected 'circle', 'rect' or 'ellipse', got {shape!r}")
         dec = entry.get("decenter_mm", "numbers", default=[0.0, 0.0])
         if len(dec) != 2:
             entry.fail("decenter_mm", f"expected [d_x, d_y] in mm, got {dec!r}")
-        if shape == "rect":
-            return cls(semi_diameter, "rect", entry.get("half_width_x_mm"),
+        if shape != "circle":
+            return cls(semi_diameter, shape, entry.get("half_width_x_mm"),
                        entry.get("half_width_y_mm"), decenter=dec)
         return cls(semi_diameter, shape, obscuration=entry.get("obscuration_mm", default=0.0),
                    decenter=dec,
@@ -154,8 +161,8 @@ class Aperture(Plane):
             d["obscuration_mm"] = float(self.obscuration)
         if float(self.obscuration_inner) > 0:
             d["obscuration_inner_mm"] = float(self.obscuration_inner)
-        if self.shape == "rect":
-            d.update(shape="rect", half_width_x_mm=float(self.half_widths[0]),
+        if self.shape != "circle":
+            d.update(shape=self.shape, half_width_x_mm=float(self.half_widths[0]),
                      half_width_y_mm=float(self.half_widths[1]))
         if self.decentred:
             d["decenter_mm"] = [float(v) for v in self.decenter]
