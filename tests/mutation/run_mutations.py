@@ -58,6 +58,7 @@ RENDER_IMAGE = ("tests/render/test_render_image.py",)
 API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
 TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
+ELLIPSE = ("tests/optics/io/test_elliptical_apertures.py",)
 REFRACT = ("tests/optics/test_refract.py",)
 CROSSING = ("tests/optics/test_crossing_azimuths.py",)
 PIXEL = ("tests/render/test_diffraction_pixel.py",)
@@ -1053,6 +1054,17 @@ MUTATIONS = [
     Mutation("codev_zoom_field_ignored", "a zoomed field (ZOO YAN Fk) not applied",
              "deeplens/optics/io/codev_zoom.py", "            fv[k - 1] = v\n",
              "            pass\n", CODEV_ZOOM),
+    # ------------------- elliptical apertures and obscurations (issue 37, branch ellipse)
+    Mutation("ellipse_half_axes_swapped", "an ellipse's half-axes swapped (a along y, b along x)",
+             "deeplens/optics/openings.py", "    u, v = X / half_axes[0], Y / half_axes[1]",
+             "    u, v = X / half_axes[1], Y / half_axes[0]", ELLIPSE),
+    Mutation("elap_read_as_y_then_x", "ELAP's numbers read as (y half-axis, x half-axis)",
+             "deeplens/optics/io/zmx_parse.py", "        cur.elap = (a, b, ln)",
+             "        cur.elap = (b, a, ln)", ELLIPSE),
+    Mutation("ellipse_obscuration_inverted", "an elliptical obscuration passes the rays inside "
+             "it and blocks those outside", "deeplens/optics/surfaces/base.py",
+             "        opening = opening - Ellipse(obs, check=False)",
+             "        opening = opening & Ellipse(obs, check=False)", ELLIPSE),
 ]
 
 
