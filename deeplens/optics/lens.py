@@ -560,9 +560,9 @@ class Lens(nn.Module):
 
         stop = self.stop
         if stop.law == "stop" and stop.opening.outer.kind in ("rect", "ellipse"):
+            shape = {"rect": "rectangular", "ellipse": "elliptical"}[stop.opening.outer.kind]
             raise LensError(f"an EPD or F-number aperture needs a circular stop (this Aperture is "
-                            f"{stop.opening.outer.kind}: give the aperture as 'stop')",
-                            key="aperture")
+                            f"{shape})", key="aperture")
         p = paraxial(self)
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)

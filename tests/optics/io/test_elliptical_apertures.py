@@ -194,10 +194,13 @@ def test_elap_on_a_flat_stop_is_an_elliptical_aperture(tmp_path):
 
 
 def test_an_epd_needs_a_circular_stop(tmp_path):
-    """An elliptical stop under ENPD: refused, as a rectangular one (the pupil of an
-    elliptical stop has no single EPD)."""
-    with pytest.raises(Exception, match="circular stop"):
-        read_zmx(_flat_stop(tmp_path, ["ELAP 2 1 0"], aperture="ENPD 10"))
+    """An elliptical stop under ENPD: refused at the ENPD line, as a rectangular one (deeplens
+    sizes a stop from an EPD by its radius)."""
+    path = _flat_stop(tmp_path, ["ELAP 2 1 0"], aperture="ENPD 10")
+    with pytest.raises(ZemaxFileError, match="needs a circular stop .this Aperture is "
+                                             "elliptical.") as e:
+        read_zmx(path)
+    assert f"{path}:{_line(path.read_text(), 'ENPD')}:" in str(e.value)
 
 
 def _mirror(tmp_path, extra=(), name="m.zmx"):
