@@ -787,7 +787,8 @@ def _build(rd: _Reader, path: Path) -> Lens:
                     mirrors=mirrors)
     except ValueError as e:
         idx = getattr(e, "surfaces", ())
-        fail(where[idx[0]] if idx else None, str(e))
+        aperture = getattr(e, "key", None) == "aperture"   # e.g. EPD on a rectangular stop
+        fail(where[idx[0]] if idx else ap_line if aperture else None, str(e))
     if fno_finite:
         ap_value = _working_fno_epd(lens, obj_dist, value, ap_line, fail)
         _warn(src, ap_line, f"FNO {value!r} with the object at a finite distance: read as the "

@@ -371,3 +371,16 @@ def test_codev_refusals_name_the_line(tmp_path, block, needle, match):
     with pytest.raises(LensFileError, match=match) as e:
         _read_seq(path)
     assert f":{_line(HEAD + body, needle)}" in str(e.value)
+
+
+@pytest.mark.parametrize("opening", ["ELX 2; ELY 1", "REX 2; REY 1"])
+def test_a_non_circular_codev_stop_is_refused_at_the_epd_line(tmp_path, opening):
+    """A .seq file gives EPD or FNO, which deeplens applies to a circular stop only: an
+    elliptical (or rectangular) flat stop is refused at the EPD line, naming its shape."""
+    body = f"S 0 5\n  STO\n  {opening}\nS 50 4 517000.642000\n  CIR 8\nS 0 30\n  CIR 8\nSI 0 0\n"
+    path = _seq(tmp_path, body)
+    shape = "elliptical" if opening.startswith("ELX") else "rectangular"
+    with pytest.raises(LensFileError,
+                       match=f"needs a circular stop .this Aperture is {shape}") as e:
+        _read_seq(path)
+    assert e.value.line == _line(HEAD + body, "EPD")
