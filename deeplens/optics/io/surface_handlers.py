@@ -484,6 +484,13 @@ class ApertureFormat(SurfaceFormat):
         if float(s.obscuration) > 0 and not s.decentred:   # a ring: OBSC inner outer
             ri = float(s.obscuration_inner)
             lines.append(f"OBSC {_f(ri) if ri > 0 else 0} {_f(s.obscuration)} 0")
+        ell = obscuration_ellipse_of(s)
+        if ell is not None:   # its only surface aperture (no CLAP: one type per surface)
+            if s.decentred:
+                raise ZemaxFileError(f"surface {i}: a decentred elliptical obscuration has no "
+                                     f"Zemax record here (OBDC with ELOB is not read)",
+                                     surfaces=(i,))
+            lines.append(f"ELOB {_f(ell[0])} {_f(ell[1])} 0")
         if s.decentred:
             lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
         return lines
@@ -556,6 +563,10 @@ class _StandardFamily(SurfaceFormat):
             ri = 0.0 if s.obsc_inner is None else s.obsc_inner[0] * s_mm   # a ring baffle
             return Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro,
                             obscuration_inner=ri)
+        if s.elob is not None and flat and in_air:   # ELOB: as OBSC, an elliptical one
+            outer = sd if (ctx.fixed or s.stop) else 1.01 * sd
+            ab = (s.elob[0] * s_mm, s.elob[1] * s_mm)
+            return Aperture(outer if outer > max(ab) else 2.0 * max(ab), obscuration_ellipse=ab)
         if flat and in_air and not s.mirror:
             return Aperture(sd_build)
         if flat and s.obdc is None:

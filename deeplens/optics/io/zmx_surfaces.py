@@ -67,8 +67,9 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     # dummy, or an OBSC's plane in air) a fixed DIAM is drawn, never clips.  The surface is
     # kept (its place, its obscuration) with an automatic semi-diameter: the beam's extent
     if (fixed and flat and same_medium and not s.stop and not s.mirror and s.clap is None
-            and s.sqap is None and s.elap is None and s.elob is None):
+            and s.sqap is None and s.elap is None):
         what = ("beside an OBSC (a surface aperture)" if s.obsc is not None else
+                "beside an ELOB (a surface aperture)" if s.elob is not None else
                 "of a flat surface in one medium with no surface aperture (CLAP, SQAP, OBSC)")
         p.note(s.diam_line, f"SURF {k}: the fixed DIAM {s.diam:g} {what} does not clip rays in "
                             f"OpticStudio (its floating aperture is applied only on a surface "
@@ -120,14 +121,12 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             with torch.no_grad():
                 surf.semi_diameter.fill_(sd)
         auto = False
-    if s.elob is not None:
-        if isinstance(surf, (Aperture, Cylinder, IdealLens)) or not takes_clear_rect(surf):
-            where = ("a flat surface in air" if isinstance(surf, Aperture)
-                     else f"a {type(surf).__name__} surface")
-            p.fail(s.elob[2], f"ELOB on SURF {k}: an elliptical obscuration on {where} is not "
-                              f"supported (deeplens has elliptical obscurations on lens and "
-                              f"mirror surfaces: put the obscuration on a mirror or lens "
-                              f"surface, or a circular OBSC on a flat dummy surface)")
+    if s.elob is not None and not isinstance(surf, Aperture):   # (an Aperture: built with it)
+        if isinstance(surf, (Cylinder, IdealLens)) or not takes_clear_rect(surf):
+            p.fail(s.elob[2], f"ELOB on SURF {k}: an elliptical obscuration on a "
+                              f"{type(surf).__name__} surface is not supported (deeplens has "
+                              f"elliptical obscurations on flat surfaces in air and on lens "
+                              f"and mirror surfaces)")
         if auto:   # the obscuration is compared with the semi-diameter once that is set
             with torch.no_grad():
                 surf.semi_diameter.fill_(max(float(surf.semi_diameter),

@@ -7,6 +7,8 @@ ring obscuration ``r_i <= ρ <= r_o`` (a ring baffle, Zemax's ``OBSC r_i r_o``, 
 Rectangular: it passes if ``|x| <= w_x`` and ``|y| <= w_y`` (half-widths in mm).
 Elliptical: it passes if ``(x / a)^2 + (y / b)^2 <= 1`` (half-axes ``a = w_x``, ``b = w_y`` in mm,
 held in the same ``half_widths`` buffer; Zemax's ``ELAP``, CODE V's ``ELX``/``ELY``).
+An elliptical obscuration of half-axes ``(a_o, b_o)`` (Zemax's ``ELOB`` on a flat surface in
+air) takes out ``(x / a_o)^2 + (y / b_o)^2 < 1`` of a circular opening (its rim passes).
 A decentred opening (``decenter = (d_x, d_y)``, mm; Zemax's ``OBDC``) is the same test on
 ``(x − d_x, y − d_y)``: the opening and its obscuration move together; the plane does not.
 The medium does not change across a stop.
@@ -47,6 +49,10 @@ class Aperture(Plane):
         obscuration_inner: the inner radius of a ring obscuration, mm (``0``: the obscuration
             is central; else ``0 < obscuration_inner < obscuration``): rays pass inside it and
             outside ``obscuration``.
+        obscuration_ellipse: ``(a_o, b_o)``, mm, or ``None``: an elliptical obscuration of these
+            half-axes (along x, along y) in a circular opening, instead of a circular one; both
+            below ``semi_diameter``.  A fixed buffer ``obscuration_ellipse``, registered only
+            when given (not in ``state_dict``; lens file: ``obscuration_ellipse_mm``).
         decenter: ``(d_x, d_y)``, mm: the centre of the opening (and of its obscuration) in the
             plane; ``(0, 0)`` by default.  A decentred aperture runs eager (the compiled runs
             clip about the axis).
@@ -58,7 +64,7 @@ class Aperture(Plane):
     def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
                  half_width_x: float | None = None, half_width_y: float | None = None,
                  obscuration: float = 0.0, decenter: tuple[float, float] = (0.0, 0.0),
-                 obscuration_inner: float = 0.0):
+                 obscuration_inner: float = 0.0, obscuration_ellipse=None):
         if shape not in ("circle", "rect", "ellipse"):
             raise ValueError(f"Aperture: shape must be 'circle', 'rect' or 'ellipse', got "
                              f"{shape!r}")
@@ -95,6 +101,16 @@ class Aperture(Plane):
         # with the lens file (obscuration_inner_mm)
         self.register_buffer("obscuration_inner", torch.tensor(ri, dtype=torch.float64),
                              persistent=False)
+        if obscuration_ellipse is not None:
+            ab = [float(v) for v in obscuration_ellipse]
+            if (len(ab) != 2 or shape != "circle" or obscuration != 0.0
+                    or not all(0 < v < float(semi_diameter) for v in ab)):
+                raise ValueError(f"Aperture: an elliptical obscuration needs a circular opening "
+                                 f"without a circular obscuration and two half-axes > 0 and "
+                                 f"below semi_diameter ({float(semi_diameter):g} mm), got "
+                                 f"{obscuration_ellipse!r}")
+            self.register_buffer("obscuration_ellipse", torch.tensor(ab, dtype=torch.float64),
+                                 persistent=False)
         dec = [float(v) for v in decenter]
         if len(dec) != 2 or not all(math.isfinite(v) for v in dec):
             raise ValueError(f"Aperture: decenter must be two finite numbers of mm (d_x, d_y), "
@@ -121,6 +137,9 @@ class Aperture(Plane):
                             - Circle(self.obscuration_inner, dec, check=False))
         if obscured:
             return outer - Circle(self.obscuration, dec, check=False)
+        ell = self._buffers.get("obscuration_ellipse")   # present only when set
+        if ell is not None:
+            return outer - Ellipse(ell, dec, check=False)
         return outer
 
     @property
@@ -138,7 +157,7 @@ class Aperture(Plane):
         self.semi_diameter.fill_(float(value))
 
     file_fields = ("shape", "half_width_x_mm", "half_width_y_mm", "obscuration_mm",
-                   "obscuration_inner_mm", "decenter_mm")
+                   "obscuration_inner_mm", "decenter_mm", "obscuration_ellipse_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -151,9 +170,14 @@ class Aperture(Plane):
         if shape != "circle":
             return cls(semi_diameter, shape, entry.get("half_width_x_mm"),
                        entry.get("half_width_y_mm"), decenter=dec)
+        ell = entry.get("obscuration_ellipse_mm", "numbers", default=None)
+        if ell is not None and len(ell) != 2:
+            entry.fail("obscuration_ellipse_mm", f"expected [a, b] in mm (half-axes along x and "
+                                                 f"y), got {ell!r}")
         return cls(semi_diameter, shape, obscuration=entry.get("obscuration_mm", default=0.0),
                    decenter=dec,
-                   obscuration_inner=entry.get("obscuration_inner_mm", default=0.0))
+                   obscuration_inner=entry.get("obscuration_inner_mm", default=0.0),
+                   obscuration_ellipse=ell)
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -161,6 +185,9 @@ class Aperture(Plane):
             d["obscuration_mm"] = float(self.obscuration)
         if float(self.obscuration_inner) > 0:
             d["obscuration_inner_mm"] = float(self.obscuration_inner)
+        ell = self._buffers.get("obscuration_ellipse")
+        if ell is not None:
+            d["obscuration_ellipse_mm"] = [float(v) for v in ell]
         if self.shape != "circle":
             d.update(shape=self.shape, half_width_x_mm=float(self.half_widths[0]),
                      half_width_y_mm=float(self.half_widths[1]))

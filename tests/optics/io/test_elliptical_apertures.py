@@ -265,16 +265,55 @@ def test_zemax_refusals_name_the_line(tmp_path, extra, needle, match):
     assert f"{path}:{_line(text, needle)}:" in str(e.value)
 
 
-def test_decentred_elliptical_stop_and_flat_obscuration_are_refused(tmp_path):
-    """OBDC on the stop (deeplens' pupil is centred) and ELOB on a flat surface in air (an
-    Aperture has circular obscurations only) are refused with their line."""
+def test_a_decentred_elliptical_stop_is_refused(tmp_path):
+    """OBDC on the stop (deeplens' entrance pupil is centred on the axis): refused at its
+    line, as for a rectangle."""
     path = _flat_stop(tmp_path, ["ELAP 2 1 0", "OBDC 0.5 0"])
     with pytest.raises(ZemaxFileError, match="decentred aperture stop") as e:
         read_zmx(path)
     assert f":{_line(path.read_text(), 'OBDC')}:" in str(e.value)
-    path = _flat_stop(tmp_path, ["ELOB 1 0.5 0"])
-    with pytest.raises(ZemaxFileError, match="elliptical obscuration on a flat surface in air"):
-        read_zmx(path)
+
+
+def _dummy_before_stop(tmp_path, lines, name="d.zmx"):
+    """The singlet with a flat surface in air 1 mm before its stop carrying ``lines``."""
+    text = singlet(aperture="FLOA").replace(
+        "SURF 1\n  STOP", "SURF 1\n  TYPE STANDARD\n  CURV 0.0\n  DISZ 1\n"
+        + "".join(f"  {x}\n" for x in lines) + "SURF 2\n  STOP", 1)
+    n = 0   # renumber the SURF lines that follow
+    out = []
+    for ln in text.splitlines():
+        if ln.startswith("SURF "):
+            ln = f"SURF {n}"
+            n += 1
+        out.append(ln)
+    return write(tmp_path, "\n".join(out) + "\n", name)
+
+
+def test_elob_on_a_flat_surface_in_air_blocks_exactly_the_inner_rays(tmp_path):
+    """``ELOB 1.5 0.8`` on a flat surface in air before the stop (a secondary's shadow on a
+    dummy plane): an :class:`Aperture` whose opening is a circle less the ellipse; rays
+    1e-6 mm inside the ellipse at nine angles are blocked, 1e-6 mm outside pass.  The JSON
+    round trip is exact; the .zmx one writes ELOB alone (OpticStudio gives a surface one
+    aperture type, so no CLAP beside it: the fixed DIAM is read back as an automatic
+    semi-diameter, with a note) and keeps every verdict."""
+    with pytest.warns(UserWarning, match="beside an ELOB"):
+        lens = read_zmx(_dummy_before_stop(tmp_path, ["ELOB 1.5 0.8 0", 'DIAM 4 1 0 0 1 ""']))
+    ap = lens.surfaces[0]
+    assert isinstance(ap, Aperture) and obscuration_ellipse_of(ap) == (1.5, 0.8)
+    _check_rim(lens, 1.5, 0.8, obscuration=True, z0=-0.5)
+    d = lens_to_dict(lens)
+    assert d["surfaces"][0]["obscuration_ellipse_mm"] == [1.5, 0.8]
+    assert lens_to_dict(lens_from_dict(d)) == d
+    write_zmx(lens, tmp_path / "out.zmx")
+    text = (tmp_path / "out.zmx").read_text()
+    block = text[text.index("SURF 1"):text.index("SURF 2")]
+    assert "ELOB 1.5 0.8 0" in block and "CLAP" not in block
+    with pytest.warns(UserWarning, match="beside an ELOB"):
+        again = read_zmx(tmp_path / "out.zmx")
+    assert obscuration_ellipse_of(again.surfaces[0]) == (1.5, 0.8)
+    _check_rim(again, 1.5, 0.8, obscuration=True, z0=-0.5)
+    with pytest.raises(LensFileError, match="elliptical obscuration has no CODE V record"):
+        write_seq(lens, tmp_path / "out.seq")
 
 
 def test_set_clear_ellipse_refuses_beside_a_rectangle_and_on_a_stop():
