@@ -563,6 +563,9 @@ class Lens(nn.Module):
         is computed from, becomes that radius."""
 
         stop = self.stop
+        if stop.law == "stop" and stop.opening.outer.kind == "ellipse":
+            raise LensError("an EPD or F-number aperture needs a circular or rectangular stop "
+                            "(this Aperture is elliptical)", key="aperture")
         p = paraxial(self)
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)

@@ -9,6 +9,8 @@ the compiled one, whose fused kernels clip by a centred circle or rectangle only
 
 * :class:`Circle` ``(radius)``: ``(x - d_x)^2 + (y - d_y)^2 <= r^2``;
 * :class:`Rectangle` ``(half_widths)``: ``|x - d_x| <= w_x`` and ``|y - d_y| <= w_y``;
+* :class:`Ellipse` ``(half_axes)``: ``((x - d_x) / a)^2 + ((y - d_y) / b)^2 <= 1``, ``a`` along
+  the local x axis and ``b`` along y (Zemax's ``ELAP``/``ELOB``, CODE V's ``ELX``/``ELY``);
 * :class:`Everywhere`: no limit (a coordinate break).
 
 and their compositions: ``a & b`` (:class:`Intersection`: inside both) and ``a - b``
@@ -33,8 +35,8 @@ import math
 
 import torch
 
-__all__ = ["Opening", "Circle", "Rectangle", "Everywhere", "Intersection", "Difference",
-           "annulus", "in_circle", "in_rect"]
+__all__ = ["Opening", "Circle", "Rectangle", "Ellipse", "Everywhere", "Intersection",
+           "Difference", "annulus", "in_circle", "in_rect", "in_ellipse"]
 
 
 def in_circle(X, Y, r):
@@ -49,6 +51,14 @@ def in_rect(X, Y, half_widths):
     return (X.abs() <= half_widths[0]) & (Y.abs() <= half_widths[1])
 
 
+def in_ellipse(X, Y, half_axes):
+    """``(X / a)^2 + (Y / b)^2 <= 1``: inside an ellipse about the origin of half-axes
+    ``half_axes = (a, b)`` (mm; ``a`` along x, ``b`` along y).  Shapes: ``X``, ``Y`` ``(*B,)``,
+    ``half_axes`` ``(2,)``; returns ``(*B,)`` bool.  Eager only (no fused kernel clips by it)."""
+    u, v = X / half_axes[0], Y / half_axes[1]
+    return u * u + v * v <= 1.0
+
+
 def _tensor(v, shape=()):
     t = torch.as_tensor(v, dtype=torch.float64) if not torch.is_tensor(v) else v
     if tuple(t.shape) != shape:
@@ -61,7 +71,8 @@ class Opening:
     (the closed complement of the interior: ``a - b`` keeps ``b``'s boundary) and
     :meth:`bounds`."""
 
-    #: ``"circle"``, ``"rect"``, ``"everywhere"``, ``"intersection"`` or ``"difference"``
+    #: ``"circle"``, ``"rect"``, ``"ellipse"``, ``"everywhere"``, ``"intersection"`` or
+    #: ``"difference"``
     kind = "opening"
 
     def contains(self, x, y):
@@ -182,6 +193,39 @@ class Rectangle(_Centred):
 
     def __repr__(self) -> str:
         return f"Rectangle({[float(v) for v in self.half_widths]}" + (
+            f", decenter={list(self._centre())})" if self.decenter is not None else ")")
+
+
+class Ellipse(_Centred):
+    """An ellipse of half-axes ``(a, b)`` (mm, ``> 0``; ``a`` along the local x axis, ``b``
+    along y) about ``decenter``: ``((x - d_x) / a)^2 + ((y - d_y) / b)^2 <= 1``
+    (:func:`in_ellipse`).  With ``a = b`` it is the circle of that radius.  Never a fused
+    kernel's clip (:attr:`kernel_clip` is ``None``): a surface with one runs eager."""
+
+    kind = "ellipse"
+
+    def __init__(self, half_axes, decenter=None, check: bool = True):
+        super().__init__(decenter, check)
+        self.half_axes = _tensor(half_axes, (2,)) if check else half_axes
+        if check and not bool(((self.half_axes > 0) & torch.isfinite(self.half_axes)).all()):
+            raise ValueError(f"Ellipse: half-axes must be finite and > 0 mm, got "
+                             f"{self.half_axes.tolist()}")
+
+    def contains(self, x, y):
+        u, v = self._local(x, y)
+        return in_ellipse(u, v, self.half_axes.to(x))
+
+    def outside(self, x, y):
+        u, v = self._local(x, y)
+        ab = self.half_axes.to(x)
+        p, q = u / ab[0], v / ab[1]
+        return p * p + q * q >= 1.0
+
+    def bounds(self):
+        return self._centre(), max(float(v) for v in self.half_axes)
+
+    def __repr__(self) -> str:
+        return f"Ellipse({[float(v) for v in self.half_axes]}" + (
             f", decenter={list(self._centre())})" if self.decenter is not None else ")")
 
 

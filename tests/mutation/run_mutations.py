@@ -58,6 +58,7 @@ RENDER_IMAGE = ("tests/render/test_render_image.py",)
 API = ("tests/optics/test_normalized.py", "tests/optics/test_prescription.py")
 TRAINING_UX = ("tests/training/test_training_ux.py",)
 VSTOP = ("tests/optics/test_virtual_stop.py",)
+ELLIPSE = ("tests/optics/io/test_elliptical_apertures.py",)
 REFRACT = ("tests/optics/test_refract.py",)
 CROSSING = ("tests/optics/test_crossing_azimuths.py",)
 PIXEL = ("tests/render/test_diffraction_pixel.py",)
@@ -1034,8 +1035,8 @@ MUTATIONS = [
     # ------------------- CODE V rectangular apertures (issue 37, branch seq3)
     Mutation("codev_rex_full_width", "CODE V's REX/REY read as full widths (half-widths halved)",
              "deeplens/optics/io/codev_apertures.py",
-             '    hx, hy = r["REX"][0] * u, r["REY"][0] * u',
-             '    hx, hy = r["REX"][0] * u / 2, r["REY"][0] * u / 2', CODEV_APERTURES),
+             '    hx, hy = r[sizes[0]][0] * u, r[sizes[1]][0] * u',
+             '    hx, hy = r[sizes[0]][0] * u / 2, r[sizes[1]][0] * u / 2', CODEV_APERTURES),
     Mutation("codev_ady_sign", "CODE V's ADX/ADY read as the negated aperture centre",
              "deeplens/optics/io/codev_apertures.py",
              '    dec = (r["ADX"][0] * u if "ADX" in r else 0.0, r["ADY"][0] * u if "ADY" in r '
@@ -1096,6 +1097,17 @@ MUTATIONS = [
              "                f = sd / float(torch.linalg.vector_norm(stop.half_widths))\n"
              "                stop.half_widths.mul_(f)\n",
              SET6_RULES),
+    # ------------------- elliptical apertures and obscurations (issue 37, branch ellipse)
+    Mutation("ellipse_half_axes_swapped", "an ellipse's half-axes swapped (a along y, b along x)",
+             "deeplens/optics/openings.py", "    u, v = X / half_axes[0], Y / half_axes[1]",
+             "    u, v = X / half_axes[1], Y / half_axes[0]", ELLIPSE),
+    Mutation("elap_read_as_y_then_x", "ELAP's numbers read as (y half-axis, x half-axis)",
+             "deeplens/optics/io/zmx_parse.py", "        cur.elap = (a, b, ln)",
+             "        cur.elap = (b, a, ln)", ELLIPSE),
+    Mutation("ellipse_obscuration_inverted", "an elliptical obscuration passes the rays inside "
+             "it and blocks those outside", "deeplens/optics/surfaces/base.py",
+             "        opening = opening - Ellipse(obs, check=False)",
+             "        opening = opening & Ellipse(obs, check=False)", ELLIPSE),
 ]
 
 

@@ -57,8 +57,9 @@ sign convention being deeplens' and OpticStudio's).
 
 Decenters and tilts (``XDE`` ... ``CDE``, ``DAR``, ``BEN``, ``REV``, ``RET``) become
 :class:`~deeplens.optics.surfaces.CoordinateBreak` surfaces (:mod:`.codev_decenter`, which
-states each convention and its source); rectangular apertures (``REX``, ``REY``, ``ADX``,
-``ADY``) a surface's clear rectangle or a rectangular aperture (:mod:`.codev_apertures`).
+states each convention and its source); rectangular and elliptical apertures (``REX``,
+``REY`` or ``ELX``, ``ELY``, with ``ADX``, ``ADY``) a surface's clear rectangle or ellipse, or a
+rectangular or elliptical aperture (:mod:`.codev_apertures`).
 ``DIM`` may stand anywhere (the unit of every length); ``POL N`` and a bare ``CA`` (with a
 warning) are read and not used.  A zoom lens (``ZOO``, :mod:`.codev_zoom`) is read at one zoom
 position (``read_seq(path, zoom=N)``) or at every one (:func:`read_seq_zooms`).
@@ -425,7 +426,7 @@ class _Reader:
             self.surface(cmd, args, line)
         elif cmd in DECENTER_COMMANDS and self.surfs:   # decenters and tilts: codev_decenter
             decenter_command(self.surfs[-1], cmd, args, line, self.nums, self.fail)
-        elif cmd in APERTURE_COMMANDS and self.surfs:   # rectangles: codev_apertures
+        elif cmd in APERTURE_COMMANDS and self.surfs:   # rectangles, ellipses: codev_apertures
             aperture_command(self.surfs[-1], cmd, args, line, self.nums, self.fail)
         else:
             self.modifier(cmd, args, line)
@@ -740,7 +741,7 @@ def _build(rd: _Reader, path: Path) -> Lens:
         if s["cir"] is None and not s.get("rect"):
             autos.append(len(surfaces))
         surf = FORMATS.for_codev_type(s["type"]).read_codev(s, c, sd, u, flat_air)
-        surf = apply_aperture(s, surf, u, flat_air, fail)   # REX, REY: a rectangle
+        surf = apply_aperture(s, surf, u, flat_air, fail)   # REX/REY, ELX/ELY
         if s.get("obs") is not None:
             obs.append((len(surfaces), s["obs"]))
         if s["stop"]:
@@ -786,7 +787,8 @@ def _build(rd: _Reader, path: Path) -> Lens:
                     mirrors=mirrors)
     except ValueError as e:
         idx = getattr(e, "surfaces", ())
-        fail(where[idx[0]] if idx else None, str(e))
+        aperture = getattr(e, "key", None) == "aperture"   # e.g. EPD on a rectangular stop
+        fail(where[idx[0]] if idx else ap_line if aperture else None, str(e))
     if fno_finite:
         ap_value = _working_fno_epd(lens, obj_dist, value, ap_line, fail)
         _warn(src, ap_line, f"FNO {value!r} with the object at a finite distance: read as the "
@@ -1095,7 +1097,7 @@ def write_seq(lens: Lens, path) -> None:
             out.append(f"S {head} {_f(after)}" + (f" {g}" if g else ""))
             if is_stop:
                 mods.insert(0, "STO")
-            rect = write_aperture(s)   # REX, REY (ADX, ADY): codev_apertures
+            rect = write_aperture(s, i)   # REX/REY or ELX/ELY (ADX, ADY): codev_apertures
             clear = float(getattr(s, "clear_radius", math.inf))
             mods += rect or [f"CIR {_f(s.semi_diameter if math.isinf(clear) else clear)}"]
             if float(getattr(s, "obscuration", 0.0)) > 0:

@@ -35,8 +35,12 @@ mirrors are negative, and so is the sensor distance then).  A ``coordinate_break
 following surface (folds, off-axis sections; see ``docs/guide/mirrors.md``).  Per type:
 ``asphere`` takes ``curvature_per_mm`` (or ``roc_mm``, 0 = flat), optional ``conic`` and
 ``aspheric`` (``[a4, a6, ...]``); ``xy_polynomial`` takes ``coefficients`` and ``b``; ``bspline``
-takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` with
-``half_width_x_mm``/``half_width_y_mm``; ``ideal_lens`` takes ``focal_length_mm``.  The surface
+takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` (or ``"ellipse"``)
+with ``half_width_x_mm``/``half_width_y_mm`` (an ellipse's half-axes); ``ideal_lens`` takes
+``focal_length_mm``.  Any lens or mirror surface may carry ``clear_rect_mm`` ``[h_x, h_y]``,
+``clear_ellipse_mm`` ``[a, b]`` (an elliptical clear aperture, half-axes along x and y, about
+``clear_decenter_mm``) or ``obscuration_ellipse_mm`` ``[a, b]`` (an elliptical obscuration about
+the vertex).  The surface
 types are those registered in :data:`~deeplens.optics.surfaces.SURFACE_TYPES`; each type reads
 and writes its own fields (``from_dict``/``to_dict``), so whatever is written can be read.
 A glass that :func:`~deeplens.optics.materials.get_material` does not know by name (a vendor
@@ -69,7 +73,9 @@ from ..frames import travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
 from ..surfaces import SURFACE_TYPES, Aperture, Cylinder, IdealLens
-from ..surfaces.base import clear_rect_of, set_clear_rect, takes_clear_rect
+from ..surfaces.base import (clear_ellipse_of, clear_rect_of, obscuration_ellipse_of,
+                            set_clear_ellipse, set_clear_rect, set_obscuration_ellipse,
+                            takes_clear_rect)
 from .atomic import replace, temp_path
 from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 from .filecheck import read_file_bytes
@@ -208,8 +214,12 @@ def _surface_from_dict(r: _Reader, s: dict, path: str):
     # does not read it itself (set_clear_rect)
     generic_rect = (takes_clear_rect(cls) and "clear_rect_mm" not in cls.file_fields
                     and not issubclass(cls, (Aperture, Cylinder, IdealLens)))
-    r.keys(s, _COMMON_KEYS | set(cls.file_fields) | ({"clear_rect_mm"} if generic_rect else set()),
-           path)
+    # an elliptical clear aperture or obscuration (clear_ellipse_mm, obscuration_ellipse_mm)
+    # on any such surface, an asphere's included (set_clear_ellipse, set_obscuration_ellipse)
+    ellipses = {"clear_ellipse_mm", "obscuration_ellipse_mm"} if (
+        takes_clear_rect(cls) and not issubclass(cls, (Aperture, Cylinder, IdealLens))) else set()
+    r.keys(s, _COMMON_KEYS | set(cls.file_fields) | ({"clear_rect_mm"} if generic_rect else set())
+           | ellipses, path)
     sd = r.get(s, "semi_diameter_mm", path)
     if not sd > 0:
         r.fail(f"{path}.semi_diameter_mm", f"must be > 0 mm, got {sd!r}")
@@ -222,6 +232,19 @@ def _surface_from_dict(r: _Reader, s: dict, path: str):
             set_clear_rect(surf, rect)
         except ValueError as e:
             r.fail(f"{path}.clear_rect_mm", str(e))
+    for key, setter in (("clear_ellipse_mm", set_clear_ellipse),
+                        ("obscuration_ellipse_mm", set_obscuration_ellipse)):
+        if key in ellipses and key in s:
+            ab = r.get(s, key, path, "numbers")
+            try:
+                if len(ab) != 2:
+                    raise ValueError(f"expected two half-axes [a, b] (mm, along x and y), got "
+                                     f"{ab!r}")
+                setter(surf, ab)
+            except ValueError as e:
+                r.fail(f"{path}.{key}", str(e))
+            with torch.no_grad():   # the file's semi-diameter stands (a stop's pupil radius)
+                surf.semi_diameter.fill_(sd)
     return surf
 
 
@@ -415,6 +438,10 @@ def lens_to_dict(lens: Lens) -> dict:
         rect = clear_rect_of(s)
         if rect is not None and "clear_rect_mm" not in d:
             d["clear_rect_mm"] = list(rect)
+        for key, ab in (("clear_ellipse_mm", clear_ellipse_of(s)),
+                        ("obscuration_ellipse_mm", obscuration_ellipse_of(s))):
+            if ab is not None:
+                d[key] = list(ab)
         d["distance_mm"] = float(lens.distances[i])
         d["material"] = "MIRROR" if i in lens.mirrors else _material_json(lens.materials[i + 1],
                                                                            spec)

@@ -56,7 +56,7 @@ from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
                         IdealLens, IdealLensXY, OddAsphere, Plane, QType, Toroid, XYPolynomial,
                         ZernikeFringeSag, ZernikeSag)
-from ..surfaces.base import clear_rect_of
+from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
@@ -409,7 +409,14 @@ def _opening_records(s, i: int) -> list[str]:
     each with ``OBDC`` when decentred, then ``OBSC`` (a central obscuration)."""
     out = []
     rect = getattr(s, "clear_rect", None)
-    if rect is not None and bool(rect.any()):
+    ell = clear_ellipse_of(s)
+    if ell is not None:
+        if abs(float(s.clear_radius) - max(ell)) > 1e-12 * float(s.clear_radius):
+            raise ZemaxFileError(f"surface {i}: an elliptical clear aperture inside a narrower "
+                                 f"clear circle has no Zemax record (ELAP or CLAP, not both)",
+                                 surfaces=(i,))
+        out.append(f"ELAP {_f(ell[0])} {_f(ell[1])} 0")
+    elif rect is not None and bool(rect.any()):
         if abs(float(s.clear_radius) - math.hypot(*map(float, rect))) > 1e-12 * \
                 float(s.clear_radius):
             raise ZemaxFileError(f"surface {i}: a rectangular clear aperture inside a narrower "
@@ -420,6 +427,13 @@ def _opening_records(s, i: int) -> list[str]:
         out.append(f"CLAP 0 {_f(s.clear_radius)} 0")
     if out and bool(s.clear_decenter.any()):
         out.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
+    obs = obscuration_ellipse_of(s)
+    if obs is not None and (out or float(s.obscuration) > 0):
+        raise ZemaxFileError(f"surface {i}: an elliptical obscuration beside another surface "
+                             f"aperture has no Zemax record (one aperture type per surface)",
+                             surfaces=(i,))
+    if obs is not None:
+        out.append(f"ELOB {_f(obs[0])} {_f(obs[1])} 0")
     if float(s.obscuration) > 0:
         out.append(f"OBSC 0 {_f(s.obscuration)} 0")
     return out
@@ -459,6 +473,8 @@ class ApertureFormat(SurfaceFormat):
             lines.append(_diam(sd))
         if s.shape == "rect":
             lines.append(f"SQAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
+        elif s.shape == "ellipse":
+            lines.append(f"ELAP {_f(s.half_widths[0])} {_f(s.half_widths[1])} 0")
         elif s.decentred:   # OBDC moves a CLAP (annular: with its obscuration), not a DIAM
             if float(s.obscuration_inner) > 0:
                 raise ZemaxFileError(f"surface {i}: a decentred opening with a ring obscuration "
@@ -468,6 +484,13 @@ class ApertureFormat(SurfaceFormat):
         if float(s.obscuration) > 0 and not s.decentred:   # a ring: OBSC inner outer
             ri = float(s.obscuration_inner)
             lines.append(f"OBSC {_f(ri) if ri > 0 else 0} {_f(s.obscuration)} 0")
+        ell = obscuration_ellipse_of(s)
+        if ell is not None:   # its only surface aperture (no CLAP: one type per surface)
+            if s.decentred:
+                raise ZemaxFileError(f"surface {i}: a decentred elliptical obscuration has no "
+                                     f"Zemax record here (OBDC with ELOB is not read)",
+                                     surfaces=(i,))
+            lines.append(f"ELOB {_f(ell[0])} {_f(ell[1])} 0")
         if s.decentred:
             lines.append(f"OBDC {_f(s.decenter[0])} {_f(s.decenter[1])}")
         return lines
@@ -529,6 +552,9 @@ class _StandardFamily(SurfaceFormat):
         if s.sqap is not None and flat and in_air and not s.mirror:
             hx, hy, _ = s.sqap
             return Aperture(sd if sd > 0 else None, "rect", hx * s_mm, hy * s_mm)
+        if s.elap is not None and flat and in_air and not s.mirror:   # ELAP: an ellipse
+            a, b, _ = s.elap
+            return Aperture(sd if sd > 0 else None, "ellipse", a * s_mm, b * s_mm)
         if s.obsc is not None and flat and in_air:
             # OpticStudio clips only on the obscuration here (and on a CLAP or a fixed
             # DIAM): an automatic DIAM, the beam's extent, is widened by 1 %
@@ -537,6 +563,10 @@ class _StandardFamily(SurfaceFormat):
             ri = 0.0 if s.obsc_inner is None else s.obsc_inner[0] * s_mm   # a ring baffle
             return Aperture(outer if outer > 0 else 2.0 * ro, obscuration=ro,
                             obscuration_inner=ri)
+        if s.elob is not None and flat and in_air:   # ELOB: as OBSC, an elliptical one
+            outer = sd if (ctx.fixed or s.stop) else 1.01 * sd
+            ab = (s.elob[0] * s_mm, s.elob[1] * s_mm)
+            return Aperture(outer if outer > max(ab) else 2.0 * max(ab), obscuration_ellipse=ab)
         if flat and in_air and not s.mirror:
             return Aperture(sd_build)
         if flat and s.obdc is None:
@@ -598,9 +628,12 @@ class AsphereFormat(_StandardFamily):
     def write_codev(self, s, i, stop):
         # a central obscuration is written by write_seq (CIR OBS)
         rect = clear_rect_of(s)   # REX/REY (ADX/ADY), written by write_seq: its clear circle
-        as_read = rect is not None and float(s.clear_radius) == math.hypot(*rect)   # circumscribes
+        ell = clear_ellipse_of(s)   # ELX/ELY likewise
+        as_read = ((rect is not None and float(s.clear_radius) == math.hypot(*rect))
+                   or (ell is not None and float(s.clear_radius) == max(ell)))   # circumscribes
         if not as_read and ((math.isfinite(float(s.clear_radius)) and not stop) or
-                            rect is not None or any(float(v) for v in s.clear_decenter)):
+                            rect is not None or ell is not None
+                            or any(float(v) for v in s.clear_decenter)):
             raise LensFileError(f"surface {i}: a decentred clear aperture or one narrower than "
                                 f"the semi-diameter (other than on the stop) has no CODE V "
                                 f"equivalent here", surfaces=(i,))

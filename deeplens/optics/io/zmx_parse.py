@@ -122,6 +122,8 @@ class ZmxSurface:
     xdat: dict = field(default_factory=dict)   # index -> (value, line)
     clap: tuple | None = None
     sqap: tuple | None = None   # (x half-width, y half-width, line) in file units
+    elap: tuple | None = None   # (x half-axis, y half-axis, line): an elliptical aperture
+    elob: tuple | None = None   # (x half-axis, y half-axis, line): an elliptical obscuration
     obsc: tuple | None = None   # (obscuration's outer radius, line) in file units
     obsc_inner: tuple | None = None   # (a ring obscuration's inner radius > 0, line): OBSC lo hi
     mirror: bool = False               # GLAS MIRROR
@@ -446,6 +448,22 @@ def _sqap(st: _Parse, r: Record) -> None:
     st.cur.sqap = (p.arg(toks, 1, ln, "x half-width"), p.arg(toks, 2, ln, "y half-width"), ln)
 
 
+def _ellipse(st: _Parse, r: Record) -> None:
+    """``ELAP a b`` (an elliptical aperture) or ``ELOB a b`` (an elliptical obscuration): the
+    ellipse's half-axes along the local x and y axes, in lens units, as ``SQAP``/``SQOB`` give
+    a rectangle's half-widths (further numbers, as ``SQAP``'s, are not read)."""
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    k = len(st.surfs) - 1
+    a, b = p.arg(toks, 1, ln, "x half-axis"), p.arg(toks, 2, ln, "y half-axis")
+    if not (a > 0 and b > 0):
+        p.fail(ln, f"{r.key} on SURF {k}: expected two half-axes > 0 (x, then y), got {a:g}, "
+                   f"{b:g}")
+    if r.key == "ELAP":
+        cur.elap = (a, b, ln)
+    else:
+        cur.elob = (a, b, ln)
+
+
 def _obdc(st: _Parse, r: Record) -> None:
     p, toks, ln = st.p, r.tokens, r.line
     dec = (p.arg(toks, 1, ln, "x decenter"), p.arg(toks, 2, ln, "y decenter"))
@@ -485,15 +503,15 @@ def _garr(st: _Parse, r: Record) -> None:
 
 
 _APERTURES_REFUSED = {
-    "ELAP": "an elliptical aperture", "SQOB": "a rectangular obscuration",
-    "ELOB": "an elliptical obscuration", "UDAD": "a user-defined aperture", "SPID": "a spider"}
+    "SQOB": "a rectangular obscuration", "UDAD": "a user-defined aperture", "SPID": "a spider"}
 
 
 def _aperture_refused(st: _Parse, r: Record) -> None:
     key = r.key
     st.p.fail(r.line, f"{key} on SURF {len(st.surfs) - 1}: {_APERTURES_REFUSED[key]} is not "
-                      f"supported (deeplens reads circular clear apertures: DIAM, CLAP with "
-                      f"minimum radius 0)")
+                      f"supported (deeplens reads circular, rectangular and elliptical "
+                      f"apertures: DIAM, CLAP, SQAP, ELAP; circular and elliptical "
+                      f"obscurations: OBSC, ELOB)")
 
 
 def _surface_ignored(st: _Parse, r: Record) -> None:
@@ -514,7 +532,7 @@ _SYSTEM_OPERANDS = {
 _SURFACE_OPERANDS = {
     "TYPE": _type, "CURV": _curv, "DISZ": _disz, "CONI": _coni, "DIAM": _diam, "STOP": _stop,
     "PARM": _parm, "XDAT": _xdat, "GLAS": _glas, "CLAP": _clap, "OBSC": _obsc, "SQAP": _sqap,
-    "OBDC": _obdc, "GDAT": _gdat, "GARR": _garr,
+    "OBDC": _obdc, "GDAT": _gdat, "GARR": _garr, "ELAP": _ellipse, "ELOB": _ellipse,
     **dict.fromkeys(_APERTURES_REFUSED, _aperture_refused),
     **dict.fromkeys(("TCE", "COAT", "PZUP", "SCBD"), _surface_ignored),
 }
@@ -648,7 +666,8 @@ def _check_magnitudes(sysd: dict, surfs: list[ZmxSurface], p: Locator) -> None:
         length(s.diam, s.diam_line, f"DIAM (SURF {k} semi-diameter)")
         for rec, what in ((s.clap, "CLAP radius"), (s.obsc, "obscuration radius"),
                           (s.obsc_inner, "ring obscuration's inner radius"),
-                          (s.sqap, "SQAP half-width"), (s.obdc, "OBDC decenter")):
+                          (s.sqap, "SQAP half-width"), (s.obdc, "OBDC decenter"),
+                          (s.elap, "ELAP half-axis"), (s.elob, "ELOB half-axis")):
             if rec is not None:
                 for v in rec[:-1]:
                     length(v, rec[-1], f"{what} (SURF {k})")

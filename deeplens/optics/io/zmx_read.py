@@ -572,7 +572,8 @@ def _estimated(kept, stop_idx: int, i: int) -> bool:
     an automatic ``DIAM`` (flag 0, OpticStudio's own estimate written to the file, or none),
     neither fixed nor a ``CLAP``, and not the stop (whose radius is the pupil's)."""
     s = kept[i][2]
-    return i != stop_idx and not s.diam_fixed and s.clap is None and s.sqap is None
+    return (i != stop_idx and not s.diam_fixed and s.clap is None and s.sqap is None
+            and s.elap is None)
 
 
 def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict,

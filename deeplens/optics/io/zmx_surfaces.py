@@ -5,8 +5,11 @@ The block's ``TYPE`` names its handler in the file-format registry
 mapping of each Zemax type onto deeplens: :mod:`.surface_handlers`), which builds the surface;
 what is common to every type is here: a flat surface between one medium, not the stop, with no
 fixed aperture is a dummy (its thickness only); an automatic semi-diameter; ``SQAP`` on any type
-(a rectangular clear aperture, :func:`~deeplens.optics.surfaces.base.set_clear_rect`), ``OBDC``
-(the decenter of a ``CLAP`` or ``SQAP``) and ``OBSC`` (a central obscuration).  Lengths are
+(a rectangular clear aperture, :func:`~deeplens.optics.surfaces.base.set_clear_rect`), ``ELAP``
+likewise (an elliptical one, :func:`~deeplens.optics.surfaces.base.set_clear_ellipse`), ``OBDC``
+(the decenter of a ``CLAP``, ``SQAP`` or ``ELAP``), ``OBSC`` (a central obscuration) and ``ELOB``
+(an elliptical obscuration about the vertex of a lens or mirror surface,
+:func:`~deeplens.optics.surfaces.base.set_obscuration_ellipse`).  Lengths are
 scaled from file units to mm here (``s_mm``); errors are raised through the reader's
 :class:`~.zmx_parse.Locator`.
 """
@@ -21,7 +24,8 @@ import torch
 from ..errors import ZemaxFileError
 from ..materials import Material
 from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, ZernikeSag
-from ..surfaces.base import clear_rect_of, set_clear_rect, takes_clear_rect
+from ..surfaces.base import (clear_ellipse_of, clear_rect_of, set_clear_ellipse,
+                            set_clear_rect, set_obscuration_ellipse, takes_clear_rect)
 from .surface_formats import ZmxContext
 from .surface_handlers import FORMATS, PROVISIONAL_SD_MM, is_air
 from .zmx_parse import Locator, ZmxSurface
@@ -36,8 +40,10 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     the lens is built), or ``None`` for a dummy surface (only its thickness counts).  ``folded``:
     the lens has a fold or an off-axis section, where every semi-diameter not fixed is
     automatic."""
-    if s.obdc is not None and s.clap is None and s.sqap is None and s.obsc is None:
-        p.note(s.obdc[2], f"OBDC on SURF {k}: the surface has no aperture (CLAP, SQAP) to "
+    _check_ellipses(s, k, p)
+    if (s.obdc is not None and s.clap is None and s.sqap is None and s.obsc is None
+            and s.elap is None and s.elob is None):
+        p.note(s.obdc[2], f"OBDC on SURF {k}: the surface has no aperture (CLAP, SQAP, ELAP) to "
                           f"decentre; ignored")
         s.obdc = None
     c = s.curv / s_mm
@@ -52,7 +58,8 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     flat = handler.zmx_flat(s, ctx)
     same_medium = (type(mat) is type(prev) and mat.name == prev.name)
     if (flat and same_medium and not s.stop and not fixed and s.clap is None
-            and s.sqap is None and s.obsc is None and not s.mirror):
+            and s.sqap is None and s.obsc is None and s.elap is None and s.elob is None
+            and not s.mirror):
         return None   # a dummy surface: its thickness only
     # OpticStudio applies a floating aperture (a circular aperture at the semi-diameter) for a
     # user-defined semi-diameter only on a surface with refractive power and no surface
@@ -60,8 +67,9 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     # dummy, or an OBSC's plane in air) a fixed DIAM is drawn, never clips.  The surface is
     # kept (its place, its obscuration) with an automatic semi-diameter: the beam's extent
     if (fixed and flat and same_medium and not s.stop and not s.mirror and s.clap is None
-            and s.sqap is None):
+            and s.sqap is None and s.elap is None):
         what = ("beside an OBSC (a surface aperture)" if s.obsc is not None else
+                "beside an ELOB (a surface aperture)" if s.elob is not None else
                 "of a flat surface in one medium with no surface aperture (CLAP, SQAP, OBSC)")
         p.note(s.diam_line, f"SURF {k}: the fixed DIAM {s.diam:g} {what} does not clip rays in "
                             f"OpticStudio (its floating aperture is applied only on a surface "
@@ -101,6 +109,32 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             with torch.no_grad():
                 surf.semi_diameter.fill_(sd)
         auto = False
+    if (s.elap is not None and takes_clear_rect(surf)
+            and not isinstance(surf, (Aperture, Cylinder, IdealLens))):
+        # an elliptical opening of a lens or mirror surface of any type the rays land on, as
+        # SQAP's rectangle: within its circumscribed circle, which the semi-diameter encloses
+        try:
+            set_clear_ellipse(surf, (s.elap[0] * s_mm, s.elap[1] * s_mm))
+        except ValueError as e:
+            p.fail(s.elap[2], f"ELAP on SURF {k}: {e}")
+        if s.stop and sd > 0:   # as SQAP's: vignettes the pupil the system aperture gives
+            with torch.no_grad():
+                surf.semi_diameter.fill_(sd)
+        auto = False
+    if s.elob is not None and not isinstance(surf, Aperture):   # (an Aperture: built with it)
+        if isinstance(surf, (Cylinder, IdealLens)) or not takes_clear_rect(surf):
+            p.fail(s.elob[2], f"ELOB on SURF {k}: an elliptical obscuration on a "
+                              f"{type(surf).__name__} surface is not supported (deeplens has "
+                              f"elliptical obscurations on flat surfaces in air and on lens "
+                              f"and mirror surfaces)")
+        if auto:   # the obscuration is compared with the semi-diameter once that is set
+            with torch.no_grad():
+                surf.semi_diameter.fill_(max(float(surf.semi_diameter),
+                                             1.01 * max(s.elob[:2]) * s_mm))
+        try:
+            set_obscuration_ellipse(surf, (s.elob[0] * s_mm, s.elob[1] * s_mm))
+        except ValueError as e:
+            p.fail(s.elob[2], f"ELOB on SURF {k}: {e}")
     if s.obdc is not None:   # the decenter of the opening (not on the stop)
         dec = _aperture_decenter(s, k, surf, s_mm, p)
         if isinstance(surf, Aperture):
@@ -155,9 +189,39 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                           f"rectangular apertures on flat stops in air, on cylinders, and alone "
                           f"(no CLAP or OBSC) on any other lens or mirror surface, tilted "
                           f"planes and XY polynomials included)")
-    if auto and isinstance(surf, Aperture) and surf.shape == "rect":
-        auto = False   # its semi-diameter is the rectangle's half-diagonal
+    if s.elap is not None and not (
+            (isinstance(surf, Aperture) and surf.shape == "ellipse")
+            or clear_ellipse_of(surf) is not None):
+        p.fail(s.elap[2], f"ELAP on SURF {k}: an elliptical aperture on a {type(surf).__name__} "
+                          f"surface is not supported (deeplens has elliptical apertures on flat "
+                          f"surfaces in air and on any other lens or mirror surface, cylinders "
+                          f"and ideal lenses excepted)")
+    if auto and isinstance(surf, Aperture) and surf.shape in ("rect", "ellipse"):
+        auto = False   # its semi-diameter is the rectangle's or ellipse's circumscribed circle
     return surf, auto
+
+
+def _check_ellipses(s: ZmxSurface, k: int, p: Locator) -> None:
+    """An ``ELAP`` or ``ELOB`` is the surface's one surface aperture (OpticStudio gives each
+    surface one aperture type): beside a ``CLAP``, ``SQAP``, ``OBSC`` or the other ellipse
+    record it is refused with its line, as ``SQAP`` is beside a ``CLAP`` or ``OBSC``; an
+    ``OBDC`` does not move an ``ELOB`` (refused, as for an ``OBSC`` on a lens surface)."""
+    for rec, key in ((s.elap, "ELAP"), (s.elob, "ELOB")):
+        if rec is None:
+            continue
+        others = [name for name, r in (("CLAP", s.clap), ("SQAP", s.sqap), ("OBSC", s.obsc),
+                                       ("ELAP", s.elap), ("ELOB", s.elob))
+                  if r is not None and name != key]
+        if others:
+            what = "aperture" if key == "ELAP" else "obscuration"
+            p.fail(rec[2], f"{key} on SURF {k}: an elliptical {what} "
+                           f"together with {', '.join(others)} on one surface is not supported "
+                           f"(OpticStudio gives a surface one aperture type; deeplens reads "
+                           f"each alone)")
+    if s.elob is not None and s.obdc is not None:
+        p.fail(s.obdc[2], f"OBDC on SURF {k} with ELOB: a decentred elliptical obscuration is "
+                          f"not supported (deeplens' elliptical obscurations are centred on the "
+                          f"surface's vertex)")
 
 
 def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
@@ -168,7 +232,7 @@ def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
     on the stop."""
     dx, dy, ln = s.obdc
     where = f"OBDC on SURF {k} (aperture decenter {dx:g}, {dy:g})"
-    if s.clap is None and s.sqap is None:   # an OBSC alone (no aperture at all: not called)
+    if s.clap is None and s.sqap is None and s.elap is None:   # an OBSC alone
         p.fail(ln, f"{where}: a decentred obscuration (OBSC) inside a centred semi-diameter is "
                    f"not supported (deeplens decentres a CLAP or SQAP opening, with its "
                    f"obscuration)")
@@ -176,7 +240,7 @@ def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):
         p.fail(ln, f"{where}: a decentred aperture stop is not supported (deeplens' entrance "
                    f"pupil is centred on the axis)")
     if not isinstance(surf, Aperture) and not (
-            type(surf) is Asphere and (s.clap is None) != (s.sqap is None)
+            type(surf) is Asphere and [s.clap, s.sqap, s.elap].count(None) == 2
             and s.obsc is None):
         what = ("an annular or obscured" if s.obsc is not None else
                 "a circular and rectangular (CLAP and SQAP)" if s.sqap is not None

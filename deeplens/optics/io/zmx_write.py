@@ -19,7 +19,7 @@ from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
 from ..surfaces import Aperture, CoordinateBreak
-from ..surfaces.base import clear_rect_of
+from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
 from .agf import AGFGlass
 from .surface_handlers import FORMATS
 from .vendor_glass import BuchdahlGlass
@@ -211,19 +211,28 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
 def _surface_lines(s, i, is_stop) -> list[str]:
     """The records of surface ``i`` after its ``SURF`` line: ``STOP``, then what its type's
     handler in the file-format registry writes (:mod:`.surface_handlers`), with the ``SQAP`` of
-    a rectangular clear aperture on a type whose own records do not write it
-    (:func:`~deeplens.optics.surfaces.base.set_clear_rect`)."""
+    a rectangular clear aperture and the ``ELAP``/``ELOB`` of an elliptical one or an elliptical
+    obscuration on a type whose own records do not write them
+    (:func:`~deeplens.optics.surfaces.base.set_clear_rect`, ``set_clear_ellipse``,
+    ``set_obscuration_ellipse``)."""
     handler = FORMATS.for_surface(s)
     if handler is None or not handler.writes_zmx():
         raise ZemaxFileError(f"surface {i}: {type(s).__name__} has no .zmx equivalent",
                              surfaces=(i,))
     lines = (["STOP"] if is_stop else []) + handler.write_zmx(s, i)
     if (isinstance(s, Aperture) and not is_stop and s.shape == "circle"
-            and not any(ln.startswith("CLAP") for ln in lines)):
+            and not any(ln.startswith(("CLAP", "ELOB")) for ln in lines)):
         # an opening that is not the stop: OpticStudio clips a flat surface only on a surface
-        # aperture (a fixed DIAM there is drawn, never clips): its circle is a CLAP
+        # aperture (a fixed DIAM there is drawn, never clips): its circle is a CLAP (not
+        # beside an ELOB, the surface's one aperture: the DIAM is drawn, the reader sizes it)
         lines.append(f"CLAP 0 {float(s.semi_diameter)!r} 0")
     rect = clear_rect_of(s)
     if rect is not None and not any(ln.startswith("SQAP") for ln in lines):
         lines.append(f"SQAP {_f(rect[0])} {_f(rect[1])} 0")
+    ell = clear_ellipse_of(s)   # ELAP, ELOB (set_clear_ellipse, set_obscuration_ellipse)
+    if ell is not None and not any(ln.startswith("ELAP") for ln in lines):
+        lines.append(f"ELAP {_f(ell[0])} {_f(ell[1])} 0")
+    obs = obscuration_ellipse_of(s)
+    if obs is not None and not any(ln.startswith("ELOB") for ln in lines):
+        lines.append(f"ELOB {_f(obs[0])} {_f(obs[1])} 0")
     return lines

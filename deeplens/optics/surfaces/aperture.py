@@ -5,6 +5,10 @@ obscuration of radius ``r_o`` (an annular opening), only if also ``x^2 + y^2 >= 
 ring obscuration ``r_i <= ρ <= r_o`` (a ring baffle, Zemax's ``OBSC r_i r_o``, ``r_i > 0``), if
 ``x^2 + y^2 >= r_o^2`` or ``x^2 + y^2 <= r_i^2`` (both circles' rims pass).
 Rectangular: it passes if ``|x| <= w_x`` and ``|y| <= w_y`` (half-widths in mm).
+Elliptical: it passes if ``(x / a)^2 + (y / b)^2 <= 1`` (half-axes ``a = w_x``, ``b = w_y`` in mm,
+held in the same ``half_widths`` buffer; Zemax's ``ELAP``, CODE V's ``ELX``/``ELY``).
+An elliptical obscuration of half-axes ``(a_o, b_o)`` (Zemax's ``ELOB`` on a flat surface in
+air) takes out ``(x / a_o)^2 + (y / b_o)^2 < 1`` of a circular opening (its rim passes).
 A decentred opening (``decenter = (d_x, d_y)``, mm; Zemax's ``OBDC``) is the same test on
 ``(x − d_x, y − d_y)``: the opening and its obscuration move together; the plane does not.
 The medium does not change across a stop.
@@ -23,7 +27,7 @@ import math
 import torch
 
 from ..interactions import STOP_CROSSING
-from ..openings import Circle, Opening, Rectangle, in_rect
+from ..openings import Circle, Ellipse, Opening, Rectangle, in_rect
 from .base import host_flags, register_surface
 from .plane import Plane
 
@@ -37,13 +41,18 @@ class Aperture(Plane):
     Args:
         semi_diameter: radius of a circular opening, mm (for a rectangle: its half-diagonal
             is used as semi-diameter when not given).
-        shape: ``"circle"`` or ``"rect"``.
-        half_width_x, half_width_y: half-widths of a rectangular opening, mm.
+        shape: ``"circle"``, ``"rect"`` or ``"ellipse"``.
+        half_width_x, half_width_y: half-widths of a rectangular opening, or half-axes (along
+            x, along y) of an elliptical one, mm.
         obscuration: radius of a central obscuration of a circular opening, mm (``0``: none;
             ``< semi_diameter``); with ``obscuration_inner``, the ring's outer radius.
         obscuration_inner: the inner radius of a ring obscuration, mm (``0``: the obscuration
             is central; else ``0 < obscuration_inner < obscuration``): rays pass inside it and
             outside ``obscuration``.
+        obscuration_ellipse: ``(a_o, b_o)``, mm, or ``None``: an elliptical obscuration of these
+            half-axes (along x, along y) in a circular opening, instead of a circular one; both
+            below ``semi_diameter``.  A fixed buffer ``obscuration_ellipse``, registered only
+            when given (not in ``state_dict``; lens file: ``obscuration_ellipse_mm``).
         decenter: ``(d_x, d_y)``, mm: the centre of the opening (and of its obscuration) in the
             plane; ``(0, 0)`` by default.  A decentred aperture runs eager (the compiled runs
             clip about the axis).
@@ -55,18 +64,21 @@ class Aperture(Plane):
     def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
                  half_width_x: float | None = None, half_width_y: float | None = None,
                  obscuration: float = 0.0, decenter: tuple[float, float] = (0.0, 0.0),
-                 obscuration_inner: float = 0.0):
-        if shape not in ("circle", "rect"):
-            raise ValueError(f"Aperture: shape must be 'circle' or 'rect', got {shape!r}")
-        if shape == "rect":
+                 obscuration_inner: float = 0.0, obscuration_ellipse=None):
+        if shape not in ("circle", "rect", "ellipse"):
+            raise ValueError(f"Aperture: shape must be 'circle', 'rect' or 'ellipse', got "
+                             f"{shape!r}")
+        if shape != "circle":
+            what = "rectangular" if shape == "rect" else "elliptical"
             if half_width_x is None or half_width_y is None:
-                raise ValueError("Aperture: a rectangular aperture needs half_width_x and "
-                                 "half_width_y (mm)")
-            if not (half_width_x > 0 and half_width_y > 0):
-                raise ValueError(f"Aperture: half-widths must be > 0 mm, got "
+                raise ValueError(f"Aperture: a {what} aperture needs half_width_x and "
+                                 f"half_width_y (mm)")
+            if not (0 < half_width_x < math.inf and 0 < half_width_y < math.inf):
+                raise ValueError(f"Aperture: half-widths must be finite and > 0 mm, got "
                                  f"{half_width_x}, {half_width_y}")
-            if semi_diameter is None:
-                semi_diameter = (half_width_x ** 2 + half_width_y ** 2) ** 0.5
+            if semi_diameter is None:   # the circumscribed circle
+                semi_diameter = ((half_width_x ** 2 + half_width_y ** 2) ** 0.5 if shape == "rect"
+                                 else max(half_width_x, half_width_y))
         if semi_diameter is None:
             raise ValueError("Aperture: a circular aperture needs semi_diameter (mm)")
         super().__init__(semi_diameter)
@@ -89,6 +101,16 @@ class Aperture(Plane):
         # with the lens file (obscuration_inner_mm)
         self.register_buffer("obscuration_inner", torch.tensor(ri, dtype=torch.float64),
                              persistent=False)
+        if obscuration_ellipse is not None:
+            ab = [float(v) for v in obscuration_ellipse]
+            if (len(ab) != 2 or shape != "circle" or obscuration != 0.0
+                    or not all(0 < v < float(semi_diameter) for v in ab)):
+                raise ValueError(f"Aperture: an elliptical obscuration needs a circular opening "
+                                 f"without a circular obscuration and two half-axes > 0 and "
+                                 f"below semi_diameter ({float(semi_diameter):g} mm), got "
+                                 f"{obscuration_ellipse!r}")
+            self.register_buffer("obscuration_ellipse", torch.tensor(ab, dtype=torch.float64),
+                                 persistent=False)
         dec = [float(v) for v in decenter]
         if len(dec) != 2 or not all(math.isfinite(v) for v in dec):
             raise ValueError(f"Aperture: decenter must be two finite numbers of mm (d_x, d_y), "
@@ -108,12 +130,16 @@ class Aperture(Plane):
             lambda dec, obs, ri: (bool((dec != 0).any()), float(obs) > 0, float(ri) > 0))
         dec = self.decenter if decentred else None
         outer = (Rectangle(self.half_widths, dec, check=False) if self.shape == "rect"
+                 else Ellipse(self.half_widths, dec, check=False) if self.shape == "ellipse"
                  else Circle(self.semi_diameter, dec, check=False))
         if ring:   # the ring r_i <= ρ <= r_o is taken out; inside r_i passes
             return outer - (Circle(self.obscuration, dec, check=False)
                             - Circle(self.obscuration_inner, dec, check=False))
         if obscured:
             return outer - Circle(self.obscuration, dec, check=False)
+        ell = self._buffers.get("obscuration_ellipse")   # present only when set
+        if ell is not None:
+            return outer - Ellipse(ell, dec, check=False)
         return outer
 
     @property
@@ -131,22 +157,27 @@ class Aperture(Plane):
         self.semi_diameter.fill_(float(value))
 
     file_fields = ("shape", "half_width_x_mm", "half_width_y_mm", "obscuration_mm",
-                   "obscuration_inner_mm", "decenter_mm")
+                   "obscuration_inner_mm", "decenter_mm", "obscuration_ellipse_mm")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
         shape = entry.get("shape", "str", default="circle")
-        if shape not in ("circle", "rect"):
-            entry.fail("shape", f"expected 'circle' or 'rect', got {shape!r}")
+        if shape not in ("circle", "rect", "ellipse"):
+            entry.fail("shape", f"expected 'circle', 'rect' or 'ellipse', got {shape!r}")
         dec = entry.get("decenter_mm", "numbers", default=[0.0, 0.0])
         if len(dec) != 2:
             entry.fail("decenter_mm", f"expected [d_x, d_y] in mm, got {dec!r}")
-        if shape == "rect":
-            return cls(semi_diameter, "rect", entry.get("half_width_x_mm"),
+        if shape != "circle":
+            return cls(semi_diameter, shape, entry.get("half_width_x_mm"),
                        entry.get("half_width_y_mm"), decenter=dec)
+        ell = entry.get("obscuration_ellipse_mm", "numbers", default=None)
+        if ell is not None and len(ell) != 2:
+            entry.fail("obscuration_ellipse_mm", f"expected [a, b] in mm (half-axes along x and "
+                                                 f"y), got {ell!r}")
         return cls(semi_diameter, shape, obscuration=entry.get("obscuration_mm", default=0.0),
                    decenter=dec,
-                   obscuration_inner=entry.get("obscuration_inner_mm", default=0.0))
+                   obscuration_inner=entry.get("obscuration_inner_mm", default=0.0),
+                   obscuration_ellipse=ell)
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -154,8 +185,11 @@ class Aperture(Plane):
             d["obscuration_mm"] = float(self.obscuration)
         if float(self.obscuration_inner) > 0:
             d["obscuration_inner_mm"] = float(self.obscuration_inner)
-        if self.shape == "rect":
-            d.update(shape="rect", half_width_x_mm=float(self.half_widths[0]),
+        ell = self._buffers.get("obscuration_ellipse")
+        if ell is not None:
+            d["obscuration_ellipse_mm"] = [float(v) for v in ell]
+        if self.shape != "circle":
+            d.update(shape=self.shape, half_width_x_mm=float(self.half_widths[0]),
                      half_width_y_mm=float(self.half_widths[1]))
         if self.decentred:
             d["decenter_mm"] = [float(v) for v in self.decenter]

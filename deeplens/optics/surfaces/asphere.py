@@ -34,7 +34,7 @@ from torch import nn
 
 from ..openings import Circle, Opening, Rectangle
 from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, host_flags,
-                   make_param, register_surface)
+                   make_param, register_surface, with_ellipses)
 
 __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
            "conic_arg", "conic_dsag_ds", "conic_normal", "conic_quadric", "conic_root",
@@ -309,7 +309,8 @@ class Asphere(SagSurface):
 
     def _build_opening(self) -> Opening:
         """The semi-diameter's circle, with the clear circle (about ``clear_decenter``) and
-        the clear rectangle when given, less the central obscuration's circle."""
+        the clear rectangle or ellipse when given, less the central obscuration's circle and
+        the elliptical obscuration (:func:`~.base.with_ellipses`)."""
         clear, decentred, rect, obscured = host_flags(
             self, "_opening_flags",
             (self.clear_radius, self.clear_decenter, self.clear_rect, self.obscuration),
@@ -323,7 +324,7 @@ class Asphere(SagSurface):
                 opening = opening & Rectangle(self.clear_rect, self.clear_decenter, check=False)
         if obscured:
             opening = opening - Circle(self.obscuration, check=False)
-        return opening
+        return with_ellipses(self, opening)
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)

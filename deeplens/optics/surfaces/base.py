@@ -36,11 +36,13 @@ import torch
 from torch import nn
 
 from ..interactions import REFRACTION
-from ..openings import Circle, Opening, Rectangle, in_circle
+from ..openings import Circle, Difference, Ellipse, Intersection, Opening, Rectangle, in_circle
 from ..refract import unit_normal
 
 __all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface",
-           "set_clear_rect", "clear_rect_of", "takes_clear_rect", "curvature_scale", "conic_scale"]
+           "set_clear_rect", "clear_rect_of", "takes_clear_rect", "set_clear_ellipse",
+           "clear_ellipse_of", "set_obscuration_ellipse", "obscuration_ellipse_of",
+           "curvature_scale", "conic_scale"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
 #: at import and read by the lens-file reader and writer (never changed afterwards)
@@ -196,13 +198,15 @@ class Surface(nn.Module):
         self._opening = value
 
     def _build_opening(self) -> Opening:
-        """The semi-diameter's circle, and the rectangle of :func:`set_clear_rect` when set
-        (tested at the hit point's local ``x, y``, whatever the surface's shape)."""
-        circle = Circle(self.semi_diameter, check=False)
+        """The semi-diameter's circle, and the rectangle of :func:`set_clear_rect` or the
+        ellipse of :func:`set_clear_ellipse` when set, less the elliptical obscuration of
+        :func:`set_obscuration_ellipse` (each tested at the hit point's local ``x, y``, whatever
+        the surface's shape)."""
+        opening = Circle(self.semi_diameter, check=False)
         rect = self._buffers.get("clear_rect")
-        if rect is None or not bool(rect.any()):
-            return circle
-        return circle & Rectangle(rect, self._buffers["clear_decenter"], check=False)
+        if rect is not None and bool(rect.any()):
+            opening = opening & Rectangle(rect, self._buffers["clear_decenter"], check=False)
+        return with_ellipses(self, opening)
 
     def in_aperture(self, x, y):
         """``(*B,)`` bool: ``(x, y)`` (mm, local frame) lies in the :attr:`opening`."""
@@ -373,6 +377,111 @@ def set_clear_rect(surface: Surface, half_widths) -> None:
             else:
                 surface.register_buffer(name, value, persistent=False)
         surface.semi_diameter.fill_(diag)
+
+
+def with_ellipses(surface, opening: Opening) -> Opening:
+    """``opening`` with ``surface``'s elliptical clear aperture (:func:`set_clear_ellipse`,
+    about its ``clear_decenter``) intersected and its elliptical obscuration
+    (:func:`set_obscuration_ellipse`, about the vertex) taken out: the part of every lens or
+    mirror surface's :meth:`~Surface._build_opening` that the ellipses add.  The buffers exist
+    only once set, so their presence is the flag (no host read)."""
+    ell = surface._buffers.get("clear_ellipse")
+    if ell is not None:
+        opening = opening & Ellipse(ell, surface._buffers["clear_decenter"], check=False)
+    obs = surface._buffers.get("obscuration_ellipse")
+    if obs is not None:
+        opening = opening - Ellipse(obs, check=False)
+    return opening
+
+
+def _has_ellipse(opening: Opening, what) -> bool:
+    """Whether ``opening`` holds an :class:`Ellipse` made from the tensor ``what``."""
+    if isinstance(opening, Ellipse):
+        return opening.half_axes is what
+    if isinstance(opening, Intersection):
+        return any(_has_ellipse(p, what) for p in opening.parts)
+    if isinstance(opening, Difference):
+        return _has_ellipse(opening.a, what) or _has_ellipse(opening.b, what)
+    return False
+
+
+def _half_axes(surface, half_axes, what: str) -> tuple[float, float]:
+    if not takes_clear_rect(surface):
+        raise TypeError(f"an elliptical {what} needs a surface the rays land on (not a stop or a "
+                        f"frame change: an Aperture has shape='ellipse'), got "
+                        f"{type(surface).__name__}")
+    ab = [float(v) for v in half_axes]
+    if len(ab) != 2 or not all(0 < v < math.inf for v in ab):
+        raise ValueError(f"{type(surface).__name__}: an elliptical {what} needs two half-axes "
+                         f"> 0 mm (a along x, b along y), got {half_axes!r}")
+    return ab[0], ab[1]
+
+
+def _set_buffer(surface, name: str, value: torch.Tensor) -> None:
+    if name in surface._buffers:
+        surface._buffers[name].copy_(value)
+    else:
+        surface.register_buffer(name, value, persistent=False)
+
+
+def _check_built(surface, name: str, what: str) -> None:
+    """Undo and refuse when ``surface``'s type builds its opening without the ellipse."""
+    if not _has_ellipse(surface.opening, surface._buffers[name]):
+        del surface._buffers[name]
+        raise ValueError(f"{type(surface).__name__}: this surface type's opening has no "
+                         f"elliptical {what} (it builds its own outline)")
+
+
+def set_clear_ellipse(surface: Surface, half_axes) -> None:
+    """Give ``surface`` an elliptical clear aperture of half-axes ``(a, b)`` (mm; ``a`` along
+    the local x axis, ``b`` along y) about its ``clear_decenter`` (zero unless set: Zemax's
+    ``ELAP`` with ``OBDC``, CODE V's ``ELX``/``ELY`` with ``ADX``/``ADY``): rays meeting it at
+    ``((x - d_x) / a)^2 + ((y - d_y) / b)^2 > 1`` are blocked.  As for
+    :func:`set_clear_rect`: the clear radius becomes the circumscribed circle ``max(a, b)`` and
+    the semi-diameter ``|d| + max(a, b)``; fixed buffers, not in ``state_dict`` (lens file:
+    ``clear_ellipse_mm``); traced on the eager path.  Not beside a clear rectangle."""
+    a, b = _half_axes(surface, half_axes, "clear aperture")
+    if clear_rect_of(surface) is not None:
+        raise ValueError(f"{type(surface).__name__}: an elliptical clear aperture beside a "
+                         f"rectangular one is not supported (one surface aperture per surface)")
+    r = max(a, b)
+    with torch.no_grad():
+        _set_buffer(surface, "clear_ellipse", torch.tensor([a, b], dtype=torch.float64))
+        _set_buffer(surface, "clear_radius", torch.tensor(r, dtype=torch.float64))
+        if "clear_decenter" not in surface._buffers:
+            surface.register_buffer("clear_decenter", torch.zeros(2, dtype=torch.float64),
+                                    persistent=False)
+        dec = [float(v) for v in surface._buffers["clear_decenter"]]
+        surface.semi_diameter.fill_(math.hypot(*dec) + r)
+    _check_built(surface, "clear_ellipse", "clear aperture")
+
+
+def clear_ellipse_of(surface) -> tuple[float, float] | None:
+    """The half-axes ``(a, b)`` (mm) of ``surface``'s elliptical clear aperture, or ``None``."""
+    ell = getattr(surface, "_buffers", {}).get("clear_ellipse")
+    return None if ell is None else (float(ell[0]), float(ell[1]))
+
+
+def set_obscuration_ellipse(surface: Surface, half_axes) -> None:
+    """Give ``surface`` an elliptical obscuration of half-axes ``(a, b)`` (mm; ``a`` along the
+    local x axis, ``b`` along y) about its vertex (Zemax's ``ELOB``): rays meeting it strictly
+    inside ``(x / a)^2 + (y / b)^2 < 1`` are blocked, the rim passes (as a circular
+    obscuration's).  A fixed buffer, not in ``state_dict`` (lens file:
+    ``obscuration_ellipse_mm``); traced on the eager path."""
+    a, b = _half_axes(surface, half_axes, "obscuration")
+    if not max(a, b) < float(surface.semi_diameter):
+        raise ValueError(f"{type(surface).__name__}: the elliptical obscuration's half-axes "
+                         f"({a:g}, {b:g} mm) must be smaller than the semi-diameter "
+                         f"({float(surface.semi_diameter):g} mm)")
+    with torch.no_grad():
+        _set_buffer(surface, "obscuration_ellipse", torch.tensor([a, b], dtype=torch.float64))
+    _check_built(surface, "obscuration_ellipse", "obscuration")
+
+
+def obscuration_ellipse_of(surface) -> tuple[float, float] | None:
+    """The half-axes ``(a, b)`` (mm) of ``surface``'s elliptical obscuration, or ``None``."""
+    obs = getattr(surface, "_buffers", {}).get("obscuration_ellipse")
+    return None if obs is None else (float(obs[0]), float(obs[1]))
 
 
 def clear_rect_of(surface) -> tuple[float, float] | None:

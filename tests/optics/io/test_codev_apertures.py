@@ -192,7 +192,7 @@ def test_dim_after_the_surfaces_pol_and_ca(tmp_path):
 
 # --------------------------------------------------------------------------- refusals
 @pytest.mark.parametrize("mods,match", [
-    ("  ELX 3; ELY 2\n", "ELX: elliptical apertures are not supported"),
+    ("  ELX 3; ELY 2; REX 3; REY 2\n", "REX/REY and ELX/ELY on one surface"),
     ("  REX OBS 3\n", "REX OBS: a rectangular or elliptical obscuration"),
     ("  REX 3; REY 2; ARO 10\n", "ARO 10.0: a rotated aperture"),
     ("  REX 3\n", "needs both REX and REY"),

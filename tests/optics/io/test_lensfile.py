@@ -276,7 +276,7 @@ BAD = [
     ("negative semi-diameter", _set(-5.0, "surfaces", 1, "semi_diameter_mm"),
      r"surfaces\[1\]\.semi_diameter_mm: must be > 0 mm, got -5\.0"),
     ("aperture shape", _set("hexagon", "surfaces", 2, "shape"),
-     r"surfaces\[2\]\.shape: expected 'circle' or 'rect', got 'hexagon'"),
+     r"surfaces\[2\]\.shape: expected 'circle', 'rect' or 'ellipse', got 'hexagon'"),
     ("unknown glass", _set("N-BK77", "surfaces", 0, "material"),
      r"surfaces\[0\]\.material: unknown glass 'N-BK77'; closest known: N-BK7"),
     ("material number", _set(1.5, "surfaces", 0, "material"),
