@@ -115,6 +115,11 @@ def _add_lens_options(parser) -> None:
                         "name equal to its file stem (repeatable; also the DEEPLENS_GLASS_PATH "
                         "environment variable: .agf files and folders, separated by "
                         f"{os.pathsep!r})")
+    z.add_argument("--qbfs-conic", choices=("forbes", "refuse"), dest="qbfs_conic",
+                   help="a QED_TYPE Qbfs surface on a conic base, which no OpticStudio page "
+                        "defines: 'forbes' (default) reads it with Forbes' conic "
+                        "generalisation (as optiland) and a located warning, 'refuse' refuses "
+                        "it at its line")
     try:     # optimize has its own -v (every trial step); it shows these details too
         z.add_argument("-v", "--verbose", action="store_true",
                        help="with an error, print its details too (e.g. every glass catalogue "
@@ -145,6 +150,12 @@ def _load(args):
         if missing:
             raise _UsageError(f"--glass-catalog: no such file: {missing[0]}")
         opts["glass_catalogs"] = list(catalogs)
+    qbfs_conic = getattr(args, "qbfs_conic", None)
+    if qbfs_conic is not None:
+        if Path(args.lens).suffix.lower() != ".zmx":
+            raise _UsageError(f"--qbfs-conic applies to Zemax files (.zmx) only; {args.lens} "
+                              f"is not one")
+        opts["qbfs_conic"] = qbfs_conic
     config = getattr(args, "config", None)
     if config is not None:
         if Path(args.lens).suffix.lower() not in (".zmx", ".seq"):

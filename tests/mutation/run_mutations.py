@@ -98,6 +98,7 @@ IRGLASS = ("tests/optics/io/test_infrared_glass.py",)
 CODEV_APERTURES = ("tests/optics/io/test_codev_apertures.py",)
 CODEV_ZOOM = ("tests/optics/io/test_codev_zoom.py",)
 CORNING = ("tests/optics/io/test_corning_glass.py",)
+QBFS_CONIC = ("tests/optics/io/test_zmx_qbfs_conic.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -1108,6 +1109,15 @@ MUTATIONS = [
              "it and blocks those outside", "deeplens/optics/surfaces/base.py",
              "        opening = opening - Ellipse(obs, check=False)",
              "        opening = opening & Ellipse(obs, check=False)", ELLIPSE),
+    # ------------------------------- issue 37: a Qbfs on a conic base (Forbes' generalisation)
+    Mutation("qbfs_conic_warning_dropped", "a Qbfs on a conic base loaded without the located "
+             "warning naming the reading and the option", "deeplens/optics/io/surface_handlers.py",
+             "        p.note(s.type_line, f\"SURF {k}: a QED_TYPE Qbfs surface on a conic base",
+             "        (lambda *a: None)(s.type_line, f\"SURF {k}: a QED_TYPE Qbfs surface on a "
+             "conic base", QBFS_CONIC),
+    Mutation("qbfs_conic_option_ignored", "qbfs_conic='refuse' ignored (the surface loaded "
+             "anyway)", "deeplens/optics/io/surface_handlers.py",
+             '        if qbfs_conic == "refuse":', '        if False:', QBFS_CONIC),
 ]
 
 

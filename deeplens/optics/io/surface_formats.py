@@ -28,8 +28,13 @@ from __future__ import annotations
 import contextlib
 from dataclasses import dataclass
 
-__all__ = ["SurfaceFormat", "FormatRegistry", "FORMATS", "ZmxContext", "register_format",
-           "registered_format"]
+__all__ = ["SurfaceFormat", "FormatRegistry", "FORMATS", "QBFS_CONIC", "ZmxContext",
+           "register_format", "registered_format"]
+
+#: the readings of a ``QED_TYPE`` Qbfs on a conic base (``CONI`` != 0), which no OpticStudio
+#: page defines: ``"forbes"`` (default) Forbes' conic generalisation (Opt. Express 19, 9923
+#: (2011); optiland's), loaded with one located warning; ``"refuse"`` a located error
+QBFS_CONIC = ("forbes", "refuse")
 
 
 @dataclass(frozen=True)
@@ -47,6 +52,9 @@ class ZmxContext:
         fixed: ``DIAM`` is fixed (flag 1) and positive.
         flat: the handler's :meth:`SurfaceFormat.zmx_flat` answer for the block.
         p: the reader's :class:`~.zmx_parse.Locator` (``p.fail(line, message)``).
+        qbfs_conic: how a ``QED_TYPE`` Qbfs on a conic base is read (:data:`QBFS_CONIC`):
+            ``"forbes"`` (Forbes' conic generalisation, with a located warning) or
+            ``"refuse"``.
     """
 
     k: int
@@ -59,6 +67,7 @@ class ZmxContext:
     fixed: bool
     flat: bool
     p: object
+    qbfs_conic: str = "forbes"
 
 
 class SurfaceFormat:

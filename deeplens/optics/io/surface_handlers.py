@@ -222,12 +222,14 @@ def _binary2(s, k: int, c, sd, s_mm, p):
     return Binary2(c, sd, rn, phase, int(order), conic=s.coni, coefficients=coeffs)
 
 
-def _qtype(s, k: int, c, sd, s_mm, p):
+def _qtype(s, k: int, c, sd, s_mm, p, qbfs_conic: str = "forbes"):
     """``QED_TYPE`` (OpticStudio's Q-type asphere): ``XDAT 1`` the type (0 Qbfs, 1 Qcon),
     ``XDAT 2`` the number of terms, ``XDAT 3`` the normalisation radius, ``XDAT 4..`` the
     coefficients ``a_0, a_1, ...`` (lengths): a :class:`QType`.  A Qbfs on a conic base
-    (``CONI`` != 0) is refused: how OpticStudio combines the two could not be checked against
-    an independent reader (deeplens' surface follows Forbes' generalisation, as optiland)."""
+    (``CONI`` != 0), which no OpticStudio page defines: with ``qbfs_conic="forbes"`` read with
+    Forbes' conic generalisation (the departure times ``sqrt((1 − k c² r²) / (1 − (1+k) c²
+    r²))``, as optiland; deeplens' :class:`QType`) and one located warning at the ``TYPE``
+    line naming that reading and the option; with ``"refuse"`` a located error."""
     kind_v, kind_ln = s.xdat.get(1, (0.0, s.type_line))
     if kind_v not in (0.0, 1.0):
         p.fail(kind_ln, f"SURF {k}: QED_TYPE XDAT 1 (the type) must be 0 (Qbfs) or 1 (Qcon), got "
@@ -248,10 +250,17 @@ def _qtype(s, k: int, c, sd, s_mm, p):
         if v != 0:
             p.fail(ln, f"SURF {k}: QED_TYPE PARM {i} is not read (the Q-type data are XDAT)")
     if kind_v == 0.0 and s.coni != 0:
-        p.fail(s.type_line, f"SURF {k}: a QED_TYPE Qbfs surface on a conic base (CONI "
-                            f"{s.coni:g}) is not supported: how OpticStudio combines the "
-                            f"slope-orthogonal departure with a conic could not be checked here "
-                            f"(Qbfs on a sphere and Qcon on any conic are read)")
+        if qbfs_conic == "refuse":
+            p.fail(s.type_line, f"SURF {k}: a QED_TYPE Qbfs surface on a conic base (CONI "
+                                f"{s.coni:g}) is refused (qbfs_conic='refuse'); "
+                                f"qbfs_conic='forbes' (the default; --qbfs-conic forbes) reads "
+                                f"it with Forbes' conic generalisation")
+        p.note(s.type_line, f"SURF {k}: a QED_TYPE Qbfs surface on a conic base (CONI "
+                            f"{s.coni:g}) is read with Forbes' conic generalisation (2011; as "
+                            f"optiland: the departure along the conic's normal, times "
+                            f"sqrt((1 - k c^2 r^2)/(1 - (1+k) c^2 r^2))); OpticStudio's "
+                            f"definition for a conic base is not documented; "
+                            f"qbfs_conic='refuse' (--qbfs-conic refuse) refuses it instead")
     coeffs = [s.xdat.get(j + 4, (0.0, 0))[0] * s_mm for j in range(n)]
     return QType(c, sd, rn_v * s_mm, coeffs, "qcon" if kind_v == 1.0 else "qbfs",
                  conic=s.coni)
@@ -888,7 +897,7 @@ class QTypeFormat(SurfaceFormat):
     zmx_types = ("QED_TYPE",)
 
     def read_zmx(self, s, ctx):
-        return _qtype(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+        return _qtype(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p, ctx.qbfs_conic)
 
     def write_zmx(self, s, i):
         a = [float(v) for v in s.a]

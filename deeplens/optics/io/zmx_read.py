@@ -28,6 +28,7 @@ from .zmx_coordbrk import coordinate_break, is_identity, misalignment_brackets, 
 from .zmx_glass import load_catalogues, surface_material
 from .zmx_mconf import configuration
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
+from .surface_formats import QBFS_CONIC
 from .zmx_surfaces import build_surface, is_air
 from .zmx_system import aperture_to_epd, element_tilts, fields_to_angles
 
@@ -53,7 +54,8 @@ class _Sequence:
     folded: bool = False           # a fold or an off-axis section (an unpaired COORDBRK)
 
 
-def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Lens:
+def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
+             qbfs_conic="forbes") -> Lens:
     """Read a sequential Zemax ``.zmx`` file into a :class:`~deeplens.optics.lens.Lens`.
 
     Args:
@@ -69,6 +71,11 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
             has others).  Its operands (``THIC``, ``CRVT``, ``CONN``, ``GLSS``, ``PRAM``,
             ``APER``, ``YFIE``, ... the table of :mod:`.zmx_mconf`) replace the saved values
             (:func:`~.zmx_configs.read_zmx_configs` reads them all).
+        qbfs_conic: how a ``QED_TYPE`` Qbfs surface on a conic base (``CONI`` != 0), which
+            no OpticStudio page defines, is read: ``"forbes"`` (default) with Forbes' conic
+            generalisation (optiland's; the departure times ``sqrt((1 − k c² r²) / (1 −
+            (1+k) c² r²))``), with one located :class:`ZemaxWarning` at its ``TYPE`` line;
+            ``"refuse"``: a located :class:`ZemaxFileError` there instead.
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -86,6 +93,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
         lens = read_zmx("vendor_lens.zmx", glass_catalogs=["OHARA.agf"])
     """
     path = Path(path)
+    if qbfs_conic not in QBFS_CONIC:
+        raise ValueError(f"qbfs_conic must be one of {QBFS_CONIC}, got {qbfs_conic!r}")
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
     sysd, surfs, p = parse(path)
@@ -103,7 +112,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None) -> Le
     s_mm = UNITS[unit]
     gcat, _ = sysd["gcat"]
     ftyp, ftyp_line, n_fields, waves_nm, primary = _wavelengths(sysd, p)
-    seq = _sequence(surfs, s_mm, gcat, cats, glass_fallback, p)
+    seq = _sequence(surfs, s_mm, gcat, cats, glass_fallback, p, qbfs_conic)
     obj, img = surfs[0], surfs[-1]
     kept, stop_idx, autos = seq.kept, seq.stop_idx, seq.autos
     surfaces = [k_[0] for k_ in kept]
@@ -330,7 +339,7 @@ def _telecentric(ftyp, ftyp_line: int, obj_dist: float, convert, ap_line: int,
 
 
 def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
-              p: Locator) -> _Sequence:
+              p: Locator, qbfs_conic: str = "forbes") -> _Sequence:
     """The object and the surfaces between it and the image, in order: dummies (flat, one medium
     on both sides) merged into the gaps, ``COORDBRK`` pairs that bracket one element read as its
     misalignment (``groups``), every other non-identity ``COORDBRK`` kept as a
@@ -392,7 +401,7 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
                     p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
             continue
         mat = prev if s.mirror else surface_material(s, gcat, cats, glass_fallback, p, 4)
-        built = build_surface(s, k, mat, prev, s_mm, folded, p)
+        built = build_surface(s, k, mat, prev, s_mm, folded, p, qbfs_conic)
         if built is None:   # a dummy surface: its thickness only
             gap += s.disz * s_mm
             continue

@@ -34,12 +34,12 @@ __all__ = ["build_surface", "is_air", "PROVISIONAL_SD_MM"]
 
 
 def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: float,
-                  folded: bool, p: Locator):
+                  folded: bool, p: Locator, qbfs_conic: str = "forbes"):
     """The surface of ``SURF k`` (block ``s``), between ``prev`` and ``mat``: ``(surface,
     auto)`` with ``auto`` whether its semi-diameter is automatic (to be set from real rays once
     the lens is built), or ``None`` for a dummy surface (only its thickness counts).  ``folded``:
     the lens has a fold or an off-axis section, where every semi-diameter not fixed is
-    automatic."""
+    automatic.  ``qbfs_conic``: :data:`~.surface_formats.QBFS_CONIC`."""
     _check_ellipses(s, k, p)
     if (s.obdc is not None and s.clap is None and s.sqap is None and s.obsc is None
             and s.elap is None and s.elob is None):
@@ -54,7 +54,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     fixed = s.diam_fixed and s.diam > 0
     handler = FORMATS.for_zmx_type(s.type)   # the parser refused a type with no handler
     ctx = ZmxContext(k=k, c=c, sd=sd, sd_build=sd, s_mm=s_mm, mat=mat, prev=prev, fixed=fixed,
-                     flat=False, p=p)
+                     flat=False, p=p, qbfs_conic=qbfs_conic)
     flat = handler.zmx_flat(s, ctx)
     same_medium = (type(mat) is type(prev) and mat.name == prev.name)
     if (flat and same_medium and not s.stop and not fixed and s.clap is None

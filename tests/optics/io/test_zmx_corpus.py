@@ -36,7 +36,6 @@ FILES = sorted(p.name for p in CORPUS.glob("*.zmx"))
 
 #: file -> the feature its refusal must name (every other file must load)
 REFUSED = {
-    "thorlabs_ASL5040-UV.zmx": "Qbfs surface on a conic base",   # its glass C79-80 is read
     "US08427765-1.zmx": "L-TIM28_MOLD",
     "thorlabs_354710-C.zmx": "D-ZK3M",
 }
@@ -193,15 +192,100 @@ def _has_gratings(name):
     return bool(re.search(r"^\s+TYPE\s+DGRATING", decode_zemax_text(CORPUS / name), re.M))
 
 
+def _has_qtype(name):
+    return bool(re.search(r"^\s+TYPE\s+QED_TYPE", decode_zemax_text(CORPUS / name), re.M))
+
+
+def _qtype_blocks(text):
+    """``[(SURF k, {XDAT j: value}, CURV, CONI)]`` of the ``QED_TYPE`` blocks of a file's text."""
+    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
+    out = []
+    for i, b in enumerate(parts):
+        if re.search(r"^\s+TYPE\s+QED_TYPE", b, re.M):
+            xdat = dict((int(m.group(1)), float(m.group(2)))
+                        for m in re.finditer(r"^\s+XDAT\s+(\d+)\s+(\S+)", b, re.M))
+            curv = re.search(r"^\s+CURV\s+(\S+)", b, re.M)
+            coni = re.search(r"^\s+CONI\s+(\S+)", b, re.M)
+            out.append((int(parts[i - 1].split()[1]), xdat,
+                        float(curv.group(1)) if curv else 0.0,
+                        float(coni.group(1)) if coni else 0.0))
+    return out
+
+
+def qtype_vertex_curvatures(name):
+    """``{SURF k: vertex curvature}`` (file units) of the file's ``QED_TYPE`` surfaces: a Qcon
+    departure starts at r⁴ (``CURV``); a Qbfs one, ``φ x(1 − x) Σ a_m Q_m(x)`` with ``φ = 1 +
+    O(r²)`` and ``x = r²/ρ_n²``, adds ``2 Σ a_m Q_m(0) / ρ_n²`` (``a_m`` = ``XDAT m + 4``,
+    ``ρ_n`` = ``XDAT 3``), with ``Q_m`` built by Gram–Schmidt in test_zmx_qbfs_conic (not
+    deeplens')."""
+    from test_zmx_qbfs_conic import _qbfs_polynomials
+
+    out = {}
+    for k, x, curv, _ in _qtype_blocks(decode_zemax_text(CORPUS / name)):
+        n = int(x.get(2, 0))
+        if x.get(1, 0.0) != 0.0 or n == 0:
+            out[k] = curv
+            continue
+        q0 = [float(q(0.0)) for q in _qbfs_polynomials(n)]
+        out[k] = curv + 2.0 * sum(x.get(m + 4, 0.0) * q0[m] for m in range(n)) / x[3] ** 2
+    return out
+
+
+def _load_optiland_qtype(name, full):
+    """optiland's ``load_zemax_file`` for a file with ``QED_TYPE`` surfaces, which its reader
+    does not read: each is read as ``TYPE STANDARD`` (``XDAT`` lines dropped); with ``full``
+    it then gets optiland's own Forbes Qbfs geometry (``ForbesQNormalSlopeGeometry``: the
+    conic-normal factor of Forbes' generalisation, the reading deeplens loads); without,
+    for first-order data, the sphere of its vertex curvature (:func:`qtype_vertex_curvatures`):
+    optiland's paraxial trace takes a Forbes surface's base radius alone, without the
+    departure's r² term."""
+    import tempfile
+
+    from optiland.fileio import load_zemax_file
+    from optiland.geometries import ForbesQNormalSlopeGeometry, ForbesSurfaceConfig
+
+    text = decode_zemax_text(CORPUS / name)
+    assert not re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT|DGRATING)", text, re.M), \
+        "a Q-type file with another surface the oracle rewrites: extend the oracle"
+    cv = qtype_vertex_curvatures(name)
+    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
+    for i, b in enumerate(parts):
+        if re.search(r"^\s+TYPE\s+QED_TYPE", b, re.M):
+            b = re.sub(r"^(\s+TYPE\s+)QED_TYPE", r"\g<1>STANDARD", b, flags=re.M)
+            if not full:
+                k = int(parts[i - 1].split()[1])
+                b = re.sub(r"^(\s+CURV\s+)\S+", rf"\g<1>{cv[k]!r}", b, flags=re.M)
+            parts[i] = re.sub(r"^\s+XDAT\s+.*\n", "", b, flags=re.M)
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / Path(name).name
+        p.write_text("".join(parts))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            optic = load_zemax_file(str(p))
+    if full:
+        for k, x, curv, coni in _qtype_blocks(text):
+            assert x.get(1, 0.0) == 0.0, "a Qcon surface: extend the oracle"
+            s = optic.surface_group.surfaces[k]
+            n = int(x.get(2, 0))
+            s.geometry = ForbesQNormalSlopeGeometry(s.geometry.cs, ForbesSurfaceConfig(
+                radius=1.0 / curv if curv else math.inf, conic=coni, norm_radius=x[3],
+                terms={m: x.get(m + 4, 0.0) for m in range(n)}))
+    return optic
+
+
 def _load_optiland(name, gratings):
     """optiland's ``load_zemax_file``; its reader has no ``DGRATING``: it reads the file with
     each grating as its base surface (``TYPE STANDARD``, ``PARM`` lines dropped), then, with
     ``gratings``, each such surface gets optiland's own grating geometry and diffraction model
-    (``PARM 1`` lines/µm -> a period of 1/``PARM 1`` µm, order ``PARM 2``, lines along x)."""
+    (``PARM 1`` lines/µm -> a period of 1/``PARM 1`` µm, order ``PARM 2``, lines along x).
+    Nor ``QED_TYPE``: :func:`_load_optiland_qtype` (``gratings`` False: first-order
+    stand-ins)."""
     import tempfile
 
     from optiland.fileio import load_zemax_file
 
+    if _has_qtype(name):
+        return _load_optiland_qtype(name, gratings)
     path = CORPUS / name   # CORPUS / an absolute path = that path
     text = decode_zemax_text(path)
     if re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT)", text, re.M):
@@ -457,6 +541,11 @@ def test_loads_with_the_oracles_numbers(name, tmp_path):
         straight = _load(ref)
         assert float(paraxial(straight).efl) == float(paraxial(lens).efl)
         first, _ = _oracle(ref, lens)
+    if _has_qtype(name):
+        # a Q-type surface's first-order data: the sphere of its vertex curvature (optiland's
+        # paraxial trace takes a Forbes geometry's base radius alone); the spot below has
+        # optiland's Forbes geometry
+        first, _ = _oracle(name, lens, gratings=False)
     if _has_gratings(name):
         # first-order data see a grating's base surface (a constant line density has no
         # paraxial power: it turns the axis, which the paraxial trace along the local axes

@@ -28,7 +28,7 @@ from deeplens.optics.io.agf import decode_zemax_text
 from deeplens.optics.paraxial import paraxial
 from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _even_r2_terms,
                              _file_path_coords, _floa_stop_radius, _load, _medium_after,
-                             _plain_planes, _unit_mm)
+                             _plain_planes, _unit_mm, qtype_vertex_curvatures)
 
 #: file -> (the quantities rayoptics cannot confirm, the verified reason).  Every other loaded
 #: file is confirmed on all four numbers.
@@ -116,6 +116,11 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
     # Irregular surfaces: zmxread reads CURV alone; deeplens' stated rule takes the y section at
     # the surface's vertex, worked out here from the file
     for k, cv in _irregular_vertex_curvatures(name).items():
+        sm.ifcs[k].profile.cv = cv
+    # Q-type surfaces: zmxread reads CURV alone; a Qbfs departure has an r² term
+    # (x(1 − x) Σ a_m Q_m(x), x = r²/ρ_n²), so the vertex curvature includes it, worked out
+    # here from the file (test_zmx_corpus.qtype_vertex_curvatures)
+    for k, cv in qtype_vertex_curvatures(name).items():
         sm.ifcs[k].profile.cv = cv
     # Paraxial XY surfaces (anamorphic ideal lenses): zmxread reads a plane; deeplens' stated
     # rule takes the y section, given here as rayoptics' own ideal thin lens of the y power

@@ -192,10 +192,12 @@ def test_zmx_and_lens_file_round_trip(tmp_path, kind):
     assert float(paraxial(back).efl) == float(paraxial(lens).efl)
 
 
-def test_corpus_file_qbfs_on_a_conic_is_refused_at_its_type_line(tmp_path):
+def test_corpus_file_qbfs_on_a_conic_loads_or_is_refused_at_its_type_line(tmp_path):
     """thorlabs_ASL5040-UV (its Corning glass C79-80 swapped for N-BK7, so that only the
-    surface is tested): its Qbfs on a conic base (k = -0.676) is refused at the TYPE line; read
-    as Qcon it loads (the reading of XDAT 1..9 and its units)."""
+    surface is tested): its Qbfs on a conic base (k = -0.676) loads with Forbes' conic
+    generalisation (tests/optics/io/test_zmx_qbfs_conic.py) and, with
+    ``qbfs_conic="refuse"``, is refused at the TYPE line; read as Qcon it loads (the reading
+    of XDAT 1..9 and its units)."""
     from pathlib import Path
 
     from deeplens.optics.io.agf import decode_zemax_text
@@ -204,8 +206,12 @@ def test_corpus_file_qbfs_on_a_conic_is_refused_at_its_type_line(tmp_path):
     text = decode_zemax_text(path).replace("GLAS C79-80 ", "GLAS N-BK7 ")
     p = tmp_path / "asl.zmx"
     p.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        s = read_zmx(p).surfaces[0]
+    assert isinstance(s, QType) and s.kind == "qbfs" and float(s.k) == -0.67609120640407927
     with pytest.raises(ZemaxFileError) as e:
-        read_zmx(p)
+        read_zmx(p, qbfs_conic="refuse")
     assert p.read_text().splitlines()[e.value.line - 1].split() == ["TYPE", "QED_TYPE"]
     assert "Qbfs surface on a conic base" in str(e.value)
     q = tmp_path / "asl_qcon.zmx"
