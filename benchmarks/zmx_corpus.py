@@ -81,7 +81,9 @@ def folder_oracles(root: Path):
     import test_zmx_corpus as tc
     import test_zmx_corpus_rayoptics as tr
 
-    tc.CORPUS = tr.CORPUS = root
+    # the oracles read copies in the layout they take (tc.oracle_text: an indent common to
+    # every line removed, an old-style WAVL list as WAVM lines; the numbers unchanged)
+    tc.CORPUS = tr.CORPUS = tc.oracle_folder(root, tempfile.mkdtemp(prefix="zmx_oracles_"))
 
     def optiland(name, lens, tmp):
         s_mm = tc._unit_mm(name)

@@ -188,6 +188,39 @@ def _medium_after(lens, p_dl, q, plain=None):
     return out
 
 
+def oracle_text(text):
+    """A file's text as this module's oracle helpers and optiland 0.6's reader take it, the
+    numbers unchanged: (1) an indent common to every line removed (OpTaliX's exporter indents
+    every line by one space; the helpers find ``SURF`` lines at the line's start and a surface's
+    records indented under it, as OpticStudio writes them); (2) an old-style ``WAVL w1 w2 ..``
+    list (µm; ``WWGT`` the weights, 1 without) as ``WAVM k w_k weight_k`` lines, OpticStudio's
+    current record of the same data (optiland 0.6 reads ``WAVL`` as ``WAVL slot value``: an
+    IndexError on a single wavelength).  deeplens reads both forms as they are."""
+    import textwrap
+
+    text = textwrap.dedent(text)
+    wavl = re.search(r"^WAVL\s+(.+)$", text, re.M)
+    if wavl is not None and not re.search(r"^WAVM\s", text, re.M):
+        waves = wavl.group(1).split()
+        wwgt = re.search(r"^WWGT\s+(.+)$", text, re.M)
+        weights = wwgt.group(1).split() if wwgt else []
+        weights += ["1"] * (len(waves) - len(weights))
+        lines = "".join(f"WAVM {k} {w} {g}\n" for k, (w, g) in enumerate(zip(waves, weights), 1))
+        text = text[:wavl.start()] + lines.rstrip("\n") + text[wavl.end():]
+        text = re.sub(r"^WWGT\s.*\n", "", text, flags=re.M)
+    return text
+
+
+def oracle_folder(root, dest):
+    """Every ``.zmx`` of the folder ``root`` written to ``dest`` as :func:`oracle_text` (UTF-8):
+    the folder to point the oracle helpers (``CORPUS``) at for files not in the corpus."""
+    dest = Path(dest)
+    for f in sorted(Path(root).iterdir()):
+        if f.suffix.lower() == ".zmx":
+            (dest / f.name).write_text(oracle_text(decode_zemax_text(f)))
+    return dest
+
+
 def _has_gratings(name):
     return bool(re.search(r"^\s+TYPE\s+DGRATING", decode_zemax_text(CORPUS / name), re.M))
 
@@ -228,6 +261,79 @@ def qtype_vertex_curvatures(name):
             continue
         q0 = [float(q(0.0)) for q in _qbfs_polynomials(n)]
         out[k] = curv + 2.0 * sum(x.get(m + 4, 0.0) * q0[m] for m in range(n)) / x[3] ** 2
+    return out
+
+
+def _has_grid_sag(name):
+    return bool(re.search(r"^\s+TYPE\s+GRID_SAG\b", decode_zemax_text(CORPUS / name), re.M))
+
+
+def _hermite_second(t):
+    """Second derivatives (per unit of ``t``²) of the cubic Hermite basis on ``[0, 1]`` at ``t``:
+    the value at 0, the value at 1, the slope at 0, the slope at 1 (from ``2t³ − 3t² + 1``,
+    ``−2t³ + 3t²``, ``t³ − 2t² + t``, ``t³ − t²``)."""
+    return [12.0 * t - 6.0, 6.0 - 12.0 * t, 6.0 * t - 4.0, 6.0 * t - 2.0]
+
+
+def _hermite_value(t):
+    """The cubic Hermite basis on ``[0, 1]`` at ``t`` (as :func:`_hermite_second`)."""
+    return [2 * t ** 3 - 3 * t ** 2 + 1, -2 * t ** 3 + 3 * t ** 2, t ** 3 - 2 * t ** 2 + t,
+            t ** 3 - t ** 2]
+
+
+def grid_sag_vertex_curvatures(name):
+    """``{SURF k: vertex curvature}`` (file units) of the file's ``GRID_SAG`` surfaces under the
+    rule deeplens states (Zemax guide, Grid sag): the interpolated surface's mean curvature at
+    the vertex, ``CURV + 2 PARM 1 + (G_xx + G_yy)/2``, ``G`` the bicubic Hermite interpolant of
+    the grid's ``z``, ``dz/dx``, ``dz/dy``, ``d2z/dxdy`` (``GDAT nx ny delx dely xdec ydec``,
+    ``GARR i ...`` from the top left, −x and +y, row after row down; a point with ``nodata`` is
+    0), the mean of the two cells' where the vertex lies on a grid line.  Worked out here with
+    numpy from the file's numbers and the Hermite basis, not taken from deeplens' ``GridSag``."""
+    import numpy as np
+
+    out = {}
+    for k, b in enumerate(re.split(r"^SURF\s+\d+.*$", decode_zemax_text(CORPUS / name),
+                                   flags=re.M)[1:]):
+        if not re.search(r"^\s+TYPE\s+GRID_SAG\b", b, re.M):
+            continue
+        curv = re.search(r"^\s+CURV\s+(\S+)", b, re.M)
+        a1 = re.search(r"^\s+PARM\s+1\s+(\S+)", b, re.M)
+        nx, ny, hx, hy, xd, yd = (float(v) for v in
+                                  re.search(r"^\s+GDAT\s+(.*)$", b, re.M).group(1).split()[:6])
+        nx, ny, hx, hy = int(nx), int(ny), abs(hx), abs(hy)
+        g = np.zeros((4, nx, ny))   # z, z_x, z_y, z_xy at node (column from −x, row from −y)
+        for m in re.finditer(r"^\s+GARR\s+(\d+)\s+(.*)$", b, re.M):
+            i, v = int(m.group(1)), [float(t) for t in m.group(2).split()]
+            if len(v) < 5 or v[4] == 0.0:
+                g[:, i % nx, ny - 1 - i // nx] = v[:4]
+
+        def cells(s, n):
+            i0 = min(max(math.floor(s), 0), n - 2)
+            out = [(i0, s - i0)]
+            if s == math.floor(s) and 0 < s < n - 1:
+                out.append((i0 - 1, 1.0))   # on a grid line: the cell on the other side too
+            return out
+
+        sx, sy = -xd / hx + 0.5 * (nx - 1), -yd / hy + 0.5 * (ny - 1)
+        assert 0 <= sx <= nx - 1 and 0 <= sy <= ny - 1, "a vertex outside the grid: extend"
+
+        def second(axis):
+            vals = []
+            for (ix, u) in (cells(sx, nx) if axis == 0 else cells(sx, nx)[:1]):
+                for (iy, v) in (cells(sy, ny) if axis == 1 else cells(sy, ny)[:1]):
+                    bu = _hermite_second(u) if axis == 0 else _hermite_value(u)
+                    bv = _hermite_second(v) if axis == 1 else _hermite_value(v)
+                    f = 0.0
+                    for p in (0, 1):
+                        for q in (0, 1):
+                            z, zx, zy, zxy = g[:, ix + p, iy + q]
+                            f += (z * bu[p] * bv[q] + hx * zx * bu[2 + p] * bv[q]
+                                  + hy * zy * bu[p] * bv[2 + q] + hx * hy * zxy * bu[2 + p] * bv[2 + q])
+                    vals.append(f / (hx * hx if axis == 0 else hy * hy))
+            return sum(vals) / len(vals)
+
+        out[k] = float((float(curv.group(1)) if curv else 0.0)
+                       + 2.0 * (float(a1.group(1)) if a1 else 0.0) + 0.5 * (second(0) + second(1)))
     return out
 
 
@@ -273,6 +379,41 @@ def _load_optiland_qtype(name, full):
     return optic
 
 
+def _load_optiland_grid_sag(name):
+    """optiland's ``load_zemax_file`` for a file with ``GRID_SAG`` surfaces, which its reader
+    refuses: each is read as the ``STANDARD`` sphere of its vertex curvature under deeplens'
+    stated rule (:func:`grid_sag_vertex_curvatures`; ``PARM``, ``XDAT``, ``GDAT``, ``GARR``
+    lines dropped): a stand-in for first-order numbers only, not for real rays."""
+    import tempfile
+
+    from optiland.fileio import load_zemax_file
+
+    text = decode_zemax_text(CORPUS / name)
+    assert not re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT|DGRATING|QED_TYPE)", text, re.M), \
+        "a GRID_SAG file with another surface the oracle rewrites: extend the oracle"
+    cv = grid_sag_vertex_curvatures(name)
+    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
+    k = -1
+    for i, b in enumerate(parts):
+        if not re.match(r"SURF\s", b):
+            if i and k in cv:
+                b = re.sub(r"^(\s+TYPE\s+)GRID_SAG\b", r"\g<1>STANDARD", b, flags=re.M)
+                if re.search(r"^\s+CURV\s", b, re.M):
+                    b = re.sub(r"^(\s+CURV\s+)\S+", lambda q: f"{q.group(1)}{cv[k]!r}", b,
+                               count=1, flags=re.M)
+                else:
+                    b = b.replace("\n", f"\n  CURV {cv[k]!r}\n", 1)
+                parts[i] = re.sub(r"^\s+(PARM|XDAT|GDAT|GARR)\s.*\n", "", b, flags=re.M)
+            continue
+        k += 1
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / Path(name).name
+        p.write_text("".join(parts))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return load_zemax_file(str(p))
+
+
 def _load_optiland(name, gratings):
     """optiland's ``load_zemax_file``; its reader has no ``DGRATING``: it reads the file with
     each grating as its base surface (``TYPE STANDARD``, ``PARM`` lines dropped), then, with
@@ -286,6 +427,8 @@ def _load_optiland(name, gratings):
 
     if _has_qtype(name):
         return _load_optiland_qtype(name, gratings)
+    if _has_grid_sag(name):
+        return _load_optiland_grid_sag(name)
     path = CORPUS / name   # CORPUS / an absolute path = that path
     text = decode_zemax_text(path)
     if re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT)", text, re.M):

@@ -28,7 +28,8 @@ from deeplens.optics.io.agf import decode_zemax_text
 from deeplens.optics.paraxial import paraxial
 from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _even_r2_terms,
                              _file_path_coords, _floa_stop_radius, _load, _medium_after,
-                             _plain_planes, _unit_mm, qtype_vertex_curvatures)
+                             _plain_planes, _unit_mm, grid_sag_vertex_curvatures,
+                             qtype_vertex_curvatures)
 
 #: file -> (the quantities rayoptics cannot confirm, the verified reason).  Every other loaded
 #: file is confirmed on all four numbers.
@@ -121,6 +122,11 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
     # (x(1 − x) Σ a_m Q_m(x), x = r²/ρ_n²), so the vertex curvature includes it, worked out
     # here from the file (test_zmx_corpus.qtype_vertex_curvatures)
     for k, cv in qtype_vertex_curvatures(name).items():
+        sm.ifcs[k].profile.cv = cv
+    # Grid sag surfaces: zmxread reads a plane; deeplens' stated rule (the Zemax guide, Grid
+    # sag) takes the interpolated surface's mean vertex curvature, worked out here from the
+    # file's GDAT/GARR numbers (test_zmx_corpus.grid_sag_vertex_curvatures)
+    for k, cv in grid_sag_vertex_curvatures(name).items():
         sm.ifcs[k].profile.cv = cv
     # Paraxial XY surfaces (anamorphic ideal lenses): zmxread reads a plane; deeplens' stated
     # rule takes the y section, given here as rayoptics' own ideal thin lens of the y power
