@@ -1118,6 +1118,13 @@ MUTATIONS = [
     Mutation("qbfs_conic_option_ignored", "qbfs_conic='refuse' ignored (the surface loaded "
              "anyway)", "deeplens/optics/io/surface_handlers.py",
              '        if qbfs_conic == "refuse":', '        if False:', QBFS_CONIC),
+    # --------------- issue 37: the corpus oracles given deeplens' GRID_SAG paraxial rule
+    Mutation("grid_sag_paraxial_one_cell", "grid sag: the paraxial curvature across a grid line "
+             "through the vertex taken from one cell, not the mean of the two cells'",
+             "deeplens/optics/surfaces/grid_sag.py",
+             "            shifts.append(-1)   # on a grid line inside the grid: both cells",
+             "            pass   # planted: one cell only",
+             ("tests/optics/io/test_zmx_oracle_stand_ins.py",)),
 ]
 
 
