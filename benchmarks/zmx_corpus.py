@@ -19,7 +19,11 @@ readings of the file, given deeplens' refractive indices, must give the same EFL
 diameter and position and back focal point (optiland to 1e-6 relative, rayoptics to 1e-9, as the
 tests; rayoptics, which reads neither ``FLOA`` nor a Zernike sag's terms nor a Binary 2 phase,
 gets its own marginal ray scaled to the stop's size, the vertex curvature of deeplens' stated
-Zernike rule and the Binary 2 phase's thin-lens power as curvature, worked out from the file: test_zmx_corpus_rayoptics._rayoptics); near-afocal systems agree where both focal lengths (and back focal distances) are
+Zernike rule and the Binary 2 phase's thin-lens power as curvature, worked out from the file: test_zmx_corpus_rayoptics._rayoptics; a ``GRID_SAG`` surface, which rayoptics reads as a plane
+and optiland refuses, is given to both as the vertex curvature of deeplens' stated rule worked
+out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures); the oracles read
+copies laid out as test_zmx_corpus.oracle_text makes them (an indent common to every line
+removed, an old-style WAVL list as WAVM lines: OpTaliX's export); near-afocal systems agree where both focal lengths (and back focal distances) are
 beyond 1e12 file units (their powers equal to 1e-12 per unit: the round-off of a vanishing
 power), a back focal point also to 1e-6 of the focal length (a focus on the image plane); a
 file with coordinate breaks that optiland reads differently is compared once more with every
@@ -72,7 +76,9 @@ def oracle_confirmations() -> dict[str, list[str]]:
 def folder_oracles(root: Path):
     """``confirm(name, lens) -> (oracles that confirm, {oracle: why not})`` for the files of
     ``root``: the corpus tests' oracle helpers, pointed at ``root``."""
+    import atexit
     import math
+    import shutil
     import tempfile
 
     import pytest
@@ -83,7 +89,9 @@ def folder_oracles(root: Path):
 
     # the oracles read copies in the layout they take (tc.oracle_text: an indent common to
     # every line removed, an old-style WAVL list as WAVM lines; the numbers unchanged)
-    tc.CORPUS = tr.CORPUS = tc.oracle_folder(root, tempfile.mkdtemp(prefix="zmx_oracles_"))
+    copies = tempfile.mkdtemp(prefix="zmx_oracles_")
+    atexit.register(shutil.rmtree, copies, True)
+    tc.CORPUS = tr.CORPUS = tc.oracle_folder(root, copies)
 
     def optiland(name, lens, tmp):
         s_mm = tc._unit_mm(name)
