@@ -99,6 +99,7 @@ CODEV_APERTURES = ("tests/optics/io/test_codev_apertures.py",)
 CODEV_ZOOM = ("tests/optics/io/test_codev_zoom.py",)
 CORNING = ("tests/optics/io/test_corning_glass.py",)
 QBFS_CONIC = ("tests/optics/io/test_zmx_qbfs_conic.py",)
+STOP_ON_BREAK = ("tests/optics/io/test_zmx_stop_on_break.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -1118,6 +1119,12 @@ MUTATIONS = [
     Mutation("qbfs_conic_option_ignored", "qbfs_conic='refuse' ignored (the surface loaded "
              "anyway)", "deeplens/optics/io/surface_handlers.py",
              '        if qbfs_conic == "refuse":', '        if False:', QBFS_CONIC),
+    # ------------------------------- issue 37: a stop on a coordinate break (a turn about z)
+    Mutation("stop_on_break_gap_counted_twice", "the gap before a stop on a break also put "
+             "between the stop and the break (the break and all after it moved along the axis)",
+             "deeplens/optics/io/zmx_read.py",
+             "                gap = 0.0                # the break's vertex is the stop's",
+             "                pass", STOP_ON_BREAK),
 ]
 
 
