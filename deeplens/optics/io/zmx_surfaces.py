@@ -40,12 +40,15 @@ def _unbounded_annular_clap(s: ZmxSurface, k: int, p: Locator) -> None:
     surface's semi-diameter not physically meaningful (User Guide, *Aperture (surface
     properties)*), so the outer radius gives way to the ``DIAM`` (fixed or automatic, as the
     file gives it) and ``lo`` stays the central hole, with a located note.  Taken as the
-    semi-diameter, ``hi`` would put the surface beyond its conic's domain.  Changes ``s``."""
+    semi-diameter, ``hi`` would put the surface beyond its conic's domain.  Only where the hole
+    lies within the ``DIAM`` (``lo < DIAM < hi``): an annulus wholly beyond the ``DIAM`` keeps
+    its radii.  Changes ``s``."""
     if s.clap is None or s.obsc is None or s.obsc[1] != s.clap[1] or not s.diam > 0:
         return   # not an annular CLAP (its hole is an OBSC on the CLAP's line), or no DIAM
     hi, ln = s.clap
-    if not hi > s.diam:
-        return
+    if not s.obsc[0] < s.diam < hi:
+        return   # within the DIAM; or the whole annulus beyond it (its radii are then the
+        # only sizes the file gives the opening: kept, as a CLAP 85 180 beside DIAM 72.5)
     p.note(ln, f"CLAP on SURF {k}: the outer radius {hi:g} lies beyond the surface's "
                f"semi-diameter (DIAM {s.diam:g}), which OpticStudio calls not physically "
                f"meaningful; read with the DIAM as the outer edge (the annulus' inner radius "

@@ -63,8 +63,11 @@ def test_unbounded_outer_radius_gives_way_to_the_diam(tmp_path):
     assert not any("beyond the surface's semi-diameter" in str(x.message) for x in ref_notes)
 
 
-@pytest.mark.parametrize("hi", [8.0, 12.0])
-def test_outer_radius_within_the_diam_is_kept(tmp_path, hi):
-    lens, notes = _read(write(tmp_path, _file(f"  CLAP 4.0 {hi} 0")))
+@pytest.mark.parametrize("lo, hi", [(4.0, 8.0), (4.0, 12.0), (14.0, 20.0)])
+def test_outer_radius_within_the_diam_or_a_ring_beyond_it_is_kept(tmp_path, lo, hi):
+    """An outer radius within the DIAM, and a ring wholly beyond it (its radii the only sizes
+    the file gives the opening: two real files of the first unseen set, CLAP 85 180 beside an
+    automatic DIAM 72.5), keep the CLAP's outer radius as the semi-diameter."""
+    lens, notes = _read(write(tmp_path, _file(f"  CLAP {lo} {hi} 0")))
     assert float(lens.surfaces[1].semi_diameter) == hi
     assert not any("beyond the surface's semi-diameter" in str(x.message) for x in notes)
