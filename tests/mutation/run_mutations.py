@@ -99,6 +99,8 @@ CODEV_APERTURES = ("tests/optics/io/test_codev_apertures.py",)
 CODEV_ZOOM = ("tests/optics/io/test_codev_zoom.py",)
 CORNING = ("tests/optics/io/test_corning_glass.py",)
 QBFS_CONIC = ("tests/optics/io/test_zmx_qbfs_conic.py",)
+STOP_ON_BREAK = ("tests/optics/io/test_zmx_stop_on_break.py",)
+CLAP_BEYOND_DIAM = ("tests/optics/io/test_zmx_clap_beyond_diam.py",)
 CAMERA = ("tests/optics/test_camera.py", "tests/render/test_camera_paths.py",
           "tests/training/test_camera_step.py", "tests/training/test_wiener_options.py")
 
@@ -1125,6 +1127,16 @@ MUTATIONS = [
              "            shifts.append(-1)   # on a grid line inside the grid: both cells",
              "            pass   # planted: one cell only",
              ("tests/optics/io/test_zmx_oracle_stand_ins.py",)),
+    # ------------------------------- issue 37: a stop on a coordinate break (a turn about z)
+    Mutation("stop_on_break_gap_counted_twice", "the gap before a stop on a break also put "
+             "between the stop and the break (the break and all after it moved along the axis)",
+             "deeplens/optics/io/zmx_read.py",
+             "                gap = 0.0                # the break's vertex is the stop's",
+             "                pass", STOP_ON_BREAK),
+    Mutation("clap_beyond_diam_kept", "an annular CLAP's unbounded outer radius (CLAP 4 1e10) "
+             "taken as the surface's semi-diameter instead of giving way to its DIAM",
+             "deeplens/optics/io/zmx_surfaces.py", "    s.clap = None\n", "    pass\n",
+             CLAP_BEYOND_DIAM),
 ]
 
 

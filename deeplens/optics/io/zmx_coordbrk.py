@@ -23,11 +23,13 @@ dummy: only its thickness counts.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 from ..surfaces import CoordinateBreak
 
-__all__ = ["is_identity", "misalignment_brackets", "coordinate_break", "coordbrk_lines"]
+__all__ = ["is_identity", "misalignment_brackets", "coordinate_break", "coordbrk_lines",
+           "stop_plane_of_break"]
 
 _PARMS = (1, 2, 3, 4, 5)   # dx, dy, tilt x, tilt y, tilt z
 
@@ -88,6 +90,40 @@ def misalignment_brackets(surfs) -> dict[int, int]:
         else:
             i += 1
     return out
+
+
+def stop_plane_of_break(s, k: int, p):
+    """The flat stop at the vertex of ``COORDBRK`` block ``s`` (``SURF k``) that carries the
+    ``STOP``: a copy of the block as a plain ``STANDARD`` plane of thickness 0, placed before the
+    break (in the frame the light arrives in), or a located refusal.
+
+    A break with no decenter (``PARM 1``, ``PARM 2``) and no tilt about x or y (``PARM 3``,
+    ``PARM 4``) turns the frame about the z axis through its vertex only: the vertex plane is the
+    same before and after it, and a circle centred on the vertex is the same circle in both
+    frames, so a circular stop there is unambiguous (OpticStudio's toroid sample: a 45° turn
+    about z).  A break that decentres or tilts out of that plane moves it: before or after the
+    break are two different stops, and the reader refuses.  A non-circular aperture on the
+    break (``SQAP``, ``ELAP``, ``ELOB``, ``OBSC``, ``OBDC``) would turn with the frame: refused
+    too.  ``p``: the :class:`~.zmx_parse.Locator`."""
+    dx, dy, tx, ty, tz = _values(s)
+    if any(v != 0 for v in (dx, dy, tx, ty)):
+        p.fail(s.line, f"SURF {k}: the STOP is on a COORDBRK that decentres (PARM 1, 2: {dx:g}, "
+                       f"{dy:g}) or tilts about x or y (PARM 3, 4: {tx:g}, {ty:g} degrees): its "
+                       f"vertex plane differs before and after the break, so where the stop "
+                       f"lies is ambiguous; deeplens reads a stop on a break only when the break "
+                       f"turns about z alone (put the stop on a plain surface before or after "
+                       f"the break)")
+    shaped = [(name, v) for name, v in (("SQAP", s.sqap), ("ELAP", s.elap), ("ELOB", s.elob),
+                                        ("OBSC", s.obsc), ("OBDC", s.obdc)) if v is not None]
+    if shaped:
+        name, v = shaped[0]
+        p.fail(v[-1], f"SURF {k}: {name} on a STOP that is a COORDBRK turning the frame "
+                      f"{tz:g} degrees about z: the aperture's shape or place differs before "
+                      f"and after the turn; deeplens reads only a circular stop (DIAM, CLAP) "
+                      f"on a break (put the stop on a plain surface before or after it)")
+    return dataclasses.replace(s, type="STANDARD", curv=0.0, coni=0.0, parm={}, xdat={},
+                               disz=0.0, glass=None, glass_model=None, glass_model_name=None,
+                               mirror=False)
 
 
 def coordinate_break(s, s_mm: float) -> CoordinateBreak:

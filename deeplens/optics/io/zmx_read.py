@@ -24,7 +24,8 @@ from ..frames import travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
 from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
-from .zmx_coordbrk import coordinate_break, is_identity, misalignment_brackets, y_fields_only
+from .zmx_coordbrk import (coordinate_break, is_identity, misalignment_brackets,
+                           stop_plane_of_break, y_fields_only)
 from .zmx_glass import load_catalogues, surface_material
 from .zmx_mconf import configuration
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
@@ -376,8 +377,17 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
         s = surfs[k]
         prev = media[-1]
         if s.type == "COORDBRK":
-            if s.glass is not None or s.stop:
-                p.fail(s.line, "a COORDBRK surface cannot carry a glass or the stop")
+            if s.glass is not None:
+                p.fail(s.line, "a COORDBRK surface cannot carry a glass")
+            if s.stop:                   # a turn about z alone: a flat stop at its vertex
+                plane = stop_plane_of_break(s, k, p)
+                surf, auto = build_surface(plane, k, prev, prev, s_mm, folded, p, qbfs_conic)
+                if auto:
+                    autos.append(len(kept))
+                stop_idx = len(kept)
+                kept.append((surf, prev, s, gap))   # the block itself: its line, DIAM, CLAP
+                media.append(prev)
+                gap = 0.0                # the break's vertex is the stop's
             if is_identity(s):           # a dummy: its thickness only
                 gap += s.disz * s_mm
                 continue

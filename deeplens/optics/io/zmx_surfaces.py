@@ -33,6 +33,29 @@ from .zmx_parse import Locator, ZmxSurface
 __all__ = ["build_surface", "is_air", "PROVISIONAL_SD_MM"]
 
 
+def _unbounded_annular_clap(s: ZmxSurface, k: int, p: Locator) -> None:
+    """An annular ``CLAP lo hi`` whose outer radius lies beyond the surface's semi-diameter
+    (``DIAM``; OpticStudio's Schmidt-Cassegrain sample: ``CLAP 4 1e10`` on its primary, no real
+    outer radius): OpticStudio allows it but calls a surface aperture extending beyond the
+    surface's semi-diameter not physically meaningful (User Guide, *Aperture (surface
+    properties)*), so the outer radius gives way to the ``DIAM`` (fixed or automatic, as the
+    file gives it) and ``lo`` stays the central hole, with a located note.  Taken as the
+    semi-diameter, ``hi`` would put the surface beyond its conic's domain.  Only where the hole
+    lies within the ``DIAM`` (``lo < DIAM < hi``): an annulus wholly beyond the ``DIAM`` keeps
+    its radii.  Changes ``s``."""
+    if s.clap is None or s.obsc is None or s.obsc[1] != s.clap[1] or not s.diam > 0:
+        return   # not an annular CLAP (its hole is an OBSC on the CLAP's line), or no DIAM
+    hi, ln = s.clap
+    if not s.obsc[0] < s.diam < hi:
+        return   # within the DIAM; or the whole annulus beyond it (its radii are then the
+        # only sizes the file gives the opening: kept, as a CLAP 85 180 beside DIAM 72.5)
+    p.note(ln, f"CLAP on SURF {k}: the outer radius {hi:g} lies beyond the surface's "
+               f"semi-diameter (DIAM {s.diam:g}), which OpticStudio calls not physically "
+               f"meaningful; read with the DIAM as the outer edge (the annulus' inner radius "
+               f"{s.obsc[0]:g} kept)")
+    s.clap = None
+
+
 def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: float,
                   folded: bool, p: Locator, qbfs_conic: str = "forbes"):
     """The surface of ``SURF k`` (block ``s``), between ``prev`` and ``mat``: ``(surface,
@@ -46,6 +69,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         p.note(s.obdc[2], f"OBDC on SURF {k}: the surface has no aperture (CLAP, SQAP, ELAP) to "
                           f"decentre; ignored")
         s.obdc = None
+    _unbounded_annular_clap(s, k, p)
     c = s.curv / s_mm
     sd = s.diam * s_mm
     if s.clap is not None:
