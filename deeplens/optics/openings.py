@@ -11,6 +11,10 @@ the compiled one, whose fused kernels clip by a centred circle or rectangle only
 * :class:`Rectangle` ``(half_widths)``: ``|x - d_x| <= w_x`` and ``|y - d_y| <= w_y``;
 * :class:`Ellipse` ``(half_axes)``: ``((x - d_x) / a)^2 + ((y - d_y) / b)^2 <= 1``, ``a`` along
   the local x axis and ``b`` along y (Zemax's ``ELAP``/``ELOB``, CODE V's ``ELX``/``ELY``);
+* :class:`Spider` ``(width, n_arms, angle)``: ``n_arms`` straight arms of full width ``width``
+  from the centre outwards, equally spaced, the first at ``angle`` (radians from the local +x
+  axis towards +y): a telescope's secondary supports (Zemax's ``SPID``), used as an obscuration
+  (``outer - Spider(...)``);
 * :class:`Everywhere`: no limit (a coordinate break).
 
 and their compositions: ``a & b`` (:class:`Intersection`: inside both) and ``a - b``
@@ -35,7 +39,7 @@ import math
 
 import torch
 
-__all__ = ["Opening", "Circle", "Rectangle", "Ellipse", "Everywhere", "Intersection",
+__all__ = ["Opening", "Circle", "Rectangle", "Ellipse", "Spider", "Everywhere", "Intersection",
            "Difference", "annulus", "in_circle", "in_rect", "in_ellipse"]
 
 
@@ -227,6 +231,60 @@ class Ellipse(_Centred):
     def __repr__(self) -> str:
         return f"Ellipse({[float(v) for v in self.half_axes]}" + (
             f", decenter={list(self._centre())})" if self.decenter is not None else ")")
+
+
+class Spider(_Centred):
+    """``n_arms`` arms of full width ``width`` (mm, ``> 0``), each a half-strip from the centre
+    (``decenter``) outwards, equally spaced: arm ``j`` runs along ``u_j = (cos t_j, sin t_j)``,
+    ``t_j = angle + 2 pi j / n_arms`` (``angle`` in radians, from the local +x axis towards +y).
+    A point ``q`` (relative to the centre) lies inside arm ``j`` when ``q . u_j > 0`` (on the
+    arm's side of the centre) and ``|q x u_j| < width / 2`` (strictly within half the width of
+    its centre line); the region is the union of the arms, unbounded outwards (an obscuration:
+    ``Circle(r) - Spider(...)`` blocks the arms within the circle, their edges pass).  Zemax's
+    ``SPID width n`` with the first arm along +x; a frame turned about z turns ``angle``."""
+
+    kind = "spider"
+
+    def __init__(self, width, n_arms: int, angle=0.0, decenter=None, check: bool = True):
+        super().__init__(decenter, check)
+        if check:
+            if isinstance(n_arms, bool) or int(n_arms) != n_arms or not int(n_arms) >= 1:
+                raise ValueError(f"Spider: the number of arms must be an integer >= 1, got "
+                                 f"{n_arms!r}")
+            w = float(width)
+            if not 0 < w < math.inf:
+                raise ValueError(f"Spider: the arm width must be finite and > 0 mm, got {w!r}")
+            if not math.isfinite(float(angle)):
+                raise ValueError(f"Spider: the first arm's angle must be finite, got {angle!r}")
+        self.width = _tensor(width) if check else width
+        self.n_arms = int(n_arms)
+        self.angle = _tensor(angle) if check else angle
+
+    def _arms(self, x, y):
+        """``(along, across)``, each ``(n_arms, *B)``: the coordinates of ``(x, y)`` along
+        and across each arm's centre line."""
+        u, v = self._local(x, y)
+        j = torch.arange(self.n_arms, dtype=torch.float64, device=x.device)
+        t = (self.angle.to(torch.float64).to(x.device) + 2.0 * math.pi * j / self.n_arms)
+        c, s = torch.cos(t).to(x.dtype), torch.sin(t).to(x.dtype)
+        shape = (self.n_arms,) + (1,) * u.dim()
+        c, s = c.reshape(shape), s.reshape(shape)
+        return u * c + v * s, v * c - u * s
+
+    def contains(self, x, y):
+        along, across = self._arms(x, y)
+        half = 0.5 * self.width.to(x)
+        return ((along > 0) & (across.abs() < half)).any(dim=0)
+
+    def outside(self, x, y):
+        return ~self.contains(x, y)
+
+    def bounds(self):
+        return self._centre(), math.inf
+
+    def __repr__(self) -> str:
+        return (f"Spider({float(self.width):g}, {self.n_arms}, angle={float(self.angle):g}"
+                + (f", decenter={list(self._centre())})" if self.decenter is not None else ")"))
 
 
 class Everywhere(Opening):

@@ -163,13 +163,17 @@ def write_aperture(s, i: int | None = None) -> list[str] | None:
     rectangular or elliptical opening, or ``None`` when it has none (a rectangular or
     elliptical :class:`Aperture`, or a clear rectangle or ellipse whose clear circle is its
     circumscribed one, as :func:`apply_aperture` builds them).  An elliptical obscuration has
-    no CODE V record here (the reader refuses ``ELX OBS``): ``LensFileError``."""
+    no CODE V record here (the reader refuses ``ELX OBS``), nor a spider: ``LensFileError``."""
     from ..errors import LensFileError
     from ..surfaces import Aperture
     from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
 
     if obscuration_ellipse_of(s) is not None:
         raise LensFileError(f"surface {i}: an elliptical obscuration has no CODE V record here "
+                            f"(deeplens reads CIR OBS circles only)",
+                            surfaces=() if i is None else (i,))
+    if isinstance(s, Aperture) and s.spider_of() is not None:
+        raise LensFileError(f"surface {i}: a spider obscuration has no CODE V record here "
                             f"(deeplens reads CIR OBS circles only)",
                             surfaces=() if i is None else (i,))
     names = ("REX", "REY")

@@ -493,6 +493,14 @@ class ApertureFormat(SurfaceFormat):
         if float(s.obscuration) > 0 and not s.decentred:   # a ring: OBSC inner outer
             ri = float(s.obscuration_inner)
             lines.append(f"OBSC {_f(ri) if ri > 0 else 0} {_f(s.obscuration)} 0")
+        spi = s.spider_of()
+        if spi is not None:   # its only surface aperture (no CLAP: one type per surface)
+            if s.decentred or spi[2] != 0.0:
+                raise ZemaxFileError(f"surface {i}: a decentred spider or one whose first arm "
+                                     f"is not along +x (angle {math.degrees(spi[2]):g} deg) "
+                                     f"has no Zemax record here (SPID's first arm lies along "
+                                     f"+x; OBDC with SPID is not read)", surfaces=(i,))
+            lines.append(f"SPID {_f(spi[0])} {spi[1]} 0")
         ell = obscuration_ellipse_of(s)
         if ell is not None:   # its only surface aperture (no CLAP: one type per surface)
             if s.decentred:
@@ -576,6 +584,10 @@ class _StandardFamily(SurfaceFormat):
             outer = sd if (ctx.fixed or s.stop) else 1.01 * sd
             ab = (s.elob[0] * s_mm, s.elob[1] * s_mm)
             return Aperture(outer if outer > max(ab) else 2.0 * max(ab), obscuration_ellipse=ab)
+        if s.spid is not None and flat and in_air:   # SPID: a spider, the surface's obscuration
+            outer = sd if (ctx.fixed or s.stop) else 1.01 * sd
+            return Aperture(outer if outer > 0 else sd_build,
+                            spider=(s.spid[0] * s_mm, s.spid[1], math.radians(s.spid_angle)))
         if flat and in_air and not s.mirror:
             return Aperture(sd_build)
         if flat and s.obdc is None:

@@ -125,6 +125,8 @@ class ZmxSurface:
     elap: tuple | None = None   # (x half-axis, y half-axis, line): an elliptical aperture
     elob: tuple | None = None   # (x half-axis, y half-axis, line): an elliptical obscuration
     obsc: tuple | None = None   # (obscuration's outer radius, line) in file units
+    spid: tuple | None = None   # (arm width in file units, number of arms, line): SPID
+    spid_angle: float = 0.0     # the first arm's angle (degrees from +x): a bracket's z turn
     obsc_inner: tuple | None = None   # (a ring obscuration's inner radius > 0, line): OBSC lo hi
     mirror: bool = False               # GLAS MIRROR
     obdc: tuple | None = None   # (x, y aperture decenter, line) in file units
@@ -464,6 +466,21 @@ def _ellipse(st: _Parse, r: Record) -> None:
         cur.elob = (a, b, ln)
 
 
+def _spid(st: _Parse, r: Record) -> None:
+    """``SPID width n``: a spider obscuration, ``n`` equally spaced arms of full width
+    ``width`` (lens units) from the surface's vertex, the first along the local +x axis
+    (OpticStudio's *Spider* surface aperture: arm width, number of arms)."""
+    p, toks, ln = st.p, r.tokens, r.line
+    k = len(st.surfs) - 1
+    w, n = p.arg(toks, 1, ln, "arm width"), p.arg(toks, 2, ln, "number of arms")
+    if not (w > 0 and math.isfinite(w)):
+        p.fail(ln, f"SPID on SURF {k}: expected the arms' width > 0 (lens units), got {w:g}")
+    if not (n >= 1 and n == int(n)):
+        p.fail(ln, f"SPID on SURF {k}: expected the number of arms, an integer >= 1, got "
+                   f"{toks[2]!r}")
+    st.cur.spid = (w, int(n), ln)
+
+
 def _obdc(st: _Parse, r: Record) -> None:
     p, toks, ln = st.p, r.tokens, r.line
     dec = (p.arg(toks, 1, ln, "x decenter"), p.arg(toks, 2, ln, "y decenter"))
@@ -503,7 +520,7 @@ def _garr(st: _Parse, r: Record) -> None:
 
 
 _APERTURES_REFUSED = {
-    "SQOB": "a rectangular obscuration", "UDAD": "a user-defined aperture", "SPID": "a spider"}
+    "SQOB": "a rectangular obscuration", "UDAD": "a user-defined aperture"}
 
 
 def _aperture_refused(st: _Parse, r: Record) -> None:
@@ -511,7 +528,7 @@ def _aperture_refused(st: _Parse, r: Record) -> None:
     st.p.fail(r.line, f"{key} on SURF {len(st.surfs) - 1}: {_APERTURES_REFUSED[key]} is not "
                       f"supported (deeplens reads circular, rectangular and elliptical "
                       f"apertures: DIAM, CLAP, SQAP, ELAP; circular and elliptical "
-                      f"obscurations: OBSC, ELOB)")
+                      f"obscurations and spiders: OBSC, ELOB, SPID)")
 
 
 def _surface_ignored(st: _Parse, r: Record) -> None:
@@ -533,6 +550,7 @@ _SURFACE_OPERANDS = {
     "TYPE": _type, "CURV": _curv, "DISZ": _disz, "CONI": _coni, "DIAM": _diam, "STOP": _stop,
     "PARM": _parm, "XDAT": _xdat, "GLAS": _glas, "CLAP": _clap, "OBSC": _obsc, "SQAP": _sqap,
     "OBDC": _obdc, "GDAT": _gdat, "GARR": _garr, "ELAP": _ellipse, "ELOB": _ellipse,
+    "SPID": _spid,
     **dict.fromkeys(_APERTURES_REFUSED, _aperture_refused),
     **dict.fromkeys(("TCE", "COAT", "PZUP", "SCBD"), _surface_ignored),
 }
@@ -667,7 +685,8 @@ def _check_magnitudes(sysd: dict, surfs: list[ZmxSurface], p: Locator) -> None:
         for rec, what in ((s.clap, "CLAP radius"), (s.obsc, "obscuration radius"),
                           (s.obsc_inner, "ring obscuration's inner radius"),
                           (s.sqap, "SQAP half-width"), (s.obdc, "OBDC decenter"),
-                          (s.elap, "ELAP half-axis"), (s.elob, "ELOB half-axis")):
+                          (s.elap, "ELAP half-axis"), (s.elob, "ELOB half-axis"),
+                          (s.spid and (s.spid[0], s.spid[2]), "SPID arm width")):
             if rec is not None:
                 for v in rec[:-1]:
                     length(v, rec[-1], f"{what} (SURF {k})")

@@ -410,6 +410,8 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
                 if math.isinf(s.disz):
                     p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
             continue
+        if s.spid is not None and bracket is not None:
+            _turn_spider(s, k, bracket, p)
         mat = prev if s.mirror else surface_material(s, gcat, cats, glass_fallback, p, 4)
         built = build_surface(s, k, mat, prev, s_mm, folded, p, qbfs_conic)
         if built is None:   # a dummy surface: its thickness only
@@ -438,6 +440,21 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
                     groups=groups, gap=gap, stop_idx=stop_idx, autos=autos, mirrors=mirrors,
                     folded=folded)
     return seq
+
+
+def _turn_spider(s, k: int, bracket: dict, p: Locator) -> None:
+    """A ``SPID`` inside a ``COORDBRK`` pair read as a misalignment: the pair's turn about z
+    (``PARM 5``, degrees) turns the spider's arms, whose first lies along the turned frame's +x
+    (OpticStudio's sample Schmidt-Cassegrain turns its three-armed spider by 30 degrees so that
+    it is symmetric about the y-z plane); ``x_before = R_z(t) x_after``
+    (:class:`~deeplens.optics.surfaces.CoordinateBreak`), so the first arm lies at ``+t`` in the
+    lens's frame.  A pair that also decentres or tilts about x or y is refused.  Changes ``s``."""
+    dx, dy, tx, ty, tz = bracket["d"]
+    if any(v != 0 for v in (dx, dy, tx, ty)):
+        p.fail(s.spid[2], f"SPID on SURF {k}: a spider inside a COORDBRK pair (line "
+                          f"{bracket['line']}) that decentres or tilts about x or y is not "
+                          f"supported (deeplens turns a spider by a pair's turn about z alone)")
+    s.spid_angle += tz
 
 
 def _axis_indices(seq: _Sequence, primary: float):

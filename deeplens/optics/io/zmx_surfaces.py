@@ -9,7 +9,8 @@ fixed aperture is a dummy (its thickness only); an automatic semi-diameter; ``SQ
 likewise (an elliptical one, :func:`~deeplens.optics.surfaces.base.set_clear_ellipse`), ``OBDC``
 (the decenter of a ``CLAP``, ``SQAP`` or ``ELAP``), ``OBSC`` (a central obscuration) and ``ELOB``
 (an elliptical obscuration about the vertex of a lens or mirror surface,
-:func:`~deeplens.optics.surfaces.base.set_obscuration_ellipse`).  Lengths are
+:func:`~deeplens.optics.surfaces.base.set_obscuration_ellipse`); ``SPID`` (a spider, on a flat
+surface in air: an :class:`Aperture` with a :class:`~deeplens.optics.openings.Spider`).  Lengths are
 scaled from file units to mm here (``s_mm``); errors are raised through the reader's
 :class:`~.zmx_parse.Locator`.
 """
@@ -83,7 +84,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     same_medium = (type(mat) is type(prev) and mat.name == prev.name)
     if (flat and same_medium and not s.stop and not fixed and s.clap is None
             and s.sqap is None and s.obsc is None and s.elap is None and s.elob is None
-            and not s.mirror):
+            and s.spid is None and not s.mirror):
         return None   # a dummy surface: its thickness only
     # OpticStudio applies a floating aperture (a circular aperture at the semi-diameter) for a
     # user-defined semi-diameter only on a surface with refractive power and no surface
@@ -94,6 +95,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             and s.sqap is None and s.elap is None):
         what = ("beside an OBSC (a surface aperture)" if s.obsc is not None else
                 "beside an ELOB (a surface aperture)" if s.elob is not None else
+                "beside a SPID (a surface aperture)" if s.spid is not None else
                 "of a flat surface in one medium with no surface aperture (CLAP, SQAP, OBSC)")
         p.note(s.diam_line, f"SURF {k}: the fixed DIAM {s.diam:g} {what} does not clip rays in "
                             f"OpticStudio (its floating aperture is applied only on a surface "
@@ -159,6 +161,12 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             set_obscuration_ellipse(surf, (s.elob[0] * s_mm, s.elob[1] * s_mm))
         except ValueError as e:
             p.fail(s.elob[2], f"ELOB on SURF {k}: {e}")
+    if s.spid is not None and not isinstance(surf, Aperture):
+        what = "mirror" if s.mirror else ("flat surface between two media" if flat
+                                          else "lens surface")
+        p.fail(s.spid[2], f"SPID on SURF {k}: a spider on a {what} ({type(surf).__name__}) is "
+                          f"not supported (deeplens has spiders on flat surfaces in air: put "
+                          f"the spider on its own flat dummy surface where that is equivalent)")
     if s.obdc is not None:   # the decenter of the opening (not on the stop)
         dec = _aperture_decenter(s, k, surf, s_mm, p)
         if isinstance(surf, Aperture):
@@ -230,15 +238,16 @@ def _check_ellipses(s: ZmxSurface, k: int, p: Locator) -> None:
     surface one aperture type): beside a ``CLAP``, ``SQAP``, ``OBSC`` or the other ellipse
     record it is refused with its line, as ``SQAP`` is beside a ``CLAP`` or ``OBSC``; an
     ``OBDC`` does not move an ``ELOB`` (refused, as for an ``OBSC`` on a lens surface)."""
-    for rec, key in ((s.elap, "ELAP"), (s.elob, "ELOB")):
+    for rec, key in ((s.elap, "ELAP"), (s.elob, "ELOB"), (s.spid, "SPID")):
         if rec is None:
             continue
         others = [name for name, r in (("CLAP", s.clap), ("SQAP", s.sqap), ("OBSC", s.obsc),
-                                       ("ELAP", s.elap), ("ELOB", s.elob))
+                                       ("ELAP", s.elap), ("ELOB", s.elob), ("SPID", s.spid))
                   if r is not None and name != key]
         if others:
-            what = "aperture" if key == "ELAP" else "obscuration"
-            p.fail(rec[2], f"{key} on SURF {k}: an elliptical {what} "
+            what = {"ELAP": "an elliptical aperture", "ELOB": "an elliptical obscuration",
+                    "SPID": "a spider"}[key]
+            p.fail(rec[2], f"{key} on SURF {k}: {what} "
                            f"together with {', '.join(others)} on one surface is not supported "
                            f"(OpticStudio gives a surface one aperture type; deeplens reads "
                            f"each alone)")
@@ -246,6 +255,9 @@ def _check_ellipses(s: ZmxSurface, k: int, p: Locator) -> None:
         p.fail(s.obdc[2], f"OBDC on SURF {k} with ELOB: a decentred elliptical obscuration is "
                           f"not supported (deeplens' elliptical obscurations are centred on the "
                           f"surface's vertex)")
+    if s.spid is not None and s.obdc is not None:
+        p.fail(s.obdc[2], f"OBDC on SURF {k} with SPID: a decentred spider is not supported "
+                          f"(deeplens' spiders from .zmx are centred on the surface's vertex)")
 
 
 def _aperture_decenter(s: ZmxSurface, k: int, surf, s_mm, p: Locator):

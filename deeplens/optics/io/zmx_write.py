@@ -221,10 +221,11 @@ def _surface_lines(s, i, is_stop) -> list[str]:
                              surfaces=(i,))
     lines = (["STOP"] if is_stop else []) + handler.write_zmx(s, i)
     if (isinstance(s, Aperture) and not is_stop and s.shape == "circle"
-            and not any(ln.startswith(("CLAP", "ELOB")) for ln in lines)):
+            and not any(ln.startswith(("CLAP", "ELOB", "SPID")) for ln in lines)):
         # an opening that is not the stop: OpticStudio clips a flat surface only on a surface
         # aperture (a fixed DIAM there is drawn, never clips): its circle is a CLAP (not
-        # beside an ELOB, the surface's one aperture: the DIAM is drawn, the reader sizes it)
+        # beside an ELOB or a SPID, the surface's one aperture: the DIAM is drawn, the reader
+        # sizes it)
         lines.append(f"CLAP 0 {float(s.semi_diameter)!r} 0")
     rect = clear_rect_of(s)
     if rect is not None and not any(ln.startswith("SQAP") for ln in lines):

@@ -27,7 +27,7 @@ import math
 import torch
 
 from ..interactions import STOP_CROSSING
-from ..openings import Circle, Ellipse, Opening, Rectangle, in_rect
+from ..openings import Circle, Ellipse, Opening, Rectangle, Spider, in_rect
 from .base import host_flags, register_surface
 from .plane import Plane
 
@@ -53,6 +53,12 @@ class Aperture(Plane):
             half-axes (along x, along y) in a circular opening, instead of a circular one; both
             below ``semi_diameter``.  A fixed buffer ``obscuration_ellipse``, registered only
             when given (not in ``state_dict``; lens file: ``obscuration_ellipse_mm``).
+        spider: ``(width, n_arms, angle)`` or ``None``: a spider obscuration in a circular
+            opening without another obscuration (:class:`~deeplens.optics.openings.Spider`:
+            ``n_arms`` equally spaced arms of full width ``width`` mm from the centre, the first
+            at ``angle`` radians from +x towards +y; Zemax's ``SPID``).  A fixed buffer
+            ``spider``, registered only when given (not in ``state_dict``; lens file:
+            ``spider_width_mm``, ``spider_arms``, ``spider_angle_deg``); traced eager.
         decenter: ``(d_x, d_y)``, mm: the centre of the opening (and of its obscuration) in the
             plane; ``(0, 0)`` by default.  A decentred aperture runs eager (the compiled runs
             clip about the axis).
@@ -64,7 +70,7 @@ class Aperture(Plane):
     def __init__(self, semi_diameter: float | None = None, shape: str = "circle",
                  half_width_x: float | None = None, half_width_y: float | None = None,
                  obscuration: float = 0.0, decenter: tuple[float, float] = (0.0, 0.0),
-                 obscuration_inner: float = 0.0, obscuration_ellipse=None):
+                 obscuration_inner: float = 0.0, obscuration_ellipse=None, spider=None):
         if shape not in ("circle", "rect", "ellipse"):
             raise ValueError(f"Aperture: shape must be 'circle', 'rect' or 'ellipse', got "
                              f"{shape!r}")
@@ -111,6 +117,17 @@ class Aperture(Plane):
                                  f"{obscuration_ellipse!r}")
             self.register_buffer("obscuration_ellipse", torch.tensor(ab, dtype=torch.float64),
                                  persistent=False)
+        if spider is not None:
+            vals = list(spider)
+            if (len(vals) != 3 or shape != "circle" or obscuration != 0.0
+                    or obscuration_ellipse is not None):
+                raise ValueError(f"Aperture: a spider needs a circular opening without another "
+                                 f"obscuration and (width mm, n_arms, angle rad), got {spider!r}")
+            w, n, ang = float(vals[0]), vals[1], float(vals[2])
+            Spider(w, n, ang)   # validates: width > 0, n an integer >= 1, a finite angle
+            self.register_buffer("spider", torch.tensor([w, int(n), ang], dtype=torch.float64),
+                                 persistent=False)
+        self._n_spider = 0 if spider is None else int(spider[1])   # host int: no sync at clips
         dec = [float(v) for v in decenter]
         if len(dec) != 2 or not all(math.isfinite(v) for v in dec):
             raise ValueError(f"Aperture: decenter must be two finite numbers of mm (d_x, d_y), "
@@ -140,7 +157,20 @@ class Aperture(Plane):
         ell = self._buffers.get("obscuration_ellipse")   # present only when set
         if ell is not None:
             return outer - Ellipse(ell, dec, check=False)
+        spi = self._buffers.get("spider")   # present only when set: (width, n_arms, angle)
+        if spi is not None:
+            return outer - Spider(spi[0], self.n_spider_arms, spi[2], dec, check=False)
         return outer
+
+    @property
+    def n_spider_arms(self) -> int:
+        """The spider's number of arms (0: no spider), a Python int."""
+        return self._n_spider
+
+    def spider_of(self):
+        """``(width mm, n_arms, angle rad)`` of the spider, or ``None``."""
+        spi = self._buffers.get("spider")
+        return None if spi is None else (float(spi[0]), self.n_spider_arms, float(spi[2]))
 
     @property
     def fused(self) -> str | None:
@@ -157,7 +187,8 @@ class Aperture(Plane):
         self.semi_diameter.fill_(float(value))
 
     file_fields = ("shape", "half_width_x_mm", "half_width_y_mm", "obscuration_mm",
-                   "obscuration_inner_mm", "decenter_mm", "obscuration_ellipse_mm")
+                   "obscuration_inner_mm", "decenter_mm", "obscuration_ellipse_mm",
+                   "spider_width_mm", "spider_arms", "spider_angle_deg")
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
@@ -174,10 +205,23 @@ class Aperture(Plane):
         if ell is not None and len(ell) != 2:
             entry.fail("obscuration_ellipse_mm", f"expected [a, b] in mm (half-axes along x and "
                                                  f"y), got {ell!r}")
+        spider = None
+        width = entry.get("spider_width_mm", default=None)
+        if width is not None:
+            n = entry.get("spider_arms", default=None)
+            if n is None or int(n) != n or n < 1:
+                entry.fail("spider_arms", f"expected the spider's number of arms, an integer "
+                                          f">= 1, beside spider_width_mm, got {n!r}")
+            if not width > 0:
+                entry.fail("spider_width_mm", f"expected the arms' full width > 0 mm, got "
+                                              f"{width!r}")
+            spider = (width, int(n), math.radians(entry.get("spider_angle_deg", default=0.0)))
+        elif entry.get("spider_arms", default=None) is not None:
+            entry.fail("spider_arms", "a spider needs spider_width_mm (the arms' full width)")
         return cls(semi_diameter, shape, obscuration=entry.get("obscuration_mm", default=0.0),
                    decenter=dec,
                    obscuration_inner=entry.get("obscuration_inner_mm", default=0.0),
-                   obscuration_ellipse=ell)
+                   obscuration_ellipse=ell, spider=spider)
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -188,6 +232,11 @@ class Aperture(Plane):
         ell = self._buffers.get("obscuration_ellipse")
         if ell is not None:
             d["obscuration_ellipse_mm"] = [float(v) for v in ell]
+        spi = self.spider_of()
+        if spi is not None:
+            d.update(spider_width_mm=spi[0], spider_arms=spi[1])
+            if spi[2] != 0.0:
+                d["spider_angle_deg"] = math.degrees(spi[2])
         if self.shape != "circle":
             d.update(shape=self.shape, half_width_x_mm=float(self.half_widths[0]),
                      half_width_y_mm=float(self.half_widths[1]))
