@@ -1137,6 +1137,17 @@ MUTATIONS = [
              "taken as the surface's semi-diameter instead of giving way to its DIAM",
              "deeplens/optics/io/zmx_surfaces.py", "    s.clap = None\n", "    pass\n",
              CLAP_BEYOND_DIAM),
+    # ------------------------------- issue 37: SPID, a spider obscuration
+    Mutation("spider_arms_half_spacing", "a spider's arms turned by half their spacing (the "
+             "first arm between +x and the second instead of along +x)",
+             "deeplens/optics/openings.py",
+             "t = (self.angle.to(torch.float64).to(x.device) + 2.0 * math.pi * j / self.n_arms)",
+             "t = (self.angle.to(torch.float64).to(x.device) + math.pi * (2 * j + 1) / self.n_arms)",
+             ("tests/optics/io/test_zmx_spider.py",)),
+    Mutation("spider_width_as_half_width", "a spider's arm width taken as its half-width (arms "
+             "twice as wide)", "deeplens/optics/openings.py",
+             "        half = 0.5 * self.width.to(x)\n", "        half = self.width.to(x)\n",
+             ("tests/optics/io/test_zmx_spider.py",)),
 ]
 
 
