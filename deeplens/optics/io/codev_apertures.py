@@ -172,7 +172,8 @@ def write_aperture(s, i: int | None = None) -> list[str] | None:
         raise LensFileError(f"surface {i}: an elliptical obscuration has no CODE V record here "
                             f"(deeplens reads CIR OBS circles only)",
                             surfaces=() if i is None else (i,))
-    if isinstance(s, Aperture) and s.spider_of() is not None:
+    from ..surfaces.base import obscuration_spider_of
+    if (isinstance(s, Aperture) and s.spider_of() is not None) or obscuration_spider_of(s):
         raise LensFileError(f"surface {i}: a spider obscuration has no CODE V record here "
                             f"(deeplens reads CIR OBS circles only)",
                             surfaces=() if i is None else (i,))

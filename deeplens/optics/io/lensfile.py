@@ -74,6 +74,7 @@ from ..lens import Lens, LensSpec
 from ..materials import check_wavelength_nm, get_material
 from ..surfaces import SURFACE_TYPES, Aperture, Cylinder, IdealLens
 from ..surfaces.base import (clear_ellipse_of, clear_rect_of, obscuration_ellipse_of,
+                            obscuration_spider_of, set_obscuration_spider,
                             set_clear_ellipse, set_clear_rect, set_obscuration_ellipse,
                             takes_clear_rect)
 from .atomic import replace, temp_path
@@ -216,7 +217,8 @@ def _surface_from_dict(r: _Reader, s: dict, path: str):
                     and not issubclass(cls, (Aperture, Cylinder, IdealLens)))
     # an elliptical clear aperture or obscuration (clear_ellipse_mm, obscuration_ellipse_mm)
     # on any such surface, an asphere's included (set_clear_ellipse, set_obscuration_ellipse)
-    ellipses = {"clear_ellipse_mm", "obscuration_ellipse_mm"} if (
+    ellipses = {"clear_ellipse_mm", "obscuration_ellipse_mm", "spider_width_mm", "spider_arms",
+                "spider_angle_deg"} if (
         takes_clear_rect(cls) and not issubclass(cls, (Aperture, Cylinder, IdealLens))) else set()
     r.keys(s, _COMMON_KEYS | set(cls.file_fields) | ({"clear_rect_mm"} if generic_rect else set())
            | ellipses, path)
@@ -245,6 +247,16 @@ def _surface_from_dict(r: _Reader, s: dict, path: str):
                 r.fail(f"{path}.{key}", str(e))
             with torch.no_grad():   # the file's semi-diameter stands (a stop's pupil radius)
                 surf.semi_diameter.fill_(sd)
+    if "spider_width_mm" in ellipses and ("spider_width_mm" in s or "spider_arms" in s):
+        # a spider obscuration about the vertex (set_obscuration_spider)
+        w = r.get(s, "spider_width_mm", path)
+        n = r.get(s, "spider_arms", path)
+        ang = r.get(s, "spider_angle_deg", path, default=0.0)
+        try:
+            set_obscuration_spider(surf, (w, n, math.radians(ang)))
+        except ValueError as e:
+            r.fail(f"{path}.spider_arms" if "arms" in str(e) else f"{path}.spider_width_mm",
+                   str(e))
     return surf
 
 
@@ -442,6 +454,11 @@ def lens_to_dict(lens: Lens) -> dict:
                         ("obscuration_ellipse_mm", obscuration_ellipse_of(s))):
             if ab is not None:
                 d[key] = list(ab)
+        spi = obscuration_spider_of(s)
+        if spi is not None:
+            d.update(spider_width_mm=spi[0], spider_arms=spi[1])
+            if spi[2] != 0.0:
+                d["spider_angle_deg"] = math.degrees(spi[2])
         d["distance_mm"] = float(lens.distances[i])
         d["material"] = "MIRROR" if i in lens.mirrors else _material_json(lens.materials[i + 1],
                                                                            spec)

@@ -26,7 +26,8 @@ from ..errors import ZemaxFileError
 from ..materials import Material
 from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, ZernikeSag
 from ..surfaces.base import (clear_ellipse_of, clear_rect_of, set_clear_ellipse,
-                            set_clear_rect, set_obscuration_ellipse, takes_clear_rect)
+                            set_clear_rect, set_obscuration_ellipse, set_obscuration_spider,
+                            takes_clear_rect)
 from .surface_formats import ZmxContext
 from .surface_handlers import FORMATS, PROVISIONAL_SD_MM, is_air
 from .zmx_parse import Locator, ZmxSurface
@@ -161,12 +162,17 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             set_obscuration_ellipse(surf, (s.elob[0] * s_mm, s.elob[1] * s_mm))
         except ValueError as e:
             p.fail(s.elob[2], f"ELOB on SURF {k}: {e}")
-    if s.spid is not None and not isinstance(surf, Aperture):
-        what = "mirror" if s.mirror else ("flat surface between two media" if flat
-                                          else "lens surface")
-        p.fail(s.spid[2], f"SPID on SURF {k}: a spider on a {what} ({type(surf).__name__}) is "
-                          f"not supported (deeplens has spiders on flat surfaces in air: put "
-                          f"the spider on its own flat dummy surface where that is equivalent)")
+    if s.spid is not None and not isinstance(surf, Aperture):   # (an Aperture: built with it)
+        # a spider on a lens or mirror surface, about its vertex, as an ELOB there
+        if isinstance(surf, (Cylinder, IdealLens)) or not takes_clear_rect(surf):
+            p.fail(s.spid[2], f"SPID on SURF {k}: a spider on a {type(surf).__name__} surface "
+                              f"is not supported (deeplens has spiders on flat surfaces in air "
+                              f"and on lens and mirror surfaces)")
+        try:
+            set_obscuration_spider(surf, (s.spid[0] * s_mm, s.spid[1],
+                                          math.radians(s.spid_angle)))
+        except ValueError as e:
+            p.fail(s.spid[2], f"SPID on SURF {k}: {e}")
     if s.obdc is not None:   # the decenter of the opening (not on the stop)
         dec = _aperture_decenter(s, k, surf, s_mm, p)
         if isinstance(surf, Aperture):

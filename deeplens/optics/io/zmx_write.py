@@ -19,7 +19,8 @@ from ..errors import ZemaxFileError
 from ..lens import Lens
 from ..materials import GLASS_TABLE, Air, Material, ModelGlass
 from ..surfaces import Aperture, CoordinateBreak
-from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
+from ..surfaces.base import (clear_ellipse_of, clear_rect_of, obscuration_ellipse_of,
+                            obscuration_spider_of)
 from .agf import AGFGlass
 from .surface_handlers import FORMATS
 from .vendor_glass import BuchdahlGlass
@@ -236,4 +237,14 @@ def _surface_lines(s, i, is_stop) -> list[str]:
     obs = obscuration_ellipse_of(s)
     if obs is not None and not any(ln.startswith("ELOB") for ln in lines):
         lines.append(f"ELOB {_f(obs[0])} {_f(obs[1])} 0")
+    spi = obscuration_spider_of(s)   # SPID (set_obscuration_spider), the surface's one aperture
+    if spi is not None:
+        others = [ln.split()[0] for ln in lines
+                  if ln.startswith(("CLAP", "SQAP", "ELAP", "ELOB", "OBSC", "OBDC"))]
+        if others or spi[2] != 0.0:
+            why = (f"beside {', '.join(others)} (one aperture type per surface)" if others else
+                   f"whose first arm is not along +x (angle {math.degrees(spi[2]):g} deg)")
+            raise ZemaxFileError(f"surface {i}: a spider obscuration {why} has no Zemax record "
+                                 f"here", surfaces=(i,))
+        lines.append(f"SPID {_f(spi[0])} {spi[1]} 0")
     return lines

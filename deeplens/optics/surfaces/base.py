@@ -36,12 +36,14 @@ import torch
 from torch import nn
 
 from ..interactions import REFRACTION
-from ..openings import Circle, Difference, Ellipse, Intersection, Opening, Rectangle, in_circle
+from ..openings import (Circle, Difference, Ellipse, Intersection, Opening, Rectangle, Spider,
+                        in_circle)
 from ..refract import unit_normal
 
 __all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", "register_surface",
            "set_clear_rect", "clear_rect_of", "takes_clear_rect", "set_clear_ellipse",
            "clear_ellipse_of", "set_obscuration_ellipse", "obscuration_ellipse_of",
+           "set_obscuration_spider", "obscuration_spider_of",
            "curvature_scale", "conic_scale"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
@@ -391,13 +393,19 @@ def with_ellipses(surface, opening: Opening) -> Opening:
     obs = surface._buffers.get("obscuration_ellipse")
     if obs is not None:
         opening = opening - Ellipse(obs, check=False)
+    spi = surface._buffers.get("obscuration_spider")   # (width, n_arms, angle): set_obscuration_spider
+    if spi is not None:
+        opening = opening - Spider(spi[0], surface._spider_arms, spi[2], check=False)
     return opening
 
 
 def _has_ellipse(opening: Opening, what) -> bool:
-    """Whether ``opening`` holds an :class:`Ellipse` made from the tensor ``what``."""
+    """Whether ``opening`` holds an :class:`Ellipse` made from the tensor ``what`` (or, for
+    ``what`` a spider's buffer, any :class:`Spider`)."""
     if isinstance(opening, Ellipse):
         return opening.half_axes is what
+    if isinstance(opening, Spider):
+        return what.numel() == 3
     if isinstance(opening, Intersection):
         return any(_has_ellipse(p, what) for p in opening.parts)
     if isinstance(opening, Difference):
@@ -428,8 +436,9 @@ def _check_built(surface, name: str, what: str) -> None:
     """Undo and refuse when ``surface``'s type builds its opening without the ellipse."""
     if not _has_ellipse(surface.opening, surface._buffers[name]):
         del surface._buffers[name]
+        label = what if what.startswith("spider") else f"elliptical {what}"
         raise ValueError(f"{type(surface).__name__}: this surface type's opening has no "
-                         f"elliptical {what} (it builds its own outline)")
+                         f"{label} (it builds its own outline)")
 
 
 def set_clear_ellipse(surface: Surface, half_axes) -> None:
@@ -482,6 +491,36 @@ def obscuration_ellipse_of(surface) -> tuple[float, float] | None:
     """The half-axes ``(a, b)`` (mm) of ``surface``'s elliptical obscuration, or ``None``."""
     obs = getattr(surface, "_buffers", {}).get("obscuration_ellipse")
     return None if obs is None else (float(obs[0]), float(obs[1]))
+
+
+def set_obscuration_spider(surface: Surface, spider) -> None:
+    """Give ``surface`` a spider obscuration ``spider = (width, n_arms, angle)`` about its vertex
+    (:class:`~deeplens.optics.openings.Spider`: ``n_arms`` equally spaced arms of full width
+    ``width`` mm, the first at ``angle`` radians from the local +x axis towards +y; Zemax's
+    ``SPID``): rays meeting it strictly inside an arm are blocked, the edges pass.  A fixed
+    buffer ``obscuration_spider``, not in ``state_dict`` (lens file: ``spider_width_mm``,
+    ``spider_arms``, ``spider_angle_deg``); traced on the eager path."""
+    if not takes_clear_rect(surface):
+        raise TypeError(f"a spider obscuration needs a surface the rays land on (not a stop or a "
+                        f"frame change: an Aperture takes spider=...), got "
+                        f"{type(surface).__name__}")
+    vals = list(spider)
+    if len(vals) != 3:
+        raise ValueError(f"{type(surface).__name__}: a spider needs (width mm, n_arms, angle "
+                         f"rad), got {spider!r}")
+    Spider(float(vals[0]), vals[1], float(vals[2]))   # validates
+    with torch.no_grad():
+        _set_buffer(surface, "obscuration_spider",
+                    torch.tensor([float(vals[0]), int(vals[1]), float(vals[2])],
+                                 dtype=torch.float64))
+    surface._spider_arms = int(vals[1])   # a host int: no read at each clip
+    _check_built(surface, "obscuration_spider", "spider obscuration")
+
+
+def obscuration_spider_of(surface) -> tuple[float, int, float] | None:
+    """``(width mm, n_arms, angle rad)`` of ``surface``'s spider obscuration, or ``None``."""
+    spi = getattr(surface, "_buffers", {}).get("obscuration_spider")
+    return None if spi is None else (float(spi[0]), int(surface._spider_arms), float(spi[2]))
 
 
 def clear_rect_of(surface) -> tuple[float, float] | None:

@@ -14,7 +14,7 @@ import math
 
 import pytest
 import torch
-from test_elliptical_apertures import _dummy_before_stop, _line, _passes
+from test_elliptical_apertures import _dummy_before_stop, _line, _mirror, _passes
 from test_zmx import singlet, write
 
 from deeplens.optics.errors import LensFileError, ZemaxFileError
@@ -22,7 +22,9 @@ from deeplens.optics.io import lens_to_dict, read_zmx, write_zmx
 from deeplens.optics.io.codev import write_seq
 from deeplens.optics.io.lensfile import lens_from_dict
 from deeplens.optics.openings import Circle, Spider
-from deeplens.optics.surfaces import Aperture
+from deeplens.optics.options import TraceOptions
+from deeplens.optics.surfaces import Aperture, Asphere
+from deeplens.optics.surfaces.base import obscuration_spider_of
 
 EPS = 1e-6
 
@@ -229,11 +231,10 @@ def test_spider_inside_a_z_turn_pair_turns_its_arms(tmp_path, closing_order):
     (("SPID 0.5 3 0", "OBDC 0 1"), "OBDC", "a decentred spider"),
     (("SPID 0 3 0",), "SPID", "expected the arms' width > 0"),
     (("SPID 0.5 2.5 0",), "SPID", "an integer >= 1"),
-    (("SPID 0.5 3 0",), "SPID", "a spider on a lens surface"),
 ])
 def test_spid_refusals_name_the_line(tmp_path, extra, needle, match):
-    """A spider beside another surface aperture, decentred, with a bad width or arm count, or
-    on a lens surface: refused with the file and line."""
+    """A spider beside another surface aperture, decentred, or with a bad width or arm count:
+    refused with the file and line."""
     text = singlet(s1_extra=("PARM 1 0", "PARM 2 1e-05", *extra))
     path = write(tmp_path, text)
     with pytest.raises(ZemaxFileError, match=match) as e:
@@ -250,3 +251,44 @@ def test_lens_file_spider_fields_are_checked(tmp_path):
     del d["surfaces"][0]["spider_width_mm"]
     with pytest.raises(LensFileError, match="spider_width_mm"):
         lens_from_dict(d)
+
+
+def test_spid_on_a_mirror_blocks_the_arms(tmp_path):
+    """``SPID 0.7 4`` on a concave mirror (the shadow of a secondary's vanes): rays parallel to
+    the axis 1e-6 mm inside either edge of each arm at radii 2, 5 and 8 mm are blocked, 1e-6 mm
+    outside pass (both trace paths); the control mirror without it passes all; .zmx and JSON
+    round trips keep it; the CODE V writer refuses it."""
+    w, n, radii = 0.7, 4, (2.0, 5.0, 8.0)
+    lens = read_zmx(_mirror(tmp_path, [f"SPID {w} {n} 0"]))
+    m = lens.surfaces[1]
+    assert isinstance(m, Asphere) and obscuration_spider_of(m) == (w, n, 0.0)
+    inside = _edge_points(w, n, 0.0, radii, -EPS)
+    outside = _edge_points(w, n, 0.0, radii, EPS)
+    want = [False] * len(inside) + [True] * len(outside)
+    for options in (None, TraceOptions(closed_form=False)):
+        assert _passes(lens, inside + outside, options, z0=-1.0) == want
+    plain = read_zmx(_mirror(tmp_path, name="plain.zmx"))
+    assert _passes(plain, inside, z0=-1.0) == [True] * len(inside)
+    write_zmx(lens, tmp_path / "out.zmx")
+    assert f"SPID {w} {n} 0" in (tmp_path / "out.zmx").read_text()
+    again = read_zmx(tmp_path / "out.zmx")
+    assert lens_to_dict(again) == lens_to_dict(lens)
+    assert _passes(again, inside + outside, z0=-1.0) == want
+    d = lens_to_dict(lens)
+    assert d["surfaces"][1]["spider_width_mm"] == w and d["surfaces"][1]["spider_arms"] == n
+    back = lens_from_dict(d)
+    assert lens_to_dict(back) == d and _passes(back, inside + outside, z0=-1.0) == want
+    with pytest.raises(LensFileError, match="spider obscuration has no CODE V record"):
+        write_seq(lens, tmp_path / "out.seq")
+
+
+def test_spid_on_a_lens_surface_and_its_refusals(tmp_path):
+    """``SPID 0.5 3`` on the singlet's first (refracting, aspheric) surface is that surface's
+    obscuration; beside a CLAP there it is refused at its line, and a spider beside a circular
+    obscuration on one lens surface is refused when written (one aperture type per surface)."""
+    lens = read_zmx(write(tmp_path, singlet(s1_extra=("PARM 1 0", "PARM 2 1e-05",
+                                                      "SPID 0.5 3 0"))))
+    assert obscuration_spider_of(lens.surfaces[1]) == (0.5, 3, 0.0)
+    lens.surfaces[1].obscuration.fill_(0.3)
+    with pytest.raises(ZemaxFileError, match="spider obscuration beside OBSC"):
+        write_zmx(lens, tmp_path / "out.zmx")
