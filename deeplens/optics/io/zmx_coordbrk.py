@@ -103,7 +103,7 @@ def stop_plane_of_break(s, k: int, p):
     frames, so a circular stop there is unambiguous (OpticStudio's toroid sample: a 45° turn
     about z).  A break that decentres or tilts out of that plane moves it: before or after the
     break are two different stops, and the reader refuses.  A non-circular aperture on the
-    break (``SQAP``, ``ELAP``, ``ELOB``, ``OBSC``, ``OBDC``) would turn with the frame: refused
+    break (``SQAP``, ``ELAP``, ``ELOB``, ``OBSC``, ``OBDC``, ``SPID``) would turn with the frame: refused
     too.  ``p``: the :class:`~.zmx_parse.Locator`."""
     dx, dy, tx, ty, tz = _values(s)
     if any(v != 0 for v in (dx, dy, tx, ty)):
@@ -114,7 +114,8 @@ def stop_plane_of_break(s, k: int, p):
                        f"turns about z alone (put the stop on a plain surface before or after "
                        f"the break)")
     shaped = [(name, v) for name, v in (("SQAP", s.sqap), ("ELAP", s.elap), ("ELOB", s.elob),
-                                        ("OBSC", s.obsc), ("OBDC", s.obdc)) if v is not None]
+                                        ("OBSC", s.obsc), ("OBDC", s.obdc),
+                                        ("SPID", s.spid)) if v is not None]
     if shaped:
         name, v = shaped[0]
         p.fail(v[-1], f"SURF {k}: {name} on a STOP that is a COORDBRK turning the frame "

@@ -111,10 +111,13 @@ def test_stop_on_a_break_that_moves_its_plane_is_refused_at_its_line(tmp_path, p
     assert e.value.line == line
 
 
-def test_stop_on_a_break_with_a_rectangular_aperture_is_refused(tmp_path):
+@pytest.mark.parametrize("record", ["SQAP 2 3 0 0 0 0", "SPID 0.5 3 0"])
+def test_stop_on_a_break_with_a_rectangular_aperture_is_refused(tmp_path, record):
+    """A shape that turns with the frame on a stop that is a break (a rectangle, a spider)."""
     text = _file([_break((0, 0, 0, 0, _TURN), stop=True)])
-    text = text.replace("SURF 4", "  SQAP 2 3 0 0 0 0\nSURF 4")
-    line = text.splitlines().index("  SQAP 2 3 0 0 0 0") + 1
-    with pytest.raises(ZemaxFileError, match="SQAP on a STOP that is a COORDBRK") as e:
+    text = text.replace("SURF 4", f"  {record}\nSURF 4")
+    line = text.splitlines().index(f"  {record}") + 1
+    with pytest.raises(ZemaxFileError,
+                       match=f"{record.split()[0]} on a STOP that is a COORDBRK") as e:
         _read(write(tmp_path, text))
     assert e.value.line == line
