@@ -875,12 +875,18 @@ def _obscuration(lens: Lens, i: int, r: float, line: int, kind: str, fail, src: 
     if not r < sd:
         fail(line, f"CIR {kind} {r!r} mm: expected a radius below the surface's semi-diameter "
                    f"({sd!r} mm)")
+    _set_checked(s, "obscuration", r, line, f"CIR {kind}", fail)
+
+
+def _set_checked(surface, name: str, value: float, line: int, what: str, fail) -> None:
+    """Set the surface's buffer ``name`` (mm) to ``value`` and check the surface; a check that
+    fails is the file's error at ``line``, prefixed ``what``."""
     with torch.no_grad():
-        s.obscuration.fill_(r)
+        getattr(surface, name).fill_(value)
     try:
-        s.check()
+        surface.check()
     except ValueError as e:
-        fail(line, f"CIR {kind}: {e}")
+        fail(line, f"{what}: {e}")
 
 
 def _check_private(mat: Material, waves, s: dict, fail) -> None:
@@ -936,12 +942,7 @@ def _stop_clear_radius(lens: Lens, clear: float, got: float, kind: str, line: in
                    f"there ({got / u!r}): deeplens vignettes a pupil so only on a lens or mirror "
                    f"surface, not on a {type(stop).__name__} stop; expected a CIR at least "
                    f"that wide")
-    with torch.no_grad():
-        stop.clear_radius.fill_(clear)
-    try:
-        stop.check()
-    except ValueError as e:
-        fail(line, f"CIR on the stop: {e}")
+    _set_checked(stop, "clear_radius", clear, line, "CIR on the stop", fail)
 
 
 def _fields(rd: _Reader, lens: Lens, obj_dist: float, u: float) -> list[float]:
