@@ -1148,6 +1148,12 @@ MUTATIONS = [
              "twice as wide)", "deeplens/optics/openings.py",
              "        half = 0.5 * self.width.to(x)\n", "        half = self.width.to(x)\n",
              ("tests/optics/io/test_zmx_spider.py",)),
+    # ------------------------- issue 37: withdrawn SCHOTT BK7 before the visible-only fit
+    Mutation("withdrawn_bk7_skipped", "the withdrawn SCHOTT entries never consulted under GCAT "
+             "(BK7 falls to Robb & Mercado's 400-700 nm fit)", "deeplens/optics/io/zmx_glass.py",
+             '(WITHDRAWN_CATALOGUES, withdrawn_glass, "withdrawn",',
+             '((), withdrawn_glass, "withdrawn",',
+             ("tests/optics/io/test_withdrawn_glass.py",)),
 ]
 
 

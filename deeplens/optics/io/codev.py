@@ -101,6 +101,7 @@ from .codev_decenter import (DECENTER_COMMANDS, decenter_command, expand_decente
                              write_break)
 from .filecheck import read_file_bytes
 from .surface_handlers import FORMATS
+from .withdrawn_glass import withdrawn_glass
 from .vendor_glass import (BuchdahlGlass, archived_glass, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
 
@@ -209,7 +210,7 @@ def _hyphenated(name: str) -> list[str]:
 
 
 def _catalogue_glass(name: str, cat: str) -> Material | None:
-    for look in (vendor_glass, archived_glass):
+    for look in (vendor_glass, archived_glass, withdrawn_glass):
         for cand in _hyphenated(name):
             g = look(cand, cat)
             if g is not None:

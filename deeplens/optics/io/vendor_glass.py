@@ -52,6 +52,7 @@ from ..materials import Material
 from .agf import AGFGlass
 from .corning_glass import CORNING_GLASSES, corning_glass
 from .infrared_glass import CRYSTALS, infrared_glass
+from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass
 
 __all__ = ["VENDOR_CATALOGUES", "CURRENT_CATALOGUES", "CRYSTALS", "CORNING_GLASSES",
            "PARTIAL_CATALOGUES", "PREVIOUS_CATALOGUES",
@@ -292,6 +293,8 @@ def find_in_vendor_catalogues(glass: str) -> list[str]:
     hits += ["CORNING"] if _key(glass) in CORNING_GLASSES else []
     hits += [f"{c} (archived)" for c in ARCHIVED_CATALOGUES
              if c not in hits and _key(glass) in _archive_table(c)]
+    hits += [f"{c} (withdrawn)" for c in WITHDRAWN_CATALOGUES
+             if withdrawn_glass(glass, c) is not None]
     hits += [f"{c} (previous)" for c in PREVIOUS_CATALOGUES
              if glass.strip().upper() in _robb_table().get(c, {})]
     return hits

@@ -32,6 +32,8 @@ from .agf import GlassCatalogue, read_agf
 from .corning_glass import corning_note
 from .infrared_glass import crystal_note
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
+from .withdrawn_glass import (WITHDRAWN_CATALOGUES, WITHDRAWN_GLASSES, withdrawn_glass,
+                              withdrawn_note)
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
                            PREVIOUS_CATALOGUES, archived_glass, catalogue_size, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
@@ -242,17 +244,23 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
               "the vendor's .agf as refractiveindex.info keeps it, {n} glasses",
               "the vendor's .agf as refractiveindex.info keeps it; not in the current {cat} "
               "catalogue"),
+             # withdrawn glasses with a full-range formula, before the visible-only fit
+             (WITHDRAWN_CATALOGUES, withdrawn_glass, "withdrawn",
+              "{n} glass(es) with published Sellmeier coefficients", None),
              (PREVIOUS_CATALOGUES, previous_glass, "previous", "Robb & Mercado 1983, {n} glasses",
               "Robb & Mercado 1983, a visible-range fit: n within 6e-5, 400-700 nm"))
     for known, lookup, kind, what, why in older:
         for cat in named:
             if cat in known and cat not in catalogues:
-                n = catalogue_size(cat, previous=kind if kind == "archived" else True)
+                n = (len(WITHDRAWN_GLASSES[cat]) if kind == "withdrawn" else
+                     catalogue_size(cat, previous=kind if kind == "archived" else True))
                 searched.append(f"{cat} {kind} ({what.format(n=n)})")
                 m = lookup(glass, cat)
                 if m is not None:
+                    because = (withdrawn_note(glass, cat) if why is None
+                               else why.format(cat=cat))
                     p.note(s.glass_line, f"glass {glass!r}: from the {kind} {cat} catalogue "
-                                         f"({why.format(cat=cat)})")
+                                         f"({because})")
                     return _checked(m, glass, s, f"the {kind} {cat} catalogue", p)
     # the user's catalogues the file does not name, in the order given
     for cat in (c for c in catalogues if c not in named):
@@ -268,6 +276,7 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
     if elsewhere:
         cat = elsewhere[0].split()[0]
         m = (previous_glass(glass, cat) if elsewhere[0].endswith("(previous)")
+             else withdrawn_glass(glass, cat) if elsewhere[0].endswith("(withdrawn)")
              else archived_glass(glass, cat) if elsewhere[0].endswith("(archived)")
              else vendor_glass(glass, cat))
         about = (f": {_SOURCE_NOTES[elsewhere[0]](glass)}" if elsewhere[0] in _SOURCE_NOTES
@@ -340,6 +349,7 @@ def _base_glass_hint(glass: str, s: ZmxSurface) -> str:
             continue
         cat = where[0].split()[0]
         m = (previous_glass(base, cat) if where[0].endswith("(previous)")
+             else withdrawn_glass(base, cat) if where[0].endswith("(withdrawn)")
              else archived_glass(base, cat) if where[0].endswith("(archived)")
              else vendor_glass(base, cat))
         nd = float(m.n(587.5618))

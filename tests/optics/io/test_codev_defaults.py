@@ -161,11 +161,12 @@ def test_so_inf_is_an_object_at_infinity(tmp_path):
 
 
 def test_a_bare_name_only_in_older_catalogues_names_them(tmp_path):
-    """``bk7`` (rayoptics' test.seq) is only in the previous SCHOTT and OHARA catalogues: the
-    refusal says so and gives the spelling that loads, which does."""
+    """``bk7`` (rayoptics' test.seq) is only in the withdrawn SCHOTT entries and the previous
+    SCHOTT and OHARA catalogues: the refusal says so and gives the spelling that loads, which
+    does."""
     p = _seq(tmp_path, HEAD + BODY.replace("NBK7_SCHOTT", "bk7"))
     with pytest.raises(LensFileError, match=r"'bk7' is in no current catalogue, only in "
-                                            r"SCHOTT \(previous\).*e\.g\. BK7_SCHOTT") as e:
+                                            r"SCHOTT \(withdrawn\), SCHOTT \(previous\).*e\.g\. BK7_SCHOTT") as e:
         read_seq(p)
     assert e.value.line == 8
     read_seq(_seq(tmp_path, HEAD + BODY.replace("NBK7_SCHOTT", "BK7_SCHOTT"), "b.seq"))

@@ -374,6 +374,7 @@ def test_glass_not_found_names_glass_and_line(tmp_path):
     assert re.search(r"catalogues searched by exact name: SCHOTT \(current vendor catalogue, 123 "
                      r"glasses\); SCHOTT \(deeplens built-in, 22 glasses\); SCHOTT archived "
                      r"\(the vendor's \.agf as refractiveindex\.info keeps it, \d+ glasses\); "
+                     r"SCHOTT withdrawn \(1 glass\(es\) with published Sellmeier coefficients\); "
                      r"SCHOTT previous", e.value.details)
     assert "DEEPLENS_GLASS_PATH" in e.value.details
     # never fuzzy: load_lens says the same
@@ -422,12 +423,12 @@ def test_model_fallback_refuses_the_placeholder(tmp_path):
 
 
 def test_vendor_catalogues_answer_for_their_names(tmp_path):
-    """S-LAH66 is in OHARA's own catalogue (shipped by opticalglass); BK7 in SCHOTT's previous."""
+    """S-LAH66 is in OHARA's own catalogue (shipped by opticalglass); BK7 in SCHOTT's withdrawn entries."""
     lens = read_zmx(write(tmp_path, singlet(glass="GLAS S-LAH66 0 0 1.5 40 0 0 0 0 0 0",
                                             gcat="GCAT OHARA")))
     assert lens.materials[2].nd == pytest.approx(1.77250, abs=5e-5)
     assert lens.materials[2].vd == pytest.approx(49.60, abs=0.05)
-    with pytest.warns(ZemaxWarning, match="previous SCHOTT catalogue"):
+    with pytest.warns(ZemaxWarning, match="withdrawn SCHOTT catalogue"):
         lens = read_zmx(write(tmp_path, singlet(glass="GLAS BK7 0 0 1.5 40 0 0 0 0 0 0"), "b.zmx"))
     assert lens.materials[2].nd == pytest.approx(1.51680, abs=5e-6)
 
