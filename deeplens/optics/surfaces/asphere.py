@@ -38,7 +38,7 @@ from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, host_
 
 __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
            "conic_arg", "conic_dsag_ds", "conic_normal", "conic_quadric", "conic_root",
-           "conic_sag", "even_poly", "even_poly_ds"]
+           "conic_sag", "even_poly", "even_poly_ds", "even_terms_r2", "EvenBaseSag"]
 
 MAX_ASPHERE_ORDER = 20
 
@@ -393,3 +393,43 @@ class Sphere(Asphere):
 
     def __init__(self, curvature: float, semi_diameter: float):
         super().__init__(curvature, semi_diameter)
+
+
+class EvenBaseSag(SagSurface):
+    """OpticStudio's even asphere from ``r²`` up plus a term of the subclass's own: ``z = conic
+    + Σ_i α_i r^(2i) + W(x, y)`` (:func:`even_terms_r2`), the shape shared by
+    :class:`~.zernike_sag.ZernikeSag` (Zernike terms) and :class:`~.grid_sag.GridSag` (a
+    bicubic grid).  Subclasses hold ``c``, ``k`` and ``a`` (``α_1, α_2, ...``) and implement
+    :meth:`extra_part`."""
+
+    def extra_part(self, x, y, slopes: bool = True):
+        """``(W, ∂W/∂x, ∂W/∂y)`` at ``(x, y)`` (mm, ``(*B,)`` each; the slopes ``None`` with
+        ``slopes=False``)."""
+        raise NotImplementedError
+
+    def in_domain(self, x, y):
+        return conic_arg(x * x + y * y, self.c, self.k) > 0
+
+    def sag(self, x, y):
+        s = x * x + y * y
+        p, _ = even_terms_r2(s, self.a)
+        W, _, _ = self.extra_part(x, y, slopes=False)
+        return conic_sag(s, self.c, self.k) + p + W
+
+    def sag_grad(self, x, y):
+        s = x * x + y * y
+        _, dp = even_terms_r2(s, self.a)
+        g = 2.0 * (conic_dsag_ds(s, self.c, self.k) + dp)
+        _, Wx, Wy = self.extra_part(x, y, slopes=True)
+        return x * g + Wx, y * g + Wy
+
+    def base_curvature(self):
+        """The even base's vertex curvature ``c + 2 α_1`` (1/mm)."""
+        cur = self.c
+        if len(self.a):
+            cur = cur + 2.0 * self.a[0]
+        return cur
+
+    def quadric(self, o, d):
+        """The conic base as a quadric (Newton's start; the surface itself is not one)."""
+        return conic_quadric(*o.unbind(-1), *d.unbind(-1), self.c, self.k)

@@ -61,8 +61,8 @@ import math
 import torch
 from torch import nn
 
-from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag, even_terms_r2
-from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, make_param,
+from .asphere import EvenBaseSag
+from .base import (check_conic_domain, conic_polynomial_scale, make_param,
                    register_surface)
 
 __all__ = ["GridSag", "MAX_GRID_EVEN_TERMS", "hermite_basis", "grid_slopes"]
@@ -119,7 +119,7 @@ def _grid_array(values, name: str, shape=None):
 
 
 @register_surface("grid_sag")
-class GridSag(SagSurface):
+class GridSag(EvenBaseSag):
     """An even asphere plus a bicubically interpolated grid of sag values (module docstring).
 
     Args:
@@ -214,7 +214,7 @@ class GridSag(SagSurface):
                              + hx * hy * Zxy[jy, jx] * bu[2 + a] * bv[2 + b])
         return out
 
-    def grid_part(self, x, y, slopes: bool = True):
+    def extra_part(self, x, y, slopes: bool = True):
         """``(G, ∂G/∂x, ∂G/∂y)`` at ``(x, y)`` (mm, ``(*B,)`` each; the slopes ``None`` with
         ``slopes=False``): the grid's bicubic interpolant, the edge cells' polynomials continued
         outside the grid."""
@@ -232,22 +232,9 @@ class GridSag(SagSurface):
         sx, nx, _ = self._index(x, 0)
         sy, ny, _ = self._index(y, 1)
         inside = (sx >= 0) & (sx <= nx - 1) & (sy >= 0) & (sy <= ny - 1)
-        return inside & (conic_arg(x * x + y * y, self.c, self.k) > 0)
+        return inside & super().in_domain(x, y)
 
-    # ---- the sag -----------------------------------------------------------------------
-    def sag(self, x, y):
-        s = x * x + y * y
-        p, _ = even_terms_r2(s, self.a)
-        G, _, _ = self.grid_part(x, y, slopes=False)
-        return conic_sag(s, self.c, self.k) + p + G
-
-    def sag_grad(self, x, y):
-        s = x * x + y * y
-        _, dp = even_terms_r2(s, self.a)
-        g = 2.0 * (conic_dsag_ds(s, self.c, self.k) + dp)
-        _, Gx, Gy = self.grid_part(x, y, slopes=True)
-        return x * g + Gx, y * g + Gy
-
+    # ---- the sag (conic + even terms + the grid: EvenBaseSag) ---------------------------
     def _grid_second(self, axis: int):
         """``∂²G/∂x²`` (``axis`` 0) or ``∂²G/∂y²`` (1) at the vertex ``(0, 0)``: the mean of
         the two cells' where the vertex lies on a grid line across ``axis``."""
@@ -273,14 +260,7 @@ class GridSag(SagSurface):
     def paraxial_curvature(self):
         """The mean vertex curvature ``c + 2 α_1 + (∂²G/∂x² + ∂²G/∂y²)/2`` (module
         docstring)."""
-        cur = self.c
-        if len(self.a):
-            cur = cur + 2.0 * self.a[0]
-        return cur + 0.5 * (self._grid_second(0) + self._grid_second(1))
-
-    def quadric(self, o, d):
-        """The conic base as a quadric (Newton's start; the surface itself is not one)."""
-        return conic_quadric(*o.unbind(-1), *d.unbind(-1), self.c, self.k)
+        return self.base_curvature() + 0.5 * (self._grid_second(0) + self._grid_second(1))
 
     def check(self, where: str = "") -> None:
         check_conic_domain(float(self.semi_diameter), float(self.c), float(self.k),

@@ -71,9 +71,9 @@ from functools import lru_cache
 import torch
 from torch import nn
 
-from .asphere import conic_arg, conic_dsag_ds, conic_quadric, conic_sag, even_terms_r2
+from .asphere import EvenBaseSag
 from ..openings import Circle, Opening
-from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, host_flags, make_param,
+from .base import (check_conic_domain, conic_polynomial_scale, host_flags, make_param,
                    register_surface)
 
 __all__ = ["ZernikeSag", "ZernikeFringeSag", "MAX_EVEN_TERMS", "MAX_ZERNIKE_TERMS",
@@ -233,7 +233,7 @@ def zernike_values(u, v, coeffs, slopes: bool = True, basis: str = "standard"):
 
 
 @register_surface("zernike_sag")
-class ZernikeSag(SagSurface):
+class ZernikeSag(EvenBaseSag):
     """An even asphere plus Zernike standard (Noll) terms (module docstring).
 
     Args:
@@ -293,9 +293,6 @@ class ZernikeSag(SagSurface):
         self.zernike = nn.ParameterList([make_param(v, f"Z{j + 1}")
                                          for j, v in enumerate(zernike)])
 
-    def in_domain(self, x, y):
-        return conic_arg(x * x + y * y, self.c, self.k) > 0
-
     def _build_opening(self) -> Opening:
         """The semi-diameter's circle (and a clear rectangle when set), less the central
         obscuration's circle."""
@@ -303,7 +300,8 @@ class ZernikeSag(SagSurface):
         obscured = host_flags(self, "_obscured", (self.obscuration,), lambda o: float(o) > 0)
         return opening - Circle(self.obscuration, check=False) if obscured else opening
 
-    def _zernike(self, x, y, slopes: bool):
+    def extra_part(self, x, y, slopes: bool = True):
+        """The Zernike terms ``(W, ∂W/∂x, ∂W/∂y)`` (:meth:`EvenBaseSag.extra_part`)."""
         rn = self.norm_radius.to(x)
         u, v = x / rn, y / rn
         W, Wu, Wv = zernike_values(u, v, self.zernike, slopes, self.basis)
@@ -317,24 +315,9 @@ class ZernikeSag(SagSurface):
             return W, Wu / rn, Wv / rn
         return W, None, None
 
-    def sag(self, x, y):
-        s = x * x + y * y
-        p, _ = even_terms_r2(s, self.a)
-        W, _, _ = self._zernike(x, y, slopes=False)
-        return conic_sag(s, self.c, self.k) + p + W
-
-    def sag_grad(self, x, y):
-        s = x * x + y * y
-        _, dp = even_terms_r2(s, self.a)
-        g = 2.0 * (conic_dsag_ds(s, self.c, self.k) + dp)
-        _, Wx, Wy = self._zernike(x, y, slopes=True)
-        return x * g + Wx, y * g + Wy
-
     def paraxial_curvature(self):
         """The vertex curvature of the rotationally symmetric part (module docstring)."""
-        cur = self.c
-        if len(self.a):
-            cur = cur + 2.0 * self.a[0]
+        cur = self.base_curvature()
         rn2 = self.norm_radius.to(self.c) ** 2
         nm, norm = BASES[self.basis]
         for j, A in enumerate(self.zernike, start=1):
@@ -351,10 +334,6 @@ class ZernikeSag(SagSurface):
         nm = BASES[self.basis][0]
         return all(nm(j)[1] == 0 for j, A in enumerate(self.zernike, start=1)
                    if float(A) != 0.0)
-
-    def quadric(self, o, d):
-        """The conic base as a quadric (Newton's start; the surface itself is not one)."""
-        return conic_quadric(*o.unbind(-1), *d.unbind(-1), self.c, self.k)
 
     def check(self, where: str = "") -> None:
         sd = float(self.semi_diameter)
