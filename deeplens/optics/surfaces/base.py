@@ -370,14 +370,9 @@ def set_clear_rect(surface: Surface, half_widths) -> None:
     rect = torch.tensor([hx, hy], dtype=torch.float64)
     diag = math.hypot(hx, hy)
     with torch.no_grad():
-        for name, value in (("clear_rect", rect), ("clear_radius", torch.tensor(diag,
-                            dtype=torch.float64)), ("clear_decenter", torch.zeros(2,
-                            dtype=torch.float64))):
-            if name in surface._buffers:
-                if name != "clear_decenter":
-                    surface._buffers[name].copy_(value)
-            else:
-                surface.register_buffer(name, value, persistent=False)
+        _set_buffer(surface, "clear_rect", rect)
+        _set_buffer(surface, "clear_radius", torch.tensor(diag, dtype=torch.float64))
+        _keep_decenter(surface)
         surface.semi_diameter.fill_(diag)
 
 
@@ -432,6 +427,13 @@ def _set_buffer(surface, name: str, value: torch.Tensor) -> None:
         surface.register_buffer(name, value, persistent=False)
 
 
+def _keep_decenter(surface) -> None:
+    """Give ``surface`` a zero ``clear_decenter`` buffer unless it has one (a set one stays)."""
+    if "clear_decenter" not in surface._buffers:
+        surface.register_buffer("clear_decenter", torch.zeros(2, dtype=torch.float64),
+                                persistent=False)
+
+
 def _check_built(surface, name: str, what: str) -> None:
     """Undo and refuse when ``surface``'s type builds its opening without the ellipse."""
     if not _has_ellipse(surface.opening, surface._buffers[name]):
@@ -457,9 +459,7 @@ def set_clear_ellipse(surface: Surface, half_axes) -> None:
     with torch.no_grad():
         _set_buffer(surface, "clear_ellipse", torch.tensor([a, b], dtype=torch.float64))
         _set_buffer(surface, "clear_radius", torch.tensor(r, dtype=torch.float64))
-        if "clear_decenter" not in surface._buffers:
-            surface.register_buffer("clear_decenter", torch.zeros(2, dtype=torch.float64),
-                                    persistent=False)
+        _keep_decenter(surface)
         dec = [float(v) for v in surface._buffers["clear_decenter"]]
         surface.semi_diameter.fill_(math.hypot(*dec) + r)
     _check_built(surface, "clear_ellipse", "clear aperture")
