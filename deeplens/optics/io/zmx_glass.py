@@ -32,8 +32,7 @@ from .agf import GlassCatalogue, read_agf
 from .corning_glass import corning_note
 from .infrared_glass import crystal_note
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
-from .withdrawn_glass import (WITHDRAWN_CATALOGUES, WITHDRAWN_GLASSES, withdrawn_glass,
-                              withdrawn_note)
+from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_note
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
                            PREVIOUS_CATALOGUES, archived_glass, catalogue_size, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
@@ -252,9 +251,7 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
     for known, lookup, kind, what, why in older:
         for cat in named:
             if cat in known and cat not in catalogues:
-                n = (len(WITHDRAWN_GLASSES[cat]) if kind == "withdrawn" else
-                     catalogue_size(cat, previous=kind if kind == "archived" else True))
-                searched.append(f"{cat} {kind} ({what.format(n=n)})")
+                searched.append(f"{cat} {kind} ({what.format(n=catalogue_size(cat, kind))})")
                 m = lookup(glass, cat)
                 if m is not None:
                     because = (withdrawn_note(glass, cat) if why is None
