@@ -90,12 +90,12 @@ class PrivateGlass(Material):
     def _index(self, w: torch.Tensor) -> torch.Tensor:
         x = torch.tensor(self.table_nm, dtype=w.dtype, device=w.device)
         if self._coef is None:   # no spline: only the listed wavelengths
-            hit = (w.detach().unsqueeze(-1) == x).any(-1)
-            if not bool(hit.all()):
+            hit = w.detach().unsqueeze(-1) == x
+            if not bool(hit.any(-1).all()):
                 raise ValueError(f"private glass {self.name!r}: {len(x)} wavelengths "
                                  f"{list(self.table_nm)} nm (too few for a spline): the lens's "
                                  f"wavelengths must be among them")
-            k = (w.detach().unsqueeze(-1) == x).to(torch.int64).argmax(-1)
+            k = hit.to(torch.int64).argmax(-1)
             return torch.tensor(self.table_n, dtype=w.dtype, device=w.device)[k] + 0.0 * w
         c = torch.tensor(self._coef, dtype=w.dtype, device=w.device)
         i = torch.clamp(torch.searchsorted(x, w.detach().contiguous(), right=True) - 1, 0,

@@ -23,7 +23,7 @@ note naming the source.  Lookup is by exact name (case-insensitive), never a gue
 from __future__ import annotations
 
 from .agf import AGFGlass
-from .infrared_glass import CRYSTALS, Crystal
+from .infrared_glass import CRYSTALS, glass_key, table_glass
 
 __all__ = ["CORNING_GLASSES", "CORNING_NOTE_DIFF", "corning_glass", "corning_note"]
 
@@ -41,27 +41,19 @@ CORNING_GLASSES = {
 CORNING_NOTE_DIFF = "7e-5"
 
 
-def _key(glass: str) -> str:
-    return "".join(str(glass).split()).upper()
-
-
 def corning_glass(glass: str) -> AGFGlass | None:
     """``glass`` from :data:`CORNING_GLASSES` (exact name, case-insensitive), or ``None``.
 
     A wavelength outside its range is refused by :meth:`~deeplens.optics.materials.Material.n`;
     :func:`corning_note` says where it comes from.
     """
-    rec: Crystal | None = CORNING_GLASSES.get(_key(glass))
-    if rec is None:
-        return None
-    return AGFGlass(_key(glass), rec.formula, rec.coefficients, rec.range_nm,
-                    catalogue="CORNING")
+    return table_glass(CORNING_GLASSES, glass, "CORNING")
 
 
 def corning_note(glass: str) -> str:
     """The located note of a use of ``CORNING`` glass ``glass`` (a name in
     :data:`CORNING_GLASSES`)."""
-    rec = CORNING_GLASSES[_key(glass)]
+    rec = CORNING_GLASSES[glass_key(glass)]
     lo, hi = (v / 1000.0 for v in rec.range_nm)
     return (f"CORNING glass from {rec.source}, {rec.temperature}, valid {lo:g}-{hi:g} µm "
             f"(OpticStudio's own CORNING coefficients may be another fit: published fused-silica "

@@ -51,7 +51,7 @@ from typing import NamedTuple
 
 from .agf import AGFGlass
 
-__all__ = ["Crystal", "CRYSTALS", "crystal_note", "infrared_glass"]
+__all__ = ["Crystal", "CRYSTALS", "crystal_note", "glass_key", "infrared_glass", "table_glass"]
 
 
 class Crystal(NamedTuple):
@@ -137,23 +137,35 @@ CRYSTALS = {
 }
 
 
+def glass_key(glass: str) -> str:
+    """Lookup key of a name in deeplens' own formula tables: upper case without blanks."""
+    return "".join(str(glass).split()).upper()
+
+
+def table_glass(table: dict, glass: str, catalogue: str) -> AGFGlass | None:
+    """``glass`` from ``table`` (name -> a record with ``formula``, ``coefficients`` and
+    ``range_nm``, as :class:`Crystal`; exact name, case-insensitive) as an AGF glass of
+    ``catalogue``, or ``None``."""
+    rec = table.get(glass_key(glass))
+    if rec is None:
+        return None
+    return AGFGlass(glass_key(glass), rec.formula, rec.coefficients, rec.range_nm,
+                    catalogue=catalogue)
+
+
 def infrared_glass(glass: str) -> AGFGlass | None:
     """``glass`` from the ``INFRARED`` crystals (exact name, case-insensitive), or ``None``.
 
     A wavelength outside its range is refused by :meth:`~deeplens.optics.materials.Material.n`;
     :func:`crystal_note` says where it comes from.
     """
-    key = "".join(str(glass).split()).upper()
-    rec = CRYSTALS.get(key)
-    if rec is None:
-        return None
-    return AGFGlass(key, rec.formula, rec.coefficients, rec.range_nm, catalogue="INFRARED")
+    return table_glass(CRYSTALS, glass, "INFRARED")
 
 
 def crystal_note(glass: str) -> str:
     """The located note of a use of ``INFRARED`` crystal ``glass`` (a name in
     :data:`CRYSTALS`)."""
-    rec = CRYSTALS["".join(str(glass).split()).upper()]
+    rec = CRYSTALS[glass_key(glass)]
     lo, hi = (v / 1000.0 for v in rec.range_nm)
     return (f"INFRARED crystal from {rec.source}, {rec.temperature}, valid {lo:g}-{hi:g} µm "
             f"(OpticStudio's own INFRARED coefficients may be another fit: indices may differ "

@@ -52,7 +52,7 @@ from ..materials import Material
 from .agf import AGFGlass
 from .corning_glass import CORNING_GLASSES, corning_glass
 from .infrared_glass import CRYSTALS, infrared_glass
-from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass
+from .withdrawn_glass import WITHDRAWN_CATALOGUES, WITHDRAWN_GLASSES, withdrawn_glass
 
 __all__ = ["VENDOR_CATALOGUES", "CURRENT_CATALOGUES", "CRYSTALS", "CORNING_GLASSES",
            "PARTIAL_CATALOGUES", "PREVIOUS_CATALOGUES",
@@ -272,11 +272,13 @@ def previous_glass(glass: str, catalogue: str) -> BuchdahlGlass | None:
 
 
 def catalogue_size(catalogue: str, previous: bool | str = False) -> int:
-    """How many glasses the current (``previous=True``: previous, ``"archived"``: archived)
-    catalogue holds (for messages)."""
+    """How many glasses the current (``previous=True`` or ``"previous"``: previous,
+    ``"archived"``: archived, ``"withdrawn"``: withdrawn) catalogue holds (for messages)."""
     if previous == "archived":
         cat = catalogue.upper()
         return len(_archive_table(cat)) if cat in ARCHIVED_CATALOGUES else 0
+    if previous == "withdrawn":
+        return len(WITHDRAWN_GLASSES.get(catalogue.upper(), {}))
     if previous:
         return len(_robb_table().get(catalogue.upper(), {}))
     if catalogue.upper() == "INFRARED":

@@ -22,6 +22,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from .agf import AGFGlass
+from .infrared_glass import glass_key, table_glass
 
 __all__ = ["WITHDRAWN_CATALOGUES", "WITHDRAWN_GLASSES", "withdrawn_glass", "withdrawn_note"]
 
@@ -50,25 +51,17 @@ WITHDRAWN_GLASSES = {
 WITHDRAWN_CATALOGUES = tuple(WITHDRAWN_GLASSES)
 
 
-def _key(glass: str) -> str:
-    return "".join(str(glass).split()).upper()
-
-
 def withdrawn_glass(glass: str, catalogue: str) -> AGFGlass | None:
     """``glass`` from the withdrawn entries of ``catalogue`` (exact name), or ``None``.
 
     A wavelength outside its range is refused by :meth:`~deeplens.optics.materials.Material.n`.
     """
-    rec = WITHDRAWN_GLASSES.get(catalogue.upper(), {}).get(_key(glass))
-    if rec is None:
-        return None
-    return AGFGlass(_key(glass), rec.formula, rec.coefficients, rec.range_nm,
-                    catalogue=catalogue.upper())
+    return table_glass(WITHDRAWN_GLASSES.get(catalogue.upper(), {}), glass, catalogue.upper())
 
 
 def withdrawn_note(glass: str, catalogue: str) -> str:
     """Why a use of withdrawn ``glass`` of ``catalogue`` is noted (its source and range)."""
-    rec = WITHDRAWN_GLASSES[catalogue.upper()][_key(glass)]
+    rec = WITHDRAWN_GLASSES[catalogue.upper()][glass_key(glass)]
     lo, hi = (v / 1000.0 for v in rec.range_nm)
     return (f"a withdrawn glass, Sellmeier coefficients from {rec.source}, valid {lo:g}-{hi:g} "
             f"µm; not in the current {catalogue.upper()} catalogue")

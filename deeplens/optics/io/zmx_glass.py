@@ -32,8 +32,7 @@ from .agf import GlassCatalogue, read_agf
 from .corning_glass import corning_note
 from .infrared_glass import crystal_note
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
-from .withdrawn_glass import (WITHDRAWN_CATALOGUES, WITHDRAWN_GLASSES, withdrawn_glass,
-                              withdrawn_note)
+from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_note
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
                            PREVIOUS_CATALOGUES, archived_glass, catalogue_size, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
@@ -252,9 +251,7 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
     for known, lookup, kind, what, why in older:
         for cat in named:
             if cat in known and cat not in catalogues:
-                n = (len(WITHDRAWN_GLASSES[cat]) if kind == "withdrawn" else
-                     catalogue_size(cat, previous=kind if kind == "archived" else True))
-                searched.append(f"{cat} {kind} ({what.format(n=n)})")
+                searched.append(f"{cat} {kind} ({what.format(n=catalogue_size(cat, kind))})")
                 m = lookup(glass, cat)
                 if m is not None:
                     because = (withdrawn_note(glass, cat) if why is None
@@ -274,11 +271,7 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
             return _checked(m, glass, s, f"the user catalogue {cat}", p)
     elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
     if elsewhere:
-        cat = elsewhere[0].split()[0]
-        m = (previous_glass(glass, cat) if elsewhere[0].endswith("(previous)")
-             else withdrawn_glass(glass, cat) if elsewhere[0].endswith("(withdrawn)")
-             else archived_glass(glass, cat) if elsewhere[0].endswith("(archived)")
-             else vendor_glass(glass, cat))
+        m = _found_glass(glass, elsewhere[0])
         about = (f": {_SOURCE_NOTES[elsewhere[0]](glass)}" if elsewhere[0] in _SOURCE_NOTES
                  else "")
         p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
@@ -334,6 +327,16 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
     p.fail(s.glass_line, f"glass {glass!r}{where}; {give}", details=details)
 
 
+def _found_glass(glass: str, hit: str) -> Material:
+    """``glass`` from one entry ``hit`` of :func:`~.vendor_glass.find_in_vendor_catalogues`
+    (``"SCHOTT"``, ``"SCHOTT (archived)"``, ``"SCHOTT (withdrawn)"``, ``"SCHOTT (previous)"``)."""
+    cat = hit.split()[0]
+    return (previous_glass(glass, cat) if hit.endswith("(previous)")
+            else withdrawn_glass(glass, cat) if hit.endswith("(withdrawn)")
+            else archived_glass(glass, cat) if hit.endswith("(archived)")
+            else vendor_glass(glass, cat))
+
+
 def _base_glass_hint(glass: str, s: ZmxSurface) -> str:
     """For a name that is a vendor glass's plus a suffix (``L-TIM28_MOLD``: a moulded variant
     in a lens-moulder's catalogue; ``D-ZK3M``), the base glass and where it is, with the reason
@@ -347,12 +350,7 @@ def _base_glass_hint(glass: str, s: ZmxSurface) -> str:
         where = find_in_vendor_catalogues(base)
         if not where:
             continue
-        cat = where[0].split()[0]
-        m = (previous_glass(base, cat) if where[0].endswith("(previous)")
-             else withdrawn_glass(base, cat) if where[0].endswith("(withdrawn)")
-             else archived_glass(base, cat) if where[0].endswith("(archived)")
-             else vendor_glass(base, cat))
-        nd = float(m.n(587.5618))
+        nd = float(_found_glass(base, where[0]).n(587.5618))
         own = ("" if s.glass_model is None or tuple(s.glass_model) == _PLACEHOLDER_ND_VD else
                f"; the GLAS line gives n_d {s.glass_model[0]:g}, V_d {s.glass_model[1]:g} for "
                f"{glass!r}")
