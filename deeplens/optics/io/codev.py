@@ -839,20 +839,30 @@ def _build(rd: _Reader, path: Path) -> Lens:
     return lens
 
 
+def _axial_marginal(lens: Lens, obj_dist: float):
+    """``(n, u_k)``: the media's signed indices ``(S + 1,)`` (:func:`~..paraxial.media_indices`)
+    and the image-space slope (a float) of the paraxial ray from the axial object point
+    ``obj_dist`` mm before the first vertex with object-space slope 1."""
+    from ..paraxial import media_indices, trace_paraxial_ray
+
+    with torch.no_grad():
+        n = media_indices(lens)
+        one = torch.ones((), dtype=n.dtype, device=n.device)
+        _, u_k, _ = trace_paraxial_ray(lens, obj_dist * one, one, n)
+    return n, float(u_k)
+
+
 def _working_fno_epd(lens: Lens, obj_dist: float, fno: float, line: int, fail) -> float:
     """The entrance pupil diameter (mm) whose axial marginal ray leaves the lens at the slope
     ``|u'| = 1 / (2 F)`` (a working F-number, rayoptics' reading of CODE V's ``FNO``:
     ``compute_first_order`` sets the image-space marginal slope to ``-1 / (2 F)``).  The
     marginal ray from the object point with slope ``u0`` leaves at ``u_k u0`` (linear), and
     meets the entrance pupil at height ``u0 (s + l_EP)``."""
-    from ..paraxial import media_indices, paraxial, trace_paraxial_ray
+    from ..paraxial import paraxial
 
+    _, u_k = _axial_marginal(lens, obj_dist)
     with torch.no_grad():
-        n = media_indices(lens)
-        one = torch.ones((), dtype=n.dtype, device=n.device)
-        _, u_k, _ = trace_paraxial_ray(lens, obj_dist * one, one, n)
         to_pupil = obj_dist + float(paraxial(lens).entrance_pupil_position)
-    u_k = float(u_k)
     if u_k == 0 or to_pupil == 0:
         fail(line, "FNO with a finite object: the marginal ray leaves parallel or the "
                    "entrance pupil is on the object; expected EPD")
@@ -980,13 +990,8 @@ def _fields(rd: _Reader, lens: Lens, obj_dist: float, u: float) -> list[float]:
     if not math.isinf(obj_dist):
         # the object heights whose paraxial images are these (|m| from the Lagrange invariant of
         # the axial marginal ray, m = n u / (n' u')), then as YOB
-        from ..paraxial import media_indices, trace_paraxial_ray
-
-        with torch.no_grad():
-            n = media_indices(lens)
-            one = torch.ones((), dtype=n.dtype, device=n.device)
-            _, u_k, _ = trace_paraxial_ray(lens, obj_dist * one, one, n)
-        if float(u_k) == 0:
+        n, u_k = _axial_marginal(lens, obj_dist)
+        if u_k == 0:
             rd.fail(line, "YIM with a finite object: the image is at infinity (no paraxial "
                           "image height); expected YAN or YOB")
         m = abs(float(n[0]) / (float(n[-1]) * float(u_k)))

@@ -166,13 +166,13 @@ def write_aperture(s, i: int | None = None) -> list[str] | None:
     no CODE V record here (the reader refuses ``ELX OBS``), nor a spider: ``LensFileError``."""
     from ..errors import LensFileError
     from ..surfaces import Aperture
-    from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
+    from ..surfaces.base import (clear_ellipse_of, clear_rect_of, obscuration_ellipse_of,
+                                 obscuration_spider_of)
 
     if obscuration_ellipse_of(s) is not None:
         raise LensFileError(f"surface {i}: an elliptical obscuration has no CODE V record here "
                             f"(deeplens reads CIR OBS circles only)",
                             surfaces=() if i is None else (i,))
-    from ..surfaces.base import obscuration_spider_of
     if (isinstance(s, Aperture) and s.spider_of() is not None) or obscuration_spider_of(s):
         raise LensFileError(f"surface {i}: a spider obscuration has no CODE V record here "
                             f"(deeplens reads CIR OBS circles only)",

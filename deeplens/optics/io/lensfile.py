@@ -211,15 +211,15 @@ def _surface_from_dict(r: _Reader, s: dict, path: str):
         hint = f"; did you mean {close[0]!r}?" if close else ""
         r.fail(f"{path}.type", f"unknown surface type {kind!r}{hint} (known: "
                                f"{', '.join(sorted(SURFACE_TYPES))})")
-    # a rectangular clear aperture (clear_rect_mm) on any surface the rays land on whose type
-    # does not read it itself (set_clear_rect)
-    generic_rect = (takes_clear_rect(cls) and "clear_rect_mm" not in cls.file_fields
-                    and not issubclass(cls, (Aperture, Cylinder, IdealLens)))
+    # a surface the rays land on, other than an aperture, a cylinder or an ideal lens
+    landed = takes_clear_rect(cls) and not issubclass(cls, (Aperture, Cylinder, IdealLens))
+    # a rectangular clear aperture (clear_rect_mm) on any such surface whose type does not read
+    # it itself (set_clear_rect)
+    generic_rect = landed and "clear_rect_mm" not in cls.file_fields
     # an elliptical clear aperture or obscuration (clear_ellipse_mm, obscuration_ellipse_mm)
     # on any such surface, an asphere's included (set_clear_ellipse, set_obscuration_ellipse)
     ellipses = {"clear_ellipse_mm", "obscuration_ellipse_mm", "spider_width_mm", "spider_arms",
-                "spider_angle_deg"} if (
-        takes_clear_rect(cls) and not issubclass(cls, (Aperture, Cylinder, IdealLens))) else set()
+                "spider_angle_deg"} if landed else set()
     r.keys(s, _COMMON_KEYS | set(cls.file_fields) | ({"clear_rect_mm"} if generic_rect else set())
            | ellipses, path)
     sd = r.get(s, "semi_diameter_mm", path)

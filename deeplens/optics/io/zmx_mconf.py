@@ -320,22 +320,19 @@ def _apply_size(key, num, v, ln, s: ZmxSurface, p: Locator) -> None:
             p.fail(ln, f"SDIA {num}: a semi-diameter must be >= 0, got {v:g}")
         s.diam, s.diam_line = _repeat(s.diam, v), ln
         return
-    if s.clap is not None:       # CLAP lo hi: clap = (hi, line), obsc = (lo, line) when lo > 0
-        lo = s.obsc[0] if s.obsc is not None else 0.0
-        hi = s.clap[0]
-        lo, hi = (_repeat(lo, v), hi) if key == "APMN" else (lo, _repeat(hi, v))
-        if not 0 <= lo < hi:
-            p.fail(ln, f"{key} {num}: the circular aperture (CLAP) of SURF {num} would have "
-                       f"minimum radius {lo:g} and maximum {hi:g}; expected 0 <= minimum < maximum")
-        s.clap, s.obsc = (hi, ln), ((lo, ln) if lo > 0 else None)
-    elif s.obsc is not None:     # OBSC lo hi: obsc = (hi, line), obsc_inner = (lo, line) if lo > 0
-        lo = s.obsc_inner[0] if s.obsc_inner is not None else 0.0
-        hi = s.obsc[0]
-        lo, hi = (_repeat(lo, v), hi) if key == "APMN" else (lo, _repeat(hi, v))
-        if not 0 <= lo < hi:
-            p.fail(ln, f"{key} {num}: the circular obscuration (OBSC) of SURF {num} would have "
-                       f"minimum radius {lo:g} and maximum {hi:g}; expected 0 <= minimum < maximum")
-        s.obsc, s.obsc_inner = (hi, ln), ((lo, ln) if lo > 0 else None)
-    else:
+    if s.clap is None and s.obsc is None:
         p.fail(ln, f"{key} {num}: SURF {num} has no circular aperture (CLAP) or obscuration "
                    f"(OBSC) whose radius it could set")
+    if s.clap is not None:       # CLAP lo hi: clap = (hi, line), obsc = (lo, line) when lo > 0
+        outer, inner, what = "clap", "obsc", "circular aperture (CLAP)"
+    else:                        # OBSC lo hi: obsc = (hi, line), obsc_inner = (lo, line) if lo > 0
+        outer, inner, what = "obsc", "obsc_inner", "circular obscuration (OBSC)"
+    saved_lo = getattr(s, inner)
+    lo = saved_lo[0] if saved_lo is not None else 0.0
+    hi = getattr(s, outer)[0]
+    lo, hi = (_repeat(lo, v), hi) if key == "APMN" else (lo, _repeat(hi, v))
+    if not 0 <= lo < hi:
+        p.fail(ln, f"{key} {num}: the {what} of SURF {num} would have "
+                   f"minimum radius {lo:g} and maximum {hi:g}; expected 0 <= minimum < maximum")
+    setattr(s, outer, (hi, ln))
+    setattr(s, inner, (lo, ln) if lo > 0 else None)

@@ -35,6 +35,13 @@ from .zmx_parse import Locator, ZmxSurface
 __all__ = ["build_surface", "is_air", "PROVISIONAL_SD_MM"]
 
 
+def _lens_or_mirror(surf) -> bool:
+    """Whether a surface aperture (``SQAP``, ``ELAP``, ``ELOB``, ``SPID``) goes on ``surf`` as a
+    lens or mirror surface's: a surface the rays land on (:func:`takes_clear_rect`), other than
+    an :class:`Aperture` (built with its own), a :class:`Cylinder` or an :class:`IdealLens`."""
+    return takes_clear_rect(surf) and not isinstance(surf, (Aperture, Cylinder, IdealLens))
+
+
 def _unbounded_annular_clap(s: ZmxSurface, k: int, p: Locator) -> None:
     """An annular ``CLAP lo hi`` whose outer radius lies beyond the surface's semi-diameter
     (``DIAM``; OpticStudio's Schmidt-Cassegrain sample: ``CLAP 4 1e10`` on its primary, no real
@@ -118,8 +125,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         raise   # already located (a helper's p.fail): not located twice
     except ValueError as e:
         p.fail(s.type_line or s.line, f"SURF {k}: {e}")
-    if (s.sqap is not None and takes_clear_rect(surf) and s.clap is None
-            and s.obsc is None and not isinstance(surf, (Aperture, Cylinder, IdealLens))):
+    if s.sqap is not None and _lens_or_mirror(surf) and s.clap is None and s.obsc is None:
         # a rectangular opening of a lens or mirror surface of any type the rays land on (an
         # off-axis mirror's, with OBDC; a TILTSURF's, an implicit XYPolynomial: the rectangle
         # is tested at the hit's local x, y, as OpticStudio's surface apertures are): the
@@ -136,8 +142,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             with torch.no_grad():
                 surf.semi_diameter.fill_(sd)
         auto = False
-    if (s.elap is not None and takes_clear_rect(surf)
-            and not isinstance(surf, (Aperture, Cylinder, IdealLens))):
+    if s.elap is not None and _lens_or_mirror(surf):
         # an elliptical opening of a lens or mirror surface of any type the rays land on, as
         # SQAP's rectangle: within its circumscribed circle, which the semi-diameter encloses
         try:
@@ -149,7 +154,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                 surf.semi_diameter.fill_(sd)
         auto = False
     if s.elob is not None and not isinstance(surf, Aperture):   # (an Aperture: built with it)
-        if isinstance(surf, (Cylinder, IdealLens)) or not takes_clear_rect(surf):
+        if not _lens_or_mirror(surf):
             p.fail(s.elob[2], f"ELOB on SURF {k}: an elliptical obscuration on a "
                               f"{type(surf).__name__} surface is not supported (deeplens has "
                               f"elliptical obscurations on flat surfaces in air and on lens "
@@ -164,7 +169,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
             p.fail(s.elob[2], f"ELOB on SURF {k}: {e}")
     if s.spid is not None and not isinstance(surf, Aperture):   # (an Aperture: built with it)
         # a spider on a lens or mirror surface, about its vertex, as an ELOB there
-        if isinstance(surf, (Cylinder, IdealLens)) or not takes_clear_rect(surf):
+        if not _lens_or_mirror(surf):
             p.fail(s.spid[2], f"SPID on SURF {k}: a spider on a {type(surf).__name__} surface "
                               f"is not supported (deeplens has spiders on flat surfaces in air "
                               f"and on lens and mirror surfaces)")

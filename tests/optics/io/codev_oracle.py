@@ -121,16 +121,11 @@ def has_rdm(path) -> bool:
                for line in text.splitlines() for cmd in line.split("!")[0].split(";"))
 
 
-def rayoptics_model(path, lens, radius_mode=None):
-    """rayoptics' reading of ``path`` with deeplens' indices (lengths in the file's units), and
-    the path coordinate of deeplens' first surface from the file's surface 1.
-
-    A file without ``RDM`` is read by deeplens in radius mode (or as ``radius_mode`` says) and by
-    rayoptics in curvature mode (its own convention, cmdproc's ``spec_data``): the oracle gets
-    deeplens' reading, an ``RDM`` line put before the file's first line of a scratch copy."""
-    from opticalglass.opticalmedium import ConstantIndex
-
-    path = Path(path)
+def _read_opm(path: Path, radius_mode):
+    """rayoptics' optical model of ``path`` (``cmdproc.read_lens``), read from a scratch copy in
+    deeplens' radius/curvature mode: a file without ``RDM`` is read by deeplens in radius mode
+    (or as ``radius_mode`` says) and by rayoptics in curvature mode (its own convention,
+    cmdproc's ``spec_data``), so the copy gets an ``RDM`` line before its first line."""
     with _scratch_cwd() as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         from rayoptics.codev import cmdproc   # (its import opens the log file)
@@ -141,6 +136,20 @@ def rayoptics_model(path, lens, radius_mode=None):
             rdm = "RDM N" if radius_mode is False else "RDM Y"
             src.write_bytes(rdm.encode() + b"\n" + path.read_bytes())
         opm, _ = cmdproc.read_lens(src)
+    return opm
+
+
+def rayoptics_model(path, lens, radius_mode=None):
+    """rayoptics' reading of ``path`` with deeplens' indices (lengths in the file's units), and
+    the path coordinate of deeplens' first surface from the file's surface 1.
+
+    A file without ``RDM`` is read by deeplens in radius mode (or as ``radius_mode`` says) and by
+    rayoptics in curvature mode (its own convention, cmdproc's ``spec_data``): the oracle gets
+    deeplens' reading, an ``RDM`` line put before the file's first line of a scratch copy."""
+    from opticalglass.opticalmedium import ConstantIndex
+
+    path = Path(path)
+    opm = _read_opm(path, radius_mode)
     sm = opm["seq_model"]
     s_mm = unit_mm(path)
     lead, after = _match(lens, sm, s_mm)
@@ -298,17 +307,9 @@ def ray_landings(path, lens, radius_mode=None):
 
     path = Path(path)
     s_mm = unit_mm(path)
-    with _scratch_cwd() as tmp, warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        from rayoptics.codev import cmdproc
-        from rayoptics.raytr.traceerror import TraceError
+    opm = _read_opm(path, radius_mode)
+    from rayoptics.raytr.traceerror import TraceError
 
-        src = tmp / path.name
-        shutil.copyfile(path, src)
-        if radius_mode is not None or not has_rdm(path):
-            rdm = "RDM N" if radius_mode is False else "RDM Y"
-            src.write_bytes(rdm.encode() + b"\n" + path.read_bytes())
-        opm, _ = cmdproc.read_lens(src)
     sm = opm["seq_model"]
     foc = float(opm["optical_spec"]["focus"].focus_shift)
     lead, after = match_frames(lens, sm, s_mm, foc)

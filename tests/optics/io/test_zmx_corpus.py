@@ -337,6 +337,21 @@ def grid_sag_vertex_curvatures(name):
     return out
 
 
+def _optiland_from_text(name, text):
+    """optiland's ``load_zemax_file`` of ``text`` (a rewritten copy of corpus file ``name``),
+    from a scratch file of the same name, its warnings silenced."""
+    import tempfile
+
+    from optiland.fileio import load_zemax_file
+
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / Path(name).name
+        p.write_text(text)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return load_zemax_file(str(p))
+
+
 def _load_optiland_qtype(name, full):
     """optiland's ``load_zemax_file`` for a file with ``QED_TYPE`` surfaces, which its reader
     does not read: each is read as ``TYPE STANDARD`` (``XDAT`` lines dropped); with ``full``
@@ -345,9 +360,6 @@ def _load_optiland_qtype(name, full):
     for first-order data, the sphere of its vertex curvature (:func:`qtype_vertex_curvatures`):
     optiland's paraxial trace takes a Forbes surface's base radius alone, without the
     departure's r² term."""
-    import tempfile
-
-    from optiland.fileio import load_zemax_file
     from optiland.geometries import ForbesQNormalSlopeGeometry, ForbesSurfaceConfig
 
     text = decode_zemax_text(CORPUS / name)
@@ -362,12 +374,7 @@ def _load_optiland_qtype(name, full):
                 k = int(parts[i - 1].split()[1])
                 b = re.sub(r"^(\s+CURV\s+)\S+", rf"\g<1>{cv[k]!r}", b, flags=re.M)
             parts[i] = re.sub(r"^\s+XDAT\s+.*\n", "", b, flags=re.M)
-    with tempfile.TemporaryDirectory() as tmp:
-        p = Path(tmp) / Path(name).name
-        p.write_text("".join(parts))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            optic = load_zemax_file(str(p))
+    optic = _optiland_from_text(name, "".join(parts))
     if full:
         for k, x, curv, coni in _qtype_blocks(text):
             assert x.get(1, 0.0) == 0.0, "a Qcon surface: extend the oracle"
@@ -384,10 +391,6 @@ def _load_optiland_grid_sag(name):
     refuses: each is read as the ``STANDARD`` sphere of its vertex curvature under deeplens'
     stated rule (:func:`grid_sag_vertex_curvatures`; ``PARM``, ``XDAT``, ``GDAT``, ``GARR``
     lines dropped): a stand-in for first-order numbers only, not for real rays."""
-    import tempfile
-
-    from optiland.fileio import load_zemax_file
-
     text = decode_zemax_text(CORPUS / name)
     assert not re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT|DGRATING|QED_TYPE)", text, re.M), \
         "a GRID_SAG file with another surface the oracle rewrites: extend the oracle"
@@ -406,12 +409,7 @@ def _load_optiland_grid_sag(name):
                 parts[i] = re.sub(r"^\s+(PARM|XDAT|GDAT|GARR)\s.*\n", "", b, flags=re.M)
             continue
         k += 1
-    with tempfile.TemporaryDirectory() as tmp:
-        p = Path(tmp) / Path(name).name
-        p.write_text("".join(parts))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return load_zemax_file(str(p))
+    return _optiland_from_text(name, "".join(parts))
 
 
 def _load_optiland(name, gratings):
@@ -421,8 +419,6 @@ def _load_optiland(name, gratings):
     (``PARM 1`` lines/µm -> a period of 1/``PARM 1`` µm, order ``PARM 2``, lines along x).
     Nor ``QED_TYPE``: :func:`_load_optiland_qtype` (``gratings`` False: first-order
     stand-ins)."""
-    import tempfile
-
     from optiland.fileio import load_zemax_file
 
     if _has_qtype(name):
@@ -449,12 +445,7 @@ def _load_optiland(name, gratings):
                 parts[i] = re.sub(r"^\s+PARM\s+.*\n", "", b, flags=re.M)
         text = "".join(parts)
         if not _has_gratings(name):
-            with tempfile.TemporaryDirectory() as tmp:
-                p = Path(tmp) / Path(name).name
-                p.write_text(text)
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    return load_zemax_file(str(p))
+            return _optiland_from_text(name, text)
     if not _has_gratings(name):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -468,12 +459,7 @@ def _load_optiland(name, gratings):
             found.append((int(parts[i - 1].split()[1]), parm.get(1, 0.0), parm.get(2, 0.0)))
             b = re.sub(r"^(\s+TYPE\s+)DGRATING", r"\g<1>STANDARD", b, flags=re.M)
             parts[i] = re.sub(r"^\s+PARM\s+.*\n", "", b, flags=re.M)
-    with tempfile.TemporaryDirectory() as tmp:
-        p = Path(tmp) / Path(name).name
-        p.write_text("".join(parts))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            optic = load_zemax_file(str(p))
+    optic = _optiland_from_text(name, "".join(parts))
     if gratings:
         import optiland.backend as be
         from optiland.geometries import PlaneGrating, StandardGratingGeometry
