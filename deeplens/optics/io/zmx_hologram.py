@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import math
 
+from ..errors import ZemaxFileError
 from ..surfaces import Hologram
+from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
 from .surface_formats import SurfaceFormat, register_format
 
 __all__ = ["HologramFormat"]
@@ -36,6 +38,24 @@ _PARMS = {1: "x1", 2: "y1", 3: "z1", 4: "x2", 5: "y2", 6: "z2", 7: "the construc
 
 def _f(v) -> str:
     return repr(float(v))
+
+
+def _opening_lines(s, i: int) -> list[str]:
+    """``CLAP`` (a clear circle narrower than the semi-diameter, with ``OBDC`` when decentred)
+    and ``OBSC`` of a hologram; a rectangular or elliptical opening or obscuration on one is
+    refused (no file at hand has one)."""
+    if clear_rect_of(s) is not None or clear_ellipse_of(s) is not None \
+            or obscuration_ellipse_of(s) is not None:
+        raise ZemaxFileError(f"surface {i}: a rectangular or elliptical opening on a hologram is "
+                             f"not written (a circular CLAP and OBSC are)", surfaces=(i,))
+    out = []
+    if math.isfinite(float(s.clear_radius)):
+        out.append(f"CLAP 0 {_f(s.clear_radius)} 0")
+        if bool(s.clear_decenter.any()):
+            out.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
+    if float(s.obscuration) > 0:
+        out.append(f"OBSC 0 {_f(s.obscuration)} 0")
+    return out
 
 
 def _hologram(s, ctx) -> Hologram:
@@ -99,6 +119,4 @@ class HologramFormat(SurfaceFormat):
         lines += [f"PARM {j + 1} {_f(v)}" for j, v in enumerate(values)]
         lines += [f"PARM 7 {_f(float(s.wl_c) / 1000.0)}", f"PARM 8 {s.order}",
                   f"DIAM {_f(s.semi_diameter)} 1 0 0 1 \"\""]
-        from .surface_handlers import _opening_records   # the shared CLAP/SQAP/OBSC records
-
-        return lines + _opening_records(s, i)
+        return lines + _opening_lines(s, i)

@@ -61,6 +61,8 @@ import math
 
 import torch
 
+from torch import nn
+
 from ..interactions import DIFFRACTION
 from .asphere import Asphere
 from .base import make_param, register_surface
@@ -92,8 +94,9 @@ class Hologram(Asphere):
         conic: conic constant ``k`` of the base.
         obscuration, clear_radius, clear_decenter: as :class:`~.asphere.Asphere`.
 
-    Parameters: ``surface.c``, ``surface.k``, ``surface.p1``, ``surface.p2`` (``(3,)``, mm)
-    and ``surface.wl_c`` (nm), all differentiable; ``order`` and ``kind`` are plain integers.
+    Parameters: ``surface.c``, ``surface.k``, ``surface.P1[j]``, ``surface.P2[j]`` (the
+    points' ``x, y, z``, mm; ``surface.p1``, ``surface.p2`` stack them, ``(3,)``) and
+    ``surface.wl_c`` (nm), all differentiable; ``order`` and ``kind`` are plain integers.
     """
 
     #: the tracer applies :meth:`diffract` after refraction or reflection (and runs it eager)
@@ -125,11 +128,21 @@ class Hologram(Asphere):
                 raise ValueError(f"Hologram: {name} is at the surface's vertex (0, 0, 0): the "
                                  f"construction beam's curvature is infinite there")
             pts.append(v)
-        self.p1 = make_param(pts[0], "point1")
-        self.p2 = make_param(pts[1], "point2")
+        self.P1 = nn.ParameterList([make_param(v, f"point1 {a}") for v, a in zip(pts[0], "xyz")])
+        self.P2 = nn.ParameterList([make_param(v, f"point2 {a}") for v, a in zip(pts[1], "xyz")])
         self.wl_c = make_param(wl, "construction wavelength")
         self.order = int(m)
         self.kind = int(kind)
+
+    @property
+    def p1(self):
+        """Construction point 1, ``(3,)`` (mm, local frame): ``P1[0..2]`` stacked."""
+        return torch.stack(list(self.P1))
+
+    @property
+    def p2(self):
+        """Construction point 2, ``(3,)`` (mm, local frame): ``P2[0..2]`` stacked."""
+        return torch.stack(list(self.P2))
 
     # ---- the ray law ---------------------------------------------------------------------
     def _mu(self, wavelength_nm, like):
