@@ -41,18 +41,20 @@ def _f(v) -> str:
 
 
 def _opening_lines(s, i: int) -> list[str]:
-    """``CLAP`` (a clear circle narrower than the semi-diameter, with ``OBDC`` when decentred)
-    and ``OBSC`` of a hologram; a rectangular or elliptical opening or obscuration on one is
-    refused (no file at hand has one)."""
+    """``CLAP`` (a clear circle narrower than the semi-diameter) and ``OBSC`` of a hologram; a
+    rectangular, elliptical or decentred opening or obscuration on one is refused (the reader
+    does not take them there; no file at hand has one)."""
     if clear_rect_of(s) is not None or clear_ellipse_of(s) is not None \
             or obscuration_ellipse_of(s) is not None:
         raise ZemaxFileError(f"surface {i}: a rectangular or elliptical opening on a hologram is "
                              f"not written (a circular CLAP and OBSC are)", surfaces=(i,))
+    if bool(s.clear_decenter.any()):
+        raise ZemaxFileError(f"surface {i}: a decentred opening on a hologram is not written (the "
+                             f"reader takes OBDC on flat, STANDARD and EVENASPH surfaces only)",
+                             surfaces=(i,))
     out = []
     if math.isfinite(float(s.clear_radius)):
         out.append(f"CLAP 0 {_f(s.clear_radius)} 0")
-        if bool(s.clear_decenter.any()):
-            out.append(f"OBDC {_f(s.clear_decenter[0])} {_f(s.clear_decenter[1])}")
     if float(s.obscuration) > 0:
         out.append(f"OBSC 0 {_f(s.obscuration)} 0")
     return out

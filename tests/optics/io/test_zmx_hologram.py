@@ -139,3 +139,34 @@ def test_odd_data_is_refused_with_its_line(tmp_path, body, needle, match):
         read_zmx(p)
     assert e.value.line == line_of(text, needle)
     assert str(p) in str(e.value)
+
+
+def test_a_clear_aperture_on_a_hologram_is_written_back(tmp_path):
+    """A clear circle and an obscuration on a hologram (behind a stop) are written as CLAP and
+    OBSC and read back as the same surface; a decentred one is refused by the writer (the
+    reader refuses OBDC on a hologram)."""
+    from deeplens.optics.lens import Lens
+    from deeplens.optics.materials import Air
+    from deeplens.optics.surfaces import Aperture
+
+    def h_dict(x):
+        s = x.surfaces[1] if hasattr(x, "surfaces") else x
+        return s.to_dict()
+
+    def lens_with(decenter):
+        h = Hologram(1 / 90.0, 14.0, (0.0, 0.0, -200.0), (0.0, 0.0, 100.0), 550.0, 1, 2,
+                     clear_radius=12.0, clear_decenter=decenter, obscuration=2.0)
+        return Lens([Aperture(10.0), h], [Air(), Air(), Air()], [0.0, 5.0], 100.0, 0)
+
+    lens = lens_with((0.0, 0.0))
+    write_zmx(lens, tmp_path / "out.zmx")
+    out = (tmp_path / "out.zmx").read_text()
+    assert "CLAP 0 12.0 0" in out and "OBSC 0 2.0 0" in out
+    back = read_zmx_quiet(tmp_path / "out.zmx").surfaces[1]
+    # the reader takes a CLAP as the surface's semi-diameter (the Zemax guide): the same opening
+    assert float(back.semi_diameter) == 12.0 and float(back.obscuration) == 2.0
+    a = {k: v for k, v in h_dict(lens).items() if k not in ("semi_diameter_mm", "clear_radius_mm")}
+    b = {k: v for k, v in h_dict(back).items() if k not in ("semi_diameter_mm", "clear_radius_mm")}
+    assert a == b and isinstance(back, Hologram)
+    with pytest.raises(ZemaxFileError, match="a decentred opening on a hologram is not written"):
+        write_zmx(lens_with((1.0, -0.5)), tmp_path / "dec.zmx")
