@@ -75,7 +75,9 @@ def _unit_away(x, p):
     """``(x - p) / |x - p|`` and ``|x - p|`` for hits ``x`` ``(*B, 3)`` and a point ``p`` ``(3,)``."""
     v = x - p
     r = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
-    return v / r, r.squeeze(-1)
+    # a hit exactly on a construction point (a point on the substrate) has no direction: a
+    # finite one (0) instead of NaN
+    return v / r.clamp_min(torch.finfo(x.dtype).tiny), r.squeeze(-1)
 
 
 @register_surface("hologram")
