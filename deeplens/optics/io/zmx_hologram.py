@@ -4,8 +4,9 @@
 The records (OpticStudio User Guide 2024 R2, *Hologram 1*: "described by the x, y, and z
 coordinates of two different construction points, a construction wavelength, and the
 diffraction order"; the order of the parameters as OpticStudio's own samples
-``Transmission hologram.zmx`` and ``Reflection hologram.zmx`` write them, and as the CODE V to
-OpticStudio converter macro maps CODE V's ``HX1 HY1 HZ1 HX2 HY2 HZ2 HWL HOR`` onto ``PARM 1..8``):
+``Transmission hologram.zmx`` and ``Reflection hologram.zmx`` write them, and as a public
+CODE V to OpticStudio converter macro (ZPL) maps CODE V's ``HX1 HY1 HZ1 HX2 HY2 HZ2 HWL HOR``
+onto ``PARM 1..8``):
 
 * ``CURV``, ``CONI``: the substrate (plane, sphere or conic);
 * ``PARM 1``, ``2``, ``3``: construction point 1 ``x, y, z`` (lens units, the surface's local
