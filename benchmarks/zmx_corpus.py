@@ -21,7 +21,18 @@ tests; rayoptics, which reads neither ``FLOA`` nor a Zernike sag's terms nor a B
 gets its own marginal ray scaled to the stop's size, the vertex curvature of deeplens' stated
 Zernike rule and the Binary 2 phase's thin-lens power as curvature, worked out from the file: test_zmx_corpus_rayoptics._rayoptics; a ``GRID_SAG`` surface, which rayoptics reads as a plane
 and optiland refuses, is given to both as the vertex curvature of deeplens' stated rule worked
-out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures); the oracles read
+out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures; a two-point
+hologram, ``HOLOGRM1``/``HOLOGRM2``, which neither reads (optiland refuses the type, rayoptics
+reads the bare substrate), is given to rayoptics as the thin-lens power of its construction
+beams' phase at the vertex, worked out from PARM 1-8 and CURV by
+test_zmx_corpus_rayoptics._hologram_powers: on a mirror as the curvature that reflects the same,
+between equal media as rayoptics' ideal thin lens.  What that confirms for a hologram file: the
+records as deeplens reads them (the points in lens units, λ_c in µm, the order, the mirror) and
+the paraxial power of deeplens' stated phase (the Zemax guide, Holograms), so the first-order
+numbers; not the real-ray law (checked against rayoptics' HolographicElement on synthetic
+holograms in tests/optics/surfaces/test_hologram.py) nor which sense each construction beam has,
+which no oracle reads: that rests on OpticStudio's sample files putting the image on the other
+construction point); the oracles read
 copies laid out as test_zmx_corpus.oracle_text makes them (an indent common to every line
 removed, an old-style WAVL list as WAVM lines: OpTaliX's export); near-afocal systems agree where both focal lengths (and back focal distances) are
 beyond 1e12 file units (their powers equal to 1e-12 per unit: the round-off of a vanishing

@@ -1154,6 +1154,19 @@ MUTATIONS = [
              '(WITHDRAWN_CATALOGUES, withdrawn_glass, "withdrawn",',
              '((), withdrawn_glass, "withdrawn",',
              ("tests/optics/io/test_withdrawn_glass.py",)),
+    # ------------------------- issue 37: two-point holograms (HOLOGRM1, HOLOGRM2)
+    Mutation("hologram_wavelength_ratio_inverted", "a hologram's kick scaled by λ_c/λ instead "
+             "of λ/λ_c (the same at the construction wavelength, wrong at any other)",
+             "deeplens/optics/surfaces/hologram.py",
+             "return self.order * w / self.wl_c.to(like)",
+             "return self.order * self.wl_c.to(like) / w",
+             ("tests/optics/surfaces/test_hologram.py",)),
+    Mutation("hologram1_sense_flipped", "HOLOGRM1's grating vector negated (u_1 - u_2: a ray "
+             "from point 1 no longer leaves as if from point 2)",
+             "deeplens/optics/surfaces/hologram.py",
+             "return -(u1 + u2) if self.kind == 2 else u2 - u1",
+             "return -(u1 + u2) if self.kind == 2 else u1 - u2",
+             ("tests/optics/surfaces/test_hologram.py",)),
 ]
 
 

@@ -21,7 +21,9 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
 * :class:`~.zmx_grid_sag.GridSagFormat` (in its own module, :mod:`.zmx_grid_sag`): ``GRID_SAG``,
   ``GridSag``;
 * :class:`~.zmx_irregular.IrregularFormat` (in its own module, :mod:`.zmx_irregular`):
-  ``IRREGULA``, ``Irregular``.
+  ``IRREGULA``, ``Irregular``;
+* :class:`~.zmx_hologram.HologramFormat` (in its own module, :mod:`.zmx_hologram`):
+  ``HOLOGRM1``, ``HOLOGRM2``, ``Hologram``.
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
@@ -1014,3 +1016,4 @@ class ExtendedAsphereFormat(SurfaceFormat):
 # (after the built-in ones: the parser lists the types read in registration order)
 from . import zmx_grid_sag  # noqa: E402,F401
 from . import zmx_irregular  # noqa: E402,F401
+from . import zmx_hologram  # noqa: E402,F401

@@ -10,6 +10,7 @@ from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
 from .grating import Grating
 from .grid_sag import GridSag
+from .hologram import Hologram
 from .ideal import IdealLens
 from .ideal_xy import IdealLensXY
 from .irregular import Irregular
@@ -21,5 +22,5 @@ from .xy_polynomial import XYPolynomial
 from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
 __all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder",
-           "Grating", "GridSag", "Irregular", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
+           "Grating", "GridSag", "Hologram", "Irregular", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
            "Surface", "SagSurface", "SURFACE_TYPES"]

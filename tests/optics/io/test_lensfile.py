@@ -264,7 +264,7 @@ BAD = [
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
      r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, grating, "
-     r"grid_sag, ideal_lens, ideal_lens_xy, irregular, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
+     r"grid_sag, hologram, ideal_lens, ideal_lens_xy, irregular, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
      r"zernike_fringe_sag, "
      r"zernike_sag\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
@@ -542,6 +542,14 @@ def test_every_registered_surface_type_round_trips():
                           "power_x_per_mm": 0.0, "power_y_per_mm": 1 / 70.0,
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([19, 19])
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a two-point hologram (OpticStudio's HOLOGRM1/HOLOGRM2), likewise
+    d["surfaces"].append({"type": "hologram", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 75.0, "conic": -0.2,
+                          "point1_mm": [0.1, -1 / 3, -150.0], "point2_mm": [0.0, 0.2, 90.0],
+                          "construction_wavelength_nm": 532.0, "order": -1, "kind": 1,
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([len(d["surfaces"]) - 1] * 2)
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     written = {s["type"] for s in d["surfaces"]}
     canonical = {name for name, cls in SURFACE_TYPES.items() if cls.type_name == name}

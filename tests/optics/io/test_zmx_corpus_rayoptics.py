@@ -147,6 +147,23 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
     for k, phi in _binary2_powers(name, wl).items():
         assert ns[k] != ns[k - 1], "a Binary 2 surface between equal media: extend the oracle"
         sm.ifcs[k].profile.cv += phi / (ns[k] - ns[k - 1])
+    # Holograms (HOLOGRM1, HOLOGRM2): zmxread reads the substrate alone; the two construction
+    # beams' phase is, to second order at the vertex, a thin lens (_hologram_powers, written out
+    # from the records): on a mirror given as the curvature that reflects the same (a mirror's
+    # paraxial power is -2 n c), between unequal media as the curvature that refracts the same,
+    # between equal media (the substrate powerless) as rayoptics' own ideal thin lens
+    wl_um = float(lens.spec.primary_wavelength_nm) * 1e-3
+    for k, phi in _hologram_powers(name, wl_um).items():
+        if sm.ifcs[k].interact_mode == "reflect":
+            sm.ifcs[k].profile.cv += phi / (-2.0 * ns[k - 1])
+        elif ns[k] != ns[k - 1]:
+            sm.ifcs[k].profile.cv += phi / (ns[k] - ns[k - 1])
+        else:
+            import rayoptics.oprops.thinlens as ro_thinlens
+
+            thin = ro_thinlens.ThinLens(power=phi)
+            thin.z_type = "PARAXIAL"
+            sm.ifcs[k] = thin
     _update(opm)
     if re.search(r"^FLOA\b", decode_zemax_text(CORPUS / name), re.M):
         _float_by_stop_size(name, opm)
@@ -270,6 +287,37 @@ def _binary2_powers(name, wl):
         m_order, r_n = rec("PARM", 0, 1.0), rec("XDAT", 2)
         a1 = rec("XDAT", 3) if rec("XDAT", 1) >= 1 else 0.0
         out[k] = -m_order * a1 * wl / (math.pi * r_n ** 2)
+    return out
+
+
+def _hologram_powers(name, wl_um):
+    """``{SURF k: paraxial power}`` (file units⁻¹) of the file's ``HOLOGRM1``/``HOLOGRM2``
+    surfaces at the wavelength ``wl_um`` (µm), written out here from the records, not taken
+    from deeplens: the hologram adds the optical path ``m (λ/λ_c) W`` with ``W = -(r_1 + r_2)``
+    (type 2) or ``r_2 - r_1`` (type 1), ``r_i`` the distance from the surface point to
+    construction point ``i`` (``PARM 1-3``, ``4-6``; ``λ_c`` = ``PARM 7`` µm, ``m`` = ``PARM 8``;
+    the Zemax guide, Holograms); along the substrate's y section (curvature ``c`` = ``CURV``)
+    ``d²r_i/dy² = (1 - c z_i)/L_i - y_i²/L_i³`` at the vertex (``L_i = |P_i|``), and a path
+    ``W(y) ≈ W'' y²/2`` is a thin lens of power ``-W''``."""
+    out = {}
+    for k, b in enumerate(_surf_blocks(name)):
+        t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
+        if t is None or t.group(1) not in ("HOLOGRM1", "HOLOGRM2"):
+            continue
+
+        def rec(key, i, default=0.0, b=b):
+            m = re.search(rf"^\s+{key}\s+{i}\s+(\S+)", b, re.M)
+            return float(m.group(1)) if m else default
+
+        cm = re.search(r"^\s+CURV\s+(\S+)", b, re.M)
+        c = float(cm.group(1)) if cm else 0.0
+        second = []
+        for first in (1, 4):
+            x, y, z = (rec("PARM", first + j) for j in range(3))
+            L = math.sqrt(x * x + y * y + z * z)
+            second.append((1.0 - c * z) / L - y * y / L ** 3)
+        w2 = -(second[0] + second[1]) if t.group(1) == "HOLOGRM2" else second[1] - second[0]
+        out[k] = -rec("PARM", 8, 0.0) * (wl_um / rec("PARM", 7)) * w2
     return out
 
 
@@ -470,3 +518,43 @@ def test_binary2_power_through_rayoptics(monkeypatch, tmp_path):
     _update(opm)
     dl, ro = _numbers("b.zmx", lens, opm)["EFL"]
     assert abs(dl - ro) > 0.01 * abs(dl)
+
+
+@pytest.mark.parametrize("case", ["transmission", "reflection", "hologram1"])
+def test_hologram_power_through_rayoptics(monkeypatch, tmp_path, case):
+    """The holograms of test_zmx_hologram (an object 200 mm before a flat HOLOGRM2 with points
+    (0, 0, -200), (0, 0, 100); on a mirror with (0, 0, -100), (0, 0, -200); a HOLOGRM1 with
+    (0, 0, -200), (0, 0, -100)): deeplens' EFL, EPD, pupil position and back focus equal
+    rayoptics' once rayoptics, which reads the bare substrate, is given the thin-lens power
+    written out from the records (_hologram_powers: 1/200 + 1/100, 1/100 + 1/200, 1/200 - 1/100
+    per mm); given half of it, rayoptics' EFL differs."""
+    import sys
+
+    import test_zmx_corpus as tc
+    from test_zmx_hologram import hologram_file
+
+    from deeplens.optics.io.zmx import read_zmx
+
+    text = {"transmission": hologram_file(),
+            "reflection": hologram_file(z1=-100.0, z2=-200.0, image=-100.0, mirror=True),
+            "hologram1": hologram_file(kind=1, z2=-100.0, image=50.0)}[case]
+    (tmp_path / "h.zmx").write_text(text)
+    monkeypatch.setattr(tc, "CORPUS", tmp_path)
+    monkeypatch.setattr(sys.modules[__name__], "CORPUS", tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(tmp_path / "h.zmx")
+    scratch = tmp_path / "ro"
+    scratch.mkdir()
+    phi = _hologram_powers("h.zmx", 0.55)
+    expect = {"transmission": 0.015, "reflection": 0.015, "hologram1": -0.005}[case]
+    assert list(phi) == [1] and phi[1] == pytest.approx(expect, rel=1e-14)
+    opm = _rayoptics("h.zmx", lens, monkeypatch, scratch)
+    for what, (dl, ro) in _numbers("h.zmx", lens, opm).items():
+        assert _agrees(dl, ro), f"{what}: deeplens {dl!r} vs rayoptics {ro!r}"
+    # the power is what confirms: with half of it rayoptics' EFL is twice deeplens'
+    monkeypatch.setattr(sys.modules[__name__], "_hologram_powers",
+                        lambda name, wl: {k: v / 2 for k, v in phi.items()})
+    opm = _rayoptics("h.zmx", lens, monkeypatch, tmp_path / "ro")
+    dl, ro = _numbers("h.zmx", lens, opm)["EFL"]
+    assert not _agrees(dl, ro)

@@ -28,7 +28,8 @@ import torch
 
 from deeplens.optics.parameters import parameter_scale
 from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary2, BSpline,
-                                      CoordinateBreak, Cylinder, Grating, GridSag, IdealLens,
+                                      CoordinateBreak, Cylinder, Grating, GridSag, Hologram,
+                                      IdealLens,
                                       IdealLensXY,
                                       Irregular, OddAsphere,
                                       Plane, QType, Toroid, XYPolynomial, ZernikeFringeSag,
@@ -62,6 +63,8 @@ EXAMPLES = {
     Irregular: lambda: Irregular(0.01, R, 1.2 * R, conic=-0.5, decenter=(0.3, -0.2),
                                  tilt=(0.002, -0.001), z_spherical=1e-3, z_astigmatism=-2e-3,
                                  z_coma=1e-3, angle=0.3),
+    Hologram: lambda: Hologram(0.01, R, (1.0, -2.0, -150.0), (0.5, 3.0, 90.0), 550.0, 1, 2,
+                               conic=-0.5),
 }
 #: grids of node values (one tensor, one scale per node value): checked per node in
 #: tests/optics/surfaces/test_grid_sag.py (the largest sag change per unit of one node's value)
