@@ -131,7 +131,7 @@ def _to_medium(lens, a: int, z, x, d):
 
 
 def _wall_radius(lens, a: int) -> float:
-    return max(float(lens.surfaces[a].semi_diameter), float(lens.surfaces[a + 1].semi_diameter))
+    return max(float(lens.surfaces[k].semi_diameter.detach()) for k in (a, a + 1))
 
 
 def propagate(lens, a: int, rays: Rays, z, options: TraceOptions | None = None,
@@ -156,11 +156,11 @@ def propagate(lens, a: int, rays: Rays, z, options: TraceOptions | None = None,
     T = torch.where(valid, n, torch.ones_like(n)).unsqueeze(-1) * d
     opl = rays.opl
     step = medium.step_mm
-    n0 = float(medium.n0)
+    n0 = float(medium.n0.detach())
     h = step / n0
     wall2 = _wall_radius(lens, a) ** 2
     sign = -1.0 if reverse else 1.0       # f = sag - z > 0 before the surface (forward)
-    thickness = abs(float(z[a + 1] - z[a]))
+    thickness = abs(float((z[a + 1] - z[a]).detach()))
     max_steps = int(math.ceil(8.0 * (thickness + math.sqrt(wall2)) / step)) + 16
     active = valid.clone()
     for k in range(max_steps):
