@@ -26,9 +26,11 @@ surface (the surface function ``f = sag − z`` keeps its sign); it then lies le
 from it.  Three *approach* steps follow: each takes the straight-line distance ``s`` from the
 ray's point along ``T / |T|`` to the surface (:func:`~.intersect.intersect`, either sign) and
 one integration step of that length (``h = s / n``).  The straight line misses the curved path
-by about ``κ s² / 2`` (``κ = |∇n⊥| / n``, the path's curvature), so each approach squares the
-remaining distance in units of ``1/κ``: from ``Δs = 0.1`` mm and ``κ = 0.1``/mm (the
-``GRINSUR1`` interconnect's rim) it is 5e-4, 1e-8 and 5e-18 mm after the three.  The last,
+by at most about ``κ s² / 2`` (``κ = |∇n⊥| / n``, the path's curvature), so each approach squares
+the remaining distance in units of ``1/κ`` (a bound: from ``Δs = 0.1`` mm and ``κ = 0.1``/mm it
+gives 5e-4, 1e-8 and 5e-18 mm after the three); measured on the marginal ray of OpticStudio's
+``GRINSUR1`` interconnect sample: 0.097 mm before the approaches, 6.4e-13 mm after the first and
+0 (below float64's resolution) after the second.  The last,
 straight segment is then the surface's own intersection (:meth:`Lens.trace_surface
 <deeplens.optics.lens.Lens.trace_surface>`), and the ray refracts there with the local index
 ``n(r)`` of the graded side(s) at the hit (the entry surface likewise).
