@@ -37,7 +37,8 @@ straight segment is then the surface's own intersection (:meth:`Lens.trace_surfa
 
 Rays that leave the medium through its side (``r`` beyond the larger semi-diameter of the two
 surfaces that bound it: the rod's wall, when clear apertures clip), that reach an index below
-0.01, that do not reach the surface within ``8 (thickness + wall radius) / Δs + 16`` steps, or
+0.01, that do not reach the surface within ``8 (thickness + wall radius) / Δs + 16`` steps (the
+thickness in place of an unbounded wall's radius), or
 whose approach finds no surface, become invalid (their state stays finite).
 
 Autograd records every step (the positions of the whole path and three per-step evaluations
@@ -163,7 +164,8 @@ def propagate(lens, a: int, rays: Rays, z, options: TraceOptions | None = None,
     wall2 = _wall_radius(lens, a) ** 2
     sign = -1.0 if reverse else 1.0       # f = sag - z > 0 before the surface (forward)
     thickness = abs(float((z[a + 1] - z[a]).detach()))
-    max_steps = int(math.ceil(8.0 * (thickness + math.sqrt(wall2)) / step)) + 16
+    wall = math.sqrt(wall2) if math.isfinite(wall2) else thickness   # (an unbounded wall)
+    max_steps = int(math.ceil(8.0 * (thickness + wall) / step)) + 16
     active = valid.clone()
     for k in range(max_steps):
         r1, T1, dopl, n1 = rk_step(medium, r, T, h)

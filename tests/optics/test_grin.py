@@ -23,7 +23,7 @@ import math
 import pytest
 import torch
 
-from deeplens.optics import Lens
+from deeplens.optics import Lens, TraceOptions
 from deeplens.optics.grin import RadialGradient, SquareLawGradient, radial_transfer
 from deeplens.optics.io import read_zmx, write_zmx
 from deeplens.optics.materials import Air
@@ -255,9 +255,22 @@ def test_ray_leaving_through_the_side_is_vignetted_without_nan():
     (g,) = torch.autograd.grad((out.o[..., 1] * out.valid).sum(), med.nr2)
     assert math.isfinite(float(g)) and float(g) != 0.0
     # and with clear apertures off the same ray reaches the exit face
-    from deeplens.optics import TraceOptions
     free = lens.trace(rays, options=TraceOptions(clip_aperture=False))
     assert bool(free.valid[1])
+
+
+def test_an_unbounded_stop_on_the_rod_traces():
+    """Regression: the spot diagram lifts the stop's semi-diameter to infinity while it traces
+    rays aimed at the paraxial pupil (analysis/spot.py); with the stop on the GRIN surface the
+    wall was infinite and the step limit overflowed (OverflowError).  The rays now trace, the
+    same as with the finite wall they stay inside."""
+    lens = rod(RadialGradient(N0, -0.083, step_mm=0.05))
+    rays = launch(STARTS, DIRS)
+    ref = lens.trace(rays)
+    with torch.no_grad():
+        lens.surfaces[0].semi_diameter.fill_(math.inf)
+    out = lens.trace(rays)
+    assert bool(out.valid.all()) and torch.equal(out.o, ref.o)
 
 
 # ------------------------------------------------------------------ .zmx
