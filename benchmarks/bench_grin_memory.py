@@ -12,7 +12,11 @@ NA 0.2, traced to the sensor; the loss is the sum of the image heights.  ``graph
 bytes of every tensor autograd saves for the backward pass (``torch.autograd.graph.
 saved_tensors_hooks``; a tensor saved twice counts twice), which is exact and independent of the
 allocator; ``steps`` is the number of full integration steps the rays take.  The same system with
-a homogeneous glass of index 1.5 (``ModelGlass``) is the reference row.
+a homogeneous glass of index 1.5 (``ModelGlass``) is the reference row.  ``TraceOptions(checkpoint=
+True)`` wraps each surface's trace, the propagation through the medium before it included, in
+``torch.utils.checkpoint`` (the backward pass recomputes it): the graph keeps the ray state per
+surface only (the last rows; the recomputation's own graph lives during the backward pass of
+that one surface).
 """
 
 from __future__ import annotations
@@ -26,14 +30,14 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # this checkout's deeplens
 
-from deeplens.optics import Lens  # noqa: E402
+from deeplens.optics import Lens, TraceOptions  # noqa: E402
 from deeplens.optics.grin import RadialGradient  # noqa: E402
 from deeplens.optics.materials import Air, ModelGlass  # noqa: E402
 from deeplens.optics.rays import Rays  # noqa: E402
 from deeplens.optics.surfaces import Plane  # noqa: E402
 
 
-def graph_bytes(medium, n_rays: int):
+def graph_bytes(medium, n_rays: int, checkpoint: bool = False):
     """``(saved bytes, loss)`` for one forward pass through the rod filled with ``medium``."""
     lens = Lens([Plane(1.0), Plane(1.0)], [Air(), medium, Air()], [0.0, 4.0], 2.54, 0)
     lens.distances[1].requires_grad_(True)
@@ -51,7 +55,7 @@ def graph_bytes(medium, n_rays: int):
         return t
 
     with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
-        out = lens.trace_to_sensor(rays)
+        out = lens.trace_to_sensor(rays, options=TraceOptions(checkpoint=checkpoint))
         loss = (out.o[:, 1] * out.valid).sum()
     loss.backward()
     return total[0], loss
@@ -71,6 +75,10 @@ def main(argv=None) -> int:
         b, _ = graph_bytes(med, a.rays)
         n = math.ceil(4.0 / step)
         print(f"| Gradient 1 | {step:g} | {n} | {b / 2**20:.2f} | {b / a.rays / n:.0f} |")
+    for step in (0.1, 0.025):   # each surface's trace recomputed in the backward pass
+        b, _ = graph_bytes(RadialGradient(1.5, -0.083, step_mm=step), a.rays, checkpoint=True)
+        print(f"| Gradient 1, checkpoint=True | {step:g} | {math.ceil(4.0 / step)} | "
+              f"{b / 2**20:.2f} | - |")
     return 0
 
 

@@ -362,3 +362,41 @@ def test_grinsur9_is_refused_naming_the_missing_data(tmp_path):
     with pytest.raises(ZemaxFileError, match="GRADIENT_9.DAT") as e:
         read_zmx(p)
     assert e.value.line == text.splitlines().index("  TYPE GRINSUR9") + 1
+
+
+def test_cardinal_points_match_pygrin():
+    """The system matrix of deeplens.analysis.cardinal carries the rod's transfer: focal and
+    principal points of a Gradient 1 rod (front face at z = 0) equal pygrin's
+    ``cardinal_points`` (FF, FPP, SPP, BF: front focus, front and rear principal planes, back
+    focus) to 1e-12 mm."""
+    pygrin = pytest.importorskip("pygrin")
+    from deeplens.analysis.cardinal import cardinal_points
+
+    nr2 = -0.083
+    g = math.sqrt(-2 * nr2 / N0)
+    pitch = g * L / (2 * math.pi)
+    ff, _, fpp, spp, _, bf = pygrin.cardinal_points(N0, pitch, L)
+    c = cardinal_points(rod(RadialGradient(N0, nr2)))
+    for ours, theirs in ((c.front_focal_z, ff), (c.front_principal_z, fpp),
+                         (c.rear_principal_z, spp), (c.rear_focal_z, bf)):
+        assert float(ours) == pytest.approx(theirs, abs=1e-12)
+
+
+def test_compiled_and_checkpointed_schedules_trace_the_same():
+    """Surfaces beside a graded medium run eager under ``compile=...`` (a rod between planes:
+    no compiled kernel at all, the same rays bit for bit), and ``checkpoint=True`` recomputes
+    the whole propagation in the backward pass: the same gradients to rounding."""
+    def run(**opt):
+        med = RadialGradient(N0, -0.083, step_mm=0.1)
+        lens = rod(med)
+        med.nr2.requires_grad_(True)
+        out = lens.trace(launch(STARTS, DIRS), options=TraceOptions(**opt))
+        (g,) = torch.autograd.grad((out.o[:, :2] * out.valid.unsqueeze(-1)).sum(), med.nr2)
+        return out, g
+
+    eager, g_eager = run()
+    comp, _ = run(compile="surface")
+    assert torch.equal(comp.o, eager.o) and torch.equal(comp.d, eager.d)
+    ckpt, g_ckpt = run(checkpoint=True)
+    assert torch.equal(ckpt.o, eager.o)
+    assert float(g_ckpt) == pytest.approx(float(g_eager), rel=1e-12)
