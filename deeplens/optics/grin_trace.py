@@ -43,7 +43,8 @@ whose approach finds no surface, become invalid (their state stays finite).
 
 Autograd records every step (the positions of the whole path and three per-step evaluations
 of ``n ∇n``): memory grows with the number of steps, unlike the paper's constant-memory adjoint
-of a homogeneous lens (``benchmarks/bench_grin_memory.py``).  The number of steps is decided
+of a homogeneous lens (``benchmarks/bench_grin_memory.py``); ``TraceOptions(checkpoint=True)``
+recomputes each surface's trace, this propagation included, in the backward pass.  The number of steps is decided
 without autograd; the last approach step, whose length depends on the surface's position,
 carries the derivative with respect to the thickness.  Device-agnostic; float32 and float64.
 """

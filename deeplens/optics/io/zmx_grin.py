@@ -5,8 +5,9 @@
 OpticStudio User Guide, "Gradient 1": the Standard surface's shape (``CURV``, ``CONI``), the
 medium after it ``n = n0 + nr2 r²`` with ``PARM 1`` the maximum step ``Δt`` (lens units),
 ``PARM 2`` ``n0``, ``PARM 3`` ``nr2`` (per lens unit squared).  The index is the same at every
-wavelength.  Read: ``PARM 4`` must be 0 (files written by OpticStudio 13 carry it; no stored
-source defines a fourth Gradient 1 coefficient), and the block must have no ``GLAS`` (the medium
+wavelength.  Read: ``PARM 4`` must be 0 (files written by OpticStudio 13 carry it; an early
+PyZDDE's lens-scaling routine scales it per lens unit as a "radial linear index", but no stored
+source defines the term), and the block must have no ``GLAS`` (the medium
 is the parameters'); both are refused at their line otherwise.  Written: the same records,
 numbers with ``repr`` (a round trip is bit for bit), no ``GLAS`` line.
 """
