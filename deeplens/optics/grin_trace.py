@@ -72,8 +72,9 @@ MIN_INDEX = 0.01
 
 def rk_step(medium, r, T, h):
     """One step of Sharma, Kumar and Ghatak's scheme (module docstring) in ``medium`` (a
-    :class:`~.grin.GradedMedium`): ``r``, ``T`` ``(*B, 3)`` (mm, mm), ``h`` a float or
-    ``(*B,)`` tensor (the optical-path parameter, mm).  Returns ``(r, T, dopl, n_end)``: the
+    :class:`~.grin.GradedMedium`): ``r`` ``(*B, 3)`` (mm, the medium's frame), ``T``
+    ``(*B, 3)`` (``n dr/ds``, dimensionless), ``h`` a float or ``(*B,)`` tensor (the step in
+    the optical-path parameter ``t``, mm).  Returns ``(r, T, dopl, n_end)``: the
     new point and optical direction, the optical path of the step (mm) and the index at the
     new point."""
     hv = h.unsqueeze(-1) if isinstance(h, torch.Tensor) else h
@@ -120,8 +121,9 @@ def check_graded(lens) -> None:
 
 
 def _to_medium(lens, a: int, z, x, d):
-    """Global ``x``, ``d`` into the frame of surface ``a`` (the medium's), and back
-    (``inverse``): ``(to, back)`` closures."""
+    """``(to, back)``: closures taking global points and directions ``(p, q)`` (``(*B, 3)``)
+    into the frame of surface ``a`` (the medium's: its element frame, origin at its vertex) and
+    back; ``x``, ``d`` give the dtype and device."""
     m, pivot, vertex = lens._frame(a, z, x)
     if m is None:
         shift = pivot + vertex

@@ -400,3 +400,27 @@ def test_compiled_and_checkpointed_schedules_trace_the_same():
     ckpt, g_ckpt = run(checkpoint=True)
     assert torch.equal(ckpt.o, eager.o)
     assert float(g_ckpt) == pytest.approx(float(g_eager), rel=1e-12)
+
+
+def test_curved_faces_real_rays_tend_to_the_paraxial_efl():
+    """A Gradient 1 rod with a convex front and a concave back face (the next surface a sphere:
+    the approach steps intersect it by the closed form, backwards where they overshoot): the
+    real-ray focal length of parallel rays tends to the paraxial EFL (the faces' powers and
+    the rod's matrix) as h², and lies within 1e-6 relative of it at h = 2e-3 mm."""
+    from deeplens.optics.surfaces import Sphere
+
+    med = RadialGradient(N0, -0.05, step_mm=0.02)
+    lens = Lens([Sphere(0.1, 1.0), Sphere(-0.05, 1.0)], [Air(), med, Air()], [0.0, L], 5.0, 0)
+    efl = float(paraxial(lens).efl)
+    h2 = 1 / (N0 * math.sqrt(0.1 / N0) * math.sin(math.sqrt(0.1 / N0) * L))   # faces off
+    assert abs(efl - h2) / h2 > 0.05          # the faces' powers count
+    diffs = []
+    for h in (4e-3, 2e-3):
+        rays = Rays(torch.tensor([[0.0, h, -1.0]], dtype=torch.float64),
+                    torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64),
+                    torch.tensor([550.0], dtype=torch.float64))
+        out = lens.trace(rays)
+        assert bool(out.valid.all())
+        diffs.append(abs(-h / float(out.d[0, 1] / out.d[0, 2]) - efl) / efl)
+    assert diffs[1] < 1e-6
+    assert diffs[0] / diffs[1] == pytest.approx(4.0, rel=0.05)
