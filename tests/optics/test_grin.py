@@ -424,3 +424,26 @@ def test_curved_faces_real_rays_tend_to_the_paraxial_efl():
         diffs.append(abs(-h / float(out.d[0, 1] / out.d[0, 2]) - efl) / efl)
     assert diffs[1] < 1e-6
     assert diffs[0] / diffs[1] == pytest.approx(4.0, rel=0.05)
+
+
+def test_a_decentred_and_tilted_rod_carries_its_medium():
+    """The medium moves with its element (the frame of its first surface): rays through a rod
+    decentred by (dx, dy) and tilted about its front vertex are the aligned rod's rays in the
+    moved frame, to 1e-12 mm (the same rays, expressed there)."""
+    dx, dy, tx = 0.07, -0.04, 0.02
+    aligned = rod(RadialGradient(N0, -0.083, step_mm=0.05))
+    moved = rod(RadialGradient(N0, -0.083, step_mm=0.05))
+    m = moved.misalignments[0]
+    with torch.no_grad():
+        m.dx.fill_(dx)
+        m.dy.fill_(dy)
+        m.tilt_x.fill_(tx)
+    rays = launch(STARTS, DIRS)
+    pivot = torch.zeros(3, dtype=torch.float64)   # the element's first vertex (z = 0)
+    o_g, d_g = m.to_global(rays.o, rays.d, pivot)   # the same rays, carried with the rod
+    out_m = moved.trace(Rays(o_g, d_g, rays.wavelength))
+    out_a = aligned.trace(rays)
+    assert bool(out_m.valid.all()) and bool(out_a.valid.all())
+    o_back, d_back = m.to_element(out_m.o, out_m.d, pivot)
+    torch.testing.assert_close(o_back, out_a.o, rtol=0, atol=1e-12)
+    torch.testing.assert_close(d_back, out_a.d, rtol=0, atol=1e-12)
