@@ -118,8 +118,9 @@ class GradedMedium(Material):
         return radial_transfer(self.g2().to(like), like, n0)
 
     def to_spec(self) -> str:
-        raise ValueError(f"the graded medium {self.name!r} has no material name: it is written "
-                         f"with its surface (a GRINSUR1 record), not as a glass")
+        raise ValueError(f"the graded medium {self.name!r} has no material name: deeplens' "
+                         f"lens files have no gradient-index record; write the lens as .zmx "
+                         f"(write_zmx: a GRINSUR1 surface)")
 
 
 class RadialGradient(GradedMedium):

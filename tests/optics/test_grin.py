@@ -447,3 +447,13 @@ def test_a_decentred_and_tilted_rod_carries_its_medium():
     o_back, d_back = m.to_element(out_m.o, out_m.d, pivot)
     torch.testing.assert_close(o_back, out_a.o, rtol=0, atol=1e-12)
     torch.testing.assert_close(d_back, out_a.d, rtol=0, atol=1e-12)
+
+
+def test_lens_file_refuses_a_graded_medium_saying_where_it_can_go(tmp_path):
+    """deeplens' JSON lens file has no gradient-index record: refused, naming .zmx."""
+    from deeplens.optics.io import lens_to_dict
+
+    p = tmp_path / "rod.zmx"
+    p.write_text(grin_zmx())
+    with pytest.raises(ValueError, match="write_zmx"):
+        lens_to_dict(read_zmx(p))
