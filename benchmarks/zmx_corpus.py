@@ -41,6 +41,23 @@ file with coordinate breaks that optiland reads differently is compared once mor
 break zeroed (deeplens' paraxial data follow the local axes, as the corpus test where optiland
 declines them), shown as ``optiland(breaks zeroed)``.  Each oracle's first disagreeing quantity,
 or why it could not read the file, is printed under the file.
+
+GRIN files (``GRINSUR1``, gradient-index media), which neither oracle traces, are confirmed in
+two parts, shown as ``optiland(GRIN stand-in + real rays)`` (likewise rayoptics): (1) each oracle
+reads the file with every GRIN slab replaced by a homogeneous stand-in with the same paraxial
+matrix (grin_stand_in_text: the same thickness in a model glass of index ``L / B``, the two
+faces' curvatures changed to add the powers ``(1 − A) / B`` and ``(1 − D) / B``), given deeplens'
+indices, and must give the GRIN lens's EFL, entrance pupil and back focal point to the usual
+tolerances; (2) deeplens' real-ray focal length of the loaded file (parallel rays at 2e-3 and
+1e-3 of the pupil radius, Richardson-extrapolated to the axis) must equal its paraxial EFL to
+the stated error estimate (grin_real_ray_check; on the OpticStudio sample ``GRIN interconnect``
+2.0632128047 vs 2.0632128151 mm, estimate 7e-8).  What this confirms: the reading of everything
+but the medium (object, aperture, stop, the other surfaces, image distance) by an independent
+reader, and that deeplens' traced rays agree with its paraxial matrix.  What it does not: the
+slab's matrix itself comes from deeplens (its closed form, checked against pygrin and a
+closed-form trace in tests/optics/test_grin.py), and that OpticStudio's Gradient 1 index is
+``n0 + nr2 r²`` rests on its manual (and, for that one sample, on its image size, which
+deeplens' marginal ray meets to 5e-9 mm: test_grin.py).
 """
 
 from __future__ import annotations
@@ -160,6 +177,8 @@ def folder_oracles(root: Path):
         return None
 
     def confirm(name, lens):
+        if any(m.graded for m in lens.materials):
+            return confirm_grin(name, lens)
         ok, why = [], {}
         for oracle, check in (("optiland", optiland), ("rayoptics", rayoptics)):
             with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
@@ -175,7 +194,155 @@ def folder_oracles(root: Path):
                 why[oracle] = bad
         return ok, why
 
+    def confirm_grin(name, lens):
+        """A file with gradient-index media (module docstring, "GRIN files"): each oracle reads
+        the file with every GRIN slab replaced by its homogeneous stand-in and must give
+        deeplens' numbers of the GRIN lens; the confirmation also needs deeplens' real-ray
+        focal length to agree with its paraxial one (:func:`grin_real_ray_check`)."""
+        real_bad = grin_real_ray_check(lens)
+        stand_in = name[:-4] + "__grin_stand_in.zmx"
+        (tc.CORPUS / stand_in).write_text(grin_stand_in_text(
+            (tc.CORPUS / name).read_text(), lens, tc._unit_mm(name)))
+        sub = read_zmx(tc.CORPUS / stand_in)
+        ok, why = [], {}
+
+        def opt(tmp):
+            optic, _ = tc._oracle(stand_in, sub)
+            return _differs(tc._first_order(lens, optic, tc._unit_mm(name), stand_in))
+
+        def ray(tmp):
+            with pytest.MonkeyPatch.context() as mp:
+                opm = tr._rayoptics(stand_in, sub, mp, tmp)
+                for what, (dl, ro) in tr._numbers(stand_in, lens, opm).items():
+                    if not tr._agrees(dl, ro):
+                        return f"{what} {dl:.6g} vs {ro:.6g}"
+            return None
+
+        for oracle, check in (("optiland", opt), ("rayoptics", ray)):
+            with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                try:
+                    bad = check(Path(tmp))
+                except Exception as e:  # noqa: BLE001 - an oracle that cannot read the file
+                    bad = f"cannot: {type(e).__name__}: {str(e).splitlines()[0][:60]}"
+            bad = bad or real_bad
+            if bad is None:
+                ok.append(f"{oracle}(GRIN stand-in + real rays)")
+            else:
+                why[oracle] = bad
+        return ok, why
+
     return confirm
+
+
+def grin_stand_in_text(text: str, lens, s_mm: float) -> str:
+    """The file ``text`` with every ``GRINSUR1`` slab of ``lens`` (its reading) replaced by a
+    homogeneous one with the same paraxial matrix: the ``GRINSUR1`` block becomes a ``STANDARD``
+    surface into a non-dispersive model glass of index ``n' = L / B`` (the same thickness ``L``),
+    its curvature and the next block's curvature changed so that their powers add
+    ``φ1 = (1 − A) / B`` and ``φ2 = (1 − D) / B`` (``(A, B, C, D)`` the slab's matrix on
+    ``(y, n u)``, :meth:`~deeplens.optics.grin.GradedMedium.paraxial_transfer`): refraction by
+    ``φ2``, a gap of reduced thickness ``B`` and refraction by ``φ1`` multiply to that matrix
+    (``AD − BC = 1``).  Every other record is the file's."""
+    import torch
+
+    w = float(lens.spec.primary_wavelength_nm)
+    n = [float(m.n(w)) for m in lens.materials]
+    grin = [k for k, m in enumerate(lens.materials) if m.graded]   # media after surface k - 1
+    lines = text.splitlines()
+    starts = [j for j, ln in enumerate(lines) if re.match(r"SURF\s+\d+", ln)]
+    blocks = [j for j in starts if any(re.match(r"\s+TYPE\s+GRINSUR1\b", lines[q])
+                                       for q in range(j + 1, next((t for t in starts if t > j),
+                                                                  len(lines))))]
+    if len(blocks) != len(grin):
+        raise ValueError("the GRINSUR1 blocks are not the lens's graded media")
+    for j, k in zip(blocks, grin):
+        a = k - 1                                   # the GRIN surface; a + 1 the exit one
+        med = lens.materials[k]
+        length = lens.distances[a + 1].detach()
+        with torch.no_grad():
+            A, B, C, D = (float(v) for v in med.paraxial_transfer(length, n[k]))
+        n_sub = float(length) / B
+        c1 = float(lens.surfaces[a].c) if hasattr(lens.surfaces[a], "c") else 0.0
+        c2 = float(lens.surfaces[a + 1].c) if hasattr(lens.surfaces[a + 1], "c") else 0.0
+        p1 = c1 * (n[k] - n[k - 1]) + (1 - A) / B
+        p2 = c2 * (n[k + 1] - n[k]) + (1 - D) / B
+        c1s, c2s = p1 / (n_sub - n[k - 1]), p2 / (n[k + 1] - n_sub)
+        end = next((t for t in starts if t > j), len(lines))
+        nxt = next((t for t in starts if t > end), len(lines))
+        out = []
+        for q in range(j + 1, end):
+            if re.match(r"\s+PARM\s", lines[q]):
+                continue
+            if re.match(r"\s+TYPE\s+GRINSUR1\b", lines[q]):
+                out += ["  TYPE STANDARD", f"  GLAS ___BLANK 1 0 {n_sub!r} 0 0 0 0 0 0 0"]
+                continue
+            if re.match(r"\s+CURV\s", lines[q]):
+                out.append(f"  CURV {c1s * s_mm!r} 0 0 0 0 \"\"")
+                continue
+            out.append(lines[q])
+        lines[j + 1:end] = out
+        shift = len(out) - (end - j - 1)
+        end, nxt = end + shift, nxt + shift
+        starts = [t + shift if t > j else t for t in starts]
+        for q in range(end + 1, nxt):
+            if re.match(r"\s+CURV\s", lines[q]):
+                lines[q] = f"  CURV {c2s * s_mm!r} 0 0 0 0 \"\""
+    return "\n".join(lines) + "\n"
+
+
+#: the real-ray focal length of a GRIN file is taken at these fractions of the entrance pupil
+#: radius (a parallel ray at height h: EFL(h) = -h / tan u'; EFL(h) - EFL(0) ~ h²)
+GRIN_RAY_HEIGHTS = (2e-3, 1e-3)
+
+
+def grin_real_ray_check(lens, verbose: bool = False):
+    """``None`` when deeplens' real-ray focal length of ``lens`` (parallel rays at two small
+    heights, Richardson-extrapolated to the axis, at the file's step and at a quarter of it)
+    agrees with its paraxial EFL to the error estimate ``|EFL(h) − EFL(h/2)| / 3`` (the h⁴ term
+    left by the extrapolation, bounded by the h² term's size) plus the integration's
+    ``|EFL(Δs) − EFL(Δs/4)|`` plus 1e-12 relative; else the disagreement, as text."""
+    import math
+
+    import torch
+
+    from deeplens.optics.rays import Rays
+
+    lens = lens.double()
+    p = paraxial(lens)
+    efl, r = float(p.efl), 0.5 * float(p.entrance_pupil_diameter)
+    z0 = float(lens.z_vertices()[0]) - 1.0
+    w = float(lens.spec.primary_wavelength_nm)
+    media = [m for m in lens.materials if m.graded]
+    steps = [m.step_mm for m in media]
+
+    def focal(h):
+        rays = Rays(torch.tensor([[0.0, h, z0]], dtype=torch.float64),
+                    torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64),
+                    torch.tensor([w], dtype=torch.float64))
+        out = lens.trace(rays)
+        if not bool(out.valid.all()):
+            return math.nan
+        return -h / float(out.d[0, 1] / out.d[0, 2])
+
+    def extrapolated():
+        f1, f2 = (focal(c * r) for c in GRIN_RAY_HEIGHTS)
+        return (4 * f2 - f1) / 3, abs(f1 - f2) / 3
+
+    try:
+        f_file, est = extrapolated()
+        for m, s in zip(media, steps):
+            m.step_mm = s / 4
+        f_fine, _ = extrapolated()
+    finally:
+        for m, s in zip(media, steps):
+            m.step_mm = s
+    tol = est + abs(f_file - f_fine) + 1e-12 * abs(efl)
+    if verbose:
+        print(f"real-ray EFL {f_file!r} paraxial {efl!r} estimate {tol:.3g}")
+    if not abs(f_file - efl) <= tol:
+        return f"real-ray EFL {f_file:.10g} vs paraxial {efl:.10g} (estimate {tol:.2g})"
+    return None
 
 
 def main(folder: str | None = None, oracles: bool = True) -> int:

@@ -56,9 +56,9 @@ def system_matrix(lens, wavelength_nm: float | None = None, first: int = 0,
     zero = torch.zeros_like(one)
     M = torch.stack([torch.stack([one, zero]), torch.stack([zero, one])])
     for i in range(first, last + 1):
-        if i > first:
-            t = dist[i] / n[i]
-            M = torch.stack([torch.stack([one, t]), torch.stack([zero, one])]) @ M
+        if i > first:   # the medium's transfer: (1, t / n, 0, 1), or a graded medium's own
+            A, B, C, D = (v.to(one) for v in lens.materials[i].paraxial_transfer(dist[i], n[i]))
+            M = torch.stack([torch.stack([A, B]), torch.stack([C, D])]) @ M
         phi = surface_power(lens.surfaces[i], n[i], n[i + 1], w).to(one)
         M = torch.stack([torch.stack([one, zero]), torch.stack([-phi, one])]) @ M
     return M

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
-from . import tracer
+from . import grin_trace, tracer
 from .errors import LensError, SurfacesCrossError
 from .frames import travel_directions
 from .intersect import (_safe_div, intersect, propagate_distance, stop_crossing_xyz,
@@ -430,6 +430,7 @@ class Lens(nn.Module):
                         f"{waves[0]:g} nm); a stop does not refract, so the medium must be the "
                         f"same on both sides: put the stop in a gap, or give the interface its "
                         f"own surface", surfaces=(i,))
+        grin_trace.check_graded(self)
         sign = self.directions()
         z = self.z_vertices().detach()
         pairs = self._real_neighbours()
@@ -605,6 +606,16 @@ class Lens(nn.Module):
 
     def trace_surface(self, i: int, rays: Rays, n1, n2, z, options=None,
                       refract_: bool = True, reverse: bool = False) -> Rays:
+        """Intersect surface ``i`` and apply its interaction (:meth:`_trace_surface`); where a
+        graded medium (:mod:`.grin`) lies on either side, the rays first follow their curved
+        path through it and refract with the local index (:func:`.grin_trace.graded_surface`)."""
+        if self.materials[i].graded or self.materials[i + 1].graded:
+            return grin_trace.graded_surface(self, i, rays, n1, n2, z, options, refract_,
+                                             reverse)
+        return self._trace_surface(i, rays, n1, n2, z, options, refract_, reverse)
+
+    def _trace_surface(self, i: int, rays: Rays, n1, n2, z, options=None,
+                       refract_: bool = True, reverse: bool = False) -> Rays:
         """Intersect surface ``i`` and apply its interaction (``surface.interaction``,
         :mod:`.interactions`: refraction from medium index ``n1`` into ``n2``, reflection at a
         mirror, a grating's order, an ideal lens's deflection), in the surface's element frame.

@@ -192,6 +192,10 @@ class Material(nn.Module):
     never change them; the result follows the dtype and device of the wavelength tensor.
     """
 
+    #: the index varies with position (a gradient-index medium, :mod:`.grin`): the tracer
+    #: propagates rays through it along curved paths (:mod:`.grin_trace`)
+    graded = False
+
     def __init__(self, name: str, wavelength_range_nm: tuple[float, float] = DEFAULT_RANGE_NM):
         super().__init__()
         lo, hi = (float(v) for v in wavelength_range_nm)
@@ -240,6 +244,13 @@ class Material(nn.Module):
     def to_spec(self) -> str:
         """The string :func:`get_material` turns back into an equal material."""
         return self.name
+
+    def paraxial_transfer(self, length, n):
+        """The paraxial matrix ``(A, B, C, D)`` acting on ``(y, n u)`` across ``length`` mm of
+        this medium of (signed) axial index ``n``: ``(1, length / n, 0, 1)`` for a homogeneous
+        medium (a graded one has its own, :mod:`.grin`)."""
+        one = torch.ones_like(torch.as_tensor(length))
+        return one, length / n, torch.zeros_like(one), one
 
     def _index(self, w: torch.Tensor) -> torch.Tensor:  # pragma: no cover - abstract
         raise NotImplementedError

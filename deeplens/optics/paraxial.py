@@ -20,6 +20,9 @@ converging system whichever way the light leaves (a concave mirror of radius ``R
 ``z`` (``BFL = R / 2`` for that mirror).  A coordinate break has no power and paraxial rays
 follow the local axes through it (as in Zemax): a fold is exact, a tilted or decentered
 section is paraxial about its own vertex.
+A graded medium (:mod:`.grin`) transfers the ray with its own matrix (a radial quadratic
+rod: ``cos gL``, ``sin(gL) / (n0 g)``, ...; :meth:`~.materials.Material.paraxial_transfer`)
+instead of ``y <- y + t u``.
 A diffractive phase (:class:`~.surfaces.Binary2`) adds its paraxial power ``-M A_1 λ / (π R_n²)``
 to its base's ``c (n' - n)``, at the wavelength of the trace.
 All quantities are differentiable torch scalars in mm, at the primary wavelength.
@@ -81,10 +84,21 @@ def _trace(lens, y, u, n, wavelength_nm=None):
     dist = list(lens.distances)
     for i, s in enumerate(lens.surfaces):
         if i > 0:
-            y = y + dist[i] * u
+            y, u = _transfer(lens.materials[i], dist[i], y, u, n[i])
         heights.append(y)
         u = (n[i] * u - y * surface_power(s, n[i], n[i + 1], w).to(y)) / n[i + 1]
     return y, u, heights
+
+
+def _transfer(medium, t, y, u, n):
+    """The ray ``(y, u)`` across ``t`` mm of ``medium`` (signed axial index ``n``): ``y + t u``
+    in a homogeneous medium, the medium's own matrix in a graded one
+    (:meth:`~.materials.Material.paraxial_transfer`, :mod:`.grin`)."""
+    if not medium.graded:
+        return y + t * u, u
+    A, B, C, D = medium.paraxial_transfer(t, n)
+    nu = n * u
+    return A * y + B * nu, (C * y + D * nu) / n
 
 
 def _wavelength(lens, wavelength_nm) -> float:
@@ -163,7 +177,7 @@ def _trace_from(lens, start: int, y, u, n, wavelength_nm=None):
     dist = list(lens.distances)
     for i in range(start, len(lens.surfaces)):
         if i > start:
-            y = y + dist[i] * u
+            y, u = _transfer(lens.materials[i], dist[i], y, u, n[i])
         u = (n[i] * u - y * surface_power(lens.surfaces[i], n[i], n[i + 1], w).to(y)) / n[i + 1]
     return y, u
 

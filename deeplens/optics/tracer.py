@@ -12,7 +12,8 @@ refraction).  This module decides how a whole trace runs, from one :class:`~.opt
 * ``compile=...``: runs of aligned spheres, conics, planes and stops as fused kernels and aligned
   even aspheres and XY polynomials as compiled Newton chunks (:mod:`.compiled`,
   :func:`trace_compiled`); :func:`fused_kind` says which surface runs how, and everything else
-  (misaligned elements, B-splines, cylinders, ideal lenses, gratings, annular stops) runs eager in between.
+  (misaligned elements, B-splines, cylinders, ideal lenses, gratings, annular stops, surfaces
+  beside a graded medium) runs eager in between.
   A folded lens (mirrors, coordinate breaks), a ``record``ed trace, ``closed_form=False`` and
   ``mode="unrolled"`` stay eager.
 
@@ -101,6 +102,8 @@ def fused_kind(lens, i: int):
         return None
     if not lens.misalignments[lens._element_of[i]].is_identity():
         return None
+    if lens.materials[i].graded or lens.materials[i + 1].graded:
+        return None   # beside a graded medium: its curved paths first (.grin_trace)
     return lens.surfaces[i].fused
 
 def newton_compiled(lens, i: int, soa, rays: Rays, n1, n2, z_shift, options, tol: float):

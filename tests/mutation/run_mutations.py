@@ -1167,6 +1167,21 @@ MUTATIONS = [
              "return -(u1 + u2) if self.kind == 2 else u2 - u1",
              "return -(u1 + u2) if self.kind == 2 else u1 - u2",
              ("tests/optics/surfaces/test_hologram.py",)),
+    # ------------------------------- issue 37: gradient-index media (GRINSUR1)
+    Mutation("grin_gradient_sign", "the Gradient 1 medium's n grad n with the sign of nr2 "
+             "flipped (a focusing rod traced as a diverging one)", "deeplens/optics/grin.py",
+             "        k = 2.0 * nr2 * n\n", "        k = -2.0 * nr2 * n\n",
+             ("tests/optics/test_grin.py",)),
+    Mutation("grin_paraxial_g_sign", "the rod's paraxial matrix with C = +n0 g sin gL (the "
+             "sign of the gradient's power flipped)", "deeplens/optics/grin.py",
+             "    return c, length * s / n0, -n0 * g2 * length * s, c\n",
+             "    return c, length * s / n0, n0 * g2 * length * s, c\n",
+             ("tests/optics/test_grin.py",)),
+    Mutation("grin_exit_axial_index", "the exit refraction out of a graded medium with its "
+             "axial index n0 instead of the local index at the hit",
+             "deeplens/optics/grin_trace.py",
+             "        n1 = torch.where(hit.valid, local_index(lens, before - 1, x, z), n1.to(x))\n",
+             "        n1 = n1.to(x)\n", ("tests/optics/test_grin.py",)),
 ]
 
 

@@ -24,6 +24,8 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
   ``IRREGULA``, ``Irregular``;
 * :class:`~.zmx_hologram.HologramFormat` (in its own module, :mod:`.zmx_hologram`):
   ``HOLOGRM1``, ``HOLOGRM2``, ``Hologram``.
+* :class:`~.zmx_grin.Gradient1Format` (in its own module, :mod:`.zmx_grin`): ``GRINSUR1``,
+  ``GradientSurface`` with its graded medium.
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
@@ -1012,8 +1014,9 @@ class ExtendedAsphereFormat(SurfaceFormat):
         return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 
 
-# GRID_SAG's and IRREGULA's handlers live in their own modules; importing them registers them
+# GRID_SAG's, IRREGULA's and GRINSUR1's handlers live in their own modules; importing them registers them
 # (after the built-in ones: the parser lists the types read in registration order)
 from . import zmx_grid_sag  # noqa: E402,F401
 from . import zmx_irregular  # noqa: E402,F401
 from . import zmx_hologram  # noqa: E402,F401
+from . import zmx_grin  # noqa: E402,F401

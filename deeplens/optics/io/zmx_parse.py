@@ -44,7 +44,9 @@ _UNSUPPORTED_TYPES = {
     "QTYPEASP": "a Q-type (Forbes) asphere",
     "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
     "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
-    "GRINSUR1": "a gradient-index surface",
+    "GRINSUR9": ("a SELFOC gradient-index surface, Gradient 9: its index needs the glass's "
+                 "n0(λ) and A(λ) coefficients (B, C, K0, K1, K2), which OpticStudio keeps in "
+                 "its GRADIENT_9.DAT and no public source gives"),
     "USERSURF": "a user-defined (DLL) surface",
 }
 

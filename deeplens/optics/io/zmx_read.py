@@ -418,6 +418,9 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
             gap += s.disz * s_mm
             continue
         surf, auto = built
+        graded = getattr(surf, "medium", None)   # GRINSUR1: the surface names its medium
+        if graded is not None:
+            mat = graded
         if auto:
             autos.append(len(kept))
         if s.stop:

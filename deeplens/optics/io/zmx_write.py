@@ -172,6 +172,13 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
             lines.append(f"DISZ {_f(gap)}")
             if i in lens.mirrors:
                 lines.append("GLAS MIRROR 0 0 0 0 0 0 0 0 0 0 0")
+            elif lens.materials[i + 1].graded:
+                # written with its surface's record (GRINSUR1: io.zmx_grin), never as a glass
+                if getattr(s, "medium", None) is not lens.materials[i + 1]:
+                    raise ZemaxFileError(f"surface {i}: the graded medium after it "
+                                         f"({lens.materials[i + 1].name}) has a .zmx record "
+                                         f"only with its own surface (a GradientSurface "
+                                         f"holding it: GRINSUR1)", surfaces=(i,))
             else:
                 glas(lens.materials[i + 1], lines)
             surf(lines)

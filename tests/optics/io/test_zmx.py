@@ -177,7 +177,7 @@ def test_misalignment_round_trip_through_coordinate_breaks(tmp_path):
 
 
 @pytest.mark.parametrize("edit,needle,feature,surf,surfaces", [
-    (lambda t: t.replace("TYPE EVENASPH", "TYPE GRINSUR1"), "GRINSUR1", "TYPE", 2, ()),
+    (lambda t: t.replace("TYPE EVENASPH", "TYPE GRINSUR9"), "GRINSUR9", "TYPE", 2, ()),
     (lambda t: t.replace("CURV 0.02", "CURV 0.0.2"), "0.0.2", "CURV", 2, ()),
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", "UNIT", None, ()),
     (lambda t: t.replace("GLAS N-BK7", "GLAS N-BK7X"), "N-BK7X", "GLAS", 2, ()),
