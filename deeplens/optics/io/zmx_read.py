@@ -14,6 +14,7 @@ it maps onto deeplens is in :mod:`.zmx`.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -909,7 +910,15 @@ def _located(p: Locator, e: Exception, where_of: dict, prefix: str = "") -> Zema
     sensor (``e.key == "sensor"``) at the image surface's block (``where_of["sensor"]``)."""
     idx = [i for i in dict.fromkeys(getattr(e, "surfaces", ())) if i in where_of]
     lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}" for i in idx]
-    msg = f"{prefix}{e}" + (f" ({'; '.join(lines)})" if lines else "")
+    text = str(e)
+    m = re.match(r"surface (\d+) \((\w+)\): ", text)
+    if m and int(m.group(1)) in where_of:   # Lens.check's "surface i (Type): ": deeplens' index,
+        # not the file's SURF number (SURF 0 is the object): name the block as written
+        i = int(m.group(1))
+        rec = p.records.get(where_of[i])
+        surf = rec.tokens[1] if rec is not None and len(rec.tokens) > 1 else "?"
+        text = f"SURF {surf} ({m.group(2)}, deeplens surface {i}): {text[m.end():]}"
+    msg = f"{prefix}{text}" + (f" ({'; '.join(lines)})" if lines else "")
     line = where_of[idx[-1]] if idx else (
         where_of.get("sensor", 0) if getattr(e, "key", None) == "sensor" else 0)
     return p.error(line, msg, surfaces=getattr(e, "surfaces", ()))
