@@ -1154,6 +1154,19 @@ MUTATIONS = [
              '(WITHDRAWN_CATALOGUES, withdrawn_glass, "withdrawn",',
              '((), withdrawn_glass, "withdrawn",',
              ("tests/optics/io/test_withdrawn_glass.py",)),
+    # ------------------------- issue 37: ball lenses (full hemispheres, DIAM = |R|)
+    Mutation("hemisphere_rim_refused", "a semi-diameter on the rim of its conic's domain (a "
+             "ball lens's hemisphere, DIAM = |R|) refused as beyond it, as before branch ball",
+             "deeplens/optics/surfaces/base.py",
+             "    if 1.0 - (1.0 + k) * c * c * sd * sd < -CONIC_RIM_EPS * 2.0 ** -52:",
+             "    if 1.0 - (1.0 + k) * c * c * sd * sd <= 0:",
+             ("tests/optics/io/test_zmx_ball_lens.py",)),
+    Mutation("conic_rim_sag_halved", "the conic's root taken as 1 on the rim of its domain (a "
+             "hemisphere's rim sag R/2: faces crossing at a ball's rim pass the check)",
+             "deeplens/optics/surfaces/asphere.py",
+             "    rim = arg >= -RIM_EPS * torch.finfo(arg.dtype).eps\n",
+             "    rim = arg > 1.0\n",
+             ("tests/optics/io/test_zmx_ball_lens.py",)),
 ]
 
 
