@@ -21,7 +21,9 @@ tests; rayoptics, which reads neither ``FLOA`` nor a Zernike sag's terms nor a B
 gets its own marginal ray scaled to the stop's size, the vertex curvature of deeplens' stated
 Zernike rule and the Binary 2 phase's thin-lens power as curvature, worked out from the file: test_zmx_corpus_rayoptics._rayoptics; a ``GRID_SAG`` surface, which rayoptics reads as a plane
 and optiland refuses, is given to both as the vertex curvature of deeplens' stated rule worked
-out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures); the oracles read
+out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures; a FLOA stop without
+DIAM, which the file alone does not size, is given deeplens' stop radius as its DIAM in the
+oracles' copy, test_zmx_corpus.floating_stop_text); the oracles read
 copies laid out as test_zmx_corpus.oracle_text makes them (an indent common to every line
 removed, an old-style WAVL list as WAVM lines: OpTaliX's export); near-afocal systems agree where both focal lengths (and back focal distances) are
 beyond 1e12 file units (their powers equal to 1e-12 per unit: the round-off of a vanishing
@@ -150,6 +152,9 @@ def folder_oracles(root: Path):
 
     def confirm(name, lens):
         ok, why = [], {}
+        stop = tc.floating_stop_text((tc.CORPUS / name).read_text(), lens, tc._unit_mm(name))
+        if stop is not None:   # FLOA, a stop without DIAM: the copy gets deeplens' stop size
+            (tc.CORPUS / name).write_text(stop)
         for oracle, check in (("optiland", optiland), ("rayoptics", rayoptics)):
             with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
                 warnings.simplefilter("ignore")

@@ -1167,6 +1167,12 @@ MUTATIONS = [
              "    rim = arg >= -RIM_EPS * torch.finfo(arg.dtype).eps\n",
              "    rim = arg > 1.0\n",
              ("tests/optics/io/test_zmx_ball_lens.py",)),
+    # ------------------------- issue 37: a FLOA stop without DIAM floats to the limiting aperture
+    Mutation("floating_stop_loosest_aperture", "a stop with no semi-diameter under FLOA sized by "
+             "the loosest fixed aperture (the largest ratio of semi-diameter to marginal-ray "
+             "height) instead of the limiting one", "deeplens/optics/io/zmx_stop_size.py",
+             "        if m < best:\n", "        if best == math.inf or m > best:\n",
+             ("tests/optics/io/test_zmx_floa_stop_limit.py",)),
 ]
 
 
