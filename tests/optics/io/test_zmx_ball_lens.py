@@ -27,12 +27,13 @@ import pytest
 import torch
 
 from deeplens.optics.errors import SurfacesCrossError
+from deeplens.optics.intersect import TraceOptions
 from deeplens.optics.io.zmx import ZemaxFileError, read_zmx
 from deeplens.optics.lens import Lens, LensSpec
 from deeplens.optics.materials import Air, ModelGlass
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
-from deeplens.optics.surfaces import Aperture, Sphere
+from deeplens.optics.surfaces import Aperture, Asphere, Sphere
 from deeplens.optics.surfaces.base import check_conic_domain
 
 F64 = torch.float64
@@ -91,11 +92,11 @@ def _ball_by_hand(R: float, n: float, h: float):
     return p1, p2, d2
 
 
-def _trace(lens, heights):
+def _trace(lens, heights, options=None):
     h = torch.tensor(heights, dtype=F64)
     o = torch.stack([torch.zeros_like(h), h, torch.full_like(h, -1.0)], -1)
     d = torch.tensor([0.0, 0.0, 1.0], dtype=F64).expand_as(o)
-    return lens.trace(Rays(o, d, 587.5618), record=True)
+    return lens.trace(Rays(o, d, 587.5618), record=True, options=options)
 
 
 @pytest.mark.parametrize("R,n", [(1.0, 1.5), (2.5, 1.8)])
@@ -116,12 +117,21 @@ def test_real_rays_through_a_ball_match_a_sphere_by_hand(R, n):
         assert np.abs(out.d[j].numpy() - d2).max() < tol_d, (h, out.d[j], d2)
 
 
-def test_a_ray_at_the_rim_is_a_clean_miss_with_finite_gradients():
+@pytest.mark.parametrize("options", [None, TraceOptions(closed_form=False),
+                                     TraceOptions(mode="unrolled"), "asphere"],
+                         ids=["closed_form", "newton", "unrolled", "asphere_newton"])
+def test_a_ray_at_the_rim_is_a_clean_miss_with_finite_gradients(options):
     lens = ball(1.0, 1.5)
+    if options == "asphere":   # Newton from the conic's root: faces 2e-3 mm apart at the rim
+        glass = ModelGlass(1.5, math.inf)
+        lens = Lens([Asphere(1.0, 1.0, coefficients=[-1e-3]), Aperture(1.0),
+                     Asphere(-1.0, 1.0, coefficients=[1e-3])],
+                    [Air(), glass, glass, Air()], [0.0, 1.0, 1.0], 2.0, 1)
+        options = None
     front = lens.surfaces[0]
     front.c.requires_grad_(True)
     heights = [0.5, 1 - 1e-9, 1.0, 1.0 + 1e-9]
-    out, hits = _trace(lens, heights)
+    out, hits = _trace(lens, heights, options)
     assert out.valid.tolist() == [True, True, False, False]
     assert all(bool(torch.isfinite(x).all()) for x in (out.o, out.d, out.opl, *hits))
     loss = torch.where(out.valid, out.o[:, 1] + out.d[:, 1] + out.opl, 0.0).sum()
@@ -132,8 +142,9 @@ def test_a_ray_at_the_rim_is_a_clean_miss_with_finite_gradients():
     z = torch.zeros_like(r)
     for v in (front.sag(z, r), *front.sag_grad(z, r), *front.f_grad(z, r, z)):
         assert bool(torch.isfinite(v).all())
-    # on the rim the sag is the hemisphere's depth R, as a ball's faces meet there
-    assert float(front.sag(z[3:4], r[3:4]).detach()) == 1.0
+    # on the rim the sag is the hemisphere's depth R (plus a4 R^4), where a ball's faces meet
+    rim = 1.0 + (float(front.a[0]) if len(front.a) else 0.0)
+    assert float(front.sag(z[3:4], r[3:4]).detach()) == pytest.approx(rim, rel=1e-15)
 
 
 def test_exit_direction_gradient_near_the_rim_is_a_central_difference():
