@@ -32,7 +32,9 @@ the paraxial power of deeplens' stated phase (the Zemax guide, Holograms), so th
 numbers; not the real-ray law (checked against rayoptics' HolographicElement on synthetic
 holograms in tests/optics/surfaces/test_hologram.py) nor which sense each construction beam has,
 which no oracle reads: that rests on OpticStudio's sample files putting the image on the other
-construction point); the oracles read
+construction point; a FLOA stop without
+DIAM, which the file alone does not size, is given deeplens' stop radius as its DIAM in the
+oracles' copy, test_zmx_corpus.floating_stop_text); the oracles read
 copies laid out as test_zmx_corpus.oracle_text makes them (an indent common to every line
 removed, an old-style WAVL list as WAVM lines: OpTaliX's export); near-afocal systems agree where both focal lengths (and back focal distances) are
 beyond 1e12 file units (their powers equal to 1e-12 per unit: the round-off of a vanishing
@@ -180,6 +182,9 @@ def folder_oracles(root: Path):
         if any(m.graded for m in lens.materials):
             return confirm_grin(name, lens)
         ok, why = [], {}
+        stop = tc.floating_stop_text((tc.CORPUS / name).read_text(), lens, tc._unit_mm(name))
+        if stop is not None:   # FLOA, a stop without DIAM: the copy gets deeplens' stop size
+            (tc.CORPUS / name).write_text(stop)
         for oracle, check in (("optiland", optiland), ("rayoptics", rayoptics)):
             with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
                 warnings.simplefilter("ignore")

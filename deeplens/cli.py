@@ -120,6 +120,11 @@ def _add_lens_options(parser) -> None:
                         "defines: 'forbes' (default) reads it with Forbes' conic "
                         "generalisation (as optiland) and a located warning, 'refuse' refuses "
                         "it at its line")
+    z.add_argument("--stop-size", choices=("limiting", "refuse"), dest="stop_size",
+                   help="a stop with no semi-diameter under FLOA (float by stop size), which "
+                        "the file alone does not size: 'limiting' (default) floats it to the "
+                        "largest on-axis beam the other surfaces' fixed apertures pass, with a "
+                        "located warning, 'refuse' refuses it at its line")
     try:     # optimize has its own -v (every trial step); it shows these details too
         z.add_argument("-v", "--verbose", action="store_true",
                        help="with an error, print its details too (e.g. every glass catalogue "
@@ -156,6 +161,12 @@ def _load(args):
             raise _UsageError(f"--qbfs-conic applies to Zemax files (.zmx) only; {args.lens} "
                               f"is not one")
         opts["qbfs_conic"] = qbfs_conic
+    stop_size = getattr(args, "stop_size", None)
+    if stop_size is not None:
+        if Path(args.lens).suffix.lower() != ".zmx":
+            raise _UsageError(f"--stop-size applies to Zemax files (.zmx) only; {args.lens} "
+                              f"is not one")
+        opts["stop_size"] = stop_size
     config = getattr(args, "config", None)
     if config is not None:
         if Path(args.lens).suffix.lower() not in (".zmx", ".seq"):

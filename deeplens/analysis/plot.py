@@ -17,6 +17,7 @@ from ..optics.frames import local_frames, to_global
 from ..optics.sampling import DEFAULT_SAMPLING, field_rays
 from ..optics.paraxial import paraxial
 from ..optics.surfaces import CoordinateBreak
+from ..optics.surfaces.base import in_closed_domain
 from . import style
 
 __all__ = ["layout_figure", "spot_figure", "fan_figure", "field_figure", "distortion_figure",
@@ -54,7 +55,7 @@ def layout_figure(lens, fields_deg=None, n_rays: int = 7, wavelength_nm: float |
             R = float(s.semi_diameter)
             y = torch.linspace(-R, R, 101, dtype=dtype)
             zero = torch.zeros_like(y)
-            sag = torch.where(s.in_domain(zero, y), s.sag(zero, y), zero) if hasattr(s, "sag") \
+            sag = torch.where(in_closed_domain(s, zero, y), s.sag(zero, y), zero) if hasattr(s, "sag") \
                 else zero
             zi = z[i].expand(2)
             if getattr(s, "type_name", "") == "aperture":
@@ -107,7 +108,7 @@ def _profile(s, z0: float, h: float, dtype):
     the surface's own domain held at its last value)."""
     y = torch.linspace(-h, h, 101, dtype=dtype)
     zero = torch.zeros_like(y)
-    sag = torch.where(s.in_domain(zero, y), s.sag(zero, y), zero) if hasattr(s, "sag") else zero
+    sag = torch.where(in_closed_domain(s, zero, y), s.sag(zero, y), zero) if hasattr(s, "sag") else zero
     return (z0 + sag.double()).numpy(), y.double().numpy()
 
 

@@ -47,7 +47,7 @@ from .options import TraceOptions
 from .paraxial import paraxial
 from .rays import Rays, compact_broadcast as _compact
 from .surfaces import Surface
-from .surfaces.base import make_param
+from .surfaces.base import in_closed_domain, make_param
 
 __all__ = ["Lens", "LensSpec"]
 
@@ -473,7 +473,9 @@ class Lens(nn.Module):
                 # only where both surfaces exist for the rays: inside both openings' outlines
                 # (a rectangle's corners, not its circumscribed circle: a cube's diagonal
                 # touches its faces at the edges; an obscuration's disc is still glass)
-                bad = ((gap < -1e-9) & a.in_domain(x, y) & b.in_domain(x, y)
+                # (a conic's rim included: two hemispheres of a ball meet there, and surfaces
+                # that pass each other there cross, in_closed_domain)
+                bad = ((gap < -1e-9) & in_closed_domain(a, x, y) & in_closed_domain(b, x, y)
                        & a.opening.outer.contains(x, y) & b.opening.outer.contains(x, y))
                 if bool(bad.any()):
                     # the azimuth whose first crossing comes first (ties: the earlier azimuth)

@@ -1182,6 +1182,25 @@ MUTATIONS = [
              "deeplens/optics/grin_trace.py",
              "        n1 = torch.where(hit.valid, local_index(lens, before - 1, x, z), n1.to(x))\n",
              "        n1 = n1.to(x)\n", ("tests/optics/test_grin.py",)),
+    # ------------------------- issue 37: ball lenses (full hemispheres, DIAM = |R|)
+    Mutation("hemisphere_rim_refused", "a semi-diameter on the rim of its conic's domain (a "
+             "ball lens's hemisphere, DIAM = |R|) refused as beyond it, as before branch ball",
+             "deeplens/optics/surfaces/base.py",
+             "    if 1.0 - (1.0 + k) * c * c * sd * sd < -CONIC_RIM_EPS * 2.0 ** -52:",
+             "    if 1.0 - (1.0 + k) * c * c * sd * sd <= 0:",
+             ("tests/optics/io/test_zmx_ball_lens.py",)),
+    Mutation("conic_rim_sag_halved", "the conic's root taken as 1 on the rim of its domain (a "
+             "hemisphere's rim sag R/2: faces crossing at a ball's rim pass the check)",
+             "deeplens/optics/surfaces/asphere.py",
+             "    rim = arg >= -RIM_EPS * torch.finfo(arg.dtype).eps\n",
+             "    rim = arg > 1.0\n",
+             ("tests/optics/io/test_zmx_ball_lens.py",)),
+    # ------------------------- issue 37: a FLOA stop without DIAM floats to the limiting aperture
+    Mutation("floating_stop_loosest_aperture", "a stop with no semi-diameter under FLOA sized by "
+             "the loosest fixed aperture (the largest ratio of semi-diameter to marginal-ray "
+             "height) instead of the limiting one", "deeplens/optics/io/zmx_stop_size.py",
+             "        if m < best:\n", "        if best == math.inf or m > best:\n",
+             ("tests/optics/io/test_zmx_floa_stop_limit.py",)),
 ]
 
 

@@ -14,6 +14,7 @@ it maps onto deeplens is in :mod:`.zmx`.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +31,7 @@ from .zmx_glass import load_catalogues, surface_material
 from .zmx_mconf import configuration
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
 from .surface_formats import QBFS_CONIC
+from .zmx_stop_size import STOP_SIZE, check_stop_size, limiting_stop_radius
 from .zmx_surfaces import build_surface, is_air
 from .zmx_system import aperture_to_epd, element_tilts, fields_to_angles
 
@@ -56,7 +58,7 @@ class _Sequence:
 
 
 def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
-             qbfs_conic="forbes") -> Lens:
+             qbfs_conic="forbes", stop_size="limiting") -> Lens:
     """Read a sequential Zemax ``.zmx`` file into a :class:`~deeplens.optics.lens.Lens`.
 
     Args:
@@ -77,6 +79,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             generalisation (optiland's; the departure times ``sqrt((1 − k c² r²) / (1 −
             (1+k) c² r²))``), with one located :class:`ZemaxWarning` at its ``TYPE`` line;
             ``"refuse"``: a located :class:`ZemaxFileError` there instead.
+        stop_size: how a stop with no semi-diameter under ``FLOA`` (float by stop size), which
+            the file alone does not size, is read: ``"limiting"`` (default) floats it to the
+            largest on-axis beam the other surfaces' fixed apertures pass (paraxial marginal-ray
+            scaling, :mod:`.zmx_stop_size`), with one located :class:`ZemaxWarning` at its
+            ``SURF`` line naming the size and the limiting surface; ``"refuse"``: a located
+            :class:`ZemaxFileError` there instead.
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -96,6 +104,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     path = Path(path)
     if qbfs_conic not in QBFS_CONIC:
         raise ValueError(f"qbfs_conic must be one of {QBFS_CONIC}, got {qbfs_conic!r}")
+    if stop_size not in STOP_SIZE:
+        raise ValueError(f"stop_size must be one of {STOP_SIZE}, got {stop_size!r}")
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
     sysd, surfs, p = parse(path)
@@ -134,7 +144,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
 
     # ---- elements: bracketed groups, then deeplens' default grouping for the rest
     elements = _elements(kept, seq.media, seq.groups, p)
-    ap_type, ap_value, ap_line, convert = _aperture(sysd, seq, obj_dist, s_mm, p)
+    ap_type, ap_value, ap_line, convert = _aperture(sysd, seq, obj_dist, s_mm, p, stop_size)
+    float_stop = ap_type == "stop" and stop_idx in autos   # FLOA, no stop size: the limit
     telecentric = _telecentric(ftyp, ftyp_line, obj_dist, convert, ap_line, p)
 
     # ---- glass wavelength ranges, before building (a clear error instead of a NaN)
@@ -180,6 +191,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             p.fail(ap_line, str(e))
         raise _located(p, e, where_of) from e
     lens.object_telecentric = telecentric
+    if float_stop:
+        _float_stop_to_the_limit(lens, seq, surfs, where_of, p)
+        autos = [i for i in autos if i != stop_idx]
     for e, (a, b, d, _) in enumerate(elements):
         if d is not None:
             m = lens.misalignments[e]
@@ -537,11 +551,14 @@ def _virtual_before_image(seq: _Sequence, signs) -> bool:
     return False
 
 
-def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locator):
+def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locator,
+              stop_size: str = "limiting"):
     """``(type, value, line, convert)`` of the system aperture: ``ENPD`` (scaled to mm),
     ``FNUM v 0`` or ``FLOA`` as deeplens' ``epd``/``fno``/``stop``; an aperture deeplens does not
     take directly (``FNUM v 1``, ``OBNA``) as a provisional ``epd`` of 1 with ``convert`` =
-    ``(kind, value, line)``, turned into the EPD it defines once the lens is built."""
+    ``(kind, value, line)``, turned into the EPD it defines once the lens is built.  A stop with
+    no semi-diameter under ``FLOA`` is refused here with ``stop_size="refuse"`` or without a
+    fixed aperture to limit the beam (:func:`~.zmx_stop_size.check_stop_size`)."""
     ap = sysd["aperture"]
     if ap is None:
         p.fail(0, "no system aperture (ENPD, FNUM or FLOA line)")
@@ -558,9 +575,7 @@ def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locat
         convert = (ap_type, ap_value, ap_line)
         ap_type, ap_value = "epd", 1.0
     if ap_type == "stop" and seq.stop_idx in seq.autos:
-        p.fail(seq.kept[seq.stop_idx][2].line, "the stop has no semi-diameter (no DIAM, or 0) and the "
-                                       "system aperture is FLOA (float by stop size): give the "
-                                       "stop a DIAM or the system an ENPD/FNUM")
+        check_stop_size(seq, stop_size, p)   # refused, or floated to the limit once built
     if ap_type == "stop":
         s = seq.kept[seq.stop_idx][2]
         if s.clap is not None and s.diam > 0 and s.clap[0] != s.diam:
@@ -573,6 +588,28 @@ def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locat
                               f"x {s.clap[0] / s.diam:.6g} against the DIAM's); give both the "
                               f"same value to choose")
     return ap_type, ap_value, ap_line, convert
+
+
+def _float_stop_to_the_limit(lens: Lens, seq: _Sequence, surfs, where_of: dict,
+                             p: Locator) -> None:
+    """Under ``FLOA``, a stop with no semi-diameter: set it to the largest on-axis beam the
+    fixed apertures pass (:func:`~.zmx_stop_size.limiting_stop_radius`), with one located note
+    at its ``SURF`` line, and check the lens again (a lens surface as the stop may now cross
+    its neighbour)."""
+    r, i = limiting_stop_radius(lens, seq, p)
+    k = seq.stop_idx
+    blk, lim = seq.kept[k][2], seq.kept[i][2]
+    with torch.no_grad():
+        lens.surfaces[k].semi_diameter.fill_(r)
+    try:
+        lens.check()
+    except ValueError as e:
+        raise _located(p, e, where_of) from e
+    p.note(blk.line, f"the stop (SURF {surfs.index(blk)}) has no semi-diameter under FLOA; it is "
+                     f"set to {r:.6g} mm, the largest on-axis beam the surfaces' fixed apertures "
+                     f"pass (paraxial marginal ray; SURF {surfs.index(lim)} limits, semi-diameter "
+                     f"{float(lens.surfaces[i].semi_diameter):.6g} mm); pass stop_size='refuse' "
+                     f"(--stop-size refuse) to refuse instead")
 
 
 def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locator) -> None:
@@ -912,7 +949,15 @@ def _located(p: Locator, e: Exception, where_of: dict, prefix: str = "") -> Zema
     sensor (``e.key == "sensor"``) at the image surface's block (``where_of["sensor"]``)."""
     idx = [i for i in dict.fromkeys(getattr(e, "surfaces", ())) if i in where_of]
     lines = [f"deeplens surface {i} is the SURF block on line {where_of[i]}" for i in idx]
-    msg = f"{prefix}{e}" + (f" ({'; '.join(lines)})" if lines else "")
+    text = str(e)
+    m = re.match(r"surface (\d+) \((\w+)\): ", text)
+    if m and int(m.group(1)) in where_of:   # Lens.check's "surface i (Type): ": deeplens' index,
+        # not the file's SURF number (SURF 0 is the object): name the block as written
+        i = int(m.group(1))
+        rec = p.records.get(where_of[i])
+        surf = rec.tokens[1] if rec is not None and len(rec.tokens) > 1 else "?"
+        text = f"SURF {surf} ({m.group(2)}, deeplens surface {i}): {text[m.end():]}"
+    msg = f"{prefix}{text}" + (f" ({'; '.join(lines)})" if lines else "")
     line = where_of[idx[-1]] if idx else (
         where_of.get("sensor", 0) if getattr(e, "key", None) == "sensor" else 0)
     return p.error(line, msg, surfaces=getattr(e, "surfaces", ()))

@@ -51,14 +51,23 @@ def conic_arg(s, c, k):
     return 1.0 - (1.0 + k) * c * c * s
 
 
-def _positive_or_one(arg):
-    """``arg`` where it is positive, else 1 (a finite square root and derivative everywhere)."""
-    return torch.where(arg > 0, arg, torch.ones_like(arg))
+#: the rim of a conic's domain: ``1 - (1+k) c^2 s`` from 0 down to ``-RIM_EPS`` rounding units
+#: (``torch.finfo(dtype).eps``) of the points' dtype, where :func:`conic_root` is 0
+#: (:func:`~.base.check_conic_domain` accepts a semi-diameter there: a full hemisphere)
+RIM_EPS = 8.0
 
 
 def conic_root(s, c, k):
-    """``sqrt(1 - (1+k) c^2 s)`` (the root of 1 outside the conic's domain: finite)."""
-    return torch.sqrt(_positive_or_one(conic_arg(s, c, k)))
+    """``sqrt(1 - (1+k) c^2 s)``; 0 on the rim of the conic's domain (the argument within
+    ``RIM_EPS`` rounding units below 0: a hemisphere's rim, where the sag ``c s`` is exact),
+    1 beyond it (finite).  Its derivative is finite everywhere (0 on the rim and beyond; the
+    true one is infinite on the rim)."""
+    arg = conic_arg(s, c, k)
+    inside = arg > 0
+    root = torch.sqrt(torch.where(inside, arg, torch.ones_like(arg)))
+    rim = arg >= -RIM_EPS * torch.finfo(arg.dtype).eps
+    return torch.where(inside, root, torch.where(rim, torch.zeros_like(arg),
+                                                 torch.ones_like(arg)))
 
 
 def conic_sag(s, c, k, root=None):
@@ -71,11 +80,13 @@ def conic_sag(s, c, k, root=None):
 
 
 def conic_dsag_ds(s, c, k, root=None):
-    """The conic base's ``dz/ds = c / (2 sqrt(1 - (1+k) c^2 s))`` (1/mm), see :func:`conic_sag`."""
+    """The conic base's ``dz/ds = c / (2 sqrt(1 - (1+k) c^2 s))`` (1/mm), see :func:`conic_sag`;
+    ``c / 2`` on the rim and beyond (finite: the true slope is infinite on the rim, and the
+    tracer marks a ray that lands there invalid)."""
     cs = c.to(s)
     if root is None:
         root = conic_root(s, c, k)
-    return cs / (2.0 * root)
+    return cs / (2.0 * torch.where(root > 0, root, torch.ones_like(root)))
 
 
 def even_poly(s, coeffs):

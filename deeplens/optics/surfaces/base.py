@@ -44,7 +44,7 @@ __all__ = ["Surface", "SagSurface", "in_circle", "make_param", "SURFACE_TYPES", 
            "set_clear_rect", "clear_rect_of", "takes_clear_rect", "set_clear_ellipse",
            "clear_ellipse_of", "set_obscuration_ellipse", "obscuration_ellipse_of",
            "set_obscuration_spider", "obscuration_spider_of",
-           "curvature_scale", "conic_scale"]
+           "curvature_scale", "conic_scale", "in_closed_domain"]
 
 #: lens-file ``type`` name (and aliases) -> surface class; filled by :func:`register_surface`
 #: at import and read by the lens-file reader and writer (never changed afterwards)
@@ -67,16 +67,43 @@ def register_surface(name: str, aliases: tuple[str, ...] = ()):
     return deco
 
 
+#: a semi-diameter on the rim of its conic's domain within this many float64 epsilons of the
+#: argument ``1 - (1+k) c^2 r^2`` is the rim itself (:func:`check_conic_domain`)
+CONIC_RIM_EPS = 8.0
+
+
 def check_conic_domain(sd: float, c: float, k: float, what: str, where: str = "") -> None:
     """Raise ``ValueError`` when the semi-diameter ``sd`` (mm) lies beyond the domain of a
     conic of curvature ``c`` (1/mm) and conic constant ``k``: its sag is defined only for
     ``r^2 (1 + k) c^2 < 1``.  ``what`` names the conic in the message (``"conic"``,
-    ``"Q-type surface's conic base"``, ...)."""
-    if 1.0 - (1.0 + k) * c * c * sd * sd <= 0:
+    ``"Q-type surface's conic base"``, ...).
+
+    A semi-diameter *on* the rim of the domain is accepted: a full hemisphere (``sd = |R|``,
+    a ball lens's face) or an ellipsoid to its equator.  "On" within the rounding of the
+    numbers: ``c`` and ``sd`` as read from a file carry up to one rounding each from the
+    decimal number and one from a unit scaling (``|δc/c|, |δsd/sd| <= eps``, ``eps = 2^-52``),
+    the product ``c sd`` one more half (``2.5 eps``), its square twice that, ``(1 + k)`` and
+    the products ``1.5 eps`` more: ``|1 - (1+k) c² sd²| <= 6.5 eps`` at the true rim, so an
+    argument down to ``-8 eps`` (``CONIC_RIM_EPS``; ``sd`` at most ``4 eps`` relative beyond
+    the rim) is the rim.  The rim itself is outside the domain (the slope is infinite there):
+    the tracer marks a ray that lands exactly on it invalid, as it does any ray outside a
+    surface's domain, and rays inside are traced (a grazing incidence near the rim)."""
+    if 1.0 - (1.0 + k) * c * c * sd * sd < -CONIC_RIM_EPS * 2.0 ** -52:
         limit = (1.0 / ((1.0 + k) * c * c)) ** 0.5
         raise ValueError(f"{where}semi-diameter {sd:g} mm lies beyond the domain of the {what} "
                          f"(R = {1 / c:g} mm, k = {k:g}): the sag is only defined for "
                          f"r < {limit:g} mm")
+
+
+def in_closed_domain(surface, x, y):
+    """``surface.in_domain`` at ``(x, y)`` pulled towards the axis by 4 float64 rounding units:
+    a point on the rim of a conic's domain counts (a hemisphere's rim ``r = |R|``, where the sag
+    is exact, :func:`~.asphere.conic_root`; the argument ``1 - (1+k) c² r²`` grows by ``8 eps``,
+    the rim band of :func:`check_conic_domain`).  For drawings and crossing checks, where the
+    rim of a ball lens's faces is where they meet; the tracer's hits keep ``in_domain`` (a ray
+    landing exactly on the rim, at grazing incidence, is invalid)."""
+    q = 1.0 - 4.0 * 2.0 ** -52
+    return surface.in_domain(x * q, y * q)
 
 
 def curvature_scale(R: float) -> float:

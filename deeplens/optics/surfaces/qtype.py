@@ -179,6 +179,7 @@ def _phi(s, c, k):
     num = 1.0 - k.to(s) * c2 * s
     num = torch.where(num > 0, num, torch.ones_like(num))
     den = conic_root(s, c, k) ** 2
+    den = torch.where(den > 0, den, torch.ones_like(den))   # 0 on the conic's rim: finite
     phi = torch.sqrt(num / den)
     dphi = 0.5 * phi * (-k.to(s) * c2 / num + (1.0 + k.to(s)) * c2 / den)
     return phi, dphi

@@ -482,8 +482,8 @@ def line_of(text: str, needle: str) -> int:
     (lambda t: t.replace("TYPE EVENASPH", "TYPE QED_TYPE"), "QED_TYPE",
      r"SURF 2: QED_TYPE XDAT 3 \(the normalisation radius\) must be > 0, got 0.0"),
     (lambda t: t.replace("TYPE EVENASPH", "TYPE TOROIDAL").replace("PARM 1 0", "PARM 1 3"),
-     "SURF 2", r"surface 1 \(Toroid\): the clear aperture \(x up to 8 mm\) lies beyond the "
-               r"toroid's radius of rotation \(3 mm\)"),
+     "SURF 2", r"SURF 2 \(Toroid, deeplens surface 1\): the clear aperture \(x up to 8 mm\) "
+               r"lies beyond the toroid's radius of rotation \(3 mm\)"),
     (lambda t: t.replace("CURV 0.02", "CURV 0.0.2"), "0.0.2",
      r"CURV curvature: expected a number, got '0.0.2'"),
     (lambda t: t.replace("PARM 1 0", "PARM 9 0.001"), "PARM 9",

@@ -195,10 +195,23 @@ def oracle_text(text):
     records indented under it, as OpticStudio writes them); (2) an old-style ``WAVL w1 w2 ..``
     list (µm; ``WWGT`` the weights, 1 without) as ``WAVM k w_k weight_k`` lines, OpticStudio's
     current record of the same data (optiland 0.6 reads ``WAVL`` as ``WAVL slot value``: an
-    IndexError on a single wavelength).  deeplens reads both forms as they are."""
+    IndexError on a single wavelength); (3) the system records before the first ``SURF`` and the
+    ``SURF`` lines themselves at the line's start where a writer indented them (one file of the
+    unseen sets indents every line but ``VERS``); (4) a ``DIAM`` line with its value alone
+    given the flag 0 (automatic, deeplens' reading of it; rayoptics 0.9.8 indexes the flag: an
+    IndexError).  deeplens reads every form as it is."""
     import textwrap
 
     text = textwrap.dedent(text)
+    lines, in_blocks = text.splitlines(keepends=True), False
+    for i, line in enumerate(lines):
+        if line.lstrip().startswith("SURF ") or line.strip() == "SURF":
+            in_blocks = True
+            lines[i] = line.lstrip(" \t")
+        elif not in_blocks:
+            lines[i] = line.lstrip(" \t")
+    text = "".join(lines)
+    text = re.sub(r"^(\s+DIAM\s+\S+)[ \t]*$", r"\g<1> 0", text, flags=re.M)
     wavl = re.search(r"^WAVL\s+(.+)$", text, re.M)
     if wavl is not None and not re.search(r"^WAVM\s", text, re.M):
         waves = wavl.group(1).split()
@@ -209,6 +222,36 @@ def oracle_text(text):
         text = text[:wavl.start()] + lines.rstrip("\n") + text[wavl.end():]
         text = re.sub(r"^WWGT\s.*\n", "", text, flags=re.M)
     return text
+
+
+def floating_stop_text(text, lens, s_mm):
+    """A file's text (as :func:`oracle_text` lays it out) with ``FLOA`` and a stop that has no
+    ``DIAM`` (or 0) and no ``CLAP``, which the file alone does not size (deeplens floats it to
+    the largest on-axis beam the fixed apertures pass, deeplens/optics/io/zmx_stop_size.py):
+    the text with deeplens' stop radius (``lens``, mm; ``s_mm`` mm per file unit) as the stop's
+    fixed ``DIAM``, so that the oracles check every other first-order number under that size
+    (the size itself is checked against closed forms in test_zmx_floa_stop_limit.py); ``None``
+    for any other file.  Never written over a corpus file: the benchmark writes it to its
+    copies."""
+    lines = text.splitlines(keepends=True)
+    if not any(re.match(r"FLOA\b", ln) for ln in lines):
+        return None
+    starts = [i for i, ln in enumerate(lines) if re.match(r"SURF\s+\d+", ln)] + [len(lines)]
+    for a, b in zip(starts, starts[1:]):
+        block = lines[a:b]
+        if not any(re.match(r"\s+STOP\b", ln) for ln in block):
+            continue
+        diam = [i for i in range(a, b) if re.match(r"\s+DIAM\b", lines[i])]
+        if (any(re.match(r"\s+CLAP\b", ln) for ln in block)
+                or (diam and float(lines[diam[0]].split()[1]) > 0)):
+            return None
+        new = f'  DIAM {float(lens.stop.semi_diameter) / s_mm!r} 1 0 0 1 ""\n'
+        if diam:
+            lines[diam[0]] = new
+        else:
+            lines.insert(a + 1, new)
+        return "".join(lines)
+    return None
 
 
 def oracle_folder(root, dest):
