@@ -195,7 +195,9 @@ def oracle_text(text):
     records indented under it, as OpticStudio writes them); (2) an old-style ``WAVL w1 w2 ..``
     list (µm; ``WWGT`` the weights, 1 without) as ``WAVM k w_k weight_k`` lines, OpticStudio's
     current record of the same data (optiland 0.6 reads ``WAVL`` as ``WAVL slot value``: an
-    IndexError on a single wavelength).  deeplens reads both forms as they are."""
+    IndexError on a single wavelength); where the file has ``WAVM`` records beside the old list
+    (OpticStudio's files of 2008-2010 write both), the old ``WAVL``/``WWGT`` lines are dropped,
+    as deeplens reads the ``WAVM`` records there.  deeplens reads both forms as they are."""
     import textwrap
 
     text = textwrap.dedent(text)
@@ -208,6 +210,8 @@ def oracle_text(text):
         lines = "".join(f"WAVM {k} {w} {g}\n" for k, (w, g) in enumerate(zip(waves, weights), 1))
         text = text[:wavl.start()] + lines.rstrip("\n") + text[wavl.end():]
         text = re.sub(r"^WWGT\s.*\n", "", text, flags=re.M)
+    elif wavl is not None:   # WAVM records beside the old list: they are the wavelengths
+        text = re.sub(r"^(WAVL|WWGT)\s.*\n", "", text, flags=re.M)
     return text
 
 
