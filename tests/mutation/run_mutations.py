@@ -1166,6 +1166,16 @@ MUTATIONS = [
              '        text = re.sub(r"^(WAVL|WWGT)\\s.*\\n", "", text, flags=re.M)\n',
              "        pass\n",
              ("tests/optics/io/test_zmx_set7_rules.py",)),
+    # ------------------------- issue 37: FRESNELS, OpticStudio's Fresnel surface (set 7)
+    Mutation("fresnel_plane_normal", "a Fresnel surface refracting about its plane substrate's "
+             "normal instead of its facet profile's", "deeplens/optics/surfaces/fresnel.py",
+             "        return self.facet.normal(on_facet)\n",
+             "        return super().normal(x)\n",
+             ("tests/optics/io/test_zmx_fresnel.py",)),
+    Mutation("fresnel_r2_on_r1", "a Fresnel surface's PARM 1 (the facets' r² term) put on r¹ "
+             "(no paraxial power)", "deeplens/optics/surfaces/fresnel.py",
+             "        radial[1::2] = coefficients", "        radial[0::2] = coefficients",
+             ("tests/optics/io/test_zmx_fresnel.py",)),
 ]
 
 

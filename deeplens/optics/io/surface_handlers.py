@@ -1010,7 +1010,8 @@ class ExtendedAsphereFormat(SurfaceFormat):
         return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 
 
-# GRID_SAG's and IRREGULA's handlers live in their own modules; importing them registers them
+# GRID_SAG's, IRREGULA's and FRESNELS' handlers live in their own modules; importing them registers them
 # (after the built-in ones: the parser lists the types read in registration order)
 from . import zmx_grid_sag  # noqa: E402,F401
 from . import zmx_irregular  # noqa: E402,F401
+from . import zmx_fresnel  # noqa: E402,F401

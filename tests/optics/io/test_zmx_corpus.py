@@ -801,9 +801,14 @@ def _without_breaks(name, tmp_path):
     return p
 
 
+#: surface types whose ``PARM 1`` is an ``r²`` term of the profile that refracts: the even asphere
+#: and the Fresnel surface (its facets' profile, an even asphere's: Zemax guide, A seventh set)
+_R2_TYPES = r"^\s+TYPE\s+(EVENASPH|FRESNELS)\b"
+
+
 def _even_r2_terms(name):
-    """``{SURF k: a_1}`` (file units⁻¹) of the file's ``EVENASPH`` surfaces with an ``r²`` term
-    (``PARM 1`` != 0).  deeplens' paraxial data take such a surface's vertex curvature,
+    """``{SURF k: a_1}`` (file units⁻¹) of the file's ``EVENASPH`` (and ``FRESNELS``) surfaces
+    with an ``r²`` term (``PARM 1`` != 0).  deeplens' paraxial data take such a surface's vertex curvature,
     ``CURV + 2 PARM 1`` (Zemax guide, What is read: the curvature of the sag at the vertex, which a
     real ray near the axis sees); optiland 0.6's and rayoptics 0.9's paraxial traces take ``CURV``
     alone while their real traces include the term, so each oracle is given that curvature for its
@@ -812,7 +817,7 @@ def _even_r2_terms(name):
     for k, b in enumerate(re.split(r"^SURF\s+\d+.*$", decode_zemax_text(CORPUS / name),
                                    flags=re.M)[1:]):
         m = re.search(r"^\s+PARM\s+1\s+(\S+)", b, re.M)
-        if re.search(r"^\s+TYPE\s+EVENASPH\b", b, re.M) and m and float(m.group(1)) != 0.0:
+        if re.search(_R2_TYPES, b, re.M) and m and float(m.group(1)) != 0.0:
             out[k] = float(m.group(1))
     return out
 
@@ -825,7 +830,7 @@ def _r2_in_curvature(name, tmp_path):
     parts = re.split(r"(^SURF\s+\d+.*$)", decode_zemax_text(CORPUS / name), flags=re.M)
     for i, b in enumerate(parts):
         m = re.search(r"^\s+PARM\s+1\s+(\S+)", b, re.M)
-        if re.search(r"^\s+TYPE\s+EVENASPH\b", b, re.M) and m and float(m.group(1)) != 0.0:
+        if re.search(_R2_TYPES, b, re.M) and m and float(m.group(1)) != 0.0:
             c = float(re.search(r"^\s+CURV\s+(\S+)", b, re.M).group(1))
             b = re.sub(r"^(\s+CURV\s+)\S+", lambda q: f"{q.group(1)}{c + 2.0 * float(m.group(1))!r}",
                        b, count=1, flags=re.M)
