@@ -57,11 +57,13 @@ class ParaxialData:
 
 def surface_power(surface, n1, n2, wavelength_nm: float):
     """Paraxial power (1/mm) of ``surface`` between media of indices ``n1``, ``n2``:
-    ``φ = c (n2 - n1)``; an ideal lens supplies its own ``1/f`` (times ``n2``); a diffractive
+    ``φ = c (n2 - n1)``; an ideal lens supplies its own ``1/f`` (times ``|n2|``: ``n1``, ``n2``
+    carry the direction of travel, and a positive ``f`` converges along the light's way whichever
+    way it travels, as :meth:`~.surfaces.IdealLens.deflect` traces it); a diffractive
     phase (:class:`~.surfaces.Binary2`) adds its own power at ``wavelength_nm`` (nm).  The
     paraxial traces here and the system matrices of :mod:`deeplens.analysis.cardinal` use it."""
     if hasattr(surface, "paraxial_power"):
-        return surface.paraxial_power() * n2
+        return surface.paraxial_power() * abs(n2)
     phi = surface.paraxial_curvature() * (n2 - n1)
     if hasattr(surface, "paraxial_phase_power"):
         phi = phi + surface.paraxial_phase_power(wavelength_nm).to(phi)

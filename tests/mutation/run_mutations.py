@@ -1201,6 +1201,28 @@ MUTATIONS = [
              "height) instead of the limiting one", "deeplens/optics/io/zmx_stop_size.py",
              "        if m < best:\n", "        if best == math.inf or m > best:\n",
              ("tests/optics/io/test_zmx_floa_stop_limit.py",)),
+    # ------------------------- issue 37: the seventh unseen set (ideal lens after a mirror)
+    Mutation("ideal_lens_power_signed_index", "an ideal lens's paraxial power 1/f times the signed "
+             "index (a lens after a mirror diverges in the paraxial data, converges in the trace)",
+             "deeplens/optics/paraxial.py",
+             "        return surface.paraxial_power() * abs(n2)\n",
+             "        return surface.paraxial_power() * n2\n",
+             ("tests/optics/io/test_zmx_set7_rules.py",)),
+    Mutation("oracle_keeps_old_wavl", "the oracle copy keeps an old WAVL list beside WAVM "
+             "records (optiland 0.6 fails on it)", "tests/optics/io/test_zmx_corpus.py",
+             '        text = re.sub(r"^(WAVL|WWGT)\\s.*\\n", "", text, flags=re.M)\n',
+             "        pass\n",
+             ("tests/optics/io/test_zmx_set7_rules.py",)),
+    # ------------------------- issue 37: FRESNELS, OpticStudio's Fresnel surface (set 7)
+    Mutation("fresnel_plane_normal", "a Fresnel surface refracting about its plane substrate's "
+             "normal instead of its facet profile's", "deeplens/optics/surfaces/fresnel.py",
+             "        return self.facet.normal(on_facet)\n",
+             "        return super().normal(x)\n",
+             ("tests/optics/io/test_zmx_fresnel.py",)),
+    Mutation("fresnel_r2_on_r1", "a Fresnel surface's PARM 1 (the facets' r² term) put on r¹ "
+             "(no paraxial power)", "deeplens/optics/surfaces/fresnel.py",
+             "        radial[1::2] = coefficients", "        radial[0::2] = coefficients",
+             ("tests/optics/io/test_zmx_fresnel.py",)),
 ]
 
 

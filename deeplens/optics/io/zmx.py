@@ -12,7 +12,8 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
                                                           read when CURV = 0)
     COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), R = R_x R_y R_z of the tilts
                PARM 3/4/5 in degrees (order flag PARM 6 = 0)
-    PARAXIAL   an ideal thin lens of focal length PARM 1
+    PARAXIAL   an ideal thin lens of focal length PARM 1 (converging along the light's way for
+               PARM 1 > 0, also after a mirror: a located note there)
     TOROIDAL   the y profile z_y = conic(y) + Σ PARM (i+1) y^{2i} turned about the axis parallel
                to y at z = R = PARM 1 (radius of rotation): z = R − sgn(ρ) sqrt(ρ² − x²),
                ρ = R − z_y (a Toroid); R = 0 (infinite) is a cylinder, z = z_y
@@ -33,6 +34,8 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
     GRID_SAG   z = EVENASPH (PARM 1..8 on r², ..., r¹⁶) + the bicubic Hermite interpolant of
                the grid GDAT nx ny delx dely xdec ydec, GARR i z dz/dx dz/dy d2z/dxdy nodata
                (from the top left, -x +y); PARM 0 = 0 (bicubic); a GridSag (:mod:`.zmx_grid_sag`)
+    FRESNELS   z = 0, refracting (or reflecting) about the normal of the facet profile EVENASPH
+               (PARM 1..8 on r², ..., r¹⁶) above each hit: a Fresnel (:mod:`.zmx_fresnel`)
 
 Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
 

@@ -24,7 +24,7 @@ from ..errors import SurfacesCrossError, ZemaxFileError
 from ..frames import travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
-from ..surfaces import Aperture, Asphere, CoordinateBreak, Plane
+from ..surfaces import Aperture, Asphere, CoordinateBreak, IdealLens, IdealLensXY, Plane
 from .zmx_coordbrk import (coordinate_break, is_identity, misalignment_brackets,
                            stop_plane_of_break, y_fields_only)
 from .zmx_glass import load_catalogues, surface_material
@@ -500,6 +500,7 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
     # (naming that surface)
     signs = [float(v) for v in travel_directions(surfaces, mirrors, _axis_indices(seq, primary))]
     sign = signs[-1]
+    _note_reversed_ideal_lenses(kept, signs, p)
     inside_ok = all(kept[i][3] * signs[i] >= 0 for i in range(1, len(kept)))
     if d_sensor == 0 and isinstance(surfaces[-1], (Plane, CoordinateBreak)):
         # the image plane on the last (flat) vertex: deeplens' sensor must lie after the last
@@ -536,6 +537,25 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
                          f"analysis only, no camera can record it")
         virtual[0] = True
     return d_sensor
+
+
+def _note_reversed_ideal_lenses(kept: list, signs: list, p: Locator) -> None:
+    """One located note per ``PARAXIAL`` / ``PARAX_XY`` surface met while the light travels
+    towards ``-z`` (``signs``: :func:`~..frames.travel_directions` of the kept surfaces): deeplens
+    takes its focal length (or power) along the direction of travel, a positive one converging
+    the beam as it travels, in its real trace (:meth:`~..surfaces.IdealLens.deflect`) and its
+    paraxial data alike, as rayoptics does and as a file's own thickness to the focus after it
+    says (``PARM 1 f`` then ``DISZ -f`` after a mirror); optiland 0.6 makes such a lens diverge.
+    OpticStudio's manual pages at hand do not say which, so the choice is named where it is made
+    (docs/guide/zemax.md, A seventh unseen set)."""
+    for i, (surf, _mat, block, _gap) in enumerate(kept):
+        if isinstance(surf, (IdealLens, IdealLensXY)) and signs[i + 1] < 0:
+            p.note(block.type_line or block.line,
+                   f"{block.type}: the light travels towards -z here (after a mirror); deeplens "
+                   f"takes the focal length (or power) along the direction of travel, so a "
+                   f"positive one converges the beam as it travels (a collimated beam focuses "
+                   f"f further on, at DISZ -f), as rayoptics reads it; optiland 0.6 makes it "
+                   f"diverge, and its EFL and focus differ")
 
 
 def _virtual_before_image(seq: _Sequence, signs) -> bool:

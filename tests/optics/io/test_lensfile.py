@@ -263,7 +263,7 @@ BAD = [
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
-     r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, grating, "
+     r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, fresnel, grating, "
      r"grid_sag, hologram, ideal_lens, ideal_lens_xy, irregular, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
      r"zernike_fringe_sag, "
      r"zernike_sag\)"),
@@ -548,6 +548,12 @@ def test_every_registered_surface_type_round_trips():
                           "curvature_per_mm": 1 / 75.0, "conic": -0.2,
                           "point1_mm": [0.1, -1 / 3, -150.0], "point2_mm": [0.0, 0.2, 90.0],
                           "construction_wavelength_nm": 532.0, "order": -1, "kind": 1,
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([len(d["surfaces"]) - 1] * 2)
+    # a Fresnel surface (OpticStudio's FRESNELS: a plane with an even asphere's facets), likewise
+    d["surfaces"].append({"type": "fresnel", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 75.0, "conic": -0.4,
+                          "fresnel_coefficients": [1e-4 / 3, 0.0, 1e-6],
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([len(d["surfaces"]) - 1] * 2)
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})

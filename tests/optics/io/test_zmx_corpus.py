@@ -199,7 +199,9 @@ def oracle_text(text):
     ``SURF`` lines themselves at the line's start where a writer indented them (one file of the
     unseen sets indents every line but ``VERS``); (4) a ``DIAM`` line with its value alone
     given the flag 0 (automatic, deeplens' reading of it; rayoptics 0.9.8 indexes the flag: an
-    IndexError).  deeplens reads every form as it is."""
+    IndexError); (5) where the file has ``WAVM`` records beside the old list (OpticStudio's files
+    of 2008-2010 write both), the old ``WAVL``/``WWGT`` lines are dropped, as deeplens reads the
+    ``WAVM`` records there.  deeplens reads every form as it is."""
     import textwrap
 
     text = textwrap.dedent(text)
@@ -221,6 +223,8 @@ def oracle_text(text):
         lines = "".join(f"WAVM {k} {w} {g}\n" for k, (w, g) in enumerate(zip(waves, weights), 1))
         text = text[:wavl.start()] + lines.rstrip("\n") + text[wavl.end():]
         text = re.sub(r"^WWGT\s.*\n", "", text, flags=re.M)
+    elif wavl is not None:   # WAVM records beside the old list: they are the wavelengths
+        text = re.sub(r"^(WAVL|WWGT)\s.*\n", "", text, flags=re.M)
     return text
 
 
@@ -840,9 +844,14 @@ def _without_breaks(name, tmp_path):
     return p
 
 
+#: surface types whose ``PARM 1`` is an ``r²`` term of the profile that refracts: the even asphere
+#: and the Fresnel surface (its facets' profile, an even asphere's: Zemax guide, A seventh set)
+_R2_TYPES = r"^\s+TYPE\s+(EVENASPH|FRESNELS)\b"
+
+
 def _even_r2_terms(name):
-    """``{SURF k: a_1}`` (file units⁻¹) of the file's ``EVENASPH`` surfaces with an ``r²`` term
-    (``PARM 1`` != 0).  deeplens' paraxial data take such a surface's vertex curvature,
+    """``{SURF k: a_1}`` (file units⁻¹) of the file's ``EVENASPH`` (and ``FRESNELS``) surfaces
+    with an ``r²`` term (``PARM 1`` != 0).  deeplens' paraxial data take such a surface's vertex curvature,
     ``CURV + 2 PARM 1`` (Zemax guide, What is read: the curvature of the sag at the vertex, which a
     real ray near the axis sees); optiland 0.6's and rayoptics 0.9's paraxial traces take ``CURV``
     alone while their real traces include the term, so each oracle is given that curvature for its
@@ -851,7 +860,7 @@ def _even_r2_terms(name):
     for k, b in enumerate(re.split(r"^SURF\s+\d+.*$", decode_zemax_text(CORPUS / name),
                                    flags=re.M)[1:]):
         m = re.search(r"^\s+PARM\s+1\s+(\S+)", b, re.M)
-        if re.search(r"^\s+TYPE\s+EVENASPH\b", b, re.M) and m and float(m.group(1)) != 0.0:
+        if re.search(_R2_TYPES, b, re.M) and m and float(m.group(1)) != 0.0:
             out[k] = float(m.group(1))
     return out
 
@@ -864,7 +873,7 @@ def _r2_in_curvature(name, tmp_path):
     parts = re.split(r"(^SURF\s+\d+.*$)", decode_zemax_text(CORPUS / name), flags=re.M)
     for i, b in enumerate(parts):
         m = re.search(r"^\s+PARM\s+1\s+(\S+)", b, re.M)
-        if re.search(r"^\s+TYPE\s+EVENASPH\b", b, re.M) and m and float(m.group(1)) != 0.0:
+        if re.search(_R2_TYPES, b, re.M) and m and float(m.group(1)) != 0.0:
             c = float(re.search(r"^\s+CURV\s+(\S+)", b, re.M).group(1))
             b = re.sub(r"^(\s+CURV\s+)\S+", lambda q: f"{q.group(1)}{c + 2.0 * float(m.group(1))!r}",
                        b, count=1, flags=re.M)

@@ -28,7 +28,8 @@ import torch
 
 from deeplens.optics.parameters import parameter_scale
 from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary2, BSpline,
-                                      CoordinateBreak, Cylinder, Grating, GridSag, Hologram,
+                                      CoordinateBreak, Cylinder, Fresnel, Grating, GridSag,
+                                      Hologram,
                                       IdealLens,
                                       IdealLensXY,
                                       Irregular, OddAsphere,
@@ -60,6 +61,7 @@ EXAMPLES = {
                                                coefficients=[1e-4, 1e-6]),
     GridSag: lambda: GridSag(0.01, R, (2.5, 2.5), torch.zeros(5, 5), conic=-0.5,
                              coefficients=[1e-4, -2e-6]),
+    Fresnel: lambda: Fresnel(0.01, R, conic=-0.5, coefficients=[1e-3, 1e-5]),   # flat: scale 1
     Irregular: lambda: Irregular(0.01, R, 1.2 * R, conic=-0.5, decenter=(0.3, -0.2),
                                  tilt=(0.002, -0.001), z_spherical=1e-3, z_astigmatism=-2e-3,
                                  z_coma=1e-3, angle=0.3),
