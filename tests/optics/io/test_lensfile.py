@@ -550,6 +550,7 @@ def test_every_registered_surface_type_round_trips():
                           "construction_wavelength_nm": 532.0, "order": -1, "kind": 1,
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([len(d["surfaces"]) - 1] * 2)
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
     # a Fresnel surface (OpticStudio's FRESNELS: a plane with an even asphere's facets), likewise
     d["surfaces"].append({"type": "fresnel", "semi_diameter_mm": 2.5,
                           "curvature_per_mm": 1 / 75.0, "conic": -0.4,
