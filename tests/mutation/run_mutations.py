@@ -1223,8 +1223,20 @@ MUTATIONS = [
              "(no paraxial power)", "deeplens/optics/surfaces/fresnel.py",
              "        radial[1::2] = coefficients", "        radial[0::2] = coefficients",
              ("tests/optics/io/test_zmx_fresnel.py",)),
+    # ------------------------- issue 37: fixed semi-diameters that cross are limited as automatic ones
+    Mutation("fixed_crossing_refused", "two surfaces whose fixed DIAMs cross refused again (only "
+             "automatic semi-diameters limited where the faces meet)",
+             "deeplens/optics/io/zmx_read.py",
+             "    return _estimated(kept, stop_idx, i) or _fixed_diam(kept, stop_idx, i)\n",
+             "    return _estimated(kept, stop_idx, i)\n",
+             ("tests/optics/io/test_zmx_fixed_crossing.py",)),
+    Mutation("floating_stop_sized_by_crossing_limits", "a FLOA stop without DIAM sized by the "
+             "semi-diameters the reader limited where faces cross, not by the file's own",
+             "deeplens/optics/io/zmx_stop_size.py",
+             "        m = (original or {}).get(i, float(lens.surfaces[i].semi_diameter)) / heights[i]\n",
+             "        m = float(lens.surfaces[i].semi_diameter) / heights[i]\n",
+             ("tests/optics/io/test_zmx_fixed_crossing.py",)),
 ]
-
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
     env = dict(os.environ, PYTHONPATH=str(copy), PYTHONDONTWRITEBYTECODE="1")

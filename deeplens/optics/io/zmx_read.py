@@ -183,7 +183,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
                             virtual_image=virtual[0], backward_gaps=virtual_gaps)
                 break
             except SurfacesCrossError as e:
-                if not _limit_at_crossing(e, surfaces, lambda i: _estimated(kept, stop_idx, i),
+                if not _limit_at_crossing(e, surfaces, lambda i: _limitable(kept, stop_idx, i),
                                           limited, original):
                     raise
     except (ValueError, TypeError) as e:
@@ -192,7 +192,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
         raise _located(p, e, where_of) from e
     lens.object_telecentric = telecentric
     if float_stop:
-        _float_stop_to_the_limit(lens, seq, surfs, where_of, p)
+        _float_stop_to_the_limit(lens, seq, surfs, where_of, p, original)
         autos = [i for i in autos if i != stop_idx]
     for e, (a, b, d, _) in enumerate(elements):
         if d is not None:
@@ -236,7 +236,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
         _cross_backwards_where_the_beam_passes(
             lens, limited, where_of, p, original,
             lambda: _auto_semi_diameters(lens, autos, fields, where_of, p, limited, original)
-            if autos else None)
+            if autos else None,
+            fixed={i for i in range(len(kept)) if _fixed_diam(kept, stop_idx, i)})
     try:
         lens.spec = LensSpec(object_distance_mm=obj_dist, aperture_type=ap_type,
                              aperture_value=ap_value, fields_deg=fields, wavelengths_nm=waves_nm,
@@ -611,12 +612,13 @@ def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locat
 
 
 def _float_stop_to_the_limit(lens: Lens, seq: _Sequence, surfs, where_of: dict,
-                             p: Locator) -> None:
+                             p: Locator, original: dict | None = None) -> None:
     """Under ``FLOA``, a stop with no semi-diameter: set it to the largest on-axis beam the
     fixed apertures pass (:func:`~.zmx_stop_size.limiting_stop_radius`), with one located note
     at its ``SURF`` line, and check the lens again (a lens surface as the stop may now cross
-    its neighbour)."""
-    r, i = limiting_stop_radius(lens, seq, p)
+    its neighbour; ``original``: the file's semi-diameters of surfaces limited where they
+    cross, which size the beam)."""
+    r, i = limiting_stop_radius(lens, seq, p, original)
     k = seq.stop_idx
     blk, lim = seq.kept[k][2], seq.kept[i][2]
     with torch.no_grad():
@@ -628,7 +630,8 @@ def _float_stop_to_the_limit(lens: Lens, seq: _Sequence, surfs, where_of: dict,
     p.note(blk.line, f"the stop (SURF {surfs.index(blk)}) has no semi-diameter under FLOA; it is "
                      f"set to {r:.6g} mm, the largest on-axis beam the surfaces' fixed apertures "
                      f"pass (paraxial marginal ray; SURF {surfs.index(lim)} limits, semi-diameter "
-                     f"{float(lens.surfaces[i].semi_diameter):.6g} mm); pass stop_size='refuse' "
+                     f"{(original or {}).get(i, float(lens.surfaces[i].semi_diameter)):.6g} "
+                     f"mm); pass stop_size='refuse' "
                      f"(--stop-size refuse) to refuse instead")
 
 
@@ -670,6 +673,28 @@ def _estimated(kept, stop_idx: int, i: int) -> bool:
     s = kept[i][2]
     return (i != stop_idx and not s.diam_fixed and s.clap is None and s.sqap is None
             and s.elap is None)
+
+
+def _fixed_diam(kept, stop_idx: int, i: int) -> bool:
+    """Whether kept surface ``i``'s semi-diameter is a ``DIAM`` the file fixes (flag 1), not a
+    ``CLAP``/``SQAP``/``ELAP`` opening and not the stop."""
+    s = kept[i][2]
+    return (i != stop_idx and s.diam_fixed and s.clap is None and s.sqap is None
+            and s.elap is None)
+
+
+def _limitable(kept, stop_idx: int, i: int) -> bool:
+    """Whether kept surface ``i``'s semi-diameter may be limited where it crosses another's:
+    an estimate (:func:`_estimated`) or a ``DIAM`` the file fixes (:func:`_fixed_diam`).
+
+    OpticStudio's semi-diameters, fixed or automatic, size the drawing and do not vignette
+    (only surface apertures do: ``CLAP``, ``SQAP``, ``ELAP``, which are never limited); where
+    two of them cross, OpticStudio still traces every ray, those beyond the crossing backwards
+    through the gap.  deeplens takes a semi-diameter as the surface's clear aperture, so it
+    limits both to the crossing (:func:`_limit_at_crossing`) or, where the on-axis beam reaches
+    past it, traces the gap backwards as OpticStudio does
+    (:func:`_cross_backwards_where_the_beam_passes`), with a located warning either way."""
+    return _estimated(kept, stop_idx, i) or _fixed_diam(kept, stop_idx, i)
 
 
 def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict,
@@ -770,7 +795,8 @@ def _roof_gaps(lens, where_of: dict, p: Locator) -> None:
 
 
 def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, p: Locator,
-                                 original: dict | None = None, redo_autos=None) -> None:
+                                 original: dict | None = None, redo_autos=None,
+                                 fixed=frozenset()) -> None:
     """Each pair of surfaces limited at their crossing (:func:`_limit_at_crossing`): where the
     on-axis beam of the file's pupil (real rays at the primary wavelength over the paraxial
     entrance pupil's rim, apertures ignored) reaches past the crossing radius, OpticStudio
@@ -781,7 +807,8 @@ def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, 
     and one located warning says so.  Pairs are taken in the light's order, and the beam is
     traced again after each (a ray lost at a surface keeps its last position in the later
     records, so only the first pair reached past its crossing is certain).  For the other
-    pairs a located warning says which radius the rays of other fields are vignetted at."""
+    pairs a located warning says which radius the rays of other fields are vignetted at
+    (``fixed``: the surfaces whose semi-diameter the file fixes, named so in it)."""
     original = {} if original is None else original
     while True:
         reach, half = _beam_reach(lens, limited)
@@ -817,12 +844,15 @@ def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, 
     for (i, j), r in sorted(limited.items()):
         if j in lens.backward_gaps:
             continue
-        p.note(where_of[j], f"the automatic semi-diameters of the {_pair_blocks(where_of, i, j)} "
+        kind = {0: "automatic", 1: "fixed (DIAM flag 1) and automatic",
+                2: "fixed (DIAM flag 1)"}[(i in fixed) + (j in fixed)]
+        p.note(where_of[j], f"the {kind} semi-diameters of the {_pair_blocks(where_of, i, j)} "
                             f"overlap where the surfaces cross, at r = {r:.6g} mm: both are "
-                            f"limited to it; OpticStudio traces rays beyond it backwards "
-                            f"through the gap (a negative propagation distance), deeplens "
-                            f"vignettes them (the on-axis beam, up to r = {reach[(i, j)]:.6g} "
-                            f"mm here, is not affected)")
+                            f"limited to it; OpticStudio's semi-diameters do not vignette and "
+                            f"it traces rays beyond the crossing backwards through the gap (a "
+                            f"negative propagation distance), deeplens vignettes them (the "
+                            f"on-axis beam, up to r = {reach[(i, j)]:.6g} mm here, is not "
+                            f"affected)")
 
 
 def _pair_blocks(where_of: dict, i: int, j: int) -> str:

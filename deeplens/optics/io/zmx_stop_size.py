@@ -68,10 +68,13 @@ def check_stop_size(seq, stop_size: str, p) -> bool:
     return True
 
 
-def limiting_stop_radius(lens, seq, p) -> tuple[float, int]:
+def limiting_stop_radius(lens, seq, p, original: dict | None = None) -> tuple[float, int]:
     """``(r, i)``: the stop's semi-diameter (mm) of the largest on-axis paraxial beam the
     surfaces whose semi-diameter the file fixes pass, and the kept index ``i`` of the surface
-    that limits it (module docstring).  Refuses at the stop's line where the stop lies at an
+    that limits it (module docstring).  ``original``: kept index -> the file's semi-diameter
+    of a surface the reader has limited where it crosses its neighbour (the file's value is
+    the one that sizes the beam; the reader then traces that gap backwards where the beam
+    reaches past the crossing).  Refuses at the stop's line where the stop lies at an
     image of the object (the marginal ray's height there is 0) or no fixed surface meets the
     ray."""
     from ..paraxial import media_indices, trace_paraxial_ray
@@ -89,7 +92,7 @@ def limiting_stop_radius(lens, seq, p) -> tuple[float, int]:
         if (i == k or i in seq.autos or getattr(surf, "law", "") == "frame" or not _fixed(b)
                 or not heights[i] > 0):
             continue
-        m = float(lens.surfaces[i].semi_diameter) / heights[i]
+        m = (original or {}).get(i, float(lens.surfaces[i].semi_diameter)) / heights[i]
         if m < best:
             best, limit = m, i
     if limit is None or not heights[k] > 0:

@@ -182,8 +182,9 @@ def test_misalignment_round_trip_through_coordinate_breaks(tmp_path):
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", "UNIT", None, ()),
     (lambda t: t.replace("GLAS N-BK7", "GLAS N-BK7X"), "N-BK7X", "GLAS", 2, ()),
     # an error of the built lens: located at the block of the last deeplens surface it names
-    (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0"), "SURF 3",
-     "SURF", 3, (1, 2)),
+    # (a CLAP, a surface aperture, is never limited where the faces cross)
+    (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0").replace(
+        '  DIAM 8 1 0 0 1 ""', '  DIAM 8 1 0 0 1 ""\n  CLAP 0 8 0'), "SURF 3", "SURF", 3, (1, 2)),
     # an error about the sensor: at the image surface's block
     (lambda t: t.replace("CURV -0.005", "CURV 0.02").replace("DISZ 45.0", "DISZ 0.3"), "SURF 4",
      "SURF", 4, ()),
@@ -515,7 +516,8 @@ def line_of(text: str, needle: str) -> int:
     (lambda t: t.replace("  DIAM 8 1 0 0 1 \"\"\nSURF 4", "  CLAP 0 3 0\n  SQAP 2 2\nSURF 4"),
      "SQAP", r"SQAP on SURF 3: a rectangular aperture on a Asphere surface with a CLAP is not "
              r"supported"),
-    (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0"), "SURF 3",
+    (lambda t: t.replace("CURV -0.005", "CURV -0.1").replace("DISZ 5.0", "DISZ 2.0").replace(
+        '  DIAM 8 1 0 0 1 ""', '  DIAM 8 1 0 0 1 ""\n  CLAP 0 8 0'), "SURF 3",
      r"surfaces 1 and 2 cross.*deeplens surface 1 is the SURF block on line "
      + str(line_of(singlet(), "SURF 2"))),
 ])
