@@ -1236,6 +1236,13 @@ MUTATIONS = [
              "        m = (original or {}).get(i, float(lens.surfaces[i].semi_diameter)) / heights[i]\n",
              "        m = float(lens.surfaces[i].semi_diameter) / heights[i]\n",
              ("tests/optics/io/test_zmx_fixed_crossing.py",)),
+    # ------------------------- issue 37: a material pickup (GLAS ... 2 k) takes SURF k's material (set 8)
+    Mutation("glass_pickup_read_as_model", "a material pickup (GLAS ___BLANK 2 k 1.5 40) read as a "
+             "model glass of the numbers written on its line, not SURF k's material",
+             "deeplens/optics/io/zmx_parse.py",
+             '    if code == "2":   # the Pickup material solve: the glass of an earlier surface\n',
+             '    if code == "-2":   # the Pickup material solve: the glass of an earlier surface\n',
+             ("tests/optics/io/test_zmx_set8_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

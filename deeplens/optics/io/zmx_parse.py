@@ -400,6 +400,9 @@ def _glas(st: _Parse, r: Record) -> None:
         cur.glass, cur.glass_model, cur.glass_line = None, None, ln
         return   # written by some converters: the same as no GLAS line
     code = toks[2] if len(toks) > 2 else "0"
+    if code == "2":   # the Pickup material solve: the glass of an earlier surface
+        _glass_pickup(st, r)
+        return
     model = None
     if len(toks) >= 6:
         model = (p.num(toks[4], ln, "GLAS n_d"), p.num(toks[5], ln, "GLAS V_d"))
@@ -412,6 +415,31 @@ def _glas(st: _Parse, r: Record) -> None:
     else:
         cur.glass = name.upper()
     cur.glass_model, cur.glass_line = model, ln
+
+
+def _glass_pickup(st: _Parse, r: Record) -> None:
+    """``GLAS NAME 2 k ...``: OpticStudio's *Pickup* material solve (solve code 2, after Fixed 0
+    and Model 1, the order of its solve list): "uses a value from another surface as the glass
+    on the target surface", and pickups "may only pickup values from prior surfaces" (OpticStudio
+    User Guide, *Material Solves*, *Restrictions*).  The surface takes SURF ``k``'s material as
+    read, air included: the name and n_d/V_d written on the line are a copy OpticStudio keeps
+    (``___BLANK 1.5 40`` where ``k`` is air), not the material."""
+    p, toks, ln, cur = st.p, r.tokens, r.line, st.cur
+    here = len(st.surfs) - 1
+    if len(toks) < 4:
+        p.fail(ln, f"GLAS on SURF {here}: a material pickup (solve code 2) without the surface "
+                   f"it picks up from")
+    k = p.num(toks[3], ln, "GLAS pickup surface")
+    if k != int(k) or not 0 <= k < here:
+        p.fail(ln, f"GLAS on SURF {here}: a material pickup from surface {toks[3]}; expected an "
+                   f"earlier surface, 0 to {here - 1} (pickups read prior surfaces only)")
+    src = st.surfs[int(k)]
+    if src.mirror:
+        p.fail(ln, f"GLAS on SURF {here}: a material pickup from SURF {int(k)}, a mirror, is not "
+                   f"supported")
+    cur.glass, cur.glass_model, cur.glass_model_name = (
+        src.glass, src.glass_model, src.glass_model_name)
+    cur.glass_line = ln
 
 
 def _clap(st: _Parse, r: Record) -> None:
