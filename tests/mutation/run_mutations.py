@@ -1154,6 +1154,22 @@ MUTATIONS = [
              '(WITHDRAWN_CATALOGUES, withdrawn_glass, "withdrawn",',
              '((), withdrawn_glass, "withdrawn",',
              ("tests/optics/io/test_withdrawn_glass.py",)),
+    # ------------------------- issue 37: object set-ups (tilted object, object at a break)
+    Mutation("object_tilt_ignored", "a tilted object plane's slope ignored (field points on "
+             "the untilted plane)", "deeplens/optics/sampling.py",
+             '    tan_y = getattr(lens, "object_tilt", (0.0, 0.0))[1]\n    den = ',
+             '    tan_y = 0.0\n    den = ',
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("tilted_object_height_mirrored", "an object height on a tilted plane placed "
+             "mirrored (+h as a positive field angle, the untilted convention)",
+             "deeplens/optics/io/zmx_system.py",
+             "out.append(0.0 - math.degrees(math.atan(h / den)))",
+             "out.append(math.degrees(math.atan(h / den)))",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("edge_on_mirror_keeps_direction", "an axis meeting a mirror edge-on leaves it "
+             "unturned (the sign after it kept)", "deeplens/optics/frames.py",
+             "a = [0.0, 0.0, -float(out[-1])]", "a = [0.0, 0.0, float(out[-1])]",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
 ]
 
 

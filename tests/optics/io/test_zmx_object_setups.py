@@ -216,3 +216,44 @@ def test_object_at_a_break_round_trips_and_stays_refused_on_a_real_surface(tmp_p
                                          r"\(a IdealLens\)"):
         Lens([IdealLens(50.0, 10.0)], [Air(), Air()], [0.0], 100.0, 0,
              spec=LensSpec(object_distance_mm=0.0))
+
+
+def _parabola_at_90(tilt="-90"):
+    """A point source at the focus of a paraboloid mirror (R = -200 mm, k = -1), the frame
+    turned by ``tilt`` degrees about x between them (OpticStudio's "90 degree parabolas"
+    sample): the beam leaves the source across the mirror's axis and meets it off axis."""
+    return "\n".join([
+        "VERS 170912 299 123456", "MODE SEQ", "NAME parabola at 90", "UNIT MM X W X CM MR CPMM",
+        "FLOA", "FTYP 0 0 1 1 0 0 0", "XFLN 0", "YFLN 0", "WAVM 1 0.55 1", "PWAV 1",
+        "SURF 0", "  TYPE STANDARD", "  DISZ 0",
+        "SURF 1", "  TYPE COORDBRK", "  CURV 0.0", f"  PARM 3 {tilt}", "  DISZ 100",
+        "SURF 2", "  TYPE STANDARD", "  CURV -0.005", "  CONI -1", "  DISZ -300",
+        "  GLAS MIRROR 0 0 1.5 40 0 0 0 0 0 0", "  DIAM 320 1 0 0 1 \"\"",
+        "SURF 3", "  STOP", "  TYPE STANDARD", "  DISZ -10", "  DIAM 300 1 0 0 1 \"\"",
+        "SURF 4", "  TYPE STANDARD", "  DISZ 0", "  DIAM 300 1 0 0 1 \"\""]) + "\n"
+
+
+def test_a_paraboloid_lit_across_its_axis_from_its_focus_collimates_along_it(tmp_path):
+    """The traced axis crosses the mirror's frame (it never reaches the vertex): it leaves along
+    the local axis turned round (the parity rule), so the -300 mm after the mirror is real
+    propagation (before, refused as against the direction of travel), with a located warning
+    that the trace misses the rays parallel to the vertex plane; every ray the trace does take
+    from the focus leaves the paraboloid along -z (its closed form, to 1e-12)."""
+    text = _parabola_at_90()
+    with pytest.warns(UserWarning, match=rf"t\.zmx:{line_of(text, 'SURF 2')}: SURF 2: the "
+                                         rf"beam's axis meets this mirror edge-on"):
+        lens = read_zmx(write(tmp_path, text))
+    lens = lens.to(F64)
+    assert lens.directions() == [1, 1, -1, -1]
+    p = paraxial(lens)
+    # (the half of the pupil whose rays head for the vertex plane: the trace takes those)
+    pupil = torch.tensor([[0.0, -0.3], [0.0, -0.1], [0.1, -0.25], [-0.2, -0.15]], dtype=F64)
+    rays = field_rays(lens, 0.0, 550.0, pupil * float(p.entrance_pupil_diameter),
+                      float(p.entrance_pupil_z))
+    n = lens.indices(torch.tensor(550.0, dtype=F64))
+    z = lens.z_vertices()
+    for i in range(2):
+        rays = lens.trace_surface(i, rays, n[i], n[i + 1], z)
+    assert bool(rays.valid.all())
+    want = torch.tensor([0.0, 0.0, -1.0], dtype=F64).expand_as(rays.d)
+    assert float((rays.d - want).abs().max()) < 1e-12
