@@ -43,7 +43,7 @@ from .paraxial import paraxial
 from .rays import Rays
 
 __all__ = ["pupil_pattern", "parse_sampling", "hexapolar", "square_grid", "random_disk",
-           "field_rays", "object_point", "start_plane_z", "rays_from_tangents", "rays_from_point",
+           "field_rays", "object_point", "object_points", "start_plane_z", "rays_from_tangents", "rays_from_point",
            "entrance_pupil", "point_source_rays", "DEFAULT_SAMPLING"]
 
 #: the pupil sampling of every RMS spot the command line prints (``deeplens report``, ``plot
@@ -194,23 +194,33 @@ def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Ten
 
 
 def object_point(lens, th: float, z_pupil: float, s: float, device=None) -> torch.Tensor:
-    """The object point ``(0, y, z)`` (float64, mm) of the field of angle ``th`` (radians) for a
-    finite object ``s`` mm before the first vertex: on the chief line through the pupil plane's
-    centre ``(0, 0, z_pupil)`` (``y = -tan θ (z_pupil - z)``) and on the object plane
-    ``z = z_obj + tan_y y`` (``lens.object_tilt``; module docstring).
+    """The object point ``(0, y, z)`` (float64, mm) of the field of angle ``th`` (radians, in
+    the y-z plane) for a finite object ``s`` mm before the first vertex: :func:`object_points`
+    of the tangents ``(0, tan th)``."""
+    tan = torch.tensor([[0.0, math.tan(th)]], dtype=torch.float64, device=device)
+    return object_points(lens, tan, z_pupil, s)[0]
+
+
+def object_points(lens, tangents: torch.Tensor, z_pupil: float, s: float) -> torch.Tensor:
+    """Object points ``(M, 3)`` (float64, mm) of fields of direction tangents ``(tan θ_x, tan
+    θ_y)`` ``(M, 2)`` for a finite object ``s`` mm before the first vertex: each on its chief
+    line through the pupil plane's centre ``(0, 0, z_pupil)``, ``(x, y) = -(tan θ_x, tan θ_y)
+    D``, and on the object plane ``z = z_obj + tan_x x + tan_y y`` (``lens.object_tilt``;
+    untilted: ``z = z_obj``), which puts it ``D = (z_pupil - z_obj) / (1 - tan_x tan θ_x -
+    tan_y tan θ_y)`` before the pupil plane.
 
     Raises:
-        ValueError: the chief line runs parallel to a tilted object plane."""
-    t = math.tan(th)
+        ValueError: a chief line runs parallel to a tilted object plane."""
+    tan = tangents.to(torch.float64)
     z_obj = float(lens.z_vertices()[0]) - s
-    tan_y = getattr(lens, "object_tilt", (0.0, 0.0))[1]
-    den = 1.0 - tan_y * t
-    if not abs(den) > 1e-12:
-        raise ValueError(f"the field of {math.degrees(th):.6g} deg: its chief line runs "
-                         f"parallel to the tilted object plane (tan_y {tan_y:g}) and never "
-                         f"meets it")
-    y = -t * (z_pupil - z_obj) / den
-    return torch.tensor([0.0, y, z_obj + tan_y * y], dtype=torch.float64, device=device)
+    tx, ty = getattr(lens, "object_tilt", (0.0, 0.0))
+    den = 1.0 - tx * tan[:, 0] - ty * tan[:, 1]
+    if not bool((den.abs() > 1e-12).all()):
+        raise ValueError(f"a field's chief line (direction tangents "
+                         f"{tan[den.abs() <= 1e-12][0].tolist()}) runs parallel to the tilted "
+                         f"object plane (tan_x {tx:g}, tan_y {ty:g}) and never meets it")
+    depth = (z_pupil - z_obj) / den
+    return torch.cat([-tan * depth[:, None], (z_pupil - depth)[:, None]], -1)
 
 
 def _telecentric_rays(lens, th: float, wavelength_nm, pupil_xy: torch.Tensor, z_pupil: float,

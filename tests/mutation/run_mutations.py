@@ -1157,8 +1157,8 @@ MUTATIONS = [
     # ------------------------- issue 37: object set-ups (tilted object, object at a break)
     Mutation("object_tilt_ignored", "a tilted object plane's slope ignored (field points on "
              "the untilted plane)", "deeplens/optics/sampling.py",
-             '    tan_y = getattr(lens, "object_tilt", (0.0, 0.0))[1]\n    den = ',
-             '    tan_y = 0.0\n    den = ',
+             '    den = 1.0 - tx * tan[:, 0] - ty * tan[:, 1]\n',
+             '    den = 1.0 + 0.0 * tx * ty * tan[:, 0]\n',
              ("tests/optics/io/test_zmx_object_setups.py",)),
     Mutation("tilted_object_height_mirrored", "an object height on a tilted plane placed "
              "mirrored (+h as a positive field angle, the untilted convention)",
@@ -1169,6 +1169,15 @@ MUTATIONS = [
     Mutation("edge_on_mirror_keeps_direction", "an axis meeting a mirror edge-on leaves it "
              "unturned (the sign after it kept)", "deeplens/optics/frames.py",
              "a = [0.0, 0.0, -float(out[-1])]", "a = [0.0, 0.0, float(out[-1])]",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("wavefront_launch_untilted", "the wavefront's launch draws a field's rays from the "
+             "untilted object plane", "deeplens/analysis/wavefront.py",
+             "/ (1.0 - ty * math.tan(th))", "/ 1.0",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("normalized_depth_untilted", "normalised rays' slopes use the untilted object "
+             "plane's depth", "deeplens/optics/normalized.py",
+             "(u - q[:, :2]) / (z_ep - q[:, 2:])",
+             "(u - q[:, :2]) / (z_ep - float(lens.z_vertices()[0]) + s)",
              ("tests/optics/io/test_zmx_object_setups.py",)),
 ]
 

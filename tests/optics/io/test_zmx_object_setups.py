@@ -257,3 +257,38 @@ def test_a_paraboloid_lit_across_its_axis_from_its_focus_collimates_along_it(tmp
     assert bool(rays.valid.all())
     want = torch.tensor([0.0, 0.0, -1.0], dtype=F64).expand_as(rays.d)
     assert float((rays.d - want).abs().max()) < 1e-12
+
+
+def _distance_to_lines(q, rays):
+    """Distances ``(M,)`` from the point ``q`` to the lines of ``rays``."""
+    v = q - rays.o
+    along = (v * rays.d).sum(-1, keepdim=True) * rays.d
+    return torch.linalg.vector_norm(v - along, dim=-1)
+
+
+def test_every_launcher_starts_a_field_from_its_point_on_the_tilted_plane(tmp_path):
+    """``field_rays``, ``normalized_rays`` (paraxial aiming; field and pupil in x and y) and the
+    wavefront's ``launch`` draw each field's rays from its point on the tilted object plane
+    (``object_points``: on the chief line through the pupil centre and on ``z = z_obj + tan_x x
+    + tan_y y``), not from the untilted plane."""
+    from deeplens.analysis.wavefront import launch
+    from deeplens.optics.normalized import normalized_rays
+    from deeplens.optics.sampling import object_points
+
+    lens = read_zmx(write(tmp_path, _text(_tilted("0.3", d0="40"), yfln="YFLN 0 -6"))).to(F64)
+    lens.object_tilt = (-0.2, 0.3)
+    th = lens.spec.fields_deg[1]
+    z_ep = float(paraxial(lens).entrance_pupil_z)
+    r_ep = 0.5 * float(paraxial(lens).entrance_pupil_diameter)
+    xy = torch.tensor([[0.0, 0.0], [1.5, -2.0], [-3.0, 1.0]], dtype=F64)
+    q = object_point(lens, math.radians(th), z_ep, 40.0)
+    assert float(q[2]) == pytest.approx(-40.0 + 0.3 * float(q[1]), abs=1e-12)
+    assert _distance_to_lines(q, field_rays(lens, th, 550.0, xy, z_ep)).max() < 1e-9
+    assert _distance_to_lines(q, launch(lens, th, 550.0, xy, torch.tensor(z_ep))).max() < 1e-9
+    hx, hy = 0.4, -0.8                       # a field with both components, in units of |th|
+    tan = torch.tan(torch.deg2rad(torch.tensor([[hx, hy]], dtype=F64) * abs(th)))
+    qn = object_points(lens, tan, z_ep, 40.0)[0]
+    assert float(qn[2]) == pytest.approx(-40.0 - 0.2 * float(qn[0]) + 0.3 * float(qn[1]),
+                                         abs=1e-12)
+    rays = normalized_rays(lens, (hx, hy), xy / r_ep, 550.0, aim="paraxial")
+    assert _distance_to_lines(qn, rays).max() < 1e-9
