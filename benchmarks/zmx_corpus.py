@@ -21,7 +21,10 @@ tests; rayoptics, which reads neither ``FLOA`` nor a Zernike sag's terms nor a B
 gets its own marginal ray scaled to the stop's size, the vertex curvature of deeplens' stated
 Zernike rule and the Binary 2 phase's thin-lens power as curvature, worked out from the file: test_zmx_corpus_rayoptics._rayoptics; a ``GRID_SAG`` surface, which rayoptics reads as a plane
 and optiland refuses, is given to both as the vertex curvature of deeplens' stated rule worked
-out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures); the oracles read
+out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures; a tilted object or
+image plane, ``TILTSURF`` on the first or last ``SURF``, is given to optiland, which reads no
+tilted ``TILTSURF``, as the flat plane: the numbers compared are first-order data about the axis,
+which neither plane's tilt changes, test_zmx_corpus._load_optiland); the oracles read
 copies laid out as test_zmx_corpus.oracle_text makes them (an indent common to every line
 removed, an old-style WAVL list as WAVM lines: OpTaliX's export); near-afocal systems agree where both focal lengths (and back focal distances) are
 beyond 1e12 file units (their powers equal to 1e-12 per unit: the round-off of a vanishing

@@ -50,7 +50,12 @@ def aperture_to_epd(lens, kind: str, value: float, line: int, p) -> float:
                 theta = math.asin(value / n0)
             else:
                 if not value < 90:
-                    p.fail(line, f"OBNA {value:g} (cone angle): must be below 90 degrees")
+                    # a wider cone sends rays backwards from the object (a reflector around the
+                    # source, OpticStudio's "320 degree light cone" sample): deeplens launches
+                    # object rays forwards, at an entrance pupil in front of the object
+                    p.fail(line, f"OBNA {value:g} (cone angle): must be below 90 degrees; a "
+                                 f"wider cone sends rays backwards from the object, which "
+                                 f"deeplens' forward object rays cannot carry")
                 theta = math.radians(value)
             return 2.0 * abs(s + pos) * math.tan(theta)
         one = torch.ones_like(n[0])

@@ -21,6 +21,7 @@ from deeplens.optics.io import lens_from_dict, lens_to_dict, read_zmx, write_zmx
 from deeplens.optics.lens import Lens, LensSpec
 from deeplens.optics.materials import Air
 from deeplens.optics.paraxial import paraxial
+from deeplens.optics.prescription import prescription
 from deeplens.optics.rays import Rays
 from deeplens.optics.sampling import field_rays, object_point
 from deeplens.optics.surfaces import CoordinateBreak, IdealLens
@@ -139,6 +140,7 @@ def test_tilted_object_round_trips_through_zmx_and_json(tmp_path):
     assert back.spec.fields_deg == pytest.approx(lens.spec.fields_deg, rel=1e-12)
     again = lens_from_dict(lens_to_dict(lens))
     assert again.object_tilt == lens.object_tilt == (0.0, 0.3)
+    assert prescription(lens)[0]["extra"] == "tan_x=0, tan_y=0.3"
 
 
 @pytest.mark.parametrize("obj,edit,needle,match", [
@@ -292,3 +294,15 @@ def test_every_launcher_starts_a_field_from_its_point_on_the_tilted_plane(tmp_pa
                                          abs=1e-12)
     rays = normalized_rays(lens, (hx, hy), xy / r_ep, 550.0, aim="paraxial")
     assert _distance_to_lines(qn, rays).max() < 1e-9
+
+
+def test_a_cone_beyond_90_degrees_is_refused_saying_why(tmp_path):
+    """``OBNA 160 1`` (a 160° half-angle cone: a source inside a reflector): the rays beyond 90°
+    leave the object backwards, which deeplens' object-space rays (forwards, at an entrance
+    pupil) cannot carry: refused at the ``OBNA`` line in one line that says so."""
+    text = _text(["SURF 0", "  TYPE STANDARD", "  DISZ 100"], aperture="OBNA 160 1",
+                 ftyp="FTYP 0 0 1 1 0 0 0", yfln="YFLN 0")
+    with pytest.raises(ZemaxFileError, match=rf"t\.zmx:{line_of(text, 'OBNA')}: OBNA 160 \(cone "
+                                             rf"angle\): must be below 90 degrees; a wider cone "
+                                             rf"sends rays backwards from the object"):
+        read_zmx(write(tmp_path, text))
