@@ -143,8 +143,9 @@ def launch(lens, field_deg: float, wavelength_nm: float, xy: torch.Tensor,
         # the object point on the chief line through the pupil centre, on the object plane
         # (tilted: lens.object_tilt, sampling.object_points), ``depth`` before the pupil plane
         ty = getattr(lens, "object_tilt", (0.0, 0.0))[1]
-        depth = (zp - (lens.z_vertices()[0].to(f64) - s)) / (1.0 - ty * math.tan(th))
-        z_obj = zp - depth
+        z_obj = lens.z_vertices()[0].to(f64) - s
+        depth = (zp - z_obj) / (1.0 - ty * math.tan(th))
+        z_obj = z_obj - ty * math.tan(th) * depth   # the point's z (untilted: z_obj exactly)
         t = t0 + xy64 / depth
         if s > 0:   # a virtual object (s < 0) lies behind the start plane: the path is < 0
             z_start = torch.maximum(z_start, z_obj)

@@ -43,8 +43,8 @@ from .paraxial import paraxial
 from .rays import Rays
 
 __all__ = ["pupil_pattern", "parse_sampling", "hexapolar", "square_grid", "random_disk",
-           "field_rays", "object_point", "object_points", "start_plane_z", "rays_from_tangents", "rays_from_point",
-           "entrance_pupil", "point_source_rays", "DEFAULT_SAMPLING"]
+           "field_rays", "object_point", "object_points", "start_plane_z", "rays_from_tangents",
+           "rays_from_point", "entrance_pupil", "point_source_rays", "DEFAULT_SAMPLING"]
 
 #: the pupil sampling of every RMS spot the command line prints (``deeplens report``, ``plot
 #: --kind spot``, ``optimize``, ``tolerance``), so one lens has one on-axis RMS: 1027 rays per
@@ -219,8 +219,9 @@ def object_points(lens, tangents: torch.Tensor, z_pupil: float, s: float) -> tor
         raise ValueError(f"a field's chief line (direction tangents "
                          f"{tan[den.abs() <= 1e-12][0].tolist()}) runs parallel to the tilted "
                          f"object plane (tan_x {tx:g}, tan_y {ty:g}) and never meets it")
-    depth = (z_pupil - z_obj) / den
-    return torch.cat([-tan * depth[:, None], (z_pupil - depth)[:, None]], -1)
+    xy = -tan * ((z_pupil - z_obj) / den)[:, None]
+    z = z_obj + tx * xy[:, 0] + ty * xy[:, 1]   # on the plane (untilted: z_obj exactly)
+    return torch.cat([xy, z[:, None]], -1)
 
 
 def _telecentric_rays(lens, th: float, wavelength_nm, pupil_xy: torch.Tensor, z_pupil: float,
