@@ -306,3 +306,18 @@ def test_a_cone_beyond_90_degrees_is_refused_saying_why(tmp_path):
                                              rf"angle\): must be below 90 degrees; a wider cone "
                                              rf"sends rays backwards from the object"):
         read_zmx(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("obj", [_tilted("0.3", d0="40"), _at_break(20.0)])
+def test_codev_seq_refuses_what_it_cannot_carry(tmp_path, obj):
+    """A CODE V ``.seq`` file has no tilted object plane and no object thickness 0: the writer
+    refuses both (before, the object at a break's pivot was written as ``SO`` thickness 0,
+    which the reader refuses)."""
+    from deeplens.optics.errors import LensFileError
+    from deeplens.optics.io.codev import write_seq
+
+    text = _text(obj).replace("GLAS ___BLANK 1 0 1.5 0 0 0 0 0 0 0",
+                              "GLAS N-BK7 0 0 1.5168 64.17 0 0 0 0 0 0")
+    lens = read_zmx(write(tmp_path, text))
+    with pytest.raises(LensFileError, match=r"tilted object plane|coordinate break's pivot"):
+        write_seq(lens, tmp_path / "o.seq")
