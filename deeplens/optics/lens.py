@@ -678,7 +678,7 @@ class Lens(nn.Module):
             o = o - vertex
         if not law.lands:
             return self._cross_stop(s, rays, o, d, m, pivot, vertex, n1, opt, refract_)
-        t, x, valid = intersect(s, o, d, rays.valid, options, backward=back)
+        t, x, valid = intersect(s, o, d, rays.valid, options, backward=back, across=mirror)
         opl = rays.opl + n1 * t
         if refract_:
             d, valid, opl = law(s, x, d, n1, n2, rays.wavelength, valid, opl, mirror)

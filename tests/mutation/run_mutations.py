@@ -1179,6 +1179,10 @@ MUTATIONS = [
              "(u - q[:, :2]) / (z_ep - q[:, 2:])",
              "(u - q[:, :2]) / (z_ep - float(lens.z_vertices()[0]) + s)",
              ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("mirror_across_frame_lost", "a conic mirror lit across its frame takes only the "
+             "crossing in the ray's own direction of travel (half the beam lost)",
+             "deeplens/optics/lens.py", "backward=back, across=mirror)", "backward=back)",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
 ]
 
 

@@ -186,14 +186,18 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     lens.object_telecentric = telecentric
     lens.object_tilt = seq.obj_tilt
     for i in mirrors_met_edge_on(surfaces, seq.mirrors, _axis_indices(seq, primary)):
+        # (a sphere or conic mirror takes such rays at their first crossing ahead: intersect's
+        # ``across``; an aspheric one intersects from its vertex plane, Newton's start)
+        lost = ("" if getattr(surfaces[i], "is_quadric", False) else
+                "; deeplens' real trace intersects this aspheric mirror from its vertex plane "
+                "and loses the rays that run (nearly) parallel to it: spots and RMS of this "
+                "lens miss part of the beam")
         p.note(kept[i][2].line,
                f"SURF {surfs.index(kept[i][2])}: the beam's axis meets this mirror edge-on (it "
                f"travels across the mirror's frame, turned by the coordinate breaks before it, "
                f"and never reaches the vertex: an off-axis mirror lit across its axis); the "
-               f"thicknesses after it follow the mirror parity and the paraxial data the local "
-               f"axis, but deeplens' real trace intersects from the vertex plane and loses the "
-               f"rays that run (nearly) parallel to it: spots and RMS of this lens miss part of "
-               f"the beam")
+               f"thicknesses after it follow the mirror parity, the paraxial data the local "
+               f"axis{lost}")
     for e, (a, b, d, _) in enumerate(elements):
         if d is not None:
             m = lens.misalignments[e]

@@ -238,9 +238,11 @@ def _parabola_at_90(tilt="-90"):
 def test_a_paraboloid_lit_across_its_axis_from_its_focus_collimates_along_it(tmp_path):
     """The traced axis crosses the mirror's frame (it never reaches the vertex): it leaves along
     the local axis turned round (the parity rule), so the -300 mm after the mirror is real
-    propagation (before, refused as against the direction of travel), with a located warning
-    that the trace misses the rays parallel to the vertex plane; every ray the trace does take
-    from the focus leaves the paraboloid along -z (its closed form, to 1e-12)."""
+    propagation (before, refused as against the direction of travel), with a located warning;
+    every ray from the focus, both halves of the pupil (the half heading away from the vertex
+    plane, which meets the steep rim travelling against the axis) and the centre (parallel to
+    the vertex plane, d_z ~ 6e-17), meets the paraboloid and leaves it along -z (its closed
+    form, to 1e-12); the hits lie on the paraboloid ``z = -r² / 400``."""
     text = _parabola_at_90()
     with pytest.warns(UserWarning, match=rf"t\.zmx:{line_of(text, 'SURF 2')}: SURF 2: the "
                                          rf"beam's axis meets this mirror edge-on"):
@@ -248,8 +250,11 @@ def test_a_paraboloid_lit_across_its_axis_from_its_focus_collimates_along_it(tmp
     lens = lens.to(F64)
     assert lens.directions() == [1, 1, -1, -1]
     p = paraxial(lens)
-    # (the half of the pupil whose rays head for the vertex plane: the trace takes those)
-    pupil = torch.tensor([[0.0, -0.3], [0.0, -0.1], [0.1, -0.25], [-0.2, -0.15]], dtype=F64)
+    # (the paraxial pupil, 300 mm wide 50 mm from the source, is a ±72° cone; these points
+    # span ±17° about the beam's centre, every one meeting the mirror within its 320 mm)
+    pupil = torch.tensor([[0.0, -0.05], [0.0, -0.02], [0.01, -0.04], [-0.02, -0.015],
+                          [0.0, 0.0], [0.0, 0.05], [0.0, 0.02], [0.01, 0.04], [-0.02, 0.015]],
+                         dtype=F64)
     rays = field_rays(lens, 0.0, 550.0, pupil * float(p.entrance_pupil_diameter),
                       float(p.entrance_pupil_z))
     n = lens.indices(torch.tensor(550.0, dtype=F64))
@@ -257,6 +262,12 @@ def test_a_paraboloid_lit_across_its_axis_from_its_focus_collimates_along_it(tmp
     for i in range(2):
         rays = lens.trace_surface(i, rays, n[i], n[i + 1], z)
     assert bool(rays.valid.all())
+    x, y, zz = (rays.o - torch.tensor([0.0, 0.0, float(z[1])], dtype=F64)).unbind(-1)
+    assert float((zz + (x * x + y * y) / 400.0).abs().max()) < 1e-10
+    assert float(y.max()) < -140.0   # the off-axis segment, below the axis
+    # the centre ray, across the frame from the focus: (0, -200, -100) (|y| = 2 f, z = -f)
+    assert [float(x[4]), float(y[4]), float(zz[4])] == pytest.approx([0.0, -200.0, -100.0],
+                                                                     abs=1e-9)
     want = torch.tensor([0.0, 0.0, -1.0], dtype=F64).expand_as(rays.d)
     assert float((rays.d - want).abs().max()) < 1e-12
 
