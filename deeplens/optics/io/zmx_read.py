@@ -450,7 +450,13 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
         p.fail(img.line, "no lens surface between the object and the image surface")
     if stop_idx is None:
         p.fail(0, "no STOP line: the lens has no aperture stop")
-    if img.type != "STANDARD" or img.curv != 0:
+    img_tilt = tuple(img.parm.get(i, (0.0, 0))[0] for i in (1, 2))
+    if img.type == "TILTSURF" and img.curv == 0 and img_tilt != (0.0, 0.0):
+        p.note(img.line, f"the image surface is a tilted plane (TILTSURF, tangents "
+                         f"{img_tilt[0]:g}, {img_tilt[1]:g}): deeplens' sensor is flat, normal "
+                         f"to the axis at its vertex (a tilted sensor is not modelled), so "
+                         f"off-axis spots are those of that plane")
+    elif img.type != "STANDARD" or img.curv != 0:
         p.note(img.line, "the image surface is not flat: deeplens uses a flat sensor at its "
                          "vertex")
     seq = _Sequence(obj_dist=obj_dist, obj_medium=obj_medium, obj_tilt=obj_tilt, kept=kept,

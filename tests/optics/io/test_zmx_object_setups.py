@@ -133,6 +133,20 @@ def test_an_ideal_lens_images_a_tilted_plane_onto_the_scheimpflug_plane(ty):
     assert float(q[2]) == pytest.approx(-s + ty * float(q[1]), abs=1e-12)
 
 
+def test_a_tilted_image_plane_loads_flat_with_a_note_that_says_so(tmp_path):
+    """OpticStudio's sample images its tilted object onto a tilted image plane (``TILTSURF``,
+    the Scheimpflug plane); deeplens' sensor is flat: the file loads with a located note that
+    names the tangents and says that off-axis spots are the flat plane's."""
+    text = _text(_tilted()).replace(
+        "SURF 3\n  TYPE STANDARD\n  CURV 0.0\n",
+        "SURF 3\n  TYPE TILTSURF\n  CURV 0.0\n  PARM 1 0\n  PARM 2 1.27\n")
+    with pytest.warns(UserWarning, match=rf"t\.zmx:{line_of(text, 'SURF 3')}: the image surface "
+                                         rf"is a tilted plane \(TILTSURF, tangents 0, 1\.27\): "
+                                         rf"deeplens' sensor is flat"):
+        lens = read_zmx(write(tmp_path, text))
+    assert float(lens.d_sensor) == 46.0
+
+
 def test_tilted_object_round_trips_through_zmx_and_json(tmp_path):
     lens = read_zmx(write(tmp_path, _text(_tilted("0.3", d0="40"), yfln="YFLN 0 -6 4")))
     back = read_zmx(write_zmx(lens, tmp_path / "w.zmx") or tmp_path / "w.zmx")
