@@ -60,7 +60,8 @@ def _launch(lens, H, u, z_ep, theta_max):
         return P, tan, z0
     q = object_points(lens, tan, z_ep, s)        # object points, (M, 3): on a tilted plane too
     z_near = float(q[:, 2].min())
-    return P, (u - q[:, :2]) / (z_ep - q[:, 2:]), (z0 if s < 0 else max(z0, z_near))  # s < 0: virtual
+    real = z_near <= float(lens.z_vertices()[0])   # s < 0 (or a tilted plane beyond): virtual
+    return P, (u - q[:, :2]) / (z_ep - q[:, 2:]), (max(z0, z_near) if real else z0)
 
 
 def _stop_xy(lens, P, tangents, z0, wavelength_nm):

@@ -192,6 +192,14 @@ def test_object_at_a_tilting_break_is_the_tilted_plane_seen_from_the_lens(tmp_pa
     qa = object_point(a, math.radians(a.spec.fields_deg[1]),
                       float(paraxial(a).entrance_pupil_z), 0.0)
     assert qa.tolist() == pytest.approx([0.0, h, 0.0], abs=1e-12)   # in the object's frame
+    # a real object at the pivot: the wavefront's rays start on it, their paths from it 0
+    from deeplens.analysis.wavefront import launch
+
+    z_ep = paraxial(a).entrance_pupil_z
+    w = launch(a, a.spec.fields_deg[1], 550.0, torch.tensor([[0.0, 1.0], [2.0, -1.0]], dtype=F64),
+               z_ep)
+    assert float((w.o - qa).abs().max()) < 1e-12
+    assert w.opl.abs().max() < 1e-12
     al = math.radians(alpha)
     b = read_zmx(write(tmp_path, _text(_tilted(repr(-math.tan(al)), d0="100"),
                                        yfln=f"YFLN 0 {h * math.cos(al)!r}"), "b.zmx")).to(F64)
