@@ -1183,6 +1183,11 @@ MUTATIONS = [
              "crossing in the ray's own direction of travel (half the beam lost)",
              "deeplens/optics/lens.py", "backward=back, across=mirror)", "backward=back)",
              ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("wavefront_pivot_object_virtual", "the wavefront's launch takes an object at a "
+             "break's pivot (distance 0) as virtual (rays start before it)",
+             "deeplens/analysis/wavefront.py",
+             "if float(z_obj) <= float(lens.z_vertices()[0]):", "if s > 0:",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
 ]
 
 
