@@ -612,7 +612,7 @@ MUTATIONS = [
              "z0 = max(float(z_start), z_obj)", LENS2_SETUPS),
     Mutation("virtual_object_wavefront_clamped", "the wavefront launch of a virtual object "
              "started on the object plane (behind the lens)", "deeplens/analysis/wavefront.py",
-             "if s > 0:   # a virtual object", "if True:   # a virtual object", LENS2_SETUPS),
+             "if float(z_obj) <= float(lens.z_vertices()[0]):", "if True:", LENS2_SETUPS),
     Mutation("sqap_ignored_off_asphere", "a rectangular clear aperture (SQAP) on a surface "
              "other than an even asphere read but not clipped", "deeplens/optics/surfaces/base.py",
              'rect = self._buffers.get("clear_rect")',
