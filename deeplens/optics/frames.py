@@ -78,8 +78,9 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
     the frame turn the beam round (a roof: the beam leaves along ``-z`` of an unturned frame
     after two mirrors), the parity is wrong and this is right.  An axis that crosses the frame
     (``|d_z| < 1e-9``, between the two mirrors of a roof) keeps the sign before it; one that
-    meets a mirror so (edge-on, never reaching its vertex: an off-axis parabola lit from its
-    focus across its axis) leaves along the local axis with the sign flipped (the parity rule).
+    meets a mirror edge-on (normal to the mirror's vertex normal, never reaching its vertex: an
+    off-axis parabola lit from its focus across its axis) leaves along the local axis with the
+    sign flipped (the parity rule).
 
     Args:
         surfaces: the ``N`` surfaces (:class:`~.surfaces.CoordinateBreak` turns the frame).
@@ -117,11 +118,12 @@ def _traced_axis(surfaces, mirrors, indices=None) -> tuple[list[int], list[int]]
             with torch.no_grad():
                 R = s.rotation(like).tolist()
             a = [sum(R[j][k] * a[j] for j in range(3)) for k in range(3)]   # R^T a
-        elif i in mirrors and abs(a[2]) < _ACROSS:
-            # the axis meets the mirror edge-on (it crosses the frame and never reaches the
-            # vertex: an off-axis parabola lit from its focus across its axis): no reflection
-            # to trace; it leaves along the local axis, turned round by the mirror (the parity
-            # rule), so the sign flips (OpticStudio's "90 degree parabolas" sample)
+        elif i in mirrors and _edge_on(a, s):
+            # the axis meets the mirror edge-on (normal to its vertex normal: it crosses the
+            # frame and never reaches the vertex, an off-axis parabola lit from its focus across
+            # its axis): no reflection to trace; it leaves along the local axis, turned round by
+            # the mirror (the parity rule), so the sign flips (OpticStudio's "90 degree
+            # parabolas" sample)
             a = [0.0, 0.0, -float(out[-1])]
             edge_on.append(i)
         elif i in mirrors:
@@ -134,6 +136,13 @@ def _traced_axis(surfaces, mirrors, indices=None) -> tuple[list[int], list[int]]
         a = [c / n for c in a]
         out.append(out[-1] if abs(a[2]) < _ACROSS else (1 if a[2] > 0 else -1))
     return out, edge_on
+
+
+def _edge_on(a, surface) -> bool:
+    """Whether the unit direction ``a`` runs normal to ``surface``'s vertex normal
+    (:func:`vertex_normal`, within ``1e-9``): the axis meets the surface edge-on."""
+    nv = vertex_normal(surface)
+    return abs(sum(a[k] * nv[k] for k in range(3))) < _ACROSS
 
 
 def vertex_normal(surface) -> list[float]:

@@ -354,3 +354,23 @@ def test_codev_seq_refuses_what_it_cannot_carry(tmp_path, obj):
     lens = read_zmx(write(tmp_path, text))
     with pytest.raises(LensFileError, match=r"tilted object plane|coordinate break's pivot"):
         write_seq(lens, tmp_path / "o.seq")
+
+
+@pytest.mark.parametrize("tan_y", [1.0, -1.0])
+def test_a_tilted_plane_mirror_across_the_frame_reflects_about_its_own_normal(tan_y):
+    """The edge-on rule is for an axis normal to the mirror's vertex normal only: a tilted plane
+    mirror (``TILTSURF``, ``z = y tan_y``) that an axis crossing the frame meets at 45° reflects
+    it about the plane's normal ``(0, tan_y, -1)/√2``, which sends it along ``tan_y z`` (the
+    parity rule would say -z for both), as OpticStudio's Twyman-Green sample needs."""
+    from deeplens.optics.frames import mirrors_met_edge_on, travel_directions
+    from deeplens.optics.surfaces import XYPolynomial
+
+    brk = CoordinateBreak(tilt_x=math.radians(90.0))
+    mirror = XYPolynomial(10.0, [0.0, tan_y, 0.0])
+    a = brk.rotation(torch.zeros((), dtype=F64)).T @ torch.tensor([0.0, 0.0, 1.0], dtype=F64)
+    assert abs(float(a[2])) < 1e-12                       # across the frame after the break
+    nrm = torch.tensor([0.0, tan_y, -1.0], dtype=F64) / math.sqrt(2.0)
+    out = a - 2.0 * (a @ nrm) * nrm
+    signs = travel_directions([brk, mirror], [1])
+    assert signs[-1] == (1 if float(out[2]) > 0 else -1) == int(tan_y)
+    assert mirrors_met_edge_on([brk, mirror], [1]) == []
