@@ -34,7 +34,10 @@ holograms in tests/optics/surfaces/test_hologram.py) nor which sense each constr
 which no oracle reads: that rests on OpticStudio's sample files putting the image on the other
 construction point; a FLOA stop without
 DIAM, which the file alone does not size, is given deeplens' stop radius as its DIAM in the
-oracles' copy, test_zmx_corpus.floating_stop_text); the oracles read
+oracles' copy, test_zmx_corpus.floating_stop_text; a tilted object or
+image plane, ``TILTSURF`` on the first or last ``SURF``, is given to optiland, which reads no
+tilted ``TILTSURF``, as the flat plane: the numbers compared are first-order data about the axis,
+which neither plane's tilt changes, test_zmx_corpus._load_optiland); the oracles read
 copies laid out as test_zmx_corpus.oracle_text makes them (an indent common to every line
 removed, an old-style WAVL list as WAVM lines: OpTaliX's export); near-afocal systems agree where both focal lengths (and back focal distances) are
 beyond 1e12 file units (their powers equal to 1e-12 per unit: the round-off of a vanishing

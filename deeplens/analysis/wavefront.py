@@ -140,10 +140,17 @@ def launch(lens, field_deg: float, wavelength_nm: float, xy: torch.Tensor,
     if math.isinf(s):
         t, ratio = t0.expand_as(xy64), 1.0
     else:
+        # the object point on the chief line through the pupil centre, on the object plane
+        # (tilted: lens.object_tilt, sampling.object_points), ``depth`` before the pupil plane
+        ty = getattr(lens, "object_tilt", (0.0, 0.0))[1]
         z_obj = lens.z_vertices()[0].to(f64) - s
-        depth = zp - z_obj
+        depth = (zp - z_obj) / (1.0 - ty * math.tan(th))
+        z_obj = z_obj - ty * math.tan(th) * depth   # the point's z (untilted: z_obj exactly)
         t = t0 + xy64 / depth
-        if s > 0:   # a virtual object (s < 0) lies behind the start plane: the path is < 0
+        # a real object point (before the first vertex; at it: a first coordinate break's pivot,
+        # s = 0) starts the rays no earlier than itself; a virtual one (behind the first
+        # vertex: s < 0, or a tilted plane's far point) lies behind the start plane: path < 0
+        if float(z_obj) <= float(lens.z_vertices()[0]):
             z_start = torch.maximum(z_start, z_obj)
         ratio = (z_start - z_obj) / depth
     ones = torch.ones_like(xy64[:, :1])

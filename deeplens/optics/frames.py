@@ -22,7 +22,8 @@ import math
 import torch
 
 
-__all__ = ["local_frames", "to_global", "travel_directions", "vertex_normal"]
+__all__ = ["local_frames", "to_global", "travel_directions", "mirrors_met_edge_on",
+           "vertex_normal"]
 
 #: an axis direction whose local z component is smaller than this (a beam travelling across
 #: the frame, as between the two mirrors of a roof) keeps the sign of the medium before it
@@ -76,7 +77,10 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
     ``break, mirror, break`` it is the same; where mirrors tilted inside break pairs that return
     the frame turn the beam round (a roof: the beam leaves along ``-z`` of an unturned frame
     after two mirrors), the parity is wrong and this is right.  An axis that crosses the frame
-    (``|d_z| < 1e-9``, between the two mirrors of a roof) keeps the sign before it.
+    (``|d_z| < 1e-9``, between the two mirrors of a roof) keeps the sign before it; one that
+    meets a mirror edge-on (normal to the mirror's vertex normal, never reaching its vertex: an
+    off-axis parabola lit from its focus across its axis) leaves along the local axis with the
+    sign flipped (the parity rule).
 
     Args:
         surfaces: the ``N`` surfaces (:class:`~.surfaces.CoordinateBreak` turns the frame).
@@ -86,12 +90,26 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
     Returns:
         ``N + 1`` ints, each ``+1`` or ``-1``.
     """
+    return _traced_axis(surfaces, mirrors, indices)[0]
+
+
+def mirrors_met_edge_on(surfaces, mirrors, indices=None) -> list[int]:
+    """The indices of the mirrors the traced axis (:func:`travel_directions`) meets edge-on:
+    travelling across their frame, so that it never reaches their vertex (an off-axis parabola
+    lit from its focus across its axis).  The beam's centre then runs parallel to the mirror's
+    vertex plane, where deeplens' intersection (from that plane) cannot follow it."""
+    return _traced_axis(surfaces, mirrors, indices)[1]
+
+
+def _traced_axis(surfaces, mirrors, indices=None) -> tuple[list[int], list[int]]:
+    """``(signs, edge_on)``: :func:`travel_directions` and :func:`mirrors_met_edge_on`."""
     mirrors = set(mirrors)
+    edge_on = []
     if not any(s.interaction.changes_frame for s in surfaces):   # normal incidence everywhere
         out = [1]
         for i in range(len(surfaces)):
             out.append(-out[-1] if i in mirrors else out[-1])
-        return out
+        return out, edge_on
     like = torch.zeros((), dtype=torch.float64)
     a = [0.0, 0.0, 1.0]
     out = [1]
@@ -100,6 +118,14 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
             with torch.no_grad():
                 R = s.rotation(like).tolist()
             a = [sum(R[j][k] * a[j] for j in range(3)) for k in range(3)]   # R^T a
+        elif i in mirrors and _edge_on(a, s):
+            # the axis meets the mirror edge-on (normal to its vertex normal: it crosses the
+            # frame and never reaches the vertex, an off-axis parabola lit from its focus across
+            # its axis): no reflection to trace; it leaves along the local axis, turned round by
+            # the mirror (the parity rule), so the sign flips (OpticStudio's "90 degree
+            # parabolas" sample)
+            a = [0.0, 0.0, -float(out[-1])]
+            edge_on.append(i)
         elif i in mirrors:
             nv = vertex_normal(s)
             an = sum(a[k] * nv[k] for k in range(3))
@@ -109,7 +135,14 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
         n = math.sqrt(sum(c * c for c in a))
         a = [c / n for c in a]
         out.append(out[-1] if abs(a[2]) < _ACROSS else (1 if a[2] > 0 else -1))
-    return out
+    return out, edge_on
+
+
+def _edge_on(a, surface) -> bool:
+    """Whether the unit direction ``a`` runs normal to ``surface``'s vertex normal
+    (:func:`vertex_normal`, within ``1e-9``): the axis meets the surface edge-on."""
+    nv = vertex_normal(surface)
+    return abs(sum(a[k] * nv[k] for k in range(3))) < _ACROSS
 
 
 def vertex_normal(surface) -> list[float]:

@@ -32,6 +32,11 @@ at the vertex (a point where every surface is finite) instead of at ``o + t0 d``
 grazing stray ray (|d_z| ~ 1e-8) lies 1e8 mm away where a polynomial sag overflows; a masked
 ``inf`` there still turned the shared parameters' gradients into NaN (``0 * inf``).
 
+A mirror lit across its frame (``across``, quadric mirrors only: ``Lens.trace_surface``): a ray
+parallel to the vertex plane has no ``t0``, and one that meets a steep rim while travelling
+against the axis crosses the surface in the sense a ray travelling along it would; both take
+the first crossing ahead of the ray instead (rays the rule takes are unchanged).
+
 Quadrics (spheres and conics, ``surface.is_quadric``) skip Newton: the ray meets the quadric
 ``F = 0`` where ``A s^2 + 2 B s + C = 0`` (:meth:`~.surfaces.Asphere.quadric`), and
 
@@ -385,8 +390,31 @@ def propagate_distance(oz, dz, valid, z_plane, backwards: bool = False):
     return torch.where(ok, t, torch.zeros_like(t)), ok
 
 
+def _nearest_root_ahead(quadric, oz, dz, ok):
+    """The smaller root ``s >= 0`` (``(*B,)``, differentiable) of ``A s^2 + 2 B s + C = 0`` on
+    the branch ``h > 0``, whatever the crossing's sense, and whether there is one: the first
+    point ahead of a ray at ``o`` (``s`` from ``o``) where it meets the quadric."""
+    A, B, C, ck = quadric[:4]
+    disc = B * B - A * C
+    hit = ok & (disc > 1e-24)
+    sq = torch.sqrt(torch.where(hit, disc, torch.ones_like(disc)))
+    Q = -(B + torch.copysign(sq, B))
+    with torch.no_grad():
+        has1 = hit & (Q.abs() > 1e-12)
+        has2 = hit & (A.abs() > 1e-12) & (Q.abs() < 1e10 * A.abs())
+    s1 = C / torch.where(has1, Q, torch.ones_like(Q))
+    s2 = Q / torch.where(has2, A, torch.ones_like(A))
+    with torch.no_grad():
+        has1 = has1 & (s1 >= 0) & (ck * (oz + s1 * dz) < 1.0)
+        has2 = has2 & (s2 >= 0) & (ck * (oz + s2 * dz) < 1.0)
+        use1 = has1 & ~(has2 & (s2 < s1))
+    s = torch.where(use1, s1, torch.where(has2, s2, torch.zeros_like(s2)))
+    return s, has1 | has2
+
+
 def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
-              options: TraceOptions | None = None, backward: bool = False):
+              options: TraceOptions | None = None, backward: bool = False,
+              across: bool = False):
     """Intersect rays with ``surface`` in its local frame.
 
     Args:
@@ -395,6 +423,13 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
         valid: ``(*B,)`` incoming validity.
         options: :class:`~.options.TraceOptions`.
         backward: accept a hit behind the ray (``t < 0``, :func:`hit_mask`).
+        across: on a quadric (a sphere or conic mirror, :meth:`Lens.trace_surface
+            <deeplens.optics.lens.Lens.trace_surface>` passes it for mirrors), a ray the vertex
+            plane cannot start (``|d_z| <= 1e-12``: it travels across the surface's frame) or
+            whose crossing in its direction of travel lies behind it meets the surface at the
+            first crossing ahead instead (:func:`_nearest_root_ahead`, from ``o``): an off-axis
+            paraboloid lit from its focus across its axis, whose steep rim the rays meet while
+            travelling against the axis.  Rays the rule takes are unchanged.
 
     Returns:
         ``(t, x, valid)``: marching distance ``(*B,)`` (mm), hit point ``(*B, 3)`` and the
@@ -420,6 +455,17 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
             found = found & surface.in_domain(ob[..., 0], ob[..., 1])
         ok = ok & found
         t = t0 + s
+        if across and not backward:
+            with torch.no_grad():
+                xh = (ob + s.unsqueeze(-1) * d).detach()
+                behind = ok & (t.detach() < -rounding_tolerance(*xh.unbind(-1), tol))
+                redo = valid & ((dz.abs() <= 1e-12) | behind)
+            if bool(redo.any()):
+                s2, hit2 = _nearest_root_ahead(surface.quadric(o, d), o[..., 2], d[..., 2], redo)
+                ob = torch.where(redo.unsqueeze(-1), o, ob)
+                s = torch.where(redo, s2, s)
+                t = torch.where(redo, s2, t)
+                ok = torch.where(redo, hit2, ok)
     elif opt.mode == "implicit":
         with torch.no_grad():
             dd = d.detach()

@@ -60,7 +60,10 @@ class LensSpec:
         object_distance_mm: distance from the object plane to the first vertex (``inf``); a
             negative distance is a virtual object, ``|s|`` behind the first vertex (as in a
             relay fed by a converging beam): object-space rays are aimed at it and start before
-            the first surface.
+            the first surface.  ``0`` puts the object at the first vertex, which a
+            :class:`Lens` accepts only where its first surface is a coordinate break (the
+            object at the break's pivot, in the frame before it: OpticStudio's object at
+            ``DISZ 0`` before a ``COORDBRK``, which no ray meets).
         aperture_type: ``"stop"`` (the stop's own semi-diameter), ``"epd"`` (entrance-pupil
             diameter, mm) or ``"fno"`` (image-space F-number at infinity).
         aperture_value: the value for ``"epd"``/``"fno"`` (ignored for ``"stop"``).
@@ -95,10 +98,10 @@ class LensSpec:
                 raise LensError(f"aperture {self.aperture_type}: value must be a positive number, "
                                 f"got {v!r}", key="aperture")
         s = self.object_distance_mm
-        if not (s > 0 or (s < 0 and math.isfinite(s))):
-            raise LensError(f"object distance must be > 0 mm (a real object; or inf) or < 0 mm "
-                            f"(a virtual object behind the first vertex), got {s!r}",
-                            key="object_distance_mm")
+        if not (s >= 0 or (s < 0 and math.isfinite(s))):
+            raise LensError(f"object distance must be > 0 mm (a real object; or inf), < 0 mm "
+                            f"(a virtual object behind the first vertex) or 0 (at a first "
+                            f"coordinate break's pivot), got {s!r}", key="object_distance_mm")
         if not len(self.fields_deg):
             raise LensError("at least one field angle is needed", key="fields_deg")
         for f in self.fields_deg:
@@ -234,6 +237,14 @@ class Lens(nn.Module):
     is parallel to the axis in object space and its pupil is a cone about it
     (:func:`~deeplens.optics.sampling.field_rays`); the object must be at a finite distance.
 
+    Attribute ``object_tilt`` (default ``(0.0, 0.0)``): ``(tan_x, tan_y)``, the finite object
+    plane's slopes: the object point at ``(x, y)`` lies at ``z = z_obj + tan_x x + tan_y y`` (in the
+    object-space frame, before any coordinate break; ``z_obj`` the object vertex,
+    ``object_distance_mm`` before the first vertex), as OpticStudio's *Tilted* surface is the plane
+    ``z = x tan θ_x + y tan θ_y``.  Field points lie on it
+    (:func:`~deeplens.optics.sampling.field_rays`); first-order data (about the axis, from the
+    object vertex) do not depend on it.  Plain floats, not trained.
+
     Trainable values: each surface's prescription, ``distances[i]``, ``d_sensor`` and each
     element's :class:`Misalignment` are ``nn.Parameter`` objects created frozen; call
     ``requires_grad_(True)`` on the ones to optimise.
@@ -271,6 +282,7 @@ class Lens(nn.Module):
                 raise TypeError(f"material {i} is a {type(m).__name__}, not a Material")
         self.name = name
         self.object_telecentric = False
+        self._object_tilt = (0.0, 0.0)
         self.surfaces = nn.ModuleList(surfaces)
         self.materials = nn.ModuleList(materials)
         self.distances = nn.ParameterList([make_param(v, f"distance {i}")
@@ -307,6 +319,41 @@ class Lens(nn.Module):
             self.apply_aperture_spec()
 
     # ------------------------------------------------------------------ geometry
+    @property
+    def spec(self) -> LensSpec:
+        """How the lens is used (:class:`LensSpec`).  Assigning one checks its object distance
+        against the surfaces: ``0`` (the object at the first vertex) only before a first
+        coordinate break, which no ray meets."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, spec: LensSpec) -> None:
+        if spec.object_distance_mm == 0 and self.surfaces[0].law != "frame":
+            raise LensError(f"object distance 0 puts the object on surface 0 (a "
+                            f"{type(self.surfaces[0]).__name__}); the object may lie at the "
+                            f"first vertex only when that is a coordinate break's pivot: give a "
+                            f"distance > 0 (or < 0 for a virtual object)",
+                            key="object_distance_mm")
+        self._spec = spec
+
+    @property
+    def object_tilt(self) -> tuple[float, float]:
+        """``(tan_x, tan_y)``: the object plane ``z = z_obj + tan_x x + tan_y y`` (class
+        docstring); ``(0.0, 0.0)`` for a plane normal to the axis."""
+        return self._object_tilt
+
+    @object_tilt.setter
+    def object_tilt(self, tangents) -> None:
+        try:
+            tx, ty = (float(v) for v in tangents)
+        except (TypeError, ValueError):
+            raise LensError(f"object tilt: expected two slopes (tan_x, tan_y), got "
+                            f"{tangents!r}", key="object_tilt") from None
+        if not (math.isfinite(tx) and math.isfinite(ty)):
+            raise LensError(f"object tilt: the slopes (tan_x, tan_y) must be finite, got "
+                            f"{tangents!r}", key="object_tilt")
+        self._object_tilt = (tx, ty)
+
     @property
     def dtype(self) -> torch.dtype:
         """The floating-point type of the lens's values (``.to(dtype)`` changes it)."""
@@ -644,7 +691,7 @@ class Lens(nn.Module):
             o = o - vertex
         if not law.lands:
             return self._cross_stop(s, rays, o, d, m, pivot, vertex, n1, opt, refract_)
-        t, x, valid = intersect(s, o, d, rays.valid, options, backward=back)
+        t, x, valid = intersect(s, o, d, rays.valid, options, backward=back, across=mirror)
         opl = rays.opl + n1 * t
         if refract_:
             d, valid, opl = law(s, x, d, n1, n2, rays.wavelength, valid, opl, mirror)

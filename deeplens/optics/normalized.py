@@ -4,7 +4,8 @@ Field: ``(Hx, Hy)`` scale the largest field angle ``θ_max`` (default the lens s
 ``|field|``): the ray bundle's object-space angles are ``θ_x = Hx θ_max``, ``θ_y = Hy θ_max``,
 its direction ``∝ (tan θ_x, tan θ_y, 1)`` for an object at infinity, or from the object point
 ``-(tan θ_x, tan θ_y) (z_EP - z_obj)`` (seen from the entrance-pupil centre under those
-angles) for a finite one.  ``Hy = 1`` is the lens's ``+θ_max`` field of
+angles) for a finite one (on the object plane, tilted where ``lens.object_tilt`` says so:
+:func:`~.sampling.object_points`).  ``Hy = 1`` is the lens's ``+θ_max`` field of
 :func:`~.sampling.field_rays`.
 
 Pupil: ``(Px, Py)`` on the unit disk.
@@ -32,7 +33,7 @@ import torch
 from .options import TraceOptions
 from .paraxial import paraxial
 from .rays import Rays
-from .sampling import rays_from_tangents, start_plane_z
+from .sampling import object_points, rays_from_tangents, start_plane_z
 
 __all__ = ["normalized_rays", "pupil_to_stop"]
 
@@ -57,9 +58,10 @@ def _launch(lens, H, u, z_ep, theta_max):
     z0 = start_plane_z(lens)
     if math.isinf(s):
         return P, tan, z0
-    z_obj = float(lens.z_vertices()[0]) - s
-    q = -tan * (z_ep - z_obj)                    # object points, (M, 2)
-    return P, (u - q) / (z_ep - z_obj), (z0 if s < 0 else max(z0, z_obj))  # s < 0: virtual
+    q = object_points(lens, tan, z_ep, s)        # object points, (M, 3): on a tilted plane too
+    z_near = float(q[:, 2].min())
+    real = z_near <= float(lens.z_vertices()[0])   # s < 0 (or a tilted plane beyond): virtual
+    return P, (u - q[:, :2]) / (z_ep - q[:, 2:]), (max(z0, z_near) if real else z0)
 
 
 def _stop_xy(lens, P, tangents, z0, wavelength_nm):

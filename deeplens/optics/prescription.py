@@ -11,7 +11,8 @@ Columns follow the lens-design programs' editors:
 * ``material``: the medium after the surface (``AIR``, a catalogue glass, ``n_d/V_d``);
 * ``semi_diameter`` (mm): the clear semi-aperture; ``conic``: ``k`` where the type has one;
 * ``extra``: what else the type's lens-file entry holds (aspheric coefficients, polynomial
-  terms ...), ``key=value`` with long lists shortened.
+  terms ...), ``key=value`` with long lists shortened; on the ``OBJ`` row, a tilted object
+  plane's slopes (``Lens.object_tilt``).
 
 Nothing here changes the lens; the values are read without gradient.
 """
@@ -48,6 +49,9 @@ def prescription(lens) -> list[dict]:
              "thickness": float(lens.spec.object_distance_mm),
              "material": lens.materials[0].name, "semi_diameter": None, "conic": None,
              "extra": ""}]
+    tilt = getattr(lens, "object_tilt", (0.0, 0.0))
+    if tilt != (0.0, 0.0):   # a tilted object plane, z = z_obj + tan_x x + tan_y y
+        rows[0]["extra"] = f"tan_x={tilt[0]:.6g}, tan_y={tilt[1]:.6g}"
     n = len(lens.surfaces)
     with torch.no_grad():
         for i, s in enumerate(lens.surfaces):

@@ -18,6 +18,10 @@ slopes ``(x, y) / |z_P - z_obj|`` about it, a cone of rays about the chief ray, 
 as optiland samples it (on the paraxial entrance pupil of an ``OBNA`` lens, ``r_EP / |z_EP -
 z_obj| = tan θ_NA``: the rim rays have direction cosines ``sin θ_NA``; on the axis these are
 the rays of the non-telecentric construction).
+A tilted object plane (``lens.object_tilt = (tan_x, tan_y)``: ``z = z_obj + tan_x x + tan_y
+y``, OpticStudio's *Tilted* object surface) moves each field's object point along its chief
+line onto the plane: ``y = -tan θ (z_P - z_obj) / (1 - tan_y tan θ)``, ``z = z_obj + tan_y y``
+(telecentric: ``y = -s tan θ`` on the plane).
 Either way the rays start on a plane just before the first surface (or at the object point when
 it is nearer), launch point and direction computed in float64 from the pupil points and the
 direction tangents and only then rounded to the lens's dtype, so that float32 rays from an
@@ -39,8 +43,8 @@ from .paraxial import paraxial
 from .rays import Rays
 
 __all__ = ["pupil_pattern", "parse_sampling", "hexapolar", "square_grid", "random_disk",
-           "field_rays", "start_plane_z", "rays_from_tangents", "rays_from_point",
-           "entrance_pupil", "point_source_rays", "DEFAULT_SAMPLING"]
+           "field_rays", "object_point", "object_points", "start_plane_z", "rays_from_tangents",
+           "rays_from_point", "entrance_pupil", "point_source_rays", "DEFAULT_SAMPLING"]
 
 #: the pupil sampling of every RMS spot the command line prints (``deeplens report``, ``plot
 #: --kind spot``, ``optimize``, ``tolerance``), so one lens has one on-axis RMS: 1027 rays per
@@ -183,10 +187,41 @@ def field_rays(lens, field_deg: float, wavelength_nm: float, pupil_xy: torch.Ten
     if math.isinf(s):
         tangents = torch.tensor([0.0, math.tan(th)], dtype=torch.float64, device=device)
         return rays_from_tangents(P, tangents, start_plane_z(lens), wavelength_nm, dtype)
+    z0 = float(lens.z_vertices()[0])
+    Q = object_point(lens, th, float(z_pupil), s, device)
+    return rays_from_point(P, Q, start_plane_z(lens), wavelength_nm, dtype,
+                           virtual=float(Q[2]) > z0)
+
+
+def object_point(lens, th: float, z_pupil: float, s: float, device=None) -> torch.Tensor:
+    """The object point ``(0, y, z)`` (float64, mm) of the field of angle ``th`` (radians, in
+    the y-z plane) for a finite object ``s`` mm before the first vertex: :func:`object_points`
+    of the tangents ``(0, tan th)``."""
+    tan = torch.tensor([[0.0, math.tan(th)]], dtype=torch.float64, device=device)
+    return object_points(lens, tan, z_pupil, s)[0]
+
+
+def object_points(lens, tangents: torch.Tensor, z_pupil: float, s: float) -> torch.Tensor:
+    """Object points ``(M, 3)`` (float64, mm) of fields of direction tangents ``(tan θ_x, tan
+    θ_y)`` ``(M, 2)`` for a finite object ``s`` mm before the first vertex: each on its chief
+    line through the pupil plane's centre ``(0, 0, z_pupil)``, ``(x, y) = -(tan θ_x, tan θ_y)
+    D``, and on the object plane ``z = z_obj + tan_x x + tan_y y`` (``lens.object_tilt``;
+    untilted: ``z = z_obj``), which puts it ``D = (z_pupil - z_obj) / (1 - tan_x tan θ_x -
+    tan_y tan θ_y)`` before the pupil plane.
+
+    Raises:
+        ValueError: a chief line runs parallel to a tilted object plane."""
+    tan = tangents.to(torch.float64)
     z_obj = float(lens.z_vertices()[0]) - s
-    Q = torch.tensor([0.0, -math.tan(th) * (float(z_pupil) - z_obj), z_obj],
-                     dtype=torch.float64, device=device)
-    return rays_from_point(P, Q, start_plane_z(lens), wavelength_nm, dtype, virtual=s < 0)
+    tx, ty = getattr(lens, "object_tilt", (0.0, 0.0))
+    den = 1.0 - tx * tan[:, 0] - ty * tan[:, 1]
+    if not bool((den.abs() > 1e-12).all()):
+        raise ValueError(f"a field's chief line (direction tangents "
+                         f"{tan[den.abs() <= 1e-12][0].tolist()}) runs parallel to the tilted "
+                         f"object plane (tan_x {tx:g}, tan_y {ty:g}) and never meets it")
+    xy = -tan * ((z_pupil - z_obj) / den)[:, None]
+    z = z_obj + tx * xy[:, 0] + ty * xy[:, 1]   # on the plane (untilted: z_obj exactly)
+    return torch.cat([xy, z[:, None]], -1)
 
 
 def _telecentric_rays(lens, th: float, wavelength_nm, pupil_xy: torch.Tensor, z_pupil: float,
@@ -202,9 +237,11 @@ def _telecentric_rays(lens, th: float, wavelength_nm, pupil_xy: torch.Tensor, z_
         raise ValueError(f"object-space telecentric rays: the pupil plane (z = {z_pupil:g} mm) "
                          f"lies on the object plane")
     t = pupil_xy.to(torch.float64) / dz
-    Q = torch.tensor([0.0, -math.tan(th) * s, z_obj], dtype=torch.float64,
+    y = -math.tan(th) * s
+    z_q = z_obj + getattr(lens, "object_tilt", (0.0, 0.0))[1] * y   # on a tilted object plane
+    Q = torch.tensor([0.0, y, z_q], dtype=torch.float64,
                      device=pupil_xy.device).expand(pupil_xy.shape[0], 3)
-    return rays_from_tangents(Q, t, max(start_plane_z(lens), z_obj), wavelength_nm,
+    return rays_from_tangents(Q, t, max(start_plane_z(lens), z_q), wavelength_nm,
                               pupil_xy.dtype)
 
 

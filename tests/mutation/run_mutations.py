@@ -612,7 +612,7 @@ MUTATIONS = [
              "z0 = max(float(z_start), z_obj)", LENS2_SETUPS),
     Mutation("virtual_object_wavefront_clamped", "the wavefront launch of a virtual object "
              "started on the object plane (behind the lens)", "deeplens/analysis/wavefront.py",
-             "if s > 0:   # a virtual object", "if True:   # a virtual object", LENS2_SETUPS),
+             "if float(z_obj) <= float(lens.z_vertices()[0]):", "if True:", LENS2_SETUPS),
     Mutation("sqap_ignored_off_asphere", "a rectangular clear aperture (SQAP) on a surface "
              "other than an even asphere read but not clipped", "deeplens/optics/surfaces/base.py",
              'rect = self._buffers.get("clear_rect")',
@@ -1243,6 +1243,40 @@ MUTATIONS = [
              '    if code == "2":   # the Pickup material solve: the glass of an earlier surface\n',
              '    if code == "-2":   # the Pickup material solve: the glass of an earlier surface\n',
              ("tests/optics/io/test_zmx_set8_rules.py",)),
+    # ------------------------- issue 37: object set-ups (tilted object, object at a break)
+    Mutation("object_tilt_ignored", "a tilted object plane's slope ignored (field points on "
+             "the untilted plane)", "deeplens/optics/sampling.py",
+             '    den = 1.0 - tx * tan[:, 0] - ty * tan[:, 1]\n',
+             '    den = 1.0 + 0.0 * tx * ty * tan[:, 0]\n',
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("tilted_object_height_mirrored", "an object height on a tilted plane placed "
+             "mirrored (+h as a positive field angle, the untilted convention)",
+             "deeplens/optics/io/zmx_system.py",
+             "out.append(0.0 - math.degrees(math.atan(h / den)))",
+             "out.append(math.degrees(math.atan(h / den)))",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("edge_on_mirror_keeps_direction", "an axis meeting a mirror edge-on leaves it "
+             "unturned (the sign after it kept)", "deeplens/optics/frames.py",
+             "a = [0.0, 0.0, -float(out[-1])]", "a = [0.0, 0.0, float(out[-1])]",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("wavefront_launch_untilted", "the wavefront's launch draws a field's rays from the "
+             "untilted object plane", "deeplens/analysis/wavefront.py",
+             "/ (1.0 - ty * math.tan(th))", "/ 1.0",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("normalized_depth_untilted", "normalised rays' slopes use the untilted object "
+             "plane's depth", "deeplens/optics/normalized.py",
+             "(u - q[:, :2]) / (z_ep - q[:, 2:])",
+             "(u - q[:, :2]) / (z_ep - float(lens.z_vertices()[0]) + s)",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("mirror_across_frame_lost", "a conic mirror lit across its frame takes only the "
+             "crossing in the ray's own direction of travel (half the beam lost)",
+             "deeplens/optics/lens.py", "backward=back, across=mirror)", "backward=back)",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
+    Mutation("wavefront_pivot_object_virtual", "the wavefront's launch takes an object at a "
+             "break's pivot (distance 0) as virtual (rays start before it)",
+             "deeplens/analysis/wavefront.py",
+             "if float(z_obj) <= float(lens.z_vertices()[0]):", "if s > 0:",
+             ("tests/optics/io/test_zmx_object_setups.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

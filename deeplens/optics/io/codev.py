@@ -1059,7 +1059,8 @@ def write_seq(lens: Lens, path) -> None:
 
     Raises:
         LensFileError: something with no CODE V equivalent here (misalignments,
-            other surface types, a telecentric object, a virtual image, a material with no
+            other surface types, a telecentric object, a tilted object plane or one at a
+            coordinate break's pivot, a virtual image, a material with no
             CODE V name); ``surfaces`` names the surfaces concerned.
     """
     from ..paraxial import paraxial
@@ -1070,6 +1071,12 @@ def write_seq(lens: Lens, path) -> None:
     if getattr(lens, "object_telecentric", False) or lens.virtual_image:
         raise LensFileError("a telecentric object or a virtual image is not written to .seq "
                             "files")
+    if getattr(lens, "object_tilt", (0.0, 0.0)) != (0.0, 0.0):
+        raise LensFileError(f"a tilted object plane (object_tilt {lens.object_tilt}) is not "
+                            f"written to .seq files")
+    if spec.object_distance_mm == 0:
+        raise LensFileError("an object at a coordinate break's pivot (object distance 0) is not "
+                            "written to .seq files (CODE V's object thickness must not be 0)")
     title = lens.name.replace("'", '"') if lens.name else "deeplens"
     out = ["RDM N", f"TIT '{title}'", "DIM M"]
     waves = [float(w) for w in spec.wavelengths_nm]

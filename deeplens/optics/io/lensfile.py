@@ -52,7 +52,10 @@ the catalogue: ``{"glass": "S-LAH64", "catalogue": "OHARA", "agf_formula": 2,
 ``{"glass": "BK7", "catalogue": "SCHOTT", "buchdahl": [n0, nu1, nu2], "lambda0_um": 0.574}``.
 ``object.telecentric: true`` (optional, a finite object only) makes object space telecentric:
 every chief ray parallel to the axis, ``fields_deg`` the object points' directions from the
-first vertex (``Lens.object_telecentric``).  Numbers are written with ``repr`` so a file round-trips
+first vertex (``Lens.object_telecentric``).  ``object.tilt_tangents: [tan_x, tan_y]``
+(optional, a finite object only) tilts the object plane, ``z = z_obj + tan_x x + tan_y y``
+(``Lens.object_tilt``); ``object.distance_mm`` may be 0 only when the first surface is a
+``coordinate_break`` (the object at its pivot).  Numbers are written with ``repr`` so a file round-trips
 exactly.  Every error names the file and the JSON path of the offending field.
 """
 
@@ -283,11 +286,22 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
                                    f"lengths in mm and wavelengths in nm (convert the values "
                                    f"and write {want!r})")
     obj = r.check(data.get("object", {}), "object", "object")
-    r.keys(obj, {"distance_mm", "medium", "telecentric"}, "object")
+    r.keys(obj, {"distance_mm", "medium", "telecentric", "tilt_tangents"}, "object")
     obj_dist = r.get(obj, "distance_mm", "object", "number_or_inf", default=math.inf)
-    if not (obj_dist > 0 or obj_dist < 0):
+    first = data.get("surfaces")
+    first = first[0] if isinstance(first, list) and first else None
+    at_break = isinstance(first, dict) and first.get("type") == "coordinate_break"
+    if not (obj_dist > 0 or obj_dist < 0 or (obj_dist == 0 and at_break)):
         r.fail("object.distance_mm", f"the object distance must be > 0 mm (or \"inf\"), or < 0 "
-                                     f"mm for a virtual object, got {obj_dist!r}")
+                                     f"mm for a virtual object (0: only before a first "
+                                     f"coordinate break, at its pivot), got {obj_dist!r}")
+    tilt = r.get(obj, "tilt_tangents", "object", "numbers", default=[0.0, 0.0])
+    if len(tilt) != 2 or not all(math.isfinite(v) for v in tilt):
+        r.fail("object.tilt_tangents", f"expected [tan_x, tan_y], two finite slopes of the "
+                                       f"object plane, got {tilt!r}")
+    if tilt != [0.0, 0.0] and math.isinf(obj_dist):
+        r.fail("object.tilt_tangents", "a tilted object plane needs an object at a finite "
+                                       "distance (object.distance_mm)")
     obj_medium = obj.get("medium", "AIR") if isinstance(obj, dict) else "AIR"
     if not isinstance(obj_medium, dict):
         obj_medium = r.get(obj, "medium", "object", "str", default="AIR")
@@ -421,6 +435,7 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     except (ValueError, TypeError) as e:
         raise LensFileError(str(e), source=source) from e
     lens.object_telecentric = telecentric
+    lens.object_tilt = tilt
     mis = data.get("misalignment")
     if mis is not None:
         if not isinstance(mis, list) or len(mis) != len(lens.elements):
@@ -480,6 +495,8 @@ def lens_to_dict(lens: Lens) -> dict:
     }
     if getattr(lens, "object_telecentric", False):
         out["object"]["telecentric"] = True
+    if getattr(lens, "object_tilt", (0.0, 0.0)) != (0.0, 0.0):
+        out["object"]["tilt_tangents"] = list(lens.object_tilt)
     if lens.sensor_semi_diameter is not None:
         out["sensor"]["semi_diameter_mm"] = float(lens.sensor_semi_diameter)
     if lens.virtual_image:

@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from ..errors import SurfacesCrossError, ZemaxFileError
-from ..frames import travel_directions
+from ..frames import mirrors_met_edge_on, travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
 from ..surfaces import Aperture, Asphere, CoordinateBreak, IdealLens, IdealLensXY, Plane
@@ -47,6 +47,7 @@ class _Sequence:
 
     obj_dist: float                 # object distance (mm), before the leading dummy gap
     obj_medium: Material
+    obj_tilt: tuple = (0.0, 0.0)    # a TILTSURF object's (tan_x, tan_y): Lens.object_tilt
     kept: list = field(default_factory=list)     # (surface, material after, block, gap before)
     media: list = field(default_factory=list)    # object medium, then the medium after each
     groups: list = field(default_factory=list)   # (first, last, tilts, line) bracketed elements
@@ -131,7 +132,10 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     obj_dist = seq.obj_dist
     if not math.isinf(obj_dist):
         obj_dist += kept[0][3]   # dummy thickness in front of the first surface
-        if obj_dist == 0:
+        # (0 before a coordinate break: the object at its pivot, in the object's frame; the
+        # break is no surface a ray meets, OpticStudio's "dummy surface", and turns only the
+        # frame of what follows)
+        if obj_dist == 0 and not isinstance(kept[0][0], CoordinateBreak):
             p.fail(obj.disz_line or obj.line,
                    f"the object lies on the first surface deeplens traces (SURF "
                    f"{surfs.index(kept[0][2])}): the object distance (DISZ of SURF 0, "
@@ -191,6 +195,20 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             p.fail(ap_line, str(e))
         raise _located(p, e, where_of) from e
     lens.object_telecentric = telecentric
+    lens.object_tilt = seq.obj_tilt
+    for i in mirrors_met_edge_on(surfaces, seq.mirrors, _axis_indices(seq, primary)):
+        # (a sphere or conic mirror takes such rays at their first crossing ahead: intersect's
+        # ``across``; an aspheric one intersects from its vertex plane, Newton's start)
+        lost = ("" if getattr(surfaces[i], "is_quadric", False) else
+                "; deeplens' real trace intersects this aspheric mirror from its vertex plane "
+                "and loses the rays that run (nearly) parallel to it: spots and RMS of this "
+                "lens miss part of the beam")
+        p.note(kept[i][2].line,
+               f"SURF {surfs.index(kept[i][2])}: the beam's axis meets this mirror edge-on (it "
+               f"travels across the mirror's frame, turned by the coordinate breaks before it, "
+               f"and never reaches the vertex: an off-axis mirror lit across its axis); the "
+               f"thicknesses after it follow the mirror parity, the paraxial data the local "
+               f"axis{lost}")
     if float_stop:
         _float_stop_to_the_limit(lens, seq, surfs, where_of, p, original)
         autos = [i for i in autos if i != stop_idx]
@@ -362,8 +380,7 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     :class:`~deeplens.optics.surfaces.CoordinateBreak`, every other block built by
     :func:`.zmx_surfaces.build_surface`."""
     obj, img = surfs[0], surfs[-1]
-    if obj.type != "STANDARD" or obj.curv != 0:
-        p.fail(obj.line, "the object surface (SURF 0) must be a flat STANDARD surface")
+    obj_tilt = _object_tilt(obj, p)
     obj_dist = obj.disz * (1 if math.isinf(obj.disz) else s_mm)
     if not (obj_dist >= 0 or math.isfinite(obj_dist)):   # NaN or -INFINITY
         # (0: the object on SURF 1; read_zmx adds the dummy gaps before the first surface
@@ -451,13 +468,47 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
         p.fail(img.line, "no lens surface between the object and the image surface")
     if stop_idx is None:
         p.fail(0, "no STOP line: the lens has no aperture stop")
-    if img.type != "STANDARD" or img.curv != 0:
+    img_tilt = tuple(img.parm.get(i, (0.0, 0))[0] for i in (1, 2))
+    if img.type == "TILTSURF" and img.curv == 0 and img_tilt != (0.0, 0.0):
+        p.note(img.line, f"the image surface is a tilted plane (TILTSURF, tangents "
+                         f"{img_tilt[0]:g}, {img_tilt[1]:g}): deeplens' sensor is flat, normal "
+                         f"to the axis at its vertex (a tilted sensor is not modelled), so "
+                         f"off-axis spots are those of that plane")
+    elif img.type != "STANDARD" or img.curv != 0:
         p.note(img.line, "the image surface is not flat: deeplens uses a flat sensor at its "
                          "vertex")
-    seq = _Sequence(obj_dist=obj_dist, obj_medium=obj_medium, kept=kept, media=media,
+    seq = _Sequence(obj_dist=obj_dist, obj_medium=obj_medium, obj_tilt=obj_tilt, kept=kept,
+                    media=media,
                     groups=groups, gap=gap, stop_idx=stop_idx, autos=autos, mirrors=mirrors,
                     folded=folded)
     return seq
+
+
+def _object_tilt(obj: ZmxSurface, p: Locator) -> tuple[float, float]:
+    """The object plane's slopes ``(tan_x, tan_y)`` (:attr:`Lens.object_tilt`): ``(0, 0)`` for a
+    flat ``STANDARD`` object, ``PARM 1`` and ``PARM 2`` of a ``TILTSURF`` one (OpticStudio's
+    *Tilted* surface, the plane ``z = x tan θ_x + y tan θ_y``, "useful for implementing tilted
+    object and image surfaces": OpticStudio User Guide, *Tilted*).  Any other object surface
+    is refused at its line."""
+    if obj.type == "TILTSURF":
+        for i, (v, ln) in sorted(obj.parm.items()):
+            if i not in (1, 2) and v != 0:
+                p.fail(ln, f"SURF 0: TILTSURF PARM {i} is not read (PARM 1 and 2 are the x and "
+                           f"y tangents of the tilted object plane)")
+        tilt = (obj.parm.get(1, (0.0, 0))[0], obj.parm.get(2, (0.0, 0))[0])
+        if not all(math.isfinite(v) for v in tilt):
+            p.fail(obj.type_line or obj.line, f"SURF 0: the tilted object plane's tangents "
+                                              f"(PARM 1, 2) must be finite, got {tilt}")
+        if obj.curv == 0:
+            if tilt != (0.0, 0.0) and math.isinf(obj.disz):
+                p.fail(obj.disz_line or obj.line,
+                       "SURF 0: a tilted object plane (TILTSURF) at infinity: an object at "
+                       "infinity has no plane; give it a finite distance (or a STANDARD object)")
+            return tilt
+    if obj.type != "STANDARD" or obj.curv != 0:
+        p.fail(obj.line, "the object surface (SURF 0) must be a flat STANDARD surface or a "
+                         "tilted plane (TILTSURF)")
+    return (0.0, 0.0)
 
 
 def _turn_spider(s, k: int, bracket: dict, p: Locator) -> None:

@@ -50,7 +50,12 @@ def aperture_to_epd(lens, kind: str, value: float, line: int, p) -> float:
                 theta = math.asin(value / n0)
             else:
                 if not value < 90:
-                    p.fail(line, f"OBNA {value:g} (cone angle): must be below 90 degrees")
+                    # a wider cone sends rays backwards from the object (a reflector around the
+                    # source, OpticStudio's "320 degree light cone" sample): deeplens launches
+                    # object rays forwards, at an entrance pupil in front of the object
+                    p.fail(line, f"OBNA {value:g} (cone angle): must be below 90 degrees; a "
+                                 f"wider cone sends rays backwards from the object, which "
+                                 f"deeplens' forward object rays cannot carry")
                 theta = math.radians(value)
             return 2.0 * abs(s + pos) * math.tan(theta)
         one = torch.ones_like(n[0])
@@ -215,6 +220,17 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         ys, xs = ys[:n_fields], xs[:n_fields]
     xs = xs + [0.0] * (len(ys) - len(xs))
     kind = ftyp[0]
+    tan_y = getattr(lens, "object_tilt", (0.0, 0.0))[1]
+    if tan_y != 0 and any(x != 0 for x in xs):
+        p.fail(xline, "XFLN: x field components with an object plane tilted about x (TILTSURF "
+                      "object, PARM 2 != 0): deeplens' fields lie in the y-z plane, and a radial "
+                      "field is not exact on a tilted object; give y fields only")
+    # the sign of a height matters where the object plane is tilted relative to the axis that
+    # follows it: a TILTSURF object, or an object at a first coordinate break's pivot (in the
+    # object's frame, which the break turns away from the lens's axis)
+    at_pivot = float(lens.spec.object_distance_mm) == 0 and any(x != 0 for x in ys)
+    if (tan_y != 0 or at_pivot) and kind in (1, 2, 3):
+        return _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p)
     if any(x != 0 for x in xs):
         anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder, GridSag))
                       or (isinstance(s, ZernikeSag) and not s.rotationally_symmetric())]
@@ -283,3 +299,49 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
     p.fail(ftyp_line, f"FTYP {kind} ({names.get(kind, 'unknown field type')}) cannot be converted "
                       f"to deeplens' field angles (use angle, object height or paraxial image "
                       f"height)")
+
+
+def _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p):
+    """Field angles (deg) of height fields on an object plane tilted about x
+    (``lens.object_tilt``, ``z = z_obj + tan_y y``), or at a first coordinate break's pivot
+    (object distance 0: the plane in the object's frame, turned away from the axis after the
+    break).  The tilt makes the sign of a height matter (the plane is not symmetric under ``y -> -y``), so each object point goes where the
+    file puts it: ``(0, h, z_obj + tan_y h)`` (``FTYP 1``; ``FTYP 2``: ``h = h' / m``, ``m`` the
+    paraxial magnification, exact at first order as the image height is), and the field angle
+    is its chief ray's through the paraxial entrance pupil's centre, ``tan θ = -h / (s + z_EP -
+    tan_y h)`` (telecentric: ``tan θ = -h / s``, the object point ``y = -s tan θ``), the inverse
+    of :func:`~deeplens.optics.sampling.object_point`.  A positive height is a negative angle
+    (OpticStudio's convention: a positive angle is a ray rising towards ``+y``, from an object
+    point below the axis); untilted objects keep deeplens' mirrored, equivalent reading."""
+    from ..paraxial import media_indices, paraxial, trace_paraxial_ray
+
+    if kind == 3:
+        p.fail(ftyp_line, "FTYP 3 (real image height) with an object plane tilted about x "
+                          "(TILTSURF object, PARM 2 != 0) or at a first coordinate break's pivot "
+                          "is not supported: give object heights (FTYP 1) or paraxial image "
+                          "heights (FTYP 2)")
+    s = float(lens.spec.object_distance_mm)
+    heights = [v * s_mm for v in ys]
+    with torch.no_grad():
+        par = paraxial(lens)
+        if kind == 2:
+            n = media_indices(lens)
+            one = torch.ones_like(n[0])
+            y, u, _ = trace_paraxial_ray(lens, one, 0.0 * one, n)
+            m = float(y + u * par.image_distance)
+            if not abs(m) > 1e-12:
+                p.fail(ftyp_line, "FTYP 2 (paraxial image height): the paraxial magnification "
+                                  "is zero")
+            heights = [v / m for v in heights]
+        if getattr(lens, "object_telecentric", False):
+            return [0.0 - math.degrees(math.atan(h / s)) for h in heights]
+        d = s + float(par.entrance_pupil_position)
+    out = []
+    for h in heights:
+        den = d - tan_y * h
+        if not den > 0:
+            p.fail(ftyp_line, f"the field of object height {h:g} mm lies on the tilted object "
+                              f"plane at or behind the entrance pupil (its depth {den:g} mm "
+                              f"before it): no real chief ray reaches it")
+        out.append(0.0 - math.degrees(math.atan(h / den)))
+    return out

@@ -124,7 +124,11 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
             extra.append(g)
 
     od = float(spec.object_distance_mm)
+    tilt = getattr(lens, "object_tilt", (0.0, 0.0))
     obj = ["TYPE STANDARD", "CURV 0.0", f"DISZ {'INFINITY' if math.isinf(od) else _f(od)}"]
+    if tilt != (0.0, 0.0):   # OpticStudio's Tilted surface as the object plane
+        obj = ["TYPE TILTSURF", "CURV 0.0", f"PARM 1 {_f(tilt[0])}", f"PARM 2 {_f(tilt[1])}",
+               obj[-1]]
     glas(lens.materials[0], obj)
     surf(obj)
     with torch.no_grad():
@@ -192,7 +196,22 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
     surf(img)
     nf, nw = len(spec.fields_deg), len(spec.wavelengths_nm)
     out.append("GCAT " + " ".join(cats or ["SCHOTT"]))
-    if telecentric:
+    if tilt[1] != 0:
+        # an object plane tilted about x: the fields' object points, where they lie
+        # (sampling.object_point; the reader's zmx_system._tilted_object_fields inverts it)
+        s_obj = float(spec.object_distance_mm)
+        out.append(f"FTYP 1 {1 if telecentric else 0} {nf} {nw} 0 0 0")
+        if telecentric:
+            fields = [-s_obj * math.tan(math.radians(float(f))) for f in spec.fields_deg]
+        else:
+            from ..paraxial import paraxial
+            from ..sampling import object_point
+
+            with torch.no_grad():
+                z_ep = float(paraxial(lens).entrance_pupil_z)
+            fields = [float(object_point(lens, math.radians(float(f)), z_ep, s_obj)[1])
+                      for f in spec.fields_deg]
+    elif telecentric:
         # object heights (FTYP 1) with telecentric object space (second value 1): the fields'
         # object points, s tan θ (sampling.field_rays)
         s_obj = float(spec.object_distance_mm)

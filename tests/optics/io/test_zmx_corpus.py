@@ -476,12 +476,16 @@ def _load_optiland(name, gratings):
     text = decode_zemax_text(path)
     if re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT)", text, re.M):
         # optiland 0.6's reader has no TILTSURF: a tilted plane with both tangents 0 is the flat
-        # STANDARD surface (OpticStudio's "Tilted": z = x tan θx + y tan θy)
+        # STANDARD surface (OpticStudio's "Tilted": z = x tan θx + y tan θy); a tilted object
+        # or image plane (SURF 0, the last SURF) is read as the flat one too: the numbers
+        # compared (EFL, entrance pupil, back focal point) are first-order data about the axis,
+        # which neither plane's tilt changes (deeplens' Lens.object_tilt; its flat sensor)
         parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
+        ends = {0, max(int(s) for s in re.findall(r"^SURF\s+(\d+)", text, re.M))}
         for i, b in enumerate(parts):
             if re.search(r"^\s+TYPE\s+TILTSURF", b, re.M):
-                assert all(float(v) == 0.0 for v in re.findall(r"^\s+PARM\s+\d+\s+(\S+)", b,
-                                                                 re.M)), \
+                assert int(parts[i - 1].split()[1]) in ends or all(
+                    float(v) == 0.0 for v in re.findall(r"^\s+PARM\s+\d+\s+(\S+)", b, re.M)), \
                     "a TILTSURF with a tangent: extend the oracle"
                 b = re.sub(r"^(\s+TYPE\s+)TILTSURF", r"\g<1>STANDARD", b, flags=re.M)
                 parts[i] = re.sub(r"^\s+PARM\s+.*\n", "", b, flags=re.M)
