@@ -189,3 +189,28 @@ def test_a_water_lens_round_trips_through_json_and_zmx(tmp_path):
             assert float(paraxial(back).efl) == efl
     assert "GCAT MISC" in (tmp_path / "water_out.zmx").read_text()
     assert '"absolute_relative_to_air_c": 20.0' in (tmp_path / "water.json").read_text()
+
+
+def test_an_object_in_water_gives_the_immersed_lens_closed_form(tmp_path):
+    """Object space of water (``SURF 0 GLAS WATER``, as the endoscope sample writes it) before
+    an N-BK7 singlet into air: the first surface's power is (n_g − n_w) c1, so EFL = 1/φ and
+    the back focal distance (1 − t φ1/n_g)/φ with φ = φ1 + φ2 − (t/n_g) φ1 φ2 (image space air);
+    with air in front instead the EFL would be 65.2 mm, not 113.9."""
+    f = tmp_path / "immersed.zmx"
+    text = _SINGLET.format(wave=0.5876, gcat="SCHOTT MISC")
+    text = text.replace("GLAS WATER", "GLAS N-BK7")   # the singlet is glass ...
+    text = text.replace("  DISZ INFINITY\n", "  DISZ INFINITY\n  GLAS WATER 0 0 1.5 40\n")  # in water
+    f.write_text(text)
+    lens, notes = _read(f)
+    assert [m.name for m in lens.materials] == ["WATER", "N-BK7", "AIR"]
+    assert [x.line for x in notes if "MISC material" in str(x)] == [14]
+    w = torch.tensor(587.6, dtype=torch.float64)
+    n_w = float(_n_abs(0.5876 * _n_air(0.5876)) / _n_air(0.5876))
+    n_g = float(lens.materials[1].n(w))
+    assert float(lens.materials[0].n(w)) == pytest.approx(n_w, abs=1e-12)
+    c1, c2, t = 0.02, -0.01, 5.0
+    p1, p2 = (n_g - n_w) * c1, (1 - n_g) * c2
+    phi = p1 + p2 - t / n_g * p1 * p2
+    par = paraxial(lens)
+    assert float(par.efl) == pytest.approx(1.0 / phi, rel=1e-9)
+    assert float(par.bfl) == pytest.approx((1 - t * p1 / n_g) / phi, rel=1e-9)
