@@ -1277,6 +1277,16 @@ MUTATIONS = [
              "deeplens/analysis/wavefront.py",
              "if float(z_obj) <= float(lens.z_vertices()[0]):", "if s > 0:",
              ("tests/optics/io/test_zmx_object_setups.py",)),
+    # ------------------------------- issue 37: MISC's WATER (Daimon & Masumura 2007), branch misc
+    Mutation("water_index_absolute", "WATER's absolute (vacuum) index used as is, not relative "
+             "to OpticStudio's air as the catalogues hold it (n_D 1.33335 for 1.33299)",
+             "deeplens/optics/io/misc_glass.py",
+             "        return super()._index(w * n_air) / n_air\n",
+             "        return super()._index(w)\n", ("tests/optics/io/test_misc_glass.py",)),
+    Mutation("water_use_silent", "WATER used without the located note naming its source",
+             "deeplens/optics/io/zmx_glass.py",
+             '                p.note(s.glass_line, f"glass {glass!r}: {note(glass)}")\n',
+             "                pass\n", ("tests/optics/io/test_misc_glass.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -49,7 +49,10 @@ user's ``.agf``) is written with its formula, so the file reads back the same in
 the catalogue: ``{"glass": "S-LAH64", "catalogue": "OHARA", "agf_formula": 2,
 "coefficients": [...], "wavelength_range_nm": [lo, hi]}`` (the Zemax AGF formula numbers,
 :data:`~deeplens.optics.io.agf.FORMULAS`, λ in µm) or, for a glass of the previous catalogues,
-``{"glass": "BK7", "catalogue": "SCHOTT", "buchdahl": [n0, nu1, nu2], "lambda0_um": 0.574}``.
+``{"glass": "BK7", "catalogue": "SCHOTT", "buchdahl": [n0, nu1, nu2], "lambda0_um": 0.574}``;
+a formula of the absolute index taken relative to OpticStudio's air (``MISC``'s ``WATER``:
+:class:`~deeplens.optics.io.misc_glass.AirRelativeGlass`) adds
+``"absolute_relative_to_air_c": 20.0``, the air's temperature in °C.
 ``object.telecentric: true`` (optional, a finite object only) makes object space telecentric:
 every chief ray parallel to the axis, ``fields_deg`` the object points' directions from the
 first vertex (``Lens.object_telecentric``).  ``object.tilt_tangents: [tan_x, tan_y]``
@@ -529,6 +532,8 @@ def _material_json(m, spec):
     if isinstance(m, AGFGlass):
         out["agf_formula"] = int(m.formula)
         out["coefficients"] = [float(c) for c in m.coefficients]
+        if hasattr(m, "air_temperature_c"):   # an absolute index taken relative to air
+            out["absolute_relative_to_air_c"] = float(m.air_temperature_c)
     else:
         out["buchdahl"] = [float(m.n0), float(m.nu1), float(m.nu2)]
         out["lambda0_um"] = float(m.lambda0_um)
@@ -543,7 +548,7 @@ def _formula_glass(r: _Reader, d: dict, path: str, surfaces=()):
     from .vendor_glass import BuchdahlGlass
 
     r.keys(d, {"glass", "catalogue", "agf_formula", "coefficients", "buchdahl", "lambda0_um",
-               "wavelength_range_nm"}, path)
+               "wavelength_range_nm", "absolute_relative_to_air_c"}, path)
     name = r.get(d, "glass", path, "str")
     cat = r.get(d, "catalogue", path, "str", default="")
     rng = r.get(d, "wavelength_range_nm", path, "numbers")
@@ -555,7 +560,14 @@ def _formula_glass(r: _Reader, d: dict, path: str, surfaces=()):
         r.fail(path, "expected exactly one of 'agf_formula' (with 'coefficients') or "
                      "'buchdahl' for a glass given by its formula", surfaces)
     try:
-        if has_agf:
+        if has_agf and "absolute_relative_to_air_c" in d:
+            from .misc_glass import AirRelativeGlass
+
+            m = AirRelativeGlass(name, r.get(d, "agf_formula", path, "int"),
+                                 r.get(d, "coefficients", path, "numbers"), tuple(rng),
+                                 catalogue=cat, air_temperature_c=r.get(
+                                     d, "absolute_relative_to_air_c", path))
+        elif has_agf:
             m = AGFGlass(name, r.get(d, "agf_formula", path, "int"),
                          r.get(d, "coefficients", path, "numbers"), tuple(rng), catalogue=cat)
         else:

@@ -3,7 +3,8 @@
 Order, when a name is in more than one place: per catalogue on the ``GCAT`` line (all vendor
 catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
 catalogue (:mod:`.vendor_glass`; also deeplens' own formula entries ``INFRARED`` and ``CORNING``,
-each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`), a
+each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`; ``MISC`` also
+:mod:`.misc_glass`'s ``WATER``, each use noted), a
 catalogue kept only as index tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then
 the named vendors' archived and previous catalogues; then the user's other catalogues
 (``glass_catalogs``, then :data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue
@@ -31,6 +32,7 @@ from ..materials import Air, Material, ModelGlass, get_material
 from .agf import GlassCatalogue, read_agf
 from .corning_glass import corning_note
 from .infrared_glass import crystal_note
+from .misc_glass import MISC_GLASSES, misc_glass, misc_note
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
 from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_note
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
@@ -54,6 +56,10 @@ vendor catalogues of :mod:`.vendor_glass`)."""
 
 #: catalogue -> the located note of a use of one of deeplens' own formula entries in it
 _SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note}
+
+#: catalogue -> (lookup, names, note) of deeplens' own formula entries that answer for a
+#: built-in catalogue after its table names (:mod:`.misc_glass`: ``MISC`` ``WATER``)
+_BUILTIN_FORMULAS = {"MISC": (misc_glass, MISC_GLASSES, misc_note)}
 
 # the n_d / V_d OpticStudio writes on the GLAS line of a catalogue glass it has not evaluated
 _PLACEHOLDER_ND_VD = (1.5, 40.0)
@@ -225,11 +231,17 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                     p.note(s.glass_line, f"glass {glass!r}: {_SOURCE_NOTES[cat](glass)}")
                 return _checked(m, glass, s, f"the {cat} catalogue", p)
         if cat in BUILTIN_CATALOGUES:
-            searched.append(f"{cat} (deeplens built-in, {len(BUILTIN_CATALOGUES[cat])} glasses)")
+            lookup, own, note = _BUILTIN_FORMULAS.get(cat, (None, {}, None))
+            searched.append(f"{cat} (deeplens built-in, "
+                            f"{len(BUILTIN_CATALOGUES[cat]) + len(own)} glasses)")
             if glass in BUILTIN_CATALOGUES[cat]:
                 m = _builtin(glass)
                 if m is not None:
                     return _checked(m, glass, s, f"deeplens' {cat} entry", p)
+            m = lookup(glass) if lookup is not None else None
+            if m is not None:   # deeplens' own formula: say whose is used
+                p.note(s.glass_line, f"glass {glass!r}: {note(glass)}")
+                return _checked(m, glass, s, f"deeplens' {cat} entry", p)
         if cat in TABULATED_CATALOGUES:
             searched.append(f"{cat} (index tables fitted by the Schott formula, "
                             f"{tabulated_catalogue_size(cat)} glasses)")
