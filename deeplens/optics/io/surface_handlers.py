@@ -65,7 +65,8 @@ from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from ..surfaces.zernike_sag import BASES
-from .surface_formats import FORMATS, SurfaceFormat, ZmxContext, register_format
+from .surface_formats import (FORMATS, SurfaceFormat, ZmxContext, register_format,
+                              zmx_diam as _diam, zmx_number as _f)
 from .zmx_coordbrk import coordbrk_lines
 
 #: the registry (:mod:`.surface_formats`), filled with this module's handlers: import it from
@@ -98,14 +99,6 @@ def _xdat_term_count(p, s, k, type_name: str, count_what: str, maximum: int, ter
 
 def is_air(m: Material) -> bool:
     return isinstance(m, Air)
-
-
-def _f(v) -> str:
-    return repr(float(v))
-
-
-def _diam(sd) -> str:
-    return f"DIAM {_f(sd)} 1 0 0 1 \"\""
 
 
 # --------------------------------------------------------------------------- Zemax readers

@@ -29,16 +29,12 @@ import math
 from ..errors import ZemaxFileError
 from ..surfaces import Hologram
 from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
-from .surface_formats import SurfaceFormat, register_format
+from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
 
 __all__ = ["HologramFormat"]
 
 _PARMS = {1: "x1", 2: "y1", 3: "z1", 4: "x2", 5: "y2", 6: "z2", 7: "the construction wavelength",
           8: "the diffraction order"}
-
-
-def _f(v) -> str:
-    return repr(float(v))
 
 
 def _opening_lines(s, i: int) -> list[str]:
@@ -121,5 +117,5 @@ class HologramFormat(SurfaceFormat):
         lines = [f"TYPE HOLOGRM{s.kind}", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}"]
         lines += [f"PARM {j + 1} {_f(v)}" for j, v in enumerate(values)]
         lines += [f"PARM 7 {_f(float(s.wl_c) / 1000.0)}", f"PARM 8 {s.order}",
-                  f"DIAM {_f(s.semi_diameter)} 1 0 0 1 \"\""]
+                  zmx_diam(s.semi_diameter)]
         return lines + _opening_lines(s, i)
