@@ -457,3 +457,21 @@ def test_lens_file_refuses_a_graded_medium_saying_where_it_can_go(tmp_path):
     p.write_text(grin_zmx())
     with pytest.raises(ValueError, match="write_zmx"):
         lens_to_dict(read_zmx(p))
+
+
+@pytest.mark.parametrize("old,new,needle,match", [
+    ("PARM 1 1.0E-1", "PARM 1 0", "PARM 1", "the step"),
+    ("PARM 2 1.5", "PARM 2 0", "PARM 2", "n0 must be >= 0.001"),
+])
+def test_grinsur1_bad_step_or_index_refused_at_its_line(tmp_path, old, new, needle, match):
+    """A step that is not a positive length is refused at PARM 1's line, an axial index below
+    the medium's floor at PARM 2's (a number that is not finite is the parser's error)."""
+    from deeplens.optics.errors import ZemaxFileError
+
+    text = grin_zmx().replace(old, new)
+    p = tmp_path / "rod.zmx"
+    p.write_text(text)
+    with pytest.raises(ZemaxFileError, match=match) as e:
+        read_zmx(p)
+    line = next(k for k, t in enumerate(text.splitlines(), 1) if t.strip().startswith(needle))
+    assert e.value.line == line
