@@ -14,7 +14,6 @@ asphere) confirms EFL, EPD, pupil and back focus.
 from __future__ import annotations
 
 import math
-import warnings
 
 import pytest
 import torch
@@ -22,10 +21,11 @@ from test_zmx import write
 from zmx_blocks import surf as _surf, zmx_file
 
 from deeplens.optics.errors import ZemaxFileError
-from deeplens.optics.io import read_zmx, write_zmx
+from deeplens.optics.io import write_zmx
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.surfaces import Fresnel
 from deeplens.optics.surfaces.fresnel import FACET_REFRACTION
+from helpers import read_zmx_quiet
 
 F64 = torch.float64
 C, A1, N = 0.01, 0.001, 1.5     # facet curvature (1/mm), its r² term (1/mm), the glass index
@@ -77,9 +77,7 @@ def _singlet(parm9=None):
 
 
 def _read(p):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return read_zmx(p).double()
+    return read_zmx_quiet(p).double()
 
 
 def test_fresnel_singlet_file(monkeypatch, tmp_path):
