@@ -23,9 +23,11 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
 * :class:`~.zmx_irregular.IrregularFormat` (in its own module, :mod:`.zmx_irregular`):
   ``IRREGULA``, ``Irregular``;
 * :class:`~.zmx_hologram.HologramFormat` (in its own module, :mod:`.zmx_hologram`):
-  ``HOLOGRM1``, ``HOLOGRM2``, ``Hologram``.
+  ``HOLOGRM1``, ``HOLOGRM2``, ``Hologram``;
 * :class:`~.zmx_grin.Gradient1Format` (in its own module, :mod:`.zmx_grin`): ``GRINSUR1``,
-  ``GradientSurface`` with its graded medium.
+  ``GradientSurface`` with its graded medium;
+* :class:`~.zmx_fresnel.FresnelFormat` (in its own module, :mod:`.zmx_fresnel`): ``FRESNELS``,
+  ``Fresnel``.
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
