@@ -60,7 +60,6 @@ from __future__ import annotations
 import math
 
 import torch
-
 from torch import nn
 
 from ..interactions import DIFFRACTION
