@@ -33,10 +33,6 @@ from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_numbe
 
 __all__ = ["HologramFormat"]
 
-_PARMS = {1: "x1", 2: "y1", 3: "z1", 4: "x2", 5: "y2", 6: "z2", 7: "the construction wavelength",
-          8: "the diffraction order"}
-
-
 def _opening_lines(s, i: int) -> list[str]:
     """``CLAP`` (a clear circle narrower than the semi-diameter) and ``OBSC`` of a hologram; a
     rectangular, elliptical or decentred opening or obscuration on one is refused (the reader
@@ -61,7 +57,7 @@ def _hologram(s, ctx) -> Hologram:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
     name = s.type
     for i, (v, ln) in sorted(s.parm.items()):
-        if i not in _PARMS and v != 0:
+        if not 1 <= i <= 8 and v != 0:
             p.fail(ln, f"SURF {k}: {name} PARM {i} is not read (PARM 1-3 construction point 1, "
                        f"4-6 construction point 2, 7 the construction wavelength in µm, 8 the "
                        f"order; volume-hologram settings are not supported)")
