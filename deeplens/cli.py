@@ -133,6 +133,14 @@ def _add_lens_options(parser) -> None:
         pass
 
 
+def _zmx_only(lens: str, flag: str) -> None:
+    """Refuse ``flag``, an option of the Zemax reader, for a lens file that is not ``.zmx``."""
+    from pathlib import Path
+
+    if Path(lens).suffix.lower() != ".zmx":
+        raise _UsageError(f"{flag} applies to Zemax files (.zmx) only; {lens} is not one")
+
+
 def _load(args):
     """``load_lens(args.lens)`` with the table options given on the command line."""
     from pathlib import Path
@@ -148,25 +156,16 @@ def _load(args):
                           f"{args.lens} is not one")
     catalogs = getattr(args, "glass_catalog", None)
     if catalogs:
-        if Path(args.lens).suffix.lower() != ".zmx":
-            raise _UsageError(f"--glass-catalog applies to Zemax files (.zmx) only; {args.lens} "
-                              f"is not one")
+        _zmx_only(args.lens, "--glass-catalog")
         missing = [c for c in catalogs if not Path(c).is_file()]
         if missing:
             raise _UsageError(f"--glass-catalog: no such file: {missing[0]}")
         opts["glass_catalogs"] = list(catalogs)
-    qbfs_conic = getattr(args, "qbfs_conic", None)
-    if qbfs_conic is not None:
-        if Path(args.lens).suffix.lower() != ".zmx":
-            raise _UsageError(f"--qbfs-conic applies to Zemax files (.zmx) only; {args.lens} "
-                              f"is not one")
-        opts["qbfs_conic"] = qbfs_conic
-    stop_size = getattr(args, "stop_size", None)
-    if stop_size is not None:
-        if Path(args.lens).suffix.lower() != ".zmx":
-            raise _UsageError(f"--stop-size applies to Zemax files (.zmx) only; {args.lens} "
-                              f"is not one")
-        opts["stop_size"] = stop_size
+    for key in ("qbfs_conic", "stop_size"):      # read_zmx's reading rules, by name
+        value = getattr(args, key, None)
+        if value is not None:
+            _zmx_only(args.lens, "--" + key.replace("_", "-"))
+            opts[key] = value
     config = getattr(args, "config", None)
     if config is not None:
         if Path(args.lens).suffix.lower() not in (".zmx", ".seq"):

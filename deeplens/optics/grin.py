@@ -89,7 +89,7 @@ class GradedMedium(Material):
         # constant in wavelength: every wavelength (the range of a non-dispersive medium)
         super().__init__(name, (1e-9, math.inf))
         if not float(n0) >= 1e-3:
-            raise ValueError(f"{name}: the axial index n0 must be > 0, got {n0!r}")
+            raise ValueError(f"{name}: the axial index n0 must be >= 0.001, got {n0!r}")
         if not (float(step_mm) > 0 and math.isfinite(float(step_mm))):
             raise ValueError(f"{name}: the step (Delta T) must be a positive number of mm, "
                              f"got {step_mm!r}")

@@ -120,10 +120,10 @@ def check_graded(lens) -> None:
                             f"to different elements: they must move together", surfaces=(a, b))
 
 
-def _to_medium(lens, a: int, z, x, d):
+def _to_medium(lens, a: int, z, x):
     """``(to, back)``: closures taking global points and directions ``(p, q)`` (``(*B, 3)``)
     into the frame of surface ``a`` (the medium's: its element frame, origin at its vertex) and
-    back; ``x``, ``d`` give the dtype and device."""
+    back; ``z`` the vertices' positions (mm), ``x`` gives the dtype and device."""
     m, pivot, vertex = lens._frame(a, z, x)
     if m is None:
         shift = pivot + vertex
@@ -151,7 +151,7 @@ def propagate(lens, a: int, rays: Rays, z, options: TraceOptions | None = None,
     opt = options or TraceOptions()
     target = a if reverse else a + 1
     surf = lens.surfaces[target]
-    to, back = _to_medium(lens, a, z, rays.o, rays.d)
+    to, back = _to_medium(lens, a, z, rays.o)
     r, d = to(rays.o, rays.d)
     zero = torch.zeros((), dtype=r.dtype, device=r.device)
     # the target surface's vertex in the medium's frame (same element, check_graded)
@@ -209,7 +209,7 @@ def propagate(lens, a: int, rays: Rays, z, options: TraceOptions | None = None,
 
 def local_index(lens, a: int, x, z):
     """The index of the graded medium after surface ``a`` at global points ``x`` ``(*B, 3)``."""
-    to, _ = _to_medium(lens, a, z, x, x)
+    to, _ = _to_medium(lens, a, z, x)
     r, _ = to(x, x)
     return lens.materials[a + 1].local(*r.unbind(-1))[0]
 

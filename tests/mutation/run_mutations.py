@@ -1192,7 +1192,7 @@ MUTATIONS = [
     Mutation("conic_rim_sag_halved", "the conic's root taken as 1 on the rim of its domain (a "
              "hemisphere's rim sag R/2: faces crossing at a ball's rim pass the check)",
              "deeplens/optics/surfaces/asphere.py",
-             "    rim = arg >= -RIM_EPS * torch.finfo(arg.dtype).eps\n",
+             "    rim = arg >= -CONIC_RIM_EPS * torch.finfo(arg.dtype).eps\n",
              "    rim = arg > 1.0\n",
              ("tests/optics/io/test_zmx_ball_lens.py",)),
     # ------------------------- issue 37: a FLOA stop without DIAM floats to the limiting aperture

@@ -29,12 +29,23 @@ import contextlib
 from dataclasses import dataclass
 
 __all__ = ["SurfaceFormat", "FormatRegistry", "FORMATS", "QBFS_CONIC", "ZmxContext",
-           "register_format", "registered_format"]
+           "register_format", "registered_format", "zmx_number", "zmx_diam"]
 
 #: the readings of a ``QED_TYPE`` Qbfs on a conic base (``CONI`` != 0), which no OpticStudio
 #: page defines: ``"forbes"`` (default) Forbes' conic generalisation (Opt. Express 19, 9923
 #: (2011); optiland's), loaded with one located warning; ``"refuse"`` a located error
 QBFS_CONIC = ("forbes", "refuse")
+
+
+def zmx_number(v) -> str:
+    """A number as the ``.zmx`` writers write it: ``repr`` of the float, the shortest text that
+    reads back to the same float (a lens written and read again is the same bit for bit)."""
+    return repr(float(v))
+
+
+def zmx_diam(sd) -> str:
+    """The ``DIAM`` record of a semi-diameter ``sd`` (mm) the file fixes (flag 1)."""
+    return f"DIAM {zmx_number(sd)} 1 0 0 1 \"\""
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,11 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
 * :class:`~.zmx_irregular.IrregularFormat` (in its own module, :mod:`.zmx_irregular`):
   ``IRREGULA``, ``Irregular``;
 * :class:`~.zmx_hologram.HologramFormat` (in its own module, :mod:`.zmx_hologram`):
-  ``HOLOGRM1``, ``HOLOGRM2``, ``Hologram``.
+  ``HOLOGRM1``, ``HOLOGRM2``, ``Hologram``;
 * :class:`~.zmx_grin.Gradient1Format` (in its own module, :mod:`.zmx_grin`): ``GRINSUR1``,
-  ``GradientSurface`` with its graded medium.
+  ``GradientSurface`` with its graded medium;
+* :class:`~.zmx_fresnel.FresnelFormat` (in its own module, :mod:`.zmx_fresnel`): ``FRESNELS``,
+  ``Fresnel``.
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
@@ -65,7 +67,8 @@ from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from ..surfaces.zernike_sag import BASES
-from .surface_formats import FORMATS, SurfaceFormat, ZmxContext, register_format
+from .surface_formats import (FORMATS, SurfaceFormat, ZmxContext, register_format,
+                              zmx_diam as _diam, zmx_number as _f)
 from .zmx_coordbrk import coordbrk_lines
 
 #: the registry (:mod:`.surface_formats`), filled with this module's handlers: import it from
@@ -98,14 +101,6 @@ def _xdat_term_count(p, s, k, type_name: str, count_what: str, maximum: int, ter
 
 def is_air(m: Material) -> bool:
     return isinstance(m, Air)
-
-
-def _f(v) -> str:
-    return repr(float(v))
-
-
-def _diam(sd) -> str:
-    return f"DIAM {_f(sd)} 1 0 0 1 \"\""
 
 
 # --------------------------------------------------------------------------- Zemax readers

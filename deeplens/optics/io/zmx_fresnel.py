@@ -16,14 +16,11 @@ with its line.
 
 from __future__ import annotations
 
+from ..errors import ZemaxFileError
 from ..surfaces import Fresnel
-from .surface_formats import SurfaceFormat, register_format
+from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
 
 __all__ = ["FresnelFormat"]
-
-
-def _f(v) -> str:
-    return repr(float(v))
 
 
 def _fresnel(s, ctx) -> Fresnel:
@@ -52,10 +49,8 @@ class FresnelFormat(SurfaceFormat):
     def write_zmx(self, s, i):
         alpha = s.even_coefficients
         if len(alpha) > 8:
-            from ..errors import ZemaxFileError
-
             raise ZemaxFileError(f"surface {i}: {len(alpha)} Fresnel terms; Zemax's FRESNELS "
                                  f"holds r²..r¹⁶ (8 terms)", surfaces=(i,))
         lines = ["TYPE FRESNELS", f"CURV {_f(s.facet.c)}", f"CONI {_f(s.facet.k)}"]
         lines += [f"PARM {j} {_f(v)}" for j, v in enumerate(alpha, start=1)]
-        return lines + [f"DIAM {_f(s.semi_diameter)} 1 0 0 1 \"\""]
+        return lines + [zmx_diam(s.semi_diameter)]

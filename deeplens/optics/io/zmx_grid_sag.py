@@ -37,17 +37,13 @@ import torch
 
 from ..surfaces import GridSag
 from ..surfaces.grid_sag import MAX_GRID_EVEN_TERMS, grid_slopes
-from .surface_formats import SurfaceFormat, register_format
+from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
 
 __all__ = ["GridSagFormat"]
 
 #: the most grid points read (OpticStudio's own limit is not documented; a damaged GDAT line
 #: must not allocate without bound)
 MAX_GRID_POINTS = 4_000_000
-
-
-def _f(v) -> str:
-    return repr(float(v))
 
 
 def _grid_sag(s, ctx) -> GridSag:
@@ -158,5 +154,5 @@ class GridSagFormat(SurfaceFormat):
                            -1).detach().cpu().flip(0).reshape(nx * ny, 4).tolist()
         lines += [f"GARR {n} {_f(z)} {_f(zx)} {_f(zy)} {_f(zxy)} 0"
                   for n, (z, zx, zy, zxy) in enumerate(data)]
-        lines.append(f"DIAM {_f(s.semi_diameter)} 1 0 0 1 \"\"")
+        lines.append(zmx_diam(s.semi_diameter))
         return lines

@@ -16,13 +16,9 @@ from __future__ import annotations
 
 from ..grin import RadialGradient
 from ..surfaces.gradient import GradientSurface
-from .surface_formats import SurfaceFormat, register_format
+from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
 
 __all__ = ["Gradient1Format"]
-
-
-def _f(v) -> str:
-    return repr(float(v))
 
 
 @register_format
@@ -63,4 +59,4 @@ class Gradient1Format(SurfaceFormat):
         m = s.medium
         return ["TYPE GRINSUR1", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}",
                 f"PARM 1 {_f(m.step_mm)}", f"PARM 2 {_f(m.n0)}", f"PARM 3 {_f(m.nr2)}",
-                f"DIAM {_f(s.semi_diameter)} 1 0 0 1 \"\""]
+                zmx_diam(s.semi_diameter)]

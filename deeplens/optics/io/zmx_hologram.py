@@ -29,17 +29,9 @@ import math
 from ..errors import ZemaxFileError
 from ..surfaces import Hologram
 from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
-from .surface_formats import SurfaceFormat, register_format
+from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
 
 __all__ = ["HologramFormat"]
-
-_PARMS = {1: "x1", 2: "y1", 3: "z1", 4: "x2", 5: "y2", 6: "z2", 7: "the construction wavelength",
-          8: "the diffraction order"}
-
-
-def _f(v) -> str:
-    return repr(float(v))
-
 
 def _opening_lines(s, i: int) -> list[str]:
     """``CLAP`` (a clear circle narrower than the semi-diameter) and ``OBSC`` of a hologram; a
@@ -65,7 +57,7 @@ def _hologram(s, ctx) -> Hologram:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
     name = s.type
     for i, (v, ln) in sorted(s.parm.items()):
-        if i not in _PARMS and v != 0:
+        if not 1 <= i <= 8 and v != 0:
             p.fail(ln, f"SURF {k}: {name} PARM {i} is not read (PARM 1-3 construction point 1, "
                        f"4-6 construction point 2, 7 the construction wavelength in µm, 8 the "
                        f"order; volume-hologram settings are not supported)")
@@ -121,5 +113,5 @@ class HologramFormat(SurfaceFormat):
         lines = [f"TYPE HOLOGRM{s.kind}", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}"]
         lines += [f"PARM {j + 1} {_f(v)}" for j, v in enumerate(values)]
         lines += [f"PARM 7 {_f(float(s.wl_c) / 1000.0)}", f"PARM 8 {s.order}",
-                  f"DIAM {_f(s.semi_diameter)} 1 0 0 1 \"\""]
+                  zmx_diam(s.semi_diameter)]
         return lines + _opening_lines(s, i)

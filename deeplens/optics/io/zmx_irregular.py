@@ -21,17 +21,13 @@ from __future__ import annotations
 import math
 
 from ..surfaces import Irregular
-from .surface_formats import SurfaceFormat, register_format
+from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
 
 __all__ = ["IrregularFormat"]
 
 #: PARM i -> what it is (the User Guide's table)
 _PARMS = {1: "decenter x", 2: "decenter y", 3: "tilt about x", 4: "tilt about y", 5: "Zs",
           6: "Za", 7: "Zc", 8: "angle"}
-
-
-def _f(v) -> str:
-    return repr(float(v))
 
 
 def _irregular(s, ctx) -> Irregular:
@@ -81,5 +77,5 @@ class IrregularFormat(SurfaceFormat):
                   float(s.zc) * q ** 3, math.degrees(float(s.angle))]
         lines = ["TYPE IRREGULA", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}"]
         lines += [f"PARM {j} {_f(v)}" for j, v in enumerate(values, start=1)]
-        lines.append(f"DIAM {_f(sd)} 1 0 0 1 \"\"")
+        lines.append(zmx_diam(sd))
         return lines

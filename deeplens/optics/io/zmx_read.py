@@ -717,21 +717,24 @@ def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locato
                       f"aperture as FLOA, or an ENPD/FNUM the CLAP does not cut)")
 
 
+def _diam_only(kept, stop_idx: int, i: int) -> bool:
+    """Whether kept surface ``i``'s semi-diameter comes from its ``DIAM`` alone: no surface
+    aperture (``CLAP``, ``SQAP``, ``ELAP``) and not the stop (whose radius is the pupil's)."""
+    s = kept[i][2]
+    return i != stop_idx and s.clap is None and s.sqap is None and s.elap is None
+
+
 def _estimated(kept, stop_idx: int, i: int) -> bool:
     """Whether kept surface ``i``'s semi-diameter is only an estimate of the beam's footprint:
     an automatic ``DIAM`` (flag 0, OpticStudio's own estimate written to the file, or none),
-    neither fixed nor a ``CLAP``, and not the stop (whose radius is the pupil's)."""
-    s = kept[i][2]
-    return (i != stop_idx and not s.diam_fixed and s.clap is None and s.sqap is None
-            and s.elap is None)
+    not fixed (:func:`_diam_only`)."""
+    return _diam_only(kept, stop_idx, i) and not kept[i][2].diam_fixed
 
 
 def _fixed_diam(kept, stop_idx: int, i: int) -> bool:
-    """Whether kept surface ``i``'s semi-diameter is a ``DIAM`` the file fixes (flag 1), not a
-    ``CLAP``/``SQAP``/``ELAP`` opening and not the stop."""
-    s = kept[i][2]
-    return (i != stop_idx and s.diam_fixed and s.clap is None and s.sqap is None
-            and s.elap is None)
+    """Whether kept surface ``i``'s semi-diameter is a ``DIAM`` the file fixes (flag 1;
+    :func:`_diam_only`)."""
+    return _diam_only(kept, stop_idx, i) and kept[i][2].diam_fixed
 
 
 def _limitable(kept, stop_idx: int, i: int) -> bool:

@@ -46,14 +46,20 @@ def _fixed(block) -> bool:
     return block.clap is not None or (block.diam_fixed and block.diam > 0)
 
 
-def check_stop_size(seq, stop_size: str, p) -> bool:
-    """Whether the stop floats to the limiting aperture: called under ``FLOA`` when the stop has
-    no semi-diameter (``seq.stop_idx in seq.autos``).  Refuses at the stop's ``SURF`` line with
-    ``stop_size="refuse"``, or when no other surface fixes its semi-diameter."""
+def _limiting_candidates(seq) -> list[int]:
+    """The kept indices of the surfaces that may limit the beam, in order: those whose
+    semi-diameter the file fixes (:func:`_fixed`), not the stop, not a coordinate break."""
+    return [i for i, (surf, _, b, _) in enumerate(seq.kept)
+            if i != seq.stop_idx and i not in seq.autos and getattr(surf, "law", "") != "frame"
+            and _fixed(b)]
+
+
+def check_stop_size(seq, stop_size: str, p) -> None:
+    """Under ``FLOA`` with a stop that has no semi-diameter (``seq.stop_idx in seq.autos``):
+    refuse at the stop's ``SURF`` line with ``stop_size="refuse"``, or when no other surface
+    fixes its semi-diameter; otherwise the stop floats to the limiting aperture once the lens is
+    built (:func:`limiting_stop_radius`)."""
     blk = seq.kept[seq.stop_idx][2]
-    others = [i for i, (surf, _, b, _) in enumerate(seq.kept)
-              if i != seq.stop_idx and i not in seq.autos and getattr(surf, "law", "") != "frame"
-              and _fixed(b)]
     base = ("the stop has no semi-diameter (no DIAM, or 0) and the system aperture is FLOA "
             "(float by stop size)")
     if stop_size == "refuse":
@@ -61,11 +67,10 @@ def check_stop_size(seq, stop_size: str, p) -> bool:
                          f"system an ENPD/FNUM, or pass stop_size='limiting' (--stop-size "
                          f"limiting, the default) to float it to the largest on-axis beam the "
                          f"other surfaces' fixed apertures pass")
-    if not others:
+    if not _limiting_candidates(seq):
         p.fail(blk.line, f"{base}, and no other surface fixes its semi-diameter (DIAM flag 1 "
                          f"or CLAP) to limit the beam: give the stop a DIAM or the system an "
                          f"ENPD/FNUM")
-    return True
 
 
 def limiting_stop_radius(lens, seq, p, original: dict | None = None) -> tuple[float, int]:
@@ -88,9 +93,8 @@ def limiting_stop_radius(lens, seq, p, original: dict | None = None) -> tuple[fl
         _, _, heights = trace_paraxial_ray(lens, y0, u0, media_indices(lens))
         heights = [abs(float(h)) for h in heights]
     best, limit = math.inf, None
-    for i, (surf, _, b, _) in enumerate(seq.kept):
-        if (i == k or i in seq.autos or getattr(surf, "law", "") == "frame" or not _fixed(b)
-                or not heights[i] > 0):
+    for i in _limiting_candidates(seq):
+        if not heights[i] > 0:
             continue
         m = (original or {}).get(i, float(lens.surfaces[i].semi_diameter)) / heights[i]
         if m < best:

@@ -33,8 +33,8 @@ import torch
 from torch import nn
 
 from ..openings import Circle, Opening, Rectangle
-from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, host_flags,
-                   make_param, register_surface, with_ellipses)
+from .base import (CONIC_RIM_EPS, SagSurface, check_conic_domain, conic_polynomial_scale,
+                   host_flags, make_param, register_surface, with_ellipses)
 
 __all__ = ["Asphere", "Sphere", "MAX_ASPHERE_ORDER", "asphere_dsag_ds", "asphere_sag",
            "conic_arg", "conic_dsag_ds", "conic_normal", "conic_quadric", "conic_root",
@@ -51,21 +51,17 @@ def conic_arg(s, c, k):
     return 1.0 - (1.0 + k) * c * c * s
 
 
-#: the rim of a conic's domain: ``1 - (1+k) c^2 s`` from 0 down to ``-RIM_EPS`` rounding units
-#: (``torch.finfo(dtype).eps``) of the points' dtype, where :func:`conic_root` is 0
-#: (:func:`~.base.check_conic_domain` accepts a semi-diameter there: a full hemisphere)
-RIM_EPS = 8.0
-
-
 def conic_root(s, c, k):
     """``sqrt(1 - (1+k) c^2 s)``; 0 on the rim of the conic's domain (the argument within
-    ``RIM_EPS`` rounding units below 0: a hemisphere's rim, where the sag ``c s`` is exact),
+    :data:`~.base.CONIC_RIM_EPS` rounding units of the points' dtype below 0: a hemisphere's
+    rim, where the sag ``c s`` is exact; :func:`~.base.check_conic_domain` accepts a
+    semi-diameter there),
     1 beyond it (finite).  Its derivative is finite everywhere (0 on the rim and beyond; the
     true one is infinite on the rim)."""
     arg = conic_arg(s, c, k)
     inside = arg > 0
     root = torch.sqrt(torch.where(inside, arg, torch.ones_like(arg)))
-    rim = arg >= -RIM_EPS * torch.finfo(arg.dtype).eps
+    rim = arg >= -CONIC_RIM_EPS * torch.finfo(arg.dtype).eps
     return torch.where(inside, root, torch.where(rim, torch.zeros_like(arg),
                                                  torch.ones_like(arg)))
 

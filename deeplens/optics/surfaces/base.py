@@ -67,8 +67,9 @@ def register_surface(name: str, aliases: tuple[str, ...] = ()):
     return deco
 
 
-#: a semi-diameter on the rim of its conic's domain within this many float64 epsilons of the
-#: argument ``1 - (1+k) c^2 r^2`` is the rim itself (:func:`check_conic_domain`)
+#: the rim band of a conic's domain, in rounding units: an argument ``1 - (1+k) c^2 r^2`` from 0
+#: down to ``-CONIC_RIM_EPS eps`` is the rim itself (:func:`check_conic_domain`, float64's eps:
+#: the file's numbers; :func:`~.asphere.conic_root`, 0 there, the points' dtype's eps)
 CONIC_RIM_EPS = 8.0
 
 
@@ -96,13 +97,14 @@ def check_conic_domain(sd: float, c: float, k: float, what: str, where: str = ""
 
 
 def in_closed_domain(surface, x, y):
-    """``surface.in_domain`` at ``(x, y)`` pulled towards the axis by 4 float64 rounding units:
-    a point on the rim of a conic's domain counts (a hemisphere's rim ``r = |R|``, where the sag
-    is exact, :func:`~.asphere.conic_root`; the argument ``1 - (1+k) c² r²`` grows by ``8 eps``,
-    the rim band of :func:`check_conic_domain`).  For drawings and crossing checks, where the
+    """``surface.in_domain`` at ``(x, y)`` pulled towards the axis by ``CONIC_RIM_EPS / 2`` (4)
+    float64 rounding units: a point on the rim of a conic's domain counts (a hemisphere's rim
+    ``r = |R|``, where the sag is exact, :func:`~.asphere.conic_root`; the argument
+    ``1 - (1+k) c² r²`` grows by ``CONIC_RIM_EPS`` (8) eps, the rim band of
+    :func:`check_conic_domain`).  For drawings and crossing checks, where the
     rim of a ball lens's faces is where they meet; the tracer's hits keep ``in_domain`` (a ray
     landing exactly on the rim, at grazing incidence, is invalid)."""
-    q = 1.0 - 4.0 * 2.0 ** -52
+    q = 1.0 - 0.5 * CONIC_RIM_EPS * 2.0 ** -52
     return surface.in_domain(x * q, y * q)
 
 

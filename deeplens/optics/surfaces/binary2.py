@@ -65,7 +65,7 @@ from torch import nn
 from ..interactions import DIFFRACTION
 from .asphere import Asphere
 from .base import make_param, register_surface
-from .grating import grating_direction
+from .grating import grating_direction, integer_order
 
 __all__ = ["Binary2", "MAX_PHASE_TERMS"]
 
@@ -109,16 +109,14 @@ class Binary2(Asphere):
         if not (math.isfinite(rn) and rn > 0):
             raise ValueError(f"Binary2: the normalisation radius must be a finite number > 0 "
                              f"(mm), got {norm_radius!r}")
-        m = float(order)
-        if not (math.isfinite(m) and m == int(m)):
-            raise ValueError(f"Binary2: the diffraction order must be an integer, got {order!r}")
+        order = integer_order(order, "Binary2")
         phase = [float(v) for v in phase_coefficients]
         if len(phase) > MAX_PHASE_TERMS:
             raise ValueError(f"Binary2: at most {MAX_PHASE_TERMS} phase coefficients, got "
                              f"{len(phase)}")
         self.register_buffer("norm_radius", torch.tensor(rn, dtype=torch.float64),
                              persistent=False)
-        self.order = int(m)
+        self.order = order
         self.A = nn.ParameterList([make_param(v, f"A{i + 1}") for i, v in enumerate(phase)])
 
     # ---- the phase -----------------------------------------------------------------------

@@ -40,7 +40,7 @@ from ..interactions import DIFFRACTION
 from .asphere import Asphere
 from .base import make_param, register_surface
 
-__all__ = ["Grating", "grating_direction"]
+__all__ = ["Grating", "grating_direction", "integer_order", "conic_base_from_dict"]
 
 
 def grating_direction(d, n, g, kick, valid):
@@ -67,6 +67,33 @@ def grating_direction(d, n, g, kick, valid):
     root = torch.sqrt(torch.where(ok, arg, torch.ones_like(arg))).unsqueeze(-1)
     out = t + torch.copysign(root, cos_d) * n
     return torch.where(ok.unsqueeze(-1), out, d), ok
+
+
+def integer_order(order, owner: str) -> int:
+    """The diffraction order ``order`` as an ``int``; ``ValueError`` naming ``owner`` (the
+    surface class) unless it is a finite integer."""
+    m = float(order)
+    if not (math.isfinite(m) and m == int(m)):
+        raise ValueError(f"{owner}: the diffraction order must be an integer, got {order!r}")
+    return int(m)
+
+
+def conic_base_from_dict(entry, semi_diameter, what: str):
+    """The sphere-or-conic base and the order of a diffractive surface's lens-file ``entry``
+    (``what`` names the surface in the errors): ``(c, order, base)``, ``c`` the curvature
+    (1/mm), ``order`` an int and ``base`` the keyword arguments ``conic``, ``obscuration``,
+    ``clear_radius`` and ``clear_decenter`` of :class:`~.asphere.Asphere`.  Refuses aspheric
+    terms and an order that is not an integer, naming the field."""
+    asph = Asphere.from_dict(entry, semi_diameter)
+    if len(asph.a):
+        entry.fail("aspheric", f"a {what}'s base is a sphere or conic (no aspheric terms)")
+    order = entry.get("order")
+    if order != int(order):
+        entry.fail("order", f"the diffraction order must be an integer, got {order!r}")
+    return float(asph.c), int(order), dict(
+        conic=float(asph.k), obscuration=float(asph.obscuration),
+        clear_radius=float(asph.clear_radius),
+        clear_decenter=[float(v) for v in asph.clear_decenter])
 
 
 @register_surface("grating")
@@ -98,11 +125,8 @@ class Grating(Asphere):
         if not math.isfinite(t):
             raise ValueError(f"Grating: lines_per_um must be a finite number (lines per "
                              f"micrometre), got {lines_per_um!r}")
-        m = float(order)
-        if not (math.isfinite(m) and m == int(m)):
-            raise ValueError(f"Grating: the diffraction order must be an integer, got {order!r}")
+        self.order = integer_order(order, "Grating")
         self.T = make_param(t, "lines per micrometre")
-        self.order = int(m)
 
     def kick(self, wavelength_nm, n_after):
         """``m λ T / n'`` (dimensionless) for vacuum wavelengths in nm and the index after."""
@@ -126,16 +150,8 @@ class Grating(Asphere):
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
-        base = Asphere.from_dict(entry, semi_diameter)
-        if len(base.a):
-            entry.fail("aspheric", "a grating's base is a sphere or conic (no aspheric terms)")
-        order = entry.get("order")
-        if order != int(order):
-            entry.fail("order", f"the diffraction order must be an integer, got {order!r}")
-        return cls(float(base.c), semi_diameter, entry.get("lines_per_um"), int(order),
-                   conic=float(base.k), obscuration=float(base.obscuration),
-                   clear_radius=float(base.clear_radius),
-                   clear_decenter=[float(v) for v in base.clear_decenter])
+        c, order, base = conic_base_from_dict(entry, semi_diameter, "grating")
+        return cls(c, semi_diameter, entry.get("lines_per_um"), order, **base)
 
     def to_dict(self) -> dict:
         d = super().to_dict()

@@ -60,13 +60,12 @@ from __future__ import annotations
 import math
 
 import torch
-
 from torch import nn
 
 from ..interactions import DIFFRACTION
 from .asphere import Asphere
 from .base import make_param, register_surface
-from .grating import grating_direction
+from .grating import conic_base_from_dict, grating_direction, integer_order
 
 __all__ = ["Hologram"]
 
@@ -112,9 +111,7 @@ class Hologram(Asphere):
                          clear_radius=clear_radius, clear_decenter=clear_decenter)
         if kind not in (1, 2):
             raise ValueError(f"Hologram: kind must be 1 (HOLOGRM1) or 2 (HOLOGRM2), got {kind!r}")
-        m = float(order)
-        if not (math.isfinite(m) and m == int(m)):
-            raise ValueError(f"Hologram: the diffraction order must be an integer, got {order!r}")
+        m = integer_order(order, "Hologram")
         wl = float(construction_wavelength_nm)
         if not (math.isfinite(wl) and wl > 0):
             raise ValueError(f"Hologram: the construction wavelength must be a finite number "
@@ -133,7 +130,7 @@ class Hologram(Asphere):
         self.P1 = nn.ParameterList([make_param(v, f"point1 {a}") for v, a in zip(pts[0], "xyz")])
         self.P2 = nn.ParameterList([make_param(v, f"point2 {a}") for v, a in zip(pts[1], "xyz")])
         self.wl_c = make_param(wl, "construction wavelength")
-        self.order = int(m)
+        self.order = m
         self.kind = int(kind)
 
     @property
@@ -195,12 +192,7 @@ class Hologram(Asphere):
 
     @classmethod
     def from_dict(cls, entry, semi_diameter):
-        base = Asphere.from_dict(entry, semi_diameter)
-        if len(base.a):
-            entry.fail("aspheric", "a hologram's base is a sphere or conic (no aspheric terms)")
-        order = entry.get("order")
-        if order != int(order):
-            entry.fail("order", f"the diffraction order must be an integer, got {order!r}")
+        c, order, base = conic_base_from_dict(entry, semi_diameter, "hologram")
         kind = entry.get("kind")
         if kind not in (1, 2):
             entry.fail("kind", f"must be 1 (HOLOGRM1) or 2 (HOLOGRM2), got {kind!r}")
@@ -213,10 +205,7 @@ class Hologram(Asphere):
         wl = entry.get("construction_wavelength_nm")
         if not wl > 0:
             entry.fail("construction_wavelength_nm", f"must be > 0 (nm), got {wl!r}")
-        return cls(float(base.c), semi_diameter, pts[0], pts[1], wl, int(order), int(kind),
-                   conic=float(base.k), obscuration=float(base.obscuration),
-                   clear_radius=float(base.clear_radius),
-                   clear_decenter=[float(v) for v in base.clear_decenter])
+        return cls(c, semi_diameter, pts[0], pts[1], wl, order, int(kind), **base)
 
     def to_dict(self) -> dict:
         d = super().to_dict()

@@ -12,23 +12,11 @@ import warnings
 
 import pytest
 from test_zmx import write
-from test_zmx_prisms import _surf
+from zmx_blocks import surf as _surf, zmx_file
 
 from deeplens.optics.errors import ZemaxWarning
 from deeplens.optics.io import lens_to_dict, read_zmx
 from deeplens.optics.paraxial import paraxial
-
-_HEAD = """VERS 170912 299 123456
-MODE SEQ
-NAME annular CLAP
-UNIT MM X W X CM MR CPMM
-ENPD 20.0
-FTYP 0 0 1 1 0 0 0
-YFLN 0
-WAVM 1 0.5875618 1
-PWAV 1
-"""
-
 
 def _file(clap):
     """A stop 50 mm in front of a concave conic mirror (R = -100 mm, k = -0.5: its sag is
@@ -36,10 +24,7 @@ def _file(clap):
     ``clap`` on the mirror, the image at its focus."""
     mirror = _surf(curv=-0.01, disz=-50.0, glas="MIRROR", diam=12.0) + ["  CONI -0.5", clap]
     blocks = [_surf(disz="INFINITY"), _surf(disz=50.0, stop=True), mirror, _surf()]
-    lines = []
-    for k, b in enumerate(blocks):
-        lines += [f"SURF {k}"] + b
-    return _HEAD + "\n".join(lines) + "\n"
+    return zmx_file(blocks, name="annular CLAP", aperture="ENPD 20.0")
 
 
 def _read(p):

@@ -453,6 +453,24 @@ def test_object_space_index_in_rayoptics_pupil(monkeypatch, tmp_path):
 SINGLET = CORPUS.parent / "zmx_opticstudio" / "zernike_sag_singlet.zmx"
 
 
+def _corpus_of_one(name, text, monkeypatch, tmp_path):
+    """``text`` written as ``tmp_path / name``, the one file of the corpus this module and
+    test_zmx_corpus read (both ``CORPUS`` patched), and deeplens' reading of it, warnings
+    silenced: ``(lens, scratch)``, ``scratch`` an empty folder for rayoptics' copy."""
+    import sys
+
+    import test_zmx_corpus as tc
+    from helpers import read_zmx_quiet
+
+    (tmp_path / name).write_text(text)
+    monkeypatch.setattr(tc, "CORPUS", tmp_path)
+    monkeypatch.setattr(sys.modules[__name__], "CORPUS", tmp_path)
+    lens = read_zmx_quiet(tmp_path / name)
+    scratch = tmp_path / "ro"
+    scratch.mkdir()
+    return lens, scratch
+
+
 @pytest.mark.parametrize("kind", ["SZERNSAG", "FZERNSAG"])
 def test_zernike_sag_vertex_curvature_rule_through_rayoptics(kind, monkeypatch, tmp_path):
     """A Zernike sag singlet (Standard, and the same records read as Fringe terms): deeplens'
@@ -460,19 +478,8 @@ def test_zernike_sag_vertex_curvature_rule_through_rayoptics(kind, monkeypatch, 
     alone, is given the vertex curvature of the rule deeplens states, worked out by the oracle
     from the file (``CURV + 2 PARM 1 + 2 Σ N_n A_j r_n / R_n²``: Noll Z4 and Z11, Fringe Z4 only,
     since Fringe Z11 is a trefoil); the rule matters: from CURV alone the EFL is > 1 % apart."""
-    import sys
-
-    import test_zmx_corpus as tc
-    from deeplens.optics.io.zmx import read_zmx
-
-    (tmp_path / "z.zmx").write_text(SINGLET.read_text().replace("TYPE SZERNSAG", f"TYPE {kind}"))
-    monkeypatch.setattr(tc, "CORPUS", tmp_path)
-    monkeypatch.setattr(sys.modules[__name__], "CORPUS", tmp_path)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        lens = read_zmx(tmp_path / "z.zmx")
-    scratch = tmp_path / "ro"
-    scratch.mkdir()
+    text = SINGLET.read_text().replace("TYPE SZERNSAG", f"TYPE {kind}")
+    lens, scratch = _corpus_of_one("z.zmx", text, monkeypatch, tmp_path)
     cv = _zernike_vertex_curvatures("z.zmx")
     m0 = 2.0 * (2.0 * 0.01 * (math.sqrt(3) if kind == "SZERNSAG" else 1.0)
                 + (6.0 * math.sqrt(5) * 0.002 if kind == "SZERNSAG" else 0.0)) / 25.0
@@ -491,21 +498,9 @@ def test_binary2_power_through_rayoptics(monkeypatch, tmp_path):
     deeplens' EFL, EPD, pupil position and back focus equal rayoptics' once rayoptics, which
     reads the base surface alone, is given the phase's thin-lens power ``-M A_1 λ / (π R_n²)``
     as curvature; without it the EFL is > 1 % apart."""
-    import sys
-
-    import test_zmx_corpus as tc
     from test_zmx_binary2 import binary2_file
 
-    from deeplens.optics.io.zmx import read_zmx
-
-    (tmp_path / "b.zmx").write_text(binary2_file())
-    monkeypatch.setattr(tc, "CORPUS", tmp_path)
-    monkeypatch.setattr(sys.modules[__name__], "CORPUS", tmp_path)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        lens = read_zmx(tmp_path / "b.zmx")
-    scratch = tmp_path / "ro"
-    scratch.mkdir()
+    lens, scratch = _corpus_of_one("b.zmx", binary2_file(), monkeypatch, tmp_path)
     wl = 587.5618e-6
     phi = _binary2_powers("b.zmx", wl)
     assert list(phi) == [3] and phi[3] == pytest.approx(1500.0 * wl / (math.pi * 25.0),
@@ -530,22 +525,12 @@ def test_hologram_power_through_rayoptics(monkeypatch, tmp_path, case):
     per mm); given half of it, rayoptics' EFL differs."""
     import sys
 
-    import test_zmx_corpus as tc
     from test_zmx_hologram import hologram_file
-
-    from deeplens.optics.io.zmx import read_zmx
 
     text = {"transmission": hologram_file(),
             "reflection": hologram_file(z1=-100.0, z2=-200.0, image=-100.0, mirror=True),
             "hologram1": hologram_file(kind=1, z2=-100.0, image=50.0)}[case]
-    (tmp_path / "h.zmx").write_text(text)
-    monkeypatch.setattr(tc, "CORPUS", tmp_path)
-    monkeypatch.setattr(sys.modules[__name__], "CORPUS", tmp_path)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        lens = read_zmx(tmp_path / "h.zmx")
-    scratch = tmp_path / "ro"
-    scratch.mkdir()
+    lens, scratch = _corpus_of_one("h.zmx", text, monkeypatch, tmp_path)
     phi = _hologram_powers("h.zmx", 0.55)
     expect = {"transmission": 0.015, "reflection": 0.015, "hologram1": -0.005}[case]
     assert list(phi) == [1] and phi[1] == pytest.approx(expect, rel=1e-14)

@@ -158,6 +158,11 @@ def test_refuse_flag_and_nothing_to_limit_the_beam(tmp_path, capsys):
         warnings.simplefilter("ignore")
         rc = main(["report", str(f), "--stop-size", "limiting", "--sampling", "hexapolar:3"])
     assert rc == 0 and "EFL" in capsys.readouterr().out
+    # a reading option of .zmx files only (as --qbfs-conic): refused for another lens file
+    for flag, value in (("--stop-size", "refuse"), ("--qbfs-conic", "refuse")):
+        rc = main(["report", "double_gauss", flag, value])
+        err = capsys.readouterr().err
+        assert rc == 2 and f"{flag} applies to Zemax files (.zmx) only; double_gauss" in err
 
 
 def test_both_oracles_confirm_under_the_floated_stop_size(tmp_path, monkeypatch):

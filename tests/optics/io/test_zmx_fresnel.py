@@ -14,33 +14,21 @@ asphere) confirms EFL, EPD, pupil and back focus.
 from __future__ import annotations
 
 import math
-import warnings
 
 import pytest
 import torch
 from test_zmx import write
-from test_zmx_prisms import _surf
+from zmx_blocks import surf as _surf, zmx_file
 
 from deeplens.optics.errors import ZemaxFileError
-from deeplens.optics.io import read_zmx, write_zmx
+from deeplens.optics.io import write_zmx
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.surfaces import Fresnel
 from deeplens.optics.surfaces.fresnel import FACET_REFRACTION
+from helpers import read_zmx_quiet
 
 F64 = torch.float64
 C, A1, N = 0.01, 0.001, 1.5     # facet curvature (1/mm), its r² term (1/mm), the glass index
-
-_HEAD = """VERS 170912 299 123456
-MODE SEQ
-NAME fresnel
-UNIT MM X W X CM MR CPMM
-ENPD 10.0
-FTYP 0 0 1 1 0 0 0
-YFLN 0
-WAVM 1 0.5875618 1
-PWAV 1
-"""
-
 
 def _hits(heights):
     h = torch.tensor(heights, dtype=F64)
@@ -85,16 +73,11 @@ def _singlet(parm9=None):
     if parm9 is not None:
         fres.insert(-2, f"  PARM 9 {parm9!r}")
     blocks = [_surf(disz="INFINITY"), fres, _surf(disz=1.0 / phi - 2.0 / N, diam=5.0), _surf()]
-    lines = []
-    for k, b in enumerate(blocks):
-        lines += [f"SURF {k}"] + b
-    return _HEAD + "\n".join(lines) + "\n", phi
+    return zmx_file(blocks, name="fresnel"), phi
 
 
 def _read(p):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return read_zmx(p).double()
+    return read_zmx_quiet(p).double()
 
 
 def test_fresnel_singlet_file(monkeypatch, tmp_path):

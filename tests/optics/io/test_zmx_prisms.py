@@ -33,6 +33,7 @@ import warnings
 
 import pytest
 import torch
+from zmx_blocks import surf as _surf, zmx_file
 
 from deeplens.optics import frames
 from deeplens.optics.frames import local_frames, to_global, travel_directions
@@ -51,27 +52,9 @@ R1, R2, T = -40.0, 60.0, 4.0   # the lens after the roof, met travelling -z
 PUPIL = [(0.0, 0.0), (0.0, 1.0), (0.0, -1.0), (1.0, 0.0), (-1.0, 0.0), (0.5, 0.7)]
 FIELDS = (0.0, 1.5)   # degrees (YFLN 0 1.5)
 
-_HEAD = """VERS 170912 299 123456
-MODE SEQ
-NAME roof
-UNIT MM X W X CM MR CPMM
-ENPD 8.0
-FTYP 0 0 2 1 0 0 0
-XFLN 0 0
-YFLN 0 1.5
-WAVM 1 0.5875618 1
-PWAV 1
-"""
+#: the system lines of every file here (zmx_blocks.zmx_file)
+_SYSTEM = dict(name="roof", aperture="ENPD 8.0", fields="FTYP 0 0 2 1 0 0 0\nXFLN 0 0\nYFLN 0 1.5")
 _GLASS = f"___BLANK 1 0 {N} 0 0 0 0 0 0 0"
-
-
-def _surf(typ="STANDARD", curv=0.0, disz=0.0, glas=None, parms=None, stop=False, diam=None):
-    out = (["  STOP"] if stop else []) + [f"  TYPE {typ}", f"  CURV {curv!r}"]
-    out += [f"  PARM {i} {v!r}" for i, v in enumerate(parms or (), start=1)]
-    out.append(f"  DISZ {disz if isinstance(disz, str) else repr(disz)}")
-    out += [f"  GLAS {glas}"] if glas else []
-    out += [f'  DIAM {diam!r} 1 0 0 1 ""'] if diam is not None else []
-    return out
 
 
 def _file(middle, after):
@@ -84,10 +67,7 @@ def _file(middle, after):
                _surf(disz=-15.0, diam=12.0),
                _surf(curv=1 / R1, disz=-T, glas=_GLASS, diam=8.0),
                _surf(curv=1 / R2, disz=-45.0, diam=8.0), _surf()])
-    lines = []
-    for k, b in enumerate(blocks):
-        lines += [f"SURF {k}"] + b
-    return _HEAD + "\n".join(lines) + "\n"
+    return zmx_file(blocks, **_SYSTEM)
 
 
 def roof_file(after=-20.0):
@@ -304,10 +284,7 @@ def cube_file():
               _surf(glas=_GLASS, diam=14.0),
               _surf("COORDBRK", disz=5.0, parms=[0, 0, -45.0, 0, 0, 0]),
               _surf(disz=B_AIR, diam=10.0), _surf()]
-    lines = []
-    for k, b in enumerate(blocks):
-        lines += [f"SURF {k}"] + b
-    return _HEAD + "\n".join(lines) + "\n"
+    return zmx_file(blocks, **_SYSTEM)
 
 
 def test_the_cube_reads_its_positive_thicknesses_after_the_mirror_as_virtual(tmp_path):

@@ -22,7 +22,7 @@ import pytest
 import torch
 from test_zmx import write
 from test_zmx_apertures import _on_axis_rays, _with_field_stop
-from test_zmx_prisms import _HEAD, _surf
+from zmx_blocks import surf as _surf, zmx_file
 
 from deeplens.optics import frames
 from deeplens.optics.io import ZemaxFileError, lens_to_dict, read_zmx, write_zmx
@@ -108,10 +108,8 @@ def _tilted_fold(after):
               _surf("COORDBRK", parms=[0, 0, 90.0, 0, 0, 0]),
               _surf("TILTSURF", disz=after, glas="MIRROR", parms=[0, -1.0], diam=8.0),
               _surf()]
-    lines = []
-    for k, b in enumerate(blocks):
-        lines += [f"SURF {k}"] + b
-    return _HEAD + "\n".join(lines) + "\n"
+    return zmx_file(blocks, name="roof", aperture="ENPD 8.0",     # test_zmx_prisms' system
+                    fields="FTYP 0 0 2 1 0 0 0\nXFLN 0 0\nYFLN 0 1.5")
 
 
 def test_a_tilted_plane_mirror_reflects_the_axis_about_its_own_normal(tmp_path):

@@ -17,7 +17,7 @@ import warnings
 
 import pytest
 from test_zmx import write
-from test_zmx_prisms import _surf
+from zmx_blocks import surf as _surf, zmx_file
 
 import test_zmx_corpus as tc
 from deeplens.optics.io import read_zmx
@@ -30,23 +30,8 @@ pytest.importorskip("rayoptics")
 N = 1.5
 C, A1 = 0.01, 0.0025          # CURV (1/mm) and the r² coefficient PARM 1 (1/mm)
 
-_HEAD = """VERS 170912 299 123456
-MODE SEQ
-NAME set6
-UNIT MM X W X CM MR CPMM
-{aperture}
-FTYP 0 0 1 1 0 0 0
-YFLN 0
-WAVM 1 0.5875618 1
-PWAV 1
-"""
-
-
 def _file(blocks, aperture="ENPD 10.0"):
-    lines = []
-    for k, b in enumerate(blocks):
-        lines += [f"SURF {k}"] + b
-    return _HEAD.format(aperture=aperture) + "\n".join(lines) + "\n"
+    return zmx_file(blocks, name="set6", aperture=aperture)
 
 
 def _even_r2_singlet():

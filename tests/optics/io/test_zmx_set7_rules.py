@@ -21,21 +21,11 @@ import warnings
 import pytest
 import torch
 from test_zmx import write
-from test_zmx_prisms import _surf
+from zmx_blocks import surf as _surf, zmx_file
 
 import test_zmx_corpus as tc
 from deeplens.optics.io import read_zmx
 from deeplens.optics.paraxial import paraxial
-
-_HEAD = """VERS 170912 299 123456
-MODE SEQ
-NAME set7
-UNIT MM X W X CM MR CPMM
-ENPD 10.0
-FTYP 0 0 1 1 0 0 0
-YFLN 0
-{waves}PWAV 1
-"""
 
 #: focal lengths of the two ideal lenses and the light's path between them (mm): the first on
 #: the stop, a flat mirror A further on, the second B back from the mirror
@@ -43,10 +33,7 @@ F1, F2, A, B = 200.0, 100.0, 50.0, 10.0
 
 
 def _file(blocks, waves="WAVM 1 0.5875618 1\n"):
-    lines = []
-    for k, b in enumerate(blocks):
-        lines += [f"SURF {k}"] + b
-    return _HEAD.format(waves=waves) + "\n".join(lines) + "\n"
+    return zmx_file(blocks, name="set7", waves=waves)
 
 
 def _two_lenses_about_a_mirror():

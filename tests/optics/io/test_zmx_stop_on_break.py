@@ -18,7 +18,7 @@ import warnings
 import pytest
 import torch
 from test_zmx import write
-from test_zmx_prisms import _surf
+from zmx_blocks import surf as _surf, zmx_file
 
 from deeplens.optics.errors import ZemaxFileError
 from deeplens.optics.io import lens_to_dict, read_zmx
@@ -26,16 +26,6 @@ from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
 from deeplens.optics.surfaces import Aperture, CoordinateBreak
 
-_HEAD = """VERS 170912 299 123456
-MODE SEQ
-NAME stop on a break
-UNIT MM X W X CM MR CPMM
-ENPD 8.0
-FTYP 0 0 2 1 0 0 0
-YFLN 0 3.0
-WAVM 1 0.5875618 1
-PWAV 1
-"""
 _GLASS = "___BLANK 1 0 1.5 0 0 0 0 0 0 0"
 _TURN = 30.0   # degrees about z
 
@@ -50,10 +40,8 @@ def _file(stop_blocks):
               + stop_blocks
               + [_surf("TOROIDAL", curv=0.02, parms=[40.0], disz=4.0, glas=_GLASS, diam=8.0),
                  _surf(curv=-0.01, disz=50.0, diam=8.0), _surf()])
-    lines = []
-    for k, b in enumerate(blocks):
-        lines += [f"SURF {k}"] + b
-    return _HEAD + "\n".join(lines) + "\n"
+    return zmx_file(blocks, name="stop on a break", aperture="ENPD 8.0",
+                    fields="FTYP 0 0 2 1 0 0 0\nYFLN 0 3.0")
 
 
 def _break(parms, stop, disz=10.0):

@@ -213,6 +213,16 @@ def test_lens_file_and_zmx_round_trip(tmp_path):
     write_zmx(lens, tmp_path / "g.zmx")
     text = (tmp_path / "g.zmx").read_text()
     assert "TYPE DGRATING" in text and "PARM 1 0.4" in text and "PARM 2 -2" in text
+    # a bad entry is refused naming its field
+    from deeplens.optics.errors import LensFileError
+
+    for field, value, expected in (
+            ("aspheric", [1e-6], r"surfaces\[1\]\.aspheric: a grating's base is a sphere or conic"),
+            ("order", -2.5, r"surfaces\[1\]\.order: the diffraction order must be an integer")):
+        bad = lens_to_dict(lens)
+        bad["surfaces"][1][field] = value
+        with pytest.raises(LensFileError, match=expected):
+            lens_from_dict(bad)
     back = read_zmx(tmp_path / "g.zmx")
     a, b = lens_to_dict(lens), lens_to_dict(back)
     a.pop("name", None), b.pop("name", None)

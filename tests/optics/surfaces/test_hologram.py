@@ -282,3 +282,23 @@ def test_lens_file_round_trip():
     assert lens_to_dict(back) == lens_to_dict(lens)
     s = back.surfaces[0]
     assert isinstance(s, Hologram) and s.kind == 1 and s.order == -1
+
+
+@pytest.mark.parametrize("field,value,expected", [
+    ("aspheric", [1e-6], r"surfaces\[0\]\.aspheric: a hologram's base is a sphere or conic"),
+    ("order", 1.5, r"surfaces\[0\]\.order: the diffraction order must be an integer, got 1\.5"),
+    ("kind", 3, r"surfaces\[0\]\.kind: must be 1 \(HOLOGRM1\) or 2 \(HOLOGRM2\), got 3"),
+    ("point2_mm", [0.5, 3.0], r"surfaces\[0\]\.point2_mm: must be three numbers"),
+    ("construction_wavelength_nm", 0.0,
+     r"surfaces\[0\]\.construction_wavelength_nm: must be > 0 \(nm\), got 0\.0"),
+])
+def test_lens_file_fields_are_refused_by_name(field, value, expected):
+    """A bad hologram entry in a lens file is refused naming its field (the base and order as a
+    grating's, :func:`~deeplens.optics.surfaces.grating.conic_base_from_dict`)."""
+    from deeplens.optics.errors import LensFileError
+
+    d = lens_to_dict(Lens([Hologram(1 / 70.0, 12.0, (1.0, -2.0, -150.0), (0.5, 3.0, 90.0),
+                                    532.0, -1, 1)], [Air(), Air()], [0.0], 80.0, 0))
+    d["surfaces"][0][field] = value
+    with pytest.raises(LensFileError, match=expected):
+        lens_from_dict(d)
