@@ -158,3 +158,22 @@ def test_a_flat_stop_clap_the_rays_cannot_land_on_is_refused(tmp_path):
         read_zmx(write(tmp_path, text))
     assert isinstance(read_zmx(write(tmp_path, _file("enpd", None, "-0.3"), "b.zmx")).stop,
                       Aperture)
+
+
+def test_layout_draws_the_flat_stop_as_bars_at_its_opening(tmp_path):
+    """The layout figure draws the flat stop that holds the CLAP as an ``Aperture`` stop is
+    drawn, two bars from the opening's rim (3.5 mm) outwards, not as a profile line across
+    the pupil."""
+    pytest.importorskip("matplotlib")
+    from deeplens.analysis.plot import layout_figure
+
+    lens = read_zmx(write(tmp_path, _file("enpd")))
+    z = float(lens.z_vertices()[lens.stop_index])
+    fig = layout_figure(lens, [0.0], n_rays=3)
+    at_stop = [sorted(map(float, ln.get_ydata())) for ln in fig.axes[0].lines
+               if len(ln.get_xdata()) == 2 and all(abs(float(v) - z) < 1e-12
+                                                    for v in ln.get_xdata())]
+    assert [v for bar in sorted(at_stop) for v in bar] == pytest.approx(
+        [-1.3 * A, -A, A, 1.3 * A])
+    assert not any(len(ln.get_xdata()) == 101 and min(map(float, ln.get_xdata())) == z ==
+                   max(map(float, ln.get_xdata())) for ln in fig.axes[0].lines)
