@@ -138,12 +138,36 @@ def _draw_elements(ax, lens, z) -> None:
         drawn.update((i, i + 1))
     for i, s in enumerate(lens.surfaces):
         R = float(s.semi_diameter)
-        if getattr(s, "type_name", "") == "aperture":
+        if getattr(s, "type_name", "") == "aperture" or _flat_stop_in_air(lens, i):
+            # a stop in air (an Aperture, or the flat surface that holds a clear aperture
+            # narrower than the pupil's stop radius, zmx/seq readers' stop_clear): two bars
+            # from its opening's rim outwards
+            R = min(R, float(getattr(s, "clear_radius", R)))
             ax.plot([float(z[i])] * 2, [R, R * 1.3], "k-", lw=2)
             ax.plot([float(z[i])] * 2, [-R, -R * 1.3], "k-", lw=2)
         elif i not in drawn:
             zz, yy = _profile(s, float(z[i]), R, dtype)
             ax.plot(zz, yy, "k-", lw=1)
+
+
+def _flat_stop_in_air(lens, i: int) -> bool:
+    """Whether surface ``i`` is the stop, a flat surface with air on both sides that is not a
+    mirror (an opening in a plane: drawn as the stop's bars, not as a profile)."""
+    from ..optics.materials import Air
+
+    s = lens.surfaces[i]
+    return (i == lens.stop_index and i not in lens.mirrors
+            and isinstance(lens.materials[i], Air) and isinstance(lens.materials[i + 1], Air)
+            and _is_flat(s, lens.dtype))
+
+
+def _is_flat(s, dtype) -> bool:
+    """A surface whose sag is 0 along a radius to its semi-diameter (9 points)."""
+    if not hasattr(s, "sag"):
+        return False
+    with torch.no_grad():
+        r = torch.linspace(0, float(s.semi_diameter), 9, dtype=dtype)
+        return bool((s.sag(torch.zeros_like(r), r) == 0).all())
 
 
 def _fields(lens, fields_deg):

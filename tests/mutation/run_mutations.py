@@ -1287,6 +1287,20 @@ MUTATIONS = [
              "deeplens/optics/io/zmx_glass.py",
              '                p.note(s.glass_line, f"glass {glass!r}: {note(glass)}")\n',
              "                pass\n", ("tests/optics/io/test_misc_glass.py",)),
+    # ------------------------- issue 37: a CLAP on a flat stop narrower than the system aperture's stop
+    Mutation("flat_stop_clap_ignored", "a CLAP on a flat stop in air narrower than the stop the "
+             "ENPD/OBNA gives ignored (the stop stays an Aperture of the paraxial radius: no "
+             "vignetting)",
+             "deeplens/optics/io/zmx_read.py",
+             "            stop = flat_stop_as_asphere(lens)\n",
+             "            return\n",
+             ("tests/optics/io/test_zmx_flat_stop_clap.py",)),
+    Mutation("flat_stop_pupil_shrunk_to_clap", "the stop's semi-diameter set to a narrower CLAP "
+             "(the pupil shrinks to it) instead of the CLAP vignetting the system aperture's pupil",
+             "deeplens/optics/io/zmx_read.py",
+             "            stop.clear_radius.fill_(clap)\n",
+             "            stop.clear_radius.fill_(clap)\n            stop.semi_diameter.fill_(clap)\n",
+             ("tests/optics/io/test_zmx_flat_stop_clap.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

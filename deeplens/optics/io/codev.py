@@ -41,7 +41,8 @@ quote a string, keywords are case-insensitive.  Mapping onto
 * ``EPD`` -> ``epd``; ``FNO`` -> ``fno`` (image-space F-number) at infinity, with a finite
   object the ``epd`` that gives the working F-number ``|u'| = 1/(2F)`` (a warning).  A ``CIR``
   on the stop narrower than the beam the EPD gives is the stop's ``clear_radius`` (a lens or
-  mirror surface; refused on a flat stop in air).
+  mirror surface; a flat stop in air is read as a flat ``Asphere`` to hold it,
+  :mod:`.stop_clear`).
 * Fields: ``YAN`` (degrees), ``YOB`` (object heights, finite object: ``θ = atan(h / (s +
   z_EP))``), ``YIM`` (paraxial image heights: at infinity ``θ = atan(h' / f)``, with a finite
   object the object heights ``h' / |m|``, then as ``YOB``); the
@@ -100,6 +101,7 @@ from .codev_zoom import apply_zoom, zoom_command, zoom_count
 from .codev_decenter import (DECENTER_COMMANDS, decenter_command, expand_decenters,
                              write_break)
 from .filecheck import read_file_bytes
+from .stop_clear import flat_stop_as_asphere, plain_circular_stop
 from .surface_handlers import FORMATS
 from .withdrawn_glass import withdrawn_glass
 from .vendor_glass import (BuchdahlGlass, archived_glass, find_in_vendor_catalogues,
@@ -946,13 +948,23 @@ def _stop_clear_radius(lens: Lens, clear: float, got: float, kind: str, line: in
     """A ``CIR`` on the stop narrower than the beam the EPD or F-number gives there (``got``,
     mm): CODE V keeps the pupil and the clear aperture vignettes its rim.  On a lens or mirror
     surface (an :class:`Asphere`) the stop keeps its paraxial radius as its semi-diameter and the
-    ``CIR`` becomes its ``clear_radius``; a flat stop in air is refused."""
+    ``CIR`` becomes its ``clear_radius``; a flat stop in air with a circular opening is read the
+    same way as a flat ``Asphere`` (:func:`~.stop_clear.flat_stop_as_asphere`); other stops
+    are refused."""
     stop = lens.surfaces[lens.stop_index]
+    if plain_circular_stop(stop):
+        try:
+            stop = flat_stop_as_asphere(lens)
+        except ValueError as e:
+            fail(line, f"CIR {clear / u!r} on the stop is narrower than the beam the {kind} "
+                       f"gives there ({got / u!r}): deeplens reads such a flat stop as a flat "
+                       f"surface whose clear aperture vignettes the pupil, which the rays land "
+                       f"on, and here they cannot ({e}); expected a CIR at least that wide")
     if type(stop) is not Asphere:
         fail(line, f"CIR {clear / u!r} on the stop is narrower than the beam the {kind} gives "
                    f"there ({got / u!r}): deeplens vignettes a pupil so only on a lens or mirror "
-                   f"surface, not on a {type(stop).__name__} stop; expected a CIR at least "
-                   f"that wide")
+                   f"surface or a flat stop in air with a circular opening, not on a "
+                   f"{type(stop).__name__} stop; expected a CIR at least that wide")
     _set_checked(stop, "clear_radius", clear, line, "CIR on the stop", fail)
 
 

@@ -31,6 +31,7 @@ from .zmx_glass import load_catalogues, surface_material
 from .zmx_mconf import configuration
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
 from .surface_formats import QBFS_CONIC
+from .stop_clear import flat_stop_as_asphere, plain_circular_stop
 from .zmx_stop_size import STOP_SIZE, check_stop_size, limiting_stop_radius
 from .zmx_surfaces import build_surface, is_air
 from .zmx_system import aperture_to_epd, element_tilts, fields_to_angles
@@ -687,14 +688,16 @@ def _float_stop_to_the_limit(lens: Lens, seq: _Sequence, surfs, where_of: dict,
 
 
 def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locator) -> None:
-    """A ``CLAP`` on the stop surface narrower than the stop that the ``ENPD``/``FNUM`` aperture
-    defines: in OpticStudio the pupil keeps the size the system aperture gives it (EPD, F-number,
-    paraxial data) and the clear aperture vignettes its rim.  On a lens or mirror surface
-    (:class:`~deeplens.optics.surfaces.Asphere`) the stop keeps its paraxial radius as its
-    semi-diameter and the ``CLAP`` becomes its ``clear_radius`` (the opening is the smaller
-    one); on other stops (a flat stop in air, a cylinder, a polynomial) it is refused.  (A
-    ``SQAP`` on a lens or mirror stop is its rectangular opening within the stop's circle, set
-    when the surface was built.)"""
+    """A ``CLAP`` on the stop surface narrower than the stop that the ``ENPD``/``FNUM``/``OBNA``
+    aperture defines: in OpticStudio the pupil keeps the size the system aperture gives it (EPD,
+    F-number, paraxial data) and the clear aperture vignettes its rim.  On a lens or mirror
+    surface (:class:`~deeplens.optics.surfaces.Asphere`) the stop keeps its paraxial radius as
+    its semi-diameter and the ``CLAP`` becomes its ``clear_radius`` (the opening is the smaller
+    one); a flat stop in air (an :class:`Aperture` with a centred circular opening, with or
+    without a central obscuration) is read the same way as a flat ``Asphere``
+    (:func:`~.stop_clear.flat_stop_as_asphere`); other stops (a cylinder, a polynomial, a ring
+    baffle) are refused.  (A ``SQAP`` on a lens or mirror stop is its rectangular opening within
+    the stop's circle, set when the surface was built.)"""
     if s.clap is None or lens.spec.aperture_type == "stop":
         return
     clap = s.clap[0] * s_mm
@@ -702,6 +705,16 @@ def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locato
     sd = float(stop.semi_diameter)
     if not clap < sd * (1 - 1e-9):
         return
+    if plain_circular_stop(stop):
+        try:
+            stop = flat_stop_as_asphere(lens)
+        except ValueError as e:
+            p.fail(s.clap[1], f"CLAP on the stop surface: its clear radius {clap:g} mm is "
+                              f"smaller than the stop radius {sd:g} mm that the system "
+                              f"aperture defines; deeplens reads such a flat stop as a flat "
+                              f"surface whose clear aperture vignettes the pupil, which the "
+                              f"rays land on, and here they cannot ({e}); give the system "
+                              f"aperture as FLOA, or an ENPD/FNUM the CLAP does not cut")
     if type(stop) is Asphere:
         with torch.no_grad():
             stop.clear_radius.fill_(clap)
@@ -713,8 +726,18 @@ def _check_stop_clear_aperture(lens: Lens, s: ZmxSurface, s_mm: float, p: Locato
     p.fail(s.clap[1], f"CLAP on the stop surface: its clear radius {clap:g} mm is smaller "
                       f"than the stop radius {sd:g} mm that the system aperture defines, so "
                       f"it cuts the entrance pupil; deeplens has such a clear aperture on a lens "
-                      f"or mirror surface, not on a {type(stop).__name__} stop (give the system "
-                      f"aperture as FLOA, or an ENPD/FNUM the CLAP does not cut)")
+                      f"or mirror surface and on a flat stop in air with a circular opening, "
+                      f"not on a {_stop_kind(stop)} stop (give the system aperture as FLOA, or "
+                      f"an ENPD/FNUM the CLAP does not cut)")
+
+
+def _stop_kind(stop) -> str:
+    """How a refusal names the stop's type."""
+    if type(stop) is not Aperture:
+        return type(stop).__name__
+    if stop.shape != "circle":
+        return f"{stop.shape} Aperture"
+    return ("ring-obscured" if float(stop.obscuration_inner) > 0 else "obscured") + " Aperture"
 
 
 def _diam_only(kept, stop_idx: int, i: int) -> bool:

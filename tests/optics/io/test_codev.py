@@ -258,8 +258,8 @@ def test_automatic_semi_diameters(tmp_path):
     ("S 50 5 NOSUCH_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", 6, "NOSUCH not found in the SCHOTT"),
     ("S 50 5 517642\n  STO\nS -50 45\nSI 0 0\n", 6, "ambiguous"),
     ("S 50 x NBK7_SCHOTT\n  STO\nS -50 45\nSI 0 0\n", 6, "S thickness: expected a number"),
-    ("S 0 1\n  STO\n  CIR 4\nS 50 5 NBK7_SCHOTT\nS -50 45\nSI 0 0\n", 8,
-     "narrower than the beam .* not on a Aperture stop"),
+    ("S 0 -0.3\n  STO\n  CIR 4\nS 50 5 NBK7_SCHOTT\nS -50 45\nSI 0 0\n", 8,
+     "narrower than the beam .* here they cannot"),
     ("S 50 5 NBK7_SCHOTT\n  STO\n  CIR OBS 60\nS -50 45\nSI 0 0\n", 8, "CIR OBS .*below"),
     ("S 50 5 NBK7_SCHOTT\n  STO\n  CIR RHO 1\nS -50 45\nSI 0 0\n", 8, "CIR RHO"),
     ("S 50 5 NBK7_SCHOTT\n  STO S1\nS -50 45\nSI 0 0\n", 7, "STO"),
@@ -378,6 +378,29 @@ def test_estimated_semi_diameters_stop_where_surfaces_meet(tmp_path):
 def test_stop_spelled_out(tmp_path):
     lens = read_seq(_seq(tmp_path, "S 50 5 NBK7_SCHOTT\nS -50 45\n  STOP\nSI 0 0\n"))
     assert lens.stop_index == 1
+
+
+def test_flat_stop_clear_aperture_narrower_than_the_pupil(tmp_path):
+    """A CIR 4 on a flat stop in air before the lens under EPD 10 (refused before branch
+    ``stopclap``): the stop is read as a flat ``Asphere`` keeping the paraxial radius 5 as its
+    semi-diameter (EPD 10) with clear radius 4; on-axis, exactly the pattern points within
+    4 mm of the axis pass (the stop is the entrance pupil); written and read back the same."""
+    from deeplens.optics.paraxial import paraxial
+    from deeplens.optics.sampling import pupil_pattern
+
+    lens = read_seq(_seq(tmp_path, "S 0 1\n  STO\n  CIR 4\nS 50 5 NBK7_SCHOTT\nS -50 45\n"
+                                   "SI 0 0\n"))
+    stop = lens.surfaces[0]
+    assert type(stop).__name__ == "Asphere" and float(stop.c) == 0.0
+    assert float(stop.semi_diameter) == pytest.approx(5.0, rel=1e-12)
+    assert float(stop.clear_radius) == 4.0
+    assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(10.0, rel=1e-12)
+    r = 5.0 * torch.linalg.vector_norm(pupil_pattern("hexapolar:9"), dim=-1)
+    with torch.no_grad():
+        spot = spot_diagram(lens, 0.0, 587.5618, "hexapolar:9", pupil="paraxial")
+    assert spot.n_rays == int((r <= 4.0).sum()) < spot.n_launched
+    write_seq(lens, tmp_path / "w.seq")
+    assert lens_to_dict(read_seq(tmp_path / "w.seq")) == lens_to_dict(lens)
 
 
 def test_stop_clear_aperture_narrower_than_the_pupil(tmp_path):

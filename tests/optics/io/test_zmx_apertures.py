@@ -163,22 +163,25 @@ def test_non_dispersive_model_glass_below_one_is_a_relative_index(tmp_path):
     assert lens_to_dict(read_zmx(tmp_path / "back.zmx")) == lens_to_dict(lens)
 
 
-@pytest.mark.parametrize("clap,refused", [("CLAP 0 4 0", True), ("CLAP 0 5.5 0", False)])
-def test_a_clear_aperture_that_cuts_the_entrance_pupil_on_a_flat_stop_is_refused(tmp_path, clap,
-                                                                                 refused):
-    """ENPD 10 sizes the flat stop in air (an ``Aperture``, in object space) to radius 5: a CLAP
-    of 4 on it would vignette the pupil in OpticStudio, and deeplens' ``Aperture`` has one
-    radius (a lens surface stop takes it: below); one of 5.5 cuts nothing."""
+@pytest.mark.parametrize("clap,narrower", [("CLAP 0 4 0", True), ("CLAP 0 5.5 0", False)])
+def test_a_clear_aperture_that_cuts_the_entrance_pupil_on_a_flat_stop(tmp_path, clap,
+                                                                      narrower):
+    """ENPD 10 sizes the flat stop in air (in object space) to radius 5: a CLAP of 4 on it
+    vignettes the pupil as in OpticStudio (refused before branch ``stopclap``): the stop is
+    read as a flat ``Asphere`` of semi-diameter 5 and clear radius 4
+    (``test_zmx_flat_stop_clap.py``); one of 5.5 cuts nothing and the stop stays an
+    ``Aperture``."""
+    from deeplens.optics.surfaces import Asphere
+
     text = singlet().replace('  DISZ 2\n  DIAM 5 1 0 0 1 ""\n',
                              f'  DISZ 2\n  DIAM 5 1 0 0 1 ""\n  {clap}\n', 1)
-    if refused:
-        with pytest.raises(ZemaxFileError, match=f"t.zmx:{line_of(text, 'CLAP')}: CLAP on the "
-                                                 f"stop surface: its clear radius 4 mm is "
-                                                 f"smaller than the stop radius 5 mm"):
-            read_zmx(write(tmp_path, text))
+    lens = read_zmx(write(tmp_path, text))
+    stop = lens.surfaces[lens.stop_index]
+    assert float(stop.semi_diameter) == pytest.approx(5.0)
+    if narrower:
+        assert type(stop) is Asphere and float(stop.clear_radius) == 4.0
     else:
-        lens = read_zmx(write(tmp_path, text))
-        assert float(lens.surfaces[lens.stop_index].semi_diameter) == pytest.approx(5.0)
+        assert isinstance(stop, Aperture)
 
 
 def test_a_stop_inside_the_next_lens_sag_loads(tmp_path):
