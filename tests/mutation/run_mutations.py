@@ -1277,6 +1277,18 @@ MUTATIONS = [
              "deeplens/analysis/wavefront.py",
              "if float(z_obj) <= float(lens.z_vertices()[0]):", "if s > 0:",
              ("tests/optics/io/test_zmx_object_setups.py",)),
+    # ------------------- issue 37: object heights on an untilted object (branch objsign)
+    Mutation("object_height_mirrored", "an object height on an untilted object placed mirrored "
+             "(+h at y = -h, a positive field angle: the reading before branch objsign)",
+             "deeplens/optics/io/zmx_system.py",
+             "out.append(-math.degrees(math.atan(h / den)) + 0.0)",
+             "out.append(math.degrees(math.atan(h / den)) + 0.0)",
+             ("tests/optics/io/test_zmx_object_height_sign.py",)),
+    Mutation("codev_yob_mirrored", "CODE V's YOB object height placed mirrored (+h at y = -h)",
+             "deeplens/optics/io/codev.py",
+             "return [0.0 - math.degrees(math.atan(h * u / d)) for h in vals]",
+             "return [math.degrees(math.atan(h * u / d)) for h in vals]",
+             ("tests/optics/io/test_zmx_object_height_sign.py", "tests/optics/io/test_codev.py")),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

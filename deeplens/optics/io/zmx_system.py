@@ -225,12 +225,11 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         p.fail(xline, "XFLN: x field components with an object plane tilted about x (TILTSURF "
                       "object, PARM 2 != 0): deeplens' fields lie in the y-z plane, and a radial "
                       "field is not exact on a tilted object; give y fields only")
-    # the sign of a height matters where the object plane is tilted relative to the axis that
-    # follows it: a TILTSURF object, or an object at a first coordinate break's pivot (in the
-    # object's frame, which the break turns away from the lens's axis)
+    # a tilted object plane, or an object at a first coordinate break's pivot (in the object's
+    # frame, which the break turns away from the lens's axis): heights along y only
     at_pivot = float(lens.spec.object_distance_mm) == 0 and any(x != 0 for x in ys)
     if (tan_y != 0 or at_pivot) and kind in (1, 2, 3):
-        return _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p)
+        return object_height_fields(kind, [v * s_mm for v in ys], lens, ftyp_line, tan_y, p)
     if any(x != 0 for x in xs):
         anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder, GridSag))
                       or (isinstance(s, ZernikeSag) and not s.rotationally_symmetric())]
@@ -250,36 +249,15 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
 
     h = [math.copysign(math.hypot(x, y), y if y != 0 else 1.0) * s_mm for x, y in zip(xs, ys)]
     d_obj = float(lens.spec.object_distance_mm)
-    # object-space telecentric (the entrance pupil at infinity): a field angle is the object
-    # point's direction from the first vertex (sampling.field_rays), not the chief ray's
-    telecentric = getattr(lens, "object_telecentric", False)
-    if kind == 1 and telecentric:
-        return [math.degrees(math.atan(v / d_obj)) for v in h]
-    if kind == 1:
-        if math.isinf(d_obj):
-            p.fail(ftyp_line, "FTYP 1 (object height) with the object at infinity cannot be "
-                              "converted to field angles")
-        par = paraxial(lens)
-        z_ep = float(par.entrance_pupil_position)
-        return [math.degrees(math.atan(v / (d_obj + z_ep))) for v in h]
+    if kind == 1 and math.isinf(d_obj):
+        p.fail(ftyp_line, "FTYP 1 (object height) with the object at infinity cannot be "
+                          "converted to field angles")
+    if kind in (1, 2) and not math.isinf(d_obj):
+        # object heights (paraxial image heights h' at a finite object: the object heights
+        # h' / m): each object point where the file puts it, (0, h) (OpticStudio's convention,
+        # below); x and y combined radially, the sign that of y
+        return object_height_fields(kind, h, lens, ftyp_line, 0.0, p)
     if kind == 2:
-        if not math.isinf(d_obj):
-            # paraxial image height h' = m h at the paraxial image plane: the object height
-            # h = h' / m, then as FTYP 1
-            from ..paraxial import media_indices, trace_paraxial_ray
-
-            with torch.no_grad():
-                par = paraxial(lens)
-                n = media_indices(lens)
-                one = torch.ones_like(n[0])
-                y, u, _ = trace_paraxial_ray(lens, one, 0.0 * one, n)   # from an object point of height 1
-                m = float(y + u * par.image_distance)
-            if not abs(m) > 1e-12:
-                p.fail(ftyp_line, "FTYP 2 (paraxial image height): the paraxial magnification "
-                                  "is zero")
-            z_ep = 0.0 if telecentric else float(par.entrance_pupil_position)
-            return [math.degrees(math.atan(abs(v / m) / (d_obj + z_ep))) * (1 if v >= 0 else -1)
-                    for v in h]
         efl = float(paraxial(lens).efl)
         return [math.degrees(math.atan(v / efl)) for v in h]
     if kind == 3:
@@ -301,18 +279,24 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
                       f"height)")
 
 
-def _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p):
-    """Field angles (deg) of height fields on an object plane tilted about x
-    (``lens.object_tilt``, ``z = z_obj + tan_y y``), or at a first coordinate break's pivot
-    (object distance 0: the plane in the object's frame, turned away from the axis after the
-    break).  The tilt makes the sign of a height matter (the plane is not symmetric under ``y -> -y``), so each object point goes where the
-    file puts it: ``(0, h, z_obj + tan_y h)`` (``FTYP 1``; ``FTYP 2``: ``h = h' / m``, ``m`` the
-    paraxial magnification, exact at first order as the image height is), and the field angle
-    is its chief ray's through the paraxial entrance pupil's centre, ``tan θ = -h / (s + z_EP -
-    tan_y h)`` (telecentric: ``tan θ = -h / s``, the object point ``y = -s tan θ``), the inverse
-    of :func:`~deeplens.optics.sampling.object_point`.  A positive height is a negative angle
-    (OpticStudio's convention: a positive angle is a ray rising towards ``+y``, from an object
-    point below the axis); untilted objects keep deeplens' mirrored, equivalent reading."""
+def object_height_fields(kind, heights, lens, ftyp_line, tan_y, p):
+    """Field angles (deg) of object-height fields at a finite object (``FTYP 1``; ``FTYP 2``,
+    paraxial image heights ``h'``, as the object heights ``h = h' / m``, ``m`` the paraxial
+    magnification, exact at first order as the image height is): each object point goes where
+    the file puts it, ``(0, h, z_obj + tan_y h)`` (``heights`` in mm; the object plane
+    untilted, ``tan_y = 0``, tilted about x (``lens.object_tilt``, ``z = z_obj + tan_y y``), or
+    at a first coordinate break's pivot (object distance 0: the plane in the object's frame,
+    turned away from the axis after the break)), and the field angle is its chief ray's
+    through the paraxial entrance pupil's centre, ``tan θ = -h / (s + z_EP - tan_y h)``
+    (telecentric: ``tan θ = -h / s``, the object point ``y = -s tan θ``), the inverse of
+    :func:`~deeplens.optics.sampling.object_point`.
+
+    A positive height is a negative angle: OpticStudio's convention, "Positive field angles
+    imply positive slope for the ray in that direction, and thus refer to negative coordinates
+    on distant objects", object heights being the object's coordinates (OpticStudio User
+    Guide, *Field Angles and Heights*).  Mirrored (``+h`` read as ``y = -h``, before branch
+    ``objsign``), a lens that is not symmetric under ``y -> -y`` (decentred, tilted or folded
+    in y, a tilted object) traces another field point than OpticStudio."""
     from ..paraxial import media_indices, paraxial, trace_paraxial_ray
 
     if kind == 3:
@@ -321,7 +305,6 @@ def _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p):
                           "is not supported: give object heights (FTYP 1) or paraxial image "
                           "heights (FTYP 2)")
     s = float(lens.spec.object_distance_mm)
-    heights = [v * s_mm for v in ys]
     with torch.no_grad():
         par = paraxial(lens)
         if kind == 2:
@@ -339,6 +322,14 @@ def _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p):
     out = []
     for h in heights:
         den = d - tan_y * h
+        if tan_y == 0 and s != 0:
+            # an untilted object plane (a virtual object too: the entrance pupil may lie before
+            # it, den < 0, and the chief line still meets the plane at (0, h))
+            if den == 0:
+                p.fail(ftyp_line, f"FTYP {kind}: the paraxial entrance pupil lies on the object "
+                                  f"plane, so an object height has no chief-ray angle")
+            out.append(-math.degrees(math.atan(h / den)) + 0.0)   # + 0.0: never -0.0
+            continue
         if not den > 0:
             p.fail(ftyp_line, f"the field of object height {h:g} mm lies on the tilted object "
                               f"plane at or behind the entrance pupil (its depth {den:g} mm "
