@@ -1289,6 +1289,11 @@ MUTATIONS = [
              "return [0.0 - math.degrees(math.atan(h * u / d)) for h in vals]",
              "return [math.degrees(math.atan(h * u / d)) for h in vals]",
              ("tests/optics/io/test_zmx_object_height_sign.py", "tests/optics/io/test_codev.py")),
+    Mutation("ftyp3_axis_images_at_zero", "a real image height solved as if the axial field's "
+             "chief ray landed at 0 (a decentred lens's heights measured from the wrong point)",
+             "deeplens/optics/io/zmx_system.py", "    y0 = chief_height(lens, 0.0)\n",
+             "    y0 = 0.0 * chief_height(lens, 0.0)\n",
+             ("tests/optics/io/test_zmx_object_height_sign.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

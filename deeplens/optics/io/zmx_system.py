@@ -90,26 +90,31 @@ def chief_height(lens, field_deg: float) -> float:
         return float(out.o[0, 1]) if bool(out.valid[0]) else math.nan
 
 
-def real_image_height_angle(lens, h: float, line: int, p) -> float:
-    """The field angle (deg, > 0) whose chief ray lands at real image height ``h`` (mm, > 0).
+def real_image_height_angle(lens, h: float, line: int, p, *, y0: float = 0.0,
+                            direction: float = 1.0, sigma: float = 1.0) -> float:
+    """The field angle (deg, > 0) along ``direction`` (``+1``: positive angles, ``-1``: negative;
+    the angle is ``direction`` times the value returned) whose chief ray lands ``h`` mm (> 0) from
+    ``y0``, the image height of the axial field's chief ray (0 for a lens symmetric under
+    ``y -> -y``; on a decentred or tilted lens it is not); ``sigma`` (:func:`slope_sign`) names
+    the side of ``y0`` that positive angles land on, for the refusal's message.
 
-    The root of ``g(θ) = |y_chief(θ)| - h`` is bracketed first: the axis (``θ = 0``, height 0)
-    is the lower end, the first trial is the paraxial estimate ``h / slope``.  A trial whose
+    The root of ``g(θ) = |y_chief(direction θ) - y0| - h`` is bracketed first: the axis (``θ = 0``,
+    height ``y0``) is the lower end, the first trial is the paraxial estimate ``h / slope``.  A trial whose
     chief ray fails (``NaN``: it misses a surface or is totally reflected, as far-off-axis rays
     of a wide-angle lens do beyond its field) is stepped back by bisection between the last
     good angle and the failing one; a trial still short of ``h`` steps forward by the scaling
     estimate (never past half-way to the smallest failing angle).  Inside the bracket,
     regula falsi (the Illinois variant), falling back to bisection where a trial fails."""
     t0 = 1e-3
-    slope = abs(chief_height(lens, t0)) / t0
+    slope = abs(chief_height(lens, direction * t0) - y0) / t0
     if not slope > 0:
         p.fail(line, "FTYP 3 (real image height): the chief ray does not reach the image")
     tol = 1e-12 * max(1.0, h)
 
     def g(theta: float) -> float:
-        return abs(chief_height(lens, theta)) - h
+        return abs(chief_height(lens, direction * theta) - y0) - h
 
-    lo, glo = 0.0, -h          # below the height: the axis images at 0
+    lo, glo = 0.0, -h          # below the height: the axis images at y0
     bad = 90.0                 # the smallest angle known to fail (90 deg never reaches)
     hi = ghi = None
     t = min(h / slope, 89.0)
@@ -128,10 +133,12 @@ def real_image_height_angle(lens, h: float, line: int, p) -> float:
         if bad - lo <= 1e-12 * bad:
             break
     if hi is None:
-        p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height {h:g} mm "
-                     f"(the field lies beyond what the lens images: the chief ray of {lo:.6g} deg "
-                     f"lands at {glo + h:.6g} mm; from {bad:.6g} deg on it misses a surface or "
-                     f"is totally reflected)")
+        up = direction * sigma   # the side of y0 where the chief rays of these angles land
+        p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height "
+                     f"{y0 + math.copysign(h, up):g} mm (the field lies beyond what the lens "
+                     f"images: the chief ray of {direction * lo:.6g} deg lands at "
+                     f"{y0 + math.copysign(glo + h, up):.6g} mm; from {direction * bad:.6g} deg on "
+                     f"it misses a surface or is totally reflected)")
     side = 0
     for _ in range(200):
         if math.isfinite(ghi):
@@ -160,6 +167,48 @@ def real_image_height_angle(lens, h: float, line: int, p) -> float:
     if math.isfinite(ghi) and abs(ghi) < abs(glo):
         return hi
     return lo
+
+
+def slope_sign(lens, y0: float) -> float:
+    """``+1`` where a small positive field angle's chief ray lands above ``y0`` (the axial
+    field's chief-ray height), ``-1`` where below (an image turned over, as after an odd number
+    of erecting stages), ``0`` where it does not move (afocal, or a failed trace)."""
+    d = chief_height(lens, 1e-3) - y0
+    return 1.0 if d > 0 else -1.0 if d < 0 else 0.0
+
+
+def real_image_height_fields(lens, heights, line: int, p) -> list[float]:
+    """Field angles (deg) whose chief rays land at the real image heights ``heights`` (mm,
+    signed: ``FTYP 3``, "the real ray coordinates of the primary wavelength chief ray on the
+    image surface", OpticStudio User Guide, *Field Angles and Heights*).  The axial field's
+    chief ray lands at ``y0`` (0 on a lens symmetric under ``y -> -y``); a height ``v`` is
+    solved on the side of the axis whose chief rays move from ``y0`` towards it
+    (:func:`real_image_height_angle`).  On a symmetric lens whose positive angles land above
+    the axis this is ``±`` the angle of ``|v|``, bit for bit; a lens that turns the image over
+    (positive angles landing below) or is decentred or tilted gets the angle whose chief ray
+    lands at ``v`` itself (before branch ``objsign``: ``copysign(angle(|v|), v)``, and 0 for
+    ``v = 0``, which there lands at ``-v`` or elsewhere)."""
+    if not any(v != 0 for v in heights):
+        return [0.0 for _ in heights]
+    y0 = chief_height(lens, 0.0)
+    if not math.isfinite(y0):
+        p.fail(line, "FTYP 3 (real image height): the axial field's chief ray does not reach "
+                     "the image")
+    if abs(y0) <= 1e-12 * max(1.0, max(abs(v) for v in heights)):
+        y0 = 0.0   # on the axis within the solver's tolerance (an aimed chief ray's rounding)
+    sigma = slope_sign(lens, y0)
+    if sigma == 0:
+        p.fail(line, "FTYP 3 (real image height): the chief ray does not reach the image")
+    out = []
+    for v in heights:
+        d = v - y0
+        if d == 0:
+            out.append(0.0)
+            continue
+        side = math.copysign(1.0, d * sigma)
+        out.append(side * real_image_height_angle(lens, abs(d), line, p, y0=y0, direction=side,
+                                                  sigma=sigma))
+    return out
 
 
 def rotationally_symmetric(surf) -> bool:
@@ -261,8 +310,7 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         efl = float(paraxial(lens).efl)
         return [math.degrees(math.atan(v / efl)) for v in h]
     if kind == 3:
-        return [math.copysign(real_image_height_angle(lens, abs(v), ftyp_line, p), v)
-                if v != 0 else 0.0 for v in h]
+        return real_image_height_fields(lens, h, ftyp_line, p)
     if kind == 4:
         # theodolite angles: for a single non-zero component the field angle itself (the two
         # together define a direction whose convention we have not checked against an oracle)

@@ -242,3 +242,31 @@ def test_telecentric_object_heights_round_trip_through_write_zmx(tmp_path):
     assert [float(v) for v in yfln.split()[1:]] == pytest.approx([0.0, 4.0, -6.0], abs=1e-12)
     _, again = _read(tmp_path, (tmp_path / "back.zmx").read_text(), "again.zmx")
     assert again.spec.fields_deg == pytest.approx(lens.spec.fields_deg, abs=1e-12)
+
+
+# ------------------------------------------------------------------ real image heights
+def test_real_image_heights_on_a_decentred_lens_land_at_the_files_heights(tmp_path):
+    """``FTYP 3`` (real image height: "the real ray coordinates of the primary wavelength chief
+    ray on the image surface") on the decentred singlet, whose axial field images 2.4 mm off the
+    axis: each field's chief ray lands at its own signed height, 0 included (before branch
+    ``objsign``: the angle of ``|v|`` with the sign of ``v``, 0 for 0: -3 landed at +1.87, 0 at
+    +2.43), and where optiland's real-image-height field lands it (its image frame is the global
+    one here: the break pair returns the frame at the last vertex, 1e-9 mm)."""
+    from deeplens.optics.io.zmx_system import chief_height
+
+    heights = (0.0, 3.0, -3.0, 1.0)
+    path, lens = _read(tmp_path, singlet_file(3, heights, decenter=2.0))
+    assert abs(chief_height(lens, 0.0)) > 2.0        # not symmetric under y -> -y
+    for v, a in zip(heights, lens.spec.fields_deg):
+        assert chief_height(lens, a) == pytest.approx(v, abs=1e-9)
+    ours, theirs = _landings(lens), _optiland_landings(path, heights)
+    for v, a, b in zip(heights, ours, theirs):
+        assert a[0].tolist() == pytest.approx(b[0].tolist(), abs=1e-9), v
+
+
+def test_real_image_heights_of_a_symmetric_lens_are_the_signed_angles_of_their_sizes(tmp_path):
+    """On the centred singlet the solved angles are odd in the height, bit for bit (the old
+    ``copysign(angle(|v|), v)``): a symmetric lens's numbers do not change."""
+    _, lens = _read(tmp_path, singlet_file(3, (0.0, 3.0, -3.0), decenter=0.0))
+    a = lens.spec.fields_deg
+    assert a[0] == 0.0 and a[1] > 0 and a[2] == -a[1]
