@@ -22,9 +22,13 @@ break pair, the stop before it so that both readers' paraxial entrance pupils ar
 * an erect relay (two ideal lenses, m = +1) given paraxial image heights (``FTYP 2``) lands
   the chief ray at ``+h'`` on its paraxial image (the mirrored reading: ``-h'``);
 * ``.zmx``, JSON and CODE V ``YOB`` readings of the same object point agree, and a
-  telecentric lens's heights round-trip through ``write_zmx``.
+  telecentric lens's heights round-trip through ``write_zmx``;
+* the untilted reading is the limit of the tilted one (``TILTSURF``, tan 1e-9);
+* real image heights (``FTYP 3``) on the decentred singlet land at their own signed heights,
+  0 included, and where optiland's real-image-height fields land.
 
-Planted bug ``object_height_mirrored`` (tests/mutation/run_mutations.py): the old sign put back.
+Planted bugs (tests/mutation/run_mutations.py): ``object_height_mirrored`` (the old sign put
+back), ``codev_yob_mirrored``, ``ftyp3_axis_images_at_zero``.
 """
 
 from __future__ import annotations
@@ -270,3 +274,21 @@ def test_real_image_heights_of_a_symmetric_lens_are_the_signed_angles_of_their_s
     _, lens = _read(tmp_path, singlet_file(3, (0.0, 3.0, -3.0), decenter=0.0))
     a = lens.spec.fields_deg
     assert a[0] == 0.0 and a[1] > 0 and a[2] == -a[1]
+
+
+def test_the_untilted_reading_is_the_limit_of_the_tilted_one(tmp_path):
+    """An object plane tilted about x by tan 1e-9 (``TILTSURF``) and the untilted one give the
+    same field angles to ~1e-9 relative: the rule is continuous at zero tilt (before branch
+    ``objsign`` the sign flipped there)."""
+    def text(tilt):
+        obj = (_surf("TILTSURF", parms=[0.0, tilt], disz=100.0) if tilt else _surf(disz=100.0))
+        return _file([obj, _surf(disz=10.0, stop=True),
+                      _surf(curv=1 / 50, disz=5.0, glas=GLASS, diam=15.0),
+                      _surf(curv=-1 / 50, disz=60.0, diam=15.0), _surf(diam=40.0)],
+                     1, [0.0, 5.0, -5.0])
+
+    _, flat = _read(tmp_path, text(0.0), "flat.zmx")
+    _, tilted = _read(tmp_path, text(1e-9), "tilted.zmx")
+    assert tilted.object_tilt == (0.0, 1e-9)
+    assert flat.spec.fields_deg[1] < 0 < flat.spec.fields_deg[2]
+    assert tilted.spec.fields_deg == pytest.approx(flat.spec.fields_deg, rel=1e-8, abs=1e-12)
