@@ -1301,6 +1301,23 @@ MUTATIONS = [
              "            stop.clear_radius.fill_(clap)\n",
              "            stop.clear_radius.fill_(clap)\n            stop.semi_diameter.fill_(clap)\n",
              ("tests/optics/io/test_zmx_flat_stop_clap.py",)),
+    # ------------------- issue 37: object heights on an untilted object (branch objsign)
+    Mutation("object_height_mirrored", "an object height on an untilted object placed mirrored "
+             "(+h at y = -h, a positive field angle: the reading before branch objsign)",
+             "deeplens/optics/io/zmx_system.py",
+             "out.append(-math.degrees(math.atan(h / den)) + 0.0)",
+             "out.append(math.degrees(math.atan(h / den)) + 0.0)",
+             ("tests/optics/io/test_zmx_object_height_sign.py",)),
+    Mutation("codev_yob_mirrored", "CODE V's YOB object height placed mirrored (+h at y = -h)",
+             "deeplens/optics/io/codev.py",
+             "return [0.0 - math.degrees(math.atan(h * u / d)) for h in vals]",
+             "return [math.degrees(math.atan(h * u / d)) for h in vals]",
+             ("tests/optics/io/test_zmx_object_height_sign.py", "tests/optics/io/test_codev.py")),
+    Mutation("ftyp3_axis_images_at_zero", "a real image height solved as if the axial field's "
+             "chief ray landed at 0 (a decentred lens's heights measured from the wrong point)",
+             "deeplens/optics/io/zmx_system.py", "    y0 = chief_height(lens, 0.0)\n",
+             "    y0 = 0.0 * chief_height(lens, 0.0)\n",
+             ("tests/optics/io/test_zmx_object_height_sign.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

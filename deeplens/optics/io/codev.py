@@ -43,9 +43,10 @@ quote a string, keywords are case-insensitive.  Mapping onto
   on the stop narrower than the beam the EPD gives is the stop's ``clear_radius`` (a lens or
   mirror surface; a flat stop in air is read as a flat ``Asphere`` to hold it,
   :mod:`.stop_clear`).
-* Fields: ``YAN`` (degrees), ``YOB`` (object heights, finite object: ``θ = atan(h / (s +
-  z_EP))``), ``YIM`` (paraxial image heights: at infinity ``θ = atan(h' / f)``, with a finite
-  object the object heights ``h' / |m|``, then as ``YOB``); the
+* Fields: ``YAN`` (degrees), ``YOB`` (object heights, finite object: the object point
+  ``(0, h)``, ``θ = -atan(h / (s + z_EP))``: a positive angle rises towards ``+y``),
+  ``YIM`` (paraxial image heights: at infinity ``θ = atan(h' / f)``, with a finite object the
+  object heights ``h' / m``, ``m`` signed, then as ``YOB``); the
   ``X`` components must be 0.
 * Read and not used: ``TIT``/``TITLE`` (the lens name), ``LEN``, ``INI``, ``WTW``, ``WTF``,
   ``GO``, ``SLB``, ``TEM``, ``PRE``, solves and variables (``PIM``, ``CCY``, ``THC``, ...);
@@ -997,18 +998,22 @@ def _fields(rd: _Reader, lens: Lens, obj_dist: float, u: float) -> list[float]:
     if kind == "YOB":
         if math.isinf(obj_dist):
             rd.fail(line, "YOB (object heights) with the object at infinity: expected YAN")
+        # the object point where the file puts it, (0, h): its chief ray through the paraxial
+        # entrance pupil's centre has tan θ = -h / d (a positive angle rises towards +y, from
+        # an object point below the axis: the .zmx reader's rule, zmx_system.object_height_fields)
         d = obj_dist + float(par.entrance_pupil_position)
-        return [math.degrees(math.atan(h * u / d)) for h in vals]
+        return [0.0 - math.degrees(math.atan(h * u / d)) for h in vals]
     if not math.isinf(obj_dist):
-        # the object heights whose paraxial images are these (|m| from the Lagrange invariant of
-        # the axial marginal ray, m = n u / (n' u')), then as YOB
+        # the object heights whose paraxial images are these (m, signed, from the Lagrange
+        # invariant of the axial marginal ray, m = n u / (n' u')), then as YOB
         n, u_k = _axial_marginal(lens, obj_dist)
         if u_k == 0:
             rd.fail(line, "YIM with a finite object: the image is at infinity (no paraxial "
                           "image height); expected YAN or YOB")
         m = abs(float(n[0]) / (float(n[-1]) * float(u_k)))
+        m = math.copysign(m, float(n[0]) * float(n[-1]) * float(u_k))
         d = obj_dist + float(par.entrance_pupil_position)
-        return [math.degrees(math.atan(h * u / m / d)) for h in vals]
+        return [0.0 - math.degrees(math.atan(h * u / m / d)) for h in vals]
     f = float(par.efl)
     return [math.degrees(math.atan(h * u / f)) for h in vals]
 

@@ -53,7 +53,7 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   sizes it paraxially.  ``RAIM`` sets ``lens.ray_aiming``, which picks the pupil sampling
   ``deeplens report`` uses (:func:`~.zmx_system.lens_pupil_convention`).
 * Fields ``YFLN`` (and ``XFLN``, combined radially for a rotationally symmetric lens) with
-  ``FTYP`` 0 (angle), 1 (object height, finite object: ``θ = atan(h / (d_obj + z_EP))``), 2
+  ``FTYP`` 0 (angle), 1 (object height, finite object: ``θ = -atan(h / (d_obj + z_EP))``), 2
   (paraxial image height: ``θ = atan(h' / f)`` at infinity, the object height ``h' / m`` at a
   finite object), 3 (real image height: the chief ray solved to land there) or 4 (theodolite
   angles, one component at a time).

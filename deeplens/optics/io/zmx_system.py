@@ -90,26 +90,31 @@ def chief_height(lens, field_deg: float) -> float:
         return float(out.o[0, 1]) if bool(out.valid[0]) else math.nan
 
 
-def real_image_height_angle(lens, h: float, line: int, p) -> float:
-    """The field angle (deg, > 0) whose chief ray lands at real image height ``h`` (mm, > 0).
+def real_image_height_angle(lens, h: float, line: int, p, *, y0: float = 0.0,
+                            direction: float = 1.0, sigma: float = 1.0) -> float:
+    """The field angle (deg, > 0) along ``direction`` (``+1``: positive angles, ``-1``: negative;
+    the angle is ``direction`` times the value returned) whose chief ray lands ``h`` mm (> 0) from
+    ``y0``, the image height of the axial field's chief ray (0 for a lens symmetric under
+    ``y -> -y``; on a decentred or tilted lens it is not); ``sigma`` (:func:`slope_sign`) names
+    the side of ``y0`` that positive angles land on, for the refusal's message.
 
-    The root of ``g(θ) = |y_chief(θ)| - h`` is bracketed first: the axis (``θ = 0``, height 0)
-    is the lower end, the first trial is the paraxial estimate ``h / slope``.  A trial whose
+    The root of ``g(θ) = |y_chief(direction θ) - y0| - h`` is bracketed first: the axis (``θ = 0``,
+    height ``y0``) is the lower end, the first trial is the paraxial estimate ``h / slope``.  A trial whose
     chief ray fails (``NaN``: it misses a surface or is totally reflected, as far-off-axis rays
     of a wide-angle lens do beyond its field) is stepped back by bisection between the last
     good angle and the failing one; a trial still short of ``h`` steps forward by the scaling
     estimate (never past half-way to the smallest failing angle).  Inside the bracket,
     regula falsi (the Illinois variant), falling back to bisection where a trial fails."""
     t0 = 1e-3
-    slope = abs(chief_height(lens, t0)) / t0
+    slope = abs(chief_height(lens, direction * t0) - y0) / t0
     if not slope > 0:
         p.fail(line, "FTYP 3 (real image height): the chief ray does not reach the image")
     tol = 1e-12 * max(1.0, h)
 
     def g(theta: float) -> float:
-        return abs(chief_height(lens, theta)) - h
+        return abs(chief_height(lens, direction * theta) - y0) - h
 
-    lo, glo = 0.0, -h          # below the height: the axis images at 0
+    lo, glo = 0.0, -h          # below the height: the axis images at y0
     bad = 90.0                 # the smallest angle known to fail (90 deg never reaches)
     hi = ghi = None
     t = min(h / slope, 89.0)
@@ -128,10 +133,12 @@ def real_image_height_angle(lens, h: float, line: int, p) -> float:
         if bad - lo <= 1e-12 * bad:
             break
     if hi is None:
-        p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height {h:g} mm "
-                     f"(the field lies beyond what the lens images: the chief ray of {lo:.6g} deg "
-                     f"lands at {glo + h:.6g} mm; from {bad:.6g} deg on it misses a surface or "
-                     f"is totally reflected)")
+        up = direction * sigma   # the side of y0 where the chief rays of these angles land
+        p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height "
+                     f"{y0 + math.copysign(h, up):g} mm (the field lies beyond what the lens "
+                     f"images: the chief ray of {direction * lo:.6g} deg lands at "
+                     f"{y0 + math.copysign(glo + h, up):.6g} mm; from {direction * bad:.6g} deg on "
+                     f"it misses a surface or is totally reflected)")
     side = 0
     for _ in range(200):
         if math.isfinite(ghi):
@@ -160,6 +167,48 @@ def real_image_height_angle(lens, h: float, line: int, p) -> float:
     if math.isfinite(ghi) and abs(ghi) < abs(glo):
         return hi
     return lo
+
+
+def slope_sign(lens, y0: float) -> float:
+    """``+1`` where a small positive field angle's chief ray lands above ``y0`` (the axial
+    field's chief-ray height), ``-1`` where below (an image turned over, as after an odd number
+    of erecting stages), ``0`` where it does not move (afocal, or a failed trace)."""
+    d = chief_height(lens, 1e-3) - y0
+    return 1.0 if d > 0 else -1.0 if d < 0 else 0.0
+
+
+def real_image_height_fields(lens, heights, line: int, p) -> list[float]:
+    """Field angles (deg) whose chief rays land at the real image heights ``heights`` (mm,
+    signed: ``FTYP 3``, "the real ray coordinates of the primary wavelength chief ray on the
+    image surface", OpticStudio User Guide, *Field Angles and Heights*).  The axial field's
+    chief ray lands at ``y0`` (0 on a lens symmetric under ``y -> -y``); a height ``v`` is
+    solved on the side of the axis whose chief rays move from ``y0`` towards it
+    (:func:`real_image_height_angle`).  On a symmetric lens whose positive angles land above
+    the axis this is ``±`` the angle of ``|v|``, bit for bit; a lens that turns the image over
+    (positive angles landing below) or is decentred or tilted gets the angle whose chief ray
+    lands at ``v`` itself (before branch ``objsign``: ``copysign(angle(|v|), v)``, and 0 for
+    ``v = 0``, which there lands at ``-v`` or elsewhere)."""
+    if not any(v != 0 for v in heights):
+        return [0.0 for _ in heights]
+    y0 = chief_height(lens, 0.0)
+    if not math.isfinite(y0):
+        p.fail(line, "FTYP 3 (real image height): the axial field's chief ray does not reach "
+                     "the image")
+    if abs(y0) <= 1e-12 * max(1.0, max(abs(v) for v in heights)):
+        y0 = 0.0   # on the axis within the solver's tolerance (an aimed chief ray's rounding)
+    sigma = slope_sign(lens, y0)
+    if sigma == 0:
+        p.fail(line, "FTYP 3 (real image height): the chief ray does not reach the image")
+    out = []
+    for v in heights:
+        d = v - y0
+        if d == 0:
+            out.append(0.0)
+            continue
+        side = math.copysign(1.0, d * sigma)
+        out.append(side * real_image_height_angle(lens, abs(d), line, p, y0=y0, direction=side,
+                                                  sigma=sigma))
+    return out
 
 
 def rotationally_symmetric(surf) -> bool:
@@ -225,12 +274,11 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         p.fail(xline, "XFLN: x field components with an object plane tilted about x (TILTSURF "
                       "object, PARM 2 != 0): deeplens' fields lie in the y-z plane, and a radial "
                       "field is not exact on a tilted object; give y fields only")
-    # the sign of a height matters where the object plane is tilted relative to the axis that
-    # follows it: a TILTSURF object, or an object at a first coordinate break's pivot (in the
-    # object's frame, which the break turns away from the lens's axis)
+    # a tilted object plane, or an object at a first coordinate break's pivot (in the object's
+    # frame, which the break turns away from the lens's axis): heights along y only
     at_pivot = float(lens.spec.object_distance_mm) == 0 and any(x != 0 for x in ys)
     if (tan_y != 0 or at_pivot) and kind in (1, 2, 3):
-        return _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p)
+        return object_height_fields(kind, [v * s_mm for v in ys], lens, ftyp_line, tan_y, p)
     if any(x != 0 for x in xs):
         anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder, GridSag))
                       or (isinstance(s, ZernikeSag) and not s.rotationally_symmetric())]
@@ -250,41 +298,19 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
 
     h = [math.copysign(math.hypot(x, y), y if y != 0 else 1.0) * s_mm for x, y in zip(xs, ys)]
     d_obj = float(lens.spec.object_distance_mm)
-    # object-space telecentric (the entrance pupil at infinity): a field angle is the object
-    # point's direction from the first vertex (sampling.field_rays), not the chief ray's
-    telecentric = getattr(lens, "object_telecentric", False)
-    if kind == 1 and telecentric:
-        return [math.degrees(math.atan(v / d_obj)) for v in h]
-    if kind == 1:
-        if math.isinf(d_obj):
-            p.fail(ftyp_line, "FTYP 1 (object height) with the object at infinity cannot be "
-                              "converted to field angles")
-        par = paraxial(lens)
-        z_ep = float(par.entrance_pupil_position)
-        return [math.degrees(math.atan(v / (d_obj + z_ep))) for v in h]
+    if kind == 1 and math.isinf(d_obj):
+        p.fail(ftyp_line, "FTYP 1 (object height) with the object at infinity cannot be "
+                          "converted to field angles")
+    if kind in (1, 2) and not math.isinf(d_obj):
+        # object heights (paraxial image heights h' at a finite object: the object heights
+        # h' / m): each object point where the file puts it, (0, h) (OpticStudio's convention,
+        # below); x and y combined radially, the sign that of y
+        return object_height_fields(kind, h, lens, ftyp_line, 0.0, p)
     if kind == 2:
-        if not math.isinf(d_obj):
-            # paraxial image height h' = m h at the paraxial image plane: the object height
-            # h = h' / m, then as FTYP 1
-            from ..paraxial import media_indices, trace_paraxial_ray
-
-            with torch.no_grad():
-                par = paraxial(lens)
-                n = media_indices(lens)
-                one = torch.ones_like(n[0])
-                y, u, _ = trace_paraxial_ray(lens, one, 0.0 * one, n)   # from an object point of height 1
-                m = float(y + u * par.image_distance)
-            if not abs(m) > 1e-12:
-                p.fail(ftyp_line, "FTYP 2 (paraxial image height): the paraxial magnification "
-                                  "is zero")
-            z_ep = 0.0 if telecentric else float(par.entrance_pupil_position)
-            return [math.degrees(math.atan(abs(v / m) / (d_obj + z_ep))) * (1 if v >= 0 else -1)
-                    for v in h]
         efl = float(paraxial(lens).efl)
         return [math.degrees(math.atan(v / efl)) for v in h]
     if kind == 3:
-        return [math.copysign(real_image_height_angle(lens, abs(v), ftyp_line, p), v)
-                if v != 0 else 0.0 for v in h]
+        return real_image_height_fields(lens, h, ftyp_line, p)
     if kind == 4:
         # theodolite angles: for a single non-zero component the field angle itself (the two
         # together define a direction whose convention we have not checked against an oracle)
@@ -301,18 +327,24 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
                       f"height)")
 
 
-def _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p):
-    """Field angles (deg) of height fields on an object plane tilted about x
-    (``lens.object_tilt``, ``z = z_obj + tan_y y``), or at a first coordinate break's pivot
-    (object distance 0: the plane in the object's frame, turned away from the axis after the
-    break).  The tilt makes the sign of a height matter (the plane is not symmetric under ``y -> -y``), so each object point goes where the
-    file puts it: ``(0, h, z_obj + tan_y h)`` (``FTYP 1``; ``FTYP 2``: ``h = h' / m``, ``m`` the
-    paraxial magnification, exact at first order as the image height is), and the field angle
-    is its chief ray's through the paraxial entrance pupil's centre, ``tan θ = -h / (s + z_EP -
-    tan_y h)`` (telecentric: ``tan θ = -h / s``, the object point ``y = -s tan θ``), the inverse
-    of :func:`~deeplens.optics.sampling.object_point`.  A positive height is a negative angle
-    (OpticStudio's convention: a positive angle is a ray rising towards ``+y``, from an object
-    point below the axis); untilted objects keep deeplens' mirrored, equivalent reading."""
+def object_height_fields(kind, heights, lens, ftyp_line, tan_y, p):
+    """Field angles (deg) of object-height fields at a finite object (``FTYP 1``; ``FTYP 2``,
+    paraxial image heights ``h'``, as the object heights ``h = h' / m``, ``m`` the paraxial
+    magnification, exact at first order as the image height is): each object point goes where
+    the file puts it, ``(0, h, z_obj + tan_y h)`` (``heights`` in mm; the object plane
+    untilted, ``tan_y = 0``, tilted about x (``lens.object_tilt``, ``z = z_obj + tan_y y``), or
+    at a first coordinate break's pivot (object distance 0: the plane in the object's frame,
+    turned away from the axis after the break)), and the field angle is its chief ray's
+    through the paraxial entrance pupil's centre, ``tan θ = -h / (s + z_EP - tan_y h)``
+    (telecentric: ``tan θ = -h / s``, the object point ``y = -s tan θ``), the inverse of
+    :func:`~deeplens.optics.sampling.object_point`.
+
+    A positive height is a negative angle: OpticStudio's convention, "Positive field angles
+    imply positive slope for the ray in that direction, and thus refer to negative coordinates
+    on distant objects", object heights being the object's coordinates (OpticStudio User
+    Guide, *Field Angles and Heights*).  Mirrored (``+h`` read as ``y = -h``, before branch
+    ``objsign``), a lens that is not symmetric under ``y -> -y`` (decentred, tilted or folded
+    in y, a tilted object) traces another field point than OpticStudio."""
     from ..paraxial import media_indices, paraxial, trace_paraxial_ray
 
     if kind == 3:
@@ -321,7 +353,6 @@ def _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p):
                           "is not supported: give object heights (FTYP 1) or paraxial image "
                           "heights (FTYP 2)")
     s = float(lens.spec.object_distance_mm)
-    heights = [v * s_mm for v in ys]
     with torch.no_grad():
         par = paraxial(lens)
         if kind == 2:
@@ -339,6 +370,14 @@ def _tilted_object_fields(kind, ys, s_mm, lens, ftyp_line, tan_y, p):
     out = []
     for h in heights:
         den = d - tan_y * h
+        if tan_y == 0 and s != 0:
+            # an untilted object plane (a virtual object too: the entrance pupil may lie before
+            # it, den < 0, and the chief line still meets the plane at (0, h))
+            if den == 0:
+                p.fail(ftyp_line, f"FTYP {kind}: the paraxial entrance pupil lies on the object "
+                                  f"plane, so an object height has no chief-ray angle")
+            out.append(-math.degrees(math.atan(h / den)) + 0.0)   # + 0.0: never -0.0
+            continue
         if not den > 0:
             p.fail(ftyp_line, f"the field of object height {h:g} mm lies on the tilted object "
                               f"plane at or behind the entrance pupil (its depth {den:g} mm "

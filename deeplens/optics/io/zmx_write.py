@@ -198,7 +198,7 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
     out.append("GCAT " + " ".join(cats or ["SCHOTT"]))
     if tilt[1] != 0:
         # an object plane tilted about x: the fields' object points, where they lie
-        # (sampling.object_point; the reader's zmx_system._tilted_object_fields inverts it)
+        # (sampling.object_point; the reader's zmx_system.object_height_fields inverts it)
         s_obj = float(spec.object_distance_mm)
         out.append(f"FTYP 1 {1 if telecentric else 0} {nf} {nw} 0 0 0")
         if telecentric:
@@ -213,10 +213,10 @@ def write_zmx(lens: Lens, path, encoding: str = "utf-8") -> None:
                       for f in spec.fields_deg]
     elif telecentric:
         # object heights (FTYP 1) with telecentric object space (second value 1): the fields'
-        # object points, s tan θ (sampling.field_rays)
+        # object points, -s tan θ (sampling.field_rays; the reader's object_height_fields)
         s_obj = float(spec.object_distance_mm)
         out.append(f"FTYP 1 1 {nf} {nw} 0 0 0")
-        fields = [s_obj * math.tan(math.radians(float(f))) for f in spec.fields_deg]
+        fields = [0.0 - s_obj * math.tan(math.radians(float(f))) for f in spec.fields_deg]
     else:
         out.append(f"FTYP 0 0 {nf} {nw} 0 0 0")
         fields = spec.fields_deg

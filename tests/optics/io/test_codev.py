@@ -222,7 +222,7 @@ def test_fictitious_glass_code():
 
 
 def test_image_heights_and_object_heights(tmp_path):
-    """YIM at infinity: θ = atan(h'/f); YOB at a finite object: θ = atan(h / (s + z_EP)), with
+    """YIM at infinity: θ = atan(h'/f); YOB at a finite object: θ = -atan(h / (s + z_EP)), with
     the stop on the first vertex (z_EP = 0)."""
     body = "S 50 5 NBK7_SCHOTT\n  STO\nS -50 45\nSI 0 0\n"
     lens = read_seq(_seq(tmp_path, body, head=_HEAD.replace("YAN 0 5", "YIM 0 2")))
@@ -232,7 +232,8 @@ def test_image_heights_and_object_heights(tmp_path):
     lens = read_seq(_seq(tmp_path, body, head=_HEAD.replace("YAN 0 5", "YOB 0 10")
                          .replace("SO 0 1e10", "SO 0 200"), name="b.seq"))
     assert lens.spec.object_distance_mm == 200.0
-    assert lens.spec.fields_deg == pytest.approx([0.0, math.degrees(math.atan(10 / 200))])
+    # the object point (0, +10): a negative field angle (its chief ray falls to the axis)
+    assert lens.spec.fields_deg == pytest.approx([0.0, -math.degrees(math.atan(10 / 200))])
 
 
 def test_vignetting_factors_warn(tmp_path):

@@ -328,7 +328,9 @@ def test_field_types(tmp_path):
     obj = read_zmx(write(tmp_path, text, "o.zmx"))
     ep = float(paraxial(obj).entrance_pupil_position)
     assert obj.spec.object_distance_mm == 500.0 and ep > 2.0
-    assert obj.spec.fields_deg[1] == pytest.approx(math.degrees(math.atan(20 / (500 + ep))),
+    # the object point (0, +20): its chief ray falls towards the axis, a negative field angle
+    # (OpticStudio's convention; tests/optics/io/test_zmx_object_height_sign.py)
+    assert obj.spec.fields_deg[1] == pytest.approx(-math.degrees(math.atan(20 / (500 + ep))),
                                                    rel=1e-12)
     with pytest.warns(ZemaxWarning, match=r"xy.zmx:8: XFLN: x field components are combined"):
         xy = read_zmx(write(tmp_path, singlet(yfln="YFLN 0 4").replace("XFLN 0 0", "XFLN 0 3"),

@@ -1,7 +1,7 @@
 """An object at ``DISZ 0`` (on ``SURF 1``): when dummy gaps follow it, the object lies that far
 before the first surface deeplens traces, and the file is the same lens as one with the object
 distance written on ``SURF 0``: the object distance is the sum (100 mm), the object-height
-field of 5 mm is the chief-ray angle ``atan(5 / 100)`` (the stop on the first vertex, the
+field of 5 mm is the chief-ray angle ``-atan(5 / 100)`` (the stop on the first vertex, the
 entrance pupil there).  Where the sum is 0 (the object on a traced surface) the file is refused
 at ``SURF 0``'s ``DISZ`` line with what to change: deeplens puts a finite object at a distance
 != 0 from the first vertex.
@@ -35,7 +35,8 @@ def lens_text(d0, gap):
 def test_object_at_zero_before_a_dummy_gap(tmp_path, d0, gap):
     lens = read_zmx(write(tmp_path, lens_text(d0, gap)))
     assert lens.spec.object_distance_mm == 100.0
-    assert lens.spec.fields_deg == pytest.approx([0.0, math.degrees(math.atan(5 / 100))],
+    # the object point (0, +5): a negative field angle (OpticStudio's convention)
+    assert lens.spec.fields_deg == pytest.approx([0.0, -math.degrees(math.atan(5 / 100))],
                                                  rel=1e-12)
     # the thick lens's focal length, 1/f = (n-1)(c1 - c2 + (n-1) t c1 c2 / n)
     n, c1, c2, t = 1.5, 0.02, -0.01, 5.0
