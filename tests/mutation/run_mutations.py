@@ -1301,6 +1301,13 @@ MUTATIONS = [
              "            stop.clear_radius.fill_(clap)\n",
              "            stop.clear_radius.fill_(clap)\n            stop.semi_diameter.fill_(clap)\n",
              ("tests/optics/io/test_zmx_flat_stop_clap.py",)),
+    # ------------------------- issue 37: SCBD, a surface's own tilt/decenter (branch scbd)
+    Mutation("scbd_reverse_not_inverted", "an SCBD after-surface 'reverse' taken as the before "
+             "values negated in the same order (not the exact inverse, whose order is flipped)",
+             "deeplens/optics/io/zmx_scbd.py",
+             "    return tuple(-v for v in vals), 1 - order, \"reverse\"\n",
+             "    return tuple(-v for v in vals), order, \"reverse\"\n",
+             ("tests/optics/io/test_zmx_scbd.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -173,8 +173,8 @@ def check_scbd_on_break(s, k: int, p) -> None:
     if r is not None:
         mode, n, ln = r
         p.note(ln, f"SCBD on SURF {k}: a coordinate return to SURF {n} (mode {mode}): "
-                   f"OpticStudio saves the solve's result as the break's PARM and DISZ values, "
-                   f"which deeplens reads as written (they are not solved again)")
+                   f"OpticStudio saves the solve's result as the break's PARM values (mode 3: "
+                   f"and DISZ), which deeplens reads as written (they are not solved again)")
 
 
 def _no_return_here(s, k: int, p) -> None:

@@ -235,8 +235,8 @@ def test_coordinate_return_note(tmp_path):
     ln = line_of(brk, "SCBD 3")
     assert [m for m in notes if "SCBD" in m] == [
         f"{tmp_path / 't.zmx'}:{ln}: SCBD on SURF 4: a coordinate return to SURF 1 (mode 3): "
-        f"OpticStudio saves the solve's result as the break's PARM and DISZ values, which "
-        f"deeplens reads as written (they are not solved again)"]
+        f"OpticStudio saves the solve's result as the break's PARM values (mode 3: and DISZ), "
+        f"which deeplens reads as written (they are not solved again)"]
 
 
 @pytest.mark.parametrize("rec, needle", [
