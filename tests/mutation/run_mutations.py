@@ -1318,6 +1318,13 @@ MUTATIONS = [
              "deeplens/optics/io/zmx_system.py", "    y0 = chief_height(lens, 0.0)\n",
              "    y0 = 0.0 * chief_height(lens, 0.0)\n",
              ("tests/optics/io/test_zmx_object_height_sign.py",)),
+    # ------------------------- issue 37: SCBD, a surface's own tilt/decenter (branch scbd)
+    Mutation("scbd_reverse_not_inverted", "an SCBD after-surface 'reverse' taken as the before "
+             "values negated in the same order (not the exact inverse, whose order is flipped)",
+             "deeplens/optics/io/zmx_scbd.py",
+             "    return tuple(-v for v in vals), 1 - order, \"reverse\"\n",
+             "    return tuple(-v for v in vals), order, \"reverse\"\n",
+             ("tests/optics/io/test_zmx_scbd.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -27,6 +27,7 @@ import dataclasses
 import math
 
 from ..surfaces import CoordinateBreak
+from .zmx_scbd import scbd_identity
 
 __all__ = ["is_identity", "misalignment_brackets", "coordinate_break", "coordbrk_lines",
            "stop_plane_of_break"]
@@ -81,7 +82,8 @@ def misalignment_brackets(surfs) -> dict[int, int]:
               and (_order(sb) != 0 or not tilted)
               and (not tilted or abs(sum(s.disz for s in inside)) <= 1e-9)
               and _air_before(surfs, a) and _air_before(surfs, b)
-              and not any(s.type == "COORDBRK" for s in inside)
+              and not any(s.type == "COORDBRK" or s.scbd and not scbd_identity(s)
+                          for s in inside)
               and ((va[2] == 0 or va[3] == 0) and va[4] == 0
                    or all(_symmetric(s) for s in inside if not is_identity(s))))
         if ok:

@@ -27,6 +27,7 @@ from ..errors import LensFileError, ZemaxFileError, ZemaxWarning
 from .agf import decode_zemax_text
 from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 from .surface_handlers import FORMATS
+from .zmx_scbd import parse_scbd
 
 __all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
 
@@ -136,6 +137,8 @@ class ZmxSurface:
     grid: tuple | None = None
     # GARR i z dz/dx dz/dy d2z/dxdy [nodata]: index -> (z, zx, zy, zxy, nodata, line)
     grid_rows: dict = field(default_factory=dict)
+    # SCBD (surface tilt/decenter, coordinate return): kind -> entry (.zmx_scbd.parse_scbd)
+    scbd: dict = field(default_factory=dict)
 
 
 class Locator:
@@ -562,47 +565,14 @@ def _aperture_refused(st: _Parse, r: Record) -> None:
 
 
 def _surface_ignored(st: _Parse, r: Record) -> None:
-    if r.key == "SCBD":
-        _surface_tilt_decenter_ignored(st, r)
+    """Records of a surface that the reader does not need (``TCE``, ``COAT``, ``PZUP``)."""
 
 
-def _surface_tilt_decenter_ignored(st: _Parse, r: Record) -> None:
-    """``SCBD``: not applied, with a located note that says what it holds.  No OpticStudio text
-    at hand names the record (searched: the stored documentation and pages); the files show
-    what it matches, and it is not scattering, as the note called it before: ``SCBD 1 0 0 a b c
-    d e`` followed on the same surface by ``SCBD 2 1 2 -a -b -c -d -e`` (the five numbers
-    negated) matches OpticStudio's surface tilt/decenter *before* a surface and its reversal
-    *after* it (User Guide, *Tilt/Decenter*: "a coordinate break, followed by the surface,
-    followed by another coordinate break"; 15 and -15 on a prism's two faces in one sample, 8
-    on fold mirrors in another), and ``SCBD 3 3 N`` stands only on ``COORDBRK`` surfaces whose
-    comment reads "lock to surface N" (the coordinate return solve, which OpticStudio has only
-    on coordinate breaks: *How to restore coordinate systems using the Coordinate Return*).
-    The reader applies neither: a surface whose before/after numbers are not all 0 is read
-    untilted and undecentred (its geometry is then not OpticStudio's: the note says so), and a
-    break's ``PARM`` values are read as written."""
-    k = len(st.surfs) - 1
-    toks = r.tokens
-    try:
-        kind = int(float(toks[1])) if len(toks) > 1 else None
-        vals = [float(v) for v in toks[4:9]]
-    except ValueError:
-        kind, vals = None, []
-    where = f"SCBD on SURF {k}"
-    if kind == 3 and len(toks) > 3:
-        st.p.note(r.line, f"{where}: a coordinate return (to SURF {toks[3]}) is not applied; the "
-                          f"coordinate break's PARM values are read as written")
-    elif kind in (1, 2) and any(v != 0 for v in vals):
-        side = "before" if kind == 1 else "after"
-        st.p.note(r.line, f"{where}: a surface tilt/decenter {side} the surface (values "
-                          f"{' '.join(toks[4:9])}) is NOT applied: deeplens reads the surface "
-                          f"untilted and undecentred, so its geometry is not OpticStudio's; "
-                          f"write the tilt/decenter as a COORDBRK before (and after) the surface "
-                          f"to have it read")
-    elif kind in (1, 2):
-        st.p.note(r.line, f"{where}: surface tilt/decenter data, all 0: ignored")
-    else:
-        st.p.note(r.line, f"{where}: surface tilt/decenter or coordinate-return data, not "
-                          f"applied")
+def _scbd(st: _Parse, r: Record) -> None:
+    """``SCBD``: a surface's own tilt/decenter before/after it, or a break's coordinate return,
+    decoded from the files (:mod:`.zmx_scbd`, which the reader applies)."""
+    kind, entry = parse_scbd(st.p, r.tokens, r.line, len(st.surfs) - 1, st.cur.scbd)
+    st.cur.scbd[kind] = entry
 
 
 #: system operand -> its handler (read wherever it stands)
@@ -621,7 +591,7 @@ _SURFACE_OPERANDS = {
     "OBDC": _obdc, "GDAT": _gdat, "GARR": _garr, "ELAP": _ellipse, "ELOB": _ellipse,
     "SPID": _spid,
     **dict.fromkeys(_APERTURES_REFUSED, _aperture_refused),
-    **dict.fromkeys(("TCE", "COAT", "PZUP", "SCBD"), _surface_ignored),
+    **dict.fromkeys(("TCE", "COAT", "PZUP"), _surface_ignored), "SCBD": _scbd,
 }
 
 

@@ -25,6 +25,8 @@ from ..frames import mirrors_met_edge_on, travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
 from ..surfaces import Aperture, Asphere, CoordinateBreak, IdealLens, IdealLensXY, Plane
+from .zmx_scbd import (check_scbd_on_break, image_scbd_note, refuse_object_scbd, scbd_breaks,
+                       scbd_identity)
 from .zmx_coordbrk import (coordinate_break, is_identity, misalignment_brackets,
                            stop_plane_of_break, y_fields_only)
 from .zmx_glass import load_catalogues, surface_material
@@ -402,7 +404,10 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
     # semi-diameters (DIAM flag 0) are OpticStudio's footprints of its own (ray-aimed, all
     # fields) beam, which never vignette there: deeplens recomputes them from its rays
     folded = any(s.type == "COORDBRK" and not is_identity(s) and k not in paired
+                 or s.type != "COORDBRK" and 0 < k < len(surfs) - 1 and not scbd_identity(s)
                  for k, s in enumerate(surfs))
+    refuse_object_scbd(obj, p)
+    image_scbd_note(img, len(surfs) - 1, p)
     stop_idx = None
     autos = []           # kept indices whose semi-diameter is automatic
     mirrors = []         # indices in kept of GLAS MIRROR surfaces
@@ -412,6 +417,7 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
         if s.type == "COORDBRK":
             if s.glass is not None:
                 p.fail(s.line, "a COORDBRK surface cannot carry a glass")
+            check_scbd_on_break(s, k, p)
             if s.stop:                   # a turn about z alone: a flat stop at its vertex
                 plane = stop_plane_of_break(s, k, p)
                 surf, auto = build_surface(plane, k, prev, prev, s_mm, folded, p, qbfs_conic)
@@ -447,7 +453,18 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
             _turn_spider(s, k, bracket, p)
         mat = prev if s.mirror else surface_material(s, gcat, cats, glass_fallback, p, 4)
         built = build_surface(s, k, mat, prev, s_mm, folded, p, qbfs_conic)
+        # SCBD: the surface's own tilt/decenter, a break before it and one after it (the
+        # thickness after both); the breaks keep the block for its line
+        before, after = scbd_breaks(s, k, s_mm, p)
+        if before is not None:
+            kept.append((before, prev, s, gap))
+            media.append(prev)
+            gap = 0.0
         if built is None:   # a dummy surface: its thickness only
+            if after is not None:
+                kept.append((after, prev, s, gap))
+                media.append(prev)
+                gap = 0.0
             gap += s.disz * s_mm
             continue
         surf, auto = built
@@ -462,6 +479,9 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
             mirrors.append(len(kept))
         kept.append((surf, mat, s, gap))
         media.append(mat)
+        if after is not None:
+            kept.append((after, mat, s, 0.0))
+            media.append(mat)
         gap = s.disz * s_mm
         if math.isinf(s.disz):
             p.fail(s.disz_line, f"SURF {k}: an infinite thickness inside the lens")
