@@ -34,6 +34,24 @@ NUMERICS = ("optics/test_gradients.py", "optics/test_intersect.py", "optics/test
             "render/test_camera_paths.py", "training/test_wiener_numerics.py")
 
 
+def pytest_configure(config):
+    """Under pytest-xdist the controller re-creates each warning a worker reports by importing
+    the module of its class (``xdist.workermanage.unserialize_warning_message``), in the thread
+    that reads that worker.  Two workers reporting optiland's warnings at once (its
+    ``OptilandMaterialWarning``, ``ParaxialDomainWarning``) then import optiland from two
+    threads, and optiland's circular imports (materials <-> optimization) fail in one of them
+    with "partially initialized module", taking the worker down.  Importing the oracle once here,
+    before any worker runs, makes those later imports no-ops.  Only the controller of a
+    distributed run does it; optiland is a test-only oracle and may be absent."""
+    if hasattr(config, "workerinput") or not getattr(config.option, "numprocesses", None):
+        return
+    try:
+        import optiland.materials.warnings  # noqa: F401
+        import optiland.paraxial_path  # noqa: F401
+    except ImportError:
+        pass
+
+
 def pytest_collection_modifyitems(config, items):
     for item in items:
         rel = item.path.as_posix().split("/tests/", 1)[-1]
