@@ -182,6 +182,10 @@ def folder_oracles(root: Path):
         return None
 
     def confirm(name, lens):
+        # the oracles' copy of the file as it is now (a caller may write files into ``root``
+        # after this folder was set up: benchmarks/zmx_mconf_corpus.py's one-configuration files)
+        if (root / name).exists():
+            (tc.CORPUS / name).write_text(tc.oracle_text(tc.decode_zemax_text(root / name)))
         if any(m.graded for m in lens.materials):
             return confirm_grin(name, lens)
         ok, why = [], {}
