@@ -21,9 +21,10 @@ from pathlib import Path
 import pytest
 import torch
 
-from deeplens.optics.io import ZemaxWarning, read_zmx
+from deeplens.optics.io import ZemaxWarning, lens_to_dict, read_zmx
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
+from zmx_mconf_apply import single_configuration
 
 FOLD = Path(__file__).resolve().parents[2] / "data" / "zmx_opticstudio" / "fold_pickup_2conf.zmx"
 R = 50.0
@@ -65,3 +66,13 @@ def test_a_solve_deeplens_does_not_evaluate_is_noted_in_another_configuration(tm
         warnings.simplefilter("always")
         read_zmx(p, config=1)          # the saved configuration: its values are the solved ones
     assert not [x for x in w if "PPAR" in str(x.message)]
+
+
+def test_the_test_only_applier_solves_the_pick_up_as_well(tmp_path):
+    """tests/optics/io/zmx_mconf_apply.py (the corpus oracles' one-configuration files, no code
+    shared with deeplens) writes the return break's tilt solved: -45 in configuration 2."""
+    for k in (1, 2):
+        alone = tmp_path / f"c{k}.zmx"
+        alone.write_text(single_configuration(FOLD, k))
+        assert lens_to_dict(_read(FOLD, config=k)) == lens_to_dict(_read(alone))
+    assert "PARM 3 -45.0" in (tmp_path / "c2.zmx").read_text()
