@@ -18,8 +18,8 @@ parameter or extra-data number, in the row's sixth field (OpticStudio's "Int2": 
 ...`` is parameter 3 of ``SURF 8``, a coordinate break's tilt about x, in configuration 2).  The
 other columns after the value (solves, pick-ups, display flags) are not read: the value itself
 is what the configuration uses.  Configuration ``N`` is the saved lens with each operand's value
-for ``N`` put in its place.  OpticStudio writes the rows' values to 13 significant digits
-(``%.12E``) and the saved records to 17: a row value that repeats the saved one to the row's
+for ``N`` put in its place, then (``N`` not the active one) its parameters' pick-ups (``PPAR``)
+re-evaluated.  OpticStudio writes the rows' values to 13 significant digits (``%.12E``) and the saved records to 17: a row value that repeats the saved one to the row's
 precision (within 5e-13 relative) keeps the saved value, so the active configuration is the
 saved lens bit for bit:
 
@@ -206,8 +206,27 @@ def configuration(sysd: dict, surfs: list[ZmxSurface], p: Locator, config: int |
                            f"{_APPLIED_TEXT}")
             continue
         _apply(key, num, second, text, ln, sysd, surfs, p)
+    if k != active:
+        _pickups(surfs, p)
     _check_magnitudes(sysd, surfs, p)
     return sysd, surfs, n, k
+
+
+def _pickups(surfs: list[ZmxSurface], p: Locator) -> None:
+    """Re-evaluate the parameters' pick-up solves (``PPAR``) in surface order, as OpticStudio
+    does after putting a configuration's values in place: ``PARM i`` of a surface picking up
+    from ``SURF src`` becomes ``scale * (SURF src's PARM i) + offset``.  The saved file holds
+    the active configuration's solved values only, so without this a coordinate break that picks
+    up a tilt the configuration changes (a fold's return break) would keep the active
+    configuration's tilt.  Solves deeplens does not evaluate (a chief-ray decenter, a pick-up
+    from another column) keep their saved value, with a note."""
+    for j, s in enumerate(surfs):
+        for i, (src, scale, offset, column, ln) in sorted(s.ppar.items()):
+            if src < 0 or column != 0 or src >= len(surfs) or i not in surfs[src].parm:
+                p.note(ln, f"SURF {j}: the solve on parameter {i} (PPAR) is not re-evaluated "
+                           f"for this configuration; the saved configuration's value is kept")
+                continue
+            s.parm[i] = (scale * surfs[src].parm[i][0] + offset, ln)
 
 
 def _apply(key, num, second, text, ln, sysd, surfs, p: Locator) -> None:

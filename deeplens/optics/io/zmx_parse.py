@@ -57,7 +57,7 @@ _SILENT = {
     "PICB", "FWGN", "POLS", "GLRS", "GSTD", "NSCD",
     "COFN", "FIMP", "HIDE", "MIRR", "SLAB", "MEMA", "POPS", "FLAP", "BLNK", "TOL",
     "MOFF", "COMM", "NOTE", "WWGT", "FWGT", "VDSZ", "VCON", "VPAR", "VCRV",
-    "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "PPAR", "CONF", "DMFS", "BLDM",
+    "VTHI", "VCNT", "MAZH", "TOLE", "SCOL", "SDRW", "PZUP", "CONF", "DMFS", "BLDM",
     "RSCE", "RWRE", "TSCM", "STYP", "OPDX", "COAT", "CURVSOLV", "ISNA", "EFFL", "THSO",
     "AUTH", "IWDP", "LUID", "EERA", "SSID", "DBDT",
 }
@@ -139,6 +139,9 @@ class ZmxSurface:
     grid_rows: dict = field(default_factory=dict)
     # SCBD (surface tilt/decenter, coordinate return): kind -> entry (.zmx_scbd.parse_scbd)
     scbd: dict = field(default_factory=dict)
+    # PPAR p src scale offset column: parameter p's solve, p -> (src, scale, offset, column, line)
+    # (src >= 0: a pick-up from SURF src; src < 0: another solve, such as a chief-ray decenter)
+    ppar: dict = field(default_factory=dict)
 
 
 class Locator:
@@ -385,6 +388,22 @@ def _parm(st: _Parse, r: Record) -> None:
         p.arg(toks, 2, ln, "parameter value"), ln)
 
 
+def _ppar(st: _Parse, r: Record) -> None:
+    """``PPAR p src scale offset column``: a solve on ``PARM p`` (saved already solved; read so
+    that :mod:`.zmx_mconf` can re-evaluate pick-ups in another configuration).  ``src >= 0``: a
+    pick-up, ``scale * (SURF src's PARM p) + offset`` (``column`` 0: the same parameter);
+    ``src < 0`` (``PPAR 2 -1 1 0``): another solve (a chief-ray decenter), kept as saved."""
+    p, toks, ln = st.p, r.tokens, r.line
+    i = int(p.arg(toks, 1, ln, "parameter number"))
+    src = int(p.arg(toks, 2, ln, "solve's source surface (or a negative solve type)"))
+    if src < 0:
+        st.cur.ppar[i] = (src, None, None, None, ln)
+        return
+    st.cur.ppar[i] = (src, p.arg(toks, 3, ln, "pick-up scale"),
+                      p.arg(toks, 4, ln, "pick-up offset"),
+                      int(p.arg(toks, 5, ln, "pick-up column")) if len(toks) > 5 else 0, ln)
+
+
 def _xdat(st: _Parse, r: Record) -> None:
     p, toks, ln = st.p, r.tokens, r.line
     st.cur.xdat[int(p.arg(toks, 1, ln, "extra-data number"))] = (
@@ -589,7 +608,7 @@ _SURFACE_OPERANDS = {
     "TYPE": _type, "CURV": _curv, "DISZ": _disz, "CONI": _coni, "DIAM": _diam, "STOP": _stop,
     "PARM": _parm, "XDAT": _xdat, "GLAS": _glas, "CLAP": _clap, "OBSC": _obsc, "SQAP": _sqap,
     "OBDC": _obdc, "GDAT": _gdat, "GARR": _garr, "ELAP": _ellipse, "ELOB": _ellipse,
-    "SPID": _spid,
+    "SPID": _spid, "PPAR": _ppar,
     **dict.fromkeys(_APERTURES_REFUSED, _aperture_refused),
     **dict.fromkeys(("TCE", "COAT", "PZUP"), _surface_ignored), "SCBD": _scbd,
 }

@@ -206,5 +206,27 @@ def single_configuration(path, k: int) -> str:
         elif active_value.get((op, num, f[5] if op in ("PRAM", "EDVA") else "")) != v:
             raise NotApplied(f"{op} {num}: value {v!r} in configuration {k}, "
                              f"{active_value.get((op, num, ''))!r} saved")
+    if k != active:
+        # OpticStudio solves a parameter's pick-up (PPAR p src scale offset 0: scale times SURF
+        # src's PARM p plus offset) again for the configuration; the saved PARM is the active
+        # one's, and other readers of the one-configuration file do not solve pick-ups
+        nums = [int(m.group(1)) for ln in head if (m := re.match(r"SURF\s+(\d+)\s*$", ln))]
+        for s in nums:
+            a, b = block(s)
+            for j in range(a, b):
+                fl = head[j].split()
+                if fl[:1] != ["PPAR"] or len(fl) < 6 or int(fl[2]) < 0 or fl[5] != "0":
+                    continue
+                sa, sb = block(int(fl[2]))
+                src = next((i for i in range(sa, sb) if head[i].split()[:2] == ["PARM", fl[1]]),
+                           None)
+                dst = next((i for i in range(a, b) if head[i].split()[:2] == ["PARM", fl[1]]),
+                           None)
+                if src is None or dst is None:
+                    raise NotApplied(f"SURF {s}: PPAR {fl[1]} without its PARM lines")
+                val = float(fl[3]) * float(head[src].split()[2]) + float(fl[4])
+                ft = head[dst].split()
+                ft[2] = repr(val)
+                head[dst] = "  " + " ".join(ft)
     del n
     return "\n".join(head + other) + "\n"

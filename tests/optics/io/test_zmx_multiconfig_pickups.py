@@ -1,0 +1,78 @@
+"""Parameter pick-ups (``PPAR``) re-evaluated in a configuration other than the saved one.
+
+OpticStudio saves the active configuration's solved parameters only; in another configuration
+a pick-up is solved again from that configuration's values.  A fold written as ``break (tilt
+t), mirror, break (picking up t)`` whose configuration 2 turns the fold the other way (``PRAM``
+of the first break only, as OpticStudio's "Mach Zender Interferometer" sample does) must get
+the return break's tilt from its pick-up: kept at the saved value, the frame after the fold
+would be turned 90 degrees away from the beam, and every ray missed the mirror after it.
+
+tests/data/zmx_opticstudio/fold_pickup_2conf.zmx: a 45-degree flat fold, then a concave mirror
+(``CURV 0.02``, R = 50 mm) 20 mm on, the image 25 mm after it: closed forms ``EFL = R/2 = 25``
+and, for a ray parallel to the axis at height ``h``, the transverse spherical aberration of a
+spherical mirror at its paraxial focus, ``h**3 / (2 R**2)`` to third order.
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+
+from deeplens.optics.io import ZemaxWarning, lens_to_dict, read_zmx
+from deeplens.optics.paraxial import paraxial
+from deeplens.optics.rays import Rays
+from zmx_mconf_apply import single_configuration
+
+FOLD = Path(__file__).resolve().parents[2] / "data" / "zmx_opticstudio" / "fold_pickup_2conf.zmx"
+R = 50.0
+
+
+def _read(path, **kw):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ZemaxWarning)
+        return read_zmx(path, **kw).to(torch.float64)
+
+
+@pytest.mark.parametrize("config", [1, 2])
+def test_fold_turned_the_other_way_focuses_as_the_closed_form(config):
+    lens = _read(FOLD, config=config)
+    assert float(paraxial(lens).efl) == pytest.approx(R / 2, rel=1e-9)
+    h = 0.5
+    o = torch.tensor([[0.0, 0.0, -1.0], [0.0, h, -1.0], [h, 0.0, -1.0]], dtype=torch.float64)
+    d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(3, 3)
+    out = lens.trace_to_sensor(Rays(o, d, torch.full((3,), 550.0, dtype=torch.float64)))
+    assert out.valid.all()
+    # third-order transverse aberration h^3/(2R^2) = 2.5e-5 mm; the fifth order is ~(h/R)^2
+    # smaller, far below the 1e-7 mm allowed
+    lateral = out.o[1:, :2].norm(dim=-1)
+    assert torch.allclose(lateral, torch.full_like(lateral, h ** 3 / (2 * R ** 2)), atol=1e-7)
+    assert out.o[0, :2].abs().max() < 1e-12
+
+
+def test_a_solve_deeplens_does_not_evaluate_is_noted_in_another_configuration(tmp_path):
+    text = FOLD.read_text().replace("  PARM 2 0\n  PARM 3 45\n  PPAR 3 2",
+                                    "  PARM 2 0\n  PPAR 2 -1 1 0\n  PARM 3 45\n  PPAR 3 2", 1)
+    p = tmp_path / "fold.zmx"
+    p.write_text(text)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        read_zmx(p, config=2)
+    notes = [str(x.message) for x in w if "PPAR" in str(x.message)]
+    assert len(notes) == 1 and "SURF 4" in notes[0] and "parameter 2" in notes[0]
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        read_zmx(p, config=1)          # the saved configuration: its values are the solved ones
+    assert not [x for x in w if "PPAR" in str(x.message)]
+
+
+def test_the_test_only_applier_solves_the_pick_up_as_well(tmp_path):
+    """tests/optics/io/zmx_mconf_apply.py (the corpus oracles' one-configuration files, no code
+    shared with deeplens) writes the return break's tilt solved: -45 in configuration 2."""
+    for k in (1, 2):
+        alone = tmp_path / f"c{k}.zmx"
+        alone.write_text(single_configuration(FOLD, k))
+        assert lens_to_dict(_read(FOLD, config=k)) == lens_to_dict(_read(alone))
+    assert "PARM 3 -45.0" in (tmp_path / "c2.zmx").read_text()
