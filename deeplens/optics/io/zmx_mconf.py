@@ -18,8 +18,9 @@ parameter or extra-data number, in the row's sixth field (OpticStudio's "Int2": 
 ...`` is parameter 3 of ``SURF 8``, a coordinate break's tilt about x, in configuration 2).  The
 other columns after the value (solves, pick-ups, display flags) are not read: the value itself
 is what the configuration uses.  Configuration ``N`` is the saved lens with each operand's value
-for ``N`` put in its place, then (``N`` not the active one) its parameters' pick-ups (``PPAR``)
-re-evaluated.  OpticStudio writes the rows' values to 13 significant digits (``%.12E``) and the saved records to 17: a row value that repeats the saved one to the row's
+for ``N`` put in its place, then (``N`` not the active one) its parameters' pick-ups (``PPAR``),
+material pick-ups (``GLAS NAME 2 src``) and thickness pick-ups (``PZUP``) re-evaluated (curvature
+pick-ups, a ``CURV`` solve, are not).  OpticStudio writes the rows' values to 13 significant digits (``%.12E``) and the saved records to 17: a row value that repeats the saved one to the row's
 precision (within 5e-13 relative) keeps the saved value, so the active configuration is the
 saved lens bit for bit:
 
@@ -219,8 +220,28 @@ def _pickups(surfs: list[ZmxSurface], p: Locator) -> None:
     the active configuration's solved values only, so without this a coordinate break that picks
     up a tilt the configuration changes (a fold's return break) would keep the active
     configuration's tilt.  Solves deeplens does not evaluate (a chief-ray decenter, a pick-up
-    from another column) keep their saved value, with a note."""
+    from another column) keep their saved value, with a note.
+
+    A material pick-up (``GLAS NAME 2 src``) takes SURF ``src``'s material again and a thickness
+    pick-up (``PZUP src scale offset 0``) becomes ``scale * (SURF src's DISZ) + offset``: the
+    Twyman-Green sample's configuration 2 empties its test arm (``GLSS 6 ""``, ``THIC 6 0``,
+    ``THIC 7 0``) and the return pass's surfaces picking up from it must follow (kept, they
+    left a BK7 lens and 4 mm of path in the reference arm)."""
     for j, s in enumerate(surfs):
+        if s.glass_pickup is not None:
+            src, ln = s.glass_pickup
+            if surfs[src].mirror:
+                p.fail(ln, f"GLAS on SURF {j}: a material pickup from SURF {src}, a mirror in "
+                           f"this configuration, is not supported")
+            s.glass, s.glass_model, s.glass_model_name = (
+                surfs[src].glass, surfs[src].glass_model, surfs[src].glass_model_name)
+        if s.pzup is not None:
+            src, scale, offset, column, ln = s.pzup
+            if column != 0 or not 0 <= src < len(surfs) or not math.isfinite(surfs[src].disz):
+                p.note(ln, f"SURF {j}: the thickness solve (PZUP) is not re-evaluated for this "
+                           f"configuration; the saved configuration's value is kept")
+            else:
+                s.disz = scale * surfs[src].disz + offset
         for i, (src, scale, offset, column, ln) in sorted(s.ppar.items()):
             if src < 0 or column != 0 or src >= len(surfs) or i not in surfs[src].parm:
                 p.note(ln, f"SURF {j}: the solve on parameter {i} (PPAR) is not re-evaluated "

@@ -142,6 +142,11 @@ class ZmxSurface:
     # PPAR p src scale offset column: parameter p's solve, p -> (src, scale, offset, column, line)
     # (src >= 0: a pick-up from SURF src; src < 0: another solve, such as a chief-ray decenter)
     ppar: dict = field(default_factory=dict)
+    # GLAS NAME 2 src: the material picked up from SURF src, (src, line) (.zmx_mconf solves it
+    # again in another configuration)
+    glass_pickup: tuple | None = None
+    # PZUP src scale offset column: the thickness picked up, (src, scale, offset, column, line)
+    pzup: tuple | None = None
 
 
 class Locator:
@@ -462,6 +467,17 @@ def _glass_pickup(st: _Parse, r: Record) -> None:
     cur.glass, cur.glass_model, cur.glass_model_name = (
         src.glass, src.glass_model, src.glass_model_name)
     cur.glass_line = ln
+    cur.glass_pickup = (int(k), ln)
+
+
+def _pzup(st: _Parse, r: Record) -> None:
+    """``PZUP src scale offset column``: a thickness pick-up (saved already solved, ``DISZ``
+    holds its value; read so that :mod:`.zmx_mconf` can solve it again in another
+    configuration): ``scale * (SURF src's DISZ) + offset`` (``column`` 0: the thickness)."""
+    p, toks, ln = st.p, r.tokens, r.line
+    st.cur.pzup = (int(p.arg(toks, 1, ln, "thickness pick-up's source surface")),
+                   p.arg(toks, 2, ln, "pick-up scale"), p.arg(toks, 3, ln, "pick-up offset"),
+                   int(p.arg(toks, 4, ln, "pick-up column")) if len(toks) > 4 else 0, ln)
 
 
 def _clap(st: _Parse, r: Record) -> None:
@@ -584,7 +600,7 @@ def _aperture_refused(st: _Parse, r: Record) -> None:
 
 
 def _surface_ignored(st: _Parse, r: Record) -> None:
-    """Records of a surface that the reader does not need (``TCE``, ``COAT``, ``PZUP``)."""
+    """Records of a surface that the reader does not need (``TCE``, ``COAT``)."""
 
 
 def _scbd(st: _Parse, r: Record) -> None:
@@ -610,7 +626,7 @@ _SURFACE_OPERANDS = {
     "OBDC": _obdc, "GDAT": _gdat, "GARR": _garr, "ELAP": _ellipse, "ELOB": _ellipse,
     "SPID": _spid, "PPAR": _ppar,
     **dict.fromkeys(_APERTURES_REFUSED, _aperture_refused),
-    **dict.fromkeys(("TCE", "COAT", "PZUP"), _surface_ignored), "SCBD": _scbd,
+    **dict.fromkeys(("TCE", "COAT"), _surface_ignored), "PZUP": _pzup, "SCBD": _scbd,
 }
 
 

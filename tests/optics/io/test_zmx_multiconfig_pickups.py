@@ -15,6 +15,7 @@ spherical mirror at its paraxial focus, ``h**3 / (2 R**2)`` to third order.
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
@@ -76,3 +77,101 @@ def test_the_test_only_applier_solves_the_pick_up_as_well(tmp_path):
         alone.write_text(single_configuration(FOLD, k))
         assert lens_to_dict(_read(FOLD, config=k)) == lens_to_dict(_read(alone))
     assert "PARM 3 -45.0" in (tmp_path / "c2.zmx").read_text()
+
+
+# Two plano-convex N-BK7 lenses (c = 0.05 per mm, thickness t), the second turned round: its
+# flat face picks up the first lens' material (GLAS ... 2 1) and thickness (PZUP 1 1 0 0), as
+# the return pass of OpticStudio's "Twyman Green Interferometer" sample picks up its test lens.
+# Configuration 2 thickens the first lens to 6 mm; configuration 3 empties it (air, flat).
+_PICKED = """VERS 130724 324 23203
+MODE SEQ
+NAME material and thickness pick-ups
+UNIT MM X W X CM MR CPMM
+ENPD 4
+GCAT SCHOTT
+FTYP 0 0 1 1 0 0 0
+XFLN 0
+YFLN 0
+WAVM 1 0.55 1
+PWAV 1
+SURF 0
+  TYPE STANDARD
+  CURV 0.0
+  DISZ INFINITY
+SURF 1
+  STOP
+  TYPE STANDARD
+  CURV 0.05
+  DISZ 4
+  GLAS N-BK7 0 0 1.5 40 0 0 0 0 0 0
+  DIAM 5 1 0 0 1 ""
+SURF 2
+  TYPE STANDARD
+  CURV 0.0
+  DISZ 10
+  DIAM 5 1 0 0 1 ""
+SURF 3
+  TYPE STANDARD
+  CURV 0.0
+  DISZ 4
+  GLAS N-BK7 2 1 1.5 40 0 0 0 0 0 0
+  PZUP 1.0 1 0 0
+  DIAM 5 1 0 0 1 ""
+SURF 4
+  TYPE STANDARD
+  CURV -0.05
+  DISZ 30
+  DIAM 5 1 0 0 1 ""
+SURF 5
+  TYPE STANDARD
+  CURV 0.0
+  DISZ 0
+MNUM 3 1
+THIC   1   1 4.0E+0 0 0 0 1 1 1 0 0
+THIC   1   2 6.0E+0 0 0 0 2 1 1 0 0
+THIC   1   3 4.0E+0 0 0 0 3 1 1 0 0
+GLSS   1   1 "N-BK7" 0 0 0 1 2 0 0.0 ""
+GLSS   1   2 "N-BK7" 0 0 0 2 2 0 0.0 ""
+GLSS   1   3 "" 0 0 0 3 2 0 0.0 ""
+CRVT   1   1 5.0E-2 0 0 0 1 3 1 0 0
+CRVT   1   2 5.0E-2 0 0 0 2 3 1 0 0
+CRVT   1   3 0.0E+0 0 0 0 3 3 1 0 0
+"""
+
+
+def _n_bk7(um: float) -> float:
+    """N-BK7's index (SCHOTT's Sellmeier coefficients) at ``um`` micrometres."""
+    lam2 = um * um
+    b, c = (1.03961212, 0.231792344, 1.01046945), (0.00600069867, 0.0200179144, 103.560653)
+    return math.sqrt(1 + sum(bi * lam2 / (lam2 - ci) for bi, ci in zip(b, c)))
+
+
+@pytest.mark.parametrize("config, t", [(1, 4.0), (2, 6.0)])
+def test_material_and_thickness_pick_ups_follow_the_configuration(tmp_path, config, t):
+    """Two thin surfaces of power (n - 1) c a reduced distance t/n + 10 + t/n apart (the flat
+    faces add none): EFL = 1 / (2 phi - d phi**2); with the second lens' thickness kept at the
+    saved 4 mm, configuration 2's EFL was 24.5675 mm (2 % short)."""
+    path = tmp_path / "picked.zmx"
+    path.write_text(_PICKED)
+    n = _n_bk7(0.55)
+    phi, d = (n - 1) * 0.05, 2 * t / n + 10.0
+    want = 1.0 / (2 * phi - d * phi ** 2)
+    for lens in (_read(path, config=config), _read(_alone(tmp_path, path, config))):
+        assert float(paraxial(lens).efl) == pytest.approx(want, rel=1e-9)
+
+
+def test_a_material_picked_up_from_air_is_air(tmp_path):
+    """Configuration 3 empties the first lens (GLSS 1 "", CRVT 1 0): the second lens' flat face
+    picks up air, so no surface has glass (kept as saved, the second lens stayed N-BK7)."""
+    path = tmp_path / "picked.zmx"
+    path.write_text(_PICKED)
+    for lens in (_read(path, config=3), _read(_alone(tmp_path, path, 3))):
+        media = [s["material"] for s in lens_to_dict(lens)["surfaces"] if "material" in s]
+        assert media and all(m == "AIR" for m in media)
+
+
+def _alone(tmp_path, path, k):
+    """The test-only applier's one-configuration file of configuration ``k``."""
+    alone = tmp_path / f"alone{k}.zmx"
+    alone.write_text(single_configuration(path, k))
+    return alone

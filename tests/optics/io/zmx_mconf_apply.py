@@ -208,7 +208,7 @@ def single_configuration(path, k: int) -> str:
                              f"{active_value.get((op, num, ''))!r} saved")
     if k != active:
         # OpticStudio solves a parameter's pick-up (PPAR p src scale offset 0: scale times SURF
-        # src's PARM p plus offset) again for the configuration; the saved PARM is the active
+        # src's PARM p plus offset) and a thickness pick-up (PZUP) again for the configuration; the saved PARM is the active
         # one's, and other readers of the one-configuration file do not solve pick-ups
         nums = [int(m.group(1)) for ln in head if (m := re.match(r"SURF\s+(\d+)\s*$", ln))]
         for s in nums:
@@ -227,6 +227,22 @@ def single_configuration(path, k: int) -> str:
                 val = float(fl[3]) * float(head[src].split()[2]) + float(fl[4])
                 ft = head[dst].split()
                 ft[2] = repr(val)
+                head[dst] = "  " + " ".join(ft)
+            # a thickness pick-up (PZUP src scale offset column 0): scale times SURF src's DISZ
+            # plus offset, solved again as well (a material pick-up, GLAS NAME 2 src, stays in
+            # the file: single-configuration readers take SURF src's material as written)
+            j = surf_line(s, "PZUP")
+            if j is not None:
+                fl = head[j].split()
+                if len(fl) > 4 and fl[4] != "0":
+                    raise NotApplied(f"SURF {s}: PZUP from column {fl[4]}")
+                src = surf_line(int(float(fl[1])), "DISZ")
+                dst = surf_line(s, "DISZ")
+                if src is None or dst is None:
+                    raise NotApplied(f"SURF {s}: PZUP without the DISZ lines")
+                val = float(fl[2]) * float(head[src].split()[1]) + float(fl[3])
+                ft = head[dst].split()
+                ft[1] = repr(val)
                 head[dst] = "  " + " ".join(ft)
     del n
     return "\n".join(head + other) + "\n"
