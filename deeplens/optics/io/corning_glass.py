@@ -23,7 +23,7 @@ note naming the source.  Lookup is by exact name (case-insensitive), never a gue
 from __future__ import annotations
 
 from .agf import AGFGlass
-from .infrared_glass import CRYSTALS, glass_key, table_glass
+from .infrared_glass import CRYSTALS, table_glass, table_note
 
 __all__ = ["CORNING_GLASSES", "CORNING_NOTE_DIFF", "corning_glass", "corning_note"]
 
@@ -53,8 +53,6 @@ def corning_glass(glass: str) -> AGFGlass | None:
 def corning_note(glass: str) -> str:
     """The located note of a use of ``CORNING`` glass ``glass`` (a name in
     :data:`CORNING_GLASSES`)."""
-    rec = CORNING_GLASSES[glass_key(glass)]
-    lo, hi = (v / 1000.0 for v in rec.range_nm)
-    return (f"CORNING glass from {rec.source}, {rec.temperature}, valid {lo:g}-{hi:g} µm "
-            f"(OpticStudio's own CORNING coefficients may be another fit: published fused-silica "
-            f"fits differ by up to {CORNING_NOTE_DIFF} in n)")
+    return table_note(CORNING_GLASSES, glass, "CORNING glass",
+                      f"OpticStudio's own CORNING coefficients may be another fit: published "
+                      f"fused-silica fits differ by up to {CORNING_NOTE_DIFF} in n")

@@ -51,7 +51,8 @@ from typing import NamedTuple
 
 from .agf import AGFGlass
 
-__all__ = ["Crystal", "CRYSTALS", "crystal_note", "glass_key", "infrared_glass", "table_glass"]
+__all__ = ["Crystal", "CRYSTALS", "crystal_note", "glass_key", "infrared_glass", "table_glass",
+           "table_note"]
 
 
 class Crystal(NamedTuple):
@@ -162,11 +163,17 @@ def infrared_glass(glass: str) -> AGFGlass | None:
     return table_glass(CRYSTALS, glass, "INFRARED")
 
 
+def table_note(table: dict, glass: str, what: str, caveat: str) -> str:
+    """The located note of a use of ``glass`` from ``table`` (as :func:`table_glass`'s): ``what``
+    it is, its record's source, temperature and range (µm), then ``caveat`` in parentheses."""
+    rec = table[glass_key(glass)]
+    lo, hi = (v / 1000.0 for v in rec.range_nm)
+    return f"{what} from {rec.source}, {rec.temperature}, valid {lo:g}-{hi:g} µm ({caveat})"
+
+
 def crystal_note(glass: str) -> str:
     """The located note of a use of ``INFRARED`` crystal ``glass`` (a name in
     :data:`CRYSTALS`)."""
-    rec = CRYSTALS[glass_key(glass)]
-    lo, hi = (v / 1000.0 for v in rec.range_nm)
-    return (f"INFRARED crystal from {rec.source}, {rec.temperature}, valid {lo:g}-{hi:g} µm "
-            f"(OpticStudio's own INFRARED coefficients may be another fit: indices may differ "
-            f"by 1e-3 or more)")
+    return table_note(CRYSTALS, glass, "INFRARED crystal",
+                      "OpticStudio's own INFRARED coefficients may be another fit: indices may "
+                      "differ by 1e-3 or more")

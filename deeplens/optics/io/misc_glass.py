@@ -38,7 +38,7 @@ from __future__ import annotations
 import torch
 
 from .agf import AGFGlass
-from .infrared_glass import Crystal, glass_key
+from .infrared_glass import Crystal, glass_key, table_note
 
 __all__ = ["MISC_GLASSES", "MISC_NOTE_DIFF", "AirRelativeGlass", "misc_glass", "misc_note",
            "opticstudio_air_index"]
@@ -112,8 +112,6 @@ def misc_glass(glass: str) -> AirRelativeGlass | None:
 def misc_note(glass: str) -> str:
     """The located note of a use of ``MISC`` material ``glass`` (a name in
     :data:`MISC_GLASSES`)."""
-    rec = MISC_GLASSES[glass_key(glass)]
-    lo, hi = (v / 1000.0 for v in rec.range_nm)
-    return (f"MISC material from {rec.source}, {rec.temperature}, valid {lo:g}-{hi:g} µm "
-            f"(OpticStudio's own MISC coefficients may be another fit: published fits of water "
-            f"at 20 °C differ by up to {MISC_NOTE_DIFF} in n over 0.4-0.7 µm)")
+    return table_note(MISC_GLASSES, glass, "MISC material",
+                      f"OpticStudio's own MISC coefficients may be another fit: published fits of "
+                      f"water at 20 °C differ by up to {MISC_NOTE_DIFF} in n over 0.4-0.7 µm")
