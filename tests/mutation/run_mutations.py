@@ -943,8 +943,9 @@ MUTATIONS = [
              "deeplens/optics/io/codev.py", "_obscuration(lens, i, r * u, line,",
              "_obscuration(lens, i, r, line,", CODEV_DEFAULTS),
     Mutation("pik_factor_ignored", "a PIK pickup's factor ignored (target = source + offset)",
-             "deeplens/optics/io/codev.py", "        v = factor * v + offset",
-             "        v = v + offset", CODEV_DEFAULTS),
+             "deeplens/optics/io/codev.py",
+             "        set_surface_value(dst, p, factor * surface_value(src, q) + offset)",
+             "        set_surface_value(dst, p, surface_value(src, q) + offset)", CODEV_DEFAULTS),
     Mutation("fno_finite_not_working", "FNO with a finite object: the EPD of twice the "
              "F-number", "deeplens/optics/io/codev.py",
              "    return abs(to_pupil) / (fno * abs(u_k))",

@@ -98,7 +98,7 @@ from ..materials import GLASS_TABLE, Air, Material, ModelGlass, get_material
 from ..surfaces import Asphere
 from .agf import AGFGlass
 from .codev_apertures import APERTURE_COMMANDS, aperture_command, apply_aperture, write_aperture
-from .codev_zoom import apply_zoom, zoom_command, zoom_count
+from .codev_zoom import apply_zoom, set_surface_value, surface_value, zoom_command, zoom_count
 from .codev_decenter import (DECENTER_COMMANDS, decenter_command, expand_decenters,
                              write_break)
 from .filecheck import read_file_bytes
@@ -929,19 +929,7 @@ def _apply_pickups(rd: _Reader) -> None:
             if not -n <= j < n:
                 rd.fail(line, f"PIK: {what} surface S{j} does not exist (S0 .. S{n - 1})")
         src, dst = rd.surfs[m], rd.surfs[k]
-        if q == "THI":
-            v = src["t"]
-        elif q == "CUY":
-            v = src["c"]
-        else:
-            v = 0.0 if src["c"] == 0 else 1.0 / src["c"]
-        v = factor * v + offset
-        if p == "THI":
-            dst["t"] = v
-        elif p == "CUY":
-            dst["c"] = v
-        else:
-            dst["c"] = 0.0 if v == 0 else 1.0 / v
+        set_surface_value(dst, p, factor * surface_value(src, q) + offset)
 
 
 def _stop_clear_radius(lens: Lens, clear: float, got: float, kind: str, line: int, fail,

@@ -37,13 +37,35 @@ from __future__ import annotations
 
 import re
 
-__all__ = ["ZOOM_PARAMETERS", "zoom_command", "apply_zoom", "zoom_count"]
+__all__ = ["ZOOM_PARAMETERS", "zoom_command", "apply_zoom", "zoom_count", "surface_value",
+           "set_surface_value"]
 
 _SURFACE = ("THI", "RDY", "CUY")
 _PUPIL = ("EPD", "FNO")
 _FIELD = ("YAN", "YOB", "YIM")
 #: the parameters a ``ZOO`` line may zoom
 ZOOM_PARAMETERS = _SURFACE + _PUPIL + _FIELD
+
+
+def surface_value(s: dict, code: str) -> float:
+    """A surface record's value under its command ``code``: ``THI`` the thickness, ``CUY`` the
+    curvature, ``RDY`` the radius (0 for a flat surface); lens units."""
+    if code == "THI":
+        return s["t"]
+    if code == "CUY":
+        return s["c"]
+    return 0.0 if s["c"] == 0 else 1.0 / s["c"]
+
+
+def set_surface_value(s: dict, code: str, v: float) -> None:
+    """Set a surface record's ``THI``, ``CUY`` or ``RDY`` (a radius 0: flat) to ``v``
+    (:func:`surface_value`'s inverse)."""
+    if code == "THI":
+        s["t"] = v
+    elif code == "CUY":
+        s["c"] = v
+    else:
+        s["c"] = 0.0 if v == 0 else 1.0 / v
 
 
 def zoom_command(zoom: dict, args: list[str], line: int, nums, fail) -> None:
@@ -119,13 +141,7 @@ def apply_zoom(rd, position: int) -> None:
                                                             surfs[-1]["kind"] != "SI"):
                 fail(line, f"ZOO {p}: surface S{target if target >= 0 else 'I'} does not exist "
                            f"(SO .. S{len(surfs) - 2}, SI)")
-            s = surfs[target]
-            if p == "THI":
-                s["t"] = v
-            elif p == "CUY":
-                s["c"] = v
-            else:
-                s["c"] = 0.0 if v == 0 else 1.0 / v
+            set_surface_value(surfs[target], p, v)
         elif p in _PUPIL:
             if rd.pupil is None or rd.pupil[0] != p:
                 have = rd.pupil[0] if rd.pupil is not None else "no system aperture"
