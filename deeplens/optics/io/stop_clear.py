@@ -48,7 +48,7 @@ def flat_stop_as_asphere(lens) -> Asphere:
         raise ValueError(f"the stop is a {type(old).__name__} with an opening a flat surface's "
                          f"clear aperture cannot hold")
     new = Asphere(0.0, float(old.semi_diameter), obscuration=float(old.obscuration))
-    new = new.to(device=old.semi_diameter.device)
+    new = new.to(device=old.semi_diameter.device, dtype=old.semi_diameter.dtype)
     before = {q: a for a, q in lens._real_neighbours(across_breaks=True)}
     lens.surfaces[k] = new
     try:
