@@ -404,9 +404,14 @@ def _ppar(st: _Parse, r: Record) -> None:
     if src < 0:
         st.cur.ppar[i] = (src, None, None, None, ln)
         return
-    st.cur.ppar[i] = (src, p.arg(toks, 3, ln, "pick-up scale"),
-                      p.arg(toks, 4, ln, "pick-up offset"),
-                      int(p.arg(toks, 5, ln, "pick-up column")) if len(toks) > 5 else 0, ln)
+    st.cur.ppar[i] = (src, *_pickup_terms(p, toks, 3, ln), ln)
+
+
+def _pickup_terms(p, toks, at: int, ln: int) -> tuple:
+    """``(scale, offset, column)`` of a pick-up record whose scale is token ``at`` (``PPAR``'s
+    and ``PZUP``'s); ``column`` 0 (the same quantity) when the record omits it."""
+    return (p.arg(toks, at, ln, "pick-up scale"), p.arg(toks, at + 1, ln, "pick-up offset"),
+            int(p.arg(toks, at + 2, ln, "pick-up column")) if len(toks) > at + 2 else 0)
 
 
 def _xdat(st: _Parse, r: Record) -> None:
@@ -476,8 +481,7 @@ def _pzup(st: _Parse, r: Record) -> None:
     configuration): ``scale * (SURF src's DISZ) + offset`` (``column`` 0: the thickness)."""
     p, toks, ln = st.p, r.tokens, r.line
     st.cur.pzup = (int(p.arg(toks, 1, ln, "thickness pick-up's source surface")),
-                   p.arg(toks, 2, ln, "pick-up scale"), p.arg(toks, 3, ln, "pick-up offset"),
-                   int(p.arg(toks, 4, ln, "pick-up column")) if len(toks) > 4 else 0, ln)
+                   *_pickup_terms(p, toks, 2, ln), ln)
 
 
 def _clap(st: _Parse, r: Record) -> None:
