@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from deeplens.optics.io import ZemaxWarning, lens_to_dict, read_zmx
+from deeplens.optics.io import ZemaxFileError, ZemaxWarning, lens_to_dict, read_zmx
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
 from zmx_mconf_apply import single_configuration
@@ -175,3 +175,29 @@ def _alone(tmp_path, path, k):
     alone = tmp_path / f"alone{k}.zmx"
     alone.write_text(single_configuration(path, k))
     return alone
+
+
+@pytest.mark.parametrize("record, cut", [("  PPAR 3 2 1.0 0.0 0", "  PPAR 3 2"),
+                                         ("  PPAR 3 2 1.0 0.0 0", "  PPAR 3 2 1.0")])
+def test_a_truncated_pick_up_is_refused_on_its_line(tmp_path, record, cut):
+    """A pick-up record without its scale or offset is refused at its line, naming the field
+    (the reader needs both to solve it again in another configuration)."""
+    text = FOLD.read_text()
+    assert record in text
+    p = tmp_path / "cut.zmx"
+    p.write_text(text.replace(record, cut, 1))
+    line = text.splitlines().index(record) + 1
+    what = "scale" if cut.count(" ") == 4 else "offset"
+    with pytest.raises(ZemaxFileError, match=rf"cut\.zmx:{line}: .*pick-up {what}") as e:
+        read_zmx(p, config=2)
+    assert e.value.line == line
+
+
+def test_a_truncated_thickness_pick_up_is_refused_on_its_line(tmp_path):
+    text = _PICKED.replace("  PZUP 1.0 1 0 0", "  PZUP 1.0", 1)
+    p = tmp_path / "cut.zmx"
+    p.write_text(text)
+    line = text.splitlines().index("  PZUP 1.0") + 1
+    with pytest.raises(ZemaxFileError, match=rf"cut\.zmx:{line}: .*pick-up scale"):
+        read_zmx(p)
+
