@@ -1326,6 +1326,13 @@ MUTATIONS = [
              "    return tuple(-v for v in vals), 1 - order, \"reverse\"\n",
              "    return tuple(-v for v in vals), order, \"reverse\"\n",
              ("tests/optics/io/test_zmx_scbd.py",)),
+    # ------------- issue 37: set 9, a Jones matrix plane in the oracles' dummy test (setup9)
+    Mutation("oracle_jones_plane_not_plain", "the corpus oracles' plain-plane test knows "
+             "STANDARD only: a JONESMAT at DISZ 0 before a lens face takes the glass, the face "
+             "does not refract (optiland and rayoptics EFL 20 vs the thick lens's 10.67)",
+             "tests/optics/io/test_zmx_corpus.py",
+             "out.append(t in (\"STANDARD\", \"JONESMAT\") and",
+             "out.append(t == \"STANDARD\" and", JONESMAT),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
