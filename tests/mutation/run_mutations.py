@@ -88,6 +88,7 @@ PARAX_XY = ("tests/optics/io/test_zmx_parax_xy.py", "tests/optics/surfaces/test_
 IRREGULAR = ("tests/optics/surfaces/test_irregular.py", "tests/optics/io/test_zmx_irregular.py")
 SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
 SET6_RULES = ("tests/optics/io/test_zmx_set6_rules.py",)
+SET9_RULES = ("tests/optics/io/test_zmx_set9_rules.py",)
 BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
@@ -1333,6 +1334,11 @@ MUTATIONS = [
              "tests/optics/io/test_zmx_corpus.py",
              "out.append(t in (\"STANDARD\", \"JONESMAT\") and",
              "out.append(t == \"STANDARD\" and", JONESMAT),
+    Mutation("grating_axis_zeroth_order", "the traced axis leaves a grating in its zeroth order "
+             "(a mirror's), not the order the file traces",
+             "deeplens/optics/frames.py",
+             "    return [float(v) for v in out[0]] if bool(ok[0]) else a\n",
+             "    return a\n", SET9_RULES),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

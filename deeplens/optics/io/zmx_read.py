@@ -199,7 +199,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
         raise _located(p, e, where_of) from e
     lens.object_telecentric = telecentric
     lens.object_tilt = seq.obj_tilt
-    for i in mirrors_met_edge_on(surfaces, seq.mirrors, _axis_indices(seq, primary)):
+    for i in mirrors_met_edge_on(surfaces, seq.mirrors, _axis_indices(seq, primary),
+                                  primary):
         # (a sphere or conic mirror takes such rays at their first crossing ahead: intersect's
         # ``across``; an aspheric one intersects from its vertex plane, Newton's start)
         lost = ("" if getattr(surfaces[i], "is_quadric", False) else
@@ -571,7 +572,8 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
     # an odd number of mirrors unless breaks turn the beam round), so "behind" the last vertex
     # is sign * d > 0; a thickness of the wrong sign inside the lens is reported by Lens
     # (naming that surface)
-    signs = [float(v) for v in travel_directions(surfaces, mirrors, _axis_indices(seq, primary))]
+    signs = [float(v) for v in travel_directions(surfaces, mirrors, _axis_indices(seq, primary),
+                                                      primary)]
     sign = signs[-1]
     _note_reversed_ideal_lenses(kept, signs, p)
     inside_ok = all(kept[i][3] * signs[i] >= 0 for i in range(1, len(kept)))
@@ -842,7 +844,7 @@ def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of:
     reports it)."""
     if not seq.mirrors:
         return []
-    signs = travel_directions(surfaces, seq.mirrors, _axis_indices(seq, primary))
+    signs = travel_directions(surfaces, seq.mirrors, _axis_indices(seq, primary), primary)
     first = min(seq.mirrors)
     out, prev = [], None
     for q, s in enumerate(surfaces):

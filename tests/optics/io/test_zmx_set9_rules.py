@@ -1,0 +1,98 @@
+"""Readings met by the ninth unseen set of real files (docs/guide/zemax.md), each on a synthetic
+file checked by a closed form:
+
+* the direction of travel after a reflecting grating follows the order the file traces: a
+  grating stretcher turns its frame onto the first order, which leaves near the incoming beam,
+  not along the mirror's zeroth order (OpticStudio's ``Gratingstrecker`` sample, refused before
+  as "distance ... is positive").
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import torch
+from test_zmx import write
+
+from deeplens.optics.io import read_zmx
+from deeplens.optics.io.zmx import ZemaxWarning
+from deeplens.optics.rays import Rays
+
+_HEAD = """VERS 80915 20 20100
+MODE SEQ
+UNIT MM X W X CM MR CPMM
+{aperture}
+FTYP 0 0 1 1 0 0 0
+YFLN 0
+WAVM 1 {wav} 1
+PWAV 1
+"""
+
+
+def _surf(k, *lines):
+    return f"SURF {k}\n" + "".join(f"  {ln}\n" for ln in lines)
+
+
+def _line(text, needle):
+    return next(i for i, ln in enumerate(text.splitlines(), 1) if ln.strip() == needle)
+
+
+def _quiet(path):
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        lens = read_zmx(path)
+    return lens, [x.message for x in w if isinstance(x.message, ZemaxWarning)]
+
+
+# ------------------------------------------------------------------ a grating's order in the axis
+#: a flat reflecting grating of T lines/µm used in order M at λ (µm), lit at THETA_I from its
+#: normal; the breaks turn the frame onto the diffracted beam, which leaves at theta_d on the
+#: same side as the incoming one: sin θd = M λ T − sin θi (OpticStudio's Gratingstrecker sample:
+#: 1.74 lines/µm, 1.03 µm, 59.1° in, 69.09° out)
+T_LINES, M, LAMBDA_UM, THETA_I, L = 1.74, 1, 1.03, 59.1, 100.0
+
+
+def _stretcher():
+    theta_d = math.degrees(math.asin(M * LAMBDA_UM * T_LINES - math.sin(math.radians(THETA_I))))
+
+    def brk(k, tilt, disz):
+        return _surf(k, "TYPE COORDBRK", "CURV 0", "PARM 1 0", "PARM 2 0", f"PARM 3 {tilt!r}",
+                     "PARM 4 0", "PARM 5 0", "PARM 6 0", f"DISZ {disz}")
+
+    return _HEAD.format(aperture="ENPD 4", wav=LAMBDA_UM) + "".join([
+        _surf(0, "TYPE STANDARD", "CURV 0", "DISZ INFINITY"),
+        _surf(1, "STOP", "TYPE STANDARD", "CURV 0", "DISZ 50"),
+        brk(2, -THETA_I, 0),
+        _surf(3, "TYPE DGRATING", "CURV 0", f"PARM 1 {T_LINES}", f"PARM 2 {M}", "DISZ 0",
+              "GLAS MIRROR 0 0 1.5 4.0E+1 0 0 0 0 0 0"),
+        brk(4, theta_d, -L),
+        _surf(5, "TYPE STANDARD", "CURV 0", "DISZ 0")]), theta_d
+
+
+def test_the_axis_leaves_a_grating_in_its_order(tmp_path):
+    """After the grating the breaks turn the frame onto the first order, so light travels along
+    the local ``−z`` axis and the image ``L`` before the break (``DISZ −L``) is a real image
+    plane.  Taken as the mirror's zeroth order, the axis would leave at ``θi + θd`` (128°) from
+    the local ``−z`` axis, towards ``+z``, and the file was refused ("the image plane lies
+    100 mm before the last surface's vertex").  Real rays of a collimated beam land where the
+    grating's anamorphic map puts them: ``x' = x``, ``y' = y cos θd / cos θi`` (each ray meets
+    the tilted grating ``y / cos θi`` from the vertex; the diffracted beam's width across its
+    direction is that times ``cos θd``; near-Littrow, the beam comes back on the side it went
+    in), travelling exactly along ``−z`` of the last frame."""
+    text, theta_d = _stretcher()
+    lens, _ = _quiet(write(tmp_path, text))
+    assert lens.directions()[-1] == -1 and float(lens.d_sensor) == -L
+    lens = lens.double()
+    x = torch.tensor([0.0, 0.0, 0.0, 1.2, -0.4], dtype=torch.float64)
+    y = torch.tensor([0.0, 1.0, -1.5, 0.0, 0.7], dtype=torch.float64)
+    o = torch.stack([x, y, torch.full_like(y, -5.0)], -1)
+    d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(5, 3)
+    out = lens.trace_to_sensor(Rays(o, d, torch.full((5,), LAMBDA_UM * 1e3,
+                                                     dtype=torch.float64)))
+    assert bool(out.valid.all())
+    k = math.cos(math.radians(theta_d)) / math.cos(math.radians(THETA_I))
+    torch.testing.assert_close(out.o[:, 0], x, rtol=0, atol=1e-12)
+    torch.testing.assert_close(out.o[:, 1], y * k, rtol=0, atol=1e-12)
+    torch.testing.assert_close(out.d, torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64)
+                               .expand(5, 3), rtol=0, atol=1e-12)
