@@ -1334,6 +1334,12 @@ MUTATIONS = [
              "tests/optics/io/test_zmx_corpus.py",
              "out.append(t in (\"STANDARD\", \"JONESMAT\") and",
              "out.append(t == \"STANDARD\" and", JONESMAT),
+    Mutation("image_on_curved_vertex_sag_sign", "the sag of a curved last surface under an image "
+             "at DISZ 0 taken with the wrong sign (a face convex towards the image loaded, one "
+             "concave towards it refused)",
+             "deeplens/optics/io/zmx_read.py",
+             "    z = sign * z.to(torch.float64)\n", "    z = -sign * z.to(torch.float64)\n",
+             SET9_RULES),
     Mutation("grating_axis_zeroth_order", "the traced axis leaves a grating in its zeroth order "
              "(a mirror's), not the order the file traces",
              "deeplens/optics/frames.py",

@@ -1,6 +1,10 @@
 """Readings met by the ninth unseen set of real files (docs/guide/zemax.md), each on a synthetic
 file checked by a closed form:
 
+* an image plane at ``DISZ 0`` on a curved last surface that lies wholly before its vertex plane
+  (a face concave towards the image: a short course's doublet before its thicknesses are set)
+  loads, the sensor 1e-9 mm behind the vertex as for a flat face; one reaching behind the plane
+  stays refused, saying how far;
 * the direction of travel after a reflecting grating follows the order the file traces: a
   grating stretcher turns its frame onto the first order, which leaves near the incoming beam,
   not along the mirror's zeroth order (OpticStudio's ``Gratingstrecker`` sample, refused before
@@ -12,11 +16,13 @@ from __future__ import annotations
 import math
 import warnings
 
+import pytest
 import torch
 from test_zmx import write
 
-from deeplens.optics.io import read_zmx
+from deeplens.optics.io import ZemaxFileError, read_zmx
 from deeplens.optics.io.zmx import ZemaxWarning
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
 
 _HEAD = """VERS 80915 20 20100
@@ -43,6 +49,71 @@ def _quiet(path):
         warnings.simplefilter("always")
         lens = read_zmx(path)
     return lens, [x.message for x in w if isinstance(x.message, ZemaxWarning)]
+
+
+# --------------------------------------------------------------- an image on a curved last vertex
+#: a singlet: flat front face, back face of radius R2 (< 0: concave towards the image), centre
+#: thickness T, model glass of index N; the image plane at DISZ 0 on the back vertex
+R2, T, N, SD = -40.0, 4.0, 1.5, 6.0
+
+
+def _singlet(curv2, sd=SD):
+    return _HEAD.format(aperture="ENPD 8", wav=0.5875618) + "".join([
+        _surf(0, "TYPE STANDARD", "CURV 0", "DISZ INFINITY"),
+        _surf(1, "STOP", "TYPE STANDARD", "CURV 0", f"DISZ {T}",
+              f"GLAS ___BLANK 1 0 {N} 0 0 0 0 0 0 0", f"DIAM {sd} 1 0 0 1"),
+        _surf(2, "TYPE STANDARD", f"CURV {curv2!r}", "DISZ 0", f"DIAM {sd} 1 0 0 1"),
+        _surf(3, "TYPE STANDARD", "CURV 0", "DISZ 0")])
+
+
+def test_image_on_a_curved_vertex_that_lies_before_its_plane_loads(tmp_path):
+    """The back face is concave towards the image (its sag, ``R2 < 0``, runs against the
+    direction of travel), so the whole face lies before its vertex plane, where OpticStudio's
+    thickness 0 puts the image plane: the sensor goes 1e-9 mm behind the vertex, as for a flat
+    face, with one note on the image's ``SURF`` line.  The EFL is the plano-convex lensmaker's
+    ``R2 / (1 − n)`` (a flat front face adds no power); the back focal distance from the last
+    vertex equals the EFL (the principal plane on the curved vertex);
+    a parallel ray at height h lands on the sensor where its refracted line meets the vertex
+    plane, ``z_hit = sag(h)`` before it (the sensor 1e-9 mm further: < 1e-9 mm off)."""
+    f = write(tmp_path, _singlet(1.0 / R2))
+    lens, notes = _quiet(f)
+    line = _line(f.read_text(), "SURF 3")
+    mine = [n for n in notes if "last surface's vertex" in str(n)]
+    assert len(mine) == 1 and mine[0].line == line, [str(n) for n in notes]
+    assert float(lens.d_sensor) == 1e-9
+    efl = R2 / (1.0 - N)
+    p = paraxial(lens.double())
+    assert float(p.efl) == pytest.approx(efl, rel=1e-12)
+    assert float(p.bfl) == pytest.approx(efl, rel=1e-12)   # from the last vertex
+    # real rays: parallel to the axis at heights h, refracted by the back face (the front face is
+    # flat and normal to them), then carried to the vertex plane
+    lens = lens.double()
+    h = torch.tensor([0.5, 2.0, 3.0, 3.9], dtype=torch.float64)   # inside the 8 mm pupil
+    o = torch.stack([torch.zeros_like(h), h, torch.full_like(h, -1.0)], -1)
+    d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand(4, 3)
+    out = lens.trace_to_sensor(Rays(o, d, torch.full((4,), 587.5618, dtype=torch.float64)))
+    assert bool(out.valid.all())
+    R = abs(R2)
+    for k, hk in enumerate(h.tolist()):
+        sag = R - math.sqrt(R * R - hk * hk)        # the face lies |sag| before its vertex
+        inc = math.asin(hk / R)                     # angle of incidence on the sphere
+        out_angle = math.asin(N * math.sin(inc))    # Snell's law, n -> 1
+        slope = math.tan(out_angle - inc)           # towards the axis
+        y = hk - slope * (sag + 1e-9)
+        assert float(out.o[k, 1]) == pytest.approx(y, abs=1e-9), k
+
+
+def test_image_on_a_curved_vertex_reaching_behind_its_plane_is_refused(tmp_path):
+    """A back face convex towards the image (``c > 0`` here: its rim lies behind the vertex
+    plane) would be cut by the flat sensor: refused at the image's ``SURF`` line, saying how far
+    it reaches behind the plane (the sphere's sag at the semi-diameter, ``R − sqrt(R² − r²)``)."""
+    R = 60.0
+    f = write(tmp_path, _singlet(1.0 / R))
+    with pytest.raises(ZemaxFileError) as e:
+        read_zmx(f)
+    assert e.value.line == _line(f.read_text(), "SURF 3")
+    sag = R - math.sqrt(R * R - SD * SD)
+    assert f"reaches {sag:.4g} mm behind its vertex plane" in str(e.value), str(e.value)
 
 
 # ------------------------------------------------------------------ a grating's order in the axis
