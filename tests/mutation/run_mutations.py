@@ -1334,6 +1334,11 @@ MUTATIONS = [
              "tests/optics/io/test_zmx_corpus.py",
              "out.append(t in (\"STANDARD\", \"JONESMAT\") and",
              "out.append(t == \"STANDARD\" and", JONESMAT),
+    Mutation("unset_aperture_generic_message", "an ENPD 0 / FNUM 0 (an unset aperture) refused "
+             "with the lens's generic message, not naming the record and why",
+             "deeplens/optics/io/zmx_read.py",
+             "    if ap_type in (\"epd\", \"fno\") and not ap_value > 0:\n",
+             "    if False:\n", SET9_RULES),
     Mutation("image_on_curved_vertex_sag_sign", "the sag of a curved last surface under an image "
              "at DISZ 0 taken with the wrong sign (a face convex towards the image loaded, one "
              "concave towards it refused)",

@@ -684,6 +684,13 @@ def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locat
     if ap is None:
         p.fail(0, "no system aperture (ENPD, FNUM or FLOA line)")
     ap_type, ap_value, ap_line = ap
+    if ap_type in ("epd", "fno") and not ap_value > 0:
+        # the aperture value sizes the pupil (an EPD in lens units, an F-number); 0 is the empty
+        # value of a new or unfinished file (a short course's start file): no ray enters
+        key, what, why = (("ENPD", "entrance-pupil diameter", "no ray enters") if ap_type == "epd"
+                          else ("FNUM", "F-number", "a cone of no finite angle"))
+        p.fail(ap_line, f"{key} {ap_value:g}: the system aperture's {what} must be > 0 (0 is an "
+                        f"unset aperture, as in a new or unfinished file: {why})")
     if ap_type == "epd":
         ap_value *= s_mm
     convert = None     # an aperture given another way, turned into an EPD once the lens is built

@@ -1,6 +1,8 @@
 """Readings met by the ninth unseen set of real files (docs/guide/zemax.md), each on a synthetic
 file checked by a closed form:
 
+* an unset system aperture (``ENPD 0``: a short course's start file, every surface flat) is
+  refused on its line saying what was found and why, in one line;
 * an image plane at ``DISZ 0`` on a curved last surface that lies wholly before its vertex plane
   (a face concave towards the image: a short course's doublet before its thicknesses are set)
   loads, the sensor 1e-9 mm behind the vertex as for a flat face; one reaching behind the plane
@@ -49,6 +51,31 @@ def _quiet(path):
         warnings.simplefilter("always")
         lens = read_zmx(path)
     return lens, [x.message for x in w if isinstance(x.message, ZemaxWarning)]
+
+
+# --------------------------------------------------------------------------- an unset aperture
+_FLAT = "".join([_surf(0, "TYPE STANDARD", "CURV 0", "DISZ 150"),
+                 _surf(1, "STOP", "TYPE STANDARD", "CURV 0", "DISZ 5",
+                       "GLAS BK7 0 0 1.5 4.0E+1 0 0 0 0 0 0"),
+                 _surf(2, "TYPE STANDARD", "CURV 0", "DISZ 100"),
+                 _surf(3, "TYPE STANDARD", "CURV 0", "DISZ 0")])
+
+
+@pytest.mark.parametrize("aperture, what", [("ENPD 0", "ENPD 0: the system aperture's "
+                                                       "entrance-pupil diameter must be > 0"),
+                                             ("FNUM 0 0", "FNUM 0: the system aperture's "
+                                                          "F-number must be > 0")])
+def test_an_unset_system_aperture_is_refused_on_its_line(tmp_path, aperture, what):
+    """``ENPD 0`` (OpticStudio's short-course start file ``relay1``: every surface flat, every
+    semi-diameter 0) sizes no pupil: refused at the aperture's line, one line naming the
+    record, the value and why; before, the message was the lens's generic "aperture epd: value
+    must be a positive number"."""
+    text = _HEAD.format(aperture=aperture, wav=0.55) + _FLAT
+    with pytest.raises(ZemaxFileError) as e:
+        read_zmx(write(tmp_path, text))
+    assert e.value.line == 4
+    msg = str(e.value)
+    assert what in msg and "unset aperture" in msg and "\n" not in msg, msg
 
 
 # --------------------------------------------------------------- an image on a curved last vertex
