@@ -58,7 +58,7 @@ def to_global(frame, x: torch.Tensor) -> torch.Tensor:
     return x @ A.T.to(x) + b.to(x)
 
 
-def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
+def travel_directions(surfaces, mirrors, indices=None, wavelength_nm=None) -> list[int]:
     """The direction of travel (``+1``: towards ``+z``, ``-1``: towards ``-z``) along the local
     axis of each of the ``N + 1`` media of a sequential system: object space first, then the
     medium after each surface, in the frame the distance after that surface is measured in.
@@ -70,7 +70,13 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
     linear term; a tilted plane's own normal, OpticStudio's ``TILTSURF``) and refracted there by
     vector Snell's law
     (``indices``: the ``N + 1`` media indices at one wavelength; ``None`` or total internal
-    reflection: left as it is; a grating as its zeroth order, an ideal lens not at all).  This is where OpticStudio's sequential trace takes the beam,
+    reflection: left as it is; an ideal lens not at all).  A diffracting surface (a grating,
+    OpticStudio's ``DGRATING``) sends it on in the order it traces, at ``wavelength_nm`` (the
+    wavelength of ``indices``), by the surface's own ``diffract`` at its vertex: OpticStudio's
+    sequential trace follows the order the surface states (a grating stretcher whose breaks
+    turn the frame onto the first order, which leaves near the incoming beam, not along the
+    mirror's zeroth order); without ``wavelength_nm``, or where the order is evanescent at the
+    vertex, its zeroth order.  This is where OpticStudio's sequential trace takes the beam,
     and so the sign its thicknesses carry for real propagation.  Without coordinate breaks the
     axis meets every surface at normal incidence and the rule is the mirror count's parity
     (``-1`` after an odd number of mirrors, Zemax's convention); with a fold written as
@@ -86,22 +92,38 @@ def travel_directions(surfaces, mirrors, indices=None) -> list[int]:
         surfaces: the ``N`` surfaces (:class:`~.surfaces.CoordinateBreak` turns the frame).
         mirrors: indices of the reflecting surfaces.
         indices: ``N + 1`` refractive indices (floats) or ``None``.
+        wavelength_nm: the vacuum wavelength of ``indices`` (nm), for diffracting surfaces.
 
     Returns:
         ``N + 1`` ints, each ``+1`` or ``-1``.
     """
-    return _traced_axis(surfaces, mirrors, indices)[0]
+    return _traced_axis(surfaces, mirrors, indices, wavelength_nm)[0]
 
 
-def mirrors_met_edge_on(surfaces, mirrors, indices=None) -> list[int]:
+def mirrors_met_edge_on(surfaces, mirrors, indices=None, wavelength_nm=None) -> list[int]:
     """The indices of the mirrors the traced axis (:func:`travel_directions`) meets edge-on:
     travelling across their frame, so that it never reaches their vertex (an off-axis parabola
     lit from its focus across its axis).  The beam's centre then runs parallel to the mirror's
     vertex plane, where deeplens' intersection (from that plane) cannot follow it."""
-    return _traced_axis(surfaces, mirrors, indices)[1]
+    return _traced_axis(surfaces, mirrors, indices, wavelength_nm)[1]
 
 
-def _traced_axis(surfaces, mirrors, indices=None) -> tuple[list[int], list[int]]:
+def _diffract_axis(surface, a, n_after: float, wavelength_nm: float):
+    """Unit direction ``a`` (already reflected or refracted at ``surface``'s vertex) sent on in
+    the surface's diffraction order by its own ``diffract`` at the vertex (``n_after``: the
+    index the ray leaves into; the index before at a mirror); unchanged where the order is
+    evanescent there."""
+    with torch.no_grad():
+        x = torch.zeros(1, 3, dtype=torch.float64)
+        d = torch.tensor([a], dtype=torch.float64)
+        w = torch.tensor([float(wavelength_nm)], dtype=torch.float64)
+        n = torch.tensor([float(n_after)], dtype=torch.float64)
+        out, ok = surface.diffract(x, d, w, n, torch.ones(1, dtype=torch.bool))
+    return [float(v) for v in out[0]] if bool(ok[0]) else a
+
+
+def _traced_axis(surfaces, mirrors, indices=None,
+                 wavelength_nm=None) -> tuple[list[int], list[int]]:
     """``(signs, edge_on)``: :func:`travel_directions` and :func:`mirrors_met_edge_on`."""
     mirrors = set(mirrors)
     edge_on = []
@@ -130,8 +152,12 @@ def _traced_axis(surfaces, mirrors, indices=None) -> tuple[list[int], list[int]]
             nv = vertex_normal(s)
             an = sum(a[k] * nv[k] for k in range(3))
             a = [a[k] - 2.0 * an * nv[k] for k in range(3)]
-        elif indices is not None and s.law in ("refract", "diffract"):   # order 0
+            if s.law == "diffract" and indices is not None and wavelength_nm is not None:
+                a = _diffract_axis(s, a, float(indices[i]), wavelength_nm)
+        elif indices is not None and s.law in ("refract", "diffract"):
             a = _refract_axis(a, float(indices[i]), float(indices[i + 1]), vertex_normal(s))
+            if s.law == "diffract" and wavelength_nm is not None:
+                a = _diffract_axis(s, a, float(indices[i + 1]), wavelength_nm)
         n = math.sqrt(sum(c * c for c in a))
         a = [c / n for c in a]
         out.append(out[-1] if abs(a[2]) < _ACROSS else (1 if a[2] > 0 else -1))

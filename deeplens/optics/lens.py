@@ -376,18 +376,19 @@ class Lens(nn.Module):
         """The direction of travel along the local axis in each of the ``N + 1`` media: ``+1``
         (``+z``) in object space, then the sign of the traced axis's local ``z`` component
         after each surface (:func:`~.frames.travel_directions`: coordinate breaks turn it,
-        mirrors reflect it about their vertex normals, refracting surfaces refract it at the
-        primary wavelength).  Distances into a medium carry its sign.  Without coordinate
+        mirrors reflect it about their vertex normals, refracting surfaces refract it and
+        gratings diffract it in their order, at the primary wavelength).  Distances into a medium carry its sign.  Without coordinate
         breaks, and with folds written as ``break, mirror, break``, this is the mirror count's
         parity (negative after an odd number of mirrors, Zemax's convention); mirrors tilted
         inside break pairs that return the frame (a roof prism) can turn the beam round
         without the parity changing, and the traced axis follows them."""
         indices = None
+        w = float(self.spec.primary_wavelength_nm)
         if any(s.interaction.changes_frame for s in self.surfaces):
             with torch.no_grad():
-                w = torch.tensor(float(self.spec.primary_wavelength_nm), dtype=torch.float64)
-                indices = [float(m.n(w)) for m in self.materials]
-        return travel_directions(list(self.surfaces), self.mirrors, indices)
+                indices = [float(m.n(torch.tensor(w, dtype=torch.float64)))
+                           for m in self.materials]
+        return travel_directions(list(self.surfaces), self.mirrors, indices, w)
 
     def folded(self) -> bool:
         """True when the lens has a mirror or a coordinate break (it then traces eagerly)."""

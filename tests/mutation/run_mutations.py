@@ -88,6 +88,7 @@ PARAX_XY = ("tests/optics/io/test_zmx_parax_xy.py", "tests/optics/surfaces/test_
 IRREGULAR = ("tests/optics/surfaces/test_irregular.py", "tests/optics/io/test_zmx_irregular.py")
 SET5_RULES = ("tests/optics/io/test_zmx_set5_rules.py",)
 SET6_RULES = ("tests/optics/io/test_zmx_set6_rules.py",)
+SET9_RULES = ("tests/optics/io/test_zmx_set9_rules.py",)
 BINARY2_RAYOPTICS = ("tests/optics/io/test_zmx_corpus_rayoptics.py",)
 GLASS_SEARCH = ("tests/design/search/test_glass_search.py",)
 SUBSTITUTION = ("tests/design/search/test_substitution.py",)
@@ -1326,6 +1327,29 @@ MUTATIONS = [
              "    return tuple(-v for v in vals), 1 - order, \"reverse\"\n",
              "    return tuple(-v for v in vals), order, \"reverse\"\n",
              ("tests/optics/io/test_zmx_scbd.py",)),
+    # ------------- issue 37: set 9, a Jones matrix plane in the oracles' dummy test (setup9)
+    Mutation("oracle_jones_plane_not_plain", "the corpus oracles' plain-plane test knows "
+             "STANDARD only: a JONESMAT at DISZ 0 before a lens face takes the glass, the face "
+             "does not refract (optiland and rayoptics EFL 20 vs the thick lens's 10.67)",
+             "tests/optics/io/test_zmx_corpus.py",
+             "out.append(t in (\"STANDARD\", \"JONESMAT\") and",
+             "out.append(t == \"STANDARD\" and", JONESMAT),
+    Mutation("unset_aperture_generic_message", "an ENPD 0 / FNUM 0 (an unset aperture) refused "
+             "with the lens's generic message, not naming the record and why",
+             "deeplens/optics/io/zmx_read.py",
+             "    if ap_type in (\"epd\", \"fno\") and not ap_value > 0:\n",
+             "    if False:\n", SET9_RULES),
+    Mutation("image_on_curved_vertex_sag_sign", "the sag of a curved last surface under an image "
+             "at DISZ 0 taken with the wrong sign (a face convex towards the image loaded, one "
+             "concave towards it refused)",
+             "deeplens/optics/io/zmx_read.py",
+             "    z = sign * z.to(torch.float64)\n", "    z = -sign * z.to(torch.float64)\n",
+             SET9_RULES),
+    Mutation("grating_axis_zeroth_order", "the traced axis leaves a grating in its zeroth order "
+             "(a mirror's), not the order the file traces",
+             "deeplens/optics/frames.py",
+             "    return [float(v) for v in out[0]] if bool(ok[0]) else a\n",
+             "    return a\n", SET9_RULES),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -398,7 +398,8 @@ def lens_from_dict(data: dict, source: str = "<dict>") -> Lens:
     # mirror count's parity unless coordinate breaks turn the beam round)
     with torch.no_grad():
         w = torch.tensor(float(spec.primary_wavelength_nm), dtype=torch.float64)
-        forward = travel_directions(surfaces, mirrors, [float(m.n(w)) for m in materials])[-1] > 0
+        forward = travel_directions(surfaces, mirrors, [float(m.n(w)) for m in materials],
+                                    float(w))[-1] > 0
     ahead = d_sensor > 0 if forward else d_sensor < 0
     if virtual and (ahead or d_sensor == 0):
         r.fail("sensor.distance_mm", f"a virtual image plane (virtual_image: true) must lie "

@@ -199,7 +199,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
         raise _located(p, e, where_of) from e
     lens.object_telecentric = telecentric
     lens.object_tilt = seq.obj_tilt
-    for i in mirrors_met_edge_on(surfaces, seq.mirrors, _axis_indices(seq, primary)):
+    for i in mirrors_met_edge_on(surfaces, seq.mirrors, _axis_indices(seq, primary),
+                                  primary):
         # (a sphere or conic mirror takes such rays at their first crossing ahead: intersect's
         # ``across``; an aspheric one intersects from its vertex plane, Newton's start)
         lost = ("" if getattr(surfaces[i], "is_quadric", False) else
@@ -558,10 +559,25 @@ def _axis_indices(seq: _Sequence, primary: float):
         return None
 
 
+def _sag_behind_vertex(surface, sign: float) -> float:
+    """How far ``surface`` (a curved last surface) reaches behind its vertex plane along the
+    direction of travel ``sign`` (mm, ``<= 0`` when it lies wholly before the plane): its sag
+    at 65 radii up to its semi-diameter along 8 azimuths (where the Lens check samples it)."""
+    r = torch.linspace(0.0, float(surface.semi_diameter), 65, dtype=torch.float64)
+    a = torch.arange(8, dtype=torch.float64) * (math.pi / 8)
+    x, y = r[None, :] * torch.cos(a)[:, None], r[None, :] * torch.sin(a)[:, None]
+    with torch.no_grad():
+        z = torch.cat([surface.sag(x, y), surface.sag(-x, -y)])
+    z = sign * z.to(torch.float64)
+    return math.inf if bool(z.isnan().any()) else float(z.max())
+
+
 def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary: float) -> float:
     """The sensor distance (mm, signed along the direction of travel) from the gap between the
     last kept vertex and the image surface: an image plane on a flat last vertex moves
-    :data:`_IMAGE_ON_VERTEX_MM` behind it; a curved one there is refused; an image plane before
+    :data:`_IMAGE_ON_VERTEX_MM` behind it, and so on a curved last vertex whose surface lies
+    wholly before that plane (:func:`_sag_behind_vertex`); one reaching behind it is refused; an
+    image plane before
     the last vertex (a virtual image: in an unfolded system, or after a flat mirror whose
     following thicknesses already run against the direction of travel, :func:`_virtual_gaps`)
     sets ``virtual[0]``."""
@@ -571,7 +587,8 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
     # an odd number of mirrors unless breaks turn the beam round), so "behind" the last vertex
     # is sign * d > 0; a thickness of the wrong sign inside the lens is reported by Lens
     # (naming that surface)
-    signs = [float(v) for v in travel_directions(surfaces, mirrors, _axis_indices(seq, primary))]
+    signs = [float(v) for v in travel_directions(surfaces, mirrors, _axis_indices(seq, primary),
+                                                      primary)]
     sign = signs[-1]
     _note_reversed_ideal_lenses(kept, signs, p)
     inside_ok = all(kept[i][3] * signs[i] >= 0 for i in range(1, len(kept)))
@@ -583,9 +600,20 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
         p.note(img.line, f"the image plane lies on the last (flat) surface's vertex: the sensor "
                          f"is placed {_IMAGE_ON_VERTEX_MM:g} mm behind it")
     elif d_sensor == 0:
-        p.fail(img.line, "the image plane lies on the vertex of the last surface, which is "
-                         "curved: deeplens' flat sensor would cut through it (give the last "
-                         "surface a thickness)")
+        behind = _sag_behind_vertex(surfaces[-1], sign)
+        if behind > 0:
+            p.fail(img.line, f"the image plane lies on the vertex of the last surface, which is "
+                             f"curved and reaches {behind:.4g} mm behind its vertex plane within "
+                             f"its semi-diameter: deeplens' flat sensor would cut through it "
+                             f"(give the last surface a thickness)")
+        # the whole surface lies before its vertex plane (a face concave towards the image,
+        # sag against the direction of travel): the image plane through the vertex, where
+        # OpticStudio's thickness 0 puts it (thicknesses are measured vertex to vertex), lies
+        # behind all of it, so the sensor sits _IMAGE_ON_VERTEX_MM behind it, as for a flat one
+        d_sensor = sign * _IMAGE_ON_VERTEX_MM
+        p.note(img.line, f"the image plane lies on the last surface's vertex (a curved surface "
+                         f"lying wholly before that plane): the sensor is placed "
+                         f"{_IMAGE_ON_VERTEX_MM:g} mm behind it")
     elif sign * d_sensor < 0 and mirrors and _virtual_before_image(seq, signs):
         # OpticStudio's virtual propagation after a flat mirror (_virtual_gaps) continuing to
         # the image plane: a virtual image, reached along the rays' lines extended backwards
@@ -656,6 +684,13 @@ def _aperture(sysd: dict, seq: _Sequence, obj_dist: float, s_mm: float, p: Locat
     if ap is None:
         p.fail(0, "no system aperture (ENPD, FNUM or FLOA line)")
     ap_type, ap_value, ap_line = ap
+    if ap_type in ("epd", "fno") and not ap_value > 0:
+        # the aperture value sizes the pupil (an EPD in lens units, an F-number); 0 is the empty
+        # value of a new or unfinished file (a short course's start file): no ray enters
+        key, what, why = (("ENPD", "entrance-pupil diameter", "no ray enters") if ap_type == "epd"
+                          else ("FNUM", "F-number", "a cone of no finite angle"))
+        p.fail(ap_line, f"{key} {ap_value:g}: the system aperture's {what} must be > 0 (0 is an "
+                        f"unset aperture, as in a new or unfinished file: {why})")
     if ap_type == "epd":
         ap_value *= s_mm
     convert = None     # an aperture given another way, turned into an EPD once the lens is built
@@ -842,7 +877,7 @@ def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of:
     reports it)."""
     if not seq.mirrors:
         return []
-    signs = travel_directions(surfaces, seq.mirrors, _axis_indices(seq, primary))
+    signs = travel_directions(surfaces, seq.mirrors, _axis_indices(seq, primary), primary)
     first = min(seq.mirrors)
     out, prev = [], None
     for q, s in enumerate(surfaces):

@@ -885,7 +885,9 @@ def test_two_tilts_round_trip(tmp_path):
 
 def test_image_plane_on_the_last_flat_vertex(tmp_path):
     """A plano-convex lens focusing onto its own flat back face (image DISZ 0 after it): the
-    sensor sits 1e-9 mm behind the face, with a warning; a curved last surface is refused."""
+    sensor sits 1e-9 mm behind the face, with a warning; a curved last surface whose rim lies
+    behind its vertex plane (convex towards the image) is refused (one lying wholly before it
+    loads: test_zmx_set9_rules)."""
     # R = 25 mm front, n ~ 1.5168: the paraxial focus inside the glass at n R / (n - 1)
     n = 1.5168
     t = n * 25.0 / (n - 1.0)
@@ -899,7 +901,7 @@ def test_image_plane_on_the_last_flat_vertex(tmp_path):
     assert abs(float(paraxial(lens).bfl)) < 1e-9    # the focus is on the face
     with pytest.raises(ZemaxFileError, match=f":{ln}: the image plane lies on the vertex of the "
                                              f"last surface, which is curved"):
-        read_zmx(write(tmp_path, text.replace("CURV 0.0\n  DISZ 0\n", "CURV -0.001\n  DISZ 0\n", 1),
+        read_zmx(write(tmp_path, text.replace("CURV 0.0\n  DISZ 0\n", "CURV 0.001\n  DISZ 0\n", 1),
                        "curved.zmx"))
 
 

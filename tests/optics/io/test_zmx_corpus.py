@@ -116,7 +116,10 @@ def _dl_path_coords(lens):
 def _plain_planes(path):
     """Per non-``COORDBRK`` ``SURF`` block (object first): whether it is a plain plane
     (``STANDARD``, ``CURV 0``, neither the stop nor a mirror), the kind of surface deeplens may
-    drop as a dummy (an independent reading of the file)."""
+    drop as a dummy (an independent reading of the file).  A ``JONESMAT`` (a Jones matrix
+    surface) counts as one: OpticStudio's Jones matrix acts on polarization and amplitude only,
+    on a plane (Nicholson, "How to Use the Jones Matrix Surface", Zemax knowledge base), which
+    deeplens reads as the flat ``STANDARD`` surface and may drop as a dummy like any other."""
     blocks = re.split(r"^SURF\s+\d+.*$", decode_zemax_text(path), flags=re.M)[1:]
     out = []
     for b in blocks:
@@ -125,7 +128,7 @@ def _plain_planes(path):
         if t == "COORDBRK":
             continue
         c = re.search(r"^\s+CURV\s+(\S+)", b, re.M)
-        out.append(t == "STANDARD" and (c is None or float(c.group(1)) == 0.0)
+        out.append(t in ("STANDARD", "JONESMAT") and (c is None or float(c.group(1)) == 0.0)
                    and not re.search(r"^\s+STOP\b", b, re.M)
                    and not re.search(r"^\s+GLAS\s+MIRROR\b", b, re.M))
     return out

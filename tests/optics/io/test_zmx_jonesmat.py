@@ -95,3 +95,68 @@ def test_the_optiland_oracle_reads_the_jones_plane_as_deeplens_does(tmp_path):
     numbers = _first_order(lens, _oracle(f, lens)[0], 1.0, f)
     for what, (dl, ol) in numbers.items():
         assert dl == pytest.approx(ol, rel=1e-9), what
+
+
+#: a Jones matrix plane at DISZ 0 in front of a stop on a biconvex lens's first vertex (the
+#: layout of OpticStudio's coating-analysis sample: JONESMAT, then the lens, R = ±20, t = 5,
+#: model glass n = 2)
+_JONES_ON_THE_LENS = """VERS 240000 3 0
+MODE SEQ
+UNIT MM X W X CM MR CPMM
+ENPD 8
+FTYP 0 0 1 1 0 0 0
+WAVM 1 0.5875618 1
+PWAV 1
+YFLN 0
+SURF 0
+  TYPE STANDARD
+  CURV 0
+  DISZ INFINITY
+SURF 1
+  TYPE JONESMAT
+  CURV 0
+""" + _POLARIZER + """  DISZ 0
+SURF 2
+  STOP
+  TYPE STANDARD
+  CURV 0.05
+  DISZ 5
+  GLAS ___BLANK 1 0 2 0 0 0 0 0 0 0
+SURF 3
+  TYPE STANDARD
+  CURV -0.05
+  DISZ 30
+SURF 4
+  TYPE STANDARD
+  CURV 0
+  DISZ 0
+"""
+
+
+def test_oracles_give_a_jones_plane_on_a_lens_vertex_the_air_before_it(monkeypatch, tmp_path):
+    """A Jones matrix plane at ``DISZ 0`` in front of the lens's first face: deeplens drops it
+    as a dummy (a plane in air), so both oracles, which keep it, must give it the air before
+    the face and the face the glass.  Before, the oracles' plain-plane test knew ``STANDARD``
+    only: the Jones plane took the glass, the first face did not refract, and optiland and
+    rayoptics both gave EFL 20 (the rear face alone) against the thick lens's 10.6667 worked
+    out here by hand (``φ = (n − 1)(c1 − c2) + (n − 1)² t c1 c2 / n``)."""
+    pytest.importorskip("optiland")
+    pytest.importorskip("rayoptics")
+    from test_zmx_corpus import (_dl_path_coords, _file_path_coords, _first_order,
+                                 _medium_after, _oracle, _plain_planes)
+    from test_zmx_corpus_rayoptics import _corpus_of_one, _numbers, _rayoptics
+
+    lens, scratch = _corpus_of_one("jl.zmx", _JONES_ON_THE_LENS, monkeypatch, tmp_path)
+    f = tmp_path / "jl.zmx"
+    assert _plain_planes(f) == [True, True, False, False, True]
+    n = [float(m.n(587.5618)) for m in lens.materials]
+    q = _file_path_coords(f)[2]
+    media = [n[j] for j in _medium_after(lens, _dl_path_coords(lens), q, _plain_planes(f))]
+    assert media == [1.0, 1.0, 2.0, 1.0]   # object space, after the Jones plane, lens, after
+    phi = 0.05 + 0.05 + 5.0 * 0.05 * -0.05 / 2.0   # thick lens, n = 2
+    assert 1.0 / phi == pytest.approx(10.6667, abs=1e-4)
+    ol = _first_order(lens, _oracle(f, lens)[0], 1.0, f)["EFL"]
+    ro = _numbers("jl.zmx", lens, _rayoptics("jl.zmx", lens, monkeypatch, scratch))["EFL"]
+    for dl, other in (ol, ro):
+        assert dl == pytest.approx(1.0 / phi, rel=1e-12)
+        assert other == pytest.approx(1.0 / phi, rel=1e-9)

@@ -110,7 +110,7 @@ def _landings(lens):
     return out
 
 
-def _parity(surfaces, mirrors, indices=None):
+def _parity(surfaces, mirrors, indices=None, wavelength_nm=None):
     out = [1]
     for i in range(len(surfaces)):
         out.append(-out[-1] if i in mirrors else out[-1])
