@@ -995,10 +995,9 @@ MUTATIONS = [
              "            nv = [0.0, 0.0, 1.0]\n            an =", SET5_RULES),
     Mutation("fixed_diam_clips_flat_plane", "a fixed DIAM on a flat plane in one medium clips "
              "(refusing an OBSC wider than it)", "deeplens/optics/io/zmx_surfaces.py",
-             "    if (fixed and flat and same_medium and not s.stop and not s.mirror and "
-             "s.clap is None",
-             "    if (False and fixed and flat and same_medium and not s.stop and not s.mirror "
-             "and s.clap is None", SET5_RULES),
+             "    if (fixed and same_medium and not s.stop and not s.mirror and s.clap is None\n",
+             "    if (False and fixed and same_medium and not s.stop and not s.mirror and "
+             "s.clap is None\n", SET5_RULES),
     Mutation("opening_written_without_clap", "an opening that is not the stop written with a "
              "fixed DIAM only (OpticStudio does not clip on it)", "deeplens/optics/io/zmx_write.py",
              "    if (isinstance(s, Aperture) and not is_stop and s.shape == \"circle\"",
@@ -1326,6 +1325,21 @@ MUTATIONS = [
              "    return tuple(-v for v in vals), 1 - order, \"reverse\"\n",
              "    return tuple(-v for v in vals), order, \"reverse\"\n",
              ("tests/optics/io/test_zmx_scbd.py",)),
+    # ------------------- issue 37: obscurations and the semi-diameter (branch aper9)
+    Mutation("fixed_diam_clips_on_curved_dummy", "a fixed DIAM on a curved surface in one "
+             "medium (no power; an OBSC beside it) taken as a clipping semi-diameter (OpticStudio "
+             "applies its floating aperture only on a surface with refractive power)",
+             "deeplens/optics/io/zmx_surfaces.py",
+             "    if (fixed and same_medium and not s.stop and not s.mirror and s.clap is None\n",
+             "    if (fixed and flat and same_medium and not s.stop and not s.mirror and "
+             "s.clap is None\n",
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    Mutation("ring_past_rim_refused", "a ring obscuration (OBSC r_i r_o) reaching past the "
+             "semi-diameter refused as a central obscuration would be",
+             "deeplens/optics/surfaces/aperture.py",
+             "ri == 0.0 and not obscuration < float(semi_diameter))):",
+             "not obscuration < float(semi_diameter))):",
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -96,15 +96,17 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         return None   # a dummy surface: its thickness only
     # OpticStudio applies a floating aperture (a circular aperture at the semi-diameter) for a
     # user-defined semi-diameter only on a surface with refractive power and no surface
-    # aperture (OpticStudio User Guide, "Semi-Diameters"): on a flat surface in one medium (a
-    # dummy, or an OBSC's plane in air) a fixed DIAM is drawn, never clips.  The surface is
+    # aperture (OpticStudio User Guide, "Semi-Diameters"): on a surface in one medium, which has
+    # no power, flat (a dummy, or an OBSC's plane in air) or curved (a secondary's shadow drawn
+    # as an OBSC on a curved dummy in air), a fixed DIAM is drawn, never clips.  The surface is
     # kept (its place, its obscuration) with an automatic semi-diameter: the beam's extent
-    if (fixed and flat and same_medium and not s.stop and not s.mirror and s.clap is None
+    if (fixed and same_medium and not s.stop and not s.mirror and s.clap is None
             and s.sqap is None and s.elap is None):
         what = ("beside an OBSC (a surface aperture)" if s.obsc is not None else
                 "beside an ELOB (a surface aperture)" if s.elob is not None else
                 "beside a SPID (a surface aperture)" if s.spid is not None else
-                "of a flat surface in one medium with no surface aperture (CLAP, SQAP, OBSC)")
+                f"of a {'flat' if flat else 'curved'} surface in one medium (no refractive "
+                f"power) with no surface aperture (CLAP, SQAP, OBSC)")
         p.note(s.diam_line, f"SURF {k}: the fixed DIAM {s.diam:g} {what} does not clip rays in "
                             f"OpticStudio (its floating aperture is applied only on a surface "
                             f"with power and no surface aperture); read with an automatic "
@@ -209,6 +211,9 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         if not 0 < ro < float(surf.semi_diameter) and not auto:
             p.fail(s.obsc[1], f"SURF {k}: the obscuration radius {s.obsc[0]:g} must be > 0 "
                               f"and below the semi-diameter {s.diam:g}")
+        if auto:   # the obscuration is compared with the semi-diameter once that is set
+            with torch.no_grad():
+                surf.semi_diameter.fill_(max(float(surf.semi_diameter), 1.01 * ro))
         surf.obscuration.fill_(ro)
     elif s.obsc is not None and not isinstance(surf, Aperture):
         what = (("flat mirror" if s.mirror else "flat surface between two media") if flat
