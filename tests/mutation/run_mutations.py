@@ -1340,6 +1340,19 @@ MUTATIONS = [
              "ri == 0.0 and not obscuration < float(semi_diameter))):",
              "not obscuration < float(semi_diameter))):",
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    Mutation("automatic_diam_past_edge_unexplained", "an automatic DIAM beyond the sphere's edge "
+             "left to the built lens's domain error (at the SURF line, not saying that the DIAM is "
+             "OpticStudio's footprint of a beam that misses the surface)",
+             "deeplens/optics/io/zmx_surfaces.py",
+             "        _automatic_diam_in_domain(s, k, surf, s_mm, p)\n",
+             "        pass\n",
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    Mutation("usersurf_dll_not_named", "a USERSURF refused without naming the compiled plug-in "
+             "(the DLL) it needs",
+             "deeplens/optics/io/zmx_parse.py",
+             'dll = f"plug-in {toks[2]}" if len(toks) > 2 else',
+             'dll = "plug-in" if len(toks) > 2 else',
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -25,9 +25,9 @@ import torch
 from ..errors import ZemaxFileError
 from ..materials import Material
 from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, ZernikeSag
-from ..surfaces.base import (clear_ellipse_of, clear_rect_of, set_clear_ellipse,
-                            set_clear_rect, set_obscuration_ellipse, set_obscuration_spider,
-                            takes_clear_rect)
+from ..surfaces.base import (check_conic_domain, clear_ellipse_of, clear_rect_of,
+                            set_clear_ellipse, set_clear_rect, set_obscuration_ellipse,
+                            set_obscuration_spider, takes_clear_rect)
 from .surface_formats import ZmxContext
 from .surface_handlers import FORMATS, PROVISIONAL_SD_MM, is_air
 from .zmx_parse import Locator, ZmxSurface
@@ -246,7 +246,28 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                           f"and ideal lenses excepted)")
     if auto and isinstance(surf, Aperture) and surf.shape in ("rect", "ellipse"):
         auto = False   # its semi-diameter is the rectangle's or ellipse's circumscribed circle
+    if not (fixed or auto or s.stop) and s.clap is None and type(surf) is Asphere:
+        _automatic_diam_in_domain(s, k, surf, s_mm, p)
     return surf, auto
+
+
+def _automatic_diam_in_domain(s: ZmxSurface, k: int, surf: Asphere, s_mm: float,
+                              p: Locator) -> None:
+    """An automatic ``DIAM`` (flag 0) written beyond the edge of the surface's conic (a
+    sphere's ``r = |R|``): OpticStudio's automatic semi-diameter is the radius "required to pass
+    all real rays" (User Guide, *Semi-Diameters*), the footprint of the file's beam, and no ray
+    meets the surface beyond its edge, so the saved value says rays of the file's beam pass
+    outside the surface (they miss it).  Refused at the ``DIAM`` line, in one line naming the
+    value, the edge and why (before: the domain error of the built lens)."""
+    c, kk = float(surf.c), float(surf.k)
+    try:
+        check_conic_domain(s.diam * s_mm, c, kk, "conic")
+    except ValueError:
+        edge = (1.0 / ((1.0 + kk) * c * c)) ** 0.5 / s_mm
+        p.fail(s.diam_line, f"SURF {k}: the automatic semi-diameter (DIAM flag 0) {s.diam:g} "
+                            f"lies beyond the edge of the surface (r = {edge:g}; R = "
+                            f"{1.0 / (c * s_mm):g}, k = {kk:g}): OpticStudio sized it for rays "
+                            f"of the file's beam that pass outside the surface and miss it")
 
 
 def _check_ellipses(s: ZmxSurface, k: int, p: Locator) -> None:

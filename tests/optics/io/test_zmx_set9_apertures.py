@@ -22,6 +22,7 @@ import pytest
 import torch
 from test_zmx import write
 from test_zmx_apertures import _on_axis_rays, _with_field_stop
+from zmx_blocks import surf as _surf, zmx_file
 
 from deeplens.optics.io import ZemaxFileError, read_zmx, write_zmx
 from deeplens.optics.io.zmx import ZemaxWarning
@@ -147,3 +148,55 @@ def test_aperture_rings_past_the_rim_but_not_central_obscurations():
         Aperture(5.0, obscuration=5.0)
     with pytest.raises(ValueError, match="ring obscuration"):
         Aperture(5.0, obscuration=6.0, obscuration_inner=6.5)
+
+
+# ------------------------------------------------------------- an automatic DIAM past the edge
+def _ball_front(diam):
+    """A plano-convex lens (R = 10 mm, n = 1.5, 3 mm thick) behind a stop under ``ENPD 4``, its
+    curved face with ``diam`` (a whole ``DIAM`` record) and the image 20 mm behind it."""
+    front = [*_surf(curv=0.1, disz=3.0, glas="___BLANK 1 0 1.5 60.0"), f"  {diam}"]
+    blocks = [_surf(disz="INFINITY"), _surf(disz=1.0, stop=True), front, _surf(disz=20.0),
+              _surf()]
+    return zmx_file(blocks, name="edge", aperture="ENPD 4.0")
+
+
+def test_an_automatic_diam_past_the_spheres_edge_is_refused_on_its_line(tmp_path):
+    """OpticStudio's automatic semi-diameter (``DIAM 10.5 0``) beyond the sphere's edge r = 10
+    mm (the eighth short-course array sample's 27.2273 on R = -26.5435 mm): no ray meets the
+    surface there, so the file's beam misses it: refused at the DIAM line in one line naming
+    the value, the edge and why; the same value on the rim (``DIAM 10 0``, a hemisphere) and a
+    footprint inside it load."""
+    text = _ball_front('DIAM 10.5 0 0 0 1 ""')
+    line = text.splitlines().index('  DIAM 10.5 0 0 0 1 ""') + 1
+    with pytest.raises(ZemaxFileError, match=rf"t.zmx:{line}: SURF 2: the automatic "
+                                             r"semi-diameter \(DIAM flag 0\) 10.5 lies beyond "
+                                             r"the edge of the surface \(r = 10; R = 10, k = 0\)"
+                                             r": .* miss it$"):
+        _read(write(tmp_path, text))
+    for ok in ('DIAM 10 0 0 0 1 ""', 'DIAM 3 0 0 0 1 ""'):
+        lens = _read(write(tmp_path, _ball_front(ok), "ok.zmx"))
+        assert float(lens.surfaces[1].semi_diameter) == float(ok.split()[1])
+
+
+# ------------------------------------------------------------- what a refusal names
+def test_a_dll_surface_and_a_user_aperture_are_refused_naming_the_missing_file(tmp_path):
+    """``TYPE USERSURF US_ARRAY.DLL`` (the lenslet-array samples) and ``UDAD 0 "NAME.UDA" 1``
+    (the Talbot sample's grating) are refused at their line, in one line naming the plug-in or
+    the aperture file deeplens cannot use."""
+    text = _ball_front('DIAM 3 0 0 0 1 ""')
+    dll = text.replace("  TYPE STANDARD\n  CURV 0.1\n", "  TYPE USERSURF US_ARRAY.DLL\n"
+                       "  CURV 0.1\n", 1)
+    line = dll.splitlines().index("  TYPE USERSURF US_ARRAY.DLL") + 1
+    with pytest.raises(ZemaxFileError) as e:
+        _read(write(tmp_path, dll))
+    msg = str(e.value)
+    assert msg.endswith(f"t.zmx:{line}: surface type 'USERSURF' (SURF 2) is not supported: its "
+                        f"shape is computed by OpticStudio's compiled plug-in US_ARRAY.DLL, "
+                        f"which deeplens cannot run")
+    assert "\n" not in msg
+    uda = text.replace("  STOP\n", '  STOP\n  UDAD 0 "TALBOTIMA_SURF_1.UDA" 1.0\n', 1)
+    line = uda.splitlines().index('  UDAD 0 "TALBOTIMA_SURF_1.UDA" 1.0') + 1
+    with pytest.raises(ZemaxFileError, match=rf"t.zmx:{line}: UDAD on SURF 1: a user-defined "
+                                             r"aperture \(file TALBOTIMA_SURF_1.UDA\) is not "
+                                             r"supported"):
+        _read(write(tmp_path, uda))
