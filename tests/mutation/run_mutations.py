@@ -996,10 +996,9 @@ MUTATIONS = [
              "            nv = [0.0, 0.0, 1.0]\n            an =", SET5_RULES),
     Mutation("fixed_diam_clips_flat_plane", "a fixed DIAM on a flat plane in one medium clips "
              "(refusing an OBSC wider than it)", "deeplens/optics/io/zmx_surfaces.py",
-             "    if (fixed and flat and same_medium and not s.stop and not s.mirror and "
-             "s.clap is None",
-             "    if (False and fixed and flat and same_medium and not s.stop and not s.mirror "
-             "and s.clap is None", SET5_RULES),
+             "    if (fixed and same_medium and not s.stop and not s.mirror and s.clap is None\n",
+             "    if (False and fixed and same_medium and not s.stop and not s.mirror and "
+             "s.clap is None\n", SET5_RULES),
     Mutation("opening_written_without_clap", "an opening that is not the stop written with a "
              "fixed DIAM only (OpticStudio does not clip on it)", "deeplens/optics/io/zmx_write.py",
              "    if (isinstance(s, Aperture) and not is_stop and s.shape == \"circle\"",
@@ -1350,6 +1349,34 @@ MUTATIONS = [
              "deeplens/optics/frames.py",
              "    return [float(v) for v in out[0]] if bool(ok[0]) else a\n",
              "    return a\n", SET9_RULES),
+    # ------------------- issue 37: obscurations and the semi-diameter (branch aper9)
+    Mutation("fixed_diam_clips_on_curved_dummy", "a fixed DIAM on a curved surface in one "
+             "medium (no power; an OBSC beside it) taken as a clipping semi-diameter (OpticStudio "
+             "applies its floating aperture only on a surface with refractive power)",
+             "deeplens/optics/io/zmx_surfaces.py",
+             "    if (fixed and same_medium and not s.stop and not s.mirror and s.clap is None\n",
+             "    if (fixed and flat and same_medium and not s.stop and not s.mirror and "
+             "s.clap is None\n",
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    Mutation("ring_past_rim_refused", "a ring obscuration (OBSC r_i r_o) reaching past the "
+             "semi-diameter refused as a central obscuration would be",
+             "deeplens/optics/surfaces/aperture.py",
+             "ri == 0.0 and not obscuration < float(semi_diameter))):",
+             "not obscuration < float(semi_diameter))):",
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    Mutation("automatic_diam_past_edge_unexplained", "an automatic DIAM beyond the sphere's edge "
+             "left to the built lens's domain error (at the SURF line, not saying that the DIAM is "
+             "OpticStudio's footprint of a beam that misses the surface)",
+             "deeplens/optics/io/zmx_surfaces.py",
+             "        _automatic_diam_in_domain(s, k, surf, s_mm, p)\n",
+             "        pass\n",
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    Mutation("usersurf_dll_not_named", "a USERSURF refused without naming the compiled plug-in "
+             "(the DLL) it needs",
+             "deeplens/optics/io/zmx_parse.py",
+             'dll = f"plug-in {toks[2]}" if len(toks) > 2 else',
+             'dll = "plug-in" if len(toks) > 2 else',
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

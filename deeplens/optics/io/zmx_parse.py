@@ -48,7 +48,6 @@ _UNSUPPORTED_TYPES = {
     "GRINSUR9": ("a SELFOC gradient-index surface, Gradient 9: its index needs the glass's "
                  "n0(λ) and A(λ) coefficients (B, C, K0, K1, K2), which OpticStudio keeps in "
                  "its GRADIENT_9.DAT and no public source gives"),
-    "USERSURF": "a user-defined (DLL) surface",
 }
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
@@ -340,6 +339,11 @@ def _type(st: _Parse, r: Record) -> None:
         p.fail(ln, "TYPE line is truncated: missing the surface type")
     cur.type, cur.type_line = toks[1].upper(), ln
     if FORMATS.for_zmx_type(cur.type) is None:
+        if cur.type == "USERSURF":   # a compiled plug-in: named, no list of the types read
+            dll = f"plug-in {toks[2]}" if len(toks) > 2 else "plug-in (no DLL named)"
+            p.fail(ln, f"surface type {toks[1]!r} (SURF {len(st.surfs) - 1}) is not supported: "
+                       f"its shape is computed by OpticStudio's compiled {dll}, which deeplens "
+                       f"cannot run")
         known = FORMATS.zmx_types()
         what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
         p.fail(ln, f"surface type {toks[1]!r} (SURF {len(st.surfs) - 1}, {what}) is not "
@@ -597,7 +601,10 @@ _APERTURES_REFUSED = {
 
 def _aperture_refused(st: _Parse, r: Record) -> None:
     key = r.key
-    st.p.fail(r.line, f"{key} on SURF {len(st.surfs) - 1}: {_APERTURES_REFUSED[key]} is not "
+    what = _APERTURES_REFUSED[key]
+    if key == "UDAD" and len(r.tokens) > 2 and r.tokens[1] == "0":   # UDAD 0 "NAME.UDA" scale
+        what += f" (file {r.tokens[2].strip(chr(34))})"
+    st.p.fail(r.line, f"{key} on SURF {len(st.surfs) - 1}: {what} is not "
                       f"supported (deeplens reads circular, rectangular and elliptical "
                       f"apertures: DIAM, CLAP, SQAP, ELAP; circular and elliptical "
                       f"obscurations and spiders: OBSC, ELOB, SPID)")

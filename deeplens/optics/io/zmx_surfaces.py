@@ -25,9 +25,9 @@ import torch
 from ..errors import ZemaxFileError
 from ..materials import Material
 from ..surfaces import Aperture, Asphere, Cylinder, IdealLens, ZernikeSag
-from ..surfaces.base import (clear_ellipse_of, clear_rect_of, set_clear_ellipse,
-                            set_clear_rect, set_obscuration_ellipse, set_obscuration_spider,
-                            takes_clear_rect)
+from ..surfaces.base import (check_conic_domain, clear_ellipse_of, clear_rect_of,
+                            set_clear_ellipse, set_clear_rect, set_obscuration_ellipse,
+                            set_obscuration_spider, takes_clear_rect)
 from .surface_formats import ZmxContext
 from .surface_handlers import FORMATS, PROVISIONAL_SD_MM, is_air
 from .zmx_parse import Locator, ZmxSurface
@@ -96,15 +96,17 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         return None   # a dummy surface: its thickness only
     # OpticStudio applies a floating aperture (a circular aperture at the semi-diameter) for a
     # user-defined semi-diameter only on a surface with refractive power and no surface
-    # aperture (OpticStudio User Guide, "Semi-Diameters"): on a flat surface in one medium (a
-    # dummy, or an OBSC's plane in air) a fixed DIAM is drawn, never clips.  The surface is
+    # aperture (OpticStudio User Guide, "Semi-Diameters"): on a surface in one medium, which has
+    # no power, flat (a dummy, or an OBSC's plane in air) or curved (a secondary's shadow drawn
+    # as an OBSC on a curved dummy in air), a fixed DIAM is drawn, never clips.  The surface is
     # kept (its place, its obscuration) with an automatic semi-diameter: the beam's extent
-    if (fixed and flat and same_medium and not s.stop and not s.mirror and s.clap is None
+    if (fixed and same_medium and not s.stop and not s.mirror and s.clap is None
             and s.sqap is None and s.elap is None):
         what = ("beside an OBSC (a surface aperture)" if s.obsc is not None else
                 "beside an ELOB (a surface aperture)" if s.elob is not None else
                 "beside a SPID (a surface aperture)" if s.spid is not None else
-                "of a flat surface in one medium with no surface aperture (CLAP, SQAP, OBSC)")
+                f"of a {'flat' if flat else 'curved'} surface in one medium (no refractive "
+                f"power) with no surface aperture (CLAP, SQAP, OBSC)")
         p.note(s.diam_line, f"SURF {k}: the fixed DIAM {s.diam:g} {what} does not clip rays in "
                             f"OpticStudio (its floating aperture is applied only on a surface "
                             f"with power and no surface aperture); read with an automatic "
@@ -209,6 +211,9 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         if not 0 < ro < float(surf.semi_diameter) and not auto:
             p.fail(s.obsc[1], f"SURF {k}: the obscuration radius {s.obsc[0]:g} must be > 0 "
                               f"and below the semi-diameter {s.diam:g}")
+        if auto:   # the obscuration is compared with the semi-diameter once that is set
+            with torch.no_grad():
+                surf.semi_diameter.fill_(max(float(surf.semi_diameter), 1.01 * ro))
         surf.obscuration.fill_(ro)
     elif s.obsc is not None and not isinstance(surf, Aperture):
         what = (("flat mirror" if s.mirror else "flat surface between two media") if flat
@@ -241,7 +246,28 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                           f"and ideal lenses excepted)")
     if auto and isinstance(surf, Aperture) and surf.shape in ("rect", "ellipse"):
         auto = False   # its semi-diameter is the rectangle's or ellipse's circumscribed circle
+    if not (fixed or auto or s.stop) and s.clap is None and type(surf) is Asphere:
+        _automatic_diam_in_domain(s, k, surf, s_mm, p)
     return surf, auto
+
+
+def _automatic_diam_in_domain(s: ZmxSurface, k: int, surf: Asphere, s_mm: float,
+                              p: Locator) -> None:
+    """An automatic ``DIAM`` (flag 0) written beyond the edge of the surface's conic (a
+    sphere's ``r = |R|``): OpticStudio's automatic semi-diameter is the radius "required to pass
+    all real rays" (User Guide, *Semi-Diameters*), the footprint of the file's beam, and no ray
+    meets the surface beyond its edge, so the saved value says rays of the file's beam pass
+    outside the surface (they miss it).  Refused at the ``DIAM`` line, in one line naming the
+    value, the edge and why (before: the domain error of the built lens)."""
+    c, kk = float(surf.c), float(surf.k)
+    try:
+        check_conic_domain(s.diam * s_mm, c, kk, "conic")
+    except ValueError:
+        edge = (1.0 / ((1.0 + kk) * c * c)) ** 0.5 / s_mm
+        p.fail(s.diam_line, f"SURF {k}: the automatic semi-diameter (DIAM flag 0) {s.diam:g} "
+                            f"lies beyond the edge of the surface (r = {edge:g}; R = "
+                            f"{1.0 / (c * s_mm):g}, k = {kk:g}): OpticStudio sized it for rays "
+                            f"of the file's beam that pass outside the surface and miss it")
 
 
 def _check_ellipses(s: ZmxSurface, k: int, p: Locator) -> None:

@@ -45,7 +45,9 @@ class Aperture(Plane):
         half_width_x, half_width_y: half-widths of a rectangular opening, or half-axes (along
             x, along y) of an elliptical one, mm.
         obscuration: radius of a central obscuration of a circular opening, mm (``0``: none;
-            ``< semi_diameter``); with ``obscuration_inner``, the ring's outer radius.
+            ``< semi_diameter``); with ``obscuration_inner``, the ring's outer radius, which
+            may lie at or beyond ``semi_diameter`` (the opening is then the disc inside
+            ``obscuration_inner``, or the whole circle where the ring lies beyond it).
         obscuration_inner: the inner radius of a ring obscuration, mm (``0``: the obscuration
             is central; else ``0 < obscuration_inner < obscuration``): rays pass inside it and
             outside ``obscuration``.
@@ -92,13 +94,16 @@ class Aperture(Plane):
         hw = [half_width_x or 0.0, half_width_y or 0.0]
         self.register_buffer("half_widths", torch.tensor(hw, dtype=torch.float64))
         obscuration = float(obscuration)
-        if obscuration != 0.0 and (shape != "circle" or not 0 < obscuration < float(
-                semi_diameter)):
+        ri = float(obscuration_inner)
+        # a ring (ri > 0) may reach past the rim (OpticStudio allows a surface aperture beyond
+        # the semi-diameter): the opening is then the disc inside ri, or the whole circle when
+        # the ring lies beyond it; a central obscuration at or past the rim would block all
+        if obscuration != 0.0 and (shape != "circle" or not 0 < obscuration < math.inf or (
+                ri == 0.0 and not obscuration < float(semi_diameter))):
             raise ValueError(f"Aperture: a central obscuration needs a circular opening and "
                              f"0 < radius < semi_diameter ({float(semi_diameter):g} mm), got "
                              f"{obscuration!r}")
         self.register_buffer("obscuration", torch.tensor(obscuration, dtype=torch.float64))
-        ri = float(obscuration_inner)
         if ri != 0.0 and not 0 < ri < obscuration:
             raise ValueError(f"Aperture: a ring obscuration needs 0 < inner radius < the "
                              f"obscuration's radius ({obscuration:g} mm), got "
