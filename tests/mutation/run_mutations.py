@@ -1338,6 +1338,11 @@ MUTATIONS = [
              "        coeffs.append(a * s_mm / R ** (px + py))\n",
              "        coeffs.append(a * s_mm / R ** max(px + py - 1, 0))\n",
              ("tests/optics/io/test_zmx_xpolynom.py",)),
+    Mutation("extended_polynomial_slope_unnormalised", "an Extended Polynomial's slopes not "
+             "divided by the normalisation radius (the sag right, the normals wrong)",
+             "deeplens/optics/surfaces/extended_polynomial.py",
+             "            return W, Wu / rn, Wv / rn\n", "            return W, Wu, Wv\n",
+             ("tests/optics/io/test_zmx_xpolynom.py",)),
     Mutation("birefringent_extraordinary_traced", "a birefringent-in surface in an extraordinary "
              "mode read as the ordinary ray's plain glass", "deeplens/optics/io/surface_handlers.py",
              "        if ray == \"extraordinary\":\n",

@@ -59,7 +59,8 @@ import torch
 
 from ..errors import LensFileError, ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
+from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder,
+                        ExtendedPolynomial, Grating,
                         IdealLens, IdealLensXY, OddAsphere, Plane, QType, Toroid, XYPolynomial,
                         ZernikeFringeSag, ZernikeSag)
 from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
@@ -358,8 +359,8 @@ def _xypolynom(s, c, sd, s_mm, p, k=None):
     the ``A_t`` in lens units, terms in :func:`zemax_xy_terms` order).  On a flat base (``CURV``
     0, where a conic adds nothing) it is exactly the :class:`XYPolynomial` ``z = Σ a_ij x^i y^j``
     with, lengths in mm (``s`` mm per lens unit, ``x_mm = s x``, ``z_mm = s z``),
-    ``a_ij = s A_t / (s R_n)^(i+j)`` (mm^(1-i-j)).  A curved base is refused at its line:
-    deeplens' XY polynomial has no base conic."""
+    ``a_ij = s A_t / (s R_n)^(i+j)`` (mm^(1-i-j)); on a curved base an
+    :class:`ExtendedPolynomial` (the conic, ``R_n`` in mm and the ``s A_t``)."""
     typ = s.type if s.type in ("XPOLYNOM", "XYPOLYNOM") else "XYPOLYNOM"
     where = f"SURF {k}: " if k is not None else ""
     if typ == "XPOLYNOM":
@@ -368,11 +369,7 @@ def _xypolynom(s, c, sd, s_mm, p, k=None):
                 p.fail(ln, f"{where}XPOLYNOM PARM {i} is not read (the Extended Polynomial's data "
                            f"are XDAT 1 the term count, XDAT 2 the normalisation radius, XDAT 3.. "
                            f"the terms)")
-    if c != 0:
-        if typ == "XPOLYNOM":
-            p.fail(s.curv_line or s.type_line or s.line,
-                   f"{where}an Extended Polynomial (XPOLYNOM) on a curved base (CURV {s.curv:g}) "
-                   f"is not read: deeplens' XY polynomial has no base conic (CURV 0 is read)")
+    if c != 0 and typ == "XYPOLYNOM":
         p.fail(s.line, "XYPOLYNOM with a base curvature (CURV != 0) is not supported: deeplens' XY "
                        "polynomial is z = P(x, y) (put the base sphere into the polynomial)")
     if 1 not in s.xdat or 2 not in s.xdat:
@@ -392,6 +389,10 @@ def _xypolynom(s, c, sd, s_mm, p, k=None):
         if j > nterms + 2 and v != 0:
             p.fail(ln, f"{where}XDAT {j} lies beyond the {nterms} terms XDAT 1 declares")
     zterms = zemax_xy_terms(nterms)
+    if c != 0:
+        # a curved base: the conic plus the terms, A_t (lens units) in mm on x / R_n, y / R_n
+        return ExtendedPolynomial(c, sd, R, [s.xdat.get(j + 2, (0.0, 0))[0] * s_mm
+                                             for j in range(1, nterms + 1)], conic=s.coni)
     vals = {zterms[j - 1]: s.xdat.get(j + 2, (0.0, 0))[0] for j in range(1, nterms + 1)}
     order = sum(zterms[nterms - 1])
     coeffs = []
@@ -773,6 +774,22 @@ class XYPolynomialFormat(SurfaceFormat):
         # R_n = 1 mm: A = a (x^i y^j in mm, z in mm), no scaling
         lines += [f"XDAT {j + 3} {_f(vals.get(t, 0.0))}" for j, t in enumerate(zterms)]
         return lines
+
+
+@register_format
+class ExtendedPolynomialFormat(SurfaceFormat):
+    """:class:`ExtendedPolynomial` (an ``XPOLYNOM`` on a curved base, read by
+    :class:`XYPolynomialFormat`): written as ``XPOLYNOM`` with its ``CURV``, ``CONI``,
+    ``R_n`` and terms."""
+
+    classes = (ExtendedPolynomial,)
+
+    def write_zmx(self, s, i):
+        terms = [float(v) for v in s.poly] or [0.0]
+        return (["TYPE XPOLYNOM", f"CURV {_f(float(s.c))}", f"CONI {_f(float(s.k))}",
+                 _diam(float(s.semi_diameter)), f"XDAT 1 {len(terms)}",
+                 f"XDAT 2 {_f(float(s.norm_radius))}"]
+                + [f"XDAT {t + 3} {_f(v)}" for t, v in enumerate(terms)])
 
 
 @register_format

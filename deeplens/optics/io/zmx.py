@@ -10,8 +10,10 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
                                                           number of terms <= 230, XDAT 2 = the
                                                           normalisation radius R, XDAT 3.. = A_j in
                                                           the order x, y, x², xy, y², x³, ...;
-                                                          read when CURV = 0; XYPOLYNOM, deeplens'
-                                                          own older name, the same)
+                                                          an XYPolynomial when CURV = 0, else an
+                                                          ExtendedPolynomial: the conic + the terms;
+                                                          XYPOLYNOM, deeplens' own older name, the
+                                                          same, CURV 0 only)
     COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), R = R_x R_y R_z of the tilts
                PARM 3/4/5 in degrees (order flag PARM 6 = 0)
     PARAXIAL   an ideal thin lens of focal length PARM 1 (converging along the light's way for
