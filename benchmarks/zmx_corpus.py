@@ -21,7 +21,10 @@ tests; rayoptics, which reads neither ``FLOA`` nor a Zernike sag's terms nor a B
 gets its own marginal ray scaled to the stop's size, the vertex curvature of deeplens' stated
 Zernike rule and the Binary 2 phase's thin-lens power as curvature, worked out from the file: test_zmx_corpus_rayoptics._rayoptics; a ``GRID_SAG`` surface, which rayoptics reads as a plane
 and optiland refuses, is given to both as the vertex curvature of deeplens' stated rule worked
-out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures; a two-point
+out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures; an Extended
+Polynomial, ``XPOLYNOM``, which neither reads, is given to both as the sphere of its vertex
+curvature ``CURV + (A_x² + A_y²) / R_n²`` worked out from its XDAT terms for first-order data,
+test_zmx_corpus.xpolynom_vertex_curvatures; a two-point
 hologram, ``HOLOGRM1``/``HOLOGRM2``, which neither reads (optiland refuses the type, rayoptics
 reads the bare substrate), is given to rayoptics as the thin-lens power of its construction
 beams' phase at the vertex, worked out from PARM 1-8 and CURV by
@@ -134,7 +137,9 @@ def folder_oracles(root: Path):
             if tc._has_decenters(name):
                 ref = tc._without_decenters(name, tmp)
                 first, _ = tc._oracle(ref, lens)
-            if tc._has_gratings(name):
+            if tc._has_gratings(name) or tc._has_xpolynom(name):
+                # an Extended Polynomial: the sphere of its vertex curvature, as a Q-type's
+                # in the corpus test (optiland's paraxial trace sees the base radius alone)
                 first, _ = tc._oracle(name, lens, gratings=False)
             if tc._even_r2_terms(name):   # optiland's paraxial trace sees CURV alone
                 ref = tc._r2_in_curvature(ref, tmp)

@@ -1377,6 +1377,28 @@ MUTATIONS = [
              'dll = f"plug-in {toks[2]}" if len(toks) > 2 else',
              'dll = "plug-in" if len(toks) > 2 else',
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    # ------------------- issue 37: Extended Polynomial, Birefringent In (branch xpoly)
+    Mutation("xpolynom_term_order_reversed", "OpticStudio's polynomial terms taken from y^d "
+             "down to x^d within a degree (x and y swapped: y, x, y², xy, x², ...)",
+             "deeplens/optics/io/surface_handlers.py",
+             "        out += [(d - i, i) for i in range(d + 1)]\n",
+             "        out += [(i, d - i) for i in range(d + 1)]\n",
+             ("tests/optics/io/test_zmx_xpolynom.py",)),
+    Mutation("xpolynom_rn_power", "the normalisation radius applied once too few times "
+             "(A / R^(i+j-1))", "deeplens/optics/io/surface_handlers.py",
+             "        coeffs.append(a * s_mm / R ** (px + py))\n",
+             "        coeffs.append(a * s_mm / R ** max(px + py - 1, 0))\n",
+             ("tests/optics/io/test_zmx_xpolynom.py",)),
+    Mutation("extended_polynomial_slope_unnormalised", "an Extended Polynomial's slopes not "
+             "divided by the normalisation radius (the sag right, the normals wrong)",
+             "deeplens/optics/surfaces/extended_polynomial.py",
+             "            return W, Wu / rn, Wv / rn\n", "            return W, Wu, Wv\n",
+             ("tests/optics/io/test_zmx_xpolynom.py",)),
+    Mutation("birefringent_extraordinary_traced", "a birefringent-in surface in an extraordinary "
+             "mode read as the ordinary ray's plain glass", "deeplens/optics/io/surface_handlers.py",
+             "        if ray == \"extraordinary\":\n",
+             "        if False:\n",
+             ("tests/optics/io/test_zmx_birefringent.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

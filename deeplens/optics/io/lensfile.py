@@ -34,7 +34,9 @@ mirrors are negative, and so is the sensor distance then).  A ``coordinate_break
 (``dx_mm``, ``dy_mm``, ``tilt_x_rad``, ``tilt_y_rad``, ``tilt_z_rad``) changes the frame of every
 following surface (folds, off-axis sections; see ``docs/guide/mirrors.md``).  Per type:
 ``asphere`` takes ``curvature_per_mm`` (or ``roc_mm``, 0 = flat), optional ``conic`` and
-``aspheric`` (``[a4, a6, ...]``); ``xy_polynomial`` takes ``coefficients`` and ``b``; ``bspline``
+``aspheric`` (``[a4, a6, ...]``); ``xy_polynomial`` takes ``coefficients`` and ``b``;
+``extended_polynomial`` (OpticStudio's ``XPOLYNOM`` on a conic) ``curvature_per_mm``, ``conic``,
+``norm_radius_mm`` and ``polynomial_coefficients`` (in OpticStudio's term order); ``bspline``
 takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` (or ``"ellipse"``)
 with ``half_width_x_mm``/``half_width_y_mm`` (an ellipse's half-axes); ``ideal_lens`` takes
 ``focal_length_mm``.  Any lens or mirror surface may carry ``clear_rect_mm`` ``[h_x, h_y]``,

@@ -10,7 +10,7 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
 * :class:`OddAsphereFormat`: reads ``ODDASPHE``; writes ``OddAsphere``;
 * :class:`CoordinateBreakFormat`: ``COORDBRK`` (read by the reader's sequence);
   writes ``CoordinateBreak``;
-* :class:`XYPolynomialFormat` (``XYPOLYNOM``, ``XYPolynomial``), :class:`ParaxialFormat`
+* :class:`XYPolynomialFormat` (``XPOLYNOM``, ``XYPOLYNOM``, ``XYPolynomial``), :class:`ParaxialFormat`
   (``PARAXIAL``, ``IdealLens``), :class:`ToroidalFormat` (``TOROIDAL``, ``Cylinder`` and
   ``Toroid``), :class:`GratingFormat` (``DGRATING``, ``Grating``), :class:`QTypeFormat`
   (``QED_TYPE``, ``QType``), :class:`BiconicFormat` (``BICONICX``, ``Biconic``),
@@ -37,7 +37,7 @@ with an ``r²`` term (``PARM 1`` != 0) -> :class:`~deeplens.optics.surfaces.OddA
 with no radius of rotation), ``BICONICX`` -> :class:`~deeplens.optics.surfaces.Biconic`,
 ``PARAXIAL`` -> :class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
 :class:`~deeplens.optics.surfaces.Grating`, ``BINARY_2`` ->
-:class:`~deeplens.optics.surfaces.Binary2`, ``XYPOLYNOM`` ->
+:class:`~deeplens.optics.surfaces.Binary2`, ``XPOLYNOM`` (flat base) and ``XYPOLYNOM`` ->
 :class:`~deeplens.optics.surfaces.XYPolynomial`, ``SZERNSAG`` ->
 :class:`~deeplens.optics.surfaces.ZernikeSag`, ``XASPHERE`` -> :class:`~deeplens.optics.surfaces.Asphere`
 (or :class:`~deeplens.optics.surfaces.OddAsphere` with a ρ² term).  Lengths are scaled from file
@@ -59,7 +59,8 @@ import torch
 
 from ..errors import LensFileError, ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder, Grating,
+from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder,
+                        ExtendedPolynomial, Grating,
                         IdealLens, IdealLensXY, OddAsphere, Plane, QType, Toroid, XYPolynomial,
                         ZernikeFringeSag, ZernikeSag)
 from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
@@ -73,7 +74,8 @@ from .zmx_coordbrk import coordbrk_lines
 
 #: the registry (:mod:`.surface_formats`), filled with this module's handlers: import it from
 #: here so that they are registered
-__all__ = ["FORMATS", "PROVISIONAL_SD_MM", "is_air", "XASPHERE_MAX_TERMS", "XASPHERE_READ_TERMS"]
+__all__ = ["FORMATS", "PROVISIONAL_SD_MM", "is_air", "XASPHERE_MAX_TERMS", "XASPHERE_READ_TERMS",
+           "XPOLYNOM_MAX_TERMS", "zemax_xy_terms"]
 
 # the semi-diameter a surface with no DIAM is built with before its automatic value is set
 PROVISIONAL_SD_MM = 1e-3
@@ -333,24 +335,64 @@ def _paraxial_surface(s, k: int, mat, prev, sd, s_mm, p):
     return IdealLens(s.parm[1][0] * s_mm, sd)
 
 
-def _xypolynom(s, c, sd, s_mm, p):
-    if c != 0:
+#: the most terms of OpticStudio's Extended Polynomial (``XDAT 1``): orders 1..20, 230 terms
+#: (OpticStudio User Guide, "Extended Polynomial")
+XPOLYNOM_MAX_TERMS = 230
+
+
+def zemax_xy_terms(n: int) -> list[tuple[int, int]]:
+    """The exponents ``(i, j)`` of ``x^i y^j`` of OpticStudio's polynomial terms 1..``n``: by
+    total degree from 1, within a degree from ``x^d`` down to ``y^d`` (``x, y, x², xy, y², x³,
+    ...``; OpticStudio User Guide, "Extended Polynomial": "The first term is x, then y, then x*x,
+    x*y, y*y, etc."; term 12 is ``x²y²``, term 13 ``xy³``)."""
+    out, d = [], 1
+    while len(out) < n:
+        out += [(d - i, i) for i in range(d + 1)]
+        d += 1
+    return out[:n]
+
+
+def _xypolynom(s, c, sd, s_mm, p, k=None):
+    """``XYPOLYNOM`` (deeplens' own record, CURV 0) and OpticStudio's ``XPOLYNOM`` ("Extended
+    Polynomial": the STANDARD sag plus ``Σ_{t=1..N} A_t E_t(x / R_n, y / R_n)``, ``XDAT 1`` the
+    maximum term number ``N`` <= 230, ``XDAT 2`` the normalisation radius ``R_n``, ``XDAT 3..``
+    the ``A_t`` in lens units, terms in :func:`zemax_xy_terms` order).  On a flat base (``CURV``
+    0, where a conic adds nothing) it is exactly the :class:`XYPolynomial` ``z = Σ a_ij x^i y^j``
+    with, lengths in mm (``s`` mm per lens unit, ``x_mm = s x``, ``z_mm = s z``),
+    ``a_ij = s A_t / (s R_n)^(i+j)`` (mm^(1-i-j)); on a curved base an
+    :class:`ExtendedPolynomial` (the conic, ``R_n`` in mm and the ``s A_t``)."""
+    typ = s.type if s.type in ("XPOLYNOM", "XYPOLYNOM") else "XYPOLYNOM"
+    where = f"SURF {k}: " if k is not None else ""
+    if typ == "XPOLYNOM":
+        for i, (v, ln) in sorted(s.parm.items()):
+            if v != 0:
+                p.fail(ln, f"{where}XPOLYNOM PARM {i} is not read (the Extended Polynomial's data "
+                           f"are XDAT 1 the term count, XDAT 2 the normalisation radius, XDAT 3.. "
+                           f"the terms)")
+    if c != 0 and typ == "XYPOLYNOM":
         p.fail(s.line, "XYPOLYNOM with a base curvature (CURV != 0) is not supported: deeplens' XY "
                        "polynomial is z = P(x, y) (put the base sphere into the polynomial)")
     if 1 not in s.xdat or 2 not in s.xdat:
-        p.fail(s.line, "XYPOLYNOM without XDAT 1 (number of terms) and XDAT 2 (normalisation "
-                       "radius)")
-    nterms = int(s.xdat[1][0])
+        p.fail(s.type_line or s.line, f"{where}{typ} without XDAT 1 (number of terms) and XDAT 2 "
+                                      f"(normalisation radius)")
+    n_v, n_ln = s.xdat[1]
     R = s.xdat[2][0] * s_mm
     if not R > 0:
-        p.fail(s.xdat[2][1], f"XYPOLYNOM normalisation radius must be > 0, got {s.xdat[2][0]!r}")
-    # Zemax term j (1-based): degrees 1, 2, ... each from x^d down to y^d
-    zterms = [(d - i, i) for d in range(1, 64) for i in range(d + 1)]
-    if not 1 <= nterms <= len(zterms):
-        p.fail(s.xdat[1][1], f"XYPOLYNOM number of terms must be 1..{len(zterms)}, got {nterms}")
+        p.fail(s.xdat[2][1], f"{where}{typ} normalisation radius must be > 0, got "
+                             f"{s.xdat[2][0]!r}")
+    most = XPOLYNOM_MAX_TERMS if typ == "XPOLYNOM" else 2079   # XYPOLYNOM: degrees 1..63
+    if n_v != int(n_v) or not 1 <= n_v <= most:
+        p.fail(n_ln, f"{where}{typ} number of terms (XDAT 1) must be an integer 1..{most}, got "
+                     f"{n_v!r}")
+    nterms = int(n_v)
     for j, (v, ln) in s.xdat.items():
         if j > nterms + 2 and v != 0:
-            p.fail(ln, f"XDAT {j} lies beyond the {nterms} terms XDAT 1 declares")
+            p.fail(ln, f"{where}XDAT {j} lies beyond the {nterms} terms XDAT 1 declares")
+    zterms = zemax_xy_terms(nterms)
+    if c != 0:
+        # a curved base: the conic plus the terms, A_t (lens units) in mm on x / R_n, y / R_n
+        return ExtendedPolynomial(c, sd, R, [s.xdat.get(j + 2, (0.0, 0))[0] * s_mm
+                                             for j in range(1, nterms + 1)], conic=s.coni)
     vals = {zterms[j - 1]: s.xdat.get(j + 2, (0.0, 0))[0] for j in range(1, nterms + 1)}
     order = sum(zterms[nterms - 1])
     coeffs = []
@@ -359,7 +401,6 @@ def _xypolynom(s, c, sd, s_mm, p):
         # A (x/R)^px (y/R)^py with lengths scaled to mm: A s_mm / R^(px+py)
         coeffs.append(a * s_mm / R ** (px + py))
     return XYPolynomial(sd, coeffs)
-
 
 
 #: the most terms of OpticStudio's Extended Asphere (XDAT 1), and the most deeplens reads: its
@@ -701,31 +742,54 @@ class CoordinateBreakFormat(SurfaceFormat):
 
 @register_format
 class XYPolynomialFormat(SurfaceFormat):
-    """:class:`XYPolynomial`: Zemax ``XYPOLYNOM`` (``XDAT 1`` the number of terms, ``XDAT 2``
-    the normalisation radius, ``XDAT 3..`` the coefficients of ``x^i y^j`` by degree)."""
+    """:class:`XYPolynomial`: OpticStudio's ``XPOLYNOM`` ("Extended Polynomial", on a flat
+    base) and deeplens' older ``XYPOLYNOM`` record of the same layout (``XDAT 1`` the number of
+    terms, ``XDAT 2`` the normalisation radius, ``XDAT 3..`` the coefficients of ``x^i y^j`` by
+    degree, :func:`zemax_xy_terms`); written as ``XPOLYNOM`` with ``R_n`` = 1 mm (so that a
+    lens in mm reads back bit for bit).  ``XYPOLYNOM`` is deeplens' own name, in no OpticStudio
+    source at hand; the writer wrote it until branch ``xpoly``."""
 
     classes = (XYPolynomial,)
-    zmx_types = ("XYPOLYNOM",)
+    zmx_types = ("XPOLYNOM", "XYPOLYNOM")
 
     def read_zmx(self, s, ctx):
-        return _xypolynom(s, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+        return _xypolynom(s, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p, ctx.k)
 
     def write_zmx(self, s, i):
         if float(s.b) != 0:
             raise ZemaxFileError(f"surface {i}: an XY polynomial with b != 0 (z² term) has no "
-                                 f"XYPOLYNOM equivalent", surfaces=(i,))
+                                 f"XPOLYNOM equivalent", surfaces=(i,))
         vals = {t: float(v) for t, v in zip(s.terms, s.a)}
         if vals.get((0, 0), 0.0) != 0:
             raise ZemaxFileError(f"surface {i}: an XY polynomial with a constant term has no "
-                                 f"XYPOLYNOM equivalent", surfaces=(i,))
-        sd = float(s.semi_diameter)
-        R = sd
-        zterms = [(d - k, k) for d in range(1, s.order + 1) for k in range(d + 1)]
-        lines = ["TYPE XYPOLYNOM", "CURV 0.0", _diam(sd), f"XDAT 1 {len(zterms)}",
-                 f"XDAT 2 {_f(R)}"]
-        lines += [f"XDAT {j + 3} {_f(vals.get(t, 0.0) * R ** sum(t))}"
-                  for j, t in enumerate(zterms)]
+                                 f"XPOLYNOM equivalent", surfaces=(i,))
+        # every term up to the surface's order (its order reads back), at least one
+        zterms = zemax_xy_terms(max(1, s.order * (s.order + 3) // 2))
+        if len(zterms) > XPOLYNOM_MAX_TERMS:
+            raise ZemaxFileError(f"surface {i}: an XY polynomial of order {s.order} has terms "
+                                 f"beyond OpticStudio's Extended Polynomial's "
+                                 f"{XPOLYNOM_MAX_TERMS} (order 20)", surfaces=(i,))
+        lines = ["TYPE XPOLYNOM", "CURV 0.0", _diam(float(s.semi_diameter)),
+                 f"XDAT 1 {len(zterms)}", "XDAT 2 1.0"]
+        # R_n = 1 mm: A = a (x^i y^j in mm, z in mm), no scaling
+        lines += [f"XDAT {j + 3} {_f(vals.get(t, 0.0))}" for j, t in enumerate(zterms)]
         return lines
+
+
+@register_format
+class ExtendedPolynomialFormat(SurfaceFormat):
+    """:class:`ExtendedPolynomial` (an ``XPOLYNOM`` on a curved base, read by
+    :class:`XYPolynomialFormat`): written as ``XPOLYNOM`` with its ``CURV``, ``CONI``,
+    ``R_n`` and terms."""
+
+    classes = (ExtendedPolynomial,)
+
+    def write_zmx(self, s, i):
+        terms = [float(v) for v in s.poly] or [0.0]
+        return (["TYPE XPOLYNOM", f"CURV {_f(float(s.c))}", f"CONI {_f(float(s.k))}",
+                 _diam(float(s.semi_diameter)), f"XDAT 1 {len(terms)}",
+                 f"XDAT 2 {_f(float(s.norm_radius))}"]
+                + [f"XDAT {t + 3} {_f(v)}" for t, v in enumerate(terms)])
 
 
 @register_format
@@ -735,7 +799,7 @@ class TiltedFormat(SurfaceFormat):
     local frame; OpticStudio User Guide, "Tilted").  Both tangents zero: the flat ``STANDARD``
     surface (a dummy, an opening or an interface, read as one); otherwise an
     :class:`XYPolynomial` with the linear terms ``y tan θ_y + x tan θ_x`` (written back as
-    ``XYPOLYNOM``)."""
+    ``XPOLYNOM``)."""
 
     zmx_types = ("TILTSURF",)
 
@@ -805,6 +869,74 @@ class JonesMatrixFormat(SurfaceFormat):
                                 f"polarization, so its transmission is not applied")
         return FORMATS.for_zmx_type("STANDARD").read_zmx(
             dataclasses.replace(s, type="STANDARD", parm={}), ctx)
+
+
+#: Birefringent In's mode flag (``PARM 1``): which ray is traced, and whether a beamsplitter
+#: (split into configurations) or a waveplate (M. Nicholson, "The Birefringent Mode Flag",
+#: Zemax knowledge base: modes 0 and 1 trace the ordinary or extraordinary ray of a
+#: beamsplitter, modes 2 and 3 the input beam as the o or e ray of a waveplate)
+BIREFRINGENT_MODES = {0: ("ordinary", "beamsplitter"), 1: ("extraordinary", "beamsplitter"),
+                      2: ("ordinary", "waveplate"), 3: ("extraordinary", "waveplate")}
+
+
+@register_format
+class BirefringentFormat(SurfaceFormat):
+    """Zemax ``BIRE__IN`` and ``BIRE_OUT`` (OpticStudio's "Birefringent In" and "Birefringent
+    Out": birefringent ray tracing starts at the first and ends at the second; both have the
+    Standard surface's shape, and the glass after ``BIRE__IN`` is the *ordinary* index, the
+    extraordinary one a second catalogue glass of the name with ``-E``; M. Nicholson, "How to
+    design birefringent polarizers", Zemax knowledge base, 2005: the "Birefringent-In Surface"
+    page).  An ordinary ray "is refracted by n sin θ = n_o sin θ'", "just Snell's law" (ibid.),
+    so where the mode flag (``PARM 1``, :data:`BIREFRINGENT_MODES`) traces the ordinary ray
+    (0, 2) its path is exactly that through a plain glass of index ``n_o``: read as the
+    ``STANDARD`` surface with one located warning naming the mode and that only the ordinary
+    ray's path is traced (no extraordinary ray, no polarization or retardance).  An
+    extraordinary mode (1, 3) is refused at its line: its index depends on the ray's angle to
+    the crystal axis, and deeplens traces no birefringence.  ``BIRE_OUT``, where the ordinary
+    ray leaves the crystal, is the ``STANDARD`` surface; a non-zero ``PARM`` on it is refused
+    (no source at hand defines them).  ``PARM 1`` as the mode is read from the files (the
+    knowledge base names the modes, not the column); the crystal axis and the other ``PARM``
+    values do not change an ordinary ray's path."""
+
+    zmx_types = ("BIRE__IN", "BIRE_OUT")
+
+    @staticmethod
+    def _mode(s, k, p):
+        if s.type == "BIRE_OUT":
+            for i, (v, ln) in sorted(s.parm.items()):
+                if v != 0:
+                    p.fail(ln, f"SURF {k}: BIRE_OUT PARM {i} is not read (no source at hand "
+                               f"defines a Birefringent Out parameter)")
+            return None
+        v, ln = s.parm.get(1, (0.0, s.type_line))
+        if v not in BIREFRINGENT_MODES:
+            p.fail(ln, f"SURF {k}: BIRE__IN mode (PARM 1) must be 0, 1, 2 or 3, got {v!r}")
+        ray, kind = BIREFRINGENT_MODES[int(v)]
+        if ray == "extraordinary":
+            p.fail(ln, f"SURF {k}: a birefringent-in surface tracing the extraordinary ray "
+                       f"(mode {int(v)}, {kind}): polarization ray tracing is not modelled")
+        return int(v)
+
+    @staticmethod
+    def _as_standard(s):
+        import dataclasses
+
+        return dataclasses.replace(s, type="STANDARD", parm={}, xdat={})
+
+    def zmx_flat(self, s, ctx):
+        self._mode(s, ctx.k, ctx.p)
+        return FORMATS.for_zmx_type("STANDARD").zmx_flat(self._as_standard(s), ctx)
+
+    def read_zmx(self, s, ctx):
+        mode = self._mode(s, ctx.k, ctx.p)
+        if mode is not None:
+            ray, kind = BIREFRINGENT_MODES[mode]
+            ctx.p.note(s.type_line,
+                       f"SURF {ctx.k}: birefringent-in surface (mode {mode}, the {ray} ray "
+                       f"of a {kind}) read as a STANDARD surface into its GLAS as the "
+                       f"ordinary index: only the ordinary ray's path is traced, no "
+                       f"extraordinary ray, polarization or retardance")
+        return FORMATS.for_zmx_type("STANDARD").read_zmx(self._as_standard(s), ctx)
 
 
 @register_format

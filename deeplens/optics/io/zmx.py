@@ -6,10 +6,14 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
     EVENASPH   z = STANDARD + Σ_{i=1..8} α_i r^{2i}        (PARM i = α_i: an Asphere from r⁴, or
                                                           with PARM 1 != 0 an OddAsphere)
     ODDASPHE   z = STANDARD + Σ_{i=1..8} β_i r^i           (PARM i = β_i: an OddAsphere)
-    XYPOLYNOM  z = Σ_j A_j x^m y^n / R^(m+n)               (XDAT 1 = number of terms, XDAT 2 = the
+    XPOLYNOM   z = Σ_j A_j x^m y^n / R^(m+n)               (OpticStudio's Extended Polynomial: XDAT 1 =
+                                                          number of terms <= 230, XDAT 2 = the
                                                           normalisation radius R, XDAT 3.. = A_j in
                                                           the order x, y, x², xy, y², x³, ...;
-                                                          read when CURV = 0)
+                                                          an XYPolynomial when CURV = 0, else an
+                                                          ExtendedPolynomial: the conic + the terms;
+                                                          XYPOLYNOM, deeplens' own older name, the
+                                                          same, CURV 0 only)
     COORDBRK   x_before = δ + R x_after,  δ = (PARM 1, PARM 2, 0), R = R_x R_y R_z of the tilts
                PARM 3/4/5 in degrees (order flag PARM 6 = 0)
     PARAXIAL   an ideal thin lens of focal length PARM 1 (converging along the light's way for
@@ -31,6 +35,8 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
                OddAsphere with an r² term)
     JONESMAT   z = 0 (a Jones matrix surface, PARM 1..8 its A..D: read as the plane, its
                polarization and transmission not applied, with a located note)
+    BIRE__IN   STANDARD into its GLAS as the ordinary index, in an ordinary-ray mode (PARM 1 = 0
+               or 2), with a located note; BIRE_OUT: STANDARD (Birefringent In / Out)
     GRID_SAG   z = EVENASPH (PARM 1..8 on r², ..., r¹⁶) + the bicubic Hermite interpolant of
                the grid GDAT nx ny delx dely xdec ydec, GARR i z dz/dx dz/dy d2z/dxdy nodata
                (from the top left, -x +y); PARM 0 = 0 (bicubic); a GridSag (:mod:`.zmx_grid_sag`)

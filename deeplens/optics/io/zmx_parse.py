@@ -48,6 +48,9 @@ _UNSUPPORTED_TYPES = {
     "GRINSUR9": ("a SELFOC gradient-index surface, Gradient 9: its index needs the glass's "
                  "n0(λ) and A(λ) coefficients (B, C, K0, K1, K2), which OpticStudio keeps in "
                  "its GRADIENT_9.DAT and no public source gives"),
+    "GRINSUR8": ("OpticStudio's GRADIUM surface, LightPath's axial-gradient blanks: its index "
+                 "profile is the blank's, which OpticStudio keeps in its PROFILE.GRD and no "
+                 "public source gives"),
 }
 
 # Lines that describe editor state, drawing, tolerancing or non-optical data: skipped silently.
@@ -345,9 +348,13 @@ def _type(st: _Parse, r: Record) -> None:
                        f"its shape is computed by OpticStudio's compiled {dll}, which deeplens "
                        f"cannot run")
         known = FORMATS.zmx_types()
-        what = _UNSUPPORTED_TYPES.get(cur.type, "a surface type deeplens does not know")
-        p.fail(ln, f"surface type {toks[1]!r} (SURF {len(st.surfs) - 1}, {what}) is not "
-                   f"supported; deeplens reads {', '.join(known[:-1])} and {known[-1]}")
+        what = _UNSUPPORTED_TYPES.get(cur.type)
+        if what is not None:   # a type met in real files: what it is and why, in one line
+            p.fail(ln, f"surface type {toks[1]!r} (SURF {len(st.surfs) - 1}, {what}) is not "
+                       f"supported")
+        p.fail(ln, f"surface type {toks[1]!r} (SURF {len(st.surfs) - 1}, a surface type deeplens "
+                   f"does not know) is not supported; deeplens reads {', '.join(known[:-1])} and "
+                   f"{known[-1]}")
 
 
 def _curv(st: _Parse, r: Record) -> None:

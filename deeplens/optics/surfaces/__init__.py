@@ -8,6 +8,7 @@ from .biconic import Biconic
 from .bspline import BSpline
 from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
+from .extended_polynomial import ExtendedPolynomial
 from .fresnel import Fresnel
 from .grating import Grating
 from .grid_sag import GridSag
@@ -22,6 +23,6 @@ from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
 from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
-__all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder",
+__all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder", "ExtendedPolynomial",
            "Fresnel", "Grating", "GridSag", "Hologram", "Irregular", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
            "Surface", "SagSurface", "SURFACE_TYPES"]

@@ -263,7 +263,8 @@ BAD = [
      r"surfaces\[2\]: expected an object, got str"),
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
-     r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, fresnel, grating, "
+     r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, "
+     r"extended_polynomial, fresnel, grating, "
      r"grid_sag, hologram, ideal_lens, ideal_lens_xy, irregular, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
      r"zernike_fringe_sag, "
      r"zernike_sag\)"),
@@ -555,6 +556,13 @@ def test_every_registered_surface_type_round_trips():
     d["surfaces"].append({"type": "fresnel", "semi_diameter_mm": 2.5,
                           "curvature_per_mm": 1 / 75.0, "conic": -0.4,
                           "fresnel_coefficients": [1e-4 / 3, 0.0, 1e-6],
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([len(d["surfaces"]) - 1] * 2)
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # OpticStudio's Extended Polynomial on a conic (XPOLYNOM with CURV != 0), likewise
+    d["surfaces"].append({"type": "extended_polynomial", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 80.0, "conic": -0.3, "norm_radius_mm": 2.5,
+                          "polynomial_coefficients": [0.0, 1e-3 / 3, 2e-3, 0.0, -1e-3],
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([len(d["surfaces"]) - 1] * 2)
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})

@@ -314,6 +314,79 @@ def qtype_vertex_curvatures(name):
     return out
 
 
+def _has_xpolynom(name):
+    return bool(re.search(r"^\s+TYPE\s+XPOLYNOM\b", decode_zemax_text(CORPUS / name), re.M))
+
+
+def xpolynom_blocks(text):
+    """``[(SURF k, CURV, CONI, R_n, {(i, j): A})]`` of the ``XPOLYNOM`` blocks of a file's text:
+    OpticStudio's Extended Polynomial, ``XDAT 1`` the term count ``N``, ``XDAT 2`` ``R_n``,
+    ``XDAT t + 2`` the coefficient ``A`` of ``(x / R_n)^i (y / R_n)^j`` for the ``t``-th term
+    (by degree from 1, within a degree from ``x^d`` down to ``y^d``: the User Guide's order,
+    written out here, not taken from deeplens)."""
+    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
+    out = []
+    for i, b in enumerate(parts):
+        if re.search(r"^\s+TYPE\s+XPOLYNOM\b", b, re.M):
+            xdat = dict((int(m.group(1)), float(m.group(2)))
+                        for m in re.finditer(r"^\s+XDAT\s+(\d+)\s+(\S+)", b, re.M))
+            curv = re.search(r"^\s+CURV\s+(\S+)", b, re.M)
+            coni = re.search(r"^\s+CONI\s+(\S+)", b, re.M)
+            order = [(d - q, q) for d in range(1, 21) for q in range(d + 1)]
+            terms = {order[t - 1]: xdat.get(t + 2, 0.0) for t in range(1, int(xdat[1]) + 1)}
+            out.append((int(parts[i - 1].split()[1]), float(curv.group(1)) if curv else 0.0,
+                        float(coni.group(1)) if coni else 0.0, xdat[2], terms))
+    return out
+
+
+def xpolynom_vertex_curvatures(name):
+    """``{SURF k: vertex curvature}`` (file units) of the file's ``XPOLYNOM`` surfaces:
+    ``CURV + (A_x² + A_y²) / R_n²``, the mean of the two principal curvatures at the vertex
+    (``2 A_x² / R_n²``, ``2 A_y² / R_n²`` added to ``CURV``; equal on a rotationally symmetric
+    polynomial, where this is the vertex curvature itself; deeplens' stated rule for an XY
+    polynomial otherwise).  Linear terms (a tilted vertex) are not handled."""
+    out = {}
+    for k, curv, _, rn, terms in xpolynom_blocks(decode_zemax_text(CORPUS / name)):
+        assert terms.get((1, 0), 0.0) == 0.0 and terms.get((0, 1), 0.0) == 0.0, \
+            "an XPOLYNOM with linear terms: extend the oracle"
+        out[k] = curv + (terms.get((2, 0), 0.0) + terms.get((0, 2), 0.0)) / rn ** 2
+    return out
+
+
+def _load_optiland_xpolynom(name, full):
+    """optiland's ``load_zemax_file`` for a file with ``XPOLYNOM`` surfaces, which its reader
+    does not read: each is read as ``TYPE STANDARD`` (``XDAT`` lines dropped); with ``full`` it
+    then gets optiland's own XY polynomial geometry (``PolynomialGeometry``: the conic plus
+    ``Σ C_ij x^i y^j``, unnormalised, so ``C_ij = A / R_n^(i+j)`` in file units); without, for
+    first-order data, the sphere of its vertex curvature (:func:`xpolynom_vertex_curvatures`):
+    optiland's paraxial trace takes the polynomial geometry's base radius alone."""
+    from optiland.geometries import PolynomialGeometry
+
+    text = decode_zemax_text(CORPUS / name)
+    assert not re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT|DGRATING|QED_TYPE|GRID_SAG)\b", text,
+                         re.M), "an XPOLYNOM file with another surface the oracle rewrites"
+    cv = xpolynom_vertex_curvatures(name)
+    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
+    for i, b in enumerate(parts):
+        if re.search(r"^\s+TYPE\s+XPOLYNOM\b", b, re.M):
+            b = re.sub(r"^(\s+TYPE\s+)XPOLYNOM", r"\g<1>STANDARD", b, flags=re.M)
+            if not full:
+                k = int(parts[i - 1].split()[1])
+                b = re.sub(r"^(\s+CURV\s+)\S+", rf"\g<1>{cv[k]!r}", b, flags=re.M)
+            parts[i] = re.sub(r"^\s+XDAT\s+.*\n", "", b, flags=re.M)
+    optic = _optiland_from_text(name, "".join(parts))
+    if full:
+        for k, curv, coni, rn, terms in xpolynom_blocks(text):
+            s = optic.surface_group.surfaces[k]
+            d = max(i + j for i, j in terms)
+            c = [[0.0] * (d + 1) for _ in range(d + 1)]
+            for (i, j), a in terms.items():
+                c[i][j] = a / rn ** (i + j)
+            s.geometry = PolynomialGeometry(s.geometry.cs, 1.0 / curv if curv else math.inf,
+                                            conic=coni, coefficients=c)
+    return optic
+
+
 def _has_grid_sag(name):
     return bool(re.search(r"^\s+TYPE\s+GRID_SAG\b", decode_zemax_text(CORPUS / name), re.M))
 
@@ -467,12 +540,14 @@ def _load_optiland(name, gratings):
     each grating as its base surface (``TYPE STANDARD``, ``PARM`` lines dropped), then, with
     ``gratings``, each such surface gets optiland's own grating geometry and diffraction model
     (``PARM 1`` lines/µm -> a period of 1/``PARM 1`` µm, order ``PARM 2``, lines along x).
-    Nor ``QED_TYPE``: :func:`_load_optiland_qtype` (``gratings`` False: first-order
-    stand-ins)."""
+    Nor ``QED_TYPE``: :func:`_load_optiland_qtype`, nor ``XPOLYNOM``:
+    :func:`_load_optiland_xpolynom` (``gratings`` False: first-order stand-ins)."""
     from optiland.fileio import load_zemax_file
 
     if _has_qtype(name):
         return _load_optiland_qtype(name, gratings)
+    if _has_xpolynom(name):
+        return _load_optiland_xpolynom(name, gratings)
     if _has_grid_sag(name):
         return _load_optiland_grid_sag(name)
     path = CORPUS / name   # CORPUS / an absolute path = that path
@@ -724,10 +799,10 @@ def test_loads_with_the_oracles_numbers(name, tmp_path):
         straight = _load(ref)
         assert float(paraxial(straight).efl) == float(paraxial(lens).efl)
         first, _ = _oracle(ref, lens)
-    if _has_qtype(name):
-        # a Q-type surface's first-order data: the sphere of its vertex curvature (optiland's
-        # paraxial trace takes a Forbes geometry's base radius alone); the spot below has
-        # optiland's Forbes geometry
+    if _has_qtype(name) or _has_xpolynom(name):
+        # a Q-type or Extended Polynomial surface's first-order data: the sphere of its vertex
+        # curvature (optiland's paraxial trace takes a Forbes or polynomial geometry's base
+        # radius alone); the spot below has optiland's Forbes or polynomial geometry
         first, _ = _oracle(name, lens, gratings=False)
     if _has_gratings(name):
         # first-order data see a grating's base surface (a constant line density has no

@@ -29,7 +29,7 @@ from deeplens.optics.paraxial import paraxial
 from test_zmx_corpus import (CORPUS, FILES, REFUSED, _dl_path_coords, _even_r2_terms,
                              _file_path_coords, _floa_stop_radius, _load, _medium_after,
                              _plain_planes, _unit_mm, grid_sag_vertex_curvatures,
-                             qtype_vertex_curvatures)
+                             qtype_vertex_curvatures, xpolynom_vertex_curvatures)
 
 #: file -> (the quantities rayoptics cannot confirm, the verified reason).  Every other loaded
 #: file is confirmed on all four numbers.
@@ -122,6 +122,11 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
     # (x(1 − x) Σ a_m Q_m(x), x = r²/ρ_n²), so the vertex curvature includes it, worked out
     # here from the file (test_zmx_corpus.qtype_vertex_curvatures)
     for k, cv in qtype_vertex_curvatures(name).items():
+        sm.ifcs[k].profile.cv = cv
+    # Extended Polynomial surfaces (XPOLYNOM): rayoptics 0.9.8 has no XY polynomial profile;
+    # its paraxial model gets the vertex curvature worked out from the file's terms
+    # (test_zmx_corpus.xpolynom_vertex_curvatures)
+    for k, cv in xpolynom_vertex_curvatures(name).items():
         sm.ifcs[k].profile.cv = cv
     # Grid sag surfaces: zmxread reads a plane; deeplens' stated rule (the Zemax guide, Grid
     # sag) takes the interpolated surface's mean vertex curvature, worked out here from the

@@ -83,7 +83,7 @@ def test_tilted_face_has_the_closed_form_sag_and_refracts_about_its_normal(tmp_p
 
 def test_tangents_are_dimensionless_and_write_back_as_the_same_plane(tmp_path):
     """In centimetres the same tangents give the same plane (slopes have no unit); written
-    back, the tilted face is an XYPOLYNOM of the same sag, read again the same lens."""
+    back, the tilted face is an XPOLYNOM of the same sag, read again the same lens."""
     mm = read_zmx(write(tmp_path, _tilted_back(), "mm.zmx"))
     cm_text = singlet(unit="CM", curv1=0.2, curv2=0.0, t=0.5, bfl=4.5, aperture="ENPD 1",
                       diam1=0.8, s1_extra=("PARM 1 0", "PARM 2 1e-02", "PARM 3 -2e-02"))
@@ -99,7 +99,7 @@ def test_tangents_are_dimensionless_and_write_back_as_the_same_plane(tmp_path):
     assert b.sag(x, y).tolist() == pytest.approx(a.sag(x, y).tolist(), abs=1e-14)
     p = tmp_path / "back.zmx"
     write_zmx(mm, p)
-    assert "TYPE XYPOLYNOM" in p.read_text()
+    assert "TYPE XPOLYNOM" in p.read_text()
     back = read_zmx(p)
     assert back.surfaces[-1].sag(x, y).tolist() == pytest.approx(a.sag(x, y).tolist(),
                                                                  abs=1e-14)

@@ -28,7 +28,8 @@ import torch
 
 from deeplens.optics.parameters import parameter_scale
 from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary2, BSpline,
-                                      CoordinateBreak, Cylinder, Fresnel, Grating, GridSag,
+                                      CoordinateBreak, Cylinder, ExtendedPolynomial, Fresnel,
+                                      Grating, GridSag,
                                       Hologram,
                                       IdealLens,
                                       IdealLensXY,
@@ -65,6 +66,9 @@ EXAMPLES = {
     Irregular: lambda: Irregular(0.01, R, 1.2 * R, conic=-0.5, decenter=(0.3, -0.2),
                                  tilt=(0.002, -0.001), z_spherical=1e-3, z_astigmatism=-2e-3,
                                  z_coma=1e-3, angle=0.3),
+    ExtendedPolynomial: lambda: ExtendedPolynomial(0.01, R, 0.8 * R, [1e-3, -2e-3, 1e-3,
+                                                                5e-4, -1e-3, 2e-4, 0.0, 3e-4],
+                                                   conic=-0.5),
     Hologram: lambda: Hologram(0.01, R, (1.0, -2.0, -150.0), (0.5, 3.0, 90.0), 550.0, 1, 2,
                                conic=-0.5),
 }
