@@ -1326,6 +1326,19 @@ MUTATIONS = [
              "    return tuple(-v for v in vals), 1 - order, \"reverse\"\n",
              "    return tuple(-v for v in vals), order, \"reverse\"\n",
              ("tests/optics/io/test_zmx_scbd.py",)),
+    # ------------------------- issue 37: Zernike Fringe Phase, FZERNPHA (branch fzern)
+    Mutation("fzernpha_radians", "the Zernike Fringe phase's coefficients taken as radians (no "
+             "2π: OpticStudio's are waves) in the ray's kick",
+             "deeplens/optics/surfaces/zernike_phase.py",
+             "        k = 2.0 * math.pi * self.order\n",
+             "        k = 1.0 * self.order\n",
+             ("tests/optics/io/test_zmx_zernike_phase.py",)),
+    Mutation("fzernpha_noll_order", "the Zernike Fringe phase evaluated in Noll's (Standard) "
+             "order and normalisation instead of the Fringe set",
+             "deeplens/optics/surfaces/zernike_phase.py",
+             "self.zernike, slopes, \"fringe\")",
+             "self.zernike, slopes, \"standard\")",
+             ("tests/optics/surfaces/test_zernike_fringe_phase.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
