@@ -564,6 +564,33 @@ def test_binary2_power_through_rayoptics(monkeypatch, tmp_path):
     assert abs(dl - ro) > 0.01 * abs(dl)
 
 
+def test_fzernpha_power_through_rayoptics(monkeypatch, tmp_path):
+    """The Zernike Fringe phase file of test_zmx_zernike_phase with an astigmatic phase
+    (A_1 = A_4 = 0.735, A_5 = -1.47 waves: 2.94 y² / R_n², OpticStudio's Test_Astigmatism) and a
+    primary spherical term: deeplens' EFL, EPD, pupil position and back focus equal rayoptics'
+    once rayoptics, which reads a plane, is given the y-section power written out from the
+    published polynomials; without it the EFL is > 1 % apart."""
+    from test_zmx_zernike_phase import phase_file
+
+    body = ["PARM 0 1", "XDAT 1 9", "XDAT 2 4", "XDAT 3 0.735", "XDAT 6 0.735", "XDAT 7 -1.47",
+            "XDAT 11 0.2"]
+    lens, scratch = _corpus_of_one("f.zmx", phase_file(body), monkeypatch, tmp_path)
+    wl = 550e-6
+    phi = _fzernpha_powers("f.zmx", wl)
+    # Z4: 2 × 0.735, Z5 along y: -1 × -1.47, Z9: -6 × 0.2 (per R_n² = 16)
+    assert list(phi) == [1] and phi[1] == pytest.approx(
+        -2.0 * wl * (2 * 0.735 + 1.47 - 6 * 0.2) / 16.0, rel=1e-14)
+    opm = _rayoptics("f.zmx", lens, monkeypatch, scratch)
+    for what, (dl, ro) in _numbers("f.zmx", lens, opm).items():
+        assert _agrees(dl, ro), f"{what}: deeplens {dl!r} vs rayoptics {ro!r}"
+    import rayoptics.elem.surface as ro_surface
+
+    opm["seq_model"].ifcs[1] = ro_surface.Surface()   # the phase left out: a plane
+    _update(opm)
+    dl, ro = _numbers("f.zmx", lens, opm)["EFL"]
+    assert abs(dl - ro) > 0.01 * abs(dl)
+
+
 @pytest.mark.parametrize("case", ["transmission", "reflection", "hologram1"])
 def test_hologram_power_through_rayoptics(monkeypatch, tmp_path, case):
     """The holograms of test_zmx_hologram (an object 200 mm before a flat HOLOGRM2 with points

@@ -177,3 +177,51 @@ def test_traces_eager_and_round_trips_through_the_lens_file():
     assert lens_to_dict(lens_from_dict(d)) == d
     assert not lens.surfaces[1].axisymmetric
     assert ZernikeFringePhase(0.0, 6.0, 4.0, [0.5, 0, 0, -2.0, 0, 0, 0, 0, 1.0]).axisymmetric
+
+
+def test_real_rays_match_rayoptics_diffractive_element():
+    """Skew rays through a flat Zernike Fringe phase in air (16 random terms, M = 1, two
+    wavelengths): deeplens' directions equal rayoptics' DiffractiveElement (a test-only oracle:
+    its own grating law, ``d' = d + M (λ/λ_ref) ∇W + Q N``) given the phase as an optical path
+    ``W = λ_ref Σ A_j Z_j`` built from the published table above, its slopes by central
+    differences: their round-off, ε |W| / h · λ ≈ 2.2e-16 · 100 waves / 1e-6 mm · 6.6e-4 mm ≈
+    1.5e-11 (|W| <= 16 · 2 · 3 waves here), sets the 2e-11 tolerance; the kicks are ~1e-2, so a
+    wrong term, sign or factor misses by far more."""
+    pytest.importorskip("rayoptics")
+    from rayoptics.oprops.doe import DiffractiveElement
+
+    g = torch.Generator().manual_seed(11)
+    A = torch.empty(16, dtype=F64).uniform_(-2, 2, generator=g).tolist()
+    rn, ref_nm = 3.0, 550.0
+
+    def waves(x, y):
+        xt, yt = torch.tensor(x, dtype=F64), torch.tensor(y, dtype=F64)
+        r, t = torch.hypot(xt, yt) / rn, torch.atan2(yt, xt)
+        return float(sum(a * z(r, t) for a, z in zip(A, FRINGE)))
+
+    def phase_fct(pt, coefficients):
+        x, y, _ = pt
+        h = 1e-6
+        lam = ref_nm * 1e-6
+        w = lam * waves(x, y)
+        wx = lam * (waves(x + h, y) - waves(x - h, y)) / (2 * h)
+        wy = lam * (waves(x, y + h) - waves(x, y - h)) / (2 * h)
+        return w, wx, wy
+
+    doe = DiffractiveElement(coefficients=[], ref_wl=ref_nm, order=1, phase_fct=phase_fct)
+    lens = _single(ZernikeFringePhase(0.0, 5.0, rn, A, 1))
+    n = 10
+    o = torch.empty(n, 3, dtype=F64).uniform_(-2.5, 2.5, generator=g)
+    o[:, 2] = -1.0
+    d = torch.empty(n, 3, dtype=F64).uniform_(-0.15, 0.15, generator=g)
+    d[:, 2] = 1.0
+    d = d / d.norm(dim=-1, keepdim=True)
+    for wl in (486.1, 656.3):
+        out = lens.trace(Rays(o, d, wl))
+        assert out.valid.all()
+        for i in range(n):
+            pt = (o[i] - d[i] * o[i, 2] / d[i, 2]).tolist()   # the hit on z = 0
+            ro, _ = doe.phase(pt, d[i].numpy().copy(), [0.0, 0.0, 1.0],
+                              (1, wl, 1.0, 1.0, "transmit"))
+            err = float((out.d[i] - torch.as_tensor(ro, dtype=F64)).abs().max())
+            assert err <= 2e-11, (wl, i, err)
