@@ -185,7 +185,7 @@ def test_real_rays_match_rayoptics_diffractive_element():
     its own grating law, ``d' = d + M (λ/λ_ref) ∇W + Q N``) given the phase as an optical path
     ``W = λ_ref Σ A_j Z_j`` built from the published table above, its slopes by central
     differences: their round-off, ε |W| / h · λ ≈ 2.2e-16 · 100 waves / 1e-6 mm · 6.6e-4 mm ≈
-    1.5e-11 (|W| <= 16 · 2 · 3 waves here), sets the 2e-11 tolerance; the kicks are ~1e-2, so a
+    1.5e-11 (|W| of order 100 waves at these points), sets the 2e-11 tolerance; the kicks are ~1e-2, so a
     wrong term, sign or factor misses by far more."""
     pytest.importorskip("rayoptics")
     from rayoptics.oprops.doe import DiffractiveElement
