@@ -1040,6 +1040,12 @@ class ZernikeFringePhaseFormat(SurfaceFormat):
     classes = (ZernikeFringePhase,)
     zmx_types = ("FZERNPHA",)
 
+    def zmx_flat(self, s, ctx):
+        """A flat base with no non-zero coefficient (``XDAT 3..``) adds no phase: the flat
+        ``STANDARD`` surface, a dummy between equal media (as OpticStudio's tolerancing files
+        leave a zeroed phase surface at an off-axis mirror's vertex plane)."""
+        return s.curv == 0 and not any(v != 0 for j, (v, _) in s.xdat.items() if j >= 3)
+
     def read_zmx(self, s, ctx):
         return _zernike_fringe_phase(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 

@@ -117,3 +117,23 @@ def test_a_semi_diameter_beyond_the_radius_warns_of_the_extrapolation(tmp_path):
     text = phase_file().replace("XDAT 2 4.0", "XDAT 2 1.5")
     with pytest.warns(UserWarning, match="the Zernike phase is continued beyond it"):
         read_zmx(write(tmp_path, text))
+
+
+def test_a_zeroed_flat_phase_between_equal_media_is_a_dummy(tmp_path):
+    """A flat FZERNPHA whose coefficients are all 0 (as OpticStudio's tolerancing files leave one
+    at an off-axis mirror's vertex plane) adds no phase: merged into the gaps as a flat STANDARD
+    dummy (the same lens); with a non-zero term, or as the stop, it is kept."""
+    body = ["PARM 0 1", "XDAT 1 9", "XDAT 2 4", "XDAT 6 0", "XDAT 11 0"]
+    text = phase_file(body).replace("  STOP\n", "")
+    text = text.replace("SURF 2\n", "SURF 2\n  STOP\n", 1)
+    zeroed = read_zmx_quiet(write(tmp_path, text, "zero.zmx"))
+    plain = read_zmx_quiet(write(tmp_path, text.replace("TYPE FZERNPHA", "TYPE STANDARD"),
+                                 "plain.zmx"))
+    assert not any(isinstance(s, ZernikeFringePhase) for s in zeroed.surfaces)
+    a, b = lens_to_dict(zeroed), lens_to_dict(plain)
+    a.pop("name", None), b.pop("name", None)
+    assert a == b
+    kept = read_zmx_quiet(write(tmp_path, text.replace("XDAT 6 0", "XDAT 6 0.5"), "kept.zmx"))
+    assert isinstance(kept.surfaces[0], ZernikeFringePhase)
+    stop = read_zmx_quiet(write(tmp_path, phase_file(body), "stop.zmx"))
+    assert isinstance(stop.surfaces[0], ZernikeFringePhase) and not len(stop.surfaces[0].zernike)
