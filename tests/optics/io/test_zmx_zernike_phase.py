@@ -137,3 +137,59 @@ def test_a_zeroed_flat_phase_between_equal_media_is_a_dummy(tmp_path):
     assert isinstance(kept.surfaces[0], ZernikeFringePhase)
     stop = read_zmx_quiet(write(tmp_path, phase_file(body), "stop.zmx"))
     assert isinstance(stop.surfaces[0], ZernikeFringePhase) and not len(stop.surfaces[0].zernike)
+
+
+#: OpticStudio's short-course sample "zern2" (a Zernike Fringe Phase with 25 terms, R_n 20 mm,
+#: before two BK7 singlets, EPD 40 mm, 0.55 µm): its phase coefficients (XDAT 3.., waves) and the
+#: automatic semi-diameters OpticStudio stored at the four lens surfaces and the image, which for
+#: this field-free file are the height of the marginal ray at -y (the largest of the four
+#: pupil-edge rays)
+ZERN2_XDAT = {3: -2.4073e-2, 4: 7.52071e-1, 5: -1.504, 6: -2.4391e-2, 7: 1.2279e-2,
+              8: 1.6372e-2, 9: 3.86047e-1, 10: -7.7209e-1, 11: -5.68e-4, 14: 2.32e-4,
+              15: 3.09e-4, 16: 6.814e-3, 17: -1.3628e-2, 18: 1.66e-4, 25: 1.06e-4, 26: -2.12e-4,
+              27: 4.41e-4}
+ZERN2_OS_HEIGHTS = (20.00058834765, 19.30924436727, 10.32721651527, 10.01239399033,
+                    10.01993642299)
+
+
+def zern2_file():
+    """The zern2 layout written afresh (its two zero coordinate breaks left out)."""
+    xdat = [f"  XDAT {j} {v!r}" for j, v in sorted(ZERN2_XDAT.items())]
+    lines = ["VERS 80915 2 20100", "MODE SEQ", "NAME zern2", "UNIT MM X W X CM MR CPMM",
+             "ENPD 40", "GCAT SCHOTT", "FTYP 0 0 1 1 0 0 1", "XFLD 0", "YFLD 0", "WAVL 0.55",
+             "PWAV 1",
+             "SURF 0", "  TYPE STANDARD", "  CURV 0.0", "  DISZ INFINITY",
+             "SURF 1", "  TYPE FZERNPHA", "  CURV 0.0", "  PARM 0 1", "  PARM 1 0",
+             "  XDAT 1 25", "  XDAT 2 20", *xdat, "  DISZ 0", "  DIAM 20 0 0 0 1",
+             "SURF 2", "  STOP", "  TYPE STANDARD", "  CURV 0.014856710990000001",
+             "  DISZ 10", "  GLAS BK7 0 0 1.5 40 0 0 0 0 0 0", "  DIAM 20.00058834765 0 0 0 1",
+             "SURF 3", "  TYPE STANDARD", "  CURV -0.0020168851199", "  DISZ 50",
+             "  DIAM 19.30924436727 0 0 0 1",
+             "SURF 4", "  TYPE STANDARD", "  CURV -0.0192441958", "  DISZ 5",
+             "  GLAS BK7 0 0 1.5 40 0 0 0 0 0 0", "  DIAM 10.32721651527 0 0 0 1",
+             "SURF 5", "  TYPE STANDARD", "  CURV 0.013667634425", "  DISZ 20",
+             "  DIAM 10.01239399033 0 0 0 1",
+             "SURF 6", "  TYPE STANDARD", "  CURV 0.0", "  DISZ 0", "  DIAM 10.01993642299 0 0 0 1"]
+    return "\n".join(lines) + "\n"
+
+
+def test_zern2_marginal_ray_meets_opticstudios_semi_diameters(tmp_path):
+    """17 non-zero Fringe terms (piston, tilts, defocus, astigmatism, coma, spherical, trefoil
+    and higher, up to Z25): the -y marginal ray (apertures opened) meets the two singlets and
+    the image at the heights OpticStudio computed, to 1e-10 mm (its 13 printed digits; the
+    ±x and +y rays, and the same phase in radians, miss by > 1e-4 mm)."""
+    lens = read_zmx_quiet(write(tmp_path, zern2_file()))
+    assert isinstance(lens.surfaces[0], ZernikeFringePhase)
+    assert len(lens.surfaces[0].zernike) == 25
+    with torch.no_grad():
+        for s in lens.surfaces:
+            s.semi_diameter.fill_(30.0)
+    o = torch.tensor([[0.0, -20.0, -1.0]], dtype=F64)
+    out, hits = lens.trace(Rays(o, torch.tensor([[0.0, 0.0, 1.0]], dtype=F64), 550.0),
+                           record=True)
+    assert out.valid.all()
+    z = float(lens.z_sensor())
+    img = out.o + out.d * (z - out.o[:, 2:3]) / out.d[:, 2:3]
+    heights = [float(torch.hypot(h[0, 0], h[0, 1])) for h in hits[1:]]
+    heights.append(float(torch.hypot(img[0, 0], img[0, 1])))
+    assert heights == pytest.approx(list(ZERN2_OS_HEIGHTS), abs=1e-10)
