@@ -193,3 +193,17 @@ def test_zern2_marginal_ray_meets_opticstudios_semi_diameters(tmp_path):
     heights = [float(torch.hypot(h[0, 0], h[0, 1])) for h in hits[1:]]
     heights.append(float(torch.hypot(img[0, 0], img[0, 1])))
     assert heights == pytest.approx(list(ZERN2_OS_HEIGHTS), abs=1e-10)
+
+
+@pytest.mark.parametrize("a5,exact", [(0.5, False), (0.0, True)])
+def test_x_fields_on_an_astigmatic_phase_are_named_not_exact(tmp_path, a5, exact):
+    """x field components become a radial field with a note: 'NOT exact' naming the phase
+    surface when it has a non-symmetric term (astigmatism A_5), 'exact' when only m = 0 terms."""
+    body = ["PARM 0 1", "XDAT 1 9", "XDAT 2 4", "XDAT 6 0.3", f"XDAT 7 {a5!r}"]
+    text = phase_file(body).replace("FTYP 0 0 1 1 0 0 0", "FTYP 0 0 2 1 0 0 0")
+    text = text.replace("XFLN 0\n", "XFLN 0 0.5\n").replace("YFLN 0\n", "YFLN 0 0.5\n")
+    with pytest.warns(UserWarning) as rec:
+        read_zmx(write(tmp_path, text))
+    notes = [str(w.message) for w in rec if "x field components" in str(w.message)]
+    assert len(notes) == 1
+    assert ("NOT exact" in notes[0] and "ZernikeFringePhase" in notes[0]) == (not exact)
