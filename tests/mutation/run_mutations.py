@@ -996,9 +996,8 @@ MUTATIONS = [
              "            nv = [0.0, 0.0, 1.0]\n            an =", SET5_RULES),
     Mutation("fixed_diam_clips_flat_plane", "a fixed DIAM on a flat plane in one medium clips "
              "(refusing an OBSC wider than it)", "deeplens/optics/io/zmx_surfaces.py",
-             "    if (fixed and same_medium and not s.stop and not s.mirror and s.clap is None\n",
-             "    if (False and fixed and same_medium and not s.stop and not s.mirror and "
-             "s.clap is None\n", SET5_RULES),
+             "    if (fixed and same_medium and (flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop\n",
+             "    if (False and fixed and same_medium and not s.stop\n", SET5_RULES),
     Mutation("opening_written_without_clap", "an opening that is not the stop written with a "
              "fixed DIAM only (OpticStudio does not clip on it)", "deeplens/optics/io/zmx_write.py",
              "    if (isinstance(s, Aperture) and not is_stop and s.shape == \"circle\"",
@@ -1354,9 +1353,8 @@ MUTATIONS = [
              "medium (no power; an OBSC beside it) taken as a clipping semi-diameter (OpticStudio "
              "applies its floating aperture only on a surface with refractive power)",
              "deeplens/optics/io/zmx_surfaces.py",
-             "    if (fixed and same_medium and not s.stop and not s.mirror and s.clap is None\n",
-             "    if (fixed and flat and same_medium and not s.stop and not s.mirror and "
-             "s.clap is None\n",
+             "    if (fixed and same_medium and (flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop\n",
+             "    if (fixed and same_medium and flat and not s.stop\n",
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
     Mutation("ring_past_rim_refused", "a ring obscuration (OBSC r_i r_o) reaching past the "
              "semi-diameter refused as a central obscuration would be",
@@ -1399,6 +1397,27 @@ MUTATIONS = [
              "        if ray == \"extraordinary\":\n",
              "        if False:\n",
              ("tests/optics/io/test_zmx_birefringent.py",)),
+    # ------------------------- issue 37: Zernike Fringe Phase, FZERNPHA (branch fzern)
+    Mutation("fzernpha_radians", "the Zernike Fringe phase's coefficients taken as radians (no "
+             "2π: OpticStudio's are waves) in the ray's kick",
+             "deeplens/optics/surfaces/zernike_phase.py",
+             "        k = 2.0 * math.pi * self.order\n",
+             "        k = 1.0 * self.order\n",
+             ("tests/optics/io/test_zmx_zernike_phase.py",)),
+    Mutation("fzernpha_noll_order", "the Zernike Fringe phase evaluated in Noll's (Standard) "
+             "order and normalisation instead of the Fringe set",
+             "deeplens/optics/surfaces/zernike_phase.py",
+             "self.zernike, slopes, \"fringe\")",
+             "self.zernike, slopes, \"standard\")",
+             ("tests/optics/surfaces/test_zernike_fringe_phase.py",)),
+    # ------------- issue 37: merging aper9 with fzern, a fixed DIAM on a surface with power in air
+    Mutation("fixed_diam_never_clips_in_one_medium", "a fixed DIAM on any surface in one medium "
+             "read as not clipping, an ideal lens's, phase's or grating's in air included (they "
+             "have power there, and OpticStudio's floating aperture clips)",
+             "deeplens/optics/io/zmx_surfaces.py",
+             "(flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop",
+             "(flat or True) and not s.stop",
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

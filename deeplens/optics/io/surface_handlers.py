@@ -15,7 +15,7 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
   ``Toroid``), :class:`GratingFormat` (``DGRATING``, ``Grating``), :class:`QTypeFormat`
   (``QED_TYPE``, ``QType``), :class:`BiconicFormat` (``BICONICX``, ``Biconic``),
   :class:`Binary2Format` (``BINARY_2``, ``Binary2``), :class:`ZernikeSagFormat` (``SZERNSAG``,
-  ``ZernikeSag``);
+  ``ZernikeSag``), :class:`ZernikeFringePhaseFormat` (``FZERNPHA``, ``ZernikeFringePhase``);
 * :class:`ExtendedAsphereFormat`: reads ``XASPHERE`` (an ``Asphere`` with terms beyond r¹⁶ is
   written so by :class:`AsphereFormat`);
 * :class:`~.zmx_grid_sag.GridSagFormat` (in its own module, :mod:`.zmx_grid_sag`): ``GRID_SAG``,
@@ -62,7 +62,7 @@ from ..materials import Air, Material
 from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder,
                         ExtendedPolynomial, Grating,
                         IdealLens, IdealLensXY, OddAsphere, Plane, QType, Toroid, XYPolynomial,
-                        ZernikeFringeSag, ZernikeSag)
+                        ZernikeFringePhase, ZernikeFringeSag, ZernikeSag)
 from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
 from ..surfaces.binary2 import MAX_PHASE_TERMS
 from ..surfaces.qtype import MAX_TERMS
@@ -319,6 +319,40 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
                    f"back focus) include them, as the sag's curvature at the vertex; a reading "
                    f"from CURV alone (rayoptics 0.9's) gives other first-order numbers")
     return surf
+
+
+def _zernike_fringe_phase(s, k: int, c, sd, s_mm, p):
+    """``FZERNPHA`` (OpticStudio's "Zernike Fringe Phase"): a conic base (``CURV``, ``CONI``)
+    with the phase ``2π Σ A_j Z_j`` (Fringe order, ``A_j`` in waves): ``PARM 0`` must be 1 (the
+    order 1 / extrapolate flag 1: no stored source says which, both read 1 alike), ``XDAT 1`` the
+    number of terms (at most 37), ``XDAT 2`` the normalisation radius (a length), ``XDAT 3..``
+    ``A_1, A_2, ...`` (waves, unscaled): a :class:`ZernikeFringePhase` (sources: its module).
+    Other ``PARM`` values are refused on their line (no stored source gives their meaning)."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if i != 0 and v != 0:
+            p.fail(ln, f"SURF {k}: FZERNPHA PARM {i} = {v:g} is refused: no stored OpticStudio "
+                       f"source gives its meaning (read: PARM 0 = 1 and the XDAT terms)")
+    m_v, m_ln = s.parm.get(0, (None, s.type_line))
+    if m_v != 1.0:
+        p.fail(m_ln, f"SURF {k}: FZERNPHA PARM 0 = {m_v!r} is refused: only 1 is read (no stored "
+                     f"source says whether it is the diffraction order or the extrapolate flag; "
+                     f"both read 1 alike)")
+    n = _xdat_term_count(p, s, k, "FZERNPHA", "the number of Zernike terms",
+                         ZernikeFringePhase.max_terms, "Zernike terms")
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n > 0 and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: FZERNPHA XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    zern = [s.xdat.get(j + 3, (0.0, 0))[0] for j in range(n)]
+    while zern and zern[-1] == 0.0:
+        zern.pop()
+    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no Zernike term: any radius (1 mm)
+    if zern and sd > rn and sd != PROVISIONAL_SD_MM:
+        p.note(s.type_line, f"SURF {k}: the semi-diameter {sd:g} mm exceeds the FZERNPHA "
+                            f"normalisation radius {rn:g} mm: the Zernike phase is continued "
+                            f"beyond it (the polynomial extrapolated; OpticStudio's choice "
+                            f"there is not in a stored source)")
+    return ZernikeFringePhase(c, sd, rn, zern, 1, conic=s.coni)
 
 
 def _paraxial_surface(s, k: int, mat, prev, sd, s_mm, p):
@@ -1127,6 +1161,37 @@ class ZernikeFringeSagFormat(ZernikeSagFormat):
 
     def read_zmx(self, s, ctx):
         return _zernike_sag(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p, ZernikeFringeSag)
+
+
+@register_format
+class ZernikeFringePhaseFormat(SurfaceFormat):
+    """:class:`ZernikeFringePhase`: Zemax ``FZERNPHA`` (``PARM 0 1``, ``XDAT 1`` the number of
+    terms, ``XDAT 2`` the normalisation radius, ``XDAT 3..`` the Fringe coefficients in
+    waves)."""
+
+    classes = (ZernikeFringePhase,)
+    zmx_types = ("FZERNPHA",)
+
+    def zmx_flat(self, s, ctx):
+        """A flat base with no non-zero coefficient (``XDAT 3..``) adds no phase: the flat
+        ``STANDARD`` surface, a dummy between equal media (as OpticStudio's tolerancing files
+        leave a zeroed phase surface at an off-axis mirror's vertex plane)."""
+        return s.curv == 0 and not any(v != 0 for j, (v, _) in s.xdat.items() if j >= 3)
+
+    def read_zmx(self, s, ctx):
+        return _zernike_fringe_phase(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        if s.order != 1:
+            raise ZemaxFileError(f"surface {i}: a Zernike Fringe phase of order {s.order} is "
+                                 f"not written: FZERNPHA is read with PARM 0 = 1 only",
+                                 surfaces=(i,))
+        A = [float(v) for v in s.zernike]
+        lines = ["TYPE FZERNPHA", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 0 1",
+                 f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
+        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
+        lines.append(_diam(s.semi_diameter))
+        return lines + _opening_records(s, i)
 
 
 @register_format

@@ -17,7 +17,8 @@ import math
 
 import torch
 
-from ..surfaces import Aperture, Asphere, Biconic, Cylinder, OddAsphere, Plane, QType, ZernikeSag
+from ..surfaces import (Aperture, Asphere, Biconic, Cylinder, OddAsphere, Plane, QType,
+                        ZernikeFringePhase, ZernikeSag)
 from ..surfaces.grid_sag import GridSag
 
 __all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
@@ -281,7 +282,8 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         return object_height_fields(kind, [v * s_mm for v in ys], lens, ftyp_line, tan_y, p)
     if any(x != 0 for x in xs):
         anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder, GridSag))
-                      or (isinstance(s, ZernikeSag) and not s.rotationally_symmetric())]
+                      or (isinstance(s, (ZernikeSag, ZernikeFringePhase))
+                          and not s.rotationally_symmetric())]
         if anamorphic:   # a biconic, cylinder, toroid or grid: x and y fields image differently
             p.note(xline, f"XFLN: x field components are combined with y into a radial field, "
                           f"which is NOT exact for this lens (surface {anamorphic[0]}, a "

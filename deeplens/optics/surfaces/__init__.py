@@ -21,8 +21,9 @@ from .plane import Plane
 from .qtype import QType
 from .toroid import Toroid
 from .xy_polynomial import XYPolynomial
+from .zernike_phase import ZernikeFringePhase
 from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
 __all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder", "ExtendedPolynomial",
-           "Fresnel", "Grating", "GridSag", "Hologram", "Irregular", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag",
+           "Fresnel", "Grating", "GridSag", "Hologram", "Irregular", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag", "ZernikeFringePhase",
            "Surface", "SagSurface", "SURFACE_TYPES"]

@@ -266,7 +266,7 @@ BAD = [
      r"aperture, asphere, biconic, binary2, bspline, conic, coordinate_break, cylinder, "
      r"extended_polynomial, fresnel, grating, "
      r"grid_sag, hologram, ideal_lens, ideal_lens_xy, irregular, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
-     r"zernike_fringe_sag, "
+     r"zernike_fringe_phase, zernike_fringe_sag, "
      r"zernike_sag\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
      r"surfaces\[0\]\.conic_constant: unknown field; did you mean 'conic'\?"),
@@ -563,6 +563,13 @@ def test_every_registered_surface_type_round_trips():
     d["surfaces"].append({"type": "extended_polynomial", "semi_diameter_mm": 2.5,
                           "curvature_per_mm": 1 / 80.0, "conic": -0.3, "norm_radius_mm": 2.5,
                           "polynomial_coefficients": [0.0, 1e-3 / 3, 2e-3, 0.0, -1e-3],
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([len(d["surfaces"]) - 1] * 2)
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a Zernike Fringe phase (OpticStudio's FZERNPHA: waves on a conic base), likewise
+    d["surfaces"].append({"type": "zernike_fringe_phase", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 65.0, "conic": -0.4, "norm_radius_mm": 2.6,
+                          "zernike_waves": [0.0, 0.1, 0.0, -1 / 3], "order": 1,
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([len(d["surfaces"]) - 1] * 2)
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})

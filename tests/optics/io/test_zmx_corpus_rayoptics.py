@@ -169,6 +169,22 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
             thin = ro_thinlens.ThinLens(power=phi)
             thin.z_type = "PARAXIAL"
             sm.ifcs[k] = thin
+    # Zernike Fringe Phase (FZERNPHA): zmxread reads the base surface alone; the phase's y-z
+    # section is, to second order at the vertex, a thin lens (_fzernpha_powers, written out from
+    # the published Fringe polynomials), given as the hologram's above
+    for k, phi in _fzernpha_powers(name, wl).items():
+        if phi == 0.0:
+            continue
+        if sm.ifcs[k].interact_mode == "reflect":
+            sm.ifcs[k].profile.cv += phi / (-2.0 * ns[k - 1])
+        elif ns[k] != ns[k - 1]:
+            sm.ifcs[k].profile.cv += phi / (ns[k] - ns[k - 1])
+        else:
+            import rayoptics.oprops.thinlens as ro_thinlens
+
+            thin = ro_thinlens.ThinLens(power=phi)
+            thin.z_type = "PARAXIAL"
+            sm.ifcs[k] = thin
     _update(opm)
     if re.search(r"^FLOA\b", decode_zemax_text(CORPUS / name), re.M):
         _float_by_stop_size(name, opm)
@@ -292,6 +308,39 @@ def _binary2_powers(name, wl):
         m_order, r_n = rec("PARM", 0, 1.0), rec("XDAT", 2)
         a1 = rec("XDAT", 3) if rec("XDAT", 1) >= 1 else 0.0
         out[k] = -m_order * a1 * wl / (math.pi * r_n ** 2)
+    return out
+
+
+#: the ρ² coefficient, along the y axis (x = 0, φ = 90°), of the Fringe polynomials that have
+#: one, as published (University of Arizona / OpticStudio Fringe table): Z4 = 2ρ² − 1, Z9 = 6ρ⁴ −
+#: 6ρ² + 1, Z16 = 20ρ⁶ − 30ρ⁴ + 12ρ² − 1, Z25 = 70ρ⁸ − 140ρ⁶ + 90ρ⁴ − 20ρ² + 1, Z36 = 252ρ¹⁰ − ...
+#: + 30ρ² − 1, Z37 = 924ρ¹² − ... − 42ρ² + 1, and the cos 2φ terms (−1 along y) Z5 = ρ² cos 2φ,
+#: Z12 = (4ρ² − 3)ρ² cos 2φ, Z21 = (15ρ⁴ − 20ρ² + 6)ρ² cos 2φ, Z32 = (56ρ⁶ − 105ρ⁴ + 60ρ² − 10)ρ²
+#: cos 2φ (the sin 2φ terms vanish along y)
+_FRINGE_Y_RHO2 = {4: 2.0, 9: -6.0, 16: 12.0, 25: -20.0, 36: 30.0, 37: -42.0,
+                  5: -1.0, 12: 3.0, 21: -6.0, 32: 10.0}
+
+
+def _fzernpha_powers(name, wl):
+    """``{SURF k: paraxial y power}`` (file units⁻¹) of the file's ``FZERNPHA`` surfaces at the
+    wavelength ``wl`` (file units): the phase ``2π M Σ A_j Z_j`` (``A_j`` = ``XDAT j + 2`` in
+    waves, ``R_n`` = ``XDAT 2``, ``M`` = ``PARM 0``) bends a ray by ``(λ/2π) ∂Φ/∂y``; along y
+    it is ``2π M (Σ a_j A_j) y² / R_n²`` to second order (``a_j``: :data:`_FRINGE_Y_RHO2`), a
+    thin lens of power ``−2 M λ Σ a_j A_j / R_n²`` (written out here from the polynomials, not
+    taken from deeplens)."""
+    out = {}
+    for k, b in enumerate(_surf_blocks(name)):
+        t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
+        if t is None or t.group(1) != "FZERNPHA":
+            continue
+
+        def rec(key, i, default=0.0, b=b):
+            m = re.search(rf"^\s+{key}\s+{i}\s+(\S+)", b, re.M)
+            return float(m.group(1)) if m else default
+
+        n_terms, r_n = int(rec("XDAT", 1)), rec("XDAT", 2)
+        acc = sum(a * rec("XDAT", j + 2) for j, a in _FRINGE_Y_RHO2.items() if j <= n_terms)
+        out[k] = -2.0 * rec("PARM", 0, 1.0) * wl * acc / r_n ** 2 if acc else 0.0
     return out
 
 
@@ -517,6 +566,33 @@ def test_binary2_power_through_rayoptics(monkeypatch, tmp_path):
     opm["seq_model"].ifcs[3].profile.cv -= phi[3] / (1.0 - n_glass)   # the base surface alone
     _update(opm)
     dl, ro = _numbers("b.zmx", lens, opm)["EFL"]
+    assert abs(dl - ro) > 0.01 * abs(dl)
+
+
+def test_fzernpha_power_through_rayoptics(monkeypatch, tmp_path):
+    """The Zernike Fringe phase file of test_zmx_zernike_phase with an astigmatic phase
+    (A_1 = A_4 = 0.735, A_5 = -1.47 waves: 2.94 y² / R_n², OpticStudio's Test_Astigmatism) and a
+    primary spherical term: deeplens' EFL, EPD, pupil position and back focus equal rayoptics'
+    once rayoptics, which reads a plane, is given the y-section power written out from the
+    published polynomials; without it the EFL is > 1 % apart."""
+    from test_zmx_zernike_phase import phase_file
+
+    body = ["PARM 0 1", "XDAT 1 9", "XDAT 2 4", "XDAT 3 0.735", "XDAT 6 0.735", "XDAT 7 -1.47",
+            "XDAT 11 0.2"]
+    lens, scratch = _corpus_of_one("f.zmx", phase_file(body), monkeypatch, tmp_path)
+    wl = 550e-6
+    phi = _fzernpha_powers("f.zmx", wl)
+    # Z4: 2 × 0.735, Z5 along y: -1 × -1.47, Z9: -6 × 0.2 (per R_n² = 16)
+    assert list(phi) == [1] and phi[1] == pytest.approx(
+        -2.0 * wl * (2 * 0.735 + 1.47 - 6 * 0.2) / 16.0, rel=1e-14)
+    opm = _rayoptics("f.zmx", lens, monkeypatch, scratch)
+    for what, (dl, ro) in _numbers("f.zmx", lens, opm).items():
+        assert _agrees(dl, ro), f"{what}: deeplens {dl!r} vs rayoptics {ro!r}"
+    import rayoptics.elem.surface as ro_surface
+
+    opm["seq_model"].ifcs[1] = ro_surface.Surface()   # the phase left out: a plane
+    _update(opm)
+    dl, ro = _numbers("f.zmx", lens, opm)["EFL"]
     assert abs(dl - ro) > 0.01 * abs(dl)
 
 

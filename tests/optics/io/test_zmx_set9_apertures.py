@@ -200,3 +200,24 @@ def test_a_dll_surface_and_a_user_aperture_are_refused_naming_the_missing_file(t
                                              r"aperture \(file TALBOTIMA_SURF_1.UDA\) is not "
                                              r"supported"):
         _read(write(tmp_path, uda))
+
+
+# ------------------------------------- a fixed DIAM on a surface with power in one medium
+def test_a_fixed_diam_on_an_ideal_lens_in_air_still_clips(tmp_path):
+    """An ideal lens (``PARAXIAL``, f = 100 mm) has power in air: its fixed ``DIAM 3`` is
+    OpticStudio's floating aperture and clips (only shape-only surface types lose their power
+    in one medium).  A stop of 5 mm before it passes the 10 mm pupil; exactly the rays that
+    reach the lens within 3 mm of the axis pass, and no note is given for that DIAM."""
+    blocks = [_surf(disz="INFINITY"),
+              _surf(stop=True, disz=1.0, diam=5.0),
+              _surf("PARAXIAL", parms=[100.0, 1.0], disz=100.0, diam=3.0),
+              _surf()]
+    p = write(tmp_path, zmx_file(blocks, "ideal lens, fixed DIAM"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        lens = read_zmx(p).double()
+    assert not [w for w in caught if "does not clip" in str(w.message)]
+    rays = _on_axis_rays(lens)
+    r = torch.hypot(rays.o[:, 0], rays.o[:, 1])
+    out = lens.trace(rays)
+    assert torch.equal(out.valid, r <= 3.0)

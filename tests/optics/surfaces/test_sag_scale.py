@@ -34,8 +34,8 @@ from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic,
                                       IdealLens,
                                       IdealLensXY,
                                       Irregular, OddAsphere,
-                                      Plane, QType, Toroid, XYPolynomial, ZernikeFringeSag,
-                                      ZernikeSag)
+                                      Plane, QType, Toroid, XYPolynomial, ZernikeFringePhase,
+                                      ZernikeFringeSag, ZernikeSag)
 
 F64 = torch.float64
 R = 5.0   # mm, every example's semi-diameter
@@ -45,6 +45,8 @@ EXAMPLES = {
     Aperture: lambda: Aperture(R),
     Plane: lambda: Plane(R),
     Binary2: lambda: Binary2(0.01, R, R, [-10.0, 1.0], 1, conic=-0.5, coefficients=[1e-4]),
+    ZernikeFringePhase: lambda: ZernikeFringePhase(0.01, R, R, [0.0, 0.1, 0.0, -1.0], 1,
+                                                   conic=-0.5),
     Biconic: lambda: Biconic(0.01, R, -0.008, conic=-0.5, conic_x=0.3),
     BSpline: lambda: BSpline(R, torch.linspace(0.0, 0.1, 25).reshape(5, 5)),
     CoordinateBreak: lambda: CoordinateBreak(0.1, 0.0, 0.01, semi_diameter=R),
