@@ -22,8 +22,8 @@ import math
 import torch
 
 
-__all__ = ["local_frames", "to_global", "travel_directions", "mirrors_met_edge_on",
-           "vertex_normal"]
+__all__ = ["local_frames", "to_global", "travel_directions", "traced_axes",
+           "mirrors_met_edge_on", "vertex_normal"]
 
 #: an axis direction whose local z component is smaller than this (a beam travelling across
 #: the frame, as between the two mirrors of a roof) keeps the sign of the medium before it
@@ -100,6 +100,14 @@ def travel_directions(surfaces, mirrors, indices=None, wavelength_nm=None) -> li
     return _traced_axis(surfaces, mirrors, indices, wavelength_nm)[0]
 
 
+def traced_axes(surfaces, mirrors, indices=None, wavelength_nm=None) -> list[list[float]]:
+    """The traced axis itself (:func:`travel_directions`): ``N + 1`` unit vectors ``[a_x, a_y,
+    a_z]``, object space first, then the beam's direction after each surface in that surface's
+    frame (the frame the distance after it is measured in; a coordinate break's entry is in the
+    frame after it)."""
+    return _traced_axis(surfaces, mirrors, indices, wavelength_nm)[2]
+
+
 def mirrors_met_edge_on(surfaces, mirrors, indices=None, wavelength_nm=None) -> list[int]:
     """The indices of the mirrors the traced axis (:func:`travel_directions`) meets edge-on:
     travelling across their frame, so that it never reaches their vertex (an off-axis parabola
@@ -123,18 +131,20 @@ def _diffract_axis(surface, a, n_after: float, wavelength_nm: float):
 
 
 def _traced_axis(surfaces, mirrors, indices=None,
-                 wavelength_nm=None) -> tuple[list[int], list[int]]:
-    """``(signs, edge_on)``: :func:`travel_directions` and :func:`mirrors_met_edge_on`."""
+                 wavelength_nm=None) -> tuple[list[int], list[int], list[list[float]]]:
+    """``(signs, edge_on, axes)``: :func:`travel_directions`, :func:`mirrors_met_edge_on` and
+    :func:`traced_axes`."""
     mirrors = set(mirrors)
     edge_on = []
     if not any(s.interaction.changes_frame for s in surfaces):   # normal incidence everywhere
         out = [1]
         for i in range(len(surfaces)):
             out.append(-out[-1] if i in mirrors else out[-1])
-        return out, edge_on
+        return out, edge_on, [[0.0, 0.0, float(v)] for v in out]
     like = torch.zeros((), dtype=torch.float64)
     a = [0.0, 0.0, 1.0]
     out = [1]
+    axes = [list(a)]
     for i, s in enumerate(surfaces):
         if s.interaction.changes_frame:
             with torch.no_grad():
@@ -161,7 +171,8 @@ def _traced_axis(surfaces, mirrors, indices=None,
         n = math.sqrt(sum(c * c for c in a))
         a = [c / n for c in a]
         out.append(out[-1] if abs(a[2]) < _ACROSS else (1 if a[2] > 0 else -1))
-    return out, edge_on
+        axes.append(list(a))
+    return out, edge_on, axes
 
 
 def _edge_on(a, surface) -> bool:

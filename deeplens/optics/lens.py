@@ -38,7 +38,7 @@ from torch import nn
 
 from . import grin_trace, tracer
 from .errors import LensError, SurfacesCrossError
-from .frames import travel_directions
+from .frames import local_frames, traced_axes, travel_directions
 from .intersect import (_safe_div, intersect, propagate_distance, stop_crossing_xyz,
                         trace_quadric)
 from .materials import Air, Material, check_wavelength_nm
@@ -486,11 +486,17 @@ class Lens(nn.Module):
                                          [float(v) for v in self.distances], sign):
             if q in self._backward:   # crossed backwards (OpticStudio's virtual propagation)
                 continue
+            ahead = self._ahead_across_breaks(q)
+            if ahead is not None and ahead[1] > 0:
+                continue   # a pivot: only the frames between moved backwards
+            where = "" if ahead is None else (
+                f"; its vertex, placed through the coordinate breaks before it, lies "
+                f"{-ahead[1]:g} mm behind surface {ahead[0]} along the beam")
             if d < 0:
-                raise LensError(f"{what} is negative ({d:g} mm): sequential surfaces must be "
-                                f"ordered along +z{_after_mirrors(self.mirrors, q)}",
+                raise LensError(f"{what} is negative ({d:g} mm){where}: sequential surfaces "
+                                f"must be ordered along +z{_after_mirrors(self.mirrors, q)}",
                                 surfaces=(q,))
-            raise LensError(f"{what} is positive ({d:g} mm): sequential surfaces must be "
+            raise LensError(f"{what} is positive ({d:g} mm){where}: sequential surfaces must be "
                             f"ordered along -z, the direction of travel there"
                             f"{_after_mirrors(self.mirrors, q)}", surfaces=(q,))
         if self.virtual_image:
@@ -586,6 +592,44 @@ class Lens(nn.Module):
             else:
                 lo = mid
         return lo
+
+    def _ahead_across_breaks(self, q: int) -> tuple[int, float] | None:
+        """For a surface ``q`` right after a coordinate break: ``(p, h)``, ``p`` the nearest
+        surface before it that is not a break (a stop counts: the beam crosses its plane) and
+        ``h`` (mm) how far ``q``'s vertex lies *ahead* of ``p``'s along the traced axis between
+        them (:func:`~.frames.traced_axes`; both vertices placed by the composed frames,
+        :func:`~.frames.local_frames`); ``None`` when ``q`` does not follow a break or no such
+        ``p`` exists.
+
+        A thickness is an offset along the local z axis from the previous vertex, and a
+        coordinate break is a dummy surface that cannot bend rays, only define the next frame
+        (OpticStudio User Guide, *Thicknesses*; Zemax knowledge base, *How to tilt and decenter
+        a sequential optical component*): rays move along their lines from ``p`` to ``q``, so
+        only where ``q`` lies against the beam does the trace go backwards.  A mirror turned
+        about a pivot (break, ``+d``, break with the tilt, ``-d``, mirror) has a negative
+        distance into the mirror while the mirror lies ahead: ``h > 0``."""
+        if q == 0 or not self.surfaces[q - 1].interaction.changes_frame:
+            return None
+        p = next((i for i in range(q - 1, -1, -1)
+                  if not self.surfaces[i].interaction.changes_frame), None)
+        if p is None:
+            return None
+        indices, w = None, float(self.spec.primary_wavelength_nm)
+        with torch.no_grad():
+            indices = [float(m.n(torch.tensor(w, dtype=torch.float64))) for m in self.materials]
+            axis = torch.tensor(traced_axes(list(self.surfaces), self.mirrors, indices, w)[p + 1],
+                                dtype=torch.float64)
+            frames = local_frames(self)
+            z = self.z_vertices().detach().to(torch.float64)
+            zero = torch.zeros((), dtype=torch.float64)
+
+            def vertex(i):
+                A, b = (t.detach().to(torch.float64) for t in frames[i])
+                return b + A @ torch.stack([zero, zero, z[i]])
+
+            A_p = frames[p][0].detach().to(torch.float64)
+            h = float(torch.dot(vertex(q) - vertex(p), A_p @ axis))
+        return p, h
 
     def _real_neighbours(self, across_breaks: bool = False) -> list[tuple[int, int]]:
         """Pairs ``(p, q)`` of consecutive surfaces that are neither stops (:class:`Aperture`)

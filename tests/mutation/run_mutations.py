@@ -1418,6 +1418,14 @@ MUTATIONS = [
              "(flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop",
              "(flat or True) and not s.stop",
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    # ------------- issue 37: a mirror turned about a pivot (break, +d, break, -d, mirror)
+    Mutation("pivot_ahead_sign_flipped", "a surface after coordinate breaks accepted when its "
+             "vertex lies behind the previous surface along the beam instead of ahead of it "
+             "(the pivot refused, a slip of sign accepted)",
+             "deeplens/optics/lens.py",
+             "if ahead is not None and ahead[1] > 0:",
+             "if ahead is not None and ahead[1] < 0:",
+             ("tests/optics/io/test_zmx_pivot.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
