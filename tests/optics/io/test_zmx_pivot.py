@@ -9,8 +9,8 @@ it lies ahead of the previous surface along the traced axis.
 
 Synthetic files of that structure (written here): a stop, a 45-degree fold break, the pivot
 ``d`` further on, a tilt ``θ`` about x there, ``-d`` back to a curved mirror, an image plane.
-Checked against the closed form of a rotation by ``θ`` about a point at distance ``d``: the
-same mirror placed directly, with the fold's thickness ``d (1 - cos θ)`` and a break that
+Checked against optiland's global trace of the same file (1e-9 mm) and the closed form of a
+rotation by ``θ`` about a point at distance ``d``: the same mirror placed directly, with the fold's thickness ``d (1 - cos θ)`` and a break that
 decenters by ``d sin θ`` and tilts by ``θ`` (the break's ``R_x(θ)`` turns the z axis to
 ``(0, -sin θ, cos θ)``), so its vertex is ``P - d R_x(θ) e_z`` with ``P = (0, 0, d)``.  Every
 ray lands on the mirror and on the image plane where the direct file lands it (1e-9 mm).
@@ -125,6 +125,36 @@ def test_a_mirror_turned_about_a_pivot_lands_every_ray_where_the_direct_placemen
     A, bb = local_frames(pivot)[m]
     got = bb + A @ torch.stack([torch.zeros(()), torch.zeros(()), z[m]]).to(torch.float64)
     assert float((got - want).abs().max()) < 1e-9
+
+
+@pytest.mark.parametrize("theta", [-10.0, 7.5])
+def test_the_pivot_rays_land_where_optilands_global_trace_lands_them(tmp_path, theta):
+    """An independent reading of the same file: optiland's reader and global trace (its frames
+    start at SURF 1, the stop, deeplens' first vertex)."""
+    pytest.importorskip("optiland")
+    from optiland.fileio import load_zemax_file
+
+    p = tmp_path / "pivot.zmx"
+    p.write_text(pivot_file(theta))
+    lens = _read(tmp_path, pivot_file(theta), "pivot")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        optic = load_zemax_file(str(p))
+    par = paraxial(lens)
+    xy = torch.tensor(PUPIL, dtype=lens.dtype) * 0.5 * float(par.entrance_pupil_diameter)
+    with torch.no_grad():
+        for f in FIELDS:
+            r = lens.trace_to_sensor(field_rays(lens, f, W, xy, float(par.entrance_pupil_z)),
+                                     options=TraceOptions(clip_aperture=False))
+            assert bool(r.valid.all())
+            for (px, py), pt in zip(PUPIL, to_global(local_frames(lens)[-1], r.o)):
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    optic.trace_generic(0.0, f / FIELDS[-1], px, py, W / 1000.0)
+                    sg = optic.surface_group
+                    ol = [float(torch.as_tensor(c)[-1].reshape(-1)[0])
+                          for c in (sg.x, sg.y, sg.z)]
+                assert [float(v) for v in pt] == pytest.approx(ol, abs=1e-9), (f, px, py)
 
 
 def test_a_surface_genuinely_behind_the_beam_is_still_refused(tmp_path):
