@@ -1378,7 +1378,7 @@ MUTATIONS = [
     # ------------------- issue 37: Extended Polynomial, Birefringent In (branch xpoly)
     Mutation("xpolynom_term_order_reversed", "OpticStudio's polynomial terms taken from y^d "
              "down to x^d within a degree (x and y swapped: y, x, y², xy, x², ...)",
-             "deeplens/optics/io/surface_handlers.py",
+             "deeplens/optics/surfaces/extended_polynomial.py",
              "        out += [(d - i, i) for i in range(d + 1)]\n",
              "        out += [(i, d - i) for i in range(d + 1)]\n",
              ("tests/optics/io/test_zmx_xpolynom.py",)),

@@ -34,7 +34,10 @@ MAX_EXTENDED_TERMS = 230
 
 
 def extended_terms(n: int) -> list[tuple[int, int]]:
-    """The exponents ``(i, j)`` of ``x̂^i ŷ^j`` of terms ``1..n`` (module docstring)."""
+    """The exponents ``(i, j)`` of ``x̂^i ŷ^j`` of OpticStudio's polynomial terms ``1..n``: by
+    total degree from 1, within a degree from ``x^d`` down to ``y^d`` (module docstring; term 12
+    is ``x²y²``, term 13 ``xy³``).  The reader's ``XPOLYNOM``/``XYPOLYNOM`` term order too
+    (:mod:`deeplens.optics.io.surface_handlers`)."""
     out, d = [], 1
     while len(out) < n:
         out += [(d - i, i) for i in range(d + 1)]
