@@ -1418,6 +1418,13 @@ MUTATIONS = [
              "(flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop",
              "(flat or True) and not s.stop",
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    # ------------------------------------------ issue 37: review of the lens-file work (review16)
+    Mutation("diffract_axis_float64_cpu", "the traced axis diffracted with float64 CPU tensors "
+             "whatever the surface's dtype and device (a lens on a GPU fails in every paraxial "
+             "computation)", "deeplens/optics/frames.py",
+             "        x = torch.zeros(1, 3, **kw)\n",
+             "        x = torch.zeros(1, 3, dtype=torch.float64)\n",
+             ("tests/optics/io/test_zmx_set9_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
