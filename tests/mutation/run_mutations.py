@@ -1425,6 +1425,10 @@ MUTATIONS = [
              "        x = torch.zeros(1, 3, **kw)\n",
              "        x = torch.zeros(1, 3, dtype=torch.float64)\n",
              ("tests/optics/io/test_zmx_set9_rules.py",)),
+    Mutation("fresnel_not_shape_only", "a Fresnel surface (FRESNELS) taken as having power in "
+             "one medium (its fixed DIAM in air clips)", "deeplens/optics/io/zmx_surfaces.py",
+             '"IRREGULA", "FRESNELS"})', '"IRREGULA"})',
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
