@@ -1429,6 +1429,12 @@ MUTATIONS = [
              "one medium (its fixed DIAM in air clips)", "deeplens/optics/io/zmx_surfaces.py",
              '"IRREGULA", "FRESNELS"})', '"IRREGULA"})',
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    Mutation("xy_radial_without_binomials", "an even degree of an XY or Extended polynomial taken "
+             "as radial when its even terms are equal, not (x² + y²)^k's binomial multiples "
+             "(x⁴ + x²y² + y⁴ called symmetric)", "deeplens/optics/surfaces/xy_polynomial.py",
+             "cs.get((d - 2 * m, 2 * m), 0.0) - a * math.comb(k, m))",
+             "cs.get((d - 2 * m, 2 * m), 0.0) - a)",
+             ("tests/optics/io/test_zmx_xpolynom.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

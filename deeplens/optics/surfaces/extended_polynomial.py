@@ -25,7 +25,7 @@ from torch import nn
 
 from .asphere import EvenBaseSag
 from .base import check_conic_domain, conic_polynomial_scale, make_param, register_surface
-from .xy_polynomial import xy_poly
+from .xy_polynomial import xy_poly, xy_radial
 
 __all__ = ["ExtendedPolynomial", "extended_terms", "MAX_EXTENDED_TERMS"]
 
@@ -87,6 +87,11 @@ class ExtendedPolynomial(EvenBaseSag):
         if slopes:
             return W, Wu / rn, Wv / rn
         return W, None, None
+
+    def rotationally_symmetric(self) -> bool:
+        """Whether the terms are a function of ``r`` alone (:func:`~.xy_polynomial.xy_radial`;
+        the conic base is): the surface is unchanged by a turn about its axis."""
+        return xy_radial({e: float(v) for e, v in zip(self.exponents, self.poly)})
 
     def paraxial_curvature(self):
         """``c + (A_x² + A_y²) / R_n²``: the mean of the vertex's two principal curvatures (the
