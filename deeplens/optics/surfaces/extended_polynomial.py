@@ -79,8 +79,10 @@ class ExtendedPolynomial(EvenBaseSag):
         self.exponents = extended_terms(len(terms))
 
     def extra_part(self, x, y, slopes: bool = True):
-        """``(W, ∂W/∂x, ∂W/∂y)`` of the polynomial (:meth:`EvenBaseSag.extra_part`): the XY
-        polynomial's own evaluation (:func:`~.xy_polynomial.xy_poly`) at ``x / R_n, y / R_n``."""
+        """``(W, ∂W/∂x, ∂W/∂y)`` of the polynomial (:meth:`EvenBaseSag.extra_part`), each
+        ``(*B,)`` like the local ``x, y`` (mm): ``W`` in mm, the slopes dimensionless (``None``
+        without ``slopes``); the XY polynomial's own evaluation
+        (:func:`~.xy_polynomial.xy_poly`) at ``x / R_n, y / R_n``."""
         rn = self.norm_radius.to(x)
         d = max((i + j for i, j in self.exponents), default=0)
         W, Wu, Wv = xy_poly(x / rn, y / rn, self.poly, self.exponents, d)
@@ -94,8 +96,9 @@ class ExtendedPolynomial(EvenBaseSag):
         return xy_radial({e: float(v) for e, v in zip(self.exponents, self.poly)})
 
     def paraxial_curvature(self):
-        """``c + (A_x² + A_y²) / R_n²``: the mean of the vertex's two principal curvatures (the
-        vertex curvature itself where the ``x²`` and ``y²`` terms are equal), as
+        """``c + (A_x² + A_y²) / R_n²`` (1/mm, a 0-d tensor; ``A_x²``, ``A_y²`` the
+        coefficients of the ``x̂²`` and ``ŷ²`` terms): the mean of the vertex's two principal
+        curvatures (the vertex curvature itself where those terms are equal), as
         :meth:`XYPolynomial.paraxial_curvature <.xy_polynomial.XYPolynomial.paraxial_curvature>`."""
         cur = self.c
         rn2 = self.norm_radius.to(self.c) ** 2
