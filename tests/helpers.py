@@ -253,3 +253,31 @@ def assert_compiled_run_equals_eager(lens, params, mode) -> None:
         assert float((x - y)[v].detach().abs().max()) < 1e-12
     for x, y in zip(ga, gb):
         assert float(x) != 0.0 and float(y) == pytest.approx(float(x), rel=1e-10)
+
+
+def assert_value_and_efl_grads_match_fd(q, x0, steps, powerless=(), rel: float = 1e-6) -> None:
+    """``q(*x, grad=True)`` returns ``(value, efl, params)``: a traced quantity, the paraxial
+    EFL (mm) and the ``len(x0)`` parameter tensors set from ``x`` with gradients on; ``q(*x)``
+    the same without.  Each autograd derivative of ``value`` and ``efl`` in ``params[j]``
+    equals the central difference with step ``steps[j]`` (relative ``rel``; the difference of
+    ``value`` not below 1e-6, so the check can fail); for ``j`` in ``powerless`` the parameter
+    has no paraxial power: the EFL's difference is exactly 0 and its derivative 0 or unused."""
+    import pytest
+
+    val, efl, params = q(*x0, grad=True)
+    grads = torch.autograd.grad(val, params, retain_graph=True)
+    egrads = torch.autograd.grad(efl, params, allow_unused=True)
+    for j, h in enumerate(steps):
+        xp, xm = list(x0), list(x0)
+        xp[j] += h
+        xm[j] -= h
+        vp, ep, _ = q(*xp)
+        vm, em, _ = q(*xm)
+        fd = float(vp - vm) / (2 * h)
+        assert abs(fd) > 1e-6, j
+        assert float(grads[j]) == pytest.approx(fd, rel=rel), j
+        efd = float(ep - em) / (2 * h)
+        if j in powerless:
+            assert efd == 0.0 and (egrads[j] is None or float(egrads[j]) == 0.0), j
+        else:
+            assert float(egrads[j]) == pytest.approx(efd, rel=rel), j

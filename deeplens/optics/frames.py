@@ -120,13 +120,19 @@ def _diffract_axis(surface, a, n_after: float, wavelength_nm: float):
     """Unit direction ``a`` (already reflected or refracted at ``surface``'s vertex) sent on in
     the surface's diffraction order by its own ``diffract`` at the vertex (``n_after``: the
     index the ray leaves into; the index before at a mirror); unchanged where the order is
-    evanescent there."""
+    evanescent there.  The tensors are made in the surface's own dtype and on its device (a
+    lens in float32 or on a GPU), as its ``diffract`` expects."""
+    like = next((t for t in (*surface.parameters(), *surface.buffers())
+                 if t.is_floating_point()), None)
+    kw = ({"dtype": like.dtype, "device": like.device} if like is not None
+          else {"dtype": torch.float64})
     with torch.no_grad():
-        x = torch.zeros(1, 3, dtype=torch.float64)
-        d = torch.tensor([a], dtype=torch.float64)
-        w = torch.tensor([float(wavelength_nm)], dtype=torch.float64)
-        n = torch.tensor([float(n_after)], dtype=torch.float64)
-        out, ok = surface.diffract(x, d, w, n, torch.ones(1, dtype=torch.bool))
+        x = torch.zeros(1, 3, **kw)
+        d = torch.tensor([a], **kw)
+        w = torch.tensor([float(wavelength_nm)], **kw)
+        n = torch.tensor([float(n_after)], **kw)
+        ok = torch.ones(1, dtype=torch.bool, device=kw.get("device"))
+        out, ok = surface.diffract(x, d, w, n, ok)
     return [float(v) for v in out[0]] if bool(ok[0]) else a
 
 

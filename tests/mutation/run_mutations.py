@@ -1378,7 +1378,7 @@ MUTATIONS = [
     # ------------------- issue 37: Extended Polynomial, Birefringent In (branch xpoly)
     Mutation("xpolynom_term_order_reversed", "OpticStudio's polynomial terms taken from y^d "
              "down to x^d within a degree (x and y swapped: y, x, y², xy, x², ...)",
-             "deeplens/optics/io/surface_handlers.py",
+             "deeplens/optics/surfaces/extended_polynomial.py",
              "        out += [(d - i, i) for i in range(d + 1)]\n",
              "        out += [(i, d - i) for i in range(d + 1)]\n",
              ("tests/optics/io/test_zmx_xpolynom.py",)),
@@ -1426,6 +1426,23 @@ MUTATIONS = [
              "if ahead is not None and ahead[1] > 0:",
              "if ahead is not None and ahead[1] < 0:",
              ("tests/optics/io/test_zmx_pivot.py",)),
+    # ------------------------------------------ issue 37: review of the lens-file work (review16)
+    Mutation("diffract_axis_float64_cpu", "the traced axis diffracted with float64 CPU tensors "
+             "whatever the surface's dtype and device (a lens on a GPU fails in every paraxial "
+             "computation)", "deeplens/optics/frames.py",
+             "        x = torch.zeros(1, 3, **kw)\n",
+             "        x = torch.zeros(1, 3, dtype=torch.float64)\n",
+             ("tests/optics/io/test_zmx_set9_rules.py",)),
+    Mutation("fresnel_not_shape_only", "a Fresnel surface (FRESNELS) taken as having power in "
+             "one medium (its fixed DIAM in air clips)", "deeplens/optics/io/zmx_surfaces.py",
+             '"IRREGULA", "FRESNELS"})', '"IRREGULA"})',
+             ("tests/optics/io/test_zmx_set9_apertures.py",)),
+    Mutation("xy_radial_without_binomials", "an even degree of an XY or Extended polynomial taken "
+             "as radial when its even terms are equal, not (x² + y²)^k's binomial multiples "
+             "(x⁴ + x²y² + y⁴ called symmetric)", "deeplens/optics/surfaces/xy_polynomial.py",
+             "cs.get((d - 2 * m, 2 * m), 0.0) - a * math.comb(k, m))",
+             "cs.get((d - 2 * m, 2 * m), 0.0) - a)",
+             ("tests/optics/io/test_zmx_xpolynom.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -65,6 +65,10 @@ from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cy
                         ZernikeFringePhase, ZernikeFringeSag, ZernikeSag)
 from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
 from ..surfaces.binary2 import MAX_PHASE_TERMS
+# OpticStudio's Extended Polynomial's term order and most terms (230, order 20), shared with the
+# surface a curved base reads into
+from ..surfaces.extended_polynomial import MAX_EXTENDED_TERMS as XPOLYNOM_MAX_TERMS
+from ..surfaces.extended_polynomial import extended_terms as zemax_xy_terms
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from ..surfaces.zernike_sag import BASES
@@ -367,23 +371,6 @@ def _paraxial_surface(s, k: int, mat, prev, sd, s_mm, p):
         if i > 2 and v != 0:
             p.fail(ln, f"SURF {k}: PARAXIAL PARM {i} is not read (only the focal length, PARM 1)")
     return IdealLens(s.parm[1][0] * s_mm, sd)
-
-
-#: the most terms of OpticStudio's Extended Polynomial (``XDAT 1``): orders 1..20, 230 terms
-#: (OpticStudio User Guide, "Extended Polynomial")
-XPOLYNOM_MAX_TERMS = 230
-
-
-def zemax_xy_terms(n: int) -> list[tuple[int, int]]:
-    """The exponents ``(i, j)`` of ``x^i y^j`` of OpticStudio's polynomial terms 1..``n``: by
-    total degree from 1, within a degree from ``x^d`` down to ``y^d`` (``x, y, x², xy, y², x³,
-    ...``; OpticStudio User Guide, "Extended Polynomial": "The first term is x, then y, then x*x,
-    x*y, y*y, etc."; term 12 is ``x²y²``, term 13 ``xy³``)."""
-    out, d = [], 1
-    while len(out) < n:
-        out += [(d - i, i) for i in range(d + 1)]
-        d += 1
-    return out[:n]
 
 
 def _xypolynom(s, c, sd, s_mm, p, k=None):

@@ -35,14 +35,15 @@ from .zmx_parse import Locator, ZmxSurface
 __all__ = ["build_surface", "is_air", "PROVISIONAL_SD_MM"]
 
 
-
 #: Surface types that are a shape alone: in one medium (the same material on both sides) they
-#: have no refractive power.  Ideal lenses (PARAXIAL, PARAX_XY), phases (BINARY_2, FZERNPHA),
-#: gratings and holograms bend rays in air and are not listed.
+#: have no refractive power.  A Fresnel surface (FRESNELS) is one too: its facets refract by
+#: Snell's law, ``n' − n = 0`` in one medium.  Ideal lenses (PARAXIAL, PARAX_XY), phases
+#: (BINARY_2, FZERNPHA), gratings and holograms bend rays in air and are not listed.
 _SHAPE_ONLY_TYPES = frozenset({
     "STANDARD", "EVENASPH", "ODDASPHE", "XPOLYNOM", "XYPOLYNOM", "TILTSURF", "JONESMAT",
     "BIRE__IN", "BIRE_OUT", "TOROIDAL", "QED_TYPE", "BICONICX", "SZERNSAG", "FZERNSAG",
-    "XASPHERE", "GRID_SAG", "IRREGULA"})
+    "XASPHERE", "GRID_SAG", "IRREGULA", "FRESNELS"})
+
 
 def _lens_or_mirror(surf) -> bool:
     """Whether a surface aperture (``SQAP``, ``ELAP``, ``ELOB``, ``SPID``) goes on ``surf`` as a

@@ -25,7 +25,7 @@ from torch import nn
 
 from .asphere import EvenBaseSag
 from .base import check_conic_domain, conic_polynomial_scale, make_param, register_surface
-from .xy_polynomial import xy_poly
+from .xy_polynomial import xy_poly, xy_radial
 
 __all__ = ["ExtendedPolynomial", "extended_terms", "MAX_EXTENDED_TERMS"]
 
@@ -34,7 +34,10 @@ MAX_EXTENDED_TERMS = 230
 
 
 def extended_terms(n: int) -> list[tuple[int, int]]:
-    """The exponents ``(i, j)`` of ``x̂^i ŷ^j`` of terms ``1..n`` (module docstring)."""
+    """The exponents ``(i, j)`` of ``x̂^i ŷ^j`` of OpticStudio's polynomial terms ``1..n``: by
+    total degree from 1, within a degree from ``x^d`` down to ``y^d`` (module docstring; term 12
+    is ``x²y²``, term 13 ``xy³``).  The reader's ``XPOLYNOM``/``XYPOLYNOM`` term order too
+    (:mod:`deeplens.optics.io.surface_handlers`)."""
     out, d = [], 1
     while len(out) < n:
         out += [(d - i, i) for i in range(d + 1)]
@@ -76,8 +79,10 @@ class ExtendedPolynomial(EvenBaseSag):
         self.exponents = extended_terms(len(terms))
 
     def extra_part(self, x, y, slopes: bool = True):
-        """``(W, ∂W/∂x, ∂W/∂y)`` of the polynomial (:meth:`EvenBaseSag.extra_part`): the XY
-        polynomial's own evaluation (:func:`~.xy_polynomial.xy_poly`) at ``x / R_n, y / R_n``."""
+        """``(W, ∂W/∂x, ∂W/∂y)`` of the polynomial (:meth:`EvenBaseSag.extra_part`), each
+        ``(*B,)`` like the local ``x, y`` (mm): ``W`` in mm, the slopes dimensionless (``None``
+        without ``slopes``); the XY polynomial's own evaluation
+        (:func:`~.xy_polynomial.xy_poly`) at ``x / R_n, y / R_n``."""
         rn = self.norm_radius.to(x)
         d = max((i + j for i, j in self.exponents), default=0)
         W, Wu, Wv = xy_poly(x / rn, y / rn, self.poly, self.exponents, d)
@@ -85,9 +90,15 @@ class ExtendedPolynomial(EvenBaseSag):
             return W, Wu / rn, Wv / rn
         return W, None, None
 
+    def rotationally_symmetric(self) -> bool:
+        """Whether the terms are a function of ``r`` alone (:func:`~.xy_polynomial.xy_radial`;
+        the conic base is): the surface is unchanged by a turn about its axis."""
+        return xy_radial({e: float(v) for e, v in zip(self.exponents, self.poly)})
+
     def paraxial_curvature(self):
-        """``c + (A_x² + A_y²) / R_n²``: the mean of the vertex's two principal curvatures (the
-        vertex curvature itself where the ``x²`` and ``y²`` terms are equal), as
+        """``c + (A_x² + A_y²) / R_n²`` (1/mm, a 0-d tensor; ``A_x²``, ``A_y²`` the
+        coefficients of the ``x̂²`` and ``ŷ²`` terms): the mean of the vertex's two principal
+        curvatures (the vertex curvature itself where those terms are equal), as
         :meth:`XYPolynomial.paraxial_curvature <.xy_polynomial.XYPolynomial.paraxial_curvature>`."""
         cur = self.c
         rn2 = self.norm_radius.to(self.c) ** 2

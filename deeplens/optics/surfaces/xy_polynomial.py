@@ -25,7 +25,7 @@ import torch
 
 from .base import Surface, make_param, register_surface
 
-__all__ = ["XYPolynomial", "xy_terms", "xy_poly", "xy_fold", "xy_f_value", "xy_f_z",
+__all__ = ["XYPolynomial", "xy_terms", "xy_poly", "xy_radial", "xy_fold", "xy_f_value", "xy_f_z",
            "xy_in_domain"]
 
 
@@ -35,6 +35,28 @@ def xy_terms(order: int) -> list[tuple[int, int]]:
 
 
 # ------------------------------------------------------------------ the maths, component-wise
+def xy_radial(coefficients) -> bool:
+    """Whether ``Σ c_ij x^i y^j`` (``coefficients``: ``(i, j) -> c_ij``, floats) is a function
+    of ``r² = x² + y²`` alone (unchanged by a turn about the axis): every odd degree and every
+    odd exponent zero, and each even degree ``2k`` a multiple of ``(x² + y²)^k``, ``c_(2k−2m,
+    2m) = a_k C(k, m)`` (to 1e-12 of the degree's largest coefficient)."""
+    by_degree: dict[int, dict[tuple[int, int], float]] = {}
+    for (i, j), v in coefficients.items():
+        by_degree.setdefault(i + j, {})[(i, j)] = float(v)
+    for d, cs in by_degree.items():
+        big = max(abs(v) for v in cs.values())
+        if big == 0.0:
+            continue
+        if d % 2 or any(v != 0.0 and (i % 2 or j % 2) for (i, j), v in cs.items()):
+            return False
+        k = d // 2
+        a = cs.get((d, 0), 0.0)
+        if any(abs(cs.get((d - 2 * m, 2 * m), 0.0) - a * math.comb(k, m)) > 1e-12 * big
+               for m in range(k + 1)):
+            return False
+    return True
+
+
 # Written once: :class:`XYPolynomial` calls these with its parameters, the compiled Newton
 # kernels (:mod:`..compiled`) with the values already in the rays' dtype (``.to`` is a no-op).
 def xy_poly(x, y, coeffs, terms, order: int):
@@ -201,6 +223,11 @@ class XYPolynomial(Surface):
                 f"(b = {float(self.b):g}/mm): 1 - 4 b P(x, y) reaches 0 (its fold) by r = "
                 f"{r_fold:.4g} mm; reduce the semi-diameter below it or change b / the "
                 f"coefficients")
+
+    def rotationally_symmetric(self) -> bool:
+        """Whether the polynomial is a function of ``r`` alone (:func:`xy_radial`; the ``b z²``
+        term is): the surface is unchanged by a turn about its axis."""
+        return xy_radial({t: float(v) for t, v in zip(self.terms, self.a)})
 
     def paraxial_curvature(self):
         # z ≈ a_x2 x^2 + a_y2 y^2 + b z^2 near the vertex: mean of the two principal curvatures

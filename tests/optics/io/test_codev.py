@@ -316,6 +316,24 @@ def test_writer_refuses_a_subclass_its_type_handler_does_not_write(tmp_path):
     assert e.value.surfaces == (1,)
     assert not (tmp_path / "ideal.seq").exists()
 
+@pytest.mark.parametrize("kind", ["ZernikeFringePhase", "ExtendedPolynomial"])
+def test_new_lens_file_types_are_refused_not_written_as_their_base(kind, tmp_path):
+    """A Zernike Fringe phase (a Binary 2, so an Asphere subclass) and an Extended Polynomial
+    (an even-base sag) have no CODE V record: refused naming the surface, never written as
+    their conic base (the phase or the polynomial lost)."""
+    from deeplens.optics.lens import Lens
+    from deeplens.optics.materials import Air
+    from deeplens.optics.surfaces import Aperture, ExtendedPolynomial, ZernikeFringePhase
+
+    s = (ZernikeFringePhase(-0.02, 6.0, 4.0, [0.0, 0.0, 0.0, 0.5]) if kind == "ZernikeFringePhase"
+         else ExtendedPolynomial(-0.02, 6.0, 4.0, [0.0, 0.0, 0.01]))
+    lens = Lens([Aperture(3.0), s], [Air(), Air(), Air()], [0.0, 2.0], 48.0, 0)
+    with pytest.raises(LensFileError, match=f"surface 1: {kind} has no CODE V") as e:
+        write_seq(lens, tmp_path / "new.seq")
+    assert e.value.surfaces == (1,)
+    assert not (tmp_path / "new.seq").exists()
+
+
 def test_mirror(monkeypatch, tmp_path):
     """REFL: an f/1 paraboloid (R = -200 mm, K = -1) has EFL |R|/2 = 100 mm, its focus 100 mm
     in front of it (the negative thickness kept) and a perfect on-axis image (float64 rays:

@@ -353,6 +353,21 @@ def xpolynom_vertex_curvatures(name):
     return out
 
 
+def _as_standard(text: str, typ: str, curvatures=None) -> str:
+    """``text`` with each ``TYPE typ`` surface rewritten as ``TYPE STANDARD`` and its ``XDAT``
+    lines dropped (for an oracle whose reader does not know ``typ``); with ``curvatures``
+    (``{surface number: CURV}``) each such surface's ``CURV`` set to its value."""
+    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
+    for i, b in enumerate(parts):
+        if re.search(rf"^\s+TYPE\s+{typ}\b", b, re.M):
+            b = re.sub(rf"^(\s+TYPE\s+){typ}\b", r"\g<1>STANDARD", b, flags=re.M)
+            if curvatures is not None:
+                k = int(parts[i - 1].split()[1])
+                b = re.sub(r"^(\s+CURV\s+)\S+", rf"\g<1>{curvatures[k]!r}", b, flags=re.M)
+            parts[i] = re.sub(r"^\s+XDAT\s+.*\n", "", b, flags=re.M)
+    return "".join(parts)
+
+
 def _load_optiland_xpolynom(name, full):
     """optiland's ``load_zemax_file`` for a file with ``XPOLYNOM`` surfaces, which its reader
     does not read: each is read as ``TYPE STANDARD`` (``XDAT`` lines dropped); with ``full`` it
@@ -366,15 +381,7 @@ def _load_optiland_xpolynom(name, full):
     assert not re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT|DGRATING|QED_TYPE|GRID_SAG)\b", text,
                          re.M), "an XPOLYNOM file with another surface the oracle rewrites"
     cv = xpolynom_vertex_curvatures(name)
-    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
-    for i, b in enumerate(parts):
-        if re.search(r"^\s+TYPE\s+XPOLYNOM\b", b, re.M):
-            b = re.sub(r"^(\s+TYPE\s+)XPOLYNOM", r"\g<1>STANDARD", b, flags=re.M)
-            if not full:
-                k = int(parts[i - 1].split()[1])
-                b = re.sub(r"^(\s+CURV\s+)\S+", rf"\g<1>{cv[k]!r}", b, flags=re.M)
-            parts[i] = re.sub(r"^\s+XDAT\s+.*\n", "", b, flags=re.M)
-    optic = _optiland_from_text(name, "".join(parts))
+    optic = _optiland_from_text(name, _as_standard(text, "XPOLYNOM", None if full else cv))
     if full:
         for k, curv, coni, rn, terms in xpolynom_blocks(text):
             s = optic.surface_group.surfaces[k]
@@ -489,15 +496,7 @@ def _load_optiland_qtype(name, full):
     assert not re.search(r"^\s+TYPE\s+(TILTSURF|JONESMAT|DGRATING)", text, re.M), \
         "a Q-type file with another surface the oracle rewrites: extend the oracle"
     cv = qtype_vertex_curvatures(name)
-    parts = re.split(r"(^SURF\s+\d+.*$)", text, flags=re.M)
-    for i, b in enumerate(parts):
-        if re.search(r"^\s+TYPE\s+QED_TYPE", b, re.M):
-            b = re.sub(r"^(\s+TYPE\s+)QED_TYPE", r"\g<1>STANDARD", b, flags=re.M)
-            if not full:
-                k = int(parts[i - 1].split()[1])
-                b = re.sub(r"^(\s+CURV\s+)\S+", rf"\g<1>{cv[k]!r}", b, flags=re.M)
-            parts[i] = re.sub(r"^\s+XDAT\s+.*\n", "", b, flags=re.M)
-    optic = _optiland_from_text(name, "".join(parts))
+    optic = _optiland_from_text(name, _as_standard(text, "QED_TYPE", None if full else cv))
     if full:
         for k, x, curv, coni in _qtype_blocks(text):
             assert x.get(1, 0.0) == 0.0, "a Qcon surface: extend the oracle"

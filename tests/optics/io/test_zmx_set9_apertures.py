@@ -221,3 +221,39 @@ def test_a_fixed_diam_on_an_ideal_lens_in_air_still_clips(tmp_path):
     r = torch.hypot(rays.o[:, 0], rays.o[:, 1])
     out = lens.trace(rays)
     assert torch.equal(out.valid, r <= 3.0)
+
+
+def test_a_fixed_diam_on_a_fresnel_surface_in_air_does_not_clip(tmp_path):
+    """A Fresnel surface (``FRESNELS``: a plane carrying a curved surface's facet slopes) is a
+    shape alone: in air on both sides it has no power, so its fixed ``DIAM 3`` does not clip
+    (the rule for every shape-only type), with the note at its ``DIAM`` line; every ray of the
+    10 mm pupil passes, those beyond 3 mm among them.  An ideal lens after it focuses the beam.
+    (Before the review it clipped there: ``FRESNELS`` was missing from the shape-only types.)"""
+    blocks = [_surf(disz="INFINITY"),
+              _surf(stop=True, disz=1.0, diam=5.0),
+              _surf("FRESNELS", curv=0.02, disz=1.0, diam=3.0),
+              _surf("PARAXIAL", parms=[100.0, 1.0], disz=100.0),
+              _surf()]
+    p = write(tmp_path, zmx_file(blocks, "Fresnel surface in air, fixed DIAM"))
+    with pytest.warns(ZemaxWarning, match=r"SURF 2: the fixed DIAM 3 of a curved surface in one "
+                                          r"medium \(no refractive power\).* does not clip"):
+        read_zmx(p)
+    lens = _read(p)
+    rays = _on_axis_rays(lens)
+    r = torch.hypot(rays.o[:, 0], rays.o[:, 1])
+    assert bool((r > 3.0).any())
+    assert bool(lens.trace(rays).valid.all())
+
+
+def test_every_type_read_is_classed_shape_only_or_with_power_in_air():
+    """Each surface type the reader knows is either a shape alone (a fixed ``DIAM`` in one
+    medium does not clip) or has power in air (it clips): a new type must be classed here."""
+    from deeplens.optics.io.surface_handlers import FORMATS
+    from deeplens.optics.io.zmx_surfaces import _SHAPE_ONLY_TYPES
+
+    power_in_air = {"PARAXIAL", "PARAX_XY", "BINARY_2", "FZERNPHA", "DGRATING", "HOLOGRM1",
+                    "HOLOGRM2", "COORDBRK", "GRINSUR1"}
+    read = set(FORMATS.zmx_types())
+    assert not power_in_air & _SHAPE_ONLY_TYPES
+    assert read == _SHAPE_ONLY_TYPES | power_in_air, sorted(read ^ (_SHAPE_ONLY_TYPES
+                                                                    | power_in_air))

@@ -26,6 +26,7 @@ from deeplens.optics.io import ZemaxFileError, read_zmx
 from deeplens.optics.io.zmx import ZemaxWarning
 from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
+from deeplens.optics.surfaces import Grating
 
 _HEAD = """VERS 80915 20 20100
 MODE SEQ
@@ -194,3 +195,26 @@ def test_the_axis_leaves_a_grating_in_its_order(tmp_path):
     torch.testing.assert_close(out.o[:, 1], y * k, rtol=0, atol=1e-12)
     torch.testing.assert_close(out.d, torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64)
                                .expand(5, 3), rtol=0, atol=1e-12)
+
+
+def test_the_axis_is_diffracted_in_the_surface_own_dtype_and_device(tmp_path, monkeypatch):
+    """The traced axis (:meth:`Lens.directions`, called by every paraxial computation) is sent
+    through the grating's own ``diffract`` with tensors in the surface's dtype and on its device:
+    tensors made as float64 on the CPU mix devices in a lens moved to a GPU (an error there) and
+    dtypes in a float32 one (checked here, where no GPU is).  The signs are the same in float32
+    and float64."""
+    text, _ = _stretcher()
+    lens, _ = _quiet(write(tmp_path, text))
+    seen = []
+    diffract = Grating.diffract
+
+    def strict(self, x, d, wavelength_nm, n_after, valid):
+        ts = (x, d, wavelength_nm, n_after)
+        seen.append([(t.dtype, t.device) for t in ts])
+        assert all(t.dtype == self.T.dtype and t.device == self.T.device for t in ts), seen[-1]
+        return diffract(self, x, d, wavelength_nm, n_after, valid)
+
+    monkeypatch.setattr(Grating, "diffract", strict)
+    signs = lens.double().directions()
+    assert lens.float().directions() == signs and signs[-1] == -1
+    assert len(seen) == 2 and seen[1][0][0] == torch.float32

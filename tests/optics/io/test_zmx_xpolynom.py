@@ -255,3 +255,28 @@ def test_refused_at_its_line(tmp_path, edit, needle, match):
     with pytest.raises(ZemaxFileError, match=match) as e:
         read_zmx(write(tmp_path, text))
     assert e.value.line == line_of(text, needle)
+
+
+@pytest.mark.parametrize("curv", [0.0, 0.01])
+@pytest.mark.parametrize("terms,exact", [
+    ({3: 0.02, 5: 0.02}, True),                                  # (x² + y²) / R_n²
+    ({3: 0.02, 5: 0.02, 10: 1e-3, 12: 2e-3, 14: 1e-3}, True),   # ... + (x² + y²)² / R_n⁴
+    ({3: 0.02, 5: 0.03}, False),                                 # astigmatic
+    ({3: 0.02, 4: 1e-3, 5: 0.02}, False),                        # an xy term
+    ({3: 0.02, 5: 0.02, 10: 1e-3, 12: 1e-3, 14: 1e-3}, False),  # x⁴ + x²y² + y⁴
+])
+def test_x_fields_on_a_non_symmetric_polynomial_are_named_not_exact(tmp_path, curv, terms,
+                                                                   exact):
+    """x field components become a radial field with one note: 'NOT exact', naming the surface,
+    when the polynomial is not a function of r alone, 'exact' when it is (on a flat base an
+    XYPolynomial, on a curved one an ExtendedPolynomial).  Term numbers (the manual's order,
+    :data:`MANUAL_TERMS`): 3 x², 4 xy, 5 y², 10 x⁴, 12 x²y², 14 y⁴."""
+    text = xpolynom(a=terms, curv=curv).replace("XFLN 0 0", "XFLN 0 2")
+    with pytest.warns(UserWarning) as rec:
+        lens = read_zmx(write(tmp_path, text))
+    cls = ExtendedPolynomial if curv else XYPolynomial
+    (s,) = [s for s in lens.surfaces if isinstance(s, cls)]
+    assert s.rotationally_symmetric() == exact
+    notes = [str(w.message) for w in rec if "x field components" in str(w.message)]
+    assert len(notes) == 1
+    assert ("NOT exact" in notes[0] and cls.__name__ in notes[0]) == (not exact), notes[0]
