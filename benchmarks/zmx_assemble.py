@@ -56,8 +56,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sources", type=Path, help="a benchmarks/zmx_*_sources.tsv list")
     parser.add_argument("out", type=Path, help="folder to write the files into")
-    parser.add_argument("--mirror", type=Path, default=Path("/work/.mirror"),
-                        help="folder of <owner>+<name> git repositories (default: %(default)s)")
+    parser.add_argument("--mirror", type=Path, required=True,
+                        help="folder of <owner>+<name> git repositories")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     missing = []

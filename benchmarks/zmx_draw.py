@@ -95,6 +95,9 @@ def main(argv: list[str] | None = None) -> int:
         for f in sorted(folder.glob("*")):
             if f.suffix.lower() == ".zmx":
                 known.setdefault(surface_list(decode(f.read_bytes())), f"{folder.name}/{f.name}")
+    if args.out.exists() and any(args.out.iterdir()):
+        parser.error(f"{args.out} is not empty: a draw writes into an empty folder, so that "
+                     f"it can be repeated")
     args.out.mkdir(parents=True, exist_ok=True)
     print("file\trepository\tpath\tcommit\tlicence")
     for i, (prefix, repository, gitdir, commit) in enumerate(args.source):
@@ -122,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             stem = re.sub(r"[^A-Za-z0-9-]+", "_", Path(path).stem)
             name = f"{prefix}_{stem}.zmx"
-            while (args.out / name).exists():
+            while (args.out / name).exists():   # two paths with one base name
                 name = name[:-4] + "_.zmx"
             (args.out / name).write_bytes(data)
             known[key] = f"{args.out.name}/{name}"

@@ -120,3 +120,13 @@ def test_draw_applies_the_rule(repo, tmp_path, capsys):
 def test_surface_list_reads_infinity_and_every_surf():
     assert zmx_draw.surface_list(_zmx([0, 0.5]).replace("DISZ 5", "DISZ INFINITY", 1)) == (
         (0.0, float("inf")), (0.5, 5.0))
+
+
+def test_draw_refuses_a_folder_that_is_not_empty(repo, tmp_path):
+    work, files, commit = repo
+    out = tmp_path / "set"
+    out.mkdir()
+    (out / "old.zmx").write_text("x")
+    with pytest.raises(SystemExit):
+        zmx_draw.main([str(out), "--source", "t", "owner/name", str(work / ".git"), commit])
+    assert sorted(p.name for p in out.iterdir()) == ["old.zmx"]
