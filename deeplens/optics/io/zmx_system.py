@@ -17,7 +17,7 @@ import math
 
 import torch
 
-from ..surfaces import (Aperture, Asphere, Biconic, Cylinder, OddAsphere, Plane, QType,
+from ..surfaces import (Aperture, Asphere, Biconic, Binary1, Cylinder, OddAsphere, Plane, QType,
                         ZernikeFringePhase, ZernikeSag)
 from ..surfaces.grid_sag import GridSag
 
@@ -282,7 +282,7 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         return object_height_fields(kind, [v * s_mm for v in ys], lens, ftyp_line, tan_y, p)
     if any(x != 0 for x in xs):
         anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder, GridSag))
-                      or (isinstance(s, (ZernikeSag, ZernikeFringePhase))
+                      or (isinstance(s, (ZernikeSag, ZernikeFringePhase, Binary1))
                           and not s.rotationally_symmetric())]
         if anamorphic:   # a biconic, cylinder, toroid or grid: x and y fields image differently
             p.note(xline, f"XFLN: x field components are combined with y into a radial field, "

@@ -109,3 +109,30 @@ def test_odd_records_are_refused_on_their_line(tmp_path, body, needle, match):
         read_zmx(p)
     assert e.value.line == line_of(text, needle)
     assert str(p) in str(e.value)
+
+
+@pytest.mark.parametrize("symmetric", [False, True])
+def test_x_fields_on_a_non_symmetric_phase_are_named_not_exact(tmp_path, symmetric):
+    """x field components become a radial field with a note: 'NOT exact' naming the Binary 1
+    surface when its phase has a non-symmetric term (diffract3's tilts), 'exact' when it is a
+    function of x² + y² only (A_3 = A_5)."""
+    body = None if not symmetric else ["PARM 0 1", "XDAT 1 5", "XDAT 2 10", "XDAT 5 -7000",
+                                       "XDAT 7 -7000"]
+    text = binary1_file(body).replace("FTYP 0 0 1 1 0 0 0", "FTYP 0 0 2 1 0 0 0")
+    text = text.replace("XFLN 0\n", "XFLN 0 0.5\n").replace("YFLN 0\n", "YFLN 0 0.5\n")
+    with pytest.warns(UserWarning) as rec:
+        read_zmx(write(tmp_path, text))
+    notes = [str(w.message) for w in rec if "x field components" in str(w.message)]
+    assert len(notes) == 1
+    assert ("NOT exact" in notes[0] and "Binary1" in notes[0]) == (not symmetric)
+
+
+def test_not_written_to_code_v(tmp_path):
+    """CODE V has no equivalent deeplens writes: refused by name, not written as another
+    diffractive surface."""
+    from deeplens.optics.errors import LensFileError
+    from deeplens.optics.io.codev import write_seq
+
+    lens = read_zmx_quiet(write(tmp_path, binary1_file()))
+    with pytest.raises(LensFileError, match="Binary1 has no CODE V equivalent"):
+        write_seq(lens, tmp_path / "out.seq")
