@@ -1443,6 +1443,13 @@ MUTATIONS = [
              "cs.get((d - 2 * m, 2 * m), 0.0) - a * math.comb(k, m))",
              "cs.get((d - 2 * m, 2 * m), 0.0) - a)",
              ("tests/optics/io/test_zmx_xpolynom.py",)),
+    # ------------------------------------ issue 37: Binary 1, BINARY_1 (branch binary1)
+    Mutation("binary1_terms_y_first", "the Binary 1 phase's terms taken y first within a degree "
+             "(y, x, y², xy, x², ...) instead of OpticStudio's x first",
+             "deeplens/optics/surfaces/binary1.py",
+             "        self.exponents = extended_terms(len(terms))\n",
+             "        self.exponents = [(j, i) for i, j in extended_terms(len(terms))]\n",
+             ("tests/optics/io/test_zmx_binary1.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

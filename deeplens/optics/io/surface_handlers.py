@@ -14,7 +14,8 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
   (``PARAXIAL``, ``IdealLens``), :class:`ToroidalFormat` (``TOROIDAL``, ``Cylinder`` and
   ``Toroid``), :class:`GratingFormat` (``DGRATING``, ``Grating``), :class:`QTypeFormat`
   (``QED_TYPE``, ``QType``), :class:`BiconicFormat` (``BICONICX``, ``Biconic``),
-  :class:`Binary2Format` (``BINARY_2``, ``Binary2``), :class:`ZernikeSagFormat` (``SZERNSAG``,
+  :class:`Binary2Format` (``BINARY_2``, ``Binary2``), :class:`Binary1Format` (``BINARY_1``,
+  ``Binary1``), :class:`ZernikeSagFormat` (``SZERNSAG``,
   ``ZernikeSag``), :class:`ZernikeFringePhaseFormat` (``FZERNPHA``, ``ZernikeFringePhase``);
 * :class:`ExtendedAsphereFormat`: reads ``XASPHERE`` (an ``Asphere`` with terms beyond r¹⁶ is
   written so by :class:`AsphereFormat`);
@@ -37,7 +38,8 @@ with an ``r²`` term (``PARM 1`` != 0) -> :class:`~deeplens.optics.surfaces.OddA
 with no radius of rotation), ``BICONICX`` -> :class:`~deeplens.optics.surfaces.Biconic`,
 ``PARAXIAL`` -> :class:`~deeplens.optics.surfaces.IdealLens`, ``DGRATING`` ->
 :class:`~deeplens.optics.surfaces.Grating`, ``BINARY_2`` ->
-:class:`~deeplens.optics.surfaces.Binary2`, ``XPOLYNOM`` (flat base) and ``XYPOLYNOM`` ->
+:class:`~deeplens.optics.surfaces.Binary2`, ``BINARY_1`` ->
+:class:`~deeplens.optics.surfaces.Binary1`, ``XPOLYNOM`` (flat base) and ``XYPOLYNOM`` ->
 :class:`~deeplens.optics.surfaces.XYPolynomial`, ``SZERNSAG`` ->
 :class:`~deeplens.optics.surfaces.ZernikeSag`, ``XASPHERE`` -> :class:`~deeplens.optics.surfaces.Asphere`
 (or :class:`~deeplens.optics.surfaces.OddAsphere` with a ρ² term).  Lengths are scaled from file
@@ -59,7 +61,7 @@ import torch
 
 from ..errors import LensFileError, ZemaxFileError
 from ..materials import Air, Material
-from ..surfaces import (Aperture, Asphere, Biconic, Binary2, CoordinateBreak, Cylinder,
+from ..surfaces import (Aperture, Asphere, Biconic, Binary1, Binary2, CoordinateBreak, Cylinder,
                         ExtendedPolynomial, Grating,
                         IdealLens, IdealLensXY, OddAsphere, Plane, QType, Toroid, XYPolynomial,
                         ZernikeFringePhase, ZernikeFringeSag, ZernikeSag)
@@ -225,6 +227,35 @@ def _binary2(s, k: int, c, sd, s_mm, p):
         phase.pop()
     rn = rn_v * s_mm if rn_v > 0 else 1.0   # no phase term: any radius (1 mm)
     return Binary2(c, sd, rn, phase, int(order), conic=s.coni, coefficients=coeffs)
+
+
+def _binary1(s, k: int, c, sd, s_mm, p):
+    """``BINARY_1`` (OpticStudio's "Binary 1"): a conic base (``CURV``, ``CONI``) with the phase
+    ``M Σ A_t E_t(x / R_n, y / R_n)`` (radians; the terms ``x, y, x², xy, y², ...`` of the
+    Extended Polynomial): ``PARM 0`` must be 1 (``M`` = 1, the order OpticStudio's stored numbers
+    confirm), ``XDAT 1`` the maximum term number (at most 230), ``XDAT 2`` the normalisation
+    radius (a length), ``XDAT 3..`` ``A_1, A_2, ...`` (radians, unscaled): a :class:`Binary1`
+    (sources: its module).  Other ``PARM`` values are refused on their line (no stored source
+    gives their meaning)."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if i != 0 and v != 0:
+            p.fail(ln, f"SURF {k}: BINARY_1 PARM {i} = {v:g} is refused: no stored OpticStudio "
+                       f"source gives its meaning (read: PARM 0 = 1 and the XDAT terms)")
+    m_v, m_ln = s.parm.get(0, (None, s.type_line))
+    if m_v != 1.0:
+        p.fail(m_ln, f"SURF {k}: BINARY_1 PARM 0 = {m_v!r} is refused: only 1 (diffraction "
+                     f"order 1) is read, the order OpticStudio's stored numbers confirm")
+    n = _xdat_term_count(p, s, k, "BINARY_1", "the maximum term number", Binary1.max_terms,
+                         "phase terms")
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n > 0 and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: BINARY_1 XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    terms = [s.xdat.get(j + 3, (0.0, 0))[0] for j in range(n)]
+    while terms and terms[-1] == 0.0:
+        terms.pop()
+    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no phase term: any radius (1 mm)
+    return Binary1(c, sd, rn, terms, 1, conic=s.coni)
 
 
 def _qtype(s, k: int, c, sd, s_mm, p, qbfs_conic: str = "forbes"):
@@ -1108,6 +1139,31 @@ class Binary2Format(SurfaceFormat):
         lines = ["TYPE BINARY_2", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"PARM 0 {s.order}",
                  "PARM 1 0"] + [f"PARM {j + 2} {_f(v)}" for j, v in enumerate(a)]
         lines += [f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
+        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
+        lines.append(_diam(s.semi_diameter))
+        return lines + _opening_records(s, i)
+
+
+@register_format
+class Binary1Format(SurfaceFormat):
+    """:class:`Binary1`: Zemax ``BINARY_1`` (``PARM 0 1``, ``XDAT 1`` the maximum term number,
+    ``XDAT 2`` the normalisation radius, ``XDAT 3..`` the x-y polynomial phase terms in
+    radians)."""
+
+    classes = (Binary1,)
+    zmx_types = ("BINARY_1",)
+
+    def read_zmx(self, s, ctx):
+        return _binary1(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
+
+    def write_zmx(self, s, i):
+        if s.order != 1:
+            raise ZemaxFileError(f"surface {i}: a Binary 1 phase of order {s.order} is not "
+                                 f"written: BINARY_1 is read with PARM 0 = 1 only",
+                                 surfaces=(i,))
+        A = [float(v) for v in s.poly]
+        lines = ["TYPE BINARY_1", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 0 1",
+                 f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
         lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
         lines.append(_diam(s.semi_diameter))
         return lines + _opening_records(s, i)

@@ -40,11 +40,11 @@ _MAX_CONFIGS = 10000   # MNUM: more is a damaged number (read_zmx_configs builds
 
 # surface types met in real files that deeplens refuses, and what they are
 _DIFFRACTIVE = ("out of scope: deeplens traces refraction, reflection, straight-ruled gratings "
-                "(DGRATING) and radial phases (BINARY_2), not other diffractive phase profiles")
+                "(DGRATING), radial phases (BINARY_2), x-y polynomial phases (BINARY_1) and "
+                "Zernike Fringe phases (FZERNPHA), not other diffractive phase profiles")
 _UNSUPPORTED_TYPES = {
     "QTYPEASP": "a Q-type (Forbes) asphere",
     "ELEMGRAT": f"an elliptical grating, {_DIFFRACTIVE}",
-    "BINARY_1": f"a binary-optic (diffractive) surface, {_DIFFRACTIVE}",
     "GRINSUR9": ("a SELFOC gradient-index surface, Gradient 9: its index needs the glass's "
                  "n0(λ) and A(λ) coefficients (B, C, K0, K1, K2), which OpticStudio keeps in "
                  "its GRADIENT_9.DAT and no public source gives"),

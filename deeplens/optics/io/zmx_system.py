@@ -17,8 +17,8 @@ import math
 
 import torch
 
-from ..surfaces import (Aperture, Asphere, Biconic, Cylinder, ExtendedPolynomial, OddAsphere,
-                        Plane, QType, XYPolynomial, ZernikeFringePhase, ZernikeSag)
+from ..surfaces import (Aperture, Asphere, Biconic, Binary1, Cylinder, ExtendedPolynomial,
+                        OddAsphere, Plane, QType, XYPolynomial, ZernikeFringePhase, ZernikeSag)
 from ..surfaces.grid_sag import GridSag
 
 __all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
@@ -283,7 +283,7 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
     if any(x != 0 for x in xs):
         anamorphic = [i for i, s in enumerate(lens.surfaces) if isinstance(s, (Biconic, Cylinder, GridSag))
                       or (isinstance(s, (ZernikeSag, ZernikeFringePhase, XYPolynomial,
-                                         ExtendedPolynomial))
+                                         ExtendedPolynomial, Binary1))
                           and not s.rotationally_symmetric())]
         if anamorphic:   # a biconic, cylinder, toroid, grid or freeform: x and y fields differ
             p.note(xline, f"XFLN: x field components are combined with y into a radial field, "

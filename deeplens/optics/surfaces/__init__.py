@@ -3,6 +3,7 @@
 from .aperture import Aperture
 from .asphere import Asphere, Sphere
 from .base import SURFACE_TYPES, SagSurface, Surface
+from .binary1 import Binary1
 from .binary2 import Binary2
 from .biconic import Biconic
 from .bspline import BSpline
@@ -24,6 +25,6 @@ from .xy_polynomial import XYPolynomial
 from .zernike_phase import ZernikeFringePhase
 from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
-__all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary2", "BSpline", "Cylinder", "ExtendedPolynomial",
+__all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary1", "Binary2", "BSpline", "Cylinder", "ExtendedPolynomial",
            "Fresnel", "Grating", "GridSag", "Hologram", "Irregular", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag", "ZernikeFringePhase",
            "Surface", "SagSurface", "SURFACE_TYPES"]

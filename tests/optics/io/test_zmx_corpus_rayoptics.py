@@ -185,6 +185,22 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
             thin = ro_thinlens.ThinLens(power=phi)
             thin.z_type = "PARAXIAL"
             sm.ifcs[k] = thin
+    # Binary 1 (BINARY_1): zmxread reads the base surface alone; the phase's y-z section is,
+    # to second order at the vertex, a thin lens (_binary1_powers, written out from the
+    # Extended Polynomial's published term order), given as the hologram's above
+    for k, phi in _binary1_powers(name, wl).items():
+        if phi == 0.0:
+            continue
+        if sm.ifcs[k].interact_mode == "reflect":
+            sm.ifcs[k].profile.cv += phi / (-2.0 * ns[k - 1])
+        elif ns[k] != ns[k - 1]:
+            sm.ifcs[k].profile.cv += phi / (ns[k] - ns[k - 1])
+        else:
+            import rayoptics.oprops.thinlens as ro_thinlens
+
+            thin = ro_thinlens.ThinLens(power=phi)
+            thin.z_type = "PARAXIAL"
+            sm.ifcs[k] = thin
     _update(opm)
     if re.search(r"^FLOA\b", decode_zemax_text(CORPUS / name), re.M):
         _float_by_stop_size(name, opm)
@@ -341,6 +357,35 @@ def _fzernpha_powers(name, wl):
         n_terms, r_n = int(rec("XDAT", 1)), rec("XDAT", 2)
         acc = sum(a * rec("XDAT", j + 2) for j, a in _FRINGE_Y_RHO2.items() if j <= n_terms)
         out[k] = -2.0 * rec("PARM", 0, 1.0) * wl * acc / r_n ** 2 if acc else 0.0
+    return out
+
+
+#: OpticStudio's Extended Polynomial terms 1..5 as its User Guide lists them ("the first term is
+#: x, then y, then x*x, x*y, y*y"): (power of x, power of y); along y only the y² term (5, in
+#: XDAT 7) curves the phase at the vertex
+_XPOLY_FIRST_TERMS = ((1, 0), (0, 1), (2, 0), (1, 1), (0, 2))
+
+
+def _binary1_powers(name, wl):
+    """``{SURF k: paraxial y power}`` (file units⁻¹) of the file's ``BINARY_1`` surfaces at the
+    wavelength ``wl`` (file units): the phase ``M Σ A_t x̂^i ŷ^j`` (radians, ``A_t`` = ``XDAT
+    t + 2``, ``x̂ = x / R_n``, ``R_n`` = ``XDAT 2``, ``M`` = ``PARM 0``) bends a ray by
+    ``(λ/2π) ∂Φ/∂y``; along y it is ``M A_y² y² / R_n²`` to second order, a thin lens of power
+    ``−M λ A_y² / (π R_n²)`` (written out here from the term order, not taken from deeplens)."""
+    out = {}
+    t_y2 = _XPOLY_FIRST_TERMS.index((0, 2)) + 1
+    for k, b in enumerate(_surf_blocks(name)):
+        t = re.search(r"^\s+TYPE\s+(\S+)", b, re.M)
+        if t is None or t.group(1) != "BINARY_1":
+            continue
+
+        def rec(key, i, default=0.0, b=b):
+            m = re.search(rf"^\s+{key}\s+{i}\s+(\S+)", b, re.M)
+            return float(m.group(1)) if m else default
+
+        n_terms, r_n = int(rec("XDAT", 1)), rec("XDAT", 2)
+        a = rec("XDAT", t_y2 + 2) if n_terms >= t_y2 else 0.0
+        out[k] = -rec("PARM", 0, 1.0) * wl * a / (math.pi * r_n ** 2) if a else 0.0
     return out
 
 
@@ -594,6 +639,29 @@ def test_fzernpha_power_through_rayoptics(monkeypatch, tmp_path):
     _update(opm)
     dl, ro = _numbers("f.zmx", lens, opm)["EFL"]
     assert abs(dl - ro) > 0.01 * abs(dl)
+
+
+def test_binary1_power_through_rayoptics(monkeypatch, tmp_path):
+    """The Binary 1 file of test_zmx_binary1 (OpticStudio's diffract3: tilts, x², xy, y² and
+    higher terms, a flat phase in air): deeplens' EFL, EPD, pupil position and back focus equal
+    rayoptics' once rayoptics, which reads a plane, is given the y-section power written out from
+    the published term order; without it rayoptics has no power at all."""
+    from test_zmx_binary1 import DIFFRACT3_XDAT, binary1_file
+
+    lens, scratch = _corpus_of_one("b1.zmx", binary1_file(), monkeypatch, tmp_path)
+    wl = 550e-6
+    phi = _binary1_powers("b1.zmx", wl)
+    assert list(phi) == [1] and phi[1] == pytest.approx(
+        -wl * DIFFRACT3_XDAT[4] / (math.pi * 100.0), rel=1e-14)
+    opm = _rayoptics("b1.zmx", lens, monkeypatch, scratch)
+    for what, (dl, ro) in _numbers("b1.zmx", lens, opm).items():
+        assert _agrees(dl, ro), f"{what}: deeplens {dl!r} vs rayoptics {ro!r}"
+    import rayoptics.elem.surface as ro_surface
+
+    opm["seq_model"].ifcs[1] = ro_surface.Surface()   # the phase left out: a plane
+    _update(opm)
+    dl, ro = _numbers("b1.zmx", lens, opm)["EFL"]
+    assert not abs(dl - ro) <= 0.01 * abs(dl)
 
 
 @pytest.mark.parametrize("case", ["transmission", "reflection", "hologram1"])

@@ -251,7 +251,7 @@ def test_every_type_read_is_classed_shape_only_or_with_power_in_air():
     from deeplens.optics.io.surface_handlers import FORMATS
     from deeplens.optics.io.zmx_surfaces import _SHAPE_ONLY_TYPES
 
-    power_in_air = {"PARAXIAL", "PARAX_XY", "BINARY_2", "FZERNPHA", "DGRATING", "HOLOGRM1",
+    power_in_air = {"PARAXIAL", "PARAX_XY", "BINARY_1", "BINARY_2", "FZERNPHA", "DGRATING", "HOLOGRM1",
                     "HOLOGRM2", "COORDBRK", "GRINSUR1"}
     read = set(FORMATS.zmx_types())
     assert not power_in_air & _SHAPE_ONLY_TYPES

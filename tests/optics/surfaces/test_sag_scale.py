@@ -27,7 +27,8 @@ import pytest
 import torch
 
 from deeplens.optics.parameters import parameter_scale
-from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary2, BSpline,
+from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary1,
+                                      Binary2, BSpline,
                                       CoordinateBreak, Cylinder, ExtendedPolynomial, Fresnel,
                                       Grating, GridSag,
                                       Hologram,
@@ -47,6 +48,7 @@ EXAMPLES = {
     Binary2: lambda: Binary2(0.01, R, R, [-10.0, 1.0], 1, conic=-0.5, coefficients=[1e-4]),
     ZernikeFringePhase: lambda: ZernikeFringePhase(0.01, R, R, [0.0, 0.1, 0.0, -1.0], 1,
                                                    conic=-0.5),
+    Binary1: lambda: Binary1(0.01, R, R, [1.0, 0.0, -10.0, 0.0, -10.0], 1, conic=-0.5),
     Biconic: lambda: Biconic(0.01, R, -0.008, conic=-0.5, conic_x=0.3),
     BSpline: lambda: BSpline(R, torch.linspace(0.0, 0.1, 25).reshape(5, 5)),
     CoordinateBreak: lambda: CoordinateBreak(0.1, 0.0, 0.01, semi_diameter=R),
