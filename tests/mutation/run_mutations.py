@@ -99,6 +99,7 @@ IRGLASS = ("tests/optics/io/test_infrared_glass.py",)
 CODEV_APERTURES = ("tests/optics/io/test_codev_apertures.py",)
 CODEV_ZOOM = ("tests/optics/io/test_codev_zoom.py",)
 CORNING = ("tests/optics/io/test_corning_glass.py",)
+QUARTZ = ("tests/optics/io/test_birefringent_glass.py",)
 QBFS_CONIC = ("tests/optics/io/test_zmx_qbfs_conic.py",)
 STOP_ON_BREAK = ("tests/optics/io/test_zmx_stop_on_break.py",)
 CLAP_BEYOND_DIAM = ("tests/optics/io/test_zmx_clap_beyond_diam.py",)
@@ -1070,8 +1071,8 @@ MUTATIONS = [
              "range_nm=(210.0, 3710.0),", "range_nm=(210.0, 6700.0),", CORNING),
     Mutation("corning_use_silent", "C79-80 used without the located note naming its source",
              "deeplens/optics/io/zmx_glass.py",
-             '_SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note}',
-             '_SOURCE_NOTES = {"INFRARED": crystal_note}', CORNING),
+             '_SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note,',
+             '_SOURCE_NOTES = {"INFRARED": crystal_note,', CORNING),
     Mutation("corning_not_searched_elsewhere", "C79-80 not found for a file whose GCAT names "
              "another catalogue (OpTaliX's SPECIAL)", "deeplens/optics/io/vendor_glass.py",
              '    hits += ["CORNING"] if _key(glass) in CORNING_GLASSES else []\n', "", CORNING),
@@ -1450,6 +1451,17 @@ MUTATIONS = [
              "        self.exponents = extended_terms(len(terms))\n",
              "        self.exponents = [(j, i) for i, j in extended_terms(len(terms))]\n",
              ("tests/optics/io/test_zmx_binary1.py",)),
+    # issue 37, branch quartz: OpticStudio's BIREFRINGENT QUARTZ (ordinary index)
+    Mutation("quartz_extraordinary_index", "QUARTZ given Radhakrishnan's extraordinary-ray "
+             "coefficients (the e-ray index, 9e-3 higher) instead of the ordinary ray's",
+             "deeplens/optics/io/birefringent_glass.py",
+             "Crystal(11, (0.663044, 0.0036, 0.517852, 0.011236, 0.175912, 0.014161,\n"
+             "                           0.565380, 78.216336, 1.675299, 430.230564),",
+             "Crystal(11, (0.665721, 0.0036, 0.503511, 0.011236, 0.214792, 0.014161,\n"
+             "                           0.539173, 77.299264, 1.807613, 388.09),", QUARTZ),
+    Mutation("quartz_use_silent", "QUARTZ used without the located note naming it a substitute",
+             "deeplens/optics/io/zmx_glass.py",
+             '                 "BIREFRINGENT": birefringent_note}', "}", QUARTZ),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

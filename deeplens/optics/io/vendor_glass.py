@@ -33,7 +33,8 @@ only (a tabulated entry is not offered), mapped exactly onto the AGF formulas::
 Crystals under the names of OpticStudio's ``INFRARED`` catalogue (germanium, silicon, ZnS,
 ZnSe, GaAs, the fluorides, sapphire, fused silica, alkali halides), from their primary published
 dispersion formulas: :mod:`.infrared_glass`; Corning's HPFS 7980 fused silica under OpticStudio's
-``CORNING`` name ``C79-80`` (Malitson's formula): :mod:`.corning_glass`.
+``CORNING`` name ``C79-80`` (Malitson's formula): :mod:`.corning_glass`; crystalline quartz's
+ordinary index under OpticStudio's ``BIREFRINGENT`` name ``QUARTZ``: :mod:`.birefringent_glass`.
 
 Lookup is by exact name (case-insensitive; blanks inside a spreadsheet's name are dropped).  The catalogues are read once per process
 (:func:`functools.lru_cache`; about a second in all) and never changed afterwards.
@@ -50,6 +51,7 @@ import torch
 
 from ..materials import Material
 from .agf import AGFGlass
+from .birefringent_glass import BIREFRINGENT_GLASSES, birefringent_glass
 from .corning_glass import CORNING_GLASSES, corning_glass
 from .infrared_glass import CRYSTALS, infrared_glass
 from .withdrawn_glass import WITHDRAWN_CATALOGUES, WITHDRAWN_GLASSES, withdrawn_glass
@@ -69,12 +71,14 @@ VENDOR_CATALOGUES = {
     "SUMITA": ("sumita", "SumitaCatalog", 1),
 }
 
-#: every catalogue name answered by a current catalogue (the six vendors, INFRARED, CORNING)
-CURRENT_CATALOGUES = (*VENDOR_CATALOGUES, "INFRARED", "CORNING")
+#: every catalogue name answered by a current catalogue (the six vendors, INFRARED, CORNING,
+#: BIREFRINGENT)
+CURRENT_CATALOGUES = (*VENDOR_CATALOGUES, "INFRARED", "CORNING", "BIREFRINGENT")
 
 #: catalogue name -> the only names deeplens ships of it (a glass of another name is "not
 #: shipped": the refusal asks for the vendor's .agf)
-PARTIAL_CATALOGUES = {"CORNING": tuple(CORNING_GLASSES)}
+PARTIAL_CATALOGUES = {"CORNING": tuple(CORNING_GLASSES),
+                      "BIREFRINGENT": tuple(BIREFRINGENT_GLASSES)}
 
 #: Zemax catalogue name -> its folder in the refractiveindex.info database (archived AGF files)
 ARCHIVED_CATALOGUES = {"SCHOTT": "schott", "OHARA": "ohara", "HOYA": "hoya", "CDGM": "cdgm",
@@ -252,6 +256,8 @@ def vendor_glass(glass: str, catalogue: str) -> AGFGlass | None:
         return infrared_glass(glass)
     if cat == "CORNING":
         return corning_glass(glass)
+    if cat == "BIREFRINGENT":
+        return birefringent_glass(glass)
     if cat not in VENDOR_CATALOGUES:
         return None
     rec = _vendor_table(cat).get(_key(glass))
@@ -285,6 +291,8 @@ def catalogue_size(catalogue: str, previous: bool | str = False) -> int:
         return len(CRYSTALS)
     if catalogue.upper() == "CORNING":
         return len(CORNING_GLASSES)
+    if catalogue.upper() == "BIREFRINGENT":
+        return len(BIREFRINGENT_GLASSES)
     return len(_vendor_table(catalogue.upper())) if catalogue.upper() in VENDOR_CATALOGUES else 0
 
 
@@ -293,6 +301,7 @@ def find_in_vendor_catalogues(glass: str) -> list[str]:
     hits = [c for c in VENDOR_CATALOGUES if _key(glass) in _vendor_table(c)]
     hits += ["INFRARED"] if _key(glass) in CRYSTALS else []
     hits += ["CORNING"] if _key(glass) in CORNING_GLASSES else []
+    hits += ["BIREFRINGENT"] if _key(glass) in BIREFRINGENT_GLASSES else []
     hits += [f"{c} (archived)" for c in ARCHIVED_CATALOGUES
              if c not in hits and _key(glass) in _archive_table(c)]
     hits += [f"{c} (withdrawn)" for c in WITHDRAWN_CATALOGUES

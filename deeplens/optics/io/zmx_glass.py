@@ -2,13 +2,13 @@
 
 Order, when a name is in more than one place: per catalogue on the ``GCAT`` line (all vendor
 catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
-catalogue (:mod:`.vendor_glass`; also deeplens' own formula entries ``INFRARED`` and ``CORNING``,
-each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`; ``MISC`` also
-:mod:`.misc_glass`'s ``WATER``, each use noted), a
-catalogue kept only as index tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then
-the named vendors' archived and previous catalogues; then the user's other catalogues
-(``glass_catalogs``, then :data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue
-the file does not name (exact name only).
+catalogue (:mod:`.vendor_glass`; also deeplens' own formula entries ``INFRARED``, ``CORNING`` and
+``BIREFRINGENT``, each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`;
+``MISC`` also :mod:`.misc_glass`'s ``WATER``, each use noted), a catalogue kept only as index
+tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then the named vendors' archived
+and previous catalogues; then the user's other catalogues (``glass_catalogs``, then
+:data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue the file does not name
+(exact name only).
 
 A named glass found in a catalogue is that catalogue's glass, as in OpticStudio (its manual,
 "Using Material Catalogs": the name is looked for in the loaded catalogues and the glass's
@@ -30,6 +30,7 @@ import torch
 
 from ..materials import Air, Material, ModelGlass, get_material
 from .agf import GlassCatalogue, read_agf
+from .birefringent_glass import birefringent_note
 from .corning_glass import corning_note
 from .infrared_glass import crystal_note
 from .misc_glass import MISC_GLASSES, misc_glass, misc_note
@@ -55,7 +56,8 @@ BUILTIN_CATALOGUES = {
 vendor catalogues of :mod:`.vendor_glass`)."""
 
 #: catalogue -> the located note of a use of one of deeplens' own formula entries in it
-_SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note}
+_SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note,
+                 "BIREFRINGENT": birefringent_note}
 
 #: catalogue -> (lookup, names, note) of deeplens' own formula entries that answer for a
 #: built-in catalogue after its table names (:mod:`.misc_glass`: ``MISC`` ``WATER``)
