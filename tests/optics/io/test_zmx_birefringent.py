@@ -87,4 +87,7 @@ def test_gradium_refused_in_one_line_naming_its_data(tmp_path):
     msg = str(e.value)
     assert e.value.line == line_of(text, "TYPE GRINSUR8")
     assert "GRADIUM" in msg and "PROFILE.GRD" in msg and "deeplens reads" not in msg
-    assert len(msg.splitlines()) == 1 and len(msg) < 300
+    # one short line: the length of the message after its "file:line: " (the temporary
+    # folder's path differs between machines and pytest workers)
+    body = msg.split(".zmx:", 1)[1]
+    assert len(msg.splitlines()) == 1 and len(body) < 250, body
