@@ -9,9 +9,13 @@ from pathlib import Path
 
 import torch
 
+from deeplens.optics.io import lens_from_dict, lens_to_dict
 from deeplens.optics.lens import Lens
-from deeplens.optics.materials import get_material
+from deeplens.optics.materials import Air, ModelGlass, get_material
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.rays import Rays
+from deeplens.optics.surfaces import Asphere, Plane
+from deeplens.optics.tracer import fused_kind
 
 REPO = Path(__file__).resolve().parents[1]
 LENS_DIR = REPO / "data" / "lenses"
@@ -281,3 +285,93 @@ def assert_value_and_efl_grads_match_fd(q, x0, steps, powerless=(), rel: float =
             assert efd == 0.0 and (egrads[j] is None or float(egrads[j]) == 0.0), j
         else:
             assert float(egrads[j]) == pytest.approx(efd, rel=rel), j
+
+
+# ---- phase surfaces on a conic base (Binary1, ZernikeFringePhase) ----------------------------
+def single_in_air(surface, dist: float = 100.0) -> Lens:
+    """``surface`` alone in air, the sensor ``dist`` mm behind it."""
+    return Lens([surface], [Air(), Air()], [0.0], dist, 0)
+
+
+def parallel_rays(x, y, wavelength) -> Rays:
+    """Rays along +z from ``(x, y, −1)`` (mm; ``x``, ``y`` ``(B,)``), wavelength in nm."""
+    x = torch.as_tensor(x, dtype=torch.float64)
+    y = torch.as_tensor(y, dtype=torch.float64)
+    o = torch.stack([x, y, torch.full_like(x, -1.0)], -1)
+    d = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(o)
+    return Rays(o, d, wavelength)
+
+
+def assert_directions_match_rayoptics_doe(surface, value, scale: float, g, tol: float,
+                                          ref_nm: float = 550.0) -> None:
+    """Skew rays (10, drawn from the generator ``g``) through the flat phase ``surface`` alone
+    in air at 486.1 and 656.3 nm: deeplens' directions equal rayoptics' DiffractiveElement's (a
+    test-only oracle: its own grating law, ``d' = d + M (λ/λ_ref) ∇W + Q N``, order 1) to
+    ``tol``, given the phase as the optical path ``W = scale · value(x, y)`` (mm; ``value`` the
+    test's own table, ``scale`` its unit at ``ref_nm``) and its slopes as central differences
+    with ``h`` = 1e-6 mm.  Skipped without rayoptics."""
+    import pytest
+
+    pytest.importorskip("rayoptics")
+    from rayoptics.oprops.doe import DiffractiveElement
+
+    def phase_fct(pt, coefficients):
+        x, y, _ = pt
+        h = 1e-6
+        w = scale * value(x, y)
+        wx = scale * (value(x + h, y) - value(x - h, y)) / (2 * h)
+        wy = scale * (value(x, y + h) - value(x, y - h)) / (2 * h)
+        return w, wx, wy
+
+    doe = DiffractiveElement(coefficients=[], ref_wl=ref_nm, order=1, phase_fct=phase_fct)
+    lens = single_in_air(surface)
+    n = 10
+    o = torch.empty(n, 3, dtype=torch.float64).uniform_(-2.5, 2.5, generator=g)
+    o[:, 2] = -1.0
+    d = torch.empty(n, 3, dtype=torch.float64).uniform_(-0.15, 0.15, generator=g)
+    d[:, 2] = 1.0
+    d = d / d.norm(dim=-1, keepdim=True)
+    for wl in (486.1, 656.3):
+        out = lens.trace(Rays(o, d, wl))
+        assert out.valid.all()
+        for i in range(n):
+            pt = (o[i] - d[i] * o[i, 2] / d[i, 2]).tolist()   # the hit on z = 0
+            ro, _ = doe.phase(pt, d[i].numpy().copy(), [0.0, 0.0, 1.0],
+                              (1, wl, 1.0, 1.0, "transmit"))
+            err = float((out.d[i] - torch.as_tensor(ro, dtype=torch.float64)).abs().max())
+            assert err <= tol, (wl, i, err)
+
+
+def phase_on_singlet_quantities(surface, params, grad: bool):
+    """``(value, efl, params)`` for :func:`assert_value_and_efl_grads_match_fd`: a glass
+    singlet (front ``1/30`` mm⁻¹, n 1.6, 3 mm) whose rear is the phase ``surface``, the
+    ``params`` (tensors of ``surface``) given gradients when ``grad``; ``value`` sums squared
+    image heights, ``x y`` products and 0.1 × the optical paths of 12 tilted rays at 587 nm;
+    ``efl`` the paraxial EFL (mm)."""
+    lens = Lens([Asphere(1 / 30.0, 6.0), surface], [Air(), ModelGlass(1.6, 40.0), Air()],
+                [0.0, 3.0], 30.0, 0)
+    if grad:
+        for p in params:
+            p.requires_grad_(True)
+    g = torch.Generator().manual_seed(5)
+    o = torch.empty(12, 3, dtype=torch.float64).uniform_(-1.5, 1.5, generator=g)
+    o[:, 2] = -2.0
+    d = torch.tensor([0.02, -0.03, 1.0], dtype=torch.float64).expand_as(o)
+    out = lens.trace_to_sensor(Rays(o, d / d.norm(dim=-1, keepdim=True), 587.0))
+    assert out.valid.all()
+    val = (out.o[:, 1] ** 2 + out.o[:, 0] * out.o[:, 1]).sum() + 0.1 * out.opl.sum()
+    return val, paraxial(lens).efl, params
+
+
+def assert_phase_round_trips(surface, type_name: str, field: str, values) -> None:
+    """A lens (a flat glass front, n 1.6, then ``surface``, order −1, R_n 4 mm) traces the phase
+    eagerly, writes ``type_name`` with ``field`` = ``values``, reads back the same and is not
+    axisymmetric."""
+    lens = Lens([Plane(8.0), surface], [Air(), ModelGlass(1.6, 40.0), Air()], [0.0, 4.0], 20.0, 0)
+    assert fused_kind(lens, 1) is None
+    d = lens_to_dict(lens)
+    s = d["surfaces"][1]
+    assert s["type"] == type_name and s["order"] == -1
+    assert s[field] == values and s["norm_radius_mm"] == 4.0
+    assert lens_to_dict(lens_from_dict(d)) == d
+    assert not lens.surfaces[1].axisymmetric

@@ -1400,10 +1400,10 @@ MUTATIONS = [
              ("tests/optics/io/test_zmx_birefringent.py",)),
     # ------------------------- issue 37: Zernike Fringe Phase, FZERNPHA (branch fzern)
     Mutation("fzernpha_radians", "the Zernike Fringe phase's coefficients taken as radians (no "
-             "2π: OpticStudio's are waves) in the ray's kick",
+             "2π: OpticStudio's are waves) in the phase and the ray's kick",
              "deeplens/optics/surfaces/zernike_phase.py",
-             "        k = 2.0 * math.pi * self.order\n",
-             "        k = 1.0 * self.order\n",
+             "    phase_unit = 2.0 * math.pi\n",
+             "    phase_unit = 1.0\n",
              ("tests/optics/io/test_zmx_zernike_phase.py",)),
     Mutation("fzernpha_noll_order", "the Zernike Fringe phase evaluated in Noll's (Standard) "
              "order and normalisation instead of the Fringe set",
@@ -1448,8 +1448,8 @@ MUTATIONS = [
     Mutation("binary1_terms_y_first", "the Binary 1 phase's terms taken y first within a degree "
              "(y, x, y², xy, x², ...) instead of OpticStudio's x first",
              "deeplens/optics/surfaces/binary1.py",
-             "        self.exponents = extended_terms(len(terms))\n",
-             "        self.exponents = [(j, i) for i, j in extended_terms(len(terms))]\n",
+             "        self.exponents = extended_terms(len(self.poly))\n",
+             "        self.exponents = [(j, i) for i, j in extended_terms(len(self.poly))]\n",
              ("tests/optics/io/test_zmx_binary1.py",)),
     # issue 37, branch quartz: OpticStudio's BIREFRINGENT QUARTZ (ordinary index)
     Mutation("quartz_extraordinary_index", "QUARTZ given Radhakrishnan's extraordinary-ray "

@@ -107,6 +107,40 @@ def _xdat_term_count(p, s, k, type_name: str, count_what: str, maximum: int, ter
     return n
 
 
+def _xdat_radius_and_terms(p, s, k, type_name: str, n: int, s_mm, scale=1.0):
+    """``XDAT 2`` of surface ``k`` (a ``type_name`` surface), the normalisation radius (a length,
+    > 0 when there are terms; mm, any radius, 1 mm, with none), and the ``n`` terms ``XDAT 3..``
+    times ``scale`` with the trailing zeros dropped.  Returns ``(terms, rn)``; a bad radius fails
+    at its line."""
+    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
+    if n > 0 and not rn_v > 0:
+        p.fail(rn_ln, f"SURF {k}: {type_name} XDAT 2 (the normalisation radius) must be > 0, got "
+                      f"{rn_v!r}")
+    terms = [s.xdat.get(j + 3, (0.0, 0))[0] * scale for j in range(n)]
+    while terms and terms[-1] == 0.0:
+        terms.pop()
+    return terms, (rn_v * s_mm if rn_v > 0 else 1.0)
+
+
+def _phase_on_conic(p, s, k, type_name: str, parm0_why: str, count_what: str, cls, terms: str,
+                    s_mm):
+    """The records of a phase on a conic base (``BINARY_1``, ``FZERNPHA``: a
+    :class:`~deeplens.optics.surfaces.conic_phase.ConicPhase`): ``PARM 0`` must be 1 (else
+    refused on its line, ``parm0_why`` saying why), any other non-zero ``PARM`` is refused on its
+    line, ``XDAT 1`` the number of terms (at most ``cls.max_terms``; ``count_what``, ``terms``
+    name them), ``XDAT 2`` the normalisation radius, ``XDAT 3..`` the coefficients (unscaled).
+    Returns ``(coefficients, rn)`` (``rn`` in mm)."""
+    for i, (v, ln) in sorted(s.parm.items()):
+        if i != 0 and v != 0:
+            p.fail(ln, f"SURF {k}: {type_name} PARM {i} = {v:g} is refused: no stored OpticStudio "
+                       f"source gives its meaning (read: PARM 0 = 1 and the XDAT terms)")
+    m_v, m_ln = s.parm.get(0, (None, s.type_line))
+    if m_v != 1.0:
+        p.fail(m_ln, f"SURF {k}: {type_name} PARM 0 = {m_v!r} is refused: {parm0_why}")
+    n = _xdat_term_count(p, s, k, type_name, count_what, cls.max_terms, terms)
+    return _xdat_radius_and_terms(p, s, k, type_name, n, s_mm)
+
+
 def is_air(m: Material) -> bool:
     return isinstance(m, Air)
 
@@ -216,16 +250,9 @@ def _binary2(s, k: int, c, sd, s_mm, p):
                      f"{order!r}")
     n = _xdat_term_count(p, s, k, "BINARY_2", "the number of phase terms", MAX_PHASE_TERMS,
                          "phase terms", below=False)
-    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
-    if n > 0 and not rn_v > 0:
-        p.fail(rn_ln, f"SURF {k}: BINARY_2 XDAT 2 (the normalisation radius) must be > 0, got "
-                      f"{rn_v!r}")
+    phase, rn = _xdat_radius_and_terms(p, s, k, "BINARY_2", n, s_mm)
     top = max([i for i in range(2, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [1])
     coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(2, top + 1)]
-    phase = [s.xdat.get(j + 3, (0.0, 0))[0] for j in range(n)]
-    while phase and phase[-1] == 0.0:
-        phase.pop()
-    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no phase term: any radius (1 mm)
     return Binary2(c, sd, rn, phase, int(order), conic=s.coni, coefficients=coeffs)
 
 
@@ -237,24 +264,9 @@ def _binary1(s, k: int, c, sd, s_mm, p):
     radius (a length), ``XDAT 3..`` ``A_1, A_2, ...`` (radians, unscaled): a :class:`Binary1`
     (sources: its module).  Other ``PARM`` values are refused on their line (no stored source
     gives their meaning)."""
-    for i, (v, ln) in sorted(s.parm.items()):
-        if i != 0 and v != 0:
-            p.fail(ln, f"SURF {k}: BINARY_1 PARM {i} = {v:g} is refused: no stored OpticStudio "
-                       f"source gives its meaning (read: PARM 0 = 1 and the XDAT terms)")
-    m_v, m_ln = s.parm.get(0, (None, s.type_line))
-    if m_v != 1.0:
-        p.fail(m_ln, f"SURF {k}: BINARY_1 PARM 0 = {m_v!r} is refused: only 1 (diffraction "
-                     f"order 1) is read, the order OpticStudio's stored numbers confirm")
-    n = _xdat_term_count(p, s, k, "BINARY_1", "the maximum term number", Binary1.max_terms,
-                         "phase terms")
-    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
-    if n > 0 and not rn_v > 0:
-        p.fail(rn_ln, f"SURF {k}: BINARY_1 XDAT 2 (the normalisation radius) must be > 0, got "
-                      f"{rn_v!r}")
-    terms = [s.xdat.get(j + 3, (0.0, 0))[0] for j in range(n)]
-    while terms and terms[-1] == 0.0:
-        terms.pop()
-    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no phase term: any radius (1 mm)
+    terms, rn = _phase_on_conic(p, s, k, "BINARY_1", "only 1 (diffraction order 1) is read, the "
+                                "order OpticStudio's stored numbers confirm",
+                                "the maximum term number", Binary1, "phase terms", s_mm)
     return Binary1(c, sd, rn, terms, 1, conic=s.coni)
 
 
@@ -326,16 +338,9 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
                        f"{ext!r}")
     n = _xdat_term_count(p, s, k, tn, "the number of Zernike terms", cls.max_terms,
                          "Zernike terms")
-    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
-    if n > 0 and not rn_v > 0:
-        p.fail(rn_ln, f"SURF {k}: {tn} XDAT 2 (the normalisation radius) must be > 0, got "
-                      f"{rn_v!r}")
+    zern, rn = _xdat_radius_and_terms(p, s, k, tn, n, s_mm, scale=s_mm)
     top = max([i for i in range(1, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [0])
     coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(1, top + 1)]
-    zern = [s.xdat.get(j + 3, (0.0, 0))[0] * s_mm for j in range(n)]
-    while zern and zern[-1] == 0.0:
-        zern.pop()
-    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no Zernike term: any radius (1 mm)
     surf = cls(c, sd, rn, zern, conic=s.coni, coefficients=coeffs, extrapolate=ext == 1.0)
     # the rotationally symmetric terms (m = 0, n >= 2: Z4, Z9, ... in Fringe order, Z4, Z11, ...
     # in Noll's) curve the vertex: deeplens' paraxial data take the sag's vertex curvature with
@@ -363,25 +368,10 @@ def _zernike_fringe_phase(s, k: int, c, sd, s_mm, p):
     number of terms (at most 37), ``XDAT 2`` the normalisation radius (a length), ``XDAT 3..``
     ``A_1, A_2, ...`` (waves, unscaled): a :class:`ZernikeFringePhase` (sources: its module).
     Other ``PARM`` values are refused on their line (no stored source gives their meaning)."""
-    for i, (v, ln) in sorted(s.parm.items()):
-        if i != 0 and v != 0:
-            p.fail(ln, f"SURF {k}: FZERNPHA PARM {i} = {v:g} is refused: no stored OpticStudio "
-                       f"source gives its meaning (read: PARM 0 = 1 and the XDAT terms)")
-    m_v, m_ln = s.parm.get(0, (None, s.type_line))
-    if m_v != 1.0:
-        p.fail(m_ln, f"SURF {k}: FZERNPHA PARM 0 = {m_v!r} is refused: only 1 is read (no stored "
-                     f"source says whether it is the diffraction order or the extrapolate flag; "
-                     f"both read 1 alike)")
-    n = _xdat_term_count(p, s, k, "FZERNPHA", "the number of Zernike terms",
-                         ZernikeFringePhase.max_terms, "Zernike terms")
-    rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
-    if n > 0 and not rn_v > 0:
-        p.fail(rn_ln, f"SURF {k}: FZERNPHA XDAT 2 (the normalisation radius) must be > 0, got "
-                      f"{rn_v!r}")
-    zern = [s.xdat.get(j + 3, (0.0, 0))[0] for j in range(n)]
-    while zern and zern[-1] == 0.0:
-        zern.pop()
-    rn = rn_v * s_mm if rn_v > 0 else 1.0   # no Zernike term: any radius (1 mm)
+    zern, rn = _phase_on_conic(p, s, k, "FZERNPHA", "only 1 is read (no stored source says "
+                               "whether it is the diffraction order or the extrapolate flag; both "
+                               "read 1 alike)", "the number of Zernike terms", ZernikeFringePhase,
+                               "Zernike terms", s_mm)
     if zern and sd > rn and sd != PROVISIONAL_SD_MM:
         p.note(s.type_line, f"SURF {k}: the semi-diameter {sd:g} mm exceeds the FZERNPHA "
                             f"normalisation radius {rn:g} mm: the Zernike phase is continued "
@@ -1144,6 +1134,23 @@ class Binary2Format(SurfaceFormat):
         return lines + _opening_records(s, i)
 
 
+def _phase_on_conic_lines(s, i: int, type_name: str, what: str, coefficients) -> list[str]:
+    """The records of surface ``i``, a phase on a conic base (:class:`Binary1`,
+    :class:`ZernikeFringePhase`, ``what`` in words) as ``type_name``: ``CURV``, ``CONI``,
+    ``PARM 0 1``, ``XDAT 1`` the number of terms, ``XDAT 2`` the normalisation radius, ``XDAT
+    3..`` the ``coefficients``, ``DIAM`` and the opening.  An order other than 1 is refused (the
+    reader reads ``PARM 0 = 1`` only)."""
+    if s.order != 1:
+        raise ZemaxFileError(f"surface {i}: a {what} phase of order {s.order} is not written: "
+                             f"{type_name} is read with PARM 0 = 1 only", surfaces=(i,))
+    A = [float(v) for v in coefficients]
+    lines = [f"TYPE {type_name}", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 0 1",
+             f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
+    lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
+    lines.append(_diam(s.semi_diameter))
+    return lines + _opening_records(s, i)
+
+
 @register_format
 class Binary1Format(SurfaceFormat):
     """:class:`Binary1`: Zemax ``BINARY_1`` (``PARM 0 1``, ``XDAT 1`` the maximum term number,
@@ -1157,16 +1164,7 @@ class Binary1Format(SurfaceFormat):
         return _binary1(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 
     def write_zmx(self, s, i):
-        if s.order != 1:
-            raise ZemaxFileError(f"surface {i}: a Binary 1 phase of order {s.order} is not "
-                                 f"written: BINARY_1 is read with PARM 0 = 1 only",
-                                 surfaces=(i,))
-        A = [float(v) for v in s.poly]
-        lines = ["TYPE BINARY_1", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 0 1",
-                 f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
-        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
-        lines.append(_diam(s.semi_diameter))
-        return lines + _opening_records(s, i)
+        return _phase_on_conic_lines(s, i, "BINARY_1", "Binary 1", s.poly)
 
 
 @register_format
@@ -1225,16 +1223,7 @@ class ZernikeFringePhaseFormat(SurfaceFormat):
         return _zernike_fringe_phase(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 
     def write_zmx(self, s, i):
-        if s.order != 1:
-            raise ZemaxFileError(f"surface {i}: a Zernike Fringe phase of order {s.order} is "
-                                 f"not written: FZERNPHA is read with PARM 0 = 1 only",
-                                 surfaces=(i,))
-        A = [float(v) for v in s.zernike]
-        lines = ["TYPE FZERNPHA", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", "PARM 0 1",
-                 f"XDAT 1 {len(A)}", f"XDAT 2 {_f(s.norm_radius)}"]
-        lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(A)]
-        lines.append(_diam(s.semi_diameter))
-        return lines + _opening_records(s, i)
+        return _phase_on_conic_lines(s, i, "FZERNPHA", "Zernike Fringe", s.zernike)
 
 
 @register_format

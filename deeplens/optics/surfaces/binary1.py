@@ -49,11 +49,9 @@ from __future__ import annotations
 import math
 
 import torch
-from torch import nn
 
-from .asphere import Asphere
-from .base import make_param, register_surface
-from .binary2 import Binary2
+from .base import register_surface
+from .conic_phase import ConicPhase
 from .extended_polynomial import MAX_EXTENDED_TERMS, extended_terms
 from .xy_polynomial import xy_poly
 
@@ -61,7 +59,7 @@ __all__ = ["Binary1"]
 
 
 @register_surface("binary1")
-class Binary1(Binary2):
+class Binary1(ConicPhase):
     """A conic base with an x-y polynomial diffractive phase (module docstring).
 
     Args:
@@ -81,36 +79,21 @@ class Binary1(Binary2):
 
     #: OpticStudio's most terms (order 20)
     max_terms = MAX_EXTENDED_TERMS
+    coef_attr, coef_prefix, coef_what = "poly", "A", "phase terms (order 20)"
+    coef_field, coef_count = "phase_terms_rad", "n_terms"
 
     def __init__(self, curvature: float, semi_diameter: float, norm_radius: float, terms=(),
                  order: int = 1, conic: float = 0.0, obscuration: float = 0.0,
                  clear_radius: float = math.inf, clear_decenter=(0.0, 0.0)):
-        super().__init__(curvature, semi_diameter, norm_radius, [], order, conic=conic,
-                         obscuration=obscuration, clear_radius=clear_radius,
-                         clear_decenter=clear_decenter)
-        terms = [float(v) for v in terms]
-        if len(terms) > self.max_terms:
-            raise ValueError(f"Binary1: at most {self.max_terms} phase terms (order 20), got "
-                             f"{len(terms)}")
-        self.poly = nn.ParameterList([make_param(v, f"A{t + 1}") for t, v in enumerate(terms)])
-        self.exponents = extended_terms(len(terms))
+        super().__init__(curvature, semi_diameter, norm_radius, terms, order, conic,
+                         obscuration, clear_radius, clear_decenter)
+        self.exponents = extended_terms(len(self.poly))
         self._degree = max([i + j for i, j in self.exponents] + [0])
 
     # ---- the phase -----------------------------------------------------------------------
-    def _poly(self, x, y):
-        rn = self.norm_radius.to(x)
-        P, Pu, Pv = xy_poly(x / rn, y / rn, list(self.poly), self.exponents, self._degree)
-        return P, Pu, Pv, rn
-
-    def phase(self, x, y):
-        """``Φ(x, y) = M Σ A_t x̂^i ŷ^j`` (radians), ``(*B,)`` from local ``x, y`` (mm)."""
-        P, _, _, _ = self._poly(x, y)
-        return self.order * P
-
-    def phase_grad(self, x, y):
-        """``(∂Φ/∂x, ∂Φ/∂y)`` (radians/mm), each ``(*B,)``."""
-        _, Pu, Pv, rn = self._poly(x, y)
-        return self.order * Pu / rn, self.order * Pv / rn
+    def _values(self, u, v, slopes: bool):
+        """``(Σ A_t u^i v^j, ∂/∂u, ∂/∂v)`` (radians), each ``(*B,)``."""
+        return xy_poly(u, v, list(self.poly), self.exponents, self._degree)
 
     def paraxial_phase_power(self, wavelength_nm: float):
         """The paraxial power of the phase's y-z section, ``−M λ A_5 / (π R_n²)`` (1/mm, a 0-d
@@ -143,36 +126,5 @@ class Binary1(Binary2):
                     return False
         return True
 
-    @property
-    def axisymmetric(self) -> bool:
-        """The phase turns with the surface only when it is rotationally symmetric."""
-        return self.rotationally_symmetric()
-
     # ---- lens file ----------------------------------------------------------------------
-    file_fields = ("curvature_per_mm", "roc_mm", "conic", "obscuration_mm", "clear_radius_mm",
-                   "clear_decenter_mm", "norm_radius_mm", "phase_terms_rad", "order")
-
-    @classmethod
-    def from_dict(cls, entry, semi_diameter):
-        order = entry.get("order")
-        if order != int(order):
-            entry.fail("order", f"the diffraction order must be an integer, got {order!r}")
-        rn = entry.get("norm_radius_mm")
-        if not rn > 0:
-            entry.fail("norm_radius_mm", f"the normalisation radius must be > 0 (mm), got {rn!r}")
-        base = Asphere.from_dict(entry, semi_diameter)   # the base's fields
-        return cls(float(base.c), semi_diameter, rn,
-                   entry.get("phase_terms_rad", "numbers", default=[]), int(order),
-                   conic=float(base.k), obscuration=float(base.obscuration),
-                   clear_radius=float(base.clear_radius),
-                   clear_decenter=[float(v) for v in base.clear_decenter])
-
-    def to_dict(self) -> dict:
-        d = super().to_dict()
-        d.pop("phase_coefficients", None)
-        d.pop("aspheric", None)
-        d["phase_terms_rad"] = [float(a) for a in self.poly]
-        return d
-
-    def extra_repr(self) -> str:
-        return f"n_terms={len(self.poly)}, " + super().extra_repr()
+    file_fields = ConicPhase.base_fields + ("phase_terms_rad", "order")

@@ -176,18 +176,25 @@ class Binary2(Asphere):
     @classmethod
     def from_dict(cls, entry, semi_diameter):
         base = Asphere.from_dict(entry, semi_diameter)
+        order, rn = cls.order_and_radius(entry)
+        return cls(float(base.c), semi_diameter, rn,
+                   entry.get("phase_coefficients", "numbers", default=[]), order,
+                   conic=float(base.k), coefficients=[float(a) for a in base.a],
+                   obscuration=float(base.obscuration),
+                   clear_radius=float(base.clear_radius),
+                   clear_decenter=[float(v) for v in base.clear_decenter])
+
+    @staticmethod
+    def order_and_radius(entry):
+        """A lens-file entry's ``order`` (returned as an integer) and ``norm_radius_mm`` (mm,
+        > 0), each refused on its field otherwise (``entry.fail``)."""
         order = entry.get("order")
         if order != int(order):
             entry.fail("order", f"the diffraction order must be an integer, got {order!r}")
         rn = entry.get("norm_radius_mm")
         if not rn > 0:
             entry.fail("norm_radius_mm", f"the normalisation radius must be > 0 (mm), got {rn!r}")
-        return cls(float(base.c), semi_diameter, rn,
-                   entry.get("phase_coefficients", "numbers", default=[]), int(order),
-                   conic=float(base.k), coefficients=[float(a) for a in base.a],
-                   obscuration=float(base.obscuration),
-                   clear_radius=float(base.clear_radius),
-                   clear_decenter=[float(v) for v in base.clear_decenter])
+        return int(order), rn
 
     def to_dict(self) -> dict:
         d = super().to_dict()

@@ -54,18 +54,16 @@ from __future__ import annotations
 import math
 
 import torch
-from torch import nn
 
-from .asphere import Asphere
-from .base import make_param, register_surface
-from .binary2 import Binary2
+from .base import register_surface
+from .conic_phase import ConicPhase
 from .zernike_sag import BASES, MAX_FRINGE_TERMS, zernike_values
 
 __all__ = ["ZernikeFringePhase"]
 
 
 @register_surface("zernike_fringe_phase")
-class ZernikeFringePhase(Binary2):
+class ZernikeFringePhase(ConicPhase):
     """A conic base with a Zernike Fringe diffractive phase (module docstring).
 
     Args:
@@ -84,35 +82,21 @@ class ZernikeFringePhase(Binary2):
 
     #: the most Fringe terms (OpticStudio's Fringe set)
     max_terms = MAX_FRINGE_TERMS
+    #: waves: one is ``2π`` radians
+    phase_unit = 2.0 * math.pi
+    coef_attr, coef_prefix, coef_what = "zernike", "Z", "Fringe terms"
+    coef_field, coef_count = "zernike_waves", "n_zernike"
 
     def __init__(self, curvature: float, semi_diameter: float, norm_radius: float, zernike=(),
                  order: int = 1, conic: float = 0.0, obscuration: float = 0.0,
                  clear_radius: float = math.inf, clear_decenter=(0.0, 0.0)):
-        super().__init__(curvature, semi_diameter, norm_radius, [], order, conic=conic,
-                         obscuration=obscuration, clear_radius=clear_radius,
-                         clear_decenter=clear_decenter)
-        zernike = [float(v) for v in zernike]
-        if len(zernike) > self.max_terms:
-            raise ValueError(f"ZernikeFringePhase: at most {self.max_terms} Fringe terms, got "
-                             f"{len(zernike)}")
-        self.zernike = nn.ParameterList([make_param(v, f"Z{j + 1}")
-                                         for j, v in enumerate(zernike)])
+        super().__init__(curvature, semi_diameter, norm_radius, zernike, order, conic,
+                         obscuration, clear_radius, clear_decenter)
 
     # ---- the phase -----------------------------------------------------------------------
-    def _waves(self, x, y, slopes: bool):
-        rn = self.norm_radius.to(x)
-        return zernike_values(x / rn, y / rn, self.zernike, slopes, "fringe"), rn
-
-    def phase(self, x, y):
-        """``Φ(x, y) = 2π M Σ A_j Z_j`` (radians), ``(*B,)`` from local ``x, y`` (mm)."""
-        (W, _, _), _ = self._waves(x, y, False)
-        return (2.0 * math.pi * self.order) * W
-
-    def phase_grad(self, x, y):
-        """``(∂Φ/∂x, ∂Φ/∂y)`` (radians/mm), each ``(*B,)``."""
-        (_, Wu, Wv), rn = self._waves(x, y, True)
-        k = 2.0 * math.pi * self.order
-        return k * Wu / rn, k * Wv / rn
+    def _values(self, u, v, slopes: bool):
+        """``(Σ A_j Z_j, ∂/∂u, ∂/∂v)`` (waves), each ``(*B,)``."""
+        return zernike_values(u, v, self.zernike, slopes, "fringe")
 
     def paraxial_phase_power(self, wavelength_nm: float):
         """The paraxial power of the phase's y-z section, ``−2 M λ (Σ_{m=0} A_j r_n −
@@ -136,36 +120,5 @@ class ZernikeFringePhase(Binary2):
         return all(nm(j)[1] == 0 for j, A in enumerate(self.zernike, start=1)
                    if float(A) != 0.0)
 
-    @property
-    def axisymmetric(self) -> bool:
-        """The phase turns with the surface only when it is rotationally symmetric."""
-        return self.rotationally_symmetric()
-
     # ---- lens file ----------------------------------------------------------------------
-    file_fields = ("curvature_per_mm", "roc_mm", "conic", "obscuration_mm", "clear_radius_mm",
-                   "clear_decenter_mm", "norm_radius_mm", "zernike_waves", "order")
-
-    @classmethod
-    def from_dict(cls, entry, semi_diameter):
-        order = entry.get("order")
-        if order != int(order):
-            entry.fail("order", f"the diffraction order must be an integer, got {order!r}")
-        rn = entry.get("norm_radius_mm")
-        if not rn > 0:
-            entry.fail("norm_radius_mm", f"the normalisation radius must be > 0 (mm), got {rn!r}")
-        base = Asphere.from_dict(entry, semi_diameter)   # the base's fields
-        return cls(float(base.c), semi_diameter, rn,
-                   entry.get("zernike_waves", "numbers", default=[]), int(order),
-                   conic=float(base.k), obscuration=float(base.obscuration),
-                   clear_radius=float(base.clear_radius),
-                   clear_decenter=[float(v) for v in base.clear_decenter])
-
-    def to_dict(self) -> dict:
-        d = super().to_dict()
-        d.pop("phase_coefficients", None)
-        d.pop("aspheric", None)
-        d["zernike_waves"] = [float(a) for a in self.zernike]
-        return d
-
-    def extra_repr(self) -> str:
-        return f"n_zernike={len(self.zernike)}, " + super().extra_repr()
+    file_fields = ConicPhase.base_fields + ("zernike_waves", "order")

@@ -479,6 +479,30 @@ def line_of(text: str, needle: str) -> int:
     return next(i for i, ln in enumerate(text.splitlines(), 1) if needle in ln)
 
 
+def assert_refused_on_line(tmp_path, text: str, needle: str, match: str) -> None:
+    """Reading the ``.zmx`` ``text`` fails with ``match`` (a regular expression) located at the
+    first line holding ``needle``, the message naming the file."""
+    p = write(tmp_path, text)
+    with pytest.raises(ZemaxFileError, match=match) as e:
+        read_zmx(p)
+    assert e.value.line == line_of(text, needle)
+    assert str(p) in str(e.value)
+
+
+def assert_written_back(tmp_path, lens, needles) -> str:
+    """``lens`` written to ``.zmx`` holds every string of ``needles`` and reads back as the same
+    lens (its lens-file dict, the name aside); returns the written text."""
+    write_zmx(lens, tmp_path / "out.zmx")
+    text = (tmp_path / "out.zmx").read_text()
+    for needle in needles:
+        assert needle in text, needle
+    back = H.read_zmx_quiet(tmp_path / "out.zmx")
+    a, b = lens_to_dict(lens), lens_to_dict(back)
+    a.pop("name", None), b.pop("name", None)
+    assert a == b
+    return text
+
+
 @pytest.mark.parametrize("edit,needle,match", [
     (lambda t: t.replace("TYPE EVENASPH", "TYPE QTYPEASP"), "QTYPEASP",
      r"surface type 'QTYPEASP' \(SURF 2, a Q-type \(Forbes\) asphere\) is not supported"),

@@ -8,16 +8,12 @@ from __future__ import annotations
 
 import math
 
+import helpers as H
 import pytest
 import torch
 
-from deeplens.optics.io import lens_from_dict, lens_to_dict
-from deeplens.optics.lens import Lens
-from deeplens.optics.materials import Air, ModelGlass
 from deeplens.optics.paraxial import paraxial
-from deeplens.optics.rays import Rays
-from deeplens.optics.surfaces import Asphere, Binary1, Plane
-from deeplens.optics.tracer import fused_kind
+from deeplens.optics.surfaces import Binary1
 
 F64 = torch.float64
 
@@ -32,16 +28,7 @@ TERMS = [
 ]
 
 
-def _single(surface, dist=100.0):
-    return Lens([surface], [Air(), Air()], [0.0], dist, 0)
-
-
-def _parallel(x, y, wavelength):
-    x = torch.as_tensor(x, dtype=F64)
-    y = torch.as_tensor(y, dtype=F64)
-    o = torch.stack([x, y, torch.full_like(x, -1.0)], -1)
-    d = torch.tensor([0.0, 0.0, 1.0], dtype=F64).expand_as(o)
-    return Rays(o, d, wavelength)
+_single, _parallel = H.single_in_air, H.parallel_rays
 
 
 def test_phase_is_the_published_term_order_in_radians():
@@ -121,9 +108,6 @@ def test_real_rays_match_rayoptics_diffractive_element():
     ε |W| / h ≈ 2.2e-16 · 2e-3 mm / 1e-6 mm ≈ 5e-13, and truncation, h² W''' ≈ 1e-12 · 1e-2,
     are below the 1e-11 tolerance; the kicks are ~1e-2, so a wrong term, sign or factor misses
     by far more."""
-    pytest.importorskip("rayoptics")
-    from rayoptics.oprops.doe import DiffractiveElement
-
     g = torch.Generator().manual_seed(11)
     A = torch.empty(14, dtype=F64).uniform_(-40, 40, generator=g).tolist()
     rn, ref_nm = 3.0, 550.0
@@ -131,32 +115,8 @@ def test_real_rays_match_rayoptics_diffractive_element():
     def radians(x, y):
         return sum(a * e(x / rn, y / rn) for a, e in zip(A, TERMS))
 
-    def phase_fct(pt, coefficients):
-        x, y, _ = pt
-        h = 1e-6
-        k = ref_nm * 1e-6 / (2 * math.pi)
-        w = k * radians(x, y)
-        wx = k * (radians(x + h, y) - radians(x - h, y)) / (2 * h)
-        wy = k * (radians(x, y + h) - radians(x, y - h)) / (2 * h)
-        return w, wx, wy
-
-    doe = DiffractiveElement(coefficients=[], ref_wl=ref_nm, order=1, phase_fct=phase_fct)
-    lens = _single(Binary1(0.0, 5.0, rn, A, 1))
-    n = 10
-    o = torch.empty(n, 3, dtype=F64).uniform_(-2.5, 2.5, generator=g)
-    o[:, 2] = -1.0
-    d = torch.empty(n, 3, dtype=F64).uniform_(-0.15, 0.15, generator=g)
-    d[:, 2] = 1.0
-    d = d / d.norm(dim=-1, keepdim=True)
-    for wl in (486.1, 656.3):
-        out = lens.trace(Rays(o, d, wl))
-        assert out.valid.all()
-        for i in range(n):
-            pt = (o[i] - d[i] * o[i, 2] / d[i, 2]).tolist()   # the hit on z = 0
-            ro, _ = doe.phase(pt, d[i].numpy().copy(), [0.0, 0.0, 1.0],
-                              (1, wl, 1.0, 1.0, "transmit"))
-            err = float((out.d[i] - torch.as_tensor(ro, dtype=F64)).abs().max())
-            assert err <= 1e-11, (wl, i, err)
+    H.assert_directions_match_rayoptics_doe(Binary1(0.0, 5.0, rn, A, 1), radians,
+                                            ref_nm * 1e-6 / (2 * math.pi), g, 1e-11, ref_nm)
 
 
 def test_gradients_match_central_differences():
@@ -166,51 +126,17 @@ def test_gradients_match_central_differences():
     is far below)."""
     def q(a2, a5, a8, c, grad=False):
         s = Binary1(c, 6.0, 4.0, [5.0, a2, -40.0, 3.0, a5, 0.0, 0.0, a8], 1, conic=-0.3)
-        lens = Lens([Asphere(1 / 30.0, 6.0), s], [Air(), ModelGlass(1.6, 40.0), Air()],
-                    [0.0, 3.0], 30.0, 0)
-        if grad:
-            for p in (s.poly[1], s.poly[4], s.poly[7], s.c):
-                p.requires_grad_(True)
-        g = torch.Generator().manual_seed(5)
-        o = torch.empty(12, 3, dtype=F64).uniform_(-1.5, 1.5, generator=g)
-        o[:, 2] = -2.0
-        d = torch.tensor([0.02, -0.03, 1.0], dtype=F64).expand_as(o)
-        out = lens.trace_to_sensor(Rays(o, d / d.norm(dim=-1, keepdim=True), 587.0))
-        assert out.valid.all()
-        val = (out.o[:, 1] ** 2 + out.o[:, 0] * out.o[:, 1]).sum() + 0.1 * out.opl.sum()
-        return val, paraxial(lens).efl, s
+        params = [s.poly[1], s.poly[4], s.poly[7], s.c]
+        return H.phase_on_singlet_quantities(s, params, grad)
 
-    x0 = (20.0, -60.0, 15.0, -0.01)
-    val, efl, s = q(*x0, grad=True)
-    params = [s.poly[1], s.poly[4], s.poly[7], s.c]
-    grads = torch.autograd.grad(val, params, retain_graph=True)
-    egrads = torch.autograd.grad(efl, params, allow_unused=True)
-    for j, h in enumerate((1e-2, 1e-2, 1e-2, 1e-7)):
-        xp, xm = list(x0), list(x0)
-        xp[j] += h
-        xm[j] -= h
-        vp, ep, _ = q(*xp)
-        vm, em, _ = q(*xm)
-        fd = float(vp - vm) / (2 * h)
-        assert abs(fd) > 1e-6
-        assert float(grads[j]) == pytest.approx(fd, rel=1e-6), j
-        efd = float(ep - em) / (2 * h)
-        if j in (0, 2):   # a tilt and xy² have no paraxial power
-            assert efd == 0.0 and (egrads[j] is None or float(egrads[j]) == 0.0)
-        else:
-            assert float(egrads[j]) == pytest.approx(efd, rel=1e-6), j
+    # a tilt (A_2) and xy² (A_8) have no paraxial power
+    H.assert_value_and_efl_grads_match_fd(q, (20.0, -60.0, 15.0, -0.01), (1e-2, 1e-2, 1e-2, 1e-7),
+                                          powerless=(0, 2))
 
 
 def test_traces_eager_and_round_trips_through_the_lens_file():
-    lens = Lens([Plane(8.0), Binary1(-0.02, 6.0, 4.0, [0.5, 0.0, 10.0, -2.0], -1, conic=0.4)],
-                [Air(), ModelGlass(1.6, 40.0), Air()], [0.0, 4.0], 20.0, 0)
-    assert fused_kind(lens, 1) is None
-    d = lens_to_dict(lens)
-    s = d["surfaces"][1]
-    assert s["type"] == "binary1" and s["order"] == -1
-    assert s["phase_terms_rad"] == [0.5, 0.0, 10.0, -2.0] and s["norm_radius_mm"] == 4.0
-    assert lens_to_dict(lens_from_dict(d)) == d
-    assert not lens.surfaces[1].axisymmetric
+    H.assert_phase_round_trips(Binary1(-0.02, 6.0, 4.0, [0.5, 0.0, 10.0, -2.0], -1, conic=0.4),
+                               "binary1", "phase_terms_rad", [0.5, 0.0, 10.0, -2.0])
     # (x² + y²) and (x² + y²)² = x⁴ + 2x²y² + y⁴: symmetric; x⁴ + x²y² + y⁴ is not
     sym = [0.0] * 5 + [0.0] * 4 + [1.0, 0.0, 2.0, 0.0, 1.0]
     sym[2] = sym[4] = -3.0

@@ -11,13 +11,8 @@ import helpers as H
 import pytest
 import torch
 
-from deeplens.optics.io import lens_from_dict, lens_to_dict
-from deeplens.optics.lens import Lens
-from deeplens.optics.materials import Air, ModelGlass
 from deeplens.optics.paraxial import paraxial
-from deeplens.optics.rays import Rays
-from deeplens.optics.surfaces import Asphere, Plane, ZernikeFringePhase
-from deeplens.optics.tracer import fused_kind
+from deeplens.optics.surfaces import ZernikeFringePhase
 
 F64 = torch.float64
 
@@ -43,16 +38,7 @@ FRINGE = [
 ]
 
 
-def _single(surface, dist=100.0):
-    return Lens([surface], [Air(), Air()], [0.0], dist, 0)
-
-
-def _parallel(x, y, wavelength):
-    x = torch.as_tensor(x, dtype=F64)
-    y = torch.as_tensor(y, dtype=F64)
-    o = torch.stack([x, y, torch.full_like(x, -1.0)], -1)
-    d = torch.tensor([0.0, 0.0, 1.0], dtype=F64).expand_as(o)
-    return Rays(o, d, wavelength)
+_single, _parallel = H.single_in_air, H.parallel_rays
 
 
 def test_phase_is_the_published_fringe_table_in_waves():
@@ -131,19 +117,8 @@ def test_gradients_match_central_differences():
     def q(a4, a8, c, grad=False):
         s = ZernikeFringePhase(c, 6.0, 4.0, [0.0, 0.0, 0.1, a4, 0.2, 0.0, 0.0, a8], 1,
                                conic=-0.3)
-        lens = Lens([Asphere(1 / 30.0, 6.0), s], [Air(), ModelGlass(1.6, 40.0), Air()],
-                    [0.0, 3.0], 30.0, 0)
-        if grad:
-            for p in (s.zernike[3], s.zernike[7], s.c):
-                p.requires_grad_(True)
-        g = torch.Generator().manual_seed(5)
-        o = torch.empty(12, 3, dtype=F64).uniform_(-1.5, 1.5, generator=g)
-        o[:, 2] = -2.0
-        d = torch.tensor([0.02, -0.03, 1.0], dtype=F64).expand_as(o)
-        out = lens.trace_to_sensor(Rays(o, d / d.norm(dim=-1, keepdim=True), 587.0))
-        assert out.valid.all()
-        val = (out.o[:, 1] ** 2 + out.o[:, 0] * out.o[:, 1]).sum() + 0.1 * out.opl.sum()
-        return val, paraxial(lens).efl, [s.zernike[3], s.zernike[7], s.c]
+        params = [s.zernike[3], s.zernike[7], s.c]
+        return H.phase_on_singlet_quantities(s, params, grad)
 
     # coma (A_8) has no paraxial power
     H.assert_value_and_efl_grads_match_fd(q, (-20.0, 5.0, -0.01), (1e-3, 1e-3, 1e-7),
@@ -151,16 +126,9 @@ def test_gradients_match_central_differences():
 
 
 def test_traces_eager_and_round_trips_through_the_lens_file():
-    lens = Lens([Plane(8.0), ZernikeFringePhase(-0.02, 6.0, 4.0, [0.5, 0.0, 1.0, -2.0], -1,
-                                                conic=0.4)],
-                [Air(), ModelGlass(1.6, 40.0), Air()], [0.0, 4.0], 20.0, 0)
-    assert fused_kind(lens, 1) is None
-    d = lens_to_dict(lens)
-    s = d["surfaces"][1]
-    assert s["type"] == "zernike_fringe_phase" and s["order"] == -1
-    assert s["zernike_waves"] == [0.5, 0.0, 1.0, -2.0] and s["norm_radius_mm"] == 4.0
-    assert lens_to_dict(lens_from_dict(d)) == d
-    assert not lens.surfaces[1].axisymmetric
+    H.assert_phase_round_trips(ZernikeFringePhase(-0.02, 6.0, 4.0, [0.5, 0.0, 1.0, -2.0], -1,
+                                                  conic=0.4),
+                               "zernike_fringe_phase", "zernike_waves", [0.5, 0.0, 1.0, -2.0])
     assert ZernikeFringePhase(0.0, 6.0, 4.0, [0.5, 0, 0, -2.0, 0, 0, 0, 0, 1.0]).axisymmetric
 
 
@@ -172,9 +140,6 @@ def test_real_rays_match_rayoptics_diffractive_element():
     differences: their round-off, ε |W| / h · λ ≈ 2.2e-16 · 100 waves / 1e-6 mm · 6.6e-4 mm ≈
     1.5e-11 (|W| of order 100 waves at these points), sets the 2e-11 tolerance; the kicks are ~1e-2, so a
     wrong term, sign or factor misses by far more."""
-    pytest.importorskip("rayoptics")
-    from rayoptics.oprops.doe import DiffractiveElement
-
     g = torch.Generator().manual_seed(11)
     A = torch.empty(16, dtype=F64).uniform_(-2, 2, generator=g).tolist()
     rn, ref_nm = 3.0, 550.0
@@ -184,29 +149,5 @@ def test_real_rays_match_rayoptics_diffractive_element():
         r, t = torch.hypot(xt, yt) / rn, torch.atan2(yt, xt)
         return float(sum(a * z(r, t) for a, z in zip(A, FRINGE)))
 
-    def phase_fct(pt, coefficients):
-        x, y, _ = pt
-        h = 1e-6
-        lam = ref_nm * 1e-6
-        w = lam * waves(x, y)
-        wx = lam * (waves(x + h, y) - waves(x - h, y)) / (2 * h)
-        wy = lam * (waves(x, y + h) - waves(x, y - h)) / (2 * h)
-        return w, wx, wy
-
-    doe = DiffractiveElement(coefficients=[], ref_wl=ref_nm, order=1, phase_fct=phase_fct)
-    lens = _single(ZernikeFringePhase(0.0, 5.0, rn, A, 1))
-    n = 10
-    o = torch.empty(n, 3, dtype=F64).uniform_(-2.5, 2.5, generator=g)
-    o[:, 2] = -1.0
-    d = torch.empty(n, 3, dtype=F64).uniform_(-0.15, 0.15, generator=g)
-    d[:, 2] = 1.0
-    d = d / d.norm(dim=-1, keepdim=True)
-    for wl in (486.1, 656.3):
-        out = lens.trace(Rays(o, d, wl))
-        assert out.valid.all()
-        for i in range(n):
-            pt = (o[i] - d[i] * o[i, 2] / d[i, 2]).tolist()   # the hit on z = 0
-            ro, _ = doe.phase(pt, d[i].numpy().copy(), [0.0, 0.0, 1.0],
-                              (1, wl, 1.0, 1.0, "transmit"))
-            err = float((out.d[i] - torch.as_tensor(ro, dtype=F64)).abs().max())
-            assert err <= 2e-11, (wl, i, err)
+    H.assert_directions_match_rayoptics_doe(ZernikeFringePhase(0.0, 5.0, rn, A, 1), waves,
+                                            ref_nm * 1e-6, g, 2e-11, ref_nm)
