@@ -3,7 +3,7 @@
 Some files written by other tools name every glass by its code, ``NNNVVV``: ``n_d = 1.NNN``,
 ``V_d = VV.V`` (``847238``: n_d 1.847, V_d 23.8), the convention CODE V uses for fictitious
 glasses (its ``NNNNNN.VVVV`` form, n_d ``1.NNNNNN`` and V_d ``VV.VV``, is read too; both by
-:func:`~.codev._fictitious`).  OpticStudio looks a ``GLAS`` name up in the loaded catalogues
+:func:`~.fictitious_glass.fictitious_glass`).  OpticStudio looks a ``GLAS`` name up in the loaded catalogues
 only ("The glass name entered must be in one of the currently loaded glass catalogs", OpticStudio
 User Guide, *Material*), and no vendor catalogue holds such names, so the default
 (:data:`GLASS_CODES` ``"refuse"``) refuses the file at its ``GLAS`` line, as before, with a
@@ -23,7 +23,7 @@ from __future__ import annotations
 import re
 
 from ..materials import ModelGlass
-from .codev import _fictitious
+from .fictitious_glass import fictitious_glass
 
 __all__ = ["GLASS_CODES", "glass_code", "glass_code_hint", "glass_code_note"]
 
@@ -43,7 +43,7 @@ def glass_code(name: str) -> ModelGlass | None:
     else:
         return None
     try:
-        m = _fictitious(tok)
+        m = fictitious_glass(tok)
     except ValueError:
         return None
     return ModelGlass(m.n_d, m.v_d, name=g)
