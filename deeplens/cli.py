@@ -125,6 +125,11 @@ def _add_lens_options(parser) -> None:
                         "the file alone does not size: 'limiting' (default) floats it to the "
                         "largest on-axis beam the other surfaces' fixed apertures pass, with a "
                         "located warning, 'refuse' refuses it at its line")
+    z.add_argument("--glass-codes", choices=("refuse", "model"), dest="glass_codes",
+                   help="a GLAS name that is a six-digit n_d/V_d code (847238: n_d 1.847, V_d "
+                        "23.8) and in no catalogue, which OpticStudio's catalogues do not hold: "
+                        "'refuse' (default) refuses it at its line, 'model' reads it as that "
+                        "model glass with a located warning")
     try:     # optimize has its own -v (every trial step); it shows these details too
         z.add_argument("-v", "--verbose", action="store_true",
                        help="with an error, print its details too (e.g. every glass catalogue "
@@ -161,7 +166,7 @@ def _load(args):
         if missing:
             raise _UsageError(f"--glass-catalog: no such file: {missing[0]}")
         opts["glass_catalogs"] = list(catalogs)
-    for key in ("qbfs_conic", "stop_size"):      # read_zmx's reading rules, by name
+    for key in ("qbfs_conic", "stop_size", "glass_codes"):      # read_zmx's reading rules, by name
         value = getattr(args, key, None)
         if value is not None:
             _zmx_only(args.lens, "--" + key.replace("_", "-"))

@@ -1462,6 +1462,12 @@ MUTATIONS = [
     Mutation("quartz_use_silent", "QUARTZ used without the located note naming it a substitute",
              "deeplens/optics/io/zmx_glass.py",
              '                 "BIREFRINGENT": birefringent_note}', "}", QUARTZ),
+    # branch gcode: a six-digit n_d/V_d glass code read as a model glass (glass_codes="model")
+    Mutation("glass_code_split_4_2", "a six-digit glass code split after four digits (847238 "
+             "read as n_d 1.8472, V_d 38) instead of NNN/VVV (n_d 1.847, V_d 23.8)",
+             "deeplens/optics/io/zmx_glass_codes.py",
+             'tok = f"{g[:3]}.{g[3:]}"', 'tok = f"{g[:4]}.{g[4:]}"',
+             ("tests/optics/io/test_zmx_glass_codes.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

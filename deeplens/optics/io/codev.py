@@ -102,6 +102,7 @@ from .codev_zoom import apply_zoom, set_surface_value, surface_value, zoom_comma
 from .codev_decenter import (DECENTER_COMMANDS, decenter_command, expand_decenters,
                              write_break)
 from .filecheck import read_file_bytes
+from .fictitious_glass import fictitious_glass as _fictitious
 from .stop_clear import flat_stop_as_asphere, plain_circular_stop
 from .surface_handlers import FORMATS
 from .withdrawn_glass import withdrawn_glass
@@ -185,16 +186,6 @@ def _tokens(s: str, source: str, line: int) -> list[list[str]]:
 
 
 # --------------------------------------------------------------------------- glasses
-def _fictitious(tok: str) -> ModelGlass | None:
-    """``NNNNNN.VVVV`` -> ModelGlass(1.NNNNNN, VV.VV), or ``None`` if ``tok`` is not one."""
-    m = re.fullmatch(r"(\d+)\.(\d+)", tok)
-    if m is None:
-        return None
-    n_d = float(Decimal("1." + m.group(1)))
-    v_d = float(Decimal("0." + m.group(2)) * 100)
-    return ModelGlass(n_d, v_d)
-
-
 def _fictitious_code(m: ModelGlass, i: int) -> str:
     """The fictitious-glass token of ``m`` (exact: ``_fictitious`` gives back ``n_d``, ``V_d``)."""
     if not (1.0 < m.n_d < 2.0 and 0.0 < m.v_d < 100.0):

@@ -36,8 +36,8 @@ def load_lens(path, **table_options):
 
     ``table_options`` are passed to :func:`~.table.read_table` for ``.txt`` files and to
     :func:`~.zmx.read_zmx` for ``.zmx`` files (``glass_catalogs``, ``glass_fallback``,
-    ``config``, ``qbfs_conic``, ``stop_size``); for ``.seq`` files ``config=N`` is zoom position ``N``
-    (:func:`~.codev.read_seq` ``zoom=N``).
+    ``config``, ``qbfs_conic``, ``stop_size``, ``glass_codes``); for ``.seq`` files ``config=N``
+    is zoom position ``N`` (:func:`~.codev.read_seq` ``zoom=N``).
 
     A bare name that is not a file here (``"double_gauss"`` or ``"double_gauss.json"``, no
     folder) is one of the lenses shipped with deeplens (:func:`deeplens.resources.lens_dir`), so

@@ -39,6 +39,7 @@ from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_no
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
                            PREVIOUS_CATALOGUES, archived_glass, catalogue_size, find_in_vendor_catalogues,
                            previous_glass, vendor_glass)
+from .zmx_glass_codes import glass_code, glass_code_hint, glass_code_note
 from .zmx_parse import Locator, ZmxSurface
 
 __all__ = ["BUILTIN_CATALOGUES", "GLASS_PATH_ENV", "adjacent_catalogue", "catalogue_files",
@@ -202,7 +203,7 @@ def _checked(m: Material, glass: str, s: ZmxSurface, where: str, p: Locator) -> 
 
 
 def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
-                  stacklevel: int = 2):
+                  stacklevel: int = 2, glass_codes: str = "refuse"):
     """The material of ``GLAS glass`` on ``s.glass_line``: exact lookup, in catalogue order.
 
     Per catalogue the file names on ``GCAT`` (all vendor catalogues if it names none): the
@@ -214,6 +215,10 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
     catalogue's (the ``GLAS`` line's ``n_d``/``V_d`` are not used: :func:`_checked`).  A glass
     not found is a one-line error (the catalogues searched are in its ``details``), or, when
     the caller asked for a fallback, a located warning naming the glass and the values used.
+    A name that is a six-digit ``n_d``/``V_d`` code in none of the catalogues the file names
+    nor the user's is, under ``glass_codes="model"``, that model glass, with a located warning
+    (before the shipped catalogues the file does not name, where a code is ambiguous); under
+    ``"refuse"`` the error says so (:mod:`.zmx_glass_codes`).
     """
     searched = []
     named = list(gcat) if gcat else list(CURRENT_CATALOGUES) + ["MISC"]
@@ -283,6 +288,11 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                                  f"({', '.join(named)}); using the user catalogue {cat} "
                                  f"({catalogues[cat].path}, exact name)")
             return _checked(m, glass, s, f"the user catalogue {cat}", p)
+    code = glass_code(glass)
+    if code is not None and glass_codes == "model":   # before the catalogues GCAT does not
+        # name: there a code is ambiguous (CHANCE and CORNING-FRANCE both list a '620603')
+        warnings.warn(p.warning(s.glass_line, glass_code_note(code)), stacklevel=stacklevel)
+        return code
     elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
     if elsewhere:
         m = _found_glass(glass, elsewhere[0])
@@ -338,7 +348,8 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                                               f"glass itself {give}"),
                       stacklevel=stacklevel)
         return m
-    p.fail(s.glass_line, f"glass {glass!r}{where}; {give}", details=details)
+    hint = "" if code is None else glass_code_hint(code)
+    p.fail(s.glass_line, f"glass {glass!r}{where}; {give}{hint}", details=details)
 
 
 def _found_glass(glass: str, hit: str) -> Material:
@@ -384,12 +395,14 @@ def model_glass(s: ZmxSurface, p: Locator, name=None) -> ModelGlass:
         p.fail(s.glass_line, f"model glass (GLAS ... n_d V_d): {e}")
 
 
-def surface_material(s, gcat, catalogues, fallback, p, stacklevel: int = 2):
+def surface_material(s, gcat, catalogues, fallback, p, stacklevel: int = 2,
+                     glass_codes: str = "refuse"):
     """The medium after ``SURF`` block ``s`` (air without a ``GLAS`` line); ``stacklevel`` (counted
-    from this function, as :func:`warnings.warn` counts) is the frame a fallback warning names."""
+    from this function, as :func:`warnings.warn` counts) is the frame a fallback warning names;
+    ``glass_codes`` is :func:`~.zmx_read.read_zmx`'s (:mod:`.zmx_glass_codes`)."""
     if s.glass is None and s.glass_model is not None and s.glass_line:
         return model_glass(s, p, s.glass_model_name)
     if s.glass is None:
         return Air()
-    return resolve_glass(s.glass, s, gcat, catalogues, fallback, p, stacklevel + 1)
+    return resolve_glass(s.glass, s, gcat, catalogues, fallback, p, stacklevel + 1, glass_codes)
 

@@ -34,6 +34,7 @@ from .zmx_mconf import configuration
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
 from .surface_formats import QBFS_CONIC
 from .stop_clear import flat_stop_as_asphere, plain_circular_stop
+from .zmx_glass_codes import GLASS_CODES
 from .zmx_stop_size import STOP_SIZE, check_stop_size, limiting_stop_radius
 from .zmx_surfaces import build_surface, is_air
 from .zmx_system import aperture_to_epd, element_tilts, fields_to_angles
@@ -62,7 +63,7 @@ class _Sequence:
 
 
 def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
-             qbfs_conic="forbes", stop_size="limiting") -> Lens:
+             qbfs_conic="forbes", stop_size="limiting", glass_codes="refuse") -> Lens:
     """Read a sequential Zemax ``.zmx`` file into a :class:`~deeplens.optics.lens.Lens`.
 
     Args:
@@ -89,6 +90,12 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             scaling, :mod:`.zmx_stop_size`), with one located :class:`ZemaxWarning` at its
             ``SURF`` line naming the size and the limiting surface; ``"refuse"``: a located
             :class:`ZemaxFileError` there instead.
+        glass_codes: how a ``GLAS`` name that is a six-digit ``n_d``/``V_d`` code (``847238``:
+            n_d 1.847, V_d 23.8; CODE V's fictitious-glass convention) and in no catalogue
+            searched is read: ``"refuse"`` (default; OpticStudio's catalogues hold no such
+            name) a located :class:`ZemaxFileError` that names the code's reading;
+            ``"model"``: ``ModelGlass(n_d, V_d)`` named by the code, with one located
+            :class:`ZemaxWarning` at each such ``GLAS`` line (:mod:`.zmx_glass_codes`).
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -110,6 +117,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
         raise ValueError(f"qbfs_conic must be one of {QBFS_CONIC}, got {qbfs_conic!r}")
     if stop_size not in STOP_SIZE:
         raise ValueError(f"stop_size must be one of {STOP_SIZE}, got {stop_size!r}")
+    if glass_codes not in GLASS_CODES:
+        raise ValueError(f"glass_codes must be one of {GLASS_CODES}, got {glass_codes!r}")
     if not path.exists():
         raise FileNotFoundError(f"lens file not found: {path}")
     sysd, surfs, p = parse(path)
@@ -127,7 +136,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     s_mm = UNITS[unit]
     gcat, _ = sysd["gcat"]
     ftyp, ftyp_line, n_fields, waves_nm, primary = _wavelengths(sysd, p)
-    seq = _sequence(surfs, s_mm, gcat, cats, glass_fallback, p, qbfs_conic)
+    seq = _sequence(surfs, s_mm, gcat, cats, glass_fallback, p, qbfs_conic, glass_codes)
     obj, img = surfs[0], surfs[-1]
     kept, stop_idx, autos = seq.kept, seq.stop_idx, seq.autos
     surfaces = [k_[0] for k_ in kept]
@@ -377,7 +386,8 @@ def _telecentric(ftyp, ftyp_line: int, obj_dist: float, convert, ap_line: int,
 
 
 def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
-              p: Locator, qbfs_conic: str = "forbes") -> _Sequence:
+              p: Locator, qbfs_conic: str = "forbes",
+              glass_codes: str = "refuse") -> _Sequence:
     """The object and the surfaces between it and the image, in order: dummies (flat, one medium
     on both sides) merged into the gaps, ``COORDBRK`` pairs that bracket one element read as its
     misalignment (``groups``), every other non-identity ``COORDBRK`` kept as a
@@ -393,7 +403,7 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
                                           f"number of lens units (> 0; < 0, a virtual object; "
                                           f"0 before a dummy gap) or INFINITY, got "
                                           f"{obj.disz!r}")
-    obj_medium = surface_material(obj, gcat, cats, glass_fallback, p, 4)
+    obj_medium = surface_material(obj, gcat, cats, glass_fallback, p, 4, glass_codes)
     media = [obj_medium]
     kept = []            # (surface module, material after, zmx surf, gap before it in mm)
     groups = []          # [start, end] index ranges in kept for bracketed elements
@@ -452,7 +462,8 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
             continue
         if s.spid is not None and bracket is not None:
             _turn_spider(s, k, bracket, p)
-        mat = prev if s.mirror else surface_material(s, gcat, cats, glass_fallback, p, 4)
+        mat = prev if s.mirror else surface_material(s, gcat, cats, glass_fallback, p, 4,
+                                                     glass_codes)
         built = build_surface(s, k, mat, prev, s_mm, folded, p, qbfs_conic)
         # SCBD: the surface's own tilt/decenter, a break before it and one after it (the
         # thickness after both); the breaks keep the block for its line
