@@ -107,3 +107,19 @@ def test_paraxial_names_the_pupil_at_infinity_not_an_image_of_the_object():
     lens = build(True)
     assert float(lens.stop.semi_diameter) == pytest.approx(F * math.tan(math.asin(NA)),
                                                            rel=1e-12)
+
+
+def test_telecentric_fields_with_the_object_on_a_coordinate_break_are_refused_at_ftyp(tmp_path):
+    """A tilted COORDBRK at the object (object distance 0 to the first surface deeplens keeps):
+    a telecentric field is named by its direction from that vertex, which does not exist; a
+    located refusal at the FTYP line (before: an unlocated ZeroDivisionError)."""
+    text = _file().replace(f"SURF 0\n  TYPE STANDARD\n  CURV 0\n  DISZ {F}\n",
+                           "SURF 0\n  TYPE STANDARD\n  CURV 0\n  DISZ 0\n"
+                           "SURF 1\n  TYPE COORDBRK\n  CURV 0\n  PARM 1 0\n  PARM 2 0\n"
+                           f"  PARM 3 -5\n  PARM 4 0\n  PARM 5 0\n  PARM 6 0\n  DISZ {F}\n")
+    for k in (4, 3, 2):   # renumber the blocks after the inserted one
+        text = text.replace(f"SURF {k}\n", f"SURF {k + 1}\n")
+    text = text.replace("SURF 1\n  TYPE PARAXIAL", "SURF 2\n  TYPE PARAXIAL")
+    with pytest.raises(ZemaxFileError, match=r":5: object-space telecentric fields with the "
+                                             r"object on the first surface"):
+        read_zmx(_write(tmp_path, text))
