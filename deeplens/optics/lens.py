@@ -231,6 +231,8 @@ class Lens(nn.Module):
             as in OpticStudio); analysis only, renderers and cameras with a sensor refuse it.
         backward_gaps: indices ``j`` of real surfaces (not stops or coordinate breaks) whose gap
             from the previous real surface may be crossed *backwards*: see :attr:`backward_gaps`.
+        object_telecentric: the initial ``object_telecentric`` (below), set before the aperture
+            is sized (a lens whose entrance pupil is at infinity needs it then).
 
     Attribute ``object_telecentric`` (default ``False``): the entrance pupil is at infinity
     (OpticStudio's telecentric object space, ``FTYP`` second value 1): every field's chief ray
@@ -257,7 +259,7 @@ class Lens(nn.Module):
     def __init__(self, surfaces, materials, distances, d_sensor: float, stop_index: int | None,
                  sensor_semi_diameter: float | None = None, spec: LensSpec | None = None,
                  elements=None, name: str = "", mirrors=(), virtual_image: bool = False,
-                 backward_gaps=()):
+                 backward_gaps=(), object_telecentric: bool = False):
         super().__init__()
         surfaces, materials, distances = list(surfaces), list(materials), list(distances)
         n = len(surfaces)
@@ -281,7 +283,7 @@ class Lens(nn.Module):
             if not isinstance(m, Material):
                 raise TypeError(f"material {i} is a {type(m).__name__}, not a Material")
         self.name = name
-        self.object_telecentric = False
+        self.object_telecentric = bool(object_telecentric)   # before the aperture is sized
         self._object_tilt = (0.0, 0.0)
         self.surfaces = nn.ModuleList(surfaces)
         self.materials = nn.ModuleList(materials)

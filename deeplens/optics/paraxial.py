@@ -107,6 +107,26 @@ def _wavelength(lens, wavelength_nm) -> float:
     return float(lens.spec.primary_wavelength_nm if wavelength_nm is None else wavelength_nm)
 
 
+class PupilAtInfinityError(ValueError):
+    """The ray parallel to the axis meets the stop at height 0 while the object is finite: the
+    entrance pupil is at infinity (object space telecentric) and the lens is not flagged so
+    (``Lens.object_telecentric``)."""
+
+
+def pupil_at_infinity(heights, k: int) -> bool:
+    """Whether the ray parallel to the axis (``heights``: its height at each vertex, mm, from
+    height 1 at the first) meets surface ``k`` at height 0 to the rounding of its float trace.
+
+    Each surface's transfer and refraction round ``y`` and ``u`` by a few ulps of the heights
+    involved (``|t u| = |y_i - y_{i-1}| <= 2 max |y|``), so after ``k + 1`` surfaces the
+    height at ``k`` carries an error of at most about ``4 (k + 1) eps max_{i<=k} |y_i|`` (first
+    order, ``eps`` the dtype's unit roundoff); a height within that of 0 is 0."""
+    y = heights[k]
+    eps = torch.finfo(y.dtype).eps
+    scale = max(abs(float(h.detach())) for h in heights[:k + 1])
+    return abs(float(y.detach())) <= 4.0 * (k + 1) * eps * scale
+
+
 def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     """Paraxial data of ``lens`` at ``wavelength_nm`` (default: the spec's primary wavelength).
 
@@ -114,8 +134,17 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     and, for an object at infinity, ``image_distance`` / ``image_z`` equal to ``+inf`` (its
     pupils are finite).
 
+    For an object-space telecentric lens (``lens.object_telecentric``) whose ray parallel to the
+    axis meets the stop at height 0 (the entrance pupil at infinity, :func:`pupil_at_infinity`)
+    the "entrance pupil" is the plane of the stop's vertex (``entrance_pupil_position`` its
+    distance from the first vertex, ``p``) with the radius ``(s + p) tan θ`` of the axial
+    object's cone that fills the stop (``s`` the object distance), the pupil that
+    :mod:`.sampling` builds each field's cone on.
+
     Raises:
-        ValueError: if the stop is not imaged (``y_A = 0``).
+        ValueError: the stop is at the image of an object at infinity (``y_A = 0``);
+            :class:`PupilAtInfinityError` for a finite object and a lens not flagged
+            ``object_telecentric``.
     """
     w = _wavelength(lens, wavelength_nm)
     n, p0 = _indices(lens, w)
@@ -129,12 +158,33 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
         bfl = -yA / uA
     k = lens.stop_index
     ya_s, yb_s = hA[k], hB[k]
-    if abs(float(ya_s.detach())) < 1e-15:
-        raise ValueError("the stop is at an image of the object: no entrance pupil")
-    z0 = lens.z_vertices()[0]
-    ep_pos = yb_s / ya_s
-    epd = 2.0 * lens.stop.semi_diameter.to(p0) / ya_s.abs()
     s = float(lens.spec.object_distance_mm)
+    z0 = lens.z_vertices()[0]
+    if pupil_at_infinity(hA, k):
+        if math.isinf(s):
+            raise ValueError("the stop is at the image of the object at infinity (the ray "
+                             "parallel to the axis meets it at height 0): no entrance pupil")
+        if not getattr(lens, "object_telecentric", False):
+            raise PupilAtInfinityError(
+                "the entrance pupil is at infinity (the ray parallel to the axis meets the stop "
+                "at height 0): object space is telecentric; set Lens.object_telecentric and "
+                "give the aperture as an object-space NA")
+        # telecentric object space, the pupil at infinity: the cone about each chief ray is
+        # sampled on the plane of the stop's vertex (ep_pos = z_stop - z_0), whose radius r
+        # subtends tan θ = r / (s + ep_pos) from the axial object point; that ray (height
+        # s tan θ at the first vertex) meets the stop at r (s y_A + y_B) / (s + ep_pos)
+        ep_pos = (lens.z_vertices()[k] - z0).to(ya_s)
+        L = s + ep_pos
+        if float(L.detach()) == 0.0:
+            raise ValueError("object-space telecentric lens with its stop's vertex on the "
+                             "object plane: no cone from the object to sample the pupil on")
+        ya_s = (s * ya_s + yb_s) / L
+        if abs(float(ya_s.detach())) == 0.0:
+            raise ValueError("the stop is at an image of the object: no ray from the axial "
+                             "object point reaches its rim")
+    else:
+        ep_pos = yb_s / ya_s
+    epd = 2.0 * lens.stop.semi_diameter.to(p0) / ya_s.abs()
     if math.isinf(s):
         img = bfl
     else:

@@ -1468,6 +1468,13 @@ MUTATIONS = [
              "deeplens/optics/io/zmx_glass_codes.py",
              'tok = f"{g[:3]}.{g[3:]}"', 'tok = f"{g[:4]}.{g[4:]}"',
              ("tests/optics/io/test_zmx_glass_codes.py",)),
+    # branch telecen: an entrance pupil at infinity the file does not flag, read telecentric
+    Mutation("telecentric_pupil_cone_from_first_vertex", "the cone of a telecentric lens whose "
+             "entrance pupil is at infinity sized as if its pupil plane were the first vertex "
+             "(the stop's radius no longer f tan(asin NA))",
+             "deeplens/optics/paraxial.py", "ya_s = (s * ya_s + yb_s) / L",
+             "ya_s = (s * ya_s + yb_s) / s",
+             ("tests/optics/io/test_zmx_pupil_at_infinity.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -24,6 +24,7 @@ from ..errors import SurfacesCrossError, ZemaxFileError
 from ..frames import mirrors_met_edge_on, travel_directions
 from ..lens import Lens, LensSpec
 from ..materials import Material, check_wavelength_nm
+from ..paraxial import PupilAtInfinityError
 from ..surfaces import Aperture, Asphere, CoordinateBreak, IdealLens, IdealLensXY, Plane
 from .zmx_scbd import (check_scbd_on_break, image_scbd_note, refuse_object_scbd, scbd_breaks,
                        scbd_identity)
@@ -196,8 +197,13 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
                 lens = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd, spec,
                             elements=[(a, b) for a, b, _, _ in elements],
                             name=sysd["name"] or path.stem, mirrors=seq.mirrors,
-                            virtual_image=virtual[0], backward_gaps=virtual_gaps)
+                            virtual_image=virtual[0], backward_gaps=virtual_gaps,
+                            object_telecentric=telecentric)
                 break
+            except PupilAtInfinityError:
+                if telecentric:
+                    raise
+                telecentric = _pupil_at_infinity(ftyp, ftyp_line, convert, ap_type, ap_line, p)
             except SurfacesCrossError as e:
                 if not _limit_at_crossing(e, surfaces, lambda i: _limitable(kept, stop_idx, i),
                                           limited, original):
@@ -382,6 +388,33 @@ def _telecentric(ftyp, ftyp_line: int, obj_dist: float, convert, ap_line: int,
                         "aperture of a telecentric system as an object-space NA or cone angle "
                         "(OBNA), the cone of rays about each chief ray; this file gives another "
                         "system aperture")
+    return True
+
+
+def _pupil_at_infinity(ftyp, ftyp_line: int, convert, ap_type: str, ap_line: int,
+                       p: Locator) -> bool:
+    """The file does not flag telecentric object space, but its ray parallel to the axis meets
+    the stop at height 0 (to rounding: :func:`~deeplens.optics.paraxial.pupil_at_infinity`)
+    and the object is finite: the entrance pupil is at infinity, object space is telecentric
+    whatever the flag.  With an ``OBNA`` aperture (the cone about each chief ray, no entrance
+    pupil needed) it is read as telecentric (``True``, one note at the aperture line); an
+    ``ENPD`` or ``FNUM`` (a diameter or F-number of an entrance pupil at infinity) or ``FLOA``
+    is refused there, angle fields at the ``FTYP`` line."""
+    if convert is None or convert[0] not in ("obna", "cone"):
+        key = {"epd": "ENPD", "stop": "FLOA"}.get(ap_type, "FNUM")
+        p.fail(ap_line, f"{key}: the entrance pupil is at infinity (the object is finite and "
+                        f"the ray parallel to the axis meets the stop at height 0: object space "
+                        f"is telecentric), so it has no diameter or F-number; give the "
+                        f"aperture as an object-space NA (OBNA)")
+    if ftyp[0] not in (1, 2, 3):
+        p.fail(ftyp_line, f"FTYP {ftyp[0]}: the entrance pupil is at infinity (object space "
+                          f"telecentric: the ray parallel to the axis meets the stop at height "
+                          f"0), so every chief ray is parallel to the axis and fields must be "
+                          f"heights (FTYP 1, 2 or 3)")
+    p.note(ap_line, "the entrance pupil is at infinity (the ray parallel to the axis meets the "
+                    "stop at height 0, to rounding) although FTYP does not flag telecentric "
+                    "object space: read as object-space telecentric (Lens.object_telecentric), "
+                    "every chief ray parallel to the axis, the OBNA the cone about it")
     return True
 
 

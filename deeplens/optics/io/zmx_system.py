@@ -368,6 +368,14 @@ def object_height_fields(kind, heights, lens, ftyp_line, tan_y, p):
                                   "is zero")
             heights = [v / m for v in heights]
         if getattr(lens, "object_telecentric", False):
+            if s == 0:
+                # (deeplens names a telecentric field by its object point's direction from
+                # the first vertex: none when the object lies on it, as behind a coordinate
+                # break at the object)
+                p.fail(ftyp_line, "object-space telecentric fields with the object on the "
+                                  "first surface deeplens traces (object distance 0, e.g. a "
+                                  "COORDBRK at the object): deeplens names such a field by "
+                                  "its direction from that vertex and cannot here")
             return [0.0 - math.degrees(math.atan(h / s)) for h in heights]
         d = s + float(par.entrance_pupil_position)
     out = []
