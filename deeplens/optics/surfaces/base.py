@@ -171,6 +171,16 @@ def make_param(value, name: str = "value") -> nn.Parameter:
     return nn.Parameter(t.clone(), requires_grad=False)
 
 
+def norm_radius_mm(value, owner: str) -> float:
+    """A normalisation radius (mm) as a float: ``ValueError`` naming ``owner`` unless it is a
+    finite number ``> 0`` (the surfaces whose terms are in ``x / R_n``, ``y / R_n``)."""
+    rn = float(value)
+    if not (rn > 0 and math.isfinite(rn)):
+        raise ValueError(f"{owner}: the normalisation radius must be a positive number of mm, "
+                         f"got {value!r}")
+    return rn
+
+
 class Surface(nn.Module):
     """Base class of all surfaces (see the module docstring).
 

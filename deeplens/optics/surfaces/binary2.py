@@ -64,7 +64,7 @@ from torch import nn
 
 from ..interactions import DIFFRACTION
 from .asphere import Asphere
-from .base import make_param, register_surface
+from .base import make_param, norm_radius_mm, register_surface
 from .grating import grating_direction, integer_order
 
 __all__ = ["Binary2", "MAX_PHASE_TERMS"]
@@ -105,10 +105,7 @@ class Binary2(Asphere):
         super().__init__(curvature, semi_diameter, conic=conic, coefficients=coefficients,
                          obscuration=obscuration, clear_radius=clear_radius,
                          clear_decenter=clear_decenter)
-        rn = float(norm_radius)
-        if not (math.isfinite(rn) and rn > 0):
-            raise ValueError(f"Binary2: the normalisation radius must be a finite number > 0 "
-                             f"(mm), got {norm_radius!r}")
+        rn = norm_radius_mm(norm_radius, type(self).__name__)
         order = integer_order(order, "Binary2")
         phase = [float(v) for v in phase_coefficients]
         if len(phase) > MAX_PHASE_TERMS:

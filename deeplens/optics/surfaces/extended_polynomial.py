@@ -24,7 +24,8 @@ import torch
 from torch import nn
 
 from .asphere import EvenBaseSag
-from .base import check_conic_domain, conic_polynomial_scale, make_param, register_surface
+from .base import (check_conic_domain, conic_polynomial_scale, make_param, norm_radius_mm,
+                   register_surface)
 from .xy_polynomial import xy_poly, xy_radial
 
 __all__ = ["ExtendedPolynomial", "extended_terms", "MAX_EXTENDED_TERMS"]
@@ -63,10 +64,7 @@ class ExtendedPolynomial(EvenBaseSag):
     def __init__(self, curvature: float, semi_diameter: float, norm_radius: float, terms=(),
                  conic: float = 0.0):
         super().__init__(semi_diameter)
-        rn = float(norm_radius)
-        if not (rn > 0 and math.isfinite(rn)):
-            raise ValueError(f"ExtendedPolynomial: the normalisation radius must be a positive "
-                             f"number of mm, got {norm_radius!r}")
+        rn = norm_radius_mm(norm_radius, "ExtendedPolynomial")
         terms = list(terms)
         if len(terms) > MAX_EXTENDED_TERMS:
             raise ValueError(f"ExtendedPolynomial: at most {MAX_EXTENDED_TERMS} terms (order "

@@ -36,6 +36,7 @@ from torch import nn
 
 from .asphere import conic_arg, conic_dsag_ds, conic_root, conic_sag
 from .base import (SagSurface, check_conic_domain, conic_polynomial_scale, make_param,
+                   norm_radius_mm,
                    register_surface)
 
 __all__ = ["QType", "MAX_TERMS", "jacobi_rows", "qbfs_matrix", "qcon_matrix", "qtype_dsag_ds",
@@ -234,10 +235,7 @@ class QType(SagSurface):
         super().__init__(semi_diameter)
         if kind not in ("qbfs", "qcon"):
             raise ValueError(f"QType: kind must be 'qbfs' or 'qcon', got {kind!r}")
-        rn = float(norm_radius)
-        if not (rn > 0 and math.isfinite(rn)):
-            raise ValueError(f"QType: the normalisation radius must be a positive number of mm, "
-                             f"got {norm_radius!r}")
+        rn = norm_radius_mm(norm_radius, "QType")
         coefficients = list(coefficients)
         if len(coefficients) > MAX_TERMS:
             raise ValueError(f"QType: at most {MAX_TERMS} polynomial terms, got "

@@ -74,6 +74,7 @@ from torch import nn
 from .asphere import EvenBaseSag
 from ..openings import Circle, Opening
 from .base import (check_conic_domain, conic_polynomial_scale, host_flags, make_param,
+                   norm_radius_mm,
                    register_surface)
 
 __all__ = ["ZernikeSag", "ZernikeFringeSag", "MAX_EVEN_TERMS", "MAX_ZERNIKE_TERMS",
@@ -265,10 +266,7 @@ class ZernikeSag(EvenBaseSag):
                  zernike=(), conic: float = 0.0, coefficients=(), extrapolate: bool = True,
                  obscuration: float = 0.0):
         super().__init__(semi_diameter)
-        rn = float(norm_radius)
-        if not (rn > 0 and math.isfinite(rn)):
-            raise ValueError(f"ZernikeSag: the normalisation radius must be a positive number "
-                             f"of mm, got {norm_radius!r}")
+        rn = norm_radius_mm(norm_radius, "ZernikeSag")
         zernike, coefficients = list(zernike), list(coefficients)
         if len(zernike) > self.max_terms:
             raise ValueError(f"{type(self).__name__}: at most {self.max_terms} Zernike terms, "
