@@ -997,7 +997,7 @@ MUTATIONS = [
              "            nv = [0.0, 0.0, 1.0]\n            an =", SET5_RULES),
     Mutation("fixed_diam_clips_flat_plane", "a fixed DIAM on a flat plane in one medium clips "
              "(refusing an OBSC wider than it)", "deeplens/optics/io/zmx_surfaces.py",
-             "    if (fixed and same_medium and (flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop\n",
+             "    if (fixed and same_medium and (flat or handler.shape_only) and not s.stop\n",
              "    if (False and fixed and same_medium and not s.stop\n", SET5_RULES),
     Mutation("opening_written_without_clap", "an opening that is not the stop written with a "
              "fixed DIAM only (OpticStudio does not clip on it)", "deeplens/optics/io/zmx_write.py",
@@ -1354,7 +1354,7 @@ MUTATIONS = [
              "medium (no power; an OBSC beside it) taken as a clipping semi-diameter (OpticStudio "
              "applies its floating aperture only on a surface with refractive power)",
              "deeplens/optics/io/zmx_surfaces.py",
-             "    if (fixed and same_medium and (flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop\n",
+             "    if (fixed and same_medium and (flat or handler.shape_only) and not s.stop\n",
              "    if (fixed and same_medium and flat and not s.stop\n",
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
     Mutation("ring_past_rim_refused", "a ring obscuration (OBSC r_i r_o) reaching past the "
@@ -1416,7 +1416,7 @@ MUTATIONS = [
              "read as not clipping, an ideal lens's, phase's or grating's in air included (they "
              "have power there, and OpticStudio's floating aperture clips)",
              "deeplens/optics/io/zmx_surfaces.py",
-             "(flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop",
+             "(flat or handler.shape_only) and not s.stop",
              "(flat or True) and not s.stop",
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
     # ------------- issue 37: a mirror turned about a pivot (break, +d, break, -d, mirror)
@@ -1435,8 +1435,8 @@ MUTATIONS = [
              "        x = torch.zeros(1, 3, dtype=torch.float64)\n",
              ("tests/optics/io/test_zmx_set9_rules.py",)),
     Mutation("fresnel_not_shape_only", "a Fresnel surface (FRESNELS) taken as having power in "
-             "one medium (its fixed DIAM in air clips)", "deeplens/optics/io/zmx_surfaces.py",
-             '"IRREGULA", "FRESNELS"})', '"IRREGULA"})',
+             "one medium (its fixed DIAM in air clips)", "deeplens/optics/io/zmx_fresnel.py",
+             "    shape_only = True\n", "    shape_only = False\n",
              ("tests/optics/io/test_zmx_set9_apertures.py",)),
     Mutation("xy_radial_without_binomials", "an even degree of an XY or Extended polynomial taken "
              "as radial when its even terms are equal, not (x² + y²)^k's binomial multiples "

@@ -86,11 +86,16 @@ class SurfaceFormat:
 
     Class attributes: ``classes`` (deeplens surface classes written), ``zmx_types`` (Zemax
     ``TYPE`` names read), ``codev_types`` (CODE V surface-type commands read), ``codev_data``
-    (the CODE V modifier commands this type owns, read by :meth:`codev_modifier`).
+    (the CODE V modifier commands this type owns, read by :meth:`codev_modifier`),
+    ``shape_only`` (whether every type read is a shape alone: between the same medium on both
+    sides it has no refractive power, so OpticStudio applies no floating aperture there and a
+    fixed ``DIAM`` does not clip; ideal lenses, phases, gratings and holograms bend rays in air
+    and set it ``False``; every reading format states it).
     """
 
     classes: tuple[type, ...] = ()
     zmx_types: tuple[str, ...] = ()
+    shape_only: bool = False
     codev_types: tuple[str, ...] = ()
     codev_data: tuple[str, ...] = ()
 

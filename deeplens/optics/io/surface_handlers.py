@@ -689,6 +689,7 @@ class AsphereFormat(_StandardFamily):
 
     classes = (Asphere,)
     zmx_types = ("STANDARD", "EVENASPH")
+    shape_only = True
     codev_types = ("SPH", "CON", "ASP")
     codev_data = ("K",) + tuple(CODEV_ASPH)
 
@@ -763,6 +764,7 @@ class OddAsphereFormat(_StandardFamily):
 
     classes = (OddAsphere,)
     zmx_types = ("ODDASPHE",)
+    shape_only = True
 
     def write_zmx(self, s, i):
         return _odd_asphere_lines(s, i) + [_diam(s.semi_diameter)]
@@ -777,6 +779,7 @@ class CoordinateBreakFormat(SurfaceFormat):
 
     classes = (CoordinateBreak,)
     zmx_types = ("COORDBRK",)
+    shape_only = False
 
     def write_zmx(self, s, i):
         return coordbrk_lines(s, _f)
@@ -793,6 +796,7 @@ class XYPolynomialFormat(SurfaceFormat):
 
     classes = (XYPolynomial,)
     zmx_types = ("XPOLYNOM", "XYPOLYNOM")
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _xypolynom(s, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p, ctx.k)
@@ -844,6 +848,7 @@ class TiltedFormat(SurfaceFormat):
     ``XPOLYNOM``)."""
 
     zmx_types = ("TILTSURF",)
+    shape_only = True
 
     @staticmethod
     def _tangents(s, k, p):
@@ -884,6 +889,7 @@ class JonesMatrixFormat(SurfaceFormat):
     applied.  A curvature or a ``PARM`` beyond 8 is refused with its line."""
 
     zmx_types = ("JONESMAT",)
+    shape_only = True
 
     @staticmethod
     def _check(s, k, p):
@@ -941,6 +947,7 @@ class BirefringentFormat(SurfaceFormat):
     values do not change an ordinary ray's path."""
 
     zmx_types = ("BIRE__IN", "BIRE_OUT")
+    shape_only = True
 
     @staticmethod
     def _mode(s, k, p):
@@ -987,6 +994,7 @@ class ParaxialFormat(SurfaceFormat):
 
     classes = (IdealLens,)
     zmx_types = ("PARAXIAL",)
+    shape_only = False
 
     def read_zmx(self, s, ctx):
         return _paraxial_surface(s, ctx.k, ctx.mat, ctx.prev, ctx.sd_build, ctx.s_mm, ctx.p)
@@ -1025,6 +1033,7 @@ class ParaxialXYFormat(SurfaceFormat):
 
     classes = (IdealLensXY,)
     zmx_types = ("PARAX_XY",)
+    shape_only = False
 
     def read_zmx(self, s, ctx):
         return _paraxial_xy_surface(s, ctx)
@@ -1042,6 +1051,7 @@ class ToroidalFormat(SurfaceFormat):
 
     classes = (Cylinder,)
     zmx_types = ("TOROIDAL",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _cylinder(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
@@ -1063,6 +1073,7 @@ class GratingFormat(SurfaceFormat):
 
     classes = (Grating,)
     zmx_types = ("DGRATING",)
+    shape_only = False
 
     def read_zmx(self, s, ctx):
         return _grating(s, ctx.k, ctx.c, ctx.sd_build, ctx.p)
@@ -1080,6 +1091,7 @@ class QTypeFormat(SurfaceFormat):
 
     classes = (QType,)
     zmx_types = ("QED_TYPE",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _qtype(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p, ctx.qbfs_conic)
@@ -1099,6 +1111,7 @@ class BiconicFormat(SurfaceFormat):
 
     classes = (Biconic,)
     zmx_types = ("BICONICX",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _biconic(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
@@ -1116,6 +1129,7 @@ class Binary2Format(SurfaceFormat):
 
     classes = (Binary2,)
     zmx_types = ("BINARY_2",)
+    shape_only = False
 
     def read_zmx(self, s, ctx):
         return _binary2(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
@@ -1159,6 +1173,7 @@ class Binary1Format(SurfaceFormat):
 
     classes = (Binary1,)
     zmx_types = ("BINARY_1",)
+    shape_only = False
 
     def read_zmx(self, s, ctx):
         return _binary1(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
@@ -1174,6 +1189,7 @@ class ZernikeSagFormat(SurfaceFormat):
 
     classes = (ZernikeSag,)
     zmx_types = ("SZERNSAG",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _zernike_sag(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
@@ -1199,6 +1215,7 @@ class ZernikeFringeSagFormat(ZernikeSagFormat):
 
     classes = (ZernikeFringeSag,)
     zmx_types = ("FZERNSAG",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _zernike_sag(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p, ZernikeFringeSag)
@@ -1212,6 +1229,7 @@ class ZernikeFringePhaseFormat(SurfaceFormat):
 
     classes = (ZernikeFringePhase,)
     zmx_types = ("FZERNPHA",)
+    shape_only = False
 
     def zmx_flat(self, s, ctx):
         """A flat base with no non-zero coefficient (``XDAT 3..``) adds no phase: the flat
@@ -1233,6 +1251,7 @@ class ExtendedAsphereFormat(SurfaceFormat):
     written as one by :class:`AsphereFormat`."""
 
     zmx_types = ("XASPHERE",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)

@@ -42,6 +42,7 @@ class FresnelFormat(SurfaceFormat):
 
     classes = (Fresnel,)
     zmx_types = ("FRESNELS",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _fresnel(s, ctx)

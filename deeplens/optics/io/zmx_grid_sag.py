@@ -137,6 +137,7 @@ class GridSagFormat(SurfaceFormat):
 
     classes = (GridSag,)
     zmx_types = ("GRID_SAG",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _grid_sag(s, ctx)

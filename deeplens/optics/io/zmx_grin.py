@@ -28,6 +28,7 @@ class Gradient1Format(SurfaceFormat):
 
     classes = (GradientSurface,)
     zmx_types = ("GRINSUR1",)
+    shape_only = False
 
     def read_zmx(self, s, ctx):
         p, k, s_mm = ctx.p, ctx.k, ctx.s_mm

@@ -104,6 +104,7 @@ class HologramFormat(SurfaceFormat):
 
     classes = (Hologram,)
     zmx_types = ("HOLOGRM1", "HOLOGRM2")
+    shape_only = False
 
     def read_zmx(self, s, ctx):
         return _hologram(s, ctx)

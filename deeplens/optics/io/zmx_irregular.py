@@ -65,6 +65,7 @@ class IrregularFormat(SurfaceFormat):
 
     classes = (Irregular,)
     zmx_types = ("IRREGULA",)
+    shape_only = True
 
     def read_zmx(self, s, ctx):
         return _irregular(s, ctx)

@@ -35,16 +35,6 @@ from .zmx_parse import Locator, ZmxSurface
 __all__ = ["build_surface", "is_air", "PROVISIONAL_SD_MM"]
 
 
-#: Surface types that are a shape alone: in one medium (the same material on both sides) they
-#: have no refractive power.  A Fresnel surface (FRESNELS) is one too: its facets refract by
-#: Snell's law, ``n' − n = 0`` in one medium.  Ideal lenses (PARAXIAL, PARAX_XY), phases
-#: (BINARY_2, FZERNPHA), gratings and holograms bend rays in air and are not listed.
-_SHAPE_ONLY_TYPES = frozenset({
-    "STANDARD", "EVENASPH", "ODDASPHE", "XPOLYNOM", "XYPOLYNOM", "TILTSURF", "JONESMAT",
-    "BIRE__IN", "BIRE_OUT", "TOROIDAL", "QED_TYPE", "BICONICX", "SZERNSAG", "FZERNSAG",
-    "XASPHERE", "GRID_SAG", "IRREGULA", "FRESNELS"})
-
-
 def _lens_or_mirror(surf) -> bool:
     """Whether a surface aperture (``SQAP``, ``ELAP``, ``ELOB``, ``SPID``) goes on ``surf`` as a
     lens or mirror surface's: a surface the rays land on (:func:`takes_clear_rect`), other than
@@ -109,10 +99,10 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     # aperture (OpticStudio User Guide, "Semi-Diameters"): on a surface in one medium, which has
     # no power, flat (a dummy, or an OBSC's plane in air) or curved (a secondary's shadow drawn
     # as an OBSC on a curved dummy in air), a fixed DIAM is drawn, never clips.  Only surfaces
-    # that are a shape alone (_SHAPE_ONLY_TYPES) lose their power in one medium: an ideal lens,
-    # a phase, a grating or a hologram keeps it in air, and its fixed DIAM clips.  The surface is
+    # that are a shape alone (SurfaceFormat.shape_only) lose their power in one medium: an
+    # ideal lens, a phase, a grating or a hologram keeps it in air, and its fixed DIAM clips.  The surface is
     # kept (its place, its obscuration) with an automatic semi-diameter: the beam's extent
-    if (fixed and same_medium and (flat or s.type in _SHAPE_ONLY_TYPES) and not s.stop
+    if (fixed and same_medium and (flat or handler.shape_only) and not s.stop
             and not s.mirror and s.clap is None and s.sqap is None and s.elap is None):
         what = ("beside an OBSC (a surface aperture)" if s.obsc is not None else
                 "beside an ELOB (a surface aperture)" if s.elob is not None else

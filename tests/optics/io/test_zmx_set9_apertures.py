@@ -247,13 +247,19 @@ def test_a_fixed_diam_on_a_fresnel_surface_in_air_does_not_clip(tmp_path):
 
 def test_every_type_read_is_classed_shape_only_or_with_power_in_air():
     """Each surface type the reader knows is either a shape alone (a fixed ``DIAM`` in one
-    medium does not clip) or has power in air (it clips): a new type must be classed here."""
+    medium does not clip) or has power in air (it clips), as its format states
+    (``SurfaceFormat.shape_only``, set on the format class itself, never inherited): a new type
+    must be classed here."""
     from deeplens.optics.io.surface_handlers import FORMATS
-    from deeplens.optics.io.zmx_surfaces import _SHAPE_ONLY_TYPES
 
-    power_in_air = {"PARAXIAL", "PARAX_XY", "BINARY_1", "BINARY_2", "FZERNPHA", "DGRATING", "HOLOGRM1",
-                    "HOLOGRM2", "COORDBRK", "GRINSUR1"}
+    shape_only = {"STANDARD", "EVENASPH", "ODDASPHE", "XPOLYNOM", "XYPOLYNOM", "TILTSURF",
+                  "JONESMAT", "BIRE__IN", "BIRE_OUT", "TOROIDAL", "QED_TYPE", "BICONICX",
+                  "SZERNSAG", "FZERNSAG", "XASPHERE", "GRID_SAG", "IRREGULA", "FRESNELS"}
+    power_in_air = {"PARAXIAL", "PARAX_XY", "BINARY_1", "BINARY_2", "FZERNPHA", "DGRATING",
+                    "HOLOGRM1", "HOLOGRM2", "COORDBRK", "GRINSUR1"}
     read = set(FORMATS.zmx_types())
-    assert not power_in_air & _SHAPE_ONLY_TYPES
-    assert read == _SHAPE_ONLY_TYPES | power_in_air, sorted(read ^ (_SHAPE_ONLY_TYPES
-                                                                    | power_in_air))
+    assert read == shape_only | power_in_air, sorted(read ^ (shape_only | power_in_air))
+    for t in read:
+        fmt = type(FORMATS.for_zmx_type(t))
+        assert "shape_only" in vars(fmt), f"{fmt.__name__} ({t}) does not state shape_only"
+        assert fmt.shape_only == (t in shape_only), t
