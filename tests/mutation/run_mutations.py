@@ -1475,6 +1475,14 @@ MUTATIONS = [
              "deeplens/optics/paraxial.py", "ya_s = (s * ya_s + yb_s) / L",
              "ya_s = (s * ya_s + yb_s) / s",
              ("tests/optics/io/test_zmx_pupil_at_infinity.py",)),
+    # ---------------------------------------- issue 37: the pivot after a flat mirror (pivot2)
+    Mutation("pivot_after_mirror_read_as_virtual", "after a flat mirror, a surface turned about a "
+             "pivot (its vertex ahead of the beam) read as virtual propagation: a backward gap "
+             "and a note that says the rays go back",
+             "deeplens/optics/io/zmx_read.py",
+             "if ahead is not None and ahead[1] > 0:\n            lens.backward_gaps",
+             "if ahead is not None and ahead[1] > 1e30:\n            lens.backward_gaps",
+             ("tests/optics/io/test_zmx_pivot.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -184,7 +184,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
 
     where_of = {i: kept[i][2].line for i in range(len(kept))}
     where_of["sensor"] = img.line
-    virtual_gaps = _virtual_gaps(seq, surfaces, distances, primary, where_of, p)
+    propagated = _virtual_gaps(seq, surfaces, distances, primary, where_of, p)
+    virtual_gaps = [q for q, _ in propagated]
     limited = {}   # (i, j) -> the radius where surfaces i and j meet (estimated diameters)
     original = {}  # surface -> its semi-diameter before it was first limited there
     try:
@@ -240,6 +241,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
                 m.dy.fill_(dy)
                 m.tilt_x.fill_(math.radians(tx))
                 m.tilt_y.fill_(math.radians(ty))
+    _note_virtual_gaps(lens, propagated, where_of, p)
     _roof_gaps(lens, where_of, p)
     needs_efl = ftyp[0] in (2, 3) or (convert is not None and convert[0] == "wfno")
     if _afocal(lens) and needs_efl:
@@ -906,7 +908,7 @@ def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict
 
 
 def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of: dict,
-                  p: Locator) -> list:
+                  p: Locator) -> list[tuple[int, str]]:
     """Gaps after a mirror whose thickness opposes the direction of travel (the traced axis,
     :func:`travel_directions`): OpticStudio's *virtual propagation* (its thickness-sign rule:
     after an odd number of mirrors a positive thickness is virtual; the sequential trace takes
@@ -917,8 +919,9 @@ def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of:
     real surface to the next (stops and coordinate breaks between them); its thicknesses are
     summed within each frame and each sum compared with the direction there.  Each such gap
     becomes one of the lens's :attr:`~deeplens.optics.lens.Lens.backward_gaps`, with a
-    located warning; before the first mirror such a thickness is still an error (``Lens``
-    reports it)."""
+    located warning (:func:`_note_virtual_gaps`, which first takes out a surface turned about
+    a pivot); before the first mirror such a thickness is still an error (``Lens`` reports
+    it).  Returns ``(q, note)`` for each gap, ``q`` the surface after it."""
     if not seq.mirrors:
         return []
     signs = travel_directions(surfaces, seq.mirrors, _axis_indices(seq, primary), primary)
@@ -938,17 +941,32 @@ def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of:
                         against.append(seg)
                     seg = 0.0
             if against:
-                out.append(q)
                 mm = ", ".join(f"{v:g}" for v in against)
-                p.note(where_of[q], f"the gap before deeplens surface {q} runs against the "
-                                    f"direction of travel after the mirror ({mm} mm, light "
-                                    f"travelling "
-                                    f"towards {'+' if signs[q] > 0 else '-'}z there): "
-                                    f"OpticStudio's virtual propagation, the rays taken back "
-                                    f"along their lines (the optical path decreasing); deeplens "
-                                    f"does the same for this gap (Lens.backward_gaps)")
+                out.append((q, f"the gap before deeplens surface {q} runs against the "
+                               f"direction of travel after the mirror ({mm} mm, light "
+                               f"travelling "
+                               f"towards {'+' if signs[q] > 0 else '-'}z there): "
+                               f"OpticStudio's virtual propagation, the rays taken back "
+                               f"along their lines (the optical path decreasing); deeplens "
+                               f"does the same for this gap (Lens.backward_gaps)"))
         prev = q
     return out
+
+
+def _note_virtual_gaps(lens, gaps: list, where_of: dict, p: Locator) -> None:
+    """The located note of each of :func:`_virtual_gaps`' gaps, once the lens is built; a gap
+    into a surface right after coordinate breaks whose vertex, placed through them, lies
+    *ahead* of the surface before the breaks along the traced axis
+    (:meth:`~deeplens.optics.lens.Lens._ahead_across_breaks`) is no virtual propagation but a
+    surface turned about a pivot (OpticStudio's scan-mirror idiom, read so before any mirror
+    too: ``Lens.check``): only the frames between moved backwards, the rays meet it ahead of
+    them, and the gap leaves the lens's backward gaps, without a note."""
+    for q, message in gaps:
+        ahead = lens._ahead_across_breaks(q)
+        if ahead is not None and ahead[1] > 0:
+            lens.backward_gaps = lens.backward_gaps - {q}
+        else:
+            p.note(where_of[q], message)
 
 
 def _roof_gaps(lens, where_of: dict, p: Locator) -> None:

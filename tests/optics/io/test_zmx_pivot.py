@@ -173,3 +173,73 @@ def test_a_surface_genuinely_behind_the_beam_is_still_refused(tmp_path):
     behind = -(50 + D * math.cos(math.radians(45)) - 2.5 * D * math.cos(math.radians(35)))
     assert behind > 30
     assert f"lies {behind:g} mm behind surface 0 along the beam" in msg
+
+
+# ---- after an odd number of mirrors (light travelling towards -z): a flat fold mirror, then
+# the pivot idiom with the thickness signs of that space (``-(L + D)`` to the pivot, the tilt,
+# ``+D`` back to the scan mirror, which lies ``L`` after the fold mirror along the beam)
+L_AFTER = 40.0
+_HALF_FOLD = [0, 0, -22.5, 0, 0, 0]   # a break, the mirror, a break: a 45-degree fold
+
+
+def pivot_after_mirror_file(theta_deg, back=D):
+    return zmx_file([_surf(disz="INFINITY"), _surf(disz=50.0, stop=True, diam=4.0),
+                     _surf("COORDBRK", parms=_HALF_FOLD), _surf(glas="MIRROR", diam=20.0),
+                     _surf("COORDBRK", disz=-(L_AFTER + D), parms=_HALF_FOLD),
+                     _surf("COORDBRK", disz=back, parms=[0, 0, theta_deg, 0, 0, 0]),
+                     _surf(curv=1 / 400.0, disz=80.0, glas="MIRROR", diam=20.0), _surf()],
+                    **_SYSTEM)
+
+
+def _read_noting(tmp_path, text, name):
+    p = tmp_path / f"{name}.zmx"
+    p.write_text(text)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        lens = read_zmx(p).double()
+    return lens, [str(w.message) for w in caught]
+
+
+@pytest.mark.parametrize("theta", [-10.0, 7.5])
+def test_after_a_flat_mirror_a_pivot_is_no_virtual_propagation(tmp_path, theta):
+    """After a flat mirror a thickness against the direction of travel is read as OpticStudio's
+    virtual propagation (a backward gap, with a note); the pivot's ``+D`` back to a scan mirror
+    that lies ahead of the fold mirror is not one: no backward gap, no note, and every ray lands
+    on the image plane where optiland's global trace of the same file lands it (1e-9 mm)."""
+    pytest.importorskip("optiland")
+    from optiland.fileio import load_zemax_file
+
+    text = pivot_after_mirror_file(theta)
+    lens, notes = _read_noting(tmp_path, text, "pivot_after_mirror")
+    assert lens.backward_gaps == frozenset()
+    assert not [n for n in notes if "virtual propagation" in n]
+    p = tmp_path / "oracle.zmx"
+    p.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        optic = load_zemax_file(str(p))
+    par = paraxial(lens)
+    xy = torch.tensor(PUPIL, dtype=lens.dtype) * 0.5 * float(par.entrance_pupil_diameter)
+    with torch.no_grad():
+        for f in FIELDS:
+            r = lens.trace_to_sensor(field_rays(lens, f, W, xy, float(par.entrance_pupil_z)),
+                                     options=TraceOptions(clip_aperture=False))
+            assert bool(r.valid.all())
+            for (px, py), pt in zip(PUPIL, to_global(local_frames(lens)[-1], r.o)):
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    optic.trace_generic(0.0, f / FIELDS[-1], px, py, W / 1000.0)
+                    sg = optic.surface_group
+                    ol = [float(torch.as_tensor(c)[-1].reshape(-1)[0])
+                          for c in (sg.x, sg.y, sg.z)]
+                assert [float(v) for v in pt] == pytest.approx(ol, abs=1e-9), (f, px, py)
+
+
+def test_after_a_flat_mirror_a_surface_behind_the_beam_stays_virtual_propagation(tmp_path):
+    """``+(L + D) + 30`` back puts the scan mirror 30 mm (about: the tilt) behind the fold mirror
+    along the beam: that is OpticStudio's virtual propagation, read as before (a backward gap
+    with one located note naming it)."""
+    lens, notes = _read_noting(tmp_path, pivot_after_mirror_file(10.0, back=L_AFTER + D + 30),
+                               "behind_after_mirror")
+    assert lens.backward_gaps == frozenset({5})
+    assert len([n for n in notes if "virtual propagation" in n]) == 1
