@@ -1483,6 +1483,20 @@ MUTATIONS = [
              "if ahead is not None and ahead[1] > 0:\n            lens.backward_gaps",
              "if ahead is not None and ahead[1] > 1e30:\n            lens.backward_gaps",
              ("tests/optics/io/test_zmx_pivot.py",)),
+    # ------------------- issue 37: OpticStudio's sample lenslet array US_ARRAY.DLL (branch usarray)
+    Mutation("lenslet_corner_on_vertex", "an odd lenslet array laid out with a corner on the "
+             "vertex (the centres shifted by half a width: the layout OpticStudio's stored "
+             "semi-diameters rule out)",
+             "deeplens/optics/surfaces/lenslet_array.py",
+             "        return (i + 0.5 - 0.5 * n) * w, s\n",
+             "        return (i - 0.5 * n) * w, s\n",
+             ("tests/optics/io/test_zmx_lenslet_array.py",)),
+    Mutation("lenslet_array_capped_at_one_lenslet", "a lenslet array's automatic semi-diameter "
+             "capped at one lenslet's sphere (0.999 |R|) instead of the array's extent",
+             "deeplens/optics/io/zmx_read.py",
+             '    own = getattr(surf, "domain_radius", None)\n',
+             "    own = None\n",
+             ("tests/optics/io/test_zmx_lenslet_array.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -1257,10 +1257,11 @@ class ExtendedAsphereFormat(SurfaceFormat):
         return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 
 
-# GRID_SAG's, IRREGULA's, HOLOGRM1/2's, GRINSUR1's and FRESNELS' handlers live in their own modules; importing them registers them
+# GRID_SAG's, IRREGULA's, HOLOGRM1/2's, GRINSUR1's, FRESNELS' and US_ARRAY.DLL's handlers live in their own modules; importing them registers them
 # (after the built-in ones: the parser lists the types read in registration order)
 from . import zmx_grid_sag  # noqa: E402,F401
 from . import zmx_irregular  # noqa: E402,F401
 from . import zmx_hologram  # noqa: E402,F401
 from . import zmx_grin  # noqa: E402,F401
 from . import zmx_fresnel  # noqa: E402,F401
+from . import zmx_lenslet_array  # noqa: E402,F401

@@ -341,6 +341,11 @@ def _type(st: _Parse, r: Record) -> None:
     if len(toks) < 2:
         p.fail(ln, "TYPE line is truncated: missing the surface type")
     cur.type, cur.type_line = toks[1].upper(), ln
+    if cur.type == "USERSURF" and len(toks) > 2 and \
+            FORMATS.for_zmx_type(f"USERSURF {toks[2].upper()}") is not None:
+        # a compiled plug-in whose surface deeplens models (the registry's name for it is
+        # "USERSURF <DLL>", the DLL's name in capitals: files write US_ARRAY.DLL and US_Array.dll)
+        cur.type = f"USERSURF {toks[2].upper()}"
     if FORMATS.for_zmx_type(cur.type) is None:
         if cur.type == "USERSURF":   # a compiled plug-in: named, no list of the types read
             dll = f"plug-in {toks[2]}" if len(toks) > 2 else "plug-in (no DLL named)"

@@ -1076,11 +1076,27 @@ def _beam_reach(lens, limited: dict):
     return reach, half
 
 
+def _domain_cap(surf) -> float:
+    """The largest automatic semi-diameter (mm) ``surf`` takes: a conic's domain edge ``0.999 /
+    (|c| sqrt(1 + k))`` (its vertex curvature ``c``, conic ``k``), or, for a surface that states
+    its own extent (``domain_radius()``: a :class:`~..surfaces.LensletArray`, whose lenslets'
+    conics repeat across the array), that extent; ``inf`` otherwise."""
+    own = getattr(surf, "domain_radius", None)
+    if own is not None:
+        return float(own())
+    c = float(surf.paraxial_curvature())
+    k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
+    if c != 0 and 1 + k > 0:
+        return 0.999 / (abs(c) * math.sqrt(1 + k))
+    return math.inf
+
+
 def paraxial_semi_diameters(lens, idx, field_deg: float) -> None:
     """Semi-diameters ``1.05 (|y_marginal| + |y_chief|)`` of the surfaces ``idx`` (in place):
     the paraxial marginal ray's and the full field's chief ray's heights (``field_deg``, the
     chief ray parallel to the axis for an object-space telecentric lens), capped below a
-    conic's domain edge ``0.999 / (|c| sqrt(1 + k))``.  The first estimate of automatic
+    conic's domain edge ``0.999 / (|c| sqrt(1 + k))`` (a lenslet array: its own extent,
+    :func:`_domain_cap`).  The first estimate of automatic
     semi-diameters of the ``.zmx`` and CODE V readers."""
     from ..paraxial import media_indices, paraxial, trace_paraxial_ray
 
@@ -1105,11 +1121,7 @@ def paraxial_semi_diameters(lens, idx, field_deg: float) -> None:
         for i in idx:
             surf = lens.surfaces[i]
             sd = 1.05 * (abs(float(hm[i])) + abs(float(hc[i])))
-            c = float(surf.paraxial_curvature())
-            k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
-            if c != 0 and 1 + k > 0:
-                sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
-            surf.semi_diameter.fill_(sd)
+            surf.semi_diameter.fill_(min(sd, _domain_cap(surf)))
 
 
 def _auto_semi_diameters(lens, idx, fields, where_of, p: Locator, limited=None, original=None):
@@ -1141,7 +1153,7 @@ def real_ray_semi_diameters(lens, idx, fields) -> None:
     rays over the paraxial entrance pupil enlarged by 2 % (48 rim points and the chief ray per
     field in ``fields`` (degrees) and wavelength, apertures ignored), after the paraxial
     estimate :func:`paraxial_semi_diameters` that lets the rays through; capped to a conic's
-    domain.  The ``.zmx`` reader's automatic semi-diameters (:func:`_auto_semi_diameters`) and the
+    domain (:func:`_domain_cap`).  The ``.zmx`` reader's automatic semi-diameters (:func:`_auto_semi_diameters`) and the
     CODE V reader's for a lens with coordinate breaks."""
     from ..options import TraceOptions
     from ..paraxial import paraxial
@@ -1172,12 +1184,7 @@ def real_ray_semi_diameters(lens, idx, fields) -> None:
         for i in idx:
             if top[i] > 0:
                 surf = lens.surfaces[i]
-                sd = top[i]
-                c = float(surf.paraxial_curvature())
-                k = float(getattr(surf, "k", 0.0)) if hasattr(surf, "k") else 0.0
-                if c != 0 and 1 + k > 0:
-                    sd = min(sd, 0.999 / (abs(c) * math.sqrt(1 + k)))
-                surf.semi_diameter.fill_(sd)
+                surf.semi_diameter.fill_(min(top[i], _domain_cap(surf)))
 
 
 def _afocal(lens) -> bool:

@@ -17,6 +17,7 @@ from .hologram import Hologram
 from .ideal import IdealLens
 from .ideal_xy import IdealLensXY
 from .irregular import Irregular
+from .lenslet_array import LensletArray
 from .odd_asphere import OddAsphere
 from .plane import Plane
 from .qtype import QType
@@ -26,5 +27,5 @@ from .zernike_phase import ZernikeFringePhase
 from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
 __all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary1", "Binary2", "BSpline", "Cylinder", "ExtendedPolynomial",
-           "Fresnel", "Grating", "GridSag", "Hologram", "Irregular", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag", "ZernikeFringePhase",
+           "Fresnel", "Grating", "GridSag", "Hologram", "Irregular", "LensletArray", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag", "ZernikeFringePhase",
            "Surface", "SagSurface", "SURFACE_TYPES"]

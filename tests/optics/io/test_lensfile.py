@@ -265,7 +265,7 @@ BAD = [
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
      r"aperture, asphere, biconic, binary1, binary2, bspline, conic, coordinate_break, cylinder, "
      r"extended_polynomial, fresnel, grating, "
-     r"grid_sag, hologram, ideal_lens, ideal_lens_xy, irregular, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
+     r"grid_sag, hologram, ideal_lens, ideal_lens_xy, irregular, lenslet_array, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
      r"zernike_fringe_phase, zernike_fringe_sag, "
      r"zernike_sag\)"),
     ("misspelt field", _set(-1.0, "surfaces", 0, "conic_constant"),
@@ -577,6 +577,13 @@ def test_every_registered_surface_type_round_trips():
     d["surfaces"].append({"type": "binary1", "semi_diameter_mm": 2.5,
                           "curvature_per_mm": 1 / 70.0, "conic": -0.2, "norm_radius_mm": 2.4,
                           "phase_terms_rad": [0.0, 3.0, -10.0, 0.0, -10.0], "order": 1,
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([len(d["surfaces"]) - 1] * 2)
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # a lenslet array (OpticStudio's US_ARRAY.DLL: identical conic lenslets), likewise
+    d["surfaces"].append({"type": "lenslet_array", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 60.0, "conic": -0.3,
+                          "lenslet_counts": [5, 3], "lenslet_widths_mm": [1.1, 5 / 3],
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([len(d["surfaces"]) - 1] * 2)
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})

@@ -11,6 +11,7 @@ import warnings
 from pathlib import Path
 
 import pytest
+import torch
 
 from deeplens.optics.io.zmx import read_zmx
 
@@ -90,3 +91,32 @@ def test_a_floating_pupil_optiland_declines_is_read_with_the_breaks_zeroed(tmp_p
         lens = read_zmx(f)
         ok, why = _benchmark().folder_oracles(tmp_path)(f.name, lens)
     assert "optiland(breaks zeroed)" in ok, why
+
+
+def test_a_lenslet_array_is_confirmed_through_its_on_axis_lenslet_stand_in(tmp_path):
+    """Neither oracle reads ``US_ARRAY.DLL``: the benchmark gives both the file with the array
+    as its on-axis lenslet (a ``STANDARD`` surface of its ``CURV``, the ``PARM`` lines dropped)
+    and names that in the confirmation; a deeplens reading whose paraxial curvature were not the
+    on-axis lenslet's (1 % off) is confirmed by neither."""
+    pytest.importorskip("optiland")
+    pytest.importorskip("rayoptics")
+    from test_zmx_lenslet_array import uds1_file
+
+    bench = _benchmark()
+    text = uds1_file()
+    stand_in = bench.lenslet_stand_in_text(text)
+    assert "US_ARRAY" not in stand_in and "PARM" not in stand_in
+    assert stand_in.count("TYPE STANDARD") == text.count("TYPE STANDARD") + 1
+    assert "CURV 0.01" in stand_in
+    f = tmp_path / "uds1.zmx"
+    f.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lens = read_zmx(f)
+        confirm = bench.folder_oracles(tmp_path)
+        ok, why = confirm(f.name, lens)
+        assert ok == ["optiland(on-axis lenslet stand-in)", "rayoptics(on-axis lenslet stand-in)"]
+        with torch.no_grad():
+            lens.surfaces[0].c.mul_(1.01)
+        ok, why = confirm(f.name, lens)
+    assert ok == [] and set(why) == {"optiland", "rayoptics"}, why

@@ -180,18 +180,19 @@ def test_an_automatic_diam_past_the_spheres_edge_is_refused_on_its_line(tmp_path
 
 # ------------------------------------------------------------- what a refusal names
 def test_a_dll_surface_and_a_user_aperture_are_refused_naming_the_missing_file(tmp_path):
-    """``TYPE USERSURF US_ARRAY.DLL`` (the lenslet-array samples) and ``UDAD 0 "NAME.UDA" 1``
-    (the Talbot sample's grating) are refused at their line, in one line naming the plug-in or
-    the aperture file deeplens cannot use."""
+    """``TYPE USERSURF US_HEXARRAY.DLL`` (a compiled sample deeplens does not model; its
+    ``US_ARRAY.DLL`` lenslet arrays are read, test_zmx_lenslet_array.py) and ``UDAD 0 "NAME.UDA"
+    1`` (the Talbot sample's grating) are refused at their line, in one line naming the plug-in
+    or the aperture file deeplens cannot use."""
     text = _ball_front('DIAM 3 0 0 0 1 ""')
-    dll = text.replace("  TYPE STANDARD\n  CURV 0.1\n", "  TYPE USERSURF US_ARRAY.DLL\n"
+    dll = text.replace("  TYPE STANDARD\n  CURV 0.1\n", "  TYPE USERSURF US_HEXARRAY.DLL\n"
                        "  CURV 0.1\n", 1)
-    line = dll.splitlines().index("  TYPE USERSURF US_ARRAY.DLL") + 1
+    line = dll.splitlines().index("  TYPE USERSURF US_HEXARRAY.DLL") + 1
     with pytest.raises(ZemaxFileError) as e:
         _read(write(tmp_path, dll))
     msg = str(e.value)
     assert msg.endswith(f"t.zmx:{line}: surface type 'USERSURF' (SURF 2) is not supported: its "
-                        f"shape is computed by OpticStudio's compiled plug-in US_ARRAY.DLL, "
+                        f"shape is computed by OpticStudio's compiled plug-in US_HEXARRAY.DLL, "
                         f"which deeplens cannot run")
     assert "\n" not in msg
     uda = text.replace("  STOP\n", '  STOP\n  UDAD 0 "TALBOTIMA_SURF_1.UDA" 1.0\n', 1)
@@ -254,7 +255,8 @@ def test_every_type_read_is_classed_shape_only_or_with_power_in_air():
 
     shape_only = {"STANDARD", "EVENASPH", "ODDASPHE", "XPOLYNOM", "XYPOLYNOM", "TILTSURF",
                   "JONESMAT", "BIRE__IN", "BIRE_OUT", "TOROIDAL", "QED_TYPE", "BICONICX",
-                  "SZERNSAG", "FZERNSAG", "XASPHERE", "GRID_SAG", "IRREGULA", "FRESNELS"}
+                  "SZERNSAG", "FZERNSAG", "XASPHERE", "GRID_SAG", "IRREGULA", "FRESNELS",
+                  "USERSURF US_ARRAY.DLL"}
     power_in_air = {"PARAXIAL", "PARAX_XY", "BINARY_1", "BINARY_2", "FZERNPHA", "DGRATING",
                     "HOLOGRM1", "HOLOGRM2", "COORDBRK", "GRINSUR1"}
     read = set(FORMATS.zmx_types())

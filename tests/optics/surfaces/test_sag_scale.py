@@ -34,7 +34,7 @@ from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic,
                                       Hologram,
                                       IdealLens,
                                       IdealLensXY,
-                                      Irregular, OddAsphere,
+                                      Irregular, LensletArray, OddAsphere,
                                       Plane, QType, Toroid, XYPolynomial, ZernikeFringePhase,
                                       ZernikeFringeSag, ZernikeSag)
 
@@ -75,6 +75,12 @@ EXAMPLES = {
                                                    conic=-0.5),
     Hologram: lambda: Hologram(0.01, R, (1.0, -2.0, -150.0), (0.5, 3.0, 90.0), 550.0, 1, 2,
                                conic=-0.5),
+    # lenslets of width w = R / (1.5 sqrt 2): a corner of four lenslets on the rim at 45°, where
+    # the sag's derivative is largest (the farthest point from a lenslet's centre: its
+    # half-diagonal, the scale's rule; c = 0.05 puts the conic's derivative there above
+    # conic_scale's 1e-6 floor, |c| ρ = 0.08 keeps the curvature's within 0.3 % of ρ²/2)
+    LensletArray: lambda: LensletArray(0.05, R, (5, 5), (R / (1.5 * math.sqrt(2)),) * 2,
+                                       conic=-0.5),
 }
 #: grids of node values (one tensor, one scale per node value): checked per node in
 #: tests/optics/surfaces/test_grid_sag.py (the largest sag change per unit of one node's value)
