@@ -59,8 +59,9 @@ vendor catalogues of :mod:`.vendor_glass`)."""
 
 #: catalogue -> the located note of a use of one of deeplens' own formula entries in it
 _SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note,
-                 "BIREFRINGENT": birefringent_note,
-                 **{c: (lambda g, c=c: shelf_note(g, c)) for c in SHELF_CATALOGUES}}
+                 "BIREFRINGENT": birefringent_note}
+# and the vendor shelves' (:mod:`.shelf_glass`: SCHOTT_IRG), whose note names the catalogue too
+_SOURCE_NOTES |= {c: (lambda g, c=c: shelf_note(g, c)) for c in SHELF_CATALOGUES}
 
 #: catalogue -> (lookup, names, note) of deeplens' own formula entries that answer for a
 #: built-in catalogue after its table names (:mod:`.misc_glass`: ``MISC`` ``WATER``)
