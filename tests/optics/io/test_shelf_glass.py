@@ -215,11 +215,14 @@ def test_a_name_the_catalogue_lacks_is_refused_in_one_line(tmp_path):
     assert "SCHOTT_IRG (current vendor catalogue, 6 glasses)" in e.value.details
 
 
-def test_an_irg_lens_round_trips_through_json_and_zmx(tmp_path):
+@pytest.mark.parametrize("gcat,name", [("SCHOTT_IRG", "IRG25"), ("INFRARED", "GERMANIUM")])
+def test_an_irg_lens_round_trips_through_json_and_zmx(tmp_path, gcat, name):
+    """An infrared glass (no index at the d line) is written and read back, as JSON and as
+    ``.zmx``, with the same glass and EFL."""
     from deeplens.optics.io import load_lens, save_lens
 
     f = tmp_path / "irg.zmx"
-    f.write_text(_SINGLET.format(wave=10.0, gcat="SCHOTT_IRG", glass="IRG25"))
+    f.write_text(_SINGLET.format(wave=10.0, gcat=gcat, glass=name))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ZemaxWarning)
         lens = read_zmx(f)
@@ -227,9 +230,9 @@ def test_an_irg_lens_round_trips_through_json_and_zmx(tmp_path):
         for out in (tmp_path / "irg.json", tmp_path / "irg_out.zmx"):
             save_lens(lens, out)
             back = load_lens(out)
-            assert back.materials[1].name == "IRG25"
+            assert back.materials[1].name == name
             assert float(paraxial(back).efl) == efl
     text = (tmp_path / "irg_out.zmx").read_text()
-    # IRG25 has no index at the d line: OpticStudio's placeholder 1.5/40 on its GLAS line, as
+    # no index at the d line: OpticStudio's placeholder 1.5/40 on the GLAS line, as
     # OpticStudio's own files write GERMANIUM (a reader takes the catalogue's glass)
-    assert "GCAT SCHOTT_IRG" in text and "GLAS IRG25 0 0 1.5 40.0 0" in text
+    assert f"GCAT {gcat}" in text and f"GLAS {name} 0 0 1.5 40.0 0" in text
