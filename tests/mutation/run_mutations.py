@@ -1497,6 +1497,24 @@ MUTATIONS = [
              '    own = getattr(surf, "domain_radius", None)\n',
              "    own = None\n",
              ("tests/optics/io/test_zmx_lenslet_array.py",)),
+    # branch catalogs (issue 37 item 2): SCHOTT's IRG glasses under OpticStudio's SCHOTT_IRG
+    Mutation("shelf_irg_constant_dropped", "the constant c0 of SCHOTT's IRG Sellmeier formula "
+             "(n² = 1 + c0 + ...) dropped in the mapping onto AGF formula 2",
+             "deeplens/optics/io/shelf_glass.py", "pairs.insert(0, (c[0], 0.0))",
+             "pairs.insert(0, (0.0, 0.0))", ("tests/optics/io/test_shelf_glass.py",)),
+    Mutation("shelf_irg_formula1_pole_unsquared", "a refractiveindex.info formula 1 entry's "
+             "poles taken as C instead of C² (IRG23)", "deeplens/optics/io/shelf_glass.py",
+             'pairs = [(c[i], c[i + 1] ** 2 if kind == "formula 1" else c[i + 1])',
+             "pairs = [(c[i], c[i + 1])", ("tests/optics/io/test_shelf_glass.py",)),
+    Mutation("shelf_irg_use_silent", "a SCHOTT_IRG glass used without the located note naming "
+             "its flyer and how far OpticStudio's catalogue lies", "deeplens/optics/io/zmx_glass.py",
+             "_SOURCE_NOTES |= {c: (lambda g, c=c: shelf_note(g, c)) for c in SHELF_CATALOGUES}",
+             "", ("tests/optics/io/test_shelf_glass.py",)),
+    Mutation("ir_glass_written_nd_one", "a catalogue glass with no index at the d line written "
+             "with n_d 1, V_d 0 instead of OpticStudio's 1.5/40 placeholder",
+             "deeplens/optics/io/zmx_write.py",
+             'nd_vd = f"{_f(_PLACEHOLDER_ND_VD[0])} {_f(_PLACEHOLDER_ND_VD[1])}"',
+             'nd_vd = "1.0 0.0"', ("tests/optics/io/test_shelf_glass.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

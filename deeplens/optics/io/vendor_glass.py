@@ -34,7 +34,9 @@ Crystals under the names of OpticStudio's ``INFRARED`` catalogue (germanium, sil
 ZnSe, GaAs, the fluorides, sapphire, fused silica, alkali halides), from their primary published
 dispersion formulas: :mod:`.infrared_glass`; Corning's HPFS 7980 fused silica under OpticStudio's
 ``CORNING`` name ``C79-80`` (Malitson's formula): :mod:`.corning_glass`; crystalline quartz's
-ordinary index under OpticStudio's ``BIREFRINGENT`` name ``QUARTZ``: :mod:`.birefringent_glass`.
+ordinary index under OpticStudio's ``BIREFRINGENT`` name ``QUARTZ``: :mod:`.birefringent_glass`;
+SCHOTT's infrared chalcogenide glasses ``IRG22`` ... ``IRG27`` under OpticStudio's catalogue
+``SCHOTT_IRG``, from SCHOTT's flyers as refractiveindex.info keeps them: :mod:`.shelf_glass`.
 
 Lookup is by exact name (case-insensitive; blanks inside a spreadsheet's name are dropped).  The catalogues are read once per process
 (:func:`functools.lru_cache`; about a second in all) and never changed afterwards.
@@ -54,6 +56,7 @@ from .agf import AGFGlass
 from .birefringent_glass import BIREFRINGENT_GLASSES, birefringent_glass
 from .corning_glass import CORNING_GLASSES, corning_glass
 from .infrared_glass import CRYSTALS, infrared_glass
+from .shelf_glass import SHELF_CATALOGUES, shelf_catalogue_size, shelf_glass
 from .withdrawn_glass import WITHDRAWN_CATALOGUES, WITHDRAWN_GLASSES, withdrawn_glass
 
 __all__ = ["VENDOR_CATALOGUES", "CURRENT_CATALOGUES", "CRYSTALS", "CORNING_GLASSES",
@@ -72,8 +75,9 @@ VENDOR_CATALOGUES = {
 }
 
 #: every catalogue name answered by a current catalogue (the six vendors, INFRARED, CORNING,
-#: BIREFRINGENT)
-CURRENT_CATALOGUES = (*VENDOR_CATALOGUES, "INFRARED", "CORNING", "BIREFRINGENT")
+#: BIREFRINGENT, and the vendor shelves of :mod:`.shelf_glass`: SCHOTT_IRG)
+CURRENT_CATALOGUES = (*VENDOR_CATALOGUES, "INFRARED", "CORNING", "BIREFRINGENT",
+                      *SHELF_CATALOGUES)
 
 #: catalogue name -> the only names deeplens ships of it (a glass of another name is "not
 #: shipped": the refusal asks for the vendor's .agf)
@@ -258,6 +262,8 @@ def vendor_glass(glass: str, catalogue: str) -> AGFGlass | None:
         return corning_glass(glass)
     if cat == "BIREFRINGENT":
         return birefringent_glass(glass)
+    if cat in SHELF_CATALOGUES:
+        return shelf_glass(glass, cat)
     if cat not in VENDOR_CATALOGUES:
         return None
     rec = _vendor_table(cat).get(_key(glass))
@@ -293,6 +299,8 @@ def catalogue_size(catalogue: str, previous: bool | str = False) -> int:
         return len(CORNING_GLASSES)
     if catalogue.upper() == "BIREFRINGENT":
         return len(BIREFRINGENT_GLASSES)
+    if catalogue.upper() in SHELF_CATALOGUES:
+        return shelf_catalogue_size(catalogue)
     return len(_vendor_table(catalogue.upper())) if catalogue.upper() in VENDOR_CATALOGUES else 0
 
 
@@ -302,6 +310,7 @@ def find_in_vendor_catalogues(glass: str) -> list[str]:
     hits += ["INFRARED"] if _key(glass) in CRYSTALS else []
     hits += ["CORNING"] if _key(glass) in CORNING_GLASSES else []
     hits += ["BIREFRINGENT"] if _key(glass) in BIREFRINGENT_GLASSES else []
+    hits += [c for c in SHELF_CATALOGUES if shelf_glass(glass, c) is not None]
     hits += [f"{c} (archived)" for c in ARCHIVED_CATALOGUES
              if c not in hits and _key(glass) in _archive_table(c)]
     hits += [f"{c} (withdrawn)" for c in WITHDRAWN_CATALOGUES

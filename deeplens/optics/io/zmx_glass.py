@@ -3,7 +3,7 @@
 Order, when a name is in more than one place: per catalogue on the ``GCAT`` line (all vendor
 catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
 catalogue (:mod:`.vendor_glass`; also deeplens' own formula entries ``INFRARED``, ``CORNING`` and
-``BIREFRINGENT``, each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`;
+``BIREFRINGENT``, and ``SCHOTT_IRG`` from :mod:`.shelf_glass`, each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`;
 ``MISC`` also :mod:`.misc_glass`'s ``WATER``, each use noted), a catalogue kept only as index
 tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then the named vendors' archived
 and previous catalogues; then the user's other catalogues (``glass_catalogs``, then
@@ -34,6 +34,7 @@ from .birefringent_glass import birefringent_note
 from .corning_glass import corning_note
 from .infrared_glass import crystal_note
 from .misc_glass import MISC_GLASSES, misc_glass, misc_note
+from .shelf_glass import SHELF_CATALOGUES, shelf_note
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
 from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_note
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
@@ -59,6 +60,8 @@ vendor catalogues of :mod:`.vendor_glass`)."""
 #: catalogue -> the located note of a use of one of deeplens' own formula entries in it
 _SOURCE_NOTES = {"INFRARED": crystal_note, "CORNING": corning_note,
                  "BIREFRINGENT": birefringent_note}
+# and the vendor shelves' (:mod:`.shelf_glass`: SCHOTT_IRG), whose note names the catalogue too
+_SOURCE_NOTES |= {c: (lambda g, c=c: shelf_note(g, c)) for c in SHELF_CATALOGUES}
 
 #: catalogue -> (lookup, names, note) of deeplens' own formula entries that answer for a
 #: built-in catalogue after its table names (:mod:`.misc_glass`: ``MISC`` ``WATER``)

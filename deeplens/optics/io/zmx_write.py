@@ -24,7 +24,7 @@ from ..surfaces.base import (clear_ellipse_of, clear_rect_of, obscuration_ellips
 from .agf import AGFGlass
 from .surface_handlers import FORMATS
 from .vendor_glass import BuchdahlGlass
-from .zmx_glass import BUILTIN_CATALOGUES
+from .zmx_glass import _PLACEHOLDER_ND_VD, BUILTIN_CATALOGUES
 from .zmx_system import rotationally_symmetric, zemax_tilts
 
 __all__ = ["write_zmx"]
@@ -45,7 +45,12 @@ def _glass_line(m: Material, cats: list) -> str | None:
     if isinstance(m, (AGFGlass, BuchdahlGlass)):
         if m.catalogue and m.catalogue not in cats:
             cats.append(m.catalogue)
-        return f"GLAS {m.name} 0 0 {_f(m.nd)} {_f(m.vd)} 0 0 0 0 0 0"
+        try:
+            nd_vd = f"{_f(m.nd)} {_f(m.vd)}"
+        except ValueError:   # not defined at the d line (an infrared glass): OpticStudio's
+            # placeholder, as its own files write GERMANIUM (readers take the catalogue's glass)
+            nd_vd = f"{_f(_PLACEHOLDER_ND_VD[0])} {_f(_PLACEHOLDER_ND_VD[1])}"
+        return f"GLAS {m.name} 0 0 {nd_vd} 0 0 0 0 0 0"
     name = m.name.upper()
     rec = GLASS_TABLE.get(name)
     is_entry = rec is not None and (not isinstance(m, ModelGlass) or m.to_spec() == rec.name)
