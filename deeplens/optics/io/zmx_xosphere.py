@@ -95,10 +95,8 @@ class ExtendedOddAsphereFormat(SurfaceFormat):
                                   [v * ctx.s_mm for v, _ in terms], conic=s.coni)
 
     def write_zmx(self, s, i):
-        from .surface_handlers import _opening_records   # (that module imports this one)
-
         a = [float(v) for v in s.a]
         lines = ["TYPE XOSPHERE", f"CURV {_f(s.c)}", f"CONI {_f(s.k)}", f"XDAT 1 {len(a)}",
                  f"XDAT 2 {_f(s.norm_radius)}"]
         lines += [f"XDAT {j + 3} {_f(v)}" for j, v in enumerate(a)]
-        return lines + [zmx_diam(s.semi_diameter)] + _opening_records(s, i)
+        return lines + [zmx_diam(s.semi_diameter)]   # (SQAP, ELAP, ELOB: the writer's)
