@@ -148,6 +148,30 @@ def test_first_order_and_real_rays_match_rayoptics_reading_of_the_file(monkeypat
                for a, b in zip(g, h)) > 1e-3
 
 
+def test_corpus_oracle_gives_rayoptics_the_normalisation_radius_and_the_rho2_term(monkeypatch,
+                                                                                  tmp_path):
+    """The corpus benchmark's rayoptics oracle (test_zmx_corpus_rayoptics._rayoptics) on a file
+    with R_n = 2.5 and a ρ² term: zmxread ignores XDAT 2 and its paraxial model takes CURV alone,
+    so the oracle gives it ``A_i / R_n^i`` on ``r^i`` and the vertex curvature ``CURV + 2 A_2 /
+    R_n²``; then EFL, EPD, pupil and back focus agree to 1e-9, and from CURV alone they do
+    not."""
+    from test_zmx_corpus_rayoptics import (_agrees, _assert_agrees, _corpus_of_one, _numbers,
+                                           _rayoptics, _update)
+
+    pytest.importorskip("rayoptics")
+    name = "xosphere_rn.zmx"
+    lens, scratch = _corpus_of_one(name, xosphere(terms={2: 0.05, **TERMS}), monkeypatch,
+                                   tmp_path)
+    opm = _rayoptics(name, lens, monkeypatch, scratch)
+    prof = opm["seq_model"].ifcs[2].profile
+    assert prof.coefs[:4] == pytest.approx([0.0, 0.05 / RN ** 2, TERMS[3] / RN ** 3,
+                                            TERMS[4] / RN ** 4], rel=1e-15)
+    _assert_agrees(name, lens, opm)
+    prof.cv = C
+    _update(opm)
+    assert not _agrees(*_numbers(name, lens, opm)["EFL"])
+
+
 def test_first_order_and_real_rays_match_optilands_odd_asphere(tmp_path):
     """optiland reads the same surface written as ODDASPHE, ``PARM i = A_i / R_n^i`` (R_n =
     2.5, worked out here): its EFL, BFL, EPD and entrance pupil agree to 1e-9 relative with
