@@ -236,3 +236,11 @@ def test_a_fixed_diam_in_air_does_not_clip(tmp_path):
         read_zmx(write(tmp_path, text))
     assert any(re.search(r"SURF 2: the fixed DIAM 8 of a curved surface in one medium \(no "
                          r"refractive power\).* does not clip", str(w.message)) for w in caught)
+
+
+def test_counts_as_rotationally_symmetric_for_tilt_conversions():
+    """A pair of breaks tilting an Extended Odd Asphere about x and y becomes the element's
+    misalignment (as for the odd asphere): the surface is a function of r alone."""
+    from deeplens.optics.io.zmx_system import rotationally_symmetric
+
+    assert rotationally_symmetric(ExtendedOddAsphere(C, 5.0, RN, [0.0, 0.0, 1e-3]))
