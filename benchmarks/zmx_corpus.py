@@ -24,7 +24,10 @@ and optiland refuses, is given to both as the vertex curvature of deeplens' stat
 out from its GDAT/GARR numbers, test_zmx_corpus.grid_sag_vertex_curvatures; an Extended
 Polynomial, ``XPOLYNOM``, which neither reads, is given to both as the sphere of its vertex
 curvature ``CURV + (A_x² + A_y²) / R_n²`` worked out from its XDAT terms for first-order data,
-test_zmx_corpus.xpolynom_vertex_curvatures; a two-point
+test_zmx_corpus.xpolynom_vertex_curvatures; an Extended Odd Asphere, ``XOSPHERE``, which
+optiland does not read and rayoptics reads without its normalisation radius and with CURV alone
+in its paraxial model, is given to rayoptics as ``A_i / R_n^i`` on ``r^i`` with the vertex
+curvature ``CURV + 2 A_2 / R_n²`` (test_zmx_corpus_rayoptics._rayoptics); a two-point
 hologram, ``HOLOGRM1``/``HOLOGRM2``, which neither reads (optiland refuses the type, rayoptics
 reads the bare substrate), is given to rayoptics as the thin-lens power of its construction
 beams' phase at the vertex, worked out from PARM 1-8 and CURV by

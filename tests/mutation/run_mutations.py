@@ -1515,6 +1515,19 @@ MUTATIONS = [
              "deeplens/optics/io/zmx_write.py",
              'nd_vd = f"{_f(_PLACEHOLDER_ND_VD[0])} {_f(_PLACEHOLDER_ND_VD[1])}"',
              'nd_vd = "1.0 0.0"', ("tests/optics/io/test_shelf_glass.py",)),
+    # branch xosphere: OpticStudio's Extended Odd Asphere (XOSPHERE), XDAT i + 2 on ρ^i
+    Mutation("xosphere_term_index_off_by_one", "an Extended Odd Asphere's coefficient A_i read "
+             "onto ρ^(i+1) (XDAT 3 taken as the ρ² term, as the Extended Asphere's)",
+             "deeplens/optics/io/zmx_xosphere.py",
+             "terms = [s.xdat.get(i + 2, (0.0, s.type_line)) for i in range(1, n + 1)]",
+             "terms = [s.xdat.get(i + 1, (0.0, s.type_line)) for i in range(1, n + 1)]",
+             ("tests/optics/io/test_zmx_xosphere.py",)),
+    Mutation("extended_odd_asphere_rho_power_off_by_one", "the Extended Odd Asphere's terms "
+             "evaluated at ρ = r / R_n² in the sag (not r / R_n; the slopes left right)",
+             "deeplens/optics/surfaces/extended_odd_asphere.py",
+             "        sigma = s / self.norm_radius.to(s) ** 2\n",
+             "        sigma = s / self.norm_radius.to(s) ** 4\n",
+             ("tests/optics/surfaces/test_extended_odd_asphere.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -36,7 +36,9 @@ following surface (folds, off-axis sections; see ``docs/guide/mirrors.md``).  Pe
 ``asphere`` takes ``curvature_per_mm`` (or ``roc_mm``, 0 = flat), optional ``conic`` and
 ``aspheric`` (``[a4, a6, ...]``); ``xy_polynomial`` takes ``coefficients`` and ``b``;
 ``extended_polynomial`` (OpticStudio's ``XPOLYNOM`` on a conic) ``curvature_per_mm``, ``conic``,
-``norm_radius_mm`` and ``polynomial_coefficients`` (in OpticStudio's term order); ``bspline``
+``norm_radius_mm`` and ``polynomial_coefficients`` (in OpticStudio's term order);
+``extended_odd_asphere`` (OpticStudio's ``XOSPHERE``) ``curvature_per_mm``, ``conic``,
+``norm_radius_mm`` and ``rho_coefficients_mm`` (``[A_1, A_2, ...]`` on ``(r / R_n)^i``); ``bspline``
 takes a 2-D ``coefficients`` grid; ``aperture`` optionally ``shape: "rect"`` (or ``"ellipse"``)
 with ``half_width_x_mm``/``half_width_y_mm`` (an ellipse's half-axes); ``ideal_lens`` takes
 ``focal_length_mm``.  Any lens or mirror surface may carry ``clear_rect_mm`` ``[h_x, h_y]``,

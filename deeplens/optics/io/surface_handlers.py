@@ -28,7 +28,9 @@ how a new type registers and how lookups work: :mod:`.surface_formats`):
 * :class:`~.zmx_grin.Gradient1Format` (in its own module, :mod:`.zmx_grin`): ``GRINSUR1``,
   ``GradientSurface`` with its graded medium;
 * :class:`~.zmx_fresnel.FresnelFormat` (in its own module, :mod:`.zmx_fresnel`): ``FRESNELS``,
-  ``Fresnel``.
+  ``Fresnel``;
+* :class:`~.zmx_xosphere.ExtendedOddAsphereFormat` (in its own module, :mod:`.zmx_xosphere`):
+  ``XOSPHERE``, ``ExtendedOddAsphere``.
 
 ``STANDARD``/``EVENASPH`` -> :class:`~deeplens.optics.surfaces.Asphere` (or a
 :class:`~deeplens.optics.surfaces.Plane`, or an :class:`~deeplens.optics.surfaces.Aperture` for a
@@ -1257,7 +1259,7 @@ class ExtendedAsphereFormat(SurfaceFormat):
         return _xasphere(s, ctx.k, ctx.c, ctx.sd_build, ctx.s_mm, ctx.p)
 
 
-# GRID_SAG's, IRREGULA's, HOLOGRM1/2's, GRINSUR1's, FRESNELS' and US_ARRAY.DLL's handlers live in their own modules; importing them registers them
+# GRID_SAG's, IRREGULA's, HOLOGRM1/2's, GRINSUR1's, FRESNELS', US_ARRAY.DLL's and XOSPHERE's handlers live in their own modules; importing them registers them
 # (after the built-in ones: the parser lists the types read in registration order)
 from . import zmx_grid_sag  # noqa: E402,F401
 from . import zmx_irregular  # noqa: E402,F401
@@ -1265,3 +1267,4 @@ from . import zmx_hologram  # noqa: E402,F401
 from . import zmx_grin  # noqa: E402,F401
 from . import zmx_fresnel  # noqa: E402,F401
 from . import zmx_lenslet_array  # noqa: E402,F401
+from . import zmx_xosphere  # noqa: E402,F401

@@ -33,6 +33,9 @@ Surface sag of the types read (``c = CURV``, ``k = CONI``, ``r² = x² + y²``):
     XASPHERE   z = STANDARD + Σ_{i=1..N} α_i (r / R_n)^{2i} (Extended Asphere: XDAT 1 = N, XDAT 2 =
                R_n, XDAT 3.. = α_1, α_2, ... in lens units; read up to ρ²⁰ as an Asphere, or an
                OddAsphere with an r² term)
+    XOSPHERE   z = STANDARD + Σ_{i=1..N} A_i (r / R_n)^i   (Extended Odd Asphere: XDAT 1 = N, XDAT 2 =
+               R_n, XDAT 3.. = A_1, A_2, ... in lens units: an ExtendedOddAsphere; a non-zero
+               ρ¹ term refused, :mod:`.zmx_xosphere`)
     JONESMAT   z = 0 (a Jones matrix surface, PARM 1..8 its A..D: read as the plane, its
                polarization and transmission not applied, with a located note)
     BIRE__IN   STANDARD into its GLAS as the ordinary index, in an ordinary-ray mode (PARM 1 = 0

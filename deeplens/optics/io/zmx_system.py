@@ -17,7 +17,8 @@ import math
 
 import torch
 
-from ..surfaces import (Aperture, Asphere, Biconic, Binary1, Cylinder, ExtendedPolynomial,
+from ..surfaces import (Aperture, Asphere, Biconic, Binary1, Cylinder, ExtendedOddAsphere,
+                        ExtendedPolynomial,
                         OddAsphere, Plane, QType, XYPolynomial, ZernikeFringePhase, ZernikeSag)
 from ..surfaces.grid_sag import GridSag
 
@@ -220,7 +221,7 @@ def rotationally_symmetric(surf) -> bool:
         return False   # a grating's lines turn with it (a radial phase does not)
     if isinstance(surf, ZernikeSag):
         return surf.rotationally_symmetric()
-    return isinstance(surf, (Asphere, OddAsphere, Plane, QType))
+    return isinstance(surf, (Asphere, ExtendedOddAsphere, OddAsphere, Plane, QType))
 
 
 def zemax_tilts(ta: float, tb: float) -> tuple[float, float]:

@@ -9,6 +9,7 @@ from .biconic import Biconic
 from .bspline import BSpline
 from .coordinate_break import CoordinateBreak
 from .cylinder import Cylinder
+from .extended_odd_asphere import ExtendedOddAsphere
 from .extended_polynomial import ExtendedPolynomial
 from .fresnel import Fresnel
 from .grating import Grating
@@ -26,6 +27,6 @@ from .xy_polynomial import XYPolynomial
 from .zernike_phase import ZernikeFringePhase
 from .zernike_sag import ZernikeFringeSag, ZernikeSag
 
-__all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary1", "Binary2", "BSpline", "Cylinder", "ExtendedPolynomial",
+__all__ = ["IdealLens", "IdealLensXY", "CoordinateBreak", "Aperture", "Asphere", "Sphere", "Biconic", "Binary1", "Binary2", "BSpline", "Cylinder", "ExtendedOddAsphere", "ExtendedPolynomial",
            "Fresnel", "Grating", "GridSag", "Hologram", "Irregular", "LensletArray", "OddAsphere", "Plane", "QType", "Toroid", "XYPolynomial", "ZernikeSag", "ZernikeFringeSag", "ZernikeFringePhase",
            "Surface", "SagSurface", "SURFACE_TYPES"]

@@ -264,7 +264,7 @@ BAD = [
     ("unknown surface type", _set("sphr", "surfaces", 2, "type"),
      r"surfaces\[2\]\.type: unknown surface type 'sphr'; did you mean 'sphere'\? \(known: "
      r"aperture, asphere, biconic, binary1, binary2, bspline, conic, coordinate_break, cylinder, "
-     r"extended_polynomial, fresnel, grating, "
+     r"extended_odd_asphere, extended_polynomial, fresnel, grating, "
      r"grid_sag, hologram, ideal_lens, ideal_lens_xy, irregular, lenslet_array, odd_asphere, plane, qtype, sphere, toroid, xy_polynomial, "
      r"zernike_fringe_phase, zernike_fringe_sag, "
      r"zernike_sag\)"),
@@ -584,6 +584,13 @@ def test_every_registered_surface_type_round_trips():
     d["surfaces"].append({"type": "lenslet_array", "semi_diameter_mm": 2.5,
                           "curvature_per_mm": 1 / 60.0, "conic": -0.3,
                           "lenslet_counts": [5, 3], "lenslet_widths_mm": [1.1, 5 / 3],
+                          "distance_mm": 1.0, "material": "AIR"})
+    d["elements"].append([len(d["surfaces"]) - 1] * 2)
+    d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})
+    # an Extended Odd Asphere (OpticStudio's XOSPHERE: Σ A_i (r / R_n)^i on a conic), likewise
+    d["surfaces"].append({"type": "extended_odd_asphere", "semi_diameter_mm": 2.5,
+                          "curvature_per_mm": 1 / 75.0, "conic": -0.3, "norm_radius_mm": 2.2,
+                          "rho_coefficients_mm": [0.0, 1e-3 / 3, -2e-4, 1e-5 / 7],
                           "distance_mm": 1.0, "material": "AIR"})
     d["elements"].append([len(d["surfaces"]) - 1] * 2)
     d["misalignment"].append({"dx_mm": 0.0, "dy_mm": 0.0, "tilt_x_rad": 0.0, "tilt_y_rad": 0.0})

@@ -103,7 +103,7 @@ def test_the_toy_type_is_unknown_outside_its_registration(tmp_path):
     path = write(tmp_path, TOY, "toy.zmx")
     with pytest.raises(ZemaxFileError, match=r"surface type 'TOYCONIC' \(SURF 2, a surface type "
                                              r"deeplens does not know\) is not supported; "
-                                             r"deeplens reads STANDARD, .* GRID_SAG, IRREGULA, HOLOGRM1, HOLOGRM2, GRINSUR1, FRESNELS and USERSURF US_ARRAY.DLL$") as e:
+                                             r"deeplens reads STANDARD, .* GRID_SAG, IRREGULA, HOLOGRM1, HOLOGRM2, GRINSUR1, FRESNELS, USERSURF US_ARRAY.DLL and XOSPHERE$") as e:
         read_zmx(path)
     assert e.value.line == TOY.splitlines().index("  TYPE TOYCONIC") + 1
     assert "TOYCONIC" not in FORMATS.zmx_types()

@@ -141,6 +141,17 @@ def _rayoptics(name, lens, monkeypatch, tmp_path):
     # (the vertex curvature, CURV + 2 PARM 1) is given to it as for the Zernike terms
     for k, a1 in _even_r2_terms(name).items():
         sm.ifcs[k].profile.cv += 2.0 * a1
+    # Extended Odd Asphere (XOSPHERE): zmxread appends XDAT 3.. as its RadialPolynomial's
+    # coefficients from r¹ on and ignores XDAT 2, the normalisation radius: they are given here
+    # on r^i (A_i / R_n^i, file units); its paraxial model takes CURV alone, so it gets deeplens'
+    # rule, the vertex curvature CURV + 2 A_2 / R_n² (the ρ² term), as the even aspheres above
+    for k, _, rec in _surfaces_of_type(name, ("XOSPHERE",)):
+        n, rn = int(rec("XDAT", 1)), rec("XDAT", 2, default=1.0)
+        prof = sm.ifcs[k].profile
+        prof.coefs = [rec("XDAT", i + 2) / rn ** i for i in range(1, n + 1)]
+        prof.update()
+        if n >= 2:
+            prof.cv += 2.0 * prof.coefs[1]
     # Binary 2 surfaces: zmxread reads the base surface alone; the phase's r² term adds the
     # paraxial power of a thin diffractive lens, given to rayoptics as the curvature that
     # refracts the same (a surface's paraxial power is (n' - n) c)

@@ -256,7 +256,7 @@ def test_every_type_read_is_classed_shape_only_or_with_power_in_air():
     shape_only = {"STANDARD", "EVENASPH", "ODDASPHE", "XPOLYNOM", "XYPOLYNOM", "TILTSURF",
                   "JONESMAT", "BIRE__IN", "BIRE_OUT", "TOROIDAL", "QED_TYPE", "BICONICX",
                   "SZERNSAG", "FZERNSAG", "XASPHERE", "GRID_SAG", "IRREGULA", "FRESNELS",
-                  "USERSURF US_ARRAY.DLL"}
+                  "USERSURF US_ARRAY.DLL", "XOSPHERE"}
     power_in_air = {"PARAXIAL", "PARAX_XY", "BINARY_1", "BINARY_2", "FZERNPHA", "DGRATING",
                     "HOLOGRM1", "HOLOGRM2", "COORDBRK", "GRINSUR1"}
     read = set(FORMATS.zmx_types())

@@ -7,12 +7,14 @@ import math
 
 import pytest
 
-from deeplens.optics.surfaces import Binary1, Binary2, ExtendedPolynomial, QType, ZernikeSag
+from deeplens.optics.surfaces import (Binary1, Binary2, ExtendedOddAsphere, ExtendedPolynomial,
+                                      QType, ZernikeSag)
 from deeplens.optics.surfaces.zernike_phase import ZernikeFringePhase
 
 BUILD = {
     "QType": lambda rn: QType(0.01, 5.0, rn, [1e-4]),
     "ZernikeSag": lambda rn: ZernikeSag(0.01, 5.0, rn, [0.0, 1e-4]),
+    "ExtendedOddAsphere": lambda rn: ExtendedOddAsphere(0.01, 5.0, rn, [0.0, 1e-4, 1e-5]),
     "ExtendedPolynomial": lambda rn: ExtendedPolynomial(0.01, 5.0, rn, [0.0, 1e-4]),
     "Binary2": lambda rn: Binary2(0.0, 5.0, rn, [-10.0]),
     "Binary1": lambda rn: Binary1(0.0, 5.0, rn, [0.0, 1.0]),

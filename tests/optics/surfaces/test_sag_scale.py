@@ -29,7 +29,8 @@ import torch
 from deeplens.optics.parameters import parameter_scale
 from deeplens.optics.surfaces import (SURFACE_TYPES, Aperture, Asphere, Biconic, Binary1,
                                       Binary2, BSpline,
-                                      CoordinateBreak, Cylinder, ExtendedPolynomial, Fresnel,
+                                      CoordinateBreak, Cylinder, ExtendedOddAsphere,
+                                      ExtendedPolynomial, Fresnel,
                                       Grating, GridSag,
                                       Hologram,
                                       IdealLens,
@@ -72,6 +73,8 @@ EXAMPLES = {
                                  z_coma=1e-3, angle=0.3),
     ExtendedPolynomial: lambda: ExtendedPolynomial(0.01, R, 0.8 * R, [1e-3, -2e-3, 1e-3,
                                                                 5e-4, -1e-3, 2e-4, 0.0, 3e-4],
+                                                   conic=-0.5),
+    ExtendedOddAsphere: lambda: ExtendedOddAsphere(0.01, R, 0.8 * R, [1e-3, 2e-3, -1e-3, 5e-4],
                                                    conic=-0.5),
     Hologram: lambda: Hologram(0.01, R, (1.0, -2.0, -150.0), (0.5, 3.0, 90.0), 550.0, 1, 2,
                                conic=-0.5),
