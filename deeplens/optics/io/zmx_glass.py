@@ -34,6 +34,7 @@ from .birefringent_glass import birefringent_note
 from .corning_glass import corning_note
 from .infrared_glass import crystal_note
 from .misc_glass import MISC_GLASSES, misc_glass, misc_note
+from .standin_glass import STANDIN_CATALOGUES, standin_glass, standin_note, standin_refusal
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
 from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_note
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
@@ -249,6 +250,12 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
             if m is not None:   # deeplens' own formula: say whose is used
                 p.note(s.glass_line, f"glass {glass!r}: {note(glass)}")
                 return _checked(m, glass, s, f"deeplens' {cat} entry", p)
+        if cat in STANDIN_CATALOGUES:
+            searched.append(f"{cat} (deeplens' named stand-ins: "
+                            f"{', '.join(STANDIN_CATALOGUES[cat])})")
+            m = standin_glass(glass, cat)
+            if m is not None:
+                return _stand_in(m, glass, cat, s, p)
         if cat in TABULATED_CATALOGUES:
             searched.append(f"{cat} (index tables fitted by the Schott formula, "
                             f"{tabulated_catalogue_size(cat)} glasses)")
@@ -350,6 +357,20 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
         return m
     hint = "" if code is None else glass_code_hint(code)
     p.fail(s.glass_line, f"glass {glass!r}{where}; {give}{hint}", details=details)
+
+
+def _stand_in(m: Material, glass: str, cat: str, s: ZmxSurface, p: Locator) -> Material:
+    """The named stand-in ``m`` for ``glass`` of catalogue ``cat`` (:mod:`.standin_glass`): the
+    line is refused where it writes an n_d of its own beyond what the stand-in is trusted to;
+    otherwise the file gets one located warning (at the first line that uses it) naming the
+    stand-in, its n_d against the line's and the flag that replaces it."""
+    why = standin_refusal(glass, cat, s.glass_model)
+    if why is not None:
+        p.fail(s.glass_line, why)
+    head = f"glass {glass!r}: a named stand-in"
+    if not any(msg.startswith(head) for _, msg in p.notes):
+        p.note(s.glass_line, standin_note(glass, cat, s.glass_model))
+    return m
 
 
 def _found_glass(glass: str, hit: str) -> Material:
