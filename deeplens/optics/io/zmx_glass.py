@@ -4,8 +4,9 @@ Order, when a name is in more than one place: per catalogue on the ``GCAT`` line
 catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
 catalogue (:mod:`.vendor_glass`; also deeplens' own formula entries ``INFRARED``, ``CORNING`` and
 ``BIREFRINGENT``, each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`;
-``MISC`` also :mod:`.misc_glass`'s ``WATER``, each use noted), a catalogue kept only as index
-tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then the named vendors' archived
+``MISC`` also :mod:`.misc_glass`'s ``WATER``, each use noted), deeplens' named stand-ins
+(:mod:`.standin_glass`: ``MISC`` ``ACRYLIC``, ``POLYSTYR``; ``ZEON`` ``E48R``; one warning per
+file), a catalogue kept only as index tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then the named vendors' archived
 and previous catalogues; then the user's other catalogues (``glass_catalogs``, then
 :data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue the file does not name
 (exact name only).
