@@ -1480,7 +1480,7 @@ MUTATIONS = [
     Mutation("standin_use_silent", "a named stand-in (ACRYLIC, POLYSTYR, E48R) used without "
              "the located warning that names it and its source",
              "deeplens/optics/io/zmx_glass.py",
-             "        p.note(s.glass_line, standin_note(glass, cat, s.glass_model))\n",
+             "        p.note(s.glass_line, standin_note(name, cat, s.glass_model))\n",
              "        pass\n", ("tests/optics/io/test_standin_glass.py",)),
     Mutation("standin_nd_never_checked", "a GLAS line whose own n_d lies beyond what the "
              "stand-in is trusted to loads with the stand-in instead of being refused",

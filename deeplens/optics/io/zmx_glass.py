@@ -368,9 +368,10 @@ def _stand_in(m: Material, glass: str, cat: str, s: ZmxSurface, p: Locator) -> M
     why = standin_refusal(glass, cat, s.glass_model)
     if why is not None:
         p.fail(s.glass_line, why)
-    head = f"glass {glass!r}: a named stand-in"
+    name = glass.strip().upper()   # one warning per file however the lines spell it
+    head = f"glass {name!r}: a named stand-in"
     if not any(msg.startswith(head) for _, msg in p.notes):
-        p.note(s.glass_line, standin_note(glass, cat, s.glass_model))
+        p.note(s.glass_line, standin_note(name, cat, s.glass_model))
     return m
 
 
