@@ -1528,6 +1528,18 @@ MUTATIONS = [
              "        sigma = s / self.norm_radius.to(s) ** 2\n",
              "        sigma = s / self.norm_radius.to(s) ** 4\n",
              ("tests/optics/surfaces/test_extended_odd_asphere.py",)),
+    # branch misc: OpticStudio materials deeplens ships as named stand-ins (MISC ACRYLIC,
+    # POLYSTYR; ZEON E48R) and INFRARED's F_SILICA
+    Mutation("standin_use_silent", "a named stand-in (ACRYLIC, POLYSTYR, E48R) used without "
+             "the located warning that names it and its source",
+             "deeplens/optics/io/zmx_glass.py",
+             "        p.note(s.glass_line, standin_note(name, cat, s.glass_model))\n",
+             "        pass\n", ("tests/optics/io/test_standin_glass.py",)),
+    Mutation("standin_nd_never_checked", "a GLAS line whose own n_d lies beyond what the "
+             "stand-in is trusted to loads with the stand-in instead of being refused",
+             "deeplens/optics/io/standin_glass.py",
+             "    if abs(nd_file - nd) <= STANDIN_ND_TOL:\n", "    if True:\n",
+             ("tests/optics/io/test_standin_glass.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -30,6 +30,9 @@ test_infrared_glass.py``)::
     SILICA    Malitson, J. Opt. Soc. Am. 55, 1205 (1965), fused silica, 20 °C    0.21 - 6.7 µm
               (Malitson's range 0.21-3.71 µm; Tan, J. Non-Cryst. Solids 223, 158 (1998),
               verified the formula to 6.7 µm; deeplens' MISC entry ``SILICA`` is the same)
+    F_SILICA  the same as SILICA: OpticStudio's INFRARED catalogue holds fused silica under this
+              name too (LensForge's manual: "such as F_SILICA found in the INFRARED catalog";
+              a real file names it under ``GCAT SCHOTT INFRARED``)
     LIF       Li, J. Phys. Chem. Ref. Data 5, 329 (1976), 297 K                  0.10 - 11.0 µm
     KCL       Li, J. Phys. Chem. Ref. Data 5, 329 (1976), 297 K                  0.18 - 35.0 µm
     CSI       Rodney, J. Opt. Soc. Am. 45, 987 (1955), 24 °C                     0.2967 - 50 µm
@@ -124,6 +127,12 @@ CRYSTALS = {
     "SILICA": _entry(_sellmeier([(0.6961663, 0.0684043), (0.4079426, 0.1162414),
                                  (0.8974794, 9.896161)]), (0.21, 6.7),
                      "Malitson, J. Opt. Soc. Am. 55, 1205 (1965), fused silica", "20 °C"),
+    # OpticStudio's INFRARED catalogue holds fused silica also as F_SILICA (LensForge's manual,
+    # "How LensForge looks up glasses": "F_SILICA found in the INFRARED catalog"; a real file
+    # names it under GCAT SCHOTT INFRARED): the same published formula as SILICA
+    "F_SILICA": _entry(_sellmeier([(0.6961663, 0.0684043), (0.4079426, 0.1162414),
+                                   (0.8974794, 9.896161)]), (0.21, 6.7),
+                       "Malitson, J. Opt. Soc. Am. 55, 1205 (1965), fused silica", "20 °C"),
     "LIF": _entry(_sellmeier([(0.92549, 0.07376), (6.96747, 32.79)]), (0.1, 11.0),
                   "Li, J. Phys. Chem. Ref. Data 5, 329 (1976)", "297 K"),
     "KCL": _entry(_sellmeier([(0.30523, 0.1), (0.4162, 0.131), (0.1887, 0.162), (2.62, 70.42)],

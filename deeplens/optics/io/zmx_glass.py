@@ -4,8 +4,9 @@ Order, when a name is in more than one place: per catalogue on the ``GCAT`` line
 catalogues if it names none) the user's ``.agf`` of that name (it overrides), the current vendor
 catalogue (:mod:`.vendor_glass`; also deeplens' own formula entries ``INFRARED``, ``CORNING`` and
 ``BIREFRINGENT``, and ``SCHOTT_IRG`` from :mod:`.shelf_glass`, each use noted), deeplens' built-in entries (:data:`BUILTIN_CATALOGUES`;
-``MISC`` also :mod:`.misc_glass`'s ``WATER``, each use noted), a catalogue kept only as index
-tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then the named vendors' archived
+``MISC`` also :mod:`.misc_glass`'s ``WATER``, each use noted), deeplens' named stand-ins
+(:mod:`.standin_glass`: ``MISC`` ``ACRYLIC``, ``POLYSTYR``; ``ZEON`` ``E48R``; one warning per
+file), a catalogue kept only as index tables, fitted (:mod:`.tabulated_glass`: LZOS; each use noted); then the named vendors' archived
 and previous catalogues; then the user's other catalogues (``glass_catalogs``, then
 :data:`GLASS_PATH_ENV`); then, with a note, a shipped vendor catalogue the file does not name
 (exact name only).
@@ -35,6 +36,7 @@ from .corning_glass import corning_note
 from .infrared_glass import crystal_note
 from .misc_glass import MISC_GLASSES, misc_glass, misc_note
 from .shelf_glass import SHELF_CATALOGUES, shelf_note
+from .standin_glass import STANDIN_CATALOGUES, standin_glass, standin_note, standin_refusal
 from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tabulated_glass
 from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_note
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
@@ -252,6 +254,12 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
             if m is not None:   # deeplens' own formula: say whose is used
                 p.note(s.glass_line, f"glass {glass!r}: {note(glass)}")
                 return _checked(m, glass, s, f"deeplens' {cat} entry", p)
+        if cat in STANDIN_CATALOGUES:
+            searched.append(f"{cat} (deeplens' named stand-ins: "
+                            f"{', '.join(STANDIN_CATALOGUES[cat])})")
+            m = standin_glass(glass, cat)
+            if m is not None:
+                return _stand_in(m, glass, cat, s, p)
         if cat in TABULATED_CATALOGUES:
             searched.append(f"{cat} (index tables fitted by the Schott formula, "
                             f"{tabulated_catalogue_size(cat)} glasses)")
@@ -353,6 +361,21 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
         return m
     hint = "" if code is None else glass_code_hint(code)
     p.fail(s.glass_line, f"glass {glass!r}{where}; {give}{hint}", details=details)
+
+
+def _stand_in(m: Material, glass: str, cat: str, s: ZmxSurface, p: Locator) -> Material:
+    """The named stand-in ``m`` for ``glass`` of catalogue ``cat`` (:mod:`.standin_glass`): the
+    line is refused where it writes an n_d of its own beyond what the stand-in is trusted to;
+    otherwise the file gets one located warning (at the first line that uses it) naming the
+    stand-in, its n_d against the line's and the flag that replaces it."""
+    why = standin_refusal(glass, cat, s.glass_model)
+    if why is not None:
+        p.fail(s.glass_line, why)
+    name = glass.strip().upper()   # one warning per file however the lines spell it
+    head = f"glass {name!r}: a named stand-in"
+    if not any(msg.startswith(head) for _, msg in p.notes):
+        p.note(s.glass_line, standin_note(name, cat, s.glass_model))
+    return m
 
 
 def _found_glass(glass: str, hit: str) -> Material:

@@ -28,7 +28,8 @@ ENTRIES = {"CAF2": ("CaF2", "Malitson"), "BAF2": ("BaF2", "Malitson"),
            "ZNSE": ("ZnSe", "Connolly"), "GERMANIUM": ("Ge", "Burnett"),
            "SILICON": ("Si", "Salzberg"), "ZNS": ("ZnS", "Debenham"),
            "GAAS": ("GaAs", "Skauli"), "SILICA": ("SiO2", "Malitson"), "LIF": ("LiF", "Li"),
-           "KCL": ("KCl", "Li"), "CSI": ("CsI", "Rodney"), "CSBR": ("CsBr", "Rodney")}
+           "KCL": ("KCl", "Li"), "CSI": ("CsI", "Rodney"), "CSBR": ("CsBr", "Rodney"),
+           "F_SILICA": ("SiO2", "Malitson")}
 
 
 def _db(material, author, lam_um):
