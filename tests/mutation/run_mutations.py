@@ -1475,6 +1475,11 @@ MUTATIONS = [
              "deeplens/optics/paraxial.py", "ya_s = (s * ya_s + yb_s) / L",
              "ya_s = (s * ya_s + yb_s) / s",
              ("tests/optics/io/test_zmx_pupil_at_infinity.py",)),
+    # branch setups12: an image-space F-number on a negative focal length (EPD = |EFL| / F#)
+    Mutation("fno_epd_signed_efl", "the pupil of an image-space F-number taken from the signed "
+             "EFL (EPD = EFL / F#: a negative pupil on a relay with one intermediate image)",
+             "deeplens/optics/paraxial.py", "    return abs(efl) / fno\n",
+             "    return efl / fno\n", ("tests/optics/io/test_zmx_set12_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
