@@ -1480,6 +1480,13 @@ MUTATIONS = [
              "EFL (EPD = EFL / F#: a negative pupil on a relay with one intermediate image)",
              "deeplens/optics/paraxial.py", "    return abs(efl) / fno\n",
              "    return efl / fno\n", ("tests/optics/io/test_zmx_set12_rules.py",)),
+    Mutation("range_refusal_previous_unnamed", "a wavelength refused beyond a previous "
+             "(Robb & Mercado, visible-only) glass's range named as if from the current "
+             "catalogue (why the range is 400-700 nm lost)",
+             "deeplens/optics/io/zmx_glass.py",
+             "             if isinstance(m, BuchdahlGlass) else f\"catalogue {cat}\")",
+             "             if False else f\"catalogue {cat}\")",
+             ("tests/optics/io/test_zmx_set12_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -30,7 +30,7 @@ from .zmx_scbd import (check_scbd_on_break, image_scbd_note, refuse_object_scbd,
                        scbd_identity)
 from .zmx_coordbrk import (coordinate_break, is_identity, misalignment_brackets,
                            stop_plane_of_break, y_fields_only)
-from .zmx_glass import load_catalogues, surface_material
+from .zmx_glass import load_catalogues, range_refusal_source, surface_material
 from .zmx_mconf import configuration
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
 from .surface_formats import QBFS_CONIC
@@ -173,8 +173,11 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             try:
                 check_wavelength_nm(w, mat, stated_unit=True)
             except ValueError as e:
-                p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)})"
-                                               f"{_long_wave_hint(w)}")
+                where, give = range_refusal_source(mat)
+                p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)}"
+                                               f"{', ' + where if where else ''})"
+                                               f"{_long_wave_hint(w)}"
+                                               f"{'; ' + give if give and w <= 1e5 else ''}")
         _check_index(mat, waves_nm, s, surfs.index(s), p)
     for w in waves_nm:
         try:

@@ -5,7 +5,10 @@ hand-written file checked by a closed form or an independent reading:
   with one intermediate image, or a diverging lens) sizes the pupil as ``EPD = |EFL| / F#``, as
   OpticStudio does (its own stored semi-diameters on such telescopes reproduce that pupil to
   12 digits) and as optiland's ``imageFNO`` does; before, it was refused as needing a positive
-  focal length.
+  focal length;
+* a wavelength beyond the range of a glass from a visible-only previous catalogue (``UBK7``, in
+  no full-range source deeplens ships) stays refused, in one line naming that catalogue and
+  the file to pass.
 """
 
 from __future__ import annotations
@@ -14,9 +17,11 @@ import math
 import warnings
 
 import pytest
-from test_zmx import write
+import torch
+from test_zmx import line_of, singlet, write
+from test_zmx_glass_rules import agf
 
-from deeplens.optics.io import read_zmx
+from deeplens.optics.io import ZemaxFileError, read_zmx
 from deeplens.optics.paraxial import paraxial
 
 _HEAD = """VERS 80915 20 20100
@@ -35,9 +40,13 @@ def _surf(k, *lines):
 
 
 def _quiet(path):
+    return _quiet_with(path)
+
+
+def _quiet_with(path, **options):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return read_zmx(path)
+        return read_zmx(path, **options)
 
 
 # --------------------------------------------------- an F-number on a negative focal length
@@ -100,3 +109,39 @@ def test_fnum_on_a_negative_focal_length_as_optiland_reads_it(tmp_path):
     assert f2 < 0 and math.isfinite(f2)
     assert float(p.efl) == pytest.approx(f2, rel=1e-12)
     assert float(p.entrance_pupil_diameter) == pytest.approx(epd, rel=1e-12)
+
+
+# ------------------------------------------- a visible-only previous glass beyond its range
+def test_a_previous_glass_beyond_its_range_names_its_catalogue_and_the_flag(tmp_path):
+    """``UBK7`` (SCHOTT, withdrawn) is in no shipped full-range source (not in the current or
+    archived SCHOTT catalogues nor the withdrawn entries); only Robb & Mercado's 1983
+    visible-only fit (400-700 nm) has it, so 800 nm is refused at the ``GLAS`` line, in one
+    line that names that catalogue (why the range is visible-only) and the file to pass: the
+    user's ``SCHOTT.agf``, which is looked up before every shipped SCHOTT source."""
+    p = write(tmp_path, singlet(glass="GLAS UBK7 0 0 1.5 40 0 0 0 0 0 0", wav=(0.55, 0.8),
+                                pwav=1))
+    ln = line_of(p.read_text(), "GLAS UBK7")
+    with pytest.raises(ZemaxFileError) as e:
+        _quiet(p)
+    msg = str(e.value)
+    assert e.value.line == ln and "\n" not in msg and len(msg) < 260 + len(str(p)), msg
+    assert "wavelength 800 nm is outside the valid range 400–700 nm of material 'UBK7'" in msg
+    assert "previous SCHOTT catalogue, Robb & Mercado 1983, a visible-only fit" in msg
+    assert msg.endswith("; pass SCHOTT.agf with --glass-catalog"), msg
+    # the advice works: the user's SCHOTT.agf (a constant n 1.52 over 0.3-2.5 µm) is used
+    cat = agf(tmp_path / "SCHOTT.agf", {"UBK7": 1.52})
+    lens = _quiet_with(p, glass_catalogs=[cat])
+    w = torch.tensor([550.0, 800.0], dtype=torch.float64)
+    assert torch.equal(lens.materials[2].n(w), torch.full_like(w, 1.52))
+
+
+def test_a_current_catalogue_glass_beyond_its_range_names_its_catalogue(tmp_path):
+    """The same refusal on a current catalogue glass names that catalogue (SCHOTT's N-BK7,
+    300-2500 nm, at 3 µm) and the same file to pass; a model glass (no catalogue) keeps the
+    bare message."""
+    p = write(tmp_path, singlet(wav=(0.55, 3.0), pwav=1))
+    with pytest.raises(ZemaxFileError) as e:
+        _quiet(p)
+    msg = str(e.value)
+    assert "of material 'N-BK7' (glass of SURF 2, catalogue SCHOTT); pass SCHOTT.agf with " \
+           "--glass-catalog" in msg, msg
