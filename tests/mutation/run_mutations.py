@@ -1487,6 +1487,13 @@ MUTATIONS = [
              "             if isinstance(m, BuchdahlGlass) else f\"catalogue {cat}\")",
              "             if False else f\"catalogue {cat}\")",
              ("tests/optics/io/test_zmx_set12_rules.py",)),
+    Mutation("image_before_vertex_beam_backwards", "an image plane before the last vertex after "
+             "a curved mirror said to be reached forwards where the beam leaves away from it "
+             "(a slip of sign named an off-axis section, and the other way round)",
+             "deeplens/optics/io/zmx_read.py",
+             "    if bool(ok[0]) and bool((t[ok] > 0).all()):\n",
+             "    if bool(ok[0]) and bool((t[ok] < 0).all()):\n",
+             ("tests/optics/io/test_zmx_set12_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -263,6 +263,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             lens.apply_aperture_spec()
         except ValueError as e:
             p.fail(convert[2], str(e))
+    if len(virtual) > 1:
+        _refuse_image_before_vertex(lens, *virtual[1], p)
 
     # ---- fields
     lens.ray_aiming = sysd["raim"][0] != 0
@@ -670,12 +672,12 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
                          f"extended backwards to it); analysis only, no camera can record it")
         virtual[0] = True
     elif sign * d_sensor < 0 and inside_ok and mirrors:
-        p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
-                         f"vertex (light travels towards {'-' if sign < 0 else '+'}z there, "
-                         f"after {len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''}): a "
-                         f"virtual image plane after mirrors is read only where the "
-                         f"thicknesses after the last mirror, a flat one, already run against "
-                         f"the direction of travel (OpticStudio's virtual propagation)")
+        # against the mirror parity after a curved mirror (OpticStudio's *Thicknesses*: virtual
+        # propagation): refused once the lens is built as if the plane were virtual, which
+        # lets the beam be traced to say whether it reaches the plane forwards (an off-axis
+        # section met far from its vertex) or not (a slip of sign): _refuse_image_before_vertex
+        virtual[0] = True
+        virtual.append((img.line, abs(d_sensor), sign, len(mirrors)))
     elif sign * d_sensor < 0 and inside_ok:
         # a virtual image, as a negative lens's file puts it at its virtual focus: OpticStudio
         # extends the diverging rays backwards to that plane (Lens.virtual_image); analysis
@@ -685,6 +687,51 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
                          f"analysis only, no camera can record it")
         virtual[0] = True
     return d_sensor
+
+
+def _refuse_image_before_vertex(lens, line: int, dist: float, sign: float, n_mirrors: int,
+                                p: Locator) -> None:
+    """Refuse, at ``line``, an image plane ``dist`` mm before the last vertex against the mirror
+    parity (``sign``, the direction of travel there by :func:`~..frames.travel_directions`)
+    after a curved mirror, saying whether the beam reaches it forwards (``lens``: the lens built
+    with that plane as a virtual one, to trace).
+
+    The beam: the on-axis field's chief ray and 48 rays on the rim of the paraxial entrance
+    pupil, primary wavelength, apertures ignored.  Where each meets the plane ahead of where it
+    leaves the last surface, the mirror is an off-axis section met far from its vertex at
+    grazing incidence, which sends the beam on the way it came along its frame's axis
+    (OpticStudio traces it there, moving rays along their lines; set 12's
+    ``td_gracing_incidence_mirror_optimization``), while deeplens' direction of travel (and with
+    it the paraxial data's signed indices) flips at every mirror: refused, saying so.  Otherwise (a slip
+    of sign, a convex mirror's virtual image) the plane lies behind the beam: refused as
+    before."""
+    from ..intersect import propagate_distance
+    from ..options import TraceOptions
+    from ..paraxial import paraxial
+    from ..sampling import field_rays
+
+    what = (f"the image plane lies {dist:g} mm before the last surface's vertex (light travels "
+            f"towards {'-' if sign < 0 else '+'}z there, after {n_mirrors} "
+            f"mirror{'s' if n_mirrors != 1 else ''})")
+    with torch.no_grad():
+        par = paraxial(lens)
+        half = 0.5 * float(par.entrance_pupil_diameter)
+        phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
+        pts = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
+                         torch.stack([torch.cos(phi), torch.sin(phi)], -1) * half])
+        rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts,
+                          float(par.entrance_pupil_z))
+        out = lens.trace(rays, options=TraceOptions(clip_aperture=False))
+        t, ok = propagate_distance(out.o[..., 2], out.d[..., 2], out.valid,
+                                   lens.z_sensor().to(out.o), backwards=True)
+    if bool(ok[0]) and bool((t[ok] > 0).all()):
+        p.fail(line, f"{what}, yet the beam reaches it forwards ({float(t[ok].min()):.6g} to "
+                     f"{float(t[ok].max()):.6g} mm on): the last mirror is met far from its "
+                     f"vertex (an off-axis section at grazing incidence) and keeps the beam's "
+                     f"direction, which deeplens' mirror parity cannot express: not supported")
+    p.fail(line, f"{what}: a virtual image plane after mirrors is read only where the "
+                 f"thicknesses after the last mirror, a flat one, already run against the "
+                 f"direction of travel (OpticStudio's virtual propagation)")
 
 
 def _note_reversed_ideal_lenses(kept: list, signs: list, p: Locator) -> None:

@@ -145,3 +145,74 @@ def test_a_current_catalogue_glass_beyond_its_range_names_its_catalogue(tmp_path
     msg = str(e.value)
     assert "of material 'N-BK7' (glass of SURF 2, catalogue SCHOTT); pass SCHOTT.agf with " \
            "--glass-catalog" in msg, msg
+
+
+# ------------------------------- an image plane before the last vertex after an off-axis mirror
+_FOLD_OAP = "".join([
+    _surf(0, "TYPE STANDARD", "CURV 0", "DISZ INFINITY"),
+    _surf(1, "STOP", "TYPE STANDARD", "CURV 0", "DISZ 10"),
+    _surf(2, "TYPE COORDBRK", "PARM 1 0", "PARM 2 0", "PARM 3 45", "PARM 4 0", "PARM 5 0",
+          "PARM 6 0", "DISZ 0"),
+    _surf(3, "TYPE STANDARD", "CURV 0", "DISZ 0", "GLAS MIRROR 0 0 1.5 40 0 0 0 0 0 0"),
+    _surf(4, "TYPE COORDBRK", "PARM 1 0", "PARM 2 0", "PARM 3 45", "PARM 4 0", "PARM 5 0",
+          "PARM 6 0", "DISZ -600"),
+    # a paraboloid (R 10 mm) decentred 100 mm: the beam meets it at local y = -100, z = 500,
+    # at grazing incidence (slope 10), and goes on towards its focus (y 100, z 5) along -z
+    _surf(5, "TYPE COORDBRK", "PARM 1 0", "PARM 2 100", "PARM 3 0", "PARM 4 0", "PARM 5 0",
+          "PARM 6 0", "DISZ 0"),
+    _surf(6, "TYPE STANDARD", "CURV 0.1", "CONI -1", "DISZ 0",
+          "GLAS MIRROR 0 0 1.5 40 0 0 0 0 0 0"),
+    _surf(7, "TYPE COORDBRK", "PARM 1 0", "PARM 2 -100", "PARM 3 0", "PARM 4 0", "PARM 5 0",
+          "PARM 6 1", "DISZ 0"),
+    _surf(8, "TYPE COORDBRK", "PARM 1 0", "PARM 2 0", "PARM 3 {tilt}", "PARM 4 0", "PARM 5 0",
+          "PARM 6 0", "DISZ {d}"),
+    _surf(9, "TYPE STANDARD", "CURV 0", "DISZ 0")])
+
+
+def test_image_before_the_vertex_after_a_grazing_off_axis_mirror_says_the_beam_reaches_it(
+        tmp_path):
+    """Set 12's grazing-incidence ellipsoid: after two mirrors (a fold, then an off-axis
+    section met far from its vertex) the file's tilted image plane lies before the last vertex
+    (DISZ < 0), against the mirror parity that OpticStudio's *Thicknesses* page states and
+    deeplens' paraxial data use, yet the beam, sent on towards the focus the way it came, meets
+    it forwards.  Still refused (deeplens' direction of travel flips at every mirror), but the
+    one line now says so with the distance the chief ray travels to the plane: by hand, from the
+    hit (0, 500) in the frame after the return break towards the focus (100, 5), to the plane
+    through ``d ẑ'`` with normal ``ẑ' = (0, -sin θ, cos θ)`` (θ = 10°, right-handed)."""
+    tilt, d = 10.0, -12.0
+    text = _HEAD.format(aperture="ENPD 1e-5") + _FOLD_OAP.format(tilt=tilt, d=d)
+    path = write(tmp_path, text)
+    with pytest.raises(ZemaxFileError) as e:
+        _quiet(path)
+    msg = str(e.value)
+    assert e.value.line == line_of(text, "SURF 9") and "\n" not in msg, msg
+    assert ("the image plane lies 12 mm before the last surface's vertex (light travels "
+            "towards +z there, after 2 mirrors), yet the beam reaches it forwards (") in msg, msg
+    assert msg.endswith("keeps the beam's direction, which deeplens' mirror parity cannot "
+                        "express: not supported"), msg
+    th = math.radians(tilt)
+    zn = (0.0, -math.sin(th), math.cos(th))
+    hit, focus = (0.0, 500.0), (100.0, 5.0)
+    u = (focus[0] - hit[0], focus[1] - hit[1])
+    nu = math.hypot(*u)
+    u = (u[0] / nu, u[1] / nu)
+    t = ((d * zn[1] - hit[0]) * zn[1] + (d * zn[2] - hit[1]) * zn[2]) / (u[0] * zn[1]
+                                                                         + u[1] * zn[2])
+    assert f"({t:.6g} to {t:.6g} mm on)" in msg, (t, msg)
+
+
+def test_image_before_the_vertex_after_a_concave_mirror_slip_of_sign_is_refused(tmp_path):
+    """A concave mirror met at its vertex (no decenter) with the image written on the wrong
+    side (``DISZ +5`` for its focus at ``-5``): the beam leaves away from that plane, so the
+    refusal keeps its message: a slip of sign, not an off-axis section."""
+    text = _HEAD.format(aperture="ENPD 1") + "".join([
+        _surf(0, "TYPE STANDARD", "CURV 0", "DISZ INFINITY"),
+        _surf(1, "STOP", "TYPE STANDARD", "CURV 0", "DISZ 10"),
+        _surf(2, "TYPE STANDARD", "CURV -0.1", "DISZ 5", "GLAS MIRROR 0 0 1.5 40 0 0 0 0 0 0"),
+        _surf(3, "TYPE STANDARD", "CURV 0", "DISZ 0")])
+    with pytest.raises(ZemaxFileError) as e:
+        _quiet(write(tmp_path, text))
+    msg = str(e.value)
+    assert e.value.line == line_of(text, "SURF 3") and "reaches it forwards" not in msg, msg
+    assert "the image plane lies 5 mm before the last surface's vertex (light travels towards " \
+           "-z there, after 1 mirror): a virtual image plane after mirrors is read only" in msg
