@@ -1494,6 +1494,12 @@ MUTATIONS = [
              "    if bool(ok[0]) and bool((t[ok] > 0).all()):\n",
              "    if bool(ok[0]) and bool((t[ok] < 0).all()):\n",
              ("tests/optics/io/test_zmx_set12_rules.py",)),
+    Mutation("curved_image_clears_somewhere", "a curved image surface said to clear the last "
+             "surface where it clears it at some radius, not at every one",
+             "deeplens/optics/io/zmx_read.py",
+             "    clears = bool((torch.nan_to_num(gap, nan=1.0) >= -1e-9).all())\n",
+             "    clears = bool((torch.nan_to_num(gap, nan=1.0) >= -1e-9).any())\n",
+             ("tests/optics/io/test_zmx_set12_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -214,6 +214,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     except (ValueError, TypeError) as e:
         if getattr(e, "key", None) == "aperture":   # the ENPD/FNUM/FLOA line's value
             p.fail(ap_line, str(e))
+        if (getattr(e, "key", None) == "sensor" and img.curv != 0
+                and str(e).startswith("the last surface crosses the sensor plane")):
+            _refuse_flat_sensor_cut(seq, img, surfs, d_sensor, s_mm, primary, p)
         raise _located(p, e, where_of) from e
     lens.object_telecentric = telecentric
     lens.object_tilt = seq.obj_tilt
@@ -732,6 +735,53 @@ def _refuse_image_before_vertex(lens, line: int, dist: float, sign: float, n_mir
     p.fail(line, f"{what}: a virtual image plane after mirrors is read only where the "
                  f"thicknesses after the last mirror, a flat one, already run against the "
                  f"direction of travel (OpticStudio's virtual propagation)")
+
+
+def _refuse_flat_sensor_cut(seq: _Sequence, img: ZmxSurface, surfs: list, d_sensor: float,
+                            s_mm: float, primary: float, p: Locator) -> None:
+    """Refuse, at the image surface's line, a curved image surface (``CURV`` != 0, read as
+    deeplens' flat sensor at its vertex) whose vertex plane the last surface crosses, saying by
+    how much and whether the file's own curved surface clears it.
+
+    OpticStudio traces to the image surface as it is (a Petzval-curved focal surface, as in a
+    Schmidt camera); deeplens' sensor is a plane, and the plane through that surface's vertex
+    cuts the last surface where its rim runs beyond it (set 12's ``ob_HoO-V2C18Ex36``, a
+    catadioptric camera whose field-flattener reaches 0.135 mm beyond the plane at its
+    semi-diameter): rays meeting the rim there could not reach such a sensor.  The sag is
+    sampled as :meth:`~deeplens.optics.lens.Lens.check` samples it (65 radii to the last
+    surface's semi-diameter, 8 azimuths)."""
+    from ..surfaces.base import in_closed_domain
+
+    kept = seq.kept
+    last = max((i for i, k_ in enumerate(kept) if k_[0].law != "stop"), default=len(kept) - 1)
+    surf = kept[last][0]
+    sign = float(travel_directions([k_[0] for k_ in kept], seq.mirrors,
+                                   _axis_indices(seq, primary), primary)[-1])
+    to_plane = sum(k_[3] for k_ in kept[last + 1:]) + d_sensor   # last vertex -> the plane
+    sd = float(surf.semi_diameter)
+    c = img.curv / s_mm
+    k = float(getattr(img, "coni", 0.0) or 0.0)
+    with torch.no_grad():
+        r = torch.linspace(0.0, sd, 65, dtype=torch.float64)
+        zs = torch.stack([surf.sag(r * math.cos(a), r * math.sin(a)).to(torch.float64)
+                          for a in (i * math.pi / 4 for i in range(8))])
+        ok = torch.stack([in_closed_domain(surf, r * math.cos(a), r * math.sin(a))
+                          for a in (i * math.pi / 4 for i in range(8))])
+    zs = torch.where(ok, zs, torch.zeros_like(zs))
+    reach = float((sign * zs).max()) - sign * to_plane
+    # the file's image surface (a conic of CURV, CONI) about the same vertex: where it is
+    # defined, does the last surface stay before it?
+    rr = r.unsqueeze(0).expand_as(zs)
+    disc = 1.0 - (1.0 + k) * c * c * rr * rr
+    img_sag = torch.where(disc >= 0, c * rr * rr / (1.0 + torch.sqrt(disc.clamp(min=0.0))),
+                          torch.full_like(rr, float("nan")))
+    gap = sign * (to_plane + img_sag - zs)
+    clears = bool((torch.nan_to_num(gap, nan=1.0) >= -1e-9).all())
+    p.fail(img.line, f"the image surface is curved (R {1.0 / c:.6g} mm) and deeplens' sensor is "
+                     f"the plane at its vertex, which SURF {surfs.index(kept[last][2])} crosses: "
+                     f"it reaches {reach:.4g} mm beyond that plane within its semi-diameter "
+                     f"{sd:.4g} mm{', where the curved image surface clears it' if clears else ''}"
+                     f"; a curved sensor is not supported")
 
 
 def _note_reversed_ideal_lenses(kept: list, signs: list, p: Locator) -> None:

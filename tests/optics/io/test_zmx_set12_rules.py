@@ -216,3 +216,46 @@ def test_image_before_the_vertex_after_a_concave_mirror_slip_of_sign_is_refused(
     assert e.value.line == line_of(text, "SURF 3") and "reaches it forwards" not in msg, msg
     assert "the image plane lies 5 mm before the last surface's vertex (light travels towards " \
            "-z there, after 1 mirror): a virtual image plane after mirrors is read only" in msg
+
+
+# ----------------------------------------- a curved image surface whose vertex plane is cut
+def _meniscus(img_curv):
+    """A meniscus (both faces R 20 mm, 4 mm thick, DIAM 8 fixed) with the image surface 1 mm
+    after it: the last face's rim lies ``20 - sqrt(20² - 8²)`` = 1.6697 mm beyond its vertex
+    plane, so 0.6697 mm beyond the plane of the image's vertex."""
+    return _HEAD.format(aperture="ENPD 4") + "".join([
+        _surf(0, "TYPE STANDARD", "CURV 0", "DISZ INFINITY"),
+        _surf(1, "STOP", "TYPE STANDARD", "CURV 0", "DISZ 5"),
+        _surf(2, "TYPE STANDARD", "CURV 0.05", "DISZ 4", "GLAS N-BK7 0 0 1.5168 64.17 0 0 0 0 0 0",
+              'DIAM 8 1 0 0 1 ""'),
+        _surf(3, "TYPE STANDARD", "CURV 0.05", "DISZ 1", 'DIAM 8 1 0 0 1 ""'),
+        _surf(4, "TYPE STANDARD", f"CURV {img_curv}", "DISZ 0")])
+
+
+@pytest.mark.parametrize("img_curv, clears", [(0.05, True), (0.02, False)])
+def test_a_curved_image_surface_cut_by_the_last_surface_says_so(tmp_path, img_curv, clears):
+    """Set 12's catadioptric camera (``ob_HoO-V2C18Ex36``): OpticStudio images onto a curved
+    image surface; deeplens reads it as a flat sensor at its vertex, which the last face's rim
+    crosses.  Refused at the image line in one line naming the curvature, the crossing surface,
+    how far it reaches beyond the plane (the closed-form sag at the semi-diameter less the 1 mm
+    gap) and whether the file's curved surface clears it (concentric with the face at R 20: it
+    does; at R 50 the face reaches 1.6697 − (1 + 50 − sqrt(50² − 8²)) beyond it: it does not);
+    before, the message was "the last surface crosses the sensor plane (sensor distance 1 mm)"."""
+    text = _meniscus(img_curv)
+    with pytest.raises(ZemaxFileError) as e:
+        _quiet(write(tmp_path, text))
+    msg = str(e.value)
+    reach = 20.0 - math.sqrt(20.0 ** 2 - 8.0 ** 2) - 1.0
+    assert e.value.line == line_of(text, "SURF 4") and "\n" not in msg, msg
+    assert (f"the image surface is curved (R {1 / img_curv:g} mm) and deeplens' sensor is the "
+            f"plane at its vertex, which SURF 3 crosses: it reaches {reach:.4g} mm beyond that "
+            f"plane within its semi-diameter 8 mm") in msg, msg
+    assert ("where the curved image surface clears it" in msg) == clears, msg
+    assert msg.endswith("; a curved sensor is not supported"), msg
+
+
+def test_a_flat_image_cut_by_the_last_surface_keeps_the_lens_message(tmp_path):
+    """With a flat image surface the plane is the file's own: the Lens check's message stays."""
+    with pytest.raises(ZemaxFileError) as e:
+        _quiet(write(tmp_path, _meniscus(0)))
+    assert "the last surface crosses the sensor plane (sensor distance 1 mm)" in str(e.value)
