@@ -716,17 +716,20 @@ def _refuse_image_before_vertex(lens, line: int, dist: float, sign: float, n_mir
     what = (f"the image plane lies {dist:g} mm before the last surface's vertex (light travels "
             f"towards {'-' if sign < 0 else '+'}z there, after {n_mirrors} "
             f"mirror{'s' if n_mirrors != 1 else ''})")
-    with torch.no_grad():
-        par = paraxial(lens)
-        half = 0.5 * float(par.entrance_pupil_diameter)
-        phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
-        pts = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
-                         torch.stack([torch.cos(phi), torch.sin(phi)], -1) * half])
-        rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts,
-                          float(par.entrance_pupil_z))
-        out = lens.trace(rays, options=TraceOptions(clip_aperture=False))
-        t, ok = propagate_distance(out.o[..., 2], out.d[..., 2], out.valid,
-                                   lens.z_sensor().to(out.o), backwards=True)
+    try:
+        with torch.no_grad():
+            par = paraxial(lens)
+            half = 0.5 * float(par.entrance_pupil_diameter)
+            phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
+            pts = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
+                             torch.stack([torch.cos(phi), torch.sin(phi)], -1) * half])
+            rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts,
+                              float(par.entrance_pupil_z))
+            out = lens.trace(rays, options=TraceOptions(clip_aperture=False))
+            t, ok = propagate_distance(out.o[..., 2], out.d[..., 2], out.valid,
+                                       lens.z_sensor().to(out.o), backwards=True)
+    except (ValueError, RuntimeError):   # no pupil or beam to trace: the refusal as it was
+        t, ok = torch.zeros(1), torch.zeros(1, dtype=torch.bool)
     if bool(ok[0]) and bool((t[ok] > 0).all()):
         p.fail(line, f"{what}, yet the beam reaches it forwards ({float(t[ok].min()):.6g} to "
                      f"{float(t[ok].max()):.6g} mm on): the last mirror is met far from its "
