@@ -259,3 +259,16 @@ def test_a_flat_image_cut_by_the_last_surface_keeps_the_lens_message(tmp_path):
     with pytest.raises(ZemaxFileError) as e:
         _quiet(write(tmp_path, _meniscus(0)))
     assert "the last surface crosses the sensor plane (sensor distance 1 mm)" in str(e.value)
+
+
+def test_fnum_on_a_negative_focal_length_round_trips(tmp_path):
+    """Written back as ``FNUM 10 0`` and read again: the same pupil (``.zmx`` and JSON)."""
+    from deeplens.optics.io import lens_from_dict, lens_to_dict, write_zmx
+
+    lens = _quiet(write(tmp_path, _HEAD.format(aperture="FNUM 10 0") + _RELAY))
+    out = tmp_path / "back.zmx"
+    write_zmx(lens, out)
+    assert "FNUM 10.0 0" in out.read_text()
+    for again in (_quiet(out), lens_from_dict(lens_to_dict(lens))):
+        assert float(paraxial(again).entrance_pupil_diameter) == pytest.approx(
+            float(paraxial(lens).entrance_pupil_diameter), rel=1e-12)
