@@ -8,7 +8,11 @@ hand-written file checked by a closed form or an independent reading:
   focal length;
 * a wavelength beyond the range of a glass from a visible-only previous catalogue (``UBK7``, in
   no full-range source deeplens ships) stays refused, in one line naming that catalogue and
-  the file to pass.
+  the file to pass;
+* an image plane before the last vertex after a curved mirror stays refused, saying whether the
+  beam reaches it forwards (an off-axis section met far from its vertex at grazing incidence);
+* a curved image surface whose vertex plane the last surface crosses stays refused, saying by
+  how much and whether the curved surface clears it (deeplens' sensor is flat).
 """
 
 from __future__ import annotations
