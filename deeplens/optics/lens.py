@@ -44,7 +44,7 @@ from .intersect import (_safe_div, intersect, propagate_distance, stop_crossing_
 from .materials import Air, Material, check_wavelength_nm
 from .misalignment import Misalignment
 from .options import TraceOptions
-from .paraxial import paraxial
+from .paraxial import epd_from_image_space_fno, paraxial
 from .rays import Rays, compact_broadcast as _compact
 from .surfaces import Surface
 from .surfaces.base import in_closed_domain, make_param
@@ -667,11 +667,11 @@ class Lens(nn.Module):
         if self.spec.aperture_type == "epd":
             epd = float(self.spec.aperture_value)
         else:
-            if not (float(p.efl) > 0 and math.isfinite(float(p.efl))):
-                raise LensError(f"an F-number aperture needs a positive focal length (an afocal "
+            if not (float(p.efl) != 0 and math.isfinite(float(p.efl))):
+                raise LensError(f"an F-number aperture needs a finite focal length (an afocal "
                                 f"system has none); the paraxial EFL is {float(p.efl):.6g} mm "
                                 f"(give the aperture as 'epd' or 'stop' instead)", key="aperture")
-            epd = float(p.efl) / float(self.spec.aperture_value)
+            epd = epd_from_image_space_fno(float(p.efl), float(self.spec.aperture_value))
         sd = 0.5 * epd * abs(float(p.stop_height_per_ep_height))
         if not (sd > 0 and math.isfinite(sd)):
             raise LensError(f"aperture {self.spec.aperture_type} {self.spec.aperture_value!r} "

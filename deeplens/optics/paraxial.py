@@ -7,7 +7,7 @@ At surface ``i`` with vertex curvature ``c_i`` between indices ``n`` and ``n'``:
 Two rays are traced from the first vertex: ``A = (y=1, u=0)`` and ``B = (y=0, u=1)``.  Then
 ``EFL = -1 / u_A'`` (image space), ``BFL = -y_A / u_A'`` at the last vertex; the entrance pupil
 (the stop's image in object space) lies ``y_B,stop / y_A,stop`` behind the first vertex and has
-diameter ``2 r_stop / |y_A,stop|``; ``F/# = EFL / EPD``.  For an object at distance ``s`` the
+diameter ``2 r_stop / |y_A,stop|``; ``F/# = |EFL| / EPD`` (:func:`image_space_fno`).  For an object at distance ``s`` the
 paraxial image lies ``-y/u'`` behind the last vertex for the ray ``s A + B``.
 
 Mirrors: the classic trick.  Indices carry the direction of travel, ``n -> σ n`` with ``σ = ±1``
@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import torch
 
 __all__ = ["paraxial", "ParaxialData", "exit_pupil", "chief_ray_scale", "media_indices",
-           "trace_paraxial_ray", "surface_power"]
+           "trace_paraxial_ray", "surface_power", "image_space_fno", "epd_from_image_space_fno"]
 
 
 @dataclass
@@ -53,6 +53,24 @@ class ParaxialData:
     fno: torch.Tensor
     stop_height_per_ep_height: torch.Tensor
     wavelength_nm: float
+
+
+def image_space_fno(efl, epd):
+    """Image-space F-number ``|EFL| / EPD`` (EFL and EPD in mm; tensors or floats).
+
+    The one place where the sign of the focal length meets the F-number: OpticStudio's
+    *Image Space F/#* is "the ratio of the paraxial infinite conjugate effective focal length to
+    the paraxial entrance pupil diameter", and an F-number is a positive ratio; a negative EFL
+    (a diverging system, or a converging one with an odd number of intermediate images) has the
+    F-number of its magnitude, as OpticStudio's own stored semi-diameters show (Zemax guide,
+    *What is read*).  :func:`epd_from_image_space_fno` is its inverse."""
+    return abs(efl) / epd
+
+
+def epd_from_image_space_fno(efl, fno):
+    """Entrance-pupil diameter (mm) of an image-space F-number ``fno`` > 0: ``|EFL| / fno``
+    (the inverse of :func:`image_space_fno`)."""
+    return abs(efl) / fno
 
 
 def surface_power(surface, n1, n2, wavelength_nm: float):
@@ -193,7 +211,7 @@ def paraxial(lens, wavelength_nm: float | None = None) -> ParaxialData:
     z_last = lens.z_vertices()[-1]
     return ParaxialData(efl=efl, bfl=bfl, image_distance=img, image_z=z_last + img,
                         entrance_pupil_z=z0 + ep_pos, entrance_pupil_position=ep_pos,
-                        entrance_pupil_diameter=epd, fno=efl / epd,
+                        entrance_pupil_diameter=epd, fno=image_space_fno(efl, epd),
                         stop_height_per_ep_height=ya_s, wavelength_nm=w)
 
 

@@ -1540,6 +1540,31 @@ MUTATIONS = [
              "deeplens/optics/io/standin_glass.py",
              "    if abs(nd_file - nd) <= STANDIN_ND_TOL:\n", "    if True:\n",
              ("tests/optics/io/test_standin_glass.py",)),
+    # branch setups12: an image-space F-number on a negative focal length (EPD = |EFL| / F#)
+    Mutation("fno_epd_signed_efl", "the pupil of an image-space F-number taken from the signed "
+             "EFL (EPD = EFL / F#: a negative pupil on a relay with one intermediate image)",
+             "deeplens/optics/paraxial.py", "    return abs(efl) / fno\n",
+             "    return efl / fno\n", ("tests/optics/io/test_zmx_set12_rules.py",)),
+    Mutation("range_refusal_previous_unnamed", "a wavelength refused beyond a previous "
+             "(Robb & Mercado, visible-only) glass's range named as if from the current "
+             "catalogue (why the range is 400-700 nm lost)",
+             "deeplens/optics/io/zmx_glass.py",
+             "             if isinstance(m, BuchdahlGlass) else f\"catalogue {cat}\")",
+             "             if False else f\"catalogue {cat}\")",
+             ("tests/optics/io/test_zmx_set12_rules.py",)),
+    Mutation("image_before_vertex_beam_backwards", "an image plane before the last vertex after "
+             "a curved mirror said to be reached forwards where the beam leaves away from it "
+             "(a slip of sign named an off-axis section, and the other way round)",
+             "deeplens/optics/io/zmx_read.py",
+             "    if bool(ok[0]) and bool((t[ok] > 0).all()):\n",
+             "    if bool(ok[0]) and bool((t[ok] < 0).all()):\n",
+             ("tests/optics/io/test_zmx_set12_rules.py",)),
+    Mutation("curved_image_clears_somewhere", "a curved image surface said to clear the last "
+             "surface where it clears it at some radius, not at every one",
+             "deeplens/optics/io/zmx_read.py",
+             "    clears = bool((torch.nan_to_num(gap, nan=1.0) >= -1e-9).all())\n",
+             "    clears = bool((torch.nan_to_num(gap, nan=1.0) >= -1e-9).any())\n",
+             ("tests/optics/io/test_zmx_set12_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -41,12 +41,12 @@ from .tabulated_glass import TABULATED_CATALOGUES, tabulated_catalogue_size, tab
 from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_note
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
                            PREVIOUS_CATALOGUES, archived_glass, catalogue_size, find_in_vendor_catalogues,
-                           previous_glass, vendor_glass)
+                           BuchdahlGlass, previous_glass, vendor_glass)
 from .zmx_glass_codes import glass_code, glass_code_hint, glass_code_note
 from .zmx_parse import Locator, ZmxSurface
 
 __all__ = ["BUILTIN_CATALOGUES", "GLASS_PATH_ENV", "adjacent_catalogue", "catalogue_files",
-           "glass_path_catalogues", "load_catalogues",
+           "glass_path_catalogues", "load_catalogues", "range_refusal_source",
            "surface_material", "resolve_glass", "model_glass"]
 
 # Which of deeplens' own catalogue entries answer for which Zemax catalogue name.
@@ -376,6 +376,23 @@ def _stand_in(m: Material, glass: str, cat: str, s: ZmxSurface, p: Locator) -> M
     if not any(msg.startswith(head) for _, msg in p.notes):
         p.note(s.glass_line, standin_note(name, cat, s.glass_model))
     return m
+
+
+def range_refusal_source(m: Material) -> tuple[str, str]:
+    """What a refusal of a wavelength outside catalogue glass ``m``'s range adds: ``(where,
+    give)``, the catalogue the glass came from and how to pass the user's own (both ``""`` for
+    a material of no catalogue: a model glass, deeplens' built-in entries).
+
+    A glass of a previous catalogue (:class:`~.vendor_glass.BuchdahlGlass`, Robb & Mercado's
+    visible-only fit) says so: that is why its range is 400-700 nm.  The user's ``.agf`` named
+    after the catalogue (``SCHOTT.agf``) is looked up before every shipped one
+    (:func:`resolve_glass`), so that is the file to pass."""
+    cat = str(getattr(m, "catalogue", "") or "")
+    if not cat:
+        return "", ""
+    where = (f"previous {cat} catalogue, Robb & Mercado 1983, a visible-only fit"
+             if isinstance(m, BuchdahlGlass) else f"catalogue {cat}")
+    return where, f"pass {cat}.agf with --glass-catalog"
 
 
 def _found_glass(glass: str, hit: str) -> Material:

@@ -30,7 +30,7 @@ from .zmx_scbd import (check_scbd_on_break, image_scbd_note, refuse_object_scbd,
                        scbd_identity)
 from .zmx_coordbrk import (coordinate_break, is_identity, misalignment_brackets,
                            stop_plane_of_break, y_fields_only)
-from .zmx_glass import load_catalogues, surface_material
+from .zmx_glass import load_catalogues, range_refusal_source, surface_material
 from .zmx_mconf import configuration
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
 from .surface_formats import QBFS_CONIC
@@ -173,8 +173,11 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             try:
                 check_wavelength_nm(w, mat, stated_unit=True)
             except ValueError as e:
-                p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)})"
-                                               f"{_long_wave_hint(w)}")
+                where, give = range_refusal_source(mat)
+                p.fail(s.glass_line or s.line, f"{e} (glass of SURF {surfs.index(s)}"
+                                               f"{', ' + where if where else ''})"
+                                               f"{_long_wave_hint(w)}"
+                                               f"{'; ' + give if give and w <= 1e5 else ''}")
         _check_index(mat, waves_nm, s, surfs.index(s), p)
     for w in waves_nm:
         try:
@@ -212,6 +215,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     except (ValueError, TypeError) as e:
         if getattr(e, "key", None) == "aperture":   # the ENPD/FNUM/FLOA line's value
             p.fail(ap_line, str(e))
+        if (getattr(e, "key", None) == "sensor" and img.curv != 0
+                and str(e).startswith("the last surface crosses the sensor plane")):
+            _refuse_flat_sensor_cut(seq, img, surfs, d_sensor, s_mm, primary, p)
         raise _located(p, e, where_of) from e
     lens.object_telecentric = telecentric
     lens.object_tilt = seq.obj_tilt
@@ -262,6 +268,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             lens.apply_aperture_spec()
         except ValueError as e:
             p.fail(convert[2], str(e))
+    if len(virtual) > 1:
+        _refuse_image_before_vertex(lens, *virtual[1], p)
 
     # ---- fields
     lens.ray_aiming = sysd["raim"][0] != 0
@@ -669,12 +677,12 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
                          f"extended backwards to it); analysis only, no camera can record it")
         virtual[0] = True
     elif sign * d_sensor < 0 and inside_ok and mirrors:
-        p.fail(img.line, f"the image plane lies {abs(d_sensor):g} mm before the last surface's "
-                         f"vertex (light travels towards {'-' if sign < 0 else '+'}z there, "
-                         f"after {len(mirrors)} mirror{'s' if len(mirrors) != 1 else ''}): a "
-                         f"virtual image plane after mirrors is read only where the "
-                         f"thicknesses after the last mirror, a flat one, already run against "
-                         f"the direction of travel (OpticStudio's virtual propagation)")
+        # against the mirror parity after a curved mirror (OpticStudio's *Thicknesses*: virtual
+        # propagation): refused once the lens is built as if the plane were virtual, which
+        # lets the beam be traced to say whether it reaches the plane forwards (an off-axis
+        # section met far from its vertex) or not (a slip of sign): _refuse_image_before_vertex
+        virtual[0] = True
+        virtual.append((img.line, abs(d_sensor), sign, len(mirrors)))
     elif sign * d_sensor < 0 and inside_ok:
         # a virtual image, as a negative lens's file puts it at its virtual focus: OpticStudio
         # extends the diverging rays backwards to that plane (Lens.virtual_image); analysis
@@ -684,6 +692,101 @@ def _sensor(seq: _Sequence, img: ZmxSurface, p: Locator, virtual: list, primary:
                          f"analysis only, no camera can record it")
         virtual[0] = True
     return d_sensor
+
+
+def _refuse_image_before_vertex(lens, line: int, dist: float, sign: float, n_mirrors: int,
+                                p: Locator) -> None:
+    """Refuse, at ``line``, an image plane ``dist`` mm before the last vertex against the mirror
+    parity (``sign``, the direction of travel there by :func:`~..frames.travel_directions`)
+    after a curved mirror, saying whether the beam reaches it forwards (``lens``: the lens built
+    with that plane as a virtual one, to trace).
+
+    The beam: the on-axis field's chief ray and 48 rays on the rim of the paraxial entrance
+    pupil, primary wavelength, apertures ignored.  Where each meets the plane ahead of where it
+    leaves the last surface, the mirror is an off-axis section met far from its vertex at
+    grazing incidence, which sends the beam on the way it came along its frame's axis
+    (OpticStudio traces it there, moving rays along their lines; set 12's
+    ``td_gracing_incidence_mirror_optimization``), while deeplens' direction of travel (and with
+    it the paraxial data's signed indices) flips at every mirror: refused, saying so.  Otherwise (a slip
+    of sign, a convex mirror's virtual image) the plane lies behind the beam: refused as
+    before."""
+    from ..intersect import propagate_distance
+    from ..options import TraceOptions
+    from ..paraxial import paraxial
+    from ..sampling import field_rays
+
+    what = (f"the image plane lies {dist:g} mm before the last surface's vertex (light travels "
+            f"towards {'-' if sign < 0 else '+'}z there, after {n_mirrors} "
+            f"mirror{'s' if n_mirrors != 1 else ''})")
+    try:
+        with torch.no_grad():
+            par = paraxial(lens)
+            half = 0.5 * float(par.entrance_pupil_diameter)
+            phi = torch.arange(48, dtype=lens.dtype) * (2 * math.pi / 48)
+            pts = torch.cat([torch.zeros(1, 2, dtype=lens.dtype),
+                             torch.stack([torch.cos(phi), torch.sin(phi)], -1) * half])
+            rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts,
+                              float(par.entrance_pupil_z))
+            out = lens.trace(rays, options=TraceOptions(clip_aperture=False))
+            t, ok = propagate_distance(out.o[..., 2], out.d[..., 2], out.valid,
+                                       lens.z_sensor().to(out.o), backwards=True)
+    except (ValueError, RuntimeError):   # no pupil or beam to trace: the refusal as it was
+        t, ok = torch.zeros(1), torch.zeros(1, dtype=torch.bool)
+    if bool(ok[0]) and bool((t[ok] > 0).all()):
+        p.fail(line, f"{what}, yet the beam reaches it forwards ({float(t[ok].min()):.6g} to "
+                     f"{float(t[ok].max()):.6g} mm on): the last mirror is met far from its "
+                     f"vertex (an off-axis section at grazing incidence) and keeps the beam's "
+                     f"direction, which deeplens' mirror parity cannot express: not supported")
+    p.fail(line, f"{what}: a virtual image plane after mirrors is read only where the "
+                 f"thicknesses after the last mirror, a flat one, already run against the "
+                 f"direction of travel (OpticStudio's virtual propagation)")
+
+
+def _refuse_flat_sensor_cut(seq: _Sequence, img: ZmxSurface, surfs: list, d_sensor: float,
+                            s_mm: float, primary: float, p: Locator) -> None:
+    """Refuse, at the image surface's line, a curved image surface (``CURV`` != 0, read as
+    deeplens' flat sensor at its vertex) whose vertex plane the last surface crosses, saying by
+    how much and whether the file's own curved surface clears it.
+
+    OpticStudio traces to the image surface as it is (a Petzval-curved focal surface, as in a
+    Schmidt camera); deeplens' sensor is a plane, and the plane through that surface's vertex
+    cuts the last surface where its rim runs beyond it (set 12's ``ob_HoO-V2C18Ex36``, a
+    catadioptric camera whose field-flattener reaches 0.135 mm beyond the plane at its
+    semi-diameter): rays meeting the rim there could not reach such a sensor.  The sag is
+    sampled as :meth:`~deeplens.optics.lens.Lens.check` samples it (65 radii to the last
+    surface's semi-diameter, 8 azimuths)."""
+    from ..surfaces.base import in_closed_domain
+
+    kept = seq.kept
+    last = max((i for i, k_ in enumerate(kept) if k_[0].law != "stop"), default=len(kept) - 1)
+    surf = kept[last][0]
+    sign = float(travel_directions([k_[0] for k_ in kept], seq.mirrors,
+                                   _axis_indices(seq, primary), primary)[-1])
+    to_plane = sum(k_[3] for k_ in kept[last + 1:]) + d_sensor   # last vertex -> the plane
+    sd = float(surf.semi_diameter)
+    c = img.curv / s_mm
+    k = float(getattr(img, "coni", 0.0) or 0.0)
+    with torch.no_grad():
+        r = torch.linspace(0.0, sd, 65, dtype=torch.float64)
+        zs = torch.stack([surf.sag(r * math.cos(a), r * math.sin(a)).to(torch.float64)
+                          for a in (i * math.pi / 4 for i in range(8))])
+        ok = torch.stack([in_closed_domain(surf, r * math.cos(a), r * math.sin(a))
+                          for a in (i * math.pi / 4 for i in range(8))])
+    zs = torch.where(ok, zs, torch.zeros_like(zs))
+    reach = float((sign * zs).max()) - sign * to_plane
+    # the file's image surface (a conic of CURV, CONI) about the same vertex: where it is
+    # defined, does the last surface stay before it?
+    rr = r.unsqueeze(0).expand_as(zs)
+    disc = 1.0 - (1.0 + k) * c * c * rr * rr
+    img_sag = torch.where(disc >= 0, c * rr * rr / (1.0 + torch.sqrt(disc.clamp(min=0.0))),
+                          torch.full_like(rr, float("nan")))
+    gap = sign * (to_plane + img_sag - zs)
+    clears = bool((torch.nan_to_num(gap, nan=1.0) >= -1e-9).all())
+    p.fail(img.line, f"the image surface is curved (R {1.0 / c:.6g} mm) and deeplens' sensor is "
+                     f"the plane at its vertex, which SURF {surfs.index(kept[last][2])} crosses: "
+                     f"it reaches {reach:.4g} mm beyond that plane within its semi-diameter "
+                     f"{sd:.4g} mm{', where the curved image surface clears it' if clears else ''}"
+                     f"; a curved sensor is not supported")
 
 
 def _note_reversed_ideal_lenses(kept: list, signs: list, p: Locator) -> None:

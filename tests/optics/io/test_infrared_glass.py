@@ -204,7 +204,7 @@ def test_a_zmx_wavelength_outside_germanium_is_refused_at_the_glass_line(tmp_pat
         read_zmx(f)
     assert e.value.line == 19 and str(e.value).endswith(
         "wavelength 550 nm is outside the valid range 2000–14000 nm of material 'GERMANIUM' "
-        "(glass of SURF 1)")
+        "(glass of SURF 1, catalogue INFRARED); pass INFRARED.agf with --glass-catalog")
 
 
 def test_a_crystal_lens_round_trips_through_json_and_zmx(tmp_path):

@@ -195,7 +195,12 @@ def test_epd_sizes_a_stop_on_a_lens_surface(tmp_path):
     assert float(paraxial(lens).entrance_pupil_diameter) == pytest.approx(10.0, rel=1e-12)
 
 
-def test_fno_of_a_negative_lens_is_an_error(tmp_path):
+def test_fno_of_a_negative_lens_sizes_the_pupil_by_its_magnitude(tmp_path):
+    """An image-space F-number on a diverging lens: ``EPD = |EFL| / F#`` (as OpticStudio and
+    optiland; the Zemax guide, Object set-ups).  A plano-concave N-BK7 lens (curved face first)
+    has ``EFL = 1 / ((n - 1) c)``; the stop 2 mm behind its flat face is met by the ray parallel
+    to the axis at ``y_s = 1 + (n - 1)(-c)(3 / n + 2)`` per unit height, so its semi-diameter is
+    ``y_s EPD / 2``.  Before, this was refused as needing a positive focal length."""
     d = {"surfaces": [
         {"type": "asphere", "distance_mm": 0.0, "semi_diameter_mm": 5.0, "curvature_per_mm": -0.05,
          "material": "N-BK7"},
@@ -204,8 +209,15 @@ def test_fno_of_a_negative_lens_is_an_error(tmp_path):
         "stop": 2, "sensor": {"distance_mm": 10.0}, "aperture": {"type": "fno", "value": 4.0}}
     p = tmp_path / "neg.json"
     p.write_text(json.dumps(d))
-    with pytest.raises(LensFileError, match=r"neg\.json.*F-number.*positive focal length"):
-        load_lens(p)
+    lens = load_lens(p)
+    n = float(lens.materials[1].n(torch.tensor(587.5618, dtype=torch.float64)))
+    efl = 1.0 / ((n - 1.0) * -0.05)
+    pd = paraxial(lens)
+    assert float(pd.efl) == pytest.approx(efl, rel=1e-12)
+    assert float(pd.entrance_pupil_diameter) == pytest.approx(-efl / 4.0, rel=1e-12)
+    assert float(pd.fno) == pytest.approx(4.0, rel=1e-12)
+    y_s = 1.0 + (n - 1.0) * 0.05 * (3.0 / n + 2.0)
+    assert float(lens.stop.semi_diameter) == pytest.approx(y_s * -efl / 8.0, rel=1e-12)
 
 
 # ------------------------------------------------------------------ bad JSON files

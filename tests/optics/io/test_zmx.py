@@ -526,14 +526,15 @@ def assert_written_back(tmp_path, lens, needles) -> str:
     # at that glass's line, with its range and the nanometre slip
     (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 550"), "GLAS N-BK7",
      r"wavelength 550000 nm is outside the valid range 310–2500 nm of material 'N-BK7' "
-     r"\(glass of SURF 2\); the wavelength is WAVM 550 µm \(WAVM values are micrometres\): "
+     r"\(glass of SURF 2, catalogue SCHOTT\); the wavelength is WAVM 550 µm \(WAVM values are "
+     r"micrometres\): "
      r"a wave beyond 100 µm loads where every medium of the lens is defined there .*; if 550 "
      r"is in nanometres, write 0.55$"),
     (lambda t: t.replace("WAVM 1 0.55", "WAVM 1 3000"), "GLAS N-BK7",   # a millimetre wave
      r"wavelength 3e\+06 nm is outside the valid range 310–2500 nm of material 'N-BK7' "
-     r"\(glass of SURF 2\); the wavelength is WAVM 3000 µm \(3 mm: a millimetre or terahertz "
-     r"wave\) \(WAVM values are micrometres\): a wave beyond 100 µm loads where every medium "
-     r"of the lens is defined there \(a constant index, a model glass with V_d 0, or a "
+     r"\(glass of SURF 2, catalogue SCHOTT\); the wavelength is WAVM 3000 µm \(3 mm: a millimetre "
+     r"or terahertz wave\) \(WAVM values are micrometres\): a wave beyond 100 µm loads where "
+     r"every medium of the lens is defined there \(a constant index, a model glass with V_d 0, or a "
      r"catalogue glass whose range reaches it\)$"),
     (lambda t: t.replace("PWAV 2", "PWAV 3"), "PWAV", r"PWAV 3: the primary wavelength is not one"),
     (lambda t: t.replace("UNIT MM", "UNIT FURLONG"), "UNIT", r"UNIT: unknown lens unit 'FURLONG'"),
