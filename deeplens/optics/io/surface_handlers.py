@@ -77,6 +77,7 @@ from ..surfaces.zernike_sag import BASES
 from .surface_formats import (FORMATS, SurfaceFormat, ZmxContext, register_format,
                               zmx_diam as _diam, zmx_number as _f)
 from .zmx_coordbrk import coordbrk_lines
+from .zmx_notes import Cause
 
 #: the registry (:mod:`.surface_formats`), filled with this module's handlers: import it from
 #: here so that they are registered
@@ -303,15 +304,29 @@ def _qtype(s, k: int, c, sd, s_mm, p, qbfs_conic: str = "forbes"):
                                 f"{s.coni:g}) is refused (qbfs_conic='refuse'); "
                                 f"qbfs_conic='forbes' (the default; --qbfs-conic forbes) reads "
                                 f"it with Forbes' conic generalisation")
-        p.note(s.type_line, f"SURF {k}: a QED_TYPE Qbfs surface on a conic base (CONI "
-                            f"{s.coni:g}) is read with Forbes' conic generalisation (2011; as "
-                            f"optiland: the departure along the conic's normal, times "
-                            f"sqrt((1 - k c^2 r^2)/(1 - (1+k) c^2 r^2))); OpticStudio's "
-                            f"definition for a conic base is not documented; "
-                            f"qbfs_conic='refuse' (--qbfs-conic refuse) refuses it instead")
+        p.note_each(s.type_line, QBFS_CONIC_CAUSE, f"SURF {k}", f"{s.coni:g}")
     coeffs = [s.xdat.get(j + 4, (0.0, 0))[0] * s_mm for j in range(n)]
     return QType(c, sd, rn_v * s_mm, coeffs, "qcon" if kind_v == 1.0 else "qbfs",
                  conic=s.coni)
+
+
+_FORBES = ("Forbes' conic generalisation (2011; as optiland: the departure along the conic's "
+           "normal, times sqrt((1 - k c^2 r^2)/(1 - (1+k) c^2 r^2))); OpticStudio's definition "
+           "for a conic base is not documented")
+#: QED_TYPE Qbfs surfaces on conic bases, read with Forbes' generalisation: one warning per file
+QBFS_CONIC_CAUSE = Cause(
+    one="{item}: a QED_TYPE Qbfs surface on a conic base (CONI {detail}) is read with "
+        + _FORBES + "; qbfs_conic='refuse' (--qbfs-conic refuse) refuses it instead",
+    many="{n} QED_TYPE Qbfs surfaces on conic bases ({items}) are read with " + _FORBES
+         + "; qbfs_conic='refuse' (--qbfs-conic refuse) refuses them instead")
+_PARAXIAL_CURV = ("deeplens' paraxial data (EFL, pupils, back focus) include them, as the sag's "
+                  "curvature at the vertex; a reading from CURV alone (rayoptics 0.9's) gives "
+                  "other first-order numbers")
+#: Zernike sag surfaces whose rotationally symmetric terms curve the vertex
+ZERNIKE_VERTEX_CAUSE = Cause(
+    one="{item}: the rotationally symmetric Zernike terms {detail}: " + _PARAXIAL_CURV,
+    many="{n} Zernike sag surfaces ({items}): their rotationally symmetric Zernike terms add to "
+         "the vertex curvature from CURV: " + _PARAXIAL_CURV)
 
 
 def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
@@ -352,13 +367,19 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
         with torch.no_grad():
             dc = float(surf.paraxial_curvature()) - (c + 2.0 * (coeffs[0] if coeffs else 0.0))
         if dc != 0.0:
-            p.note(s.xdat.get(terms[0] + 2, (0.0, s.type_line))[1] or s.type_line,
-                   f"SURF {k}: the rotationally symmetric Zernike terms "
-                   f"{', '.join(f'Z{j}' for j in terms)} add {dc:.4g} /mm to the vertex "
-                   f"curvature ({c:.6g} /mm from CURV): deeplens' paraxial data (EFL, pupils, "
-                   f"back focus) include them, as the sag's curvature at the vertex; a reading "
-                   f"from CURV alone (rayoptics 0.9's) gives other first-order numbers")
+            p.note_each(s.xdat.get(terms[0] + 2, (0.0, s.type_line))[1] or s.type_line,
+                        ZERNIKE_VERTEX_CAUSE, f"SURF {k}",
+                        f"{', '.join(f'Z{j}' for j in terms)} add {dc:.4g} /mm to the vertex "
+                        f"curvature ({c:.6g} /mm from CURV)")
     return surf
+
+
+_FZERNPHA_BEYOND = Cause(
+    one="{item}: the semi-diameter {detail}: the Zernike phase is continued beyond it (the "
+        "polynomial extrapolated; OpticStudio's choice there is not in a stored source)",
+    many="{n} FZERNPHA surfaces ({items}): the semi-diameter exceeds the normalisation radius: "
+         "the Zernike phase is continued beyond it (the polynomial extrapolated; OpticStudio's "
+         "choice there is not in a stored source)")
 
 
 def _zernike_fringe_phase(s, k: int, c, sd, s_mm, p):
@@ -373,10 +394,8 @@ def _zernike_fringe_phase(s, k: int, c, sd, s_mm, p):
                                "read 1 alike)", "the number of Zernike terms", ZernikeFringePhase,
                                "Zernike terms", s_mm)
     if zern and sd > rn and sd != PROVISIONAL_SD_MM:
-        p.note(s.type_line, f"SURF {k}: the semi-diameter {sd:g} mm exceeds the FZERNPHA "
-                            f"normalisation radius {rn:g} mm: the Zernike phase is continued "
-                            f"beyond it (the polynomial extrapolated; OpticStudio's choice "
-                            f"there is not in a stored source)")
+        p.note_each(s.type_line, _FZERNPHA_BEYOND, f"SURF {k}",
+                    f"{sd:g} mm exceeds the FZERNPHA normalisation radius {rn:g} mm")
     return ZernikeFringePhase(c, sd, rn, zern, 1, conic=s.coni)
 
 
@@ -910,14 +929,19 @@ class JonesMatrixFormat(SurfaceFormat):
 
         self._check(s, ctx.k, ctx.p)
         m = [s.parm.get(i, (0.0, 0))[0] for i in range(1, 9)]
-        ctx.p.note(s.type_line, f"SURF {ctx.k}: JONESMAT (Jones matrix A = {m[0]:g}{m[1]:+g}i, "
-                                f"B = {m[2]:g}{m[3]:+g}i, C = {m[4]:g}{m[5]:+g}i, D = "
-                                f"{m[6]:g}{m[7]:+g}i) read as a plane: it changes polarization "
-                                f"and amplitude, not a ray's path, and deeplens traces no "
-                                f"polarization, so its transmission is not applied")
+        ctx.p.note_each(s.type_line, _JONES, f"SURF {ctx.k}",
+                        f"A = {m[0]:g}{m[1]:+g}i, B = {m[2]:g}{m[3]:+g}i, C = "
+                        f"{m[4]:g}{m[5]:+g}i, D = {m[6]:g}{m[7]:+g}i")
         return FORMATS.for_zmx_type("STANDARD").read_zmx(
             dataclasses.replace(s, type="STANDARD", parm={}), ctx)
 
+
+_JONES = Cause(one="{item}: JONESMAT (Jones matrix {detail}) read as a plane: it changes "
+                   "polarization and amplitude, not a ray's path, and deeplens traces no "
+                   "polarization, so its transmission is not applied",
+               many="{n} JONESMAT surfaces ({items}) read as planes: a Jones matrix changes "
+                    "polarization and amplitude, not a ray's path, and deeplens traces no "
+                    "polarization, so their transmission is not applied")
 
 #: Birefringent In's mode flag (``PARM 1``): which ray is traced, and whether a beamsplitter
 #: (split into configurations) or a waveplate (M. Nicholson, "The Birefringent Mode Flag",
@@ -925,6 +949,14 @@ class JonesMatrixFormat(SurfaceFormat):
 #: beamsplitter, modes 2 and 3 the input beam as the o or e ray of a waveplate)
 BIREFRINGENT_MODES = {0: ("ordinary", "beamsplitter"), 1: ("extraordinary", "beamsplitter"),
                       2: ("ordinary", "waveplate"), 3: ("extraordinary", "waveplate")}
+
+
+_BIRE_IN = Cause(one="{item}: birefringent-in surface ({detail}) read as a STANDARD surface into "
+                     "its GLAS as the ordinary index: only the ordinary ray's path is traced, no "
+                     "extraordinary ray, polarization or retardance",
+                 many="{n} birefringent-in surfaces ({items}) read as STANDARD surfaces into "
+                      "their GLAS as the ordinary index: only the ordinary ray's path is traced, "
+                      "no extraordinary ray, polarization or retardance")
 
 
 @register_format
@@ -980,11 +1012,8 @@ class BirefringentFormat(SurfaceFormat):
         mode = self._mode(s, ctx.k, ctx.p)
         if mode is not None:
             ray, kind = BIREFRINGENT_MODES[mode]
-            ctx.p.note(s.type_line,
-                       f"SURF {ctx.k}: birefringent-in surface (mode {mode}, the {ray} ray "
-                       f"of a {kind}) read as a STANDARD surface into its GLAS as the "
-                       f"ordinary index: only the ordinary ray's path is traced, no "
-                       f"extraordinary ray, polarization or retardance")
+            ctx.p.note_each(s.type_line, _BIRE_IN, f"SURF {ctx.k}",
+                            f"mode {mode}, the {ray} ray of a {kind}")
         return FORMATS.for_zmx_type("STANDARD").read_zmx(self._as_standard(s), ctx)
 
 
@@ -1003,6 +1032,13 @@ class ParaxialFormat(SurfaceFormat):
         return ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}", _diam(s.semi_diameter)]
 
 
+_PARAX_XY = Cause(one="{item}: PARAX_XY with {detail}: rays are traced through both; deeplens' "
+                      "paraxial data (EFL, pupils, back focus) take the y section",
+                  many="{n} PARAX_XY surfaces with unequal x and y powers ({items}): rays are "
+                       "traced through both; deeplens' paraxial data (EFL, pupils, back focus) "
+                       "take the y section")
+
+
 def _paraxial_xy_surface(s, ctx):
     """``PARAX_XY`` (``PARM 1`` the x power, ``PARM 2`` the y power, 1/lens units): deeplens'
     :class:`IdealLensXY`, in air."""
@@ -1019,10 +1055,8 @@ def _paraxial_xy_surface(s, ctx):
         p.fail(s.type_line or s.line, f"SURF {k}: a PARAX_XY surface needs a non-zero x or y "
                                       f"power (PARM 1, PARM 2)")
     if px != py:
-        p.note(s.type_line or s.line,
-               f"SURF {k}: PARAX_XY with x power {px:.6g} /mm and y power {py:.6g} /mm: rays are "
-               f"traced through both; deeplens' paraxial data (EFL, pupils, back focus) take "
-               f"the y section")
+        p.note_each(s.type_line or s.line, _PARAX_XY, f"SURF {k}",
+                    f"x power {px:.6g} /mm and y power {py:.6g} /mm")
     return IdealLensXY(px, py, ctx.sd_build)
 
 
