@@ -597,7 +597,9 @@ MUTATIONS = [
              "f\"SURF {k}: a JONESMAT", JONESMAT),
     Mutation("tabulated_glass_silent", "an LZOS glass fitted to its index table used without "
              "the located note naming the source", "deeplens/optics/io/zmx_glass.py",
-             'p.note(s.glass_line, f"glass {glass!r}: {m.note()}")', "pass", TABULATED),
+             "                p.note_each(s.glass_line,\n                            Cause(one=",
+             "                (lambda *a: None)(s.glass_line,\n                            Cause(one=",
+             TABULATED),
     Mutation("tabulated_glass_fit_in_n", "the Schott formula fitted to n instead of n²",
              "deeplens/optics/io/tabulated_glass.py",
              "np.asarray(n, dtype=np.float64) ** 2, rcond=None)",
