@@ -1482,6 +1482,11 @@ MUTATIONS = [
              'g = groups.setdefault(("cause", cause) if cause else ("text", msg), [[], {}, cause])',
              'g = groups.setdefault(("note", i), [[], {}, cause])',
              ("tests/optics/io/test_zmx_warning_groups.py",)),
+    # branch warnone: the shared refusal of PARM/XDAT records a surface type does not read
+    Mutation("unread_negative_value_accepted", "a negative PARM/XDAT value a surface type does "
+             "not read silently dropped (only positive ones refused)",
+             "deeplens/optics/io/surface_formats.py", "if i not in read and v != 0:",
+             "if i not in read and v > 0:", ("tests/optics/io/test_zmx_unread_records.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -37,7 +37,8 @@ import torch
 
 from ..surfaces import GridSag
 from ..surfaces.grid_sag import MAX_GRID_EVEN_TERMS, grid_slopes
-from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
 from .zmx_notes import Cause
 
 __all__ = ["GridSagFormat"]
@@ -76,18 +77,16 @@ _VERTEX = Cause(one="{item}: the grid adds {detail}: " + _VERTEX_WHY,
 
 def _grid_sag(s, ctx) -> GridSag:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
-    for i, (v, ln) in sorted(s.parm.items()):
-        if i == 0 and v == 1:
-            p.fail(ln, f"SURF {k}: GRID_SAG PARM 0 = 1 (linear interpolation of the grid) is not "
-                       f"supported: its slopes jump at every grid line; deeplens traces the "
-                       f"bicubic interpolation (PARM 0 = 0)")
-        if i == 0 and v != 0:
-            p.fail(ln, f"SURF {k}: GRID_SAG PARM 0 (the interpolation) must be 0 (bicubic) or "
-                       f"1 (linear), got {v!r}")
-        if not 0 <= i <= 10 and v != 0:
-            p.fail(ln, f"SURF {k}: GRID_SAG PARM {i} is not read (PARM 0 the interpolation, "
-                       f"PARM 1-8 the even terms on r², ..., r¹⁶, PARM 9-10 the Zernike "
-                       f"decenter)")
+    v, ln = s.parm.get(0, (0.0, 0))
+    if v == 1:
+        p.fail(ln, f"SURF {k}: GRID_SAG PARM 0 = 1 (linear interpolation of the grid) is not "
+                   f"supported: its slopes jump at every grid line; deeplens traces the bicubic "
+                   f"interpolation (PARM 0 = 0)")
+    if v != 0:
+        p.fail(ln, f"SURF {k}: GRID_SAG PARM 0 (the interpolation) must be 0 (bicubic) or 1 "
+                   f"(linear), got {v!r}")
+    refuse_unread(p, s.parm, f"SURF {k}: GRID_SAG", "PARM 0 the interpolation, PARM 1-8 the even "
+                  "terms on r², ..., r¹⁶, PARM 9-10 the Zernike decenter", range(11))
     for j, (v, ln) in sorted(s.xdat.items()):
         if j >= 3 and v != 0:
             p.fail(ln, f"SURF {k}: GRID_SAG XDAT {j} is a Zernike coefficient; Zernike terms on a "

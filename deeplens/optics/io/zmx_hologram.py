@@ -29,7 +29,8 @@ import math
 from ..errors import ZemaxFileError
 from ..surfaces import Hologram
 from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
-from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
 from .zmx_notes import Cause
 
 __all__ = ["HologramFormat"]
@@ -68,15 +69,11 @@ def _opening_lines(s, i: int) -> list[str]:
 def _hologram(s, ctx) -> Hologram:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
     name = s.type
-    for i, (v, ln) in sorted(s.parm.items()):
-        if not 1 <= i <= 8 and v != 0:
-            p.fail(ln, f"SURF {k}: {name} PARM {i} is not read (PARM 1-3 construction point 1, "
-                       f"4-6 construction point 2, 7 the construction wavelength in µm, 8 the "
-                       f"order; volume-hologram settings are not supported)")
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if v != 0:
-            p.fail(ln, f"SURF {k}: {name} XDAT {j} is not read (a surface hologram has no extra "
-                       f"data; volume-hologram settings are not supported)")
+    refuse_unread(p, s.parm, f"SURF {k}: {name}", "PARM 1-3 construction point 1, 4-6 "
+                  "construction point 2, 7 the construction wavelength in µm, 8 the order; "
+                  "volume-hologram settings are not supported", range(1, 9))
+    refuse_unread(p, s.xdat, f"SURF {k}: {name}", "a surface hologram has no extra data; "
+                  "volume-hologram settings are not supported", kind="XDAT")
 
     def parm(i):
         return s.parm.get(i, (0.0, s.type_line or s.line))

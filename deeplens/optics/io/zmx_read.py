@@ -34,7 +34,7 @@ from .zmx_glass import load_catalogues, surface_material
 from .zmx_mconf import configuration
 from .zmx_notes import Cause, literal
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
-from .surface_formats import QBFS_CONIC
+from .surface_formats import QBFS_CONIC, refuse_unread
 from .stop_clear import flat_stop_as_asphere, plain_circular_stop
 from .zmx_glass_codes import GLASS_CODES
 from .zmx_stop_size import STOP_SIZE, check_stop_size, limiting_stop_radius
@@ -562,10 +562,8 @@ def _object_tilt(obj: ZmxSurface, p: Locator) -> tuple[float, float]:
     object and image surfaces": OpticStudio User Guide, *Tilted*).  Any other object surface
     is refused at its line."""
     if obj.type == "TILTSURF":
-        for i, (v, ln) in sorted(obj.parm.items()):
-            if i not in (1, 2) and v != 0:
-                p.fail(ln, f"SURF 0: TILTSURF PARM {i} is not read (PARM 1 and 2 are the x and "
-                           f"y tangents of the tilted object plane)")
+        refuse_unread(p, obj.parm, "SURF 0: TILTSURF", "PARM 1 and 2 are the x and y tangents of "
+                      "the tilted object plane", (1, 2))
         tilt = (obj.parm.get(1, (0.0, 0))[0], obj.parm.get(2, (0.0, 0))[0])
         if not all(math.isfinite(v) for v in tilt):
             p.fail(obj.type_line or obj.line, f"SURF 0: the tilted object plane's tangents "
