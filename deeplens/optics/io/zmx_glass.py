@@ -381,9 +381,11 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                 used = f"the requested fallback {m.name!r} (n_d {nd:.6g}, V_d {vd:.4g})"
             except (ValueError, RuntimeError):
                 used = f"the requested fallback {m.name!r}"
-            cause = _glass_cause(f"{where}; using {used}; for the glass itself {give}",
-                                 f"{where_all}; using {used} for each; for the glasses "
-                                 f"themselves {give_all}")
+            cause = _glass_cause(f"{where}; using {used} (glass_fallback, without which it is "
+                                 f"refused); for the glass itself {give}",
+                                 f"{where_all}; using {used} for each (glass_fallback, without "
+                                 f"which they are refused); for the glasses themselves "
+                                 f"{give_all}")
             detail = ""
         p.note_each(s.glass_line, cause, repr(glass), detail)
         return m

@@ -216,3 +216,13 @@ def test_a_surface_cause_on_two_surfaces_is_one_warning(tmp_path):
     assert w.message.startswith("2 surfaces (SURF 5, SURF 6): a fixed DIAM beside an OBSC (a "
                                 "surface aperture) does not clip rays in OpticStudio")
     assert next(w for w in said if "six-digit" in w.message).lines == tuple(glas)
+
+
+def test_a_requested_fallback_on_two_glasses_is_one_warning_naming_the_option(tmp_path):
+    f, lines = _triplet(tmp_path, glasses=("ACME-1", "N-BK7", "ACME-2"))
+    lens, said = _zemax_warnings(lambda: read_zmx(f, glass_fallback="1.8/40"))
+    assert len(said) == 1 and said[0].lines == (lines[0], lines[2])
+    assert said[0].message.startswith("2 glasses ('ACME-1', 'ACME-2') are not in the shipped "
+                                      "SCHOTT catalogue; using the requested fallback")
+    assert "for each (glass_fallback, without which they are refused)" in said[0].message
+    assert [lens.materials[i].nd for i in (1, 3)] == pytest.approx([1.8, 1.8], abs=1e-12)
