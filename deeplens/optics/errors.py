@@ -12,7 +12,7 @@ room may raise it without an upward import.
 from __future__ import annotations
 
 __all__ = ["ConfigError", "LensError", "LensFileError", "SurfacesCrossError", "ZemaxFileError",
-           "ZemaxWarning", "format_config_error"]
+           "ZemaxWarning", "format_config_error", "format_lines"]
 
 
 class LensError(ValueError):
@@ -109,19 +109,36 @@ class ZemaxWarning(UserWarning):
     """A line of a ``.zmx`` file that was understood but is not used (or a glass that came
     from a catalogue other than the one asked for).
 
-    ``str(warning)`` is ``"SOURCE:LINE: MESSAGE"`` (``MESSAGE`` alone without a line); the parts
-    are attributes: ``message``, ``source``, ``line`` (``None`` when no single line is concerned)
-    and ``feature`` (the record's keyword, or ``None``).
+    ``str(warning)`` is ``"SOURCE:LINE: MESSAGE"`` (``MESSAGE`` alone without a line), or, for
+    one cause met on several lines, ``"SOURCE:L1,L2,L3: MESSAGE"`` (at most
+    :data:`MAX_WARNING_LINES` lines named, then ``"and N more"``); the parts are attributes:
+    ``message``, ``source``, ``line`` (the first line; ``None`` when no single line is
+    concerned), ``lines`` (every line, in order; ``()`` without one) and ``feature`` (the first
+    line's record keyword, or ``None``).
     """
 
     def __init__(self, message: str, *, source=None, line: int | None = None,
-                 feature: str | None = None):
+                 feature: str | None = None, lines=()):
         self.message = message
         self.source = None if source is None else str(source)
-        self.line = line
+        self.lines = tuple(int(v) for v in lines) or ((line,) if line else ())
+        self.line = self.lines[0] if self.lines else line
         self.feature = feature
-        where = f"{self.source}:{line}" if self.source and line else ""
+        where = f"{self.source}:{format_lines(self.lines)}" if self.source and self.lines else ""
         super().__init__(f"{where}: {message}" if where else message)
+
+
+#: the most lines a :class:`ZemaxWarning`'s location names (the rest counted)
+MAX_WARNING_LINES = 6
+
+
+def format_lines(lines) -> str:
+    """``"87,93,101"``: the lines of one warning, the first :data:`MAX_WARNING_LINES` named and
+    the rest counted (``"1,2,3,4,5,6 and 10 more"``)."""
+    lines = list(lines)
+    shown = ",".join(str(v) for v in lines[:MAX_WARNING_LINES])
+    more = len(lines) - MAX_WARNING_LINES
+    return f"{shown} and {more} more" if more > 0 else shown
 
 
 def format_config_error(key: str, expected: str, got, kind: str = "value",

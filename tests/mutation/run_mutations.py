@@ -584,12 +584,12 @@ MUTATIONS = [
              'if name.upper() == "___BLANK" or code == "1" or model is not None:', LENS2_GLASS),
     Mutation("zernike_vertex_note_dropped", "a Zernike sag whose m = 0 terms curve the vertex "
              "read without the note that the paraxial data include them",
-             "deeplens/optics/io/surface_handlers.py", "        if dc != 0.0:\n            p.note(",
+             "deeplens/optics/io/surface_handlers.py", "        if dc != 0.0:\n            p.note_each(",
              "        if dc != 0.0:\n            (lambda *a: None)(", ZERN_NOTE),
     Mutation("jonesmat_silent", "a JONESMAT surface read as a plane without the note that its "
              "matrix is not applied", "deeplens/optics/io/surface_handlers.py",
-             "        ctx.p.note(s.type_line, f\"SURF {ctx.k}: JONESMAT",
-             "        (lambda *a: None)(s.type_line, f\"SURF {ctx.k}: JONESMAT", JONESMAT),
+             "        ctx.p.note_each(s.type_line, _JONES,",
+             "        (lambda *a: None)(s.type_line, _JONES,", JONESMAT),
     Mutation("jonesmat_curved_accepted", "a curved JONESMAT read as a plane",
              "deeplens/optics/io/surface_handlers.py",
              "        if s.curv != 0:\n            p.fail(s.curv_line or s.type_line, f\"SURF {k}: a "
@@ -597,16 +597,17 @@ MUTATIONS = [
              "f\"SURF {k}: a JONESMAT", JONESMAT),
     Mutation("tabulated_glass_silent", "an LZOS glass fitted to its index table used without "
              "the located note naming the source", "deeplens/optics/io/zmx_glass.py",
-             'p.note(s.glass_line, f"glass {glass!r}: {m.note()}")', "pass", TABULATED),
+             "                p.note_each(s.glass_line,\n                            Cause(one=",
+             "                (lambda *a: None)(s.glass_line,\n                            Cause(one=",
+             TABULATED),
     Mutation("tabulated_glass_fit_in_n", "the Schott formula fitted to n instead of n²",
              "deeplens/optics/io/tabulated_glass.py",
              "np.asarray(n, dtype=np.float64) ** 2, rcond=None)",
              "np.asarray(n, dtype=np.float64), rcond=None)", TABULATED),
     Mutation("glass_fallback_silent", "the model-glass fallback used without its warning",
              "deeplens/optics/io/zmx_glass.py",
-             '        warnings.warn(p.warning(s.glass_line, f"glass {glass!r}{where}; using',
-             '        (lambda *a, **k: None)(p.warning(s.glass_line, f"glass {glass!r}{where}; '
-             'using', LENS2_GLASS),
+             "        p.note_each(s.glass_line, cause, repr(glass), detail)\n        return m",
+             "        return m", LENS2_GLASS),
     Mutation("virtual_object_launched_behind", "rays of a virtual object started on its plane "
              "(behind the lens) instead of before the first surface",
              "deeplens/optics/sampling.py",
@@ -1115,9 +1116,8 @@ MUTATIONS = [
     # ------------------------------- issue 37: a Qbfs on a conic base (Forbes' generalisation)
     Mutation("qbfs_conic_warning_dropped", "a Qbfs on a conic base loaded without the located "
              "warning naming the reading and the option", "deeplens/optics/io/surface_handlers.py",
-             "        p.note(s.type_line, f\"SURF {k}: a QED_TYPE Qbfs surface on a conic base",
-             "        (lambda *a: None)(s.type_line, f\"SURF {k}: a QED_TYPE Qbfs surface on a "
-             "conic base", QBFS_CONIC),
+             "        p.note_each(s.type_line, QBFS_CONIC_CAUSE,",
+             "        (lambda *a: None)(s.type_line, QBFS_CONIC_CAUSE,", QBFS_CONIC),
     Mutation("qbfs_conic_option_ignored", "qbfs_conic='refuse' ignored (the surface loaded "
              "anyway)", "deeplens/optics/io/surface_handlers.py",
              '        if qbfs_conic == "refuse":', '        if False:', QBFS_CONIC),
@@ -1565,6 +1565,18 @@ MUTATIONS = [
              "    clears = bool((torch.nan_to_num(gap, nan=1.0) >= -1e-9).all())\n",
              "    clears = bool((torch.nan_to_num(gap, nan=1.0) >= -1e-9).any())\n",
              ("tests/optics/io/test_zmx_set12_rules.py",)),
+    # branch warnone: one located warning per cause, naming its lines, not one per line
+    Mutation("warnings_per_line_again", "the notes of one cause (three GLAS lines read from "
+             "six-digit codes) issued as one warning per line again, not one naming every line",
+             "deeplens/optics/io/zmx_parse.py",
+             'g = groups.setdefault(("cause", cause) if cause else ("text", msg), [[], {}, cause])',
+             'g = groups.setdefault(("note", i), [[], {}, cause])',
+             ("tests/optics/io/test_zmx_warning_groups.py",)),
+    # branch warnone: the shared refusal of PARM/XDAT records a surface type does not read
+    Mutation("unread_negative_value_accepted", "a negative PARM/XDAT value a surface type does "
+             "not read silently dropped (only positive ones refused)",
+             "deeplens/optics/io/surface_formats.py", "if i not in read and v != 0:",
+             "if i not in read and v > 0:", ("tests/optics/io/test_zmx_unread_records.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -39,9 +39,10 @@ from typing import NamedTuple
 
 import torch
 
-from ..errors import LensFileError
+from ..errors import LensFileError, format_lines
 from ..materials import DEFAULT_RANGE_NM, LINE_D, Material
 from .filecheck import read_file_bytes
+from .zmx_notes import listed
 
 __all__ = ["FORMULAS", "AGFGlass", "AgfError", "AgfRecord", "GlassCatalogue", "read_agf"]
 
@@ -250,6 +251,7 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
     records: dict[str, AgfRecord] = {}
     notes: list[str] = []
     unknown: dict[str, tuple[int, int]] = {}   # record kind -> (first line, count)
+    off_nd: list[tuple[int, str, float, float]] = []   # (line, glass, formula's n_d, NM's n_d)
     cur: dict | None = None
 
     def fail(ln, msg):
@@ -285,9 +287,7 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
         if rec.nd > 0 and lo <= LINE_D <= hi:
             nd = float(glass.n(LINE_D))
             if not math.isfinite(nd) or abs(nd - rec.nd) > 1e-4:
-                warnings.warn(f"{path}:{rec.line}: glass {rec.name!r}: the formula gives "
-                              f"n_d = {nd:.6f} but the NM record says {rec.nd:.6f} (check the "
-                              f"formula number and the CD record)", stacklevel=3)
+                off_nd.append((rec.line, rec.name, nd, rec.nd))
         records[rec.name] = rec
 
     for ln, line in enumerate(text.splitlines(), start=1):
@@ -335,6 +335,14 @@ def read_agf(path, name: str | None = None) -> GlassCatalogue:
             first, count = unknown.get(toks[0], (ln, 0))
             unknown[toks[0]] = (first, count + 1)
     finish()
+    if off_nd:   # one warning per catalogue, not per glass (zmx_notes: one per cause)
+        ln, g, nd, said = off_nd[0]
+        what = (f"glass {g!r}: the formula gives n_d = {nd:.6f} but the NM record says "
+                f"{said:.6f}" if len(off_nd) == 1 else
+                f"{len(off_nd)} glasses ({listed([repr(o[1]) for o in off_nd])}): the formula "
+                f"gives another n_d than the NM record says")
+        warnings.warn(f"{path}:{format_lines(o[0] for o in off_nd)}: {what} (check the formula "
+                      f"number and the CD record)", stacklevel=2)
     for rec_key, (first, count) in unknown.items():   # one warning per kind, not per line
         warnings.warn(f"{path}:{first}: unknown record {rec_key!r} ignored ({count} line(s); "
                       f"known: CC, NM, GC, ED, CD, TD, OD, LD, IT, MD, BD)", stacklevel=2)

@@ -43,6 +43,17 @@ def zmx_number(v) -> str:
     return repr(float(v))
 
 
+def refuse_unread(p, records: dict, where: str, why: str, read=(), kind: str = "PARM") -> None:
+    """Refuse, at its line, the first record (by number) of a ``SURF`` block's ``records``
+    (its ``parm`` or ``xdat``: number -> ``(value, line)``) that is not 0 and whose number is
+    not in ``read``: ``"{where} {kind} {i} = {value} is not read ({why})"`` (``where``: the
+    surface and its type, ``"SURF 3: EVENASPH"``; ``why``: what the type's records are, or
+    why no other is read).  ``p``: the reader's :class:`~.zmx_parse.Locator`."""
+    for i, (v, ln) in sorted(records.items()):
+        if i not in read and v != 0:
+            p.fail(ln, f"{where} {kind} {i} = {v:g} is not read ({why})")
+
+
 def zmx_diam(sd) -> str:
     """The ``DIAM`` record of a semi-diameter ``sd`` (mm) the file fixes (flag 1)."""
     return f"DIAM {zmx_number(sd)} 1 0 0 1 \"\""

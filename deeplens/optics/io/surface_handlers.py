@@ -76,9 +76,10 @@ from ..surfaces.extended_polynomial import extended_terms as zemax_xy_terms
 from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from ..surfaces.zernike_sag import BASES
-from .surface_formats import (FORMATS, SurfaceFormat, ZmxContext, register_format,
+from .surface_formats import (FORMATS, SurfaceFormat, ZmxContext, refuse_unread, register_format,
                               zmx_diam as _diam, zmx_number as _f)
 from .zmx_coordbrk import coordbrk_lines
+from .zmx_notes import Cause
 
 #: the registry (:mod:`.surface_formats`), filled with this module's handlers: import it from
 #: here so that they are registered
@@ -156,11 +157,8 @@ def _radial_coefficients(s, k: int, s_mm, p):
     an :class:`Asphere`), and ``[]`` for an ``ODDASPHE`` with no term (its conic base)."""
     if s.type not in ("EVENASPH", "ODDASPHE"):
         return None
-    for i, (v, ln) in sorted(s.parm.items()):
-        if (i > 8 or i < 1) and v != 0:
-            kind = "even" if s.type == "EVENASPH" else "odd"
-            p.fail(ln, f"SURF {k}: {s.type} PARM {i} is not read: Zemax's {kind} asphere has "
-                       f"PARM 1-8")
+    refuse_unread(p, s.parm, f"SURF {k}: {s.type}", f"Zemax's "
+                  f"{'even' if s.type == 'EVENASPH' else 'odd'} asphere has PARM 1-8", range(1, 9))
     if s.type == "EVENASPH" and s.parm.get(1, (0.0, 0))[0] == 0:
         return None
     power = (lambda i: 2 * i) if s.type == "EVENASPH" else (lambda i: i)
@@ -181,10 +179,8 @@ def _cylinder(s, k: int, c, sd, s_mm, p):
     nz = s.xdat.get(1, (0.0, 0))
     if nz[0] != 0 or any(v != 0 for j, (v, _) in s.xdat.items() if j > 2):
         p.fail(nz[1] or s.type_line, f"SURF {k}: TOROIDAL Zernike terms (XDAT) are not supported")
-    for i, (v, ln) in s.parm.items():
-        if (i > 9 or i < 1) and v != 0:
-            p.fail(ln, f"SURF {k}: TOROIDAL PARM {i} is not read (PARM 1 radius of rotation, "
-                       f"PARM 2-9 the y² ... y¹⁶ coefficients)")
+    refuse_unread(p, s.parm, f"SURF {k}: TOROIDAL", "PARM 1 radius of rotation, PARM 2-9 the "
+                  "y² ... y¹⁶ coefficients", range(1, 10))
     top = max([i for i in s.parm if 2 <= i <= 9 and s.parm[i][0] != 0] + [1])
     coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (3 - 2 * i) for i in range(2, top + 1)]
     hw = None if s.sqap is None else (s.sqap[0] * s_mm, s.sqap[1] * s_mm)
@@ -200,15 +196,11 @@ def _biconic(s, k: int, c, sd, s_mm, p):
     """``BICONICX``: ``CURV``/``CONI`` the y curvature and conic, ``PARM 1`` the x *radius* (0:
     infinite, flat in x), ``PARM 2`` the x conic (OpticStudio's "Biconic" surface; it has no
     other parameter and no extra data): a :class:`Biconic`."""
-    for i, (v, ln) in sorted(s.parm.items()):
-        if i not in (1, 2) and v != 0:
-            p.fail(ln, f"SURF {k}: BICONICX PARM {i} is not read (a biconic has PARM 1, the x "
-                       f"radius, and PARM 2, the x conic; a Biconic Zernike or other variant "
-                       f"is not supported)")
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if v != 0:
-            p.fail(ln, f"SURF {k}: BICONICX XDAT {j} is not read (a biconic has no extra data; "
-                       f"a Biconic Zernike or other variant is not supported)")
+    refuse_unread(p, s.parm, f"SURF {k}: BICONICX", "a biconic has PARM 1, the x radius, and "
+                  "PARM 2, the x conic; a Biconic Zernike or other variant is not supported",
+                  (1, 2))
+    refuse_unread(p, s.xdat, f"SURF {k}: BICONICX", "a biconic has no extra data; a Biconic "
+                  "Zernike or other variant is not supported", kind="XDAT")
     r_x = s.parm.get(1, (0.0, 0))[0]
     c_x = 0.0 if r_x == 0 else 1.0 / (r_x * s_mm)
     return Biconic(c, sd, c_x, conic=s.coni, conic_x=s.parm.get(2, (0.0, 0))[0])
@@ -218,10 +210,8 @@ def _grating(s, k: int, c, sd, p):
     """``DGRATING``: a sphere or conic (``CURV``, ``CONI``) ruled with ``PARM 1`` lines per
     micrometre (in every lens unit) parallel to the local x axis, traced in order ``PARM 2``:
     a :class:`Grating` (transmitting, or reflecting with ``GLAS MIRROR``)."""
-    for i, (v, ln) in s.parm.items():
-        if i > 2 and v != 0:
-            p.fail(ln, f"SURF {k}: DGRATING PARM {i} is not read (PARM 1 lines per micrometre, "
-                       f"PARM 2 the diffraction order)")
+    refuse_unread(p, s.parm, f"SURF {k}: DGRATING", "PARM 1 lines per micrometre, PARM 2 the "
+                  "diffraction order", range(3))
     order, ln = s.parm.get(2, (0.0, s.type_line))
     if order != int(order):
         p.fail(ln, f"SURF {k}: the diffraction order (DGRATING PARM 2) must be an integer, got "
@@ -235,10 +225,8 @@ def _binary2(s, k: int, c, sd, s_mm, p):
     ρ^{2i}``: ``PARM 0`` the diffraction order ``M``, ``XDAT 1`` the number of terms, ``XDAT 2``
     the normalisation radius (a length), ``XDAT 3..`` the ``A_i`` (radians): a :class:`Binary2`
     (transmitting, or reflecting with ``GLAS MIRROR``)."""
-    for i, (v, ln) in sorted(s.parm.items()):
-        if (i < 0 or i > 8) and v != 0:
-            p.fail(ln, f"SURF {k}: BINARY_2 PARM {i} is not read (PARM 0 the diffraction order, "
-                       f"PARM 1-8 the even-asphere terms on r², ..., r¹⁶)")
+    refuse_unread(p, s.parm, f"SURF {k}: BINARY_2", "PARM 0 the diffraction order, PARM 1-8 the "
+                  "even-asphere terms on r², ..., r¹⁶", range(9))
     if s.parm.get(1, (0.0, 0))[0] != 0:
         p.fail(s.parm[1][1], f"SURF {k}: BINARY_2 PARM 1 (the r² term of the base asphere) is "
                              f"not supported (deeplens' even asphere starts at r⁴): fold it "
@@ -296,24 +284,36 @@ def _qtype(s, k: int, c, sd, s_mm, p, qbfs_conic: str = "forbes"):
     for j, (v, ln) in s.xdat.items():
         if j > n + 3 and v != 0:
             p.fail(ln, f"XDAT {j} lies beyond the {n} terms XDAT 2 declares")
-    for i, (v, ln) in s.parm.items():
-        if v != 0:
-            p.fail(ln, f"SURF {k}: QED_TYPE PARM {i} is not read (the Q-type data are XDAT)")
+    refuse_unread(p, s.parm, f"SURF {k}: QED_TYPE", "the Q-type data are XDAT")
     if kind_v == 0.0 and s.coni != 0:
         if qbfs_conic == "refuse":
             p.fail(s.type_line, f"SURF {k}: a QED_TYPE Qbfs surface on a conic base (CONI "
                                 f"{s.coni:g}) is refused (qbfs_conic='refuse'); "
                                 f"qbfs_conic='forbes' (the default; --qbfs-conic forbes) reads "
                                 f"it with Forbes' conic generalisation")
-        p.note(s.type_line, f"SURF {k}: a QED_TYPE Qbfs surface on a conic base (CONI "
-                            f"{s.coni:g}) is read with Forbes' conic generalisation (2011; as "
-                            f"optiland: the departure along the conic's normal, times "
-                            f"sqrt((1 - k c^2 r^2)/(1 - (1+k) c^2 r^2))); OpticStudio's "
-                            f"definition for a conic base is not documented; "
-                            f"qbfs_conic='refuse' (--qbfs-conic refuse) refuses it instead")
+        p.note_each(s.type_line, QBFS_CONIC_CAUSE, f"SURF {k}", f"{s.coni:g}")
     coeffs = [s.xdat.get(j + 4, (0.0, 0))[0] * s_mm for j in range(n)]
     return QType(c, sd, rn_v * s_mm, coeffs, "qcon" if kind_v == 1.0 else "qbfs",
                  conic=s.coni)
+
+
+_FORBES = ("Forbes' conic generalisation (2011; as optiland: the departure along the conic's "
+           "normal, times sqrt((1 - k c^2 r^2)/(1 - (1+k) c^2 r^2))); OpticStudio's definition "
+           "for a conic base is not documented")
+#: QED_TYPE Qbfs surfaces on conic bases, read with Forbes' generalisation: one warning per file
+QBFS_CONIC_CAUSE = Cause(
+    one="{item}: a QED_TYPE Qbfs surface on a conic base (CONI {detail}) is read with "
+        + _FORBES + "; qbfs_conic='refuse' (--qbfs-conic refuse) refuses it instead",
+    many="{n} QED_TYPE Qbfs surfaces on conic bases ({items}) are read with " + _FORBES
+         + "; qbfs_conic='refuse' (--qbfs-conic refuse) refuses them instead")
+_PARAXIAL_CURV = ("deeplens' paraxial data (EFL, pupils, back focus) include them, as the sag's "
+                  "curvature at the vertex; a reading from CURV alone (rayoptics 0.9's) gives "
+                  "other first-order numbers")
+#: Zernike sag surfaces whose rotationally symmetric terms curve the vertex
+ZERNIKE_VERTEX_CAUSE = Cause(
+    one="{item}: the rotationally symmetric Zernike terms {detail}: " + _PARAXIAL_CURV,
+    many="{n} Zernike sag surfaces ({items}): their rotationally symmetric Zernike terms add to "
+         "the vertex curvature from CURV: " + _PARAXIAL_CURV)
 
 
 def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
@@ -330,10 +330,8 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
             p.fail(ln, f"SURF {k}: {tn} PARM {i} (the Zernike decenter in "
                        f"{'x' if i == 9 else 'y'}) is not supported: deeplens' Zernike terms are "
                        f"centred on the vertex")
-        if (i < 0 or i > 10) and v != 0:
-            p.fail(ln, f"SURF {k}: {tn} PARM {i} is not read (PARM 0 the extrapolate flag, "
-                       f"PARM 1-8 the even terms on r², ..., r¹⁶, PARM 9-10 the Zernike "
-                       f"decenter)")
+    refuse_unread(p, s.parm, f"SURF {k}: {tn}", "PARM 0 the extrapolate flag, PARM 1-8 the even "
+                  "terms on r², ..., r¹⁶, PARM 9-10 the Zernike decenter", range(11))
     ext, ext_ln = s.parm.get(0, (1.0, s.type_line))
     if ext not in (0.0, 1.0):
         p.fail(ext_ln, f"SURF {k}: {tn} PARM 0 (the extrapolate flag) must be 0 or 1, got "
@@ -354,13 +352,19 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
         with torch.no_grad():
             dc = float(surf.paraxial_curvature()) - (c + 2.0 * (coeffs[0] if coeffs else 0.0))
         if dc != 0.0:
-            p.note(s.xdat.get(terms[0] + 2, (0.0, s.type_line))[1] or s.type_line,
-                   f"SURF {k}: the rotationally symmetric Zernike terms "
-                   f"{', '.join(f'Z{j}' for j in terms)} add {dc:.4g} /mm to the vertex "
-                   f"curvature ({c:.6g} /mm from CURV): deeplens' paraxial data (EFL, pupils, "
-                   f"back focus) include them, as the sag's curvature at the vertex; a reading "
-                   f"from CURV alone (rayoptics 0.9's) gives other first-order numbers")
+            p.note_each(s.xdat.get(terms[0] + 2, (0.0, s.type_line))[1] or s.type_line,
+                        ZERNIKE_VERTEX_CAUSE, f"SURF {k}",
+                        f"{', '.join(f'Z{j}' for j in terms)} add {dc:.4g} /mm to the vertex "
+                        f"curvature ({c:.6g} /mm from CURV)")
     return surf
+
+
+_FZERNPHA_BEYOND = Cause(
+    one="{item}: the semi-diameter {detail}: the Zernike phase is continued beyond it (the "
+        "polynomial extrapolated; OpticStudio's choice there is not in a stored source)",
+    many="{n} FZERNPHA surfaces ({items}): the semi-diameter exceeds the normalisation radius: "
+         "the Zernike phase is continued beyond it (the polynomial extrapolated; OpticStudio's "
+         "choice there is not in a stored source)")
 
 
 def _zernike_fringe_phase(s, k: int, c, sd, s_mm, p):
@@ -375,10 +379,8 @@ def _zernike_fringe_phase(s, k: int, c, sd, s_mm, p):
                                "read 1 alike)", "the number of Zernike terms", ZernikeFringePhase,
                                "Zernike terms", s_mm)
     if zern and sd > rn and sd != PROVISIONAL_SD_MM:
-        p.note(s.type_line, f"SURF {k}: the semi-diameter {sd:g} mm exceeds the FZERNPHA "
-                            f"normalisation radius {rn:g} mm: the Zernike phase is continued "
-                            f"beyond it (the polynomial extrapolated; OpticStudio's choice "
-                            f"there is not in a stored source)")
+        p.note_each(s.type_line, _FZERNPHA_BEYOND, f"SURF {k}",
+                    f"{sd:g} mm exceeds the FZERNPHA normalisation radius {rn:g} mm")
     return ZernikeFringePhase(c, sd, rn, zern, 1, conic=s.coni)
 
 
@@ -390,9 +392,7 @@ def _paraxial_surface(s, k: int, mat, prev, sd, s_mm, p):
     if not (is_air(mat) and is_air(prev)):
         p.fail(s.glass_line or s.type_line, f"SURF {k}: a PARAXIAL surface between glasses is "
                                             f"not supported (deeplens' ideal lens sits in air)")
-    for i, (v, ln) in s.parm.items():
-        if i > 2 and v != 0:
-            p.fail(ln, f"SURF {k}: PARAXIAL PARM {i} is not read (only the focal length, PARM 1)")
+    refuse_unread(p, s.parm, f"SURF {k}: PARAXIAL", "only the focal length, PARM 1", range(3))
     return IdealLens(s.parm[1][0] * s_mm, sd)
 
 
@@ -408,11 +408,8 @@ def _xypolynom(s, c, sd, s_mm, p, k=None):
     typ = s.type if s.type in ("XPOLYNOM", "XYPOLYNOM") else "XYPOLYNOM"
     where = f"SURF {k}: " if k is not None else ""
     if typ == "XPOLYNOM":
-        for i, (v, ln) in sorted(s.parm.items()):
-            if v != 0:
-                p.fail(ln, f"{where}XPOLYNOM PARM {i} is not read (the Extended Polynomial's data "
-                           f"are XDAT 1 the term count, XDAT 2 the normalisation radius, XDAT 3.. "
-                           f"the terms)")
+        refuse_unread(p, s.parm, f"{where}XPOLYNOM", "the Extended Polynomial's data are XDAT 1 "
+                      "the term count, XDAT 2 the normalisation radius, XDAT 3.. the terms")
     if c != 0 and typ == "XYPOLYNOM":
         p.fail(s.line, "XYPOLYNOM with a base curvature (CURV != 0) is not supported: deeplens' XY "
                        "polynomial is z = P(x, y) (put the base sphere into the polynomial)")
@@ -461,11 +458,9 @@ def _xasphere(s, k: int, c, sd, s_mm, p):
     powers only).  The same surface as an even asphere: ``a_{2i} = α_i / R_n^{2i}`` (mm), an
     :class:`Asphere` (an :class:`OddAsphere` with its odd terms zero when ``α_1`` != 0).
     Terms up to ρ²⁰ (10) are read; a non-zero one beyond is refused with its line."""
-    for i, (v, ln) in sorted(s.parm.items()):
-        if v != 0:
-            p.fail(ln, f"SURF {k}: XASPHERE PARM {i} is not read (the Extended Asphere's data "
-                       f"are XDAT 1 the number of terms, XDAT 2 the normalisation radius, XDAT "
-                       f"3.. the coefficients on ρ², ρ⁴, ...)")
+    refuse_unread(p, s.parm, f"SURF {k}: XASPHERE", "the Extended Asphere's data are XDAT 1 the "
+                  "number of terms, XDAT 2 the normalisation radius, XDAT 3.. the coefficients "
+                  "on ρ², ρ⁴, ...")
     n = _xdat_term_count(p, s, k, "XASPHERE", "the maximum term number", XASPHERE_MAX_TERMS,
                          "terms")
     rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
@@ -854,10 +849,8 @@ class TiltedFormat(SurfaceFormat):
 
     @staticmethod
     def _tangents(s, k, p):
-        for i, (v, ln) in sorted(s.parm.items()):
-            if i not in (1, 2) and v != 0:
-                p.fail(ln, f"SURF {k}: TILTSURF PARM {i} is not read (PARM 1 and 2 are the x "
-                           f"and y tangents)")
+        refuse_unread(p, s.parm, f"SURF {k}: TILTSURF", "PARM 1 and 2 are the x and y tangents",
+                      (1, 2))
         if s.curv != 0:
             p.fail(s.curv_line or s.type_line, f"SURF {k}: a TILTSURF (a tilted plane) has no "
                                                f"curvature, got CURV {s.curv:g}")
@@ -895,10 +888,8 @@ class JonesMatrixFormat(SurfaceFormat):
 
     @staticmethod
     def _check(s, k, p):
-        for i, (v, ln) in sorted(s.parm.items()):
-            if not 1 <= i <= 8 and v != 0:
-                p.fail(ln, f"SURF {k}: JONESMAT PARM {i} is not read (PARM 1..8 are the Jones "
-                           f"matrix's A, B, C, D, real and imaginary parts)")
+        refuse_unread(p, s.parm, f"SURF {k}: JONESMAT", "PARM 1..8 are the Jones matrix's A, B, "
+                      "C, D, real and imaginary parts", range(1, 9))
         if s.curv != 0:
             p.fail(s.curv_line or s.type_line, f"SURF {k}: a JONESMAT (Jones matrix) surface is "
                                                f"a plane, got CURV {s.curv:g}")
@@ -912,14 +903,19 @@ class JonesMatrixFormat(SurfaceFormat):
 
         self._check(s, ctx.k, ctx.p)
         m = [s.parm.get(i, (0.0, 0))[0] for i in range(1, 9)]
-        ctx.p.note(s.type_line, f"SURF {ctx.k}: JONESMAT (Jones matrix A = {m[0]:g}{m[1]:+g}i, "
-                                f"B = {m[2]:g}{m[3]:+g}i, C = {m[4]:g}{m[5]:+g}i, D = "
-                                f"{m[6]:g}{m[7]:+g}i) read as a plane: it changes polarization "
-                                f"and amplitude, not a ray's path, and deeplens traces no "
-                                f"polarization, so its transmission is not applied")
+        ctx.p.note_each(s.type_line, _JONES, f"SURF {ctx.k}",
+                        f"A = {m[0]:g}{m[1]:+g}i, B = {m[2]:g}{m[3]:+g}i, C = "
+                        f"{m[4]:g}{m[5]:+g}i, D = {m[6]:g}{m[7]:+g}i")
         return FORMATS.for_zmx_type("STANDARD").read_zmx(
             dataclasses.replace(s, type="STANDARD", parm={}), ctx)
 
+
+_JONES = Cause(one="{item}: JONESMAT (Jones matrix {detail}) read as a plane: it changes "
+                   "polarization and amplitude, not a ray's path, and deeplens traces no "
+                   "polarization, so its transmission is not applied",
+               many="{n} JONESMAT surfaces ({items}) read as planes: a Jones matrix changes "
+                    "polarization and amplitude, not a ray's path, and deeplens traces no "
+                    "polarization, so their transmission is not applied")
 
 #: Birefringent In's mode flag (``PARM 1``): which ray is traced, and whether a beamsplitter
 #: (split into configurations) or a waveplate (M. Nicholson, "The Birefringent Mode Flag",
@@ -927,6 +923,14 @@ class JonesMatrixFormat(SurfaceFormat):
 #: beamsplitter, modes 2 and 3 the input beam as the o or e ray of a waveplate)
 BIREFRINGENT_MODES = {0: ("ordinary", "beamsplitter"), 1: ("extraordinary", "beamsplitter"),
                       2: ("ordinary", "waveplate"), 3: ("extraordinary", "waveplate")}
+
+
+_BIRE_IN = Cause(one="{item}: birefringent-in surface ({detail}) read as a STANDARD surface into "
+                     "its GLAS as the ordinary index: only the ordinary ray's path is traced, no "
+                     "extraordinary ray, polarization or retardance",
+                 many="{n} birefringent-in surfaces ({items}) read as STANDARD surfaces into "
+                      "their GLAS as the ordinary index: only the ordinary ray's path is traced, "
+                      "no extraordinary ray, polarization or retardance")
 
 
 @register_format
@@ -954,10 +958,8 @@ class BirefringentFormat(SurfaceFormat):
     @staticmethod
     def _mode(s, k, p):
         if s.type == "BIRE_OUT":
-            for i, (v, ln) in sorted(s.parm.items()):
-                if v != 0:
-                    p.fail(ln, f"SURF {k}: BIRE_OUT PARM {i} is not read (no source at hand "
-                               f"defines a Birefringent Out parameter)")
+            refuse_unread(p, s.parm, f"SURF {k}: BIRE_OUT", "no source at hand defines a "
+                          "Birefringent Out parameter")
             return None
         v, ln = s.parm.get(1, (0.0, s.type_line))
         if v not in BIREFRINGENT_MODES:
@@ -982,11 +984,8 @@ class BirefringentFormat(SurfaceFormat):
         mode = self._mode(s, ctx.k, ctx.p)
         if mode is not None:
             ray, kind = BIREFRINGENT_MODES[mode]
-            ctx.p.note(s.type_line,
-                       f"SURF {ctx.k}: birefringent-in surface (mode {mode}, the {ray} ray "
-                       f"of a {kind}) read as a STANDARD surface into its GLAS as the "
-                       f"ordinary index: only the ordinary ray's path is traced, no "
-                       f"extraordinary ray, polarization or retardance")
+            ctx.p.note_each(s.type_line, _BIRE_IN, f"SURF {ctx.k}",
+                            f"mode {mode}, the {ray} ray of a {kind}")
         return FORMATS.for_zmx_type("STANDARD").read_zmx(self._as_standard(s), ctx)
 
 
@@ -1005,6 +1004,13 @@ class ParaxialFormat(SurfaceFormat):
         return ["TYPE PARAXIAL", "CURV 0.0", f"PARM 1 {_f(s.focal)}", _diam(s.semi_diameter)]
 
 
+_PARAX_XY = Cause(one="{item}: PARAX_XY with {detail}: rays are traced through both; deeplens' "
+                      "paraxial data (EFL, pupils, back focus) take the y section",
+                  many="{n} PARAX_XY surfaces with unequal x and y powers ({items}): rays are "
+                       "traced through both; deeplens' paraxial data (EFL, pupils, back focus) "
+                       "take the y section")
+
+
 def _paraxial_xy_surface(s, ctx):
     """``PARAX_XY`` (``PARM 1`` the x power, ``PARM 2`` the y power, 1/lens units): deeplens'
     :class:`IdealLensXY`, in air."""
@@ -1012,19 +1018,15 @@ def _paraxial_xy_surface(s, ctx):
     if not (is_air(ctx.mat) and is_air(ctx.prev)):
         p.fail(s.glass_line or s.type_line, f"SURF {k}: a PARAX_XY surface between glasses is "
                                             f"not supported (deeplens' ideal lens sits in air)")
-    for i, (v, ln) in s.parm.items():
-        if i > 2 and v != 0:
-            p.fail(ln, f"SURF {k}: PARAX_XY PARM {i} is not read (PARM 1 the x power, PARM 2 the "
-                       f"y power)")
+    refuse_unread(p, s.parm, f"SURF {k}: PARAX_XY", "PARM 1 the x power, PARM 2 the y power",
+                  range(3))
     px, py = (s.parm.get(i, (0.0, 0))[0] / ctx.s_mm for i in (1, 2))
     if px == 0.0 and py == 0.0:
         p.fail(s.type_line or s.line, f"SURF {k}: a PARAX_XY surface needs a non-zero x or y "
                                       f"power (PARM 1, PARM 2)")
     if px != py:
-        p.note(s.type_line or s.line,
-               f"SURF {k}: PARAX_XY with x power {px:.6g} /mm and y power {py:.6g} /mm: rays are "
-               f"traced through both; deeplens' paraxial data (EFL, pupils, back focus) take "
-               f"the y section")
+        p.note_each(s.type_line or s.line, _PARAX_XY, f"SURF {k}",
+                    f"x power {px:.6g} /mm and y power {py:.6g} /mm")
     return IdealLensXY(px, py, ctx.sd_build)
 
 

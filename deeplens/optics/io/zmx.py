@@ -100,7 +100,8 @@ Mapping onto :class:`~deeplens.optics.lens.Lens` (mm, nm):
   have ``n_d < 1``: OpticStudio's indices are relative to air).  A glass not found is an error naming it and its
   line, unless the caller passes ``glass_fallback``.
 
-Lines understood but not used are reported as :class:`ZemaxWarning` with their line; lines that
+Lines understood but not used are reported as :class:`ZemaxWarning` with their line (one warning
+per cause, naming every line it concerns: :mod:`.zmx_notes`); lines that
 would change the optics if ignored (other surface types, obscurations on flat surfaces between
 media, telecentric object space without an ``OBNA`` aperture, ...) are errors naming the file, the line and the feature, as a
 :class:`ZemaxFileError` whose ``source``, ``line``, ``feature`` (the line's keyword) and ``surf``

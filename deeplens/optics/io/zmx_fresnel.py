@@ -18,17 +18,16 @@ from __future__ import annotations
 
 from ..errors import ZemaxFileError
 from ..surfaces import Fresnel
-from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
 
 __all__ = ["FresnelFormat"]
 
 
 def _fresnel(s, ctx) -> Fresnel:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
-    for i, (v, ln) in sorted(s.parm.items()):
-        if (i < 1 or i > 8) and v != 0:
-            p.fail(ln, f"SURF {k}: FRESNELS PARM {i} is not read (PARM 1-8: the facet profile's "
-                       f"r², r⁴, ..., r¹⁶ terms, as the Even Asphere's)")
+    refuse_unread(p, s.parm, f"SURF {k}: FRESNELS", "PARM 1-8: the facet profile's r², r⁴, ..., "
+                  "r¹⁶ terms, as the Even Asphere's", range(1, 9))
     alpha = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(1, 9)]
     while alpha and alpha[-1] == 0.0:
         alpha.pop()

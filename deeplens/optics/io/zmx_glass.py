@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import math
 import os
-import warnings
 from pathlib import Path
 
 import torch
@@ -42,8 +41,8 @@ from .withdrawn_glass import WITHDRAWN_CATALOGUES, withdrawn_glass, withdrawn_no
 from .vendor_glass import (ARCHIVED_CATALOGUES, CURRENT_CATALOGUES, PARTIAL_CATALOGUES,
                            PREVIOUS_CATALOGUES, archived_glass, catalogue_size, find_in_vendor_catalogues,
                            BuchdahlGlass, previous_glass, vendor_glass)
-from .zmx_glass_codes import glass_code, glass_code_hint, glass_code_note
-from .zmx_parse import Locator, ZmxSurface
+from .zmx_glass_codes import GLASS_CODE_CAUSE, glass_code, glass_code_hint, glass_code_note
+from .zmx_parse import Cause, Locator, ZmxSurface, literal
 
 __all__ = ["BUILTIN_CATALOGUES", "GLASS_PATH_ENV", "adjacent_catalogue", "catalogue_files",
            "glass_path_catalogues", "load_catalogues", "range_refusal_source",
@@ -79,6 +78,21 @@ GLASS_PATH_ENV = "DEEPLENS_GLASS_PATH"
 
 #: how the one-line refusal of a glass not found says where to give a catalogue
 _GIVE = "pass --glass-catalog {f}"
+
+#: a named glass whose GLAS line's n_d/V_d differ from the catalogue glass's (:func:`_checked`;
+#: ``{detail}``: the two pairs)
+_STALE_CAUSE = Cause(
+    one="glass {item}: {detail}; the catalogue glass is used (as OpticStudio does for a named "
+        "glass: the n_d/V_d columns describe only model glasses)",
+    many="{n} glasses ({items}): the GLAS lines' n_d/V_d differ from the catalogue glasses'; the "
+         "catalogue glasses are used (as OpticStudio does for a named glass: the n_d/V_d columns "
+         "describe only model glasses)")
+
+
+def _glass_cause(one: str, many: str) -> Cause:
+    """The :class:`~.zmx_parse.Cause` of glasses that share what ``one`` (after ``glass
+    NAME``) and ``many`` (after ``N glasses (NAMES)``) say (both literal text)."""
+    return Cause(one="glass {item}" + literal(one), many="{n} glasses ({items})" + literal(many))
 
 
 def glass_path_catalogues(value: str | None = None) -> list[Path]:
@@ -200,15 +214,14 @@ def _checked(m: Material, glass: str, s: ZmxSurface, where: str, p: Locator) -> 
     except (ValueError, RuntimeError):   # a catalogue glass not defined at the d line
         return m
     if abs(model[0] - nd) > 1e-3:
-        p.note(s.glass_line, f"glass {glass!r}: the GLAS line's n_d {model[0]:g}, V_d "
-                             f"{model[1]:g} differ from {where}'s n_d {nd:.6f}, V_d {vd:.2f}; "
-                             f"the catalogue glass is used (as OpticStudio does for a named "
-                             f"glass: the n_d/V_d columns describe only model glasses)")
+        p.note_each(s.glass_line, _STALE_CAUSE, repr(glass),
+                    f"the GLAS line's n_d {model[0]:g}, V_d {model[1]:g} differ from {where}'s "
+                    f"n_d {nd:.6f}, V_d {vd:.2f}")
     return m
 
 
 def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
-                  stacklevel: int = 2, glass_codes: str = "refuse"):
+                  glass_codes: str = "refuse"):
     """The material of ``GLAS glass`` on ``s.glass_line``: exact lookup, in catalogue order.
 
     Per catalogue the file names on ``GCAT`` (all vendor catalogues if it names none): the
@@ -219,11 +232,12 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
     vendor catalogue the file does not name (exact name only).  A glass found is the
     catalogue's (the ``GLAS`` line's ``n_d``/``V_d`` are not used: :func:`_checked`).  A glass
     not found is a one-line error (the catalogues searched are in its ``details``), or, when
-    the caller asked for a fallback, a located warning naming the glass and the values used.
+    the caller asked for a fallback, a located note naming the glass and the values used.
     A name that is a six-digit ``n_d``/``V_d`` code in none of the catalogues the file names
-    nor the user's is, under ``glass_codes="model"``, that model glass, with a located warning
+    nor the user's is, under ``glass_codes="model"``, that model glass, with a located note
     (before the shipped catalogues the file does not name, where a code is ambiguous); under
-    ``"refuse"`` the error says so (:mod:`.zmx_glass_codes`).
+    ``"refuse"`` the error says so (:mod:`.zmx_glass_codes`).  Each kind of note becomes one
+    warning per file naming its lines and glasses (:class:`~.zmx_parse.Cause`).
     """
     searched = []
     named = list(gcat) if gcat else list(CURRENT_CATALOGUES) + ["MISC"]
@@ -265,7 +279,12 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                             f"{tabulated_catalogue_size(cat)} glasses)")
             m = tabulated_glass(glass, cat)
             if m is not None:
-                p.note(s.glass_line, f"glass {glass!r}: {m.note()}")
+                p.note_each(s.glass_line,
+                            Cause(one="glass {item}: {detail}",
+                                  many="{n} glasses " + literal(f"of {cat} from {m.source}")
+                                       + ": the Schott formula fitted to each one's indices "
+                                         "(largest residual in n: {items})"),
+                            repr(glass), m.note(), f"{glass!r} {m.residual:.1e}")
                 return _checked(m, glass, s, f"the fitted {cat} table", p)
     # the named vendors' older catalogues, newest first:
     # (names answered, lookup, kind, what the catalogue is (with {n} glasses), why a use is noted)
@@ -286,8 +305,10 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                 if m is not None:
                     because = (withdrawn_note(glass, cat) if why is None
                                else why.format(cat=cat))
-                    p.note(s.glass_line, f"glass {glass!r}: from the {kind} {cat} catalogue "
-                                         f"({because})")
+                    p.note_each(s.glass_line,
+                                _glass_cause(f": from the {kind} {cat} catalogue ({because})",
+                                             f" from the {kind} {cat} catalogue: {because}"),
+                                repr(glass))
                     return _checked(m, glass, s, f"the {kind} {cat} catalogue", p)
     # the user's catalogues the file does not name, in the order given
     for cat in (c for c in catalogues if c not in named):
@@ -295,22 +316,27 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                         f"{len(catalogues[cat])} glasses)")
         m = catalogues[cat].get(glass)
         if m is not None:
-            p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
-                                 f"({', '.join(named)}); using the user catalogue {cat} "
-                                 f"({catalogues[cat].path}, exact name)")
+            using = (f"in the catalogues GCAT names ({', '.join(named)}); using the user "
+                     f"catalogue {cat} ({catalogues[cat].path}, exact name")
+            p.note_each(s.glass_line, _glass_cause(f" is not {using})", f" are not {using}s)"),
+                        repr(glass))
             return _checked(m, glass, s, f"the user catalogue {cat}", p)
     code = glass_code(glass)
     if code is not None and glass_codes == "model":   # before the catalogues GCAT does not
         # name: there a code is ambiguous (CHANCE and CORNING-FRANCE both list a '620603')
-        warnings.warn(p.warning(s.glass_line, glass_code_note(code)), stacklevel=stacklevel)
+        p.note_each(s.glass_line, GLASS_CODE_CAUSE, repr(code.name), glass_code_note(code))
         return code
     elsewhere = [c for c in find_in_vendor_catalogues(glass) if c.split()[0] not in named]
     if elsewhere:
         m = _found_glass(glass, elsewhere[0])
-        about = (f": {_SOURCE_NOTES[elsewhere[0]](glass)}" if elsewhere[0] in _SOURCE_NOTES
-                 else "")
-        p.note(s.glass_line, f"glass {glass!r} is not in the catalogues GCAT names "
-                             f"({', '.join(named)}); using {elsewhere[0]} (exact name){about}")
+        using = f"in the catalogues GCAT names ({', '.join(named)}); using {elsewhere[0]}"
+        if elsewhere[0] in _SOURCE_NOTES:   # deeplens' own formulas: the note names the source
+            p.note(s.glass_line, f"glass {glass!r} is not {using} (exact name): "
+                                 f"{_SOURCE_NOTES[elsewhere[0]](glass)}")
+        else:
+            p.note_each(s.glass_line, _glass_cause(f" is not {using} (exact name)",
+                                                   f" are not {using} (exact names)"),
+                        repr(glass))
         return _checked(m, glass, s, elsewhere[0], p)
     # a catalogue the file names of which deeplens ships a few names only (CORNING) counts as
     # not shipped: the glass is the vendor's, and its .agf is what to give
@@ -321,6 +347,10 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
             else "pass the vendor's .agf that has it with --glass-catalog")
     where = (f" (catalogue {' or '.join(missing)}) is not shipped" if missing else
              f" is not in the shipped {', '.join(named)} catalogue{'s' if len(named) > 1 else ''}")
+    where_all = (f" (catalogue {' or '.join(missing)}) are not shipped" if missing else
+                 f" are not in the shipped {', '.join(named)} "
+                 f"catalogue{'s' if len(named) > 1 else ''}")
+    give_all = give.replace("that has it", "that has them")
     for c in (c for c in missing if c in PARTIAL_CATALOGUES):
         searched.append(f"of {c} deeplens ships only {', '.join(PARTIAL_CATALOGUES[c])}")
     others = [c for c in CURRENT_CATALOGUES if c not in named]
@@ -345,9 +375,16 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                                      f"glass, not the glass's data: the model-glass fallback "
                                      f"cannot use it; {give}", details=details)
             m = model_glass(s, p)
-            used = (f"the GLAS line's model values n_d {s.glass_model[0]:g}, V_d "
-                    f"{s.glass_model[1]:g} (OpticStudio does not update these for a catalogue "
-                    f"glass: they may be stale)")
+            why = ("(glass_fallback='model', without which {} refused; OpticStudio does not "
+                   "update these for a catalogue glass: they may be stale)")
+            cause = Cause(one="glass {item}" + literal(f"{where}; using the GLAS line's model "
+                                                    f"values ") + "{detail}"
+                              + literal(f" {why.format('it is')}; for the glass itself {give}"),
+                          many="{n} glasses ({items})"
+                               + literal(f"{where_all}; using each GLAS line's model n_d/V_d "
+                                      f"{why.format('they are')}; for the glasses themselves "
+                                      f"{give_all}"))
+            detail = f"n_d {s.glass_model[0]:g}, V_d {s.glass_model[1]:g}"
         else:
             m = fallback if isinstance(fallback, Material) else get_material(str(fallback))
             try:
@@ -355,9 +392,13 @@ def resolve_glass(glass, s: ZmxSurface, gcat, catalogues, fallback, p: Locator,
                 used = f"the requested fallback {m.name!r} (n_d {nd:.6g}, V_d {vd:.4g})"
             except (ValueError, RuntimeError):
                 used = f"the requested fallback {m.name!r}"
-        warnings.warn(p.warning(s.glass_line, f"glass {glass!r}{where}; using {used}; for the "
-                                              f"glass itself {give}"),
-                      stacklevel=stacklevel)
+            cause = _glass_cause(f"{where}; using {used} (glass_fallback, without which it is "
+                                 f"refused); for the glass itself {give}",
+                                 f"{where_all}; using {used} for each (glass_fallback, without "
+                                 f"which they are refused); for the glasses themselves "
+                                 f"{give_all}")
+            detail = ""
+        p.note_each(s.glass_line, cause, repr(glass), detail)
         return m
     hint = "" if code is None else glass_code_hint(code)
     p.fail(s.glass_line, f"glass {glass!r}{where}; {give}{hint}", details=details)
@@ -438,14 +479,12 @@ def model_glass(s: ZmxSurface, p: Locator, name=None) -> ModelGlass:
         p.fail(s.glass_line, f"model glass (GLAS ... n_d V_d): {e}")
 
 
-def surface_material(s, gcat, catalogues, fallback, p, stacklevel: int = 2,
-                     glass_codes: str = "refuse"):
-    """The medium after ``SURF`` block ``s`` (air without a ``GLAS`` line); ``stacklevel`` (counted
-    from this function, as :func:`warnings.warn` counts) is the frame a fallback warning names;
-    ``glass_codes`` is :func:`~.zmx_read.read_zmx`'s (:mod:`.zmx_glass_codes`)."""
+def surface_material(s, gcat, catalogues, fallback, p, glass_codes: str = "refuse"):
+    """The medium after ``SURF`` block ``s`` (air without a ``GLAS`` line); ``glass_codes`` is
+    :func:`~.zmx_read.read_zmx`'s (:mod:`.zmx_glass_codes`)."""
     if s.glass is None and s.glass_model is not None and s.glass_line:
         return model_glass(s, p, s.glass_model_name)
     if s.glass is None:
         return Air()
-    return resolve_glass(s.glass, s, gcat, catalogues, fallback, p, stacklevel + 1, glass_codes)
+    return resolve_glass(s.glass, s, gcat, catalogues, fallback, p, glass_codes)
 

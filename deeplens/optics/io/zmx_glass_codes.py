@@ -12,8 +12,9 @@ none of the catalogues the file names (``GCAT``) nor the user's holds as ``Model
 V_d)`` named by the code (a glass of that name in one of those still wins), before the exact-name
 search of the shipped catalogues the file does not name, where a code is ambiguous (the previous
 CHANCE and CORNING-FRANCE catalogues both list a ``620603``, two makers' glasses), with one located
-:class:`~deeplens.optics.errors.ZemaxWarning` per ``GLAS`` line (as the ``glass_fallback``
-warnings: each use).  A model glass matches the code's ``n_d`` and ``V_d`` only; its partial
+:class:`~deeplens.optics.errors.ZemaxWarning` per file naming every such ``GLAS`` line and code
+(:data:`GLASS_CODE_CAUSE`; at most four codes named, the rest counted), the reading and the
+option that flips it.  A model glass matches the code's ``n_d`` and ``V_d`` only; its partial
 dispersion and everything outside the visible are idealised.  Schott's nine-digit
 ``NNNVVV.DDD`` (density) code is not a fictitious-glass code and is never read as one.
 """
@@ -24,8 +25,9 @@ import re
 
 from ..materials import ModelGlass
 from .fictitious_glass import fictitious_glass
+from .zmx_parse import Cause
 
-__all__ = ["GLASS_CODES", "glass_code", "glass_code_hint", "glass_code_note"]
+__all__ = ["GLASS_CODES", "GLASS_CODE_CAUSE", "glass_code", "glass_code_hint", "glass_code_note"]
 
 #: how a ``GLAS`` name that is a six-digit ``n_d``/``V_d`` code and in no searched catalogue is
 #: read: ``"refuse"`` (default) a located error, as OpticStudio; ``"model"`` a model glass
@@ -55,8 +57,19 @@ def glass_code_hint(m: ModelGlass) -> str:
             f"glass_codes='model' (--glass-codes model) reads it as a model glass")
 
 
+#: the one located warning of a file's codes read as model glasses (``{item}``: the code
+#: quoted, ``{detail}``: :func:`glass_code_note`; several: the codes, at most four named)
+GLASS_CODE_CAUSE = Cause(
+    one="glass {item} is read as a six-digit n_d/V_d glass code: model glass {detail} "
+        "(glass_codes='model'); OpticStudio's catalogues hold no such name, so OpticStudio would "
+        "refuse it, as glass_codes='refuse' (the default) does; the partial dispersion is "
+        "idealised",
+    many="{n} glasses are read as six-digit n_d/V_d glass codes ({items}), NNNVVV as the model "
+         "glass n_d 1.NNN, V_d VV.V (glass_codes='model'); OpticStudio's catalogues hold no such "
+         "names, so OpticStudio would refuse them, as glass_codes='refuse' (the default) does; "
+         "the partial dispersion is idealised")
+
+
 def glass_code_note(m: ModelGlass) -> str:
-    """The located warning's text for a code read as a model glass."""
-    return (f"glass {m.name!r} is read as a six-digit n_d/V_d glass code: model glass n_d "
-            f"{m.n_d:g}, V_d {m.v_d:g} (glass_codes='model'); OpticStudio's catalogues hold no "
-            f"such name, so OpticStudio would refuse it; the partial dispersion is idealised")
+    """What :data:`GLASS_CODE_CAUSE` says of code ``m`` alone (its ``{detail}``)."""
+    return f"n_d {m.n_d:g}, V_d {m.v_d:g}"

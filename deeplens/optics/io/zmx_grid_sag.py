@@ -37,7 +37,9 @@ import torch
 
 from ..surfaces import GridSag
 from ..surfaces.grid_sag import MAX_GRID_EVEN_TERMS, grid_slopes
-from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
+from .zmx_notes import Cause
 
 __all__ = ["GridSagFormat"]
 
@@ -46,20 +48,45 @@ __all__ = ["GridSagFormat"]
 MAX_GRID_POINTS = 4_000_000
 
 
+
+#: one warning per file for each kind of note on GRID_SAG surfaces (``{item}``: ``"SURF k"``)
+_NODATA = Cause(one="{item}: {detail} GRID_SAG points are marked no-data: their sag and "
+                    "derivatives are 0 (the base alone), as OpticStudio takes them",
+                many="{n} GRID_SAG surfaces ({items}) have points marked no-data: their sag and "
+                     "derivatives are 0 (the base alone), as OpticStudio takes them")
+_SAG_ONLY_WHY = ("the slopes and cross derivatives are taken from them by finite differences "
+                 "(central, one-sided at the edges), as OpticStudio does with a stencil it does "
+                 "not document; between the points the surface may differ from OpticStudio's by "
+                 "the differences' error")
+_SAG_ONLY = Cause(one="{item}: the GRID_SAG points carry sag values only (every derivative 0): "
+                      + _SAG_ONLY_WHY,
+                  many="{n} GRID_SAG surfaces ({items}) carry sag values only (every derivative "
+                       "0): " + _SAG_ONLY_WHY)
+_BEYOND = Cause(one="{item}: the semi-diameter {detail}: rays that land outside the grid are "
+                    "blocked (deeplens does not extrapolate the grid)",
+                many="{n} GRID_SAG surfaces ({items}): the semi-diameter reaches beyond the grid: "
+                     "rays that land outside it are blocked (deeplens does not extrapolate the "
+                     "grid)")
+_VERTEX_WHY = ("deeplens' paraxial data (EFL, pupils, back focus) include it, as OpticStudio's do "
+               "(it computes the paraxial curvature from the vertex radius, the asphere terms "
+               "and the grid), taking the interpolated grid's mean curvature at the vertex")
+_VERTEX = Cause(one="{item}: the grid adds {detail}: " + _VERTEX_WHY,
+                many="{n} GRID_SAG surfaces' grids add to the vertex curvature ({items}): "
+                     + _VERTEX_WHY)
+
+
 def _grid_sag(s, ctx) -> GridSag:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
-    for i, (v, ln) in sorted(s.parm.items()):
-        if i == 0 and v == 1:
-            p.fail(ln, f"SURF {k}: GRID_SAG PARM 0 = 1 (linear interpolation of the grid) is not "
-                       f"supported: its slopes jump at every grid line; deeplens traces the "
-                       f"bicubic interpolation (PARM 0 = 0)")
-        if i == 0 and v != 0:
-            p.fail(ln, f"SURF {k}: GRID_SAG PARM 0 (the interpolation) must be 0 (bicubic) or "
-                       f"1 (linear), got {v!r}")
-        if not 0 <= i <= 10 and v != 0:
-            p.fail(ln, f"SURF {k}: GRID_SAG PARM {i} is not read (PARM 0 the interpolation, "
-                       f"PARM 1-8 the even terms on r², ..., r¹⁶, PARM 9-10 the Zernike "
-                       f"decenter)")
+    v, ln = s.parm.get(0, (0.0, 0))
+    if v == 1:
+        p.fail(ln, f"SURF {k}: GRID_SAG PARM 0 = 1 (linear interpolation of the grid) is not "
+                   f"supported: its slopes jump at every grid line; deeplens traces the bicubic "
+                   f"interpolation (PARM 0 = 0)")
+    if v != 0:
+        p.fail(ln, f"SURF {k}: GRID_SAG PARM 0 (the interpolation) must be 0 (bicubic) or 1 "
+                   f"(linear), got {v!r}")
+    refuse_unread(p, s.parm, f"SURF {k}: GRID_SAG", "PARM 0 the interpolation, PARM 1-8 the even "
+                  "terms on r², ..., r¹⁶, PARM 9-10 the Zernike decenter", range(11))
     for j, (v, ln) in sorted(s.xdat.items()):
         if j >= 3 and v != 0:
             p.fail(ln, f"SURF {k}: GRID_SAG XDAT {j} is a Zernike coefficient; Zernike terms on a "
@@ -89,8 +116,7 @@ def _grid_sag(s, ctx) -> GridSag:
     nodata = a[:, 4] != 0
     a[nodata, :4] = 0.0
     if bool(nodata.any()):
-        p.note(g_ln, f"SURF {k}: {int(nodata.sum())} GRID_SAG points are marked no-data: their "
-                     f"sag and derivatives are 0 (the base alone), as OpticStudio takes them")
+        p.note_each(g_ln, _NODATA, f"SURF {k}", f"{int(nodata.sum())}")
     # file rows run from +y down, columns from -x: row j of deeplens' grid (rising y) is file
     # row ny - 1 - j
     grid = a[:, :4].reshape(ny, nx, 4).flip(0)
@@ -104,11 +130,7 @@ def _grid_sag(s, ctx) -> GridSag:
                          f"0) and the grid is {nx} x {ny}: finite differences need 3 points in x "
                          f"and in y")
         zx, zy, zxy = grid_slopes(z, hx, hy)
-        p.note(g_ln, f"SURF {k}: the GRID_SAG points carry sag values only (every derivative "
-                     f"0): the slopes and cross derivatives are taken from them by finite "
-                     f"differences (central, one-sided at the edges), as OpticStudio does with "
-                     f"a stencil it does not document; between the points the surface may "
-                     f"differ from OpticStudio's by the differences' error")
+        p.note_each(g_ln, _SAG_ONLY, f"SURF {k}")
     top = max([i for i in range(1, MAX_GRID_EVEN_TERMS + 1)
                if s.parm.get(i, (0.0, 0))[0] != 0] + [0])
     coeffs = [s.parm.get(i, (0.0, 0))[0] * s_mm ** (1 - 2 * i) for i in range(1, top + 1)]
@@ -116,17 +138,15 @@ def _grid_sag(s, ctx) -> GridSag:
                    conic=s.coni, coefficients=coeffs)
     (x0, x1), (y0, y1) = surf.grid_extent()
     if ctx.sd > 0 and min(-x0, x1, -y0, y1) < ctx.sd:
-        p.note(g_ln, f"SURF {k}: the semi-diameter ({ctx.sd:g} mm) reaches beyond the grid (x "
-                     f"{x0:g}..{x1:g} mm, y {y0:g}..{y1:g} mm): rays that land outside the grid "
-                     f"are blocked (deeplens does not extrapolate the grid)")
+        p.note_each(g_ln, _BEYOND, f"SURF {k}",
+                    f"({ctx.sd:g} mm) reaches beyond the grid (x {x0:g}..{x1:g} mm, y "
+                    f"{y0:g}..{y1:g} mm)")
     with torch.no_grad():
         dc = float(surf.paraxial_curvature()) - (ctx.c + 2.0 * (coeffs[0] if coeffs else 0.0))
     if dc != 0.0 and math.isfinite(dc):
-        p.note(g_ln, f"SURF {k}: the grid adds {dc:.6g} /mm to the vertex curvature ({ctx.c:.6g} "
-                     f"/mm from CURV and PARM 1): deeplens' paraxial data (EFL, pupils, back "
-                     f"focus) include it, as OpticStudio's do (it computes the paraxial "
-                     f"curvature from the vertex radius, the asphere terms and the grid), taking "
-                     f"the interpolated grid's mean curvature at the vertex")
+        p.note_each(g_ln, _VERTEX, f"SURF {k}",
+                    f"{dc:.6g} /mm to the vertex curvature ({ctx.c:.6g} /mm from CURV and PARM 1)",
+                    f"SURF {k}: {dc:.6g} /mm")
     return surf
 
 

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 from ..grin import RadialGradient
 from ..surfaces.gradient import GradientSurface
-from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
 
 __all__ = ["Gradient1Format"]
 
@@ -32,11 +33,8 @@ class Gradient1Format(SurfaceFormat):
 
     def read_zmx(self, s, ctx):
         p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
-        for i, (v, ln) in sorted(s.parm.items()):
-            if i > 3 and v != 0:
-                p.fail(ln, f"SURF {k}: GRINSUR1 PARM {i} = {v:g} is not read (PARM 1 the step "
-                           f"Delta T, 2 n0, 3 nr2: n = n0 + nr2 r^2; no source defines "
-                           f"further terms)")
+        refuse_unread(p, s.parm, f"SURF {k}: GRINSUR1", "PARM 1 the step Delta T, 2 n0, 3 nr2: "
+                      "n = n0 + nr2 r^2; no source defines further terms", range(4))
         if s.glass is not None:
             p.fail(s.glass_line or s.line,
                    f"SURF {k}: a GLAS on a GRINSUR1 surface is not read (the gradient's n0 and "

@@ -29,9 +29,22 @@ import math
 from ..errors import ZemaxFileError
 from ..surfaces import Hologram
 from ..surfaces.base import clear_ellipse_of, clear_rect_of, obscuration_ellipse_of
-from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
+from .zmx_notes import Cause
 
 __all__ = ["HologramFormat"]
+
+
+_SENSE = ("read as converging towards their points (order +1 at the construction wavelength "
+          "sends a ray from point 1 as if from point 2), by analogy with HOLOGRM2's sample files; "
+          "OpticStudio's sense for HOLOGRM1 is not documented in the sources found (Zemax guide, "
+          "Holograms): negate PARM 8 to read the other sense")
+#: HOLOGRM1 surfaces, whose construction beams' sense is a choice: one warning per file
+_HOLOGRM1_SENSE = Cause(one="{item}: HOLOGRM1: both construction beams are " + _SENSE,
+                        many="{n} HOLOGRM1 surfaces ({items}): both construction beams of each "
+                             "are " + _SENSE)
+
 
 def _opening_lines(s, i: int) -> list[str]:
     """``CLAP`` (a clear circle narrower than the semi-diameter) and ``OBSC`` of a hologram; a
@@ -56,15 +69,11 @@ def _opening_lines(s, i: int) -> list[str]:
 def _hologram(s, ctx) -> Hologram:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
     name = s.type
-    for i, (v, ln) in sorted(s.parm.items()):
-        if not 1 <= i <= 8 and v != 0:
-            p.fail(ln, f"SURF {k}: {name} PARM {i} is not read (PARM 1-3 construction point 1, "
-                       f"4-6 construction point 2, 7 the construction wavelength in µm, 8 the "
-                       f"order; volume-hologram settings are not supported)")
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if v != 0:
-            p.fail(ln, f"SURF {k}: {name} XDAT {j} is not read (a surface hologram has no extra "
-                       f"data; volume-hologram settings are not supported)")
+    refuse_unread(p, s.parm, f"SURF {k}: {name}", "PARM 1-3 construction point 1, 4-6 "
+                  "construction point 2, 7 the construction wavelength in µm, 8 the order; "
+                  "volume-hologram settings are not supported", range(1, 9))
+    refuse_unread(p, s.xdat, f"SURF {k}: {name}", "a surface hologram has no extra data; "
+                  "volume-hologram settings are not supported", kind="XDAT")
 
     def parm(i):
         return s.parm.get(i, (0.0, s.type_line or s.line))
@@ -88,12 +97,7 @@ def _hologram(s, ctx) -> Hologram:
         pts.append(pt)
     kind = 1 if name == "HOLOGRM1" else 2
     if kind == 1:
-        p.note(s.type_line or s.line,
-               f"SURF {k}: HOLOGRM1: both construction beams are read as converging towards "
-               f"their points (order +1 at the construction wavelength sends a ray from point 1 "
-               f"as if from point 2), by analogy with HOLOGRM2's sample files; OpticStudio's "
-               f"sense for HOLOGRM1 is not documented in the sources found (Zemax guide, "
-               f"Holograms): negate PARM 8 to read the other sense")
+        p.note_each(s.type_line or s.line, _HOLOGRM1_SENSE, f"SURF {k}")
     return Hologram(ctx.c, ctx.sd_build, pts[0], pts[1], wl * 1000.0, int(order), kind,
                     conic=s.coni)
 

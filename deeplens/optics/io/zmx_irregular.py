@@ -21,7 +21,8 @@ from __future__ import annotations
 import math
 
 from ..surfaces import Irregular
-from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
 
 __all__ = ["IrregularFormat"]
 
@@ -32,13 +33,10 @@ _PARMS = {1: "decenter x", 2: "decenter y", 3: "tilt about x", 4: "tilt about y"
 
 def _irregular(s, ctx) -> Irregular:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
-    for i, (v, ln) in sorted(s.parm.items()):
-        if i not in _PARMS and v != 0:
-            p.fail(ln, f"SURF {k}: IRREGULA PARM {i} is not read (PARM 1-2 the decenter, 3-4 the "
-                       f"tilts, 5-7 Zs, Za, Zc, 8 the angle)")
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if v != 0:
-            p.fail(ln, f"SURF {k}: IRREGULA has no extra data (XDAT {j})")
+    refuse_unread(p, s.parm, f"SURF {k}: IRREGULA", "PARM 1-2 the decenter, 3-4 the tilts, 5-7 "
+                  "Zs, Za, Zc, 8 the angle", _PARMS)
+    refuse_unread(p, s.xdat, f"SURF {k}: IRREGULA", "an irregular surface has no extra data",
+                  kind="XDAT")
 
     def parm(i):
         return s.parm.get(i, (0.0, 0))[0]

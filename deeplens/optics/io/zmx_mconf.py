@@ -66,7 +66,8 @@ from __future__ import annotations
 import copy
 import math
 
-from .zmx_parse import OBJECT_AT_INFINITY, Locator, ZmxSurface, _check_magnitudes
+from .zmx_parse import (OBJECT_AT_INFINITY, UNUSED, VIGNETTING, Cause, Locator, ZmxSurface,
+                        _check_magnitudes)
 
 __all__ = ["APPLIED", "configuration", "operands"]
 
@@ -149,7 +150,7 @@ def operands(sysd: dict, p: Locator) -> tuple[int, int, dict]:
             continue   # the checksum OpticStudio writes after the editor's rows
         if r.key not in names and not _operand_shaped(r.tokens):
             # not an operand row (a system line after MNUM deeplens does not know)
-            p.note(r.line, f"{r.tokens[0]} line not used by deeplens (ignored)")
+            p.note_each(r.line, UNUSED, r.tokens[0])
             continue
         if len(r.tokens) < 3:
             p.fail(r.line, f"{r.key}: a multi-configuration operand row is '<operand> <number> "
@@ -194,8 +195,7 @@ def configuration(sysd: dict, surfs: list[ZmxSurface], p: Locator, config: int |
             continue
         if key in _VIGNETTING:
             if text not in ("", "0") and p.num(text, ln, key) != 0:
-                p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
-                           f"pupil by tracing)")
+                p.note_each(ln, VIGNETTING, key)
             continue
         if key not in APPLIED:
             same = active in rows and rows[active][0] == text
@@ -211,6 +211,17 @@ def configuration(sysd: dict, surfs: list[ZmxSurface], p: Locator, config: int |
         _pickups(surfs, p)
     _check_magnitudes(sysd, surfs, p)
     return sysd, surfs, n, k
+
+
+#: solves that a configuration other than the saved one does not re-evaluate
+_PZUP_KEPT = Cause(one="{item}: the thickness solve (PZUP) is not re-evaluated for this "
+                       "configuration; the saved configuration's value is kept",
+                   many="{n} thickness solves (PZUP: {items}) are not re-evaluated for this "
+                        "configuration; the saved configuration's values are kept")
+_PPAR_KEPT = Cause(one="{detail} (PPAR) is not re-evaluated for this configuration; the saved "
+                       "configuration's value is kept",
+                   many="{n} parameter solves (PPAR: {items}) are not re-evaluated for this "
+                        "configuration; the saved configuration's values are kept")
 
 
 def _pickups(surfs: list[ZmxSurface], p: Locator) -> None:
@@ -238,14 +249,13 @@ def _pickups(surfs: list[ZmxSurface], p: Locator) -> None:
         if s.pzup is not None:
             src, scale, offset, column, ln = s.pzup
             if column != 0 or not 0 <= src < len(surfs) or not math.isfinite(surfs[src].disz):
-                p.note(ln, f"SURF {j}: the thickness solve (PZUP) is not re-evaluated for this "
-                           f"configuration; the saved configuration's value is kept")
+                p.note_each(ln, _PZUP_KEPT, f"SURF {j}")
             else:
                 s.disz = scale * surfs[src].disz + offset
         for i, (src, scale, offset, column, ln) in sorted(s.ppar.items()):
             if src < 0 or column != 0 or src >= len(surfs) or i not in surfs[src].parm:
-                p.note(ln, f"SURF {j}: the solve on parameter {i} (PPAR) is not re-evaluated "
-                           f"for this configuration; the saved configuration's value is kept")
+                p.note_each(ln, _PPAR_KEPT, f"SURF {j} PARM {i}",
+                            f"SURF {j}: the solve on parameter {i}")
                 continue
             s.parm[i] = (scale * surfs[src].parm[i][0] + offset, ln)
 

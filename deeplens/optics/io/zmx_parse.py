@@ -27,9 +27,11 @@ from ..errors import LensFileError, ZemaxFileError, ZemaxWarning
 from .agf import decode_zemax_text
 from .file_limits import MAX_CURVATURE_PER_MM, MAX_LENGTH_MM
 from .surface_handlers import FORMATS
+from .zmx_notes import Cause, listed, literal
 from .zmx_scbd import parse_scbd
 
-__all__ = ["Record", "ZmxSurface", "Locator", "tokenize", "parse", "UNITS"]
+__all__ = ["Cause", "Record", "ZmxSurface", "Locator", "listed", "literal", "tokenize", "parse",
+           "UNITS", "UNUSED", "VIGNETTING"]
 
 UNITS = {"MM": 1.0, "CM": 10.0, "IN": 25.4, "METER": 1000.0, "M": 1000.0}
 """``UNIT`` name -> millimetres per file unit."""
@@ -151,18 +153,34 @@ class ZmxSurface:
     pzup: tuple | None = None
 
 
+#: vignetting factors (``VDXN``, ``VDYN``, ``VCXN``, ``VCYN``, as lines or as
+#: multi-configuration operands): not used
+VIGNETTING = Cause(one="{item}: vignetting factors are ignored (deeplens finds each field's pupil "
+                       "by tracing)",
+                   many="{items}: vignetting factors are ignored (deeplens finds each field's "
+                        "pupil by tracing)")
+
+#: a line whose keyword deeplens does not use (``{detail}``: how many such lines)
+UNUSED = Cause(one="{item} line not used by deeplens (ignored){detail}",
+               many="{n} kinds of line not used by deeplens (ignored): {items}")
+
+
 class Locator:
     """The file being read: raises located errors and collects notes (warnings to come).
 
     ``fail(line, message)`` raises a :class:`~deeplens.optics.errors.ZemaxFileError` whose
     ``source``, ``line``, ``feature`` and ``surf`` come from the file and the record on that line
-    (``line`` 0: the file as a whole); ``note(line, message)`` keeps a note, and
-    :meth:`warn_notes` issues them as :class:`~deeplens.optics.errors.ZemaxWarning` s.
+    (``line`` 0: the file as a whole); ``note(line, message)`` keeps a note,
+    ``note_each(line, cause, item)`` a note of a :class:`Cause` that other lines may share, and
+    :meth:`warn_notes` issues them as :class:`~deeplens.optics.errors.ZemaxWarning` s: one per
+    cause, and one per text (the same note on several lines), naming its lines.  ``notes``
+    holds every note as ``(line, message)``, a cause's with its one-item message.
     """
 
     def __init__(self, path: Path, records=()):
         self.path = path
         self.notes: list[tuple[int, str]] = []
+        self.causes: dict[int, tuple] = {}   # index in notes -> (cause, item, (detail, shown))
         self.records = {r.line: r for r in records}
 
     def error(self, ln, msg, surfaces=(), details=None) -> ZemaxFileError:
@@ -180,14 +198,40 @@ class Locator:
     def note(self, ln, msg):
         self.notes.append((ln, msg))
 
-    def warning(self, ln, msg) -> ZemaxWarning:
-        rec = self.records.get(ln) if ln else None
-        return ZemaxWarning(msg, source=self.path if ln else None, line=ln or None,
+    def note_each(self, ln, cause: Cause, item: str, detail: str = "", shown: str | None = None):
+        """A note of ``cause`` about ``item`` on line ``ln`` (``detail``: what is particular to
+        it, said when it is the cause's only item; ``shown``: how a list of several names it,
+        the item itself by default): the notes of one cause become one warning
+        (:meth:`warn_notes`)."""
+        self.causes[len(self.notes)] = (cause, item, (detail, shown))
+        self.notes.append((ln, cause.message({item: (detail, shown)})))
+
+    def warning(self, ln, msg, lines=()) -> ZemaxWarning:
+        """The located warning (not issued) of ``msg`` on line ``ln``, or on ``lines``."""
+        lines = [v for v in lines if v] or ([ln] if ln else [])
+        rec = self.records.get(lines[0]) if lines else None
+        return ZemaxWarning(msg, source=self.path if lines else None, lines=lines,
                             feature=None if rec is None else rec.key)
 
+    def grouped_notes(self) -> list[tuple[list[int], str]]:
+        """``(lines, message)`` of each warning to issue, in the order first met: the notes of
+        one :class:`Cause` (its message over their distinct items) become one, and so do equal
+        notes, naming their distinct lines in ascending order (a note of the file as a whole,
+        line 0, names none)."""
+        groups: dict = {}   # key -> [lines, {item: (detail, shown)}, cause or None]
+        for i, (ln, msg) in enumerate(self.notes):
+            cause, item, detail = self.causes.get(i, (None, msg, None))
+            g = groups.setdefault(("cause", cause) if cause else ("text", msg), [[], {}, cause])
+            if ln and ln not in g[0]:
+                g[0].append(ln)
+            g[1].setdefault(item, detail)
+        return [(sorted(lines), next(iter(items)) if cause is None else cause.message(items))
+                for lines, items, cause in groups.values()]
+
     def warn_notes(self, stacklevel: int = 3) -> None:
-        for ln, msg in self.notes:
-            warnings.warn(self.warning(ln, msg), stacklevel=stacklevel)
+        """Issue the notes, :meth:`grouped_notes`, as located warnings."""
+        for lines, msg in self.grouped_notes():
+            warnings.warn(self.warning(0, msg, lines), stacklevel=stacklevel)
 
     def num(self, tok, ln, what):
         try:
@@ -308,8 +352,7 @@ def _gcat(st: _Parse, r: Record) -> None:
 def _vignetting(st: _Parse, r: Record) -> None:
     p, toks, ln, key = st.p, r.tokens, r.line, r.key
     if any(p.num(t, ln, key) != 0 for t in toks[1:]):
-        p.note(ln, f"{key}: vignetting factors are ignored (deeplens finds each field's "
-                   f"pupil by tracing)")
+        p.note_each(ln, VIGNETTING, key)
 
 
 def _envd(st: _Parse, r: Record) -> None:
@@ -696,8 +739,8 @@ def parse(path: Path):
             first, count = st.unused.get(r.tokens[0], (r.line, 0))
             st.unused[r.tokens[0]] = (first, count + 1)
     for kw, (first, count) in st.unused.items():   # one note per keyword, not one per line
-        p.note(first, f"{kw} line not used by deeplens (ignored)"
-                      + (f"; {count} such lines" if count > 1 else ""))
+        p.note_each(first, UNUSED, kw, f"; {count} such lines" if count > 1 else "",
+                    f"{kw} ({count} lines)" if count > 1 else kw)
     if st.skip is not None:
         _check_skip(st.skip, records, p)
     surfs, sysd = st.surfs, st.sysd

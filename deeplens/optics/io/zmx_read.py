@@ -32,8 +32,9 @@ from .zmx_coordbrk import (coordinate_break, is_identity, misalignment_brackets,
                            stop_plane_of_break, y_fields_only)
 from .zmx_glass import load_catalogues, range_refusal_source, surface_material
 from .zmx_mconf import configuration
+from .zmx_notes import Cause, literal
 from .zmx_parse import UNITS, Locator, ZmxSurface, parse
-from .surface_formats import QBFS_CONIC
+from .surface_formats import QBFS_CONIC, refuse_unread
 from .stop_clear import flat_stop_as_asphere, plain_circular_stop
 from .zmx_glass_codes import GLASS_CODES
 from .zmx_stop_size import STOP_SIZE, check_stop_size, limiting_stop_radius
@@ -74,7 +75,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             but the caller does not pass is looked for as ``<NAME>.agf`` next to the ``.zmx``.
         glass_fallback: ``None`` (default: a glass that is not found is an error), ``"model"``
             (use the ``n_d``/``V_d`` the ``GLAS`` line carries), or a material spec / material
-            used for every missing glass.  Each use is reported as a :class:`ZemaxWarning`.
+            used for every missing glass.  Each use is reported in a :class:`ZemaxWarning`
+            (one per file naming every such ``GLAS`` line).
         config: the configuration of a multi-configuration file (``MNUM``) to read, from 1;
             ``None`` (default): the active one, as saved (a :class:`ZemaxWarning` says the file
             has others).  Its operands (``THIC``, ``CRVT``, ``CONN``, ``GLSS``, ``PRAM``,
@@ -96,7 +98,8 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             searched is read: ``"refuse"`` (default; OpticStudio's catalogues hold no such
             name) a located :class:`ZemaxFileError` that names the code's reading;
             ``"model"``: ``ModelGlass(n_d, V_d)`` named by the code, with one located
-            :class:`ZemaxWarning` at each such ``GLAS`` line (:mod:`.zmx_glass_codes`).
+            :class:`ZemaxWarning` per file naming every such ``GLAS`` line
+            (:mod:`.zmx_glass_codes`).
 
     Returns:
         The lens (lengths in mm, wavelengths in nm).
@@ -229,12 +232,14 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
                 "; deeplens' real trace intersects this aspheric mirror from its vertex plane "
                 "and loses the rays that run (nearly) parallel to it: spots and RMS of this "
                 "lens miss part of the beam")
-        p.note(kept[i][2].line,
-               f"SURF {surfs.index(kept[i][2])}: the beam's axis meets this mirror edge-on (it "
-               f"travels across the mirror's frame, turned by the coordinate breaks before it, "
-               f"and never reaches the vertex: an off-axis mirror lit across its axis); the "
-               f"thicknesses after it follow the mirror parity, the paraxial data the local "
-               f"axis{lost}")
+        edge_on = ("the beam's axis meets {} edge-on (it travels across the mirror's frame, "
+                   "turned by the coordinate breaks before it, and never reaches the vertex: an "
+                   "off-axis mirror lit across its axis); the thicknesses after it follow the "
+                   "mirror parity, the paraxial data the local axis" + lost)
+        p.note_each(kept[i][2].line,
+                    Cause(one="{item}: " + literal(edge_on.format("this mirror")),
+                          many="{n} mirrors ({items}): " + literal(edge_on.format("each"))),
+                    f"SURF {surfs.index(kept[i][2])}")
     if float_stop:
         _float_stop_to_the_limit(lens, seq, surfs, where_of, p, original)
         autos = [i for i in autos if i != stop_idx]
@@ -446,7 +451,7 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
                                           f"number of lens units (> 0; < 0, a virtual object; "
                                           f"0 before a dummy gap) or INFINITY, got "
                                           f"{obj.disz!r}")
-    obj_medium = surface_material(obj, gcat, cats, glass_fallback, p, 4, glass_codes)
+    obj_medium = surface_material(obj, gcat, cats, glass_fallback, p, glass_codes)
     media = [obj_medium]
     kept = []            # (surface module, material after, zmx surf, gap before it in mm)
     groups = []          # [start, end] index ranges in kept for bracketed elements
@@ -505,7 +510,7 @@ def _sequence(surfs: list[ZmxSurface], s_mm: float, gcat, cats, glass_fallback,
             continue
         if s.spid is not None and bracket is not None:
             _turn_spider(s, k, bracket, p)
-        mat = prev if s.mirror else surface_material(s, gcat, cats, glass_fallback, p, 4,
+        mat = prev if s.mirror else surface_material(s, gcat, cats, glass_fallback, p,
                                                      glass_codes)
         built = build_surface(s, k, mat, prev, s_mm, folded, p, qbfs_conic)
         # SCBD: the surface's own tilt/decenter, a break before it and one after it (the
@@ -567,10 +572,8 @@ def _object_tilt(obj: ZmxSurface, p: Locator) -> tuple[float, float]:
     object and image surfaces": OpticStudio User Guide, *Tilted*).  Any other object surface
     is refused at its line."""
     if obj.type == "TILTSURF":
-        for i, (v, ln) in sorted(obj.parm.items()):
-            if i not in (1, 2) and v != 0:
-                p.fail(ln, f"SURF 0: TILTSURF PARM {i} is not read (PARM 1 and 2 are the x and "
-                           f"y tangents of the tilted object plane)")
+        refuse_unread(p, obj.parm, "SURF 0: TILTSURF", "PARM 1 and 2 are the x and y tangents of "
+                      "the tilted object plane", (1, 2))
         tilt = (obj.parm.get(1, (0.0, 0))[0], obj.parm.get(2, (0.0, 0))[0])
         if not all(math.isfinite(v) for v in tilt):
             p.fail(obj.type_line or obj.line, f"SURF 0: the tilted object plane's tangents "
@@ -1011,7 +1014,7 @@ def _limit_at_crossing(e: SurfacesCrossError, surfaces, estimated, limited: dict
 
 
 def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of: dict,
-                  p: Locator) -> list[tuple[int, str]]:
+                  p: Locator) -> list[tuple[int, tuple[str, str, str]]]:
     """Gaps after a mirror whose thickness opposes the direction of travel (the traced axis,
     :func:`travel_directions`): OpticStudio's *virtual propagation* (its thickness-sign rule:
     after an odd number of mirrors a positive thickness is virtual; the sequential trace takes
@@ -1024,7 +1027,8 @@ def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of:
     becomes one of the lens's :attr:`~deeplens.optics.lens.Lens.backward_gaps`, with a
     located warning (:func:`_note_virtual_gaps`, which first takes out a surface turned about
     a pivot); before the first mirror such a thickness is still an error (``Lens`` reports
-    it).  Returns ``(q, note)`` for each gap, ``q`` the surface after it."""
+    it).  Returns ``(q, (item, detail, shown))`` for each gap, ``q`` the surface after it and
+    the rest :meth:`~.zmx_parse.Locator.note_each`'s arguments for its note."""
     if not seq.mirrors:
         return []
     signs = travel_directions(surfaces, seq.mirrors, _axis_indices(seq, primary), primary)
@@ -1045,13 +1049,10 @@ def _virtual_gaps(seq: _Sequence, surfaces, distances, primary: float, where_of:
                     seg = 0.0
             if against:
                 mm = ", ".join(f"{v:g}" for v in against)
-                out.append((q, f"the gap before deeplens surface {q} runs against the "
-                               f"direction of travel after the mirror ({mm} mm, light "
-                               f"travelling "
-                               f"towards {'+' if signs[q] > 0 else '-'}z there): "
-                               f"OpticStudio's virtual propagation, the rays taken back "
-                               f"along their lines (the optical path decreasing); deeplens "
-                               f"does the same for this gap (Lens.backward_gaps)"))
+                out.append((q, (f"deeplens surface {q}",
+                                f"{mm} mm, light travelling towards "
+                                f"{'+' if signs[q] > 0 else '-'}z there",
+                                f"surface {q}: {mm} mm")))
         prev = q
     return out
 
@@ -1064,12 +1065,12 @@ def _note_virtual_gaps(lens, gaps: list, where_of: dict, p: Locator) -> None:
     surface turned about a pivot (OpticStudio's scan-mirror idiom, read so before any mirror
     too: ``Lens.check``): only the frames between moved backwards, the rays meet it ahead of
     them, and the gap leaves the lens's backward gaps, without a note."""
-    for q, message in gaps:
+    for q, (item, detail, shown) in gaps:
         ahead = lens._ahead_across_breaks(q)
         if ahead is not None and ahead[1] > 0:
             lens.backward_gaps = lens.backward_gaps - {q}
         else:
-            p.note(where_of[q], message)
+            p.note_each(where_of[q], _AGAINST, item, detail, shown)
 
 
 def _roof_gaps(lens, where_of: dict, p: Locator) -> None:
@@ -1084,11 +1085,7 @@ def _roof_gaps(lens, where_of: dict, p: Locator) -> None:
                 all(float(lens.distances[k]) == 0.0 for k in range(i + 1, j + 1))):
             continue
         lens.backward_gaps = lens.backward_gaps | {j}
-        p.note(where_of[j], f"the mirrors of the {_pair_blocks(where_of, i, j)} meet at one "
-                            f"vertex, turned by coordinate breaks (a roof): rays that meet the "
-                            f"second mirror's plane before the first are traced back to it, as "
-                            f"OpticStudio's sequential trace does (Lens.backward_gaps "
-                            f"{sorted(lens.backward_gaps)})")
+        p.note_each(where_of[j], _ROOF, _pair_blocks(where_of, i, j))
 
 
 def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, p: Locator,
@@ -1123,15 +1120,12 @@ def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, 
                 if k in original:   # the estimate, within the crossings still limited
                     sd = min([original[k]] + [rr for pair, rr in kept_limits if k in pair])
                     lens.surfaces[k].semi_diameter.fill_(sd)
-        p.note(where_of[j], f"the surfaces of the {_pair_blocks(where_of, i, j)} cross at r = "
-                            f"{r:.6g} mm (a negative edge thickness beyond it), and the on-axis "
-                            f"beam of the file's pupil (entrance-pupil diameter {2 * half:.6g} "
-                            f"mm) reaches r = {reach[(i, j)]:.6g} mm there: OpticStudio traces "
-                            f"the rays beyond the crossing backwards through the gap (a "
-                            f"negative propagation distance, the optical path decreasing), a "
-                            f"lens that cannot be made as drawn; deeplens does the same for "
-                            f"this gap (Lens.backward_gaps {sorted(lens.backward_gaps)}) and "
-                            f"keeps the file's semi-diameters there")
+        p.note_each(where_of[j], _BACKWARDS, _pair_blocks(where_of, i, j),
+                    f"cross at r = {r:.6g} mm (a negative edge thickness beyond it), and the "
+                    f"on-axis beam of the file's pupil (entrance-pupil diameter {2 * half:.6g} "
+                    f"mm) reaches r = {reach[(i, j)]:.6g} mm there",
+                    f"surfaces {i}/{j}: cross at r = {r:.6g} mm, beam to r = "
+                    f"{reach[(i, j)]:.6g} mm")
         if redo_autos is not None:
             redo_autos()
         try:
@@ -1143,18 +1137,49 @@ def _cross_backwards_where_the_beam_passes(lens, limited: dict, where_of: dict, 
             continue
         kind = {0: "automatic", 1: "fixed (DIAM flag 1) and automatic",
                 2: "fixed (DIAM flag 1)"}[(i in fixed) + (j in fixed)]
-        p.note(where_of[j], f"the {kind} semi-diameters of the {_pair_blocks(where_of, i, j)} "
-                            f"overlap where the surfaces cross, at r = {r:.6g} mm: both are "
-                            f"limited to it; OpticStudio's semi-diameters do not vignette and "
-                            f"it traces rays beyond the crossing backwards through the gap (a "
-                            f"negative propagation distance), deeplens vignettes them (the "
-                            f"on-axis beam, up to r = {reach[(i, j)]:.6g} mm here, is not "
-                            f"affected)")
+        why = ("OpticStudio's semi-diameters do not vignette and it traces rays beyond the "
+               "crossing backwards through the gap (a negative propagation distance), deeplens "
+               "vignettes them (the on-axis beam is not affected)")
+        p.note_each(where_of[j],
+                    Cause(one=f"the {kind} semi-diameters of the {{item}} overlap where the "
+                              f"surfaces cross, at r = {{detail}}: both are limited to it; {why}",
+                          many=f"the {kind} semi-diameters of {{n}} pairs of surfaces overlap "
+                               f"where they cross ({{items}}): each is limited to the crossing; "
+                               f"{why}"),
+                    _pair_blocks(where_of, i, j),
+                    f"{r:.6g} mm (the on-axis beam reaches r = {reach[(i, j)]:.6g} mm)",
+                    f"surfaces {i}/{j} at r = {r:.6g} mm")
 
 
 def _pair_blocks(where_of: dict, i: int, j: int) -> str:
-    return (f"SURF blocks on lines {where_of[i]} and {where_of[j]} (deeplens surfaces {i} "
-            f"and {j})")
+    return f"deeplens surfaces {i} and {j} (SURF blocks on lines {where_of[i]} and {where_of[j]})"
+
+
+#: one warning per file for each of these (``{item}``: a pair of surfaces, or one)
+_BACKWARDS = Cause(
+    one="the {item} {detail}: OpticStudio traces the rays beyond the crossing "
+        "backwards through the gap (a negative propagation distance, the optical path "
+        "decreasing), a lens that cannot be made as drawn; deeplens does the same for this gap "
+        "(Lens.backward_gaps) and keeps the file's semi-diameters there",
+    many="{n} pairs of surfaces cross where the on-axis beam of the file's pupil passes "
+         "({items}): OpticStudio traces the rays beyond each crossing backwards through the gap "
+         "(a negative propagation distance, the optical path decreasing), a lens that cannot be "
+         "made as drawn; deeplens does the same for these gaps (Lens.backward_gaps) and keeps "
+         "the file's semi-diameters there")
+_ROOF = Cause(
+    one="the mirrors, {item}, meet at one vertex, turned by coordinate breaks (a roof): rays "
+        "that meet the second mirror's plane before the first are traced back to it, as "
+        "OpticStudio's sequential trace does (Lens.backward_gaps)",
+    many="{n} pairs of mirrors ({items}) meet at one vertex each, turned by coordinate breaks "
+         "(roofs): rays that meet the second mirror's plane before the first are traced back to "
+         "it, as OpticStudio's sequential trace does (Lens.backward_gaps)")
+_AGAINST = Cause(
+    one="the gap before {item} runs against the direction of travel after the mirror ({detail}): "
+        "OpticStudio's virtual propagation, the rays taken back along their lines (the optical "
+        "path decreasing); deeplens does the same for this gap (Lens.backward_gaps)",
+    many="{n} gaps run against the direction of travel after a mirror (before {items}): "
+         "OpticStudio's virtual propagation, the rays taken back along their lines (the optical "
+         "path decreasing); deeplens does the same for these gaps (Lens.backward_gaps)")
 
 
 def _beam_reach(lens, limited: dict):

@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 
 from ..surfaces import CoordinateBreak
+from .zmx_notes import Cause
 
 __all__ = ["parse_scbd", "scbd_breaks", "check_scbd_on_break", "scbd_identity",
            "image_scbd_note", "refuse_object_scbd"]
@@ -141,22 +142,41 @@ def scbd_breaks(s, k: int, s_mm: float, p):
     a_vals, a_order, how = _after(s)
     ln = (s.scbd.get(1) or s.scbd.get(2))[-1]
     if scbd_identity(s):
-        p.note(ln, f"SCBD on SURF {k}: surface tilt/decenter data, all 0: nothing to apply")
+        p.note_each(ln, _ZERO, f"SURF {k}")
         return None, None
     a = s.scbd.get(2)
     stale = ""
     if how == "reverse" and tuple(a[2]) != a_vals:
         stale = (f" (the record's own numbers, {_fmt(a[2])}, are not the inverse: the "
                  f"inverse is used, as the reverse status says)")
-    p.note(ln, f"SCBD on SURF {k}: surface tilt/decenter read as a coordinate break before the "
-               f"surface (dx dy tx ty tz = {_fmt(vals)}, order {order}) and one after it "
-               f"({how}: {_fmt(a_vals)}, order {a_order}){stale}, the surface's thickness after "
-               f"both (OpticStudio's Tilt/Decenter: a coordinate break, the surface, another "
-               f"coordinate break); the record's field layout is decoded from files, no "
-               f"OpticStudio text gives it")
+    read = (f"dx dy tx ty tz = {_fmt(vals)}, order {order}) and one after it ({how}: "
+            f"{_fmt(a_vals)}, order {a_order}){stale}")
+    if stale:   # a fact of its own: said in full
+        p.note(ln, _READ.one.format(item=f"SURF {k}", detail=read))
+    else:
+        p.note_each(ln, _READ, f"SURF {k}", read)
     before = None if all(v == 0 for v in vals) else _cb(vals, order, s_mm)
     after = None if all(v == 0 for v in a_vals) else _cb(a_vals, a_order, s_mm)
     return before, after
+
+
+#: one warning per file for each kind of note (``{item}``: ``"SURF k"``)
+_ZERO = Cause(one="SCBD on {item}: surface tilt/decenter data, all 0: nothing to apply",
+              many="SCBD on {n} surfaces ({items}): surface tilt/decenter data, all 0: nothing "
+                   "to apply")
+_LAYOUT = ("the surface's thickness after both (OpticStudio's Tilt/Decenter: a coordinate break, "
+           "the surface, another coordinate break); the record's field layout is decoded from "
+           "files, no OpticStudio text gives it")
+_READ = Cause(one="SCBD on {item}: surface tilt/decenter read as a coordinate break before the "
+                  "surface ({detail}, " + _LAYOUT,
+              many="SCBD on {n} surfaces ({items}): each surface tilt/decenter read as a "
+                   "coordinate break before the surface and one after it, " + _LAYOUT)
+_RETURN = Cause(one="SCBD on {item}: a coordinate return to {detail}: OpticStudio saves the "
+                    "solve's result as the break's PARM values (mode 3: and DISZ), which "
+                    "deeplens reads as written (they are not solved again)",
+                many="SCBD on {n} surfaces ({items}): coordinate returns: OpticStudio saves each "
+                     "solve's result as the break's PARM values (mode 3: and DISZ), which "
+                     "deeplens reads as written (they are not solved again)")
 
 
 def check_scbd_on_break(s, k: int, p) -> None:
@@ -172,9 +192,7 @@ def check_scbd_on_break(s, k: int, p) -> None:
     r = s.scbd.get(3)
     if r is not None:
         mode, n, ln = r
-        p.note(ln, f"SCBD on SURF {k}: a coordinate return to SURF {n} (mode {mode}): "
-                   f"OpticStudio saves the solve's result as the break's PARM values (mode 3: "
-                   f"and DISZ), which deeplens reads as written (they are not solved again)")
+        p.note_each(ln, _RETURN, f"SURF {k}", f"SURF {n} (mode {mode})")
 
 
 def _no_return_here(s, k: int, p) -> None:

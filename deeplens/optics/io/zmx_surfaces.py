@@ -30,7 +30,7 @@ from ..surfaces.base import (check_conic_domain, clear_ellipse_of, clear_rect_of
                             set_obscuration_spider, takes_clear_rect)
 from .surface_formats import ZmxContext
 from .surface_handlers import FORMATS, PROVISIONAL_SD_MM, is_air
-from .zmx_parse import Locator, ZmxSurface
+from .zmx_parse import Cause, Locator, ZmxSurface, literal
 
 __all__ = ["build_surface", "is_air", "PROVISIONAL_SD_MM"]
 
@@ -40,6 +40,18 @@ def _lens_or_mirror(surf) -> bool:
     lens or mirror surface's: a surface the rays land on (:func:`takes_clear_rect`), other than
     an :class:`Aperture` (built with its own), a :class:`Cylinder` or an :class:`IdealLens`."""
     return takes_clear_rect(surf) and not isinstance(surf, (Aperture, Cylinder, IdealLens))
+
+
+_CLAP_BEYOND = Cause(
+    one="CLAP on {item}: the outer radius {detail}, which OpticStudio calls not physically "
+        "meaningful; read with the DIAM as the outer edge (the annulus' inner radius kept)",
+    many="CLAP on {n} surfaces ({items}): the outer radius lies beyond the surface's "
+         "semi-diameter, which OpticStudio calls not physically meaningful; each read with the "
+         "DIAM as the outer edge (the annulus' inner radius kept)")
+_OBDC_ALONE = Cause(one="OBDC on {item}: the surface has no aperture (CLAP, SQAP, ELAP) to "
+                        "decentre; ignored",
+                    many="OBDC on {n} surfaces ({items}): no aperture (CLAP, SQAP, ELAP) to "
+                         "decentre; ignored")
 
 
 def _unbounded_annular_clap(s: ZmxSurface, k: int, p: Locator) -> None:
@@ -58,11 +70,24 @@ def _unbounded_annular_clap(s: ZmxSurface, k: int, p: Locator) -> None:
     if not s.obsc[0] < s.diam < hi:
         return   # within the DIAM; or the whole annulus beyond it (its radii are then the
         # only sizes the file gives the opening: kept, as a CLAP 85 180 beside DIAM 72.5)
-    p.note(ln, f"CLAP on SURF {k}: the outer radius {hi:g} lies beyond the surface's "
-               f"semi-diameter (DIAM {s.diam:g}), which OpticStudio calls not physically "
-               f"meaningful; read with the DIAM as the outer edge (the annulus' inner radius "
-               f"{s.obsc[0]:g} kept)")
+    p.note_each(ln, _CLAP_BEYOND, f"SURF {k}",
+                f"{hi:g} lies beyond the surface's semi-diameter (DIAM {s.diam:g})",
+                f"SURF {k}: CLAP {hi:g}, DIAM {s.diam:g}")
     s.clap = None
+
+
+def _diam_cause(what: str) -> Cause:
+    """A fixed ``DIAM`` ``what`` (``"beside an OBSC ..."``) that does not clip: one warning per
+    file naming every such surface (``{detail}``: the one surface's ``DIAM``)."""
+    why = ("in OpticStudio (its floating aperture is applied only on a surface with power and no "
+           "surface aperture)")
+    return Cause(one="{item}: the fixed DIAM {detail} " + literal(
+                     f"{what} does not clip rays {why}; read with an automatic semi-diameter "
+                     f"(the beam's extent): give the surface a CLAP to make it an opening"),
+                 many="{n} surfaces ({items}): a fixed DIAM " + literal(
+                     f"{what} does not clip rays {why}; each is read with an automatic "
+                     f"semi-diameter (the beam's extent): give a surface a CLAP to make it an "
+                     f"opening"))
 
 
 def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: float,
@@ -75,8 +100,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
     _check_ellipses(s, k, p)
     if (s.obdc is not None and s.clap is None and s.sqap is None and s.obsc is None
             and s.elap is None and s.elob is None):
-        p.note(s.obdc[2], f"OBDC on SURF {k}: the surface has no aperture (CLAP, SQAP, ELAP) to "
-                          f"decentre; ignored")
+        p.note_each(s.obdc[2], _OBDC_ALONE, f"SURF {k}")
         s.obdc = None
     _unbounded_annular_clap(s, k, p)
     c = s.curv / s_mm
@@ -109,11 +133,7 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
                 "beside a SPID (a surface aperture)" if s.spid is not None else
                 f"of a {'flat' if flat else 'curved'} surface in one medium (no refractive "
                 f"power) with no surface aperture (CLAP, SQAP, OBSC)")
-        p.note(s.diam_line, f"SURF {k}: the fixed DIAM {s.diam:g} {what} does not clip rays in "
-                            f"OpticStudio (its floating aperture is applied only on a surface "
-                            f"with power and no surface aperture); read with an automatic "
-                            f"semi-diameter (the beam's extent): give the surface a CLAP to "
-                            f"make it an opening")
+        p.note_each(s.diam_line, _diam_cause(what), f"SURF {k}", f"{s.diam:g}")
         fixed = False
         sd = 0.0
         ctx = dataclasses.replace(ctx, sd=sd, fixed=False)

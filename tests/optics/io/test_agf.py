@@ -158,6 +158,15 @@ def test_nd_mismatch_warns(tmp_path):
     p.write_text(f"NM WRONG 2 0 1.6 50\nCD {_nums(BK7)}\nLD 0.3 2.5\n")
     with pytest.warns(UserWarning, match=r"bad.agf:1: glass 'WRONG'.*n_d = 1.51680.*1.600000"):
         read_agf(p)
+    # three such glasses: one warning naming their NM lines and names, not one per glass
+    p.write_text("".join(f"NM WRONG{i} 2 0 1.6 50\nCD {_nums(BK7)}\nLD 0.3 2.5\n"
+                         for i in range(3)))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        read_agf(p)
+    assert [str(x.message) for x in w] == [
+        f"{p}:1,4,7: 3 glasses ('WRONG0', 'WRONG1', 'WRONG2'): the formula gives another n_d "
+        f"than the NM record says (check the formula number and the CD record)"]
 
 
 @pytest.mark.parametrize("text,match", [

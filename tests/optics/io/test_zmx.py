@@ -514,9 +514,10 @@ def assert_written_back(tmp_path, lens, needles) -> str:
     (lambda t: t.replace("CURV 0.02", "CURV 0.0.2"), "0.0.2",
      r"CURV curvature: expected a number, got '0.0.2'"),
     (lambda t: t.replace("PARM 1 0", "PARM 9 0.001"), "PARM 9",
-     r"SURF 2: EVENASPH PARM 9 is not read: Zemax's even asphere has PARM 1-8"),
+     r"SURF 2: EVENASPH PARM 9 = 0.001 is not read \(Zemax's even asphere has PARM 1-8\)"),
     (lambda t: t.replace("TYPE EVENASPH", "TYPE ODDASPHE").replace("PARM 1 0", "PARM 9 0.1"),
-     "PARM 9", r"SURF 2: ODDASPHE PARM 9 is not read: Zemax's odd asphere has PARM 1-8"),
+     "PARM 9", r"SURF 2: ODDASPHE PARM 9 = 0.1 is not read \(Zemax's odd asphere has PARM "
+               r"1-8\)"),
     (lambda t: t.replace("  DISZ 5.0\n", "  DISZ  \n"), "DISZ  ", r"DISZ line is truncated"),
     (lambda t: t.replace("GLAS N-BK7", "GLAS MIRROR"), None,  # a mirror, then DISZ > 0
      r"distance before surface 2 is positive \(5 mm\): sequential surfaces must be ordered "

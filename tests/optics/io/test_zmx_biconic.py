@@ -247,8 +247,8 @@ def test_report_prints_numbers(tmp_path):
 
 
 @pytest.mark.parametrize("extra,needle,what", [
-    (("PARM 3 0.5",), "PARM 3 0.5", r"BICONICX PARM 3 is not read"),
-    (("XDAT 1 2",), "XDAT 1 2", r"BICONICX XDAT 1 is not read"),
+    (("PARM 3 0.5",), "PARM 3 0.5", r"BICONICX PARM 3 = 0.5 is not read"),
+    (("XDAT 1 2",), "XDAT 1 2", r"BICONICX XDAT 1 = 2 is not read"),
     (("OBSC 0 1 0",), "OBSC 0 1 0", r"OBSC, a central obscuration on a lens surface"),
 ])
 def test_what_a_biconic_lacks_is_refused_with_its_line(tmp_path, extra, needle, what):

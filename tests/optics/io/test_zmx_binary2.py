@@ -126,7 +126,7 @@ BASE = [f"PARM 0 {M}", "PARM 1 0", "XDAT 1 2", f"XDAT 2 {RN!r}", f"XDAT 3 {PH1!r
      r"BINARY_2 XDAT 4 lies beyond the 1 phase terms XDAT 1 declares"),
     (["PARM 0 1", "XDAT 1 1", "XDAT 2 0", "XDAT 3 -100"], "XDAT 2 0",
      r"BINARY_2 XDAT 2 \(the normalisation radius\) must be > 0"),
-    (BASE + ["PARM 9 0.1"], "PARM 9", r"BINARY_2 PARM 9 is not read"),
+    (BASE + ["PARM 9 0.1"], "PARM 9", r"BINARY_2 PARM 9 = 0.1 is not read"),
 ])
 def test_odd_data_is_refused_with_its_line(tmp_path, body, needle, match):
     text = binary2_file(body=body)

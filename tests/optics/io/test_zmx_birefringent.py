@@ -71,7 +71,7 @@ def test_extraordinary_ray_modes_refused_at_the_mode(tmp_path, mode, kind):
 
 @pytest.mark.parametrize("text_edit,needle,match", [
     (lambda: bire(5), "PARM 1 5", r"BIRE__IN mode \(PARM 1\) must be 0, 1, 2 or 3, got 5"),
-    (lambda: bire(2, out_parm=("PARM 2 0.3",)), "PARM 2 0.3", r"SURF 3: BIRE_OUT PARM 2 is not read"),
+    (lambda: bire(2, out_parm=("PARM 2 0.3",)), "PARM 2 0.3", r"SURF 3: BIRE_OUT PARM 2 = 0.3 is not read"),
 ])
 def test_other_records_refused_at_their_line(tmp_path, text_edit, needle, match):
     text = text_edit()

@@ -125,7 +125,7 @@ def test_fresnel_singlet_file(monkeypatch, tmp_path):
 def test_unread_parameter_is_refused_on_its_line(tmp_path):
     text, _ = _singlet(parm9=0.5)
     write(tmp_path, text)
-    with pytest.raises(ZemaxFileError, match=r"FRESNELS PARM 9 is not read") as e:
+    with pytest.raises(ZemaxFileError, match=r"FRESNELS PARM 9 = 0.5 is not read") as e:
         _read(tmp_path / "t.zmx")
     assert e.value.line == text.splitlines().index("  PARM 9 0.5") + 1
 

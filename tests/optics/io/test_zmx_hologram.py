@@ -127,8 +127,8 @@ BASE = ["PARM 1 0", "PARM 2 0", "PARM 3 -200", "PARM 4 0", "PARM 5 0", "PARM 6 1
     (BASE + ["PARM 8 1"], "TYPE HOLOGRM2", r"HOLOGRM2 PARM 7 \(the construction wavelength"),
     (BASE + ["PARM 7 0.55", "PARM 8 1.5"], "PARM 8 1.5",
      r"diffraction order \(HOLOGRM2 PARM 8\) must be an integer"),
-    (BASE + ["PARM 7 0.55", "PARM 8 1", "PARM 9 1"], "PARM 9", r"HOLOGRM2 PARM 9 is not read"),
-    (BASE + ["PARM 7 0.55", "PARM 8 1", "XDAT 1 2"], "XDAT 1", r"HOLOGRM2 XDAT 1 is not read"),
+    (BASE + ["PARM 7 0.55", "PARM 8 1", "PARM 9 1"], "PARM 9", r"HOLOGRM2 PARM 9 = 1 is not read"),
+    (BASE + ["PARM 7 0.55", "PARM 8 1", "XDAT 1 2"], "XDAT 1", r"HOLOGRM2 XDAT 1 = 2 is not read"),
     (["PARM 3 0", "PARM 6 100", "PARM 7 0.55", "PARM 8 1"], "TYPE HOLOGRM2",
      r"HOLOGRM2 construction point 1 \(PARM 1-3\) is at the surface's vertex"),
 ])

@@ -114,8 +114,9 @@ def test_a_semi_diameter_other_than_r_max_is_written_with_the_terms_scaled(tmp_p
 
 @pytest.mark.parametrize("extra, parms, diam, needle, match", [
     ((), SAMPLE_PARMS, "0", "PARM 5", r"IRREGULA Z terms need the surface's semi-diameter"),
-    (("  PARM 9 1.5",), SAMPLE_PARMS, "24", "PARM 9", r"IRREGULA PARM 9 is not read"),
-    (("  XDAT 1 2",), SAMPLE_PARMS, "24", "XDAT 1", r"IRREGULA has no extra data"),
+    (("  PARM 9 1.5",), SAMPLE_PARMS, "24", "PARM 9", r"IRREGULA PARM 9 = 1.5 is not read"),
+    (("  XDAT 1 2",), SAMPLE_PARMS, "24", "XDAT 1", r"IRREGULA XDAT 1 = 2 is not read \(an irregular surface has "
+                                                 r"no extra data\)"),
 ])
 def test_refusals_are_located(tmp_path, extra, parms, diam, needle, match):
     text = _file(parms=parms, diam=diam, extra=extra)

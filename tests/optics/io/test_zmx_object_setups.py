@@ -160,7 +160,8 @@ def test_tilted_object_round_trips_through_zmx_and_json(tmp_path):
 @pytest.mark.parametrize("obj,edit,needle,match", [
     (_tilted(d0="INFINITY"), None, "DISZ INFINITY", r"a tilted object plane \(TILTSURF\) at "
                                                    r"infinity"),
-    (_tilted(extra=("PARM 3 1",)), None, "PARM 3", r"SURF 0: TILTSURF PARM 3 is not read"),
+    (_tilted(extra=("PARM 3 1",)), None, "PARM 3", r"SURF 0: TILTSURF PARM 3 = 1 is not read \(PARM 1 and 2 are the x and y "
+                                   r"tangents of the tilted object plane\)"),
     (_tilted(), ("XFLN 0 0", "XFLN 0 2"), "XFLN", r"XFLN: x field components with an object "
                                                   r"plane tilted about x"),
     (_tilted(), ("FTYP 1 0", "FTYP 3 0"), "FTYP", r"FTYP 3 \(real image height\) with an object "

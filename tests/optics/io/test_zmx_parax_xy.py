@@ -78,7 +78,7 @@ def test_zmx_round_trip(tmp_path):
 
 
 @pytest.mark.parametrize("kw, needle, match", [
-    ({"extra": ("  PARM 3 1",)}, "PARM 3", r"PARAX_XY PARM 3 is not read"),
+    ({"extra": ("  PARM 3 1",)}, "PARM 3", r"PARAX_XY PARM 3 = 1 is not read"),
     ({"px": "0", "py": "0"}, "TYPE PARAX_XY", r"needs a non-zero x or y power"),
     ({"glass": "___BLANK 1 0 1.5 60 0 0 0 0 0 0"}, "GLAS", r"PARAX_XY surface between glasses"),
 ])

@@ -107,7 +107,7 @@ def test_tangents_are_dimensionless_and_write_back_as_the_same_plane(tmp_path):
 
 @pytest.mark.parametrize("edit,needle,match", [
     (lambda: _tilted_back(extra=("PARM 3 0.2",)), "PARM 3 0.2",
-     r"SURF 3: TILTSURF PARM 3 is not read \(PARM 1 and 2 are the x and y tangents\)"),
+     r"SURF 3: TILTSURF PARM 3 = 0.2 is not read \(PARM 1 and 2 are the x and y tangents\)"),
     (lambda: _tilted_back().replace("TYPE TILTSURF\n  CURV 0.0", "TYPE TILTSURF\n  CURV 0.01"),
      "CURV 0.01", r"SURF 3: a TILTSURF \(a tilted plane\) has no curvature, got CURV 0.01"),
 ])

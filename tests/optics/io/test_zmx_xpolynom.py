@@ -248,7 +248,7 @@ def test_reflector_round_trip(tmp_path):
     (lambda t: t.replace("XDAT 2 4.0", "XDAT 2 0"), "XDAT 2 0",
      r"XPOLYNOM normalisation radius must be > 0"),
     (lambda t: t.replace("XDAT 2 4.0", "XDAT 2 4.0\n  PARM 1 0.5"), "PARM 1 0.5",
-     r"XPOLYNOM PARM 1 is not read"),
+     r"XPOLYNOM PARM 1 = 0.5 is not read"),
 ])
 def test_refused_at_its_line(tmp_path, edit, needle, match):
     text = edit(xpolynom())

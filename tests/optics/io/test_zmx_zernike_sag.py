@@ -126,7 +126,7 @@ def test_no_extrapolation_round_trips(tmp_path):
                                           r"integer 0..231"),
     ("XDAT 1 11", "XDAT 1 10", "XDAT 13", r"SZERNSAG XDAT 13 lies beyond the 10 Zernike terms"),
     ("XDAT 2 5", "XDAT 2 0", "XDAT 2 0", r"XDAT 2 \(the normalisation radius\) must be > 0"),
-    ("PARM 8 0", "PARM 11 0.1", "PARM 11", r"SZERNSAG PARM 11 is not read"),
+    ("PARM 8 0", "PARM 11 0.1", "PARM 11", r"SZERNSAG PARM 11 = 0.1 is not read"),
 ])
 def test_unsupported_data_are_refused_with_their_line(tmp_path, old, new, needle, match):
     text = FILE.read_text()
