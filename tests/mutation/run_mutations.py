@@ -1475,6 +1475,18 @@ MUTATIONS = [
              "deeplens/optics/paraxial.py", "ya_s = (s * ya_s + yb_s) / L",
              "ya_s = (s * ya_s + yb_s) / s",
              ("tests/optics/io/test_zmx_pupil_at_infinity.py",)),
+    # branch ftyp3: set 12's real image heights (FTYP 3) on wide-angle camera lenses
+    Mutation("quadric_vertex_plane_domain_check", "a ray whose vertex-plane point lies outside a "
+             "sphere's domain marked invalid again (the chief ray of a 28 mm lens's edge field "
+             "lost at a rear surface it does meet)", "deeplens/optics/intersect.py",
+             "            t0 = torch.where(surface.in_domain(xy0[..., 0], xy0[..., 1]), t0,\n"
+             "                             torch.zeros_like(t0))\n",
+             "            ok = ok & surface.in_domain(xy0[..., 0], xy0[..., 1])\n",
+             ("tests/optics/test_quadric_beyond_domain.py",)),
+    Mutation("ftyp3_provisional_semi_diameters_clip", "automatic semi-diameters left at their "
+             "provisional 1e-3 mm while FTYP 3 chief rays are solved (the aimed chief ray stopped "
+             "by a plane OpticStudio never clips)", "deeplens/optics/io/zmx_read.py",
+             "    with _unsized(lens, autos):", "    with _unsized(lens, []):", LENS2_FTYP3),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:
