@@ -1487,6 +1487,9 @@ MUTATIONS = [
              "provisional 1e-3 mm while FTYP 3 chief rays are solved (the aimed chief ray stopped "
              "by a plane OpticStudio never clips)", "deeplens/optics/io/zmx_read.py",
              "    with _unsized(lens, autos):", "    with _unsized(lens, []):", LENS2_FTYP3),
+    Mutation("chief_ray_stop_tir_called_miss", "an FTYP 3 refusal that says the chief ray misses "
+             "a surface where it is totally reflected there", "deeplens/optics/io/zmx_system.py",
+             'return i, "is totally reflected at"', 'return i, "misses"', LENS2_FTYP3),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

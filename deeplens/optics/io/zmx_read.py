@@ -268,7 +268,9 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
         sysd, n_fields = y_fields_only(sysd, n_fields, p)
     autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
     with _unsized(lens, autos):   # (FTYP 3: the chief ray solved before they are sized)
-        fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
+        fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p,
+                                  lambda i: f"SURF {surfs.index(kept[i][2])} (line "
+                                            f"{kept[i][2].line})")
     if autos:
         _auto_semi_diameters(lens, autos, fields, where_of, p, limited, original)
     if limited:

@@ -9,6 +9,7 @@ NaN there and refused the field; the real chief ray reaches 20 mm at 24.6 deg.
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 from test_zmx import singlet, write
@@ -45,14 +46,16 @@ def test_a_first_trial_that_works_needs_no_step_back(tmp_path):
 
 
 def test_an_unreachable_height_is_refused_with_the_last_chief_ray_found(tmp_path):
-    """A singlet whose chief rays miss its rear surface (R = -10 mm) beyond about 65 deg and
-    never land above 15 mm: the refusal names the last chief ray found and the failing angle."""
+    """A singlet whose chief rays are totally reflected at its rear surface (R = -10 mm) from
+    about 65.3 deg and miss its front surface from 65.4 deg (a hand trace), never landing above
+    15 mm: the refusal names the last chief ray found, the failing angle and where it stops."""
     text = singlet(ftyp="FTYP 3 0 2 2 0 0 0", yfln="YFLN 0 500", curv1=0.05, curv2=-0.1, t=8,
                    bfl=20, s1_extra=(), k=0, diam1=6)
     with pytest.raises(ZemaxFileError, match=r"t\.zmx:7: FTYP 3 \(real image height\): no chief "
                                              r"ray reaches image height 500 mm .*the chief ray "
                                              r"of 6[45]\.[0-9]+ deg lands at [0-9.]+ mm; from "
-                                             r"6[45]\.[0-9]+ deg on it misses"):
+                                             r"6[45]\.[0-9]+ deg on it (is totally reflected at "
+                                             r"SURF 3|misses SURF 2) \(line [0-9]+\)\)$"):
         read_zmx(write(tmp_path, text))
 
 
@@ -135,3 +138,33 @@ def test_an_automatic_semi_diameter_does_not_stop_the_chief_ray(tmp_path):
     assert hand_chief_ray(theta)[0] == pytest.approx(4.0, abs=1e-9)
     plane = with_plane.surfaces[-1]
     assert float(plane.semi_diameter) > 3.0   # sized from the beam (was 1e-3 mm while solving)
+
+
+def _refused_angle(tmp_path, text):
+    """The smallest failing angle (deg) and the rest of an FTYP 3 refusal's message."""
+    with pytest.raises(ZemaxFileError) as e:
+        read_zmx(write(tmp_path, text))
+    m = re.search(r"from ([0-9.]+) deg on it (.*)$", str(e.value))
+    assert m, str(e.value)
+    return float(m.group(1)), m.group(2)
+
+
+def test_the_refusal_names_the_surface_that_totally_reflects_the_chief_ray(tmp_path):
+    """The wide-angle singlet never images 7 mm (its chief-ray heights peak near 5.7 mm at
+    50 deg): from the failing angle on, the hand trace finds no refracted ray at the rear face
+    (Snell's law has no solution), just below it one."""
+    theta, why = _refused_angle(tmp_path, wide_singlet(7.0))
+    assert why == "is totally reflected at SURF 3 (line 27))"
+    with pytest.raises(ValueError):     # math.sqrt of a negative: no refracted ray
+        hand_chief_ray(theta + 1e-3)   # (the message prints 6 digits: 5e-5 deg here)
+    hand_chief_ray(theta - 1e-3)
+
+
+def test_the_refusal_names_the_clear_aperture_that_stops_an_aimed_chief_ray(tmp_path):
+    """With ray aiming the chief ray is traced with the lens's clear apertures (a fixed DIAM on
+    a surface with power is OpticStudio's floating aperture): the rear face's DIAM 3 stops the
+    chief ray of 4.5 mm; by hand, it meets the rear face beyond 3 mm from the failing angle on."""
+    text = wide_singlet(4.5, aim=True).replace("DIAM 4.9 1", "DIAM 3 1")
+    theta, why = _refused_angle(tmp_path, text)
+    assert why == "falls outside the clear aperture of SURF 3 (line 28))"
+    assert hand_chief_ray(theta + 1e-3)[2] > 3.0 > hand_chief_ray(theta - 1e-3)[2]
