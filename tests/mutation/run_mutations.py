@@ -1490,6 +1490,12 @@ MUTATIONS = [
     Mutation("chief_ray_stop_tir_called_miss", "an FTYP 3 refusal that says the chief ray misses "
              "a surface where it is totally reflected there", "deeplens/optics/io/zmx_system.py",
              'return i, "is totally reflected at"', 'return i, "misses"', LENS2_FTYP3),
+    Mutation("sideways_fields_read_radially", "a field angle beyond 90 deg (a fisheye's 109 deg) "
+             "passed to the radial x-y combination, which reads it as 71 deg without a word",
+             "deeplens/optics/io/zmx_system.py",
+             "    if kind == 0:\n        _refuse_sideways_fields(",
+             "    if kind == -1:\n        _refuse_sideways_fields(",
+             ("tests/optics/io/test_zmx_sideways_fields.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -307,6 +307,26 @@ def lens_pupil_convention(lens) -> str:
     return "traced" if getattr(lens, "ray_aiming", True) else "paraxial"
 
 
+def _refuse_sideways_fields(xs, ys, xline: int, yline: int, p) -> None:
+    """Refuse a field angle (``FTYP 0``, deg) of 90 or more in x or y, at its ``XFLN`` or
+    ``YFLN`` line.  OpticStudio's field angles run "fully in the range of -180 to 180 degrees",
+    the chief ray's direction cosine ``n`` along the axis negative beyond 90 deg (User Guide,
+    *Field Angles and Heights*): a ray arriving sideways (90 deg) or from behind (a fisheye
+    beyond 180 deg of total field).  deeplens launches a field's rays towards ``+z`` from a
+    plane in front of the lens (field angles within (-90, 90) deg), and the radial combination
+    of x and y below would read 109 deg as 71 deg (``atan`` of ``|tan 109 deg|``) without a
+    word; so it refuses, naming the field."""
+    for vals, rec, line in ((ys, "YFLN", yline), (xs, "XFLN", xline)):
+        bad = [(k, v) for k, v in enumerate(vals, 1) if not abs(v) < 90.0]
+        if bad:
+            which = ", ".join(f"field {k} is {v:g} deg" for k, v in bad)
+            p.fail(line, f"{rec}: {which}, at or beyond 90 deg: OpticStudio traces such a field "
+                         f"arriving sideways or from behind the lens (angles run to ±180 deg, "
+                         f"Field Angles and Heights); deeplens traces fields within (-90, 90) "
+                         f"deg only: remove them (and lower the FTYP field count) to read the "
+                         f"others")
+
+
 def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p, surface_name=None):
     """The file's fields (``XFLN``/``YFLN`` of the ``FTYP`` field type) as deeplens' field
     angles (deg): for an object-space telecentric lens (``lens.object_telecentric``) the angle
@@ -318,6 +338,8 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p, surface_nam
         ys, xs = ys[:n_fields], xs[:n_fields]
     xs = xs + [0.0] * (len(ys) - len(xs))
     kind = ftyp[0]
+    if kind == 0:
+        _refuse_sideways_fields(xs, ys, xline, _yline, p)
     tan_y = getattr(lens, "object_tilt", (0.0, 0.0))[1]
     if tan_y != 0 and any(x != 0 for x in xs):
         p.fail(xline, "XFLN: x field components with an object plane tilted about x (TILTSURF "
