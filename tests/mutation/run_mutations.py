@@ -1493,8 +1493,8 @@ MUTATIONS = [
     Mutation("sideways_fields_read_radially", "a field angle beyond 90 deg (a fisheye's 109 deg) "
              "passed to the radial x-y combination, which reads it as 71 deg without a word",
              "deeplens/optics/io/zmx_system.py",
-             "    if kind == 0:\n        _refuse_sideways_fields(",
-             "    if kind == -1:\n        _refuse_sideways_fields(",
+             "    if kind == 0:\n        xs, ys = _drop_sideways_fields(",
+             "    if kind == -1:\n        xs, ys = _drop_sideways_fields(",
              ("tests/optics/io/test_zmx_sideways_fields.py",)),
 ]
 

@@ -307,24 +307,28 @@ def lens_pupil_convention(lens) -> str:
     return "traced" if getattr(lens, "ray_aiming", True) else "paraxial"
 
 
-def _refuse_sideways_fields(xs, ys, xline: int, yline: int, p) -> None:
-    """Refuse a field angle (``FTYP 0``, deg) of 90 or more in x or y, at its ``XFLN`` or
-    ``YFLN`` line.  OpticStudio's field angles run "fully in the range of -180 to 180 degrees",
-    the chief ray's direction cosine ``n`` along the axis negative beyond 90 deg (User Guide,
-    *Field Angles and Heights*): a ray arriving sideways (90 deg) or from behind (a fisheye
-    beyond 180 deg of total field).  deeplens launches a field's rays towards ``+z`` from a
-    plane in front of the lens (field angles within (-90, 90) deg), and the radial combination
-    of x and y below would read 109 deg as 71 deg (``atan`` of ``|tan 109 deg|``) without a
-    word; so it refuses, naming the field."""
+def _drop_sideways_fields(xs, ys, xline: int, yline: int, p):
+    """The fields (``FTYP 0``, deg) whose x and y angles both lie within (-90, 90) deg; each
+    one left out (90 deg or more in x or y) is named in one located note at its ``YFLN`` or
+    ``XFLN`` line.  OpticStudio's field angles run "fully in the range of -180 to 180 degrees",
+    the chief ray's axial direction cosine ``n`` negative beyond 90 deg (User Guide, *Field
+    Angles and Heights*): a fisheye's field arriving sideways (90 deg) or from behind the lens.
+    deeplens launches a field's rays towards ``+z`` from a plane in front of the lens (field
+    angles within (-90, 90) deg), so it cannot trace them; the lens and its other fields are
+    read.  (Before, 90 deg was refused by the lens's generic range check and 109 deg read as
+    71 deg without a word: the radial combination takes ``atan`` of ``|tan 109 deg|``.)
+    Returns ``(xs, ys)`` without those fields."""
+    keep = [abs(x) < 90.0 and abs(y) < 90.0 for x, y in zip(xs, ys)]
     for vals, rec, line in ((ys, "YFLN", yline), (xs, "XFLN", xline)):
         bad = [(k, v) for k, v in enumerate(vals, 1) if not abs(v) < 90.0]
         if bad:
-            which = ", ".join(f"field {k} is {v:g} deg" for k, v in bad)
-            p.fail(line, f"{rec}: {which}, at or beyond 90 deg: OpticStudio traces such a field "
-                         f"arriving sideways or from behind the lens (angles run to ±180 deg, "
-                         f"Field Angles and Heights); deeplens traces fields within (-90, 90) "
-                         f"deg only: remove them (and lower the FTYP field count) to read the "
-                         f"others")
+            which = ", ".join(f"field {k} ({v:g} deg)" for k, v in bad)
+            p.note(line, f"{rec}: {which} not read: OpticStudio traces a field at or beyond "
+                         f"90 deg arriving sideways or from behind the lens (angles run to "
+                         f"±180 deg, Field Angles and Heights), deeplens traces fields within "
+                         f"(-90, 90) deg only; the lens is read with its other fields")
+    return ([x for x, k in zip(xs, keep) if k] or [0.0],
+            [y for y, k in zip(ys, keep) if k] or [0.0])
 
 
 def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p, surface_name=None):
@@ -339,7 +343,7 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p, surface_nam
     xs = xs + [0.0] * (len(ys) - len(xs))
     kind = ftyp[0]
     if kind == 0:
-        _refuse_sideways_fields(xs, ys, xline, _yline, p)
+        xs, ys = _drop_sideways_fields(xs, ys, xline, _yline, p)
     tan_y = getattr(lens, "object_tilt", (0.0, 0.0))[1]
     if tan_y != 0 and any(x != 0 for x in xs):
         p.fail(xline, "XFLN: x field components with an object plane tilted about x (TILTSURF "
