@@ -45,7 +45,11 @@ Quadrics (spheres and conics, ``surface.is_quadric``) skip Newton: the ray meets
 are its roots without cancellation (the textbook ``(-B ± sqrt(.)) / A`` loses all digits of the
 near root when ``A C << B^2``, and divides by zero for a paraboloid hit along its axis).  Exactly one
 root is where the ray crosses the surface in its direction of travel (``_quadric_root``); it is
-the hit when it lies on the surface's branch (``h = 1 - (1+k) c z > 0``).
+the hit when it lies on the surface's branch (``h = 1 - (1+k) c z > 0``).  The coefficients are
+taken at the ray's vertex-plane point, or, where that point lies outside the conic's domain
+(``|r| > |R|`` on a sphere: a steep ray near a strongly curved surface), at the ray's origin: the
+line can still meet the branch further on, as OpticStudio's exact sphere does (before, such
+rays were invalid; ``tests/optics/test_quadric_beyond_domain.py``).
 The expression is differentiable as it stands: its derivative is the exact implicit derivative
 ``-(∂F/∂θ) / (d · ∇F)`` of the root, the same as the Eq. 7 step gives at a converged root, and
 autograd keeps only a handful of per-ray scalars.  Aspheres start Newton from their conic base's
@@ -251,11 +255,12 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
     oz = oz - z_shift
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-oz, dz, ok).detach()
+    with torch.no_grad():  # as in intersect(): beyond the conic's domain, from the origin
+        bx, by = ox + t0 * dx, oy + t0 * dy
+        t0 = torch.where(conic_arg(bx * bx + by * by, c, k) > 0, t0, torch.zeros_like(t0))
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
     quadric = conic_quadric(bx, by, bz, dx, dy, dz, c, k)  # the conic base, as Asphere.quadric
     s, found = _quadric_root(quadric, bz, dz, ok)
-    with torch.no_grad():  # as in intersect(): the vertex-plane point in the conic's domain
-        found = found & (conic_arg(bx * bx + by * by, c, k) > 0)
     ok = ok & found
     t = t0 + s
     x, y, z = bx + s * dx, by + s * dy, bz + s * dz
@@ -446,13 +451,18 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
         t = _safe_div(-o[..., 2], dz, ok)
         ob, s = o, t
     elif quadric:
+        # the roots from the ray's vertex-plane point; where that point lies outside the
+        # conic's domain (|r| > |R| on a sphere: a steep ray near a strongly curved surface,
+        # the chief ray of a wide-angle lens's edge field), from the ray's origin instead: the
+        # ray can still meet the surface's branch there, as OpticStudio's exact intersection
+        # finds it (before, such rays were invalid).  The origin lies near the lens; the
+        # vertex-plane point, where it is in the domain, keeps every other ray's digits
+        with torch.no_grad():
+            xy0 = (o[..., :2] + t0.unsqueeze(-1) * d[..., :2])
+            t0 = torch.where(surface.in_domain(xy0[..., 0], xy0[..., 1]), t0,
+                             torch.zeros_like(t0))
         ob = o + t0.unsqueeze(-1) * d
         s, found = _quadric_root(surface.quadric(ob, d), ob[..., 2], d[..., 2], ok)
-        # as on the Newton path, which starts there: a ray crossing the vertex plane outside the
-        # surface's domain is invalid (kept for identical results; such a ray can still meet a
-        # strongly curved conic, e.g. an oblate ellipsoid, within its domain)
-        with torch.no_grad():
-            found = found & surface.in_domain(ob[..., 0], ob[..., 1])
         ok = ok & found
         t = t0 + s
         if across and not backward:

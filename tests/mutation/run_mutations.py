@@ -1577,6 +1577,27 @@ MUTATIONS = [
              "not read silently dropped (only positive ones refused)",
              "deeplens/optics/io/surface_formats.py", "if i not in read and v != 0:",
              "if i not in read and v > 0:", ("tests/optics/io/test_zmx_unread_records.py",)),
+    # branch ftyp3: set 12's real image heights (FTYP 3) on wide-angle camera lenses
+    Mutation("quadric_vertex_plane_domain_check", "a ray whose vertex-plane point lies outside a "
+             "sphere's domain marked invalid again (the chief ray of a 28 mm lens's edge field "
+             "lost at a rear surface it does meet)", "deeplens/optics/intersect.py",
+             "            t0 = torch.where(surface.in_domain(xy0[..., 0], xy0[..., 1]), t0,\n"
+             "                             torch.zeros_like(t0))\n",
+             "            ok = ok & surface.in_domain(xy0[..., 0], xy0[..., 1])\n",
+             ("tests/optics/test_quadric_beyond_domain.py",)),
+    Mutation("ftyp3_provisional_semi_diameters_clip", "automatic semi-diameters left at their "
+             "provisional 1e-3 mm while FTYP 3 chief rays are solved (the aimed chief ray stopped "
+             "by a plane OpticStudio never clips)", "deeplens/optics/io/zmx_read.py",
+             "    with _unsized(lens, autos):", "    with _unsized(lens, []):", LENS2_FTYP3),
+    Mutation("chief_ray_stop_tir_called_miss", "an FTYP 3 refusal that says the chief ray misses "
+             "a surface where it is totally reflected there", "deeplens/optics/io/zmx_system.py",
+             'return i, "is totally reflected at"', 'return i, "misses"', LENS2_FTYP3),
+    Mutation("sideways_fields_read_radially", "a field angle beyond 90 deg (a fisheye's 109 deg) "
+             "passed to the radial x-y combination, which reads it as 71 deg without a word",
+             "deeplens/optics/io/zmx_system.py",
+             "    if kind == 0:\n        xs, ys = _drop_sideways_fields(",
+             "    if kind == -1:\n        xs, ys = _drop_sideways_fields(",
+             ("tests/optics/io/test_zmx_sideways_fields.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

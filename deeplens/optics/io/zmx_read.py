@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -280,8 +281,11 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     lens.ray_aiming = sysd["raim"][0] != 0
     if seq.folded:
         sysd, n_fields = y_fields_only(sysd, n_fields, p)
-    fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p)
     autos = [i for i in autos if not (i == stop_idx and ap_type != "stop")]
+    with _unsized(lens, autos):   # (FTYP 3: the chief ray solved before they are sized)
+        fields = fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p,
+                                  lambda i: f"SURF {surfs.index(kept[i][2])} (line "
+                                            f"{kept[i][2].line})")
     if autos:
         _auto_semi_diameters(lens, autos, fields, where_of, p, limited, original)
     if limited:
@@ -299,6 +303,29 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     _check_stop_clear_aperture(lens, kept[stop_idx][2], s_mm, p)
     p.warn_notes(stacklevel=3)
     return lens
+
+
+@contextmanager
+def _unsized(lens: Lens, idx):
+    """Within the block, the surfaces ``idx`` (automatic semi-diameters, still at their
+    provisional size) clip no ray: their semi-diameters are infinite, and restored after.  The
+    fields are converted to angles before those semi-diameters are sized from them, and a real
+    image height (``FTYP 3``) is solved by tracing chief rays: OpticStudio's default
+    semi-diameter is "the radial distance to the aperture required to pass all real rays
+    without clipping any of the rays", a floating aperture being applied only to a
+    user-defined one (OpticStudio User Guide, *Semi-Diameters*), so an automatic one never
+    stops a chief ray.  (Before, the provisional 1e-3 mm stopped every chief ray beyond a few
+    hundredths of a degree, and such files were refused as "no chief ray reaches image height".)"""
+    saved = [float(lens.surfaces[i].semi_diameter) for i in idx]
+    with torch.no_grad():
+        for i in idx:
+            lens.surfaces[i].semi_diameter.fill_(math.inf)
+    try:
+        yield
+    finally:
+        with torch.no_grad():
+            for i, v in zip(idx, saved):
+                lens.surfaces[i].semi_diameter.fill_(v)
 
 
 def _wavelengths(sysd: dict, p: Locator):

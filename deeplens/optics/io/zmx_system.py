@@ -22,7 +22,8 @@ from ..surfaces import (Aperture, Asphere, Biconic, Binary1, Cylinder, ExtendedO
                         OddAsphere, Plane, QType, XYPolynomial, ZernikeFringePhase, ZernikeSag)
 from ..surfaces.grid_sag import GridSag
 
-__all__ = ["aperture_to_epd", "chief_height", "real_image_height_angle", "rotationally_symmetric",
+__all__ = ["aperture_to_epd", "chief_height", "chief_ray_stop", "real_image_height_angle",
+           "rotationally_symmetric",
            "zemax_tilts", "element_tilts", "lens_pupil_convention", "fields_to_angles"]
 
 
@@ -92,8 +93,44 @@ def chief_height(lens, field_deg: float) -> float:
         return float(out.o[0, 1]) if bool(out.valid[0]) else math.nan
 
 
+def chief_ray_stop(lens, field_deg: float):
+    """Where the chief ray of ``field_deg`` (deg; the ray :func:`chief_height` traces, with the
+    same apertures) stops: ``(surface index, why)``, ``why`` one of ``"misses"`` (its line
+    never meets the surface's branch), ``"is totally reflected at"`` (it meets it, no refracted
+    ray leaves) and ``"falls outside the clear aperture of"``; ``None`` where it reaches the
+    last surface.  Traced surface by surface; each failure is told apart by tracing that
+    surface once more without clear apertures, then without its law (``refract_=False``)."""
+    from ..chief import chief_ray
+    from ..options import TraceOptions
+    from ..paraxial import paraxial
+    from ..sampling import field_rays
+
+    w = float(lens.spec.primary_wavelength_nm)
+    free = TraceOptions(clip_aperture=False)
+    opts = TraceOptions() if lens.ray_aiming else free   # as chief_height traces it
+    with torch.no_grad():
+        y_p = float(chief_ray(lens, field_deg, w)[1]) if lens.ray_aiming else 0.0
+        z_ep = float(paraxial(lens).entrance_pupil_z)
+        rays = field_rays(lens, field_deg, w, torch.tensor([[0.0, y_p]], dtype=lens.dtype), z_ep)
+        z = lens.z_vertices()
+        n = lens.indices(torch.tensor(w, dtype=lens.dtype))
+        for i in range(len(lens.surfaces)):
+            nxt = lens.trace_surface(i, rays, n[i], n[i + 1], z, opts)
+            if bool(nxt.valid[0]):
+                rays = nxt
+                continue
+            if bool(lens.trace_surface(i, rays, n[i], n[i + 1], z, free).valid[0]):
+                return i, "falls outside the clear aperture of"
+            if bool(lens.trace_surface(i, rays, n[i], n[i + 1], z, free,
+                                       refract_=False).valid[0]):
+                return i, "is totally reflected at"
+            return i, "misses"
+    return None
+
+
 def real_image_height_angle(lens, h: float, line: int, p, *, y0: float = 0.0,
-                            direction: float = 1.0, sigma: float = 1.0) -> float:
+                            direction: float = 1.0, sigma: float = 1.0,
+                            surface_name=None) -> float:
     """The field angle (deg, > 0) along ``direction`` (``+1``: positive angles, ``-1``: negative;
     the angle is ``direction`` times the value returned) whose chief ray lands ``h`` mm (> 0) from
     ``y0``, the image height of the axial field's chief ray (0 for a lens symmetric under
@@ -106,7 +143,10 @@ def real_image_height_angle(lens, h: float, line: int, p, *, y0: float = 0.0,
     of a wide-angle lens do beyond its field) is stepped back by bisection between the last
     good angle and the failing one; a trial still short of ``h`` steps forward by the scaling
     estimate (never past half-way to the smallest failing angle).  Inside the bracket,
-    regula falsi (the Illinois variant), falling back to bisection where a trial fails."""
+    regula falsi (the Illinois variant), falling back to bisection where a trial fails.  A
+    height no chief ray reaches is refused naming the last chief ray found and where the chief
+    ray of the smallest failing angle stops (:func:`chief_ray_stop`; ``surface_name(i)``
+    names lens surface ``i`` as the file does, e.g. ``"SURF 10 (line 140)"``)."""
     t0 = 1e-3
     slope = abs(chief_height(lens, direction * t0) - y0) / t0
     if not slope > 0:
@@ -136,11 +176,18 @@ def real_image_height_angle(lens, h: float, line: int, p, *, y0: float = 0.0,
             break
     if hi is None:
         up = direction * sigma   # the side of y0 where the chief rays of these angles land
+        stop = chief_ray_stop(lens, direction * bad) if bad < 90.0 else None
+        if stop is None:
+            where = ("it misses a surface or is totally reflected" if bad < 90.0 else
+                     "it would leave the object side at grazing incidence")
+        else:
+            name = surface_name(stop[0]) if surface_name else f"surface {stop[0]}"
+            where = f"it {stop[1]} {name}"
         p.fail(line, f"FTYP 3 (real image height): no chief ray reaches image height "
                      f"{y0 + math.copysign(h, up):g} mm (the field lies beyond what the lens "
                      f"images: the chief ray of {direction * lo:.6g} deg lands at "
                      f"{y0 + math.copysign(glo + h, up):.6g} mm; from {direction * bad:.6g} deg on "
-                     f"it misses a surface or is totally reflected)")
+                     f"{where})")
     side = 0
     for _ in range(200):
         if math.isfinite(ghi):
@@ -179,7 +226,7 @@ def slope_sign(lens, y0: float) -> float:
     return 1.0 if d > 0 else -1.0 if d < 0 else 0.0
 
 
-def real_image_height_fields(lens, heights, line: int, p) -> list[float]:
+def real_image_height_fields(lens, heights, line: int, p, surface_name=None) -> list[float]:
     """Field angles (deg) whose chief rays land at the real image heights ``heights`` (mm,
     signed: ``FTYP 3``, "the real ray coordinates of the primary wavelength chief ray on the
     image surface", OpticStudio User Guide, *Field Angles and Heights*).  The axial field's
@@ -209,7 +256,7 @@ def real_image_height_fields(lens, heights, line: int, p) -> list[float]:
             continue
         side = math.copysign(1.0, d * sigma)
         out.append(side * real_image_height_angle(lens, abs(d), line, p, y0=y0, direction=side,
-                                                  sigma=sigma))
+                                                  sigma=sigma, surface_name=surface_name))
     return out
 
 
@@ -261,16 +308,43 @@ def lens_pupil_convention(lens) -> str:
     return "traced" if getattr(lens, "ray_aiming", True) else "paraxial"
 
 
-def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
+def _drop_sideways_fields(xs, ys, xline: int, yline: int, p):
+    """The fields (``FTYP 0``, deg) whose x and y angles both lie within (-90, 90) deg; each
+    one left out (90 deg or more in x or y) is named in one located note at its ``YFLN`` or
+    ``XFLN`` line.  OpticStudio's field angles run "fully in the range of -180 to 180 degrees",
+    the chief ray's axial direction cosine ``n`` negative beyond 90 deg (User Guide, *Field
+    Angles and Heights*): a fisheye's field arriving sideways (90 deg) or from behind the lens.
+    deeplens launches a field's rays towards ``+z`` from a plane in front of the lens (field
+    angles within (-90, 90) deg), so it cannot trace them; the lens and its other fields are
+    read.  (Before, 90 deg was refused by the lens's generic range check and 109 deg read as
+    71 deg without a word: the radial combination takes ``atan`` of ``|tan 109 deg|``.)
+    Returns ``(xs, ys)`` without those fields."""
+    keep = [abs(x) < 90.0 and abs(y) < 90.0 for x, y in zip(xs, ys)]
+    for vals, rec, line in ((ys, "YFLN", yline), (xs, "XFLN", xline)):
+        bad = [(k, v) for k, v in enumerate(vals, 1) if not abs(v) < 90.0]
+        if bad:
+            which = ", ".join(f"field {k} ({v:g} deg)" for k, v in bad)
+            p.note(line, f"{rec}: {which} not read: OpticStudio traces a field at or beyond "
+                         f"90 deg arriving sideways or from behind the lens (angles run to "
+                         f"±180 deg, Field Angles and Heights), deeplens traces fields within "
+                         f"(-90, 90) deg only; the lens is read with its other fields")
+    return ([x for x, k in zip(xs, keep) if k] or [0.0],
+            [y for y, k in zip(ys, keep) if k] or [0.0])
+
+
+def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p, surface_name=None):
     """The file's fields (``XFLN``/``YFLN`` of the ``FTYP`` field type) as deeplens' field
     angles (deg): for an object-space telecentric lens (``lens.object_telecentric``) the angle
-    of the object point seen from the first vertex (:func:`~deeplens.optics.sampling.field_rays`)."""
+    of the object point seen from the first vertex (:func:`~deeplens.optics.sampling.field_rays`).
+    ``surface_name(i)``: how a refusal names lens surface ``i`` (the file's ``SURF`` and line)."""
     ys, _yline = sysd["yfln"] if sysd["yfln"] else ([0.0], 0)
     xs, xline = sysd["xfln"] if sysd["xfln"] else ([0.0] * len(ys), 0)
     if n_fields is not None:
         ys, xs = ys[:n_fields], xs[:n_fields]
     xs = xs + [0.0] * (len(ys) - len(xs))
     kind = ftyp[0]
+    if kind == 0:
+        xs, ys = _drop_sideways_fields(xs, ys, xline, _yline, p)
     tan_y = getattr(lens, "object_tilt", (0.0, 0.0))[1]
     if tan_y != 0 and any(x != 0 for x in xs):
         p.fail(xline, "XFLN: x field components with an object plane tilted about x (TILTSURF "
@@ -314,7 +388,7 @@ def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p):
         efl = float(paraxial(lens).efl)
         return [math.degrees(math.atan(v / efl)) for v in h]
     if kind == 3:
-        return real_image_height_fields(lens, h, ftyp_line, p)
+        return real_image_height_fields(lens, h, ftyp_line, p, surface_name)
     if kind == 4:
         # theodolite angles: for a single non-zero component the field angle itself (the two
         # together define a direction whose convention we have not checked against an oracle)
