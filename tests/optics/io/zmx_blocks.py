@@ -4,7 +4,9 @@ after a short sequential system header (:func:`zmx_file`).  Imported by test mod
 
 from __future__ import annotations
 
-__all__ = ["surf", "zmx_file"]
+import warnings
+
+__all__ = ["glass_singlet", "read_noting", "surf", "zmx_file"]
 
 
 def surf(typ="STANDARD", curv=0.0, disz=0.0, glas=None, parms=None, stop=False, diam=None):
@@ -32,3 +34,52 @@ def zmx_file(blocks, name: str, aperture: str = "ENPD 10.0",
     for k, b in enumerate(blocks):
         lines += [f"SURF {k}"] + b
     return head + "\n".join(lines) + "\n"
+
+
+_GLASS_SINGLET = """VERS 170912 299 123456
+MODE SEQ
+UNIT MM X W X CM MR CPMM
+ENPD 10
+FTYP 0 0 1 1 0 0 0
+WAVM 1 {wave} 1
+PWAV 1
+YFLN 0
+GCAT {gcat}
+SURF 0
+  TYPE STANDARD
+  CURV 0
+  DISZ INFINITY
+SURF 1
+  STOP
+  TYPE STANDARD
+  CURV 0.02
+  DISZ 5
+  GLAS {glass} 0 0 1.5 40 0 0 0 0 0 0
+SURF 2
+  TYPE STANDARD
+  CURV -0.01
+  DISZ 60
+SURF 3
+  TYPE STANDARD
+  CURV 0
+  DISZ 0
+"""
+
+
+def glass_singlet(wave, gcat: str, glass: str) -> str:
+    """A ``.zmx`` singlet for the glass tests: one wavelength ``wave`` (µm, as ``WAVM`` writes
+    it), the ``GCAT`` line's catalogues ``gcat``, the glass ``glass`` between a face of
+    curvature 0.02/mm and one of -0.01/mm, 5 mm apart, its ``GLAS`` line with OpticStudio's
+    1.5/40 placeholder; the stop on the first face, EPD 10 mm, the image 60 mm on."""
+    return _GLASS_SINGLET.format(wave=wave, gcat=gcat, glass=glass)
+
+
+def read_noting(path):
+    """``(lens, notes)``: :func:`~deeplens.optics.io.read_zmx` of ``path`` and the
+    :class:`~deeplens.optics.io.ZemaxWarning` messages it issued (every one, none filtered)."""
+    from deeplens.optics.io import ZemaxWarning, read_zmx
+
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        lens = read_zmx(path)
+    return lens, [x.message for x in w if isinstance(x.message, ZemaxWarning)]
