@@ -47,7 +47,8 @@ near root when ``A C << B^2``, and divides by zero for a paraboloid hit along it
 root is where the ray crosses the surface in its direction of travel (``_quadric_root``); it is
 the hit when it lies on the surface's branch (``h = 1 - (1+k) c z > 0``).  The coefficients are
 taken at the ray's vertex-plane point, or, where that point lies outside the conic's domain
-(``|r| > |R|`` on a sphere: a steep ray near a strongly curved surface), at the ray's origin: the
+(``|r| > |R|`` on a sphere: a steep ray near a strongly curved surface), at the line's point
+nearest the vertex (not the origin, which may lie 100 mm away: float32 cancellation): the
 line can still meet the branch further on, as OpticStudio's exact sphere does (before, such
 rays were invalid; ``tests/optics/test_quadric_beyond_domain.py``).
 The expression is differentiable as it stands: its derivative is the exact implicit derivative
@@ -255,9 +256,10 @@ def quadric_step_xyz(ox, oy, oz, dx, dy, dz, valid, opl, z_shift, c, k, semi_dia
     oz = oz - z_shift
     ok = valid & (dz.abs() > 1e-12)
     t0 = _safe_div(-oz, dz, ok).detach()
-    with torch.no_grad():  # as in intersect(): beyond the conic's domain, from the origin
-        bx, by = ox + t0 * dx, oy + t0 * dy
-        t0 = torch.where(conic_arg(bx * bx + by * by, c, k) > 0, t0, torch.zeros_like(t0))
+    with torch.no_grad():  # as in intersect(): beyond the conic's domain, from the line's
+        bx, by = ox + t0 * dx, oy + t0 * dy          # point nearest the vertex
+        tc = -(ox * dx + oy * dy + oz * dz)
+        t0 = torch.where(conic_arg(bx * bx + by * by, c, k) > 0, t0, tc)
     bx, by, bz = ox + t0 * dx, oy + t0 * dy, oz + t0 * dz
     quadric = conic_quadric(bx, by, bz, dx, dy, dz, c, k)  # the conic base, as Asphere.quadric
     s, found = _quadric_root(quadric, bz, dz, ok)
@@ -453,14 +455,16 @@ def intersect(surface, o: torch.Tensor, d: torch.Tensor, valid: torch.Tensor,
     elif quadric:
         # the roots from the ray's vertex-plane point; where that point lies outside the
         # conic's domain (|r| > |R| on a sphere: a steep ray near a strongly curved surface,
-        # the chief ray of a wide-angle lens's edge field), from the ray's origin instead: the
+        # the chief ray of a wide-angle lens's edge field), from another point of its line: the
         # ray can still meet the surface's branch there, as OpticStudio's exact intersection
-        # finds it (before, such rays were invalid).  The origin lies near the lens; the
+        # finds it (before, such rays were invalid).  Not from the origin, which may lie far
+        # away (a backward ray from the sensor: float32 lost digits to |o|^2 in C): from the
+        # line's point nearest the vertex, as near the surface as the ray comes; the
         # vertex-plane point, where it is in the domain, keeps every other ray's digits
         with torch.no_grad():
             xy0 = (o[..., :2] + t0.unsqueeze(-1) * d[..., :2])
             t0 = torch.where(surface.in_domain(xy0[..., 0], xy0[..., 1]), t0,
-                             torch.zeros_like(t0))
+                             -(o * d).sum(-1))
         ob = o + t0.unsqueeze(-1) * d
         s, found = _quadric_root(surface.quadric(ob, d), ob[..., 2], d[..., 2], ok)
         ok = ok & found

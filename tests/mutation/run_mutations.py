@@ -1582,8 +1582,15 @@ MUTATIONS = [
              "sphere's domain marked invalid again (the chief ray of a 28 mm lens's edge field "
              "lost at a rear surface it does meet)", "deeplens/optics/intersect.py",
              "            t0 = torch.where(surface.in_domain(xy0[..., 0], xy0[..., 1]), t0,\n"
-             "                             torch.zeros_like(t0))\n",
+             "                             -(o * d).sum(-1))\n",
              "            ok = ok & surface.in_domain(xy0[..., 0], xy0[..., 1])\n",
+             ("tests/optics/test_quadric_beyond_domain.py",)),
+    Mutation("quadric_beyond_domain_from_origin", "a ray whose vertex-plane point lies outside "
+             "a conic's domain solved from its origin (float32 loses the hit's digits to |o|^2 "
+             "when the origin lies far away) instead of the line's point nearest the vertex",
+             "deeplens/optics/intersect.py",
+             "        tc = -(ox * dx + oy * dy + oz * dz)\n",
+             "        tc = torch.zeros_like(t0)\n",
              ("tests/optics/test_quadric_beyond_domain.py",)),
     Mutation("ftyp3_provisional_semi_diameters_clip", "automatic semi-diameters left at their "
              "provisional 1e-3 mm while FTYP 3 chief rays are solved (the aimed chief ray stopped "

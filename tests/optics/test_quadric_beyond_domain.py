@@ -6,11 +6,13 @@ rear surface concave towards the image: a 28 mm camera lens, set 12's
 ``ob_US002779239_Example01P``) crosses that plane beyond ``|R|``, where the sphere has no point,
 and yet meets the sphere's branch (the hemisphere towards the vertex) further on.  Such rays
 were marked invalid ("kept for identical results" with the Newton path's start); OpticStudio's
-standard surface is the exact sphere, so they are now solved from the ray's origin instead.
+standard surface is the exact sphere, so they are now solved from the line's point nearest the
+vertex instead (not from the origin, which may lie far away: float32 digits).
 
 Checked against the textbook sphere intersection (both roots, the first one ahead on the
 branch) in float64, on both closed-form paths (:func:`intersect` and the fused
-:func:`trace_quadric`), and the hit's derivative in the curvature against central differences.
+:func:`trace_quadric`), the hit's derivative in the curvature against central differences,
+and float32 hits of far origins against a rounding bound.
 """
 
 from __future__ import annotations
@@ -124,3 +126,52 @@ def test_the_hits_derivative_in_the_curvature_matches_central_differences(case):
     with torch.no_grad():
         fd = (float(hit_y(c + h)) - float(hit_y(c - h))) / (2 * h)
     assert float(g) == pytest.approx(fd, rel=1e-7)
+
+
+def _sphere_hit_of(c, o, d):
+    """:func:`_sphere_hit` for a direction ``d`` of any length (float64 tensors ``(3,)`` in,
+    the hit ``(3,)`` and the cosine of its incidence out): the reference for float32 inputs,
+    taken from the same rounded numbers."""
+    R = 1.0 / c
+    ctr = torch.tensor([0.0, 0.0, R], dtype=F64)
+    a = float(d @ d)
+    b = float((o - ctr) @ d)
+    cc = float((o - ctr) @ (o - ctr)) - R * R
+    sq = math.sqrt(b * b - a * cc)
+    ts = sorted(t for t in ((-b - sq) / a, (-b + sq) / a)
+                if t > 0 and 1 - c * float(o[2] + t * d[2]) > 0)
+    x = o + ts[0] * d
+    cos_i = abs(float((x - ctr) @ d)) / (abs(R) * math.sqrt(a))
+    return x, cos_i
+
+
+@pytest.mark.parametrize("back", [300.0, 1000.0])
+@pytest.mark.parametrize("case", list(CASES))
+def test_a_far_origin_keeps_float32_digits(case, back):
+    """The same ray started ``back`` mm further back along its line, in float32, on both
+    closed-form paths: the roots are solved from the line's point nearest the vertex, not from
+    the origin.  Bound, against the float64 hit of the same rounded inputs: forming the base
+    point ``o + t0 d`` rounds by ~2 eps |o| (as the vertex-plane start of every other ray does),
+    and its coefficients, within ~|R| of the vertex, carry ~eps |R|² |c|, which moves the root
+    by ~eps |R| / cos(incidence): ``eps (2 |o| + 16 |R| / cos)``.  From the origin, ``C``
+    carries eps |o|² |c| and the hit was off by 2e-4 mm (300 mm) to 8e-3 mm (1000 mm), 3 to 40
+    times the bound; now 1e-5 mm at most."""
+    c, o, d = CASES[case]
+    dn = math.hypot(*d)
+    u = (d[0] / dn, d[1] / dn)
+    oo, dd = _rays((o[0] - back * u[0], o[1] - back * u[1]), d)
+    o32, d32 = oo.float(), dd.float()
+    x_ref, cos_i = _sphere_hit_of(c, o32[0].double(), d32[0].double())
+    eps = torch.finfo(torch.float32).eps
+    bound = eps * (2 * float(o32.abs().max()) + 16 * abs(1 / c) / cos_i)
+    s = Sphere(c, 0.999 * abs(1 / c)).to(torch.float32)
+    _, x, ok = intersect(s, o32, d32, torch.tensor([True]), TraceOptions())
+    assert bool(ok[0])
+    assert float((x[0].double() - x_ref).abs().max()) < bound
+    shift = torch.tensor([0.0, 0.0, 3.0])
+    xf, _, okf, _ = trace_quadric(s, o32 + shift, d32, torch.tensor([True]),
+                                  torch.zeros(1), torch.tensor(3.0), 1.0, 1.5)
+    assert bool(okf[0])
+    # the shifted origin is rounded anew: the reference of those inputs
+    x_ref_f, _ = _sphere_hit_of(c, (o32 + shift)[0].double() - shift.double(), d32[0].double())
+    assert float((xf[0].double() - shift.double() - x_ref_f).abs().max()) < bound
