@@ -70,21 +70,32 @@ class LensletArray(SagSurface):
     def __init__(self, curvature: float, semi_diameter: float, counts, widths,
                  conic: float = 0.0):
         super().__init__(semi_diameter)
+        counts, widths = self.checked_counts(counts), self.checked_widths(widths)
+        #: ``(n_x, n_y)``, host integers (the cells' arithmetic needs no device read)
+        self.counts = counts
+        self.register_buffer("lenslet_widths", torch.tensor(widths, dtype=torch.float64))
+        self.c = make_param(curvature, "curvature")
+        self.k = make_param(conic, "conic")
+
+    @staticmethod
+    def checked_counts(counts) -> tuple[int, int]:
+        """``(n_x, n_y)`` as host integers; ``ValueError`` unless two whole numbers >= 1."""
         counts = tuple(counts)
         if len(counts) != 2 or not all(
                 isinstance(n, (int, float)) and float(n) == int(n) and int(n) >= 1
                 for n in counts):
             raise ValueError(f"LensletArray: counts must be two whole numbers >= 1 (lenslets "
                              f"along x and y), got {counts!r}")
+        return int(counts[0]), int(counts[1])
+
+    @staticmethod
+    def checked_widths(widths) -> tuple[float, float]:
+        """``(w_x, w_y)`` (mm) as floats; ``ValueError`` unless two finite numbers > 0."""
         widths = tuple(float(w) for w in widths)
         if len(widths) != 2 or not all(0 < w < math.inf for w in widths):
             raise ValueError(f"LensletArray: widths must be two numbers of mm > 0 (each "
                              f"lenslet's width along x and y), got {widths!r}")
-        #: ``(n_x, n_y)``, host integers (the cells' arithmetic needs no device read)
-        self.counts = (int(counts[0]), int(counts[1]))
-        self.register_buffer("lenslet_widths", torch.tensor(widths, dtype=torch.float64))
-        self.c = make_param(curvature, "curvature")
-        self.k = make_param(conic, "conic")
+        return widths
 
     # ---- the cells ---------------------------------------------------------------------
     def _centre(self, t, axis: int):
@@ -186,11 +197,14 @@ class LensletArray(SagSurface):
         widths = entry.get("lenslet_widths_mm", "numbers")
         if len(widths) != 2:
             entry.fail("lenslet_widths_mm", f"expected [w_x, w_y], got {widths!r}")
-        try:
-            return cls(entry.get("curvature_per_mm"), semi_diameter, counts, widths,
-                       conic=entry.get("conic", default=0.0))
-        except ValueError as e:
-            entry.fail("lenslet_counts", str(e))
+        for key, check in (("lenslet_counts", cls.checked_counts),
+                           ("lenslet_widths_mm", cls.checked_widths)):
+            try:   # each field's refusal names that field
+                check(counts if key == "lenslet_counts" else widths)
+            except ValueError as e:
+                entry.fail(key, str(e))
+        return cls(entry.get("curvature_per_mm"), semi_diameter, counts, widths,
+                   conic=entry.get("conic", default=0.0))
 
     def to_dict(self) -> dict:
         d = super().to_dict()

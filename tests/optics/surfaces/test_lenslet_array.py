@@ -14,6 +14,7 @@ import math
 import pytest
 import torch
 
+from deeplens.optics.errors import LensFileError
 from deeplens.optics.io import lens_from_dict, lens_to_dict
 from deeplens.optics.lens import Lens
 from deeplens.optics.materials import Air, ModelGlass
@@ -197,6 +198,19 @@ def test_corners_beyond_the_conic_and_bad_arguments_are_refused():
         LensletArray(0.1, 7.0, (0, 3), (2.0, 2.0))
     with pytest.raises(ValueError, match="widths must be two numbers of mm > 0"):
         LensletArray(0.1, 7.0, (3, 3), (2.0, -1.0))
+
+
+@pytest.mark.parametrize("field,value,match", [
+    ("lenslet_widths_mm", [0.0, 1.5], "widths must be two numbers of mm > 0"),
+    ("lenslet_counts", [7, 2.5], "counts must be two whole numbers >= 1"),
+])
+def test_a_bad_lens_file_field_is_named(field, value, match):
+    """A bad width is refused naming ``lenslet_widths_mm``, a bad count ``lenslet_counts``
+    (before, both named ``lenslet_counts``)."""
+    d = lens_to_dict(_array_lens(c=0.11, k=-0.25, counts=(7, 3), w=1.5))
+    d["surfaces"][0][field] = value
+    with pytest.raises(LensFileError, match=rf"surfaces\[0\]\.{field}: LensletArray: {match}"):
+        lens_from_dict(d)
 
 
 def test_lens_file_round_trip():
