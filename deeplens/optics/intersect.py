@@ -55,7 +55,11 @@ The expression is differentiable as it stands: its derivative is the exact impli
 ``-(∂F/∂θ) / (d · ∇F)`` of the root, the same as the Eq. 7 step gives at a converged root, and
 autograd keeps only a handful of per-ray scalars.  Aspheres start Newton from their conic base's
 root (usually one or two iterations) instead of the vertex plane.  ``closed_form=False`` runs
-the generic Newton path on every surface (the reference the closed form is tested against).
+the generic Newton path on every surface (the reference the closed form is tested against for
+rays whose vertex-plane point lies within the conic's domain; a ray crossing the vertex plane
+outside it, which the closed form solves from its line's point nearest the vertex, may find no
+root on the generic path, which starts Newton from that vertex-plane point: there the closed form,
+checked against the textbook line-conic intersection, is the reference).
 
 :func:`trace_quadric` is the closed-form path and Snell's law written on per-component tensors
 (what :meth:`Lens.trace_surface <deeplens.optics.lens.Lens.trace_surface>` runs for an aligned

@@ -1605,6 +1605,12 @@ MUTATIONS = [
              "    if kind == 0:\n        xs, ys = _drop_sideways_fields(",
              "    if kind == -1:\n        xs, ys = _drop_sideways_fields(",
              ("tests/optics/io/test_zmx_sideways_fields.py",)),
+    # ---------------------------------------------- issue 37: session-17 review (numbers kept)
+    Mutation("grouped_note_drops_numbers", "the one warning of several PARAX_XY surfaces lists "
+             "the surfaces without their x and y powers",
+             "deeplens/optics/io/surface_handlers.py",
+             'f"SURF {k}: {px:.6g} / {py:.6g} /mm")', 'None)',
+             ("tests/optics/io/test_zmx_warning_groups.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -291,7 +291,8 @@ def _qtype(s, k: int, c, sd, s_mm, p, qbfs_conic: str = "forbes"):
                                 f"{s.coni:g}) is refused (qbfs_conic='refuse'); "
                                 f"qbfs_conic='forbes' (the default; --qbfs-conic forbes) reads "
                                 f"it with Forbes' conic generalisation")
-        p.note_each(s.type_line, QBFS_CONIC_CAUSE, f"SURF {k}", f"{s.coni:g}")
+        p.note_each(s.type_line, QBFS_CONIC_CAUSE, f"SURF {k}", f"{s.coni:g}",
+                    f"SURF {k}: CONI {s.coni:g}")
     coeffs = [s.xdat.get(j + 4, (0.0, 0))[0] * s_mm for j in range(n)]
     return QType(c, sd, rn_v * s_mm, coeffs, "qcon" if kind_v == 1.0 else "qbfs",
                  conic=s.coni)
@@ -355,7 +356,7 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
             p.note_each(s.xdat.get(terms[0] + 2, (0.0, s.type_line))[1] or s.type_line,
                         ZERNIKE_VERTEX_CAUSE, f"SURF {k}",
                         f"{', '.join(f'Z{j}' for j in terms)} add {dc:.4g} /mm to the vertex "
-                        f"curvature ({c:.6g} /mm from CURV)")
+                        f"curvature ({c:.6g} /mm from CURV)", f"SURF {k}: {dc:+.4g} /mm")
     return surf
 
 
@@ -380,7 +381,8 @@ def _zernike_fringe_phase(s, k: int, c, sd, s_mm, p):
                                "Zernike terms", s_mm)
     if zern and sd > rn and sd != PROVISIONAL_SD_MM:
         p.note_each(s.type_line, _FZERNPHA_BEYOND, f"SURF {k}",
-                    f"{sd:g} mm exceeds the FZERNPHA normalisation radius {rn:g} mm")
+                    f"{sd:g} mm exceeds the FZERNPHA normalisation radius {rn:g} mm",
+                    f"SURF {k}: {sd:g} mm > {rn:g} mm")
     return ZernikeFringePhase(c, sd, rn, zern, 1, conic=s.coni)
 
 
@@ -905,7 +907,9 @@ class JonesMatrixFormat(SurfaceFormat):
         m = [s.parm.get(i, (0.0, 0))[0] for i in range(1, 9)]
         ctx.p.note_each(s.type_line, _JONES, f"SURF {ctx.k}",
                         f"A = {m[0]:g}{m[1]:+g}i, B = {m[2]:g}{m[3]:+g}i, C = "
-                        f"{m[4]:g}{m[5]:+g}i, D = {m[6]:g}{m[7]:+g}i")
+                        f"{m[4]:g}{m[5]:+g}i, D = {m[6]:g}{m[7]:+g}i",
+                        f"SURF {ctx.k}: A {m[0]:g}{m[1]:+g}i, B {m[2]:g}{m[3]:+g}i, C "
+                        f"{m[4]:g}{m[5]:+g}i, D {m[6]:g}{m[7]:+g}i")
         return FORMATS.for_zmx_type("STANDARD").read_zmx(
             dataclasses.replace(s, type="STANDARD", parm={}), ctx)
 
@@ -985,7 +989,8 @@ class BirefringentFormat(SurfaceFormat):
         if mode is not None:
             ray, kind = BIREFRINGENT_MODES[mode]
             ctx.p.note_each(s.type_line, _BIRE_IN, f"SURF {ctx.k}",
-                            f"mode {mode}, the {ray} ray of a {kind}")
+                            f"mode {mode}, the {ray} ray of a {kind}",
+                            f"SURF {ctx.k}: mode {mode}")
         return FORMATS.for_zmx_type("STANDARD").read_zmx(self._as_standard(s), ctx)
 
 
@@ -1026,7 +1031,8 @@ def _paraxial_xy_surface(s, ctx):
                                       f"power (PARM 1, PARM 2)")
     if px != py:
         p.note_each(s.type_line or s.line, _PARAX_XY, f"SURF {k}",
-                    f"x power {px:.6g} /mm and y power {py:.6g} /mm")
+                    f"x power {px:.6g} /mm and y power {py:.6g} /mm",
+                    f"SURF {k}: {px:.6g} / {py:.6g} /mm")
     return IdealLensXY(px, py, ctx.sd_build)
 
 

@@ -116,7 +116,8 @@ def _grid_sag(s, ctx) -> GridSag:
     nodata = a[:, 4] != 0
     a[nodata, :4] = 0.0
     if bool(nodata.any()):
-        p.note_each(g_ln, _NODATA, f"SURF {k}", f"{int(nodata.sum())}")
+        p.note_each(g_ln, _NODATA, f"SURF {k}", f"{int(nodata.sum())}",
+                    f"SURF {k}: {int(nodata.sum())} points")
     # file rows run from +y down, columns from -x: row j of deeplens' grid (rising y) is file
     # row ny - 1 - j
     grid = a[:, :4].reshape(ny, nx, 4).flip(0)
@@ -140,7 +141,7 @@ def _grid_sag(s, ctx) -> GridSag:
     if ctx.sd > 0 and min(-x0, x1, -y0, y1) < ctx.sd:
         p.note_each(g_ln, _BEYOND, f"SURF {k}",
                     f"({ctx.sd:g} mm) reaches beyond the grid (x {x0:g}..{x1:g} mm, y "
-                    f"{y0:g}..{y1:g} mm)")
+                    f"{y0:g}..{y1:g} mm)", f"SURF {k}: {ctx.sd:g} mm")
     with torch.no_grad():
         dc = float(surf.paraxial_curvature()) - (ctx.c + 2.0 * (coeffs[0] if coeffs else 0.0))
     if dc != 0.0 and math.isfinite(dc):

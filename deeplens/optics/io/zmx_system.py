@@ -318,8 +318,15 @@ def _drop_sideways_fields(xs, ys, xline: int, yline: int, p):
     angles within (-90, 90) deg), so it cannot trace them; the lens and its other fields are
     read.  (Before, 90 deg was refused by the lens's generic range check and 109 deg read as
     71 deg without a word: the radial combination takes ``atan`` of ``|tan 109 deg|``.)
-    Returns ``(xs, ys)`` without those fields."""
+    Returns ``(xs, ys)`` without those fields; where no field is left the file is refused at
+    its ``YFLN`` line (an on-axis field the file does not have is not made up)."""
     keep = [abs(x) < 90.0 and abs(y) < 90.0 for x, y in zip(xs, ys)]
+    if not any(keep):   # nothing left to read the lens with: say so, do not invent a field
+        p.fail(yline or xline, f"every field lies at or beyond 90 deg (YFLN "
+                               f"{', '.join(f'{v:g}' for v in ys)}; XFLN "
+                               f"{', '.join(f'{v:g}' for v in xs)}): OpticStudio traces such "
+                               f"fields arriving sideways or from behind the lens (Field Angles "
+                               f"and Heights); deeplens traces fields within (-90, 90) deg only")
     for vals, rec, line in ((ys, "YFLN", yline), (xs, "XFLN", xline)):
         bad = [(k, v) for k, v in enumerate(vals, 1) if not abs(v) < 90.0]
         if bad:
@@ -328,8 +335,7 @@ def _drop_sideways_fields(xs, ys, xline: int, yline: int, p):
                          f"90 deg arriving sideways or from behind the lens (angles run to "
                          f"±180 deg, Field Angles and Heights), deeplens traces fields within "
                          f"(-90, 90) deg only; the lens is read with its other fields")
-    return ([x for x, k in zip(xs, keep) if k] or [0.0],
-            [y for y, k in zip(ys, keep) if k] or [0.0])
+    return [x for x, k in zip(xs, keep) if k], [y for y, k in zip(ys, keep) if k]
 
 
 def fields_to_angles(sysd, ftyp, ftyp_line, n_fields, s_mm, lens, p, surface_name=None):

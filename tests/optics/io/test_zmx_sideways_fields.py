@@ -45,3 +45,15 @@ def test_an_x_field_beyond_90_deg_is_left_out_at_the_xfln_line(tmp_path):
 def test_fields_below_90_deg_are_read_as_before(tmp_path):
     lens = read_zmx(write(tmp_path, singlet(ftyp="FTYP 0 0 3 2 0 0 0", yfln="YFLN 0 30 89.5")))
     assert lens.spec.fields_deg == pytest.approx([0.0, 30.0, 89.5], abs=1e-12)
+
+
+def test_a_file_whose_every_field_lies_at_or_beyond_90_deg_is_refused_at_its_yfln_line(
+        tmp_path):
+    """No field left to read: refused at the ``YFLN`` line, naming the angles, rather than read
+    with an on-axis field the file does not have."""
+    from deeplens.optics.io import ZemaxFileError
+
+    text = singlet(ftyp="FTYP 0 0 2 2 0 0 0", yfln="YFLN 95 100").replace("XFLN 0 0", "XFLN 0 0")
+    with pytest.raises(ZemaxFileError, match=r"t\.zmx:9: every field lies at or beyond 90 deg "
+                                             r"\(YFLN 95, 100"):
+        read_zmx(write(tmp_path, text))

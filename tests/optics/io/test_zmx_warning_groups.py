@@ -226,3 +226,22 @@ def test_a_requested_fallback_on_two_glasses_is_one_warning_naming_the_option(tm
                                       "SCHOTT catalogue; using the requested fallback")
     assert "for each (glass_fallback, without which they are refused)" in said[0].message
     assert [lens.materials[i].nd for i in (1, 3)] == pytest.approx([1.8, 1.8], abs=1e-12)
+
+
+def test_a_grouped_warning_keeps_each_items_numbers(tmp_path):
+    """Two ``PARAX_XY`` surfaces of unequal x and y powers: one warning for the cause, and it
+    still names each surface's two powers (the numbers a user checks), not only the surfaces."""
+    from zmx_blocks import surf, zmx_file
+
+    blocks = [surf(disz="INFINITY"), surf(stop=True, disz=5.0, diam=6.0),
+              surf("PARAX_XY", parms=[0.01, 0.02], disz=10.0),
+              surf("PARAX_XY", parms=[0.03, 0.005], disz=30.0), surf()]
+    p = tmp_path / "parax_xy.zmx"
+    p.write_text(zmx_file(blocks, "two PARAX_XY"))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        read_zmx(p)
+    msgs = [str(x.message) for x in w if "PARAX_XY" in str(x.message)]
+    assert len(msgs) == 1
+    for power in ("0.01", "0.02", "0.03", "0.005"):
+        assert power in msgs[0], (power, msgs[0])
