@@ -40,7 +40,8 @@ from __future__ import annotations
 
 from ..errors import ZemaxFileError
 from ..surfaces import LensletArray
-from .surface_formats import SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
 
 __all__ = ["LensletArrayFormat", "US_ARRAY"]
 
@@ -55,10 +56,8 @@ _PARMS = {1: "the number of lenslets along x", 2: "the number of lenslets along 
 def _lenslet_array(s, ctx) -> LensletArray:
     p, k, s_mm = ctx.p, ctx.k, ctx.s_mm
     where = f"SURF {k}: US_ARRAY"
-    for i, (v, ln) in sorted(s.parm.items()):
-        if i not in _PARMS and v != 0:
-            p.fail(ln, f"{where} PARM {i} = {v:g} is not read: what it means is in no source at "
-                       f"hand (0 in every file seen; PARM 1-4 are the lenslet counts and widths)")
+    refuse_unread(p, s.parm, where, "what it means is in no source at hand: 0 in every file "
+                  "seen; PARM 1-4 are the lenslet counts and widths", tuple(_PARMS))
     vals = {}
     for i, what in _PARMS.items():
         if i not in s.parm:

@@ -32,7 +32,9 @@ import dataclasses
 
 from ..surfaces import ExtendedOddAsphere
 from ..surfaces.extended_odd_asphere import MAX_XOSPHERE_TERMS
-from .surface_formats import FORMATS, SurfaceFormat, register_format, zmx_diam, zmx_number as _f
+from .surface_formats import (FORMATS, SurfaceFormat, refuse_unread, register_format, zmx_diam,
+                              zmx_number as _f)
+from .surface_handlers import _xdat_term_count
 
 __all__ = ["ExtendedOddAsphereFormat", "xosphere_terms"]
 
@@ -42,19 +44,11 @@ def xosphere_terms(s, k: int, p) -> tuple[list[tuple[float, int]], float, int]:
     ``(terms, rn, rn_line)``, ``terms`` ``[(A_1, line), ...]`` up to the last non-zero one,
     ``rn`` ``XDAT 2``.  What is refused (module docstring) fails through ``p.fail`` at its
     line."""
-    for i, (v, ln) in sorted(s.parm.items()):
-        if v != 0:
-            p.fail(ln, f"SURF {k}: XOSPHERE PARM {i} is not read (the Extended Odd Asphere's "
-                       f"data are XDAT 1 the maximum term number, XDAT 2 the normalisation "
-                       f"radius, XDAT 3.. the coefficients on ρ¹, ρ², ...)")
-    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
-    if n_v != int(n_v) or not 0 <= n_v <= MAX_XOSPHERE_TERMS:
-        p.fail(n_ln, f"SURF {k}: XOSPHERE XDAT 1 (the maximum term number) must be an integer "
-                     f"0..{MAX_XOSPHERE_TERMS}, got {n_v!r}")
-    n = int(n_v)
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if (j > n + 2 or j < 1) and v != 0:
-            p.fail(ln, f"SURF {k}: XOSPHERE XDAT {j} lies beyond the {n} terms XDAT 1 declares")
+    refuse_unread(p, s.parm, f"SURF {k}: XOSPHERE",
+                  "the Extended Odd Asphere's data are XDAT 1 the maximum term number, XDAT 2 "
+                  "the normalisation radius, XDAT 3.. the coefficients on ρ¹, ρ², ...")
+    n = _xdat_term_count(p, s, k, "XOSPHERE", "the maximum term number", MAX_XOSPHERE_TERMS,
+                         "terms")
     rn, rn_ln = s.xdat.get(2, (0.0, s.type_line))
     terms = [s.xdat.get(i + 2, (0.0, s.type_line)) for i in range(1, n + 1)]
     while terms and terms[-1][0] == 0.0:

@@ -165,7 +165,7 @@ def test_even_counts_and_a_conic_are_not_written(tmp_path):
      r"puts a lenslet or a corner on the vertex then is in no source at hand"),
     ([0, 5, 2, 50, 50] + [0] * 8, "PARM 2 2", r"US_ARRAY PARM 2 = 2: an even lenslet count"),
     ([0, 5, 5, 50, 50, 0.5] + [0] * 7, "PARM 5 0.5",
-     r"US_ARRAY PARM 5 = 0.5 is not read: what it means is in no source at hand"),
+     r"US_ARRAY PARM 5 = 0.5 is not read \(what it means is in no source at hand"),
     ([1, 5, 5, 50, 50] + [0] * 8, "PARM 0 1", r"US_ARRAY PARM 0 = 1 is not read"),
     ([0, 5, 5, 50, 0] + [0] * 8, "PARM 4 0",
      r"US_ARRAY PARM 4 = 0: the lenslet width along y must be > 0"),

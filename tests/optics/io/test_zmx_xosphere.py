@@ -210,7 +210,7 @@ def test_first_order_and_real_rays_match_optilands_odd_asphere(tmp_path):
 
 @pytest.mark.parametrize("edit,needle,match", [
     (lambda t: t.replace("XDAT 1 8", "XDAT 1 8\n  PARM 2 0.1"), "PARM 2 0.1",
-     r"SURF 2: XOSPHERE PARM 2 is not read"),
+     r"SURF 2: XOSPHERE PARM 2 = 0.1 is not read"),
     (lambda t: t.replace("XDAT 1 8", "XDAT 1 8.5"), "XDAT 1 8.5",
      r"XOSPHERE XDAT 1 \(the maximum term number\) must be an integer 0\.\.240, got 8\.5"),
     (lambda t: t.replace("XDAT 1 8", "XDAT 1 241"), "XDAT 1 241",
