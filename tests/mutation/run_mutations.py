@@ -1598,6 +1598,12 @@ MUTATIONS = [
              "    if kind == 0:\n        xs, ys = _drop_sideways_fields(",
              "    if kind == -1:\n        xs, ys = _drop_sideways_fields(",
              ("tests/optics/io/test_zmx_sideways_fields.py",)),
+    # branch setups13: set 13's set-up rules
+    Mutation("drawn_dummy_gap_merged_backwards", "the gap of a drawn-only focal-plane dummy "
+             "dropped after the image plane merged with the wrong sign (the sensor 2 delta past "
+             "the focus)", "deeplens/optics/io/zmx_read.py",
+             "    seq.gap = last[3] + seq.gap\n", "    seq.gap = last[3] - seq.gap\n",
+             ("tests/optics/io/test_zmx_set13_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -142,6 +142,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     gcat, _ = sysd["gcat"]
     ftyp, ftyp_line, n_fields, waves_nm, primary = _wavelengths(sysd, p)
     seq = _sequence(surfs, s_mm, gcat, cats, glass_fallback, p, qbfs_conic, glass_codes)
+    _drop_drawn_plane_after_image(seq, primary, p)
     obj, img = surfs[0], surfs[-1]
     kept, stop_idx, autos = seq.kept, seq.stop_idx, seq.autos
     surfaces = [k_[0] for k_ in kept]
@@ -836,6 +837,52 @@ def _note_reversed_ideal_lenses(kept: list, signs: list, p: Locator) -> None:
                    f"positive one converges the beam as it travels (a collimated beam focuses "
                    f"f further on, at DISZ -f), as rayoptics reads it; optiland 0.6 makes it "
                    f"diverge, and its EFL and focus differ")
+
+
+def _drop_drawn_plane_after_image(seq: _Sequence, primary: float, p: Locator) -> None:
+    """Drop from ``seq`` a last flat surface in one medium kept only for its drawn fixed DIAM
+    (:func:`_drawn_only_plane`) where the image plane lies before it (the gap to the image runs
+    against the direction of travel there), merging its gap into the image gap, with one note
+    at its line.  Such a surface bends and stops no ray, so OpticStudio's rays reach it and go
+    back along their lines to the image plane (virtual propagation, User Guide *Thicknesses*),
+    landing where rays running straight from the surface before it land (set 13's
+    ``ob_Imaging_Optics_Figure_7_55b``: a focal-plane dummy 0.0008 mm beyond the image plane
+    after three mirrors)."""
+    kept = seq.kept
+    if len(kept) < 2 or not _drawn_only_plane(seq, len(kept) - 1):
+        return
+    sign = float(travel_directions([k_[0] for k_ in kept], seq.mirrors,
+                                   _axis_indices(seq, primary), primary)[-1])
+    if not sign * seq.gap < 0:
+        return
+    last = kept.pop()
+    seq.media.pop()
+    seq.autos[:] = [i for i in seq.autos if i < len(kept)]
+    p.note(last[2].line, f"the image plane lies {abs(seq.gap):g} mm before this flat surface "
+                         f"in one medium, whose fixed DIAM never clips (no refractive power, "
+                         f"no surface aperture): rays go back along their lines to the image "
+                         f"plane (OpticStudio's virtual propagation), so it is dropped and its "
+                         f"gap merged into the image's")
+    seq.gap = last[3] + seq.gap
+
+
+def _drawn_only_plane(seq: _Sequence, i: int) -> bool:
+    """Whether kept surface ``i`` is a flat surface in one medium kept only for a fixed DIAM
+    that never clips (:func:`.zmx_surfaces.build_surface`: no refractive power, no surface
+    aperture, OpticStudio User Guide *Semi-Diameters*): not the stop, not a mirror, no
+    bracketed element ending or starting there, nothing but an automatic semi-diameter."""
+    if i <= 0 or i == seq.stop_idx or i in seq.mirrors or i not in seq.autos:
+        return False
+    surf, mat, s, _ = seq.kept[i]
+    prev = seq.media[i]   # (media[0] is the object's medium: media[i] is the one before i)
+    if type(surf) is not Aperture or getattr(surf, "spider", None) is not None:
+        return False
+    if any(getattr(s, a, None) is not None for a in ("clap", "sqap", "obsc", "elap", "elob",
+                                                        "spid", "obsc_inner")):
+        return False
+    if any(a <= i <= b for a, b, _, _ in seq.groups):
+        return False
+    return type(mat) is type(prev) and mat.name == prev.name and s.curv == 0
 
 
 def _virtual_before_image(seq: _Sequence, signs) -> bool:

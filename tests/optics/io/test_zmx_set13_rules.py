@@ -1,0 +1,112 @@
+"""Readings met by the thirteenth unseen set of real files (docs/guide/zemax.md), each on a
+small hand-written file checked by a closed form:
+
+* an image plane written just before a last flat surface in one medium whose fixed DIAM never
+  clips (a focal-plane dummy after mirrors): OpticStudio's rays reach that surface and go back
+  along their lines to the image plane (virtual propagation), so the surface is dropped and its
+  gap merged into the image's, with one note at its line; before, it was refused as an image
+  plane before the last vertex after a curved mirror.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import pytest
+import torch
+from test_zmx import line_of, write
+
+from deeplens.optics.io import ZemaxFileError, read_zmx
+from deeplens.optics.sampling import field_rays
+
+_HEAD = """VERS 80915 20 20100
+MODE SEQ
+UNIT MM X W X CM MR CPMM
+{aperture}
+FTYP 0 0 1 1 0 0 0
+YFLN 0
+WAVM 1 0.5875618 1
+PWAV 1
+"""
+
+
+def _surf(k, *lines):
+    return f"SURF {k}\n" + "".join(f"  {ln}\n" for ln in lines)
+
+
+def _loaded(path):
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        lens = read_zmx(path)
+    return lens, [str(x.message) for x in w]
+
+
+# ----------------------- an image plane just before a drawn-only focal-plane dummy (mirrors)
+_F, _DELTA = 100.0, 0.001   # the paraboloid's focal length; the dummy's distance past focus
+_PARABOLOID = "".join([
+    _surf(0, "TYPE STANDARD", "CURV 0", "DISZ INFINITY"),
+    _surf(1, "STOP", "TYPE STANDARD", "CURV 0", "DISZ 10"),
+    # a concave paraboloid (R = -200 mm, k = -1): every ray parallel to the axis meets the axis
+    # at its focus, 100 mm before the vertex (along -z after the mirror)
+    _surf(2, "TYPE STANDARD", f"CURV {-1 / (2 * _F)!r}", "CONI -1", "DISZ {d_mirror}",
+          "GLAS MIRROR 0 0 1.5 40 0 0 0 0 0 0"),
+    # a flat dummy in air with a fixed DIAM (drawn, never clips)
+    _surf(3, "TYPE STANDARD", "CURV 0", "DISZ {d_dummy}", "DIAM 30 1 0 0 1 \"\""),
+    _surf(4, "TYPE STANDARD", "CURV 0", "DISZ 0")])
+
+
+def _rim_landings(lens):
+    """Where 24 rays parallel to the axis at 9.9 mm from it land on the sensor: (N, 2) mm."""
+    phi = torch.arange(24, dtype=lens.dtype) * (2 * math.pi / 24)
+    pts = torch.stack([torch.cos(phi), torch.sin(phi)], -1) * 9.9
+    rays = field_rays(lens, 0.0, float(lens.spec.primary_wavelength_nm), pts, 0.0)
+    with torch.no_grad():
+        out = lens.trace(rays)
+        out = lens.propagate_to_z(out, lens.z_sensor().to(out.o), backwards=True)
+    assert bool(out.valid.all())
+    return out.o[..., :2]
+
+
+def test_image_before_a_drawn_only_dummy_after_a_mirror_is_reached_backwards(tmp_path):
+    """The dummy lies ``_DELTA`` past the paraboloid's focus and the image plane ``_DELTA`` back
+    from it (``DISZ +_DELTA`` against the direction of travel after one mirror): the dummy bends
+    and stops no ray, so the image plane is the focal plane, 100 mm before the vertex, and every
+    ray parallel to the axis lands on the axis there (the paraboloid's closed form); the note
+    names the dummy's line.  Reading the merged gap with the wrong sign would put the sensor
+    ``2 _DELTA`` past focus, where rays at slope ~0.1 land 2e-4 mm off the axis."""
+    text = _HEAD.format(aperture="ENPD 20") + _PARABOLOID.format(
+        d_mirror=-(_F + _DELTA), d_dummy=_DELTA)
+    path = write(tmp_path, text)
+    lens, notes = _loaded(path)
+    assert len(lens.surfaces) == 2   # the stop and the mirror: the dummy is dropped
+    assert float(lens.z_sensor()) == pytest.approx(10.0 - _F, abs=1e-12)   # mirror at z 10
+    hits = _rim_landings(lens)
+    assert float(hits.abs().max()) < 1e-9, hits
+    line = line_of(text, "SURF 3")
+    mine = [n for n in notes if "whose fixed DIAM never clips" in n]
+    assert len(mine) == 1 and f":{line}: the image plane lies 0.001 mm before this flat " \
+                               f"surface in one medium" in mine[0], notes
+
+
+def test_image_after_a_drawn_only_dummy_keeps_the_dummy(tmp_path):
+    """The same dummy ``_DELTA`` before focus, the image plane ``_DELTA`` after it (forwards):
+    nothing to merge, the dummy is kept and the rays land on the axis at the focus."""
+    text = _HEAD.format(aperture="ENPD 20") + _PARABOLOID.format(
+        d_mirror=-(_F - _DELTA), d_dummy=-_DELTA)
+    lens, notes = _loaded(write(tmp_path, text))
+    assert len(lens.surfaces) == 3
+    assert not any("whose fixed DIAM never clips" in n for n in notes), notes
+    assert float(lens.z_sensor()) == pytest.approx(10.0 - _F, abs=1e-12)   # mirror at z 10
+    assert float(_rim_landings(lens).abs().max()) < 1e-9
+
+
+def test_image_before_a_clipping_dummy_after_a_mirror_stays_refused(tmp_path):
+    """A dummy with a surface aperture (CLAP: it does clip) is no drawn-only plane: the image
+    plane before it stays refused as before."""
+    text = _HEAD.format(aperture="ENPD 20") + _PARABOLOID.format(
+        d_mirror=-(_F + _DELTA), d_dummy=_DELTA).replace(
+        "  DIAM 30 1 0 0 1 \"\"\n", "  DIAM 30 1 0 0 1 \"\"\n  CLAP 0 30 0\n")
+    with pytest.raises(ZemaxFileError) as e:
+        _loaded(write(tmp_path, text))
+    assert "the image plane lies 0.001 mm before the last surface's vertex" in str(e.value)
