@@ -1604,6 +1604,12 @@ MUTATIONS = [
              "the focus)", "deeplens/optics/io/zmx_read.py",
              "    seq.gap = last[3] + seq.gap\n", "    seq.gap = last[3] - seq.gap\n",
              ("tests/optics/io/test_zmx_set13_rules.py",)),
+    Mutation("fno_pupil_at_infinity_afocal_swapped", "an image-space F-number on an entrance "
+             "pupil at infinity refused as afocal where the EFL is finite, and the reverse",
+             "deeplens/optics/io/zmx_read.py",
+             "is inf/inf and sets no cone\" if math.isinf(efl) else",
+             "is inf/inf and sets no cone\" if not math.isinf(efl) else",
+             ("tests/optics/io/test_zmx_set13_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

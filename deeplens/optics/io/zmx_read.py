@@ -13,6 +13,7 @@ it maps onto deeplens is in :mod:`.zmx`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from contextlib import contextmanager
@@ -212,12 +213,19 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             except PupilAtInfinityError:
                 if telecentric:
                     raise
-                telecentric = _pupil_at_infinity(ftyp, ftyp_line, convert, ap_type, ap_line, p)
+                efl = None
+                if ap_type == "fno" and convert is None:   # the message says what F/# fails
+                    efl = _telecentric_efl(surfaces, seq, distances, d_sensor, stop_idx,
+                                           sensor_sd, spec, primary)
+                telecentric = _pupil_at_infinity(ftyp, ftyp_line, convert, ap_type, ap_line, p,
+                                                 efl)
             except SurfacesCrossError as e:
                 if not _limit_at_crossing(e, surfaces, lambda i: _limitable(kept, stop_idx, i),
                                           limited, original):
                     raise
     except (ValueError, TypeError) as e:
+        if isinstance(e, ZemaxFileError):   # already located (a refusal while building)
+            raise
         if getattr(e, "key", None) == "aperture":   # the ENPD/FNUM/FLOA line's value
             p.fail(ap_line, str(e))
         if (getattr(e, "key", None) == "sensor" and img.curv != 0
@@ -434,8 +442,25 @@ def _telecentric(ftyp, ftyp_line: int, obj_dist: float, convert, ap_line: int,
     return True
 
 
+def _telecentric_efl(surfaces, seq: _Sequence, distances, d_sensor: float, stop_idx: int,
+                     sensor_sd, spec, primary: float) -> float | None:
+    """The paraxial EFL (mm; ``inf`` afocal) of the lens built as object-space telecentric, for
+    the refusal of an image-space F-number on an entrance pupil at infinity; ``None`` when that
+    lens cannot be built."""
+    from ..paraxial import paraxial
+
+    try:
+        trial = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd,
+                     dataclasses.replace(spec, aperture_type="epd", aperture_value=1.0),
+                     mirrors=seq.mirrors, object_telecentric=True)
+        with torch.no_grad():
+            return float(paraxial(trial, primary).efl)
+    except (ValueError, TypeError, RuntimeError):
+        return None
+
+
 def _pupil_at_infinity(ftyp, ftyp_line: int, convert, ap_type: str, ap_line: int,
-                       p: Locator) -> bool:
+                       p: Locator, efl: float | None = None) -> bool:
     """The file does not flag telecentric object space, but its ray parallel to the axis meets
     the stop at height 0 (to rounding: :func:`~deeplens.optics.paraxial.pupil_at_infinity`)
     and the object is finite: the entrance pupil is at infinity, object space is telecentric
@@ -443,6 +468,16 @@ def _pupil_at_infinity(ftyp, ftyp_line: int, convert, ap_type: str, ap_line: int
     pupil needed) it is read as telecentric (``True``, one note at the aperture line); an
     ``ENPD`` or ``FNUM`` (a diameter or F-number of an entrance pupil at infinity) or ``FLOA``
     is refused there, angle fields at the ``FTYP`` line."""
+    if ap_type == "fno" and convert is None and efl is not None:
+        # OpticStudio's image-space F/# is the paraxial infinite-conjugate EFL over the paraxial
+        # entrance-pupil diameter (User Guide, *Image Space F/#*)
+        why = ("the lens is afocal (EFL infinite), so the image-space F/# (EFL over the "
+               "entrance-pupil diameter) is inf/inf and sets no cone" if math.isinf(efl) else
+               f"the image-space F/# (EFL {efl:.6g} mm over the entrance-pupil diameter) sets a "
+               f"pupil of diameter EFL/F# at infinity, which subtends no cone from the object")
+        p.fail(ap_line, f"FNUM: the entrance pupil is at infinity (the object is finite and the "
+                        f"ray parallel to the axis meets the stop at height 0) and {why}; give "
+                        f"the aperture as an object-space NA (OBNA)")
     if convert is None or convert[0] not in ("obna", "cone"):
         key = {"epd": "ENPD", "stop": "FLOA"}.get(ap_type, "FNUM")
         p.fail(ap_line, f"{key}: the entrance pupil is at infinity (the object is finite and "

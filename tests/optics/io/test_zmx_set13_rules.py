@@ -110,3 +110,40 @@ def test_image_before_a_clipping_dummy_after_a_mirror_stays_refused(tmp_path):
     with pytest.raises(ZemaxFileError) as e:
         _loaded(write(tmp_path, text))
     assert "the image plane lies 0.001 mm before the last surface's vertex" in str(e.value)
+
+
+# -------------------------------------- an image-space F-number on an entrance pupil at infinity
+def _telecentric_relay(d2, aperture="FNUM 10 0"):
+    """Two PARAXIAL lenses (f 25 and 40 mm), the object at the first's front focal plane, the
+    stop at its back focal plane (the entrance pupil at infinity, not flagged by FTYP), the
+    second lens ``d2`` mm after the stop."""
+    return "\n".join([
+        "VERS 170912 299 123456", "MODE SEQ", "UNIT MM X W X CM MR CPMM", aperture,
+        "FTYP 1 0 2 1 0 0 0", "XFLN 0 0", "YFLN 0 1", "WAVM 1 0.55 1", "PWAV 1",
+        "SURF 0", "  TYPE STANDARD", "  CURV 0", "  DISZ 25",
+        "SURF 1", "  TYPE PARAXIAL", "  CURV 0", "  PARM 1 25", "  PARM 2 1", "  DISZ 25",
+        "SURF 2", "  STOP", "  TYPE STANDARD", "  CURV 0", f"  DISZ {d2}",
+        "SURF 3", "  TYPE PARAXIAL", "  CURV 0", "  PARM 1 40", "  PARM 2 1", "  DISZ 40",
+        "SURF 4", "  TYPE STANDARD", "  CURV 0", "  DISZ 0"]) + "\n"
+
+
+@pytest.mark.parametrize("d2", [40.0, 30.0])
+def test_image_space_fnumber_on_a_pupil_at_infinity_is_refused_saying_why(tmp_path, d2):
+    """Refused at the FNUM line (line 4), in one located line (no second file prefix), saying
+    why OpticStudio's image-space F/# (EFL over the entrance-pupil diameter) sets no cone: with
+    the second lens at its focal distance from the stop the relay is afocal (set 13's Offner
+    relay); 30 mm from it, the EFL is the thin-lens pair's ``f1 f2 / (f1 + f2 - d)`` with
+    ``d = 25 + 30``: 25 * 40 / 10 = 100 mm."""
+    path = write(tmp_path, _telecentric_relay(d2))
+    with pytest.raises(ZemaxFileError) as e:
+        _loaded(path)
+    msg = str(e.value)
+    assert e.value.line == 4 and msg.count(str(path)) == 1 and "\n" not in msg, msg
+    assert msg.startswith(f"{path}:4: FNUM: the entrance pupil is at infinity"), msg
+    if d2 == 40.0:
+        assert "the lens is afocal (EFL infinite)" in msg, msg
+    else:
+        f1, f2, d = 25.0, 40.0, 25.0 + d2
+        efl = f1 * f2 / (f1 + f2 - d)
+        assert f"(EFL {efl:.6g} mm over the entrance-pupil diameter)" in msg, msg
+    assert msg.endswith("give the aperture as an object-space NA (OBNA)"), msg
