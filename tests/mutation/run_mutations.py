@@ -1610,6 +1610,10 @@ MUTATIONS = [
              "is inf/inf and sets no cone\" if math.isinf(efl) else",
              "is inf/inf and sets no cone\" if not math.isinf(efl) else",
              ("tests/optics/io/test_zmx_set13_rules.py",)),
+    Mutation("beyond_90_estimate_wrong_sign", "the FTYP 3 refusal's estimate of the angle that "
+             "would reach the height stepping the wrong way from the last angle found",
+             "deeplens/optics/io/zmx_system.py", "    est = lo - glo / slope\n",
+             "    est = lo + glo / slope\n", ("tests/optics/io/test_zmx_set13_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

@@ -147,3 +147,42 @@ def test_image_space_fnumber_on_a_pupil_at_infinity_is_refused_saying_why(tmp_pa
         efl = f1 * f2 / (f1 + f2 - d)
         assert f"(EFL {efl:.6g} mm over the entrance-pupil diameter)" in msg, msg
     assert msg.endswith("give the aperture as an object-space NA (OBNA)"), msg
+
+
+# ------------------------------- a real image height that only a field beyond 90 deg reaches
+def _clipped_ideal_lens(h):
+    """A stop, then 10 mm on a PARAXIAL lens (f 10 mm, a fixed DIAM 10 mm: the floating aperture
+    of a surface with power, which clips the aimed chief ray), the image at its focal plane: the
+    chief ray of θ lands at ``f tan θ`` and meets the lens at ``10 tan θ``, so it is stopped from
+    45 deg on, where it lands at 10 mm with the slope ``f sec² θ`` = 20 mm/rad."""
+    return "\n".join([
+        "VERS 170912 299 123456", "MODE SEQ", "UNIT MM X W X CM MR CPMM", "ENPD 1",
+        "RAIM 0 2 1 1 0 0 0 0 0", "FTYP 3 0 2 1 0 0 0", "XFLN 0 0", f"YFLN 0 {h!r}",
+        "WAVM 1 0.55 1", "PWAV 1",
+        "SURF 0", "  TYPE STANDARD", "  CURV 0", "  DISZ INFINITY",
+        "SURF 1", "  STOP", "  TYPE STANDARD", "  CURV 0", "  DISZ 10",
+        "SURF 2", "  TYPE PARAXIAL", "  CURV 0", "  PARM 1 10", "  PARM 2 1", "  DISZ 10",
+        "  DIAM 10 1 0 0 1 \"\"",
+        "SURF 3", "  TYPE STANDARD", "  CURV 0", "  DISZ 0"]) + "\n"
+
+
+@pytest.mark.parametrize("h", [25.0, 30.0])
+def test_a_real_image_height_reached_only_beyond_90_deg_is_refused_saying_so(tmp_path, h):
+    """Set 13's Nikon 6 mm fisheye asks for a real image height (11.61 mm) its chief ray reaches
+    only near 110 deg; deeplens traces fields below 90 deg.  Still refused, and the message now
+    says where the chief ray's slope at the last angle found would put the height: by the closed
+    form, ``45 + (h - 10) / (20 π / 180)`` deg: 88.0 deg for 25 mm (below 90: no such tail),
+    102.3 deg for 30 mm ("near 102 deg")."""
+    with pytest.raises(ZemaxFileError) as e:
+        _loaded(write(tmp_path, _clipped_ideal_lens(h)))
+    msg = str(e.value)
+    assert e.value.line == 6 and "\n" not in msg, msg
+    assert "falls outside the clear aperture of SURF 2 (line " in msg, msg
+    slope = 20.0 * math.pi / 180.0            # mm/deg at 45 deg
+    est = 45.0 + (h - 10.0) / slope
+    if est < 90.0:
+        assert "deeplens traces" not in msg, msg
+    else:
+        assert msg.endswith(f"; at the chief ray's rate there ({slope:.3g} mm/deg) the height "
+                            f"lies near {est:.0f} deg, beyond the 90 deg deeplens traces (a "
+                            f"fisheye's field)"), msg
