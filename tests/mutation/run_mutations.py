@@ -1614,6 +1614,11 @@ MUTATIONS = [
              "would reach the height stepping the wrong way from the last angle found",
              "deeplens/optics/io/zmx_system.py", "    est = lo - glo / slope\n",
              "    est = lo + glo / slope\n", ("tests/optics/io/test_zmx_set13_rules.py",)),
+    Mutation("fixed_diam_beyond_edge_kept", "a fixed DIAM beyond the edge of its sphere kept as "
+             "written (the lens refused again) instead of read at the edge",
+             "deeplens/optics/io/zmx_surfaces.py",
+             "        surf.semi_diameter.fill_(edge)\n", "        surf.semi_diameter.fill_(sd)\n",
+             ("tests/optics/io/test_zmx_set13_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

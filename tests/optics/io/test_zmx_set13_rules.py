@@ -1,6 +1,12 @@
 """Readings met by the thirteenth unseen set of real files (docs/guide/zemax.md), each on a
 small hand-written file checked by a closed form:
 
+* a fixed DIAM beyond the edge of a sphere (OpticStudio's floating aperture, which clips no ray
+  the sphere keeps) is read at the edge, with one note; before, it was refused;
+* an image-space FNUM on an unflagged entrance pupil at infinity stays refused, saying why
+  (afocal, or the EFL it would divide);
+* an FTYP 3 height that only a field beyond 90 deg reaches stays refused, saying so;
+
 * an image plane written just before a last flat surface in one medium whose fixed DIAM never
   clips (a focal-plane dummy after mirrors): OpticStudio's rays reach that surface and go back
   along their lines to the image plane (virtual propagation), so the surface is dropped and its
@@ -18,6 +24,7 @@ import torch
 from test_zmx import line_of, write
 
 from deeplens.optics.io import ZemaxFileError, read_zmx
+from deeplens.optics.paraxial import paraxial
 from deeplens.optics.sampling import field_rays
 
 _HEAD = """VERS 80915 20 20100
@@ -186,3 +193,38 @@ def test_a_real_image_height_reached_only_beyond_90_deg_is_refused_saying_so(tmp
         assert msg.endswith(f"; at the chief ray's rate there ({slope:.3g} mm/deg) the height "
                             f"lies near {est:.0f} deg, beyond the 90 deg deeplens traces (a "
                             f"fisheye's field)"), msg
+
+
+# ---------------------------------------- a fixed DIAM beyond the edge of a sphere (R < DIAM)
+def _hemisphere_lens(diam):
+    """A stop, then a plano-convex lens whose front sphere (R 5 mm, n 1.5, model glass with no
+    dispersion) carries a fixed DIAM ``diam``; 6 mm thick, flat back face."""
+    return _HEAD.format(aperture="ENPD 4") + "".join([
+        _surf(0, "TYPE STANDARD", "CURV 0", "DISZ INFINITY"),
+        _surf(1, "STOP", "TYPE STANDARD", "CURV 0", "DISZ 1"),
+        _surf(2, "TYPE STANDARD", "CURV 0.2", "DISZ 6", "GLAS ___BLANK 1 0 1.5 1e9 0 0 0 0 0 0",
+              f"DIAM {diam} 1 0 0 1 \"\""),
+        _surf(3, "TYPE STANDARD", "CURV 0", "DISZ 10", "DIAM 5.3 1 0 0 1 \"\""),
+        _surf(4, "TYPE STANDARD", "CURV 0", "DISZ 0")])
+
+
+def test_a_fixed_diam_beyond_a_spheres_edge_is_read_at_the_edge(tmp_path):
+    """Set 13's microscope objective (``ob_US03711186-2``: ``DIAM 1.59`` fixed on ``R`` 1.56 mm)
+    was refused as a semi-diameter beyond the conic's domain.  A fixed DIAM on a surface with
+    power is OpticStudio's floating aperture, and no ray meets a sphere beyond ``r = |R|``, so
+    the aperture clips nothing the sphere keeps: read at the edge (5 mm here, to the rim's
+    rounding band), one note at the DIAM line; the EFL is the plano-convex closed form
+    ``R / (n - 1)`` = 10 mm.  A DIAM inside the edge is kept as written, with no note."""
+    text = _hemisphere_lens(5.2)
+    lens, notes = _loaded(write(tmp_path, text))
+    front = lens.surfaces[1]
+    assert float(front.semi_diameter) == pytest.approx(5.0, rel=4 * 2.0 ** -52)
+    assert float(paraxial(lens).efl) == pytest.approx(5.0 / 0.5, rel=1e-12)
+    line = text.splitlines().index('  DIAM 5.2 1 0 0 1 ""') + 1
+    mine = [n for n in notes if "lies beyond the edge of its conic" in n]
+    assert len(mine) == 1 and f":{line}: SURF 2: the fixed DIAM 5.2 (read as 5) " in mine[0], \
+        notes
+
+    lens, notes = _loaded(write(tmp_path, _hemisphere_lens(4.5)))
+    assert float(lens.surfaces[1].semi_diameter) == 4.5
+    assert not any("edge of its conic" in n for n in notes), notes
