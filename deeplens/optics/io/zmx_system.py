@@ -221,7 +221,7 @@ def real_image_height_angle(lens, h: float, line: int, p, *, y0: float = 0.0,
 def _beyond_90(g, lo: float, glo: float, h: float) -> str:
     """The refusal's tail where the chief ray's landing, carried on at its slope at ``lo`` (deg,
     the last angle found short of the height; ``glo = g(lo) < 0``, ``g`` the solver's residual),
-    would reach the height only at 90 deg or beyond: a fisheye's field, which OpticStudio's
+    would reach the height only between 90 and 180 deg: a fisheye's field, which OpticStudio's
     field angles (to ±180 deg, User Guide *Field Angles and Heights*) allow and deeplens does
     not trace; ``""`` otherwise (an estimate, said so, never a reason to load)."""
     if not lo > 0:
@@ -232,7 +232,7 @@ def _beyond_90(g, lo: float, glo: float, h: float) -> str:
     if not slope > 0:
         return ""
     est = lo - glo / slope
-    if est < 90.0:
+    if not 90.0 <= est <= 180.0:   # (beyond 180 deg: no field of OpticStudio's reaches it)
         return ""
     return (f"; at the chief ray's rate there ({slope:.3g} mm/deg) the height lies near "
             f"{est:.0f} deg, beyond the 90 deg deeplens traces (a fisheye's field)")

@@ -173,13 +173,14 @@ def _clipped_ideal_lens(h):
         "SURF 3", "  TYPE STANDARD", "  CURV 0", "  DISZ 0"]) + "\n"
 
 
-@pytest.mark.parametrize("h", [25.0, 30.0])
+@pytest.mark.parametrize("h", [25.0, 30.0, 60.0])
 def test_a_real_image_height_reached_only_beyond_90_deg_is_refused_saying_so(tmp_path, h):
     """Set 13's Nikon 6 mm fisheye asks for a real image height (11.61 mm) its chief ray reaches
     only near 110 deg; deeplens traces fields below 90 deg.  Still refused, and the message now
     says where the chief ray's slope at the last angle found would put the height: by the closed
     form, ``45 + (h - 10) / (20 π / 180)`` deg: 88.0 deg for 25 mm (below 90: no such tail),
-    102.3 deg for 30 mm ("near 102 deg")."""
+    102.3 deg for 30 mm ("near 102 deg"), 188 deg for 60 mm (beyond OpticStudio's 180 deg:
+    no such tail)."""
     with pytest.raises(ZemaxFileError) as e:
         _loaded(write(tmp_path, _clipped_ideal_lens(h)))
     msg = str(e.value)
@@ -187,7 +188,7 @@ def test_a_real_image_height_reached_only_beyond_90_deg_is_refused_saying_so(tmp
     assert "falls outside the clear aperture of SURF 2 (line " in msg, msg
     slope = 20.0 * math.pi / 180.0            # mm/deg at 45 deg
     est = 45.0 + (h - 10.0) / slope
-    if est < 90.0:
+    if not 90.0 <= est <= 180.0:
         assert "deeplens traces" not in msg, msg
     else:
         assert msg.endswith(f"; at the chief ray's rate there ({slope:.3g} mm/deg) the height "
