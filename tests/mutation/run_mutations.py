@@ -1611,6 +1611,27 @@ MUTATIONS = [
              "deeplens/optics/io/surface_handlers.py",
              'f"SURF {k}: {px:.6g} / {py:.6g} /mm")', 'None)',
              ("tests/optics/io/test_zmx_warning_groups.py",)),
+    # branch setups13: set 13's set-up rules
+    Mutation("drawn_dummy_gap_merged_backwards", "the gap of a drawn-only focal-plane dummy "
+             "dropped after the image plane merged with the wrong sign (the sensor 2 delta past "
+             "the focus)", "deeplens/optics/io/zmx_read.py",
+             "    seq.gap = last[3] + seq.gap\n", "    seq.gap = last[3] - seq.gap\n",
+             ("tests/optics/io/test_zmx_set13_rules.py",)),
+    Mutation("fno_pupil_at_infinity_afocal_swapped", "an image-space F-number on an entrance "
+             "pupil at infinity refused as afocal where the EFL is finite, and the reverse",
+             "deeplens/optics/io/zmx_read.py",
+             "is inf/inf and sets no cone\" if math.isinf(efl) else",
+             "is inf/inf and sets no cone\" if not math.isinf(efl) else",
+             ("tests/optics/io/test_zmx_set13_rules.py",)),
+    Mutation("beyond_90_estimate_wrong_sign", "the FTYP 3 refusal's estimate of the angle that "
+             "would reach the height stepping the wrong way from the last angle found",
+             "deeplens/optics/io/zmx_system.py", "    est = lo - glo / slope\n",
+             "    est = lo + glo / slope\n", ("tests/optics/io/test_zmx_set13_rules.py",)),
+    Mutation("fixed_diam_beyond_edge_kept", "a fixed DIAM beyond the edge of its sphere kept as "
+             "written (the lens refused again) instead of read at the edge",
+             "deeplens/optics/io/zmx_surfaces.py",
+             "        surf.semi_diameter.fill_(edge)\n", "        surf.semi_diameter.fill_(sd)\n",
+             ("tests/optics/io/test_zmx_set13_rules.py",)),
 ]
 
 def run_pytest(copy: Path, tests, timeout: float) -> tuple[int, float, str]:

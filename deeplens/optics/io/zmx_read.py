@@ -13,6 +13,7 @@ it maps onto deeplens is in :mod:`.zmx`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from contextlib import contextmanager
@@ -142,6 +143,7 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
     gcat, _ = sysd["gcat"]
     ftyp, ftyp_line, n_fields, waves_nm, primary = _wavelengths(sysd, p)
     seq = _sequence(surfs, s_mm, gcat, cats, glass_fallback, p, qbfs_conic, glass_codes)
+    _drop_drawn_plane_after_image(seq, primary, p)
     obj, img = surfs[0], surfs[-1]
     kept, stop_idx, autos = seq.kept, seq.stop_idx, seq.autos
     surfaces = [k_[0] for k_ in kept]
@@ -211,12 +213,19 @@ def read_zmx(path, *, glass_catalogs=(), glass_fallback=None, config=None,
             except PupilAtInfinityError:
                 if telecentric:
                     raise
-                telecentric = _pupil_at_infinity(ftyp, ftyp_line, convert, ap_type, ap_line, p)
+                efl = None
+                if ap_type == "fno" and convert is None:   # the message says what F/# fails
+                    efl = _telecentric_efl(surfaces, seq, distances, d_sensor, stop_idx,
+                                           sensor_sd, spec, primary)
+                telecentric = _pupil_at_infinity(ftyp, ftyp_line, convert, ap_type, ap_line, p,
+                                                 efl)
             except SurfacesCrossError as e:
                 if not _limit_at_crossing(e, surfaces, lambda i: _limitable(kept, stop_idx, i),
                                           limited, original):
                     raise
     except (ValueError, TypeError) as e:
+        if isinstance(e, ZemaxFileError):   # already located (a refusal while building)
+            raise
         if getattr(e, "key", None) == "aperture":   # the ENPD/FNUM/FLOA line's value
             p.fail(ap_line, str(e))
         if (getattr(e, "key", None) == "sensor" and img.curv != 0
@@ -433,8 +442,25 @@ def _telecentric(ftyp, ftyp_line: int, obj_dist: float, convert, ap_line: int,
     return True
 
 
+def _telecentric_efl(surfaces, seq: _Sequence, distances, d_sensor: float, stop_idx: int,
+                     sensor_sd, spec, primary: float) -> float | None:
+    """The paraxial EFL (mm; ``inf`` afocal) of the lens built as object-space telecentric, for
+    the refusal of an image-space F-number on an entrance pupil at infinity; ``None`` when that
+    lens cannot be built."""
+    from ..paraxial import paraxial
+
+    try:
+        trial = Lens(surfaces, seq.media, distances, d_sensor, stop_idx, sensor_sd,
+                     dataclasses.replace(spec, aperture_type="epd", aperture_value=1.0),
+                     mirrors=seq.mirrors, object_telecentric=True)
+        with torch.no_grad():
+            return float(paraxial(trial, primary).efl)
+    except (ValueError, TypeError, RuntimeError):
+        return None
+
+
 def _pupil_at_infinity(ftyp, ftyp_line: int, convert, ap_type: str, ap_line: int,
-                       p: Locator) -> bool:
+                       p: Locator, efl: float | None = None) -> bool:
     """The file does not flag telecentric object space, but its ray parallel to the axis meets
     the stop at height 0 (to rounding: :func:`~deeplens.optics.paraxial.pupil_at_infinity`)
     and the object is finite: the entrance pupil is at infinity, object space is telecentric
@@ -442,6 +468,16 @@ def _pupil_at_infinity(ftyp, ftyp_line: int, convert, ap_type: str, ap_line: int
     pupil needed) it is read as telecentric (``True``, one note at the aperture line); an
     ``ENPD`` or ``FNUM`` (a diameter or F-number of an entrance pupil at infinity) or ``FLOA``
     is refused there, angle fields at the ``FTYP`` line."""
+    if ap_type == "fno" and convert is None and efl is not None:
+        # OpticStudio's image-space F/# is the paraxial infinite-conjugate EFL over the paraxial
+        # entrance-pupil diameter (User Guide, *Image Space F/#*)
+        why = ("the lens is afocal (EFL infinite), so the image-space F/# (EFL over the "
+               "entrance-pupil diameter) is inf/inf and sets no cone" if math.isinf(efl) else
+               f"the image-space F/# (EFL {efl:.6g} mm over the entrance-pupil diameter) sets a "
+               f"pupil of diameter EFL/F# at infinity, which subtends no cone from the object")
+        p.fail(ap_line, f"FNUM: the entrance pupil is at infinity (the object is finite and the "
+                        f"ray parallel to the axis meets the stop at height 0) and {why}; give "
+                        f"the aperture as an object-space NA (OBNA)")
     if convert is None or convert[0] not in ("obna", "cone"):
         key = {"epd": "ENPD", "stop": "FLOA"}.get(ap_type, "FNUM")
         p.fail(ap_line, f"{key}: the entrance pupil is at infinity (the object is finite and "
@@ -836,6 +872,52 @@ def _note_reversed_ideal_lenses(kept: list, signs: list, p: Locator) -> None:
                    f"positive one converges the beam as it travels (a collimated beam focuses "
                    f"f further on, at DISZ -f), as rayoptics reads it; optiland 0.6 makes it "
                    f"diverge, and its EFL and focus differ")
+
+
+def _drop_drawn_plane_after_image(seq: _Sequence, primary: float, p: Locator) -> None:
+    """Drop from ``seq`` a last flat surface in one medium kept only for its drawn fixed DIAM
+    (:func:`_drawn_only_plane`) where the image plane lies before it (the gap to the image runs
+    against the direction of travel there), merging its gap into the image gap, with one note
+    at its line.  Such a surface bends and stops no ray, so OpticStudio's rays reach it and go
+    back along their lines to the image plane (virtual propagation, User Guide *Thicknesses*),
+    landing where rays running straight from the surface before it land (set 13's
+    ``ob_Imaging_Optics_Figure_7_55b``: a focal-plane dummy 0.0008 mm beyond the image plane
+    after three mirrors)."""
+    kept = seq.kept
+    if len(kept) < 2 or not _drawn_only_plane(seq, len(kept) - 1):
+        return
+    sign = float(travel_directions([k_[0] for k_ in kept], seq.mirrors,
+                                   _axis_indices(seq, primary), primary)[-1])
+    if not sign * seq.gap < 0:
+        return
+    last = kept.pop()
+    seq.media.pop()
+    seq.autos[:] = [i for i in seq.autos if i < len(kept)]
+    p.note(last[2].line, f"the image plane lies {abs(seq.gap):g} mm before this flat surface "
+                         f"in one medium, whose fixed DIAM never clips (no refractive power, "
+                         f"no surface aperture): rays go back along their lines to the image "
+                         f"plane (OpticStudio's virtual propagation), so it is dropped and its "
+                         f"gap merged into the image's")
+    seq.gap = last[3] + seq.gap
+
+
+def _drawn_only_plane(seq: _Sequence, i: int) -> bool:
+    """Whether kept surface ``i`` is a flat surface in one medium kept only for a fixed DIAM
+    that never clips (:func:`.zmx_surfaces.build_surface`: no refractive power, no surface
+    aperture, OpticStudio User Guide *Semi-Diameters*): not the stop, not a mirror, no
+    bracketed element ending or starting there, nothing but an automatic semi-diameter."""
+    if i <= 0 or i == seq.stop_idx or i in seq.mirrors or i not in seq.autos:
+        return False
+    surf, mat, s, _ = seq.kept[i]
+    prev = seq.media[i]   # (media[0] is the object's medium: media[i] is the one before i)
+    if type(surf) is not Aperture or getattr(surf, "spider", None) is not None:
+        return False
+    if any(getattr(s, a, None) is not None for a in ("clap", "sqap", "obsc", "elap", "elob",
+                                                        "spid", "obsc_inner")):
+        return False
+    if any(a <= i <= b for a, b, _, _ in seq.groups):
+        return False
+    return type(mat) is type(prev) and mat.name == prev.name and s.curv == 0
 
 
 def _virtual_before_image(seq: _Sequence, signs) -> bool:

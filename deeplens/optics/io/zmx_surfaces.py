@@ -90,6 +90,18 @@ def _diam_cause(what: str) -> Cause:
                      f"opening"))
 
 
+#: a fixed DIAM beyond the edge of its conic, read at the edge (:func:`_fixed_diam_to_domain`)
+_DIAM_BEYOND_EDGE = Cause(
+    one="{item}: the fixed DIAM {detail} " + literal(
+        "lies beyond the edge of its conic (r = |R| / sqrt(1 + k)); OpticStudio's floating "
+        "aperture there (Semi-Diameters) clips no ray the surface keeps, since none meets it "
+        "beyond its edge: read at the edge"),
+    many="{n} surfaces ({items}): a fixed DIAM " + literal(
+        "beyond the edge of its conic (r = |R| / sqrt(1 + k)); OpticStudio's floating aperture "
+        "there (Semi-Diameters) clips no ray the surface keeps, since none meets it beyond its "
+        "edge: each is read at the edge"))
+
+
 def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: float,
                   folded: bool, p: Locator, qbfs_conic: str = "forbes"):
     """The surface of ``SURF k`` (block ``s``), between ``prev`` and ``mat``: ``(surface,
@@ -270,7 +282,37 @@ def build_surface(s: ZmxSurface, k: int, mat: Material, prev: Material, s_mm: fl
         auto = False   # its semi-diameter is the rectangle's or ellipse's circumscribed circle
     if not (fixed or auto or s.stop) and s.clap is None and type(surf) is Asphere:
         _automatic_diam_in_domain(s, k, surf, s_mm, p)
+    if fixed and not s.stop and s.clap is None and type(surf) is Asphere:
+        _fixed_diam_to_domain(s, k, surf, s_mm, p)
     return surf, auto
+
+
+def _fixed_diam_to_domain(s: ZmxSurface, k: int, surf: Asphere, s_mm: float,
+                          p: Locator) -> None:
+    """A fixed ``DIAM`` (flag 1) on a surface with power written beyond the edge of its conic (a
+    sphere's ``r = |R|``): OpticStudio applies a floating aperture at that semi-diameter (User
+    Guide, *Semi-Diameters*), which clips no ray the surface keeps, since no ray meets the
+    surface beyond its edge (such a ray misses it either way).  Read at the edge, with one note
+    at the ``DIAM`` line; rays are traced as before (a hemisphere's face, to its rim: the ball
+    lens's rule, :func:`~deeplens.optics.surfaces.base.check_conic_domain`)."""
+    c, kk = float(surf.c), float(surf.k)
+    sd = float(surf.semi_diameter)
+    try:
+        check_conic_domain(sd, c, kk, "conic")
+        return
+    except ValueError:
+        pass
+    edge = (1.0 / ((1.0 + kk) * c * c)) ** 0.5
+    with torch.no_grad():
+        surf.semi_diameter.fill_(edge)
+    try:   # on the rim, to rounding (the ball lens's band)
+        check_conic_domain(edge, c, kk, "conic")
+    except ValueError as e:
+        p.fail(s.diam_line, f"SURF {k}: the fixed DIAM {s.diam:g} lies beyond the edge of its "
+                            f"conic, and its edge {edge / s_mm:.17g} is not on the rim: {e}")
+    p.note_each(s.diam_line, _DIAM_BEYOND_EDGE, f"SURF {k}",
+                f"{s.diam:g} (read as {edge / s_mm:.6g})",
+                f"SURF {k} ({s.diam:g} -> {edge / s_mm:.6g})")
 
 
 def _automatic_diam_in_domain(s: ZmxSurface, k: int, surf: Asphere, s_mm: float,

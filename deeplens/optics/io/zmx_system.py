@@ -187,7 +187,7 @@ def real_image_height_angle(lens, h: float, line: int, p, *, y0: float = 0.0,
                      f"{y0 + math.copysign(h, up):g} mm (the field lies beyond what the lens "
                      f"images: the chief ray of {direction * lo:.6g} deg lands at "
                      f"{y0 + math.copysign(glo + h, up):.6g} mm; from {direction * bad:.6g} deg on "
-                     f"{where})")
+                     f"{where}){_beyond_90(g, lo, glo, h)}")
     side = 0
     for _ in range(200):
         if math.isfinite(ghi):
@@ -216,6 +216,26 @@ def real_image_height_angle(lens, h: float, line: int, p, *, y0: float = 0.0,
     if math.isfinite(ghi) and abs(ghi) < abs(glo):
         return hi
     return lo
+
+
+def _beyond_90(g, lo: float, glo: float, h: float) -> str:
+    """The refusal's tail where the chief ray's landing, carried on at its slope at ``lo`` (deg,
+    the last angle found short of the height; ``glo = g(lo) < 0``, ``g`` the solver's residual),
+    would reach the height only between 90 and 180 deg: a fisheye's field, which OpticStudio's
+    field angles (to ±180 deg, User Guide *Field Angles and Heights*) allow and deeplens does
+    not trace; ``""`` otherwise (an estimate, said so, never a reason to load)."""
+    if not lo > 0:
+        return ""
+    d = 1e-3 * lo
+    g2 = g(lo - d)
+    slope = (glo - g2) / d if math.isfinite(g2) else math.nan   # mm per deg
+    if not slope > 0:
+        return ""
+    est = lo - glo / slope
+    if not 90.0 <= est <= 180.0:   # (beyond 180 deg: no field of OpticStudio's reaches it)
+        return ""
+    return (f"; at the chief ray's rate there ({slope:.3g} mm/deg) the height lies near "
+            f"{est:.0f} deg, beyond the 90 deg deeplens traces (a fisheye's field)")
 
 
 def slope_sign(lens, y0: float) -> float:

@@ -26,9 +26,9 @@ import numpy as np
 import pytest
 import torch
 
-from deeplens.optics.errors import SurfacesCrossError
+from deeplens.optics.errors import SurfacesCrossError, ZemaxWarning
 from deeplens.optics.intersect import TraceOptions
-from deeplens.optics.io.zmx import ZemaxFileError, read_zmx
+from deeplens.optics.io.zmx import read_zmx
 from deeplens.optics.lens import Lens, LensSpec
 from deeplens.optics.materials import Air, ModelGlass
 from deeplens.optics.paraxial import paraxial
@@ -215,14 +215,18 @@ SURF 4
 """
 
 
-def test_zmx_ball_loads_and_a_diam_beyond_the_radius_is_refused_at_its_block(tmp_path):
+def test_zmx_ball_loads_and_a_fixed_diam_beyond_the_radius_is_read_at_the_rim(tmp_path):
+    """DIAM 1 on R 1 mm (the rim) loads; DIAM 1.001 (fixed, a surface with power: OpticStudio's
+    floating aperture, which clips nothing the sphere keeps) is read at the rim with one note at
+    its line (before branch setups13: refused at the block as beyond the conic's domain)."""
     f = tmp_path / "ball.zmx"
     f.write_text(BALL_ZMX.format(diam="1"))
     lens = read_zmx(f)
     assert float(paraxial(lens).efl) == pytest.approx(1.5 * 2 / (4 * 0.5), rel=1e-12)
     f.write_text(BALL_ZMX.format(diam="1.001"))
-    line = BALL_ZMX.splitlines().index("SURF 1") + 1
-    with pytest.raises(ZemaxFileError, match=rf"ball.zmx:{line}: SURF 1 \(Asphere, deeplens "
-                                             rf"surface 0\): semi-diameter 1.001 mm lies beyond "
-                                             rf"the domain of the conic"):
-        read_zmx(f)
+    line = BALL_ZMX.splitlines().index('  DIAM {diam} 1 0 0 1 ""') + 1
+    with pytest.warns(ZemaxWarning, match=rf"ball.zmx:{line}: SURF 1: the fixed DIAM 1.001 "
+                                          rf"\(read as 1\) lies beyond the edge of its conic"):
+        lens = read_zmx(f)
+    assert float(lens.surfaces[0].semi_diameter) == pytest.approx(1.0, rel=4 * 2.0 ** -52)
+    assert float(paraxial(lens).efl) == pytest.approx(1.5 * 2 / (4 * 0.5), rel=1e-12)
