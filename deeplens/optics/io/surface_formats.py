@@ -29,7 +29,8 @@ import contextlib
 from dataclasses import dataclass
 
 __all__ = ["SurfaceFormat", "FormatRegistry", "FORMATS", "QBFS_CONIC", "ZmxContext",
-           "register_format", "registered_format", "zmx_number", "zmx_diam"]
+           "register_format", "registered_format", "refuse_unread", "xdat_term_count",
+           "zmx_number", "zmx_diam"]
 
 #: the readings of a ``QED_TYPE`` Qbfs on a conic base (``CONI`` != 0), which no OpticStudio
 #: page defines: ``"forbes"`` (default) Forbes' conic generalisation (Opt. Express 19, 9923
@@ -52,6 +53,23 @@ def refuse_unread(p, records: dict, where: str, why: str, read=(), kind: str = "
     for i, (v, ln) in sorted(records.items()):
         if i not in read and v != 0:
             p.fail(ln, f"{where} {kind} {i} = {v:g} is not read ({why})")
+
+
+def xdat_term_count(p, s, k, type_name: str, count_what: str, maximum: int, terms: str,
+                     below: bool = True) -> int:
+    """``XDAT 1`` of surface ``k`` (a ``type_name`` surface): the number of terms, an integer
+    ``0..maximum``; no non-zero ``XDAT j`` beyond the ``n + 2`` it declares (nor, with
+    ``below``, at ``j < 1``).  Returns ``n``; a bad value fails at its line."""
+    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
+    if n_v != int(n_v) or not 0 <= n_v <= maximum:
+        p.fail(n_ln, f"SURF {k}: {type_name} XDAT 1 ({count_what}) must be an integer "
+                     f"0..{maximum}, got {n_v!r}")
+    n = int(n_v)
+    for j, (v, ln) in sorted(s.xdat.items()):
+        if (j > n + 2 or (below and j < 1)) and v != 0:
+            p.fail(ln, f"SURF {k}: {type_name} XDAT {j} lies beyond the {n} {terms} XDAT 1 "
+                       f"declares")
+    return n
 
 
 def zmx_diam(sd) -> str:

@@ -77,7 +77,7 @@ from ..surfaces.qtype import MAX_TERMS
 from ..surfaces.xy_polynomial import xy_terms
 from ..surfaces.zernike_sag import BASES
 from .surface_formats import (FORMATS, SurfaceFormat, ZmxContext, refuse_unread, register_format,
-                              zmx_diam as _diam, zmx_number as _f)
+                              xdat_term_count, zmx_diam as _diam, zmx_number as _f)
 from .zmx_coordbrk import coordbrk_lines
 from .zmx_notes import Cause
 
@@ -91,23 +91,6 @@ PROVISIONAL_SD_MM = 1e-3
 
 #: CODE V's aspheric coefficients A, B, ... J on r⁴ ... r²⁰
 CODEV_ASPH = "ABCDEFGHJ"
-
-
-def _xdat_term_count(p, s, k, type_name: str, count_what: str, maximum: int, terms: str,
-                     below: bool = True) -> int:
-    """``XDAT 1`` of surface ``k`` (a ``type_name`` surface): the number of terms, an integer
-    ``0..maximum``; no non-zero ``XDAT j`` beyond the ``n + 2`` it declares (nor, with
-    ``below``, at ``j < 1``).  Returns ``n``; a bad value fails at its line."""
-    n_v, n_ln = s.xdat.get(1, (0.0, s.type_line))
-    if n_v != int(n_v) or not 0 <= n_v <= maximum:
-        p.fail(n_ln, f"SURF {k}: {type_name} XDAT 1 ({count_what}) must be an integer "
-                     f"0..{maximum}, got {n_v!r}")
-    n = int(n_v)
-    for j, (v, ln) in sorted(s.xdat.items()):
-        if (j > n + 2 or (below and j < 1)) and v != 0:
-            p.fail(ln, f"SURF {k}: {type_name} XDAT {j} lies beyond the {n} {terms} XDAT 1 "
-                       f"declares")
-    return n
 
 
 def _xdat_radius_and_terms(p, s, k, type_name: str, n: int, s_mm, scale=1.0):
@@ -140,7 +123,7 @@ def _phase_on_conic(p, s, k, type_name: str, parm0_why: str, count_what: str, cl
     m_v, m_ln = s.parm.get(0, (None, s.type_line))
     if m_v != 1.0:
         p.fail(m_ln, f"SURF {k}: {type_name} PARM 0 = {m_v!r} is refused: {parm0_why}")
-    n = _xdat_term_count(p, s, k, type_name, count_what, cls.max_terms, terms)
+    n = xdat_term_count(p, s, k, type_name, count_what, cls.max_terms, terms)
     return _xdat_radius_and_terms(p, s, k, type_name, n, s_mm)
 
 
@@ -238,7 +221,7 @@ def _binary2(s, k: int, c, sd, s_mm, p):
     if order != int(order):
         p.fail(o_ln, f"SURF {k}: the diffraction order (BINARY_2 PARM 0) must be an integer, got "
                      f"{order!r}")
-    n = _xdat_term_count(p, s, k, "BINARY_2", "the number of phase terms", MAX_PHASE_TERMS,
+    n = xdat_term_count(p, s, k, "BINARY_2", "the number of phase terms", MAX_PHASE_TERMS,
                          "phase terms", below=False)
     phase, rn = _xdat_radius_and_terms(p, s, k, "BINARY_2", n, s_mm)
     top = max([i for i in range(2, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [1])
@@ -337,7 +320,7 @@ def _zernike_sag(s, k: int, c, sd, s_mm, p, cls=ZernikeSag):
     if ext not in (0.0, 1.0):
         p.fail(ext_ln, f"SURF {k}: {tn} PARM 0 (the extrapolate flag) must be 0 or 1, got "
                        f"{ext!r}")
-    n = _xdat_term_count(p, s, k, tn, "the number of Zernike terms", cls.max_terms,
+    n = xdat_term_count(p, s, k, tn, "the number of Zernike terms", cls.max_terms,
                          "Zernike terms")
     zern, rn = _xdat_radius_and_terms(p, s, k, tn, n, s_mm, scale=s_mm)
     top = max([i for i in range(1, 9) if s.parm.get(i, (0.0, 0))[0] != 0] + [0])
@@ -463,7 +446,7 @@ def _xasphere(s, k: int, c, sd, s_mm, p):
     refuse_unread(p, s.parm, f"SURF {k}: XASPHERE", "the Extended Asphere's data are XDAT 1 the "
                   "number of terms, XDAT 2 the normalisation radius, XDAT 3.. the coefficients "
                   "on ρ², ρ⁴, ...")
-    n = _xdat_term_count(p, s, k, "XASPHERE", "the maximum term number", XASPHERE_MAX_TERMS,
+    n = xdat_term_count(p, s, k, "XASPHERE", "the maximum term number", XASPHERE_MAX_TERMS,
                          "terms")
     rn_v, rn_ln = s.xdat.get(2, (0.0, s.type_line))
     alpha = [(s.xdat.get(i + 2, (0.0, 0))[0], s.xdat.get(i + 2, (0.0, rn_ln))[1])

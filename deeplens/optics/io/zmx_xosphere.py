@@ -32,9 +32,8 @@ import dataclasses
 
 from ..surfaces import ExtendedOddAsphere
 from ..surfaces.extended_odd_asphere import MAX_XOSPHERE_TERMS
-from .surface_formats import (FORMATS, SurfaceFormat, refuse_unread, register_format, zmx_diam,
-                              zmx_number as _f)
-from .surface_handlers import _xdat_term_count
+from .surface_formats import (FORMATS, SurfaceFormat, refuse_unread, register_format,
+                              xdat_term_count, zmx_diam, zmx_number as _f)
 
 __all__ = ["ExtendedOddAsphereFormat", "xosphere_terms"]
 
@@ -47,7 +46,7 @@ def xosphere_terms(s, k: int, p) -> tuple[list[tuple[float, int]], float, int]:
     refuse_unread(p, s.parm, f"SURF {k}: XOSPHERE",
                   "the Extended Odd Asphere's data are XDAT 1 the maximum term number, XDAT 2 "
                   "the normalisation radius, XDAT 3.. the coefficients on ρ¹, ρ², ...")
-    n = _xdat_term_count(p, s, k, "XOSPHERE", "the maximum term number", MAX_XOSPHERE_TERMS,
+    n = xdat_term_count(p, s, k, "XOSPHERE", "the maximum term number", MAX_XOSPHERE_TERMS,
                          "terms")
     rn, rn_ln = s.xdat.get(2, (0.0, s.type_line))
     terms = [s.xdat.get(i + 2, (0.0, s.type_line)) for i in range(1, n + 1)]
