@@ -116,10 +116,8 @@ def _phase_on_conic(p, s, k, type_name: str, parm0_why: str, count_what: str, cl
     line, ``XDAT 1`` the number of terms (at most ``cls.max_terms``; ``count_what``, ``terms``
     name them), ``XDAT 2`` the normalisation radius, ``XDAT 3..`` the coefficients (unscaled).
     Returns ``(coefficients, rn)`` (``rn`` in mm)."""
-    for i, (v, ln) in sorted(s.parm.items()):
-        if i != 0 and v != 0:
-            p.fail(ln, f"SURF {k}: {type_name} PARM {i} = {v:g} is refused: no stored OpticStudio "
-                       f"source gives its meaning (read: PARM 0 = 1 and the XDAT terms)")
+    refuse_unread(p, s.parm, f"SURF {k}: {type_name}", "no stored OpticStudio source gives its "
+                  "meaning; read: PARM 0 = 1 and the XDAT terms", (0,))
     m_v, m_ln = s.parm.get(0, (None, s.type_line))
     if m_v != 1.0:
         p.fail(m_ln, f"SURF {k}: {type_name} PARM 0 = {m_v!r} is refused: {parm0_why}")

@@ -87,7 +87,7 @@ def test_an_order_other_than_one_is_not_written(tmp_path):
     (["XDAT 1 5", "XDAT 2 4", "XDAT 7 100"], "TYPE BINARY_1",
      r"BINARY_1 PARM 0 = None is refused"),
     (["PARM 0 1", "PARM 3 0.5", "XDAT 1 5", "XDAT 2 4"], "PARM 3",
-     r"BINARY_1 PARM 3 = 0.5 is refused: no stored OpticStudio source gives its meaning"),
+     r"BINARY_1 PARM 3 = 0.5 is not read \(no stored OpticStudio source gives its meaning"),
     (["PARM 0 1", "XDAT 1 231", "XDAT 2 4"], "XDAT 1",
      r"BINARY_1 XDAT 1 \(the maximum term number\) must be an integer 0..230"),
     (["PARM 0 1", "XDAT 1 5", "XDAT 2 0", "XDAT 7 100"], "XDAT 2",
